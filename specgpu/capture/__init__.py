@@ -1,0 +1,1 @@
+"""Capture: drivers, the ring buffer and the sequence assembler."""

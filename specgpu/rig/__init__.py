@@ -1,0 +1,1 @@
+"""The physical system, modelled: light source, camera, scene and the synchronous twin."""
