@@ -1,1 +1,21 @@
-"""The physical system, modelled: light source, camera, scene and the synchronous twin."""
+"""The physical system, modelled: light source, camera, scene and the synchronous twin.
+
+Everything is NumPy on the host; the defaults reproduce the paper's rig (Tominaga and Horiuchi 2012, Section 2)
+and every parameter can be overridden from a rig TOML (:func:`load_rig`).
+"""
+
+from specgpu.rig.camera import Camera, CameraParameters, sensitivity_curve
+from specgpu.rig.config import FaultRates, RigDescription, load_rig, rig_from_dict
+from specgpu.rig.light import LightParameters, PatternFit, ProgrammableLight, lamp_spd
+from specgpu.rig.scene import (BUILTIN_SCENES, SpectralScene, colorchecker_scene, load_scene, natural_scene,
+                               read_scene, white_plate_scene, write_scene)
+from specgpu.rig.twin import FaultSchedule, SNRReport, TwinRig, band_patterns, measure_snr
+
+__all__ = [
+    "Camera", "CameraParameters", "sensitivity_curve",
+    "FaultRates", "RigDescription", "load_rig", "rig_from_dict",
+    "LightParameters", "PatternFit", "ProgrammableLight", "lamp_spd",
+    "BUILTIN_SCENES", "SpectralScene", "colorchecker_scene", "load_scene", "natural_scene", "read_scene",
+    "white_plate_scene", "write_scene",
+    "FaultSchedule", "SNRReport", "TwinRig", "band_patterns", "measure_snr",
+]

@@ -1,0 +1,232 @@
+"""Frames -> complete illumination sequences, keyed by frame id and pattern index.
+
+A sequence is K frames lit by patterns 0, 1, ..., K-1 of one pass (a *cycle*) of the light's loaded sequence,
+with **consecutive frame ids**: nothing lost, nothing repeated, nothing shifted in between. Only such sequences
+are emitted; every other frame is set aside and counted, so a missing frame is reported, never slid into the next
+illuminant's slot (STYLE item 11).
+
+Bookkeeping from (frame id, pattern index) alone, per received frame after the previous one:
+
+- ids that do not advance are duplicates (same id again) or out of order (older id): ignored, counted;
+- an id gap of ``g`` means ``g`` frames were lost (by the camera link, the driver or a full ring buffer);
+- the light advanced once per exposure unless a trigger was missed, so
+  ``missed = (p_prev + (id - id_prev) - p) mod K`` triggers were missed in between (exact while fewer than K are
+  missed between two received frames; more cannot be told apart from the pattern index at all);
+- the light's absolute pattern count ``n`` follows, and ``n // K`` is the cycle each frame belongs to.
+
+A cycle with at least one received frame that does not yield a complete sequence is *discarded* and counted.
+With a dark sync pattern in the sequence (``sync_pattern``), its frame is also checked to be dark: a belt-and-braces
+guard for hardware whose pattern index cannot be trusted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from specgpu.capture.driver import FrameInfo, StreamEnd
+from specgpu.rig._checks import check_number
+
+__all__ = ["Sequence", "AssemblyStats", "SequenceAssembler", "assemble_stream"]
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """One complete, aligned illumination sequence.
+
+    Attributes
+    ----------
+    frames : numpy.ndarray
+        (K, H, W) frames; ``frames[j]`` was lit by pattern ``j``.
+    frame_ids : numpy.ndarray
+        (K,) int64 consecutive frame ids.
+    timestamps_s : numpy.ndarray
+        (K,) exposure start times, s.
+    exposure_s : float
+        Exposure of the frames, s.
+    cycle : int
+        Which pass through the loaded sequence this is (0 for the first since the start).
+    """
+
+    frames: np.ndarray
+    frame_ids: np.ndarray
+    timestamps_s: np.ndarray
+    exposure_s: float
+    cycle: int
+
+
+@dataclass
+class AssemblyStats:
+    """Exact counters of the assembler.
+
+    Attributes
+    ----------
+    frames_received : int
+        Frames pushed (duplicates included).
+    duplicates : int
+        Frames whose id equals the previous frame's.
+    out_of_order : int
+        Frames with an id older than the previous frame's.
+    dropped : int
+        Frames missing from the id sequence (gaps, and trailing ones known at :meth:`SequenceAssembler.finish`).
+    missed_triggers : int
+        Triggers the light missed, inferred from pattern indices.
+    sync_failures : int
+        Sync-pattern frames that were not dark.
+    sequences_complete : int
+        Sequences emitted.
+    sequences_discarded : int
+        Cycles with received frames that yielded no complete sequence.
+    frames_unused : int
+        Received, non-duplicate, in-order frames that are in no emitted sequence.
+    """
+
+    frames_received: int = 0
+    duplicates: int = 0
+    out_of_order: int = 0
+    dropped: int = 0
+    missed_triggers: int = 0
+    sync_failures: int = 0
+    sequences_complete: int = 0
+    sequences_discarded: int = 0
+    frames_unused: int = 0
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+class SequenceAssembler:
+    """Assemble pushed frames into complete sequences of ``n_patterns`` frames.
+
+    Parameters
+    ----------
+    n_patterns
+        K, the length of the light's loaded sequence, >= 1.
+    first_frame_id
+        Id of the first exposure of the stream (frames before it are not counted as lost).
+    sync_pattern
+        Optional index of a dark pattern in the sequence whose frame must be dark.
+    sync_max_dn
+        Mean level (DN) at or below which a sync frame counts as dark; required with ``sync_pattern``.
+    """
+
+    def __init__(self, n_patterns: int, *, first_frame_id: int = 0, sync_pattern: int | None = None,
+                 sync_max_dn: float | None = None):
+        self.k = check_number("n_patterns", n_patterns, low=1, high=1 << 20, integer=True)
+        self.first_frame_id = check_number("first_frame_id", first_frame_id, low=0, integer=True)
+        if sync_pattern is not None:
+            check_number("sync_pattern", sync_pattern, low=0, high=self.k - 1, integer=True)
+            if sync_max_dn is None:
+                raise ValueError("sync_max_dn is required with sync_pattern (the darkest level a sync frame may have)")
+            check_number("sync_max_dn", sync_max_dn)
+        self.sync_pattern = sync_pattern
+        self.sync_max_dn = sync_max_dn
+        self.stats = AssemblyStats()
+        self._last_id = self.first_frame_id - 1
+        self._last_n = -1  # absolute pattern count: frame 0 is lit by pattern count 0
+        self._cycle = None  # cycle of the latest frame
+        self._cycle_emitted = False
+        self._buf = None
+        self._ids = np.zeros(self.k, np.int64)
+        self._ts = np.zeros(self.k)
+        self._next = -1  # next position expected in the partial sequence, -1 when none is open
+        self._finished = False
+
+    def push(self, frame: np.ndarray, info: FrameInfo) -> Sequence | None:
+        """Add one frame (copied); return the sequence it completes, if any."""
+        if self._finished:
+            raise RuntimeError("push() after finish()")
+        k = self.k
+        fid, p = int(info.frame_id), int(info.pattern_index)
+        if not 0 <= p < k:
+            raise ValueError(f"frame {fid}: pattern_index {p} outside [0, {k - 1}] for a {k}-pattern sequence")
+        st = self.stats
+        st.frames_received += 1
+        if fid <= self._last_id:
+            if fid == self._last_id:
+                st.duplicates += 1
+            else:
+                st.out_of_order += 1
+            return None
+        if fid < self.first_frame_id:
+            st.out_of_order += 1
+            return None
+        steps = fid - self._last_id
+        st.dropped += steps - 1
+        missed = (self._last_n + steps - p) % k
+        st.missed_triggers += missed
+        n = self._last_n + steps - missed
+        self._last_id, self._last_n = fid, n
+        cycle, pos = divmod(n, k)
+        if cycle != self._cycle:
+            self._close_cycle()
+            self._cycle, self._cycle_emitted = cycle, False
+        st.frames_unused += 1
+        if self._cycle_emitted:
+            return None  # e.g. the last pattern shown again after a missed trigger: the sequence is already out
+        if pos == 0:
+            self._next = 0
+            self._start_id = fid
+        elif not (self._next == pos and fid == self._start_id + pos):
+            self._next = -1
+            return None
+        if self.sync_pattern is not None and pos == self.sync_pattern:
+            if float(np.mean(frame)) > self.sync_max_dn:
+                st.sync_failures += 1
+                self._next = -1
+                return None
+        if self._buf is None:
+            self._buf = np.empty((k,) + frame.shape, frame.dtype)
+        elif self._buf.shape[1:] != frame.shape:
+            raise ValueError(f"frame {fid}: shape {frame.shape} differs from the stream's {self._buf.shape[1:]}")
+        self._buf[pos] = frame
+        self._ids[pos] = fid
+        self._ts[pos] = info.timestamp_s
+        self._next = pos + 1
+        if self._next < k:
+            return None
+        seq = Sequence(self._buf, self._ids.copy(), self._ts.copy(), float(info.exposure_s), cycle)
+        self._buf = None  # the emitted array now belongs to the consumer
+        self._next = -1
+        self._cycle_emitted = True
+        st.sequences_complete += 1
+        st.frames_unused -= k
+        return seq
+
+    def _close_cycle(self) -> None:
+        if self._cycle is not None and not self._cycle_emitted:
+            self.stats.sequences_discarded += 1
+        self._next = -1
+
+    def finish(self, end: StreamEnd | None = None) -> AssemblyStats:
+        """End of stream: account frames lost after the last received one (if the driver's ``end`` is given) and
+        discard the unfinished cycle. Returns the final counters."""
+        if not self._finished:
+            if end is not None and end.last_frame_id > self._last_id:
+                steps = end.last_frame_id - self._last_id
+                self.stats.dropped += steps
+                if 0 <= end.last_pattern_index < self.k:
+                    self.stats.missed_triggers += (self._last_n + steps - end.last_pattern_index) % self.k
+            self._close_cycle()
+            self._cycle = None
+            self._finished = True
+        return self.stats
+
+
+def assemble_stream(ring, assembler: SequenceAssembler, *, timeout: float | None = None):
+    """Consume a ring buffer until it is closed and drained, yielding complete sequences.
+
+    Each slot is copied into the assembler and released at once, so the producer is never held up by a slow
+    consumer of sequences.
+    """
+    while True:
+        slot = ring.get(timeout)
+        if slot is None:
+            return
+        try:
+            seq = assembler.push(slot.array, slot.info)
+        finally:
+            ring.release(slot)
+        if seq is not None:
+            yield seq

@@ -1,0 +1,142 @@
+"""Small validators shared by the rig and capture modules.
+
+Every message is one line that names the argument (or file) and the problem, so a rig description or a
+scene file with a bad value fails with a clear reason instead of a wrong simulation.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+
+def check_number(name: str, value, *, low=None, high=None, low_open=False, integer=False) -> float:
+    """Return ``value`` as a float (or int) after checking it is finite and inside ``[low, high]``.
+
+    Parameters
+    ----------
+    name
+        Name of the quantity, used in the error message.
+    value
+        The value to check.
+    low, high
+        Optional inclusive bounds; ``low_open=True`` makes the lower bound exclusive.
+    integer
+        Require an integral value and return an ``int``.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    if not math.isfinite(float(value)):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    if integer:
+        if float(value) != int(value):
+            raise ValueError(f"{name} must be an integer, got {value!r}")
+        value = int(value)
+    else:
+        value = float(value)
+    if low is not None and (value <= low if low_open else value < low):
+        raise ValueError(f"{name} must be {'>' if low_open else '>='} {low}, got {value!r}")
+    if high is not None and value > high:
+        raise ValueError(f"{name} must be <= {high}, got {value!r}")
+    return value
+
+
+def check_array(name: str, array, *, ndim=None, shape=None, finite=True, low=None, high=None,
+                dtype=np.float64) -> np.ndarray:
+    """Return ``array`` as a NumPy array after checking dimensions, shape, finiteness and range.
+
+    ``shape`` may hold ``None`` for axes of any length. Messages name the argument and the shape found.
+    """
+    try:
+        arr = np.asarray(array, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a numeric array ({exc})") from None
+    if ndim is not None and arr.ndim != ndim:
+        raise ValueError(f"{name} must have {ndim} dimension(s), got shape {arr.shape}")
+    if shape is not None:
+        if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+            want = "(" + ", ".join("any" if s is None else str(s) for s in shape) + ")"
+            raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+    if finite and arr.size and not np.all(np.isfinite(arr)):
+        bad = int(np.count_nonzero(~np.isfinite(arr)))
+        raise ValueError(f"{name} contains {bad} NaN or infinite value(s)")
+    if low is not None and arr.size and float(arr.min()) < low:
+        raise ValueError(f"{name} must be >= {low}, got minimum {float(arr.min())!r}")
+    if high is not None and arr.size and float(arr.max()) > high:
+        raise ValueError(f"{name} must be <= {high}, got maximum {float(arr.max())!r}")
+    return arr
+
+
+def check_wavelengths(name: str, wavelengths) -> np.ndarray:
+    """Return a 1-D, finite, strictly increasing wavelength array in nm (at least two samples)."""
+    wl = check_array(name, wavelengths, ndim=1)
+    if wl.size < 2:
+        raise ValueError(f"{name} must hold at least 2 wavelengths, got {wl.size}")
+    if np.any(np.diff(wl) <= 0):
+        raise ValueError(f"{name} must be strictly increasing (nm), got {wl[:6].tolist()}...")
+    if wl[0] < 100 or wl[-1] > 3000:
+        raise ValueError(f"{name} must lie in 100-3000 nm, got {wl[0]:g}-{wl[-1]:g}")
+    return wl
+
+
+def read_spectrum_csv(path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a two-column CSV spectral curve: wavelength (nm), value.
+
+    Lines starting with ``#`` and a single non-numeric header line are skipped; separators may be commas,
+    semicolons, tabs or spaces. Wavelengths are sorted ascending (the file order does not matter).
+
+    Parameters
+    ----------
+    path
+        File path.
+
+    Returns
+    -------
+    wavelengths, values : numpy.ndarray
+        float64 arrays of equal length (>= 2), wavelengths strictly increasing in nm.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and line for a missing file, a line without two numbers, NaN, duplicated or
+        negative wavelengths, or fewer than two samples.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read spectral CSV ({exc.__class__.__name__}: {exc})") from None
+    rows = []
+    header_seen = False
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        fields = [f for f in stripped.replace(";", ",").replace("\t", ",").replace(" ", ",").split(",") if f]
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            if not rows and not header_seen:
+                header_seen = True
+                continue
+            raise ValueError(f"{path}:{number}: expected two numbers, got {stripped!r}") from None
+        if len(values) != 2:
+            raise ValueError(f"{path}:{number}: expected two columns (wavelength nm, value), got {len(values)}")
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"{path}:{number}: NaN or infinite value in {stripped!r}")
+        rows.append(values)
+    if len(rows) < 2:
+        raise ValueError(f"{path}: a spectral CSV needs at least 2 rows (wavelength nm, value), got {len(rows)}")
+    data = np.array(rows, dtype=np.float64)
+    order = np.argsort(data[:, 0], kind="stable")
+    data = data[order]
+    if np.any(np.diff(data[:, 0]) == 0):
+        dup = data[1:, 0][np.diff(data[:, 0]) == 0][0]
+        raise ValueError(f"{path}: wavelength {dup:g} nm appears more than once")
+    try:
+        wl = check_wavelengths(f"{path}: wavelengths", data[:, 0])
+    except ValueError as exc:
+        raise ValueError(str(exc)) from None
+    return wl, data[:, 1].copy()

@@ -1,0 +1,214 @@
+"""The rig description: every physical parameter of the twin, with the paper's values as defaults, from TOML.
+
+A rig TOML has up to five tables; every key is optional and defaults to the paper's rig::
+
+    [light]                      # LightParameters: lamp, grating, DMD, spot, timing, fluctuation ...
+    lamp = "xenon"               # or "kinoton-75p", or a two-column CSV (wavelength nm, value)
+    illuminance_lux = 15000
+    [camera]                     # CameraParameters: sensitivity (CSV), ROI, bit depth, noise, optics, timing
+    sensitivity = "cmos"
+    bit_depth = 10
+    [scene]
+    source = "colorchecker"      # "colorchecker", "white", "natural" or a .exr / .npz cube
+    [twin]
+    seed = 0
+    pacing = "free"              # "free": as fast as it renders; "paced": at the camera's frame rate
+    [faults]                     # FaultRates: for drills; all off by default
+    drop_rate = 0.0
+
+Relative file paths (lamp, sensitivity, scene) are resolved against the TOML's folder. Unknown tables or keys,
+wrong types and out-of-range values are errors that name the file and the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+from specgpu.rig._checks import check_number
+from specgpu.rig.camera import CameraParameters
+from specgpu.rig.light import LightParameters
+
+__all__ = ["FaultRates", "RigDescription", "load_rig", "rig_from_dict", "PACING"]
+
+PACING = ("free", "paced")
+
+
+@dataclass(frozen=True)
+class FaultRates:
+    """Per-frame fault probabilities for drills (``[faults]`` table); all off by default.
+
+    Attributes
+    ----------
+    drop_rate : float
+        Probability that a frame is exposed but never delivered, in [0, 1).
+    duplicate_rate : float
+        Probability that a delivered frame is delivered twice, in [0, 1).
+    missed_trigger_rate : float
+        Probability that the light misses a frame's trigger (frame lit by the previous pattern), in [0, 1).
+    jitter_s : float
+        Standard deviation of the exposure start times, s, >= 0 (truncated at 2 sigma).
+    """
+
+    drop_rate: float = 0.0
+    duplicate_rate: float = 0.0
+    missed_trigger_rate: float = 0.0
+    jitter_s: float = 0.0
+
+    def __post_init__(self):
+        for name in ("drop_rate", "duplicate_rate", "missed_trigger_rate"):
+            check_number(f"faults.{name}", getattr(self, name), low=0, high=0.999)
+        check_number("faults.jitter_s", self.jitter_s, low=0, high=1)
+
+    @property
+    def any(self) -> bool:
+        return any(getattr(self, f.name) > 0 for f in fields(self))
+
+
+@dataclass(frozen=True)
+class RigDescription:
+    """A whole rig: light, camera, scene, twin settings and fault rates.
+
+    Attributes
+    ----------
+    light : LightParameters
+    camera : CameraParameters
+    scene : str
+        Built-in scene name (``"colorchecker"``, ``"white"``, ``"natural"``) or a cube file path.
+    seed : int
+        Seed of the twin (camera fixed pattern, noise, light fluctuation), >= 0.
+    pacing : str
+        ``"free"`` (frames as fast as the twin renders) or ``"paced"`` (at the camera's frame rate).
+    faults : FaultRates
+    source : str
+        Where the description came from (a file path or ``"<defaults>"``), for messages.
+    """
+
+    light: LightParameters = field(default_factory=LightParameters)
+    camera: CameraParameters = field(default_factory=CameraParameters)
+    scene: str = "colorchecker"
+    seed: int = 0
+    pacing: str = "free"
+    faults: FaultRates = field(default_factory=FaultRates)
+    source: str = "<defaults>"
+
+    def __post_init__(self):
+        check_number("twin.seed", self.seed, low=0, high=2**63 - 1, integer=True)
+        if self.pacing not in PACING:
+            raise ValueError(f"twin.pacing must be one of {', '.join(PACING)}, got {self.pacing!r}")
+
+    def to_dict(self) -> dict:
+        """The description as nested plain data (the TOML tables), e.g. for a capture's metadata."""
+        return {
+            "light": dataclasses.asdict(self.light),
+            "camera": dataclasses.asdict(self.camera),
+            "scene": {"source": self.scene},
+            "twin": {"seed": self.seed, "pacing": self.pacing},
+            "faults": dataclasses.asdict(self.faults),
+        }
+
+
+_TABLES = ("light", "camera", "scene", "twin", "faults")
+_PATH_KEYS = {("light", "lamp"), ("camera", "sensitivity")}
+
+
+def _build(cls, table: dict, section: str, source: str, base: Path | None, converters: dict | None = None):
+    valid = {f.name: f for f in fields(cls)}
+    kwargs = {}
+    for key, value in table.items():
+        if key not in valid:
+            raise ValueError(f"{source}: unknown key {section}.{key}; valid keys: {', '.join(valid)}")
+        default = valid[key].default
+        if isinstance(default, bool) or isinstance(value, bool):
+            raise ValueError(f"{source}: {section}.{key} must be a {type(default).__name__}, got {value!r}")
+        if isinstance(default, str):
+            if not isinstance(value, str):
+                raise ValueError(f"{source}: {section}.{key} must be a string, got {value!r}")
+            if (section, key) in _PATH_KEYS and base is not None and value not in ("xenon", "kinoton-75p", "cmos"):
+                p = Path(value)
+                value = str(p if p.is_absolute() else base / p)
+                if not Path(value).is_file():
+                    raise ValueError(f"{source}: {section}.{key} file not found: {value}")
+        elif isinstance(default, tuple):
+            if not isinstance(value, list) or len(value) != len(default):
+                raise ValueError(f"{source}: {section}.{key} must be a list of {len(default)} numbers, got {value!r}")
+            value = tuple(value)
+        elif isinstance(default, int) and not isinstance(default, bool):
+            if isinstance(value, float) and value.is_integer():
+                value = int(value)
+            if not isinstance(value, int):
+                raise ValueError(f"{source}: {section}.{key} must be an integer, got {value!r}")
+        elif isinstance(default, float):
+            if not isinstance(value, (int, float)):
+                raise ValueError(f"{source}: {section}.{key} must be a number, got {value!r}")
+            value = float(value)
+        kwargs[key] = value
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+
+
+def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDescription:
+    """Build a :class:`RigDescription` from the TOML tables as a dict (unknown tables or keys are errors)."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{source}: a rig description must be a table, got {type(data).__name__}")
+    base = Path(base_dir) if base_dir is not None else None
+    for table, value in data.items():
+        if table not in _TABLES:
+            raise ValueError(f"{source}: unknown table [{table}]; valid tables: {', '.join(_TABLES)}")
+        if not isinstance(value, dict):
+            raise ValueError(f"{source}: [{table}] must be a table, got {value!r}")
+    light = _build(LightParameters, data.get("light", {}), "light", source, base)
+    camera = _build(CameraParameters, data.get("camera", {}), "camera", source, base)
+    scene_table = dict(data.get("scene", {}))
+    extra = set(scene_table) - {"source"}
+    if extra:
+        raise ValueError(f"{source}: unknown key scene.{sorted(extra)[0]}; valid keys: source")
+    scene = scene_table.get("source", "colorchecker")
+    if not isinstance(scene, str):
+        raise ValueError(f"{source}: scene.source must be a string, got {scene!r}")
+    if scene not in ("colorchecker", "white", "natural"):
+        p = Path(scene)
+        scene = str(p if p.is_absolute() or base is None else base / p)
+        if not Path(scene).is_file():
+            raise ValueError(f"{source}: scene.source file not found: {scene}")
+    twin = dict(data.get("twin", {}))
+    extra = set(twin) - {"seed", "pacing"}
+    if extra:
+        raise ValueError(f"{source}: unknown key twin.{sorted(extra)[0]}; valid keys: seed, pacing")
+    seed = twin.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise ValueError(f"{source}: twin.seed must be an integer, got {seed!r}")
+    pacing = twin.get("pacing", "free")
+    faults = _build(FaultRates, data.get("faults", {}), "faults", source, base)
+    try:
+        return RigDescription(light, camera, scene, seed, pacing, faults, source)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+
+
+def load_rig(path=None) -> RigDescription:
+    """Read a rig TOML (``None``: the paper's rig with every default).
+
+    Raises
+    ------
+    ValueError
+        Naming the file: missing file, TOML syntax errors (with line), unknown tables or keys, wrong types,
+        out-of-range values, missing CSV curves.
+    """
+    if path is None:
+        return RigDescription()
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ValueError(f"{path}: rig description not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: invalid TOML ({exc})") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read rig description ({exc})") from None
+    return rig_from_dict(data, source=str(path), base_dir=path.parent)

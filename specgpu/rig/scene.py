@@ -1,0 +1,385 @@
+"""Spectral scenes: per-pixel reflectance cubes the twin photographs.
+
+A :class:`SpectralScene` is a reflectance cube (H, W, B) in [0, 1] (values slightly above 1 are allowed for
+fluorescent-white or specular samples, up to 1.5) on B strictly increasing wavelengths (nm), with optional named
+boolean masks (the ColorChecker's 24 patches) that the evaluation can use.
+
+Sources:
+
+- cube files: OpenEXR in the JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie), reflective channels named
+  ``T.<wavelength>nm`` (either ``.`` or ``,`` as decimal separator, e.g. ``T.550,000000nm``), through
+  OpenImageIO; or ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>``
+  arrays). Bands are ordered by wavelength, never by channel order in the file.
+- built-ins (:data:`BUILTIN_SCENES`): ``"colorchecker"`` (the 24-patch chart as an image from colour-science's
+  measured spectra, with one mask per patch), ``"white"`` (a reference white plate) and ``"natural"`` (a
+  scikit-image sample photograph turned into reflectance by Mallett and Yuksel's 2019 spectral upsampling,
+  which is linear in linear-sRGB and therefore one matrix product for the whole image).
+
+The field's illumination non-uniformity belongs to the light (``light.spot_*``, paper Figs. 4, 5), not to the
+scene: the same chart can be photographed under a flat or a falling-off spot.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from specgpu.rig._checks import check_array, check_number, check_wavelengths
+
+__all__ = [
+    "SpectralScene", "read_scene", "write_scene", "colorchecker_scene", "white_plate_scene", "natural_scene",
+    "load_scene", "BUILTIN_SCENES", "interpolation_matrix",
+]
+
+_CHANNEL = re.compile(r"^T\.(\d+(?:[.,]\d*)?(?:[eE][+-]?\d+)?)nm$")
+MAX_REFLECTANCE = 1.5
+
+
+@dataclass
+class SpectralScene:
+    """A reflectance cube with its wavelengths and optional masks.
+
+    Attributes
+    ----------
+    wavelengths : numpy.ndarray
+        (B,) strictly increasing wavelengths, nm, float64.
+    reflectance : numpy.ndarray
+        (H, W, B) reflectance, float32, finite, in [0, 1.5].
+    masks : dict of str to numpy.ndarray
+        Named (H, W) boolean masks (e.g. one per ColorChecker patch, in chart order).
+    name : str
+        A label for reports.
+    """
+
+    wavelengths: np.ndarray
+    reflectance: np.ndarray
+    masks: dict = field(default_factory=dict)
+    name: str = ""
+
+    def __post_init__(self):
+        label = f"scene {self.name!r}" if self.name else "scene"
+        self.wavelengths = check_wavelengths(f"{label} wavelengths", self.wavelengths)
+        r = np.asarray(self.reflectance)
+        if r.ndim != 3 or r.shape[2] != self.wavelengths.size:
+            raise ValueError(f"{label} reflectance must have shape (H, W, {self.wavelengths.size}), got {r.shape}")
+        if r.shape[0] < 1 or r.shape[1] < 1:
+            raise ValueError(f"{label} reflectance must not be empty, got shape {r.shape}")
+        self.reflectance = check_array(f"{label} reflectance", r, low=0.0, high=MAX_REFLECTANCE, dtype=np.float32)
+        masks = {}
+        for key, m in dict(self.masks).items():
+            m = np.asarray(m)
+            if m.shape != r.shape[:2]:
+                raise ValueError(f"{label} mask {key!r} must have shape {r.shape[:2]}, got {m.shape}")
+            masks[str(key)] = m.astype(bool)
+        self.masks = masks
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width) in pixels."""
+        return self.reflectance.shape[:2]
+
+    def band_weights(self, wavelengths, weights) -> np.ndarray:
+        """Fold spectral weights on a uniform grid into per-band weights of this scene.
+
+        With the reflectance linearly interpolated between bands (held constant beyond the first and last band),
+        ``integral R(lambda) w(lambda) dlambda = sum_b R_b W_b``.
+
+        Parameters
+        ----------
+        wavelengths
+            (G,) uniform grid, nm.
+        weights
+            (..., G) weights per nm on that grid.
+
+        Returns
+        -------
+        numpy.ndarray
+            (..., B) per-band weights, ``W = (w * dlambda) @ P`` with P the (G, B) interpolation matrix.
+        """
+        wl = np.asarray(wavelengths, dtype=np.float64)
+        dl = float(wl[1] - wl[0])
+        return (np.asarray(weights, dtype=np.float64) * dl) @ interpolation_matrix(wl, self.wavelengths)
+
+    def resized(self, height: int, width: int) -> "SpectralScene":
+        """Nearest-neighbour resampling to (height, width), masks included (no new spectra are invented)."""
+        h = check_number("height", height, low=1, integer=True)
+        w = check_number("width", width, low=1, integer=True)
+        if (h, w) == self.shape:
+            return self
+        ys = np.minimum(((np.arange(h) + 0.5) * self.shape[0] / h).astype(int), self.shape[0] - 1)
+        xs = np.minimum(((np.arange(w) + 0.5) * self.shape[1] / w).astype(int), self.shape[1] - 1)
+        return SpectralScene(self.wavelengths, self.reflectance[ys][:, xs],
+                             {k: m[ys][:, xs] for k, m in self.masks.items()}, self.name)
+
+
+def interpolation_matrix(grid, band_wavelengths) -> np.ndarray:
+    """(G, B) matrix of linear-interpolation weights from B band samples to G grid points (constant beyond)."""
+    grid = np.asarray(grid, dtype=np.float64)
+    bw = np.asarray(band_wavelengths, dtype=np.float64)
+    eye = np.eye(bw.size)
+    return np.stack([np.interp(grid, bw, eye[b]) for b in range(bw.size)], axis=1)
+
+
+# ---- files ---------------------------------------------------------------------------------------------------
+def read_scene(path) -> SpectralScene:
+    """Read a spectral cube: ``.exr`` (JCGT 2021 ``T.<wl>nm`` channels) or ``.npz`` (``wavelengths``, ``reflectance``).
+
+    Raises
+    ------
+    ValueError
+        Naming the file: missing, truncated or corrupt files, no reflective channels, unparsable or duplicated
+        wavelengths, wrong shapes, NaN or out-of-range reflectance.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: scene file not found")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npz":
+            return _read_npz(path)
+        if suffix == ".exr":
+            return _read_exr(path)
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
+    raise ValueError(f"{path}: unknown scene format {suffix!r}; expected .exr or .npz")
+
+
+def _read_npz(path: Path) -> SpectralScene:
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            keys = set(data.files)
+            missing = {"wavelengths", "reflectance"} - keys
+            if missing:
+                raise ValueError(f"{path}: missing array(s) {sorted(missing)}; found {sorted(keys)}")
+            wl = np.array(data["wavelengths"], dtype=np.float64)
+            refl = np.array(data["reflectance"])
+            masks = {k[5:]: np.array(data[k]) for k in data.files if k.startswith("mask_")}
+    except ValueError:
+        raise
+    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+        raise ValueError(f"{path}: truncated or corrupt .npz ({exc.__class__.__name__}: {exc})") from None
+    if wl.ndim != 1:
+        raise ValueError(f"{path}: wavelengths must have shape (B,), got {wl.shape}")
+    if refl.ndim != 3 or refl.shape[2] != wl.size:
+        raise ValueError(f"{path}: reflectance must have shape (H, W, {wl.size}), got {refl.shape}")
+    order = np.argsort(wl, kind="stable")
+    return SpectralScene(wl[order], refl[..., order], masks, path.stem)
+
+
+def _parse_channel(name: str) -> float | None:
+    m = _CHANNEL.match(name)
+    if not m:
+        return None
+    return float(m.group(1).replace(",", "."))
+
+
+def _read_exr(path: Path) -> SpectralScene:
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"{path}: cannot open EXR ({oiio.geterror().strip() or 'unknown error'})")
+    try:
+        spec = inp.spec()
+        names = list(spec.channelnames)
+        picked = [(wl, i) for i, n in enumerate(names) if (wl := _parse_channel(n)) is not None]
+        if not picked:
+            raise ValueError(f"{path}: no reflective spectral channels named 'T.<wavelength>nm' "
+                             f"(found {names[:8]})")
+        wls = [w for w, _ in picked]
+        if len(set(wls)) != len(wls):
+            raise ValueError(f"{path}: a wavelength appears in more than one 'T.' channel")
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        if data is None or not isinstance(data, np.ndarray) or data.size != spec.width * spec.height * spec.nchannels:
+            raise ValueError(f"{path}: truncated or corrupt EXR ({oiio.geterror().strip() or 'no pixel data'})")
+    finally:
+        inp.close()
+    err = oiio.geterror()
+    if err:
+        raise ValueError(f"{path}: truncated or corrupt EXR ({err.strip()})")
+    data = data.reshape(spec.height, spec.width, spec.nchannels)
+    picked.sort()
+    wl = np.array([w for w, _ in picked])
+    refl = data[..., [i for _, i in picked]]
+    return SpectralScene(wl, refl, {}, path.stem)
+
+
+def write_scene(path, scene: SpectralScene, *, half: bool = False) -> Path:
+    """Write a scene as ``.exr`` (JCGT ``T.<wl>nm`` channels, float32 or half) or ``.npz`` (masks as ``mask_*``)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        arrays = {"wavelengths": scene.wavelengths, "reflectance": scene.reflectance}
+        arrays.update({f"mask_{k}": m for k, m in scene.masks.items()})
+        np.savez_compressed(path, **arrays)
+        return path
+    if suffix != ".exr":
+        raise ValueError(f"{path}: unknown scene format {suffix!r}; expected .exr or .npz")
+    import OpenImageIO as oiio
+
+    h, w, b = scene.reflectance.shape
+    spec = oiio.ImageSpec(w, h, b, "half" if half else "float")
+    # JCGT 2021 names: "T." + wavelength with a comma as decimal separator + "nm", e.g. "T.550,000000nm".
+    spec.channelnames = tuple("T." + f"{v:.6f}".replace(".", ",") + "nm" for v in scene.wavelengths)
+    spec.attribute("spectralLayoutVersion", "1.0")
+    out = oiio.ImageOutput.create(str(path))
+    if out is None or not out.open(str(path), spec):
+        raise ValueError(f"{path}: cannot write EXR ({oiio.geterror().strip()})")
+    try:
+        if not out.write_image(np.ascontiguousarray(scene.reflectance, dtype=np.float32)):
+            raise ValueError(f"{path}: cannot write EXR ({out.geterror().strip()})")
+    finally:
+        out.close()
+    return path
+
+
+# ---- built-ins ---------------------------------------------------------------------------------------------------
+_CHARTS = ("ColorChecker N Ohta", "BabelColor Average")
+
+
+def colorchecker_scene(height: int = 480, width: int = 640, *, chart: str = "ColorChecker N Ohta",
+                       surround: float = 0.03) -> SpectralScene:
+    """The 24-patch ColorChecker as an image: 6 x 4 patches on a dark surround, one mask per patch.
+
+    Parameters
+    ----------
+    height, width
+        Image size in pixels (>= 24 x 36).
+    chart
+        colour-science's measured chart spectra: ``"ColorChecker N Ohta"`` (380-780 nm, 5 nm) or
+        ``"BabelColor Average"``.
+    surround
+        Flat reflectance of the chart's black surround, in [0, 1].
+
+    Returns
+    -------
+    SpectralScene
+        Masks keyed by colour-science's patch names (``"dark skin"`` ... ``"black 2 (1.5 D)"``), in chart order;
+        each covers the central 70 % of its patch, away from edges blurred by real optics.
+    """
+    import colour
+
+    if chart not in _CHARTS:
+        raise ValueError(f"unknown chart {chart!r}; valid charts: {', '.join(_CHARTS)}")
+    h = check_number("height", height, low=24, integer=True)
+    w = check_number("width", width, low=36, integer=True)
+    s = check_number("surround", surround, low=0, high=1)
+    sds = colour.SDS_COLOURCHECKERS[chart]
+    names = list(sds.keys())
+    wl = np.asarray(sds[names[0]].wavelengths, dtype=np.float64)
+    spectra = np.stack([np.interp(wl, sds[n].wavelengths, sds[n].values) for n in names])
+    refl = np.full((h, w, wl.size), s, dtype=np.float32)
+    pitch = min(w / 6.4, h / 4.4)
+    size = 0.84 * pitch
+    x0 = (w - 6 * pitch) / 2 + (pitch - size) / 2
+    y0 = (h - 4 * pitch) / 2 + (pitch - size) / 2
+    masks = {}
+    for k, name in enumerate(names):
+        row, col = divmod(k, 6)
+        ya, xa = y0 + row * pitch, x0 + col * pitch
+        ys, xs = slice(int(round(ya)), int(round(ya + size))), slice(int(round(xa)), int(round(xa + size)))
+        refl[ys, xs, :] = spectra[k]
+        m = np.zeros((h, w), bool)
+        inset = 0.15 * size
+        m[int(round(ya + inset)):int(round(ya + size - inset)), int(round(xa + inset)):int(round(xa + size - inset))] = True
+        masks[name] = m
+    return SpectralScene(wl, refl, masks, "colorchecker")
+
+
+def white_plate_scene(height: int = 480, width: int = 640, *, reflectance: float = 0.99,
+                      wavelengths=None) -> SpectralScene:
+    """A uniform reference white plate of flat ``reflectance`` (default 0.99, a pressed-PTFE standard).
+
+    ``wavelengths`` defaults to 380-780 nm at 5 nm. The mask ``"plate"`` covers the whole image.
+    """
+    h = check_number("height", height, low=1, integer=True)
+    w = check_number("width", width, low=1, integer=True)
+    r = check_number("reflectance", reflectance, low=0, high=MAX_REFLECTANCE)
+    wl = np.arange(380.0, 781.0, 5.0) if wavelengths is None else check_wavelengths("wavelengths", wavelengths)
+    refl = np.broadcast_to(np.float32(r), (h, w, wl.size))
+    return SpectralScene(wl, refl, {"plate": np.ones((h, w), bool)}, "white")
+
+
+_NATURAL_IMAGES = ("chelsea", "astronaut", "coffee", "rocket", "motorcycle_left")
+_UPSAMPLING = ("Mallett 2019",)
+
+
+@functools.lru_cache(maxsize=8)
+def _natural_cube(image: str, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    import colour
+    import skimage.data
+    from skimage.transform import resize
+
+    rgb = getattr(skimage.data, image)()[..., :3].astype(np.float64) / 255.0
+    # Centre-crop to the target aspect ratio, then resample with anti-aliasing.
+    ih, iw = rgb.shape[:2]
+    target = width / height
+    if iw / ih > target:
+        cw = int(round(ih * target))
+        rgb = rgb[:, (iw - cw) // 2:(iw - cw) // 2 + cw]
+    else:
+        ch = int(round(iw / target))
+        rgb = rgb[(ih - ch) // 2:(ih - ch) // 2 + ch]
+    rgb = resize(rgb, (height, width), anti_aliasing=True, order=1)
+    linear = np.clip(colour.cctf_decoding(np.clip(rgb, 0.0, 1.0), function="sRGB"), 0.0, 1.0)
+    basis = colour.recovery.MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019
+    refl = (linear.reshape(-1, 3) @ basis.values.T).reshape(height, width, -1)
+    refl = np.clip(refl, 0.0, 1.0).astype(np.float32)
+    refl.setflags(write=False)
+    return np.asarray(basis.wavelengths, dtype=np.float64), refl
+
+
+def natural_scene(height: int = 480, width: int = 640, *, image: str = "chelsea",
+                  method: str = "Mallett 2019") -> SpectralScene:
+    """A natural scene: a scikit-image sample photograph upsampled to reflectance spectra.
+
+    The sRGB photograph is centre-cropped to the aspect ratio, resized, linearized (sRGB decoding) and turned
+    into spectra by Mallett and Yuksel (2019): three non-negative basis spectra weighted by linear R, G, B, so
+    every reflectance lies in [0, 1] and reproduces the pixel's sRGB colour under D65. Vectorized (one matrix
+    product) and cached per (image, size): a 640 x 480 cube takes well under a second.
+
+    Parameters
+    ----------
+    height, width
+        Image size in pixels.
+    image
+        scikit-image sample: one of ``"chelsea"``, ``"astronaut"``, ``"coffee"``, ``"rocket"``,
+        ``"motorcycle_left"``.
+    method
+        Spectral upsampling method; ``"Mallett 2019"``.
+    """
+    if image not in _NATURAL_IMAGES:
+        raise ValueError(f"unknown image {image!r}; valid images: {', '.join(_NATURAL_IMAGES)}")
+    if method not in _UPSAMPLING:
+        raise ValueError(f"unknown upsampling method {method!r}; valid methods: {', '.join(_UPSAMPLING)}")
+    h = check_number("height", height, low=1, integer=True)
+    w = check_number("width", width, low=1, integer=True)
+    wl, refl = _natural_cube(image, h, w)
+    return SpectralScene(wl, refl, {}, f"natural:{image}")
+
+
+#: Built-in scene name -> factory ``f(height, width) -> SpectralScene``.
+BUILTIN_SCENES = {
+    "colorchecker": colorchecker_scene,
+    "white": white_plate_scene,
+    "natural": natural_scene,
+}
+
+
+def load_scene(source, height: int = 480, width: int = 640) -> SpectralScene:
+    """A built-in scene by name, or a cube file by path, at (height, width) (files are resampled if needed)."""
+    if isinstance(source, SpectralScene):
+        return source.resized(height, width)
+    text = str(source)
+    if text in BUILTIN_SCENES:
+        return BUILTIN_SCENES[text](height, width)
+    path = Path(text)
+    if path.suffix.lower() in (".exr", ".npz"):
+        return read_scene(path).resized(height, width)
+    raise ValueError(f"unknown scene {text!r}; give a .exr or .npz file or one of: {', '.join(BUILTIN_SCENES)}")

@@ -1,0 +1,430 @@
+"""The synchronous capture system, simulated: camera master -> strobe -> light trigger (paper Section 2.D).
+
+Timing of frame ``k`` (``P`` the frame period, ``t_exp`` the exposure)::
+
+    exposure starts at   t_k = k P + jitter_k          (jitter: truncated Gaussian, |jitter| <= 2 sigma)
+    strobe at its end    t_k + t_exp  -> trigger -> the light loads the next pattern (62 us) and settles (18 us)
+    frame k+1 exposes    only after the pattern has settled, so P >= t_exp + 80 us + 4 sigma_jitter is required
+
+so each frame is lit by exactly one pattern. Frame 0 is lit by pattern 0 (loaded before the start). A missed
+trigger leaves the light on its pattern, so that frame is lit by the previous frame's pattern and every later
+frame lags one pattern behind (as a hardware sequencer would). A dropped frame was exposed (the light advanced)
+but never reaches the host; a duplicated frame is delivered twice with the same id and content.
+
+Rendering is built for speed: each pattern's noise-free frame (mean and temporal standard deviation per pixel,
+with the scene, the spot's field profile, PRNU and DSNU folded in) is computed once per loaded sequence; a
+frame then costs one table-driven Gaussian draw and five vectorized passes (see ``tools/twin_speed.py``).
+Everything random is keyed by (seed, frame id), so a frame's content does not depend on which other frames
+were rendered: a run is deterministic for a seed, and a duplicate is re-rendered bit-identical.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from functools import lru_cache
+
+import numpy as np
+
+from specgpu.rig._checks import check_number
+from specgpu.rig.camera import _NORMAL_TABLE, Camera, standard_normal_fill
+from specgpu.rig.config import FaultRates, RigDescription
+from specgpu.rig.light import ProgrammableLight
+from specgpu.rig.scene import SpectralScene, load_scene, white_plate_scene
+
+__all__ = ["FaultSchedule", "TwinRig", "SNRReport", "measure_snr", "band_patterns"]
+
+_BLOCK = 4096
+_CHUNK = 1 << 16
+
+
+@dataclass(frozen=True)
+class FaultSchedule:
+    """Which frames suffer which fault: explicit frame ids, plus optional random rates (deterministic per seed).
+
+    Attributes
+    ----------
+    dropped : frozenset of int
+        Frame ids exposed but never delivered.
+    duplicated : frozenset of int
+        Frame ids delivered twice (same id, same content). Disjoint from ``dropped``.
+    missed_triggers : frozenset of int
+        Frame ids (>= 1: frame 0 has no trigger) whose trigger the light misses.
+    jitter_s : float
+        Standard deviation (s) of the exposure start times around the nominal grid (truncated at 2 sigma).
+    rates : FaultRates or None
+        Per-frame probabilities applied on top of the explicit sets, drawn from ``seed``.
+    seed : int
+        Seed of the random faults and of the jitter.
+    """
+
+    dropped: frozenset = frozenset()
+    duplicated: frozenset = frozenset()
+    missed_triggers: frozenset = frozenset()
+    jitter_s: float = 0.0
+    rates: FaultRates | None = None
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("dropped", "duplicated", "missed_triggers"):
+            ids = frozenset(getattr(self, name))
+            bad = [i for i in ids if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or i < 0]
+            if bad:
+                raise ValueError(f"faults.{name} must hold frame ids >= 0, got {bad[:3]}")
+            object.__setattr__(self, name, frozenset(int(i) for i in ids))
+        if 0 in self.missed_triggers:
+            raise ValueError("faults.missed_triggers cannot hold frame 0: the first frame has no trigger")
+        both = self.dropped & self.duplicated
+        if both:
+            raise ValueError(f"frame {min(both)} is both dropped and duplicated")
+        check_number("faults.jitter_s", self.jitter_s, low=0, high=1)
+        if self.rates is not None and self.rates.jitter_s > 0 and self.jitter_s == 0:
+            object.__setattr__(self, "jitter_s", self.rates.jitter_s)
+
+    @classmethod
+    def from_rates(cls, rates: FaultRates, seed: int = 0) -> "FaultSchedule":
+        """Random faults at the given per-frame rates."""
+        return cls(rates=rates, seed=int(seed), jitter_s=rates.jitter_s)
+
+    @lru_cache(maxsize=64)
+    def _block(self, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([self.seed, 0xFA17, b])))
+        u = rng.random((3, _BLOCK))
+        jitter = np.clip(rng.standard_normal(_BLOCK), -2.0, 2.0) * self.jitter_s
+        r = self.rates
+        if r is None:
+            z = np.zeros(_BLOCK, bool)
+            return z, z, z, jitter
+        drop = u[0] < r.drop_rate
+        dup = (u[1] < r.duplicate_rate) & ~drop
+        miss = u[2] < r.missed_trigger_rate
+        if b == 0:
+            miss[0] = False
+        return drop, dup, miss, jitter
+
+    def faults(self, frame_id: int) -> tuple[bool, bool, bool, float]:
+        """(dropped, duplicated, missed trigger, jitter in s) for one frame."""
+        k = int(frame_id)
+        drop, dup, miss, jit = self._block(k // _BLOCK)
+        i = k % _BLOCK
+        dropped = k in self.dropped or bool(drop[i])
+        duplicated = (k in self.duplicated or bool(dup[i])) and not dropped
+        missed = k in self.missed_triggers or bool(miss[i])
+        return dropped, duplicated, missed, float(jit[i])
+
+
+class TwinRig:
+    """The simulated rig: light, camera and scene, with the per-pattern noise-free frames cached.
+
+    Parameters
+    ----------
+    description
+        :class:`~specgpu.rig.config.RigDescription` (defaults: the paper's rig).
+    scene
+        A :class:`SpectralScene`, a built-in name or a cube path; the description's scene by default. Resampled to
+        the camera's ROI.
+    seed
+        Overrides ``description.seed``: the camera's fixed pattern and all temporal noise derive from it.
+
+    Raises
+    ------
+    ValueError
+        If the exposure is shorter than the light's switch time (80 us) or the frame period leaves no room for the
+        light to switch between exposures.
+    """
+
+    def __init__(self, description: RigDescription | None = None, *, scene=None, seed: int | None = None):
+        self.description = description if description is not None else RigDescription()
+        d = self.description
+        self.seed = int(d.seed if seed is None else seed)
+        self.light = ProgrammableLight(d.light, seed=self.seed)
+        self.camera = Camera(d.camera, seed=self.seed)
+        cam = d.camera
+        self.light.check_exposure(cam.exposure_s, "camera.exposure_s")
+        if cam.exposure_s + d.light.switch_time_s > self.frame_period_s * (1 + 1e-12):
+            raise ValueError(
+                f"camera.exposure_s = {cam.exposure_s:g} s plus the light's {d.light.switch_time_s * 1e6:.0f} us "
+                f"switch time exceeds the frame period {self.frame_period_s:g} s at {cam.frame_rate_hz:g} fps")
+        self.field = self.light.field_profile(*self.camera.shape, self.camera.pixel_mm)
+        self._scene: SpectralScene | None = None
+        self.set_scene(d.scene if scene is None else scene)
+
+    # ---- configuration ------------------------------------------------------------------------------------
+    @property
+    def frame_period_s(self) -> float:
+        return 1.0 / self.description.camera.frame_rate_hz
+
+    @property
+    def exposure_s(self) -> float:
+        return self.description.camera.exposure_s
+
+    @property
+    def slack_s(self) -> float:
+        """Time between the light settling and the next exposure at nominal timing (s)."""
+        return self.frame_period_s - self.exposure_s - self.description.light.switch_time_s
+
+    @property
+    def scene(self) -> SpectralScene:
+        return self._scene
+
+    def set_scene(self, scene) -> None:
+        """Photograph another scene (built-in name, path or :class:`SpectralScene`), resampled to the ROI."""
+        self._scene = load_scene(scene, *self.camera.shape)
+        self._maps = None
+
+    def load_sequence(self, patterns) -> None:
+        """Load a (K, columns) pattern sequence into the light; the per-pattern frames are recomputed lazily."""
+        self.light.load_sequence(patterns)
+        self._maps = None
+
+    # ---- the physics ----------------------------------------------------------------------------------------
+    def signal_electrons(self, spectra=None) -> np.ndarray:
+        """(K, H, W) mean photo-electrons per pattern (field profile included, PRNU not), float32.
+
+        ``spectra``: (K, grid) irradiance on the light's grid; the loaded sequence's by default.
+        """
+        sp = self.light.sequence_spectra if spectra is None else np.atleast_2d(np.asarray(spectra, np.float64))
+        wl = self.light.wavelengths
+        weights = self.exposure_s * sp * self.camera.responsivity(wl)[None, :]
+        wb = self._scene.band_weights(wl, weights).astype(np.float32)  # (K, B)
+        h, w = self.camera.shape
+        refl = self._scene.reflectance.reshape(h * w, -1)
+        e = (refl @ wb.T).T.reshape(-1, h, w)
+        e *= self.field[None]
+        return e
+
+    def _ensure_maps(self):
+        if self._maps is not None:
+            return self._maps
+        cam = self.camera
+        p = cam.params
+        g = np.float32(p.gain_e_per_dn)
+        sig = self.signal_electrons() * cam.prnu[None]  # (K, H, W) e-
+        np.maximum(sig, 0.0, out=sig)
+        dark = cam.dark_electrons(self.exposure_s)
+        mean_dn = sig / g
+        offset_dn = (np.float32(p.pedestal_e + dark) + cam.dsnu_e) / g + np.float32(0.5)
+        self._var_floor = np.float32((dark + p.read_noise_e**2) / p.gain_e_per_dn**2)
+        sd_dn = np.sqrt(mean_dn / g + self._var_floor)
+        self._maps = (mean_dn, offset_dn.astype(np.float32), sd_dn)
+        self._chunk_scratch = np.empty(_CHUNK, np.float32)
+        return self._maps
+
+    def expected_frame(self, pattern_index: int, power: float = 1.0) -> np.ndarray:
+        """Noise-free mean output (DN, float32, before rounding) of a frame lit by a pattern at relative power."""
+        mean_dn, offset_dn, _ = self._ensure_maps()
+        return mean_dn[pattern_index] * np.float32(power) + (offset_dn - np.float32(0.5))
+
+    def temporal_std(self, pattern_index: int) -> np.ndarray:
+        """Per-pixel temporal standard deviation (DN) of the camera noise alone (no quantization, no light)."""
+        return self._ensure_maps()[2][pattern_index]
+
+    def frame_rng(self, frame_id: int) -> np.random.Generator:
+        """The generator of one frame's randomness, keyed by (seed, frame id)."""
+        return np.random.Generator(np.random.PCG64(np.random.SeedSequence([self.seed, 0x7E3, int(frame_id)])))
+
+    def render(self, pattern_index: int, frame_id: int, timestamp_s: float, out: np.ndarray | None = None,
+               scratch: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, float]:
+        """Render one noisy frame lit by a loaded pattern into uint16 ``out``; return (out, relative light power).
+
+        ``scratch`` may hold two float32 (H, W) work arrays to avoid allocations in a streaming loop. The noise
+        source is :attr:`noise`: ``"fresh"`` draws new Gaussian samples for every frame; ``"pool"`` takes a
+        randomly placed window of a pre-drawn pool of 32 frames of samples (about 3x faster: per-pixel temporal
+        statistics are unchanged, but a frame's noise is a shifted copy of pool content, so spatial noise
+        patterns recur across frames; use it for throughput work, not for noise studies).
+        """
+        mean_dn, offset_dn, sd_dn = self._ensure_maps()
+        rng = self.frame_rng(frame_id)
+        f = float(self.light.power_factors(np.array([timestamp_s]), self.exposure_s, rng)[0])
+        if scratch is None:
+            x = np.empty(self.camera.shape, np.float32)
+            z = np.empty(self.camera.shape, np.float32)
+        else:
+            x, z = scratch
+        if out is None:
+            out = np.empty(self.camera.shape, np.uint16)
+        n = x.size
+        xf, zf, of = x.reshape(-1), z.reshape(-1), out.reshape(-1)
+        mean, offset, sd = mean_dn[pattern_index].reshape(-1), offset_dn.reshape(-1), sd_dn[pattern_index].reshape(-1)
+        if self.noise == "pool":
+            pool = self._noise_pool()
+            base = int(rng.integers(0, pool.size - n + 1))
+        else:
+            idx = rng.bit_generator.random_raw((n + 3) // 4).view(np.uint16)
+        fs = np.float32(f)
+        inv_g = np.float32(1.0 / self.camera.params.gain_e_per_dn)
+        top = np.float32(self.camera.params.max_code + 0.5)
+        w = self._chunk_scratch
+        # Per chunk small enough to stay in cache (the frame is memory-bound, so each map is read once):
+        # signal x = f * mean; variance = x / g + (dark + read^2) / g^2 (shot noise follows the light's power
+        # exactly); x + offset + sqrt(variance) * z, rounded half up and clipped.
+        for a in range(0, n, _CHUNK):
+            b = min(n, a + _CHUNK)
+            m = b - a
+            xs, zs, ws = xf[a:b], zf[a:b], w[:m]
+            np.multiply(mean[a:b], fs, out=xs)
+            np.multiply(xs, inv_g, out=zs)
+            np.add(zs, self._var_floor, out=zs)
+            np.sqrt(zs, out=zs)
+            if self.noise == "pool":
+                np.multiply(zs, pool[base + a:base + b], out=zs)
+            else:
+                np.take(_NORMAL_TABLE, idx[a:b], out=ws)
+                np.multiply(zs, ws, out=zs)
+            np.add(xs, offset[a:b], out=xs)  # offset_dn carries the +0.5 of round-half-up
+            np.add(xs, zs, out=xs)
+            np.clip(xs, np.float32(0.5), top, out=xs)
+            np.copyto(of[a:b], xs, casting="unsafe")  # truncation of x + 0.5 >= 0.5: round half up
+        return out, f
+
+    noise = "fresh"
+    _POOL_FRAMES = 32
+
+    def set_noise(self, mode: str) -> None:
+        """Choose the noise source of :meth:`render`: ``"fresh"`` (default) or ``"pool"``."""
+        if mode not in ("fresh", "pool"):
+            raise ValueError(f"noise must be one of fresh, pool, got {mode!r}")
+        self.noise = mode
+
+    def _noise_pool(self) -> np.ndarray:
+        pool = getattr(self, "_pool", None)
+        if pool is None:
+            rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([self.seed, 0x9001])))
+            pool = np.empty(self._POOL_FRAMES * self.camera.shape[0] * self.camera.shape[1], np.float32)
+            standard_normal_fill(rng, pool)
+            self._pool = pool
+        return pool
+
+
+def band_patterns(light: ProgrammableLight, bands_nm) -> np.ndarray:
+    """(K, columns) patterns with every mirror on in the columns whose centre lies in each [low, high) band (nm)."""
+    cw = light.column_wavelengths
+    out = np.zeros((len(bands_nm), light.params.columns), np.int32)
+    for k, (lo, hi) in enumerate(bands_nm):
+        out[k, (cw >= lo) & (cw < hi)] = light.params.rows
+    return out
+
+
+@dataclass(frozen=True)
+class SNRReport:
+    """Result of :func:`measure_snr` (paper Section 2.F).
+
+    Attributes
+    ----------
+    sensor_db : float
+        Camera-only SNR, dB: the same measurement with the light's fluctuation, drift and flicker off.
+    temporal_db : float
+        SNR of the R, G, B sequence with the light's own fluctuation, dB (mean of the three channels).
+    sensor_db_per_channel, temporal_db_per_channel : dict
+        Per illuminant ("R", "G", "B").
+    mean_dn : dict
+        Dark-subtracted mean output per illuminant, DN.
+    repeats, frame_rate_hz, exposure_s : as measured.
+    """
+
+    sensor_db: float
+    temporal_db: float
+    sensor_db_per_channel: dict
+    temporal_db_per_channel: dict
+    mean_dn: dict
+    repeats: int
+    frame_rate_hz: float
+    exposure_s: float
+
+
+RGB_BANDS_NM = {"R": (600.0, 700.0), "G": (500.0, 600.0), "B": (400.0, 500.0)}
+
+
+def measure_snr(description: RigDescription | None = None, *, repeats: int = 100, frame_rate_hz: float = 90.0,
+                level: float = 0.75, seed: int = 0) -> SNRReport:
+    """Measure the paper's two SNR figures on the twin, the way the paper did.
+
+    R (600-700 nm), G (500-600 nm) and B (400-500 nm) illuminants are projected in turn onto a reference white
+    plate at ``frame_rate_hz`` (R1, G1, B1, R2, ...), ``repeats`` images of each are captured through the twin's
+    driver path, and per pixel ``SNR = mean / std`` over the repeats is pooled over the frame as
+    ``20 log10(mean of the dark-subtracted means / RMS of the standard deviations)``; the dark level comes from
+    ``repeats`` frames with every mirror off. Each band's mirror count is set so the white plate gives ``level``
+    of the full well, as the paper's calibration loop equalizes the sequence. The temporal figure includes the
+    light's fluctuation; the sensor figure repeats the measurement with the light perfectly steady, so it is
+    the camera's own noise (shot, dark current, read, quantization).
+
+    Parameters
+    ----------
+    description
+        The rig (defaults: the paper's). Its camera exposure is kept if it fits the frame rate, else shortened.
+    repeats
+        Images per illuminant, >= 2 (paper: 100).
+    frame_rate_hz
+        Frame rate (paper: 90 fps).
+    level
+        Target mean signal as a fraction of the full well, in (0, 1).
+    seed
+        Seed of the run.
+
+    Raises
+    ------
+    ValueError
+        If the light is too dim to reach ``level`` in the exposure the frame rate allows.
+    """
+    from specgpu.capture.twin import TwinDriver
+
+    repeats = check_number("repeats", repeats, low=2, integer=True)
+    level = check_number("level", level, low=0, low_open=True, high=1)
+    d = description if description is not None else RigDescription()
+    period = 1.0 / check_number("frame_rate_hz", frame_rate_hz, low=0, low_open=True)
+    exposure = min(d.camera.exposure_s, period - d.light.switch_time_s)
+    cam = replace(d.camera, frame_rate_hz=float(frame_rate_hz), exposure_s=exposure)
+    steady = replace(d.light, fluctuation_rms=0.0, drift_per_hour=0.0, flicker_amplitude=0.0)
+    results = {}
+    for label, light in (("temporal", d.light), ("sensor", steady)):
+        desc = replace(d, camera=cam, light=light, seed=seed)
+        rig = TwinRig(desc, scene=white_plate_scene(*Camera(cam).shape))
+        full = band_patterns(rig.light, RGB_BANDS_NM.values())
+        e_full = rig.signal_electrons(rig.light.pattern_to_spectrum(full)).mean(axis=(1, 2))
+        target = level * cam.full_well_e
+        if np.any(e_full * (1 + 3 * cam.prnu_rms) < target):
+            weakest = list(RGB_BANDS_NM)[int(np.argmin(e_full))]
+            raise ValueError(f"the light is too dim: band {weakest} gives {e_full.min():.0f} e- with every mirror on, "
+                             f"below {level:g} of the full well at {frame_rate_hz:g} fps")
+        patterns = np.rint(full * (target / e_full)[:, None]).astype(np.int32)
+        dark_mean = _dark_mean(desc, repeats)
+        rig.load_sequence(patterns)
+        driver = TwinDriver(rig, n_frames=3 * repeats)
+        h, w = rig.camera.shape
+        s1 = np.zeros((3, h, w))
+        s2 = np.zeros((3, h, w))
+        frame = np.empty((h, w), np.uint16)
+        driver.start()
+        while (info := driver.fill(frame)) is not None:
+            f = frame.astype(np.float64)
+            s1[info.pattern_index] += f
+            s2[info.pattern_index] += f * f
+        driver.stop()
+        mean = s1 / repeats
+        var = (s2 - s1 * mean) / (repeats - 1)
+        per = {}
+        levels = {}
+        for k, name in enumerate(RGB_BANDS_NM):
+            mu = float(np.mean(mean[k] - dark_mean))
+            per[name] = 20.0 * math.log10(mu / math.sqrt(float(np.mean(var[k]))))
+            levels[name] = mu
+        results[label] = (per, levels)
+    t_per, levels = results["temporal"]
+    s_per, _ = results["sensor"]
+    return SNRReport(float(np.mean(list(s_per.values()))), float(np.mean(list(t_per.values()))), s_per, t_per,
+                     levels, repeats, float(frame_rate_hz), exposure)
+
+
+def _dark_mean(desc: RigDescription, repeats: int) -> np.ndarray:
+    from specgpu.capture.twin import TwinDriver
+
+    rig = TwinRig(desc, scene=white_plate_scene(desc.camera.roi_height, desc.camera.roi_width))
+    rig.load_sequence(np.zeros((1, desc.light.columns), np.int32))
+    driver = TwinDriver(rig, n_frames=repeats)
+    acc = np.zeros(rig.camera.shape)
+    frame = np.empty(rig.camera.shape, np.uint16)
+    driver.start()
+    while driver.fill(frame) is not None:
+        acc += frame
+    driver.stop()
+    return acc / repeats
