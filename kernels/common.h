@@ -1,0 +1,367 @@
+/* specgpu shared kernel header: pixel loads and conversions, the per-pixel linear map, CIE f(t), Lab and
+ * colour differences. Everything works on VW = 8 pixels at a time (float8), which is how PoCL vectorises
+ * and what makes GPU loads and stores coalesce; the last work-item of a launch handles a partial vector
+ * with the same code, padding lanes it then does not store.
+ *
+ * Specialisation macros (set by specgpu.runtime.build_options; defaults make the header parse alone):
+ *   K          frames per pixel (input planes)
+ *   IN_T       input sample type: uchar, ushort or float
+ *   IN_LAYOUT  0: planar frames (K, N)    1: interleaved (N, K)
+ *   HAS_DARK   0: none  1: one dark frame (N)  2: a dark frame per input frame (K, N)
+ *   HAS_GAIN   0/1: per-pixel gain (flat field) (N), applied after the matrix
+ *   SAT_LEVEL  inputs >= SAT_LEVEL flag the pixel saturated (mask bit 1); leave undefined for none
+ *   IS_FLOAT_IN 1 when IN_T is float: non-finite inputs flag mask bit 2
+ */
+#ifndef SPECGPU_COMMON_H
+#define SPECGPU_COMMON_H
+
+#define VW 8
+typedef float8 floatv;
+typedef int8 intv;
+
+#ifndef K
+#define K 1
+#endif
+#ifndef IN_T
+#define IN_T float
+#endif
+#ifndef IN_LAYOUT
+#define IN_LAYOUT 0
+#endif
+#ifndef HAS_DARK
+#define HAS_DARK 0
+#endif
+#ifndef HAS_GAIN
+#define HAS_GAIN 0
+#endif
+#ifndef IS_FLOAT_IN
+#define IS_FLOAT_IN 0
+#endif
+
+#define MASK_SATURATED 1
+#define MASK_NONFINITE 2
+
+/* Pixels [base, base + count) of this work-item; count < VW only for the last one. */
+#define PIXEL_RANGE(n)                                   \
+    const ulong base = (ulong)get_global_id(0) * VW;     \
+    if (base >= (ulong)(n)) return;                      \
+    const uint count = (uint)min((ulong)VW, (ulong)(n) - base)
+
+/* ---------------------------------------------------------------------------------------- loads and stores */
+
+/* VW consecutive float samples p[base..], lanes past count read as 0. */
+inline floatv load_f(__global const float *p, ulong base, uint count)
+{
+    if (count == VW) return vload8(0, p + base);
+    float t[VW];
+    for (uint j = 0; j < VW; ++j) t[j] = j < count ? p[base + j] : 0.0f;
+    return vload8(0, t);
+}
+
+/* Lane j of pixel base + j, channel c of an interleaved (N, nch) float image. */
+inline floatv load_f_strided(__global const float *p, ulong base, uint count, uint nch, uint c)
+{
+    float t[VW];
+    for (uint j = 0; j < VW; ++j) t[j] = j < count ? p[(base + j) * nch + c] : 0.0f;
+    return vload8(0, t);
+}
+
+inline void store_f(floatv v, __global float *p, ulong base, uint count)
+{
+    if (count == VW) { vstore8(v, 0, p + base); return; }
+    float t[VW];
+    vstore8(v, 0, t);
+    for (uint j = 0; j < count; ++j) p[base + j] = t[j];
+}
+
+inline void store_f_strided(floatv v, __global float *p, ulong base, uint count, uint nch, uint c)
+{
+    float t[VW];
+    vstore8(v, 0, t);
+    for (uint j = 0; j < count; ++j) p[(base + j) * nch + c] = t[j];
+}
+
+/* float16 stores go through vstore_half (round to nearest even), which needs no cl_khr_fp16. */
+inline void store_h(floatv v, __global half *p, ulong base, uint count)
+{
+    if (count == VW) { vstore_half8_rte(v, 0, p + base); return; }
+    float t[VW];
+    vstore8(v, 0, t);
+    for (uint j = 0; j < count; ++j) vstore_half_rte(t[j], 0, p + base + j);
+}
+
+inline void store_h_strided(floatv v, __global half *p, ulong base, uint count, uint nch, uint c)
+{
+    float t[VW];
+    vstore8(v, 0, t);
+    for (uint j = 0; j < count; ++j) vstore_half_rte(t[j], 0, p + (base + j) * nch + c);
+}
+
+inline void store_mask(uchar8 m, __global uchar *p, ulong base, uint count)
+{
+    if (count == VW) { vstore8(m, 0, p + base); return; }
+    uchar t[VW];
+    vstore8(m, 0, t);
+    for (uint j = 0; j < count; ++j) p[base + j] = t[j];
+}
+
+/* Frame k of the input stack as floats for this work-item's pixels. */
+inline floatv load_frame(__global const IN_T *frames, ulong n, uint k, ulong base, uint count)
+{
+#if IN_LAYOUT == 0
+    __global const IN_T *p = frames + (ulong)k * n + base;
+    if (count == VW) return convert_float8(vload8(0, p));
+    float t[VW];
+    for (uint j = 0; j < VW; ++j) t[j] = j < count ? (float)p[j] : 0.0f;
+    return vload8(0, t);
+#else
+    float t[VW];
+    for (uint j = 0; j < VW; ++j) t[j] = j < count ? (float)frames[(base + j) * K + k] : 0.0f;
+    return vload8(0, t);
+#endif
+}
+
+/* ------------------------------------------------------------------------------- the per-pixel linear map */
+
+/* One frame sample of VW pixels: flag saturated / non-finite values, subtract the dark level.
+ * The gain is applied by the caller after the matrix (one multiply per output, not per frame). */
+inline floatv load_sample(__global const IN_T *frames, __global const float *dark, ulong n, uint k, ulong base,
+                          uint count, intv *flags)
+{
+    floatv v = load_frame(frames, n, k, base, count);
+#ifdef SAT_LEVEL
+    *flags |= select((intv)(0), (intv)(MASK_SATURATED), v >= (floatv)(SAT_LEVEL));
+#endif
+#if IS_FLOAT_IN
+    *flags |= select((intv)(0), (intv)(MASK_NONFINITE), isfinite(v) == (intv)(0));
+#endif
+#if HAS_DARK == 1
+    v -= load_f(dark, base, count);
+#elif HAS_DARK == 2
+    v -= load_f(dark + (ulong)k * n, base, count);
+#endif
+    return v;
+}
+
+/* The K samples of a pixel vector are kept in named registers x0 .. x<K-1>, not in a private array:
+ * PoCL keeps private arrays in memory, which halves the speed of the matrix product. REP_n(M) expands
+ * M(0) M(1) ... M(n-1); K above 64 falls back to an array. */
+#define REP_1(M) M(0)
+#define REP_2(M) REP_1(M) M(1)
+#define REP_3(M) REP_2(M) M(2)
+#define REP_4(M) REP_3(M) M(3)
+#define REP_5(M) REP_4(M) M(4)
+#define REP_6(M) REP_5(M) M(5)
+#define REP_7(M) REP_6(M) M(6)
+#define REP_8(M) REP_7(M) M(7)
+#define REP_9(M) REP_8(M) M(8)
+#define REP_10(M) REP_9(M) M(9)
+#define REP_11(M) REP_10(M) M(10)
+#define REP_12(M) REP_11(M) M(11)
+#define REP_13(M) REP_12(M) M(12)
+#define REP_14(M) REP_13(M) M(13)
+#define REP_15(M) REP_14(M) M(14)
+#define REP_16(M) REP_15(M) M(15)
+#define REP_17(M) REP_16(M) M(16)
+#define REP_18(M) REP_17(M) M(17)
+#define REP_19(M) REP_18(M) M(18)
+#define REP_20(M) REP_19(M) M(19)
+#define REP_21(M) REP_20(M) M(20)
+#define REP_22(M) REP_21(M) M(21)
+#define REP_23(M) REP_22(M) M(22)
+#define REP_24(M) REP_23(M) M(23)
+#define REP_25(M) REP_24(M) M(24)
+#define REP_26(M) REP_25(M) M(25)
+#define REP_27(M) REP_26(M) M(26)
+#define REP_28(M) REP_27(M) M(27)
+#define REP_29(M) REP_28(M) M(28)
+#define REP_30(M) REP_29(M) M(29)
+#define REP_31(M) REP_30(M) M(30)
+#define REP_32(M) REP_31(M) M(31)
+#define REP_33(M) REP_32(M) M(32)
+#define REP_34(M) REP_33(M) M(33)
+#define REP_35(M) REP_34(M) M(34)
+#define REP_36(M) REP_35(M) M(35)
+#define REP_37(M) REP_36(M) M(36)
+#define REP_38(M) REP_37(M) M(37)
+#define REP_39(M) REP_38(M) M(38)
+#define REP_40(M) REP_39(M) M(39)
+#define REP_41(M) REP_40(M) M(40)
+#define REP_42(M) REP_41(M) M(41)
+#define REP_43(M) REP_42(M) M(42)
+#define REP_44(M) REP_43(M) M(43)
+#define REP_45(M) REP_44(M) M(44)
+#define REP_46(M) REP_45(M) M(45)
+#define REP_47(M) REP_46(M) M(46)
+#define REP_48(M) REP_47(M) M(47)
+#define REP_49(M) REP_48(M) M(48)
+#define REP_50(M) REP_49(M) M(49)
+#define REP_51(M) REP_50(M) M(50)
+#define REP_52(M) REP_51(M) M(51)
+#define REP_53(M) REP_52(M) M(52)
+#define REP_54(M) REP_53(M) M(53)
+#define REP_55(M) REP_54(M) M(54)
+#define REP_56(M) REP_55(M) M(55)
+#define REP_57(M) REP_56(M) M(56)
+#define REP_58(M) REP_57(M) M(57)
+#define REP_59(M) REP_58(M) M(58)
+#define REP_60(M) REP_59(M) M(59)
+#define REP_61(M) REP_60(M) M(60)
+#define REP_62(M) REP_61(M) M(61)
+#define REP_63(M) REP_62(M) M(62)
+#define REP_64(M) REP_63(M) M(63)
+#define REP__(n, M) REP_##n(M)
+#define REP_(n, M) REP__(n, M)
+
+#if K <= 64
+#define X_LOAD_ONE(k) const floatv x##k = load_sample(frames, dark, n, k, base, count, &flags);
+#define X_FMA_ONE(k) acc_ = fma((floatv)(m_[k]), x##k, acc_);
+/* Declares intv flags and the samples of this work-item's pixels. */
+#define LOAD_PIXELS() intv flags = (intv)(0); REP_(K, X_LOAD_ONE)
+/* acc = sum_k M[row, k] x_k  (M row-major, K columns) */
+#define DOT_ROW(acc, M, row)                                      \
+    do {                                                          \
+        __constant const float *m_ = (M) + (uint)(row) * K;       \
+        floatv acc_ = (floatv)(0.0f);                             \
+        REP_(K, X_FMA_ONE)                                        \
+        acc = acc_;                                               \
+    } while (0)
+#else
+#define LOAD_PIXELS()                                                             \
+    intv flags = (intv)(0);                                                       \
+    floatv x[K];                                                                  \
+    for (uint k = 0; k < K; ++k) x[k] = load_sample(frames, dark, n, k, base, count, &flags)
+#define DOT_ROW(acc, M, row)                                                      \
+    do {                                                                          \
+        __constant const float *m_ = (M) + (uint)(row) * K;                       \
+        acc = (floatv)(0.0f);                                                     \
+        for (uint k = 0; k < K; ++k) acc = fma((floatv)(m_[k]), x[k], acc);       \
+    } while (0)
+#endif
+
+/* ------------------------------------------------------------------------------------------- colorimetry */
+
+/* CIE 1976 intermediate lightness function f(t): cube root above (24/116)^3, linear below (and for t < 0). */
+inline floatv cie_f(floatv t)
+{
+    const floatv linear = t * (841.0f / 108.0f) + (16.0f / 116.0f);
+    return select(linear, cbrt(t), t > (floatv)(216.0f / 24389.0f));
+}
+
+/* XYZ -> CIELAB for the reference white (Xn, Yn, Zn); L in [0, 100] for 0 <= Y <= Yn. */
+inline void lab_from_xyz(floatv X, floatv Y, floatv Z, float Xn, float Yn, float Zn,
+                       floatv *L, floatv *a, floatv *b)
+{
+    const floatv fx = cie_f(X / Xn);
+    const floatv fy = cie_f(Y / Yn);
+    const floatv fz = cie_f(Z / Zn);
+    *L = 116.0f * fy - 16.0f;
+    *a = 500.0f * (fx - fy);
+    *b = 200.0f * (fy - fz);
+}
+
+#define DEG2RAD 0.017453292519943295f
+#define RAD2DEG 57.29577951308232f
+
+/* Chroma sqrt(a^2 + b^2): no overflow guard is needed for any float32 Lab value of a real colour, and hypot()
+ * costs several times more on CPU devices. */
+inline floatv chroma(floatv a, floatv b)
+{
+    return sqrt(fma(a, a, b * b));
+}
+
+/* CIE 1976: Euclidean distance in CIELAB. */
+inline floatv delta_e_76(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2, floatv b2)
+{
+    const floatv dL = L1 - L2, da = a1 - a2, db = b1 - b2;
+    return sqrt(dL * dL + da * da + db * db);
+}
+
+/* CIE 1994, graphic arts (kL = 1, K1 = 0.045, K2 = 0.015); colour 1 is the reference (its chroma weights). */
+inline floatv delta_e_94(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2, floatv b2)
+{
+    const floatv C1 = chroma(a1, b1), C2 = chroma(a2, b2);
+    const floatv sC = 1.0f + 0.045f * C1, sH = 1.0f + 0.015f * C1;
+    const floatv dL = L1 - L2, dC = C1 - C2, da = a1 - a2, db = b1 - b2;
+    const floatv radical = da * da + db * db - dC * dC;
+    const floatv dH2 = select((floatv)(0.0f), radical, radical > (floatv)(0.0f));
+    const floatv tC = dC / sC;
+    return sqrt(dL * dL + tC * tC + dH2 / (sH * sH));
+}
+
+/* CIEDE2000 (Sharma, Wu and Dalal 2005), kL = kC = kH = 1, branch-free over the lanes.
+ * Hue angles are in degrees where the formula compares them (its +-180 / +-360 rules). The four cosines of T
+ * come from one sincos and multiple-angle identities (same accuracy, a quarter of the cost). A vector form of
+ * the hue terms (cross and dot products of a'b') was measured: no faster on PoCL and ill-conditioned for
+ * nearly opposite hues, so the angles stay. */
+inline floatv delta_e_2000(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2, floatv b2)
+{
+    const float p25_7 = 6103515625.0f; /* 25^7 */
+    const floatv zero = (floatv)(0.0f);
+    const floatv Cbar = 0.5f * (chroma(a1, b1) + chroma(a2, b2));
+    const floatv Cbar2 = Cbar * Cbar, Cbar7 = Cbar2 * Cbar2 * Cbar2 * Cbar;
+    const floatv G = 0.5f * (1.0f - sqrt(Cbar7 / (Cbar7 + p25_7)));
+    const floatv a1p = (1.0f + G) * a1, a2p = (1.0f + G) * a2;
+    const floatv C1p = chroma(a1p, b1), C2p = chroma(a2p, b2);
+
+    /* atan2(0, 0) is 0, the formula's hue of an achromatic colour */
+    floatv h1p = atan2(b1, a1p) * RAD2DEG;
+    floatv h2p = atan2(b2, a2p) * RAD2DEG;
+    h1p = select(h1p, h1p + 360.0f, h1p < zero);
+    h2p = select(h2p, h2p + 360.0f, h2p < zero);
+
+    const floatv Cprod = C1p * C2p;
+    const intv chromatic = Cprod != zero;
+    const floatv dL = L2 - L1;
+    const floatv dC = C2p - C1p;
+    floatv dh = h2p - h1p;
+    dh = select(dh, dh - 360.0f, dh > (floatv)(180.0f));
+    dh = select(dh, dh + 360.0f, dh < (floatv)(-180.0f));
+    dh = select(zero, dh, chromatic);
+    const floatv dH = 2.0f * sqrt(Cprod) * sin(dh * (0.5f * DEG2RAD));
+
+    const floatv Lbar = 0.5f * (L1 + L2);
+    const floatv Cbarp = 0.5f * (C1p + C2p);
+    const floatv hsum = h1p + h2p;
+    floatv hbar = select(select(hsum - 360.0f, hsum + 360.0f, hsum < (floatv)(360.0f)), hsum,
+                         fabs(h1p - h2p) <= (floatv)(180.0f));
+    hbar = select(hsum, 0.5f * hbar, chromatic);
+
+    /* T = 1 - 0.17 cos(h - 30) + 0.24 cos(2h) + 0.32 cos(3h + 6) - 0.20 cos(4h - 63), h in degrees */
+    floatv c1;
+    const floatv s1 = sincos(hbar * DEG2RAD, &c1);
+    const floatv c2 = fma(2.0f * c1, c1, -1.0f), s2 = 2.0f * s1 * c1;
+    const floatv c3 = c1 * fma(4.0f * c1, c1, -3.0f), s3 = s1 * fma(-4.0f * s1, s1, 3.0f);
+    const floatv c4 = fma(2.0f * c2, c2, -1.0f), s4 = 2.0f * s2 * c2;
+    const float cos30 = 0.8660254037844387f, sin30 = 0.5f;
+    const float cos6 = 0.9945218953682733f, sin6 = 0.10452846326765347f;
+    const float cos63 = 0.45399049973954675f, sin63 = 0.8910065241883679f;
+    const floatv T = 1.0f - 0.17f * (c1 * cos30 + s1 * sin30) + 0.24f * c2 + 0.32f * (c3 * cos6 - s3 * sin6)
+                     - 0.20f * (c4 * cos63 + s4 * sin63);
+    const floatv q = (hbar - 275.0f) * (1.0f / 25.0f);
+    const floatv dtheta = 30.0f * exp(-q * q);
+    const floatv Cbarp2 = Cbarp * Cbarp, Cbarp7 = Cbarp2 * Cbarp2 * Cbarp2 * Cbarp;
+    const floatv RC = 2.0f * sqrt(Cbarp7 / (Cbarp7 + p25_7));
+    const floatv Lm = (Lbar - 50.0f) * (Lbar - 50.0f);
+    const floatv SL = 1.0f + 0.015f * Lm / sqrt(20.0f + Lm);
+    const floatv SC = 1.0f + 0.045f * Cbarp;
+    const floatv SH = 1.0f + 0.015f * Cbarp * T;
+    const floatv RT = -sin(2.0f * dtheta * DEG2RAD) * RC;
+
+    const floatv tL = dL / SL, tC = dC / SC, tH = dH / SH;
+    return sqrt(tL * tL + tC * tC + tH * tH + RT * tC * tH);
+}
+
+#ifdef DE_METHOD
+#if DE_METHOD == 76
+#define DELTA_E delta_e_76
+#elif DE_METHOD == 94
+#define DELTA_E delta_e_94
+#elif DE_METHOD == 2000
+#define DELTA_E delta_e_2000
+#else
+#error "DE_METHOD must be 76, 94 or 2000"
+#endif
+#endif
+
+#endif /* SPECGPU_COMMON_H */

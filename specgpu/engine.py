@@ -1,0 +1,159 @@
+"""Launchers of the two kernel families on device arrays (no validation here: the public API validates).
+
+Each launcher takes a queue and :class:`pyopencl.array.Array` inputs already of the right dtype and
+layout, specialises the kernel by -D macros (cached by :mod:`specgpu.runtime`) and returns device arrays.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from .validate import check_pixel_map
+from .runtime import DTYPE_TO_CTYPE, get_allocator, get_kernel
+
+VW = 8  # pixels per work-item, as kernels/common.h
+_GROUP = 64  # work-group size used on GPUs; the global size is padded to a multiple of it
+_launch_lock = threading.Lock()  # a Kernel's arguments are shared state: set and enqueue atomically
+
+DE_CODES = {"CIE 1976": 76, "CIE 1994": 94, "CIE 2000": 2000}
+
+
+def _c_float(x: float) -> str:
+    return repr(float(x)) + "f"
+
+
+def to_device(queue: cl.CommandQueue, a, dtype=None) -> cla.Array:
+    """``a`` as a device array on ``queue``'s context (no copy when it already is one of the right dtype)."""
+    if isinstance(a, cla.Array):
+        if dtype is not None and a.dtype != np.dtype(dtype):
+            a = a.astype(dtype)
+        if a.context != queue.context:
+            raise ValueError("a device array lives in another OpenCL context than the one chosen for this call")
+        return a
+    host = np.ascontiguousarray(a if dtype is None else np.asarray(a, dtype=dtype))
+    return cla.to_device(queue, host)
+
+
+def pixel_map(queue, a, name: str, spatial: tuple, planes: int | None):
+    """A validated dark frame / flat field on the device (None stays None); returns (array, per-plane flag)."""
+    if a is None:
+        return None, False
+    a, per_plane = check_pixel_map(a, name, spatial, planes)
+    return to_device(queue, a.reshape(-1)), per_plane
+
+
+def _launch(queue, kernel, n_pixels: int, *args):
+    items = -(-n_pixels // VW)
+    if queue.device.type & cl.device_type.GPU:
+        global_size, local_size = (-(-items // _GROUP) * _GROUP,), (_GROUP,)
+    else:
+        global_size, local_size = (items,), None
+    with _launch_lock:
+        kernel.set_args(*args)
+        return cl.enqueue_nd_range_kernel(queue, kernel, global_size, local_size)
+
+
+def _input_macros(frames_dtype, K: int, in_layout: int, dark_mode: int, has_gain: bool, saturation):
+    dt = np.dtype(frames_dtype)
+    return dict(
+        K=K,
+        IN_T=DTYPE_TO_CTYPE[dt],
+        IN_LAYOUT=in_layout,
+        HAS_DARK=dark_mode,
+        HAS_GAIN=has_gain,
+        IS_FLOAT_IN=dt == np.float32,
+        SAT_LEVEL=None if saturation is None else _c_float(saturation),
+    )
+
+
+def _empty(queue, size: int, dtype) -> cla.Array:
+    return cla.empty(queue, (size,), dtype, allocator=get_allocator(queue))
+
+
+def _data(a):
+    return None if a is None else a.data
+
+
+def linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 0, dark: cla.Array | None = None,
+           dark_per_frame: bool = False, gain: cla.Array | None = None, out_dtype=np.float32,
+           out_layout: int = 0, want_mask: bool = False, saturation: float | None = None):
+    """y = A (o - dark) * gain over ``n`` pixels; returns (out (B*n,), mask (n,) or None) as flat device arrays."""
+    B, K = A.shape
+    out_dtype = np.dtype(out_dtype)
+    kernel = get_kernel(
+        queue, "linear.cl", "linear_apply",
+        B=B, OUT_HALF=out_dtype == np.float16, OUT_LAYOUT=out_layout, WRITE_MASK=want_mask,
+        **_input_macros(frames.dtype, K, in_layout, 0 if dark is None else (2 if dark_per_frame else 1),
+                        gain is not None, saturation if want_mask else None),
+    )
+    out = _empty(queue, B * n, out_dtype)
+    mask = _empty(queue, n, np.uint8) if want_mask else None
+    A_dev = cla.to_device(queue, np.ascontiguousarray(A, dtype=np.float32))
+    if n:
+        _launch(queue, kernel, n, frames.data, A_dev.data, _data(dark), _data(gain), out.data, _data(mask),
+                np.uint64(n))
+    return out, mask
+
+
+def xyz_to_lab(queue, xyz: cla.Array, white, *, n: int) -> cla.Array:
+    kernel = get_kernel(queue, "colorimetry.cl", "xyz_to_lab")
+    lab = _empty(queue, 3 * n, np.float32)
+    if n:
+        Xn, Yn, Zn = (np.float32(v) for v in white)
+        _launch(queue, kernel, n, xyz.data, lab.data, Xn, Yn, Zn, np.uint64(n))
+    return lab
+
+
+def delta_e(queue, lab1: cla.Array, lab2: cla.Array, *, method: str, n: int, single1: bool = False,
+            single2: bool = False) -> cla.Array:
+    kernel = get_kernel(queue, "colorimetry.cl", "delta_e", DE_METHOD=DE_CODES[method],
+                        LAB1_SINGLE=single1, LAB2_SINGLE=single2)
+    de = _empty(queue, n, np.float32)
+    if n:
+        _launch(queue, kernel, n, lab1.data, lab2.data, de.data, np.uint64(n))
+    return de
+
+
+@dataclass
+class FusedOutputs:
+    """Device results of the fused pass; fields not asked for are None."""
+
+    delta_E: cla.Array | None
+    XYZ: cla.Array | None
+    Lab: cla.Array | None
+    mask: cla.Array | None
+
+
+def frames_to_delta_e(queue, frames: cla.Array, M: np.ndarray, white, reference: cla.Array | None, *, n: int,
+                      method: str = "CIE 2000", reference_single: bool = True, dark: cla.Array | None = None,
+                      dark_per_frame: bool = False, gain: cla.Array | None = None, write_xyz: bool = False,
+                      write_lab: bool = False, want_mask: bool = False, saturation: float | None = None
+                      ) -> FusedOutputs:
+    """frames -> XYZ = M (o - dark) * gain -> Lab -> dE(reference, pixel) in one pass (M is 3 x K)."""
+    K = M.shape[1]
+    write_de = reference is not None
+    kernel = get_kernel(
+        queue, "colorimetry.cl", "frames_to_delta_e",
+        DE_METHOD=DE_CODES[method], REF_SINGLE=reference_single, WRITE_XYZ=write_xyz, WRITE_LAB=write_lab,
+        WRITE_DE=write_de, WRITE_MASK=want_mask,
+        **_input_macros(frames.dtype, K, 0, 0 if dark is None else (2 if dark_per_frame else 1),
+                        gain is not None, saturation if want_mask else None),
+    )
+    out = FusedOutputs(
+        delta_E=_empty(queue, n, np.float32) if write_de else None,
+        XYZ=_empty(queue, 3 * n, np.float32) if write_xyz else None,
+        Lab=_empty(queue, 3 * n, np.float32) if write_lab else None,
+        mask=_empty(queue, n, np.uint8) if want_mask else None,
+    )
+    M_dev = cla.to_device(queue, np.ascontiguousarray(M, dtype=np.float32))
+    Xn, Yn, Zn = (np.float32(v) for v in white)
+    if n:
+        _launch(queue, kernel, n, frames.data, M_dev.data, _data(dark), _data(gain), Xn, Yn, Zn,
+                _data(reference), _data(out.XYZ), _data(out.Lab), _data(out.delta_E), _data(out.mask),
+                np.uint64(n))
+    return out

@@ -1,0 +1,312 @@
+"""OpenCL runtime: device choice, the one loader of ``kernels/*.cl`` and the program cache.
+
+Device resolution follows one fixed order (DESIGN.md section 5):
+
+1. an explicit ``device`` argument (a :class:`pyopencl.Device`, a :class:`pyopencl.CommandQueue`,
+   a :class:`pyopencl.Context` or a selector string),
+2. the queue of an input array that already lives on a device (:class:`pyopencl.array.Array`),
+3. the ``SPECGPU_DEVICE`` environment variable (a selector string),
+4. the first GPU of any platform,
+5. the first CPU of any platform (PoCL from PyPI provides one everywhere).
+
+A selector string is either ``"P:D"`` (platform and device indices as ``specgpu info`` prints them) or a
+case-insensitive substring of the platform or device name (``"pocl"``, ``"nvidia"``, ``"A100"``).
+
+Programs are built once per (context, source, options) and their kernels are kept, so no call rebuilds a
+program or re-retrieves a kernel.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import threading
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.tools  # noqa: F401  (cl.tools.MemoryPool)
+
+__all__ = [
+    "SpecgpuDeviceError",
+    "DeviceInfo",
+    "list_devices",
+    "select_device",
+    "get_queue",
+    "get_allocator",
+    "kernel_dir",
+    "kernel_source",
+    "build_options",
+    "get_kernel",
+    "DTYPE_TO_CTYPE",
+]
+
+ENV_DEVICE = "SPECGPU_DEVICE"
+
+NO_PLATFORM_HELP = (
+    "no OpenCL platform found: install the CPU driver with `pip install pocl-binary-distribution` "
+    "(it comes with `pip install specgpu`) or your GPU vendor's OpenCL driver (ICD)"
+)
+
+# NumPy dtype -> OpenCL C type, the one table kernels are specialised from (pyopencl.tools.dtype_to_ctype style).
+DTYPE_TO_CTYPE = {
+    np.dtype(np.uint8): "uchar",
+    np.dtype(np.uint16): "ushort",
+    np.dtype(np.float32): "float",
+    np.dtype(np.float16): "half",
+}
+
+
+class SpecgpuDeviceError(RuntimeError):
+    """No usable OpenCL platform or device, or a selector that matches none."""
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """One OpenCL device as ``specgpu info`` lists it."""
+
+    platform_index: int
+    device_index: int
+    platform: str
+    name: str
+    type: str
+    version: str
+    compute_units: int
+    global_mem_bytes: int
+    device: cl.Device
+
+    @property
+    def selector(self) -> str:
+        return f"{self.platform_index}:{self.device_index}"
+
+
+def _platforms() -> list[cl.Platform]:
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as error:  # PLATFORM_NOT_FOUND_KHR when no ICD is installed
+        raise SpecgpuDeviceError(NO_PLATFORM_HELP) from error
+    if not platforms:
+        raise SpecgpuDeviceError(NO_PLATFORM_HELP)
+    return platforms
+
+
+def list_devices() -> list[DeviceInfo]:
+    """Every OpenCL device of every platform, in platform / device order."""
+    out = []
+    for p_index, platform in enumerate(_platforms()):
+        try:
+            devices = platform.get_devices()
+        except cl.Error:  # a platform with no devices of any type
+            continue
+        for d_index, device in enumerate(devices):
+            out.append(
+                DeviceInfo(
+                    platform_index=p_index,
+                    device_index=d_index,
+                    platform=platform.name.strip(),
+                    name=device.name.strip(),
+                    type=cl.device_type.to_string(device.type),
+                    version=device.version.strip(),
+                    compute_units=device.max_compute_units,
+                    global_mem_bytes=device.global_mem_size,
+                    device=device,
+                )
+            )
+    if not out:
+        raise SpecgpuDeviceError(NO_PLATFORM_HELP)
+    return out
+
+
+def _match_selector(selector: str, devices: list[DeviceInfo], origin: str) -> cl.Device:
+    text = selector.strip()
+    if ":" in text and all(part.strip().isdigit() for part in text.split(":", 1)):
+        p, d = (int(part) for part in text.split(":", 1))
+        for info in devices:
+            if (info.platform_index, info.device_index) == (p, d):
+                return info.device
+    else:
+        needle = text.lower()
+        for info in devices:
+            if needle and (needle in info.name.lower() or needle in info.platform.lower()):
+                return info.device
+    listing = ", ".join(f"{i.selector} {i.name!r}" for i in devices)
+    raise SpecgpuDeviceError(f"{origin} {selector!r} matches no OpenCL device (available: {listing})")
+
+
+def select_device(device=None, like=None) -> cl.Device:
+    """Resolve the device in the fixed order: explicit > the array's own queue > SPECGPU_DEVICE > GPU > CPU.
+
+    Parameters
+    ----------
+    device : pyopencl.Device, CommandQueue, Context, str or None
+        Explicit choice; a string is a selector (``"P:D"`` or a name substring).
+    like : sequence of objects or None
+        Inputs of the call; the first :class:`pyopencl.array.Array` among them decides the device.
+    """
+    if device is not None:
+        return _device_of(device)
+    for obj in like or ():
+        queue = getattr(obj, "queue", None)
+        if isinstance(queue, cl.CommandQueue):
+            return queue.device
+    env = os.environ.get(ENV_DEVICE)
+    if env:
+        return _match_selector(env, list_devices(), f"{ENV_DEVICE}=")
+    devices = list_devices()
+    for kind in (cl.device_type.GPU, cl.device_type.CPU):
+        for info in devices:
+            if info.device.type & kind:
+                return info.device
+    return devices[0].device
+
+
+def _device_of(device) -> cl.Device:
+    if isinstance(device, cl.Device):
+        return device
+    if isinstance(device, cl.CommandQueue):
+        return device.device
+    if isinstance(device, cl.Context):
+        return device.devices[0]
+    if isinstance(device, str):
+        return _match_selector(device, list_devices(), "device")
+    raise TypeError(f"device must be a pyopencl Device, CommandQueue, Context or selector string, not {type(device).__name__}")
+
+
+_lock = threading.Lock()
+_queues: dict[int, cl.CommandQueue] = {}
+_pools: dict[int, object] = {}
+
+
+def get_queue(device=None, like=None) -> cl.CommandQueue:
+    """The command queue for the resolved device: the caller's own queue when one is given or implied.
+
+    One context and one in-order queue are kept per device, so programs built for it are reused.
+    """
+    if isinstance(device, cl.CommandQueue):
+        return device
+    if device is None:
+        for obj in like or ():
+            queue = getattr(obj, "queue", None)
+            if isinstance(queue, cl.CommandQueue):
+                return queue
+    dev = select_device(device, like)
+    key = dev.int_ptr
+    with _lock:
+        queue = _queues.get(key)
+        if queue is None:
+            context = device if isinstance(device, cl.Context) else cl.Context([dev])
+            queue = cl.CommandQueue(context, dev, properties=cl.command_queue_properties.PROFILING_ENABLE)
+            _queues[key] = queue
+        return queue
+
+
+def get_allocator(queue: cl.CommandQueue):
+    """A memory pool for the queue's context: device outputs reuse freed buffers instead of mapping fresh
+    memory (on CPU devices a fresh buffer costs a page fault per 4 KiB on first write)."""
+    key = queue.context.int_ptr
+    with _lock:
+        pool = _pools.get(key)
+        if pool is None:
+            pool = cl.tools.MemoryPool(cl.tools.ImmediateAllocator(queue))
+            _pools[key] = pool
+        return pool
+
+
+# ---------------------------------------------------------------------------------------------- kernel sources
+
+
+@functools.cache
+def kernel_dir() -> Path:
+    """The folder holding the OpenCL sources.
+
+    An installed wheel carries them inside the package (``specgpu/_kernels``); a source checkout (or an
+    editable install) has them at the top level, next to the package.
+    """
+    packaged = resources.files("specgpu") / "_kernels"
+    if packaged.is_dir():
+        return Path(str(packaged))
+    source_tree = Path(__file__).resolve().parent.parent / "kernels"
+    if source_tree.is_dir():
+        return source_tree
+    raise FileNotFoundError(
+        f"OpenCL kernel sources not found in {packaged} nor {source_tree}: the specgpu installation is incomplete"
+    )
+
+
+@functools.cache
+def kernel_source(name: str) -> str:
+    """The text of ``kernels/<name>`` (for example ``"linear.cl"``)."""
+    path = kernel_dir() / name
+    if not path.is_file():
+        available = sorted(p.name for p in kernel_dir().glob("*.cl"))
+        raise FileNotFoundError(f"no kernel source {name!r} in {kernel_dir()} (available: {available})")
+    return path.read_text(encoding="utf-8")
+
+
+def build_options(**macros) -> tuple[str, ...]:
+    """``-D`` options from keyword macros; booleans become 0/1, None drops the macro. Sorted: stable cache keys."""
+    options = []
+    for key in sorted(macros):
+        value = macros[key]
+        if value is None:
+            continue
+        if isinstance(value, bool):
+            value = int(value)
+        options.append(f"-D{key}={value}")
+    return tuple(options)
+
+
+class _Program:
+    """A built program and the kernels retrieved from it (kept: retrieving one per call is slow)."""
+
+    def __init__(self, program: cl.Program):
+        self.program = program
+        self.kernels: dict[str, cl.Kernel] = {}
+        self.lock = threading.Lock()
+
+    def kernel(self, name: str) -> cl.Kernel:
+        with self.lock:
+            kernel = self.kernels.get(name)
+            if kernel is None:
+                kernel = cl.Kernel(self.program, name)
+                self.kernels[name] = kernel
+            return kernel
+
+
+_programs: dict[tuple, _Program] = {}
+
+
+def get_program(context: cl.Context, source_name: str, options: tuple[str, ...]) -> _Program:
+    """Build (once) the program for ``kernels/<source_name>`` with ``options`` in ``context``."""
+    source = kernel_source(source_name)
+    key = (context.int_ptr, source, options)
+    with _lock:
+        entry = _programs.get(key)
+    if entry is not None:
+        return entry
+    include = kernel_dir()
+    full_options = [*options, "-cl-mad-enable", f"-I{include}"]
+    try:
+        program = cl.Program(context, source).build(options=full_options)
+    except cl.RuntimeError as error:
+        first = str(error).strip().splitlines()
+        raise SpecgpuDeviceError(
+            f"building {source_name} with {' '.join(options)} failed on {context.devices[0].name.strip()}: "
+            + " | ".join(line for line in first if "error" in line.lower())[:2000]
+        ) from error
+    entry = _Program(program)
+    with _lock:
+        entry = _programs.setdefault(key, entry)
+    return entry
+
+
+def get_kernel(queue: cl.CommandQueue, source_name: str, kernel_name: str, **macros) -> cl.Kernel:
+    """The kernel ``kernel_name`` of ``kernels/<source_name>`` specialised by ``macros``, built once and kept."""
+    return get_program(queue.context, source_name, build_options(**macros)).kernel(kernel_name)
+
+
+def program_cache_size() -> int:
+    """Number of distinct programs built so far (for tests and diagnostics)."""
+    return len(_programs)
