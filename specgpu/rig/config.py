@@ -122,7 +122,8 @@ def _build(cls, table: dict, section: str, source: str, base: Path | None, conve
             raise ValueError(f"{source}: unknown key {section}.{key}; valid keys: {', '.join(valid)}")
         default = valid[key].default
         if isinstance(default, bool) or isinstance(value, bool):
-            raise ValueError(f"{source}: {section}.{key} must be a {type(default).__name__}, got {value!r}")
+            kind = {int: "an integer", float: "a number", str: "a string"}.get(type(default), "a list")
+            raise ValueError(f"{source}: {section}.{key} must be {kind}, got {value!r}")
         if isinstance(default, str):
             if not isinstance(value, str):
                 raise ValueError(f"{source}: {section}.{key} must be a string, got {value!r}")

@@ -1,0 +1,178 @@
+"""The rig description: TOML loading, overrides, CSV curves, and the errors bad input gets."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from specgpu.rig._checks import read_spectrum_csv
+from specgpu.rig.camera import CameraParameters
+from specgpu.rig.config import FaultRates, RigDescription, load_rig, rig_from_dict
+from specgpu.rig.light import LightParameters
+from specgpu.rig.twin import TwinRig
+
+
+def write(tmp_path, text, name="rig.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_defaults_are_the_papers_rig():
+    d = load_rig(None)
+    assert d.light.columns == 1024 and d.light.rows == 768
+    assert (d.light.wavelength_min_nm, d.light.wavelength_max_nm) == (380.0, 780.0)
+    assert d.light.pattern_load_s == 62e-6 and d.light.mirror_settle_s == 18e-6
+    assert (d.camera.roi_width, d.camera.roi_height, d.camera.bit_depth) == (640, 480, 10)
+    assert d.camera.frame_rate_hz == 90.0
+    assert d.scene == "colorchecker" and d.pacing == "free" and not d.faults.any
+
+
+def test_toml_overrides_and_relative_csv_paths(tmp_path):
+    (tmp_path / "curves").mkdir()
+    (tmp_path / "curves" / "lamp.csv").write_text("380,1\n780,2\n")
+    (tmp_path / "curves" / "v.csv").write_text("380,1\n780,1\n")
+    path = write(tmp_path, """
+[light]
+lamp = "curves/lamp.csv"
+illuminance_lux = 20000
+spot_centre_mm = [1.5, -2]
+fluctuation_rms = 0.01
+
+[camera]
+sensitivity = "curves/v.csv"
+bit_depth = 12
+roi_width = 320
+roi_height = 240
+frame_rate_hz = 500
+exposure_s = 0.0015
+
+[scene]
+source = "white"
+
+[twin]
+seed = 7
+pacing = "paced"
+
+[faults]
+drop_rate = 0.01
+jitter_s = 1e-6
+""")
+    d = load_rig(path)
+    assert d.light.lamp == str(tmp_path / "curves" / "lamp.csv")
+    assert d.light.illuminance_lux == 20000.0 and isinstance(d.light.illuminance_lux, float)
+    assert d.light.spot_centre_mm == (1.5, -2)
+    assert d.camera.bit_depth == 12 and d.camera.frame_rate_hz == 500.0
+    assert d.camera.sensitivity == str(tmp_path / "curves" / "v.csv")
+    assert d.scene == "white" and d.seed == 7 and d.pacing == "paced"
+    assert d.faults == FaultRates(drop_rate=0.01, jitter_s=1e-6)
+    assert d.source == str(path)
+    rig = TwinRig(d)
+    assert rig.camera.shape == (240, 320)
+    # The lamp CSV rises linearly from 1 to 2: the all-on spectrum follows it inside the slit-blurred edges.
+    ratio = rig.light.max_spectrum[rig.light.wavelengths == 700][0] / rig.light.max_spectrum[rig.light.wavelengths == 450][0]
+    assert ratio == pytest.approx((1 + 320 / 400) / (1 + 70 / 400), rel=1e-3)
+    assert d.to_dict()["camera"]["bit_depth"] == 12
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[lights]\nrows = 2\n", r"unknown table \[lights\]; valid tables: light, camera, scene, twin, faults"),
+    ("[light]\nrowz = 2\n", r"unknown key light.rowz; valid keys: lamp, "),
+    ("[camera]\nbit_depth = 10.5\n", r"camera.bit_depth must be an integer, got 10.5"),
+    ("[camera]\nexposure_s = \"fast\"\n", r"camera.exposure_s must be a number, got 'fast'"),
+    ("[camera]\nexposure_s = 5e-5\n", r"camera.exposure_s = 50.0 us is shorter than the light source's pattern switch"),
+    ("[camera]\nbit_depth = 14\n", r"camera.bit_depth must be one of \(8, 10, 12\)"),
+    ("[light]\nfluctuation_rms = nan\n", r"light.fluctuation_rms must be finite"),
+    ("[light]\nlamp = \"none.csv\"\n", r"light.lamp file not found: .*none.csv"),
+    ("[light]\nspot_centre_mm = [1]\n", r"light.spot_centre_mm must be a list of 2 numbers"),
+    ("[scene]\nsource = \"missing.exr\"\n", r"scene.source file not found"),
+    ("[scene]\nsrc = \"white\"\n", r"unknown key scene.src; valid keys: source"),
+    ("[twin]\nseed = -1\n", r"twin.seed must be >= 0"),
+    ("[twin]\npacing = \"fast\"\n", r"twin.pacing must be one of free, paced"),
+    ("[twin]\nthreads = 2\n", r"unknown key twin.threads"),
+    ("[faults]\ndrop_rate = 1.5\n", r"faults.drop_rate must be <= 0.999"),
+    ("[light]\nrows = true\n", r"light.rows must be an integer, got True"),
+    ("[light\nrows = 2\n", r"invalid TOML"),
+    ("light = 3\n", r"\[light\] must be a table"),
+])
+def test_bad_descriptions_name_the_file_and_key(tmp_path, text, message):
+    path = write(tmp_path, text)
+    with pytest.raises(ValueError, match=message) as info:
+        TwinRig(load_rig(path), scene="white")
+    assert str(info.value).startswith(str(path)) or "camera.exposure_s" in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ValueError, match=r"nope.toml: rig description not found"):
+        load_rig(tmp_path / "nope.toml")
+
+
+def test_exposure_plus_switch_time_must_fit_the_frame_period():
+    cam = CameraParameters(frame_rate_hz=100.0, exposure_s=0.00995)
+    with pytest.raises(ValueError, match=r"plus the light's 80 us switch time exceeds the frame period 0.01 s"):
+        TwinRig(RigDescription(camera=cam), scene="white")
+    TwinRig(RigDescription(camera=CameraParameters(frame_rate_hz=100.0, exposure_s=0.0099)), scene="white")
+
+
+# ---- parsers, property-tested ------------------------------------------------------------------------------------
+finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(rows=st.dictionaries(st.integers(200, 2000), finite, min_size=2, max_size=30),
+       sep=st.sampled_from([",", ";", "\t", " ", ", "]), header=st.booleans(), comments=st.booleans())
+def test_csv_reader_round_trips_any_valid_table(tmp_path_factory, rows, sep, header, comments):
+    lines = (["wavelength" + sep + "value"] if header else []) + (["# a comment"] if comments else [])
+    lines += [f"{wl}{sep}{val!r}" for wl, val in rows.items()]  # file order as generated (unsorted)
+    path = tmp_path_factory.mktemp("csv") / "c.csv"
+    path.write_text("\n".join(lines) + "\n")
+    wl, val = read_spectrum_csv(path)
+    expect = sorted(rows.items())
+    np.testing.assert_array_equal(wl, [w for w, _ in expect])
+    np.testing.assert_array_equal(val, [v for _, v in expect])
+
+
+@settings(max_examples=60, deadline=None)
+@given(bad=st.sampled_from(["400,1,2", "400", "400,abc", "400,nan", "400,inf", "nan,1"]),
+       position=st.integers(0, 2))
+def test_csv_reader_rejects_bad_lines_with_file_and_line(tmp_path_factory, bad, position):
+    lines = ["380,1", "500,2", "700,3"]
+    lines.insert(position + 1, bad)
+    path = tmp_path_factory.mktemp("csv") / "bad.csv"
+    path.write_text("\n".join(lines))
+    with pytest.raises(ValueError, match=rf"bad.csv:{position + 2}: "):
+        read_spectrum_csv(path)
+
+
+@settings(max_examples=60, deadline=None)
+@given(lux=st.floats(1.0, 1e6), fwhm=st.floats(0.5, 50.0), bits=st.sampled_from([8, 10, 12]),
+       seed=st.integers(0, 2**31))
+def test_toml_numbers_round_trip(tmp_path_factory, lux, fwhm, bits, seed):
+    text = (f"[light]\nilluminance_lux = {lux!r}\nline_fwhm_nm = {fwhm!r}\n"
+            f"[camera]\nbit_depth = {bits}\n[twin]\nseed = {seed}\n")
+    path = tmp_path_factory.mktemp("toml") / "r.toml"
+    path.write_text(text)
+    d = load_rig(path)
+    assert d.light.illuminance_lux == lux and d.light.line_fwhm_nm == fwhm
+    assert d.camera.bit_depth == bits and d.seed == seed
+
+
+@settings(max_examples=60, deadline=None)
+@given(key=st.text(st.characters(min_codepoint=97, max_codepoint=122), min_size=1, max_size=12),
+       table=st.sampled_from(["light", "camera", "faults"]))
+def test_any_unknown_key_is_rejected(key, table):
+    valid = {"light": LightParameters, "camera": CameraParameters, "faults": FaultRates}[table]
+    if key in {f for f in valid.__dataclass_fields__}:
+        return
+    with pytest.raises(ValueError, match=rf"unknown key {table}\.{key}; valid keys"):
+        rig_from_dict({table: {key: 1.0}})
+
+
+def test_fault_rates_validation():
+    assert not FaultRates().any and FaultRates(missed_trigger_rate=0.1).any
+    with pytest.raises(ValueError, match="faults.jitter_s must be >= 0"):
+        FaultRates(jitter_s=-1.0)
+    assert math.isclose(FaultRates(duplicate_rate=0.5).duplicate_rate, 0.5)

@@ -1,0 +1,205 @@
+"""Spectral scenes: cube readers (EXR JCGT layout, npz), built-ins, bad input."""
+
+import time
+
+import colour
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from specgpu.rig.scene import (SpectralScene, colorchecker_scene, load_scene, natural_scene, read_scene,
+                               white_plate_scene, write_scene)
+
+
+def small_cube(h=6, w=5, wl=(400.0, 450.0, 500.0, 600.0), seed=0):
+    rng = np.random.default_rng(seed)
+    return SpectralScene(np.array(wl), rng.random((h, w, len(wl))).astype(np.float32), {}, "cube")
+
+
+def _write_exr_channels(path, names, data):
+    import OpenImageIO as oiio
+
+    h, w, c = data.shape
+    spec = oiio.ImageSpec(w, h, c, "float")
+    spec.channelnames = tuple(names)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    assert out.write_image(np.ascontiguousarray(data, np.float32))
+    out.close()
+
+
+@pytest.mark.parametrize("half", [False, True])
+def test_exr_round_trip(tmp_path, half):
+    scene = small_cube()
+    path = write_scene(tmp_path / "c.exr", scene, half=half)
+    back = read_scene(path)
+    np.testing.assert_array_equal(back.wavelengths, scene.wavelengths)
+    np.testing.assert_allclose(back.reflectance, scene.reflectance, atol=1e-3 if half else 0)
+    assert back.reflectance.dtype == np.float32
+
+
+def test_exr_bands_are_ordered_by_wavelength_not_channel_order(tmp_path):
+    rng = np.random.default_rng(1)
+    data = rng.random((4, 3, 4)).astype(np.float32)
+    # Channel order scrambled, both decimal separators, plus non-spectral channels the reader must ignore.
+    names = ["T.600,000000nm", "T.450nm", "T.500.5nm", "T.400,5nm"]
+    extra = rng.random((4, 3, 2)).astype(np.float32)
+    _write_exr_channels(tmp_path / "s.exr", names + ["S0.500,000000nm", "A"], np.concatenate([data, extra], axis=2))
+    scene = read_scene(tmp_path / "s.exr")
+    np.testing.assert_array_equal(scene.wavelengths, [400.5, 450.0, 500.5, 600.0])
+    np.testing.assert_array_equal(scene.reflectance, data[..., [3, 1, 2, 0]])
+
+
+def test_npz_round_trip_with_masks_and_band_order(tmp_path):
+    scene = small_cube()
+    scene.masks["left"] = np.zeros(scene.shape, bool)
+    scene.masks["left"][:, :2] = True
+    write_scene(tmp_path / "c.npz", scene)
+    back = read_scene(tmp_path / "c.npz")
+    np.testing.assert_array_equal(back.reflectance, scene.reflectance)
+    np.testing.assert_array_equal(back.masks["left"], scene.masks["left"])
+    # Bands stored out of order are sorted on reading.
+    np.savez(tmp_path / "rev.npz", wavelengths=scene.wavelengths[::-1], reflectance=scene.reflectance[..., ::-1])
+    rev = read_scene(tmp_path / "rev.npz")
+    np.testing.assert_array_equal(rev.wavelengths, scene.wavelengths)
+    np.testing.assert_array_equal(rev.reflectance, scene.reflectance)
+
+
+def test_bad_cube_files_name_the_file_and_problem(tmp_path):
+    scene = small_cube()
+    write_scene(tmp_path / "ok.exr", scene)
+    raw = (tmp_path / "ok.exr").read_bytes()
+    (tmp_path / "trunc.exr").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ValueError, match=r"trunc\.exr: (truncated or corrupt|cannot open)"):
+        read_scene(tmp_path / "trunc.exr")
+    (tmp_path / "junk.exr").write_bytes(b"not an exr at all")
+    with pytest.raises(ValueError, match=r"junk\.exr: cannot open EXR"):
+        read_scene(tmp_path / "junk.exr")
+    _write_exr_channels(tmp_path / "rgb.exr", ["R", "G", "B"], np.zeros((2, 2, 3)))
+    with pytest.raises(ValueError, match=r"rgb\.exr: no reflective spectral channels"):
+        read_scene(tmp_path / "rgb.exr")
+    _write_exr_channels(tmp_path / "dup.exr", ["T.500nm", "T.500,0nm"], np.zeros((2, 2, 2)))
+    with pytest.raises(ValueError, match=r"dup\.exr: a wavelength appears in more than one"):
+        read_scene(tmp_path / "dup.exr")
+
+    write_scene(tmp_path / "ok.npz", scene)
+    raw = (tmp_path / "ok.npz").read_bytes()
+    (tmp_path / "trunc.npz").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(ValueError, match=r"trunc\.npz: truncated or corrupt"):
+        read_scene(tmp_path / "trunc.npz")
+    np.savez(tmp_path / "nowl.npz", reflectance=scene.reflectance)
+    with pytest.raises(ValueError, match=r"nowl\.npz: missing array\(s\) \['wavelengths'\]"):
+        read_scene(tmp_path / "nowl.npz")
+    np.savez(tmp_path / "shape.npz", wavelengths=scene.wavelengths, reflectance=scene.reflectance[..., :2])
+    with pytest.raises(ValueError, match=r"shape\.npz: reflectance must have shape \(H, W, 4\)"):
+        read_scene(tmp_path / "shape.npz")
+    bad = scene.reflectance.copy()
+    bad[0, 0, 0] = np.nan
+    np.savez(tmp_path / "nan.npz", wavelengths=scene.wavelengths, reflectance=bad)
+    with pytest.raises(ValueError, match=r"nan\.npz: .*1 NaN or infinite"):
+        read_scene(tmp_path / "nan.npz")
+    np.savez(tmp_path / "dupwl.npz", wavelengths=np.array([400.0, 400.0, 500.0, 600.0]), reflectance=scene.reflectance)
+    with pytest.raises(ValueError, match=r"dupwl\.npz: .*strictly increasing"):
+        read_scene(tmp_path / "dupwl.npz")
+    with pytest.raises(ValueError, match=r"missing\.exr: scene file not found"):
+        read_scene(tmp_path / "missing.exr")
+    (tmp_path / "x.png").write_bytes(b"")
+    with pytest.raises(ValueError, match=r"x\.png: unknown scene format '\.png'"):
+        read_scene(tmp_path / "x.png")
+
+
+def test_scene_validation():
+    with pytest.raises(ValueError, match=r"reflectance must be <= 1\.5"):
+        SpectralScene(np.array([400.0, 500.0]), np.full((2, 2, 2), 2.0))
+    with pytest.raises(ValueError, match=r"reflectance must be >= 0"):
+        SpectralScene(np.array([400.0, 500.0]), np.full((2, 2, 2), -0.1))
+    with pytest.raises(ValueError, match=r"mask 'm' must have shape \(2, 2\)"):
+        SpectralScene(np.array([400.0, 500.0]), np.zeros((2, 2, 2)), {"m": np.zeros((3, 3))})
+
+
+def test_colorchecker_scene_uses_measured_spectra_and_masks():
+    scene = colorchecker_scene(240, 320)
+    sds = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
+    names = list(sds.keys())
+    assert list(scene.masks) == names and len(names) == 24
+    for name in (names[0], names[12], names[18]):
+        m = scene.masks[name]
+        assert m.sum() > 200
+        spectra = scene.reflectance[m]
+        np.testing.assert_allclose(spectra, np.broadcast_to(
+            np.interp(scene.wavelengths, sds[name].wavelengths, sds[name].values), spectra.shape), atol=1e-6)
+    # Masks do not overlap, and each is surrounded by its own patch (no surround pixels inside a mask).
+    total = sum(m.astype(int) for m in scene.masks.values())
+    assert total.max() == 1
+    # Row-major chart order: patch 0 (dark skin) top left, patch 23 (black) bottom right.
+    ys0, xs0 = np.nonzero(scene.masks[names[0]])
+    ys23, xs23 = np.nonzero(scene.masks[names[23]])
+    assert ys0.mean() < 120 and xs0.mean() < 160 and ys23.mean() > 120 and xs23.mean() > 160
+    with pytest.raises(ValueError, match="unknown chart 'nope'; valid charts"):
+        colorchecker_scene(chart="nope")
+
+
+def test_white_plate():
+    scene = white_plate_scene(10, 12, reflectance=0.9)
+    assert scene.shape == (10, 12) and np.all(scene.reflectance == np.float32(0.9))
+    assert scene.masks["plate"].all()
+
+
+def test_natural_scene_is_fast_and_reproduces_the_photo():
+    natural_scene(60, 80)  # imports
+    t0 = time.perf_counter()
+    scene = natural_scene(480, 640, image="coffee")
+    assert time.perf_counter() - t0 < 5.0
+    assert scene.shape == (480, 640) and scene.reflectance.dtype == np.float32
+    assert 0.0 <= scene.reflectance.min() and scene.reflectance.max() <= 1.0
+    # Mallett 2019: under D65 the spectra reproduce the (linear) sRGB of the photo they came from.
+    import skimage.data
+    from skimage.transform import resize
+
+    small = natural_scene(48, 64, image="coffee")
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    d65 = colour.SDS_ILLUMINANTS["D65"]
+    wl = small.wavelengths
+    xbar = np.stack([np.interp(wl, cmfs.wavelengths, cmfs.values[:, i]) for i in range(3)], axis=1)
+    e = np.interp(wl, d65.wavelengths, d65.values)
+    k = 1.0 / np.sum(e * xbar[:, 1])
+    xyz = k * np.einsum("hwb,b,bc->hwc", small.reflectance.astype(np.float64), e, xbar)
+    rgb = colour.XYZ_to_sRGB(xyz, apply_cctf_encoding=False)
+    photo = skimage.data.coffee()[..., :3] / 255.0
+    ih, iw = photo.shape[:2]
+    cw = int(round(ih * 64 / 48))
+    photo = photo[:, (iw - cw) // 2:(iw - cw) // 2 + cw]
+    photo = colour.cctf_decoding(np.clip(resize(photo, (48, 64), anti_aliasing=True, order=1), 0, 1), function="sRGB")
+    assert np.abs(rgb - photo).mean() < 0.01
+
+
+def test_load_scene_resamples_and_rejects_unknown_names(tmp_path):
+    scene = load_scene("colorchecker", 240, 320)
+    assert scene.shape == (240, 320)
+    write_scene(tmp_path / "c.npz", small_cube())
+    assert load_scene(str(tmp_path / "c.npz"), 12, 10).shape == (12, 10)
+    with pytest.raises(ValueError, match="unknown scene 'moon'; give a .exr or .npz file or one of: colorchecker"):
+        load_scene("moon")
+
+
+def test_band_weights_integrate_linearly_interpolated_reflectance():
+    scene = small_cube(1, 1)
+    grid = np.arange(380.0, 781.0)
+    w = np.random.default_rng(3).random(grid.size)
+    wb = scene.band_weights(grid, w)
+    direct = np.sum(np.interp(grid, scene.wavelengths, scene.reflectance[0, 0]) * w)
+    assert float(scene.reflectance[0, 0] @ wb) == pytest.approx(direct, rel=1e-6)
+
+
+@settings(max_examples=25, deadline=None)
+@given(wl=st.lists(st.integers(300, 1000), min_size=2, max_size=8, unique=True), seed=st.integers(0, 1000))
+def test_npz_reader_orders_any_band_order(tmp_path_factory, wl, seed):
+    rng = np.random.default_rng(seed)
+    refl = rng.random((2, 3, len(wl))).astype(np.float32)
+    path = tmp_path_factory.mktemp("npz") / "s.npz"
+    np.savez(path, wavelengths=np.array(wl, float), reflectance=refl)
+    scene = read_scene(path)
+    order = np.argsort(wl)
+    np.testing.assert_array_equal(scene.wavelengths, np.array(wl, float)[order])
+    np.testing.assert_array_equal(scene.reflectance, refl[..., order])
