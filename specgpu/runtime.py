@@ -132,7 +132,7 @@ def _match_selector(selector: str, devices: list[DeviceInfo], origin: str) -> cl
             if needle and (needle in info.name.lower() or needle in info.platform.lower()):
                 return info.device
     listing = ", ".join(f"{i.selector} {i.name!r}" for i in devices)
-    raise SpecgpuDeviceError(f"{origin} {selector!r} matches no OpenCL device (available: {listing})")
+    raise SpecgpuDeviceError(f"{origin}{selector!r} matches no OpenCL device (available: {listing})")
 
 
 def select_device(device=None, like=None) -> cl.Device:
@@ -170,7 +170,7 @@ def _device_of(device) -> cl.Device:
     if isinstance(device, cl.Context):
         return device.devices[0]
     if isinstance(device, str):
-        return _match_selector(device, list_devices(), "device")
+        return _match_selector(device, list_devices(), "device=")
     raise TypeError(f"device must be a pyopencl Device, CommandQueue, Context or selector string, not {type(device).__name__}")
 
 
@@ -310,3 +310,40 @@ def get_kernel(queue: cl.CommandQueue, source_name: str, kernel_name: str, **mac
 def program_cache_size() -> int:
     """Number of distinct programs built so far (for tests and diagnostics)."""
     return len(_programs)
+
+
+def describe(device=None) -> str:
+    """The text of ``specgpu info``: platforms, devices with their selectors, the chosen device and versions."""
+    from importlib import metadata
+
+    lines = []
+    devices = list_devices()
+    chosen = select_device(device)
+    if device is not None:
+        reason = f"--device {device!r}"
+    elif os.environ.get(ENV_DEVICE):
+        reason = f"{ENV_DEVICE}={os.environ[ENV_DEVICE]!r}"
+    else:
+        reason = "default order: first GPU, else first CPU"
+    platforms = {}
+    for info in devices:
+        platforms.setdefault(info.platform_index, []).append(info)
+    for p_index, infos in platforms.items():
+        platform = infos[0].device.platform
+        lines.append(f"platform {p_index}: {platform.name.strip()} ({platform.version.strip()})")
+        for info in infos:
+            mark = "*" if info.device.int_ptr == chosen.int_ptr else " "
+            lines.append(
+                f" {mark} {info.selector}  {info.name}  [{info.type}, {info.compute_units} compute units, "
+                f"{info.global_mem_bytes / 2**30:.1f} GiB, {info.version}]"
+            )
+    lines.append(f"chosen: {chosen.name.strip()} ({reason}); override with --device or {ENV_DEVICE}=P:D|name")
+    versions = []
+    for package in ("specgpu", "pyopencl", "pocl-binary-distribution", "numpy", "colour-science", "OpenImageIO"):
+        try:
+            versions.append(f"{package} {metadata.version(package)}")
+        except metadata.PackageNotFoundError:
+            versions.append(f"{package} (not installed)")
+    lines.append("versions: " + ", ".join(versions))
+    lines.append(f"kernels: {kernel_dir()}")
+    return "\n".join(lines)
