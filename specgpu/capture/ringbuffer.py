@@ -131,11 +131,13 @@ class RingBuffer:
         return len(self.slots)
 
     # ---- producer -----------------------------------------------------------------------------------------
-    def acquire(self, timeout: float | None = None) -> Slot | None:
+    def acquire(self, timeout: float | None = None, *, count_drop: bool = True) -> Slot | None:
         """A free slot to fill in place, or ``None`` (policy ``drop_newest`` when full, closed ring, or timeout).
 
-        Under ``drop_oldest`` a full ring discards its oldest unread frame; if every slot is held by the consumer
-        (nothing to discard), it waits like ``block``.
+        Under ``drop_newest`` a refusal is counted as a dropped frame; a producer that only learns afterwards
+        whether a frame was really there (the stream may have just ended) passes ``count_drop=False`` and calls
+        :meth:`count_dropped_newest` once it has consumed the frame. Under ``drop_oldest`` a full ring discards its
+        oldest unread frame; if every slot is held by the consumer (nothing to discard), it waits like ``block``.
         """
         deadline = None if timeout is None else time.monotonic() + timeout
         with self._cond:
@@ -147,7 +149,8 @@ class RingBuffer:
                     slot = self._free.popleft()
                     break
                 if self.policy == "drop_newest":
-                    self._c["dropped_newest"] += 1
+                    if count_drop:
+                        self._c["dropped_newest"] += 1
                     return None
                 if self.policy == "drop_oldest" and self._ready:
                     slot = self._ready.popleft()
@@ -165,6 +168,11 @@ class RingBuffer:
             slot.info = None
             self._c["acquired"] += 1
             return slot
+
+    def count_dropped_newest(self) -> None:
+        """Count one frame lost because the ring was full (see ``acquire(count_drop=False)``)."""
+        with self._cond:
+            self._c["dropped_newest"] += 1
 
     def finalize(self, slot: Slot, info: FrameInfo) -> None:
         """Publish a filled slot with its metadata to the consumer."""
@@ -245,12 +253,13 @@ def run_producer(driver, ring: RingBuffer, *, stop_event: threading.Event | None
     count = 0
     try:
         while stop_event is None or not stop_event.is_set():
-            slot = ring.acquire()
+            slot = ring.acquire(count_drop=False)
             if slot is None:
                 if ring.closed:
                     break
                 if driver.fill(None) is None:
-                    break
+                    break  # the stream had ended: no frame was lost
+                ring.count_dropped_newest()
                 continue
             info = driver.fill(slot.array)
             if info is None:
