@@ -1,0 +1,77 @@
+"""Float64 references the kernels are checked against: NumPy for the linear map, colour-science for colorimetry.
+
+Used by the tests and by ``tools/make_golden.py`` (which writes the golden set the selftest reproduces).
+"""
+
+from __future__ import annotations
+
+import colour
+import numpy as np
+
+OBSERVER = "CIE 1931 2 Degree Standard Observer"
+
+
+def linear_ref(frames, A, dark=None, gain=None, layout="interleaved"):
+    """y = A (o - dark) * gain in float64; frames (K, *spatial); dark (*spatial) or (K, *spatial)."""
+    o = np.asarray(frames, dtype=np.float64)
+    if dark is not None:
+        o = o - np.asarray(dark, dtype=np.float64)
+    y = np.tensordot(np.asarray(A, dtype=np.float64), o, axes=(1, 0))  # (B, *spatial)
+    if gain is not None:
+        y = y * np.asarray(gain, dtype=np.float64)
+    return np.moveaxis(y, 0, -1) if layout == "interleaved" else y
+
+
+def mask_ref(frames, saturation=None):
+    """1 where any frame sample >= saturation, 2 where any is non-finite (OR-ed), per pixel."""
+    o = np.asarray(frames)
+    mask = np.zeros(o.shape[1:], dtype=np.uint8)
+    if saturation is not None:
+        with np.errstate(invalid="ignore"):
+            mask |= np.any(o >= saturation, axis=0).astype(np.uint8)
+    if o.dtype.kind == "f":
+        mask |= (np.any(~np.isfinite(o), axis=0).astype(np.uint8) * 2).astype(np.uint8)
+    return mask
+
+
+def XYZ_to_Lab_ref(XYZ, illuminant="D65"):
+    xy = colour.CCS_ILLUMINANTS[OBSERVER][illuminant] if isinstance(illuminant, str) else illuminant
+    return colour.XYZ_to_Lab(np.asarray(XYZ, dtype=np.float64), xy)
+
+
+def delta_E_ref(Lab_1, Lab_2, method):
+    a = np.asarray(Lab_1, dtype=np.float64)
+    b = np.asarray(Lab_2, dtype=np.float64)
+    a, b = np.broadcast_arrays(a, b)
+    return colour.delta_E(a, b, method=method)
+
+
+def reflectance_to_XYZ_ref(R, wavelengths, illuminant="D65", cmfs=OBSERVER):
+    w = np.asarray(wavelengths, dtype=np.float64)
+    shape = colour.SpectralShape(w[0], w[-1], w[1] - w[0])
+    return colour.msds_to_XYZ(np.asarray(R, dtype=np.float64), colour.MSDS_CMFS[cmfs],
+                              colour.SDS_ILLUMINANTS[illuminant], method="Integration", shape=shape) / 100
+
+
+def near_hue_discontinuity(Lab_1, Lab_2, margin_deg=0.5):
+    """Pairs whose a'b' hues are within ``margin_deg`` of 180 degrees apart (CIEDE2000's discontinuity, where a
+    last-bit difference legitimately flips the mean-hue branch)."""
+    a1, b1 = np.broadcast_arrays(np.asarray(Lab_1, np.float64), np.asarray(Lab_2, np.float64))
+    C1 = np.hypot(a1[..., 1], a1[..., 2])
+    C2 = np.hypot(b1[..., 1], b1[..., 2])
+    Cbar7 = ((C1 + C2) / 2) ** 7
+    G = 0.5 * (1 - np.sqrt(Cbar7 / (Cbar7 + 25.0**7)))
+    h1 = np.degrees(np.arctan2(a1[..., 2], (1 + G) * a1[..., 1])) % 360
+    h2 = np.degrees(np.arctan2(b1[..., 2], (1 + G) * b1[..., 1])) % 360
+    return np.abs(np.abs(h1 - h2) - 180) < margin_deg
+
+
+def random_Lab(rng, shape):
+    """CIELAB colours of real surfaces: XYZ in [0.005, 1] per channel under D65, converted by colour-science."""
+    XYZ = rng.uniform(0.005, 1.0, (*shape, 3))
+    return XYZ_to_Lab_ref(XYZ)
+
+
+def sharma_pairs(path):
+    d = np.loadtxt(path, delimiter=",", comments="#", skiprows=5)
+    return d[:, 1:4], d[:, 4:7], d[:, 7]
