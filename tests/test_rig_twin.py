@@ -175,3 +175,17 @@ def test_pool_noise_has_the_same_temporal_statistics(rig):
         assert pooled[k::K].mean() == pytest.approx(fresh[k::K].mean(), abs=0.05)
     with pytest.raises(ValueError, match="noise must be one of fresh, pool"):
         rig.set_noise("cheap")
+
+
+def test_render_refuses_non_contiguous_slots(rig):
+    wide = np.empty((240, 640), np.uint16)
+    with pytest.raises(ValueError, match=r"out must be a C-contiguous \(240, 320\) uint16 array"):
+        rig.render(0, 0, 0.0, wide[:, ::2])
+
+
+def test_temporal_std_matches_rendered_frames(rig):
+    frames = run(TwinDriver(rig, n_frames=400))[0].astype(float)
+    for k in (0, 3):
+        measured = frames[k::K].var(axis=0, ddof=1).mean()
+        predicted = (rig.temporal_std(k) ** 2).mean() + 1 / 12
+        assert measured == pytest.approx(predicted, rel=0.05)

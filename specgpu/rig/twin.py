@@ -11,9 +11,11 @@ trigger leaves the light on its pattern, so that frame is lit by the previous fr
 frame lags one pattern behind (as a hardware sequencer would). A dropped frame was exposed (the light advanced)
 but never reaches the host; a duplicated frame is delivered twice with the same id and content.
 
-Rendering is built for speed: each pattern's noise-free frame (mean and temporal standard deviation per pixel,
-with the scene, the spot's field profile, PRNU and DSNU folded in) is computed once per loaded sequence; a
-frame then costs one table-driven Gaussian draw and five vectorized passes (see ``tools/twin_speed.py``).
+Rendering is built for speed: each pattern's noise-free frame (scene, spot field profile, PRNU, exposure and
+gain folded into one DN map per pattern, plus one offset map with pedestal, dark current and DSNU) is computed once
+per loaded sequence; a frame then costs one table-driven Gaussian draw and a few vectorized passes over
+cache-sized chunks, with the noise's variance derived from the signal itself so that shot noise follows the
+light's power exactly (``tools/twin_speed.py`` measures frames/s).
 Everything random is keyed by (seed, frame id), so a frame's content does not depend on which other frames
 were rendered: a run is deterministic for a seed, and a duplicate is re-rendered bit-identical.
 """
@@ -205,19 +207,21 @@ class TwinRig:
         mean_dn = sig / g
         offset_dn = (np.float32(p.pedestal_e + dark) + cam.dsnu_e) / g + np.float32(0.5)
         self._var_floor = np.float32((dark + p.read_noise_e**2) / p.gain_e_per_dn**2)
-        sd_dn = np.sqrt(mean_dn / g + self._var_floor)
-        self._maps = (mean_dn, offset_dn.astype(np.float32), sd_dn)
+        self._maps = (mean_dn, offset_dn.astype(np.float32))
         self._chunk_scratch = np.empty(_CHUNK, np.float32)
         return self._maps
 
     def expected_frame(self, pattern_index: int, power: float = 1.0) -> np.ndarray:
         """Noise-free mean output (DN, float32, before rounding) of a frame lit by a pattern at relative power."""
-        mean_dn, offset_dn, _ = self._ensure_maps()
+        mean_dn, offset_dn = self._ensure_maps()
         return mean_dn[pattern_index] * np.float32(power) + (offset_dn - np.float32(0.5))
 
-    def temporal_std(self, pattern_index: int) -> np.ndarray:
-        """Per-pixel temporal standard deviation (DN) of the camera noise alone (no quantization, no light)."""
-        return self._ensure_maps()[2][pattern_index]
+    def temporal_std(self, pattern_index: int, power: float = 1.0) -> np.ndarray:
+        """Per-pixel temporal standard deviation (DN) of the camera noise (shot, dark, read; no quantization)
+        for a frame lit by a pattern at a relative light power."""
+        mean_dn, _ = self._ensure_maps()
+        g = np.float32(self.camera.params.gain_e_per_dn)
+        return np.sqrt(mean_dn[pattern_index] * np.float32(power) / g + self._var_floor)
 
     def frame_rng(self, frame_id: int) -> np.random.Generator:
         """The generator of one frame's randomness, keyed by (seed, frame id)."""
@@ -233,7 +237,7 @@ class TwinRig:
         statistics are unchanged, but a frame's noise is a shifted copy of pool content, so spatial noise
         patterns recur across frames; use it for throughput work, not for noise studies).
         """
-        mean_dn, offset_dn, sd_dn = self._ensure_maps()
+        mean_dn, offset_dn = self._ensure_maps()
         rng = self.frame_rng(frame_id)
         f = float(self.light.power_factors(np.array([timestamp_s]), self.exposure_s, rng)[0])
         if scratch is None:
@@ -243,9 +247,13 @@ class TwinRig:
             x, z = scratch
         if out is None:
             out = np.empty(self.camera.shape, np.uint16)
+        for name, arr, dtype in (("out", out, np.uint16), ("scratch", x, np.float32), ("scratch", z, np.float32)):
+            if arr.shape != self.camera.shape or arr.dtype != dtype or not arr.flags.c_contiguous:
+                raise ValueError(f"{name} must be a C-contiguous {self.camera.shape} {np.dtype(dtype).name} array, "
+                                 f"got {arr.shape} {arr.dtype}")
         n = x.size
         xf, zf, of = x.reshape(-1), z.reshape(-1), out.reshape(-1)
-        mean, offset, sd = mean_dn[pattern_index].reshape(-1), offset_dn.reshape(-1), sd_dn[pattern_index].reshape(-1)
+        mean, offset = mean_dn[pattern_index].reshape(-1), offset_dn.reshape(-1)
         if self.noise == "pool":
             pool = self._noise_pool()
             base = int(rng.integers(0, pool.size - n + 1))
