@@ -214,5 +214,5 @@ def test_drop_newest_ring_losses_are_counted_as_gaps(drill_rig):
 
 
 def test_unknown_driver_name_lists_the_valid_ones():
-    with pytest.raises(ValueError, match="unknown driver 'dlpc900'; valid drivers: twin"):
+    with pytest.raises(ValueError, match="unknown driver 'dlpc900'; valid drivers: replay, twin"):
         open_driver("dlpc900")

@@ -1,6 +1,7 @@
 """Capture: the driver interface, the ring buffer, the sequence assembler and the capture loop.
 
-Backends are chosen by name (:func:`open_driver`, the digital twin ``"twin"`` by default) and imported on demand.
+Backends are chosen by name (:func:`open_driver`: the digital twin ``"twin"`` by default, ``"replay"`` for recorded
+frames) and imported on demand.
 """
 
 from specgpu.capture.assemble import AssemblyStats, Sequence, SequenceAssembler, assemble_stream

@@ -134,6 +134,7 @@ class CameraDriver(abc.ABC):
 #: Backend name -> "module:Class". Imported on demand, so a backend's dependencies load only when used.
 DRIVERS: dict[str, str] = {
     "twin": "specgpu.capture.twin:TwinDriver",
+    "replay": "specgpu.capture.replay:ReplayDriver",
 }
 
 
