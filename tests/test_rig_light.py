@@ -226,3 +226,15 @@ def test_parameters_are_frozen():
     p = LightParameters()
     with pytest.raises(dataclasses.FrozenInstanceError):
         p.rows = 10
+
+
+def test_illuminance_and_spectral_distribution_targets(light):
+    full = np.full(1024, 768)
+    assert light.illuminance(full) == pytest.approx(15000.0)
+    assert light.illuminance(full // 2) == pytest.approx(7500.0, rel=1e-3)
+    sd = colour.SDS_ILLUMINANTS["D65"]
+    a = light.spectrum_to_pattern(sd, fit="scale")
+    b = light.spectrum_to_pattern(sd.values, sd.wavelengths, fit="scale")
+    np.testing.assert_array_equal(a.pattern, b.pattern)
+    with pytest.raises(ValueError, match="wavelengths must not be given"):
+        light.spectrum_to_pattern(sd, sd.wavelengths)

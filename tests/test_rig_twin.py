@@ -189,3 +189,13 @@ def test_temporal_std_matches_rendered_frames(rig):
         measured = frames[k::K].var(axis=0, ddof=1).mean()
         predicted = (rig.temporal_std(k) ** 2).mean() + 1 / 12
         assert measured == pytest.approx(predicted, rel=0.05)
+
+
+def test_plan_exposure_places_the_brightest_pattern_at_the_level(rig):
+    t, reached = rig.plan_exposure(0.5)
+    assert reached == pytest.approx(0.5)
+    e = rig.signal_electrons() * rig.camera.prnu[None]
+    brightest = np.percentile(e[3], 99.9) * t / rig.exposure_s
+    assert brightest == pytest.approx(0.5 * rig.camera.params.full_well_e, rel=1e-4)
+    t, reached = rig.plan_exposure(1.0)  # would need longer than the 90 fps frame allows: capped
+    assert t == pytest.approx(1 / 90 - 80e-6) and reached < 1.0

@@ -365,6 +365,13 @@ class ProgrammableLight(LightSource):
         n = self.check_pattern(pattern)
         return (n / self.params.rows) @ self._m.T
 
+    def illuminance(self, pattern) -> np.ndarray:
+        """Illuminance (lux) at the spot centre for mirror counts ``pattern`` ((columns,) or (K, columns)).
+
+        ``683 lm/W * integral E(lambda) ybar(lambda) dlambda`` with the CIE 1931 2-degree ybar.
+        """
+        return K_M * self.pattern_to_spectrum(pattern) @ photopic_y(self._wl)
+
     def pattern_to_mirrors(self, pattern) -> np.ndarray:
         """The (rows, columns) boolean mirror image of a pattern: in each column, its count of mirrors on,
         centred on the column (where the vertically spread beam is strongest is irrelevant in this model)."""
@@ -381,7 +388,8 @@ class ProgrammableLight(LightSource):
         Parameters
         ----------
         target
-            Spectral irradiance, W m^-2 nm^-1, >= 0, finite.
+            Spectral irradiance, W m^-2 nm^-1, >= 0, finite; or an object with ``wavelengths`` and ``values``
+            (e.g. a ``colour.SpectralDistribution``), whose wavelengths are then used.
         wavelengths
             Wavelengths (nm) of ``target``; default the light's own grid. The target is linearly interpolated
             onto the grid and taken as 0 outside its range.
@@ -396,6 +404,10 @@ class ProgrammableLight(LightSource):
         """
         if fit not in ("clip", "scale"):
             raise ValueError(f"fit must be one of 'clip', 'scale', got {fit!r}")
+        if hasattr(target, "wavelengths") and hasattr(target, "values"):
+            if wavelengths is not None:
+                raise ValueError("wavelengths must not be given with a spectral distribution object")
+            target, wavelengths = np.asarray(target.values), np.asarray(target.wavelengths)
         t = check_array("target", target, ndim=1, low=0.0)
         if wavelengths is None:
             if t.shape != self._wl.shape:

@@ -223,6 +223,28 @@ class TwinRig:
         g = np.float32(self.camera.params.gain_e_per_dn)
         return np.sqrt(mean_dn[pattern_index] * np.float32(power) / g + self._var_floor)
 
+    def plan_exposure(self, level: float = 0.8, *, percentile: float = 99.9) -> tuple[float, float]:
+        """The exposure (s) that brings the brightest loaded pattern to ``level`` of the full well.
+
+        The ``percentile`` of the pixels of the brightest pattern's noise-free signal is placed at ``level``; the
+        exposure is capped by the frame period minus the light's switch time and floored at the light's minimum.
+
+        Returns
+        -------
+        exposure_s, level_reached : float
+            The exposure, and the fraction of the full well it reaches (below ``level`` when capped).
+        """
+        level = check_number("level", level, low=0, low_open=True, high=1)
+        check_number("percentile", percentile, low=0, high=100)
+        e = self.signal_electrons() * self.camera.prnu[None]
+        per_s = max(float(np.percentile(e[k], percentile)) for k in range(e.shape[0])) / self.exposure_s
+        if not per_s > 0:
+            raise ValueError("plan_exposure: the loaded patterns give no signal on this scene")
+        wanted = level * self.camera.params.full_well_e / per_s
+        longest = self.frame_period_s - self.description.light.switch_time_s
+        t = min(max(wanted, self.light.minimum_exposure_s), longest)
+        return t, t * per_s / self.camera.params.full_well_e
+
     def frame_rng(self, frame_id: int) -> np.random.Generator:
         """The generator of one frame's randomness, keyed by (seed, frame id)."""
         return np.random.Generator(np.random.PCG64(np.random.SeedSequence([self.seed, 0x7E3, int(frame_id)])))
@@ -386,7 +408,7 @@ def measure_snr(description: RigDescription | None = None, *, repeats: int = 100
     results = {}
     for label, light in (("temporal", d.light), ("sensor", steady)):
         desc = replace(d, camera=cam, light=light, seed=seed)
-        rig = TwinRig(desc, scene=white_plate_scene(*Camera(cam).shape))
+        rig = TwinRig(desc, scene=white_plate_scene(cam.roi_height, cam.roi_width))
         full = band_patterns(rig.light, RGB_BANDS_NM.values())
         e_full = rig.signal_electrons(rig.light.pattern_to_spectrum(full)).mean(axis=(1, 2))
         target = level * cam.full_well_e
