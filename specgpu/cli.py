@@ -68,7 +68,11 @@ def bench(device, json_path, sizes, repeats):
     """Throughput of each kernel against NumPy / colour-science baselines measured in the same run."""
     from .bench import parse_sizes, run_bench
 
-    run_bench(sizes=parse_sizes(sizes), device=device, repeats=repeats, json_path=json_path, echo=click.echo)
+    try:
+        parsed = parse_sizes(sizes)
+    except ValueError as error:  # a usage error (exit 2) that names the bad token, before any device work
+        raise click.BadParameter(str(error), param_hint="--sizes") from error
+    run_bench(sizes=parsed, device=device, repeats=repeats, json_path=json_path, echo=click.echo)
 
 
 if __name__ == "__main__":  # pragma: no cover
