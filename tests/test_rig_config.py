@@ -176,3 +176,32 @@ def test_fault_rates_validation():
     with pytest.raises(ValueError, match="faults.jitter_s must be >= 0"):
         FaultRates(jitter_s=-1.0)
     assert math.isclose(FaultRates(duplicate_rate=0.5).duplicate_rate, 0.5)
+
+
+def test_dump_rig_writes_every_key_and_reads_back_equal(tmp_path):
+    from specgpu.rig.config import dump_rig
+
+    text = dump_rig()
+    for key in list(LightParameters.__dataclass_fields__) + list(CameraParameters.__dataclass_fields__):
+        assert f"\n{key} = " in text
+    path = write(tmp_path, text)
+    assert load_rig(path) == RigDescription(source=str(path))
+
+
+@settings(max_examples=60, deadline=None)
+@given(lux=st.floats(1.0, 1e6), centre=st.tuples(finite, finite), bits=st.sampled_from([8, 10, 12]),
+       fluct=st.floats(0.0, 0.5), drop=st.floats(0.0, 0.999), seed=st.integers(0, 2**63 - 1),
+       scene=st.sampled_from(["colorchecker", "white", "natural"]), pacing=st.sampled_from(["free", "paced"]))
+def test_dump_and_load_round_trip_any_description(tmp_path_factory, lux, centre, bits, fluct, drop, seed, scene,
+                                                 pacing):
+    import dataclasses
+
+    from specgpu.rig.config import dump_rig
+
+    d = RigDescription(light=dataclasses.replace(LightParameters(), illuminance_lux=lux, spot_centre_mm=centre,
+                                                 fluctuation_rms=fluct),
+                       camera=dataclasses.replace(CameraParameters(), bit_depth=bits), scene=scene, seed=seed,
+                       pacing=pacing, faults=FaultRates(drop_rate=drop))
+    path = tmp_path_factory.mktemp("dump") / "rig.toml"
+    path.write_text(dump_rig(d))
+    assert load_rig(path) == dataclasses.replace(d, source=str(path))

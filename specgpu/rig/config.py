@@ -31,7 +31,7 @@ from specgpu.rig._checks import check_number
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.light import LightParameters
 
-__all__ = ["FaultRates", "RigDescription", "load_rig", "rig_from_dict", "PACING"]
+__all__ = ["FaultRates", "RigDescription", "load_rig", "rig_from_dict", "dump_rig", "PACING"]
 
 PACING = ("free", "paced")
 
@@ -213,3 +213,31 @@ def load_rig(path=None) -> RigDescription:
     except OSError as exc:
         raise ValueError(f"{path}: cannot read rig description ({exc})") from None
     return rig_from_dict(data, source=str(path), base_dir=path.parent)
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return repr(value)  # shortest repr: reads back bit-identical
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (tuple, list)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} to TOML")
+
+
+def dump_rig(description: RigDescription | None = None) -> str:
+    """The rig description as TOML text, every key written out (the paper's defaults if ``None``).
+
+    ``load_rig`` reads it back to an equal description: a starting point for a rig file, and a record of the
+    exact rig a capture was made with.
+    """
+    d = description if description is not None else RigDescription()
+    lines = [f"# specgpu rig description ({d.source})"]
+    for table, values in d.to_dict().items():
+        lines.append(f"\n[{table}]")
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in values.items())
+    return "\n".join(lines) + "\n"
