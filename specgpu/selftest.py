@@ -14,6 +14,7 @@ the reference has them, and masks must match exactly.
 from __future__ import annotations
 
 import json
+import zipfile
 import time
 from dataclasses import dataclass, field
 from importlib import resources
@@ -47,7 +48,7 @@ def load_golden(path: Path | None = None) -> tuple[dict, dict[str, dict[str, np.
                     continue
                 case, _, name = key.partition("/")
                 arrays.setdefault(case, {})[name] = data[key]
-    except (OSError, ValueError, KeyError, json.JSONDecodeError) as error:
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
         raise ValueError(f"golden set {path} is unreadable or not a specgpu golden file: {error}") from error
     if manifest.get("format") != "specgpu-golden" or manifest.get("version") != 1:
         raise ValueError(f"golden set {path} has format {manifest.get('format')!r} version "

@@ -58,6 +58,9 @@ def check_frames(frames, name: str = "frames"):
     else:
         frames = np.asarray(frames)
         if frames.dtype == np.float64:
+            finite = frames[np.isfinite(frames)]
+            if finite.size and np.max(np.abs(finite)) > np.finfo(np.float32).max:
+                raise ValueError(f"{name} has values beyond float32 range (max |value| {np.max(np.abs(finite)):.3g})")
             frames = frames.astype(np.float32)
         if frames.dtype not in FRAME_DTYPES:
             raise TypeError(f"{name} has dtype {frames.dtype}; supported: uint8, uint16, float32 (float64 is converted)")

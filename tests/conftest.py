@@ -1,0 +1,31 @@
+"""Shared fixtures: every test that takes ``queue`` runs once per OpenCL device present."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from hypothesis import HealthCheck, settings
+
+from specgpu.runtime import SpecgpuDeviceError, get_queue, list_devices
+
+# Kernel builds make the first example of a property test slow; CI runs fewer examples.
+settings.register_profile("default", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("ci", deadline=None, max_examples=40, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("ci" if os.environ.get("CI") else "default")
+
+
+def _devices():
+    try:
+        return list_devices()
+    except SpecgpuDeviceError:
+        return []
+
+
+DEVICES = _devices()
+
+
+@pytest.fixture(scope="session", params=DEVICES, ids=[f"{d.selector}:{d.name}" for d in DEVICES])
+def queue(request):
+    """A command queue on each OpenCL device present (PoCL's CPU device at least)."""
+    return get_queue(request.param.device)

@@ -1,0 +1,193 @@
+"""linear.cl through recovery.apply_linear against the float64 NumPy reference, on every device."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cla
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from reference import linear_ref, mask_ref
+from specgpu.recovery import apply_linear
+
+EPS32 = np.finfo(np.float32).eps
+
+
+def frames_of(rng, dtype, K, shape):
+    if dtype == np.uint8:
+        return rng.integers(0, 256, (K, *shape), dtype=np.uint8)
+    if dtype == np.uint16:
+        return rng.integers(0, 1024, (K, *shape), dtype=np.uint16)
+    return rng.uniform(0, 1, (K, *shape)).astype(np.float32)
+
+
+def bound(frames, A, dark=None, gain=None, out_dtype=np.float32):
+    """Error bound of a float32 (or float16-stored) dot product of K terms: a few K eps of sum |A| |o - dark|."""
+    o = np.abs(np.asarray(frames, np.float64) - (0 if dark is None else np.asarray(dark, np.float64)))
+    scale = np.tensordot(np.abs(np.asarray(A, np.float64)), o, axes=(1, 0))
+    if gain is not None:
+        scale = scale * np.abs(gain)
+    K = A.shape[1]
+    tol = (2 * K + 4) * EPS32 * scale + 1e-30
+    if np.dtype(out_dtype) == np.float16:
+        tol = tol + 2.0**-11 * scale + 6e-8  # round to nearest half, and half's subnormal step
+    return tol
+
+
+def assert_close(got, expected, tol):
+    got = np.asarray(got, np.float64)
+    excess = np.abs(got - expected) - tol
+    assert got.shape == expected.shape
+    assert np.all(excess <= 0), f"max error beyond bound by {excess.max():.3g}"
+
+
+@pytest.mark.parametrize("K", [1, 3, 6, 9, 31, 61])
+@pytest.mark.parametrize("B", [1, 3, 5, 31, 61])
+def test_every_K_and_B(queue, K, B):
+    rng = np.random.default_rng(K * 100 + B)
+    frames = frames_of(rng, np.uint16, K, (21, 11))  # 231 pixels: not a multiple of the vector width
+    A = rng.normal(0, 1, (B, K))
+    layout = "planar" if (K + B) % 2 else "interleaved"
+    y = apply_linear(frames, A, layout=layout, device=queue)
+    expected = linear_ref(frames, A, layout=layout)
+    assert y.dtype == np.float32
+    tol = bound(frames, A)
+    assert_close(y, expected, tol if layout == "planar" else np.moveaxis(tol, 0, -1))
+
+
+@pytest.mark.parametrize("in_dtype", [np.uint8, np.uint16, np.float32])
+@pytest.mark.parametrize("out_dtype", [np.float32, np.float16])
+@pytest.mark.parametrize("layout", ["planar", "interleaved"])
+def test_dtypes_and_layouts(queue, in_dtype, out_dtype, layout):
+    rng = np.random.default_rng(7)
+    frames = frames_of(rng, in_dtype, 9, (17, 5))
+    A = rng.normal(0, 0.01, (5, 9))
+    y = apply_linear(frames, A, out_dtype=out_dtype, layout=layout, device=queue)
+    assert y.dtype == np.dtype(out_dtype)
+    assert y.shape == ((5, 17, 5) if layout == "planar" else (17, 5, 5))
+    expected = linear_ref(frames, A, layout=layout)
+    tol = bound(frames, A, out_dtype=out_dtype)
+    assert_close(y, expected, tol if layout == "planar" else np.moveaxis(tol, 0, -1))
+
+
+@pytest.mark.parametrize("in_dtype", [np.uint8, np.uint16, np.float32])
+@pytest.mark.parametrize("calibration", ["dark", "dark+gain", "perframe-dark+gain", "gain"])
+def test_dark_and_gain(queue, in_dtype, calibration):
+    rng = np.random.default_rng(11)
+    K, shape = 6, (13, 9)
+    frames = frames_of(rng, in_dtype, K, shape)
+    top = 1.0 if in_dtype == np.float32 else 50.0
+    dark = None
+    if "perframe" in calibration:
+        dark = rng.uniform(0, 0.1 * top, (K, *shape)).astype(np.float32)
+    elif "dark" in calibration:
+        dark = rng.uniform(0, 0.1 * top, shape).astype(np.float32)
+    gain = rng.uniform(0.8, 1.2, shape).astype(np.float32) if "gain" in calibration else None
+    A = rng.normal(0, 1, (3, K))
+    y = apply_linear(frames, A, dark, gain, device=queue)
+    assert_close(y, linear_ref(frames, A, dark, gain), np.moveaxis(bound(frames, A, dark, gain), 0, -1))
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (4096, 1), (1, 4097), (7,), (3, 5, 7)])
+def test_image_sizes(queue, shape):
+    """Odd sizes, single pixels and long rows: the partial last vector is stored exactly, nothing beyond."""
+    rng = np.random.default_rng(3)
+    frames = frames_of(rng, np.uint16, 9, shape)
+    A = rng.normal(0, 1, (4, 9))
+    y = apply_linear(frames, A, device=queue)
+    assert y.shape == (*shape, 4)
+    assert_close(y, linear_ref(frames, A), np.moveaxis(bound(frames, A), 0, -1))
+
+
+def test_zero_pixels(queue):
+    y = apply_linear(np.zeros((3, 0, 4), np.uint16), np.eye(3), device=queue)
+    assert y.shape == (0, 4, 3)
+
+
+def test_saturation_and_nonfinite_mask(queue):
+    rng = np.random.default_rng(5)
+    frames = rng.integers(0, 1000, (9, 15, 7), dtype=np.uint16)  # below saturation but for the two set below
+    frames[4, 2, 3] = 1023
+    frames[0, 14, 6] = 1023  # the last pixel, in the partial vector
+    A = rng.normal(0, 1, (2, 9))
+    res = apply_linear(frames, A, saturation=1023, return_mask=True, device=queue)
+    np.testing.assert_array_equal(res.mask, mask_ref(frames, 1023))
+    assert res.mask[2, 3] == 1 and res.mask[14, 6] == 1 and res.mask.sum() == 2
+    # default saturation of an integer dtype is its maximum code
+    frames[1, 0, 0] = 65535
+    res = apply_linear(frames, A, return_mask=True, device=queue)
+    np.testing.assert_array_equal(res.mask, mask_ref(frames, 65535))
+
+
+def test_nan_propagates_to_that_pixel_only(queue):
+    rng = np.random.default_rng(6)
+    frames = rng.uniform(0, 1, (4, 9, 9)).astype(np.float32)
+    frames[2, 4, 4] = np.nan
+    frames[3, 8, 8] = np.inf
+    A = rng.normal(0, 1, (3, 4))
+    res = apply_linear(frames, A, return_mask=True, device=queue)
+    y = res.y
+    assert np.all(np.isnan(y[4, 4]))
+    assert not np.any(np.isfinite(y[8, 8]))
+    finite = np.ones((9, 9), bool)
+    finite[4, 4] = finite[8, 8] = False
+    assert np.all(np.isfinite(y[finite]))
+    assert res.mask[4, 4] == 2 and res.mask[8, 8] == 2 and res.mask.sum() == 4
+    assert_close(y[finite], linear_ref(frames, A)[finite], np.moveaxis(bound(frames, A), 0, -1)[finite])
+
+
+def test_float16_overflow_is_inf(queue):
+    frames = np.full((1, 2, 9), 1000, np.uint16)
+    y = apply_linear(frames, [[100.0]], out_dtype=np.float16, device=queue)
+    assert np.all(np.isinf(y)) and np.all(y > 0)
+
+
+def test_device_arrays_in_and_out(queue):
+    rng = np.random.default_rng(8)
+    frames = frames_of(rng, np.uint16, 3, (10, 10))
+    A = rng.normal(0, 1, (3, 3))
+    y_dev = apply_linear(cla.to_device(queue, frames), A)
+    assert isinstance(y_dev, cla.Array) and y_dev.queue is queue
+    np.testing.assert_array_equal(y_dev.get(), apply_linear(frames, A, device=queue))
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(frames=np.zeros((9, 4, 4), np.uint16), A=np.zeros((3, 6))), "A has 6 columns but frames has K = 9"),
+        (dict(frames=np.zeros((9, 4, 4), np.int32), A=np.zeros((3, 9))), "dtype int32"),
+        (dict(frames=np.zeros((9, 4, 4), np.complex64), A=np.zeros((3, 9))), "dtype complex64"),
+        (dict(frames=np.zeros(9, np.uint16), A=np.zeros((3, 9))), "shape (K, H, W)"),
+        (dict(frames=np.zeros((9, 4, 4), np.uint16), A=np.zeros(9)), "2-D matrix"),
+        (dict(frames=np.zeros((2, 4, 4), np.uint16), A=[[np.nan, 1.0]]), "NaN or inf"),
+        (dict(frames=np.zeros((2, 4, 4), np.uint16), A=np.ones((1, 2)), dark=np.zeros((4, 5))), "dark has shape"),
+        (dict(frames=np.zeros((2, 4, 4), np.uint16), A=np.ones((1, 2)), dark=np.full((4, 4), np.nan)),
+         "dark contains NaN"),
+        (dict(frames=np.zeros((2, 4, 4), np.uint16), A=np.ones((1, 2)), gain=np.zeros((2, 4, 4))),
+         "gain has shape"),
+        (dict(frames=np.zeros((2, 4, 4), np.uint16), A=np.ones((1, 2)), layout="bsq"), "layout='bsq'"),
+        (dict(frames=np.zeros((2, 4, 4), np.uint16), A=np.ones((1, 2)), out_dtype=np.float64), "float32 or float16"),
+        (dict(frames=np.zeros((0, 4, 4), np.uint16), A=np.ones((1, 0))), "no frame"),
+    ],
+)
+def test_bad_input_is_a_clear_error(queue, kwargs, message):
+    with pytest.raises((ValueError, TypeError)) as error:
+        apply_linear(device=queue, **kwargs)
+    assert message in str(error.value)
+    assert "\n" not in str(error.value)
+
+
+@given(
+    K=st.sampled_from([1, 2, 5, 9]),  # a few programs: each (K, B) is a build
+    B=st.sampled_from([1, 3, 7]),
+    npix=st.integers(1, 40),
+    seed=st.integers(0, 2**16),
+)
+def test_random_shapes_property(K, B, npix, seed):
+    """Any K, B and pixel count (covering every remainder modulo the vector width) matches the reference."""
+    rng = np.random.default_rng(seed)
+    frames = frames_of(rng, np.float32, K, (npix,))
+    A = rng.normal(0, 1, (B, K))
+    y = apply_linear(frames, A)
+    assert_close(y, linear_ref(frames, A), np.moveaxis(bound(frames, A), 0, -1))

@@ -1,0 +1,54 @@
+"""The installed wheel carries kernels/ and the golden set, finds them, and builds every .cl file."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+CHECK = textwrap.dedent(
+    """
+    import sys
+    from pathlib import Path
+    import specgpu
+    from specgpu import runtime, selftest
+    site = Path(sys.argv[1]).resolve()
+    assert Path(specgpu.__file__).resolve().is_relative_to(site), specgpu.__file__
+    kdir = runtime.kernel_dir()
+    assert kdir.resolve() == (site / "specgpu" / "_kernels").resolve(), kdir
+    sources = sorted(p.name for p in kdir.glob("*.cl"))
+    assert sources == ["colorimetry.cl", "linear.cl"], sources
+    queue = runtime.get_queue()
+    for name in sources:
+        # every kernel of every file, with the colour-difference family switched on
+        program = runtime.get_program(queue.context, name, runtime.build_options(DE_METHOD=2000, K=3, B=2))
+        print(name, sorted(k.function_name for k in program.program.all_kernels()))
+    assert selftest.golden_path().resolve().is_relative_to(site)
+    report = selftest.run_selftest()
+    print(report.format())
+    sys.exit(0 if report.passed else 1)
+    """
+)
+
+
+@pytest.mark.slow
+def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
+    dist = tmp_path / "dist"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
+                    str(dist), str(ROOT)], check=True)
+    wheels = list(dist.glob("specgpu-*.whl"))
+    assert len(wheels) == 1
+    site = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(site),
+                    str(wheels[0])], check=True)
+    result = subprocess.run([sys.executable, "-c", CHECK, str(site)], cwd=tmp_path, capture_output=True, text=True,
+                            env={"PYTHONPATH": str(site), "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "linear.cl ['linear_apply']" in result.stdout
+    assert "colorimetry.cl ['delta_e', 'frames_to_delta_e', 'xyz_to_lab']" in result.stdout
+    assert "PASS" in result.stdout
