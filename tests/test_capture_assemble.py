@@ -217,3 +217,71 @@ def test_drop_newest_ring_losses_are_counted_as_gaps(drill_rig):
 def test_unknown_driver_name_lists_the_valid_ones():
     with pytest.raises(ValueError, match="unknown driver 'dlpc900'; valid drivers: replay, twin"):
         open_driver("dlpc900")
+
+
+# ---- content-only alignment ("sync"): the pattern index is not trusted ---------------------------------------
+def expected_sync_sequences(exposures, k):
+    """Runs of K contiguous delivered frames lit by patterns 0..K-1, confirmed by a delivered dark frame right after."""
+    by_id = {fid: (n, ok) for fid, n, ok in exposures}
+    emitted = []
+    for fid, n, ok in exposures:
+        run = [by_id.get(fid + j) for j in range(k + 1)]
+        if any(r is None or not r[1] for r in run):
+            continue
+        if [r[0] - n for r in run] == list(range(k + 1)) and n % k == 0:
+            emitted.append(list(range(fid, fid + k)))
+    return emitted
+
+
+@settings(max_examples=300, deadline=None)
+@given(schedules())
+def test_sync_alignment_never_shifts_a_sequence(schedule):
+    n, k, dropped, duplicated, missed = schedule
+    assume(k >= 2)
+    exposures, delivered = simulate(n, k, dropped, duplicated, missed)
+    asm = SequenceAssembler(k, align="sync", sync_max_dn=50.0)
+    out = []
+    for fid, p in delivered:
+        frame = np.array([[0 if p == 0 else 1000, p, fid]], np.int64)  # mean <= 30 only under pattern 0
+        # The driver's pattern index is a guess (frame id mod K): wrong after any missed trigger; it must not matter.
+        seq = asm.push(frame, FrameInfo(fid, fid % k, fid * 0.01, 0.005))
+        if seq is not None:
+            out.append(seq)
+    stats = asm.finish(StreamEnd(n - 1, -1) if n else None)
+    assert [list(s.frame_ids) for s in out] == expected_sync_sequences(exposures, k)
+    for seq in out:
+        np.testing.assert_array_equal(seq.frames[:, 0, 1], np.arange(k))  # slot j lit by pattern j
+        np.testing.assert_array_equal(np.diff(seq.frame_ids), 1)
+    assert stats.dropped == len(dropped) and stats.duplicates == len(duplicated)
+    assert stats.sequences_complete == len(out)
+    assert stats.frames_unused == len(delivered) - len(duplicated) - k * len(out)
+
+
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(8, 60), data=st.data())
+def test_sync_drill_through_twin_ring_and_assembler(drill_rig, n, data):
+    ids = st.integers(0, n - 1)
+    dropped = data.draw(st.frozensets(ids, max_size=n // 5))
+    duplicated = data.draw(st.frozensets(ids, max_size=n // 5)) - dropped
+    missed = data.draw(st.frozensets(st.integers(1, n - 1), max_size=n // 5))
+    faults = FaultSchedule(dropped=dropped, duplicated=duplicated, missed_triggers=missed)
+    driver = open_driver("twin", rig=drill_rig, faults=faults, n_frames=n)
+    result = capture_sequences(driver, K, n_slots=3, align="sync", sync_max_dn=40.0)
+    seqs, stats = result.sequences, result.assembly
+    exposures, _ = simulate(n, K, dropped, duplicated, missed)
+    assert [list(s.frame_ids) for s in seqs] == expected_sync_sequences(exposures, K)
+    assert stats.dropped == len(dropped) and stats.duplicates == len(duplicated)
+    means = np.array([drill_rig.expected_frame(j).mean() for j in range(K)])
+    for seq in seqs:
+        np.testing.assert_allclose(seq.frames.reshape(K, -1).mean(axis=1), means, atol=2.0)
+
+
+def test_sync_mode_validation():
+    with pytest.raises(ValueError, match="sync_max_dn is required with align='sync'"):
+        SequenceAssembler(3, align="sync")
+    with pytest.raises(ValueError, match="uses pattern 0 as the dark sync pattern"):
+        SequenceAssembler(3, align="sync", sync_pattern=1, sync_max_dn=5.0)
+    with pytest.raises(ValueError, match="needs n_patterns >= 2"):
+        SequenceAssembler(1, align="sync", sync_max_dn=5.0)
+    with pytest.raises(ValueError, match="align must be one of index, sync"):
+        SequenceAssembler(3, align="content")

@@ -39,7 +39,7 @@ class CaptureResult:
 
 
 def capture_sequences(driver: CameraDriver, n_patterns: int, *, n_slots: int = 8, policy: str = "block",
-                      sync_pattern: int | None = None, sync_max_dn: float | None = None,
+                      align: str = "index", sync_pattern: int | None = None, sync_max_dn: float | None = None,
                       on_sequence=None) -> CaptureResult:
     """Run a bounded driver stream (e.g. ``TwinDriver(n_frames=...)``) through ring buffer and assembler.
 
@@ -51,14 +51,15 @@ def capture_sequences(driver: CameraDriver, n_patterns: int, *, n_slots: int = 8
         Length K of the light's loaded sequence.
     n_slots, policy
         Ring buffer size and full policy (``"block"``, ``"drop_oldest"``, ``"drop_newest"``).
-    sync_pattern, sync_max_dn
-        Optional dark-sync check, see :class:`SequenceAssembler`.
+    align, sync_pattern, sync_max_dn
+        Alignment by the driver's pattern index (``"index"``, optionally checking a dark sync pattern) or by content
+        alone (``"sync"``), see :class:`SequenceAssembler`.
     on_sequence
         Optional callable given each sequence as it completes; when given, sequences are not kept in the result
         (for long runs).
     """
     ring = RingBuffer(n_slots, driver.frame_shape, driver.dtype, policy)
-    assembler = SequenceAssembler(n_patterns, sync_pattern=sync_pattern, sync_max_dn=sync_max_dn)
+    assembler = SequenceAssembler(n_patterns, align=align, sync_pattern=sync_pattern, sync_max_dn=sync_max_dn)
     errors = []
 
     def produce():
