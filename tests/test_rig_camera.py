@@ -227,3 +227,16 @@ def test_snr_refuses_a_too_dim_light():
                           camera=dataclasses.replace(CameraParameters(), roi_width=320, roi_height=240))
     with pytest.raises(ValueError, match="the light is too dim: band B"):
         measure_snr(desc, repeats=2)
+
+
+def test_expose_gives_the_modelled_mean_and_variance():
+    cam = Camera(SMALL, seed=4)
+    rng = np.random.default_rng(0)
+    frames = np.stack([cam.expose(10000.0, rng) for _ in range(100)]).astype(float)
+    expected = cam.expected_dn(10000.0)
+    assert np.abs(frames.mean(axis=0) - expected).mean() < 0.6  # 100-frame mean of ~3 DN noise
+    assert frames.mean() == pytest.approx(expected.mean(), abs=0.02)
+    var = frames.var(axis=0, ddof=1).mean()
+    assert var == pytest.approx(cam.temporal_variance_dn(10000.0 * cam.prnu).mean(), rel=0.03)
+    with pytest.raises(ValueError, match="signal_e must be >= 0"):
+        cam.expose(-1.0, rng)

@@ -203,3 +203,18 @@ def test_npz_reader_orders_any_band_order(tmp_path_factory, wl, seed):
     order = np.argsort(wl)
     np.testing.assert_array_equal(scene.wavelengths, np.array(wl, float)[order])
     np.testing.assert_array_equal(scene.reflectance, refl[..., order])
+
+
+def test_natural_scene_equals_colour_science_mallett2019_per_pixel():
+    import skimage.data
+    from skimage.transform import resize
+
+    scene = natural_scene(24, 32, image="astronaut")
+    photo = skimage.data.astronaut()[..., :3] / 255.0  # square: centre-crop rows to 4:3
+    ch = int(round(photo.shape[1] / (32 / 24)))
+    photo = photo[(photo.shape[0] - ch) // 2:(photo.shape[0] - ch) // 2 + ch]
+    linear = colour.cctf_decoding(np.clip(resize(photo, (24, 32), anti_aliasing=True, order=1), 0, 1), function="sRGB")
+    for y, x in [(0, 0), (12, 16), (23, 31), (5, 27)]:
+        sd = colour.recovery.RGB_to_sd_Mallett2019(linear[y, x])
+        np.testing.assert_allclose(scene.reflectance[y, x], np.clip(sd.values, 0, 1), atol=2e-6)
+        np.testing.assert_array_equal(scene.wavelengths, sd.wavelengths)
