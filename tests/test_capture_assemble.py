@@ -202,7 +202,7 @@ def test_drop_newest_ring_losses_are_counted_as_gaps(drill_rig):
     t.start()
     for seq in assemble_stream(ring, asm):
         seqs.append(seq)
-        threading.Event().wait(0.002)  # slow consumer
+        threading.Event().wait(0.02)  # a consumer far slower than the twin renders
     t.join()
     stats = asm.finish(driver.stop())
     r = ring.stats()
