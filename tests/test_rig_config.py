@@ -205,3 +205,9 @@ def test_dump_and_load_round_trip_any_description(tmp_path_factory, lux, centre,
     path = tmp_path_factory.mktemp("dump") / "rig.toml"
     path.write_text(dump_rig(d))
     assert load_rig(path) == dataclasses.replace(d, source=str(path))
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2**63 - 1))
+def test_any_seed_is_kept_exactly(seed):
+    assert rig_from_dict({"twin": {"seed": seed}}).seed == seed
