@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from specgpu.capture import DRIVERS, CameraDriver, FrameInfo, LightSource, StreamEnd, capture_sequences, open_driver
+from specgpu.capture import DRIVERS, CameraDriver, FrameInfo, LightSource, StreamEnd, capture_sequences
 from specgpu.capture.twin import TwinDriver
 
 

@@ -14,7 +14,6 @@ Usage: python tools/twin_figures.py [--seeds N] [--drill-frames N]
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
 import colour
 import numpy as np

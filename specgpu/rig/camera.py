@@ -24,7 +24,6 @@ times ``quantum_efficiency_peak``. A two-column CSV (wavelength nm, relative sen
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 
 import numpy as np

@@ -25,7 +25,7 @@ measured xenon projector lamp instead (it is filtered above about 690 nm), and a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
