@@ -78,7 +78,7 @@ jitter_s = 1e-6
 
 
 @pytest.mark.parametrize("text, message", [
-    ("[lights]\nrows = 2\n", r"unknown table \[lights\]; valid tables: light, camera, scene, twin, faults"),
+    ("[lights]\nrows = 2\n", r"unknown table \[lights\]; valid tables: light, camera, scene, twin, faults, spectroradiometer"),
     ("[light]\nrowz = 2\n", r"unknown key light.rowz; valid keys: lamp, "),
     ("[camera]\nbit_depth = 10.5\n", r"camera.bit_depth must be an integer, got 10.5"),
     ("[camera]\nexposure_s = \"fast\"\n", r"camera.exposure_s must be a number, got 'fast'"),

@@ -9,6 +9,7 @@ from specgpu.rig.config import FaultRates, RigDescription, load_rig, rig_from_di
 from specgpu.rig.light import LightParameters, PatternFit, ProgrammableLight, lamp_spd
 from specgpu.rig.scene import (BUILTIN_SCENES, SpectralScene, colorchecker_scene, load_scene, natural_scene,
                                read_scene, white_plate_scene, write_scene)
+from specgpu.rig.spectroradiometer import Spectroradiometer, SpectroradiometerParameters
 from specgpu.rig.twin import FaultSchedule, SNRReport, TwinRig, band_patterns, measure_snr
 
 __all__ = [
@@ -17,5 +18,6 @@ __all__ = [
     "LightParameters", "PatternFit", "ProgrammableLight", "lamp_spd",
     "BUILTIN_SCENES", "SpectralScene", "colorchecker_scene", "load_scene", "natural_scene", "read_scene",
     "white_plate_scene", "write_scene",
+    "Spectroradiometer", "SpectroradiometerParameters",
     "FaultSchedule", "SNRReport", "TwinRig", "band_patterns", "measure_snr",
 ]

@@ -1,6 +1,6 @@
 """The rig description: every physical parameter of the twin, with the paper's values as defaults, from TOML.
 
-A rig TOML has up to five tables; every key is optional and defaults to the paper's rig::
+A rig TOML has up to six tables; every key is optional and defaults to the paper's rig::
 
     [light]                      # LightParameters: lamp, grating, DMD, spot, timing, fluctuation ...
     lamp = "xenon"               # or "kinoton-75p", or a two-column CSV (wavelength nm, value)
@@ -15,6 +15,8 @@ A rig TOML has up to five tables; every key is optional and defaults to the pape
     pacing = "free"              # "free": as fast as it renders; "paced": at the camera's frame rate
     [faults]                     # FaultRates: for drills; all off by default
     drop_rate = 0.0
+    [spectroradiometer]          # SpectroradiometerParameters: the instrument of the spectral feedback loop
+    bandwidth_nm = 5.0
 
 Relative file paths (lamp, sensitivity, scene) are resolved against the TOML's folder. Unknown tables or keys,
 wrong types and out-of-range values are errors that name the file and the key.
@@ -30,6 +32,7 @@ from pathlib import Path
 from specgpu.rig._checks import check_number
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.light import LightParameters
+from specgpu.rig.spectroradiometer import SpectroradiometerParameters
 
 __all__ = ["FaultRates", "RigDescription", "load_rig", "rig_from_dict", "dump_rig", "PACING"]
 
@@ -82,6 +85,7 @@ class RigDescription:
     pacing : str
         ``"free"`` (frames as fast as the twin renders) or ``"paced"`` (at the camera's frame rate).
     faults : FaultRates
+    spectroradiometer : SpectroradiometerParameters
     source : str
         Where the description came from (a file path or ``"<defaults>"``), for messages.
     """
@@ -93,6 +97,7 @@ class RigDescription:
     pacing: str = "free"
     faults: FaultRates = field(default_factory=FaultRates)
     source: str = "<defaults>"
+    spectroradiometer: SpectroradiometerParameters = field(default_factory=SpectroradiometerParameters)
 
     def __post_init__(self):
         check_number("twin.seed", self.seed, low=0, high=2**63 - 1, integer=True)
@@ -107,10 +112,11 @@ class RigDescription:
             "scene": {"source": self.scene},
             "twin": {"seed": self.seed, "pacing": self.pacing},
             "faults": dataclasses.asdict(self.faults),
+            "spectroradiometer": dataclasses.asdict(self.spectroradiometer),
         }
 
 
-_TABLES = ("light", "camera", "scene", "twin", "faults")
+_TABLES = ("light", "camera", "scene", "twin", "faults", "spectroradiometer")
 _PATH_KEYS = {("light", "lamp"), ("camera", "sensitivity")}
 
 
@@ -185,8 +191,10 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
         raise ValueError(f"{source}: twin.seed must be an integer, got {seed!r}")
     pacing = twin.get("pacing", "free")
     faults = _build(FaultRates, data.get("faults", {}), "faults", source, base)
+    meter = _build(SpectroradiometerParameters, data.get("spectroradiometer", {}), "spectroradiometer", source, base)
     try:
-        return RigDescription(light, camera, scene, seed, pacing, faults, source)
+        return RigDescription(light=light, camera=camera, scene=scene, seed=seed, pacing=pacing, faults=faults,
+                              source=source, spectroradiometer=meter)
     except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
 

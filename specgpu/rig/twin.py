@@ -33,6 +33,7 @@ from specgpu.rig.camera import _NORMAL_TABLE, Camera, standard_normal_fill
 from specgpu.rig.config import FaultRates, RigDescription
 from specgpu.rig.light import ProgrammableLight
 from specgpu.rig.scene import SpectralScene, load_scene, white_plate_scene
+from specgpu.rig.spectroradiometer import Spectroradiometer
 
 __all__ = ["FaultSchedule", "TwinRig", "SNRReport", "measure_snr", "band_patterns"]
 
@@ -141,6 +142,7 @@ class TwinRig:
         self.seed = int(d.seed if seed is None else seed)
         self.light = ProgrammableLight(d.light, seed=self.seed)
         self.camera = Camera(d.camera, seed=self.seed)
+        self.spectroradiometer = Spectroradiometer(d.spectroradiometer, seed=self.seed)
         cam = d.camera
         self.light.check_exposure(cam.exposure_s, "camera.exposure_s")
         if cam.exposure_s + d.light.switch_time_s > self.frame_period_s * (1 + 1e-12):
@@ -222,6 +224,15 @@ class TwinRig:
         mean_dn, _ = self._ensure_maps()
         g = np.float32(self.camera.params.gain_e_per_dn)
         return np.sqrt(mean_dn[pattern_index] * np.float32(power) / g + self._var_floor)
+
+    def measure_spectrum(self, pattern_index: int | None = None, power: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Measure a loaded pattern's emission with the rig's spectroradiometer (paper Fig. 8(b)).
+
+        Returns (wavelengths nm, spectral irradiance W m^-2 nm^-1) at the spot centre, with the instrument's
+        bandpass and noise; ``power`` scales the emission (e.g. a drifted lamp).
+        """
+        spd = self.light.emitted_spectrum(pattern_index) * check_number("power", power, low=0)
+        return self.spectroradiometer.wavelengths, self.spectroradiometer.measure(spd, self.light.wavelengths)
 
     def plan_exposure(self, level: float = 0.8, *, percentile: float = 99.9) -> tuple[float, float]:
         """The exposure (s) that brings the brightest loaded pattern to ``level`` of the full well.
