@@ -240,3 +240,13 @@ def test_expose_gives_the_modelled_mean_and_variance():
     assert var == pytest.approx(cam.temporal_variance_dn(10000.0 * cam.prnu).mean(), rel=0.03)
     with pytest.raises(ValueError, match="signal_e must be >= 0"):
         cam.expose(-1.0, rng)
+
+
+def test_snr_measurement_ignores_fault_injection_and_pacing():
+    from specgpu.rig.config import FaultRates
+
+    base = RigDescription(camera=dataclasses.replace(CameraParameters(), roi_width=320, roi_height=240))
+    noisy = dataclasses.replace(base, faults=FaultRates(drop_rate=0.3, duplicate_rate=0.3), pacing="paced")
+    a = measure_snr(base, repeats=10, seed=5)
+    b = measure_snr(noisy, repeats=10, seed=5)
+    assert a.temporal_db == b.temporal_db and a.sensor_db == b.sensor_db
