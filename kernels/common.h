@@ -239,6 +239,27 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
     } while (0)
 #endif
 
+/* 8 x 8 transpose of floatv registers: rj lane i = ai lane j. Turns 8 outputs of 8 pixels (one register per
+ * output) into 8 pixel rows of 8 outputs, so interleaved (N, B) results are written as contiguous rows. */
+#define TRANSPOSE8(a0, a1, a2, a3, a4, a5, a6, a7, r0, r1, r2, r3, r4, r5, r6, r7)                        \
+    do {                                                                                               \
+        const uint8 lo1 = (uint8)(0, 8, 1, 9, 4, 12, 5, 13), hi1 = (uint8)(2, 10, 3, 11, 6, 14, 7, 15); \
+        const uint8 lo2 = (uint8)(0, 1, 8, 9, 4, 5, 12, 13), hi2 = (uint8)(2, 3, 10, 11, 6, 7, 14, 15); \
+        const uint8 lo3 = (uint8)(0, 1, 2, 3, 8, 9, 10, 11), hi3 = (uint8)(4, 5, 6, 7, 12, 13, 14, 15); \
+        const floatv t0 = shuffle2(a0, a1, lo1), t1 = shuffle2(a0, a1, hi1);                           \
+        const floatv t2 = shuffle2(a2, a3, lo1), t3 = shuffle2(a2, a3, hi1);                           \
+        const floatv t4 = shuffle2(a4, a5, lo1), t5 = shuffle2(a4, a5, hi1);                           \
+        const floatv t6 = shuffle2(a6, a7, lo1), t7 = shuffle2(a6, a7, hi1);                           \
+        const floatv u0 = shuffle2(t0, t2, lo2), u1 = shuffle2(t0, t2, hi2);                           \
+        const floatv u2 = shuffle2(t1, t3, lo2), u3 = shuffle2(t1, t3, hi2);                           \
+        const floatv u4 = shuffle2(t4, t6, lo2), u5 = shuffle2(t4, t6, hi2);                           \
+        const floatv u6 = shuffle2(t5, t7, lo2), u7 = shuffle2(t5, t7, hi2);                           \
+        r0 = shuffle2(u0, u4, lo3); r4 = shuffle2(u0, u4, hi3);                                        \
+        r1 = shuffle2(u1, u5, lo3); r5 = shuffle2(u1, u5, hi3);                                        \
+        r2 = shuffle2(u2, u6, lo3); r6 = shuffle2(u2, u6, hi3);                                        \
+        r3 = shuffle2(u3, u7, lo3); r7 = shuffle2(u3, u7, hi3);                                        \
+    } while (0)
+
 /* ------------------------------------------------------------------------------------------- colorimetry */
 
 /* CIE 1976 intermediate lightness function f(t): cube root above (24/116)^3, linear below (and for t < 0). */

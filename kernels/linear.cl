@@ -28,11 +28,16 @@
 #define OUT_T half
 #define STORE store_h
 #define STORE_STRIDED store_h_strided
+#define STORE_ROW(v, p) vstore_half8_rte(v, 0, p)
 #else
 #define OUT_T float
 #define STORE store_f
 #define STORE_STRIDED store_f_strided
+#define STORE_ROW(v, p) vstore8(v, 0, p)
 #endif
+
+/* Pixel row j (8 consecutive outputs from b0) of an interleaved block, when pixel j exists. */
+#define STORE_PIXEL_ROW(j, r) if ((j) < count) STORE_ROW(r, out + (base + (j)) * B + b0)
 
 __kernel void linear_apply(__global const IN_T *restrict frames,
                            __constant const float *restrict A,
@@ -47,18 +52,39 @@ __kernel void linear_apply(__global const IN_T *restrict frames,
 #if HAS_GAIN
     const floatv g = load_f(gain, base, count);
 #endif
+#if OUT_LAYOUT == 0
     for (uint b = 0; b < B; ++b) {
         floatv y;
         DOT_ROW(y, A, b);
 #if HAS_GAIN
         y *= g;
 #endif
-#if OUT_LAYOUT == 0
         STORE(y, out + (ulong)b * n, base, count);
-#else
-        STORE_STRIDED(y, out, base, count, B, b);
-#endif
     }
+#else
+    /* interleaved: blocks of 8 outputs are transposed in registers and written as 8 contiguous pixel rows
+     * (one stream per work-item instead of 8 strided scalar stores per output) */
+    uint b0 = 0;
+    for (; b0 + 8 <= B; b0 += 8) {
+        floatv a0, a1, a2, a3, a4, a5, a6, a7, r0, r1, r2, r3, r4, r5, r6, r7;
+        DOT_ROW(a0, A, b0 + 0); DOT_ROW(a1, A, b0 + 1); DOT_ROW(a2, A, b0 + 2); DOT_ROW(a3, A, b0 + 3);
+        DOT_ROW(a4, A, b0 + 4); DOT_ROW(a5, A, b0 + 5); DOT_ROW(a6, A, b0 + 6); DOT_ROW(a7, A, b0 + 7);
+#if HAS_GAIN
+        a0 *= g; a1 *= g; a2 *= g; a3 *= g; a4 *= g; a5 *= g; a6 *= g; a7 *= g;
+#endif
+        TRANSPOSE8(a0, a1, a2, a3, a4, a5, a6, a7, r0, r1, r2, r3, r4, r5, r6, r7);
+        STORE_PIXEL_ROW(0, r0); STORE_PIXEL_ROW(1, r1); STORE_PIXEL_ROW(2, r2); STORE_PIXEL_ROW(3, r3);
+        STORE_PIXEL_ROW(4, r4); STORE_PIXEL_ROW(5, r5); STORE_PIXEL_ROW(6, r6); STORE_PIXEL_ROW(7, r7);
+    }
+    for (; b0 < B; ++b0) {
+        floatv y;
+        DOT_ROW(y, A, b0);
+#if HAS_GAIN
+        y *= g;
+#endif
+        STORE_STRIDED(y, out, base, count, B, b0);
+    }
+#endif
 #if WRITE_MASK
     store_mask(convert_uchar8(flags), mask, base, count);
 #endif

@@ -23,6 +23,24 @@ _launch_lock = threading.Lock()  # a Kernel's arguments are shared state: set an
 DE_CODES = {"CIE 1976": 76, "CIE 1994": 94, "CIE 2000": 2000}
 
 
+_matrices: dict[tuple, cla.Array] = {}  # decoder matrices already on a device, by (context, shape, bytes)
+_MATRIX_CACHE_SIZE = 64
+
+
+def matrix_on_device(queue, M: np.ndarray) -> cla.Array:
+    """A small float32 matrix on the device, uploaded once per distinct content (a plan's A is reused for every
+    sequence of a recording; re-uploading it would be a blocking transfer per call)."""
+    M = np.ascontiguousarray(M, dtype=np.float32)
+    key = (queue.context.int_ptr, M.shape, M.tobytes())
+    with _launch_lock:
+        dev = _matrices.get(key)
+        if dev is None:
+            if len(_matrices) >= _MATRIX_CACHE_SIZE:
+                _matrices.pop(next(iter(_matrices)))
+            dev = _matrices[key] = cla.to_device(queue, M)
+        return dev
+
+
 def _c_float(x: float) -> str:
     return repr(float(x)) + "f"
 
@@ -93,7 +111,7 @@ def linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 
     )
     out = _empty(queue, B * n, out_dtype)
     mask = _empty(queue, n, np.uint8) if want_mask else None
-    A_dev = cla.to_device(queue, np.ascontiguousarray(A, dtype=np.float32))
+    A_dev = matrix_on_device(queue, A)
     if n:
         _launch(queue, kernel, n, frames.data, A_dev.data, _data(dark), _data(gain), out.data, _data(mask),
                 np.uint64(n))
@@ -150,7 +168,7 @@ def frames_to_delta_e(queue, frames: cla.Array, M: np.ndarray, white, reference:
         Lab=_empty(queue, 3 * n, np.float32) if write_lab else None,
         mask=_empty(queue, n, np.uint8) if want_mask else None,
     )
-    M_dev = cla.to_device(queue, np.ascontiguousarray(M, dtype=np.float32))
+    M_dev = matrix_on_device(queue, M)
     Xn, Yn, Zn = (np.float32(v) for v in white)
     if n:
         _launch(queue, kernel, n, frames.data, M_dev.data, _data(dark), _data(gain), Xn, Yn, Zn,
