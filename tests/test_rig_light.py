@@ -186,7 +186,7 @@ def test_field_profile_matches_paper_figures_4_and_5():
     assert prof.dtype == np.float32 and prof.shape == (480, 640)
     assert prof.max() <= 1.0 and prof[239:241, 319:321].min() > 0.9999
     # Default spot: good uniformity (paper Fig. 4), a few per cent fall-off in the corners.
-    assert 0.9 < prof[0, 0] < 0.97
+    assert 0.95 < prof[0, 0] < 0.97  # about 4 % in the corners
     # Half maximum at half the spot diameter.
     flat = ProgrammableLight(LightParameters(spot_diameter_mm=10.0))
     row = flat.field_profile(1, 2001, 0.01)[0]

@@ -80,7 +80,7 @@ class LightParameters:
         ``1 / diameter**2`` (the same flux spread wider, paper Fig. 5). > 0. Default 80.
     spot_flatness : float
         Order ``p`` of the super-Gaussian spot profile ``2 ** -((2 r / d) ** (2 p))``: 1 is Gaussian, large is
-        flat-top. [0.5, 20]. Default 2 (about 6 % fall-off at the corners of the default field, paper Fig. 4).
+        flat-top. [0.5, 20]. Default 2 (about 4 % fall-off at the corners of the default field, paper Fig. 4).
     spot_centre_mm : tuple of float
         (x, y) offset (mm) of the spot centre from the centre of the camera's field. Default (0, 0).
     pattern_load_s : float
