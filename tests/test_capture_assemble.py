@@ -111,6 +111,7 @@ def test_a_worked_example():
     # cycle 2: frames 6, 7 then 8 repeats pattern 1 (missed trigger) -> discarded; cycle 3: frames 10, 11 + end.
     assert [s.cycle for s in seqs] == [0]
     assert [list(s.frame_ids) for s in seqs] == [[0, 1, 2]]
+    assert seqs[0].frame_records()[2] == {"frame_id": 2, "pattern_index": 2, "exposure_s": 1e-3, "timestamp_s": 0.0}
     assert stats.as_dict() == dict(frames_received=12, duplicates=1, out_of_order=0, dropped=1, missed_triggers=1,
                                    sync_failures=0, sequences_complete=1, sequences_discarded=3, frames_unused=8)
 

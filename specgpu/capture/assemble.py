@@ -66,6 +66,12 @@ class Sequence:
     exposure_s: float
     cycle: int
 
+    def frame_records(self) -> list[dict]:
+        """Per frame: frame id, pattern index (its slot), exposure and timestamp, as plain data (e.g. for the
+        ``sequence.json`` of a saved capture)."""
+        return [{"frame_id": int(fid), "pattern_index": j, "exposure_s": self.exposure_s, "timestamp_s": float(ts)}
+                for j, (fid, ts) in enumerate(zip(self.frame_ids, self.timestamps_s))]
+
 
 @dataclass
 class AssemblyStats:
