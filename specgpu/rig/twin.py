@@ -144,11 +144,15 @@ class TwinRig:
         self.camera = Camera(d.camera, seed=self.seed)
         self.spectroradiometer = Spectroradiometer(d.spectroradiometer, seed=self.seed)
         cam = d.camera
-        self.light.check_exposure(cam.exposure_s, "camera.exposure_s")
+        where = "" if d.source.startswith("<") else f"{d.source}: "
+        try:
+            self.light.check_exposure(cam.exposure_s, "camera.exposure_s")
+        except ValueError as exc:
+            raise ValueError(f"{where}{exc}") from None
         if cam.exposure_s + d.light.switch_time_s > self.frame_period_s * (1 + 1e-12):
             raise ValueError(
-                f"camera.exposure_s = {cam.exposure_s:g} s plus the light's {d.light.switch_time_s * 1e6:.0f} us "
-                f"switch time exceeds the frame period {self.frame_period_s:g} s at {cam.frame_rate_hz:g} fps")
+                f"{where}camera.exposure_s = {cam.exposure_s:g} s plus the light's {d.light.switch_time_s * 1e6:.0f} "
+                f"us switch time exceeds the frame period {self.frame_period_s:g} s at {cam.frame_rate_hz:g} fps")
         self.field = self.light.field_profile(*self.camera.shape, self.camera.pixel_mm)
         self._scene: SpectralScene | None = None
         self.set_scene(d.scene if scene is None else scene)
