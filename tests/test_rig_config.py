@@ -89,6 +89,7 @@ jitter_s = 1e-6
     ("[light]\nspot_centre_mm = [1]\n", r"light.spot_centre_mm must be a list of 2 numbers"),
     ("[scene]\nsource = \"missing.exr\"\n", r"scene.source file not found"),
     ("[scene]\nsrc = \"white\"\n", r"unknown key scene.src; valid keys: source"),
+    ("[scene]\nsource = \"natural:moon\"\n", r"scene.source 'natural:moon': unknown image; valid: chelsea"),
     ("[twin]\nseed = -1\n", r"twin.seed must be >= 0"),
     ("[twin]\npacing = \"fast\"\n", r"twin.pacing must be one of free, paced"),
     ("[twin]\nthreads = 2\n", r"unknown key twin.threads"),

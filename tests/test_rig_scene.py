@@ -181,6 +181,9 @@ def test_load_scene_resamples_and_rejects_unknown_names(tmp_path):
     assert load_scene(str(tmp_path / "c.npz"), 12, 10).shape == (12, 10)
     with pytest.raises(ValueError, match="unknown scene 'moon'; give a .exr or .npz file or one of: colorchecker"):
         load_scene("moon")
+    assert load_scene("natural:rocket", 24, 32).name == "natural:rocket"
+    with pytest.raises(ValueError, match="unknown image 'moon'; valid images: chelsea"):
+        load_scene("natural:moon", 24, 32)
 
 
 def test_band_weights_integrate_linearly_interpolated_reflectance():

@@ -9,7 +9,7 @@ A rig TOML has up to six tables; every key is optional and defaults to the paper
     sensitivity = "cmos"
     bit_depth = 10
     [scene]
-    source = "colorchecker"      # "colorchecker", "white", "natural" or a .exr / .npz cube
+    source = "colorchecker"      # "colorchecker", "white", "natural", "natural:coffee" or a .exr / .npz cube
     [twin]
     seed = 0
     pacing = "free"              # "free": as fast as it renders; "paced": at the camera's frame rate
@@ -177,7 +177,12 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
     scene = scene_table.get("source", "colorchecker")
     if not isinstance(scene, str):
         raise ValueError(f"{source}: scene.source must be a string, got {scene!r}")
-    if scene not in ("colorchecker", "white", "natural"):
+    if scene.startswith("natural:"):
+        from specgpu.rig.scene import _NATURAL_IMAGES
+
+        if scene[8:] not in _NATURAL_IMAGES:
+            raise ValueError(f"{source}: scene.source {scene!r}: unknown image; valid: {', '.join(_NATURAL_IMAGES)}")
+    elif scene not in ("colorchecker", "white", "natural"):
         p = Path(scene)
         scene = str(p if p.is_absolute() or base is None else base / p)
         if not Path(scene).is_file():

@@ -373,13 +373,17 @@ BUILTIN_SCENES = {
 
 
 def load_scene(source, height: int = 480, width: int = 640) -> SpectralScene:
-    """A built-in scene by name, or a cube file by path, at (height, width) (files are resampled if needed)."""
+    """A built-in scene by name (``"natural:<image>"`` picks the photograph), or a cube file by path, at
+    (height, width) (files are resampled if needed)."""
     if isinstance(source, SpectralScene):
         return source.resized(height, width)
     text = str(source)
     if text in BUILTIN_SCENES:
         return BUILTIN_SCENES[text](height, width)
+    if text.startswith("natural:"):
+        return natural_scene(height, width, image=text.partition(":")[2])
     path = Path(text)
     if path.suffix.lower() in (".exr", ".npz"):
         return read_scene(path).resized(height, width)
-    raise ValueError(f"unknown scene {text!r}; give a .exr or .npz file or one of: {', '.join(BUILTIN_SCENES)}")
+    raise ValueError(f"unknown scene {text!r}; give a .exr or .npz file or one of: {', '.join(BUILTIN_SCENES)}, "
+                     f"natural:<image> with <image> one of {', '.join(_NATURAL_IMAGES)}")
