@@ -197,7 +197,7 @@ class TwinRig:
         wb = self._scene.band_weights(wl, weights).astype(np.float32)  # (K, B)
         h, w = self.camera.shape
         refl = self._scene.reflectance.reshape(h * w, -1)
-        e = (refl @ wb.T).T.reshape(-1, h, w)
+        e = (wb @ refl.T).reshape(-1, h, w)  # (K, H*W) comes out C-contiguous: no transposed copy
         e *= self.field[None]
         return e
 
@@ -207,10 +207,12 @@ class TwinRig:
         cam = self.camera
         p = cam.params
         g = np.float32(p.gain_e_per_dn)
-        sig = self.signal_electrons() * cam.prnu[None]  # (K, H, W) e-
+        sig = self.signal_electrons()  # (K, H, W) e-; worked on in place to keep the peak memory at one copy
+        sig *= cam.prnu[None]
         np.maximum(sig, 0.0, out=sig)
         dark = cam.dark_electrons(self.exposure_s)
-        mean_dn = sig / g
+        mean_dn = sig
+        mean_dn /= g
         offset_dn = (np.float32(p.pedestal_e + dark) + cam.dsnu_e) / g + np.float32(0.5)
         self._var_floor = np.float32((dark + p.read_noise_e**2) / p.gain_e_per_dn**2)
         self._maps = (mean_dn, offset_dn.astype(np.float32))
