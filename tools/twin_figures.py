@@ -75,6 +75,13 @@ def drill(n_frames: int) -> None:
           f"{injected[:, 1].sum()}, missed triggers {injected[:, 2].sum()}; counted drops {a.dropped}, duplicates "
           f"{a.duplicates}, missed triggers {a.missed_triggers}; sequences complete {a.sequences_complete}, "
           f"discarded {a.sequences_discarded}")
+    # The same faults, aligned on content alone (pattern 0 is dark): the pattern index is not used at all.
+    threshold = 0.5 * (rig.expected_frame(0).mean() + rig.expected_frame(1).mean())
+    driver = open_driver("twin", rig=rig, faults=faults, n_frames=n_frames)
+    s = capture_sequences(driver, k, n_slots=8, align="sync", sync_max_dn=threshold).assembly
+    print(f"drill, align='sync' (dark pattern 0, threshold {threshold:.0f} DN): counted drops {s.dropped}, "
+          f"duplicates {s.duplicates}; sequences complete {s.sequences_complete}, discarded "
+          f"{s.sequences_discarded}, sync failures {s.sync_failures}")
 
 
 def main():
