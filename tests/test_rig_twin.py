@@ -199,3 +199,14 @@ def test_plan_exposure_places_the_brightest_pattern_at_the_level(rig):
     assert brightest == pytest.approx(0.5 * rig.camera.params.full_well_e, rel=1e-4)
     t, reached = rig.plan_exposure(1.0)  # would need longer than the 90 fps frame allows: capped
     assert t == pytest.approx(1 / 90 - 80e-6) and reached < 1.0
+
+
+def test_loading_through_the_driver_interface_updates_the_frames():
+    r = TwinRig(RigDescription(camera=SMALL, light=LightParameters(fluctuation_rms=0.0)), scene="white")
+    r.load_sequence(level_patterns())
+    driver = TwinDriver(r, n_frames=4)
+    first, _, _ = run(driver)
+    driver.light.load_sequence(level_patterns()[::-1])  # the generic LightSource call, bypassing TwinRig
+    second, infos, _ = run(driver)
+    assert [lit_by(r, f) for f in second] == [0, 1, 2, 3]
+    assert second[0].mean() == pytest.approx(first[3].mean(), rel=0.01)  # now pattern 0 is the brightest

@@ -304,6 +304,7 @@ class ProgrammableLight(LightSource):
         self._spectra = self._m @ np.zeros(p.columns)
         self._spectra = self._spectra[None, :]
         self._index = 0
+        self.sequence_version = 0
         self._rng = np.random.default_rng(seed)
 
     # ---- geometry of the DMD ---------------------------------------------------------------------------
@@ -467,6 +468,7 @@ class ProgrammableLight(LightSource):
         self._sequence = n.copy()
         self._spectra = self.pattern_to_spectrum(n)
         self._index = 0
+        self.sequence_version += 1  # lets a renderer know its cached per-pattern frames are stale
 
     def set_steady(self, pattern) -> None:
         """Steady-state mode: the same pattern for every frame (a sequence of length 1)."""

@@ -202,8 +202,10 @@ class TwinRig:
         return e
 
     def _ensure_maps(self):
-        if self._maps is not None:
+        # The light's sequence may also be loaded through the driver interface (driver.light.load_sequence).
+        if self._maps is not None and self._maps_version == self.light.sequence_version:
             return self._maps
+        self._maps_version = self.light.sequence_version
         cam = self.camera
         p = cam.params
         g = np.float32(p.gain_e_per_dn)
