@@ -27,7 +27,7 @@ import numpy as np
 from specgpu.capture.driver import FrameInfo
 from specgpu.rig._checks import check_number
 
-__all__ = ["RingBuffer", "Slot", "RingStats", "POLICIES"]
+__all__ = ["RingBuffer", "Slot", "RingStats", "POLICIES", "run_producer"]
 
 POLICIES = ("block", "drop_oldest", "drop_newest")
 
