@@ -3,6 +3,9 @@
  * and what makes GPU loads and stores coalesce; the last work-item of a launch handles a partial vector
  * with the same code, padding lanes it then does not store.
  *
+ * Multiply-adds are written a * b + c, never fma(): the program is built with -cl-mad-enable, so compilers
+ * contract them to FMA instructions inline, while PoCL calls its vector fma() out of line (3.4x slower here).
+ *
  * Specialisation macros (set by specgpu.runtime.build_options; defaults make the header parse alone):
  *   K          frames per pixel (input planes)
  *   IN_T       input sample type: uchar, ushort or float
@@ -49,10 +52,29 @@ typedef int8 intv;
 
 /* ---------------------------------------------------------------------------------------- loads and stores */
 
+/* Whole-vector loads and stores at element alignment. With VEC_DEREF (set by the host for PoCL, whose vloadn /
+ * vstoren are out-of-line calls) they dereference under-aligned vector types, which clang lowers to inline
+ * unaligned moves; elsewhere they are the standard vloadn / vstoren, which GPU compilers inline. */
+#ifndef VEC_DEREF
+#define VEC_DEREF 0
+#endif
+#if VEC_DEREF
+typedef float8 float8_u __attribute__((aligned(4)));
+typedef ushort8 ushort8_u __attribute__((aligned(2)));
+typedef uchar8 uchar8_u __attribute__((aligned(1)));
+#define VEC8U_(T) T##8_u
+#define VEC8U(T) VEC8U_(T)
+#define LOAD8(T, p) (*(__global const VEC8U(T) *)(p))
+#define STORE8(T, v, p) (*(__global VEC8U(T) *)(p) = (v))
+#else
+#define LOAD8(T, p) vload8(0, (__global const T *)(p))
+#define STORE8(T, v, p) vstore8((v), 0, (__global T *)(p))
+#endif
+
 /* VW consecutive float samples p[base..], lanes past count read as 0. */
 inline floatv load_f(__global const float *p, ulong base, uint count)
 {
-    if (count == VW) return vload8(0, p + base);
+    if (count == VW) return LOAD8(float, p + base);
     float t[VW];
     for (uint j = 0; j < VW; ++j) t[j] = j < count ? p[base + j] : 0.0f;
     return vload8(0, t);
@@ -68,7 +90,7 @@ inline floatv load_f_strided(__global const float *p, ulong base, uint count, ui
 
 inline void store_f(floatv v, __global float *p, ulong base, uint count)
 {
-    if (count == VW) { vstore8(v, 0, p + base); return; }
+    if (count == VW) { STORE8(float, v, p + base); return; }
     float t[VW];
     vstore8(v, 0, t);
     for (uint j = 0; j < count; ++j) p[base + j] = t[j];
@@ -81,10 +103,32 @@ inline void store_f_strided(floatv v, __global float *p, ulong base, uint count,
     for (uint j = 0; j < count; ++j) p[(base + j) * nch + c] = t[j];
 }
 
-/* float16 stores go through vstore_half (round to nearest even), which needs no cl_khr_fp16. */
+/* float16 stores round to nearest even and need no cl_khr_fp16: vstore_half where it is native; with VEC_DEREF
+ * (PoCL, where vstore_half is an out-of-line call) the half bits are made inline, branch-free: NaN stays NaN,
+ * beyond the half range is inf, half subnormals are rounded by aligning the mantissa with a float add. */
+#if VEC_DEREF
+inline ushort8 half_bits(floatv v)
+{
+    uint8 x = as_uint8(v);
+    const uint8 sign = x & (uint8)(0x80000000u);
+    x ^= sign;
+    const float magic = 0.5f; /* exponent (127 - 15) + (23 - 10) + 1: puts half subnormal bits at the bottom */
+    const uint8 subnormal = as_uint8(as_float8(x) + magic) - (uint8)(as_uint(magic));
+    const uint8 odd = (x >> 13) & (uint8)(1u);
+    const uint8 normal = (x + (uint8)(((uint)(15 - 127) << 23) + 0xfffu) + odd) >> 13;
+    uint8 h = select(normal, subnormal, x < (uint8)(113u << 23));
+    h = select(h, (uint8)(0x7c00u), x >= (uint8)((127u + 16u) << 23));
+    h = select(h, (uint8)(0x7e00u), x > (uint8)(255u << 23));
+    return convert_ushort8(h | (sign >> 16));
+}
+#define STORE_HALF8(v, p) STORE8(ushort, half_bits(v), p)
+#else
+#define STORE_HALF8(v, p) vstore_half8_rte((v), 0, (p))
+#endif
+
 inline void store_h(floatv v, __global half *p, ulong base, uint count)
 {
-    if (count == VW) { vstore_half8_rte(v, 0, p + base); return; }
+    if (count == VW) { STORE_HALF8(v, p + base); return; }
     float t[VW];
     vstore8(v, 0, t);
     for (uint j = 0; j < count; ++j) vstore_half_rte(t[j], 0, p + base + j);
@@ -99,7 +143,7 @@ inline void store_h_strided(floatv v, __global half *p, ulong base, uint count, 
 
 inline void store_mask(uchar8 m, __global uchar *p, ulong base, uint count)
 {
-    if (count == VW) { vstore8(m, 0, p + base); return; }
+    if (count == VW) { STORE8(uchar, m, p + base); return; }
     uchar t[VW];
     vstore8(m, 0, t);
     for (uint j = 0; j < count; ++j) p[base + j] = t[j];
@@ -110,7 +154,7 @@ inline floatv load_frame(__global const IN_T *frames, ulong n, uint k, ulong bas
 {
 #if IN_LAYOUT == 0
     __global const IN_T *p = frames + (ulong)k * n + base;
-    if (count == VW) return convert_float8(vload8(0, p));
+    if (count == VW) return convert_float8(LOAD8(IN_T, p));
     float t[VW];
     for (uint j = 0; j < VW; ++j) t[j] = j < count ? (float)p[j] : 0.0f;
     return vload8(0, t);
@@ -215,7 +259,7 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
 
 #if K <= 64
 #define X_LOAD_ONE(k) const floatv x##k = load_sample(frames, dark, n, k, base, count, &flags);
-#define X_FMA_ONE(k) acc_ = fma((floatv)(m_[k]), x##k, acc_);
+#define X_FMA_ONE(k) acc_ = m_[k] * x##k + acc_;
 /* Declares intv flags and the samples of this work-item's pixels. */
 #define LOAD_PIXELS() intv flags = (intv)(0); REP_(K, X_LOAD_ONE)
 /* acc = sum_k M[row, k] x_k  (M row-major, K columns) */
@@ -235,29 +279,34 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
     do {                                                                          \
         __constant const float *m_ = (M) + (uint)(row) * K;                       \
         acc = (floatv)(0.0f);                                                     \
-        for (uint k = 0; k < K; ++k) acc = fma((floatv)(m_[k]), x[k], acc);       \
+        for (uint k = 0; k < K; ++k) acc = m_[k] * x[k] + acc;                    \
     } while (0)
 #endif
 
 /* 8 x 8 transpose of floatv registers: rj lane i = ai lane j. Turns 8 outputs of 8 pixels (one register per
- * output) into 8 pixel rows of 8 outputs, so interleaved (N, B) results are written as contiguous rows. */
+ * output) into 8 pixel rows of 8 outputs, so interleaved (N, B) results are written as contiguous rows.
+ * Written with swizzle constructors, which compilers lower to single vector shuffles (shuffle2 with a mask
+ * variable is a generic library loop on PoCL). */
+#define UNPACK_LO(p, q) (floatv)((p).s0, (q).s0, (p).s1, (q).s1, (p).s4, (q).s4, (p).s5, (q).s5)
+#define UNPACK_HI(p, q) (floatv)((p).s2, (q).s2, (p).s3, (q).s3, (p).s6, (q).s6, (p).s7, (q).s7)
+#define PAIRS_LO(p, q) (floatv)((p).s01, (q).s01, (p).s45, (q).s45)
+#define PAIRS_HI(p, q) (floatv)((p).s23, (q).s23, (p).s67, (q).s67)
+#define HALVES_LO(p, q) (floatv)((p).lo, (q).lo)
+#define HALVES_HI(p, q) (floatv)((p).hi, (q).hi)
 #define TRANSPOSE8(a0, a1, a2, a3, a4, a5, a6, a7, r0, r1, r2, r3, r4, r5, r6, r7)                        \
     do {                                                                                               \
-        const uint8 lo1 = (uint8)(0, 8, 1, 9, 4, 12, 5, 13), hi1 = (uint8)(2, 10, 3, 11, 6, 14, 7, 15); \
-        const uint8 lo2 = (uint8)(0, 1, 8, 9, 4, 5, 12, 13), hi2 = (uint8)(2, 3, 10, 11, 6, 7, 14, 15); \
-        const uint8 lo3 = (uint8)(0, 1, 2, 3, 8, 9, 10, 11), hi3 = (uint8)(4, 5, 6, 7, 12, 13, 14, 15); \
-        const floatv t0 = shuffle2(a0, a1, lo1), t1 = shuffle2(a0, a1, hi1);                           \
-        const floatv t2 = shuffle2(a2, a3, lo1), t3 = shuffle2(a2, a3, hi1);                           \
-        const floatv t4 = shuffle2(a4, a5, lo1), t5 = shuffle2(a4, a5, hi1);                           \
-        const floatv t6 = shuffle2(a6, a7, lo1), t7 = shuffle2(a6, a7, hi1);                           \
-        const floatv u0 = shuffle2(t0, t2, lo2), u1 = shuffle2(t0, t2, hi2);                           \
-        const floatv u2 = shuffle2(t1, t3, lo2), u3 = shuffle2(t1, t3, hi2);                           \
-        const floatv u4 = shuffle2(t4, t6, lo2), u5 = shuffle2(t4, t6, hi2);                           \
-        const floatv u6 = shuffle2(t5, t7, lo2), u7 = shuffle2(t5, t7, hi2);                           \
-        r0 = shuffle2(u0, u4, lo3); r4 = shuffle2(u0, u4, hi3);                                        \
-        r1 = shuffle2(u1, u5, lo3); r5 = shuffle2(u1, u5, hi3);                                        \
-        r2 = shuffle2(u2, u6, lo3); r6 = shuffle2(u2, u6, hi3);                                        \
-        r3 = shuffle2(u3, u7, lo3); r7 = shuffle2(u3, u7, hi3);                                        \
+        const floatv t0 = UNPACK_LO(a0, a1), t1 = UNPACK_HI(a0, a1);                                   \
+        const floatv t2 = UNPACK_LO(a2, a3), t3 = UNPACK_HI(a2, a3);                                   \
+        const floatv t4 = UNPACK_LO(a4, a5), t5 = UNPACK_HI(a4, a5);                                   \
+        const floatv t6 = UNPACK_LO(a6, a7), t7 = UNPACK_HI(a6, a7);                                   \
+        const floatv u0 = PAIRS_LO(t0, t2), u1 = PAIRS_HI(t0, t2);                                     \
+        const floatv u2 = PAIRS_LO(t1, t3), u3 = PAIRS_HI(t1, t3);                                     \
+        const floatv u4 = PAIRS_LO(t4, t6), u5 = PAIRS_HI(t4, t6);                                     \
+        const floatv u6 = PAIRS_LO(t5, t7), u7 = PAIRS_HI(t5, t7);                                     \
+        r0 = HALVES_LO(u0, u4); r4 = HALVES_HI(u0, u4);                                                \
+        r1 = HALVES_LO(u1, u5); r5 = HALVES_HI(u1, u5);                                                \
+        r2 = HALVES_LO(u2, u6); r6 = HALVES_HI(u2, u6);                                                \
+        r3 = HALVES_LO(u3, u7); r7 = HALVES_HI(u3, u7);                                                \
     } while (0)
 
 /* ------------------------------------------------------------------------------------------- colorimetry */
@@ -288,7 +337,7 @@ inline void lab_from_xyz(floatv X, floatv Y, floatv Z, float Xn, float Yn, float
  * costs several times more on CPU devices. */
 inline floatv chroma(floatv a, floatv b)
 {
-    return sqrt(fma(a, a, b * b));
+    return sqrt(a * a + b * b);
 }
 
 /* CIE 1976: Euclidean distance in CIELAB. */
@@ -351,9 +400,9 @@ inline floatv delta_e_2000(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2
     /* T = 1 - 0.17 cos(h - 30) + 0.24 cos(2h) + 0.32 cos(3h + 6) - 0.20 cos(4h - 63), h in degrees */
     floatv c1;
     const floatv s1 = sincos(hbar * DEG2RAD, &c1);
-    const floatv c2 = fma(2.0f * c1, c1, -1.0f), s2 = 2.0f * s1 * c1;
-    const floatv c3 = c1 * fma(4.0f * c1, c1, -3.0f), s3 = s1 * fma(-4.0f * s1, s1, 3.0f);
-    const floatv c4 = fma(2.0f * c2, c2, -1.0f), s4 = 2.0f * s2 * c2;
+    const floatv c2 = 2.0f * c1 * c1 - 1.0f, s2 = 2.0f * s1 * c1;
+    const floatv c3 = c1 * (4.0f * c1 * c1 - 3.0f), s3 = s1 * (3.0f - 4.0f * s1 * s1);
+    const floatv c4 = 2.0f * c2 * c2 - 1.0f, s4 = 2.0f * s2 * c2;
     const float cos30 = 0.8660254037844387f, sin30 = 0.5f;
     const float cos6 = 0.9945218953682733f, sin6 = 0.10452846326765347f;
     const float cos63 = 0.45399049973954675f, sin63 = 0.8910065241883679f;

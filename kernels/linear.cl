@@ -28,12 +28,12 @@
 #define OUT_T half
 #define STORE store_h
 #define STORE_STRIDED store_h_strided
-#define STORE_ROW(v, p) vstore_half8_rte(v, 0, p)
+#define STORE_ROW(v, p) STORE_HALF8(v, p)
 #else
 #define OUT_T float
 #define STORE store_f
 #define STORE_STRIDED store_f_strided
-#define STORE_ROW(v, p) vstore8(v, 0, p)
+#define STORE_ROW(v, p) STORE8(float, v, p)
 #endif
 
 /* Pixel row j (8 consecutive outputs from b0) of an interleaved block, when pixel j exists. */

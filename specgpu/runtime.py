@@ -258,6 +258,14 @@ def build_options(**macros) -> tuple[str, ...]:
     return tuple(options)
 
 
+def _device_options(device: cl.Device) -> list[str]:
+    """Options a device family needs. PoCL's clang honours under-aligned vector types, which replace its
+    out-of-line vloadn / vstoren calls by inline unaligned moves (kernels/common.h, VEC_DEREF)."""
+    if "portable computing language" in device.platform.name.lower():
+        return ["-DVEC_DEREF=1"]
+    return []
+
+
 class _Program:
     """A built program and the kernels retrieved from it (kept: retrieving one per call is slow)."""
 
@@ -287,7 +295,7 @@ def get_program(context: cl.Context, source_name: str, options: tuple[str, ...])
     if entry is not None:
         return entry
     include = kernel_dir()
-    full_options = [*options, "-cl-mad-enable", f"-I{include}"]
+    full_options = [*options, *_device_options(context.devices[0]), "-cl-mad-enable", f"-I{include}"]
     try:
         program = cl.Program(context, source).build(options=full_options)
     except cl.RuntimeError as error:

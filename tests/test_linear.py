@@ -191,3 +191,22 @@ def test_random_shapes_property(K, B, npix, seed):
     A = rng.normal(0, 1, (B, K))
     y = apply_linear(frames, A)
     assert_close(y, linear_ref(frames, A), np.moveaxis(bound(frames, A), 0, -1))
+
+
+def test_float16_rounding_is_bit_exact_round_to_nearest_even(queue):
+    """Output rounding equals NumPy's float32 -> float16 cast, bit for bit: random bit patterns over the whole
+    float32 range, the half subnormal and overflow boundaries, inf and NaN (sums start at +0, so -0 -> +0)."""
+    rng = np.random.default_rng(16)
+    x = np.concatenate([
+        np.array([0.0, np.inf, -np.inf, np.nan, 65504, 65519.99, 65520, 65536, 6.1035156e-05, 6.097555e-05,
+                  5.9604645e-08, 2.9802322e-08, 2.9802326e-08, 1e-45, -3.0e-08, 1.0, -2.5, 0.1], np.float32),
+        rng.integers(0, 2**32, 200_000, dtype=np.uint64).astype(np.uint32).view(np.float32),
+        (rng.normal(0, 1, 100_000) * np.exp2(rng.integers(-26, 17, 100_000))).astype(np.float32),
+    ])
+    x[x == 0] = 0.0
+    for layout in ("planar", "interleaved"):
+        y = apply_linear(x[None, :], [[1.0]], out_dtype=np.float16, layout=layout, device=queue).ravel()
+        with np.errstate(over="ignore"):
+            expected = x.astype(np.float16)
+        same = (y.view(np.uint16) == expected.view(np.uint16)) | (np.isnan(y) & np.isnan(expected))
+        assert same.all(), f"{layout}: {x[~same][:5]} -> {y[~same][:5]}, expected {expected[~same][:5]}"
