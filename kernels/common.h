@@ -3,6 +3,8 @@
  * and what makes GPU loads and stores coalesce; the last work-item of a launch handles a partial vector
  * with the same code, padding lanes it then does not store.
  *
+ * Vector selection is written c ? b : a, which the OpenCL C specification defines as select(a, b, c) and which
+ * compiles inline; PoCL calls select() out of line.
  * Multiply-adds are written a * b + c, never fma(): the program is built with -cl-mad-enable, so compilers
  * contract them to FMA instructions inline, while PoCL calls its vector fma() out of line (3.4x slower here).
  *
@@ -116,9 +118,9 @@ inline ushort8 half_bits(floatv v)
     const uint8 subnormal = as_uint8(as_float8(x) + magic) - (uint8)(as_uint(magic));
     const uint8 odd = (x >> 13) & (uint8)(1u);
     const uint8 normal = (x + (uint8)(((uint)(15 - 127) << 23) + 0xfffu) + odd) >> 13;
-    uint8 h = select(normal, subnormal, x < (uint8)(113u << 23));
-    h = select(h, (uint8)(0x7c00u), x >= (uint8)((127u + 16u) << 23));
-    h = select(h, (uint8)(0x7e00u), x > (uint8)(255u << 23));
+    uint8 h = x < (uint8)(113u << 23) ? subnormal : normal;
+    h = x >= (uint8)((127u + 16u) << 23) ? (uint8)(0x7c00u) : h;
+    h = x > (uint8)(255u << 23) ? (uint8)(0x7e00u) : h;
     return convert_ushort8(h | (sign >> 16));
 }
 #define STORE_HALF8(v, p) STORE8(ushort, half_bits(v), p)
@@ -174,10 +176,10 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
 {
     floatv v = load_frame(frames, n, k, base, count);
 #ifdef SAT_LEVEL
-    *flags |= select((intv)(0), (intv)(MASK_SATURATED), v >= (floatv)(SAT_LEVEL));
+    *flags |= v >= (floatv)(SAT_LEVEL) ? (intv)(MASK_SATURATED) : (intv)(0);
 #endif
 #if IS_FLOAT_IN
-    *flags |= select((intv)(0), (intv)(MASK_NONFINITE), isfinite(v) == (intv)(0));
+    *flags |= isfinite(v) == (intv)(0) ? (intv)(MASK_NONFINITE) : (intv)(0);
 #endif
 #if HAS_DARK == 1
     v -= load_f(dark, base, count);
@@ -315,7 +317,7 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
 inline floatv cie_f(floatv t)
 {
     const floatv linear = t * (841.0f / 108.0f) + (16.0f / 116.0f);
-    return select(linear, cbrt(t), t > (floatv)(216.0f / 24389.0f));
+    return t > (floatv)(216.0f / 24389.0f) ? cbrt(t) : linear;
 }
 
 /* XYZ -> CIELAB for the reference white (Xn, Yn, Zn); L in [0, 100] for 0 <= Y <= Yn. */
@@ -354,7 +356,7 @@ inline floatv delta_e_94(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2, 
     const floatv sC = 1.0f + 0.045f * C1, sH = 1.0f + 0.015f * C1;
     const floatv dL = L1 - L2, dC = C1 - C2, da = a1 - a2, db = b1 - b2;
     const floatv radical = da * da + db * db - dC * dC;
-    const floatv dH2 = select((floatv)(0.0f), radical, radical > (floatv)(0.0f));
+    const floatv dH2 = radical > (floatv)(0.0f) ? radical : (floatv)(0.0f);
     const floatv tC = dC / sC;
     return sqrt(dL * dL + tC * tC + dH2 / (sH * sH));
 }
@@ -377,25 +379,25 @@ inline floatv delta_e_2000(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2
     /* atan2(0, 0) is 0, the formula's hue of an achromatic colour */
     floatv h1p = atan2(b1, a1p) * RAD2DEG;
     floatv h2p = atan2(b2, a2p) * RAD2DEG;
-    h1p = select(h1p, h1p + 360.0f, h1p < zero);
-    h2p = select(h2p, h2p + 360.0f, h2p < zero);
+    h1p = h1p < zero ? h1p + 360.0f : h1p;
+    h2p = h2p < zero ? h2p + 360.0f : h2p;
 
     const floatv Cprod = C1p * C2p;
     const intv chromatic = Cprod != zero;
     const floatv dL = L2 - L1;
     const floatv dC = C2p - C1p;
     floatv dh = h2p - h1p;
-    dh = select(dh, dh - 360.0f, dh > (floatv)(180.0f));
-    dh = select(dh, dh + 360.0f, dh < (floatv)(-180.0f));
-    dh = select(zero, dh, chromatic);
+    dh = dh > (floatv)(180.0f) ? dh - 360.0f : dh;
+    dh = dh < (floatv)(-180.0f) ? dh + 360.0f : dh;
+    dh = chromatic ? dh : zero;
     const floatv dH = 2.0f * sqrt(Cprod) * sin(dh * (0.5f * DEG2RAD));
 
     const floatv Lbar = 0.5f * (L1 + L2);
     const floatv Cbarp = 0.5f * (C1p + C2p);
     const floatv hsum = h1p + h2p;
-    floatv hbar = select(select(hsum - 360.0f, hsum + 360.0f, hsum < (floatv)(360.0f)), hsum,
-                         fabs(h1p - h2p) <= (floatv)(180.0f));
-    hbar = select(hsum, 0.5f * hbar, chromatic);
+    floatv hbar = fabs(h1p - h2p) <= (floatv)(180.0f) ? hsum
+                  : hsum < (floatv)(360.0f) ? hsum + 360.0f : hsum - 360.0f;
+    hbar = chromatic ? 0.5f * hbar : hsum;
 
     /* T = 1 - 0.17 cos(h - 30) + 0.24 cos(2h) + 0.32 cos(3h + 6) - 0.20 cos(4h - 63), h in degrees */
     floatv c1;
