@@ -24,6 +24,7 @@ from . import engine
 from .runtime import get_queue
 from .spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
 from .validate import (
+    as_float32,
     check_frames,
     check_last_axis,
     check_matrix,
@@ -137,11 +138,7 @@ def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, d
     ndarray or pyopencl.array.Array, (..., 3), float32
         XYZ with Y = 1 for the perfect reflecting diffuser.
     """
-    if is_device_array(R):
-        if R.dtype != np.float32:
-            raise TypeError(f"R device array must be float32, got {R.dtype}")
-    else:
-        R = np.ascontiguousarray(np.asarray(R), dtype=np.float32)
+    R = as_float32(R, "R")
     if R.ndim == 0:
         raise ValueError("R must have bands on its last axis, got a scalar")
     w = check_wavelengths(wavelengths, R.shape[-1])

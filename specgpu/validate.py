@@ -15,6 +15,7 @@ import pyopencl.array as cla
 __all__ = [
     "FRAME_DTYPES",
     "is_device_array",
+    "as_float32",
     "validate_method",
     "check_frames",
     "check_matrix",
@@ -93,6 +94,20 @@ def check_matrix(A, name: str = "A", columns: int | None = None, rows: int | Non
     return np.ascontiguousarray(A, dtype=np.float32)
 
 
+def as_float32(a, name: str):
+    """``a`` as C-contiguous float32: NumPy input converted (it must be numeric), a device array checked."""
+    if is_device_array(a):
+        if a.dtype != np.float32:
+            raise TypeError(f"{name} device array must be float32, got {a.dtype}")
+        if not a.flags.c_contiguous:
+            raise ValueError(f"{name} device array must be C-contiguous")
+        return a
+    a = np.asarray(a)
+    if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+        raise TypeError(f"{name} must be numeric, got dtype {a.dtype}")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
 def check_pixel_map(a, name: str, spatial: tuple[int, ...], planes: int | None = None):
     """A per-pixel float map of shape ``spatial`` or, when ``planes`` is given, also (planes, *spatial).
 
@@ -100,14 +115,8 @@ def check_pixel_map(a, name: str, spatial: tuple[int, ...], planes: int | None =
     data (dark frames, flat fields) must be finite.
     """
     allowed = [tuple(spatial)] + ([(planes, *spatial)] if planes else [])
-    if is_device_array(a):
-        if a.dtype != np.float32:
-            raise TypeError(f"{name} device array must be float32, got {a.dtype}")
-    else:
-        a = np.asarray(a)
-        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
-            raise TypeError(f"{name} must be numeric, got dtype {a.dtype}")
-        a = np.ascontiguousarray(a, dtype=np.float32)
+    a = as_float32(a, name)
+    if not is_device_array(a):
         bad = ~np.isfinite(a)
         if bad.any():
             raise ValueError(f"{name} contains NaN or inf at {int(bad.sum())} pixels")
@@ -119,16 +128,7 @@ def check_pixel_map(a, name: str, spatial: tuple[int, ...], planes: int | None =
 
 def check_last_axis(a, name: str, size: int = 3, allow_single: bool = True):
     """An array with ``size`` channels on its last axis, float32 (NumPy input converted, NaN allowed)."""
-    if is_device_array(a):
-        if a.dtype != np.float32:
-            raise TypeError(f"{name} device array must be float32, got {a.dtype}")
-        if not a.flags.c_contiguous:
-            raise ValueError(f"{name} device array must be C-contiguous")
-    else:
-        a = np.asarray(a)
-        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
-            raise TypeError(f"{name} must be numeric, got dtype {a.dtype}")
-        a = np.ascontiguousarray(a, dtype=np.float32)
+    a = as_float32(a, name)
     if a.ndim == 0 or a.shape[-1] != size:
         raise ValueError(f"{name} must have {size} channels on its last axis, got shape {_shape(a)}")
     if a.ndim == 1 and not allow_single:
