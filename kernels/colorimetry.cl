@@ -20,22 +20,27 @@
 #define REF_SINGLE 0
 #endif
 
-/* Channel c of an (N, 3) image, or of one colour broadcast when single != 0. */
-inline floatv load_channel(__global const float *p, int single, ulong base, uint count, uint c)
+/* The three channels of an (N, 3) image, or of one colour broadcast when single != 0. */
+inline void load_colour(__global const float *p, int single, ulong base, uint count, floatv *c0, floatv *c1,
+                        floatv *c2)
 {
-    return single ? (floatv)(p[c]) : load_f_strided(p, base, count, 3, c);
+    if (single) {
+        *c0 = (floatv)(p[0]);
+        *c1 = (floatv)(p[1]);
+        *c2 = (floatv)(p[2]);
+    } else {
+        load3(p, base, count, c0, c1, c2);
+    }
 }
 
 __kernel void xyz_to_lab(__global const float *restrict xyz, __global float *restrict lab,
                          const float Xn, const float Yn, const float Zn, const ulong n)
 {
     PIXEL_RANGE(n);
-    floatv L, a, b;
-    lab_from_xyz(load_f_strided(xyz, base, count, 3, 0), load_f_strided(xyz, base, count, 3, 1),
-               load_f_strided(xyz, base, count, 3, 2), Xn, Yn, Zn, &L, &a, &b);
-    store_f_strided(L, lab, base, count, 3, 0);
-    store_f_strided(a, lab, base, count, 3, 1);
-    store_f_strided(b, lab, base, count, 3, 2);
+    floatv X, Y, Z, L, a, b;
+    load3(xyz, base, count, &X, &Y, &Z);
+    lab_from_xyz(X, Y, Z, Xn, Yn, Zn, &L, &a, &b);
+    store3(L, a, b, lab, base, count);
 }
 
 #ifdef DE_METHOD
@@ -43,13 +48,10 @@ __kernel void delta_e(__global const float *restrict lab1, __global const float 
                       __global float *restrict de, const ulong n)
 {
     PIXEL_RANGE(n);
-    const floatv d = DELTA_E(load_channel(lab1, LAB1_SINGLE, base, count, 0),
-                             load_channel(lab1, LAB1_SINGLE, base, count, 1),
-                             load_channel(lab1, LAB1_SINGLE, base, count, 2),
-                             load_channel(lab2, LAB2_SINGLE, base, count, 0),
-                             load_channel(lab2, LAB2_SINGLE, base, count, 1),
-                             load_channel(lab2, LAB2_SINGLE, base, count, 2));
-    store_f(d, de, base, count);
+    floatv L1, a1, b1, L2, a2, b2;
+    load_colour(lab1, LAB1_SINGLE, base, count, &L1, &a1, &b1);
+    load_colour(lab2, LAB2_SINGLE, base, count, &L2, &a2, &b2);
+    store_f(DELTA_E(L1, a1, b1, L2, a2, b2), de, base, count);
 }
 
 /* frames -> XYZ = M (o - dark) * gain -> Lab -> dE(reference, pixel), one pass, no intermediate buffers;
@@ -77,22 +79,17 @@ __kernel void frames_to_delta_e(__global const IN_T *restrict frames,
     X *= g; Y *= g; Z *= g;
 #endif
 #if WRITE_XYZ
-    store_f_strided(X, xyz_out, base, count, 3, 0);
-    store_f_strided(Y, xyz_out, base, count, 3, 1);
-    store_f_strided(Z, xyz_out, base, count, 3, 2);
+    store3(X, Y, Z, xyz_out, base, count);
 #endif
     floatv L, a, b;
     lab_from_xyz(X, Y, Z, Xn, Yn, Zn, &L, &a, &b);
 #if WRITE_LAB
-    store_f_strided(L, lab_out, base, count, 3, 0);
-    store_f_strided(a, lab_out, base, count, 3, 1);
-    store_f_strided(b, lab_out, base, count, 3, 2);
+    store3(L, a, b, lab_out, base, count);
 #endif
 #if WRITE_DE
-    const floatv d = DELTA_E(load_channel(ref_lab, REF_SINGLE, base, count, 0),
-                             load_channel(ref_lab, REF_SINGLE, base, count, 1),
-                             load_channel(ref_lab, REF_SINGLE, base, count, 2), L, a, b);
-    store_f(d, de_out, base, count);
+    floatv Lr, ar, br;
+    load_colour(ref_lab, REF_SINGLE, base, count, &Lr, &ar, &br);
+    store_f(DELTA_E(Lr, ar, br, L, a, b), de_out, base, count);
 #endif
 #if WRITE_MASK
     store_mask(convert_uchar8(flags), mask, base, count);

@@ -105,6 +105,39 @@ inline void store_f_strided(floatv v, __global float *p, ulong base, uint count,
     for (uint j = 0; j < count; ++j) p[(base + j) * nch + c] = t[j];
 }
 
+/* The three channels of VW pixels of an (N, 3) image: three contiguous vector loads de-interleaved in
+ * registers (24 scalar loads for the partial last vector). */
+inline void load3(__global const float *p, ulong base, uint count, floatv *c0, floatv *c1, floatv *c2)
+{
+    if (count == VW) {
+        __global const float *q = p + base * 3;
+        const floatv u = LOAD8(float, q), v = LOAD8(float, q + 8), w = LOAD8(float, q + 16);
+        *c0 = (floatv)(u.s0, u.s3, u.s6, v.s1, v.s4, v.s7, w.s2, w.s5);
+        *c1 = (floatv)(u.s1, u.s4, u.s7, v.s2, v.s5, w.s0, w.s3, w.s6);
+        *c2 = (floatv)(u.s2, u.s5, v.s0, v.s3, v.s6, w.s1, w.s4, w.s7);
+        return;
+    }
+    *c0 = load_f_strided(p, base, count, 3, 0);
+    *c1 = load_f_strided(p, base, count, 3, 1);
+    *c2 = load_f_strided(p, base, count, 3, 2);
+}
+
+/* Inverse of load3. */
+inline void store3(floatv c0, floatv c1, floatv c2, __global float *p, ulong base, uint count)
+{
+    if (count == VW) {
+        __global float *q = p + base * 3;
+        STORE8(float, ((floatv)(c0.s0, c1.s0, c2.s0, c0.s1, c1.s1, c2.s1, c0.s2, c1.s2)), q);
+        STORE8(float, ((floatv)(c2.s2, c0.s3, c1.s3, c2.s3, c0.s4, c1.s4, c2.s4, c0.s5)), q + 8);
+        STORE8(float, ((floatv)(c1.s5, c2.s5, c0.s6, c1.s6, c2.s6, c0.s7, c1.s7, c2.s7)), q + 16);
+        return;
+    }
+    store_f_strided(c0, p, base, count, 3, 0);
+    store_f_strided(c1, p, base, count, 3, 1);
+    store_f_strided(c2, p, base, count, 3, 2);
+}
+
+
 /* float16 stores round to nearest even and need no cl_khr_fp16: vstore_half where it is native; with VEC_DEREF
  * (PoCL, where vstore_half is an out-of-line call) the half bits are made inline, branch-free: NaN stays NaN,
  * beyond the half range is inf, half subnormals are rounded by aligning the mantissa with a float add. */
