@@ -150,7 +150,8 @@ def test_natural_scene_is_fast_and_reproduces_the_photo():
     natural_scene(60, 80)  # imports
     t0 = time.perf_counter()
     scene = natural_scene(480, 640, image="coffee")
-    assert time.perf_counter() - t0 < 5.0
+    # Seconds, not minutes (a per-pixel colour-science call would take about 5 min); generous for loaded CI.
+    assert time.perf_counter() - t0 < 30.0
     assert scene.shape == (480, 640) and scene.reflectance.dtype == np.float32
     assert 0.0 <= scene.reflectance.min() and scene.reflectance.max() <= 1.0
     # Mallett 2019: under D65 the spectra reproduce the (linear) sRGB of the photo they came from.
