@@ -1,0 +1,158 @@
+"""Per-patch accuracy of a recovery against a scene's ground truth: spectral RMSE and colour differences.
+
+A chart scene (:class:`specgpu.rig.scene.SpectralScene`) carries one boolean mask per patch. The recovered image
+is averaged over each mask (the paper compares one spectrum per patch with a spectrometer reading), then:
+
+- spectral RMSE per patch, ``sqrt(mean_lambda (R_est - R_true)^2)`` over the recovery's own wavelengths, the
+  truth linearly interpolated there (paper Table 1's RMSE);
+- CIELAB colour differences (CIE 1976 dE*ab, CIE 2000) per patch under an illuminant, from XYZ of the
+  recovered and true spectra computed on the same wavelengths (so a method is judged on what it recovers, not
+  on the range it leaves out), or from a tristimulus plan's XYZ directly against the truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from specgpu.colorimetry import XYZ_to_Lab, delta_E
+from specgpu.spectra import DEFAULT_CMFS, XYZ_weights
+
+__all__ = ["PatchReport", "patch_means", "rmse_per_patch", "delta_E_per_patch", "evaluate_reflectance",
+           "evaluate_XYZ", "true_patch_spectra"]
+
+
+@dataclass(frozen=True)
+class PatchReport:
+    """Per-patch metrics.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Patch names, in mask order.
+    rmse : numpy.ndarray or None
+        (P,) spectral RMSE (reflectance units), None for colorimetric outputs.
+    delta_E_ab : numpy.ndarray
+        (P,) CIE 1976 dE*ab.
+    delta_E_2000 : numpy.ndarray
+        (P,) CIE 2000 dE00.
+    illuminant : str
+        Illuminant of the colour differences.
+    """
+
+    names: tuple
+    rmse: np.ndarray | None
+    delta_E_ab: np.ndarray
+    delta_E_2000: np.ndarray
+    illuminant: str
+
+    def summary(self) -> dict:
+        """``{metric: (average, maximum)}`` over the patches."""
+        out = {}
+        for key in ("rmse", "delta_E_ab", "delta_E_2000"):
+            v = getattr(self, key)
+            if v is not None:
+                out[key] = (float(np.mean(v)), float(np.max(v)))
+        return out
+
+    def worst(self, metric: str = "delta_E_ab") -> str:
+        """Name of the patch with the largest value of ``metric``."""
+        v = getattr(self, metric)
+        if v is None:
+            raise ValueError(f"this report has no {metric}")
+        return self.names[int(np.argmax(v))]
+
+
+def patch_means(image, masks: dict) -> tuple[tuple, np.ndarray]:
+    """Mean of an (H, W, C) image over each (H, W) boolean mask; returns (names, (P, C) float64).
+
+    Non-finite pixels (saturated or NaN recoveries) are left out of a patch's mean; a patch with no finite
+    pixel is NaN.
+    """
+    img = np.asarray(image)
+    if img.ndim != 3:
+        raise ValueError(f"image must be (H, W, C), got shape {img.shape}")
+    if not masks:
+        raise ValueError("masks is empty: the scene has no patches to evaluate")
+    names, rows = [], []
+    for name, m in masks.items():
+        m = np.asarray(m, bool)
+        if m.shape != img.shape[:2]:
+            raise ValueError(f"mask {name!r} has shape {m.shape}, the image {img.shape[:2]}")
+        px = img[m].astype(np.float64)
+        px = px[np.all(np.isfinite(px), axis=1)]
+        rows.append(px.mean(axis=0) if px.size else np.full(img.shape[2], np.nan))
+        names.append(str(name))
+    return tuple(names), np.array(rows)
+
+
+def true_patch_spectra(scene, wavelengths=None) -> tuple[tuple, np.ndarray]:
+    """A scene's per-patch mean reflectance, optionally interpolated to ``wavelengths`` (nm); (names, (P, B))."""
+    names, spectra = patch_means(scene.reflectance, scene.masks)
+    if wavelengths is None:
+        return names, spectra
+    wl = np.asarray(wavelengths, np.float64)
+    return names, np.array([np.interp(wl, scene.wavelengths, s) for s in spectra])
+
+
+def rmse_per_patch(estimate, truth) -> np.ndarray:
+    """(P,) root-mean-square difference over the last axis of two (P, B) spectra sets."""
+    e, t = np.asarray(estimate, np.float64), np.asarray(truth, np.float64)
+    if e.shape != t.shape or e.ndim != 2:
+        raise ValueError(f"estimate {e.shape} and truth {t.shape} must both be (P, B)")
+    return np.sqrt(np.mean((e - t) ** 2, axis=1))
+
+
+def delta_E_per_patch(XYZ_estimate, XYZ_truth, illuminant="D65", observer: str = DEFAULT_CMFS) -> tuple:
+    """(dE*ab, dE2000), each (P,), between two (P, 3) XYZ sets (Y = 1 for the white) under ``illuminant``."""
+    a = np.asarray(XYZ_truth, np.float32)
+    b = np.asarray(XYZ_estimate, np.float32)
+    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"XYZ_estimate {b.shape} and XYZ_truth {a.shape} must both be (P, 3)")
+    lab_t = XYZ_to_Lab(a, illuminant, observer=observer)
+    lab_e = XYZ_to_Lab(b, illuminant, observer=observer)
+    return (np.asarray(delta_E(lab_t, lab_e, "CIE 1976"), np.float64),
+            np.asarray(delta_E(lab_t, lab_e, "CIE 2000"), np.float64))
+
+
+def evaluate_reflectance(cube, wavelengths, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS) -> PatchReport:
+    """Per-patch RMSE and colour differences of a recovered reflectance cube against a chart scene.
+
+    Parameters
+    ----------
+    cube : array_like, (H, W, B)
+        Recovered reflectance (the scene's frame size).
+    wavelengths : array_like, (B,)
+        Evenly spaced wavelengths of the cube, nm, within the scene's range.
+    scene : SpectralScene
+        The truth, with patch masks.
+    illuminant, cmfs
+        For the colour differences (XYZ on the cube's wavelengths for both).
+    """
+    wl = np.asarray(wavelengths, np.float64)
+    names, est = patch_means(cube, scene.masks)
+    _, truth = true_patch_spectra(scene, wl)
+    W = XYZ_weights(wl, illuminant, cmfs)
+    dab, d00 = delta_E_per_patch(est @ W.T, truth @ W.T, illuminant, _observer_name(cmfs))
+    return PatchReport(names, rmse_per_patch(est, truth), dab, d00, str(illuminant))
+
+
+def evaluate_XYZ(xyz, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS, wavelengths=None) -> PatchReport:
+    """Per-patch colour differences of an XYZ image (a tristimulus plan's output) against a chart scene.
+
+    The truth is the XYZ of each patch's mean reflectance under ``illuminant`` on ``wavelengths`` (the scene's
+    own grid by default).
+    """
+    names, est = patch_means(xyz, scene.masks)
+    if est.shape[1] != 3:
+        raise ValueError(f"xyz must have 3 channels, got {est.shape[1]}")
+    wl = scene.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
+    _, truth = true_patch_spectra(scene, wl)
+    W = XYZ_weights(wl, illuminant, cmfs)
+    dab, d00 = delta_E_per_patch(est, truth @ W.T, illuminant, _observer_name(cmfs))
+    return PatchReport(names, None, dab, d00, str(illuminant))
+
+
+def _observer_name(cmfs) -> str:
+    return cmfs if isinstance(cmfs, str) else getattr(cmfs, "name", DEFAULT_CMFS)
