@@ -50,7 +50,7 @@ typedef int8 intv;
 #define PIXEL_RANGE(n)                                   \
     const ulong base = (ulong)get_global_id(0) * VW;     \
     if (base >= (ulong)(n)) return;                      \
-    const uint count = (uint)min((ulong)VW, (ulong)(n) - base)
+    const uint count = (ulong)(n) - base < VW ? (uint)((ulong)(n) - base) : VW
 
 /* ---------------------------------------------------------------------------------------- loads and stores */
 
@@ -139,9 +139,20 @@ inline void store3(floatv c0, floatv c1, floatv c2, __global float *p, ulong bas
 
 
 /* float16 stores round to nearest even and need no cl_khr_fp16: vstore_half where it is native; with VEC_DEREF
- * (PoCL, where vstore_half is an out-of-line call) the half bits are made inline, branch-free: NaN stays NaN,
- * beyond the half range is inf, half subnormals are rounded by aligning the mantissa with a float add. */
-#if VEC_DEREF
+ * (PoCL, where vstore_half is an out-of-line call) the half bits are made inline: the F16C instruction where
+ * the CPU has it, else branch-free bit arithmetic (NaN stays NaN, beyond the half range is inf, half subnormals
+ * are rounded by aligning the mantissa with a float add). Both are bit-exact (tests/test_linear.py). */
+#ifndef HALF_SOFT
+#define HALF_SOFT 0 /* 1: the bit arithmetic even where F16C exists (its regression test sets this) */
+#endif
+#if VEC_DEREF && defined(__F16C__) && !HALF_SOFT
+/* x86 with F16C: one vcvtps2ph, round to nearest even (immediate 0) */
+typedef float f16c_in __attribute__((vector_size(32)));
+inline ushort8 half_bits(floatv v)
+{
+    return as_ushort8(__builtin_ia32_vcvtps2ph256((f16c_in)v, 0));
+}
+#elif VEC_DEREF
 inline ushort8 half_bits(floatv v)
 {
     uint8 x = as_uint8(v);
@@ -154,8 +165,10 @@ inline ushort8 half_bits(floatv v)
     uint8 h = x < (uint8)(113u << 23) ? subnormal : normal;
     h = x >= (uint8)((127u + 16u) << 23) ? (uint8)(0x7c00u) : h;
     h = x > (uint8)(255u << 23) ? (uint8)(0x7e00u) : h;
-    return convert_ushort8(h | (sign >> 16));
+    return as_ushort16(h | (sign >> 16)).even; /* the low halves: a shuffle, where convert_ushort8 packs */
 }
+#endif
+#if VEC_DEREF
 #define STORE_HALF8(v, p) STORE8(ushort, half_bits(v), p)
 #else
 #define STORE_HALF8(v, p) vstore_half8_rte((v), 0, (p))

@@ -63,9 +63,12 @@ __kernel void linear_apply(__global const IN_T *restrict frames,
     }
 #else
     /* interleaved: blocks of 8 outputs are transposed in registers and written as 8 contiguous pixel rows
-     * (one stream per work-item instead of 8 strided scalar stores per output) */
-    uint b0 = 0;
-    for (; b0 + 8 <= B; b0 += 8) {
+     * (one stream per work-item instead of 8 strided scalar stores per output). When B is not a multiple of 8
+     * the last block is shifted back to end at B: the few outputs it shares with the block before are computed
+     * again and written again, with the same values, by the same work-item. */
+#if B >= 8
+    for (uint next = 0; next < B; next += 8) {
+        const uint b0 = next + 8 <= B ? next : B - 8;
         floatv a0, a1, a2, a3, a4, a5, a6, a7, r0, r1, r2, r3, r4, r5, r6, r7;
         DOT_ROW(a0, A, b0 + 0); DOT_ROW(a1, A, b0 + 1); DOT_ROW(a2, A, b0 + 2); DOT_ROW(a3, A, b0 + 3);
         DOT_ROW(a4, A, b0 + 4); DOT_ROW(a5, A, b0 + 5); DOT_ROW(a6, A, b0 + 6); DOT_ROW(a7, A, b0 + 7);
@@ -76,7 +79,8 @@ __kernel void linear_apply(__global const IN_T *restrict frames,
         STORE_PIXEL_ROW(0, r0); STORE_PIXEL_ROW(1, r1); STORE_PIXEL_ROW(2, r2); STORE_PIXEL_ROW(3, r3);
         STORE_PIXEL_ROW(4, r4); STORE_PIXEL_ROW(5, r5); STORE_PIXEL_ROW(6, r6); STORE_PIXEL_ROW(7, r7);
     }
-    for (; b0 < B; ++b0) {
+#else
+    for (uint b0 = 0; b0 < B; ++b0) {
         floatv y;
         DOT_ROW(y, A, b0);
 #if HAS_GAIN
@@ -84,6 +88,7 @@ __kernel void linear_apply(__global const IN_T *restrict frames,
 #endif
         STORE_STRIDED(y, out, base, count, B, b0);
     }
+#endif
 #endif
 #if WRITE_MASK
     store_mask(convert_uchar8(flags), mask, base, count);

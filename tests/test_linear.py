@@ -9,6 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from reference import linear_ref, mask_ref
+from specgpu import runtime
 from specgpu.recovery import apply_linear
 
 EPS32 = np.finfo(np.float32).eps
@@ -204,9 +205,20 @@ def test_float16_rounding_is_bit_exact_round_to_nearest_even(queue):
         (rng.normal(0, 1, 100_000) * np.exp2(rng.integers(-26, 17, 100_000))).astype(np.float32),
     ])
     x[x == 0] = 0.0
-    for layout in ("planar", "interleaved"):
-        y = apply_linear(x[None, :], [[1.0]], out_dtype=np.float16, layout=layout, device=queue).ravel()
-        with np.errstate(over="ignore"):
-            expected = x.astype(np.float16)
+    with np.errstate(over="ignore"):
+        expected = x.astype(np.float16)
+
+    def check(y, what):
         same = (y.view(np.uint16) == expected.view(np.uint16)) | (np.isnan(y) & np.isnan(expected))
-        assert same.all(), f"{layout}: {x[~same][:5]} -> {y[~same][:5]}, expected {expected[~same][:5]}"
+        assert same.all(), f"{what}: {x[~same][:5]} -> {y[~same][:5]}, expected {expected[~same][:5]}"
+
+    for layout in ("planar", "interleaved"):
+        check(apply_linear(x[None, :], [[1.0]], out_dtype=np.float16, layout=layout, device=queue).ravel(), layout)
+    # the portable bit-arithmetic conversion too, where the device would otherwise use a hardware instruction
+    kernel = runtime.get_kernel(queue, "linear.cl", "linear_apply", K=1, B=1, IN_T="float", IN_LAYOUT=0, HAS_DARK=0,
+                                HAS_GAIN=0, IS_FLOAT_IN=1, OUT_HALF=1, OUT_LAYOUT=0, WRITE_MASK=0, HALF_SOFT=1)
+    frames = cla.to_device(queue, x)
+    out = cla.empty(queue, x.shape, np.float16)
+    A = cla.to_device(queue, np.ones(1, np.float32))
+    kernel(queue, (-(-x.size // 8),), None, frames.data, A.data, None, None, out.data, None, np.uint64(x.size))
+    check(out.get(), "HALF_SOFT")
