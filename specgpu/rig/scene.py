@@ -6,9 +6,9 @@ boolean masks (the ColorChecker's 24 patches) that the evaluation can use.
 
 Sources:
 
-- cube files: OpenEXR in the JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie), reflective channels named
-  ``T.<wavelength>nm`` (either ``.`` or ``,`` as decimal separator, e.g. ``T.550,000000nm``), through
-  OpenImageIO; or ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>``
+- cube files (read and written by :mod:`specgpu.rig._files`, shared with :mod:`specgpu.io`): OpenEXR in the
+  JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie), reflective channels named ``T.<wavelength><unit>``
+  (e.g. ``T.550,000000nm``; ``.`` also accepted as decimal separator on reading), through OpenImageIO; or ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>``
   arrays). Bands are ordered by wavelength, never by channel order in the file.
 - built-ins (:data:`BUILTIN_SCENES`): ``"colorchecker"`` (the 24-patch chart as an image from colour-science's
   measured spectra, with one mask per patch), ``"white"`` (a reference white plate) and ``"natural"`` (a
@@ -22,13 +22,12 @@ scene: the same chart can be photographed under a flat or a falling-off spot.
 from __future__ import annotations
 
 import functools
-import re
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from specgpu.rig import _files
 from specgpu.rig._checks import check_array, check_number, check_wavelengths
 
 __all__ = [
@@ -36,7 +35,6 @@ __all__ = [
     "load_scene", "BUILTIN_SCENES", "interpolation_matrix",
 ]
 
-_CHANNEL = re.compile(r"^T\.(\d+(?:[.,]\d*)?(?:[eE][+-]?\d+)?)nm$")
 MAX_REFLECTANCE = 1.5
 
 
@@ -151,92 +149,29 @@ def read_scene(path) -> SpectralScene:
 
 
 def _read_npz(path: Path) -> SpectralScene:
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            keys = set(data.files)
-            missing = {"wavelengths", "reflectance"} - keys
-            if missing:
-                raise ValueError(f"{path}: missing array(s) {sorted(missing)}; found {sorted(keys)}")
-            wl = np.array(data["wavelengths"], dtype=np.float64)
-            refl = np.array(data["reflectance"])
-            masks = {k[5:]: np.array(data[k]) for k in data.files if k.startswith("mask_")}
-    except ValueError:
-        raise
-    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
-        raise ValueError(f"{path}: truncated or corrupt .npz ({exc.__class__.__name__}: {exc})") from None
-    if wl.ndim != 1:
-        raise ValueError(f"{path}: wavelengths must have shape (B,), got {wl.shape}")
-    if refl.ndim != 3 or refl.shape[2] != wl.size:
-        raise ValueError(f"{path}: reflectance must have shape (H, W, {wl.size}), got {refl.shape}")
-    order = np.argsort(wl, kind="stable")
-    return SpectralScene(wl[order], refl[..., order], masks, path.stem)
-
-
-def _parse_channel(name: str) -> float | None:
-    m = _CHANNEL.match(name)
-    if not m:
-        return None
-    return float(m.group(1).replace(",", "."))
+    refl, wl, extra = _files.read_cube_npz(path)
+    masks = {k[5:]: m for k, m in extra.items() if k.startswith("mask_")}
+    return SpectralScene(wl, refl, masks, path.stem)
 
 
 def _read_exr(path: Path) -> SpectralScene:
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ValueError(f"{path}: cannot open EXR ({oiio.geterror().strip() or 'unknown error'})")
-    try:
-        spec = inp.spec()
-        names = list(spec.channelnames)
-        picked = [(wl, i) for i, n in enumerate(names) if (wl := _parse_channel(n)) is not None]
-        if not picked:
-            raise ValueError(f"{path}: no reflective spectral channels named 'T.<wavelength>nm' "
-                             f"(found {names[:8]})")
-        wls = [w for w, _ in picked]
-        if len(set(wls)) != len(wls):
-            raise ValueError(f"{path}: a wavelength appears in more than one 'T.' channel")
-        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
-        if data is None or not isinstance(data, np.ndarray) or data.size != spec.width * spec.height * spec.nchannels:
-            raise ValueError(f"{path}: truncated or corrupt EXR ({oiio.geterror().strip() or 'no pixel data'})")
-    finally:
-        inp.close()
-    err = oiio.geterror()
-    if err:
-        raise ValueError(f"{path}: truncated or corrupt EXR ({err.strip()})")
-    data = data.reshape(spec.height, spec.width, spec.nchannels)
-    picked.sort()
-    wl = np.array([w for w, _ in picked])
-    refl = data[..., [i for _, i in picked]]
+    refl, wl, _ = _files.read_cube_exr(path)
     return SpectralScene(wl, refl, {}, path.stem)
 
 
 def write_scene(path, scene: SpectralScene, *, half: bool = False) -> Path:
-    """Write a scene as ``.exr`` (JCGT ``T.<wl>nm`` channels, float32 or half) or ``.npz`` (masks as ``mask_*``)."""
+    """Write a scene as ``.exr`` (JCGT ``T.<wl>nm`` channels, float32 or half) or ``.npz`` (masks as ``mask_*``).
+
+    The file appears under its name only once complete (written to a temporary name, then renamed).
+    """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        arrays = {"wavelengths": scene.wavelengths, "reflectance": scene.reflectance}
-        arrays.update({f"mask_{k}": m for k, m in scene.masks.items()})
-        np.savez_compressed(path, **arrays)
-        return path
+        return _files.write_cube_npz(path, scene.reflectance, scene.wavelengths,
+                                     {f"mask_{k}": m for k, m in scene.masks.items()})
     if suffix != ".exr":
         raise ValueError(f"{path}: unknown scene format {suffix!r}; expected .exr or .npz")
-    import OpenImageIO as oiio
-
-    h, w, b = scene.reflectance.shape
-    spec = oiio.ImageSpec(w, h, b, "half" if half else "float")
-    # JCGT 2021 names: "T." + wavelength with a comma as decimal separator + "nm", e.g. "T.550,000000nm".
-    spec.channelnames = tuple("T." + f"{v:.6f}".replace(".", ",") + "nm" for v in scene.wavelengths)
-    spec.attribute("spectralLayoutVersion", "1.0")
-    out = oiio.ImageOutput.create(str(path))
-    if out is None or not out.open(str(path), spec):
-        raise ValueError(f"{path}: cannot write EXR ({oiio.geterror().strip()})")
-    try:
-        if not out.write_image(np.ascontiguousarray(scene.reflectance, dtype=np.float32)):
-            raise ValueError(f"{path}: cannot write EXR ({out.geterror().strip()})")
-    finally:
-        out.close()
-    return path
+    return _files.write_cube_exr(path, scene.reflectance, scene.wavelengths, half=half)
 
 
 # ---- built-ins ---------------------------------------------------------------------------------------------------

@@ -1,0 +1,353 @@
+"""Low-level file helpers shared by :mod:`specgpu.rig.scene` and :mod:`specgpu.io`.
+
+The spectral-cube layouts live here, below both users, so that ``rig`` never imports ``io`` (DESIGN.md arrows)
+while ``io`` stays the one public home of file formats:
+
+- OpenEXR through OpenImageIO, with the reflective channels of Fichet, Pacanowski and Wilkie, "An OpenEXR Layout
+  for Spectral Images", JCGT 10(3), 2021 (:func:`format_channel`, :func:`parse_channel`);
+- ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B).
+
+Every write goes to a temporary name in the target's folder and is renamed over the target with
+:func:`os.replace` at the end, so a crash never leaves a partial file under the final name. Every error is one
+line that starts with the file's path.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import tempfile
+import zipfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "format_channel", "parse_channel", "read_exr", "write_exr", "read_cube_exr", "write_cube_exr",
+    "read_cube_npz", "write_cube_npz", "check_cube", "atomic_path", "one_line", "SPECTRAL_LAYOUT_VERSION",
+]
+
+#: Value of the ``spectralLayoutVersion`` header attribute the JCGT 2021 layout defines.
+SPECTRAL_LAYOUT_VERSION = "1.0"
+
+SPEED_OF_LIGHT = 299_792_458.0  # m/s, exact (SI)
+
+# JCGT 2021 (and the authors' reference code, afichet/spectral-exr lib/EXRSpectralImage.cpp, and colour-science's
+# colour/io/fichet2021.py): reflective channel = "T." + number + optional SI prefix + unit ("m" or "Hz").
+# The number uses a comma as decimal separator because "." separates layers in OpenEXR channel names
+# ("T.550,000000nm"). We also accept a "." (e.g. "T.405.5nm", which OpenEXR tools see as layer "T.405",
+# channel "5nm") for files written by other tools; we always write the comma.
+_PREFIXES = {"Y": 24, "Z": 21, "E": 18, "P": 15, "T": 12, "G": 9, "M": 6, "k": 3, "h": 2, "da": 1, "": 0,
+             "d": -1, "c": -2, "m": -3, "u": -6, "n": -9, "p": -12}
+_REFLECTIVE = re.compile(
+    r"^T\.(?P<number>(?:\d+(?:[.,]\d*)?|[.,]\d+)(?:[eE][+-]?\d+)?)"
+    r"(?P<prefix>da|[YZEPTGMkhdcmunp])?(?P<unit>m|Hz)$")
+
+
+def one_line(text: str, limit: int = 240) -> str:
+    """Collapse a (possibly multi-line, repeated) library error message to one short line."""
+    seen = []
+    for line in str(text).splitlines():
+        line = " ".join(line.split())
+        if line and line not in seen:
+            seen.append(line)
+    out = "; ".join(seen) or "unknown error"
+    return out if len(out) <= limit else out[: limit - 3] + "..."
+
+
+def format_channel(wavelength_nm) -> str:
+    """JCGT 2021 name of the reflective channel at ``wavelength_nm``.
+
+    Parameters
+    ----------
+    wavelength_nm : float
+        Wavelength in nm, finite and > 0.
+
+    Returns
+    -------
+    str
+        ``"T." + number + "nm"`` with a comma as decimal separator and six decimals as the reference code writes
+        them (``550 -> "T.550,000000nm"``); when six decimals would not give the value back exactly, the shortest
+        exact decimal form (``"T.405,12345678nm"``). ``parse_channel(format_channel(w)) == w`` for every finite
+        positive float ``w``.
+    """
+    try:
+        wl = float(wavelength_nm)
+    except (TypeError, ValueError):
+        raise ValueError(f"wavelength must be a number, got {wavelength_nm!r}") from None
+    if not math.isfinite(wl) or wl <= 0:
+        raise ValueError(f"wavelength must be finite and > 0 nm, got {wavelength_nm!r}")
+    text = f"{wl:.6f}"
+    if float(text) != wl:
+        text = repr(wl)
+    return "T." + text.replace(".", ",") + "nm"
+
+
+def parse_channel(name: str) -> float | None:
+    """Wavelength in nm of a JCGT 2021 reflective channel name, or None if ``name`` is not one.
+
+    Parameters
+    ----------
+    name : str
+        Channel name, e.g. ``"T.550,000000nm"``, ``"T.405,5nm"``, ``"T.0,55um"``, ``"T.545THz"``.
+
+    Returns
+    -------
+    float or None
+        Wavelength in nm (frequencies converted with c = 299 792 458 m/s); may be 0 or inf for degenerate names
+        such as ``"T.0nm"`` (callers reject them). None for other channels (``R``, ``S0.550,000000nm``, ...).
+    """
+    m = _REFLECTIVE.match(str(name))
+    if not m:
+        return None
+    value = float(m.group("number").replace(",", "."))
+    exponent = _PREFIXES[m.group("prefix") or ""]
+    if m.group("unit") == "m":
+        e = exponent + 9  # to nm
+        if e == 0:
+            return value
+        return value * 10.0 ** e if e > 0 else value / 10.0 ** -e
+    hertz = value * 10.0 ** exponent if exponent >= 0 else value / 10.0 ** -exponent
+    return math.inf if hertz == 0 else SPEED_OF_LIGHT / hertz * 1e9
+
+
+@contextmanager
+def atomic_path(path: Path):
+    """Yield a temporary path next to ``path`` (same suffix); on success rename it over ``path`` atomically,
+    on failure remove it."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _check_exists(path: Path, what: str) -> None:
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: {what} not found")
+    if not path.is_file():
+        raise ValueError(f"{path}: {what} is not a file")
+
+
+# ---- OpenEXR -----------------------------------------------------------------------------------------------------
+def read_exr(path, what: str = "EXR") -> tuple[np.ndarray, list[str], dict]:
+    """Read every channel of an OpenEXR file as float32.
+
+    Returns
+    -------
+    data : numpy.ndarray
+        (H, W, C) float32 (half channels widened exactly).
+    names : list of str
+        The C channel names, in the file's order (OpenEXR stores them sorted by name).
+    attributes : dict
+        Header attributes, name -> value.
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ValueError
+        The file cannot be opened as OpenEXR, is deep, or its pixels are truncated or corrupt.
+    """
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    _check_exists(path, what)
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"{path}: cannot open EXR ({one_line(oiio.geterror())})")
+    try:
+        if inp.format_name() != "openexr":
+            raise ValueError(f"{path}: not an OpenEXR file (OpenImageIO reads it as {inp.format_name()!r})")
+        spec = inp.spec()
+        if spec.deep:
+            raise ValueError(f"{path}: deep OpenEXR images are not supported")
+        names = list(spec.channelnames)
+        attributes = {a.name: a.value for a in spec.extra_attribs}
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        err = inp.geterror()
+        expected = spec.width * spec.height * spec.nchannels
+        if data is None or not isinstance(data, np.ndarray) or data.size != expected or err:
+            raise ValueError(f"{path}: truncated or corrupt EXR ({one_line(err or oiio.geterror() or 'no pixel data')})")
+    finally:
+        inp.close()
+    return np.ascontiguousarray(data.reshape(spec.height, spec.width, spec.nchannels), np.float32), names, attributes
+
+
+def write_exr(path, data, names, *, half: bool = False, attributes: dict | None = None) -> Path:
+    """Write an (H, W, C) array as an OpenEXR file with the given channel names, atomically.
+
+    Parameters
+    ----------
+    path
+        Target file (``.exr``); its folder must exist.
+    data : array_like
+        (H, W, C) values, written as float32 or, with ``half=True``, as half (rounded to nearest).
+    names : sequence of str
+        C unique channel names.
+    attributes : dict, optional
+        Header attributes, name -> str, int or float.
+    """
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    arr = np.asarray(data, dtype=np.float32)
+    names = [str(n) for n in names]
+    if arr.ndim != 3 or arr.shape[2] != len(names) or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ValueError(f"{path}: data must have shape (H, W, {len(names)}) with H, W >= 1, got {arr.shape}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"{path}: channel names must be unique, got {names}")
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
+    h, w, c = arr.shape
+    spec = oiio.ImageSpec(w, h, c, "half" if half else "float")
+    spec.channelnames = tuple(names)
+    spec.attribute("compression", "zip")
+    for key, value in (attributes or {}).items():
+        spec.attribute(str(key), value)
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create("openexr")
+        if out is None or not out.open(str(tmp), spec):
+            raise ValueError(f"{path}: cannot write EXR ({one_line(oiio.geterror())})")
+        try:
+            if not out.write_image(np.ascontiguousarray(arr)):
+                raise ValueError(f"{path}: cannot write EXR ({one_line(out.geterror())})")
+        finally:
+            out.close()
+    return path
+
+
+def read_cube_exr(path) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Read the reflective spectral channels of a JCGT 2021 OpenEXR file, bands ordered by wavelength.
+
+    Returns
+    -------
+    cube : numpy.ndarray
+        (H, W, B) float32, band b at ``wavelengths[b]``; other channels (RGB previews, emissive ``S0.*``) are
+        ignored.
+    wavelengths : numpy.ndarray
+        (B,) float64, nm, strictly increasing, finite, > 0.
+    attributes : dict
+        Header attributes.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        One line naming the file: see :func:`read_exr`; no ``T.<wavelength>nm`` channel; a degenerate or
+        duplicated wavelength.
+    """
+    path = Path(path)
+    data, names, attributes = read_exr(path, "spectral cube")
+    picked = [(wl, i, n) for i, n in enumerate(names) if (wl := parse_channel(n)) is not None]
+    if not picked:
+        shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+        raise ValueError(f"{path}: no reflective spectral channels named 'T.<wavelength>nm' (found {shown})")
+    for wl, _, n in picked:
+        if not math.isfinite(wl) or wl <= 0:
+            raise ValueError(f"{path}: channel {n!r} gives wavelength {wl} nm; must be finite and > 0")
+    picked.sort()
+    for (a, _, na), (b, _, nb) in zip(picked, picked[1:]):
+        if a == b:
+            raise ValueError(f"{path}: a wavelength appears in more than one 'T.' channel ({na!r} and {nb!r}: {a:g} nm)")
+    wavelengths = np.array([wl for wl, _, _ in picked], dtype=np.float64)
+    cube = np.ascontiguousarray(data[..., [i for _, i, _ in picked]])
+    return cube, wavelengths, attributes
+
+
+def check_cube(path, cube, wavelengths) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a cube for writing: (H, W, B) numeric and B finite, positive, unique wavelengths (nm)."""
+    wl = np.asarray(wavelengths, dtype=np.float64)
+    arr = np.asarray(cube)
+    if wl.ndim != 1 or wl.size < 1:
+        raise ValueError(f"{path}: wavelengths must have shape (B,) with B >= 1, got {wl.shape}")
+    if not np.all(np.isfinite(wl)) or np.any(wl <= 0):
+        raise ValueError(f"{path}: wavelengths must be finite and > 0 nm, got {wl[:8].tolist()}")
+    if np.unique(wl).size != wl.size:
+        dup = sorted({float(v) for v in wl if np.count_nonzero(wl == v) > 1})
+        raise ValueError(f"{path}: duplicate wavelength(s) {dup} nm (wavelengths must be strictly increasing once sorted)")
+    if arr.ndim != 3 or arr.shape[2] != wl.size or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ValueError(f"{path}: cube must have shape (H, W, {wl.size}) with H, W >= 1, got {arr.shape}")
+    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise ValueError(f"{path}: cube must be numeric, got dtype {arr.dtype}")
+    return arr, wl
+
+
+def write_cube_exr(path, cube, wavelengths, *, half: bool = False, attributes: dict | None = None) -> Path:
+    """Write an (H, W, B) cube as JCGT 2021 reflective channels ``T.<wl>nm`` (float32 or half), atomically.
+
+    The header carries ``spectralLayoutVersion = "1.0"`` plus ``attributes``.
+    """
+    path = Path(path)
+    arr, wl = check_cube(path, cube, wavelengths)
+    attrs = {"spectralLayoutVersion": SPECTRAL_LAYOUT_VERSION}
+    attrs.update(attributes or {})
+    return write_exr(path, arr, [format_channel(v) for v in wl], half=half, attributes=attrs)
+
+
+# ---- npz ---------------------------------------------------------------------------------------------------------
+def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Read a ``.npz`` cube, bands ordered by wavelength.
+
+    Returns
+    -------
+    cube : numpy.ndarray
+        (H, W, B) reflectance as stored (dtype kept).
+    wavelengths : numpy.ndarray
+        (B,) float64, nm, strictly increasing.
+    extra : dict
+        Every other array in the file, by name (e.g. ``mask_<name>``).
+    """
+    path = Path(path)
+    _check_exists(path, "spectral cube")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            keys = set(data.files)
+            missing = {"wavelengths", "reflectance"} - keys
+            if missing:
+                raise ValueError(f"{path}: missing array(s) {sorted(missing)}; found {sorted(keys)}")
+            wl = np.array(data["wavelengths"])
+            refl = np.array(data["reflectance"])
+            extra = {k: np.array(data[k]) for k in data.files if k not in ("wavelengths", "reflectance")}
+    except ValueError as exc:
+        msg = one_line(str(exc))
+        raise ValueError(msg if msg.startswith(str(path)) else f"{path}: truncated or corrupt .npz ({msg})") from None
+    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+        raise ValueError(f"{path}: truncated or corrupt .npz ({exc.__class__.__name__}: {one_line(str(exc))})") from None
+    if wl.ndim != 1:
+        raise ValueError(f"{path}: wavelengths must have shape (B,), got {wl.shape}")
+    try:
+        wl = wl.astype(np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{path}: wavelengths must be numbers, got dtype {wl.dtype}") from None
+    if refl.ndim != 3 or refl.shape[2] != wl.size:
+        raise ValueError(f"{path}: reflectance must have shape (H, W, {wl.size}), got {refl.shape}")
+    if not np.all(np.isfinite(wl)) or np.any(wl <= 0):
+        raise ValueError(f"{path}: wavelengths must be finite and > 0 nm, got {wl[:8].tolist()}")
+    order = np.argsort(wl, kind="stable")
+    wl = wl[order]
+    dup = np.unique(wl[1:][np.diff(wl) == 0])
+    if dup.size:
+        raise ValueError(f"{path}: duplicate wavelength(s) {dup.tolist()} nm "
+                         "(wavelengths must be strictly increasing once sorted)")
+    return refl[..., order], wl, extra
+
+
+def write_cube_npz(path, cube, wavelengths, extra: dict | None = None) -> Path:
+    """Write a cube as compressed ``.npz`` (``wavelengths``, ``reflectance`` plus ``extra`` arrays), atomically."""
+    path = Path(path)
+    arr, wl = check_cube(path, cube, wavelengths)
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
+    arrays = {"wavelengths": wl, "reflectance": arr}
+    arrays.update(extra or {})
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:  # a file object: np.savez would otherwise append ".npz" to the temp name
+            np.savez_compressed(fh, **arrays)
+    return path
