@@ -108,7 +108,7 @@ class Plan:
     min_exposure_s : float
         The light's switch time (the limit the exposure respects).
     expected_level : numpy.ndarray
-        (K,) model output of each frame on a perfect white, as a fraction of the camera's top code.
+        (K,) model output of each frame on a perfect white, as a fraction of the camera's range above dark.
     params : dict
         The method's parameters (plain data).
     """
@@ -301,7 +301,7 @@ def _choose_exposure(bundle, patterns, level: float, max_exposure_s: float | Non
     if not longest >= bundle.min_exposure_s:
         raise ValueError(f"max_exposure_s must be >= the light's switch time {bundle.min_exposure_s:g} s")
     t = min(max(level * headroom / per_s.max(), bundle.min_exposure_s), longest)
-    return t, per_s * t / bundle.max_code
+    return t, per_s * t / headroom
 
 
 def _band_masks(bundle, centres, bandwidth):
@@ -391,7 +391,11 @@ def plan_reciprocal_narrowband(bundle, *, centres=None, step_nm: float = 10.0, b
     used = masks.any(axis=0)
     if np.any(col_resp[used] <= 0):
         raise ValueError("a band column gives no camera signal in the calibration model")
-    levels = np.where(masks, col_resp[used].min() / np.where(col_resp > 0, col_resp, np.inf), 0.0)
+    # Each column contributes a common amount; a band of fewer columns gets proportionally more per column, so
+    # every band (25 or 26 columns at 10 nm) gives the same total.
+    with np.errstate(divide="ignore"):
+        share = np.where(masks, 1.0 / (col_resp * masks.sum(axis=1, keepdims=True)), 0.0)
+    levels = share / share.max()
     patterns = _quantize(levels, bundle.rows)
     return _narrow(bundle, "reciprocal", c, bw, patterns, level, max_exposure_s)
 
