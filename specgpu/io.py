@@ -1,0 +1,807 @@
+"""The file formats of specgpu (DESIGN.md section 4), through OpenImageIO.
+
+=====================  ===========================================================================================
+spectral cube          OpenEXR, JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie): one channel per band named
+                       ``T.<wavelength><unit>`` (``T.550,000000nm``), float32 or half, ``spectralLayoutVersion``
+                       ``"1.0"`` in the header; or ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B).
+                       :func:`write_cube`, :func:`read_cube`.
+map                    OpenEXR with named channels: ``X,Y,Z`` (XYZ), ``L,a,b`` (CIELAB), one channel for a colour
+                       difference (``dE76``, ``dE94``, ``dE2000``) or any names given. :func:`write_map`,
+                       :func:`read_map`.
+preview                8-bit sRGB PNG from XYZ (colour-science's ``XYZ_to_sRGB``, clipped, with an exposure) and
+                       a colour-difference heat map PNG (perceptual colormap; scale in the PNG text metadata).
+                       :func:`write_sRGB_preview`, :func:`write_delta_E_png`, :func:`read_png`.
+frame sequence         a folder with 16-bit TIFF frames and ``sequence.json`` (format ``specgpu.sequence``,
+                       version 1): per frame its file, frame id, pattern index, exposure, timestamp, size and
+                       SHA-256, plus the plan hash. :func:`write_sequence`, :func:`read_sequence`,
+                       :func:`read_sequence_header`, :func:`validate_sequence_document`.
+=====================  ===========================================================================================
+
+JCGT 2021 channel names (the paper's Section 3 and its reference code, ``afichet/spectral-exr``,
+``EXRSpectralImage::channelType``; colour-science's ``colour.io.fichet2021`` follows the same grammar): a
+reflective channel is ``T.`` + a number + an optional SI prefix (``Y Z E P T G M k h da d c m u n p``) + a unit,
+``m`` (wavelength) or ``Hz`` (frequency). The number's decimal separator is a **comma**, because ``.`` separates
+layers in OpenEXR channel names; the reference writer prints six decimals (``T.550,000000nm``). specgpu writes
+that form (or the shortest exact decimals when six are not enough, so every float64 wavelength survives the
+round trip) and reads every form of the grammar, plus a ``.`` separator (``T.405.5nm``) for files from tools that
+use one. Emissive (``S0.*``), bi-spectral (``T.<wl>.<wl>``) and RGB channels are ignored by the cube reader.
+Readers order bands by wavelength, never by channel order (OpenEXR itself stores channels sorted by name, so
+``T.1000,000000nm`` comes before ``T.400,000000nm`` in every file).
+
+Writes never leave a partial file under the final name: files go to a temporary name in the same folder and are
+renamed with :func:`os.replace` when complete; a sequence folder gets its ``sequence.json`` last, the same way, so
+a folder without one is an incomplete capture and readers refuse it. Every error on bad input is one line, a
+:class:`FileNotFoundError` or :class:`ValueError` that starts with the offending file's path.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import re
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+import numpy as np
+
+from specgpu.rig._files import (SPECTRAL_LAYOUT_VERSION, atomic_path, format_channel, one_line, parse_channel,
+                                read_cube_exr, read_cube_npz, read_exr, write_cube_exr, write_cube_npz, write_exr)
+
+__all__ = [
+    "format_channel", "parse_channel", "write_cube", "read_cube", "MAP_KINDS", "write_map", "read_map",
+    "write_sRGB_preview", "write_delta_E_png", "read_png", "PERCEPTUAL_COLORMAPS",
+    "SEQUENCE_FORMAT", "SEQUENCE_VERSION", "SEQUENCE_FILE", "write_sequence", "read_sequence",
+    "read_sequence_header", "validate_sequence_document", "SPECTRAL_LAYOUT_VERSION",
+]
+
+_META_ATTRIBUTE = "specgpu:metadata"  # header attribute holding the caller's metadata as JSON (exact floats)
+
+
+# ---- metadata ------------------------------------------------------------------------------------------------------
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
+
+
+def _metadata_json(path, metadata) -> str | None:
+    if metadata is None:
+        return None
+    if not isinstance(metadata, Mapping):
+        raise ValueError(f"{path}: metadata must be a mapping of str to JSON values, got {type(metadata).__name__}")
+    try:
+        return json.dumps(dict(metadata), default=_json_default, allow_nan=False, sort_keys=True)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: metadata must be JSON-serialisable with finite numbers ({one_line(str(exc))})") from None
+
+
+def _metadata_from(path, attributes: dict) -> dict:
+    text = attributes.get(_META_ATTRIBUTE)
+    if text is None:
+        return {}
+    try:
+        meta = json.loads(text)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: header attribute {_META_ATTRIBUTE!r} is not valid JSON ({one_line(str(exc))})") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: header attribute {_META_ATTRIBUTE!r} must hold a JSON object")
+    return meta
+
+
+# ---- spectral cubes ------------------------------------------------------------------------------------------------
+def _suffix(path: Path, allowed: tuple[str, ...], what: str) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in allowed:
+        raise ValueError(f"{path}: unknown {what} format {suffix!r}; expected {' or '.join(allowed)}")
+    return suffix
+
+
+def write_cube(path, cube, wavelengths, *, half: bool = False, metadata=None) -> Path:
+    """Write a spectral cube: OpenEXR in the JCGT 2021 layout (``.exr``) or ``.npz``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Target file, ``.exr`` or ``.npz``; its folder must exist. Written atomically.
+    cube : array_like
+        (H, W, B) values (reflectance: domain [0, 1], up to 1.5 for fluorescent whites; any float is stored),
+        band b at ``wavelengths[b]``. NaN pixels are stored as NaN.
+    wavelengths : array_like
+        (B,) wavelengths in nm, finite, > 0, unique, in any order (one ``T.<wl>nm`` channel each).
+    half : bool
+        EXR only: store half floats (11 significant bits, relative error <= 2**-11, max 65504) instead of float32.
+    metadata : mapping, optional
+        JSON-serialisable values (NumPy scalars and arrays are converted), stored exactly: as the JSON header
+        attribute ``specgpu:metadata`` in EXR, as the ``metadata`` array (JSON text) in npz.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        One line naming the file: unknown suffix, wrong shape, NaN / non-positive / duplicate wavelengths,
+        metadata that is not JSON.
+    """
+    path = Path(path)
+    suffix = _suffix(path, (".exr", ".npz"), "spectral cube")
+    meta = _metadata_json(path, metadata)
+    if suffix == ".npz":
+        extra = {} if meta is None else {"metadata": np.array(meta)}
+        return write_cube_npz(path, np.asarray(cube, dtype=np.float32), wavelengths, extra)
+    attrs = {} if meta is None else {_META_ATTRIBUTE: meta}
+    return write_cube_exr(path, cube, wavelengths, half=half, attributes=attrs)
+
+
+def read_cube(path) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Read a spectral cube written by specgpu or any JCGT 2021 writer (or an ``.npz`` cube).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.exr`` or ``.npz`` file.
+
+    Returns
+    -------
+    cube : numpy.ndarray
+        (H, W, B) float32, bands ordered by increasing wavelength (half files widened exactly).
+    wavelengths : numpy.ndarray
+        (B,) float64, nm, strictly increasing.
+    metadata : dict
+        What :func:`write_cube` stored (empty for files from other writers).
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ValueError
+        One line naming the file: unknown suffix, unreadable / truncated / corrupt file, no ``T.<wl>nm``
+        channels, duplicate or degenerate wavelengths, NaN wavelengths, wrong shapes, bad metadata.
+    """
+    path = Path(path)
+    suffix = _suffix(path, (".exr", ".npz"), "spectral cube")
+    if suffix == ".npz":
+        cube, wl, extra = read_cube_npz(path)
+        meta = {}
+        if "metadata" in extra:
+            meta = _metadata_from(path, {_META_ATTRIBUTE: str(extra["metadata"])})
+        try:
+            cube = np.asarray(cube, dtype=np.float32)
+        except (TypeError, ValueError):
+            raise ValueError(f"{path}: reflectance must be numeric, got dtype {cube.dtype}") from None
+        return cube, wl, meta
+    cube, wl, attributes = read_cube_exr(path)
+    return cube, wl, _metadata_from(path, attributes)
+
+
+# ---- maps ----------------------------------------------------------------------------------------------------------
+#: Map kind -> channel names, in the order of the last axis of the array.
+MAP_KINDS = {
+    "XYZ": ("X", "Y", "Z"),
+    "Lab": ("L", "a", "b"),
+    "dE76": ("dE76",),
+    "dE94": ("dE94",),
+    "dE2000": ("dE2000",),
+}
+
+
+def _channels_of(kind) -> tuple[str, ...]:
+    if isinstance(kind, str):
+        if kind not in MAP_KINDS:
+            raise ValueError(f"unknown map kind {kind!r}; valid kinds: {', '.join(MAP_KINDS)} "
+                             "(or a tuple of channel names)")
+        return MAP_KINDS[kind]
+    names = tuple(str(n) for n in kind)
+    if not names or len(set(names)) != len(names) or any(not n for n in names):
+        raise ValueError(f"map channel names must be unique non-empty strings, got {names}")
+    return names
+
+
+def write_map(path, data, kind, *, half: bool = False, metadata=None) -> Path:
+    """Write an XYZ, Lab or colour-difference map (or any named channels) as OpenEXR, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.exr`` target.
+    data : array_like
+        (H, W, C) values, or (H, W) for a single channel. XYZ: domain [0, 1] with Y = 1 for the perfect
+        diffuser; Lab: L* in [0, 100]; dE: >= 0. NaN pixels are kept.
+    kind : str or sequence of str
+        A name of :data:`MAP_KINDS` (``"XYZ"``, ``"Lab"``, ``"dE76"``, ``"dE94"``, ``"dE2000"``) or the C
+        channel names.
+    half : bool
+        Store half floats instead of float32.
+    metadata : mapping, optional
+        JSON-serialisable values, stored exactly (header attribute ``specgpu:metadata``).
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    path = Path(path)
+    _suffix(path, (".exr",), "map")
+    names = _channels_of(kind)
+    arr = np.asarray(data, dtype=np.float32)
+    if arr.ndim == 2 and len(names) == 1:
+        arr = arr[..., None]
+    if arr.ndim != 3 or arr.shape[2] != len(names):
+        raise ValueError(f"{path}: a {'/'.join(names)} map must have shape (H, W, {len(names)}), got {arr.shape}")
+    meta = _metadata_json(path, metadata)
+    return write_exr(path, arr, names, half=half, attributes={} if meta is None else {_META_ATTRIBUTE: meta})
+
+
+def read_map(path, kind=None) -> tuple[np.ndarray, tuple[str, ...], dict]:
+    """Read a map written by :func:`write_map` (or any OpenEXR file).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.exr`` file.
+    kind : str or sequence of str, optional
+        Expected kind (see :data:`MAP_KINDS`) or channel names: the result holds exactly those channels in that
+        order. None: a file whose channels are a known kind comes back in that kind's order, any other in the
+        file's order.
+
+    Returns
+    -------
+    data : numpy.ndarray
+        (H, W, C) float32.
+    channels : tuple of str
+        The C channel names.
+    metadata : dict
+        What :func:`write_map` stored.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        One line naming the file: unreadable, truncated or corrupt file, channels that are not the expected set.
+    """
+    path = Path(path)
+    _suffix(path, (".exr",), "map")
+    data, names, attributes = read_exr(path, "map")
+    if kind is None:
+        wanted = next((ch for ch in MAP_KINDS.values() if set(ch) == set(names)), tuple(names))
+    else:
+        wanted = _channels_of(kind)
+        missing = [n for n in wanted if n not in names]
+        if missing:
+            label = kind if isinstance(kind, str) else "/".join(wanted)
+            raise ValueError(f"{path}: not a {label} map: expected channels {', '.join(wanted)}, "
+                             f"found {', '.join(names[:8])}{', ...' if len(names) > 8 else ''}")
+    index = [names.index(n) for n in wanted]
+    return np.ascontiguousarray(data[..., index]), tuple(wanted), _metadata_from(path, attributes)
+
+
+# ---- previews ------------------------------------------------------------------------------------------------------
+#: Perceptually uniform matplotlib colormaps accepted for heat maps.
+PERCEPTUAL_COLORMAPS = ("magma", "inferno", "viridis", "plasma", "cividis")
+
+
+def _write_png(path: Path, rgb8: np.ndarray, attributes: dict) -> Path:
+    import OpenImageIO as oiio
+
+    h, w, c = rgb8.shape
+    spec = oiio.ImageSpec(w, h, c, "uint8")
+    spec.attribute("oiio:ColorSpace", "sRGB")
+    for key, value in attributes.items():
+        spec.attribute(key, str(value))
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create("png")
+        if out is None or not out.open(str(tmp), spec):
+            raise ValueError(f"{path}: cannot write PNG ({one_line(oiio.geterror())})")
+        try:
+            if not out.write_image(np.ascontiguousarray(rgb8)):
+                raise ValueError(f"{path}: cannot write PNG ({one_line(out.geterror())})")
+        finally:
+            out.close()
+    return path
+
+
+def _auto_exposure_ev(Y: np.ndarray, percentile: float = 99.0) -> float:
+    finite = Y[np.isfinite(Y)]
+    level = float(np.percentile(finite, percentile)) if finite.size else 0.0
+    return 0.0 if level <= 0 else -math.log2(level)
+
+
+def write_sRGB_preview(path, XYZ, *, exposure="auto", illuminant=None, metadata=None) -> Path:
+    """Write an 8-bit sRGB PNG rendering of an XYZ map.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.png`` target, written atomically.
+    XYZ : array_like
+        (H, W, 3) tristimulus values, domain [0, 1] with Y = 1 for the perfect diffuser (colour-science's
+        reference scale). NaN pixels render black.
+    exposure : float or "auto"
+        Exposure in stops (EV): the image is ``XYZ * 2**exposure`` before encoding. ``"auto"`` picks the EV that
+        brings the 99th percentile of Y to 1 (specular outliers clip, the rest is not crushed); 0 shows the
+        values as they are (a perfect white at code 255).
+    illuminant : array_like, optional
+        CIE xy chromaticity of the XYZ white (e.g. illuminant A's (0.44758, 0.40745)); the rendering is
+        chromatically adapted (CAT02) from it to sRGB's D65 white. None: the XYZ is already relative to D65.
+    metadata : mapping, optional
+        Extra PNG text entries (str keys; values written as text).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``; the PNG text holds ``specgpu:exposure_EV`` (the exposure applied).
+    """
+    import colour
+
+    path = Path(path)
+    _suffix(path, (".png",), "preview")
+    arr = np.asarray(XYZ, dtype=np.float64)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise ValueError(f"{path}: XYZ must have shape (H, W, 3), got {arr.shape}")
+    if isinstance(exposure, str):
+        if exposure != "auto":
+            raise ValueError(f"{path}: exposure must be a number of stops or 'auto', got {exposure!r}")
+        ev = _auto_exposure_ev(arr[..., 1])
+    else:
+        ev = float(exposure)
+        if not math.isfinite(ev):
+            raise ValueError(f"{path}: exposure must be finite, got {exposure!r}")
+    kwargs = {}
+    if illuminant is not None:
+        kwargs["illuminant"] = np.asarray(illuminant, dtype=np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        rgb = colour.XYZ_to_sRGB(np.nan_to_num(arr * 2.0 ** ev, nan=0.0, posinf=0.0, neginf=0.0), **kwargs)
+    rgb8 = np.round(np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
+    attrs = {"specgpu:exposure_EV": repr(ev), "ImageDescription": f"sRGB preview of XYZ, exposure {ev:+.3f} EV"}
+    attrs.update({str(k): v for k, v in (metadata or {}).items()})
+    return _write_png(path, rgb8, attrs)
+
+
+def write_delta_E_png(path, delta_E, *, vmax=None, colormap: str = "magma", quantity: str = "dE2000",
+                      metadata=None) -> Path:
+    """Write a colour-difference map as a heat-map PNG with a perceptually uniform colormap.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.png`` target, written atomically.
+    delta_E : array_like
+        (H, W) or (H, W, 1) colour differences, >= 0. NaN pixels render mid grey.
+    vmax : float, optional
+        dE mapped to the top of the colormap (larger values clip); default the largest finite value (1 if none
+        is positive). The bottom is 0.
+    colormap : str
+        One of :data:`PERCEPTUAL_COLORMAPS` (matplotlib's).
+    quantity : str
+        Name of the difference for the metadata (``"dE2000"``, ``"dE76"`` ...).
+    metadata : mapping, optional
+        Extra PNG text entries.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``; the PNG text holds the scale: ``specgpu:quantity``, ``specgpu:colormap``, ``specgpu:vmin``
+        (0), ``specgpu:vmax``, and a readable ``ImageDescription``.
+    """
+    import matplotlib
+
+    path = Path(path)
+    _suffix(path, (".png",), "heat map")
+    if colormap not in PERCEPTUAL_COLORMAPS:
+        raise ValueError(f"{path}: unknown colormap {colormap!r}; valid colormaps: {', '.join(PERCEPTUAL_COLORMAPS)}")
+    arr = np.asarray(delta_E, dtype=np.float64)
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    if arr.ndim != 2:
+        raise ValueError(f"{path}: delta_E must have shape (H, W) or (H, W, 1), got {arr.shape}")
+    finite = np.isfinite(arr)
+    if vmax is None:
+        top = float(arr[finite].max()) if finite.any() else 0.0
+        vmax = top if top > 0 else 1.0
+    vmax = float(vmax)
+    if not math.isfinite(vmax) or vmax <= 0:
+        raise ValueError(f"{path}: vmax must be finite and > 0, got {vmax!r}")
+    lut = np.round(matplotlib.colormaps[colormap](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0).astype(np.uint8)
+    index = np.round(np.clip(np.where(finite, arr, 0.0) / vmax, 0.0, 1.0) * 255.0).astype(np.intp)
+    rgb8 = lut[index]
+    rgb8[~finite] = 128
+    attrs = {"specgpu:quantity": quantity, "specgpu:colormap": colormap, "specgpu:vmin": "0",
+             "specgpu:vmax": repr(vmax),
+             "ImageDescription": f"{quantity} heat map, colormap {colormap}, 0 -> {vmax:g} (clipped above, NaN grey)"}
+    attrs.update({str(k): v for k, v in (metadata or {}).items()})
+    return _write_png(path, rgb8, attrs)
+
+
+def read_png(path) -> tuple[np.ndarray, dict]:
+    """Read an 8-bit PNG: (H, W, C) uint8 pixels and its text metadata (name -> str)."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: PNG not found")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"{path}: cannot open PNG ({one_line(oiio.geterror())})")
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, "uint8")
+        err = inp.geterror()
+        if data is None or err:
+            raise ValueError(f"{path}: truncated or corrupt PNG ({one_line(err or 'no pixel data')})")
+        meta = {a.name: a.value for a in spec.extra_attribs}
+    finally:
+        inp.close()
+    return data.reshape(spec.height, spec.width, spec.nchannels), meta
+
+
+# ---- frame sequences -----------------------------------------------------------------------------------------------
+SEQUENCE_FORMAT = "specgpu.sequence"
+SEQUENCE_VERSION = 1
+SEQUENCE_FILE = "sequence.json"
+_FRAME_NAME = "frame_{:06d}.tif"
+_FRAME_RE = re.compile(r"^frame_\d{6,}\.tif$")
+_RECORD_FIELDS = ("frame_id", "pattern_index", "exposure_s", "timestamp_s")
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def validate_sequence_document(doc, path="sequence.json") -> dict:
+    """Check a parsed ``sequence.json`` and return it normalized (plain Python ints, floats and strings).
+
+    The document (format ``specgpu.sequence``, version 1)::
+
+        {"format": "specgpu.sequence", "version": 1, "plan_hash": str (non-empty),
+         "height": int >= 1, "width": int >= 1, "dtype": "uint16",
+         "frames": [{"file": "frame_000000.tif", "frame_id": int >= 0 (strictly increasing),
+                     "pattern_index": int >= 0, "exposure_s": float > 0, "timestamp_s": finite float (s),
+                     "bytes": int >= 0, "sha256": 64 hex digits}, ...]  (at least one; files unique plain names),
+         "metadata": {...}  (optional JSON object)}
+
+    Extra keys in a frame record are kept (a newer writer's additions), so are unknown top-level keys.
+
+    Raises
+    ------
+    ValueError
+        One line that starts with ``path`` and names the field, e.g.
+        ``"seq/sequence.json: frames[3].frame_id must be an integer >= 0, got -1"``.
+    """
+    where = str(path)
+
+    def fail(msg):
+        raise ValueError(f"{where}: {msg}")
+
+    if not isinstance(doc, dict):
+        fail(f"must hold a JSON object, got {type(doc).__name__}")
+    if doc.get("format") != SEQUENCE_FORMAT:
+        fail(f"not a specgpu frame sequence (format {doc.get('format')!r}, expected {SEQUENCE_FORMAT!r})")
+    version = doc.get("version")
+    if not _is_int(version):
+        fail(f"version must be an integer, got {version!r}")
+    if version != SEQUENCE_VERSION:
+        fail(f"unknown format version {version} (this specgpu reads version {SEQUENCE_VERSION})")
+    plan_hash = doc.get("plan_hash")
+    if not isinstance(plan_hash, str) or not plan_hash:
+        fail(f"plan_hash must be a non-empty string, got {plan_hash!r}")
+    dims = {}
+    for key in ("height", "width"):
+        v = doc.get(key)
+        if not _is_int(v) or v < 1:
+            fail(f"{key} must be an integer >= 1, got {v!r}")
+        dims[key] = int(v)
+    if doc.get("dtype") != "uint16":
+        fail(f"dtype must be 'uint16', got {doc.get('dtype')!r}")
+    metadata = doc.get("metadata", {})
+    if not isinstance(metadata, dict):
+        fail(f"metadata must be a JSON object, got {type(metadata).__name__}")
+    frames = doc.get("frames")
+    if not isinstance(frames, list) or not frames:
+        fail("frames must be a non-empty list")
+    records, files, last_id = [], set(), -1
+    for i, rec in enumerate(frames):
+        at = f"frames[{i}]"
+        if not isinstance(rec, dict):
+            fail(f"{at} must be an object, got {type(rec).__name__}")
+        missing = [k for k in ("file", *_RECORD_FIELDS, "bytes", "sha256") if k not in rec]
+        if missing:
+            fail(f"{at} lacks {', '.join(missing)}")
+        name = rec["file"]
+        if not isinstance(name, str) or not name or name != Path(name).name or name in (".", "..") or "\\" in name:
+            fail(f"{at}.file must be a plain file name inside the folder, got {name!r}")
+        if name in files:
+            fail(f"{at}.file {name!r} is listed twice")
+        files.add(name)
+        fid = rec["frame_id"]
+        if not _is_int(fid) or fid < 0:
+            fail(f"{at}.frame_id must be an integer >= 0, got {fid!r}")
+        if fid <= last_id:
+            fail(f"{at}.frame_id {fid} must be greater than the previous frame's {last_id} (capture order)")
+        last_id = int(fid)
+        pat = rec["pattern_index"]
+        if not _is_int(pat) or pat < 0:
+            fail(f"{at}.pattern_index must be an integer >= 0, got {pat!r}")
+        exp = rec["exposure_s"]
+        if not _is_number(exp) or not math.isfinite(exp) or exp <= 0:
+            fail(f"{at}.exposure_s must be a finite number > 0 (s), got {exp!r}")
+        ts = rec["timestamp_s"]
+        if not _is_number(ts) or not math.isfinite(ts):
+            fail(f"{at}.timestamp_s must be a finite number (s), got {ts!r}")
+        size = rec["bytes"]
+        if not _is_int(size) or size < 0:
+            fail(f"{at}.bytes must be an integer >= 0, got {size!r}")
+        digest = rec["sha256"]
+        if not isinstance(digest, str) or not re.fullmatch(r"[0-9a-f]{64}", digest):
+            fail(f"{at}.sha256 must be 64 lowercase hex digits, got {digest!r}")
+        out = dict(rec)
+        out.update(file=name, frame_id=int(fid), pattern_index=int(pat), exposure_s=float(exp),
+                   timestamp_s=float(ts), bytes=int(size), sha256=digest)
+        records.append(out)
+    result = dict(doc)
+    result.update(version=int(version), plan_hash=plan_hash, dtype="uint16", metadata=metadata, frames=records,
+                  **dims)
+    return result
+
+
+def _record_of(rec, i: int, directory: Path) -> dict:
+    """One capture record (a mapping or an object such as capture.driver.FrameInfo) as plain data."""
+    if isinstance(rec, Mapping):
+        get = rec.get
+    else:
+        def get(key, default=None):
+            return getattr(rec, key, default)
+    out = {}
+    for key in _RECORD_FIELDS:
+        v = get(key)
+        if v is None:
+            raise ValueError(f"{directory}: record {i} lacks {key} (records need {', '.join(_RECORD_FIELDS)})")
+        out[key] = v.item() if isinstance(v, np.generic) else v
+    return out
+
+
+def _frame_array(frame, i: int, directory: Path, shape) -> np.ndarray:
+    arr = np.asarray(frame)
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ValueError(f"{directory}: frame {i} must have shape (H, W), got {arr.shape}")
+    if shape is not None and arr.shape != shape:
+        raise ValueError(f"{directory}: frame {i} has shape {arr.shape}, the first frame {shape}")
+    if arr.dtype != np.uint16:
+        if not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"{directory}: frame {i} must be uint16 (16-bit DN), got dtype {arr.dtype}")
+        if arr.size and (arr.min() < 0 or arr.max() > 65535):
+            raise ValueError(f"{directory}: frame {i} values must lie in 0-65535, got {arr.min()}-{arr.max()}")
+        arr = arr.astype(np.uint16)
+    return np.ascontiguousarray(arr[..., None])
+
+
+def _write_tiff(path: Path, frame: np.ndarray) -> tuple[int, str]:
+    import OpenImageIO as oiio
+
+    h, w, _ = frame.shape
+    spec = oiio.ImageSpec(w, h, 1, "uint16")
+    spec.attribute("compression", "zip")
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create("tiff")
+        if out is None or not out.open(str(tmp), spec):
+            raise ValueError(f"{path}: cannot write TIFF ({one_line(oiio.geterror())})")
+        try:
+            if not out.write_image(frame):
+                raise ValueError(f"{path}: cannot write TIFF ({one_line(out.geterror())})")
+        finally:
+            out.close()
+        raw = tmp.read_bytes()
+    return len(raw), hashlib.sha256(raw).hexdigest()
+
+
+def write_sequence(directory, frames, records=None, plan_hash: str = "", *, metadata=None,
+                   overwrite: bool = False) -> Path:
+    """Write a captured frame sequence: 16-bit TIFF frames and ``sequence.json``, the JSON last.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        Target folder (created if needed).
+    frames : array_like or iterable
+        (N, H, W) uint16 frames (DN), or an iterable of (H, W) frames (written as they come, e.g. from the
+        assembler), or a :class:`specgpu.capture.assemble.Sequence` (its records are used when ``records`` is
+        None). Other integer dtypes are accepted when their values fit 0-65535.
+    records : sequence
+        One per frame, in capture order: mappings or objects (e.g. :class:`specgpu.capture.driver.FrameInfo`)
+        with ``frame_id`` (int >= 0, increasing), ``pattern_index`` (int >= 0), ``exposure_s`` (s, > 0) and
+        ``timestamp_s`` (s) — what ``Sequence.frame_records()`` returns.
+    plan_hash : str
+        Hash of the plan the capture ran (a capture records its plan's hash; DESIGN.md section 3).
+    metadata : mapping, optional
+        JSON-serialisable extras (rig, scene, ...), stored under ``"metadata"``.
+    overwrite : bool
+        Replace a complete sequence already in ``directory`` (its ``sequence.json`` is removed first, so the
+        folder never looks complete while it is rewritten).
+
+    Returns
+    -------
+    pathlib.Path
+        The folder.
+
+    Raises
+    ------
+    FileExistsError
+        ``directory`` already holds a sequence and ``overwrite`` is False.
+    ValueError
+        One line naming the folder: frames of different shapes or non-16-bit values, a record count that does
+        not match the frames, invalid records or plan hash. Frames written by this call are removed and no
+        ``sequence.json`` is written.
+    """
+    directory = Path(directory)
+    if records is None and hasattr(frames, "frame_records"):
+        records = frames.frame_records()
+        frames = frames.frames
+    if records is None:
+        raise ValueError(f"{directory}: records are required (frame_id, pattern_index, exposure_s, timestamp_s)")
+    if not isinstance(plan_hash, str) or not plan_hash:
+        raise ValueError(f"{directory}: plan_hash must be a non-empty string, got {plan_hash!r}")
+    meta_text = _metadata_json(directory, metadata)
+    records = [_record_of(r, i, directory) for i, r in enumerate(records)]
+    index = directory / SEQUENCE_FILE
+    if directory.exists() and not directory.is_dir():
+        raise ValueError(f"{directory}: exists and is not a folder")
+    if index.exists():
+        if not overwrite:
+            raise FileExistsError(f"{directory}: already holds a frame sequence (pass overwrite=True to replace it)")
+        index.unlink()
+    directory.mkdir(parents=True, exist_ok=True)
+    for stale in directory.iterdir():  # frames of an interrupted or replaced write
+        if _FRAME_RE.match(stale.name) or (stale.name.startswith(".frame_") and ".tmp" in stale.name):
+            stale.unlink()
+    written: list[Path] = []
+    try:
+        entries, shape = [], None
+        for i, frame in enumerate(frames):
+            if i >= len(records):
+                raise ValueError(f"{directory}: more frames than records ({len(records)})")
+            arr = _frame_array(frame, i, directory, shape)
+            shape = arr.shape[:2]
+            name = _FRAME_NAME.format(i)
+            written.append(directory / name)
+            size, digest = _write_tiff(directory / name, arr)
+            entries.append({"file": name, **records[i], "bytes": size, "sha256": digest})
+        if len(entries) != len(records):
+            raise ValueError(f"{directory}: {len(entries)} frame(s) but {len(records)} record(s)")
+        if not entries:
+            raise ValueError(f"{directory}: no frames to write")
+        doc = {"format": SEQUENCE_FORMAT, "version": SEQUENCE_VERSION, "plan_hash": plan_hash,
+               "height": int(shape[0]), "width": int(shape[1]), "dtype": "uint16", "n_frames": len(entries),
+               "frames": entries, "metadata": {} if meta_text is None else json.loads(meta_text)}
+        doc = validate_sequence_document(doc, index)
+        with atomic_path(index) as tmp:
+            with open(tmp, "w", encoding="utf-8") as fh:
+                json.dump(doc, fh, indent=1, allow_nan=False)
+                fh.write("\n")
+                fh.flush()
+                os.fsync(fh.fileno())
+    except BaseException:
+        for p in written:
+            p.unlink(missing_ok=True)
+        raise
+    return directory
+
+
+def read_sequence_header(directory) -> tuple[list[dict], dict]:
+    """Read and validate only ``sequence.json`` of a sequence folder (no pixels).
+
+    Returns
+    -------
+    records : list of dict
+        Per frame, in capture order: ``file``, ``frame_id``, ``pattern_index``, ``exposure_s``, ``timestamp_s``,
+        ``bytes``, ``sha256``.
+    meta : dict
+        ``format``, ``version``, ``plan_hash``, ``height``, ``width``, ``dtype``, ``n_frames``, ``metadata``.
+
+    Raises
+    ------
+    FileNotFoundError
+        The folder does not exist.
+    ValueError
+        One line naming the file: no ``sequence.json`` (an incomplete or interrupted capture), invalid JSON, or
+        a document :func:`validate_sequence_document` rejects.
+    """
+    directory = Path(directory)
+    if not directory.exists():
+        raise FileNotFoundError(f"{directory}: sequence folder not found")
+    if not directory.is_dir():
+        raise ValueError(f"{directory}: not a folder (a frame sequence is a folder with {SEQUENCE_FILE})")
+    index = directory / SEQUENCE_FILE
+    if not index.is_file():
+        raise ValueError(f"{index}: missing; {directory} is not a complete frame sequence (an interrupted write "
+                         "leaves no sequence.json)")
+    try:
+        doc = json.loads(index.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"{index}: corrupt (not UTF-8 text)") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{index}: corrupt JSON ({exc.msg} at line {exc.lineno} column {exc.colno})") from None
+    doc = validate_sequence_document(doc, index)
+    records = doc.pop("frames")
+    doc["n_frames"] = len(records)
+    return records, doc
+
+
+def _read_tiff(path: Path, shape) -> np.ndarray:
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(oiio.geterror())})")
+    try:
+        spec = inp.spec()
+        if inp.format_name() != "tiff" or spec.nchannels != 1 or str(spec.format) != "uint16":
+            raise ValueError(f"{path}: frame must be a 1-channel 16-bit TIFF, got {inp.format_name()} "
+                             f"{spec.nchannels} channel(s) {spec.format}")
+        if (spec.height, spec.width) != tuple(shape):
+            raise ValueError(f"{path}: frame is {spec.height} x {spec.width}, sequence.json says "
+                             f"{shape[0]} x {shape[1]}")
+        data = inp.read_image(0, 0, 0, 1, "uint16")
+        err = inp.geterror()
+        if data is None or err or data.size != shape[0] * shape[1]:
+            raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(err or 'no pixel data')})")
+    finally:
+        inp.close()
+    return data.reshape(shape)
+
+
+def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[dict], dict]:
+    """Read a frame sequence folder written by :func:`write_sequence`.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        The folder.
+    verify : bool
+        Check each frame file's SHA-256 against ``sequence.json`` (catches corruption that keeps the size);
+        sizes are always checked.
+
+    Returns
+    -------
+    frames : numpy.ndarray
+        (N, H, W) uint16 frames (DN), in capture order.
+    records : list of dict
+        Per frame (see :func:`read_sequence_header`).
+    meta : dict
+        ``plan_hash``, ``height``, ``width``, ``n_frames``, ``format``, ``version``, ``metadata``.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        One line naming the file: see :func:`read_sequence_header`; a listed frame missing, truncated (size
+        differs), corrupt (checksum or decoding) or of the wrong shape or type.
+    """
+    directory = Path(directory)
+    records, meta = read_sequence_header(directory)
+    shape = (meta["height"], meta["width"])
+    frames = np.empty((len(records), *shape), dtype=np.uint16)
+    for i, rec in enumerate(records):
+        path = directory / rec["file"]
+        if not path.is_file():
+            raise ValueError(f"{path}: frame {i} (frame id {rec['frame_id']}) listed in {SEQUENCE_FILE} is missing")
+        size = path.stat().st_size
+        if size != rec["bytes"]:
+            raise ValueError(f"{path}: truncated or altered frame: {size} bytes, {SEQUENCE_FILE} says {rec['bytes']}")
+        if verify:
+            digest = hashlib.sha256(path.read_bytes()).hexdigest()
+            if digest != rec["sha256"]:
+                raise ValueError(f"{path}: corrupt frame: SHA-256 differs from {SEQUENCE_FILE}")
+        frames[i] = _read_tiff(path, shape)
+    return frames, records, meta
