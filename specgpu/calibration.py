@@ -12,7 +12,8 @@ buffer, assembler) and returns a :class:`CalibrationBundle`: the lamp's per-colu
 column-wavelength map (from the spectroradiometer), the V estimate and the 1/V sequence (loop (a)), the dark
 level and the flat field (from the camera). The bundle is the planner's model of the rig::
 
-    O_k = t * sum_lambda R(lambda) E_k(lambda) rho(lambda) dlambda,     E_k = sum_c (n_kc / rows) P_c g(lambda - lambda_c)
+    O_k = t * sum_lambda R(lambda) E_k(lambda) rho(lambda) dlambda
+    E_k(lambda) = sum_c (n_kc / rows) P_c g(lambda - lambda_c)
 
 with ``n_kc`` the mirror counts, ``P_c`` the column power, ``g`` the unit-area Gaussian slit function,
 ``rho`` the responsivity (DN per second per unit irradiance per nm, on reflectance 1 at the spot centre after
@@ -25,7 +26,6 @@ format, version and hash, and, when given the rig, that the rig is the one calib
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import math
@@ -449,7 +449,7 @@ def camera_loop(rig, masks, targets, *, flat_field=None, dark=None, initial_leve
 
 # ---- loop (b) -------------------------------------------------------------------------------------------------
 def spectral_loop(rig, target, wavelengths=None, *, bundle: CalibrationBundle | None = None, initial=None,
-                  tolerance: float = 0.01, max_iterations: int = 20, averages: int = 2) -> LoopResult:
+                  tolerance: float = 0.005, max_iterations: int = 20, averages: int = 2) -> LoopResult:
     """Loop (b): adjust one pattern until the spectroradiometer's reading matches a target spectrum.
 
     Parameters
@@ -607,12 +607,17 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     slit = float(p.line_fwhm_nm)
 
     # (3) Flat field on the white: a broadband pattern at about half the range.
-    probe = capture_mean(rig, np.full((1, p.columns), p.rows // 8, np.int32), 2, noise_seed=seeds.next())[0]
     win = _centre_window((h, w))
-    lvl = float(np.mean((probe - dark)[win]))
+    n_probe = p.rows // 8
+    while True:  # a probe level that does not saturate, to scale the flat-field pattern from
+        probe = capture_mean(rig, np.full((1, p.columns), n_probe, np.int32), 2, noise_seed=seeds.next())[0]
+        lvl = float(np.mean((probe - dark)[win]))
+        if float(probe[win].max()) < 0.95 * cam.max_code or n_probe == 1:
+            break
+        n_probe = max(1, n_probe // 4)
     if not lvl > 0:
         raise ValueError("calibrate: the white gives no signal; check the light and the camera")
-    n_flat = int(min(p.rows, max(1, round((p.rows // 8) * 0.5 * cam.max_code / lvl))))  # about half the range
+    n_flat = int(min(p.rows, max(1, round(n_probe * 0.5 * cam.max_code / lvl))))  # about half the range
     white_mean = capture_mean(rig, np.full((1, p.columns), n_flat, np.int32), 2 * repeats,
                               noise_seed=seeds.next())[0] - dark
     small = _centre_window((h, w), 0.05)

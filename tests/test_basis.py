@@ -133,7 +133,7 @@ def test_basis_file_errors_name_the_file(tmp_path, basis):
     arrays["functions"] = arrays["functions"] * 1.001
     edited = tmp_path / "edited.npz"
     np.savez(edited, **arrays)
-    with pytest.raises(ValueError, match=r"edited\.npz: corrupt specgpu.basis file \(content does not match its hash\)"):
+    with pytest.raises(ValueError, match=r"edited\.npz: corrupt specgpu.basis file \(content does not match"):
         load_basis(edited)
     future = tmp_path / "future.npz"
     save_npz(future, "specgpu.basis", 99, {"x": np.zeros(2)}, {})
