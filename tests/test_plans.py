@@ -6,6 +6,8 @@ from dataclasses import replace
 import colour
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from specgpu.basis import COLORCHECKER_24_SETS, load_reflectances, pca_basis
 from specgpu.calibration import oracle_calibration
@@ -109,10 +111,11 @@ def test_narrowband_recovers_smooth_spectra_at_band_centres(bundle):
         assert err < 0.004, (step, err)
 
 
-def test_reciprocal_frames_read_the_reflectance(bundle):
+def test_reciprocal_frames_read_the_reflectance(bundle, twin):
     plan = make_plan("reciprocal", bundle)
     d = np.diag(plan.A)
     np.testing.assert_allclose(plan.A, np.diag(d))
+    np.testing.assert_allclose(d, 1.0 / physics_F(twin, plan, [380.0, 780.0]).sum(axis=1), rtol=1e-9)
     np.testing.assert_allclose(d, d.mean(), rtol=0.01)  # equal bands: A is a multiple of I
     # On a white, every band gives the same frame.
     wl = np.array([380.0, 780.0])
@@ -262,6 +265,7 @@ def test_steady_state_emits_the_target(bundle, twin):
     sel = (bundle.wavelengths >= 400) & (bundle.wavelengths <= 730)
     assert np.sqrt(np.mean((emitted - target)[sel] ** 2)) / target[sel].max() < 0.02
     assert plan.patterns.max() == 768  # as bright as the lamp allows
+    np.testing.assert_allclose(plan.A, [[1.0 / physics_F(twin, plan, [380.0, 780.0]).sum()]], rtol=1e-9)
 
 
 ALL = [("narrowband", {}), ("reciprocal", {}), ("biased", {"m": 5}), ("symmetric", {"m": 5}),
@@ -335,3 +339,21 @@ def test_plan_file_round_trip_and_refusals(tmp_path, bundle, basis):
 
 def test_plan_is_a_plan(bundle):
     assert isinstance(make_plan("steady", bundle, spectrum="A"), Plan)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.integers(-5, 800), min_size=1, max_size=8), st.floats(1e-6, 1e-2))
+def test_plan_validator_property(counts, exposure):
+    """A plan is accepted exactly when its mirror counts lie in [0, 768] and its exposure is >= 80 us."""
+    pat = np.zeros((1, 1024), np.int64)
+    pat[0, : len(counts)] = counts
+    kw = dict(method="narrowband", patterns=pat, target_spectra=np.zeros((1, 3)), light_wavelengths=[1.0, 2.0, 3.0],
+              exposure_s=exposure, A=np.ones((1, 1)), output="relative", output_wavelengths=[],
+              output_labels=("r",), illuminant="", observer="", calibration="x", rows=768, min_exposure_s=80e-6,
+              expected_level=[0.5])
+    ok = min(counts) >= 0 and max(counts) <= 768 and exposure >= 80e-6
+    if ok:
+        assert Plan(**kw).patterns.dtype == np.int32
+    else:
+        with pytest.raises(ValueError, match="mirrors|switch time"):
+            Plan(**kw)
