@@ -469,7 +469,7 @@ def validate_sequence_document(doc, path="sequence.json") -> dict:
          "frames": [{"file": "frame_000000.tif", "frame_id": int >= 0 (strictly increasing),
                      "pattern_index": int >= 0, "exposure_s": float > 0, "timestamp_s": finite float (s),
                      "bytes": int >= 0, "sha256": 64 hex digits}, ...]  (at least one; files unique plain names),
-         "metadata": {...}  (optional JSON object)}
+         "n_frames": len(frames) (optional), "metadata": {...}  (optional JSON object)}
 
     Extra keys in a frame record are kept (a newer writer's additions), so are unknown top-level keys.
 
@@ -510,6 +510,8 @@ def validate_sequence_document(doc, path="sequence.json") -> dict:
     frames = doc.get("frames")
     if not isinstance(frames, list) or not frames:
         fail("frames must be a non-empty list")
+    if "n_frames" in doc and (not _is_int(doc["n_frames"]) or doc["n_frames"] != len(frames)):
+        fail(f"n_frames is {doc['n_frames']!r} but {len(frames)} frame(s) are listed")
     records, files, last_id = [], set(), -1
     for i, rec in enumerate(frames):
         at = f"frames[{i}]"
@@ -628,8 +630,10 @@ def write_sequence(directory, frames, records=None, plan_hash: str = "", *, meta
     metadata : mapping, optional
         JSON-serialisable extras (rig, scene, ...), stored under ``"metadata"``.
     overwrite : bool
-        Replace a complete sequence already in ``directory`` (its ``sequence.json`` is removed first, so the
-        folder never looks complete while it is rewritten).
+        Replace a complete sequence already in ``directory``: its ``sequence.json`` is removed first, so the
+        folder never looks complete while it is rewritten (the old sequence is gone from then on, even if this
+        write fails). Leftover ``frame_*.tif`` of an interrupted write (no ``sequence.json``) are always
+        replaced.
 
     Returns
     -------
@@ -646,8 +650,8 @@ def write_sequence(directory, frames, records=None, plan_hash: str = "", *, meta
         ``sequence.json`` is written.
     """
     directory = Path(directory)
-    if records is None and hasattr(frames, "frame_records"):
-        records = frames.frame_records()
+    if hasattr(frames, "frame_records") and hasattr(frames, "frames"):  # a capture.assemble.Sequence
+        records = frames.frame_records() if records is None else records
         frames = frames.frames
     if records is None:
         raise ValueError(f"{directory}: records are required (frame_id, pattern_index, exposure_s, timestamp_s)")
@@ -656,6 +660,12 @@ def write_sequence(directory, frames, records=None, plan_hash: str = "", *, meta
     meta_text = _metadata_json(directory, metadata)
     records = [_record_of(r, i, directory) for i, r in enumerate(records)]
     index = directory / SEQUENCE_FILE
+    if records:  # check the records before any pixel is written (placeholders for what the frames will give)
+        validate_sequence_document(
+            {"format": SEQUENCE_FORMAT, "version": SEQUENCE_VERSION, "plan_hash": plan_hash, "height": 1,
+             "width": 1, "dtype": "uint16",
+             "frames": [{"file": _FRAME_NAME.format(i), **r, "bytes": 0, "sha256": "0" * 64}
+                        for i, r in enumerate(records)]}, index)
     if directory.exists() and not directory.is_dir():
         raise ValueError(f"{directory}: exists and is not a folder")
     if index.exists():

@@ -106,6 +106,18 @@ def test_channel_name_round_trip_is_exact(wl):
     assert io.parse_channel(name) == wl
 
 
+_SI = {"": 0, "da": 1, "h": 2, "k": 3, "M": 6, "d": -1, "c": -2, "m": -3, "u": -6, "n": -9, "p": -12}
+
+
+@given(st.floats(min_value=1e-3, max_value=1e6, allow_nan=False), st.sampled_from(sorted(_SI)),
+       st.sampled_from([",", "."]))
+def test_parse_channel_applies_si_prefixes_and_either_separator(value, prefix, sep):
+    name = "T." + repr(value).replace(".", sep) + prefix + "m"
+    assert io.parse_channel(name) == pytest.approx(value * 10.0 ** (_SI[prefix] + 9), rel=1e-12)
+    hz = io.parse_channel("T." + repr(value).replace(".", sep) + prefix + "Hz")
+    assert hz == pytest.approx(299_792_458.0 / (value * 10.0 ** _SI[prefix]) * 1e9, rel=1e-12)
+
+
 @given(st.text(max_size=20))
 def test_parse_channel_never_raises_and_rejects_non_reflective_names(text):
     got = io.parse_channel(text)
@@ -333,6 +345,17 @@ def test_map_bad_input(tmp_path):
 
 
 # ---- previews ----------------------------------------------------------------------------------------------------------
+def test_sRGB_preview_adapts_from_the_given_illuminant(tmp_path):
+    xy_a = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["A"]
+    white_a = np.broadcast_to(colour.xy_to_XYZ(xy_a) * 0.9, (2, 2, 3))
+    io.write_sRGB_preview(tmp_path / "a.png", white_a, exposure=0.0, illuminant=xy_a)
+    neutral = io.read_png(tmp_path / "a.png")[0]
+    assert np.ptp(neutral.astype(int), axis=-1).max() <= 1  # the white of A renders neutral
+    io.write_sRGB_preview(tmp_path / "b.png", white_a, exposure=0.0)
+    warm = io.read_png(tmp_path / "b.png")[0][0, 0].astype(int)
+    assert warm[0] - warm[2] > 50  # unadapted, A's white is orange
+
+
 def test_sRGB_preview_matches_colour_science(tmp_path):
     d65 = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
     rng = np.random.default_rng(4)
@@ -460,6 +483,9 @@ def test_sequence_write_bad_input(tmp_path):
         io.write_sequence(tmp_path / "c", frames.astype(np.float32), records, "p")
     with raises_one_line(ValueError, r"d: frame 1 has shape \(4, 6\), the first frame \(5, 6\)"):
         io.write_sequence(tmp_path / "d", [frames[0], frames[1][:4]], records[:2], "p")
+    seq = Sequence(frames=frames, frame_ids=np.arange(4), timestamps_s=np.zeros(4), exposure_s=0.0, cycle=0)
+    with raises_one_line(ValueError, r"sequence\.json: frames\[0\]\.exposure_s must be a finite number > 0 \(s\), got 0\.0"):
+        io.write_sequence(tmp_path / "h", seq, plan_hash="p")  # rejected before any frame is written
     with raises_one_line(ValueError, r"e: plan_hash must be a non-empty string"):
         io.write_sequence(tmp_path / "e", frames, records, "")
     with raises_one_line(ValueError, r"f: record 2 lacks exposure_s"):
@@ -469,7 +495,7 @@ def test_sequence_write_bad_input(tmp_path):
     bad[2]["frame_id"] = bad[1]["frame_id"]
     with raises_one_line(ValueError, r"sequence\.json: frames\[2\]\.frame_id 101 must be greater than"):
         io.write_sequence(tmp_path / "g", frames, bad, "p")
-    for name in "abcdefg":  # no folder left looking like a sequence
+    for name in "abcdefgh":  # no folder left looking like a sequence
         assert not (tmp_path / name / "sequence.json").exists()
         assert not (tmp_path / name).exists() or not list((tmp_path / name).iterdir())
 
@@ -585,7 +611,7 @@ _MUTATIONS = [
     (None, "format", "specgpu.cube"), (None, "format", None), (None, "version", 0), (None, "version", "1"),
     (None, "version", True), (None, "plan_hash", ""), (None, "plan_hash", 3), (None, "height", 0),
     (None, "width", 2.5), (None, "dtype", "float32"), (None, "frames", []), (None, "frames", {}),
-    (None, "metadata", []),
+    (None, "metadata", []), (None, "n_frames", 99), (None, "n_frames", "1"),
     ("frame", "frame_id", -1), ("frame", "frame_id", 1.0), ("frame", "frame_id", True),
     ("frame", "pattern_index", -2), ("frame", "pattern_index", "0"), ("frame", "exposure_s", 0.0),
     ("frame", "exposure_s", math.nan), ("frame", "exposure_s", math.inf), ("frame", "exposure_s", "1ms"),
@@ -615,6 +641,7 @@ def test_each_broken_rule_is_a_one_line_error_naming_the_file(doc, mutation, dat
 def test_frame_ids_out_of_capture_order_or_repeated_files_are_rejected(doc, data):
     if len(doc["frames"]) < 2:
         doc["frames"].append(dict(doc["frames"][0], file="frame_999999.tif", frame_id=doc["frames"][0]["frame_id"] + 1))
+        doc["n_frames"] = 2
     bad = copy.deepcopy(doc)
     i = data.draw(st.integers(1, len(bad["frames"]) - 1))
     if data.draw(st.booleans()):
