@@ -27,7 +27,7 @@ from dataclasses import replace
 import numpy as np
 
 from specgpu.basis import evaluation_exclusions, load_reflectances, pca_basis
-from specgpu.calibration import calibrate
+from specgpu.calibration import calibrate, oracle_calibration
 from specgpu.capture.session import capture_sequences
 from specgpu.capture.twin import TwinDriver
 from specgpu.evaluate import evaluate_reflectance, evaluate_XYZ, true_patch_spectra
@@ -89,6 +89,14 @@ def main(argv=None):
     print(f"  loop (b) spectroradiometer, equal-energy target: {lb['iterations']} iterations, residual "
           f"{lb['residual']:.4f} (RMS / max, tolerance {lb['tolerance']:g}), converged {lb['converged']}")
     print(f"  column map: {rep['column_map']['intercept_nm']:.2f} nm + {rep['column_map']['slope_nm']:.5f} nm/column")
+    truth = oracle_calibration(desc)  # the twin's ground truth, which the calibration did not see
+    sel = (bundle.wavelengths >= 410) & (bundle.wavelengths <= 690)
+    rel = bundle.system_matrix.sum(axis=1)[sel] / truth.system_matrix.sum(axis=1)[sel] - 1
+    print(f"  against the twin's truth: lamp x V within {np.abs(rel).max() * 100:.2f} % (410-690 nm, RMS "
+          f"{np.sqrt(np.mean(rel**2)) * 100:.2f} %), column map within "
+          f"{np.abs(bundle.column_wavelengths - truth.column_wavelengths).max():.3f} nm, flat field "
+          f"{np.mean(np.abs(bundle.flat_field / truth.flat_field - 1)) * 100:.2f} % mean error, dark "
+          f"{np.mean(np.abs(bundle.dark - truth.dark)):.2f} DN mean error")
 
     # Basis: the chart and every set of the same patches out, and any spectrum within 0.01 RMS of a patch.
     probe = colorchecker_scene(24, 36, chart=CHART)
