@@ -41,7 +41,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -78,7 +78,8 @@ def _metadata_json(path, metadata) -> str | None:
     try:
         return json.dumps(dict(metadata), default=_json_default, allow_nan=False, sort_keys=True)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: metadata must be JSON-serialisable with finite numbers ({one_line(str(exc))})") from None
+        raise ValueError(f"{path}: metadata must be JSON-serialisable with finite numbers "
+                         f"({one_line(str(exc))})") from None
 
 
 def _metadata_from(path, attributes: dict) -> dict:
@@ -88,7 +89,8 @@ def _metadata_from(path, attributes: dict) -> dict:
     try:
         meta = json.loads(text)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: header attribute {_META_ATTRIBUTE!r} is not valid JSON ({one_line(str(exc))})") from None
+        raise ValueError(f"{path}: header attribute {_META_ATTRIBUTE!r} is not valid JSON "
+                         f"({one_line(str(exc))})") from None
     if not isinstance(meta, dict):
         raise ValueError(f"{path}: header attribute {_META_ATTRIBUTE!r} must hold a JSON object")
     return meta

@@ -175,7 +175,8 @@ def read_exr(path, what: str = "EXR") -> tuple[np.ndarray, list[str], dict]:
         err = inp.geterror()
         expected = spec.width * spec.height * spec.nchannels
         if data is None or not isinstance(data, np.ndarray) or data.size != expected or err:
-            raise ValueError(f"{path}: truncated or corrupt EXR ({one_line(err or oiio.geterror() or 'no pixel data')})")
+            reason = one_line(err or oiio.geterror() or "no pixel data")
+            raise ValueError(f"{path}: truncated or corrupt EXR ({reason})")
     finally:
         inp.close()
     return np.ascontiguousarray(data.reshape(spec.height, spec.width, spec.nchannels), np.float32), names, attributes
@@ -255,7 +256,8 @@ def read_cube_exr(path) -> tuple[np.ndarray, np.ndarray, dict]:
     picked.sort()
     for (a, _, na), (b, _, nb) in zip(picked, picked[1:]):
         if a == b:
-            raise ValueError(f"{path}: a wavelength appears in more than one 'T.' channel ({na!r} and {nb!r}: {a:g} nm)")
+            raise ValueError(f"{path}: a wavelength appears in more than one 'T.' channel "
+                             f"({na!r} and {nb!r}: {a:g} nm)")
     wavelengths = np.array([wl for wl, _, _ in picked], dtype=np.float64)
     cube = np.ascontiguousarray(data[..., [i for _, i, _ in picked]])
     return cube, wavelengths, attributes
@@ -271,7 +273,8 @@ def check_cube(path, cube, wavelengths) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"{path}: wavelengths must be finite and > 0 nm, got {wl[:8].tolist()}")
     if np.unique(wl).size != wl.size:
         dup = sorted({float(v) for v in wl if np.count_nonzero(wl == v) > 1})
-        raise ValueError(f"{path}: duplicate wavelength(s) {dup} nm (wavelengths must be strictly increasing once sorted)")
+        raise ValueError(f"{path}: duplicate wavelength(s) {dup} nm "
+                         "(wavelengths must be strictly increasing once sorted)")
     if arr.ndim != 3 or arr.shape[2] != wl.size or arr.shape[0] < 1 or arr.shape[1] < 1:
         raise ValueError(f"{path}: cube must have shape (H, W, {wl.size}) with H, W >= 1, got {arr.shape}")
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
@@ -319,7 +322,8 @@ def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
         msg = one_line(str(exc))
         raise ValueError(msg if msg.startswith(str(path)) else f"{path}: truncated or corrupt .npz ({msg})") from None
     except (OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
-        raise ValueError(f"{path}: truncated or corrupt .npz ({exc.__class__.__name__}: {one_line(str(exc))})") from None
+        raise ValueError(f"{path}: truncated or corrupt .npz "
+                         f"({exc.__class__.__name__}: {one_line(str(exc))})") from None
     if wl.ndim != 1:
         raise ValueError(f"{path}: wavelengths must have shape (B,), got {wl.shape}")
     try:

@@ -8,8 +8,8 @@ Sources:
 
 - cube files (read and written by :mod:`specgpu.rig._files`, shared with :mod:`specgpu.io`): OpenEXR in the
   JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie), reflective channels named ``T.<wavelength><unit>``
-  (e.g. ``T.550,000000nm``; ``.`` also accepted as decimal separator on reading), through OpenImageIO; or ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>``
-  arrays). Bands are ordered by wavelength, never by channel order in the file.
+  (e.g. ``T.550,000000nm``; ``.`` also accepted as decimal separator on reading), through OpenImageIO; or
+  ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>`` arrays). Bands are ordered by wavelength, never by channel order in the file.
 - built-ins (:data:`BUILTIN_SCENES`): ``"colorchecker"`` (the 24-patch chart as an image from colour-science's
   measured spectra, with one mask per patch), ``"white"`` (a reference white plate) and ``"natural"`` (a
   scikit-image sample photograph turned into reflectance by Mallett and Yuksel's 2019 spectral upsampling,
