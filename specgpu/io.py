@@ -195,15 +195,15 @@ MAP_KINDS = {
 }
 
 
-def _channels_of(kind) -> tuple[str, ...]:
+def _channels_of(kind, path) -> tuple[str, ...]:
     if isinstance(kind, str):
         if kind not in MAP_KINDS:
-            raise ValueError(f"unknown map kind {kind!r}; valid kinds: {', '.join(MAP_KINDS)} "
+            raise ValueError(f"{path}: unknown map kind {kind!r}; valid kinds: {', '.join(MAP_KINDS)} "
                              "(or a tuple of channel names)")
         return MAP_KINDS[kind]
     names = tuple(str(n) for n in kind)
     if not names or len(set(names)) != len(names) or any(not n for n in names):
-        raise ValueError(f"map channel names must be unique non-empty strings, got {names}")
+        raise ValueError(f"{path}: map channel names must be unique non-empty strings, got {names}")
     return names
 
 
@@ -231,7 +231,7 @@ def write_map(path, data, kind, *, half: bool = False, metadata=None) -> Path:
     """
     path = Path(path)
     _suffix(path, (".exr",), "map")
-    names = _channels_of(kind)
+    names = _channels_of(kind, path)
     arr = np.asarray(data, dtype=np.float32)
     if arr.ndim == 2 and len(names) == 1:
         arr = arr[..., None]
@@ -273,7 +273,7 @@ def read_map(path, kind=None) -> tuple[np.ndarray, tuple[str, ...], dict]:
     if kind is None:
         wanted = next((ch for ch in MAP_KINDS.values() if set(ch) == set(names)), tuple(names))
     else:
-        wanted = _channels_of(kind)
+        wanted = _channels_of(kind, path)
         missing = [n for n in wanted if n not in names]
         if missing:
             label = kind if isinstance(kind, str) else "/".join(wanted)

@@ -330,7 +330,7 @@ def test_map_bad_input(tmp_path):
     io.write_map(tmp_path / "xyz.exr", xyz, "XYZ")
     with raises_one_line(ValueError, r"xyz\.exr: not a Lab map: expected channels L, a, b, found X, Y, Z"):
         io.read_map(tmp_path / "xyz.exr", "Lab")
-    with raises_one_line(ValueError, r"unknown map kind 'XYZW'; valid kinds: XYZ, Lab, dE76, dE94, dE2000"):
+    with raises_one_line(ValueError, r"w\.exr: unknown map kind 'XYZW'; valid kinds: XYZ, Lab, dE76, dE94, dE2000"):
         io.write_map(tmp_path / "w.exr", xyz, "XYZW")
     with raises_one_line(ValueError, r"d\.exr: a dE2000 map must have shape \(H, W, 1\), got \(3, 4, 3\)"):
         io.write_map(tmp_path / "d.exr", xyz, "dE2000")
