@@ -187,6 +187,24 @@ class Plan:
         """Content hash (SHA-256 hex) that a capture records."""
         return content_hash(self._arrays(), self._meta())
 
+    def rig_description(self, description):
+        """The rig description to capture this plan with: the camera at the plan's exposure, its frame rate
+        lowered if the exposure plus the light's switch time needs a longer period (never raised).
+
+        Parameters
+        ----------
+        description : specgpu.rig.config.RigDescription
+
+        Returns
+        -------
+        RigDescription
+        """
+        from dataclasses import replace
+
+        cam = description.camera
+        rate = min(cam.frame_rate_hz, 1.0 / (self.exposure_s + description.light.switch_time_s + 1e-6))
+        return replace(description, camera=replace(cam, exposure_s=float(self.exposure_s), frame_rate_hz=rate))
+
     def check_calibration(self, bundle, name: str = "plan") -> None:
         """Refuse a plan designed with another calibration than ``bundle`` (stale plan)."""
         if self.calibration != bundle.hash:

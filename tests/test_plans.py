@@ -47,10 +47,10 @@ def twin():
 
 def noise_free(plan, reflectance, wavelengths):
     """Noise-free frames (K, H, W) of a uniform scene photographed with the plan at its exposure."""
-    t = plan.exposure_s
-    cam = replace(DESC.camera, exposure_s=t, frame_rate_hz=min(90.0, 1.0 / (t + 100e-6)))
     refl = np.broadcast_to(np.asarray(reflectance, np.float32), (H, W, len(wavelengths)))
-    rig = TwinRig(replace(DESC, camera=cam), scene=SpectralScene(np.asarray(wavelengths, float), refl))
+    d = plan.rig_description(DESC)
+    assert d.camera.exposure_s == plan.exposure_s and d.camera.frame_rate_hz <= DESC.camera.frame_rate_hz
+    rig = TwinRig(d, scene=SpectralScene(np.asarray(wavelengths, float), refl))
     rig.load_sequence(plan.patterns)
     return np.stack([rig.expected_frame(k) for k in range(plan.K)])
 

@@ -22,8 +22,6 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import replace
-
 import numpy as np
 
 from specgpu.basis import evaluation_exclusions, load_reflectances, pca_basis
@@ -50,11 +48,7 @@ PAPER_TABLE3 = {"D65": (2.43, 5.08), "A": (2.82, 5.15)}  # dE*ab avg, max
 
 def capture(description, plan, scene, noise_seed):
     """One sequence of ``plan`` on the twin (capture path), at the plan's exposure; (K, H, W) uint16."""
-    t = plan.exposure_s
-    cam = description.camera
-    rate = min(cam.frame_rate_hz, 1.0 / (t + description.light.switch_time_s + 1e-6))
-    d = replace(description, camera=replace(cam, exposure_s=t, frame_rate_hz=rate))
-    rig = TwinRig(d, scene=scene)
+    rig = TwinRig(plan.rig_description(description), scene=scene)
     rig.seed = noise_seed  # fresh temporal noise, same camera (fixed pattern from the description's seed)
     driver = TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K, faults=FaultSchedule(), pacing="free")
     res = capture_sequences(driver, plan.K)
