@@ -1,0 +1,180 @@
+"""The DLPC900-based programmable light as a :class:`~specgpu.capture.driver.LightSource`.
+
+``load_sequence`` turns the (K, C) mirror-count patterns into DMD bit-planes (:class:`DMDLayout`), packs them 24 to an
+image and uploads them with one LUT entry per pattern (1 bit, wait for trigger): the controller then shows pattern k
+on the k-th TRIG_IN_1 edge of a pass. The trigger itself is hardware (the camera's strobe, or the controller is the
+master and triggers the camera through TRIG_OUT); this object only keeps count of which pattern lit which exposure:
+exposure ``n`` of the stream (the camera's frame counter, which also counts frames the host never received) was lit
+by pattern ``n mod K`` (:meth:`at_frame`). :meth:`check` reads the controller's Main Status so a capture stops at the
+first sign that the sequencer is no longer following, instead of labelling frames it did not light.
+
+What the light emits is the model's (a calibration bundle's forward model, or the nominal
+:class:`~specgpu.rig.light.ProgrammableLight`): a real light cannot measure itself.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from specgpu.capture.driver import LightSource
+from specgpu.hardware.dlpc900.device import DLPC900, LutEntry
+from specgpu.hardware.dlpc900.images import BITS_PER_IMAGE, DMDLayout
+from specgpu.hardware.errors import LightFault
+from specgpu.rig._checks import check_number
+
+__all__ = ["DLPC900Light"]
+
+
+class DLPC900Light(LightSource):
+    """A lamp -> grating -> DLPC900 DMD light source.
+
+    Parameters
+    ----------
+    device
+        The controller (:class:`DLPC900`); by default the first one on USB.
+    layout
+        Where patterns go on the DMD; by default from ``calibration`` or from ``model``'s columns and rows,
+        centred on the device's DMD.
+    model
+        A :class:`~specgpu.rig.light.ProgrammableLight` for the wavelength grid and the emitted spectra
+        (the paper's nominal light by default).
+    calibration
+        Optional :class:`~specgpu.calibration.CalibrationBundle`: its column map sets the pattern width and its
+        forward model gives :meth:`emitted_spectrum`.
+    exposure_s
+        How long each pattern is shown after its trigger (LUT exposure), s; at least the DMD's minimum
+        (105 us for 1-bit patterns).
+    wait_for_trigger
+        LUT entries wait for TRIG_IN_1 (camera master, the paper's arrangement). ``False``: the controller runs
+        the sequence on its own clock and triggers the camera (TRIG_OUT_1).
+    compression
+        Image encoding for the upload: ``"erle"`` (default), ``"rle"`` or ``"none"``.
+    """
+
+    def __init__(self, device: DLPC900 | None = None, *, layout: DMDLayout | None = None, model=None,
+                 calibration=None, exposure_s: float = 0.010, wait_for_trigger: bool = True,
+                 compression: str = "erle"):
+        from specgpu.rig.light import ProgrammableLight
+
+        self.device = device if device is not None else DLPC900()
+        self.model = model if model is not None else ProgrammableLight()
+        self.calibration = calibration
+        if layout is None:
+            if calibration is not None:
+                layout = DMDLayout.from_calibration(calibration, self.device.geometry)
+            else:
+                layout = DMDLayout(self.device.geometry, self.model.params.columns, self.model.params.rows)
+        if layout.geometry != self.device.geometry:
+            raise ValueError(f"layout is for a {layout.geometry.name}, the controller drives a "
+                             f"{self.device.geometry.name}")
+        self.layout = layout
+        self.exposure_s = check_number("exposure_s", exposure_s, low=self.minimum_exposure_s, high=16.7)
+        self.wait_for_trigger = bool(wait_for_trigger)
+        self.compression = compression
+        self._sequence: np.ndarray | None = None
+        self._index = 0
+        self.bytes_uploaded = 0
+
+    # ---- what loop (b) and the planner read from a light --------------------------------------------------------
+    @property
+    def params(self):
+        """The model's :class:`~specgpu.rig.light.LightParameters` (columns, rows, slit ...)."""
+        return self.model.params
+
+    @property
+    def column_wavelengths(self) -> np.ndarray:
+        cal = self.calibration
+        return cal.column_wavelengths if cal is not None else self.model.column_wavelengths
+
+    def check_pattern(self, pattern, name: str = "pattern") -> np.ndarray:
+        try:
+            return self.layout.check_patterns(pattern)[0]
+        except ValueError as exc:
+            raise ValueError(f"{name}: {exc}") from None
+
+    # ---- LightSource -------------------------------------------------------------------------------------------
+    @property
+    def wavelengths(self) -> np.ndarray:
+        return self.calibration.wavelengths if self.calibration is not None else self.model.wavelengths
+
+    @property
+    def minimum_exposure_s(self) -> float:
+        return self.device.geometry.min_exposure_us * 1e-6
+
+    @property
+    def sequence(self) -> np.ndarray:
+        """The loaded (K, C) sequence; ``RuntimeError`` if none is (or if the last upload failed)."""
+        if self._sequence is None:
+            raise RuntimeError("DLPC900 light: no sequence loaded (or the last upload failed)")
+        return self._sequence
+
+    @property
+    def loaded(self) -> bool:
+        return self._sequence is not None
+
+    def load_sequence(self, patterns) -> None:
+        """Upload a (K, C) sequence (K <= 400) as 1-bit LUT entries; the light then waits to show pattern 0.
+
+        A failure part-way (USB error, rejected command) leaves no sequence marked as loaded, so a capture cannot
+        start with half a sequence in the controller.
+        """
+        p = self.layout.check_patterns(patterns)
+        self._sequence = None
+        images = self.layout.patterns_to_images(p)
+        exposure_us = int(round(self.exposure_s * 1e6))
+        entries = [LutEntry(k, exposure_us, k // BITS_PER_IMAGE, k % BITS_PER_IMAGE,
+                            wait_for_trigger=self.wait_for_trigger) for k in range(p.shape[0])]
+        self.bytes_uploaded = self.device.upload_sequence(images, entries, compression=self.compression)
+        self._sequence = p
+        self._index = 0
+
+    def start(self) -> None:
+        """Pattern Display Start (0x1A24): the controller follows its triggers from pattern 0."""
+        self.sequence  # noqa: B018 - refuse to start without a sequence
+        self._index = 0
+        self.device.start()
+
+    def stop(self) -> None:
+        """Pattern Display Stop (0x1A24)."""
+        self.device.stop()
+
+    def reset(self) -> None:
+        self._index = 0
+
+    def trigger(self) -> int:
+        """Count one hardware trigger (the controller advanced by itself); return the pattern now shown."""
+        self._index = (self._index + 1) % self.sequence.shape[0]
+        return self._index
+
+    def at_frame(self, frame_id: int) -> int:
+        """The pattern that lit exposure ``frame_id`` of the stream (0 is the first exposure after start)."""
+        self._index = int(frame_id) % self.sequence.shape[0]
+        return self._index
+
+    @property
+    def pattern_index(self) -> int:
+        return self._index
+
+    def check(self) -> None:
+        """Main Status (0x1A0C): :class:`LightFault` if the sequencer is not running (USB errors propagate)."""
+        status = self.device.main_status()
+        if not status.sequencer_running:
+            raise LightFault("DLPC900 light: the pattern sequencer stopped (controller reset or stopped); "
+                             "frames from here on are not lit by the sequence")
+
+    def emitted_spectrum(self, index: int | None = None) -> np.ndarray:
+        k = self._index if index is None else int(index)
+        pattern = self.sequence[k]
+        if self.calibration is not None:
+            return self.calibration.emitted(pattern)
+        return self.model.pattern_to_spectrum(pattern)
+
+    def show(self, pattern) -> None:
+        """Show one pattern continuously (for the spectrometer loop): a 1-entry LUT on the controller's own clock."""
+        p = self.layout.check_patterns(pattern)
+        self._sequence = None
+        images = self.layout.patterns_to_images(p)
+        entry = LutEntry(0, int(round(self.exposure_s * 1e6)), 0, 0, wait_for_trigger=False)
+        self.bytes_uploaded = self.device.upload_sequence(images, [entry], compression=self.compression)
+        self._sequence, self._index = p, 0
+        self.device.start()

@@ -1,0 +1,91 @@
+"""The USB devices this machine sees, with the ones specgpu can drive named (for ``specgpu info --devices``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from specgpu.hardware.errors import BackendMissing
+
+__all__ = ["UsbDevice", "list_usb_devices", "KNOWN_DEVICES"]
+
+#: (vendor, product or None for any) -> what it is and which specgpu backend drives it.
+KNOWN_DEVICES = {
+    (0x0451, 0xC900): ("TI DLPC900 (DLP LightCrafter 6500 / 9000)", "dlpc900"),
+    (0x2457, None): ("Ocean Insight / Ocean Optics spectrometer", "seabreeze"),
+}
+_USB3_VISION = (0xEF, 0x05)  # interface class (miscellaneous), subclass USB3 Vision
+
+
+@dataclass(frozen=True)
+class UsbDevice:
+    """One USB device.
+
+    Attributes
+    ----------
+    vendor_id, product_id : int
+    bus, address : int
+    description : str
+        What specgpu knows it as ("" if not a device specgpu drives).
+    backend : str
+        The specgpu backend that drives it ("" if none).
+    """
+
+    vendor_id: int
+    product_id: int
+    bus: int
+    address: int
+    description: str = ""
+    backend: str = ""
+
+    def __str__(self) -> str:
+        what = f"  {self.description} [{self.backend}]" if self.description else ""
+        return f"bus {self.bus:03d} address {self.address:03d}  {self.vendor_id:04x}:{self.product_id:04x}{what}"
+
+
+def _classify(dev) -> tuple[str, str]:
+    for (vid, pid), (text, backend) in KNOWN_DEVICES.items():
+        if dev.idVendor == vid and (pid is None or dev.idProduct == pid):
+            return text, backend
+    try:
+        for cfg in dev:
+            for intf in cfg:
+                if (intf.bInterfaceClass, intf.bInterfaceSubClass) == _USB3_VISION:
+                    return "USB3 Vision camera (GenICam)", "genicam"
+    except Exception:  # descriptors unreadable without permission: just not classified
+        pass
+    return "", ""
+
+
+def list_usb_devices(*, known_only: bool = False, find=None) -> list[UsbDevice]:
+    """USB devices present, those specgpu drives described.
+
+    Parameters
+    ----------
+    known_only
+        Only the devices a specgpu backend drives.
+    find
+        ``usb.core.find`` replacement (tests).
+
+    Raises
+    ------
+    BackendMissing
+        pyusb or its libusb backend is not installed (one line, with the fix).
+    """
+    if find is None:
+        from specgpu.hardware.dlpc900.transport import import_pyusb, no_backend_message
+
+        core, _ = import_pyusb()
+        try:
+            devices = list(core.find(find_all=True))
+        except core.NoBackendError:
+            raise BackendMissing(no_backend_message()) from None
+    else:
+        devices = list(find(find_all=True))
+    out = []
+    for d in devices:
+        text, backend = _classify(d)
+        if known_only and not backend:
+            continue
+        out.append(UsbDevice(int(d.idVendor), int(d.idProduct), int(getattr(d, "bus", 0) or 0),
+                             int(getattr(d, "address", 0) or 0), text, backend))
+    return sorted(out, key=lambda u: (u.bus, u.address))
