@@ -60,6 +60,8 @@ typedef int8 intv;
 #ifndef VEC_DEREF
 #define VEC_DEREF 0
 #endif
+#define VEC8_(T) T##8
+#define VEC8(T) VEC8_(T)
 #if VEC_DEREF
 typedef float8 float8_u __attribute__((aligned(4)));
 typedef ushort8 ushort8_u __attribute__((aligned(2)));
@@ -85,6 +87,10 @@ inline floatv load_f(__global const float *p, ulong base, uint count)
 /* Lane j of pixel base + j, channel c of an interleaved (N, nch) float image. */
 inline floatv load_f_strided(__global const float *p, ulong base, uint count, uint nch, uint c)
 {
+    if (count == VW) {
+        __global const float *q = p + base * nch + c;
+        return (floatv)(q[0], q[nch], q[2 * nch], q[3 * nch], q[4 * nch], q[5 * nch], q[6 * nch], q[7 * nch]);
+    }
     float t[VW];
     for (uint j = 0; j < VW; ++j) t[j] = j < count ? p[(base + j) * nch + c] : 0.0f;
     return vload8(0, t);
@@ -207,8 +213,11 @@ inline floatv load_frame(__global const IN_T *frames, ulong n, uint k, ulong bas
     for (uint j = 0; j < VW; ++j) t[j] = j < count ? (float)p[j] : 0.0f;
     return vload8(0, t);
 #else
+    __global const IN_T *p = frames + base * K + k;
+    if (count == VW)  /* a vector literal, not a private array (see the REP_n note below) */
+        return convert_float8((VEC8(IN_T))(p[0], p[K], p[2 * K], p[3 * K], p[4 * K], p[5 * K], p[6 * K], p[7 * K]));
     float t[VW];
-    for (uint j = 0; j < VW; ++j) t[j] = j < count ? (float)frames[(base + j) * K + k] : 0.0f;
+    for (uint j = 0; j < VW; ++j) t[j] = j < count ? (float)p[j * K] : 0.0f;
     return vload8(0, t);
 #endif
 }
@@ -237,7 +246,8 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
 
 /* The K samples of a pixel vector are kept in named registers x0 .. x<K-1>, not in a private array:
  * PoCL keeps private arrays in memory, which halves the speed of the matrix product. REP_n(M) expands
- * M(0) M(1) ... M(n-1); K above 64 falls back to an array. */
+ * M(0) M(1) ... M(n-1). Above 128 frames the samples are read again for every output instead of being
+ * kept: a private array is allocated by PoCL for every work-item of a group and overflows its stack. */
 #define REP_1(M) M(0)
 #define REP_2(M) REP_1(M) M(1)
 #define REP_3(M) REP_2(M) M(2)
@@ -302,10 +312,74 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
 #define REP_62(M) REP_61(M) M(61)
 #define REP_63(M) REP_62(M) M(62)
 #define REP_64(M) REP_63(M) M(63)
+#define REP_65(M) REP_64(M) M(64)
+#define REP_66(M) REP_65(M) M(65)
+#define REP_67(M) REP_66(M) M(66)
+#define REP_68(M) REP_67(M) M(67)
+#define REP_69(M) REP_68(M) M(68)
+#define REP_70(M) REP_69(M) M(69)
+#define REP_71(M) REP_70(M) M(70)
+#define REP_72(M) REP_71(M) M(71)
+#define REP_73(M) REP_72(M) M(72)
+#define REP_74(M) REP_73(M) M(73)
+#define REP_75(M) REP_74(M) M(74)
+#define REP_76(M) REP_75(M) M(75)
+#define REP_77(M) REP_76(M) M(76)
+#define REP_78(M) REP_77(M) M(77)
+#define REP_79(M) REP_78(M) M(78)
+#define REP_80(M) REP_79(M) M(79)
+#define REP_81(M) REP_80(M) M(80)
+#define REP_82(M) REP_81(M) M(81)
+#define REP_83(M) REP_82(M) M(82)
+#define REP_84(M) REP_83(M) M(83)
+#define REP_85(M) REP_84(M) M(84)
+#define REP_86(M) REP_85(M) M(85)
+#define REP_87(M) REP_86(M) M(86)
+#define REP_88(M) REP_87(M) M(87)
+#define REP_89(M) REP_88(M) M(88)
+#define REP_90(M) REP_89(M) M(89)
+#define REP_91(M) REP_90(M) M(90)
+#define REP_92(M) REP_91(M) M(91)
+#define REP_93(M) REP_92(M) M(92)
+#define REP_94(M) REP_93(M) M(93)
+#define REP_95(M) REP_94(M) M(94)
+#define REP_96(M) REP_95(M) M(95)
+#define REP_97(M) REP_96(M) M(96)
+#define REP_98(M) REP_97(M) M(97)
+#define REP_99(M) REP_98(M) M(98)
+#define REP_100(M) REP_99(M) M(99)
+#define REP_101(M) REP_100(M) M(100)
+#define REP_102(M) REP_101(M) M(101)
+#define REP_103(M) REP_102(M) M(102)
+#define REP_104(M) REP_103(M) M(103)
+#define REP_105(M) REP_104(M) M(104)
+#define REP_106(M) REP_105(M) M(105)
+#define REP_107(M) REP_106(M) M(106)
+#define REP_108(M) REP_107(M) M(107)
+#define REP_109(M) REP_108(M) M(108)
+#define REP_110(M) REP_109(M) M(109)
+#define REP_111(M) REP_110(M) M(110)
+#define REP_112(M) REP_111(M) M(111)
+#define REP_113(M) REP_112(M) M(112)
+#define REP_114(M) REP_113(M) M(113)
+#define REP_115(M) REP_114(M) M(114)
+#define REP_116(M) REP_115(M) M(115)
+#define REP_117(M) REP_116(M) M(116)
+#define REP_118(M) REP_117(M) M(117)
+#define REP_119(M) REP_118(M) M(118)
+#define REP_120(M) REP_119(M) M(119)
+#define REP_121(M) REP_120(M) M(120)
+#define REP_122(M) REP_121(M) M(121)
+#define REP_123(M) REP_122(M) M(122)
+#define REP_124(M) REP_123(M) M(123)
+#define REP_125(M) REP_124(M) M(124)
+#define REP_126(M) REP_125(M) M(125)
+#define REP_127(M) REP_126(M) M(126)
+#define REP_128(M) REP_127(M) M(127)
 #define REP__(n, M) REP_##n(M)
 #define REP_(n, M) REP__(n, M)
 
-#if K <= 64
+#if K <= 128
 #define X_LOAD_ONE(k) const floatv x##k = load_sample(frames, dark, n, k, base, count, &flags);
 #define X_FMA_ONE(k) acc_ = m_[k] * x##k + acc_;
 /* Declares intv flags and the samples of this work-item's pixels. */
@@ -319,15 +393,18 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
         acc = acc_;                                               \
     } while (0)
 #else
-#define LOAD_PIXELS()                                                             \
-    intv flags = (intv)(0);                                                       \
-    floatv x[K];                                                                  \
-    for (uint k = 0; k < K; ++k) x[k] = load_sample(frames, dark, n, k, base, count, &flags)
-#define DOT_ROW(acc, M, row)                                                      \
-    do {                                                                          \
-        __constant const float *m_ = (M) + (uint)(row) * K;                       \
-        acc = (floatv)(0.0f);                                                     \
-        for (uint k = 0; k < K; ++k) acc = m_[k] * x[k] + acc;                    \
+/* flags from one pass over the samples (dead code when no mask is written) */
+#define LOAD_PIXELS()                                                                          \
+    intv flags = (intv)(0);                                                                    \
+    for (uint k = 0; k < K; ++k) (void)load_sample(frames, dark, n, k, base, count, &flags)
+#define DOT_ROW(acc, M, row)                                                                   \
+    do {                                                                                       \
+        __constant const float *m_ = (M) + (uint)(row) * K;                                    \
+        floatv acc_ = (floatv)(0.0f);                                                          \
+        intv unused_ = (intv)(0);                                                              \
+        for (uint k = 0; k < K; ++k)                                                           \
+            acc_ = m_[k] * load_sample(frames, dark, n, k, base, count, &unused_) + acc_;      \
+        acc = acc_;                                                                            \
     } while (0)
 #endif
 

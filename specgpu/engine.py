@@ -17,7 +17,7 @@ from .validate import check_pixel_map
 from .runtime import DTYPE_TO_CTYPE, get_allocator, get_kernel
 
 VW = 8  # pixels per work-item, as kernels/common.h
-_GROUP = 64  # work-group size used on GPUs; the global size is padded to a multiple of it
+_GROUP = 64  # work-group size; the global size is padded to a multiple of it
 _launch_lock = threading.Lock()  # a Kernel's arguments are shared state: set and enqueue atomically
 
 DE_CODES = {"CIE 1976": 76, "CIE 1994": 94, "CIE 2000": 2000}
@@ -31,6 +31,10 @@ def matrix_on_device(queue, M: np.ndarray) -> cla.Array:
     """A small float32 matrix on the device, uploaded once per distinct content (a plan's A is reused for every
     sequence of a recording; re-uploading it would be a blocking transfer per call)."""
     M = np.ascontiguousarray(M, dtype=np.float32)
+    limit = queue.device.max_constant_buffer_size
+    if M.nbytes > limit:
+        raise ValueError(f"a {M.shape[0]} x {M.shape[1]} matrix ({M.nbytes} bytes) exceeds the constant memory of "
+                         f"{queue.device.name.strip()} ({limit} bytes); use fewer outputs or frames per pass")
     key = (queue.context.int_ptr, M.shape, M.tobytes())
     with _launch_lock:
         dev = _matrices.get(key)
@@ -67,10 +71,10 @@ def pixel_map(queue, a, name: str, spatial: tuple, planes: int | None):
 
 def _launch(queue, kernel, n_pixels: int, *args):
     items = -(-n_pixels // VW)
-    if queue.device.type & cl.device_type.GPU:
-        global_size, local_size = (-(-items // _GROUP) * _GROUP,), (_GROUP,)
-    else:
-        global_size, local_size = (items,), None
+    # A fixed work-group size on every device: on GPUs for occupancy, on CPU devices because PoCL sizes groups
+    # by the launch and keeps a group's private data on a thread stack (large groups overflowed it). The global
+    # size is padded; the extra work-items return at once.
+    global_size, local_size = (-(-items // _GROUP) * _GROUP,), (_GROUP,)
     with _launch_lock:
         kernel.set_args(*args)
         return cl.enqueue_nd_range_kernel(queue, kernel, global_size, local_size)

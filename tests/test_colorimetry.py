@@ -249,6 +249,14 @@ class TestReflectanceToXYZ:
         assert XYZ.shape == (5, 3, 3) and XYZ.dtype == np.float32
         np.testing.assert_allclose(XYZ, reflectance_to_XYZ_ref(R, wl, illuminant, cmfs), atol=1e-5)
 
+    def test_81_bands_at_camera_resolution(self, queue):
+        """The built-in scenes' 380-780 nm / 5 nm cubes at 320 x 240 (this once overflowed PoCL's stack)."""
+        wl = np.arange(380, 781, 5)
+        R = np.random.default_rng(81).uniform(0, 1, (240, 320, wl.size)).astype(np.float32)
+        XYZ = reflectance_to_XYZ(R, wl, device=queue)
+        rows = slice(None, None, 37)
+        np.testing.assert_allclose(XYZ[rows], reflectance_to_XYZ_ref(R[rows], wl), atol=1e-5)
+
     def test_n_dimensional(self, queue):
         wl = np.arange(400, 701, 10)
         R = np.linspace(0.1, 0.9, wl.size)

@@ -57,6 +57,27 @@ def test_every_K_and_B(queue, K, B):
     assert_close(y, expected, tol if layout == "planar" else np.moveaxis(tol, 0, -1))
 
 
+@pytest.mark.parametrize("K, layout", [(81, "interleaved"), (128, "planar"), (129, "interleaved"), (401, "planar")])
+def test_many_frames_on_a_large_image(queue, K, layout):
+    """Beyond the 61 of the paper (1 nm reflectance cubes go through the same kernel): no private array may
+    grow with K (a work-group's worth of them overflowed the CPU device's stack), on an image large enough for
+    full work-groups."""
+    rng = np.random.default_rng(K)
+    frames = frames_of(rng, np.float32, K, (64, 96))
+    A = rng.normal(0, 1, (3, K))
+    res = apply_linear(frames, A, layout=layout, return_mask=True, saturation=0.999, device=queue)
+    expected = linear_ref(frames, A, layout=layout)
+    tol = bound(frames, A)
+    assert_close(res.y, expected, tol if layout == "planar" else np.moveaxis(tol, 0, -1))
+    np.testing.assert_array_equal(res.mask, mask_ref(frames, 0.999))
+
+
+def test_matrix_beyond_constant_memory_is_a_clear_error(queue):
+    too_big = queue.device.max_constant_buffer_size // 4 // 8 + 1
+    with pytest.raises(ValueError, match="exceeds the constant memory"):
+        apply_linear(np.zeros((8, 2, 2), np.float32), np.zeros((too_big, 8)), device=queue)
+
+
 @pytest.mark.parametrize("in_dtype", [np.uint8, np.uint16, np.float32])
 @pytest.mark.parametrize("out_dtype", [np.float32, np.float16])
 @pytest.mark.parametrize("layout", ["planar", "interleaved"])
