@@ -75,5 +75,247 @@ def bench(device, json_path, sizes, repeats):
     run_bench(sizes=parsed, device=device, repeats=repeats, json_path=json_path, echo=click.echo)
 
 
+# ------------------------------------------------------------------------------------------------ the main job
+
+_RIG = click.option("--rig", "rig_path", type=click.Path(dir_okay=False), default=None,
+                    help="Rig description TOML (default: the paper's rig, simulated by the digital twin).")
+
+
+class _Busy:
+    """A progress line with elapsed time for a step of unknown length (tqdm, refreshed from a thread)."""
+
+    def __init__(self, desc: str):
+        import threading
+
+        from tqdm import tqdm
+
+        self._bar = tqdm(total=None, desc=desc, bar_format="{desc}: {elapsed}", leave=False, file=sys.stderr)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._tick, daemon=True)
+
+    def _tick(self):
+        while not self._stop.wait(0.2):
+            self._bar.refresh()
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        self._bar.close()
+
+
+@main.command()
+@_RIG
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="Calibration bundle to write (.npz).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the twin's temporal noise.")
+def calibrate(rig_path, out, seed):
+    """Run both feedback loops on the rig and write the calibration bundle."""
+    from .calibration import calibrate as run, save_calibration
+    from .rig.config import load_rig
+
+    description = load_rig(rig_path)
+    with _Busy("calibrating"):
+        bundle = run(description, seed=seed)
+    digest = save_calibration(out, bundle)
+    reports = bundle.reports
+    for loop, what in (("loop_a", "loop (a) camera + white"), ("loop_b", "loop (b) spectroradiometer")):
+        if loop in reports:
+            r = reports[loop]
+            click.echo(f"{what}: {r['iterations']} iterations, residual {r['residual']:.4f} "
+                       f"(tolerance {r['tolerance']:g}), converged {r['converged']}")
+    click.echo(f"wrote {out} (calibration {digest[:12]})")
+
+
+@main.command("plan")
+@click.argument("method")
+@click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False), help="Calibration bundle.")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="Plan to write (.npz).")
+@click.option("--step-nm", type=float, default=10.0, show_default=True, help="Band spacing (narrowband, reciprocal).")
+@click.option("--bandwidth-nm", type=float, default=None, help="Band width (narrowband, reciprocal; default the step).")
+@click.option("--m", "m", type=int, default=5, show_default=True, help="Basis functions (biased, symmetric).")
+@click.option("--basis", "basis_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Basis table (.npz); default: PCA of colour-science's reflectances without --exclude-chart.")
+@click.option("--exclude-chart", default="ColorChecker N Ohta", show_default=True,
+              help="Chart left out of the default basis training (the one you evaluate on).")
+@click.option("--output-step-nm", type=float, default=10.0, show_default=True,
+              help="Output wavelength spacing of basis methods (400-700 nm).")
+@click.option("--illuminant", default="D65", show_default=True, help="Tristimulus / camera simulator illuminant.")
+@click.option("--observer", default="CIE 1931 2 Degree Standard Observer", show_default=True)
+@click.option("--camera", default="Nikon 5100 (NPL)", show_default=True, help="Camera simulator: sensitivities.")
+@click.option("--spectrum", default="D65", show_default=True,
+              help="Steady-state: target illuminant name (colour-science) for spectral rendering.")
+def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
+                 illuminant, observer, camera, spectrum):
+    """Design a measurement plan: the illuminant sequence and its decoder.
+
+    METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady.
+    """
+    import numpy as np
+
+    from .calibration import load_calibration
+    from .plans import PLAN_METHODS, make_plan, save_plan
+    from .validate import validate_method
+
+    validate_method(method, {k: k for k in PLAN_METHODS}, "METHOD")
+    method = method.lower()
+    bundle = load_calibration(calib)
+    if method in ("narrowband", "reciprocal"):
+        kwargs = {"step_nm": step_nm, "bandwidth_nm": bandwidth_nm}
+        args = ()
+    elif method in ("biased", "symmetric"):
+        if basis_path:
+            from .basis import load_basis
+
+            basis = load_basis(basis_path)
+        else:
+            from .pipeline import default_basis
+
+            with _Busy("building the basis"):
+                basis = default_basis(exclude_chart)
+        args = (basis,)
+        kwargs = {"m": m, "output_wavelengths": np.arange(400.0, 700.0 + 1e-9, output_step_nm)}
+    elif method == "tristimulus":
+        args, kwargs = (), {"illuminant": illuminant, "cmfs": observer}
+    elif method == "camera":
+        args, kwargs = (), {"camera": camera, "illuminant": illuminant}
+    else:  # steady
+        from .render import target_spectrum
+
+        sd = target_spectrum(spectrum)
+        args, kwargs = (sd.values, sd.wavelengths), {}
+    plan = make_plan(method, bundle, *args, **kwargs)
+    digest = save_plan(out, plan)
+    click.echo(f"{plan.method}: {plan.K} frames at {plan.exposure_s * 1e3:.2f} ms, {plan.A.shape[0]} outputs "
+               f"({plan.output}); wrote {out} (plan {digest[:12]}, calibration {plan.calibration[:12]})")
+
+
+@main.command()
+@_RIG
+@click.option("--plan", "plan_path", required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="The calibration the plan was made from (stored with the frames for recovery).")
+@click.option("--scene", default=None, help="Scene: colorchecker, white, natural[:image], or a .exr / .npz cube "
+                                            "(default: the rig's [scene] source).")
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Sequence folder to write.")
+@click.option("--sequences", type=click.IntRange(min=1), default=1, show_default=True)
+@click.option("--seed", type=int, default=None, help="Seed of the frames' temporal noise.")
+def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
+    """Capture sequences of a plan on the rig (the twin by default) into a sequence folder."""
+    from tqdm import tqdm
+
+    from .calibration import load_calibration
+    from .pipeline import capture_plan, write_capture
+    from .plans import load_plan
+    from .rig.config import load_rig
+    from .rig.scene import load_scene
+
+    description = load_rig(rig_path)
+    bundle = load_calibration(calib, rig=description)
+    plan = load_plan(plan_path)
+    plan.check_calibration(bundle, name=str(plan_path))
+    cam = description.camera
+    truth = load_scene(scene or description.scene.source, cam.roi_height, cam.roi_width)
+    kept = []
+    with tqdm(total=sequences, desc="capturing", unit="seq", leave=False, file=sys.stderr) as bar:
+        def keep(sequence):
+            kept.append(sequence)
+            bar.update()
+
+        result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed, on_sequence=keep)
+    write_capture(out, kept, result.assembly, plan_path, calib,
+                  metadata={"scene": truth.name, "rig": rig_path or "<paper defaults>"})
+    a = result.assembly
+    click.echo(f"{len(kept)} sequences of {plan.K} frames ({truth.name}, {cam.roi_width} x {cam.roi_height}); "
+               f"dropped {a.dropped}, duplicated {a.duplicates}, missed triggers {a.missed_triggers}, "
+               f"discarded {a.sequences_discarded}; wrote {out}")
+
+
+def _parse_reference(text, height, width, illuminant):
+    """--delta-e-ref: an 'L,a,b' colour, or a scene (built-in name or cube file) whose Lab is the reference."""
+    import numpy as np
+
+    parts = text.split(",")
+    if len(parts) == 3:
+        try:
+            return np.array([float(p) for p in parts], np.float32)
+        except ValueError:
+            pass
+    from .colorimetry import XYZ_to_Lab, reflectance_to_XYZ
+    from .rig.scene import load_scene
+
+    truth = load_scene(text, height, width)
+    return XYZ_to_Lab(reflectance_to_XYZ(truth.reflectance, truth.wavelengths, illuminant), illuminant)
+
+
+@main.command()
+@click.argument("seq", type=click.Path(exists=True, file_okay=False))
+@click.option("--out", required=True, type=click.Path(dir_okay=False),
+              help="Recovered cube (.exr / .npz); an XYZ map for a tristimulus plan.")
+@click.option("--xyz", "xyz_path", type=click.Path(dir_okay=False), default=None, help="Also write XYZ (EXR).")
+@click.option("--lab", "lab_path", type=click.Path(dir_okay=False), default=None, help="Also write CIELAB (EXR).")
+@click.option("--delta-e-ref", "ref", default=None, help="Reference: 'L,a,b' or a scene whose Lab per pixel is it.")
+@click.option("--delta-e", "de_path", type=click.Path(dir_okay=False), default=None,
+              help="Colour-difference map to write (EXR; .png for a heat map).")
+@click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
+@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
+@click.option("--sequence", type=int, default=None, help="Recover one sequence (default: the mean of all).")
+@click.option("--half", is_flag=True, help="Write the cube in half precision.")
+@click.option("--device", "device", default=None, help="OpenCL device selector.")
+def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, device):
+    """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
+    from pathlib import Path
+
+    from . import io
+    from .colorimetry import DELTA_E_METHODS, delta_E
+    from .pipeline import read_capture, recover as run, to_Lab, to_XYZ
+    from .validate import validate_method
+
+    if (ref is None) != (de_path is None):
+        raise click.UsageError("--delta-e-ref and --delta-e go together")
+    method = validate_method(method, DELTA_E_METHODS)
+    folder = read_capture(seq)
+    plan = folder.plan
+    with _Busy("recovering"):
+        y = run(folder, sequence=sequence, device=device)
+        height, width = y.shape[:2]
+        meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
+                "calibration": plan.calibration, "sequence_folder": str(seq),
+                "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant}
+        writes = []
+        if plan.output == "reflectance":
+            writes.append(lambda: io.write_cube(out, y, plan.output_wavelengths, half=half, metadata=meta))
+        else:
+            kind = "XYZ" if plan.output == "XYZ" else tuple(plan.output_labels)
+            writes.append(lambda: io.write_map(out, y, kind, half=half, metadata=meta))
+        XYZ = Lab = None
+        if xyz_path or lab_path or de_path:
+            XYZ = to_XYZ(y, plan, illuminant, device=device)
+            Lab = to_Lab(XYZ, illuminant, device=device)
+        if xyz_path:
+            writes.append(lambda: io.write_map(xyz_path, XYZ, "XYZ", metadata=meta))
+        if lab_path:
+            writes.append(lambda: io.write_map(lab_path, Lab, "Lab", metadata=meta))
+        if de_path:
+            dE = delta_E(_parse_reference(ref, height, width, illuminant), Lab, method, device=device)
+            if Path(de_path).suffix.lower() == ".png":
+                writes.append(lambda: io.write_delta_E_png(de_path, dE, metadata=meta))
+            else:
+                kind = {"CIE 1976": "dE76", "CIE 1994": "dE94", "CIE 2000": "dE2000"}[method]
+                writes.append(lambda: io.write_map(de_path, dE, kind, metadata=meta))
+    written = []
+    try:
+        for write in writes:
+            written.append(write())
+    except Exception:
+        for path in written:  # nothing partial left looking complete
+            Path(path).unlink(missing_ok=True)
+        raise
+    click.echo(f"{plan.method}: {plan.K} projections, {folder.sequences} sequences in {seq}; wrote "
+               + ", ".join(str(p) for p in written))
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -1,0 +1,187 @@
+"""The offline main job as functions: capture a plan's sequences on the twin, keep them with their plan and
+calibration in one folder, and recover them; used by the CLI, ``specgpu demo`` and ``tools/accuracy_study.py``.
+
+A sequence folder (``specgpu capture``) holds the frames and ``sequence.json`` (:mod:`specgpu.io`), plus the
+plan (``plan.npz``) and calibration bundle (``calibration.npz``) it was captured with, so ``specgpu recover``
+needs nothing else; the hashes chain sequence -> plan -> calibration, and a mismatch is an error naming the
+file, never a silent wrong answer (DESIGN.md section 3).
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from . import io
+from .calibration import CalibrationBundle, load_calibration, save_calibration
+from .capture.session import CaptureResult, capture_sequences
+from .capture.twin import TwinDriver
+from .colorimetry import XYZ_to_Lab, reflectance_to_XYZ
+from .plans import Plan, load_plan, save_plan
+from .recovery import apply_linear
+from .rig.config import RigDescription
+from .rig.twin import FaultSchedule, TwinRig
+
+__all__ = ["capture_plan", "write_capture", "default_basis", "SequenceFolder", "read_capture", "recover", "to_XYZ", "to_Lab"]
+
+PLAN_FILE = "plan.npz"
+#: The chart the demo and the accuracy study evaluate on (and leave out of basis training).
+EVALUATION_CHART = "ColorChecker N Ohta"
+CALIBRATION_FILE = "calibration.npz"
+
+
+def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: int = 1, noise_seed: int | None = None,
+                 faults: FaultSchedule | None = None, on_sequence=None) -> CaptureResult:
+    """Capture ``sequences`` repetitions of ``plan``'s illuminant sequence of ``scene`` on the twin.
+
+    The camera runs at the plan's exposure, at the fastest frame rate the camera and the light's switch time allow
+    (never faster than the rig description's rate); frames go through the driver, ring buffer and assembler like
+    hardware frames.
+
+    Parameters
+    ----------
+    description : RigDescription
+    plan : Plan
+    scene : specgpu.rig.scene.SpectralScene
+        At the camera's resolution.
+    sequences : int
+        Number of whole sequences to expose (>= 1).
+    noise_seed : int, optional
+        Seed of the frames' temporal noise (the camera's fixed pattern comes from the description's seed).
+    faults : FaultSchedule, optional
+        Injected faults (none by default).
+    on_sequence : callable, optional
+        Given each complete sequence as it arrives (then sequences are not kept in the result).
+    """
+    if sequences < 1:
+        raise ValueError(f"sequences must be >= 1, got {sequences}")
+    camera = description.camera
+    exposure = plan.exposure_s
+    rate = min(camera.frame_rate_hz, 1.0 / (exposure + description.light.switch_time_s + 1e-6))
+    d = replace(description, camera=replace(camera, exposure_s=exposure, frame_rate_hz=rate))
+    rig = TwinRig(d, scene=scene)
+    if noise_seed is not None:
+        rig.seed = noise_seed
+    driver = TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K * sequences,
+                        faults=faults or FaultSchedule(), pacing="free")
+    return capture_sequences(driver, plan.K, on_sequence=on_sequence)
+
+
+def write_capture(directory, sequences, assembly, plan_path, calibration_path, *, metadata=None,
+                  overwrite: bool = False) -> Path:
+    """Write complete sequences (from :func:`capture_plan`) into a sequence folder with copies of the plan and
+    calibration; ``assembly`` is the assembler's counters, kept in ``sequence.json``.
+
+    The plan and calibration are copied first and ``sequence.json`` is written last, so an interrupted write
+    never leaves a folder that reads as complete.
+    """
+    directory = Path(directory)
+    if not sequences:
+        raise ValueError(f"{directory}: no complete sequence was captured ({assembly.as_dict()})")
+    plan = load_plan(plan_path)
+    if (directory / "sequence.json").exists() and not overwrite:
+        raise FileExistsError(f"{directory} already holds a sequence (sequence.json); choose another --out")
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "sequence.json").unlink(missing_ok=True)
+    shutil.copyfile(plan_path, directory / PLAN_FILE)
+    shutil.copyfile(calibration_path, directory / CALIBRATION_FILE)
+    frames = np.concatenate([s.frames for s in sequences])
+    records = [r for s in sequences for r in s.frame_records()]
+    meta = {"plan_method": plan.method, "K": plan.K, "sequences": len(sequences), "assembly": assembly.as_dict(),
+            **(metadata or {})}
+    return io.write_sequence(directory, frames, records, plan.hash, metadata=meta, overwrite=True)
+
+
+def default_basis(chart: str = EVALUATION_CHART):
+    """The uncentred PCA basis of colour-science's measured reflectances with ``chart`` left out of training:
+    every set holding the same patches, and any spectrum within 0.01 RMS of one of its patches."""
+    from .basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
+    from .evaluate import true_patch_spectra
+    from .rig.scene import colorchecker_scene
+
+    _, chart_spectra = true_patch_spectra(colorchecker_scene(24, 36, chart=chart), DEFAULT_WAVELENGTHS)
+    return pca_basis(load_reflectances(exclude=evaluation_exclusions(chart), exclude_similar_to=chart_spectra))
+
+
+@dataclass
+class SequenceFolder:
+    """A sequence folder read back and checked: frames (S, K, H, W), the plan and calibration, records, meta."""
+
+    path: Path
+    frames: np.ndarray
+    plan: Plan
+    calibration: CalibrationBundle
+    records: list
+    meta: dict
+
+    @property
+    def sequences(self) -> int:
+        return self.frames.shape[0]
+
+
+def read_capture(directory) -> SequenceFolder:
+    """Read a sequence folder; refuse it when the plan or calibration is missing or does not match its hashes,
+    or when its frames are not whole sequences in pattern order."""
+    directory = Path(directory)
+    frames, records, meta = io.read_sequence(directory)
+    for name in (PLAN_FILE, CALIBRATION_FILE):
+        if not (directory / name).is_file():
+            raise FileNotFoundError(f"{directory}: {name} is missing; capture with `specgpu capture` (it stores "
+                                    "the plan and calibration beside the frames)")
+    plan = load_plan(directory / PLAN_FILE)
+    recorded = meta.get("plan_hash", "")
+    if plan.hash != recorded:
+        raise ValueError(f"{directory}: the frames were captured with plan {recorded[:12] or '(none)'} but "
+                         f"{PLAN_FILE} is plan {plan.hash[:12]}")
+    bundle = load_calibration(directory / CALIBRATION_FILE)
+    plan.check_calibration(bundle, name=f"{directory / PLAN_FILE}")
+    K = plan.K
+    indices = np.array([r["pattern_index"] for r in records])
+    if len(indices) % K or not np.array_equal(indices, np.tile(np.arange(K), len(indices) // K)):
+        raise ValueError(f"{directory}: frames are not whole sequences of the plan's {K} patterns in order")
+    return SequenceFolder(directory, frames.reshape(-1, K, *frames.shape[1:]), plan, bundle, records, meta)
+
+
+def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None) -> np.ndarray:
+    """The plan's outputs (H, W, B) from a sequence folder: one sequence, or the mean of all (``sequence=None``:
+    averaging repeated sequences of a still scene lowers the temporal noise)."""
+    if sequence is None:
+        frames = folder.frames.mean(axis=0, dtype=np.float32) if folder.sequences > 1 else folder.frames[0]
+    else:
+        if not 0 <= sequence < folder.sequences:
+            raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
+        frames = folder.frames[sequence]
+    plan, bundle = folder.plan, folder.calibration
+    return apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field, out_dtype=out_dtype,
+                        device=device)
+
+
+def to_XYZ(y: np.ndarray, plan: Plan, illuminant: str = "D65", *, device=None) -> np.ndarray:
+    """XYZ (Y = 1 for the white) of a plan's outputs: computed from reflectance, or the outputs themselves for a
+    tristimulus plan (which already are XYZ under the plan's illuminant)."""
+    if plan.output == "reflectance":
+        return reflectance_to_XYZ(y, plan.output_wavelengths, illuminant=illuminant, device=device)
+    if plan.output == "XYZ":
+        if plan.illuminant and plan.illuminant.lower() != str(illuminant).lower():
+            raise ValueError(f"the plan measures XYZ under {plan.illuminant}, not {illuminant}")
+        return y
+    raise ValueError(f"a {plan.output!r} plan ({plan.method}) has no XYZ")
+
+
+def to_Lab(XYZ: np.ndarray, illuminant: str = "D65", *, device=None) -> np.ndarray:
+    """CIELAB of XYZ for the illuminant's white (colour-science's chromaticity table)."""
+    return XYZ_to_Lab(XYZ, illuminant=illuminant, device=device)
+
+
+def save_plan_and_calibration(directory, plan: Plan, bundle: CalibrationBundle) -> tuple[Path, Path]:
+    """Save a plan and its calibration into ``directory`` (the demo's report folder)."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    calibration_path = directory / CALIBRATION_FILE
+    plan_path = directory / f"plan-{plan.method}.npz"
+    save_calibration(calibration_path, bundle)
+    save_plan(plan_path, plan)
+    return plan_path, calibration_path
