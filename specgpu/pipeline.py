@@ -10,7 +10,7 @@ file, never a silent wrong answer (DESIGN.md section 3).
 from __future__ import annotations
 
 import shutil
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -58,11 +58,7 @@ def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: i
     """
     if sequences < 1:
         raise ValueError(f"sequences must be >= 1, got {sequences}")
-    camera = description.camera
-    exposure = plan.exposure_s
-    rate = min(camera.frame_rate_hz, 1.0 / (exposure + description.light.switch_time_s + 1e-6))
-    d = replace(description, camera=replace(camera, exposure_s=exposure, frame_rate_hz=rate))
-    rig = TwinRig(d, scene=scene)
+    rig = TwinRig(plan.rig_description(description), scene=scene)
     if noise_seed is not None:
         rig.seed = noise_seed
     driver = TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K * sequences,

@@ -56,12 +56,7 @@ def noise_free(plan, reflectance, wavelengths):
 
 
 def recover(plan, bundle, frames):
-    dark = bundle.dark_at(plan.exposure_s)
-    if plan.K > 40:
-        # apply_linear with a dark map and K >= 44 frames crashes PoCL (segfault, reported to the engine's
-        # owner); subtract the dark on the host for the 61-band plan until that is fixed.
-        return apply_linear((frames - dark).astype(np.float32), plan.A, None, bundle.flat_field)
-    return apply_linear(frames, plan.A, dark, bundle.flat_field)
+    return apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field)
 
 
 def physics_F(twin, plan, wavelengths):

@@ -24,19 +24,16 @@ import sys
 import time
 import numpy as np
 
-from specgpu.basis import evaluation_exclusions, load_reflectances, pca_basis
 from specgpu.calibration import calibrate, oracle_calibration
-from specgpu.capture.session import capture_sequences
-from specgpu.capture.twin import TwinDriver
-from specgpu.evaluate import evaluate_reflectance, evaluate_XYZ, true_patch_spectra
+from specgpu.evaluate import evaluate_reflectance, evaluate_XYZ
+from specgpu.pipeline import EVALUATION_CHART, capture_plan, default_basis
 from specgpu.plans import make_plan
 from specgpu.recovery import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene
-from specgpu.rig.twin import FaultSchedule, TwinRig
 
-CHART = "ColorChecker N Ohta"
+CHART = EVALUATION_CHART
 
 PAPER_TABLE1 = {  # RMSE avg, max; dE*ab avg, max; projections
     "narrowband": (0.0194, 0.0347, 1.88, 3.90, 31),
@@ -48,10 +45,7 @@ PAPER_TABLE3 = {"D65": (2.43, 5.08), "A": (2.82, 5.15)}  # dE*ab avg, max
 
 def capture(description, plan, scene, noise_seed):
     """One sequence of ``plan`` on the twin (capture path), at the plan's exposure; (K, H, W) uint16."""
-    rig = TwinRig(plan.rig_description(description), scene=scene)
-    rig.seed = noise_seed  # fresh temporal noise, same camera (fixed pattern from the description's seed)
-    driver = TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K, faults=FaultSchedule(), pacing="free")
-    res = capture_sequences(driver, plan.K)
+    res = capture_plan(description, plan, scene, noise_seed=noise_seed)
     if len(res.sequences) != 1:
         raise RuntimeError(f"expected one sequence, got {len(res.sequences)}")
     return res.sequences[0].frames
@@ -93,14 +87,9 @@ def main(argv=None):
           f"{np.mean(np.abs(bundle.dark - truth.dark)):.2f} DN mean error")
 
     # Basis: the chart and every set of the same patches out, and any spectrum within 0.01 RMS of a patch.
-    probe = colorchecker_scene(24, 36, chart=CHART)
-    from specgpu.basis import DEFAULT_WAVELENGTHS
-
-    _, chart_spectra = true_patch_spectra(probe, DEFAULT_WAVELENGTHS)
-    db = load_reflectances(exclude=evaluation_exclusions(CHART), exclude_similar_to=chart_spectra)
-    basis = pca_basis(db)
+    basis = default_basis(CHART)
     cv = basis.cumulative_variance
-    print(f"\nbasis: uncentred PCA of {len(db)} measured reflectances ({basis.source}), 400-700 nm at 5 nm")
+    print(f"\nbasis: uncentred PCA of {basis.n_training} measured reflectances ({basis.source}), 400-700 nm at 5 nm")
     print("  cumulative variance (energy share) m=1..9: " + ", ".join(f"{cv[i]:.4f}" for i in range(9)))
     print(f"  m = 5: {cv[4]:.4f}  (paper: 0.9974 with 507 spectra)")
 

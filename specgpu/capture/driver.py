@@ -135,6 +135,7 @@ class CameraDriver(abc.ABC):
 DRIVERS: dict[str, str] = {
     "twin": "specgpu.capture.twin:TwinDriver",
     "replay": "specgpu.capture.replay:ReplayDriver",
+    "vision-dlpc900": "specgpu.hardware.rig:open_hardware",  # GenICam camera lit by a DLPC900 (specgpu.hardware)
 }
 
 

@@ -1,0 +1,222 @@
+"""A real rig from a description: DLPC900 light + GenICam camera (+ Ocean spectrometer), chosen by name.
+
+:func:`open_hardware` is registered in :data:`specgpu.capture.driver.DRIVERS` as ``"vision-dlpc900"``, so
+``open_driver("vision-dlpc900", hardware={...}, patterns=..., n_frames=...)`` gives a camera driver that goes
+through the same ring buffer and assembler as the twin. The ``hardware`` table (:class:`HardwareConfig`) is what
+a rig TOML's ``[hardware]`` table would hold::
+
+    [hardware]
+    light = "dlpc900"                 # or "dlpc900-simulated" for a dry run of the upload
+    dmd = "lightcrafter-6500"         # or "lightcrafter-9000"
+    camera_cti = "/opt/vendor/lib/producer.cti"
+    camera_serial = "12345678"
+    camera_mode = "strobe-master"     # or "hardware-trigger"
+    exposure_s = 0.010
+    spectrometer = "ocean"            # for calibration loop (b); "" for none
+    spectrometer_calibration = "irradiance_cal.csv"
+
+:class:`HardwareRig` gives calibration loop (b) (:func:`specgpu.calibration.spectral_loop`) what it reads from a
+twin rig: ``light``, ``spectroradiometer`` and ``measure_spectrum``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from specgpu.rig._checks import check_number
+
+__all__ = ["HardwareConfig", "open_hardware", "open_light", "open_spectrometer", "HardwareRig"]
+
+LIGHTS = ("dlpc900", "dlpc900-simulated")
+SPECTROMETERS = ("", "ocean")
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    """The devices of a real rig (every field a key of the ``[hardware]`` table).
+
+    Attributes
+    ----------
+    light : str
+        ``"dlpc900"`` (USB) or ``"dlpc900-simulated"`` (:class:`~specgpu.hardware.dlpc900.SimulatedDLPC900`).
+    dmd : str
+        ``"lightcrafter-6500"`` or ``"lightcrafter-9000"``.
+    light_serial : str
+        USB serial of the controller ("" for the first).
+    compression : str
+        Image upload encoding: ``"erle"``, ``"rle"`` or ``"none"``.
+    camera_cti : str
+        GenTL producer (.cti) of the camera.
+    camera_serial : str
+        Camera serial number ("" for the first).
+    camera_mode : str
+        ``"strobe-master"`` or ``"hardware-trigger"``.
+    exposure_s : float
+        Camera exposure and the time each pattern is shown, s.
+    frame_rate_hz : float
+        Camera frame rate in strobe-master mode (0: the camera's setting).
+    spectrometer : str
+        ``"ocean"`` or "" (none).
+    spectrometer_serial : str
+    spectrometer_calibration : str
+        Irradiance calibration CSV of the spectrometer (wavelength nm, W m^-2 nm^-1 per count/s).
+    integration_time_s : float
+        Spectrometer integration time, s.
+    """
+
+    light: str = "dlpc900"
+    dmd: str = "lightcrafter-6500"
+    light_serial: str = ""
+    compression: str = "erle"
+    camera_cti: str = ""
+    camera_serial: str = ""
+    camera_mode: str = "strobe-master"
+    exposure_s: float = 0.010
+    frame_rate_hz: float = 0.0
+    spectrometer: str = ""
+    spectrometer_serial: str = ""
+    spectrometer_calibration: str = ""
+    integration_time_s: float = 0.1
+
+    def __post_init__(self):
+        from specgpu.hardware.dlpc900.images import COMPRESSIONS, GEOMETRIES
+        from specgpu.hardware.genicam import MODES
+
+        for key, value, valid in (("light", self.light, LIGHTS), ("dmd", self.dmd, tuple(GEOMETRIES)),
+                                  ("compression", self.compression, tuple(COMPRESSIONS)),
+                                  ("camera_mode", self.camera_mode, MODES),
+                                  ("spectrometer", self.spectrometer, SPECTROMETERS)):
+            if value not in valid:
+                raise ValueError(f"hardware.{key} must be one of {', '.join(repr(v) for v in valid)}, got {value!r}")
+        check_number("hardware.exposure_s", self.exposure_s, low=0, low_open=True, high=16.7)
+        check_number("hardware.frame_rate_hz", self.frame_rate_hz, low=0, high=1e5)
+        check_number("hardware.integration_time_s", self.integration_time_s, low=0, low_open=True, high=600)
+
+    @classmethod
+    def from_dict(cls, table: dict, *, source: str = "<dict>", base_dir=None) -> "HardwareConfig":
+        """From a ``[hardware]`` table; unknown keys and wrong types are errors naming ``source`` and the key.
+        Relative file paths resolve against ``base_dir``."""
+        valid = {f.name: f for f in fields(cls)}
+        kwargs = {}
+        for key, value in dict(table).items():
+            if key not in valid:
+                raise ValueError(f"{source}: unknown key hardware.{key}; valid keys: {', '.join(valid)}")
+            default = valid[key].default
+            if isinstance(default, str):
+                if not isinstance(value, str):
+                    raise ValueError(f"{source}: hardware.{key} must be a string, got {value!r}")
+                if key in ("camera_cti", "spectrometer_calibration") and value and base_dir is not None:
+                    p = Path(value)
+                    value = str(p if p.is_absolute() else Path(base_dir) / p)
+            elif isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"{source}: hardware.{key} must be a number, got {value!r}")
+            kwargs[key] = value
+        try:
+            return cls(**kwargs)
+        except ValueError as exc:
+            raise ValueError(f"{source}: {exc}") from None
+
+
+def _config(hardware) -> HardwareConfig:
+    if hardware is None:
+        return HardwareConfig()
+    if isinstance(hardware, HardwareConfig):
+        return hardware
+    if isinstance(hardware, dict):
+        return HardwareConfig.from_dict(hardware)
+    raise ValueError(f"hardware must be a HardwareConfig or a [hardware] table, got {type(hardware).__name__}")
+
+
+def _model(rig):
+    from specgpu.rig.config import RigDescription, load_rig
+    from specgpu.rig.light import ProgrammableLight
+
+    if rig is None:
+        return ProgrammableLight()
+    desc = rig if isinstance(rig, RigDescription) else load_rig(rig)
+    return ProgrammableLight(desc.light, seed=desc.seed)
+
+
+def open_light(hardware=None, *, rig=None, calibration=None, transport=None):
+    """The :class:`~specgpu.hardware.dlpc900.DLPC900Light` a :class:`HardwareConfig` names (``transport``
+    overrides the USB or simulated one)."""
+    from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, SimulatedDLPC900, UsbTransport
+
+    cfg = _config(hardware)
+    if transport is None:
+        transport = (SimulatedDLPC900(cfg.dmd) if cfg.light == "dlpc900-simulated"
+                     else UsbTransport(serial=cfg.light_serial or None))
+    device = DLPC900(transport, dmd=cfg.dmd)
+    return DLPC900Light(device, model=_model(rig), calibration=calibration, exposure_s=cfg.exposure_s,
+                        wait_for_trigger=cfg.camera_mode == "strobe-master", compression=cfg.compression)
+
+
+def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n_frames: int | None = None,
+                  acquirer=None, transport=None, check_light: bool = True):
+    """The camera driver of a real rig (registered as ``"vision-dlpc900"``): a GenICam camera lit by a DLPC900.
+
+    Parameters
+    ----------
+    rig
+        Rig description (or TOML path) whose ``[light]`` gives the light model (columns, rows, grid).
+    hardware
+        :class:`HardwareConfig` or its table.
+    patterns
+        (K, C) sequence to upload now.
+    calibration
+        Optional calibration bundle (column map and forward model of the light).
+    n_frames
+        Exposures after which the stream ends.
+    acquirer, transport
+        Injected camera acquirer / light transport (default: opened from the configuration).
+    """
+    from specgpu.hardware.genicam import GenICamCamera
+
+    cfg = _config(hardware)
+    light = open_light(cfg, rig=rig, calibration=calibration, transport=transport)
+    if patterns is not None:
+        light.load_sequence(patterns)
+    return GenICamCamera(light, acquirer=acquirer, cti=cfg.camera_cti or None, serial=cfg.camera_serial or None,
+                         mode=cfg.camera_mode, exposure_s=cfg.exposure_s, frame_rate_hz=cfg.frame_rate_hz or None,
+                         n_frames=n_frames, check_light=check_light)
+
+
+def open_spectrometer(hardware=None, *, device=None):
+    """The spectrometer a :class:`HardwareConfig` names; ``ValueError`` if it names none."""
+    from specgpu.hardware.ocean import OceanSpectrometer
+
+    cfg = _config(hardware)
+    if cfg.spectrometer != "ocean" and device is None:
+        raise ValueError("hardware.spectrometer names no spectrometer; set it to 'ocean' for loop (b)")
+    return OceanSpectrometer(device, serial=cfg.spectrometer_serial or None,
+                             irradiance_calibration=cfg.spectrometer_calibration or None,
+                             integration_time_s=cfg.integration_time_s)
+
+
+class HardwareRig:
+    """What calibration loop (b) reads from a rig, for real devices.
+
+    Parameters
+    ----------
+    light
+        A :class:`~specgpu.hardware.dlpc900.DLPC900Light`.
+    spectroradiometer
+        An :class:`~specgpu.hardware.ocean.OceanSpectrometer` (or anything with ``measure_spectrum()``,
+        ``wavelengths`` and ``params``).
+    """
+
+    def __init__(self, light, spectroradiometer):
+        self.light = light
+        self.spectroradiometer = spectroradiometer
+
+    def measure_spectrum(self, pattern_index: int | None = None, power: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Show loaded pattern ``pattern_index`` (the current one by default) steadily and measure it:
+        (wavelengths nm, spectral irradiance W m^-2 nm^-1)."""
+        if power != 1.0:
+            raise ValueError("a real lamp's power cannot be scaled in software; power must be 1")
+        k = self.light.pattern_index if pattern_index is None else int(pattern_index)
+        self.light.show(self.light.sequence[k])
+        return self.spectroradiometer.measure_spectrum()
