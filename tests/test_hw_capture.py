@@ -1,0 +1,229 @@
+"""The hardware capture path in CI: simulated DLPC900 (report level) + a GenICam-like camera + ring buffer + assembler.
+
+The fake camera is wired to the simulated controller as on the rig (strobe-master: each exposure's strobe is a
+TRIG_IN_1 edge), and each frame is rendered from the mirrors the controller is really displaying, decoded from the
+uploaded images. So a frame whose label disagrees with the light that lit it is caught by comparing it with the
+frame the labelled pattern gives.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from specgpu.capture import SequenceAssembler, capture_sequences, open_driver
+from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, DMDGeometry, DMDLayout, SimulatedDLPC900
+from specgpu.hardware.errors import (DeviceDisconnected, DeviceNotFound, DeviceTimeout, HardwareError,
+                                     LightFault)
+from specgpu.hardware.genicam import GenICamCamera
+
+DMD = DMDGeometry("test-dmd", 160, 48)
+COLUMNS, ROWS = 16, 40
+
+
+class Node:
+    def __init__(self, value):
+        self.value = value
+
+
+class NodeMap:
+    def __init__(self, height, width):
+        self.PixelFormat, self.Height, self.Width = Node("Mono16"), Node(height), Node(width)
+        for name in ("ExposureAuto", "ExposureTime", "TriggerSelector", "TriggerMode", "TriggerSource",
+                     "TriggerActivation", "AcquisitionFrameRateEnable", "AcquisitionFrameRate", "LineSelector",
+                     "LineMode", "LineSource"):
+            setattr(self, name, Node(None))
+
+
+class TimeoutException(Exception):
+    """Named as genicam.gentl's, which harvesters raises when fetch() times out."""
+
+
+class Buffer:
+    def __init__(self, data, frame_id, timestamp_ns):
+        self.payload = type("Payload", (), {"components": [type("Component", (), {"data": data.ravel()})()]})()
+        self.frame_id, self.timestamp_ns = frame_id, timestamp_ns
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+class FakeAcquirer:
+    """A harvesters-like ImageAcquirer: exposure n strobes the controller, then renders what it displays.
+
+    ``lost`` frames are exposed (the light advances) but never delivered, as frames lost on the link; the camera's
+    frame ids start at ``first_id`` (GigE Vision block ids start at 1).
+    """
+
+    def __init__(self, sim, layout, exposures, *, lost=(), first_id=1, on_exposure=None):
+        self.sim, self.layout, self.exposures = sim, layout, exposures
+        self.lost, self.first_id, self.on_exposure = set(lost), first_id, on_exposure
+        self.remote_device = type("Remote", (), {"node_map": NodeMap(4, COLUMNS)})()
+        self.n = 0
+        self.started = False
+
+    def start(self):
+        self.started, self.n = True, 0
+
+    def stop(self):
+        self.started = False
+
+    def fetch(self, timeout=None):
+        while True:
+            if not self.started or self.n >= self.exposures:
+                raise TimeoutException("no buffer")
+            n = self.n
+            self.n += 1
+            if self.on_exposure is not None:
+                self.on_exposure(n)
+            self.sim.trigger_in()  # the exposure's strobe edge
+            frame = render(self.layout, self.sim.displayed_mask())
+            if n not in self.lost:
+                return Buffer(frame, self.first_id + n, 1_000_000 + n * 11_000_000)
+
+
+def render(layout, mask) -> np.ndarray:
+    """A (4, COLUMNS) uint16 frame: per pattern column, the mirrors on (plus a row offset so rows differ)."""
+    c0 = layout.column_offset
+    counts = mask[:, c0:c0 + layout.columns * layout.column_step].sum(axis=0)
+    counts = counts.reshape(layout.columns, layout.column_step).sum(axis=1)
+    return (counts[None, :] * 10 + np.arange(4)[:, None] + 1).astype(np.uint16)
+
+
+def rig(k=5, exposures=None, **acq):
+    sim = SimulatedDLPC900(DMD)
+    layout = DMDLayout(DMD, COLUMNS, ROWS)
+    light = DLPC900Light(DLPC900(sim, dmd=DMD), layout=layout, exposure_s=0.001)
+    patterns = np.random.default_rng(k).integers(0, ROWS + 1, (k, COLUMNS))
+    patterns[0] = 0  # a dark pattern, as a real sequence often has
+    light.load_sequence(patterns)
+    acquirer = FakeAcquirer(sim, layout, exposures if exposures is not None else 4 * k, **acq)
+    camera = GenICamCamera(light, acquirer=acquirer, exposure_s=0.001, n_frames=exposures)
+    return sim, light, camera, patterns
+
+
+def expected_frames(light, patterns):
+    return np.stack([render(light.layout, light.layout.pattern_to_mask(p)) for p in patterns])
+
+
+def test_capture_path_complete_sequences_match_their_patterns():
+    k = 30  # two 24-bit images: patterns 24..29 come from the second
+    sim, light, camera, patterns = rig(k, exposures=3 * k + 4)
+    result = capture_sequences(camera, k)
+    want = expected_frames(light, patterns)
+    assert len(result.sequences) == 3 and result.assembly.dropped == 0 and result.assembly.missed_triggers == 0
+    for seq in result.sequences:
+        np.testing.assert_array_equal(seq.frames, want)
+        np.testing.assert_array_equal(seq.frame_ids % k, np.arange(k))
+    assert result.end.last_frame_id == 3 * k + 3
+    assert camera.acquirer.remote_device.node_map.LineSource.value == "ExposureActive"  # strobe-master wiring
+    assert camera.acquirer.remote_device.node_map.ExposureTime.value == pytest.approx(1000.0)
+    assert not sim.running  # stop() stopped the controller's sequence
+
+
+def test_lost_frame_leaves_a_gap_and_no_frame_slides():
+    k = 5
+    sim, light, camera, patterns = rig(k, exposures=4 * k, lost={7, 12})
+    result = capture_sequences(camera, k)
+    want = expected_frames(light, patterns)
+    assert [s.cycle for s in result.sequences] == [0, 3]  # cycles 1 and 2 each lost a frame
+    assert result.assembly.dropped == 2 and result.assembly.sequences_discarded == 2
+    for seq in result.sequences:
+        np.testing.assert_array_equal(seq.frames, want)
+
+
+def test_open_driver_selects_the_hardware_backend():
+    sim = SimulatedDLPC900("lightcrafter-6500")
+    patterns = np.zeros((2, 1024), np.int32)
+    patterns[1, 100:200] = 768
+    driver = open_driver("vision-dlpc900", hardware={"light": "dlpc900-simulated", "exposure_s": 0.002},
+                         patterns=patterns, n_frames=4, transport=sim,
+                         acquirer=FakeAcquirer(sim, None, 0))
+    assert isinstance(driver, GenICamCamera) and driver.light.loaded
+    assert sim.lut_entries == 2 and sim.lut[0]["exposure_us"] == 2000
+    layout = driver.light.layout
+    np.testing.assert_array_equal(layout.images_to_patterns(sim.image(0)[None], 2), patterns)
+
+
+# ---- USB faults ------------------------------------------------------------------------------------------------
+def test_device_absent_is_a_clear_error():
+    with pytest.raises(DeviceNotFound, match=r"^DLPC900 \(USB 0451:c900\) not found: is the controller connected"):
+        DLPC900(SimulatedDLPC900(absent=True))
+
+
+@pytest.mark.parametrize("mode, error", [("timeout", DeviceTimeout), ("disconnect", DeviceDisconnected)])
+def test_fault_during_upload_leaves_no_sequence_loaded(mode, error):
+    sim, light, camera, patterns = rig(3)
+    sent = lambda: sum(1 for d, _ in sim.log if d == "out")  # noqa: E731
+    before = sent()
+    light.load_sequence(patterns)
+    per_upload = sent() - before
+    sim.fail_after, sim.fail_mode = sent() + per_upload - 2, mode  # fails inside the last image block
+    with pytest.raises(error, match="DLPC900 \\(USB 0451:c900\\)"):
+        light.load_sequence(patterns[::-1])
+    assert not light.loaded
+    with pytest.raises(RuntimeError, match="no sequence loaded"):
+        camera.start()
+    assert not camera.running
+
+
+def _drive(camera, k):
+    """The capture loop with the assembler in hand, so its accounting after a fault can be checked."""
+    asm = SequenceAssembler(k)
+    out = np.empty(camera.frame_shape, camera.dtype)
+    sequences, error = [], None
+    camera.start()
+    try:
+        while (info := camera.fill(out)) is not None:
+            if (seq := asm.push(out, info)) is not None:
+                sequences.append(seq)
+    except HardwareError as exc:
+        error = exc
+    return sequences, asm.finish(camera.stop()), error
+
+
+@pytest.mark.parametrize("fault", ["disconnect", "controller-reset"])
+def test_fault_mid_sequence_marks_it_incomplete_and_mislabels_nothing(fault):
+    k = 4
+    sim, light, camera, patterns = rig(k, exposures=5 * k)
+
+    def on_exposure(n):
+        if n == 2 * k + 1:  # during the third cycle
+            if fault == "disconnect":
+                sim.fail_after = len([d for d, _ in sim.log if d == "out"])
+            else:
+                sim.stop_after_triggers = sim.triggers
+
+    camera.acquirer.on_exposure = on_exposure
+    sequences, stats, error = _drive(camera, k)
+    expected_error = DeviceDisconnected if fault == "disconnect" else LightFault
+    assert isinstance(error, expected_error)
+    assert str(error).startswith("DLPC900")
+    assert len(sequences) == 2 and stats.sequences_complete == 2
+    assert stats.sequences_discarded == 1  # the third cycle: one frame in, never completed
+    assert stats.frames_received == 2 * k + 1  # the frame exposed at the fault was not delivered
+    want = expected_frames(light, patterns)
+    for seq in sequences:
+        np.testing.assert_array_equal(seq.frames, want)
+
+
+def test_fault_mid_capture_raises_through_capture_sequences():
+    k = 4
+    sim, light, camera, patterns = rig(k, exposures=5 * k)
+    camera.acquirer.on_exposure = lambda n: setattr(sim, "stop_after_triggers", sim.triggers) if n == 6 else None
+    got = []
+    with pytest.raises(LightFault, match="sequencer stopped"):
+        capture_sequences(camera, k, on_sequence=got.append)
+    assert len(got) == 1
+    np.testing.assert_array_equal(got[0].frames, expected_frames(light, patterns))
+
+
+def test_camera_that_stops_delivering_times_out_clearly():
+    k = 3
+    sim, light, camera, patterns = rig(k, exposures=10)
+    camera.acquirer.exposures = 5  # the camera stops being triggered after 5 of the 10 exposures asked for
+    with pytest.raises(DeviceTimeout, match=r"camera delivered no frame in 2 s: is it triggered \(strobe-master\)"):
+        capture_sequences(camera, k)
