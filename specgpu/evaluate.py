@@ -1,4 +1,7 @@
-"""Per-patch accuracy of a recovery against a scene's ground truth: spectral RMSE and colour differences.
+"""Accuracy of a recovery against a scene's ground truth: per pixel (error maps and their statistics) and, for
+a chart, per patch (the paper's Tables 2 and 3).
+
+Per patch: accuracy of a recovery against a scene's ground truth: spectral RMSE and colour differences.
 
 A chart scene (:class:`specgpu.rig.scene.SpectralScene`) carries one boolean mask per patch. The recovered image
 is averaged over each mask (the paper compares one spectrum per patch with a spectrometer reading), then:
@@ -16,11 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from specgpu.colorimetry import XYZ_to_Lab, delta_E
+from specgpu.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
+from specgpu.rig.scene import interpolation_matrix
 from specgpu.spectra import DEFAULT_CMFS, XYZ_weights
 
 __all__ = ["PatchReport", "patch_means", "rmse_per_patch", "delta_E_per_patch", "evaluate_reflectance",
-           "evaluate_XYZ", "true_patch_spectra"]
+           "evaluate_XYZ", "true_patch_spectra", "PixelReport", "truth_cube", "evaluate_pixels"]
 
 
 @dataclass(frozen=True)
@@ -156,3 +160,78 @@ def evaluate_XYZ(xyz, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS, wavelengths
 
 def _observer_name(cmfs) -> str:
     return cmfs if isinstance(cmfs, str) else getattr(cmfs, "name", DEFAULT_CMFS)
+
+
+# ---- per pixel ---------------------------------------------------------------------------------------------
+@dataclass
+class PixelReport:
+    """Per-pixel error maps of an estimate against the truth scene (float32, (H, W)); ``rmse`` is None for
+    colorimetric estimates."""
+
+    rmse: np.ndarray | None
+    delta_E_ab: np.ndarray
+    delta_E_2000: np.ndarray
+    illuminant: str
+
+    def statistics(self) -> dict:
+        """``{metric: {"mean", "median", "p95", "max"}}`` over the finite pixels."""
+        out = {}
+        for key in ("rmse", "delta_E_ab", "delta_E_2000"):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            v = v[np.isfinite(v)]
+            out[key] = {"mean": float(v.mean()), "median": float(np.median(v)),
+                        "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+        return out
+
+
+def truth_cube(scene, wavelengths) -> np.ndarray:
+    """The scene's reflectance on ``wavelengths`` (H, W, B), float32; a scene whose bands do not cover them is
+    an error (the truth is never extrapolated)."""
+    wl = np.asarray(wavelengths, np.float64)
+    lo, hi = float(scene.wavelengths[0]), float(scene.wavelengths[-1])
+    if wl[0] < lo - 1e-6 or wl[-1] > hi + 1e-6:
+        raise ValueError(f"the truth scene {scene.name!r} covers {lo:g}-{hi:g} nm, not the estimate's "
+                         f"{wl[0]:g}-{wl[-1]:g} nm")
+    M = interpolation_matrix(wl, scene.wavelengths).astype(np.float32)  # (B_est, B_scene)
+    return np.einsum("hwk,bk->hwb", scene.reflectance, M, optimize=True).astype(np.float32)
+
+
+def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs=DEFAULT_CMFS,
+                    device=None) -> PixelReport:
+    """Per-pixel RMSE (reflectance estimates), dE*ab and dE2000 of an estimate against the truth scene.
+
+    Parameters
+    ----------
+    estimate : array_like, (H, W, B) or (H, W, 3)
+        Reflectance on ``wavelengths``, or XYZ (Y = 1 for white) when ``wavelengths`` is None.
+    scene : SpectralScene
+        The truth, of the estimate's frame size.
+    illuminant, cmfs
+        Of the colour differences: XYZ of the truth under ``illuminant`` on its own bands (on the estimate's
+        wavelengths for a reflectance estimate, so both sides see the same sampling).
+    """
+    est = np.asarray(estimate, np.float32)
+    if est.shape[:2] != scene.reflectance.shape[:2]:
+        raise ValueError(f"estimate is {est.shape[1]} x {est.shape[0]} pixels, the truth scene "
+                         f"{scene.reflectance.shape[1]} x {scene.reflectance.shape[0]}")
+    observer = _observer_name(cmfs)
+    if wavelengths is not None:
+        wl = np.asarray(wavelengths, np.float64)
+        if est.shape[2] != wl.size:
+            raise ValueError(f"estimate has {est.shape[2]} bands but {wl.size} wavelengths")
+        truth = truth_cube(scene, wl)
+        rmse = np.sqrt(np.mean((est - truth) ** 2, axis=-1))
+        XYZ_est = reflectance_to_XYZ(est, wl, illuminant, cmfs, device=device)
+        XYZ_true = reflectance_to_XYZ(truth, wl, illuminant, cmfs, device=device)
+    else:
+        if est.shape[2] != 3:
+            raise ValueError(f"an XYZ estimate must have 3 channels, got {est.shape[2]}")
+        rmse = None
+        XYZ_est = est
+        XYZ_true = reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant, cmfs, device=device)
+    Lab_est = XYZ_to_Lab(XYZ_est, illuminant, observer=observer, device=device)
+    Lab_true = XYZ_to_Lab(XYZ_true, illuminant, observer=observer, device=device)
+    return PixelReport(rmse, delta_E(Lab_true, Lab_est, "CIE 1976", device=device),
+                       delta_E(Lab_true, Lab_est, "CIE 2000", device=device), str(illuminant))
