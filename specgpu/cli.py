@@ -23,7 +23,7 @@ class _Group(click.Group):
         except KeyboardInterrupt:
             click.echo("specgpu: interrupted", err=True)
             sys.exit(130)
-        except Exception as error:  # noqa: BLE001: the CLI's contract is one line, not a traceback
+        except Exception as error:  # noqa: BLE001 (the CLI promises one line, not a traceback)
             message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise click.ClickException(message) from error
 
