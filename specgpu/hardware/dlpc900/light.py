@@ -72,6 +72,7 @@ class DLPC900Light(LightSource):
         self.wait_for_trigger = bool(wait_for_trigger)
         self.compression = compression
         self._sequence: np.ndarray | None = None
+        self._showing: np.ndarray | None = None  # the pattern show() put up, while it stays up
         self._index = 0
         self.bytes_uploaded = 0
 
@@ -119,7 +120,7 @@ class DLPC900Light(LightSource):
         start with half a sequence in the controller.
         """
         p = self.layout.check_patterns(patterns)
-        self._sequence = None
+        self._sequence = self._showing = None
         images = self.layout.patterns_to_images(p)
         exposure_us = int(round(self.exposure_s * 1e6))
         entries = [LutEntry(k, exposure_us, k // BITS_PER_IMAGE, k % BITS_PER_IMAGE,
@@ -136,6 +137,7 @@ class DLPC900Light(LightSource):
 
     def stop(self) -> None:
         """Pattern Display Stop (0x1A24)."""
+        self._showing = None
         self.device.stop()
 
     def reset(self) -> None:
@@ -170,11 +172,15 @@ class DLPC900Light(LightSource):
         return self.model.pattern_to_spectrum(pattern)
 
     def show(self, pattern) -> None:
-        """Show one pattern continuously (for the spectrometer loop): a 1-entry LUT on the controller's own clock."""
+        """Show one pattern continuously (for the spectrometer loop): a 1-entry LUT on the controller's own clock.
+        The pattern shown last by ``show`` is not uploaded again."""
         p = self.layout.check_patterns(pattern)
-        self._sequence = None
+        if self._showing is not None and np.array_equal(self._showing, p):
+            return
+        self._sequence = self._showing = None
         images = self.layout.patterns_to_images(p)
         entry = LutEntry(0, int(round(self.exposure_s * 1e6)), 0, 0, wait_for_trigger=False)
         self.bytes_uploaded = self.device.upload_sequence(images, [entry], compression=self.compression)
         self._sequence, self._index = p, 0
         self.device.start()
+        self._showing = p

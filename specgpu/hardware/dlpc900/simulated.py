@@ -206,6 +206,8 @@ class SimulatedDLPC900(Transport):
                     if any((img, c) not in self.images for c in range(g.controllers)):
                         return 7
                 self.running, self.position, self.triggers = True, -1, 0
+                if not self.lut[0]["options"] >> 7:  # entry 0 runs on the controller's clock: shown at once
+                    self.position = 0
             elif f["action"] in (0, 1):
                 self.running = False
             else:
