@@ -58,8 +58,8 @@ class FakeAcquirer:
     frame ids start at ``first_id`` (GigE Vision block ids start at 1).
     """
 
-    def __init__(self, sim, layout, exposures, *, lost=(), first_id=1, on_exposure=None):
-        self.sim, self.layout, self.exposures = sim, layout, exposures
+    def __init__(self, sim, layout, exposures, *, lost=(), first_id=1, on_exposure=None, mode="strobe-master"):
+        self.sim, self.layout, self.exposures, self.mode = sim, layout, exposures, mode
         self.lost, self.first_id, self.on_exposure = set(lost), first_id, on_exposure
         self.remote_device = type("Remote", (), {"node_map": NodeMap(4, COLUMNS)})()
         self.n = 0
@@ -79,8 +79,12 @@ class FakeAcquirer:
             self.n += 1
             if self.on_exposure is not None:
                 self.on_exposure(n)
-            self.sim.trigger_in()  # the exposure's strobe edge
-            frame = render(self.layout, self.sim.displayed_mask())
+            if self.mode == "strobe-master":
+                self.sim.trigger_in()  # the exposure's strobe edge shows the next pattern
+                frame = render(self.layout, self.sim.displayed_mask())
+            else:
+                frame = render(self.layout, self.sim.displayed_mask())  # exposure triggered by TRIG_OUT_1
+                self.sim.trigger_in()  # then the controller's clock moves on to the next pattern
             if n not in self.lost:
                 return Buffer(frame, self.first_id + n, 1_000_000 + n * 11_000_000)
 
@@ -93,15 +97,16 @@ def render(layout, mask) -> np.ndarray:
     return (counts[None, :] * 10 + np.arange(4)[:, None] + 1).astype(np.uint16)
 
 
-def rig(k=5, exposures=None, **acq):
+def rig(k=5, exposures=None, mode="strobe-master", **acq):
     sim = SimulatedDLPC900(DMD)
     layout = DMDLayout(DMD, COLUMNS, ROWS)
-    light = DLPC900Light(DLPC900(sim, dmd=DMD), layout=layout, exposure_s=0.001)
+    light = DLPC900Light(DLPC900(sim, dmd=DMD), layout=layout, exposure_s=0.001,
+                         wait_for_trigger=mode == "strobe-master")
     patterns = np.random.default_rng(k).integers(0, ROWS + 1, (k, COLUMNS))
     patterns[0] = 0  # a dark pattern, as a real sequence often has
     light.load_sequence(patterns)
-    acquirer = FakeAcquirer(sim, layout, exposures if exposures is not None else 4 * k, **acq)
-    camera = GenICamCamera(light, acquirer=acquirer, exposure_s=0.001, n_frames=exposures)
+    acquirer = FakeAcquirer(sim, layout, exposures if exposures is not None else 4 * k, mode=mode, **acq)
+    camera = GenICamCamera(light, acquirer=acquirer, mode=mode, exposure_s=0.001, n_frames=exposures)
     return sim, light, camera, patterns
 
 
@@ -122,6 +127,20 @@ def test_capture_path_complete_sequences_match_their_patterns():
     assert camera.acquirer.remote_device.node_map.LineSource.value == "ExposureActive"  # strobe-master wiring
     assert camera.acquirer.remote_device.node_map.ExposureTime.value == pytest.approx(1000.0)
     assert not sim.running  # stop() stopped the controller's sequence
+
+
+def test_hardware_trigger_mode_controller_is_master():
+    k = 6
+    sim, light, camera, patterns = rig(k, exposures=2 * k, mode="hardware-trigger")
+    assert all(sim.lut[j]["options"] >> 7 == 0 for j in range(k))  # no entry waits for a trigger
+    # TRIG_OUT_1 configured after the upload: non-inverted, no delays
+    assert sim.commands[-1] == ("Trigger Out 1", {"invert": 0, "rising_delay_us": 0, "falling_delay_us": 0})
+    result = capture_sequences(camera, k)
+    assert len(result.sequences) == 2
+    for seq in result.sequences:
+        np.testing.assert_array_equal(seq.frames, expected_frames(light, patterns))
+    nm = camera.acquirer.remote_device.node_map
+    assert (nm.TriggerMode.value, nm.TriggerSource.value) == ("On", "Line0")
 
 
 def test_lost_frame_leaves_a_gap_and_no_frame_slides():

@@ -96,7 +96,7 @@ class HardwareConfig:
         check_number("hardware.integration_time_s", self.integration_time_s, low=0, low_open=True, high=600)
 
     @classmethod
-    def from_dict(cls, table: dict, *, source: str = "<dict>", base_dir=None) -> "HardwareConfig":
+    def from_dict(cls, table: dict, *, source: str = "<dict>", base_dir=None) -> HardwareConfig:
         """From a ``[hardware]`` table; unknown keys and wrong types are errors naming ``source`` and the key.
         Relative file paths resolve against ``base_dir``."""
         valid = {f.name: f for f in fields(cls)}

@@ -87,7 +87,7 @@ class LutEntry:
                 "image": self.image_index | self.bit_position << 11}
 
     @classmethod
-    def from_fields(cls, f: dict) -> "LutEntry":
+    def from_fields(cls, f: dict) -> LutEntry:
         o = f["options"]
         color = {v: k for k, v in COLORS.items()}[(o >> 4) & 7]
         return cls(f["pattern_index"], f["exposure_us"], f["image"] & 0x7FF, f["image"] >> 11, ((o >> 1) & 7) + 1,

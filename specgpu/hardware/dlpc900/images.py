@@ -131,7 +131,7 @@ class DMDLayout:
             raise ValueError(f"row_offset {self.row_offset} puts the {self.rows} rows outside the {g.height} DMD rows")
 
     @classmethod
-    def from_calibration(cls, bundle, dmd="lightcrafter-6500", **kw) -> "DMDLayout":
+    def from_calibration(cls, bundle, dmd="lightcrafter-6500", **kw) -> DMDLayout:
         """The layout for a calibration bundle's column map (``bundle.columns`` columns, ``bundle.rows`` rows)."""
         return cls(geometry(dmd), int(bundle.columns), int(bundle.rows), **kw)
 

@@ -126,6 +126,10 @@ class DLPC900Light(LightSource):
         entries = [LutEntry(k, exposure_us, k // BITS_PER_IMAGE, k % BITS_PER_IMAGE,
                             wait_for_trigger=self.wait_for_trigger) for k in range(p.shape[0])]
         self.bytes_uploaded = self.device.upload_sequence(images, entries, compression=self.compression)
+        if not self.wait_for_trigger:
+            # the controller is the master: TRIG_OUT_1 (non-inverted, no delay) triggers each camera exposure;
+            # the sequence is stopped now, as Trigger Out 1 requires
+            self.device.set_trigger_out(1, invert=False, rising_delay_us=0, falling_delay_us=0)
         self._sequence = p
         self._index = 0
 
