@@ -58,12 +58,26 @@ def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: i
     """
     if sequences < 1:
         raise ValueError(f"sequences must be >= 1, got {sequences}")
+    check_scene_covers(scene, plan, description.light.line_fwhm_nm)
     rig = TwinRig(plan.rig_description(description), scene=scene)
     if noise_seed is not None:
         rig.seed = noise_seed
     driver = TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K * sequences,
                         faults=faults or FaultSchedule(), pacing="free")
     return capture_sequences(driver, plan.K, on_sequence=on_sequence)
+
+
+def check_scene_covers(scene, plan: Plan, slack_nm: float = 5.0) -> None:
+    """Refuse a scene whose bands do not cover the wavelengths the plan's illuminants light (above 1 % of their
+    peak, less ``slack_nm``): its reflectance there would be made up, never measured."""
+    targets = np.asarray(plan.target_spectra, np.float64)
+    lit = plan.light_wavelengths[targets.max(axis=0) > 0.01 * targets.max()]
+    if lit.size == 0:
+        return
+    lo, hi = float(scene.wavelengths[0]), float(scene.wavelengths[-1])
+    if lo > lit[0] + slack_nm or hi < lit[-1] - slack_nm:
+        raise ValueError(f"scene {scene.name!r} covers {lo:g}-{hi:g} nm but the {plan.method} plan lights "
+                         f"{lit[0]:g}-{lit[-1]:g} nm; give a scene whose bands cover its illuminants")
 
 
 def write_capture(directory, sequences, assembly, plan_path, calibration_path, *, metadata=None,

@@ -1,0 +1,207 @@
+"""The main job through the CLI, end to end at the camera's smallest ROI, and every bad input of issue 5.
+
+Each bad input must give a non-zero exit, a one-line reason, and no output left looking complete.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from specgpu import io
+from specgpu.cli import main
+
+RIG = "[camera]\nroi_width = 320\nroi_height = 240\n"
+
+
+def run(*args, ok=True):
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    if ok:
+        assert result.exit_code == 0, result.output
+    return result
+
+
+def one_line_error(result, *fragments):
+    assert result.exit_code != 0
+    lines = [line for line in result.output.splitlines() if line.strip() and "\r" not in line
+             and not line.startswith(("Usage:", "Try "))]
+    errors = [line for line in lines if line.startswith("Error:")]
+    assert len(errors) == 1, result.output
+    for fragment in fragments:
+        assert fragment in errors[0], errors[0]
+    return errors[0]
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    """A calibrated twin, a symmetric and a tristimulus plan, and a captured sequence of each."""
+    d = tmp_path_factory.mktemp("main")
+    (d / "rig.toml").write_text(RIG)
+    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    run("plan", "symmetric", "--calib", d / "calib.npz", "--out", d / "sym.npz")
+    run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz", "--illuminant", "D65")
+    for plan, seq, n in (("sym.npz", "seq", 2), ("tri.npz", "seqtri", 1)):
+        run("capture", "--rig", d / "rig.toml", "--plan", d / plan, "--calib", d / "calib.npz", "--scene",
+            "colorchecker", "--out", d / seq, "--sequences", n, "--seed", 5)
+    return d
+
+
+def test_capture_keeps_plan_and_calibration_with_the_frames(work):
+    frames, records, meta = io.read_sequence(work / "seq")
+    assert frames.shape == (18, 240, 320) and frames.dtype == np.uint16
+    assert [r["pattern_index"] for r in records] == list(range(9)) * 2
+    assert (work / "seq" / "plan.npz").is_file() and (work / "seq" / "calibration.npz").is_file()
+    assert meta["metadata"]["assembly"]["dropped"] == 0
+
+
+def test_recover_and_evaluate_symmetric(work):
+    out = run("recover", work / "seq", "--out", work / "cube.exr", "--xyz", work / "xyz.exr", "--lab",
+              work / "lab.exr", "--delta-e-ref", "colorchecker", "--delta-e", work / "dE.exr")
+    assert "symmetric: 9 projections, 2 sequences" in out.output
+    cube, wavelengths, meta = io.read_cube(work / "cube.exr")
+    assert cube.shape == (240, 320, 31) and wavelengths[0] == 400 and wavelengths[-1] == 700
+    assert meta["projections"] == 9 and meta["sequences_averaged"] == 2
+    dE, channels, _ = io.read_map(work / "dE.exr")
+    assert channels == ("dE2000",) and dE.shape == (240, 320, 1)
+    run("evaluate", work / "cube.exr", "--truth", "colorchecker", "--json", work / "report.json")
+    report = json.loads((work / "report.json").read_text())
+    for key in ("rmse_mean", "rmse_max", "dE76_mean", "dE76_max", "dE2000_mean", "dE2000_max"):
+        assert np.isfinite(report[key]), key
+    assert report["projections"] == 9 and len(report["patches"]) == 24
+    assert report["rmse_mean"] < 0.03 and report["dE76_mean"] < 4.0  # the paper: 0.0153 and 2.52
+    assert report["rmse_max"] >= report["rmse_mean"] and report["dE2000_max"] >= report["dE2000_mean"]
+
+
+def test_recover_and_evaluate_tristimulus(work):
+    run("recover", work / "seqtri", "--out", work / "tri.exr")
+    XYZ, channels, _ = io.read_map(work / "tri.exr", "XYZ")
+    assert channels == ("X", "Y", "Z")
+    result = run("evaluate", work / "tri.exr", "--truth", "colorchecker", "--json", work / "tri.json")
+    report = json.loads((work / "tri.json").read_text())
+    assert "rmse_mean" not in report and report["dE76_mean"] < 4.0  # the paper: 2.43
+    assert "per patch" in result.output
+
+
+@pytest.mark.parametrize("method", ["narrowband", "reciprocal", "biased", "camera", "steady"])
+def test_every_plan_method(work, method):
+    out = run("plan", method, "--calib", work / "calib.npz", "--out", work / f"{method}.npz")
+    assert f"wrote {work / method}.npz" in out.output
+
+
+def test_demo_writes_the_report(tmp_path):
+    (tmp_path / "rig.toml").write_text(RIG)
+    result = run("demo", "--out", tmp_path / "report", "--rig", tmp_path / "rig.toml")
+    for table in ("Table 1", "Table 2", "Table 3"):
+        assert table in result.output
+    assert "paper" in result.output and "demo finished in" in result.output
+    report = tmp_path / "report"
+    for path in ("index.html", "report.json", "calibration.npz", "basis.npz", "cubes/symmetric.exr",
+                 "cubes/tristimulus-A.exr", "maps/narrowband-dE2000.png", "png/truth.png",
+                 "figures/spectra-symmetric.png", "figures/illuminants-tristimulus-D65.png",
+                 "sequences/narrowband/sequence.json"):
+        assert (report / path).is_file(), path
+    figures = json.loads((report / "report.json").read_text())
+    assert figures["methods"]["symmetric"]["projections"] == 9
+    assert figures["methods"]["narrowband"]["rmse_mean"] < 0.02
+    assert "<img src='figures/spectra-narrowband.png'" in (report / "index.html").read_text()
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+
+
+def test_missing_file(work, tmp_path):
+    result = run("evaluate", tmp_path / "none.exr", "--truth", "colorchecker", ok=False)
+    assert result.exit_code == 2 and "does not exist" in result.output
+
+
+def test_truncated_exr(work, tmp_path):
+    data = (work / "cube.exr").read_bytes() if (work / "cube.exr").exists() else None
+    if data is None:
+        run("recover", work / "seq", "--out", work / "cube.exr")
+        data = (work / "cube.exr").read_bytes()
+    (tmp_path / "cut.exr").write_bytes(data[: len(data) // 2])
+    one_line_error(run("evaluate", tmp_path / "cut.exr", "--truth", "colorchecker", ok=False), "cut.exr")
+
+
+def test_corrupt_tiff_frame(work, tmp_path):
+    seq = tmp_path / "seq"
+    shutil.copytree(work / "seq", seq)
+    frame = sorted(seq.glob("*.tif*"))[3]
+    raw = bytearray(frame.read_bytes())
+    raw[-100:] = bytes(100)
+    frame.write_bytes(bytes(raw))
+    one_line_error(run("recover", seq, "--out", tmp_path / "c.exr", ok=False), frame.name)
+    assert not (tmp_path / "c.exr").exists()
+
+
+def test_corrupt_sequence_json(work, tmp_path):
+    seq = tmp_path / "seq"
+    shutil.copytree(work / "seq", seq)
+    (seq / "sequence.json").write_text((seq / "sequence.json").read_text()[:200])
+    one_line_error(run("recover", seq, "--out", tmp_path / "c.exr", ok=False), "sequence.json")
+
+
+def test_sequence_with_a_missing_frame(work, tmp_path):
+    seq = tmp_path / "seq"
+    shutil.copytree(work / "seq", seq)
+    sorted(seq.glob("*.tif*"))[5].unlink()
+    one_line_error(run("recover", seq, "--out", tmp_path / "c.exr", ok=False), "missing")
+    assert not (tmp_path / "c.exr").exists()
+
+
+def test_scene_not_covering_the_plans_range(work, tmp_path):
+    wl = np.arange(450.0, 651.0, 10.0)
+    np.savez(tmp_path / "narrow.npz", wavelengths=wl, reflectance=np.full((240, 320, wl.size), 0.5, np.float32))
+    result = run("capture", "--rig", work / "rig.toml", "--plan", work / "sym.npz", "--calib", work / "calib.npz",
+                 "--scene", tmp_path / "narrow.npz", "--out", tmp_path / "seq", ok=False)
+    one_line_error(result, "covers 450-650 nm")
+    assert not (tmp_path / "seq" / "sequence.json").exists()
+    # and a truth that does not cover the cube's wavelengths
+    wl = np.arange(420.0, 681.0, 10.0)
+    np.savez(tmp_path / "narrow2.npz", wavelengths=wl, reflectance=np.full((240, 320, wl.size), 0.5, np.float32))
+    one_line_error(run("evaluate", work / "cube.exr", "--truth", tmp_path / "narrow2.npz", ok=False),
+                   "covers 420-680 nm")
+
+
+def test_plan_from_another_calibration(work, tmp_path):
+    run("calibrate", "--rig", work / "rig.toml", "--out", tmp_path / "other.npz", "--seed", 9)
+    result = run("capture", "--rig", work / "rig.toml", "--plan", work / "sym.npz", "--calib",
+                 tmp_path / "other.npz", "--scene", "colorchecker", "--out", tmp_path / "seq", ok=False)
+    one_line_error(result, "stale")
+    # a sequence folder whose calibration was swapped
+    seq = tmp_path / "seq2"
+    shutil.copytree(work / "seq", seq)
+    shutil.copyfile(tmp_path / "other.npz", seq / "calibration.npz")
+    one_line_error(run("recover", seq, "--out", tmp_path / "c.exr", ok=False), "stale")
+
+
+def test_sequence_captured_with_another_plan(work, tmp_path):
+    seq = tmp_path / "seq"
+    shutil.copytree(work / "seq", seq)
+    shutil.copyfile(work / "tri.npz", seq / "plan.npz")
+    one_line_error(run("recover", seq, "--out", tmp_path / "c.exr", ok=False), "captured with plan")
+
+
+def test_unknown_method_name(work, tmp_path):
+    one_line_error(run("plan", "wiener", "--calib", work / "calib.npz", "--out", tmp_path / "p.npz", ok=False),
+                   "METHOD='wiener' is not one of", "narrowband")
+    one_line_error(run("recover", work / "seq", "--out", tmp_path / "c.exr", "--method", "CMC", ok=False),
+                   "method='CMC'")
+
+
+def test_no_partial_output_when_a_later_write_fails(work, tmp_path):
+    result = run("recover", work / "seq", "--out", tmp_path / "c.exr", "--xyz", tmp_path / "nowhere" / "x.exr",
+                 ok=False)
+    one_line_error(result)
+    assert not (tmp_path / "c.exr").exists()
+
+
+def test_bad_rig_toml(tmp_path):
+    (tmp_path / "rig.toml").write_text("[camera]\nroi_widht = 320\n")
+    one_line_error(run("calibrate", "--rig", tmp_path / "rig.toml", "--out", tmp_path / "c.npz", ok=False),
+                   "rig.toml", "roi_widht")
+    assert not (tmp_path / "c.npz").exists()
