@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -147,3 +149,24 @@ def test_sequence_upload_replayed_to_patterns(dmd, compression):
         assert (e["image"] & 0x7FF, e["image"] >> 11, e["options"] >> 7, (e["options"] >> 1) & 7) == \
             (j // 24, j % 24, 1, 0)
     assert replay.lut_entries == k and replay.mode == 3
+
+
+def test_plan_from_calibration_uploaded_through_the_column_map():
+    # A narrowband plan from the oracle calibration: its (K, 1024) mirror counts on the calibration's column map
+    # become LightCrafter 6500 images; the controller ends up holding exactly the plan's patterns.
+    from specgpu.calibration import oracle_calibration
+    from specgpu.plans import plan_narrowband
+
+    bundle = oracle_calibration()
+    plan = plan_narrowband(bundle, step_nm=20.0)
+    sim = SimulatedDLPC900("lightcrafter-6500")
+    light = DLPC900Light(DLPC900(sim), calibration=bundle)
+    assert (light.layout.columns, light.layout.rows, light.layout.column_offset) == (1024, 768, 448)
+    light.load_plan(plan)
+    k = plan.patterns.shape[0]
+    images = np.stack([sim.image(i) for i in range(-(-k // 24))])
+    np.testing.assert_array_equal(light.layout.images_to_patterns(images, k), plan.patterns)
+    assert sim.lut[0]["exposure_us"] == round(plan.exposure_s * 1e6)
+    np.testing.assert_allclose(light.emitted_spectrum(3), bundle.emitted(plan.patterns[3]))
+    with pytest.raises(ValueError, match="stale"):
+        light.load_plan(dataclasses.replace(plan, calibration="0" * 64))

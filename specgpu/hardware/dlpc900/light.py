@@ -8,6 +8,11 @@ exposure ``n`` of the stream (the camera's frame counter, which also counts fram
 by pattern ``n mod K`` (:meth:`at_frame`). :meth:`check` reads the controller's Main Status so a capture stops at the
 first sign that the sequencer is no longer following, instead of labelling frames it did not light.
 
+Timing in strobe-master mode: the camera's exposure-active rising edge triggers pattern n, which the controller
+shows after its Trigger In 1 delay (105 us by default) for ``exposure_s``; so the exposure must exceed the switch time
+(as the twin's minimum exposure says) and the frame period must exceed ``exposure_s`` plus that delay, or the next
+trigger arrives while a pattern is still shown and is missed.
+
 What the light emits is the model's (a calibration bundle's forward model, or the nominal
 :class:`~specgpu.rig.light.ProgrammableLight`): a real light cannot measure itself.
 """
@@ -132,6 +137,19 @@ class DLPC900Light(LightSource):
             self.device.set_trigger_out(1, invert=False, rising_delay_us=0, falling_delay_us=0)
         self._sequence = p
         self._index = 0
+
+    def load_plan(self, plan) -> None:
+        """Upload a :class:`~specgpu.plans.Plan`'s sequence: its target spectra, already quantized by the planner to
+        mirror counts through the calibration's column map, become DMD images, shown for the plan's exposure.
+
+        The plan must have been made from this light's calibration (when the light has one) and for its rows.
+        """
+        if self.calibration is not None:
+            plan.check_calibration(self.calibration)
+        if int(plan.rows) != self.layout.rows:
+            raise ValueError(f"plan is for {plan.rows} mirror rows, the light's layout has {self.layout.rows}")
+        self.exposure_s = check_number("plan exposure_s", plan.exposure_s, low=self.minimum_exposure_s, high=16.7)
+        self.load_sequence(plan.patterns)
 
     def start(self) -> None:
         """Pattern Display Start (0x1A24): the controller follows its triggers from pattern 0."""
