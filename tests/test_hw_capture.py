@@ -246,3 +246,14 @@ def test_camera_that_stops_delivering_times_out_clearly():
     camera.acquirer.exposures = 5  # the camera stops being triggered after 5 of the 10 exposures asked for
     with pytest.raises(DeviceTimeout, match=r"camera delivered no frame in 2 s: is it triggered \(strobe-master\)"):
         capture_sequences(camera, k)
+
+
+def test_frame_id_from_the_gentl_buffer_when_harvesters_does_not_expose_it():
+    from specgpu.hardware.genicam import _frame_id
+
+    class Old:
+        _buffer = type("GenTLBuffer", (), {"frame_id": 42})()
+
+    assert _frame_id(Buffer(np.zeros(1), 7, 0)) == 7 and _frame_id(Old()) == 42
+    with pytest.raises(HardwareError, match="no frame id"):
+        _frame_id(object())

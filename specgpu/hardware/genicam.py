@@ -70,6 +70,17 @@ def _set(node_map, name: str, value) -> None:
         raise HardwareError(f"camera refused {name} = {value!r} ({exc})") from None
 
 
+def _frame_id(buffer) -> int:
+    """The GenTL frame id of a fetched buffer (BUFFER_INFO_FRAMEID): the camera's count, gaps included."""
+    fid = getattr(buffer, "frame_id", None)
+    if fid is None:  # harvesters versions without Buffer.frame_id: ask the GenTL buffer it wraps
+        fid = getattr(getattr(buffer, "_buffer", None), "frame_id", None)
+    if fid is None:
+        raise HardwareError("camera buffers carry no frame id: lost frames could not be told apart; use a GenTL "
+                            "producer that reports BUFFER_INFO_FRAMEID")
+    return int(fid)
+
+
 class GenICamCamera(CameraDriver):
     """Camera-master (or light-triggered) acquisition from a GenICam camera, lighting from a hardware light.
 
@@ -212,7 +223,7 @@ class GenICamCamera(CameraDriver):
                 raise self.fault from None
             raise
         with buffer:
-            frame_id = int(buffer.frame_id)
+            frame_id = _frame_id(buffer)
             if self._first_id is None:
                 self._first_id, self._t0_ns = frame_id, int(buffer.timestamp_ns)
             n = frame_id - self._first_id
