@@ -165,11 +165,12 @@ WRITES = [
     (lambda d: d.set_power_mode("standby"), (0x00, 0x02, 0x01)),  # Power Mode 0x0200: 1 standby
     (lambda d: d.set_display_mode("video"), (0x1B, 0x1A, 0x00)),  # Display Mode Selection: 0 video
     # Trigger Out 1 (0x1A1D): byte 0 bit 0 invert; bytes 2:1 rising delay int16; bytes 4:3 falling delay int16
-    (lambda d: d.set_trigger_out(1, invert=True, rising_delay_us=-20, falling_delay_us=100),
+    (lambda d: d.set_trigger_out1(invert=True, rising_delay_us=-20, falling_delay_us=100),
      (0x1D, 0x1A, 0x01, 0xEC, 0xFF, 0x64, 0x00)),
-    (lambda d: d.set_trigger_out(2, rising_delay_us=20000), (0x1E, 0x1A, 0x00, 0x20, 0x4E, 0x00, 0x00)),
-    (lambda d: d.set_trigger_in1(105), (0x35, 0x1A, 0x69, 0x00)),  # Trigger In 1: bytes 1:0 delay (us)
-    (lambda d: d.set_trigger_in2(rising=False), (0x36, 0x1A, 0x01)),  # Trigger In 2: byte 0 polarity
+    (lambda d: d.set_trigger_out1(rising_delay_us=20000), (0x1D, 0x1A, 0x00, 0x20, 0x4E, 0x00, 0x00)),
+    # Trigger In 1: bytes 1:0 delay (us), byte 2 at its reset value 0
+    (lambda d: d.set_trigger_in1(105), (0x35, 0x1A, 0x69, 0x00, 0x00)),
+    (lambda d: d.set_trigger_in1(1000), (0x35, 0x1A, 0xE8, 0x03, 0x00)),
     (lambda d: d.configure_lut(400, 1000), (0x31, 0x1A, 0x90, 0x01, 0xE8, 0x03, 0x00, 0x00)),  # Table 2-136
     # Pattern Display LUT Definition: entry 300, 1 ms, white 1-bit, wait for trigger, dark 50 us, trigger 2 off,
     # image 12 bit 23: byte 5 = 0b1_111_000_0 = 0xF0; bytes 11:10 = 12 | 23 << 11 = 0xB80C

@@ -243,26 +243,24 @@ class DLPC900:
             self.protocol.write("Pattern BMP Load" + suffix, length=len(block), data=block)
 
     # ---- triggers ----------------------------------------------------------------------------------------------
-    def set_trigger_out(self, output: int, *, invert: bool = False, rising_delay_us: int = 0,
-                        falling_delay_us: int = 0) -> None:
-        """Trigger Out 1 (0x1A1D) or Trigger Out 2 (0x1A1E): polarity and edge delays (us, -20 to 20000)."""
-        if output not in (1, 2):
-            raise ValueError(f"trigger output must be 1 or 2, got {output}")
+    def set_trigger_out1(self, *, invert: bool = False, rising_delay_us: int = 0, falling_delay_us: int = 0) -> None:
+        """Trigger Out 1 (0x1A1D): TRIG_OUT_1 polarity and edge delays (us, -20 to 20000) from the pattern's display.
+
+        (Trigger Out 2, 0x1A1E, is not sent: its parameter layout could not be confirmed from DLPU018; TRIG_OUT_2 is
+        still enabled per pattern by the LUT entry.)
+        """
         for name, d in (("rising_delay_us", rising_delay_us), ("falling_delay_us", falling_delay_us)):
             if not -20 <= d <= 20000:
                 raise ValueError(f"{name} must lie in [-20, 20000] us, got {d}")
-        self.protocol.write(f"Trigger Out {output}", invert=int(bool(invert)), rising_delay_us=int(rising_delay_us),
+        self.protocol.write("Trigger Out 1", invert=int(bool(invert)), rising_delay_us=int(rising_delay_us),
                             falling_delay_us=int(falling_delay_us))
 
     def set_trigger_in1(self, delay_us: int = 105) -> None:
-        """Trigger In 1 (0x1A35): delay (us) from the TRIG_IN_1 active edge to the pattern's display."""
+        """Trigger In 1 (0x1A35): delay (us) from the TRIG_IN_1 active edge to the pattern's display (bytes 1:0;
+        byte 2 at its reset value 0). The controller needs at least the DMD's block-load time (reset value 105)."""
         if not 0 <= delay_us <= 0xFFFF:
             raise ValueError(f"trigger in 1 delay must lie in [0, 65535] us, got {delay_us}")
-        self.protocol.write("Trigger In 1", delay_us=int(delay_us))
-
-    def set_trigger_in2(self, *, rising: bool = True) -> None:
-        """Trigger In 2 (0x1A36): polarity (0: patterns start on the rising edge, stop on the falling edge)."""
-        self.protocol.write("Trigger In 2", polarity=0 if rising else 1)
+        self.protocol.write("Trigger In 1", delay_us=int(delay_us), byte2=0)
 
     # ---- the whole upload --------------------------------------------------------------------------------------
     def upload_sequence(self, images: np.ndarray, entries, *, compression: str = "erle",

@@ -134,7 +134,7 @@ class DLPC900Light(LightSource):
         if not self.wait_for_trigger:
             # the controller is the master: TRIG_OUT_1 (non-inverted, no delay) triggers each camera exposure;
             # the sequence is stopped now, as Trigger Out 1 requires
-            self.device.set_trigger_out(1, invert=False, rising_delay_us=0, falling_delay_us=0)
+            self.device.set_trigger_out1(invert=False, rising_delay_us=0, falling_delay_us=0)
         self._sequence = p
         self._index = 0
 

@@ -93,7 +93,6 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("Main Status", 0x1A0C, "r", reply_layout=(("status", 1),), section="2.1.3"),
     Command("Display Mode Selection", 0x1A1B, "rw", (("mode", 1),), section="2.4.1"),
     Command("Trigger Out 1", 0x1A1D, "rw", _TRIGGER_OUT, section="Trigger Out 1"),
-    Command("Trigger Out 2", 0x1A1E, "rw", _TRIGGER_OUT, section="Trigger Out 2"),
     Command("Pattern Display Start/Stop", 0x1A24, "rw", (("action", 1),), section="Pattern Display Start/Stop"),
     Command("Initialize Pattern BMP Load", 0x1A2A, "w", (("image_index", 2), ("size", 4)),
             section="Initialize Pattern BMP Load (primary controller)"),
@@ -106,8 +105,8 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("Pattern Display LUT Configuration", 0x1A31, "rw", (("entries", 2), ("repeat", 4)),
             section="Tables 2-135, 2-136"),
     Command("Pattern Display LUT Definition", 0x1A34, "w", _LUT_ENTRY, section="Pattern Display LUT Definition"),
-    Command("Trigger In 1", 0x1A35, "rw", (("delay_us", 2),), section="Trigger In 1"),
-    Command("Trigger In 2", 0x1A36, "rw", (("polarity", 1),), section="Trigger In 2"),
+    # byte 2 (bit 0) of Trigger In 1 is written at its reset value 0
+    Command("Trigger In 1", 0x1A35, "rw", (("delay_us", 2), ("byte2", 1)), section="Trigger In 1"),
 )}
 
 _BY_OPCODE = {c.opcode: c for c in COMMANDS.values()}

@@ -71,8 +71,8 @@ class SimulatedDLPC900(Transport):
         self.error_code, self.error_text = 0, ""
         self.position = -1  # LUT entry on display, -1 before the first trigger
         self.triggers = 0
-        self.trigger_out = {1: (0, 0, 0), 2: (0, 0, 0)}
-        self.trigger_in1_delay, self.trigger_in2_polarity = 105, 0
+        self.trigger_out1 = (0, 0, 0)
+        self.trigger_in1_delay = 105
         self.curtain = (0, 0, 0)
 
     # ---- transport ---------------------------------------------------------------------------------------------
@@ -173,14 +173,12 @@ class SimulatedDLPC900(Transport):
         if name == "Curtain Color":
             r, g, b = self.curtain
             return encode_fields(COMMANDS[name].layout, {"red": r, "green": g, "blue": b})
-        if name in ("Trigger Out 1", "Trigger Out 2"):
-            inv, rise, fall = self.trigger_out[int(name[-1])]
+        if name == "Trigger Out 1":
+            inv, rise, fall = self.trigger_out1
             return encode_fields(COMMANDS[name].layout, {"invert": inv, "rising_delay_us": rise,
                                                          "falling_delay_us": fall})
         if name == "Trigger In 1":
-            return self.trigger_in1_delay.to_bytes(2, "little")
-        if name == "Trigger In 2":
-            return bytes((self.trigger_in2_polarity,))
+            return self.trigger_in1_delay.to_bytes(2, "little") + b"\x00"
         if name == "Power Mode":
             return b"\x00"
         raise ValueError(f"no read model for {name}")
@@ -251,12 +249,10 @@ class SimulatedDLPC900(Transport):
                 if img.shape != (g.height, g.width // g.controllers):
                     return 6
                 self.images[(index, c)] = img
-        elif name in ("Trigger Out 1", "Trigger Out 2"):
-            self.trigger_out[int(name[-1])] = (f["invert"], f["rising_delay_us"], f["falling_delay_us"])
+        elif name == "Trigger Out 1":
+            self.trigger_out1 = (f["invert"], f["rising_delay_us"], f["falling_delay_us"])
         elif name == "Trigger In 1":
             self.trigger_in1_delay = f["delay_us"]
-        elif name == "Trigger In 2":
-            self.trigger_in2_polarity = f["polarity"]
         elif name == "Curtain Color":
             self.curtain = (f["red"], f["green"], f["blue"])
         elif name == "Power Mode":
