@@ -170,3 +170,7 @@ def test_plan_from_calibration_uploaded_through_the_column_map():
     np.testing.assert_allclose(light.emitted_spectrum(3), bundle.emitted(plan.patterns[3]))
     with pytest.raises(ValueError, match="stale"):
         light.load_plan(dataclasses.replace(plan, calibration="0" * 64))
+    from specgpu.rig.light import LightParameters, ProgrammableLight
+
+    with pytest.raises(ValueError, match="calibration has 1024 columns x 768 rows, the light model 128 x 64"):
+        DLPC900Light(DLPC900(sim), model=ProgrammableLight(LightParameters(columns=128, rows=64)), calibration=bundle)

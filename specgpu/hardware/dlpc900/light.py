@@ -64,6 +64,10 @@ class DLPC900Light(LightSource):
         self.device = device if device is not None else DLPC900()
         self.model = model if model is not None else ProgrammableLight()
         self.calibration = calibration
+        mp = self.model.params
+        if calibration is not None and (calibration.columns, calibration.rows) != (mp.columns, mp.rows):
+            raise ValueError(f"calibration has {calibration.columns} columns x {calibration.rows} rows, the light "
+                             f"model {mp.columns} x {mp.rows}; pass the model of the calibrated rig")
         if layout is None:
             if calibration is not None:
                 layout = DMDLayout.from_calibration(calibration, self.device.geometry)
