@@ -342,8 +342,9 @@ def evaluate(cube, truth, illuminant, json_path, device):
         except ValueError:
             raise cube_error from None
     height, width = data.shape[:2]
-    scene = load_scene(truth, height, width)
-    pixels = evaluate_pixels(data, scene, wavelengths=wavelengths, illuminant=illuminant, device=device)
+    with _Busy("evaluating"):
+        scene = load_scene(truth, height, width)
+        pixels = evaluate_pixels(data, scene, wavelengths=wavelengths, illuminant=illuminant, device=device)
     stats = pixels.statistics()
     report = {"cube": str(cube), "truth": scene.name, "illuminant": illuminant,
               "projections": meta.get("projections"), "plan_method": meta.get("plan_method"), "pixels": stats}
