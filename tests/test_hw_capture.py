@@ -154,14 +154,32 @@ def test_lost_frame_leaves_a_gap_and_no_frame_slides():
         np.testing.assert_array_equal(seq.frames, want)
 
 
+def test_lost_first_frame_with_known_first_id_shifts_nothing():
+    k = 4
+    sim, light, camera, patterns = rig(k, exposures=3 * k, lost={0})
+    camera.first_frame_id = 1  # GigE Vision: block ids start at 1 (the fake camera's first_id)
+    result = capture_sequences(camera, k)
+    assert [s.cycle for s in result.sequences] == [1, 2] and result.assembly.sequences_discarded == 1
+    for seq in result.sequences:
+        np.testing.assert_array_equal(seq.frames, expected_frames(light, patterns))
+    # Without it, the first delivered frame is taken as exposure 0 and every label would shift by one:
+    sim, light, camera, patterns = rig(k, exposures=3 * k, lost={0})
+    camera.n_frames = 3 * k - 1  # the last exposure is numbered 3k - 2 now
+    result = capture_sequences(camera, k)
+    want = expected_frames(light, patterns)
+    assert len(result.sequences) == 2
+    assert not any(np.array_equal(seq.frames, want) for seq in result.sequences)  # the guard matters
+
+
 def test_open_driver_selects_the_hardware_backend():
     sim = SimulatedDLPC900("lightcrafter-6500")
     patterns = np.zeros((2, 1024), np.int32)
     patterns[1, 100:200] = 768
-    driver = open_driver("vision-dlpc900", hardware={"light": "dlpc900-simulated", "exposure_s": 0.002},
+    driver = open_driver("vision-dlpc900", hardware={"light": "dlpc900-simulated", "exposure_s": 0.002,
+                                                     "camera_first_frame_id": 1},
                          patterns=patterns, n_frames=4, transport=sim,
                          acquirer=FakeAcquirer(sim, None, 0))
-    assert isinstance(driver, GenICamCamera) and driver.light.loaded
+    assert isinstance(driver, GenICamCamera) and driver.light.loaded and driver.first_frame_id == 1
     assert sim.lut_entries == 2 and sim.lut[0]["exposure_us"] == 2000
     layout = driver.light.layout
     np.testing.assert_array_equal(layout.images_to_patterns(sim.image(0)[None], 2), patterns)

@@ -107,12 +107,16 @@ class GenICamCamera(CameraDriver):
         Check the light's status before handing over each frame (one USB round trip per frame).
     trigger_line, strobe_line
         Camera I/O lines (GenICam ``LineSelector`` values).
+    first_frame_id
+        The frame id the camera gives its first exposure after acquisition start (GigE Vision block ids start at 1,
+        USB3 Vision at 0). Given, a lost first frame cannot shift the labels; ``None`` takes the first frame
+        delivered as exposure 0 (then also check a dark pattern with the assembler's ``sync_pattern``).
     """
 
     def __init__(self, light: LightSource, *, acquirer=None, cti=None, serial: str | None = None,
                  mode: str = "strobe-master", exposure_s: float = 0.010, frame_rate_hz: float | None = None,
                  n_frames: int | None = None, timeout_s: float = 2.0, check_light: bool = True,
-                 trigger_line: str = "Line0", strobe_line: str = "Line1"):
+                 trigger_line: str = "Line0", strobe_line: str = "Line1", first_frame_id: int | None = None):
         if mode not in MODES:
             raise ValueError(f"unknown camera mode {mode!r}; valid: {', '.join(MODES)}")
         self._light = light
@@ -124,6 +128,8 @@ class GenICamCamera(CameraDriver):
         self.timeout_s = check_number("timeout_s", timeout_s, low=0, low_open=True)
         self.check_light = bool(check_light)
         self.trigger_line, self.strobe_line = trigger_line, strobe_line
+        self.first_frame_id = None if first_frame_id is None else check_number("first_frame_id", first_frame_id,
+                                                                                low=0, integer=True)
         self._harvester = None
         if acquirer is None:
             self._harvester, acquirer = open_acquirer(cti, serial)
@@ -136,7 +142,7 @@ class GenICamCamera(CameraDriver):
         self._shape = (int(nm.Height.value), int(nm.Width.value))
         self._running = False
         self._first_id = None
-        self._t0_ns = 0
+        self._t0_ns = None
         self._last = (-1, -1)
         self.frames_delivered = 0
         self.fault: Exception | None = None
@@ -183,7 +189,8 @@ class GenICamCamera(CameraDriver):
         """Configure the camera, start the light's sequence, then the camera (the light must wait for the
         first exposure, not the other way round)."""
         self.configure()
-        self._first_id = None
+        self._first_id = self.first_frame_id
+        self._t0_ns = None
         self._last = (-1, -1)
         self.frames_delivered = 0
         self.fault = None
@@ -225,7 +232,9 @@ class GenICamCamera(CameraDriver):
         with buffer:
             frame_id = _frame_id(buffer)
             if self._first_id is None:
-                self._first_id, self._t0_ns = frame_id, int(buffer.timestamp_ns)
+                self._first_id = frame_id
+            if self._t0_ns is None:
+                self._t0_ns = int(buffer.timestamp_ns)
             n = frame_id - self._first_id
             if n < 0:
                 raise HardwareError(f"camera frame id went backwards ({frame_id} after start at {self._first_id})")

@@ -11,6 +11,7 @@ a rig TOML's ``[hardware]`` table would hold::
     camera_cti = "/opt/vendor/lib/producer.cti"
     camera_serial = "12345678"
     camera_mode = "strobe-master"     # or "hardware-trigger"
+    camera_first_frame_id = 1         # GigE Vision block ids start at 1 (USB3 Vision: 0)
     exposure_s = 0.010
     spectrometer = "ocean"            # for calibration loop (b); "" for none
     spectrometer_calibration = "irradiance_cal.csv"
@@ -58,6 +59,8 @@ class HardwareConfig:
         Camera exposure and the time each pattern is shown, s.
     frame_rate_hz : float
         Camera frame rate in strobe-master mode (0: the camera's setting).
+    camera_first_frame_id : int
+        Frame id of the camera's first exposure (GigE Vision 1, USB3 Vision 0); -1: the first frame delivered.
     spectrometer : str
         ``"ocean"`` or "" (none).
     spectrometer_serial : str
@@ -76,6 +79,7 @@ class HardwareConfig:
     camera_mode: str = "strobe-master"
     exposure_s: float = 0.010
     frame_rate_hz: float = 0.0
+    camera_first_frame_id: int = -1
     spectrometer: str = ""
     spectrometer_serial: str = ""
     spectrometer_calibration: str = ""
@@ -93,6 +97,7 @@ class HardwareConfig:
                 raise ValueError(f"hardware.{key} must be one of {', '.join(repr(v) for v in valid)}, got {value!r}")
         check_number("hardware.exposure_s", self.exposure_s, low=0, low_open=True, high=16.7)
         check_number("hardware.frame_rate_hz", self.frame_rate_hz, low=0, high=1e5)
+        check_number("hardware.camera_first_frame_id", self.camera_first_frame_id, low=-1, integer=True)
         check_number("hardware.integration_time_s", self.integration_time_s, low=0, low_open=True, high=600)
 
     @classmethod
@@ -181,7 +186,8 @@ def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n
         light.load_sequence(patterns)
     return GenICamCamera(light, acquirer=acquirer, cti=cfg.camera_cti or None, serial=cfg.camera_serial or None,
                          mode=cfg.camera_mode, exposure_s=cfg.exposure_s, frame_rate_hz=cfg.frame_rate_hz or None,
-                         n_frames=n_frames, check_light=check_light)
+                         n_frames=n_frames, check_light=check_light,
+                         first_frame_id=None if cfg.camera_first_frame_id < 0 else cfg.camera_first_frame_id)
 
 
 def open_spectrometer(hardware=None, *, device=None):
