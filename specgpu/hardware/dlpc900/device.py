@@ -267,9 +267,10 @@ class DLPC900:
                         repeat: int = 0) -> int:
         """Put a pattern-on-the-fly sequence in the controller (it is left stopped; :meth:`start` runs it).
 
-        Sends Pattern Display Start/Stop (stop), Display Mode Selection (on-the-fly), one Pattern Display LUT
-        Definition per entry, Pattern Display LUT Configuration, then each image with Initialize Pattern BMP Load
-        and Pattern BMP Load, last image first (the order of DLPU018's on-the-fly example and of the public
+        Sends Pattern Display Start/Stop (0x1A24, stop), Display Mode Selection (0x1A1B, on-the-fly), one Pattern
+        Display LUT Definition (0x1A34) per entry, Pattern Display LUT Configuration (0x1A31), then each image with
+        Initialize Pattern BMP Load and Pattern BMP Load (0x1A2A/0x1A2B; 0x1A2C/0x1A2D for the secondary
+        controller), last image first (the order of DLPU018's on-the-fly example and of the public
         drivers; the controller stacks images as they arrive). Returns the bytes of image data sent.
         """
         imgs = np.asarray(images)
