@@ -207,6 +207,20 @@ def test_fault_during_upload_leaves_no_sequence_loaded(mode, error):
     assert not camera.running
 
 
+def test_recover_after_disconnect_reloads_the_sequence():
+    sim, light, camera, patterns = rig(3)
+    sim.fail_after = sum(1 for d, _ in sim.log if d == "out") + 5
+    with pytest.raises(DeviceDisconnected):
+        light.load_sequence(patterns[::-1])
+    assert not light.loaded
+    sim.fail_after = None
+    sim.reset()  # the controller came back from a reset: nothing of the sequence is left in it
+    light.recover(attempts=1)
+    assert light.loaded and sim.lut_entries == 3
+    imgs = sim.image(0)[None]
+    np.testing.assert_array_equal(light.layout.images_to_patterns(imgs, 3), patterns[::-1])
+
+
 def _drive(camera, k):
     """The capture loop with the assembler in hand, so its accounting after a fault can be checked."""
     asm = SequenceAssembler(k)

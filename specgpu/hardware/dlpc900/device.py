@@ -153,6 +153,10 @@ class DLPC900:
     def close(self) -> None:
         self.transport.close()
 
+    def reconnect(self, attempts: int = 3, delay_s: float = 0.5) -> None:
+        """Reopen the USB link after a disconnect (e.g. the controller was reset); its state must be sent again."""
+        self.transport.reconnect(attempts, delay_s)
+
     def __enter__(self):
         return self
 

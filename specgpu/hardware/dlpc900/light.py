@@ -82,6 +82,7 @@ class DLPC900Light(LightSource):
         self.compression = compression
         self._sequence: np.ndarray | None = None
         self._showing: np.ndarray | None = None  # the pattern show() put up, while it stays up
+        self._requested: np.ndarray | None = None  # the last sequence asked for
         self._index = 0
         self.bytes_uploaded = 0
 
@@ -130,6 +131,7 @@ class DLPC900Light(LightSource):
         """
         p = self.layout.check_patterns(patterns)
         self._sequence = self._showing = None
+        self._requested = p  # kept through a failed upload, for recover()
         images = self.layout.patterns_to_images(p)
         exposure_us = int(round(self.exposure_s * 1e6))
         entries = [LutEntry(k, exposure_us, k // BITS_PER_IMAGE, k % BITS_PER_IMAGE,
@@ -154,6 +156,14 @@ class DLPC900Light(LightSource):
             raise ValueError(f"plan is for {plan.rows} mirror rows, the light's layout has {self.layout.rows}")
         self.exposure_s = check_number("plan exposure_s", plan.exposure_s, low=self.minimum_exposure_s, high=16.7)
         self.load_sequence(plan.patterns)
+
+    def recover(self, attempts: int = 3, delay_s: float = 0.5) -> None:
+        """After a USB fault: reopen the link and upload the last sequence asked for again (the controller may
+        have been reset); :class:`DeviceNotFound` if it does not come back."""
+        if self._requested is None:
+            raise RuntimeError("DLPC900 light: nothing to recover, no sequence was ever loaded")
+        self.device.reconnect(attempts, delay_s)
+        self.load_sequence(self._requested)
 
     def start(self) -> None:
         """Pattern Display Start (0x1A24): the controller follows its triggers from pattern 0."""
