@@ -250,18 +250,16 @@ def _figures(out, plans, result, scene, bundle):
         fig.tight_layout()
         fig.savefig(out / "figures" / f"spectra-{method}.png", dpi=80)
         plt.close(fig)
-    light_wl = bundle.wavelengths if hasattr(bundle, "wavelengths") else None
     for name, plan in plans.items():
         fig, ax = plt.subplots(figsize=(8, 4))
-        emitted = plan.patterns.astype(np.float64) @ np.asarray(bundle.column_matrix, np.float64).T \
-            if hasattr(bundle, "column_matrix") else None
+        emitted = bundle.emitted(plan.patterns)  # the calibrated model of what the patterns emit
         for k in range(plan.K):
-            ax.plot(plan.light_wavelengths, plan.target_spectra[k], lw=1, color=f"C{k % 10}")
-            if emitted is not None and light_wl is not None and emitted.shape[1] == len(light_wl):
-                ax.plot(light_wl, emitted[k], lw=0.8, ls="--", color=f"C{k % 10}")
+            ax.plot(plan.light_wavelengths, plan.target_spectra[k], lw=3, alpha=0.35, color=f"C{k % 10}")
+            ax.plot(bundle.wavelengths, emitted[k], lw=1, color=f"C{k % 10}")
         ax.set_xlabel("wavelength (nm)")
         ax.set_ylabel("spectral irradiance (W m$^{-2}$ nm$^{-1}$)")
-        ax.set_title(f"{name}: {plan.K} illuminants (solid: targets; broken: calibrated model of the patterns)")
+        ax.set_title(f"{name}: {plan.K} illuminants (wide: targets; thin: emitted by the quantized patterns)",
+                     fontsize=10)
         fig.tight_layout()
         fig.savefig(out / "figures" / f"illuminants-{name}.png", dpi=80)
         plt.close(fig)
