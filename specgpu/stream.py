@@ -1,0 +1,939 @@
+"""The streaming pipeline: driver -> ring buffer -> assembler -> device buffers -> kernels -> sinks, at camera speed.
+
+Three threads, one job each, joined by bounded buffers so every overload shows up as a counted drop somewhere
+explicit, never as unbounded memory::
+
+    producer thread        driver.fill(slot) into the frame ring      (capture.ringbuffer.run_producer)
+    device thread          ring -> SequenceAssembler -> upload -> kernels -> readback events (``in_flight`` deep)
+    sink thread            completed results -> sinks (callback, results ring, file writer, preview)
+
+Each sequence in flight holds one of ``result_buffers`` tokens from upload until every sink has returned. A slow
+sink keeps its tokens, the device thread waits for one, the frame ring fills and its policy acts
+(``drop_newest`` by default: the camera never waits, a lost frame is a frame-id gap the assembler counts, and no
+sequence is ever built across it). The counters of the ring, the assembler and the stream say where each frame
+went (:meth:`StreamReport.accounting`).
+
+Device work per sequence is enqueued without blocking on one in-order queue: the upload of the K frames, the
+linear kernel (basis coefficients or the full cube), the fused XYZ -> Lab -> dE kernel against a reference, and the
+readbacks; the thread goes back to assembling while the device works, and waits on a sequence's events only when
+``in_flight`` sequences are pending. Readback is by mapping the output buffers (``readback="map"``, zero copy on
+CPU devices: the map is the buffer) or by copying into host arrays (``"copy"``, what a discrete GPU wants).
+
+Shutdown (:meth:`Stream.stop`, ``KeyboardInterrupt`` in :meth:`Stream.run`, the time limit or the end of the
+driver's stream) stops the producer; every frame already in the ring is still assembled, every complete sequence
+still computed and handed to the sinks, and the frames left in an unfinished sequence are reported in the
+assembler's ``frames_unused`` / ``sequences_discarded``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue as queue_module
+import resource
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from . import engine
+from .capture.assemble import AssemblyStats, SequenceAssembler
+from .capture.driver import CameraDriver, FrameInfo, LightSource, StreamEnd
+from .capture.ringbuffer import POLICIES, RingBuffer, RingStats, run_producer
+from .colorimetry import DELTA_E_METHODS
+from .runtime import get_allocator, get_queue
+from .spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
+from .validate import validate_method
+
+__all__ = [
+    "STREAM_OUTPUTS", "StreamDecoder", "StreamResult", "StreamReport", "Stream", "Sink", "CallbackSink",
+    "ResultsRing", "NpyChunkWriter", "ExrSequenceWriter", "PreviewSink", "read_npy_chunks", "peak_rss_reset",
+    "peak_rss_bytes",
+]
+
+#: What a stream can compute per sequence, and the channel count / dtype of each map.
+STREAM_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE")
+READBACKS = ("map", "copy")
+UPLOADS = ("copy", "host_ptr")
+
+
+# ------------------------------------------------------------------------------------------------- the decoder
+
+
+class StreamDecoder:
+    """The host-side planning of a stream: matrices, dark and gain maps and the reference, on the device once.
+
+    Parameters
+    ----------
+    plan : specgpu.plans.Plan
+        Decoder A (B x K) and what it outputs (reflectance or XYZ).
+    calibration : specgpu.calibration.CalibrationBundle
+        Dark frame at the plan's exposure and flat field (the same ones ``specgpu recover`` applies).
+    outputs : sequence of str
+        Any of :data:`STREAM_OUTPUTS`. ``"coefficients"``: the m basis coefficients of each pixel in the plan's
+        output basis U (B x m, orthonormal columns from the SVD of A; ``cube = coefficients @ U.T``).
+        ``"cube"``: the B outputs of the plan. ``"XYZ"``, ``"Lab"``, ``"dE"``: the fused colorimetric pass.
+    reference : array_like, optional
+        CIELAB reference of ``"dE"``: one colour (3,) or a per-pixel (H, W, 3) image. Required for ``"dE"``.
+    method : str
+        Colour difference, a name of ``DELTA_E_METHODS`` (default ``"CIE 2000"``).
+    illuminant : str
+        Illuminant of XYZ (Y = 1 for the perfect white), Lab and dE.
+    cube_dtype : float16 or float32
+        Storage of the cube (float16 halves the memory traffic of the widest output).
+    frame_shape : (int, int)
+        (H, W) of the frames.
+    queue : pyopencl.CommandQueue
+    """
+
+    def __init__(self, plan, calibration, outputs, *, frame_shape, queue, reference=None, method="CIE 2000",
+                 illuminant="D65", observer: str = DEFAULT_CMFS, cube_dtype=np.float16):
+        outputs = tuple(dict.fromkeys(outputs))
+        for name in outputs:
+            validate_method(name, {k: k for k in STREAM_OUTPUTS}, "stream output")
+        if not outputs:
+            raise ValueError(f"a stream needs at least one output of {', '.join(STREAM_OUTPUTS)}")
+        self.outputs = outputs
+        self.plan = plan
+        self.queue = queue
+        self.height, self.width = (int(s) for s in frame_shape)
+        self.n = self.height * self.width
+        self.K = plan.K
+        A = np.asarray(plan.A, np.float64)
+        self.cube_dtype = np.dtype(cube_dtype)
+        if self.cube_dtype not in (np.dtype(np.float16), np.dtype(np.float32)):
+            raise ValueError(f"cube_dtype must be float16 or float32, got {self.cube_dtype}")
+        self.method = validate_method(method, DELTA_E_METHODS) if "dE" in outputs else method
+        self.illuminant = illuminant
+        dark = calibration.dark_at(plan.exposure_s)
+        gain = calibration.flat_field
+        if tuple(np.shape(dark)) != (self.height, self.width):
+            raise ValueError(f"calibration maps are {np.shape(dark)} but the frames are {self.height} x {self.width}")
+        self.dark = engine.to_device(queue, np.asarray(dark, np.float32).reshape(-1))
+        self.gain = engine.to_device(queue, np.asarray(gain, np.float32).reshape(-1))
+        self.A = A
+        self.basis = None
+        self.A_coefficients = None
+        if "coefficients" in outputs:
+            # Coefficients in the plan's own output basis: A = U S Vt has rank m (a basis plan), so the m rows of
+            # S Vt decode the coefficients and U rebuilds the cube exactly.
+            U, s, Vt = np.linalg.svd(A, full_matrices=False)
+            m = int(plan.params.get("m", np.sum(s > s[0] * 1e-9)))
+            self.basis = U[:, :m]
+            self.A_coefficients = s[:m, None] * Vt[:m]
+        colour = {"XYZ", "Lab", "dE"} & set(outputs)
+        self.M = None
+        self.white = None
+        self.reference = None
+        self.reference_single = True
+        if colour:
+            if plan.output == "reflectance":
+                self.M = XYZ_weights(plan.output_wavelengths, illuminant, observer) @ A
+            elif plan.output == "XYZ":
+                if plan.illuminant and plan.illuminant.lower() != str(illuminant).lower():
+                    raise ValueError(f"the plan measures XYZ under {plan.illuminant}, not {illuminant}")
+                self.M = A
+            else:
+                raise ValueError(f"a {plan.output!r} plan ({plan.method}) has no XYZ, Lab or dE")
+            self.white = white_point_XYZ(illuminant, observer)
+        if "dE" in outputs:
+            if reference is None:
+                raise ValueError("the dE output needs a reference (an L,a,b colour or a per-pixel Lab image)")
+            ref = np.asarray(reference, np.float32)
+            if ref.shape == (3,):
+                self.reference_single = True
+            elif ref.shape == (self.height, self.width, 3):
+                self.reference_single = False
+            else:
+                raise ValueError(f"the dE reference must be (3,) or ({self.height}, {self.width}, 3), got {ref.shape}")
+            self.reference = engine.to_device(queue, ref.reshape(-1))
+        elif reference is not None:
+            raise ValueError("a reference was given but dE is not among the outputs")
+
+    def shapes(self) -> dict[str, tuple[tuple, np.dtype]]:
+        """Per output: its (H, W, C) or (H, W) shape and dtype."""
+        h, w = self.height, self.width
+        out = {}
+        for name in self.outputs:
+            if name == "coefficients":
+                out[name] = ((h, w, self.A_coefficients.shape[0]), np.dtype(np.float32))
+            elif name == "cube":
+                out[name] = ((h, w, self.A.shape[0]), self.cube_dtype)
+            elif name in ("XYZ", "Lab"):
+                out[name] = ((h, w, 3), np.dtype(np.float32))
+            else:
+                out[name] = ((h, w), np.dtype(np.float32))
+        return out
+
+    def enqueue(self, frames: cla.Array) -> dict[str, cla.Array]:
+        """Enqueue every kernel on the K frames (flat device array); returns the flat device outputs."""
+        q, n = self.queue, self.n
+        out = {}
+        if "coefficients" in self.outputs:
+            out["coefficients"], _ = engine.linear(q, frames, self.A_coefficients, n=n, dark=self.dark,
+                                                   gain=self.gain, out_layout=1)
+        if "cube" in self.outputs:
+            out["cube"], _ = engine.linear(q, frames, self.A, n=n, dark=self.dark, gain=self.gain,
+                                           out_dtype=self.cube_dtype, out_layout=1)
+        if self.M is not None:
+            fused = engine.frames_to_delta_e(
+                q, frames, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
+                else "CIE 2000", reference_single=self.reference_single, dark=self.dark, gain=self.gain,
+                write_xyz="XYZ" in self.outputs, write_lab="Lab" in self.outputs)
+            for name, arr in (("XYZ", fused.XYZ), ("Lab", fused.Lab), ("dE", fused.delta_E)):
+                if name in self.outputs:
+                    out[name] = arr
+        return out
+
+
+# ----------------------------------------------------------------------------------------------------- results
+
+
+@dataclass
+class StreamResult:
+    """The maps of one complete, aligned sequence, handed to every sink in turn.
+
+    The arrays are views of recycled buffers: valid only while the sink is called; copy what you keep.
+
+    Attributes
+    ----------
+    index : int
+        Ordinal of the result in the stream (0, 1, ...).
+    cycle : int
+        The assembler's cycle of the sequence (which pass through the light's pattern sequence).
+    frame_ids : numpy.ndarray
+        (K,) consecutive frame ids, frame ``j`` lit by pattern ``j``.
+    timestamps_s : numpy.ndarray
+        (K,) exposure starts in the driver's clock, s.
+    arrays : dict of str to numpy.ndarray
+        Per output of the stream: ``coefficients`` (H, W, m), ``cube`` (H, W, B), ``XYZ`` / ``Lab`` (H, W, 3),
+        ``dE`` (H, W).
+    latency_s : float
+        From the arrival of the sequence's last frame in host memory (the driver's fill returned: for a camera,
+        exposure end plus readout) to the result being ready for the sinks, s.
+    """
+
+    index: int
+    cycle: int
+    frame_ids: np.ndarray
+    timestamps_s: np.ndarray
+    arrays: dict
+    latency_s: float
+
+
+class Sink:
+    """A consumer of results: :meth:`write` is called on the sink thread for each result in order, :meth:`close`
+    once at the end. A sink that is slower than the stream makes the frame ring's policy act (backpressure)."""
+
+    def write(self, result: StreamResult) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Flush and release what the sink holds."""
+
+
+class CallbackSink(Sink):
+    """Calls ``fn(result)`` for each result (the arrays are valid during the call only)."""
+
+    def __init__(self, fn):
+        if not callable(fn):
+            raise TypeError(f"CallbackSink needs a callable, got {type(fn).__name__}")
+        self.fn = fn
+
+    def write(self, result):
+        self.fn(result)
+
+
+class ResultsRing(Sink):
+    """A bounded ring of result copies for a consumer that polls (a GUI, a controller).
+
+    Parameters
+    ----------
+    capacity : int
+        Results kept, >= 1.
+    outputs : sequence of str, optional
+        Which arrays to keep (default all).
+    policy : {"drop_oldest", "block"}
+        When full: discard the oldest unread result (a live view wants the newest), or wait for the consumer
+        (backpressure up to the frame ring).
+
+    Attributes
+    ----------
+    dropped : int
+        Results discarded unread (``drop_oldest``).
+    """
+
+    def __init__(self, capacity: int = 8, outputs=None, policy: str = "drop_oldest"):
+        if int(capacity) < 1:
+            raise ValueError(f"capacity must be >= 1, got {capacity}")
+        if policy not in ("drop_oldest", "block"):
+            raise ValueError(f"unknown results ring policy {policy!r}; valid policies: drop_oldest, block")
+        self.capacity, self.policy = int(capacity), policy
+        self.outputs = None if outputs is None else tuple(outputs)
+        self._items: deque = deque()
+        self._cond = threading.Condition()
+        self._closed = False
+        self.dropped = 0
+        self.written = 0
+
+    def write(self, result):
+        keep = {k: v.copy() for k, v in result.arrays.items() if self.outputs is None or k in self.outputs}
+        copy = StreamResult(result.index, result.cycle, result.frame_ids.copy(), result.timestamps_s.copy(), keep,
+                            result.latency_s)
+        with self._cond:
+            while len(self._items) >= self.capacity:
+                if self.policy == "drop_oldest":
+                    self._items.popleft()
+                    self.dropped += 1
+                else:
+                    self._cond.wait()
+            self._items.append(copy)
+            self.written += 1
+            self._cond.notify_all()
+
+    def get(self, timeout: float | None = None) -> StreamResult | None:
+        """The oldest kept result (owned by the caller), or None on timeout or when closed and empty."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._cond:
+            while not self._items:
+                if self._closed:
+                    return None
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    return None
+                self._cond.wait(remaining)
+            item = self._items.popleft()
+            self._cond.notify_all()
+            return item
+
+    def __len__(self):
+        with self._cond:
+            return len(self._items)
+
+    def close(self):
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+class NpyChunkWriter(Sink):
+    """Long recordings as chunked ``.npy`` files: ``<output>-<chunk>.npy`` of shape (S, H, W[, C]) with up to
+    ``chunk`` sequences each, plus ``index.json`` (frame ids, cycle and timestamps of every sequence, the channel
+    layout, the plan's output basis for coefficients).
+
+    Why not zarr: it is not a dependency of specgpu; ``.npy`` chunks need nothing but NumPy to read
+    (``numpy.load(..., mmap_mode="r")``, :func:`read_npy_chunks`) and map one-to-one onto Dask chunks. Each chunk is
+    written under a temporary name and renamed when complete, and ``index.json`` last, so an interrupted recording
+    leaves only whole chunks.
+
+    Parameters
+    ----------
+    directory : path
+    chunk : int
+        Sequences per file, >= 1.
+    outputs : sequence of str, optional
+        Which outputs to write (default all of the stream's).
+    metadata : mapping, optional
+        JSON-serialisable values stored in ``index.json``.
+    """
+
+    def __init__(self, directory, chunk: int = 32, outputs=None, metadata=None):
+        if int(chunk) < 1:
+            raise ValueError(f"chunk must be >= 1 sequences, got {chunk}")
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        if (self.directory / "index.json").exists():
+            raise FileExistsError(f"{self.directory} already holds a recording (index.json); choose another folder")
+        self.chunk = int(chunk)
+        self.outputs = None if outputs is None else tuple(outputs)
+        self.metadata = dict(metadata or {})
+        self._buffers: dict[str, np.ndarray] = {}
+        self._fill = 0
+        self._chunks = 0
+        self._records: list[dict] = []
+        self.files: list[Path] = []
+
+    def write(self, result):
+        arrays = {k: v for k, v in result.arrays.items() if self.outputs is None or k in self.outputs}
+        if not self._buffers:
+            self._buffers = {k: np.empty((self.chunk, *v.shape), v.dtype) for k, v in arrays.items()}
+        for k, v in arrays.items():
+            self._buffers[k][self._fill] = v
+        self._records.append({"index": result.index, "cycle": result.cycle,
+                              "frame_ids": [int(i) for i in result.frame_ids],
+                              "timestamps_s": [float(t) for t in result.timestamps_s]})
+        self._fill += 1
+        if self._fill == self.chunk:
+            self._flush()
+
+    def _flush(self):
+        if not self._fill:
+            return
+        for k, buf in self._buffers.items():
+            path = self.directory / f"{k}-{self._chunks:06d}.npy"
+            tmp = path.with_name(path.name + ".tmp")
+            with open(tmp, "wb") as fh:
+                np.save(fh, buf[:self._fill])
+            os.replace(tmp, path)
+            self.files.append(path)
+        self._chunks += 1
+        self._fill = 0
+
+    def close(self):
+        self._flush()
+        doc = {"format": "specgpu-stream-npy", "version": 1, "chunk": self.chunk, "chunks": self._chunks,
+               "outputs": sorted(self._buffers), "sequences": self._records, "metadata": self.metadata}
+        tmp = self.directory / "index.json.tmp"
+        tmp.write_text(json.dumps(doc))
+        os.replace(tmp, self.directory / "index.json")
+
+
+def read_npy_chunks(directory, output: str, *, mmap: bool = True) -> list[np.ndarray]:
+    """The chunks of one output of an :class:`NpyChunkWriter` recording, in order (memory-mapped by default)."""
+    directory = Path(directory)
+    index = directory / "index.json"
+    if not index.is_file():
+        raise FileNotFoundError(f"{directory}: no index.json (not a stream recording, or an interrupted one)")
+    doc = json.loads(index.read_text())
+    if output not in doc["outputs"]:
+        raise ValueError(f"{directory}: no output {output!r}; recorded outputs: {', '.join(doc['outputs'])}")
+    return [np.load(directory / f"{output}-{i:06d}.npy", mmap_mode="r" if mmap else None)
+            for i in range(doc["chunks"])]
+
+
+class ExrSequenceWriter(Sink):
+    """Every ``every``-th result as OpenEXR files through :mod:`specgpu.io`: ``cube-<index>.exr`` (spectral
+    layout), ``XYZ-`` / ``Lab-`` / ``dE-<index>.exr`` maps. EXR encoding costs milliseconds per map, so a writer
+    that must keep every sequence of a long recording is :class:`NpyChunkWriter`.
+
+    Parameters
+    ----------
+    directory : path
+    wavelengths : array_like, optional
+        Band centres of the cube (needed to write ``cube``).
+    every : int
+        Write one result in ``every``.
+    dE_kind : str
+        Map kind of the dE channel (``"dE2000"``, ``"dE94"``, ``"dE76"``).
+    metadata : mapping, optional
+    """
+
+    def __init__(self, directory, *, wavelengths=None, every: int = 1, dE_kind: str = "dE2000", metadata=None):
+        if int(every) < 1:
+            raise ValueError(f"every must be >= 1, got {every}")
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.wavelengths = None if wavelengths is None else np.asarray(wavelengths, np.float64)
+        self.every, self.dE_kind, self.metadata = int(every), dE_kind, dict(metadata or {})
+        self.files: list[Path] = []
+
+    def write(self, result):
+        from . import io
+
+        if result.index % self.every:
+            return
+        meta = {**self.metadata, "frame_ids": [int(i) for i in result.frame_ids], "cycle": result.cycle}
+        tag = f"{result.index:06d}"
+        for name, arr in result.arrays.items():
+            path = self.directory / f"{name}-{tag}.exr"
+            if name == "cube":
+                if self.wavelengths is None:
+                    raise ValueError("ExrSequenceWriter: writing the cube needs its wavelengths")
+                self.files.append(io.write_cube(path, arr, self.wavelengths, half=arr.dtype == np.float16,
+                                                metadata=meta))
+            elif name in ("XYZ", "Lab"):
+                self.files.append(io.write_map(path, arr, name, metadata=meta))
+            elif name == "dE":
+                self.files.append(io.write_map(path, arr, self.dE_kind, metadata=meta))
+            else:
+                self.files.append(io.write_map(path, arr, tuple(f"c{i}" for i in range(arr.shape[-1])),
+                                               metadata=meta))
+
+
+class PreviewSink(Sink):
+    """A live preview: the latest XYZ as 8-bit sRGB (:attr:`image`), refreshed at most every ``interval_s``, and
+    written as a PNG (atomically, through :func:`specgpu.io.write_sRGB_preview`) when ``path`` is given.
+
+    Parameters
+    ----------
+    path : path, optional
+        PNG to refresh.
+    interval_s : float
+        Shortest time between two renderings, s (a preview at camera rate would cost more than the stream).
+    """
+
+    def __init__(self, path=None, interval_s: float = 0.5):
+        self.path = None if path is None else Path(path)
+        self.interval_s = float(interval_s)
+        self.image: np.ndarray | None = None
+        self.updates = 0
+        self._last = -np.inf
+
+    def write(self, result):
+        now = time.perf_counter()
+        if now - self._last < self.interval_s:
+            return
+        XYZ = result.arrays.get("XYZ")
+        if XYZ is None:
+            raise ValueError("PreviewSink needs the XYZ output of the stream")
+        import colour
+
+        with np.errstate(invalid="ignore"):
+            rgb = colour.XYZ_to_sRGB(np.nan_to_num(np.clip(XYZ, 0, None)), apply_cctf_encoding=True)
+        self.image = (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)
+        if self.path is not None:
+            from . import io
+
+            io.write_sRGB_preview(self.path, XYZ, exposure=0.0)
+        self.updates += 1
+        self._last = now
+
+
+# ------------------------------------------------------------------------------------------------------ report
+
+
+@dataclass
+class StreamReport:
+    """Counters and timings of a finished stream.
+
+    Attributes
+    ----------
+    frames_in : int
+        Frames the driver delivered (into the ring or refused by it).
+    sequences_out : int
+        Results handed to the sinks.
+    ring, assembly : RingStats, AssemblyStats
+        The frame ring's and the assembler's exact counters.
+    end : StreamEnd
+        The driver's last exposure.
+    seconds : float
+        Wall time from the first frame requested to the last result written.
+    latencies_s : numpy.ndarray
+        Per result, arrival of the last frame -> result ready (see :class:`StreamResult`).
+    cpu_s : float
+        Process CPU time (user + system) over the run, s.
+    peak_rss_bytes : int or None
+        Peak resident memory during the run (``VmHWM`` after a reset, else the process's lifetime peak).
+    interrupted : bool
+        The run ended by :meth:`Stream.stop` or Ctrl-C rather than by time or the end of the driver's stream.
+    sink_errors : list of str
+        Exceptions raised by sinks (the stream stops at the first one).
+    """
+
+    frames_in: int
+    sequences_out: int
+    ring: RingStats
+    assembly: AssemblyStats
+    end: StreamEnd
+    seconds: float
+    latencies_s: np.ndarray
+    cpu_s: float
+    peak_rss_bytes: int | None
+    interrupted: bool
+    sink_errors: list = field(default_factory=list)
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.frames_in / self.seconds if self.seconds > 0 else 0.0
+
+    @property
+    def sequences_per_s(self) -> float:
+        return self.sequences_out / self.seconds if self.seconds > 0 else 0.0
+
+    def latency_ms(self, q: float) -> float:
+        return float(np.percentile(self.latencies_s, q) * 1e3) if self.latencies_s.size else float("nan")
+
+    def accounting(self) -> dict:
+        """Where every frame went; ``balanced`` is True when the identities hold exactly:
+
+        - frames in = into the ring + refused by a full ring;
+        - into the ring = handed to the assembler + discarded unread by the ring (drop_oldest);
+        - handed to the assembler = K x sequences + duplicates + out of order + unused (incomplete sequences);
+        - sequences out = sequences complete.
+        """
+        r, a = self.ring, self.assembly
+        k = None
+        if a.sequences_complete:
+            k = (a.frames_received - a.duplicates - a.out_of_order - a.frames_unused) / a.sequences_complete
+        checks = [
+            self.frames_in == r.finalized + r.dropped_newest,
+            r.finalized == r.delivered + r.dropped_oldest + r.pending,
+            r.pending == 0,
+            a.frames_received == r.delivered,
+            self.sequences_out == a.sequences_complete,
+        ]
+        return {"frames_in": self.frames_in, "ring_dropped": r.dropped, "assembler_dropped": a.dropped,
+                "frames_in_sequences": a.frames_received - a.duplicates - a.out_of_order - a.frames_unused,
+                "frames_per_sequence": k, "frames_unused": a.frames_unused, "duplicates": a.duplicates,
+                "missed_triggers": a.missed_triggers, "sequences_discarded": a.sequences_discarded,
+                "sequences_out": self.sequences_out, "balanced": all(checks)}
+
+    def as_dict(self) -> dict:
+        return {"frames_in": self.frames_in, "sequences_out": self.sequences_out, "seconds": self.seconds,
+                "frames_per_s": self.frames_per_s, "sequences_per_s": self.sequences_per_s,
+                "latency_ms_median": self.latency_ms(50), "latency_ms_p99": self.latency_ms(99),
+                "cpu_s": self.cpu_s, "cpu_cores": self.cpu_s / self.seconds if self.seconds else 0.0,
+                "peak_rss_bytes": self.peak_rss_bytes, "interrupted": self.interrupted,
+                "ring": {k: getattr(self.ring, k) for k in self.ring.__dataclass_fields__},
+                "assembly": self.assembly.as_dict(), "accounting": self.accounting(),
+                "sink_errors": list(self.sink_errors)}
+
+
+def peak_rss_reset() -> bool:
+    """Reset the kernel's peak-RSS mark of this process (Linux ``clear_refs`` 5); False where unsupported."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_rss_bytes() -> int | None:
+    """Peak resident set size of this process since start or the last :func:`peak_rss_reset`, bytes."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+# ------------------------------------------------------------------------------------------------------ stream
+
+
+class _ArrivalDriver(CameraDriver):
+    """Wraps a driver to stamp each delivered frame's arrival (perf_counter) by frame id, for latency."""
+
+    def __init__(self, inner: CameraDriver):
+        self.inner = inner
+        self.arrivals: dict[int, float] = {}
+        self.delivered = 0
+
+    frame_shape = property(lambda self: self.inner.frame_shape)
+    dtype = property(lambda self: self.inner.dtype)
+    light = property(lambda self: self.inner.light)
+    running = property(lambda self: self.inner.running)
+
+    def start(self):
+        self.inner.start()
+
+    def stop(self) -> StreamEnd:
+        return self.inner.stop()
+
+    def fill(self, out) -> FrameInfo | None:
+        info = self.inner.fill(out)
+        if info is not None:
+            self.delivered += 1
+            if out is not None:
+                self.arrivals[info.frame_id] = time.perf_counter()
+        return info
+
+
+@dataclass
+class _InFlight:
+    index: int
+    seq: object
+    t_arrival: float
+    device_out: dict
+    host: dict
+    events: list
+    keep: list
+
+
+class Stream:
+    """A driver streamed through ring buffer, assembler, device and sinks (see the module docstring).
+
+    Parameters
+    ----------
+    driver : CameraDriver
+        Not yet started; :meth:`run` starts and stops it.
+    plan, calibration
+        The plan (K patterns, decoder A) and the calibration it was made from (checked).
+    outputs : sequence of str
+        Of :data:`STREAM_OUTPUTS`; default basis coefficients, XYZ and dE.
+    sinks : sequence of Sink or callables
+        Called in order for each result (a callable is wrapped in :class:`CallbackSink`).
+    reference, method, illuminant, cube_dtype
+        As :class:`StreamDecoder`.
+    n_slots : int
+        Frames the ring holds (>= 2 K is sensible: a sequence assembling while the next arrives).
+    policy : str
+        Frame ring policy when full: ``"drop_newest"`` (default: the camera never waits), ``"drop_oldest"`` or
+        ``"block"`` (the driver waits: for replayed or simulated frames, measures the pipeline's own rate).
+    in_flight : int
+        Sequences enqueued on the device before the device thread waits for the oldest.
+    result_buffers : int
+        Sequences between upload and the end of the sinks (>= in_flight); the bound on result memory.
+    readback : {"map", "copy"}
+        Results read by mapping the device outputs (zero copy on CPU devices) or copied to host arrays.
+    upload : {"copy", "host_ptr"}
+        Frames copied into a device buffer, or wrapped as a ``USE_HOST_PTR`` buffer (zero copy on CPU devices).
+    align : str
+        Assembler alignment, ``"index"`` or ``"sync"`` (then ``sync_max_dn`` is required).
+    device : optional
+        OpenCL device selector (see :mod:`specgpu.runtime`).
+    """
+
+    def __init__(self, driver: CameraDriver, plan, calibration, *, outputs=("coefficients", "XYZ", "dE"),
+                 sinks=(), reference=None, method: str = "CIE 2000", illuminant: str = "D65",
+                 cube_dtype=np.float16, n_slots: int = 64, policy: str = "drop_newest", in_flight: int = 3,
+                 result_buffers: int = 6, readback: str = "map", upload: str = "copy", align: str = "index",
+                 sync_max_dn: float | None = None, device=None):
+        plan.check_calibration(calibration, name="stream plan")
+        if policy not in POLICIES:
+            raise ValueError(f"unknown ring policy {policy!r}; valid policies: {', '.join(POLICIES)}")
+        if readback not in READBACKS:
+            raise ValueError(f"unknown readback {readback!r}; valid: {', '.join(READBACKS)}")
+        if upload not in UPLOADS:
+            raise ValueError(f"unknown upload {upload!r}; valid: {', '.join(UPLOADS)}")
+        if int(in_flight) < 1 or int(result_buffers) < int(in_flight):
+            raise ValueError(f"need 1 <= in_flight <= result_buffers, got {in_flight} and {result_buffers}")
+        self.driver = _ArrivalDriver(driver)
+        self.plan = plan
+        self.queue = get_queue(device)
+        self.decoder = StreamDecoder(plan, calibration, outputs, frame_shape=driver.frame_shape, queue=self.queue,
+                                     reference=reference, method=method, illuminant=illuminant,
+                                     cube_dtype=cube_dtype)
+        self.sinks = [s if isinstance(s, Sink) else CallbackSink(s) for s in sinks]
+        self.n_slots, self.policy = int(n_slots), policy
+        self.in_flight, self.result_buffers = int(in_flight), int(result_buffers)
+        self.readback, self.upload = readback, upload
+        self.align, self.sync_max_dn = align, sync_max_dn
+        self._stop = threading.Event()
+        self._interrupted = False
+        self._status_lock = threading.Lock()
+        self.ring: RingBuffer | None = None
+        self.assembler: SequenceAssembler | None = None
+        self.sequences_out = 0
+        self.latencies: list[float] = []
+
+    # ---- control ---------------------------------------------------------------------------------------------
+    def stop(self) -> None:
+        """Ask the stream to end: the producer stops, everything already captured is still processed."""
+        self._interrupted = True
+        self._stop.set()
+
+    def status(self) -> dict:
+        """A live snapshot: frames in, sequences out, drops, latency of the latest results (thread-safe)."""
+        ring = self.ring.stats() if self.ring is not None else None
+        with self._status_lock:
+            lat = self.latencies[-64:]
+            out = self.sequences_out
+        a = self.assembler.stats if self.assembler is not None else AssemblyStats()
+        return {"frames_in": self.driver.delivered, "sequences_out": out,
+                "ring_dropped": ring.dropped if ring else 0, "assembler_dropped": a.dropped,
+                "discarded": a.sequences_discarded, "pending": ring.pending if ring else 0,
+                "latency_ms": float(np.median(lat) * 1e3) if lat else float("nan")}
+
+    # ---- the run ---------------------------------------------------------------------------------------------
+    def run(self, seconds: float | None = None, *, on_status=None, status_interval_s: float = 0.5) -> StreamReport:
+        """Stream until ``seconds`` have passed, the driver's stream ends, :meth:`stop` is called or Ctrl-C.
+
+        Parameters
+        ----------
+        seconds : float, optional
+            Capture time limit (the frames captured by then are still processed).
+        on_status : callable, optional
+            Given :meth:`status` every ``status_interval_s`` from the calling thread (a live status line).
+
+        Returns
+        -------
+        StreamReport
+        """
+        shape = tuple(self.driver.frame_shape)
+        if shape != (self.decoder.height, self.decoder.width):
+            raise ValueError(f"driver frames are {shape}, the decoder was set up for "
+                             f"{(self.decoder.height, self.decoder.width)}")
+        self.ring = ring = RingBuffer(self.n_slots, shape, self.driver.dtype, self.policy)
+        self.assembler = SequenceAssembler(self.plan.K, align=self.align, sync_max_dn=self.sync_max_dn)
+        self._stop.clear()
+        self._interrupted = False
+        self.sequences_out = 0
+        self.latencies = []
+        self._errors: list[BaseException] = []
+        self._sink_errors: list[str] = []
+        self._tokens = threading.Semaphore(self.result_buffers)
+        self._done: queue_module.Queue = queue_module.Queue()
+        self._recycle: deque = deque()
+        self._ended = threading.Event()
+        peak_rss_reset()
+        usage0 = resource.getrusage(resource.RUSAGE_SELF)
+        t0 = time.perf_counter()
+        self.driver.start()
+        producer = threading.Thread(target=self._produce, name="specgpu-stream-capture", daemon=True)
+        device = threading.Thread(target=self._device_loop, name="specgpu-stream-device", daemon=True)
+        sinks = threading.Thread(target=self._sink_loop, name="specgpu-stream-sinks", daemon=True)
+        for t in (producer, device, sinks):
+            t.start()
+        deadline = None if seconds is None else t0 + float(seconds)
+        next_status = t0 + status_interval_s
+        try:
+            while sinks.is_alive():
+                now = time.perf_counter()
+                if deadline is not None and now >= deadline:
+                    self._stop.set()
+                    deadline = None
+                if on_status is not None and now >= next_status:
+                    on_status(self.status())
+                    next_status = now + status_interval_s
+                sinks.join(0.05)
+        except KeyboardInterrupt:
+            self.stop()  # drain: the threads finish what was captured
+            producer.join()
+            device.join()
+            sinks.join()
+        finally:
+            self._stop.set()
+            producer.join()
+            device.join()
+            sinks.join()
+            ring.close()
+        end = self.driver.stop()
+        seconds_run = time.perf_counter() - t0
+        usage1 = resource.getrusage(resource.RUSAGE_SELF)
+        if self._errors:
+            raise self._errors[0]
+        stats = self.assembler.finish(end)
+        if on_status is not None:
+            on_status(self.status())
+        return StreamReport(
+            frames_in=self.driver.delivered, sequences_out=self.sequences_out, ring=ring.stats(), assembly=stats,
+            end=end, seconds=seconds_run, latencies_s=np.asarray(self.latencies),
+            cpu_s=(usage1.ru_utime + usage1.ru_stime) - (usage0.ru_utime + usage0.ru_stime),
+            peak_rss_bytes=peak_rss_bytes(), interrupted=self._interrupted, sink_errors=self._sink_errors)
+
+    def _produce(self):
+        try:
+            run_producer(self.driver, self.ring, stop_event=self._stop)
+        except BaseException as exc:  # surfaced by run()
+            self._errors.append(exc)
+            self._stop.set()
+            self.ring.close()
+
+    # ---- device thread ---------------------------------------------------------------------------------------
+    def _device_loop(self):
+        pending: deque[_InFlight] = deque()
+        index = 0
+        try:
+            while True:
+                self._recycle_done()
+                slot = self.ring.get(timeout=0.002 if pending else 0.05)
+                if slot is None:
+                    if pending:  # idle: finish what the device holds rather than sit on it
+                        self._complete(pending.popleft())
+                        continue
+                    if self.ring.closed and self.ring.stats().pending == 0:
+                        break
+                    continue
+                try:
+                    seq = self.assembler.push(slot.array, slot.info)
+                finally:
+                    self.ring.release(slot)
+                arrival = self.driver.arrivals.pop(slot.info.frame_id, None)
+                if seq is None:
+                    continue
+                pending.append(self._submit(index, seq, arrival))
+                index += 1
+                while len(pending) > self.in_flight:
+                    self._complete(pending.popleft())
+                while pending and _finished(pending[0].events):
+                    self._complete(pending.popleft())
+            while pending:
+                self._complete(pending.popleft())
+        except BaseException as exc:  # surfaced by run()
+            self._errors.append(exc)
+            self._stop.set()
+            self.ring.close()
+        finally:
+            self._done.put(None)
+
+    def _acquire_token(self):
+        while not self._tokens.acquire(timeout=0.05):
+            self._recycle_done()
+            if self._errors:
+                raise RuntimeError("stream: stopped on an error while waiting for a result buffer")
+
+    def _submit(self, index: int, seq, arrival) -> _InFlight:
+        self._acquire_token()  # a slow sink holds every buffer: wait here, and the frame ring's policy acts
+        q, dec = self.queue, self.decoder
+        keep = [seq]
+        flat = seq.frames.reshape(-1)
+        if self.upload == "host_ptr":
+            buf = cl.Buffer(q.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=flat)
+            frames = cla.Array(q, flat.shape, flat.dtype, data=buf)
+            keep.append(buf)
+        else:
+            frames = cla.empty(q, flat.shape, flat.dtype, allocator=get_allocator(q))
+            cl.enqueue_copy(q, frames.data, flat, is_blocking=False)
+        keep.append(frames)
+        outs = dec.enqueue(frames)
+        shapes = dec.shapes()
+        host, events = {}, []
+        for name, dev in outs.items():
+            shape, dtype = shapes[name]
+            if self.readback == "map":
+                arr, ev = cl.enqueue_map_buffer(q, dev.base_data, cl.map_flags.READ, dev.offset, shape, dtype,
+                                                is_blocking=False)
+            else:
+                arr = np.empty(shape, dtype)
+                ev = cl.enqueue_copy(q, arr, dev.data, is_blocking=False)
+            host[name] = arr
+            events.append(ev)
+        q.flush()  # start the device now, not at the next blocking call
+        return _InFlight(index, seq, arrival if arrival is not None else time.perf_counter(), outs, host, events,
+                         keep)
+
+    def _complete(self, item: _InFlight):
+        cl.wait_for_events(item.events)
+        t = time.perf_counter()
+        result = StreamResult(item.index, item.seq.cycle, item.seq.frame_ids, item.seq.timestamps_s, item.host,
+                              t - item.t_arrival)
+        item.keep = [item.seq]  # frames and their device buffer are no longer needed
+        self._done.put((item, result))
+
+    def _recycle_done(self):
+        # Unmaps and frees run on the device thread: the queue and the memory pool are used from one thread.
+        while self._recycle:
+            item = self._recycle.popleft()
+            if self.readback == "map":
+                for arr in item.host.values():
+                    arr.base.release(self.queue)
+            item.host = item.device_out = item.keep = None
+            self._tokens.release()
+
+    # ---- sink thread -----------------------------------------------------------------------------------------
+    def _sink_loop(self):
+        try:
+            while True:
+                entry = self._done.get()
+                if entry is None:
+                    break
+                item, result = entry
+                try:
+                    if not self._sink_errors:
+                        for sink in self.sinks:
+                            sink.write(result)
+                except Exception as exc:  # noqa: BLE001 (reported; the stream stops and drains)
+                    self._sink_errors.append(f"{type(exc).__name__}: {exc}")
+                    self._stop.set()
+                with self._status_lock:
+                    self.sequences_out += 1
+                    self.latencies.append(result.latency_s)
+                self._recycle.append(item)
+        finally:
+            for sink in self.sinks:
+                try:
+                    sink.close()
+                except Exception as exc:  # noqa: BLE001
+                    self._sink_errors.append(f"{type(exc).__name__} closing {type(sink).__name__}: {exc}")
+
+
+def _finished(events) -> bool:
+    return all(ev.command_execution_status == cl.command_execution_status.COMPLETE for ev in events)
