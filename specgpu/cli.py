@@ -36,11 +36,20 @@ def main():
 
 @main.command()
 @click.option("--device", "device", default=None, help="Device selector: 'P:D' indices or a name substring.")
-def info(device):
-    """OpenCL platforms and devices, the one chosen, and versions."""
+@click.option("--devices", "usb", is_flag=True, help="Also list the USB devices found (light sources specgpu drives).")
+def info(device, usb):
+    """OpenCL platforms and devices, the one chosen, and versions; with --devices, the USB devices."""
     from .runtime import describe
 
     click.echo(describe(device))
+    if usb:
+        from .hardware.usb import list_usb_devices
+
+        found = list_usb_devices()
+        click.echo(f"USB devices: {len(found)}" + ("" if found else " (none)"))
+        for dev in found:
+            known = f"  <- {dev.description} ({dev.backend})" if dev.backend else ""
+            click.echo(f"  {dev.vendor_id:04x}:{dev.product_id:04x} bus {dev.bus} address {dev.address}{known}")
 
 
 @main.command()
@@ -81,6 +90,16 @@ _RIG = click.option("--rig", "rig_path", type=click.Path(dir_okay=False), defaul
                     help="Rig description TOML (default: the paper's rig, simulated by the digital twin).")
 
 
+def _hardware(description):
+    """The rig's [hardware] table checked (None for the twin)."""
+    if not description.hardware:
+        return None
+    from .hardware.rig import HardwareConfig
+
+    return HardwareConfig.from_dict(description.hardware, source=description.source,
+                                    base_dir=description.base_dir or None)
+
+
 class _Busy:
     """A progress line with elapsed time for a step of unknown length (tqdm, refreshed from a thread)."""
 
@@ -117,6 +136,9 @@ def calibrate(rig_path, out, seed):
     from .rig.config import load_rig
 
     description = load_rig(rig_path)
+    if _hardware(description) is not None:
+        raise click.ClickException(f"{rig_path}: calibration runs on the digital twin only for now; the hardware "
+                                   "drivers (specgpu.hardware) exist, the feedback loops through them do not yet")
     with _Busy("calibrating"):
         bundle = run(description, seed=seed)
     digest = save_calibration(out, bundle)
@@ -213,6 +235,7 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
     from .rig.scene import load_scene
 
     description = load_rig(rig_path)
+    hardware = _hardware(description)
     bundle = load_calibration(calib, rig=description)
     plan = load_plan(plan_path)
     plan.check_calibration(bundle, name=str(plan_path))
@@ -224,7 +247,15 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
             kept.append(sequence)
             bar.update()
 
-        result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed, on_sequence=keep)
+        if hardware is None:
+            result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed, on_sequence=keep)
+        else:  # real devices: the same ring buffer and assembler, the plan uploaded to the light
+            from .capture.session import capture_sequences
+            from .hardware.rig import open_hardware
+
+            driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle,
+                                   n_frames=plan.K * sequences)
+            result = capture_sequences(driver, plan.K, on_sequence=keep)
     write_capture(out, kept, result.assembly, plan_path, calib,
                   metadata={"scene": truth.name, "rig": rig_path or "<paper defaults>"})
     a = result.assembly

@@ -205,3 +205,28 @@ def test_bad_rig_toml(tmp_path):
     one_line_error(run("calibrate", "--rig", tmp_path / "rig.toml", "--out", tmp_path / "c.npz", ok=False),
                    "rig.toml", "roi_widht")
     assert not (tmp_path / "c.npz").exists()
+
+
+def test_rig_naming_hardware(work, tmp_path):
+    """A [hardware] table selects real devices: checked, and each missing piece is a one-line error."""
+    (tmp_path / "typo.toml").write_text(RIG + '[hardware]\nligth = "dlpc900"\n')
+    one_line_error(run("capture", "--rig", tmp_path / "typo.toml", "--plan", work / "sym.npz", "--calib",
+                       work / "calib.npz", "--out", tmp_path / "seq", ok=False), "unknown key hardware.ligth")
+    (tmp_path / "hw.toml").write_text(RIG + '[hardware]\nlight = "dlpc900-simulated"\n')
+    one_line_error(run("calibrate", "--rig", tmp_path / "hw.toml", "--out", tmp_path / "c.npz", ok=False),
+                   "digital twin only")
+    result = run("capture", "--rig", tmp_path / "hw.toml", "--plan", work / "sym.npz", "--calib",
+                 work / "calib.npz", "--scene", "colorchecker", "--out", tmp_path / "seq", ok=False)
+    try:
+        import harvesters  # noqa: F401
+    except ImportError:
+        one_line_error(result, "harvesters")
+    assert not (tmp_path / "seq" / "sequence.json").exists()
+
+
+def test_info_devices_lists_usb_or_says_what_is_missing():
+    result = run("info", "--devices", ok=False)
+    if result.exit_code == 0:
+        assert "USB devices:" in result.output
+    else:
+        one_line_error(result, "libusb")

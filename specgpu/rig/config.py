@@ -88,6 +88,12 @@ class RigDescription:
     spectroradiometer : SpectroradiometerParameters
     source : str
         Where the description came from (a file path or ``"<defaults>"``), for messages.
+    hardware : dict
+        The ``[hardware]`` table naming real devices (empty: the digital twin). It is kept as given here and
+        checked by :class:`specgpu.hardware.rig.HardwareConfig` where it is used (the rig model never imports
+        the drivers); relative file paths in it resolve against ``base_dir``.
+    base_dir : str
+        Folder of the TOML file ("" for descriptions not read from a file).
     """
 
     light: LightParameters = field(default_factory=LightParameters)
@@ -98,6 +104,8 @@ class RigDescription:
     faults: FaultRates = field(default_factory=FaultRates)
     source: str = "<defaults>"
     spectroradiometer: SpectroradiometerParameters = field(default_factory=SpectroradiometerParameters)
+    hardware: dict = field(default_factory=dict)
+    base_dir: str = field(default="", compare=False)  # provenance, like source: not part of the rig
 
     def __post_init__(self):
         check_number("twin.seed", self.seed, low=0, high=2**63 - 1, integer=True)
@@ -113,10 +121,11 @@ class RigDescription:
             "twin": {"seed": self.seed, "pacing": self.pacing},
             "faults": dataclasses.asdict(self.faults),
             "spectroradiometer": dataclasses.asdict(self.spectroradiometer),
+            **({"hardware": dict(self.hardware)} if self.hardware else {}),
         }
 
 
-_TABLES = ("light", "camera", "scene", "twin", "faults", "spectroradiometer")
+_TABLES = ("light", "camera", "scene", "twin", "faults", "spectroradiometer", "hardware")
 _PATH_KEYS = {("light", "lamp"), ("camera", "sensitivity")}
 
 
@@ -197,9 +206,14 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
     pacing = twin.get("pacing", "free")
     faults = _build(FaultRates, data.get("faults", {}), "faults", source, base)
     meter = _build(SpectroradiometerParameters, data.get("spectroradiometer", {}), "spectroradiometer", source, base)
+    hardware = dict(data.get("hardware", {}))
+    for key, value in hardware.items():
+        if isinstance(value, (dict, list)):
+            raise ValueError(f"{source}: hardware.{key} must be a string or a number, got {value!r}")
     try:
         return RigDescription(light=light, camera=camera, scene=scene, seed=seed, pacing=pacing, faults=faults,
-                              source=source, spectroradiometer=meter)
+                              source=source, spectroradiometer=meter, hardware=hardware,
+                              base_dir=str(base) if base is not None else "")
     except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
 
