@@ -107,8 +107,10 @@ class ProjectionReport:
     """Produced vs target spectrum of the projector, on the spectroradiometer's grid.
 
     ``target`` and ``produced`` are normalised to 100 at 560 nm (the CIE convention for relative SPDs), and
-    ``rmse`` is in those units; ``relative_rmse`` is the loop's criterion (RMS over the target's support divided
-    by its maximum).
+    ``rmse`` (over the light's whole range) and ``rmse_400_700`` (over 400-700 nm) are in those units;
+    ``relative_rmse`` is the loop's criterion (RMS over the target's support divided by its maximum). At the ends
+    of the grating's range the light cannot follow a target at full level (half the slit function falls outside
+    it), which dominates ``rmse`` for targets that are high there (A at 780 nm).
     """
 
     name: str
@@ -116,6 +118,7 @@ class ProjectionReport:
     target: np.ndarray
     produced: np.ndarray
     rmse: float
+    rmse_400_700: float
     relative_rmse: float
     target_colour: dict
     produced_colour: dict
@@ -123,7 +126,8 @@ class ProjectionReport:
     patterns: np.ndarray | None = None
 
     def summary(self) -> dict:
-        return {"name": self.name, "rmse": self.rmse, "relative_rmse": self.relative_rmse,
+        return {"name": self.name, "rmse": self.rmse, "rmse_400_700": self.rmse_400_700,
+                "relative_rmse": self.relative_rmse,
                 "target": self.target_colour, "produced": self.produced_colour, "loop": self.loop}
 
 
@@ -166,9 +170,11 @@ def project(target, *, rig=None, bundle=None, tolerance: float = 0.01, max_itera
     target_100 = 100 * result.targets / norm_t
     produced_100 = 100 * result.outputs / norm_p
     inside = result.targets > 0
+    visible = inside & (inst >= 400.0) & (inst <= 700.0)
     return ProjectionReport(
         name=str(sd.name), wavelengths=inst, target=target_100, produced=produced_100,
         rmse=float(np.sqrt(np.mean((produced_100 - target_100)[inside] ** 2))),
+        rmse_400_700=float(np.sqrt(np.mean((produced_100 - target_100)[visible] ** 2))),
         relative_rmse=float(result.residual),
         target_colour=spectrum_report(inst, target_100), produced_colour=spectrum_report(inst, produced_100),
         loop=result.summary(), patterns=result.patterns,
