@@ -58,8 +58,8 @@ __all__ = [
 
 #: What a stream can compute per sequence, and the channel count / dtype of each map.
 STREAM_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE")
-READBACKS = ("map", "copy")
-UPLOADS = ("copy", "host_ptr")
+READBACKS = ("auto", "map", "copy")
+UPLOADS = ("auto", "host_ptr", "pinned", "copy")
 
 
 # ------------------------------------------------------------------------------------------------- the decoder
@@ -169,6 +169,14 @@ class StreamDecoder:
             else:
                 out[name] = ((h, w), np.dtype(np.float32))
         return out
+
+    def warm_up(self, dtype=np.uint16) -> None:
+        """Build every kernel and prime the memory pool on a blank sequence, so the clock of a stream never pays
+        for a program build."""
+        blank = cla.zeros(self.queue, (self.K * self.n,), np.dtype(dtype), allocator=get_allocator(self.queue))
+        outs = self.enqueue(blank)
+        self.queue.finish()
+        del outs
 
     def enqueue(self, frames: cla.Array) -> dict[str, cla.Array]:
         """Enqueue every kernel on the K frames (flat device array); returns the flat device outputs."""
@@ -579,7 +587,8 @@ class StreamReport:
                 "latency_ms_median": self.latency_ms(50), "latency_ms_p99": self.latency_ms(99),
                 "cpu_s": self.cpu_s, "cpu_cores": self.cpu_s / self.seconds if self.seconds else 0.0,
                 "peak_rss_bytes": self.peak_rss_bytes, "interrupted": self.interrupted,
-                "ring": {k: getattr(self.ring, k) for k in self.ring.__dataclass_fields__},
+                "ring": {**{k: getattr(self.ring, k) for k in self.ring.__dataclass_fields__},
+                         "dropped": self.ring.dropped},
                 "assembly": self.assembly.as_dict(), "accounting": self.accounting(),
                 "sink_errors": list(self.sink_errors)}
 
@@ -609,12 +618,22 @@ def peak_rss_bytes() -> int | None:
 
 
 class _ArrivalDriver(CameraDriver):
-    """Wraps a driver to stamp each delivered frame's arrival (perf_counter) by frame id, for latency."""
+    """Wraps the stream's driver: stamps each delivered frame's arrival (perf_counter) by frame id, for latency,
+    and ends the stream at a sequence boundary once ``stop`` is set.
 
-    def __init__(self, inner: CameraDriver):
+    After a stop request the camera keeps being read until the light has shown the sequence's last pattern, so
+    the sequence being exposed is completed rather than cut (at most K more frames: with missed triggers the last
+    pattern may never come, and the partial sequence is then reported by the assembler).
+    """
+
+    def __init__(self, inner: CameraDriver, n_patterns: int, stop: threading.Event):
         self.inner = inner
+        self.k = n_patterns
+        self.stop_event = stop
         self.arrivals: dict[int, float] = {}
         self.delivered = 0
+        self._last_pattern = n_patterns - 1
+        self._after_stop = 0
 
     frame_shape = property(lambda self: self.inner.frame_shape)
     dtype = property(lambda self: self.inner.dtype)
@@ -622,15 +641,24 @@ class _ArrivalDriver(CameraDriver):
     running = property(lambda self: self.inner.running)
 
     def start(self):
+        self.delivered = 0
+        self._last_pattern = self.k - 1
+        self._after_stop = 0
+        self.arrivals.clear()
         self.inner.start()
 
     def stop(self) -> StreamEnd:
         return self.inner.stop()
 
     def fill(self, out) -> FrameInfo | None:
+        if self.stop_event.is_set():
+            if self._last_pattern == self.k - 1 or self._after_stop >= self.k:
+                return None
+            self._after_stop += 1
         info = self.inner.fill(out)
         if info is not None:
             self.delivered += 1
+            self._last_pattern = int(info.pattern_index)
             if out is not None:
                 self.arrivals[info.frame_id] = time.perf_counter()
         return info
@@ -645,6 +673,7 @@ class _InFlight:
     host: dict
     events: list
     keep: list
+    pinned: object = None
 
 
 class Stream:
@@ -659,11 +688,12 @@ class Stream:
     outputs : sequence of str
         Of :data:`STREAM_OUTPUTS`; default basis coefficients, XYZ and dE.
     sinks : sequence of Sink or callables
-        Called in order for each result (a callable is wrapped in :class:`CallbackSink`).
+        Called in order for each result: any object with ``write(result)`` (and optionally ``close()``), or a
+        callable (wrapped in :class:`CallbackSink`).
     reference, method, illuminant, cube_dtype
         As :class:`StreamDecoder`.
-    n_slots : int
-        Frames the ring holds (>= 2 K is sensible: a sequence assembling while the next arrives).
+    n_slots : int, optional
+        Frames the ring holds (default 4 K, at least 16: room for jitter without adding latency at saturation).
     policy : str
         Frame ring policy when full: ``"drop_newest"`` (default: the camera never waits), ``"drop_oldest"`` or
         ``"block"`` (the driver waits: for replayed or simulated frames, measures the pipeline's own rate).
@@ -671,10 +701,16 @@ class Stream:
         Sequences enqueued on the device before the device thread waits for the oldest.
     result_buffers : int
         Sequences between upload and the end of the sinks (>= in_flight); the bound on result memory.
-    readback : {"map", "copy"}
-        Results read by mapping the device outputs (zero copy on CPU devices) or copied to host arrays.
-    upload : {"copy", "host_ptr"}
-        Frames copied into a device buffer, or wrapped as a ``USE_HOST_PTR`` buffer (zero copy on CPU devices).
+    readback : {"auto", "map", "copy"}
+        Results read by mapping the device outputs (zero copy on CPU devices) or copied into host arrays;
+        ``"auto"``: map on CPU devices, copy elsewhere.
+    upload : {"auto", "host_ptr", "pinned", "copy"}
+        Frames wrapped as a ``USE_HOST_PTR`` buffer (zero copy on CPU devices: the assembled sequence is the device
+        buffer), copied into mapped ``ALLOC_HOST_PTR`` buffers (pinned staging, one per result buffer: what a
+        discrete GPU transfers from by DMA), or copied by ``enqueue_copy`` into a pooled device buffer;
+        ``"auto"``: host_ptr on CPU devices, pinned elsewhere.
+        Measured on PoCL, 640 x 480, coefficients + XYZ + dE2000: host_ptr + map sustained ~800 frames/s where
+        copy + copy reached ~500 (tools/stream_bench.py --compare-transfers).
     align : str
         Assembler alignment, ``"index"`` or ``"sync"`` (then ``sync_max_dn`` is required).
     device : optional
@@ -683,8 +719,8 @@ class Stream:
 
     def __init__(self, driver: CameraDriver, plan, calibration, *, outputs=("coefficients", "XYZ", "dE"),
                  sinks=(), reference=None, method: str = "CIE 2000", illuminant: str = "D65",
-                 cube_dtype=np.float16, n_slots: int = 64, policy: str = "drop_newest", in_flight: int = 3,
-                 result_buffers: int = 6, readback: str = "map", upload: str = "copy", align: str = "index",
+                 cube_dtype=np.float16, n_slots: int | None = None, policy: str = "drop_newest", in_flight: int = 3,
+                 result_buffers: int = 6, readback: str = "auto", upload: str = "auto", align: str = "index",
                  sync_max_dn: float | None = None, device=None):
         plan.check_calibration(calibration, name="stream plan")
         if policy not in POLICIES:
@@ -695,18 +731,21 @@ class Stream:
             raise ValueError(f"unknown upload {upload!r}; valid: {', '.join(UPLOADS)}")
         if int(in_flight) < 1 or int(result_buffers) < int(in_flight):
             raise ValueError(f"need 1 <= in_flight <= result_buffers, got {in_flight} and {result_buffers}")
-        self.driver = _ArrivalDriver(driver)
+        self._stop = threading.Event()
+        self.driver = _ArrivalDriver(driver, plan.K, self._stop)
         self.plan = plan
         self.queue = get_queue(device)
         self.decoder = StreamDecoder(plan, calibration, outputs, frame_shape=driver.frame_shape, queue=self.queue,
                                      reference=reference, method=method, illuminant=illuminant,
                                      cube_dtype=cube_dtype)
-        self.sinks = [s if isinstance(s, Sink) else CallbackSink(s) for s in sinks]
-        self.n_slots, self.policy = int(n_slots), policy
+        self.sinks = [s if callable(getattr(s, "write", None)) else CallbackSink(s) for s in sinks]
+        self.n_slots = max(4 * plan.K, 16) if n_slots is None else int(n_slots)
+        self.policy = policy
         self.in_flight, self.result_buffers = int(in_flight), int(result_buffers)
-        self.readback, self.upload = readback, upload
+        on_cpu = bool(self.queue.device.type & cl.device_type.CPU)
+        self.readback = ("map" if on_cpu else "copy") if readback == "auto" else readback
+        self.upload = ("host_ptr" if on_cpu else "pinned") if upload == "auto" else upload
         self.align, self.sync_max_dn = align, sync_max_dn
-        self._stop = threading.Event()
         self._interrupted = False
         self._status_lock = threading.Lock()
         self.ring: RingBuffer | None = None
@@ -762,7 +801,12 @@ class Stream:
         self._tokens = threading.Semaphore(self.result_buffers)
         self._done: queue_module.Queue = queue_module.Queue()
         self._recycle: deque = deque()
+        nbytes = self.plan.K * self.decoder.n * np.dtype(self.driver.dtype).itemsize
+        self._pinned: deque = deque(
+            cl.Buffer(self.queue.context, cl.mem_flags.READ_ONLY | cl.mem_flags.ALLOC_HOST_PTR, nbytes)
+            for _ in range(self.result_buffers if self.upload == "pinned" else 0))
         self._ended = threading.Event()
+        self.decoder.warm_up(self.driver.dtype)
         peak_rss_reset()
         usage0 = resource.getrusage(resource.RUSAGE_SELF)
         t0 = time.perf_counter()
@@ -795,6 +839,7 @@ class Stream:
             device.join()
             sinks.join()
             ring.close()
+            get_allocator(self.queue).free_held()  # the stream's buffers go back to the system, not to the pool
         end = self.driver.stop()
         seconds_run = time.perf_counter() - t0
         usage1 = resource.getrusage(resource.RUSAGE_SELF)
@@ -811,7 +856,7 @@ class Stream:
 
     def _produce(self):
         try:
-            run_producer(self.driver, self.ring, stop_event=self._stop)
+            run_producer(self.driver, self.ring)  # ends at a sequence boundary after stop
         except BaseException as exc:  # surfaced by run()
             self._errors.append(exc)
             self._stop.set()
@@ -869,6 +914,14 @@ class Stream:
             buf = cl.Buffer(q.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=flat)
             frames = cla.Array(q, flat.shape, flat.dtype, data=buf)
             keep.append(buf)
+        elif self.upload == "pinned":
+            buf = self._pinned.popleft()  # one per result token: never empty here
+            staging, _ = cl.enqueue_map_buffer(q, buf, cl.map_flags.WRITE_INVALIDATE_REGION, 0, flat.shape,
+                                               flat.dtype, is_blocking=True)
+            np.copyto(staging, flat)
+            staging.base.release(q)
+            frames = cla.Array(q, flat.shape, flat.dtype, data=buf)
+            keep.append(buf)
         else:
             frames = cla.empty(q, flat.shape, flat.dtype, allocator=get_allocator(q))
             cl.enqueue_copy(q, frames.data, flat, is_blocking=False)
@@ -895,6 +948,8 @@ class Stream:
         t = time.perf_counter()
         result = StreamResult(item.index, item.seq.cycle, item.seq.frame_ids, item.seq.timestamps_s, item.host,
                               t - item.t_arrival)
+        if self.upload == "pinned":
+            item.pinned = item.keep[1]
         item.keep = [item.seq]  # frames and their device buffer are no longer needed
         self._done.put((item, result))
 
@@ -905,6 +960,8 @@ class Stream:
             if self.readback == "map":
                 for arr in item.host.values():
                     arr.base.release(self.queue)
+            if self.upload == "pinned":
+                self._pinned.append(item.pinned)
             item.host = item.device_out = item.keep = None
             self._tokens.release()
 
@@ -930,7 +987,7 @@ class Stream:
         finally:
             for sink in self.sinks:
                 try:
-                    sink.close()
+                    getattr(sink, "close", lambda: None)()
                 except Exception as exc:  # noqa: BLE001
                     self._sink_errors.append(f"{type(exc).__name__} closing {type(sink).__name__}: {exc}")
 
