@@ -7,8 +7,8 @@
 - Loop (b), spectroradiometer (:func:`spectral_loop`): adjust one pattern until the measured spectrum matches a
   target spectral irradiance (for colorimetry and spectral rendering).
 
-:func:`calibrate` runs the whole procedure on a rig (the twin by default) through the capture path (driver, ring
-buffer, assembler) and returns a :class:`CalibrationBundle`: the lamp's per-column power and the
+:func:`calibrate` runs the whole procedure on a rig through the capture path (driver, ring buffer, assembler) and
+returns a :class:`CalibrationBundle`: the lamp's per-column power and the
 column-wavelength map (from the spectroradiometer), the V estimate and the 1/V sequence (loop (a)), the dark
 level and the flat field (from the camera). The bundle is the planner's model of the rig::
 
@@ -17,7 +17,12 @@ level and the flat field (from the camera). The bundle is the planner's model of
 
 with ``n_kc`` the mirror counts, ``P_c`` the column power, ``g`` the unit-area Gaussian slit function,
 ``rho`` the responsivity (DN per second per unit irradiance per nm, on reflectance 1 at the spot centre after
-flat fielding) and ``t`` the exposure. :func:`oracle_calibration` builds the same bundle from the twin's ground
+flat fielding) and ``t`` the exposure.
+
+The procedure is written once against :class:`CalibrationRig`, the little a calibration needs from a rig (capture
+a mean frame stack at an exposure, measure a loaded pattern's spectrum, the light's model and the camera's limits);
+:class:`TwinCalibrationRig` is the digital twin's and :class:`specgpu.hardware.rig.HardwareCalibrationRig` a real
+rig's (DLPC900 light, GenICam camera, Ocean spectrometer). :func:`oracle_calibration` builds the same bundle from the twin's ground
 truth, for tests that need the model to be exact.
 
 A bundle is saved as a versioned ``.npz`` with a content hash (:func:`save_calibration`); loading checks the
@@ -31,6 +36,7 @@ import json
 import math
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -40,6 +46,9 @@ from specgpu.rig.scene import interpolation_matrix, white_plate_scene
 
 __all__ = [
     "CalibrationBundle",
+    "CalibrationRig",
+    "TwinCalibrationRig",
+    "as_calibration_rig",
     "LoopResult",
     "calibrate",
     "camera_loop",
@@ -384,9 +393,142 @@ def _rig(description, scene, exposure_s=None, seed=None):
     return TwinRig(d, scene=scene, seed=seed)
 
 
+# ---- the rig interface of calibration -------------------------------------------------------------------------
+@runtime_checkable
+class CalibrationRig(Protocol):
+    """What the calibration procedure reads from a rig (twin or hardware), and nothing more.
+
+    Attributes
+    ----------
+    light
+        The light source: ``params`` (columns, rows, ``line_fwhm_nm``, ``switch_time_s``), ``wavelengths`` (its
+        uniform grid, nm), ``column_wavelengths``, ``minimum_exposure_s`` (s), ``load_sequence((K, C))`` and
+        ``check_pattern``.
+    spectroradiometer
+        ``wavelengths`` (nm, the instrument's output grid) and ``params.bandwidth_nm``.
+    exposure_s : float
+        The calibration exposure (s): the dark level is measured at it; other exposures are asked for by value.
+    frame_shape : tuple of int
+        (H, W) of the camera's frames.
+    max_code : int
+        Top ADC code of the frames (DN).
+    frame_period_s : float
+        Frame period at the calibration exposure (s); the longest exposure is this less the light's switch time.
+    max_spectrum : numpy.ndarray or None
+        (G,) the light's spectral irradiance with every mirror on (W m^-2 nm^-1) when the rig knows it (the twin);
+        ``None`` on hardware, where calibration uses the spectroradiometer's all-on reading instead.
+    """
+
+    light: object
+    spectroradiometer: object
+    exposure_s: float
+    frame_shape: tuple
+    max_code: int
+    frame_period_s: float
+    max_spectrum: np.ndarray | None
+
+    def capture_mean(self, patterns, repeats: int, *, exposure_s: float | None = None,
+                     noise_seed: int | None = None) -> np.ndarray:
+        """(K, H, W) float64 mean of ``repeats`` captured sequences of ``patterns`` (K, C) mirror counts, at
+        ``exposure_s`` (the calibration exposure by default). ``noise_seed`` gives simulated frames fresh temporal
+        noise; real frames always have it, so hardware ignores it."""
+
+    def measure_spectrum(self, pattern_index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Show loaded pattern ``pattern_index`` and read the spectroradiometer: (wavelengths nm, W m^-2 nm^-1)."""
+
+    def zero_spectrometer(self) -> None:
+        """Take the spectroradiometer's dark reading with the light off (a no-op where there is none)."""
+
+
+class TwinCalibrationRig:
+    """The digital twin as a :class:`CalibrationRig`: one :class:`~specgpu.rig.twin.TwinRig` per exposure, all
+    looking at the same scene (the reference white), frames through the twin driver, ring buffer and assembler.
+
+    Parameters
+    ----------
+    description : RigDescription, optional
+        The rig (the paper's by default).
+    scene
+        What the camera sees (a white plate of reflectance 0.99 by default).
+    rig : TwinRig, optional
+        Use this twin (its description and scene) for the calibration exposure instead of building one.
+    """
+
+    def __init__(self, description: RigDescription | None = None, *, scene=None, rig=None):
+        if rig is not None:
+            self.rig = rig
+            self.description = rig.description
+            self._scene = rig.scene
+        else:
+            d = description if description is not None else RigDescription()
+            self.description = d
+            self._scene = scene if scene is not None else white_plate_scene(d.camera.roi_height, d.camera.roi_width)
+            self.rig = _rig(d, self._scene)
+        self._by_exposure: dict[float, object] = {}
+
+    # the rig at each exposure; the calibration exposure's is ``rig`` itself (its spectroradiometer too)
+    def _at(self, exposure_s):
+        if exposure_s is None:
+            return self.rig
+        t = float(exposure_s)
+        if t not in self._by_exposure:
+            self._by_exposure[t] = _rig(self.description, self._scene, t)
+        return self._by_exposure[t]
+
+    @property
+    def light(self):
+        return self.rig.light
+
+    @property
+    def spectroradiometer(self):
+        return self.rig.spectroradiometer
+
+    @property
+    def exposure_s(self) -> float:
+        return self.rig.exposure_s
+
+    @property
+    def frame_shape(self) -> tuple:
+        return tuple(self.rig.camera.shape)
+
+    @property
+    def max_code(self) -> int:
+        return int(self.rig.camera.params.max_code)
+
+    @property
+    def frame_period_s(self) -> float:
+        return self.rig.frame_period_s
+
+    @property
+    def max_spectrum(self) -> np.ndarray:
+        return self.rig.light.max_spectrum
+
+    def capture_mean(self, patterns, repeats: int, *, exposure_s: float | None = None,
+                     noise_seed: int | None = None) -> np.ndarray:
+        return capture_mean(self._at(exposure_s), patterns, repeats, noise_seed=noise_seed)
+
+    def measure_spectrum(self, pattern_index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        return self.rig.measure_spectrum(pattern_index)
+
+    def zero_spectrometer(self) -> None:
+        """The twin's spectroradiometer has no dark offset."""
+
+
+def as_calibration_rig(rig) -> CalibrationRig:
+    """``rig`` as a :class:`CalibrationRig`: a TwinRig is wrapped, a CalibrationRig passed through."""
+    from specgpu.rig.twin import TwinRig
+
+    if isinstance(rig, TwinRig):
+        return TwinCalibrationRig(rig=rig)
+    if isinstance(rig, CalibrationRig):
+        return rig
+    raise TypeError(f"a calibration needs a TwinRig or a CalibrationRig, got {type(rig).__name__}")
+
+
 # ---- loop (a) -------------------------------------------------------------------------------------------------
 def camera_loop(rig, masks, targets, *, flat_field=None, dark=None, initial_levels=None, repeats: int = 8,
-                tolerance: float = 0.01, max_iterations: int = 10, noise_seed: int = 0) -> LoopResult:
+                tolerance: float = 0.01, max_iterations: int = 10, noise_seed: int = 0,
+                exposure_s: float | None = None) -> LoopResult:
     """Loop (a): adjust each pattern's power until the camera output on the rig's scene matches its target.
 
     Each pattern k lights the DMD columns of ``masks[k]`` at a common level (set in single-mirror steps by
@@ -396,7 +538,7 @@ def camera_loop(rig, masks, targets, *, flat_field=None, dark=None, initial_leve
 
     Parameters
     ----------
-    rig : TwinRig
+    rig : TwinRig or CalibrationRig
         Looking at the reference white.
     masks : (K, C) bool
     targets : (K,) float
@@ -407,7 +549,9 @@ def camera_loop(rig, masks, targets, *, flat_field=None, dark=None, initial_leve
         Start (every mirror on by default).
     repeats, tolerance, max_iterations, noise_seed
         Sequences averaged per measurement; convergence bound on the RMS relative error; adjustment bound;
-        seed of the frames' temporal noise.
+        seed of the frames' temporal noise (simulated rigs).
+    exposure_s : float, optional
+        Exposure of the captures, s (the rig's calibration exposure by default).
 
     Returns
     -------
@@ -420,17 +564,19 @@ def camera_loop(rig, masks, targets, *, flat_field=None, dark=None, initial_leve
         raise ValueError(f"targets must be ({k},) positive outputs in DN")
     if not 0 < tolerance < 1:
         raise ValueError(f"tolerance must lie in (0, 1), got {tolerance!r}")
+    rig = as_calibration_rig(rig)
     rows = rig.light.params.rows
+    shape = rig.frame_shape
     levels = np.ones(k) if initial_levels is None else np.clip(np.asarray(initial_levels, np.float64), 1e-4, 1.0)
-    flat = np.ones(rig.camera.shape) if flat_field is None else np.asarray(flat_field, np.float64)
-    dk = np.zeros(rig.camera.shape) if dark is None else np.asarray(dark, np.float64)
-    win = _centre_window(rig.camera.shape)
+    flat = np.ones(shape) if flat_field is None else np.asarray(flat_field, np.float64)
+    dk = np.zeros(shape) if dark is None else np.asarray(dark, np.float64)
+    win = _centre_window(shape)
     seeds = _NoiseSeeds(noise_seed)
     history = []
     it = 0
     while True:
         patterns = distribute_counts(levels, masks, rows)
-        frames = capture_mean(rig, patterns, repeats, noise_seed=seeds.next())
+        frames = rig.capture_mean(patterns, repeats, exposure_s=exposure_s, noise_seed=seeds.next())
         out = np.array([np.mean(((f - dk) * flat)[win]) for f in frames])
         actual = patterns.sum(axis=1) / (rows * np.maximum(masks.sum(axis=1), 1))  # level after quantization
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -454,7 +600,8 @@ def spectral_loop(rig, target, wavelengths=None, *, bundle: CalibrationBundle | 
 
     Parameters
     ----------
-    rig : TwinRig
+    rig : TwinRig, CalibrationRig or HardwareRig
+        Anything with ``light``, ``spectroradiometer`` and ``measure_spectrum``.
     target : array_like
         Spectral irradiance, W m^-2 nm^-1, >= 0, on ``wavelengths`` (the light's grid by default).
     bundle : CalibrationBundle, optional
@@ -525,8 +672,8 @@ def spectral_loop(rig, target, wavelengths=None, *, bundle: CalibrationBundle | 
 def calibrate(description: RigDescription | None = None, *, white_reflectance: float = 0.99,
               band_step_nm: float = 10.0, band_range_nm=(380.0, 780.0), equalize_range_nm=(400.0, 700.0),
               repeats: int = 8, tolerance: float = 0.01, max_iterations: int = 10, perturbation: float = 0.0,
-              spectral_check: bool = True, seed: int = 0) -> CalibrationBundle:
-    """Calibrate a rig (the twin described by ``description``) and return its bundle.
+              spectral_check: bool = True, seed: int = 0, rig: CalibrationRig | None = None) -> CalibrationBundle:
+    """Calibrate a rig (the twin described by ``description``, or the real one ``rig``) and return its bundle.
 
     Steps: (1) dark level at two exposures (dark current); (2) spectroradiometer: column-wavelength map from
     the centroids of narrow probe patterns (linear fit) and lamp power per column from the all-on spectrum;
@@ -539,7 +686,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     Parameters
     ----------
     description : RigDescription, optional
-        The rig (the paper's by default). Its camera exposure is the calibration exposure.
+        The rig (the paper's by default). For the twin its camera exposure is the calibration exposure; the
+        bundle records its :func:`rig_fingerprint` either way.
     white_reflectance : float
         Reflectance of the reference white plate, in (0, 1.5].
     band_step_nm : float
@@ -553,7 +701,10 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     spectral_check : bool
         Run loop (b) once and report it.
     seed : int
-        Seed of the frames' temporal noise and of the perturbation.
+        Seed of the frames' temporal noise (twin) and of the perturbation.
+    rig : CalibrationRig, optional
+        The rig to measure (e.g. :func:`specgpu.hardware.rig.open_calibration_rig` for real devices, looking at the
+        reference white); by default the twin of ``description`` looking at a white plate of ``white_reflectance``.
 
     Returns
     -------
@@ -568,23 +719,27 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         raise ValueError(f"perturbation must lie in [0, 0.9], got {perturbation!r}")
     if int(repeats) < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats!r}")
-    cam = d.camera
-    h, w = cam.roi_height, cam.roi_width
-    white = white_plate_scene(h, w, reflectance=white_reflectance)
-    rig = _rig(d, white)
+    if rig is None:
+        rig = TwinCalibrationRig(d, scene=white_plate_scene(d.camera.roi_height, d.camera.roi_width,
+                                                            reflectance=white_reflectance))
+    else:
+        rig = as_calibration_rig(rig)
+    h, w = rig.frame_shape
+    max_code = int(rig.max_code)
     light = rig.light
     p = light.params
     seeds = _NoiseSeeds(seed)
-    t_cal = cam.exposure_s
+    t_cal = float(rig.exposure_s)
     zero = np.zeros((1, p.columns), np.int32)
 
     # (1) Dark level and dark current: two exposures.
-    dark = capture_mean(rig, zero, 2 * repeats, noise_seed=seeds.next())[0]
+    dark = rig.capture_mean(zero, 2 * repeats, noise_seed=seeds.next())[0]
     t_short = max(light.minimum_exposure_s, t_cal / 4)
-    dark_short = capture_mean(_rig(d, white, t_short), zero, 2 * repeats, noise_seed=seeds.next())[0]
+    dark_short = rig.capture_mean(zero, 2 * repeats, exposure_s=t_short, noise_seed=seeds.next())[0]
     rate = float(np.mean(dark - dark_short) / (t_cal - t_short)) if t_cal > t_short else 0.0
 
     # (2) Spectroradiometer: column-wavelength map and lamp.
+    rig.zero_spectrometer()
     probe_cols = np.linspace(16, p.columns - 24, 24).astype(int)
     probes = np.zeros((probe_cols.size, p.columns), np.int32)
     for i, c in enumerate(probe_cols):
@@ -596,6 +751,9 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         s = np.mean([rig.measure_spectrum(i)[1] for _ in range(2)], axis=0)
         peak = int(np.argmax(s))
         sel = np.abs(inst - inst[peak]) <= 6.0 + p.line_fwhm_nm  # the probe's band, not noise far away
+        if not np.sum(s[sel]) > 0:
+            raise ValueError(f"calibrate: the spectroradiometer sees no light from probe columns {probe_cols[i]}-"
+                             f"{probe_cols[i] + 7}; check the light, the fibre and the instrument")
         cents.append(float(np.sum(inst[sel] * s[sel]) / np.sum(s[sel])))
     slope, icpt = np.polyfit(probe_cols + 3.5, np.array(cents), 1)
     col_wl = icpt + slope * np.arange(p.columns)
@@ -610,16 +768,16 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     win = _centre_window((h, w))
     n_probe = p.rows // 8
     while True:  # a probe level that does not saturate, to scale the flat-field pattern from
-        probe = capture_mean(rig, np.full((1, p.columns), n_probe, np.int32), 2, noise_seed=seeds.next())[0]
+        probe = rig.capture_mean(np.full((1, p.columns), n_probe, np.int32), 2, noise_seed=seeds.next())[0]
         lvl = float(np.mean((probe - dark)[win]))
-        if float(probe[win].max()) < 0.95 * cam.max_code or n_probe == 1:
+        if float(probe[win].max()) < 0.95 * max_code or n_probe == 1:
             break
         n_probe = max(1, n_probe // 4)
     if not lvl > 0:
         raise ValueError("calibrate: the white gives no signal; check the light and the camera")
-    n_flat = int(min(p.rows, max(1, round(n_probe * 0.5 * cam.max_code / lvl))))  # about half the range
-    white_mean = capture_mean(rig, np.full((1, p.columns), n_flat, np.int32), 2 * repeats,
-                              noise_seed=seeds.next())[0] - dark
+    n_flat = int(min(p.rows, max(1, round(n_probe * 0.5 * max_code / lvl))))  # about half the range
+    white_mean = rig.capture_mean(np.full((1, p.columns), n_flat, np.int32), 2 * repeats,
+                                  noise_seed=seeds.next())[0] - dark
     small = _centre_window((h, w), 0.05)
     flat = (float(np.median(white_mean[small])) / np.maximum(white_mean, 1e-6)).astype(np.float32)
 
@@ -630,8 +788,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     masks = np.stack([(col_wl >= a) & (col_wl < b) for a, b in bands])
     keep = masks.any(axis=1)
     bands, masks = bands[keep], masks[keep]
-    full_out = capture_mean(rig, distribute_counts(np.ones(len(masks)), masks, p.rows), repeats,
-                            noise_seed=seeds.next())
+    full_out = rig.capture_mean(distribute_counts(np.ones(len(masks)), masks, p.rows), repeats,
+                                noise_seed=seeds.next())
     full_out = np.array([np.mean(((f - dark) * flat)[win]) for f in full_out])
     centre = bands.mean(axis=1)
     inside = (centre >= equalize_range_nm[0]) & (centre <= equalize_range_nm[1])
@@ -639,12 +797,11 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     # half the range above dark (the paper's dim blue end would otherwise sit a few DN above the noise).
     from specgpu.plans import DEFAULT_MAX_EXPOSURE_S
 
-    headroom = cam.max_code - float(np.mean(dark))
+    headroom = max_code - float(np.mean(dark))
     weakest = float(full_out[inside].min())
     if not weakest > 0:
         raise ValueError("calibrate: a band of the equalized range gives no signal on the white")
     t_a = float(np.clip(t_cal * 0.5 * headroom / weakest, t_cal, max(t_cal, DEFAULT_MAX_EXPOSURE_S)))
-    rig_a = _rig(d, white, t_a)
     dark_a = dark + rate * (t_a - t_cal)
     full_a = full_out * (t_a / t_cal)
     level = 0.97 * float(full_a[inside].min()) / white_reflectance  # output per unit reflectance
@@ -652,13 +809,13 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9E27]))
     start = np.clip(targets / np.maximum(full_a, 1e-9), 1e-3, 1.0)
     start = np.clip(start * (1 + perturbation * rng.uniform(-1, 1, start.size)), 1e-3, 1.0)
-    loop_a = camera_loop(rig_a, masks, targets, flat_field=flat, dark=dark_a, initial_levels=start,
+    loop_a = camera_loop(rig, masks, targets, flat_field=flat, dark=dark_a, initial_levels=start,
                          repeats=repeats, tolerance=tolerance, max_iterations=max_iterations,
-                         noise_seed=seeds.next())
+                         noise_seed=seeds.next(), exposure_s=t_a)
 
     # V estimate: per band, output / (t * white * integral of the band's estimated emission), at its centroid.
     est = CalibrationBundle(grid, col_wl, col_power, slit, p.rows, np.ones_like(grid), t_cal, dark.astype(np.float32),
-                            rate, flat, cam.max_code, light.minimum_exposure_s, rig.frame_period_s - p.switch_time_s,
+                            rate, flat, max_code, light.minimum_exposure_s, rig.frame_period_s - p.switch_time_s,
                             white_reflectance, loop_a.patterns, bands)
     e = est.emitted(loop_a.patterns)  # (K, G)
     power = e.sum(axis=1) * (grid[1] - grid[0])
@@ -670,10 +827,14 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
                "level_dn_per_reflectance": level, "loop_a_exposure_s": t_a, "repeats": int(repeats)}
     bundle = replace(est, responsivity=rho, reports=reports, rig=rig_fingerprint(d))
 
-    # (5) Loop (b) check: an equal-energy spectrum at 40 % of the lamp's weakest point over the equalized range.
+    # (5) Loop (b) check: an equal-energy spectrum at 40 % of the lamp's weakest point over the equalized range
+    # (the lamp as the rig knows it, else as the spectroradiometer read it with every mirror on).
     if spectral_check:
         sel = (grid >= equalize_range_nm[0]) & (grid <= equalize_range_nm[1])
-        flat_target = np.where(sel, 0.4 * float(light.max_spectrum[sel].min()), 0.0)
+        lamp = rig.max_spectrum
+        if lamp is None:
+            lamp = np.interp(grid, inst, full)
+        flat_target = np.where(sel, 0.4 * float(lamp[sel].min()), 0.0)
         initial = None
         if perturbation > 0:
             from specgpu.plans import fit_levels
