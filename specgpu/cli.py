@@ -73,10 +73,32 @@ def selftest(device, verbose):
               help="Comma-separated WxH image sizes.")
 @click.option("--repeats", type=click.IntRange(min=1), default=None,
               help="Timed repetitions per case (default: by size).")
-def bench(device, json_path, sizes, repeats):
+@click.option("--stream", "stream", is_flag=True,
+              help="Benchmark the streaming pipeline instead (frames/s in, sequences/s out, latency, drops, CPU, "
+                   "peak RSS) on a replayed twin recording.")
+@click.option("--stream-size", default="640x480", show_default=True, help="With --stream: WxH of the frames.")
+@click.option("--stream-seconds", type=click.FloatRange(min=0.5), default=10.0, show_default=True,
+              help="With --stream: length of each sustained case.")
+@click.option("--paced-seconds", type=click.FloatRange(min=0.5), default=60.0, show_default=True,
+              help="With --stream: length of the case paced at the camera's 200 fps.")
+@click.option("--stream-cases", default="fused,cube,paced,overload,equality", show_default=True,
+              help="With --stream: comma-separated cases to run.")
+def bench(device, json_path, sizes, repeats, stream, stream_size, stream_seconds, paced_seconds, stream_cases):
     """Throughput of each kernel against NumPy / colour-science baselines measured in the same run."""
     from .bench import parse_sizes, run_bench
 
+    if stream:
+        from .bench import run_stream_bench
+
+        try:
+            (width, height), = parse_sizes(stream_size)
+        except ValueError as error:
+            raise click.BadParameter(str(error), param_hint="--stream-size") from error
+        cases = tuple(c.strip() for c in stream_cases.split(",") if c.strip())
+        run_stream_bench(seconds=stream_seconds, paced_seconds=paced_seconds, overload_seconds=stream_seconds,
+                         width=width, height=height, device=device, json_path=json_path, echo=click.echo,
+                         cases=cases)
+        return
     try:
         parsed = parse_sizes(sizes)
     except ValueError as error:  # a usage error (exit 2) that names the bad token, before any device work
@@ -136,11 +158,15 @@ def calibrate(rig_path, out, seed):
     from .rig.config import load_rig
 
     description = load_rig(rig_path)
-    if _hardware(description) is not None:
-        raise click.ClickException(f"{rig_path}: calibration runs on the digital twin only for now; the hardware "
-                                   "drivers (specgpu.hardware) exist, the feedback loops through them do not yet")
+    hardware = _hardware(description)
     with _Busy("calibrating"):
-        bundle = run(description, seed=seed)
+        if hardware is None:
+            bundle = run(description, seed=seed)
+        else:  # real devices: the camera looks at the reference white, the spectrometer at the light's output
+            from .hardware.rig import open_calibration_rig
+
+            with open_calibration_rig(description, hardware=hardware) as rig:
+                bundle = run(description, seed=seed, rig=rig)
     digest = save_calibration(out, bundle)
     reports = bundle.reports
     for loop, what in (("loop_a", "loop (a) camera + white"), ("loop_b", "loop (b) spectroradiometer")):
@@ -346,6 +372,103 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
         raise
     click.echo(f"{plan.method}: {plan.K} projections, {folder.sequences} sequences in {seq}; wrote "
                + ", ".join(str(p) for p in written))
+
+
+@main.command("stream")
+@_RIG
+@click.option("--plan", "plan_path", required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="The calibration the plan was made from.")
+@click.option("--scene", default=None, help="Scene: colorchecker, white, natural[:image], or a .exr / .npz cube "
+                                            "(default: the rig's [scene] source).")
+@click.option("--seconds", type=click.FloatRange(min=0, min_open=True), required=True, help="Capture time.")
+@click.option("--out", type=click.Path(file_okay=False), default=None,
+              help="Folder for the recording (chunked .npy + index.json) and preview.png.")
+@click.option("--outputs", default="coefficients,XYZ,dE", show_default=True,
+              help="Comma-separated: coefficients, cube, XYZ, Lab, dE.")
+@click.option("--delta-e-ref", "ref", default=None,
+              help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it (default: the streamed scene).")
+@click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
+@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
+@click.option("--pacing", type=click.Choice(["paced", "free"]), default="paced", show_default=True,
+              help="Twin pacing: at the camera's frame rate, or as fast as it renders.")
+@click.option("--policy", type=click.Choice(["drop_newest", "drop_oldest", "block"]), default=None,
+              help="Frame ring policy when the pipeline falls behind (default: drop_newest when paced, as a "
+                   "camera never waits; block when free-running, where the simulated camera can).")
+@click.option("--exr-every", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Also write every N-th result as EXR maps into --out (0: none).")
+@click.option("--half", is_flag=True, help="Keep the cube in half precision.")
+@click.option("--seed", type=int, default=None, help="Seed of the frames' temporal noise.")
+@click.option("--device", "device", default=None, help="OpenCL device selector.")
+def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref, method, illuminant, pacing,
+                   policy, exr_every, half, seed, device):
+    """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
+    stops cleanly (everything captured is processed or reported)."""
+    import numpy as np
+
+    from .calibration import load_calibration
+    from .capture.twin import TwinDriver
+    from .pipeline import check_scene_covers
+    from .plans import load_plan
+    from .rig.config import load_rig
+    from .rig.scene import load_scene
+    from .rig.twin import TwinRig
+    from .stream import ExrSequenceWriter, NpyChunkWriter, PreviewSink, Stream
+
+    wanted = tuple(o.strip() for o in outputs.split(",") if o.strip())
+    description = load_rig(rig_path)
+    bundle = load_calibration(calib, rig=description)
+    plan = load_plan(plan_path)
+    plan.check_calibration(bundle, name=str(plan_path))
+    cam = description.camera
+    truth = load_scene(scene or description.scene.source, cam.roi_height, cam.roi_width)
+    check_scene_covers(truth, plan, description.light.line_fwhm_nm)
+    reference = None
+    if "dE" in wanted:
+        reference = _parse_reference(ref, cam.roi_height, cam.roi_width, illuminant) if ref else \
+            _parse_reference(str(scene or description.scene.source), cam.roi_height, cam.roi_width, illuminant)
+    rig = TwinRig(plan.rig_description(description), scene=truth)
+    if seed is not None:
+        rig.seed = seed
+    driver = TwinDriver(rig, patterns=plan.patterns, pacing=pacing)
+    sinks, writer = [], None
+    if out:
+        from pathlib import Path
+
+        meta = {"plan_hash": plan.hash, "plan_method": plan.method, "calibration": plan.calibration,
+                "scene": truth.name, "illuminant": illuminant, "outputs": list(wanted)}
+        writer = NpyChunkWriter(out, metadata=meta)
+        sinks.append(writer)
+        if exr_every:
+            sinks.append(ExrSequenceWriter(Path(out) / "exr", wavelengths=plan.output_wavelengths, every=exr_every,
+                                           dE_kind={"CIE 1976": "dE76", "CIE 1994": "dE94"}.get(method, "dE2000"),
+                                           metadata=meta))
+        if "XYZ" in wanted:
+            sinks.append(PreviewSink(Path(out) / "preview.png"))
+    policy = policy or ("drop_newest" if pacing == "paced" else "block")
+    stream = Stream(driver, plan, bundle, outputs=wanted, sinks=sinks, reference=reference, method=method,
+                    illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
+                    device=device)
+    if writer is not None and stream.decoder.basis is not None:
+        writer.metadata["coefficient_basis"] = stream.decoder.basis.tolist()
+    tty = sys.stderr.isatty()
+
+    def status(s):
+        line = (f"frames in {s['frames_in']}, sequences out {s['sequences_out']}, drops {s['assembler_dropped']} "
+                f"(ring {s['ring_dropped']}), discarded {s['discarded']}, latency {s['latency_ms']:.1f} ms")
+        click.echo(("\r" + line + "   ") if tty else line, err=True, nl=not tty)
+
+    report = stream.run(seconds, on_status=status)
+    if tty:
+        click.echo("", err=True)
+    a = report.assembly
+    click.echo(f"{report.frames_in} frames in ({report.frames_per_s:.0f}/s), {report.sequences_out} sequences out "
+               f"({report.sequences_per_s:.1f}/s); dropped {a.dropped} (ring {report.ring.dropped}), duplicated "
+               f"{a.duplicates}, missed triggers {a.missed_triggers}, discarded {a.sequences_discarded}; latency "
+               f"median {report.latency_ms(50):.1f} ms, p99 {report.latency_ms(99):.1f} ms"
+               + (" (interrupted)" if report.interrupted else "") + (f"; wrote {out}" if out else ""))
+    if report.sink_errors:
+        raise click.ClickException(f"a sink failed: {report.sink_errors[0]}")
 
 
 @main.command()
