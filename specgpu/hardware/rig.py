@@ -17,7 +17,9 @@ a rig TOML's ``[hardware]`` table would hold::
     spectrometer_calibration = "irradiance_cal.csv"
 
 :class:`HardwareRig` gives calibration loop (b) (:func:`specgpu.calibration.spectral_loop`) what it reads from a
-twin rig: ``light``, ``spectroradiometer`` and ``measure_spectrum``.
+twin rig: ``light``, ``spectroradiometer`` and ``measure_spectrum``; :class:`HardwareCalibrationRig`
+(:func:`open_calibration_rig`) adds the camera, so :func:`specgpu.calibration.calibrate` runs its whole procedure
+on real devices.
 """
 
 from __future__ import annotations
@@ -29,7 +31,8 @@ import numpy as np
 
 from specgpu.rig._checks import check_number
 
-__all__ = ["HardwareConfig", "open_hardware", "open_light", "open_spectrometer", "HardwareRig"]
+__all__ = ["HardwareConfig", "open_hardware", "open_light", "open_spectrometer", "HardwareRig",
+           "HardwareCalibrationRig", "open_calibration_rig"]
 
 LIGHTS = ("dlpc900", "dlpc900-simulated")
 SPECTROMETERS = ("", "ocean")
@@ -224,5 +227,143 @@ class HardwareRig:
         if power != 1.0:
             raise ValueError("a real lamp's power cannot be scaled in software; power must be 1")
         k = self.light.pattern_index if pattern_index is None else int(pattern_index)
-        self.light.show(self.light.sequence[k])
+        # the sequence loaded, not the one pattern show() leaves in the controller
+        self.light.show(self.light.requested[k])
         return self.spectroradiometer.measure_spectrum()
+
+
+#: GenICam PixelFormat -> top ADC code of the frames.
+_MAX_CODES = {"Mono8": 255, "Mono10": 1023, "Mono12": 4095, "Mono14": 16383, "Mono16": 65535}
+
+
+class HardwareCalibrationRig(HardwareRig):
+    """A real rig as a :class:`specgpu.calibration.CalibrationRig`: frames from the GenICam camera lit by the
+    DLPC900 (:func:`open_hardware`, through :func:`~specgpu.capture.session.capture_sequences`: ring buffer and
+    assembler), spectra from the Ocean spectrometer; the camera looks at the reference white.
+
+    Parameters
+    ----------
+    description
+        The rig description (its ``[light]`` is the light's model: columns, rows, grid, slit).
+    camera
+        The :class:`~specgpu.hardware.genicam.GenICamCamera` of :func:`open_hardware`; its light is the rig's.
+    spectroradiometer
+        An :class:`~specgpu.hardware.ocean.OceanSpectrometer` with its irradiance calibration.
+    frame_rate_hz
+        Camera frame rate at the calibration exposure (strobe-master); ``None``: the description's.
+
+    Each capture sets the exposure on both devices (the camera's ExposureTime and the LUT's pattern exposure) and
+    lowers the frame rate when a long exposure needs it; real frames carry fresh noise, so ``noise_seed`` is
+    ignored. Sequences lost on the link are left out of the mean (a capture with none complete is an error).
+    """
+
+    max_spectrum = None  # a real lamp is known only through the spectrometer
+
+    def __init__(self, description, camera, spectroradiometer, *, frame_rate_hz: float | None = None):
+        super().__init__(camera.light, spectroradiometer)
+        self.description = description
+        self.camera = camera
+        self.exposure_s = float(camera.exposure_s)
+        self._rate = float(frame_rate_hz or camera.frame_rate_hz or description.camera.frame_rate_hz)
+        fmt = str(camera.acquirer.remote_device.node_map.PixelFormat.value)
+        self.max_code = _MAX_CODES[fmt]  # the camera refused any other format when it was opened
+        self.sequences_lost = 0
+
+    @property
+    def frame_shape(self) -> tuple:
+        return tuple(self.camera.frame_shape)
+
+    @property
+    def frame_period_s(self) -> float:
+        return 1.0 / self._rate
+
+    def _set_exposure(self, exposure_s: float) -> None:
+        t = float(exposure_s)
+        light, cam = self.light, self.camera
+        if t < light.minimum_exposure_s:
+            raise ValueError(f"exposure {t:g} s is shorter than the light's minimum {light.minimum_exposure_s:g} s")
+        light.exposure_s = t  # the LUT's pattern exposure, written with the next upload
+        cam.exposure_s = t  # ExposureTime, written by the camera's configure() at start
+        # the next strobe must find the pattern over: room for the light's trigger delay and switch
+        switch = max(light.params.switch_time_s, light.minimum_exposure_s)
+        cam.frame_rate_hz = min(self._rate, 1.0 / (t + switch + 1e-4))
+        cam.timeout_s = max(2.0, 4.0 / cam.frame_rate_hz)
+
+    def capture_mean(self, patterns, repeats: int, *, exposure_s: float | None = None,
+                     noise_seed: int | None = None) -> np.ndarray:
+        """(K, H, W) float64 mean of ``repeats`` sequences of ``patterns`` captured at ``exposure_s`` (s)."""
+        from specgpu.capture.session import capture_sequences
+
+        patterns = np.atleast_2d(np.asarray(patterns, np.int32))
+        k = patterns.shape[0]
+        self._set_exposure(self.exposure_s if exposure_s is None else exposure_s)
+        self.light.load_sequence(patterns)
+        self.camera.n_frames = k * int(repeats)
+        acc = np.zeros((k, *self.frame_shape))
+        count = 0
+
+        def add(seq):
+            nonlocal count
+            acc[...] += seq.frames
+            count += 1
+
+        result = capture_sequences(self.camera, k, on_sequence=add)
+        self.sequences_lost += result.assembly.sequences_discarded
+        if count == 0:
+            raise RuntimeError(f"calibration capture: none of the {repeats} sequences of {k} frames arrived complete "
+                               f"(dropped {result.assembly.dropped} frames); check the camera link and trigger")
+        return acc / count
+
+    def zero_spectrometer(self) -> None:
+        """The spectrometer's dark reading, with every mirror off."""
+        if hasattr(self.spectroradiometer, "set_dark"):
+            self.light.show(np.zeros((1, self.light.layout.columns), np.int32))
+            self.spectroradiometer.set_dark()
+
+    def close(self) -> None:
+        """Stop the light and release the camera and the spectrometer."""
+        try:
+            self.camera.close()
+            self.light.stop()  # a pattern show() left up runs on the controller's own clock
+        finally:
+            close = getattr(self.spectroradiometer, "close", None)
+            if close is not None:
+                close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def open_calibration_rig(rig=None, *, hardware=None, acquirer=None, transport=None,
+                         spectrometer=None) -> HardwareCalibrationRig:
+    """The real rig a ``[hardware]`` table names, opened for :func:`specgpu.calibration.calibrate` (``rig=``).
+
+    Calibration needs the spectrometer (column-wavelength map, lamp power, loop (b)) with its irradiance
+    calibration; a table without them is refused before any device is opened. ``acquirer``, ``transport`` and
+    ``spectrometer`` (an :class:`~specgpu.hardware.ocean.OceanSpectrometer`, or a seabreeze-like device for it)
+    replace the devices the table would open (tests, dry runs).
+    """
+    from specgpu.hardware.ocean import OceanSpectrometer
+    from specgpu.rig.config import RigDescription, load_rig
+
+    cfg = _config(hardware)
+    desc = rig if isinstance(rig, RigDescription) else load_rig(rig)
+    if spectrometer is None or not isinstance(spectrometer, OceanSpectrometer):
+        if cfg.spectrometer != "ocean" and spectrometer is None:
+            raise ValueError("calibration needs a spectrometer: set hardware.spectrometer = 'ocean' (and "
+                             "hardware.spectrometer_calibration)")
+        if not cfg.spectrometer_calibration:
+            raise ValueError("calibration needs the spectrometer's irradiance calibration: set "
+                             "hardware.spectrometer_calibration to its CSV (wavelength nm, W m^-2 nm^-1 per count/s)")
+    camera = open_hardware(desc, hardware=cfg, acquirer=acquirer, transport=transport)
+    try:
+        if not isinstance(spectrometer, OceanSpectrometer):
+            spectrometer = open_spectrometer(cfg, device=spectrometer)
+        return HardwareCalibrationRig(desc, camera, spectrometer, frame_rate_hz=cfg.frame_rate_hz or None)
+    except BaseException:
+        camera.close()
+        raise

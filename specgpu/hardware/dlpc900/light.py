@@ -123,6 +123,14 @@ class DLPC900Light(LightSource):
     def loaded(self) -> bool:
         return self._sequence is not None
 
+    @property
+    def requested(self) -> np.ndarray:
+        """The last (K, C) sequence asked for by :meth:`load_sequence`, kept through :meth:`show` (which puts one
+        pattern up on its own) and through a failed upload; ``RuntimeError`` if none ever was."""
+        if self._requested is None:
+            raise RuntimeError("DLPC900 light: no sequence was ever loaded")
+        return self._requested
+
     def load_sequence(self, patterns) -> None:
         """Upload a (K, C) sequence (K <= 400) as 1-bit LUT entries; the light then waits to show pattern 0.
 
