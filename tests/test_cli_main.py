@@ -214,7 +214,17 @@ def test_rig_naming_hardware(work, tmp_path):
                        work / "calib.npz", "--out", tmp_path / "seq", ok=False), "unknown key hardware.ligth")
     (tmp_path / "hw.toml").write_text(RIG + '[hardware]\nlight = "dlpc900-simulated"\n')
     one_line_error(run("calibrate", "--rig", tmp_path / "hw.toml", "--out", tmp_path / "c.npz", ok=False),
-                   "digital twin only")
+                   "calibration needs a spectrometer")
+    (tmp_path / "hwcal.toml").write_text(RIG + '[hardware]\nlight = "dlpc900-simulated"\nspectrometer = "ocean"\n'
+                                         'spectrometer_calibration = "irradiance_cal.csv"\n')
+    result = run("calibrate", "--rig", tmp_path / "hwcal.toml", "--out", tmp_path / "c.npz", ok=False)
+    try:
+        import harvesters  # noqa: F401
+    except ImportError:
+        one_line_error(result, "harvesters")  # the camera is opened first
+    else:
+        one_line_error(result)
+    assert not (tmp_path / "c.npz").exists()
     result = run("capture", "--rig", tmp_path / "hw.toml", "--plan", work / "sym.npz", "--calib",
                  work / "calib.npz", "--scene", "colorchecker", "--out", tmp_path / "seq", ok=False)
     try:
