@@ -251,6 +251,17 @@ def test_missing_camera_backend_is_one_clear_error(tmp_path):
         pytest.skip("harvesters is installed")
 
 
+def test_missing_spectrometer_backend_is_one_clear_error(tmp_path):
+    try:
+        import seabreeze  # noqa: F401
+    except ImportError:
+        sim = SimulatedDLPC900("lightcrafter-6500")
+        with pytest.raises(BackendMissing, match="seabreeze"):
+            open_calibration_rig(DESC, hardware=_table(tmp_path), acquirer=TwinCamera(sim), transport=sim)
+    else:
+        pytest.skip("seabreeze is installed")
+
+
 def test_twin_and_hardware_rigs_share_one_interface():
     from specgpu.calibration import TwinCalibrationRig
 
