@@ -151,7 +151,8 @@ class _Busy:
 @main.command()
 @_RIG
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="Calibration bundle to write (.npz).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the twin's temporal noise.")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Seed of the twin's noise; on hardware, of the loops' perturbed start only.")
 def calibrate(rig_path, out, seed):
     """Run both feedback loops on the rig and write the calibration bundle."""
     from .calibration import calibrate as run, save_calibration
