@@ -720,7 +720,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     expected = {i: offline_maps(setup, i) for i in range(R)}
     echo(f"stream bench: {width} x {height}, K = {setup.plan.K}, {setup.plan.A.shape[0]} bands, "
          f"{R} recorded sequences replayed (setup {time.perf_counter() - t_setup:.1f} s)")
-    common = dict(reference=setup.reference, device=device)
+    common = {"reference": setup.reference, "device": device}
     rows = []
 
     def load():
@@ -797,8 +797,8 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
 
 def format_stream_report(report: dict) -> str:
     """The stream benchmark as text: one block per case with its figures and PASS / MISS."""
-    lines = [f"stream on {report['device']} ({report['cpu_count']} CPUs), {report['width']} x {report['height']}, "
-             f"K = {report['K']}; source: {report['source']}"]
+    lines = [(f"stream on {report['device']} ({report['cpu_count']} CPUs), {report['width']} x "
+              f"{report['height']}, K = {report['K']}; source: {report['source']}")]
     for row in report["cases"]:
         mark = {True: "PASS", False: "MISS", None: "    "}[row.get("passed")]
         if "frames_per_s" not in row:

@@ -414,20 +414,24 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
     from .rig.config import load_rig
     from .rig.scene import load_scene
     from .rig.twin import TwinRig
-    from .stream import ExrSequenceWriter, NpyChunkWriter, PreviewSink, Stream
+    from .stream import STREAM_OUTPUTS, ExrSequenceWriter, NpyChunkWriter, PreviewSink, Stream
+    from .validate import validate_method
 
-    wanted = tuple(o.strip() for o in outputs.split(",") if o.strip())
+
+    # before any loading: a typo is an error naming the valid outputs
+    wanted = tuple(validate_method(o.strip(), {k: k for k in STREAM_OUTPUTS}, "stream output")
+                   for o in outputs.split(",") if o.strip())
     description = load_rig(rig_path)
     bundle = load_calibration(calib, rig=description)
     plan = load_plan(plan_path)
     plan.check_calibration(bundle, name=str(plan_path))
     cam = description.camera
-    truth = load_scene(scene or description.scene.source, cam.roi_height, cam.roi_width)
+    truth = load_scene(scene or description.scene, cam.roi_height, cam.roi_width)
     check_scene_covers(truth, plan, description.light.line_fwhm_nm)
     reference = None
     if "dE" in wanted:
         reference = _parse_reference(ref, cam.roi_height, cam.roi_width, illuminant) if ref else \
-            _parse_reference(str(scene or description.scene.source), cam.roi_height, cam.roi_width, illuminant)
+            _parse_reference(str(scene or description.scene), cam.roi_height, cam.roi_width, illuminant)
     rig = TwinRig(plan.rig_description(description), scene=truth)
     if seed is not None:
         rig.seed = seed

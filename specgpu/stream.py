@@ -43,7 +43,7 @@ import pyopencl.array as cla
 
 from . import engine
 from .capture.assemble import AssemblyStats, SequenceAssembler
-from .capture.driver import CameraDriver, FrameInfo, LightSource, StreamEnd
+from .capture.driver import CameraDriver, FrameInfo, StreamEnd
 from .capture.ringbuffer import POLICIES, RingBuffer, RingStats, run_producer
 from .colorimetry import DELTA_E_METHODS
 from .runtime import get_allocator, get_queue
@@ -51,9 +51,20 @@ from .spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
 from .validate import validate_method
 
 __all__ = [
-    "STREAM_OUTPUTS", "StreamDecoder", "StreamResult", "StreamReport", "Stream", "Sink", "CallbackSink",
-    "ResultsRing", "NpyChunkWriter", "ExrSequenceWriter", "PreviewSink", "read_npy_chunks", "peak_rss_reset",
+    "STREAM_OUTPUTS",
+    "CallbackSink",
+    "ExrSequenceWriter",
+    "NpyChunkWriter",
+    "PreviewSink",
+    "ResultsRing",
+    "Sink",
+    "Stream",
+    "StreamDecoder",
+    "StreamReport",
+    "StreamResult",
     "peak_rss_bytes",
+    "peak_rss_reset",
+    "read_npy_chunks",
 ]
 
 #: What a stream can compute per sequence, and the channel count / dtype of each map.
@@ -93,9 +104,9 @@ class StreamDecoder:
 
     def __init__(self, plan, calibration, outputs, *, frame_shape, queue, reference=None, method="CIE 2000",
                  illuminant="D65", observer: str = DEFAULT_CMFS, cube_dtype=np.float16):
-        outputs = tuple(dict.fromkeys(outputs))
-        for name in outputs:
-            validate_method(name, {k: k for k in STREAM_OUTPUTS}, "stream output")
+        # canonical names (the check is case-insensitive), each once
+        outputs = tuple(dict.fromkeys(validate_method(name, {k: k for k in STREAM_OUTPUTS}, "stream output")
+                                      for name in outputs))
         if not outputs:
             raise ValueError(f"a stream needs at least one output of {', '.join(STREAM_OUTPUTS)}")
         self.outputs = outputs
@@ -818,8 +829,10 @@ class Stream:
             t.start()
         deadline = None if seconds is None else t0 + float(seconds)
         next_status = t0 + status_interval_s
+        # Waits use the sink thread's Event, never Thread.join: a KeyboardInterrupt landing inside join() can
+        # leave CPython 3.11 believing a live thread has ended, and the drain would be cut short.
         try:
-            while sinks.is_alive():
+            while not self._ended.is_set():
                 now = time.perf_counter()
                 if deadline is not None and now >= deadline:
                     self._stop.set()
@@ -827,17 +840,16 @@ class Stream:
                 if on_status is not None and now >= next_status:
                     on_status(self.status())
                     next_status = now + status_interval_s
-                sinks.join(0.05)
+                self._ended.wait(0.05)
         except KeyboardInterrupt:
-            self.stop()  # drain: the threads finish what was captured
-            producer.join()
-            device.join()
-            sinks.join()
+            self.stop()  # drain: the threads finish what was captured (a second Ctrl-C abandons the drain)
         finally:
             self._stop.set()
-            producer.join()
-            device.join()
-            sinks.join()
+            while not self._ended.wait(0.1):
+                pass
+            for t in (producer, device, sinks):
+                t.join()
+            self._recycle_done()  # the last results' maps, now that no thread uses the queue
             ring.close()
             get_allocator(self.queue).free_held()  # the stream's buffers go back to the system, not to the pool
         end = self.driver.stop()
@@ -857,7 +869,7 @@ class Stream:
     def _produce(self):
         try:
             run_producer(self.driver, self.ring)  # ends at a sequence boundary after stop
-        except BaseException as exc:  # surfaced by run()
+        except BaseException as exc:  # noqa: BLE001 (surfaced by run(), in the caller's thread)
             self._errors.append(exc)
             self._stop.set()
             self.ring.close()
@@ -892,7 +904,7 @@ class Stream:
                     self._complete(pending.popleft())
             while pending:
                 self._complete(pending.popleft())
-        except BaseException as exc:  # surfaced by run()
+        except BaseException as exc:  # noqa: BLE001 (surfaced by run(), in the caller's thread)
             self._errors.append(exc)
             self._stop.set()
             self.ring.close()
@@ -990,6 +1002,7 @@ class Stream:
                     getattr(sink, "close", lambda: None)()
                 except Exception as exc:  # noqa: BLE001
                     self._sink_errors.append(f"{type(exc).__name__} closing {type(sink).__name__}: {exc}")
+            self._ended.set()
 
 
 def _finished(events) -> bool:

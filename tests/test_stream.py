@@ -1,0 +1,296 @@
+"""The streaming pipeline end to end at 320 x 240: offline equality, fault injection, backpressure, shutdown, sinks.
+
+Frames come from the twin (faults injected by frame id) or from a replayed twin recording, through the same ring
+buffer and assembler as hardware frames; every result is checked against the offline path on the frames its ids
+name, so a sequence built across a lost or shifted frame cannot pass.
+"""
+
+from __future__ import annotations
+
+import _thread
+import json
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from specgpu import io
+from specgpu.bench import offline_maps, stream_setup
+from specgpu.capture.session import capture_sequences
+from specgpu.capture.twin import TwinDriver
+from specgpu.cli import main
+from specgpu.colorimetry import delta_E
+from specgpu.pipeline import SequenceFolder, recover, to_Lab, to_XYZ
+from specgpu.rig.twin import FaultSchedule, TwinRig
+from specgpu.stream import (
+    ExrSequenceWriter,
+    NpyChunkWriter,
+    PreviewSink,
+    ResultsRing,
+    Stream,
+    read_npy_chunks,
+)
+
+ALL = ("coefficients", "cube", "XYZ", "Lab", "dE")
+
+
+@pytest.fixture(scope="module")
+def setup():
+    """A calibrated 320 x 240 twin at 200 fps, a symmetric plan (K = 9, 31 bands) and 4 recorded sequences."""
+    return stream_setup(320, 240, sequences=4, output_step_nm=10.0)
+
+
+@pytest.fixture(scope="module")
+def expected(setup):
+    return {i: offline_maps(setup, i) for i in range(4)}
+
+
+def offline(setup, frames):
+    """The offline path (``pipeline.recover`` + ``to_XYZ`` / ``to_Lab`` + ``delta_E``) on one sequence's frames."""
+    folder = SequenceFolder(Path("."), frames[None], setup.plan, setup.bundle, [], {})
+    cube = recover(folder, sequence=0)
+    XYZ = to_XYZ(cube, setup.plan)
+    Lab = to_Lab(XYZ)
+    return {"cube": cube, "XYZ": XYZ, "Lab": Lab, "dE": delta_E(setup.reference, Lab)}
+
+
+def assert_maps_equal(got: dict, want: dict):
+    for name in ("cube", "XYZ", "Lab"):
+        if name in got:
+            scale = np.max(np.abs(want[name]))
+            np.testing.assert_allclose(got[name], want[name], rtol=0, atol=2e-5 * scale, err_msg=name)
+    if "dE" in got:
+        np.testing.assert_allclose(got["dE"], want["dE"], rtol=0, atol=2e-3, err_msg="dE")
+
+
+class Collect:
+    """A sink keeping copies of every result (ids and maps)."""
+
+    def __init__(self, delay_s: float = 0.0):
+        self.results = []
+        self.delay_s = delay_s
+        self.closed = False
+
+    def write(self, r):
+        self.results.append((r.frame_ids.copy(), {k: v.copy() for k, v in r.arrays.items()}))
+        if self.delay_s:
+            time.sleep(self.delay_s)
+
+    def close(self):
+        self.closed = True
+
+
+def aligned(setup, ids) -> bool:
+    return bool(np.all(np.diff(ids) == 1)) and int(ids[0]) % setup.plan.K == 0
+
+
+def test_stream_equals_offline_recover(setup, expected):
+    sink = Collect()
+    stream = Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=ALL, cube_dtype=np.float32,
+                    reference=setup.reference, policy="block", sinks=[sink])
+    report = stream.run()
+    assert report.sequences_out == 4 and len(sink.results) == 4 and sink.closed
+    assert report.accounting()["balanced"] and report.frames_in == 36
+    for ids, maps in sink.results:
+        assert aligned(setup, ids)
+        i = setup.recorded_sequence(ids)
+        assert_maps_equal(maps, expected[i])
+        # the coefficients rebuild the cube through the decoder's output basis
+        rebuilt = maps["coefficients"] @ stream.decoder.basis.T
+        np.testing.assert_allclose(rebuilt, maps["cube"], atol=1e-4 * np.max(np.abs(maps["cube"])))
+
+
+@pytest.mark.parametrize("readback,upload", [("copy", "copy"), ("map", "pinned")])
+def test_transfer_modes_give_the_same_results(setup, expected, readback, upload):
+    sink = Collect()
+    stream = Stream(setup.driver(loops=2), setup.plan, setup.bundle, outputs=("cube", "dE"), cube_dtype=np.float32,
+                    reference=setup.reference, policy="block", sinks=[sink], readback=readback, upload=upload,
+                    in_flight=2, result_buffers=2)
+    report = stream.run()
+    assert report.sequences_out == 8
+    for ids, maps in sink.results:
+        assert_maps_equal(maps, expected[setup.recorded_sequence(ids)])
+
+
+def test_injected_faults_counted_exactly_and_never_misaligned(setup):
+    """Drops, a duplicate and a missed trigger on the twin: the stream's counts equal the schedule's, its sequences
+    are exactly the capture path's, and each map equals the offline recovery of the frames its ids name."""
+    K = setup.plan.K
+    faults = FaultSchedule(dropped={5, 30}, duplicated={12, 50}, missed_triggers={40})
+    n_frames = 8 * K
+
+    def twin():
+        rig = TwinRig(setup.plan.rig_description(setup.description), scene=_scene(setup))
+        rig.seed = 11
+        return TwinDriver(rig, patterns=setup.plan.patterns, n_frames=n_frames, faults=faults, pacing="free")
+
+    sink = Collect()
+    report = Stream(twin(), setup.plan, setup.bundle, outputs=("XYZ", "Lab", "dE"), reference=setup.reference,
+                    policy="block", sinks=[sink]).run()
+    capture = capture_sequences(twin(), K)
+    a = report.assembly
+    assert (a.dropped, a.duplicates, a.missed_triggers) == (2, 2, 1)
+    assert a.as_dict() == capture.assembly.as_dict()
+    assert report.ring.dropped == 0 and report.accounting()["balanced"]
+    assert [list(ids) for ids, _ in sink.results] == [list(s.frame_ids) for s in capture.sequences]
+    # sequences hit by a fault are discarded: 0-8 (drop 5), 27-35 (drop 30), and after the missed trigger at 40
+    # the light is one pattern behind, so sequences start at ids = 1 (mod K)
+    starts = [int(ids[0]) for ids, _ in sink.results]
+    assert 0 not in starts and 27 not in starts and all(s % K == 1 for s in starts if s > 40)
+    for (ids, maps), seq in zip(sink.results, capture.sequences):
+        assert_maps_equal(maps, offline(setup, seq.frames))
+
+
+def _scene(setup):
+    from specgpu.rig.scene import colorchecker_scene
+
+    h, w = setup.frames.shape[1:]
+    return colorchecker_scene(h, w)
+
+
+@pytest.mark.parametrize("policy", ["drop_newest", "drop_oldest"])
+def test_stalling_sink_makes_the_ring_policy_act(setup, expected, policy):
+    """A sink slower than the camera: result buffers run out, the device thread waits, the frame ring fills and
+    its policy drops frames; every drop is counted (ring = id gaps) and every result is still aligned."""
+    sink = Collect(delay_s=0.08)  # ~12 sequences/s against 200 / 9 = 22 offered
+    stream = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=("XYZ", "dE"),
+                    reference=setup.reference, policy=policy, sinks=[sink], n_slots=18, result_buffers=2,
+                    in_flight=1)
+    report = stream.run(1.5)
+    r, a = report.ring, report.assembly
+    assert r.dropped > 0
+    assert (r.dropped_newest if policy == "drop_newest" else r.dropped_oldest) == r.dropped
+    assert a.dropped == r.dropped  # the replay loses nothing itself: every gap is a ring drop
+    assert report.frames_in == report.end.last_frame_id + 1
+    assert report.accounting()["balanced"] and a.sequences_discarded > 0
+    assert report.sequences_out == len(sink.results) > 0
+    for ids, maps in sink.results:
+        assert aligned(setup, ids)
+        assert_maps_equal(maps, expected[setup.recorded_sequence(ids)])
+
+
+def test_ctrl_c_drains_every_buffered_frame(setup, expected):
+    """KeyboardInterrupt in the thread running the stream: capture stops at a sequence boundary, every frame
+    already in the ring is assembled and computed, every result reaches the sinks, and the counters balance."""
+    sink = Collect(delay_s=0.01)
+    stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("XYZ", "dE"), reference=setup.reference,
+                    policy="block", sinks=[sink])
+    timer = threading.Timer(0.6, _thread.interrupt_main)
+    pending_at_interrupt = []
+
+    def look(status):
+        pending_at_interrupt.append(status["pending"])
+
+    timer.start()
+    try:
+        report = stream.run(30.0, on_status=look, status_interval_s=0.1)
+    finally:
+        timer.cancel()
+    assert report.interrupted and report.seconds < 10
+    assert max(pending_at_interrupt) > 0  # frames were buffered while running
+    assert report.ring.pending == 0 and report.ring.delivered == report.ring.finalized
+    a = report.assembly
+    assert report.frames_in % setup.plan.K == 0 and a.frames_unused == 0 and a.sequences_discarded == 0
+    assert report.sequences_out == a.sequences_complete == len(sink.results) == report.frames_in // setup.plan.K
+    assert report.accounting()["balanced"] and sink.closed
+    for ids, maps in sink.results[-3:]:
+        assert aligned(setup, ids)
+        assert_maps_equal(maps, expected[setup.recorded_sequence(ids)])
+
+
+def test_stop_mid_sequence_reports_the_partial_one(setup):
+    """A stop whose sequence can never complete (the driver's stream ends 4 frames into it): the partial
+    sequence's frames are reported as unused, one sequence discarded."""
+    K = setup.plan.K
+    frames, infos = setup.frames[:K + 4], setup.infos[:K + 4]
+    from specgpu.capture.replay import ReplayDriver
+
+    report = Stream(ReplayDriver(frames, infos, setup.light), setup.plan, setup.bundle, outputs=("XYZ",),
+                    policy="block").run()
+    a = report.assembly
+    assert report.sequences_out == 1 and a.frames_unused == 4 and a.sequences_discarded == 1
+    assert report.accounting()["balanced"]
+
+
+def test_a_failing_sink_stops_the_stream_and_is_reported(setup):
+    calls = []
+
+    def bad(result):
+        calls.append(result.index)
+        if len(calls) == 2:
+            raise ValueError("disk full")
+
+    report = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("XYZ",), policy="block", sinks=[bad]).run(20)
+    assert report.sink_errors == ["ValueError: disk full"] and report.seconds < 10
+    assert report.accounting()["balanced"]
+
+
+def test_sinks_write_readable_files(setup, expected, tmp_path):
+    ring = ResultsRing(capacity=2)
+    preview = PreviewSink(tmp_path / "preview.png", interval_s=0.0)
+    npy = NpyChunkWriter(tmp_path / "rec", chunk=3, metadata={"run": "test"})
+    exr = ExrSequenceWriter(tmp_path / "exr", wavelengths=setup.plan.output_wavelengths, every=4)
+    report = Stream(setup.driver(loops=2), setup.plan, setup.bundle, outputs=("cube", "XYZ", "dE"),
+                    cube_dtype=np.float16, reference=setup.reference, policy="block",
+                    sinks=[ring, preview, npy, exr]).run()
+    assert report.sequences_out == 8
+    assert len(ring) == 2 and ring.dropped == 6 and ring.written == 8
+    last = ring.get(0)
+    assert last.index == 6 and ring.get(0).index == 7 and ring.get(0) is None
+    index = json.loads((tmp_path / "rec" / "index.json").read_text())
+    assert index["chunks"] == 3 and len(index["sequences"]) == 8 and index["metadata"] == {"run": "test"}
+    dE = np.concatenate(read_npy_chunks(tmp_path / "rec", "dE"))
+    cube = np.concatenate(read_npy_chunks(tmp_path / "rec", "cube"))
+    assert dE.shape == (8, 240, 320) and cube.dtype == np.float16
+    for j, rec in enumerate(index["sequences"]):
+        want = expected[setup.recorded_sequence(rec["frame_ids"])]
+        np.testing.assert_allclose(dE[j], want["dE"], atol=2e-3)
+        np.testing.assert_allclose(cube[j], want["cube"], atol=2e-3 * np.max(want["cube"]))
+    assert sorted(p.name for p in (tmp_path / "exr").iterdir()) == [
+        f"{n}-{i:06d}.exr" for n in ("XYZ", "cube", "dE") for i in (0, 4)]
+    data, _, meta = io.read_map(tmp_path / "exr" / "dE-000004.exr")
+    assert meta["frame_ids"] == index["sequences"][4]["frame_ids"]
+    np.testing.assert_allclose(data[..., 0], dE[4], atol=1e-6)
+    assert preview.updates == 8 and preview.image.shape == (240, 320, 3) and (tmp_path / "preview.png").is_file()
+    with pytest.raises(FileExistsError, match="already holds a recording"):
+        NpyChunkWriter(tmp_path / "rec")
+
+
+def test_bad_arguments_are_one_line_errors(setup):
+    args = (setup.driver(), setup.plan, setup.bundle)
+    with pytest.raises(ValueError, match="stream output"):
+        Stream(*args, outputs=("spectrum",))
+    with pytest.raises(ValueError, match="needs a reference"):
+        Stream(*args, outputs=("dE",))
+    with pytest.raises(ValueError, match="unknown ring policy"):
+        Stream(*args, outputs=("XYZ",), policy="wait")
+    with pytest.raises(ValueError, match="in_flight"):
+        Stream(*args, outputs=("XYZ",), in_flight=4, result_buffers=2)
+    with pytest.raises(ValueError, match=r"must be \(3,\) or \(240, 320, 3\)"):
+        Stream(*args, outputs=("dE",), reference=np.zeros((2, 3)))
+
+
+def test_cli_stream_records_and_reports(setup, tmp_path):
+    from specgpu.calibration import save_calibration
+    from specgpu.plans import save_plan
+
+    cam = setup.description.camera
+    (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
+                                       f"exposure_s = {cam.exposure_s!r}\nframe_rate_hz = {cam.frame_rate_hz!r}\n")
+    save_calibration(tmp_path / "calib.npz", setup.bundle)
+    save_plan(tmp_path / "plan.npz", setup.plan)
+    result = CliRunner().invoke(main, ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan",
+                                       str(tmp_path / "plan.npz"), "--calib", str(tmp_path / "calib.npz"),
+                                       "--scene", "colorchecker", "--seconds", "1", "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    assert "frames in" in result.output and "dropped 0 (ring 0)" in result.output
+    index = json.loads((tmp_path / "out" / "index.json").read_text())
+    assert index["metadata"]["plan_hash"] == setup.plan.hash and len(index["sequences"]) >= 10
+    assert (tmp_path / "out" / "preview.png").is_file()
+    bad = CliRunner().invoke(main, ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan",
+                                    str(tmp_path / "plan.npz"), "--calib", str(tmp_path / "calib.npz"),
+                                    "--seconds", "1", "--outputs", "XYZ,spectrum"])
+    assert bad.exit_code != 0 and "spectrum" in bad.output
