@@ -707,7 +707,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     equality
         Stream results (float32 cube, XYZ, Lab, dE2000) against ``pipeline.recover`` on the same frames.
     """
-    from .stream import Stream
+    from .stream import Stream, current_rss_bytes
 
     unknown = set(cases) - {"fused", "cube", "paced", "overload", "equality"}
     if unknown:
@@ -717,7 +717,8 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     t_setup = time.perf_counter()
     setup = stream_setup(width, height)
     R = setup.frames.shape[0] // setup.plan.K
-    expected = {i: offline_maps(setup, i) for i in range(R)}
+    # the checkers need XYZ and dE only: the 61-band float32 cubes (75 MB each) would inflate the stated RSS
+    expected = {i: {k: v for k, v in offline_maps(setup, i).items() if k != "cube"} for i in range(R)}
     echo(f"stream bench: {width} x {height}, K = {setup.plan.K}, {setup.plan.A.shape[0]} bands, "
          f"{R} recorded sequences replayed (setup {time.perf_counter() - t_setup:.1f} s)")
     common = {"reference": setup.reference, "device": device}
@@ -759,13 +760,19 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
         checker = _Checker(setup, expected, ("XYZ", "dE"))
         stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("cube", "XYZ", "dE"),
                         cube_dtype=np.float32, policy="drop_newest", sinks=[checker], **common)
-        rep = stream.run(overload_seconds)
+        rss = []  # resident memory sampled through the run: bounded means flat, not growing with time
+        rep = stream.run(overload_seconds, on_status=lambda _s: rss.append(current_rss_bytes()),
+                         status_interval_s=0.25)
+        half = len(rss) // 2
         acc = rep.accounting()
         total = rep.end.last_frame_id + 1  # the replay loses nothing itself: every id exposed was offered
         passed = (rep.frames_in == total and rep.ring.dropped_newest == rep.assembly.dropped and acc["balanced"]
                   and rep.ring.dropped > 0 and checker.misaligned == 0 and checker.checked == rep.sequences_out)
         rows.append(_stream_row("overload (free-running replay, drop_newest)", rep,
                                 extra={"frames_offered": total, "checked": checker.checked,
+                                       "frames_into_ring_per_s": rep.ring.finalized / rep.seconds,
+                                       "rss_first_half_max_bytes": max(rss[:half] or [0]),
+                                       "rss_second_half_max_bytes": max(rss[half:] or [0]),
                                        "misaligned": checker.misaligned, "passed": passed,
                                        "load_avg_1min": load()}))
     if "equality" in cases:
@@ -779,6 +786,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
         stream = Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=("cube", "XYZ", "Lab", "dE"),
                         cube_dtype=np.float32, policy="block", sinks=[keep], **common)
         rep = stream.run()
+        expected = {i: offline_maps(setup, i) for i in range(R)}
         diffs = {name: max(_max_rel(got[i][name], expected[i][name]) for i in got) for name in ("cube", "XYZ", "Lab")}
         diffs["dE_abs"] = max(float(np.max(np.abs(got[i]["dE"] - expected[i]["dE"]))) for i in got)
         passed = len(got) == R and all(v <= 1e-4 for k, v in diffs.items() if k != "dE_abs") and diffs["dE_abs"] < 1e-2
@@ -814,6 +822,9 @@ def format_stream_report(report: dict) -> str:
             f"{row['assembly']['dropped']}, discarded {row['assembly']['sequences_discarded']}; CPU "
             f"{row['cpu_cores']:.2f} cores; peak RSS {rss / 2**20:.0f} MiB"
             + (f"; checked {row['checked']}, misaligned {row['misaligned']}" if "checked" in row else "")
-            + (f"; offered {row['frames_offered']}" if "frames_offered" in row else "")
+            + (f"; offered {row['frames_offered']} ({row['frames_into_ring_per_s']:.0f}/s into the ring); RSS max "
+               f"{row['rss_first_half_max_bytes'] / 2**20:.0f} MiB in the first half, "
+               f"{row['rss_second_half_max_bytes'] / 2**20:.0f} MiB in the second" if "frames_offered" in row else "")
+            + (f"; RSS at start {row['rss_start_bytes'] / 2**20:.0f} MiB" if row.get("rss_start_bytes") else "")
             + (f"; load {row['load_avg_1min']:.2f}" if row.get("load_avg_1min") is not None else ""))
     return "\n".join(lines)

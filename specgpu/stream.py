@@ -62,6 +62,7 @@ __all__ = [
     "StreamDecoder",
     "StreamReport",
     "StreamResult",
+    "current_rss_bytes",
     "peak_rss_bytes",
     "peak_rss_reset",
     "read_npy_chunks",
@@ -542,6 +543,9 @@ class StreamReport:
         The run ended by :meth:`Stream.stop` or Ctrl-C rather than by time or the end of the driver's stream.
     sink_errors : list of str
         Exceptions raised by sinks (the stream stops at the first one).
+    rss_start_bytes : int or None
+        Resident memory when the stream started (what the process held before: the peak minus this is the
+        stream's own).
     """
 
     frames_in: int
@@ -555,6 +559,7 @@ class StreamReport:
     peak_rss_bytes: int | None
     interrupted: bool
     sink_errors: list = field(default_factory=list)
+    rss_start_bytes: int | None = None
 
     @property
     def frames_per_s(self) -> float:
@@ -597,7 +602,8 @@ class StreamReport:
                 "frames_per_s": self.frames_per_s, "sequences_per_s": self.sequences_per_s,
                 "latency_ms_median": self.latency_ms(50), "latency_ms_p99": self.latency_ms(99),
                 "cpu_s": self.cpu_s, "cpu_cores": self.cpu_s / self.seconds if self.seconds else 0.0,
-                "peak_rss_bytes": self.peak_rss_bytes, "interrupted": self.interrupted,
+                "peak_rss_bytes": self.peak_rss_bytes, "rss_start_bytes": self.rss_start_bytes,
+                "interrupted": self.interrupted,
                 "ring": {**{k: getattr(self.ring, k) for k in self.ring.__dataclass_fields__},
                          "dropped": self.ring.dropped},
                 "assembly": self.assembly.as_dict(), "accounting": self.accounting(),
@@ -614,15 +620,25 @@ def peak_rss_reset() -> bool:
         return False
 
 
-def peak_rss_bytes() -> int | None:
-    """Peak resident set size of this process since start or the last :func:`peak_rss_reset`, bytes."""
+def _status_kib(field_name: str) -> int | None:
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
+            if line.startswith(field_name + ":"):
                 return int(line.split()[1]) * 1024
     except OSError:
         pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    return None
+
+
+def current_rss_bytes() -> int | None:
+    """Resident set size of this process now, bytes (None where /proc is absent)."""
+    return _status_kib("VmRSS")
+
+
+def peak_rss_bytes() -> int | None:
+    """Peak resident set size of this process since start or the last :func:`peak_rss_reset`, bytes."""
+    peak = _status_kib("VmHWM")
+    return peak if peak is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
 # ------------------------------------------------------------------------------------------------------ stream
@@ -819,6 +835,7 @@ class Stream:
         self._ended = threading.Event()
         self.decoder.warm_up(self.driver.dtype)
         peak_rss_reset()
+        rss_start = current_rss_bytes()
         usage0 = resource.getrusage(resource.RUSAGE_SELF)
         t0 = time.perf_counter()
         self.driver.start()
@@ -864,7 +881,8 @@ class Stream:
             frames_in=self.driver.delivered, sequences_out=self.sequences_out, ring=ring.stats(), assembly=stats,
             end=end, seconds=seconds_run, latencies_s=np.asarray(self.latencies),
             cpu_s=(usage1.ru_utime + usage1.ru_stime) - (usage0.ru_utime + usage0.ru_stime),
-            peak_rss_bytes=peak_rss_bytes(), interrupted=self._interrupted, sink_errors=self._sink_errors)
+            peak_rss_bytes=peak_rss_bytes(), interrupted=self._interrupted, sink_errors=self._sink_errors,
+            rss_start_bytes=rss_start)
 
     def _produce(self):
         try:
