@@ -294,3 +294,21 @@ def test_cli_stream_records_and_reports(setup, tmp_path):
                                     str(tmp_path / "plan.npz"), "--calib", str(tmp_path / "calib.npz"),
                                     "--seconds", "1", "--outputs", "XYZ,spectrum"])
     assert bad.exit_code != 0 and "spectrum" in bad.output
+
+
+def test_cli_bench_stream_reports_every_case(tmp_path):
+    out = tmp_path / "bench.json"
+    result = CliRunner().invoke(main, ["bench", "--stream", "--stream-size", "320x240", "--stream-seconds", "0.5",
+                                       "--paced-seconds", "0.5", "--stream-cases", "fused,paced,overload,equality",
+                                       "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    report = json.loads(out.read_text())
+    rows = {row["case"].split(" ")[0]: row for row in report["cases"]}
+    assert set(rows) == {"coefficients+XYZ+dE2000", "paced", "overload", "stream"}
+    for row in report["cases"]:
+        if row["case"] != "coefficients+XYZ+dE2000":  # a throughput target, not a correctness check
+            assert row["passed"], row
+    assert rows["overload"]["ring"]["dropped"] == rows["overload"]["assembly"]["dropped"] > 0
+    assert "PASS" in result.output and "frames/s in" in result.output
+    bad = CliRunner().invoke(main, ["bench", "--stream", "--stream-size", "640"])
+    assert bad.exit_code == 2 and "--stream-size" in bad.output
