@@ -425,8 +425,13 @@ def save_npz(path, kind: str, version: int, arrays: dict, meta: dict) -> str:
             raise ValueError(f"{path}: array {k!r} is not numeric")
     digest = content_hash(arrays, meta)
     header = {"format": kind, "version": int(version), "hash": digest, "meta": meta}
-    # np.savez adds ".npz" to a name without it; write through a file object to keep the path as given.
-    with open(path, "wb") as fh:
+    # np.savez adds ".npz" to a name without it; write through a file object to keep the path as given, to a
+    # temporary name renamed over the target at the end: an interrupted save never destroys a good file
+    from specgpu.rig._files import atomic_path
+
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, __meta__=np.array(json.dumps(header)), **arrays)
     return digest
 

@@ -286,7 +286,8 @@ def save_calibration(path, bundle: CalibrationBundle) -> str:
     """Save a bundle as a versioned, hashed ``.npz``; return its hash (equal to ``bundle.hash``)."""
     digest = save_npz(path, CALIBRATION_FORMAT, CALIBRATION_VERSION, bundle._arrays(),
                       json.loads(json.dumps(bundle._meta())))
-    assert digest == bundle.hash
+    if digest != bundle.hash:  # the file must be the bundle a plan will reference by hash
+        raise RuntimeError(f"{path}: saved content hash {digest[:12]} differs from the bundle's {bundle.hash[:12]}")
     return digest
 
 

@@ -282,7 +282,10 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
 
             driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle,
                                    n_frames=plan.K * sequences)
-            result = capture_sequences(driver, plan.K, on_sequence=keep)
+            try:
+                result = capture_sequences(driver, plan.K, on_sequence=keep)
+            finally:
+                driver.close()
     write_capture(out, kept, result.assembly, plan_path, calib,
                   metadata={"scene": truth.name, "rig": rig_path or "<paper defaults>"})
     a = result.assembly
@@ -325,6 +328,8 @@ def _parse_reference(text, height, width, illuminant):
 def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, device):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     from pathlib import Path
+
+    import numpy as np
 
     from . import io
     from .colorimetry import DELTA_E_METHODS, delta_E
@@ -371,8 +376,10 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
         for path in written:  # nothing partial left looking complete
             Path(path).unlink(missing_ok=True)
         raise
+    saturated = int(np.isnan(y[..., 0]).sum())
+    note = f"; {saturated} saturated pixels left NaN" if saturated else ""
     click.echo(f"{plan.method}: {plan.K} projections, {folder.sequences} sequences in {seq}; wrote "
-               + ", ".join(str(p) for p in written))
+               + ", ".join(str(p) for p in written) + note)
 
 
 @main.command("stream")

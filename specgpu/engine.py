@@ -24,6 +24,7 @@ DE_CODES = {"CIE 1976": 76, "CIE 1994": 94, "CIE 2000": 2000}
 
 
 _matrices: dict[tuple, cla.Array] = {}  # decoder matrices already on a device, by (context, shape, bytes)
+_matrix_lock = threading.Lock()
 _MATRIX_CACHE_SIZE = 64
 
 
@@ -35,14 +36,16 @@ def matrix_on_device(queue, M: np.ndarray) -> cla.Array:
     if M.nbytes > limit:
         raise ValueError(f"a {M.shape[0]} x {M.shape[1]} matrix ({M.nbytes} bytes) exceeds the constant memory of "
                          f"{queue.device.name.strip()} ({limit} bytes); use fewer outputs or frames per pass")
-    key = (queue.context.int_ptr, M.shape, M.tobytes())
-    with _launch_lock:
+    key = (queue.context, M.shape, M.tobytes())
+    with _matrix_lock:
         dev = _matrices.get(key)
-        if dev is None:
-            if len(_matrices) >= _MATRIX_CACHE_SIZE:
-                _matrices.pop(next(iter(_matrices)))
-            dev = _matrices[key] = cla.to_device(queue, M)
+    if dev is not None:
         return dev
+    dev = cla.to_device(queue, M)  # outside the lock: a blocking upload must not stall other launches
+    with _matrix_lock:
+        if len(_matrices) >= _MATRIX_CACHE_SIZE:
+            _matrices.pop(next(iter(_matrices)))
+        return _matrices.setdefault(key, dev)
 
 
 def _c_float(x: float) -> str:
@@ -52,13 +55,15 @@ def _c_float(x: float) -> str:
 def to_device(queue: cl.CommandQueue, a, dtype=None) -> cla.Array:
     """``a`` as a device array on ``queue``'s context (no copy when it already is one of the right dtype)."""
     if isinstance(a, cla.Array):
-        if dtype is not None and a.dtype != np.dtype(dtype):
-            a = a.astype(dtype)
         if a.context != queue.context:
             raise ValueError("a device array lives in another OpenCL context than the one chosen for this call")
+        if dtype is not None and a.dtype != np.dtype(dtype):
+            a = a.astype(dtype)
+        if a.offset:  # a view into a larger buffer (a slice): kernels take whole buffers
+            a = a.copy()
         return a
     host = np.ascontiguousarray(a if dtype is None else np.asarray(a, dtype=dtype))
-    return cla.to_device(queue, host)
+    return cla.to_device(queue, host, allocator=get_allocator(queue))
 
 
 def pixel_map(queue, a, name: str, spatial: tuple, planes: int | None):

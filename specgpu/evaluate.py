@@ -96,8 +96,7 @@ def true_patch_spectra(scene, wavelengths=None) -> tuple[tuple, np.ndarray]:
     names, spectra = patch_means(scene.reflectance, scene.masks)
     if wavelengths is None:
         return names, spectra
-    wl = np.asarray(wavelengths, np.float64)
-    return names, np.array([np.interp(wl, scene.wavelengths, s) for s in spectra])
+    return names, spectra @ _resampling(scene, wavelengths).T
 
 
 def rmse_per_patch(estimate, truth) -> np.ndarray:
@@ -181,20 +180,28 @@ class PixelReport:
             if v is None:
                 continue
             v = v[np.isfinite(v)]
+            if v.size == 0:  # no valid pixel (a saturated capture): say so, do not crash
+                out[key] = {"mean": float("nan"), "median": float("nan"), "p95": float("nan"), "max": float("nan")}
+                continue
             out[key] = {"mean": float(v.mean()), "median": float(np.median(v)),
                         "p95": float(np.percentile(v, 95)), "max": float(v.max())}
         return out
 
 
-def truth_cube(scene, wavelengths) -> np.ndarray:
-    """The scene's reflectance on ``wavelengths`` (H, W, B), float32; a scene whose bands do not cover them is
-    an error (the truth is never extrapolated)."""
+def _resampling(scene, wavelengths) -> np.ndarray:
+    """(B, B_scene) linear interpolation from the scene's bands to ``wavelengths``; a scene whose bands do not
+    cover them is an error (the truth is never extrapolated)."""
     wl = np.asarray(wavelengths, np.float64)
     lo, hi = float(scene.wavelengths[0]), float(scene.wavelengths[-1])
-    if wl[0] < lo - 1e-6 or wl[-1] > hi + 1e-6:
+    if wl.min() < lo - 1e-6 or wl.max() > hi + 1e-6:
         raise ValueError(f"the truth scene {scene.name!r} covers {lo:g}-{hi:g} nm, not the estimate's "
-                         f"{wl[0]:g}-{wl[-1]:g} nm")
-    M = interpolation_matrix(wl, scene.wavelengths).astype(np.float32)  # (B_est, B_scene)
+                         f"{wl.min():g}-{wl.max():g} nm")
+    return interpolation_matrix(wl, scene.wavelengths)
+
+
+def truth_cube(scene, wavelengths) -> np.ndarray:
+    """The scene's reflectance on ``wavelengths`` (H, W, B), float32 (see :func:`_resampling`)."""
+    M = _resampling(scene, wavelengths).astype(np.float32)
     return np.einsum("hwk,bk->hwb", scene.reflectance, M, optimize=True).astype(np.float32)
 
 

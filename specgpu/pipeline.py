@@ -157,16 +157,26 @@ def read_capture(directory) -> SequenceFolder:
 
 def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None) -> np.ndarray:
     """The plan's outputs (H, W, B) from a sequence folder: one sequence, or the mean of all (``sequence=None``:
-    averaging repeated sequences of a still scene lowers the temporal noise)."""
+    averaging repeated sequences of a still scene lowers the temporal noise).
+
+    A pixel where any frame used sits at the sensor's maximum code (saturated, flagged per sequence before any
+    averaging) has no valid measurement: its outputs are NaN, never a clipped, wrong value.
+    """
     if sequence is None:
-        frames = folder.frames.mean(axis=0, dtype=np.float32) if folder.sequences > 1 else folder.frames[0]
+        used = folder.frames
+        frames = used.mean(axis=0, dtype=np.float32) if folder.sequences > 1 else used[0]
     else:
         if not 0 <= sequence < folder.sequences:
             raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
-        frames = folder.frames[sequence]
+        used = folder.frames[sequence:sequence + 1]
+        frames = used[0]
     plan, bundle = folder.plan, folder.calibration
-    return apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field, out_dtype=out_dtype,
-                        device=device)
+    y = apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field, out_dtype=out_dtype,
+                     device=device)
+    saturated = np.any(used >= bundle.max_code, axis=(0, 1))
+    if saturated.any():
+        y[saturated] = np.nan
+    return y
 
 
 def to_XYZ(y: np.ndarray, plan: Plan, illuminant: str = "D65", *, device=None) -> np.ndarray:

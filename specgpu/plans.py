@@ -319,7 +319,11 @@ def _choose_exposure(bundle, patterns, level: float, max_exposure_s: float | Non
     if not longest >= bundle.min_exposure_s:
         raise ValueError(f"max_exposure_s must be >= the light's switch time {bundle.min_exposure_s:g} s")
     t = min(max(level * headroom / per_s.max(), bundle.min_exposure_s), longest)
-    return t, per_s * t / headroom
+    levels = per_s * t / headroom
+    if levels.max() > 1.0:
+        raise ValueError(f"even the light's shortest exposure ({bundle.min_exposure_s * 1e6:.0f} us) saturates a white "
+                         f"with these patterns ({levels.max():.2f} x the camera's range): lower the illuminance")
+    return t, levels
 
 
 def _band_masks(bundle, centres, bandwidth):

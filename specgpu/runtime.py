@@ -175,8 +175,8 @@ def _device_of(device) -> cl.Device:
 
 
 _lock = threading.Lock()
-_queues: dict[int, cl.CommandQueue] = {}
-_pools: dict[int, object] = {}
+_queues: dict[tuple, cl.CommandQueue] = {}
+_pools: dict[cl.Context, object] = {}
 
 
 def get_queue(device=None, like=None) -> cl.CommandQueue:
@@ -192,7 +192,9 @@ def get_queue(device=None, like=None) -> cl.CommandQueue:
             if isinstance(queue, cl.CommandQueue):
                 return queue
     dev = select_device(device, like)
-    key = dev.int_ptr
+    # keyed by the context the caller gave, else by the device (one context of ours per device); the key holds
+    # the objects themselves, so an address freed and reused can never reach a stale queue
+    key = (device, dev) if isinstance(device, cl.Context) else (None, dev)
     with _lock:
         queue = _queues.get(key)
         if queue is None:
@@ -205,7 +207,7 @@ def get_queue(device=None, like=None) -> cl.CommandQueue:
 def get_allocator(queue: cl.CommandQueue):
     """A memory pool for the queue's context: device outputs reuse freed buffers instead of mapping fresh
     memory (on CPU devices a fresh buffer costs a page fault per 4 KiB on first write)."""
-    key = queue.context.int_ptr
+    key = queue.context
     with _lock:
         pool = _pools.get(key)
         if pool is None:
@@ -289,7 +291,7 @@ _programs: dict[tuple, _Program] = {}
 def get_program(context: cl.Context, source_name: str, options: tuple[str, ...]) -> _Program:
     """Build (once) the program for ``kernels/<source_name>`` with ``options`` in ``context``."""
     source = kernel_source(source_name)
-    key = (context.int_ptr, source, options)
+    key = (context, source, options)  # the Context itself: a reused address never hits a stale program
     with _lock:
         entry = _programs.get(key)
     if entry is not None:

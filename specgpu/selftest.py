@@ -220,11 +220,15 @@ def run_selftest(device=None, path: Path | None = None) -> SelftestReport:
         t0 = time.perf_counter()
         try:
             outputs = runner(inputs, queue, **kwargs)
-        except Exception as error:  # noqa: BLE001: a failing kernel is a FAIL line, not a crash of the suite
+        except Exception as error:  # noqa: BLE001 (a failing kernel is a FAIL line, not a crash of the suite)
             results.append(CaseResult(name, kernel, False, message=f"raised {type(error).__name__}: {error}"))
             continue
         errors, messages = {}, []
         for out_name in tolerances:
+            if out_name not in outputs or f"expected_{out_name}" not in data:
+                errors[out_name] = float("inf")
+                messages.append(f"{out_name}: missing from the run or from the golden set")
+                continue
             err, msg = compare(out_name, outputs[out_name], data[f"expected_{out_name}"], kinds[out_name])
             errors[out_name] = err
             if msg:

@@ -237,3 +237,20 @@ def test_npz_with_a_damaged_member_is_refused(tmp_path, basis):
             z.writestr(n, data)
     with pytest.raises(ValueError, match=r"damaged\.npz: corrupt"):
         load_basis(damaged)
+
+
+def test_an_interrupted_save_keeps_the_previous_file(tmp_path, monkeypatch):
+    from specgpu.basis import load_npz, save_npz
+
+    path = tmp_path / "table.npz"
+    digest = save_npz(path, "specgpu.test", 1, {"a": np.arange(3)}, {"k": 1})
+
+    def fail(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "savez_compressed", fail)
+    with pytest.raises(OSError, match="disk full"):
+        save_npz(path, "specgpu.test", 1, {"a": np.arange(5)}, {"k": 2})
+    arrays, meta, version, loaded = load_npz(path, "specgpu.test", (1,))
+    assert loaded == digest and arrays["a"].tolist() == [0, 1, 2]
+    assert [p.name for p in tmp_path.iterdir()] == ["table.npz"]  # no temporary left behind

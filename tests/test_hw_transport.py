@@ -233,3 +233,16 @@ def test_hardware_config_validation():
         HardwareConfig.from_dict({"exposure_s": "fast"}, source="rig.toml")
     with pytest.raises(ValueError, match="names no spectrometer"):
         open_spectrometer({})
+
+
+def test_open_hardware_releases_the_light_when_the_camera_cannot_open():
+    """A camera that fails to open (here: harvesters missing, or no camera) must not leave the USB link open."""
+    from specgpu.hardware.dlpc900 import SimulatedDLPC900
+    from specgpu.hardware.rig import open_hardware
+
+    sim = SimulatedDLPC900("lightcrafter-6500")
+    with pytest.raises(Exception) as error:
+        open_hardware(hardware={"light": "dlpc900-simulated"}, transport=sim,
+                      patterns=np.zeros((2, 1024), np.int32))
+    assert "\n" not in str(error.value)
+    assert not sim.is_open

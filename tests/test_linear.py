@@ -243,3 +243,12 @@ def test_float16_rounding_is_bit_exact_round_to_nearest_even(queue):
     A = cla.to_device(queue, np.ones(1, np.float32))
     kernel(queue, (-(-x.size // 8),), None, frames.data, A.data, None, None, out.data, None, np.uint64(x.size))
     check(out.get(), "HALF_SOFT")
+
+
+def test_sliced_device_arrays(queue):
+    """A view into a larger device buffer (non-zero offset) works like the same data in its own buffer."""
+    rng = np.random.default_rng(12)
+    frames = frames_of(rng, np.uint16, 5, (6, 10))
+    dev = cla.to_device(queue, frames)
+    A = rng.normal(0, 1, (3, 4))
+    np.testing.assert_array_equal(apply_linear(dev[1:], A).get(), apply_linear(frames[1:], A, device=queue))

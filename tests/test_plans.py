@@ -286,8 +286,13 @@ def test_exposure_is_chosen_to_use_the_range(bundle):
     assert short.exposure_s == pytest.approx(1e-3) and short.expected_level.max() < 0.8
     bright = LightParameters(illuminance_lux=1e7)
     hot = oracle_calibration(replace(DESC, light=bright))
-    floor = make_plan("tristimulus", hot)
-    assert floor.exposure_s == pytest.approx(80e-6)  # the light's switch time bounds it from below
+    # the light's switch time bounds the exposure from below: a light too bright even then is refused, since
+    # every frame of a white would saturate
+    with pytest.raises(ValueError, match=r"shortest exposure \(80 us\) saturates a white"):
+        make_plan("tristimulus", hot)
+    warm = oracle_calibration(replace(DESC, light=LightParameters(illuminance_lux=1.1e6)))  # floor binds, fits
+    floor = make_plan("tristimulus", warm)
+    assert floor.exposure_s == pytest.approx(80e-6) and floor.expected_level.max() <= 1.0
 
 
 def test_plan_refuses_out_of_range_content(bundle):

@@ -92,3 +92,13 @@ def test_describe_names_the_chosen_device(queue):
     text = runtime.describe(queue.device)
     assert "chosen: " + queue.device.name.strip() in text
     assert "pyopencl" in text and "kernels:" in text
+
+
+def test_a_context_given_is_the_context_used(queue):
+    other = cl.Context([queue.device])
+    q = runtime.get_queue(other)
+    assert q.context == other and q.device == queue.device
+    assert runtime.get_queue(other) is q  # and kept
+    assert runtime.get_queue(queue.device).context != other  # our own context per device is unaffected
+    frames = cla.to_device(q, np.ones((2, 3, 4), np.uint16))
+    np.testing.assert_array_equal(apply_linear(frames, np.ones((1, 2))).get(), 2.0)

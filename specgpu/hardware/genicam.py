@@ -209,12 +209,17 @@ class GenICamCamera(CameraDriver):
         return StreamEnd(*self._last)
 
     def close(self) -> None:
-        """Release the camera (and the harvester that opened it)."""
-        self.stop()
-        if self._harvester is not None:
-            self.acquirer.destroy()
-            self._harvester.reset()
-            self._harvester = None
+        """Release the camera (and the harvester that opened it) and the light it drives."""
+        try:
+            self.stop()
+            if self._harvester is not None:
+                self.acquirer.destroy()
+                self._harvester.reset()
+                self._harvester = None
+        finally:
+            close_light = getattr(self._light, "close", None)
+            if close_light is not None:
+                close_light()
 
     def fill(self, out: np.ndarray | None) -> FrameInfo | None:
         if not self._running:

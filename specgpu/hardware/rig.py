@@ -185,12 +185,16 @@ def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n
 
     cfg = _config(hardware)
     light = open_light(cfg, rig=rig, calibration=calibration, transport=transport)
-    if patterns is not None:
-        light.load_sequence(patterns)
-    return GenICamCamera(light, acquirer=acquirer, cti=cfg.camera_cti or None, serial=cfg.camera_serial or None,
-                         mode=cfg.camera_mode, exposure_s=cfg.exposure_s, frame_rate_hz=cfg.frame_rate_hz or None,
-                         n_frames=n_frames, check_light=check_light,
-                         first_frame_id=None if cfg.camera_first_frame_id < 0 else cfg.camera_first_frame_id)
+    try:
+        if patterns is not None:
+            light.load_sequence(patterns)
+        return GenICamCamera(light, acquirer=acquirer, cti=cfg.camera_cti or None, serial=cfg.camera_serial or None,
+                             mode=cfg.camera_mode, exposure_s=cfg.exposure_s,
+                             frame_rate_hz=cfg.frame_rate_hz or None, n_frames=n_frames, check_light=check_light,
+                             first_frame_id=None if cfg.camera_first_frame_id < 0 else cfg.camera_first_frame_id)
+    except BaseException:
+        light.close()  # the USB link must not stay open behind an error (e.g. harvesters missing)
+        raise
 
 
 def open_spectrometer(hardware=None, *, device=None):
@@ -323,8 +327,10 @@ class HardwareCalibrationRig(HardwareRig):
     def close(self) -> None:
         """Stop the light and release the camera and the spectrometer."""
         try:
-            self.camera.close()
-            self.light.stop()  # a pattern show() left up runs on the controller's own clock
+            try:
+                self.light.stop()  # a pattern show() left up runs on the controller's own clock
+            finally:
+                self.camera.close()  # and the light's USB link with it
         finally:
             close = getattr(self.spectroradiometer, "close", None)
             if close is not None:

@@ -165,6 +165,10 @@ class DLPC900Light(LightSource):
         self.exposure_s = check_number("plan exposure_s", plan.exposure_s, low=self.minimum_exposure_s, high=16.7)
         self.load_sequence(plan.patterns)
 
+    def close(self) -> None:
+        """Release the controller's USB link."""
+        self.device.close()
+
     def recover(self, attempts: int = 3, delay_s: float = 0.5) -> None:
         """After a USB fault: reopen the link and upload the last sequence asked for again (the controller may
         have been reset); :class:`DeviceNotFound` if it does not come back."""
