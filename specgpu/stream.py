@@ -911,7 +911,12 @@ class Stream:
                     seq = self.assembler.push(slot.array, slot.info)
                 finally:
                     self.ring.release(slot)
-                arrival = self.driver.arrivals.pop(slot.info.frame_id, None)
+                arrivals = self.driver.arrivals
+                arrival = arrivals.pop(slot.info.frame_id, None)
+                if len(arrivals) > 2 * self.n_slots:
+                    # stamps of frames the ring discarded unread (drop_oldest) would pile up over a long run
+                    for fid in [f for f in list(arrivals) if f < slot.info.frame_id]:
+                        arrivals.pop(fid, None)
                 if seq is None:
                     continue
                 pending.append(self._submit(index, seq, arrival))

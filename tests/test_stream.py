@@ -312,3 +312,12 @@ def test_cli_bench_stream_reports_every_case(tmp_path):
     assert "PASS" in result.output and "frames/s in" in result.output
     bad = CliRunner().invoke(main, ["bench", "--stream", "--stream-size", "640"])
     assert bad.exit_code == 2 and "--stream-size" in bad.output
+
+
+def test_arrival_stamps_stay_bounded_under_drop_oldest(setup):
+    """Frames the ring discards unread never reach the device thread; their arrival stamps must not pile up."""
+    stream = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=("XYZ",), policy="drop_oldest",
+                    sinks=[lambda r: time.sleep(0.1)], n_slots=9, result_buffers=1, in_flight=1)
+    report = stream.run(1.0)
+    assert report.ring.dropped_oldest > 18
+    assert len(stream.driver.arrivals) <= 2 * stream.n_slots + 1
