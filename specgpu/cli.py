@@ -304,11 +304,11 @@ def _parse_reference(text, height, width, illuminant):
             return np.array([float(p) for p in parts], np.float32)
         except ValueError:
             pass
-    from .colorimetry import XYZ_to_Lab, reflectance_to_XYZ
+    from .colorimetry import XYZ_to_Lab
+    from .evaluate import scene_XYZ
     from .rig.scene import load_scene
 
-    truth = load_scene(text, height, width)
-    return XYZ_to_Lab(reflectance_to_XYZ(truth.reflectance, truth.wavelengths, illuminant), illuminant)
+    return XYZ_to_Lab(scene_XYZ(load_scene(text, height, width), illuminant), illuminant)
 
 
 @main.command()
@@ -317,7 +317,8 @@ def _parse_reference(text, height, width, illuminant):
               help="Recovered cube (.exr / .npz); an XYZ map for a tristimulus plan.")
 @click.option("--xyz", "xyz_path", type=click.Path(dir_okay=False), default=None, help="Also write XYZ (EXR).")
 @click.option("--lab", "lab_path", type=click.Path(dir_okay=False), default=None, help="Also write CIELAB (EXR).")
-@click.option("--delta-e-ref", "ref", default=None, help="Reference: 'L,a,b' or a scene whose Lab per pixel is it.")
+@click.option("--delta-e-ref", "ref", default=None,
+              help="Reference: 'L,a,b', or a scene whose true colour per pixel (over all its bands) is it.")
 @click.option("--delta-e", "de_path", type=click.Path(dir_okay=False), default=None,
               help="Colour-difference map to write (EXR; .png for a heat map).")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")

@@ -29,7 +29,8 @@ import numpy as np
 from . import io, paper
 from .basis import save_basis
 from .calibration import calibrate, save_calibration
-from .evaluate import evaluate_pixels, evaluate_reflectance, evaluate_XYZ, patch_means, true_patch_spectra
+from .evaluate import (evaluate_pixels, evaluate_reflectance, evaluate_XYZ, patch_means, scene_XYZ,
+                       true_patch_spectra)
 from .pipeline import EVALUATION_CHART, capture_plan, default_basis, read_capture, recover, to_XYZ, write_capture
 from .plans import make_plan, save_plan
 from .rig.config import RigDescription, load_rig
@@ -102,7 +103,7 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
         save_plan(out / "plans" / f"{name}.npz", plans[name])
     bar.update()
 
-    io.write_sRGB_preview(out / "png" / "truth.png", _truth_XYZ(scene, device), exposure=0.0)
+    io.write_sRGB_preview(out / "png" / "truth.png", scene_XYZ(scene, "D65", device=device), exposure=0.0)
     result = DemoResult(out, 0.0, bundle.reports, basis.cumulative_variance[:9].tolist())
     for i, (name, plan) in enumerate(plans.items()):
         bar.set_description(f"capturing {name}")
@@ -126,12 +127,6 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     bar.update()
     bar.close()
     return result
-
-
-def _truth_XYZ(scene, device):
-    from .colorimetry import reflectance_to_XYZ
-
-    return reflectance_to_XYZ(scene.reflectance, scene.wavelengths, "D65", device=device)
 
 
 def _evaluate(out, name, plan, y, scene, device):

@@ -24,7 +24,7 @@ from specgpu.rig.scene import interpolation_matrix
 from specgpu.spectra import DEFAULT_CMFS, XYZ_weights
 
 __all__ = ["PatchReport", "patch_means", "rmse_per_patch", "delta_E_per_patch", "evaluate_reflectance",
-           "evaluate_XYZ", "true_patch_spectra", "PixelReport", "truth_cube", "evaluate_pixels"]
+           "evaluate_XYZ", "true_patch_spectra", "PixelReport", "truth_cube", "scene_XYZ", "evaluate_pixels"]
 
 
 @dataclass(frozen=True)
@@ -205,6 +205,14 @@ def truth_cube(scene, wavelengths) -> np.ndarray:
     return np.einsum("hwk,bk->hwb", scene.reflectance, M, optimize=True).astype(np.float32)
 
 
+def scene_XYZ(scene, illuminant="D65", cmfs=DEFAULT_CMFS, *, wavelengths=None, device=None) -> np.ndarray:
+    """XYZ (Y = 1 for the white) of a scene under ``illuminant``: over the scene's own bands (its true colour), or
+    over ``wavelengths`` (the truth resampled to an estimate's bands, to judge a method on what it recovers)."""
+    if wavelengths is None:
+        return reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant, cmfs, device=device)
+    return reflectance_to_XYZ(truth_cube(scene, wavelengths), wavelengths, illuminant, cmfs, device=device)
+
+
 def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs=DEFAULT_CMFS,
                     device=None) -> PixelReport:
     """Per-pixel RMSE (reflectance estimates), dE*ab and dE2000 of an estimate against the truth scene.
@@ -231,13 +239,13 @@ def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs
         truth = truth_cube(scene, wl)
         rmse = np.sqrt(np.mean((est - truth) ** 2, axis=-1))
         XYZ_est = reflectance_to_XYZ(est, wl, illuminant, cmfs, device=device)
-        XYZ_true = reflectance_to_XYZ(truth, wl, illuminant, cmfs, device=device)
+        XYZ_true = reflectance_to_XYZ(truth, wl, illuminant, cmfs, device=device)  # scene_XYZ on wl, truth reused
     else:
         if est.shape[2] != 3:
             raise ValueError(f"an XYZ estimate must have 3 channels, got {est.shape[2]}")
         rmse = None
         XYZ_est = est
-        XYZ_true = reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant, cmfs, device=device)
+        XYZ_true = scene_XYZ(scene, illuminant, cmfs, device=device)
     Lab_est = XYZ_to_Lab(XYZ_est, illuminant, observer=observer, device=device)
     Lab_true = XYZ_to_Lab(XYZ_true, illuminant, observer=observer, device=device)
     return PixelReport(rmse, delta_E(Lab_true, Lab_est, "CIE 1976", device=device),

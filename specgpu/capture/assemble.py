@@ -213,13 +213,7 @@ class SequenceAssembler:
                 st.sync_failures += 1
                 self._next = -1
                 return None
-        if self._buf is None:
-            self._buf = np.empty((k,) + frame.shape, frame.dtype)
-        elif self._buf.shape[1:] != frame.shape:
-            raise ValueError(f"frame {fid}: shape {frame.shape} differs from the stream's {self._buf.shape[1:]}")
-        self._buf[pos] = frame
-        self._ids[pos] = fid
-        self._ts[pos] = info.timestamp_s
+        self._store(frame, info, pos)
         self._next = pos + 1
         if self._next < k:
             return None
