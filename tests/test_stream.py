@@ -321,3 +321,24 @@ def test_arrival_stamps_stay_bounded_under_drop_oldest(setup):
     report = stream.run(1.0)
     assert report.ring.dropped_oldest > 18
     assert len(stream.driver.arrivals) <= 2 * stream.n_slots + 1
+
+
+def test_a_driver_error_ends_the_stream_and_is_raised(setup):
+    """A camera failing mid-stream: the error reaches the caller; the threads have ended and nothing hangs."""
+    inner = setup.driver()
+    calls = [0]
+    fill = inner.fill
+
+    def failing(out):
+        calls[0] += 1
+        if calls[0] == 40:
+            raise OSError("camera link lost")
+        return fill(out)
+
+    inner.fill = failing
+    stream = Stream(inner, setup.plan, setup.bundle, outputs=("XYZ",), policy="block")
+    t = time.perf_counter()
+    with pytest.raises(OSError, match="camera link lost"):
+        stream.run(20)
+    assert time.perf_counter() - t < 10
+    assert not [th for th in threading.enumerate() if th.name.startswith("specgpu-stream")]
