@@ -178,13 +178,15 @@ def test_ctrl_c_drains_every_buffered_frame(setup, expected):
     sink = Collect(delay_s=0.01)
     stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("XYZ", "dE"), reference=setup.reference,
                     policy="block", sinks=[sink])
-    timer = threading.Timer(0.6, _thread.interrupt_main)
+    # armed from the first status call, so the interrupt lands once the stream runs (never in a kernel build)
+    timer = threading.Timer(0.5, _thread.interrupt_main)
     pending_at_interrupt = []
 
     def look(status):
+        if not pending_at_interrupt:
+            timer.start()
         pending_at_interrupt.append(status["pending"])
 
-    timer.start()
     try:
         report = stream.run(30.0, on_status=look, status_interval_s=0.1)
     finally:
