@@ -126,6 +126,9 @@ class StreamDecoder:
         gain = calibration.flat_field
         if tuple(np.shape(dark)) != (self.height, self.width):
             raise ValueError(f"calibration maps are {np.shape(dark)} but the frames are {self.height} x {self.width}")
+        # a sample at the sensor's maximum code has no valid measurement: its pixel's outputs become NaN, as
+        # pipeline.recover makes them (flagged by the first kernel of a sequence, applied on the host)
+        self.saturation = float(calibration.max_code)
         self.dark = engine.to_device(queue, np.asarray(dark, np.float32).reshape(-1))
         self.gain = engine.to_device(queue, np.asarray(gain, np.float32).reshape(-1))
         self.A = A
@@ -168,7 +171,7 @@ class StreamDecoder:
             raise ValueError("a reference was given but dE is not among the outputs")
 
     def shapes(self) -> dict[str, tuple[tuple, np.dtype]]:
-        """Per output: its (H, W, C) or (H, W) shape and dtype."""
+        """Per output: its (H, W, C) or (H, W) shape and dtype; plus ``mask`` (H, W) uint8, bit 1 = saturated."""
         h, w = self.height, self.width
         out = {}
         for name in self.outputs:
@@ -180,6 +183,7 @@ class StreamDecoder:
                 out[name] = ((h, w, 3), np.dtype(np.float32))
             else:
                 out[name] = ((h, w), np.dtype(np.float32))
+        out["mask"] = ((h, w), np.dtype(np.uint8))
         return out
 
     def warm_up(self, dtype=np.uint16) -> None:
@@ -191,23 +195,29 @@ class StreamDecoder:
         del outs
 
     def enqueue(self, frames: cla.Array) -> dict[str, cla.Array]:
-        """Enqueue every kernel on the K frames (flat device array); returns the flat device outputs."""
+        """Enqueue every kernel on the K frames (flat device array); returns the flat device outputs and ``mask``
+        (bit 1: a frame at the saturation level)."""
         q, n = self.queue, self.n
         out = {}
+        mask = None
+        sat = {"want_mask": True, "saturation": self.saturation}  # asked of the first kernel only
         if "coefficients" in self.outputs:
-            out["coefficients"], _ = engine.linear(q, frames, self.A_coefficients, n=n, dark=self.dark,
-                                                   gain=self.gain, out_layout=1)
+            out["coefficients"], mask = engine.linear(q, frames, self.A_coefficients, n=n, dark=self.dark,
+                                                      gain=self.gain, out_layout=1, **sat)
         if "cube" in self.outputs:
-            out["cube"], _ = engine.linear(q, frames, self.A, n=n, dark=self.dark, gain=self.gain,
-                                           out_dtype=self.cube_dtype, out_layout=1)
+            out["cube"], m = engine.linear(q, frames, self.A, n=n, dark=self.dark, gain=self.gain,
+                                           out_dtype=self.cube_dtype, out_layout=1, **({} if mask is not None else sat))
+            mask = m if mask is None else mask
         if self.M is not None:
             fused = engine.frames_to_delta_e(
                 q, frames, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
                 else "CIE 2000", reference_single=self.reference_single, dark=self.dark, gain=self.gain,
-                write_xyz="XYZ" in self.outputs, write_lab="Lab" in self.outputs)
+                write_xyz="XYZ" in self.outputs, write_lab="Lab" in self.outputs, **({} if mask is not None else sat))
+            mask = fused.mask if mask is None else mask
             for name, arr in (("XYZ", fused.XYZ), ("Lab", fused.Lab), ("dE", fused.delta_E)):
                 if name in self.outputs:
                     out[name] = arr
+        out["mask"] = mask
         return out
 
 
@@ -233,6 +243,8 @@ class StreamResult:
     arrays : dict of str to numpy.ndarray
         Per output of the stream: ``coefficients`` (H, W, m), ``cube`` (H, W, B), ``XYZ`` / ``Lab`` (H, W, 3),
         ``dE`` (H, W).
+    saturated_pixels : int
+        Pixels where a frame sat at the sensor's maximum code: their outputs are NaN (as ``pipeline.recover``).
     latency_s : float
         From the arrival of the sequence's last frame in host memory (the driver's fill returned: for a camera,
         exposure end plus readout) to the result being ready for the sinks, s.
@@ -244,6 +256,7 @@ class StreamResult:
     timestamps_s: np.ndarray
     arrays: dict
     latency_s: float
+    saturated_pixels: int = 0
 
 
 class Sink:
@@ -970,8 +983,9 @@ class Stream:
         for name, dev in outs.items():
             shape, dtype = shapes[name]
             if self.readback == "map":
-                arr, ev = cl.enqueue_map_buffer(q, dev.base_data, cl.map_flags.READ, dev.offset, shape, dtype,
-                                                is_blocking=False)
+                # READ | WRITE: saturated pixels are set to NaN in place on the host
+                arr, ev = cl.enqueue_map_buffer(q, dev.base_data, cl.map_flags.READ | cl.map_flags.WRITE,
+                                                dev.offset, shape, dtype, is_blocking=False)
             else:
                 arr = np.empty(shape, dtype)
                 ev = cl.enqueue_copy(q, arr, dev.data, is_blocking=False)
@@ -1011,6 +1025,12 @@ class Stream:
                 if entry is None:
                     break
                 item, result = entry
+                mask = result.arrays.pop("mask")
+                saturated = (mask & 1).astype(bool) if mask.any() else None
+                if saturated is not None:  # no valid measurement there: NaN, as the offline recovery
+                    for arr in result.arrays.values():
+                        arr[saturated] = np.nan
+                    result.saturated_pixels = int(np.count_nonzero(saturated))
                 try:
                     if not self._sink_errors:
                         for sink in self.sinks:

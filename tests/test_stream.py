@@ -344,3 +344,28 @@ def test_a_driver_error_ends_the_stream_and_is_raised(setup):
         stream.run(20)
     assert time.perf_counter() - t < 10
     assert not [th for th in threading.enumerate() if th.name.startswith("specgpu-stream")]
+
+
+def test_saturated_pixels_are_nan_as_offline(setup):
+    """A pixel at the sensor's maximum code in any frame of a sequence has no valid measurement: NaN in every
+    output of the stream, exactly where ``pipeline.recover`` puts NaN, and the count is on the result."""
+    from dataclasses import replace
+
+    frames = setup.frames.copy()
+    frames[3, 10:12, 20:25] = setup.bundle.max_code  # sequence 0, pattern 3: 10 pixels
+    frames[9 + 8, 100, 200] = setup.bundle.max_code + 5  # sequence 1, last pattern: 1 pixel above the maximum
+    sat = replace(setup, frames=frames)
+    sink = Collect()
+    counts = []
+    report = Stream(sat.driver(loops=1), sat.plan, sat.bundle, outputs=ALL, cube_dtype=np.float32,
+                    reference=sat.reference, policy="block",
+                    sinks=[sink, lambda r: counts.append(r.saturated_pixels)]).run()
+    assert report.sequences_out == 4 and counts == [10, 1, 0, 0]
+    for ids, maps in sink.results:
+        want = offline_maps(sat, sat.recorded_sequence(ids))
+        for name in ALL:
+            got_nan = np.isnan(maps[name]).reshape(240, 320, -1).any(axis=-1)
+            want_nan = np.isnan(want["cube" if name == "coefficients" else name]).reshape(240, 320, -1).any(axis=-1)
+            assert np.array_equal(got_nan, want_nan), name
+        assert_maps_equal({k: np.nan_to_num(v) for k, v in maps.items() if k != "coefficients"},
+                          {k: np.nan_to_num(v) for k, v in want.items()})
