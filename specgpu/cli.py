@@ -267,7 +267,7 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
     plan = load_plan(plan_path)
     plan.check_calibration(bundle, name=str(plan_path))
     cam = description.camera
-    truth = load_scene(scene or description.scene.source, cam.roi_height, cam.roi_width)
+    truth = load_scene(scene or description.scene, cam.roi_height, cam.roi_width)
     kept = []
     with tqdm(total=sequences, desc="capturing", unit="seq", leave=False, file=sys.stderr) as bar:
         def keep(sequence):

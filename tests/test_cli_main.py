@@ -240,3 +240,10 @@ def test_info_devices_lists_usb_or_says_what_is_missing():
         assert "USB devices:" in result.output
     else:
         one_line_error(result, "libusb")
+
+
+def test_capture_without_scene_uses_the_rigs(work, tmp_path):
+    (tmp_path / "rig.toml").write_text(RIG + '[scene]\nsource = "white"\n')
+    out = run("capture", "--rig", tmp_path / "rig.toml", "--plan", work / "tri.npz", "--calib", work / "calib.npz",
+              "--out", tmp_path / "seq")
+    assert "(white, 320 x 240)" in out.output
