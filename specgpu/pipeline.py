@@ -180,15 +180,11 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
 
 
 def to_XYZ(y: np.ndarray, plan: Plan, illuminant: str = "D65", *, device=None) -> np.ndarray:
-    """XYZ (Y = 1 for the white) of a plan's outputs: computed from reflectance, or the outputs themselves for a
-    tristimulus plan (which already are XYZ under the plan's illuminant)."""
-    if plan.output == "reflectance":
+    """XYZ (Y = 1 for the white) of a plan's outputs (see :meth:`specgpu.plans.Plan.outputs_to_XYZ`)."""
+    plan.outputs_to_XYZ(illuminant)  # refuses outputs that have no XYZ, or XYZ under another illuminant
+    if plan.output == "reflectance":  # the same weights, applied on the device
         return reflectance_to_XYZ(y, plan.output_wavelengths, illuminant=illuminant, device=device)
-    if plan.output == "XYZ":
-        if plan.illuminant and plan.illuminant.lower() != str(illuminant).lower():
-            raise ValueError(f"the plan measures XYZ under {plan.illuminant}, not {illuminant}")
-        return y
-    raise ValueError(f"a {plan.output!r} plan ({plan.method}) has no XYZ")
+    return y  # a tristimulus plan's outputs are XYZ already
 
 
 def to_Lab(XYZ: np.ndarray, illuminant: str = "D65", *, device=None) -> np.ndarray:

@@ -205,6 +205,18 @@ class Plan:
         rate = min(cam.frame_rate_hz, 1.0 / (self.exposure_s + description.light.switch_time_s + 1e-6))
         return replace(description, camera=replace(cam, exposure_s=float(self.exposure_s), frame_rate_hz=rate))
 
+    def outputs_to_XYZ(self, illuminant="D65", observer=DEFAULT_CMFS) -> np.ndarray:
+        """(3, B) matrix C with XYZ = C . y for this plan's outputs y (Y = 1 for the white): the colour-matching
+        weights under ``illuminant`` for reflectance outputs, the identity for a tristimulus plan made for the same
+        illuminant; any other output has no XYZ (ValueError)."""
+        if self.output == "reflectance":
+            return XYZ_weights(self.output_wavelengths, illuminant, observer)
+        if self.output == "XYZ":
+            if self.illuminant and self.illuminant.lower() != str(illuminant).lower():
+                raise ValueError(f"the plan measures XYZ under {self.illuminant}, not {illuminant}")
+            return np.eye(3)
+        raise ValueError(f"a {self.output!r} plan ({self.method}) has no XYZ")
+
     def check_calibration(self, bundle, name: str = "plan") -> None:
         """Refuse a plan designed with another calibration than ``bundle`` (stale plan)."""
         if self.calibration != bundle.hash:

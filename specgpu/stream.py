@@ -47,7 +47,7 @@ from .capture.driver import CameraDriver, FrameInfo, StreamEnd
 from .capture.ringbuffer import POLICIES, RingBuffer, RingStats, run_producer
 from .colorimetry import DELTA_E_METHODS
 from .runtime import get_allocator, get_queue
-from .spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
+from .spectra import DEFAULT_CMFS, white_point_XYZ
 from .validate import validate_method
 
 __all__ = [
@@ -147,14 +147,7 @@ class StreamDecoder:
         self.reference = None
         self.reference_single = True
         if colour:
-            if plan.output == "reflectance":
-                self.M = XYZ_weights(plan.output_wavelengths, illuminant, observer) @ A
-            elif plan.output == "XYZ":
-                if plan.illuminant and plan.illuminant.lower() != str(illuminant).lower():
-                    raise ValueError(f"the plan measures XYZ under {plan.illuminant}, not {illuminant}")
-                self.M = A
-            else:
-                raise ValueError(f"a {plan.output!r} plan ({plan.method}) has no XYZ, Lab or dE")
+            self.M = plan.outputs_to_XYZ(illuminant, observer) @ A
             self.white = white_point_XYZ(illuminant, observer)
         if "dE" in outputs:
             if reference is None:
@@ -323,6 +316,9 @@ class ResultsRing(Sink):
                 if self.policy == "drop_oldest":
                     self._items.popleft()
                     self.dropped += 1
+                elif self._closed:  # nobody will read any more: count it, never block the stream's shutdown
+                    self.dropped += 1
+                    return
                 else:
                     self._cond.wait()
             self._items.append(copy)
