@@ -122,6 +122,20 @@ def _hardware(description):
                                     base_dir=description.base_dir or None)
 
 
+def _experiment(description, plan_path, calib, scene):
+    """The rig's calibration, a plan made from that calibration (stale: an error) and the scene at the camera's
+    resolution: what capture and stream both start from."""
+    from .calibration import load_calibration
+    from .plans import load_plan
+    from .rig.scene import load_scene
+
+    bundle = load_calibration(calib, rig=description)
+    plan = load_plan(plan_path)
+    plan.check_calibration(bundle, name=str(plan_path))
+    cam = description.camera
+    return bundle, plan, load_scene(scene or description.scene, cam.roi_height, cam.roi_width)
+
+
 class _Busy:
     """A progress line with elapsed time for a step of unknown length (tqdm, refreshed from a thread)."""
 
@@ -255,19 +269,13 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
     """Capture sequences of a plan on the rig (the twin by default) into a sequence folder."""
     from tqdm import tqdm
 
-    from .calibration import load_calibration
     from .pipeline import capture_plan, write_capture
-    from .plans import load_plan
     from .rig.config import load_rig
-    from .rig.scene import load_scene
 
     description = load_rig(rig_path)
-    hardware = _hardware(description)
-    bundle = load_calibration(calib, rig=description)
-    plan = load_plan(plan_path)
-    plan.check_calibration(bundle, name=str(plan_path))
+    hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
+    bundle, plan, truth = _experiment(description, plan_path, calib, scene)
     cam = description.camera
-    truth = load_scene(scene or description.scene, cam.roi_height, cam.roi_width)
     kept = []
     with tqdm(total=sequences, desc="capturing", unit="seq", leave=False, file=sys.stderr) as bar:
         def keep(sequence):
@@ -415,12 +423,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
     stops cleanly (everything captured is processed or reported)."""
     import numpy as np
 
-    from .calibration import load_calibration
     from .capture.twin import TwinDriver
     from .pipeline import check_scene_covers
-    from .plans import load_plan
-    from .rig.config import load_rig
-    from .rig.scene import load_scene
     from .rig.twin import TwinRig
     from .stream import STREAM_OUTPUTS, ExrSequenceWriter, NpyChunkWriter, PreviewSink, Stream
     from .validate import validate_method
@@ -429,12 +433,11 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
     # before any loading: a typo is an error naming the valid outputs
     wanted = tuple(validate_method(o.strip(), {k: k for k in STREAM_OUTPUTS}, "stream output")
                    for o in outputs.split(",") if o.strip())
+    from .rig.config import load_rig
+
     description = load_rig(rig_path)
-    bundle = load_calibration(calib, rig=description)
-    plan = load_plan(plan_path)
-    plan.check_calibration(bundle, name=str(plan_path))
+    bundle, plan, truth = _experiment(description, plan_path, calib, scene)
     cam = description.camera
-    truth = load_scene(scene or description.scene, cam.roi_height, cam.roi_width)
     check_scene_covers(truth, plan, description.light.line_fwhm_nm)
     reference = None
     if "dE" in wanted:
