@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from specgpu.rig import _files
 from specgpu.rig._files import (SPECTRAL_LAYOUT_VERSION, atomic_path, format_channel, one_line, parse_channel,
                                 read_cube_exr, read_cube_npz, read_exr, write_cube_exr, write_cube_npz, write_exr)
 
@@ -298,16 +299,7 @@ def _write_png(path: Path, rgb8: np.ndarray, attributes: dict) -> Path:
         spec.attribute(key, str(value))
     if not path.parent.is_dir():
         raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
-    with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create("png")
-        if out is None or not out.open(str(tmp), spec):
-            raise ValueError(f"{path}: cannot write PNG ({one_line(oiio.geterror())})")
-        try:
-            if not out.write_image(np.ascontiguousarray(rgb8)):
-                raise ValueError(f"{path}: cannot write PNG ({one_line(out.geterror())})")
-        finally:
-            out.close()
-    return path
+    return _files.write_image(path, rgb8, spec, "png", "PNG")
 
 
 def _auto_exposure_ev(Y: np.ndarray, percentile: float = 99.0) -> float:

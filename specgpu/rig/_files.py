@@ -213,13 +213,21 @@ def write_exr(path, data, names, *, half: bool = False, attributes: dict | None 
     spec.attribute("compression", "zip")
     for key, value in (attributes or {}).items():
         spec.attribute(str(key), value)
+    return write_image(path, arr, spec, "openexr", "EXR")
+
+
+def write_image(path: Path, pixels: np.ndarray, spec, format_name: str, label: str) -> Path:
+    """Write ``pixels`` (H, W, C) with an OpenImageIO ``spec`` through ``format_name``, atomically (temporary name,
+    renamed at the end); a failure is a one-line ValueError naming the file."""
+    import OpenImageIO as oiio
+
     with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create("openexr")
+        out = oiio.ImageOutput.create(format_name)
         if out is None or not out.open(str(tmp), spec):
-            raise ValueError(f"{path}: cannot write EXR ({one_line(oiio.geterror())})")
+            raise ValueError(f"{path}: cannot write {label} ({one_line(oiio.geterror())})")
         try:
-            if not out.write_image(np.ascontiguousarray(arr)):
-                raise ValueError(f"{path}: cannot write EXR ({one_line(out.geterror())})")
+            if not out.write_image(np.ascontiguousarray(pixels)):
+                raise ValueError(f"{path}: cannot write {label} ({one_line(out.geterror())})")
         finally:
             out.close()
     return path
