@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hw_fakes import Buffer, NodeMap, TimeoutException
 from specgpu.calibration import CalibrationRig, _rig, calibrate, oracle_calibration
 from specgpu.hardware.dlpc900 import DMDLayout, SimulatedDLPC900
 from specgpu.hardware.errors import BackendMissing
@@ -26,36 +27,6 @@ from specgpu.rig.scene import white_plate_scene
 DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
 WHITE = 0.99
 DARK_COUNTS = 800.0
-
-
-class Node:
-    def __init__(self, value):
-        self.value = value
-
-
-class NodeMap:
-    def __init__(self, height, width, pixel_format):
-        self.PixelFormat, self.Height, self.Width = Node(pixel_format), Node(height), Node(width)
-        for name in ("ExposureAuto", "ExposureTime", "TriggerSelector", "TriggerMode", "TriggerSource",
-                     "TriggerActivation", "AcquisitionFrameRateEnable", "AcquisitionFrameRate", "LineSelector",
-                     "LineMode", "LineSource"):
-            setattr(self, name, Node(None))
-
-
-class TimeoutException(Exception):
-    """Named as genicam.gentl's, which harvesters raises when fetch() times out."""
-
-
-class Buffer:
-    def __init__(self, data, frame_id, timestamp_ns):
-        self.payload = type("Payload", (), {"components": [type("Component", (), {"data": data.ravel()})()]})()
-        self.frame_id, self.timestamp_ns = frame_id, timestamp_ns
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
 
 
 class TwinCamera:

@@ -15,40 +15,11 @@ from specgpu.capture import SequenceAssembler, capture_sequences, open_driver
 from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, DMDGeometry, DMDLayout, SimulatedDLPC900
 from specgpu.hardware.errors import (DeviceDisconnected, DeviceNotFound, DeviceTimeout, HardwareError,
                                      LightFault)
+from hw_fakes import Buffer, NodeMap, TimeoutException
 from specgpu.hardware.genicam import GenICamCamera
 
 DMD = DMDGeometry("test-dmd", 160, 48)
 COLUMNS, ROWS = 16, 40
-
-
-class Node:
-    def __init__(self, value):
-        self.value = value
-
-
-class NodeMap:
-    def __init__(self, height, width):
-        self.PixelFormat, self.Height, self.Width = Node("Mono16"), Node(height), Node(width)
-        for name in ("ExposureAuto", "ExposureTime", "TriggerSelector", "TriggerMode", "TriggerSource",
-                     "TriggerActivation", "AcquisitionFrameRateEnable", "AcquisitionFrameRate", "LineSelector",
-                     "LineMode", "LineSource"):
-            setattr(self, name, Node(None))
-
-
-class TimeoutException(Exception):
-    """Named as genicam.gentl's, which harvesters raises when fetch() times out."""
-
-
-class Buffer:
-    def __init__(self, data, frame_id, timestamp_ns):
-        self.payload = type("Payload", (), {"components": [type("Component", (), {"data": data.ravel()})()]})()
-        self.frame_id, self.timestamp_ns = frame_id, timestamp_ns
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
 
 
 class FakeAcquirer:
