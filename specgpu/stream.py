@@ -44,7 +44,7 @@ import pyopencl.array as cla
 from . import engine
 from .capture.assemble import AssemblyStats, SequenceAssembler
 from .capture.driver import CameraDriver, FrameInfo, StreamEnd
-from .capture.ringbuffer import POLICIES, RingBuffer, RingStats, run_producer
+from .capture.ringbuffer import POLICIES, RingBuffer, RingStats, run_producer, wait_for_items
 from .colorimetry import DELTA_E_METHODS
 from .runtime import get_allocator, get_queue
 from .spectra import DEFAULT_CMFS, white_point_XYZ
@@ -327,15 +327,9 @@ class ResultsRing(Sink):
 
     def get(self, timeout: float | None = None) -> StreamResult | None:
         """The oldest kept result (owned by the caller), or None on timeout or when closed and empty."""
-        deadline = None if timeout is None else time.monotonic() + timeout
         with self._cond:
-            while not self._items:
-                if self._closed:
-                    return None
-                remaining = None if deadline is None else deadline - time.monotonic()
-                if remaining is not None and remaining <= 0:
-                    return None
-                self._cond.wait(remaining)
+            if not wait_for_items(self._cond, lambda: self._items, lambda: self._closed, timeout):
+                return None
             item = self._items.popleft()
             self._cond.notify_all()
             return item

@@ -94,6 +94,20 @@ class RingStats:
         return self.dropped_oldest + self.dropped_newest
 
 
+def wait_for_items(cond: threading.Condition, items, closed, timeout: float | None) -> bool:
+    """With ``cond`` held: wait until ``items()`` is non-empty (True), or until ``closed()`` with nothing left, or
+    ``timeout`` seconds have passed (False). The one wait loop of the capture queues."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while not items():
+        if closed():
+            return False
+        remaining = None if deadline is None else deadline - time.monotonic()
+        if remaining is not None and remaining <= 0:
+            return False
+        cond.wait(remaining)
+    return True
+
+
 class RingBuffer:
     """Fixed ring of ``n_slots`` preallocated frame slots with an explicit full policy.
 
@@ -204,15 +218,9 @@ class RingBuffer:
     def get(self, timeout: float | None = None) -> Slot | None:
         """The oldest finalized slot (read it, then :meth:`release` it), or ``None`` when closed and drained or on
         timeout."""
-        deadline = None if timeout is None else time.monotonic() + timeout
         with self._cond:
-            while not self._ready:
-                if self._closed:
-                    return None
-                remaining = None if deadline is None else deadline - time.monotonic()
-                if remaining is not None and remaining <= 0:
-                    return None
-                self._cond.wait(remaining)
+            if not wait_for_items(self._cond, lambda: self._ready, lambda: self._closed, timeout):
+                return None
             slot = self._ready.popleft()
             slot._state = _READING
             self._c["delivered"] += 1
