@@ -192,9 +192,9 @@ def format_tables(result: DemoResult) -> str:
     lines.append(f"{'':>2} {'dE2000 avg':<14}{d65.summary()['delta_E_2000'][0]:8.2f}{'':>6}"
                  f"{a.summary()['delta_E_2000'][0]:8.2f}   (worst dE*ab: D65 {d65.worst()}, A {a.worst()})")
     cv = result.basis_variance
-    lines += ["", f"basis: cumulative variance m=5 {cv[4]:.4f} (paper {paper.BASIS_VARIANCE_M5}); "
-                  f"per-pixel dE2000 mean: " + ", ".join(f"{k} {v['pixels']['delta_E_2000']['mean']:.2f}"
-                                                          for k, v in m.items())]
+    lines += ["", f"basis: cumulative variance m=5 {cv[4]:.4f} (paper {paper.BASIS_VARIANCE_M5})",
+              "per-pixel dE2000 mean (patches and surround): "
+              + ", ".join(f"{k} {v['pixels']['delta_E_2000']['mean']:.2f}" for k, v in m.items())]
     return "\n".join(lines)
 
 
