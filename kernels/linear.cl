@@ -94,3 +94,57 @@ __kernel void linear_apply(__global const IN_T *restrict frames,
     store_mask(convert_uchar8(flags), mask, base, count);
 #endif
 }
+
+#if OUT_HALF && OUT_LAYOUT == 0 && K <= 128
+/* Planar float16 with 16 pixels per work-item: the two 8-pixel halves of each output plane are converted together
+ * and written as one 32-byte store, which halves the store instructions per plane and lets the 61 plane streams
+ * keep pace with the arithmetic (measured 30 % faster than 8 pixels per work-item, and faster than float32).
+ * The host launches n / 16 work-items of this entry for planar float16 outputs. */
+#define Y_LOAD_ONE(k)                                                                          \
+    const floatv x##k = load_sample(frames, dark, n, k, base, count, &flags);                 \
+    const floatv y##k = load_sample(frames, dark, n, k, base2, count2, &flags2);
+#define Y_FMA_ONE(k) acc0 = m_[k] * x##k + acc0; acc1 = m_[k] * y##k + acc1;
+
+__kernel void linear_apply_h16(__global const IN_T *restrict frames,
+                               __constant const float *restrict A,
+                               __global const float *restrict dark,
+                               __global const float *restrict gain,
+                               __global half *restrict out,
+                               __global uchar *restrict mask,
+                               const ulong n)
+{
+    const ulong base = (ulong)get_global_id(0) * 16;
+    if (base >= n) return;
+    const ulong base2 = base + VW;
+    const uint count = n - base < VW ? (uint)(n - base) : VW;
+    const uint count2 = base2 >= n ? 0 : (n - base2 < VW ? (uint)(n - base2) : VW);
+    intv flags = (intv)(0), flags2 = (intv)(0);
+    REP_(K, Y_LOAD_ONE)
+#if HAS_GAIN
+    const floatv g = load_f(gain, base, count), g2 = count2 ? load_f(gain, base2, count2) : (floatv)(0.0f);
+#endif
+    for (uint b = 0; b < B; ++b) {
+        __constant const float *m_ = A + b * K;
+        floatv acc0 = (floatv)(0.0f), acc1 = (floatv)(0.0f);
+        REP_(K, Y_FMA_ONE)
+#if HAS_GAIN
+        acc0 *= g;
+        acc1 *= g2;
+#endif
+        __global half *plane = out + (ulong)b * n;
+#if VEC_DEREF
+        if (count2 == VW) {
+            typedef ushort16 ushort16_u __attribute__((aligned(2)));
+            *(__global ushort16_u *)(plane + base) = (ushort16)(half_bits(acc0), half_bits(acc1));
+            continue;
+        }
+#endif
+        store_h(acc0, plane, base, count);
+        if (count2) store_h(acc1, plane, base2, count2);
+    }
+#if WRITE_MASK
+    store_mask(convert_uchar8(flags), mask, base, count);
+    if (count2) store_mask(convert_uchar8(flags2), mask, base2, count2);
+#endif
+}
+#endif

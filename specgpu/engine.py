@@ -74,8 +74,8 @@ def pixel_map(queue, a, name: str, spatial: tuple, planes: int | None):
     return to_device(queue, a.reshape(-1)), per_plane
 
 
-def _launch(queue, kernel, n_pixels: int, *args):
-    items = -(-n_pixels // VW)
+def _launch(queue, kernel, n_pixels: int, *args, pixels_per_item: int = VW):
+    items = -(-n_pixels // pixels_per_item)
     # A fixed work-group size on every device: on GPUs for occupancy, on CPU devices because PoCL sizes groups
     # by the launch and keeps a group's private data on a thread stack (large groups overflowed it). The global
     # size is padded; the extra work-items return at once.
@@ -112,8 +112,10 @@ def linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 
     """y = A (o - dark) * gain over ``n`` pixels; returns (out (B*n,), mask (n,) or None) as flat device arrays."""
     B, K = A.shape
     out_dtype = np.dtype(out_dtype)
+    # planar float16 has its own entry with 16 pixels per work-item (one 32-byte store per plane; linear.cl)
+    wide = out_dtype == np.float16 and out_layout == 0 and K <= 128
     kernel = get_kernel(
-        queue, "linear.cl", "linear_apply",
+        queue, "linear.cl", "linear_apply_h16" if wide else "linear_apply",
         B=B, OUT_HALF=out_dtype == np.float16, OUT_LAYOUT=out_layout, WRITE_MASK=want_mask,
         **_input_macros(frames.dtype, K, in_layout, 0 if dark is None else (2 if dark_per_frame else 1),
                         gain is not None, saturation if want_mask else None),
@@ -123,7 +125,7 @@ def linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 
     A_dev = matrix_on_device(queue, A)
     if n:
         _launch(queue, kernel, n, frames.data, A_dev.data, _data(dark), _data(gain), out.data, _data(mask),
-                np.uint64(n))
+                np.uint64(n), pixels_per_item=16 if wide else VW)
     return out, mask
 
 

@@ -254,3 +254,21 @@ def test_sliced_device_arrays(queue):
     dev = cla.to_device(queue, frames)
     A = rng.normal(0, 1, (3, 4))
     np.testing.assert_array_equal(apply_linear(dev[1:], A).get(), apply_linear(frames[1:], A, device=queue))
+
+
+@pytest.mark.parametrize("npix", [1, 7, 8, 9, 15, 16, 17, 24, 31, 33, 1000])
+def test_planar_float16_sixteen_pixel_items(queue, npix):
+    """Planar float16 runs 16 pixels per work-item: every remainder modulo 16, with dark, gain and mask."""
+    rng = np.random.default_rng(npix)
+    K = 6
+    frames = rng.integers(0, 1000, (K, npix), dtype=np.uint16)
+    frames[2, -1] = 1023
+    dark = rng.uniform(0, 20, (npix,)).astype(np.float32)
+    gain = rng.uniform(0.9, 1.1, (npix,)).astype(np.float32)
+    A = rng.normal(0, 1e-3, (5, K))
+    res = apply_linear(frames, A, dark, gain, out_dtype=np.float16, layout="planar", saturation=1023,
+                       return_mask=True, device=queue)
+    assert res.y.shape == (5, npix) and res.y.dtype == np.float16
+    assert_close(res.y, linear_ref(frames, A, dark, gain, layout="planar"),
+                 bound(frames, A, dark, gain, out_dtype=np.float16))
+    np.testing.assert_array_equal(res.mask, mask_ref(frames, 1023))
