@@ -145,3 +145,21 @@ def read_spectrum_csv(path) -> tuple[np.ndarray, np.ndarray]:
     except ValueError as exc:
         raise ValueError(str(exc)) from None
     return wl, data[:, 1].copy()
+
+
+def curve_on_grid(path, wavelengths: np.ndarray, what: str, zero_message: str) -> np.ndarray:
+    """A two-column CSV spectral curve (``what``: e.g. ``"lamp power"``) on ``wavelengths``, 0 outside its range,
+    normalised to a peak of 1; negative values, or nothing but zeros on the grid (``zero_message``), are errors."""
+    src_wl, src_val = read_spectrum_csv(path)
+    if np.any(src_val < 0):
+        raise ValueError(f"{path}: {what} must be non-negative, got minimum {src_val.min():g}")
+    return normalised_to_peak(np.interp(wavelengths, src_wl, src_val, left=0.0, right=0.0), wavelengths,
+                              zero_message)
+
+
+def normalised_to_peak(values: np.ndarray, wavelengths: np.ndarray, zero_message: str) -> np.ndarray:
+    """``values / max(values)``; a curve with no positive value is an error saying ``zero_message`` and the range."""
+    peak = float(values.max()) if values.size else 0.0
+    if not peak > 0:
+        raise ValueError(f"{zero_message} between {wavelengths.min():g} and {wavelengths.max():g} nm")
+    return values / peak

@@ -28,7 +28,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from specgpu.rig._checks import check_array, check_number, read_spectrum_csv
+from specgpu.rig._checks import check_array, check_number, curve_on_grid, normalised_to_peak
 
 __all__ = ["CameraParameters", "Camera", "sensitivity_curve", "standard_normal_fill"]
 
@@ -183,18 +183,11 @@ class CameraParameters:
 def sensitivity_curve(name: str, wavelengths) -> np.ndarray:
     """Relative spectral sensitivity (peak 1 over ``wavelengths``) of the named model or CSV file."""
     wl = np.asarray(wavelengths, dtype=np.float64)
+    zero = f"camera.sensitivity {name!r} is zero"
     if name == "cmos":
         sigma = np.where(wl < 560.0, 120.0, 155.0)
-        v = np.exp(-0.5 * ((wl - 560.0) / sigma) ** 2)
-    else:
-        src_wl, src_val = read_spectrum_csv(name)
-        if np.any(src_val < 0):
-            raise ValueError(f"{name}: camera sensitivity must be non-negative, got minimum {src_val.min():g}")
-        v = np.interp(wl, src_wl, src_val, left=0.0, right=0.0)
-    peak = float(v.max()) if v.size else 0.0
-    if not peak > 0:
-        raise ValueError(f"camera.sensitivity {name!r} is zero between {wl.min():g} and {wl.max():g} nm")
-    return v / peak
+        return normalised_to_peak(np.exp(-0.5 * ((wl - 560.0) / sigma) ** 2), wl, zero)
+    return curve_on_grid(name, wl, "camera sensitivity", zero)
 
 
 # Inverse-CDF table of the standard normal at 2^16 equally likely midpoints: drawing 16 random bits per sample

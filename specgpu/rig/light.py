@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from specgpu.capture.driver import LightSource
-from specgpu.rig._checks import check_array, check_number, read_spectrum_csv
+from specgpu.rig._checks import check_array, check_number, curve_on_grid, normalised_to_peak
 
 __all__ = ["LightParameters", "ProgrammableLight", "PatternFit", "lamp_spd", "photopic_y"]
 
@@ -202,6 +202,7 @@ def lamp_spd(params: LightParameters, wavelengths: np.ndarray) -> np.ndarray:
     """
     wl = np.asarray(wavelengths, dtype=np.float64)
     lamp = str(params.lamp)
+    zero = f"light.lamp {lamp!r} emits nothing"
     if lamp == "xenon":
         spd = _planck(wl, params.lamp_colour_temperature_k)
         spd = spd / float(_planck(np.array([560.0]), params.lamp_colour_temperature_k)[0])
@@ -218,14 +219,8 @@ def lamp_spd(params: LightParameters, wavelengths: np.ndarray) -> np.ndarray:
         sd = colour.SDS_LIGHT_SOURCES["Kinoton 75P"]
         spd = np.interp(wl, sd.wavelengths, sd.values, left=0.0, right=0.0)
     else:
-        src_wl, src_val = read_spectrum_csv(lamp)
-        if np.any(src_val < 0):
-            raise ValueError(f"{lamp}: lamp power must be non-negative, got minimum {src_val.min():g}")
-        spd = np.interp(wl, src_wl, src_val, left=0.0, right=0.0)
-    peak = float(spd.max()) if spd.size else 0.0
-    if not peak > 0:
-        raise ValueError(f"light.lamp {lamp!r} emits nothing between {wl.min():g} and {wl.max():g} nm")
-    return spd / peak
+        return curve_on_grid(lamp, wl, "lamp power", zero)
+    return normalised_to_peak(spd, wl, zero)
 
 
 @dataclass(frozen=True)
