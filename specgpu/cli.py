@@ -110,6 +110,10 @@ def bench(device, json_path, sizes, repeats, stream, stream_size, stream_seconds
 
 _RIG = click.option("--rig", "rig_path", type=click.Path(dir_okay=False), default=None,
                     help="Rig description TOML (default: the paper's rig, simulated by the digital twin).")
+_PLAN = click.option("--plan", "plan_path", required=True, type=click.Path(exists=True, dir_okay=False),
+                     help="Plan (specgpu plan).")
+_SCENE = click.option("--scene", default=None, help="Scene: colorchecker, white, natural[:image], or a .exr / .npz "
+                                                   "cube (default: the rig's [scene] source).")
 
 
 def _hardware(description):
@@ -257,11 +261,10 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
 
 @main.command()
 @_RIG
-@click.option("--plan", "plan_path", required=True, type=click.Path(exists=True, dir_okay=False))
+@_PLAN
 @click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False),
               help="The calibration the plan was made from (stored with the frames for recovery).")
-@click.option("--scene", default=None, help="Scene: colorchecker, white, natural[:image], or a .exr / .npz cube "
-                                            "(default: the rig's [scene] source).")
+@_SCENE
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Sequence folder to write.")
 @click.option("--sequences", type=click.IntRange(min=1), default=1, show_default=True)
 @click.option("--seed", type=int, default=None, help="Seed of the frames' temporal noise.")
@@ -393,11 +396,10 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
 
 @main.command("stream")
 @_RIG
-@click.option("--plan", "plan_path", required=True, type=click.Path(exists=True, dir_okay=False))
+@_PLAN
 @click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False),
               help="The calibration the plan was made from.")
-@click.option("--scene", default=None, help="Scene: colorchecker, white, natural[:image], or a .exr / .npz cube "
-                                            "(default: the rig's [scene] source).")
+@_SCENE
 @click.option("--seconds", type=click.FloatRange(min=0, min_open=True), required=True, help="Capture time.")
 @click.option("--out", type=click.Path(file_okay=False), default=None,
               help="Folder for the recording (chunked .npy + index.json) and preview.png.")
