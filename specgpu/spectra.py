@@ -6,6 +6,8 @@ illuminant spectra (``colour.SDS_ILLUMINANTS``) and chromaticities (``colour.CCS
 
 from __future__ import annotations
 
+import functools
+
 import colour
 import numpy as np
 
@@ -108,6 +110,17 @@ def XYZ_weights(wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS) -> np.ndarray:
     ndarray, (3, B), float64
     """
     w = np.asarray(wavelengths, dtype=np.float64)
+    if isinstance(illuminant, str) and isinstance(cmfs, str):  # by name: computed once per grid (~1.4 ms each)
+        return _XYZ_weights_named(tuple(w.tolist()), illuminant, cmfs).copy()
+    return _XYZ_weights(w, illuminant, cmfs)
+
+
+@functools.lru_cache(maxsize=64)
+def _XYZ_weights_named(wavelengths: tuple, illuminant: str, cmfs: str) -> np.ndarray:
+    return _XYZ_weights(np.asarray(wavelengths), illuminant, cmfs)
+
+
+def _XYZ_weights(w: np.ndarray, illuminant, cmfs) -> np.ndarray:
     shape = spectral_shape(w)
     cmfs_sd = resolve_cmfs(cmfs).copy().align(shape)
     illum_sd = resolve_illuminant_sd(illuminant).copy().align(shape)
