@@ -15,68 +15,36 @@ from specgpu.capture import SequenceAssembler, capture_sequences, open_driver
 from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, DMDGeometry, DMDLayout, SimulatedDLPC900
 from specgpu.hardware.errors import (DeviceDisconnected, DeviceNotFound, DeviceTimeout, HardwareError,
                                      LightFault)
-from hw_fakes import Buffer, NodeMap, TimeoutException
+from hw_fakes import Buffer, FakeCamera
 from specgpu.hardware.genicam import GenICamCamera
 
 DMD = DMDGeometry("test-dmd", 160, 48)
 COLUMNS, ROWS = 16, 40
 
 
-class FakeAcquirer:
-    """A harvesters-like ImageAcquirer: exposure n strobes the controller, then renders what it displays.
-
-    ``lost`` frames are exposed (the light advances) but never delivered, as frames lost on the link; the camera's
-    frame ids start at ``first_id`` (GigE Vision block ids start at 1).
-    """
-
-    def __init__(self, sim, layout, exposures, *, lost=(), first_id=1, on_exposure=None, mode="strobe-master"):
-        self.sim, self.layout, self.exposures, self.mode = sim, layout, exposures, mode
-        self.lost, self.first_id, self.on_exposure = set(lost), first_id, on_exposure
-        self.remote_device = type("Remote", (), {"node_map": NodeMap(4, COLUMNS)})()
-        self.n = 0
-        self.started = False
-
-    def start(self):
-        self.started, self.n = True, 0
-
-    def stop(self):
-        self.started = False
-
-    def fetch(self, timeout=None):
-        while True:
-            if not self.started or self.n >= self.exposures:
-                raise TimeoutException("no buffer")
-            n = self.n
-            self.n += 1
-            if self.on_exposure is not None:
-                self.on_exposure(n)
-            if self.mode == "strobe-master":
-                self.sim.trigger_in()  # the exposure's strobe edge shows the next pattern
-                frame = render(self.layout, self.sim.displayed_mask())
-            else:
-                frame = render(self.layout, self.sim.displayed_mask())  # exposure triggered by TRIG_OUT_1
-                self.sim.trigger_in()  # then the controller's clock moves on to the next pattern
-            if n not in self.lost:
-                return Buffer(frame, self.first_id + n, 1_000_000 + n * 11_000_000)
+def FakeAcquirer(sim, layout, exposures, **kw):
+    """The bench camera (:class:`hw_fakes.FakeCamera`) rendering through ``layout``."""
+    return FakeCamera(sim, lambda light: render(layout, light), exposures, shape=(4, COLUMNS), **kw)
 
 
-def render(layout, mask) -> np.ndarray:
-    """A (4, COLUMNS) uint16 frame: per pattern column, the mirrors on (plus a row offset so rows differ)."""
+def render(layout, light) -> np.ndarray:
+    """A (4, COLUMNS) uint16 frame: per pattern column, the light of its mirrors (plus a row offset so rows
+    differ); ``light`` is a bool mask or the float light an exposure integrated."""
     c0 = layout.column_offset
-    counts = mask[:, c0:c0 + layout.columns * layout.column_step].sum(axis=0)
+    counts = np.asarray(light, np.float64)[:, c0:c0 + layout.columns * layout.column_step].sum(axis=0)
     counts = counts.reshape(layout.columns, layout.column_step).sum(axis=1)
-    return (counts[None, :] * 10 + np.arange(4)[:, None] + 1).astype(np.uint16)
+    return np.rint(counts[None, :] * 10 + np.arange(4)[:, None] + 1).astype(np.uint16)
 
 
-def rig(k=5, exposures=None, mode="strobe-master", **acq):
+def rig(k=5, exposures=None, mode="strobe-master", dark_s=100e-6, **acq):
     sim = SimulatedDLPC900(DMD)
     layout = DMDLayout(DMD, COLUMNS, ROWS)
     light = DLPC900Light(DLPC900(sim, dmd=DMD), layout=layout, exposure_s=0.001,
-                         wait_for_trigger=mode == "strobe-master")
+                         wait_for_trigger=mode == "strobe-master", dark_s=dark_s)
     patterns = np.random.default_rng(k).integers(0, ROWS + 1, (k, COLUMNS))
     patterns[0] = 0  # a dark pattern, as a real sequence often has
     light.load_sequence(patterns)
-    acquirer = FakeAcquirer(sim, layout, exposures if exposures is not None else 4 * k, mode=mode, **acq)
+    acquirer = FakeAcquirer(sim, layout, exposures if exposures is not None else 4 * k, **acq)
     camera = GenICamCamera(light, acquirer=acquirer, mode=mode, exposure_s=0.001, n_frames=exposures)
     return sim, light, camera, patterns
 

@@ -97,7 +97,8 @@ def test_pre_stored_pattern_example():
     # 1A31 02 00 00 00 00 00 (2 entries, repeat forever); 1A24 02 (start).
     dev, t = make([ack(1), ack(2), ack(3), ack(4)])
     dev.set_display_mode("pre-stored")
-    dev.define_pattern(LutEntry(0, 200, 0, 0, bit_depth=1, color="red", wait_for_trigger=False))
+    dev.define_pattern(LutEntry(0, 200, 0, 0, bit_depth=1, color="red", wait_for_trigger=False,
+                                clear_after_exposure=False))
     dev.configure_lut(2, 0)
     dev.start()
     assert sent(t) == [
@@ -174,7 +175,8 @@ WRITES = [
     (lambda d: d.configure_lut(400, 1000), (0x31, 0x1A, 0x90, 0x01, 0xE8, 0x03, 0x00, 0x00)),  # Table 2-136
     # Pattern Display LUT Definition: entry 300, 1 ms, white 1-bit, wait for trigger, dark 50 us, trigger 2 off,
     # image 12 bit 23: byte 5 = 0b1_111_000_0 = 0xF0; bytes 11:10 = 12 | 23 << 11 = 0xB80C
-    (lambda d: d.define_pattern(LutEntry(300, 1000, 12, 23, dark_us=50, trigger_out2=False)),
+    (lambda d: d.define_pattern(LutEntry(300, 1000, 12, 23, dark_us=50, trigger_out2=False,
+                                         clear_after_exposure=False)),
      (0x34, 0x1A, 0x2C, 0x01, 0xE8, 0x03, 0x00, 0xF0, 0x32, 0x00, 0x00, 0x01, 0x0C, 0xB8)),
     # Initialize Pattern BMP Load / Pattern BMP Load, secondary controller (0x1A2C, 0x1A2D), same layouts
     (lambda d: d.load_image(3, b"\xAB\xCD", controller=1), (0x2C, 0x1A, 0x03, 0x00, 0x02, 0x00, 0x00, 0x00)),

@@ -3,13 +3,23 @@
 Two ways to wire camera and light (the capture path is the same):
 
 - ``"strobe-master"`` (the paper's rig, Section 2.D): the camera free-runs at its frame rate and its exposure-active
-  output (``strobe_line``) drives the DLPC900's TRIG_IN_1; every LUT entry waits for that trigger.
+  output (``strobe_line``, an output line) drives the DLPC900's TRIG_IN_1; every LUT entry waits for that trigger.
+  The light starts first (it waits for the first strobe), then the camera: a strobe before the light's Start would
+  be lost and shift every label.
 - ``"hardware-trigger"``: the DLPC900 runs the sequence on its own clock and its TRIG_OUT_1 triggers each exposure
-  on the camera's ``trigger_line``.
+  on the camera's ``trigger_line`` (an input line). The camera is armed first, then the light started: a light
+  started first runs patterns nobody sees, and frame 0 would not be pattern 0. Every LUT entry needs a non-zero
+  dark time (:class:`~specgpu.hardware.dlpc900.DLPC900Light` ``dark_s``): TRIG_OUT_1 falls only there.
+
+The strobe line's ``LineMode`` is read first and written only when it is not already ``Output``: on opto-isolated
+lines (common USB3 and GigE cameras) it is read-only, and a line that cannot be an output is refused with the lines
+that can.
 
 Either way exposure ``n`` of the stream is lit by pattern ``n mod K``, and ``n`` comes from the camera's own frame
 counter (GenTL frame id), which also counts frames lost on the link, so a lost frame shows as a gap and the frames
-after it keep their true pattern. Before a frame is handed over the light is checked (Main Status); a light that no
+after it keep their true pattern. GigE Vision 1.x block ids are 16 bit and wrap from 65535 to 1 (0 is never used):
+the ids are unwrapped, so a capture runs past 65535 frames. A buffer without a device timestamp (GenTL
+NotAvailableException, e.g. the genicam package's virtual camera) is stamped with the host's clock at delivery. Before a frame is handed over the light is checked (Main Status); a light that no
 longer runs its sequence, a camera that stops delivering, or a USB failure ends the capture with a one-line error
 and the frame in hand is not delivered: the sequence it belonged to stays incomplete, nothing is mislabelled.
 
@@ -68,6 +78,54 @@ def _set(node_map, name: str, value) -> None:
         node.value = value
     except Exception as exc:
         raise HardwareError(f"camera refused {name} = {value!r} ({exc})") from None
+
+
+#: GigE Vision 1.x block ids: 16 bit, 0 never used, so 65535 is followed by 1.
+BLOCK_ID_WRAP = 0xFFFF
+
+
+def _timestamp_ns(buffer) -> int | None:
+    """The buffer's device timestamp, ns; ``None`` where the producer has none (GenTL NotAvailableException and
+    the like: the property raises) or reports 0."""
+    try:
+        ts = buffer.timestamp_ns
+    except Exception:  # genicam.gentl.NotAvailableException (and NotImplemented...) depending on the producer
+        return None
+    return int(ts) if ts else None
+
+
+def _line_modes(nm) -> dict:
+    """{line: (LineMode value, writable)} of every line the LineSelector offers (the selection is restored)."""
+    selector = nm.LineSelector
+    try:
+        lines = list(selector.symbolics)
+    except Exception:
+        return {}
+    keep, out = selector.value, {}
+    try:
+        for line in lines:
+            try:
+                selector.value = line
+                node = nm.LineMode
+                out[line] = (str(node.value), _writable(node))
+            except Exception:
+                continue
+    finally:
+        try:
+            selector.value = keep
+        except Exception:
+            pass
+    return out
+
+
+def _writable(node) -> bool:
+    """Whether a GenICam feature can be written now (genapi access mode RW or WO); True when it cannot be told."""
+    try:
+        from genicam.genapi import EAccessMode
+        return node.node.get_access_mode() in (EAccessMode.RW, EAccessMode.WO)
+    except Exception:
+        writable = getattr(node, "writable", None)
+        return True if writable is None else bool(writable)
 
 
 def _frame_id(buffer) -> int:
@@ -144,6 +202,8 @@ class GenICamCamera(CameraDriver):
         self._first_id = None
         self._t0_ns = None
         self._last = (-1, -1)
+        self._raw_last, self._wraps = None, 0
+        self.timestamp_source = "device"  # "host" once a buffer came without a device timestamp
         self.frames_delivered = 0
         self.fault: Exception | None = None
 
@@ -160,13 +220,36 @@ class GenICamCamera(CameraDriver):
                 if hasattr(nm, "AcquisitionFrameRateEnable"):
                     _set(nm, "AcquisitionFrameRateEnable", True)
                 _set(nm, "AcquisitionFrameRate", self.frame_rate_hz)
-            _set(nm, "LineSelector", self.strobe_line)
-            _set(nm, "LineMode", "Output")
+            self._configure_strobe(nm)
             _set(nm, "LineSource", "ExposureActive")
         else:
             _set(nm, "TriggerMode", "On")
             _set(nm, "TriggerSource", self.trigger_line)
             _set(nm, "TriggerActivation", "RisingEdge")
+
+    def _configure_strobe(self, nm) -> None:
+        """Select the strobe line and make it an output: nothing written when it already is one (its LineMode is
+        read-only on opto-isolated lines); a one-line error naming the lines that can be when it cannot."""
+        _set(nm, "LineSelector", self.strobe_line)
+        mode = getattr(nm, "LineMode", None)
+        if mode is None:
+            raise HardwareError("camera has no GenICam feature 'LineMode': its strobe output cannot be set up")
+        if str(mode.value) == "Output":
+            return
+        error = None
+        if _writable(mode):
+            try:
+                mode.value = "Output"
+                return
+            except Exception as exc:
+                error = exc
+        modes = _line_modes(nm)
+        usable = [line for line, (value, writable) in modes.items() if value == "Output" or writable]
+        hint = (f"set strobe_line (hardware.camera_strobe_line) to {usable[0]}" + (f" (lines that can be outputs: "
+                f"{', '.join(usable)})" if len(usable) > 1 else "")) if usable else "the camera offers no output line"
+        why = f" ({error})" if error is not None else " (its LineMode is read-only)"
+        raise HardwareError(f"camera line {self.strobe_line} is an {str(mode.value).lower()} and cannot be made the "
+                            f"strobe output{why}; {hint}")
 
     # ---- CameraDriver -------------------------------------------------------------------------------------------
     @property
@@ -186,17 +269,37 @@ class GenICamCamera(CameraDriver):
         return self._running
 
     def start(self) -> None:
-        """Configure the camera, start the light's sequence, then the camera (the light must wait for the
-        first exposure, not the other way round)."""
+        """Configure the camera, then start first the device that waits for the other's trigger: in strobe-master
+        mode the light (it waits for the first strobe), then the camera; in hardware-trigger mode the camera (armed,
+        it waits for TRIG_OUT_1), then the light, whose clock starts the sequence at pattern 0."""
         self.configure()
         self._first_id = self.first_frame_id
         self._t0_ns = None
         self._last = (-1, -1)
+        self._raw_last = None
+        self._wraps = 0
+        self.timestamp_source = "device"
         self.frames_delivered = 0
         self.fault = None
-        self._light.start()
-        self.acquirer.start()
+        if self.mode == "strobe-master":
+            self._light.start()
+            self.acquirer.start()
+        else:
+            self.acquirer.start()
+            try:
+                self._light.start()
+            except BaseException:
+                self.acquirer.stop()
+                raise
         self._running = True
+
+    def _unwrap(self, raw: int) -> int:
+        """The frame id counted on from the first (GigE Vision 1.x 16-bit block ids wrap from 65535 to 1)."""
+        last = self._raw_last
+        if last is not None and raw < last and last <= BLOCK_ID_WRAP and last - raw > BLOCK_ID_WRAP // 2:
+            self._wraps += 1
+        self._raw_last = raw
+        return raw + self._wraps * BLOCK_ID_WRAP
 
     def stop(self) -> StreamEnd:
         if self._running:
@@ -235,14 +338,18 @@ class GenICamCamera(CameraDriver):
                 raise self.fault from None
             raise
         with buffer:
-            frame_id = _frame_id(buffer)
+            raw = _frame_id(buffer)
+            frame_id = self._unwrap(raw)
             if self._first_id is None:
                 self._first_id = frame_id
+            stamp = _timestamp_ns(buffer)
+            if stamp is None:  # no device timestamp: the host's clock at delivery
+                stamp, self.timestamp_source = time.monotonic_ns(), "host"
             if self._t0_ns is None:
-                self._t0_ns = int(buffer.timestamp_ns)
+                self._t0_ns = stamp
             n = frame_id - self._first_id
             if n < 0:
-                raise HardwareError(f"camera frame id went backwards ({frame_id} after start at {self._first_id})")
+                raise HardwareError(f"camera frame id went backwards ({raw} after start at {self._first_id})")
             if self.n_frames is not None and n >= self.n_frames:
                 return None  # exposures past the end: not part of this capture
             pattern = self._light.at_frame(n)
@@ -259,11 +366,12 @@ class GenICamCamera(CameraDriver):
                     raise HardwareError(f"camera frame has {data.size} pixels, expected {self._shape}")
                 out[...] = data.reshape(out.shape)
             self._last = (n, pattern)
-            ts = (int(buffer.timestamp_ns) - self._t0_ns) * 1e-9
+            ts = (stamp - self._t0_ns) * 1e-9
         self.frames_delivered += 1
         return FrameInfo(n, pattern, ts, self.exposure_s)
 
     def describe(self) -> dict:
         """Metadata for a capture record."""
         return {"driver": "genicam", "mode": self.mode, "exposure_s": self.exposure_s,
-                "frame_shape": list(self._shape), "dtype": str(self._dtype), "time": time.time()}
+                "frame_shape": list(self._shape), "dtype": str(self._dtype), "timestamps": self.timestamp_source,
+                "time": time.time()}

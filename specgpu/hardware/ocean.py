@@ -76,6 +76,8 @@ class OceanSpectrometer:
         self._model = Spectroradiometer(params)  # nominal bandpass for response_matrix
         self.wavelengths = self._model.wavelengths
         self.averages = check_number("averages", averages, low=1, high=10000, integer=True)
+        #: (dark, non-linearity) corrections applied to readings; found on the first reading
+        self.corrections: tuple[bool, bool] | None = None
         self.set_integration_time(integration_time_s)
         self.calibration = None if irradiance_calibration is None else self._load_calibration(irradiance_calibration)
         self.dark_counts: np.ndarray | None = None
@@ -97,15 +99,29 @@ class OceanSpectrometer:
 
     def read_counts(self) -> np.ndarray:
         """Mean of ``averages`` readings, counts per pixel (electric dark and non-linearity corrected where the
-        instrument supports it)."""
+        instrument supports them, each on its own: ``corrections``)."""
         total = np.zeros(self.pixel_wavelengths.shape)
         for _ in range(self.averages):
-            try:
-                counts = self.device.intensities(correct_dark_counts=True, correct_nonlinearity=True)
-            except Exception:  # models without those corrections raise: read raw counts
-                counts = self.device.intensities()
-            total += np.asarray(counts, np.float64)
+            total += np.asarray(self._intensities(), np.float64)
         return total / self.averages
+
+    def _intensities(self):
+        """One reading with every correction the instrument supports: both, else whichever one it does (seabreeze
+        raises for a correction a model lacks), else none; the combination that worked is kept in
+        ``corrections``."""
+        if self.corrections is not None:
+            dark, nonlinear = self.corrections
+            return self.device.intensities(correct_dark_counts=dark, correct_nonlinearity=nonlinear)
+        error = None
+        for dark, nonlinear in ((True, True), (True, False), (False, True), (False, False)):
+            try:
+                counts = self.device.intensities(correct_dark_counts=dark, correct_nonlinearity=nonlinear)
+            except Exception as exc:  # seabreeze's SeaBreezeError: this model lacks that correction
+                error = exc
+                continue
+            self.corrections = (dark, nonlinear)
+            return counts
+        raise HardwareError(f"Ocean spectrometer gives no reading, even uncorrected ({error})")
 
     def set_dark(self, counts=None) -> None:
         """Record the dark reading (take it with the light off) subtracted from later measurements."""

@@ -12,7 +12,10 @@ a rig TOML's ``[hardware]`` table would hold::
     camera_serial = "12345678"
     camera_mode = "strobe-master"     # or "hardware-trigger"
     camera_first_frame_id = 1         # GigE Vision block ids start at 1 (USB3 Vision: 0)
+    camera_strobe_line = "Line1"      # strobe-master: the camera output wired to the DLPC900's TRIG_IN_1
+    camera_trigger_line = "Line0"     # hardware-trigger: the camera input wired to the DLPC900's TRIG_OUT_1
     exposure_s = 0.010
+    dark_time_s = 0.0001              # dark time after each pattern (TRIG_OUT_1 falls only there)
     spectrometer = "ocean"            # for calibration loop (b); "" for none
     spectrometer_calibration = "irradiance_cal.csv"
 
@@ -64,6 +67,11 @@ class HardwareConfig:
         Camera frame rate in strobe-master mode (0: the camera's setting).
     camera_first_frame_id : int
         Frame id of the camera's first exposure (GigE Vision 1, USB3 Vision 0); -1: the first frame delivered.
+    camera_strobe_line, camera_trigger_line : str
+        Camera I/O lines (GenICam LineSelector): the output wired to TRIG_IN_1 (strobe-master) and the input wired
+        to TRIG_OUT_1 (hardware-trigger).
+    dark_time_s : float
+        Dark time after each pattern, s (> 0 in hardware-trigger mode: TRIG_OUT_1 falls only in it).
     spectrometer : str
         ``"ocean"`` or "" (none).
     spectrometer_serial : str
@@ -83,6 +91,9 @@ class HardwareConfig:
     exposure_s: float = 0.010
     frame_rate_hz: float = 0.0
     camera_first_frame_id: int = -1
+    camera_strobe_line: str = "Line1"
+    camera_trigger_line: str = "Line0"
+    dark_time_s: float = 0.0001
     spectrometer: str = ""
     spectrometer_serial: str = ""
     spectrometer_calibration: str = ""
@@ -100,6 +111,10 @@ class HardwareConfig:
                 raise ValueError(f"hardware.{key} must be one of {', '.join(repr(v) for v in valid)}, got {value!r}")
         check_number("hardware.exposure_s", self.exposure_s, low=0, low_open=True, high=16.7)
         check_number("hardware.frame_rate_hz", self.frame_rate_hz, low=0, high=1e5)
+        check_number("hardware.dark_time_s", self.dark_time_s, low=0, high=16.7)
+        if self.camera_mode == "hardware-trigger" and self.dark_time_s < 1e-6:
+            raise ValueError(f"hardware.dark_time_s must be at least 1e-6 s in hardware-trigger mode (TRIG_OUT_1 "
+                             f"falls only in the dark time), got {self.dark_time_s!r}")
         check_number("hardware.camera_first_frame_id", self.camera_first_frame_id, low=-1, integer=True)
         check_number("hardware.integration_time_s", self.integration_time_s, low=0, low_open=True, high=600)
 
@@ -159,7 +174,8 @@ def open_light(hardware=None, *, rig=None, calibration=None, transport=None):
                      else UsbTransport(serial=cfg.light_serial or None))
     device = DLPC900(transport, dmd=cfg.dmd)
     return DLPC900Light(device, model=_model(rig), calibration=calibration, exposure_s=cfg.exposure_s,
-                        wait_for_trigger=cfg.camera_mode == "strobe-master", compression=cfg.compression)
+                        wait_for_trigger=cfg.camera_mode == "strobe-master", compression=cfg.compression,
+                        dark_s=cfg.dark_time_s)
 
 
 def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n_frames: int | None = None,
@@ -191,6 +207,7 @@ def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n
         return GenICamCamera(light, acquirer=acquirer, cti=cfg.camera_cti or None, serial=cfg.camera_serial or None,
                              mode=cfg.camera_mode, exposure_s=cfg.exposure_s,
                              frame_rate_hz=cfg.frame_rate_hz or None, n_frames=n_frames, check_light=check_light,
+                             trigger_line=cfg.camera_trigger_line, strobe_line=cfg.camera_strobe_line,
                              first_frame_id=None if cfg.camera_first_frame_id < 0 else cfg.camera_first_frame_id)
     except BaseException:
         light.close()  # the USB link must not stay open behind an error (e.g. harvesters missing)

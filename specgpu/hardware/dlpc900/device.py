@@ -15,9 +15,10 @@ from specgpu.hardware.dlpc900.images import (BITS_PER_IMAGE, DMDGeometry, encode
                                              split_controllers)
 from specgpu.hardware.dlpc900.protocol import Protocol
 from specgpu.hardware.dlpc900.transport import Transport, UsbTransport
+from specgpu.hardware.errors import HardwareError
 
 __all__ = ["DLPC900", "LutEntry", "HardwareStatus", "MainStatus", "DISPLAY_MODES", "COLORS", "MAX_LUT_ENTRIES",
-           "BMP_BLOCK"]
+           "BMP_BLOCK", "MIN_TRIGGER_IN1_DELAY_US"]
 
 #: Display Mode Selection (0x1A1B) values.
 DISPLAY_MODES = {"video": 0, "pre-stored": 1, "video-pattern": 2, "on-the-fly": 3}
@@ -27,6 +28,8 @@ COLORS = {"none": 0, "red": 1, "green": 2, "yellow": 3, "blue": 4, "magenta": 5,
 MAX_LUT_ENTRIES = 400
 #: Data bytes per Pattern BMP Load command: 512-byte buffer less header (4), command (2) and length (2).
 BMP_BLOCK = 504
+#: Trigger In 1 (0x1A35): the shortest delay from TRIG_IN_1 to the pattern's display the controller accepts, us.
+MIN_TRIGGER_IN1_DELAY_US = 104
 _START_STOP = {"stop": 0, "pause": 1, "start": 2}
 
 
@@ -51,9 +54,11 @@ class LutEntry:
     wait_for_trigger : bool
         Wait for TRIG_IN before showing the pattern (the camera is the master).
     dark_us : int
-        Dark time after the exposure, us (24 bits).
+        Dark time after the exposure, us (24 bits). TRIG_OUT_1 falls only in a dark time: with zero dark time it
+        stays high from one pattern to the next, so a camera triggered by it sees one edge for the whole sequence.
     clear_after_exposure : bool
-        Clear the DMD after the exposure (1-bit patterns with an external trigger only).
+        Clear the DMD after the exposure (on by default, as in every public driver): otherwise the pattern stays on
+        until the next one is shown and lights the start of the next exposure.
     trigger_out2 : bool
         Emit TRIG_OUT_2 for this pattern.
     """
@@ -66,7 +71,7 @@ class LutEntry:
     color: str = "white"
     wait_for_trigger: bool = True
     dark_us: int = 0
-    clear_after_exposure: bool = False
+    clear_after_exposure: bool = True
     trigger_out2: bool = True
 
     def fields(self) -> dict:
@@ -103,6 +108,11 @@ class HardwareStatus:
     @property
     def initialized(self) -> bool:
         return bool(self.raw & 0x01)
+
+    @property
+    def secondary_present(self) -> bool:
+        """Bit 4: the secondary controller (of a two-controller DMD, LightCrafter 9000) is present and running."""
+        return bool(self.raw & 0x10)
 
     @property
     def errors(self) -> list[str]:
@@ -168,6 +178,20 @@ class DLPC900:
         """Read Hardware Status (0x1A0A)."""
         return HardwareStatus(self.protocol.read("Hardware Status")["status"])
 
+    def check_hardware(self) -> HardwareStatus:
+        """Read Hardware Status (0x1A0A); :class:`HardwareError` (one line) if the controller did not initialize,
+        reports an error, or (two-controller DMD: LightCrafter 9000) its secondary controller is not present."""
+        status = self.hardware_status()
+        problems = list(status.errors)
+        if not status.initialized:
+            problems.insert(0, "not initialized")
+        if self.geometry.controllers == 2 and not status.secondary_present:
+            problems.append(f"secondary controller not present (a {self.geometry.name} needs both controllers; "
+                            "power-cycle the board)")
+        if problems:
+            raise HardwareError(f"DLPC900 hardware status 0x{status.raw:02X}: {'; '.join(problems)}")
+        return status
+
     def system_status(self) -> int:
         """Read System Status (0x1A0B); bit 0 = internal memory test passed."""
         return self.protocol.read("System Status")["status"]
@@ -182,17 +206,18 @@ class DLPC900:
 
     def error_status(self) -> tuple[int, str]:
         """Read Error Code (0x0100) then Read Error Description (0x0101) of the last command."""
-        code = self.protocol.read("Read Error Code")["code"]
-        text = self.protocol.read("Read Error Description")["text"].split(b"\0", 1)[0].decode("ascii", "replace")
-        return code, text
+        return self.protocol.error_status()
 
     # ---- modes -------------------------------------------------------------------------------------------------
     def set_power_mode(self, mode: str) -> None:
-        """Power Mode (0x0200): ``"normal"``, ``"standby"`` or ``"reset"`` (software reset)."""
+        """Power Mode (0x0200): ``"normal"``, ``"standby"`` or ``"reset"`` (software reset).
+
+        A reset controller reboots and answers nothing, so the reset is sent without asking for a reply; its state
+        (mode, LUT, images) is gone and the USB link comes back only after :meth:`reconnect`."""
         modes = {"normal": 0, "standby": 1, "reset": 2}
         if mode not in modes:
             raise ValueError(f"unknown power mode {mode!r}; valid: {', '.join(modes)}")
-        self.protocol.write("Power Mode", mode=modes[mode])
+        self.protocol.write("Power Mode", reply=False if mode == "reset" else None, mode=modes[mode])
 
     def set_display_mode(self, mode: str) -> None:
         """Display Mode Selection (0x1A1B): ``"video"``, ``"pre-stored"``, ``"video-pattern"``, ``"on-the-fly"``."""
@@ -261,9 +286,10 @@ class DLPC900:
 
     def set_trigger_in1(self, delay_us: int = 105) -> None:
         """Trigger In 1 (0x1A35): delay (us) from the TRIG_IN_1 active edge to the pattern's display (bytes 1:0;
-        byte 2 at its reset value 0). The controller needs at least the DMD's block-load time (reset value 105)."""
-        if not 0 <= delay_us <= 0xFFFF:
-            raise ValueError(f"trigger in 1 delay must lie in [0, 65535] us, got {delay_us}")
+        byte 2 at its reset value 0). DLPU018 requires at least 104 us (the DMD's block-load time; reset value 105)."""
+        if not MIN_TRIGGER_IN1_DELAY_US <= delay_us <= 0xFFFF:
+            raise ValueError(f"trigger in 1 delay must lie in [{MIN_TRIGGER_IN1_DELAY_US}, 65535] us (DLPU018: at "
+                             f"least {MIN_TRIGGER_IN1_DELAY_US}), got {delay_us}")
         self.protocol.write("Trigger In 1", delay_us=int(delay_us), byte2=0)
 
     # ---- the whole upload --------------------------------------------------------------------------------------

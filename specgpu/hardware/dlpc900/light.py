@@ -1,8 +1,8 @@
 """The DLPC900-based programmable light as a :class:`~specgpu.capture.driver.LightSource`.
 
 ``load_sequence`` turns the (K, C) mirror-count patterns into DMD bit-planes (:class:`DMDLayout`), packs them 24 to an
-image and uploads them with one LUT entry per pattern (1 bit, wait for trigger): the controller then shows pattern k
-on the k-th TRIG_IN_1 edge of a pass. The trigger itself is hardware (the camera's strobe, or the controller is the
+image and uploads them with one LUT entry per pattern (1 bit, wait for trigger, ``dark_s`` of dark time, cleared
+after its exposure): the controller then shows pattern k on the k-th TRIG_IN_1 edge of a pass. The trigger itself is hardware (the camera's strobe, or the controller is the
 master and triggers the camera through TRIG_OUT); this object only keeps count of which pattern lit which exposure:
 exposure ``n`` of the stream (the camera's frame counter, which also counts frames the host never received) was lit
 by pattern ``n mod K`` (:meth:`at_frame`). :meth:`check` reads the controller's Main Status so a capture stops at the
@@ -11,7 +11,14 @@ first sign that the sequencer is no longer following, instead of labelling frame
 Timing in strobe-master mode: the camera's exposure-active rising edge triggers pattern n, which the controller
 shows after its Trigger In 1 delay (105 us by default) for ``exposure_s``; so the exposure must exceed the switch time
 (as the twin's minimum exposure says) and the frame period must exceed ``exposure_s`` plus that delay, or the next
-trigger arrives while a pattern is still shown and is missed.
+trigger arrives while a pattern is still shown and is missed. Each entry clears the mirrors after its exposure
+(clear-after-exposure, 0x1A34 byte 5 bit 0): otherwise the pattern stays up through the next trigger's delay and
+lights the start of the next exposure.
+
+Timing in hardware-trigger mode (controller master): the controller shows each pattern for ``exposure_s`` then
+``dark_s`` dark and TRIG_OUT_1 is high while a pattern is shown; it falls only in a dark time, so the dark time must
+be non-zero (and long enough for the camera's trigger input) or the camera sees one rising edge for the whole
+sequence. The controller runs from Start on, watched or not: the camera must be armed before the light starts.
 
 What the light emits is the model's (a calibration bundle's forward model, or the nominal
 :class:`~specgpu.rig.light.ProgrammableLight`): a real light cannot measure itself.
@@ -27,7 +34,11 @@ from specgpu.hardware.dlpc900.images import BITS_PER_IMAGE, DMDLayout
 from specgpu.hardware.errors import LightFault
 from specgpu.rig._checks import check_number
 
-__all__ = ["DLPC900Light"]
+__all__ = ["DLPC900Light", "DEFAULT_DARK_S"]
+
+#: Default dark time after each pattern, s: TRIG_OUT_1 low long enough for a camera's trigger input (a few us) and
+#: the controller's own clear of the mirrors.
+DEFAULT_DARK_S = 100e-6
 
 
 class DLPC900Light(LightSource):
@@ -54,11 +65,14 @@ class DLPC900Light(LightSource):
         the sequence on its own clock and triggers the camera (TRIG_OUT_1).
     compression
         Image encoding for the upload: ``"erle"`` (default), ``"rle"`` or ``"none"``.
+    dark_s
+        Dark time after each pattern (LUT dark time), s; must be > 0 when the controller is the master
+        (``wait_for_trigger=False``), as TRIG_OUT_1 falls only in it.
     """
 
     def __init__(self, device: DLPC900 | None = None, *, layout: DMDLayout | None = None, model=None,
                  calibration=None, exposure_s: float = 0.010, wait_for_trigger: bool = True,
-                 compression: str = "erle"):
+                 compression: str = "erle", dark_s: float = DEFAULT_DARK_S):
         from specgpu.rig.light import ProgrammableLight
 
         self.device = device if device is not None else DLPC900()
@@ -79,6 +93,10 @@ class DLPC900Light(LightSource):
         self.layout = layout
         self.exposure_s = check_number("exposure_s", exposure_s, low=self.minimum_exposure_s, high=16.7)
         self.wait_for_trigger = bool(wait_for_trigger)
+        self.dark_s = check_number("dark_s", dark_s, low=0, high=16.7)
+        if not self.wait_for_trigger and round(self.dark_s * 1e6) < 1:
+            raise ValueError(f"dark_s must be at least 1 us when the controller triggers the camera (TRIG_OUT_1 "
+                             f"falls only in the dark time; with none the camera sees one trigger), got {dark_s!r}")
         self.compression = compression
         self._sequence: np.ndarray | None = None
         self._showing: np.ndarray | None = None  # the pattern show() put up, while it stays up
@@ -141,9 +159,12 @@ class DLPC900Light(LightSource):
         self._sequence = self._showing = None
         self._requested = p  # kept through a failed upload, for recover()
         images = self.layout.patterns_to_images(p)
+        self.device.check_hardware()  # e.g. a LightCrafter 9000 whose secondary controller is not running
         exposure_us = int(round(self.exposure_s * 1e6))
+        dark_us = int(round(self.dark_s * 1e6))
         entries = [LutEntry(k, exposure_us, k // BITS_PER_IMAGE, k % BITS_PER_IMAGE,
-                            wait_for_trigger=self.wait_for_trigger) for k in range(p.shape[0])]
+                            wait_for_trigger=self.wait_for_trigger, dark_us=dark_us, clear_after_exposure=True)
+                   for k in range(p.shape[0])]
         self.bytes_uploaded = self.device.upload_sequence(images, entries, compression=self.compression)
         if not self.wait_for_trigger:
             # the controller is the master: TRIG_OUT_1 (non-inverted, no delay) triggers each camera exposure;
@@ -178,7 +199,9 @@ class DLPC900Light(LightSource):
         self.load_sequence(self._requested)
 
     def start(self) -> None:
-        """Pattern Display Start (0x1A24): the controller follows its triggers from pattern 0."""
+        """Pattern Display Start (0x1A24): the controller follows its triggers from pattern 0 (waiting for
+        TRIG_IN_1), or runs the sequence on its own clock from now on (``wait_for_trigger=False``: arm the camera
+        first)."""
         self.sequence  # noqa: B018 - refuse to start without a sequence
         self._index = 0
         self.device.start()
@@ -227,7 +250,9 @@ class DLPC900Light(LightSource):
             return
         self._sequence = self._showing = None
         images = self.layout.patterns_to_images(p)
-        entry = LutEntry(0, int(round(self.exposure_s * 1e6)), 0, 0, wait_for_trigger=False)
+        # steady display: no dark time, never cleared
+        entry = LutEntry(0, int(round(self.exposure_s * 1e6)), 0, 0, wait_for_trigger=False,
+                         clear_after_exposure=False)
         self.bytes_uploaded = self.device.upload_sequence(images, [entry], compression=self.compression)
         self._sequence, self._index = p, 0
         self.device.start()

@@ -25,7 +25,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
-from specgpu.hardware.errors import CommandRejected, ProtocolError
+from specgpu.hardware.errors import CommandRejected, DeviceTimeout, ProtocolError
 
 __all__ = ["Command", "COMMANDS", "ERROR_CODES", "REPORT_SIZE", "MAX_MESSAGE", "FLAG_READ", "FLAG_REPLY",
            "FLAG_ERROR", "Reply", "encode_fields", "decode_fields", "build_message", "split_reports",
@@ -263,7 +263,7 @@ class Protocol:
                 return None
             rep = self._read_reply(seq, cmd)
         if rep.error and check:
-            code, text = self._error_status()
+            code, text = self.error_status()
             what = ERROR_CODES.get(code, "undefined error") if code >= 0 else "error status unreadable"
             detail = f": {text}" if text else ""
             raise CommandRejected(f"DLPC900 rejected {cmd.name} (0x{cmd.opcode:04X}): error {code} ({what}){detail}",
@@ -284,12 +284,18 @@ class Protocol:
         raise ProtocolError(f"DLPC900 reply to {cmd.name} (0x{cmd.opcode:04X}) never came: sequence bytes "
                             f"do not match 0x{seq:02X}")
 
-    def _error_status(self) -> tuple[int, str]:
+    def error_status(self) -> tuple[int, str]:
+        """Read Error Code (0x0100) and Read Error Description (0x0101) of the last command: (-1, "") for a code and
+        "" for a description that cannot be read (no reply in time, malformed reply), so the rejection itself is
+        still the error reported."""
         try:
             code = self.read("Read Error Code", check=False)["code"]
-            raw = self.read("Read Error Description", check=False)["text"]
-        except (ProtocolError, CommandRejected):
+        except (ProtocolError, CommandRejected, DeviceTimeout):
             return -1, ""
+        try:
+            raw = self.read("Read Error Description", check=False)["text"]
+        except (ProtocolError, CommandRejected, DeviceTimeout):
+            return code, ""
         return code, raw.split(b"\0", 1)[0].decode("ascii", "replace").strip()
 
     def write(self, name: str, *, reply: bool | None = None, **values) -> None:

@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import abc
 import errno
+import sys
 import time
 
 from specgpu.hardware.errors import BackendMissing, DeviceDisconnected, DeviceNotFound, DeviceTimeout
 from specgpu.hardware.dlpc900.protocol import REPORT_SIZE
 
-__all__ = ["Transport", "UsbTransport", "VENDOR_ID", "PRODUCT_ID", "import_pyusb"]
+__all__ = ["Transport", "UsbTransport", "VENDOR_ID", "PRODUCT_ID", "import_pyusb", "WINDOWS_DRIVER_HINT"]
 
 VENDOR_ID = 0x0451  # Texas Instruments
 PRODUCT_ID = 0xC900  # DLPC900
@@ -34,9 +35,15 @@ def import_pyusb():
     return usb.core, usb.util
 
 
+#: Windows binds the DLPC900 to its HID driver, which libusb cannot claim.
+WINDOWS_DRIVER_HINT = ("on Windows, replace the controller's HID driver by WinUSB (e.g. with Zadig: device "
+                       "0451:C900) so libusb can open it")
+
+
 def no_backend_message() -> str:
     return ("pyusb found no libusb backend: install libusb-1.0 (Debian/Ubuntu: apt install libusb-1.0-0; "
-            "macOS: brew install libusb; Windows: libusb-1.0.dll next to Python)")
+            "macOS: brew install libusb; Windows: libusb-1.0.dll next to Python, and " + WINDOWS_DRIVER_HINT + ")")
+
 
 
 class Transport(abc.ABC):
@@ -123,6 +130,9 @@ class UsbTransport(Transport):
             raise BackendMissing(no_backend_message()) from None
         if dev is None:
             which = "" if self.serial is None else f" with serial {self.serial}"
+            if sys.platform.startswith("win"):
+                raise DeviceNotFound(f"{self.name}{which} not found: is the controller connected and powered? "
+                                     f"{WINDOWS_DRIVER_HINT[0].upper() + WINDOWS_DRIVER_HINT[1:]}")
             raise DeviceNotFound(f"{self.name}{which} not found: is the controller connected, powered and "
                                  "readable by this user (udev rule)?")
         try:
@@ -150,8 +160,9 @@ class UsbTransport(Transport):
                                      "(is this really a DLPC900?)")
             util.claim_interface(dev, self._interface)
         except core.USBError as exc:
+            extra = f"; {WINDOWS_DRIVER_HINT}" if sys.platform.startswith("win") else ""
             raise DeviceNotFound(f"{self.name}: cannot claim the USB interface ({exc}); is another program "
-                                 "(TI's GUI) using it?") from None
+                                 f"(TI's GUI) using it?{extra}") from None
         self._dev, self._ep_out, self._ep_in = dev, ep_out, ep_in
 
     def close(self) -> None:
