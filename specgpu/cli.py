@@ -438,6 +438,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
     from .rig.config import load_rig
 
     description = load_rig(rig_path)
+    hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
     bundle, plan, truth = _experiment(description, plan_path, calib, scene)
     cam = description.camera
     check_scene_covers(truth, plan, description.light.line_fwhm_nm)
@@ -445,10 +446,16 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
     if "dE" in wanted:
         reference = _parse_reference(ref, cam.roi_height, cam.roi_width, illuminant) if ref else \
             _parse_reference(str(scene or description.scene), cam.roi_height, cam.roi_width, illuminant)
-    rig = TwinRig(plan.rig_description(description), scene=truth)
-    if seed is not None:
-        rig.seed = seed
-    driver = TwinDriver(rig, patterns=plan.patterns, pacing=pacing)
+    if hardware is None:
+        rig = TwinRig(plan.rig_description(description), scene=truth)
+        if seed is not None:
+            rig.seed = seed
+        driver = TwinDriver(rig, patterns=plan.patterns, pacing=pacing)
+    else:  # real devices: the plan uploaded to the light, frames from the camera (a camera never waits)
+        from .hardware.rig import open_hardware
+
+        driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle)
+        pacing = "paced"
     sinks, writer = [], None
     if out:
         from pathlib import Path
@@ -476,7 +483,11 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
                 f"(ring {s['ring_dropped']}), discarded {s['discarded']}, latency {s['latency_ms']:.1f} ms")
         click.echo(("\r" + line + "   ") if tty else line, err=True, nl=not tty)
 
-    report = stream.run(seconds, on_status=status)
+    try:
+        report = stream.run(seconds, on_status=status)
+    finally:
+        if hardware is not None:
+            driver.close()  # the light's USB link and the camera
     if tty:
         click.echo("", err=True)
     a = report.assembly

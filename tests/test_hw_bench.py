@@ -325,3 +325,29 @@ def test_timeout_and_fault_accounting_unchanged_on_the_bench():
     camera.acquirer.exposures = 4
     with pytest.raises(DeviceTimeout, match=r"camera delivered no frame in 2 s: is it triggered \(hardware-trigger\)"):
         capture_sequences(camera, 3)
+
+
+# ---- a long capture through the id wrap (tools/hw_long_capture.py) ----------------------------------------------
+def _long_capture():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "tools" / "hw_long_capture.py"
+    spec = importlib.util.spec_from_file_location("hw_long_capture", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.long_capture
+
+
+@pytest.mark.parametrize("mode", ["strobe-master", "hardware-trigger"])
+def test_capture_across_the_wrap_every_sequence_matches(mode):
+    r = _long_capture()(3000, 30, first_id=64000, mode=mode)  # ids 64000 .. 65535, 1 .. 1464
+    assert r["id_wraps"] == 1 and r["sequences"] == 100 and r["mismatched"] == [] and r["dropped"] == 0
+    assert r["last_frame_id"] == 2999
+
+
+@pytest.mark.slow
+def test_capture_of_100000_frames_every_sequence_matches():
+    r = _long_capture()(100_000, 30)  # ids 1 .. 65535, 1 .. 34465
+    assert r["id_wraps"] == 1 and r["sequences"] == 3333 and r["mismatched"] == [] and r["dropped"] == 0
+    assert r["discarded"] == 1 and r["last_frame_id"] == 99_999  # the last 10 frames: an incomplete sequence
