@@ -12,6 +12,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hw_fakes import FakeCamera, NodeMap, gev_block_id
 from specgpu.capture import capture_sequences
@@ -351,3 +353,16 @@ def test_capture_of_100000_frames_every_sequence_matches():
     r = _long_capture()(100_000, 30)  # ids 1 .. 65535, 1 .. 34465
     assert r["id_wraps"] == 1 and r["sequences"] == 3333 and r["mismatched"] == [] and r["dropped"] == 0
     assert r["discarded"] == 1 and r["last_frame_id"] == 99_999  # the last 10 frames: an incomplete sequence
+
+
+# ---- property: block id unwrapping ------------------------------------------------------------------------------
+@settings(max_examples=200, deadline=None)
+@given(first=st.integers(1, 65535), steps=st.lists(st.integers(1, 30000), min_size=1, max_size=40))
+def test_unwrapped_ids_count_every_exposure(first, steps):
+    """Whatever the start and the gaps (frames lost on the link, fewer than half the id range at a time), the
+    unwrapped 16-bit ids advance by the true number of exposures."""
+    camera = GenICamCamera.__new__(GenICamCamera)
+    camera._raw_last, camera._wraps = None, 0
+    n = np.concatenate(([0], np.cumsum(steps)))
+    got = np.array([camera._unwrap(gev_block_id(first, int(k), 16)) for k in n])
+    np.testing.assert_array_equal(got - got[0], n)

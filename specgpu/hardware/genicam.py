@@ -1,4 +1,5 @@
-"""GenICam cameras (GigE Vision, USB3 Vision) through harvesters, as a :class:`~specgpu.capture.driver.CameraDriver`.
+"""GenICam cameras (GigE Vision, USB3 Vision) through harvesters, as a
+:class:`~specgpu.capture.driver.CameraDriver`.
 
 Two ways to wire camera and light (the capture path is the same):
 
@@ -19,9 +20,10 @@ Either way exposure ``n`` of the stream is lit by pattern ``n mod K``, and ``n``
 counter (GenTL frame id), which also counts frames lost on the link, so a lost frame shows as a gap and the frames
 after it keep their true pattern. GigE Vision 1.x block ids are 16 bit and wrap from 65535 to 1 (0 is never used):
 the ids are unwrapped, so a capture runs past 65535 frames. A buffer without a device timestamp (GenTL
-NotAvailableException, e.g. the genicam package's virtual camera) is stamped with the host's clock at delivery. Before a frame is handed over the light is checked (Main Status); a light that no
-longer runs its sequence, a camera that stops delivering, or a USB failure ends the capture with a one-line error
-and the frame in hand is not delivered: the sequence it belonged to stays incomplete, nothing is mislabelled.
+NotAvailableException, e.g. the genicam package's virtual camera) is stamped with the host's clock at delivery.
+Before a frame is handed over the light is checked (Main Status); a light that no longer runs its sequence, a camera
+that stops delivering, or a USB failure ends the capture with a one-line error and the frame in hand is not
+delivered: the sequence it belonged to stays incomplete, nothing is mislabelled.
 
 harvesters is an optional dependency (``pip install harvesters``) imported only when a camera is opened without an
 injected acquirer; a GenTL producer (``.cti`` file) from the camera vendor, or e.g. Aravis', is needed too.
@@ -227,29 +229,17 @@ class GenICamCamera(CameraDriver):
             _set(nm, "TriggerSource", self.trigger_line)
             _set(nm, "TriggerActivation", "RisingEdge")
 
-    def _configure_strobe(self, nm) -> None:
-        """Select the strobe line and make it an output: nothing written when it already is one (its LineMode is
-        read-only on opto-isolated lines); a one-line error naming the lines that can be when it cannot."""
-        _set(nm, "LineSelector", self.strobe_line)
-        mode = getattr(nm, "LineMode", None)
-        if mode is None:
-            raise HardwareError("camera has no GenICam feature 'LineMode': its strobe output cannot be set up")
-        if str(mode.value) == "Output":
-            return
-        error = None
-        if _writable(mode):
-            try:
-                mode.value = "Output"
-                return
-            except Exception as exc:
-                error = exc
-        modes = _line_modes(nm)
-        usable = [line for line, (value, writable) in modes.items() if value == "Output" or writable]
-        hint = (f"set strobe_line (hardware.camera_strobe_line) to {usable[0]}" + (f" (lines that can be outputs: "
-                f"{', '.join(usable)})" if len(usable) > 1 else "")) if usable else "the camera offers no output line"
-        why = f" ({error})" if error is not None else " (its LineMode is read-only)"
-        raise HardwareError(f"camera line {self.strobe_line} is an {str(mode.value).lower()} and cannot be made the "
-                            f"strobe output{why}; {hint}")
+def _configure_strobe(self, nm) -> None: """Select the strobe line and make it an output: nothing written when it
+already is one (its LineMode is read-only on opto-isolated lines); a one-line error naming the lines that can be
+when it cannot.""" _set(nm, "LineSelector", self.strobe_line) mode = getattr(nm, "LineMode", None) if mode is None:
+raise HardwareError("camera has no GenICam feature 'LineMode': its strobe output cannot be set up") if
+str(mode.value) == "Output": return error = None if _writable(mode): try: mode.value = "Output" return except
+Exception as exc: error = exc modes = _line_modes(nm) usable = [line for line, (value, writable) in modes.items() if
+value == "Output" or writable] hint = (f"set strobe_line (hardware.camera_strobe_line) to {usable[0]}" + (f" (lines
+that can be outputs: " f"{', '.join(usable)})" if len(usable) > 1 else "")) if usable else "the camera offers no
+output line" why = f" ({error})" if error is not None else " (its LineMode is read-only)" raise
+HardwareError(f"camera line {self.strobe_line} is an {str(mode.value).lower()} and cannot be made the " f"strobe
+output{why}; {hint}")
 
     # ---- CameraDriver -------------------------------------------------------------------------------------------
     @property

@@ -305,9 +305,10 @@ class HardwareCalibrationRig(HardwareRig):
             raise ValueError(f"exposure {t:g} s is shorter than the light's minimum {light.minimum_exposure_s:g} s")
         light.exposure_s = t  # the LUT's pattern exposure, written with the next upload
         cam.exposure_s = t  # ExposureTime, written by the camera's configure() at start
-        # the next strobe must find the pattern over: room for the light's trigger delay and switch
+        # the next strobe must find the pattern over: room for the light's trigger delay and switch, and the
+        # pattern's dark time
         switch = max(light.params.switch_time_s, light.minimum_exposure_s)
-        cam.frame_rate_hz = min(self._rate, 1.0 / (t + switch + 1e-4))
+        cam.frame_rate_hz = min(self._rate, 1.0 / (t + switch + getattr(light, "dark_s", 0.0) + 1e-4))
         cam.timeout_s = max(2.0, 4.0 / cam.frame_rate_hz)
 
     def capture_mean(self, patterns, repeats: int, *, exposure_s: float | None = None,

@@ -1,17 +1,18 @@
 """The DLPC900-based programmable light as a :class:`~specgpu.capture.driver.LightSource`.
 
-``load_sequence`` turns the (K, C) mirror-count patterns into DMD bit-planes (:class:`DMDLayout`), packs them 24 to an
-image and uploads them with one LUT entry per pattern (1 bit, wait for trigger, ``dark_s`` of dark time, cleared
-after its exposure): the controller then shows pattern k on the k-th TRIG_IN_1 edge of a pass. The trigger itself is hardware (the camera's strobe, or the controller is the
-master and triggers the camera through TRIG_OUT); this object only keeps count of which pattern lit which exposure:
-exposure ``n`` of the stream (the camera's frame counter, which also counts frames the host never received) was lit
-by pattern ``n mod K`` (:meth:`at_frame`). :meth:`check` reads the controller's Main Status so a capture stops at the
-first sign that the sequencer is no longer following, instead of labelling frames it did not light.
+``load_sequence`` turns the (K, C) mirror-count patterns into DMD bit-planes (:class:`DMDLayout`), packs them 24 to
+an image and uploads them with one LUT entry per pattern (1 bit, wait for trigger, ``dark_s`` of dark time, cleared
+after its exposure): the controller then shows pattern k on the k-th TRIG_IN_1 edge of a pass. The trigger itself is
+hardware (the camera's strobe, or the controller is the master and triggers the camera through TRIG_OUT); this
+object only keeps count of which pattern lit which exposure: exposure ``n`` of the stream (the camera's frame
+counter, which also counts frames the host never received) was lit by pattern ``n mod K`` (:meth:`at_frame`).
+:meth:`check` reads the controller's Main Status so a capture stops at the first sign that the sequencer is no
+longer following, instead of labelling frames it did not light.
 
 Timing in strobe-master mode: the camera's exposure-active rising edge triggers pattern n, which the controller
-shows after its Trigger In 1 delay (105 us by default) for ``exposure_s``; so the exposure must exceed the switch time
-(as the twin's minimum exposure says) and the frame period must exceed ``exposure_s`` plus that delay, or the next
-trigger arrives while a pattern is still shown and is missed. Each entry clears the mirrors after its exposure
+shows after its Trigger In 1 delay (105 us by default) for ``exposure_s``; so the exposure must exceed the switch
+time (as the twin's minimum exposure says) and the frame period must exceed ``exposure_s`` plus that delay, or the
+next trigger arrives while a pattern is still shown and is missed. Each entry clears the mirrors after its exposure
 (clear-after-exposure, 0x1A34 byte 5 bit 0): otherwise the pattern stays up through the next trigger's delay and
 lights the start of the next exposure.
 
