@@ -1,5 +1,4 @@
-"""GenICam cameras (GigE Vision, USB3 Vision) through harvesters, as a
-:class:`~specgpu.capture.driver.CameraDriver`.
+"""GenICam cameras (GigE Vision, USB3 Vision) through harvesters, as a :class:`~specgpu.capture.driver.CameraDriver`.
 
 Two ways to wire camera and light (the capture path is the same):
 
@@ -229,17 +228,29 @@ class GenICamCamera(CameraDriver):
             _set(nm, "TriggerSource", self.trigger_line)
             _set(nm, "TriggerActivation", "RisingEdge")
 
-def _configure_strobe(self, nm) -> None: """Select the strobe line and make it an output: nothing written when it
-already is one (its LineMode is read-only on opto-isolated lines); a one-line error naming the lines that can be
-when it cannot.""" _set(nm, "LineSelector", self.strobe_line) mode = getattr(nm, "LineMode", None) if mode is None:
-raise HardwareError("camera has no GenICam feature 'LineMode': its strobe output cannot be set up") if
-str(mode.value) == "Output": return error = None if _writable(mode): try: mode.value = "Output" return except
-Exception as exc: error = exc modes = _line_modes(nm) usable = [line for line, (value, writable) in modes.items() if
-value == "Output" or writable] hint = (f"set strobe_line (hardware.camera_strobe_line) to {usable[0]}" + (f" (lines
-that can be outputs: " f"{', '.join(usable)})" if len(usable) > 1 else "")) if usable else "the camera offers no
-output line" why = f" ({error})" if error is not None else " (its LineMode is read-only)" raise
-HardwareError(f"camera line {self.strobe_line} is an {str(mode.value).lower()} and cannot be made the " f"strobe
-output{why}; {hint}")
+    def _configure_strobe(self, nm) -> None:
+        """Select the strobe line and make it an output: nothing written when it already is one (its LineMode is
+        read-only on opto-isolated lines); a one-line error naming the lines that can be when it cannot."""
+        _set(nm, "LineSelector", self.strobe_line)
+        mode = getattr(nm, "LineMode", None)
+        if mode is None:
+            raise HardwareError("camera has no GenICam feature 'LineMode': its strobe output cannot be set up")
+        if str(mode.value) == "Output":
+            return
+        error = None
+        if _writable(mode):
+            try:
+                mode.value = "Output"
+                return
+            except Exception as exc:
+                error = exc
+        modes = _line_modes(nm)
+        usable = [line for line, (value, writable) in modes.items() if value == "Output" or writable]
+        hint = (f"set strobe_line (hardware.camera_strobe_line) to {usable[0]}" + (f" (lines that can be outputs: "
+                f"{', '.join(usable)})" if len(usable) > 1 else "")) if usable else "the camera offers no output line"
+        why = f" ({error})" if error is not None else " (its LineMode is read-only)"
+        raise HardwareError(f"camera line {self.strobe_line} is an {str(mode.value).lower()} and cannot be made the "
+                            f"strobe output{why}; {hint}")
 
     # ---- CameraDriver -------------------------------------------------------------------------------------------
     @property
