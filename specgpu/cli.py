@@ -102,6 +102,16 @@ class _Staged:
         self.pairs.append((Path(tmp), final))
         return Path(tmp)
 
+    def write(self, final, write):
+        """``write(path)`` to a temporary beside ``final``; an error names ``final``, never the temporary."""
+        tmp = self.path(final)
+        try:
+            write(tmp)
+        except Exception as error:
+            if str(tmp) in str(error):
+                raise click.ClickException(str(error).replace(str(tmp), str(final)).splitlines()[0]) from error
+            raise
+
     def discard(self):
         for tmp, _ in self.pairs:
             tmp.unlink(missing_ok=True)
@@ -534,7 +544,8 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
             writes.append((out, lambda p: io.write_cube(p, y, plan.output_wavelengths, half=half, metadata=meta)))
         else:
             kind = "XYZ" if plan.output == "XYZ" else tuple(plan.output_labels)
-            writes.append((out, lambda p: io.write_map(p, y, kind, half=half, metadata=meta)))
+            # kind bound now: the dE branch below reuses the name (a late-bound lambda wrote XYZ as a dE map)
+            writes.append((out, lambda p, kind=kind: io.write_map(p, y, kind, half=half, metadata=meta)))
         XYZ = Lab = None
         if xyz_path or lab_path or de_path:
             XYZ = to_XYZ(y, plan, illuminant, device=device)
@@ -549,11 +560,11 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
                 writes.append((de_path, lambda p: io.write_delta_E_png(p, dE, metadata=meta)))
             else:
                 kind = {"CIE 1976": "dE76", "CIE 1994": "dE94", "CIE 2000": "dE2000"}[method]
-                writes.append((de_path, lambda p: io.write_map(p, dE, kind, metadata=meta)))
+                writes.append((de_path, lambda p, kind=kind: io.write_map(p, dE, kind, metadata=meta)))
     staged = _Staged()  # all or nothing: no output replaced until every one is written
     try:
         for final, write in writes:
-            write(staged.path(final))
+            staged.write(final, write)
         written = staged.commit()
     except BaseException:
         staged.discard()
