@@ -171,14 +171,14 @@ def output_locks(paths, *, make_parents: bool = False):
         yield held
 
 
-_TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[^.]+\.tmp")
+_PID_IN_TEMP = re.compile(r"\.(\d+)\.[^.]+\.tmp")
 
 
 def clean_stale_temporaries(path) -> list[Path]:
     """Remove the temporary files a dead writer left for ``path`` (and, for a folder, inside it); return them.
 
-    Only files named by :func:`specgpu.rig._files.atomic_path` after a pid that is no longer alive are removed;
-    a live writer's temporaries are left alone.
+    Only files named by :func:`specgpu.rig._files.atomic_path` (``.<name>.<pid>.<random>.tmp<suffix>``, possibly
+    nested: the temporary of a temporary) after pids no longer alive are removed; a live writer's are left alone.
     """
     path = Path(path)
     removed = []
@@ -191,10 +191,12 @@ def clean_stale_temporaries(path) -> list[Path]:
         except OSError:
             continue
         for entry in entries:
-            m = _TEMP.match(entry.name)
-            if not m or (name is not None and m.group("name") != name):
+            if not entry.name.startswith(".") or ".tmp" not in entry.name:
                 continue
-            if pid_alive(int(m.group("pid"))):
+            if name is not None and not entry.name.lstrip(".").startswith(f"{name}."):
+                continue
+            pids = [int(p) for p in _PID_IN_TEMP.findall(entry.name)]
+            if not pids or any(pid_alive(pid) for pid in pids):
                 continue
             try:
                 os.unlink(entry.path)
