@@ -114,7 +114,7 @@ def test_kill_capture(base, delay):
     d = Path(tempfile.mkdtemp(dir=base))
     out = d / "seq"
     args = ("capture", "--rig", base / "rig.toml", "--plan", base / "tri.npz", "--calib", base / "calib.npz",
-            "--scene", "colorchecker", "--out", out, "--sequences", "30")
+            "--scene", "colorchecker", "--out", out, "--sequences", "12")
     kill_during(start(*args), out, delay, lambda: run(*args, ok=False))
     result = run("recover", out, "--out", d / "r.exr", ok=False)
     if (out / io.SEQUENCE_FILE).exists():  # it finished: complete and recoverable
