@@ -721,7 +721,12 @@ class SequenceWriter:
         self.shape = arr.shape[:2]
         name = _FRAME_NAME.format(i)
         self.written.append(self.directory / name)
-        size, digest = _write_tiff(self.directory / name, arr)
+        try:
+            size, digest = _write_tiff(self.directory / name, arr)
+        except OSError as exc:  # disk full, folder gone: one line naming the frame
+            if str(self.directory / name) in str(exc):
+                raise
+            raise _files._os_error(self.directory / name, exc) from None
         self.entries.append({"file": name, **rec, "bytes": size, "sha256": digest})
 
     def close(self, metadata=None) -> Path:

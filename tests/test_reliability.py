@@ -451,3 +451,22 @@ def test_calibration_with_an_impossible_dark_is_refused(base, tmp_path):
     save_calibration(tmp_path / "bad.npz", replace(bundle, dark=np.full_like(bundle.dark, -1e30)))
     with pytest.raises(ValueError, match="bad.npz.*dark"):
         load_calibration(tmp_path / "bad.npz")
+
+
+def test_disk_full_during_capture_stops_it_and_leaves_nothing(base, tmp_path, monkeypatch):
+    real = io._write_tiff
+    frames = []
+
+    def filling(path, frame):
+        frames.append(path)
+        if len(frames) == 5:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(path, frame)
+
+    monkeypatch.setattr(io, "_write_tiff", filling)
+    error = one_line_error(run("capture", "--rig", base / "rig.toml", "--plan", base / "tri.npz", "--calib",
+                               base / "calib.npz", "--scene", "colorchecker", "--out", tmp_path / "s",
+                               "--sequences", "20", ok=False), "No space left")
+    assert "frame_000004.tif" in error
+    assert len(frames) == 5  # stopped at once, not after the whole capture
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
