@@ -301,9 +301,24 @@ def load_calibration(path, *, rig: RigDescription | None = None) -> CalibrationB
         raise ValueError(f"{path}: invalid calibration bundle ({exc})") from None
     if bundle.hash != digest:
         raise ValueError(f"{path}: corrupt calibration file (content does not match its hash)")
+    _check_levels(path, bundle)
     if rig is not None:
         bundle.check_rig(rig, str(path))
     return bundle
+
+
+def _check_levels(path, bundle: CalibrationBundle) -> None:
+    """Refuse a bundle whose dark level or flat field could not come from its camera (a hand-made file): a
+    recovery from it would be silently wrong everywhere."""
+    dark = np.asarray(bundle.dark, np.float64)
+    if not np.all(np.isfinite(dark)) or dark.min(initial=0) < -bundle.max_code or \
+            dark.max(initial=0) > bundle.max_code:
+        raise ValueError(f"{path}: invalid calibration: dark levels {dark.min():.3g}-{dark.max():.3g} DN lie "
+                         f"outside the camera's 0-{bundle.max_code} codes; recalibrate")
+    flat = np.asarray(bundle.flat_field, np.float64)
+    if not np.all(np.isfinite(flat)) or flat.min(initial=1) <= 0 or flat.max(initial=1) > 1e6:
+        raise ValueError(f"{path}: invalid calibration: its flat field holds NaN, inf, zero, negative or huge gains "
+                         f"({flat.min():.3g}-{flat.max():.3g}); recalibrate")
 
 
 # ---- capture helpers ------------------------------------------------------------------------------------------

@@ -17,7 +17,8 @@ class _Group(click.Group):
 
     def invoke(self, ctx):
         try:
-            return super().invoke(ctx)
+            with _terminate_as_interrupt():
+                return super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort, SystemExit):
             raise
         except KeyboardInterrupt:
@@ -26,6 +27,127 @@ class _Group(click.Group):
         except Exception as error:  # noqa: BLE001 (the CLI promises one line, not a traceback)
             message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise click.ClickException(message) from error
+
+
+class _terminate_as_interrupt:
+    """SIGTERM (``kill``, a service manager stopping us) is handled like Ctrl-C: a stream drains, a capture or
+    recover removes what it half wrote; only ``kill -9`` cannot be handled (see README, Reliability)."""
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        self._previous = None
+        if threading.current_thread() is threading.main_thread():
+            def interrupt(signum, frame):
+                raise KeyboardInterrupt
+
+            self._previous = signal.signal(signal.SIGTERM, interrupt)
+        return self
+
+    def __exit__(self, *exc):
+        if self._previous is not None:
+            import signal
+
+            signal.signal(signal.SIGTERM, self._previous)
+
+
+def _no_clash(outputs, inputs=()):
+    """Refuse (a usage error naming both options) two outputs that are one file, or an output that is an input:
+    writing it would silently replace the other result or destroy the input."""
+    from .locks import same_path
+
+    outputs = [(o, p) for o, p in outputs if p is not None]
+    inputs = [(o, p) for o, p in inputs if p is not None]
+    for i, (opt, path) in enumerate(outputs):
+        for other, other_path in outputs[:i]:
+            if same_path(path, other_path):
+                raise click.UsageError(f"{other} and {opt} both name {path}; give each output its own file")
+        for source, source_path in inputs:
+            if same_path(path, source_path):
+                raise click.UsageError(f"{opt} {path} is the input {source}; writing it would destroy that input, "
+                                       "choose another file")
+
+
+def _sequence_files(seq):
+    """The files of a sequence folder a reader uses (its outputs must never land on them)."""
+    from pathlib import Path
+
+    from .io import SEQUENCE_FILE
+    from .pipeline import CALIBRATION_FILE, PLAN_FILE
+
+    folder = Path(seq)
+    files = [(f"SEQ's {name}", folder / name) for name in (SEQUENCE_FILE, PLAN_FILE, CALIBRATION_FILE)]
+    files += [(f"SEQ's {p.name}", p) for p in folder.glob("frame_*.tif")]
+    return [("SEQ", folder), *files]
+
+
+class _Staged:
+    """Outputs written all or nothing: each to a temporary name beside its final one, renamed over the finals
+    only once every one is written (with SIGINT / SIGTERM held back during the renames); on failure the temporaries
+    are removed and the finals, old files included, are untouched."""
+
+    def __init__(self):
+        self.pairs = []
+
+    def path(self, final):
+        import os
+        import tempfile
+        from pathlib import Path
+
+        final = Path(final)
+        fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.{os.getpid()}.", suffix=f".tmp{final.suffix}",
+                                   dir=final.parent)
+        os.close(fd)
+        self.pairs.append((Path(tmp), final))
+        return Path(tmp)
+
+    def write(self, final, write):
+        """``write(path)`` to a temporary beside ``final``; an error names ``final``, never the temporary."""
+        tmp = self.path(final)
+        try:
+            write(tmp)
+        except Exception as error:
+            if str(tmp) in str(error):
+                raise click.ClickException(str(error).replace(str(tmp), str(final)).splitlines()[0]) from error
+            raise
+
+    def discard(self):
+        for tmp, _ in self.pairs:
+            tmp.unlink(missing_ok=True)
+
+    def commit(self):
+        import os
+        import signal
+
+        held = {signal.SIGINT, signal.SIGTERM}
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+        try:
+            for tmp, final in self.pairs:
+                os.replace(tmp, final)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        return [final for _, final in self.pairs]
+
+
+def _lock(*paths, folder: bool = False):
+    """Hold the exclusive lock of these outputs until the command ends (a second writer refuses at once);
+    ``folder``: output folders, whose missing parents are created."""
+    from .locks import output_locks
+
+    click.get_current_context().with_resource(output_locks(paths, make_parents=folder))
+
+
+class _Finite(click.FloatRange):
+    """A float in a range that is also finite (click's FloatRange lets NaN through every bound)."""
+
+    def convert(self, value, param, ctx):
+        import math
+
+        rv = super().convert(value, param, ctx)
+        if not math.isfinite(rv):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return rv
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -169,15 +291,17 @@ class _Busy:
 @main.command()
 @_RIG
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="Calibration bundle to write (.npz).")
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=0, show_default=True,
               help="Seed of the twin's noise; on hardware, of the loops' perturbed start only.")
 def calibrate(rig_path, out, seed):
     """Run both feedback loops on the rig and write the calibration bundle."""
     from .calibration import calibrate as run, save_calibration
     from .rig.config import load_rig
 
+    _no_clash([("--out", out)], [("--rig", rig_path)])
     description = load_rig(rig_path)
     hardware = _hardware(description)
+    _lock(out)
     with _Busy("calibrating"):
         if hardware is None:
             bundle = run(description, seed=seed)
@@ -200,14 +324,16 @@ def calibrate(rig_path, out, seed):
 @click.argument("method")
 @click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False), help="Calibration bundle.")
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="Plan to write (.npz).")
-@click.option("--step-nm", type=float, default=10.0, show_default=True, help="Band spacing (narrowband, reciprocal).")
-@click.option("--bandwidth-nm", type=float, default=None, help="Band width (narrowband, reciprocal; default the step).")
+@click.option("--step-nm", type=_Finite(min=0.1, max=300), default=10.0, show_default=True,
+              help="Band spacing (narrowband, reciprocal).")
+@click.option("--bandwidth-nm", type=_Finite(min=0.1, max=300), default=None,
+              help="Band width (narrowband, reciprocal; default the step).")
 @click.option("--m", "m", type=int, default=5, show_default=True, help="Basis functions (biased, symmetric).")
 @click.option("--basis", "basis_path", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Basis table (.npz); default: PCA of colour-science's reflectances without --exclude-chart.")
 @click.option("--exclude-chart", default="ColorChecker N Ohta", show_default=True,
               help="Chart left out of the default basis training (the one you evaluate on).")
-@click.option("--output-step-nm", type=float, default=10.0, show_default=True,
+@click.option("--output-step-nm", type=_Finite(min=0.1, max=300), default=10.0, show_default=True,
               help="Output wavelength spacing of basis methods (400-700 nm).")
 @click.option("--illuminant", default="D65", show_default=True, help="Tristimulus / camera simulator illuminant.")
 @click.option("--observer", default="CIE 1931 2 Degree Standard Observer", show_default=True)
@@ -228,6 +354,8 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
 
     validate_method(method, {k: k for k in PLAN_METHODS}, "METHOD")
     method = method.lower()
+    _no_clash([("--out", out)], [("--calib", calib), ("--basis", basis_path)])
+    _lock(out)
     bundle = load_calibration(calib)
     if method in ("narrowband", "reciprocal"):
         kwargs = {"step_nm": step_nm, "bandwidth_nm": bandwidth_nm}
@@ -267,42 +395,86 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
 @_SCENE
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Sequence folder to write.")
 @click.option("--sequences", type=click.IntRange(min=1), default=1, show_default=True)
-@click.option("--seed", type=int, default=None, help="Seed of the frames' temporal noise.")
+@click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=None,
+              help="Seed of the frames' temporal noise.")
 def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
     """Capture sequences of a plan on the rig (the twin by default) into a sequence folder."""
     from tqdm import tqdm
 
-    from .pipeline import capture_plan, write_capture
+    from .pipeline import CaptureWriter, check_capture_folder
     from .rig.config import load_rig
 
     description = load_rig(rig_path)
     hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
     bundle, plan, truth = _experiment(description, plan_path, calib, scene)
     cam = description.camera
-    kept = []
-    with tqdm(total=sequences, desc="capturing", unit="seq", leave=False, file=sys.stderr) as bar:
-        def keep(sequence):
-            kept.append(sequence)
-            bar.update()
-
-        if hardware is None:
-            result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed, on_sequence=keep)
-        else:  # real devices: the same ring buffer and assembler, the plan uploaded to the light
-            from .capture.session import capture_sequences
-            from .hardware.rig import open_hardware
-
-            driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle,
-                                   n_frames=plan.K * sequences)
-            try:
-                result = capture_sequences(driver, plan.K, on_sequence=keep)
-            finally:
-                driver.close()
-    write_capture(out, kept, result.assembly, plan_path, calib,
-                  metadata={"scene": truth.name, "rig": rig_path or "<paper defaults>"})
+    check_capture_folder(out)  # a folder holding a sequence or someone's files: refused before the capture
+    _lock(out, folder=True)
+    writer = CaptureWriter(out, plan_path, calib)  # frames go to disk as they come, never all held in memory
+    try:
+        with tqdm(total=sequences, desc="capturing", unit="seq", leave=False, file=sys.stderr) as bar:
+            result = _capture_into(writer, bar, description, hardware, plan, bundle, truth, sequences, seed)
+        writer.close(result.assembly, metadata={"scene": truth.name, "rig": rig_path or "<paper defaults>"})
+    except BaseException:
+        writer.abort()
+        raise
     a = result.assembly
-    click.echo(f"{len(kept)} sequences of {plan.K} frames ({truth.name}, {cam.roi_width} x {cam.roi_height}); "
-               f"dropped {a.dropped}, duplicated {a.duplicates}, missed triggers {a.missed_triggers}, "
-               f"discarded {a.sequences_discarded}; wrote {out}")
+    click.echo(f"{writer.sequences} sequences of {plan.K} frames ({truth.name}, {cam.roi_width} x "
+               f"{cam.roi_height}); dropped {a.dropped}, duplicated {a.duplicates}, missed triggers "
+               f"{a.missed_triggers}, discarded {a.sequences_discarded}; wrote {out}")
+
+
+def _capture_into(writer, bar, description, hardware, plan, bundle, truth, sequences, seed):
+    """Capture on the twin or the rig's devices, each complete sequence written as it arrives."""
+    from .pipeline import capture_plan
+
+    def keep(sequence):
+        writer.add(sequence)
+        bar.update()
+
+    if hardware is None:
+        result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed, on_sequence=keep)
+    else:  # real devices: the same ring buffer and assembler, the plan uploaded to the light
+        from .capture.session import capture_sequences
+        from .hardware.rig import open_hardware
+
+        driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle,
+                               n_frames=plan.K * sequences)
+        try:
+            result = capture_sequences(driver, plan.K, on_sequence=keep)
+        finally:
+            driver.close()
+    return result
+
+
+class _one_interrupt:
+    """While a stream drains after Ctrl-C (or SIGTERM), further ones are reported, not obeyed: a second Ctrl-C
+    would abandon the drain and lose what was captured. ``kill -9`` still stops it at once."""
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        self._previous = {}
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        state = {"seen": False}
+
+        def handler(signum, frame):
+            if not state["seen"]:
+                state["seen"] = True
+                raise KeyboardInterrupt
+            click.echo("specgpu: draining what was captured; kill -9 to abandon it", err=True)
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, handler)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        for sig, previous in self._previous.items():
+            signal.signal(sig, previous)
 
 
 def _parse_reference(text, height, width, illuminant):
@@ -312,9 +484,14 @@ def _parse_reference(text, height, width, illuminant):
     parts = text.split(",")
     if len(parts) == 3:
         try:
-            return np.array([float(p) for p in parts], np.float32)
+            lab = np.array([float(p) for p in parts], np.float64)
         except ValueError:
-            pass
+            lab = None
+        if lab is not None:  # a colour: NaN or 1e40 would make every dE NaN, silently
+            if not (np.all(np.isfinite(lab)) and 0 <= lab[0] <= 200 and np.all(np.abs(lab[1:]) <= 500)):
+                raise click.BadParameter(f"{text!r} is not a CIELAB colour: give finite 'L,a,b' with L in 0-200 "
+                                         "and a, b in -500-500", param_hint="--delta-e-ref")
+            return lab.astype(np.float32)
     from .colorimetry import XYZ_to_Lab
     from .evaluate import scene_XYZ
     from .rig.scene import load_scene
@@ -351,6 +528,9 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
     if (ref is None) != (de_path is None):
         raise click.UsageError("--delta-e-ref and --delta-e go together")
     method = validate_method(method, DELTA_E_METHODS)
+    outputs = [("--out", out), ("--xyz", xyz_path), ("--lab", lab_path), ("--delta-e", de_path)]
+    _no_clash(outputs, _sequence_files(seq) + ([("--delta-e-ref", ref)] if ref and Path(ref).exists() else []))
+    _lock(*(p for _, p in outputs if p))  # before the work: a missing folder or a busy output is refused now
     folder = read_capture(seq)
     plan = folder.plan
     with _Busy("recovering"):
@@ -359,34 +539,35 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
         meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
                 "calibration": plan.calibration, "sequence_folder": str(seq),
                 "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant}
-        writes = []
+        writes = []  # (final path, write(to path))
         if plan.output == "reflectance":
-            writes.append(lambda: io.write_cube(out, y, plan.output_wavelengths, half=half, metadata=meta))
+            writes.append((out, lambda p: io.write_cube(p, y, plan.output_wavelengths, half=half, metadata=meta)))
         else:
             kind = "XYZ" if plan.output == "XYZ" else tuple(plan.output_labels)
-            writes.append(lambda: io.write_map(out, y, kind, half=half, metadata=meta))
+            # kind bound now: the dE branch below reuses the name (a late-bound lambda wrote XYZ as a dE map)
+            writes.append((out, lambda p, kind=kind: io.write_map(p, y, kind, half=half, metadata=meta)))
         XYZ = Lab = None
         if xyz_path or lab_path or de_path:
             XYZ = to_XYZ(y, plan, illuminant, device=device)
             Lab = to_Lab(XYZ, illuminant, device=device)
         if xyz_path:
-            writes.append(lambda: io.write_map(xyz_path, XYZ, "XYZ", metadata=meta))
+            writes.append((xyz_path, lambda p: io.write_map(p, XYZ, "XYZ", metadata=meta)))
         if lab_path:
-            writes.append(lambda: io.write_map(lab_path, Lab, "Lab", metadata=meta))
+            writes.append((lab_path, lambda p: io.write_map(p, Lab, "Lab", metadata=meta)))
         if de_path:
             dE = delta_E(_parse_reference(ref, height, width, illuminant), Lab, method, device=device)
             if Path(de_path).suffix.lower() == ".png":
-                writes.append(lambda: io.write_delta_E_png(de_path, dE, metadata=meta))
+                writes.append((de_path, lambda p: io.write_delta_E_png(p, dE, metadata=meta)))
             else:
                 kind = {"CIE 1976": "dE76", "CIE 1994": "dE94", "CIE 2000": "dE2000"}[method]
-                writes.append(lambda: io.write_map(de_path, dE, kind, metadata=meta))
-    written = []
+                writes.append((de_path, lambda p, kind=kind: io.write_map(p, dE, kind, metadata=meta)))
+    staged = _Staged()  # all or nothing: no output replaced until every one is written
     try:
-        for write in writes:
-            written.append(write())
-    except Exception:
-        for path in written:  # nothing partial left looking complete
-            Path(path).unlink(missing_ok=True)
+        for final, write in writes:
+            staged.write(final, write)
+        written = staged.commit()
+    except BaseException:
+        staged.discard()
         raise
     saturated = int(np.isnan(y[..., 0]).sum())
     note = f"; {saturated} saturated pixels left NaN" if saturated else ""
@@ -400,7 +581,7 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
 @click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False),
               help="The calibration the plan was made from.")
 @_SCENE
-@click.option("--seconds", type=click.FloatRange(min=0, min_open=True), required=True, help="Capture time.")
+@click.option("--seconds", type=_Finite(min=0, min_open=True), required=True, help="Capture time.")
 @click.option("--out", type=click.Path(file_okay=False), default=None,
               help="Folder for the recording (chunked .npy + index.json) and preview.png.")
 @click.option("--outputs", default="coefficients,XYZ,dE", show_default=True,
@@ -417,7 +598,8 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
 @click.option("--exr-every", type=click.IntRange(min=0), default=0, show_default=True,
               help="Also write every N-th result as EXR maps into --out (0: none).")
 @click.option("--half", is_flag=True, help="Keep the cube in half precision.")
-@click.option("--seed", type=int, default=None, help="Seed of the frames' temporal noise.")
+@click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=None,
+              help="Seed of the frames' temporal noise.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref, method, illuminant, pacing,
                    policy, exr_every, half, seed, device):
@@ -437,6 +619,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
                    for o in outputs.split(",") if o.strip())
     from .rig.config import load_rig
 
+    if out:
+        _lock(out, folder=True)  # one recorder per folder: a second stream into it refuses at once
     description = load_rig(rig_path)
     hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
     bundle, plan, truth = _experiment(description, plan_path, calib, scene)
@@ -484,7 +668,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
         click.echo(("\r" + line + "   ") if tty else line, err=True, nl=not tty)
 
     try:
-        report = stream.run(seconds, on_status=status)
+        with _one_interrupt():
+            report = stream.run(seconds, on_status=status)
     finally:
         if hardware is not None:
             driver.close()  # the light's USB link and the camera
@@ -516,6 +701,11 @@ def evaluate(cube, truth, illuminant, json_path, device):
     from .evaluate import evaluate_pixels, evaluate_reflectance, evaluate_XYZ
     from .rig.scene import load_scene
 
+    if json_path:
+        from pathlib import Path
+
+        _no_clash([("--json", json_path)], [("CUBE", cube), ("--truth", truth if Path(truth).exists() else None)])
+        _lock(json_path)
     try:
         data, wavelengths, meta = io.read_cube(cube)
     except ValueError as cube_error:
@@ -560,11 +750,8 @@ def evaluate(cube, truth, illuminant, json_path, device):
                                         for k, v in headline.items())
                + (f"; {report['projections']} projections" if report["projections"] else ""))
     if json_path:
-        from pathlib import Path
-
-        tmp = Path(json_path).with_name(Path(json_path).name + ".tmp")
-        tmp.write_text(json.dumps(report, indent=1))
-        tmp.replace(json_path)
+        with io.atomic_path(Path(json_path)) as tmp:
+            tmp.write_text(json.dumps(report, indent=1))
 
 
 @main.command()
@@ -578,6 +765,7 @@ def demo(out, rig_path, seed, device):
     paper's Tables 1-3 beside ours and writes a report folder with index.html."""
     from .demo import format_tables, run_demo
 
+    _lock(out, folder=True)
     result = run_demo(out, rig=rig_path, seed=seed, echo=click.echo, device=device)
     click.echo(format_tables(result))
     click.echo(f"\ndemo finished in {result.seconds:.1f} s; report: {result.out / 'index.html'}")

@@ -53,7 +53,7 @@ from specgpu.rig._files import (SPECTRAL_LAYOUT_VERSION, atomic_path, format_cha
 __all__ = [
     "format_channel", "parse_channel", "write_cube", "read_cube", "MAP_KINDS", "write_map", "read_map",
     "write_sRGB_preview", "write_delta_E_png", "read_png", "PERCEPTUAL_COLORMAPS",
-    "SEQUENCE_FORMAT", "SEQUENCE_VERSION", "SEQUENCE_FILE", "write_sequence", "read_sequence",
+    "SEQUENCE_FORMAT", "SEQUENCE_VERSION", "SEQUENCE_FILE", "write_sequence", "SequenceWriter", "read_sequence",
     "read_sequence_header", "validate_sequence_document", "SPECTRAL_LAYOUT_VERSION",
 ]
 
@@ -649,58 +649,109 @@ def write_sequence(directory, frames, records=None, plan_hash: str = "", *, meta
         frames = frames.frames
     if records is None:
         raise ValueError(f"{directory}: records are required (frame_id, pattern_index, exposure_s, timestamp_s)")
-    if not isinstance(plan_hash, str) or not plan_hash:
-        raise ValueError(f"{directory}: plan_hash must be a non-empty string, got {plan_hash!r}")
+    _check_plan_hash(directory, plan_hash)
     meta_text = _metadata_json(directory, metadata)
     records = [_record_of(r, i, directory) for i, r in enumerate(records)]
-    index = directory / SEQUENCE_FILE
     if records:  # check the records before any pixel is written (placeholders for what the frames will give)
         validate_sequence_document(
             {"format": SEQUENCE_FORMAT, "version": SEQUENCE_VERSION, "plan_hash": plan_hash, "height": 1,
              "width": 1, "dtype": "uint16",
              "frames": [{"file": _FRAME_NAME.format(i), **r, "bytes": 0, "sha256": "0" * 64}
-                        for i, r in enumerate(records)]}, index)
-    if directory.exists() and not directory.is_dir():
-        raise ValueError(f"{directory}: exists and is not a folder")
-    if index.exists():
-        if not overwrite:
-            raise FileExistsError(f"{directory}: already holds a frame sequence (pass overwrite=True to replace it)")
-        index.unlink()
-    directory.mkdir(parents=True, exist_ok=True)
-    for stale in directory.iterdir():  # frames of an interrupted or replaced write
-        if _FRAME_RE.match(stale.name) or (stale.name.startswith(".frame_") and ".tmp" in stale.name):
-            stale.unlink()
-    written: list[Path] = []
+                        for i, r in enumerate(records)]}, directory / SEQUENCE_FILE)
+    writer = SequenceWriter(directory, plan_hash, overwrite=overwrite)
     try:
-        entries, shape = [], None
         for i, frame in enumerate(frames):
             if i >= len(records):
                 raise ValueError(f"{directory}: more frames than records ({len(records)})")
-            arr = _frame_array(frame, i, directory, shape)
-            shape = arr.shape[:2]
-            name = _FRAME_NAME.format(i)
-            written.append(directory / name)
-            size, digest = _write_tiff(directory / name, arr)
-            entries.append({"file": name, **records[i], "bytes": size, "sha256": digest})
-        if len(entries) != len(records):
-            raise ValueError(f"{directory}: {len(entries)} frame(s) but {len(records)} record(s)")
-        if not entries:
-            raise ValueError(f"{directory}: no frames to write")
-        doc = {"format": SEQUENCE_FORMAT, "version": SEQUENCE_VERSION, "plan_hash": plan_hash,
-               "height": int(shape[0]), "width": int(shape[1]), "dtype": "uint16", "n_frames": len(entries),
-               "frames": entries, "metadata": {} if meta_text is None else json.loads(meta_text)}
-        doc = validate_sequence_document(doc, index)
-        with atomic_path(index) as tmp:
+            writer.add(frame, records[i])
+        if writer.n_frames != len(records):
+            raise ValueError(f"{directory}: {writer.n_frames} frame(s) but {len(records)} record(s)")
+        return writer.close(None if meta_text is None else json.loads(meta_text))
+    except BaseException:
+        writer.abort()
+        raise
+
+
+def _check_plan_hash(directory: Path, plan_hash) -> None:
+    if not isinstance(plan_hash, str) or not plan_hash:
+        raise ValueError(f"{directory}: plan_hash must be a non-empty string, got {plan_hash!r}")
+
+
+class SequenceWriter:
+    """Write a frame sequence one frame at a time (a long capture never holds its frames in memory):
+    :meth:`add` each frame with its record as it arrives, then :meth:`close` writes ``sequence.json``, last;
+    :meth:`abort` removes the frames written. Until :meth:`close` returns, the folder never reads as complete.
+
+    Parameters
+    ----------
+    directory, plan_hash, overwrite
+        As :func:`write_sequence`; the folder checks (not a folder, a sequence already there) happen here,
+        before any frame is written, and leftover frames of an interrupted write are removed.
+    """
+
+    def __init__(self, directory, plan_hash: str, *, overwrite: bool = False):
+        directory = self.directory = Path(directory)
+        _check_plan_hash(directory, plan_hash)
+        self.plan_hash = plan_hash
+        index = self.index = directory / SEQUENCE_FILE
+        if directory.exists() and not directory.is_dir():
+            raise ValueError(f"{directory}: exists and is not a folder")
+        if index.exists():
+            if not overwrite:
+                raise FileExistsError(f"{directory}: already holds a frame sequence (pass overwrite=True to replace "
+                                      "it)")
+            index.unlink()
+        directory.mkdir(parents=True, exist_ok=True)
+        for stale in directory.iterdir():  # frames of an interrupted or replaced write
+            if _FRAME_RE.match(stale.name) or (stale.name.startswith(".frame_") and ".tmp" in stale.name):
+                stale.unlink()
+        self.entries: list[dict] = []
+        self.written: list[Path] = []
+        self.shape = None
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.entries)
+
+    def add(self, frame, record) -> None:
+        """Write one (H, W) frame (uint16 DN, or integers in 0-65535) with its capture record."""
+        i = len(self.entries)
+        rec = _record_of(record, i, self.directory)
+        arr = _frame_array(frame, i, self.directory, self.shape)
+        self.shape = arr.shape[:2]
+        name = _FRAME_NAME.format(i)
+        self.written.append(self.directory / name)
+        try:
+            size, digest = _write_tiff(self.directory / name, arr)
+        except OSError as exc:  # disk full, folder gone: one line naming the frame
+            if str(self.directory / name) in str(exc):
+                raise
+            raise _files._os_error(self.directory / name, exc) from None
+        self.entries.append({"file": name, **rec, "bytes": size, "sha256": digest})
+
+    def close(self, metadata=None) -> Path:
+        """Validate the whole document and write ``sequence.json`` (atomically, synced); return the folder."""
+        meta_text = _metadata_json(self.directory, metadata)
+        if not self.entries:
+            raise ValueError(f"{self.directory}: no frames to write")
+        doc = {"format": SEQUENCE_FORMAT, "version": SEQUENCE_VERSION, "plan_hash": self.plan_hash,
+               "height": int(self.shape[0]), "width": int(self.shape[1]), "dtype": "uint16",
+               "n_frames": len(self.entries), "frames": self.entries,
+               "metadata": {} if meta_text is None else json.loads(meta_text)}
+        doc = validate_sequence_document(doc, self.index)
+        with atomic_path(self.index) as tmp:
             with open(tmp, "w", encoding="utf-8") as fh:
                 json.dump(doc, fh, indent=1, allow_nan=False)
                 fh.write("\n")
                 fh.flush()
                 os.fsync(fh.fileno())
-    except BaseException:
-        for p in written:
+        return self.directory
+
+    def abort(self) -> None:
+        """Remove the frames this writer wrote (no ``sequence.json`` is written)."""
+        for p in self.written:
             p.unlink(missing_ok=True)
-        raise
-    return directory
+        self.written = []
 
 
 def read_sequence_header(directory) -> tuple[list[dict], dict]:
@@ -795,7 +846,12 @@ def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[d
     directory = Path(directory)
     records, meta = read_sequence_header(directory)
     shape = (meta["height"], meta["width"])
-    frames = np.empty((len(records), *shape), dtype=np.uint16)
+    try:
+        frames = np.empty((len(records), *shape), dtype=np.uint16)
+    except MemoryError:
+        raise ValueError(f"{directory / SEQUENCE_FILE}: {len(records)} frames of {shape[0]} x {shape[1]} need "
+                         f"{len(records) * shape[0] * shape[1] * 2 / 2**30:.1f} GiB, more than this machine can "
+                         "hold") from None
     for i, rec in enumerate(records):
         path = directory / rec["file"]
         if not path.is_file():

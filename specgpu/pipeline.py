@@ -9,6 +9,7 @@ file, never a silent wrong answer (DESIGN.md section 3).
 
 from __future__ import annotations
 
+import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +26,7 @@ from .recovery import apply_linear
 from .rig.config import RigDescription
 from .rig.twin import FaultSchedule, TwinRig
 
-__all__ = ["capture_plan", "write_capture", "default_basis", "SequenceFolder", "read_capture", "recover", "to_XYZ", "to_Lab"]
+__all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder", "read_capture", "recover", "to_XYZ", "to_Lab"]
 
 PLAN_FILE = "plan.npz"
 #: The chart the demo and the accuracy study evaluate on (and leave out of basis training).
@@ -80,29 +81,105 @@ def check_scene_covers(scene, plan: Plan, slack_nm: float = 5.0) -> None:
                          f"{lit[0]:g}-{lit[-1]:g} nm; give a scene whose bands cover its illuminants")
 
 
+#: Written first into a sequence folder being captured and removed once ``sequence.json`` is written: a folder
+#: holding it is an interrupted capture that the next capture into it may replace.
+INCOMPLETE_MARKER = ".specgpu-capture-incomplete"
+
+
+class CaptureWriter:
+    """Write a capture into a sequence folder as its sequences arrive (a long capture never holds its frames in
+    memory): copies of the plan and calibration first, each frame as it comes, ``sequence.json`` last.
+
+    The folder must be new, empty, or an interrupted capture (it holds :data:`INCOMPLETE_MARKER`); one that holds a
+    sequence, or files specgpu did not put there (a user's own ``plan.npz``), is refused before anything is written
+    unless ``overwrite``. :meth:`abort` removes what this writer wrote.
+    """
+
+    def __init__(self, directory, plan_path, calibration_path, *, overwrite: bool = False):
+        directory = self.directory = Path(directory)
+        self.plan = load_plan(plan_path)
+        check_capture_folder(directory, overwrite=overwrite)
+        self._created = not directory.exists()
+        directory.mkdir(parents=True, exist_ok=True)
+        self.marker = directory / INCOMPLETE_MARKER
+        (directory / "sequence.json").unlink(missing_ok=True)  # overwrite: never complete while rewritten
+        self.marker.write_text(f"an interrupted specgpu capture (pid {os.getpid()}); capture again into this "
+                               "folder to replace it, or delete it\n", encoding="utf-8")
+        self._copies = []
+        for source, name in ((plan_path, PLAN_FILE), (calibration_path, CALIBRATION_FILE)):
+            with io.atomic_path(directory / name) as tmp:
+                shutil.copyfile(source, tmp)
+            self._copies.append(directory / name)
+        self.frames = io.SequenceWriter(directory, self.plan.hash, overwrite=True)
+        self.sequences = 0
+
+    def add(self, sequence) -> None:
+        """Write one complete sequence (a :class:`specgpu.capture.assemble.Sequence`)."""
+        for frame, record in zip(sequence.frames, sequence.frame_records()):
+            self.frames.add(frame, record)
+        self.sequences += 1
+
+    def close(self, assembly, metadata=None) -> Path:
+        """Write ``sequence.json`` (with the assembler's counters) and remove the marker: the folder is complete."""
+        if not self.sequences:
+            raise ValueError(f"{self.directory}: no complete sequence was captured ({assembly.as_dict()})")
+        meta = {"plan_method": self.plan.method, "K": self.plan.K, "sequences": self.sequences,
+                "assembly": assembly.as_dict(), **(metadata or {})}
+        self.frames.close(meta)
+        self.marker.unlink(missing_ok=True)
+        return self.directory
+
+    def abort(self) -> None:
+        """Remove the frames, copies and marker written (and the folder, when this writer created it)."""
+        self.frames.abort()
+        for path in (*self._copies, self.marker):
+            path.unlink(missing_ok=True)
+        if self._created:
+            try:
+                self.directory.rmdir()
+            except OSError:
+                pass
+
+
+def check_capture_folder(directory, *, overwrite: bool = False) -> None:
+    """Refuse, in one line, a capture folder that is not new, empty or an interrupted capture."""
+    directory = Path(directory)
+    if not directory.exists():
+        return
+    if not directory.is_dir():
+        raise ValueError(f"{directory}: exists and is not a folder")
+    if overwrite:
+        return
+    if (directory / "sequence.json").exists():
+        raise FileExistsError(f"{directory} already holds a sequence (sequence.json); choose another --out")
+    if (directory / INCOMPLETE_MARKER).exists():
+        return  # an interrupted capture: replaced
+    others = sorted(p.name for p in directory.iterdir() if not p.name.startswith("."))
+    if others:
+        shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+        raise FileExistsError(f"{directory} holds files a capture would overwrite or mix with ({shown}); "
+                              "choose a new or empty folder")
+
+
 def write_capture(directory, sequences, assembly, plan_path, calibration_path, *, metadata=None,
                   overwrite: bool = False) -> Path:
     """Write complete sequences (from :func:`capture_plan`) into a sequence folder with copies of the plan and
     calibration; ``assembly`` is the assembler's counters, kept in ``sequence.json``.
 
     The plan and calibration are copied first and ``sequence.json`` is written last, so an interrupted write
-    never leaves a folder that reads as complete.
+    never leaves a folder that reads as complete (see :class:`CaptureWriter`, which this uses).
     """
     directory = Path(directory)
     if not sequences:
         raise ValueError(f"{directory}: no complete sequence was captured ({assembly.as_dict()})")
-    plan = load_plan(plan_path)
-    if (directory / "sequence.json").exists() and not overwrite:
-        raise FileExistsError(f"{directory} already holds a sequence (sequence.json); choose another --out")
-    directory.mkdir(parents=True, exist_ok=True)
-    (directory / "sequence.json").unlink(missing_ok=True)
-    shutil.copyfile(plan_path, directory / PLAN_FILE)
-    shutil.copyfile(calibration_path, directory / CALIBRATION_FILE)
-    frames = np.concatenate([s.frames for s in sequences])
-    records = [r for s in sequences for r in s.frame_records()]
-    meta = {"plan_method": plan.method, "K": plan.K, "sequences": len(sequences), "assembly": assembly.as_dict(),
-            **(metadata or {})}
-    return io.write_sequence(directory, frames, records, plan.hash, metadata=meta, overwrite=True)
+    writer = CaptureWriter(directory, plan_path, calibration_path, overwrite=overwrite)
+    try:
+        for sequence in sequences:
+            writer.add(sequence)
+        return writer.close(assembly, metadata)
+    except BaseException:
+        writer.abort()
+        raise
 
 
 def default_basis(chart: str = EVALUATION_CHART):
@@ -136,6 +213,9 @@ def read_capture(directory) -> SequenceFolder:
     """Read a sequence folder; refuse it when the plan or calibration is missing or does not match its hashes,
     or when its frames are not whole sequences in pattern order."""
     directory = Path(directory)
+    if (directory / INCOMPLETE_MARKER).exists() and not (directory / io.SEQUENCE_FILE).exists():
+        raise ValueError(f"{directory}: an interrupted capture (no sequence.json); capture again into it or "
+                         "delete it")
     frames, records, meta = io.read_sequence(directory)
     for name in (PLAN_FILE, CALIBRATION_FILE):
         if not (directory / name).is_file():

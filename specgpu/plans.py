@@ -241,6 +241,10 @@ def load_plan(path, *, calibration=None) -> Plan:
         raise ValueError(f"{path}: invalid plan ({exc})") from None
     if plan.hash != digest:
         raise ValueError(f"{path}: corrupt plan file (content does not match its hash)")
+    A = np.asarray(plan.A, np.float64)
+    if not np.all(np.isfinite(A)) or (A.size and np.max(np.abs(A)) > 1e30):
+        raise ValueError(f"{path}: invalid plan: its decoder A holds NaN, inf or values beyond 1e30 (a hand-made "
+                         "or broken plan); re-plan")
     if calibration is not None:
         plan.check_calibration(calibration, str(path))
     return plan

@@ -13,7 +13,8 @@ import numpy as np
 
 from . import engine
 from .runtime import get_queue
-from .validate import check_frames, check_matrix, check_out_dtype, is_device_array, validate_method
+from .validate import (check_frames, check_level, check_matrix, check_out_dtype, check_result_size, is_device_array,
+                       validate_method)
 
 __all__ = ["LAYOUTS", "apply_linear", "LinearResult"]
 
@@ -69,9 +70,13 @@ def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layou
     queue = get_queue(device, like=(frames, dark, gain))
     dark_dev, dark_per_frame = engine.pixel_map(queue, dark, "dark", spatial, K)
     gain_dev, _ = engine.pixel_map(queue, gain, "gain", spatial, None)
+    saturation = check_level(saturation, "saturation")
     if saturation is None and frames.dtype.kind == "u":
         saturation = float(np.iinfo(frames.dtype).max)
     n = int(np.prod(spatial, dtype=np.int64))
+    # the device buffer and, for host frames, the copy it comes back to (on a CPU device both are host memory)
+    check_result_size(n * B * out_dtype.itemsize, queue.device,
+                      host_copies=0 if is_device_array(frames) else 2, what=f"({n} pixels x {B} outputs) result")
     y, mask = engine.linear(
         queue, engine.to_device(queue, frames.reshape(-1)), A, n=n, dark=dark_dev, dark_per_frame=dark_per_frame,
         gain=gain_dev, out_dtype=out_dtype, out_layout=out_layout, want_mask=return_mask, saturation=saturation,

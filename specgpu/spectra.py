@@ -122,8 +122,13 @@ def _XYZ_weights_named(wavelengths: tuple, illuminant: str, cmfs: str) -> np.nda
 
 def _XYZ_weights(w: np.ndarray, illuminant, cmfs) -> np.ndarray:
     shape = spectral_shape(w)
-    cmfs_sd = resolve_cmfs(cmfs).copy().align(shape)
-    illum_sd = resolve_illuminant_sd(illuminant).copy().align(shape)
+    try:
+        cmfs_sd = resolve_cmfs(cmfs).copy().align(shape)
+        illum_sd = resolve_illuminant_sd(illuminant).copy().align(shape)
+    except AssertionError:  # colour-science asserts when the grid lies outside the tables
+        domain = resolve_cmfs(cmfs).shape
+        raise ValueError(f"wavelengths {w.min():g}-{w.max():g} nm lie outside the colour-matching functions' "
+                         f"{domain.start:g}-{domain.end:g} nm") from None
     cmf = np.asarray(cmfs_sd.values, dtype=np.float64)  # (B, 3)
     E = np.asarray(illum_sd.values, dtype=np.float64)  # (B,)
     dw = shape.interval

@@ -76,7 +76,12 @@ def check_frames(frames, name: str = "frames"):
 def check_matrix(A, name: str = "A", columns: int | None = None, rows: int | None = None,
                  columns_from: str = "frames") -> np.ndarray:
     """A finite 2-D matrix, returned float32 C-contiguous; ``columns`` / ``rows`` enforce its shape."""
-    A = np.asarray(A, dtype=np.float64)
+    if np.iscomplexobj(A):  # the imaginary part would be dropped silently
+        raise TypeError(f"{name} is complex; a decoder must be real")
+    try:
+        A = np.asarray(A, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a numeric matrix, got {type(A).__name__}") from None
     if A.ndim != 2:
         raise ValueError(f"{name} must be a 2-D matrix, got shape {_shape(A)}")
     if rows is not None and A.shape[0] != rows:
@@ -161,3 +166,42 @@ def check_out_dtype(dtype) -> np.dtype:
     if dt not in OUT_DTYPES:
         raise TypeError(f"out_dtype must be float32 or float16, got {dt}")
     return dt
+
+
+def check_level(value, name: str = "saturation") -> float:
+    """A finite real number (a saturation level, DN), returned as float; None stays None."""
+    if value is None:
+        return None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {value!r}")
+    value = float(value)
+    if not np.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value}")
+    return value
+
+
+def available_memory_bytes() -> int | None:
+    """Memory the system can still give this process (``MemAvailable``), or None where unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def check_result_size(nbytes: int, device, *, host_copies: int = 1, what: str = "result") -> None:
+    """Refuse, before any allocation, a result larger than the device's largest buffer, or than the memory left
+    for it on the host (``host_copies`` times its size): a one-line ValueError with the figures, never a raw
+    allocation error or the OOM killer."""
+    limit = int(getattr(device, "max_mem_alloc_size", 0) or 0)
+    if limit and nbytes > limit:
+        raise ValueError(f"the {what} needs {nbytes / 1e9:.2f} GB, more than the largest buffer of "
+                         f"{getattr(device, 'name', 'the device').strip()} ({limit / 1e9:.2f} GB); process the "
+                         "frames in tiles")
+    free = available_memory_bytes()
+    if host_copies and free is not None and nbytes * host_copies > free:
+        raise ValueError(f"the {what} needs {nbytes * host_copies / 1e9:.2f} GB of memory, {free / 1e9:.2f} GB are "
+                         "available; process the frames in tiles")

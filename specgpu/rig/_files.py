@@ -14,9 +14,11 @@ line that starts with the file's path.
 
 from __future__ import annotations
 
+import errno
 import math
 import os
 import re
+import shutil
 import tempfile
 import zipfile
 from contextlib import contextmanager
@@ -116,17 +118,42 @@ def parse_channel(name: str) -> float | None:
 @contextmanager
 def atomic_path(path: Path):
     """Yield a temporary path next to ``path`` (same suffix); on success rename it over ``path`` atomically,
-    on failure remove it."""
+    on failure remove it.
+
+    The temporary name carries the writer's pid (``.<name>.<pid>.<random>.tmp<suffix>``), so one left by a killed
+    process is recognised and removed by :func:`specgpu.locks.clean_stale_temporaries`. An operating-system
+    error (disk full, read-only folder) is re-raised as one line naming ``path``, never the temporary name.
+    """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=f".tmp{path.suffix}",
+                                   dir=path.parent)
+    except OSError as exc:
+        raise _os_error(path, exc) from None
     os.close(fd)
     tmp = Path(tmp)
     try:
         yield tmp
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and str(path) not in str(exc):
+            raise _os_error(path, exc) from None
         raise
+
+
+def _os_error(path: Path, exc: OSError) -> OSError:
+    """``exc`` as one line that names ``path`` (and how much room is left when the disk is full)."""
+    reason = exc.strerror or one_line(str(exc))
+    if exc.errno == errno.ENOSPC:
+        try:
+            free = shutil.disk_usage(path.parent).free
+            reason += f", {free / 1e6:.1f} MB free"
+        except OSError:
+            pass
+    error = type(exc)(f"{path}: cannot write ({reason})")
+    error.errno = exc.errno
+    return error
 
 
 def _check_exists(path: Path, what: str) -> None:
