@@ -1,0 +1,439 @@
+"""Decoders beyond the paper's projections: Wiener (LMMSE) and smoothness-regularised least squares, the noise
+model they need, the expected error of any decoder, and per-pixel uncertainty.
+
+Every estimator here is still one per-pixel linear map ``y = A (o - dark) * gain`` (DESIGN.md section 1), so the
+device kernels do not change; only the host decides A.
+
+Notation (per plan): the calibration's forward model gives ``F`` (K x B), the frames' output in DN above dark per
+unit reflectance on the prior's grid (``o = F r + noise``); ``W`` (P x B) maps a reflectance on that grid to the
+plan's outputs (interpolation for reflectance outputs, colour-matching weights for XYZ).
+
+- **Prior** (:class:`Prior`): the training spectra's second moment ``S = E[r r^T]`` and mean ``mu``. The second
+  moment, not the covariance: the decoder has no offset term (``apply_linear`` has none), so the best *linear*
+  map through the origin is ``A = W S F^T (F S F^T + N)^-1``, the LMMSE estimate without intercept.
+- **Noise** (:class:`NoiseModel`): per frame, in DN^2, ``var o_k = o_k / g + s_read^2 + (l o_k)^2`` with ``g`` the
+  conversion gain (e-/DN; shot noise), ``s_read^2`` the read, dark-shot and quantization variance at the plan's
+  exposure and ``l`` the light's relative frame-to-frame fluctuation. For the decoder the signal is the expected
+  one over the prior (``o = F mu``; ``E[o^2] = (F S F^T)_kk`` for the fluctuation term).
+- **Expected error** (:func:`expected_error`) of *any* linear decoder A on the prior:
+  ``E = W S W^T - A F S W^T - W S F^T A^T + A (F S F^T + N) A^T``; its diagonal per output, its mean the MSE.
+- **Smooth** (:func:`smooth_decoder`): for users with no training set, ``A = W (F^T N^-1 F + lam D^T D + eps I)^-1
+  F^T N^-1`` with D the second difference over wavelength.
+- **Per-pixel sigma** (:func:`sigma_map`): ``var y_b = gain^2 sum_k A_bk^2 (o_k / g + s_read^2) + m_b``: linear in the
+  frames, so :func:`specgpu.recovery.apply_linear` computes it with ``A^2 / g`` as the matrix, ``dark - g s_read^2``
+  as the dark and ``gain^2`` as the gain; ``m_b`` (the prior's mismatch ``diag((W - A F) S (W - A F)^T)`` plus the
+  light fluctuation at the expected signal) is a constant per output added on the host.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "ESTIMATORS",
+    "NoiseModel",
+    "Prior",
+    "prior_from_spectra",
+    "default_prior",
+    "read_training",
+    "output_weights",
+    "forward",
+    "wiener_decoder",
+    "smooth_decoder",
+    "expected_error",
+    "with_estimator",
+    "sigma_map",
+    "delta_E_sigma",
+    "HELD_OUT_CHART",
+    "training_database",
+    "held_out_basis",
+    "held_out_spectra",
+    "patch_scene",
+]
+
+#: Estimator names: the plan's own decoder, Wiener (LMMSE) on a training prior, smoothness-regularised LS.
+ESTIMATORS = ("projection", "wiener", "smooth")
+
+#: The colour-science set held out of training to evaluate the estimators and designs on (14 Munsell chips of
+#: the CIE 1995 colour rendering test samples: in neither the default training nor the ColorChecker).
+HELD_OUT_CHART = "CIE 1995 TCS"
+
+
+# ---- noise -------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class NoiseModel:
+    """Temporal noise of one frame, in DN: ``var = o / gain_e_per_dn + read_var_dn2 + (light_rms * o)^2``.
+
+    Attributes
+    ----------
+    gain_e_per_dn : float
+        Conversion gain, electrons per DN (> 0).
+    read_var_dn2 : float
+        Signal-independent variance, DN^2 (read noise, dark-current shot noise, quantization), >= 0.
+    light_rms : float
+        Relative RMS frame-to-frame fluctuation of the light, >= 0 (common to all pixels of a frame).
+    """
+
+    gain_e_per_dn: float
+    read_var_dn2: float
+    light_rms: float = 0.0
+
+    def __post_init__(self):
+        if not (math.isfinite(self.gain_e_per_dn) and self.gain_e_per_dn > 0):
+            raise ValueError(f"noise gain_e_per_dn must be finite and > 0, got {self.gain_e_per_dn!r}")
+        if not (math.isfinite(self.read_var_dn2) and self.read_var_dn2 >= 0):
+            raise ValueError(f"noise read_var_dn2 must be finite and >= 0, got {self.read_var_dn2!r}")
+        if not (math.isfinite(self.light_rms) and 0 <= self.light_rms < 1):
+            raise ValueError(f"noise light_rms must lie in [0, 1), got {self.light_rms!r}")
+
+    @classmethod
+    def from_rig(cls, description, exposure_s: float) -> "NoiseModel":
+        """The noise of a rig description's camera and light at an exposure (s): the conversion gain, read noise
+        and dark current the camera is specified with, quantization 1/12 DN^2, the light's fluctuation."""
+        cam, light = description.camera, description.light
+        g = float(cam.gain_e_per_dn)
+        read = (cam.read_noise_e ** 2 + cam.dark_current_e_per_s * exposure_s) / g ** 2 + 1.0 / 12.0
+        rms = float(light.fluctuation_rms) * math.sqrt(light.fluctuation_reference_exposure_s / exposure_s)
+        return cls(g, float(read), rms)
+
+    @classmethod
+    def from_params(cls, params: dict) -> "NoiseModel":
+        """From a plan's ``params["noise"]`` (ValueError naming what is missing)."""
+        try:
+            return cls(float(params["gain_e_per_dn"]), float(params["read_var_dn2"]), float(params["light_rms"]))
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"plan noise model is incomplete ({exc})") from None
+
+    def as_params(self) -> dict:
+        return {"gain_e_per_dn": float(self.gain_e_per_dn), "read_var_dn2": float(self.read_var_dn2),
+                "light_rms": float(self.light_rms)}
+
+    def covariance(self, F, prior: "Prior") -> np.ndarray:
+        """(K, K) diagonal noise covariance at the prior's expected signal ``F mu``."""
+        F = np.asarray(F, np.float64)
+        o = F @ prior.mean
+        o2 = np.einsum("kb,bc,kc->k", F, prior.moment, F)
+        return np.diag(np.maximum(o, 0.0) / self.gain_e_per_dn + self.read_var_dn2 + self.light_rms ** 2 * o2)
+
+
+# ---- prior ---------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Prior:
+    """Second-order statistics of training reflectances on a grid.
+
+    Attributes
+    ----------
+    wavelengths : (B,) nm
+    moment : (B, B) ``E[r r^T]`` (uncentred)
+    mean : (B,) ``E[r]``
+    n : number of training spectra
+    source : description for reports
+    """
+
+    wavelengths: np.ndarray
+    moment: np.ndarray
+    mean: np.ndarray
+    n: int
+    source: str = ""
+
+
+def prior_from_spectra(reflectance, wavelengths, source: str = "") -> Prior:
+    """The prior of (N, B) training spectra on ``wavelengths``; an empty set is a one-line error."""
+    r = np.asarray(reflectance, np.float64)
+    wl = np.asarray(wavelengths, np.float64).reshape(-1)
+    if r.ndim != 2 or r.shape[1] != wl.size:
+        raise ValueError(f"training spectra must be (N, {wl.size}), got shape {r.shape}")
+    if r.shape[0] == 0:
+        raise ValueError(f"the training set is empty{f' ({source})' if source else ''}: give at least one spectrum")
+    if not np.all(np.isfinite(r)):
+        raise ValueError("training spectra must be finite")
+    return Prior(wl, r.T @ r / r.shape[0], r.mean(axis=0), int(r.shape[0]), source)
+
+
+def read_training(path, wavelengths) -> tuple[np.ndarray, list]:
+    """Training spectra from a file, on ``wavelengths``: a CSV (:func:`specgpu.basis.read_reflectance_csv`) or an
+    ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (N, B). Returns ((N, B), labels); one-line errors."""
+    from .basis import MAX_REFLECTANCE, read_reflectance_csv
+
+    path = Path(path)
+    wl = np.asarray(wavelengths, np.float64)
+    if path.suffix.lower() == ".npz":
+        if not path.is_file():
+            raise ValueError(f"{path}: training file not found")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                swl = np.asarray(data["wavelengths"], np.float64).reshape(-1)
+                r = np.asarray(data["reflectance"], np.float64)
+        except KeyError as exc:
+            raise ValueError(f"{path}: training npz needs 'wavelengths' and 'reflectance' arrays ({exc})") from None
+        except Exception as exc:  # noqa: BLE001 - any unreadable file is one line naming it
+            raise ValueError(f"{path}: cannot read training npz ({exc.__class__.__name__})") from None
+        r = r.reshape(-1, swl.size) if r.ndim == 1 else r
+        if r.ndim != 2 or r.shape[1] != swl.size or swl.size < 2 or np.any(np.diff(swl) <= 0):
+            raise ValueError(f"{path}: reflectance must be (N, {swl.size}) on increasing wavelengths")
+        if not np.all(np.isfinite(r)) or r.size and (r.min() < 0 or r.max() > MAX_REFLECTANCE):
+            raise ValueError(f"{path}: reflectance must be finite and in [0, {MAX_REFLECTANCE}]")
+        samples = [(f"{path.stem}:{i + 1}", swl, r[i]) for i in range(r.shape[0])]
+    else:
+        samples = read_reflectance_csv(path)
+    if not samples:
+        raise ValueError(f"{path}: the training file holds no spectra")
+    out = []
+    for name, swl, val in samples:
+        if swl[0] > wl[0] + 1e-9 or swl[-1] < wl[-1] - 1e-9:
+            raise ValueError(f"{path}: spectrum {name!r} covers {swl[0]:g}-{swl[-1]:g} nm, not {wl[0]:g}-{wl[-1]:g} nm")
+        out.append(np.interp(wl, swl, val))
+    return np.array(out), [f"{path.stem}/{s[0]}" for s in samples]
+
+
+def held_out_spectra(chart: str = HELD_OUT_CHART, wavelengths=None) -> tuple[list, np.ndarray, np.ndarray]:
+    """(names, wavelengths, (N, B) spectra) of a colour-science set, on its own grid clipped to 380-780 nm
+    (``wavelengths`` None) or interpolated onto ``wavelengths``."""
+    from .basis import REFLECTANCE_SETS
+
+    if chart not in REFLECTANCE_SETS:
+        raise ValueError(f"unknown chart {chart!r}; valid: {', '.join(REFLECTANCE_SETS)}")
+    samples = REFLECTANCE_SETS[chart]()
+    swl = samples[0][1]
+    wl = swl[(swl >= 380) & (swl <= 780)] if wavelengths is None else np.asarray(wavelengths, np.float64)
+    return [s[0] for s in samples], wl, np.array([np.interp(wl, s[1], s[2]) for s in samples])
+
+
+def training_database(chart: str = HELD_OUT_CHART, wavelengths=None):
+    """colour-science's reflectance sets minus ``chart`` (every set of the same patches, and any spectrum within
+    0.01 RMS of one of its patches), on ``wavelengths`` (default 400-700 nm at 5 nm)."""
+    from .basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances
+
+    wl = DEFAULT_WAVELENGTHS if wavelengths is None else np.asarray(wavelengths, np.float64)
+    _, _, test = held_out_spectra(chart, wl)
+    return load_reflectances(wavelengths=wl, exclude=evaluation_exclusions(chart), exclude_similar_to=test)
+
+
+def held_out_basis(chart: str = HELD_OUT_CHART):
+    """The uncentred PCA basis of :func:`training_database` (the paper's basis methods, for the same chart)."""
+    from .basis import pca_basis
+
+    return pca_basis(training_database(chart))
+
+
+def default_prior(chart: str = HELD_OUT_CHART, wavelengths=None, *, training_files=(), builtin: bool = True) -> Prior:
+    """Every reflectance set colour-science ships minus ``chart`` (and every set of the same patches, and any
+    spectrum within 0.01 RMS of one of its patches), plus the user's training files; on ``wavelengths``
+    (default 400-700 nm at 5 nm). ``builtin=False`` uses the files alone."""
+    from .basis import DEFAULT_WAVELENGTHS
+
+    wl = DEFAULT_WAVELENGTHS if wavelengths is None else np.asarray(wavelengths, np.float64)
+    rows, labels = [], []
+    source = []
+    if builtin:
+        db = training_database(chart, wl)
+        rows.append(db.reflectance)
+        labels += list(db.labels)
+        source.append(f"colour-science sets without {chart} ({len(db)} spectra)")
+    for p in training_files:
+        r, lab = read_training(p, wl)
+        rows.append(r)
+        labels += lab
+        source.append(f"{Path(p).name} ({len(lab)} spectra)")
+    r = np.concatenate(rows) if rows else np.zeros((0, wl.size))
+    return prior_from_spectra(r, wl, "; ".join(source) or "no training files")
+
+
+# ---- forward model and output weights ----------------------------------------------------------------------------
+def forward(bundle, plan, wavelengths) -> np.ndarray:
+    """(K, B) model output (DN above dark, flat-fielded) of the plan's frames per unit reflectance on
+    ``wavelengths``, at the plan's exposure."""
+    return bundle.forward_matrix(plan.patterns, wavelengths, plan.exposure_s)
+
+
+def output_weights(plan, wavelengths) -> np.ndarray:
+    """(P, B) matrix W giving the plan's ideal outputs from a reflectance on ``wavelengths``: interpolation for a
+    reflectance plan, colour-matching weights for an XYZ plan; other outputs have no Wiener form (ValueError)."""
+    wl = np.asarray(wavelengths, np.float64)
+    if plan.output == "reflectance":
+        return _interp_rows(plan.output_wavelengths, wl)
+    if plan.output == "XYZ":
+        from .spectra import XYZ_weights
+
+        return XYZ_weights(wl, plan.illuminant or "D65", plan.observer or "CIE 1931 2 Degree Standard Observer")
+    raise ValueError(f"a {plan.output!r} plan ({plan.method}) has no estimator other than its projection")
+
+
+def _interp_rows(points, grid) -> np.ndarray:
+    """(P, B) rows that linearly interpolate a function on ``grid`` at ``points`` (constant beyond the ends)."""
+    p = np.asarray(points, np.float64)
+    g = np.asarray(grid, np.float64)
+    return np.stack([np.interp(p, g, e) for e in np.eye(g.size)], axis=1)
+
+
+# ---- decoders ----------------------------------------------------------------------------------------------------
+def wiener_decoder(F, W, prior: Prior, noise: NoiseModel) -> np.ndarray:
+    """LMMSE decoder (P, K) through the origin: ``W S F^T (F S F^T + N)^-1``."""
+    F = np.asarray(F, np.float64)
+    S = prior.moment
+    M = F @ S @ F.T + noise.covariance(F, prior)
+    return np.linalg.solve(M, F @ S @ np.asarray(W, np.float64).T).T
+
+
+def second_difference(n: int) -> np.ndarray:
+    """(n - 2, n) second-difference operator."""
+    D = np.zeros((max(n - 2, 0), n))
+    for i in range(n - 2):
+        D[i, i:i + 3] = (1.0, -2.0, 1.0)
+    return D
+
+
+def smooth_decoder(F, W, noise: NoiseModel, *, lam: float = 1e-3, level: float = 0.5) -> np.ndarray:
+    """Smoothness-regularised least squares (P, K) for users with no training set:
+    ``W (F^T N^-1 F + lam' D^T D + eps I)^-1 F^T N^-1``, N at a flat grey of reflectance ``level``, ``lam``
+    relative to the data term's scale (``lam' = lam trace(F^T N^-1 F) / trace(D^T D)``)."""
+    F = np.asarray(F, np.float64)
+    if not (lam > 0 and math.isfinite(lam)):
+        raise ValueError(f"smoothing lambda must be finite and > 0, got {lam!r}")
+    B = F.shape[1]
+    grey = Prior(np.arange(B, dtype=np.float64), np.full((B, B), level * level), np.full(B, level), 1)
+    n_inv = 1.0 / np.diag(noise.covariance(F, grey))
+    H = F.T @ (n_inv[:, None] * F)
+    D = second_difference(B)
+    R = D.T @ D
+    scale = lam * np.trace(H) / max(np.trace(R), 1e-300)
+    G = H + scale * R + 1e-9 * np.trace(H) / B * np.eye(B)
+    return np.asarray(W, np.float64) @ np.linalg.solve(G, F.T * n_inv[None, :])
+
+
+def expected_error(A, F, W, prior: Prior, noise: NoiseModel) -> dict:
+    """Expected error of a decoder (P, K) on the prior: ``{"mse": (P,) total, "mismatch": (P,) the part with no
+    noise, "noise": (P,) the part from the noise, "rmse": sqrt(mean mse)}``."""
+    A = np.asarray(A, np.float64)
+    F = np.asarray(F, np.float64)
+    W = np.asarray(W, np.float64)
+    S = prior.moment
+    bias = W - A @ F
+    mismatch = np.einsum("pb,bc,pc->p", bias, S, bias)
+    noise_part = np.einsum("pk,kl,pl->p", A, noise.covariance(F, prior), A)
+    mse = mismatch + noise_part
+    return {"mse": mse, "mismatch": mismatch, "noise": noise_part, "rmse": float(math.sqrt(max(mse.mean(), 0.0)))}
+
+
+def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, noise: NoiseModel,
+                   lam: float = 1e-3):
+    """The plan with its decoder replaced by ``estimator`` (:data:`ESTIMATORS`), with the noise model and the
+    expected error recorded in ``params`` (``"estimator"``, ``"noise"``, ``"expected"``: RMSE, per-output
+    mismatch variance). ``"projection"`` keeps the decoder and records its expected error when a prior is given."""
+    est = str(estimator).lower()
+    if est not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {estimator!r}; valid: {', '.join(ESTIMATORS)}")
+    if est == "wiener" and prior is None:
+        raise ValueError("the wiener estimator needs a training prior")
+    params = dict(plan.params)
+    params["estimator"] = est
+    params["noise"] = noise.as_params()
+    A = plan.A
+    if est != "projection" or prior is not None:
+        wl = prior.wavelengths if prior is not None else np.arange(400.0, 700.0 + 1e-9, 5.0)
+        F = forward(bundle, plan, wl)
+        W = output_weights(plan, wl)
+        if est == "wiener":
+            A = wiener_decoder(F, W, prior, noise)
+        elif est == "smooth":
+            A = smooth_decoder(F, W, noise, lam=lam)
+            params["smooth_lambda"] = float(lam)
+        if prior is not None:
+            e = expected_error(A, F, W, prior, noise)
+            o2 = np.einsum("kb,bc,kc->k", F, prior.moment, F)
+            light = (A ** 2) @ (noise.light_rms ** 2 * o2)
+            params["expected"] = {"rmse": e["rmse"], "mismatch_var": e["mismatch"].tolist(),
+                                  "noise_var": e["noise"].tolist(), "light_var": light.tolist(),
+                                  "prior": prior.source, "n_training": prior.n}
+    return replace(plan, A=np.asarray(A, np.float64), params=params)
+
+
+# ---- per-pixel uncertainty ---------------------------------------------------------------------------------------
+def sigma_map(frames, plan, dark, gain, *, sequences: int = 1, device=None) -> np.ndarray:
+    """(H, W, P) standard deviation of each output per pixel (float32), from the frames (K, H, W) the outputs
+    were recovered from (the mean of ``sequences`` sequences): ``var y = gain^2 sum_k A^2 (o / g + s_read^2) / S
+    + m`` through :func:`specgpu.recovery.apply_linear`, plus the mismatch and light terms ``m`` on the host."""
+    from .recovery import apply_linear
+
+    if "noise" not in plan.params:
+        raise ValueError(f"the {plan.method} plan records no noise model; re-plan with --estimator (any) to add it")
+    noise = NoiseModel.from_params(plan.params["noise"])
+    A2 = plan.A ** 2 / noise.gain_e_per_dn / sequences
+    d = np.asarray(dark, np.float32) - np.float32(noise.gain_e_per_dn * noise.read_var_dn2)
+    g = None if gain is None else np.asarray(gain, np.float32) ** 2
+    var = np.asarray(apply_linear(frames, A2, d, g, device=device), np.float64)
+    var += constant_variance(plan)
+    return np.sqrt(np.maximum(var, 0.0)).astype(np.float32)
+
+
+def constant_variance(plan) -> np.ndarray:
+    """(P,) the per-output variance no frame shows: the prior's mismatch and the light's fluctuation."""
+    exp = plan.params.get("expected", {})
+    m = np.asarray(exp.get("mismatch_var", np.zeros(plan.A.shape[0])), np.float64)
+    light = np.asarray(exp.get("light_var", np.zeros(plan.A.shape[0])), np.float64)
+    return m + light
+
+
+def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65") -> np.ndarray:
+    """First-order propagation of an XYZ covariance (..., 3, 3) to dE2000 (..., ): the colour difference of a
+    small perturbation is (to first order) its CIEDE2000 metric at the colour, ``dE^2 = dLab^T G dLab``; the
+    sigma is ``sqrt(trace(G J C J^T))`` with J the XYZ -> Lab Jacobian at each pixel and G the local CIEDE2000
+    metric (estimated by finite differences of colour-science's ``delta_E``)."""
+    import colour
+
+    from .colorimetry import XYZ_to_Lab
+
+    xyz = np.asarray(XYZ, np.float64)
+    C = np.asarray(XYZ_sigma_cov, np.float64)
+    shape = xyz.shape[:-1]
+    x = xyz.reshape(-1, 3)
+    C = C.reshape(-1, 3, 3)
+    lab = np.asarray(XYZ_to_Lab(x.astype(np.float32), illuminant), np.float64)
+    h = 1e-4
+    J = np.empty((x.shape[0], 3, 3))
+    for j in range(3):
+        d = np.zeros(3)
+        d[j] = h * max(1e-3, 1.0)
+        J[:, :, j] = (np.asarray(XYZ_to_Lab((x + d).astype(np.float64), illuminant), np.float64) - lab) / d[j]
+    covLab = J @ C @ np.transpose(J, (0, 2, 1))
+    # local CIEDE2000 metric: dE(lab, lab + e_i) ~ sqrt(G_ii) for unit steps along L, a, b
+    step = 0.5
+    diag = np.empty((x.shape[0], 3))
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = step
+        diag[:, i] = (np.asarray(colour.delta_E(lab, lab + e, method="CIE 2000"), np.float64) / step) ** 2
+    var = np.einsum("ni,nii->n", diag, covLab)
+    return np.sqrt(np.maximum(var, 0.0)).reshape(shape).astype(np.float32)
+
+
+# ---- held-out chart as a scene -----------------------------------------------------------------------------------
+def patch_scene(names, wavelengths, spectra, height: int = 240, width: int = 320, *, surround: float = 0.03,
+                name: str = "held-out chart"):
+    """A chart scene of arbitrary patch spectra (N, B): a grid of square patches on a dark surround, one mask
+    per patch (its central 70 %), like :func:`specgpu.rig.scene.colorchecker_scene`."""
+    from .rig.scene import SpectralScene
+
+    spectra = np.asarray(spectra, np.float64)
+    n = spectra.shape[0]
+    cols = int(math.ceil(math.sqrt(n * width / height)))
+    rows = int(math.ceil(n / cols))
+    pitch = min(width / (cols + 0.4), height / (rows + 0.4))
+    size = 0.84 * pitch
+    x0 = (width - cols * pitch) / 2 + (pitch - size) / 2
+    y0 = (height - rows * pitch) / 2 + (pitch - size) / 2
+    refl = np.full((height, width, spectra.shape[1]), surround, np.float32)
+    masks = {}
+    for k in range(n):
+        r, c = divmod(k, cols)
+        ya, xa = y0 + r * pitch, x0 + c * pitch
+        refl[int(round(ya)):int(round(ya + size)), int(round(xa)):int(round(xa + size))] = spectra[k]
+        m = np.zeros((height, width), bool)
+        inset = 0.15 * size
+        m[int(round(ya + inset)):int(round(ya + size - inset)), int(round(xa + inset)):int(round(xa + size - inset))] = True
+        masks[str(names[k])] = m
+    return SpectralScene(np.asarray(wavelengths, np.float64), refl, masks, name)
