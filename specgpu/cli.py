@@ -214,19 +214,34 @@ def calibrate(rig_path, out, seed):
 @click.option("--camera", default="Nikon 5100 (NPL)", show_default=True, help="Camera simulator: sensitivities.")
 @click.option("--spectrum", default="D65", show_default=True,
               help="Steady-state: target illuminant name (colour-science) for spectral rendering.")
+@click.option("--estimator", type=click.Choice(["projection", "wiener", "smooth"], case_sensitive=False),
+              default="projection", show_default=True,
+              help="Decoder: the method's own, Wiener on the training prior, or smoothness-regularised LS.")
+@click.option("--training", "training", multiple=True, type=click.Path(dir_okay=False),
+              help="Training spectra (CSV or .npz with wavelengths, reflectance) added to the default prior; repeatable.")
+@click.option("--training-only", is_flag=True, help="Use only --training files for the prior (no built-in sets).")
+@click.option("--frames", type=click.IntRange(min=1, max=200), default=9, show_default=True,
+              help="optimal: number of illuminants.")
+@click.option("--objective", type=click.Choice(["rmse", "dE2000", "dEab"], case_sensitive=False), default="rmse",
+              show_default=True, help="optimal: the expected error minimised (colour differences under --illuminant).")
+@click.option("--target", type=float, default=None, help="optimal: refuse a design whose expected error is above it.")
+@click.option("--exposure-ms", type=float, default=None, help="optimal: expose at least this long (ms).")
+@click.option("--bands", type=int, default=31, show_default=True, help="hadamard: bands (3, 7, 15, 31, 63).")
+@_RIG
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
-                 illuminant, observer, camera, spectrum):
+                 illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,
+                 target, exposure_ms, bands, rig_path):
     """Design a measurement plan: the illuminant sequence and its decoder.
 
-    METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady.
+    METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady, optimal, hadamard.
     """
     import numpy as np
 
     from .calibration import load_calibration
-    from .plans import PLAN_METHODS, make_plan, save_plan
+    from .plans import PLAN_METHODS, save_plan
     from .validate import validate_method
 
-    validate_method(method, {k: k for k in PLAN_METHODS}, "METHOD")
+    validate_method(method, {k: k for k in (*PLAN_METHODS, "optimal", "hadamard")}, "METHOD")
     method = method.lower()
     bundle = load_calibration(calib)
     if method in ("narrowband", "reciprocal"):
@@ -248,15 +263,62 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
         args, kwargs = (), {"illuminant": illuminant, "cmfs": observer}
     elif method == "camera":
         args, kwargs = (), {"camera": camera, "illuminant": illuminant}
+    elif method in ("optimal", "hadamard"):
+        args, kwargs = (), {}
     else:  # steady
         from .render import target_spectrum
 
         sd = target_spectrum(spectrum)
         args, kwargs = (sd.values, sd.wavelengths), {}
-    plan = make_plan(method, bundle, *args, **kwargs)
+    plan = _estimated_plan(method, bundle, args, kwargs, estimator.lower(), training, training_only, exclude_chart,
+                           frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path)
     digest = save_plan(out, plan)
+    expected = plan.params.get("expected", {})
+    note = f"; expected RMSE {expected['rmse']:.4f} on the prior" if "rmse" in expected else ""
+    for key in ("dE2000", "dEab"):
+        if key in expected:
+            note += f", expected {key} {expected[key]:.3f} (RMS)"
     click.echo(f"{plan.method}: {plan.K} frames at {plan.exposure_s * 1e3:.2f} ms, {plan.A.shape[0]} outputs "
-               f"({plan.output}); wrote {out} (plan {digest[:12]}, calibration {plan.calibration[:12]})")
+               f"({plan.output}); wrote {out} (plan {digest[:12]}, calibration {plan.calibration[:12]}){note}")
+
+
+def _estimated_plan(method, bundle, args, kwargs, estimator, training, training_only, exclude_chart, frames,
+                    objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path):
+    """The plan of METHOD with the chosen decoder, the camera's noise model and its expected error recorded."""
+    import numpy as np
+
+    from .calibration import rig_fingerprint
+    from .design import plan_hadamard, plan_optimal
+    from .estimators import NoiseModel, default_prior, with_estimator
+    from .plans import make_plan
+    from .rig.config import load_rig
+
+    description = load_rig(rig_path)
+    plain = method not in ("optimal", "hadamard") and estimator == "projection" and not training
+    if plain and rig_path is None and bundle.rig and bundle.rig != rig_fingerprint(description):
+        return make_plan(method, bundle, *args, **kwargs)  # no --rig for a custom rig's camera: no noise model
+    bundle.check_rig(description, name="calibration")
+
+    def noise_at(t):
+        return NoiseModel.from_rig(description, t)
+
+    prior = None
+    if method == "optimal" or estimator == "wiener" or training or training_only:
+        with _Busy("building the training prior"):
+            prior = default_prior(exclude_chart, training_files=training, builtin=not training_only)
+    if method == "optimal":
+        tr = None
+        if objective.lower() != "rmse":
+            from .estimators import training_spectra
+
+            tr = training_spectra(exclude_chart, prior.wavelengths, training_files=training,
+                                  builtin=not training_only)
+        with _Busy(f"designing {frames} illuminants"):
+            return plan_optimal(bundle, prior, noise_at, frames=frames, objective=objective, illuminant=illuminant,
+                                training=tr, output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm),
+                                target=target, exposure_s=None if exposure_ms is None else exposure_ms / 1e3)
+    plan = plan_hadamard(bundle, bands=bands) if method == "hadamard" else make_plan(method, bundle, *args, **kwargs)
+    return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s))
 
 
 @main.command()

@@ -34,18 +34,18 @@ from .estimators import NoiseModel, Prior, with_estimator
 __all__ = ["OBJECTIVES", "design_optimal", "plan_optimal", "plan_hadamard", "s_matrix", "objective_weights",
            "wiener_objective"]
 
-OBJECTIVES = ("rmse", "dE2000")
+OBJECTIVES = ("rmse", "dE2000", "dEab")
 
 
 def objective_weights(prior: Prior, objective: str, illuminant="D65", training=None) -> np.ndarray:
     """(B, B) PSD weighting P of the reflectance error: identity / B for ``"rmse"`` (the mean squared error per
-    band); for ``"dE2000"`` the mean over the training spectra of ``(G^1/2 J C)^T (G^1/2 J C)`` with C the XYZ
+    band); for ``"dE2000"`` (``"dEab"``: G = I) the mean over the training spectra of ``(G^1/2 J C)^T (G^1/2 J C)`` with C the XYZ
     weights, J the XYZ -> Lab Jacobian and G the local CIEDE2000 metric at each spectrum's colour."""
     obj = str(objective)
     if obj.lower() == "rmse":
         B = prior.wavelengths.size
         return np.eye(B) / B
-    if obj.lower() not in ("de2000", "de"):
+    if obj.lower() not in ("de2000", "deab"):
         raise ValueError(f"unknown objective {objective!r}; valid: {', '.join(OBJECTIVES)}")
     from .spectra import XYZ_weights
 
@@ -71,6 +71,8 @@ def objective_weights(prior: Prior, objective: str, illuminant="D65", training=N
         e = np.zeros(3)
         e[i] = 0.5
         G[:, i] = (np.asarray(colour.delta_E(lab, lab + e, method="CIE 2000"), np.float64) / 0.5) ** 2
+    if obj.lower() == "deab":  # CIE 1976: the Lab distance itself
+        G[:] = 1.0
     M = np.sqrt(G)[:, :, None] * J @ C  # (N, 3, B)
     P = np.einsum("nib,nic->bc", M, M) / r.shape[0]
     return P
@@ -168,7 +170,7 @@ def _system_on(bundle, wavelengths) -> np.ndarray:
 
 def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: str = "rmse", illuminant="D65",
                  training=None, output_wavelengths=None, level: float = 0.9, max_exposure_s: float | None = None,
-                 target: float | None = None, starts: int = 4, seed: int = 0):
+                 target: float | None = None, exposure_s: float | None = None, starts: int = 4, seed: int = 0):
     """An optimal K-frame plan (see the module notes) with the Wiener decoder and its expected error recorded.
 
     Parameters
@@ -180,7 +182,7 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         ``exposure_s -> NoiseModel`` (the camera's noise at an exposure).
     frames : int
         K, the number of illuminants.
-    objective : {"rmse", "dE2000"}
+    objective : {"rmse", "dE2000", "dEab"}
     illuminant : str
         For ``"dE2000"``.
     training : (N, B) array, optional
@@ -189,6 +191,10 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         Reflectance output grid (default 400-700 nm every 10 nm).
     level, max_exposure_s
         As :func:`specgpu.plans.plan_narrowband`.
+    exposure_s : float, optional
+        Expose at least this long (the frames dimmed to stay at ``level``): a longer exposure averages the light's
+        frame-to-frame fluctuation down, at a lower frame rate. Default: the shortest at which every frame can
+        reach ``level``.
     target : float, optional
         Refuse (one line) a design whose expected error (RMSE, or dE2000 for that objective) is above it.
     """
@@ -196,8 +202,7 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
 
     if prior.n < 1:
         raise ValueError("the training set is empty: give at least one spectrum")
-    obj = "rmse" if str(objective).lower() == "rmse" else ("dE2000" if str(objective).lower() in ("de2000", "de")
-                                                          else None)
+    obj = {o.lower(): o for o in OBJECTIVES}.get(str(objective).lower())
     if obj is None:
         raise ValueError(f"unknown objective {objective!r}; valid: {', '.join(OBJECTIVES)}")
     if not 0 < level <= 1:
@@ -213,10 +218,14 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
     # the noise at a typical exposure for the shape search (the shot and read terms scale with the signal only)
     white = Sb.sum(axis=1)  # DN/s per full column on a white
     t_typ = float(np.clip(cap / (white.sum() / max(frames, 1)), bundle.min_exposure_s, longest))
+    if exposure_s is not None:
+        if not bundle.min_exposure_s <= exposure_s <= longest:
+            raise ValueError(f"exposure_s must lie in [{bundle.min_exposure_s:g}, {longest:g}] s, got {exposure_s!r}")
+        t_typ = float(exposure_s)
     shapes, _ = design_optimal(Sb, prior, noise_at(t_typ), int(frames), cap, P=P, starts=starts, seed=seed)
     # exposure: every frame reaches cap with its levels <= 1 (or as close as the longest exposure allows)
     need = cap / (shapes @ white)
-    t = float(np.clip(need.max(), bundle.min_exposure_s, longest))
+    t = float(np.clip(max(need.max(), exposure_s or 0.0), bundle.min_exposure_s, longest))
     levels = np.minimum(shapes * (cap / (t * (shapes @ white)))[:, None], 1.0)
     patterns = _quantize(levels, bundle.rows)
     if np.any(patterns.sum(axis=1) == 0):
@@ -231,9 +240,9 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
     F = bundle.forward_matrix(plan.patterns, prior.wavelengths, plan.exposure_s)
     Jw, _ = wiener_objective(F, prior, noise_at(plan.exposure_s), P)
     exp["objective_value"] = float(Jw)
-    if obj == "dE2000":
-        exp["dE2000"] = float(math.sqrt(max(Jw, 0.0)))
-    value = exp["rmse"] if obj == "rmse" else exp["dE2000"]
+    if obj != "rmse":
+        exp[obj] = float(math.sqrt(max(Jw, 0.0)))
+    value = exp[obj]
     if target is not None and value > target:
         raise ValueError(f"objective unreachable: the best {frames}-frame design expects {obj} {value:.4g}, above "
                          f"the target {target:g}")

@@ -39,6 +39,7 @@ __all__ = [
     "Prior",
     "prior_from_spectra",
     "default_prior",
+    "training_spectra",
     "read_training",
     "output_weights",
     "forward",
@@ -220,27 +221,35 @@ def held_out_basis(chart: str = HELD_OUT_CHART):
     return pca_basis(training_database(chart))
 
 
-def default_prior(chart: str = HELD_OUT_CHART, wavelengths=None, *, training_files=(), builtin: bool = True) -> Prior:
-    """Every reflectance set colour-science ships minus ``chart`` (and every set of the same patches, and any
-    spectrum within 0.01 RMS of one of its patches), plus the user's training files; on ``wavelengths``
-    (default 400-700 nm at 5 nm). ``builtin=False`` uses the files alone."""
+def training_spectra(chart: str = HELD_OUT_CHART, wavelengths=None, *, training_files=(),
+                     builtin: bool = True) -> np.ndarray:
+    """(N, B) training spectra: :func:`training_database` (``builtin``) plus the user's files, on ``wavelengths``."""
+    return _training(chart, wavelengths, training_files, builtin)[0]
+
+
+def _training(chart, wavelengths, training_files, builtin):
     from .basis import DEFAULT_WAVELENGTHS
 
     wl = DEFAULT_WAVELENGTHS if wavelengths is None else np.asarray(wavelengths, np.float64)
-    rows, labels = [], []
-    source = []
+    rows, source = [], []
     if builtin:
         db = training_database(chart, wl)
         rows.append(db.reflectance)
-        labels += list(db.labels)
         source.append(f"colour-science sets without {chart} ({len(db)} spectra)")
     for p in training_files:
         r, lab = read_training(p, wl)
         rows.append(r)
-        labels += lab
         source.append(f"{Path(p).name} ({len(lab)} spectra)")
     r = np.concatenate(rows) if rows else np.zeros((0, wl.size))
-    return prior_from_spectra(r, wl, "; ".join(source) or "no training files")
+    return r, wl, "; ".join(source) or "no training files"
+
+
+def default_prior(chart: str = HELD_OUT_CHART, wavelengths=None, *, training_files=(), builtin: bool = True) -> Prior:
+    """Every reflectance set colour-science ships minus ``chart`` (and every set of the same patches, and any
+    spectrum within 0.01 RMS of one of its patches), plus the user's training files; on ``wavelengths``
+    (default 400-700 nm at 5 nm). ``builtin=False`` uses the files alone (none: a one-line error)."""
+    r, wl, source = _training(chart, wavelengths, training_files, builtin)
+    return prior_from_spectra(r, wl, source)
 
 
 # ---- forward model and output weights ----------------------------------------------------------------------------
