@@ -398,8 +398,13 @@ def _parse_reference(text, height, width, illuminant):
 @click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
 @click.option("--sequence", type=int, default=None, help="Recover one sequence (default: the mean of all).")
 @click.option("--half", is_flag=True, help="Write the cube in half precision.")
+@click.option("--sigma", "sigma_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the per-pixel standard deviation of each output and their RMS (EXR).")
+@click.option("--delta-e-sigma", "de_sigma_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the per-pixel dE2000 standard deviation (first-order, under --illuminant; EXR).")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, device):
+def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, sigma_path,
+            de_sigma_path, device):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     from pathlib import Path
 
@@ -435,6 +440,8 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
             writes.append(lambda: io.write_map(xyz_path, XYZ, "XYZ", metadata=meta))
         if lab_path:
             writes.append(lambda: io.write_map(lab_path, Lab, "Lab", metadata=meta))
+        if sigma_path or de_sigma_path:
+            _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device)
         if de_path:
             dE = delta_E(_parse_reference(ref, height, width, illuminant), Lab, method, device=device)
             if Path(de_path).suffix.lower() == ".png":
@@ -454,6 +461,28 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
     note = f"; {saturated} saturated pixels left NaN" if saturated else ""
     click.echo(f"{plan.method}: {plan.K} projections, {folder.sequences} sequences in {seq}; wrote "
                + ", ".join(str(p) for p in written) + note)
+
+
+def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device):
+    """--sigma / --delta-e-sigma: the uncertainty maps of the recovery, appended to the writes."""
+    import numpy as np
+
+    from . import io
+    from .estimators import delta_E_sigma
+    from .pipeline import to_XYZ, uncertainty
+
+    sigma, cov = uncertainty(folder, sequence=sequence, illuminant=illuminant if de_sigma_path else None,
+                             device=device)
+    plan = folder.plan
+    if sigma_path:
+        rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)
+        names = [f"sigma_{label}" for label in plan.output_labels] + ["sigma_rms"]
+        writes.append(lambda: io.write_map(sigma_path, np.concatenate([sigma, rms], axis=-1), names, metadata=meta))
+    if de_sigma_path:
+        xyz = XYZ if XYZ is not None else to_XYZ(y, plan, illuminant, device=device)
+        des = delta_E_sigma(np.nan_to_num(xyz), np.nan_to_num(cov), illuminant)
+        des[~np.isfinite(xyz).all(axis=-1)] = np.nan
+        writes.append(lambda: io.write_map(de_sigma_path, des, ["dE2000_sigma"], metadata=meta))
 
 
 @main.command("stream")

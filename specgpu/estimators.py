@@ -48,6 +48,8 @@ __all__ = [
     "expected_error",
     "with_estimator",
     "sigma_map",
+    "output_covariance",
+    "constant_covariance",
     "delta_E_sigma",
     "HELD_OUT_CHART",
     "training_database",
@@ -354,9 +356,10 @@ def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, 
         if prior is not None:
             e = expected_error(A, F, W, prior, noise)
             o2 = np.einsum("kb,bc,kc->k", F, prior.moment, F)
-            light = (A ** 2) @ (noise.light_rms ** 2 * o2)
+            bias = W - A @ F
+            const = bias @ prior.moment @ bias.T + (A * (noise.light_rms ** 2 * o2)) @ A.T
             params["expected"] = {"rmse": e["rmse"], "mismatch_var": e["mismatch"].tolist(),
-                                  "noise_var": e["noise"].tolist(), "light_var": light.tolist(),
+                                  "noise_var": e["noise"].tolist(), "constant_cov": const.ravel().tolist(),
                                   "prior": prior.source, "n_training": prior.n}
     return replace(plan, A=np.asarray(A, np.float64), params=params)
 
@@ -366,25 +369,52 @@ def sigma_map(frames, plan, dark, gain, *, sequences: int = 1, device=None) -> n
     """(H, W, P) standard deviation of each output per pixel (float32), from the frames (K, H, W) the outputs
     were recovered from (the mean of ``sequences`` sequences): ``var y = gain^2 sum_k A^2 (o / g + s_read^2) / S
     + m`` through :func:`specgpu.recovery.apply_linear`, plus the mismatch and light terms ``m`` on the host."""
-    from .recovery import apply_linear
-
-    if "noise" not in plan.params:
-        raise ValueError(f"the {plan.method} plan records no noise model; re-plan with --estimator (any) to add it")
-    noise = NoiseModel.from_params(plan.params["noise"])
-    A2 = plan.A ** 2 / noise.gain_e_per_dn / sequences
-    d = np.asarray(dark, np.float32) - np.float32(noise.gain_e_per_dn * noise.read_var_dn2)
-    g = None if gain is None else np.asarray(gain, np.float32) ** 2
-    var = np.asarray(apply_linear(frames, A2, d, g, device=device), np.float64)
+    var = _noise_products(frames, plan, dark, gain, plan.A ** 2, sequences, device)
     var += constant_variance(plan)
     return np.sqrt(np.maximum(var, 0.0)).astype(np.float32)
 
 
+def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, device=None) -> np.ndarray:
+    """(H, W, Q, Q) covariance of ``M y`` per pixel (M: (Q, P), e.g. the XYZ weights of a reflectance plan):
+    each entry ``sum_k (MA)_ik (MA)_jk var o_k`` is linear in the frames (one apply_linear pass over the Q (Q + 1)
+    / 2 products), plus ``M C M^T`` with C the plan's constant covariance (mismatch and light)."""
+    M = np.asarray(M, np.float64)
+    MA = M @ plan.A
+    Q = M.shape[0]
+    pairs = [(i, j) for i in range(Q) for j in range(i, Q)]
+    prods = np.stack([MA[i] * MA[j] for i, j in pairs])
+    v = _noise_products(frames, plan, dark, gain, prods, sequences, device)
+    cov = np.empty(v.shape[:-1] + (Q, Q))
+    for n, (i, j) in enumerate(pairs):
+        cov[..., i, j] = cov[..., j, i] = v[..., n]
+    return cov + M @ constant_covariance(plan) @ M.T
+
+
+def _noise_products(frames, plan, dark, gain, rows, sequences, device):
+    from .recovery import apply_linear
+
+    if "noise" not in plan.params:
+        raise ValueError(f"the {plan.method} plan records no noise model; re-plan it with --estimator (any) to add one")
+    if not (isinstance(sequences, (int, np.integer)) and sequences >= 1):
+        raise ValueError(f"sequences must be an integer >= 1, got {sequences!r}")
+    noise = NoiseModel.from_params(plan.params["noise"])
+    matrix = np.asarray(rows, np.float64) / noise.gain_e_per_dn / sequences
+    d = np.asarray(dark, np.float32) - np.float32(noise.gain_e_per_dn * noise.read_var_dn2)
+    g = None if gain is None else np.asarray(gain, np.float32) ** 2
+    return np.asarray(apply_linear(frames, matrix, d, g, device=device), np.float64)
+
+
+def constant_covariance(plan) -> np.ndarray:
+    """(P, P) the output covariance no frame shows: the prior's mismatch and the light's fluctuation (zero when
+    the plan records no expected error)."""
+    P = plan.A.shape[0]
+    c = plan.params.get("expected", {}).get("constant_cov")
+    return np.zeros((P, P)) if c is None else np.asarray(c, np.float64).reshape(P, P)
+
+
 def constant_variance(plan) -> np.ndarray:
-    """(P,) the per-output variance no frame shows: the prior's mismatch and the light's fluctuation."""
-    exp = plan.params.get("expected", {})
-    m = np.asarray(exp.get("mismatch_var", np.zeros(plan.A.shape[0])), np.float64)
-    light = np.asarray(exp.get("light_var", np.zeros(plan.A.shape[0])), np.float64)
-    return m + light
+    """(P,) the diagonal of :func:`constant_covariance`."""
+    return np.diag(constant_covariance(plan)).copy()
 
 
 def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65") -> np.ndarray:
