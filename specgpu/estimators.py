@@ -56,6 +56,10 @@ __all__ = [
     "held_out_basis",
     "held_out_spectra",
     "patch_scene",
+    "STUDY_METHODS",
+    "study_plans",
+    "study_rows",
+    "format_study",
 ]
 
 #: Estimator names: the plan's own decoder, Wiener (LMMSE) on a training prior, smoothness-regularised LS.
@@ -476,3 +480,133 @@ def patch_scene(names, wavelengths, spectra, height: int = 240, width: int = 320
         m[int(round(ya + inset)):int(round(ya + size - inset)), int(round(xa + inset)):int(round(xa + size - inset))] = True
         masks[str(names[k])] = m
     return SpectralScene(np.asarray(wavelengths, np.float64), refl, masks, name)
+
+
+# ---- the study: the must-show table ------------------------------------------------------------------------------
+#: Rows of the estimator study: name -> (method, keyword arguments, estimator). Optimal plans take the design's
+#: own keywords (frames, objective, exposure_s).
+STUDY_METHODS = {
+    "narrowband-31": ("narrowband", {"step_nm": 10.0}, "projection"),
+    "biased-6": ("biased", {"m": 5}, "projection"),
+    "symmetric-9": ("symmetric", {"m": 5}, "projection"),
+    "tristimulus-D65": ("tristimulus", {"illuminant": "D65"}, "projection"),
+    "wiener-6": ("biased", {"m": 5}, "wiener"),
+    "wiener-9": ("symmetric", {"m": 5}, "wiener"),
+    "optimal-9": ("optimal", {"frames": 9}, "wiener"),
+    "optimal-6": ("optimal", {"frames": 6}, "wiener"),
+    "optimal-3": ("optimal", {"frames": 3, "objective": "dEab", "exposure_s": 0.1}, "wiener"),
+}
+
+
+def study_plans(description, bundle, prior, basis, *, methods=None, training=None) -> dict:
+    """The plans of :data:`STUDY_METHODS` (or the named subset), every one with the camera's noise model and its
+    expected error on the prior recorded."""
+    from .design import plan_optimal
+    from .plans import make_plan
+
+    def noise_at(t):
+        return NoiseModel.from_rig(description, t)
+
+    ow = np.arange(400.0, 700.0 + 1e-9, 10.0)
+    plans = {}
+    for name in (methods or STUDY_METHODS):
+        method, kw, est = STUDY_METHODS[name]
+        if method == "optimal":
+            tr = training if kw.get("objective", "rmse") != "rmse" else None
+            if tr is None and kw.get("objective", "rmse") != "rmse":
+                tr = training_spectra()
+            plans[name] = plan_optimal(bundle, prior, noise_at, output_wavelengths=ow, training=tr, **kw)
+            continue
+        args = (basis,) if method in ("biased", "symmetric") else ()
+        extra = {"output_wavelengths": ow} if method in ("biased", "symmetric") else {}
+        plan = make_plan(method, bundle, *args, **kw, **extra)
+        plans[name] = with_estimator(plan, bundle, est, prior=prior, noise=noise_at(plan.exposure_s))
+    return plans
+
+
+def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: int = 0, device=None) -> list:
+    """Capture each plan ``runs`` times with fresh noise on the twin, recover, and measure on the chart's patch
+    pixels: per-pixel means of RMSE, dE2000 and dE*ab (D65; a tristimulus plan under its own illuminant), the
+    same of the patch means (per patch), the RMS error beside the plan's expected RMSE, and the standard deviation
+    of the standardised errors (error / sigma). Returns one dict per plan with mean and std over the runs."""
+    from .evaluate import evaluate_pixels, patch_means, scene_XYZ, truth_cube
+    from .pipeline import capture_plan
+    from .recovery import apply_linear
+
+    mask = np.any(list(scene.masks.values()), axis=0)
+    rows = []
+    for i, (name, plan) in enumerate(plans.items()):
+        acc = {k: [] for k in ("rmse", "dE2000", "dEab", "patch_rmse", "patch_dE2000", "patch_dEab", "rms", "z")}
+        for run in range(runs):
+            res = capture_plan(description, plan, scene, noise_seed=10_000 + 97 * seed + 13 * i + run)
+            frames = res.sequences[0].frames
+            dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+            y = np.asarray(apply_linear(frames, plan.A, dark, gain, device=device), np.float64)
+            sig = sigma_map(frames, plan, dark, gain, device=device)
+            refl = plan.output == "reflectance"
+            wl = plan.output_wavelengths if refl else None
+            ill = "D65" if refl else plan.illuminant
+            px = evaluate_pixels(y.astype(np.float32), scene, wavelengths=wl, illuminant=ill, device=device)
+            truth = truth_cube(scene, wl) if refl else scene_XYZ(scene, ill, device=device)
+            err = (y - truth)[mask]
+            acc["z"].append(float((err / sig[mask]).std()))
+            acc["dE2000"].append(float(px.delta_E_2000[mask].mean()))
+            acc["dEab"].append(float(px.delta_E_ab[mask].mean()))
+            if refl:
+                acc["rmse"].append(float(px.rmse[mask].mean()))
+                acc["rms"].append(float(np.sqrt((err ** 2).mean())))
+            # per patch: the patch means' errors
+            _, ym = patch_means(y.astype(np.float32), scene.masks)
+            _, tm = patch_means(np.asarray(truth, np.float32), scene.masks)
+            pe = _patch_errors(np.asarray(ym, np.float64), np.asarray(tm, np.float64), plan, ill)
+            for k, v in pe.items():
+                acc[k].append(v)
+        row = {"name": name, "method": plan.method, "estimator": plan.params.get("estimator", "projection"),
+               "K": plan.K, "exposure_ms": plan.exposure_s * 1e3, "runs": runs,
+               "expected_rmse": plan.params.get("expected", {}).get("rmse") if plan.output == "reflectance" else None}
+        for k, v in acc.items():
+            if v:
+                row[k] = (float(np.mean(v)), float(np.std(v)))
+        rows.append(row)
+    return rows
+
+
+def _patch_errors(ym, tm, plan, illuminant) -> dict:
+    """RMSE / dE2000 / dE*ab of patch means (N, P) against the truth's patch means."""
+    import colour
+
+    from .colorimetry import XYZ_to_Lab
+    from .spectra import XYZ_weights
+
+    out = {}
+    if plan.output == "reflectance":
+        out["patch_rmse"] = float(np.sqrt(((ym - tm) ** 2).mean(axis=1)).mean())
+        C = XYZ_weights(plan.output_wavelengths, illuminant)
+        xe, xt = ym @ C.T, tm @ C.T
+    else:
+        xe, xt = ym, tm
+    le = np.asarray(XYZ_to_Lab(xe, illuminant), np.float64)
+    lt = np.asarray(XYZ_to_Lab(xt, illuminant), np.float64)
+    out["patch_dE2000"] = float(np.mean(colour.delta_E(lt, le, method="CIE 2000")))
+    out["patch_dEab"] = float(np.mean(colour.delta_E(lt, le, method="CIE 1976")))
+    return out
+
+
+def format_study(rows) -> str:
+    """The study table as text: mean +- std over the runs."""
+    def f(row, key, digits):
+        v = row.get(key)
+        return "-" if v is None else f"{v[0]:.{digits}f} +- {v[1]:.{digits}f}"
+
+    head = (f"{'method':<16} {'K':>3} {'ms':>7} {'RMSE (pixel)':>18} {'dE2000 (pixel)':>16} {'dE*ab (pixel)':>16} "
+            f"{'RMSE (patch)':>18} {'dE2000 (patch)':>16} {'expected':>8} {'RMS':>8} {'ratio':>6} {'z std':>6}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        exp = r.get("expected_rmse")
+        rms = r.get("rms")
+        ratio = f"{rms[0] / exp:.2f}" if exp and rms else "-"
+        lines.append(f"{r['name']:<16} {r['K']:>3} {r['exposure_ms']:>7.1f} {f(r, 'rmse', 4):>18} "
+                     f"{f(r, 'dE2000', 2):>16} {f(r, 'dEab', 2):>16} {f(r, 'patch_rmse', 4):>18} "
+                     f"{f(r, 'patch_dE2000', 2):>16} {exp if exp is None else round(exp, 4)!s:>8} "
+                     f"{'-' if rms is None else round(rms[0], 4)!s:>8} {ratio:>6} {r['z'][0]:>6.2f}")
+    return "\n".join(lines)
