@@ -225,8 +225,13 @@ def test_sigma_z_scores_on_the_twin(bundle, prior):
     y = apply_linear(frames, plan.A, dark, bundle.flat_field)
     sig = E.sigma_map(frames, plan, dark, bundle.flat_field)
     mask = np.any(list(scene.masks.values()), axis=0)
-    z = ((y - truth_cube(scene, plan.output_wavelengths)) / sig)[mask]
+    err = (y - truth_cube(scene, plan.output_wavelengths))[mask]
+    z = err / sig[mask]
     assert 0.8 <= z.std() <= 1.25
+    # the exact prediction on the chart's spectra is the measured RMS error within 25 %
+    wl = prior.wavelengths
+    predicted = E.chart_error(plan, bundle, E.held_out_spectra(wavelengths=wl)[2], wl)
+    assert 0.8 <= np.sqrt((err ** 2).mean()) / predicted <= 1.25
 
 
 def test_delta_e_sigma_against_monte_carlo():

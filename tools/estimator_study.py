@@ -33,6 +33,8 @@ def main(argv=None):
     ap.add_argument("--runs", type=int, default=3, help="captures per method with fresh noise (default 3)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--methods", default=None, help=f"comma-separated subset of {', '.join(E.STUDY_METHODS)}")
+    ap.add_argument("--prior-sizes", default=None,
+                    help="also: how the held-out error of optimal-9 depends on the prior's size, e.g. 10,30,100,300")
     ap.add_argument("--json", help="write the rows here")
     args = ap.parse_args(argv)
     methods = None if args.methods is None else [m.strip() for m in args.methods.split(",")]
@@ -52,10 +54,18 @@ def main(argv=None):
     plans = E.study_plans(desc, bundle, prior, basis, methods=methods)
     rows = E.study_rows(desc, bundle, scene, plans, runs=args.runs, seed=args.seed)
     print(E.format_study(rows))
+    sizes = []
+    if args.prior_sizes:
+        sizes = E.prior_size_rows(desc, bundle, [int(s) for s in args.prior_sizes.split(",")], seed=args.seed)
+        print("\noptimal-9 against the prior's size (random subsets; expected on the prior, exact on the chart):")
+        print(f"{'spectra':>8} {'expected RMSE':>14} {'chart RMSE':>11}")
+        for r in sizes:
+            print(f"{r['n']:>8} {r['expected_rmse']:>14.4f} {r['chart_rmse']:>11.4f}")
     print(f"({time.perf_counter() - t0:.0f} s)")
     if args.json:
         Path(args.json).write_text(json.dumps({"chart": E.HELD_OUT_CHART, "prior": prior.source,
-                                               "size": [cam.roi_width, cam.roi_height], "rows": rows}, indent=1))
+                                               "size": [cam.roi_width, cam.roi_height], "rows": rows,
+                                               "prior_sizes": sizes}, indent=1))
 
 
 if __name__ == "__main__":
