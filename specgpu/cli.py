@@ -219,6 +219,8 @@ def calibrate(rig_path, out, seed):
               help="Decoder: the method's own, Wiener on the training prior, or smoothness-regularised LS.")
 @click.option("--training", "training", multiple=True, type=click.Path(dir_okay=False),
               help="Training spectra (CSV or .npz with wavelengths, reflectance) added to the default prior; repeatable.")
+@click.option("--smooth-nm", type=float, default=40.0, show_default=True,
+              help="smooth estimator: correlation length of the smoothness prior, nm.")
 @click.option("--training-only", is_flag=True, help="Use only --training files for the prior (no built-in sets).")
 @click.option("--frames", type=click.IntRange(min=1, max=200), default=9, show_default=True,
               help="optimal: number of illuminants.")
@@ -230,7 +232,7 @@ def calibrate(rig_path, out, seed):
 @_RIG
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
                  illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,
-                 target, exposure_ms, bands, rig_path):
+                 target, exposure_ms, bands, rig_path, smooth_nm):
     """Design a measurement plan: the illuminant sequence and its decoder.
 
     METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady, optimal, hadamard.
@@ -271,7 +273,8 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
         sd = target_spectrum(spectrum)
         args, kwargs = (sd.values, sd.wavelengths), {}
     plan = _estimated_plan(method, bundle, args, kwargs, estimator.lower(), training, training_only, exclude_chart,
-                           frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path)
+                           frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path,
+                           smooth_nm)
     digest = save_plan(out, plan)
     expected = plan.params.get("expected", {})
     note = f"; expected RMSE {expected['rmse']:.4f} on the prior" if "rmse" in expected else ""
@@ -283,7 +286,7 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
 
 
 def _estimated_plan(method, bundle, args, kwargs, estimator, training, training_only, exclude_chart, frames,
-                    objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path):
+                    objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path, smooth_nm=40.0):
     """The plan of METHOD with the chosen decoder, the camera's noise model and its expected error recorded."""
     import numpy as np
 
@@ -318,7 +321,8 @@ def _estimated_plan(method, bundle, args, kwargs, estimator, training, training_
                                 training=tr, output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm),
                                 target=target, exposure_s=None if exposure_ms is None else exposure_ms / 1e3)
     plan = plan_hadamard(bundle, bands=bands) if method == "hadamard" else make_plan(method, bundle, *args, **kwargs)
-    return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s))
+    return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s),
+                          correlation_nm=smooth_nm)
 
 
 @main.command()

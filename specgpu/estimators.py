@@ -17,8 +17,8 @@ plan's outputs (interpolation for reflectance outputs, colour-matching weights f
   one over the prior (``o = F mu``; ``E[o^2] = (F S F^T)_kk`` for the fluctuation term).
 - **Expected error** (:func:`expected_error`) of *any* linear decoder A on the prior:
   ``E = W S W^T - A F S W^T - W S F^T A^T + A (F S F^T + N) A^T``; its diagonal per output, its mean the MSE.
-- **Smooth** (:func:`smooth_decoder`): for users with no training set, ``A = W (F^T N^-1 F + lam D^T D + eps I)^-1
-  F^T N^-1`` with D the second difference over wavelength.
+- **Smooth** (:func:`smooth_decoder`): for users with no training set, ``A = W (F^T N^-1 F + C^-1)^-1 F^T N^-1``:
+  least squares regularised by the norm of a smooth prior C (a flat level plus squared-exponential variation).
 - **Per-pixel sigma** (:func:`sigma_map`): ``var y_b = gain^2 sum_k A_bk^2 (o_k / g + s_read^2) + m_b``: linear in the
   frames, so :func:`specgpu.recovery.apply_linear` computes it with ``A^2 / g`` as the matrix, ``dark - g s_read^2``
   as the dark and ``gain^2`` as the gain; ``m_b`` (the prior's mismatch ``diag((W - A F) S (W - A F)^T)`` plus the
@@ -45,6 +45,7 @@ __all__ = [
     "forward",
     "wiener_decoder",
     "smooth_decoder",
+    "smooth_prior",
     "expected_error",
     "with_estimator",
     "sigma_map",
@@ -296,30 +297,23 @@ def wiener_decoder(F, W, prior: Prior, noise: NoiseModel) -> np.ndarray:
     return np.linalg.solve(M, F @ S @ np.asarray(W, np.float64).T).T
 
 
-def second_difference(n: int) -> np.ndarray:
-    """(n - 2, n) second-difference operator."""
-    D = np.zeros((max(n - 2, 0), n))
-    for i in range(n - 2):
-        D[i, i:i + 3] = (1.0, -2.0, 1.0)
-    return D
+def smooth_prior(wavelengths, *, correlation_nm: float = 40.0, level: float = 0.4, spread: float = 0.25) -> Prior:
+    """A prior with no training set: a flat level (RMS ``level``) plus a smooth variation (RMS ``spread``,
+    squared-exponential correlation over ``correlation_nm``): second moment ``level^2 11^T + spread^2 K``."""
+    wl = np.asarray(wavelengths, np.float64).reshape(-1)
+    for name, v in (("correlation_nm", correlation_nm), ("level", level), ("spread", spread)):
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"smooth {name} must be finite and > 0, got {v!r}")
+    K = np.exp(-0.5 * ((wl[:, None] - wl[None, :]) / correlation_nm) ** 2)
+    return Prior(wl, level ** 2 + spread ** 2 * K, np.full(wl.size, level), 1,
+                 f"smooth prior ({correlation_nm:g} nm correlation)")
 
 
-def smooth_decoder(F, W, noise: NoiseModel, *, lam: float = 1e-3, level: float = 0.5) -> np.ndarray:
+def smooth_decoder(F, W, noise: NoiseModel, wavelengths, *, correlation_nm: float = 40.0) -> np.ndarray:
     """Smoothness-regularised least squares (P, K) for users with no training set:
-    ``W (F^T N^-1 F + lam' D^T D + eps I)^-1 F^T N^-1``, N at a flat grey of reflectance ``level``, ``lam``
-    relative to the data term's scale (``lam' = lam trace(F^T N^-1 F) / trace(D^T D)``)."""
-    F = np.asarray(F, np.float64)
-    if not (lam > 0 and math.isfinite(lam)):
-        raise ValueError(f"smoothing lambda must be finite and > 0, got {lam!r}")
-    B = F.shape[1]
-    grey = Prior(np.arange(B, dtype=np.float64), np.full((B, B), level * level), np.full(B, level), 1)
-    n_inv = 1.0 / np.diag(noise.covariance(F, grey))
-    H = F.T @ (n_inv[:, None] * F)
-    D = second_difference(B)
-    R = D.T @ D
-    scale = lam * np.trace(H) / max(np.trace(R), 1e-300)
-    G = H + scale * R + 1e-9 * np.trace(H) / B * np.eye(B)
-    return np.asarray(W, np.float64) @ np.linalg.solve(G, F.T * n_inv[None, :])
+    ``W argmin_r |N^-1/2 (F r - o)|^2 + r^T C^-1 r`` with C the :func:`smooth_prior`'s second moment, i.e.
+    ``W (F^T N^-1 F + C^-1)^-1 F^T N^-1`` (computed in the equivalent form ``W C F^T (F C F^T + N)^-1``)."""
+    return wiener_decoder(F, W, smooth_prior(wavelengths, correlation_nm=correlation_nm), noise)
 
 
 def expected_error(A, F, W, prior: Prior, noise: NoiseModel) -> dict:
@@ -337,7 +331,7 @@ def expected_error(A, F, W, prior: Prior, noise: NoiseModel) -> dict:
 
 
 def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, noise: NoiseModel,
-                   lam: float = 1e-3):
+                   correlation_nm: float = 40.0):
     """The plan with its decoder replaced by ``estimator`` (:data:`ESTIMATORS`), with the noise model and the
     expected error recorded in ``params`` (``"estimator"``, ``"noise"``, ``"expected"``: RMSE, per-output
     mismatch variance). ``"projection"`` keeps the decoder and records its expected error when a prior is given."""
@@ -357,8 +351,10 @@ def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, 
         if est == "wiener":
             A = wiener_decoder(F, W, prior, noise)
         elif est == "smooth":
-            A = smooth_decoder(F, W, noise, lam=lam)
-            params["smooth_lambda"] = float(lam)
+            A = smooth_decoder(F, W, noise, wl, correlation_nm=correlation_nm)
+            params["smooth_correlation_nm"] = float(correlation_nm)
+            if prior is None:  # the expected error on the smoothness prior itself
+                prior = smooth_prior(wl, correlation_nm=correlation_nm)
         if prior is not None:
             e = expected_error(A, F, W, prior, noise)
             o2 = np.einsum("kb,bc,kc->k", F, prior.moment, F)

@@ -97,23 +97,30 @@ def test_expected_error_is_the_exact_average(spectra, prior):
 
 
 def test_smooth_against_a_stacked_least_squares():
+    """The smooth decoder is the regularised least squares argmin |N^-1/2 (F r - o)|^2 + r^T C^-1 r."""
     F, Wout, noise = _random_problem(6, K=9)
-    lam = 0.05
-    A = E.smooth_decoder(F, Wout, noise, lam=lam)
-    B = WL.size
-    grey = F @ np.full(B, 0.5)
-    N = grey / noise.gain_e_per_dn + noise.read_var_dn2 + noise.light_rms ** 2 * grey ** 2
-    D = E.second_difference(B)
-    H_ = F.T @ np.diag(1 / N) @ F
-    scale = lam * np.trace(H_) / np.trace(D.T @ D)
-    eps = 1e-9 * np.trace(H_) / B
-    # minimise |N^-1/2 (F r - o)|^2 + scale |D r|^2 + eps |r|^2 for each unit o: a stacked lstsq
-    stack = np.vstack([F / np.sqrt(N)[:, None], np.sqrt(scale) * D, np.sqrt(eps) * np.eye(B)])
-    rhs = np.vstack([np.diag(1 / np.sqrt(N)), np.zeros((D.shape[0] + B, F.shape[0]))])
-    ref = Wout @ np.linalg.lstsq(stack, rhs, rcond=None)[0]
-    np.testing.assert_allclose(A, ref, rtol=1e-6, atol=1e-9 * np.abs(ref).max())
-    with pytest.raises(ValueError, match="lambda"):
-        E.smooth_decoder(F, Wout, noise, lam=0)
+    A = E.smooth_decoder(F, Wout, noise, WL, correlation_nm=40.0)
+    sp = E.smooth_prior(WL, correlation_nm=40.0)
+    N = np.diag(noise.covariance(F, sp))
+    # whitened coordinates r = U lam^1/2 z, |z|^2 = r^T C^-1 r: a ridge least squares, stacked
+    lam, U = np.linalg.eigh(sp.moment)
+    T = U * np.sqrt(np.clip(lam, 0, None))
+    G = (F @ T) / np.sqrt(N)[:, None]
+    stack = np.vstack([G, np.eye(WL.size)])
+    rhs = np.vstack([np.diag(1 / np.sqrt(N)), np.zeros((WL.size, F.shape[0]))])
+    ref = Wout @ T @ np.linalg.lstsq(stack, rhs, rcond=None)[0]
+    np.testing.assert_allclose(A, ref, rtol=1e-4, atol=1e-6 * np.abs(ref).max())
+    with pytest.raises(ValueError, match="correlation_nm"):
+        E.smooth_prior(WL, correlation_nm=0)
+
+
+def test_smooth_estimator_without_training(bundle):
+    plan = make_plan("narrowband", bundle)
+    s = E.with_estimator(plan, bundle, "smooth", noise=E.NoiseModel.from_rig(DESC, plan.exposure_s))
+    assert s.params["estimator"] == "smooth" and "smooth prior" in s.params["expected"]["prior"]
+    wl = np.arange(400.0, 700.0 + 1e-9, 5.0)
+    test = E.held_out_spectra(wavelengths=wl)[2]
+    assert E.chart_error(s, bundle, test, wl) < 0.01
 
 
 def test_empty_training_set_is_one_line(tmp_path):
