@@ -372,8 +372,9 @@ def sigma_map(frames, plan, dark, gain, *, sequences: int = 1, device=None) -> n
     were recovered from (the mean of ``sequences`` sequences): ``var y = gain^2 sum_k A^2 (o / g + s_read^2) / S
     + m`` through :func:`specgpu.recovery.apply_linear`, plus the mismatch and light terms ``m`` on the host."""
     var = _noise_products(frames, plan, dark, gain, plan.A ** 2, sequences, device)
-    var += constant_variance(plan)
-    return np.sqrt(np.maximum(var, 0.0)).astype(np.float32)
+    var += constant_variance(plan).astype(np.float32)  # in place, float32: as cheap as the recovery itself
+    np.maximum(var, 0.0, out=var)
+    return np.sqrt(var, out=var)
 
 
 def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, device=None) -> np.ndarray:
@@ -385,7 +386,7 @@ def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, device
     Q = M.shape[0]
     pairs = [(i, j) for i in range(Q) for j in range(i, Q)]
     prods = np.stack([MA[i] * MA[j] for i, j in pairs])
-    v = _noise_products(frames, plan, dark, gain, prods, sequences, device)
+    v = np.asarray(_noise_products(frames, plan, dark, gain, prods, sequences, device), np.float64)
     cov = np.empty(v.shape[:-1] + (Q, Q))
     for n, (i, j) in enumerate(pairs):
         cov[..., i, j] = cov[..., j, i] = v[..., n]
@@ -403,7 +404,7 @@ def _noise_products(frames, plan, dark, gain, rows, sequences, device):
     matrix = np.asarray(rows, np.float64) / noise.gain_e_per_dn / sequences
     d = np.asarray(dark, np.float32) - np.float32(noise.gain_e_per_dn * noise.read_var_dn2)
     g = None if gain is None else np.asarray(gain, np.float32) ** 2
-    return np.asarray(apply_linear(frames, matrix, d, g, device=device), np.float64)
+    return np.asarray(apply_linear(frames, matrix, d, g, device=device), np.float32)
 
 
 def constant_covariance(plan) -> np.ndarray:
