@@ -277,7 +277,8 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
                            smooth_nm)
     digest = save_plan(out, plan)
     expected = plan.params.get("expected", {})
-    note = f"; expected RMSE {expected['rmse']:.4f} on the prior" if "rmse" in expected else ""
+    unit = "" if plan.output == "reflectance" else f" ({plan.output})"
+    note = f"; expected RMSE{unit} {expected['rmse']:.4f} on the prior" if "rmse" in expected else ""
     for key in ("dE2000", "dEab"):
         if key in expected:
             note += f", expected {key} {expected[key]:.3f} (RMS)"

@@ -344,6 +344,8 @@ def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, 
     params["estimator"] = est
     params["noise"] = noise.as_params()
     A = plan.A
+    if est == "projection" and plan.output not in ("reflectance", "XYZ"):
+        prior = None  # RGB / relative outputs: the decoder stays and no expected error can be stated
     if est != "projection" or prior is not None:
         wl = prior.wavelengths if prior is not None else np.arange(400.0, 700.0 + 1e-9, 5.0)
         F = forward(bundle, plan, wl)
