@@ -301,7 +301,10 @@ def _estimated_plan(method, bundle, args, kwargs, estimator, training, training_
     plain = method not in ("optimal", "hadamard") and estimator == "projection" and not training
     if plain and rig_path is None and bundle.rig and bundle.rig != rig_fingerprint(description):
         return make_plan(method, bundle, *args, **kwargs)  # no --rig for a custom rig's camera: no noise model
-    bundle.check_rig(description, name="calibration")
+    if bundle.rig and bundle.rig != rig_fingerprint(description):
+        raise ValueError(f"{'--rig ' + str(rig_path) if rig_path else 'the default rig'} is not the rig the "
+                         "calibration was made on: give that rig's description with --rig (its camera's noise "
+                         "model is needed)")
 
     def noise_at(t):
         return NoiseModel.from_rig(description, t)

@@ -80,5 +80,5 @@ def test_plan_refusals(work, tmp_path):
     one_line_error(run("plan", "hadamard", "--bands", 12, "--calib", work / "calib.npz", "--rig", work / "rig.toml",
                        "--out", tmp_path / "h.npz", ok=False), "hadamard bands")
     one_line_error(run("plan", "narrowband", "--estimator", "wiener", "--calib", work / "calib.npz", "--out",
-                       tmp_path / "n.npz", ok=False), "stale")
+                       tmp_path / "n.npz", ok=False), "give that rig's description with --rig")
     assert not (tmp_path / "o.npz").exists()
