@@ -218,7 +218,8 @@ def calibrate(rig_path, out, seed):
               default="projection", show_default=True,
               help="Decoder: the method's own, Wiener on the training prior, or smoothness-regularised LS.")
 @click.option("--training", "training", multiple=True, type=click.Path(dir_okay=False),
-              help="Training spectra (CSV or .npz with wavelengths, reflectance) added to the default prior; repeatable.")
+              help="Training spectra (CSV, or .npz with wavelengths and reflectance) added to the default prior; "
+                   "repeatable.")
 @click.option("--smooth-nm", type=float, default=40.0, show_default=True,
               help="smooth estimator: correlation length of the smoothness prior, nm.")
 @click.option("--training-only", is_flag=True, help="Use only --training files for the prior (no built-in sets).")

@@ -39,8 +39,9 @@ OBJECTIVES = ("rmse", "dE2000", "dEab")
 
 def objective_weights(prior: Prior, objective: str, illuminant="D65", training=None) -> np.ndarray:
     """(B, B) PSD weighting P of the reflectance error: identity / B for ``"rmse"`` (the mean squared error per
-    band); for ``"dE2000"`` (``"dEab"``: G = I) the mean over the training spectra of ``(G^1/2 J C)^T (G^1/2 J C)`` with C the XYZ
-    weights, J the XYZ -> Lab Jacobian and G the local CIEDE2000 metric at each spectrum's colour."""
+    band); for ``"dE2000"`` the mean over the training spectra of ``(G^1/2 J C)^T (G^1/2 J C)`` with C the XYZ
+    weights, J the XYZ -> Lab Jacobian and G the local CIEDE2000 metric at each spectrum's colour (its diagonal
+    along L*, a*, b*, by finite differences of colour-science's ``delta_E``); ``"dEab"``: G = I (CIE 1976)."""
     obj = str(objective)
     if obj.lower() == "rmse":
         B = prior.wavelengths.size
@@ -59,7 +60,6 @@ def objective_weights(prior: Prior, objective: str, illuminant="D65", training=N
 
     lab = np.asarray(XYZ_to_Lab(xyz, illuminant), np.float64)
     h = 1e-4
-    P = np.zeros((prior.wavelengths.size,) * 2)
     Js = []
     for j in range(3):
         d = np.zeros(3)
@@ -73,9 +73,8 @@ def objective_weights(prior: Prior, objective: str, illuminant="D65", training=N
         G[:, i] = (np.asarray(colour.delta_E(lab, lab + e, method="CIE 2000"), np.float64) / 0.5) ** 2
     if obj.lower() == "deab":  # CIE 1976: the Lab distance itself
         G[:] = 1.0
-    M = np.sqrt(G)[:, :, None] * J @ C  # (N, 3, B)
-    P = np.einsum("nib,nic->bc", M, M) / r.shape[0]
-    return P
+    M = (np.sqrt(G)[:, :, None] * J) @ C  # (N, 3, B)
+    return np.einsum("nib,nic->bc", M, M) / r.shape[0]
 
 
 def wiener_objective(F, prior: Prior, noise: NoiseModel, P) -> tuple[float, np.ndarray]:

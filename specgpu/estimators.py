@@ -426,7 +426,7 @@ def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65") -> np.ndarray:
     """First-order propagation of an XYZ covariance (..., 3, 3) to dE2000 (..., ): the colour difference of a
     small perturbation is (to first order) its CIEDE2000 metric at the colour, ``dE^2 = dLab^T G dLab``; the
     sigma is ``sqrt(trace(G J C J^T))`` with J the XYZ -> Lab Jacobian at each pixel and G the local CIEDE2000
-    metric (estimated by finite differences of colour-science's ``delta_E``)."""
+    metric (its diagonal along L*, a*, b*, by finite differences of colour-science's ``delta_E``)."""
     import colour
 
     from .colorimetry import XYZ_to_Lab
@@ -441,7 +441,7 @@ def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65") -> np.ndarray:
     J = np.empty((x.shape[0], 3, 3))
     for j in range(3):
         d = np.zeros(3)
-        d[j] = h * max(1e-3, 1.0)
+        d[j] = h
         J[:, :, j] = (np.asarray(XYZ_to_Lab((x + d).astype(np.float64), illuminant), np.float64) - lab) / d[j]
     covLab = J @ C @ np.transpose(J, (0, 2, 1))
     # local CIEDE2000 metric: dE(lab, lab + e_i) ~ sqrt(G_ii) for unit steps along L, a, b
@@ -478,7 +478,8 @@ def patch_scene(names, wavelengths, spectra, height: int = 240, width: int = 320
         refl[int(round(ya)):int(round(ya + size)), int(round(xa)):int(round(xa + size))] = spectra[k]
         m = np.zeros((height, width), bool)
         inset = 0.15 * size
-        m[int(round(ya + inset)):int(round(ya + size - inset)), int(round(xa + inset)):int(round(xa + size - inset))] = True
+        y0i, y1i = int(round(ya + inset)), int(round(ya + size - inset))
+        m[y0i:y1i, int(round(xa + inset)):int(round(xa + size - inset))] = True
         masks[str(names[k])] = m
     return SpectralScene(np.asarray(wavelengths, np.float64), refl, masks, name)
 

@@ -25,8 +25,7 @@ from .recovery import apply_linear
 from .rig.config import RigDescription
 from .rig.twin import FaultSchedule, TwinRig
 
-__all__ = ["capture_plan", "write_capture", "default_basis", "SequenceFolder", "read_capture", "recover", "uncertainty", "to_XYZ",
-           "to_Lab"]
+__all__ = ["capture_plan", "write_capture", "default_basis", "SequenceFolder", "read_capture", "recover", "to_XYZ", "to_Lab"]
 
 PLAN_FILE = "plan.npz"
 #: The chart the demo and the accuracy study evaluate on (and leave out of basis training).
