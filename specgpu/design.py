@@ -306,7 +306,9 @@ def hadamard_gain(description, *, bands: int = 31, exposure_s: float = 0.002, re
         y = apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field)
         c = y[h // 4:3 * h // 4, w // 4:3 * w // 4]
         noise[plan.method] = float(c.std(axis=(0, 1)).mean())
+        noise[plan.method + "_mean"] = c.mean(axis=(0, 1)).tolist()
     return {"bands": bands, "exposure_ms": had.exposure_s * 1e3, "narrowband_exposure_ms": nb.exposure_s * 1e3,
+            "narrowband_mean": noise["narrowband_mean"], "hadamard_mean": noise["hadamard_mean"],
             "narrowband_noise": noise["narrowband"], "hadamard_noise": noise["hadamard"],
             "gain": noise["narrowband"] / noise["hadamard"], "theory": (bands + 1) / (2 * math.sqrt(bands)),
             "read_noise_e": float(cam.read_noise_e)}

@@ -128,23 +128,12 @@ def test_hadamard_recovers_like_narrowband_and_gains_snr():
 
     desc = RigDescription(camera=CameraParameters(roi_width=W, roi_height=H, read_noise_e=300.0))
     desc = replace(desc, light=replace(desc.light, fluctuation_rms=0.0))
-    bundle = oracle_calibration(desc)
-    t = 0.002
-    had = D.plan_hadamard(bundle, bands=15, max_exposure_s=t)
-    nb = make_plan("narrowband", bundle, centres=had.output_wavelengths,
-                   bandwidth_nm=had.params["bandwidth_nm"], max_exposure_s=t)
-    assert had.exposure_s == pytest.approx(t) and nb.exposure_s == pytest.approx(t)
-    scene = SpectralScene(np.array([380.0, 780.0]), np.full((H, W, 2), 0.5, np.float32))
-    stds = []
-    for plan in (had, nb):
-        from specgpu.pipeline import capture_plan
-
-        frames = capture_plan(desc, plan, scene, noise_seed=11).sequences[0].frames
-        y = apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field)
-        c = y[60:180, 80:240]
-        np.testing.assert_allclose(c.mean(axis=(0, 1)), 0.5, atol=0.02)
-        stds.append(c.std(axis=(0, 1)).mean())
-    assert 1.6 < stds[1] / stds[0] < 2.4
+    g = D.hadamard_gain(desc, bands=15, exposure_s=0.002, seed=11)
+    assert g["exposure_ms"] == pytest.approx(2.0) and g["narrowband_exposure_ms"] == pytest.approx(2.0)
+    np.testing.assert_allclose(g["hadamard_mean"], 0.5, atol=0.02)
+    np.testing.assert_allclose(g["narrowband_mean"], 0.5, atol=0.02)
+    assert g["theory"] == pytest.approx(16 / (2 * np.sqrt(15)))
+    assert 1.6 < g["gain"] < 2.4
 
 
 def test_cli_plan_optimal_refusals(tmp_path, bundle):
