@@ -526,11 +526,14 @@ def study_plans(description, bundle, prior, basis, *, methods=None, training=Non
     return plans
 
 
-def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: int = 0, device=None) -> list:
+def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: int = 0, de_sigma: bool = True,
+               device=None) -> list:
     """Capture each plan ``runs`` times with fresh noise on the twin, recover, and measure on the chart's patch
     pixels: per-pixel means of RMSE, dE2000 and dE*ab (D65; a tristimulus plan under its own illuminant), the
     same of the patch means (per patch), the RMS error beside the plan's expected RMSE, and the standard deviation
-    of the standardised errors (error / sigma). Returns one dict per plan with mean and std over the runs."""
+    of the standardised errors (error / sigma) and, with ``de_sigma``, the RMS dE2000 over the RMS of the
+    predicted dE2000 sigma (:func:`delta_E_sigma`; first run only). Returns one dict per plan with mean and std
+    over the runs."""
     from .evaluate import evaluate_pixels, patch_means, scene_XYZ, truth_cube
     from .pipeline import capture_plan
     from .recovery import apply_linear
@@ -538,7 +541,8 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
     mask = np.any(list(scene.masks.values()), axis=0)
     rows = []
     for i, (name, plan) in enumerate(plans.items()):
-        acc = {k: [] for k in ("rmse", "dE2000", "dEab", "patch_rmse", "patch_dE2000", "patch_dEab", "rms", "z")}
+        acc = {k: [] for k in ("rmse", "dE2000", "dEab", "patch_rmse", "patch_dE2000", "patch_dEab", "rms", "z",
+                               "dE_ratio")}
         for run in range(runs):
             res = capture_plan(description, plan, scene, noise_seed=10_000 + 97 * seed + 13 * i + run)
             frames = res.sequences[0].frames
@@ -553,6 +557,13 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
             err = (y - truth)[mask]
             acc["z"].append(float((err / sig[mask]).std()))
             acc["dE2000"].append(float(px.delta_E_2000[mask].mean()))
+            if de_sigma and run == 0:
+                from .pipeline import to_XYZ
+
+                xyz = to_XYZ(y.astype(np.float32), plan, ill, device=device)
+                cov = output_covariance(frames, plan, dark, gain, plan.outputs_to_XYZ(ill), device=device)
+                ds = delta_E_sigma(np.asarray(xyz)[mask], cov[mask], ill)
+                acc["dE_ratio"].append(float(np.sqrt((px.delta_E_2000[mask] ** 2).mean() / (ds ** 2).mean())))
             acc["dEab"].append(float(px.delta_E_ab[mask].mean()))
             if refl:
                 acc["rmse"].append(float(px.rmse[mask].mean()))
@@ -601,7 +612,8 @@ def format_study(rows) -> str:
         return "-" if v is None else f"{v[0]:.{digits}f} +- {v[1]:.{digits}f}"
 
     head = (f"{'method':<16} {'K':>3} {'ms':>7} {'RMSE (pixel)':>18} {'dE2000 (pixel)':>16} {'dE*ab (pixel)':>16} "
-            f"{'RMSE (patch)':>18} {'dE2000 (patch)':>16} {'expected':>8} {'RMS':>8} {'ratio':>6} {'z std':>6}")
+            f"{'RMSE (patch)':>18} {'dE2000 (patch)':>16} {'expected':>8} {'RMS':>8} {'ratio':>6} {'z std':>6} "
+            f"{'dE/sig':>6}")
     lines = [head, "-" * len(head)]
     for r in rows:
         exp = r.get("expected_rmse")
@@ -610,7 +622,8 @@ def format_study(rows) -> str:
         lines.append(f"{r['name']:<16} {r['K']:>3} {r['exposure_ms']:>7.1f} {f(r, 'rmse', 4):>18} "
                      f"{f(r, 'dE2000', 2):>16} {f(r, 'dEab', 2):>16} {f(r, 'patch_rmse', 4):>18} "
                      f"{f(r, 'patch_dE2000', 2):>16} {exp if exp is None else round(exp, 4)!s:>8} "
-                     f"{'-' if rms is None else round(rms[0], 4)!s:>8} {ratio:>6} {r['z'][0]:>6.2f}")
+                     f"{'-' if rms is None else round(rms[0], 4)!s:>8} {ratio:>6} {r['z'][0]:>6.2f} "
+                     f"{r['dE_ratio'][0] if 'dE_ratio' in r else float('nan'):>6.2f}")
     return "\n".join(lines)
 
 

@@ -257,3 +257,18 @@ def test_delta_e_sigma_against_monte_carlo():
         lab = np.asarray(XYZ_to_Lab(draws, "D65"), np.float64)
         de = colour.delta_E(lab0, lab, method="CIE 2000")
         assert sig[i] == pytest.approx(np.sqrt(np.mean(de ** 2)), rel=0.1)
+
+
+def test_study_rows_on_the_held_out_chart(bundle, prior):
+    names, wl, spec = E.held_out_spectra()
+    scene = E.patch_scene(names, wl, spec, H, W)
+    plans = E.study_plans(DESC, bundle, prior, E.held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
+    rows = E.study_rows(DESC, bundle, scene, plans, runs=2)
+    nb, tri = rows
+    assert nb["name"] == "narrowband-31" and nb["K"] == 31 and nb["runs"] == 2
+    assert 0 < nb["rmse"][0] < 0.01 and nb["dE2000"][0] < 1.0 and nb["rmse"][1] >= 0
+    assert 0.75 < nb["rms"][0] / nb["expected_rmse"] < 1.33
+    assert 0.8 <= nb["z"][0] <= 1.25 and 0.8 <= tri["z"][0] <= 1.25
+    assert "rmse" not in tri and tri["dEab"][0] > 0 and tri["expected_rmse"] is None
+    text = E.format_study(rows)
+    assert "narrowband-31" in text and "tristimulus-D65" in text

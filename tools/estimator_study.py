@@ -5,8 +5,9 @@ calibrate, hold out colour-science's "CIE 1995 TCS" (14 Munsell chips, in neithe
 ColorChecker) as the evaluation chart, build the training prior and basis from every other set colour-science ships
 (minus any spectrum within 0.01 RMS of a held-out chip), plan the paper's methods and wiener-6/9, optimal-9/6/3,
 capture each ``--runs`` times with fresh noise, and print per-pixel and per-patch means (mean +- std over the runs),
-the expected RMSE recorded with each plan beside the measured RMS error, and the standard deviation of the
-standardised errors (error / the per-pixel sigma of ``specgpu recover --sigma``).
+the expected RMSE recorded with each plan beside the measured RMS error, the standard deviation of the
+standardised errors (error / the per-pixel sigma of ``specgpu recover --sigma``) and the RMS dE2000 over the RMS
+predicted dE2000 sigma (``specgpu recover --delta-e-sigma``, first run).
 
     /work/venv/bin/python tools/estimator_study.py [--small] [--runs N] [--seed N] [--methods a,b] [--json OUT]
 """
