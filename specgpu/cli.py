@@ -340,21 +340,39 @@ def calibrate(rig_path, out, seed):
 @click.option("--camera", default="Nikon 5100 (NPL)", show_default=True, help="Camera simulator: sensitivities.")
 @click.option("--spectrum", default="D65", show_default=True,
               help="Steady-state: target illuminant name (colour-science) for spectral rendering.")
+@click.option("--estimator", type=click.Choice(["projection", "wiener", "smooth"], case_sensitive=False),
+              default="projection", show_default=True,
+              help="Decoder: the method's own, Wiener on the training prior, or smoothness-regularised LS.")
+@click.option("--training", "training", multiple=True, type=click.Path(dir_okay=False),
+              help="Training spectra (CSV, or .npz with wavelengths and reflectance) added to the default prior; "
+                   "repeatable.")
+@click.option("--smooth-nm", type=float, default=40.0, show_default=True,
+              help="smooth estimator: correlation length of the smoothness prior, nm.")
+@click.option("--training-only", is_flag=True, help="Use only --training files for the prior (no built-in sets).")
+@click.option("--frames", type=click.IntRange(min=1, max=200), default=9, show_default=True,
+              help="optimal: number of illuminants.")
+@click.option("--objective", type=click.Choice(["rmse", "dE2000", "dEab"], case_sensitive=False), default="rmse",
+              show_default=True, help="optimal: the expected error minimised (colour differences under --illuminant).")
+@click.option("--target", type=float, default=None, help="optimal: refuse a design whose expected error is above it.")
+@click.option("--exposure-ms", type=float, default=None, help="optimal: expose at least this long (ms).")
+@click.option("--bands", type=int, default=31, show_default=True, help="hadamard: bands (3, 7, 15, 31, 63).")
+@_RIG
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
-                 illuminant, observer, camera, spectrum):
+                 illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,
+                 target, exposure_ms, bands, rig_path, smooth_nm):
     """Design a measurement plan: the illuminant sequence and its decoder.
 
-    METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady.
+    METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady, optimal, hadamard.
     """
     import numpy as np
 
     from .calibration import load_calibration
-    from .plans import PLAN_METHODS, make_plan, save_plan
+    from .plans import PLAN_METHODS, save_plan
     from .validate import validate_method
 
-    validate_method(method, {k: k for k in PLAN_METHODS}, "METHOD")
+    validate_method(method, {k: k for k in (*PLAN_METHODS, "optimal", "hadamard")}, "METHOD")
     method = method.lower()
-    _no_clash([("--out", out)], [("--calib", calib), ("--basis", basis_path)])
+    _no_clash([("--out", out)], [("--calib", calib), ("--basis", basis_path)] + [("--training", t) for t in training])
     _lock(out)
     bundle = load_calibration(calib)
     if method in ("narrowband", "reciprocal"):
@@ -376,15 +394,68 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
         args, kwargs = (), {"illuminant": illuminant, "cmfs": observer}
     elif method == "camera":
         args, kwargs = (), {"camera": camera, "illuminant": illuminant}
+    elif method in ("optimal", "hadamard"):
+        args, kwargs = (), {}
     else:  # steady
         from .render import target_spectrum
 
         sd = target_spectrum(spectrum)
         args, kwargs = (sd.values, sd.wavelengths), {}
-    plan = make_plan(method, bundle, *args, **kwargs)
+    plan = _estimated_plan(method, bundle, args, kwargs, estimator.lower(), training, training_only, exclude_chart,
+                           frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path,
+                           smooth_nm)
     digest = save_plan(out, plan)
+    expected = plan.params.get("expected", {})
+    unit = "" if plan.output == "reflectance" else f" ({plan.output})"
+    note = f"; expected RMSE{unit} {expected['rmse']:.4f} on the prior" if "rmse" in expected else ""
+    for key in ("dE2000", "dEab"):
+        if key in expected:
+            note += f", expected {key} {expected[key]:.3f} (RMS)"
     click.echo(f"{plan.method}: {plan.K} frames at {plan.exposure_s * 1e3:.2f} ms, {plan.A.shape[0]} outputs "
-               f"({plan.output}); wrote {out} (plan {digest[:12]}, calibration {plan.calibration[:12]})")
+               f"({plan.output}); wrote {out} (plan {digest[:12]}, calibration {plan.calibration[:12]}){note}")
+
+
+def _estimated_plan(method, bundle, args, kwargs, estimator, training, training_only, exclude_chart, frames,
+                    objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path, smooth_nm=40.0):
+    """The plan of METHOD with the chosen decoder, the camera's noise model and its expected error recorded."""
+    import numpy as np
+
+    from .calibration import rig_fingerprint
+    from .design import plan_hadamard, plan_optimal
+    from .estimators import NoiseModel, default_prior, with_estimator
+    from .plans import make_plan
+    from .rig.config import load_rig
+
+    description = load_rig(rig_path)
+    plain = method not in ("optimal", "hadamard") and estimator == "projection" and not training
+    if plain and rig_path is None and bundle.rig and bundle.rig != rig_fingerprint(description):
+        return make_plan(method, bundle, *args, **kwargs)  # no --rig for a custom rig's camera: no noise model
+    if bundle.rig and bundle.rig != rig_fingerprint(description):
+        raise ValueError(f"{'--rig ' + str(rig_path) if rig_path else 'the default rig'} is not the rig the "
+                         "calibration was made on: give that rig's description with --rig (its camera's noise "
+                         "model is needed)")
+
+    def noise_at(t):
+        return NoiseModel.from_rig(description, t)
+
+    prior = None
+    if method == "optimal" or estimator == "wiener" or training or training_only:
+        with _Busy("building the training prior"):
+            prior = default_prior(exclude_chart, training_files=training, builtin=not training_only)
+    if method == "optimal":
+        tr = None
+        if objective.lower() != "rmse":
+            from .estimators import training_spectra
+
+            tr = training_spectra(exclude_chart, prior.wavelengths, training_files=training,
+                                  builtin=not training_only)
+        with _Busy(f"designing {frames} illuminants"):
+            return plan_optimal(bundle, prior, noise_at, frames=frames, objective=objective, illuminant=illuminant,
+                                training=tr, output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm),
+                                target=target, exposure_s=None if exposure_ms is None else exposure_ms / 1e3)
+    plan = plan_hadamard(bundle, bands=bands) if method == "hadamard" else make_plan(method, bundle, *args, **kwargs)
+    return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s),
+                          correlation_nm=smooth_nm)
 
 
 @main.command()
@@ -513,8 +584,13 @@ def _parse_reference(text, height, width, illuminant):
 @click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
 @click.option("--sequence", type=int, default=None, help="Recover one sequence (default: the mean of all).")
 @click.option("--half", is_flag=True, help="Write the cube in half precision.")
+@click.option("--sigma", "sigma_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the per-pixel standard deviation of each output and their RMS (EXR).")
+@click.option("--delta-e-sigma", "de_sigma_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the per-pixel dE2000 standard deviation (first-order, under --illuminant; EXR).")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, device):
+def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, sigma_path,
+            de_sigma_path, device):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     from pathlib import Path
 
@@ -528,7 +604,8 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
     if (ref is None) != (de_path is None):
         raise click.UsageError("--delta-e-ref and --delta-e go together")
     method = validate_method(method, DELTA_E_METHODS)
-    outputs = [("--out", out), ("--xyz", xyz_path), ("--lab", lab_path), ("--delta-e", de_path)]
+    outputs = [("--out", out), ("--xyz", xyz_path), ("--lab", lab_path), ("--delta-e", de_path),
+               ("--sigma", sigma_path), ("--delta-e-sigma", de_sigma_path)]
     _no_clash(outputs, _sequence_files(seq) + ([("--delta-e-ref", ref)] if ref and Path(ref).exists() else []))
     _lock(*(p for _, p in outputs if p))  # before the work: a missing folder or a busy output is refused now
     folder = read_capture(seq)
@@ -554,6 +631,8 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
             writes.append((xyz_path, lambda p: io.write_map(p, XYZ, "XYZ", metadata=meta)))
         if lab_path:
             writes.append((lab_path, lambda p: io.write_map(p, Lab, "Lab", metadata=meta)))
+        if sigma_path or de_sigma_path:
+            _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device)
         if de_path:
             dE = delta_E(_parse_reference(ref, height, width, illuminant), Lab, method, device=device)
             if Path(de_path).suffix.lower() == ".png":
@@ -573,6 +652,29 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
     note = f"; {saturated} saturated pixels left NaN" if saturated else ""
     click.echo(f"{plan.method}: {plan.K} projections, {folder.sequences} sequences in {seq}; wrote "
                + ", ".join(str(p) for p in written) + note)
+
+
+def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device):
+    """--sigma / --delta-e-sigma: the uncertainty maps of the recovery, appended to the writes."""
+    import numpy as np
+
+    from . import io
+    from .estimators import delta_E_sigma
+    from .pipeline import to_XYZ, uncertainty
+
+    sigma, cov = uncertainty(folder, sequence=sequence, illuminant=illuminant if de_sigma_path else None,
+                             device=device)
+    plan = folder.plan
+    if sigma_path:
+        rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)
+        names = [f"sigma_{label}" for label in plan.output_labels] + ["sigma_rms"]
+        sig = np.concatenate([sigma, rms], axis=-1)
+        writes.append((sigma_path, lambda p: io.write_map(p, sig, names, metadata=meta)))
+    if de_sigma_path:
+        xyz = XYZ if XYZ is not None else to_XYZ(y, plan, illuminant, device=device)
+        des = delta_E_sigma(np.nan_to_num(xyz), np.nan_to_num(cov), illuminant)
+        des[~np.isfinite(xyz).all(axis=-1)] = np.nan
+        writes.append((de_sigma_path, lambda p: io.write_map(p, des, ["dE2000_sigma"], metadata=meta)))
 
 
 @main.command("stream")

@@ -259,6 +259,31 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     return y
 
 
+def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illuminant: str | None = None,
+                device=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames and, given an
+    illuminant, the covariance (H, W, 3, 3) of their XYZ (:mod:`specgpu.estimators`); NaN where saturated."""
+    from .estimators import output_covariance, sigma_map
+
+    used = folder.frames if sequence is None else folder.frames[sequence:sequence + 1]
+    if sequence is not None and not 0 <= sequence < folder.sequences:
+        raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
+    frames = used.mean(axis=0, dtype=np.float32) if used.shape[0] > 1 else used[0]
+    plan, bundle = folder.plan, folder.calibration
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    sigma = sigma_map(frames, plan, dark, gain, sequences=used.shape[0], device=device)
+    cov = None
+    if illuminant is not None:
+        cov = output_covariance(frames, plan, dark, gain, plan.outputs_to_XYZ(illuminant),
+                                sequences=used.shape[0], device=device)
+    saturated = np.any(used >= bundle.max_code, axis=(0, 1))
+    if saturated.any():
+        sigma[saturated] = np.nan
+        if cov is not None:
+            cov[saturated] = np.nan
+    return sigma, cov
+
+
 def to_XYZ(y: np.ndarray, plan: Plan, illuminant: str = "D65", *, device=None) -> np.ndarray:
     """XYZ (Y = 1 for the white) of a plan's outputs (see :meth:`specgpu.plans.Plan.outputs_to_XYZ`)."""
     plan.outputs_to_XYZ(illuminant)  # refuses outputs that have no XYZ, or XYZ under another illuminant

@@ -1,0 +1,274 @@
+"""Estimators (Wiener, smooth, projection) against float64 NumPy references, their expected error against exact
+averages, per-pixel sigma maps against NumPy and against the twin's real noise."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from specgpu import estimators as E
+from specgpu.calibration import oracle_calibration
+from specgpu.pipeline import capture_plan
+from specgpu.plans import load_plan, make_plan, save_plan
+from specgpu.recovery import apply_linear
+from specgpu.rig.camera import CameraParameters
+from specgpu.rig.config import RigDescription
+
+H, W = 240, 320
+DESC = RigDescription(camera=CameraParameters(roi_width=W, roi_height=H))
+WL = np.arange(400.0, 700.0 + 1e-9, 5.0)
+
+
+@pytest.fixture(scope="module")
+def bundle():
+    return oracle_calibration(DESC)
+
+
+@pytest.fixture(scope="module")
+def spectra():
+    return E.training_spectra()
+
+
+@pytest.fixture(scope="module")
+def prior(spectra):
+    return E.prior_from_spectra(spectra, WL, "test")
+
+
+def _random_problem(seed, K=6, P=31):
+    rng = np.random.default_rng(seed)
+    F = rng.uniform(0, 50, (K, WL.size))
+    Wout = E._interp_rows(np.linspace(400, 700, P), WL)
+    noise = E.NoiseModel(rng.uniform(5, 50), rng.uniform(0.1, 5), rng.uniform(0, 0.02))
+    return F, Wout, noise
+
+
+def test_prior_is_the_second_moment(spectra):
+    p = E.prior_from_spectra(spectra, WL)
+    ref = np.zeros((WL.size, WL.size))
+    for r in spectra:
+        ref += np.outer(r, r)
+    np.testing.assert_allclose(p.moment, ref / len(spectra), rtol=1e-12)
+    np.testing.assert_allclose(p.mean, spectra.mean(axis=0), rtol=1e-12)
+    assert p.n == len(spectra) > 200
+
+
+def test_default_prior_leaves_the_held_out_chart_out(spectra):
+    _, _, test = E.held_out_spectra(E.HELD_OUT_CHART, WL)
+    d = np.sqrt(((spectra[:, None, :] - test[None]) ** 2).mean(axis=-1))
+    assert d.min() >= 0.01
+    assert "ColorChecker" not in E.HELD_OUT_CHART
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_wiener_against_the_information_form(prior, seed):
+    F, Wout, noise = _random_problem(seed)
+    A = E.wiener_decoder(F, Wout, prior, noise)
+    # independent float64 reference: W (S^-1 + F^T N^-1 F)^-1 F^T N^-1 with S regularised to be invertible
+    S = prior.moment
+    o = F @ prior.mean
+    N = o / noise.gain_e_per_dn + noise.read_var_dn2 + noise.light_rms ** 2 * np.diag(F @ S @ F.T)
+    Ninv = np.diag(1.0 / N)
+    ref = Wout @ np.linalg.pinv(F.T @ Ninv @ F + np.linalg.pinv(S, rcond=1e-14, hermitian=True)) @ F.T @ Ninv
+    # the forms agree on the prior's span; compare through the data they act on
+    np.testing.assert_allclose(A @ F @ S, ref @ F @ S, rtol=2e-4, atol=1e-6 * np.abs(A @ F @ S).max())
+
+
+def test_wiener_minimises_the_expected_error(prior):
+    F, Wout, noise = _random_problem(3)
+    A = E.wiener_decoder(F, Wout, prior, noise)
+    best = E.expected_error(A, F, Wout, prior, noise)["mse"].sum()
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        other = A + rng.normal(scale=1e-3 * np.abs(A).max(), size=A.shape)
+        assert E.expected_error(other, F, Wout, prior, noise)["mse"].sum() > best
+
+
+def test_expected_error_is_the_exact_average(spectra, prior):
+    F, Wout, noise = _random_problem(5)
+    A = E.wiener_decoder(F, Wout, prior, noise)
+    e = E.expected_error(A, F, Wout, prior, noise)
+    # mismatch: the exact mean over the training spectra
+    err = spectra @ (Wout - A @ F).T
+    np.testing.assert_allclose(e["mismatch"], (err ** 2).mean(axis=0), rtol=1e-9)
+    # noise: A N A^T on the diagonal
+    N = np.diag(noise.covariance(F, prior))
+    np.testing.assert_allclose(e["noise"], (A ** 2) @ N, rtol=1e-9)
+    np.testing.assert_allclose(e["rmse"], np.sqrt((e["mismatch"] + e["noise"]).mean()), rtol=1e-12)
+
+
+def test_smooth_against_a_stacked_least_squares():
+    """The smooth decoder is the regularised least squares argmin |N^-1/2 (F r - o)|^2 + r^T C^-1 r."""
+    F, Wout, noise = _random_problem(6, K=9)
+    A = E.smooth_decoder(F, Wout, noise, WL, correlation_nm=40.0)
+    sp = E.smooth_prior(WL, correlation_nm=40.0)
+    N = np.diag(noise.covariance(F, sp))
+    # whitened coordinates r = U lam^1/2 z, |z|^2 = r^T C^-1 r: a ridge least squares, stacked
+    lam, U = np.linalg.eigh(sp.moment)
+    T = U * np.sqrt(np.clip(lam, 0, None))
+    G = (F @ T) / np.sqrt(N)[:, None]
+    stack = np.vstack([G, np.eye(WL.size)])
+    rhs = np.vstack([np.diag(1 / np.sqrt(N)), np.zeros((WL.size, F.shape[0]))])
+    ref = Wout @ T @ np.linalg.lstsq(stack, rhs, rcond=None)[0]
+    np.testing.assert_allclose(A, ref, rtol=1e-4, atol=1e-6 * np.abs(ref).max())
+    with pytest.raises(ValueError, match="correlation_nm"):
+        E.smooth_prior(WL, correlation_nm=0)
+
+
+def test_smooth_estimator_without_training(bundle):
+    plan = make_plan("narrowband", bundle)
+    s = E.with_estimator(plan, bundle, "smooth", noise=E.NoiseModel.from_rig(DESC, plan.exposure_s))
+    assert s.params["estimator"] == "smooth" and "smooth prior" in s.params["expected"]["prior"]
+    wl = np.arange(400.0, 700.0 + 1e-9, 5.0)
+    test = E.held_out_spectra(wavelengths=wl)[2]
+    assert E.chart_error(s, bundle, test, wl) < 0.01
+
+
+def test_empty_training_set_is_one_line(tmp_path):
+    with pytest.raises(ValueError, match="training set is empty") as info:
+        E.default_prior(builtin=False)
+    assert "\n" not in str(info.value)
+    p = tmp_path / "none.npz"
+    np.savez(p, wavelengths=WL, reflectance=np.zeros((0, WL.size)))
+    with pytest.raises(ValueError, match="none.npz"):
+        E.default_prior(builtin=False, training_files=[p])
+
+
+def test_training_files_csv_and_npz(tmp_path, spectra):
+    csv = tmp_path / "mine.csv"
+    rows = ["wavelength,a,b"] + [f"{w},{0.2 + 0.001 * i},{0.5}" for i, w in enumerate(range(380, 781, 10))]
+    csv.write_text("\n".join(rows))
+    npz = tmp_path / "more.npz"
+    np.savez(npz, wavelengths=WL, reflectance=spectra[:3])
+    p = E.default_prior(builtin=False, training_files=[csv, npz])
+    assert p.n == 5 and "mine.csv" in p.source
+    full = E.default_prior(training_files=[csv])
+    assert full.n == len(spectra) + 2
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, wl=WL)
+    with pytest.raises(ValueError, match="bad.npz"):
+        E.read_training(bad, WL)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-1e3, 1e6) | st.just(float("nan")), st.floats(-10, 1e4) | st.just(float("inf")), st.floats(-1, 2))
+def test_noise_model_validator(g, r, l):
+    ok = np.isfinite(g) and g > 0 and np.isfinite(r) and r >= 0 and 0 <= l < 1
+    if ok:
+        n = E.NoiseModel(g, r, l)
+        assert E.NoiseModel.from_params(n.as_params()) == n
+    else:
+        with pytest.raises(ValueError, match="noise"):
+            E.NoiseModel(g, r, l)
+
+
+def test_noise_model_from_the_camera():
+    n = E.NoiseModel.from_rig(DESC, 0.02)
+    cam = DESC.camera
+    assert n.gain_e_per_dn == pytest.approx(cam.full_well_e / cam.max_code)
+    assert n.read_var_dn2 == pytest.approx((cam.read_noise_e ** 2 + cam.dark_current_e_per_s * 0.02)
+                                           / n.gain_e_per_dn ** 2 + 1 / 12)
+
+
+def test_with_estimator_records_and_round_trips(tmp_path, bundle, prior):
+    plan = make_plan("narrowband", bundle)
+    noise = E.NoiseModel.from_rig(DESC, plan.exposure_s)
+    w = E.with_estimator(plan, bundle, "wiener", prior=prior, noise=noise)
+    assert w.params["estimator"] == "wiener" and w.params["expected"]["rmse"] > 0
+    p = E.with_estimator(plan, bundle, "projection", prior=prior, noise=noise)
+    np.testing.assert_array_equal(p.A, plan.A)
+    assert w.params["expected"]["rmse"] <= p.params["expected"]["rmse"]
+    save_plan(tmp_path / "w.npz", w)
+    back = load_plan(tmp_path / "w.npz")
+    np.testing.assert_array_equal(back.A, w.A)
+    assert back.params["noise"] == noise.as_params()
+    with pytest.raises(ValueError, match="estimator"):
+        E.with_estimator(plan, bundle, "bayes", prior=prior, noise=noise)
+    with pytest.raises(ValueError, match="prior"):
+        E.with_estimator(plan, bundle, "wiener", noise=noise)
+    steady = make_plan("steady", bundle, "D65")
+    with pytest.raises(ValueError, match="no estimator"):
+        E.with_estimator(steady, bundle, "wiener", prior=prior, noise=noise)
+
+
+def test_wiener_tristimulus_outputs_xyz(bundle, prior):
+    plan = make_plan("tristimulus", bundle, illuminant="D65")
+    w = E.with_estimator(plan, bundle, "wiener", prior=prior, noise=E.NoiseModel.from_rig(DESC, plan.exposure_s))
+    assert w.A.shape == (3, 3) and w.output == "XYZ"
+    assert w.params["expected"]["rmse"] < 0.01  # XYZ units, Y = 1 for the white
+
+
+def test_sigma_map_against_numpy(bundle, prior):
+    plan = make_plan("narrowband", bundle, step_nm=20.0)
+    plan = E.with_estimator(plan, bundle, "wiener", prior=prior, noise=E.NoiseModel.from_rig(DESC, plan.exposure_s))
+    rng = np.random.default_rng(0)
+    frames = rng.integers(20, 900, (plan.K, 24, 32)).astype(np.uint16)
+    dark = np.full((24, 32), 16.0, np.float32)
+    gain = rng.uniform(0.9, 1.1, (24, 32)).astype(np.float32)
+    sig = E.sigma_map(frames, plan, dark, gain, sequences=2)
+    n = E.NoiseModel.from_params(plan.params["noise"])
+    o = frames.astype(np.float64) - dark
+    var_o = o / n.gain_e_per_dn + n.read_var_dn2
+    ref = np.einsum("bk,khw->hwb", plan.A ** 2, var_o) * gain[..., None].astype(np.float64) ** 2 / 2
+    ref += E.constant_variance(plan)
+    np.testing.assert_allclose(sig, np.sqrt(ref), rtol=2e-4)
+
+
+def test_sigma_map_needs_a_noise_model(bundle):
+    plan = make_plan("narrowband", bundle, step_nm=20.0)
+    with pytest.raises(ValueError, match="noise model"):
+        E.sigma_map(np.zeros((plan.K, 4, 4), np.uint16), plan, np.zeros((4, 4)), None)
+
+
+def test_sigma_z_scores_on_the_twin(bundle, prior):
+    """Standardised errors of a Wiener symmetric-9 recovery of the held-out chart on the noisy twin."""
+    from specgpu.evaluate import truth_cube
+
+    names, wl, spec = E.held_out_spectra()
+    scene = E.patch_scene(names, wl, spec, H, W)
+    plan = E.with_estimator(make_plan("narrowband", bundle, step_nm=20.0), bundle, "wiener", prior=prior,
+                            noise=E.NoiseModel.from_rig(DESC, make_plan("narrowband", bundle, step_nm=20.0).exposure_s))
+    frames = capture_plan(DESC, plan, scene, noise_seed=3).sequences[0].frames
+    dark = bundle.dark_at(plan.exposure_s)
+    y = apply_linear(frames, plan.A, dark, bundle.flat_field)
+    sig = E.sigma_map(frames, plan, dark, bundle.flat_field)
+    mask = np.any(list(scene.masks.values()), axis=0)
+    err = (y - truth_cube(scene, plan.output_wavelengths))[mask]
+    z = err / sig[mask]
+    assert 0.8 <= z.std() <= 1.25
+    # the exact prediction on the chart's spectra is the measured RMS error within 25 %
+    wl = prior.wavelengths
+    predicted = E.chart_error(plan, bundle, E.held_out_spectra(wavelengths=wl)[2], wl)
+    assert 0.8 <= np.sqrt((err ** 2).mean()) / predicted <= 1.25
+
+
+def test_delta_e_sigma_against_monte_carlo():
+    import colour
+
+    from specgpu.colorimetry import XYZ_to_Lab
+
+    rng = np.random.default_rng(1)
+    xyz = np.array([[0.3, 0.25, 0.2], [0.1, 0.12, 0.4], [0.6, 0.55, 0.3]])
+    C = np.array([[4, 1, 0], [1, 3, 0.5], [0, 0.5, 5]]) * 1e-6
+    sig = E.delta_E_sigma(xyz, np.broadcast_to(C, (3, 3, 3)))
+    L = np.linalg.cholesky(C)
+    for i in range(3):
+        draws = xyz[i] + rng.standard_normal((4000, 3)) @ L.T
+        lab0 = np.asarray(XYZ_to_Lab(xyz[i][None], "D65"), np.float64)
+        lab = np.asarray(XYZ_to_Lab(draws, "D65"), np.float64)
+        de = colour.delta_E(lab0, lab, method="CIE 2000")
+        assert sig[i] == pytest.approx(np.sqrt(np.mean(de ** 2)), rel=0.1)
+
+
+def test_study_rows_on_the_held_out_chart(bundle, prior):
+    names, wl, spec = E.held_out_spectra()
+    scene = E.patch_scene(names, wl, spec, H, W)
+    plans = E.study_plans(DESC, bundle, prior, E.held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
+    rows = E.study_rows(DESC, bundle, scene, plans, runs=2)
+    nb, tri = rows
+    assert nb["name"] == "narrowband-31" and nb["K"] == 31 and nb["runs"] == 2
+    assert 0 < nb["rmse"][0] < 0.01 and nb["dE2000"][0] < 1.0 and nb["rmse"][1] >= 0
+    assert 0.75 < nb["rms"][0] / nb["expected_rmse"] < 1.33
+    assert 0.8 <= nb["z"][0] <= 1.25 and 0.8 <= tri["z"][0] <= 1.25
+    assert "rmse" not in tri and tri["dEab"][0] > 0 and tri["expected_rmse"] is None
+    text = E.format_study(rows)
+    assert "narrowband-31" in text and "tristimulus-D65" in text
