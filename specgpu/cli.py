@@ -372,7 +372,8 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
 
     validate_method(method, {k: k for k in (*PLAN_METHODS, "optimal", "hadamard")}, "METHOD")
     method = method.lower()
-    _no_clash([("--out", out)], [("--calib", calib), ("--basis", basis_path)] + [("--training", t) for t in training])
+    _no_clash([("--out", out)],
+              [("--calib", calib), ("--basis", basis_path)] + [("--training", t) for t in training])
     _lock(out)
     bundle = load_calibration(calib)
     if method in ("narrowband", "reciprocal"):
