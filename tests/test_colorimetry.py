@@ -313,9 +313,10 @@ class TestFramesToDeltaE:
         np.testing.assert_allclose(res.Lab, Lab, atol=5e-4)
         assert np.max(np.abs(res.delta_E - expected)[keep]) <= de_tolerance(method, expected)
         assert res.mask is None
-        # without intermediates: the dE map alone, identical
-        np.testing.assert_array_equal(frames_to_delta_E(frames, A, reference, C=C, method=method, device=queue),
-                                      res.delta_E)
+        # without intermediates: the dE map alone, the same values (a compiler may contract the two programs'
+        # multiply-adds differently, e.g. FMA on a GPU: one float32 ulp of the dE, never more)
+        np.testing.assert_allclose(frames_to_delta_E(frames, A, reference, C=C, method=method, device=queue),
+                                   res.delta_E, rtol=4e-7, atol=1e-6)
 
     def test_matrix_already_xyz_dark_gain_mask(self, queue):
         rng = np.random.default_rng(10)
