@@ -42,6 +42,7 @@ def de_tolerance(method, expected):
 # ------------------------------------------------------------------------------------------------- XYZ_to_Lab
 
 
+@pytest.mark.usefixtures("kernel_variant")  # both kernel variants on every device
 class TestXYZ_to_Lab:
     def test_reference_values(self, queue):
         # colour-science's documented example (D65, CIE 1931 2 degree)
@@ -112,6 +113,7 @@ class TestXYZ_to_Lab:
 # ---------------------------------------------------------------------------------------------------- delta_E
 
 
+@pytest.mark.usefixtures("kernel_variant")  # both kernel variants on every device
 class TestDeltaE:
     def test_sharma_2005_pairs(self, queue):
         """The 34 published CIEDE2000 pairs, both argument orders (dE2000 is symmetric)."""
@@ -295,6 +297,7 @@ def fused_inputs(rng, K=9, shape=(23, 17), B=5):
     return frames, A, C
 
 
+@pytest.mark.usefixtures("kernel_variant")  # both kernel variants on every device
 class TestFramesToDeltaE:
     @pytest.mark.parametrize("method", METHODS)
     @pytest.mark.parametrize("reference_kind", ["single", "image"])

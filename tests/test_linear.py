@@ -14,6 +14,10 @@ from specgpu.recovery import apply_linear
 
 EPS32 = np.finfo(np.float32).eps
 
+# every test once per kernel variant ("cpu": float8 per work-item, "gpu": a work-item per pixel), forced on each
+# device present (tests/conftest.py kernel_variant)
+pytestmark = pytest.mark.usefixtures("kernel_variant")
+
 
 def frames_of(rng, dtype, K, shape):
     if dtype == np.uint8:
@@ -272,3 +276,31 @@ def test_planar_float16_sixteen_pixel_items(queue, npix):
     assert_close(res.y, linear_ref(frames, A, dark, gain, layout="planar"),
                  bound(frames, A, dark, gain, out_dtype=np.float16))
     np.testing.assert_array_equal(res.mask, mask_ref(frames, 1023))
+
+
+@pytest.mark.parametrize("out_dtype", [np.float32, np.float16])
+@pytest.mark.parametrize("K, B", [(1, 1), (9, 61), (6, 8), (130, 3)])
+def test_gpu_channels_last_without_tile_per_output_element(queue, monkeypatch, K, B, out_dtype):
+    """The "gpu" variant writes channels last through a local-memory tile where it fits and with a work-item per
+    output element where it does not: the second path, forced, against the reference (dark, gain, mask), and
+    equal to the tiled one."""
+    from specgpu import engine
+
+    monkeypatch.setenv("SPECGPU_VARIANT", "gpu")
+    rng = np.random.default_rng(K * 1000 + B)
+    npix = 67  # a group of 64 and a partial one
+    frames = rng.integers(0, 1000, (K, npix), dtype=np.uint16)
+    frames[K - 1, 5] = 1023
+    dark = rng.uniform(0, 20, (npix,)).astype(np.float32)
+    gain = rng.uniform(0.9, 1.1, (npix,)).astype(np.float32)
+    A = rng.normal(0, 1e-3, (B, K))
+    kwargs = dict(out_dtype=out_dtype, layout="interleaved", saturation=1023, return_mask=True, device=queue)
+    tiled = apply_linear(frames, A, dark, gain, **kwargs)
+    monkeypatch.setattr(engine, "_TILE_LOCAL_MAX", 0)
+    res = apply_linear(frames, A, dark, gain, **kwargs)
+    assert res.y.shape == (npix, B) and res.y.dtype == np.dtype(out_dtype)
+    assert_close(res.y, linear_ref(frames, A, dark, gain),
+                 np.moveaxis(bound(frames, A, dark, gain, out_dtype=out_dtype), 0, -1))
+    np.testing.assert_array_equal(res.mask, mask_ref(frames, 1023))
+    np.testing.assert_allclose(res.y.astype(np.float64), tiled.y, rtol=1e-5, atol=1e-7)  # two programs: FMA may differ
+    np.testing.assert_array_equal(res.mask, tiled.mask)
