@@ -11,9 +11,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import engine
+from . import engine, transfer
 from .runtime import get_queue
-from .validate import check_frames, check_matrix, check_out_dtype, is_device_array, validate_method
+from .validate import check_frames, check_pixel_map, check_matrix, check_out_dtype, is_device_array, validate_method
 
 __all__ = ["LAYOUTS", "apply_linear", "LinearResult"]
 
@@ -67,10 +67,19 @@ def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layou
     spatial = tuple(frames.shape[1:])
     B = A.shape[0]
     queue = get_queue(device, like=(frames, dark, gain))
-    dark_dev, dark_per_frame = engine.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = engine.pixel_map(queue, gain, "gain", spatial, None)
     if saturation is None and frames.dtype.kind == "u":
         saturation = float(np.iinfo(frames.dtype).max)
+    host_only = not any(is_device_array(a) for a in (frames, dark, gain))
+    if host_only and spatial and transfer.transfer_mode(queue.device) == "pinned":
+        # a discrete device: pinned staging and row chunks that overlap upload, compute and read-back
+        dark_h, dark_per_frame = (None, False) if dark is None else check_pixel_map(dark, "dark", spatial, K)
+        gain_h = None if gain is None else check_pixel_map(gain, "gain", spatial, None)[0]
+        y, mask = transfer.linear_pipelined(
+            queue, np.ascontiguousarray(frames), A, dark=dark_h, dark_per_frame=dark_per_frame, gain=gain_h,
+            out_dtype=out_dtype, out_layout=out_layout, want_mask=return_mask, saturation=saturation)
+        return LinearResult(y, mask) if return_mask else y
+    dark_dev, dark_per_frame = engine.pixel_map(queue, dark, "dark", spatial, K)
+    gain_dev, _ = engine.pixel_map(queue, gain, "gain", spatial, None)
     n = int(np.prod(spatial, dtype=np.int64))
     y, mask = engine.linear(
         queue, engine.to_device(queue, frames.reshape(-1)), A, n=n, dark=dark_dev, dark_per_frame=dark_per_frame,
