@@ -130,6 +130,7 @@ class StreamDecoder:
         # a sample at the sensor's maximum code has no valid measurement: its pixel's outputs become NaN, as
         # pipeline.recover makes them (flagged by the first kernel of a sequence, applied on the host)
         self.saturation = float(calibration.max_code)
+        self._prepared: dict = {}
         self.dark = engine.to_device(queue, np.asarray(dark, np.float32).reshape(-1))
         self.gain = engine.to_device(queue, np.asarray(gain, np.float32).reshape(-1))
         self.A = A
@@ -188,30 +189,43 @@ class StreamDecoder:
         self.queue.finish()
         del outs
 
-    def enqueue(self, frames: cla.Array) -> dict[str, cla.Array]:
-        """Enqueue every kernel on the K frames (flat device array); returns the flat device outputs and ``mask``
-        (bit 1: a frame at the saturation level)."""
+    def _launches(self, dtype) -> list:
+        """The stream's kernels for frames of ``dtype`` as prepared launches (built on first use, then reused:
+        a sequence costs a few argument sets and enqueues, not the per-call planning of the engine's functions),
+        each with the map from its outputs to the stream's output names."""
+        launches = self._prepared.get(dtype)
+        if launches is not None:
+            return launches
         q, n = self.queue, self.n
-        out = {}
-        mask = None
+        launches = []
         sat = {"want_mask": True, "saturation": self.saturation}  # asked of the first kernel only
         if "coefficients" in self.outputs:
-            out["coefficients"], mask = engine.linear(q, frames, self.A_coefficients, n=n, dark=self.dark,
-                                                      gain=self.gain, out_layout=1, **sat)
+            launches.append((engine.prepare_linear(q, dtype, self.A_coefficients, n=n, dark=self.dark,
+                                                   gain=self.gain, out_layout=1, **sat),
+                             {"out": "coefficients", "mask": "mask"}))
+            sat = {}
         if "cube" in self.outputs:
-            out["cube"], m = engine.linear(q, frames, self.A, n=n, dark=self.dark, gain=self.gain,
-                                           out_dtype=self.cube_dtype, out_layout=1, **({} if mask is not None else sat))
-            mask = m if mask is None else mask
+            launches.append((engine.prepare_linear(q, dtype, self.A, n=n, dark=self.dark, gain=self.gain,
+                                                   out_dtype=self.cube_dtype, out_layout=1, **sat),
+                             {"out": "cube", "mask": "mask"}))
+            sat = {}
         if self.M is not None:
-            fused = engine.frames_to_delta_e(
-                q, frames, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
+            launches.append((engine.prepare_frames_to_delta_e(
+                q, dtype, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
                 else "CIE 2000", reference_single=self.reference_single, dark=self.dark, gain=self.gain,
-                write_xyz="XYZ" in self.outputs, write_lab="Lab" in self.outputs, **({} if mask is not None else sat))
-            mask = fused.mask if mask is None else mask
-            for name, arr in (("XYZ", fused.XYZ), ("Lab", fused.Lab), ("dE", fused.delta_E)):
-                if name in self.outputs:
-                    out[name] = arr
-        out["mask"] = mask
+                write_xyz="XYZ" in self.outputs, write_lab="Lab" in self.outputs, **sat),
+                {"XYZ": "XYZ", "Lab": "Lab", "delta_E": "dE", "mask": "mask"}))
+        self._prepared[dtype] = launches
+        return launches
+
+    def enqueue(self, frames: cla.Array) -> dict:
+        """Enqueue every kernel on the K frames (flat device array); returns the flat device output buffers (pooled
+        :class:`pyopencl.Buffer` objects) by output name and ``mask`` (bit 1: a frame at the saturation level)."""
+        out = {}
+        for launch, names in self._launches(np.dtype(frames.dtype)):
+            for key, buf in launch.enqueue(frames.data).items():
+                if names[key] in self.outputs or names[key] == "mask":
+                    out[names[key]] = buf
         return out
 
 
@@ -982,14 +996,14 @@ class Stream:
             shape, dtype = shapes[name]
             if host_set is not None:
                 arr = host_set[name]
-                ev = cl.enqueue_copy(q, arr, dev.data, is_blocking=False)
+                ev = cl.enqueue_copy(q, arr, dev, is_blocking=False)
             elif self.readback == "map":
                 # READ | WRITE: saturated pixels are set to NaN in place on the host
-                arr, ev = cl.enqueue_map_buffer(q, dev.base_data, cl.map_flags.READ | cl.map_flags.WRITE,
-                                                dev.offset, shape, dtype, is_blocking=False)
+                arr, ev = cl.enqueue_map_buffer(q, dev, cl.map_flags.READ | cl.map_flags.WRITE, 0, shape, dtype,
+                                                is_blocking=False)
             else:
                 arr = np.empty(shape, dtype)
-                ev = cl.enqueue_copy(q, arr, dev.data, is_blocking=False)
+                ev = cl.enqueue_copy(q, arr, dev, is_blocking=False)
             host[name] = arr
             events.append(ev)
         q.flush()  # start the device now, not at the next blocking call
