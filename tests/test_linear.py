@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 import pytest
 from hypothesis import given
@@ -352,3 +353,43 @@ def test_transfer_mode_by_device_and_override(queue, monkeypatch):
     with pytest.raises(runtime.SpecgpuDeviceError, match=r"^SPECGPU_TRANSFER='bogus' is no transfer mode"):
         transfer.transfer_mode(queue.device)
     assert transfer.transfer_mode(queue.device, "Pinned") == "pinned"
+
+
+@pytest.mark.parametrize("out_layout, out_dtype", [(0, np.float32), (1, np.float32), (0, np.float16), (1, np.float16)])
+def test_prepared_launches_equal_the_engine_calls(queue, out_layout, out_dtype):
+    """The stream's prepared launches (a kernel object of its own, fixed arguments set once) give what the
+    engine's calls give, launch after launch with new frames, in the variant of the test (tests/conftest.py)."""
+    from specgpu import engine
+
+    rng = np.random.default_rng(out_layout * 2 + (out_dtype == np.float16))
+    K, B, n = 9, 7, 1001
+    A = rng.normal(0, 1e-3, (B, K))
+    dark = engine.to_device(queue, rng.uniform(0, 5, n).astype(np.float32))
+    gain = engine.to_device(queue, rng.uniform(0.9, 1.1, n).astype(np.float32))
+    M = rng.uniform(0, 1e-3, (3, K))
+    white = (0.95047, 1.0, 1.08883)
+    reference = engine.to_device(queue, rng.uniform(-20, 60, 3 * n).astype(np.float32))
+    lin = engine.prepare_linear(queue, np.uint16, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
+                                out_layout=out_layout, want_mask=True, saturation=1023.0)
+    fused = engine.prepare_frames_to_delta_e(queue, np.uint16, M, white, reference, n=n, reference_single=False,
+                                             dark=dark, gain=gain, write_xyz=True, write_lab=True)
+    for seed in range(3):
+        frames_host = np.random.default_rng(seed).integers(0, 1024, K * n).astype(np.uint16)
+        frames = engine.to_device(queue, frames_host)
+        got = lin.enqueue(frames.data)
+        got_f = fused.enqueue(frames.data)
+        want, want_mask = engine.linear(queue, frames, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
+                                        out_layout=out_layout, want_mask=True, saturation=1023.0)
+        want_f = engine.frames_to_delta_e(queue, frames, M, white, reference, n=n, reference_single=False,
+                                          dark=dark, gain=gain, write_xyz=True, write_lab=True)
+        y = np.empty(B * n, out_dtype)
+        m = np.empty(n, np.uint8)
+        cl.enqueue_copy(queue, y, got["out"])
+        cl.enqueue_copy(queue, m, got["mask"])
+        np.testing.assert_array_equal(y, want.get())
+        np.testing.assert_array_equal(m, want_mask.get())
+        assert m.sum() > 0
+        for key, ref in (("XYZ", want_f.XYZ), ("Lab", want_f.Lab), ("delta_E", want_f.delta_E)):
+            host = np.empty(ref.shape, np.float32)
+            cl.enqueue_copy(queue, host, got_f[key])
+            np.testing.assert_array_equal(host, ref.get())
