@@ -128,8 +128,8 @@ def linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 
     """y = A (o - dark) * gain over ``n`` pixels; returns (out (B*n,), mask (n,) or None) as flat device arrays."""
     B = A.shape[0]
     out_dtype = np.dtype(out_dtype)
-    get, name, macros, items, ppi = _linear_kernel(queue, frames.dtype, A, n, in_layout, dark, dark_per_frame, gain,
-                                                   out_dtype, out_layout, want_mask, saturation)
+    name, macros, items, ppi = _linear_kernel(queue, frames.dtype, A, n, in_layout, dark, dark_per_frame, gain,
+                                              out_dtype, out_layout, want_mask, saturation)
     kernel = get_kernel(queue, "linear.cl", name, **macros)
     out = _empty(queue, B * n, out_dtype)
     mask = _empty(queue, n, np.uint8) if want_mask else None
@@ -157,8 +157,7 @@ def _linear_kernel(queue, frames_dtype, A, n, in_layout, dark, dark_per_frame, g
         **_input_macros(frames_dtype, K, in_layout, 0 if dark is None else (2 if dark_per_frame else 1),
                         gain is not None, saturation if want_mask else None),
     )
-    return None, "linear_apply_h16" if wide else "linear_apply", macros, n * B if per_element else n, \
-        16 if wide else vw
+    return "linear_apply_h16" if wide else "linear_apply", macros, n * B if per_element else n, 16 if wide else vw
 
 
 class Prepared:
@@ -195,8 +194,8 @@ def prepare_linear(queue, frames_dtype, A: np.ndarray, *, n: int, dark=None, dar
     """:func:`linear` as a :class:`Prepared` launch; outputs ``out`` (B*n) and ``mask`` (n) when asked."""
     B = A.shape[0]
     out_dtype = np.dtype(out_dtype)
-    _, name, macros, items, ppi = _linear_kernel(queue, np.dtype(frames_dtype), A, n, 0, dark, dark_per_frame,
-                                                 gain, out_dtype, out_layout, want_mask, saturation)
+    name, macros, items, ppi = _linear_kernel(queue, np.dtype(frames_dtype), A, n, 0, dark, dark_per_frame,
+                                              gain, out_dtype, out_layout, want_mask, saturation)
     kernel = new_kernel(queue, "linear.cl", name, **macros)
     A_dev = matrix_on_device(queue, A)
     outputs = {"out": (4, B * n * out_dtype.itemsize)}

@@ -36,7 +36,8 @@ def summarise(out: Path) -> list[str]:
         return None
 
     if bench:
-        lines.append(f"device: {bench.get('device', '?')}, copy bandwidth {bench.get('copy_bandwidth_GBps', 0):.0f} GB/s")
+        lines.append(f"device: {bench.get('device', '?')}, "
+                     f"copy bandwidth {bench.get('copy_bandwidth_GBps', 0):.0f} GB/s")
     for layout, threshold in (("planar", 0.75), ("interleaved", 0.40)):
         c = case("cube_float32", layout)
         frac = None if c is None or c.get("fraction_of_copy") is None else c["fraction_of_copy"]
