@@ -92,7 +92,7 @@ __kernel void frames_to_delta_e(__global const IN_T *restrict frames,
     store_f(DELTA_E(Lr, ar, br, L, a, b), de_out, base, count);
 #endif
 #if WRITE_MASK
-    store_mask(convert_uchar8(flags), mask, base, count);
+    store_mask(CONVERT_UCHARV(flags), mask, base, count);
 #endif
 }
 #endif

@@ -1,7 +1,10 @@
 /* specgpu shared kernel header: pixel loads and conversions, the per-pixel linear map, CIE f(t), Lab and
- * colour differences. Everything works on VW = 8 pixels at a time (float8), which is how PoCL vectorises
- * and what makes GPU loads and stores coalesce; the last work-item of a launch handles a partial vector
- * with the same code, padding lanes it then does not store.
+ * colour differences. Everything works on VW pixels at a time (floatv), in one of two variants chosen by the
+ * host per device class (specgpu.runtime.kernel_variant):
+ *   VW = 8  "cpu": 8 pixels per work-item (float8), which is how PoCL vectorises; the last work-item of a launch
+ *           handles a partial vector with the same code, padding lanes it then does not store.
+ *   VW = 1  "gpu": one pixel per work-item (scalar float), so the work-items of a GPU warp read and write
+ *           consecutive addresses of every plane (coalesced loads and stores) and float16 is vstore_half.
  *
  * Vector selection is written c ? b : a, which the OpenCL C specification defines as select(a, b, c) and which
  * compiles inline; PoCL calls select() out of line.
@@ -9,6 +12,7 @@
  * contract them to FMA instructions inline, while PoCL calls its vector fma() out of line (3.4x slower here).
  *
  * Specialisation macros (set by specgpu.runtime.build_options; defaults make the header parse alone):
+ *   VW         pixels per work-item: 8 (default) or 1 (see above)
  *   K          frames per pixel (input planes)
  *   IN_T       input sample type: uchar, ushort or float
  *   IN_LAYOUT  0: planar frames (K, N)    1: interleaved (N, K)
@@ -20,9 +24,20 @@
 #ifndef SPECGPU_COMMON_H
 #define SPECGPU_COMMON_H
 
+#ifndef VW
 #define VW 8
+#endif
+#if VW == 8
 typedef float8 floatv;
 typedef int8 intv;
+#define CONVERT_UCHARV convert_uchar8
+#elif VW == 1
+typedef float floatv;
+typedef int intv;
+#define CONVERT_UCHARV convert_uchar
+#else
+#error "VW (pixels per work-item) must be 8 or 1"
+#endif
 
 #ifndef K
 #define K 1
@@ -75,6 +90,7 @@ typedef uchar8 uchar8_u __attribute__((aligned(1)));
 #define STORE8(T, v, p) vstore8((v), 0, (__global T *)(p))
 #endif
 
+#if VW == 8
 /* VW consecutive float samples p[base..], lanes past count read as 0. */
 inline floatv load_f(__global const float *p, ulong base, uint count)
 {
@@ -221,6 +237,57 @@ inline floatv load_frame(__global const IN_T *frames, ulong n, uint k, ulong bas
     return vload8(0, t);
 #endif
 }
+
+#else /* VW == 1: one pixel per work-item; count is 1 for every work-item that gets past PIXEL_RANGE */
+
+inline floatv load_f(__global const float *p, ulong base, uint count) { return p[base]; }
+
+inline floatv load_f_strided(__global const float *p, ulong base, uint count, uint nch, uint c)
+{
+    return p[base * nch + c];
+}
+
+inline void store_f(floatv v, __global float *p, ulong base, uint count) { p[base] = v; }
+
+inline void store_f_strided(floatv v, __global float *p, ulong base, uint count, uint nch, uint c)
+{
+    p[base * nch + c] = v;
+}
+
+inline void load3(__global const float *p, ulong base, uint count, floatv *c0, floatv *c1, floatv *c2)
+{
+    __global const float *q = p + base * 3;
+    *c0 = q[0];
+    *c1 = q[1];
+    *c2 = q[2];
+}
+
+inline void store3(floatv c0, floatv c1, floatv c2, __global float *p, ulong base, uint count)
+{
+    __global float *q = p + base * 3;
+    q[0] = c0;
+    q[1] = c1;
+    q[2] = c2;
+}
+
+inline void store_h(floatv v, __global half *p, ulong base, uint count) { vstore_half_rte(v, base, p); }
+
+inline void store_h_strided(floatv v, __global half *p, ulong base, uint count, uint nch, uint c)
+{
+    vstore_half_rte(v, base * nch + c, p);
+}
+
+inline void store_mask(uchar m, __global uchar *p, ulong base, uint count) { p[base] = m; }
+
+inline floatv load_frame(__global const IN_T *frames, ulong n, uint k, ulong base, uint count)
+{
+#if IN_LAYOUT == 0
+    return (float)frames[(ulong)k * n + base];
+#else
+    return (float)frames[base * K + k];
+#endif
+}
+#endif /* VW */
 
 /* ------------------------------------------------------------------------------- the per-pixel linear map */
 

@@ -5,6 +5,10 @@
  *   OUT_HALF    0: float32 output   1: float16 output (stored with vstore_half, round to nearest even)
  *   OUT_LAYOUT  0: planar (B, N)     1: interleaved (N, B)
  *   WRITE_MASK  0/1: write a uint8 flag per pixel (1 saturated, 2 non-finite input, OR-ed)
+ *   GROUP       work-group size of the launch (the "gpu" variant's channels-last tile, VW = 1)
+ *   TILE        "gpu" variant, channels last: 1 = a work-item per pixel, its B outputs staged in local memory and
+ *               the group's GROUP x B outputs written back as one contiguous coalesced run (the default where
+ *               the tile fits); 0 = a work-item per output element (n x B work-items)
  *
  * Arguments: frames (K planes or N x K), A (B x K row-major, constant), dark (N or K x N, or unused),
  * gain (N, or unused), out, mask (N, or unused), n = number of pixels.
@@ -35,6 +39,95 @@
 #define STORE_STRIDED store_f_strided
 #define STORE_ROW(v, p) STORE8(float, v, p)
 #endif
+
+#ifndef GROUP
+#define GROUP 64
+#endif
+#ifndef TILE
+#define TILE 1
+#endif
+
+#if VW == 1 && OUT_LAYOUT == 1
+#if TILE
+/* "gpu" variant, channels last: each work-item computes its pixel's B outputs into a local tile (row stride B,
+ * so an odd B has no bank conflicts), then the group writes the tile, GROUP x B consecutive outputs, with
+ * consecutive work-items on consecutive addresses. */
+__kernel __attribute__((reqd_work_group_size(GROUP, 1, 1)))
+void linear_apply(__global const IN_T *restrict frames,
+                  __constant const float *restrict A,
+                  __global const float *restrict dark,
+                  __global const float *restrict gain,
+                  __global OUT_T *restrict out,
+                  __global uchar *restrict mask,
+                  const ulong n)
+{
+    __local float tile[GROUP * B];
+    const uint lid = get_local_id(0);
+    const ulong base = get_global_id(0);
+    const ulong first = base - lid;
+    if (first >= n) return; /* the whole group is past the end: no work-item of it reaches the barrier */
+    if (base < n) {
+        const uint count = 1;
+        LOAD_PIXELS();
+#if HAS_GAIN
+        const floatv g = gain[base];
+#endif
+        for (uint b = 0; b < B; ++b) {
+            floatv y;
+            DOT_ROW(y, A, b);
+#if HAS_GAIN
+            y *= g;
+#endif
+            tile[lid * B + b] = y;
+        }
+#if WRITE_MASK
+        mask[base] = CONVERT_UCHARV(flags);
+#endif
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const uint pixels = n - first < GROUP ? (uint)(n - first) : GROUP;
+    const uint total = pixels * B;
+    __global OUT_T *dst = out + first * B;
+    for (uint j = lid; j < total; j += GROUP) {
+#if OUT_HALF
+        vstore_half_rte(tile[j], j, dst);
+#else
+        dst[j] = tile[j];
+#endif
+    }
+}
+#else
+/* "gpu" variant, channels last, no tile: a work-item per output element (pixel i, output b); consecutive
+ * work-items write consecutive addresses, the K samples of a pixel are read by its B work-items (cached). */
+__kernel void linear_apply(__global const IN_T *restrict frames,
+                           __constant const float *restrict A,
+                           __global const float *restrict dark,
+                           __global const float *restrict gain,
+                           __global OUT_T *restrict out,
+                           __global uchar *restrict mask,
+                           const ulong n)
+{
+    const ulong e = get_global_id(0);
+    if (e >= n * B) return;
+    const ulong base = e / B;
+    const uint b = (uint)(e - base * B), count = 1;
+    LOAD_PIXELS();
+    floatv y;
+    DOT_ROW(y, A, b);
+#if HAS_GAIN
+    y *= gain[base];
+#endif
+#if OUT_HALF
+    vstore_half_rte(y, e, out);
+#else
+    out[e] = y;
+#endif
+#if WRITE_MASK
+    if (b == 0) mask[base] = CONVERT_UCHARV(flags);
+#endif
+}
+#endif
+#else /* planar (both variants) and the "cpu" variant's channels last */
 
 /* Pixel row j (8 consecutive outputs from b0) of an interleaved block, when pixel j exists. */
 #define STORE_PIXEL_ROW(j, r) if ((j) < count) STORE_ROW(r, out + (base + (j)) * B + b0)
@@ -91,11 +184,12 @@ __kernel void linear_apply(__global const IN_T *restrict frames,
 #endif
 #endif
 #if WRITE_MASK
-    store_mask(convert_uchar8(flags), mask, base, count);
+    store_mask(CONVERT_UCHARV(flags), mask, base, count);
 #endif
 }
+#endif /* VW == 1 && OUT_LAYOUT == 1 */
 
-#if OUT_HALF && OUT_LAYOUT == 0 && K <= 128
+#if VW == 8 && OUT_HALF && OUT_LAYOUT == 0 && K <= 128
 /* Planar float16 with 16 pixels per work-item: the two 8-pixel halves of each output plane are converted together
  * and written as one 32-byte store, which halves the store instructions per plane and lets the 61 plane streams
  * keep pace with the arithmetic (measured 30 % faster than 8 pixels per work-item, and faster than float32).
@@ -143,7 +237,7 @@ __kernel void linear_apply_h16(__global const IN_T *restrict frames,
         if (count2) store_h(acc1, plane, base2, count2);
     }
 #if WRITE_MASK
-    store_mask(convert_uchar8(flags), mask, base, count);
+    store_mask(CONVERT_UCHARV(flags), mask, base, count);
     if (count2) store_mask(convert_uchar8(flags2), mask, base2, count2);
 #endif
 }

@@ -575,11 +575,15 @@ def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 
     from .rig.scene import colorchecker_scene
     from .rig.twin import TwinRig
 
+    from .rig.sensors import camera_for_size
+
     base = RigDescription()
     switch = base.light.switch_time_s
+    # the paper's camera up to 640 x 480, else the smallest machine-vision sensor preset that holds the size
+    sensor = camera_for_size(width, height, base.camera)
+    frame_rate_hz = min(float(frame_rate_hz), replace(sensor, frame_rate_hz=1.0, exposure_s=0.5).max_frame_rate_hz)
     exposure = 1.0 / frame_rate_hz - switch - 5e-6  # the longest exposure the light can follow at this rate
-    cam = replace(base.camera, roi_width=int(width), roi_height=int(height), bit_depth=10, exposure_s=exposure,
-                  frame_rate_hz=float(frame_rate_hz))
+    cam = replace(sensor, bit_depth=10, exposure_s=exposure, frame_rate_hz=frame_rate_hz)
     description = replace(base, camera=cam)
     bundle = calibrate(description, seed=seed)
     plan = plan_symmetric_basis(bundle, default_basis(), m=5, max_exposure_s=exposure,

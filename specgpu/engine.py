@@ -14,10 +14,13 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from .validate import check_pixel_map
-from .runtime import DTYPE_TO_CTYPE, get_allocator, get_kernel
+from .runtime import DTYPE_TO_CTYPE, VARIANTS, get_allocator, get_kernel, kernel_variant, new_kernel
 
-VW = 8  # pixels per work-item, as kernels/common.h
+VW = 8  # pixels per work-item of the "cpu" variant, as kernels/common.h
 _GROUP = 64  # work-group size; the global size is padded to a multiple of it
+# the "gpu" variant's channels-last tile (GROUP x B float32 in local memory) is used up to this size and the
+# device's local memory, else a work-item per output element (kernels/linear.cl, TILE)
+_TILE_LOCAL_MAX = 32 * 1024
 _launch_lock = threading.Lock()  # a Kernel's arguments are shared state: set and enqueue atomically
 
 DE_CODES = {"CIE 1976": 76, "CIE 1994": 94, "CIE 2000": 2000}
@@ -85,6 +88,19 @@ def _launch(queue, kernel, n_pixels: int, *args, pixels_per_item: int = VW):
         return cl.enqueue_nd_range_kernel(queue, kernel, global_size, local_size)
 
 
+def _vw(queue) -> int:
+    """Pixels per work-item of the variant chosen for the queue's device (runtime.kernel_variant)."""
+    return VARIANTS[kernel_variant(queue.device)]
+
+
+def _vw_macro(vw: int):
+    return None if vw == VW else vw  # the default of kernels/common.h: the same build options as before variants
+
+
+def _tile_fits(queue, B: int) -> bool:
+    return _GROUP * B * 4 <= min(_TILE_LOCAL_MAX, queue.device.local_mem_size)
+
+
 def _input_macros(frames_dtype, K: int, in_layout: int, dark_mode: int, has_gain: bool, saturation):
     dt = np.dtype(frames_dtype)
     return dict(
@@ -110,41 +126,132 @@ def linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 
            dark_per_frame: bool = False, gain: cla.Array | None = None, out_dtype=np.float32,
            out_layout: int = 0, want_mask: bool = False, saturation: float | None = None):
     """y = A (o - dark) * gain over ``n`` pixels; returns (out (B*n,), mask (n,) or None) as flat device arrays."""
-    B, K = A.shape
+    B = A.shape[0]
     out_dtype = np.dtype(out_dtype)
-    # planar float16 has its own entry with 16 pixels per work-item (one 32-byte store per plane; linear.cl)
-    wide = out_dtype == np.float16 and out_layout == 0 and K <= 128
-    kernel = get_kernel(
-        queue, "linear.cl", "linear_apply_h16" if wide else "linear_apply",
-        B=B, OUT_HALF=out_dtype == np.float16, OUT_LAYOUT=out_layout, WRITE_MASK=want_mask,
-        **_input_macros(frames.dtype, K, in_layout, 0 if dark is None else (2 if dark_per_frame else 1),
-                        gain is not None, saturation if want_mask else None),
-    )
+    name, macros, items, ppi = _linear_kernel(queue, frames.dtype, A, n, in_layout, dark, dark_per_frame, gain,
+                                              out_dtype, out_layout, want_mask, saturation)
+    kernel = get_kernel(queue, "linear.cl", name, **macros)
     out = _empty(queue, B * n, out_dtype)
     mask = _empty(queue, n, np.uint8) if want_mask else None
     A_dev = matrix_on_device(queue, A)
     if n:
-        _launch(queue, kernel, n, frames.data, A_dev.data, _data(dark), _data(gain), out.data, _data(mask),
-                np.uint64(n), pixels_per_item=16 if wide else VW)
+        _launch(queue, kernel, items, frames.data, A_dev.data, _data(dark), _data(gain),
+                out.data, _data(mask), np.uint64(n), pixels_per_item=ppi)
     return out, mask
 
 
+def _linear_kernel(queue, frames_dtype, A, n, in_layout, dark, dark_per_frame, gain, out_dtype, out_layout,
+                   want_mask, saturation):
+    """The linear kernel's entry, macros and launch size for the variant of the queue's device."""
+    B, K = A.shape
+    vw = _vw(queue)
+    # "cpu" variant: planar float16 has its own entry with 16 pixels per work-item (one 32-byte store per plane);
+    # "gpu" variant, channels last: a local-memory tile (a work-item per pixel) or a work-item per output element
+    wide = vw == VW and out_dtype == np.float16 and out_layout == 0 and K <= 128
+    gpu_interleaved = vw == 1 and out_layout == 1
+    tile = _tile_fits(queue, B) if gpu_interleaved else None
+    per_element = gpu_interleaved and not tile
+    macros = dict(
+        B=B, OUT_HALF=out_dtype == np.float16, OUT_LAYOUT=out_layout, WRITE_MASK=want_mask, VW=_vw_macro(vw),
+        GROUP=_GROUP if gpu_interleaved else None, TILE=tile,
+        **_input_macros(frames_dtype, K, in_layout, 0 if dark is None else (2 if dark_per_frame else 1),
+                        gain is not None, saturation if want_mask else None),
+    )
+    return "linear_apply_h16" if wide else "linear_apply", macros, n * B if per_element else n, 16 if wide else vw
+
+
+class Prepared:
+    """One launch repeated with new frames and outputs (the stream): a kernel object of its own with every other
+    argument set once, so a call sets the few buffers that change and enqueues (no kernel lookup, no option
+    strings, no argument conversion). Used from one thread."""
+
+    def __init__(self, queue, kernel, items: int, pixels_per_item: int, args: list, frames_index: int,
+                 outputs: dict):
+        self.queue, self.kernel = queue, kernel
+        work_items = -(-items // pixels_per_item)
+        self.global_size, self.local_size = (-(-work_items // _GROUP) * _GROUP,), (_GROUP,)
+        self.frames_index = frames_index
+        self.outputs = outputs  # name -> (argument index, bytes)
+        self.empty = items == 0
+        self.alloc = get_allocator(queue)
+        kernel.set_args(*args)
+
+    def enqueue(self, frames_buffer) -> dict:
+        """Enqueue on ``frames_buffer``; returns name -> a fresh pooled device buffer of each output."""
+        out = {name: self.alloc(max(nbytes, 1)) for name, (_, nbytes) in self.outputs.items()}
+        if self.empty:
+            return out
+        k = self.kernel
+        k.set_arg(self.frames_index, frames_buffer)
+        for name, (index, _) in self.outputs.items():
+            k.set_arg(index, out[name])
+        cl.enqueue_nd_range_kernel(self.queue, k, self.global_size, self.local_size)
+        return out
+
+
+def prepare_linear(queue, frames_dtype, A: np.ndarray, *, n: int, dark=None, dark_per_frame=False, gain=None,
+                   out_dtype=np.float32, out_layout: int = 0, want_mask: bool = False, saturation=None) -> Prepared:
+    """:func:`linear` as a :class:`Prepared` launch; outputs ``out`` (B*n) and ``mask`` (n) when asked."""
+    B = A.shape[0]
+    out_dtype = np.dtype(out_dtype)
+    name, macros, items, ppi = _linear_kernel(queue, np.dtype(frames_dtype), A, n, 0, dark, dark_per_frame,
+                                              gain, out_dtype, out_layout, want_mask, saturation)
+    kernel = new_kernel(queue, "linear.cl", name, **macros)
+    A_dev = matrix_on_device(queue, A)
+    outputs = {"out": (4, B * n * out_dtype.itemsize)}
+    if want_mask:
+        outputs["mask"] = (5, n)
+    return Prepared(queue, kernel, items, ppi, [None, A_dev.data, _data(dark), _data(gain), None, None,
+                                                np.uint64(n)], 0, outputs)
+
+
+def prepare_frames_to_delta_e(queue, frames_dtype, M: np.ndarray, white, reference, *, n: int,
+                              method: str = "CIE 2000", reference_single: bool = True, dark=None,
+                              dark_per_frame: bool = False, gain=None, write_xyz: bool = False,
+                              write_lab: bool = False, want_mask: bool = False, saturation=None) -> Prepared:
+    """:func:`frames_to_delta_e` as a :class:`Prepared` launch; outputs among XYZ, Lab, delta_E, mask."""
+    K = M.shape[1]
+    vw = _vw(queue)
+    kernel = new_kernel(
+        queue, "colorimetry.cl", "frames_to_delta_e",
+        DE_METHOD=DE_CODES[method], REF_SINGLE=reference_single, WRITE_XYZ=write_xyz, WRITE_LAB=write_lab,
+        WRITE_DE=reference is not None, WRITE_MASK=want_mask, VW=_vw_macro(vw),
+        **_input_macros(np.dtype(frames_dtype), K, 0, 0 if dark is None else (2 if dark_per_frame else 1),
+                        gain is not None, saturation if want_mask else None),
+    )
+    M_dev = matrix_on_device(queue, M)
+    outputs = {}
+    if write_xyz:
+        outputs["XYZ"] = (8, 12 * n)
+    if write_lab:
+        outputs["Lab"] = (9, 12 * n)
+    if reference is not None:
+        outputs["delta_E"] = (10, 4 * n)
+    if want_mask:
+        outputs["mask"] = (11, n)
+    Xn, Yn, Zn = (np.float32(v) for v in white)
+    return Prepared(queue, kernel, n, vw, [None, M_dev.data, _data(dark), _data(gain), Xn, Yn, Zn,
+                                           _data(reference), None, None, None, None, np.uint64(n)], 0, outputs)
+
+
 def xyz_to_lab(queue, xyz: cla.Array, white, *, n: int) -> cla.Array:
-    kernel = get_kernel(queue, "colorimetry.cl", "xyz_to_lab")
+    vw = _vw(queue)
+    kernel = get_kernel(queue, "colorimetry.cl", "xyz_to_lab", VW=_vw_macro(vw))
     lab = _empty(queue, 3 * n, np.float32)
     if n:
         Xn, Yn, Zn = (np.float32(v) for v in white)
-        _launch(queue, kernel, n, xyz.data, lab.data, Xn, Yn, Zn, np.uint64(n))
+        _launch(queue, kernel, n, xyz.data, lab.data, Xn, Yn, Zn, np.uint64(n), pixels_per_item=vw)
     return lab
 
 
 def delta_e(queue, lab1: cla.Array, lab2: cla.Array, *, method: str, n: int, single1: bool = False,
             single2: bool = False) -> cla.Array:
+    vw = _vw(queue)
     kernel = get_kernel(queue, "colorimetry.cl", "delta_e", DE_METHOD=DE_CODES[method],
-                        LAB1_SINGLE=single1, LAB2_SINGLE=single2)
+                        LAB1_SINGLE=single1, LAB2_SINGLE=single2, VW=_vw_macro(vw))
     de = _empty(queue, n, np.float32)
     if n:
-        _launch(queue, kernel, n, lab1.data, lab2.data, de.data, np.uint64(n))
+        _launch(queue, kernel, n, lab1.data, lab2.data, de.data, np.uint64(n), pixels_per_item=vw)
     return de
 
 
@@ -166,10 +273,11 @@ def frames_to_delta_e(queue, frames: cla.Array, M: np.ndarray, white, reference:
     """frames -> XYZ = M (o - dark) * gain -> Lab -> dE(reference, pixel) in one pass (M is 3 x K)."""
     K = M.shape[1]
     write_de = reference is not None
+    vw = _vw(queue)
     kernel = get_kernel(
         queue, "colorimetry.cl", "frames_to_delta_e",
         DE_METHOD=DE_CODES[method], REF_SINGLE=reference_single, WRITE_XYZ=write_xyz, WRITE_LAB=write_lab,
-        WRITE_DE=write_de, WRITE_MASK=want_mask,
+        WRITE_DE=write_de, WRITE_MASK=want_mask, VW=_vw_macro(vw),
         **_input_macros(frames.dtype, K, 0, 0 if dark is None else (2 if dark_per_frame else 1),
                         gain is not None, saturation if want_mask else None),
     )
@@ -184,5 +292,5 @@ def frames_to_delta_e(queue, frames: cla.Array, M: np.ndarray, white, reference:
     if n:
         _launch(queue, kernel, n, frames.data, M_dev.data, _data(dark), _data(gain), Xn, Yn, Zn,
                 _data(reference), _data(out.XYZ), _data(out.Lab), _data(out.delta_E), _data(out.mask),
-                np.uint64(n))
+                np.uint64(n), pixels_per_item=vw)
     return out

@@ -11,10 +11,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import engine
+from . import engine, transfer
 from .runtime import get_queue
-from .validate import (check_frames, check_level, check_matrix, check_out_dtype, check_result_size, is_device_array,
-                       validate_method)
+from .validate import (check_frames, check_level, check_matrix, check_out_dtype, check_pixel_map, check_result_size,
+                       is_device_array, validate_method)
 
 __all__ = ["LAYOUTS", "apply_linear", "LinearResult"]
 
@@ -68,8 +68,6 @@ def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layou
     spatial = tuple(frames.shape[1:])
     B = A.shape[0]
     queue = get_queue(device, like=(frames, dark, gain))
-    dark_dev, dark_per_frame = engine.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = engine.pixel_map(queue, gain, "gain", spatial, None)
     saturation = check_level(saturation, "saturation")
     if saturation is None and frames.dtype.kind == "u":
         saturation = float(np.iinfo(frames.dtype).max)
@@ -77,6 +75,17 @@ def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layou
     # the device buffer and, for host frames, the copy it comes back to (on a CPU device both are host memory)
     check_result_size(n * B * out_dtype.itemsize, queue.device,
                       host_copies=0 if is_device_array(frames) else 2, what=f"({n} pixels x {B} outputs) result")
+    host_only = not any(is_device_array(a) for a in (frames, dark, gain))
+    if host_only and spatial and transfer.transfer_mode(queue.device) == "pinned":
+        # a discrete device: pinned staging and row chunks that overlap upload, compute and read-back
+        dark_h, dark_per_frame = (None, False) if dark is None else check_pixel_map(dark, "dark", spatial, K)
+        gain_h = None if gain is None else check_pixel_map(gain, "gain", spatial, None)[0]
+        y, mask = transfer.linear_pipelined(
+            queue, np.ascontiguousarray(frames), A, dark=dark_h, dark_per_frame=dark_per_frame, gain=gain_h,
+            out_dtype=out_dtype, out_layout=out_layout, want_mask=return_mask, saturation=saturation)
+        return LinearResult(y, mask) if return_mask else y
+    dark_dev, dark_per_frame = engine.pixel_map(queue, dark, "dark", spatial, K)
+    gain_dev, _ = engine.pixel_map(queue, gain, "gain", spatial, None)
     y, mask = engine.linear(
         queue, engine.to_device(queue, frames.reshape(-1)), A, n=n, dark=dark_dev, dark_per_frame=dark_per_frame,
         gain=gain_dev, out_dtype=out_dtype, out_layout=out_layout, want_mask=return_mask, saturation=saturation,

@@ -41,9 +41,21 @@ __all__ = [
     "build_options",
     "get_kernel",
     "DTYPE_TO_CTYPE",
+    "VARIANTS",
+    "kernel_variant",
+    "is_discrete",
 ]
 
 ENV_DEVICE = "SPECGPU_DEVICE"
+ENV_VARIANT = "SPECGPU_VARIANT"
+
+#: Kernel variants (kernels/common.h, VW): pixels per work-item and what each is for. The runtime picks one per
+#: device class; SPECGPU_VARIANT (or a ``variant`` argument) forces one on any device, which is how CI runs the GPU
+#: kernels on PoCL.
+VARIANTS = {
+    "cpu": 8,  # float8 per work-item, register transposes for channels last: what CPU compilers vectorise
+    "gpu": 1,  # a work-item per pixel, coalesced planes, a local-memory tile for channels last, vstore_half
+}
 
 NO_PLATFORM_HELP = (
     "no OpenCL platform found: install the CPU driver with `pip install pocl-binary-distribution` "
@@ -216,6 +228,29 @@ def get_allocator(queue: cl.CommandQueue):
         return pool
 
 
+def kernel_variant(device: cl.Device, variant: str | None = None) -> str:
+    """The kernel variant for ``device``: ``variant`` when given, else SPECGPU_VARIANT, else "gpu" on GPU devices
+    and "cpu" on every other (CPU, accelerator)."""
+    choice, origin = (variant, "variant=") if variant is not None else (os.environ.get(ENV_VARIANT), f"{ENV_VARIANT}=")
+    if choice:
+        key = choice.strip().lower()
+        if key not in VARIANTS:
+            raise SpecgpuDeviceError(f"{origin}{choice!r} is no kernel variant (choose from {', '.join(VARIANTS)})")
+        return key
+    return "gpu" if device.type & cl.device_type.GPU else "cpu"
+
+
+def is_discrete(device: cl.Device) -> bool:
+    """Whether the device has memory of its own (a discrete GPU): host arrays then cross a bus and go through
+    pinned staging (:mod:`specgpu.transfer`); CPU devices and integrated GPUs share the host's memory."""
+    if device.type & cl.device_type.CPU:
+        return False
+    try:
+        return not device.host_unified_memory
+    except (cl.Error, AttributeError):  # OpenCL 2.0+ drivers may drop the query
+        return bool(device.type & cl.device_type.GPU)
+
+
 # ---------------------------------------------------------------------------------------------- kernel sources
 
 
@@ -321,6 +356,12 @@ def get_kernel(queue: cl.CommandQueue, source_name: str, kernel_name: str, **mac
     return get_program(queue.context, source_name, build_options(**macros)).kernel(kernel_name)
 
 
+def new_kernel(queue: cl.CommandQueue, source_name: str, kernel_name: str, **macros) -> cl.Kernel:
+    """A kernel object of its own (arguments set on it stay set) from the cached program: for a launch repeated
+    with most arguments unchanged (the stream), where setting every argument per call costs more than the call."""
+    return cl.Kernel(get_program(queue.context, source_name, build_options(**macros)).program, kernel_name)
+
+
 def program_cache_size() -> int:
     """Number of distinct programs built so far (for tests and diagnostics)."""
     return len(_programs)
@@ -349,9 +390,14 @@ def describe(device=None) -> str:
             mark = "*" if info.device.int_ptr == chosen.int_ptr else " "
             lines.append(
                 f" {mark} {info.selector}  {info.name}  [{info.type}, {info.compute_units} compute units, "
-                f"{info.global_mem_bytes / 2**30:.1f} GiB, {info.version}]"
+                f"{info.global_mem_bytes / 2**30:.1f} GiB, {info.version}, kernels {kernel_variant(info.device)}, "
+                f"{'discrete: pinned staging' if is_discrete(info.device) else 'host memory: zero-copy'}]"
             )
     lines.append(f"chosen: {chosen.name.strip()} ({reason}); override with --device or {ENV_DEVICE}=P:D|name")
+    variant_reason = f"{ENV_VARIANT}={os.environ[ENV_VARIANT]!r}" if os.environ.get(ENV_VARIANT) else "by device type"
+    lines.append(f"kernel variant: {kernel_variant(chosen)} ({variant_reason}; "
+                 + ", ".join(f"{k}: {v} pixel{'s' if v > 1 else ''} per work-item" for k, v in VARIANTS.items())
+                 + f"); override with {ENV_VARIANT}=cpu|gpu")
     versions = []
     for package in ("specgpu", "pyopencl", "pocl-binary-distribution", "numpy", "colour-science", "OpenImageIO"):
         try:

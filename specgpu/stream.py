@@ -48,6 +48,7 @@ from .capture.ringbuffer import POLICIES, RingBuffer, RingStats, run_producer, w
 from .colorimetry import DELTA_E_METHODS
 from .runtime import get_allocator, get_queue
 from .spectra import DEFAULT_CMFS, white_point_XYZ
+from .transfer import pinned_empty
 from .validate import validate_method
 
 __all__ = [
@@ -70,7 +71,7 @@ __all__ = [
 
 #: What a stream can compute per sequence, and the channel count / dtype of each map.
 STREAM_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE")
-READBACKS = ("auto", "map", "copy")
+READBACKS = ("auto", "map", "copy", "pinned")
 UPLOADS = ("auto", "host_ptr", "pinned", "copy")
 
 
@@ -129,6 +130,7 @@ class StreamDecoder:
         # a sample at the sensor's maximum code has no valid measurement: its pixel's outputs become NaN, as
         # pipeline.recover makes them (flagged by the first kernel of a sequence, applied on the host)
         self.saturation = float(calibration.max_code)
+        self._prepared: dict = {}
         self.dark = engine.to_device(queue, np.asarray(dark, np.float32).reshape(-1))
         self.gain = engine.to_device(queue, np.asarray(gain, np.float32).reshape(-1))
         self.A = A
@@ -187,30 +189,43 @@ class StreamDecoder:
         self.queue.finish()
         del outs
 
-    def enqueue(self, frames: cla.Array) -> dict[str, cla.Array]:
-        """Enqueue every kernel on the K frames (flat device array); returns the flat device outputs and ``mask``
-        (bit 1: a frame at the saturation level)."""
+    def _launches(self, dtype) -> list:
+        """The stream's kernels for frames of ``dtype`` as prepared launches (built on first use, then reused:
+        a sequence costs a few argument sets and enqueues, not the per-call planning of the engine's functions),
+        each with the map from its outputs to the stream's output names."""
+        launches = self._prepared.get(dtype)
+        if launches is not None:
+            return launches
         q, n = self.queue, self.n
-        out = {}
-        mask = None
+        launches = []
         sat = {"want_mask": True, "saturation": self.saturation}  # asked of the first kernel only
         if "coefficients" in self.outputs:
-            out["coefficients"], mask = engine.linear(q, frames, self.A_coefficients, n=n, dark=self.dark,
-                                                      gain=self.gain, out_layout=1, **sat)
+            launches.append((engine.prepare_linear(q, dtype, self.A_coefficients, n=n, dark=self.dark,
+                                                   gain=self.gain, out_layout=1, **sat),
+                             {"out": "coefficients", "mask": "mask"}))
+            sat = {}
         if "cube" in self.outputs:
-            out["cube"], m = engine.linear(q, frames, self.A, n=n, dark=self.dark, gain=self.gain,
-                                           out_dtype=self.cube_dtype, out_layout=1, **({} if mask is not None else sat))
-            mask = m if mask is None else mask
+            launches.append((engine.prepare_linear(q, dtype, self.A, n=n, dark=self.dark, gain=self.gain,
+                                                   out_dtype=self.cube_dtype, out_layout=1, **sat),
+                             {"out": "cube", "mask": "mask"}))
+            sat = {}
         if self.M is not None:
-            fused = engine.frames_to_delta_e(
-                q, frames, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
+            launches.append((engine.prepare_frames_to_delta_e(
+                q, dtype, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
                 else "CIE 2000", reference_single=self.reference_single, dark=self.dark, gain=self.gain,
-                write_xyz="XYZ" in self.outputs, write_lab="Lab" in self.outputs, **({} if mask is not None else sat))
-            mask = fused.mask if mask is None else mask
-            for name, arr in (("XYZ", fused.XYZ), ("Lab", fused.Lab), ("dE", fused.delta_E)):
-                if name in self.outputs:
-                    out[name] = arr
-        out["mask"] = mask
+                write_xyz="XYZ" in self.outputs, write_lab="Lab" in self.outputs, **sat),
+                {"XYZ": "XYZ", "Lab": "Lab", "delta_E": "dE", "mask": "mask"}))
+        self._prepared[dtype] = launches
+        return launches
+
+    def enqueue(self, frames: cla.Array) -> dict:
+        """Enqueue every kernel on the K frames (flat device array); returns the flat device output buffers (pooled
+        :class:`pyopencl.Buffer` objects) by output name and ``mask`` (bit 1: a frame at the saturation level)."""
+        out = {}
+        for launch, names in self._launches(np.dtype(frames.dtype)):
+            for key, buf in launch.enqueue(frames.data).items():
+                if names[key] in self.outputs or names[key] == "mask":
+                    out[names[key]] = buf
         return out
 
 
@@ -704,6 +719,7 @@ class _InFlight:
     events: list
     keep: list
     pinned: object = None
+    host_set: object = None
 
 
 class Stream:
@@ -731,13 +747,15 @@ class Stream:
         Sequences enqueued on the device before the device thread waits for the oldest.
     result_buffers : int
         Sequences between upload and the end of the sinks (>= in_flight); the bound on result memory.
-    readback : {"auto", "map", "copy"}
-        Results read by mapping the device outputs (zero copy on CPU devices) or copied into host arrays;
-        ``"auto"``: map on CPU devices, copy elsewhere.
+    readback : {"auto", "map", "copy", "pinned"}
+        Results read by mapping the device outputs (zero copy on CPU devices), copied into fresh host arrays, or
+        copied by DMA into pinned host arrays (``ALLOC_HOST_PTR``, mapped once, one set per result buffer and
+        reused: no page faults, no per-sequence map); ``"auto"``: map on CPU devices, pinned elsewhere.
     upload : {"auto", "host_ptr", "pinned", "copy"}
         Frames wrapped as a ``USE_HOST_PTR`` buffer (zero copy on CPU devices: the assembled sequence is the device
-        buffer), copied into mapped ``ALLOC_HOST_PTR`` buffers (pinned staging, one per result buffer: what a
-        discrete GPU transfers from by DMA), or copied by ``enqueue_copy`` into a pooled device buffer;
+        buffer), copied into pinned staging (``ALLOC_HOST_PTR`` buffers mapped once, one per result buffer) and
+        from there by a non-blocking DMA into a pooled device buffer (what a discrete GPU wants: no map, no wait on
+        the queue), or copied by ``enqueue_copy`` straight from the sequence into a pooled device buffer;
         ``"auto"``: host_ptr on CPU devices, pinned elsewhere.
         Measured on PoCL (2 cores), 640 x 480, coefficients + XYZ + dE2000, best of 3 interleaved rounds
         (``python tools/stream_transfers.py --seconds 4 --rounds 3``): host_ptr + map 1028 frames/s, copy + map
@@ -776,7 +794,7 @@ class Stream:
         self.policy = policy
         self.in_flight, self.result_buffers = int(in_flight), int(result_buffers)
         on_cpu = bool(self.queue.device.type & cl.device_type.CPU)
-        self.readback = ("map" if on_cpu else "copy") if readback == "auto" else readback
+        self.readback = ("map" if on_cpu else "pinned") if readback == "auto" else readback
         self.upload = ("host_ptr" if on_cpu else "pinned") if upload == "auto" else upload
         self.align, self.sync_max_dn = align, sync_max_dn
         self._interrupted = False
@@ -835,9 +853,13 @@ class Stream:
         self._done: queue_module.Queue = queue_module.Queue()
         self._recycle: deque = deque()
         nbytes = self.plan.K * self.decoder.n * np.dtype(self.driver.dtype).itemsize
+        # pinned staging (upload) and pinned result sets (readback), one per result token, mapped once
         self._pinned: deque = deque(
-            cl.Buffer(self.queue.context, cl.mem_flags.READ_ONLY | cl.mem_flags.ALLOC_HOST_PTR, nbytes)
+            pinned_empty(self.queue, (nbytes,), np.uint8)
             for _ in range(self.result_buffers if self.upload == "pinned" else 0))
+        self._host_sets: deque = deque(
+            {name: pinned_empty(self.queue, shape, dtype) for name, (shape, dtype) in self.decoder.shapes().items()}
+            for _ in range(self.result_buffers if self.readback == "pinned" else 0))
         self._ended = threading.Event()
         self.decoder.warm_up(self.driver.dtype)
         peak_rss_reset()
@@ -956,13 +978,12 @@ class Stream:
             frames = cla.Array(q, flat.shape, flat.dtype, data=buf)
             keep.append(buf)
         elif self.upload == "pinned":
-            buf = self._pinned.popleft()  # one per result token: never empty here
-            staging, _ = cl.enqueue_map_buffer(q, buf, cl.map_flags.WRITE_INVALIDATE_REGION, 0, flat.shape,
-                                               flat.dtype, is_blocking=True)
+            pinned = self._pinned.popleft()  # one per result token: never empty here
+            staging = pinned.view(flat.dtype)
             np.copyto(staging, flat)
-            staging.base.release(q)
-            frames = cla.Array(q, flat.shape, flat.dtype, data=buf)
-            keep.append(buf)
+            frames = cla.empty(q, flat.shape, flat.dtype, allocator=get_allocator(q))
+            cl.enqueue_copy(q, frames.data, staging, is_blocking=False)  # DMA; free again once the sequence is
+            keep.append(pinned)
         else:
             frames = cla.empty(q, flat.shape, flat.dtype, allocator=get_allocator(q))
             cl.enqueue_copy(q, frames.data, flat, is_blocking=False)
@@ -970,20 +991,24 @@ class Stream:
         outs = dec.enqueue(frames)
         shapes = dec.shapes()
         host, events = {}, []
+        host_set = self._host_sets.popleft() if self.readback == "pinned" else None  # one per result token
         for name, dev in outs.items():
             shape, dtype = shapes[name]
-            if self.readback == "map":
+            if host_set is not None:
+                arr = host_set[name]
+                ev = cl.enqueue_copy(q, arr, dev, is_blocking=False)
+            elif self.readback == "map":
                 # READ | WRITE: saturated pixels are set to NaN in place on the host
-                arr, ev = cl.enqueue_map_buffer(q, dev.base_data, cl.map_flags.READ | cl.map_flags.WRITE,
-                                                dev.offset, shape, dtype, is_blocking=False)
+                arr, ev = cl.enqueue_map_buffer(q, dev, cl.map_flags.READ | cl.map_flags.WRITE, 0, shape, dtype,
+                                                is_blocking=False)
             else:
                 arr = np.empty(shape, dtype)
-                ev = cl.enqueue_copy(q, arr, dev.data, is_blocking=False)
+                ev = cl.enqueue_copy(q, arr, dev, is_blocking=False)
             host[name] = arr
             events.append(ev)
         q.flush()  # start the device now, not at the next blocking call
         return _InFlight(index, seq, arrival if arrival is not None else time.perf_counter(), outs, host, events,
-                         keep)
+                         keep, host_set=host_set)
 
     def _complete(self, item: _InFlight):
         cl.wait_for_events(item.events)
@@ -1004,6 +1029,8 @@ class Stream:
                     arr.base.release(self.queue)
             if self.upload == "pinned":
                 self._pinned.append(item.pinned)
+            if self.readback == "pinned":
+                self._host_sets.append(item.host_set)
             item.host = item.device_out = item.keep = None
             self._tokens.release()
 

@@ -29,3 +29,11 @@ DEVICES = _devices()
 def queue(request):
     """A command queue on each OpenCL device present (PoCL's CPU device at least)."""
     return get_queue(request.param.device)
+
+
+@pytest.fixture(params=["cpu", "gpu"])
+def kernel_variant(request, monkeypatch):
+    """Runs a test once per kernel variant (specgpu.runtime.VARIANTS), forced on whatever device runs it: CI runs
+    the GPU kernels on PoCL and the CPU kernels on a GPU."""
+    monkeypatch.setenv("SPECGPU_VARIANT", request.param)
+    return request.param

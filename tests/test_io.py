@@ -187,6 +187,7 @@ def test_exr_bands_are_ordered_by_wavelength_not_by_channel_order(tmp_path):
     np.testing.assert_array_equal(cube, data[..., order])
 
 
+@pytest.mark.skipif(OIIOTOOL is None, reason="oiiotool (OpenImageIO's command-line tool) is not installed here")
 @pytest.mark.parametrize("half", [False, True])
 def test_oiiotool_info_shows_the_jcgt_channels(tmp_path, half):
     wl = np.array([400.0, 405.5, 700.0])

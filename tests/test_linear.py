@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 import pytest
 from hypothesis import given
@@ -13,6 +14,10 @@ from specgpu import runtime
 from specgpu.recovery import apply_linear
 
 EPS32 = np.finfo(np.float32).eps
+
+# every test once per kernel variant ("cpu": float8 per work-item, "gpu": a work-item per pixel), forced on each
+# device present (tests/conftest.py kernel_variant)
+pytestmark = pytest.mark.usefixtures("kernel_variant")
 
 
 def frames_of(rng, dtype, K, shape):
@@ -272,3 +277,119 @@ def test_planar_float16_sixteen_pixel_items(queue, npix):
     assert_close(res.y, linear_ref(frames, A, dark, gain, layout="planar"),
                  bound(frames, A, dark, gain, out_dtype=np.float16))
     np.testing.assert_array_equal(res.mask, mask_ref(frames, 1023))
+
+
+@pytest.mark.parametrize("out_dtype", [np.float32, np.float16])
+@pytest.mark.parametrize("K, B", [(1, 1), (9, 61), (6, 8), (130, 3)])
+def test_gpu_channels_last_without_tile_per_output_element(queue, monkeypatch, K, B, out_dtype):
+    """The "gpu" variant writes channels last through a local-memory tile where it fits and with a work-item per
+    output element where it does not: the second path, forced, against the reference (dark, gain, mask), and
+    equal to the tiled one."""
+    from specgpu import engine
+
+    monkeypatch.setenv("SPECGPU_VARIANT", "gpu")
+    rng = np.random.default_rng(K * 1000 + B)
+    npix = 67  # a group of 64 and a partial one
+    frames = rng.integers(0, 1000, (K, npix), dtype=np.uint16)
+    frames[K - 1, 5] = 1023
+    dark = rng.uniform(0, 20, (npix,)).astype(np.float32)
+    gain = rng.uniform(0.9, 1.1, (npix,)).astype(np.float32)
+    A = rng.normal(0, 1e-3, (B, K))
+    kwargs = dict(out_dtype=out_dtype, layout="interleaved", saturation=1023, return_mask=True, device=queue)
+    tiled = apply_linear(frames, A, dark, gain, **kwargs)
+    monkeypatch.setattr(engine, "_TILE_LOCAL_MAX", 0)
+    res = apply_linear(frames, A, dark, gain, **kwargs)
+    assert res.y.shape == (npix, B) and res.y.dtype == np.dtype(out_dtype)
+    assert_close(res.y, linear_ref(frames, A, dark, gain),
+                 np.moveaxis(bound(frames, A, dark, gain, out_dtype=out_dtype), 0, -1))
+    np.testing.assert_array_equal(res.mask, mask_ref(frames, 1023))
+    np.testing.assert_allclose(res.y.astype(np.float64), tiled.y, rtol=1e-5, atol=1e-7)  # two programs: FMA may differ
+    np.testing.assert_array_equal(res.mask, tiled.mask)
+
+
+@pytest.mark.parametrize("layout", ["planar", "interleaved"])
+@pytest.mark.parametrize("out_dtype", [np.float32, np.float16])
+@pytest.mark.parametrize("chunk_rows", [1, 3, 1000])
+def test_pinned_row_chunked_transfers_equal_the_direct_path(queue, monkeypatch, layout, out_dtype, chunk_rows):
+    """The discrete-device path (pinned staging, row chunks on upload / compute / read-back queues), forced on
+    any device: the same results and mask as the direct path, for chunks of one row, of an uneven number of rows
+    and of the whole image, with per-frame dark, gain and saturation."""
+    from specgpu import transfer
+
+    rng = np.random.default_rng(chunk_rows)
+    K, B, shape = 5, 7, (11, 13)
+    frames = rng.integers(0, 1000, (K, *shape), dtype=np.uint16)
+    frames[1, 4, 5] = 1023
+    dark = rng.uniform(0, 20, (K, *shape)).astype(np.float32)
+    gain = rng.uniform(0.9, 1.1, shape).astype(np.float32)
+    A = rng.normal(0, 1e-3, (B, K))
+    kwargs = dict(out_dtype=out_dtype, layout=layout, saturation=1023, return_mask=True, device=queue)
+    monkeypatch.setenv("SPECGPU_TRANSFER", "direct")
+    direct = apply_linear(frames, A, dark, gain, **kwargs)
+    monkeypatch.setenv("SPECGPU_TRANSFER", "pinned")
+    row_bytes = shape[1] * B * np.dtype(out_dtype).itemsize
+    monkeypatch.setattr(transfer, "CHUNK_BYTES", chunk_rows * row_bytes)
+    pinned = apply_linear(frames, A, dark, gain, **kwargs)
+    assert pinned.y.shape == direct.y.shape and pinned.y.dtype == direct.y.dtype
+    np.testing.assert_array_equal(pinned.y, direct.y)
+    np.testing.assert_array_equal(pinned.mask, direct.mask)
+    assert pinned.mask.sum() > 0
+    # the pinned result is a NumPy array like any other; its block returns to the pool when it is dropped
+    pool = transfer.pinned_pool(runtime.get_queue(queue))
+    held = pool.held_bytes()
+    del pinned
+    import gc
+
+    gc.collect()
+    assert pool.held_bytes() > held
+
+
+def test_transfer_mode_by_device_and_override(queue, monkeypatch):
+    from specgpu import transfer
+
+    monkeypatch.delenv("SPECGPU_TRANSFER", raising=False)
+    assert transfer.transfer_mode(queue.device) == ("pinned" if runtime.is_discrete(queue.device) else "direct")
+    monkeypatch.setenv("SPECGPU_TRANSFER", "bogus")
+    with pytest.raises(runtime.SpecgpuDeviceError, match=r"^SPECGPU_TRANSFER='bogus' is no transfer mode"):
+        transfer.transfer_mode(queue.device)
+    assert transfer.transfer_mode(queue.device, "Pinned") == "pinned"
+
+
+@pytest.mark.parametrize("out_layout, out_dtype", [(0, np.float32), (1, np.float32), (0, np.float16), (1, np.float16)])
+def test_prepared_launches_equal_the_engine_calls(queue, out_layout, out_dtype):
+    """The stream's prepared launches (a kernel object of its own, fixed arguments set once) give what the
+    engine's calls give, launch after launch with new frames, in the variant of the test (tests/conftest.py)."""
+    from specgpu import engine
+
+    rng = np.random.default_rng(out_layout * 2 + (out_dtype == np.float16))
+    K, B, n = 9, 7, 1001
+    A = rng.normal(0, 1e-3, (B, K))
+    dark = engine.to_device(queue, rng.uniform(0, 5, n).astype(np.float32))
+    gain = engine.to_device(queue, rng.uniform(0.9, 1.1, n).astype(np.float32))
+    M = rng.uniform(0, 1e-3, (3, K))
+    white = (0.95047, 1.0, 1.08883)
+    reference = engine.to_device(queue, rng.uniform(-20, 60, 3 * n).astype(np.float32))
+    lin = engine.prepare_linear(queue, np.uint16, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
+                                out_layout=out_layout, want_mask=True, saturation=1023.0)
+    fused = engine.prepare_frames_to_delta_e(queue, np.uint16, M, white, reference, n=n, reference_single=False,
+                                             dark=dark, gain=gain, write_xyz=True, write_lab=True)
+    for seed in range(3):
+        frames_host = np.random.default_rng(seed).integers(0, 1024, K * n).astype(np.uint16)
+        frames = engine.to_device(queue, frames_host)
+        got = lin.enqueue(frames.data)
+        got_f = fused.enqueue(frames.data)
+        want, want_mask = engine.linear(queue, frames, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
+                                        out_layout=out_layout, want_mask=True, saturation=1023.0)
+        want_f = engine.frames_to_delta_e(queue, frames, M, white, reference, n=n, reference_single=False,
+                                          dark=dark, gain=gain, write_xyz=True, write_lab=True)
+        y = np.empty(B * n, out_dtype)
+        m = np.empty(n, np.uint8)
+        cl.enqueue_copy(queue, y, got["out"])
+        cl.enqueue_copy(queue, m, got["mask"])
+        np.testing.assert_array_equal(y, want.get())
+        np.testing.assert_array_equal(m, want_mask.get())
+        assert m.sum() > 0
+        for key, ref in (("XYZ", want_f.XYZ), ("Lab", want_f.Lab), ("delta_E", want_f.delta_E)):
+            host = np.empty(ref.shape, np.float32)
+            cl.enqueue_copy(queue, host, got_f[key])
+            np.testing.assert_array_equal(host, ref.get())

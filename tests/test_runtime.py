@@ -102,3 +102,30 @@ def test_a_context_given_is_the_context_used(queue):
     assert runtime.get_queue(queue.device).context != other  # our own context per device is unaffected
     frames = cla.to_device(q, np.ones((2, 3, 4), np.uint16))
     np.testing.assert_array_equal(apply_linear(frames, np.ones((1, 2))).get(), 2.0)
+
+
+def test_kernel_variant_by_device_type_and_overrides(queue, monkeypatch):
+    monkeypatch.delenv("SPECGPU_VARIANT", raising=False)
+    device = queue.device
+    expected = "gpu" if device.type & cl.device_type.GPU else "cpu"
+    assert runtime.kernel_variant(device) == expected
+    monkeypatch.setenv("SPECGPU_VARIANT", "GPU ")
+    assert runtime.kernel_variant(device) == "gpu"
+    assert runtime.kernel_variant(device, "cpu") == "cpu"  # an argument beats the environment
+    assert "kernel variant: gpu (SPECGPU_VARIANT='GPU ';" in runtime.describe(device)
+    monkeypatch.setenv("SPECGPU_VARIANT", "fast")
+    with pytest.raises(runtime.SpecgpuDeviceError, match=r"^SPECGPU_VARIANT='fast' is no kernel variant \(choose "
+                                                         r"from cpu, gpu\)$"):
+        runtime.kernel_variant(device)
+    with pytest.raises(runtime.SpecgpuDeviceError, match=r"^variant='x' is no kernel variant"):
+        runtime.kernel_variant(device, "x")
+
+
+def test_describe_lists_each_device_variant_and_memory_kind(queue, monkeypatch):
+    monkeypatch.delenv("SPECGPU_VARIANT", raising=False)
+    text = runtime.describe(queue.device)
+    cpu = bool(queue.device.type & cl.device_type.CPU)
+    assert f"kernels {'cpu' if cpu else 'gpu'}" in text
+    assert ("host memory: zero-copy" if cpu else "") in text
+    assert "kernel variant:" in text and "override with SPECGPU_VARIANT=cpu|gpu" in text
+    assert runtime.is_discrete(queue.device) is (not cpu and not queue.device.host_unified_memory)

@@ -103,7 +103,7 @@ def test_stream_equals_offline_recover(setup, expected):
         np.testing.assert_allclose(rebuilt, maps["cube"], atol=1e-4 * np.max(np.abs(maps["cube"])))
 
 
-@pytest.mark.parametrize("readback,upload", [("copy", "copy"), ("map", "pinned")])
+@pytest.mark.parametrize("readback,upload", [("copy", "copy"), ("map", "pinned"), ("pinned", "pinned")])
 def test_transfer_modes_give_the_same_results(setup, expected, readback, upload):
     sink = Collect()
     stream = Stream(setup.driver(loops=2), setup.plan, setup.bundle, outputs=("cube", "dE"), cube_dtype=np.float32,

@@ -38,6 +38,7 @@ LIGHT_C = 299792458.0  # m / s
 SENSOR_WIDTH = 640
 SENSOR_HEIGHT = 480
 MIN_ROI = (320, 240)
+MAX_SENSOR = 16384
 BIT_DEPTHS = (8, 10, 12)
 
 
@@ -53,7 +54,7 @@ class CameraParameters:
     quantum_efficiency_peak : float
         Quantum efficiency at the sensitivity peak, electrons per photon, in (0, 1]. Default 0.40.
     roi_width, roi_height : int
-        Region of interest read out, pixels, centred on the 640 x 480 sensor; from 320 x 240 to 640 x 480.
+        Region of interest read out, pixels, centred on the sensor; from 320 x 240 to the sensor's size.
     bit_depth : int
         ADC resolution: 8, 10 or 12 bits. Default 10. Frames are delivered as uint16.
     full_well_e : float
@@ -88,6 +89,9 @@ class CameraParameters:
         Pixel read-out rate, pixels per second, > 0. Default 62e6.
     frame_overhead_s : float
         Fixed per-frame read-out overhead, s, >= 0. Default 45e-6.
+    sensor_width, sensor_height : int
+        Pixels of the whole sensor (the ROI is centred on it), from 320 x 240 to 16384 x 16384. Default 640 x 480,
+        the paper's; :mod:`specgpu.rig.sensors` has presets of machine-vision sensors (``preset`` in the TOML).
 
     Notes
     -----
@@ -116,6 +120,8 @@ class CameraParameters:
     frame_rate_hz: float = 90.0
     pixel_clock_hz: float = 62e6
     frame_overhead_s: float = 45e-6
+    sensor_width: int = SENSOR_WIDTH
+    sensor_height: int = SENSOR_HEIGHT
 
     def __post_init__(self):
         n = "camera."
@@ -124,9 +130,11 @@ class CameraParameters:
         check_number(n + "quantum_efficiency_peak", self.quantum_efficiency_peak, low=0, low_open=True, high=1)
         w = check_number(n + "roi_width", self.roi_width, integer=True)
         h = check_number(n + "roi_height", self.roi_height, integer=True)
-        if not (MIN_ROI[0] <= w <= SENSOR_WIDTH and MIN_ROI[1] <= h <= SENSOR_HEIGHT):
-            raise ValueError(f"{n}roi must be between {MIN_ROI[0]} x {MIN_ROI[1]} and {SENSOR_WIDTH} x "
-                             f"{SENSOR_HEIGHT} pixels, got {w} x {h}")
+        sw = check_number(n + "sensor_width", self.sensor_width, integer=True, low=MIN_ROI[0], high=MAX_SENSOR)
+        sh = check_number(n + "sensor_height", self.sensor_height, integer=True, low=MIN_ROI[1], high=MAX_SENSOR)
+        if not (MIN_ROI[0] <= w <= sw and MIN_ROI[1] <= h <= sh):
+            raise ValueError(f"{n}roi must be between {MIN_ROI[0]} x {MIN_ROI[1]} and {sw} x {sh} pixels (the "
+                             f"sensor; set camera.sensor_width / sensor_height or a camera.preset), got {w} x {h}")
         if check_number(n + "bit_depth", self.bit_depth, integer=True) not in BIT_DEPTHS:
             raise ValueError(f"{n}bit_depth must be one of {BIT_DEPTHS}, got {self.bit_depth}")
         check_number(n + "full_well_e", self.full_well_e, low=0, low_open=True, high=1e9)
@@ -227,10 +235,10 @@ class Camera:
         self.params = params if params is not None else CameraParameters()
         p = self.params
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xCA3E]))
-        prnu = 1.0 + p.prnu_rms * rng.standard_normal((SENSOR_HEIGHT, SENSOR_WIDTH))
-        dsnu = p.dsnu_rms_e * rng.standard_normal((SENSOR_HEIGHT, SENSOR_WIDTH))
-        y0 = (SENSOR_HEIGHT - p.roi_height) // 2
-        x0 = (SENSOR_WIDTH - p.roi_width) // 2
+        prnu = 1.0 + p.prnu_rms * rng.standard_normal((p.sensor_height, p.sensor_width))
+        dsnu = p.dsnu_rms_e * rng.standard_normal((p.sensor_height, p.sensor_width))
+        y0 = (p.sensor_height - p.roi_height) // 2
+        x0 = (p.sensor_width - p.roi_width) // 2
         self.prnu = np.ascontiguousarray(prnu[y0:y0 + p.roi_height, x0:x0 + p.roi_width], dtype=np.float32)
         self.dsnu_e = np.ascontiguousarray(dsnu[y0:y0 + p.roi_height, x0:x0 + p.roi_width], dtype=np.float32)
 

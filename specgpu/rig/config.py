@@ -5,7 +5,8 @@ A rig TOML has up to six tables; every key is optional and defaults to the paper
     [light]                      # LightParameters: lamp, grating, DMD, spot, timing, fluctuation ...
     lamp = "xenon"               # or "kinoton-75p", or a two-column CSV (wavelength nm, value)
     illuminance_lux = 15000
-    [camera]                     # CameraParameters: sensitivity (CSV), ROI, bit depth, noise, optics, timing
+    [camera]                     # CameraParameters: sensitivity (CSV), ROI, bit depth, noise, optics, timing;
+                                 # preset = "cmv4000" | "imx250" | "imx304" starts from a sensor (rig/sensors.py)
     sensitivity = "cmos"
     bit_depth = 10
     [scene]
@@ -31,6 +32,7 @@ from pathlib import Path
 
 from specgpu.rig._checks import check_number
 from specgpu.rig.camera import CameraParameters
+from specgpu.rig.sensors import expand_preset
 from specgpu.rig.light import LightParameters
 from specgpu.rig.spectroradiometer import SpectroradiometerParameters
 
@@ -178,7 +180,11 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
         if not isinstance(value, dict):
             raise ValueError(f"{source}: [{table}] must be a table, got {value!r}")
     light = _build(LightParameters, data.get("light", {}), "light", source, base)
-    camera = _build(CameraParameters, data.get("camera", {}), "camera", source, base)
+    try:  # [camera] preset = "cmv4000": the preset's values under the keys given (specgpu.rig.sensors)
+        camera_table = expand_preset(data.get("camera", {}))
+    except ValueError as error:
+        raise ValueError(f"{source}: {error}") from None
+    camera = _build(CameraParameters, camera_table, "camera", source, base)
     scene_table = dict(data.get("scene", {}))
     extra = set(scene_table) - {"source"}
     if extra:
