@@ -402,7 +402,9 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
 @_SCENE
 @click.option("--seconds", type=click.FloatRange(min=0, min_open=True), required=True, help="Capture time.")
 @click.option("--out", type=click.Path(file_okay=False), default=None,
-              help="Folder for the recording (chunked .npy + index.json) and preview.png.")
+              help="New zarr recording to write (REC.zarr: one chunk per sequence, xarray / dask readable), with "
+                   "preview.png inside.")
+@click.option("--frames", "raw_frames", is_flag=True, help="Also record the raw frames (for specgpu batch).")
 @click.option("--outputs", default="coefficients,XYZ,dE", show_default=True,
               help="Comma-separated: coefficients, cube, XYZ, Lab, dE.")
 @click.option("--delta-e-ref", "ref", default=None,
@@ -419,8 +421,8 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
 @click.option("--half", is_flag=True, help="Keep the cube in half precision.")
 @click.option("--seed", type=int, default=None, help="Seed of the frames' temporal noise.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref, method, illuminant, pacing,
-                   policy, exr_every, half, seed, device):
+def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
+                   pacing, policy, exr_every, half, seed, device):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     import numpy as np
@@ -428,7 +430,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
     from .capture.twin import TwinDriver
     from .pipeline import check_scene_covers
     from .rig.twin import TwinRig
-    from .stream import STREAM_OUTPUTS, ExrSequenceWriter, NpyChunkWriter, PreviewSink, Stream
+    from .stream import STREAM_OUTPUTS, ExrSequenceWriter, PreviewSink, Stream
     from .validate import validate_method
 
 
@@ -437,6 +439,10 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
                    for o in outputs.split(",") if o.strip())
     from .rig.config import load_rig
 
+    if out:
+        from .recording import refuse_existing
+
+        refuse_existing(out)  # before any work: a recording is never mixed with another run
     description = load_rig(rig_path)
     bundle, plan, truth = _experiment(description, plan_path, calib, scene)
     cam = description.camera
@@ -449,13 +455,27 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
     if seed is not None:
         rig.seed = seed
     driver = TwinDriver(rig, patterns=plan.patterns, pacing=pacing)
-    sinks, writer = [], None
+    policy = policy or ("drop_newest" if pacing == "paced" else "block")
+    stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
+                    illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
+                    device=device)
+    sinks, writer = stream.sinks, None
     if out:
         from pathlib import Path
 
-        meta = {"plan_hash": plan.hash, "plan_method": plan.method, "calibration": plan.calibration,
-                "scene": truth.name, "illuminant": illuminant, "outputs": list(wanted)}
-        writer = NpyChunkWriter(out, metadata=meta)
+        from .recording import ZarrRecorder, check_free_space, expected_sequences, sequence_bytes
+
+        n_expected = expected_sequences(seconds, plan.rig_description(description).camera.frame_rate_hz, plan.K)
+        per_sequence = sequence_bytes(stream.decoder.shapes(), frames_shape=(plan.K, cam.roi_height,
+                                                                             cam.roi_width) if raw_frames else None)
+        check_free_space(out, n_expected * per_sequence,
+                         what=f"the recording ({n_expected} sequences x {per_sequence / 1e6:.1f} MB)")
+        meta = {"scene": truth.name, "illuminant": illuminant, "method": method, "seed": seed}
+        writer = ZarrRecorder(out, plan, frames=raw_frames, basis=stream.decoder.basis, metadata=meta)
+        import shutil
+
+        shutil.copyfile(plan_path, Path(out) / "plan.npz")  # what batch re-processes the frames with
+        shutil.copyfile(calib, Path(out) / "calibration.npz")
         sinks.append(writer)
         if exr_every:
             sinks.append(ExrSequenceWriter(Path(out) / "exr", wavelengths=plan.output_wavelengths, every=exr_every,
@@ -463,12 +483,6 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
                                            metadata=meta))
         if "XYZ" in wanted:
             sinks.append(PreviewSink(Path(out) / "preview.png"))
-    policy = policy or ("drop_newest" if pacing == "paced" else "block")
-    stream = Stream(driver, plan, bundle, outputs=wanted, sinks=sinks, reference=reference, method=method,
-                    illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
-                    device=device)
-    if writer is not None and stream.decoder.basis is not None:
-        writer.metadata["coefficient_basis"] = stream.decoder.basis.tolist()
     tty = sys.stderr.isatty()
 
     def status(s):
@@ -484,9 +498,12 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
                f"({report.sequences_per_s:.1f}/s); dropped {a.dropped} (ring {report.ring.dropped}), duplicated "
                f"{a.duplicates}, missed triggers {a.missed_triggers}, discarded {a.sequences_discarded}; latency "
                f"median {report.latency_ms(50):.1f} ms, p99 {report.latency_ms(99):.1f} ms"
-               + (" (interrupted)" if report.interrupted else "") + (f"; wrote {out}" if out else ""))
+               + (" (interrupted)" if report.interrupted else "")
+               + (f"; wrote {out} ({writer.committed} sequences)" if out and not report.sink_errors else ""))
     if report.sink_errors:
-        raise click.ClickException(f"a sink failed: {report.sink_errors[0]}")
+        saved = (f"; {writer.committed} sequences saved in {out}, {report.sequences_out - writer.committed} lost"
+                 if writer is not None else "")
+        raise click.ClickException(f"a sink failed: {report.sink_errors[0]}{saved}")
 
 
 @main.command()

@@ -24,14 +24,13 @@ from specgpu.capture.twin import TwinDriver
 from specgpu.cli import main
 from specgpu.colorimetry import delta_E
 from specgpu.pipeline import SequenceFolder, recover, to_Lab, to_XYZ
+from specgpu.recording import ZarrRecorder, open_recording
 from specgpu.rig.twin import FaultSchedule, TwinRig
 from specgpu.stream import (
     ExrSequenceWriter,
-    NpyChunkWriter,
     PreviewSink,
     ResultsRing,
     Stream,
-    read_npy_chunks,
 )
 
 ALL = ("coefficients", "cube", "XYZ", "Lab", "dE")
@@ -233,32 +232,38 @@ def test_a_failing_sink_stops_the_stream_and_is_reported(setup):
 def test_sinks_write_readable_files(setup, expected, tmp_path):
     ring = ResultsRing(capacity=2)
     preview = PreviewSink(tmp_path / "preview.png", interval_s=0.0)
-    npy = NpyChunkWriter(tmp_path / "rec", chunk=3, metadata={"run": "test"})
+    rec = ZarrRecorder(tmp_path / "rec.zarr", setup.plan, frames=True, metadata={"run": "test"})
     exr = ExrSequenceWriter(tmp_path / "exr", wavelengths=setup.plan.output_wavelengths, every=4)
     report = Stream(setup.driver(loops=2), setup.plan, setup.bundle, outputs=("cube", "XYZ", "dE"),
                     cube_dtype=np.float16, reference=setup.reference, policy="block",
-                    sinks=[ring, preview, npy, exr]).run()
-    assert report.sequences_out == 8
+                    sinks=[ring, preview, rec, exr]).run()
+    assert report.sequences_out == 8 and report.sink_errors == []
     assert len(ring) == 2 and ring.dropped == 6 and ring.written == 8
     last = ring.get(0)
     assert last.index == 6 and ring.get(0).index == 7 and ring.get(0) is None
-    index = json.loads((tmp_path / "rec" / "index.json").read_text())
-    assert index["chunks"] == 3 and len(index["sequences"]) == 8 and index["metadata"] == {"run": "test"}
-    dE = np.concatenate(read_npy_chunks(tmp_path / "rec", "dE"))
-    cube = np.concatenate(read_npy_chunks(tmp_path / "rec", "cube"))
-    assert dE.shape == (8, 240, 320) and cube.dtype == np.float16
-    for j, rec in enumerate(index["sequences"]):
-        want = expected[setup.recorded_sequence(rec["frame_ids"])]
+    recording = open_recording(tmp_path / "rec.zarr")
+    assert recording.sequences == 8 and recording.attrs["metadata"] == {"run": "test"}
+    assert recording.attrs["status"] == "complete" and recording.attrs["plan_hash"] == setup.plan.hash
+    dE = recording.read("dE", slice(None))
+    cube = recording.read("cube", slice(None))
+    frame_ids = recording.read("frame_id", slice(None))
+    assert dE.shape == (8, 240, 320) and cube.dtype == np.float16 and frame_ids.shape == (8, setup.plan.K)
+    for j, ids in enumerate(frame_ids):
+        i = setup.recorded_sequence(ids)
+        want = expected[i]
         np.testing.assert_allclose(dE[j], want["dE"], atol=2e-3)
         np.testing.assert_allclose(cube[j], want["cube"], atol=2e-3 * np.max(want["cube"]))
+        # the raw frames are the replayed recording's, bit for bit
+        K = setup.plan.K
+        assert np.array_equal(recording.read("frames", j), setup.frames[i * K:(i + 1) * K])
     assert sorted(p.name for p in (tmp_path / "exr").iterdir()) == [
         f"{n}-{i:06d}.exr" for n in ("XYZ", "cube", "dE") for i in (0, 4)]
     data, _, meta = io.read_map(tmp_path / "exr" / "dE-000004.exr")
-    assert meta["frame_ids"] == index["sequences"][4]["frame_ids"]
+    assert meta["frame_ids"] == frame_ids[4].tolist()
     np.testing.assert_allclose(data[..., 0], dE[4], atol=1e-6)
     assert preview.updates == 8 and preview.image.shape == (240, 320, 3) and (tmp_path / "preview.png").is_file()
-    with pytest.raises(FileExistsError, match="already holds a recording"):
-        NpyChunkWriter(tmp_path / "rec")
+    with pytest.raises(FileExistsError, match="already exists"):
+        ZarrRecorder(tmp_path / "rec.zarr", setup.plan)
 
 
 def test_bad_arguments_are_one_line_errors(setup):
@@ -289,8 +294,9 @@ def test_cli_stream_records_and_reports(setup, tmp_path):
                                        "--scene", "colorchecker", "--seconds", "1", "--out", str(tmp_path / "out")])
     assert result.exit_code == 0, result.output
     assert "frames in" in result.output and "dropped 0 (ring 0)" in result.output
-    index = json.loads((tmp_path / "out" / "index.json").read_text())
-    assert index["metadata"]["plan_hash"] == setup.plan.hash and len(index["sequences"]) >= 10
+    recording = open_recording(tmp_path / "out")
+    assert recording.attrs["plan_hash"] == setup.plan.hash and recording.sequences >= 10
+    assert f"wrote {tmp_path / 'out'} ({recording.sequences} sequences)" in result.output
     assert (tmp_path / "out" / "preview.png").is_file()
     bad = CliRunner().invoke(main, ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan",
                                     str(tmp_path / "plan.npz"), "--calib", str(tmp_path / "calib.npz"),
