@@ -375,3 +375,88 @@ def test_saturated_pixels_are_nan_as_offline(setup):
             assert np.array_equal(got_nan, want_nan), name
         assert_maps_equal({k: np.nan_to_num(v) for k, v in maps.items() if k != "coefficients"},
                           {k: np.nan_to_num(v) for k, v in want.items()})
+
+
+def _cli_files(setup, tmp_path):
+    from specgpu.calibration import save_calibration
+    from specgpu.plans import save_plan
+
+    cam = setup.description.camera
+    (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
+                                       f"exposure_s = {cam.exposure_s!r}\nframe_rate_hz = {cam.frame_rate_hz!r}\n")
+    save_calibration(tmp_path / "calib.npz", setup.bundle)
+    save_plan(tmp_path / "plan.npz", setup.plan)
+    return ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan", str(tmp_path / "plan.npz"), "--calib",
+            str(tmp_path / "calib.npz"), "--scene", "colorchecker"]
+
+
+def _disk_full_after(monkeypatch, n_sequences: int, array: str = "XYZ"):
+    """Every write of ``array`` after its first ``n_sequences`` fails as a full disk does."""
+    import zarr
+
+    real = zarr.Array.__setitem__
+    count = [0]
+
+    def write(self, key, value):
+        if self.basename == array:
+            count[0] += 1
+            if count[0] > n_sequences:
+                raise OSError(28, "No space left on device")
+        return real(self, key, value)
+
+    monkeypatch.setattr(zarr.Array, "__setitem__", write)
+
+
+def test_a_full_disk_stops_capture_and_keeps_the_committed_sequences(setup, expected, tmp_path, monkeypatch):
+    """The recorder fails on its 4th sequence: capture stops at the next sequence boundary (not at the time
+    limit), the 3 committed sequences stay readable (xarray too), and the partial one is not in the recording."""
+    import xarray as xr
+
+    _disk_full_after(monkeypatch, 3)
+    rec = ZarrRecorder(tmp_path / "rec.zarr", setup.plan)
+    report = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=("XYZ", "dE"),
+                    reference=setup.reference, sinks=[rec]).run(30)
+    assert report.seconds < 10 and len(report.sink_errors) == 1 and "No space left" in report.sink_errors[0]
+    assert report.accounting()["balanced"] and rec.committed == 3
+    monkeypatch.undo()
+    opened = open_recording(tmp_path / "rec.zarr")
+    assert opened.sequences == 3 and opened.attrs["status"] == "failed"
+    ds = xr.open_zarr(tmp_path / "rec.zarr")
+    assert ds.sizes["time"] == 3 and not np.isnan(ds["dE"].values).all(axis=(1, 2)).any()
+    for j in range(3):
+        want = expected[setup.recorded_sequence(ds["frame_id"].values[j])]
+        np.testing.assert_allclose(ds["dE"].values[j], want["dE"], atol=2e-3)
+
+
+def test_cli_stream_on_a_full_disk_says_what_was_saved_and_lost(setup, tmp_path, monkeypatch):
+    args = _cli_files(setup, tmp_path)
+    _disk_full_after(monkeypatch, 2)
+    result = CliRunner().invoke(main, [*args, "--seconds", "20", "--out", str(tmp_path / "rec.zarr")])
+    assert result.exit_code == 1
+    last = result.output.strip().splitlines()[-1]
+    assert "wrote" not in result.output and "No space left on device" in last
+    saved, lost = (int(x) for x in __import__("re").search(r"; (\d+) sequences saved in .*rec.zarr, (\d+) lost",
+                                                         last).groups())
+    assert saved == 2 and lost >= 1
+    monkeypatch.undo()
+    assert open_recording(tmp_path / "rec.zarr").sequences == 2
+
+
+def test_cli_stream_refuses_a_recording_that_cannot_fit_or_an_existing_folder(setup, tmp_path, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    args = _cli_files(setup, tmp_path)
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 10**6, 10**6))
+    result = CliRunner().invoke(main, [*args, "--seconds", "60", "--out", str(tmp_path / "rec.zarr")])
+    assert result.exit_code == 1 and not (tmp_path / "rec.zarr").exists()
+    assert result.output.count("\n") == 1
+    assert __import__("re").search(r"the recording \(\d+ sequences x [0-9.]+ MB\) needs about [0-9.]+ GB but only "
+                                   r"0.00 GB are free", result.output)
+    monkeypatch.undo()
+    (tmp_path / "old.zarr").mkdir()
+    (tmp_path / "old.zarr" / "XYZ-000001.npy").write_bytes(b"a killed run's chunk")
+    result = CliRunner().invoke(main, [*args, "--seconds", "1", "--out", str(tmp_path / "old.zarr")])
+    assert result.exit_code == 1 and result.output.count("\n") == 1 and "already exists" in result.output
+    assert [p.name for p in (tmp_path / "old.zarr").iterdir()] == ["XYZ-000001.npy"]
