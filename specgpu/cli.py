@@ -506,6 +506,53 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
         raise click.ClickException(f"a sink failed: {report.sink_errors[0]}{saved}")
 
 
+@main.command("batch")
+@click.argument("source", type=click.Path(exists=True, file_okay=False))
+@_PLAN
+@click.option("--calib", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Calibration the plan was made from (default: SOURCE/calibration.npz).")
+@click.option("--out", required=True, type=click.Path(file_okay=False),
+              help="Output zarr (OUT.zarr); an existing one from the same batch is resumed.")
+@click.option("--outputs", default="cube", show_default=True, help="Comma-separated: cube, XYZ, Lab, dE.")
+@click.option("--delta-e-ref", "ref", default=None, help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it.")
+@click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
+@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
+@click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (default: a LocalCluster).")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="LocalCluster worker processes (one thread and one OpenCL context each).")
+@click.option("--device", "device", default=None, help="OpenCL device selector (on every worker).")
+def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, scheduler, workers, device):
+    """Re-process the raw frames of a recording (specgpu stream --frames) or a sequence folder with a plan, on
+    Dask: one task per sequence, resumable, equal to specgpu recover of each sequence."""
+    from pathlib import Path
+
+    from .batch import BATCH_OUTPUTS, open_source, run_batch
+    from .calibration import load_calibration
+    from .colorimetry import DELTA_E_METHODS
+    from .plans import load_plan
+    from .validate import validate_method
+
+    wanted = tuple(validate_method(o.strip(), {k: k for k in BATCH_OUTPUTS}, "batch output")
+                   for o in outputs.split(",") if o.strip())
+    method = validate_method(method, DELTA_E_METHODS)
+    if ("dE" in wanted) != (ref is not None):
+        raise click.UsageError("the dE output and --delta-e-ref go together")
+    plan = load_plan(plan_path)
+    calib = Path(calib) if calib else Path(source) / "calibration.npz"
+    if not calib.is_file():
+        raise click.UsageError(f"{calib} not found; give --calib")
+    bundle = load_calibration(calib)
+    reference = None
+    if ref is not None:
+        src = open_source(source)
+        reference = _parse_reference(ref, src.height, src.width, illuminant)
+    report = run_batch(source, plan, bundle, out, outputs=wanted, illuminant=illuminant, method=method,
+                       reference=reference, scheduler=scheduler, workers=workers, device=device)
+    click.echo(f"{plan.method}: {report.computed} sequences computed on {report.workers} worker(s) in "
+               f"{report.seconds:.1f} s ({report.sequences_per_s:.1f} sequences/s), {report.skipped} already done; "
+               f"OpenCL contexts built {report.contexts_built}; wrote {out}")
+
+
 @main.command()
 @click.argument("cube", type=click.Path(exists=True, dir_okay=False))
 @click.option("--truth", required=True, help="The true scene: colorchecker, white, natural[:image] or a cube file.")

@@ -235,6 +235,15 @@ class ZarrRecorder:
         consolidate(self.path)
 
 
+def native(a):
+    """``a`` in native byte order (zarr hands out explicit little-endian dtypes, which OpenImageIO refuses)."""
+    a = np.asarray(a)
+    if a.dtype.byteorder in ("=", "|"):
+        return a
+    native_dtype = a.dtype.newbyteorder("=")
+    return a.view(native_dtype) if a.dtype == native_dtype else a.astype(native_dtype)
+
+
 def consolidate(path) -> None:
     """Consolidate a group's metadata into its root document (xarray then opens it from one read)."""
     import warnings
@@ -276,7 +285,7 @@ class Recording:
         """Committed sequence(s) ``index`` of array ``name``; a corrupt chunk is a one-line error."""
         arr = self.array(name)
         try:
-            return arr[index]
+            return native(arr[index])
         except Exception as exc:  # noqa: BLE001 (zarr raises codec-specific errors)
             raise ValueError(f"{self.path}/{name}: corrupt or unreadable chunk at sequence {index} "
                              f"({type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''})"
