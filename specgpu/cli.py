@@ -325,7 +325,9 @@ def _parse_reference(text, height, width, illuminant):
 @main.command()
 @click.argument("seq", type=click.Path(exists=True, file_okay=False))
 @click.option("--out", required=True, type=click.Path(dir_okay=False),
-              help="Recovered cube (.exr / .npz); an XYZ map for a tristimulus plan.")
+              help="Recovered cube (.exr / .npz / .hdr ENVI); an XYZ map for a tristimulus plan.")
+@click.option("--interleave", type=click.Choice(["bsq", "bil", "bip"]), default="bsq", show_default=True,
+              help="ENVI (.hdr) cube layout: band sequential, interleaved by line or by pixel.")
 @click.option("--xyz", "xyz_path", type=click.Path(dir_okay=False), default=None, help="Also write XYZ (EXR).")
 @click.option("--lab", "lab_path", type=click.Path(dir_okay=False), default=None, help="Also write CIELAB (EXR).")
 @click.option("--delta-e-ref", "ref", default=None,
@@ -337,7 +339,7 @@ def _parse_reference(text, height, width, illuminant):
 @click.option("--sequence", type=int, default=None, help="Recover one sequence (default: the mean of all).")
 @click.option("--half", is_flag=True, help="Write the cube in half precision.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, device):
+def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, device):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     from pathlib import Path
 
@@ -361,7 +363,8 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
                 "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant}
         writes = []
         if plan.output == "reflectance":
-            writes.append(lambda: io.write_cube(out, y, plan.output_wavelengths, half=half, metadata=meta))
+            extra = {"interleave": interleave} if Path(out).suffix.lower() == ".hdr" else {}
+            writes.append(lambda: io.write_cube(out, y, plan.output_wavelengths, half=half, metadata=meta, **extra))
         else:
             kind = "XYZ" if plan.output == "XYZ" else tuple(plan.output_labels)
             writes.append(lambda: io.write_map(out, y, kind, half=half, metadata=meta))

@@ -223,3 +223,22 @@ def test_bad_input_is_one_line(made, tmp_path):
     zarr.open_group(str(tmp_path / "bad-out.zarr"), mode="r+").attrs["plan_hash"] = "0" * 64
     msg = run(tmp_path / "bad.zarr", out="bad-out.zarr")
     assert "bad-out.zarr: holds a batch of another plan_hash" in msg and "\n" not in msg
+
+
+def test_recover_writes_an_envi_cube_equal_to_npz(made, tmp_path):
+    import spectral.io.envi as envi
+
+    setup, root = made
+    want = recovered(root, tmp_path, 1)
+    result = CliRunner().invoke(main, ["recover", str(root / "seq"), "--sequence", "1", "--out",
+                                       str(tmp_path / "r.hdr"), "--interleave", "bip"])
+    assert result.exit_code == 0, result.output
+    img = envi.open(str(tmp_path / "r.hdr"))
+    assert img.metadata["interleave"] == "bip"
+    np.testing.assert_array_equal(np.array(img.bands.centers), setup.plan.output_wavelengths)
+    np.testing.assert_array_equal(np.asarray(img.load()), want)
+    back, wl, meta = io.read_cube(tmp_path / "r.hdr")
+    np.testing.assert_array_equal(back, want)
+    assert meta["plan_hash"] == setup.plan.hash
+    half = CliRunner().invoke(main, ["recover", str(root / "seq"), "--out", str(tmp_path / "h.hdr"), "--half"])
+    assert half.exit_code == 1 and "ENVI has no half-float data type" in half.output
