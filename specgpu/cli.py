@@ -265,7 +265,9 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
 @click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False),
               help="The calibration the plan was made from (stored with the frames for recovery).")
 @_SCENE
-@click.option("--out", required=True, type=click.Path(file_okay=False), help="Sequence folder to write.")
+@click.option("--out", required=True, type=click.Path(file_okay=False),
+              help="Sequence folder to write; a name ending in .zarr writes a zarr recording of the raw frames "
+                   "instead (for specgpu batch).")
 @click.option("--sequences", type=click.IntRange(min=1), default=1, show_default=True)
 @click.option("--seed", type=int, default=None, help="Seed of the frames' temporal noise.")
 def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
@@ -280,25 +282,56 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
     bundle, plan, truth = _experiment(description, plan_path, calib, scene)
     cam = description.camera
     kept = []
+    recorder = None
+    if str(out).lower().rstrip("/").endswith(".zarr"):  # raw frames straight to disk, one chunk per sequence
+        import shutil
+        from pathlib import Path
+
+        from .recording import ZarrRecorder, check_free_space, refuse_existing
+
+        refuse_existing(out)
+        check_free_space(out, sequences * (plan.K * cam.roi_height * cam.roi_width * 2 + 4096),
+                         what=f"the recording ({sequences} sequences of {plan.K} raw frames)")
+        recorder = ZarrRecorder(out, plan, outputs=(), frames=True,
+                                metadata={"scene": truth.name, "rig": rig_path or "<paper defaults>"})
+        shutil.copyfile(plan_path, Path(out) / "plan.npz")
+        shutil.copyfile(calib, Path(out) / "calibration.npz")
     with tqdm(total=sequences, desc="capturing", unit="seq", leave=False, file=sys.stderr) as bar:
         def keep(sequence):
-            kept.append(sequence)
+            if recorder is None:
+                kept.append(sequence)
+            else:
+                from .stream import StreamResult
+
+                recorder.write(StreamResult(recorder.committed, sequence.cycle, sequence.frame_ids,
+                                            sequence.timestamps_s, {}, 0.0, frames=sequence.frames))
             bar.update()
 
-        if hardware is None:
-            result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed, on_sequence=keep)
-        else:  # real devices: the same ring buffer and assembler, the plan uploaded to the light
-            from .capture.session import capture_sequences
-            from .hardware.rig import open_hardware
+        try:
+            if hardware is None:
+                result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed,
+                                      on_sequence=keep)
+            else:  # real devices: the same ring buffer and assembler, the plan uploaded to the light
+                from .capture.session import capture_sequences
+                from .hardware.rig import open_hardware
 
-            driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle,
-                                   n_frames=plan.K * sequences)
-            try:
-                result = capture_sequences(driver, plan.K, on_sequence=keep)
-            finally:
-                driver.close()
-    write_capture(out, kept, result.assembly, plan_path, calib,
-                  metadata={"scene": truth.name, "rig": rig_path or "<paper defaults>"})
+                driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle,
+                                       n_frames=plan.K * sequences)
+                try:
+                    result = capture_sequences(driver, plan.K, on_sequence=keep)
+                finally:
+                    driver.close()
+        except BaseException as error:
+            if recorder is not None:  # what was committed stays readable; the recording says it is cut short
+                recorder.failed = recorder.failed or f"{type(error).__name__}: {error}"
+                recorder.close()
+            raise
+    if recorder is not None:
+        recorder.close()
+        kept = range(recorder.committed)
+    else:
+        write_capture(out, kept, result.assembly, plan_path, calib,
+                      metadata={"scene": truth.name, "rig": rig_path or "<paper defaults>"})
     a = result.assembly
     click.echo(f"{len(kept)} sequences of {plan.K} frames ({truth.name}, {cam.roi_width} x {cam.roi_height}); "
                f"dropped {a.dropped}, duplicated {a.duplicates}, missed triggers {a.missed_triggers}, "

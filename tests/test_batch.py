@@ -242,3 +242,30 @@ def test_recover_writes_an_envi_cube_equal_to_npz(made, tmp_path):
     assert meta["plan_hash"] == setup.plan.hash
     half = CliRunner().invoke(main, ["recover", str(root / "seq"), "--out", str(tmp_path / "h.hdr"), "--half"])
     assert half.exit_code == 1 and "ENVI has no half-float data type" in half.output
+
+
+def test_capture_into_zarr_then_batch_equals_recover_of_a_capture_folder(made, tmp_path):
+    """`capture --out SEQ.zarr` records the raw frames; the same capture (same seed) as a folder, recovered per
+    sequence, equals the batch of the zarr recording."""
+    setup, root = made
+    cam = setup.description.camera
+    (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
+                                       f"exposure_s = {cam.exposure_s!r}\nframe_rate_hz = {cam.frame_rate_hz!r}\n")
+    common = ["capture", "--rig", str(tmp_path / "rig.toml"), "--plan", str(root / "plan.npz"), "--calib",
+              str(root / "calib.npz"), "--scene", "colorchecker", "--sequences", "2", "--seed", "3"]
+    result = CliRunner().invoke(main, [*common, "--out", str(tmp_path / "cap.zarr")])
+    assert result.exit_code == 0, result.output
+    assert "2 sequences of 9 frames" in result.output
+    assert open_recording(tmp_path / "cap.zarr").sequences == 2
+    assert CliRunner().invoke(main, [*common, "--out", str(tmp_path / "cap")]).exit_code == 0
+    out = CliRunner().invoke(main, ["batch", str(tmp_path / "cap.zarr"), "--plan", str(root / "plan.npz"),
+                                    "--out", str(tmp_path / "b.zarr")])
+    assert out.exit_code == 0, out.output
+    cube = open_recording_like(tmp_path / "b.zarr")["cube"]
+    for i in range(2):
+        got = CliRunner().invoke(main, ["recover", str(tmp_path / "cap"), "--sequence", str(i), "--out",
+                                        str(tmp_path / f"c{i}.npz")])
+        assert got.exit_code == 0, got.output
+        np.testing.assert_array_equal(cube[i], io.read_cube(tmp_path / f"c{i}.npz")[0])
+    again = CliRunner().invoke(main, [*common, "--out", str(tmp_path / "cap.zarr")])
+    assert again.exit_code == 1 and "already exists" in again.output
