@@ -44,6 +44,8 @@ __all__ = ["RECORDING_FORMAT", "RECORDING_VERSION", "ZarrRecorder", "Recording",
 RECORDING_FORMAT = "specgpu.recording"
 RECORDING_VERSION = 1
 
+#: What a recording may hold along time besides the raw frames (specgpu.stream.STREAM_OUTPUTS).
+_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE")
 #: Channel dimension and channel names of each output.
 _CHANNELS = {"XYZ": ("X", "Y", "Z"), "Lab": ("L", "a", "b")}
 
@@ -306,13 +308,21 @@ def open_recording(path) -> Recording:
     attrs = dict(group.attrs)
     if attrs.get("format") != RECORDING_FORMAT:
         raise ValueError(f"{path}: not a specgpu recording (format {attrs.get('format')!r})")
-    if attrs.get("version") != RECORDING_VERSION:
+    if type(attrs.get("version")) is not int or attrs["version"] != RECORDING_VERSION:
         raise ValueError(f"{path}: recording version {attrs.get('version')!r} is not supported "
                          f"(this specgpu reads {RECORDING_VERSION})")
     n = attrs.get("sequences_committed")
-    if not isinstance(n, int) or n < 0:
+    if not isinstance(n, int) or isinstance(n, bool) or n < 0:
         raise ValueError(f"{path}: sequences_committed must be an integer >= 0, got {n!r}")
-    for name in (*attrs.get("outputs", []), *(("frames",) if attrs.get("frames") else ())):
+    outputs = attrs.get("outputs", [])
+    if not isinstance(outputs, list) or not all(isinstance(o, str) and o in _OUTPUTS for o in outputs):
+        raise ValueError(f"{path}: outputs must be a list of {', '.join(_OUTPUTS)}, got {str(outputs)[:80]}")
+    if not isinstance(attrs.get("frames", False), bool):
+        raise ValueError(f"{path}: frames must be true or false, got {str(attrs.get('frames'))[:40]}")
+    K = attrs.get("K")
+    if not isinstance(K, int) or isinstance(K, bool) or K < 1:
+        raise ValueError(f"{path}: K must be an integer >= 1, got {str(K)[:40]}")
+    for name in (*outputs, *(("frames",) if attrs.get("frames") else ())):
         if name not in group:
             raise ValueError(f"{path}: the {name!r} array is missing")
         if group[name].shape[0] < n:

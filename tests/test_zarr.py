@@ -10,6 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from specgpu.recording import (ZarrRecorder, check_free_space, open_recording, patterns_hash, refuse_existing,
                                sequence_bytes)
@@ -166,3 +167,36 @@ def test_free_space_check_names_the_figures(tmp_path):
     assert check_free_space(tmp_path / "new" / "rec.zarr", per) > per
     with pytest.raises(OSError, match=r"rec.zarr: the recording needs about [0-9.]+ GB but only [0-9.]+ GB are free"):
         check_free_space(tmp_path / "rec.zarr", 10**18)
+
+
+_json = st.recursive(st.none() | st.booleans() | st.integers(-3, 10**12) | st.floats(allow_nan=False) | st.text(max_size=8),
+                     lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=6), inner, max_size=3),
+                     max_leaves=8)
+
+
+@settings(max_examples=120)
+@given(st.dictionaries(st.sampled_from(["format", "version", "sequences_committed", "outputs", "frames", "K"]), _json,
+                       max_size=6), st.booleans())
+def test_fuzzed_recording_attributes_give_a_recording_or_one_line(tmp_path_factory, attrs, based):
+    """Random attribute values over a real recording (or an empty group): open_recording returns a recording
+    whose committed sequences all read, or refuses in one line naming the folder."""
+    import json
+
+    folder = tmp_path_factory.mktemp("fz") / "rec.zarr"
+    if based:
+        record(folder, 2)
+    else:
+        import zarr
+
+        zarr.open_group(str(folder), mode="w")
+    doc = json.loads((folder / "zarr.json").read_text())
+    doc.pop("consolidated_metadata", None)
+    doc.setdefault("attributes", {}).update(attrs)
+    (folder / "zarr.json").write_text(json.dumps(doc))
+    try:
+        rec = open_recording(folder)
+    except (ValueError, FileNotFoundError) as exc:
+        assert "\n" not in str(exc) and str(exc).startswith(str(folder))
+    else:
+        for name in rec.attrs.get("outputs") or []:
+            assert rec.read(name, slice(0, rec.sequences)).shape[0] == rec.sequences
