@@ -269,3 +269,17 @@ def test_capture_into_zarr_then_batch_equals_recover_of_a_capture_folder(made, t
         np.testing.assert_array_equal(cube[i], io.read_cube(tmp_path / f"c{i}.npz")[0])
     again = CliRunner().invoke(main, [*common, "--out", str(tmp_path / "cap.zarr")])
     assert again.exit_code == 1 and "already exists" in again.output
+
+
+def test_cli_batch_on_a_given_scheduler(made, tmp_path):
+    """--scheduler ADDRESS: the batch runs on that cluster's workers (here a LocalCluster started by the test)."""
+    from distributed import LocalCluster
+
+    _, root = made
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+        result = CliRunner().invoke(main, ["batch", str(root / "seq"), "--plan", str(root / "plan.npz"), "--out",
+                                           str(tmp_path / "s.zarr"), "--scheduler", cluster.scheduler_address])
+        assert result.exit_code == 0, result.output
+        assert "3 sequences computed on 1 worker(s)" in result.output
+        assert len(cluster.scheduler.workers) == 1  # the cluster outlives the batch: only the client was closed
+    np.testing.assert_array_equal(open_recording_like(tmp_path / "s.zarr")["cube"][2], recovered(root, tmp_path, 2))
