@@ -102,9 +102,15 @@ class _Staged:
         self.pairs.append((Path(tmp), final))
         return Path(tmp)
 
-    def write(self, final, write):
-        """``write(path)`` to a temporary beside ``final``; an error names ``final``, never the temporary."""
+    def write(self, final, write, companions=()):
+        """``write(path)`` to a temporary beside ``final``; an error names ``final``, never the temporary.
+        ``companions``: suffixes of files the writer puts beside its path (an ENVI header's ``.img``), renamed with
+        it, before it."""
+        from pathlib import Path
+
         tmp = self.path(final)
+        for suffix in companions:
+            self.pairs.insert(len(self.pairs) - 1, (tmp.with_suffix(suffix), Path(final).with_suffix(suffix)))
         try:
             write(tmp)
         except Exception as error:
@@ -127,7 +133,7 @@ class _Staged:
                 os.replace(tmp, final)
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
-        return [final for _, final in self.pairs]
+        return [final for _, final in self.pairs if final.suffix != ".img"]
 
 
 def _lock(*paths, folder: bool = False):
@@ -465,7 +471,9 @@ def _estimated_plan(method, bundle, args, kwargs, estimator, training, training_
 @click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False),
               help="The calibration the plan was made from (stored with the frames for recovery).")
 @_SCENE
-@click.option("--out", required=True, type=click.Path(file_okay=False), help="Sequence folder to write.")
+@click.option("--out", required=True, type=click.Path(file_okay=False),
+              help="Sequence folder to write; a name ending in .zarr writes a zarr recording of the raw frames "
+                   "instead (for specgpu batch).")
 @click.option("--sequences", type=click.IntRange(min=1), default=1, show_default=True)
 @click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=None,
               help="Seed of the frames' temporal noise.")
@@ -480,20 +488,63 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
     hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
     bundle, plan, truth = _experiment(description, plan_path, calib, scene)
     cam = description.camera
-    check_capture_folder(out)  # a folder holding a sequence or someone's files: refused before the capture
-    _lock(out, folder=True)
-    writer = CaptureWriter(out, plan_path, calib)  # frames go to disk as they come, never all held in memory
+    meta = {"scene": truth.name, "rig": rig_path or "<paper defaults>"}
+    if str(out).lower().rstrip("/").endswith(".zarr"):  # raw frames straight to disk, one chunk per sequence
+        from .recording import refuse_existing
+
+        refuse_existing(out)
+        _lock(out, folder=True)
+        writer = _ZarrCapture(out, plan, plan_path, calib, sequences, plan.K * cam.roi_height * cam.roi_width * 2,
+                              meta)
+    else:
+        check_capture_folder(out)  # a folder holding a sequence or someone's files: refused before the capture
+        _lock(out, folder=True)
+        writer = CaptureWriter(out, plan_path, calib)  # frames go to disk as they come, never all held in memory
     try:
         with tqdm(total=sequences, desc="capturing", unit="seq", leave=False, file=sys.stderr) as bar:
             result = _capture_into(writer, bar, description, hardware, plan, bundle, truth, sequences, seed)
-        writer.close(result.assembly, metadata={"scene": truth.name, "rig": rig_path or "<paper defaults>"})
-    except BaseException:
-        writer.abort()
+        writer.close(result.assembly, metadata=meta)
+    except BaseException as error:
+        writer.abort(error)
         raise
     a = result.assembly
     click.echo(f"{writer.sequences} sequences of {plan.K} frames ({truth.name}, {cam.roi_width} x "
                f"{cam.roi_height}); dropped {a.dropped}, duplicated {a.duplicates}, missed triggers "
                f"{a.missed_triggers}, discarded {a.sequences_discarded}; wrote {out}")
+
+
+class _ZarrCapture:
+    """``capture --out SEQ.zarr``: each complete sequence's raw frames committed to a zarr recording as it arrives
+    (what was committed stays readable if the capture is cut short); the writer interface of CaptureWriter."""
+
+    def __init__(self, out, plan, plan_path, calib, sequences, sequence_bytes, metadata):
+        import shutil
+        from pathlib import Path
+
+        from .recording import ZarrRecorder, check_free_space
+
+        check_free_space(out, sequences * (sequence_bytes + 4096),
+                         what=f"the recording ({sequences} sequences of {plan.K} raw frames)")
+        self.recorder = ZarrRecorder(out, plan, outputs=(), frames=True, metadata=metadata)
+        shutil.copyfile(plan_path, Path(out) / "plan.npz")
+        shutil.copyfile(calib, Path(out) / "calibration.npz")
+
+    @property
+    def sequences(self) -> int:
+        return self.recorder.committed
+
+    def add(self, sequence) -> None:
+        from .stream import StreamResult
+
+        self.recorder.write(StreamResult(self.recorder.committed, sequence.cycle, sequence.frame_ids,
+                                         sequence.timestamps_s, {}, 0.0, frames=sequence.frames))
+
+    def close(self, assembly, metadata=None) -> None:
+        self.recorder.close()
+
+    def abort(self, error=None) -> None:
+        self.recorder.failed = self.recorder.failed or f"{type(error).__name__}: {error}"
+        self.recorder.close()
 
 
 def _capture_into(writer, bar, description, hardware, plan, bundle, truth, sequences, seed):
@@ -574,7 +625,9 @@ def _parse_reference(text, height, width, illuminant):
 @main.command()
 @click.argument("seq", type=click.Path(exists=True, file_okay=False))
 @click.option("--out", required=True, type=click.Path(dir_okay=False),
-              help="Recovered cube (.exr / .npz); an XYZ map for a tristimulus plan.")
+              help="Recovered cube (.exr / .npz / .hdr ENVI); an XYZ map for a tristimulus plan.")
+@click.option("--interleave", type=click.Choice(["bsq", "bil", "bip"]), default="bsq", show_default=True,
+              help="ENVI (.hdr) cube layout: band sequential, interleaved by line or by pixel.")
 @click.option("--xyz", "xyz_path", type=click.Path(dir_okay=False), default=None, help="Also write XYZ (EXR).")
 @click.option("--lab", "lab_path", type=click.Path(dir_okay=False), default=None, help="Also write CIELAB (EXR).")
 @click.option("--delta-e-ref", "ref", default=None,
@@ -590,7 +643,7 @@ def _parse_reference(text, height, width, illuminant):
 @click.option("--delta-e-sigma", "de_sigma_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the per-pixel dE2000 standard deviation (first-order, under --illuminant; EXR).")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, sigma_path,
+def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, sigma_path,
             de_sigma_path, device):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     from pathlib import Path
@@ -619,7 +672,12 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
                 "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant}
         writes = []  # (final path, write(to path))
         if plan.output == "reflectance":
-            writes.append((out, lambda p: io.write_cube(p, y, plan.output_wavelengths, half=half, metadata=meta)))
+            if Path(out).suffix.lower() == ".hdr":  # ENVI: the .img data file renamed with its header
+                writes.append((out, lambda p: io.write_cube(p, y, plan.output_wavelengths, metadata=meta,
+                                                           interleave=interleave), (".img",)))
+            else:
+                writes.append((out, lambda p: io.write_cube(p, y, plan.output_wavelengths, half=half,
+                                                           metadata=meta)))
         else:
             kind = "XYZ" if plan.output == "XYZ" else tuple(plan.output_labels)
             # kind bound now: the dE branch below reuses the name (a late-bound lambda wrote XYZ as a dE map)
@@ -643,8 +701,8 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
                 writes.append((de_path, lambda p, kind=kind: io.write_map(p, dE, kind, metadata=meta)))
     staged = _Staged()  # all or nothing: no output replaced until every one is written
     try:
-        for final, write in writes:
-            staged.write(final, write)
+        for final, write, *companions in writes:
+            staged.write(final, write, *companions)
         written = staged.commit()
     except BaseException:
         staged.discard()
@@ -686,7 +744,9 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
 @_SCENE
 @click.option("--seconds", type=_Finite(min=0, min_open=True), required=True, help="Capture time.")
 @click.option("--out", type=click.Path(file_okay=False), default=None,
-              help="Folder for the recording (chunked .npy + index.json) and preview.png.")
+              help="New zarr recording to write (REC.zarr: one chunk per sequence, xarray / dask readable), with "
+                   "preview.png inside.")
+@click.option("--frames", "raw_frames", is_flag=True, help="Also record the raw frames (for specgpu batch).")
 @click.option("--outputs", default="coefficients,XYZ,dE", show_default=True,
               help="Comma-separated: coefficients, cube, XYZ, Lab, dE.")
 @click.option("--delta-e-ref", "ref", default=None,
@@ -704,18 +764,15 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
 @click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=None,
               help="Seed of the frames' temporal noise.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref, method, illuminant, pacing,
-                   policy, exr_every, half, seed, device):
+def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
+                   pacing, policy, exr_every, half, seed, device):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
-    import numpy as np
-
     from .capture.twin import TwinDriver
     from .pipeline import check_scene_covers
     from .rig.twin import TwinRig
-    from .stream import STREAM_OUTPUTS, ExrSequenceWriter, NpyChunkWriter, PreviewSink, Stream
+    from .stream import STREAM_OUTPUTS
     from .validate import validate_method
-
 
     # before any loading: a typo is an error naming the valid outputs
     wanted = tuple(validate_method(o.strip(), {k: k for k in STREAM_OUTPUTS}, "stream output")
@@ -723,6 +780,9 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
     from .rig.config import load_rig
 
     if out:
+        from .recording import refuse_existing
+
+        refuse_existing(out)  # before any work: a recording is never mixed with another run
         _lock(out, folder=True)  # one recorder per folder: a second stream into it refuses at once
     description = load_rig(rig_path)
     hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
@@ -743,13 +803,43 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
 
         driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle)
         pacing = "paced"
-    sinks, writer = [], None
+    try:
+        _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
+                    seconds, method, illuminant, pacing, policy, exr_every, half, seed, device)
+    finally:
+        if hardware is not None:
+            driver.close()  # the light's USB link and the camera
+
+
+def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
+                seconds, method, illuminant, pacing, policy, exr_every, half, seed, device):
+    """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised."""
+    import numpy as np
+
+    from .stream import ExrSequenceWriter, PreviewSink, Stream
+
+    cam = description.camera
+    policy = policy or ("drop_newest" if pacing == "paced" else "block")
+    stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
+                    illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
+                    device=device)
+    sinks, writer = stream.sinks, None
     if out:
         from pathlib import Path
 
-        meta = {"plan_hash": plan.hash, "plan_method": plan.method, "calibration": plan.calibration,
-                "scene": truth.name, "illuminant": illuminant, "outputs": list(wanted)}
-        writer = NpyChunkWriter(out, metadata=meta)
+        from .recording import ZarrRecorder, check_free_space, expected_sequences, sequence_bytes
+
+        n_expected = expected_sequences(seconds, plan.rig_description(description).camera.frame_rate_hz, plan.K)
+        per_sequence = sequence_bytes(stream.decoder.shapes(), frames_shape=(plan.K, cam.roi_height,
+                                                                             cam.roi_width) if raw_frames else None)
+        check_free_space(out, n_expected * per_sequence,
+                         what=f"the recording ({n_expected} sequences x {per_sequence / 1e6:.1f} MB)")
+        meta = {"scene": truth.name, "illuminant": illuminant, "method": method, "seed": seed}
+        writer = ZarrRecorder(out, plan, frames=raw_frames, basis=stream.decoder.basis, metadata=meta)
+        import shutil
+
+        shutil.copyfile(plan_path, Path(out) / "plan.npz")  # what batch re-processes the frames with
+        shutil.copyfile(calib, Path(out) / "calibration.npz")
         sinks.append(writer)
         if exr_every:
             sinks.append(ExrSequenceWriter(Path(out) / "exr", wavelengths=plan.output_wavelengths, every=exr_every,
@@ -757,12 +847,6 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
                                            metadata=meta))
         if "XYZ" in wanted:
             sinks.append(PreviewSink(Path(out) / "preview.png"))
-    policy = policy or ("drop_newest" if pacing == "paced" else "block")
-    stream = Stream(driver, plan, bundle, outputs=wanted, sinks=sinks, reference=reference, method=method,
-                    illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
-                    device=device)
-    if writer is not None and stream.decoder.basis is not None:
-        writer.metadata["coefficient_basis"] = stream.decoder.basis.tolist()
     tty = sys.stderr.isatty()
 
     def status(s):
@@ -770,12 +854,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
                 f"(ring {s['ring_dropped']}), discarded {s['discarded']}, latency {s['latency_ms']:.1f} ms")
         click.echo(("\r" + line + "   ") if tty else line, err=True, nl=not tty)
 
-    try:
-        with _one_interrupt():
-            report = stream.run(seconds, on_status=status)
-    finally:
-        if hardware is not None:
-            driver.close()  # the light's USB link and the camera
+    with _one_interrupt():
+        report = stream.run(seconds, on_status=status)
     if tty:
         click.echo("", err=True)
     a = report.assembly
@@ -783,9 +863,59 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, outputs, ref
                f"({report.sequences_per_s:.1f}/s); dropped {a.dropped} (ring {report.ring.dropped}), duplicated "
                f"{a.duplicates}, missed triggers {a.missed_triggers}, discarded {a.sequences_discarded}; latency "
                f"median {report.latency_ms(50):.1f} ms, p99 {report.latency_ms(99):.1f} ms"
-               + (" (interrupted)" if report.interrupted else "") + (f"; wrote {out}" if out else ""))
+               + (" (interrupted)" if report.interrupted else "")
+               + (f"; wrote {out} ({writer.committed} sequences)" if out and not report.sink_errors else ""))
     if report.sink_errors:
-        raise click.ClickException(f"a sink failed: {report.sink_errors[0]}")
+        saved = (f"; {writer.committed} sequences saved in {out}, {report.sequences_out - writer.committed} lost"
+                 if writer is not None else "")
+        raise click.ClickException(f"a sink failed: {report.sink_errors[0]}{saved}")
+
+
+@main.command("batch")
+@click.argument("source", type=click.Path(exists=True, file_okay=False))
+@_PLAN
+@click.option("--calib", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Calibration the plan was made from (default: SOURCE/calibration.npz).")
+@click.option("--out", required=True, type=click.Path(file_okay=False),
+              help="Output zarr (OUT.zarr); an existing one from the same batch is resumed.")
+@click.option("--outputs", default="cube", show_default=True, help="Comma-separated: cube, XYZ, Lab, dE.")
+@click.option("--delta-e-ref", "ref", default=None, help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it.")
+@click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
+@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
+@click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (default: a LocalCluster).")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="LocalCluster worker processes (one thread and one OpenCL context each).")
+@click.option("--device", "device", default=None, help="OpenCL device selector (on every worker).")
+def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, scheduler, workers, device):
+    """Re-process the raw frames of a recording (specgpu stream --frames) or a sequence folder with a plan, on
+    Dask: one task per sequence, resumable, equal to specgpu recover of each sequence."""
+    from pathlib import Path
+
+    from .batch import BATCH_OUTPUTS, open_source, run_batch
+    from .calibration import load_calibration
+    from .colorimetry import DELTA_E_METHODS
+    from .plans import load_plan
+    from .validate import validate_method
+
+    wanted = tuple(validate_method(o.strip(), {k: k for k in BATCH_OUTPUTS}, "batch output")
+                   for o in outputs.split(",") if o.strip())
+    method = validate_method(method, DELTA_E_METHODS)
+    if ("dE" in wanted) != (ref is not None):
+        raise click.UsageError("the dE output and --delta-e-ref go together")
+    plan = load_plan(plan_path)
+    calib = Path(calib) if calib else Path(source) / "calibration.npz"
+    if not calib.is_file():
+        raise click.UsageError(f"{calib} not found; give --calib")
+    bundle = load_calibration(calib)
+    reference = None
+    if ref is not None:
+        src = open_source(source)
+        reference = _parse_reference(ref, src.height, src.width, illuminant)
+    report = run_batch(source, plan, bundle, out, outputs=wanted, illuminant=illuminant, method=method,
+                       reference=reference, scheduler=scheduler, workers=workers, device=device)
+    click.echo(f"{plan.method}: {report.computed} sequences computed on {report.workers} worker(s) in "
+               f"{report.seconds:.1f} s ({report.sequences_per_s:.1f} sequences/s), {report.skipped} already done; "
+               f"OpenCL contexts built {report.contexts_built}; wrote {out}")
 
 
 @main.command()

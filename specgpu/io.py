@@ -3,8 +3,9 @@
 =====================  ===========================================================================================
 spectral cube          OpenEXR, JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie): one channel per band named
                        ``T.<wavelength><unit>`` (``T.550,000000nm``), float32 or half, ``spectralLayoutVersion``
-                       ``"1.0"`` in the header; or ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B).
-                       :func:`write_cube`, :func:`read_cube`.
+                       ``"1.0"`` in the header; or ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B);
+                       or ENVI (``.hdr`` header + ``.img`` raw data, BSQ / BIL / BIP, ``wavelength`` in nm).
+                       :func:`write_cube`, :func:`read_cube` (by extension).
 map                    OpenEXR with named channels: ``X,Y,Z`` (XYZ), ``L,a,b`` (CIELAB), one channel for a colour
                        difference (``dE76``, ``dE94``, ``dE2000``) or any names given. :func:`write_map`,
                        :func:`read_map`.
@@ -55,6 +56,7 @@ __all__ = [
     "write_sRGB_preview", "write_delta_E_png", "read_png", "PERCEPTUAL_COLORMAPS",
     "SEQUENCE_FORMAT", "SEQUENCE_VERSION", "SEQUENCE_FILE", "write_sequence", "SequenceWriter", "read_sequence",
     "read_sequence_header", "validate_sequence_document", "SPECTRAL_LAYOUT_VERSION",
+    "write_cube_envi", "read_cube_envi", "read_envi_header", "ENVI_INTERLEAVES",
 ]
 
 _META_ATTRIBUTE = "specgpu:metadata"  # header attribute holding the caller's metadata as JSON (exact floats)
@@ -105,8 +107,9 @@ def _suffix(path: Path, allowed: tuple[str, ...], what: str) -> str:
     return suffix
 
 
-def write_cube(path, cube, wavelengths, *, half: bool = False, metadata=None) -> Path:
-    """Write a spectral cube: OpenEXR in the JCGT 2021 layout (``.exr``) or ``.npz``.
+def write_cube(path, cube, wavelengths, *, half: bool = False, metadata=None, interleave: str = "bsq") -> Path:
+    """Write a spectral cube: OpenEXR in the JCGT 2021 layout (``.exr``), ``.npz`` or ENVI (``.hdr`` + ``.img``,
+    :func:`write_cube_envi`; ``interleave`` ``"bsq"``, ``"bil"`` or ``"bip"``).
 
     Parameters
     ----------
@@ -135,7 +138,11 @@ def write_cube(path, cube, wavelengths, *, half: bool = False, metadata=None) ->
         metadata that is not JSON.
     """
     path = Path(path)
-    suffix = _suffix(path, (".exr", ".npz"), "spectral cube")
+    suffix = _suffix(path, (".exr", ".npz", ".hdr"), "spectral cube")
+    if suffix == ".hdr":
+        if half:
+            raise ValueError(f"{path}: ENVI has no half-float data type; write the cube without --half")
+        return write_cube_envi(path, cube, wavelengths, interleave=interleave, metadata=metadata)
     meta = _metadata_json(path, metadata)
     if suffix == ".npz":
         extra = {} if meta is None else {"metadata": np.array(meta)}
@@ -150,7 +157,7 @@ def read_cube(path) -> tuple[np.ndarray, np.ndarray, dict]:
     Parameters
     ----------
     path : str or os.PathLike
-        ``.exr`` or ``.npz`` file.
+        ``.exr``, ``.npz`` or ENVI ``.hdr`` file.
 
     Returns
     -------
@@ -170,7 +177,9 @@ def read_cube(path) -> tuple[np.ndarray, np.ndarray, dict]:
         channels, duplicate or degenerate wavelengths, NaN wavelengths, wrong shapes, bad metadata.
     """
     path = Path(path)
-    suffix = _suffix(path, (".exr", ".npz"), "spectral cube")
+    suffix = _suffix(path, (".exr", ".npz", ".hdr"), "spectral cube")
+    if suffix == ".hdr":
+        return read_cube_envi(path)
     if suffix == ".npz":
         cube, wl, extra = read_cube_npz(path)
         meta = {}
@@ -183,6 +192,189 @@ def read_cube(path) -> tuple[np.ndarray, np.ndarray, dict]:
         return cube, wl, meta
     cube, wl, attributes = read_cube_exr(path)
     return cube, wl, _metadata_from(path, attributes)
+
+
+# ---- ENVI ----------------------------------------------------------------------------------------------------------
+#: ENVI ``data type`` codes and their NumPy types (ENVI header reference: 1 byte, 2 int16, 3 int32, 4 float32,
+#: 5 float64, 12 uint16, 13 uint32, 14 int64, 15 uint64).
+ENVI_DATA_TYPES = {1: np.uint8, 2: np.int16, 3: np.int32, 4: np.float32, 5: np.float64, 12: np.uint16,
+                   13: np.uint32, 14: np.int64, 15: np.uint64}
+ENVI_INTERLEAVES = ("bsq", "bil", "bip")
+_ENVI_TO_HWB = {"bsq": (1, 2, 0), "bil": (0, 2, 1), "bip": (0, 1, 2)}  # stored axes -> (H, W, B)
+_ENVI_FROM_HWB = {"bsq": (2, 0, 1), "bil": (0, 2, 1), "bip": (0, 1, 2)}
+_ENVI_UNITS_NM = {"nanometers": 1.0, "nanometer": 1.0, "nm": 1.0, "micrometers": 1e3, "micrometer": 1e3,
+                  "microns": 1e3, "um": 1e3, "millimeters": 1e6, "mm": 1e6}
+
+
+def envi_data_path(header) -> Path:
+    """The data file of an ENVI header ``CUBE.hdr``: ``CUBE.img`` (what Spectral Python and ENVI look for)."""
+    return Path(header).with_suffix(".img")
+
+
+def write_cube_envi(path, cube, wavelengths, *, interleave: str = "bsq", metadata=None) -> Path:
+    """Write an (H, W, B) cube as ENVI: ``CUBE.hdr`` (text header) and ``CUBE.img`` (raw float32, little endian).
+
+    The header names ``wavelength`` (nm, shortest exact decimals) and ``wavelength units = Nanometers``, so ENVI,
+    Spectral Python (``spectral.envi.open``), QGIS / GDAL read the bands with their wavelengths. The data file is
+    written first and the header last, each under a temporary name renamed when complete: a header on disk always
+    describes a whole data file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.hdr`` target.
+    cube : array_like
+        (H, W, B) values, stored as float32 (NaN kept).
+    wavelengths : array_like
+        (B,) nm, finite, > 0, unique.
+    interleave : {"bsq", "bil", "bip"}
+        Band sequential, band interleaved by line, band interleaved by pixel.
+    metadata : mapping, optional
+        JSON values, stored in the header as ``specgpu metadata`` (base64 JSON: ENVI values may not hold braces).
+    """
+    import base64
+
+    path = Path(path)
+    if path.suffix.lower() != ".hdr":
+        raise ValueError(f"{path}: an ENVI cube is written through its .hdr header")
+    if str(interleave).lower() not in ENVI_INTERLEAVES:
+        raise ValueError(f"{path}: unknown ENVI interleave {interleave!r}; valid: {', '.join(ENVI_INTERLEAVES)}")
+    interleave = str(interleave).lower()
+    arr, wl = _files.check_cube(path, cube, wavelengths)
+    meta = _metadata_json(path, metadata)
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
+    h, w, b = arr.shape
+    data = np.ascontiguousarray(np.transpose(np.asarray(arr, "<f4"), _ENVI_FROM_HWB[interleave]))
+    lines = ["ENVI", "description = {specgpu spectral cube}", f"samples = {w}", f"lines = {h}", f"bands = {b}",
+             "header offset = 0", "file type = ENVI Standard", "data type = 4", f"interleave = {interleave}",
+             "byte order = 0", "wavelength units = Nanometers",
+             "wavelength = {" + ", ".join(repr(float(v)) for v in wl) + "}"]
+    if meta is not None:
+        lines.append("specgpu metadata = " + base64.b64encode(meta.encode()).decode())
+    with atomic_path(envi_data_path(path)) as tmp:
+        data.tofile(tmp)
+    with atomic_path(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="ascii")
+    return path
+
+
+def read_envi_header(path) -> dict:
+    """Parse an ENVI header into a dict of lower-case keys to strings (``{...}`` values unwrapped, joined)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: ENVI header not found")
+    try:
+        text = path.read_text(encoding="latin-1")
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the ENVI header ({one_line(str(exc))})") from None
+    if not text.lstrip().startswith("ENVI"):
+        raise ValueError(f"{path}: not an ENVI header (the first line must be 'ENVI')")
+    fields, key, buf = {}, None, []
+    for raw in text.splitlines()[1:]:
+        if key is not None:
+            buf.append(raw)
+            if "}" in raw:
+                fields[key] = " ".join(buf).strip()[1:].rsplit("}", 1)[0].strip()
+                key = None
+            continue
+        if not raw.strip() or raw.lstrip().startswith(";"):
+            continue
+        if "=" not in raw:
+            raise ValueError(f"{path}: bad ENVI header line {raw.strip()[:60]!r} (expected 'key = value')")
+        k, v = (s.strip() for s in raw.split("=", 1))
+        if v.startswith("{") and "}" not in v:
+            key, buf = k.lower(), [v]
+        else:
+            fields[k.lower()] = v[1:].rsplit("}", 1)[0].strip() if v.startswith("{") else v
+    if key is not None:
+        raise ValueError(f"{path}: ENVI header value of {key!r} opens '{{' and never closes it")
+    return fields
+
+
+def read_cube_envi(path) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Read an ENVI cube (``.hdr`` + data file) into (H, W, B) float32, bands by increasing wavelength.
+
+    Accepts every interleave, byte order and numeric ``data type``, a header offset, and wavelengths in nm or
+    micrometres. The data file is ``CUBE.img`` (or the header's ``data file`` entry, or ``CUBE`` with no suffix).
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        One line naming the file: no header or data file, a malformed header, a data file whose size is not
+        what the header describes, no or bad wavelengths, unknown data type, interleave or units.
+    """
+    import base64
+
+    path = Path(path)
+    fields = read_envi_header(path)
+
+    def integer(key, default=None, low=0):
+        value = fields.get(key, default)
+        try:
+            n = int(str(value))
+        except (TypeError, ValueError):
+            raise ValueError(f"{path}: ENVI header '{key}' must be an integer, got {value!r}") from None
+        if n < low:
+            raise ValueError(f"{path}: ENVI header '{key}' must be >= {low}, got {n}")
+        return n
+
+    w, h, b = integer("samples", low=1), integer("lines", low=1), integer("bands", low=1)
+    offset = integer("header offset", 0)
+    code = integer("data type")
+    if code not in ENVI_DATA_TYPES:
+        raise ValueError(f"{path}: unsupported ENVI data type {code}; supported: "
+                         f"{', '.join(map(str, ENVI_DATA_TYPES))}")
+    interleave = str(fields.get("interleave", "bsq")).lower()
+    if interleave not in ENVI_INTERLEAVES:
+        raise ValueError(f"{path}: unknown ENVI interleave {interleave!r}; valid: {', '.join(ENVI_INTERLEAVES)}")
+    order = integer("byte order", 0)
+    if order not in (0, 1):
+        raise ValueError(f"{path}: ENVI 'byte order' must be 0 or 1, got {order}")
+    if "wavelength" not in fields:
+        raise ValueError(f"{path}: the ENVI header has no 'wavelength' list (not a spectral cube with wavelengths)")
+    try:
+        wl = np.array([float(v) for v in fields["wavelength"].split(",")], np.float64)
+    except ValueError:
+        raise ValueError(f"{path}: ENVI 'wavelength' must be a list of numbers") from None
+    if wl.size != b:
+        raise ValueError(f"{path}: ENVI header lists {wl.size} wavelengths for {b} bands")
+    units = str(fields.get("wavelength units", "Nanometers")).strip().lower()
+    if units not in _ENVI_UNITS_NM:
+        raise ValueError(f"{path}: unknown ENVI 'wavelength units' {fields['wavelength units']!r}; expected "
+                         "Nanometers or Micrometers")
+    wl = wl * _ENVI_UNITS_NM[units]
+    dtype = np.dtype(ENVI_DATA_TYPES[code]).newbyteorder(">" if order else "<")
+    candidates = ([path.parent / fields["data file"]] if "data file" in fields else []) + [
+        envi_data_path(path), path.with_suffix(".IMG"), path.with_suffix(".dat"), path.with_suffix(".raw"),
+        path.with_suffix("")]
+    data_path = next((p for p in candidates if p.is_file() and p != path), None)
+    if data_path is None:
+        raise FileNotFoundError(f"{path}: the ENVI data file {envi_data_path(path).name} is missing")
+    expected = offset + h * w * b * dtype.itemsize
+    size = data_path.stat().st_size
+    if size != expected:
+        raise ValueError(f"{path}: data file {data_path.name} holds {size} bytes but the header describes "
+                         f"{expected} ({h} lines x {w} samples x {b} bands of {dtype.itemsize}-byte data type {code}"
+                         f"{f' after a {offset}-byte offset' if offset else ''})")
+    stored = np.fromfile(data_path, dtype=dtype, count=h * w * b, offset=offset)
+    shape = {"bsq": (b, h, w), "bil": (h, b, w), "bip": (h, w, b)}[interleave]
+    cube = np.ascontiguousarray(np.transpose(stored.reshape(shape), _ENVI_TO_HWB[interleave])).astype(np.float32)
+    if not np.all(np.isfinite(wl)) or np.any(wl <= 0):
+        raise ValueError(f"{path}: ENVI wavelengths must be finite and > 0, got {wl[:8].tolist()}")
+    order_wl = np.argsort(wl, kind="stable")
+    wl = wl[order_wl]
+    dup = np.unique(wl[1:][np.diff(wl) == 0])
+    if dup.size:
+        raise ValueError(f"{path}: duplicate ENVI wavelength(s) {dup.tolist()} nm")
+    meta = {}
+    if "specgpu metadata" in fields:
+        try:
+            text = base64.b64decode(fields["specgpu metadata"], validate=True).decode()
+        except (ValueError, UnicodeDecodeError):
+            raise ValueError(f"{path}: ENVI 'specgpu metadata' is not base64 JSON") from None
+        meta = _metadata_from(path, {_META_ATTRIBUTE: text})
+    return cube[..., order_wl], wl, meta
 
 
 # ---- maps ----------------------------------------------------------------------------------------------------------

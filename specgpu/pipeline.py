@@ -129,8 +129,9 @@ class CaptureWriter:
         self.marker.unlink(missing_ok=True)
         return self.directory
 
-    def abort(self) -> None:
-        """Remove the frames, copies and marker written (and the folder, when this writer created it)."""
+    def abort(self, error=None) -> None:
+        """Remove the frames, copies and marker written (and the folder, when this writer created it); ``error``,
+        what cut the capture short, is the caller's to report."""
         self.frames.abort()
         for path in (*self._copies, self.marker):
             path.unlink(missing_ok=True)

@@ -27,8 +27,6 @@ assembler's ``frames_unused`` / ``sequences_discarded``.
 
 from __future__ import annotations
 
-import json
-import os
 import queue as queue_module
 import resource
 import threading
@@ -55,7 +53,6 @@ __all__ = [
     "STREAM_OUTPUTS",
     "CallbackSink",
     "ExrSequenceWriter",
-    "NpyChunkWriter",
     "PreviewSink",
     "ResultsRing",
     "Sink",
@@ -66,7 +63,6 @@ __all__ = [
     "current_rss_bytes",
     "peak_rss_bytes",
     "peak_rss_reset",
-    "read_npy_chunks",
 ]
 
 #: What a stream can compute per sequence, and the channel count / dtype of each map.
@@ -256,6 +252,8 @@ class StreamResult:
     latency_s : float
         From the arrival of the sequence's last frame in host memory (the driver's fill returned: for a camera,
         exposure end plus readout) to the result being ready for the sinks, s.
+    frames : numpy.ndarray, optional
+        (K, H, W) the sequence's raw frames (DN), valid during the call only (a recorder keeps them on request).
     """
 
     index: int
@@ -265,6 +263,7 @@ class StreamResult:
     arrays: dict
     latency_s: float
     saturated_pixels: int = 0
+    frames: np.ndarray | None = None
 
 
 class Sink:
@@ -359,95 +358,10 @@ class ResultsRing(Sink):
             self._cond.notify_all()
 
 
-class NpyChunkWriter(Sink):
-    """Long recordings as chunked ``.npy`` files: ``<output>-<chunk>.npy`` of shape (S, H, W[, C]) with up to
-    ``chunk`` sequences each, plus ``index.json`` (frame ids, cycle and timestamps of every sequence, the channel
-    layout, the plan's output basis for coefficients).
-
-    Why not zarr: it is not a dependency of specgpu; ``.npy`` chunks need nothing but NumPy to read
-    (``numpy.load(..., mmap_mode="r")``, :func:`read_npy_chunks`) and map one-to-one onto Dask chunks. Each chunk is
-    written under a temporary name and renamed when complete, and ``index.json`` last, so an interrupted recording
-    leaves only whole chunks.
-
-    Parameters
-    ----------
-    directory : path
-    chunk : int
-        Sequences per file, >= 1.
-    outputs : sequence of str, optional
-        Which outputs to write (default all of the stream's).
-    metadata : mapping, optional
-        JSON-serialisable values stored in ``index.json``.
-    """
-
-    def __init__(self, directory, chunk: int = 32, outputs=None, metadata=None):
-        if int(chunk) < 1:
-            raise ValueError(f"chunk must be >= 1 sequences, got {chunk}")
-        self.directory = Path(directory)
-        self.directory.mkdir(parents=True, exist_ok=True)
-        if (self.directory / "index.json").exists():
-            raise FileExistsError(f"{self.directory} already holds a recording (index.json); choose another folder")
-        self.chunk = int(chunk)
-        self.outputs = None if outputs is None else tuple(outputs)
-        self.metadata = dict(metadata or {})
-        self._buffers: dict[str, np.ndarray] = {}
-        self._fill = 0
-        self._chunks = 0
-        self._records: list[dict] = []
-        self.files: list[Path] = []
-
-    def write(self, result):
-        arrays = {k: v for k, v in result.arrays.items() if self.outputs is None or k in self.outputs}
-        if not self._buffers:
-            self._buffers = {k: np.empty((self.chunk, *v.shape), v.dtype) for k, v in arrays.items()}
-        for k, v in arrays.items():
-            self._buffers[k][self._fill] = v
-        self._records.append({"index": result.index, "cycle": result.cycle,
-                              "frame_ids": [int(i) for i in result.frame_ids],
-                              "timestamps_s": [float(t) for t in result.timestamps_s]})
-        self._fill += 1
-        if self._fill == self.chunk:
-            self._flush()
-
-    def _flush(self):
-        if not self._fill:
-            return
-        for k, buf in self._buffers.items():
-            path = self.directory / f"{k}-{self._chunks:06d}.npy"
-            tmp = path.with_name(path.name + ".tmp")
-            with open(tmp, "wb") as fh:
-                np.save(fh, buf[:self._fill])
-            os.replace(tmp, path)
-            self.files.append(path)
-        self._chunks += 1
-        self._fill = 0
-
-    def close(self):
-        self._flush()
-        doc = {"format": "specgpu-stream-npy", "version": 1, "chunk": self.chunk, "chunks": self._chunks,
-               "outputs": sorted(self._buffers), "sequences": self._records, "metadata": self.metadata}
-        tmp = self.directory / "index.json.tmp"
-        tmp.write_text(json.dumps(doc))
-        os.replace(tmp, self.directory / "index.json")
-
-
-def read_npy_chunks(directory, output: str, *, mmap: bool = True) -> list[np.ndarray]:
-    """The chunks of one output of an :class:`NpyChunkWriter` recording, in order (memory-mapped by default)."""
-    directory = Path(directory)
-    index = directory / "index.json"
-    if not index.is_file():
-        raise FileNotFoundError(f"{directory}: no index.json (not a stream recording, or an interrupted one)")
-    doc = json.loads(index.read_text())
-    if output not in doc["outputs"]:
-        raise ValueError(f"{directory}: no output {output!r}; recorded outputs: {', '.join(doc['outputs'])}")
-    return [np.load(directory / f"{output}-{i:06d}.npy", mmap_mode="r" if mmap else None)
-            for i in range(doc["chunks"])]
-
-
 class ExrSequenceWriter(Sink):
     """Every ``every``-th result as OpenEXR files through :mod:`specgpu.io`: ``cube-<index>.exr`` (spectral
     layout), ``XYZ-`` / ``Lab-`` / ``dE-<index>.exr`` maps. EXR encoding costs milliseconds per map, so a writer
-    that must keep every sequence of a long recording is :class:`NpyChunkWriter`.
+    that must keep every sequence of a long recording is :class:`specgpu.recording.ZarrRecorder`.
 
     Parameters
     ----------
@@ -1014,7 +928,7 @@ class Stream:
         cl.wait_for_events(item.events)
         t = time.perf_counter()
         result = StreamResult(item.index, item.seq.cycle, item.seq.frame_ids, item.seq.timestamps_s, item.host,
-                              t - item.t_arrival)
+                              t - item.t_arrival, frames=item.seq.frames)
         if self.upload == "pinned":
             item.pinned = item.keep[1]
         item.keep = [item.seq]  # frames and their device buffer are no longer needed

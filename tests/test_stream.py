@@ -24,14 +24,13 @@ from specgpu.capture.twin import TwinDriver
 from specgpu.cli import main
 from specgpu.colorimetry import delta_E
 from specgpu.pipeline import SequenceFolder, recover, to_Lab, to_XYZ
+from specgpu.recording import ZarrRecorder, open_recording
 from specgpu.rig.twin import FaultSchedule, TwinRig
 from specgpu.stream import (
     ExrSequenceWriter,
-    NpyChunkWriter,
     PreviewSink,
     ResultsRing,
     Stream,
-    read_npy_chunks,
 )
 
 ALL = ("coefficients", "cube", "XYZ", "Lab", "dE")
@@ -233,32 +232,38 @@ def test_a_failing_sink_stops_the_stream_and_is_reported(setup):
 def test_sinks_write_readable_files(setup, expected, tmp_path):
     ring = ResultsRing(capacity=2)
     preview = PreviewSink(tmp_path / "preview.png", interval_s=0.0)
-    npy = NpyChunkWriter(tmp_path / "rec", chunk=3, metadata={"run": "test"})
+    rec = ZarrRecorder(tmp_path / "rec.zarr", setup.plan, frames=True, metadata={"run": "test"})
     exr = ExrSequenceWriter(tmp_path / "exr", wavelengths=setup.plan.output_wavelengths, every=4)
     report = Stream(setup.driver(loops=2), setup.plan, setup.bundle, outputs=("cube", "XYZ", "dE"),
                     cube_dtype=np.float16, reference=setup.reference, policy="block",
-                    sinks=[ring, preview, npy, exr]).run()
-    assert report.sequences_out == 8
+                    sinks=[ring, preview, rec, exr]).run()
+    assert report.sequences_out == 8 and report.sink_errors == []
     assert len(ring) == 2 and ring.dropped == 6 and ring.written == 8
     last = ring.get(0)
     assert last.index == 6 and ring.get(0).index == 7 and ring.get(0) is None
-    index = json.loads((tmp_path / "rec" / "index.json").read_text())
-    assert index["chunks"] == 3 and len(index["sequences"]) == 8 and index["metadata"] == {"run": "test"}
-    dE = np.concatenate(read_npy_chunks(tmp_path / "rec", "dE"))
-    cube = np.concatenate(read_npy_chunks(tmp_path / "rec", "cube"))
-    assert dE.shape == (8, 240, 320) and cube.dtype == np.float16
-    for j, rec in enumerate(index["sequences"]):
-        want = expected[setup.recorded_sequence(rec["frame_ids"])]
+    recording = open_recording(tmp_path / "rec.zarr")
+    assert recording.sequences == 8 and recording.attrs["metadata"] == {"run": "test"}
+    assert recording.attrs["status"] == "complete" and recording.attrs["plan_hash"] == setup.plan.hash
+    dE = recording.read("dE", slice(None))
+    cube = recording.read("cube", slice(None))
+    frame_ids = recording.read("frame_id", slice(None))
+    assert dE.shape == (8, 240, 320) and cube.dtype == np.float16 and frame_ids.shape == (8, setup.plan.K)
+    for j, ids in enumerate(frame_ids):
+        i = setup.recorded_sequence(ids)
+        want = expected[i]
         np.testing.assert_allclose(dE[j], want["dE"], atol=2e-3)
         np.testing.assert_allclose(cube[j], want["cube"], atol=2e-3 * np.max(want["cube"]))
+        # the raw frames are the replayed recording's, bit for bit
+        K = setup.plan.K
+        assert np.array_equal(recording.read("frames", j), setup.frames[i * K:(i + 1) * K])
     assert sorted(p.name for p in (tmp_path / "exr").iterdir()) == [
         f"{n}-{i:06d}.exr" for n in ("XYZ", "cube", "dE") for i in (0, 4)]
     data, _, meta = io.read_map(tmp_path / "exr" / "dE-000004.exr")
-    assert meta["frame_ids"] == index["sequences"][4]["frame_ids"]
+    assert meta["frame_ids"] == frame_ids[4].tolist()
     np.testing.assert_allclose(data[..., 0], dE[4], atol=1e-6)
     assert preview.updates == 8 and preview.image.shape == (240, 320, 3) and (tmp_path / "preview.png").is_file()
-    with pytest.raises(FileExistsError, match="already holds a recording"):
-        NpyChunkWriter(tmp_path / "rec")
+    with pytest.raises(FileExistsError, match="already exists"):
+        ZarrRecorder(tmp_path / "rec.zarr", setup.plan)
 
 
 def test_bad_arguments_are_one_line_errors(setup):
@@ -289,8 +294,9 @@ def test_cli_stream_records_and_reports(setup, tmp_path):
                                        "--scene", "colorchecker", "--seconds", "1", "--out", str(tmp_path / "out")])
     assert result.exit_code == 0, result.output
     assert "frames in" in result.output and "dropped 0 (ring 0)" in result.output
-    index = json.loads((tmp_path / "out" / "index.json").read_text())
-    assert index["metadata"]["plan_hash"] == setup.plan.hash and len(index["sequences"]) >= 10
+    recording = open_recording(tmp_path / "out")
+    assert recording.attrs["plan_hash"] == setup.plan.hash and recording.sequences >= 10
+    assert f"wrote {tmp_path / 'out'} ({recording.sequences} sequences)" in result.output
     assert (tmp_path / "out" / "preview.png").is_file()
     bad = CliRunner().invoke(main, ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan",
                                     str(tmp_path / "plan.npz"), "--calib", str(tmp_path / "calib.npz"),
@@ -369,3 +375,88 @@ def test_saturated_pixels_are_nan_as_offline(setup):
             assert np.array_equal(got_nan, want_nan), name
         assert_maps_equal({k: np.nan_to_num(v) for k, v in maps.items() if k != "coefficients"},
                           {k: np.nan_to_num(v) for k, v in want.items()})
+
+
+def _cli_files(setup, tmp_path):
+    from specgpu.calibration import save_calibration
+    from specgpu.plans import save_plan
+
+    cam = setup.description.camera
+    (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
+                                       f"exposure_s = {cam.exposure_s!r}\nframe_rate_hz = {cam.frame_rate_hz!r}\n")
+    save_calibration(tmp_path / "calib.npz", setup.bundle)
+    save_plan(tmp_path / "plan.npz", setup.plan)
+    return ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan", str(tmp_path / "plan.npz"), "--calib",
+            str(tmp_path / "calib.npz"), "--scene", "colorchecker"]
+
+
+def _disk_full_after(monkeypatch, n_sequences: int, array: str = "XYZ"):
+    """Every write of ``array`` after its first ``n_sequences`` fails as a full disk does."""
+    import zarr
+
+    real = zarr.Array.__setitem__
+    count = [0]
+
+    def write(self, key, value):
+        if self.basename == array:
+            count[0] += 1
+            if count[0] > n_sequences:
+                raise OSError(28, "No space left on device")
+        return real(self, key, value)
+
+    monkeypatch.setattr(zarr.Array, "__setitem__", write)
+
+
+def test_a_full_disk_stops_capture_and_keeps_the_committed_sequences(setup, expected, tmp_path, monkeypatch):
+    """The recorder fails on its 4th sequence: capture stops at the next sequence boundary (not at the time
+    limit), the 3 committed sequences stay readable (xarray too), and the partial one is not in the recording."""
+    import xarray as xr
+
+    _disk_full_after(monkeypatch, 3)
+    rec = ZarrRecorder(tmp_path / "rec.zarr", setup.plan)
+    report = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=("XYZ", "dE"),
+                    reference=setup.reference, sinks=[rec]).run(30)
+    assert report.seconds < 10 and len(report.sink_errors) == 1 and "No space left" in report.sink_errors[0]
+    assert report.accounting()["balanced"] and rec.committed == 3
+    monkeypatch.undo()
+    opened = open_recording(tmp_path / "rec.zarr")
+    assert opened.sequences == 3 and opened.attrs["status"] == "failed"
+    ds = xr.open_zarr(tmp_path / "rec.zarr")
+    assert ds.sizes["time"] == 3 and not np.isnan(ds["dE"].values).all(axis=(1, 2)).any()
+    for j in range(3):
+        want = expected[setup.recorded_sequence(ds["frame_id"].values[j])]
+        np.testing.assert_allclose(ds["dE"].values[j], want["dE"], atol=2e-3)
+
+
+def test_cli_stream_on_a_full_disk_says_what_was_saved_and_lost(setup, tmp_path, monkeypatch):
+    args = _cli_files(setup, tmp_path)
+    _disk_full_after(monkeypatch, 2)
+    result = CliRunner().invoke(main, [*args, "--seconds", "20", "--out", str(tmp_path / "rec.zarr")])
+    assert result.exit_code == 1
+    last = result.output.strip().splitlines()[-1]
+    assert "wrote" not in result.output and "No space left on device" in last
+    saved, lost = (int(x) for x in __import__("re").search(r"; (\d+) sequences saved in .*rec.zarr, (\d+) lost",
+                                                         last).groups())
+    assert saved == 2 and lost >= 1
+    monkeypatch.undo()
+    assert open_recording(tmp_path / "rec.zarr").sequences == 2
+
+
+def test_cli_stream_refuses_a_recording_that_cannot_fit_or_an_existing_folder(setup, tmp_path, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    args = _cli_files(setup, tmp_path)
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 10**6, 10**6))
+    result = CliRunner().invoke(main, [*args, "--seconds", "60", "--out", str(tmp_path / "rec.zarr")])
+    assert result.exit_code == 1 and not (tmp_path / "rec.zarr").exists()
+    assert result.output.count("\n") == 1
+    assert __import__("re").search(r"the recording \(\d+ sequences x [0-9.]+ MB\) needs about [0-9.]+ GB but only "
+                                   r"0.00 GB are free", result.output)
+    monkeypatch.undo()
+    (tmp_path / "old.zarr").mkdir()
+    (tmp_path / "old.zarr" / "XYZ-000001.npy").write_bytes(b"a killed run's chunk")
+    result = CliRunner().invoke(main, [*args, "--seconds", "1", "--out", str(tmp_path / "old.zarr")])
+    assert result.exit_code == 1 and result.output.count("\n") == 1 and "already exists" in result.output
+    assert [p.name for p in (tmp_path / "old.zarr").iterdir()] == ["XYZ-000001.npy"]

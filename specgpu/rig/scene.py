@@ -142,10 +142,15 @@ def read_scene(path) -> SpectralScene:
             return _read_npz(path)
         if suffix == ".exr":
             return _read_exr(path)
+        if suffix == ".hdr":  # ENVI: header + raw data (specgpu.io, imported here: io imports rig)
+            from specgpu.io import read_cube_envi
+
+            refl, wl, _ = read_cube_envi(path)
+            return SpectralScene(wl, refl, {}, path.stem)
     except ValueError as exc:
         msg = str(exc)
         raise ValueError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
-    raise ValueError(f"{path}: unknown scene format {suffix!r}; expected .exr or .npz")
+    raise ValueError(f"{path}: unknown scene format {suffix!r}; expected .exr, .npz or .hdr (ENVI)")
 
 
 def _read_npz(path: Path) -> SpectralScene:
@@ -318,7 +323,7 @@ def load_scene(source, height: int = 480, width: int = 640) -> SpectralScene:
     if text.startswith("natural:"):
         return natural_scene(height, width, image=text.partition(":")[2])
     path = Path(text)
-    if path.suffix.lower() in (".exr", ".npz"):
+    if path.suffix.lower() in (".exr", ".npz", ".hdr"):
         return read_scene(path).resized(height, width)
     raise ValueError(f"unknown scene {text!r}; give a .exr or .npz file or one of: {', '.join(BUILTIN_SCENES)}, "
                      f"natural:<image> with <image> one of {', '.join(_NATURAL_IMAGES)}")

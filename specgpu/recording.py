@@ -1,0 +1,340 @@
+"""Recordings: a stream's results (and raw frames when asked) as a zarr v3 group that xarray and Dask open directly.
+
+Layout of ``REC.zarr`` (format ``specgpu.recording``, version 1)::
+
+    attributes     format, version, plan_hash, plan_method, calibration, patterns_hash, K, height, width,
+                   outputs, frames, sequences_committed, status ("recording" | "complete" | "failed"), metadata
+    time           (time,)                     float64, s: exposure start of each sequence's first frame
+    frame_id       (time, pattern)             int64, the K frame ids of each sequence
+    timestamp_s    (time, pattern)             float64, s: exposure start of each frame
+    cycle          (time,)                     int64, the assembler's cycle
+    cube           (time, y, x, wavelength)    the plan's outputs; ``wavelength`` (nm) is a coordinate array
+    coefficients   (time, y, x, component)     basis coefficients; the basis is the ``basis`` array (wavelength, component)
+    XYZ, Lab       (time, y, x, channel)       channel names in the array's ``channels`` attribute
+    dE             (time, y, x)
+    frames         (time, pattern, y, x)       uint16 raw frames (DN), when recorded
+    pattern        (pattern,)                  0 ... K - 1
+
+Every array along ``time`` has one chunk per sequence and names its dimensions (zarr v3 ``dimension_names``), so
+``xarray.open_zarr(REC)`` gives named dimensions with ``time`` and ``wavelength`` as coordinates, and
+``dask.array.from_zarr(REC, component="XYZ")`` gives one Dask chunk per sequence. Chunks carry a CRC32C checksum,
+so a corrupt chunk is an error, never silently wrong values.
+
+Commit rule: a sequence's chunks are all written before the group's ``sequences_committed`` is raised to include
+it. Arrays grow by blocks of sequences (``grow``) and are cut to the committed count when the recording closes,
+normally or on an error; a recording cut by ``kill -9`` may show up to a block of fill values (NaN, ids -1) past
+the commit to a reader that ignores it. :func:`open_recording` trusts ``sequences_committed``: a recording cut by
+a crash or a full disk keeps every committed sequence readable and loses at most the one being written. A
+recording is never appended to: a new recording into an existing folder is refused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["RECORDING_FORMAT", "RECORDING_VERSION", "ZarrRecorder", "Recording", "open_recording",
+           "patterns_hash", "sequence_bytes", "check_free_space", "refuse_existing"]
+
+RECORDING_FORMAT = "specgpu.recording"
+RECORDING_VERSION = 1
+
+#: What a recording may hold along time besides the raw frames (specgpu.stream.STREAM_OUTPUTS).
+_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE")
+#: Channel dimension and channel names of each output.
+_CHANNELS = {"XYZ": ("X", "Y", "Z"), "Lab": ("L", "a", "b")}
+
+
+def patterns_hash(plan) -> str:
+    """SHA-256 of a plan's DMD patterns: two plans with the same patterns light the same frames (a new estimator
+    may re-process a recording; other patterns may not)."""
+    n = np.ascontiguousarray(np.asarray(plan.patterns, np.int64))
+    return hashlib.sha256(repr(n.shape).encode() + n.tobytes()).hexdigest()
+
+
+def _codecs():
+    from zarr.codecs import Crc32cCodec
+
+    return [Crc32cCodec()]
+
+
+def refuse_existing(path) -> Path:
+    """A recording is written into a new folder only: one line naming ``path`` when it exists."""
+    path = Path(path)
+    if path.exists():
+        raise FileExistsError(f"{path}: already exists; a recording is never appended to or mixed with another run "
+                              "(choose a new --out)")
+    return path
+
+
+def sequence_bytes(shapes: dict, *, frames_shape=None) -> int:
+    """Bytes one sequence takes in a recording: ``shapes`` maps output -> ((H, W[, C]), dtype) (as
+    :meth:`specgpu.stream.StreamDecoder.shapes`); ``frames_shape`` (K, H, W) adds the raw uint16 frames."""
+    total = 0
+    for name, (shape, dtype) in shapes.items():
+        if name != "mask":
+            total += int(np.prod(shape)) * np.dtype(dtype).itemsize
+    if frames_shape is not None:
+        total += int(np.prod(frames_shape)) * 2
+    return total + 4096  # ids, timestamps, checksums and metadata
+
+
+def check_free_space(path, nbytes: int, *, what: str = "the recording") -> int:
+    """Refuse (one line, with the figures) when the file system that will hold ``path`` has less than ``nbytes``
+    free; returns the free bytes."""
+    path = Path(path)
+    probe = path
+    while not probe.exists():
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if nbytes > free:
+        raise OSError(f"{path}: {what} needs about {nbytes / 1e9:.2f} GB but only {free / 1e9:.2f} GB are free "
+                      f"on {probe}; free some space or record less")
+    return free
+
+
+class ZarrRecorder:
+    """A stream sink that records every result into a zarr v3 group (see the module docstring).
+
+    Parameters
+    ----------
+    path : path
+        The recording folder to create (``REC.zarr``); refused when it exists.
+    plan : specgpu.plans.Plan
+        The plan streamed: its hash, calibration hash, patterns hash and output wavelengths are recorded.
+    outputs : sequence of str, optional
+        Which of the stream's outputs to record (default all).
+    frames : bool
+        Also record the raw frames of each sequence (what ``specgpu batch`` re-processes).
+    basis : numpy.ndarray, optional
+        (B, m) output basis of the ``coefficients`` output (``cube = coefficients @ basis.T``).
+    metadata : mapping, optional
+        JSON values stored under the ``metadata`` attribute.
+
+    Attributes
+    ----------
+    committed : int
+        Sequences whose every chunk is written (what a reader sees).
+    failed : str or None
+        The error that stopped the recording.
+    """
+
+    def __init__(self, path, plan, *, outputs=None, frames: bool = False, basis=None, metadata=None,
+                 grow: int = 64):
+        import zarr
+
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.grow = max(1, int(grow))
+        self._pool = ThreadPoolExecutor(max_workers=8, thread_name_prefix="specgpu-recorder")
+
+        self.path = refuse_existing(path)
+        self.plan = plan
+        self.outputs = None if outputs is None else tuple(outputs)
+        self.record_frames = bool(frames)
+        self.basis = None if basis is None else np.asarray(basis, np.float64)
+        self.committed = 0
+        self.failed: str | None = None
+        self._arrays: dict = {}
+        self.group = zarr.open_group(str(self.path), mode="w-", zarr_format=3)
+        self.group.attrs.update({
+            "format": RECORDING_FORMAT, "version": RECORDING_VERSION, "plan_hash": plan.hash,
+            "plan_method": plan.method, "calibration": plan.calibration, "patterns_hash": patterns_hash(plan),
+            "K": int(plan.K), "outputs": [], "frames": self.record_frames, "sequences_committed": 0,
+            "status": "recording", "metadata": dict(metadata or {})})
+
+    # ---- layout ----------------------------------------------------------------------------------------------
+    def _create(self, result) -> None:
+        g, K = self.group, int(self.plan.K)
+        arrays = {k: v for k, v in result.arrays.items() if self.outputs is None or k in self.outputs}
+        h, w = next(iter(arrays.values())).shape[:2] if arrays else result.frames.shape[1:]
+
+        def make(name, tail, dtype, dims, fill, attrs=None):
+            self._arrays[name] = g.create_array(
+                name, shape=(0, *tail), chunks=(1, *tail), dtype=dtype, compressors=_codecs(), fill_value=fill,
+                dimension_names=("time", *dims), attributes=attrs or {}, config={"write_empty_chunks": True})
+
+        make("time", (), "float64", (), np.nan, {"units": "s", "long_name": "exposure start of the first frame"})
+        make("cycle", (), "int64", (), -1)
+        make("frame_id", (K,), "int64", ("pattern",), -1)
+        make("timestamp_s", (K,), "float64", ("pattern",), np.nan, {"units": "s"})
+        g.create_array("pattern", data=np.arange(K, dtype=np.int64), dimension_names=("pattern",),
+                       compressors=_codecs())
+        for name, arr in arrays.items():
+            fill = np.nan if np.issubdtype(arr.dtype, np.floating) else 0
+            if name == "cube":
+                wl = np.asarray(self.plan.output_wavelengths, np.float64)
+                if self.plan.output == "reflectance" and wl.size == arr.shape[-1]:
+                    dim = "wavelength"
+                    g.create_array("wavelength", data=wl, dimension_names=("wavelength",), compressors=_codecs(),
+                                   attributes={"units": "nm"})
+                    attrs = {"quantity": "reflectance", "wavelength_units": "nm"}
+                else:
+                    dim, attrs = "output", {"channels": [str(s) for s in self.plan.output_labels]}
+                make(name, arr.shape, arr.dtype, ("y", "x", dim), fill, attrs)
+            elif name == "coefficients":
+                make(name, arr.shape, arr.dtype, ("y", "x", "component"), fill,
+                     {"long_name": "coefficients in the output basis (cube = coefficients @ basis.T)"})
+                if self.basis is not None:
+                    g.create_array("basis", data=self.basis, compressors=_codecs(),
+                                   dimension_names=("basis_wavelength", "component"))
+            elif name in _CHANNELS:
+                make(name, arr.shape, arr.dtype, ("y", "x", f"{name}_channel"), fill,
+                     {"channels": list(_CHANNELS[name])})
+            else:
+                make(name, arr.shape, arr.dtype, ("y", "x", *(f"{name}_channel",) * (arr.ndim - 2)), fill)
+        if self.record_frames:
+            if result.frames is None:
+                raise ValueError(f"{self.path}: raw frames were asked for but the stream passes none")
+            make("frames", tuple(result.frames.shape), "uint16", ("pattern", "y", "x"), 0, {"units": "DN"})
+        g.attrs.update({"outputs": sorted(arrays), "height": int(h), "width": int(w)})
+
+    # ---- the sink --------------------------------------------------------------------------------------------
+    def write(self, result) -> None:
+        if self.failed:
+            raise OSError(f"{self.path}: the recording stopped on an earlier error ({self.failed})")
+        try:
+            if not self._arrays:
+                self._create(result)
+            i = self.committed
+            values = {"time": float(result.timestamps_s[0]), "cycle": int(result.cycle),
+                      "frame_id": np.asarray(result.frame_ids, np.int64),
+                      "timestamp_s": np.asarray(result.timestamps_s, np.float64)}
+            for name in self._arrays:
+                if name in result.arrays:
+                    values[name] = result.arrays[name]
+            if self.record_frames:
+                values["frames"] = result.frames
+            for name, arr in self._arrays.items():  # room for a block of sequences (a resize costs ~8 ms)
+                if arr.shape[0] <= i:
+                    arr.resize((i + self.grow, *arr.shape[1:]))
+            # the chunks of one sequence are written concurrently (each write is ~5 ms of overhead on its own);
+            # list() waits for every one and re-raises the first error
+            list(self._pool.map(lambda item: item[1].__setitem__(i, values[item[0]]), self._arrays.items()))
+            self.committed = i + 1
+            self.group.attrs["sequences_committed"] = self.committed  # the commit
+        except Exception as exc:
+            self.failed = f"{type(exc).__name__}: {exc}"
+            self._trim()
+            raise
+
+    def _trim(self) -> None:
+        """Drop a partly written sequence (best effort: the commit count already excludes it)."""
+        for arr in self._arrays.values():
+            try:
+                if arr.shape[0] != self.committed:
+                    arr.resize((self.committed, *arr.shape[1:]))
+            except Exception:  # noqa: BLE001 (a full disk may refuse even this; readers trust the commit count)
+                pass
+
+    def close(self) -> None:
+        import zarr
+
+        self._pool.shutdown(wait=True)
+        self._trim()
+        self.group.attrs.update({"status": "failed" if self.failed else "complete",
+                                 "sequences_committed": self.committed})
+        consolidate(self.path)
+
+
+def native(a):
+    """``a`` in native byte order (zarr hands out explicit little-endian dtypes, which OpenImageIO refuses)."""
+    a = np.asarray(a)
+    if a.dtype.byteorder in ("=", "|"):
+        return a
+    native_dtype = a.dtype.newbyteorder("=")
+    return a.view(native_dtype) if a.dtype == native_dtype else a.astype(native_dtype)
+
+
+def consolidate(path) -> None:
+    """Consolidate a group's metadata into its root document (xarray then opens it from one read)."""
+    import warnings
+
+    import zarr
+
+    with warnings.catch_warnings():  # zarr notes that consolidation is not (yet) in the v3 specification
+        warnings.simplefilter("ignore")
+        zarr.consolidate_metadata(str(path))
+
+
+# ---------------------------------------------------------------------------------------------------- reading
+
+
+@dataclass
+class Recording:
+    """A recording opened and checked; arrays are zarr arrays cut to the committed sequences."""
+
+    path: Path
+    attrs: dict
+    group: object
+
+    @property
+    def sequences(self) -> int:
+        return int(self.attrs["sequences_committed"])
+
+    @property
+    def K(self) -> int:
+        return int(self.attrs["K"])
+
+    def array(self, name: str):
+        """The zarr array ``name`` (all of its sequences, committed or not: index below :attr:`sequences`)."""
+        if name not in self.group:
+            have = ", ".join(sorted(self.attrs.get("outputs", [])) + (["frames"] if self.attrs.get("frames") else []))
+            raise ValueError(f"{self.path}: the recording has no {name!r} array (it holds {have or 'nothing'})")
+        return self.group[name]
+
+    def read(self, name: str, index) -> np.ndarray:
+        """Committed sequence(s) ``index`` of array ``name``; a corrupt chunk is a one-line error."""
+        arr = self.array(name)
+        try:
+            return native(arr[index])
+        except Exception as exc:  # noqa: BLE001 (zarr raises codec-specific errors)
+            raise ValueError(f"{self.path}/{name}: corrupt or unreadable chunk at sequence {index} "
+                             f"({type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''})"
+                             ) from None
+
+
+def open_recording(path) -> Recording:
+    """Open a recording written by :class:`ZarrRecorder`; one-line errors naming the folder."""
+    import zarr
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: recording not found")
+    try:
+        group = zarr.open_group(str(path), mode="r", zarr_format=3)
+    except Exception as exc:  # noqa: BLE001
+        raise ValueError(f"{path}: not a zarr v3 recording ({type(exc).__name__})") from None
+    attrs = dict(group.attrs)
+    if attrs.get("format") != RECORDING_FORMAT:
+        raise ValueError(f"{path}: not a specgpu recording (format {attrs.get('format')!r})")
+    if type(attrs.get("version")) is not int or attrs["version"] != RECORDING_VERSION:
+        raise ValueError(f"{path}: recording version {attrs.get('version')!r} is not supported "
+                         f"(this specgpu reads {RECORDING_VERSION})")
+    n = attrs.get("sequences_committed")
+    if not isinstance(n, int) or isinstance(n, bool) or n < 0:
+        raise ValueError(f"{path}: sequences_committed must be an integer >= 0, got {n!r}")
+    outputs = attrs.get("outputs", [])
+    if not isinstance(outputs, list) or not all(isinstance(o, str) and o in _OUTPUTS for o in outputs):
+        raise ValueError(f"{path}: outputs must be a list of {', '.join(_OUTPUTS)}, got {str(outputs)[:80]}")
+    if not isinstance(attrs.get("frames", False), bool):
+        raise ValueError(f"{path}: frames must be true or false, got {str(attrs.get('frames'))[:40]}")
+    K = attrs.get("K")
+    if not isinstance(K, int) or isinstance(K, bool) or K < 1:
+        raise ValueError(f"{path}: K must be an integer >= 1, got {str(K)[:40]}")
+    for name in (*outputs, *(("frames",) if attrs.get("frames") else ())):
+        if name not in group:
+            raise ValueError(f"{path}: the {name!r} array is missing")
+        if group[name].shape[0] < n:
+            raise ValueError(f"{path}/{name}: holds {group[name].shape[0]} sequences but {n} are committed")
+    return Recording(path, attrs, group)
+
+
+def expected_sequences(seconds: float, frame_rate_hz: float, K: int) -> int:
+    """Sequences a paced stream of ``seconds`` at ``frame_rate_hz`` delivers (for the free-space check)."""
+    return int(math.ceil(float(seconds) * float(frame_rate_hz) / int(K))) + 1
