@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.capture.driver import LightSource
 from specgpu.rig._checks import check_array, check_number, curve_on_grid, normalised_to_peak
 
 __all__ = ["LightParameters", "ProgrammableLight", "PatternFit", "lamp_spd", "photopic_y"]
@@ -254,8 +253,11 @@ class PatternFit:
     clipped: float
 
 
-class ProgrammableLight(LightSource):
+class ProgrammableLight:
     """The OL490-like programmable light source of the twin.
+
+    It implements :class:`specgpu.capture.driver.LightSource` (registered as a virtual subclass by
+    :mod:`specgpu.capture.twin`: the rig model never imports the capture package).
 
     Parameters
     ----------

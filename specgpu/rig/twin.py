@@ -418,8 +418,6 @@ def measure_snr(description: RigDescription | None = None, *, repeats: int = 100
     ValueError
         If the light is too dim to reach ``level`` in the exposure the frame rate allows.
     """
-    from specgpu.capture.twin import TwinDriver
-
     repeats = check_number("repeats", repeats, low=2, integer=True)
     level = check_number("level", level, low=0, low_open=True, high=1)
     d = description if description is not None else RigDescription()
@@ -441,17 +439,13 @@ def measure_snr(description: RigDescription | None = None, *, repeats: int = 100
         patterns = np.rint(full * (target / e_full)[:, None]).astype(np.int32)
         dark_mean = _dark_mean(desc, repeats)
         rig.load_sequence(patterns)
-        driver = TwinDriver(rig, n_frames=3 * repeats, faults=FaultSchedule(), pacing="free")
         h, w = rig.camera.shape
         s1 = np.zeros((3, h, w))
         s2 = np.zeros((3, h, w))
-        frame = np.empty((h, w), np.uint16)
-        driver.start()
-        while (info := driver.fill(frame)) is not None:
+        for k, frame in _fault_free_frames(rig, 3 * repeats):
             f = frame.astype(np.float64)
-            s1[info.pattern_index] += f
-            s2[info.pattern_index] += f * f
-        driver.stop()
+            s1[k % 3] += f
+            s2[k % 3] += f * f
         mean = s1 / repeats
         var = (s2 - s1 * mean) / (repeats - 1)
         per = {}
@@ -467,16 +461,22 @@ def measure_snr(description: RigDescription | None = None, *, repeats: int = 100
                      levels, repeats, float(frame_rate_hz), exposure)
 
 
-def _dark_mean(desc: RigDescription, repeats: int) -> np.ndarray:
-    from specgpu.capture.twin import TwinDriver
+def _fault_free_frames(rig: TwinRig, n_frames: int):
+    """Yield (frame id, frame) for ``n_frames`` fault-free frames of the loaded sequence, pattern ``k % K`` at
+    ``k`` frame periods: what the capture path's twin driver delivers with no faults, without importing it (the
+    rig model never imports capture/). The frame array is reused between yields."""
+    n_patterns = rig.light.sequence.shape[0]
+    frame = np.empty(rig.camera.shape, np.uint16)
+    scratch = (np.empty(rig.camera.shape, np.float32), np.empty(rig.camera.shape, np.float32))
+    for k in range(int(n_frames)):
+        rig.render(k % n_patterns, k, k * rig.frame_period_s, frame, scratch)
+        yield k, frame
 
+
+def _dark_mean(desc: RigDescription, repeats: int) -> np.ndarray:
     rig = TwinRig(desc, scene=white_plate_scene(desc.camera.roi_height, desc.camera.roi_width))
     rig.load_sequence(np.zeros((1, desc.light.columns), np.int32))
-    driver = TwinDriver(rig, n_frames=repeats, faults=FaultSchedule(), pacing="free")
     acc = np.zeros(rig.camera.shape)
-    frame = np.empty(rig.camera.shape, np.uint16)
-    driver.start()
-    while driver.fill(frame) is not None:
+    for _, frame in _fault_free_frames(rig, repeats):
         acc += frame
-    driver.stop()
     return acc / repeats
