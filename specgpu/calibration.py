@@ -67,10 +67,13 @@ CALIBRATION_VERSION = 1
 
 def rig_fingerprint(description: RigDescription) -> str:
     """SHA-256 of what a calibration depends on: light, camera (less exposure and frame rate, which plans
-    choose), spectroradiometer and the seed (the camera's fixed pattern). Scene, pacing and faults are left out."""
+    choose), spectroradiometer, the seed (the camera's fixed pattern) and the bench's imperfections
+    (``[realism]``). Scene, pacing, faults and ``[drift]`` (the change since calibration) are left out."""
     d = description.to_dict()
     cam = {k: v for k, v in d["camera"].items() if k not in ("exposure_s", "frame_rate_hz")}
     key = {"light": d["light"], "camera": cam, "spectroradiometer": d["spectroradiometer"], "seed": description.seed}
+    if description.realism.any:  # the bench's imperfections are set-up; [drift] (time since calibration) is not
+        key["realism"] = description.realism.to_dict()
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -466,6 +469,9 @@ class TwinCalibrationRig:
             self._scene = scene if scene is not None else white_plate_scene(d.camera.roi_height, d.camera.roi_width)
             self.rig = _rig(d, self._scene)
         self._by_exposure: dict[float, object] = {}
+        #: The rig's own clock (s): it runs on through every capture and spectrum reading of the calibration, so
+        #: the lamp drifts during the procedure as on a bench; :func:`calibrate` records where it ended.
+        self.clock_s = float(self.rig.clock_start_s)
 
     # the rig at each exposure; the calibration exposure's is ``rig`` itself (its spectroradiometer too)
     def _at(self, exposure_s):
@@ -506,10 +512,21 @@ class TwinCalibrationRig:
 
     def capture_mean(self, patterns, repeats: int, *, exposure_s: float | None = None,
                      noise_seed: int | None = None) -> np.ndarray:
-        return capture_mean(self._at(exposure_s), patterns, repeats, noise_seed=noise_seed)
+        rig = self._at(exposure_s)
+        if rig.clock_start_s != self.clock_s:
+            rig.set_clock(self.clock_s)
+        out = capture_mean(rig, patterns, repeats, noise_seed=noise_seed)
+        self.clock_s += np.atleast_2d(patterns).shape[0] * int(repeats) * rig.frame_period_s
+        return out
+
+    #: Seconds one spectroradiometer reading takes on the rig's clock (integration and read-out).
+    SPECTRUM_READ_S = 0.2
 
     def measure_spectrum(self, pattern_index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        return self.rig.measure_spectrum(pattern_index)
+        d = self.description
+        power = 1.0 + (d.light.drift_per_hour + d.realism.lamp_output_drift_per_hour) * self.clock_s / 3600.0
+        self.clock_s += self.SPECTRUM_READ_S
+        return self.rig.measure_spectrum(pattern_index, power=max(power, 0.0))
 
     def zero_spectrometer(self) -> None:
         """The twin's spectroradiometer has no dark offset."""
@@ -721,8 +738,9 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     if int(repeats) < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats!r}")
     if rig is None:
-        rig = TwinCalibrationRig(d, scene=white_plate_scene(d.camera.roi_height, d.camera.roi_width,
-                                                            reflectance=white_reflectance))
+        # The twin's white is what the certificate says, off by the bench's white_error (its truth).
+        rig = TwinCalibrationRig(d, scene=white_plate_scene(
+            d.camera.roi_height, d.camera.roi_width, reflectance=white_reflectance * (1.0 + d.realism.white_error)))
     else:
         rig = as_calibration_rig(rig)
     h, w = rig.frame_shape
@@ -826,6 +844,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     reports = {"source": "calibrated", "loop_a": loop_a.summary(), "band_step_nm": float(band_step_nm),
                "column_map": {"slope_nm": float(slope), "intercept_nm": float(icpt)},
                "level_dn_per_reflectance": level, "loop_a_exposure_s": t_a, "repeats": int(repeats)}
+    if hasattr(rig, "clock_s"):
+        reports["rig_clock_end_s"] = float(rig.clock_s)
     bundle = replace(est, responsivity=rho, reports=reports, rig=rig_fingerprint(d))
 
     # (5) Loop (b) check: an equal-energy spectrum at 40 % of the lamp's weakest point over the equalized range
