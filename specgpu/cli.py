@@ -214,8 +214,10 @@ def calibrate(rig_path, out, seed):
 @click.option("--camera", default="Nikon 5100 (NPL)", show_default=True, help="Camera simulator: sensitivities.")
 @click.option("--spectrum", default="D65", show_default=True,
               help="Steady-state: target illuminant name (colour-science) for spectral rendering.")
+@click.option("--ambient", is_flag=True,
+              help="Add an ambient frame (every mirror off) to each sequence; recover subtracts it (1 frame more).")
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
-                 illuminant, observer, camera, spectrum):
+                 illuminant, observer, camera, spectrum, ambient):
     """Design a measurement plan: the illuminant sequence and its decoder.
 
     METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady.
@@ -254,6 +256,10 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
         sd = target_spectrum(spectrum)
         args, kwargs = (sd.values, sd.wavelengths), {}
     plan = make_plan(method, bundle, *args, **kwargs)
+    if ambient:
+        from .correction import with_ambient_frame
+
+        plan = with_ambient_frame(plan)
     digest = save_plan(out, plan)
     click.echo(f"{plan.method}: {plan.K} frames at {plan.exposure_s * 1e3:.2f} ms, {plan.A.shape[0]} outputs "
                f"({plan.output}); wrote {out} (plan {digest[:12]}, calibration {plan.calibration[:12]})")
@@ -286,7 +292,8 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
             bar.update()
 
         if hardware is None:
-            result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed, on_sequence=keep)
+            result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed, on_sequence=keep,
+                                  calibration=bundle)
         else:  # real devices: the same ring buffer and assembler, the plan uploaded to the light
             from .capture.session import capture_sequences
             from .hardware.rig import open_hardware
@@ -337,7 +344,12 @@ def _parse_reference(text, height, width, illuminant):
 @click.option("--sequence", type=int, default=None, help="Recover one sequence (default: the mean of all).")
 @click.option("--half", is_flag=True, help="Write the cube in half precision.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, device):
+@click.option("--white-roi", default=None, metavar="X,Y,W,H",
+              help="A reference white in the field: rescale each sequence's decoder for the light's drift.")
+@click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
+              help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, device, white_roi,
+            white_reflectance):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     from pathlib import Path
 
@@ -354,11 +366,17 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
     folder = read_capture(seq)
     plan = folder.plan
     with _Busy("recovering"):
-        y = run(folder, sequence=sequence, device=device)
+        if white_reflectance is not None and white_roi is None:
+            raise click.UsageError("--white-reflectance needs --white-roi")
+        try:
+            y = run(folder, sequence=sequence, device=device, white_roi=white_roi, white_reflectance=white_reflectance)
+        except ValueError as error:
+            raise click.ClickException(str(error)) from None
         height, width = y.shape[:2]
         meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
                 "calibration": plan.calibration, "sequence_folder": str(seq),
-                "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant}
+                "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant,
+                **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {})}
         writes = []
         if plan.output == "reflectance":
             writes.append(lambda: io.write_cube(out, y, plan.output_wavelengths, half=half, metadata=meta))

@@ -49,6 +49,17 @@ DEMO_METHODS = {
 OUTPUT_WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
 
 
+def make_demo_plans(bundle, basis, names=None) -> dict:
+    """The demo's plans (name -> Plan) made from a calibration bundle; ``names`` a subset of DEMO_METHODS."""
+    plans = {}
+    for name in (DEMO_METHODS if names is None else names):
+        method, kwargs = DEMO_METHODS[name]
+        args = (basis,) if method in ("biased", "symmetric") else ()
+        extra = {"output_wavelengths": OUTPUT_WAVELENGTHS} if method in ("biased", "symmetric") else {}
+        plans[name] = make_plan(method, bundle, *args, **kwargs, **extra)
+    return plans
+
+
 @dataclass
 class DemoResult:
     out: Path

@@ -34,7 +34,7 @@ CALIBRATION_FILE = "calibration.npz"
 
 
 def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: int = 1, noise_seed: int | None = None,
-                 faults: FaultSchedule | None = None, on_sequence=None) -> CaptureResult:
+                 faults: FaultSchedule | None = None, on_sequence=None, calibration=None) -> CaptureResult:
     """Capture ``sequences`` repetitions of ``plan``'s illuminant sequence of ``scene`` on the twin.
 
     The camera runs at the plan's exposure, at the fastest frame rate the camera and the light's switch time allow
@@ -55,11 +55,17 @@ def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: i
         Injected faults (none by default).
     on_sequence : callable, optional
         Given each complete sequence as it arrives (then sequences are not kept in the result).
+    calibration : CalibrationBundle, optional
+        The bundle the plan was made from: the rig's clock starts where that calibration ended plus the rig's
+        ``capture_delay`` (so the lamp has drifted on as on a bench); without it, at ``capture_delay``.
     """
     if sequences < 1:
         raise ValueError(f"sequences must be >= 1, got {sequences}")
     check_scene_covers(scene, plan, description.light.line_fwhm_nm)
-    rig = TwinRig(plan.rig_description(description), scene=scene)
+    clock = description.capture_delay
+    if calibration is not None:
+        clock += float(calibration.reports.get("rig_clock_end_s", 0.0))
+    rig = TwinRig(plan.rig_description(description), scene=scene, clock_start_s=clock)
     if noise_seed is not None:
         rig.seed = noise_seed
     driver = TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K * sequences,
@@ -155,13 +161,41 @@ def read_capture(directory) -> SequenceFolder:
     return SequenceFolder(directory, frames.reshape(-1, K, *frames.shape[1:]), plan, bundle, records, meta)
 
 
-def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None) -> np.ndarray:
+def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None,
+            white_roi=None, white_reflectance=None) -> np.ndarray:
     """The plan's outputs (H, W, B) from a sequence folder: one sequence, or the mean of all (``sequence=None``:
     averaging repeated sequences of a still scene lowers the temporal noise).
 
     A pixel where any frame used sits at the sensor's maximum code (saturated, flagged per sequence before any
     averaging) has no valid measurement: its outputs are NaN, never a clipped, wrong value.
+
+    ``white_roi`` (``"X,Y,W,H"``) names a reference white of ``white_reflectance`` (a number or a CSV; 0.99 by
+    default) in the field: each sequence's decoder is rescaled for the light's drift since calibration
+    (:mod:`specgpu.correction`). A plan with an ambient frame (``plan --ambient``) has that frame subtracted
+    instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
     """
+    from .correction import ambient_index, corrected_decoder, white_gains
+
+    amb = ambient_index(folder.plan)
+    if white_roi is not None or amb is not None:
+        plan, bundle = folder.plan, folder.calibration
+        picked = range(folder.sequences) if sequence is None else [sequence]
+        if sequence is not None and not 0 <= sequence < folder.sequences:
+            raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
+        y = None
+        for s in picked:
+            fr = folder.frames[s]
+            dark = fr[amb].astype(np.float32) if amb is not None else bundle.dark_at(plan.exposure_s)
+            A = plan.A
+            if white_roi is not None:
+                A = corrected_decoder(plan, white_gains(fr, plan, bundle, white_roi, white_reflectance, dark=dark))
+            ys = np.asarray(apply_linear(fr, A, dark, bundle.flat_field, out_dtype=np.float32, device=device))
+            y = ys if y is None else y + ys
+        y = (y / len(picked)).astype(out_dtype)
+        saturated = np.any(folder.frames[list(picked)] >= bundle.max_code, axis=(0, 1))
+        if saturated.any():
+            y[saturated] = np.nan
+        return y
     if sequence is None:
         used = folder.frames
         frames = used.mean(axis=0, dtype=np.float32) if folder.sequences > 1 else used[0]
