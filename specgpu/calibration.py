@@ -54,6 +54,7 @@ __all__ = [
     "camera_loop",
     "spectral_loop",
     "oracle_calibration",
+    "calibration_error",
     "save_calibration",
     "load_calibration",
     "rig_fingerprint",
@@ -688,6 +689,7 @@ def spectral_loop(rig, target, wavelengths=None, *, bundle: CalibrationBundle | 
 
 # ---- the whole procedure --------------------------------------------------------------------------------------
 def calibrate(description: RigDescription | None = None, *, white_reflectance: float = 0.99,
+              white_uncertainty: float = 0.01,
               band_step_nm: float = 10.0, band_range_nm=(380.0, 780.0), equalize_range_nm=(400.0, 700.0),
               repeats: int = 8, tolerance: float = 0.01, max_iterations: int = 10, perturbation: float = 0.0,
               spectral_check: bool = True, seed: int = 0, rig: CalibrationRig | None = None) -> CalibrationBundle:
@@ -707,7 +709,11 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         The rig (the paper's by default). For the twin its camera exposure is the calibration exposure; the
         bundle records its :func:`rig_fingerprint` either way.
     white_reflectance : float
-        Reflectance of the reference white plate, in (0, 1.5].
+        Reflectance of the reference white plate, in (0, 1.5] (its certificate's value).
+    white_uncertainty : float
+        Relative standard uncertainty of that value, in [0, 0.2] (a PTFE standard's certificate: about 0.01).
+        Every responsivity scales with it, so it is a scale uncertainty of every recovered reflectance; it is
+        kept in the bundle's reports (``white_reflectance_uncertainty``) and written with every recovery.
     band_step_nm : float
         Width of loop (a)'s bands, nm, in [2, 50].
     repeats : int
@@ -731,6 +737,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     d = description if description is not None else RigDescription()
     if not 0 < white_reflectance <= 1.5:
         raise ValueError(f"white_reflectance must lie in (0, 1.5], got {white_reflectance!r}")
+    if not 0 <= white_uncertainty <= 0.2:
+        raise ValueError(f"white_uncertainty must lie in [0, 0.2], got {white_uncertainty!r}")
     if not 2 <= band_step_nm <= 50:
         raise ValueError(f"band_step_nm must lie in [2, 50], got {band_step_nm!r}")
     if not 0 <= perturbation <= 0.9:
@@ -759,7 +767,7 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
 
     # (2) Spectroradiometer: column-wavelength map and lamp.
     rig.zero_spectrometer()
-    probe_cols = np.linspace(16, p.columns - 24, 24).astype(int)
+    probe_cols = np.linspace(16, p.columns - 24, 48).astype(int)
     probes = np.zeros((probe_cols.size, p.columns), np.int32)
     for i, c in enumerate(probe_cols):
         probes[i, c:c + 8] = p.rows
@@ -774,11 +782,20 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
             raise ValueError(f"calibrate: the spectroradiometer sees no light from probe columns {probe_cols[i]}-"
                              f"{probe_cols[i] + 7}; check the light, the fibre and the instrument")
         cents.append(float(np.sum(inst[sel] * s[sel]) / np.sum(s[sel])))
-    slope, icpt = np.polyfit(probe_cols + 3.5, np.array(cents), 1)
-    col_wl = icpt + slope * np.arange(p.columns)
+    cents = np.array(cents)
+    slope, icpt = np.polyfit(probe_cols + 3.5, cents, 1)
+    # Non-parametric map: the straight line plus a smoothed interpolation of the probes' departures from it (a
+    # grating's map is not straight in column position: bow), held at the ends' departure beyond the probes.
+    resid = cents - (icpt + slope * (probe_cols + 3.5))
+    if resid.size >= 5:
+        resid = np.convolve(np.pad(resid, 2, mode="edge"), np.ones(5) / 5.0, mode="valid")
+    col_wl = icpt + slope * np.arange(p.columns) + np.interp(np.arange(p.columns), probe_cols + 3.5, resid)
+    if np.any(np.diff(col_wl) <= 0):  # a noisy reading must not fold the map: keep the straight line then
+        col_wl = icpt + slope * np.arange(p.columns)
+    local_slope = np.gradient(col_wl)
     light.load_sequence(np.full((1, p.columns), p.rows, np.int32))
     full = np.mean([rig.measure_spectrum(0)[1] for _ in range(4)], axis=0)
-    col_power = np.interp(col_wl, inst, full) * abs(slope)
+    col_power = np.interp(col_wl, inst, full) * np.abs(local_slope)
     grid = light.wavelengths
     # The slit FWHM is a design value of the light (the instrument's own bandpass would blur a measured one).
     slit = float(p.line_fwhm_nm)
@@ -841,9 +858,16 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     rho_band = loop_a.outputs / (t_a * white_reflectance * power)
     centroid = (e @ grid) / e.sum(axis=1)
     rho = np.interp(grid, centroid, rho_band)
+    # Non-parametric refinement: make the model reproduce every band's measured output exactly (V varies inside a
+    # band: sensor ripple, the light's slope), by correcting rho at each band's centroid by measured / modelled.
+    dl = grid[1] - grid[0]
+    for _ in range(6):
+        modelled = t_a * white_reflectance * dl * (e * rho[None, :]).sum(axis=1)
+        rho = rho * np.interp(grid, centroid, loop_a.outputs / modelled)
     reports = {"source": "calibrated", "loop_a": loop_a.summary(), "band_step_nm": float(band_step_nm),
                "column_map": {"slope_nm": float(slope), "intercept_nm": float(icpt)},
                "level_dn_per_reflectance": level, "loop_a_exposure_s": t_a, "repeats": int(repeats)}
+    reports["white_reflectance_uncertainty"] = float(white_uncertainty)
     if hasattr(rig, "clock_s"):
         reports["rig_clock_end_s"] = float(rig.clock_s)
     bundle = replace(est, responsivity=rho, reports=reports, rig=rig_fingerprint(d))
@@ -865,6 +889,39 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         loop_b = spectral_loop(rig, flat_target, bundle=bundle, initial=initial)
         bundle = replace(bundle, reports={**reports, "loop_b": loop_b.summary()})
     return bundle
+
+
+def calibration_error(bundle: CalibrationBundle, description: RigDescription | None = None, *,
+                      band_step_nm: float = 10.0, band_range_nm=(400.0, 700.0)) -> dict:
+    """How far a bundle's model is from the twin's truth: for every band of ``band_step_nm`` (every mirror on),
+    the response the model predicts on a flat reflectance at the spot centre (DN above the all-off level) against
+    the twin's noise-free response, and the shift of the response's centroid wavelength.
+
+    Returns ``{"bands": (B, 2), "relative": (B,) model/truth - 1, "centroid_nm": (B,) model - truth,
+    "rms_relative", "max_relative", "rms_centroid_nm"}``. The twin's truth includes every ``[realism]`` effect
+    that acts at the spot centre (slit, map, ripples, stray light, off-state, white error does not enter: the
+    truth here is the light and camera, not the white).
+    """
+    from specgpu.rig.twin import TwinRig
+
+    d = description if description is not None else RigDescription()
+    rig = TwinRig(d, scene=white_plate_scene(d.camera.roi_height, d.camera.roi_width))
+    light, cam = rig.light, rig.camera
+    edges = np.arange(band_range_nm[0], band_range_nm[1] - 1e-9, band_step_nm)
+    bands = np.stack([edges, edges + band_step_nm], axis=1)
+    masks = np.stack([(bundle.column_wavelengths >= a) & (bundle.column_wavelengths < b) for a, b in bands])
+    pats = distribute_counts(np.ones(len(masks)), masks, bundle.rows)
+    true_e = light.pattern_to_spectrum(pats) - light.offset_spectrum[None, :]
+    true_prod = true_e * (cam.responsivity(light.wavelengths) / cam.params.gain_e_per_dn)[None, :]
+    if cam.realism is not None and cam.realism.nonlinearity:
+        pass  # the non-linearity depends on the level, not the band: left to the error budget
+    model_prod = (pats / bundle.rows) @ bundle.system_matrix.T
+    wl = bundle.wavelengths
+    t_sum, m_sum = true_prod.sum(axis=1), model_prod.sum(axis=1)
+    rel = m_sum / t_sum - 1.0
+    cen = (model_prod @ wl) / m_sum - (true_prod @ light.wavelengths) / t_sum
+    return {"bands": bands, "relative": rel, "centroid_nm": cen, "rms_relative": float(np.sqrt(np.mean(rel**2))),
+            "max_relative": float(np.max(np.abs(rel))), "rms_centroid_nm": float(np.sqrt(np.mean(cen**2)))}
 
 
 def oracle_calibration(description: RigDescription | None = None, *, white_reflectance: float = 0.99,

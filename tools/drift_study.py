@@ -4,8 +4,8 @@
         [--cct -200] [--output -0.03] [--cut-on 5] [--methods narrowband,symmetric,tristimulus-D65]
 
 Prints, per method, per-patch RMSE / dE2000 and per-pixel dE2000 (mean +- std over noise draws) for: no drift
-(calibration dark; with an ambient frame; with white ROI and ambient frame); drift, no correction; drift,
-white-ROI correction; drift, white-ROI correction plus an ambient frame.
+with the calibration's dark level (no ambient frame); then, every sequence with an ambient frame: no drift; no
+drift with the white-ROI correction; drift uncorrected; drift with the white-ROI correction.
 """
 
 from __future__ import annotations
@@ -50,13 +50,12 @@ def main(argv=None):
     plans = make_demo_plans(bundle, default_basis(EVALUATION_CHART), names)
     scene, roi = chart_with_white(desc, EVALUATION_CHART)
     drifted = replace(desc, drift=Drift(lamp_cct_K=args.cct, lamp_output=args.output, cut_on_nm=args.cut_on))
-    runs = {
-        "no drift": (desc, {}),
-        "no drift, ambient": (desc, {"ambient": True}),
-        "no drift, white ROI + ambient": (desc, {"white_roi": roi, "ambient": True}),
-        "drift, uncorrected": (drifted, {}),
-        "drift, white ROI": (drifted, {"white_roi": roi}),
-        "drift, white ROI + ambient": (drifted, {"white_roi": roi, "ambient": True}),
+    runs = {  # every run but the first subtracts an ambient frame per sequence (the lab's off-state and room light)
+        "no drift, calibration dark": (desc, {}),
+        "no drift": (desc, {"ambient": True}),
+        "no drift, white ROI": (desc, {"white_roi": roi, "ambient": True}),
+        "drift, uncorrected": (drifted, {"ambient": True}),
+        "drift, white ROI": (drifted, {"white_roi": roi, "ambient": True}),
     }
     print(f"profile {args.profile}, {desc.camera.roi_width} x {desc.camera.roi_height}, drift: lamp "
           f"{args.cct:+g} K, output {args.output:+g}, cut-on {args.cut_on:+g} nm; white ROI {roi}; "
