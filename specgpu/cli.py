@@ -580,12 +580,14 @@ def evaluate(cube, truth, illuminant, json_path, device):
 @_RIG
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-def demo(out, rig_path, seed, device):
+@click.option("--draws", type=click.IntRange(1, 50), default=3, show_default=True,
+              help="Noise draws per method and profile (tables give mean +- std).")
+def demo(out, rig_path, seed, device, draws):
     """The main job on the built-in twin: calibrate, plan, capture the chart, recover, evaluate; prints the
     paper's Tables 1-3 beside ours and writes a report folder with index.html."""
     from .demo import format_tables, run_demo
 
-    result = run_demo(out, rig=rig_path, seed=seed, echo=click.echo, device=device)
+    result = run_demo(out, rig=rig_path, seed=seed, echo=click.echo, device=device, draws=draws)
     click.echo(format_tables(result))
     click.echo(f"\ndemo finished in {result.seconds:.1f} s; report: {result.out / 'index.html'}")
 

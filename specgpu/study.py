@@ -49,7 +49,7 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
     ambient : bool
         Add an ambient frame to every plan (subtracted at recovery instead of the calibration's dark).
     on_result : callable, optional
-        ``on_result(name, draw, y, plan)`` for every recovery (e.g. to write files for the first draw).
+        ``on_result(name, draw, y, plan, res)`` for every recovery (e.g. to write files for the first draw).
 
     Returns
     -------
@@ -69,7 +69,7 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
             folder = SequenceFolder(Path("<memory>"), frames, plan, bundle, [], {})
             y = recover(folder, device=device, white_roi=white_roi, white_reflectance=white_reflectance)
             if on_result is not None:
-                on_result(name, draw, y, plan)
+                on_result(name, draw, y, plan, res)
             if plan.output == "reflectance":
                 rep = evaluate_reflectance(y, plan.output_wavelengths, scene, illuminant="D65")
                 px = evaluate_pixels(y, scene, wavelengths=plan.output_wavelengths, illuminant="D65",
