@@ -376,7 +376,9 @@ def recover(seq, out, xyz_path, lab_path, ref, de_path, method, illuminant, sequ
         meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
                 "calibration": plan.calibration, "sequence_folder": str(seq),
                 "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant,
-                **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {})}
+                **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {}),
+                **({"reflectance_scale_uncertainty": folder.calibration.reports["white_reflectance_uncertainty"]}
+                   if "white_reflectance_uncertainty" in folder.calibration.reports else {})}
         writes = []
         if plan.output == "reflectance":
             writes.append(lambda: io.write_cube(out, y, plan.output_wavelengths, half=half, metadata=meta))
