@@ -189,6 +189,11 @@ class CalibrationBundle:
     reciprocal_bands: np.ndarray
     reports: dict = field(default_factory=dict)
     rig: str = ""
+    #: (L, H, W) flat fields measured with L bands (wavelength-dependent field: a light guide's spot is bluer on
+    #: axis, lenses vignette by wavelength) and their (L,) centroid wavelengths; None: ``flat_field`` at every
+    #: wavelength. See :meth:`flat_ratio`.
+    flat_fields: np.ndarray | None = None
+    flat_wavelengths: np.ndarray | None = None
 
     def __post_init__(self):
         g = np.asarray(self.wavelengths, np.float64)
@@ -216,16 +221,31 @@ class CalibrationBundle:
         if not (self.slit_fwhm_nm > 0 and self.rows >= 1 and self.exposure_s > 0 and self.max_code >= 1
                 and 0 < self.min_exposure_s <= self.max_exposure_s):
             raise ValueError("calibration scalars out of range (slit, rows, exposure, max code, exposure limits)")
+        if (self.flat_fields is None) != (self.flat_wavelengths is None):
+            raise ValueError("flat_fields and flat_wavelengths go together")
+        if self.flat_fields is not None:
+            ff = np.asarray(self.flat_fields, np.float32)
+            fw = np.asarray(self.flat_wavelengths, np.float64).reshape(-1)
+            if ff.ndim != 3 or ff.shape[1:] != dark.shape or ff.shape[0] != fw.size or fw.size < 1:
+                raise ValueError(f"flat_fields must be (L, H, W) with L flat_wavelengths, got {ff.shape}, {fw.shape}")
+            if not (np.all(np.isfinite(ff)) and np.all(ff > 0)) or np.any(np.diff(fw) <= 0):
+                raise ValueError("flat_fields must be finite and positive, flat_wavelengths increasing")
+            object.__setattr__(self, "flat_fields", ff)
+            object.__setattr__(self, "flat_wavelengths", fw)
         for k, v in (("wavelengths", g), ("column_wavelengths", cw), ("column_power", cp), ("responsivity", rho),
                      ("dark", dark), ("flat_field", flat), ("reciprocal_patterns", rp), ("reciprocal_bands", rb)):
             object.__setattr__(self, k, v)
 
     # ---- identity ---------------------------------------------------------------------------------------------
     def _arrays(self) -> dict:
-        return {"wavelengths": self.wavelengths, "column_wavelengths": self.column_wavelengths,
-                "column_power": self.column_power, "responsivity": self.responsivity, "dark": self.dark,
-                "flat_field": self.flat_field, "reciprocal_patterns": self.reciprocal_patterns,
-                "reciprocal_bands": self.reciprocal_bands}
+        arrays = {"wavelengths": self.wavelengths, "column_wavelengths": self.column_wavelengths,
+                  "column_power": self.column_power, "responsivity": self.responsivity, "dark": self.dark,
+                  "flat_field": self.flat_field, "reciprocal_patterns": self.reciprocal_patterns,
+                  "reciprocal_bands": self.reciprocal_bands}
+        if self.flat_fields is not None:  # only then: bundles without them keep their hash
+            arrays["flat_fields"] = self.flat_fields
+            arrays["flat_wavelengths"] = self.flat_wavelengths
+        return arrays
 
     def _meta(self) -> dict:
         return {"slit_fwhm_nm": float(self.slit_fwhm_nm), "rows": int(self.rows), "exposure_s": float(self.exposure_s),
@@ -273,6 +293,32 @@ class CalibrationBundle:
         dl = float(self.wavelengths[1] - self.wavelengths[0])
         prod = (n / self.rows) @ self.system_matrix.T  # (K, G): I V in DN/s per nm
         return exposure_s * dl * prod @ interpolation_matrix(self.wavelengths, np.asarray(wavelengths, np.float64))
+
+    def flat_ratio(self, patterns) -> np.ndarray | None:
+        """(K, H, W) float32 per-pattern correction of the flat field, ``flat(lambda_k) / flat_field``, at each
+        pattern's response centroid ``lambda_k`` (linear between the measured bands, constant beyond); None when
+        the bundle has one flat field. Multiply a pattern's dark-subtracted frame by it before decoding."""
+        if self.flat_fields is None:
+            return None
+        n = np.atleast_2d(np.asarray(patterns, np.float64))
+        prod = (n / self.rows) @ self.system_matrix.T
+        total = prod.sum(axis=1)
+        lam = np.where(total > 0, (prod @ self.wavelengths) / np.where(total > 0, total, 1.0), np.nan)
+        fw, ff = self.flat_wavelengths, self.flat_fields
+        out = np.ones((n.shape[0], *self.dark.shape), np.float32)
+        for k, lk in enumerate(lam):
+            if not np.isfinite(lk):
+                continue  # an all-off pattern (ambient frame): nothing to correct
+            if fw.size == 1 or lk <= fw[0]:
+                f = ff[0]
+            elif lk >= fw[-1]:
+                f = ff[-1]
+            else:
+                j = int(np.searchsorted(fw, lk)) - 1
+                a = (lk - fw[j]) / (fw[j + 1] - fw[j])
+                f = (1 - a) * ff[j] + a * ff[j + 1]
+            out[k] = f / self.flat_field
+        return out
 
     def dark_at(self, exposure_s: float) -> np.ndarray:
         """(H, W) float32 dark level (DN) for an exposure (s): measured level plus dark current times the change."""
@@ -816,6 +862,25 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
                                   noise_seed=seeds.next())[0] - dark
     small = _centre_window((h, w), 0.05)
     flat = (float(np.median(white_mean[small])) / np.maximum(white_mean, 1e-6)).astype(np.float32)
+    # Wavelength-dependent flat field: the same on the white with 4 bands across 400-700 nm, each at a level that
+    # does not saturate (the broadband flat stays the bundle's flat_field; the bands correct it per pattern).
+    flat_bands, flat_wl = [], []
+    for a, b in ((400.0, 475.0), (475.0, 550.0), (550.0, 625.0), (625.0, 700.0)):
+        band = (col_wl >= a) & (col_wl < b)
+        if not band.any():
+            continue
+        n_band = int(min(p.rows, max(1, round(n_flat * p.columns / band.sum() * 0.5))))
+        while True:
+            pat = np.where(band, n_band, 0).astype(np.int32)[None]
+            m_band = rig.capture_mean(pat, 2 * repeats, noise_seed=seeds.next())[0]
+            if float(m_band[win].max()) < 0.9 * max_code or n_band == 1:
+                break
+            n_band = max(1, n_band // 2)
+        m_band = m_band - dark
+        if not float(np.median(m_band[small])) > 0 or np.any(m_band <= 0):
+            continue  # too dim to flat-field with (the broadband flat serves)
+        flat_bands.append((float(np.median(m_band[small])) / m_band).astype(np.float32))
+        flat_wl.append(float(col_wl[band].mean()))
 
     # (4) Loop (a): bands on the white; target = white reflectance times an equalized level.
     lo, hi = band_range_nm
@@ -871,6 +936,17 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     if hasattr(rig, "clock_s"):
         reports["rig_clock_end_s"] = float(rig.clock_s)
     bundle = replace(est, responsivity=rho, reports=reports, rig=rig_fingerprint(d))
+    if flat_bands:
+        bundle = replace(bundle, flat_fields=np.stack(flat_bands), flat_wavelengths=np.array(flat_wl))
+        # the bands' response centroids (lamp and camera weight the band), now that the model knows them
+        cent = []
+        for a, b in ((400.0, 475.0), (475.0, 550.0), (550.0, 625.0), (625.0, 700.0)):
+            band = (col_wl >= a) & (col_wl < b)
+            if band.any():
+                pr = bundle.system_matrix[:, band].sum(axis=1)
+                cent.append(float(pr @ grid / pr.sum()))
+        if len(cent) == len(flat_wl) and np.all(np.diff(cent) > 0):
+            bundle = replace(bundle, flat_wavelengths=np.array(cent))
 
     # (5) Loop (b) check: an equal-energy spectrum at 40 % of the lamp's weakest point over the equalized range
     # (the lamp as the rig knows it, else as the spectroradiometer read it with every mirror on).

@@ -183,9 +183,12 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         if sequence is not None and not 0 <= sequence < folder.sequences:
             raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
         y = None
+        ratio = bundle.flat_ratio(plan.patterns)
         for s in picked:
             fr = folder.frames[s]
             dark = fr[amb].astype(np.float32) if amb is not None else bundle.dark_at(plan.exposure_s)
+            if ratio is not None:
+                fr = _flatten_by_wavelength(fr, dark, ratio)
             A = plan.A
             if white_roi is not None:
                 A = corrected_decoder(plan, white_gains(fr, plan, bundle, white_roi, white_reflectance, dark=dark))
@@ -205,12 +208,24 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         used = folder.frames[sequence:sequence + 1]
         frames = used[0]
     plan, bundle = folder.plan, folder.calibration
+    ratio = bundle.flat_ratio(plan.patterns)
+    if ratio is not None:
+        frames = _flatten_by_wavelength(frames, bundle.dark_at(plan.exposure_s), ratio)
     y = apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field, out_dtype=out_dtype,
                      device=device)
     saturated = np.any(used >= bundle.max_code, axis=(0, 1))
     if saturated.any():
         y[saturated] = np.nan
     return y
+
+
+def _flatten_by_wavelength(frames, dark, ratio) -> np.ndarray:
+    """(K, H, W) float32 frames whose signal above ``dark`` is multiplied by the per-pattern flat-field ratio (a
+    calibration's wavelength-dependent flat field, :meth:`CalibrationBundle.flat_ratio`)."""
+    f = np.asarray(frames, np.float32) - np.asarray(dark, np.float32)[None]
+    f *= ratio
+    f += np.asarray(dark, np.float32)[None]
+    return f
 
 
 def to_XYZ(y: np.ndarray, plan: Plan, illuminant: str = "D65", *, device=None) -> np.ndarray:
