@@ -320,6 +320,18 @@ class CalibrationBundle:
             out[k] = f / self.flat_field
         return out
 
+    def linearize(self, signal) -> np.ndarray:
+        """Dark-subtracted output (DN) corrected for the sensor's compression near full well measured by
+        calibration (``reports["linearity_c_per_dn2"]``: ``y = s (1 - c s^2)``, solved for ``s``); float32."""
+        y = np.asarray(signal, np.float32)
+        c = float(self.reports.get("linearity_c_per_dn2", 0.0)) if isinstance(self.reports, dict) else 0.0
+        if c <= 0:
+            return y
+        s = y.copy()
+        for _ in range(3):  # fixed point: s = y / (1 - c s^2); c s^2 is at most a few per cent
+            s = y / (1.0 - np.float32(c) * s * s)
+        return s.astype(np.float32)
+
     def dark_at(self, exposure_s: float) -> np.ndarray:
         """(H, W) float32 dark level (DN) for an exposure (s): measured level plus dark current times the change."""
         return (self.dark + np.float32(self.dark_rate_dn_per_s * (exposure_s - self.exposure_s))).astype(np.float32)
@@ -882,6 +894,22 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         flat_bands.append((float(np.median(m_band[small])) / m_band).astype(np.float32))
         flat_wl.append(float(col_wl[band].mean()))
 
+    # Linearity: a broadband ramp on the white up to near the full well; the light is linear in the mirror count,
+    # so the departure of the output from a line is the sensor's: y = s (1 - c s^2), s the linear signal (DN).
+    linearity_c = 0.0
+    top = 0.92 * (max_code - float(np.mean(dark[small])))
+    n_top = int(min(p.rows, max(1, n_probe * top / max(lvl, 1e-9))))
+    if n_top >= 16:
+        levels = np.unique(np.linspace(n_top / 8, n_top, 8).astype(int))
+        ramp = rig.capture_mean(np.repeat(levels[:, None], p.columns, axis=1).astype(np.int32), repeats,
+                                noise_seed=seeds.next())
+        y = np.array([float(np.mean((f - dark)[small])) for f in ramp])
+        x = levels.astype(np.float64)
+        if np.all(y < 0.99 * max_code) and np.all(y > 0):
+            coef = np.linalg.lstsq(np.stack([x, x**3], axis=1), y, rcond=None)[0]  # y = b1 x + b3 x^3
+            if coef[0] > 0:
+                linearity_c = float(max(0.0, -coef[1] / coef[0] ** 3))
+
     # (4) Loop (a): bands on the white; target = white reflectance times an equalized level.
     lo, hi = band_range_nm
     edges = np.arange(lo, hi - 1e-9, band_step_nm)
@@ -933,6 +961,7 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
                "column_map": {"slope_nm": float(slope), "intercept_nm": float(icpt)},
                "level_dn_per_reflectance": level, "loop_a_exposure_s": t_a, "repeats": int(repeats)}
     reports["white_reflectance_uncertainty"] = float(white_uncertainty)
+    reports["linearity_c_per_dn2"] = linearity_c
     if hasattr(rig, "clock_s"):
         reports["rig_clock_end_s"] = float(rig.clock_s)
     bundle = replace(est, responsivity=rho, reports=reports, rig=rig_fingerprint(d))

@@ -187,8 +187,7 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         for s in picked:
             fr = folder.frames[s]
             dark = fr[amb].astype(np.float32) if amb is not None else bundle.dark_at(plan.exposure_s)
-            if ratio is not None:
-                fr = _flatten_by_wavelength(fr, dark, ratio)
+            fr = _flatten_by_wavelength(fr, dark, ratio, bundle)
             A = plan.A
             if white_roi is not None:
                 A = corrected_decoder(plan, white_gains(fr, plan, bundle, white_roi, white_reflectance, dark=dark))
@@ -209,8 +208,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         frames = used[0]
     plan, bundle = folder.plan, folder.calibration
     ratio = bundle.flat_ratio(plan.patterns)
-    if ratio is not None:
-        frames = _flatten_by_wavelength(frames, bundle.dark_at(plan.exposure_s), ratio)
+    if ratio is not None or bundle.reports.get("linearity_c_per_dn2", 0.0) > 0:
+        frames = _flatten_by_wavelength(frames, bundle.dark_at(plan.exposure_s), ratio, bundle)
     y = apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field, out_dtype=out_dtype,
                      device=device)
     saturated = np.any(used >= bundle.max_code, axis=(0, 1))
@@ -219,11 +218,15 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     return y
 
 
-def _flatten_by_wavelength(frames, dark, ratio) -> np.ndarray:
-    """(K, H, W) float32 frames whose signal above ``dark`` is multiplied by the per-pattern flat-field ratio (a
-    calibration's wavelength-dependent flat field, :meth:`CalibrationBundle.flat_ratio`)."""
+def _flatten_by_wavelength(frames, dark, ratio, bundle=None) -> np.ndarray:
+    """(K, H, W) float32 frames whose signal above ``dark`` is linearized (the sensor's compression measured by
+    calibration) and multiplied by the per-pattern flat-field ratio (a calibration's wavelength-dependent flat
+    field, :meth:`CalibrationBundle.flat_ratio`; None: 1)."""
     f = np.asarray(frames, np.float32) - np.asarray(dark, np.float32)[None]
-    f *= ratio
+    if bundle is not None:
+        f = bundle.linearize(f)
+    if ratio is not None:
+        f *= ratio
     f += np.asarray(dark, np.float32)[None]
     return f
 
