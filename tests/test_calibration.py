@@ -247,3 +247,29 @@ def test_calibration_holds_on_the_lab_bench(lab_calibrated):
 def test_white_uncertainty_is_checked():
     with pytest.raises(ValueError, match=r"white_uncertainty must lie in \[0, 0.2\]"):
         calibrate(DESC, white_uncertainty=0.5)
+
+
+def test_linearize_inverts_the_measured_compression(oracle):
+    c = 0.01 / 1023**2
+    b = replace(oracle, reports={**oracle.reports, "linearity_c_per_dn2": c})
+    s = np.array([10.0, 500.0, 900.0], np.float32)
+    y = s * (1 - c * s**2)
+    np.testing.assert_allclose(b.linearize(y), s, rtol=2e-5)
+    np.testing.assert_array_equal(oracle.linearize(y), y)  # no measured compression: unchanged
+
+
+def test_wavelength_dependent_flat_field(oracle):
+    h, w = oracle.dark.shape
+    blue = oracle.flat_field * np.float32(1.1)
+    red = oracle.flat_field * np.float32(0.9)
+    b = replace(oracle, flat_fields=np.stack([blue, red]), flat_wavelengths=np.array([450.0, 650.0]))
+    pats = np.zeros((3, oracle.columns), np.int32)
+    pats[0, (oracle.column_wavelengths > 440) & (oracle.column_wavelengths < 460)] = oracle.rows
+    pats[1, (oracle.column_wavelengths > 540) & (oracle.column_wavelengths < 560)] = oracle.rows
+    r = b.flat_ratio(pats)
+    assert abs(float(r[0].mean()) - 1.1) < 0.01 and abs(float(r[1].mean()) - 1.0) < 0.02
+    np.testing.assert_array_equal(r[2], 1.0)  # all-off (ambient) frame untouched
+    assert oracle.flat_ratio(pats) is None
+    with pytest.raises(ValueError, match="go together"):
+        replace(oracle, flat_fields=np.stack([blue]))
+    assert b.hash != oracle.hash
