@@ -139,7 +139,44 @@ def white_gains(frames, plan, bundle, roi, white=None, *, dark=None) -> np.ndarr
     return gains
 
 
-def corrected_decoder(plan, gains) -> np.ndarray:
-    """The plan's decoder rescaled for one sequence's white gains: ``A[:, k] / gains[k]``."""
+def corrected_decoder(plan, gains, bundle=None, white=None) -> np.ndarray:
+    """The plan's decoder corrected for one sequence's white gains.
+
+    Without ``bundle``: each column rescaled, ``A[:, k] / gains[k]`` (exact for a change of each pattern's power).
+    With it, the light's change is first modelled as a smooth spectral ratio ``r(lambda) = exp(a0 + a1 u + a2 u^2)``
+    (``u = (lambda - 550) / 150``; as many terms as the lit patterns allow, at most 3) fitted to the gains; the
+    decoder is re-fitted so that it gives on the drifted light what it gave on the calibrated one for a set of
+    smooth reflectances, ``A' = (A F R) (F diag(r) R)^+`` (``F`` the calibrated forward model, ``R`` smooth
+    bumps): this follows a change of shape inside a broad pattern. What the smooth ratio leaves (a cut-on edge
+    moving inside one narrow band) is then taken out column by column, as without ``bundle``.
+    """
     g = np.asarray(gains, np.float64)
-    return plan.A / g[None, :]
+    if bundle is None:
+        return plan.A / g[None, :]
+    grid = bundle.wavelengths
+    F = bundle.forward_matrix(plan.patterns, grid, plan.exposure_s)  # (K, G)
+    rho = white_reflectance_curve(white, grid)
+    base = F @ rho
+    lit = base > 1e-6 * max(float(base.max()), 1e-30)
+    u = (grid - 550.0) / 150.0
+    n_par = int(min(3, max(0, lit.sum() - 1)))
+    if n_par == 0:
+        return plan.A / g[None, :]
+    from scipy.optimize import least_squares
+
+    basis = np.stack([u**i for i in range(n_par)], axis=0)  # (P, G)
+
+    def resid(a):
+        r = np.exp(a @ basis)
+        return np.log((F[lit] @ (r * rho)) / base[lit]) - np.log(g[lit])
+
+    a = least_squares(resid, np.zeros(n_par)).x
+    r = np.exp(a @ basis)
+    bumps = np.stack([np.exp(-0.5 * ((grid - c) / 20.0) ** 2) for c in np.arange(380.0, 781.0, 10.0)]
+                     + [np.ones_like(grid)], axis=1)  # (G, N) smooth reflectances
+    target = plan.A @ (F @ bumps)  # what the decoder gives on the calibrated light
+    drifted = F @ (r[:, None] * bumps)  # (K, N) the outputs on the drifted light
+    A_new = target @ np.linalg.pinv(drifted, rcond=1e-3)
+    predicted = (F @ (r * rho)) / np.where(lit, base, 1.0)
+    residual = np.where(lit, g / np.where(lit, predicted, 1.0), 1.0)
+    return A_new / residual[None, :]

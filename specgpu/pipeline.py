@@ -190,7 +190,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
             fr = _flatten_by_wavelength(fr, dark, ratio, bundle)
             A = plan.A
             if white_roi is not None:
-                A = corrected_decoder(plan, white_gains(fr, plan, bundle, white_roi, white_reflectance, dark=dark))
+                gains = white_gains(fr, plan, bundle, white_roi, white_reflectance, dark=dark)
+                A = corrected_decoder(plan, gains, bundle, white_reflectance)
             ys = np.asarray(apply_linear(fr, A, dark, bundle.flat_field, out_dtype=np.float32, device=device))
             y = ys if y is None else y + ys
         y = (y / len(picked)).astype(out_dtype)
