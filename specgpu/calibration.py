@@ -877,6 +877,7 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     # Wavelength-dependent flat field: the same on the white with 4 bands across 400-700 nm, each at a level that
     # does not saturate (the broadband flat stays the bundle's flat_field; the bands correct it per pattern).
     flat_bands, flat_wl = [], []
+    flat_departure = 0.0
     for a, b in ((400.0, 475.0), (475.0, 550.0), (550.0, 625.0), (625.0, 700.0)):
         band = (col_wl >= a) & (col_wl < b)
         if not band.any():
@@ -891,8 +892,15 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         m_band = m_band - dark
         if not float(np.median(m_band[small])) > 0 or np.any(m_band <= 0):
             continue  # too dim to flat-field with (the broadband flat serves)
-        flat_bands.append((float(np.median(m_band[small])) / m_band).astype(np.float32))
+        # keep the smooth part of the band's departure from the broadband flat (the per-pixel part is noise here)
+        from scipy.ndimage import gaussian_filter
+
+        ratio = gaussian_filter((float(np.median(m_band[small])) / m_band) / flat, 6.0, mode="nearest")
+        flat_bands.append((flat * ratio).astype(np.float32))
         flat_wl.append(float(col_wl[band].mean()))
+        flat_departure = max(flat_departure, float(np.max(np.abs(ratio - 1.0))))
+    if flat_bands and flat_departure < 0.005:
+        flat_bands = []  # the field is the same at every wavelength to within the measurement: one flat serves
 
     # Linearity: a broadband ramp on the white up to near the full well; the light is linear in the mirror count,
     # so the departure of the output from a line is the sensor's: y = s (1 - c s^2), s the linear signal (DN).
@@ -909,6 +917,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
             coef = np.linalg.lstsq(np.stack([x, x**3], axis=1), y, rcond=None)[0]  # y = b1 x + b3 x^3
             if coef[0] > 0:
                 linearity_c = float(max(0.0, -coef[1] / coef[0] ** 3))
+                if linearity_c * (max_code - float(np.mean(dark[small]))) ** 2 < 0.002:
+                    linearity_c = 0.0  # below 0.2 % at full well: within the ramp's noise, no correction
 
     # (4) Loop (a): bands on the white; target = white reflectance times an equalized level.
     lo, hi = band_range_nm
