@@ -126,3 +126,19 @@ def test_cli_recover_white_roi_outside_frame(setup, tmp_path):
     assert out.exit_code != 0
     assert "--white-roi 310,230,40,40 lies outside the 320 x 240 frame" in out.output
     assert not (tmp_path / "c.exr").exists()
+
+
+def test_spectral_refit_is_the_identity_without_drift_and_follows_a_colour_change(setup):
+    bundle, plan, _, _ = setup
+    ones = np.ones(plan.K)
+    A1 = corrected_decoder(plan, ones, bundle)
+    assert np.max(np.abs(A1 - plan.A)) < 1e-3 * np.max(np.abs(plan.A))
+    # a light 10 % redder across 400-700 nm: the white's gains; the refit decoder undoes it on a grey
+    grid = bundle.wavelengths
+    r = np.exp(0.1 * (grid - 550.0) / 150.0)
+    F = bundle.forward_matrix(plan.patterns, grid, plan.exposure_s)
+    gains = (F @ (r * 0.99)) / (F @ np.full(grid.size, 0.99))
+    A2 = corrected_decoder(plan, gains, bundle)
+    grey = np.full(grid.size, 0.5)
+    y = A2 @ (F @ (r * grey))
+    assert np.max(np.abs(y - 0.5)) < 0.01
