@@ -582,7 +582,7 @@ def evaluate(cube, truth, illuminant, json_path, device):
 @_RIG
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-@click.option("--draws", type=click.IntRange(1, 50), default=3, show_default=True,
+@click.option("--draws", type=click.IntRange(1, 50), default=2, show_default=True,
               help="Noise draws per method and profile (tables give mean +- std).")
 def demo(out, rig_path, seed, device, draws):
     """The main job on the built-in twin: calibrate, plan, capture the chart, recover, evaluate; prints the

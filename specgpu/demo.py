@@ -102,7 +102,7 @@ def demo_profiles(rig=None) -> dict:
 
 
 def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progress: bool = True,
-             device=None, draws: int = 3) -> DemoResult:
+             device=None, draws: int = 2) -> DemoResult:
     """Run the demo and write its report folder; returns the figures (also in ``report.json``).
 
     Parameters
