@@ -54,6 +54,7 @@ __all__ = [
     "camera_loop",
     "spectral_loop",
     "oracle_calibration",
+    "calibration_error",
     "save_calibration",
     "load_calibration",
     "rig_fingerprint",
@@ -67,10 +68,13 @@ CALIBRATION_VERSION = 1
 
 def rig_fingerprint(description: RigDescription) -> str:
     """SHA-256 of what a calibration depends on: light, camera (less exposure and frame rate, which plans
-    choose), spectroradiometer and the seed (the camera's fixed pattern). Scene, pacing and faults are left out."""
+    choose), spectroradiometer, the seed (the camera's fixed pattern) and the bench's imperfections
+    (``[realism]``). Scene, pacing, faults and ``[drift]`` (the change since calibration) are left out."""
     d = description.to_dict()
     cam = {k: v for k, v in d["camera"].items() if k not in ("exposure_s", "frame_rate_hz")}
     key = {"light": d["light"], "camera": cam, "spectroradiometer": d["spectroradiometer"], "seed": description.seed}
+    if description.realism.any:  # the bench's imperfections are set-up; [drift] (time since calibration) is not
+        key["realism"] = description.realism.to_dict()
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -185,6 +189,11 @@ class CalibrationBundle:
     reciprocal_bands: np.ndarray
     reports: dict = field(default_factory=dict)
     rig: str = ""
+    #: (L, H, W) flat fields measured with L bands (wavelength-dependent field: a light guide's spot is bluer on
+    #: axis, lenses vignette by wavelength) and their (L,) centroid wavelengths; None: ``flat_field`` at every
+    #: wavelength. See :meth:`flat_ratio`.
+    flat_fields: np.ndarray | None = None
+    flat_wavelengths: np.ndarray | None = None
 
     def __post_init__(self):
         g = np.asarray(self.wavelengths, np.float64)
@@ -212,16 +221,31 @@ class CalibrationBundle:
         if not (self.slit_fwhm_nm > 0 and self.rows >= 1 and self.exposure_s > 0 and self.max_code >= 1
                 and 0 < self.min_exposure_s <= self.max_exposure_s):
             raise ValueError("calibration scalars out of range (slit, rows, exposure, max code, exposure limits)")
+        if (self.flat_fields is None) != (self.flat_wavelengths is None):
+            raise ValueError("flat_fields and flat_wavelengths go together")
+        if self.flat_fields is not None:
+            ff = np.asarray(self.flat_fields, np.float32)
+            fw = np.asarray(self.flat_wavelengths, np.float64).reshape(-1)
+            if ff.ndim != 3 or ff.shape[1:] != dark.shape or ff.shape[0] != fw.size or fw.size < 1:
+                raise ValueError(f"flat_fields must be (L, H, W) with L flat_wavelengths, got {ff.shape}, {fw.shape}")
+            if not (np.all(np.isfinite(ff)) and np.all(ff > 0)) or np.any(np.diff(fw) <= 0):
+                raise ValueError("flat_fields must be finite and positive, flat_wavelengths increasing")
+            object.__setattr__(self, "flat_fields", ff)
+            object.__setattr__(self, "flat_wavelengths", fw)
         for k, v in (("wavelengths", g), ("column_wavelengths", cw), ("column_power", cp), ("responsivity", rho),
                      ("dark", dark), ("flat_field", flat), ("reciprocal_patterns", rp), ("reciprocal_bands", rb)):
             object.__setattr__(self, k, v)
 
     # ---- identity ---------------------------------------------------------------------------------------------
     def _arrays(self) -> dict:
-        return {"wavelengths": self.wavelengths, "column_wavelengths": self.column_wavelengths,
-                "column_power": self.column_power, "responsivity": self.responsivity, "dark": self.dark,
-                "flat_field": self.flat_field, "reciprocal_patterns": self.reciprocal_patterns,
-                "reciprocal_bands": self.reciprocal_bands}
+        arrays = {"wavelengths": self.wavelengths, "column_wavelengths": self.column_wavelengths,
+                  "column_power": self.column_power, "responsivity": self.responsivity, "dark": self.dark,
+                  "flat_field": self.flat_field, "reciprocal_patterns": self.reciprocal_patterns,
+                  "reciprocal_bands": self.reciprocal_bands}
+        if self.flat_fields is not None:  # only then: bundles without them keep their hash
+            arrays["flat_fields"] = self.flat_fields
+            arrays["flat_wavelengths"] = self.flat_wavelengths
+        return arrays
 
     def _meta(self) -> dict:
         return {"slit_fwhm_nm": float(self.slit_fwhm_nm), "rows": int(self.rows), "exposure_s": float(self.exposure_s),
@@ -269,6 +293,44 @@ class CalibrationBundle:
         dl = float(self.wavelengths[1] - self.wavelengths[0])
         prod = (n / self.rows) @ self.system_matrix.T  # (K, G): I V in DN/s per nm
         return exposure_s * dl * prod @ interpolation_matrix(self.wavelengths, np.asarray(wavelengths, np.float64))
+
+    def flat_ratio(self, patterns) -> np.ndarray | None:
+        """(K, H, W) float32 per-pattern correction of the flat field, ``flat(lambda_k) / flat_field``, at each
+        pattern's response centroid ``lambda_k`` (linear between the measured bands, constant beyond); None when
+        the bundle has one flat field. Multiply a pattern's dark-subtracted frame by it before decoding."""
+        if self.flat_fields is None:
+            return None
+        n = np.atleast_2d(np.asarray(patterns, np.float64))
+        prod = (n / self.rows) @ self.system_matrix.T
+        total = prod.sum(axis=1)
+        lam = np.where(total > 0, (prod @ self.wavelengths) / np.where(total > 0, total, 1.0), np.nan)
+        fw, ff = self.flat_wavelengths, self.flat_fields
+        out = np.ones((n.shape[0], *self.dark.shape), np.float32)
+        for k, lk in enumerate(lam):
+            if not np.isfinite(lk):
+                continue  # an all-off pattern (ambient frame): nothing to correct
+            if fw.size == 1 or lk <= fw[0]:
+                f = ff[0]
+            elif lk >= fw[-1]:
+                f = ff[-1]
+            else:
+                j = int(np.searchsorted(fw, lk)) - 1
+                a = (lk - fw[j]) / (fw[j + 1] - fw[j])
+                f = (1 - a) * ff[j] + a * ff[j + 1]
+            out[k] = f / self.flat_field
+        return out
+
+    def linearize(self, signal) -> np.ndarray:
+        """Dark-subtracted output (DN) corrected for the sensor's compression near full well measured by
+        calibration (``reports["linearity_c_per_dn2"]``: ``y = s (1 - c s^2)``, solved for ``s``); float32."""
+        y = np.asarray(signal, np.float32)
+        c = float(self.reports.get("linearity_c_per_dn2", 0.0)) if isinstance(self.reports, dict) else 0.0
+        if c <= 0:
+            return y
+        s = y.copy()
+        for _ in range(3):  # fixed point: s = y / (1 - c s^2); c s^2 is at most a few per cent
+            s = y / (1.0 - np.float32(c) * s * s)
+        return s.astype(np.float32)
 
     def dark_at(self, exposure_s: float) -> np.ndarray:
         """(H, W) float32 dark level (DN) for an exposure (s): measured level plus dark current times the change."""
@@ -481,6 +543,9 @@ class TwinCalibrationRig:
             self._scene = scene if scene is not None else white_plate_scene(d.camera.roi_height, d.camera.roi_width)
             self.rig = _rig(d, self._scene)
         self._by_exposure: dict[float, object] = {}
+        #: The rig's own clock (s): it runs on through every capture and spectrum reading of the calibration, so
+        #: the lamp drifts during the procedure as on a bench; :func:`calibrate` records where it ended.
+        self.clock_s = float(self.rig.clock_start_s)
 
     # the rig at each exposure; the calibration exposure's is ``rig`` itself (its spectroradiometer too)
     def _at(self, exposure_s):
@@ -521,10 +586,21 @@ class TwinCalibrationRig:
 
     def capture_mean(self, patterns, repeats: int, *, exposure_s: float | None = None,
                      noise_seed: int | None = None) -> np.ndarray:
-        return capture_mean(self._at(exposure_s), patterns, repeats, noise_seed=noise_seed)
+        rig = self._at(exposure_s)
+        if rig.clock_start_s != self.clock_s:
+            rig.set_clock(self.clock_s)
+        out = capture_mean(rig, patterns, repeats, noise_seed=noise_seed)
+        self.clock_s += np.atleast_2d(patterns).shape[0] * int(repeats) * rig.frame_period_s
+        return out
+
+    #: Seconds one spectroradiometer reading takes on the rig's clock (integration and read-out).
+    SPECTRUM_READ_S = 0.2
 
     def measure_spectrum(self, pattern_index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        return self.rig.measure_spectrum(pattern_index)
+        d = self.description
+        power = 1.0 + (d.light.drift_per_hour + d.realism.lamp_output_drift_per_hour) * self.clock_s / 3600.0
+        self.clock_s += self.SPECTRUM_READ_S
+        return self.rig.measure_spectrum(pattern_index, power=max(power, 0.0))
 
     def zero_spectrometer(self) -> None:
         """The twin's spectroradiometer has no dark offset."""
@@ -686,6 +762,7 @@ def spectral_loop(rig, target, wavelengths=None, *, bundle: CalibrationBundle | 
 
 # ---- the whole procedure --------------------------------------------------------------------------------------
 def calibrate(description: RigDescription | None = None, *, white_reflectance: float = 0.99,
+              white_uncertainty: float = 0.01,
               band_step_nm: float = 10.0, band_range_nm=(380.0, 780.0), equalize_range_nm=(400.0, 700.0),
               repeats: int = 8, tolerance: float = 0.01, max_iterations: int = 10, perturbation: float = 0.0,
               spectral_check: bool = True, seed: int = 0, rig: CalibrationRig | None = None) -> CalibrationBundle:
@@ -705,7 +782,11 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         The rig (the paper's by default). For the twin its camera exposure is the calibration exposure; the
         bundle records its :func:`rig_fingerprint` either way.
     white_reflectance : float
-        Reflectance of the reference white plate, in (0, 1.5].
+        Reflectance of the reference white plate, in (0, 1.5] (its certificate's value).
+    white_uncertainty : float
+        Relative standard uncertainty of that value, in [0, 0.2] (a PTFE standard's certificate: about 0.01).
+        Every responsivity scales with it, so it is a scale uncertainty of every recovered reflectance; it is
+        kept in the bundle's reports (``white_reflectance_uncertainty``) and written with every recovery.
     band_step_nm : float
         Width of loop (a)'s bands, nm, in [2, 50].
     repeats : int
@@ -729,6 +810,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     d = description if description is not None else RigDescription()
     if not 0 < white_reflectance <= 1.5:
         raise ValueError(f"white_reflectance must lie in (0, 1.5], got {white_reflectance!r}")
+    if not 0 <= white_uncertainty <= 0.2:
+        raise ValueError(f"white_uncertainty must lie in [0, 0.2], got {white_uncertainty!r}")
     if not 2 <= band_step_nm <= 50:
         raise ValueError(f"band_step_nm must lie in [2, 50], got {band_step_nm!r}")
     if not 0 <= perturbation <= 0.9:
@@ -736,8 +819,9 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     if int(repeats) < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats!r}")
     if rig is None:
-        rig = TwinCalibrationRig(d, scene=white_plate_scene(d.camera.roi_height, d.camera.roi_width,
-                                                            reflectance=white_reflectance))
+        # The twin's white is what the certificate says, off by the bench's white_error (its truth).
+        rig = TwinCalibrationRig(d, scene=white_plate_scene(
+            d.camera.roi_height, d.camera.roi_width, reflectance=white_reflectance * (1.0 + d.realism.white_error)))
     else:
         rig = as_calibration_rig(rig)
     h, w = rig.frame_shape
@@ -756,7 +840,7 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
 
     # (2) Spectroradiometer: column-wavelength map and lamp.
     rig.zero_spectrometer()
-    probe_cols = np.linspace(16, p.columns - 24, 24).astype(int)
+    probe_cols = np.linspace(16, p.columns - 24, 48).astype(int)
     probes = np.zeros((probe_cols.size, p.columns), np.int32)
     for i, c in enumerate(probe_cols):
         probes[i, c:c + 8] = p.rows
@@ -771,11 +855,20 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
             raise ValueError(f"calibrate: the spectroradiometer sees no light from probe columns {probe_cols[i]}-"
                              f"{probe_cols[i] + 7}; check the light, the fibre and the instrument")
         cents.append(float(np.sum(inst[sel] * s[sel]) / np.sum(s[sel])))
-    slope, icpt = np.polyfit(probe_cols + 3.5, np.array(cents), 1)
-    col_wl = icpt + slope * np.arange(p.columns)
+    cents = np.array(cents)
+    slope, icpt = np.polyfit(probe_cols + 3.5, cents, 1)
+    # Non-parametric map: the straight line plus a smoothed interpolation of the probes' departures from it (a
+    # grating's map is not straight in column position: bow), held at the ends' departure beyond the probes.
+    resid = cents - (icpt + slope * (probe_cols + 3.5))
+    if resid.size >= 5:
+        resid = np.convolve(np.pad(resid, 2, mode="edge"), np.ones(5) / 5.0, mode="valid")
+    col_wl = icpt + slope * np.arange(p.columns) + np.interp(np.arange(p.columns), probe_cols + 3.5, resid)
+    if np.any(np.diff(col_wl) <= 0):  # a noisy reading must not fold the map: keep the straight line then
+        col_wl = icpt + slope * np.arange(p.columns)
+    local_slope = np.gradient(col_wl)
     light.load_sequence(np.full((1, p.columns), p.rows, np.int32))
     full = np.mean([rig.measure_spectrum(0)[1] for _ in range(4)], axis=0)
-    col_power = np.interp(col_wl, inst, full) * abs(slope)
+    col_power = np.interp(col_wl, inst, full) * np.abs(local_slope)
     grid = light.wavelengths
     # The slit FWHM is a design value of the light (the instrument's own bandpass would blur a measured one).
     slit = float(p.line_fwhm_nm)
@@ -796,6 +889,51 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
                                   noise_seed=seeds.next())[0] - dark
     small = _centre_window((h, w), 0.05)
     flat = (float(np.median(white_mean[small])) / np.maximum(white_mean, 1e-6)).astype(np.float32)
+    # Wavelength-dependent flat field: the same on the white with 4 bands across 400-700 nm, each at a level that
+    # does not saturate (the broadband flat stays the bundle's flat_field; the bands correct it per pattern).
+    flat_bands, flat_wl = [], []
+    flat_departure = 0.0
+    for a, b in ((400.0, 475.0), (475.0, 550.0), (550.0, 625.0), (625.0, 700.0)):
+        band = (col_wl >= a) & (col_wl < b)
+        if not band.any():
+            continue
+        n_band = int(min(p.rows, max(1, round(n_flat * p.columns / band.sum() * 0.5))))
+        while True:
+            pat = np.where(band, n_band, 0).astype(np.int32)[None]
+            m_band = rig.capture_mean(pat, 2 * repeats, noise_seed=seeds.next())[0]
+            if float(m_band[win].max()) < 0.9 * max_code or n_band == 1:
+                break
+            n_band = max(1, n_band // 2)
+        m_band = m_band - dark
+        if not float(np.median(m_band[small])) > 0 or np.any(m_band <= 0):
+            continue  # too dim to flat-field with (the broadband flat serves)
+        # keep the smooth part of the band's departure from the broadband flat (the per-pixel part is noise here)
+        from scipy.ndimage import gaussian_filter
+
+        ratio = gaussian_filter((float(np.median(m_band[small])) / m_band) / flat, 6.0, mode="nearest")
+        flat_bands.append((flat * ratio).astype(np.float32))
+        flat_wl.append(float(col_wl[band].mean()))
+        flat_departure = max(flat_departure, float(np.max(np.abs(ratio - 1.0))))
+    if flat_bands and flat_departure < 0.005:
+        flat_bands = []  # the field is the same at every wavelength to within the measurement: one flat serves
+
+    # Linearity: a broadband ramp on the white up to near the full well; the light is linear in the mirror count,
+    # so the departure of the output from a line is the sensor's: y = s (1 - c s^2), s the linear signal (DN).
+    linearity_c = 0.0
+    top = 0.92 * (max_code - float(np.mean(dark[small])))
+    n_top = int(min(p.rows, max(1, n_probe * top / max(lvl, 1e-9))))
+    if n_top >= 16:
+        levels = np.unique(np.linspace(n_top / 8, n_top, 8).astype(int))
+        ramp = rig.capture_mean(np.repeat(levels[:, None], p.columns, axis=1).astype(np.int32), repeats,
+                                noise_seed=seeds.next())
+        y = np.array([float(np.mean((f - dark)[small])) for f in ramp])
+        x = levels.astype(np.float64)
+        if np.all(y < 0.99 * max_code) and np.all(y > 0):
+            coef = np.linalg.lstsq(np.stack([x, x**3], axis=1), y, rcond=None)[0]  # y = b1 x + b3 x^3
+            if coef[0] > 0:
+                linearity_c = float(max(0.0, -coef[1] / coef[0] ** 3))
+                if linearity_c * (max_code - float(np.mean(dark[small]))) ** 2 < 0.002:
+                    linearity_c = 0.0  # below 0.2 % at full well: within the ramp's noise, no correction
 
     # (4) Loop (a): bands on the white; target = white reflectance times an equalized level.
     lo, hi = band_range_nm
@@ -838,10 +976,31 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     rho_band = loop_a.outputs / (t_a * white_reflectance * power)
     centroid = (e @ grid) / e.sum(axis=1)
     rho = np.interp(grid, centroid, rho_band)
+    # Non-parametric refinement: make the model reproduce every band's measured output exactly (V varies inside a
+    # band: sensor ripple, the light's slope), by correcting rho at each band's centroid by measured / modelled.
+    dl = grid[1] - grid[0]
+    for _ in range(6):
+        modelled = t_a * white_reflectance * dl * (e * rho[None, :]).sum(axis=1)
+        rho = rho * np.interp(grid, centroid, loop_a.outputs / modelled)
     reports = {"source": "calibrated", "loop_a": loop_a.summary(), "band_step_nm": float(band_step_nm),
                "column_map": {"slope_nm": float(slope), "intercept_nm": float(icpt)},
                "level_dn_per_reflectance": level, "loop_a_exposure_s": t_a, "repeats": int(repeats)}
+    reports["white_reflectance_uncertainty"] = float(white_uncertainty)
+    reports["linearity_c_per_dn2"] = linearity_c
+    if hasattr(rig, "clock_s"):
+        reports["rig_clock_end_s"] = float(rig.clock_s)
     bundle = replace(est, responsivity=rho, reports=reports, rig=rig_fingerprint(d))
+    if flat_bands:
+        bundle = replace(bundle, flat_fields=np.stack(flat_bands), flat_wavelengths=np.array(flat_wl))
+        # the bands' response centroids (lamp and camera weight the band), now that the model knows them
+        cent = []
+        for a, b in ((400.0, 475.0), (475.0, 550.0), (550.0, 625.0), (625.0, 700.0)):
+            band = (col_wl >= a) & (col_wl < b)
+            if band.any():
+                pr = bundle.system_matrix[:, band].sum(axis=1)
+                cent.append(float(pr @ grid / pr.sum()))
+        if len(cent) == len(flat_wl) and np.all(np.diff(cent) > 0):
+            bundle = replace(bundle, flat_wavelengths=np.array(cent))
 
     # (5) Loop (b) check: an equal-energy spectrum at 40 % of the lamp's weakest point over the equalized range
     # (the lamp as the rig knows it, else as the spectroradiometer read it with every mirror on).
@@ -860,6 +1019,39 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         loop_b = spectral_loop(rig, flat_target, bundle=bundle, initial=initial)
         bundle = replace(bundle, reports={**reports, "loop_b": loop_b.summary()})
     return bundle
+
+
+def calibration_error(bundle: CalibrationBundle, description: RigDescription | None = None, *,
+                      band_step_nm: float = 10.0, band_range_nm=(400.0, 700.0)) -> dict:
+    """How far a bundle's model is from the twin's truth: for every band of ``band_step_nm`` (every mirror on),
+    the response the model predicts on a flat reflectance at the spot centre (DN above the all-off level) against
+    the twin's noise-free response, and the shift of the response's centroid wavelength.
+
+    Returns ``{"bands": (B, 2), "relative": (B,) model/truth - 1, "centroid_nm": (B,) model - truth,
+    "rms_relative", "max_relative", "rms_centroid_nm"}``. The twin's truth includes every ``[realism]`` effect
+    that acts at the spot centre (slit, map, ripples, stray light, off-state, white error does not enter: the
+    truth here is the light and camera, not the white).
+    """
+    from specgpu.rig.twin import TwinRig
+
+    d = description if description is not None else RigDescription()
+    rig = TwinRig(d, scene=white_plate_scene(d.camera.roi_height, d.camera.roi_width))
+    light, cam = rig.light, rig.camera
+    edges = np.arange(band_range_nm[0], band_range_nm[1] - 1e-9, band_step_nm)
+    bands = np.stack([edges, edges + band_step_nm], axis=1)
+    masks = np.stack([(bundle.column_wavelengths >= a) & (bundle.column_wavelengths < b) for a, b in bands])
+    pats = distribute_counts(np.ones(len(masks)), masks, bundle.rows)
+    true_e = light.pattern_to_spectrum(pats) - light.offset_spectrum[None, :]
+    true_prod = true_e * (cam.responsivity(light.wavelengths) / cam.params.gain_e_per_dn)[None, :]
+    if cam.realism is not None and cam.realism.nonlinearity:
+        pass  # the non-linearity depends on the level, not the band: left to the error budget
+    model_prod = (pats / bundle.rows) @ bundle.system_matrix.T
+    wl = bundle.wavelengths
+    t_sum, m_sum = true_prod.sum(axis=1), model_prod.sum(axis=1)
+    rel = m_sum / t_sum - 1.0
+    cen = (model_prod @ wl) / m_sum - (true_prod @ light.wavelengths) / t_sum
+    return {"bands": bands, "relative": rel, "centroid_nm": cen, "rms_relative": float(np.sqrt(np.mean(rel**2))),
+            "max_relative": float(np.max(np.abs(rel))), "rms_centroid_nm": float(np.sqrt(np.mean(cen**2)))}
 
 
 def oracle_calibration(description: RigDescription | None = None, *, white_reflectance: float = 0.99,

@@ -362,10 +362,12 @@ def calibrate(rig_path, out, seed):
 @click.option("--target", type=float, default=None, help="optimal: refuse a design whose expected error is above it.")
 @click.option("--exposure-ms", type=float, default=None, help="optimal: expose at least this long (ms).")
 @click.option("--bands", type=int, default=31, show_default=True, help="hadamard: bands (3, 7, 15, 31, 63).")
+@click.option("--ambient", is_flag=True,
+              help="Add an ambient frame (every mirror off) to each sequence; recover subtracts it (1 frame more).")
 @_RIG
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
                  illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,
-                 target, exposure_ms, bands, rig_path, smooth_nm):
+                 target, exposure_ms, bands, rig_path, smooth_nm, ambient):
     """Design a measurement plan: the illuminant sequence and its decoder.
 
     METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady, optimal, hadamard.
@@ -411,6 +413,10 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
     plan = _estimated_plan(method, bundle, args, kwargs, estimator.lower(), training, training_only, exclude_chart,
                            frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path,
                            smooth_nm)
+    if ambient:
+        from .correction import with_ambient_frame
+
+        plan = with_ambient_frame(plan)
     digest = save_plan(out, plan)
     expected = plan.params.get("expected", {})
     unit = "" if plan.output == "reflectance" else f" ({plan.output})"
@@ -556,7 +562,8 @@ def _capture_into(writer, bar, description, hardware, plan, bundle, truth, seque
         bar.update()
 
     if hardware is None:
-        result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed, on_sequence=keep)
+        result = capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed, on_sequence=keep,
+                              calibration=bundle)
     else:  # real devices: the same ring buffer and assembler, the plan uploaded to the light
         from .capture.session import capture_sequences
         from .hardware.rig import open_hardware
@@ -643,8 +650,12 @@ def _parse_reference(text, height, width, illuminant):
 @click.option("--delta-e-sigma", "de_sigma_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the per-pixel dE2000 standard deviation (first-order, under --illuminant; EXR).")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
+@click.option("--white-roi", default=None, metavar="X,Y,W,H",
+              help="A reference white in the field: rescale each sequence's decoder for the light's drift.")
+@click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
+              help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
 def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, sigma_path,
-            de_sigma_path, device):
+            de_sigma_path, device, white_roi, white_reflectance):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     from pathlib import Path
 
@@ -665,11 +676,19 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
     folder = read_capture(seq)
     plan = folder.plan
     with _Busy("recovering"):
-        y = run(folder, sequence=sequence, device=device)
+        if white_reflectance is not None and white_roi is None:
+            raise click.UsageError("--white-reflectance needs --white-roi")
+        try:
+            y = run(folder, sequence=sequence, device=device, white_roi=white_roi, white_reflectance=white_reflectance)
+        except ValueError as error:
+            raise click.ClickException(str(error)) from None
         height, width = y.shape[:2]
         meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
                 "calibration": plan.calibration, "sequence_folder": str(seq),
-                "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant}
+                "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant,
+                **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {}),
+                **({"reflectance_scale_uncertainty": folder.calibration.reports["white_reflectance_uncertainty"]}
+                   if "white_reflectance_uncertainty" in folder.calibration.reports else {})}
         writes = []  # (final path, write(to path))
         if plan.output == "reflectance":
             if Path(out).suffix.lower() == ".hdr":  # ENVI: the .img data file renamed with its header
@@ -993,13 +1012,15 @@ def evaluate(cube, truth, illuminant, json_path, device):
 @_RIG
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-def demo(out, rig_path, seed, device):
+@click.option("--draws", type=click.IntRange(1, 50), default=2, show_default=True,
+              help="Noise draws per method and profile (tables give mean +- std).")
+def demo(out, rig_path, seed, device, draws):
     """The main job on the built-in twin: calibrate, plan, capture the chart, recover, evaluate; prints the
     paper's Tables 1-3 beside ours and writes a report folder with index.html."""
     from .demo import format_tables, run_demo
 
     _lock(out, folder=True)
-    result = run_demo(out, rig=rig_path, seed=seed, echo=click.echo, device=device)
+    result = run_demo(out, rig=rig_path, seed=seed, echo=click.echo, device=device, draws=draws)
     click.echo(format_tables(result))
     click.echo(f"\ndemo finished in {result.seconds:.1f} s; report: {result.out / 'index.html'}")
 

@@ -49,6 +49,17 @@ DEMO_METHODS = {
 OUTPUT_WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
 
 
+def make_demo_plans(bundle, basis, names=None) -> dict:
+    """The demo's plans (name -> Plan) made from a calibration bundle; ``names`` a subset of DEMO_METHODS."""
+    plans = {}
+    for name in (DEMO_METHODS if names is None else names):
+        method, kwargs = DEMO_METHODS[name]
+        args = (basis,) if method in ("biased", "symmetric") else ()
+        extra = {"output_wavelengths": OUTPUT_WAVELENGTHS} if method in ("biased", "symmetric") else {}
+        plans[name] = make_plan(method, bundle, *args, **kwargs, **extra)
+    return plans
+
+
 @dataclass
 class DemoResult:
     out: Path
@@ -56,16 +67,42 @@ class DemoResult:
     calibration: dict
     basis_variance: list
     methods: dict = field(default_factory=dict)  # name -> {"patch": PatchReport, "pixels": stats, "K", ...}
+    #: profile label -> method name -> {metric: [value per noise draw]} (:func:`specgpu.study.measure_methods`)
+    draws: dict = field(default_factory=dict)
+    #: profile label -> what was done (corrections, calibration error against the twin's truth)
+    profiles: dict = field(default_factory=dict)
+    main: str = ""
 
 
-def _steps(echo, progress):
+def _steps(echo, progress, n_profiles):
     from tqdm import tqdm
 
-    return tqdm(total=3 + 2 * len(DEMO_METHODS) + 2, desc="demo", unit="step", leave=False, disable=not progress)
+    return tqdm(total=n_profiles * (2 + len(DEMO_METHODS)) + 3, desc="demo", unit="step", leave=False,
+                disable=not progress)
+
+
+def demo_profiles(rig=None) -> dict:
+    """label -> RigDescription the demo runs: the lab profile by default (or ``rig``), and beside it the same rig
+    with every imperfection off (the ideal profile) when the main one has any."""
+    from dataclasses import replace
+
+    from .rig.config import rig_from_dict
+    from .rig.realism import Drift, Realism
+
+    if rig is None:
+        description = rig_from_dict({"twin": {"profile": "lab"}}, source="<lab profile>")
+    else:
+        description = rig if isinstance(rig, RigDescription) else load_rig(rig)
+    label = description.profile if description.realism.any or description.profile == "ideal" else "custom"
+    profiles = {label: description}
+    if description.realism.any or description.drift.any:
+        profiles["ideal"] = replace(description, profile="ideal", realism=Realism(), drift=Drift(),
+                                    capture_delay_s=None)
+    return profiles
 
 
 def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progress: bool = True,
-             device=None) -> DemoResult:
+             device=None, draws: int = 2) -> DemoResult:
     """Run the demo and write its report folder; returns the figures (also in ``report.json``).
 
     Parameters
@@ -73,57 +110,78 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     out : path
         Report folder (created; files of an earlier demo there are replaced).
     rig : path or RigDescription, optional
-        The rig (default: the paper's, 640 x 480).
+        The rig (default: the lab profile of the paper's rig, 640 x 480: every imperfection of a real bench on).
+        When it has imperfections, the same rig with none (the ideal profile) is run beside it.
     seed : int
         Seed of the twin's noise.
+    draws : int
+        Noise draws per method and profile: every table gives mean +- std over them.
+
+    On a rig with imperfections every sequence gets an ambient frame (every mirror off, subtracted: the DMD's
+    off-state light and the room light are on the scene) and the chart has a reference white tile whose ROI
+    rescales each sequence's decoder for the lamp's drift since calibration (:mod:`specgpu.correction`).
     """
+    from .calibration import calibration_error
+    from .study import chart_with_white, measure_methods
+
     t_start = time.perf_counter()
     out = Path(out)
     for sub in ("plans", "sequences", "cubes", "maps", "png", "figures"):
         (out / sub).mkdir(parents=True, exist_ok=True)
-    description = rig if isinstance(rig, RigDescription) else load_rig(rig)
-    cam = description.camera
-    scene = colorchecker_scene(cam.roi_height, cam.roi_width, chart=EVALUATION_CHART)
-    bar = _steps(echo, progress)
-
-    bar.set_description("calibrating")
-    bundle = calibrate(description, seed=seed)
-    save_calibration(out / "calibration.npz", bundle)
-    bar.update()
+    profiles = demo_profiles(rig)
+    main = next(iter(profiles))
+    bar = _steps(echo, progress, len(profiles))
     bar.set_description("basis")
     basis = default_basis(EVALUATION_CHART)
     save_basis(out / "basis.npz", basis)
     bar.update()
-    bar.set_description("planning")
-    plans = {}
-    for name, (method, kwargs) in DEMO_METHODS.items():
-        args = (basis,) if method in ("biased", "symmetric") else ()
-        extra = {"output_wavelengths": OUTPUT_WAVELENGTHS} if method in ("biased", "symmetric") else {}
-        plans[name] = make_plan(method, bundle, *args, **kwargs, **extra)
-        save_plan(out / "plans" / f"{name}.npz", plans[name])
-    bar.update()
+    result = DemoResult(out, 0.0, {}, basis.cumulative_variance[:9].tolist(), main=main)
+    main_plans = main_bundle = main_scene = None
+    for label, description in profiles.items():
+        is_main = label == main
+        bar.set_description(f"calibrating ({label})")
+        bundle = calibrate(description, seed=seed)
+        bar.update()
+        bar.set_description(f"planning ({label})")
+        plans = make_demo_plans(bundle, basis)
+        scene, roi = chart_with_white(description, EVALUATION_CHART)
+        lab = description.realism.any or description.drift.any
+        corrections = {"white_roi": roi, "ambient": True} if lab else {}
+        error = calibration_error(bundle, description)
+        result.profiles[label] = {
+            "corrections": ("ambient frame per sequence, white ROI " + ",".join(map(str, roi))) if lab else "none",
+            "calibration_error": {k: error[k] for k in ("rms_relative", "max_relative", "rms_centroid_nm")},
+            "realism": description.realism.to_dict(), "drift": description.drift.to_dict()}
+        if is_main:
+            result.calibration = bundle.reports
+            save_calibration(out / "calibration.npz", bundle)
+            io.write_sRGB_preview(out / "png" / "truth.png", scene_XYZ(scene, "D65", device=device), exposure=0.0)
+            main_plans, main_bundle, main_scene = plans, bundle, scene
+        bar.update()
 
-    io.write_sRGB_preview(out / "png" / "truth.png", scene_XYZ(scene, "D65", device=device), exposure=0.0)
-    result = DemoResult(out, 0.0, bundle.reports, basis.cumulative_variance[:9].tolist())
-    for i, (name, plan) in enumerate(plans.items()):
-        bar.set_description(f"capturing {name}")
-        seq_dir = out / "sequences" / name
-        captured = capture_plan(description, plan, scene, noise_seed=1000 + 17 * seed + i)
-        write_capture(seq_dir, captured.sequences, captured.assembly, out / "plans" / f"{name}.npz",
-                      out / "calibration.npz", metadata={"scene": scene.name}, overwrite=True)
-        bar.update()
-        bar.set_description(f"recovering {name}")
-        folder = read_capture(seq_dir)  # the files, as `specgpu recover` reads them
-        y = recover(folder, device=device)
-        result.methods[name] = _evaluate(out, name, plan, y, scene, device)
-        bar.update()
+        def keep(name, draw, y, plan, captured, _main=is_main, _scene=scene):
+            if _main and draw == 0:  # the report's files: the first draw of the main profile
+                save_plan(out / "plans" / f"{name}.npz", plan)
+                write_capture(out / "sequences" / name, captured.sequences, captured.assembly,
+                              out / "plans" / f"{name}.npz", out / "calibration.npz",
+                              metadata={"scene": _scene.name}, overwrite=True)
+                main_plans[name] = plan
+                result.methods[name] = _evaluate(out, name, plan, y, _scene, device)
+            if draw == draws - 1:
+                bar.set_description(f"{label}: {name}")
+                bar.update()
+
+        result.draws[label] = measure_methods(description, bundle, plans, scene, draws=draws, seed=seed,
+                                              device=device, on_result=keep, **corrections)
+        for rows in result.draws[label].values():
+            rows.pop("reports", None)
 
     bar.set_description("figures")
-    _figures(out, plans, result, scene, bundle)
+    _figures(out, main_plans, result, main_scene, main_bundle)
     bar.update()
     result.seconds = time.perf_counter() - t_start
     (out / "report.json").write_text(json.dumps(_report_json(result), indent=1))
-    (out / "index.html").write_text(_html(result, plans))
+    (out / "index.html").write_text(_html(result, main_plans))
     bar.update()
     bar.close()
     return result
@@ -159,19 +217,55 @@ def _xy(illuminant):
 # ---------------------------------------------------------------------------------------------------- tables
 
 
+def _pm(values, digits: int) -> str:
+    from .study import mean_std
+
+    if not values:
+        return "-"
+    mu, sd = mean_std(values)
+    return f"{mu:.{digits}f}+-{sd:.{digits}f}"
+
+
+#: Table 1's paper column per method (the paper's tristimulus imager has dE*ab only, Table 3).
+_PAPER_ROWS = {"tristimulus-D65": "D65", "tristimulus-A": "A"}
+
+
+def table1_lines(result: DemoResult, methods) -> list[str]:
+    """Rows of Table 1 for ``methods`` (names of ``result.draws``' methods): for every profile run, mean +- std
+    over the noise draws of per-patch RMSE, dE*ab, dE2000 (patch means) and per-pixel RMSE and dE2000 means,
+    then the paper's row where it has one. The one place Table 1 is built: add a method by adding its name."""
+    lines = [f"{'method':<16}{'profile':<8}{'RMSE patch':>16}{'dEab patch':>13}{'dE00 patch':>13}"
+             f"{'RMSE pixel':>16}{'dE00 pixel':>13}{'proj.':>6}"]
+    for name in methods:
+        for label, runs in result.draws.items():
+            r = runs.get(name)
+            if r is None:
+                continue
+            lines.append(f"{name:<16}{label:<8}{_pm(r.get('rmse'), 4):>16}{_pm(r.get('dEab'), 2):>13}"
+                         f"{_pm(r.get('dE00'), 2):>13}{_pm(r.get('px_rmse'), 4):>16}{_pm(r.get('px_dE00'), 2):>13}"
+                         f"{r['K']:6d}")
+        if name in paper.TABLE1:
+            p = paper.TABLE1[name]
+            lines.append(f"{'':<16}{'paper':<8}{p[0]:>16.4f}{p[2]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{p[4]:6d}")
+        elif name in _PAPER_ROWS:
+            p = paper.TABLE3_SUMMARY[_PAPER_ROWS[name]]
+            lines.append(f"{'':<16}{'paper':<8}{'-':>16}{p[0]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{3:6d}")
+    return lines
+
+
 def format_tables(result: DemoResult) -> str:
     """Tables 1, 2 and 3 of the paper, ours beside theirs."""
     m = result.methods
-    lines = ["Table 1: spectral reflectance recovery, 24 patches (patch means; dE under D65, 400-700 nm)",
-             f"{'method':<12}{'':<7}{'RMSE avg':>9}{'RMSE max':>9}{'dEab avg':>9}{'dEab max':>9}"
-             f"{'dE00 avg':>9}{'dE00 max':>9}{'proj.':>6}"]
-    for name in ("narrowband", "biased", "symmetric"):
-        s = m[name]["patch"].summary()
-        p = paper.TABLE1[name]
-        lines.append(f"{name:<12}{'ours':<7}{s['rmse'][0]:9.4f}{s['rmse'][1]:9.4f}{s['delta_E_ab'][0]:9.2f}"
-                     f"{s['delta_E_ab'][1]:9.2f}{s['delta_E_2000'][0]:9.2f}{s['delta_E_2000'][1]:9.2f}"
-                     f"{m[name]['K']:6d}")
-        lines.append(f"{'':<12}{'paper':<7}{p[0]:9.4f}{p[1]:9.4f}{p[2]:9.2f}{p[3]:9.2f}{'-':>9}{'-':>9}{p[4]:6d}")
+    draws = len(next(iter(next(iter(result.draws.values())).values()))["dE00"]) if result.draws else 1
+    lines = [f"profiles: " + "; ".join(f"{k}: corrections {v['corrections']}, calibration vs the twin's truth "
+                                       f"{v['calibration_error']['rms_relative'] * 100:.2f} % RMS band response, "
+                                       f"{v['calibration_error']['rms_centroid_nm']:.2f} nm RMS centroid"
+                                       for k, v in result.profiles.items()),
+             f"Table 1: spectral reflectance recovery, 24 patches (dE under D65, 400-700 nm); mean +- std over "
+             f"{draws} noise draws; patch means and per-pixel means"]
+    lines += table1_lines(result, ("narrowband", "biased", "symmetric", "tristimulus-D65", "tristimulus-A"))
+    if result.main:
+        lines.append(f"(Tables 2 and 3: the {result.main} profile, first draw)")
     nb, sy = m["narrowband"]["patch"], m["symmetric"]["patch"]
     lines += ["", "Table 2: per patch, narrowband (NB) and symmetric basis (SB); ours / paper",
               f"{'#':>2} {'patch':<14}{'RMSE NB':>16}{'RMSE SB':>16}{'dEab NB':>14}{'dEab SB':>14}"]
@@ -214,7 +308,13 @@ def _report_json(result: DemoResult) -> dict:
                          "dE76_mean": s["delta_E_ab"][0], "dE76_max": s["delta_E_ab"][1],
                          "dE2000_mean": s["delta_E_2000"][0], "dE2000_max": s["delta_E_2000"][1],
                          "pixels": r["pixels"], "patches": rows}
-    return {"seconds": result.seconds, "calibration": result.calibration, "basis_cumulative_variance":
+    from .study import mean_std
+
+    draws = {label: {name: {k: {"values": v, "mean": mean_std(v)[0], "std": mean_std(v)[1]}
+                            for k, v in rows.items() if isinstance(v, list)} | {"K": rows["K"]}
+                     for name, rows in runs.items()} for label, runs in result.draws.items()}
+    return {"main_profile": result.main, "profiles": result.profiles, "draws": draws,
+            "seconds": result.seconds, "calibration": result.calibration, "basis_cumulative_variance":
             result.basis_variance, "methods": methods,
             "paper": {"table1": paper.TABLE1, "table3": paper.TABLE3_SUMMARY}}
 

@@ -35,7 +35,7 @@ CALIBRATION_FILE = "calibration.npz"
 
 
 def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: int = 1, noise_seed: int | None = None,
-                 faults: FaultSchedule | None = None, on_sequence=None) -> CaptureResult:
+                 faults: FaultSchedule | None = None, on_sequence=None, calibration=None) -> CaptureResult:
     """Capture ``sequences`` repetitions of ``plan``'s illuminant sequence of ``scene`` on the twin.
 
     The camera runs at the plan's exposure, at the fastest frame rate the camera and the light's switch time allow
@@ -56,11 +56,17 @@ def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: i
         Injected faults (none by default).
     on_sequence : callable, optional
         Given each complete sequence as it arrives (then sequences are not kept in the result).
+    calibration : CalibrationBundle, optional
+        The bundle the plan was made from: the rig's clock starts where that calibration ended plus the rig's
+        ``capture_delay`` (so the lamp has drifted on as on a bench); without it, at ``capture_delay``.
     """
     if sequences < 1:
         raise ValueError(f"sequences must be >= 1, got {sequences}")
     check_scene_covers(scene, plan, description.light.line_fwhm_nm)
-    rig = TwinRig(plan.rig_description(description), scene=scene)
+    clock = description.capture_delay
+    if calibration is not None:
+        clock += float(calibration.reports.get("rig_clock_end_s", 0.0))
+    rig = TwinRig(plan.rig_description(description), scene=scene, clock_start_s=clock)
     if noise_seed is not None:
         rig.seed = noise_seed
     driver = TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K * sequences,
@@ -236,13 +242,44 @@ def read_capture(directory) -> SequenceFolder:
     return SequenceFolder(directory, frames.reshape(-1, K, *frames.shape[1:]), plan, bundle, records, meta)
 
 
-def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None) -> np.ndarray:
+def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None,
+            white_roi=None, white_reflectance=None) -> np.ndarray:
     """The plan's outputs (H, W, B) from a sequence folder: one sequence, or the mean of all (``sequence=None``:
     averaging repeated sequences of a still scene lowers the temporal noise).
 
     A pixel where any frame used sits at the sensor's maximum code (saturated, flagged per sequence before any
     averaging) has no valid measurement: its outputs are NaN, never a clipped, wrong value.
+
+    ``white_roi`` (``"X,Y,W,H"``) names a reference white of ``white_reflectance`` (a number or a CSV; 0.99 by
+    default) in the field: each sequence's decoder is rescaled for the light's drift since calibration
+    (:mod:`specgpu.correction`). A plan with an ambient frame (``plan --ambient``) has that frame subtracted
+    instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
     """
+    from .correction import ambient_index, corrected_decoder, white_gains
+
+    amb = ambient_index(folder.plan)
+    if white_roi is not None or amb is not None:
+        plan, bundle = folder.plan, folder.calibration
+        picked = range(folder.sequences) if sequence is None else [sequence]
+        if sequence is not None and not 0 <= sequence < folder.sequences:
+            raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
+        y = None
+        ratio = bundle.flat_ratio(plan.patterns)
+        for s in picked:
+            fr = folder.frames[s]
+            dark = fr[amb].astype(np.float32) if amb is not None else bundle.dark_at(plan.exposure_s)
+            fr = _flatten_by_wavelength(fr, dark, ratio, bundle)
+            A = plan.A
+            if white_roi is not None:
+                gains = white_gains(fr, plan, bundle, white_roi, white_reflectance, dark=dark)
+                A = corrected_decoder(plan, gains, bundle, white_reflectance)
+            ys = np.asarray(apply_linear(fr, A, dark, bundle.flat_field, out_dtype=np.float32, device=device))
+            y = ys if y is None else y + ys
+        y = (y / len(picked)).astype(out_dtype)
+        saturated = np.any(folder.frames[list(picked)] >= bundle.max_code, axis=(0, 1))
+        if saturated.any():
+            y[saturated] = np.nan
+        return y
     if sequence is None:
         used = folder.frames
         frames = used.mean(axis=0, dtype=np.float32) if folder.sequences > 1 else used[0]
@@ -252,6 +289,9 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         used = folder.frames[sequence:sequence + 1]
         frames = used[0]
     plan, bundle = folder.plan, folder.calibration
+    ratio = bundle.flat_ratio(plan.patterns)
+    if ratio is not None or bundle.reports.get("linearity_c_per_dn2", 0.0) > 0:
+        frames = _flatten_by_wavelength(frames, bundle.dark_at(plan.exposure_s), ratio, bundle)
     y = apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field, out_dtype=out_dtype,
                      device=device)
     saturated = np.any(used >= bundle.max_code, axis=(0, 1))
@@ -283,6 +323,19 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
         if cov is not None:
             cov[saturated] = np.nan
     return sigma, cov
+
+
+def _flatten_by_wavelength(frames, dark, ratio, bundle=None) -> np.ndarray:
+    """(K, H, W) float32 frames whose signal above ``dark`` is linearized (the sensor's compression measured by
+    calibration) and multiplied by the per-pattern flat-field ratio (a calibration's wavelength-dependent flat
+    field, :meth:`CalibrationBundle.flat_ratio`; None: 1)."""
+    f = np.asarray(frames, np.float32) - np.asarray(dark, np.float32)[None]
+    if bundle is not None:
+        f = bundle.linearize(f)
+    if ratio is not None:
+        f *= ratio
+    f += np.asarray(dark, np.float32)[None]
+    return f
 
 
 def to_XYZ(y: np.ndarray, plan: Plan, illuminant: str = "D65", *, device=None) -> np.ndarray:

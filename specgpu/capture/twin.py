@@ -17,7 +17,11 @@ import numpy as np
 from specgpu.capture.driver import CameraDriver, FrameInfo, LightSource, StreamEnd
 from specgpu.rig._checks import check_number
 from specgpu.rig.config import RigDescription, load_rig
+from specgpu.rig.light import ProgrammableLight
 from specgpu.rig.twin import FaultSchedule, TwinRig
+
+# The rig model never imports capture/: its light implements the LightSource interface and is registered here.
+LightSource.register(ProgrammableLight)
 
 __all__ = ["TwinDriver"]
 

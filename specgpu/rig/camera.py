@@ -24,6 +24,7 @@ times ``quantum_efficiency_peak``. A two-column CSV (wavelength nm, relative sen
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -231,8 +232,11 @@ class Camera:
         Seed of the fixed-pattern (PRNU, DSNU) maps: the same seed is the same camera.
     """
 
-    def __init__(self, params: CameraParameters | None = None, *, seed: int = 0):
+    def __init__(self, params: CameraParameters | None = None, *, seed: int = 0, realism=None):
         self.params = params if params is not None else CameraParameters()
+        #: The bench's imperfections (:class:`specgpu.rig.realism.Realism`): the sensor's QE ripple and its
+        #: non-linearity near full well are the camera's; None is the ideal camera.
+        self.realism = realism
         p = self.params
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xCA3E]))
         prnu = 1.0 + p.prnu_rms * rng.standard_normal((p.sensor_height, p.sensor_width))
@@ -260,6 +264,9 @@ class Camera:
         p = self.params
         wl = np.asarray(wavelengths, dtype=np.float64)
         qe = p.quantum_efficiency_peak * sensitivity_curve(p.sensitivity, wl)
+        r = self.realism
+        if r is not None and r.sensor_ripple:  # thin-film interference of the cover glass / micro-lens stack
+            qe = qe * (1.0 + r.sensor_ripple * np.sin(2 * math.pi * wl / r.sensor_ripple_period_nm + 1.0))
         area = (p.pixel_pitch_um * 1e-6) ** 2
         optics = p.lens_transmittance / (4.0 * p.f_number**2 * (1.0 + p.magnification) ** 2)
         return qe * (wl * 1e-9) / (PLANCK_H * LIGHT_C) * area * optics

@@ -18,6 +18,14 @@ A rig TOML has up to six tables; every key is optional and defaults to the paper
     drop_rate = 0.0
     [spectroradiometer]          # SpectroradiometerParameters: the instrument of the spectral feedback loop
     bandwidth_nm = 5.0
+    [realism]                    # Realism: the bench's imperfections; defaults from [twin] profile
+    stray_light_fraction = 0.003
+    [drift]                      # Drift: the light's change since calibration (not in the rig fingerprint)
+    lamp_cct_K = -200
+
+``[twin] profile`` is ``"ideal"`` (default: the twin is the planner's model) or ``"lab"`` (every imperfection on
+at a typical magnitude, :mod:`specgpu.rig.realism`); ``[twin] capture_delay_s`` is the time from a calibration's
+end to a capture's start on the rig's clock (the profile's by default: 0 ideal, 1800 s lab).
 
 Relative file paths (lamp, sensitivity, scene) are resolved against the TOML's folder. Unknown tables or keys,
 wrong types and out-of-range values are errors that name the file and the key.
@@ -34,6 +42,7 @@ from specgpu.rig._checks import check_number
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.sensors import expand_preset
 from specgpu.rig.light import LightParameters
+from specgpu.rig.realism import CAPTURE_DELAY_S, PROFILES, Drift, Realism, profile_realism
 from specgpu.rig.spectroradiometer import SpectroradiometerParameters
 
 __all__ = ["FaultRates", "RigDescription", "load_rig", "rig_from_dict", "dump_rig", "PACING"]
@@ -108,11 +117,26 @@ class RigDescription:
     spectroradiometer: SpectroradiometerParameters = field(default_factory=SpectroradiometerParameters)
     hardware: dict = field(default_factory=dict)
     base_dir: str = field(default="", compare=False)  # provenance, like source: not part of the rig
+    profile: str = "ideal"
+    realism: Realism | None = None  # None: the profile's
+    drift: Drift = field(default_factory=Drift)
+    capture_delay_s: float | None = None
 
     def __post_init__(self):
         check_number("twin.seed", self.seed, low=0, high=2**63 - 1, integer=True)
         if self.pacing not in PACING:
             raise ValueError(f"twin.pacing must be one of {', '.join(PACING)}, got {self.pacing!r}")
+        if self.profile not in PROFILES:
+            raise ValueError(f"twin.profile must be one of {', '.join(PROFILES)}, got {self.profile!r}")
+        if self.realism is None:
+            object.__setattr__(self, "realism", profile_realism(self.profile))
+        if self.capture_delay_s is not None:
+            check_number("twin.capture_delay_s", self.capture_delay_s, low=0, high=1e7)
+
+    @property
+    def capture_delay(self) -> float:
+        """Seconds on the rig's clock from the end of a calibration to the start of a capture."""
+        return CAPTURE_DELAY_S[self.profile] if self.capture_delay_s is None else float(self.capture_delay_s)
 
     def to_dict(self) -> dict:
         """The description as nested plain data (the TOML tables), e.g. for a capture's metadata."""
@@ -120,14 +144,18 @@ class RigDescription:
             "light": dataclasses.asdict(self.light),
             "camera": dataclasses.asdict(self.camera),
             "scene": {"source": self.scene},
-            "twin": {"seed": self.seed, "pacing": self.pacing},
+            "twin": {"seed": self.seed, "pacing": self.pacing, "profile": self.profile,
+                     **({} if self.capture_delay_s is None else {"capture_delay_s": float(self.capture_delay_s)})},
             "faults": dataclasses.asdict(self.faults),
             "spectroradiometer": dataclasses.asdict(self.spectroradiometer),
             **({"hardware": dict(self.hardware)} if self.hardware else {}),
+            **({"realism": self.realism.to_dict()} if self.realism != profile_realism(self.profile) else {}),
+            **({"drift": self.drift.to_dict()} if self.drift.any else {}),
         }
 
 
-_TABLES = ("light", "camera", "scene", "twin", "faults", "spectroradiometer", "hardware")
+_TABLES = ("light", "camera", "scene", "twin", "faults", "spectroradiometer", "hardware", "realism", "drift")
+_TWIN_KEYS = ("seed", "pacing", "profile", "capture_delay_s")
 _PATH_KEYS = {("light", "lamp"), ("camera", "sensitivity")}
 
 
@@ -203,9 +231,19 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
         if not Path(scene).is_file():
             raise ValueError(f"{source}: scene.source file not found: {scene}")
     twin = dict(data.get("twin", {}))
-    extra = set(twin) - {"seed", "pacing"}
+    extra = set(twin) - set(_TWIN_KEYS)
     if extra:
-        raise ValueError(f"{source}: unknown key twin.{sorted(extra)[0]}; valid keys: seed, pacing")
+        raise ValueError(f"{source}: unknown key twin.{sorted(extra)[0]}; valid keys: {', '.join(_TWIN_KEYS)}")
+    profile = twin.get("profile", "ideal")
+    if profile not in PROFILES:
+        raise ValueError(f"{source}: twin.profile must be one of {', '.join(PROFILES)}, got {profile!r}")
+    delay = twin.get("capture_delay_s")
+    if delay is not None and (isinstance(delay, bool) or not isinstance(delay, (int, float))):
+        raise ValueError(f"{source}: twin.capture_delay_s must be a number, got {delay!r}")
+    table = data.get("realism", {})
+    given = _build(Realism, table, "realism", source, base)
+    realism = dataclasses.replace(profile_realism(profile), **{k: getattr(given, k) for k in table})
+    drift = _build(Drift, data.get("drift", {}), "drift", source, base)
     seed = twin.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ValueError(f"{source}: twin.seed must be an integer, got {seed!r}")
@@ -219,7 +257,8 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
     try:
         return RigDescription(light=light, camera=camera, scene=scene, seed=seed, pacing=pacing, faults=faults,
                               source=source, spectroradiometer=meter, hardware=hardware,
-                              base_dir=str(base) if base is not None else "")
+                              base_dir=str(base) if base is not None else "", profile=profile, realism=realism,
+                              drift=drift, capture_delay_s=None if delay is None else float(delay))
     except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
 

@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.capture.driver import LightSource
 from specgpu.rig._checks import check_array, check_number, curve_on_grid, normalised_to_peak
 
 __all__ = ["LightParameters", "ProgrammableLight", "PatternFit", "lamp_spd", "photopic_y"]
@@ -223,6 +222,38 @@ def lamp_spd(params: LightParameters, wavelengths: np.ndarray) -> np.ndarray:
     return normalised_to_peak(spd, wl, zero)
 
 
+def lamp_change(params: LightParameters, wavelengths, cct_change_K: float, cut_on_change_nm: float) -> np.ndarray:
+    """Relative spectral change of the lamp through the guide when its colour temperature changes by
+    ``cct_change_K`` and the guide's cut-on edge moves by ``cut_on_change_nm``: the ratio of the Planck continua
+    (each normalised at 560 nm, so the visible level stays about the same) times the ratio of the guide's edges."""
+    wl = np.asarray(wavelengths, np.float64)
+    t0 = params.lamp_colour_temperature_k
+    t1 = check_number("lamp colour temperature after drift", t0 + cct_change_K, low=1000, high=30000)
+    ref = np.array([560.0])
+    ratio = (_planck(wl, t1) / _planck(ref, t1)) / (_planck(wl, t0) / _planck(ref, t0))
+    if cut_on_change_nm:
+        c, e = params.light_guide_cutoff_nm, params.light_guide_edge_nm
+        ratio = ratio * (1.0 + np.exp(-(wl - c) / e)) / (1.0 + np.exp(-(wl - c - cut_on_change_nm) / e))
+    return ratio
+
+
+def _slit_matrix(grid, centres, fwhm_nm: float, flat_top: float, slope_per_100nm: float) -> np.ndarray:
+    """(grid, columns) unit-area slit functions: a box of ``flat_top * FWHM`` convolved with a Gaussian (the image
+    of a rectangular slit through imperfect optics), the FWHM growing by ``slope_per_100nm`` per 100 nm from 580 nm
+    (the grating's dispersion changes with the diffraction angle). The Gaussian is narrowed as the box grows so
+    the FWHM stays close to the local value."""
+    from scipy.special import erf
+
+    fwhm = fwhm_nm * np.maximum(0.2, 1.0 + slope_per_100nm * (centres - 580.0) / 100.0)
+    box = flat_top * fwhm
+    sigma = fwhm * (1.0 - 0.55 * flat_top) / (2 * math.sqrt(2 * math.log(2)))
+    x = grid[:, None] - centres[None, :]
+    if flat_top <= 0:
+        return np.exp(-0.5 * (x / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
+    s2 = sigma * math.sqrt(2.0)
+    return (erf((x + box / 2) / s2) - erf((x - box / 2) / s2)) / (2.0 * box)
+
+
 @dataclass(frozen=True)
 class PatternFit:
     """Result of :meth:`ProgrammableLight.spectrum_to_pattern`.
@@ -254,8 +285,11 @@ class PatternFit:
     clipped: float
 
 
-class ProgrammableLight(LightSource):
+class ProgrammableLight:
     """The OL490-like programmable light source of the twin.
+
+    It implements :class:`specgpu.capture.driver.LightSource` (registered as a virtual subclass by
+    :mod:`specgpu.capture.twin`: the rig model never imports the capture package).
 
     Parameters
     ----------
@@ -272,15 +306,30 @@ class ProgrammableLight(LightSource):
     emitted spectrum of a pattern ``n`` is ``M @ (n / rows)``.
     """
 
-    def __init__(self, params: LightParameters | None = None, *, seed: int = 0):
+    def __init__(self, params: LightParameters | None = None, *, seed: int = 0, realism=None, drift=None,
+                 clock_s: float = 0.0):
+        from specgpu.rig.realism import Drift, Realism
+
         self.params = params if params is not None else LightParameters()
+        self.realism = r = realism if realism is not None else Realism()
+        self.drift = dr = drift if drift is not None else Drift()
+        self.clock_s = check_number("clock_s", clock_s, low=0)
         p = self.params
         self._wl = np.arange(p.wavelength_min_nm, p.wavelength_max_nm + 0.5, 1.0)
         dcol = (p.wavelength_max_nm - p.wavelength_min_nm) / p.columns
         self._column_nm = p.wavelength_min_nm + (np.arange(p.columns) + 0.5) * dcol
+        if r.column_bow_nm:  # bowed column-wavelength map: zero at both ends, column_bow_nm at mid range
+            u = (np.arange(p.columns) + 0.5) / p.columns
+            self._column_nm = self._column_nm + r.column_bow_nm * 4.0 * u * (1.0 - u)
         sigma = p.line_fwhm_nm / (2 * math.sqrt(2 * math.log(2)))
         lamp_at_col = lamp_spd(p, self._column_nm)
-        g = np.exp(-0.5 * ((self._wl[:, None] - self._column_nm[None, :]) / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
+        if r.grating_ripple:
+            lamp_at_col = lamp_at_col * (1.0 + r.grating_ripple * np.sin(2 * math.pi * self._column_nm
+                                                                        / r.grating_ripple_period_nm))
+        if r.slit_flat_top or r.slit_fwhm_slope:
+            g = _slit_matrix(self._wl, self._column_nm, p.line_fwhm_nm, r.slit_flat_top, r.slit_fwhm_slope)
+        else:
+            g = np.exp(-0.5 * ((self._wl[:, None] - self._column_nm[None, :]) / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
         m = g * (lamp_at_col * dcol)[None, :]
         if p.second_order_leakage > 0:
             # Second order: the column for lambda_c also passes lambda_c / 2, at half the bandwidth.
@@ -294,7 +343,22 @@ class ProgrammableLight(LightSource):
         if not lux_per_unit > 0:
             raise ValueError("light: the lamp emits no visible light, cannot scale to light.illuminance_lux")
         self._m = m * (p.illuminance_lux / lux_per_unit)
-        self._m_max = self._m.sum(axis=1)
+        # The lamp's state now (explicit drift since calibration, plus the clock's drift) relative to nominal; the
+        # illuminance scale above stays that of the nominal lamp, so a dimmer or redder lamp gives less light.
+        cct_change = dr.lamp_cct_K + r.lamp_cct_drift_K_per_hour * self.clock_s / 3600.0
+        if cct_change or dr.cut_on_nm or dr.lamp_output:
+            ratio = lamp_change(p, self._wl, cct_change, dr.cut_on_nm) * (1.0 + dr.lamp_output)
+            self._m = self._m * ratio[:, None]
+        self._offset = None
+        if r.stray_light_fraction or r.dmd_off_state:
+            full = self._m.sum(axis=1)
+            # Broadband stray light: a fraction of each column's power scattered with the lamp's whole spectrum.
+            stray = r.stray_light_fraction * np.outer(full / full.sum(), self._m.sum(axis=0))
+            # DMD off-state and diffraction background: every column gives dmd_off_state of its light with its
+            # mirrors off, so a mirror on adds (1 - dmd_off_state) and all-off still lights the object.
+            self._offset = r.dmd_off_state * full
+            self._m = self._m * (1.0 - r.dmd_off_state) + stray
+        self._m_max = self._m.sum(axis=1) + (0.0 if self._offset is None else self._offset)
         self._sequence = np.zeros((1, p.columns), dtype=np.int32)
         self._spectra = self._m @ np.zeros(p.columns)
         self._spectra = self._spectra[None, :]
@@ -359,7 +423,13 @@ class ProgrammableLight(LightSource):
         ``pattern`` may be (columns,) or (K, columns); the result has the grid on the last axis.
         """
         n = self.check_pattern(pattern)
-        return (n / self.params.rows) @ self._m.T
+        out = (n / self.params.rows) @ self._m.T
+        return out if self._offset is None else out + self._offset
+
+    @property
+    def offset_spectrum(self) -> np.ndarray:
+        """Spectral irradiance with every mirror off (DMD off-state background; zeros on an ideal light)."""
+        return np.zeros_like(self._wl) if self._offset is None else self._offset
 
     def illuminance(self, pattern) -> np.ndarray:
         """Illuminance (lux) at the spot centre for mirror counts ``pattern`` ((columns,) or (K, columns)).
@@ -514,7 +584,7 @@ class ProgrammableLight(LightSource):
         """
         p = self.params
         t = np.asarray(timestamps_s, dtype=np.float64)
-        factor = 1.0 + p.drift_per_hour * t / 3600.0
+        factor = 1.0 + (p.drift_per_hour + self.realism.lamp_output_drift_per_hour) * t / 3600.0
         if p.flicker_amplitude > 0:
             w = 2 * math.pi * p.flicker_frequency_hz
             factor = factor + p.flicker_amplitude * (np.cos(w * t) - np.cos(w * (t + exposure_s))) / (w * exposure_s)

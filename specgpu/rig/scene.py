@@ -183,8 +183,19 @@ def write_scene(path, scene: SpectralScene, *, half: bool = False) -> Path:
 _CHARTS = ("ColorChecker N Ohta", "BabelColor Average")
 
 
+def white_tile_roi(height: int = 480, width: int = 640) -> tuple[int, int, int, int]:
+    """(x, y, w, h) of the reference white tile :func:`colorchecker_scene` places above the chart (``white_tile``),
+    inset by 3 pixels from the tile's edges (the ROI to give ``specgpu recover --white-roi``)."""
+    pitch = min(width / 6.4, height / 4.4)
+    top = (height - 4 * pitch) / 2
+    th = max(4, int(top * 0.6))
+    tw = max(8, int(pitch * 1.6))
+    x0, y0 = int((width - tw) / 2), max(0, int((top - th) / 2))
+    return x0 + 3, y0 + 3, max(1, tw - 6), max(1, th - 6)
+
+
 def colorchecker_scene(height: int = 480, width: int = 640, *, chart: str = "ColorChecker N Ohta",
-                       surround: float = 0.03) -> SpectralScene:
+                       surround: float = 0.03, white_tile: float | None = None) -> SpectralScene:
     """The 24-patch ColorChecker as an image: 6 x 4 patches on a dark surround, one mask per patch.
 
     Parameters
@@ -196,6 +207,9 @@ def colorchecker_scene(height: int = 480, width: int = 640, *, chart: str = "Col
         ``"BabelColor Average"``.
     surround
         Flat reflectance of the chart's black surround, in [0, 1].
+    white_tile
+        With a reflectance (e.g. 0.99), a flat reference white tile in the surround above the chart (the white
+        of drift correction at capture: :func:`white_tile_roi` gives its ROI); not one of the masks.
 
     Returns
     -------
@@ -229,6 +243,10 @@ def colorchecker_scene(height: int = 480, width: int = 640, *, chart: str = "Col
         inset = 0.15 * size
         m[int(round(ya + inset)):int(round(ya + size - inset)), int(round(xa + inset)):int(round(xa + size - inset))] = True
         masks[name] = m
+    if white_tile is not None:
+        wt = check_number("white_tile", white_tile, low=0, low_open=True, high=MAX_REFLECTANCE)
+        x, y, tw, th = white_tile_roi(h, w)
+        refl[max(0, y - 3):y + th + 3, max(0, x - 3):x + tw + 3, :] = wt
     return SpectralScene(wl, refl, masks, "colorchecker")
 
 

@@ -128,6 +128,11 @@ class TwinRig:
         the camera's ROI.
     seed
         Overrides ``description.seed``: the camera's fixed pattern and all temporal noise derive from it.
+    clock_start_s
+        The rig's own clock (s since the lamp was started) at this rig's frame 0: the lamp's drifts per hour
+        (``[realism]``) act on ``clock_start_s + timestamp``, so a capture that starts where a calibration ended
+        sees the lamp as it has become (the colour temperature is taken at the clock when the light is built or
+        :meth:`set_clock` is called; the output drift frame by frame).
 
     Raises
     ------
@@ -136,12 +141,16 @@ class TwinRig:
         light to switch between exposures.
     """
 
-    def __init__(self, description: RigDescription | None = None, *, scene=None, seed: int | None = None):
+    def __init__(self, description: RigDescription | None = None, *, scene=None, seed: int | None = None,
+                 clock_start_s: float = 0.0):
         self.description = description if description is not None else RigDescription()
         d = self.description
         self.seed = int(d.seed if seed is None else seed)
-        self.light = ProgrammableLight(d.light, seed=self.seed)
-        self.camera = Camera(d.camera, seed=self.seed)
+        self.realism = d.realism
+        self.clock_start_s = check_number("clock_start_s", clock_start_s, low=0)
+        self.light = ProgrammableLight(d.light, seed=self.seed, realism=d.realism, drift=d.drift,
+                                       clock_s=self.clock_start_s)
+        self.camera = Camera(d.camera, seed=self.seed, realism=d.realism if d.realism.any else None)
         self.spectroradiometer = Spectroradiometer(d.spectroradiometer, seed=self.seed)
         cam = d.camera
         where = "" if d.source.startswith("<") else f"{d.source}: "
@@ -185,6 +194,55 @@ class TwinRig:
         self.light.load_sequence(patterns)
         self._maps = None
 
+    def set_clock(self, clock_s: float) -> None:
+        """Set the rig's clock at frame 0 (s); the lamp's colour is re-evaluated if it drifts on the clock."""
+        self.clock_start_s = check_number("clock_s", clock_s, low=0)
+        if self.realism.lamp_cct_drift_K_per_hour:
+            seq = self.light.sequence
+            d = self.description
+            self.light = ProgrammableLight(d.light, seed=self.seed, realism=d.realism, drift=d.drift,
+                                           clock_s=self.clock_start_s)
+            self.light.load_sequence(seq)
+            self._maps = None
+
+    def _field_terms(self):
+        """(vignetted spot profile, radial weight q in [0, 1]) of the field, or None on an ideal rig."""
+        r = self.realism
+        if not (r.vignetting or r.field_colour):
+            return None
+        cached = getattr(self, "_field_cache", None)
+        if cached is None:
+            h, w = self.camera.shape
+            y = np.arange(h) - (h - 1) / 2.0
+            x = np.arange(w) - (w - 1) / 2.0
+            q = ((x[None, :] ** 2 + y[:, None] ** 2) / ((w - 1) ** 2 / 4.0 + (h - 1) ** 2 / 4.0)).astype(np.float32)
+            cached = self._field_cache = (self.field * (1.0 - np.float32(r.vignetting) * q), q)
+        return cached
+
+    def _optics(self, e: np.ndarray, weights: np.ndarray, wl: np.ndarray) -> np.ndarray:
+        """Lens blur and lateral chromatic aberration of each pattern's image, in place: each (H, W) map is
+        magnified about the centre by ``1 + lateral_ca_px / r_corner * (lambda_k - 550) / 150`` at the pattern's
+        centroid wavelength ``lambda_k`` (so the corner moves ``lateral_ca_px`` between 550 and 700 nm), then blurred
+        by a Gaussian of ``blur_px``."""
+        from scipy import ndimage
+
+        r = self.realism
+        h, w = self.camera.shape
+        corner = math.hypot((h - 1) / 2.0, (w - 1) / 2.0)
+        centre = np.array([(h - 1) / 2.0, (w - 1) / 2.0])
+        total = weights.sum(axis=1)
+        lam = np.where(total > 0, (weights @ wl) / np.where(total > 0, total, 1.0), 550.0)
+        for k in range(e.shape[0]):
+            img = e[k]
+            if r.lateral_ca_px:
+                s = 1.0 + r.lateral_ca_px / corner * (lam[k] - 550.0) / 150.0
+                img = ndimage.affine_transform(img, np.array([1.0 / s, 1.0 / s]), offset=centre - centre / s,
+                                               order=1, mode="nearest")
+            if r.blur_px:
+                img = ndimage.gaussian_filter(img, r.blur_px, mode="nearest")
+            e[k] = img
+        return e
+
     # ---- the physics ----------------------------------------------------------------------------------------
     def signal_electrons(self, spectra=None) -> np.ndarray:
         """(K, H, W) mean photo-electrons per pattern (field profile included, PRNU not), float32.
@@ -193,12 +251,31 @@ class TwinRig:
         """
         sp = self.light.sequence_spectra if spectra is None else np.atleast_2d(np.asarray(spectra, np.float64))
         wl = self.light.wavelengths
-        weights = self.exposure_s * sp * self.camera.responsivity(wl)[None, :]
+        resp = self.camera.responsivity(wl)
+        weights = self.exposure_s * sp * resp[None, :]
         wb = self._scene.band_weights(wl, weights).astype(np.float32)  # (K, B)
         h, w = self.camera.shape
         refl = self._scene.reflectance.reshape(h * w, -1)
         e = (wb @ refl.T).reshape(-1, h, w)  # (K, H*W) comes out C-contiguous: no transposed copy
-        e *= self.field[None]
+        r = self.realism
+        terms = self._field_terms()
+        if terms is None:
+            e *= self.field[None]
+        else:  # wavelength-dependent field: spot * vignetting * (1 + q(x) c(lambda)), c linear in lambda
+            spot, q = terms
+            if r.field_colour:
+                c = r.field_colour * (wl - 550.0) / 150.0
+                e1 = (self._scene.band_weights(wl, weights * c[None, :]).astype(np.float32) @ refl.T).reshape(-1, h, w)
+                e += q[None] * e1
+            e *= spot[None]
+        if r.ambient_lux:  # room light on the object, not shaped by the spot (vignetted by the lens)
+            amb = self.exposure_s * ambient_spectrum(wl, r.ambient_lux) * resp
+            ea = (self._scene.band_weights(wl, amb[None, :]).astype(np.float32) @ refl.T).reshape(h, w)
+            if terms is not None:
+                ea = ea * (1.0 - np.float32(r.vignetting) * terms[1])
+            e += ea[None]
+        if r.blur_px or r.lateral_ca_px:
+            e = self._optics(e, weights, wl)
         return e
 
     def _ensure_maps(self):
@@ -224,7 +301,10 @@ class TwinRig:
     def expected_frame(self, pattern_index: int, power: float = 1.0) -> np.ndarray:
         """Noise-free mean output (DN, float32, before rounding) of a frame lit by a pattern at relative power."""
         mean_dn, offset_dn = self._ensure_maps()
-        return mean_dn[pattern_index] * np.float32(power) + (offset_dn - np.float32(0.5))
+        x = mean_dn[pattern_index] * np.float32(power)
+        if self.realism.nonlinearity:
+            x = x * (1.0 - np.float32(self.realism.nonlinearity) * (x / np.float32(self.camera.params.max_code)) ** 2)
+        return x + (offset_dn - np.float32(0.5))
 
     def temporal_std(self, pattern_index: int, power: float = 1.0) -> np.ndarray:
         """Per-pixel temporal standard deviation (DN) of the camera noise (shot, dark, read; no quantization)
@@ -280,7 +360,7 @@ class TwinRig:
         """
         mean_dn, offset_dn = self._ensure_maps()
         rng = self.frame_rng(frame_id)
-        f = float(self.light.power_factors(np.array([timestamp_s]), self.exposure_s, rng)[0])
+        f = float(self.light.power_factors(np.array([timestamp_s + self.clock_start_s]), self.exposure_s, rng)[0])
         if scratch is None:
             x = np.empty(self.camera.shape, np.float32)
             z = np.empty(self.camera.shape, np.float32)
@@ -304,6 +384,7 @@ class TwinRig:
         inv_g = np.float32(1.0 / self.camera.params.gain_e_per_dn)
         top = np.float32(self.camera.params.max_code + 0.5)
         w = self._chunk_scratch
+        nl = np.float32(self.realism.nonlinearity / float(self.camera.params.max_code) ** 2)
         # Per chunk small enough to stay in cache (the frame is memory-bound, so each map is read once):
         # signal x = f * mean; variance = x / g + (dark + read^2) / g^2 (shot noise follows the light's power
         # exactly); x + offset + sqrt(variance) * z, rounded half up and clipped.
@@ -320,8 +401,16 @@ class TwinRig:
             else:
                 np.take(_NORMAL_TABLE, idx[a:b], out=ws)
                 np.multiply(zs, ws, out=zs)
-            np.add(xs, offset[a:b], out=xs)  # offset_dn carries the +0.5 of round-half-up
-            np.add(xs, zs, out=xs)
+            if nl:  # compression near full well acts on the signal (with its noise), not on the offset
+                np.add(xs, zs, out=xs)
+                np.multiply(xs, xs, out=zs)
+                np.multiply(zs, nl, out=zs)
+                np.subtract(np.float32(1.0), zs, out=zs)
+                np.multiply(xs, zs, out=xs)
+                np.add(xs, offset[a:b], out=xs)
+            else:
+                np.add(xs, offset[a:b], out=xs)  # offset_dn carries the +0.5 of round-half-up
+                np.add(xs, zs, out=xs)
             np.clip(xs, np.float32(0.5), top, out=xs)
             np.copyto(of[a:b], xs, casting="unsafe")  # truncation of x + 0.5 >= 0.5: round half up
         return out, f
@@ -343,6 +432,20 @@ class TwinRig:
             standard_normal_fill(rng, pool)
             self._pool = pool
         return pool
+
+
+def ambient_spectrum(wavelengths, lux: float) -> np.ndarray:
+    """Spectral irradiance (W m^-2 nm^-1) of room light at ``lux``: CIE FL2 (a cool-white fluorescent tube, the
+    commonest lab ceiling light) scaled to that illuminance."""
+    import colour
+
+    from specgpu.rig.light import K_M, photopic_y
+
+    wl = np.asarray(wavelengths, np.float64)
+    sd = colour.SDS_ILLUMINANTS["FL2"]
+    spd = np.interp(wl, sd.wavelengths, sd.values, left=0.0, right=0.0)
+    lux_per_unit = K_M * float(np.sum(spd * photopic_y(wl)) * (wl[1] - wl[0]))
+    return spd * (lux / lux_per_unit) if lux_per_unit > 0 else spd * 0.0
 
 
 def band_patterns(light: ProgrammableLight, bands_nm) -> np.ndarray:
@@ -418,8 +521,6 @@ def measure_snr(description: RigDescription | None = None, *, repeats: int = 100
     ValueError
         If the light is too dim to reach ``level`` in the exposure the frame rate allows.
     """
-    from specgpu.capture.twin import TwinDriver
-
     repeats = check_number("repeats", repeats, low=2, integer=True)
     level = check_number("level", level, low=0, low_open=True, high=1)
     d = description if description is not None else RigDescription()
@@ -441,17 +542,13 @@ def measure_snr(description: RigDescription | None = None, *, repeats: int = 100
         patterns = np.rint(full * (target / e_full)[:, None]).astype(np.int32)
         dark_mean = _dark_mean(desc, repeats)
         rig.load_sequence(patterns)
-        driver = TwinDriver(rig, n_frames=3 * repeats, faults=FaultSchedule(), pacing="free")
         h, w = rig.camera.shape
         s1 = np.zeros((3, h, w))
         s2 = np.zeros((3, h, w))
-        frame = np.empty((h, w), np.uint16)
-        driver.start()
-        while (info := driver.fill(frame)) is not None:
+        for k, frame in _fault_free_frames(rig, 3 * repeats):
             f = frame.astype(np.float64)
-            s1[info.pattern_index] += f
-            s2[info.pattern_index] += f * f
-        driver.stop()
+            s1[k % 3] += f
+            s2[k % 3] += f * f
         mean = s1 / repeats
         var = (s2 - s1 * mean) / (repeats - 1)
         per = {}
@@ -467,16 +564,22 @@ def measure_snr(description: RigDescription | None = None, *, repeats: int = 100
                      levels, repeats, float(frame_rate_hz), exposure)
 
 
-def _dark_mean(desc: RigDescription, repeats: int) -> np.ndarray:
-    from specgpu.capture.twin import TwinDriver
+def _fault_free_frames(rig: TwinRig, n_frames: int):
+    """Yield (frame id, frame) for ``n_frames`` fault-free frames of the loaded sequence, pattern ``k % K`` at
+    ``k`` frame periods: what the capture path's twin driver delivers with no faults, without importing it (the
+    rig model never imports capture/). The frame array is reused between yields."""
+    n_patterns = rig.light.sequence.shape[0]
+    frame = np.empty(rig.camera.shape, np.uint16)
+    scratch = (np.empty(rig.camera.shape, np.float32), np.empty(rig.camera.shape, np.float32))
+    for k in range(int(n_frames)):
+        rig.render(k % n_patterns, k, k * rig.frame_period_s, frame, scratch)
+        yield k, frame
 
+
+def _dark_mean(desc: RigDescription, repeats: int) -> np.ndarray:
     rig = TwinRig(desc, scene=white_plate_scene(desc.camera.roi_height, desc.camera.roi_width))
     rig.load_sequence(np.zeros((1, desc.light.columns), np.int32))
-    driver = TwinDriver(rig, n_frames=repeats, faults=FaultSchedule(), pacing="free")
     acc = np.zeros(rig.camera.shape)
-    frame = np.empty(rig.camera.shape, np.uint16)
-    driver.start()
-    while driver.fill(frame) is not None:
+    for _, frame in _fault_free_frames(rig, repeats):
         acc += frame
-    driver.stop()
     return acc / repeats

@@ -1,0 +1,144 @@
+"""Drift correction at capture (issue 10 item 3): the white ROI and the ambient frame."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from specgpu.calibration import oracle_calibration
+from specgpu.correction import (ambient_index, corrected_decoder, parse_roi, white_gains, white_reflectance_curve,
+                                with_ambient_frame)
+from specgpu.evaluate import evaluate_reflectance
+from specgpu.pipeline import SequenceFolder, capture_plan, recover
+from specgpu.plans import make_plan
+from specgpu.rig.camera import CameraParameters
+from specgpu.rig.config import RigDescription
+from specgpu.rig.realism import Drift, Realism
+from specgpu.rig.scene import colorchecker_scene, white_tile_roi
+
+DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+
+
+@pytest.fixture(scope="module")
+def setup():
+    bundle = oracle_calibration(DESC)
+    plan = make_plan("narrowband", bundle, step_nm=20.0)
+    scene = colorchecker_scene(240, 320, white_tile=0.99)
+    return bundle, plan, scene, white_tile_roi(240, 320)
+
+
+def run(desc, bundle, plan, scene, **kw):
+    res = capture_plan(desc, plan, scene, noise_seed=5, calibration=bundle)
+    folder = SequenceFolder(Path("<memory>"), np.stack([s.frames for s in res.sequences]), plan, bundle, [], {})
+    y = recover(folder, **kw)
+    return evaluate_reflectance(y, plan.output_wavelengths, scene).summary()["rmse"][0], folder
+
+
+def test_white_roi_undoes_lamp_drift(setup):
+    bundle, plan, scene, roi = setup
+    base, _ = run(DESC, bundle, plan, scene)
+    drifted = replace(DESC, drift=Drift(lamp_cct_K=-300, lamp_output=-0.05))
+    lost, folder = run(drifted, bundle, plan, scene)
+    gains = white_gains(folder.frames[0], plan, bundle, roi)
+    assert np.all(gains < 0.99) and np.all(gains > 0.85)
+    assert gains[0] < gains[-1]  # a redder lamp lost more in the blue
+    fixed, _ = run(drifted, bundle, plan, scene, white_roi=roi)
+    assert lost > 2 * base
+    assert fixed < 1.3 * base + 0.002
+
+
+def test_ambient_frame_removes_light_not_from_the_mirrors(setup):
+    bundle, plan, scene, roi = setup
+    amb = with_ambient_frame(plan)
+    assert amb.K == plan.K + 1 and ambient_index(amb) == plan.K and ambient_index(plan) is None
+    np.testing.assert_array_equal(amb.A[:, -1], 0.0)
+    bright = replace(DESC, realism=Realism(ambient_lux=40.0))
+    lost, _ = run(bright, bundle, plan, scene)
+    fixed, _ = run(bright, bundle, amb, scene)
+    base, _ = run(DESC, bundle, plan, scene)
+    assert lost > 3 * base and fixed < 1.5 * base + 0.002
+
+
+def test_corrected_decoder_scales_columns(setup):
+    _, plan, _, _ = setup
+    g = np.linspace(0.9, 1.1, plan.K)
+    np.testing.assert_allclose(corrected_decoder(plan, g) * g[None, :], plan.A)
+
+
+@pytest.mark.parametrize("text,word", [
+    ("1,2,3", "X,Y,W,H"), ("a,b,c,d", "X,Y,W,H"), ("300,10,40,5", "outside the 320 x 240 frame"),
+    ("-1,0,5,5", "outside"), ("0,0,0,5", "width and height must be >= 1"),
+])
+def test_roi_errors_are_one_line(text, word):
+    with pytest.raises(ValueError) as err:
+        parse_roi(text, (240, 320))
+    assert word in str(err.value) and "\n" not in str(err.value)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(-10, 330), st.integers(-10, 250), st.integers(-2, 100), st.integers(-2, 100))
+def test_roi_property(x, y, w, h):
+    inside = x >= 0 and y >= 0 and w >= 1 and h >= 1 and x + w <= 320 and y + h <= 240
+    if inside:
+        assert parse_roi(f"{x},{y},{w},{h}", (240, 320)) == (x, y, w, h)
+    else:
+        with pytest.raises(ValueError, match="--white-roi"):
+            parse_roi(f"{x},{y},{w},{h}", (240, 320))
+
+
+def test_saturated_white_is_refused(setup):
+    bundle, plan, scene, roi = setup
+    frames = np.zeros((plan.K, 240, 320), np.uint16) + 100
+    x, y, w, h = roi
+    frames[3, y + 1, x + 1] = bundle.max_code
+    with pytest.raises(ValueError, match=r"saturated in frame 3"):
+        white_gains(frames, plan, bundle, roi)
+
+
+def test_white_reflectance_values_and_csv(tmp_path):
+    wl = np.array([400.0, 500.0, 600.0])
+    np.testing.assert_allclose(white_reflectance_curve(None, wl), 0.99)
+    np.testing.assert_allclose(white_reflectance_curve("0.95", wl), 0.95)
+    p = tmp_path / "white.csv"
+    p.write_text("400,0.9\n600,1.0\n")
+    np.testing.assert_allclose(white_reflectance_curve(str(p), wl), [0.9, 0.95, 1.0])
+    with pytest.raises(ValueError, match="neither a number nor a CSV"):
+        white_reflectance_curve("nothing.csv", wl)
+    with pytest.raises(ValueError, match=r"\(0, 1.5\]"):
+        white_reflectance_curve(2.0, wl)
+
+
+def test_cli_recover_white_roi_outside_frame(setup, tmp_path):
+    from click.testing import CliRunner
+
+    from specgpu.cli import main
+    from specgpu.pipeline import save_plan_and_calibration, write_capture
+
+    bundle, plan, scene, _ = setup
+    plan_path, cal_path = save_plan_and_calibration(tmp_path, plan, bundle)
+    res = capture_plan(DESC, plan, scene, noise_seed=1, calibration=bundle)
+    write_capture(tmp_path / "seq", res.sequences, res.assembly, plan_path, cal_path)
+    out = CliRunner().invoke(main, ["recover", str(tmp_path / "seq"), "--out", str(tmp_path / "c.exr"),
+                                    "--white-roi", "310,230,40,40"])
+    assert out.exit_code != 0
+    assert "--white-roi 310,230,40,40 lies outside the 320 x 240 frame" in out.output
+    assert not (tmp_path / "c.exr").exists()
+
+
+def test_spectral_refit_is_the_identity_without_drift_and_follows_a_colour_change(setup):
+    bundle, plan, _, _ = setup
+    ones = np.ones(plan.K)
+    A1 = corrected_decoder(plan, ones, bundle)
+    assert np.max(np.abs(A1 - plan.A)) < 1e-3 * np.max(np.abs(plan.A))
+    # a light 10 % redder across 400-700 nm: the white's gains; the refit decoder undoes it on a grey
+    grid = bundle.wavelengths
+    r = np.exp(0.1 * (grid - 550.0) / 150.0)
+    F = bundle.forward_matrix(plan.patterns, grid, plan.exposure_s)
+    gains = (F @ (r * 0.99)) / (F @ np.full(grid.size, 0.99))
+    A2 = corrected_decoder(plan, gains, bundle)
+    grey = np.full(grid.size, 0.5)
+    y = A2 @ (F @ (r * grey))
+    assert np.max(np.abs(y - 0.5)) < 0.01
