@@ -39,6 +39,7 @@ import hashlib
 import io
 import json
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -461,7 +462,8 @@ def load_npz(path, kind: str, versions) -> tuple[dict, dict, int, str]:
     except ValueError as exc:
         msg = str(exc)
         raise ValueError(msg if msg.startswith(str(path)) else f"{path}: corrupt {kind} file ({msg})") from None
-    except (OSError, EOFError, zipfile.BadZipFile, KeyError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, json.JSONDecodeError,
+            UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: corrupt {kind} file ({exc.__class__.__name__})") from None
     if not isinstance(header, dict) or header.get("format") != kind:
         got = header.get("format") if isinstance(header, dict) else None
@@ -493,5 +495,5 @@ def load_basis(path) -> BasisTable:
     try:
         return BasisTable(arrays["wavelengths"], arrays["functions"], arrays["singular_values"], arrays["mean"],
                           bool(meta["centred"]), int(meta["n_training"]), str(meta.get("source", "")))
-    except (KeyError, ValueError, TypeError) as exc:
+    except (KeyError, ValueError, TypeError, OverflowError) as exc:
         raise ValueError(f"{path}: invalid basis table ({exc})") from None

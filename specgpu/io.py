@@ -795,7 +795,7 @@ def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[d
     directory = Path(directory)
     records, meta = read_sequence_header(directory)
     shape = (meta["height"], meta["width"])
-    frames = np.empty((len(records), *shape), dtype=np.uint16)
+    frames = None  # allocated once the first frame has shown that the header's size is real
     for i, rec in enumerate(records):
         path = directory / rec["file"]
         if not path.is_file():
@@ -807,5 +807,13 @@ def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[d
             digest = hashlib.sha256(path.read_bytes()).hexdigest()
             if digest != rec["sha256"]:
                 raise ValueError(f"{path}: corrupt frame: SHA-256 differs from {SEQUENCE_FILE}")
-        frames[i] = _read_tiff(path, shape)
+        frame = _read_tiff(path, shape)
+        if frames is None:
+            try:
+                frames = np.empty((len(records), *shape), dtype=np.uint16)
+            except (MemoryError, ValueError):
+                raise ValueError(f"{directory / SEQUENCE_FILE}: {len(records)} frames of {shape[0]} x {shape[1]} "
+                                 f"pixels ({len(records) * shape[0] * shape[1] * 2 / 2**30:.1f} GiB) do not fit "
+                                 "in memory") from None
+        frames[i] = frame
     return frames, records, meta

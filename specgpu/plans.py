@@ -143,6 +143,8 @@ class Plan:
         a = np.asarray(self.A, np.float64)
         if a.ndim != 2 or a.shape[1] != k or not np.all(np.isfinite(a)):
             raise ValueError(f"plan decoder A must be finite (B, K={k}), got shape {a.shape}")
+        if a.size and np.max(np.abs(a)) > np.finfo(np.float32).max:  # the device computes in float32
+            raise ValueError(f"plan decoder A must be finite in float32 (|A| <= 3.4e38), got {np.max(np.abs(a)):.3g}")
         if not (self.exposure_s >= self.min_exposure_s - 1e-12 and self.min_exposure_s > 0):
             raise ValueError(f"plan exposure {self.exposure_s * 1e6:.1f} us is below the light's switch time "
                              f"{self.min_exposure_s * 1e6:.0f} us")
@@ -237,7 +239,7 @@ def load_plan(path, *, calibration=None) -> Plan:
         meta = dict(meta)
         meta["output_labels"] = tuple(meta["output_labels"])
         plan = Plan(**arrays, **meta)
-    except (TypeError, ValueError, KeyError) as exc:
+    except (TypeError, ValueError, KeyError, OverflowError) as exc:
         raise ValueError(f"{path}: invalid plan ({exc})") from None
     if plan.hash != digest:
         raise ValueError(f"{path}: corrupt plan file (content does not match its hash)")

@@ -237,6 +237,8 @@ def load_rig(path=None) -> RigDescription:
         raise ValueError(f"{path}: rig description not found") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML ({exc})") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: invalid TOML (not UTF-8 text: a binary or corrupt file?)") from None
     except OSError as exc:
         raise ValueError(f"{path}: cannot read rig description ({exc})") from None
     return rig_from_dict(data, source=str(path), base_dir=path.parent)
