@@ -220,7 +220,11 @@ class CalibrationBundle:
             raise ValueError("dark must be finite and flat_field finite and positive")
         if dark.size and (dark.min() < 0 or dark.max() > self.max_code):
             raise ValueError(f"dark must lie in 0-{self.max_code} DN, got {dark.min():g}-{dark.max():g}")
-        rp = np.asarray(self.reciprocal_patterns, np.int32).reshape(-1, cw.size)
+        rp = np.asarray(self.reciprocal_patterns)
+        if rp.size and (not np.all(np.isfinite(rp)) or np.any(rp != np.round(rp)) or rp.min() < 0
+                        or rp.max() > self.rows):
+            raise ValueError(f"reciprocal_patterns must be integer mirror counts in [0, {self.rows}]")
+        rp = rp.astype(np.int32).reshape(-1, cw.size)
         rb = np.asarray(self.reciprocal_bands, np.float64).reshape(-1, 2)
         if rp.shape[0] != rb.shape[0] or not np.all(np.isfinite(rb)):
             raise ValueError("reciprocal_patterns and reciprocal_bands must have one row per band, bands finite")
@@ -312,9 +316,10 @@ def load_calibration(path, *, rig: RigDescription | None = None) -> CalibrationB
     arrays, meta, _, digest = load_npz(path, CALIBRATION_FORMAT, (CALIBRATION_VERSION,))
     try:
         bundle = CalibrationBundle(**arrays, **meta)
+        same = bundle.hash == digest  # the hash re-reads every field: a wrong type fails here too
     except (TypeError, ValueError, OverflowError) as exc:
         raise ValueError(f"{path}: invalid calibration bundle ({exc})") from None
-    if bundle.hash != digest:
+    if not same:
         raise ValueError(f"{path}: corrupt calibration file (content does not match its hash)")
     if rig is not None:
         bundle.check_rig(rig, str(path))

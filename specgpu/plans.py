@@ -131,6 +131,14 @@ class Plan:
     params: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        for key in ("patterns", "A", "output_wavelengths", "target_spectra", "light_wavelengths", "expected_level"):
+            if np.asarray(getattr(self, key)).dtype.kind not in "biuf":
+                raise ValueError(f"plan {key} must hold real numbers, got dtype {np.asarray(getattr(self, key)).dtype}")
+        for key in ("exposure_s", "min_exposure_s", "rows"):
+            v = getattr(self, key)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not np.isfinite(v) or (key == "rows" and (v != int(v) or v < 1)):
+                raise ValueError(f"plan {key} must be a finite number{' >= 1' if key == 'rows' else ''}, got {v!r}")
         n = np.asarray(self.patterns)
         if n.ndim != 2 or n.shape[0] < 1:
             raise ValueError(f"plan patterns must be (K, columns), got shape {n.shape}")
@@ -239,9 +247,10 @@ def load_plan(path, *, calibration=None) -> Plan:
         meta = dict(meta)
         meta["output_labels"] = tuple(meta["output_labels"])
         plan = Plan(**arrays, **meta)
+        same = plan.hash == digest  # the hash re-reads every field: a wrong type fails here too
     except (TypeError, ValueError, KeyError, OverflowError) as exc:
         raise ValueError(f"{path}: invalid plan ({exc})") from None
-    if plan.hash != digest:
+    if not same:
         raise ValueError(f"{path}: corrupt plan file (content does not match its hash)")
     if calibration is not None:
         plan.check_calibration(calibration, str(path))

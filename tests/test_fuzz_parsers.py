@@ -31,6 +31,9 @@ from specgpu.rig._checks import read_spectrum_csv
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription, _toml_value, load_rig
 
+# a complex array read as real with its imaginary part dropped is a silent wrong value
+pytestmark = pytest.mark.filterwarnings("error::numpy.exceptions.ComplexWarning")
+
 #: SPECGPU_FUZZ_SCALE=10 runs ten times the examples (a longer fuzzing session), 0.1 a tenth (a quick look).
 SCALE = float(os.environ.get("SPECGPU_FUZZ_SCALE", "1"))
 

@@ -18,6 +18,7 @@ import math
 import os
 import re
 import tempfile
+import tokenize
 import zipfile
 import zlib
 from contextlib import contextmanager
@@ -342,7 +343,8 @@ def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
     except ValueError as exc:
         msg = one_line(str(exc))
         raise ValueError(msg if msg.startswith(str(path)) else f"{path}: truncated or corrupt .npz ({msg})") from None
-    except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as exc:
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, SyntaxError, tokenize.TokenError,
+            MemoryError, RuntimeError) as exc:  # a corrupt .npy header (parsed as a Python literal), zip flags
         raise ValueError(f"{path}: truncated or corrupt .npz "
                          f"({exc.__class__.__name__}: {one_line(str(exc))})") from None
     if wl.ndim != 1:
