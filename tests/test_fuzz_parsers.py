@@ -307,8 +307,11 @@ def test_fuzz_bundle_bytes(files, tmp_path, data, name):
     original = files["dir"] / name
     path = save(tmp_path / name, data.draw(mutated(original.read_bytes())))
     got = read_or_refuse(LOADERS[name], path)
-    if got is not None:
-        assert got.hash == LOADERS[name](original).hash if name != "basis.npz" else True
+    if got is not None:  # the bytes changed where they do not count (zip metadata): the content is the same
+        if name == "basis.npz":
+            assert np.array_equal(got.functions, load_basis(original).functions)
+        else:
+            assert got.hash == LOADERS[name](original).hash
 
 
 def _bad_array(data, arr: np.ndarray):
