@@ -748,7 +748,7 @@ def _read_tiff(path: Path, shape) -> np.ndarray:
 
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(oiio.geterror())})")
+        raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(_files._error_of(oiio))})")
     try:
         spec = inp.spec()
         if inp.format_name() != "tiff" or spec.nchannels != 1 or str(spec.format) != "uint16":
@@ -758,7 +758,7 @@ def _read_tiff(path: Path, shape) -> np.ndarray:
             raise ValueError(f"{path}: frame is {spec.height} x {spec.width}, sequence.json says "
                              f"{shape[0]} x {shape[1]}")
         data = inp.read_image(0, 0, 0, 1, "uint16")
-        err = inp.geterror()
+        err = _files._error_of(inp)
         if data is None or err or data.size != shape[0] * shape[1]:
             raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(err or 'no pixel data')})")
     finally:
