@@ -38,7 +38,9 @@ import csv
 import hashlib
 import io
 import json
+import tokenize
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -335,16 +337,19 @@ class BasisTable:
     source: str = ""
 
     def __post_init__(self):
+        for k in ("wavelengths", "functions", "singular_values", "mean"):
+            if np.asarray(getattr(self, k)).dtype.kind not in "biuf":
+                raise ValueError(f"basis {k} must hold real numbers, got dtype {np.asarray(getattr(self, k)).dtype}")
         wl = _check_grid(self.wavelengths, "basis wavelengths")
         f = np.asarray(self.functions, dtype=np.float64)
         if f.ndim != 2 or f.shape[0] != wl.size or f.shape[1] < 1:
             raise ValueError(f"basis functions must have shape ({wl.size}, n), got {f.shape}")
         s = np.asarray(self.singular_values, dtype=np.float64)
-        if s.shape != (f.shape[1],) or np.any(s < 0) or not np.all(np.isfinite(f)):
+        if s.shape != (f.shape[1],) or not np.all(s >= 0) or not np.all(np.isfinite(f)) or not np.all(np.isfinite(s)):
             raise ValueError("basis singular values must be (n,) non-negative and the functions finite")
         mean = np.asarray(self.mean, dtype=np.float64)
-        if mean.shape != wl.shape:
-            raise ValueError(f"basis mean must have shape {wl.shape}, got {mean.shape}")
+        if mean.shape != wl.shape or not np.all(np.isfinite(mean)):
+            raise ValueError(f"basis mean must be finite of shape {wl.shape}, got {mean.shape}")
         for k, v in (("wavelengths", wl), ("functions", f), ("singular_values", s), ("mean", mean)):
             object.__setattr__(self, k, v)
 
@@ -459,9 +464,12 @@ def load_npz(path, kind: str, versions) -> tuple[dict, dict, int, str]:
             header = json.loads(str(data["__meta__"]))
             arrays = {k: np.array(data[k]) for k in data.files if k != "__meta__"}
     except ValueError as exc:
-        msg = str(exc)
+        msg = " ".join(str(exc).split())  # one line
         raise ValueError(msg if msg.startswith(str(path)) else f"{path}: corrupt {kind} file ({msg})") from None
-    except (OSError, EOFError, zipfile.BadZipFile, KeyError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, json.JSONDecodeError,
+            UnicodeDecodeError, SyntaxError, tokenize.TokenError, MemoryError, RuntimeError) as exc:
+        # numpy parses a corrupt .npy header as a Python literal: its syntax errors, and a header declaring a huge
+        # array, are corruption; so are the flags zipfile refuses (RuntimeError: "encrypted", unknown compression)
         raise ValueError(f"{path}: corrupt {kind} file ({exc.__class__.__name__})") from None
     if not isinstance(header, dict) or header.get("format") != kind:
         got = header.get("format") if isinstance(header, dict) else None
@@ -493,5 +501,5 @@ def load_basis(path) -> BasisTable:
     try:
         return BasisTable(arrays["wavelengths"], arrays["functions"], arrays["singular_values"], arrays["mean"],
                           bool(meta["centred"]), int(meta["n_training"]), str(meta.get("source", "")))
-    except (KeyError, ValueError, TypeError) as exc:
+    except (KeyError, ValueError, TypeError, OverflowError) as exc:
         raise ValueError(f"{path}: invalid basis table ({exc})") from None

@@ -196,12 +196,25 @@ class CalibrationBundle:
     flat_wavelengths: np.ndarray | None = None
 
     def __post_init__(self):
+        for k in ("wavelengths", "column_wavelengths", "column_power", "responsivity", "dark", "flat_field",
+                  "reciprocal_patterns", "reciprocal_bands"):
+            kind = np.asarray(getattr(self, k)).dtype.kind
+            if kind not in "biuf":
+                raise ValueError(f"{k} must hold real numbers, got dtype {np.asarray(getattr(self, k)).dtype}")
+        for k in ("slit_fwhm_nm", "exposure_s", "dark_rate_dn_per_s", "min_exposure_s", "max_exposure_s",
+                  "white_reflectance", "rows", "max_code"):
+            v = getattr(self, k)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not np.isfinite(v):
+                raise ValueError(f"{k} must be a finite number, got {v!r}")
+        if not isinstance(self.reports, dict) or not isinstance(self.rig, str):
+            raise ValueError("reports must be a mapping and rig a string")
         g = np.asarray(self.wavelengths, np.float64)
         if g.ndim != 1 or g.size < 2 or not np.allclose(np.diff(g), g[1] - g[0]) or g[1] <= g[0]:
             raise ValueError("calibration wavelengths must be a uniform increasing grid")
         cw = np.asarray(self.column_wavelengths, np.float64)
         cp = np.asarray(self.column_power, np.float64)
-        if cw.ndim != 1 or cp.shape != cw.shape or np.any(np.diff(cw) <= 0):
+        if cw.ndim != 1 or cp.shape != cw.shape or np.any(np.diff(cw) <= 0) or not np.all(np.isfinite(cw)):
             raise ValueError("column_wavelengths must be increasing and column_power of the same length")
         if np.any(cp < 0) or not np.all(np.isfinite(cp)):
             raise ValueError("column_power must be finite and non-negative")
@@ -214,10 +227,16 @@ class CalibrationBundle:
             raise ValueError(f"dark and flat_field must be (H, W) of one shape, got {dark.shape}, {flat.shape}")
         if not (np.all(np.isfinite(dark)) and np.all(np.isfinite(flat)) and np.all(flat > 0)):
             raise ValueError("dark must be finite and flat_field finite and positive")
-        rp = np.asarray(self.reciprocal_patterns, np.int32).reshape(-1, cw.size)
+        if dark.size and (dark.min() < 0 or dark.max() > self.max_code):
+            raise ValueError(f"dark must lie in 0-{self.max_code} DN, got {dark.min():g}-{dark.max():g}")
+        rp = np.asarray(self.reciprocal_patterns)
+        if rp.size and (not np.all(np.isfinite(rp)) or np.any(rp != np.round(rp)) or rp.min() < 0
+                        or rp.max() > self.rows):
+            raise ValueError(f"reciprocal_patterns must be integer mirror counts in [0, {self.rows}]")
+        rp = rp.astype(np.int32).reshape(-1, cw.size)
         rb = np.asarray(self.reciprocal_bands, np.float64).reshape(-1, 2)
-        if rp.shape[0] != rb.shape[0]:
-            raise ValueError("reciprocal_patterns and reciprocal_bands must have one row per band")
+        if rp.shape[0] != rb.shape[0] or not np.all(np.isfinite(rb)):
+            raise ValueError("reciprocal_patterns and reciprocal_bands must have one row per band, bands finite")
         if not (self.slit_fwhm_nm > 0 and self.rows >= 1 and self.exposure_s > 0 and self.max_code >= 1
                 and 0 < self.min_exposure_s <= self.max_exposure_s):
             raise ValueError("calibration scalars out of range (slit, rows, exposure, max code, exposure limits)")
@@ -359,9 +378,10 @@ def load_calibration(path, *, rig: RigDescription | None = None) -> CalibrationB
     arrays, meta, _, digest = load_npz(path, CALIBRATION_FORMAT, (CALIBRATION_VERSION,))
     try:
         bundle = CalibrationBundle(**arrays, **meta)
-    except (TypeError, ValueError) as exc:
+        same = bundle.hash == digest  # the hash re-reads every field: a wrong type fails here too
+    except (TypeError, ValueError, OverflowError) as exc:
         raise ValueError(f"{path}: invalid calibration bundle ({exc})") from None
-    if bundle.hash != digest:
+    if not same:
         raise ValueError(f"{path}: corrupt calibration file (content does not match its hash)")
     _check_levels(path, bundle)
     if rig is not None:

@@ -991,7 +991,7 @@ def _read_tiff(path: Path, shape) -> np.ndarray:
 
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(oiio.geterror())})")
+        raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(_files._error_of(oiio))})")
     try:
         spec = inp.spec()
         if inp.format_name() != "tiff" or spec.nchannels != 1 or str(spec.format) != "uint16":
@@ -1001,7 +1001,7 @@ def _read_tiff(path: Path, shape) -> np.ndarray:
             raise ValueError(f"{path}: frame is {spec.height} x {spec.width}, sequence.json says "
                              f"{shape[0]} x {shape[1]}")
         data = inp.read_image(0, 0, 0, 1, "uint16")
-        err = inp.geterror()
+        err = _files._error_of(inp)
         if data is None or err or data.size != shape[0] * shape[1]:
             raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(err or 'no pixel data')})")
     finally:
@@ -1038,12 +1038,7 @@ def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[d
     directory = Path(directory)
     records, meta = read_sequence_header(directory)
     shape = (meta["height"], meta["width"])
-    try:
-        frames = np.empty((len(records), *shape), dtype=np.uint16)
-    except MemoryError:
-        raise ValueError(f"{directory / SEQUENCE_FILE}: {len(records)} frames of {shape[0]} x {shape[1]} need "
-                         f"{len(records) * shape[0] * shape[1] * 2 / 2**30:.1f} GiB, more than this machine can "
-                         "hold") from None
+    frames = None  # allocated once the first frame has shown that the header's size is real
     for i, rec in enumerate(records):
         path = directory / rec["file"]
         if not path.is_file():
@@ -1055,5 +1050,13 @@ def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[d
             digest = hashlib.sha256(path.read_bytes()).hexdigest()
             if digest != rec["sha256"]:
                 raise ValueError(f"{path}: corrupt frame: SHA-256 differs from {SEQUENCE_FILE}")
-        frames[i] = _read_tiff(path, shape)
+        frame = _read_tiff(path, shape)
+        if frames is None:
+            try:
+                frames = np.empty((len(records), *shape), dtype=np.uint16)
+            except (MemoryError, ValueError):
+                raise ValueError(f"{directory / SEQUENCE_FILE}: {len(records)} frames of {shape[0]} x {shape[1]} "
+                                 f"pixels ({len(records) * shape[0] * shape[1] * 2 / 2**30:.1f} GiB) do not fit "
+                                 "in memory") from None
+        frames[i] = frame
     return frames, records, meta

@@ -131,6 +131,14 @@ class Plan:
     params: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        for key in ("patterns", "A", "output_wavelengths", "target_spectra", "light_wavelengths", "expected_level"):
+            if np.asarray(getattr(self, key)).dtype.kind not in "biuf":
+                raise ValueError(f"plan {key} must hold real numbers, got dtype {np.asarray(getattr(self, key)).dtype}")
+        for key in ("exposure_s", "min_exposure_s", "rows"):
+            v = getattr(self, key)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not np.isfinite(v) or (key == "rows" and (v != int(v) or v < 1)):
+                raise ValueError(f"plan {key} must be a finite number{' >= 1' if key == 'rows' else ''}, got {v!r}")
         n = np.asarray(self.patterns)
         if n.ndim != 2 or n.shape[0] < 1:
             raise ValueError(f"plan patterns must be (K, columns), got shape {n.shape}")
@@ -143,6 +151,8 @@ class Plan:
         a = np.asarray(self.A, np.float64)
         if a.ndim != 2 or a.shape[1] != k or not np.all(np.isfinite(a)):
             raise ValueError(f"plan decoder A must be finite (B, K={k}), got shape {a.shape}")
+        if a.size and np.max(np.abs(a)) > np.finfo(np.float32).max:  # the device computes in float32
+            raise ValueError(f"plan decoder A must be finite in float32 (|A| <= 3.4e38), got {np.max(np.abs(a)):.3g}")
         if not (self.exposure_s >= self.min_exposure_s - 1e-12 and self.min_exposure_s > 0):
             raise ValueError(f"plan exposure {self.exposure_s * 1e6:.1f} us is below the light's switch time "
                              f"{self.min_exposure_s * 1e6:.0f} us")
@@ -237,9 +247,10 @@ def load_plan(path, *, calibration=None) -> Plan:
         meta = dict(meta)
         meta["output_labels"] = tuple(meta["output_labels"])
         plan = Plan(**arrays, **meta)
-    except (TypeError, ValueError, KeyError) as exc:
+        same = plan.hash == digest  # the hash re-reads every field: a wrong type fails here too
+    except (TypeError, ValueError, KeyError, OverflowError) as exc:
         raise ValueError(f"{path}: invalid plan ({exc})") from None
-    if plan.hash != digest:
+    if not same:
         raise ValueError(f"{path}: corrupt plan file (content does not match its hash)")
     A = np.asarray(plan.A, np.float64)
     if not np.all(np.isfinite(A)) or (A.size and np.max(np.abs(A)) > 1e30):

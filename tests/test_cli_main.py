@@ -50,6 +50,14 @@ def work(tmp_path_factory):
     return d
 
 
+@pytest.fixture(scope="module")
+def cube(work, tmp_path_factory):
+    """A cube recovered from the symmetric sequence, in a folder of its own (tests read it, never write it)."""
+    path = tmp_path_factory.mktemp("cube") / "cube.exr"
+    run("recover", work / "seq", "--out", path)
+    return path
+
+
 def test_capture_keeps_plan_and_calibration_with_the_frames(work):
     frames, records, meta = io.read_sequence(work / "seq")
     assert frames.shape == (18, 240, 320) and frames.dtype == np.uint16
@@ -58,17 +66,17 @@ def test_capture_keeps_plan_and_calibration_with_the_frames(work):
     assert meta["metadata"]["assembly"]["dropped"] == 0
 
 
-def test_recover_and_evaluate_symmetric(work):
-    out = run("recover", work / "seq", "--out", work / "cube.exr", "--xyz", work / "xyz.exr", "--lab",
-              work / "lab.exr", "--delta-e-ref", "colorchecker", "--delta-e", work / "dE.exr")
+def test_recover_and_evaluate_symmetric(work, tmp_path):
+    out = run("recover", work / "seq", "--out", tmp_path / "cube.exr", "--xyz", tmp_path / "xyz.exr", "--lab",
+              tmp_path / "lab.exr", "--delta-e-ref", "colorchecker", "--delta-e", tmp_path / "dE.exr")
     assert "symmetric: 9 projections, 2 sequences" in out.output
-    cube, wavelengths, meta = io.read_cube(work / "cube.exr")
+    cube, wavelengths, meta = io.read_cube(tmp_path / "cube.exr")
     assert cube.shape == (240, 320, 31) and wavelengths[0] == 400 and wavelengths[-1] == 700
     assert meta["projections"] == 9 and meta["sequences_averaged"] == 2
-    dE, channels, _ = io.read_map(work / "dE.exr")
+    dE, channels, _ = io.read_map(tmp_path / "dE.exr")
     assert channels == ("dE2000",) and dE.shape == (240, 320, 1)
-    run("evaluate", work / "cube.exr", "--truth", "colorchecker", "--json", work / "report.json")
-    report = json.loads((work / "report.json").read_text())
+    run("evaluate", tmp_path / "cube.exr", "--truth", "colorchecker", "--json", tmp_path / "report.json")
+    report = json.loads((tmp_path / "report.json").read_text())
     for key in ("rmse_mean", "rmse_max", "dE76_mean", "dE76_max", "dE2000_mean", "dE2000_max"):
         assert np.isfinite(report[key]), key
     assert report["projections"] == 9 and len(report["patches"]) == 24
@@ -76,20 +84,20 @@ def test_recover_and_evaluate_symmetric(work):
     assert report["rmse_max"] >= report["rmse_mean"] and report["dE2000_max"] >= report["dE2000_mean"]
 
 
-def test_recover_and_evaluate_tristimulus(work):
-    run("recover", work / "seqtri", "--out", work / "tri.exr")
-    XYZ, channels, _ = io.read_map(work / "tri.exr", "XYZ")
+def test_recover_and_evaluate_tristimulus(work, tmp_path):
+    run("recover", work / "seqtri", "--out", tmp_path / "tri.exr")
+    XYZ, channels, _ = io.read_map(tmp_path / "tri.exr", "XYZ")
     assert channels == ("X", "Y", "Z")
-    result = run("evaluate", work / "tri.exr", "--truth", "colorchecker", "--json", work / "tri.json")
-    report = json.loads((work / "tri.json").read_text())
+    result = run("evaluate", tmp_path / "tri.exr", "--truth", "colorchecker", "--json", tmp_path / "tri.json")
+    report = json.loads((tmp_path / "tri.json").read_text())
     assert "rmse_mean" not in report and report["dE76_mean"] < 4.0  # the paper: 2.43
     assert "per patch" in result.output
 
 
 @pytest.mark.parametrize("method", ["narrowband", "reciprocal", "biased", "camera", "steady"])
-def test_every_plan_method(work, method):
-    out = run("plan", method, "--calib", work / "calib.npz", "--out", work / f"{method}.npz")
-    assert f"wrote {work / method}.npz" in out.output
+def test_every_plan_method(work, method, tmp_path):
+    out = run("plan", method, "--calib", work / "calib.npz", "--out", tmp_path / f"{method}.npz")
+    assert f"wrote {tmp_path / method}.npz" in out.output
 
 
 def test_demo_writes_the_report(tmp_path):
@@ -118,11 +126,8 @@ def test_missing_file(work, tmp_path):
     assert result.exit_code == 2 and "does not exist" in result.output
 
 
-def test_truncated_exr(work, tmp_path):
-    data = (work / "cube.exr").read_bytes() if (work / "cube.exr").exists() else None
-    if data is None:
-        run("recover", work / "seq", "--out", work / "cube.exr")
-        data = (work / "cube.exr").read_bytes()
+def test_truncated_exr(cube, tmp_path):
+    data = cube.read_bytes()
     (tmp_path / "cut.exr").write_bytes(data[: len(data) // 2])
     one_line_error(run("evaluate", tmp_path / "cut.exr", "--truth", "colorchecker", ok=False), "cut.exr")
 
@@ -153,7 +158,7 @@ def test_sequence_with_a_missing_frame(work, tmp_path):
     assert not (tmp_path / "c.exr").exists()
 
 
-def test_scene_not_covering_the_plans_range(work, tmp_path):
+def test_scene_not_covering_the_plans_range(work, cube, tmp_path):
     wl = np.arange(450.0, 651.0, 10.0)
     np.savez(tmp_path / "narrow.npz", wavelengths=wl, reflectance=np.full((240, 320, wl.size), 0.5, np.float32))
     result = run("capture", "--rig", work / "rig.toml", "--plan", work / "sym.npz", "--calib", work / "calib.npz",
@@ -163,7 +168,7 @@ def test_scene_not_covering_the_plans_range(work, tmp_path):
     # and a truth that does not cover the cube's wavelengths
     wl = np.arange(420.0, 681.0, 10.0)
     np.savez(tmp_path / "narrow2.npz", wavelengths=wl, reflectance=np.full((240, 320, wl.size), 0.5, np.float32))
-    one_line_error(run("evaluate", work / "cube.exr", "--truth", tmp_path / "narrow2.npz", ok=False),
+    one_line_error(run("evaluate", cube, "--truth", tmp_path / "narrow2.npz", ok=False),
                    "covers 420-680 nm")
 
 

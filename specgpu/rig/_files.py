@@ -20,7 +20,9 @@ import os
 import re
 import shutil
 import tempfile
+import tokenize
 import zipfile
+import zlib
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -163,6 +165,15 @@ def _check_exists(path: Path, what: str) -> None:
         raise ValueError(f"{path}: {what} is not a file")
 
 
+def _error_of(source) -> str:
+    """``source.geterror()`` (an OpenImageIO reader or the module); a message holding a corrupt file's bytes that
+    are not UTF-8 would otherwise raise UnicodeDecodeError."""
+    try:
+        return source.geterror()
+    except UnicodeDecodeError:
+        return "corrupt data (error message not UTF-8)"
+
+
 # ---- OpenEXR -----------------------------------------------------------------------------------------------------
 def read_exr(path, what: str = "EXR") -> tuple[np.ndarray, list[str], dict]:
     """Read every channel of an OpenEXR file as float32.
@@ -189,20 +200,23 @@ def read_exr(path, what: str = "EXR") -> tuple[np.ndarray, list[str], dict]:
     _check_exists(path, what)
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"{path}: cannot open EXR ({one_line(oiio.geterror())})")
+        raise ValueError(f"{path}: cannot open EXR ({one_line(_error_of(oiio))})")
     try:
         if inp.format_name() != "openexr":
             raise ValueError(f"{path}: not an OpenEXR file (OpenImageIO reads it as {inp.format_name()!r})")
         spec = inp.spec()
         if spec.deep:
             raise ValueError(f"{path}: deep OpenEXR images are not supported")
-        names = list(spec.channelnames)
-        attributes = {a.name: a.value for a in spec.extra_attribs}
+        try:
+            names = list(spec.channelnames)
+            attributes = {a.name: a.value for a in spec.extra_attribs}
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: corrupt EXR header (a channel or attribute is not UTF-8 text)") from None
         data = inp.read_image(0, 0, 0, spec.nchannels, "float")
-        err = inp.geterror()
+        err = _error_of(inp)
         expected = spec.width * spec.height * spec.nchannels
         if data is None or not isinstance(data, np.ndarray) or data.size != expected or err:
-            reason = one_line(err or oiio.geterror() or "no pixel data")
+            reason = one_line(err or _error_of(oiio) or "no pixel data")
             raise ValueError(f"{path}: truncated or corrupt EXR ({reason})")
     finally:
         inp.close()
@@ -283,7 +297,7 @@ def read_cube_exr(path) -> tuple[np.ndarray, np.ndarray, dict]:
     data, names, attributes = read_exr(path, "spectral cube")
     picked = [(wl, i, n) for i, n in enumerate(names) if (wl := parse_channel(n)) is not None]
     if not picked:
-        shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+        shown = one_line(", ".join(names[:8]) + (", ..." if len(names) > 8 else ""))
         raise ValueError(f"{path}: no reflective spectral channels named 'T.<wavelength>nm' (found {shown})")
     for wl, _, n in picked:
         if not math.isfinite(wl) or wl <= 0:
@@ -356,7 +370,8 @@ def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
     except ValueError as exc:
         msg = one_line(str(exc))
         raise ValueError(msg if msg.startswith(str(path)) else f"{path}: truncated or corrupt .npz ({msg})") from None
-    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, SyntaxError, tokenize.TokenError,
+            MemoryError, RuntimeError) as exc:  # a corrupt .npy header (parsed as a Python literal), zip flags
         raise ValueError(f"{path}: truncated or corrupt .npz "
                          f"({exc.__class__.__name__}: {one_line(str(exc))})") from None
     if wl.ndim != 1:

@@ -283,7 +283,7 @@ def load_rig(path=None) -> RigDescription:
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML ({exc})") from None
     except UnicodeDecodeError as exc:  # a binary file
-        raise ValueError(f"{path}: not a TOML text file (byte {exc.start} is not UTF-8)") from None
+        raise ValueError(f"{path}: invalid TOML (not UTF-8 text at byte {exc.start}: not a TOML text file)") from None
     except OSError as exc:
         raise ValueError(f"{path}: cannot read rig description ({exc})") from None
     return rig_from_dict(data, source=str(path), base_dir=path.parent)
