@@ -498,8 +498,8 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
     if str(out).lower().rstrip("/").endswith(".zarr"):  # raw frames straight to disk, one chunk per sequence
         from .recording import refuse_existing
 
+        _lock(out, folder=True)  # first: a killed capture's stale lock is cleared even when out is refused
         refuse_existing(out)
-        _lock(out, folder=True)
         writer = _ZarrCapture(out, plan, plan_path, calib, sequences, plan.K * cam.roi_height * cam.roi_width * 2,
                               meta)
     else:
@@ -692,7 +692,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
         writes = []  # (final path, write(to path))
         if plan.output == "reflectance":
             if Path(out).suffix.lower() == ".hdr":  # ENVI: the .img data file renamed with its header
-                writes.append((out, lambda p: io.write_cube(p, y, plan.output_wavelengths, metadata=meta,
+                writes.append((out, lambda p: io.write_cube(p, y, plan.output_wavelengths, half=half, metadata=meta,
                                                            interleave=interleave), (".img",)))
             else:
                 writes.append((out, lambda p: io.write_cube(p, y, plan.output_wavelengths, half=half,
@@ -801,8 +801,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     if out:
         from .recording import refuse_existing
 
-        refuse_existing(out)  # before any work: a recording is never mixed with another run
         _lock(out, folder=True)  # one recorder per folder: a second stream into it refuses at once
+        refuse_existing(out)  # before any work: a recording is never mixed with another run
     description = load_rig(rig_path)
     hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
     bundle, plan, truth = _experiment(description, plan_path, calib, scene)

@@ -8,7 +8,6 @@ in one line; it clears the stale lock and the killed run's temporary files. A SI
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import signal
@@ -21,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, Phase, given, settings, strategies as st
 
 from specgpu import io
 from specgpu.cli import main
@@ -30,7 +29,8 @@ from specgpu.recording import open_recording
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = "[camera]\nroi_width = 320\nroi_height = 240\n"
-DRILL = settings(max_examples=2, deadline=None, derandomize=True,
+# no shrinking: each example is a subprocess killed at a time, and a failure is reported as found
+DRILL = settings(max_examples=2, deadline=None, derandomize=True, phases=[Phase.explicit, Phase.generate],
                  suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 DELAY = st.floats(min_value=0.0, max_value=1.5)
 
@@ -146,7 +146,7 @@ def test_kill_recover(base, delay):
     shutil.rmtree(d)
 
 
-@settings(max_examples=1, deadline=None, derandomize=True,
+@settings(max_examples=1, deadline=None, derandomize=True, phases=[Phase.explicit, Phase.generate],
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(delay=st.floats(min_value=0.5, max_value=2.0))
 def test_kill_stream(base, delay):

@@ -5,7 +5,6 @@ the GenICam camera would be opened."""
 
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import pytest
@@ -50,7 +49,7 @@ def test_cli_stream_on_the_simulated_hardware_rig(setup, tmp_path, monkeypatch):
     from specgpu.cli import main
     from specgpu.plans import save_plan
     from specgpu.rig.scene import colorchecker_scene
-    from specgpu.stream import read_npy_chunks
+    from specgpu.recording import open_recording
 
     cam = setup.description.camera
     real = hw_rig.open_hardware
@@ -83,9 +82,9 @@ def test_cli_stream_on_the_simulated_hardware_rig(setup, tmp_path, monkeypatch):
     sim, driver = opened[0]
     assert sim.lut_entries == setup.plan.K and not sim.running  # the plan was uploaded; the light stopped
     assert not sim.is_open  # and its USB link released
-    index = json.loads((tmp_path / "out" / "index.json").read_text())
-    assert index["metadata"]["plan_hash"] == setup.plan.hash and len(index["sequences"]) >= 2
-    dE = np.concatenate([np.asarray(c) for c in read_npy_chunks(tmp_path / "out", "dE")])
+    rec = open_recording(tmp_path / "out")
+    assert rec.attrs["plan_hash"] == setup.plan.hash and rec.sequences >= 2
+    dE = rec.read("dE", slice(0, rec.sequences))
     # the colorchecker read back through the devices as well as the twin's own stream reads it (same plan, same
     # noise level; a frame labelled with the wrong pattern would put the median far above)
     twin = float(np.nanmedian(offline_maps(setup, 0)["dE"]))
