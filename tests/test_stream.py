@@ -171,9 +171,14 @@ def test_stalling_sink_makes_the_ring_policy_act(setup, expected, policy):
         assert_maps_equal(maps, expected[setup.recorded_sequence(ids)])
 
 
-def test_ctrl_c_drains_every_buffered_frame(setup, expected):
+def test_ctrl_c_drains_every_buffered_frame(setup, expected, request):
     """KeyboardInterrupt in the thread running the stream: capture stops at a sequence boundary, every frame
     already in the ring is assembled and computed, every result reaches the sinks, and the counters balance."""
+    import signal
+
+    # interrupt_main does nothing unless Python handles SIGINT: the default handler, whatever ran before
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    request.addfinalizer(lambda: signal.signal(signal.SIGINT, previous))
     sink = Collect(delay_s=0.01)
     stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("XYZ", "dE"), reference=setup.reference,
                     policy="block", sinks=[sink])
