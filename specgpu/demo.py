@@ -31,10 +31,9 @@ from .basis import save_basis
 from .calibration import calibrate, save_calibration
 from .evaluate import (evaluate_pixels, evaluate_reflectance, evaluate_XYZ, patch_means, scene_XYZ,
                        true_patch_spectra)
-from .pipeline import EVALUATION_CHART, capture_plan, default_basis, read_capture, recover, to_XYZ, write_capture
+from .pipeline import EVALUATION_CHART, default_basis, to_XYZ, write_capture
 from .plans import make_plan, save_plan
 from .rig.config import RigDescription, load_rig
-from .rig.scene import colorchecker_scene
 
 __all__ = ["DEMO_METHODS", "DemoResult", "run_demo", "format_tables"]
 
@@ -257,7 +256,7 @@ def format_tables(result: DemoResult) -> str:
     """Tables 1, 2 and 3 of the paper, ours beside theirs."""
     m = result.methods
     draws = len(next(iter(next(iter(result.draws.values())).values()))["dE00"]) if result.draws else 1
-    lines = [f"profiles: " + "; ".join(f"{k}: corrections {v['corrections']}, calibration vs the twin's truth "
+    lines = ["profiles: " + "; ".join(f"{k}: corrections {v['corrections']}, calibration vs the twin's truth "
                                        f"{v['calibration_error']['rms_relative'] * 100:.2f} % RMS band response, "
                                        f"{v['calibration_error']['rms_centroid_nm']:.2f} nm RMS centroid"
                                        for k, v in result.profiles.items()),

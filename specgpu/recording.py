@@ -233,8 +233,6 @@ class ZarrRecorder:
                 pass
 
     def close(self) -> None:
-        import zarr
-
         self._pool.shutdown(wait=True)
         self._trim()
         self.group.attrs.update({"status": "failed" if self.failed else "complete",

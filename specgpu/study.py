@@ -7,7 +7,6 @@ table can print mean +- std; per-patch figures (patch means) sit beside per-pixe
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np

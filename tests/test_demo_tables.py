@@ -2,8 +2,6 @@
 
 from pathlib import Path
 
-import pytest
-
 from specgpu.demo import DemoResult, demo_profiles, table1_lines
 from specgpu.rig.config import RigDescription
 

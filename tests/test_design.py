@@ -14,7 +14,6 @@ from specgpu.plans import make_plan
 from specgpu.recovery import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
-from specgpu.rig.scene import SpectralScene
 from specgpu.rig.twin import TwinRig
 
 H, W = 240, 320
