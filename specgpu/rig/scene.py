@@ -173,7 +173,7 @@ def write_scene(path, scene: SpectralScene, *, half: bool = False) -> Path:
     suffix = path.suffix.lower()
     if suffix == ".npz":
         return formats.write_cube_npz(path, scene.reflectance, scene.wavelengths,
-                                     {f"mask_{k}": m for k, m in scene.masks.items()})
+                                      {f"mask_{k}": m for k, m in scene.masks.items()})
     if suffix != ".exr":
         raise ValueError(f"{path}: unknown scene format {suffix!r}; expected .exr or .npz")
     return formats.write_cube_exr(path, scene.reflectance, scene.wavelengths, half=half)
