@@ -432,7 +432,7 @@ def save_npz(path, kind: str, version: int, arrays: dict, meta: dict) -> str:
     header = {"format": kind, "version": int(version), "hash": digest, "meta": meta}
     # np.savez adds ".npz" to a name without it; write through a file object to keep the path as given, to a
     # temporary name renamed over the target at the end: an interrupted save never destroys a good file
-    from specgpu.rig._files import atomic_path
+    from specgpu.formats import atomic_path
 
     if not path.parent.is_dir():
         raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")

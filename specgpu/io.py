@@ -47,9 +47,9 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.rig import _files
-from specgpu.rig._files import (SPECTRAL_LAYOUT_VERSION, atomic_path, format_channel, one_line, parse_channel,
-                                read_cube_exr, read_cube_npz, read_exr, write_cube_exr, write_cube_npz, write_exr)
+from specgpu import formats
+from specgpu.formats import (SPECTRAL_LAYOUT_VERSION, atomic_path, format_channel, one_line, parse_channel,
+                             read_cube_exr, read_cube_npz, read_exr, write_cube_exr, write_cube_npz, write_exr)
 
 __all__ = [
     "format_channel", "parse_channel", "write_cube", "read_cube", "MAP_KINDS", "write_map", "read_map",
@@ -240,7 +240,7 @@ def write_cube_envi(path, cube, wavelengths, *, interleave: str = "bsq", metadat
     if str(interleave).lower() not in ENVI_INTERLEAVES:
         raise ValueError(f"{path}: unknown ENVI interleave {interleave!r}; valid: {', '.join(ENVI_INTERLEAVES)}")
     interleave = str(interleave).lower()
-    arr, wl = _files.check_cube(path, cube, wavelengths)
+    arr, wl = formats.check_cube(path, cube, wavelengths)
     meta = _metadata_json(path, metadata)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
@@ -491,7 +491,7 @@ def _write_png(path: Path, rgb8: np.ndarray, attributes: dict) -> Path:
         spec.attribute(key, str(value))
     if not path.parent.is_dir():
         raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
-    return _files.write_image(path, rgb8, spec, "png", "PNG")
+    return formats.write_image(path, rgb8, spec, "png", "PNG")
 
 
 def _auto_exposure_ev(Y: np.ndarray, percentile: float = 99.0) -> float:
@@ -918,7 +918,7 @@ class SequenceWriter:
         except OSError as exc:  # disk full, folder gone: one line naming the frame
             if str(self.directory / name) in str(exc):
                 raise
-            raise _files._os_error(self.directory / name, exc) from None
+            raise formats.os_error(self.directory / name, exc) from None
         self.entries.append({"file": name, **rec, "bytes": size, "sha256": digest})
 
     def close(self, metadata=None) -> Path:
@@ -991,7 +991,7 @@ def _read_tiff(path: Path, shape) -> np.ndarray:
 
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(_files._error_of(oiio))})")
+        raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(formats.error_of(oiio))})")
     try:
         spec = inp.spec()
         if inp.format_name() != "tiff" or spec.nchannels != 1 or str(spec.format) != "uint16":
@@ -1001,7 +1001,7 @@ def _read_tiff(path: Path, shape) -> np.ndarray:
             raise ValueError(f"{path}: frame is {spec.height} x {spec.width}, sequence.json says "
                              f"{shape[0]} x {shape[1]}")
         data = inp.read_image(0, 0, 0, 1, "uint16")
-        err = _files._error_of(inp)
+        err = formats.error_of(inp)
         if data is None or err or data.size != shape[0] * shape[1]:
             raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(err or 'no pixel data')})")
     finally:

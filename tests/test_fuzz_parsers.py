@@ -26,8 +26,8 @@ from specgpu import io
 from specgpu.basis import BasisTable, load_basis, read_reflectance_csv, save_basis, save_npz
 from specgpu.calibration import CALIBRATION_FORMAT, CALIBRATION_VERSION, load_calibration, oracle_calibration, \
     save_calibration
+from specgpu.formats import read_spectrum_csv
 from specgpu.plans import PLAN_FORMAT, PLAN_VERSION, load_plan, plan_narrowband, save_plan
-from specgpu.rig._checks import read_spectrum_csv
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription, _toml_value, load_rig
 
@@ -192,7 +192,7 @@ def test_fuzz_exr_channels_and_header(tmp_path, names, meta, shape):
     names = [n for n in names if n and "\x00" not in n]
     assume(names)
     path = tmp_path / "s.exr"
-    from specgpu.rig._files import write_exr
+    from specgpu.formats import write_exr
     try:
         write_exr(path, np.ones((*shape, len(names)), np.float32), names,
                   attributes=None if meta is None else {"specgpu:metadata": meta})
@@ -531,7 +531,7 @@ def test_plan_whose_decoder_overflows_float32_is_refused(files, tmp_path):
 
 
 def test_exr_channel_named_with_a_newline_gives_one_line(tmp_path):
-    from specgpu.rig._files import write_exr
+    from specgpu.formats import write_exr
 
     write_exr(tmp_path / "n.exr", np.ones((1, 1, 1), np.float32), ["a\nb"])
     with pytest.raises(ValueError) as exc:

@@ -35,8 +35,8 @@ import time
 import numpy as np
 
 from specgpu.capture.driver import CameraDriver, FrameInfo, LightSource, StreamEnd
+from specgpu.checks import check_number
 from specgpu.hardware.errors import BackendMissing, DeviceNotFound, DeviceTimeout, HardwareError
-from specgpu.rig._checks import check_number
 
 __all__ = ["GenICamCamera", "MODES", "PIXEL_DTYPES", "open_acquirer"]
 

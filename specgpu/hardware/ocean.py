@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from specgpu.checks import check_number
+from specgpu.formats import read_spectrum_csv
 from specgpu.hardware.errors import BackendMissing, DeviceNotFound, HardwareError
-from specgpu.rig._checks import check_number, read_spectrum_csv
 from specgpu.rig.spectroradiometer import Spectroradiometer, SpectroradiometerParameters
 
 __all__ = ["OceanSpectrometer", "open_seabreeze"]

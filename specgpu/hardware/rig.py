@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.rig._checks import check_number
+from specgpu.checks import check_number
 
 __all__ = ["HardwareConfig", "open_hardware", "open_light", "open_spectrometer", "HardwareRig",
            "HardwareCalibrationRig", "open_calibration_rig"]

@@ -6,7 +6,7 @@ boolean masks (the ColorChecker's 24 patches) that the evaluation can use.
 
 Sources:
 
-- cube files (read and written by :mod:`specgpu.rig._files`, shared with :mod:`specgpu.io`): OpenEXR in the
+- cube files (read and written by :mod:`specgpu.formats`, shared with :mod:`specgpu.io`): OpenEXR in the
   JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie), reflective channels named ``T.<wavelength><unit>``
   (e.g. ``T.550,000000nm``; ``.`` also accepted as decimal separator on reading), through OpenImageIO; or
   ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>`` arrays). Bands are ordered by wavelength, never by channel order in the file.
@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.rig import _files
-from specgpu.rig._checks import check_array, check_number, check_wavelengths
+from specgpu import formats
+from specgpu.checks import check_array, check_number, check_wavelengths
 
 __all__ = [
     "SpectralScene", "read_scene", "write_scene", "colorchecker_scene", "white_plate_scene", "natural_scene",
@@ -154,13 +154,13 @@ def read_scene(path) -> SpectralScene:
 
 
 def _read_npz(path: Path) -> SpectralScene:
-    refl, wl, extra = _files.read_cube_npz(path)
+    refl, wl, extra = formats.read_cube_npz(path)
     masks = {k[5:]: m for k, m in extra.items() if k.startswith("mask_")}
     return SpectralScene(wl, refl, masks, path.stem)
 
 
 def _read_exr(path: Path) -> SpectralScene:
-    refl, wl, _ = _files.read_cube_exr(path)
+    refl, wl, _ = formats.read_cube_exr(path)
     return SpectralScene(wl, refl, {}, path.stem)
 
 
@@ -172,11 +172,11 @@ def write_scene(path, scene: SpectralScene, *, half: bool = False) -> Path:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        return _files.write_cube_npz(path, scene.reflectance, scene.wavelengths,
-                                     {f"mask_{k}": m for k, m in scene.masks.items()})
+        return formats.write_cube_npz(path, scene.reflectance, scene.wavelengths,
+                                      {f"mask_{k}": m for k, m in scene.masks.items()})
     if suffix != ".exr":
         raise ValueError(f"{path}: unknown scene format {suffix!r}; expected .exr or .npz")
-    return _files.write_cube_exr(path, scene.reflectance, scene.wavelengths, half=half)
+    return formats.write_cube_exr(path, scene.reflectance, scene.wavelengths, half=half)
 
 
 # ---- built-ins ---------------------------------------------------------------------------------------------------

@@ -30,10 +30,10 @@ from __future__ import annotations
 import numpy as np
 
 from specgpu.capture.driver import LightSource
+from specgpu.checks import check_number
 from specgpu.hardware.dlpc900.device import DLPC900, LutEntry
 from specgpu.hardware.dlpc900.images import BITS_PER_IMAGE, DMDLayout
 from specgpu.hardware.errors import LightFault
-from specgpu.rig._checks import check_number
 
 __all__ = ["DLPC900Light", "DEFAULT_DARK_S"]
 

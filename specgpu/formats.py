@@ -1,11 +1,13 @@
-"""Low-level file helpers shared by :mod:`specgpu.rig.scene` and :mod:`specgpu.io`.
+"""Low-level file formats shared by :mod:`specgpu.io`, :mod:`specgpu.rig`, :mod:`specgpu.basis` and the drivers.
 
-The spectral-cube layouts live here, below both users, so that ``rig`` never imports ``io`` (DESIGN.md arrows)
-while ``io`` stays the one public home of file formats:
+The layouts live here, at the bottom of the DESIGN.md arrows (this module imports only :mod:`specgpu.checks`), so
+that every room may read and write them and ``rig`` never imports ``io``; :mod:`specgpu.io` stays the public home
+of file formats for users:
 
 - OpenEXR through OpenImageIO, with the reflective channels of Fichet, Pacanowski and Wilkie, "An OpenEXR Layout
   for Spectral Images", JCGT 10(3), 2021 (:func:`format_channel`, :func:`parse_channel`);
-- ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B).
+- ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B);
+- two-column CSV spectral curves (:func:`read_spectrum_csv`, :func:`curve_on_grid`).
 
 Every write goes to a temporary name in the target's folder and is renamed over the target with
 :func:`os.replace` at the end, so a crash never leaves a partial file under the final name. Every error is one
@@ -28,9 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
+from specgpu.checks import check_wavelengths, normalised_to_peak
+
 __all__ = [
     "format_channel", "parse_channel", "read_exr", "write_exr", "read_cube_exr", "write_cube_exr",
     "read_cube_npz", "write_cube_npz", "check_cube", "atomic_path", "one_line", "SPECTRAL_LAYOUT_VERSION",
+    "os_error", "error_of", "read_spectrum_csv", "curve_on_grid",
 ]
 
 #: Value of the ``spectralLayoutVersion`` header attribute the JCGT 2021 layout defines.
@@ -131,7 +136,7 @@ def atomic_path(path: Path):
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=f".tmp{path.suffix}",
                                    dir=path.parent)
     except OSError as exc:
-        raise _os_error(path, exc) from None
+        raise os_error(path, exc) from None
     os.close(fd)
     tmp = Path(tmp)
     try:
@@ -140,11 +145,11 @@ def atomic_path(path: Path):
     except BaseException as exc:
         tmp.unlink(missing_ok=True)
         if isinstance(exc, OSError) and str(path) not in str(exc):
-            raise _os_error(path, exc) from None
+            raise os_error(path, exc) from None
         raise
 
 
-def _os_error(path: Path, exc: OSError) -> OSError:
+def os_error(path: Path, exc: OSError) -> OSError:
     """``exc`` as one line that names ``path`` (and how much room is left when the disk is full)."""
     reason = exc.strerror or one_line(str(exc))
     if exc.errno == errno.ENOSPC:
@@ -165,7 +170,7 @@ def _check_exists(path: Path, what: str) -> None:
         raise ValueError(f"{path}: {what} is not a file")
 
 
-def _error_of(source) -> str:
+def error_of(source) -> str:
     """``source.geterror()`` (an OpenImageIO reader or the module); a message holding a corrupt file's bytes that
     are not UTF-8 would otherwise raise UnicodeDecodeError."""
     try:
@@ -200,7 +205,7 @@ def read_exr(path, what: str = "EXR") -> tuple[np.ndarray, list[str], dict]:
     _check_exists(path, what)
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"{path}: cannot open EXR ({one_line(_error_of(oiio))})")
+        raise ValueError(f"{path}: cannot open EXR ({one_line(error_of(oiio))})")
     try:
         if inp.format_name() != "openexr":
             raise ValueError(f"{path}: not an OpenEXR file (OpenImageIO reads it as {inp.format_name()!r})")
@@ -213,10 +218,10 @@ def read_exr(path, what: str = "EXR") -> tuple[np.ndarray, list[str], dict]:
         except UnicodeDecodeError:
             raise ValueError(f"{path}: corrupt EXR header (a channel or attribute is not UTF-8 text)") from None
         data = inp.read_image(0, 0, 0, spec.nchannels, "float")
-        err = _error_of(inp)
+        err = error_of(inp)
         expected = spec.width * spec.height * spec.nchannels
         if data is None or not isinstance(data, np.ndarray) or data.size != expected or err:
-            reason = one_line(err or _error_of(oiio) or "no pixel data")
+            reason = one_line(err or error_of(oiio) or "no pixel data")
             raise ValueError(f"{path}: truncated or corrupt EXR ({reason})")
     finally:
         inp.close()
@@ -405,3 +410,75 @@ def write_cube_npz(path, cube, wavelengths, extra: dict | None = None) -> Path:
         with open(tmp, "wb") as fh:  # a file object: np.savez would otherwise append ".npz" to the temp name
             np.savez_compressed(fh, **arrays)
     return path
+
+
+# ---- CSV spectral curves -----------------------------------------------------------------------------------------
+def read_spectrum_csv(path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a two-column CSV spectral curve: wavelength (nm), value.
+
+    Lines starting with ``#`` and a single non-numeric header line are skipped; separators may be commas,
+    semicolons, tabs or spaces. Wavelengths are sorted ascending (the file order does not matter).
+
+    Parameters
+    ----------
+    path
+        File path.
+
+    Returns
+    -------
+    wavelengths, values : numpy.ndarray
+        float64 arrays of equal length (>= 2), wavelengths strictly increasing in nm.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and line for a missing file, a line without two numbers, NaN, duplicated or
+        negative wavelengths, or fewer than two samples.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read spectral CSV ({exc.__class__.__name__}: {exc})") from None
+    rows = []
+    header_seen = False
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        fields = [f for f in stripped.replace(";", ",").replace("\t", ",").replace(" ", ",").split(",") if f]
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            if not rows and not header_seen:
+                header_seen = True
+                continue
+            raise ValueError(f"{path}:{number}: expected two numbers, got {stripped!r}") from None
+        if len(values) != 2:
+            raise ValueError(f"{path}:{number}: expected two columns (wavelength nm, value), got {len(values)}")
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"{path}:{number}: NaN or infinite value in {stripped!r}")
+        rows.append(values)
+    if len(rows) < 2:
+        raise ValueError(f"{path}: a spectral CSV needs at least 2 rows (wavelength nm, value), got {len(rows)}")
+    data = np.array(rows, dtype=np.float64)
+    order = np.argsort(data[:, 0], kind="stable")
+    data = data[order]
+    if np.any(np.diff(data[:, 0]) == 0):
+        dup = data[1:, 0][np.diff(data[:, 0]) == 0][0]
+        raise ValueError(f"{path}: wavelength {dup:g} nm appears more than once")
+    try:
+        wl = check_wavelengths(f"{path}: wavelengths", data[:, 0])
+    except ValueError as exc:
+        raise ValueError(str(exc)) from None
+    return wl, data[:, 1].copy()
+
+
+def curve_on_grid(path, wavelengths: np.ndarray, what: str, zero_message: str) -> np.ndarray:
+    """A two-column CSV spectral curve (``what``: e.g. ``"lamp power"``) on ``wavelengths``, 0 outside its range,
+    normalised to a peak of 1; negative values, or nothing but zeros on the grid (``zero_message``), are errors."""
+    src_wl, src_val = read_spectrum_csv(path)
+    if np.any(src_val < 0):
+        raise ValueError(f"{path}: {what} must be non-negative, got minimum {src_val.min():g}")
+    return normalised_to_peak(np.interp(wavelengths, src_wl, src_val, left=0.0, right=0.0), wavelengths,
+                              zero_message)

@@ -1,4 +1,4 @@
-"""Small validators shared by the rig and capture modules.
+"""Small validators shared by every room (rig, capture, hardware, file formats).
 
 Every message is one line that names the argument (or file) and the problem, so a rig description or a
 scene file with a bad value fails with a clear reason instead of a wrong simulation.
@@ -7,7 +7,6 @@ scene file with a bad value fails with a clear reason instead of a wrong simulat
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
@@ -84,77 +83,6 @@ def check_wavelengths(name: str, wavelengths) -> np.ndarray:
     if wl[0] < 100 or wl[-1] > 3000:
         raise ValueError(f"{name} must lie in 100-3000 nm, got {wl[0]:g}-{wl[-1]:g}")
     return wl
-
-
-def read_spectrum_csv(path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a two-column CSV spectral curve: wavelength (nm), value.
-
-    Lines starting with ``#`` and a single non-numeric header line are skipped; separators may be commas,
-    semicolons, tabs or spaces. Wavelengths are sorted ascending (the file order does not matter).
-
-    Parameters
-    ----------
-    path
-        File path.
-
-    Returns
-    -------
-    wavelengths, values : numpy.ndarray
-        float64 arrays of equal length (>= 2), wavelengths strictly increasing in nm.
-
-    Raises
-    ------
-    ValueError
-        Naming the file and line for a missing file, a line without two numbers, NaN, duplicated or
-        negative wavelengths, or fewer than two samples.
-    """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read spectral CSV ({exc.__class__.__name__}: {exc})") from None
-    rows = []
-    header_seen = False
-    for number, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        fields = [f for f in stripped.replace(";", ",").replace("\t", ",").replace(" ", ",").split(",") if f]
-        try:
-            values = [float(f) for f in fields]
-        except ValueError:
-            if not rows and not header_seen:
-                header_seen = True
-                continue
-            raise ValueError(f"{path}:{number}: expected two numbers, got {stripped!r}") from None
-        if len(values) != 2:
-            raise ValueError(f"{path}:{number}: expected two columns (wavelength nm, value), got {len(values)}")
-        if not all(math.isfinite(v) for v in values):
-            raise ValueError(f"{path}:{number}: NaN or infinite value in {stripped!r}")
-        rows.append(values)
-    if len(rows) < 2:
-        raise ValueError(f"{path}: a spectral CSV needs at least 2 rows (wavelength nm, value), got {len(rows)}")
-    data = np.array(rows, dtype=np.float64)
-    order = np.argsort(data[:, 0], kind="stable")
-    data = data[order]
-    if np.any(np.diff(data[:, 0]) == 0):
-        dup = data[1:, 0][np.diff(data[:, 0]) == 0][0]
-        raise ValueError(f"{path}: wavelength {dup:g} nm appears more than once")
-    try:
-        wl = check_wavelengths(f"{path}: wavelengths", data[:, 0])
-    except ValueError as exc:
-        raise ValueError(str(exc)) from None
-    return wl, data[:, 1].copy()
-
-
-def curve_on_grid(path, wavelengths: np.ndarray, what: str, zero_message: str) -> np.ndarray:
-    """A two-column CSV spectral curve (``what``: e.g. ``"lamp power"``) on ``wavelengths``, 0 outside its range,
-    normalised to a peak of 1; negative values, or nothing but zeros on the grid (``zero_message``), are errors."""
-    src_wl, src_val = read_spectrum_csv(path)
-    if np.any(src_val < 0):
-        raise ValueError(f"{path}: {what} must be non-negative, got minimum {src_val.min():g}")
-    return normalised_to_peak(np.interp(wavelengths, src_wl, src_val, left=0.0, right=0.0), wavelengths,
-                              zero_message)
 
 
 def normalised_to_peak(values: np.ndarray, wavelengths: np.ndarray, zero_message: str) -> np.ndarray:
