@@ -387,6 +387,13 @@ def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
         raise ValueError(f"{path}: wavelengths must be numbers, got dtype {wl.dtype}") from None
     if refl.ndim != 3 or refl.shape[2] != wl.size:
         raise ValueError(f"{path}: reflectance must have shape (H, W, {wl.size}), got {refl.shape}")
+    order = wavelength_order(path, wl)
+    return refl[..., order], wl[order], extra
+
+
+def wavelength_order(path, wl) -> np.ndarray:
+    """The order that sorts a cube file's band wavelengths ``wl`` (nm); one line naming ``path`` for a non-finite,
+    non-positive or repeated wavelength (bands are ordered by wavelength, never by their order in the file)."""
     if not np.all(np.isfinite(wl)) or np.any(wl <= 0):
         raise ValueError(f"{path}: wavelengths must be finite and > 0 nm, got {wl[:8].tolist()}")
     order = np.argsort(wl, kind="stable")
@@ -395,7 +402,7 @@ def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
     if dup.size:
         raise ValueError(f"{path}: duplicate wavelength(s) {dup.tolist()} nm "
                          "(wavelengths must be strictly increasing once sorted)")
-    return refl[..., order], wl, extra
+    return order
 
 
 def write_cube_npz(path, cube, wavelengths, extra: dict | None = None) -> Path:

@@ -360,13 +360,8 @@ def read_cube_envi(path) -> tuple[np.ndarray, np.ndarray, dict]:
     stored = np.fromfile(data_path, dtype=dtype, count=h * w * b, offset=offset)
     shape = {"bsq": (b, h, w), "bil": (h, b, w), "bip": (h, w, b)}[interleave]
     cube = np.ascontiguousarray(np.transpose(stored.reshape(shape), _ENVI_TO_HWB[interleave])).astype(np.float32)
-    if not np.all(np.isfinite(wl)) or np.any(wl <= 0):
-        raise ValueError(f"{path}: ENVI wavelengths must be finite and > 0, got {wl[:8].tolist()}")
-    order_wl = np.argsort(wl, kind="stable")
+    order_wl = formats.wavelength_order(path, wl)
     wl = wl[order_wl]
-    dup = np.unique(wl[1:][np.diff(wl) == 0])
-    if dup.size:
-        raise ValueError(f"{path}: duplicate ENVI wavelength(s) {dup.tolist()} nm")
     meta = {}
     if "specgpu metadata" in fields:
         try:
