@@ -228,16 +228,23 @@ def get_allocator(queue: cl.CommandQueue):
         return pool
 
 
+def override(value: str | None, argument: str, env: str, valid: tuple[str, ...], what: str) -> str | None:
+    """A per-call choice (``argument=value``) else the environment variable ``env``, lower-cased and checked
+    against ``valid``; None when neither is set (the caller's device-based default applies)."""
+    choice, origin = (value, f"{argument}=") if value is not None else (os.environ.get(env), f"{env}=")
+    if not choice:
+        return None
+    key = choice.strip().lower()
+    if key not in valid:
+        raise SpecgpuDeviceError(f"{origin}{choice!r} is no {what} (choose from {', '.join(valid)})")
+    return key
+
+
 def kernel_variant(device: cl.Device, variant: str | None = None) -> str:
     """The kernel variant for ``device``: ``variant`` when given, else SPECGPU_VARIANT, else "gpu" on GPU devices
     and "cpu" on every other (CPU, accelerator)."""
-    choice, origin = (variant, "variant=") if variant is not None else (os.environ.get(ENV_VARIANT), f"{ENV_VARIANT}=")
-    if choice:
-        key = choice.strip().lower()
-        if key not in VARIANTS:
-            raise SpecgpuDeviceError(f"{origin}{choice!r} is no kernel variant (choose from {', '.join(VARIANTS)})")
-        return key
-    return "gpu" if device.type & cl.device_type.GPU else "cpu"
+    chosen = override(variant, "variant", ENV_VARIANT, VARIANTS, "kernel variant")
+    return chosen or ("gpu" if device.type & cl.device_type.GPU else "cpu")
 
 
 def is_discrete(device: cl.Device) -> bool:

@@ -16,7 +16,6 @@ CPU devices (PoCL) and integrated GPUs share host memory: they keep the direct p
 
 from __future__ import annotations
 
-import os
 import threading
 import weakref
 
@@ -25,7 +24,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from . import engine
-from .runtime import SpecgpuDeviceError, get_allocator, is_discrete
+from .runtime import get_allocator, is_discrete, override
 
 __all__ = ["MODES", "transfer_mode", "pinned_empty", "linear_pipelined"]
 
@@ -37,13 +36,8 @@ STAGING_SLOTS = 2  # input staging buffers in flight (double buffering)
 
 def transfer_mode(device: cl.Device, mode: str | None = None) -> str:
     """"pinned" on discrete devices, "direct" elsewhere; ``mode`` or SPECGPU_TRANSFER overrides."""
-    choice, origin = (mode, "transfer=") if mode is not None else (os.environ.get(ENV_TRANSFER), f"{ENV_TRANSFER}=")
-    if choice:
-        key = choice.strip().lower()
-        if key not in MODES:
-            raise SpecgpuDeviceError(f"{origin}{choice!r} is no transfer mode (choose from {', '.join(MODES)})")
-        return key
-    return "pinned" if is_discrete(device) else "direct"
+    chosen = override(mode, "transfer", ENV_TRANSFER, MODES, "transfer mode")
+    return chosen or ("pinned" if is_discrete(device) else "direct")
 
 
 # ------------------------------------------------------------------------------------------------ pinned pool
