@@ -10,30 +10,10 @@ import shutil
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 from specgpu import io
-from specgpu.cli import main
 
-RIG = "[camera]\nroi_width = 320\nroi_height = 240\n"
-
-
-def run(*args, ok=True):
-    result = CliRunner().invoke(main, [str(a) for a in args])
-    if ok:
-        assert result.exit_code == 0, result.output
-    return result
-
-
-def one_line_error(result, *fragments):
-    assert result.exit_code != 0
-    lines = [line for line in result.output.splitlines() if line.strip() and "\r" not in line
-             and not line.startswith(("Usage:", "Try "))]
-    errors = [line for line in lines if line.startswith("Error:")]
-    assert len(errors) == 1, result.output
-    for fragment in fragments:
-        assert fragment in errors[0], errors[0]
-    return errors[0]
+from cli_helpers import RIG, one_line_error, run
 
 
 @pytest.fixture(scope="module")

@@ -19,33 +19,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 from hypothesis import HealthCheck, Phase, given, settings, strategies as st
 
 from specgpu import io
-from specgpu.cli import main
 from specgpu.locks import lock_path
 from specgpu.recording import open_recording
 
+from cli_helpers import RIG, one_line_error, run
+
 ROOT = Path(__file__).resolve().parent.parent
-RIG = "[camera]\nroi_width = 320\nroi_height = 240\n"
 # no shrinking: each example is a subprocess killed at a time, and a failure is reported as found
 DRILL = settings(max_examples=2, deadline=None, derandomize=True, phases=[Phase.explicit, Phase.generate],
                  suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 DELAY = st.floats(min_value=0.0, max_value=1.5)
-
-
-def run(*args, ok=True):
-    result = CliRunner().invoke(main, [str(a) for a in args])
-    if ok:
-        assert result.exit_code == 0, result.output
-    return result
-
-
-def refused_in_one_line(result):
-    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
-    assert result.exit_code != 0 and len(errors) == 1, result.output
-    return errors[0]
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +65,7 @@ def kill_during(proc: subprocess.Popen, target: Path, delay: float, second_write
         time.sleep(0.02)
     assert proc.poll() is None or proc.returncode == 0, proc.stderr.read()
     if proc.poll() is None and second_writer is not None:
-        error = refused_in_one_line(second_writer())
+        error = one_line_error(second_writer())
         assert f"pid {proc.pid}" in error, error
     time.sleep(delay)
     alive = proc.poll() is None
@@ -121,10 +107,10 @@ def test_kill_capture(base, delay):
     result = run("recover", out, "--out", d / "r.exr", ok=False)
     if (out / io.SEQUENCE_FILE).exists():  # it finished: complete and recoverable
         assert result.exit_code == 0, result.output
-        again = refused_in_one_line(run(*args, ok=False))
+        again = one_line_error(run(*args, ok=False))
         assert "already holds" in again
     else:  # interrupted: refused in one line, and the next capture replaces it
-        assert "interrupted" in refused_in_one_line(result) or not out.exists()
+        assert "interrupted" in one_line_error(result) or not out.exists()
         run(*args)
         run("recover", out, "--out", d / "r.exr")
     assert leftovers(d) == []
@@ -162,7 +148,7 @@ def test_kill_stream(base, delay):
     # the next stream is not blocked by the dead one's lock: it records or refuses in one line
     result = run(*args[:-4], "--seconds", "0.5", "--outputs", "XYZ", "--pacing", "free", "--out", out, ok=False)
     if result.exit_code:
-        assert "being written" not in refused_in_one_line(result)
+        assert "being written" not in one_line_error(result)
     assert not lock_path(out).exists()
     shutil.rmtree(d)
 

@@ -1,0 +1,32 @@
+"""The CLI test helpers shared by the command-line test files: a small twin rig, running a command in-process, and
+the one-line error check every refusal must pass."""
+
+from __future__ import annotations
+
+from click.testing import CliRunner
+
+from specgpu.cli import main
+
+#: a 320 x 240 twin: the paper's rig, small enough for quick CLI round trips
+RIG = "[camera]\nroi_width = 320\nroi_height = 240\n"
+
+
+def run(*args, ok=True):
+    """``specgpu ARGS`` in-process; ``ok``: assert it exited 0."""
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    if ok:
+        assert result.exit_code == 0, result.output
+    return result
+
+
+def one_line_error(result, *fragments, code=None):
+    """Assert a refusal: non-zero exit (``code`` when given) and exactly one ``Error:`` line holding every
+    fragment; returns that line."""
+    assert result.exit_code != 0, result.output
+    if code is not None:
+        assert result.exit_code == code, result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1, result.output
+    for fragment in fragments:
+        assert str(fragment) in errors[0], errors[0]
+    return errors[0]
