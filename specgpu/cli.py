@@ -88,7 +88,8 @@ class _Staged:
     are removed and the finals, old files included, are untouched."""
 
     def __init__(self):
-        self.pairs = []
+        self.pairs = []  # (temporary, final), each output's companions before it
+        self.outputs = []  # the finals asked for, in order
 
     def path(self, final):
         import os
@@ -109,6 +110,7 @@ class _Staged:
         from pathlib import Path
 
         tmp = self.path(final)
+        self.outputs.append(Path(final))
         for suffix in companions:
             self.pairs.insert(len(self.pairs) - 1, (tmp.with_suffix(suffix), Path(final).with_suffix(suffix)))
         try:
@@ -133,7 +135,7 @@ class _Staged:
                 os.replace(tmp, final)
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
-        return [final for _, final in self.pairs if final.suffix != ".img"]
+        return self.outputs
 
 
 def _lock(*paths, folder: bool = False):
