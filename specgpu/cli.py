@@ -31,7 +31,8 @@ class _Group(click.Group):
 
 class _terminate_as_interrupt:
     """SIGTERM (``kill``, a service manager stopping us) is handled like Ctrl-C: a stream drains, a capture or
-    recover removes what it half wrote; only ``kill -9`` cannot be handled (see README, Reliability)."""
+    recover removes what it half wrote (a capture keeps its complete sequences); only ``kill -9`` cannot be
+    handled, and a killed capture is salvaged (see README, Reliability)."""
 
     def __enter__(self):
         import signal
@@ -513,12 +514,31 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
             result = _capture_into(writer, bar, description, hardware, plan, bundle, truth, sequences, seed)
         writer.close(result.assembly, metadata=meta)
     except BaseException as error:
-        writer.abort(error)
+        _keep_or_abort(writer, error, out, sequences, meta)
         raise
     a = result.assembly
     click.echo(f"{writer.sequences} sequences of {plan.K} frames ({truth.name}, {cam.roi_width} x "
                f"{cam.roi_height}); dropped {a.dropped}, duplicated {a.duplicates}, missed triggers "
                f"{a.missed_triggers}, discarded {a.sequences_discarded}; wrote {out}")
+
+
+def _keep_or_abort(writer, error, out, requested, meta) -> None:
+    """A capture stopped by ``error``: keep the complete sequences already on disk (a folder is closed with them,
+    marked interrupted; a zarr recording keeps what it committed) and say so on stderr; with none, remove what was
+    written."""
+    reason = "interrupted" if isinstance(error, KeyboardInterrupt) else f"{type(error).__name__}: {error}"
+    kept = writer.sequences
+    if not kept:
+        writer.abort(error)
+        return
+    try:
+        writer.keep(None, meta, reason=reason, requested=requested)
+    except Exception as failed:  # noqa: BLE001 (the first error is the one raised; this one is reported)
+        click.echo(f"specgpu: {kept} complete sequences are on disk in {out} but could not be indexed "
+                   f"({failed}); `specgpu salvage {out}` indexes them", err=True)
+        return
+    click.echo(f"specgpu: capture stopped ({reason.splitlines()[0] if reason else ''}); kept {kept} of {requested} "
+               f"sequences in {out}", err=True)
 
 
 class _ZarrCapture:
@@ -552,6 +572,11 @@ class _ZarrCapture:
 
     def abort(self, error=None) -> None:
         self.recorder.failed = self.recorder.failed or f"{type(error).__name__}: {error}"
+        self.recorder.close()
+
+    def keep(self, assembly, metadata=None, *, reason: str, requested: int | None = None) -> None:
+        """A capture cut short: the committed sequences stay (each was committed as it arrived)."""
+        self.recorder.failed = self.recorder.failed or reason
         self.recorder.close()
 
 
@@ -629,6 +654,25 @@ def _parse_reference(text, height, width, illuminant):
     from .rig.scene import load_scene
 
     return XYZ_to_Lab(scene_XYZ(load_scene(text, height, width), illuminant), illuminant)
+
+
+@main.command()
+@click.argument("seq", type=click.Path(exists=True, file_okay=False))
+def salvage(seq):
+    """Index the complete sequences of a capture folder whose capture was killed (kill -9, a crash, power loss).
+
+    Each sequence a capture writes is journaled as it arrives; this checks every journaled frame against its
+    checksum and writes sequence.json for the complete, intact sequences (marked salvaged). Nothing is deleted.
+    """
+    from .pipeline import salvage_capture
+
+    _lock(seq, folder=True)  # not while a capture is still writing into it
+    info = salvage_capture(seq)
+    rest = f"; not kept: {info['stopped']}" if info["stopped"] else ""
+    if info["frames_unindexed"]:
+        rest += f"; {info['frames_unindexed']} frame file(s) outside the index left in place"
+    click.echo(f"salvaged {info['sequences']} sequences ({info['frames_kept']} of {info['frames_journaled']} "
+               f"journaled frames) in {seq}{rest}")
 
 
 @main.command()
