@@ -596,7 +596,7 @@ def _capture_into(writer, bar, description, hardware, plan, bundle, truth, seque
         from .hardware.rig import open_hardware
 
         driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle,
-                               n_frames=plan.K * sequences)
+                               n_frames=plan.K * sequences, exposure_s=plan.exposure_s)
         try:
             result = capture_sequences(driver, plan.K, on_sequence=keep)
         finally:
@@ -866,7 +866,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     else:  # real devices: the plan uploaded to the light, frames from the camera (a camera never waits)
         from .hardware.rig import open_hardware
 
-        driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle)
+        driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle,
+                               exposure_s=plan.exposure_s)  # the plan's, as the twin uses it
         pacing = "paced"
     try:
         _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
