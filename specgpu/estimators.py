@@ -457,10 +457,13 @@ def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65") -> np.ndarray:
 
 # ---- held-out chart as a scene -----------------------------------------------------------------------------------
 def patch_scene(names, wavelengths, spectra, height: int = 240, width: int = 320, *, surround: float = 0.03,
-                name: str = "held-out chart"):
+                name: str = "held-out chart", white_tile: float | None = None):
     """A chart scene of arbitrary patch spectra (N, B): a grid of square patches on a dark surround, one mask
-    per patch (its central 70 %), like :func:`specgpu.rig.scene.colorchecker_scene`."""
-    from .rig.scene import SpectralScene
+    per patch (its central 70 %), like :func:`specgpu.rig.scene.colorchecker_scene`; ``white_tile`` (a flat
+    reflectance) puts a reference white above the patches at :func:`specgpu.rig.scene.white_tile_roi` (not a
+    mask), for the drift correction of a lab rig."""
+    from .checks import check_number
+    from .rig.scene import SpectralScene, white_tile_roi
 
     spectra = np.asarray(spectra, np.float64)
     n = spectra.shape[0]
@@ -481,6 +484,14 @@ def patch_scene(names, wavelengths, spectra, height: int = 240, width: int = 320
         y0i, y1i = int(round(ya + inset)), int(round(ya + size - inset))
         m[y0i:y1i, int(round(xa + inset)):int(round(xa + size - inset))] = True
         masks[str(names[k])] = m
+    if white_tile is not None:
+        wt = check_number("white_tile", white_tile, low=0, low_open=True, high=1.5)
+        x, y, tw, th = white_tile_roi(height, width)
+        tile = np.zeros((height, width), bool)
+        tile[max(0, y - 3):y + th + 3, max(0, x - 3):x + tw + 3] = True
+        if np.any(tile & np.any(list(masks.values()), axis=0)):
+            raise ValueError(f"white_tile: no room above {n} patches at {width} x {height}")
+        refl[tile] = wt
     return SpectralScene(np.asarray(wavelengths, np.float64), refl, masks, name)
 
 
@@ -531,27 +542,42 @@ def study_plans(description, bundle, prior, basis, *, methods=None, training=Non
 
 
 def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: int = 0, de_sigma: bool = True,
-               device=None) -> list:
+               device=None, white_roi=None) -> list:
     """Capture each plan ``runs`` times with fresh noise on the twin, recover, and measure on the chart's patch
     pixels: per-pixel means of RMSE, dE2000 and dE*ab (D65; a tristimulus plan under its own illuminant), the
     same of the patch means (per patch), the RMS error beside the plan's expected RMSE, and the standard deviation
     of the standardised errors (error / sigma) and, with ``de_sigma``, the RMS dE2000 over the RMS of the
     predicted dE2000 sigma (:func:`delta_E_sigma`; first run only). Returns one dict per plan with mean and std
-    over the runs."""
+    over the runs.
+
+    ``white_roi`` (a lab rig: a white tile in the scene there): the corrections of ``specgpu demo``'s lab profile,
+    an ambient frame per sequence (subtracted instead of the dark) and the white's rescaling of the decoder for the
+    lamp's drift (:func:`specgpu.pipeline.recover`). The sigma is then the plan's own decoder's on the frames
+    above the ambient frame (the dark the recovery subtracts); the ambient frame's own noise, the room light's
+    shot noise and the decoder's rescaling by a few per cent are not in it."""
+    from .correction import ambient_index, with_ambient_frame
     from .evaluate import evaluate_pixels, patch_means, scene_XYZ, truth_cube
-    from .pipeline import capture_plan
+    from .pipeline import SequenceFolder, capture_plan, recover
     from .recovery import apply_linear
 
     mask = np.any(list(scene.masks.values()), axis=0)
     rows = []
     for i, (name, plan) in enumerate(plans.items()):
+        if white_roi is not None:
+            plan = with_ambient_frame(plan)
         acc = {k: [] for k in ("rmse", "dE2000", "dEab", "patch_rmse", "patch_dE2000", "patch_dEab", "rms", "z",
                                "dE_ratio")}
         for run in range(runs):
-            res = capture_plan(description, plan, scene, noise_seed=10_000 + 97 * seed + 13 * i + run)
+            res = capture_plan(description, plan, scene, noise_seed=10_000 + 97 * seed + 13 * i + run,
+                               calibration=bundle)
             frames = res.sequences[0].frames
             dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
-            y = np.asarray(apply_linear(frames, plan.A, dark, gain, device=device), np.float64)
+            if white_roi is None:
+                y = np.asarray(apply_linear(frames, plan.A, dark, gain, device=device), np.float64)
+            else:
+                folder = SequenceFolder(Path("<memory>"), frames[None], plan, bundle, [], {})
+                y = np.asarray(recover(folder, white_roi=white_roi, device=device), np.float64)
+                dark = frames[ambient_index(plan)].astype(np.float32)  # what the recovery subtracted
             sig = sigma_map(frames, plan, dark, gain, device=device)
             refl = plan.output == "reflectance"
             wl = plan.output_wavelengths if refl else None
