@@ -63,6 +63,7 @@ __all__ = [
     "format_study",
     "chart_error",
     "prior_size_rows",
+    "subspace_bound",
 ]
 
 #: Estimator names: the plan's own decoder, Wiener (LMMSE) on a training prior, smoothness-regularised LS.
@@ -690,3 +691,22 @@ def prior_size_rows(description, bundle, sizes, *, frames: int = 9, chart: str =
         rows.append({"n": n, "expected_rmse": plan.params["expected"]["rmse"],
                      "chart_rmse": chart_error(plan, bundle, test, wl)})
     return rows
+
+
+def subspace_bound(training, test, K: int, *, centred: bool = False) -> float:
+    """The noise-free linear bound with K measurements learnt from ``training`` (N, B), on ``test`` (M, B): the
+    RMSE of the test spectra's orthogonal projection onto the training's best K-dimensional subspace (the top K
+    eigenvectors of its second moment; ``centred``: of its covariance, about its mean, i.e. an affine decoder).
+    No linear decoder of K noise-free measurements designed on that training set does better on ``test`` than a
+    projection onto the subspace it would learn, and the best the training set can teach is its own top K."""
+    tr = np.asarray(training, np.float64)
+    te = np.asarray(test, np.float64)
+    if tr.ndim != 2 or te.ndim != 2 or tr.shape[1] != te.shape[1]:
+        raise ValueError(f"training and test must be (N, B) and (M, B) on one grid, got {tr.shape} and {te.shape}")
+    if not (isinstance(K, (int, np.integer)) and 1 <= K <= tr.shape[1]):
+        raise ValueError(f"K must be an integer in [1, {tr.shape[1]}], got {K!r}")
+    mu = tr.mean(axis=0) if centred else np.zeros(tr.shape[1])
+    X = tr - mu
+    U = np.linalg.eigh(X.T @ X)[1][:, ::-1][:, :K]
+    e = (te - mu) - (te - mu) @ U @ U.T
+    return float(np.sqrt(np.mean(e ** 2)))

@@ -272,3 +272,69 @@ def test_study_rows_on_the_held_out_chart(bundle, prior):
     assert "rmse" not in tri and tri["dEab"][0] > 0 and tri["expected_rmse"] is None
     text = E.format_study(rows)
     assert "narrowband-31" in text and "tristimulus-D65" in text
+
+
+def test_patch_scene_white_tile():
+    from specgpu.rig.scene import white_tile_roi
+
+    names, wl, spec = E.held_out_spectra()
+    plain = E.patch_scene(names, wl, spec, H, W)
+    tiled = E.patch_scene(names, wl, spec, H, W, white_tile=0.97)
+    x, y, w, h = white_tile_roi(H, W)
+    np.testing.assert_array_equal(tiled.reflectance[y:y + h, x:x + w], np.float32(0.97))
+    assert set(tiled.masks) == set(plain.masks)
+    outside = np.ones((H, W), bool)
+    outside[max(0, y - 3):y + h + 3, max(0, x - 3):x + w + 3] = False
+    np.testing.assert_array_equal(tiled.reflectance[outside], plain.reflectance[outside])
+    with pytest.raises(ValueError, match="white_tile") as err:
+        E.patch_scene(names, wl, spec, H, W, white_tile=-1.0)
+    assert "\n" not in str(err.value)
+    with pytest.raises(ValueError, match="no room"):
+        many = [f"{n}-{i}" for i in range(10) for n in names]
+        E.patch_scene(many, wl, np.vstack([spec] * 10), H, W, white_tile=0.99)
+
+
+def test_study_rows_on_the_lab_profile_with_corrections():
+    """The lab profile's corrections in the study: an ambient frame per sequence and the white's rescaling; the
+    recovery's error and the sigma above the ambient frame still agree (z std near 1)."""
+    from dataclasses import replace
+
+    from specgpu.calibration import calibrate
+    from specgpu.rig.config import rig_from_dict
+    from specgpu.rig.scene import white_tile_roi
+
+    lab = rig_from_dict({"twin": {"profile": "lab"}, "camera": {"roi_width": W, "roi_height": H}}, source="<lab>")
+    bundle = calibrate(lab, seed=0)
+    prior = E.default_prior()
+    names, wl, spec = E.held_out_spectra()
+    scene = E.patch_scene(names, wl, spec, H, W, white_tile=0.99 * (1 + lab.realism.white_error))
+    plans = E.study_plans(lab, bundle, prior, None, methods=["optimal-3"])
+    rows = E.study_rows(lab, bundle, scene, plans, runs=1, de_sigma=False, white_roi=white_tile_roi(H, W))
+    (r,) = rows
+    assert r["K"] == 4  # the ambient frame beside the three designed ones
+    assert 0.8 <= r["z"][0] <= 1.25 and r["dEab"][0] < 1.5
+    assert 0.75 < r["rms"][0] / r["expected_rmse"] < 1.33
+    # without the white tile's ROI the same plan is read raw (no ambient frame)
+    raw = E.study_rows(replace(lab), bundle, scene, plans, runs=1, de_sigma=False)
+    assert raw[0]["K"] == 3
+
+
+def test_subspace_bound_against_numpy_svd():
+    rng = np.random.default_rng(3)
+    train = rng.uniform(0, 1, (40, 12)) @ np.diag(np.linspace(1, 0.1, 12))
+    test = rng.uniform(0, 1, (7, 12))
+    for K in (1, 4, 12):
+        U = np.linalg.svd(train, full_matrices=False)[2][:K].T
+        ref = np.sqrt(np.mean((test - test @ U @ U.T) ** 2))
+        assert E.subspace_bound(train, test, K) == pytest.approx(ref, rel=1e-9, abs=1e-12)
+        mu = train.mean(axis=0)
+        Uc = np.linalg.svd(train - mu, full_matrices=False)[2][:K].T
+        refc = np.sqrt(np.mean(((test - mu) - (test - mu) @ Uc @ Uc.T) ** 2))
+        assert E.subspace_bound(train, test, K, centred=True) == pytest.approx(refc, rel=1e-9, abs=1e-12)
+    assert E.subspace_bound(train, test, 12) < 1e-12
+    for bad in (0, 13, 2.5):
+        with pytest.raises(ValueError, match="K must be") as err:
+            E.subspace_bound(train, test, bad)
+        assert "\n" not in str(err.value)
+    with pytest.raises(ValueError, match="one grid"):
+        E.subspace_bound(train, test[:, :5], 3)

@@ -48,6 +48,9 @@ def main(argv=None):
     ap.add_argument("--hadamard", action="store_true",
                     help="also: Hadamard-31's measured SNR gain over narrowband-31 at equal exposure (2 ms), on the "
                          "paper's camera and on one with 300 e- read noise")
+    ap.add_argument("--bound", action="store_true",
+                    help="also: the noise-free linear bound with K = 3, 6, 9 measurements learnt from the prior, on "
+                         "the held-out chart (projection onto the prior's top K, uncentred and centred)")
     ap.add_argument("--json", help="write the rows here")
     args = ap.parse_args(argv)
     methods = None if args.methods is None else [m.strip() for m in args.methods.split(",")]
@@ -88,6 +91,18 @@ def main(argv=None):
         print(f"{'spectra':>8} {'expected RMSE':>14} {'chart RMSE':>11}")
         for r in sizes:
             print(f"{r['n']:>8} {r['expected_rmse']:>14.4f} {r['chart_rmse']:>11.4f}")
+    bounds = []
+    if args.bound:
+        train = E.training_spectra(E.HELD_OUT_CHART, prior.wavelengths)
+        _, _, test = E.held_out_spectra(E.HELD_OUT_CHART, prior.wavelengths)
+        print(f"\nnoise-free linear bound on the held-out chart, K measurements learnt from the prior ({len(train)} "
+              f"spectra; the chart's own top K beside it, for scale):")
+        for K in (3, 6, 9):
+            b = {"K": K, "uncentred": E.subspace_bound(train, test, K), "centred": E.subspace_bound(train, test, K,
+                                                                                                   centred=True),
+                 "own": E.subspace_bound(test, test, K)}
+            bounds.append(b)
+            print(f"  K {K}: RMSE {b['uncentred']:.4f} (affine {b['centred']:.4f}); chart's own subspace {b['own']:.4f}")
     gains = []
     if args.hadamard:
         from specgpu.design import hadamard_gain
@@ -103,7 +118,8 @@ def main(argv=None):
     if args.json:
         Path(args.json).write_text(json.dumps({"chart": E.HELD_OUT_CHART, "profile": args.profile, "prior": prior.source,
                                                "size": [cam.roi_width, cam.roi_height], "rows": rows,
-                                               "prior_sizes": sizes, "hadamard": gains}, indent=1))
+                                               "prior_sizes": sizes, "hadamard": gains,
+                                               "bounds": bounds}, indent=1))
 
 
 if __name__ == "__main__":
