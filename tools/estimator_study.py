@@ -98,27 +98,27 @@ def main(argv=None):
         print(f"\nnoise-free linear bound on the held-out chart, K measurements learnt from the prior ({len(train)} "
               f"spectra; the chart's own top K beside it, for scale):")
         for K in (3, 6, 9):
-            b = {"K": K, "uncentred": E.subspace_bound(train, test, K), "centred": E.subspace_bound(train, test, K,
-                                                                                                   centred=True),
-                 "own": E.subspace_bound(test, test, K)}
+            b = {"K": K, "uncentred": E.subspace_bound(train, test, K),
+                 "centred": E.subspace_bound(train, test, K, centred=True), "own": E.subspace_bound(test, test, K)}
             bounds.append(b)
-            print(f"  K {K}: RMSE {b['uncentred']:.4f} (affine {b['centred']:.4f}); chart's own subspace {b['own']:.4f}")
+            print(f"  K {K}: RMSE {b['uncentred']:.4f} (affine {b['centred']:.4f}); the chart's own subspace "
+                  f"{b['own']:.4f}")
     gains = []
     if args.hadamard:
         from specgpu.design import hadamard_gain
 
         print("\nHadamard-31 against narrowband-31, equal exposure 2 ms, grey 0.5 (noise: pixel std, mean over bands):")
-        for read in (cam.read_noise_e, 300.0):
-            d = replace(desc, camera=replace(cam, read_noise_e=read))
+        for read in (desc.camera.read_noise_e, 300.0):
+            d = replace(desc, camera=replace(desc.camera, read_noise_e=read))
             g = hadamard_gain(d, bands=31, exposure_s=0.002, seed=args.seed)
             gains.append(g)
             print(f"  read noise {read:5.0f} e-: narrowband {g['narrowband_noise']:.4f}, hadamard "
                   f"{g['hadamard_noise']:.4f}: gain {g['gain']:.2f} (read-noise-limited theory {g['theory']:.2f})")
     print(f"({time.perf_counter() - t0:.0f} s)")
     if args.json:
-        Path(args.json).write_text(json.dumps({"chart": E.HELD_OUT_CHART, "profile": args.profile, "prior": prior.source,
-                                               "size": [cam.roi_width, cam.roi_height], "rows": rows,
-                                               "prior_sizes": sizes, "hadamard": gains,
+        Path(args.json).write_text(json.dumps({"chart": E.HELD_OUT_CHART, "profile": args.profile,
+                                               "prior": prior.source, "size": [cam.roi_width, cam.roi_height],
+                                               "rows": rows, "prior_sizes": sizes, "hadamard": gains,
                                                "bounds": bounds}, indent=1))
 
 
