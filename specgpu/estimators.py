@@ -515,10 +515,11 @@ STUDY_METHODS = {
 
 
 def study_plans(description, bundle, prior, basis, *, methods=None, training=None,
-                chart: str = HELD_OUT_CHART) -> dict:
+                chart: str = HELD_OUT_CHART, starts: int = 4) -> dict:
     """The plans of :data:`STUDY_METHODS` (or the named subset), every one with the camera's noise model and its
     expected error on the prior recorded. A colour objective (optimal-3) weighs the error by the colours of
-    ``training`` (default: :func:`training_spectra` without ``chart``, the evaluation chart)."""
+    ``training`` (default: :func:`training_spectra` without ``chart``, the evaluation chart); ``starts``: the
+    designs' starting points (:func:`specgpu.design.design_optimal`)."""
     from .design import plan_optimal
     from .plans import make_plan
 
@@ -533,7 +534,8 @@ def study_plans(description, bundle, prior, basis, *, methods=None, training=Non
             tr = None
             if kw.get("objective", "rmse") != "rmse":
                 tr = training_spectra(chart, prior.wavelengths) if training is None else training
-            plans[name] = plan_optimal(bundle, prior, noise_at, output_wavelengths=ow, training=tr, **kw)
+            plans[name] = plan_optimal(bundle, prior, noise_at, output_wavelengths=ow, training=tr, starts=starts,
+                                       **kw)
             continue
         args = (basis,) if method in ("biased", "symmetric") else ()
         extra = {"output_wavelengths": ow} if method in ("biased", "symmetric") else {}
