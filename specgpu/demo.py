@@ -82,8 +82,8 @@ class DemoResult:
 def _steps(echo, progress, n_profiles):
     from tqdm import tqdm
 
-    return tqdm(total=n_profiles * (2 + len(DEMO_METHODS) + len(ESTIMATOR_ROWS)) + 3, desc="demo", unit="step", leave=False,
-                disable=not progress)
+    return tqdm(total=n_profiles * (2 + len(DEMO_METHODS) + len(ESTIMATOR_ROWS)) + 3, desc="demo", unit="step",
+                leave=False, disable=not progress)
 
 
 def demo_profiles(rig=None) -> dict:

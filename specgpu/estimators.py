@@ -64,6 +64,8 @@ __all__ = [
     "chart_error",
     "prior_size_rows",
     "subspace_bound",
+    "training_sets",
+    "cross_validated_error",
 ]
 
 #: Estimator names: the plan's own decoder, Wiener (LMMSE) on a training prior, smoothness-regularised LS.
@@ -515,11 +517,13 @@ STUDY_METHODS = {
 
 
 def study_plans(description, bundle, prior, basis, *, methods=None, training=None,
-                chart: str = HELD_OUT_CHART, starts: int = 4) -> dict:
+                chart: str = HELD_OUT_CHART, starts: int = 4, sets: dict | None = None) -> dict:
     """The plans of :data:`STUDY_METHODS` (or the named subset), every one with the camera's noise model and its
     expected error on the prior recorded. A colour objective (optimal-3) weighs the error by the colours of
     ``training`` (default: :func:`training_spectra` without ``chart``, the evaluation chart); ``starts``: the
-    designs' starting points (:func:`specgpu.design.design_optimal`)."""
+    designs' starting points (:func:`specgpu.design.design_optimal`). With ``sets`` (the prior's spectra by set,
+    :func:`training_sets`) every Wiener plan also records ``expected["rmse_cv"]``, its
+    :func:`cross_validated_error`."""
     from .design import plan_optimal
     from .plans import make_plan
 
@@ -541,7 +545,41 @@ def study_plans(description, bundle, prior, basis, *, methods=None, training=Non
         extra = {"output_wavelengths": ow} if method in ("biased", "symmetric") else {}
         plan = make_plan(method, bundle, *args, **kw, **extra)
         plans[name] = with_estimator(plan, bundle, est, prior=prior, noise=noise_at(plan.exposure_s))
+    if sets is not None:
+        for name, plan in plans.items():
+            if plan.params.get("estimator") == "wiener":
+                cv = cross_validated_error(plan, bundle, sets, prior, noise_at(plan.exposure_s))
+                plans[name] = replace(plan, params={**plan.params,
+                                                    "expected": {**plan.params["expected"], "rmse_cv": cv["rmse"]}})
     return plans
+
+
+def training_sets(chart: str = HELD_OUT_CHART, wavelengths=None) -> dict:
+    """:func:`training_database`'s spectra by set: name -> (N, B)."""
+    db = training_database(chart, wavelengths)
+    names = np.array([label.split("/")[0] for label in db.labels])
+    return {n: db.reflectance[names == n] for n in dict.fromkeys(names)}
+
+
+def cross_validated_error(plan, bundle, sets: dict, prior: Prior, noise: NoiseModel) -> dict:
+    """The expected RMSE of a Wiener plan on a chart the prior has not seen, by leaving one training set out at a
+    time: for each set, the Wiener decoder of the plan's frames learnt from the other sets and its mismatch on
+    that set's spectra; the mean over sets (each set weighs the same, as a new chart is one more set) of their
+    mean squared mismatch, plus the noise part of the plan's own decoder on the whole prior. Returns ``{"rmse",
+    "mismatch": {set: RMS mismatch}}``; fewer than two sets is a one-line error."""
+    if len(sets) < 2:
+        raise ValueError(f"cross-validation needs at least two training sets, got {len(sets)}")
+    wl = prior.wavelengths
+    F = forward(bundle, plan, wl)
+    W = output_weights(plan, wl)
+    per = {}
+    for name, held in sets.items():
+        rest = np.concatenate([r for n, r in sets.items() if n != name])
+        A = wiener_decoder(F, W, prior_from_spectra(rest, wl), noise)
+        per[name] = float(np.mean((np.asarray(held, np.float64) @ (W - A @ F).T) ** 2))
+    noise_part = float(expected_error(plan.A, F, W, prior, noise)["noise"].mean())
+    return {"rmse": float(math.sqrt(np.mean(list(per.values())) + noise_part)),
+            "mismatch": {n: math.sqrt(v) for n, v in per.items()}}
 
 
 def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: int = 0, de_sigma: bool = True,
@@ -607,9 +645,11 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
             pe = _patch_errors(np.asarray(ym, np.float64), np.asarray(tm, np.float64), plan, ill)
             for k, v in pe.items():
                 acc[k].append(v)
+        expected = plan.params.get("expected", {})
         row = {"name": name, "method": plan.method, "estimator": plan.params.get("estimator", "projection"),
                "K": plan.K, "exposure_ms": plan.exposure_s * 1e3, "runs": runs,
-               "expected_rmse": plan.params.get("expected", {}).get("rmse") if plan.output == "reflectance" else None}
+               "expected_rmse": expected.get("rmse") if plan.output == "reflectance" else None,
+               "expected_rmse_cv": expected.get("rmse_cv")}
         for k, v in acc.items():
             if v:
                 row[k] = (float(np.mean(v)), float(np.std(v)))
@@ -645,17 +685,20 @@ def format_study(rows) -> str:
         return "-" if v is None else f"{v[0]:.{digits}f} +- {v[1]:.{digits}f}"
 
     head = (f"{'method':<16} {'K':>3} {'ms':>7} {'RMSE (pixel)':>18} {'dE2000 (pixel)':>16} {'dE*ab (pixel)':>16} "
-            f"{'RMSE (patch)':>18} {'dE2000 (patch)':>16} {'expected':>8} {'RMS':>8} {'ratio':>6} {'z std':>6} "
-            f"{'dE/sig':>6}")
+            f"{'RMSE (patch)':>18} {'dE2000 (patch)':>16} {'expected':>8} {'RMS':>8} {'ratio':>6} {'cv':>7} "
+            f"{'ratio':>6} {'z std':>6} {'dE/sig':>6}")
     lines = [head, "-" * len(head)]
     for r in rows:
         exp = r.get("expected_rmse")
         rms = r.get("rms")
         ratio = f"{rms[0] / exp:.2f}" if exp and rms else "-"
+        cv = r.get("expected_rmse_cv")
+        cv_text, cv_ratio = (f"{cv:.4f}", f"{rms[0] / cv:.2f}") if cv and rms else ("-", "-")
         lines.append(f"{r['name']:<16} {r['K']:>3} {r['exposure_ms']:>7.1f} {f(r, 'rmse', 4):>18} "
                      f"{f(r, 'dE2000', 2):>16} {f(r, 'dEab', 2):>16} {f(r, 'patch_rmse', 4):>18} "
                      f"{f(r, 'patch_dE2000', 2):>16} {exp if exp is None else round(exp, 4)!s:>8} "
-                     f"{'-' if rms is None else round(rms[0], 4)!s:>8} {ratio:>6} {r['z'][0]:>6.2f} "
+                     f"{'-' if rms is None else round(rms[0], 4)!s:>8} {ratio:>6} {cv_text:>7} {cv_ratio:>6} "
+                     f"{r['z'][0]:>6.2f} "
                      f"{r['dE_ratio'][0] if 'dE_ratio' in r else float('nan'):>6.2f}")
     return "\n".join(lines)
 

@@ -5,7 +5,8 @@ calibrate, hold out colour-science's "CIE 1995 TCS" (14 Munsell chips, in neithe
 ColorChecker) as the evaluation chart, build the training prior and basis from every other set colour-science ships
 (minus any spectrum within 0.01 RMS of a held-out chip), plan the paper's methods and wiener-6/9, optimal-9/6/3,
 capture each ``--runs`` times with fresh noise, and print per-pixel and per-patch means (mean +- std over the runs),
-the expected RMSE recorded with each plan beside the measured RMS error, the standard deviation of the
+the expected RMSE recorded with each plan beside the measured RMS error (and for Wiener decoders the expected RMSE
+on an unseen chart, by leaving one training set out at a time: ``cv``), the standard deviation of the
 standardised errors (error / the per-pixel sigma of ``specgpu recover --sigma``) and the RMS dE2000 over the RMS
 predicted dE2000 sigma (``specgpu recover --delta-e-sigma``, first run).
 
@@ -81,7 +82,8 @@ def main(argv=None):
           f"{' (corrections: ambient frame, white ROI ' + ','.join(map(str, roi)) + ')' if roi else ''}, "
           f"{cam.roi_width} x {cam.roi_height}, seed {args.seed}; held-out chart: "
           f"{E.HELD_OUT_CHART} ({len(names)} patches); prior: {prior.source}; {args.runs} runs per method")
-    plans = E.study_plans(desc, bundle, prior, basis, methods=methods)
+    plans = E.study_plans(desc, bundle, prior, basis, methods=methods,
+                          sets=E.training_sets(E.HELD_OUT_CHART, prior.wavelengths))
     rows = E.study_rows(desc, bundle, scene, plans, runs=args.runs, seed=args.seed, white_roi=roi)
     print(E.format_study(rows))
     sizes = []
