@@ -517,11 +517,12 @@ STUDY_METHODS = {
 
 
 def study_plans(description, bundle, prior, basis, *, methods=None, training=None,
-                chart: str = HELD_OUT_CHART, starts: int = 4, sets: dict | None = None) -> dict:
+                chart: str = HELD_OUT_CHART, starts: int = 4, iterations: int = 300,
+                sets: dict | None = None) -> dict:
     """The plans of :data:`STUDY_METHODS` (or the named subset), every one with the camera's noise model and its
     expected error on the prior recorded. A colour objective (optimal-3) weighs the error by the colours of
-    ``training`` (default: :func:`training_spectra` without ``chart``, the evaluation chart); ``starts``: the
-    designs' starting points (:func:`specgpu.design.design_optimal`). With ``sets`` (the prior's spectra by set,
+    ``training`` (default: :func:`training_spectra` without ``chart``, the evaluation chart); ``starts`` and
+    ``iterations``: the designs' starting points and L-BFGS-B iterations (:func:`specgpu.design.design_optimal`). With ``sets`` (the prior's spectra by set,
     :func:`training_sets`) every Wiener plan also records ``expected["rmse_cv"]``, its
     :func:`cross_validated_error`."""
     from .design import plan_optimal
@@ -539,7 +540,7 @@ def study_plans(description, bundle, prior, basis, *, methods=None, training=Non
             if kw.get("objective", "rmse") != "rmse":
                 tr = training_spectra(chart, prior.wavelengths) if training is None else training
             plans[name] = plan_optimal(bundle, prior, noise_at, output_wavelengths=ow, training=tr, starts=starts,
-                                       **kw)
+                                       iterations=iterations, **kw)
             continue
         args = (basis,) if method in ("biased", "symmetric") else ()
         extra = {"output_wavelengths": ow} if method in ("biased", "symmetric") else {}
