@@ -561,9 +561,11 @@ class StreamSetup:
 
 
 def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 200.0, sequences: int = 8,
-                 output_step_nm: float = 5.0, seed: int = 0) -> StreamSetup:
+                 output_step_nm: float = 5.0, seed: int = 0, white_tile: float | None = None) -> StreamSetup:
     """Calibrate the twin at ``width`` x ``height`` and ``frame_rate_hz``, plan the symmetric basis method with
-    an exposure that fits the frame period, and record ``sequences`` sequences of the colorchecker (10-bit)."""
+    an exposure that fits the frame period, and record ``sequences`` sequences of the colorchecker (10-bit);
+    ``white_tile``: with a reference white tile of that reflectance above the chart
+    (:func:`specgpu.rig.scene.white_tile_roi` gives its ROI)."""
     from dataclasses import replace
 
     from .calibration import calibrate
@@ -588,7 +590,7 @@ def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 
     bundle = calibrate(description, seed=seed)
     plan = plan_symmetric_basis(bundle, default_basis(), m=5, max_exposure_s=exposure,
                                 output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm))
-    scene = colorchecker_scene(int(height), int(width))
+    scene = colorchecker_scene(int(height), int(width), white_tile=white_tile)
     rig = TwinRig(plan.rig_description(description), scene=scene)
     rig.seed = seed + 1
     frames, infos, light = record(TwinDriver(rig, patterns=plan.patterns, pacing="free"), plan.K * sequences)

@@ -429,20 +429,27 @@ def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65") -> np.ndarray:
     metric (its diagonal along L*, a*, b*, by finite differences of colour-science's ``delta_E``)."""
     import colour
 
-    from .colorimetry import XYZ_to_Lab
+    from .spectra import white_point_XYZ
 
     xyz = np.asarray(XYZ, np.float64)
     C = np.asarray(XYZ_sigma_cov, np.float64)
     shape = xyz.shape[:-1]
     x = xyz.reshape(-1, 3)
     C = C.reshape(-1, 3, 3)
-    lab = np.asarray(XYZ_to_Lab(x.astype(np.float32), illuminant), np.float64)
+    # the Jacobian by finite differences in float64 (colour-science's XYZ_to_Lab): a float32 Lab's rounding
+    # (~3e-6 at L* = 50) over the 1e-4 step would be a Jacobian error of several per cent
+    white_xy = colour.XYZ_to_xy(white_point_XYZ(illuminant))
+
+    def lab_of(v):
+        return colour.XYZ_to_Lab(v, white_xy)
+
+    lab = lab_of(x)
     h = 1e-4
     J = np.empty((x.shape[0], 3, 3))
     for j in range(3):
         d = np.zeros(3)
         d[j] = h
-        J[:, :, j] = (np.asarray(XYZ_to_Lab((x + d).astype(np.float64), illuminant), np.float64) - lab) / d[j]
+        J[:, :, j] = (lab_of(x + d) - lab) / d[j]
     covLab = J @ C @ np.transpose(J, (0, 2, 1))
     # local CIEDE2000 metric: dE(lab, lab + e_i) ~ sqrt(G_ii) for unit steps along L, a, b
     step = 0.5
