@@ -14,6 +14,7 @@ Layout of ``REC.zarr`` (format ``specgpu.recording``, version 1)::
     dE             (time, y, x)
     sigma          (time, y, x, sigma_channel) standard deviation of each plan output, then their RMS (channel names
                                                in ``channels``: ``sigma_<output label>``..., ``sigma_rms``)
+    sigma_rms      (time, y, x)                the RMS channel of ``sigma`` alone
     dE_sigma       (time, y, x)                first-order dE2000 standard deviation
     white_gains    (time, pattern)             float64: the reference white's measured / predicted output per
                                                pattern that corrected each sequence's decoder (``--white-roi``)
@@ -50,7 +51,7 @@ RECORDING_FORMAT = "specgpu.recording"
 RECORDING_VERSION = 1
 
 #: What a recording may hold along time besides the raw frames (specgpu.stream.STREAM_OUTPUTS).
-_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "dE_sigma")
+_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "sigma_rms", "dE_sigma")
 #: Channel dimension and channel names of each output.
 _CHANNELS = {"XYZ": ("X", "Y", "Z"), "Lab": ("L", "a", "b")}
 

@@ -67,7 +67,7 @@ __all__ = [
 ]
 
 #: What a stream can compute per sequence, and the channel count / dtype of each map.
-STREAM_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "dE_sigma")
+STREAM_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "sigma_rms", "dE_sigma")
 READBACKS = ("auto", "map", "copy", "pinned")
 UPLOADS = ("auto", "host_ptr", "pinned", "copy")
 
@@ -91,7 +91,8 @@ class StreamDecoder:
         ``"sigma"``: the standard deviation of each of the B outputs and their RMS (B + 1 channels, as
         ``specgpu recover --sigma``): the variance is linear in the frames plus a constant
         (:func:`specgpu.estimators.sigma_map`), so the linear kernel computes it with ``A o A / g`` as the
-        matrix and takes the square root of it plus the constant. ``"dE_sigma"``: the first-order dE2000
+        matrix and takes the square root of it plus the constant. ``"sigma_rms"``: the RMS channel alone (one
+        row of the same map: B times fewer bytes written than ``"sigma"``). ``"dE_sigma"``: the first-order dE2000
         standard deviation (as ``recover --delta-e-sigma``): the XYZ covariance's six entries by the linear
         kernel, the propagation (:func:`specgpu.estimators.delta_E_sigma`) on the host. Both need the plan's
         noise model (``specgpu plan ... --estimator``).
@@ -175,7 +176,7 @@ class StreamDecoder:
                                                   frame_shape=(self.height, self.width))
         # the uncertainty outputs: the noise model's dark and gain maps (estimators._noise_products)
         self.noise = None
-        if {"sigma", "dE_sigma"} & set(outputs):
+        if {"sigma", "sigma_rms", "dE_sigma"} & set(outputs):
             from .estimators import NoiseModel, constant_covariance
 
             if "noise" not in plan.params:
@@ -274,6 +275,10 @@ class StreamDecoder:
                 sq = A ** 2
                 return np.vstack([sq, sq.mean(axis=0)]) / g_e, self.sigma_offsets
             makers.append((sigma_rows, "sigma"))
+        if "sigma_rms" in self.outputs:
+            g_e = self.noise.gain_e_per_dn
+            makers.append((lambda A: ((A ** 2).mean(axis=0, keepdims=True) / g_e, self.sigma_offsets[-1:]),
+                           "sigma_rms"))
         if "dE_sigma" in self.outputs:
             g_e = self.noise.gain_e_per_dn
 
@@ -312,7 +317,7 @@ class StreamDecoder:
                 launches.append((engine.prepare_linear(q, dtype, self.A, n=n, dark=self.dark, gain=self.gain,
                                                        out_dtype=self.cube_dtype, out_layout=1, **sat),
                                  {"out": "cube", "mask": "mask"}))
-            elif kind in ("sigma", "XYZ_cov"):
+            elif kind in ("sigma", "sigma_rms", "XYZ_cov"):
                 rows, offsets = make(self.A)
                 launches.append((engine.prepare_linear(q, dtype, rows, n=n, dark=self.dark_var, gain=self.gain2,
                                                        out_layout=1, sqrt_offsets=offsets, **sat),

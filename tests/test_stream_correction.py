@@ -127,7 +127,7 @@ def test_white_roi_without_drift_follows_recover_too(setup):
 
 
 def test_sigma_and_dE_sigma_equal_recover(setup):
-    got, _ = run_stream(setup, ("XYZ", "sigma", "dE_sigma"))
+    got, _ = run_stream(setup, ("XYZ", "sigma", "sigma_rms", "dE_sigma"))
     for i, (arrays, _) in got.items():
         folder = folder_of(setup, seq_frames(setup, i))
         sigma, cov = uncertainty(folder, sequence=0, illuminant="D65")
@@ -135,6 +135,7 @@ def test_sigma_and_dE_sigma_equal_recover(setup):
         want = np.concatenate([sigma, rms], axis=-1)  # what recover --sigma writes
         assert arrays["sigma"].shape == (H, W, setup.plan.A.shape[0] + 1)
         close(arrays["sigma"], want, rel=1e-5, name="sigma")
+        close(arrays["sigma_rms"], rms[..., 0], rel=1e-5, name="sigma_rms")
         xyz = to_XYZ(recover(folder, sequence=0), setup.plan)
         des = delta_E_sigma(np.nan_to_num(xyz), np.nan_to_num(cov), "D65")  # what recover --delta-e-sigma writes
         assert float(np.median(des)) > 0.05
@@ -233,3 +234,60 @@ def test_stream_latency_counts_every_result(setup):
     got, report = run_stream(setup, ("XYZ",))
     assert report.latency.count == report.sequences_out == SEQUENCES
     assert report.latency.min <= report.latency_ms(50) / 1e3 <= report.latency.max
+
+
+def _cli_files(setup, tmp_path):
+    from specgpu.calibration import save_calibration
+    from specgpu.plans import save_plan
+
+    cam = setup.description.camera
+    (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
+                                       f"exposure_s = {cam.exposure_s!r}\nframe_rate_hz = {cam.frame_rate_hz!r}\n")
+    save_calibration(tmp_path / "calib.npz", setup.bundle)
+    save_plan(tmp_path / "plan.npz", setup.plan)
+    return ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan", str(tmp_path / "plan.npz"), "--calib",
+            str(tmp_path / "calib.npz"), "--scene", "colorchecker"]
+
+
+def _chart_white_roi():
+    from specgpu.rig.scene import colorchecker_scene
+
+    mask = colorchecker_scene(H, W).masks["white 9.5 (.05 D)"]
+    ys, xs = np.nonzero(mask)
+    return f"{xs.min()},{ys.min()},{xs.max() - xs.min() + 1},{ys.max() - ys.min() + 1}"
+
+
+def test_cli_stream_white_roi_and_sigma_are_recorded(setup, tmp_path):
+    import zarr
+    from click.testing import CliRunner
+
+    from specgpu.cli import main
+
+    args = _cli_files(setup, tmp_path)
+    result = CliRunner().invoke(main, [*args, "--seconds", "0.5", "--out", str(tmp_path / "rec"), "--policy",
+                                       "block", "--outputs", "XYZ,sigma,dE_sigma", "--white-roi", _chart_white_roi(),
+                                       "--white-reflectance", "0.9"])
+    assert result.exit_code == 0, result.output
+    g = zarr.open_group(str(tmp_path / "rec"), mode="r")
+    n = g.attrs["sequences_committed"]
+    assert n >= 1 and g["white_gains"].shape == (n, setup.plan.K) and g["sigma"].shape[0] == n
+    assert np.all(np.isfinite(np.asarray(g["white_gains"]))) and g["dE_sigma"].shape == (n, H, W)
+    assert g.attrs["metadata"]["white_roi"] == _chart_white_roi()
+    assert g.attrs["metadata"]["white_reflectance"] == "0.9"
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--white-roi", f"{W},0,4,4"], "--white-roi"),
+    (["--white-reflectance", "0.9"], "--white-reflectance needs --white-roi"),
+    (["--white-roi", "0,0,4,4"], "gives no signal"),
+])
+def test_cli_stream_white_roi_refusals_are_one_line(setup, tmp_path, extra, message):
+    from click.testing import CliRunner
+
+    from specgpu.cli import main
+
+    result = CliRunner().invoke(main, [*_cli_files(setup, tmp_path), "--seconds", "0.3", "--policy", "block",
+                                       "--outputs", "XYZ", *extra])
+    assert result.exit_code != 0 and message in result.output
+    assert "Traceback" not in result.output
+    assert len([line for line in result.output.splitlines() if message in line]) == 1
