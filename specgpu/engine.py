@@ -179,10 +179,11 @@ class Prepared:
     #: Argument index of the matrix (A or M) in both kernel families.
     matrix_index = 1
 
-    def enqueue(self, frames_buffer, matrix=None) -> dict:
+    def enqueue(self, frames_buffer, matrix=None, inputs=None) -> dict:
         """Enqueue on ``frames_buffer``; returns name -> a fresh pooled device buffer of each output. ``matrix``, a
         device buffer of the same size as the prepared one, replaces the matrix for this launch and the next
-        ones (a per-sequence decoder: the stream's white-reference correction)."""
+        ones (a per-sequence decoder: the stream's white-reference correction). ``inputs``: argument index ->
+        buffer, further inputs set for this launch."""
         out = {name: self.alloc(max(nbytes, 1)) for name, (_, nbytes) in self.outputs.items()}
         if self.empty:
             return out
@@ -190,6 +191,8 @@ class Prepared:
         k.set_arg(self.frames_index, frames_buffer)
         if matrix is not None:
             k.set_arg(self.matrix_index, matrix)
+        for index, buf in (inputs or {}).items():
+            k.set_arg(index, buf)
         for name, (index, _) in self.outputs.items():
             k.set_arg(index, out[name])
         cl.enqueue_nd_range_kernel(self.queue, k, self.global_size, self.local_size)
@@ -257,6 +260,19 @@ def prepare_frames_to_delta_e(queue, frames_dtype, M: np.ndarray, white, referen
     Xn, Yn, Zn = (np.float32(v) for v in white)
     return Prepared(queue, kernel, n, vw, [None, M_dev.data, _data(dark), _data(gain), Xn, Yn, Zn,
                                            _data(reference), None, None, None, None, np.uint64(n)], 0, outputs)
+
+
+def prepare_delta_e_sigma(queue, white, constant_cov, *, n: int) -> Prepared:
+    """The first-order dE2000 standard deviation of XYZ (3n, the launch's "frames") given the noise part of its
+    covariance (6n: XX XY XZ YY YZ ZZ per pixel, input argument 1) and a constant (3, 3) covariance, as a
+    :class:`Prepared` launch; output ``dE_sigma`` (n)."""
+    vw = _vw(queue)
+    kernel = new_kernel(queue, "colorimetry.cl", "delta_e_sigma", VW=_vw_macro(vw))
+    C = np.asarray(constant_cov, np.float64).reshape(3, 3)
+    c_dev = matrix_on_device(queue, np.array([C[i, j] for i in range(3) for j in range(i, 3)], np.float32))
+    Xn, Yn, Zn = (np.float32(v) for v in white)
+    return Prepared(queue, kernel, n, vw, [None, None, c_dev.data, Xn, Yn, Zn, None, np.uint64(n)], 0,
+                    {"dE_sigma": (6, 4 * n)})
 
 
 def xyz_to_lab(queue, xyz: cla.Array, white, *, n: int) -> cla.Array:

@@ -94,8 +94,9 @@ class StreamDecoder:
         matrix and takes the square root of it plus the constant. ``"sigma_rms"``: the RMS channel alone (one
         row of the same map: B times fewer bytes written than ``"sigma"``). ``"dE_sigma"``: the first-order dE2000
         standard deviation (as ``recover --delta-e-sigma``): the XYZ covariance's six entries by the linear
-        kernel, the propagation (:func:`specgpu.estimators.delta_E_sigma`) on the host. Both need the plan's
-        noise model (``specgpu plan ... --estimator``).
+        kernel, then a small kernel propagating them with XYZ to dE2000 (as
+        :func:`specgpu.estimators.delta_E_sigma`). Both need the plan's noise model (``specgpu plan ...
+        --estimator``).
     reference : array_like, optional
         CIELAB reference of ``"dE"``: one colour (3,) or a per-pixel (H, W, 3) image. Required for ``"dE"``.
     method : str
@@ -226,33 +227,9 @@ class StreamDecoder:
         return out
 
     def device_shapes(self) -> dict[str, tuple[tuple, np.dtype]]:
-        """The maps read back from the device: :meth:`shapes` less what the host computes (``dE_sigma``), plus what
-        it computes it from (``XYZ``, ``XYZ_cov`` (H, W, 6): the upper triangle of the XYZ covariance's noise part,
-        row by row)."""
-        out = self.shapes()
-        if "dE_sigma" in out:
-            del out["dE_sigma"]
-            out["XYZ"] = ((self.height, self.width, 3), np.dtype(np.float32))
-            out["XYZ_cov"] = ((self.height, self.width, 6), np.dtype(np.float32))
-        return out
-
-    def finish(self, arrays: dict) -> None:
-        """The host's part of a sequence's maps, in place on ``arrays`` (read back, saturated pixels already NaN):
-        ``dE_sigma`` from XYZ and its covariance, as ``specgpu recover --delta-e-sigma``; the maps only it needed
-        are removed."""
-        if "dE_sigma" not in self.outputs:
-            return
-        from .estimators import delta_E_sigma
-
-        xyz = arrays["XYZ"] if "XYZ" in self.outputs else arrays.pop("XYZ")
-        v = arrays.pop("XYZ_cov")
-        cov = np.empty(v.shape[:-1] + (3, 3))
-        for n, (i, j) in enumerate(self.cov_pairs):
-            cov[..., i, j] = cov[..., j, i] = v[..., n]
-        cov += self.cov_constant
-        des = delta_E_sigma(np.nan_to_num(xyz), np.nan_to_num(cov), self.illuminant)
-        des[~np.isfinite(xyz).all(axis=-1)] = np.nan
-        arrays["dE_sigma"] = des
+        """The maps read back from the device (:meth:`shapes`); :meth:`enqueue` may return more buffers (those
+        ``dE_sigma`` is computed from), which stay on the device."""
+        return self.shapes()
 
     def matrices(self, A) -> list[np.ndarray]:
         """The float32 matrix argument of each launch (in :meth:`_launches`' order) for the decoder ``A`` (B x K):
@@ -329,6 +306,9 @@ class StreamDecoder:
                     write_xyz="XYZ" in self.outputs or "dE_sigma" in self.outputs, write_lab="Lab" in self.outputs,
                     **sat), {"XYZ": "XYZ", "Lab": "Lab", "delta_E": "dE", "mask": "mask"}))
             sat = {}
+        if "dE_sigma" in self.outputs:  # on the XYZ and XYZ_cov buffers of the launches above
+            launches.append((engine.prepare_delta_e_sigma(q, self.white, self.cov_constant, n=n),
+                             {"dE_sigma": "dE_sigma"}))
         self._prepared[dtype] = launches
         return launches
 
@@ -339,13 +319,13 @@ class StreamDecoder:
         ``matrices``: a device buffer per launch holding :meth:`matrices` of this sequence's decoder (written
         before, on the same in-order queue), used instead of the plan's."""
         out = {}
-        wanted = self.device_shapes()
-        launches = self._launches(np.dtype(frames.dtype))
-        for i, (launch, names) in enumerate(launches):
-            matrix = None if matrices is None else matrices[i]
-            for key, buf in launch.enqueue(frames.data, matrix).items():
-                if names[key] in wanted:
-                    out[names[key]] = buf
+        for i, (launch, names) in enumerate(self._launches(np.dtype(frames.dtype))):
+            if "dE_sigma" in names:  # the last launch: XYZ and its covariance in, no matrix
+                made = launch.enqueue(out["XYZ"], inputs={1: out["XYZ_cov"]})
+            else:
+                made = launch.enqueue(frames.data, None if matrices is None else matrices[i])
+            for key, buf in made.items():
+                out[names[key]] = buf
         return out
 
 
@@ -1107,6 +1087,8 @@ class Stream:
         host, events = {}, []
         host_set = self._host_sets.popleft() if self.readback == "pinned" else None  # one per result token
         for name, dev in outs.items():
+            if name not in shapes:  # a buffer another launch read (dE_sigma's inputs): it stays on the device
+                continue
             shape, dtype = shapes[name]
             if host_set is not None:
                 arr = host_set[name]
@@ -1166,7 +1148,6 @@ class Stream:
                         arr[saturated] = np.nan
                     result.saturated_pixels = int(np.count_nonzero(saturated))
                 try:
-                    self.decoder.finish(result.arrays)
                     if not self._sink_errors:
                         for sink in self.sinks:
                             sink.write(result)
