@@ -291,3 +291,89 @@ def test_cli_stream_white_roi_refusals_are_one_line(setup, tmp_path, extra, mess
     assert result.exit_code != 0 and message in result.output
     assert "Traceback" not in result.output
     assert len([line for line in result.output.splitlines() if message in line]) == 1
+
+
+# ---- the kernels behind them, against float64 NumPy references, in both variants on each device ---------------
+@pytest.mark.usefixtures("kernel_variant")
+@pytest.mark.parametrize("B, out_layout, out_dtype", [(3, 1, np.float32), (12, 1, np.float32), (62, 1, np.float32),
+                                                      (7, 0, np.float32), (62, 0, np.float16), (12, 1, np.float16),
+                                                      (130, 1, np.float32)])
+def test_linear_square_root_output_is_sigma_of_a_linear_variance(queue, B, out_layout, out_dtype):
+    """OUT_SQRT: sqrt(max(A (o - dark) * gain + offset_b, 0)) for every output, with a negative offset clamping some
+    pixels to 0 (the variance's floor)."""
+    import pyopencl as cl
+
+    from specgpu import engine
+
+    rng = np.random.default_rng(B + out_layout)
+    K, n = 9, 1001
+    A = rng.uniform(0, 1e-4, (B, K))
+    offsets = rng.uniform(-0.3, 0.3, B)
+    dark_h = rng.uniform(0, 5, n).astype(np.float32)
+    gain_h = rng.uniform(0.8, 1.2, n).astype(np.float32)
+    frames_h = rng.integers(0, 1024, (K, n)).astype(np.uint16)
+    lin = engine.prepare_linear(queue, np.uint16, A, n=n, dark=engine.to_device(queue, dark_h),
+                                gain=engine.to_device(queue, gain_h), out_dtype=out_dtype, out_layout=out_layout,
+                                sqrt_offsets=offsets)
+    got = np.empty(B * n, out_dtype)
+    cl.enqueue_copy(queue, got, lin.enqueue(engine.to_device(queue, frames_h.reshape(-1)).data)["out"])
+    var = (A @ (frames_h - dark_h.astype(np.float64))) * gain_h + offsets[:, None]  # (B, n)
+    want = np.sqrt(np.maximum(var, 0.0))
+    got = got.reshape(n, B).T if out_layout == 1 else got.reshape(B, n)
+    assert (var < 0).any() and (var > 0).any()
+    # compared as variances: near a zero variance the square root magnifies float32 rounding of the sum
+    tol = 4e-3 if out_dtype == np.float16 else 1e-5
+    np.testing.assert_allclose(got.astype(np.float64) ** 2, want ** 2, rtol=tol, atol=tol * (want ** 2).max())
+    assert np.all(got[var <= 0] == 0)
+
+
+@pytest.mark.usefixtures("kernel_variant")
+def test_delta_e_sigma_kernel_equals_the_host_propagation(queue):
+    """The device's first-order dE2000 sigma against estimators.delta_E_sigma (float64) on colours from near black
+    (the linear branch of the CIE function) to near white, with random positive definite covariances."""
+    import pyopencl as cl
+
+    from specgpu import engine
+    from specgpu.spectra import white_point_XYZ
+
+    rng = np.random.default_rng(7)
+    n = 999
+    xyz = rng.uniform(0.0005, 0.95, (n, 3))
+    xyz[:50] *= 0.005  # below (24/116)^3 of the white
+    R = rng.normal(0, 1e-3, (n, 3, 3))
+    cov = R @ np.transpose(R, (0, 2, 1))
+    const = np.diag([1e-7, 2e-7, 3e-7])
+    six = np.stack([cov[:, i, j] for i in range(3) for j in range(i, 3)], axis=-1).astype(np.float32)
+    white = white_point_XYZ("D65")
+    launch = engine.prepare_delta_e_sigma(queue, white, const, n=n)
+    out = launch.enqueue(engine.to_device(queue, xyz.astype(np.float32).reshape(-1)).data,
+                         inputs={1: engine.to_device(queue, six.reshape(-1)).data})
+    got = np.empty(n, np.float32)
+    cl.enqueue_copy(queue, got, out["dE_sigma"])
+    want = delta_E_sigma(xyz.astype(np.float32), six_to_full(six) + const, "D65")
+    np.testing.assert_allclose(got, want, rtol=2e-4, atol=1e-6)
+
+
+def six_to_full(six):
+    out = np.empty(six.shape[:-1] + (3, 3))
+    for m, (i, j) in enumerate((i, j) for i in range(3) for j in range(i, 3)):
+        out[..., i, j] = out[..., j, i] = six[..., m]
+    return out
+
+
+def test_delta_E_sigma_matches_a_monte_carlo_of_ciede2000():
+    """The first-order propagation (analytic Jacobian) against the spread of dE2000 over small XYZ perturbations
+    drawn from the covariance: the RMS dE2000 of the draws is the predicted sigma (to sampling error)."""
+    import colour
+
+    from specgpu.colorimetry import XYZ_to_Lab
+
+    rng = np.random.default_rng(3)
+    xyz = np.array([0.2, 0.25, 0.3])
+    C = np.diag([2e-7, 3e-7, 1e-7]) + 5e-8
+    draws = rng.multivariate_normal(xyz, C, 20000)
+    lab0 = colour.XYZ_to_Lab(xyz, colour.XYZ_to_xy(colour.xy_to_XYZ([0.3127, 0.3290])))
+    lab = np.asarray(XYZ_to_Lab(draws, "D65"), np.float64)
+    lab0 = np.asarray(XYZ_to_Lab(xyz[None], "D65"), np.float64)[0]
+    rms = float(np.sqrt(np.mean(colour.delta_E(lab0, lab, method="CIE 2000") ** 2)))
+    assert abs(float(delta_E_sigma(xyz, C)) / rms - 1) < 0.03
