@@ -843,6 +843,12 @@ class Stream:
         Assembler alignment, ``"index"`` or ``"sync"`` (then ``sync_max_dn`` is required).
     device : optional
         OpenCL device selector (see :mod:`specgpu.runtime`).
+    white_roi, white_reflectance : optional
+        A reference white in the field (as :class:`StreamDecoder`): each sequence's gains are measured on its
+        host frames, its decoder corrected (:class:`specgpu.correction.WhiteReference`) and the launches' matrices
+        written by non-blocking copies into one set of small device buffers per result token (reused only after
+        that sequence has left the sinks: no wait on the queue). The gains are in
+        :attr:`StreamResult.white_gains`. A saturated or dark white stops the stream with a one-line error.
     """
 
     def __init__(self, driver: CameraDriver, plan, calibration, *, outputs=("coefficients", "XYZ", "dE"),
