@@ -212,9 +212,15 @@ def selftest(device, verbose):
               help="With --stream: length of each sustained case.")
 @click.option("--paced-seconds", type=click.FloatRange(min=0.5), default=60.0, show_default=True,
               help="With --stream: length of the case paced at the camera's 200 fps.")
-@click.option("--stream-cases", default="fused,cube,paced,overload,equality", show_default=True,
-              help="With --stream: comma-separated cases to run.")
-def bench(device, json_path, sizes, repeats, stream, stream_size, stream_seconds, paced_seconds, stream_cases):
+@click.option("--stream-cases", default="fused,sigma,sigma_rms,white,cube,paced,overload,equality",
+              show_default=True,
+              help="With --stream: comma-separated cases to run (also dE_sigma).")
+@click.option("--stream-rounds", type=click.IntRange(min=1), default=1, show_default=True,
+              help="With --stream: interleaved rounds of the sustained cases (fused, sigma, sigma_rms, white, "
+                   "dE_sigma); "
+                   "each reports its median round.")
+def bench(device, json_path, sizes, repeats, stream, stream_size, stream_seconds, paced_seconds, stream_cases,
+          stream_rounds):
     """Throughput of each kernel against NumPy / colour-science baselines measured in the same run."""
     from .bench import parse_sizes, run_bench
 
@@ -228,7 +234,7 @@ def bench(device, json_path, sizes, repeats, stream, stream_size, stream_seconds
         cases = tuple(c.strip() for c in stream_cases.split(",") if c.strip())
         run_stream_bench(seconds=stream_seconds, paced_seconds=paced_seconds, overload_seconds=stream_seconds,
                          width=width, height=height, device=device, json_path=json_path, echo=click.echo,
-                         cases=cases)
+                         cases=cases, rounds=stream_rounds)
         return
     try:
         parsed = parse_sizes(sizes)
@@ -813,7 +819,10 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
                    "preview.png inside.")
 @click.option("--frames", "raw_frames", is_flag=True, help="Also record the raw frames (for specgpu batch).")
 @click.option("--outputs", default="coefficients,XYZ,dE", show_default=True,
-              help="Comma-separated: coefficients, cube, XYZ, Lab, dE.")
+              help="Comma-separated: coefficients, cube, XYZ, Lab, dE, sigma (each output's standard deviation and "
+                   "their RMS), sigma_rms (that RMS alone), dE_sigma (first-order dE2000 standard deviation); the "
+                   "sigmas need a plan made with "
+                   "--estimator.")
 @click.option("--delta-e-ref", "ref", default=None,
               help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it (default: the streamed scene).")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
@@ -829,8 +838,13 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
 @click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=None,
               help="Seed of the frames' temporal noise.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
+@click.option("--white-roi", default=None, metavar="X,Y,W,H",
+              help="A reference white in the field: rescale each sequence's decoder for the light's drift (as "
+                   "recover --white-roi; the gains are recorded).")
+@click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
+              help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
-                   pacing, policy, exr_every, half, seed, device):
+                   pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     from .capture.twin import TwinDriver
@@ -842,6 +856,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     # before any loading: a typo is an error naming the valid outputs
     wanted = tuple(validate_method(o.strip(), {k: k for k in STREAM_OUTPUTS}, "stream output")
                    for o in outputs.split(",") if o.strip())
+    if white_reflectance is not None and white_roi is None:
+        raise click.UsageError("--white-reflectance needs --white-roi")
     from .rig.config import load_rig
 
     if out:
@@ -871,14 +887,15 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
         pacing = "paced"
     try:
         _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
-                    seconds, method, illuminant, pacing, policy, exr_every, half, seed, device)
+                    seconds, method, illuminant, pacing, policy, exr_every, half, seed, device,
+                    white=(white_roi, white_reflectance))
     finally:
         if hardware is not None:
             driver.close()  # the light's USB link and the camera
 
 
 def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
-                seconds, method, illuminant, pacing, policy, exr_every, half, seed, device):
+                seconds, method, illuminant, pacing, policy, exr_every, half, seed, device, white=(None, None)):
     """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised."""
     import numpy as np
 
@@ -886,9 +903,10 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
 
     cam = description.camera
     policy = policy or ("drop_newest" if pacing == "paced" else "block")
+    white_roi, white_reflectance = white
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
-                    device=device)
+                    device=device, white_roi=white_roi, white_reflectance=white_reflectance)
     sinks, writer = stream.sinks, None
     if out:
         from pathlib import Path
@@ -900,7 +918,8 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
                                                                              cam.roi_width) if raw_frames else None)
         check_free_space(out, n_expected * per_sequence,
                          what=f"the recording ({n_expected} sequences x {per_sequence / 1e6:.1f} MB)")
-        meta = {"scene": truth.name, "illuminant": illuminant, "method": method, "seed": seed}
+        meta = {"scene": truth.name, "illuminant": illuminant, "method": method, "seed": seed,
+                **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {})}
         writer = ZarrRecorder(out, plan, frames=raw_frames, basis=stream.decoder.basis, metadata=meta)
         import shutil
 

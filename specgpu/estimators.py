@@ -428,24 +428,28 @@ def constant_variance(plan) -> np.ndarray:
 def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65") -> np.ndarray:
     """First-order propagation of an XYZ covariance (..., 3, 3) to dE2000 (..., ): the colour difference of a
     small perturbation is (to first order) its CIEDE2000 metric at the colour, ``dE^2 = dLab^T G dLab``; the
-    sigma is ``sqrt(trace(G J C J^T))`` with J the XYZ -> Lab Jacobian at each pixel and G the local CIEDE2000
-    metric (its diagonal along L*, a*, b*, by finite differences of colour-science's ``delta_E``)."""
+    sigma is ``sqrt(trace(G J C J^T))`` with J the XYZ -> Lab Jacobian at each pixel (analytic) and G the local
+    CIEDE2000 metric (its diagonal along L*, a*, b*, by finite differences of colour-science's ``delta_E``; the
+    stream's ``delta_e_sigma`` kernel computes the same on the device)."""
     import colour
 
-    from .colorimetry import XYZ_to_Lab
+    from .spectra import white_point_XYZ
 
     xyz = np.asarray(XYZ, np.float64)
     C = np.asarray(XYZ_sigma_cov, np.float64)
     shape = xyz.shape[:-1]
     x = xyz.reshape(-1, 3)
     C = C.reshape(-1, 3, 3)
-    lab = np.asarray(XYZ_to_Lab(x.astype(np.float32), illuminant), np.float64)
-    h = 1e-4
-    J = np.empty((x.shape[0], 3, 3))
-    for j in range(3):
-        d = np.zeros(3)
-        d[j] = h
-        J[:, :, j] = (np.asarray(XYZ_to_Lab((x + d).astype(np.float64), illuminant), np.float64) - lab) / d[j]
+    # the XYZ -> Lab Jacobian analytically (CIE 1976: f(t) = t^(1/3) above (24/116)^3, linear below), in float64
+    white = white_point_XYZ(illuminant)
+    lab = colour.XYZ_to_Lab(x, colour.XYZ_to_xy(white))
+    eps = 216.0 / 24389.0
+    t = x / white
+    d = np.where(t > eps, (1.0 / 3.0) / np.cbrt(np.maximum(t, eps)) ** 2, 841.0 / 108.0) / white  # df/dX, dY, dZ
+    J = np.zeros((x.shape[0], 3, 3))
+    J[:, 0, 1] = 116.0 * d[:, 1]
+    J[:, 1, 0], J[:, 1, 1] = 500.0 * d[:, 0], -500.0 * d[:, 1]
+    J[:, 2, 1], J[:, 2, 2] = 200.0 * d[:, 1], -200.0 * d[:, 2]
     covLab = J @ C @ np.transpose(J, (0, 2, 1))
     # local CIEDE2000 metric: dE(lab, lab + e_i) ~ sqrt(G_ii) for unit steps along L, a, b
     step = 0.5
