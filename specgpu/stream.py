@@ -74,6 +74,11 @@ UPLOADS = ("auto", "host_ptr", "pinned", "copy")
 
 # ------------------------------------------------------------------------------------------------- the decoder
 
+#: Host-corrected frames (StreamDecoder.prepare_frames) mark a saturated sample with _PRECORRECT_MARK, far above
+#: any corrected signal, and the kernels flag samples at or above _PRECORRECT_SATURATION.
+_PRECORRECT_MARK = np.float32(3.0e38)
+_PRECORRECT_SATURATION = 1.0e38
+
 
 class StreamDecoder:
     """The host-side planning of a stream: matrices, dark and gain maps and the reference, on the device once.
@@ -144,6 +149,21 @@ class StreamDecoder:
         # pipeline.recover makes them (flagged by the first kernel of a sequence, applied on the host)
         self.saturation = float(calibration.max_code)
         self._prepared: dict = {}
+        # corrections recover applies to the frames before the linear map: the sensor's linearisation, the
+        # wavelength-dependent flat field (per pattern) and a plan's ambient frame (subtracted instead of the
+        # dark level). None of them is linear in one per-pixel map, so they run on the host (prepare_frames),
+        # the dark level subtracted there too, and the kernels take float32 frames with no dark
+        from .correction import ambient_index
+
+        self._calibration = calibration
+        self._ratio = calibration.flat_ratio(plan.patterns)
+        self._ambient = ambient_index(plan)
+        self._linearize = calibration.reports.get("linearity_c_per_dn2", 0.0) > 0
+        self._dark_host = np.asarray(dark, np.float32)
+        self.precorrect = self._ratio is not None or self._ambient is not None or self._linearize
+        if self.precorrect:
+            dark = np.zeros_like(self._dark_host)
+            self.saturation = _PRECORRECT_SATURATION  # saturated samples are marked by prepare_frames
         self.dark = engine.to_device(queue, np.asarray(dark, np.float32).reshape(-1))
         self.gain = engine.to_device(queue, np.asarray(gain, np.float32).reshape(-1))
         self.A = A
@@ -266,6 +286,25 @@ class StreamDecoder:
         if self.M is not None:
             makers.append((lambda A: (self.to_XYZ @ A, None), "colour"))
         return makers
+
+    @property
+    def frames_dtype(self):
+        """What the kernels read: the raw frames, or float32 when :meth:`prepare_frames` corrects them first."""
+        return np.dtype(np.float32) if self.precorrect else None
+
+    def prepare_frames(self, raw) -> np.ndarray:
+        """(K, H, W) float32 frames for the kernels when the calibration or plan needs host-side corrections
+        (``precorrect``): the dark level (or the plan's ambient frame) subtracted, linearised and scaled by the
+        per-pattern flat ratio exactly as :func:`specgpu.pipeline.recover` does; a sample at the sensor's maximum
+        code is set to a marker the kernels flag as saturated."""
+        raw = np.asarray(raw)
+        dark = raw[self._ambient].astype(np.float32) if self._ambient is not None else self._dark_host
+        f = raw.astype(np.float32) - dark[None]
+        f = np.asarray(self._calibration.linearize(f), np.float32)
+        if self._ratio is not None:
+            f *= self._ratio
+        f[raw >= self._calibration.max_code] = _PRECORRECT_MARK
+        return f
 
     def warm_up(self, dtype=np.uint16) -> None:
         """Build every kernel and prime the memory pool on a blank sequence, so the clock of a stream never pays
@@ -936,7 +975,8 @@ class Stream:
         self._tokens = threading.Semaphore(self.result_buffers)
         self._done: queue_module.Queue = queue_module.Queue()
         self._recycle: deque = deque()
-        nbytes = self.plan.K * self.decoder.n * np.dtype(self.driver.dtype).itemsize
+        frames_dtype = self.decoder.frames_dtype or np.dtype(self.driver.dtype)  # float32 when host-corrected
+        nbytes = self.plan.K * self.decoder.n * frames_dtype.itemsize
         # pinned staging (upload) and pinned result sets (readback), one per result token, mapped once
         self._pinned: deque = deque(
             pinned_empty(self.queue, (nbytes,), np.uint8)
@@ -952,7 +992,7 @@ class Stream:
              for m in self.decoder.matrices(self.plan.A)]
             for _ in range(self.result_buffers if self.decoder.white_reference is not None else 0))
         self._ended = threading.Event()
-        self.decoder.warm_up(self.driver.dtype)
+        self.decoder.warm_up(frames_dtype)
         peak_rss_reset()
         rss_start = current_rss_bytes()
         usage0 = resource.getrusage(resource.RUSAGE_SELF)
@@ -1063,7 +1103,10 @@ class Stream:
         self._acquire_token()  # a slow sink holds every buffer: wait here, and the frame ring's policy acts
         q, dec = self.queue, self.decoder
         keep = [seq]
-        flat = seq.frames.reshape(-1)
+        host_frames = dec.prepare_frames(seq.frames) if dec.precorrect else seq.frames
+        flat = host_frames.reshape(-1)
+        if dec.precorrect:
+            keep.append(host_frames)
         if self.upload == "host_ptr":
             buf = cl.Buffer(q.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=flat)
             frames = cla.Array(q, flat.shape, flat.dtype, data=buf)
@@ -1083,7 +1126,8 @@ class Stream:
         if dec.white_reference is not None:
             # this sequence's decoder from its white patch (host frames, ~1 ms), written by small non-blocking
             # copies into this token's matrix buffers: the in-order queue runs them before the kernels
-            gains = dec.white_reference.gains(seq.frames)
+            gains = (dec.white_reference.gains(host_frames, dark=np.zeros(host_frames.shape[1:], np.float32))
+                     if dec.precorrect else dec.white_reference.gains(seq.frames))
             matrix_set = self._matrix_sets.popleft()  # one per result token: never empty here
             for (buf, host), values in zip(matrix_set, dec.matrices(dec.white_reference.decoder(gains))):
                 host[...] = values

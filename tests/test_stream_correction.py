@@ -182,10 +182,13 @@ def test_saturated_or_dark_white_stops_the_stream_with_one_line(setup):
     with pytest.raises(ValueError, match="saturated in frame 2"):
         Stream(replace(setup, frames=frames).driver(loops=1), setup.plan, setup.bundle, outputs=("XYZ",),
                white_roi=ROI, policy="block").run()
-    # an ROI on the dark surround: no signal
+    # an ROI where the frames hold only the dark level (the chart's surround reflects ~3 %, a signal): no signal
+    dark = np.rint(setup.bundle.dark_at(setup.plan.exposure_s)[:4, :4]).astype(setup.frames.dtype)
+    frames = setup.frames.copy()
+    frames[:, :4, :4] = dark
     with pytest.raises(ValueError, match="gives no signal"):
-        Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=("XYZ",), white_roi="0,0,4,4",
-               policy="block").run()
+        Stream(replace(setup, frames=frames).driver(loops=1), setup.plan, setup.bundle, outputs=("XYZ",),
+               white_roi="0,0,4,4", policy="block").run()
 
 
 def test_sigma_needs_a_noise_model(setup):
@@ -377,3 +380,65 @@ def test_delta_E_sigma_matches_a_monte_carlo_of_ciede2000():
     lab0 = np.asarray(XYZ_to_Lab(xyz[None], "D65"), np.float64)[0]
     rms = float(np.sqrt(np.mean(colour.delta_E(lab0, lab, method="CIE 2000") ** 2)))
     assert abs(float(delta_E_sigma(xyz, C)) / rms - 1) < 0.03
+
+
+# ---- corrections recover applies before the linear map: linearisation, per-pattern flat field, ambient frame ----
+@pytest.fixture(scope="module")
+def corrected(setup):
+    """The recording with a calibration that measured a sensor compression and a wavelength-dependent flat field
+    (a left-right tilt that grows to the red), so frames need host-side corrections before the linear map."""
+    b = setup.bundle
+    tilt = np.linspace(-1.0, 1.0, W, dtype=np.float32)[None, :]
+    flats = np.stack([b.flat_field * (1 + 0.04 * s * tilt) for s in (-1.0, 1.0)])
+    bundle = replace(b, flat_fields=flats, flat_wavelengths=np.array([450.0, 650.0]),
+                     reports={**b.reports, "linearity_c_per_dn2": 4e-8})
+    return replace(setup, bundle=bundle, plan=replace(setup.plan, calibration=bundle.hash))
+
+
+def test_stream_applies_recovers_frame_corrections(corrected):
+    s = corrected
+    assert s.bundle.flat_ratio(s.plan.patterns) is not None
+    frames = s.frames.copy()
+    frames[4, 10, 20] = s.bundle.max_code  # a saturated sample: NaN in both
+    s = replace(s, frames=frames)
+    got, _ = run_stream(s, ("cube", "XYZ", "sigma_rms"))
+    bare = replace(s.bundle, flat_fields=None, flat_wavelengths=None,
+                   reports={k: v for k, v in s.bundle.reports.items() if k != "linearity_c_per_dn2"})
+    seen = []
+    report = Stream(s.driver(loops=1), replace(s.plan, calibration=bare.hash), bare, outputs=("cube",),
+                    policy="block", cube_dtype=np.float32,
+                    sinks=[lambda r: seen.append(r.arrays["cube"].copy())]).run()
+    assert report.sequences_out == SEQUENCES, report
+    for i, (arrays, _) in got.items():
+        cube = recover(folder_of(s, seq_frames(s, i)), sequence=0)
+        close(arrays["cube"], cube, rel=1e-5, name="cube")
+        close(arrays["XYZ"], to_XYZ(cube, s.plan), rel=1e-5, name="XYZ")
+        assert np.isnan(arrays["cube"][10, 20]).all() == (i == 0)
+        assert np.isfinite(arrays["sigma_rms"]).mean() > 0.99
+    # the corrections matter: without them the stream would differ from recover by the tilt
+    assert np.nanmax(np.abs(seen[0] - got[0][0]["cube"])) > 0.01
+
+
+def test_stream_subtracts_the_ambient_frame_as_recover_does(setup):
+    from specgpu.capture.replay import record
+    from specgpu.capture.twin import TwinDriver
+    from specgpu.correction import with_ambient_frame
+    from specgpu.rig.scene import colorchecker_scene
+    from specgpu.rig.twin import TwinRig
+
+    plan = with_ambient_frame(setup.plan)
+    from specgpu.rig.realism import Realism
+
+    description = replace(setup.description, realism=Realism(ambient_lux=1000.0))  # a lit room
+    rig = TwinRig(plan.rig_description(description), scene=colorchecker_scene(H, W, white_tile=0.99))
+    rig.seed = 3
+    frames, infos, light = record(TwinDriver(rig, patterns=plan.patterns, pacing="free"), plan.K * SEQUENCES)
+    s = replace(setup, plan=plan, frames=frames, infos=infos, light=light)
+    amb = frames[plan.K - 1].astype(np.float64) - setup.bundle.dark_at(plan.exposure_s)
+    assert np.median(amb) > 2  # the room light is in every frame, and the ambient frame sees it
+    got, _ = run_stream(s, ("cube", "XYZ"), white_roi=ROI)
+    for i, (arrays, _) in got.items():
+        fr = frames[i * plan.K:(i + 1) * plan.K]
+        cube = recover(folder_of(s, fr), sequence=0, white_roi=ROI)
+        close(arrays["cube"], cube, rel=1e-5, name="cube")
+        close(arrays["XYZ"], to_XYZ(cube, plan), rel=1e-5, name="XYZ")
