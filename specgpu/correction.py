@@ -18,6 +18,13 @@ Between calibration and capture the lamp's output and colour change and the ligh
   it is, on the scene. Cost: one frame per sequence (K -> K + 1: 1/K more time, 3 % for narrowband-31, 11 % for
   symmetric-9) and the ambient frame's temporal noise, added once more to every pattern's output (variance
   of dark-level noise doubles: a few tenths of a DN on a 10-bit camera).
+- **Drift probe** (``specgpu plan ... --drift-probe NM``): one more narrow band per sequence, at the light guide's
+  cut-on (430 nm by default), that the decoder does not use; only the reference white reads it. A sequence of a
+  few broad patterns (the tristimulus imager's 3) gives the white 3 numbers, each carrying the frame's own power
+  fluctuation (0.3-0.9 %): a 3-term colour model fitted to them takes that noise for colour. The probe makes the
+  fit over-determined and measures the blue end, where a cut-on shift and a colour-temperature change differ
+  most. Cost: one frame per sequence (tristimulus 3 + ambient -> 5 frames); measured gain in
+  ``tools/drift_study.py --probes 430``.
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["with_ambient_frame", "ambient_index", "parse_roi", "white_reflectance_curve", "white_gains",
+__all__ = ["with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi", "white_reflectance_curve", "white_gains",
            "corrected_decoder", "DEFAULT_WHITE_REFLECTANCE"]
 
 #: Reflectance of the reference white when none is given (a pressed-PTFE standard's certificate value).
@@ -47,6 +54,54 @@ def with_ambient_frame(plan):
                    A=np.hstack([plan.A, np.zeros((plan.A.shape[0], 1))]),
                    expected_level=np.append(plan.expected_level, 0.0),
                    params={**plan.params, "ambient_frame": k})
+
+
+#: Centre (nm) and width of the default drift probe: the light guide's cut-on edge, where its shift shows most.
+DEFAULT_PROBE_NM = (430.0,)
+PROBE_BANDWIDTH_NM = 20.0
+
+
+def with_drift_probes(plan, bundle, centres=DEFAULT_PROBE_NM, bandwidth_nm: float = PROBE_BANDWIDTH_NM):
+    """The plan with a narrow band per ``centres`` (nm) appended to its sequence (drift probes, see the module
+    docstring); the decoder gets zero columns for them (``params["drift_probes"]`` lists their indices).
+
+    Each probe's mirrors are thinned so that a white gives it at most the plan's brightest frame's level (it
+    never saturates where the plan does not). Apply before :func:`with_ambient_frame`.
+    """
+    from .plans import _band_masks
+
+    if probe_indices(plan):
+        return plan
+    if ambient_index(plan) is not None:
+        raise ValueError("add drift probes before the ambient frame")
+    c = np.asarray(centres, np.float64).reshape(-1)
+    lo, hi = float(bundle.column_wavelengths.min()), float(bundle.column_wavelengths.max())
+    if c.size < 1 or not np.all(np.isfinite(c)) or np.any((c < lo) | (c > hi)):
+        raise ValueError(f"--drift-probe centres must lie within the light's {lo:.0f}-{hi:.0f} nm, got {c.tolist()}")
+    if not 0 < bandwidth_nm <= 100:
+        raise ValueError(f"drift probe bandwidth must lie in (0, 100] nm, got {bandwidth_nm!r}")
+    masks = _band_masks(bundle, c, float(bandwidth_nm))
+    full = np.where(masks, bundle.rows, 0).astype(np.int32)
+    grid = bundle.wavelengths
+    white = bundle.forward_matrix(full, grid, plan.exposure_s).sum(axis=1)
+    brightest = float(bundle.forward_matrix(plan.patterns, grid, plan.exposure_s).sum(axis=1).max())
+    scale = np.minimum(1.0, brightest / np.maximum(white, 1e-30))
+    pats = np.where(masks, np.maximum(1, np.floor(bundle.rows * scale[:, None])), 0).astype(np.int32)
+    level = float(np.max(plan.expected_level)) / max(brightest, 1e-30)
+    levels = bundle.forward_matrix(pats, grid, plan.exposure_s).sum(axis=1) * level
+    k = plan.K
+    return replace(plan, patterns=np.vstack([plan.patterns, pats]),
+                   target_spectra=np.vstack([plan.target_spectra, bundle.emitted(pats)]),
+                   A=np.hstack([plan.A, np.zeros((plan.A.shape[0], pats.shape[0]))]),
+                   expected_level=np.append(plan.expected_level, levels),
+                   params={**plan.params, "drift_probes": list(range(k, k + pats.shape[0])),
+                           "drift_probe_nm": c.tolist()})
+
+
+def probe_indices(plan) -> list[int]:
+    """Indices of the plan's drift probes (frames the decoder does not use), or []."""
+    idx = plan.params.get("drift_probes") if isinstance(plan.params, dict) else None
+    return [int(i) for i in idx] if idx else []
 
 
 def ambient_index(plan) -> int | None:
