@@ -366,10 +366,14 @@ def calibrate(rig_path, out, seed):
 @click.option("--bands", type=int, default=31, show_default=True, help="hadamard: bands (3, 7, 15, 31, 63).")
 @click.option("--ambient", is_flag=True,
               help="Add an ambient frame (every mirror off) to each sequence; recover subtracts it (1 frame more).")
+@click.option("--drift-probe", "drift_probe", type=float, multiple=True,
+              help="Add a 20 nm drift probe band at NM to each sequence, read only by recover --white-roi "
+                   "(1 frame more each; 430 at the guide's cut-on makes a 3-frame plan's drift fit hold). "
+                   "Repeatable.")
 @_RIG
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
                  illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,
-                 target, exposure_ms, bands, rig_path, smooth_nm, ambient):
+                 target, exposure_ms, bands, rig_path, smooth_nm, ambient, drift_probe):
     """Design a measurement plan: the illuminant sequence and its decoder.
 
     METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady, optimal, hadamard.
@@ -415,6 +419,10 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
     plan = _estimated_plan(method, bundle, args, kwargs, estimator.lower(), training, training_only, exclude_chart,
                            frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path,
                            smooth_nm)
+    if drift_probe:
+        from .correction import with_drift_probes
+
+        plan = with_drift_probes(plan, bundle, sorted(drift_probe))
     if ambient:
         from .correction import with_ambient_frame
 

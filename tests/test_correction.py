@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from specgpu.calibration import oracle_calibration
-from specgpu.correction import (ambient_index, corrected_decoder, parse_roi, white_gains, white_reflectance_curve,
-                                with_ambient_frame)
+from specgpu.correction import (ambient_index, corrected_decoder, parse_roi, probe_indices, white_gains,
+                                white_reflectance_curve, with_ambient_frame, with_drift_probes)
 from specgpu.evaluate import evaluate_reflectance
 from specgpu.pipeline import SequenceFolder, capture_plan, recover
 from specgpu.plans import make_plan
@@ -142,3 +142,76 @@ def test_spectral_refit_is_the_identity_without_drift_and_follows_a_colour_chang
     grey = np.full(grid.size, 0.5)
     y = A2 @ (F @ (r * grey))
     assert np.max(np.abs(y - 0.5)) < 0.01
+
+
+def test_drift_probe_is_a_thinned_narrow_band_the_decoder_does_not_use(setup):
+    bundle, _, _, _ = setup
+    plan = make_plan("tristimulus", bundle, illuminant="D65")
+    probed = with_drift_probes(plan, bundle)
+    assert probed.K == plan.K + 1 and probe_indices(probed) == [plan.K] and probe_indices(plan) == []
+    np.testing.assert_array_equal(probed.A[:, :plan.K], plan.A)
+    np.testing.assert_array_equal(probed.A[:, plan.K], 0.0)
+    np.testing.assert_array_equal(probed.patterns[:plan.K], plan.patterns)
+    lit = bundle.column_wavelengths[probed.patterns[-1] > 0]
+    assert lit.min() > 419.0 and lit.max() < 441.0  # 20 nm around 430 nm
+    # never brighter on a white than the plan's brightest frame
+    F = bundle.forward_matrix(probed.patterns, bundle.wavelengths, probed.exposure_s).sum(axis=1)
+    assert F[-1] <= F[:plan.K].max() * (1 + 1e-9)
+    assert probed.expected_level[-1] <= plan.expected_level.max() * (1 + 1e-9)
+    assert with_drift_probes(probed, bundle) is probed
+    both = with_ambient_frame(probed)
+    assert ambient_index(both) == plan.K + 1 and probe_indices(both) == [plan.K]
+
+
+@pytest.mark.parametrize("centres,word", [((200.0,), "must lie within the light's"),
+                                          ((float("nan"),), "must lie within the light's")])
+def test_drift_probe_errors_are_one_line(setup, centres, word):
+    bundle, plan, _, _ = setup
+    with pytest.raises(ValueError) as err:
+        with_drift_probes(plan, bundle, centres)
+    assert word in str(err.value) and "\n" not in str(err.value)
+    with pytest.raises(ValueError, match="before the ambient frame"):
+        with_drift_probes(with_ambient_frame(plan), bundle)
+
+
+def test_drift_probe_lets_a_three_frame_plan_follow_a_colour_drift(setup):
+    """Tristimulus (3 broad frames) under -200 K / -3 % / +5 nm, 4 sequences (the colour fitted once on their mean
+    gains): the white's 3 numbers alone cannot tell a cut-on shift from a colour-temperature change; one probe at
+    the cut-on halves the colour error the drift leaves."""
+    from specgpu.evaluate import evaluate_XYZ
+
+    bundle, _, scene, roi = setup
+    plan = make_plan("tristimulus", bundle, illuminant="D65")
+    probed = with_drift_probes(plan, bundle)
+    drifted = replace(DESC, drift=Drift(lamp_cct_K=-200, lamp_output=-0.03, cut_on_nm=5))
+
+    def de(desc, p, seed):
+        res = capture_plan(desc, p, scene, noise_seed=seed, calibration=bundle, sequences=4)
+        folder = SequenceFolder(Path("<memory>"), np.stack([s.frames for s in res.sequences]), p, bundle, [], {})
+        y = recover(folder, white_roi=roi)
+        return evaluate_XYZ(y, scene, illuminant="D65").summary()["delta_E_2000"][0]
+
+    three = np.mean([de(drifted, plan, s) for s in (3, 4)])
+    four = np.mean([de(drifted, probed, s) for s in (3, 4)])
+    assert three > 0.25  # the 3-frame fit's bias (0.30 over 6 seeds; 0.11 without drift)
+    assert four < 0.75 * three
+
+
+def test_colour_is_fitted_once_on_the_sequences_mean_gains(setup, monkeypatch):
+    import specgpu.correction as corr
+
+    bundle, plan, scene, roi = setup
+    seen = []
+    real = corr.corrected_decoder
+    monkeypatch.setattr(corr, "corrected_decoder", lambda p, g, *a, **k: seen.append(np.array(g)) or real(p, g, *a, **k))
+    res = capture_plan(DESC, plan, scene, noise_seed=2, calibration=bundle, sequences=3)
+    frames = np.stack([s.frames for s in res.sequences])
+    folder = SequenceFolder(Path("<memory>"), frames, plan, bundle, [], {})
+    y = recover(folder, white_roi=roi)
+    assert len(seen) == 1
+    per = np.array([white_gains(frames[i], plan, bundle, roi, dark=bundle.dark_at(plan.exposure_s))
+                    for i in range(3)])
+    np.testing.assert_allclose(seen[0], np.exp(np.log(per).mean(axis=0)), rtol=1e-6)
+    # each sequence decoded with its own frames' scaling: the mean of the three single-sequence recoveries
+    one = [recover(folder, sequence=i, white_roi=roi) for i in range(3)]
+    assert np.nanmax(np.abs(y - np.mean(one, axis=0))) < 0.02
