@@ -301,7 +301,10 @@ class _Busy:
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="Calibration bundle to write (.npz).")
 @click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=0, show_default=True,
               help="Seed of the twin's noise; on hardware, of the loops' perturbed start only.")
-def calibrate(rig_path, out, seed):
+@click.option("--line-shape", type=click.Choice(["gaussian", "measured"]), default="gaussian", show_default=True,
+              help="The light's line shape in the bundle: the design Gaussian, or tabulated per column from the "
+                   "spectroradiometer's probe readings (no model of the slit).")
+def calibrate(rig_path, out, seed, line_shape):
     """Run both feedback loops on the rig and write the calibration bundle."""
     from .calibration import calibrate as run, save_calibration
     from .rig.config import load_rig
@@ -312,12 +315,12 @@ def calibrate(rig_path, out, seed):
     _lock(out)
     with _Busy("calibrating"):
         if hardware is None:
-            bundle = run(description, seed=seed)
+            bundle = run(description, seed=seed, line_shape=line_shape)
         else:  # real devices: the camera looks at the reference white, the spectrometer at the light's output
             from .hardware.rig import open_calibration_rig
 
             with open_calibration_rig(description, hardware=hardware) as rig:
-                bundle = run(description, seed=seed, rig=rig)
+                bundle = run(description, seed=seed, rig=rig, line_shape=line_shape)
     digest = save_calibration(out, bundle)
     reports = bundle.reports
     for loop, what in (("loop_a", "loop (a) camera + white"), ("loop_b", "loop (b) spectroradiometer")):
