@@ -215,3 +215,21 @@ def test_colour_is_fitted_once_on_the_sequences_mean_gains(setup, monkeypatch):
     # each sequence decoded with its own frames' scaling: the mean of the three single-sequence recoveries
     one = [recover(folder, sequence=i, white_roi=roi) for i in range(3)]
     assert np.nanmax(np.abs(y - np.mean(one, axis=0))) < 0.02
+
+
+def test_cli_plan_drift_probe(setup, tmp_path):
+    from cli_helpers import one_line_error, run
+
+    from specgpu.calibration import save_calibration
+    from specgpu.plans import load_plan
+
+    bundle = setup[0]
+    cal = tmp_path / "cal.npz"
+    save_calibration(cal, bundle)
+    run("plan", "tristimulus", "--calib", cal, "--out", tmp_path / "p.npz", "--drift-probe", 430, "--ambient")
+    plan = load_plan(tmp_path / "p.npz")
+    assert plan.K == 5 and probe_indices(plan) == [3] and ambient_index(plan) == 4
+    assert plan.params["drift_probe_nm"] == [430.0]
+    bad = run("plan", "tristimulus", "--calib", cal, "--out", tmp_path / "q.npz", "--drift-probe", 200, ok=False)
+    one_line_error(bad, "--drift-probe centres must lie within the light's")
+    assert not (tmp_path / "q.npz").exists()
