@@ -252,7 +252,9 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
 
     ``white_roi`` (``"X,Y,W,H"``) names a reference white of ``white_reflectance`` (a number or a CSV; 0.99 by
     default) in the field: each sequence's decoder is rescaled for the light's drift since calibration
-    (:mod:`specgpu.correction`). A plan with an ambient frame (``plan --ambient``) has that frame subtracted
+    (:mod:`specgpu.correction`): the colour change fitted once on the sequences' mean white gains (it drifts over
+    hours; each frame's own power fluctuation averages down over the sequences), each sequence then rescaled by
+    its own gains. A plan with an ambient frame (``plan --ambient``) has that frame subtracted
     instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
     """
     from .correction import ambient_index, corrected_decoder, white_gains
