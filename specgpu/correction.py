@@ -23,8 +23,12 @@ Between calibration and capture the lamp's output and colour change and the ligh
   few broad patterns (the tristimulus imager's 3) gives the white 3 numbers, each carrying the frame's own power
   fluctuation (0.3-0.9 %): a 3-term colour model fitted to them takes that noise for colour. The probe makes the
   fit over-determined and measures the blue end, where a cut-on shift and a colour-temperature change differ
-  most. Cost: one frame per sequence (tristimulus 3 + ambient -> 5 frames); measured gain in
-  ``tools/drift_study.py --probes 430``.
+  most; the re-fitted decoder may read the probe's frame too (kept to the plan's own frames, the lab figures
+  below were 0.02 dE00 worse). Cost: one frame per sequence (tristimulus 3 + ambient -> 5 frames). Lab, drift
+  -200 K / -3 % / +5 nm, white ROI in both runs (``tools/drift_study.py --draws 3 --probes 430``): tristimulus
+  dE00 0.38 against 0.32 without drift (1.19x; without the probe 0.43 against 0.28, 1.54x). The probe costs the
+  no-drift run 0.04 dE00: at the tristimulus exposure each frame's power fluctuates by about 2 %, and a 3-term
+  colour fit to 4 gains still takes part of that for colour.
 """
 
 from __future__ import annotations
