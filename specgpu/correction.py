@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi", "white_reflectance_curve", "white_gains",
+__all__ = ["with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi",
+           "white_reflectance_curve", "white_gains",
            "corrected_decoder", "DEFAULT_WHITE_REFLECTANCE"]
 
 #: Reflectance of the reference white when none is given (a pressed-PTFE standard's certificate value).

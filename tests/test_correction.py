@@ -203,7 +203,8 @@ def test_colour_is_fitted_once_on_the_sequences_mean_gains(setup, monkeypatch):
     bundle, plan, scene, roi = setup
     seen = []
     real = corr.corrected_decoder
-    monkeypatch.setattr(corr, "corrected_decoder", lambda p, g, *a, **k: seen.append(np.array(g)) or real(p, g, *a, **k))
+    monkeypatch.setattr(corr, "corrected_decoder",
+                        lambda p, g, *a, **k: seen.append(np.array(g)) or real(p, g, *a, **k))
     res = capture_plan(DESC, plan, scene, noise_seed=2, calibration=bundle, sequences=3)
     frames = np.stack([s.frames for s in res.sequences])
     folder = SequenceFolder(Path("<memory>"), frames, plan, bundle, [], {})
