@@ -204,7 +204,24 @@ def white_gains(frames, plan, bundle, roi, white=None, *, dark=None) -> np.ndarr
 MIN_COLOUR_CHANGE = 0.02
 
 
-def corrected_decoder(plan, gains, bundle=None, white=None) -> np.ndarray:
+#: How far (in standard deviations of its chi-square) the white's gains must depart from one common power change,
+#: given the light's measured frame-to-frame fluctuation, before a colour change is fitted.
+COLOUR_SIGNIFICANCE = 3.0
+
+
+def gain_noise(plan, bundle, sequences: int = 1) -> float | None:
+    """Relative standard deviation of one white gain from the light's own frame-to-frame fluctuation, at the plan's
+    exposure, averaged over ``sequences``: the calibration's measurement (``reports["light_fluctuation"]`` at its
+    exposure) scaled as ``sqrt(t_cal / t)`` (fluctuation faster than a frame averages over the exposure). None
+    when the bundle did not measure it."""
+    rep = bundle.reports if isinstance(bundle.reports, dict) else {}
+    f, t = rep.get("light_fluctuation"), rep.get("light_fluctuation_exposure_s")
+    if not f or not t:
+        return None
+    return float(f) * float(np.sqrt(float(t) / plan.exposure_s)) / float(np.sqrt(max(1, int(sequences))))
+
+
+def corrected_decoder(plan, gains, bundle=None, white=None, *, sequences: int = 1) -> np.ndarray:
     """The plan's decoder corrected for one sequence's white gains.
 
     Without ``bundle``: each column rescaled, ``A[:, k] / gains[k]`` (exact for a change of each pattern's power).
@@ -214,7 +231,10 @@ def corrected_decoder(plan, gains, bundle=None, white=None) -> np.ndarray:
     smooth reflectances, ``A' = (A F R) (F diag(r) R)^+`` (``F`` the calibrated forward model, ``R`` smooth
     bumps): this follows a change of shape inside a broad pattern. What the smooth ratio leaves (a cut-on edge
     moving inside one narrow band) is then taken out column by column, as without ``bundle``. A ratio flatter
-    than :data:`MIN_COLOUR_CHANGE` across 420-680 nm is taken as a power change only (column scaling).
+    than :data:`MIN_COLOUR_CHANGE` across 420-680 nm is taken as a power change only (column scaling), and so are
+    gains whose spread about their mean is within the light's own fluctuation (:func:`gain_noise`, ``sequences``
+    the number of sequences whose mean ``gains`` are): chi-square below its degrees of freedom plus
+    :data:`COLOUR_SIGNIFICANCE` standard deviations.
     """
     g = np.asarray(gains, np.float64)
     if bundle is None:
@@ -228,6 +248,12 @@ def corrected_decoder(plan, gains, bundle=None, white=None) -> np.ndarray:
     n_par = int(min(3, max(0, lit.sum() - 1)))
     if n_par == 0:
         return plan.A / g[None, :]
+    sigma = gain_noise(plan, bundle, sequences)
+    if sigma:
+        dev = np.log(g[lit]) - np.log(g[lit]).mean()
+        dof = int(lit.sum()) - 1
+        if float(np.sum(dev**2)) / sigma**2 <= dof + COLOUR_SIGNIFICANCE * np.sqrt(2.0 * dof):
+            return plan.A / g[None, :]  # one power change and the frames' own fluctuation: per-pattern scaling
     from scipy.optimize import least_squares
 
     basis = np.stack([u**i for i in range(n_par)], axis=0)  # (P, G)

@@ -280,7 +280,7 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
             # The light's colour drifts over hours: one colour fit on the sequences' mean gains (each frame's own
             # power fluctuation averages down), then each sequence's frames rescaled by its own gains.
             mean_gains = np.exp(np.mean([np.log(g) for _, _, g in prepared], axis=0))
-            A_mean = corrected_decoder(plan, mean_gains, bundle, white_reflectance)
+            A_mean = corrected_decoder(plan, mean_gains, bundle, white_reflectance, sequences=len(prepared))
         for fr, dark, gains in prepared:
             A = plan.A if gains is None else A_mean / (gains / mean_gains)[None, :]
             ys = np.asarray(apply_linear(fr, A, dark, bundle.flat_field, out_dtype=np.float32, device=device))
