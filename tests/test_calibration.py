@@ -330,3 +330,10 @@ def test_line_shape_argument_is_checked():
     with pytest.raises(ValueError) as err:
         calibrate(DESC, line_shape="lorentzian")
     assert "line_shape must be 'measured' or 'gaussian'" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_light_fluctuation_is_measured(calibrated):
+    p = DESC.light
+    t = calibrated.reports["light_fluctuation_exposure_s"]
+    truth = p.fluctuation_rms * np.sqrt(p.fluctuation_reference_exposure_s / t)
+    assert 0.5 * truth < calibrated.reports["light_fluctuation"] < 1.6 * truth  # 16 frames: +-18 % (1 sigma)

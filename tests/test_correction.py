@@ -234,3 +234,28 @@ def test_cli_plan_drift_probe(setup, tmp_path):
     bad = run("plan", "tristimulus", "--calib", cal, "--out", tmp_path / "q.npz", "--drift-probe", 200, ok=False)
     one_line_error(bad, "--drift-probe centres must lie within the light's")
     assert not (tmp_path / "q.npz").exists()
+
+
+def test_colour_is_fitted_only_beyond_the_lights_own_fluctuation(setup):
+    """With the light's fluctuation measured (as ``calibrate`` does), gains spread within it are one power change
+    (per-pattern scaling); a colour tilt well beyond it is fitted (a decoder that is not a column scaling)."""
+    from specgpu.correction import gain_noise
+
+    bundle, plan, _, _ = setup
+    assert gain_noise(plan, bundle) is None  # the oracle bundle measured nothing
+    rep = {**bundle.reports, "light_fluctuation": 0.01, "light_fluctuation_exposure_s": plan.exposure_s * 4}
+    b = replace(bundle, reports=rep)
+    assert gain_noise(plan, b) == pytest.approx(0.02)
+    assert gain_noise(plan, b, sequences=4) == pytest.approx(0.01)
+    rng = np.random.default_rng(3)
+    noisy = np.exp(0.02 * rng.standard_normal(plan.K))
+    np.testing.assert_allclose(corrected_decoder(plan, noisy, b), plan.A / noisy[None, :])
+    grid = b.wavelengths
+    F = b.forward_matrix(plan.patterns, grid, plan.exposure_s)
+    r = np.exp(0.25 * (grid - 550.0) / 150.0)  # a light 25 % redder across 400-700 nm
+    tilted = (F @ (r * 0.99)) / (F @ np.full(grid.size, 0.99))
+    A = corrected_decoder(plan, tilted, b)
+    assert not np.allclose(A, plan.A / tilted[None, :], rtol=1e-3)
+    # the same tilt within a fluctuation ten times larger is not told from noise
+    loud = replace(bundle, reports={**rep, "light_fluctuation": 1.0})
+    np.testing.assert_allclose(corrected_decoder(plan, tilted, loud), plan.A / tilted[None, :])
