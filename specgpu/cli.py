@@ -370,9 +370,8 @@ def calibrate(rig_path, out, seed, line_shape):
 @click.option("--ambient", is_flag=True,
               help="Add an ambient frame (every mirror off) to each sequence; recover subtracts it (1 frame more).")
 @click.option("--drift-probe", "drift_probe", type=float, multiple=True,
-              help="Add a 20 nm drift probe band at NM to each sequence, read only by recover --white-roi "
-                   "(1 frame more each; 430 at the guide's cut-on makes a 3-frame plan's drift fit hold). "
-                   "Repeatable.")
+              help="Add a 20 nm drift probe band at NM to each sequence, read by recover --white-roi's colour fit "
+                   "(1 frame more each; 430 and 650 let a 3-frame plan's drift correction hold). Repeatable.")
 @_RIG
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
                  illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,

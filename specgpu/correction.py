@@ -18,17 +18,15 @@ Between calibration and capture the lamp's output and colour change and the ligh
   it is, on the scene. Cost: one frame per sequence (K -> K + 1: 1/K more time, 3 % for narrowband-31, 11 % for
   symmetric-9) and the ambient frame's temporal noise, added once more to every pattern's output (variance
   of dark-level noise doubles: a few tenths of a DN on a 10-bit camera).
-- **Drift probe** (``specgpu plan ... --drift-probe NM``): one more narrow band per sequence, at the light guide's
-  cut-on (430 nm by default), that the decoder does not use; only the reference white reads it. A sequence of a
-  few broad patterns (the tristimulus imager's 3) gives the white 3 numbers, each carrying the frame's own power
-  fluctuation (0.3-0.9 %): a 3-term colour model fitted to them takes that noise for colour. The probe makes the
-  fit over-determined and measures the blue end, where a cut-on shift and a colour-temperature change differ
-  most; the re-fitted decoder may read the probe's frame too (kept to the plan's own frames, the lab figures
-  below were 0.02 dE00 worse). Cost: one frame per sequence (tristimulus 3 + ambient -> 5 frames). Lab, drift
-  -200 K / -3 % / +5 nm, white ROI in both runs (``tools/drift_study.py --draws 3 --probes 430``): tristimulus
-  dE00 0.38 against 0.32 without drift (1.19x; without the probe 0.43 against 0.28, 1.54x). The probe costs the
-  no-drift run 0.04 dE00: at the tristimulus exposure each frame's power fluctuates by about 2 %, and a 3-term
-  colour fit to 4 gains still takes part of that for colour.
+- **Drift probe** (``specgpu plan ... --drift-probe NM``, repeatable): one more narrow band per sequence that the
+  plan's decoder does not use; only the reference white's colour fit reads it (the re-fitted decoder may read its
+  frame too). A sequence of a few broad patterns (the tristimulus imager's 3) gives the white 3 numbers, each
+  carrying the frame's own power fluctuation (about 2 % at the tristimulus exposure): too few to tell a cut-on
+  shift from a colour-temperature change. Probes at 430 nm (the guide's cut-on) and 650 nm make the fit
+  over-determined at both ends. Cost: one frame per probe per sequence (tristimulus 3 + 2 probes + ambient -> 6
+  frames). Lab, drift -200 K / -3 % / +5 nm, white ROI in both runs (``tools/drift_study.py --draws 3 --probes
+  430,650``): tristimulus dE00 0.26 against 0.23 without drift (1.13x); one probe at 430 nm 0.33 (1.43x); none
+  0.43 (1.87x).
 """
 
 from __future__ import annotations
@@ -39,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi",
-           "white_reflectance_curve", "white_gains",
+           "white_reflectance_curve", "white_gains", "gain_noise",
            "corrected_decoder", "DEFAULT_WHITE_REFLECTANCE"]
 
 #: Reflectance of the reference white when none is given (a pressed-PTFE standard's certificate value).
@@ -61,8 +59,9 @@ def with_ambient_frame(plan):
                    params={**plan.params, "ambient_frame": k})
 
 
-#: Centre (nm) and width of the default drift probe: the light guide's cut-on edge, where its shift shows most.
-DEFAULT_PROBE_NM = (430.0,)
+#: Centres (nm) and width of the default drift probes: the light guide's cut-on edge, where its shift shows most,
+#: and the red end, where a colour-temperature change shows most.
+DEFAULT_PROBE_NM = (430.0, 650.0)
 PROBE_BANDWIDTH_NM = 20.0
 
 

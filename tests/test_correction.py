@@ -147,7 +147,8 @@ def test_spectral_refit_is_the_identity_without_drift_and_follows_a_colour_chang
 def test_drift_probe_is_a_thinned_narrow_band_the_decoder_does_not_use(setup):
     bundle, _, _, _ = setup
     plan = make_plan("tristimulus", bundle, illuminant="D65")
-    probed = with_drift_probes(plan, bundle)
+    assert probe_indices(with_drift_probes(plan, bundle)) == [plan.K, plan.K + 1]  # 430 and 650 nm by default
+    probed = with_drift_probes(plan, bundle, (430.0,))
     assert probed.K == plan.K + 1 and probe_indices(probed) == [plan.K] and probe_indices(plan) == []
     np.testing.assert_array_equal(probed.A[:, :plan.K], plan.A)
     np.testing.assert_array_equal(probed.A[:, plan.K], 0.0)
@@ -158,7 +159,7 @@ def test_drift_probe_is_a_thinned_narrow_band_the_decoder_does_not_use(setup):
     F = bundle.forward_matrix(probed.patterns, bundle.wavelengths, probed.exposure_s).sum(axis=1)
     assert F[-1] <= F[:plan.K].max() * (1 + 1e-9)
     assert probed.expected_level[-1] <= plan.expected_level.max() * (1 + 1e-9)
-    assert with_drift_probes(probed, bundle) is probed
+    assert with_drift_probes(probed, bundle, (430.0,)) is probed
     both = with_ambient_frame(probed)
     assert ambient_index(both) == plan.K + 1 and probe_indices(both) == [plan.K]
 
@@ -176,8 +177,8 @@ def test_drift_probe_errors_are_one_line(setup, centres, word):
 
 def test_drift_probe_lets_a_three_frame_plan_follow_a_colour_drift(setup):
     """Tristimulus (3 broad frames) under -200 K / -3 % / +5 nm, 4 sequences (the colour fitted once on their mean
-    gains): the white's 3 numbers alone cannot tell a cut-on shift from a colour-temperature change; one probe at
-    the cut-on halves the colour error the drift leaves."""
+    gains): the white's 3 numbers alone cannot tell a cut-on shift from a colour-temperature change; probes at 430
+    and 650 nm halve the colour error the drift leaves."""
     from specgpu.evaluate import evaluate_XYZ
 
     bundle, _, scene, roi = setup
