@@ -1129,16 +1129,26 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     # The light's frame-to-frame power fluctuation: 16 frames of the flat-field pattern in one sequence, the spread
     # of their centre means (the camera's own noise there is a few hundredths of a per cent). Drift correction
     # compares a reference white's gains with it (:func:`specgpu.correction.corrected_decoder`).
-    singles = rig.capture_mean(np.full((16, p.columns), n_flat, np.int32), 1, noise_seed=seeds.next())
-    levels = np.array([float(np.mean((f - dark)[small])) for f in singles])
-    fluctuation = float(np.std(levels, ddof=1) / np.mean(levels)) if np.all(levels > 0) else 0.0
+    # A camera link that drops a frame loses the sequence: tried three times, then left unmeasured (no rule).
+    fluctuation = None
+    fluct_seed = seeds.next()
+    for attempt in range(3):
+        try:
+            singles = rig.capture_mean(np.full((16, p.columns), n_flat, np.int32), 1, noise_seed=fluct_seed + attempt)
+        except RuntimeError:
+            continue
+        levels = np.array([float(np.mean((f - dark)[small])) for f in singles])
+        if np.all(levels > 0):
+            fluctuation = float(np.std(levels, ddof=1) / np.mean(levels))
+        break
     reports = {"source": "calibrated", "loop_a": loop_a.summary(), "band_step_nm": float(band_step_nm),
                "column_map": {"slope_nm": float(slope), "intercept_nm": float(icpt)},
                "level_dn_per_reflectance": level, "loop_a_exposure_s": t_a, "repeats": int(repeats)}
     reports["white_reflectance_uncertainty"] = float(white_uncertainty)
     reports["linearity_c_per_dn2"] = linearity_c
-    reports["light_fluctuation"] = fluctuation
-    reports["light_fluctuation_exposure_s"] = t_cal
+    if fluctuation is not None:
+        reports["light_fluctuation"] = fluctuation
+        reports["light_fluctuation_exposure_s"] = t_cal
     if hasattr(rig, "clock_s"):
         reports["rig_clock_end_s"] = float(rig.clock_s)
     reports["slit_model"] = "measured" if line is not None else "gaussian"
