@@ -2,7 +2,7 @@
 
     /work/venv/bin/python tools/drift_study.py [--profile lab] [--draws 3] [--small]
         [--cct -200] [--output -0.03] [--cut-on 5] [--methods narrowband,symmetric,tristimulus-D65]
-        [--probes 430]
+        [--probes 430,650]
 
 Prints, per method, per-patch RMSE / dE2000 and per-pixel dE2000 (mean +- std over noise draws) for: no drift
 with the calibration's dark level (no ambient frame); then, every sequence with an ambient frame: no drift; no
@@ -39,7 +39,7 @@ def main(argv=None):
     ap.add_argument("--output", type=float, default=-0.03)
     ap.add_argument("--cut-on", type=float, default=5.0)
     ap.add_argument("--methods", default="narrowband,symmetric,tristimulus-D65")
-    ap.add_argument("--probes", default="", help="drift probe centres, nm, comma-separated (e.g. 430)")
+    ap.add_argument("--probes", default="", help="drift probe centres, nm, comma-separated (e.g. 430,650)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     desc = rig_from_dict({"twin": {"profile": args.profile, "seed": args.seed}})
