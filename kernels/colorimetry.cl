@@ -96,3 +96,40 @@ __kernel void frames_to_delta_e(__global const IN_T *restrict frames,
 #endif
 }
 #endif
+
+/* d f / d t of cie_f: (1/3) t^(-2/3) above (24/116)^3, 841/108 below. */
+inline floatv cie_f_prime(floatv t)
+{
+    const floatv r = cbrt(fmax(t, (floatv)(216.0f / 24389.0f)));
+    return t > (floatv)(216.0f / 24389.0f) ? (1.0f / 3.0f) / (r * r) : (floatv)(841.0f / 108.0f);
+}
+
+/* First-order CIEDE2000 standard deviation of each pixel's XYZ (N, 3) given its covariance: the noise part per
+ * pixel (N, 6: XX XY XZ YY YZ ZZ) plus the constant part c (6 floats, the same order). The Lab covariance is
+ * J C J^T with J the analytic XYZ -> Lab Jacobian; dE2000 to first order is its trace weighted by the local
+ * metric along L*, a*, b* (dE2000 of a 0.5 step along each, over 0.5, squared), as estimators.delta_E_sigma. */
+__kernel void delta_e_sigma(__global const float *restrict xyz,
+                            __global const float *restrict cov,
+                            __constant const float *restrict c,
+                            const float Xn, const float Yn, const float Zn,
+                            __global float *restrict out,
+                            const ulong n)
+{
+    PIXEL_RANGE(n);
+    floatv X, Y, Z, L, a, b;
+    load3(xyz, base, count, &X, &Y, &Z);
+    const floatv cxx = load_f_strided(cov, base, count, 6, 0) + c[0];
+    const floatv cxy = load_f_strided(cov, base, count, 6, 1) + c[1];
+    const floatv cyy = load_f_strided(cov, base, count, 6, 3) + c[3];
+    const floatv cyz = load_f_strided(cov, base, count, 6, 4) + c[4];
+    const floatv czz = load_f_strided(cov, base, count, 6, 5) + c[5];
+    const floatv dx = cie_f_prime(X / Xn) / Xn, dy = cie_f_prime(Y / Yn) / Yn, dz = cie_f_prime(Z / Zn) / Zn;
+    const floatv var_L = 116.0f * 116.0f * dy * dy * cyy;
+    const floatv var_a = 500.0f * 500.0f * (dx * dx * cxx - 2.0f * dx * dy * cxy + dy * dy * cyy);
+    const floatv var_b = 200.0f * 200.0f * (dy * dy * cyy - 2.0f * dy * dz * cyz + dz * dz * czz);
+    lab_from_xyz(X, Y, Z, Xn, Yn, Zn, &L, &a, &b);
+    const floatv gL = delta_e_2000(L, a, b, L + 0.5f, a, b) * 2.0f;
+    const floatv ga = delta_e_2000(L, a, b, L, a + 0.5f, b) * 2.0f;
+    const floatv gb = delta_e_2000(L, a, b, L, a, b + 0.5f) * 2.0f;
+    store_f(sqrt(fmax(gL * gL * var_L + ga * ga * var_a + gb * gb * var_b, 0.0f)), out, base, count);
+}

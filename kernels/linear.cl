@@ -9,6 +9,8 @@
  *   TILE        "gpu" variant, channels last: 1 = a work-item per pixel, its B outputs staged in local memory and
  *               the group's GROUP x B outputs written back as one contiguous coalesced run (the default where
  *               the tile fits); 0 = a work-item per output element (n x B work-items)
+ *   OUT_SQRT    0/1: write sqrt(max(y_b + c_b, 0)) instead of y_b, with the B offsets c_b stored after the B x K
+ *               matrix in A (a standard deviation from a variance that is linear in the frames plus a constant)
  *
  * Arguments: frames (K planes or N x K), A (B x K row-major, constant), dark (N or K x N, or unused),
  * gain (N, or unused), out, mask (N, or unused), n = number of pixels.
@@ -26,6 +28,15 @@
 #endif
 #ifndef WRITE_MASK
 #define WRITE_MASK 0
+#endif
+
+#ifndef OUT_SQRT
+#define OUT_SQRT 0
+#endif
+#if OUT_SQRT
+#define POST(y, b) y = sqrt(fmax(y + A[B * K + (b)], 0.0f))
+#else
+#define POST(y, b)
 #endif
 
 #if OUT_HALF
@@ -78,6 +89,7 @@ void linear_apply(__global const IN_T *restrict frames,
 #if HAS_GAIN
             y *= g;
 #endif
+            POST(y, b);
             tile[lid * B + b] = y;
         }
 #if WRITE_MASK
@@ -117,6 +129,7 @@ __kernel void linear_apply(__global const IN_T *restrict frames,
 #if HAS_GAIN
     y *= gain[base];
 #endif
+    POST(y, b);
 #if OUT_HALF
     vstore_half_rte(y, e, out);
 #else
@@ -152,6 +165,7 @@ __kernel void linear_apply(__global const IN_T *restrict frames,
 #if HAS_GAIN
         y *= g;
 #endif
+        POST(y, b);
         STORE(y, out + (ulong)b * n, base, count);
     }
 #else
@@ -168,6 +182,8 @@ __kernel void linear_apply(__global const IN_T *restrict frames,
 #if HAS_GAIN
         a0 *= g; a1 *= g; a2 *= g; a3 *= g; a4 *= g; a5 *= g; a6 *= g; a7 *= g;
 #endif
+        POST(a0, b0 + 0); POST(a1, b0 + 1); POST(a2, b0 + 2); POST(a3, b0 + 3);
+        POST(a4, b0 + 4); POST(a5, b0 + 5); POST(a6, b0 + 6); POST(a7, b0 + 7);
         TRANSPOSE8(a0, a1, a2, a3, a4, a5, a6, a7, r0, r1, r2, r3, r4, r5, r6, r7);
         STORE_PIXEL_ROW(0, r0); STORE_PIXEL_ROW(1, r1); STORE_PIXEL_ROW(2, r2); STORE_PIXEL_ROW(3, r3);
         STORE_PIXEL_ROW(4, r4); STORE_PIXEL_ROW(5, r5); STORE_PIXEL_ROW(6, r6); STORE_PIXEL_ROW(7, r7);
@@ -179,6 +195,7 @@ __kernel void linear_apply(__global const IN_T *restrict frames,
 #if HAS_GAIN
         y *= g;
 #endif
+        POST(y, b0);
         STORE_STRIDED(y, out, base, count, B, b0);
     }
 #endif
@@ -225,6 +242,8 @@ __kernel void linear_apply_h16(__global const IN_T *restrict frames,
         acc0 *= g;
         acc1 *= g2;
 #endif
+        POST(acc0, b);
+        POST(acc1, b);
         __global half *plane = out + (ulong)b * n;
 #if VEC_DEREF
         if (count2 == VW) {

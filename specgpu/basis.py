@@ -11,6 +11,9 @@ Training sets (:data:`REFLECTANCE_SETS`; all measured spectra, none synthetic):
   patches measured three times, see :data:`COLORCHECKER_24_SETS`) and ``"PMC"`` (30 patches);
 - CIE test colour samples ``"CIE 1995 TCS"`` (14), ``"CIE 2024 TCS"`` (15), NIST colour quality scale samples
   ``"NIST CQS 7.4"`` and ``"NIST CQS 9.0"`` (15 each);
+- ``"CIE 2017 CES"``: the 99 colour evaluation samples of the CIE 2017 colour fidelity index (the IES TM-30
+  CES: measured spectra chosen from over 100 000 for uniform coverage of colour space; 5 nm table, 380-780 nm),
+  through ``colour.quality.cfi2017.load_TCS_CIE2017``;
 - ``"RAW to ACES v1"``: the 190 training reflectances of the Academy's rawtoaces (paint, skin, foliage, fabric,
   charts), through ``colour.characterisation.read_training_data_rawtoaces_v1``.
 
@@ -88,6 +91,15 @@ def _quality(table, name):
     return load
 
 
+def _cfi2017():
+    import colour
+    from colour.quality.cfi2017 import load_TCS_CIE2017
+
+    msds = load_TCS_CIE2017(colour.SpectralShape(380, 780, 5))
+    wl = np.asarray(msds.wavelengths, float)
+    return [(label, wl, np.asarray(msds.values[:, i], float)) for i, label in enumerate(msds.labels)]
+
+
 def _rawtoaces():
     import colour.characterisation
 
@@ -106,6 +118,7 @@ REFLECTANCE_SETS = {
     "CIE 2024 TCS": _quality("SDS_TCS", "CIE 2024"),
     "NIST CQS 7.4": _quality("SDS_VS", "NIST CQS 7.4"),
     "NIST CQS 9.0": _quality("SDS_VS", "NIST CQS 9.0"),
+    "CIE 2017 CES": _cfi2017,
     "RAW to ACES v1": _rawtoaces,
 }
 

@@ -31,7 +31,8 @@ class _Group(click.Group):
 
 class _terminate_as_interrupt:
     """SIGTERM (``kill``, a service manager stopping us) is handled like Ctrl-C: a stream drains, a capture or
-    recover removes what it half wrote; only ``kill -9`` cannot be handled (see README, Reliability)."""
+    recover removes what it half wrote (a capture keeps its complete sequences); only ``kill -9`` cannot be
+    handled, and a killed capture is salvaged (see README, Reliability)."""
 
     def __enter__(self):
         import signal
@@ -211,9 +212,15 @@ def selftest(device, verbose):
               help="With --stream: length of each sustained case.")
 @click.option("--paced-seconds", type=click.FloatRange(min=0.5), default=60.0, show_default=True,
               help="With --stream: length of the case paced at the camera's 200 fps.")
-@click.option("--stream-cases", default="fused,cube,paced,overload,equality", show_default=True,
-              help="With --stream: comma-separated cases to run.")
-def bench(device, json_path, sizes, repeats, stream, stream_size, stream_seconds, paced_seconds, stream_cases):
+@click.option("--stream-cases", default="fused,sigma,sigma_rms,white,cube,paced,overload,equality",
+              show_default=True,
+              help="With --stream: comma-separated cases to run (also dE_sigma).")
+@click.option("--stream-rounds", type=click.IntRange(min=1), default=1, show_default=True,
+              help="With --stream: interleaved rounds of the sustained cases (fused, sigma, sigma_rms, white, "
+                   "dE_sigma); "
+                   "each reports its median round.")
+def bench(device, json_path, sizes, repeats, stream, stream_size, stream_seconds, paced_seconds, stream_cases,
+          stream_rounds):
     """Throughput of each kernel against NumPy / colour-science baselines measured in the same run."""
     from .bench import parse_sizes, run_bench
 
@@ -227,7 +234,7 @@ def bench(device, json_path, sizes, repeats, stream, stream_size, stream_seconds
         cases = tuple(c.strip() for c in stream_cases.split(",") if c.strip())
         run_stream_bench(seconds=stream_seconds, paced_seconds=paced_seconds, overload_seconds=stream_seconds,
                          width=width, height=height, device=device, json_path=json_path, echo=click.echo,
-                         cases=cases)
+                         cases=cases, rounds=stream_rounds)
         return
     try:
         parsed = parse_sizes(sizes)
@@ -523,12 +530,31 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
             result = _capture_into(writer, bar, description, hardware, plan, bundle, truth, sequences, seed)
         writer.close(result.assembly, metadata=meta)
     except BaseException as error:
-        writer.abort(error)
+        _keep_or_abort(writer, error, out, sequences, meta)
         raise
     a = result.assembly
     click.echo(f"{writer.sequences} sequences of {plan.K} frames ({truth.name}, {cam.roi_width} x "
                f"{cam.roi_height}); dropped {a.dropped}, duplicated {a.duplicates}, missed triggers "
                f"{a.missed_triggers}, discarded {a.sequences_discarded}; wrote {out}")
+
+
+def _keep_or_abort(writer, error, out, requested, meta) -> None:
+    """A capture stopped by ``error``: keep the complete sequences already on disk (a folder is closed with them,
+    marked interrupted; a zarr recording keeps what it committed) and say so on stderr; with none, remove what was
+    written."""
+    reason = "interrupted" if isinstance(error, KeyboardInterrupt) else f"{type(error).__name__}: {error}"
+    kept = writer.sequences
+    if not kept:
+        writer.abort(error)
+        return
+    try:
+        writer.keep(None, meta, reason=reason, requested=requested)
+    except Exception as failed:  # noqa: BLE001 (the first error is the one raised; this one is reported)
+        click.echo(f"specgpu: {kept} complete sequences are on disk in {out} but could not be indexed "
+                   f"({failed}); `specgpu salvage {out}` indexes them", err=True)
+        return
+    click.echo(f"specgpu: capture stopped ({reason.splitlines()[0] if reason else ''}); kept {kept} of {requested} "
+               f"sequences in {out}", err=True)
 
 
 class _ZarrCapture:
@@ -564,6 +590,11 @@ class _ZarrCapture:
         self.recorder.failed = self.recorder.failed or f"{type(error).__name__}: {error}"
         self.recorder.close()
 
+    def keep(self, assembly, metadata=None, *, reason: str, requested: int | None = None) -> None:
+        """A capture cut short: the committed sequences stay (each was committed as it arrived)."""
+        self.recorder.failed = self.recorder.failed or reason
+        self.recorder.close()
+
 
 def _capture_into(writer, bar, description, hardware, plan, bundle, truth, sequences, seed):
     """Capture on the twin or the rig's devices, each complete sequence written as it arrives."""
@@ -581,7 +612,7 @@ def _capture_into(writer, bar, description, hardware, plan, bundle, truth, seque
         from .hardware.rig import open_hardware
 
         driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle,
-                               n_frames=plan.K * sequences)
+                               n_frames=plan.K * sequences, exposure_s=plan.exposure_s)
         try:
             result = capture_sequences(driver, plan.K, on_sequence=keep)
         finally:
@@ -639,6 +670,25 @@ def _parse_reference(text, height, width, illuminant):
     from .rig.scene import load_scene
 
     return XYZ_to_Lab(scene_XYZ(load_scene(text, height, width), illuminant), illuminant)
+
+
+@main.command()
+@click.argument("seq", type=click.Path(exists=True, file_okay=False))
+def salvage(seq):
+    """Index the complete sequences of a capture folder whose capture was killed (kill -9, a crash, power loss).
+
+    Each sequence a capture writes is journaled as it arrives; this checks every journaled frame against its
+    checksum and writes sequence.json for the complete, intact sequences (marked salvaged). Nothing is deleted.
+    """
+    from .pipeline import salvage_capture
+
+    _lock(seq, folder=True)  # not while a capture is still writing into it
+    info = salvage_capture(seq)
+    rest = f"; not kept: {info['stopped']}" if info["stopped"] else ""
+    if info["frames_unindexed"]:
+        rest += f"; {info['frames_unindexed']} frame file(s) outside the index left in place"
+    click.echo(f"salvaged {info['sequences']} sequences ({info['frames_kept']} of {info['frames_journaled']} "
+               f"journaled frames) in {seq}{rest}")
 
 
 @main.command()
@@ -779,7 +829,10 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
                    "preview.png inside.")
 @click.option("--frames", "raw_frames", is_flag=True, help="Also record the raw frames (for specgpu batch).")
 @click.option("--outputs", default="coefficients,XYZ,dE", show_default=True,
-              help="Comma-separated: coefficients, cube, XYZ, Lab, dE.")
+              help="Comma-separated: coefficients, cube, XYZ, Lab, dE, sigma (each output's standard deviation and "
+                   "their RMS), sigma_rms (that RMS alone), dE_sigma (first-order dE2000 standard deviation); the "
+                   "sigmas need a plan made with "
+                   "--estimator.")
 @click.option("--delta-e-ref", "ref", default=None,
               help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it (default: the streamed scene).")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
@@ -795,8 +848,13 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
 @click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=None,
               help="Seed of the frames' temporal noise.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
+@click.option("--white-roi", default=None, metavar="X,Y,W,H",
+              help="A reference white in the field: rescale each sequence's decoder for the light's drift (as "
+                   "recover --white-roi; the gains are recorded).")
+@click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
+              help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
-                   pacing, policy, exr_every, half, seed, device):
+                   pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     from .capture.twin import TwinDriver
@@ -808,6 +866,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     # before any loading: a typo is an error naming the valid outputs
     wanted = tuple(validate_method(o.strip(), {k: k for k in STREAM_OUTPUTS}, "stream output")
                    for o in outputs.split(",") if o.strip())
+    if white_reflectance is not None and white_roi is None:
+        raise click.UsageError("--white-reflectance needs --white-roi")
     from .rig.config import load_rig
 
     if out:
@@ -832,18 +892,20 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     else:  # real devices: the plan uploaded to the light, frames from the camera (a camera never waits)
         from .hardware.rig import open_hardware
 
-        driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle)
+        driver = open_hardware(description, hardware=hardware, patterns=plan.patterns, calibration=bundle,
+                               exposure_s=plan.exposure_s)  # the plan's, as the twin uses it
         pacing = "paced"
     try:
         _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
-                    seconds, method, illuminant, pacing, policy, exr_every, half, seed, device)
+                    seconds, method, illuminant, pacing, policy, exr_every, half, seed, device,
+                    white=(white_roi, white_reflectance))
     finally:
         if hardware is not None:
             driver.close()  # the light's USB link and the camera
 
 
 def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
-                seconds, method, illuminant, pacing, policy, exr_every, half, seed, device):
+                seconds, method, illuminant, pacing, policy, exr_every, half, seed, device, white=(None, None)):
     """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised."""
     import numpy as np
 
@@ -851,9 +913,10 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
 
     cam = description.camera
     policy = policy or ("drop_newest" if pacing == "paced" else "block")
+    white_roi, white_reflectance = white
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
-                    device=device)
+                    device=device, white_roi=white_roi, white_reflectance=white_reflectance)
     sinks, writer = stream.sinks, None
     if out:
         from pathlib import Path
@@ -865,7 +928,8 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
                                                                              cam.roi_width) if raw_frames else None)
         check_free_space(out, n_expected * per_sequence,
                          what=f"the recording ({n_expected} sequences x {per_sequence / 1e6:.1f} MB)")
-        meta = {"scene": truth.name, "illuminant": illuminant, "method": method, "seed": seed}
+        meta = {"scene": truth.name, "illuminant": illuminant, "method": method, "seed": seed,
+                **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {})}
         writer = ZarrRecorder(out, plan, frames=raw_frames, basis=stream.decoder.basis, metadata=meta)
         import shutil
 

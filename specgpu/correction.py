@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi",
-           "white_reflectance_curve", "white_gains", "gain_noise",
-           "corrected_decoder", "DEFAULT_WHITE_REFLECTANCE"]
+           "white_reflectance_curve", "white_gains", "gain_noise", "corrected_decoder", "WhiteReference",
+           "DEFAULT_WHITE_REFLECTANCE"]
 
 #: Reflectance of the reference white when none is given (a pressed-PTFE standard's certificate value).
 DEFAULT_WHITE_REFLECTANCE = 0.99
@@ -170,32 +170,10 @@ def white_gains(frames, plan, bundle, roi, white=None, *, dark=None) -> np.ndarr
 
     ``frames`` (K, H, W) raw; ``dark`` (H, W) the level to subtract (the calibration's at the plan's exposure by
     default). The ambient frame's gain is 1. Raises a one-line ``ValueError`` when the ROI has a saturated pixel
-    in any frame, or when a pattern gives no signal on it.
+    in any frame, or when a pattern gives no signal on it. (One sequence of :meth:`WhiteReference.gains`.)
     """
     frames = np.asarray(frames)
-    x, y, w, h = parse_roi(roi, frames.shape[1:])
-    sl = (slice(y, y + h), slice(x, x + w))
-    if np.any(frames[(slice(None), *sl)] >= bundle.max_code):
-        k = int(np.flatnonzero(np.any(frames[(slice(None), *sl)] >= bundle.max_code, axis=(1, 2)))[0])
-        raise ValueError(f"--white-roi {x},{y},{w},{h} is saturated in frame {k}: choose a darker white or a "
-                         f"shorter exposure")
-    d = bundle.dark_at(plan.exposure_s) if dark is None else np.asarray(dark)
-    flat = bundle.flat_field[sl]
-    measured = np.array([float(np.mean((frames[k][sl] - d[sl]) * flat)) for k in range(frames.shape[0])])
-    grid = bundle.wavelengths
-    rho = white_reflectance_curve(white, grid)
-    predicted = bundle.forward_matrix(plan.patterns, grid, plan.exposure_s) @ rho
-    gains = np.ones(frames.shape[0])
-    lit = predicted > 1e-6 * max(float(predicted.max()), 1e-30)
-    amb = ambient_index(plan)
-    if amb is not None:
-        lit[amb] = False
-    bad = lit & ~(measured > 0.02 * predicted)
-    if np.any(bad):
-        k = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"--white-roi {x},{y},{w},{h} gives no signal in frame {k} (is the white in the ROI?)")
-    gains[lit] = measured[lit] / predicted[lit]
-    return gains
+    return WhiteReference(plan, bundle, roi, white, frame_shape=frames.shape[1:]).gains(frames, dark=dark)
 
 
 #: Relative change of the fitted spectral ratio across 420-680 nm below which the light is taken to have changed
@@ -234,43 +212,143 @@ def corrected_decoder(plan, gains, bundle=None, white=None, *, sequences: int = 
     gains whose spread about their mean is within the light's own fluctuation (:func:`gain_noise`, ``sequences``
     the number of sequences whose mean ``gains`` are): chi-square below its degrees of freedom plus
     :data:`COLOUR_SIGNIFICANCE` standard deviations.
+    (One sequence of :meth:`WhiteReference.decoder`.)
     """
     g = np.asarray(gains, np.float64)
     if bundle is None:
         return plan.A / g[None, :]
-    grid = bundle.wavelengths
-    F = bundle.forward_matrix(plan.patterns, grid, plan.exposure_s)  # (K, G)
-    rho = white_reflectance_curve(white, grid)
-    base = F @ rho
-    lit = base > 1e-6 * max(float(base.max()), 1e-30)
-    u = (grid - 550.0) / 150.0
-    n_par = int(min(3, max(0, lit.sum() - 1)))
-    if n_par == 0:
-        return plan.A / g[None, :]
-    sigma = gain_noise(plan, bundle, sequences)
-    if sigma:
-        dev = np.log(g[lit]) - np.log(g[lit]).mean()
-        dof = int(lit.sum()) - 1
-        if float(np.sum(dev**2)) / sigma**2 <= dof + COLOUR_SIGNIFICANCE * np.sqrt(2.0 * dof):
-            return plan.A / g[None, :]  # one power change and the frames' own fluctuation: per-pattern scaling
-    from scipy.optimize import least_squares
+    return WhiteReference(plan, bundle, None, white).decoder(g, sequences=sequences)
 
-    basis = np.stack([u**i for i in range(n_par)], axis=0)  # (P, G)
 
-    def resid(a):
+class WhiteReference:
+    """The reference-white correction of one plan and calibration, with everything that does not depend on the
+    frames computed once (the forward model on the calibration's grid, the white's predicted outputs, the smooth
+    reflectances and what the decoder gives on them): a stream applies it to every sequence at a small host cost.
+
+    :func:`white_gains` and :func:`corrected_decoder` are one sequence of it, so ``specgpu recover --white-roi``
+    and ``specgpu stream --white-roi`` give the same decoder for the same frames.
+
+    Parameters
+    ----------
+    plan, bundle
+        The plan and the calibration it was made from.
+    roi : str or (x, y, w, h), optional
+        The white's region (``"X,Y,W,H"``), checked against ``frame_shape`` (None: :meth:`decoder` only).
+    white : float or path, optional
+        The white's reflectance (:func:`white_reflectance_curve`; 0.99 by default).
+    frame_shape : (H, W), optional
+        Default: the calibration's dark frame's.
+    """
+
+    def __init__(self, plan, bundle, roi=None, white=None, *, frame_shape=None):
+        self.plan, self.bundle, self.white = plan, bundle, white
+        shape = tuple(np.shape(bundle.dark)[-2:]) if frame_shape is None else tuple(frame_shape)
+        self.roi = None if roi is None else parse_roi(roi, shape)
+        grid = bundle.wavelengths
+        self.F = bundle.forward_matrix(plan.patterns, grid, plan.exposure_s)  # (K, G)
+        self.rho = white_reflectance_curve(white, grid)
+        self.predicted = self.F @ self.rho
+        self.lit = self.predicted > 1e-6 * max(float(self.predicted.max()), 1e-30)
+        amb = ambient_index(plan)
+        self.lit_gain = self.lit.copy()
+        if amb is not None:
+            self.lit_gain[amb] = False
+        self.u = (grid - 550.0) / 150.0
+        self.n_par = int(min(3, max(0, self.lit.sum() - 1)))
+        self.basis = np.stack([self.u**i for i in range(self.n_par)], axis=0)  # (P, G)
+        self.visible = (grid >= 420.0) & (grid <= 680.0)
+        self._bumps = None
+        self._target = None
+
+    def gains(self, frames, *, dark=None) -> np.ndarray:
+        """(K,) gains of one sequence's frames (K, H, W) (see :func:`white_gains`)."""
+        if self.roi is None:
+            raise ValueError("this white reference has no --white-roi")
+        plan, bundle = self.plan, self.bundle
+        x, y, w, h = self.roi
+        sl = (slice(y, y + h), slice(x, x + w))
+        patch = np.asarray(frames)[(slice(None), *sl)]
+        if patch.shape[1:] != (h, w):
+            raise ValueError(f"--white-roi {x},{y},{w},{h} lies outside the {frames.shape[2]} x {frames.shape[1]} "
+                             "frame")
+        over = np.any(patch >= bundle.max_code, axis=(1, 2))
+        if np.any(over):
+            k = int(np.flatnonzero(over)[0])
+            raise ValueError(f"--white-roi {x},{y},{w},{h} is saturated in frame {k}: choose a darker white or a "
+                             f"shorter exposure")
+        d = bundle.dark_at(plan.exposure_s) if dark is None else np.asarray(dark)
+        flat = bundle.flat_field[sl]
+        measured = np.array([float(np.mean((patch[k] - d[sl]) * flat)) for k in range(patch.shape[0])])
+        predicted, lit = self.predicted, self.lit_gain
+        gains = np.ones(patch.shape[0])
+        bad = lit & ~(measured > 0.02 * predicted)
+        if np.any(bad):
+            k = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"--white-roi {x},{y},{w},{h} gives no signal in frame {k} (is the white in the ROI?)")
+        gains[lit] = measured[lit] / predicted[lit]
+        return gains
+
+    def _fit_ratio(self, log_g) -> np.ndarray:
+        """Coefficients ``a`` of the smooth ratio ``exp(a . u^i)`` whose predicted log-gains of the lit patterns fit
+        ``log_g`` in least squares: Gauss-Newton with step halving on the analytic Jacobian (a 1-3 parameter fit,
+        converged to 1e-12 in a few iterations: a stream pays it per sequence)."""
+        F, rho, basis = self.F[self.lit], self.rho, self.basis
+        log_base = np.log(self.predicted[self.lit])
+
+        def model(a):
+            w = np.exp(a @ basis) * rho
+            o = F @ w
+            return np.log(o) - log_base - log_g, w, o
+
+        a = np.zeros(self.n_par)
+        res, w, o = model(a)
+        cost = float(res @ res)
+        for _ in range(100):
+            J = (F @ (w[:, None] * basis.T)) / o[:, None]  # d log o_k / d a_j
+            step = np.linalg.lstsq(J, -res, rcond=None)[0]
+            t = 1.0
+            while t > 1e-6:
+                trial = model(a + t * step)
+                new_cost = float(trial[0] @ trial[0])
+                if new_cost <= cost:
+                    break
+                t *= 0.5
+            else:
+                break
+            a = a + t * step
+            res, w, o = trial
+            done = cost - new_cost <= 1e-15 * max(cost, 1e-30) or float(np.max(np.abs(t * step))) < 1e-12
+            cost = new_cost
+            if done:
+                break
+        return a
+
+    def decoder(self, gains, *, sequences: int = 1) -> np.ndarray:
+        """The plan's decoder corrected for gains, one sequence's or the mean of ``sequences`` (see
+        :func:`corrected_decoder`)."""
+        plan, F, rho, base, lit = self.plan, self.F, self.rho, self.predicted, self.lit
+        g = np.asarray(gains, np.float64)
+        if self.n_par == 0:
+            return plan.A / g[None, :]
+        sigma = gain_noise(plan, self.bundle, sequences)
+        if sigma:
+            dev = np.log(g[lit]) - np.log(g[lit]).mean()
+            dof = int(lit.sum()) - 1
+            if float(np.sum(dev**2)) / sigma**2 <= dof + COLOUR_SIGNIFICANCE * np.sqrt(2.0 * dof):
+                return plan.A / g[None, :]  # one power change and the frames' own fluctuation: per-pattern scaling
+        a = self._fit_ratio(np.log(g[lit]))
+        basis = self.basis
         r = np.exp(a @ basis)
-        return np.log((F[lit] @ (r * rho)) / base[lit]) - np.log(g[lit])
-
-    a = least_squares(resid, np.zeros(n_par)).x
-    r = np.exp(a @ basis)
-    visible = (grid >= 420.0) & (grid <= 680.0)
-    if float(r[visible].max() / r[visible].min()) - 1.0 < MIN_COLOUR_CHANGE:
-        return plan.A / g[None, :]  # no colour change beyond the frames' own fluctuation: per-pattern scaling
-    bumps = np.stack([np.exp(-0.5 * ((grid - c) / 20.0) ** 2) for c in np.arange(380.0, 781.0, 10.0)]
-                     + [np.ones_like(grid)], axis=1)  # (G, N) smooth reflectances
-    target = plan.A @ (F @ bumps)  # what the decoder gives on the calibrated light
-    drifted = F @ (r[:, None] * bumps)  # (K, N) the outputs on the drifted light
-    A_new = target @ np.linalg.pinv(drifted, rcond=1e-3)
-    predicted = (F @ (r * rho)) / np.where(lit, base, 1.0)
-    residual = np.where(lit, g / np.where(lit, predicted, 1.0), 1.0)
-    return A_new / residual[None, :]
+        visible = self.visible
+        if float(r[visible].max() / r[visible].min()) - 1.0 < MIN_COLOUR_CHANGE:
+            return plan.A / g[None, :]  # no colour change beyond the frames' own fluctuation: per-pattern scaling
+        if self._bumps is None:
+            grid = self.bundle.wavelengths
+            self._bumps = np.stack([np.exp(-0.5 * ((grid - c) / 20.0) ** 2) for c in np.arange(380.0, 781.0, 10.0)]
+                                   + [np.ones_like(grid)], axis=1)  # (G, N) smooth reflectances
+            self._target = plan.A @ (F @ self._bumps)  # what the decoder gives on the calibrated light
+        drifted = F @ (r[:, None] * self._bumps)  # (K, N) the outputs on the drifted light
+        A_new = self._target @ np.linalg.pinv(drifted, rcond=1e-3)
+        predicted = (F @ (r * rho)) / np.where(lit, base, 1.0)
+        residual = np.where(lit, g / np.where(lit, predicted, 1.0), 1.0)
+        return A_new / residual[None, :]

@@ -169,7 +169,8 @@ def _system_on(bundle, wavelengths) -> np.ndarray:
 
 def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: str = "rmse", illuminant="D65",
                  training=None, output_wavelengths=None, level: float = 0.9, max_exposure_s: float | None = None,
-                 target: float | None = None, exposure_s: float | None = None, starts: int = 4, seed: int = 0):
+                 target: float | None = None, exposure_s: float | None = None, starts: int = 4, seed: int = 0,
+                 iterations: int = 300):
     """An optimal K-frame plan (see the module notes) with the Wiener decoder and its expected error recorded.
 
     Parameters
@@ -196,6 +197,8 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         reach ``level``.
     target : float, optional
         Refuse (one line) a design whose expected error (RMSE, or dE2000 for that objective) is above it.
+    starts, seed, iterations
+        The search's starting points, their seed and its L-BFGS-B iterations per start (:func:`design_optimal`).
     """
     from .plans import DEFAULT_MAX_EXPOSURE_S, _base, _quantize
 
@@ -221,7 +224,8 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         if not bundle.min_exposure_s <= exposure_s <= longest:
             raise ValueError(f"exposure_s must lie in [{bundle.min_exposure_s:g}, {longest:g}] s, got {exposure_s!r}")
         t_typ = float(exposure_s)
-    shapes, _ = design_optimal(Sb, prior, noise_at(t_typ), int(frames), cap, P=P, starts=starts, seed=seed)
+    shapes, _ = design_optimal(Sb, prior, noise_at(t_typ), int(frames), cap, P=P, starts=starts, seed=seed,
+                               iterations=iterations)
     # exposure: every frame reaches cap with its levels <= 1 (or as close as the longest exposure allows)
     need = cap / (shapes @ white)
     t = float(np.clip(max(need.max(), exposure_s or 0.0), bundle.min_exposure_s, longest))

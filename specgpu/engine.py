@@ -141,7 +141,7 @@ def linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 
 
 
 def _linear_kernel(queue, frames_dtype, A, n, in_layout, dark, dark_per_frame, gain, out_dtype, out_layout,
-                   want_mask, saturation):
+                   want_mask, saturation, out_sqrt=False):
     """The linear kernel's entry, macros and launch size for the variant of the queue's device."""
     B, K = A.shape
     vw = _vw(queue)
@@ -153,7 +153,7 @@ def _linear_kernel(queue, frames_dtype, A, n, in_layout, dark, dark_per_frame, g
     per_element = gpu_interleaved and not tile
     macros = dict(
         B=B, OUT_HALF=out_dtype == np.float16, OUT_LAYOUT=out_layout, WRITE_MASK=want_mask, VW=_vw_macro(vw),
-        GROUP=_GROUP if gpu_interleaved else None, TILE=tile,
+        GROUP=_GROUP if gpu_interleaved else None, TILE=tile, OUT_SQRT=True if out_sqrt else None,
         **_input_macros(frames_dtype, K, in_layout, 0 if dark is None else (2 if dark_per_frame else 1),
                         gain is not None, saturation if want_mask else None),
     )
@@ -176,13 +176,23 @@ class Prepared:
         self.alloc = get_allocator(queue)
         kernel.set_args(*args)
 
-    def enqueue(self, frames_buffer) -> dict:
-        """Enqueue on ``frames_buffer``; returns name -> a fresh pooled device buffer of each output."""
+    #: Argument index of the matrix (A or M) in both kernel families.
+    matrix_index = 1
+
+    def enqueue(self, frames_buffer, matrix=None, inputs=None) -> dict:
+        """Enqueue on ``frames_buffer``; returns name -> a fresh pooled device buffer of each output. ``matrix``, a
+        device buffer of the same size as the prepared one, replaces the matrix for this launch and the next
+        ones (a per-sequence decoder: the stream's white-reference correction). ``inputs``: argument index ->
+        buffer, further inputs set for this launch."""
         out = {name: self.alloc(max(nbytes, 1)) for name, (_, nbytes) in self.outputs.items()}
         if self.empty:
             return out
         k = self.kernel
         k.set_arg(self.frames_index, frames_buffer)
+        if matrix is not None:
+            k.set_arg(self.matrix_index, matrix)
+        for index, buf in (inputs or {}).items():
+            k.set_arg(index, buf)
         for name, (index, _) in self.outputs.items():
             k.set_arg(index, out[name])
         cl.enqueue_nd_range_kernel(self.queue, k, self.global_size, self.local_size)
@@ -190,19 +200,37 @@ class Prepared:
 
 
 def prepare_linear(queue, frames_dtype, A: np.ndarray, *, n: int, dark=None, dark_per_frame=False, gain=None,
-                   out_dtype=np.float32, out_layout: int = 0, want_mask: bool = False, saturation=None) -> Prepared:
-    """:func:`linear` as a :class:`Prepared` launch; outputs ``out`` (B*n) and ``mask`` (n) when asked."""
+                   out_dtype=np.float32, out_layout: int = 0, want_mask: bool = False, saturation=None,
+                   sqrt_offsets=None) -> Prepared:
+    """:func:`linear` as a :class:`Prepared` launch; outputs ``out`` (B*n) and ``mask`` (n) when asked.
+
+    ``sqrt_offsets`` (B,): write ``sqrt(max(y_b + offset_b, 0))`` (a standard deviation from a variance linear in
+    the frames plus a constant); the device matrix is then A's B x K values followed by the B offsets
+    (:func:`linear_matrix`)."""
     B = A.shape[0]
     out_dtype = np.dtype(out_dtype)
     name, macros, items, ppi = _linear_kernel(queue, np.dtype(frames_dtype), A, n, 0, dark, dark_per_frame,
-                                              gain, out_dtype, out_layout, want_mask, saturation)
+                                              gain, out_dtype, out_layout, want_mask, saturation,
+                                              out_sqrt=sqrt_offsets is not None)
     kernel = new_kernel(queue, "linear.cl", name, **macros)
-    A_dev = matrix_on_device(queue, A)
+    A_dev = matrix_on_device(queue, linear_matrix(A, sqrt_offsets))
     outputs = {"out": (4, B * n * out_dtype.itemsize)}
     if want_mask:
         outputs["mask"] = (5, n)
     return Prepared(queue, kernel, items, ppi, [None, A_dev.data, _data(dark), _data(gain), None, None,
                                                 np.uint64(n)], 0, outputs)
+
+
+def linear_matrix(A, sqrt_offsets=None) -> np.ndarray:
+    """The float32 values of a linear launch's matrix argument: A (B x K) row-major, then the B offsets of a
+    square-root output."""
+    A = np.ascontiguousarray(A, np.float32)
+    if sqrt_offsets is None:
+        return A
+    off = np.asarray(sqrt_offsets, np.float32).reshape(-1)
+    if off.size != A.shape[0]:
+        raise ValueError(f"sqrt_offsets needs {A.shape[0]} values, got {off.size}")
+    return np.concatenate([A.reshape(-1), off])
 
 
 def prepare_frames_to_delta_e(queue, frames_dtype, M: np.ndarray, white, reference, *, n: int,
@@ -232,6 +260,19 @@ def prepare_frames_to_delta_e(queue, frames_dtype, M: np.ndarray, white, referen
     Xn, Yn, Zn = (np.float32(v) for v in white)
     return Prepared(queue, kernel, n, vw, [None, M_dev.data, _data(dark), _data(gain), Xn, Yn, Zn,
                                            _data(reference), None, None, None, None, np.uint64(n)], 0, outputs)
+
+
+def prepare_delta_e_sigma(queue, white, constant_cov, *, n: int) -> Prepared:
+    """The first-order dE2000 standard deviation of XYZ (3n, the launch's "frames") given the noise part of its
+    covariance (6n: XX XY XZ YY YZ ZZ per pixel, input argument 1) and a constant (3, 3) covariance, as a
+    :class:`Prepared` launch; output ``dE_sigma`` (n)."""
+    vw = _vw(queue)
+    kernel = new_kernel(queue, "colorimetry.cl", "delta_e_sigma", VW=_vw_macro(vw))
+    C = np.asarray(constant_cov, np.float64).reshape(3, 3)
+    c_dev = matrix_on_device(queue, np.array([C[i, j] for i in range(3) for j in range(i, 3)], np.float32))
+    Xn, Yn, Zn = (np.float32(v) for v in white)
+    return Prepared(queue, kernel, n, vw, [None, None, c_dev.data, Xn, Yn, Zn, None, np.uint64(n)], 0,
+                    {"dE_sigma": (6, 4 * n)})
 
 
 def xyz_to_lab(queue, xyz: cla.Array, white, *, n: int) -> cla.Array:

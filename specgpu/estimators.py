@@ -63,6 +63,9 @@ __all__ = [
     "format_study",
     "chart_error",
     "prior_size_rows",
+    "subspace_bound",
+    "training_sets",
+    "cross_validated_error",
 ]
 
 #: Estimator names: the plan's own decoder, Wiener (LMMSE) on a training prior, smoothness-regularised LS.
@@ -425,24 +428,28 @@ def constant_variance(plan) -> np.ndarray:
 def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65") -> np.ndarray:
     """First-order propagation of an XYZ covariance (..., 3, 3) to dE2000 (..., ): the colour difference of a
     small perturbation is (to first order) its CIEDE2000 metric at the colour, ``dE^2 = dLab^T G dLab``; the
-    sigma is ``sqrt(trace(G J C J^T))`` with J the XYZ -> Lab Jacobian at each pixel and G the local CIEDE2000
-    metric (its diagonal along L*, a*, b*, by finite differences of colour-science's ``delta_E``)."""
+    sigma is ``sqrt(trace(G J C J^T))`` with J the XYZ -> Lab Jacobian at each pixel (analytic) and G the local
+    CIEDE2000 metric (its diagonal along L*, a*, b*, by finite differences of colour-science's ``delta_E``; the
+    stream's ``delta_e_sigma`` kernel computes the same on the device)."""
     import colour
 
-    from .colorimetry import XYZ_to_Lab
+    from .spectra import white_point_XYZ
 
     xyz = np.asarray(XYZ, np.float64)
     C = np.asarray(XYZ_sigma_cov, np.float64)
     shape = xyz.shape[:-1]
     x = xyz.reshape(-1, 3)
     C = C.reshape(-1, 3, 3)
-    lab = np.asarray(XYZ_to_Lab(x.astype(np.float32), illuminant), np.float64)
-    h = 1e-4
-    J = np.empty((x.shape[0], 3, 3))
-    for j in range(3):
-        d = np.zeros(3)
-        d[j] = h
-        J[:, :, j] = (np.asarray(XYZ_to_Lab((x + d).astype(np.float64), illuminant), np.float64) - lab) / d[j]
+    # the XYZ -> Lab Jacobian analytically (CIE 1976: f(t) = t^(1/3) above (24/116)^3, linear below), in float64
+    white = white_point_XYZ(illuminant)
+    lab = colour.XYZ_to_Lab(x, colour.XYZ_to_xy(white))
+    eps = 216.0 / 24389.0
+    t = x / white
+    d = np.where(t > eps, (1.0 / 3.0) / np.cbrt(np.maximum(t, eps)) ** 2, 841.0 / 108.0) / white  # df/dX, dY, dZ
+    J = np.zeros((x.shape[0], 3, 3))
+    J[:, 0, 1] = 116.0 * d[:, 1]
+    J[:, 1, 0], J[:, 1, 1] = 500.0 * d[:, 0], -500.0 * d[:, 1]
+    J[:, 2, 1], J[:, 2, 2] = 200.0 * d[:, 1], -200.0 * d[:, 2]
     covLab = J @ C @ np.transpose(J, (0, 2, 1))
     # local CIEDE2000 metric: dE(lab, lab + e_i) ~ sqrt(G_ii) for unit steps along L, a, b
     step = 0.5
@@ -457,10 +464,13 @@ def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65") -> np.ndarray:
 
 # ---- held-out chart as a scene -----------------------------------------------------------------------------------
 def patch_scene(names, wavelengths, spectra, height: int = 240, width: int = 320, *, surround: float = 0.03,
-                name: str = "held-out chart"):
+                name: str = "held-out chart", white_tile: float | None = None):
     """A chart scene of arbitrary patch spectra (N, B): a grid of square patches on a dark surround, one mask
-    per patch (its central 70 %), like :func:`specgpu.rig.scene.colorchecker_scene`."""
-    from .rig.scene import SpectralScene
+    per patch (its central 70 %), like :func:`specgpu.rig.scene.colorchecker_scene`; ``white_tile`` (a flat
+    reflectance) puts a reference white above the patches at :func:`specgpu.rig.scene.white_tile_roi` (not a
+    mask), for the drift correction of a lab rig."""
+    from .checks import check_number
+    from .rig.scene import SpectralScene, white_tile_roi
 
     spectra = np.asarray(spectra, np.float64)
     n = spectra.shape[0]
@@ -481,12 +491,22 @@ def patch_scene(names, wavelengths, spectra, height: int = 240, width: int = 320
         y0i, y1i = int(round(ya + inset)), int(round(ya + size - inset))
         m[y0i:y1i, int(round(xa + inset)):int(round(xa + size - inset))] = True
         masks[str(names[k])] = m
+    if white_tile is not None:
+        wt = check_number("white_tile", white_tile, low=0, low_open=True, high=1.5)
+        x, y, tw, th = white_tile_roi(height, width)
+        tile = np.zeros((height, width), bool)
+        tile[max(0, y - 3):y + th + 3, max(0, x - 3):x + tw + 3] = True
+        if np.any(tile & np.any(list(masks.values()), axis=0)):
+            raise ValueError(f"white_tile: no room above {n} patches at {width} x {height}")
+        refl[tile] = wt
     return SpectralScene(np.asarray(wavelengths, np.float64), refl, masks, name)
 
 
 # ---- the study: the must-show table ------------------------------------------------------------------------------
 #: Rows of the estimator study: name -> (method, keyword arguments, estimator). Optimal plans take the design's
-#: own keywords (frames, objective, exposure_s).
+#: own keywords (frames, objective, exposure_s, max_exposure_s). Designs expose at most 0.1 s: past it a lab's
+#: room light (3 lux, the ambient frame) fills the white's headroom above the designed level, for a gain of 1 %
+#: in expected RMSE on the prior (0.0090 at 0.22 s against 0.0091 at 0.1 s for optimal-9).
 STUDY_METHODS = {
     "narrowband-31": ("narrowband", {"step_nm": 10.0}, "projection"),
     "biased-6": ("biased", {"m": 5}, "projection"),
@@ -494,15 +514,21 @@ STUDY_METHODS = {
     "tristimulus-D65": ("tristimulus", {"illuminant": "D65"}, "projection"),
     "wiener-6": ("biased", {"m": 5}, "wiener"),
     "wiener-9": ("symmetric", {"m": 5}, "wiener"),
-    "optimal-9": ("optimal", {"frames": 9}, "wiener"),
-    "optimal-6": ("optimal", {"frames": 6}, "wiener"),
+    "optimal-9": ("optimal", {"frames": 9, "max_exposure_s": 0.1}, "wiener"),
+    "optimal-6": ("optimal", {"frames": 6, "max_exposure_s": 0.1}, "wiener"),
     "optimal-3": ("optimal", {"frames": 3, "objective": "dEab", "exposure_s": 0.1}, "wiener"),
 }
 
 
-def study_plans(description, bundle, prior, basis, *, methods=None, training=None) -> dict:
+def study_plans(description, bundle, prior, basis, *, methods=None, training=None,
+                chart: str = HELD_OUT_CHART, starts: int = 4, iterations: int = 300,
+                sets: dict | None = None) -> dict:
     """The plans of :data:`STUDY_METHODS` (or the named subset), every one with the camera's noise model and its
-    expected error on the prior recorded."""
+    expected error on the prior recorded. A colour objective (optimal-3) weighs the error by the colours of
+    ``training`` (default: :func:`training_spectra` without ``chart``, the evaluation chart); ``starts`` and
+    ``iterations``: the designs' starting points and L-BFGS-B iterations (:func:`specgpu.design.design_optimal`). With ``sets`` (the prior's spectra by set,
+    :func:`training_sets`) every Wiener plan also records ``expected["rmse_cv"]``, its
+    :func:`cross_validated_error`."""
     from .design import plan_optimal
     from .plans import make_plan
 
@@ -514,40 +540,90 @@ def study_plans(description, bundle, prior, basis, *, methods=None, training=Non
     for name in (methods or STUDY_METHODS):
         method, kw, est = STUDY_METHODS[name]
         if method == "optimal":
-            tr = training if kw.get("objective", "rmse") != "rmse" else None
-            if tr is None and kw.get("objective", "rmse") != "rmse":
-                tr = training_spectra()
-            plans[name] = plan_optimal(bundle, prior, noise_at, output_wavelengths=ow, training=tr, **kw)
+            tr = None
+            if kw.get("objective", "rmse") != "rmse":
+                tr = training_spectra(chart, prior.wavelengths) if training is None else training
+            plans[name] = plan_optimal(bundle, prior, noise_at, output_wavelengths=ow, training=tr, starts=starts,
+                                       iterations=iterations, **kw)
             continue
         args = (basis,) if method in ("biased", "symmetric") else ()
         extra = {"output_wavelengths": ow} if method in ("biased", "symmetric") else {}
         plan = make_plan(method, bundle, *args, **kw, **extra)
         plans[name] = with_estimator(plan, bundle, est, prior=prior, noise=noise_at(plan.exposure_s))
+    if sets is not None:
+        for name, plan in plans.items():
+            if plan.params.get("estimator") == "wiener":
+                cv = cross_validated_error(plan, bundle, sets, prior, noise_at(plan.exposure_s))
+                plans[name] = replace(plan, params={**plan.params,
+                                                    "expected": {**plan.params["expected"], "rmse_cv": cv["rmse"]}})
     return plans
 
 
+def training_sets(chart: str = HELD_OUT_CHART, wavelengths=None) -> dict:
+    """:func:`training_database`'s spectra by set: name -> (N, B)."""
+    db = training_database(chart, wavelengths)
+    names = np.array([label.split("/")[0] for label in db.labels])
+    return {n: db.reflectance[names == n] for n in dict.fromkeys(names)}
+
+
+def cross_validated_error(plan, bundle, sets: dict, prior: Prior, noise: NoiseModel) -> dict:
+    """The expected RMSE of a Wiener plan on a chart the prior has not seen, by leaving one training set out at a
+    time: for each set, the Wiener decoder of the plan's frames learnt from the other sets and its mismatch on
+    that set's spectra; the mean over sets (each set weighs the same, as a new chart is one more set) of their
+    mean squared mismatch, plus the noise part of the plan's own decoder on the whole prior. Returns ``{"rmse",
+    "mismatch": {set: RMS mismatch}}``; fewer than two sets is a one-line error."""
+    if len(sets) < 2:
+        raise ValueError(f"cross-validation needs at least two training sets, got {len(sets)}")
+    wl = prior.wavelengths
+    F = forward(bundle, plan, wl)
+    W = output_weights(plan, wl)
+    per = {}
+    for name, held in sets.items():
+        rest = np.concatenate([r for n, r in sets.items() if n != name])
+        A = wiener_decoder(F, W, prior_from_spectra(rest, wl), noise)
+        per[name] = float(np.mean((np.asarray(held, np.float64) @ (W - A @ F).T) ** 2))
+    noise_part = float(expected_error(plan.A, F, W, prior, noise)["noise"].mean())
+    return {"rmse": float(math.sqrt(np.mean(list(per.values())) + noise_part)),
+            "mismatch": {n: math.sqrt(v) for n, v in per.items()}}
+
+
 def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: int = 0, de_sigma: bool = True,
-               device=None) -> list:
+               device=None, white_roi=None) -> list:
     """Capture each plan ``runs`` times with fresh noise on the twin, recover, and measure on the chart's patch
     pixels: per-pixel means of RMSE, dE2000 and dE*ab (D65; a tristimulus plan under its own illuminant), the
     same of the patch means (per patch), the RMS error beside the plan's expected RMSE, and the standard deviation
     of the standardised errors (error / sigma) and, with ``de_sigma``, the RMS dE2000 over the RMS of the
     predicted dE2000 sigma (:func:`delta_E_sigma`; first run only). Returns one dict per plan with mean and std
-    over the runs."""
+    over the runs.
+
+    ``white_roi`` (a lab rig: a white tile in the scene there): the corrections of ``specgpu demo``'s lab profile,
+    an ambient frame per sequence (subtracted instead of the dark) and the white's rescaling of the decoder for the
+    lamp's drift (:func:`specgpu.pipeline.recover`). The sigma is then the plan's own decoder's on the frames
+    above the ambient frame (the dark the recovery subtracts); the ambient frame's own noise, the room light's
+    shot noise and the decoder's rescaling by a few per cent are not in it."""
+    from .correction import ambient_index, with_ambient_frame
     from .evaluate import evaluate_pixels, patch_means, scene_XYZ, truth_cube
-    from .pipeline import capture_plan
+    from .pipeline import SequenceFolder, capture_plan, recover
     from .recovery import apply_linear
 
     mask = np.any(list(scene.masks.values()), axis=0)
     rows = []
     for i, (name, plan) in enumerate(plans.items()):
+        if white_roi is not None:
+            plan = with_ambient_frame(plan)
         acc = {k: [] for k in ("rmse", "dE2000", "dEab", "patch_rmse", "patch_dE2000", "patch_dEab", "rms", "z",
                                "dE_ratio")}
         for run in range(runs):
-            res = capture_plan(description, plan, scene, noise_seed=10_000 + 97 * seed + 13 * i + run)
+            res = capture_plan(description, plan, scene, noise_seed=10_000 + 97 * seed + 13 * i + run,
+                               calibration=bundle)
             frames = res.sequences[0].frames
             dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
-            y = np.asarray(apply_linear(frames, plan.A, dark, gain, device=device), np.float64)
+            if white_roi is None:
+                y = np.asarray(apply_linear(frames, plan.A, dark, gain, device=device), np.float64)
+            else:
+                folder = SequenceFolder(Path("<memory>"), frames[None], plan, bundle, [], {})
+                y = np.asarray(recover(folder, white_roi=white_roi, device=device), np.float64)
+                dark = frames[ambient_index(plan)].astype(np.float32)  # what the recovery subtracted
             sig = sigma_map(frames, plan, dark, gain, device=device)
             refl = plan.output == "reflectance"
             wl = plan.output_wavelengths if refl else None
@@ -574,9 +650,11 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
             pe = _patch_errors(np.asarray(ym, np.float64), np.asarray(tm, np.float64), plan, ill)
             for k, v in pe.items():
                 acc[k].append(v)
+        expected = plan.params.get("expected", {})
         row = {"name": name, "method": plan.method, "estimator": plan.params.get("estimator", "projection"),
                "K": plan.K, "exposure_ms": plan.exposure_s * 1e3, "runs": runs,
-               "expected_rmse": plan.params.get("expected", {}).get("rmse") if plan.output == "reflectance" else None}
+               "expected_rmse": expected.get("rmse") if plan.output == "reflectance" else None,
+               "expected_rmse_cv": expected.get("rmse_cv")}
         for k, v in acc.items():
             if v:
                 row[k] = (float(np.mean(v)), float(np.std(v)))
@@ -612,17 +690,20 @@ def format_study(rows) -> str:
         return "-" if v is None else f"{v[0]:.{digits}f} +- {v[1]:.{digits}f}"
 
     head = (f"{'method':<16} {'K':>3} {'ms':>7} {'RMSE (pixel)':>18} {'dE2000 (pixel)':>16} {'dE*ab (pixel)':>16} "
-            f"{'RMSE (patch)':>18} {'dE2000 (patch)':>16} {'expected':>8} {'RMS':>8} {'ratio':>6} {'z std':>6} "
-            f"{'dE/sig':>6}")
+            f"{'RMSE (patch)':>18} {'dE2000 (patch)':>16} {'expected':>8} {'RMS':>8} {'ratio':>6} {'cv':>7} "
+            f"{'ratio':>6} {'z std':>6} {'dE/sig':>6}")
     lines = [head, "-" * len(head)]
     for r in rows:
         exp = r.get("expected_rmse")
         rms = r.get("rms")
         ratio = f"{rms[0] / exp:.2f}" if exp and rms else "-"
+        cv = r.get("expected_rmse_cv")
+        cv_text, cv_ratio = (f"{cv:.4f}", f"{rms[0] / cv:.2f}") if cv and rms else ("-", "-")
         lines.append(f"{r['name']:<16} {r['K']:>3} {r['exposure_ms']:>7.1f} {f(r, 'rmse', 4):>18} "
                      f"{f(r, 'dE2000', 2):>16} {f(r, 'dEab', 2):>16} {f(r, 'patch_rmse', 4):>18} "
                      f"{f(r, 'patch_dE2000', 2):>16} {exp if exp is None else round(exp, 4)!s:>8} "
-                     f"{'-' if rms is None else round(rms[0], 4)!s:>8} {ratio:>6} {r['z'][0]:>6.2f} "
+                     f"{'-' if rms is None else round(rms[0], 4)!s:>8} {ratio:>6} {cv_text:>7} {cv_ratio:>6} "
+                     f"{r['z'][0]:>6.2f} "
                      f"{r['dE_ratio'][0] if 'dE_ratio' in r else float('nan'):>6.2f}")
     return "\n".join(lines)
 
@@ -660,3 +741,22 @@ def prior_size_rows(description, bundle, sizes, *, frames: int = 9, chart: str =
         rows.append({"n": n, "expected_rmse": plan.params["expected"]["rmse"],
                      "chart_rmse": chart_error(plan, bundle, test, wl)})
     return rows
+
+
+def subspace_bound(training, test, K: int, *, centred: bool = False) -> float:
+    """The noise-free linear bound with K measurements learnt from ``training`` (N, B), on ``test`` (M, B): the
+    RMSE of the test spectra's orthogonal projection onto the training's best K-dimensional subspace (the top K
+    eigenvectors of its second moment; ``centred``: of its covariance, about its mean, i.e. an affine decoder).
+    No linear decoder of K noise-free measurements designed on that training set does better on ``test`` than a
+    projection onto the subspace it would learn, and the best the training set can teach is its own top K."""
+    tr = np.asarray(training, np.float64)
+    te = np.asarray(test, np.float64)
+    if tr.ndim != 2 or te.ndim != 2 or tr.shape[1] != te.shape[1]:
+        raise ValueError(f"training and test must be (N, B) and (M, B) on one grid, got {tr.shape} and {te.shape}")
+    if not (isinstance(K, (int, np.integer)) and 1 <= K <= tr.shape[1]):
+        raise ValueError(f"K must be an integer in [1, {tr.shape[1]}], got {K!r}")
+    mu = tr.mean(axis=0) if centred else np.zeros(tr.shape[1])
+    X = tr - mu
+    U = np.linalg.eigh(X.T @ X)[1][:, ::-1][:, :K]
+    e = (te - mu) - (te - mu) @ U @ U.T
+    return float(np.sqrt(np.mean(e ** 2)))

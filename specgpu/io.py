@@ -55,7 +55,7 @@ __all__ = [
     "format_channel", "parse_channel", "write_cube", "read_cube", "MAP_KINDS", "write_map", "read_map",
     "write_sRGB_preview", "write_delta_E_png", "read_png", "PERCEPTUAL_COLORMAPS",
     "SEQUENCE_FORMAT", "SEQUENCE_VERSION", "SEQUENCE_FILE", "write_sequence", "SequenceWriter", "read_sequence",
-    "read_sequence_header", "validate_sequence_document", "SPECTRAL_LAYOUT_VERSION",
+    "read_sequence_header", "validate_sequence_document", "JOURNAL_FILE", "salvage_sequence", "SPECTRAL_LAYOUT_VERSION",
     "write_cube_envi", "read_cube_envi", "read_envi_header", "ENVI_INTERLEAVES",
 ]
 
@@ -869,14 +869,20 @@ class SequenceWriter:
     :meth:`add` each frame with its record as it arrives, then :meth:`close` writes ``sequence.json``, last;
     :meth:`abort` removes the frames written. Until :meth:`close` returns, the folder never reads as complete.
 
+    With ``journal``, :meth:`commit` appends the records of the frames added since the last commit to
+    :data:`JOURNAL_FILE` and syncs it (a capture commits each complete sequence), so a process killed before
+    :meth:`close` leaves its frames indexed: :func:`salvage_sequence` turns them into a readable sequence.
+
     Parameters
     ----------
     directory, plan_hash, overwrite
         As :func:`write_sequence`; the folder checks (not a folder, a sequence already there) happen here,
         before any frame is written, and leftover frames of an interrupted write are removed.
+    journal : dict, optional
+        Keep the journal; this JSON object (for example the capture's metadata and K) is its first line.
     """
 
-    def __init__(self, directory, plan_hash: str, *, overwrite: bool = False):
+    def __init__(self, directory, plan_hash: str, *, overwrite: bool = False, journal: dict | None = None):
         directory = self.directory = Path(directory)
         _check_plan_hash(directory, plan_hash)
         self.plan_hash = plan_hash
@@ -895,6 +901,11 @@ class SequenceWriter:
         self.entries: list[dict] = []
         self.written: list[Path] = []
         self.shape = None
+        self.committed = 0
+        self.journal = directory / JOURNAL_FILE if journal is not None else None
+        if self.journal is not None:
+            header = {"format": JOURNAL_FORMAT, "plan_hash": plan_hash, "header": journal}
+            _append_synced(self.journal, [header], fresh=True)
 
     @property
     def n_frames(self) -> int:
@@ -916,6 +927,20 @@ class SequenceWriter:
             raise formats.os_error(self.directory / name, exc) from None
         self.entries.append({"file": name, **rec, "bytes": size, "sha256": digest})
 
+    def commit(self) -> None:
+        """Journal the frames added since the last commit (appended and synced; nothing without ``journal``)."""
+        if self.journal is not None and self.committed < len(self.entries):
+            shape = {"height": int(self.shape[0]), "width": int(self.shape[1])}
+            _append_synced(self.journal, [{**e, **shape} for e in self.entries[self.committed:]])
+        self.committed = len(self.entries)
+
+    def truncate(self, n_frames: int) -> None:
+        """Keep only the first ``n_frames`` frames: the files of the later ones (a sequence cut short) are removed."""
+        for path in self.written[n_frames:]:
+            path.unlink(missing_ok=True)
+        del self.entries[n_frames:], self.written[n_frames:]
+        self.committed = min(self.committed, n_frames)
+
     def close(self, metadata=None) -> Path:
         """Validate the whole document and write ``sequence.json`` (atomically, synced); return the folder."""
         meta_text = _metadata_json(self.directory, metadata)
@@ -932,13 +957,118 @@ class SequenceWriter:
                 fh.write("\n")
                 fh.flush()
                 os.fsync(fh.fileno())
+        if self.journal is not None:
+            self.journal.unlink(missing_ok=True)
         return self.directory
 
     def abort(self) -> None:
-        """Remove the frames this writer wrote (no ``sequence.json`` is written)."""
+        """Remove the frames this writer wrote and its journal (no ``sequence.json`` is written)."""
         for p in self.written:
             p.unlink(missing_ok=True)
         self.written = []
+        if self.journal is not None:
+            self.journal.unlink(missing_ok=True)
+
+
+JOURNAL_FILE = ".specgpu-capture-journal.jsonl"
+JOURNAL_FORMAT = "specgpu.capture-journal"
+
+
+def _append_synced(path: Path, lines, *, fresh: bool = False) -> None:
+    """Append JSON lines to ``path`` (create or replace it with ``fresh``) and sync them to the disk."""
+    try:
+        with open(path, "w" if fresh else "a", encoding="utf-8") as fh:
+            for line in lines:
+                fh.write(json.dumps(line, allow_nan=False) + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as exc:
+        raise formats.os_error(path, exc) from None
+
+
+def salvage_sequence(directory, group: int, *, metadata=None) -> dict:
+    """Index what an interrupted capture journaled: write ``sequence.json`` for its complete groups of ``group``
+    frames (a sequence of the plan) whose files are all present and match their journaled checksums.
+
+    Nothing is deleted: frames past the last whole, intact group stay in the folder, unindexed, and are counted.
+
+    Returns
+    -------
+    dict
+        ``frames_journaled``, ``frames_kept``, ``sequences``, ``stopped`` (why the rest was not kept, or None) and
+        ``frames_unindexed`` (frame files left in the folder outside the index).
+
+    Raises
+    ------
+    ValueError
+        One line naming the folder: no journal, a journal that is not specgpu's, or no complete intact sequence.
+    """
+    directory = Path(directory)
+    journal = directory / JOURNAL_FILE
+    if (directory / SEQUENCE_FILE).exists():
+        raise FileExistsError(f"{directory}: already holds {SEQUENCE_FILE}; nothing to salvage")
+    if not journal.is_file():
+        raise ValueError(f"{directory}: no capture journal ({JOURNAL_FILE}); nothing of it can be indexed")
+    lines = journal.read_bytes().split(b"\n")
+    parsed = []
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            parsed.append(json.loads(line))
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            if i >= len(lines) - 2:  # a line torn by the crash: the last one
+                break
+            raise ValueError(f"{journal}: corrupt at line {i + 1}") from None
+    if not parsed or not isinstance(parsed[0], dict) or parsed[0].get("format") != JOURNAL_FORMAT:
+        raise ValueError(f"{journal}: not a specgpu capture journal")
+    header, entries = parsed[0], parsed[1:]
+    kept, stopped = [], None
+    for start in range(0, len(entries) - len(entries) % group, group):
+        chunk = entries[start:start + group]
+        bad = next((e for e in chunk if _journaled_frame_problem(directory, e)), None)
+        if bad is not None:
+            stopped = _journaled_frame_problem(directory, bad)
+            break
+        kept.extend(chunk)
+    if stopped is None and len(entries) % group:
+        stopped = f"the last {len(entries) % group} frame(s) are an incomplete sequence"
+    if not kept:
+        raise ValueError(f"{directory}: no complete, intact sequence to salvage ({stopped or 'nothing journaled'})")
+    frames = [{k: v for k, v in e.items() if k not in ("height", "width")} for e in kept]
+    names = {e["file"] for e in frames}
+    info = {"frames_journaled": len(entries), "frames_kept": len(kept), "sequences": len(kept) // group,
+            "stopped": stopped,
+            "frames_unindexed": sum(1 for p in directory.iterdir() if _FRAME_RE.match(p.name) and p.name not in names)}
+    meta = dict(header.get("header") or {})
+    meta.update(metadata or {})
+    meta["salvaged"] = info
+    doc = {"format": SEQUENCE_FORMAT, "version": SEQUENCE_VERSION, "plan_hash": header.get("plan_hash"),
+           "height": kept[0].get("height"), "width": kept[0].get("width"), "dtype": "uint16",
+           "n_frames": len(frames), "frames": frames, "metadata": meta}
+    doc = validate_sequence_document(doc, journal)
+    with atomic_path(directory / SEQUENCE_FILE) as tmp:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(doc, fh, indent=1, allow_nan=False)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+    journal.unlink()
+    return info
+
+
+def _journaled_frame_problem(directory: Path, entry) -> str | None:
+    """Why a journaled frame cannot be kept (missing, or its bytes differ from the journal), or None."""
+    if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
+        return "a journal entry without a file name"
+    path = directory / Path(entry["file"]).name
+    try:
+        raw = path.read_bytes()
+    except OSError:
+        return f"{path.name} is missing"
+    if len(raw) != entry.get("bytes") or hashlib.sha256(raw).hexdigest() != entry.get("sha256"):
+        return f"{path.name} does not match its journaled checksum"
+    return None
 
 
 def read_sequence_header(directory) -> tuple[list[dict], dict]:

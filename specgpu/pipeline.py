@@ -98,7 +98,12 @@ class CaptureWriter:
 
     The folder must be new, empty, or an interrupted capture (it holds :data:`INCOMPLETE_MARKER`); one that holds a
     sequence, or files specgpu did not put there (a user's own ``plan.npz``), is refused before anything is written
-    unless ``overwrite``. :meth:`abort` removes what this writer wrote.
+    unless ``overwrite``.
+
+    Nothing captured is lost: each complete sequence is journaled as it is written (:meth:`add`), so a capture
+    killed outright leaves a folder :func:`salvage_capture` indexes; one stopped by an error or an interrupt after
+    at least one complete sequence is closed with those sequences by :meth:`keep` (its ``sequence.json`` says it was
+    cut short); :meth:`abort` removes what this writer wrote, for a capture that has nothing to keep.
     """
 
     def __init__(self, directory, plan_path, calibration_path, *, overwrite: bool = False):
@@ -109,28 +114,41 @@ class CaptureWriter:
         directory.mkdir(parents=True, exist_ok=True)
         self.marker = directory / INCOMPLETE_MARKER
         (directory / "sequence.json").unlink(missing_ok=True)  # overwrite: never complete while rewritten
-        self.marker.write_text(f"an interrupted specgpu capture (pid {os.getpid()}); capture again into this "
-                               "folder to replace it, or delete it\n", encoding="utf-8")
+        self.marker.write_text(f"an interrupted specgpu capture (pid {os.getpid()}); `specgpu salvage` indexes "
+                               "its complete sequences, a capture into this folder replaces it\n", encoding="utf-8")
         self._copies = []
         for source, name in ((plan_path, PLAN_FILE), (calibration_path, CALIBRATION_FILE)):
             with io.atomic_path(directory / name) as tmp:
                 shutil.copyfile(source, tmp)
             self._copies.append(directory / name)
-        self.frames = io.SequenceWriter(directory, self.plan.hash, overwrite=True)
+        self.frames = io.SequenceWriter(directory, self.plan.hash, overwrite=True,
+                                        journal={"plan_method": self.plan.method, "K": self.plan.K})
         self.sequences = 0
 
     def add(self, sequence) -> None:
-        """Write one complete sequence (a :class:`specgpu.capture.assemble.Sequence`)."""
+        """Write one complete sequence (a :class:`specgpu.capture.assemble.Sequence`) and journal it."""
         for frame, record in zip(sequence.frames, sequence.frame_records()):
             self.frames.add(frame, record)
+        self.frames.commit()
         self.sequences += 1
+
+    def keep(self, assembly, metadata=None, *, reason: str, requested: int | None = None) -> Path:
+        """Close a capture cut short (``reason``: what stopped it) with the complete sequences written so far;
+        the frames of a sequence it was writing are removed; ``assembly`` may be None (the counters died with
+        the capture). ``sequence.json`` records ``interrupted`` (the
+        reason) and ``sequences_requested``."""
+        self.frames.truncate(self.sequences * self.plan.K)
+        meta = {**(metadata or {}), "interrupted": reason}
+        if requested is not None:
+            meta["sequences_requested"] = int(requested)
+        return self.close(assembly, meta)
 
     def close(self, assembly, metadata=None) -> Path:
         """Write ``sequence.json`` (with the assembler's counters) and remove the marker: the folder is complete."""
         if not self.sequences:
             raise ValueError(f"{self.directory}: no complete sequence was captured ({assembly.as_dict()})")
         meta = {"plan_method": self.plan.method, "K": self.plan.K, "sequences": self.sequences,
-                "assembly": assembly.as_dict(), **(metadata or {})}
+                "assembly": None if assembly is None else assembly.as_dict(), **(metadata or {})}
         self.frames.close(meta)
         self.marker.unlink(missing_ok=True)
         return self.directory
@@ -146,6 +164,25 @@ class CaptureWriter:
                 self.directory.rmdir()
             except OSError:
                 pass
+
+
+def salvage_capture(directory) -> dict:
+    """Make a capture folder left by a killed capture (no ``sequence.json``, its journal present) readable: index
+    its complete sequences whose frames are intact (:func:`specgpu.io.salvage_sequence`), keep the plan and
+    calibration copies, remove the interrupted marker. Returns what was kept (``sequences``, ``frames_kept``,
+    ``frames_journaled``, ``stopped``); deletes nothing."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise FileNotFoundError(f"{directory}: capture folder not found")
+    for name in (PLAN_FILE, CALIBRATION_FILE):
+        if not (directory / name).is_file():
+            raise FileNotFoundError(f"{directory}: {name} is missing; the capture was killed before it was copied, "
+                                    "so its frames cannot be recovered with their plan")
+    plan = load_plan(directory / PLAN_FILE)
+    info = io.salvage_sequence(directory, plan.K)
+    (directory / INCOMPLETE_MARKER).unlink(missing_ok=True)
+    read_capture(directory)  # what was indexed reads back as a sequence folder
+    return info
 
 
 def check_capture_folder(directory, *, overwrite: bool = False) -> None:
@@ -221,8 +258,10 @@ def read_capture(directory) -> SequenceFolder:
     or when its frames are not whole sequences in pattern order."""
     directory = Path(directory)
     if (directory / INCOMPLETE_MARKER).exists() and not (directory / io.SEQUENCE_FILE).exists():
-        raise ValueError(f"{directory}: an interrupted capture (no sequence.json); capture again into it or "
-                         "delete it")
+        salvage = (" `specgpu salvage DIR` indexes its complete sequences;"
+                   if (directory / io.JOURNAL_FILE).exists() else "")
+        raise ValueError(f"{directory}: an interrupted capture (no sequence.json);{salvage} capture again into it "
+                         "to replace it, or delete it")
     frames, records, meta = io.read_sequence(directory)
     for name in (PLAN_FILE, CALIBRATION_FILE):
         if not (directory / name).is_file():

@@ -12,6 +12,12 @@ Layout of ``REC.zarr`` (format ``specgpu.recording``, version 1)::
     coefficients   (time, y, x, component)     basis coefficients; the basis is the ``basis`` array (wavelength, component)
     XYZ, Lab       (time, y, x, channel)       channel names in the array's ``channels`` attribute
     dE             (time, y, x)
+    sigma          (time, y, x, sigma_channel) standard deviation of each plan output, then their RMS (channel names
+                                               in ``channels``: ``sigma_<output label>``..., ``sigma_rms``)
+    sigma_rms      (time, y, x)                the RMS channel of ``sigma`` alone
+    dE_sigma       (time, y, x)                first-order dE2000 standard deviation
+    white_gains    (time, pattern)             float64: the reference white's measured / predicted output per
+                                               pattern that corrected each sequence's decoder (``--white-roi``)
     frames         (time, pattern, y, x)       uint16 raw frames (DN), when recorded
     pattern        (pattern,)                  0 ... K - 1
 
@@ -45,7 +51,7 @@ RECORDING_FORMAT = "specgpu.recording"
 RECORDING_VERSION = 1
 
 #: What a recording may hold along time besides the raw frames (specgpu.stream.STREAM_OUTPUTS).
-_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE")
+_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "sigma_rms", "dE_sigma")
 #: Channel dimension and channel names of each output.
 _CHANNELS = {"XYZ": ("X", "Y", "Z"), "Lab": ("L", "a", "b")}
 
@@ -183,11 +189,18 @@ class ZarrRecorder:
                 if self.basis is not None:
                     g.create_array("basis", data=self.basis, compressors=_codecs(),
                                    dimension_names=("basis_wavelength", "component"))
+            elif name == "sigma":
+                make(name, arr.shape, arr.dtype, ("y", "x", "sigma_channel"), fill,
+                     {"channels": [f"sigma_{label}" for label in self.plan.output_labels] + ["sigma_rms"],
+                      "long_name": "standard deviation of each output, then their RMS"})
             elif name in _CHANNELS:
                 make(name, arr.shape, arr.dtype, ("y", "x", f"{name}_channel"), fill,
                      {"channels": list(_CHANNELS[name])})
             else:
                 make(name, arr.shape, arr.dtype, ("y", "x", *(f"{name}_channel",) * (arr.ndim - 2)), fill)
+        if getattr(result, "white_gains", None) is not None:
+            make("white_gains", (K,), "float64", ("pattern",), np.nan,
+                 {"long_name": "reference white: measured / predicted output per pattern (decoder correction)"})
         if self.record_frames:
             if result.frames is None:
                 raise ValueError(f"{self.path}: raw frames were asked for but the stream passes none")
@@ -210,6 +223,10 @@ class ZarrRecorder:
                     values[name] = result.arrays[name]
             if self.record_frames:
                 values["frames"] = result.frames
+            if "white_gains" in self._arrays:
+                if getattr(result, "white_gains", None) is None:
+                    raise ValueError(f"{self.path}: a sequence came without the white gains its recording holds")
+                values["white_gains"] = np.asarray(result.white_gains, np.float64)
             for name, arr in self._arrays.items():  # room for a block of sequences (a resize costs ~8 ms)
                 if arr.shape[0] <= i:
                     arr.resize((i + self.grow, *arr.shape[1:]))

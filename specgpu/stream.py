@@ -53,6 +53,7 @@ __all__ = [
     "STREAM_OUTPUTS",
     "CallbackSink",
     "ExrSequenceWriter",
+    "LatencyHistogram",
     "PreviewSink",
     "ResultsRing",
     "Sink",
@@ -66,7 +67,7 @@ __all__ = [
 ]
 
 #: What a stream can compute per sequence, and the channel count / dtype of each map.
-STREAM_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE")
+STREAM_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "sigma_rms", "dE_sigma")
 READBACKS = ("auto", "map", "copy", "pinned")
 UPLOADS = ("auto", "host_ptr", "pinned", "copy")
 
@@ -87,6 +88,15 @@ class StreamDecoder:
         Any of :data:`STREAM_OUTPUTS`. ``"coefficients"``: the m basis coefficients of each pixel in the plan's
         output basis U (B x m, orthonormal columns from the SVD of A; ``cube = coefficients @ U.T``).
         ``"cube"``: the B outputs of the plan. ``"XYZ"``, ``"Lab"``, ``"dE"``: the fused colorimetric pass.
+        ``"sigma"``: the standard deviation of each of the B outputs and their RMS (B + 1 channels, as
+        ``specgpu recover --sigma``): the variance is linear in the frames plus a constant
+        (:func:`specgpu.estimators.sigma_map`), so the linear kernel computes it with ``A o A / g`` as the
+        matrix and takes the square root of it plus the constant. ``"sigma_rms"``: the RMS channel alone (one
+        row of the same map: B times fewer bytes written than ``"sigma"``). ``"dE_sigma"``: the first-order dE2000
+        standard deviation (as ``recover --delta-e-sigma``): the XYZ covariance's six entries by the linear
+        kernel, then a small kernel propagating them with XYZ to dE2000 (as
+        :func:`specgpu.estimators.delta_E_sigma`). Both need the plan's noise model (``specgpu plan ...
+        --estimator``).
     reference : array_like, optional
         CIELAB reference of ``"dE"``: one colour (3,) or a per-pixel (H, W, 3) image. Required for ``"dE"``.
     method : str
@@ -98,10 +108,17 @@ class StreamDecoder:
     frame_shape : (int, int)
         (H, W) of the frames.
     queue : pyopencl.CommandQueue
+    white_roi : str or (x, y, w, h), optional
+        A reference white in the field (``specgpu recover --white-roi``): each sequence's decoder is rescaled for
+        the light's drift since calibration (:class:`specgpu.correction.WhiteReference`), and every launch of
+        the sequence gets its matrix from the corrected decoder (:meth:`matrices`).
+    white_reflectance : float or path, optional
+        The white's reflectance (0.99 by default); only with ``white_roi``.
     """
 
     def __init__(self, plan, calibration, outputs, *, frame_shape, queue, reference=None, method="CIE 2000",
-                 illuminant="D65", observer: str = DEFAULT_CMFS, cube_dtype=np.float16):
+                 illuminant="D65", observer: str = DEFAULT_CMFS, cube_dtype=np.float16, white_roi=None,
+                 white_reflectance=None):
         # canonical names (the check is case-insensitive), each once
         outputs = tuple(dict.fromkeys(validate_method(name, {k: k for k in STREAM_OUTPUTS}, "stream output")
                                       for name in outputs))
@@ -139,14 +156,44 @@ class StreamDecoder:
             m = int(plan.params.get("m", np.sum(s > s[0] * 1e-9)))
             self.basis = U[:, :m]
             self.A_coefficients = s[:m, None] * Vt[:m]
-        colour = {"XYZ", "Lab", "dE"} & set(outputs)
+        colour = {"XYZ", "Lab", "dE", "dE_sigma"} & set(outputs)
         self.M = None
+        self.to_XYZ = None
         self.white = None
         self.reference = None
         self.reference_single = True
         if colour:
-            self.M = plan.outputs_to_XYZ(illuminant, observer) @ A
+            self.to_XYZ = plan.outputs_to_XYZ(illuminant, observer)
+            self.M = self.to_XYZ @ A
             self.white = white_point_XYZ(illuminant, observer)
+        # the white reference: parsed and checked now (an ROI outside the frame is refused before any streaming)
+        if white_reflectance is not None and white_roi is None:
+            raise ValueError("--white-reflectance needs --white-roi")
+        self.white_reference = None
+        if white_roi is not None:
+            from .correction import WhiteReference
+
+            self.white_reference = WhiteReference(plan, calibration, white_roi, white_reflectance,
+                                                  frame_shape=(self.height, self.width))
+        # the uncertainty outputs: the noise model's dark and gain maps (estimators._noise_products)
+        self.noise = None
+        if {"sigma", "sigma_rms", "dE_sigma"} & set(outputs):
+            from .estimators import NoiseModel, constant_covariance
+
+            if "noise" not in plan.params:
+                raise ValueError(f"the {plan.method} plan records no noise model, so it has no sigma; re-plan it "
+                                 "with --estimator (any) to add one")
+            self.noise = NoiseModel.from_params(plan.params["noise"])
+            g_e = self.noise.gain_e_per_dn
+            self.dark_var = engine.to_device(queue, (np.asarray(dark, np.float32) - np.float32(
+                g_e * self.noise.read_var_dn2)).reshape(-1))
+            self.gain2 = engine.to_device(queue, (np.asarray(gain, np.float32) ** 2).reshape(-1))
+            const = constant_covariance(plan)
+            cv = np.diag(const).astype(np.float32)
+            self.sigma_offsets = np.append(cv, np.float32(np.mean(cv, dtype=np.float64)))
+            self.cov_pairs = [(i, j) for i in range(3) for j in range(i, 3)]
+            if "dE_sigma" in outputs:
+                self.cov_constant = self.to_XYZ @ const @ self.to_XYZ.T  # (3, 3) what no frame shows
         if "dE" in outputs:
             if reference is None:
                 raise ValueError("the dE output needs a reference (an L,a,b colour or a per-pixel Lab image)")
@@ -172,10 +219,53 @@ class StreamDecoder:
                 out[name] = ((h, w, self.A.shape[0]), self.cube_dtype)
             elif name in ("XYZ", "Lab"):
                 out[name] = ((h, w, 3), np.dtype(np.float32))
+            elif name == "sigma":
+                out[name] = ((h, w, self.A.shape[0] + 1), np.dtype(np.float32))
             else:
                 out[name] = ((h, w), np.dtype(np.float32))
         out["mask"] = ((h, w), np.dtype(np.uint8))
         return out
+
+    def device_shapes(self) -> dict[str, tuple[tuple, np.dtype]]:
+        """The maps read back from the device (:meth:`shapes`); :meth:`enqueue` may return more buffers (those
+        ``dE_sigma`` is computed from), which stay on the device."""
+        return self.shapes()
+
+    def matrices(self, A) -> list[np.ndarray]:
+        """The float32 matrix argument of each launch (in :meth:`_launches`' order) for the decoder ``A`` (B x K):
+        what a per-sequence decoder (the white reference's) writes into the launches' matrix buffers."""
+        return [engine.linear_matrix(*make(np.asarray(A, np.float64))) for make, _ in self._matrix_makers()]
+
+    def _matrix_makers(self) -> list:
+        """Per launch, in order: (a function of A giving (matrix, square-root offsets or None), launch kind)."""
+        makers = []
+        if "coefficients" in self.outputs:
+            # U^T A: S Vt for the plan's own A; for a corrected decoder (A times a K x K map) its coefficients in
+            # the same basis, whose columns span the corrected decoder's outputs too
+            makers.append((lambda A: (self.basis.T @ A, None), "coefficients"))
+        if "cube" in self.outputs:
+            makers.append((lambda A: (A, None), "cube"))
+        if "sigma" in self.outputs:
+            g_e = self.noise.gain_e_per_dn
+
+            def sigma_rows(A):
+                sq = A ** 2
+                return np.vstack([sq, sq.mean(axis=0)]) / g_e, self.sigma_offsets
+            makers.append((sigma_rows, "sigma"))
+        if "sigma_rms" in self.outputs:
+            g_e = self.noise.gain_e_per_dn
+            makers.append((lambda A: ((A ** 2).mean(axis=0, keepdims=True) / g_e, self.sigma_offsets[-1:]),
+                           "sigma_rms"))
+        if "dE_sigma" in self.outputs:
+            g_e = self.noise.gain_e_per_dn
+
+            def cov_rows(A):
+                MA = self.to_XYZ @ A
+                return np.stack([MA[i] * MA[j] for i, j in self.cov_pairs]) / g_e, None
+            makers.append((cov_rows, "XYZ_cov"))
+        if self.M is not None:
+            makers.append((lambda A: (self.to_XYZ @ A, None), "colour"))
+        return makers
 
     def warm_up(self, dtype=np.uint16) -> None:
         """Build every kernel and prime the memory pool on a blank sequence, so the clock of a stream never pays
@@ -195,33 +285,47 @@ class StreamDecoder:
         q, n = self.queue, self.n
         launches = []
         sat = {"want_mask": True, "saturation": self.saturation}  # asked of the first kernel only
-        if "coefficients" in self.outputs:
-            launches.append((engine.prepare_linear(q, dtype, self.A_coefficients, n=n, dark=self.dark,
-                                                   gain=self.gain, out_layout=1, **sat),
-                             {"out": "coefficients", "mask": "mask"}))
+        for make, kind in self._matrix_makers():
+            if kind == "coefficients":
+                launches.append((engine.prepare_linear(q, dtype, self.A_coefficients, n=n, dark=self.dark,
+                                                       gain=self.gain, out_layout=1, **sat),
+                                 {"out": "coefficients", "mask": "mask"}))
+            elif kind == "cube":
+                launches.append((engine.prepare_linear(q, dtype, self.A, n=n, dark=self.dark, gain=self.gain,
+                                                       out_dtype=self.cube_dtype, out_layout=1, **sat),
+                                 {"out": "cube", "mask": "mask"}))
+            elif kind in ("sigma", "sigma_rms", "XYZ_cov"):
+                rows, offsets = make(self.A)
+                launches.append((engine.prepare_linear(q, dtype, rows, n=n, dark=self.dark_var, gain=self.gain2,
+                                                       out_layout=1, sqrt_offsets=offsets, **sat),
+                                 {"out": kind, "mask": "mask"}))
+            else:
+                launches.append((engine.prepare_frames_to_delta_e(
+                    q, dtype, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
+                    else "CIE 2000", reference_single=self.reference_single, dark=self.dark, gain=self.gain,
+                    write_xyz="XYZ" in self.outputs or "dE_sigma" in self.outputs, write_lab="Lab" in self.outputs,
+                    **sat), {"XYZ": "XYZ", "Lab": "Lab", "delta_E": "dE", "mask": "mask"}))
             sat = {}
-        if "cube" in self.outputs:
-            launches.append((engine.prepare_linear(q, dtype, self.A, n=n, dark=self.dark, gain=self.gain,
-                                                   out_dtype=self.cube_dtype, out_layout=1, **sat),
-                             {"out": "cube", "mask": "mask"}))
-            sat = {}
-        if self.M is not None:
-            launches.append((engine.prepare_frames_to_delta_e(
-                q, dtype, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
-                else "CIE 2000", reference_single=self.reference_single, dark=self.dark, gain=self.gain,
-                write_xyz="XYZ" in self.outputs, write_lab="Lab" in self.outputs, **sat),
-                {"XYZ": "XYZ", "Lab": "Lab", "delta_E": "dE", "mask": "mask"}))
+        if "dE_sigma" in self.outputs:  # on the XYZ and XYZ_cov buffers of the launches above
+            launches.append((engine.prepare_delta_e_sigma(q, self.white, self.cov_constant, n=n),
+                             {"dE_sigma": "dE_sigma"}))
         self._prepared[dtype] = launches
         return launches
 
-    def enqueue(self, frames: cla.Array) -> dict:
+    def enqueue(self, frames: cla.Array, matrices=None) -> dict:
         """Enqueue every kernel on the K frames (flat device array); returns the flat device output buffers (pooled
-        :class:`pyopencl.Buffer` objects) by output name and ``mask`` (bit 1: a frame at the saturation level)."""
+        :class:`pyopencl.Buffer` objects) by output name and ``mask`` (bit 1: a frame at the saturation level).
+
+        ``matrices``: a device buffer per launch holding :meth:`matrices` of this sequence's decoder (written
+        before, on the same in-order queue), used instead of the plan's."""
         out = {}
-        for launch, names in self._launches(np.dtype(frames.dtype)):
-            for key, buf in launch.enqueue(frames.data).items():
-                if names[key] in self.outputs or names[key] == "mask":
-                    out[names[key]] = buf
+        for i, (launch, names) in enumerate(self._launches(np.dtype(frames.dtype))):
+            if "dE_sigma" in names:  # the last launch: XYZ and its covariance in, no matrix
+                made = launch.enqueue(out["XYZ"], inputs={1: out["XYZ_cov"]})
+            else:
+                made = launch.enqueue(frames.data, None if matrices is None else matrices[i])
+            for key, buf in made.items():
+                out[names[key]] = buf
         return out
 
 
@@ -254,6 +358,9 @@ class StreamResult:
         exposure end plus readout) to the result being ready for the sinks, s.
     frames : numpy.ndarray, optional
         (K, H, W) the sequence's raw frames (DN), valid during the call only (a recorder keeps them on request).
+    white_gains : numpy.ndarray, optional
+        (K,) the white reference's measured / predicted output per pattern that corrected this sequence's
+        decoder (a stream with ``white_roi``), else None.
     """
 
     index: int
@@ -264,6 +371,7 @@ class StreamResult:
     latency_s: float
     saturated_pixels: int = 0
     frames: np.ndarray | None = None
+    white_gains: np.ndarray | None = None
 
 
 class Sink:
@@ -324,7 +432,8 @@ class ResultsRing(Sink):
     def write(self, result):
         keep = {k: v.copy() for k, v in result.arrays.items() if self.outputs is None or k in self.outputs}
         copy = StreamResult(result.index, result.cycle, result.frame_ids.copy(), result.timestamps_s.copy(), keep,
-                            result.latency_s)
+                            result.latency_s, white_gains=None if result.white_gains is None
+                            else result.white_gains.copy())
         with self._cond:
             while len(self._items) >= self.capacity:
                 if self.policy == "drop_oldest":
@@ -465,8 +574,9 @@ class StreamReport:
         The driver's last exposure.
     seconds : float
         Wall time from the first frame requested to the last result written.
-    latencies_s : numpy.ndarray
-        Per result, arrival of the last frame -> result ready (see :class:`StreamResult`).
+    latency : LatencyHistogram
+        Per result, arrival of the last frame -> result ready (see :class:`StreamResult`): exact count, mean,
+        min and max, quantiles to 0.6 % (a bounded histogram: a day's stream holds no list of latencies).
     cpu_s : float
         Process CPU time (user + system) over the run, s.
     peak_rss_bytes : int or None
@@ -486,7 +596,7 @@ class StreamReport:
     assembly: AssemblyStats
     end: StreamEnd
     seconds: float
-    latencies_s: np.ndarray
+    latency: "LatencyHistogram"
     cpu_s: float
     peak_rss_bytes: int | None
     interrupted: bool
@@ -502,7 +612,7 @@ class StreamReport:
         return self.sequences_out / self.seconds if self.seconds > 0 else 0.0
 
     def latency_ms(self, q: float) -> float:
-        return float(np.percentile(self.latencies_s, q) * 1e3) if self.latencies_s.size else float("nan")
+        return self.latency.quantile(q / 100.0) * 1e3
 
     def accounting(self) -> dict:
         """Where every frame went; ``balanced`` is True when the identities hold exactly:
@@ -533,6 +643,8 @@ class StreamReport:
         return {"frames_in": self.frames_in, "sequences_out": self.sequences_out, "seconds": self.seconds,
                 "frames_per_s": self.frames_per_s, "sequences_per_s": self.sequences_per_s,
                 "latency_ms_median": self.latency_ms(50), "latency_ms_p99": self.latency_ms(99),
+                "latency_ms_max": self.latency.max * 1e3 if self.latency.count else float("nan"),
+                "latencies_counted": self.latency.count,
                 "cpu_s": self.cpu_s, "cpu_cores": self.cpu_s / self.seconds if self.seconds else 0.0,
                 "peak_rss_bytes": self.peak_rss_bytes, "rss_start_bytes": self.rss_start_bytes,
                 "interrupted": self.interrupted,
@@ -540,6 +652,55 @@ class StreamReport:
                          "dropped": self.ring.dropped},
                 "assembly": self.assembly.as_dict(), "accounting": self.accounting(),
                 "sink_errors": list(self.sink_errors)}
+
+
+class LatencyHistogram:
+    """Latencies of a stream of any length in fixed memory: exact count, sum, min and max, a histogram on
+    logarithmic bins (``bins_per_decade`` from ``low_s`` to ``high_s``; values beyond go to the end bins) for
+    quantiles, and the latest ``recent`` values for a live status. A quantile is the geometric centre of its
+    bin, clamped to [min, max]: within ``10 ** (0.5 / bins_per_decade) - 1`` (0.6 % at 200) of the exact one.
+    """
+
+    def __init__(self, low_s: float = 1e-6, high_s: float = 1e3, bins_per_decade: int = 200, recent: int = 64):
+        self.low, self.per_decade = float(low_s), int(bins_per_decade)
+        self.bins = int(np.ceil(np.log10(high_s / low_s) * self.per_decade))
+        self.counts = np.zeros(self.bins, np.int64)
+        self.count = 0
+        self.total = 0.0
+        self.min = float("inf")
+        self.max = float("-inf")
+        self.recent: deque = deque(maxlen=int(recent))
+
+    def add(self, value_s: float) -> None:
+        v = float(value_s)
+        i = int(np.floor(np.log10(max(v, self.low) / self.low) * self.per_decade))
+        self.counts[min(max(i, 0), self.bins - 1)] += 1
+        self.count += 1
+        self.total += v
+        self.min = min(self.min, v)
+        self.max = max(self.max, v)
+        self.recent.append(v)
+
+    @property
+    def mean(self) -> float:
+        return self.total / self.count if self.count else float("nan")
+
+    def quantile(self, q: float) -> float:
+        """The ``q`` quantile (0 <= q <= 1) in seconds (NaN when empty)."""
+        if not self.count:
+            return float("nan")
+        if q <= 0:
+            return self.min
+        if q >= 1:
+            return self.max
+        i = int(np.searchsorted(np.cumsum(self.counts), q * self.count, side="left"))
+        centre = self.low * 10 ** ((i + 0.5) / self.per_decade)
+        return float(min(max(centre, self.min), self.max))
+
+    @property
+    def nbytes(self) -> int:
+        """Memory the structure holds, bytes (fixed: independent of the count)."""
+        return int(self.counts.nbytes + 8 * self.recent.maxlen)
 
 
 def peak_rss_reset() -> bool:
@@ -634,6 +795,8 @@ class _InFlight:
     keep: list
     pinned: object = None
     host_set: object = None
+    matrix_set: object = None
+    white_gains: object = None
 
 
 class Stream:
@@ -680,13 +843,19 @@ class Stream:
         Assembler alignment, ``"index"`` or ``"sync"`` (then ``sync_max_dn`` is required).
     device : optional
         OpenCL device selector (see :mod:`specgpu.runtime`).
+    white_roi, white_reflectance : optional
+        A reference white in the field (as :class:`StreamDecoder`): each sequence's gains are measured on its
+        host frames, its decoder corrected (:class:`specgpu.correction.WhiteReference`) and the launches' matrices
+        written by non-blocking copies into one set of small device buffers per result token (reused only after
+        that sequence has left the sinks: no wait on the queue). The gains are in
+        :attr:`StreamResult.white_gains`. A saturated or dark white stops the stream with a one-line error.
     """
 
     def __init__(self, driver: CameraDriver, plan, calibration, *, outputs=("coefficients", "XYZ", "dE"),
                  sinks=(), reference=None, method: str = "CIE 2000", illuminant: str = "D65",
                  cube_dtype=np.float16, n_slots: int | None = None, policy: str = "drop_newest", in_flight: int = 3,
                  result_buffers: int = 6, readback: str = "auto", upload: str = "auto", align: str = "index",
-                 sync_max_dn: float | None = None, device=None):
+                 sync_max_dn: float | None = None, device=None, white_roi=None, white_reflectance=None):
         plan.check_calibration(calibration, name="stream plan")
         if policy not in POLICIES:
             raise ValueError(f"unknown ring policy {policy!r}; valid policies: {', '.join(POLICIES)}")
@@ -702,7 +871,8 @@ class Stream:
         self.queue = get_queue(device)
         self.decoder = StreamDecoder(plan, calibration, outputs, frame_shape=driver.frame_shape, queue=self.queue,
                                      reference=reference, method=method, illuminant=illuminant,
-                                     cube_dtype=cube_dtype)
+                                     cube_dtype=cube_dtype, white_roi=white_roi,
+                                     white_reflectance=white_reflectance)
         self.sinks = [s if callable(getattr(s, "write", None)) else CallbackSink(s) for s in sinks]
         self.n_slots = max(4 * plan.K, 16) if n_slots is None else int(n_slots)
         self.policy = policy
@@ -716,7 +886,7 @@ class Stream:
         self.ring: RingBuffer | None = None
         self.assembler: SequenceAssembler | None = None
         self.sequences_out = 0
-        self.latencies: list[float] = []
+        self.latency = LatencyHistogram()
 
     # ---- control ---------------------------------------------------------------------------------------------
     def stop(self) -> None:
@@ -728,7 +898,7 @@ class Stream:
         """A live snapshot: frames in, sequences out, drops, latency of the latest results (thread-safe)."""
         ring = self.ring.stats() if self.ring is not None else None
         with self._status_lock:
-            lat = self.latencies[-64:]
+            lat = list(self.latency.recent)
             out = self.sequences_out
         a = self.assembler.stats if self.assembler is not None else AssemblyStats()
         return {"frames_in": self.driver.delivered, "sequences_out": out,
@@ -760,7 +930,7 @@ class Stream:
         self._stop.clear()
         self._interrupted = False
         self.sequences_out = 0
-        self.latencies = []
+        self.latency = LatencyHistogram()
         self._errors: list[BaseException] = []
         self._sink_errors: list[str] = []
         self._tokens = threading.Semaphore(self.result_buffers)
@@ -772,8 +942,15 @@ class Stream:
             pinned_empty(self.queue, (nbytes,), np.uint8)
             for _ in range(self.result_buffers if self.upload == "pinned" else 0))
         self._host_sets: deque = deque(
-            {name: pinned_empty(self.queue, shape, dtype) for name, (shape, dtype) in self.decoder.shapes().items()}
+            {name: pinned_empty(self.queue, shape, dtype)
+             for name, (shape, dtype) in self.decoder.device_shapes().items()}
             for _ in range(self.result_buffers if self.readback == "pinned" else 0))
+        # the white reference's per-sequence decoder: one set of matrix buffers per result token (device buffer and
+        # the host array its non-blocking write reads, both reused only once that sequence has left the sinks)
+        self._matrix_sets: deque = deque(
+            [(cl.Buffer(self.queue.context, cl.mem_flags.READ_ONLY, m.nbytes), np.empty_like(m))
+             for m in self.decoder.matrices(self.plan.A)]
+            for _ in range(self.result_buffers if self.decoder.white_reference is not None else 0))
         self._ended = threading.Event()
         self.decoder.warm_up(self.driver.dtype)
         peak_rss_reset()
@@ -821,7 +998,7 @@ class Stream:
             on_status(self.status())
         return StreamReport(
             frames_in=self.driver.delivered, sequences_out=self.sequences_out, ring=ring.stats(), assembly=stats,
-            end=end, seconds=seconds_run, latencies_s=np.asarray(self.latencies),
+            end=end, seconds=seconds_run, latency=self.latency,
             cpu_s=(usage1.ru_utime + usage1.ru_stime) - (usage0.ru_utime + usage0.ru_stime),
             peak_rss_bytes=peak_rss_bytes(), interrupted=self._interrupted, sink_errors=self._sink_errors,
             rss_start_bytes=rss_start)
@@ -902,11 +1079,22 @@ class Stream:
             frames = cla.empty(q, flat.shape, flat.dtype, allocator=get_allocator(q))
             cl.enqueue_copy(q, frames.data, flat, is_blocking=False)
         keep.append(frames)
-        outs = dec.enqueue(frames)
-        shapes = dec.shapes()
+        matrix_set = gains = None
+        if dec.white_reference is not None:
+            # this sequence's decoder from its white patch (host frames, ~1 ms), written by small non-blocking
+            # copies into this token's matrix buffers: the in-order queue runs them before the kernels
+            gains = dec.white_reference.gains(seq.frames)
+            matrix_set = self._matrix_sets.popleft()  # one per result token: never empty here
+            for (buf, host), values in zip(matrix_set, dec.matrices(dec.white_reference.decoder(gains))):
+                host[...] = values
+                cl.enqueue_copy(q, buf, host, is_blocking=False)
+        outs = dec.enqueue(frames, None if matrix_set is None else [buf for buf, _ in matrix_set])
+        shapes = dec.device_shapes()
         host, events = {}, []
         host_set = self._host_sets.popleft() if self.readback == "pinned" else None  # one per result token
         for name, dev in outs.items():
+            if name not in shapes:  # a buffer another launch read (dE_sigma's inputs): it stays on the device
+                continue
             shape, dtype = shapes[name]
             if host_set is not None:
                 arr = host_set[name]
@@ -922,13 +1110,14 @@ class Stream:
             events.append(ev)
         q.flush()  # start the device now, not at the next blocking call
         return _InFlight(index, seq, arrival if arrival is not None else time.perf_counter(), outs, host, events,
-                         keep, host_set=host_set)
+                         keep, host_set=host_set, matrix_set=matrix_set, white_gains=gains)
 
     def _complete(self, item: _InFlight):
         cl.wait_for_events(item.events)
         t = time.perf_counter()
-        result = StreamResult(item.index, item.seq.cycle, item.seq.frame_ids, item.seq.timestamps_s, item.host,
-                              t - item.t_arrival, frames=item.seq.frames)
+        # the result's own dict: the sinks' view may drop or add maps, the mapped ones are all unmapped later
+        result = StreamResult(item.index, item.seq.cycle, item.seq.frame_ids, item.seq.timestamps_s, dict(item.host),
+                              t - item.t_arrival, frames=item.seq.frames, white_gains=item.white_gains)
         if self.upload == "pinned":
             item.pinned = item.keep[1]
         item.keep = [item.seq]  # frames and their device buffer are no longer needed
@@ -945,6 +1134,8 @@ class Stream:
                 self._pinned.append(item.pinned)
             if self.readback == "pinned":
                 self._host_sets.append(item.host_set)
+            if item.matrix_set is not None:
+                self._matrix_sets.append(item.matrix_set)
             item.host = item.device_out = item.keep = None
             self._tokens.release()
 
@@ -971,7 +1162,7 @@ class Stream:
                     self._stop.set()
                 with self._status_lock:
                     self.sequences_out += 1
-                    self.latencies.append(result.latency_s)
+                    self.latency.add(result.latency_s)
                 self._recycle.append(item)
         finally:
             for sink in self.sinks:

@@ -17,8 +17,9 @@ from .pipeline import SequenceFolder, capture_plan, recover
 
 __all__ = ["measure_methods", "chart_with_white", "mean_std", "METRICS"]
 
-#: Figures kept per draw: patch RMSE / dE*ab / dE2000 averages, and per-pixel means.
-METRICS = ("rmse", "dEab", "dE00", "px_rmse", "px_dE00")
+#: Figures kept per draw: patch RMSE / dE*ab / dE2000 averages, per-pixel means, and the RMS reflectance error
+#: over the patches' pixels (every band; what a plan's expected RMSE predicts).
+METRICS = ("rmse", "dEab", "dE00", "px_rmse", "px_dE00", "px_rms")
 
 
 def chart_with_white(description, chart: str):
@@ -55,10 +56,14 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
     Returns
     -------
     dict
-        name -> {metric: [value per draw]} for :data:`METRICS` (``rmse``/``px_rmse`` absent for XYZ plans), plus
-        ``"K"`` (frames per sequence).
+        name -> {metric: [value per draw]} for :data:`METRICS` (``rmse``/``px_rmse``/``px_rms`` absent for XYZ
+        plans), plus ``"K"`` (frames per sequence) and, for a plan that records one (an estimator's, a design's),
+        ``"expected_rmse"``: the RMSE its decoder expects on its training prior.
     """
+    from .evaluate import truth_cube
+
     out = {}
+    patches = np.any(list(scene.masks.values()), axis=0) if scene.masks else None
     for i, (name, plan) in enumerate(plans.items()):
         if probes:
             plan = with_drift_probes(plan, bundle, probes)
@@ -90,8 +95,14 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
                 if "rmse" in st:
                     rows["px_rmse"].append(st["rmse"]["mean"])
                 rows["px_dE00"].append(st["delta_E_2000"]["mean"])
+                if plan.output == "reflectance" and patches is not None:
+                    err = (np.asarray(y, np.float64) - truth_cube(scene, plan.output_wavelengths))[patches]
+                    rows["px_rms"].append(float(np.sqrt(np.mean(err ** 2))))
             rows.setdefault("reports", []).append(rep)
         out[name] = {k: v for k, v in rows.items() if v} | {"K": plan.K}
+        expected = plan.params.get("expected", {}).get("rmse") if plan.output == "reflectance" else None
+        if expected is not None:
+            out[name]["expected_rmse"] = float(expected)
     return out
 
 

@@ -254,3 +254,18 @@ def test_an_interrupted_save_keeps_the_previous_file(tmp_path, monkeypatch):
     arrays, meta, version, loaded = load_npz(path, "specgpu.test", (1,))
     assert loaded == digest and arrays["a"].tolist() == [0, 1, 2]
     assert [p.name for p in tmp_path.iterdir()] == ["table.npz"]  # no temporary left behind
+
+
+def test_cie_2017_ces_set_is_colour_sciences_table():
+    import colour
+    from colour.quality.cfi2017 import load_TCS_CIE2017
+
+    db = load_reflectances(["CIE 2017 CES"])
+    ref = load_TCS_CIE2017(colour.SpectralShape(380, 780, 5))
+    assert len(db) == 99 and db.labels[0].endswith("TCS0 (CIE 2017)")
+    i = int(np.flatnonzero(np.asarray(ref.wavelengths) == 550.0)[0])
+    j = int(np.flatnonzero(DEFAULT_WAVELENGTHS == 550.0)[0])
+    np.testing.assert_allclose(db.reflectance[:, j], np.asarray(ref.values, np.float64)[i], rtol=0, atol=1e-12)
+    # in the default training: the held-out charts' own sets stay out, the CES set stays in
+    full = load_reflectances(exclude=evaluation_exclusions("CIE 1995 TCS"))
+    assert sum(label.startswith("CIE 2017 CES/") for label in full.labels) == 99

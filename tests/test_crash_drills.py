@@ -109,10 +109,19 @@ def test_kill_capture(base, delay):
         assert result.exit_code == 0, result.output
         again = one_line_error(run(*args, ok=False))
         assert "already holds" in again
-    else:  # interrupted: refused in one line, and the next capture replaces it
+    else:  # interrupted: refused in one line; its journaled sequences are salvaged, else the next capture replaces it
         assert "interrupted" in one_line_error(result) or not out.exists()
-        run(*args)
-        run("recover", out, "--out", d / "r.exr")
+        salvaged = run("salvage", out, ok=False) if out.exists() else None
+        if salvaged is not None and salvaged.exit_code == 0:
+            meta = io.read_sequence_header(out)[1]["metadata"]
+            assert 1 <= meta["salvaged"]["sequences"] <= 12
+            frames, _, _ = io.read_sequence(out)  # every salvaged frame matches its checksum
+            assert frames.shape[0] == meta["salvaged"]["sequences"] * meta["K"]
+            run("recover", out, "--out", d / "r.exr")
+        else:  # killed before a sequence was complete: nothing to keep, refused in one line
+            assert salvaged is None or "salvage" in one_line_error(salvaged) or "missing" in salvaged.output
+            run(*args)
+            run("recover", out, "--out", d / "r.exr")
     assert leftovers(d) == []
     shutil.rmtree(d)
 

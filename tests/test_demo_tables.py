@@ -33,3 +33,68 @@ def test_demo_profiles():
     default = demo_profiles()
     assert list(default) == ["lab", "ideal"] and default["lab"].realism.any and not default["ideal"].realism.any
     assert list(demo_profiles(RigDescription())) == ["ideal"]
+
+
+def test_table1_expected_columns_for_a_plan_that_records_one():
+    r = result()
+    r.draws["lab"]["optimal-9"] = {"rmse": [0.008, 0.008], "dEab": [0.4, 0.5], "dE00": [0.3, 0.3],
+                                   "px_rmse": [0.01, 0.01], "px_dE00": [1.5, 1.6], "px_rms": [0.0110, 0.0130],
+                                   "K": 10, "expected_rmse": 0.0100}
+    lines = table1_lines(r, ["narrowband", "optimal-9"])
+    row = next(line for line in lines if line.startswith("optimal-9"))
+    assert row.split()[-3:] == ["0.0120+-0.0014", "0.0100", "1.20"]  # measured RMS, expected, their ratio
+    plain = next(line for line in lines if line.startswith("narrowband"))
+    assert plain.split()[-1] == "32"  # no expected RMSE: the row ends at the frame count
+    assert lines[0].split()[-3:] == ["pixel", "expected", "ratio"]
+
+
+def _small_lab():
+    from specgpu.demo import demo_profiles
+    from dataclasses import replace
+
+    lab = demo_profiles()["lab"]
+    return replace(lab, camera=replace(lab.camera, roi_width=320, roi_height=240))
+
+
+def test_estimator_rows_measured_on_the_chart_against_numpy():
+    """The demo's new rows on a small lab twin: the designs and the Wiener decoder planned as the demo does,
+    captured with the corrections, and px_rms against the NumPy RMS of the recovery's error over the patches."""
+    import numpy as np
+
+    from specgpu.calibration import calibrate
+    from specgpu.demo import ESTIMATOR_ROWS
+    from specgpu.estimators import default_prior, study_plans
+    from specgpu.evaluate import truth_cube
+    from specgpu.pipeline import EVALUATION_CHART, default_basis
+    from specgpu.study import chart_with_white, measure_methods
+
+    desc = _small_lab()
+    bundle = calibrate(desc, seed=0)
+    prior = default_prior(EVALUATION_CHART)
+    plans = study_plans(desc, bundle, prior, default_basis(EVALUATION_CHART), methods=ESTIMATOR_ROWS,
+                        chart=EVALUATION_CHART)
+    assert list(plans) == list(ESTIMATOR_ROWS)
+    assert [p.K for p in plans.values()] == [9, 9, 6, 3]
+    assert all(p.exposure_s <= 0.1 + 1e-9 for p in plans.values())
+    scene, roi = chart_with_white(desc, EVALUATION_CHART)
+    seen = {}
+
+    def keep(name, draw, y, plan, res):
+        seen[name] = np.asarray(y, np.float64)
+
+    rows = measure_methods(desc, bundle, plans, scene, draws=1, seed=0, white_roi=roi, ambient=True,
+                           on_result=keep)
+    mask = np.any(list(scene.masks.values()), axis=0)
+    for name, plan in plans.items():
+        r = rows[name]
+        assert r["K"] == plan.K + 1  # the ambient frame
+        assert r["expected_rmse"] == plan.params["expected"]["rmse"] > 0
+        err = (seen[name] - truth_cube(scene, plan.output_wavelengths))[mask]
+        assert abs(r["px_rms"][0] - np.sqrt(np.mean(err ** 2))) < 1e-9
+    # numbers that make sense: the designs beat the paper's decoder re-used, more frames beat fewer, and each
+    # decoder's measured error on the chart is near what it expects on its prior (this chart is not in it)
+    rms = {n: rows[n]["px_rms"][0] for n in plans}
+    assert rms["optimal-9"] < rms["optimal-6"] < rms["optimal-3"] and rms["optimal-9"] < rms["wiener-9"]
+    assert rms["optimal-9"] < 0.015 and rows["optimal-3"]["dEab"][0] < 1.5
+    for n in plans:
+        assert 0.6 < rms[n] / rows[n]["expected_rmse"] < 1.5, (n, rms[n], rows[n]["expected_rmse"])

@@ -119,6 +119,19 @@ def test_start_order_starts_the_waiting_device_first(mode, first):
     assert_all_sequences_match(result, want, 3)
 
 
+@pytest.mark.parametrize("mode", ["strobe-master", "hardware-trigger"])
+def test_a_camera_that_fails_to_start_leaves_the_light_stopped(mode):
+    sim, light, camera, want = bench(6, mode=mode)
+
+    def broken():
+        raise RuntimeError("AcquisitionStart refused")
+
+    camera.acquirer.start = broken
+    with pytest.raises(RuntimeError, match="AcquisitionStart"):
+        camera.start()
+    assert not sim.running  # in strobe-master mode the light had started first: it is stopped again
+
+
 def test_camera_started_before_a_triggered_light_loses_its_first_strobe():
     """The bench, strobe-master: a strobe before the light's Start is lost (frame dark, labels shifted)."""
     sim, light, camera, want = bench(4)

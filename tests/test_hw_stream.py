@@ -55,14 +55,14 @@ def test_cli_stream_on_the_simulated_hardware_rig(setup, tmp_path, monkeypatch):
     real = hw_rig.open_hardware
     opened = []
 
-    def with_bench_camera(description, *, hardware, patterns, calibration):
+    def with_bench_camera(description, *, hardware, patterns, calibration, exposure_s):
         sim = SimulatedDLPC900(hardware.dmd)
         scene = colorchecker_scene(cam.roi_height, cam.roi_width)
         render = TwinBench(sim, description, setup.plan, scene)
         acquirer = FakeCamera(sim, render, 10 ** 9, shape=(cam.roi_height, cam.roi_width),
                               pixel_format=f"Mono{cam.bit_depth}")
         driver = real(description, hardware=hardware, patterns=patterns, calibration=calibration,
-                      acquirer=acquirer, transport=sim)
+                      acquirer=acquirer, transport=sim, exposure_s=exposure_s)
         opened.append((sim, driver))
         return driver
 
@@ -70,7 +70,9 @@ def test_cli_stream_on_the_simulated_hardware_rig(setup, tmp_path, monkeypatch):
     (tmp_path / "rig.toml").write_text(
         f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\nbit_depth = {cam.bit_depth}\n"
         f"exposure_s = {cam.exposure_s!r}\nframe_rate_hz = {cam.frame_rate_hz!r}\n"
-        f"[hardware]\nlight = \"dlpc900-simulated\"\nexposure_s = {cam.exposure_s!r}\ncamera_first_frame_id = 1\n")
+        # hardware.exposure_s is not the plan's: the plan's exposure (its dark frame and decoder) is what runs
+        f"[hardware]\nlight = \"dlpc900-simulated\"\nexposure_s = {2 * cam.exposure_s!r}\n"
+        "camera_first_frame_id = 1\n")
     save_calibration(tmp_path / "calib.npz", setup.bundle)
     save_plan(tmp_path / "plan.npz", setup.plan)
     result = CliRunner().invoke(main, ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan",
@@ -81,6 +83,8 @@ def test_cli_stream_on_the_simulated_hardware_rig(setup, tmp_path, monkeypatch):
     assert len(opened) == 1
     sim, driver = opened[0]
     assert sim.lut_entries == setup.plan.K and not sim.running  # the plan was uploaded; the light stopped
+    assert driver.exposure_s == pytest.approx(setup.plan.exposure_s)  # camera ExposureTime: the plan's
+    assert all(sim.lut[i]["exposure_us"] == round(setup.plan.exposure_s * 1e6) for i in range(sim.lut_entries))
     assert not sim.is_open  # and its USB link released
     rec = open_recording(tmp_path / "out")
     assert rec.attrs["plan_hash"] == setup.plan.hash and rec.sequences >= 2

@@ -445,7 +445,7 @@ def test_calibration_with_an_impossible_dark_is_refused(base, tmp_path):
         load_calibration(tmp_path / "bad.npz")
 
 
-def test_disk_full_during_capture_stops_it_and_leaves_nothing(base, tmp_path, monkeypatch):
+def test_disk_full_during_capture_stops_it_and_keeps_the_complete_sequences(base, tmp_path, monkeypatch):
     real = io._write_tiff
     frames = []
 
@@ -461,4 +461,7 @@ def test_disk_full_during_capture_stops_it_and_leaves_nothing(base, tmp_path, mo
                                "--sequences", "20", ok=False), "No space left")
     assert "frame_000004.tif" in error
     assert len(frames) == 5  # stopped at once, not after the whole capture
-    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    # the tristimulus plan has 3 frames: the first sequence is kept, the second's frame 3 removed with it
+    frames_kept, _, meta = io.read_sequence(tmp_path / "s")
+    assert frames_kept.shape[0] == 3 and meta["metadata"]["sequences_requested"] == 20
+    assert sorted(p.name for p in (tmp_path / "s").glob("frame_*")) == [f"frame_{i:06d}.tif" for i in range(3)]

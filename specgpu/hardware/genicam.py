@@ -284,7 +284,14 @@ class GenICamCamera(CameraDriver):
         self.fault = None
         if self.mode == "strobe-master":
             self._light.start()
-            self.acquirer.start()
+            try:
+                self.acquirer.start()
+            except BaseException:  # the light must not stay on, waiting for strobes, behind the camera's error
+                try:
+                    self._light.stop()
+                except Exception:  # noqa: BLE001 (the camera's error is the one to report)
+                    pass
+                raise
         else:
             self.acquirer.start()
             try:

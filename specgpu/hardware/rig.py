@@ -179,7 +179,7 @@ def open_light(hardware=None, *, rig=None, calibration=None, transport=None):
 
 
 def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n_frames: int | None = None,
-                  acquirer=None, transport=None, check_light: bool = True):
+                  acquirer=None, transport=None, check_light: bool = True, exposure_s: float | None = None):
     """The camera driver of a real rig (registered as ``"vision-dlpc900"``): a GenICam camera lit by a DLPC900.
 
     Parameters
@@ -196,10 +196,17 @@ def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n
         Exposures after which the stream ends.
     acquirer, transport
         Injected camera acquirer / light transport (default: opened from the configuration).
+    exposure_s
+        Exposure of the camera and of each pattern, s (a plan's: its dark frame and decoder are for it); default
+        ``hardware.exposure_s``.
     """
+    from dataclasses import replace
+
     from specgpu.hardware.genicam import GenICamCamera
 
     cfg = _config(hardware)
+    if exposure_s is not None:
+        cfg = replace(cfg, exposure_s=float(exposure_s))  # checked as hardware.exposure_s is
     light = open_light(cfg, rig=rig, calibration=calibration, transport=transport)
     try:
         if patterns is not None:

@@ -1,0 +1,213 @@
+"""Nothing a capture recorded is lost: a capture stopped by Ctrl-C, SIGTERM or an error keeps its complete
+sequences, and one killed outright leaves a journal that ``specgpu salvage`` turns back into a sequence folder.
+
+Each test writes only under its own ``tmp_path``; the module fixture (a calibration and a plan) is read only.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from specgpu import io
+from specgpu.pipeline import INCOMPLETE_MARKER
+
+from cli_helpers import RIG, one_line_error, run
+
+SEQUENCES = 5
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    d = tmp_path_factory.mktemp("salvage")
+    (d / "rig.toml").write_text(RIG)
+    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz")
+    return d
+
+
+def capture_args(base, out):
+    return ("capture", "--rig", base / "rig.toml", "--plan", base / "tri.npz", "--calib", base / "calib.npz",
+            "--scene", "colorchecker", "--out", out, "--sequences", SEQUENCES, "--seed", "7")
+
+
+def stop_after(monkeypatch, n, error):
+    """capture_plan raises ``error`` once ``n`` sequences have been handed to the writer."""
+    import specgpu.pipeline as pipeline
+
+    real = pipeline.capture_plan
+
+    def stopping(*args, on_sequence, **kwargs):
+        count = [0]
+
+        def seen(sequence):
+            on_sequence(sequence)
+            count[0] += 1
+            if count[0] == n:
+                raise error
+        return real(*args, on_sequence=seen, **kwargs)
+
+    monkeypatch.setattr(pipeline, "capture_plan", stopping)
+
+
+def K_of(base):
+    from specgpu.plans import load_plan
+
+    return load_plan(base / "tri.npz").K
+
+
+def frame_files(folder):
+    return sorted(p.name for p in folder.glob("frame_*.tif"))
+
+
+def test_interrupted_capture_keeps_its_complete_sequences(base, tmp_path, monkeypatch):
+    out = tmp_path / "seq"
+    stop_after(monkeypatch, 2, KeyboardInterrupt())
+    result = run(*capture_args(base, out), ok=False)
+    assert result.exit_code == 130, result.output
+    assert f"kept 2 of {SEQUENCES} sequences in {out}" in result.output
+    frames, _, meta = io.read_sequence(out)
+    K = K_of(base)
+    assert frames.shape[0] == 2 * K
+    assert meta["metadata"]["interrupted"] == "interrupted"
+    assert meta["metadata"]["sequences"] == 2 and meta["metadata"]["sequences_requested"] == SEQUENCES
+    assert not (out / INCOMPLETE_MARKER).exists() and not (out / io.JOURNAL_FILE).exists()
+    run("recover", out, "--out", tmp_path / "r.exr", "--sequence", "1")
+
+
+def test_disk_full_mid_sequence_keeps_the_complete_ones_and_drops_the_partial(base, tmp_path, monkeypatch):
+    out = tmp_path / "seq"
+    K = K_of(base)
+    real = io._write_tiff
+    calls = [0]
+
+    def filling(path, frame):
+        calls[0] += 1
+        if calls[0] == 2 * K + 2:  # the third sequence's second frame: the disk is full
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, frame)
+
+    monkeypatch.setattr(io, "_write_tiff", filling)
+    result = run(*capture_args(base, out), ok=False)
+    one_line_error(result, "No space left")
+    assert f"kept 2 of {SEQUENCES} sequences" in result.output
+    assert len(frame_files(out)) == 2 * K  # the third sequence's first frame is gone with it
+    frames, _, meta = io.read_sequence(out)
+    assert frames.shape[0] == 2 * K and "No space left" in meta["metadata"]["interrupted"]
+
+
+def test_a_capture_with_no_complete_sequence_leaves_nothing(base, tmp_path, monkeypatch):
+    out = tmp_path / "seq"
+    import specgpu.pipeline as pipeline
+
+    def failing(*args, **kwargs):
+        raise RuntimeError("camera lost")
+
+    monkeypatch.setattr(pipeline, "capture_plan", failing)
+    one_line_error(run(*capture_args(base, out), ok=False), "camera lost")
+    assert not out.exists() or frame_files(out) == []
+
+
+def killed_capture(base, folder: Path, monkeypatch, sequences: int = 3, extra_frames: int = 1) -> Path:
+    """The state ``kill -9`` leaves: ``sequences`` journaled sequences, ``extra_frames`` frames of the next one,
+    no sequence.json (the cleanup the kill prevented is switched off). The kill itself is drilled in
+    test_crash_drills.py."""
+    import specgpu.cli as cli
+
+    K = K_of(base)
+    real = io._write_tiff
+    calls = [0]
+
+    def dying(path, frame):
+        if calls[0] == sequences * K + extra_frames:
+            raise KeyboardInterrupt  # the process stops here
+        calls[0] += 1
+        return real(path, frame)
+
+    with monkeypatch.context() as m:
+        m.setattr(io, "_write_tiff", dying)
+        m.setattr(cli, "_keep_or_abort", lambda *a, **k: None)
+        run(*capture_args(base, folder), ok=False)
+    assert not (folder / io.SEQUENCE_FILE).exists() and (folder / io.JOURNAL_FILE).exists()
+    return folder
+
+
+@pytest.fixture(scope="module")
+def killed(base, tmp_path_factory):
+    mp = pytest.MonkeyPatch()
+    try:
+        return killed_capture(base, tmp_path_factory.mktemp("killed") / "seq", mp)
+    finally:
+        mp.undo()
+
+
+def copy_of(folder: Path, tmp: Path) -> Path:
+    shutil.copytree(folder, tmp / "seq")
+    return tmp / "seq"
+
+
+def test_killed_capture_is_refused_with_the_way_out_then_salvaged(base, killed, tmp_path):
+    out = copy_of(killed, tmp_path)
+    one_line_error(run("recover", out, "--out", tmp_path / "r.exr", ok=False), "interrupted capture",
+                   "specgpu salvage")
+    result = run("salvage", out)
+    K = K_of(base)
+    assert f"salvaged 3 sequences ({3 * K} of {3 * K} journaled frames)" in result.output
+    assert "1 frame file(s) outside the index left in place" in result.output  # the partial sequence's frame
+    frames, _, meta = io.read_sequence(out)  # checksums verified on read
+    assert frames.shape[0] == 3 * K
+    assert meta["metadata"]["salvaged"]["sequences"] == 3 and meta["metadata"]["K"] == K
+    assert not (out / INCOMPLETE_MARKER).exists() and not (out / io.JOURNAL_FILE).exists()
+    assert len(frame_files(out)) == 3 * K + 1  # nothing deleted: the partial sequence's frame stays, unindexed
+    run("recover", out, "--out", tmp_path / "r.exr", "--sequence", "2")
+    one_line_error(run("salvage", out, ok=False), "already holds")
+
+
+def test_salvage_stops_before_a_damaged_frame(base, killed, tmp_path):
+    out = copy_of(killed, tmp_path)
+    K = K_of(base)
+    victim = out / frame_files(out)[K + 1]  # a frame of the second sequence
+    victim.write_bytes(victim.read_bytes()[:-10])
+    result = run("salvage", out)
+    assert "salvaged 1 sequences" in result.output and victim.name in result.output
+    assert io.read_sequence(out)[0].shape[0] == K
+
+
+def test_salvage_refuses_a_folder_with_nothing_to_salvage(base, killed, tmp_path):
+    out = copy_of(killed, tmp_path)
+    (out / io.JOURNAL_FILE).unlink()
+    one_line_error(run("salvage", out, ok=False), "no capture journal")
+    (out / io.JOURNAL_FILE).write_text("not json\n{}\n")
+    one_line_error(run("salvage", out, ok=False), "corrupt at line 1")
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cut=st.floats(min_value=0.0, max_value=1.0))
+def test_a_torn_journal_keeps_exactly_its_complete_sequences(base, killed, cut):
+    K = K_of(base)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = copy_of(killed, Path(tmp))
+        raw = (out / io.JOURNAL_FILE).read_bytes()
+        header_end = raw.index(b"\n") + 1
+        torn = raw[:header_end + int(cut * (len(raw) - header_end))]
+        (out / io.JOURNAL_FILE).write_bytes(torn)
+        whole = 0  # entry lines that survived whole (a cut exactly after a record's closing brace leaves it whole)
+        for line in torn[header_end:].split(b"\n"):
+            try:
+                json.loads(line)
+                whole += 1
+            except ValueError:
+                pass
+        result = run("salvage", out, ok=False)
+        if whole // K == 0:
+            one_line_error(result, "no complete, intact sequence")
+            assert not (out / io.SEQUENCE_FILE).exists()
+        else:
+            assert result.exit_code == 0, result.output
+            assert io.read_sequence(out)[0].shape[0] == (whole // K) * K
