@@ -128,6 +128,81 @@ def _gaussian_columns(grid, centres, fwhm) -> np.ndarray:
     return np.exp(-0.5 * ((grid[:, None] - centres[None, :]) / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
 
 
+def _tabulated_columns(grid, centres, offsets, shapes) -> np.ndarray:
+    """(G, C) unit-area columns from line shapes (C, X) tabulated on uniform ``offsets`` (linear between, 0 beyond)."""
+    x = (grid[:, None] - centres[None, :] - offsets[0]) / (offsets[1] - offsets[0])  # (G, C) fractional index
+    i0 = np.floor(x).astype(np.int64)
+    f = x - i0
+    n = offsets.size
+    cols = np.arange(centres.size)[None, :]
+    v0 = np.where((i0 >= 0) & (i0 < n), shapes[cols, np.clip(i0, 0, n - 1)], 0.0)
+    v1 = np.where((i0 + 1 >= 0) & (i0 + 1 < n), shapes[cols, np.clip(i0 + 1, 0, n - 1)], 0.0)
+    out = (1.0 - f) * v0 + f * v1
+    area = out.sum(axis=0) * (grid[1] - grid[0])
+    return out / np.where(area > 0, area, 1.0)[None, :]
+
+
+def _measure_probe_lines(windowed, probe_cols, width, col_wl, col_power, inst_resp, grid, half):
+    """:func:`measure_line_shapes` on readings restricted to each probe's window (samples outside are dropped)."""
+    spectra = [s for s, _ in windowed]
+    masks = [m for _, m in windowed]
+    return measure_line_shapes(spectra, probe_cols, width, col_wl, col_power, inst_resp, grid, half, masks=masks)
+
+
+def measure_line_shapes(spectra, probe_columns, probe_width: int, column_wavelengths, column_power, instrument,
+                        grid, half_width_nm: float, smoothing: float = 3e-3,
+                        masks=None) -> tuple[np.ndarray, np.ndarray]:
+    """Each column's line shape from the spectroradiometer's readings of narrow probes, without a model of it.
+
+    A probe lights ``probe_width`` columns from ``probe_columns[i]``; its reading is the instrument's bandpass
+    (``instrument``: (samples, G) response on ``grid``) applied to the sum of those columns' lines. The line is
+    solved for on 1 nm offsets within ``half_width_nm`` (non-negative least squares with a small second-difference
+    penalty, ``smoothing`` relative to the data), re-centred on its centroid (the column map already holds it) and
+    normalised to unit area; every column takes the line of its wavelength, linear between the probes' centres.
+
+    Returns (offsets (X,), shapes (C, X)).
+    """
+    from scipy.optimize import nnls
+
+    offsets = np.arange(-float(half_width_nm), float(half_width_nm) + 0.5, 1.0)
+    n = offsets.size
+    eye = np.eye(n)
+    d2 = np.diff(eye, 2, axis=0)
+    lines, where = [], []
+    for i, (s, c0) in enumerate(zip(spectra, probe_columns)):
+        cols = np.arange(int(c0), int(c0) + int(probe_width))
+        # emitted (G, X): each offset's unit impulse, placed at every lit column and weighted by its power
+        emit = np.zeros((grid.size, n))
+        for c in cols:
+            emit += column_power[c] * np.stack([np.interp(grid - column_wavelengths[c], offsets, eye[j], left=0.0,
+                                                          right=0.0) for j in range(n)], axis=1)
+        a = instrument @ emit
+        if masks is not None:  # only the samples near the probe, with a constant background beside the line
+            a = np.hstack([a[masks[i]], np.ones((int(masks[i].sum()), 1))])
+            s = s[masks[i]]
+        else:
+            a = np.hstack([a, np.zeros((a.shape[0], 1))])
+        scale = float(np.max(s)) if np.max(s) > 0 else 1.0
+        lam = smoothing * float(np.linalg.norm(a)) / np.sqrt(n)
+        reg = np.hstack([lam * d2, np.zeros((n - 2, 1))])
+        h, _ = nnls(np.vstack([a / scale, reg / scale]), np.concatenate([s / scale, np.zeros(n - 2)]))
+        h = h[:n]
+        if not h.sum() > 0:
+            continue
+        h = h / h.sum()
+        mu = float(h @ offsets)
+        h = np.interp(offsets + mu, offsets, h, left=0.0, right=0.0)  # centroid to 0
+        lines.append(h / (h.sum() * (offsets[1] - offsets[0])))
+        where.append(float(np.mean(column_wavelengths[cols])))
+    if len(lines) < 2:
+        raise ValueError("calibrate: fewer than 2 probe readings to measure the line shape from")
+    lines, where = np.array(lines), np.array(where)
+    order = np.argsort(where)
+    lines, where = lines[order], where[order]
+    shapes = np.stack([np.interp(column_wavelengths, where, lines[:, j]) for j in range(n)], axis=1)
+    return offsets, shapes
+
+
 @dataclass(frozen=True)
 class CalibrationBundle:
     """What calibration knows about the rig; the planner's forward model (see the module docstring).
@@ -194,6 +269,11 @@ class CalibrationBundle:
     #: wavelength. See :meth:`flat_ratio`.
     flat_fields: np.ndarray | None = None
     flat_wavelengths: np.ndarray | None = None
+    #: (C, X) unit-area line shape of each column, tabulated on the uniform ``line_offsets_nm`` (X,) from the
+    #: column's centre (measured from the spectroradiometer's probe scans, the instrument's bandpass taken out);
+    #: None: a Gaussian of ``slit_fwhm_nm``. See :func:`measure_line_shapes`.
+    line_offsets_nm: np.ndarray | None = None
+    line_shapes: np.ndarray | None = None
 
     def __post_init__(self):
         for k in ("wavelengths", "column_wavelengths", "column_power", "responsivity", "dark", "flat_field",
@@ -251,6 +331,19 @@ class CalibrationBundle:
                 raise ValueError("flat_fields must be finite and positive, flat_wavelengths increasing")
             object.__setattr__(self, "flat_fields", ff)
             object.__setattr__(self, "flat_wavelengths", fw)
+        if (self.line_shapes is None) != (self.line_offsets_nm is None):
+            raise ValueError("line_shapes and line_offsets_nm go together")
+        if self.line_shapes is not None:
+            ls = np.asarray(self.line_shapes, np.float64)
+            lo = np.asarray(self.line_offsets_nm, np.float64).reshape(-1)
+            if ls.ndim != 2 or ls.shape != (cw.size, lo.size) or lo.size < 3 \
+                    or not np.allclose(np.diff(lo), lo[1] - lo[0]) or lo[1] <= lo[0]:
+                raise ValueError(f"line_shapes must be (C={cw.size}, X) on a uniform increasing line_offsets_nm (X,), "
+                                 f"got {ls.shape}, {lo.shape}")
+            if not np.all(np.isfinite(ls)) or np.any(ls < 0) or np.any(ls.sum(axis=1) <= 0):
+                raise ValueError("line_shapes must be finite, non-negative and non-zero per column")
+            object.__setattr__(self, "line_shapes", ls)
+            object.__setattr__(self, "line_offsets_nm", lo)
         for k, v in (("wavelengths", g), ("column_wavelengths", cw), ("column_power", cp), ("responsivity", rho),
                      ("dark", dark), ("flat_field", flat), ("reciprocal_patterns", rp), ("reciprocal_bands", rb)):
             object.__setattr__(self, k, v)
@@ -264,6 +357,9 @@ class CalibrationBundle:
         if self.flat_fields is not None:  # only then: bundles without them keep their hash
             arrays["flat_fields"] = self.flat_fields
             arrays["flat_wavelengths"] = self.flat_wavelengths
+        if self.line_shapes is not None:  # likewise
+            arrays["line_shapes"] = self.line_shapes
+            arrays["line_offsets_nm"] = self.line_offsets_nm
         return arrays
 
     def _meta(self) -> dict:
@@ -288,8 +384,12 @@ class CalibrationBundle:
     # ---- the forward model ------------------------------------------------------------------------------------
     @cached_property
     def column_matrix(self) -> np.ndarray:
-        """(G, C) estimated spectral irradiance (W m^-2 nm^-1) of each column with all mirrors on."""
-        return _gaussian_columns(self.wavelengths, self.column_wavelengths, self.slit_fwhm_nm) * self.column_power
+        """(G, C) estimated spectral irradiance (W m^-2 nm^-1) of each column with all mirrors on: the column's
+        power times its line shape (the measured table when the bundle has one, else a Gaussian slit)."""
+        if self.line_shapes is None:
+            return _gaussian_columns(self.wavelengths, self.column_wavelengths, self.slit_fwhm_nm) * self.column_power
+        return _tabulated_columns(self.wavelengths, self.column_wavelengths, self.line_offsets_nm,
+                                  self.line_shapes) * self.column_power
 
     @cached_property
     def system_matrix(self) -> np.ndarray:
@@ -785,7 +885,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
               white_uncertainty: float = 0.01,
               band_step_nm: float = 10.0, band_range_nm=(380.0, 780.0), equalize_range_nm=(400.0, 700.0),
               repeats: int = 8, tolerance: float = 0.01, max_iterations: int = 10, perturbation: float = 0.0,
-              spectral_check: bool = True, seed: int = 0, rig: CalibrationRig | None = None) -> CalibrationBundle:
+              spectral_check: bool = True, seed: int = 0, rig: CalibrationRig | None = None,
+              line_shape: str = "gaussian") -> CalibrationBundle:
     """Calibrate a rig (the twin described by ``description``, or the real one ``rig``) and return its bundle.
 
     Steps: (1) dark level at two exposures (dark current); (2) spectroradiometer: column-wavelength map from
@@ -819,6 +920,13 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         Run loop (b) once and report it.
     seed : int
         Seed of the frames' temporal noise (twin) and of the perturbation.
+    line_shape : str
+        ``"gaussian"`` (default): a Gaussian of the light's design FWHM; ``"measured"``: each column's line shape
+        tabulated from the spectroradiometer's probe readings (:func:`measure_line_shapes`; no model of the slit;
+        the Gaussian where the spectroradiometer gives no ``response_matrix``). On the lab twin the measured shape
+        cuts the model's line-shape error tenfold (``tools/calibration_truth.py``) but changes no per-patch figure
+        (loop (a) already pins each band's response) and moves the symmetric plan's per-pixel noise (its decoder is
+        sensitive to the model's details), so it is not yet the default.
     rig : CalibrationRig, optional
         The rig to measure (e.g. :func:`specgpu.hardware.rig.open_calibration_rig` for real devices, looking at the
         reference white); by default the twin of ``description`` looking at a white plate of ``white_reflectance``.
@@ -838,6 +946,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         raise ValueError(f"perturbation must lie in [0, 0.9], got {perturbation!r}")
     if int(repeats) < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats!r}")
+    if line_shape not in ("measured", "gaussian"):
+        raise ValueError(f"line_shape must be 'measured' or 'gaussian', got {line_shape!r}")
     if rig is None:
         # The twin's white is what the certificate says, off by the bench's white_error (its truth).
         rig = TwinCalibrationRig(d, scene=white_plate_scene(
@@ -866,9 +976,10 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         probes[i, c:c + 8] = p.rows
     light.load_sequence(probes)
     inst = rig.spectroradiometer.wavelengths
-    cents = []
+    cents, probe_spectra = [], []
     for i in range(probe_cols.size):
         s = np.mean([rig.measure_spectrum(i)[1] for _ in range(2)], axis=0)
+        probe_spectra.append(s)
         peak = int(np.argmax(s))
         sel = np.abs(inst - inst[peak]) <= 6.0 + p.line_fwhm_nm  # the probe's band, not noise far away
         if not np.sum(s[sel]) > 0:
@@ -890,8 +1001,19 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     full = np.mean([rig.measure_spectrum(0)[1] for _ in range(4)], axis=0)
     col_power = np.interp(col_wl, inst, full) * np.abs(local_slope)
     grid = light.wavelengths
-    # The slit FWHM is a design value of the light (the instrument's own bandpass would blur a measured one).
+    # The slit FWHM is a design value of the light; the line's measured shape (below) replaces it in the model.
     slit = float(p.line_fwhm_nm)
+    line = None
+    response = getattr(rig.spectroradiometer, "response_matrix", None)
+    if line_shape == "measured" and response is not None:
+        # Only the readings near each probe: far away lie the DMD's off-state and stray background, not the line.
+        half = 2.5 * p.line_fwhm_nm
+        inst_resp = response(grid)
+        windowed = []
+        for s_i, c_i in zip(probe_spectra, cents):
+            near = np.abs(inst - c_i) <= half + 2.0 * rig.spectroradiometer.params.bandwidth_nm
+            windowed.append((s_i, near))
+        line = _measure_probe_lines(windowed, probe_cols, 8, col_wl, col_power, inst_resp, grid, half)
 
     # (3) Flat field on the white: a broadband pattern at about half the range.
     win = _centre_window((h, w))
@@ -991,6 +1113,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     est = CalibrationBundle(grid, col_wl, col_power, slit, p.rows, np.ones_like(grid), t_cal, dark.astype(np.float32),
                             rate, flat, max_code, light.minimum_exposure_s, rig.frame_period_s - p.switch_time_s,
                             white_reflectance, loop_a.patterns, bands)
+    if line is not None:
+        est = replace(est, line_offsets_nm=line[0], line_shapes=line[1])
     e = est.emitted(loop_a.patterns)  # (K, G)
     power = e.sum(axis=1) * (grid[1] - grid[0])
     rho_band = loop_a.outputs / (t_a * white_reflectance * power)
@@ -1002,13 +1126,32 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     for _ in range(6):
         modelled = t_a * white_reflectance * dl * (e * rho[None, :]).sum(axis=1)
         rho = rho * np.interp(grid, centroid, loop_a.outputs / modelled)
+    # The light's frame-to-frame power fluctuation: 16 frames of the flat-field pattern in one sequence, the spread
+    # of their centre means (the camera's own noise there is a few hundredths of a per cent). Drift correction
+    # compares a reference white's gains with it (:func:`specgpu.correction.corrected_decoder`).
+    # A camera link that drops a frame loses the sequence: tried three times, then left unmeasured (no rule).
+    fluctuation = None
+    fluct_seed = seeds.next()
+    for attempt in range(3):
+        try:
+            singles = rig.capture_mean(np.full((16, p.columns), n_flat, np.int32), 1, noise_seed=fluct_seed + attempt)
+        except RuntimeError:
+            continue
+        levels = np.array([float(np.mean((f - dark)[small])) for f in singles])
+        if np.all(levels > 0):
+            fluctuation = float(np.std(levels, ddof=1) / np.mean(levels))
+        break
     reports = {"source": "calibrated", "loop_a": loop_a.summary(), "band_step_nm": float(band_step_nm),
                "column_map": {"slope_nm": float(slope), "intercept_nm": float(icpt)},
                "level_dn_per_reflectance": level, "loop_a_exposure_s": t_a, "repeats": int(repeats)}
     reports["white_reflectance_uncertainty"] = float(white_uncertainty)
     reports["linearity_c_per_dn2"] = linearity_c
+    if fluctuation is not None:
+        reports["light_fluctuation"] = fluctuation
+        reports["light_fluctuation_exposure_s"] = t_cal
     if hasattr(rig, "clock_s"):
         reports["rig_clock_end_s"] = float(rig.clock_s)
+    reports["slit_model"] = "measured" if line is not None else "gaussian"
     bundle = replace(est, responsivity=rho, reports=reports, rig=rig_fingerprint(d))
     if flat_bands:
         bundle = replace(bundle, flat_fields=np.stack(flat_bands), flat_wavelengths=np.array(flat_wl))
@@ -1048,7 +1191,9 @@ def calibration_error(bundle: CalibrationBundle, description: RigDescription | N
     the twin's noise-free response, and the shift of the response's centroid wavelength.
 
     Returns ``{"bands": (B, 2), "relative": (B,) model/truth - 1, "centroid_nm": (B,) model - truth,
-    "rms_relative", "max_relative", "rms_centroid_nm"}``. The twin's truth includes every ``[realism]`` effect
+    "shape": (B,) RMS over the grid of the unit-area responses' difference relative to the true peak (the line
+    shape's error), "rms_relative", "max_relative", "rms_centroid_nm", "max_centroid_nm", "rms_shape",
+    "max_shape"}``. The twin's truth includes every ``[realism]`` effect
     that acts at the spot centre (slit, map, ripples, stray light, off-state, white error does not enter: the
     truth here is the light and camera, not the white).
     """
@@ -1070,8 +1215,12 @@ def calibration_error(bundle: CalibrationBundle, description: RigDescription | N
     t_sum, m_sum = true_prod.sum(axis=1), model_prod.sum(axis=1)
     rel = m_sum / t_sum - 1.0
     cen = (model_prod @ wl) / m_sum - (true_prod @ light.wavelengths) / t_sum
-    return {"bands": bands, "relative": rel, "centroid_nm": cen, "rms_relative": float(np.sqrt(np.mean(rel**2))),
-            "max_relative": float(np.max(np.abs(rel))), "rms_centroid_nm": float(np.sqrt(np.mean(cen**2)))}
+    um, ut = model_prod / m_sum[:, None], true_prod / t_sum[:, None]
+    shape = np.sqrt(np.mean((um - ut) ** 2, axis=1)) / ut.max(axis=1)
+    return {"bands": bands, "relative": rel, "centroid_nm": cen, "shape": shape,
+            "rms_relative": float(np.sqrt(np.mean(rel**2))), "max_relative": float(np.max(np.abs(rel))),
+            "rms_centroid_nm": float(np.sqrt(np.mean(cen**2))), "max_centroid_nm": float(np.max(np.abs(cen))),
+            "rms_shape": float(np.sqrt(np.mean(shape**2))), "max_shape": float(np.max(shape))}
 
 
 def oracle_calibration(description: RigDescription | None = None, *, white_reflectance: float = 0.99,

@@ -308,7 +308,10 @@ class _Busy:
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="Calibration bundle to write (.npz).")
 @click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=0, show_default=True,
               help="Seed of the twin's noise; on hardware, of the loops' perturbed start only.")
-def calibrate(rig_path, out, seed):
+@click.option("--line-shape", type=click.Choice(["gaussian", "measured"]), default="gaussian", show_default=True,
+              help="The light's line shape in the bundle: the design Gaussian, or tabulated per column from the "
+                   "spectroradiometer's probe readings (no model of the slit).")
+def calibrate(rig_path, out, seed, line_shape):
     """Run both feedback loops on the rig and write the calibration bundle."""
     from .calibration import calibrate as run, save_calibration
     from .rig.config import load_rig
@@ -319,12 +322,12 @@ def calibrate(rig_path, out, seed):
     _lock(out)
     with _Busy("calibrating"):
         if hardware is None:
-            bundle = run(description, seed=seed)
+            bundle = run(description, seed=seed, line_shape=line_shape)
         else:  # real devices: the camera looks at the reference white, the spectrometer at the light's output
             from .hardware.rig import open_calibration_rig
 
             with open_calibration_rig(description, hardware=hardware) as rig:
-                bundle = run(description, seed=seed, rig=rig)
+                bundle = run(description, seed=seed, rig=rig, line_shape=line_shape)
     digest = save_calibration(out, bundle)
     reports = bundle.reports
     for loop, what in (("loop_a", "loop (a) camera + white"), ("loop_b", "loop (b) spectroradiometer")):
@@ -373,10 +376,13 @@ def calibrate(rig_path, out, seed):
 @click.option("--bands", type=int, default=31, show_default=True, help="hadamard: bands (3, 7, 15, 31, 63).")
 @click.option("--ambient", is_flag=True,
               help="Add an ambient frame (every mirror off) to each sequence; recover subtracts it (1 frame more).")
+@click.option("--drift-probe", "drift_probe", type=float, multiple=True,
+              help="Add a 20 nm drift probe band at NM to each sequence, read by recover --white-roi's colour fit "
+                   "(1 frame more each; 430 and 650 let a 3-frame plan's drift correction hold). Repeatable.")
 @_RIG
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
                  illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,
-                 target, exposure_ms, bands, rig_path, smooth_nm, ambient):
+                 target, exposure_ms, bands, rig_path, smooth_nm, ambient, drift_probe):
     """Design a measurement plan: the illuminant sequence and its decoder.
 
     METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady, optimal, hadamard.
@@ -422,6 +428,10 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
     plan = _estimated_plan(method, bundle, args, kwargs, estimator.lower(), training, training_only, exclude_chart,
                            frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path,
                            smooth_nm)
+    if drift_probe:
+        from .correction import with_drift_probes
+
+        plan = with_drift_probes(plan, bundle, sorted(drift_probe))
     if ambient:
         from .correction import with_ambient_frame
 

@@ -18,6 +18,15 @@ Between calibration and capture the lamp's output and colour change and the ligh
   it is, on the scene. Cost: one frame per sequence (K -> K + 1: 1/K more time, 3 % for narrowband-31, 11 % for
   symmetric-9) and the ambient frame's temporal noise, added once more to every pattern's output (variance
   of dark-level noise doubles: a few tenths of a DN on a 10-bit camera).
+- **Drift probe** (``specgpu plan ... --drift-probe NM``, repeatable): one more narrow band per sequence that the
+  plan's decoder does not use; only the reference white's colour fit reads it (the re-fitted decoder may read its
+  frame too). A sequence of a few broad patterns (the tristimulus imager's 3) gives the white 3 numbers, each
+  carrying the frame's own power fluctuation (about 2 % at the tristimulus exposure): too few to tell a cut-on
+  shift from a colour-temperature change. Probes at 430 nm (the guide's cut-on) and 650 nm make the fit
+  over-determined at both ends. Cost: one frame per probe per sequence (tristimulus 3 + 2 probes + ambient -> 6
+  frames). Lab, drift -200 K / -3 % / +5 nm, white ROI in both runs (``tools/drift_study.py --draws 3 --probes
+  430,650``): tristimulus dE00 0.26 against 0.23 without drift (1.13x); one probe at 430 nm 0.33 (1.43x); none
+  0.43 (1.87x).
 """
 
 from __future__ import annotations
@@ -27,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["with_ambient_frame", "ambient_index", "parse_roi", "white_reflectance_curve", "white_gains",
-           "corrected_decoder", "WhiteReference",
+__all__ = ["with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi",
+           "white_reflectance_curve", "white_gains", "gain_noise", "corrected_decoder", "WhiteReference",
            "DEFAULT_WHITE_REFLECTANCE"]
 
 #: Reflectance of the reference white when none is given (a pressed-PTFE standard's certificate value).
@@ -48,6 +57,55 @@ def with_ambient_frame(plan):
                    A=np.hstack([plan.A, np.zeros((plan.A.shape[0], 1))]),
                    expected_level=np.append(plan.expected_level, 0.0),
                    params={**plan.params, "ambient_frame": k})
+
+
+#: Centres (nm) and width of the default drift probes: the light guide's cut-on edge, where its shift shows most,
+#: and the red end, where a colour-temperature change shows most.
+DEFAULT_PROBE_NM = (430.0, 650.0)
+PROBE_BANDWIDTH_NM = 20.0
+
+
+def with_drift_probes(plan, bundle, centres=DEFAULT_PROBE_NM, bandwidth_nm: float = PROBE_BANDWIDTH_NM):
+    """The plan with a narrow band per ``centres`` (nm) appended to its sequence (drift probes, see the module
+    docstring); the decoder gets zero columns for them (``params["drift_probes"]`` lists their indices).
+
+    Each probe's mirrors are thinned so that a white gives it at most the plan's brightest frame's level (it
+    never saturates where the plan does not). Apply before :func:`with_ambient_frame`.
+    """
+    from .plans import _band_masks
+
+    if probe_indices(plan):
+        return plan
+    if ambient_index(plan) is not None:
+        raise ValueError("add drift probes before the ambient frame")
+    c = np.asarray(centres, np.float64).reshape(-1)
+    lo, hi = float(bundle.column_wavelengths.min()), float(bundle.column_wavelengths.max())
+    if c.size < 1 or not np.all(np.isfinite(c)) or np.any((c < lo) | (c > hi)):
+        raise ValueError(f"--drift-probe centres must lie within the light's {lo:.0f}-{hi:.0f} nm, got {c.tolist()}")
+    if not 0 < bandwidth_nm <= 100:
+        raise ValueError(f"drift probe bandwidth must lie in (0, 100] nm, got {bandwidth_nm!r}")
+    masks = _band_masks(bundle, c, float(bandwidth_nm))
+    full = np.where(masks, bundle.rows, 0).astype(np.int32)
+    grid = bundle.wavelengths
+    white = bundle.forward_matrix(full, grid, plan.exposure_s).sum(axis=1)
+    brightest = float(bundle.forward_matrix(plan.patterns, grid, plan.exposure_s).sum(axis=1).max())
+    scale = np.minimum(1.0, brightest / np.maximum(white, 1e-30))
+    pats = np.where(masks, np.maximum(1, np.floor(bundle.rows * scale[:, None])), 0).astype(np.int32)
+    level = float(np.max(plan.expected_level)) / max(brightest, 1e-30)
+    levels = bundle.forward_matrix(pats, grid, plan.exposure_s).sum(axis=1) * level
+    k = plan.K
+    return replace(plan, patterns=np.vstack([plan.patterns, pats]),
+                   target_spectra=np.vstack([plan.target_spectra, bundle.emitted(pats)]),
+                   A=np.hstack([plan.A, np.zeros((plan.A.shape[0], pats.shape[0]))]),
+                   expected_level=np.append(plan.expected_level, levels),
+                   params={**plan.params, "drift_probes": list(range(k, k + pats.shape[0])),
+                           "drift_probe_nm": c.tolist()})
+
+
+def probe_indices(plan) -> list[int]:
+    """Indices of the plan's drift probes (frames the decoder does not use), or []."""
+    idx = plan.params.get("drift_probes") if isinstance(plan.params, dict) else None
+    return [int(i) for i in idx] if idx else []
 
 
 def ambient_index(plan) -> int | None:
@@ -123,7 +181,24 @@ def white_gains(frames, plan, bundle, roi, white=None, *, dark=None) -> np.ndarr
 MIN_COLOUR_CHANGE = 0.02
 
 
-def corrected_decoder(plan, gains, bundle=None, white=None) -> np.ndarray:
+#: How far (in standard deviations of its chi-square) the white's gains must depart from one common power change,
+#: given the light's measured frame-to-frame fluctuation, before a colour change is fitted.
+COLOUR_SIGNIFICANCE = 3.0
+
+
+def gain_noise(plan, bundle, sequences: int = 1) -> float | None:
+    """Relative standard deviation of one white gain from the light's own frame-to-frame fluctuation, at the plan's
+    exposure, averaged over ``sequences``: the calibration's measurement (``reports["light_fluctuation"]`` at its
+    exposure) scaled as ``sqrt(t_cal / t)`` (fluctuation faster than a frame averages over the exposure). None
+    when the bundle did not measure it."""
+    rep = bundle.reports if isinstance(bundle.reports, dict) else {}
+    f, t = rep.get("light_fluctuation"), rep.get("light_fluctuation_exposure_s")
+    if not f or not t:
+        return None
+    return float(f) * float(np.sqrt(float(t) / plan.exposure_s)) / float(np.sqrt(max(1, int(sequences))))
+
+
+def corrected_decoder(plan, gains, bundle=None, white=None, *, sequences: int = 1) -> np.ndarray:
     """The plan's decoder corrected for one sequence's white gains.
 
     Without ``bundle``: each column rescaled, ``A[:, k] / gains[k]`` (exact for a change of each pattern's power).
@@ -133,13 +208,16 @@ def corrected_decoder(plan, gains, bundle=None, white=None) -> np.ndarray:
     smooth reflectances, ``A' = (A F R) (F diag(r) R)^+`` (``F`` the calibrated forward model, ``R`` smooth
     bumps): this follows a change of shape inside a broad pattern. What the smooth ratio leaves (a cut-on edge
     moving inside one narrow band) is then taken out column by column, as without ``bundle``. A ratio flatter
-    than :data:`MIN_COLOUR_CHANGE` across 420-680 nm is taken as a power change only (column scaling).
+    than :data:`MIN_COLOUR_CHANGE` across 420-680 nm is taken as a power change only (column scaling), and so are
+    gains whose spread about their mean is within the light's own fluctuation (:func:`gain_noise`, ``sequences``
+    the number of sequences whose mean ``gains`` are): chi-square below its degrees of freedom plus
+    :data:`COLOUR_SIGNIFICANCE` standard deviations.
     (One sequence of :meth:`WhiteReference.decoder`.)
     """
     g = np.asarray(gains, np.float64)
     if bundle is None:
         return plan.A / g[None, :]
-    return WhiteReference(plan, bundle, None, white).decoder(g)
+    return WhiteReference(plan, bundle, None, white).decoder(g, sequences=sequences)
 
 
 class WhiteReference:
@@ -245,12 +323,19 @@ class WhiteReference:
                 break
         return a
 
-    def decoder(self, gains) -> np.ndarray:
-        """The plan's decoder corrected for one sequence's gains (see :func:`corrected_decoder`)."""
+    def decoder(self, gains, *, sequences: int = 1) -> np.ndarray:
+        """The plan's decoder corrected for gains, one sequence's or the mean of ``sequences`` (see
+        :func:`corrected_decoder`)."""
         plan, F, rho, base, lit = self.plan, self.F, self.rho, self.predicted, self.lit
         g = np.asarray(gains, np.float64)
         if self.n_par == 0:
             return plan.A / g[None, :]
+        sigma = gain_noise(plan, self.bundle, sequences)
+        if sigma:
+            dev = np.log(g[lit]) - np.log(g[lit]).mean()
+            dof = int(lit.sum()) - 1
+            if float(np.sum(dev**2)) / sigma**2 <= dof + COLOUR_SIGNIFICANCE * np.sqrt(2.0 * dof):
+                return plan.A / g[None, :]  # one power change and the frames' own fluctuation: per-pattern scaling
         a = self._fit_ratio(np.log(g[lit]))
         basis = self.basis
         r = np.exp(a @ basis)

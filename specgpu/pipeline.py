@@ -291,7 +291,9 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
 
     ``white_roi`` (``"X,Y,W,H"``) names a reference white of ``white_reflectance`` (a number or a CSV; 0.99 by
     default) in the field: each sequence's decoder is rescaled for the light's drift since calibration
-    (:mod:`specgpu.correction`). A plan with an ambient frame (``plan --ambient``) has that frame subtracted
+    (:mod:`specgpu.correction`): the colour change fitted once on the sequences' mean white gains (it drifts over
+    hours; each frame's own power fluctuation averages down over the sequences), each sequence then rescaled by
+    its own gains. A plan with an ambient frame (``plan --ambient``) has that frame subtracted
     instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
     """
     from .correction import ambient_index, corrected_decoder, white_gains
@@ -304,14 +306,22 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
             raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
         y = None
         ratio = bundle.flat_ratio(plan.patterns)
+        prepared = []
         for s in picked:
             fr = folder.frames[s]
             dark = fr[amb].astype(np.float32) if amb is not None else bundle.dark_at(plan.exposure_s)
             fr = _flatten_by_wavelength(fr, dark, ratio, bundle)
-            A = plan.A
-            if white_roi is not None:
-                gains = white_gains(fr, plan, bundle, white_roi, white_reflectance, dark=dark)
-                A = corrected_decoder(plan, gains, bundle, white_reflectance)
+            gains = None if white_roi is None else white_gains(fr, plan, bundle, white_roi, white_reflectance,
+                                                                dark=dark)
+            prepared.append((fr, dark, gains))
+        A_mean = None
+        if white_roi is not None:
+            # The light's colour drifts over hours: one colour fit on the sequences' mean gains (each frame's own
+            # power fluctuation averages down), then each sequence's frames rescaled by its own gains.
+            mean_gains = np.exp(np.mean([np.log(g) for _, _, g in prepared], axis=0))
+            A_mean = corrected_decoder(plan, mean_gains, bundle, white_reflectance, sequences=len(prepared))
+        for fr, dark, gains in prepared:
+            A = plan.A if gains is None else A_mean / (gains / mean_gains)[None, :]
             ys = np.asarray(apply_linear(fr, A, dark, bundle.flat_field, out_dtype=np.float32, device=device))
             y = ys if y is None else y + ys
         y = (y / len(picked)).astype(out_dtype)

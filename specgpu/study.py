@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .correction import with_ambient_frame
+from .correction import with_ambient_frame, with_drift_probes
 from .evaluate import evaluate_pixels, evaluate_reflectance, evaluate_XYZ
 from .pipeline import SequenceFolder, capture_plan, recover
 
@@ -34,7 +34,7 @@ def chart_with_white(description, chart: str):
 
 
 def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, seed: int = 0,
-                    white_roi=None, white_reflectance=None, ambient: bool = False, pixels: bool = True,
+                    white_roi=None, white_reflectance=None, ambient: bool = False, probes=None, pixels: bool = True,
                     device=None, on_result=None) -> dict:
     """Capture each plan ``draws`` times on ``scene`` with fresh noise and evaluate.
 
@@ -48,6 +48,8 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
         Drift correction with a reference white in the field (:mod:`specgpu.correction`); off when None.
     ambient : bool
         Add an ambient frame to every plan (subtracted at recovery instead of the calibration's dark).
+    probes : sequence of float, optional
+        Drift probe centres (nm) added to every plan (:func:`specgpu.correction.with_drift_probes`).
     on_result : callable, optional
         ``on_result(name, draw, y, plan, res)`` for every recovery (e.g. to write files for the first draw).
 
@@ -63,6 +65,8 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
     out = {}
     patches = np.any(list(scene.masks.values()), axis=0) if scene.masks else None
     for i, (name, plan) in enumerate(plans.items()):
+        if probes:
+            plan = with_drift_probes(plan, bundle, probes)
         if ambient:
             plan = with_ambient_frame(plan)
         rows = {m: [] for m in METRICS}

@@ -273,3 +273,67 @@ def test_wavelength_dependent_flat_field(oracle):
     with pytest.raises(ValueError, match="go together"):
         replace(oracle, flat_fields=np.stack([blue]))
     assert b.hash != oracle.hash
+
+
+def test_tabulated_line_shape_reproduces_a_gaussian_slit():
+    from specgpu.calibration import _gaussian_columns, _tabulated_columns
+
+    grid = np.arange(380.0, 781.0)
+    centres = np.array([420.3, 555.0, 689.7])
+    offsets = np.arange(-15.0, 15.5, 0.5)
+    sigma = 5.0 / (2 * np.sqrt(2 * np.log(2)))
+    table = np.tile(np.exp(-0.5 * (offsets / sigma) ** 2), (3, 1))
+    ref = _gaussian_columns(grid, centres, 5.0)
+    got = _tabulated_columns(grid, centres, offsets, table)
+    np.testing.assert_allclose(got.sum(axis=0), ref.sum(axis=0), rtol=1e-9)
+    assert np.max(np.abs(got - ref)) < 0.01 * ref.max()
+
+
+@pytest.fixture(scope="module")
+def lab_measured(lab_calibrated):
+    desc, gaussian = lab_calibrated
+    return desc, gaussian, calibrate(desc, seed=3, line_shape="measured")
+
+
+def test_measured_line_shape_follows_the_lab_slit(lab_measured):
+    """The lab slit (flat-topped, FWHM growing with wavelength): the line tabulated from the probe scans cuts the
+    model's band-shape error several-fold and changes neither the band responses nor the map."""
+    from specgpu.calibration import calibration_error
+
+    desc, gaussian, measured = lab_measured
+    assert measured.reports["slit_model"] == "measured" and gaussian.reports["slit_model"] == "gaussian"
+    assert measured.line_shapes.shape == (measured.columns, measured.line_offsets_nm.size)
+    dx = measured.line_offsets_nm[1] - measured.line_offsets_nm[0]
+    np.testing.assert_allclose(measured.line_shapes.sum(axis=1) * dx, 1.0, rtol=1e-6)
+    eg, em = calibration_error(gaussian, desc), calibration_error(measured, desc)
+    assert eg["rms_shape"] > 0.006 and em["rms_shape"] < 0.3 * eg["rms_shape"]
+    assert abs(em["rms_relative"] - eg["rms_relative"]) < 0.001
+    np.testing.assert_array_equal(measured.column_wavelengths, gaussian.column_wavelengths)
+    # the lab line is wider in the red: the measured table says so
+    x = measured.line_offsets_nm
+    width = [np.sqrt(np.sum(measured.line_shapes[c] * x**2) * dx) for c in (100, 900)]  # about 420 and 730 nm
+    assert width[1] > 1.1 * width[0]
+
+
+def test_measured_line_shape_survives_the_file(tmp_path, lab_measured):
+    _, _, measured = lab_measured
+    path = tmp_path / "cal.npz"
+    digest = save_calibration(path, measured)
+    back = load_calibration(path)
+    assert back.hash == digest == measured.hash
+    np.testing.assert_array_equal(back.column_matrix, measured.column_matrix)
+    with pytest.raises(ValueError, match="line_shapes and line_offsets_nm go together"):
+        replace(measured, line_offsets_nm=None)
+
+
+def test_line_shape_argument_is_checked():
+    with pytest.raises(ValueError) as err:
+        calibrate(DESC, line_shape="lorentzian")
+    assert "line_shape must be 'measured' or 'gaussian'" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_light_fluctuation_is_measured(calibrated):
+    p = DESC.light
+    t = calibrated.reports["light_fluctuation_exposure_s"]
+    truth = p.fluctuation_rms * np.sqrt(p.fluctuation_reference_exposure_s / t)
+    assert 0.5 * truth < calibrated.reports["light_fluctuation"] < 1.6 * truth  # 16 frames: +-18 % (1 sigma)

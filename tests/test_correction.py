@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from specgpu.calibration import oracle_calibration
-from specgpu.correction import (ambient_index, corrected_decoder, parse_roi, white_gains, white_reflectance_curve,
-                                with_ambient_frame)
+from specgpu.correction import (ambient_index, corrected_decoder, parse_roi, probe_indices, white_gains,
+                                white_reflectance_curve, with_ambient_frame, with_drift_probes)
 from specgpu.evaluate import evaluate_reflectance
 from specgpu.pipeline import SequenceFolder, capture_plan, recover
 from specgpu.plans import make_plan
@@ -142,3 +142,121 @@ def test_spectral_refit_is_the_identity_without_drift_and_follows_a_colour_chang
     grey = np.full(grid.size, 0.5)
     y = A2 @ (F @ (r * grey))
     assert np.max(np.abs(y - 0.5)) < 0.01
+
+
+def test_drift_probe_is_a_thinned_narrow_band_the_decoder_does_not_use(setup):
+    bundle, _, _, _ = setup
+    plan = make_plan("tristimulus", bundle, illuminant="D65")
+    assert probe_indices(with_drift_probes(plan, bundle)) == [plan.K, plan.K + 1]  # 430 and 650 nm by default
+    probed = with_drift_probes(plan, bundle, (430.0,))
+    assert probed.K == plan.K + 1 and probe_indices(probed) == [plan.K] and probe_indices(plan) == []
+    np.testing.assert_array_equal(probed.A[:, :plan.K], plan.A)
+    np.testing.assert_array_equal(probed.A[:, plan.K], 0.0)
+    np.testing.assert_array_equal(probed.patterns[:plan.K], plan.patterns)
+    lit = bundle.column_wavelengths[probed.patterns[-1] > 0]
+    assert lit.min() > 419.0 and lit.max() < 441.0  # 20 nm around 430 nm
+    # never brighter on a white than the plan's brightest frame
+    F = bundle.forward_matrix(probed.patterns, bundle.wavelengths, probed.exposure_s).sum(axis=1)
+    assert F[-1] <= F[:plan.K].max() * (1 + 1e-9)
+    assert probed.expected_level[-1] <= plan.expected_level.max() * (1 + 1e-9)
+    assert with_drift_probes(probed, bundle, (430.0,)) is probed
+    both = with_ambient_frame(probed)
+    assert ambient_index(both) == plan.K + 1 and probe_indices(both) == [plan.K]
+
+
+@pytest.mark.parametrize("centres,word", [((200.0,), "must lie within the light's"),
+                                          ((float("nan"),), "must lie within the light's")])
+def test_drift_probe_errors_are_one_line(setup, centres, word):
+    bundle, plan, _, _ = setup
+    with pytest.raises(ValueError) as err:
+        with_drift_probes(plan, bundle, centres)
+    assert word in str(err.value) and "\n" not in str(err.value)
+    with pytest.raises(ValueError, match="before the ambient frame"):
+        with_drift_probes(with_ambient_frame(plan), bundle)
+
+
+def test_drift_probe_lets_a_three_frame_plan_follow_a_colour_drift(setup):
+    """Tristimulus (3 broad frames) under -200 K / -3 % / +5 nm, 4 sequences (the colour fitted once on their mean
+    gains): the white's 3 numbers alone cannot tell a cut-on shift from a colour-temperature change; probes at 430
+    and 650 nm halve the colour error the drift leaves."""
+    from specgpu.evaluate import evaluate_XYZ
+
+    bundle, _, scene, roi = setup
+    plan = make_plan("tristimulus", bundle, illuminant="D65")
+    probed = with_drift_probes(plan, bundle)
+    drifted = replace(DESC, drift=Drift(lamp_cct_K=-200, lamp_output=-0.03, cut_on_nm=5))
+
+    def de(desc, p, seed):
+        res = capture_plan(desc, p, scene, noise_seed=seed, calibration=bundle, sequences=4)
+        folder = SequenceFolder(Path("<memory>"), np.stack([s.frames for s in res.sequences]), p, bundle, [], {})
+        y = recover(folder, white_roi=roi)
+        return evaluate_XYZ(y, scene, illuminant="D65").summary()["delta_E_2000"][0]
+
+    three = np.mean([de(drifted, plan, s) for s in (3, 4)])
+    four = np.mean([de(drifted, probed, s) for s in (3, 4)])
+    assert three > 0.25  # the 3-frame fit's bias (0.30 over 6 seeds; 0.11 without drift)
+    assert four < 0.75 * three
+
+
+def test_colour_is_fitted_once_on_the_sequences_mean_gains(setup, monkeypatch):
+    import specgpu.correction as corr
+
+    bundle, plan, scene, roi = setup
+    seen = []
+    real = corr.corrected_decoder
+    monkeypatch.setattr(corr, "corrected_decoder",
+                        lambda p, g, *a, **k: seen.append(np.array(g)) or real(p, g, *a, **k))
+    res = capture_plan(DESC, plan, scene, noise_seed=2, calibration=bundle, sequences=3)
+    frames = np.stack([s.frames for s in res.sequences])
+    folder = SequenceFolder(Path("<memory>"), frames, plan, bundle, [], {})
+    y = recover(folder, white_roi=roi)
+    assert len(seen) == 1
+    per = np.array([white_gains(frames[i], plan, bundle, roi, dark=bundle.dark_at(plan.exposure_s))
+                    for i in range(3)])
+    np.testing.assert_allclose(seen[0], np.exp(np.log(per).mean(axis=0)), rtol=1e-6)
+    # each sequence decoded with its own frames' scaling: the mean of the three single-sequence recoveries
+    one = [recover(folder, sequence=i, white_roi=roi) for i in range(3)]
+    assert np.nanmax(np.abs(y - np.mean(one, axis=0))) < 0.02
+
+
+def test_cli_plan_drift_probe(setup, tmp_path):
+    from cli_helpers import one_line_error, run
+
+    from specgpu.calibration import save_calibration
+    from specgpu.plans import load_plan
+
+    bundle = setup[0]
+    cal = tmp_path / "cal.npz"
+    save_calibration(cal, bundle)
+    run("plan", "tristimulus", "--calib", cal, "--out", tmp_path / "p.npz", "--drift-probe", 430, "--ambient")
+    plan = load_plan(tmp_path / "p.npz")
+    assert plan.K == 5 and probe_indices(plan) == [3] and ambient_index(plan) == 4
+    assert plan.params["drift_probe_nm"] == [430.0]
+    bad = run("plan", "tristimulus", "--calib", cal, "--out", tmp_path / "q.npz", "--drift-probe", 200, ok=False)
+    one_line_error(bad, "--drift-probe centres must lie within the light's")
+    assert not (tmp_path / "q.npz").exists()
+
+
+def test_colour_is_fitted_only_beyond_the_lights_own_fluctuation(setup):
+    """With the light's fluctuation measured (as ``calibrate`` does), gains spread within it are one power change
+    (per-pattern scaling); a colour tilt well beyond it is fitted (a decoder that is not a column scaling)."""
+    from specgpu.correction import gain_noise
+
+    bundle, plan, _, _ = setup
+    assert gain_noise(plan, bundle) is None  # the oracle bundle measured nothing
+    rep = {**bundle.reports, "light_fluctuation": 0.01, "light_fluctuation_exposure_s": plan.exposure_s * 4}
+    b = replace(bundle, reports=rep)
+    assert gain_noise(plan, b) == pytest.approx(0.02)
+    assert gain_noise(plan, b, sequences=4) == pytest.approx(0.01)
+    rng = np.random.default_rng(3)
+    noisy = np.exp(0.02 * rng.standard_normal(plan.K))
+    np.testing.assert_allclose(corrected_decoder(plan, noisy, b), plan.A / noisy[None, :])
+    grid = b.wavelengths
+    F = b.forward_matrix(plan.patterns, grid, plan.exposure_s)
+    r = np.exp(0.25 * (grid - 550.0) / 150.0)  # a light 25 % redder across 400-700 nm
+    tilted = (F @ (r * 0.99)) / (F @ np.full(grid.size, 0.99))
+    A = corrected_decoder(plan, tilted, b)
+    assert not np.allclose(A, plan.A / tilted[None, :], rtol=1e-3)
+    # the same tilt within a fluctuation ten times larger is not told from noise
+    loud = replace(bundle, reports={**rep, "light_fluctuation": 1.0})
+    np.testing.assert_allclose(corrected_decoder(plan, tilted, loud), plan.A / tilted[None, :])

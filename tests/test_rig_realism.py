@@ -269,3 +269,29 @@ def test_capture_clock_starts_where_calibration_ended(monkeypatch):
     with pytest.raises(Stop):
         pipeline.capture_plan(d, Plan(), None, calibration=Bundle())
     assert seen["clock"] == 42.0 + 1800.0
+
+
+def test_colour_drifts_frame_by_frame_within_a_capture():
+    """The colour temperature's drift per hour acts on each frame's timestamp, not only at the clock start: a
+    blue band loses and a red band gains in proportion to the time since the start; without it nothing moves."""
+    fast = Realism(lamp_cct_drift_K_per_hour=-500.0)
+    r = rig(realism=fast, scene=white_plate_scene(240, 320))
+    r.light.params = replace(r.light.params, fluctuation_rms=0.0)
+    p0 = [r.render(k, frame_id=k, timestamp_s=0.0)[1] for k in range(3)]
+    p1 = [r.render(k, frame_id=k, timestamp_s=3600.0)[1] for k in range(3)]
+    np.testing.assert_allclose(p0, 1.0, rtol=1e-12)
+    ratio = np.array(p1) / np.array(p0)
+    # -500 K from 6000 K: the Planck ratio (normalised at 560 nm) weighted by each band's light on the camera,
+    # -11 % at 430 nm and +8 % at 670 nm; first order in the change, so within 1 % of it
+    from specgpu.rig.light import lamp_change
+
+    wl = r.light.wavelengths
+    w = r.light.sequence_spectra * r.camera.responsivity(wl)[None, :]
+    exact = (w @ lamp_change(r.light.params, wl, -500.0, 0.0)) / w.sum(axis=1)
+    assert exact[0] < 0.9 and exact[2] > 1.05
+    np.testing.assert_allclose(ratio, exact, atol=0.01)
+    half = np.array([r.render(k, frame_id=k, timestamp_s=1800.0)[1] for k in range(3)])
+    np.testing.assert_allclose(half - 1.0, (ratio - 1.0) / 2.0, rtol=1e-9)
+    still = rig(realism=Realism(lamp_output_drift_per_hour=0.0))
+    still.light.params = replace(still.light.params, fluctuation_rms=0.0)
+    assert [still.render(k, frame_id=k, timestamp_s=3600.0)[1] for k in range(3)] == [1.0, 1.0, 1.0]

@@ -2,10 +2,12 @@
 
     /work/venv/bin/python tools/drift_study.py [--profile lab] [--draws 3] [--small]
         [--cct -200] [--output -0.03] [--cut-on 5] [--methods narrowband,symmetric,tristimulus-D65]
+        [--probes 430,650]
 
 Prints, per method, per-patch RMSE / dE2000 and per-pixel dE2000 (mean +- std over noise draws) for: no drift
 with the calibration's dark level (no ambient frame); then, every sequence with an ambient frame: no drift; no
-drift with the white-ROI correction; drift uncorrected; drift with the white-ROI correction.
+drift with the white-ROI correction; drift uncorrected; drift with the white-ROI correction. With ``--probes``
+every sequence also carries those drift probes (narrow bands, nm, read by the white only).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ def main(argv=None):
     ap.add_argument("--output", type=float, default=-0.03)
     ap.add_argument("--cut-on", type=float, default=5.0)
     ap.add_argument("--methods", default="narrowband,symmetric,tristimulus-D65")
+    ap.add_argument("--probes", default="", help="drift probe centres, nm, comma-separated (e.g. 430,650)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     desc = rig_from_dict({"twin": {"profile": args.profile, "seed": args.seed}})
@@ -46,6 +49,10 @@ def main(argv=None):
     unknown = [m for m in names if m not in DEMO_METHODS]
     if unknown:
         raise SystemExit(f"--methods: unknown {unknown[0]!r}; valid: {', '.join(DEMO_METHODS)}")
+    try:
+        probes = [float(p) for p in args.probes.split(",") if p.strip()]
+    except ValueError:
+        raise SystemExit(f"--probes must be wavelengths in nm separated by commas, got {args.probes!r}") from None
     bundle = calibrate(desc, seed=args.seed)
     plans = make_demo_plans(bundle, default_basis(EVALUATION_CHART), names)
     scene, roi = chart_with_white(desc, EVALUATION_CHART)
@@ -59,11 +66,13 @@ def main(argv=None):
     }
     print(f"profile {args.profile}, {desc.camera.roi_width} x {desc.camera.roi_height}, drift: lamp "
           f"{args.cct:+g} K, output {args.output:+g}, cut-on {args.cut_on:+g} nm; white ROI {roi}; "
+          f"drift probes {probes or 'none'}; "
           f"{args.draws} noise draws (mean +- std)")
     print(f"{'method':<17}{'run':<31}{'RMSE patch':>18}{'dE00 patch':>16}{'dE00 pixel':>16}")
     results = {}
     for label, (d, kw) in runs.items():
-        results[label] = measure_methods(d, bundle, plans, scene, draws=args.draws, seed=args.seed, **kw)
+        results[label] = measure_methods(d, bundle, plans, scene, draws=args.draws, seed=args.seed, probes=probes,
+                                         **kw)
     for name in names:
         for label in runs:
             r = results[label][name]

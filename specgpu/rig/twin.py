@@ -132,7 +132,10 @@ class TwinRig:
         The rig's own clock (s since the lamp was started) at this rig's frame 0: the lamp's drifts per hour
         (``[realism]``) act on ``clock_start_s + timestamp``, so a capture that starts where a calibration ended
         sees the lamp as it has become (the colour temperature is taken at the clock when the light is built or
-        :meth:`set_clock` is called; the output drift frame by frame).
+        :meth:`set_clock` is called; the output drift frame by frame, and so is the colour temperature's drift
+        since then, to first order: each pattern's power on a white changes by its own relative slope per K, the
+        shape inside a band held; at the lab's -20 K/h that is 0.006 K over a 1 s sequence, 3 K over a 10 min
+        stream).
 
     Raises
     ------
@@ -148,6 +151,7 @@ class TwinRig:
         self.seed = int(d.seed if seed is None else seed)
         self.realism = d.realism
         self.clock_start_s = check_number("clock_start_s", clock_start_s, low=0)
+        self._cct_slope = None
         self.light = ProgrammableLight(d.light, seed=self.seed, realism=d.realism, drift=d.drift,
                                        clock_s=self.clock_start_s)
         self.camera = Camera(d.camera, seed=self.seed, realism=d.realism if d.realism.any else None)
@@ -296,7 +300,24 @@ class TwinRig:
         self._var_floor = np.float32((dark + p.read_noise_e**2) / p.gain_e_per_dn**2)
         self._maps = (mean_dn, offset_dn.astype(np.float32))
         self._chunk_scratch = np.empty(_CHUNK, np.float32)
+        self._cct_slope = self._colour_slopes()
         return self._maps
+
+    def _colour_slopes(self) -> np.ndarray | None:
+        """(K,) relative change of each loaded pattern's output on a white per K of lamp colour temperature (from
+        the lamp's state at the clock start), or None when the colour does not drift on the clock."""
+        from specgpu.rig.light import lamp_change
+
+        rate = self.realism.lamp_cct_drift_K_per_hour
+        if not rate:
+            return None
+        lp = self.light
+        now = lp.drift.lamp_cct_K + rate * lp.clock_s / 3600.0
+        wl = lp.wavelengths
+        step = lamp_change(lp.params, wl, now + 1.0, 0.0) / lamp_change(lp.params, wl, now, 0.0) - 1.0
+        w = lp.sequence_spectra * self.camera.responsivity(wl)[None, :]
+        tot = w.sum(axis=1)
+        return np.where(tot > 0, (w @ step) / np.where(tot > 0, tot, 1.0), 0.0)
 
     def expected_frame(self, pattern_index: int, power: float = 1.0) -> np.ndarray:
         """Noise-free mean output (DN, float32, before rounding) of a frame lit by a pattern at relative power."""
@@ -361,6 +382,9 @@ class TwinRig:
         mean_dn, offset_dn = self._ensure_maps()
         rng = self.frame_rng(frame_id)
         f = float(self.light.power_factors(np.array([timestamp_s + self.clock_start_s]), self.exposure_s, rng)[0])
+        if self._cct_slope is not None:  # the colour temperature's drift since the clock start, this pattern's share
+            f *= 1.0 + float(self._cct_slope[pattern_index]) * self.realism.lamp_cct_drift_K_per_hour * (
+                float(timestamp_s) / 3600.0)
         if scratch is None:
             x = np.empty(self.camera.shape, np.float32)
             z = np.empty(self.camera.shape, np.float32)
