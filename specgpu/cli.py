@@ -772,7 +772,8 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
         if lab_path:
             writes.append((lab_path, lambda p: io.write_map(p, Lab, "Lab", metadata=meta)))
         if sigma_path or de_sigma_path:
-            _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device)
+            _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device,
+                          white_roi, white_reflectance)
         if de_path:
             dE = delta_E(_parse_reference(ref, height, width, illuminant), Lab, method, device=device)
             if Path(de_path).suffix.lower() == ".png":
@@ -794,7 +795,8 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
                + ", ".join(str(p) for p in written) + note)
 
 
-def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device):
+def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device,
+                  white_roi=None, white_reflectance=None):
     """--sigma / --delta-e-sigma: the uncertainty maps of the recovery, appended to the writes."""
     import numpy as np
 
@@ -803,7 +805,7 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
     from .pipeline import to_XYZ, uncertainty
 
     sigma, cov = uncertainty(folder, sequence=sequence, illuminant=illuminant if de_sigma_path else None,
-                             device=device)
+                             device=device, white_roi=white_roi, white_reflectance=white_reflectance)
     plan = folder.plan
     if sigma_path:
         rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)

@@ -296,32 +296,13 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     its own gains. A plan with an ambient frame (``plan --ambient``) has that frame subtracted
     instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
     """
-    from .correction import ambient_index, corrected_decoder, white_gains
+    from .correction import ambient_index
 
-    amb = ambient_index(folder.plan)
-    if white_roi is not None or amb is not None:
+    if white_roi is not None or ambient_index(folder.plan) is not None:
         plan, bundle = folder.plan, folder.calibration
-        picked = range(folder.sequences) if sequence is None else [sequence]
-        if sequence is not None and not 0 <= sequence < folder.sequences:
-            raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
+        picked, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
         y = None
-        ratio = bundle.flat_ratio(plan.patterns)
-        prepared = []
-        for s in picked:
-            fr = folder.frames[s]
-            dark = fr[amb].astype(np.float32) if amb is not None else bundle.dark_at(plan.exposure_s)
-            fr = _flatten_by_wavelength(fr, dark, ratio, bundle)
-            gains = None if white_roi is None else white_gains(fr, plan, bundle, white_roi, white_reflectance,
-                                                                dark=dark)
-            prepared.append((fr, dark, gains))
-        A_mean = None
-        if white_roi is not None:
-            # The light's colour drifts over hours: one colour fit on the sequences' mean gains (each frame's own
-            # power fluctuation averages down), then each sequence's frames rescaled by its own gains.
-            mean_gains = np.exp(np.mean([np.log(g) for _, _, g in prepared], axis=0))
-            A_mean = corrected_decoder(plan, mean_gains, bundle, white_reflectance, sequences=len(prepared))
-        for fr, dark, gains in prepared:
-            A = plan.A if gains is None else A_mean / (gains / mean_gains)[None, :]
+        for fr, dark, A in decoded:
             ys = np.asarray(apply_linear(fr, A, dark, bundle.flat_field, out_dtype=np.float32, device=device))
             y = ys if y is None else y + ys
         y = (y / len(picked)).astype(out_dtype)
@@ -349,23 +330,76 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     return y
 
 
+def _sequence_decoders(folder: SequenceFolder, sequence, white_roi, white_reflectance):
+    """What :func:`recover` decodes each picked sequence with, when it decodes them one by one (a white ROI or an
+    ambient frame): the picked indices and, per sequence, its corrected frames (linearised, per-pattern flat
+    ratio), the level subtracted (the ambient frame or the calibration's dark) and its decoder."""
+    from .correction import ambient_index, corrected_decoder, white_gains
+
+    plan, bundle = folder.plan, folder.calibration
+    amb = ambient_index(plan)
+    picked = range(folder.sequences) if sequence is None else [sequence]
+    if sequence is not None and not 0 <= sequence < folder.sequences:
+        raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
+    ratio = bundle.flat_ratio(plan.patterns)
+    prepared = []
+    for s in picked:
+        fr = folder.frames[s]
+        dark = fr[amb].astype(np.float32) if amb is not None else bundle.dark_at(plan.exposure_s)
+        fr = _flatten_by_wavelength(fr, dark, ratio, bundle)
+        gains = None if white_roi is None else white_gains(fr, plan, bundle, white_roi, white_reflectance,
+                                                            dark=dark)
+        prepared.append((fr, dark, gains))
+    if white_roi is None:
+        return picked, [(fr, dark, plan.A) for fr, dark, _ in prepared]
+    # The light's colour drifts over hours: one colour fit on the sequences' mean gains (each frame's own power
+    # fluctuation averages down), then each sequence's frames rescaled by its own gains.
+    mean_gains = np.exp(np.mean([np.log(g) for _, _, g in prepared], axis=0))
+    A_mean = corrected_decoder(plan, mean_gains, bundle, white_reflectance, sequences=len(prepared))
+    return picked, [(fr, dark, A_mean / (gains / mean_gains)[None, :]) for fr, dark, gains in prepared]
+
+
 def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illuminant: str | None = None,
-                device=None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames and, given an
-    illuminant, the covariance (H, W, 3, 3) of their XYZ (:mod:`specgpu.estimators`); NaN where saturated."""
-    from .estimators import output_covariance, sigma_map
+                device=None, white_roi=None, white_reflectance=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames, options and
+    corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
+    covariance (H, W, 3, 3) of their XYZ (:mod:`specgpu.estimators`); NaN where saturated."""
+    from .correction import ambient_index
+    from .estimators import _noise_products, constant_covariance, output_covariance, sigma_map
 
     used = folder.frames if sequence is None else folder.frames[sequence:sequence + 1]
     if sequence is not None and not 0 <= sequence < folder.sequences:
         raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
-    frames = used.mean(axis=0, dtype=np.float32) if used.shape[0] > 1 else used[0]
     plan, bundle = folder.plan, folder.calibration
-    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
-    sigma = sigma_map(frames, plan, dark, gain, sequences=used.shape[0], device=device)
+    gain = bundle.flat_field
+    M = None if illuminant is None else plan.outputs_to_XYZ(illuminant)
     cov = None
-    if illuminant is not None:
-        cov = output_covariance(frames, plan, dark, gain, plan.outputs_to_XYZ(illuminant),
-                                sequences=used.shape[0], device=device)
+    if white_roi is not None or ambient_index(plan) is not None:
+        # decoded one sequence at a time by its own decoder: the variance of their mean is the sum of each
+        # sequence's frame noise over S^2, plus what no frame shows (the prior's mismatch, the light)
+        _, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
+        S = len(decoded)
+        var = sum(_noise_products(fr, plan, dark, gain, A ** 2, 1, device) for fr, dark, A in decoded) / S ** 2
+        const = constant_covariance(plan)
+        sigma = np.sqrt(np.maximum(var + np.diag(const).astype(np.float32), 0.0)).astype(np.float32)
+        if M is not None:
+            pairs = [(i, j) for i in range(3) for j in range(i, 3)]
+            v = sum(np.asarray(_noise_products(fr, plan, dark, gain, np.stack([(M @ A)[i] * (M @ A)[j]
+                                                                                for i, j in pairs]), 1, device),
+                               np.float64) for fr, dark, A in decoded) / S ** 2
+            cov = np.empty(v.shape[:-1] + (3, 3))
+            for n, (i, j) in enumerate(pairs):
+                cov[..., i, j] = cov[..., j, i] = v[..., n]
+            cov = cov + M @ const @ M.T
+    else:
+        frames = used.mean(axis=0, dtype=np.float32) if used.shape[0] > 1 else used[0]
+        dark = bundle.dark_at(plan.exposure_s)
+        ratio = bundle.flat_ratio(plan.patterns)
+        if ratio is not None or bundle.reports.get("linearity_c_per_dn2", 0.0) > 0:
+            frames = _flatten_by_wavelength(frames, dark, ratio, bundle)  # as recover decodes them
+        sigma = sigma_map(frames, plan, dark, gain, sequences=used.shape[0], device=device)
+        if M is not None:
+            cov = output_covariance(frames, plan, dark, gain, M, sequences=used.shape[0], device=device)
     saturated = np.any(used >= bundle.max_code, axis=(0, 1))
     if saturated.any():
         sigma[saturated] = np.nan

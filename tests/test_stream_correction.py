@@ -157,6 +157,9 @@ def test_sigma_with_white_roi_uses_the_corrected_decoder(drifted):
     A = corrected_decoder(s.plan, white_gains(frames, s.plan, s.bundle, ROI), s.bundle)
     sig = sigma_map(frames, replace(s.plan, A=A), s.bundle.dark_at(s.plan.exposure_s), s.bundle.flat_field)
     close(got[0][0]["sigma"][..., :-1], sig, rel=1e-5, name="sigma (corrected decoder)")
+    # and recover --sigma --white-roi writes the same (its uncertainty follows the decoder recover used)
+    want, _ = uncertainty(folder_of(s, frames), sequence=0, white_roi=ROI)
+    close(got[0][0]["sigma"][..., :-1], want, rel=1e-5, name="uncertainty(white_roi)")
 
 
 @pytest.mark.parametrize("roi, message", [
@@ -415,6 +418,9 @@ def test_stream_applies_recovers_frame_corrections(corrected):
         close(arrays["XYZ"], to_XYZ(cube, s.plan), rel=1e-5, name="XYZ")
         assert np.isnan(arrays["cube"][10, 20]).all() == (i == 0)
         assert np.isfinite(arrays["sigma_rms"]).mean() > 0.99
+        sigma, _ = uncertainty(folder_of(s, seq_frames(s, i)), sequence=0)  # recover --sigma, corrected frames
+        rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1)).astype(np.float32)
+        close(arrays["sigma_rms"], rms, rel=1e-5, name="sigma_rms")
     # the corrections matter: without them the stream would differ from recover by the tilt
     assert np.nanmax(np.abs(seen[0] - got[0][0]["cube"])) > 0.01
 
@@ -436,9 +442,11 @@ def test_stream_subtracts_the_ambient_frame_as_recover_does(setup):
     s = replace(setup, plan=plan, frames=frames, infos=infos, light=light)
     amb = frames[plan.K - 1].astype(np.float64) - setup.bundle.dark_at(plan.exposure_s)
     assert np.median(amb) > 2  # the room light is in every frame, and the ambient frame sees it
-    got, _ = run_stream(s, ("cube", "XYZ"), white_roi=ROI)
+    got, _ = run_stream(s, ("cube", "XYZ", "sigma"), white_roi=ROI)
     for i, (arrays, _) in got.items():
         fr = frames[i * plan.K:(i + 1) * plan.K]
         cube = recover(folder_of(s, fr), sequence=0, white_roi=ROI)
         close(arrays["cube"], cube, rel=1e-5, name="cube")
         close(arrays["XYZ"], to_XYZ(cube, plan), rel=1e-5, name="XYZ")
+        sigma, _ = uncertainty(folder_of(s, fr), sequence=0, white_roi=ROI)  # the ambient frame as the dark level
+        close(arrays["sigma"][..., :-1], sigma, rel=1e-5, name="sigma")
