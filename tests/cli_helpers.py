@@ -30,3 +30,18 @@ def one_line_error(result, *fragments, code=None):
     for fragment in fragments:
         assert str(fragment) in errors[0], errors[0]
     return errors[0]
+
+
+def stream_cli_files(setup, tmp_path):
+    """The rig TOML, calibration and plan of a :func:`specgpu.bench.stream_setup` written under ``tmp_path``;
+    returns the ``specgpu stream`` arguments that use them."""
+    from specgpu.calibration import save_calibration
+    from specgpu.plans import save_plan
+
+    cam = setup.description.camera
+    (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
+                                       f"exposure_s = {cam.exposure_s!r}\nframe_rate_hz = {cam.frame_rate_hz!r}\n")
+    save_calibration(tmp_path / "calib.npz", setup.bundle)
+    save_plan(tmp_path / "plan.npz", setup.plan)
+    return ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan", str(tmp_path / "plan.npz"), "--calib",
+            str(tmp_path / "calib.npz"), "--scene", "colorchecker"]

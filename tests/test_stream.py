@@ -33,6 +33,8 @@ from specgpu.stream import (
     Stream,
 )
 
+from cli_helpers import stream_cli_files
+
 ALL = ("coefficients", "cube", "XYZ", "Lab", "dE")
 
 
@@ -383,19 +385,6 @@ def test_saturated_pixels_are_nan_as_offline(setup):
                           {k: np.nan_to_num(v) for k, v in want.items()})
 
 
-def _cli_files(setup, tmp_path):
-    from specgpu.calibration import save_calibration
-    from specgpu.plans import save_plan
-
-    cam = setup.description.camera
-    (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
-                                       f"exposure_s = {cam.exposure_s!r}\nframe_rate_hz = {cam.frame_rate_hz!r}\n")
-    save_calibration(tmp_path / "calib.npz", setup.bundle)
-    save_plan(tmp_path / "plan.npz", setup.plan)
-    return ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan", str(tmp_path / "plan.npz"), "--calib",
-            str(tmp_path / "calib.npz"), "--scene", "colorchecker"]
-
-
 def _disk_full_after(monkeypatch, n_sequences: int, array: str = "XYZ"):
     """Every write of ``array`` after its first ``n_sequences`` fails as a full disk does."""
     import zarr
@@ -435,7 +424,7 @@ def test_a_full_disk_stops_capture_and_keeps_the_committed_sequences(setup, expe
 
 
 def test_cli_stream_on_a_full_disk_says_what_was_saved_and_lost(setup, tmp_path, monkeypatch):
-    args = _cli_files(setup, tmp_path)
+    args = stream_cli_files(setup, tmp_path)
     _disk_full_after(monkeypatch, 2)
     result = CliRunner().invoke(main, [*args, "--seconds", "20", "--out", str(tmp_path / "rec.zarr")])
     assert result.exit_code == 1
@@ -452,7 +441,7 @@ def test_cli_stream_refuses_a_recording_that_cannot_fit_or_an_existing_folder(se
     import shutil
     from collections import namedtuple
 
-    args = _cli_files(setup, tmp_path)
+    args = stream_cli_files(setup, tmp_path)
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 10**6, 10**6))
     result = CliRunner().invoke(main, [*args, "--seconds", "60", "--out", str(tmp_path / "rec.zarr")])

@@ -23,6 +23,8 @@ from specgpu.recording import ZarrRecorder, open_recording
 from specgpu.rig.scene import white_tile_roi
 from specgpu.stream import LatencyHistogram, Stream
 
+from cli_helpers import stream_cli_files
+
 SEQUENCES = 3
 H, W = 240, 320
 
@@ -242,19 +244,6 @@ def test_stream_latency_counts_every_result(setup):
     assert report.latency.min <= report.latency_ms(50) / 1e3 <= report.latency.max
 
 
-def _cli_files(setup, tmp_path):
-    from specgpu.calibration import save_calibration
-    from specgpu.plans import save_plan
-
-    cam = setup.description.camera
-    (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
-                                       f"exposure_s = {cam.exposure_s!r}\nframe_rate_hz = {cam.frame_rate_hz!r}\n")
-    save_calibration(tmp_path / "calib.npz", setup.bundle)
-    save_plan(tmp_path / "plan.npz", setup.plan)
-    return ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan", str(tmp_path / "plan.npz"), "--calib",
-            str(tmp_path / "calib.npz"), "--scene", "colorchecker"]
-
-
 def _chart_white_roi():
     from specgpu.rig.scene import colorchecker_scene
 
@@ -269,7 +258,7 @@ def test_cli_stream_white_roi_and_sigma_are_recorded(setup, tmp_path):
 
     from specgpu.cli import main
 
-    args = _cli_files(setup, tmp_path)
+    args = stream_cli_files(setup, tmp_path)
     result = CliRunner().invoke(main, [*args, "--seconds", "0.5", "--out", str(tmp_path / "rec"), "--policy",
                                        "block", "--outputs", "XYZ,sigma,dE_sigma", "--white-roi", _chart_white_roi(),
                                        "--white-reflectance", "0.9"])
@@ -292,7 +281,7 @@ def test_cli_stream_white_roi_refusals_are_one_line(setup, tmp_path, extra, mess
 
     from specgpu.cli import main
 
-    result = CliRunner().invoke(main, [*_cli_files(setup, tmp_path), "--seconds", "0.3", "--policy", "block",
+    result = CliRunner().invoke(main, [*stream_cli_files(setup, tmp_path), "--seconds", "0.3", "--policy", "block",
                                        "--outputs", "XYZ", *extra])
     assert result.exit_code != 0 and message in result.output
     assert "Traceback" not in result.output
