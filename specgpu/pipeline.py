@@ -135,8 +135,7 @@ class CaptureWriter:
     def keep(self, assembly, metadata=None, *, reason: str, requested: int | None = None) -> Path:
         """Close a capture cut short (``reason``: what stopped it) with the complete sequences written so far;
         the frames of a sequence it was writing are removed; ``assembly`` may be None (the counters died with
-        the capture). ``sequence.json`` records ``interrupted`` (the
-        reason) and ``sequences_requested``."""
+        the capture). ``sequence.json`` records ``interrupted`` (the reason) and ``sequences_requested``."""
         self.frames.truncate(self.sequences * self.plan.K)
         meta = {**(metadata or {}), "interrupted": reason}
         if requested is not None:
