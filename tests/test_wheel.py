@@ -54,5 +54,5 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
                             env={"PYTHONPATH": str(site), "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
     assert result.returncode == 0, result.stdout + result.stderr
     assert "linear.cl ['linear_apply']" in result.stdout
-    assert "colorimetry.cl ['delta_e', 'frames_to_delta_e', 'xyz_to_lab']" in result.stdout
+    assert "colorimetry.cl ['delta_e', 'delta_e_sigma', 'frames_to_delta_e', 'xyz_to_lab']" in result.stdout
     assert "PASS" in result.stdout
