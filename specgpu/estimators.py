@@ -50,6 +50,8 @@ __all__ = [
     "with_estimator",
     "sigma_map",
     "output_covariance",
+    "frame_variance",
+    "frame_covariance",
     "constant_covariance",
     "delta_E_sigma",
     "HELD_OUT_CHART",
@@ -376,10 +378,17 @@ def sigma_map(frames, plan, dark, gain, *, sequences: int = 1, device=None) -> n
     """(H, W, P) standard deviation of each output per pixel (float32), from the frames (K, H, W) the outputs
     were recovered from (the mean of ``sequences`` sequences): ``var y = gain^2 sum_k A^2 (o / g + s_read^2) / S
     + m`` through :func:`specgpu.recovery.apply_linear`, plus the mismatch and light terms ``m`` on the host."""
-    var = _noise_products(frames, plan, dark, gain, plan.A ** 2, sequences, device)
+    var = frame_variance(frames, plan, dark, gain, sequences=sequences, device=device)
     var += constant_variance(plan).astype(np.float32)  # in place, float32: as cheap as the recovery itself
     np.maximum(var, 0.0, out=var)
     return np.sqrt(var, out=var)
+
+
+def frame_variance(frames, plan, dark, gain, *, A=None, sequences: int = 1, device=None) -> np.ndarray:
+    """(H, W, P) float32: the part of each output's variance the frames' noise makes, for the decoder ``A`` (the
+    plan's by default) applied to the mean of ``sequences`` sequences (no constant term)."""
+    A = plan.A if A is None else A
+    return _noise_products(frames, plan, dark, gain, np.asarray(A, np.float64) ** 2, sequences, device)
 
 
 def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, device=None) -> np.ndarray:
@@ -387,7 +396,15 @@ def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, device
     each entry ``sum_k (MA)_ik (MA)_jk var o_k`` is linear in the frames (one apply_linear pass over the Q (Q + 1)
     / 2 products), plus ``M C M^T`` with C the plan's constant covariance (mismatch and light)."""
     M = np.asarray(M, np.float64)
-    MA = M @ plan.A
+    cov = frame_covariance(frames, plan, dark, gain, M, sequences=sequences, device=device)
+    return cov + M @ constant_covariance(plan) @ M.T
+
+
+def frame_covariance(frames, plan, dark, gain, M, *, A=None, sequences: int = 1, device=None) -> np.ndarray:
+    """(H, W, Q, Q) float64: the frames' noise part of the covariance of ``M y`` for the decoder ``A`` (the plan's
+    by default), without the constant ``M C M^T``."""
+    M = np.asarray(M, np.float64)
+    MA = M @ (plan.A if A is None else np.asarray(A, np.float64))
     Q = M.shape[0]
     pairs = [(i, j) for i in range(Q) for j in range(i, Q)]
     prods = np.stack([MA[i] * MA[j] for i, j in pairs])
@@ -395,7 +412,7 @@ def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, device
     cov = np.empty(v.shape[:-1] + (Q, Q))
     for n, (i, j) in enumerate(pairs):
         cov[..., i, j] = cov[..., j, i] = v[..., n]
-    return cov + M @ constant_covariance(plan) @ M.T
+    return cov
 
 
 def _noise_products(frames, plan, dark, gain, rows, sequences, device):

@@ -364,7 +364,7 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
     corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
     covariance (H, W, 3, 3) of their XYZ (:mod:`specgpu.estimators`); NaN where saturated."""
     from .correction import ambient_index
-    from .estimators import _noise_products, constant_covariance, output_covariance, sigma_map
+    from .estimators import constant_covariance, frame_covariance, frame_variance, output_covariance, sigma_map
 
     used = folder.frames if sequence is None else folder.frames[sequence:sequence + 1]
     if sequence is not None and not 0 <= sequence < folder.sequences:
@@ -378,18 +378,12 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
         # sequence's frame noise over S^2, plus what no frame shows (the prior's mismatch, the light)
         _, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
         S = len(decoded)
-        var = sum(_noise_products(fr, plan, dark, gain, A ** 2, 1, device) for fr, dark, A in decoded) / S ** 2
         const = constant_covariance(plan)
+        var = sum(frame_variance(fr, plan, dark, gain, A=A, device=device) for fr, dark, A in decoded) / S ** 2
         sigma = np.sqrt(np.maximum(var + np.diag(const).astype(np.float32), 0.0)).astype(np.float32)
         if M is not None:
-            pairs = [(i, j) for i in range(3) for j in range(i, 3)]
-            v = sum(np.asarray(_noise_products(fr, plan, dark, gain, np.stack([(M @ A)[i] * (M @ A)[j]
-                                                                                for i, j in pairs]), 1, device),
-                               np.float64) for fr, dark, A in decoded) / S ** 2
-            cov = np.empty(v.shape[:-1] + (3, 3))
-            for n, (i, j) in enumerate(pairs):
-                cov[..., i, j] = cov[..., j, i] = v[..., n]
-            cov = cov + M @ const @ M.T
+            cov = sum(frame_covariance(fr, plan, dark, gain, M, A=A, device=device)
+                      for fr, dark, A in decoded) / S ** 2 + M @ const @ M.T
     else:
         frames = used.mean(axis=0, dtype=np.float32) if used.shape[0] > 1 else used[0]
         dark = bundle.dark_at(plan.exposure_s)
@@ -407,15 +401,21 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
     return sigma, cov
 
 
-def _flatten_by_wavelength(frames, dark, ratio, bundle=None) -> np.ndarray:
-    """(K, H, W) float32 frames whose signal above ``dark`` is linearized (the sensor's compression measured by
-    calibration) and multiplied by the per-pattern flat-field ratio (a calibration's wavelength-dependent flat
-    field, :meth:`CalibrationBundle.flat_ratio`; None: 1)."""
+def corrected_signal(frames, dark, ratio, bundle=None) -> np.ndarray:
+    """(K, H, W) float32 signal above ``dark`` (one level per pixel), linearized (the sensor's compression measured
+    by calibration) and multiplied by the per-pattern flat-field ratio (a calibration's wavelength-dependent flat
+    field, :meth:`CalibrationBundle.flat_ratio`; None: 1): what :func:`recover` decodes."""
     f = np.asarray(frames, np.float32) - np.asarray(dark, np.float32)[None]
     if bundle is not None:
-        f = bundle.linearize(f)
+        f = np.asarray(bundle.linearize(f), np.float32)
     if ratio is not None:
         f *= ratio
+    return f
+
+
+def _flatten_by_wavelength(frames, dark, ratio, bundle=None) -> np.ndarray:
+    """:func:`corrected_signal` with ``dark`` added back (frames for a linear map that subtracts it)."""
+    f = corrected_signal(frames, dark, ratio, bundle)
     f += np.asarray(dark, np.float32)[None]
     return f
 

@@ -297,12 +297,11 @@ class StreamDecoder:
         (``precorrect``): the dark level (or the plan's ambient frame) subtracted, linearised and scaled by the
         per-pattern flat ratio exactly as :func:`specgpu.pipeline.recover` does; a sample at the sensor's maximum
         code is set to a marker the kernels flag as saturated."""
+        from .pipeline import corrected_signal
+
         raw = np.asarray(raw)
         dark = raw[self._ambient].astype(np.float32) if self._ambient is not None else self._dark_host
-        f = raw.astype(np.float32) - dark[None]
-        f = np.asarray(self._calibration.linearize(f), np.float32)
-        if self._ratio is not None:
-            f *= self._ratio
+        f = corrected_signal(raw, dark, self._ratio, self._calibration)
         f[raw >= self._calibration.max_code] = _PRECORRECT_MARK
         return f
 
