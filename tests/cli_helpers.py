@@ -45,3 +45,12 @@ def stream_cli_files(setup, tmp_path):
     save_plan(tmp_path / "plan.npz", setup.plan)
     return ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan", str(tmp_path / "plan.npz"), "--calib",
             str(tmp_path / "calib.npz"), "--scene", "colorchecker"]
+
+
+def tristimulus_rig(d):
+    """Write the small twin rig into folder ``d`` and make ``calib.npz`` and a tristimulus plan ``tri.npz`` there
+    through the CLI; returns ``d``."""
+    (d / "rig.toml").write_text(RIG)
+    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz")
+    return d

@@ -18,17 +18,14 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from specgpu import io
 from specgpu.pipeline import INCOMPLETE_MARKER
 
-from cli_helpers import RIG, one_line_error, run
+from cli_helpers import one_line_error, run, tristimulus_rig
 
 SEQUENCES = 5
 
 
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
-    d = tmp_path_factory.mktemp("salvage")
-    (d / "rig.toml").write_text(RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
-    run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz")
+    d = tristimulus_rig(tmp_path_factory.mktemp("salvage"))
     return d
 
 

@@ -25,7 +25,7 @@ from specgpu import io
 from specgpu.locks import lock_path
 from specgpu.recording import open_recording
 
-from cli_helpers import RIG, one_line_error, run
+from cli_helpers import one_line_error, run, tristimulus_rig
 
 ROOT = Path(__file__).resolve().parent.parent
 # no shrinking: each example is a subprocess killed at a time, and a failure is reported as found
@@ -36,10 +36,7 @@ DELAY = st.floats(min_value=0.0, max_value=1.5)
 
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
-    d = tmp_path_factory.mktemp("drill")
-    (d / "rig.toml").write_text(RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
-    run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz")
+    d = tristimulus_rig(tmp_path_factory.mktemp("drill"))
     run("capture", "--rig", d / "rig.toml", "--plan", d / "tri.npz", "--calib", d / "calib.npz", "--scene",
         "colorchecker", "--out", d / "seq", "--sequences", "4", "--seed", "1")
     return d

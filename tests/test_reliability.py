@@ -20,7 +20,7 @@ from hypothesis import given, settings, strategies as st
 
 from specgpu import io, locks
 
-from cli_helpers import RIG, one_line_error, run
+from cli_helpers import RIG, one_line_error, run, tristimulus_rig
 
 
 def hidden(folder):
@@ -29,10 +29,7 @@ def hidden(folder):
 
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
-    d = tmp_path_factory.mktemp("rel")
-    (d / "rig.toml").write_text(RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
-    run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz")
+    d = tristimulus_rig(tmp_path_factory.mktemp("rel"))
     run("capture", "--rig", d / "rig.toml", "--plan", d / "tri.npz", "--calib", d / "calib.npz", "--scene",
         "colorchecker", "--out", d / "seq", "--sequences", "1", "--seed", "3")
     return d
