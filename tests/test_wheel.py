@@ -56,3 +56,26 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
     assert "linear.cl ['linear_apply']" in result.stdout
     assert "colorimetry.cl ['delta_e', 'delta_e_sigma', 'frames_to_delta_e', 'xyz_to_lab']" in result.stdout
     assert "PASS" in result.stdout
+
+
+@pytest.mark.skipif(importlib.util.find_spec("hatchling") is None, reason="hatchling (the build backend) is absent")
+def test_wheel_and_sdist_carry_the_license(tmp_path):
+    # pyproject declares BSD-3-Clause: the licence text itself must travel with every distribution
+    import tarfile
+    import zipfile
+
+    for target in ("wheel", "sdist"):
+        subprocess.run([sys.executable, "-m", "hatchling", "build", "-t", target, "-d", str(tmp_path)], cwd=ROOT,
+                       check=True, capture_output=True)
+    wheel, = tmp_path.glob("specgpu-*.whl")
+    sdist, = tmp_path.glob("specgpu-*.tar.gz")
+    text = (ROOT / "LICENSE").read_text()
+    assert "BSD 3-Clause License" in text and "Copyright (c) 2026, specgpu developers" in text
+    with zipfile.ZipFile(wheel) as z:
+        names = z.namelist()
+        assert z.read(next(n for n in names if n.endswith(".dist-info/licenses/LICENSE"))).decode() == text
+        metadata = z.read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
+    assert "License-Expression: BSD-3-Clause" in metadata and "License-File: LICENSE" in metadata
+    with tarfile.open(sdist) as t:
+        member = next(m for m in t.getmembers() if m.name.endswith("/LICENSE") and m.name.count("/") == 1)
+        assert t.extractfile(member).read().decode() == text
