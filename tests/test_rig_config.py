@@ -208,6 +208,91 @@ def test_dump_and_load_round_trip_any_description(tmp_path_factory, lux, centre,
     assert load_rig(path) == dataclasses.replace(d, source=str(path))
 
 
+def _keys_read_by_load_rig() -> dict:
+    """Every key of every table ``load_rig`` accepts (the [camera] preset included)."""
+    from dataclasses import fields
+
+    from specgpu.hardware.rig import HardwareConfig
+    from specgpu.rig.config import _TABLES, _TWIN_KEYS
+    from specgpu.rig.realism import Drift, Realism
+    from specgpu.rig.spectroradiometer import SpectroradiometerParameters
+
+    def names(cls):
+        return {f.name for f in fields(cls)}
+
+    keys = {"light": names(LightParameters), "camera": names(CameraParameters) | {"preset"}, "scene": {"source"},
+            "twin": set(_TWIN_KEYS), "faults": names(FaultRates), "spectroradiometer": names(SpectroradiometerParameters),
+            "realism": names(Realism), "drift": names(Drift), "hardware": names(HardwareConfig)}
+    assert set(keys) == set(_TABLES)  # a new table must be listed here too
+    return keys
+
+
+def _keys_written(text: str) -> dict:
+    """table -> keys written in a dump, as values or as commented ``# key = value`` lines."""
+    import re
+
+    out, table = {}, None
+    for line in text.splitlines():
+        head = re.match(r"^\[(\w+)\]", line)
+        if head:
+            table = out.setdefault(head.group(1), set())
+            continue
+        key = re.match(r"^(?:# )?(\w+) = ", line)
+        if key and table is not None:
+            table.add(key.group(1))
+    return out
+
+
+@pytest.mark.parametrize("profile", ["ideal", "lab"])
+def test_dump_rig_shows_every_key_load_rig_reads(tmp_path, profile):
+    # [realism], [drift], [twin] capture_delay_s, [camera] preset and [hardware] included: the dump is where a
+    # user finds the keys of a rig file
+    from specgpu.rig.config import dump_rig
+    from specgpu.rig.realism import CAPTURE_DELAY_S, profile_realism
+
+    d = rig_from_dict({"twin": {"profile": profile}})
+    text = dump_rig(d)
+    assert _keys_written(text) == _keys_read_by_load_rig()
+    path = write(tmp_path, text)
+    back = load_rig(path)
+    assert back == RigDescription(profile=profile, source=str(path))
+    assert back.realism == profile_realism(profile) and back.capture_delay == CAPTURE_DELAY_S[profile]
+    # keys that follow the profile are comments holding the value in force: switching the profile still acts
+    other = "lab" if profile == "ideal" else "ideal"
+    switched = load_rig(write(tmp_path, text.replace(f'profile = "{profile}"', f'profile = "{other}"'), "b.toml"))
+    assert switched.realism == profile_realism(other) and switched.capture_delay == CAPTURE_DELAY_S[other]
+
+
+def _realism_values():
+    """Per [realism] key, the ideal and the lab value (both valid): combinations no profile has."""
+    from specgpu.rig.realism import LAB, Realism
+
+    ideal = Realism()
+    return {k: st.sampled_from(sorted({getattr(ideal, k), getattr(LAB, k)})) for k in Realism.keys()}
+
+
+@settings(max_examples=40, deadline=None)
+@given(profile=st.sampled_from(["ideal", "lab"]), realism=st.fixed_dictionaries({}, optional=_realism_values()),
+       delay=st.none() | st.floats(0.0, 1e7), drift=st.tuples(st.floats(-1500, 1500), st.floats(-0.5, 0.5),
+                                                               st.floats(-30, 30)),
+       preset=st.none() | st.sampled_from(["cmv4000", "imx250", "imx304"]),
+       hardware=st.fixed_dictionaries({}, optional={"light": st.sampled_from(["dlpc900", "dlpc900-simulated"]),
+                                                    "exposure_s": st.floats(1e-4, 1.0), "camera_first_frame_id":
+                                                    st.integers(-1, 1), "camera_cti": st.text(max_size=20)}))
+def test_dump_and_load_round_trip_every_table(tmp_path_factory, profile, realism, delay, drift, preset, hardware):
+    from specgpu.rig.config import dump_rig
+
+    data = {"twin": {"profile": profile, **({} if delay is None else {"capture_delay_s": delay})},
+            "realism": realism, "drift": dict(zip(("lamp_cct_K", "lamp_output", "cut_on_nm"), drift)),
+            "hardware": hardware, **({"camera": {"preset": preset}} if preset else {})}
+    d = rig_from_dict(data, source="rig.toml")
+    path = tmp_path_factory.mktemp("dump") / "rig.toml"
+    path.write_text(dump_rig(d))
+    back = load_rig(path)
+    assert back == __import__("dataclasses").replace(d, source=str(path))
+    assert back.capture_delay_s == d.capture_delay_s and back.hardware == d.hardware
+
+
 @settings(max_examples=100, deadline=None)
 @given(seed=st.integers(0, 2**63 - 1))
 def test_any_seed_is_kept_exactly(seed):

@@ -10,7 +10,7 @@ A rig TOML has up to six tables; every key is optional and defaults to the paper
     sensitivity = "cmos"
     bit_depth = 10
     [scene]
-    source = "colorchecker"      # "colorchecker", "white", "natural", "natural:coffee" or a .exr / .npz cube
+    source = "colorchecker"      # "colorchecker", "white", "natural", "natural:coffee" or a .exr / .npz / .hdr cube
     [twin]
     seed = 0
     pacing = "free"              # "free": as fast as it renders; "paced": at the camera's frame rate
@@ -296,22 +296,57 @@ def _toml_value(value) -> str:
         return str(value)
     if isinstance(value, float):
         return repr(value)  # shortest repr: reads back bit-identical
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, str):  # a TOML basic string: quote, backslash and control characters escaped
+        return '"' + "".join(f"\\u{ord(c):04x}" if ord(c) < 0x20 or ord(c) == 0x7F else "\\" + c if c in '"\\'
+                             else c for c in value) + '"'
     if isinstance(value, (tuple, list)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     raise TypeError(f"cannot write {value!r} to TOML")
 
 
 def dump_rig(description: RigDescription | None = None) -> str:
-    """The rig description as TOML text, every key written out (the paper's defaults if ``None``).
+    """The rig description as TOML text, every key ``load_rig`` reads written out (the paper's defaults if
+    ``None``).
 
     ``load_rig`` reads it back to an equal description: a starting point for a rig file, and a record of the
-    exact rig a capture was made with.
+    exact rig a capture was made with. Keys whose value comes from elsewhere are written as comments holding the
+    value in force, so the text still round-trips and an edit of ``[twin] profile`` still acts: ``[camera]
+    preset`` (its values are written out as the camera keys), ``[twin] capture_delay_s`` when it follows the
+    profile, each ``[realism]`` key at the profile's value, and the ``[hardware]`` keys of a twin rig (an
+    uncommented ``[hardware]`` key drives real devices; their defaults from
+    :class:`specgpu.hardware.rig.HardwareConfig`).
     """
     d = description if description is not None else RigDescription()
+    data = d.to_dict()
     lines = [f"# specgpu rig description ({d.source})"]
-    for table, values in d.to_dict().items():
-        lines.append(f"\n[{table}]")
+
+    def table(name, values, commented=(), note=""):
+        lines.append(f"\n[{name}]" + (f"  # {note}" if note else ""))
         lines.extend(f"{key} = {_toml_value(value)}" for key, value in values.items())
+        lines.extend(f"# {key} = {_toml_value(value)}" for key, value in dict(commented).items())
+
+    for name in ("light", "camera", "scene"):
+        table(name, data[name])
+        if name == "camera":
+            from specgpu.rig.sensors import PRESETS
+
+            lines.insert(len(lines) - len(data[name]), "# preset = " + " | ".join(_toml_value(p) for p in PRESETS)
+                         + "  # a sensor's data-sheet values for every camera key not given")
+    twin = {k: data["twin"][k] for k in _TWIN_KEYS if k in data["twin"]}
+    table("twin", twin, {} if "capture_delay_s" in twin else {"capture_delay_s": d.capture_delay},
+          "" if "capture_delay_s" in twin else "capture_delay_s unset: the profile's")
+    table("faults", data["faults"])
+    table("spectroradiometer", data["spectroradiometer"])
+    profile = profile_realism(d.profile).to_dict()
+    own = d.realism.to_dict()
+    table("realism", {k: v for k, v in own.items() if v != profile[k]},
+          {k: v for k, v in own.items() if v == profile[k]}, f"commented keys: the {d.profile} profile's values")
+    table("drift", d.drift.to_dict(), note="the light's change since calibration (not in the rig fingerprint)")
+    if d.hardware:
+        table("hardware", d.hardware)
+    else:
+        from specgpu.hardware.rig import HardwareConfig
+
+        table("hardware", {}, {f.name: f.default for f in fields(HardwareConfig)},
+              "empty: the digital twin; any key here drives real devices")
     return "\n".join(lines) + "\n"
