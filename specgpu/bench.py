@@ -1,6 +1,6 @@
 """Throughput of the kernels against NumPy / colour-science baselines doing the same work, in one run.
 
-Four cases at each image size (issue 2):
+Four cases at each image size:
 
 1. ``cube_float32``: 9 uint16 frames (10-bit codes) -> 61-band float32 cube, planar (B, H, W) and
    interleaved (H, W, B); baseline: a float32 NumPy matmul in the matching layout.
@@ -52,7 +52,7 @@ WAVELENGTHS = np.arange(400.0, 701.0, 5.0)  # 61 bands
 CODE_MAX = 1023  # 10-bit sensor codes stored in uint16
 LARGE_PIXELS = 1_000_000  # above this, fewer repeats (keeps the default run within ~3 minutes on 2 cores)
 
-#: Issue 2's targets: fused >= 20x the colour-science chain; cube >= 70% of copy bandwidth; float16 faster.
+#: The kernel targets: fused >= 20x the colour-science chain; cube >= 70% of copy bandwidth; float16 faster.
 TARGETS = {"fused_speedup": 20.0, "cube_fraction_of_copy": 0.70}
 
 # Largest acceptable difference to the baseline, by case: float32 rounding (different summation order),
@@ -359,7 +359,7 @@ def _steps(sizes):
 
 
 def evaluate_targets(cases: list[CaseResult]) -> dict:
-    """Issue 2's targets, per size (and layout) and overall.
+    """The kernel targets (:data:`TARGETS`), per size (and layout) and overall.
 
     Returns
     -------
@@ -388,14 +388,23 @@ def evaluate_targets(cases: list[CaseResult]) -> dict:
     }
 
 
+def _load_avg() -> float | None:
+    """The 1-minute load average (None where the system has none): the conditions a timing was taken under."""
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+
+
 def _fmt(value, spec: str, missing: str = "-") -> str:
     return missing if value is None else format(value, spec)
 
 
 def format_report(report: dict, cases: list[CaseResult]) -> str:
     """The printed report: device, copy bandwidth, the table of cases, and PASS / MISS per target."""
+    load = report.get("load_avg_1min") or {}
     lines = [
-        f"specgpu {report['specgpu_version']} bench on {report['device']} ({report['platform']})",
+        f"specgpu {report['specgpu_version']} bench on {report['device']} ({report['platform']})"
+        + (f", {report['date_utc']}" if report.get("date_utc") else "")
+        + (f"; load average (1 min) {load['start']:.2f} at start, {load['end']:.2f} at end (the machine's other "
+           "work competes for the same cores)" if load.get("start") is not None else ""),
         f"copy bandwidth: device {report['copy_bandwidth_GBps']:.2f} GB/s (cl.enqueue_copy, "
         f"{report['copy_size_MiB']} MiB), numpy {report['numpy_copy_bandwidth_GBps']:.2f} GB/s (np.copyto)",
         "times are medians in ms; device = data on the device, enqueue + finish; API = NumPy in / NumPy out",
@@ -427,18 +436,18 @@ def format_report(report: dict, cases: list[CaseResult]) -> str:
             lines.append(f"MISMATCH: {c.case} {c.width}x{c.height} {c.layout or ''} max diff {c.max_diff:.3e} "
                          f"> {c.tolerance:g}: device and baseline disagree")
     lines.append("")
-    lines.append("targets (issue 2):")
+    lines.append("targets:")
     t = report["targets"]
     for r in t["fused_speedup_vs_colour_science"]["results"]:
-        lines.append(f"  {'PASS' if r['passed'] else 'MISS'}  fused (3) {r['width']}x{r['height']}: "
+        lines.append(f"  {'PASS' if r['passed'] else 'MISS'}  fused_dE2000 {r['width']}x{r['height']}: "
                      f"{r['value']:.1f}x the colour-science chain (target >= {TARGETS['fused_speedup']:g}x)")
     for r in t["cube_fraction_of_copy_bandwidth"]["results"]:
-        lines.append(f"  {'PASS' if r['passed'] else 'MISS'}  cube (1) {r['width']}x{r['height']} {r['layout']}: "
+        lines.append(f"  {'PASS' if r['passed'] else 'MISS'}  cube_float32 {r['width']}x{r['height']} {r['layout']}: "
                      f"{100 * r['value']:.0f}% of copy bandwidth "
                      f"(target >= {100 * TARGETS['cube_fraction_of_copy']:.0f}%)")
     for r in t["float16_faster_than_float32"]["results"]:
-        lines.append(f"  {'PASS' if r['passed'] else 'MISS'}  float16 (2) {r['width']}x{r['height']} {r['layout']}: "
-                     f"{r['value']:.2f}x the speed of float32 (1) (target > 1x)")
+        lines.append(f"  {'PASS' if r['passed'] else 'MISS'}  cube_float16 {r['width']}x{r['height']} {r['layout']}: "
+                     f"{r['value']:.2f}x the speed of cube_float32 (target > 1x)")
     return "\n".join(lines)
 
 
@@ -469,7 +478,7 @@ def run_bench(sizes=((640, 480), (2048, 2048)), device=None, repeats: int | None
     -------
     dict
         The JSON report: ``device``, ``platform``, ``specgpu_version``, ``copy_bandwidth_GBps``,
-        ``numpy_copy_bandwidth_GBps``, ``cases`` (one dict per :class:`CaseResult`) and ``targets``
+        ``numpy_copy_bandwidth_GBps``, ``date_utc``, ``load_avg_1min`` (``start``, ``end``), ``cases`` (one dict per :class:`CaseResult`) and ``targets``
         (see :func:`evaluate_targets`).
     """
     from tqdm import tqdm
@@ -479,6 +488,7 @@ def run_bench(sizes=((640, 480), (2048, 2048)), device=None, repeats: int | None
         raise ValueError(f"repeats must be at least 1, got {repeats}")
     queue = get_queue(device)
     pool = get_allocator(queue)
+    started, load_start = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), _load_avg()
     steps = list(_steps(sizes))
     bar = tqdm(total=len(steps) + 1, desc="specgpu bench", unit="case", file=sys.stderr, disable=not progress,
                leave=False)
@@ -520,6 +530,8 @@ def run_bench(sizes=((640, 480), (2048, 2048)), device=None, repeats: int | None
         "copy_bandwidth_GBps": copy_GBps,
         "numpy_copy_bandwidth_GBps": numpy_copy_GBps,
         "copy_size_MiB": copy_mib,
+        "date_utc": started,
+        "load_avg_1min": {"start": load_start, "end": _load_avg()},
         "cases": [asdict(c) for c in cases],
     }
     report["targets"] = evaluate_targets(cases)
@@ -530,9 +542,9 @@ def run_bench(sizes=((640, 480), (2048, 2048)), device=None, repeats: int | None
     return report
 
 
-# ------------------------------------------------------------------------------------------- the stream (issue 6)
+# ------------------------------------------------------------------------------------------------------ the stream
 
-#: Issue 6's targets, raw frames per second into the stream.
+#: The stream's targets, raw frames per second into the stream.
 STREAM_TARGETS = {"coefficients_XYZ_dE2000_fps": 780.0, "cube_float16_fps": 200.0}
 
 
@@ -701,7 +713,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
                      width: int = 640, height: int = 480, device=None, json_path=None, echo=print,
                      cases=("fused", "sigma", "sigma_rms", "white", "cube", "paced", "overload", "equality"),
                      rounds: int = 1) -> dict:
-    """Issue 6's figures: the stream at camera speed on this machine, each case checked for exactness.
+    """The stream at camera speed on this machine, each case checked for exactness.
 
     Frames are replayed from a recording of the twin (:class:`~specgpu.capture.replay.ReplayDriver`): the twin
     renders fresh noise at ~700 frames/s on 2 cores, slower than the pipeline, so it could not outrun it.
