@@ -12,13 +12,34 @@ import click
 from . import __version__
 
 
+def _one_line_usage(error: click.UsageError) -> click.UsageError:
+    """A usage error as one ``Error: ...`` line (exit status 2): click prints a usage error with the command's
+    synopsis and a "Try --help" line before it, three lines where every other error is one. The message keeps
+    click's naming of the option or argument; the help pointer moves onto the same line."""
+    if error.ctx is None or isinstance(error, click.exceptions.NoArgsIsHelpError):
+        return error  # already one line (raised by a command), or the plain group's help
+    message = error.format_message().strip().splitlines()[0].rstrip().rstrip(".")
+    hint = f"; see '{error.ctx.command_path} --help'" if error.ctx.command.get_help_option(error.ctx) else ""
+    one = click.UsageError(message + hint)  # no context: click's show() then prints the Error: line alone
+    one.__cause__ = error
+    return one
+
+
 class _Group(click.Group):
     """Turns any error a command raises into one line on stderr and exit status 1 (2 for usage errors)."""
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        try:
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except click.UsageError as error:  # the group's own options: `specgpu --bogus`
+            raise _one_line_usage(error) from error
 
     def invoke(self, ctx):
         try:
             with _terminate_as_interrupt():
                 return super().invoke(ctx)
+        except click.UsageError as error:  # a command's options and arguments, an unknown command
+            raise _one_line_usage(error) from error
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort, SystemExit):
             raise
         except KeyboardInterrupt:
@@ -167,12 +188,23 @@ def main():
 
 @main.command()
 @click.option("--device", "device", default=None, help="Device selector: 'P:D' indices or a name substring.")
-@click.option("--devices", "usb", is_flag=True, help="Also list the USB devices found (light sources specgpu drives).")
-def info(device, usb):
-    """OpenCL platforms and devices, the one chosen, and versions; with --devices, the USB devices."""
-    from .runtime import describe
+@click.option("--devices", "devices_only", is_flag=True,
+              help="List only the OpenCL devices, one a line: selector, name, type (* the one chosen).")
+@click.option("--usb", is_flag=True,
+              help="Also list the USB devices found, naming those specgpu drives (DLPC900 light, USB3 Vision "
+                   "camera, Ocean spectrometer).")
+def info(device, devices_only, usb):
+    """OpenCL platforms and devices, the one chosen, and versions; --devices: the OpenCL devices alone; --usb:
+    the USB devices too."""
+    from .runtime import describe, list_devices, select_device
 
-    click.echo(describe(device))
+    if devices_only:
+        chosen = select_device(device)
+        for d in list_devices():
+            mark = "*" if d.device.int_ptr == chosen.int_ptr else " "
+            click.echo(f"{mark} {d.selector}  {d.name.strip()}  [{d.type}, {d.platform.strip()}]")
+    else:
+        click.echo(describe(device))
     if usb:
         from .hardware.usb import list_usb_devices
 
@@ -250,7 +282,7 @@ _RIG = click.option("--rig", "rig_path", type=click.Path(dir_okay=False), defaul
 _PLAN = click.option("--plan", "plan_path", required=True, type=click.Path(exists=True, dir_okay=False),
                      help="Plan (specgpu plan).")
 _SCENE = click.option("--scene", default=None, help="Scene: colorchecker, white, natural[:image], or a .exr / .npz "
-                                                   "cube (default: the rig's [scene] source).")
+                                                   "/ .hdr (ENVI) cube (default: the rig's [scene] source).")
 
 
 def _hardware(description):
@@ -272,7 +304,7 @@ def _experiment(description, plan_path, calib, scene):
 
     bundle = load_calibration(calib, rig=description)
     plan = load_plan(plan_path)
-    plan.check_calibration(bundle, name=str(plan_path))
+    plan.check_calibration(bundle, name=str(plan_path), calibration_name=str(calib))
     cam = description.camera
     return bundle, plan, load_scene(scene or description.scene, cam.roi_height, cam.roi_width)
 
@@ -370,7 +402,8 @@ def calibrate(rig_path, out, seed, line_shape):
 @click.option("--frames", type=click.IntRange(min=1, max=200), default=9, show_default=True,
               help="optimal: number of illuminants.")
 @click.option("--objective", type=click.Choice(["rmse", "dE2000", "dEab"], case_sensitive=False), default="rmse",
-              show_default=True, help="optimal: the expected error minimised (colour differences under --illuminant).")
+              show_default=True, metavar="[rmse|dE2000|dEab]",
+              help="optimal: the expected error minimised (colour differences under --illuminant).")
 @click.option("--target", type=float, default=None, help="optimal: refuse a design whose expected error is above it.")
 @click.option("--exposure-ms", type=float, default=None, help="optimal: expose at least this long (ms).")
 @click.option("--bands", type=int, default=31, show_default=True, help="hadamard: bands (3, 7, 15, 31, 63).")
@@ -833,8 +866,7 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
 @click.option("--outputs", default="coefficients,XYZ,dE", show_default=True,
               help="Comma-separated: coefficients, cube, XYZ, Lab, dE, sigma (each output's standard deviation and "
                    "their RMS), sigma_rms (that RMS alone), dE_sigma (first-order dE2000 standard deviation); the "
-                   "sigmas need a plan made with "
-                   "--estimator.")
+                   "sigmas use the noise model specgpu plan records (a plan of a custom rig needs plan --rig).")
 @click.option("--delta-e-ref", "ref", default=None,
               help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it (default: the streamed scene).")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
@@ -1004,6 +1036,7 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
     if not calib.is_file():
         raise click.UsageError(f"{calib} not found; give --calib")
     bundle = load_calibration(calib)
+    plan.check_calibration(bundle, name=str(plan_path), calibration_name=str(calib))  # names both files
     reference = None
     if ref is not None:
         src = open_source(source)
@@ -1017,12 +1050,14 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
 
 @main.command()
 @click.argument("cube", type=click.Path(exists=True, dir_okay=False))
-@click.option("--truth", required=True, help="The true scene: colorchecker, white, natural[:image] or a cube file.")
+@click.option("--truth", required=True,
+              help="The true scene: colorchecker, white, natural[:image] or a .exr / .npz / .hdr (ENVI) cube.")
 @click.option("--illuminant", default="D65", show_default=True, help="Illuminant of the colour differences.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the report here.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
 def evaluate(cube, truth, illuminant, json_path, device):
-    """Accuracy of a recovered cube (or XYZ map) against the true scene: per pixel, and per patch for a chart."""
+    """Accuracy of a recovered cube (.exr, .npz or ENVI .hdr; or an XYZ map) against the true scene: per pixel,
+    and per patch for a chart."""
     import json
 
     import numpy as np

@@ -1,7 +1,7 @@
 """Decoders beyond the paper's projections: Wiener (LMMSE) and smoothness-regularised least squares, the noise
 model they need, the expected error of any decoder, and per-pixel uncertainty.
 
-Every estimator here is still one per-pixel linear map ``y = A (o - dark) * gain`` (DESIGN.md section 1), so the
+Every estimator here is still one per-pixel linear map ``y = A (o - dark) * gain``, so the
 device kernels do not change; only the host decides A.
 
 Notation (per plan): the calibration's forward model gives ``F`` (K x B), the frames' output in DN above dark per
@@ -419,7 +419,8 @@ def _noise_products(frames, plan, dark, gain, rows, sequences, device):
     from .recovery import apply_linear
 
     if "noise" not in plan.params:
-        raise ValueError(f"the {plan.method} plan records no noise model; re-plan it with --estimator (any) to add one")
+        raise ValueError(f"the {plan.method} plan records no noise model; re-plan it with specgpu plan --rig RIG.toml "
+                         "(the rig the calibration was made on) to record one")
     if not (isinstance(sequences, (int, np.integer)) and sequences >= 1):
         raise ValueError(f"sequences must be an integer >= 1, got {sequences!r}")
     noise = NoiseModel.from_params(plan.params["noise"])
@@ -718,7 +719,7 @@ def format_study(rows) -> str:
         cv_text, cv_ratio = (f"{cv:.4f}", f"{rms[0] / cv:.2f}") if cv and rms else ("-", "-")
         lines.append(f"{r['name']:<16} {r['K']:>3} {r['exposure_ms']:>7.1f} {f(r, 'rmse', 4):>18} "
                      f"{f(r, 'dE2000', 2):>16} {f(r, 'dEab', 2):>16} {f(r, 'patch_rmse', 4):>18} "
-                     f"{f(r, 'patch_dE2000', 2):>16} {exp if exp is None else round(exp, 4)!s:>8} "
+                     f"{f(r, 'patch_dE2000', 2):>16} {'-' if exp is None else round(exp, 4)!s:>8} "
                      f"{'-' if rms is None else round(rms[0], 4)!s:>8} {ratio:>6} {cv_text:>7} {cv_ratio:>6} "
                      f"{r['z'][0]:>6.2f} "
                      f"{r['dE_ratio'][0] if 'dE_ratio' in r else float('nan'):>6.2f}")

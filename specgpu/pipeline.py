@@ -4,7 +4,7 @@ calibration in one folder, and recover them; used by the CLI, ``specgpu demo`` a
 A sequence folder (``specgpu capture``) holds the frames and ``sequence.json`` (:mod:`specgpu.io`), plus the
 plan (``plan.npz``) and calibration bundle (``calibration.npz``) it was captured with, so ``specgpu recover``
 needs nothing else; the hashes chain sequence -> plan -> calibration, and a mismatch is an error naming the
-file, never a silent wrong answer (DESIGN.md section 3).
+file, never a silent wrong answer.
 """
 
 from __future__ import annotations
@@ -252,10 +252,29 @@ class SequenceFolder:
         return self.frames.shape[0]
 
 
+def _zarr_not_a_sequence(directory: Path) -> str:
+    """The refusal of a zarr recording where a sequence folder is read: say what it is and what reads it."""
+    import json
+
+    try:
+        attrs = json.loads((directory / "zarr.json").read_text()).get("attributes", {})
+    except (OSError, ValueError, AttributeError):
+        attrs = {}
+    if attrs.get("format") != "specgpu.recording":
+        return f"{directory}: a zarr store, not a sequence folder (sequence.json); recover reads capture folders"
+    if attrs.get("frames"):
+        return (f"{directory}: a zarr recording, not a sequence folder; re-process its raw frames with "
+                f"`specgpu batch {directory} --plan PLAN --out OUT.zarr` (recover reads capture folders)")
+    return (f"{directory}: a zarr recording without raw frames, not a sequence folder; its results are in it "
+            "(specgpu.recording.open_recording, or xarray.open_zarr), and recover reads capture folders")
+
+
 def read_capture(directory) -> SequenceFolder:
     """Read a sequence folder; refuse it when the plan or calibration is missing or does not match its hashes,
     or when its frames are not whole sequences in pattern order."""
     directory = Path(directory)
+    if (directory / "zarr.json").is_file() and not (directory / io.SEQUENCE_FILE).exists():
+        raise ValueError(_zarr_not_a_sequence(directory))
     if (directory / INCOMPLETE_MARKER).exists() and not (directory / io.SEQUENCE_FILE).exists():
         salvage = (" `specgpu salvage DIR` indexes its complete sequences;"
                    if (directory / io.JOURNAL_FILE).exists() else "")

@@ -1,6 +1,6 @@
 """Measurement plans: the illuminant sequence to project and the decoder A that reads the frames back.
 
-A :class:`Plan` is what the host decides before a capture (DESIGN.md sections 1 and 3): K DMD patterns (mirror
+A :class:`Plan` is what the host decides before a capture: K DMD patterns (mirror
 counts, within the light's limits), one exposure chosen so the brightest frame on a white uses most of the
 camera's range, the decoder ``A`` (B x K) that :func:`specgpu.recovery.apply_linear` applies per pixel as
 ``y = A (o - dark) * gain``, what ``y`` means (reflectance at which wavelengths, or XYZ / camera RGB under which
@@ -227,11 +227,13 @@ class Plan:
             return np.eye(3)
         raise ValueError(f"a {self.output!r} plan ({self.method}) has no XYZ")
 
-    def check_calibration(self, bundle, name: str = "plan") -> None:
-        """Refuse a plan designed with another calibration than ``bundle`` (stale plan)."""
+    def check_calibration(self, bundle, name: str = "plan", calibration_name: str | None = None) -> None:
+        """Refuse a plan designed with another calibration than ``bundle`` (stale plan); ``name`` and
+        ``calibration_name`` are the files the message names."""
         if self.calibration != bundle.hash:
+            current = f"{calibration_name} is" if calibration_name else "the current one is"
             raise ValueError(f"{name} is stale: made from calibration {self.calibration[:12]}, "
-                             f"the current one is {bundle.hash[:12]}; re-plan")
+                             f"{current} {bundle.hash[:12]}; re-plan")
 
 
 def save_plan(path, plan: Plan) -> str:

@@ -100,8 +100,8 @@ class StreamDecoder:
         row of the same map: B times fewer bytes written than ``"sigma"``). ``"dE_sigma"``: the first-order dE2000
         standard deviation (as ``recover --delta-e-sigma``): the XYZ covariance's six entries by the linear
         kernel, then a small kernel propagating them with XYZ to dE2000 (as
-        :func:`specgpu.estimators.delta_E_sigma`). Both need the plan's noise model (``specgpu plan ...
-        --estimator``).
+        :func:`specgpu.estimators.delta_E_sigma`). Both need the plan's noise model, which ``specgpu plan`` records
+        (given ``--rig`` for a calibration made on a custom rig).
     reference : array_like, optional
         CIELAB reference of ``"dE"``: one colour (3,) or a per-pixel (H, W, 3) image. Required for ``"dE"``.
     method : str
@@ -202,7 +202,7 @@ class StreamDecoder:
 
             if "noise" not in plan.params:
                 raise ValueError(f"the {plan.method} plan records no noise model, so it has no sigma; re-plan it "
-                                 "with --estimator (any) to add one")
+                                 "with specgpu plan --rig RIG.toml (the rig the calibration was made on) to record one")
             self.noise = NoiseModel.from_params(plan.params["noise"])
             g_e = self.noise.gain_e_per_dn
             self.dark_var = engine.to_device(queue, (np.asarray(dark, np.float32) - np.float32(

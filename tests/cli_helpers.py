@@ -27,6 +27,7 @@ def one_line_error(result, *fragments, code=None):
         assert result.exit_code == code, result.output
     errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
     assert len(errors) == 1, result.output
+    assert not any(line.startswith(("Usage:", "Try ")) for line in result.output.splitlines()), result.output
     for fragment in fragments:
         assert str(fragment) in errors[0], errors[0]
     return errors[0]

@@ -1,4 +1,4 @@
-"""The main job through the CLI, end to end at the camera's smallest ROI, and every bad input of issue 5.
+"""The main job through the CLI, end to end at the camera's smallest ROI, and every bad input a user gives it.
 
 Each bad input must give a non-zero exit, a one-line reason, and no output left looking complete.
 """
@@ -219,8 +219,8 @@ def test_rig_naming_hardware(work, tmp_path):
     assert not (tmp_path / "seq" / "sequence.json").exists()
 
 
-def test_info_devices_lists_usb_or_says_what_is_missing():
-    result = run("info", "--devices", ok=False)
+def test_info_usb_lists_usb_or_says_what_is_missing():
+    result = run("info", "--usb", ok=False)
     if result.exit_code == 0:
         assert "USB devices:" in result.output
     else:

@@ -180,7 +180,8 @@ def test_load_scene_resamples_and_rejects_unknown_names(tmp_path):
     assert scene.shape == (240, 320)
     write_scene(tmp_path / "c.npz", small_cube())
     assert load_scene(str(tmp_path / "c.npz"), 12, 10).shape == (12, 10)
-    with pytest.raises(ValueError, match="unknown scene 'moon'; give a .exr or .npz file or one of: colorchecker"):
+    with pytest.raises(ValueError, match=r"unknown scene 'moon'; give a \.exr, \.npz or \.hdr \(ENVI\) file or one of: "
+                                         r"colorchecker"):
         load_scene("moon")
     assert load_scene("natural:rocket", 24, 32).name == "natural:rocket"
     with pytest.raises(ValueError, match="unknown image 'moon'; valid images: chelsea"):

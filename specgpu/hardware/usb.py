@@ -1,4 +1,4 @@
-"""The USB devices this machine sees, with the ones specgpu can drive named (for ``specgpu info --devices``)."""
+"""The USB devices this machine sees, with the ones specgpu can drive named (for ``specgpu info --usb``)."""
 
 from __future__ import annotations
 

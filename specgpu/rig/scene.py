@@ -343,5 +343,5 @@ def load_scene(source, height: int = 480, width: int = 640) -> SpectralScene:
     path = Path(text)
     if path.suffix.lower() in (".exr", ".npz", ".hdr"):
         return read_scene(path).resized(height, width)
-    raise ValueError(f"unknown scene {text!r}; give a .exr or .npz file or one of: {', '.join(BUILTIN_SCENES)}, "
-                     f"natural:<image> with <image> one of {', '.join(_NATURAL_IMAGES)}")
+    raise ValueError(f"unknown scene {text!r}; give a .exr, .npz or .hdr (ENVI) file or one of: "
+                     f"{', '.join(BUILTIN_SCENES)}, natural:<image> with <image> one of {', '.join(_NATURAL_IMAGES)}")
