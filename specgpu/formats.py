@@ -1,6 +1,6 @@
 """Low-level file formats shared by :mod:`specgpu.io`, :mod:`specgpu.rig`, :mod:`specgpu.basis` and the drivers.
 
-The layouts live here, at the bottom of the DESIGN.md arrows (this module imports only :mod:`specgpu.checks`), so
+The layouts live here, at the bottom of the import arrows (this module imports only :mod:`specgpu.checks`), so
 that every room may read and write them and ``rig`` never imports ``io``; :mod:`specgpu.io` stays the public home
 of file formats for users:
 

@@ -1,4 +1,4 @@
-"""The file formats of specgpu (DESIGN.md section 4), through OpenImageIO.
+"""The file formats of specgpu, through OpenImageIO.
 
 =====================  ===========================================================================================
 spectral cube          OpenEXR, JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie): one channel per band named
@@ -807,7 +807,7 @@ def write_sequence(directory, frames, records=None, plan_hash: str = "", *, meta
         with ``frame_id`` (int >= 0, increasing), ``pattern_index`` (int >= 0), ``exposure_s`` (s, > 0) and
         ``timestamp_s`` (s) — what ``Sequence.frame_records()`` returns.
     plan_hash : str
-        Hash of the plan the capture ran (a capture records its plan's hash; DESIGN.md section 3).
+        Hash of the plan the capture ran (a capture records its plan's hash).
     metadata : mapping, optional
         JSON-serialisable extras (rig, scene, ...), stored under ``"metadata"``.
     overwrite : bool

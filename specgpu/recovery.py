@@ -1,6 +1,6 @@
 """Apply a decoder to frames: y = A (o - dark) * gain for every pixel, on the device.
 
-Every recovery of the paper is this one per-pixel linear map with its own A (DESIGN.md section 1): narrowband
+Every recovery of the paper is this one per-pixel linear map with its own A: narrowband
 (A = diag(1/c_i)), biased and symmetric basis (A = Basis . D), tristimulus (A = diag(k)), Wiener and any
 future estimator.
 """

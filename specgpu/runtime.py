@@ -1,6 +1,6 @@
 """OpenCL runtime: device choice, the one loader of ``kernels/*.cl`` and the program cache.
 
-Device resolution follows one fixed order (DESIGN.md section 5):
+Device resolution follows one fixed order:
 
 1. an explicit ``device`` argument (a :class:`pyopencl.Device`, a :class:`pyopencl.CommandQueue`,
    a :class:`pyopencl.Context` or a selector string),

@@ -1,7 +1,7 @@
 """Host <-> device transfers for NumPy-in / NumPy-out calls on discrete devices: pinned staging, row chunks.
 
 A discrete GPU moves pageable NumPy memory over its bus at a fraction of the rate it moves page-locked (pinned)
-memory (GPU.md: 10-17 GB/s pageable against 55 GB/s pinned on an H100). On such devices
+memory (measured on an H100: 10-17 GB/s pageable against 55 GB/s pinned). On such devices
 (:func:`specgpu.runtime.is_discrete`) :func:`linear_pipelined` therefore
 
 * stages the input frames through pinned host buffers (``ALLOC_HOST_PTR``, mapped once, pooled per context),

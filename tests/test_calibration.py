@@ -212,7 +212,7 @@ def test_distribute_counts_property(spec, rows):
         assert inside.sum() == int(round(levels[k] * rows * masks[k].sum()))
 
 
-# ---- a calibration that holds on an imperfect bench (issue 10) -------------------------------------------------
+# ---- a calibration that holds on an imperfect bench ----------------------------------------------------------
 def test_calibration_error_against_the_truth(calibrated, oracle):
     from specgpu.calibration import calibration_error
 

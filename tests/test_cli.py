@@ -1,4 +1,4 @@
-"""The CLI commands of this issue end to end: exit codes and one-line errors."""
+"""The info, selftest and bench commands end to end: exit codes and one-line errors."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Drift correction at capture (issue 10 item 3): the white ROI and the ambient frame."""
+"""Drift correction at capture: the white ROI and the ambient frame."""
 
 from dataclasses import replace
 from pathlib import Path

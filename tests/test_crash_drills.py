@@ -1,4 +1,4 @@
-"""Crash drills (issue 15, Build item 3): ``kill -9`` of calibrate, capture, recover and stream at a
+"""Crash drills: ``kill -9`` of calibrate, capture, recover and stream at a
 hypothesis-chosen moment of their work, as real subprocesses (``python -m specgpu``).
 
 Afterwards nothing at a final path looks complete unless it is (it reads back whole), a second writer meanwhile is

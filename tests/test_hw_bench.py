@@ -1,4 +1,4 @@
-"""What would fail on a real bench (issue 13), on the simulated controller and the bench camera of ``hw_fakes``:
+"""What would fail on a real bench, on the simulated controller and the bench camera of ``hw_fakes``:
 trigger timing (dark time, start order), clear-after-exposure, read-only strobe lines, missing timestamps, 16-bit
 GigE Vision block ids, and the controller's and spectrometer's quirks.
 

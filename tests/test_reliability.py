@@ -1,4 +1,4 @@
-"""Issue 15: no silent overwrite or deletion, one writer per output, clear one-line refusals.
+"""Reliability: no silent overwrite or deletion, one writer per output, clear one-line refusals.
 
 Every test reads only the module fixture (calibration, a tristimulus plan, one captured sequence) and writes only
 under its own ``tmp_path``.

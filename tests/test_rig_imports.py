@@ -1,4 +1,4 @@
-"""The rig model never imports the capture package (issue 10, item 6)."""
+"""The rig model never imports the capture package."""
 
 import subprocess
 import sys
@@ -24,7 +24,7 @@ def test_programmable_light_is_a_light_source_once_capture_is_loaded():
 
 
 def test_formats_and_checks_sit_below_every_room_and_the_rig_never_imports_io():
-    # DESIGN.md arrows: the shared file formats and validators import no other specgpu module, and the rig reads
+    # the import arrows: the shared file formats and validators import no other specgpu module, and the rig reads
     # its cubes and CSV curves through them, never through io (or recovery)
     code = ("import sys\n"
             "import specgpu.formats, specgpu.checks\n"

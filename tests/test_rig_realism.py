@@ -1,4 +1,4 @@
-"""The bench's imperfections (issue 10): profiles, the [realism] and [drift] tables, each effect on its own, the
+"""The bench's imperfections: profiles, the [realism] and [drift] tables, each effect on its own, the
 rig's clock from calibration to capture."""
 
 from dataclasses import replace

@@ -4,7 +4,7 @@
         [--effects stray_light_fraction,blur_px,...] [--json OUT.json]
 
 For the ideal twin and then for every ``[realism]`` effect switched on alone at its lab magnitude
-(:mod:`specgpu.rig.realism`), plus the issue's ``[drift]`` (lamp -200 K, output -3 %, cut-on +5 nm since
+(:mod:`specgpu.rig.realism`), plus a typical ``[drift]`` (lamp -200 K, output -3 %, cut-on +5 nm since
 calibration): calibrate the rig (the procedure sees the effect, as a bench's calibration would), plan, capture the
 chart with a white tile above it, and recover twice:
 
@@ -37,11 +37,11 @@ from specgpu.study import chart_with_white, mean_std, measure_methods  # noqa: E
 
 #: Effects whose lab value is a setting of another effect, not an effect of its own.
 _PERIODS = ("grating_ripple_period_nm", "sensor_ripple_period_nm")
-ISSUE_DRIFT = Drift(lamp_cct_K=-200.0, lamp_output=-0.03, cut_on_nm=5.0)
+TYPICAL_DRIFT = Drift(lamp_cct_K=-200.0, lamp_output=-0.03, cut_on_nm=5.0)
 
 
 def effects(names=None) -> dict:
-    """label -> (Realism, Drift): the ideal rig, each lab effect alone, the issue's drift, and everything."""
+    """label -> (Realism, Drift): the ideal rig, each lab effect alone, the typical drift, and everything."""
     keys = [k for k in Realism.keys() if k not in _PERIODS]
     if names:
         unknown = [n for n in names if n not in keys and n not in ("drift", "ideal", "lab")]
@@ -52,9 +52,9 @@ def effects(names=None) -> dict:
     for k in keys:
         out[f"{k} = {getattr(LAB, k):g}"] = (LAB.only(k), Drift())
     if not names or "drift" in names:
-        out["drift (-200 K, -3 %, +5 nm)"] = (Realism(), ISSUE_DRIFT)
+        out["drift (-200 K, -3 %, +5 nm)"] = (Realism(), TYPICAL_DRIFT)
     if not names or "lab" in names:
-        out["lab (all) + drift"] = (LAB, ISSUE_DRIFT)
+        out["lab (all) + drift"] = (LAB, TYPICAL_DRIFT)
     return out
 
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU measurement set of issue 12 in one command (recipe: ../shared/GPU.md).
+# The GPU measurement set in one command: the figures the README's "On a GPU" table waits for.
 #
 # On the project machine, once (downloads the wheels the GPU machine cannot fetch; .whl/ is git-ignored locally):
 #     tools/gpu_check.sh fetch
@@ -8,7 +8,7 @@
 #     bash tools/gpu_check.sh stream       # bench --stream 2048x2048 and 640x480 (fused, 61-band f16 cube)
 #     bash tools/gpu_check.sh tests        # the whole suite
 # or `bash tools/gpu_check.sh all` where no time limit applies. Everything lands under $OUT (default ./gpu_out):
-# info.txt, bench.json / bench.txt, stream_*.json / .txt, tests.txt, and summary.txt (issue 12's targets, each
+# info.txt, bench.json / bench.txt, stream_*.json / .txt, tests.txt, and summary.txt (the GPU targets, each
 # with its figure; `python tools/gpu_summary.py DIR` redoes it over the files of several calls put together).
 set -u -o pipefail
 cd "$(dirname "$0")/.."

@@ -1,4 +1,4 @@
-"""Issue 12's GPU targets against the figures tools/gpu_check.sh wrote (bench.json, stream_*.json, tests.txt).
+"""The GPU targets against the figures tools/gpu_check.sh wrote (bench.json, stream_*.json, tests.txt).
 
     python tools/gpu_summary.py OUT_DIR
 

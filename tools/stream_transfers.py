@@ -1,5 +1,5 @@
 """Measure the stream's transfer modes on this machine: upload (host_ptr, pinned ALLOC_HOST_PTR staging, copy)
-x readback (map, copy), on the fused case of issue 6 (coefficients + XYZ + dE2000, replayed frames, ``block``
+x readback (map, copy), on the stream bench's fused case (coefficients + XYZ + dE2000, replayed frames, ``block``
 ring policy so the rate is the pipeline's own).
 
     python tools/stream_transfers.py [--size 640x480] [--seconds 8] [--rounds 2]

@@ -3,7 +3,7 @@
 A sequence is K frames lit by patterns 0, 1, ..., K-1 of one pass (a *cycle*) of the light's loaded sequence,
 with **consecutive frame ids**: nothing lost, nothing repeated, nothing shifted in between. Only such sequences
 are emitted; every other frame is set aside and counted, so a missing frame is reported, never slid into the next
-illuminant's slot (STYLE item 11).
+illuminant's slot.
 
 Bookkeeping from (frame id, pattern index) alone, per received frame after the previous one:
 

@@ -3,7 +3,8 @@
 Two roles, as in the paper's rig (Section 2.D): a **camera** that is the master and delivers frames, and a
 **light source** that holds a pre-loaded sequence of DMD patterns and shows the next one on each trigger.
 The capture path (ring buffer, assembler, streaming) only ever talks to these interfaces, so the simulated
-backend and a real DLPC900 / GenICam backend go through exactly the same code (STYLE item 10).
+backend and a real DLPC900 / GenICam backend go through exactly the same code (tests on the twin exercise the
+real path).
 
 Backends register under a name; :func:`open_driver` picks one, and an unknown name is a ``ValueError``
 listing the valid ones.
