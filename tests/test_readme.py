@@ -1,0 +1,116 @@
+"""The README's code runs as written: its Python snippets, the recording readers on a real recording, the step-by-step
+experiment, and every option it names for a ``specgpu`` command exists on that command."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cli_helpers import RIG, run
+from specgpu.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+def blocks(language: str) -> list[str]:
+    return re.findall(rf"^```{language}\n(.*?)^```", README, flags=re.S | re.M)
+
+
+def block(language: str, needle: str) -> str:
+    found = [b for b in blocks(language) if needle in b]
+    assert len(found) == 1, f"{len(found)} {language} blocks of the README hold {needle!r}"
+    return found[0]
+
+
+def test_python_api_snippet_runs():
+    code = block("python", "apply_linear")
+    ns: dict = {}
+    exec(compile(code, "README.md (API snippet)", "exec"), ns)
+    assert ns["cube"].shape == (480, 640, 31) and ns["cube"].dtype == np.float32
+    assert ns["cube16"].shape == (31, 480, 640) and ns["cube16"].dtype == np.float16
+    assert ns["XYZ"].shape == ns["Lab"].shape == (480, 640, 3)
+    assert ns["dE"].shape == (480, 640) and np.isfinite(ns["dE"]).all()
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    """A stream recording with the default outputs (REC.zarr) and one with the cube (CUBE.zarr), on the small twin
+    with a narrowband plan."""
+    d = tmp_path_factory.mktemp("readme")
+    (d / "rig.toml").write_text(RIG)
+    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    run("plan", "narrowband", "--calib", d / "calib.npz", "--out", d / "nb.npz")
+    for name, outputs in (("REC.zarr", []), ("CUBE.zarr", ["--outputs", "cube"])):
+        run("stream", "--rig", d / "rig.toml", "--plan", d / "nb.npz", "--calib", d / "calib.npz", "--seconds", "1",
+            "--pacing", "free", "--out", d / name, *outputs)
+    return d
+
+
+def test_recording_snippets_run_on_a_default_recording(recordings, monkeypatch):
+    pytest.importorskip("xarray")  # the README says to install it; the test extra has it
+    monkeypatch.chdir(recordings)
+    own = {}
+    exec(compile(block("python", "open_recording"), "README.md (recording reader)", "exec"), own)
+    assert own["XYZ"].shape == (240, 320, 3) and own["cube"].shape == (240, 320, 31)
+    assert own["wavelengths"].shape == (31,) and own["XYZ_all"].shape[1:] == (240, 320, 3)
+    xr_ns = {}
+    exec(compile(block("python", "xr.open_zarr"), "README.md (xarray)", "exec"), xr_ns)
+    cube = xr_ns["cube"]
+    assert cube.dims == ("time", "y", "x", "basis_wavelength")
+    np.testing.assert_allclose(cube.isel(time=0).values, own["cube"], rtol=1e-5, atol=1e-6)
+    # the cube recording's line as the README writes it
+    line, = re.findall(r'`(ds\["cube"\][^`]*)`', README)
+    import xarray as xr
+
+    assert eval(line, {"ds": xr.open_zarr("CUBE.zarr")}).dims == ("time", "y", "x")
+
+
+@pytest.mark.slow
+def test_step_by_step_experiment_runs_as_written(tmp_path):
+    """The README's experiment block, each line through bash with ``specgpu`` and ``python`` being this tree's."""
+    code = block("bash", "specgpu calibrate --rig rig.toml")
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for name, command in (("specgpu", f'exec "{sys.executable}" -m specgpu "$@"'),
+                          ("python", f'exec "{sys.executable}" "$@"')):
+        (bin_dir / name).write_text(f"#!/bin/sh\n{command}\n")
+        (bin_dir / name).chmod(0o755)
+    env = {"PATH": f"{bin_dir}:/usr/bin:/bin", "PYTHONPATH": str(ROOT), "HOME": str(Path.home())}
+    work = tmp_path / "work"
+    work.mkdir()
+    result = subprocess.run(["bash", "-e", "-c", code], cwd=work, env=env, capture_output=True, text=True,
+                            timeout=900)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+    for name in ("rig.toml", "calib.npz", "sym.npz", "seq/sequence.json", "cube.exr", "xyz.exr", "dE.png",
+                 "report.json"):
+        assert (work / name).is_file(), name
+    assert "per patch: rmse mean" in result.stdout
+
+
+def _command_spans():
+    """(command, text) for every ``specgpu COMMAND ...`` the README writes: inline code and code-block lines."""
+    out = []
+    prose = re.sub(r"^```.*?^```", "", README, flags=re.S | re.M)
+    texts = [" ".join(t.split()) for t in re.findall(r"`([^`]*)`", prose)]  # a span may wrap onto the next line
+    texts += [line.split(" # ")[0] for b in blocks("bash") for line in b.splitlines()]  # without the comments
+    for text in texts:
+        for m in re.finditer(r"specgpu (\w+)(.*?)(?=specgpu \w|$)", text):
+            out.append((m.group(1), m.group(2)))
+    return out
+
+
+def test_every_option_the_readme_names_exists():
+    spans = [(c, t) for c, t in _command_spans() if c in main.commands]
+    assert len(spans) > 30  # the parser finds the README's commands
+    missing = []
+    for command, text in spans:
+        names = {o for p in main.commands[command].params for o in (*p.opts, *p.secondary_opts)}
+        missing += [f"specgpu {command} {opt}" for opt in re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", text)
+                    if opt not in names]
+    assert not missing, missing
