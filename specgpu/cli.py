@@ -16,8 +16,8 @@ def _one_line_usage(error: click.UsageError) -> click.UsageError:
     """A usage error as one ``Error: ...`` line (exit status 2): click prints a usage error with the command's
     synopsis and a "Try --help" line before it, three lines where every other error is one. The message keeps
     click's naming of the option or argument; the help pointer moves onto the same line."""
-    if error.ctx is None or isinstance(error, click.exceptions.NoArgsIsHelpError):
-        return error  # already one line (raised by a command), or the plain group's help
+    if error.ctx is None or isinstance(error, getattr(click.exceptions, "NoArgsIsHelpError", ())):
+        return error  # already one line (raised by a command), or the plain group's help (click >= 8.2)
     message = error.format_message().strip().splitlines()[0].rstrip().rstrip(".")
     hint = f"; see '{error.ctx.command_path} --help'" if error.ctx.command.get_help_option(error.ctx) else ""
     one = click.UsageError(message + hint)  # no context: click's show() then prints the Error: line alone
