@@ -559,10 +559,10 @@ inline floatv delta_e_94(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2, 
 /* CIEDE2000 (Sharma, Wu and Dalal 2005), kL = kC = kH = 1, branch-free over the lanes.
  * Hue angles are in degrees where the formula compares them (its +-180 / +-360 rules). The four cosines of T
  * come from one sincos and multiple-angle identities (same accuracy, a quarter of the cost); with SPLIT_SINCOS
- * from a sin and a cos (the same values on PoCL, 10 % slower there), for Oclgrind, whose uninitialised-read
- * check cannot follow sincos's private out-pointer (specgpu.runtime sets it for that device). A vector form of
- * the hue terms (cross and dot products of a'b') was measured: no faster on PoCL and ill-conditioned for
- * nearly opposite hues, so the angles stay. */
+ * from a sin and a cos (the same values on PoCL, measured up to 13 % slower there), for Oclgrind, whose
+ * uninitialised-read check cannot follow sincos's private out-pointer (specgpu.runtime sets it for that device).
+ * A vector form of the hue terms (cross and dot products of a'b') was measured: no faster on PoCL and
+ * ill-conditioned for nearly opposite hues, so the angles stay. */
 inline floatv delta_e_2000(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2, floatv b2)
 {
     const float p25_7 = 6103515625.0f; /* 25^7 */
