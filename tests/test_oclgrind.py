@@ -232,16 +232,23 @@ def test_nv_attributes_are_asked_only_of_devices_that_report_them():
     import specgpu.runtime  # noqa: F401  (installs the guard)
 
     class Device:
+        """Answers the NVIDIA queries as a real device does: with an error unless it has the extension."""
+
         def __init__(self, extensions, major=None):
-            self.extensions, self.major = extensions, major
+            self.extensions, self.major, self.queried = extensions, major, False
 
         @property
         def compute_capability_major_nv(self):
+            self.queried = True
             if self.major is None:
-                raise AssertionError("queried a device without the extension")
+                raise RuntimeError("clGetDeviceInfo failed: INVALID_VALUE")
             return self.major
 
         compute_capability_minor_nv = 0
 
-    assert characterize.nv_compute_capability(Device("cl_khr_fp64 cl_khr_byte_addressable_store")) is None
-    assert characterize.nv_compute_capability(Device("cl_khr_fp64 cl_nv_device_attribute_query", 8)) == (8, 0)
+    other = Device("cl_khr_fp64 cl_khr_byte_addressable_store")
+    assert characterize.nv_compute_capability(other) is None
+    assert not other.queried
+    nvidia = Device("cl_khr_fp64 cl_nv_device_attribute_query", 8)
+    assert characterize.nv_compute_capability(nvidia) == (8, 0)
+    assert nvidia.queried
