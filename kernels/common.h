@@ -57,6 +57,9 @@ typedef int intv;
 #ifndef IS_FLOAT_IN
 #define IS_FLOAT_IN 0
 #endif
+#ifndef SPLIT_SINCOS
+#define SPLIT_SINCOS 0 /* 1: CIEDE2000's hue sine and cosine from sin() and cos(), not sincos() (see delta_e_2000) */
+#endif
 
 #define MASK_SATURATED 1
 #define MASK_NONFINITE 2
@@ -478,13 +481,15 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
 /* 8 x 8 transpose of floatv registers: rj lane i = ai lane j. Turns 8 outputs of 8 pixels (one register per
  * output) into 8 pixel rows of 8 outputs, so interleaved (N, B) results are written as contiguous rows.
  * Written with swizzle constructors, which compilers lower to single vector shuffles (shuffle2 with a mask
- * variable is a generic library loop on PoCL). */
+ * variable is a generic library loop on PoCL). Every component is a single lane: multi-lane components
+ * ((p).s01, (p).lo) compile to widening shuffles with undefined lanes, which crash Oclgrind's uninitialised-value
+ * check (tests/test_oclgrind.py); both forms optimise to the same shuffle. */
 #define UNPACK_LO(p, q) (floatv)((p).s0, (q).s0, (p).s1, (q).s1, (p).s4, (q).s4, (p).s5, (q).s5)
 #define UNPACK_HI(p, q) (floatv)((p).s2, (q).s2, (p).s3, (q).s3, (p).s6, (q).s6, (p).s7, (q).s7)
-#define PAIRS_LO(p, q) (floatv)((p).s01, (q).s01, (p).s45, (q).s45)
-#define PAIRS_HI(p, q) (floatv)((p).s23, (q).s23, (p).s67, (q).s67)
-#define HALVES_LO(p, q) (floatv)((p).lo, (q).lo)
-#define HALVES_HI(p, q) (floatv)((p).hi, (q).hi)
+#define PAIRS_LO(p, q) (floatv)((p).s0, (p).s1, (q).s0, (q).s1, (p).s4, (p).s5, (q).s4, (q).s5)
+#define PAIRS_HI(p, q) (floatv)((p).s2, (p).s3, (q).s2, (q).s3, (p).s6, (p).s7, (q).s6, (q).s7)
+#define HALVES_LO(p, q) (floatv)((p).s0, (p).s1, (p).s2, (p).s3, (q).s0, (q).s1, (q).s2, (q).s3)
+#define HALVES_HI(p, q) (floatv)((p).s4, (p).s5, (p).s6, (p).s7, (q).s4, (q).s5, (q).s6, (q).s7)
 #define TRANSPOSE8(a0, a1, a2, a3, a4, a5, a6, a7, r0, r1, r2, r3, r4, r5, r6, r7)                        \
     do {                                                                                               \
         const floatv t0 = UNPACK_LO(a0, a1), t1 = UNPACK_HI(a0, a1);                                   \
@@ -553,9 +558,11 @@ inline floatv delta_e_94(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2, 
 
 /* CIEDE2000 (Sharma, Wu and Dalal 2005), kL = kC = kH = 1, branch-free over the lanes.
  * Hue angles are in degrees where the formula compares them (its +-180 / +-360 rules). The four cosines of T
- * come from one sincos and multiple-angle identities (same accuracy, a quarter of the cost). A vector form of
- * the hue terms (cross and dot products of a'b') was measured: no faster on PoCL and ill-conditioned for
- * nearly opposite hues, so the angles stay. */
+ * come from one sincos and multiple-angle identities (same accuracy, a quarter of the cost); with SPLIT_SINCOS
+ * from a sin and a cos (the same values on PoCL, measured up to 13 % slower there), for Oclgrind, whose
+ * uninitialised-read check cannot follow sincos's private out-pointer (specgpu.runtime sets it for that device).
+ * A vector form of the hue terms (cross and dot products of a'b') was measured: no faster on PoCL and
+ * ill-conditioned for nearly opposite hues, so the angles stay. */
 inline floatv delta_e_2000(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2, floatv b2)
 {
     const float p25_7 = 6103515625.0f; /* 25^7 */
@@ -590,8 +597,12 @@ inline floatv delta_e_2000(floatv L1, floatv a1, floatv b1, floatv L2, floatv a2
     hbar = chromatic ? 0.5f * hbar : hsum;
 
     /* T = 1 - 0.17 cos(h - 30) + 0.24 cos(2h) + 0.32 cos(3h + 6) - 0.20 cos(4h - 63), h in degrees */
+#if SPLIT_SINCOS
+    const floatv s1 = sin(hbar * DEG2RAD), c1 = cos(hbar * DEG2RAD);
+#else
     floatv c1;
     const floatv s1 = sincos(hbar * DEG2RAD, &c1);
+#endif
     const floatv c2 = 2.0f * c1 * c1 - 1.0f, s2 = 2.0f * s1 * c1;
     const floatv c3 = c1 * (4.0f * c1 * c1 - 3.0f), s3 = s1 * (3.0f - 4.0f * s1 * s1);
     const floatv c4 = 2.0f * c2 * c2 - 1.0f, s4 = 2.0f * s2 * c2;

@@ -71,6 +71,32 @@ DTYPE_TO_CTYPE = {
 }
 
 
+def _ask_nv_attributes_only_of_devices_with_them() -> None:
+    """pyopencl's kernel invoker (made for every :class:`pyopencl.Kernel`) calls
+    :func:`pyopencl.characterize.nv_compute_capability`, which queries CL_DEVICE_COMPUTE_CAPABILITY_MAJOR_NV of
+    any device and reads the error a non-NVIDIA device returns as "not NVIDIA". That query belongs to the
+    cl_nv_device_attribute_query extension: it is made here only of devices that report the extension, which gives
+    the same answer without an invalid API call (a CL_INVALID_VALUE error per kernel object in API checkers such
+    as Oclgrind's)."""
+    import pyopencl.characterize as characterize
+
+    original = characterize.nv_compute_capability
+    if getattr(original, "specgpu_guarded", False):
+        return
+
+    @functools.wraps(original)
+    def nv_compute_capability(dev):
+        if "cl_nv_device_attribute_query" not in dev.extensions.split():
+            return None
+        return original(dev)
+
+    nv_compute_capability.specgpu_guarded = True
+    characterize.nv_compute_capability = nv_compute_capability
+
+
+_ask_nv_attributes_only_of_devices_with_them()
+
+
 class SpecgpuDeviceError(RuntimeError):
     """No usable OpenCL platform or device, or a selector that matches none."""
 
@@ -304,9 +330,19 @@ def build_options(**macros) -> tuple[str, ...]:
 
 def _device_options(device: cl.Device) -> list[str]:
     """Options a device family needs. PoCL's clang honours under-aligned vector types, which replace its
-    out-of-line vloadn / vstoren calls by inline unaligned moves (kernels/common.h, VEC_DEREF)."""
-    if "portable computing language" in device.platform.name.lower():
+    out-of-line vloadn / vstoren calls by inline unaligned moves (kernels/common.h, VEC_DEREF).
+
+    Oclgrind, the conformance-checking OpenCL simulator (tests/test_oclgrind.py), interprets the LLVM IR its clang
+    makes, and two of its defects are avoided here. Optimised, a vector ``c ? 1 : 0`` (the mask flags) becomes a
+    zero extension of a vector of booleans, which Oclgrind 21.10 evaluates to 255 instead of 1 per true lane;
+    unoptimised IR keeps the select, which it evaluates right (tests/data/oclgrind_defects.cl has the reduced
+    kernel). Its uninitialised-read check stops at the private out-pointer of sincos(), so CIEDE2000 calls sin()
+    and cos() there (SPLIT_SINCOS)."""
+    platform = device.platform.name.lower()
+    if "portable computing language" in platform:
         return ["-DVEC_DEREF=1"]
+    if "oclgrind" in platform:
+        return ["-cl-opt-disable", "-DSPLIT_SINCOS=1"]
     return []
 
 

@@ -1,0 +1,365 @@
+"""Runs specgpu's kernels on the Oclgrind device for tests/test_oclgrind.py, in a process of its own (the ICD loader
+reads OCL_ICD_VENDORS and Oclgrind its OCLGRIND_* checks once, at start).
+
+    python oclgrind_worker.py cases VARIANT [CASE ...]   every case (or the named ones) in kernel variant VARIANT
+    python oclgrind_worker.py race                       the channels-last tile without its barrier
+    python oclgrind_worker.py vector_bool                the reduced mask-flag kernel (tests/data/oclgrind_defects.cl)
+    python oclgrind_worker.py shuffle KERNEL             one of its reduced shuffle kernels
+
+Before each case it writes ``@@case NAME`` to stderr, so the parent can tell which case an Oclgrind report (also
+written to stderr) belongs to; the results go to stdout as one JSON object per line: the case, the error of each
+output against the float64 reference (specgpu.selftest.compare) and its tolerance.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+SHAPE = (9, 11)  # 99 pixels: two work-groups of 64 (the second partial), not a multiple of 8 or 16 pixels
+N = SHAPE[0] * SHAPE[1]
+DATA = Path(__file__).resolve().parent / "data"
+
+
+def _compare(errors, tolerances, name, got, want, kind, tol):
+    from specgpu.selftest import compare
+
+    err, message = compare(name, np.asarray(got), np.asarray(want), kind)
+    errors[name] = err if not message else message
+    tolerances[name] = tol
+
+
+def _frames(rng, K, dtype, high):
+    if np.dtype(dtype).kind == "f":
+        return rng.uniform(0, high, (K, *SHAPE)).astype(dtype)
+    return rng.integers(0, high + 1, (K, *SHAPE)).astype(dtype)
+
+
+def _linear_case(seed, *, K, B, dtype, high, layout, out_dtype, dark=None, gain=False, saturation=None,
+                 nonfinite=False):
+    from reference import linear_ref, mask_ref
+    from specgpu.recovery import apply_linear
+
+    def run():
+        rng = np.random.default_rng(seed)
+        frames = _frames(rng, K, dtype, high)
+        if nonfinite:
+            frames[1, 2, 3] = np.nan
+            frames[0, 5, 7] = np.inf
+            frames[2, 8, 10] = -np.inf
+        A = rng.normal(0, 1e-2, (B, K))
+        d = None if dark is None else rng.uniform(0, 5, (K, *SHAPE) if dark == "per frame" else SHAPE).astype(
+            np.float32)
+        g = rng.uniform(0.9, 1.1, SHAPE).astype(np.float32) if gain else None
+        res = apply_linear(frames, A, d, g, out_dtype=out_dtype, layout=layout, saturation=saturation,
+                           return_mask=saturation is not None or nonfinite, device="oclgrind")
+        y, mask = (res.y, res.mask) if isinstance(res, tuple) else (res, None)
+        errors, tolerances = {}, {}
+        want = linear_ref(frames, A, d, g, layout)
+        _compare(errors, tolerances, "y", y, want, "range", 1e-3 if out_dtype == "float16" else 1e-5)
+        if mask is not None:
+            want_mask = mask_ref(frames, saturation)
+            assert want_mask.any(), "the case must flag some pixels"
+            _compare(errors, tolerances, "mask", mask, want_mask, "abs", 0)
+        return errors, tolerances
+
+    return run
+
+
+@contextlib.contextmanager
+def _no_tile():
+    """The "gpu" variant's channels-last launch without its local-memory tile (a work-item per output element),
+    which the engine takes where the tile does not fit the device's local memory."""
+    from specgpu import engine
+
+    saved = engine._TILE_LOCAL_MAX
+    engine._TILE_LOCAL_MAX = 0
+    try:
+        yield
+    finally:
+        engine._TILE_LOCAL_MAX = saved
+
+
+def _per_element_case():
+    inner = _linear_case(6, K=3, B=5, dtype=np.uint16, high=4095, layout="interleaved", out_dtype="float32",
+                         dark="single", gain=True, saturation=4000.0)
+
+    def run():
+        with _no_tile():
+            return inner()
+
+    return run
+
+
+def _sqrt_case():
+    """The stream's standard-deviation output: sqrt(max(A (o - dark) * gain + c, 0)) from one prepared launch."""
+    import pyopencl as cl
+
+    from reference import linear_ref, mask_ref
+    from specgpu import engine
+    from specgpu.runtime import get_queue
+
+    def run():
+        queue = get_queue("oclgrind")
+        rng = np.random.default_rng(7)
+        K, B = 4, 9
+        frames = _frames(rng, K, np.uint16, 1023)
+        A = rng.uniform(0.5, 1.5, (B, K))
+        offsets = rng.uniform(1, 2, B)
+        dark = rng.uniform(0, 5, SHAPE).astype(np.float32)
+        gain = rng.uniform(0.9, 1.1, SHAPE).astype(np.float32)
+        errors, tolerances = {}, {}
+        for layout, name in ((1, "y_interleaved"), (0, "y_planar")):
+            launch = engine.prepare_linear(queue, np.uint16, A, n=N, dark=engine.to_device(queue, dark.ravel()),
+                                           gain=engine.to_device(queue, gain.ravel()), out_layout=layout,
+                                           want_mask=True, saturation=1000.0, sqrt_offsets=offsets)
+            out = launch.enqueue(engine.to_device(queue, frames.reshape(-1)).data)
+            y = np.empty(B * N, np.float32)
+            mask = np.empty(N, np.uint8)
+            cl.enqueue_copy(queue, y, out["out"])
+            cl.enqueue_copy(queue, mask, out["mask"])
+            lin = linear_ref(frames, A, dark, gain, "interleaved" if layout else "planar")
+            want = np.sqrt(np.maximum(lin + (offsets if layout else offsets[:, None, None]), 0))
+            _compare(errors, tolerances, name, y.reshape(want.shape), want, "range", 1e-5)
+            _compare(errors, tolerances, f"mask_{name[2:]}", mask.reshape(SHAPE), mask_ref(frames, 1000.0), "abs", 0)
+        return errors, tolerances
+
+    return run
+
+
+def _random_lab(rng):
+    from reference import random_Lab
+
+    return random_Lab(rng, SHAPE).astype(np.float32)
+
+
+def _xyz_to_lab_case():
+    from reference import XYZ_to_Lab_ref
+    from specgpu.colorimetry import XYZ_to_Lab
+
+    def run():
+        rng = np.random.default_rng(8)
+        xyz = rng.uniform(0.0005, 1.0, (*SHAPE, 3)).astype(np.float32)
+        xyz[0] *= 0.005  # below (24/116)^3 of the white: the linear part of f(t)
+        errors, tolerances = {}, {}
+        _compare(errors, tolerances, "Lab", XYZ_to_Lab(xyz, "D65", device="oclgrind"), XYZ_to_Lab_ref(xyz),
+                 "abs", 1e-4)
+        return errors, tolerances
+
+    return run
+
+
+def _delta_e_case(method, single=False):
+    from reference import delta_E_ref
+    from specgpu.colorimetry import delta_E
+
+    def run():
+        rng = np.random.default_rng(9)
+        lab2 = _random_lab(rng)
+        lab1 = lab2[4, 5] if single else (lab2 + rng.normal(0, 3, lab2.shape)).astype(np.float32)
+        errors, tolerances = {}, {}
+        _compare(errors, tolerances, "dE", delta_E(lab1, lab2, method=method, device="oclgrind"),
+                 delta_E_ref(lab1, lab2, method), "abs", 1e-3 if method == "CIE 2000" else 2e-5)
+        return errors, tolerances
+
+    return run
+
+
+def _fused_case(method, single=False):
+    from reference import XYZ_to_Lab_ref, delta_E_ref, linear_ref, mask_ref
+    from specgpu.colorimetry import frames_to_delta_E
+
+    def run():
+        rng = np.random.default_rng(10)
+        K = 5
+        frames = _frames(rng, K, np.uint16, 4095)
+        M = rng.uniform(0, 1.0 / (K * 4095), (3, K))
+        dark = rng.uniform(0, 5, SHAPE).astype(np.float32)
+        gain = rng.uniform(0.9, 1.1, SHAPE).astype(np.float32)
+        reference = _random_lab(rng)
+        reference = reference[2, 2] if single else reference
+        res = frames_to_delta_E(frames, M, reference, method=method, dark=dark, gain=gain, saturation=4000.0,
+                                return_XYZ=True, return_Lab=True, return_mask=True, device="oclgrind")
+        xyz = linear_ref(frames, M, dark, gain, "interleaved")
+        lab = XYZ_to_Lab_ref(xyz)
+        errors, tolerances = {}, {}
+        _compare(errors, tolerances, "XYZ", res.XYZ, xyz, "range", 1e-5)
+        _compare(errors, tolerances, "Lab", res.Lab, lab, "abs", 5e-4)
+        _compare(errors, tolerances, "dE", res.delta_E, delta_E_ref(reference, lab, method), "abs", 1e-3)
+        _compare(errors, tolerances, "mask", res.mask, mask_ref(frames, 4000.0), "abs", 0)
+        return errors, tolerances
+
+    return run
+
+
+def _delta_e_sigma_case():
+    """The first-order dE2000 standard deviation kernel against specgpu.estimators.delta_E_sigma."""
+    import pyopencl as cl
+
+    from specgpu import engine
+    from specgpu.estimators import delta_E_sigma
+    from specgpu.runtime import get_queue
+    from specgpu.spectra import white_point_XYZ
+
+    def run():
+        queue = get_queue("oclgrind")
+        rng = np.random.default_rng(11)
+        xyz = rng.uniform(0.0005, 0.95, (N, 3))
+        xyz[:10] *= 0.005
+        R = rng.normal(0, 1e-3, (N, 3, 3))
+        cov = R @ np.transpose(R, (0, 2, 1))
+        const = np.diag([1e-7, 2e-7, 3e-7])
+        pairs = [(i, j) for i in range(3) for j in range(i, 3)]
+        six = np.stack([cov[:, i, j] for i, j in pairs], axis=-1).astype(np.float32)
+        launch = engine.prepare_delta_e_sigma(queue, white_point_XYZ("D65"), const, n=N)
+        out = launch.enqueue(engine.to_device(queue, xyz.astype(np.float32).reshape(-1)).data,
+                             inputs={1: engine.to_device(queue, six.reshape(-1)).data})
+        got = np.empty(N, np.float32)
+        cl.enqueue_copy(queue, got, out["dE_sigma"])
+        full = np.empty((N, 3, 3))
+        for m, (i, j) in enumerate(pairs):
+            full[:, i, j] = full[:, j, i] = six[:, m]
+        want = delta_E_sigma(xyz.astype(np.float32), full + const, "D65")
+        errors, tolerances = {}, {}
+        _compare(errors, tolerances, "dE_sigma", got, want, "range", 2e-4)
+        return errors, tolerances
+
+    return run
+
+
+def cases() -> dict:
+    """Every kernel entry and build variant the host launches, on small images (name -> callable returning
+    (errors, tolerances)). The kernel variant (cpu / gpu) comes from SPECGPU_VARIANT."""
+    return {
+        "linear_u16_planar_f32_dark_gain_mask": _linear_case(
+            1, K=5, B=9, dtype=np.uint16, high=4095, layout="planar", out_dtype="float32", dark="single",
+            gain=True, saturation=4000.0),
+        "linear_u16_planar_f16_gain": _linear_case(  # "cpu": the 16-pixel float16 entry
+            2, K=4, B=5, dtype=np.uint16, high=4095, layout="planar", out_dtype="float16", gain=True,
+            saturation=4000.0),
+        "linear_u8_interleaved_f16_b9": _linear_case(  # "cpu": register transpose, last block shifted back
+            3, K=3, B=9, dtype=np.uint8, high=255, layout="interleaved", out_dtype="float16", saturation=240.0),
+        "linear_u16_interleaved_f32_b9_mask": _linear_case(  # "gpu": the local-memory tile
+            4, K=3, B=9, dtype=np.uint16, high=4095, layout="interleaved", out_dtype="float32", dark="single",
+            gain=True, saturation=4000.0),
+        "linear_f32_interleaved_b3_perframe_dark_nonfinite": _linear_case(  # "cpu": strided stores (B < 8)
+            5, K=4, B=3, dtype=np.float32, high=1000.0, layout="interleaved", out_dtype="float32",
+            dark="per frame", saturation=990.0, nonfinite=True),
+        "linear_u16_interleaved_per_element": _per_element_case(),
+        "linear_sqrt": _sqrt_case(),
+        "xyz_to_lab": _xyz_to_lab_case(),
+        "delta_e_76": _delta_e_case("CIE 1976"),
+        "delta_e_94": _delta_e_case("CIE 1994"),
+        "delta_e_2000": _delta_e_case("CIE 2000"),
+        "delta_e_2000_single_reference": _delta_e_case("CIE 2000", single=True),
+        "fused_de76": _fused_case("CIE 1976"),
+        "fused_de94": _fused_case("CIE 1994"),
+        "fused_de2000": _fused_case("CIE 2000"),
+        "fused_de2000_single_reference": _fused_case("CIE 2000", single=True),
+        "delta_e_sigma": _delta_e_sigma_case(),
+    }
+
+
+def run_cases(names) -> int:
+    table = cases()
+    for name in names or list(table):
+        print(f"@@case {name}", file=sys.stderr, flush=True)
+        try:
+            errors, tolerances = table[name]()
+        except Exception as error:  # noqa: BLE001 (reported to the parent, which fails the case)
+            print(json.dumps({"case": name, "raised": f"{type(error).__name__}: {error}"}), flush=True)
+            continue
+        print(json.dumps({"case": name, "errors": errors, "tolerances": tolerances}), flush=True)
+    from specgpu import runtime
+
+    # the build options of every program made, so the parent can tell which variants and entries ran
+    print(json.dumps({"programs": sorted(" ".join(key[2]) for key in runtime._programs)}), flush=True)
+    return 0
+
+
+def run_race() -> int:
+    """The "gpu" variant's channels-last tile with its barrier removed: work-items read tile entries other
+    work-items write, unordered. The kernels are a copy with that one line taken out."""
+    from specgpu import runtime
+
+    source = runtime.kernel_dir()
+    with tempfile.TemporaryDirectory() as tmp:
+        for path in source.iterdir():
+            if path.suffix in (".cl", ".h"):
+                shutil.copy(path, tmp)
+        linear = Path(tmp) / "linear.cl"
+        text = linear.read_text()
+        barrier = "    barrier(CLK_LOCAL_MEM_FENCE);\n"
+        if text.count(barrier) != 1:
+            raise SystemExit("linear.cl no longer has exactly one barrier: update the race drill")
+        linear.write_text(text.replace(barrier, ""))
+        runtime.kernel_dir = lambda: Path(tmp)
+        runtime.kernel_source.cache_clear()
+        os.environ["SPECGPU_VARIANT"] = "gpu"
+        return run_cases(["linear_u16_interleaved_f32_b9_mask"])
+
+
+def _oclgrind_context():
+    import pyopencl as cl
+
+    device = next(d for p in cl.get_platforms() if "oclgrind" in p.name.lower() for d in p.get_devices())
+    context = cl.Context([device])
+    return context, cl.CommandQueue(context)
+
+
+def run_vector_bool() -> int:
+    """vector_bool of tests/data/oclgrind_defects.cl, optimised and not: one JSON object per build on stdout."""
+    import pyopencl as cl
+
+    context, queue = _oclgrind_context()
+    source = (DATA / "oclgrind_defects.cl").read_text()
+    x = np.array([0, 5, 10, 3, 20, 1, 10, 0], np.float32)
+    for options in ([], ["-cl-opt-disable"]):
+        program = cl.Program(context, source).build(options=options)
+        out = np.zeros(16, np.int32)
+        mf = cl.mem_flags
+        x_buf = cl.Buffer(context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+        out_buf = cl.Buffer(context, mf.WRITE_ONLY, out.nbytes)
+        program.vector_bool(queue, (1,), None, x_buf, out_buf, np.float32(10))
+        cl.enqueue_copy(queue, out, out_buf)
+        print(json.dumps({"options": options, "x": x.tolist(), "ternary": out[:8].tolist(),
+                          "select": out[8:].tolist()}), flush=True)
+    return 0
+
+
+def run_shuffle(kernel: str) -> int:
+    """One pairs_* kernel of tests/data/oclgrind_defects.cl; its output on stdout as JSON."""
+    import pyopencl as cl
+
+    context, queue = _oclgrind_context()
+    program = cl.Program(context, (DATA / "oclgrind_defects.cl").read_text()).build()
+    v = np.arange(16, dtype=np.float32)
+    out = np.zeros(8, np.float32)
+    mf = cl.mem_flags
+    v_buf = cl.Buffer(context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=v)
+    out_buf = cl.Buffer(context, mf.WRITE_ONLY, out.nbytes)
+    getattr(program, kernel)(queue, (1,), None, v_buf, out_buf)
+    cl.enqueue_copy(queue, out, out_buf)
+    print(json.dumps({"kernel": kernel, "out": out.tolist()}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    mode = sys.argv[1]
+    if mode == "cases":
+        os.environ["SPECGPU_VARIANT"] = sys.argv[2]
+        sys.exit(run_cases(sys.argv[3:]))
+    if mode == "race":
+        sys.exit(run_race())
+    if mode == "vector_bool":
+        sys.exit(run_vector_bool())
+    if mode == "shuffle":
+        sys.exit(run_shuffle(sys.argv[2]))
+    raise SystemExit(f"unknown mode {mode!r}: cases, race, vector_bool or shuffle")

@@ -1,0 +1,254 @@
+"""Every kernel entry and build variant under Oclgrind, the OpenCL device simulator that checks each memory
+access, barrier and API call: data races (OCLGRIND_DATA_RACES), API misuse (OCLGRIND_CHECK_API), uninitialised
+reads (OCLGRIND_UNINITIALIZED) and out-of-bounds accesses (always on), which PoCL's way of running work-items
+hides. Any report fails the case, and every output is compared with the float64 reference.
+
+The kernels run in a process of their own (tests/oclgrind_worker.py): the ICD loader inside the pyopencl wheel
+finds Oclgrind through OCL_ICD_VENDORS, a folder with a .icd file naming Oclgrind's ICD library, read once at start.
+Skipped, with the reason, where Oclgrind is not installed (Debian / Ubuntu: ``apt-get install oclgrind``);
+.ci/run installs it.
+
+Two Oclgrind 21.10 defects are reproduced here with reduced kernels (tests/data/oclgrind_defects.cl), so that
+what specgpu does about them stays justified: a vector ``c ? 1 : 0`` evaluates to 255 per true lane once clang
+has optimised it (specgpu.runtime builds for Oclgrind with -cl-opt-disable), and multi-lane vector components
+crash its uninitialised-value check (kernels/common.h builds vectors from single lanes).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import specgpu
+
+HERE = Path(__file__).resolve().parent
+WORKER = HERE / "oclgrind_worker.py"
+ICD_NAME = "liboclgrind-rt-icd.so"
+TIMEOUT_S = 600
+
+#: Lines that start or belong to an Oclgrind report: API errors, fatal errors, races, invalid and uninitialised
+#: accesses (each of the last names the kernel on a "Kernel:" line).
+REPORT = re.compile(r"Oclgrind - |OCLGRIND|data race|Invalid (read|write)|[Uu]ninitiali[sz]ed|^\s*Kernel: ")
+CHECKS = {"OCLGRIND_DATA_RACES": "1", "OCLGRIND_CHECK_API": "1", "OCLGRIND_UNINITIALIZED": "1"}
+
+
+def oclgrind_icd() -> Path | None:
+    """Oclgrind's ICD library, found next to its ``oclgrind`` command (Debian: /usr/lib/oclgrind/)."""
+    command = shutil.which("oclgrind")
+    if command is None:
+        return None
+    prefix = Path(command).resolve().parent.parent
+    for pattern in (f"lib/oclgrind/{ICD_NAME}", f"lib/*/oclgrind/{ICD_NAME}", f"lib*/{ICD_NAME}",
+                    f"lib/*/{ICD_NAME}"):
+        found = sorted(prefix.glob(pattern))
+        if found:
+            return found[0]
+    return None
+
+
+@pytest.fixture(scope="module")
+def oclgrind_env(tmp_path_factory):
+    """The environment of a worker process that sees the Oclgrind device (and only it)."""
+    icd = oclgrind_icd()
+    if icd is None:
+        pytest.skip("Oclgrind is not installed (apt-get install oclgrind): the kernels are not checked under the "
+                    "OpenCL simulator")
+    vendors = tmp_path_factory.mktemp("icd")
+    (vendors / "oclgrind.icd").write_text(f"{icd}\n")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OCLGRIND_", "SPECGPU_"))}
+    env.update(
+        OCL_ICD_VENDORS=str(vendors),
+        PYOPENCL_NO_CACHE="1",  # a binary cached by another build of the simulator is not what it would compile
+        PYTHONPATH=os.pathsep.join([str(Path(specgpu.__file__).resolve().parent.parent),
+                                    env.get("PYTHONPATH", "")]).rstrip(os.pathsep),
+    )
+    return env
+
+
+def run_worker(env, *args, checks=CHECKS) -> tuple[subprocess.CompletedProcess, dict[str, list[str]]]:
+    """Run the worker; returns the finished process and the Oclgrind report lines by case ("" before any)."""
+    proc = subprocess.run([sys.executable, str(WORKER), *args], env={**env, **checks}, capture_output=True,
+                          text=True, timeout=TIMEOUT_S, cwd=HERE)
+    reports: dict[str, list[str]] = {}
+    case = ""
+    for line in proc.stderr.splitlines():
+        if line.startswith("@@case "):
+            case = line.split(" ", 1)[1]
+        elif REPORT.search(line):
+            reports.setdefault(case, []).append(line)
+    return proc, reports
+
+
+def results(proc) -> tuple[dict[str, dict], list[str]]:
+    cases, programs = {}, []
+    for line in proc.stdout.splitlines():
+        record = json.loads(line)
+        if "programs" in record:
+            programs = record["programs"]
+        else:
+            cases[record["case"]] = record
+    return cases, programs
+
+
+def stderr_of(proc, case: str, limit: int = 40) -> str:
+    """The worker's stderr from ``case``'s marker on (its Oclgrind reports, a traceback), first lines."""
+    text = proc.stderr
+    start = text.find(f"@@case {case}\n")
+    lines = text[start if start >= 0 else 0:].splitlines()
+    return "\n".join(lines[:limit])
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
+    """Each case of the worker (linear: planar / channels last, float32 / float16, the "cpu" variant's 16-pixel
+    float16 entry and register transpose, the "gpu" variant's local-memory tile and per-element launch, mask,
+    dark, gain, square root; XYZ -> Lab; dE76 / 94 / 2000 alone and fused; the dE2000 sigma) on 99 pixels (two
+    work-groups, the second partial): no Oclgrind report, and every output within its tolerance."""
+    proc, reports = run_worker(oclgrind_env, "cases", variant)
+    assert proc.returncode == 0, f"the worker ended with {proc.returncode}:\n{proc.stderr[-4000:]}"
+    cases, programs = results(proc)
+    failures = []
+    for name, record in cases.items():
+        if "raised" in record:
+            failures.append(f"{name}: raised {record['raised']}")
+            continue
+        for out, err in record["errors"].items():
+            tol = record["tolerances"][out]
+            if isinstance(err, str) or not err <= tol:
+                failures.append(f"{name}: {out} error {err} (tolerance {tol})")
+        if name in reports:
+            failures.append(f"{name}: {len(reports[name])} Oclgrind report lines:\n{stderr_of(proc, name)}")
+    if "" in reports:
+        failures.append("Oclgrind reports before the first case:\n" + "\n".join(reports[""][:20]))
+    assert not failures, "\n".join(failures)
+    assert len(cases) == 17, sorted(cases)
+
+    # the variant's own code paths were built (the variant comes from SPECGPU_VARIANT in the worker)
+    linear = [p for p in programs if "-DB=" in p]
+    if variant == "gpu":
+        assert all("-DVW=1" in p for p in programs)
+        assert any("-DTILE=1" in p for p in linear) and any("-DTILE=0" in p for p in linear)
+    else:
+        assert not any("-DVW=1" in p for p in programs)
+        assert any("-DOUT_HALF=1" in p and "-DOUT_LAYOUT=0" in p for p in linear)  # linear_apply_h16
+    assert any("-DOUT_SQRT=1" in p for p in linear)
+    for method in (76, 94, 2000):
+        assert any(f"-DDE_METHOD={method}" in p for p in programs)
+
+
+def test_a_missing_barrier_is_reported(oclgrind_env):
+    """The check catches a race: the "gpu" variant's channels-last tile with its barrier taken out (work-items
+    then read tile entries other work-items have not written yet) gives data-race reports on local memory."""
+    proc, reports = run_worker(oclgrind_env, "race", checks={"OCLGRIND_DATA_RACES": "1"})
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    lines = reports.get("linear_u16_interleaved_f32_b9_mask", [])
+    races = [line for line in lines if "data race at local memory" in line]
+    assert races, f"no race reported:\n{proc.stderr[-4000:]}"
+    assert any("Kernel: linear_apply" in line for line in lines)
+
+
+def test_oclgrind_zero_extends_vector_booleans_to_255(oclgrind_env):
+    """The simulator's defect behind the "cpu" variant's wrong masks, reduced (tests/data/oclgrind_defects.cl):
+    optimised, ``v >= level ? (int8)(1) : (int8)(0)`` comes out 255 where OpenCL C (and PoCL, see the test below)
+    gives 1, while the explicit select() gives 1; unoptimised, both give 1, which is why specgpu.runtime builds
+    with -cl-opt-disable for Oclgrind. Should a later Oclgrind fix it, the first assertion fails and that option
+    can go."""
+    proc, reports = run_worker(oclgrind_env, "vector_bool", checks={})
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    optimised, unoptimised = (json.loads(line) for line in proc.stdout.splitlines())
+    expected = [1 if x >= 10 else 0 for x in optimised["x"]]
+    assert optimised["ternary"] == [255 * e for e in expected]
+    assert optimised["select"] == expected
+    assert unoptimised["ternary"] == expected and unoptimised["select"] == expected
+
+
+def test_vector_bool_reduced_kernel_on_the_test_devices(queue):
+    """The same reduced kernel on the devices the suite runs on (PoCL at least): 1 per true lane in both rows,
+    as OpenCL C defines, so 255 is the simulator's error and not the kernel's."""
+    import pyopencl as cl
+
+    program = cl.Program(queue.context, (HERE / "data" / "oclgrind_defects.cl").read_text()).build()
+    x = np.array([0, 5, 10, 3, 20, 1, 10, 0], np.float32)
+    out = np.zeros(16, np.int32)
+    mf = cl.mem_flags
+    x_buf = cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+    out_buf = cl.Buffer(queue.context, mf.WRITE_ONLY, out.nbytes)
+    program.vector_bool(queue, (1,), None, x_buf, out_buf, np.float32(10))
+    cl.enqueue_copy(queue, out, out_buf)
+    expected = (x >= 10).astype(np.int32)
+    np.testing.assert_array_equal(out[:8], expected)
+    np.testing.assert_array_equal(out[8:], expected)
+
+
+def test_oclgrind_uninitialised_check_crashes_on_multi_lane_components(oclgrind_env):
+    """The reduced form of what kernels/common.h's 8 x 8 transpose avoids: a vector built from two-lane
+    components kills the process under OCLGRIND_UNINITIALIZED=1 (a segmentation fault in the simulator, which no
+    kernel can cause legitimately), the same vector from single lanes runs and is right."""
+    checks = {"OCLGRIND_UNINITIALIZED": "1"}
+    crashed, _ = run_worker(oclgrind_env, "shuffle", "pairs_multi_lane", checks=checks)
+    assert crashed.returncode != 0
+    ran, reports = run_worker(oclgrind_env, "shuffle", "pairs_single_lane", checks=checks)
+    assert ran.returncode == 0 and not reports, ran.stderr[-4000:]
+    assert json.loads(ran.stdout)["out"] == [0, 1, 8, 9, 4, 5, 12, 13]
+
+
+def test_split_sincos_gives_the_same_ciede2000(queue):
+    """CIEDE2000 with SPLIT_SINCOS (sin() and cos(), the build Oclgrind gets) equals the sincos() build on the test
+    devices to float32 rounding."""
+    import pyopencl.array as cla
+
+    from reference import random_Lab
+    from specgpu.runtime import get_kernel
+
+    rng = np.random.default_rng(12)
+    n = 1001
+    lab2 = random_Lab(rng, (n,)).astype(np.float32)
+    lab1 = (lab2 + rng.normal(0, 3, lab2.shape)).astype(np.float32)
+    d1, d2 = cla.to_device(queue, lab1), cla.to_device(queue, lab2)
+    outs = []
+    for split in (0, 1):
+        kernel = get_kernel(queue, "colorimetry.cl", "delta_e", DE_METHOD=2000, SPLIT_SINCOS=split)
+        out = cla.empty(queue, n, np.float32)
+        kernel(queue, (-(-n // 64) * 64,), (64,), d1.data, d2.data, out.data, np.uint64(n))
+        outs.append(out.get())
+    np.testing.assert_allclose(outs[1], outs[0], rtol=0, atol=1e-4)
+    assert np.all(np.isfinite(outs[0]))
+
+
+def test_nv_attributes_are_asked_only_of_devices_that_report_them():
+    """pyopencl's kernel invoker asks every device for NVIDIA's compute capability; specgpu.runtime makes that
+    query only of devices with the cl_nv_device_attribute_query extension (the others would answer
+    CL_INVALID_VALUE, which Oclgrind's API check reports once per kernel object)."""
+    import pyopencl.characterize as characterize
+
+    import specgpu.runtime  # noqa: F401  (installs the guard)
+
+    class Device:
+        """Answers the NVIDIA queries as a real device does: with an error unless it has the extension."""
+
+        def __init__(self, extensions, major=None):
+            self.extensions, self.major, self.queried = extensions, major, False
+
+        @property
+        def compute_capability_major_nv(self):
+            self.queried = True
+            if self.major is None:
+                raise RuntimeError("clGetDeviceInfo failed: INVALID_VALUE")
+            return self.major
+
+        compute_capability_minor_nv = 0
+
+    other = Device("cl_khr_fp64 cl_khr_byte_addressable_store")
+    assert characterize.nv_compute_capability(other) is None
+    assert not other.queried
+    nvidia = Device("cl_khr_fp64 cl_nv_device_attribute_query", 8)
+    assert characterize.nv_compute_capability(nvidia) == (8, 0)
+    assert nvidia.queried
