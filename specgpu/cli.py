@@ -253,6 +253,12 @@ _SCENE = click.option("--scene", default=None, help="Scene: colorchecker, white,
                                                    "cube (default: the rig's [scene] source).")
 
 
+_ILLUMINANT = click.option(
+    "--illuminant", default=None,
+    help="Illuminant of XYZ, Lab and dE, recorded with every output [default: the plan's own for a tristimulus or "
+         "camera plan, else D65]; another than a tristimulus or camera plan measures under is refused.")
+
+
 def _hardware(description):
     """The rig's [hardware] table checked (None for the twin)."""
     if not description.hardware:
@@ -704,7 +710,7 @@ def salvage(seq):
 @click.option("--delta-e", "de_path", type=click.Path(dir_okay=False), default=None,
               help="Colour-difference map to write (EXR; .png for a heat map).")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
-@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
+@_ILLUMINANT
 @click.option("--sequence", type=int, default=None, help="Recover one sequence (default: the mean of all).")
 @click.option("--half", is_flag=True, help="Write the cube in half precision.")
 @click.option("--sigma", "sigma_path", type=click.Path(dir_okay=False), default=None,
@@ -737,6 +743,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
     _lock(*(p for _, p in outputs if p))  # before the work: a missing folder or a busy output is refused now
     folder = read_capture(seq)
     plan = folder.plan
+    illuminant = plan.resolve_illuminant(illuminant, name=f"the plan of {seq}")
     with _Busy("recovering"):
         if white_reflectance is not None and white_roi is None:
             raise click.UsageError("--white-reflectance needs --white-roi")
@@ -748,6 +755,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
         meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
                 "calibration": plan.calibration, "sequence_folder": str(seq),
                 "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant,
+                **({"observer": plan.observer} if plan.output == "XYZ" and plan.observer else {}),
                 **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {}),
                 **({"reflectance_scale_uncertainty": folder.calibration.reports["white_reflectance_uncertainty"]}
                    if "white_reflectance_uncertainty" in folder.calibration.reports else {})}
@@ -838,7 +846,7 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
 @click.option("--delta-e-ref", "ref", default=None,
               help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it (default: the streamed scene).")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
-@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
+@_ILLUMINANT
 @click.option("--pacing", type=click.Choice(["paced", "free"]), default="paced", show_default=True,
               help="Twin pacing: at the camera's frame rate, or as fast as it renders.")
 @click.option("--policy", type=click.Choice(["drop_newest", "drop_oldest", "block"]), default=None,
@@ -880,6 +888,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     description = load_rig(rig_path)
     hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
     bundle, plan, truth = _experiment(description, plan_path, calib, scene)
+    illuminant = plan.resolve_illuminant(illuminant, name=str(plan_path))
     cam = description.camera
     check_scene_covers(truth, plan, description.light.line_fwhm_nm)
     reference = None
@@ -943,7 +952,7 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
                                            dE_kind={"CIE 1976": "dE76", "CIE 1994": "dE94"}.get(method, "dE2000"),
                                            metadata=meta))
         if "XYZ" in wanted:
-            sinks.append(PreviewSink(Path(out) / "preview.png"))
+            sinks.append(PreviewSink(Path(out) / "preview.png", illuminant=illuminant))
     tty = sys.stderr.isatty()
 
     def status(s):
@@ -978,7 +987,7 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
 @click.option("--outputs", default="cube", show_default=True, help="Comma-separated: cube, XYZ, Lab, dE.")
 @click.option("--delta-e-ref", "ref", default=None, help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it.")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
-@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
+@_ILLUMINANT
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (default: a LocalCluster).")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="LocalCluster worker processes (one thread and one OpenCL context each).")
@@ -1000,6 +1009,7 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
     if ("dE" in wanted) != (ref is not None):
         raise click.UsageError("the dE output and --delta-e-ref go together")
     plan = load_plan(plan_path)
+    illuminant = plan.resolve_illuminant(illuminant, name=str(plan_path))
     calib = Path(calib) if calib else Path(source) / "calibration.npz"
     if not calib.is_file():
         raise click.UsageError(f"{calib} not found; give --calib")
@@ -1018,7 +1028,9 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
 @main.command()
 @click.argument("cube", type=click.Path(exists=True, dir_okay=False))
 @click.option("--truth", required=True, help="The true scene: colorchecker, white, natural[:image] or a cube file.")
-@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of the colour differences.")
+@click.option("--illuminant", default=None,
+              help="Illuminant of the colour differences [default: the one the file records (a tristimulus plan's "
+                   "own), else D65]; another than an XYZ map records is refused.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the report here.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
 def evaluate(cube, truth, illuminant, json_path, device):
@@ -1028,8 +1040,9 @@ def evaluate(cube, truth, illuminant, json_path, device):
     import numpy as np
 
     from . import io
-    from .evaluate import evaluate_pixels, evaluate_reflectance, evaluate_XYZ
+    from .evaluate import evaluate_pixels, evaluate_reflectance, evaluate_XYZ, evaluation_illuminant
     from .rig.scene import load_scene
+    from .spectra import DEFAULT_CMFS
 
     if json_path:
         from pathlib import Path
@@ -1044,17 +1057,23 @@ def evaluate(cube, truth, illuminant, json_path, device):
             wavelengths = None
         except ValueError:
             raise cube_error from None
+    illuminant = evaluation_illuminant(meta.get("illuminant"), illuminant, colorimetric=wavelengths is None,
+                                       name=str(cube))
+    # XYZ is also relative to the observer it was made for (a tristimulus plan's, recorded by recover)
+    cmfs = meta.get("observer") if wavelengths is None and isinstance(meta.get("observer"), str) else DEFAULT_CMFS
     height, width = data.shape[:2]
     with _Busy("evaluating"):
         scene = load_scene(truth, height, width)
-        pixels = evaluate_pixels(data, scene, wavelengths=wavelengths, illuminant=illuminant, device=device)
+        pixels = evaluate_pixels(data, scene, wavelengths=wavelengths, illuminant=illuminant, cmfs=cmfs,
+                                 device=device)
     stats = pixels.statistics()
     report = {"cube": str(cube), "truth": scene.name, "illuminant": illuminant,
+              **({"observer": cmfs} if cmfs != DEFAULT_CMFS else {}),
               "projections": meta.get("projections"), "plan_method": meta.get("plan_method"), "pixels": stats}
     headline = {k: stats[k] for k in stats}
     if scene.masks:
         patch = (evaluate_reflectance(data, wavelengths, scene, illuminant=illuminant) if wavelengths is not None
-                 else evaluate_XYZ(data, scene, illuminant=illuminant))
+                 else evaluate_XYZ(data, scene, illuminant=illuminant, cmfs=cmfs))
         rows = []
         for i, name in enumerate(patch.names):
             row = {"patch": name, "dE76": float(patch.delta_E_ab[i]), "dE2000": float(patch.delta_E_2000[i])}
@@ -1076,7 +1095,7 @@ def evaluate(cube, truth, illuminant, json_path, device):
             report[f"{short}_mean"] = headline[key]["mean"]
             report[f"{short}_max"] = headline[key]["max"]
     basis = "per patch" if scene.masks else "per pixel"
-    click.echo(f"{basis}: " + ", ".join(f"{names[k]} mean {v['mean']:.4g} max {v['max']:.4g}"
+    click.echo(f"{basis} under {illuminant}: " + ", ".join(f"{names[k]} mean {v['mean']:.4g} max {v['max']:.4g}"
                                         for k, v in headline.items())
                + (f"; {report['projections']} projections" if report["projections"] else ""))
     if json_path:
