@@ -131,3 +131,18 @@ def test_the_stream_preview_shows_a_white_under_A_as_white(tmp_path):
     for rgb in (sink.image, io.read_png(tmp_path / "preview.png")[0]):
         assert int(rgb[..., :3].max()) - int(rgb[..., :3].min()) <= 1, rgb[0, 0]  # neutral grey
     assert io.read_png(tmp_path / "preview.png")[1]["illuminant"] == "A"
+
+
+def test_the_demo_files_of_a_plan_for_A_record_A(bench_a, tmp_path):
+    from specgpu.demo import _evaluate
+    from specgpu.pipeline import read_capture, recover
+    from specgpu.rig.scene import colorchecker_scene
+
+    folder = read_capture(bench_a / "seqA")
+    for sub in ("cubes", "maps", "png"):
+        (tmp_path / sub).mkdir()
+    _evaluate(tmp_path, "tristimulus-A", folder.plan, recover(folder), colorchecker_scene(240, 320), None)
+    assert io.read_map(tmp_path / "cubes" / "tristimulus-A.exr")[2]["illuminant"] == "A"
+    assert io.read_map(tmp_path / "maps" / "tristimulus-A-dE2000.exr")[2]["illuminant"] == "A"
+    run("evaluate", tmp_path / "cubes" / "tristimulus-A.exr", "--truth", "colorchecker", "--json", tmp_path / "r.json")
+    assert json.loads((tmp_path / "r.json").read_text())["dE76_mean"] < 3
