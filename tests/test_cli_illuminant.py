@@ -8,10 +8,16 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cli_helpers import one_line_error, run, tristimulus_rig
 from specgpu import io
 from specgpu.colorimetry import XYZ_to_Lab
+from specgpu.evaluate import evaluation_illuminant
+from specgpu.plans import Plan
+
+NAMES = ("D65", "A", "D50", "E", "FL2")
 
 
 @pytest.fixture(scope="module")
@@ -146,3 +152,54 @@ def test_the_demo_files_of_a_plan_for_A_record_A(bench_a, tmp_path):
     assert io.read_map(tmp_path / "maps" / "tristimulus-A-dE2000.exr")[2]["illuminant"] == "A"
     run("evaluate", tmp_path / "cubes" / "tristimulus-A.exr", "--truth", "colorchecker", "--json", tmp_path / "r.json")
     assert json.loads((tmp_path / "r.json").read_text())["dE76_mean"] < 3
+
+
+def spelled(name, flips):
+    """``name`` with the letters whose flag is set in another case."""
+    return "".join(c.swapcase() if f else c for c, f in zip(name, flips + [False] * len(name)))
+
+
+def bare_plan(output, illuminant):
+    """A one-frame plan of the given output, made for ``illuminant`` (the fields the illuminant rule reads)."""
+    n = 3 if output in ("XYZ", "RGB") else 1
+    return Plan(method="m", patterns=np.zeros((1, 4), np.int64), target_spectra=np.zeros((1, 3)),
+                light_wavelengths=[1.0, 2.0, 3.0], exposure_s=1e-3, A=np.ones((n, 1)), output=output,
+                output_wavelengths=[500.0] if output == "reflectance" else [],
+                output_labels=tuple("XYZ"[:n]) if n == 3 else ("r",), illuminant=illuminant, observer="",
+                calibration="x", rows=768, min_exposure_s=80e-6, expected_level=[0.5])
+
+
+@settings(max_examples=80, deadline=None)
+@given(output=st.sampled_from(["XYZ", "RGB", "reflectance", "relative"]), own=st.sampled_from(NAMES),
+       asked=st.one_of(st.none(), st.sampled_from(NAMES)), flips=st.lists(st.booleans(), max_size=3))
+def test_a_plan_resolves_the_illuminant_of_its_colours(output, own, asked, flips):
+    plan = bare_plan(output, own)
+    measured = output in ("XYZ", "RGB")
+    request = None if asked is None else spelled(asked, flips)
+    if measured and asked is not None and asked != own:
+        with pytest.raises(ValueError, match=f"the plan measures {output} under illuminant {own}, not {request}"):
+            plan.resolve_illuminant(request)
+        return
+    want = own if measured else (asked or "D65")
+    got = plan.resolve_illuminant(request)
+    assert got == want or (not measured and got == request)
+
+
+@settings(max_examples=80, deadline=None)
+@given(recorded=st.one_of(st.none(), st.sampled_from(NAMES)), asked=st.one_of(st.none(), st.sampled_from(NAMES)),
+       colorimetric=st.booleans(), flips=st.lists(st.booleans(), max_size=3))
+def test_evaluate_takes_the_recorded_illuminant_and_refuses_only_a_contradiction(recorded, asked, colorimetric,
+                                                                               flips):
+    request = None if asked is None else spelled(asked, flips)
+    if colorimetric and recorded and asked and asked != recorded:
+        with pytest.raises(ValueError, match=f"^f.exr holds XYZ under illuminant {recorded}, not {request}: "):
+            evaluation_illuminant(recorded, request, colorimetric=True, name="f.exr")
+        return
+    got = evaluation_illuminant(recorded, request, colorimetric=colorimetric, name="f.exr")
+    assert got.lower() == (asked or recorded or "D65").lower()
+
+
+@pytest.mark.parametrize("recorded", [3, "", ["A"]])
+def test_evaluate_refuses_a_recorded_illuminant_that_is_no_name(recorded):
+    with pytest.raises(ValueError, match="f.exr: the recorded illuminant .* is not an illuminant name"):
+        evaluation_illuminant(recorded, colorimetric=True, name="f.exr")
