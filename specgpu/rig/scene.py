@@ -108,7 +108,9 @@ class SpectralScene:
         return (np.asarray(weights, dtype=np.float64) * dl) @ interpolation_matrix(wl, self.wavelengths)
 
     def resized(self, height: int, width: int) -> "SpectralScene":
-        """Nearest-neighbour resampling to (height, width), masks included (no new spectra are invented)."""
+        """Nearest-neighbour resampling to (height, width), masks included (no new spectra are invented); each axis
+        is scaled on its own, so the aspect ratio may change (:func:`resample_scene` fits by a chosen mode and says
+        what it did)."""
         h = check_number("height", height, low=1, integer=True)
         w = check_number("width", width, low=1, integer=True)
         if (h, w) == self.shape:
