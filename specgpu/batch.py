@@ -191,12 +191,15 @@ class BatchReport:
         return self.computed / self.seconds if self.seconds > 0 else 0.0
 
 
-def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant="D65",
+def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None,
                   method="CIE 2000", reference=None, device=None) -> tuple[BatchJob, np.ndarray]:
     """Check the source against the plan, create (or reopen, to resume) the output; returns the job and the
-    indices of the sequences still to compute. Every refusal is one line naming the file."""
+    indices of the sequences still to compute. Every refusal is one line naming the file. ``illuminant``: of
+    XYZ, Lab and dE, recorded in the output; default the plan's own for a tristimulus or camera plan, else D65
+    (:meth:`specgpu.plans.Plan.resolve_illuminant`)."""
     import zarr
 
+    illuminant = plan.resolve_illuminant(illuminant, name="the batch plan")
     source = open_source(source_path)
     outputs = tuple(dict.fromkeys(outputs))
     unknown = [o for o in outputs if o not in BATCH_OUTPUTS]
@@ -265,7 +268,7 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
     return job, np.arange(n)
 
 
-def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant="D65", method="CIE 2000",
+def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, method="CIE 2000",
               reference=None, scheduler=None, workers: int = 1, client=None, progress: bool = True,
               on_done=None, device=None) -> BatchReport:
     """Re-process every sequence of ``source_path`` with ``plan`` into ``out`` on Dask (see the module docstring).

@@ -285,6 +285,42 @@ _SCENE = click.option("--scene", default=None, help="Scene: colorchecker, white,
                                                    "/ .hdr (ENVI) cube (default: the rig's [scene] source).")
 
 
+def _resize_mode(ctx, param, value):
+    from .rig.scene import validate_resize
+
+    try:
+        return validate_resize(value)
+    except ValueError as error:
+        raise click.BadParameter(str(error)) from None
+
+
+_RESIZE = click.option(
+    "--resize", default="scale", show_default=True, callback=_resize_mode, metavar="scale|exact|stretch|crop|pad",
+    help="How a scene file of another size than the frame is fitted (nearest neighbour; what was done is printed "
+         "and recorded): scale uniformly, refusing another aspect ratio; exact: refuse any resampling; stretch: "
+         "each axis on its own (the aspect ratio changes); crop: scale to cover, centre-crop; pad: scale to fit, "
+         "centre, black border.")
+
+
+def _resampled(what, scene, meta=None, key="scene_resampled"):
+    """Say on stderr (one line naming ``what``, e.g. '--scene s.npz') and in ``meta`` how a scene file was fitted
+    to the frame; returns ``scene``."""
+    if scene.resampled:
+        from tqdm import tqdm
+
+        # through tqdm: a line of its own even while a progress line is shown
+        tqdm.write(f"specgpu: {what}: resampled {scene.resampled}", file=sys.stderr)
+        if meta is not None:
+            meta[key] = scene.resampled
+    return scene
+
+
+_ILLUMINANT = click.option(
+    "--illuminant", default=None,
+    help="Illuminant of XYZ, Lab and dE, recorded with every output [default: the plan's own for a tristimulus or "
+         "camera plan, else D65]; another than a tristimulus or camera plan measures under is refused.")
+
+
 def _hardware(description):
     """The rig's [hardware] table checked (None for the twin)."""
     if not description.hardware:
@@ -295,9 +331,9 @@ def _hardware(description):
                                     base_dir=description.base_dir or None)
 
 
-def _experiment(description, plan_path, calib, scene):
+def _experiment(description, plan_path, calib, scene, resize="scale"):
     """The rig's calibration, a plan made from that calibration (stale: an error) and the scene at the camera's
-    resolution: what capture and stream both start from."""
+    resolution (fitted by ``resize``, said on stderr): what capture and stream both start from."""
     from .calibration import load_calibration
     from .plans import load_plan
     from .rig.scene import load_scene
@@ -306,7 +342,8 @@ def _experiment(description, plan_path, calib, scene):
     plan = load_plan(plan_path)
     plan.check_calibration(bundle, name=str(plan_path), calibration_name=str(calib))
     cam = description.camera
-    return bundle, plan, load_scene(scene or description.scene, cam.roi_height, cam.roi_width)
+    truth = load_scene(scene or description.scene, cam.roi_height, cam.roi_width, resize=resize)
+    return bundle, plan, _resampled(f"--scene {scene}" if scene else f"the rig's scene {description.scene}", truth)
 
 
 class _Busy:
@@ -535,7 +572,8 @@ def _estimated_plan(method, bundle, args, kwargs, estimator, training, training_
 @click.option("--sequences", type=click.IntRange(min=1), default=1, show_default=True)
 @click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=None,
               help="Seed of the frames' temporal noise.")
-def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
+@_RESIZE
+def capture(rig_path, plan_path, calib, scene, out, sequences, seed, resize):
     """Capture sequences of a plan on the rig (the twin by default) into a sequence folder."""
     from tqdm import tqdm
 
@@ -544,9 +582,10 @@ def capture(rig_path, plan_path, calib, scene, out, sequences, seed):
 
     description = load_rig(rig_path)
     hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
-    bundle, plan, truth = _experiment(description, plan_path, calib, scene)
+    bundle, plan, truth = _experiment(description, plan_path, calib, scene, resize)
     cam = description.camera
-    meta = {"scene": truth.name, "rig": rig_path or "<paper defaults>"}
+    meta = {"scene": truth.name, "rig": rig_path or "<paper defaults>",
+            **({"scene_resampled": truth.resampled} if truth.resampled else {})}
     if str(out).lower().rstrip("/").endswith(".zarr"):  # raw frames straight to disk, one chunk per sequence
         from .recording import refuse_existing
 
@@ -683,11 +722,14 @@ class _one_interrupt:
             signal.signal(sig, previous)
 
 
-def _parse_reference(text, height, width, illuminant):
-    """--delta-e-ref: an 'L,a,b' colour, or a scene (built-in name or cube file) whose Lab is the reference."""
+def _parse_reference(text, height, width, illuminant, resize="scale", meta=None):
+    """--delta-e-ref: an 'L,a,b' colour, or a scene (built-in name, cube file, or a loaded scene) whose Lab is the
+    reference; a scene file of another size is fitted by ``resize``, said on stderr and in ``meta``."""
     import numpy as np
 
-    parts = text.split(",")
+    from .rig.scene import SpectralScene
+
+    parts = [] if isinstance(text, SpectralScene) else text.split(",")
     if len(parts) == 3:
         try:
             lab = np.array([float(p) for p in parts], np.float64)
@@ -702,7 +744,10 @@ def _parse_reference(text, height, width, illuminant):
     from .evaluate import scene_XYZ
     from .rig.scene import load_scene
 
-    return XYZ_to_Lab(scene_XYZ(load_scene(text, height, width), illuminant), illuminant)
+    scene = load_scene(text, height, width, resize=resize)
+    if not isinstance(text, SpectralScene):
+        _resampled(f"--delta-e-ref {text}", scene, meta, "reference_resampled")
+    return XYZ_to_Lab(scene_XYZ(scene, illuminant), illuminant)
 
 
 @main.command()
@@ -737,7 +782,7 @@ def salvage(seq):
 @click.option("--delta-e", "de_path", type=click.Path(dir_okay=False), default=None,
               help="Colour-difference map to write (EXR; .png for a heat map).")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
-@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
+@_ILLUMINANT
 @click.option("--sequence", type=int, default=None, help="Recover one sequence (default: the mean of all).")
 @click.option("--half", is_flag=True, help="Write the cube in half precision.")
 @click.option("--sigma", "sigma_path", type=click.Path(dir_okay=False), default=None,
@@ -749,8 +794,9 @@ def salvage(seq):
               help="A reference white in the field: rescale each sequence's decoder for the light's drift.")
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@_RESIZE
 def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, sigma_path,
-            de_sigma_path, device, white_roi, white_reflectance):
+            de_sigma_path, device, white_roi, white_reflectance, resize):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     from pathlib import Path
 
@@ -770,6 +816,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
     _lock(*(p for _, p in outputs if p))  # before the work: a missing folder or a busy output is refused now
     folder = read_capture(seq)
     plan = folder.plan
+    illuminant = plan.resolve_illuminant(illuminant, name=f"the plan of {seq}")
     with _Busy("recovering"):
         if white_reflectance is not None and white_roi is None:
             raise click.UsageError("--white-reflectance needs --white-roi")
@@ -781,6 +828,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
         meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
                 "calibration": plan.calibration, "sequence_folder": str(seq),
                 "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant,
+                **({"observer": plan.observer} if plan.output == "XYZ" and plan.observer else {}),
                 **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {}),
                 **({"reflectance_scale_uncertainty": folder.calibration.reports["white_reflectance_uncertainty"]}
                    if "white_reflectance_uncertainty" in folder.calibration.reports else {})}
@@ -808,7 +856,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
             _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device,
                           white_roi, white_reflectance)
         if de_path:
-            dE = delta_E(_parse_reference(ref, height, width, illuminant), Lab, method, device=device)
+            dE = delta_E(_parse_reference(ref, height, width, illuminant, resize, meta), Lab, method, device=device)
             if Path(de_path).suffix.lower() == ".png":
                 writes.append((de_path, lambda p: io.write_delta_E_png(p, dE, metadata=meta)))
             else:
@@ -870,7 +918,7 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
 @click.option("--delta-e-ref", "ref", default=None,
               help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it (default: the streamed scene).")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
-@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
+@_ILLUMINANT
 @click.option("--pacing", type=click.Choice(["paced", "free"]), default="paced", show_default=True,
               help="Twin pacing: at the camera's frame rate, or as fast as it renders.")
 @click.option("--policy", type=click.Choice(["drop_newest", "drop_oldest", "block"]), default=None,
@@ -887,8 +935,9 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
                    "recover --white-roi; the gains are recorded).")
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@_RESIZE
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
-                   pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance):
+                   pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, resize):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     from .capture.twin import TwinDriver
@@ -911,13 +960,14 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
         refuse_existing(out)  # before any work: a recording is never mixed with another run
     description = load_rig(rig_path)
     hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
-    bundle, plan, truth = _experiment(description, plan_path, calib, scene)
+    bundle, plan, truth = _experiment(description, plan_path, calib, scene, resize)
+    illuminant = plan.resolve_illuminant(illuminant, name=str(plan_path))
     cam = description.camera
     check_scene_covers(truth, plan, description.light.line_fwhm_nm)
     reference = None
     if "dE" in wanted:
-        reference = _parse_reference(ref, cam.roi_height, cam.roi_width, illuminant) if ref else \
-            _parse_reference(str(scene or description.scene), cam.roi_height, cam.roi_width, illuminant)
+        # default: the streamed scene itself, as fitted to the frame above
+        reference = _parse_reference(ref or truth, cam.roi_height, cam.roi_width, illuminant, resize)
     if hardware is None:
         rig = TwinRig(plan.rig_description(description), scene=truth)
         if seed is not None:
@@ -963,6 +1013,7 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
         check_free_space(out, n_expected * per_sequence,
                          what=f"the recording ({n_expected} sequences x {per_sequence / 1e6:.1f} MB)")
         meta = {"scene": truth.name, "illuminant": illuminant, "method": method, "seed": seed,
+                **({"scene_resampled": truth.resampled} if truth.resampled else {}),
                 **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {})}
         writer = ZarrRecorder(out, plan, frames=raw_frames, basis=stream.decoder.basis, metadata=meta)
         import shutil
@@ -975,7 +1026,7 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
                                            dE_kind={"CIE 1976": "dE76", "CIE 1994": "dE94"}.get(method, "dE2000"),
                                            metadata=meta))
         if "XYZ" in wanted:
-            sinks.append(PreviewSink(Path(out) / "preview.png"))
+            sinks.append(PreviewSink(Path(out) / "preview.png", illuminant=illuminant))
     tty = sys.stderr.isatty()
 
     def status(s):
@@ -1010,12 +1061,14 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
 @click.option("--outputs", default="cube", show_default=True, help="Comma-separated: cube, XYZ, Lab, dE.")
 @click.option("--delta-e-ref", "ref", default=None, help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it.")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
-@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of XYZ, Lab and dE.")
+@_ILLUMINANT
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (default: a LocalCluster).")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="LocalCluster worker processes (one thread and one OpenCL context each).")
 @click.option("--device", "device", default=None, help="OpenCL device selector (on every worker).")
-def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, scheduler, workers, device):
+@_RESIZE
+def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, scheduler, workers, device,
+                  resize):
     """Re-process the raw frames of a recording (specgpu stream --frames) or a sequence folder with a plan, on
     Dask: one task per sequence, resumable, equal to specgpu recover of each sequence."""
     from pathlib import Path
@@ -1032,6 +1085,7 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
     if ("dE" in wanted) != (ref is not None):
         raise click.UsageError("the dE output and --delta-e-ref go together")
     plan = load_plan(plan_path)
+    illuminant = plan.resolve_illuminant(illuminant, name=str(plan_path))
     calib = Path(calib) if calib else Path(source) / "calibration.npz"
     if not calib.is_file():
         raise click.UsageError(f"{calib} not found; give --calib")
@@ -1040,7 +1094,7 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
     reference = None
     if ref is not None:
         src = open_source(source)
-        reference = _parse_reference(ref, src.height, src.width, illuminant)
+        reference = _parse_reference(ref, src.height, src.width, illuminant, resize)
     report = run_batch(source, plan, bundle, out, outputs=wanted, illuminant=illuminant, method=method,
                        reference=reference, scheduler=scheduler, workers=workers, device=device)
     click.echo(f"{plan.method}: {report.computed} sequences computed on {report.workers} worker(s) in "
@@ -1052,10 +1106,13 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
 @click.argument("cube", type=click.Path(exists=True, dir_okay=False))
 @click.option("--truth", required=True,
               help="The true scene: colorchecker, white, natural[:image] or a .exr / .npz / .hdr (ENVI) cube.")
-@click.option("--illuminant", default="D65", show_default=True, help="Illuminant of the colour differences.")
+@click.option("--illuminant", default=None,
+              help="Illuminant of the colour differences [default: the one the file records (a tristimulus plan's "
+                   "own), else D65]; another than an XYZ map records is refused.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the report here.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
-def evaluate(cube, truth, illuminant, json_path, device):
+@_RESIZE
+def evaluate(cube, truth, illuminant, json_path, device, resize):
     """Accuracy of a recovered cube (.exr, .npz or ENVI .hdr; or an XYZ map) against the true scene: per pixel,
     and per patch for a chart."""
     import json
@@ -1063,8 +1120,9 @@ def evaluate(cube, truth, illuminant, json_path, device):
     import numpy as np
 
     from . import io
-    from .evaluate import evaluate_pixels, evaluate_reflectance, evaluate_XYZ
+    from .evaluate import evaluate_pixels, evaluate_reflectance, evaluate_XYZ, evaluation_illuminant
     from .rig.scene import load_scene
+    from .spectra import DEFAULT_CMFS
 
     if json_path:
         from pathlib import Path
@@ -1079,17 +1137,24 @@ def evaluate(cube, truth, illuminant, json_path, device):
             wavelengths = None
         except ValueError:
             raise cube_error from None
+    illuminant = evaluation_illuminant(meta.get("illuminant"), illuminant, colorimetric=wavelengths is None,
+                                       name=str(cube))
+    # XYZ is also relative to the observer it was made for (a tristimulus plan's, recorded by recover)
+    cmfs = meta.get("observer") if wavelengths is None and isinstance(meta.get("observer"), str) else DEFAULT_CMFS
     height, width = data.shape[:2]
+    scene = _resampled(f"--truth {truth}", load_scene(truth, height, width, resize=resize))
     with _Busy("evaluating"):
-        scene = load_scene(truth, height, width)
-        pixels = evaluate_pixels(data, scene, wavelengths=wavelengths, illuminant=illuminant, device=device)
+        pixels = evaluate_pixels(data, scene, wavelengths=wavelengths, illuminant=illuminant, cmfs=cmfs,
+                                 device=device)
     stats = pixels.statistics()
     report = {"cube": str(cube), "truth": scene.name, "illuminant": illuminant,
+              **({"observer": cmfs} if cmfs != DEFAULT_CMFS else {}),
+              **({"truth_resampled": scene.resampled} if scene.resampled else {}),
               "projections": meta.get("projections"), "plan_method": meta.get("plan_method"), "pixels": stats}
     headline = {k: stats[k] for k in stats}
     if scene.masks:
         patch = (evaluate_reflectance(data, wavelengths, scene, illuminant=illuminant) if wavelengths is not None
-                 else evaluate_XYZ(data, scene, illuminant=illuminant))
+                 else evaluate_XYZ(data, scene, illuminant=illuminant, cmfs=cmfs))
         rows = []
         for i, name in enumerate(patch.names):
             row = {"patch": name, "dE76": float(patch.delta_E_ab[i]), "dE2000": float(patch.delta_E_2000[i])}
@@ -1111,7 +1176,7 @@ def evaluate(cube, truth, illuminant, json_path, device):
             report[f"{short}_mean"] = headline[key]["mean"]
             report[f"{short}_max"] = headline[key]["max"]
     basis = "per patch" if scene.masks else "per pixel"
-    click.echo(f"{basis}: " + ", ".join(f"{names[k]} mean {v['mean']:.4g} max {v['max']:.4g}"
+    click.echo(f"{basis} under {illuminant}: " + ", ".join(f"{names[k]} mean {v['mean']:.4g} max {v['max']:.4g}"
                                         for k, v in headline.items())
                + (f"; {report['projections']} projections" if report["projections"] else ""))
     if json_path:

@@ -200,7 +200,9 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
 
 
 def _evaluate(out, name, plan, y, scene, device):
-    meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash}
+    # the illuminant of the colours (a tristimulus plan's own): what `specgpu evaluate` of these files judges under
+    meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
+            "illuminant": plan.resolve_illuminant(), **({"observer": plan.observer} if plan.output == "XYZ" else {})}
     if plan.output == "reflectance":
         io.write_cube(out / "cubes" / f"{name}.exr", y, plan.output_wavelengths, half=True, metadata=meta)
         patch = evaluate_reflectance(y, plan.output_wavelengths, scene, illuminant="D65")

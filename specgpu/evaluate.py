@@ -24,7 +24,8 @@ from specgpu.rig.scene import interpolation_matrix
 from specgpu.spectra import DEFAULT_CMFS, XYZ_weights
 
 __all__ = ["PatchReport", "patch_means", "rmse_per_patch", "delta_E_per_patch", "evaluate_reflectance",
-           "evaluate_XYZ", "true_patch_spectra", "PixelReport", "truth_cube", "scene_XYZ", "evaluate_pixels"]
+           "evaluate_XYZ", "true_patch_spectra", "PixelReport", "truth_cube", "scene_XYZ", "evaluate_pixels",
+           "evaluation_illuminant"]
 
 
 @dataclass(frozen=True)
@@ -155,6 +156,39 @@ def evaluate_XYZ(xyz, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS, wavelengths
     W = XYZ_weights(wl, illuminant, cmfs)
     dab, d00 = delta_E_per_patch(est, truth @ W.T, illuminant, _observer_name(cmfs))
     return PatchReport(names, None, dab, d00, str(illuminant))
+
+
+def evaluation_illuminant(recorded, requested=None, *, colorimetric: bool, name: str = "the estimate") -> str:
+    """The illuminant to judge an estimate under, from the one its file records and the one asked for.
+
+    Parameters
+    ----------
+    recorded : str or None
+        The ``illuminant`` an estimate's metadata records (``specgpu recover`` writes the plan's for a tristimulus
+        plan, the one of its XYZ / Lab / dE outputs otherwise); None for a file that records none.
+    requested : str, optional
+        The one asked for; None: the recorded one, else D65.
+    colorimetric : bool
+        The estimate holds XYZ (relative to its illuminant's white): judging it under another illuminant compares
+        colours taken under two lights, so a contradiction is refused. A reflectance cube holds under any
+        illuminant and takes the one asked for.
+    name : str
+        How an error names the estimate (its file).
+
+    Raises
+    ------
+    ValueError
+        One line naming the file and both illuminants.
+    """
+    if recorded is not None and (not isinstance(recorded, str) or not recorded.strip()):
+        raise ValueError(f"{name}: the recorded illuminant {recorded!r} is not an illuminant name")
+    if requested is None:
+        return recorded or "D65"
+    if colorimetric and recorded and recorded.lower() != str(requested).lower():
+        raise ValueError(f"{name} holds XYZ under illuminant {recorded}, not {requested}: evaluating it under "
+                         f"{requested} would compare colours taken under two lights (leave --illuminant out to use "
+                         f"{recorded})")
+    return str(requested)
 
 
 def _observer_name(cmfs) -> str:

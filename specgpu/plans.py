@@ -227,6 +227,38 @@ class Plan:
             return np.eye(3)
         raise ValueError(f"a {self.output!r} plan ({self.method}) has no XYZ")
 
+    @property
+    def measured_illuminant(self) -> str:
+        """The illuminant the plan's outputs themselves are relative to: a tristimulus (XYZ) or camera simulator
+        (RGB) plan's own; empty for outputs that hold under any illuminant (reflectance, relative signal)."""
+        return self.illuminant if self.output in ("XYZ", "RGB") else ""
+
+    def resolve_illuminant(self, illuminant=None, *, name: str = "the plan") -> str:
+        """The illuminant of the XYZ, Lab and dE made from this plan's outputs, and the one to record with them.
+
+        Parameters
+        ----------
+        illuminant : str, optional
+            The one asked for; None: the plan's own for a tristimulus or camera plan (:attr:`measured_illuminant`),
+            D65 otherwise.
+        name : str
+            How an error names the plan (its file).
+
+        Raises
+        ------
+        ValueError
+            ``illuminant`` is not the one a tristimulus or camera plan measures under: its outputs would be
+            labelled, converted and compared as if taken under another light.
+        """
+        own = self.measured_illuminant
+        if illuminant is None:
+            return own or "D65"
+        illuminant = str(illuminant)
+        if own and own.lower() != illuminant.lower():
+            raise ValueError(f"{name} measures {self.output} under illuminant {own}, not {illuminant}: leave the "
+                             f"illuminant out to use the plan's, or make a plan for {illuminant}")
+        return own or illuminant
+
     def check_calibration(self, bundle, name: str = "plan", calibration_name: str | None = None) -> None:
         """Refuse a plan designed with another calibration than ``bundle`` (stale plan); ``name`` and
         ``calibration_name`` are the files the message names."""

@@ -106,8 +106,10 @@ class StreamDecoder:
         CIELAB reference of ``"dE"``: one colour (3,) or a per-pixel (H, W, 3) image. Required for ``"dE"``.
     method : str
         Colour difference, a name of ``DELTA_E_METHODS`` (default ``"CIE 2000"``).
-    illuminant : str
-        Illuminant of XYZ (Y = 1 for the perfect white), Lab and dE.
+    illuminant : str, optional
+        Illuminant of XYZ (Y = 1 for the perfect white), Lab and dE; default the plan's own for a tristimulus or
+        camera plan, D65 otherwise (:meth:`specgpu.plans.Plan.resolve_illuminant`, which refuses another than a
+        tristimulus plan measures under).
     cube_dtype : float16 or float32
         Storage of the cube (float16 halves the memory traffic of the widest output).
     frame_shape : (int, int)
@@ -122,7 +124,7 @@ class StreamDecoder:
     """
 
     def __init__(self, plan, calibration, outputs, *, frame_shape, queue, reference=None, method="CIE 2000",
-                 illuminant="D65", observer: str = DEFAULT_CMFS, cube_dtype=np.float16, white_roi=None,
+                 illuminant=None, observer: str = DEFAULT_CMFS, cube_dtype=np.float16, white_roi=None,
                  white_reflectance=None):
         # canonical names (the check is case-insensitive), each once
         outputs = tuple(dict.fromkeys(validate_method(name, {k: k for k in STREAM_OUTPUTS}, "stream output")
@@ -140,7 +142,7 @@ class StreamDecoder:
         if self.cube_dtype not in (np.dtype(np.float16), np.dtype(np.float32)):
             raise ValueError(f"cube_dtype must be float16 or float32, got {self.cube_dtype}")
         self.method = validate_method(method, DELTA_E_METHODS) if "dE" in outputs else method
-        self.illuminant = illuminant
+        self.illuminant = illuminant = plan.resolve_illuminant(illuminant)
         dark = calibration.dark_at(plan.exposure_s)
         gain = calibration.flat_field
         if tuple(np.shape(dark)) != (self.height, self.width):
@@ -564,11 +566,18 @@ class PreviewSink(Sink):
         PNG to refresh.
     interval_s : float
         Shortest time between two renderings, s (a preview at camera rate would cost more than the stream).
+    illuminant : str
+        The illuminant the XYZ is relative to (the stream's): its white is adapted (CAT02) to sRGB's D65 white, so
+        a white under illuminant A previews white, not orange.
     """
 
-    def __init__(self, path=None, interval_s: float = 0.5):
+    def __init__(self, path=None, interval_s: float = 0.5, illuminant: str = "D65"):
+        import colour
+
         self.path = None if path is None else Path(path)
         self.interval_s = float(interval_s)
+        self.illuminant = str(illuminant)
+        self._white_xy = np.asarray(colour.XYZ_to_xy(white_point_XYZ(self.illuminant)), np.float64)
         self.image: np.ndarray | None = None
         self.updates = 0
         self._last = -np.inf
@@ -583,12 +592,14 @@ class PreviewSink(Sink):
         import colour
 
         with np.errstate(invalid="ignore"):
-            rgb = colour.XYZ_to_sRGB(np.nan_to_num(np.clip(XYZ, 0, None)), apply_cctf_encoding=True)
+            rgb = colour.XYZ_to_sRGB(np.nan_to_num(np.clip(XYZ, 0, None)), illuminant=self._white_xy,
+                                     apply_cctf_encoding=True)
         self.image = (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)
         if self.path is not None:
             from . import io
 
-            io.write_sRGB_preview(self.path, XYZ, exposure=0.0)
+            io.write_sRGB_preview(self.path, XYZ, exposure=0.0, illuminant=self._white_xy,
+                                  metadata={"illuminant": self.illuminant})
         self.updates += 1
         self._last = now
 
@@ -890,7 +901,7 @@ class Stream:
     """
 
     def __init__(self, driver: CameraDriver, plan, calibration, *, outputs=("coefficients", "XYZ", "dE"),
-                 sinks=(), reference=None, method: str = "CIE 2000", illuminant: str = "D65",
+                 sinks=(), reference=None, method: str = "CIE 2000", illuminant: str | None = None,
                  cube_dtype=np.float16, n_slots: int | None = None, policy: str = "drop_newest", in_flight: int = 3,
                  result_buffers: int = 6, readback: str = "auto", upload: str = "auto", align: str = "index",
                  sync_max_dn: float | None = None, device=None, white_roi=None, white_reflectance=None):

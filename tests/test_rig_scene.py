@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.rig.scene import (SpectralScene, colorchecker_scene, load_scene, natural_scene, read_scene,
-                               white_plate_scene, write_scene)
+from specgpu.rig.scene import (RESIZE_MODES, SpectralScene, colorchecker_scene, load_scene, natural_scene,
+                               read_scene, resample_scene, validate_resize, white_plate_scene, write_scene)
 
 
 def small_cube(h=6, w=5, wl=(400.0, 450.0, 500.0, 600.0), seed=0):
@@ -223,3 +223,77 @@ def test_natural_scene_equals_colour_science_mallett2019_per_pixel():
         sd = colour.recovery.RGB_to_sd_Mallett2019(linear[y, x])
         np.testing.assert_allclose(scene.reflectance[y, x], np.clip(sd.values, 0, 1), atol=2e-6)
         np.testing.assert_array_equal(scene.wavelengths, sd.wavelengths)
+
+
+# ---- fitting a scene of another size to the frame --------------------------------------------------------------
+def test_a_file_of_another_aspect_ratio_is_refused_unless_a_mode_is_chosen(tmp_path):
+    path = write_scene(tmp_path / "tall.npz", colorchecker_scene(120, 100))  # 100 x 120 (W x H), portrait
+    with pytest.raises(ValueError, match=r"tall.npz is 100 x 120 pixels, the frame 640 x 480: another aspect "
+                                         r"ratio \(0.8333 against 1.333\); choose how to fit it \(--resize stretch"):
+        load_scene(str(path), 480, 640)
+    with pytest.raises(ValueError, match=r"tall.npz is 100 x 120 pixels, the frame 200 x 240; give a scene of the "
+                                         r"frame's size"):
+        load_scene(str(path), 240, 200, resize="exact")
+    stretched = load_scene(str(path), 480, 640, resize="stretch")
+    assert stretched.shape == (480, 640)
+    assert stretched.resampled == ("100 x 120 -> 640 x 480 pixels (stretch, nearest neighbour; aspect ratio "
+                                   "0.8333 -> 1.333)")
+    same = load_scene(str(path), 240, 200)  # the same aspect ratio: scaled, and said
+    assert same.shape == (240, 200) and same.resampled == "100 x 120 -> 200 x 240 pixels (scale, nearest neighbour)"
+    assert load_scene(str(path), 120, 100, resize="exact").resampled == ""  # the frame's size: untouched
+
+
+def test_crop_and_pad_keep_the_aspect_ratio_and_say_what_they_did():
+    scene = small_cube(12, 10, seed=4)
+    scene.masks = {"all": np.ones((12, 10), bool)}
+    scene = SpectralScene(scene.wavelengths, scene.reflectance, scene.masks, "cube")
+    crop = resample_scene(scene, 12, 20, "crop")  # scale 2 covers 20 x 24, 12 rows overhang: 6 source rows cut
+    np.testing.assert_array_equal(crop.reflectance, np.repeat(np.repeat(scene.reflectance[3:9], 2, 0), 2, 1))
+    assert crop.resampled == "10 x 12 -> 20 x 12 pixels (crop, nearest neighbour; 0 source columns and 6 rows cropped)"
+    pad = resample_scene(scene, 12, 20, "pad")  # scale 1 fits: the 10 columns centred, 5 black on each side
+    np.testing.assert_array_equal(pad.reflectance[:, 5:15], scene.reflectance)
+    assert not pad.reflectance[:, :5].any() and not pad.reflectance[:, 15:].any()
+    assert pad.masks["all"].sum() == 120 and not pad.masks["all"][:, :5].any()
+    assert pad.resampled == "10 x 12 -> 20 x 12 pixels (pad, nearest neighbour; 120 border pixels padded black)"
+
+
+@settings(max_examples=60, deadline=None)
+@given(mode=st.sampled_from(sorted(RESIZE_MODES)), upper=st.lists(st.booleans(), min_size=8, max_size=8),
+       left=st.text(" \t", max_size=2), right=st.text(" \t", max_size=2))
+def test_validate_resize_accepts_any_spelling_of_a_mode(mode, upper, left, right):
+    spelled = "".join(c.upper() if u else c for c, u in zip(mode, upper + [False] * len(mode)))
+    assert validate_resize(left + spelled + right) == mode
+
+
+@settings(max_examples=100, deadline=None)
+@given(text=st.one_of(st.text(max_size=12), st.integers(), st.none()))
+def test_validate_resize_refuses_anything_else_naming_the_modes(text):
+    if isinstance(text, str) and text.strip().lower() in RESIZE_MODES:
+        return
+    with pytest.raises(ValueError, match=r"resize mode .* is not one of scale, exact, stretch, crop, pad$"):
+        validate_resize(text)
+
+
+@settings(max_examples=80, deadline=None)
+@given(h=st.integers(1, 9), w=st.integers(1, 9), fh=st.integers(1, 30), fw=st.integers(1, 30),
+       mode=st.sampled_from(sorted(RESIZE_MODES)))
+def test_every_mode_fills_the_frame_with_source_spectra_or_refuses(h, w, fh, fw, mode):
+    scene = small_cube(h, w, seed=h * 10 + w)
+    scene = SpectralScene(scene.wavelengths, scene.reflectance, {"m": np.ones((h, w), bool)}, "cube")
+    uniform = max((fw - 0.5) / w, (fh - 0.5) / h) <= min((fw + 0.5) / w, (fh + 0.5) / h)
+    refused = (mode == "exact" and (h, w) != (fh, fw)) or (mode == "scale" and not uniform)
+    if refused:
+        with pytest.raises(ValueError, match=f"is {w} x {h} pixels, the frame {fw} x {fh}"):
+            resample_scene(scene, fh, fw, mode)
+        return
+    out = resample_scene(scene, fh, fw, mode)
+    assert out.shape == (fh, fw) and out.masks["m"].shape == (fh, fw)
+    assert bool(out.resampled) == ((h, w) != (fh, fw))
+    source = {tuple(v) for v in scene.reflectance.reshape(-1, scene.wavelengths.size)}
+    pixels = out.reflectance.reshape(-1, scene.wavelengths.size)
+    inside = out.masks["m"].reshape(-1)
+    assert all(tuple(v) in source for v in pixels[inside])  # nearest neighbour: no spectrum invented
+    assert not pixels[~inside].any()  # outside the source (pad only): black
+    assert inside.all() or mode == "pad"
+    if mode == "crop" or mode == "pad":  # uniform: one scale factor on both axes
+        assert out.resampled == "" or f"({mode}, nearest neighbour" in out.resampled

@@ -32,7 +32,7 @@ from specgpu.checks import check_array, check_number, check_wavelengths
 
 __all__ = [
     "SpectralScene", "read_scene", "write_scene", "colorchecker_scene", "white_plate_scene", "natural_scene",
-    "load_scene", "BUILTIN_SCENES", "interpolation_matrix",
+    "load_scene", "BUILTIN_SCENES", "interpolation_matrix", "RESIZE_MODES", "validate_resize", "resample_scene",
 ]
 
 MAX_REFLECTANCE = 1.5
@@ -52,12 +52,16 @@ class SpectralScene:
         Named (H, W) boolean masks (e.g. one per ColorChecker patch, in chart order).
     name : str
         A label for reports.
+    resampled : str
+        How the scene was fitted to the frame it is used at (:func:`resample_scene`), e.g.
+        ``"100 x 120 -> 640 x 480 pixels (stretch, nearest neighbour)"``; empty when it was not resampled.
     """
 
     wavelengths: np.ndarray
     reflectance: np.ndarray
     masks: dict = field(default_factory=dict)
     name: str = ""
+    resampled: str = ""
 
     def __post_init__(self):
         label = f"scene {self.name!r}" if self.name else "scene"
@@ -104,7 +108,9 @@ class SpectralScene:
         return (np.asarray(weights, dtype=np.float64) * dl) @ interpolation_matrix(wl, self.wavelengths)
 
     def resized(self, height: int, width: int) -> "SpectralScene":
-        """Nearest-neighbour resampling to (height, width), masks included (no new spectra are invented)."""
+        """Nearest-neighbour resampling to (height, width), masks included (no new spectra are invented); each axis
+        is scaled on its own, so the aspect ratio may change (:func:`resample_scene` fits by a chosen mode and says
+        what it did)."""
         h = check_number("height", height, low=1, integer=True)
         w = check_number("width", width, low=1, integer=True)
         if (h, w) == self.shape:
@@ -113,6 +119,97 @@ class SpectralScene:
         xs = np.minimum(((np.arange(w) + 0.5) * self.shape[1] / w).astype(int), self.shape[1] - 1)
         return SpectralScene(self.wavelengths, self.reflectance[ys][:, xs],
                              {k: m[ys][:, xs] for k, m in self.masks.items()}, self.name)
+
+
+#: How a scene of another size than the frame is fitted to it (``--resize``). Every mode samples the nearest
+#: source pixel, so no spectrum is invented by mixing neighbours; only ``stretch`` changes the aspect ratio.
+RESIZE_MODES = {
+    "scale": "uniform scaling when the aspect ratios agree (within a pixel); another aspect ratio is refused",
+    "exact": "no resampling: a scene of another size than the frame is refused",
+    "stretch": "each axis scaled on its own to the frame (the aspect ratio changes)",
+    "crop": "scaled uniformly to cover the frame, the overhang cropped equally on both sides",
+    "pad": "scaled uniformly to fit inside the frame, centred, the border black (reflectance 0, in no mask)",
+}
+
+
+def validate_resize(mode) -> str:
+    """The canonical name of a resize mode (case-insensitive, surrounding blanks ignored); ValueError naming the
+    valid ones."""
+    text = mode.strip().lower() if isinstance(mode, str) else None
+    if text not in RESIZE_MODES:
+        raise ValueError(f"resize mode {mode!r} is not one of {', '.join(RESIZE_MODES)}")
+    return text
+
+
+def _axis(n_out: int, n_in: int, scale: float, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest source index of each of ``n_out`` output pixels (``x_in = (x_out + 0.5 - offset) / scale``) and
+    whether it falls inside the ``n_in`` source pixels."""
+    u = (np.arange(n_out) + 0.5 - offset) / scale
+    inside = (u >= 0) & (u < n_in)
+    return np.clip(np.floor(u).astype(int), 0, n_in - 1), inside
+
+
+def resample_scene(scene: SpectralScene, height: int, width: int, mode: str = "scale", *,
+                   label: str | None = None) -> SpectralScene:
+    """``scene`` fitted to a (height, width) frame by ``mode`` (:data:`RESIZE_MODES`), masks included.
+
+    A scene of the frame's size is returned as it is. Otherwise the result's :attr:`SpectralScene.resampled`
+    says what was done (for a line on stderr and the outputs' metadata).
+
+    Parameters
+    ----------
+    scene : SpectralScene
+    height, width : int
+        The frame, pixels (>= 1).
+    mode : str
+        ``"scale"`` (default): uniform scaling only, refusing a change of aspect ratio (more than a pixel);
+        ``"exact"``: no resampling; ``"stretch"``, ``"crop"``, ``"pad"``: see :data:`RESIZE_MODES`.
+    label : str, optional
+        How errors name the scene (its file); default its name.
+
+    Raises
+    ------
+    ValueError
+        One line naming the scene, both sizes and the modes that would fit it.
+    """
+    mode = validate_resize(mode)
+    h = int(check_number("height", height, low=1, integer=True))
+    w = int(check_number("width", width, low=1, integer=True))
+    sh, sw = scene.shape
+    if (sh, sw) == (h, w):
+        return scene
+    what = label or (f"scene {scene.name!r}" if scene.name else "the scene")
+    sizes = f"{what} is {sw} x {sh} pixels, the frame {w} x {h}"
+    if mode == "exact":
+        raise ValueError(f"{sizes}; give a scene of the frame's size, or a resize mode (--resize scale, stretch, "
+                         "crop or pad)")
+    if mode == "scale":
+        # one scale factor must put both edges within half a pixel of the frame's
+        lo = max((w - 0.5) / sw, (h - 0.5) / sh)
+        hi = min((w + 0.5) / sw, (h + 0.5) / sh)
+        if lo > hi:
+            raise ValueError(f"{sizes}: another aspect ratio ({sw / sh:.4g} against {w / h:.4g}); choose how to fit "
+                             "it (--resize stretch, crop or pad) or give a scene of the frame's aspect ratio")
+    if mode in ("scale", "stretch"):
+        (ys, iny), (xs, inx) = _axis(h, sh, h / sh, 0.0), _axis(w, sw, w / sw, 0.0)
+    else:
+        s = max(w / sw, h / sh) if mode == "crop" else min(w / sw, h / sh)
+        (ys, iny), (xs, inx) = _axis(h, sh, s, (h - sh * s) / 2), _axis(w, sw, s, (w - sw * s) / 2)
+    inside = iny[:, None] & inx[None, :]
+    refl = scene.reflectance[ys][:, xs]
+    masks = {k: m[ys][:, xs] for k, m in scene.masks.items()}
+    if not inside.all():  # pad: the border is black and belongs to no patch
+        refl = np.where(inside[..., None], refl, np.float32(0))
+        masks = {k: m & inside for k, m in masks.items()}
+    note = f"{sw} x {sh} -> {w} x {h} pixels ({mode}, nearest neighbour"
+    if mode == "crop":
+        kept_w, kept_h = min(sw, w / s), min(sh, h / s)
+        note += f"; {sw - kept_w:.0f} source columns and {sh - kept_h:.0f} rows cropped"
+    elif mode == "pad":
+        note += f"; {int((~inside).sum())} border pixels padded black"
+    elif mode == "stretch" and abs(sw / sh - w / h) > 1e-9:
+        note += f"; aspect ratio {sw / sh:.4g} -> {w / h:.4g}"
+    return SpectralScene(scene.wavelengths, refl, masks, scene.name, note + ")")
 
 
 def interpolation_matrix(grid, band_wavelengths) -> np.ndarray:
@@ -330,11 +427,17 @@ BUILTIN_SCENES = {
 }
 
 
-def load_scene(source, height: int = 480, width: int = 640) -> SpectralScene:
+def load_scene(source, height: int = 480, width: int = 640, *, resize: str = "scale") -> SpectralScene:
     """A built-in scene by name (``"natural:<image>"`` picks the photograph), or a cube file by path, at
-    (height, width) (files are resampled if needed)."""
+    (height, width).
+
+    Built-ins are drawn at that size. A file (or a :class:`SpectralScene`) of another size is fitted by
+    :func:`resample_scene` with ``resize`` (default ``"scale"``: uniform scaling, another aspect ratio refused);
+    the result's ``resampled`` says what was done.
+    """
+    resize = validate_resize(resize)
     if isinstance(source, SpectralScene):
-        return source.resized(height, width)
+        return resample_scene(source, height, width, resize)
     text = str(source)
     if text in BUILTIN_SCENES:
         return BUILTIN_SCENES[text](height, width)
@@ -342,6 +445,6 @@ def load_scene(source, height: int = 480, width: int = 640) -> SpectralScene:
         return natural_scene(height, width, image=text.partition(":")[2])
     path = Path(text)
     if path.suffix.lower() in (".exr", ".npz", ".hdr"):
-        return read_scene(path).resized(height, width)
+        return resample_scene(read_scene(path), height, width, resize, label=str(path))
     raise ValueError(f"unknown scene {text!r}; give a .exr, .npz or .hdr (ENVI) file or one of: "
                      f"{', '.join(BUILTIN_SCENES)}, natural:<image> with <image> one of {', '.join(_NATURAL_IMAGES)}")
