@@ -91,7 +91,9 @@ LEVEL_EDGES = (0.0, 0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.5)
 def chart_errors(cube, wavelengths, scene) -> dict:
     """Figures of a recovered reflectance cube (H, W, B) on ``wavelengths`` against a chart scene: ``px_rmse``
     (per-pixel RMSE over the bands, mean over the whole frame: what ``specgpu evaluate`` prints),
-    ``px_rmse_patches`` (the same over the patches' pixels), ``patch_rmse`` (RMSE of the patch means, mean over the
+    ``px_rmse_patches`` (the same over the patches' pixels), ``px_rmse_off_edges`` (over the pixels more than 3
+    pixels from any change of the scene's reflectance: the frame less the edges, where lens blur and lateral colour
+    mix neighbours), ``patch_rmse`` (RMSE of the patch means, mean over the
     patches), ``bias_400nm`` (mean recovered - true at the band nearest 400 nm over the patches' pixels) and
     ``bias_by_level`` (mean recovered - true over the patches' pixels and bands whose true reflectance lies in each
     :data:`LEVEL_EDGES` interval; NaN where none does)."""
@@ -105,12 +107,21 @@ def chart_errors(cube, wavelengths, scene) -> dict:
     err = (y - truth)[patches]
     t = truth[patches]
     rep = evaluate_reflectance(y.astype(np.float32), wl, scene, illuminant="D65").summary()
+    from scipy import ndimage
+
+    mean_refl = scene.reflectance.mean(axis=-1)
+    edge = np.zeros(mean_refl.shape, bool)
+    for ax in (0, 1):
+        edge |= np.abs(np.diff(mean_refl, axis=ax, prepend=np.take(mean_refl, [0], axis=ax))) > 1e-4
+    off_edges = ~ndimage.binary_dilation(edge, iterations=3)
+    px_all = np.sqrt(np.mean((y - truth) ** 2, axis=-1))
     levels = []
     for a, b in zip(LEVEL_EDGES[:-1], LEVEL_EDGES[1:]):
         sel = (t >= a) & (t < b) & np.isfinite(err)
         levels.append(float(err[sel].mean()) if sel.any() else float("nan"))
     return {"px_rmse": px["rmse"]["mean"],
             "px_rmse_patches": float(np.nanmean(np.sqrt(np.mean(err ** 2, axis=-1)))),
+            "px_rmse_off_edges": float(np.nanmean(px_all[off_edges])),
             "patch_rmse": float(rep["rmse"][0]), "bias_400nm": float(np.nanmean(err[:, int(np.argmin(abs(wl - 400)))])),
             "bias_by_level": levels}
 
