@@ -35,7 +35,7 @@ def lab(tmp_path_factory):
 
 
 def _capture_recover(d, plan, roi, name):
-    seq, cube = d / f"seq-{name}", d / f"{name}.npz"
+    seq, cube = d / f"seq-{name}", d / f"cube-{name}.npz"
     run("capture", "--rig", d / "rig.toml", "--plan", plan, "--calib", d / "calib.npz", "--scene", d / "chart.npz",
         "--out", seq, "--seed", 7)
     res = run("recover", seq, "--out", cube, "--white-roi", ",".join(map(str, roi)), "--white-reflectance", STRIP)
