@@ -8,6 +8,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cli_helpers import run
 from specgpu.calibration import load_calibration
@@ -136,3 +138,36 @@ def test_dark_warning_names_an_exposure_outside_the_measured_range(lab):
     assert msg is not None and "outside the 5-11 ms" in msg and "\n" not in msg
     inside = replace(b, reports={**b.reports, "dark_exposures_s": [0.005, 0.25], "dark_levels_dn": [16.0, 18.0]})
     assert dark_warning(SequenceFolder(d, frames, make_plan("narrowband", inside), inside, [], {})) is None
+
+
+@pytest.fixture(scope="module")
+def oracle():
+    from specgpu.calibration import oracle_calibration
+    from specgpu.rig.camera import CameraParameters
+    from specgpu.rig.config import RigDescription
+
+    return oracle_calibration(RigDescription(camera=CameraParameters(roi_width=320, roi_height=240)))
+
+
+@settings(max_examples=60, deadline=None)
+@given(table=st.one_of(
+    st.lists(st.tuples(st.floats(1e-4, 1.0), st.floats(-1e3, 1e3)), min_size=2, max_size=5,
+             unique_by=lambda p: p[0]).map(lambda ps: tuple(map(list, zip(*sorted(ps))))),
+    st.tuples(st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=3), st.none()),
+                       max_size=5), st.lists(st.floats(-1e3, 1e3), max_size=5))),
+    t=st.floats(1e-5, 1.0))
+def test_dark_table_from_any_report_is_used_or_ignored(oracle, table, t):
+    """Whatever a bundle's reports hold for the dark table, dark_at stays finite: a valid table (increasing, finite,
+    as long as its levels) is interpolated, anything else falls back to the dark current."""
+    ts, lv = table
+    b = replace(oracle, reports={**oracle.reports, "dark_exposures_s": ts, "dark_levels_dn": lv})
+    table, levels = b.dark_table
+    d = b.dark_at(t)
+    assert d.shape == b.frame_shape and np.all(np.isfinite(d))
+    if table is None:
+        np.testing.assert_allclose(d, oracle.dark + oracle.dark_rate_dn_per_s * (t - oracle.exposure_s), atol=1e-3)
+    else:
+        assert table.size == levels.size >= 2 and np.all(np.diff(table) > 0)
+        if table[0] <= t <= table[-1] and table[0] <= b.exposure_s <= table[-1]:
+            want = np.interp(t, table, levels) - np.interp(b.exposure_s, table, levels)
+            assert float(np.mean(d - b.dark)) == pytest.approx(want, abs=1e-3 * (1 + abs(want)))
