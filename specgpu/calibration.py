@@ -962,7 +962,12 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     ``band_step_nm`` bands over ``band_range_nm``, the target being the white's reflectance times the level the
     weakest band in ``equalize_range_nm`` reaches with every mirror on: the converged sequence is the 1/V
     sequence, and the outputs per band give the responsivity V (per band, at the band's centroid, interpolated);
-    (5) with ``spectral_check``, loop (b) on an equal-energy target, as a check of the lamp model (reported).
+    (5) with ``spectral_check``, loop (b) on an equal-energy target, as a check of the lamp model (reported);
+    (6) the all-off level of the white from the short exposure up to the longest a plan picks by default (what
+    :meth:`CalibrationBundle.dark_at` interpolates) and, where the rig can cap its lens, the camera's own dark:
+    the difference is light the object gets with every mirror off (room light, the DMD's off-state), which
+    scales with the object's reflectance, so plans need an ambient frame where it is found
+    (:func:`_dark_survey`).
 
     Parameters
     ----------

@@ -14,8 +14,7 @@ Between calibration and capture the lamp's output and colour change and the ligh
   white's reflectance (a 1 % error in it is a 1 % scale error of every recovered reflectance).
 - **Ambient frame** (``specgpu plan ... --ambient``; the default where the calibration found light on the object
   with every mirror off, or could not tell: :func:`ambient_needed`): one more pattern per sequence with every
-  mirror off. Its
-  frame (camera dark + room light + the DMD's off-state background, all on this scene) replaces the
+  mirror off. Its frame (camera dark + room light + the DMD's off-state background, all on this scene) replaces the
   calibration's dark level for that sequence, so light that does not come from the mirrors on is removed where
   it is, on the scene. Cost: one frame per sequence (K -> K + 1: 1/K more time, 3 % for narrowband-31, 11 % for
   symmetric-9) and the ambient frame's temporal noise, added once more to every pattern's output (variance

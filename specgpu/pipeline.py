@@ -429,9 +429,9 @@ def dark_warning(folder: SequenceFolder, sequence: int | None = None) -> str | N
         reasons.append(f"the plan's exposure {t * 1e3:.3g} ms lies outside the {lo * 1e3:.3g}-{hi * 1e3:.3g} ms "
                        "the calibration measured its dark level at")
     used = folder.frames if sequence is None else folder.frames[sequence:sequence + 1]
-    var = 1.0
-    if isinstance(plan.params, dict) and isinstance(plan.params.get("noise"), dict):
-        var = float(plan.params["noise"].get("read_var_dn2", 1.0))
+    noise = plan.params.get("noise") if isinstance(plan.params, dict) else None
+    var = noise.get("read_var_dn2") if isinstance(noise, dict) else None
+    var = float(var) if isinstance(var, (int, float)) and np.isfinite(var) and var > 0 else 1.0
     margin = 5.0 * float(np.sqrt(var / used.shape[0])) + 0.5
     dark = bundle.dark_at(t)
     low = np.full(dark.shape, np.inf, np.float32)
@@ -439,7 +439,7 @@ def dark_warning(folder: SequenceFolder, sequence: int | None = None) -> str | N
         np.minimum(low, used[:, k].mean(axis=0, dtype=np.float32) - dark, out=low)
     below = float(np.mean(low < -margin))
     if below > 0.01:
-        reasons.append(f"{below:.1%} of the pixels read more than {margin:.1f} DN below it")
+        reasons.append(f"{below:.1%} of the pixels read more than {margin:.1f} DN below that level")
     if not reasons:
         return None
     return (f"dark level not trusted ({bundle.dark_at(t).mean():.1f} DN subtracted, no ambient frame): "

@@ -76,7 +76,7 @@ def test_no_ambient_on_a_lab_bench_is_flagged(lab):
     res, cube = _capture_recover(d, d / "nb0.npz", roi, "nb0")
     warnings = [line for line in res.output.splitlines() if line.startswith("Warning:")]
     assert len(warnings) == 1 and "dark level not trusted" in warnings[0], res.output
-    assert "light with every mirror off" in warnings[0] and "below it" in warnings[0], warnings[0]
+    assert "light with every mirror off" in warnings[0] and "below that level" in warnings[0], warnings[0]
     y, wl, meta = read_cube_npz(cube)
     assert "dark level not trusted" in str(meta)
     assert chart_errors(y, wl, scene)["bias_by_level"][0] < -0.02  # what the warning is about
