@@ -60,6 +60,7 @@ __all__ = [
     "rig_fingerprint",
     "capture_mean",
     "distribute_counts",
+    "MIRRORS_OFF_TOLERANCE",
 ]
 
 CALIBRATION_FORMAT = "specgpu.calibration"
@@ -452,8 +453,55 @@ class CalibrationBundle:
         return s.astype(np.float32)
 
     def dark_at(self, exposure_s: float) -> np.ndarray:
-        """(H, W) float32 dark level (DN) for an exposure (s): measured level plus dark current times the change."""
-        return (self.dark + np.float32(self.dark_rate_dn_per_s * (exposure_s - self.exposure_s))).astype(np.float32)
+        """(H, W) float32 dark level (DN) for an exposure (s): the measured level plus its change from the
+        calibration exposure, interpolated between the exposures calibration measured it at
+        (``reports["dark_exposures_s"]``; straight on beyond the ends), or, in a bundle without them, the dark
+        current times the change."""
+        return (self.dark + np.float32(self._dark_change(float(exposure_s)))).astype(np.float32)
+
+    def _dark_change(self, t: float) -> float:
+        ts, lv = self.dark_table
+        if ts is None:
+            return self.dark_rate_dn_per_s * (t - self.exposure_s)
+
+        def level(x):
+            if x <= ts[0] or x >= ts[-1]:  # straight on from the nearest segment
+                i = 0 if x <= ts[0] else ts.size - 2
+                return lv[i] + (lv[i + 1] - lv[i]) / (ts[i + 1] - ts[i]) * (x - ts[i])
+            return float(np.interp(x, ts, lv))
+        return float(level(t) - level(self.exposure_s))
+
+    @property
+    def dark_table(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(exposures s, mean dark levels DN) calibration measured, increasing; (None, None) when it recorded fewer
+        than two."""
+        r = self.reports if isinstance(self.reports, dict) else {}
+        try:
+            ts = np.asarray(r["dark_exposures_s"], np.float64)
+            lv = np.asarray(r["dark_levels_dn"], np.float64)
+        except (KeyError, TypeError, ValueError):
+            return None, None
+        if ts.ndim != 1 or ts.shape != lv.shape or ts.size < 2 or np.any(np.diff(ts) <= 0) \
+                or not (np.all(np.isfinite(ts)) and np.all(np.isfinite(lv))):
+            return None, None
+        return ts, lv
+
+    @property
+    def dark_range_s(self) -> tuple[float, float]:
+        """(shortest, longest) exposure (s) the dark level was measured at (the two-point measurement of a bundle
+        without a table: the calibration exposure and a quarter of it, no shorter than the light allows)."""
+        ts, _ = self.dark_table
+        if ts is not None:
+            return float(ts[0]), float(ts[-1])
+        return min(self.exposure_s, max(self.min_exposure_s, self.exposure_s / 4)), float(self.exposure_s)
+
+    @property
+    def mirrors_off_light(self) -> bool | None:
+        """Whether calibration found light on the object with every mirror off (room light, the DMD's off-state)
+        above :data:`MIRRORS_OFF_TOLERANCE`; None when it could not tell (no capped-lens dark, an older bundle)."""
+        r = self.reports if isinstance(self.reports, dict) else {}
+        v = r.get("mirrors_off_light")
+        return v if isinstance(v, bool) else None
 
     def check_rig(self, description: RigDescription, name: str = "calibration") -> None:
         """Refuse a bundle made on another rig (or the same rig with other light or camera parameters)."""
@@ -637,6 +685,11 @@ class CalibrationRig(Protocol):
     def zero_spectrometer(self) -> None:
         """Take the spectroradiometer's dark reading with the light off (a no-op where there is none)."""
 
+    # Optional: ``capture_dark(repeats, *, exposure_s=None, noise_seed=None)`` -> (H, W) mean of frames with no
+    # light reaching the sensor (lens capped, shutter closed). With it, calibration tells the camera's own dark
+    # level from the light the object receives with every mirror off (room light, the DMD's off-state): see
+    # :func:`calibrate` step (6). A rig without it is assumed to have such light (plans then add an ambient frame).
+
 
 class TwinCalibrationRig:
     """The digital twin as a :class:`CalibrationRig`: one :class:`~specgpu.rig.twin.TwinRig` per exposure, all
@@ -724,6 +777,20 @@ class TwinCalibrationRig:
 
     def zero_spectrometer(self) -> None:
         """The twin's spectroradiometer has no dark offset."""
+
+    def capture_dark(self, repeats: int, *, exposure_s: float | None = None,
+                     noise_seed: int | None = None) -> np.ndarray:
+        """(H, W) float64 mean of ``repeats`` frames with no light reaching the sensor (the lens capped): the
+        camera's own dark level (offset, dark current) at ``exposure_s``. The twin renders a black object."""
+        t = self.exposure_s if exposure_s is None else float(exposure_s)
+        capped = self.__dict__.setdefault("_capped", {})
+        if t not in capped:
+            h, w = self.frame_shape
+            capped[t] = _rig(self.description, white_plate_scene(h, w, reflectance=0.0), t)
+        rig = capped[t]
+        out = capture_mean(rig, np.zeros((1, rig.light.params.columns), np.int32), repeats, noise_seed=noise_seed)[0]
+        self.clock_s += int(repeats) * rig.frame_period_s
+        return out
 
 
 def as_calibration_rig(rig) -> CalibrationRig:
@@ -895,7 +962,12 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     ``band_step_nm`` bands over ``band_range_nm``, the target being the white's reflectance times the level the
     weakest band in ``equalize_range_nm`` reaches with every mirror on: the converged sequence is the 1/V
     sequence, and the outputs per band give the responsivity V (per band, at the band's centroid, interpolated);
-    (5) with ``spectral_check``, loop (b) on an equal-energy target, as a check of the lamp model (reported).
+    (5) with ``spectral_check``, loop (b) on an equal-energy target, as a check of the lamp model (reported);
+    (6) the all-off level of the white from the short exposure up to the longest a plan picks by default (what
+    :meth:`CalibrationBundle.dark_at` interpolates) and, where the rig can cap its lens, the camera's own dark:
+    the difference is light the object gets with every mirror off (room light, the DMD's off-state), which
+    scales with the object's reflectance, so plans need an ambient frame where it is found
+    (:func:`_dark_survey`).
 
     Parameters
     ----------
@@ -1181,7 +1253,58 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
             initial = np.clip(np.rint(f * (1 + perturbation * rng.uniform(-1, 1, f.size)) * p.rows), 0, p.rows)
         loop_b = spectral_loop(rig, flat_target, bundle=bundle, initial=initial)
         bundle = replace(bundle, reports={**reports, "loop_b": loop_b.summary()})
-    return bundle
+
+    # (6) The dark level over the exposures plans use, and the light the object gets with every mirror off.
+    survey = _dark_survey(rig, zero, repeats, seeds, {t_short: dark_short, t_cal: dark}, t_cal, win,
+                          white_reflectance, level / t_a)
+    return replace(bundle, reports={**bundle.reports, **survey})
+
+
+#: Light on the object with every mirror off (room light, the DMD's off-state background) at or below this fraction
+#: of the weakest equalized band's signal (every mirror on, same reflectance and exposure) counts as none: it
+#: biases a reflectance by at most this much. Above it a plan needs an ambient frame.
+MIRRORS_OFF_TOLERANCE = 1e-3
+
+
+def _dark_survey(rig, zero, repeats, seeds, measured, t_cal, win, white_reflectance, band_dn_per_s) -> dict:
+    """Step (6) of :func:`calibrate`: the all-off level on the white at the exposures plans use, and, where the rig
+    can cap its lens (``capture_dark``), how much of it is light from the object rather than the camera's dark.
+
+    The all-off frame of the white is the camera's dark (offset, dark current) plus the light that reaches the white
+    with every mirror off (room light, the DMD's off-state and diffraction background). That light scales with the
+    object's reflectance: a dark level measured on the white is too high for every darker object by the
+    difference, and grows with exposure. Returns report entries (plain data):
+
+    ``dark_exposures_s`` / ``dark_levels_dn``: exposures (from the calibration's short one up to the longest a
+    plan picks by default) and the mean all-off level on the white at each (what :meth:`CalibrationBundle.dark_at`
+    interpolates); with a capped lens, ``camera_dark_levels_dn`` at ``camera_dark_exposures_s``,
+    ``mirrors_off_dn_per_s`` (the all-off light per unit reflectance at the spot centre, DN/s),
+    ``mirrors_off_fraction`` (that light over the weakest equalized band's signal) and ``mirrors_off_light``
+    (whether it exceeds :data:`MIRRORS_OFF_TOLERANCE`: then a plan needs an ambient frame); without,
+    ``mirrors_off_light`` is None (not measured).
+    """
+    from specgpu.plans import DEFAULT_MAX_EXPOSURE_S
+
+    t_long = max(t_cal, DEFAULT_MAX_EXPOSURE_S)
+    levels = dict(measured)
+    for t in (float(np.sqrt(t_cal * t_long)), t_long):
+        if t not in levels:
+            levels[t] = rig.capture_mean(zero, 2 * repeats, exposure_s=t, noise_seed=seeds.next())[0]
+    ts = sorted(levels)
+    out = {"dark_exposures_s": [float(t) for t in ts],
+           "dark_levels_dn": [float(np.mean(levels[t])) for t in ts], "mirrors_off_light": None}
+    capture_dark = getattr(rig, "capture_dark", None)
+    if capture_dark is None:
+        return out
+    capped_t = sorted({t_cal, t_long})
+    capped = {t: capture_dark(2 * repeats, exposure_s=t, noise_seed=seeds.next()) for t in capped_t}
+    out["camera_dark_exposures_s"] = [float(t) for t in capped_t]
+    out["camera_dark_levels_dn"] = [float(np.mean(capped[t])) for t in capped_t]
+    light = max(0.0, float(np.mean((levels[t_long] - capped[t_long])[win]))) / (t_long * white_reflectance)
+    fraction = light / band_dn_per_s if band_dn_per_s > 0 else float("inf")
+    out.update({"mirrors_off_dn_per_s": light, "mirrors_off_fraction": fraction,
+                "mirrors_off_light": bool(fraction > MIRRORS_OFF_TOLERANCE)})
+    return out
 
 
 def calibration_error(bundle: CalibrationBundle, description: RigDescription | None = None, *,
@@ -1258,4 +1381,6 @@ def oracle_calibration(description: RigDescription | None = None, *, white_refle
     inside = (centre >= 400) & (centre <= 700)
     levels = np.clip(resp[inside].min() / resp, 0, 1)
     return replace(pre, reciprocal_patterns=distribute_counts(levels, masks, p.rows),
-                   reports={"source": "oracle"}, rig=rig_fingerprint(d))
+                   reports={"source": "oracle", "mirrors_off_light": bool(d.realism.ambient_lux or
+                                                                          d.realism.dmd_off_state)},
+                   rig=rig_fingerprint(d))

@@ -444,8 +444,10 @@ def calibrate(rig_path, out, seed, line_shape):
 @click.option("--target", type=float, default=None, help="optimal: refuse a design whose expected error is above it.")
 @click.option("--exposure-ms", type=float, default=None, help="optimal: expose at least this long (ms).")
 @click.option("--bands", type=int, default=31, show_default=True, help="hadamard: bands (3, 7, 15, 31, 63).")
-@click.option("--ambient", is_flag=True,
-              help="Add an ambient frame (every mirror off) to each sequence; recover subtracts it (1 frame more).")
+@click.option("--ambient/--no-ambient", default=None,
+              help="Add an ambient frame (every mirror off) to each sequence; recover subtracts it (1 frame more). "
+                   "Default: added where the calibration found light with every mirror off (room light, the DMD's "
+                   "off-state) or could not tell.")
 @click.option("--drift-probe", "drift_probe", type=float, multiple=True,
               help="Add a 20 nm drift probe band at NM to each sequence, read by recover --white-roi's colour fit "
                    "(1 frame more each; 430 and 650 let a 3-frame plan's drift correction hold). Repeatable.")
@@ -502,9 +504,16 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
         from .correction import with_drift_probes
 
         plan = with_drift_probes(plan, bundle, sorted(drift_probe))
-    if ambient:
-        from .correction import with_ambient_frame
+    from .correction import ambient_needed, with_ambient_frame
 
+    needed, why = ambient_needed(bundle)
+    if ambient is None and needed:
+        ambient = True
+        click.echo(f"adding an ambient frame: {why} (--no-ambient to leave it out)", err=True)
+    elif ambient is False and needed:
+        click.echo(f"Warning: no ambient frame although {why}: recover will subtract the white's all-off level "
+                   "and read darker objects too dark", err=True)
+    if ambient:
         plan = with_ambient_frame(plan)
     digest = save_plan(out, plan)
     expected = plan.params.get("expected", {})
@@ -824,6 +833,9 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
             y = run(folder, sequence=sequence, device=device, white_roi=white_roi, white_reflectance=white_reflectance)
         except ValueError as error:
             raise click.ClickException(str(error)) from None
+        from .pipeline import dark_warning
+
+        untrusted = dark_warning(folder, sequence)  # said once the spinner has gone, recorded with every output
         height, width = y.shape[:2]
         meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
                 "calibration": plan.calibration, "sequence_folder": str(seq),
@@ -831,7 +843,8 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
                 **({"observer": plan.observer} if plan.output == "XYZ" and plan.observer else {}),
                 **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {}),
                 **({"reflectance_scale_uncertainty": folder.calibration.reports["white_reflectance_uncertainty"]}
-                   if "white_reflectance_uncertainty" in folder.calibration.reports else {})}
+                   if "white_reflectance_uncertainty" in folder.calibration.reports else {}),
+                **({"dark_untrusted": untrusted} if untrusted else {})}
         writes = []  # (final path, write(to path))
         if plan.output == "reflectance":
             if Path(out).suffix.lower() == ".hdr":  # ENVI: the .img data file renamed with its header
@@ -862,6 +875,8 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
             else:
                 kind = {"CIE 1976": "dE76", "CIE 1994": "dE94", "CIE 2000": "dE2000"}[method]
                 writes.append((de_path, lambda p, kind=kind: io.write_map(p, dE, kind, metadata=meta)))
+    if untrusted:
+        click.echo(f"Warning: {untrusted}", err=True)
     staged = _Staged()  # all or nothing: no output replaced until every one is written
     try:
         for final, write, *companions in writes:

@@ -12,8 +12,9 @@ Between calibration and capture the lamp's output and colour change and the ligh
   shape inside the band is left). Cost: no frame; the ROI's pixels (not part of the scene measured) and the
   ROI's noise (averaged over its pixels: negligible for a ROI of a few hundred pixels), and the accuracy of the
   white's reflectance (a 1 % error in it is a 1 % scale error of every recovered reflectance).
-- **Ambient frame** (``specgpu plan ... --ambient``): one more pattern per sequence with every mirror off. Its
-  frame (camera dark + room light + the DMD's off-state background, all on this scene) replaces the
+- **Ambient frame** (``specgpu plan ... --ambient``; the default where the calibration found light on the object
+  with every mirror off, or could not tell: :func:`ambient_needed`): one more pattern per sequence with every
+  mirror off. Its frame (camera dark + room light + the DMD's off-state background, all on this scene) replaces the
   calibration's dark level for that sequence, so light that does not come from the mirrors on is removed where
   it is, on the scene. Cost: one frame per sequence (K -> K + 1: 1/K more time, 3 % for narrowband-31, 11 % for
   symmetric-9) and the ambient frame's temporal noise, added once more to every pattern's output (variance
@@ -36,12 +37,29 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi",
+__all__ = ["ambient_needed", "with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi",
            "white_reflectance_curve", "white_gains", "gain_noise", "corrected_decoder", "WhiteReference",
            "DEFAULT_WHITE_REFLECTANCE"]
 
 #: Reflectance of the reference white when none is given (a pressed-PTFE standard's certificate value).
 DEFAULT_WHITE_REFLECTANCE = 0.99
+
+
+def ambient_needed(bundle) -> tuple[bool, str]:
+    """Whether plans made from ``bundle`` need an ambient frame by default, and why (one clause).
+
+    Calibration measures the dark level with every mirror off on its white; on a bench where the object also gets
+    light with every mirror off (room light, the DMD's off-state background) that level holds the white's share
+    of it, too much for every darker object (the calibration's step (6)). Only a bundle that measured the
+    camera's own dark (a capped lens) and found no such light is trusted without an ambient frame."""
+    found = bundle.mirrors_off_light
+    if found is False:
+        return False, "the calibration found no light with every mirror off"
+    if found is None:
+        return True, "the calibration could not tell the camera's dark from light with every mirror off"
+    frac = bundle.reports.get("mirrors_off_fraction")
+    share = f" ({float(frac):.1%} of its weakest band's signal)" if isinstance(frac, (int, float)) else ""
+    return True, f"the calibration found light on the object with every mirror off{share}"
 
 
 def with_ambient_frame(plan):

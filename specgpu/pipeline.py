@@ -26,7 +26,7 @@ from .recovery import apply_linear
 from .rig.config import RigDescription
 from .rig.twin import FaultSchedule, TwinRig
 
-__all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder", "read_capture", "recover", "to_XYZ", "to_Lab"]
+__all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder", "read_capture", "recover", "dark_warning", "to_XYZ", "to_Lab"]
 
 PLAN_FILE = "plan.npz"
 #: The chart the demo and the accuracy study evaluate on (and leave out of basis training).
@@ -418,6 +418,51 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
         if cov is not None:
             cov[saturated] = np.nan
     return sigma, cov
+
+
+def dark_warning(folder: SequenceFolder, sequence: int | None = None) -> str | None:
+    """One line saying why the dark level :func:`recover` subtracts from this capture cannot be trusted, or None.
+
+    A plan with an ambient frame has its dark measured on the scene in every sequence: trusted. Otherwise the
+    calibration's level at the plan's exposure is subtracted, and it is not trusted when: the calibration found
+    light on the object with every mirror off (:attr:`CalibrationBundle.mirrors_off_light`: the white's share of it
+    is subtracted from every darker object); the plan's exposure lies outside the exposures the calibration
+    measured the dark level at; or more than 1 % of the pixels read, in some frame (mean of the sequences used),
+    further below that level than the camera's noise allows (5 standard deviations of the dark level's temporal
+    noise, from the plan's noise model, 1 DN without one, plus 0.5 DN).
+    """
+    from .correction import ambient_index
+
+    plan, bundle = folder.plan, folder.calibration
+    if ambient_index(plan) is not None:
+        return None
+    t = float(plan.exposure_s)
+    reasons = []
+    if bundle.mirrors_off_light:
+        light = bundle.reports.get("mirrors_off_dn_per_s")
+        amount = (f" ({float(light) * t * bundle.white_reflectance:.1f} DN on its white at {t * 1e3:.3g} ms)"
+                  if isinstance(light, (int, float)) else "")
+        reasons.append(f"the calibration found light with every mirror off{amount}")
+    lo, hi = bundle.dark_range_s
+    if not lo * (1 - 1e-6) <= t <= hi * (1 + 1e-6):
+        reasons.append(f"the plan's exposure {t * 1e3:.3g} ms lies outside the {lo * 1e3:.3g}-{hi * 1e3:.3g} ms "
+                       "the calibration measured its dark level at")
+    used = folder.frames if sequence is None else folder.frames[sequence:sequence + 1]
+    noise = plan.params.get("noise") if isinstance(plan.params, dict) else None
+    var = noise.get("read_var_dn2") if isinstance(noise, dict) else None
+    var = float(var) if isinstance(var, (int, float)) and np.isfinite(var) and var > 0 else 1.0
+    margin = 5.0 * float(np.sqrt(var / used.shape[0])) + 0.5
+    dark = bundle.dark_at(t)
+    low = np.full(dark.shape, np.inf, np.float32)
+    for k in range(used.shape[1]):
+        np.minimum(low, used[:, k].mean(axis=0, dtype=np.float32) - dark, out=low)
+    below = float(np.mean(low < -margin))
+    if below > 0.01:
+        reasons.append(f"{below:.1%} of the pixels read more than {margin:.1f} DN below that level")
+    if not reasons:
+        return None
+    return (f"dark level not trusted ({bundle.dark_at(t).mean():.1f} DN subtracted, no ambient frame): "
+            + "; ".join(reasons) + "; plan with --ambient")
 
 
 def corrected_signal(frames, dark, ratio, bundle=None) -> np.ndarray:
