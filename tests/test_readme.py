@@ -90,7 +90,7 @@ def test_step_by_step_experiment_runs_as_written(tmp_path):
     for name in ("rig.toml", "calib.npz", "sym.npz", "seq/sequence.json", "cube.exr", "xyz.exr", "dE.png",
                  "report.json"):
         assert (work / name).is_file(), name
-    assert "per patch: rmse mean" in result.stdout
+    assert "per patch under D65: rmse mean" in result.stdout
 
 
 def _command_spans():
