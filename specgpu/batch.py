@@ -345,6 +345,7 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
     output is created."""
     import zarr
 
+    _remove_dead_writers_partials(source_path)
     source = open_source(source_path)
     outputs = tuple(dict.fromkeys(outputs))
     unknown = [o for o in outputs if o not in BATCH_OUTPUTS]
@@ -401,6 +402,22 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
         return job, np.flatnonzero(done == 0)
     _create_output(out, identity, plan, method, outputs, source, n, h, w)
     return job, np.arange(n)
+
+
+def _remove_dead_writers_partials(source_path) -> None:
+    """The ``*.partial`` chunks a recorder killed by ``kill -9`` left in a recording (5 MB each for raw frames):
+    removed when no live writer holds the recording's lock (a recording is never written again, so nothing
+    else would); a live writer's, or a recording we cannot lock (read-only), are left alone."""
+    from .locks import OutputLocked, output_lock
+
+    path = Path(source_path)
+    if not (path / "zarr.json").is_file() or not any(path.rglob("*.partial")):
+        return
+    try:
+        with output_lock(path):
+            remove_partial_chunks(path)
+    except (OutputLocked, OSError):
+        pass
 
 
 def _creation_name(out: Path, pid: int | None = None) -> Path:

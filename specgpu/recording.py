@@ -60,7 +60,7 @@ itself returns the fill value (0, NaN) for a chunk that is not on disk, never an
 
 Chunks that a writer killed by ``kill -9`` left half written are files named ``*.partial`` (zarr writes a chunk to
 such a temporary and renames it); they are never read, and :func:`remove_partial_chunks` deletes them (``specgpu
-batch`` does so in its output before resuming it).
+batch`` does so in its output before resuming it, and in a source recording that no live writer holds).
 """
 
 from __future__ import annotations

@@ -525,6 +525,18 @@ def test_resuming_removes_the_partial_chunks_a_killed_run_left(made, tmp_path):
     partial.write_bytes(bytes(5000))
     prepare_batch(root / "rec.zarr", plan, bundle, out)
     assert not partial.exists() and not list(out.rglob("*.partial"))
+    # a source recording whose writer was killed: its leftovers go once no live writer holds its lock
+    from specgpu.locks import output_lock
+
+    src = tmp_path / "src.zarr"
+    shutil.copytree(root / "rec.zarr", src)
+    leftover = src / "frames" / "c" / "4" / "0" / "0" / "0.77aa01.partial"
+    leftover.write_bytes(bytes(5000))
+    with output_lock(src):  # a live writer (flock: another open lock file, even in this process): left alone
+        prepare_batch(src, plan, bundle, tmp_path / "c.zarr")
+        assert leftover.exists()
+    prepare_batch(src, plan, bundle, tmp_path / "d.zarr")
+    assert not leftover.exists() and not list(src.rglob("*.partial"))
 
 
 def test_a_recording_replaced_on_a_long_lived_scheduler_is_read_afresh(made, tmp_path):
