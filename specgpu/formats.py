@@ -436,11 +436,12 @@ def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
     path = Path(path)
     _check_exists(path, "spectral cube")
     members = npz_members(path)  # sizes from the headers, before any array is inflated
-    wl_shape, refl_shape = members.get("wavelengths", ((),))[0], members.get("reflectance", ((),))[0]
-    if "wavelengths" in members and "reflectance" in members and (
-            len(wl_shape) != 1 or len(refl_shape) != 3 or refl_shape[2] != wl_shape[0]):
-        raise ValueError(f"{path}: reflectance must have shape (H, W, B) on wavelengths (B,), got {refl_shape} on "
-                         f"{wl_shape}")
+    if "wavelengths" in members and "reflectance" in members:  # the shapes too, before the data
+        wl_shape, refl_shape = members["wavelengths"][0], members["reflectance"][0]
+        if len(wl_shape) != 1:
+            raise ValueError(f"{path}: wavelengths must have shape (B,), got {wl_shape}")
+        if len(refl_shape) != 3 or refl_shape[2] != wl_shape[0]:
+            raise ValueError(f"{path}: reflectance must have shape (H, W, {wl_shape[0]}), got {refl_shape}")
     try:
         with np.load(path, allow_pickle=False) as data:
             keys = set(data.files)
