@@ -263,9 +263,10 @@ def _process_sequence(job: BatchJob, i: int) -> dict:
     for name in job.outputs:
         try:
             state.out[name][i] = maps[name]
-        except Exception as exc:  # a full disk: name the output written, not zarr's temporary chunk file
-            raise OSError(f"{job.out}/{name}: writing sequence {i} failed ({type(exc).__name__}: "
-                          f"{str(exc).strip().splitlines()[0] if str(exc).strip() else ''})") from None
+        except Exception as exc:  # a full disk: name the output written, never zarr's temporary chunk file
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else \
+                (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            raise OSError(f"{job.out}/{name}: writing sequence {i} failed ({reason})") from None
     state.out["done"][i] = 1  # after every chunk of the sequence is written
     return {"index": i, "pid": state.pid, "built": built}
 

@@ -561,3 +561,27 @@ def test_a_recording_replaced_on_a_long_lived_scheduler_is_read_afresh(made, tmp
     cube = open_recording_like(out)["cube"]
     for i in (0, N - 1):
         np.testing.assert_array_equal(cube[i], recovered(root, tmp_path, i, frames[i]))
+
+
+def test_a_full_disk_on_a_worker_is_one_line_naming_the_output(made, tmp_path, monkeypatch):
+    """A worker's write that fails (a full disk) comes back as one line naming the output array and the sequence,
+    never zarr's temporary chunk file, and the sequence is not marked done."""
+    import errno
+
+    from specgpu import batch
+    from specgpu.batch import prepare_batch, process_sequence
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    out = tmp_path / "b.zarr"
+    job, _ = prepare_batch(root / "rec.zarr", plan, bundle, out)
+
+    class FullDisk:
+        def __setitem__(self, index, value):
+            raise OSError(errno.ENOSPC, "No space left on device", str(out / "cube" / "c" / "1" / "0.9a1b.partial"))
+
+    state, _ = batch._worker_state(job)
+    monkeypatch.setitem(batch._STATE, job.key, batch._WorkerState(state.queue, state.source, {"cube": FullDisk()}))
+    record = process_sequence(job, 1)
+    assert record["error"] == f"{out}/cube: writing sequence 1 failed (No space left on device)"
+    assert open_recording_like(out)["done"][:].tolist() == [0] * N

@@ -9,6 +9,9 @@ import zipfile
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from specgpu import formats
 from specgpu.basis import load_npz, save_npz
@@ -90,3 +93,40 @@ def test_ordinary_files_load_as_before(tmp_path):
     save_npz(tmp_path / "x.npz", "specgpu.test", 1, {"a": np.arange(10.0)}, {"k": 1})
     arrays, meta, _, _ = load_npz(tmp_path / "x.npz", "specgpu.test", (1,))
     assert arrays["a"].tolist() == list(np.arange(10.0)) and meta == {"k": 1}
+
+_ARRAYS = st.dictionaries(
+    st.from_regex(r"[a-z][a-z0-9_]{0,8}", fullmatch=True),
+    hnp.arrays(st.sampled_from([np.float32, np.float64, np.int16, np.uint8, np.bool_]),
+               hnp.array_shapes(min_dims=0, max_dims=3, max_side=6)),
+    min_size=1, max_size=4)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(arrays=_ARRAYS, compressed=st.booleans())
+def test_npz_members_reads_every_header_as_numpy_wrote_it(tmp_path, arrays, compressed):
+    path = tmp_path / "a.npz"
+    (np.savez_compressed if compressed else np.savez)(path, **arrays)
+    members = formats.npz_members(path)
+    assert members == {k: (v.shape, v.dtype) for k, v in arrays.items()}
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_a_damaged_npz_is_refused_in_one_line_or_read_as_declared(tmp_path, data):
+    """Any byte flipped or cut: npz_members either reads the headers (whose sizes then match what the archive
+    stores) or refuses in one line naming the file; never another exception."""
+    path = tmp_path / "a.npz"
+    np.savez_compressed(path, wavelengths=np.linspace(400, 700, 4), reflectance=np.full((3, 5, 4), 0.25))
+    raw = bytearray(path.read_bytes())
+    if data.draw(st.booleans(), "cut"):
+        raw = raw[:data.draw(st.integers(0, len(raw) - 1), "at")]
+    else:
+        i = data.draw(st.integers(0, len(raw) - 1), "byte")
+        raw[i] ^= data.draw(st.integers(1, 255), "mask")
+    path.write_bytes(bytes(raw))
+    try:
+        members = formats.npz_members(path)
+    except ValueError as exc:
+        assert str(exc).startswith(str(path)) and "\n" not in str(exc)
+    else:
+        assert set(members) <= {"wavelengths", "reflectance"}
