@@ -10,11 +10,14 @@ import os
 import re
 import shutil
 import signal
+from pathlib import Path
 
 import numpy as np
 import pytest
 from cli_helpers import one_line_error, run
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from specgpu import io
 from specgpu.batch import run_batch
@@ -585,3 +588,33 @@ def test_a_full_disk_on_a_worker_is_one_line_naming_the_output(made, tmp_path, m
     record = process_sequence(job, 1)
     assert record["error"] == f"{out}/cube: writing sequence 1 failed (No space left on device)"
     assert open_recording_like(out)["done"][:].tolist() == [0] * N
+
+
+@settings(max_examples=80, deadline=None)
+@given(data=st.data())
+def test_any_changed_identity_entry_is_named_with_both_values(data):
+    """The resume check: the same identity resumes; any one entry changed is refused naming its option and both
+    values (the dE reference by its label, decided by its checksum)."""
+    from specgpu.batch import _IDENTITY_NAMES, _identity_mismatch
+
+    text = st.text(st.characters(min_codepoint=48, max_codepoint=122), min_size=1, max_size=12)
+    identity = {key: data.draw(text, key) for key in _IDENTITY_NAMES}
+    identity["outputs"] = data.draw(st.lists(st.sampled_from(["cube", "XYZ", "Lab", "dE"]), min_size=1,
+                                             unique=True), "outputs")
+    identity["delta_e_ref"] = data.draw(text, "label")
+    out = Path("/x/b.zarr")
+    assert _identity_mismatch(out, dict(identity), identity) is None
+    key = data.draw(st.sampled_from(sorted(_IDENTITY_NAMES)), "changed")
+    attrs = dict(identity)
+    attrs[key] = data.draw(text.filter(lambda v: v != identity[key]), "old") if key != "outputs" else ["Lab"]
+    if key == "outputs" and identity["outputs"] == ["Lab"]:
+        attrs[key] = ["cube"]
+    if key == "reference_sha256":
+        attrs["delta_e_ref"] = "old-label"
+    message = _identity_mismatch(out, attrs, identity)
+    name, show = _IDENTITY_NAMES[key]
+    assert message.startswith(f"{out}: holds a batch made with {name} ") and "\n" not in message
+    if key == "reference_sha256":
+        assert f"--delta-e-ref old-label, this run gives {identity['delta_e_ref']};" in message
+    else:
+        assert f"{name} {show(attrs[key])}, this run gives {show(identity[key])};" in message
