@@ -470,6 +470,12 @@ def load_npz(path, kind: str, versions) -> tuple[dict, dict, int, str]:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path}: {kind} file not found")
+    from specgpu.formats import npz_members
+
+    try:
+        npz_members(path)  # the declared sizes, checked before any array is inflated
+    except ValueError as exc:
+        raise ValueError(str(exc).replace("truncated or corrupt .npz", f"corrupt {kind} file", 1)) from None
     try:
         with np.load(path, allow_pickle=False) as data:
             if "__meta__" not in data.files:

@@ -915,13 +915,18 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
         writes.append((de_sigma_path, lambda p: io.write_map(p, des, ["dE2000_sigma"], metadata=meta)))
 
 
+#: the longest stream: a year (a longer one overflows the sequence count the free-space check works out)
+_MAX_STREAM_S = 366 * 86400
+
+
 @main.command("stream")
 @_RIG
 @_PLAN
 @click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False),
               help="The calibration the plan was made from.")
 @_SCENE
-@click.option("--seconds", type=_Finite(min=0, min_open=True), required=True, help="Capture time.")
+@click.option("--seconds", type=_Finite(min=0, min_open=True, max=_MAX_STREAM_S), required=True,
+              help="Capture time (at most a year: 31622400 s).")
 @click.option("--out", type=click.Path(file_okay=False), default=None,
               help="New zarr recording to write (REC.zarr: one chunk per sequence, xarray / dask readable), with "
                    "preview.png inside.")
@@ -1049,8 +1054,13 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
                 f"(ring {s['ring_dropped']}), discarded {s['discarded']}, latency {s['latency_ms']:.1f} ms")
         click.echo(("\r" + line + "   ") if tty else line, err=True, nl=not tty)
 
-    with _one_interrupt():
-        report = stream.run(seconds, on_status=status)
+    try:
+        with _one_interrupt():
+            report = stream.run(seconds, on_status=status)
+    except BaseException as error:  # the recording says it failed (never "complete"), with the reason
+        if writer is not None and not isinstance(error, KeyboardInterrupt):
+            writer.mark_failed(f"{type(error).__name__}: {error}")
+        raise
     if tty:
         click.echo("", err=True)
     a = report.assembly

@@ -179,6 +179,9 @@ def read_training(path, wavelengths) -> tuple[np.ndarray, list]:
     if path.suffix.lower() == ".npz":
         if not path.is_file():
             raise ValueError(f"{path}: training file not found")
+        from .formats import npz_members
+
+        npz_members(path)  # the declared sizes, checked before any array is inflated
         try:
             with np.load(path, allow_pickle=False) as data:
                 swl = np.asarray(data["wavelengths"], np.float64).reshape(-1)

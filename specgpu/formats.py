@@ -34,8 +34,8 @@ from specgpu.checks import check_wavelengths, normalised_to_peak
 
 __all__ = [
     "format_channel", "parse_channel", "read_exr", "write_exr", "read_cube_exr", "write_cube_exr",
-    "read_cube_npz", "write_cube_npz", "check_cube", "atomic_path", "one_line", "SPECTRAL_LAYOUT_VERSION",
-    "os_error", "error_of", "read_spectrum_csv", "curve_on_grid",
+    "read_cube_npz", "write_cube_npz", "npz_members", "check_cube", "atomic_path", "one_line",
+    "SPECTRAL_LAYOUT_VERSION", "os_error", "error_of", "read_spectrum_csv", "curve_on_grid",
 ]
 
 #: Value of the ``spectralLayoutVersion`` header attribute the JCGT 2021 layout defines.
@@ -349,6 +349,78 @@ def write_cube_exr(path, cube, wavelengths, *, half: bool = False, attributes: d
 
 
 # ---- npz ---------------------------------------------------------------------------------------------------------
+#: An npz member this large (bytes, as its header declares) ...
+NPZ_UNIFORM_BYTES = 64 * 2**20
+#: ... that inflates more than this many times over its compressed size is refused: deflate reaches ~1000:1 only
+#: on constant data, which no measured cube, plan or calibration of that size is (a "zip bomb" that would take
+#: its declared size in memory before any check could look at its content).
+NPZ_MAX_RATIO = 500
+
+
+def npz_members(path) -> dict:
+    """The arrays of an ``.npz`` as their ``.npy`` headers declare them, read without inflating any data:
+    name -> (shape, dtype). Refuses, in one line naming the file and the member: a header whose declared size is
+    not what the archive stores, an array of more bytes than this machine has memory available, or a large member
+    that inflates like a zip bomb (see :data:`NPZ_MAX_RATIO`). Call it before ``np.load`` reads any array."""
+    path = Path(path)
+    members, total = {}, 0
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                if not info.filename.endswith(".npy"):
+                    continue
+                name = info.filename[:-4]
+                with zf.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    if version == (1, 0):
+                        shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+                    elif version == (2, 0):
+                        shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+                    else:
+                        raise ValueError(f"unsupported .npy version {version}")
+                    header_bytes = fh.tell()
+                if dtype.hasobject:
+                    raise ValueError(f"{path}: array {name!r} is not numeric (dtype {dtype})")
+                nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if header_bytes + nbytes != info.file_size:
+                    raise ValueError(f"{path}: array {name!r} declares {nbytes} bytes but the archive stores "
+                                     f"{info.file_size - header_bytes}; truncated or corrupt .npz")
+                if nbytes >= NPZ_UNIFORM_BYTES and nbytes > NPZ_MAX_RATIO * max(info.compress_size, 1):
+                    raise ValueError(f"{path}: array {name!r} {tuple(shape)} would inflate "
+                                     f"{info.compress_size / 1e6:.2f} MB to {nbytes / 1e6:.0f} MB "
+                                     f"({nbytes / max(info.compress_size, 1):.0f}:1, constant data); refused "
+                                     "before loading it")
+                members[name] = (tuple(shape), dtype)
+                total += nbytes
+    except ValueError as exc:
+        msg = one_line(str(exc))
+        raise ValueError(msg if msg.startswith(str(path)) else f"{path}: truncated or corrupt .npz ({msg})") from None
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, SyntaxError, tokenize.TokenError,
+            RuntimeError, NotImplementedError) as exc:
+        raise ValueError(f"{path}: truncated or corrupt .npz ({exc.__class__.__name__}: {one_line(str(exc))})"
+                         ) from None
+    available = _available_memory()
+    if available is not None and total > available:
+        raise ValueError(f"{path}: its arrays take {total / 1e9:.2f} GB once loaded but only {available / 1e9:.2f} "
+                         "GB of memory are available; refused before loading them")
+    return members
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory available to this process now (Linux: MemAvailable), or None when unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
 def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
     """Read a ``.npz`` cube, bands ordered by wavelength.
 
@@ -363,6 +435,13 @@ def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
     """
     path = Path(path)
     _check_exists(path, "spectral cube")
+    members = npz_members(path)  # sizes from the headers, before any array is inflated
+    if "wavelengths" in members and "reflectance" in members:  # the shapes too, before the data
+        wl_shape, refl_shape = members["wavelengths"][0], members["reflectance"][0]
+        if len(wl_shape) != 1:
+            raise ValueError(f"{path}: wavelengths must have shape (B,), got {wl_shape}")
+        if len(refl_shape) != 3 or refl_shape[2] != wl_shape[0]:
+            raise ValueError(f"{path}: reflectance must have shape (H, W, {wl_shape[0]}), got {refl_shape}")
     try:
         with np.load(path, allow_pickle=False) as data:
             keys = set(data.files)

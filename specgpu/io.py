@@ -1165,17 +1165,7 @@ def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[d
     shape = (meta["height"], meta["width"])
     frames = None  # allocated once the first frame has shown that the header's size is real
     for i, rec in enumerate(records):
-        path = directory / rec["file"]
-        if not path.is_file():
-            raise ValueError(f"{path}: frame {i} (frame id {rec['frame_id']}) listed in {SEQUENCE_FILE} is missing")
-        size = path.stat().st_size
-        if size != rec["bytes"]:
-            raise ValueError(f"{path}: truncated or altered frame: {size} bytes, {SEQUENCE_FILE} says {rec['bytes']}")
-        if verify:
-            digest = hashlib.sha256(path.read_bytes()).hexdigest()
-            if digest != rec["sha256"]:
-                raise ValueError(f"{path}: corrupt frame: SHA-256 differs from {SEQUENCE_FILE}")
-        frame = _read_tiff(path, shape)
+        frame = _read_listed_frame(directory, i, rec, shape, verify)
         if frames is None:
             try:
                 frames = np.empty((len(records), *shape), dtype=np.uint16)
@@ -1185,3 +1175,46 @@ def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[d
                                  "in memory") from None
         frames[i] = frame
     return frames, records, meta
+
+
+def _check_listed_frame(directory: Path, i: int, rec: dict) -> Path:
+    """The file of frame ``i`` listed in ``sequence.json``, there and of the listed size."""
+    path = directory / rec["file"]
+    if not path.is_file():
+        raise ValueError(f"{path}: frame {i} (frame id {rec['frame_id']}) listed in {SEQUENCE_FILE} is missing")
+    size = path.stat().st_size
+    if size != rec["bytes"]:
+        raise ValueError(f"{path}: truncated or altered frame: {size} bytes, {SEQUENCE_FILE} says {rec['bytes']}")
+    return path
+
+
+def _read_listed_frame(directory: Path, i: int, rec: dict, shape, verify: bool) -> np.ndarray:
+    path = _check_listed_frame(directory, i, rec)
+    if verify:
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        if digest != rec["sha256"]:
+            raise ValueError(f"{path}: corrupt frame: SHA-256 differs from {SEQUENCE_FILE}")
+    return _read_tiff(path, shape)
+
+
+def check_frame_files(directory, records) -> None:
+    """Every frame listed in ``sequence.json`` (``records``, from :func:`read_sequence_header`) is there with its
+    listed size: what a reader checks before any work, without reading pixels (a one-line error naming the
+    file)."""
+    directory = Path(directory)
+    for i, rec in enumerate(records):
+        _check_listed_frame(directory, i, rec)
+
+
+def read_frames(directory, records, meta, start: int, stop: int, *, verify: bool = True) -> np.ndarray:
+    """Frames ``start:stop`` of a sequence folder whose header :func:`read_sequence_header` returned
+    (``records``, ``meta``), each checked as :func:`read_sequence` checks it: (stop - start, H, W) uint16. Reading
+    a folder a sequence at a time keeps memory to one sequence however long the capture."""
+    directory = Path(directory)
+    shape = (meta["height"], meta["width"])
+    if not 0 <= start <= stop <= len(records):
+        raise ValueError(f"{directory}: frames {start}:{stop} are out of range ({len(records)} listed)")
+    out = np.empty((stop - start, *shape), dtype=np.uint16)
+    for j, i in enumerate(range(start, stop)):
+        out[j] = _read_listed_frame(directory, i, records[i], shape, verify)
+    return out

@@ -273,14 +273,41 @@ def read_capture(directory) -> SequenceFolder:
     """Read a sequence folder; refuse it when the plan or calibration is missing or does not match its hashes,
     or when its frames are not whole sequences in pattern order."""
     directory = Path(directory)
+    _check_not_zarr(directory)
+    _check_interrupted(directory)
+    frames, records, meta = io.read_sequence(directory)
+    plan, bundle = _capture_plan(directory, records, meta)
+    return SequenceFolder(directory, frames.reshape(-1, plan.K, *frames.shape[1:]), plan, bundle, records, meta)
+
+
+def read_capture_header(directory) -> tuple[list, dict, Plan, CalibrationBundle]:
+    """What :func:`read_capture` checks, without reading a pixel: ``(records, meta, plan, calibration)`` of a
+    sequence folder (``sequence.json`` validated, the plan and calibration matching it, whole sequences in pattern
+    order). The frames are then read per sequence (:func:`specgpu.io.read_frames`), so a reader's memory does
+    not grow with the capture."""
+    directory = Path(directory)
+    _check_not_zarr(directory)
+    _check_interrupted(directory)
+    records, meta = io.read_sequence_header(directory)
+    plan, bundle = _capture_plan(directory, records, meta)
+    return records, meta, plan, bundle
+
+
+def _check_not_zarr(directory: Path) -> None:
     if (directory / "zarr.json").is_file() and not (directory / io.SEQUENCE_FILE).exists():
         raise ValueError(_zarr_not_a_sequence(directory))
+
+
+def _check_interrupted(directory: Path) -> None:
     if (directory / INCOMPLETE_MARKER).exists() and not (directory / io.SEQUENCE_FILE).exists():
         salvage = (" `specgpu salvage DIR` indexes its complete sequences;"
                    if (directory / io.JOURNAL_FILE).exists() else "")
         raise ValueError(f"{directory}: an interrupted capture (no sequence.json);{salvage} capture again into it "
                          "to replace it, or delete it")
-    frames, records, meta = io.read_sequence(directory)
+
+
+def _capture_plan(directory: Path, records, meta) -> tuple[Plan, CalibrationBundle]:
+    """The plan and calibration stored in a sequence folder, checked against its ``sequence.json``."""
     for name in (PLAN_FILE, CALIBRATION_FILE):
         if not (directory / name).is_file():
             raise FileNotFoundError(f"{directory}: {name} is missing; capture with `specgpu capture` (it stores "
@@ -296,7 +323,7 @@ def read_capture(directory) -> SequenceFolder:
     indices = np.array([r["pattern_index"] for r in records])
     if len(indices) % K or not np.array_equal(indices, np.tile(np.arange(K), len(indices) // K)):
         raise ValueError(f"{directory}: frames are not whole sequences of the plan's {K} patterns in order")
-    return SequenceFolder(directory, frames.reshape(-1, K, *frames.shape[1:]), plan, bundle, records, meta)
+    return plan, bundle
 
 
 def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None,

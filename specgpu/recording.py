@@ -2,8 +2,9 @@
 
 Layout of ``REC.zarr`` (format ``specgpu.recording``, version 1)::
 
-    attributes     format, version, plan_hash, plan_method, calibration, patterns_hash, K, height, width,
-                   outputs, frames, sequences_committed, status ("recording" | "complete" | "failed"), metadata
+    attributes     format, version, recording_id, plan_hash, plan_method, calibration, patterns_hash, K, height,
+                   width, outputs, frames, sequences_committed, status ("recording" | "complete" | "failed"),
+                   error (why a failed recording stopped), metadata
     time           (time,)                     float64, s: exposure start of each sequence's first frame
     frame_id       (time, pattern)             int64, the K frame ids of each sequence
     timestamp_s    (time, pattern)             float64, s: exposure start of each frame
@@ -32,20 +33,51 @@ normally or on an error; a recording cut by ``kill -9`` may show up to a block o
 the commit to a reader that ignores it. :func:`open_recording` trusts ``sequences_committed``: a recording cut by
 a crash or a full disk keeps every committed sequence readable and loses at most the one being written. A
 recording is never appended to: a new recording into an existing folder is refused.
+
+``recording_id`` is a random identifier written once when the recording is created: two recordings at the same path
+(one replaced by another) never share it, so whatever was derived from a recording (a ``specgpu batch`` output)
+knows whether its source is still the same one.
+
+Reading it with another tool (xarray, zarr, Dask): check it the way :meth:`Recording.read` does, because zarr
+itself returns the fill value (0, NaN) for a chunk that is not on disk, never an error:
+
+1. use only the first ``sequences_committed`` entries along ``time`` (``status`` "complete" also says the
+   writer closed it; "recording" means it was cut by a crash and may hold fill values past the commit)::
+
+       ds = xarray.open_zarr(REC)
+       ds = ds.isel(time=slice(0, ds.attrs["sequences_committed"]))
+
+2. every committed sequence must have its chunk of every array on disk: the chunk of sequence ``i`` of array
+   ``NAME`` is the file ``REC/NAME/c/i/0/.../0`` (zarr v3's default chunk key, one chunk per sequence), so::
+
+       arr = zarr.open_group(REC, mode="r")[NAME]
+       n = arr.nchunks_initialized  # chunks on disk; must equal sequences_committed (closed recordings are cut
+                                    # to the commit; a crashed one may also hold chunks past it)
+
+   or :func:`missing_sequences` (``specgpu.recording.missing_sequences(REC, NAME)``) names the committed
+   sequences whose chunk is absent. A missing chunk of a committed sequence is damage: report it, never use
+   the fill values it reads as.
+
+Chunks that a writer killed by ``kill -9`` left half written are files named ``*.partial`` (zarr writes a chunk to
+such a temporary and renames it); they are never read, and :func:`remove_partial_chunks` deletes them (``specgpu
+batch`` does so in its output before resuming it, and in a source recording that no live writer holds).
 """
 
 from __future__ import annotations
 
 import hashlib
+import itertools
 import math
 import shutil
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 __all__ = ["RECORDING_FORMAT", "RECORDING_VERSION", "ZarrRecorder", "Recording", "open_recording",
-           "patterns_hash", "sequence_bytes", "check_free_space", "refuse_existing"]
+           "patterns_hash", "sequence_bytes", "check_free_space", "refuse_existing", "missing_sequences",
+           "remove_partial_chunks"]
 
 RECORDING_FORMAT = "specgpu.recording"
 RECORDING_VERSION = 1
@@ -148,8 +180,10 @@ class ZarrRecorder:
         self.failed: str | None = None
         self._arrays: dict = {}
         self.group = zarr.open_group(str(self.path), mode="w-", zarr_format=3)
+        self.recording_id = uuid.uuid4().hex  # tells this recording from any other later put at the same path
         self.group.attrs.update({
-            "format": RECORDING_FORMAT, "version": RECORDING_VERSION, "plan_hash": plan.hash,
+            "format": RECORDING_FORMAT, "version": RECORDING_VERSION, "recording_id": self.recording_id,
+            "plan_hash": plan.hash,
             "plan_method": plan.method, "calibration": plan.calibration, "patterns_hash": patterns_hash(plan),
             "K": int(plan.K), "outputs": [], "frames": self.record_frames, "sequences_committed": 0,
             "status": "recording", "metadata": dict(metadata or {})})
@@ -253,7 +287,17 @@ class ZarrRecorder:
         self._pool.shutdown(wait=True)
         self._trim()
         self.group.attrs.update({"status": "failed" if self.failed else "complete",
-                                 "sequences_committed": self.committed})
+                                 "sequences_committed": self.committed,
+                                 **({"error": self.failed} if self.failed else {})})
+        consolidate(self.path)
+
+    def mark_failed(self, reason: str) -> None:
+        """The run that fed this recording failed (even after its sinks were closed, or before its first
+        sequence): the recording says ``failed`` with the reason, never ``complete``; its committed sequences
+        stay readable."""
+        self.failed = self.failed or (str(reason).strip().splitlines() or ["failed"])[0]
+        self._pool.shutdown(wait=True)
+        self.group.attrs.update({"status": "failed", "error": self.failed, "sequences_committed": self.committed})
         consolidate(self.path)
 
 
@@ -304,14 +348,86 @@ class Recording:
         return self.group[name]
 
     def read(self, name: str, index) -> np.ndarray:
-        """Committed sequence(s) ``index`` of array ``name``; a corrupt chunk is a one-line error."""
+        """Committed sequence(s) ``index`` of array ``name``; a corrupt chunk, or a missing chunk of a committed
+        sequence (zarr would read it as fill values), is a one-line error naming the recording, array and
+        sequence."""
         arr = self.array(name)
+        if _along_time(arr):
+            first = index[0] if isinstance(index, tuple) else index
+            try:
+                wanted = range(arr.shape[0])[first]
+            except (TypeError, IndexError):  # an index zarr itself will refuse or a fancy one: every sequence
+                wanted = range(arr.shape[0])
+            wanted = [i for i in ([wanted] if isinstance(wanted, int) else wanted) if i < self.sequences]
+            missing = _missing_chunks(arr, wanted)
+            if missing:
+                more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+                raise ValueError(f"{self.path}/{name}: sequence {missing[0]}{more} is committed but its chunk "
+                                 f"{_chunk_keys(arr, missing[0])[0]} is missing; the recording is damaged there")
         try:
             return native(arr[index])
         except Exception as exc:  # noqa: BLE001 (zarr raises codec-specific errors)
             raise ValueError(f"{self.path}/{name}: corrupt or unreadable chunk at sequence {index} "
                              f"({type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''})"
                              ) from None
+
+    def missing(self, name: str) -> list[int]:
+        """The committed sequences whose chunk of array ``name`` is not on disk (empty when it is whole)."""
+        arr = self.array(name)
+        return _missing_chunks(arr, range(min(self.sequences, arr.shape[0]))) if _along_time(arr) else []
+
+
+def _along_time(arr) -> bool:
+    names = getattr(arr.metadata, "dimension_names", None) or ()
+    return bool(names) and names[0] == "time" and arr.chunks[0] == 1
+
+
+def _chunk_keys(arr, i: int) -> list[str]:
+    """The store keys of sequence ``i``'s chunks of ``arr`` (one chunk along time per sequence)."""
+    grid = [range(math.ceil(n / c)) for n, c in zip(arr.shape[1:], arr.chunks[1:])]
+    return [arr.metadata.encode_chunk_key((i, *rest)) for rest in itertools.product(*grid)]
+
+
+def _missing_chunks(arr, sequences) -> list[int]:
+    """Which of ``sequences`` lack a chunk of ``arr`` in its store."""
+    from zarr.core.sync import sync
+
+    sequences = list(sequences)
+    if not sequences:
+        return []
+    store, prefix = arr.store, f"{arr.path}/" if arr.path else ""
+    if len(sequences) <= 4:
+        present = {key for i in sequences for key in _chunk_keys(arr, i)
+                   if sync(store.exists(prefix + key))}
+    else:  # one listing of the array's chunks, not one request per chunk
+
+        async def listed():
+            return {key[len(prefix):] async for key in store.list_prefix(prefix + "c")}
+
+        present = sync(listed())
+    return [i for i in sequences if not all(key in present for key in _chunk_keys(arr, i))]
+
+
+def missing_sequences(path, name: str) -> list[int]:
+    """The committed sequences of recording ``path`` whose chunk of array ``name`` is not on disk (a reader that
+    does not use :func:`open_recording` checks this before trusting the values; zarr reads a missing chunk as
+    fill values)."""
+    return open_recording(path).missing(name)
+
+
+def remove_partial_chunks(path) -> list[Path]:
+    """Delete the ``*.partial`` chunk files a writer killed mid-write left in the zarr group at ``path`` (zarr
+    writes each chunk to such a temporary name and renames it; a leftover is never read and never completed).
+    Call it only while no writer is running on ``path``. Returns the files removed."""
+    removed = []
+    for leftover in Path(path).rglob("*.partial"):
+        if leftover.is_file():
+            try:
+                leftover.unlink()
+                removed.append(leftover)
+            except FileNotFoundError:
+                pass
+    return removed
 
 
 def open_recording(path) -> Recording:
@@ -344,6 +460,8 @@ def open_recording(path) -> Recording:
         raise ValueError(f"{path}: K must be an integer >= 1, got {str(K)[:40]}")
     for name in (*outputs, *(("frames",) if attrs.get("frames") else ())):
         if name not in group:
+            if n == 0:  # arrays are made with the first sequence: a recording that stopped before has none
+                continue
             raise ValueError(f"{path}: the {name!r} array is missing")
         if group[name].shape[0] < n:
             raise ValueError(f"{path}/{name}: holds {group[name].shape[0]} sequences but {n} are committed")

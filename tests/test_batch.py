@@ -10,10 +10,14 @@ import os
 import re
 import shutil
 import signal
+from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import one_line_error, run
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from specgpu import io
 from specgpu.batch import run_batch
@@ -219,10 +223,12 @@ def test_bad_input_is_one_line(made, tmp_path):
     assert "bad.zarr/frames: corrupt or unreadable chunk at sequence 2" in msg and "\n" not in msg
     # an output from another batch
     msg = run(root / "rec.zarr", out="bad-out.zarr")
-    assert "bad-out.zarr: holds a batch of another source; resume only the same batch" in msg
+    assert f"bad-out.zarr: holds a batch made with SOURCE {tmp_path / 'bad.zarr'}, this run gives " \
+           f"{root / 'rec.zarr'}; resume only the same batch" in msg
     zarr.open_group(str(tmp_path / "bad-out.zarr"), mode="r+").attrs["plan_hash"] = "0" * 64
     msg = run(tmp_path / "bad.zarr", out="bad-out.zarr")
-    assert "bad-out.zarr: holds a batch of another plan_hash" in msg and "\n" not in msg
+    assert f"bad-out.zarr: holds a batch made with --plan {'0' * 12}, this run gives {setup.plan.hash[:12]}" in msg
+    assert "\n" not in msg
 
 
 def test_recover_writes_an_envi_cube_equal_to_npz(made, tmp_path):
@@ -283,3 +289,332 @@ def test_cli_batch_on_a_given_scheduler(made, tmp_path):
         assert "3 sequences computed on 1 worker(s)" in result.output
         assert len(cluster.scheduler.workers) == 1  # the cluster outlives the batch: only the client was closed
     np.testing.assert_array_equal(open_recording_like(tmp_path / "s.zarr")["cube"][2], recovered(root, tmp_path, 2))
+
+
+# ---- the batch's identity, its source's content, damaged and half-made outputs ------------------------------------
+
+
+def record(setup, path, loops=2):
+    """A new recording with raw frames of the module's plan at ``path`` (3 sequences per loop)."""
+    rec = ZarrRecorder(path, setup.plan, frames=True)
+    Stream(setup.driver(loops=loops), setup.plan, setup.bundle, outputs=("XYZ",), policy="block", sinks=[rec]).run()
+    return path
+
+
+def plan_and_calibration(root):
+    from specgpu.calibration import load_calibration
+    from specgpu.plans import load_plan
+
+    return load_plan(root / "plan.npz"), load_calibration(root / "calib.npz")
+
+
+def test_a_resumed_batch_refuses_every_changed_result_option(made, tmp_path):
+    """An output left by a killed batch (nothing or part done) is resumed only by the same batch: a changed dE
+    reference, method, illuminant or output list would mix two batches' results in one output."""
+    from specgpu.batch import prepare_batch
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    out = tmp_path / "b.zarr"
+    prepare_batch(root / "rec.zarr", plan, bundle, out, outputs=("cube", "dE"),
+                  reference=np.array([50, 0, 0], np.float32))  # what a batch killed before its first chunk leaves
+    args = ["batch", root / "rec.zarr", "--plan", root / "plan.npz", "--out", out, "--outputs", "cube,dE"]
+    one_line_error(run(*args, "--delta-e-ref", "90,40,-40", ok=False),
+                   "b.zarr: holds a batch made with --delta-e-ref 50,0,0, this run gives 90,40,-40; resume only "
+                   "the same batch")
+    one_line_error(run(*args, "--delta-e-ref", "50,0,0", "--method", "CIE 1976", ok=False),
+                   "made with --method CIE 2000, this run gives CIE 1976")
+    one_line_error(run(*args, "--delta-e-ref", "50,0,0", "--illuminant", "A", ok=False),
+                   "made with --illuminant D65, this run gives A")
+    one_line_error(run(*args[:-2], ok=False), "made with --outputs cube,dE, this run gives cube;")
+    # the same batch resumes
+    _, todo = prepare_batch(root / "rec.zarr", plan, bundle, out, outputs=("cube", "dE"),
+                            reference=np.array([50, 0, 0], np.float32))
+    assert todo.tolist() == list(range(N))
+
+
+def test_a_source_replaced_at_the_same_path_is_not_resumed(made, tmp_path):
+    """The source is identified by its content: another recording put at its path, a frames chunk replaced, or
+    another capture in a sequence folder's place is another source, and its output is not resumed with it."""
+    from specgpu.batch import prepare_batch
+
+    setup, root = made
+    plan, bundle = plan_and_calibration(root)
+    src = tmp_path / "src.zarr"
+    shutil.copytree(root / "rec.zarr", src)
+    prepare_batch(src, plan, bundle, tmp_path / "a.zarr")
+    prepare_batch(src, plan, bundle, tmp_path / "a.zarr")  # the same source: resumed
+    shutil.rmtree(src)
+    record(setup, src)  # same plan, same sequence count, another recording
+    assert open_recording(src).sequences == N
+    with pytest.raises(ValueError, match=r"a\.zarr: holds a batch made with SOURCE's content \(recording id and "
+                                         r"frame checksums\) \w{12}, this run gives \w{12}; resume only"):
+        prepare_batch(src, plan, bundle, tmp_path / "a.zarr")
+    # one frames chunk replaced by another sequence's (the recording id unchanged)
+    prepare_batch(src, plan, bundle, tmp_path / "b.zarr")
+    chunk = src / "frames" / "c" / "0" / "0" / "0" / "0"
+    chunk.write_bytes((src / "frames" / "c" / "1" / "0" / "0" / "0").read_bytes())
+    with pytest.raises(ValueError, match=r"b\.zarr: holds a batch made with SOURCE's content"):
+        prepare_batch(src, plan, bundle, tmp_path / "b.zarr")
+    # a sequence folder replaced by a capture of other frames
+    seq = tmp_path / "seq"
+    shutil.copytree(root / "seq", seq)
+    prepare_batch(seq, plan, bundle, tmp_path / "c.zarr")
+    frames, records, meta = io.read_sequence(seq)
+    shutil.rmtree(seq)
+    io.write_sequence(seq, frames[::-1].copy(), records, meta["plan_hash"])
+    for name in ("plan.npz", "calibration.npz"):
+        shutil.copyfile(root / "seq" / name, seq / name)
+    with pytest.raises(ValueError, match=r"c\.zarr: holds a batch made with SOURCE's content"):
+        prepare_batch(seq, plan, bundle, tmp_path / "c.zarr")
+
+
+def test_a_missing_chunk_of_a_committed_sequence_is_an_error(made, tmp_path):
+    """zarr reads a chunk that is not on disk as fill values: a committed sequence without its chunk is damage,
+    an error in open_recording().read and in batch (before the output is made), never zeros decoded."""
+    from specgpu.recording import missing_sequences
+
+    _, root = made
+    src = tmp_path / "cap.zarr"
+    shutil.copytree(root / "rec.zarr", src)
+    (src / "frames" / "c" / "3" / "0" / "0" / "0").unlink()
+    rec = open_recording(src)
+    assert rec.read("frames", 2).shape[0] == rec.K  # its neighbours read
+    for index in (3, slice(0, N), slice(None)):
+        with pytest.raises(ValueError, match=r"cap\.zarr/frames: sequence 3 is committed but its chunk c/3/0/0/0 "
+                                             r"is missing; the recording is damaged"):
+            rec.read("frames", index)
+    assert missing_sequences(src, "frames") == [3] and missing_sequences(src, "XYZ") == []
+    (src / "XYZ" / "c" / "5" / "0" / "0" / "0").unlink()
+    assert missing_sequences(src, "XYZ") == [5]
+    result = run("batch", src, "--plan", root / "plan.npz", "--out", tmp_path / "b5.zarr", ok=False)
+    one_line_error(result, "cap.zarr/frames: sequence 3 is committed but its chunk c/3/0/0/0 is missing")
+    assert not (tmp_path / "b5.zarr").exists()
+
+
+def test_a_sequence_folder_source_holds_one_sequence_at_a_time(made, tmp_path):
+    """A sequence folder is read a sequence at a time: opening it keeps no frame, reading one sequence
+    allocates about one sequence, whatever the capture's length (each frame still checked against its
+    checksum)."""
+    import tracemalloc
+
+    from specgpu.batch import open_source
+
+    setup, root = made
+    frames, _, _ = io.read_sequence(root / "seq")
+    one = frames.nbytes // 3  # one sequence of K frames
+    tracemalloc.start()
+    try:
+        base = tracemalloc.take_snapshot()
+        source = open_source(root / "seq")
+        kept = sum(s.size_diff for s in tracemalloc.take_snapshot().compare_to(base, "filename"))
+        assert kept < one / 2, f"opening the folder kept {kept} bytes (one sequence is {one})"
+        peak = 0
+        for i in range(source.sequences):
+            tracemalloc.reset_peak()
+            start = tracemalloc.get_traced_memory()[0]
+            got = source.frames(i)
+            peak = max(peak, tracemalloc.get_traced_memory()[1] - start)
+            np.testing.assert_array_equal(got, frames[i * source.K:(i + 1) * source.K])
+            del got
+    finally:
+        tracemalloc.stop()
+    assert source.sequences == 3 and peak < 1.6 * one, f"reading peaked at {peak} bytes, one sequence is {one}"
+    shutil.copytree(root / "seq", tmp_path / "seq")
+    damaged = tmp_path / "seq" / sorted(p.name for p in (root / "seq").glob("frame_*.tif"))[source.K + 3]
+    data = bytearray(damaged.read_bytes())
+    data[-10] ^= 0x01
+    damaged.write_bytes(bytes(data))
+    copy = open_source(tmp_path / "seq")
+    copy.frames(0)
+    with pytest.raises(ValueError, match="corrupt frame: SHA-256 differs"):
+        copy.frames(1)
+
+
+def test_a_failing_sequence_stops_the_batch_in_one_line_without_a_worker_traceback(made, tmp_path, capfd):
+    """A sequence that fails on a worker (here a corrupt chunk) is one line, with no Dask "Compute Failed" block
+    or traceback printed by the worker processes; the output stays resumable."""
+    _, root = made
+    shutil.copytree(root / "rec.zarr", tmp_path / "bad.zarr")
+    chunk = tmp_path / "bad.zarr" / "frames" / "c" / "4" / "0" / "0" / "0"
+    data = bytearray(chunk.read_bytes())
+    data[2000] ^= 0x10
+    chunk.write_bytes(bytes(data))
+    capfd.readouterr()
+    result = run("batch", tmp_path / "bad.zarr", "--plan", root / "plan.npz", "--out", tmp_path / "b.zarr", ok=False)
+    one_line_error(result, "bad.zarr/frames: corrupt or unreadable chunk at sequence 4", "sequences done in",
+                   "run the batch again to resume")
+    printed = capfd.readouterr()
+    for text in (result.output, printed.err, printed.out):
+        assert "Compute Failed" not in text and "Traceback" not in text, text
+    assert zarr_attrs(tmp_path / "b.zarr")["status"] == "running"
+
+
+def zarr_attrs(path):
+    import zarr
+
+    return dict(zarr.open_group(str(path), mode="r").attrs)
+
+
+def test_frames_of_another_size_are_refused_before_the_output_exists(made, tmp_path):
+    """An edited frames shape (or a calibration of another frame size) is found before any output is made or
+    any worker started."""
+    import json
+
+    from specgpu.recording import consolidate
+
+    _, root = made
+    src = tmp_path / "edited.zarr"
+    shutil.copytree(root / "rec.zarr", src)
+    meta = json.loads((src / "frames" / "zarr.json").read_text())
+    meta["shape"][-1] = 300
+    meta["chunk_grid"]["configuration"]["chunk_shape"][-1] = 300
+    (src / "frames" / "zarr.json").write_text(json.dumps(meta))
+    consolidate(src)
+    result = run("batch", src, "--plan", root / "plan.npz", "--out", tmp_path / "b.zarr", ok=False)
+    one_line_error(result, "edited.zarr/frames: frames are 240 x 300 but the recording says 240 x 320")
+    assert not (tmp_path / "b.zarr").exists()
+
+
+def test_an_output_killed_while_being_created_is_resumed(made, tmp_path, monkeypatch):
+    """A batch killed right after its output appeared: the output is made under a temporary name and renamed
+    whole, so a kill leaves nothing at --out (and the next run removes the dead run's temporary); an output left
+    half-made by an older specgpu (no ``done`` array yet, so nothing computed) is made again."""
+    import subprocess
+    import sys
+
+    import zarr
+
+    from specgpu import batch
+    from specgpu.batch import BATCH_FORMAT, prepare_batch
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    out = tmp_path / "b.zarr"
+
+    def killed(self):
+        raise KeyboardInterrupt  # as a kill in the middle of making the output
+
+    with monkeypatch.context() as m:
+        m.setattr(batch._RecordingSource, "times", killed)
+        with pytest.raises(KeyboardInterrupt):
+            prepare_batch(root / "rec.zarr", plan, bundle, out)
+    assert not out.exists() and not list(tmp_path.glob(".b.zarr.*"))
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    leftover = tmp_path / f".b.zarr.{int(dead.stdout)}.creating"
+    (leftover / "cube").mkdir(parents=True)  # what a kill -9 during the creation leaves
+    _, todo = prepare_batch(root / "rec.zarr", plan, bundle, out)
+    assert todo.tolist() == list(range(N)) and not leftover.exists()
+    # an output an older specgpu left half-made: its attributes, no done array
+    shutil.rmtree(out)
+    group = zarr.open_group(str(out), mode="w-", zarr_format=3)
+    group.attrs.update({"format": BATCH_FORMAT, "version": 1, "status": "running"})
+    group.create_array("cube", shape=(N, 2), chunks=(1, 2), dtype="float32")
+    _, todo = prepare_batch(root / "rec.zarr", plan, bundle, out)
+    assert todo.tolist() == list(range(N)) and zarr_attrs(out)["plan_hash"] == plan.hash
+
+
+def test_resuming_removes_the_partial_chunks_a_killed_run_left(made, tmp_path):
+    """zarr writes each chunk to ``*.partial`` and renames it: a kill -9 mid-write leaves that file; resuming the
+    batch removes it (nothing else ever would)."""
+    from specgpu.batch import prepare_batch
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    out = tmp_path / "b.zarr"
+    prepare_batch(root / "rec.zarr", plan, bundle, out)
+    partial = out / "cube" / "c" / "2" / "0" / "0" / "0.3f9c2b.partial"
+    partial.parent.mkdir(parents=True, exist_ok=True)
+    partial.write_bytes(bytes(5000))
+    prepare_batch(root / "rec.zarr", plan, bundle, out)
+    assert not partial.exists() and not list(out.rglob("*.partial"))
+    # a source recording whose writer was killed: its leftovers go once no live writer holds its lock
+    from specgpu.locks import output_lock
+
+    src = tmp_path / "src.zarr"
+    shutil.copytree(root / "rec.zarr", src)
+    leftover = src / "frames" / "c" / "4" / "0" / "0" / "0.77aa01.partial"
+    leftover.write_bytes(bytes(5000))
+    with output_lock(src):  # a live writer (flock: another open lock file, even in this process): left alone
+        prepare_batch(src, plan, bundle, tmp_path / "c.zarr")
+        assert leftover.exists()
+    prepare_batch(src, plan, bundle, tmp_path / "d.zarr")
+    assert not leftover.exists() and not list(src.rglob("*.partial"))
+
+
+def test_a_recording_replaced_on_a_long_lived_scheduler_is_read_afresh(made, tmp_path):
+    """--scheduler: the workers outlive a batch and keep its state; a recording replaced at the same path (here
+    by one with more sequences) is another source, so the workers open it again instead of reading it through
+    the old one's handles (which made every later sequence a false "corrupt chunk")."""
+    from distributed import LocalCluster
+
+    setup, root = made
+    src, out = tmp_path / "src.zarr", tmp_path / "b.zarr"
+    record(setup, src, loops=1)
+    assert open_recording(src).sequences == 3
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+        args = ["batch", src, "--plan", root / "plan.npz", "--calib", root / "calib.npz", "--out", out,
+                "--scheduler", cluster.scheduler_address]
+        assert "3 sequences computed" in run(*args).output
+        shutil.rmtree(src)
+        shutil.rmtree(out)
+        shutil.copytree(root / "rec.zarr", src)
+        assert f"{N} sequences computed" in run(*args).output
+    frames = open_recording(src).read("frames", slice(None))
+    cube = open_recording_like(out)["cube"]
+    for i in (0, N - 1):
+        np.testing.assert_array_equal(cube[i], recovered(root, tmp_path, i, frames[i]))
+
+
+def test_a_full_disk_on_a_worker_is_one_line_naming_the_output(made, tmp_path, monkeypatch):
+    """A worker's write that fails (a full disk) comes back as one line naming the output array and the sequence,
+    never zarr's temporary chunk file, and the sequence is not marked done."""
+    import errno
+
+    from specgpu import batch
+    from specgpu.batch import prepare_batch, process_sequence
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    out = tmp_path / "b.zarr"
+    job, _ = prepare_batch(root / "rec.zarr", plan, bundle, out)
+
+    class FullDisk:
+        def __setitem__(self, index, value):
+            raise OSError(errno.ENOSPC, "No space left on device", str(out / "cube" / "c" / "1" / "0.9a1b.partial"))
+
+    state, _ = batch._worker_state(job)
+    monkeypatch.setitem(batch._STATE, job.key, batch._WorkerState(state.queue, state.source, {"cube": FullDisk()}))
+    record = process_sequence(job, 1)
+    assert record["error"] == f"{out}/cube: writing sequence 1 failed (No space left on device)"
+    assert open_recording_like(out)["done"][:].tolist() == [0] * N
+
+
+@settings(max_examples=80, deadline=None)
+@given(data=st.data())
+def test_any_changed_identity_entry_is_named_with_both_values(data):
+    """The resume check: the same identity resumes; any one entry changed is refused naming its option and both
+    values (the dE reference by its label, decided by its checksum)."""
+    from specgpu.batch import _IDENTITY_NAMES, _identity_mismatch
+
+    text = st.text(st.characters(min_codepoint=48, max_codepoint=122), min_size=1, max_size=12)
+    identity = {key: data.draw(text, key) for key in _IDENTITY_NAMES}
+    identity["outputs"] = data.draw(st.lists(st.sampled_from(["cube", "XYZ", "Lab", "dE"]), min_size=1,
+                                             unique=True), "outputs")
+    identity["delta_e_ref"] = data.draw(text, "label")
+    out = Path("/x/b.zarr")
+    assert _identity_mismatch(out, dict(identity), identity) is None
+    key = data.draw(st.sampled_from(sorted(_IDENTITY_NAMES)), "changed")
+    attrs = dict(identity)
+    attrs[key] = data.draw(text.filter(lambda v: v != identity[key]), "old") if key != "outputs" else ["Lab"]
+    if key == "outputs" and identity["outputs"] == ["Lab"]:
+        attrs[key] = ["cube"]
+    if key == "reference_sha256":
+        attrs["delta_e_ref"] = "old-label"
+    message = _identity_mismatch(out, attrs, identity)
+    name, show = _IDENTITY_NAMES[key]
+    assert message.startswith(f"{out}: holds a batch made with {name} ") and "\n" not in message
+    if key == "reference_sha256":
+        assert f"--delta-e-ref old-label, this run gives {identity['delta_e_ref']};" in message
+    else:
+        assert f"{name} {show(attrs[key])}, this run gives {show(identity[key])};" in message
