@@ -211,6 +211,32 @@ def envi_data_path(header) -> Path:
     return Path(header).with_suffix(".img")
 
 
+def _envi_data_candidates(path: Path, data_file: str | None = None) -> list[Path]:
+    """The files an ENVI header's data may be in, in the order :func:`read_cube_envi` tries them."""
+    return ([path.parent / data_file] if data_file else []) + [
+        envi_data_path(path), path.with_suffix(".IMG"), path.with_suffix(".dat"), path.with_suffix(".raw"),
+        path.with_suffix("")]
+
+
+def companion_files(path) -> list[Path]:
+    """The files that go with ``path`` and are read or written with it: for an ENVI header (``.hdr``), the data
+    file written beside it (``CUBE.img``) and every file its reader would take the data from (the header's ``data
+    file`` entry, ``CUBE.IMG``, ``.dat``, ``.raw``, ``CUBE``) that exists; nothing for other files.
+
+    A command treats them as its inputs and outputs too: an output that is an input's data file would destroy that
+    input, and a writer of ``CUBE.hdr`` holds the lock of ``CUBE.img`` as well."""
+    path = Path(path)
+    if path.suffix.lower() != ".hdr":
+        return []
+    data_file = None
+    try:
+        data_file = read_envi_header(path).get("data file") if path.is_file() else None
+    except (OSError, ValueError):
+        pass
+    found = [p for p in _envi_data_candidates(path, data_file) if p != path and p.is_file()]
+    return list(dict.fromkeys([envi_data_path(path), *found]))
+
+
 def write_cube_envi(path, cube, wavelengths, *, interleave: str = "bsq", metadata=None) -> Path:
     """Write an (H, W, B) cube as ENVI: ``CUBE.hdr`` (text header) and ``CUBE.img`` (raw float32, little endian).
 
@@ -253,7 +279,8 @@ def write_cube_envi(path, cube, wavelengths, *, interleave: str = "bsq", metadat
     if meta is not None:
         lines.append("specgpu metadata = " + base64.b64encode(meta.encode()).decode())
     with atomic_path(envi_data_path(path)) as tmp:
-        data.tofile(tmp)
+        with open(tmp, "wb") as fh:  # not ndarray.tofile: its short write carries no errno ("N requested and M
+            fh.write(data.reshape(-1).view(np.uint8))  # written"), a plain write says "No space left on device"
     with atomic_path(path) as tmp:
         tmp.write_text("\n".join(lines) + "\n", encoding="ascii")
     return path
@@ -345,9 +372,7 @@ def read_cube_envi(path) -> tuple[np.ndarray, np.ndarray, dict]:
                          "Nanometers or Micrometers")
     wl = wl * _ENVI_UNITS_NM[units]
     dtype = np.dtype(ENVI_DATA_TYPES[code]).newbyteorder(">" if order else "<")
-    candidates = ([path.parent / fields["data file"]] if "data file" in fields else []) + [
-        envi_data_path(path), path.with_suffix(".IMG"), path.with_suffix(".dat"), path.with_suffix(".raw"),
-        path.with_suffix("")]
+    candidates = _envi_data_candidates(path, fields.get("data file"))
     data_path = next((p for p in candidates if p.is_file() and p != path), None)
     if data_path is None:
         raise FileNotFoundError(f"{path}: the ENVI data file {envi_data_path(path).name} is missing")
@@ -780,12 +805,14 @@ def _write_tiff(path: Path, frame: np.ndarray) -> tuple[int, str]:
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create("tiff")
         if out is None or not out.open(str(tmp), spec):
-            raise ValueError(f"{path}: cannot write TIFF ({one_line(oiio.geterror())})")
+            raise formats.write_failed(path, tmp, "TIFF", oiio.geterror())
         try:
-            if not out.write_image(frame):
-                raise ValueError(f"{path}: cannot write TIFF ({one_line(out.geterror())})")
+            if not out.write_image(frame):  # a full disk: "TIFFWriteScanline failed", its cause found here
+                raise formats.write_failed(path, tmp, "TIFF", out.geterror())
         finally:
-            out.close()
+            closed = out.close()
+        if not closed:
+            raise formats.write_failed(path, tmp, "TIFF", out.geterror() or oiio.geterror() or "closing it failed")
         raw = tmp.read_bytes()
     return len(raw), hashlib.sha256(raw).hexdigest()
 
