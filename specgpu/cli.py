@@ -697,14 +697,20 @@ def _parse_reference(text, height, width, illuminant):
 def salvage(seq):
     """Index the complete sequences of a capture folder whose capture was killed (kill -9, a crash, power loss).
 
-    Each sequence a capture writes is journaled as it arrives; this checks every journaled frame against its
-    checksum and writes sequence.json for the complete, intact sequences (marked salvaged). Nothing is deleted.
+    Each sequence a capture writes is journaled as it arrives; this checks every journal line and journaled frame
+    against its checksum and writes sequence.json for every complete, intact sequence (marked salvaged, with the
+    sequences left out and why). No frame is deleted, and the journal only once the index reads back: a refused
+    salvage can be run again.
     """
     from .pipeline import salvage_capture
 
     _lock(seq, folder=True)  # not while a capture is still writing into it
     info = salvage_capture(seq)
-    rest = f"; not kept: {info['stopped']}" if info["stopped"] else ""
+    for gone in info["left_out"]:
+        click.echo(f"specgpu: sequence {gone['sequence']} ({gone['first_file']} to {gone['last_file']}) left out: "
+                   f"{gone['reason']}", err=True)
+    rest = (f"; left out {len(info['left_out'])} of {info['sequences_journaled']} journaled sequences (listed "
+            "above and in sequence.json)" if info["left_out"] else "")
     if info["frames_unindexed"]:
         rest += f"; {info['frames_unindexed']} frame file(s) outside the index left in place"
     click.echo(f"salvaged {info['sequences']} sequences ({info['frames_kept']} of {info['frames_journaled']} "
