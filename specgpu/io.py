@@ -1073,18 +1073,8 @@ def verify_journal(directory, group: int) -> tuple[dict, dict]:
     """
     directory = Path(directory)
     journal = directory / JOURNAL_FILE
-    if (directory / SEQUENCE_FILE).exists():
-        raise FileExistsError(f"{directory}: already holds {SEQUENCE_FILE}; nothing to salvage")
-    if not journal.is_file():
-        raise ValueError(f"{directory}: no capture journal ({JOURNAL_FILE}); nothing of it can be indexed")
+    header, lines = _read_journal(directory)
     group = int(group)
-    lines = journal.read_bytes().split(b"\n")
-    header, why = _journal_line(lines[0]) if lines else (None, "empty")
-    if header is None:
-        raise ValueError(f"{journal}: corrupt at line 1, its header ({why}): the plan the frames were captured "
-                         "with cannot be verified, so none of them is indexed")
-    if header.get("format") != JOURNAL_FORMAT:
-        raise ValueError(f"{journal}: not a specgpu capture journal")
     entries, damaged = {}, []  # frame index -> [(line number, entry)]; line numbers that cannot be trusted
     n_lines = 0
     for number, raw in enumerate(lines[1:], start=2):
@@ -1146,6 +1136,28 @@ def verify_journal(directory, group: int) -> tuple[dict, dict]:
 
 
 _FRAME_INDEX = re.compile(r"^frame_(\d{6,})\.tif$")
+
+
+def journal_header(directory) -> dict:
+    """The verified first line of a capture folder's journal: ``plan_hash`` (the plan the frames were captured
+    with) and ``header`` (the capture's own, e.g. ``plan_method`` and ``K``). Raises as :func:`verify_journal`."""
+    return _read_journal(directory)[0]
+
+
+def _read_journal(directory: Path) -> tuple[dict, list[bytes]]:
+    journal = Path(directory) / JOURNAL_FILE
+    if (Path(directory) / SEQUENCE_FILE).exists():
+        raise FileExistsError(f"{directory}: already holds {SEQUENCE_FILE}; nothing to salvage")
+    if not journal.is_file():
+        raise ValueError(f"{directory}: no capture journal ({JOURNAL_FILE}); nothing of it can be indexed")
+    lines = journal.read_bytes().split(b"\n")
+    header, why = _journal_line(lines[0])
+    if header is None:
+        raise ValueError(f"{journal}: corrupt at line 1, its header ({why}): the plan the frames were captured "
+                         "with cannot be verified, so none of them is indexed")
+    if header.get("format") != JOURNAL_FORMAT or not isinstance(header.get("plan_hash"), str):
+        raise ValueError(f"{journal}: not a specgpu capture journal")
+    return header, lines
 
 
 def _sequence_problem(directory: Path, chunk: list, first: int, shape, last_id: int, journal: Path) -> str | None:

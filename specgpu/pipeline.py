@@ -191,6 +191,7 @@ def salvage_capture(directory) -> dict:
                              "and salvage again")
         plan.check_calibration(bundle, name=f"{directory / PLAN_FILE}")
 
+    check(io.journal_header(directory))  # before the frames are grouped in sequences of the plan's length
     info = io.salvage_sequence(directory, plan.K, check=check, confirm=lambda: read_capture(directory))
     (directory / INCOMPLETE_MARKER).unlink(missing_ok=True)
     return info
