@@ -246,6 +246,14 @@ def test_a_refused_salvage_writes_nothing_and_can_be_run_again(base, killed, tmp
     assert "salvaged 3 sequences" in run("salvage", out).output  # run again once fixed
 
 
+def test_a_plan_of_another_length_is_named_not_taken_for_broken_sequences(base, killed, tmp_path):
+    out = copy_of(killed, tmp_path)
+    run("plan", "narrowband", "--rig", base / "rig.toml", "--calib", base / "calib.npz", "--out", out / "plan.npz",
+        "--step-nm", "60")
+    one_line_error(run("salvage", out, ok=False), f"{out / 'plan.npz'}: is plan", "captured with plan")
+    assert not (out / io.SEQUENCE_FILE).exists() and (out / io.JOURNAL_FILE).exists()
+
+
 def test_an_index_that_does_not_read_back_is_withdrawn(base, killed, tmp_path, monkeypatch):
     import specgpu.pipeline as pipeline
 
