@@ -205,7 +205,10 @@ def atomic_path(path: Path):
             raise os_error(path, exc) from None
         text = str(exc)
         if isinstance(exc, (OSError, ValueError)) and final_names(text) != text:
-            error = type(exc)(final_names(text))
+            try:
+                error = type(exc)(final_names(text))
+            except TypeError:  # a type that needs more than a message (UnicodeDecodeError): as it was raised
+                raise exc from None
             if isinstance(exc, OSError):
                 error.errno = exc.errno
             raise error from None
