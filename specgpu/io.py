@@ -57,6 +57,7 @@ __all__ = [
     "SEQUENCE_FORMAT", "SEQUENCE_VERSION", "SEQUENCE_FILE", "write_sequence", "SequenceWriter", "read_sequence",
     "read_sequence_header", "validate_sequence_document", "JOURNAL_FILE", "salvage_sequence", "SPECTRAL_LAYOUT_VERSION",
     "write_cube_envi", "read_cube_envi", "read_envi_header", "ENVI_INTERLEAVES",
+    "verify_journal", "journal_header", "companion_files",
 ]
 
 _META_ATTRIBUTE = "specgpu:metadata"  # header attribute holding the caller's metadata as JSON (exact floats)
