@@ -143,14 +143,15 @@ class _Staged:
             tmp.unlink(missing_ok=True)
 
     def commit(self):
-        import os
         import signal
+
+        from .formats import replace_with
 
         held = {signal.SIGINT, signal.SIGTERM}
         old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
         try:
             for tmp, final in self.pairs:
-                os.replace(tmp, final)
+                replace_with(tmp, final)  # a file replaced keeps its mode
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
         return self.outputs

@@ -36,7 +36,7 @@ from specgpu.checks import check_wavelengths, normalised_to_peak
 __all__ = [
     "format_channel", "parse_channel", "read_exr", "write_exr", "read_cube_exr", "write_cube_exr",
     "read_cube_npz", "write_cube_npz", "check_cube", "atomic_path", "one_line", "SPECTRAL_LAYOUT_VERSION",
-    "new_temporary", "write_target", "final_name", "final_names", "write_failed", "disk_full", "os_error", "error_of", "read_spectrum_csv", "curve_on_grid",
+    "new_temporary", "replace_with", "write_target", "final_name", "final_names", "write_failed", "disk_full", "os_error", "error_of", "read_spectrum_csv", "curve_on_grid",
 ]
 
 #: Value of the ``spectralLayoutVersion`` header attribute the JCGT 2021 layout defines.
@@ -149,9 +149,9 @@ def final_names(text: str) -> str:
 def new_temporary(path) -> Path:
     """Create an empty temporary file beside ``path`` (``.<name>.<pid>.<random>.tmp<suffix>``) and return it.
 
-    Its permissions are those a plain ``open(path, "w")`` would give: the mode of ``path`` when it is an existing
-    file, else ``0o666`` less the process's umask (and the folder's default ACL), as the kernel applies them on
-    creation (:func:`tempfile.mkstemp` would make every output ``0o600``, unreadable to the user's group).
+    It is created with ``0o666`` less the process's umask (and the folder's default ACL), as the kernel applies
+    them to a plain ``open(path, "w")`` (:func:`tempfile.mkstemp` would make every output ``0o600``, unreadable to
+    the user's group); :func:`replace_with` gives it the mode of the file it replaces, when there is one.
     """
     path = Path(path)
     for _ in range(100):
@@ -160,16 +160,22 @@ def new_temporary(path) -> Path:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
         except FileExistsError:
             continue
-        try:
-            existing = os.stat(path)
-            if stat.S_ISREG(existing.st_mode):
-                os.fchmod(fd, stat.S_IMODE(existing.st_mode))
-        except OSError:  # no file there yet (or not ours to stat): the creation mode stands
-            pass
-        finally:
-            os.close(fd)
+        os.close(fd)
         return tmp
     raise FileExistsError(errno.EEXIST, f"{path}: no free temporary name beside it")
+
+
+def replace_with(tmp, path) -> None:
+    """Rename the finished temporary ``tmp`` over ``path`` atomically; a file already at ``path`` keeps its
+    permission bits, as a plain ``open()`` that truncates it would keep them (applied now, once the temporary
+    is written, so a read-only file can still be replaced as before)."""
+    try:
+        existing = os.stat(path)
+        if stat.S_ISREG(existing.st_mode):
+            os.chmod(tmp, stat.S_IMODE(existing.st_mode))
+    except OSError:  # no file there yet (or not ours to stat): the creation mode stands
+        pass
+    os.replace(tmp, path)
 
 
 def write_target(path) -> Path:
@@ -198,7 +204,7 @@ def atomic_path(path: Path):
         raise os_error(path, exc) from None
     try:
         yield tmp
-        os.replace(tmp, target)
+        replace_with(tmp, target)
     except BaseException as exc:
         tmp.unlink(missing_ok=True)
         if isinstance(exc, OSError) and str(path) not in str(exc):

@@ -91,12 +91,16 @@ def test_every_output_gets_the_mode_a_plain_open_gives(base, seq, tmp_path, umas
     assert wrong == {}, f"expected {oct(expected)}"
 
 
-def test_a_rewritten_file_keeps_its_mode_and_a_link_is_written_through(base, tmp_path):
+def test_a_rewritten_file_keeps_its_mode_and_a_link_is_written_through(base, seq, tmp_path):
     target = tmp_path / "p.npz"
     run("plan", "tristimulus", "--calib", base / "calib.npz", "--out", target)
     os.chmod(target, 0o640)  # the user's choice, as open() keeps it
     run("plan", "tristimulus", "--calib", base / "calib.npz", "--out", target)
     assert mode(target) == 0o640
+    run("recover", seq, "--out", tmp_path / "c.exr")
+    os.chmod(tmp_path / "c.exr", 0o444)  # read-only: replaced as before, and still read-only
+    run("recover", seq, "--out", tmp_path / "c.exr")
+    assert mode(tmp_path / "c.exr") == 0o444
     (tmp_path / "real").mkdir()
     link = tmp_path / "link.npz"
     link.symlink_to(tmp_path / "real" / "p.npz")
