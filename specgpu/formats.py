@@ -36,7 +36,8 @@ from specgpu.checks import check_wavelengths, normalised_to_peak
 __all__ = [
     "format_channel", "parse_channel", "read_exr", "write_exr", "read_cube_exr", "write_cube_exr",
     "read_cube_npz", "write_cube_npz", "check_cube", "atomic_path", "one_line", "SPECTRAL_LAYOUT_VERSION",
-    "new_temporary", "replace_with", "write_target", "final_name", "final_names", "write_failed", "disk_full", "os_error", "error_of", "read_spectrum_csv", "curve_on_grid",
+    "new_temporary", "replace_with", "write_target", "final_name", "final_names", "write_failed", "disk_full",
+    "os_error", "error_of", "read_spectrum_csv", "curve_on_grid",
 ]
 
 #: Value of the ``spectralLayoutVersion`` header attribute the JCGT 2021 layout defines.
