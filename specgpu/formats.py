@@ -199,6 +199,10 @@ def atomic_path(path: Path):
     """
     path = Path(path)
     target = write_target(path)
+    if target.is_dir():  # found before anything is written, not by the rename at the end
+        error = IsADirectoryError(f"{path}: is a folder, not a file; choose a file name")
+        error.errno = errno.EISDIR
+        raise error
     try:
         tmp = new_temporary(target)
     except OSError as exc:
@@ -208,8 +212,9 @@ def atomic_path(path: Path):
         replace_with(tmp, target)
     except BaseException as exc:
         tmp.unlink(missing_ok=True)
-        if isinstance(exc, OSError) and str(path) not in str(exc):
-            raise os_error(path, exc) from None
+        if isinstance(exc, OSError) and (str(exc).startswith("[Errno") or (exc.errno is None and
+                                                                         str(path) not in str(exc))):
+            raise os_error(path, exc) from None  # a raw OS message ("[Errno 21] ...: 'a' -> 'b'"): one line
         text = str(exc)
         if isinstance(exc, (OSError, ValueError)) and final_names(text) != text:
             try:

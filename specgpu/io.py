@@ -242,9 +242,9 @@ def write_cube_envi(path, cube, wavelengths, *, interleave: str = "bsq", metadat
     """Write an (H, W, B) cube as ENVI: ``CUBE.hdr`` (text header) and ``CUBE.img`` (raw float32, little endian).
 
     The header names ``wavelength`` (nm, shortest exact decimals) and ``wavelength units = Nanometers``, so ENVI,
-    Spectral Python (``spectral.envi.open``), QGIS / GDAL read the bands with their wavelengths. The data file is
-    written first and the header last, each under a temporary name renamed when complete: a header on disk always
-    describes a whole data file.
+    Spectral Python (``spectral.envi.open``), QGIS / GDAL read the bands with their wavelengths. Both are written
+    under temporary names first, then the data file is renamed and the header last: a header on disk always
+    describes a whole data file, and a failed write replaces neither.
 
     Parameters
     ----------
@@ -279,11 +279,11 @@ def write_cube_envi(path, cube, wavelengths, *, interleave: str = "bsq", metadat
              "wavelength = {" + ", ".join(repr(float(v)) for v in wl) + "}"]
     if meta is not None:
         lines.append("specgpu metadata = " + base64.b64encode(meta.encode()).decode())
-    with atomic_path(envi_data_path(path)) as tmp:
-        with open(tmp, "wb") as fh:  # not ndarray.tofile: its short write carries no errno ("N requested and M
-            fh.write(data.reshape(-1).view(np.uint8))  # written"), a plain write says "No space left on device"
-    with atomic_path(path) as tmp:
-        tmp.write_text("\n".join(lines) + "\n", encoding="ascii")
+    with atomic_path(path) as header:  # both written before either is renamed: a failure replaces neither
+        header.write_text("\n".join(lines) + "\n", encoding="ascii")
+        with atomic_path(envi_data_path(path)) as tmp:
+            with open(tmp, "wb") as fh:  # not ndarray.tofile: its short write carries no errno ("N requested and M
+                fh.write(data.reshape(-1).view(np.uint8))  # written"), a plain write says "No space left on device"
     return path
 
 

@@ -329,3 +329,31 @@ def test_a_real_full_disk_names_each_output_and_the_cause(base, seqr, small_disk
                                f"{small_disk / named}:", "No space left on device")
         assert ".tmp" not in error and "requested" not in error
     assert sorted(p.name for p in small_disk.iterdir()) == ["fill"]
+
+
+def test_a_folder_where_a_file_goes_is_refused_in_one_line_before_any_write(tmp_path):
+    wl = np.arange(400.0, 701.0, 30.0)
+    cube = np.zeros((4, 4, wl.size), np.float32)
+    for name in ("c.exr", "e.hdr", "c.npz"):
+        (tmp_path / name).mkdir()
+        with pytest.raises(IsADirectoryError) as caught:
+            io.write_cube(tmp_path / name, cube, wl)
+        assert str(caught.value) == f"{tmp_path / name}: is a folder, not a file; choose a file name"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.exr", "c.npz", "e.hdr"]  # no e.img written
+
+
+def test_an_envi_write_that_fails_replaces_neither_file(tmp_path, monkeypatch):
+    wl = np.arange(400.0, 701.0, 30.0)
+    io.write_cube(tmp_path / "e.hdr", np.zeros((4, 4, wl.size), np.float32), wl)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    real = Path.write_text
+
+    def full(self, *args, **kwargs):
+        if self.suffix == ".hdr":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", full)
+    with pytest.raises(OSError, match="e.hdr: cannot write .No space left on device"):
+        io.write_cube(tmp_path / "e.hdr", np.ones((4, 4, wl.size), np.float32), wl)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # the old pair, whole
