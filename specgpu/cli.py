@@ -46,7 +46,10 @@ class _Group(click.Group):
             click.echo("specgpu: interrupted", err=True)
             sys.exit(130)
         except Exception as error:  # noqa: BLE001 (the CLI promises one line, not a traceback)
-            message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+            from .formats import final_names
+
+            text = final_names(str(error)).strip()  # an output's name, never its temporary's
+            message = text.splitlines()[0] if text else type(error).__name__
             raise click.ClickException(message) from error
 
 
@@ -74,13 +77,27 @@ class _terminate_as_interrupt:
             signal.signal(signal.SIGTERM, self._previous)
 
 
+def _with_companions(named):
+    """(option, path) pairs with each path's companion files (an ENVI header's data file) added after it."""
+    from .io import companion_files
+
+    out = []
+    for opt, path in named:
+        if path is None:
+            continue
+        out.append((opt, path))
+        out += [(f"{opt}'s ENVI data file", c) for c in companion_files(path)]
+    return out
+
+
 def _no_clash(outputs, inputs=()):
     """Refuse (a usage error naming both options) two outputs that are one file, or an output that is an input:
-    writing it would silently replace the other result or destroy the input."""
+    writing it would silently replace the other result or destroy the input. Companion files count: an ENVI
+    header's data file is an input with its header, and an output written with it."""
     from .locks import same_path
 
-    outputs = [(o, p) for o, p in outputs if p is not None]
-    inputs = [(o, p) for o, p in inputs if p is not None]
+    outputs = _with_companions(outputs)
+    inputs = _with_companions(inputs)
     for i, (opt, path) in enumerate(outputs):
         for other, other_path in outputs[:i]:
             if same_path(path, other_path):
@@ -114,16 +131,12 @@ class _Staged:
         self.outputs = []  # the finals asked for, in order
 
     def path(self, final):
-        import os
-        import tempfile
-        from pathlib import Path
+        from .formats import new_temporary, write_target
 
-        final = Path(final)
-        fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.{os.getpid()}.", suffix=f".tmp{final.suffix}",
-                                   dir=final.parent)
-        os.close(fd)
-        self.pairs.append((Path(tmp), final))
-        return Path(tmp)
+        final = write_target(final)  # through a symbolic link, as a plain open() writes
+        tmp = new_temporary(final)  # the mode a plain open() gives, not mkstemp's 0600
+        self.pairs.append((tmp, final))
+        return tmp
 
     def write(self, final, write, companions=()):
         """``write(path)`` to a temporary beside ``final``; an error names ``final``, never the temporary.
@@ -131,15 +144,19 @@ class _Staged:
         it, before it."""
         from pathlib import Path
 
+        from .formats import final_names, write_target
+
         tmp = self.path(final)
         self.outputs.append(Path(final))
         for suffix in companions:
-            self.pairs.insert(len(self.pairs) - 1, (tmp.with_suffix(suffix), Path(final).with_suffix(suffix)))
+            self.pairs.insert(len(self.pairs) - 1, (tmp.with_suffix(suffix),
+                                                    write_target(Path(final).with_suffix(suffix))))
         try:
             write(tmp)
-        except Exception as error:
-            if str(tmp) in str(error):
-                raise click.ClickException(str(error).replace(str(tmp), str(final)).splitlines()[0]) from error
+        except Exception as error:  # the temporaries' names (a companion's too) are never what the user sees
+            text = str(error).replace(str(tmp), str(final))
+            if final_names(text) != str(error):
+                raise click.ClickException(final_names(text).splitlines()[0]) from error
             raise
 
     def discard(self):
@@ -147,14 +164,15 @@ class _Staged:
             tmp.unlink(missing_ok=True)
 
     def commit(self):
-        import os
         import signal
+
+        from .formats import replace_with
 
         held = {signal.SIGINT, signal.SIGTERM}
         old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
         try:
             for tmp, final in self.pairs:
-                os.replace(tmp, final)
+                replace_with(tmp, final)  # a file replaced keeps its mode
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
         return self.outputs
@@ -162,9 +180,12 @@ class _Staged:
 
 def _lock(*paths, folder: bool = False):
     """Hold the exclusive lock of these outputs until the command ends (a second writer refuses at once);
-    ``folder``: output folders, whose missing parents are created."""
+    ``folder``: output folders, whose missing parents are created. An output's companion files (an ENVI header's
+    data file) are locked with it; every lock is on the resolved path (see :mod:`specgpu.locks`)."""
     from .locks import output_locks
 
+    if not folder:
+        paths = [p for _, p in _with_companions((None, p) for p in paths)]
     click.get_current_context().with_resource(output_locks(paths, make_parents=folder))
 
 
@@ -764,14 +785,20 @@ def _parse_reference(text, height, width, illuminant, resize="scale", meta=None)
 def salvage(seq):
     """Index the complete sequences of a capture folder whose capture was killed (kill -9, a crash, power loss).
 
-    Each sequence a capture writes is journaled as it arrives; this checks every journaled frame against its
-    checksum and writes sequence.json for the complete, intact sequences (marked salvaged). Nothing is deleted.
+    Each sequence a capture writes is journaled as it arrives; this checks every journal line and journaled frame
+    against its checksum and writes sequence.json for every complete, intact sequence (marked salvaged, with the
+    sequences left out and why). No frame is deleted, and the journal only once the index reads back: a refused
+    salvage can be run again.
     """
     from .pipeline import salvage_capture
 
     _lock(seq, folder=True)  # not while a capture is still writing into it
     info = salvage_capture(seq)
-    rest = f"; not kept: {info['stopped']}" if info["stopped"] else ""
+    for gone in info["left_out"]:
+        click.echo(f"specgpu: sequence {gone['sequence']} ({gone['first_file']} to {gone['last_file']}) left out: "
+                   f"{gone['reason']}", err=True)
+    rest = (f"; left out {len(info['left_out'])} of {info['sequences_journaled']} journaled sequences (listed "
+            "above and in sequence.json)" if info["left_out"] else "")
     if info["frames_unindexed"]:
         rest += f"; {info['frames_unindexed']} frame file(s) outside the index left in place"
     click.echo(f"salvaged {info['sequences']} sequences ({info['frames_kept']} of {info['frames_journaled']} "

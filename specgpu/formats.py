@@ -20,8 +20,9 @@ import errno
 import math
 import os
 import re
+import secrets
 import shutil
-import tempfile
+import stat
 import tokenize
 import zipfile
 import zlib
@@ -35,7 +36,8 @@ from specgpu.checks import check_wavelengths, normalised_to_peak
 __all__ = [
     "format_channel", "parse_channel", "read_exr", "write_exr", "read_cube_exr", "write_cube_exr",
     "read_cube_npz", "write_cube_npz", "npz_members", "check_cube", "atomic_path", "one_line",
-    "SPECTRAL_LAYOUT_VERSION", "os_error", "error_of", "read_spectrum_csv", "curve_on_grid",
+    "SPECTRAL_LAYOUT_VERSION", "new_temporary", "replace_with", "write_target", "final_name", "final_names",
+    "write_failed", "disk_full", "os_error", "error_of", "read_spectrum_csv", "curve_on_grid",
 ]
 
 #: Value of the ``spectralLayoutVersion`` header attribute the JCGT 2021 layout defines.
@@ -122,31 +124,148 @@ def parse_channel(name: str) -> float | None:
     return math.inf if hertz == 0 else SPEED_OF_LIGHT / hertz * 1e9
 
 
+_TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp(?P<suffix>\.[^.]*)?$")
+_TEMP_IN_TEXT = re.compile(r"\.[^\s\"'()/\\]*?\.\d+\.[A-Za-z0-9_]+\.tmp[^\s\"'()/\\]*")
+
+
+def final_name(name: str) -> str:
+    """The file a temporary name (``.<name>.<pid>.<random>.tmp<suffix>``, possibly nested: the temporary of a
+    temporary) stands for; any other name unchanged. A temporary whose suffix differs from its name's is a
+    companion's (an ENVI header's temporary renamed to ``.img`` for its data file): it stands for that file."""
+    while True:
+        m = _TEMP_NAME.match(name)
+        if m is None:
+            return name
+        name, suffix = m.group("name"), m.group("suffix") or ""
+        if suffix and Path(name).suffix != suffix:
+            name = str(Path(name).with_suffix(suffix)) if Path(name).suffix else name + suffix
+
+
+def final_names(text: str) -> str:
+    """``text`` (an error message) with every temporary file name replaced by the name of the file it stands for:
+    a message names the output the user asked for, never the temporary written on its way."""
+    return _TEMP_IN_TEXT.sub(lambda m: final_name(m.group(0)), str(text))
+
+
+def new_temporary(path) -> Path:
+    """Create an empty temporary file beside ``path`` (``.<name>.<pid>.<random>.tmp<suffix>``) and return it.
+
+    It is created with ``0o666`` less the process's umask (and the folder's default ACL), as the kernel applies
+    them to a plain ``open(path, "w")`` (:func:`tempfile.mkstemp` would make every output ``0o600``, unreadable to
+    the user's group); :func:`replace_with` gives it the mode of the file it replaces, when there is one.
+    """
+    path = Path(path)
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp{path.suffix}"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return tmp
+    raise FileExistsError(errno.EEXIST, f"{path}: no free temporary name beside it")
+
+
+def replace_with(tmp, path) -> None:
+    """Rename the finished temporary ``tmp`` over ``path`` atomically; a file already at ``path`` keeps its
+    permission bits, as a plain ``open()`` that truncates it would keep them (applied now, once the temporary
+    is written, so a read-only file can still be replaced as before)."""
+    try:
+        existing = os.stat(path)
+        if stat.S_ISREG(existing.st_mode):
+            os.chmod(tmp, stat.S_IMODE(existing.st_mode))
+    except OSError:  # no file there yet (or not ours to stat): the creation mode stands
+        pass
+    os.replace(tmp, path)
+
+
+def write_target(path) -> Path:
+    """The file a write to ``path`` replaces: ``path`` itself, or the file a symbolic link at ``path`` points to
+    (as a plain ``open()`` writes through a link; renaming over the link would replace the link instead)."""
+    path = Path(path)
+    return Path(os.path.realpath(path)) if path.is_symlink() else path
+
+
 @contextmanager
 def atomic_path(path: Path):
     """Yield a temporary path next to ``path`` (same suffix); on success rename it over ``path`` atomically,
     on failure remove it.
 
     The temporary name carries the writer's pid (``.<name>.<pid>.<random>.tmp<suffix>``), so one left by a killed
-    process is recognised and removed by :func:`specgpu.locks.clean_stale_temporaries`. An operating-system
-    error (disk full, read-only folder) is re-raised as one line naming ``path``, never the temporary name.
+    process is recognised and removed by :func:`specgpu.locks.clean_stale_temporaries`. The file gets the mode a
+    plain ``open()`` would give (:func:`new_temporary`); a ``path`` that is a symbolic link is written through,
+    to the file it points to. An operating-system error (disk full, read-only folder) is re-raised as one line
+    naming ``path``, never the temporary name; so is any error whose message names the temporary.
     """
     path = Path(path)
+    target = write_target(path)
+    if target.is_dir():  # found before anything is written, not by the rename at the end
+        error = IsADirectoryError(f"{path}: is a folder, not a file; choose a file name")
+        error.errno = errno.EISDIR
+        raise error
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=f".tmp{path.suffix}",
-                                   dir=path.parent)
+        tmp = new_temporary(target)
     except OSError as exc:
         raise os_error(path, exc) from None
-    os.close(fd)
-    tmp = Path(tmp)
     try:
         yield tmp
-        os.replace(tmp, path)
+        replace_with(tmp, target)
     except BaseException as exc:
         tmp.unlink(missing_ok=True)
-        if isinstance(exc, OSError) and str(path) not in str(exc):
-            raise os_error(path, exc) from None
+        if isinstance(exc, OSError) and (str(exc).startswith("[Errno") or (exc.errno is None and
+                                                                         str(path) not in str(exc))):
+            raise os_error(path, exc) from None  # a raw OS message ("[Errno 21] ...: 'a' -> 'b'"): one line
+        text = str(exc)
+        if isinstance(exc, (OSError, ValueError)) and final_names(text) != text:
+            try:
+                error = type(exc)(final_names(text))
+            except TypeError:  # a type that needs more than a message (UnicodeDecodeError): as it was raised
+                raise exc from None
+            if isinstance(exc, OSError):
+                error.errno = exc.errno
+            raise error from None
         raise
+
+
+def write_failed(path: Path, tmp: Path, label: str, message: str) -> Exception:
+    """The error of a library's failed write of ``tmp`` (on its way to ``path``): one line naming ``path``, with
+    the operating system's cause when the disk is full (the library says only "write error" or "scanline
+    failed"), else the library's message with temporary names replaced."""
+    full = disk_full(tmp.parent)
+    if full is not None:
+        error = OSError(f"{path}: cannot write {label} ({full})")
+        error.errno = errno.ENOSPC
+        return error
+    return ValueError(f"{path}: cannot write {label} ({one_line(final_names(message))})")
+
+
+def disk_full(folder: Path, probe_bytes: int = 1 << 20) -> str | None:
+    """"No space left on device, N MB free" when the file system holding ``folder`` cannot take ``probe_bytes``
+    more (a probe file written, synced and removed), else None. Called after a write failed, while its partial
+    file still holds what it wrote: a full disk then has less room than one more block of it."""
+    probe = None
+    try:
+        probe = new_temporary(Path(folder) / "space-probe")
+        with open(probe, "wb") as fh:
+            fh.write(bytes(probe_bytes))
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
+            return None
+        reason = exc.strerror or "No space left on device"
+        try:
+            reason += f", {shutil.disk_usage(folder).free / 1e6:.1f} MB free"
+        except OSError:
+            pass
+        return reason
+    finally:
+        if probe is not None:
+            try:
+                probe.unlink()
+            except OSError:
+                pass
+    return None
 
 
 def os_error(path: Path, exc: OSError) -> OSError:
@@ -270,12 +389,14 @@ def write_image(path: Path, pixels: np.ndarray, spec, format_name: str, label: s
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(format_name)
         if out is None or not out.open(str(tmp), spec):
-            raise ValueError(f"{path}: cannot write {label} ({one_line(oiio.geterror())})")
+            raise write_failed(path, tmp, label, oiio.geterror())
         try:
             if not out.write_image(np.ascontiguousarray(pixels)):
-                raise ValueError(f"{path}: cannot write {label} ({one_line(out.geterror())})")
+                raise write_failed(path, tmp, label, out.geterror())
         finally:
-            out.close()
+            closed = out.close()  # the last of the file (an EXR's offset table) is written here
+        if not closed:
+            raise write_failed(path, tmp, label, out.geterror() or oiio.geterror() or "closing the file failed")
     return path
 
 

@@ -1,9 +1,11 @@
 """One writer per output: an exclusive lock on every output file or folder while a command writes it.
 
 A lock on ``path`` is the file ``.<name>.lock`` beside it (``out.exr`` -> ``.out.exr.lock``; folder ``seq`` ->
-``.seq.lock``), held with an advisory ``flock`` and holding the writer's pid. The kernel drops an ``flock`` when
-its process dies, even by ``kill -9``, so a lock left by a killed process is recognised (its file is there, nobody
-holds it) and taken over; a live holder makes a second writer fail at once with one line naming the holder's pid.
+``.seq.lock``), taken on the resolved path (a folder reached through a symbolic link is locked where it is, so two
+writers meet at one lock whichever name they use), held with an advisory ``flock`` and holding the writer's pid.
+The kernel drops an ``flock`` when its process dies, even by ``kill -9``, so a lock left by a killed process is
+recognised (its file is there, nobody holds it) and taken over; a live holder makes a second writer fail at once
+with one line naming the holder's pid.
 
 Temporary files are named after the process that writes them (``.<name>.<pid>.<random>.tmp<suffix>``, see
 :func:`specgpu.formats.atomic_path`); :func:`clean_stale_temporaries` removes those of processes no longer
@@ -23,17 +25,23 @@ try:  # POSIX
 except ImportError:  # pragma: no cover - Windows: locks by exclusive creation and a pid check
     fcntl = None
 
-__all__ = ["OutputLocked", "lock_path", "output_lock", "output_locks", "pid_alive", "clean_stale_temporaries",
-           "same_path"]
+__all__ = ["OutputLocked", "resolved", "lock_path", "output_lock", "output_locks", "pid_alive",
+           "clean_stale_temporaries", "same_path"]
 
 
 class OutputLocked(RuntimeError):
     """Another live process is writing the output."""
 
 
+def resolved(path) -> Path:
+    """The file or folder ``path`` names once every symbolic link is followed (the path a lock is taken on: two
+    writers of one folder, one through a link to it, must meet at one lock)."""
+    return Path(os.path.realpath(path))
+
+
 def lock_path(path) -> Path:
-    """The lock file of an output file or folder."""
-    path = Path(os.path.abspath(path))
+    """The lock file of an output file or folder (beside the file or folder a symbolic link points to)."""
+    path = resolved(path)
     return path.parent / f".{path.name}.lock"
 
 
@@ -149,7 +157,7 @@ def output_lock(path, *, make_parents: bool = False):
     """
     lock = _Lock(Path(path)).acquire(make_parents)
     try:
-        clean_stale_temporaries(path)
+        clean_stale_temporaries(resolved(path))  # temporaries are named after the file a link points to
         yield lock
     finally:
         lock.release()
@@ -157,12 +165,13 @@ def output_lock(path, *, make_parents: bool = False):
 
 @contextmanager
 def output_locks(paths, *, make_parents: bool = False):
-    """:func:`output_lock` on several outputs at once (all or none); duplicates are locked once."""
+    """:func:`output_lock` on several outputs at once (all or none); duplicates (one file named twice, or
+    through a symbolic link) are locked once."""
     seen, unique = set(), []
     for p in paths:
         if p is None:
             continue
-        key = os.path.abspath(p)
+        key = resolved(p)
         if key not in seen:
             seen.add(key)
             unique.append(p)

@@ -167,9 +167,13 @@ class CaptureWriter:
 
 def salvage_capture(directory) -> dict:
     """Make a capture folder left by a killed capture (no ``sequence.json``, its journal present) readable: index
-    its complete sequences whose frames are intact (:func:`specgpu.io.salvage_sequence`), keep the plan and
-    calibration copies, remove the interrupted marker. Returns what was kept (``sequences``, ``frames_kept``,
-    ``frames_journaled``, ``stopped``); deletes nothing."""
+    every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.salvage_sequence`), keep
+    the plan and calibration copies, remove the interrupted marker. Returns what was kept (``sequences``,
+    ``frames_kept``, ``frames_journaled``, ``left_out``: each sequence not kept and why, ``stopped``).
+
+    Verify first, commit last: the plan copy must be the plan the journal names and match the calibration copy
+    before anything is written; the index written must read back as a sequence folder before the journal is
+    removed. A refusal leaves the folder as it was, to be salvaged again once fixed; no frame is deleted."""
     directory = Path(directory)
     if not directory.is_dir():
         raise FileNotFoundError(f"{directory}: capture folder not found")
@@ -178,9 +182,18 @@ def salvage_capture(directory) -> dict:
             raise FileNotFoundError(f"{directory}: {name} is missing; the capture was killed before it was copied, "
                                     "so its frames cannot be recovered with their plan")
     plan = load_plan(directory / PLAN_FILE)
-    info = io.salvage_sequence(directory, plan.K)
+    bundle = load_calibration(directory / CALIBRATION_FILE)
+
+    def check(doc):
+        if doc["plan_hash"] != plan.hash:
+            raise ValueError(f"{directory / PLAN_FILE}: is plan {plan.hash[:12]} but the frames were captured with "
+                             f"plan {str(doc['plan_hash'])[:12]} (the journal says so); put that plan's file back "
+                             "and salvage again")
+        plan.check_calibration(bundle, name=f"{directory / PLAN_FILE}")
+
+    check(io.journal_header(directory))  # before the frames are grouped in sequences of the plan's length
+    info = io.salvage_sequence(directory, plan.K, check=check, confirm=lambda: read_capture(directory))
     (directory / INCOMPLETE_MARKER).unlink(missing_ok=True)
-    read_capture(directory)  # what was indexed reads back as a sequence folder
     return info
 
 

@@ -166,14 +166,114 @@ def test_killed_capture_is_refused_with_the_way_out_then_salvaged(base, killed, 
     one_line_error(run("salvage", out, ok=False), "already holds")
 
 
-def test_salvage_stops_before_a_damaged_frame(base, killed, tmp_path):
+def test_a_damaged_frame_leaves_out_only_its_sequence(base, killed, tmp_path):
     out = copy_of(killed, tmp_path)
     K = K_of(base)
     victim = out / frame_files(out)[K + 1]  # a frame of the second sequence
     victim.write_bytes(victim.read_bytes()[:-10])
     result = run("salvage", out)
-    assert "salvaged 1 sequences" in result.output and victim.name in result.output
-    assert io.read_sequence(out)[0].shape[0] == K
+    assert f"salvaged 2 sequences ({2 * K} of {3 * K} journaled frames)" in result.output
+    assert f"specgpu: sequence 1 (frame_{K:06d}.tif to frame_{2 * K - 1:06d}.tif) left out: {victim.name}" \
+        in result.output
+    frames, records, meta = io.read_sequence(out)  # checksums verified on read
+    assert frames.shape[0] == 2 * K
+    assert [r["file"] for r in records] == [f"frame_{i:06d}.tif" for i in (*range(K), *range(2 * K, 3 * K))]
+    left = meta["metadata"]["salvaged"]["left_out"]
+    assert [x["sequence"] for x in left] == [1] and victim.name in left[0]["reason"]
+    assert not (out / io.JOURNAL_FILE).exists()
+    run("recover", out, "--out", tmp_path / "r.exr", "--sequence", "1")  # the third captured sequence
+
+
+def journal_lines(folder):
+    return (folder / io.JOURNAL_FILE).read_bytes().split(b"\n")
+
+
+def set_journal(folder, lines):
+    (folder / io.JOURNAL_FILE).write_bytes(b"\n".join(lines))
+
+
+def test_a_flipped_byte_in_a_journal_line_leaves_out_only_its_sequence(base, killed, tmp_path):
+    out = copy_of(killed, tmp_path)
+    K = K_of(base)
+    lines = journal_lines(out)
+    line = bytearray(lines[1 + K + 1])  # a record of the second sequence: its timestamp's first digit
+    at = line.index(b'"timestamp_s": ') + len(b'"timestamp_s": ')
+    line[at] = ord("7") if line[at] != ord("7") else ord("6")  # still valid JSON: only its checksum tells
+    lines[1 + K + 1] = bytes(line)
+    set_journal(out, lines)
+    result = run("salvage", out)
+    assert "salvaged 2 sequences" in result.output
+    assert f"sequence 1 (frame_{K:06d}.tif to frame_{2 * K - 1:06d}.tif) left out" in result.output
+    assert f"line {K + 3} (its checksum does not match its content)" in result.output
+    assert io.read_sequence(out)[0].shape[0] == 2 * K
+
+
+def test_an_edited_height_leaves_out_its_sequence_even_without_line_checksums(base, killed, tmp_path):
+    out = copy_of(killed, tmp_path)
+    K = K_of(base)
+    lines = journal_lines(out)
+    records = [json.loads(x) for x in lines if x.strip()]
+    for r in records:
+        r.pop("check")  # a journal written before lines carried checksums
+    records[1 + 2 * K]["height"] += 1  # the third sequence's first frame
+    set_journal(out, [json.dumps(r).encode() for r in records] + [b""])
+    result = run("salvage", out)
+    assert "salvaged 2 sequences" in result.output
+    assert "sequence 2" in result.output and "journal record says" in result.output
+    assert io.read_sequence(out)[0].shape[0] == 2 * K
+
+
+def test_a_refused_salvage_writes_nothing_and_can_be_run_again(base, killed, tmp_path):
+    out = copy_of(killed, tmp_path)
+    journal = (out / io.JOURNAL_FILE).read_bytes()
+    plan = (out / "plan.npz").read_bytes()
+    run("plan", "tristimulus", "--rig", base / "rig.toml", "--calib", base / "calib.npz", "--out",
+        tmp_path / "other.npz", "--estimator", "wiener")
+    shutil.copy(tmp_path / "other.npz", out / "plan.npz")  # another plan copied over the capture's
+    one_line_error(run("salvage", out, ok=False), "plan.npz", "captured with plan")
+    assert not (out / io.SEQUENCE_FILE).exists() and (out / io.JOURNAL_FILE).read_bytes() == journal
+    (out / "plan.npz").write_bytes(plan)
+    lines = journal_lines(out)
+    for i in range(1, len(lines) - 1):  # every record's height wrong: nothing intact
+        r = json.loads(lines[i])
+        r.pop("check")
+        r["height"] = 7
+        lines[i] = json.dumps(r).encode()
+    set_journal(out, lines)
+    one_line_error(run("salvage", out, ok=False), "no complete, intact sequence", "journal record says")
+    assert not (out / io.SEQUENCE_FILE).exists() and (out / io.JOURNAL_FILE).exists()
+    (out / io.JOURNAL_FILE).write_bytes(journal)
+    assert "salvaged 3 sequences" in run("salvage", out).output  # run again once fixed
+
+
+def test_a_plan_of_another_length_is_named_not_taken_for_broken_sequences(base, killed, tmp_path):
+    out = copy_of(killed, tmp_path)
+    run("plan", "narrowband", "--rig", base / "rig.toml", "--calib", base / "calib.npz", "--out", out / "plan.npz",
+        "--step-nm", "60")
+    one_line_error(run("salvage", out, ok=False), f"{out / 'plan.npz'}: is plan", "captured with plan")
+    assert not (out / io.SEQUENCE_FILE).exists() and (out / io.JOURNAL_FILE).exists()
+
+
+def test_an_index_that_does_not_read_back_is_withdrawn(base, killed, tmp_path, monkeypatch):
+    import specgpu.pipeline as pipeline
+
+    out = copy_of(killed, tmp_path)
+    journal = (out / io.JOURNAL_FILE).read_bytes()
+    monkeypatch.setattr(pipeline, "read_capture", lambda d: (_ for _ in ()).throw(ValueError("unreadable")))
+    one_line_error(run("salvage", out, ok=False), "unreadable")
+    assert not (out / io.SEQUENCE_FILE).exists() and (out / io.JOURNAL_FILE).read_bytes() == journal
+    assert (out / INCOMPLETE_MARKER).exists()
+    monkeypatch.undo()
+    assert "salvaged 3 sequences" in run("salvage", out).output
+
+
+def test_a_damaged_journal_header_is_refused_with_nothing_written(base, killed, tmp_path):
+    out = copy_of(killed, tmp_path)
+    lines = journal_lines(out)
+    lines[0] = lines[0].replace(b'"plan_hash": "', b'"plan_hash": "0', 1)
+    set_journal(out, lines)
+    one_line_error(run("salvage", out, ok=False), "corrupt at line 1", "header")
+    assert not (out / io.SEQUENCE_FILE).exists() and (out / io.JOURNAL_FILE).exists()
 
 
 def test_salvage_refuses_a_folder_with_nothing_to_salvage(base, killed, tmp_path):
@@ -208,3 +308,36 @@ def test_a_torn_journal_keeps_exactly_its_complete_sequences(base, killed, cut):
         else:
             assert result.exit_code == 0, result.output
             assert io.read_sequence(out)[0].shape[0] == (whole // K) * K
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(where=st.floats(min_value=0.0, max_value=1.0, exclude_max=True), bit=st.integers(min_value=0, max_value=7))
+def test_a_flipped_byte_keeps_exactly_the_sequences_whose_records_are_intact(base, killed, where, bit):
+    K = K_of(base)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = copy_of(killed, Path(tmp))
+        raw = (out / io.JOURNAL_FILE).read_bytes()
+        header_end = raw.index(b"\n") + 1
+        at = header_end + int(where * (len(raw) - header_end))
+        flipped = bytearray(raw)
+        flipped[at] ^= 1 << bit
+        (out / io.JOURNAL_FILE).write_bytes(bytes(flipped))
+        seen = set()  # the records that still read as what was written
+        for line in bytes(flipped[header_end:]).split(b"\n"):
+            try:
+                seen.add(json.dumps(json.loads(line), sort_keys=True))
+            except ValueError:
+                pass
+        original = [json.dumps(json.loads(line), sort_keys=True) for line in raw[header_end:].split(b"\n") if line]
+        intact = [s for s in range(len(original) // K) if all(r in seen for r in original[s * K:(s + 1) * K])]
+        result = run("salvage", out, ok=False)
+        if not intact:
+            one_line_error(result, "no complete, intact sequence")
+            assert not (out / io.SEQUENCE_FILE).exists() and (out / io.JOURNAL_FILE).exists()
+        else:
+            assert result.exit_code == 0, result.output
+            _, records, meta = io.read_sequence(out)
+            assert [r["file"] for r in records] == [f"frame_{i:06d}.tif" for s in intact
+                                                   for i in range(s * K, (s + 1) * K)]
+            left = [x["sequence"] for x in meta["metadata"]["salvaged"]["left_out"]]
+            assert left == [s for s in range(len(original) // K) if s not in intact]
