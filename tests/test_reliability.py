@@ -42,7 +42,7 @@ def seq(base, tmp_path):
     return tmp_path / "seq"
 
 
-# ---- item 1: two outputs naming one file ----------------------------------------------------------------------
+# ---- two outputs naming one file ----------------------------------------------------------------------
 def test_recover_refuses_two_outputs_on_one_file(seq, tmp_path):
     result = run("recover", seq, "--out", tmp_path / "same.exr", "--xyz", tmp_path / "same.exr", ok=False)
     one_line_error(result, "--out and --xyz", "same.exr", code=2)
@@ -55,7 +55,7 @@ def test_recover_refuses_the_same_file_by_another_name(seq, tmp_path):
     one_line_error(result, "--out and --lab", code=2)
 
 
-# ---- item 2: a failed write never deletes the earlier file ----------------------------------------------------
+# ---- a failed write never deletes the earlier file ----------------------------------------------------
 def test_failed_recover_keeps_the_previous_output(seq, tmp_path):
     run("recover", seq, "--out", tmp_path / "prev.exr")
     before = (tmp_path / "prev.exr").read_bytes()
@@ -84,7 +84,7 @@ def test_failed_later_write_keeps_every_previous_output(seq, tmp_path, monkeypat
     assert hidden(tmp_path) == []
 
 
-# ---- item 3: an output equal to an input -------------------------------------------------------------------
+# ---- an output equal to an input -------------------------------------------------------------------
 def test_calibrate_refuses_to_overwrite_its_rig(tmp_path):
     (tmp_path / "r.toml").write_text(RIG)
     one_line_error(run("calibrate", "--rig", tmp_path / "r.toml", "--out", tmp_path / "r.toml", ok=False),
@@ -117,7 +117,7 @@ def test_evaluate_refuses_to_write_its_report_over_the_cube(seq, tmp_path):
     assert (tmp_path / "c.exr").read_bytes() == before
 
 
-# ---- item 9: capture never overwrites a user's files ----------------------------------------------------------
+# ---- capture never overwrites a user's files ----------------------------------------------------------
 def test_capture_refuses_a_folder_with_the_users_files(base, tmp_path):
     shutil.copy(base / "tri.npz", tmp_path / "plan.npz")
     (tmp_path / "notes.txt").write_text("mine")
@@ -142,7 +142,7 @@ def test_capture_replaces_an_interrupted_capture(base, tmp_path):
     run("recover", out, "--out", tmp_path / "c.exr")
 
 
-# ---- item 10: an existing --out refused before capturing; frames written as they arrive ------------------------
+# ---- an existing --out refused before capturing; frames written as they arrive ------------------------
 def test_capture_refuses_an_existing_sequence_before_capturing(base, seq, monkeypatch):
     import specgpu.pipeline as pipeline
 
@@ -175,7 +175,7 @@ def test_capture_writes_each_sequence_as_it_arrives(base, tmp_path, monkeypatch)
     assert frames.shape[0] == 3 * K
 
 
-# ---- item 8: a reference colour that is not one -----------------------------------------------------------------
+# ---- a reference colour that is not one -----------------------------------------------------------------
 @pytest.mark.parametrize("ref", ["nan,0,0", "1e40,0,0", "50,inf,0", "-5,0,0", "50,0,1e6"])
 def test_recover_refuses_a_non_finite_reference(seq, tmp_path, ref):
     result = run("recover", seq, "--out", tmp_path / "c.exr", "--delta-e-ref", ref, "--delta-e",
@@ -196,7 +196,7 @@ def test_stream_refuses_a_non_finite_reference(base, tmp_path):
     one_line_error(result, "--delta-e-ref", code=2)
 
 
-# ---- item 11: option values that hang or exhaust memory ---------------------------------------------------------
+# ---- option values that hang or exhaust memory ---------------------------------------------------------
 @pytest.mark.parametrize("value", ["1e-6", "0", "nan", "-1", "inf"])
 def test_plan_refuses_absurd_output_steps(base, tmp_path, value):
     result = run("plan", "symmetric", "--calib", base / "calib.npz", "--out", tmp_path / "p.npz",
@@ -211,7 +211,7 @@ def test_stream_refuses_a_duration_that_never_ends(base, value):
     one_line_error(result, "--seconds", code=2)
 
 
-# ---- item 12: apply_linear's arguments ----------------------------------------------------------------------
+# ---- apply_linear's arguments ----------------------------------------------------------------------
 def test_apply_linear_refuses_bad_arguments(monkeypatch):
     from specgpu import validate
     from specgpu.recovery import apply_linear
@@ -247,7 +247,7 @@ def test_check_level_accepts_only_finite_numbers(value):
             check_level(value)
 
 
-# ---- item 13: Ctrl-C / kill during recover -------------------------------------------------------------------
+# ---- Ctrl-C / kill during recover -------------------------------------------------------------------
 def test_ctrl_c_during_recover_leaves_no_output(seq, tmp_path, monkeypatch):
     real = io.write_map
     calls = []
@@ -276,7 +276,7 @@ def test_temporaries_of_a_killed_writer_are_cleaned(seq, tmp_path):
     assert not stale.exists() and alive.exists()
 
 
-# ---- Build item 2: one writer per output ----------------------------------------------------------------------
+# ---- one writer per output ----------------------------------------------------------------------
 HOLD = ("import sys, time; from specgpu.locks import output_lock\n"
         "with output_lock(sys.argv[1]):\n    print('held', flush=True); time.sleep(60)\n")
 
