@@ -58,7 +58,7 @@ def assert_all_sequences_match(result, want, n_sequences):
         np.testing.assert_array_equal(seq.frames, want)
 
 
-# ---- item 1: hardware-trigger capture: dark time and start order ------------------------------------------------
+# ---- hardware-trigger capture: dark time and start order ------------------------------------------------
 def test_zero_dark_time_gives_one_trig_out_edge_for_the_whole_sequence():
     """The simulated controller: TRIG_OUT_1 rises per pattern only after a dark time (DLPU018)."""
     for dark, edges in ((0, [0]), (100, list(range(4)) * 2)):
@@ -142,7 +142,7 @@ def test_camera_started_before_a_triggered_light_loses_its_first_strobe():
     assert camera.acquirer.positions[0] == -1
 
 
-# ---- item 2: strobe line set-up on read-only line modes ---------------------------------------------------------
+# ---- strobe line set-up on read-only line modes ---------------------------------------------------------
 def test_strobe_line_already_output_is_not_written():
     sim, light, camera, want = bench(4)  # Line1: opto-isolated output, LineMode read-only
     camera.configure()
@@ -177,7 +177,7 @@ def test_camera_without_output_lines_says_so():
         camera.configure()
 
 
-# ---- item 3: buffers without a device timestamp -----------------------------------------------------------------
+# ---- buffers without a device timestamp -----------------------------------------------------------------
 def test_missing_timestamps_fall_back_to_the_host_clock():
     sim, light, camera, want = bench(4, timestamps=False, lines=GPIO)
     result = capture_sequences(camera, 4)
@@ -190,7 +190,7 @@ def test_missing_timestamps_fall_back_to_the_host_clock():
     assert camera.describe()["timestamps"] == "device"
 
 
-# ---- item 4: 16-bit GigE Vision block ids -----------------------------------------------------------------------
+# ---- 16-bit GigE Vision block ids -----------------------------------------------------------------------
 def test_gev_block_ids_wrap_to_one():
     assert [gev_block_id(65533, n, 16) for n in range(5)] == [65533, 65534, 65535, 1, 2]
 
@@ -208,7 +208,7 @@ def test_capture_runs_through_the_block_id_wrap_with_a_loss_across_it():
     assert result.end.last_frame_id == 6 * k - 1
 
 
-# ---- item 5: clear after exposure -------------------------------------------------------------------------------
+# ---- clear after exposure -------------------------------------------------------------------------------
 def test_light_clears_each_pattern_after_its_exposure():
     sim, light, camera, want = bench(4)
     assert all(sim.lut[j]["options"] & 1 for j in range(4))
@@ -231,7 +231,7 @@ def test_without_clear_the_previous_pattern_leaks_into_each_exposure():
         dev.stop()
 
 
-# ---- item 6: controller and spectrometer quirks -----------------------------------------------------------------
+# ---- controller and spectrometer quirks -----------------------------------------------------------------
 def test_rejection_is_reported_when_the_error_description_times_out():
     sim = SimulatedDLPC900(DMD)
     dev = DLPC900(sim, dmd=DMD)
