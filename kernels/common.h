@@ -20,6 +20,9 @@
  *   HAS_GAIN   0/1: per-pixel gain (flat field) (N), applied after the matrix
  *   SAT_LEVEL  inputs >= SAT_LEVEL flag the pixel saturated (mask bit 1); leave undefined for none
  *   IS_FLOAT_IN 1 when IN_T is float: non-finite inputs flag mask bit 2
+ *   SQUARE_GAIN, SQUARE_SHIFT  (both or neither) each sample x above the dark becomes
+ *              x + SQUARE_GAIN (x - SQUARE_SHIFT)^2: a frame sample's variance with the light's frame-to-frame
+ *              fluctuation, which grows with the signal squared (specgpu.estimators.NoiseModel.light_square)
  */
 #ifndef SPECGPU_COMMON_H
 #define SPECGPU_COMMON_H
@@ -307,6 +310,10 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
     v -= load_f(dark, base, count);
 #elif HAS_DARK == 2
     v -= load_f(dark + (ulong)k * n, base, count);
+#endif
+#ifdef SQUARE_GAIN
+    const floatv s_ = v - SQUARE_SHIFT;
+    v += SQUARE_GAIN * (s_ * s_);
 #endif
     return v;
 }

@@ -94,9 +94,10 @@ class StreamDecoder:
         output basis U (B x m, orthonormal columns from the SVD of A; ``cube = coefficients @ U.T``).
         ``"cube"``: the B outputs of the plan. ``"XYZ"``, ``"Lab"``, ``"dE"``: the fused colorimetric pass.
         ``"sigma"``: the standard deviation of each of the B outputs and their RMS (B + 1 channels, as
-        ``specgpu recover --sigma``): the variance is linear in the frames plus a constant
+        ``specgpu recover --sigma``): the variance is linear in the frames' sample variances plus a constant
         (:func:`specgpu.estimators.sigma_map`), so the linear kernel computes it with ``A o A / g`` as the
-        matrix and takes the square root of it plus the constant. ``"sigma_rms"``: the RMS channel alone (one
+        matrix, each sample squared first for the light's fluctuation, and takes the square root of it plus the
+        constant. ``"sigma_rms"``: the RMS channel alone (one
         row of the same map: B times fewer bytes written than ``"sigma"``). ``"dE_sigma"``: the first-order dE2000
         standard deviation (as ``recover --delta-e-sigma``): the XYZ covariance's six entries by the linear
         kernel, then a small kernel propagating them with XYZ to dE2000 (as
@@ -208,6 +209,10 @@ class StreamDecoder:
             self.dark_var = engine.to_device(queue, (np.asarray(dark, np.float32) - np.float32(
                 g_e * self.noise.read_var_dn2)).reshape(-1))
             self.gain2 = engine.to_device(queue, (np.asarray(gain, np.float32) ** 2).reshape(-1))
+            # the light's fluctuation at each frame's own signal (squared samples); a white reference's per-sequence
+            # gains divide it out, as recover --white-roi's uncertainty does
+            self.square = (self.noise.light_square() if self.white_reference is None and self.noise.light_rms > 0
+                           else None)
             const = constant_covariance(plan)
             cv = np.diag(const).astype(np.float32)
             self.sigma_offsets = np.append(cv, np.float32(np.mean(cv, dtype=np.float64)))
@@ -335,7 +340,8 @@ class StreamDecoder:
             elif kind in ("sigma", "sigma_rms", "XYZ_cov"):
                 rows, offsets = make(self.A)
                 launches.append((engine.prepare_linear(q, dtype, rows, n=n, dark=self.dark_var, gain=self.gain2,
-                                                       out_layout=1, sqrt_offsets=offsets, **sat),
+                                                       out_layout=1, sqrt_offsets=offsets, square=self.square,
+                                                       **sat),
                                  {"out": kind, "mask": "mask"}))
             else:
                 launches.append((engine.prepare_frames_to_delta_e(

@@ -157,7 +157,9 @@ def test_sigma_with_white_roi_uses_the_corrected_decoder(drifted):
 
     frames = seq_frames(s, 0)
     A = corrected_decoder(s.plan, white_gains(frames, s.plan, s.bundle, ROI), s.bundle)
-    sig = sigma_map(frames, replace(s.plan, A=A), s.bundle.dark_at(s.plan.exposure_s), s.bundle.flat_field)
+    # the white's per-sequence gains divide each frame's light fluctuation out: no light term
+    sig = sigma_map(frames, replace(s.plan, A=A), s.bundle.dark_at(s.plan.exposure_s), s.bundle.flat_field,
+                    light=False)
     close(got[0][0]["sigma"][..., :-1], sig, rel=1e-5, name="sigma (corrected decoder)")
     # and recover --sigma --white-roi writes the same (its uncertainty follows the decoder recover used)
     want, _ = uncertainty(folder_of(s, frames), sequence=0, white_roi=ROI)
