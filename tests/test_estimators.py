@@ -430,3 +430,21 @@ def test_sigma_holds_for_a_multiplexed_plan_in_bright_pixels(bundle):
     assert 0.85 <= ratio[0] <= 1.15, ratio
     assert 0.7 <= ratio[-1] <= 1.35, ratio
     assert without_light[-1] > 1.4, without_light  # the light's fluctuation is what the bright pixels need
+
+
+def test_constant_covariance_is_the_mismatch_and_reads_an_older_plans_constant(bundle, prior):
+    from dataclasses import replace
+
+    plan = make_plan("narrowband", bundle, step_nm=20.0)
+    plan = E.with_estimator(plan, bundle, "wiener", prior=prior, noise=E.NoiseModel.from_rig(DESC, plan.exposure_s))
+    P = plan.A.shape[0]
+    exp = plan.params["expected"]
+    assert "constant_cov" not in exp
+    C = E.constant_covariance(plan)
+    np.testing.assert_allclose(np.diag(C), exp["mismatch_var"], rtol=1e-9)
+    np.testing.assert_allclose(C, C.T, atol=1e-15)
+    # a plan saved before the light was taken per pixel: its recorded constant (mismatch + light) is used as it is
+    old = {k: v for k, v in exp.items() if k != "mismatch_cov"}
+    old["constant_cov"] = (C + 1e-4 * np.eye(P)).ravel().tolist()
+    older = replace(plan, params={**plan.params, "expected": old})
+    np.testing.assert_allclose(E.constant_covariance(older), C + 1e-4 * np.eye(P), rtol=1e-12)

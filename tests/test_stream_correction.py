@@ -325,6 +325,38 @@ def test_linear_square_root_output_is_sigma_of_a_linear_variance(queue, B, out_l
 
 
 @pytest.mark.usefixtures("kernel_variant")
+@pytest.mark.parametrize("B, K", [(12, 9), (5, 130)])
+def test_linear_squared_samples_are_the_light_fluctuation_variance(queue, B, K):
+    """square=(q, c): each sample above the dark, x, enters the matrix as x + q (x - c)^2 (the frame variance with
+    the light's fluctuation, NoiseModel.light_square), for K kept in registers and K re-read per output (> 128)."""
+    import pyopencl as cl
+
+    from specgpu import engine
+
+    rng = np.random.default_rng(K)
+    n = 1001
+    noise = NoiseModel(30.0, 0.3, 0.02)
+    q, c = noise.light_square()
+    A = rng.uniform(0, 1e-4, (B, K))
+    offsets = rng.uniform(0, 1e-3, B)
+    dark_h = rng.uniform(10, 20, n).astype(np.float32) - np.float32(c)
+    gain_h = rng.uniform(0.8, 1.2, n).astype(np.float32) ** 2
+    frames_h = rng.integers(0, 4000, (K, n)).astype(np.uint16)
+    lin = engine.prepare_linear(queue, np.uint16, A, n=n, dark=engine.to_device(queue, dark_h),
+                                gain=engine.to_device(queue, gain_h), out_layout=1, sqrt_offsets=offsets,
+                                square=(q, c))
+    got = np.empty(B * n, np.float32)
+    cl.enqueue_copy(queue, got, lin.enqueue(engine.to_device(queue, frames_h.reshape(-1)).data)["out"])
+    x = frames_h - dark_h.astype(np.float64)
+    var = (A @ (x + q * (x - c) ** 2)) * gain_h + offsets[:, None]
+    np.testing.assert_allclose(got.reshape(n, B).T.astype(np.float64) ** 2, var, rtol=1e-5)
+    # the squared term is what the light adds: without it the variance is a few times smaller here
+    assert np.median(var / ((A @ x) * gain_h + offsets[:, None])) > 2
+    with pytest.raises(ValueError, match="square"):
+        engine.prepare_linear(queue, np.uint16, A, n=n, square=(q, float("nan")))
+
+
+@pytest.mark.usefixtures("kernel_variant")
 def test_delta_e_sigma_kernel_equals_the_host_propagation(queue):
     """The device's first-order dE2000 sigma against estimators.delta_E_sigma (float64) on colours from near black
     (the linear branch of the CIE function) to near white, with random positive definite covariances."""
