@@ -56,6 +56,8 @@ __all__ = [
     "output_covariance",
     "frame_variance",
     "frame_covariance",
+    "variance_rows",
+    "ambient_variance",
     "constant_covariance",
     "delta_E_sigma",
     "HELD_OUT_CHART",
@@ -386,57 +388,99 @@ def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, 
 
 
 # ---- per-pixel uncertainty ---------------------------------------------------------------------------------------
-def sigma_map(frames, plan, dark, gain, *, sequences: int = 1, light: bool = True, device=None) -> np.ndarray:
+def sigma_map(frames, plan, dark, gain, *, sequences: int = 1, light: bool = True, ambient_dark=None,
+              device=None) -> np.ndarray:
     """(H, W, P) standard deviation of each output per pixel (float32), from the frames (K, H, W) the outputs
     were recovered from (the mean of ``sequences`` sequences): ``var y = gain^2 sum_k A^2 (o / g + s_read^2 +
     (l o)^2) / S + m`` (:func:`frame_variance`), plus the prior's mismatch ``m`` on the host. ``light=False``
     leaves out the light's frame-to-frame fluctuation (a decoder rescaled per sequence by a white reference's
-    gains divides each frame's fluctuation out)."""
-    var = frame_variance(frames, plan, dark, gain, sequences=sequences, light=light, device=device)
+    gains divides each frame's fluctuation out). A plan with an ambient frame: ``dark`` is that frame (what the
+    recovery subtracted) and ``ambient_dark`` the calibration's dark level under it (:func:`frame_variance`)."""
+    var = frame_variance(frames, plan, dark, gain, sequences=sequences, light=light, ambient_dark=ambient_dark,
+                         device=device)
     var += constant_variance(plan).astype(np.float32)  # in place, float32: as cheap as the recovery itself
     np.maximum(var, 0.0, out=var)
     return np.sqrt(var, out=var)
 
 
-def frame_variance(frames, plan, dark, gain, *, A=None, sequences: int = 1, light: bool = True,
+def frame_variance(frames, plan, dark, gain, *, A=None, sequences: int = 1, light: bool = True, ambient_dark=None,
                    device=None) -> np.ndarray:
     """(H, W, P) float32: the part of each output's variance the frames' noise makes, for the decoder ``A`` (the
     plan's by default) applied to the mean of ``sequences`` sequences (no constant term): each frame's shot, read
-    and dark noise and, with ``light``, the light's fluctuation at the frame's own signal."""
-    A = plan.A if A is None else A
-    return _noise_products(frames, plan, dark, gain, np.asarray(A, np.float64) ** 2, sequences, device, light)
+    and dark noise and, with ``light``, the light's fluctuation at the frame's own signal.
+
+    A plan with an ambient frame (``plan --ambient``) has that frame subtracted instead of a dark level: ``dark``
+    is the ambient frame and ``ambient_dark`` (required) the calibration's dark level at the exposure. Its own
+    noise is then in every output, ``(sum_k A_k)^2`` times, and the room light it holds adds shot noise to every
+    frame: ``var y = gain^2 [sum_k A_k^2 (s_k / g + (l s_k)^2) + (sum_k A_k^2 + (sum_k A_k)^2) (a / g +
+    s_read^2)]`` with ``s_k`` each frame above the ambient frame and ``a`` the ambient frame above the dark level
+    (:func:`variance_rows`, :func:`ambient_variance`)."""
+    A = np.asarray(plan.A if A is None else A, np.float64)
+    return _noise_products(frames, plan, dark, gain, (A, A), sequences, device, light, ambient_dark)
 
 
-def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, light: bool = True,
+def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, light: bool = True, ambient_dark=None,
                       device=None) -> np.ndarray:
     """(H, W, Q, Q) covariance of ``M y`` per pixel (M: (Q, P), e.g. the XYZ weights of a reflectance plan):
     each entry ``sum_k (MA)_ik (MA)_jk var o_k`` is linear in the frames' sample variances (one apply_linear pass
     over the Q (Q + 1) / 2 products), plus ``M C M^T`` with C the plan's constant covariance (the mismatch)."""
     M = np.asarray(M, np.float64)
-    cov = frame_covariance(frames, plan, dark, gain, M, sequences=sequences, light=light, device=device)
+    cov = frame_covariance(frames, plan, dark, gain, M, sequences=sequences, light=light, ambient_dark=ambient_dark,
+                           device=device)
     return cov + M @ constant_covariance(plan) @ M.T
 
 
 def frame_covariance(frames, plan, dark, gain, M, *, A=None, sequences: int = 1, light: bool = True,
-                     device=None) -> np.ndarray:
+                     ambient_dark=None, device=None) -> np.ndarray:
     """(H, W, Q, Q) float64: the frames' noise part of the covariance of ``M y`` for the decoder ``A`` (the plan's
     by default), without the constant ``M C M^T``."""
     M = np.asarray(M, np.float64)
     MA = M @ (plan.A if A is None else np.asarray(A, np.float64))
     Q = M.shape[0]
     pairs = [(i, j) for i in range(Q) for j in range(i, Q)]
-    prods = np.stack([MA[i] * MA[j] for i, j in pairs])
-    v = np.asarray(_noise_products(frames, plan, dark, gain, prods, sequences, device, light), np.float64)
+    left = np.stack([MA[i] for i, _ in pairs])
+    right = np.stack([MA[j] for _, j in pairs])
+    v = np.asarray(_noise_products(frames, plan, dark, gain, (left, right), sequences, device, light, ambient_dark),
+                   np.float64)
     cov = np.empty(v.shape[:-1] + (Q, Q))
     for n, (i, j) in enumerate(pairs):
         cov[..., i, j] = cov[..., j, i] = v[..., n]
     return cov
 
 
-def _noise_products(frames, plan, dark, gain, rows, sequences, device, light=True):
-    """``gain^2 sum_k rows_k var(o_k) / S`` per pixel: the frames' samples above the shifted dark ``dark - g
-    s_read^2`` through apply_linear with ``rows / g`` (linear in the frames), or, with the light's fluctuation,
-    the samples first mapped to ``x + q (x - c)^2`` (:meth:`NoiseModel.light_square`, as the stream's kernels)."""
+def variance_rows(left, right, ambient: int | None = None) -> np.ndarray:
+    """(R, K) the rows whose products with the frames' sample variances give ``cov(left . o, right . o)`` per
+    pixel: ``left * right``; with an ambient frame (index ``ambient``, subtracted from every frame) its column is
+    ``sum_k left_k right_k + (sum_k left_k) (sum_k right_k)`` (its noise in every output, and the room light's
+    shot noise it stands for in every frame; :func:`frame_variance`)."""
+    L = np.array(left, np.float64, ndmin=2)
+    R = np.array(right, np.float64, ndmin=2)
+    if ambient is None:
+        return L * R
+    L[:, ambient] = 0.0
+    R[:, ambient] = 0.0
+    rows = L * R
+    rows[:, ambient] = rows.sum(axis=1) + L.sum(axis=1) * R.sum(axis=1)
+    return rows
+
+
+def ambient_variance(ambient_frame, dark, noise: NoiseModel) -> np.ndarray:
+    """(H, W) float32 ``g`` times the variance of an ambient frame's sample: its signal above the dark level
+    (floored at 0; the room light's shot noise) plus ``g s_read^2``: the ambient frame's "sample" in the variance
+    products of :func:`frame_variance` (the stream writes the same into that frame's plane)."""
+    a = np.asarray(ambient_frame, np.float32) - np.asarray(dark, np.float32)
+    np.maximum(a, np.float32(0.0), out=a)
+    a += np.float32(noise.gain_e_per_dn * noise.read_var_dn2)
+    return a
+
+
+def _noise_products(frames, plan, dark, gain, pair, sequences, device, light=True, ambient_dark=None):
+    """``gain^2 sum_k rows_k var(o_k) / S`` per pixel, ``rows = variance_rows(*pair)``: the frames' samples above
+    the shifted dark ``dark - g s_read^2`` through apply_linear with ``rows / g`` (linear in the frames), or, with
+    the light's fluctuation, the samples first mapped to ``x + q (x - c)^2`` (:meth:`NoiseModel.light_square`, as
+    the stream's kernels). With an ambient frame (``dark`` is that frame): the samples above it, squared for the
+    light, and the ambient frame's own sample :func:`ambient_variance`."""
+    from .correction import ambient_index
     from .recovery import apply_linear
 
     if "noise" not in plan.params:
@@ -444,9 +488,21 @@ def _noise_products(frames, plan, dark, gain, rows, sequences, device, light=Tru
     if not (isinstance(sequences, (int, np.integer)) and sequences >= 1):
         raise ValueError(f"sequences must be an integer >= 1, got {sequences!r}")
     noise = NoiseModel.from_params(plan.params["noise"])
-    matrix = np.asarray(rows, np.float64) / noise.gain_e_per_dn / sequences
-    d = np.asarray(dark, np.float32) - np.float32(noise.gain_e_per_dn * noise.read_var_dn2)
+    amb = ambient_index(plan)
+    rows = variance_rows(*pair, ambient=amb)
+    matrix = rows / noise.gain_e_per_dn / sequences
     g = None if gain is None else np.asarray(gain, np.float32) ** 2
+    if amb is not None:
+        if ambient_dark is None:
+            raise ValueError(f"the {plan.method} plan subtracts its ambient frame: its noise model needs the "
+                             "calibration's dark level under it (ambient_dark)")
+        x = np.asarray(frames, np.float32) - np.asarray(dark, np.float32)
+        if light and noise.light_rms > 0:
+            q = np.float32(noise.light_square()[0])
+            x += q * (x * x)
+        x[amb] = ambient_variance(dark, ambient_dark, noise)
+        return np.asarray(apply_linear(x, matrix, None, g, device=device), np.float32)
+    d = np.asarray(dark, np.float32) - np.float32(noise.gain_e_per_dn * noise.read_var_dn2)
     if light and noise.light_rms > 0:
         q, c = (np.float32(v) for v in noise.light_square())
         x = np.asarray(frames, np.float32) - d
@@ -648,9 +704,9 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
     ``white_roi`` (a lab rig: a white tile in the scene there): the corrections of ``specgpu demo``'s lab profile,
     an ambient frame per sequence (subtracted instead of the dark) and the white's rescaling of the decoder for the
     lamp's drift (:func:`specgpu.pipeline.recover`). The sigma is then the plan's own decoder's on the frames
-    above the ambient frame (the dark the recovery subtracts), without the light's fluctuation (the white's gains
-    divide it out); the ambient frame's own noise, the room light's shot noise and the decoder's rescaling by a
-    few per cent are not in it."""
+    above the ambient frame (the dark the recovery subtracts) with that frame's own noise and the room light's shot
+    noise, without the light's fluctuation (the white's gains divide it out); the decoder's rescaling by a few per
+    cent is not in it."""
     from .correction import ambient_index, with_ambient_frame
     from .evaluate import evaluate_pixels, patch_means, scene_XYZ, truth_cube
     from .pipeline import SequenceFolder, capture_plan, recover
@@ -674,8 +730,10 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
                 folder = SequenceFolder(Path("<memory>"), frames[None], plan, bundle, [], {})
                 y = np.asarray(recover(folder, white_roi=white_roi, device=device), np.float64)
                 dark = frames[ambient_index(plan)].astype(np.float32)  # what the recovery subtracted
-            light = white_roi is None  # the white's per-sequence gains divide each frame's fluctuation out
-            sig = sigma_map(frames, plan, dark, gain, light=light, device=device)
+            # the white's per-sequence gains divide each frame's fluctuation out; the ambient frame's noise stays
+            kw = {"light": white_roi is None, "device": device,
+                  "ambient_dark": None if white_roi is None else bundle.dark_at(plan.exposure_s)}
+            sig = sigma_map(frames, plan, dark, gain, **kw)
             refl = plan.output == "reflectance"
             wl = plan.output_wavelengths if refl else None
             ill = "D65" if refl else plan.illuminant
@@ -688,8 +746,7 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
                 from .pipeline import to_XYZ
 
                 xyz = to_XYZ(y.astype(np.float32), plan, ill, device=device)
-                cov = output_covariance(frames, plan, dark, gain, plan.outputs_to_XYZ(ill), light=light,
-                                        device=device)
+                cov = output_covariance(frames, plan, dark, gain, plan.outputs_to_XYZ(ill), **kw)
                 ds = delta_E_sigma(np.asarray(xyz)[mask], cov[mask], ill)
                 acc["dE_ratio"].append(float(np.sqrt((px.delta_E_2000[mask] ** 2).mean() / (ds ** 2).mean())))
             acc["dEab"].append(float(px.delta_E_ab[mask].mean()))
