@@ -448,7 +448,8 @@ def test_stream_applies_recovers_frame_corrections(corrected):
     assert np.nanmax(np.abs(seen[0] - got[0][0]["cube"])) > 0.01
 
 
-def test_stream_subtracts_the_ambient_frame_as_recover_does(setup):
+@pytest.mark.parametrize("white", [True, False])
+def test_stream_subtracts_the_ambient_frame_as_recover_does(setup, white):
     from specgpu.capture.replay import record
     from specgpu.capture.twin import TwinDriver
     from specgpu.correction import with_ambient_frame
@@ -465,11 +466,15 @@ def test_stream_subtracts_the_ambient_frame_as_recover_does(setup):
     s = replace(setup, plan=plan, frames=frames, infos=infos, light=light)
     amb = frames[plan.K - 1].astype(np.float64) - setup.bundle.dark_at(plan.exposure_s)
     assert np.median(amb) > 2  # the room light is in every frame, and the ambient frame sees it
-    got, _ = run_stream(s, ("cube", "XYZ", "sigma"), white_roi=ROI)
+    roi = ROI if white else None
+    got, _ = run_stream(s, ("cube", "XYZ", "sigma", "dE_sigma"), white_roi=roi)
     for i, (arrays, _) in got.items():
         fr = frames[i * plan.K:(i + 1) * plan.K]
-        cube = recover(folder_of(s, fr), sequence=0, white_roi=ROI)
+        cube = recover(folder_of(s, fr), sequence=0, white_roi=roi)
         close(arrays["cube"], cube, rel=1e-5, name="cube")
         close(arrays["XYZ"], to_XYZ(cube, plan), rel=1e-5, name="XYZ")
-        sigma, _ = uncertainty(folder_of(s, fr), sequence=0, white_roi=ROI)  # the ambient frame as the dark level
+        # the ambient frame as the dark level, its own noise and the room light's shot noise in the sigma
+        sigma, cov = uncertainty(folder_of(s, fr), sequence=0, white_roi=roi, illuminant="D65")
         close(arrays["sigma"][..., :-1], sigma, rel=1e-5, name="sigma")
+        des = delta_E_sigma(np.nan_to_num(to_XYZ(cube, plan)), np.nan_to_num(cov), "D65")
+        np.testing.assert_allclose(arrays["dE_sigma"], des, rtol=1e-4, atol=1e-5)
