@@ -464,3 +464,27 @@ def test_sigma_holds_with_an_ambient_frame_in_dark_pixels(bundle):
                                                noise=E.NoiseModel.from_rig(DESC, plan.exposure_s)))
     ratio, _ = _spread_over_sigma(plan, bundle, colorchecker_scene(H, W), draws=12, seed=700)
     assert 0.9 <= ratio[0] <= 1.1 and 0.85 <= ratio[-1] <= 1.2, ratio
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 9), st.integers(1, 4), st.integers(0, 2 ** 31 - 1), st.booleans())
+def test_variance_rows_is_the_covariance_of_frames_above_an_ambient_frame(K, Q, seed, with_ambient):
+    """rows . v equals the exact covariance of L (o - a) and R (o - a): frames of variance p_k + w (their own noise
+    and the ambient light's and read noise they share in size), the ambient frame a of variance w subtracted from
+    each (its decoder column zero); without an ambient frame, L diag(v) R^T."""
+    rng = np.random.default_rng(seed)
+    amb = int(rng.integers(K)) if with_ambient else None
+    L, R = rng.normal(size=(Q, K)), rng.normal(size=(Q, K))
+    p, w = rng.uniform(0, 3, K), float(rng.uniform(0, 2))
+    if amb is None:
+        np.testing.assert_allclose(E.variance_rows(L, R) @ p, np.einsum("qk,k,qk->q", L, p, R), rtol=1e-12)
+        return
+    L[:, amb] = R[:, amb] = 0.0
+    T_L, T_R = L.copy(), R.copy()
+    T_L[:, amb], T_R[:, amb] = -L.sum(axis=1), -R.sum(axis=1)  # y = T z over every frame, the ambient one too
+    var = p + w
+    var[amb] = w
+    want = np.einsum("qk,k,qk->q", T_L, var, T_R)
+    v = p.copy()
+    v[amb] = w
+    np.testing.assert_allclose(E.variance_rows(L, R, amb) @ v, want, rtol=1e-10, atol=1e-12)
