@@ -377,8 +377,8 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
         # decoded one sequence at a time by its own decoder: the variance of their mean is the sum of each
         # sequence's frame noise over S^2, plus what no frame shows (the prior's mismatch). A white reference's
         # gains rescale each sequence's decoder by its own frames' power, so the light's fluctuation is divided
-        # out there; with the ambient frame alone it stays, at each frame's own signal above that frame.
-        # The ambient frame's own noise, and the room light's shot noise in every frame, come with it.
+        # out there; with the ambient frame alone it stays, at each frame's own signal above that frame. An
+        # ambient frame brings its own noise, and the room light's shot noise in every frame.
         _, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
         S = len(decoded)
         kw = {"light": white_roi is None, "device": device,
