@@ -8,14 +8,16 @@ and each quintile reports ``sqrt(mean spread^2 / mean sigma^2)``: 1 when the noi
 sigma understates the noise.
 
     python tools/sigma_check.py [--size 320x240] [--draws 10] [--plans hadamard,symmetric,narrowband,wiener]
-                                [--bands 7] [--seed 0] [--white-roi] [--ambient] [--json out.json]
+                                [--bands 7] [--seed 0] [--white-roi] [--ambient] [--profile lab]
+                                [--json out.json]
 
 Plans: ``hadamard`` (``plan hadamard --bands N``), ``symmetric`` (m = 5), ``narrowband`` (10 nm steps),
 ``wiener`` (symmetric with the Wiener decoder on the default prior), ``optimal`` (a 6-frame design; slow). Every
-plan gets the rig's noise model as ``specgpu plan`` records it. The rig is the default twin at ``--size``,
-calibrated by :func:`specgpu.calibration.calibrate`. ``--white-roi`` puts a 0.99 white tile in the chart and
-recovers with the white's drift correction (the light's fluctuation is then divided out per sequence);
-``--ambient`` gives every plan an ambient frame (``plan --ambient``), subtracted instead of the dark level.
+plan gets the rig's noise model as ``specgpu plan`` records it. The rig is the default twin at ``--size`` (or
+``--profile``'s, e.g. ``lab``), calibrated by :func:`specgpu.calibration.calibrate`. ``--white-roi`` puts a 0.99
+white tile in the chart and recovers with the white's drift correction (the light's fluctuation is then divided
+out per sequence); ``--ambient`` gives every plan an ambient frame (``plan --ambient``), subtracted instead of the
+dark level.
 
 The light's frame-to-frame fluctuation is common to every pixel of a frame, so the bright quintiles (where it
 dominates) see only ``draws x K`` independent draws of it: with 10 draws their ratio scatters by about +-10 %.
@@ -111,6 +113,7 @@ def main(argv=None):
     parser.add_argument("--white-roi", action="store_true", help="recover with a white tile's drift correction")
     parser.add_argument("--ambient", action="store_true",
                         help="plans with an ambient frame (plan --ambient), subtracted instead of the dark level")
+    parser.add_argument("--profile", default=None, help="the twin's [twin] profile (e.g. lab: room light, drift)")
     parser.add_argument("--json", default=None, help="also write the figures as JSON")
     args = parser.parse_args(argv)
     if args.draws < 2:
@@ -125,7 +128,10 @@ def main(argv=None):
     from specgpu.rig.scene import colorchecker_scene, white_tile_roi
 
     (width, height), = parse_sizes(args.size)
-    description = rig_from_dict({"camera": {"roi_width": width, "roi_height": height}}, source="<sigma_check>")
+    table = {"camera": {"roi_width": width, "roi_height": height}}
+    if args.profile:
+        table["twin"] = {"profile": args.profile}
+    description = rig_from_dict(table, source="<sigma_check>")
     bundle = calibrate(description, seed=args.seed)
     scene = colorchecker_scene(height, width, white_tile=0.99 if args.white_roi else None)
     roi = white_tile_roi(height, width) if args.white_roi else None
@@ -134,8 +140,9 @@ def main(argv=None):
         from specgpu.correction import with_ambient_frame
 
         plans = {name: with_ambient_frame(plan) for name, plan in plans.items()}
-    print(f"{width} x {height}, {args.draws} draws per plan, spread / sigma by brightness quintile (darkest "
-          f"first){', white ROI' if roi else ''}{', ambient frame' if args.ambient else ''}")
+    print(f"{width} x {height}{f', {args.profile} profile' if args.profile else ''}, {args.draws} draws per plan, "
+          f"spread / sigma by brightness quintile (darkest first){', white ROI' if roi else ''}"
+          f"{', ambient frame' if args.ambient else ''}")
     print(f"{'plan':<12} {'K':>3} {'ms':>7} {'q1':>6} {'q2':>6} {'q3':>6} {'q4':>6} {'q5':>6} {'all':>6} {'s':>5}")
     out = {}
     for name, plan in plans.items():
@@ -147,7 +154,8 @@ def main(argv=None):
               + " ".join(f"{v:>6.3f}" for v in r["ratio"]) + f" {r['all']:>6.3f} {time.perf_counter() - t:>5.1f}")
     if args.json:
         Path(args.json).write_text(json.dumps({"size": [width, height], "draws": args.draws, "seed": args.seed,
-                                               "white_roi": bool(roi), "ambient": args.ambient, "plans": out},
+                                               "white_roi": bool(roi), "ambient": args.ambient,
+                                               "profile": args.profile, "plans": out},
                                               indent=2) + "\n")
 
 
