@@ -20,6 +20,10 @@
  *   HAS_GAIN   0/1: per-pixel gain (flat field) (N), applied after the matrix
  *   SAT_LEVEL  inputs >= SAT_LEVEL flag the pixel saturated (mask bit 1); leave undefined for none
  *   IS_FLOAT_IN 1 when IN_T is float: non-finite inputs flag mask bit 2
+ *   SQUARE_GAIN, SQUARE_SHIFT  (both or neither) each sample x above the dark becomes
+ *              x + SQUARE_GAIN (x - SQUARE_SHIFT)^2: a frame sample's variance with the light's frame-to-frame
+ *              fluctuation, which grows with the signal squared (specgpu.estimators.NoiseModel.light_square);
+ *              SQUARE_SKIP (optional): the frame whose samples stay as they are (an ambient frame's variance)
  */
 #ifndef SPECGPU_COMMON_H
 #define SPECGPU_COMMON_H
@@ -310,6 +314,15 @@ inline floatv load_sample(__global const IN_T *frames, __global const float *dar
     v -= load_f(dark, base, count);
 #elif HAS_DARK == 2
     v -= load_f(dark + (ulong)k * n, base, count);
+#endif
+#ifdef SQUARE_GAIN
+#ifdef SQUARE_SKIP
+    if (k != SQUARE_SKIP)
+#endif
+    {
+        const floatv s_ = v - SQUARE_SHIFT;
+        v += SQUARE_GAIN * (s_ * s_);
+    }
 #endif
     return v;
 }

@@ -11,6 +11,8 @@
  *               the tile fits); 0 = a work-item per output element (n x B work-items)
  *   OUT_SQRT    0/1: write sqrt(max(y_b + c_b, 0)) instead of y_b, with the B offsets c_b stored after the B x K
  *               matrix in A (a standard deviation from a variance that is linear in the frames plus a constant)
+ *   SQUARE_GAIN, SQUARE_SHIFT  optional: samples squared before the matrix (common.h), for the variance of a frame
+ *               whose light fluctuates
  *
  * Arguments: frames (K planes or N x K), A (B x K row-major, constant), dark (N or K x N, or unused),
  * gain (N, or unused), out, mask (N, or unused), n = number of pixels.

@@ -141,7 +141,7 @@ def linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 
 
 
 def _linear_kernel(queue, frames_dtype, A, n, in_layout, dark, dark_per_frame, gain, out_dtype, out_layout,
-                   want_mask, saturation, out_sqrt=False):
+                   want_mask, saturation, out_sqrt=False, square=None):
     """The linear kernel's entry, macros and launch size for the variant of the queue's device."""
     B, K = A.shape
     vw = _vw(queue)
@@ -154,6 +154,9 @@ def _linear_kernel(queue, frames_dtype, A, n, in_layout, dark, dark_per_frame, g
     macros = dict(
         B=B, OUT_HALF=out_dtype == np.float16, OUT_LAYOUT=out_layout, WRITE_MASK=want_mask, VW=_vw_macro(vw),
         GROUP=_GROUP if gpu_interleaved else None, TILE=tile, OUT_SQRT=True if out_sqrt else None,
+        SQUARE_GAIN=None if square is None else _c_float(square[0]),
+        SQUARE_SHIFT=None if square is None else _c_float(square[1]),
+        SQUARE_SKIP=None if square is None or len(square) < 3 else int(square[2]),
         **_input_macros(frames_dtype, K, in_layout, 0 if dark is None else (2 if dark_per_frame else 1),
                         gain is not None, saturation if want_mask else None),
     )
@@ -201,17 +204,27 @@ class Prepared:
 
 def prepare_linear(queue, frames_dtype, A: np.ndarray, *, n: int, dark=None, dark_per_frame=False, gain=None,
                    out_dtype=np.float32, out_layout: int = 0, want_mask: bool = False, saturation=None,
-                   sqrt_offsets=None) -> Prepared:
+                   sqrt_offsets=None, square=None) -> Prepared:
     """:func:`linear` as a :class:`Prepared` launch; outputs ``out`` (B*n) and ``mask`` (n) when asked.
 
     ``sqrt_offsets`` (B,): write ``sqrt(max(y_b + offset_b, 0))`` (a standard deviation from a variance linear in
     the frames plus a constant); the device matrix is then A's B x K values followed by the B offsets
-    (:func:`linear_matrix`)."""
+    (:func:`linear_matrix`). ``square`` ``(q, c)`` or ``(q, c, k)``: each sample above the dark, ``x``, enters
+    the matrix as ``x + q (x - c)^2`` (a frame variance with the light's fluctuation,
+    :meth:`specgpu.estimators.NoiseModel.light_square`), except frame ``k``'s (an ambient frame's variance
+    sample)."""
     B = A.shape[0]
+    K = A.shape[1]
     out_dtype = np.dtype(out_dtype)
+    if square is not None:
+        square = tuple(square)
+        if (len(square) not in (2, 3) or not all(np.isfinite(float(v)) for v in square[:2])
+                or (len(square) == 3 and not (isinstance(square[2], (int, np.integer)) and 0 <= square[2] < K))):
+            raise ValueError(f"square must be two finite numbers (q, c) and optionally a frame index below {K}, "
+                             f"got {square!r}")
     name, macros, items, ppi = _linear_kernel(queue, np.dtype(frames_dtype), A, n, 0, dark, dark_per_frame,
                                               gain, out_dtype, out_layout, want_mask, saturation,
-                                              out_sqrt=sqrt_offsets is not None)
+                                              out_sqrt=sqrt_offsets is not None, square=square)
     kernel = new_kernel(queue, "linear.cl", name, **macros)
     A_dev = matrix_on_device(queue, linear_matrix(A, sqrt_offsets))
     outputs = {"out": (4, B * n * out_dtype.itemsize)}

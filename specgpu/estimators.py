@@ -19,10 +19,14 @@ plan's outputs (interpolation for reflectance outputs, colour-matching weights f
   ``E = W S W^T - A F S W^T - W S F^T A^T + A (F S F^T + N) A^T``; its diagonal per output, its mean the MSE.
 - **Smooth** (:func:`smooth_decoder`): for users with no training set, ``A = W (F^T N^-1 F + C^-1)^-1 F^T N^-1``:
   least squares regularised by the norm of a smooth prior C (a flat level plus squared-exponential variation).
-- **Per-pixel sigma** (:func:`sigma_map`): ``var y_b = gain^2 sum_k A_bk^2 (o_k / g + s_read^2) + m_b``: linear in the
-  frames, so :func:`specgpu.recovery.apply_linear` computes it with ``A^2 / g`` as the matrix, ``dark - g s_read^2``
-  as the dark and ``gain^2`` as the gain; ``m_b`` (the prior's mismatch ``diag((W - A F) S (W - A F)^T)`` plus the
-  light fluctuation at the expected signal) is a constant per output added on the host.
+- **Per-pixel sigma** (:func:`sigma_map`): ``var y_b = gain^2 sum_k A_bk^2 (o_k / g + s_read^2 + (l o_k)^2) + m_b``
+  with ``o_k`` each frame's own signal above dark at the pixel: :func:`specgpu.recovery.apply_linear` computes it
+  with ``A^2 / g`` as the matrix, ``gain^2`` as the gain and, per frame sample, ``x + g l^2 (x - g s_read^2)^2``
+  where ``x = o - (dark - g s_read^2)`` (:meth:`NoiseModel.light_square`; the stream's sigma kernels square the
+  samples on the device). The light's term is the frame's own: its fluctuation scales the whole frame, so it grows
+  with the pixel's signal squared, and a multiplexed plan (Hadamard: about half the light in every frame) has
+  bright frames whose fluctuation its decoder's differences do not cancel. ``m_b``, the prior's mismatch
+  ``diag((W - A F) S (W - A F)^T)``, is a constant per output added on the host.
 """
 
 from __future__ import annotations
@@ -52,6 +56,8 @@ __all__ = [
     "output_covariance",
     "frame_variance",
     "frame_covariance",
+    "variance_rows",
+    "ambient_variance",
     "constant_covariance",
     "delta_E_sigma",
     "HELD_OUT_CHART",
@@ -126,6 +132,13 @@ class NoiseModel:
     def as_params(self) -> dict:
         return {"gain_e_per_dn": float(self.gain_e_per_dn), "read_var_dn2": float(self.read_var_dn2),
                 "light_rms": float(self.light_rms)}
+
+    def light_square(self) -> tuple[float, float]:
+        """``(q, c)``: per frame sample ``x = o - (dark - g s_read^2)`` (the sample above the variance model's
+        shifted dark), ``(x + q (x - c)^2) / g`` is the sample's variance ``o / g + s_read^2 + (l o)^2`` with ``o``
+        its signal above dark: ``q = g l^2``, ``c = g s_read^2``."""
+        g = self.gain_e_per_dn
+        return float(g * self.light_rms ** 2), float(g * self.read_var_dn2)
 
     def covariance(self, F, prior: "Prior") -> np.ndarray:
         """(K, K) diagonal noise covariance at the prior's expected signal ``F mu``."""
@@ -367,58 +380,110 @@ def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, 
                 prior = smooth_prior(wl, correlation_nm=correlation_nm)
         if prior is not None:
             e = expected_error(A, F, W, prior, noise)
-            o2 = np.einsum("kb,bc,kc->k", F, prior.moment, F)
             bias = W - A @ F
-            const = bias @ prior.moment @ bias.T + (A * (noise.light_rms ** 2 * o2)) @ A.T
+            # what no frame shows: the prior's mismatch alone (the light's fluctuation is each frame's own, per
+            # pixel: sigma_map adds it from the frames' signal)
+            mismatch = bias @ prior.moment @ bias.T
             params["expected"] = {"rmse": e["rmse"], "mismatch_var": e["mismatch"].tolist(),
-                                  "noise_var": e["noise"].tolist(), "constant_cov": const.ravel().tolist(),
+                                  "noise_var": e["noise"].tolist(), "mismatch_cov": mismatch.ravel().tolist(),
                                   "prior": prior.source, "n_training": prior.n}
     return replace(plan, A=np.asarray(A, np.float64), params=params)
 
 
 # ---- per-pixel uncertainty ---------------------------------------------------------------------------------------
-def sigma_map(frames, plan, dark, gain, *, sequences: int = 1, device=None) -> np.ndarray:
+def sigma_map(frames, plan, dark, gain, *, sequences: int = 1, light: bool = True, ambient_dark=None,
+              device=None) -> np.ndarray:
     """(H, W, P) standard deviation of each output per pixel (float32), from the frames (K, H, W) the outputs
-    were recovered from (the mean of ``sequences`` sequences): ``var y = gain^2 sum_k A^2 (o / g + s_read^2) / S
-    + m`` through :func:`specgpu.recovery.apply_linear`, plus the mismatch and light terms ``m`` on the host."""
-    var = frame_variance(frames, plan, dark, gain, sequences=sequences, device=device)
+    were recovered from (the mean of ``sequences`` sequences): ``var y = gain^2 sum_k A^2 (o / g + s_read^2 +
+    (l o)^2) / S + m`` (:func:`frame_variance`), plus the prior's mismatch ``m`` on the host. ``light=False``
+    leaves out the light's frame-to-frame fluctuation (a decoder rescaled per sequence by a white reference's
+    gains divides each frame's fluctuation out). A plan with an ambient frame: ``dark`` is that frame (what the
+    recovery subtracted) and ``ambient_dark`` the calibration's dark level under it (:func:`frame_variance`)."""
+    var = frame_variance(frames, plan, dark, gain, sequences=sequences, light=light, ambient_dark=ambient_dark,
+                         device=device)
     var += constant_variance(plan).astype(np.float32)  # in place, float32: as cheap as the recovery itself
     np.maximum(var, 0.0, out=var)
     return np.sqrt(var, out=var)
 
 
-def frame_variance(frames, plan, dark, gain, *, A=None, sequences: int = 1, device=None) -> np.ndarray:
+def frame_variance(frames, plan, dark, gain, *, A=None, sequences: int = 1, light: bool = True, ambient_dark=None,
+                   device=None) -> np.ndarray:
     """(H, W, P) float32: the part of each output's variance the frames' noise makes, for the decoder ``A`` (the
-    plan's by default) applied to the mean of ``sequences`` sequences (no constant term)."""
-    A = plan.A if A is None else A
-    return _noise_products(frames, plan, dark, gain, np.asarray(A, np.float64) ** 2, sequences, device)
+    plan's by default) applied to the mean of ``sequences`` sequences (no constant term): each frame's shot, read
+    and dark noise and, with ``light``, the light's fluctuation at the frame's own signal.
+
+    A plan with an ambient frame (``plan --ambient``) has that frame subtracted instead of a dark level: ``dark``
+    is the ambient frame and ``ambient_dark`` (required) the calibration's dark level at the exposure. Its own
+    noise is then in every output, ``(sum_k A_k)^2`` times, and the room light it holds adds shot noise to every
+    frame: ``var y = gain^2 [sum_k A_k^2 (s_k / g + (l s_k)^2) + (sum_k A_k^2 + (sum_k A_k)^2) (a / g +
+    s_read^2)]`` with ``s_k`` each frame above the ambient frame and ``a`` the ambient frame above the dark level
+    (:func:`variance_rows`, :func:`ambient_variance`)."""
+    A = np.asarray(plan.A if A is None else A, np.float64)
+    return _noise_products(frames, plan, dark, gain, (A, A), sequences, device, light, ambient_dark)
 
 
-def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, device=None) -> np.ndarray:
+def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, light: bool = True, ambient_dark=None,
+                      device=None) -> np.ndarray:
     """(H, W, Q, Q) covariance of ``M y`` per pixel (M: (Q, P), e.g. the XYZ weights of a reflectance plan):
-    each entry ``sum_k (MA)_ik (MA)_jk var o_k`` is linear in the frames (one apply_linear pass over the Q (Q + 1)
-    / 2 products), plus ``M C M^T`` with C the plan's constant covariance (mismatch and light)."""
+    each entry ``sum_k (MA)_ik (MA)_jk var o_k`` is linear in the frames' sample variances (one apply_linear pass
+    over the Q (Q + 1) / 2 products), plus ``M C M^T`` with C the plan's constant covariance (the mismatch)."""
     M = np.asarray(M, np.float64)
-    cov = frame_covariance(frames, plan, dark, gain, M, sequences=sequences, device=device)
+    cov = frame_covariance(frames, plan, dark, gain, M, sequences=sequences, light=light, ambient_dark=ambient_dark,
+                           device=device)
     return cov + M @ constant_covariance(plan) @ M.T
 
 
-def frame_covariance(frames, plan, dark, gain, M, *, A=None, sequences: int = 1, device=None) -> np.ndarray:
+def frame_covariance(frames, plan, dark, gain, M, *, A=None, sequences: int = 1, light: bool = True,
+                     ambient_dark=None, device=None) -> np.ndarray:
     """(H, W, Q, Q) float64: the frames' noise part of the covariance of ``M y`` for the decoder ``A`` (the plan's
     by default), without the constant ``M C M^T``."""
     M = np.asarray(M, np.float64)
     MA = M @ (plan.A if A is None else np.asarray(A, np.float64))
     Q = M.shape[0]
     pairs = [(i, j) for i in range(Q) for j in range(i, Q)]
-    prods = np.stack([MA[i] * MA[j] for i, j in pairs])
-    v = np.asarray(_noise_products(frames, plan, dark, gain, prods, sequences, device), np.float64)
+    left = np.stack([MA[i] for i, _ in pairs])
+    right = np.stack([MA[j] for _, j in pairs])
+    v = np.asarray(_noise_products(frames, plan, dark, gain, (left, right), sequences, device, light, ambient_dark),
+                   np.float64)
     cov = np.empty(v.shape[:-1] + (Q, Q))
     for n, (i, j) in enumerate(pairs):
         cov[..., i, j] = cov[..., j, i] = v[..., n]
     return cov
 
 
-def _noise_products(frames, plan, dark, gain, rows, sequences, device):
+def variance_rows(left, right, ambient: int | None = None) -> np.ndarray:
+    """(R, K) the rows whose products with the frames' sample variances give ``cov(left . o, right . o)`` per
+    pixel: ``left * right``; with an ambient frame (index ``ambient``, subtracted from every frame) its column is
+    ``sum_k left_k right_k + (sum_k left_k) (sum_k right_k)`` (its noise in every output, and the room light's
+    shot noise it stands for in every frame; :func:`frame_variance`)."""
+    L = np.array(left, np.float64, ndmin=2)
+    R = np.array(right, np.float64, ndmin=2)
+    if ambient is None:
+        return L * R
+    L[:, ambient] = 0.0
+    R[:, ambient] = 0.0
+    rows = L * R
+    rows[:, ambient] = rows.sum(axis=1) + L.sum(axis=1) * R.sum(axis=1)
+    return rows
+
+
+def ambient_variance(ambient_frame, dark, noise: NoiseModel) -> np.ndarray:
+    """(H, W) float32 ``g`` times the variance of an ambient frame's sample: its signal above the dark level
+    (floored at 0; the room light's shot noise) plus ``g s_read^2``: the ambient frame's "sample" in the variance
+    products of :func:`frame_variance` (the stream writes the same into that frame's plane)."""
+    a = np.asarray(ambient_frame, np.float32) - np.asarray(dark, np.float32)
+    np.maximum(a, np.float32(0.0), out=a)
+    a += np.float32(noise.gain_e_per_dn * noise.read_var_dn2)
+    return a
+
+
+def _noise_products(frames, plan, dark, gain, pair, sequences, device, light=True, ambient_dark=None):
+    """``gain^2 sum_k rows_k var(o_k) / S`` per pixel, ``rows = variance_rows(*pair)``: the frames' samples above
+    the shifted dark ``dark - g s_read^2`` through apply_linear with ``rows / g`` (linear in the frames), or, with
+    the light's fluctuation, the samples first mapped to ``x + q (x - c)^2`` (:meth:`NoiseModel.light_square`, as
+    the stream's kernels). With an ambient frame (``dark`` is that frame): the samples above it, squared for the
+    light, and the ambient frame's own sample :func:`ambient_variance`."""
+    from .correction import ambient_index
     from .recovery import apply_linear
 
     if "noise" not in plan.params:
@@ -427,17 +492,40 @@ def _noise_products(frames, plan, dark, gain, rows, sequences, device):
     if not (isinstance(sequences, (int, np.integer)) and sequences >= 1):
         raise ValueError(f"sequences must be an integer >= 1, got {sequences!r}")
     noise = NoiseModel.from_params(plan.params["noise"])
-    matrix = np.asarray(rows, np.float64) / noise.gain_e_per_dn / sequences
-    d = np.asarray(dark, np.float32) - np.float32(noise.gain_e_per_dn * noise.read_var_dn2)
+    amb = ambient_index(plan)
+    rows = variance_rows(*pair, ambient=amb)
+    matrix = rows / noise.gain_e_per_dn / sequences
     g = None if gain is None else np.asarray(gain, np.float32) ** 2
+    if amb is not None:
+        if ambient_dark is None:
+            raise ValueError(f"the {plan.method} plan subtracts its ambient frame: its noise model needs the "
+                             "calibration's dark level under it (ambient_dark)")
+        x = np.asarray(frames, np.float32) - np.asarray(dark, np.float32)
+        if light and noise.light_rms > 0:
+            q = np.float32(noise.light_square()[0])
+            x += q * (x * x)
+        x[amb] = ambient_variance(dark, ambient_dark, noise)
+        return np.asarray(apply_linear(x, matrix, None, g, device=device), np.float32)
+    d = np.asarray(dark, np.float32) - np.float32(noise.gain_e_per_dn * noise.read_var_dn2)
+    if light and noise.light_rms > 0:
+        q, c = (np.float32(v) for v in noise.light_square())
+        x = np.asarray(frames, np.float32) - d
+        s = x - c
+        s *= s
+        s *= q
+        x += s
+        return np.asarray(apply_linear(x, matrix, None, g, device=device), np.float32)
     return np.asarray(apply_linear(frames, matrix, d, g, device=device), np.float32)
 
 
 def constant_covariance(plan) -> np.ndarray:
-    """(P, P) the output covariance no frame shows: the prior's mismatch and the light's fluctuation (zero when
-    the plan records no expected error)."""
+    """(P, P) the output covariance no frame shows: the prior's mismatch (zero when the plan records no expected
+    error). A plan saved before the light's fluctuation was taken per pixel recorded it, at the prior's mean
+    signal, in ``constant_cov`` beside the mismatch: that is used as it is (the sigma then errs high by the light
+    at the prior's signal; re-plan to drop it)."""
     P = plan.A.shape[0]
-    c = plan.params.get("expected", {}).get("constant_cov")
+    expected = plan.params.get("expected", {})
+    c = expected.get("mismatch_cov", expected.get("constant_cov"))
     return np.zeros((P, P)) if c is None else np.asarray(c, np.float64).reshape(P, P)
 
 
@@ -620,8 +708,9 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
     ``white_roi`` (a lab rig: a white tile in the scene there): the corrections of ``specgpu demo``'s lab profile,
     an ambient frame per sequence (subtracted instead of the dark) and the white's rescaling of the decoder for the
     lamp's drift (:func:`specgpu.pipeline.recover`). The sigma is then the plan's own decoder's on the frames
-    above the ambient frame (the dark the recovery subtracts); the ambient frame's own noise, the room light's
-    shot noise and the decoder's rescaling by a few per cent are not in it."""
+    above the ambient frame (the dark the recovery subtracts) with that frame's own noise and the room light's shot
+    noise, without the light's fluctuation (the white's gains divide it out); the decoder's rescaling by a few per
+    cent is not in it."""
     from .correction import ambient_index, with_ambient_frame
     from .evaluate import evaluate_pixels, patch_means, scene_XYZ, truth_cube
     from .pipeline import SequenceFolder, capture_plan, recover
@@ -645,7 +734,10 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
                 folder = SequenceFolder(Path("<memory>"), frames[None], plan, bundle, [], {})
                 y = np.asarray(recover(folder, white_roi=white_roi, device=device), np.float64)
                 dark = frames[ambient_index(plan)].astype(np.float32)  # what the recovery subtracted
-            sig = sigma_map(frames, plan, dark, gain, device=device)
+            # the white's per-sequence gains divide each frame's fluctuation out; the ambient frame's noise stays
+            kw = {"light": white_roi is None, "device": device,
+                  "ambient_dark": None if white_roi is None else bundle.dark_at(plan.exposure_s)}
+            sig = sigma_map(frames, plan, dark, gain, **kw)
             refl = plan.output == "reflectance"
             wl = plan.output_wavelengths if refl else None
             ill = "D65" if refl else plan.illuminant
@@ -658,7 +750,7 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
                 from .pipeline import to_XYZ
 
                 xyz = to_XYZ(y.astype(np.float32), plan, ill, device=device)
-                cov = output_covariance(frames, plan, dark, gain, plan.outputs_to_XYZ(ill), device=device)
+                cov = output_covariance(frames, plan, dark, gain, plan.outputs_to_XYZ(ill), **kw)
                 ds = delta_E_sigma(np.asarray(xyz)[mask], cov[mask], ill)
                 acc["dE_ratio"].append(float(np.sqrt((px.delta_E_2000[mask] ** 2).mean() / (ds ** 2).mean())))
             acc["dEab"].append(float(px.delta_E_ab[mask].mean()))

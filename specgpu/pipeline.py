@@ -434,14 +434,19 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
     cov = None
     if white_roi is not None or ambient_index(plan) is not None:
         # decoded one sequence at a time by its own decoder: the variance of their mean is the sum of each
-        # sequence's frame noise over S^2, plus what no frame shows (the prior's mismatch, the light)
+        # sequence's frame noise over S^2, plus what no frame shows (the prior's mismatch). A white reference's
+        # gains rescale each sequence's decoder by its own frames' power, so the light's fluctuation is divided
+        # out there; with the ambient frame alone it stays, at each frame's own signal above that frame. An
+        # ambient frame brings its own noise, and the room light's shot noise in every frame.
         _, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
         S = len(decoded)
+        kw = {"light": white_roi is None, "device": device,
+              "ambient_dark": None if ambient_index(plan) is None else bundle.dark_at(plan.exposure_s)}
         const = constant_covariance(plan)
-        var = sum(frame_variance(fr, plan, dark, gain, A=A, device=device) for fr, dark, A in decoded) / S ** 2
+        var = sum(frame_variance(fr, plan, dark, gain, A=A, **kw) for fr, dark, A in decoded) / S ** 2
         sigma = np.sqrt(np.maximum(var + np.diag(const).astype(np.float32), 0.0)).astype(np.float32)
         if M is not None:
-            cov = sum(frame_covariance(fr, plan, dark, gain, M, A=A, device=device)
+            cov = sum(frame_covariance(fr, plan, dark, gain, M, A=A, **kw)
                       for fr, dark, A in decoded) / S ** 2 + M @ const @ M.T
     else:
         frames = used.mean(axis=0, dtype=np.float32) if used.shape[0] > 1 else used[0]

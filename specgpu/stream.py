@@ -94,9 +94,10 @@ class StreamDecoder:
         output basis U (B x m, orthonormal columns from the SVD of A; ``cube = coefficients @ U.T``).
         ``"cube"``: the B outputs of the plan. ``"XYZ"``, ``"Lab"``, ``"dE"``: the fused colorimetric pass.
         ``"sigma"``: the standard deviation of each of the B outputs and their RMS (B + 1 channels, as
-        ``specgpu recover --sigma``): the variance is linear in the frames plus a constant
+        ``specgpu recover --sigma``): the variance is linear in the frames' sample variances plus a constant
         (:func:`specgpu.estimators.sigma_map`), so the linear kernel computes it with ``A o A / g`` as the
-        matrix and takes the square root of it plus the constant. ``"sigma_rms"``: the RMS channel alone (one
+        matrix, each sample squared first for the light's fluctuation, and takes the square root of it plus the
+        constant. ``"sigma_rms"``: the RMS channel alone (one
         row of the same map: B times fewer bytes written than ``"sigma"``). ``"dE_sigma"``: the first-order dE2000
         standard deviation (as ``recover --delta-e-sigma``): the XYZ covariance's six entries by the linear
         kernel, then a small kernel propagating them with XYZ to dE2000 (as
@@ -210,6 +211,14 @@ class StreamDecoder:
             self.dark_var = engine.to_device(queue, (np.asarray(dark, np.float32) - np.float32(
                 g_e * self.noise.read_var_dn2)).reshape(-1))
             self.gain2 = engine.to_device(queue, (np.asarray(gain, np.float32) ** 2).reshape(-1))
+            # the light's fluctuation at each frame's own signal (squared samples); a white reference's per-sequence
+            # gains divide it out, as recover --white-roi's uncertainty does. With an ambient frame the frames
+            # arrive above it (prepare_frames) and its plane holds its own variance sample (never squared).
+            self.square = (self.noise.light_square() if self.white_reference is None and self.noise.light_rms > 0
+                           else None)
+            if self._ambient is not None:
+                self.dark_var = None
+                self.square = None if self.square is None else (self.square[0], 0.0, self._ambient)
             const = constant_covariance(plan)
             cv = np.diag(const).astype(np.float32)
             self.sigma_offsets = np.append(cv, np.float32(np.mean(cv, dtype=np.float64)))
@@ -260,6 +269,8 @@ class StreamDecoder:
 
     def _matrix_makers(self) -> list:
         """Per launch, in order: (a function of A giving (matrix, square-root offsets or None), launch kind)."""
+        from .estimators import variance_rows
+
         makers = []
         if "coefficients" in self.outputs:
             # U^T A: S Vt for the plan's own A; for a corrected decoder (A times a K x K map) its coefficients in
@@ -271,19 +282,21 @@ class StreamDecoder:
             g_e = self.noise.gain_e_per_dn
 
             def sigma_rows(A):
-                sq = A ** 2
+                sq = variance_rows(A, A, self._ambient)
                 return np.vstack([sq, sq.mean(axis=0)]) / g_e, self.sigma_offsets
             makers.append((sigma_rows, "sigma"))
         if "sigma_rms" in self.outputs:
             g_e = self.noise.gain_e_per_dn
-            makers.append((lambda A: ((A ** 2).mean(axis=0, keepdims=True) / g_e, self.sigma_offsets[-1:]),
-                           "sigma_rms"))
+            makers.append((lambda A: (variance_rows(A, A, self._ambient).mean(axis=0, keepdims=True) / g_e,
+                                      self.sigma_offsets[-1:]), "sigma_rms"))
         if "dE_sigma" in self.outputs:
             g_e = self.noise.gain_e_per_dn
 
             def cov_rows(A):
                 MA = self.to_XYZ @ A
-                return np.stack([MA[i] * MA[j] for i, j in self.cov_pairs]) / g_e, None
+                left = np.stack([MA[i] for i, _ in self.cov_pairs])
+                right = np.stack([MA[j] for _, j in self.cov_pairs])
+                return variance_rows(left, right, self._ambient) / g_e, None
             makers.append((cov_rows, "XYZ_cov"))
         if self.M is not None:
             makers.append((lambda A: (self.to_XYZ @ A, None), "colour"))
@@ -304,6 +317,12 @@ class StreamDecoder:
         raw = np.asarray(raw)
         dark = raw[self._ambient].astype(np.float32) if self._ambient is not None else self._dark_host
         f = corrected_signal(raw, dark, self._ratio, self._calibration)
+        if self._ambient is not None and self.noise is not None:
+            # the ambient frame's plane (a zero column of the decoder) carries its own variance sample for the
+            # uncertainty launches (estimators.frame_variance)
+            from .estimators import ambient_variance
+
+            f[self._ambient] = ambient_variance(dark, self._dark_host, self.noise)
         f[raw >= self._calibration.max_code] = _PRECORRECT_MARK
         return f
 
@@ -337,7 +356,8 @@ class StreamDecoder:
             elif kind in ("sigma", "sigma_rms", "XYZ_cov"):
                 rows, offsets = make(self.A)
                 launches.append((engine.prepare_linear(q, dtype, rows, n=n, dark=self.dark_var, gain=self.gain2,
-                                                       out_layout=1, sqrt_offsets=offsets, **sat),
+                                                       out_layout=1, sqrt_offsets=offsets, square=self.square,
+                                                       **sat),
                                  {"out": kind, "mask": "mask"}))
             else:
                 launches.append((engine.prepare_frames_to_delta_e(

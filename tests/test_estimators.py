@@ -206,11 +206,20 @@ def test_sigma_map_against_numpy(bundle, prior):
     gain = rng.uniform(0.9, 1.1, (24, 32)).astype(np.float32)
     sig = E.sigma_map(frames, plan, dark, gain, sequences=2)
     n = E.NoiseModel.from_params(plan.params["noise"])
+    assert n.light_rms > 0
     o = frames.astype(np.float64) - dark
-    var_o = o / n.gain_e_per_dn + n.read_var_dn2
+    # shot, read and dark noise, and the light's fluctuation at each frame's own signal (it scales the frame)
+    var_o = o / n.gain_e_per_dn + n.read_var_dn2 + (n.light_rms * o) ** 2
     ref = np.einsum("bk,khw->hwb", plan.A ** 2, var_o) * gain[..., None].astype(np.float64) ** 2 / 2
     ref += E.constant_variance(plan)
     np.testing.assert_allclose(sig, np.sqrt(ref), rtol=2e-4)
+    # the constant is the prior's mismatch alone (the light is no longer in it at the prior's mean signal)
+    np.testing.assert_allclose(E.constant_variance(plan), plan.params["expected"]["mismatch_var"], rtol=1e-9)
+    # without the light (a white reference divides it out) only the linear part stays
+    ref_nl = np.einsum("bk,khw->hwb", plan.A ** 2, o / n.gain_e_per_dn + n.read_var_dn2)
+    ref_nl = ref_nl * gain[..., None].astype(np.float64) ** 2 / 2 + E.constant_variance(plan)
+    np.testing.assert_allclose(E.sigma_map(frames, plan, dark, gain, sequences=2, light=False), np.sqrt(ref_nl),
+                               rtol=2e-4)
 
 
 def test_sigma_map_needs_a_noise_model(bundle):
@@ -377,3 +386,105 @@ def test_training_sets_split_the_database_by_set():
     assert sets["CIE 2017 CES"].shape == (99, db.reflectance.shape[1])
     first = db.labels.index(next(label for label in db.labels if label.startswith("RAW to ACES v1/")))
     np.testing.assert_array_equal(sets["RAW to ACES v1"][0], db.reflectance[first])
+
+
+def _spread_over_sigma(plan, bundle, scene, draws, seed):
+    """Per brightness quintile (darkest first): sqrt(mean spread^2 / mean predicted variance) of the recoveries of
+    ``draws`` noise draws, recovered and given their sigma as ``recover --sigma`` does; and the same with the
+    light's fluctuation left out of the prediction."""
+    from specgpu.correction import ambient_index
+    from specgpu.pipeline import SequenceFolder, recover, uncertainty
+
+    ys, var, var_nl = [], [], []
+    dark = bundle.dark_at(plan.exposure_s)
+    for i in range(draws):
+        frames = capture_plan(DESC, plan, scene, noise_seed=seed + i, calibration=bundle).sequences[0].frames
+        folder = SequenceFolder(None, frames[None], plan, bundle, [], {})
+        ys.append(np.asarray(recover(folder, sequence=0), np.float64))
+        var.append(np.asarray(uncertainty(folder, sequence=0)[0], np.float64) ** 2)
+        if ambient_index(plan) is None:
+            var_nl.append(np.asarray(E.sigma_map(frames, plan, dark, bundle.flat_field, light=False), np.float64) ** 2)
+    y = np.array(ys)
+    spread2 = y.var(axis=0, ddof=1)
+    level = y.mean(axis=(0, -1))
+    edges = np.quantile(level, np.linspace(0, 1, 6))
+    out = []
+    for v in (np.mean(var, axis=0), np.mean(var_nl, axis=0) if var_nl else np.mean(var, axis=0)):
+        out.append([float(np.sqrt(spread2[(level >= a) & (level <= b)].mean() / v[(level >= a) & (level <= b)].mean()))
+                    for a, b in zip(edges[:-1], edges[1:])])
+    return out
+
+
+def test_sigma_holds_for_a_multiplexed_plan_in_bright_pixels(bundle):
+    """A Hadamard plan (half the light in every frame) on the colorchecker: the spread of the recoveries over noise
+    draws is the predicted sigma in the darkest and the brightest fifth of the pixels alike. The light's
+    frame-to-frame fluctuation scales each frame, so its variance grows with the pixel's signal squared; left out
+    (or taken at the prior's mean signal) the bright pixels' spread is twice the sigma. The fluctuation is common
+    to every pixel of a frame, so the bright quintile sees only draws x K independent draws of it: its bounds are
+    wide (about +-12 % at 1 sigma for 20 draws), the failure they catch is 2x."""
+    from specgpu.design import plan_hadamard
+    from specgpu.rig.scene import colorchecker_scene
+
+    plan = plan_hadamard(bundle, bands=7)
+    plan = E.with_estimator(plan, bundle, "projection", noise=E.NoiseModel.from_rig(DESC, plan.exposure_s))
+    assert plan.params["noise"]["light_rms"] > 0
+    ratio, without_light = _spread_over_sigma(plan, bundle, colorchecker_scene(H, W), draws=20, seed=500)
+    assert 0.85 <= ratio[0] <= 1.15, ratio
+    assert 0.7 <= ratio[-1] <= 1.35, ratio
+    assert without_light[-1] > 1.4, without_light  # the light's fluctuation is what the bright pixels need
+
+
+def test_constant_covariance_is_the_mismatch_and_reads_an_older_plans_constant(bundle, prior):
+    from dataclasses import replace
+
+    plan = make_plan("narrowband", bundle, step_nm=20.0)
+    plan = E.with_estimator(plan, bundle, "wiener", prior=prior, noise=E.NoiseModel.from_rig(DESC, plan.exposure_s))
+    P = plan.A.shape[0]
+    exp = plan.params["expected"]
+    assert "constant_cov" not in exp
+    C = E.constant_covariance(plan)
+    np.testing.assert_allclose(np.diag(C), exp["mismatch_var"], rtol=1e-9)
+    np.testing.assert_allclose(C, C.T, atol=1e-15)
+    # a plan saved before the light was taken per pixel: its recorded constant (mismatch + light) is used as it is
+    old = {k: v for k, v in exp.items() if k != "mismatch_cov"}
+    old["constant_cov"] = (C + 1e-4 * np.eye(P)).ravel().tolist()
+    older = replace(plan, params={**plan.params, "expected": old})
+    np.testing.assert_allclose(E.constant_covariance(older), C + 1e-4 * np.eye(P), rtol=1e-12)
+
+
+def test_sigma_holds_with_an_ambient_frame_in_dark_pixels(bundle):
+    """A plan with an ambient frame subtracts it from every frame: its own noise is in every output and counts as
+    much as a frame's own read noise in the dark pixels of a narrowband plan (one frame per output); without it the
+    darkest fifth's spread is about 1.3 times the sigma."""
+    from specgpu.correction import with_ambient_frame
+    from specgpu.rig.scene import colorchecker_scene
+
+    plan = make_plan("narrowband", bundle, step_nm=25.0)
+    plan = with_ambient_frame(E.with_estimator(plan, bundle, "projection",
+                                               noise=E.NoiseModel.from_rig(DESC, plan.exposure_s)))
+    ratio, _ = _spread_over_sigma(plan, bundle, colorchecker_scene(H, W), draws=12, seed=700)
+    assert 0.9 <= ratio[0] <= 1.1 and 0.85 <= ratio[-1] <= 1.2, ratio
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 9), st.integers(1, 4), st.integers(0, 2 ** 31 - 1), st.booleans())
+def test_variance_rows_is_the_covariance_of_frames_above_an_ambient_frame(K, Q, seed, with_ambient):
+    """rows . v equals the exact covariance of L (o - a) and R (o - a): frames of variance p_k + w (their own noise
+    and the ambient light's and read noise they share in size), the ambient frame a of variance w subtracted from
+    each (its decoder column zero); without an ambient frame, L diag(v) R^T."""
+    rng = np.random.default_rng(seed)
+    amb = int(rng.integers(K)) if with_ambient else None
+    L, R = rng.normal(size=(Q, K)), rng.normal(size=(Q, K))
+    p, w = rng.uniform(0, 3, K), float(rng.uniform(0, 2))
+    if amb is None:
+        np.testing.assert_allclose(E.variance_rows(L, R) @ p, np.einsum("qk,k,qk->q", L, p, R), rtol=1e-12)
+        return
+    L[:, amb] = R[:, amb] = 0.0
+    T_L, T_R = L.copy(), R.copy()
+    T_L[:, amb], T_R[:, amb] = -L.sum(axis=1), -R.sum(axis=1)  # y = T z over every frame, the ambient one too
+    var = p + w
+    var[amb] = w
+    want = np.einsum("qk,k,qk->q", T_L, var, T_R)
+    v = p.copy()
+    v[amb] = w
+    np.testing.assert_allclose(E.variance_rows(L, R, amb) @ v, want, rtol=1e-10, atol=1e-12)

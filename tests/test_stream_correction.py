@@ -157,7 +157,9 @@ def test_sigma_with_white_roi_uses_the_corrected_decoder(drifted):
 
     frames = seq_frames(s, 0)
     A = corrected_decoder(s.plan, white_gains(frames, s.plan, s.bundle, ROI), s.bundle)
-    sig = sigma_map(frames, replace(s.plan, A=A), s.bundle.dark_at(s.plan.exposure_s), s.bundle.flat_field)
+    # the white's per-sequence gains divide each frame's light fluctuation out: no light term
+    sig = sigma_map(frames, replace(s.plan, A=A), s.bundle.dark_at(s.plan.exposure_s), s.bundle.flat_field,
+                    light=False)
     close(got[0][0]["sigma"][..., :-1], sig, rel=1e-5, name="sigma (corrected decoder)")
     # and recover --sigma --white-roi writes the same (its uncertainty follows the decoder recover used)
     want, _ = uncertainty(folder_of(s, frames), sequence=0, white_roi=ROI)
@@ -323,6 +325,38 @@ def test_linear_square_root_output_is_sigma_of_a_linear_variance(queue, B, out_l
 
 
 @pytest.mark.usefixtures("kernel_variant")
+@pytest.mark.parametrize("B, K", [(12, 9), (5, 130)])
+def test_linear_squared_samples_are_the_light_fluctuation_variance(queue, B, K):
+    """square=(q, c): each sample above the dark, x, enters the matrix as x + q (x - c)^2 (the frame variance with
+    the light's fluctuation, NoiseModel.light_square), for K kept in registers and K re-read per output (> 128)."""
+    import pyopencl as cl
+
+    from specgpu import engine
+
+    rng = np.random.default_rng(K)
+    n = 1001
+    noise = NoiseModel(30.0, 0.3, 0.02)
+    q, c = noise.light_square()
+    A = rng.uniform(0, 1e-4, (B, K))
+    offsets = rng.uniform(0, 1e-3, B)
+    dark_h = rng.uniform(10, 20, n).astype(np.float32) - np.float32(c)
+    gain_h = rng.uniform(0.8, 1.2, n).astype(np.float32) ** 2
+    frames_h = rng.integers(0, 4000, (K, n)).astype(np.uint16)
+    lin = engine.prepare_linear(queue, np.uint16, A, n=n, dark=engine.to_device(queue, dark_h),
+                                gain=engine.to_device(queue, gain_h), out_layout=1, sqrt_offsets=offsets,
+                                square=(q, c))
+    got = np.empty(B * n, np.float32)
+    cl.enqueue_copy(queue, got, lin.enqueue(engine.to_device(queue, frames_h.reshape(-1)).data)["out"])
+    x = frames_h - dark_h.astype(np.float64)
+    var = (A @ (x + q * (x - c) ** 2)) * gain_h + offsets[:, None]
+    np.testing.assert_allclose(got.reshape(n, B).T.astype(np.float64) ** 2, var, rtol=1e-5)
+    # the squared term is what the light adds: without it the variance is a few times smaller here
+    assert np.median(var / ((A @ x) * gain_h + offsets[:, None])) > 2
+    with pytest.raises(ValueError, match="square"):
+        engine.prepare_linear(queue, np.uint16, A, n=n, square=(q, float("nan")))
+
+
+@pytest.mark.usefixtures("kernel_variant")
 def test_delta_e_sigma_kernel_equals_the_host_propagation(queue):
     """The device's first-order dE2000 sigma against estimators.delta_E_sigma (float64) on colours from near black
     (the linear branch of the CIE function) to near white, with random positive definite covariances."""
@@ -414,7 +448,8 @@ def test_stream_applies_recovers_frame_corrections(corrected):
     assert np.nanmax(np.abs(seen[0] - got[0][0]["cube"])) > 0.01
 
 
-def test_stream_subtracts_the_ambient_frame_as_recover_does(setup):
+@pytest.mark.parametrize("white", [True, False])
+def test_stream_subtracts_the_ambient_frame_as_recover_does(setup, white):
     from specgpu.capture.replay import record
     from specgpu.capture.twin import TwinDriver
     from specgpu.correction import with_ambient_frame
@@ -431,11 +466,15 @@ def test_stream_subtracts_the_ambient_frame_as_recover_does(setup):
     s = replace(setup, plan=plan, frames=frames, infos=infos, light=light)
     amb = frames[plan.K - 1].astype(np.float64) - setup.bundle.dark_at(plan.exposure_s)
     assert np.median(amb) > 2  # the room light is in every frame, and the ambient frame sees it
-    got, _ = run_stream(s, ("cube", "XYZ", "sigma"), white_roi=ROI)
+    roi = ROI if white else None
+    got, _ = run_stream(s, ("cube", "XYZ", "sigma", "dE_sigma"), white_roi=roi)
     for i, (arrays, _) in got.items():
         fr = frames[i * plan.K:(i + 1) * plan.K]
-        cube = recover(folder_of(s, fr), sequence=0, white_roi=ROI)
+        cube = recover(folder_of(s, fr), sequence=0, white_roi=roi)
         close(arrays["cube"], cube, rel=1e-5, name="cube")
         close(arrays["XYZ"], to_XYZ(cube, plan), rel=1e-5, name="XYZ")
-        sigma, _ = uncertainty(folder_of(s, fr), sequence=0, white_roi=ROI)  # the ambient frame as the dark level
+        # the ambient frame as the dark level, its own noise and the room light's shot noise in the sigma
+        sigma, cov = uncertainty(folder_of(s, fr), sequence=0, white_roi=roi, illuminant="D65")
         close(arrays["sigma"][..., :-1], sigma, rel=1e-5, name="sigma")
+        des = delta_E_sigma(np.nan_to_num(to_XYZ(cube, plan)), np.nan_to_num(cov), "D65")
+        np.testing.assert_allclose(arrays["dE_sigma"], des, rtol=1e-4, atol=1e-5)
