@@ -7,6 +7,7 @@ scene file with a bad value fails with a clear reason instead of a wrong simulat
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
@@ -91,3 +92,19 @@ def normalised_to_peak(values: np.ndarray, wavelengths: np.ndarray, zero_message
     if not peak > 0:
         raise ValueError(f"{zero_message} between {wavelengths.min():g} and {wavelengths.max():g} nm")
     return values / peak
+
+
+def available_memory_bytes() -> int | None:
+    """Memory the system can still give this process now (Linux: ``MemAvailable``; elsewhere the free physical
+    pages), or None where unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.checks import check_wavelengths, normalised_to_peak
+from specgpu.checks import available_memory_bytes, check_wavelengths, normalised_to_peak
 
 __all__ = [
     "format_channel", "parse_channel", "read_exr", "write_exr", "read_cube_exr", "write_cube_exr",
@@ -520,26 +520,11 @@ def npz_members(path) -> dict:
             RuntimeError, NotImplementedError) as exc:
         raise ValueError(f"{path}: truncated or corrupt .npz ({exc.__class__.__name__}: {one_line(str(exc))})"
                          ) from None
-    available = _available_memory()
+    available = available_memory_bytes()
     if available is not None and total > available:
         raise ValueError(f"{path}: its arrays take {total / 1e9:.2f} GB once loaded but only {available / 1e9:.2f} "
                          "GB of memory are available; refused before loading them")
     return members
-
-
-def _available_memory() -> int | None:
-    """Bytes of memory available to this process now (Linux: MemAvailable), or None when unknown."""
-    try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (AttributeError, ValueError, OSError):
-        return None
 
 
 def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:

@@ -12,6 +12,8 @@ from collections.abc import Mapping
 import numpy as np
 import pyopencl.array as cla
 
+from specgpu.checks import available_memory_bytes
+
 __all__ = [
     "FRAME_DTYPES",
     "is_device_array",
@@ -178,18 +180,6 @@ def check_level(value, name: str = "saturation") -> float:
     if not np.isfinite(value):
         raise ValueError(f"{name} must be finite, got {value}")
     return value
-
-
-def available_memory_bytes() -> int | None:
-    """Memory the system can still give this process (``MemAvailable``), or None where unknown."""
-    try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
 
 
 def check_result_size(nbytes: int, device, *, host_copies: int = 1, what: str = "result") -> None:

@@ -61,7 +61,7 @@ def test_a_plan_file_bomb_is_refused_as_a_corrupt_file(tmp_path):
 
 def test_more_than_the_memory_available_is_refused(tmp_path, monkeypatch):
     path = bomb(tmp_path / "big.npz", (100, 100, 3))
-    monkeypatch.setattr(formats, "_available_memory", lambda: 100_000)
+    monkeypatch.setattr(formats, "available_memory_bytes", lambda: 100_000)
     with pytest.raises(ValueError, match=r"big\.npz: its arrays take 0\.00 GB once loaded but only 0\.00 GB of "
                                          r"memory are available"):
         read_scene(path)
