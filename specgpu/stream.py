@@ -558,39 +558,99 @@ class PreviewSink(Sink):
     """A live preview: the latest XYZ as 8-bit sRGB (:attr:`image`), refreshed at most every ``interval_s``, and
     written as a PNG (atomically, through :func:`specgpu.io.write_sRGB_preview`) when ``path`` is given.
 
+    The rendering (a colour transform of every pixel and a PNG encode: hundreds of ms for 640 x 480 on a loaded
+    CPU) runs on a thread of its own, so it never holds up the sinks after it (a recording): :meth:`write` only
+    copies the XYZ map for it. Latest wins: an XYZ map handed over while the previous one is still rendering
+    replaces any map waiting, and :meth:`close` renders the last one handed over before it returns.
+
     Parameters
     ----------
     path : path, optional
         PNG to refresh.
     interval_s : float
         Shortest time between two renderings, s (a preview at camera rate would cost more than the stream).
+    background : bool
+        Render on the preview's own thread (default); False renders inside :meth:`write`.
     """
 
-    def __init__(self, path=None, interval_s: float = 0.5):
+    def __init__(self, path=None, interval_s: float = 0.5, background: bool = True):
         self.path = None if path is None else Path(path)
+        if self.path is not None and self.path.suffix.lower() != ".png":
+            raise ValueError(f"{self.path}: the preview is a PNG; give a .png path")
         self.interval_s = float(interval_s)
+        self.background = bool(background)
         self.image: np.ndarray | None = None
         self.updates = 0
         self._last = -np.inf
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._pending: np.ndarray | None = None
+        self._closing = False
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
 
     def write(self, result):
+        if self._error is not None:
+            raise self._error
         now = time.perf_counter()
         if now - self._last < self.interval_s:
             return
         XYZ = result.arrays.get("XYZ")
         if XYZ is None:
             raise ValueError("PreviewSink needs the XYZ output of the stream")
+        self._last = now
+        if not self.background:
+            self._render(XYZ)
+            return
+        XYZ = np.array(XYZ, copy=True)  # the result's buffers go back to the stream once the sinks return
+        with self._lock:
+            self._pending = XYZ
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="specgpu-stream-preview", daemon=True)
+            self._thread.start()
+        self._wake.set()
+
+    def _render(self, XYZ):
         import colour
 
         with np.errstate(invalid="ignore"):
             rgb = colour.XYZ_to_sRGB(np.nan_to_num(np.clip(XYZ, 0, None)), apply_cctf_encoding=True)
         self.image = (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)
-        if self.path is not None:
+        if self.path is not None:  # the image rendered once: the PNG is this image (written atomically)
             from . import io
 
-            io.write_sRGB_preview(self.path, XYZ, exposure=0.0)
+            io._write_png(self.path, self.image, {"specgpu:exposure_EV": repr(0.0),
+                                                  "ImageDescription": "sRGB preview of XYZ, exposure +0.000 EV"})
         self.updates += 1
-        self._last = now
+
+    def _run(self):
+        while True:
+            self._wake.wait()
+            self._wake.clear()
+            with self._lock:
+                XYZ, self._pending = self._pending, None
+                closing = self._closing
+            if XYZ is not None and self._error is None:
+                try:
+                    self._render(XYZ)
+                except BaseException as exc:  # noqa: BLE001 (raised by the next write or by close)
+                    self._error = exc
+            if closing:
+                with self._lock:
+                    if self._pending is None:
+                        return
+                self._wake.set()
+
+    def close(self):
+        """Render the last XYZ map handed over, stop the preview's thread; a rendering's error is raised here."""
+        if self._thread is not None:
+            with self._lock:
+                self._closing = True
+            self._wake.set()
+            self._thread.join()
+            self._thread = None
+        if self._error is not None:
+            raise self._error
 
 
 # ------------------------------------------------------------------------------------------------------ report

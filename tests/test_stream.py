@@ -387,19 +387,21 @@ def test_saturated_pixels_are_nan_as_offline(setup):
 
 def _disk_full_after(monkeypatch, n_sequences: int, array: str = "XYZ"):
     """Every write of ``array`` after its first ``n_sequences`` fails as a full disk does."""
-    import zarr
+    import os
 
-    real = zarr.Array.__setitem__
+    from specgpu import recording
+
+    real = recording.write_chunk
     count = [0]
 
-    def write(self, key, value):
-        if self.basename == array:
+    def write(path, parts, **kwargs):
+        if f"{os.sep}{array}{os.sep}" in path:
             count[0] += 1
             if count[0] > n_sequences:
                 raise OSError(28, "No space left on device")
-        return real(self, key, value)
+        return real(path, parts, **kwargs)
 
-    monkeypatch.setattr(zarr.Array, "__setitem__", write)
+    monkeypatch.setattr(recording, "write_chunk", write)
 
 
 def test_a_full_disk_stops_capture_and_keeps_the_committed_sequences(setup, expected, tmp_path, monkeypatch):
