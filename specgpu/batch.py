@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .recording import _CHANNELS, _codecs, consolidate, open_recording, patterns_hash
+from .recording import _CHANNELS, _codecs, _DirectIO, consolidate, open_recording, patterns_hash, write_sequence_chunk
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
 
@@ -126,6 +126,18 @@ class BatchJob:
 
 _STATE: dict = {}
 _STATE_LOCK = threading.Lock()
+_DIRECT = _DirectIO()  # whether the output's file system takes direct I/O (found on the first large chunk)
+_POOL: list = []
+
+
+def _writer_pool():
+    """This process's chunk writer threads (made on first use)."""
+    with _STATE_LOCK:
+        if not _POOL:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _POOL.append(ThreadPoolExecutor(max_workers=4, thread_name_prefix="specgpu-batch-writer"))
+        return _POOL[0]
 
 
 @dataclass
@@ -167,9 +179,11 @@ def process_sequence(job: BatchJob, i: int) -> dict:
         maps["Lab"] = to_Lab(maps["XYZ"], job.illuminant, device=state.queue)
     if "dE" in job.outputs:
         maps["dE"] = delta_E(job.reference, maps["Lab"], job.method, device=state.queue)
-    for name in job.outputs:
-        state.out[name][int(i)] = maps[name]
-    state.out["done"][int(i)] = 1  # after every chunk of the sequence is written
+    # each chunk straight to its file as the recorder writes it (zarr's bytes), the chunks of the sequence in
+    # parallel; list() waits for every one and re-raises the first error
+    arrays = [(state.out[name], maps[name]) for name in job.outputs]
+    list(_writer_pool().map(lambda item: write_sequence_chunk(item[0], int(i), item[1], direct=_DIRECT), arrays))
+    write_sequence_chunk(state.out["done"], int(i), 1)  # after every chunk of the sequence is written
     return {"index": int(i), "pid": state.pid, "built": built}
 
 
