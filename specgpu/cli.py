@@ -920,9 +920,16 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
     cam = description.camera
     policy = policy or ("drop_newest" if pacing == "paced" else "block")
     white_roi, white_reflectance = white
+    # a recording keeps every frame rather than the least latency: a frame ring of 2 s of frames rides out the
+    # stalls of a loaded machine or disk (the default ring, 4 sequences, favours latency)
+    n_slots = None
+    if out:
+        import math
+
+        n_slots = max(4 * plan.K, 16, math.ceil(2.0 * plan.rig_description(description).camera.frame_rate_hz))
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
-                    device=device, white_roi=white_roi, white_reflectance=white_reflectance)
+                    device=device, white_roi=white_roi, white_reflectance=white_reflectance, n_slots=n_slots)
     sinks, writer = stream.sinks, None
     if out:
         from pathlib import Path

@@ -610,12 +610,25 @@ class PreviewSink(Sink):
             self._thread.start()
         self._wake.set()
 
-    def _render(self, XYZ):
-        import colour
+    _tables: tuple | None = None
 
+    @classmethod
+    def _srgb_tables(cls):
+        """(XYZ -> linear sRGB matrix (float32), 8-bit sRGB code of each of 65536 linear levels): colour-science's
+        XYZ_to_sRGB as one matrix product and a table look-up (within one code value of it, ~10x faster)."""
+        if cls._tables is None:
+            import colour
+
+            M = np.asarray(colour.models.RGB_COLOURSPACE_sRGB.matrix_XYZ_to_RGB, np.float32)
+            codes = colour.models.eotf_inverse_sRGB(np.linspace(0.0, 1.0, 65536))
+            cls._tables = (M, (np.clip(codes, 0, 1) * 255 + 0.5).astype(np.uint8))
+        return cls._tables
+
+    def _render(self, XYZ):
+        M, lut = self._srgb_tables()
         with np.errstate(invalid="ignore"):
-            rgb = colour.XYZ_to_sRGB(np.nan_to_num(np.clip(XYZ, 0, None)), apply_cctf_encoding=True)
-        self.image = (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)
+            linear = np.nan_to_num(np.clip(np.asarray(XYZ, np.float32), 0, None)) @ M.T
+        self.image = lut[(np.clip(linear, 0, 1) * 65535 + 0.5).astype(np.uint16)]
         if self.path is not None:  # the image rendered once: the PNG is this image (written atomically)
             from . import io
 

@@ -281,3 +281,18 @@ def test_write_sequence_chunk_writes_what_zarr_writes(tmp_path, compressors):
         key = f"XYZ/c/{i}/0/0/0"
         assert (tmp_path / "ours.zarr" / key).read_bytes() == (tmp_path / "zarr.zarr" / key).read_bytes()
         np.testing.assert_array_equal(zarr.open_array(str(tmp_path / "ours.zarr" / "XYZ"))[i], v)
+
+
+def test_the_preview_is_colour_sciences_srgb_within_one_code():
+    import colour
+
+    rng = np.random.default_rng(7)
+    XYZ = rng.random((40, 50, 3), dtype=np.float32) * 1.1
+    XYZ[0, 0] = np.nan
+    XYZ[1, 1] = [-0.2, 0.5, 0.3]
+    sink = PreviewSink(interval_s=0.0, background=False)
+    sink.write(StreamResult(0, 0, np.arange(K), np.zeros(K), {"XYZ": XYZ}, 0.0))
+    want = colour.XYZ_to_sRGB(np.nan_to_num(np.clip(XYZ, 0, None)).astype(np.float64), apply_cctf_encoding=True)
+    want = (np.clip(want, 0, 1) * 255 + 0.5).astype(np.uint8)
+    assert np.abs(sink.image.astype(int) - want).max() <= 1 and sink.image.dtype == np.uint8
+    assert tuple(sink.image[0, 0]) == (0, 0, 0)
