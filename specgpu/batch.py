@@ -171,19 +171,32 @@ def process_sequence(job: BatchJob, i: int) -> dict:
     from .pipeline import SequenceFolder, recover, to_Lab, to_XYZ
 
     state, built = _worker_state(job)
+    handles = state.__dict__.setdefault("_arrays", {})  # zarr handles of the output, opened once per worker
+    for name in (*job.outputs, "done"):
+        if name not in handles:
+            handles[name] = state.out[name]
+    # each output's chunk goes to its file as soon as it is computed (written as the recorder writes: zarr's bytes,
+    # large chunks with direct I/O) while the next output is computed; done is marked once every write returned
+    writes = []
+
+    def put(name, value):
+        if name in job.outputs:
+            writes.append(_writer_pool().submit(write_sequence_chunk, handles[name], int(i), value, direct=_DIRECT))
+        return value
+
     frames = state.source.frames(int(i))
     folder = SequenceFolder(Path(job.source), frames[None], job.plan, job.calibration, [], {})
-    maps = {"cube": recover(folder, sequence=0, device=state.queue)}
-    if {"XYZ", "Lab", "dE"} & set(job.outputs):
-        maps["XYZ"] = to_XYZ(maps["cube"], job.plan, job.illuminant, device=state.queue)
-        maps["Lab"] = to_Lab(maps["XYZ"], job.illuminant, device=state.queue)
-    if "dE" in job.outputs:
-        maps["dE"] = delta_E(job.reference, maps["Lab"], job.method, device=state.queue)
-    # each chunk straight to its file as the recorder writes it (zarr's bytes), the chunks of the sequence in
-    # parallel; list() waits for every one and re-raises the first error
-    arrays = [(state.out[name], maps[name]) for name in job.outputs]
-    list(_writer_pool().map(lambda item: write_sequence_chunk(item[0], int(i), item[1], direct=_DIRECT), arrays))
-    write_sequence_chunk(state.out["done"], int(i), 1)  # after every chunk of the sequence is written
+    try:
+        cube = put("cube", recover(folder, sequence=0, device=state.queue))
+        if {"XYZ", "Lab", "dE"} & set(job.outputs):
+            XYZ = put("XYZ", to_XYZ(cube, job.plan, job.illuminant, device=state.queue))
+            Lab = put("Lab", to_Lab(XYZ, job.illuminant, device=state.queue))
+            if "dE" in job.outputs:
+                put("dE", delta_E(job.reference, Lab, job.method, device=state.queue))
+    finally:
+        for write in writes:  # every write waited for (a failed one re-raises) before the chunk counts as done
+            write.result()
+    write_sequence_chunk(handles["done"], int(i), 1)  # after every chunk of the sequence is written
     return {"index": int(i), "pid": state.pid, "built": built}
 
 
