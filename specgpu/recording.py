@@ -30,8 +30,10 @@ so a corrupt chunk is an error, never silently wrong values.
 Writing: each chunk is encoded by the recorder itself (little-endian bytes, optionally a Blosc compressor, the
 CRC32C) and written straight to its file by a pool of threads, the chunks of one sequence in parallel: the same
 bytes zarr would write, at about a third of zarr's memory traffic per chunk (zarr fills a new chunk, copies the data
-in and copies it again to append the checksum), and with no sync per chunk (the operating system writes back; a
-killed process loses nothing it has written). Compression is chosen per array by measurement on the first sequence
+in and copies it again to append the checksum), with no temporary file and no sync per chunk. Chunks of 1 MiB and
+more are written with direct I/O where the file system has it (as 8 MiB slices in flight at once): the page
+cache's copy and write-back cost more CPU than the whole stream on a small machine, and a killed process loses
+nothing it has written. Compression is chosen per array by measurement on the first sequence
 when the disk's write rate is known (:func:`probe_write_rate`): a codec is used only where the time it costs to
 encode is less than the disk time it saves (the 10-bit raw frames shrink about 4x for a few ms; noisy float maps
 shrink about 1.2x for more CPU than the disk time saved on a fast disk); the choice and its figures are in the
