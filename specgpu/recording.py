@@ -328,7 +328,7 @@ def probe_write_rate(path, nbytes: int = 64 << 20, *, repeats: int = 3, max_seco
                 written += _STAGE_BYTES
                 if time.perf_counter() > t_end:
                     break
-            os.fdatasync(fd)
+            getattr(os, "fdatasync", os.fsync)(fd)  # macOS has fsync only
             rates.append(written / max(time.perf_counter() - t0, 1e-9))
         finally:
             os.close(fd)
