@@ -117,7 +117,7 @@ def _chunk_bytes(value, dtype) -> np.ndarray:
     return a.reshape(-1).view(np.uint8)
 
 
-def encode_chunk(value, dtype, encoder=None) -> list:
+def encode_chunk(value, dtype, encoder=None) -> tuple:
     """One chunk as zarr v3 stores it with the recorder's codecs: the bytes (compressed by ``encoder`` when given),
     then their CRC32C (4 bytes, little-endian). Returns (flat uint8 data, checksum bytes): no concatenating copy."""
     import google_crc32c

@@ -558,8 +558,8 @@ class PreviewSink(Sink):
     """A live preview: the latest XYZ as 8-bit sRGB (:attr:`image`), refreshed at most every ``interval_s``, and
     written as a PNG (atomically, through :func:`specgpu.io.write_sRGB_preview`) when ``path`` is given.
 
-    The rendering (a colour transform of every pixel and a PNG encode: hundreds of ms for 640 x 480 on a loaded
-    CPU) runs on a thread of its own, so it never holds up the sinks after it (a recording): :meth:`write` only
+    The rendering (a colour transform of every pixel and a PNG encode: 50-150 ms for 640 x 480 on a loaded CPU)
+    runs on a thread of its own, so it never holds up the sinks after it (a recording): :meth:`write` only
     copies the XYZ map for it. Latest wins: an XYZ map handed over while the previous one is still rendering
     replaces any map waiting, and :meth:`close` renders the last one handed over before it returns.
 
