@@ -909,6 +909,10 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
             driver.close()  # the light's USB link and the camera
 
 
+#: Seconds of frames the frame ring of a recording stream holds.
+_RECORD_RING_S = 2.0
+
+
 def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                 seconds, method, illuminant, pacing, policy, exr_every, half, seed, device, white=(None, None),
                 disk_check=True):
@@ -926,7 +930,8 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
     if out:
         import math
 
-        n_slots = max(4 * plan.K, 16, math.ceil(2.0 * plan.rig_description(description).camera.frame_rate_hz))
+        rate = plan.rig_description(description).camera.frame_rate_hz
+        n_slots = max(4 * plan.K, 16, math.ceil(_RECORD_RING_S * rate))
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
                     device=device, white_roi=white_roi, white_reflectance=white_reflectance, n_slots=n_slots)
@@ -947,10 +952,12 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
         if disk_check:
             # before any frame: a disk slower than the recording makes a camera that never waits drop frames
             # (a blocking ring only slows the run down, so there the probe only chooses the compression)
+            # (large chunks bypass the system's write buffer: what can wait is the stream's frame ring)
             per_s = frame_rate / plan.K
             disk_rate = check_write_rate(
                 out, per_sequence * per_s, seconds if policy != "block" else 0.0,
-                what=f"the recording ({per_sequence / 1e6:.1f} MB a sequence x {per_s:.1f} sequences/s)")
+                what=f"the recording ({per_sequence / 1e6:.1f} MB a sequence x {per_s:.1f} sequences/s)",
+                buffer_bytes=_RECORD_RING_S * per_sequence * per_s)
         meta = {"scene": truth.name, "illuminant": illuminant, "method": method, "seed": seed,
                 **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {})}
         writer = ZarrRecorder(out, plan, frames=raw_frames, basis=stream.decoder.basis, metadata=meta,

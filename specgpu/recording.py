@@ -359,8 +359,9 @@ def check_write_rate(path, bytes_per_s: float, seconds: float, *, what: str = "t
                      buffer_bytes=None) -> float:
     """Refuse (one line, with the figures) a recording of ``bytes_per_s`` for ``seconds`` that the disk holding
     ``path`` cannot keep up with: its measured write rate (``rate``, else :func:`probe_write_rate`) is below the
-    need and the backlog over the recording outgrows what the system buffers in memory (``buffer_bytes``, else
-    :func:`write_buffer_bytes`), so the stream would drop frames. Returns the measured rate (bytes/s)."""
+    need and the backlog over the recording outgrows what can wait in memory (``buffer_bytes``: for the recorder's
+    direct-I/O writes, what the stream itself buffers; else :func:`write_buffer_bytes`, the system's write buffer
+    a buffered writer has), so the stream would drop frames. Returns the measured rate (bytes/s)."""
     rate = probe_write_rate(path) if rate is None else float(rate)
     if rate >= bytes_per_s:
         return rate
@@ -369,7 +370,7 @@ def check_write_rate(path, bytes_per_s: float, seconds: float, *, what: str = "t
     if backlog > buffered:
         raise OSError(f"{path}: the disk cannot keep up: {what} needs {bytes_per_s / 1e6:.0f} MB/s but a write "
                       f"probe measured {rate / 1e6:.0f} MB/s, so {backlog / 1e9:.2f} GB would pile up over "
-                      f"{float(seconds):g} s where the system buffers {buffered / 1e9:.2f} GB, and frames would be "
+                      f"{float(seconds):g} s where {buffered / 1e9:.2f} GB can wait in memory, and frames would be "
                       "dropped; record fewer outputs, fewer seconds or to a faster disk (or --no-disk-check)")
     return rate
 

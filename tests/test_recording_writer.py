@@ -196,7 +196,7 @@ def test_check_write_rate_refuses_with_the_figures():
         check_write_rate("REC.zarr", need, 30, rate=200e6, buffer_bytes=2e9, what="the recording (52 MB x 10/s)")
     message = str(err.value)
     assert "\n" not in message and message.startswith("REC.zarr: the disk cannot keep up")
-    assert "needs 520 MB/s" in message and "measured 200 MB/s" in message and "9.60 GB" in message
+    assert "needs 520 MB/s" in message and "measured 200 MB/s" in message and "9.60 GB would pile up" in message and "2.00 GB can wait" in message
     # what the system buffers covers a short recording; a disk faster than the need always passes
     assert check_write_rate("REC.zarr", need, 5, rate=200e6, buffer_bytes=2e9) == 200e6
     assert check_write_rate("REC.zarr", need, 3600, rate=600e6, buffer_bytes=0) == 600e6
@@ -216,8 +216,8 @@ def test_cli_stream_refuses_a_disk_too_slow_before_it_starts(setup, tmp_path, mo
 
     args = stream_cli_files(setup, tmp_path)
     monkeypatch.setattr(recording, "probe_write_rate", lambda path, *a, **k: 1e3)  # a fake slow disk
-    monkeypatch.setattr(recording, "write_buffer_bytes", lambda: 0)
-    result = CliRunner().invoke(main, [*args, "--seconds", "2", "--frames", "--out", str(tmp_path / "rec.zarr")])
+    # 10 s at 1 kB/s: far more than the 2 s the frame ring holds can wait (refused before any frame is taken)
+    result = CliRunner().invoke(main, [*args, "--seconds", "10", "--frames", "--out", str(tmp_path / "rec.zarr")])
     line = one_line_error(result, "rec.zarr: the disk cannot keep up", "measured 0 MB/s", "--no-disk-check")
     assert "sequences/s" in line and not (tmp_path / "rec.zarr").exists()
     result = CliRunner().invoke(main, [*args, "--seconds", "0.5", "--out", str(tmp_path / "rec.zarr"),
