@@ -39,8 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .recording import _CHANNELS, _chunk_keys, _codecs, consolidate, open_recording, patterns_hash, \
-    remove_partial_chunks
+from .recording import _CHANNELS, _chunk_keys, _codecs, _DirectIO, consolidate, open_recording, patterns_hash, \
+    remove_partial_chunks, write_sequence_chunk
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
 
@@ -197,6 +197,18 @@ class BatchJob:
 _STATE: dict = {}
 _STATE_LOCK = threading.Lock()
 _STATES_KEPT = 4  # a long-lived worker keeps the states of its last few batches, not of every batch it ran
+_DIRECT = _DirectIO()  # whether the output's file system takes direct I/O (found on the first large chunk)
+_POOL: list = []
+
+
+def _writer_pool():
+    """This process's chunk writer threads (made on first use)."""
+    with _STATE_LOCK:
+        if not _POOL:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _POOL.append(ThreadPoolExecutor(max_workers=4, thread_name_prefix="specgpu-batch-writer"))
+        return _POOL[0]
 
 
 @dataclass
@@ -252,23 +264,48 @@ def _process_sequence(job: BatchJob, i: int) -> dict:
     from .pipeline import SequenceFolder, recover, to_Lab, to_XYZ
 
     state, built = _worker_state(job)
+    handles = state.__dict__.setdefault("_arrays", {})  # zarr handles of the output, opened once per worker
+    for name in (*job.outputs, "done"):
+        if name not in handles:
+            handles[name] = state.out[name]
+    # each output's chunk goes to its file as soon as it is computed (written as the recorder writes: zarr's bytes,
+    # large chunks with direct I/O) while the next output is computed; done is marked once every write returned
+    writes = []
+
+    def put(name, value):
+        if name in job.outputs:
+            writes.append((name, _writer_pool().submit(write_sequence_chunk, handles[name], i, value,
+                                                       direct=_DIRECT)))
+        return value
+
     frames = state.source.frames(i)
     folder = SequenceFolder(Path(job.source), frames[None], job.plan, job.calibration, [], {})
-    maps = {"cube": recover(folder, sequence=0, device=state.queue)}
-    if {"XYZ", "Lab", "dE"} & set(job.outputs):
-        maps["XYZ"] = to_XYZ(maps["cube"], job.plan, job.illuminant, device=state.queue)
-        maps["Lab"] = to_Lab(maps["XYZ"], job.illuminant, device=state.queue)
-    if "dE" in job.outputs:
-        maps["dE"] = delta_E(job.reference, maps["Lab"], job.method, device=state.queue)
-    for name in job.outputs:
-        try:
-            state.out[name][i] = maps[name]
-        except Exception as exc:  # a full disk: name the output written, never zarr's temporary chunk file
-            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else \
-                (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-            raise OSError(f"{job.out}/{name}: writing sequence {i} failed ({reason})") from None
-    state.out["done"][i] = 1  # after every chunk of the sequence is written
+    try:
+        cube = put("cube", recover(folder, sequence=0, device=state.queue))
+        if {"XYZ", "Lab", "dE"} & set(job.outputs):
+            XYZ = put("XYZ", to_XYZ(cube, job.plan, job.illuminant, device=state.queue))
+            Lab = put("Lab", to_Lab(XYZ, job.illuminant, device=state.queue))
+            if "dE" in job.outputs:
+                put("dE", delta_E(job.reference, Lab, job.method, device=state.queue))
+    finally:
+        for _, write in writes:  # every write waited for before the chunk counts as done, or before failing
+            write.exception()
+    for name, write in writes:
+        if write.exception() is not None:
+            raise _write_error(job, name, i, write.exception())
+    try:
+        write_sequence_chunk(handles["done"], i, 1)  # after every chunk of the sequence is written
+    except Exception as exc:  # noqa: BLE001
+        raise _write_error(job, "done", i, exc) from None
     return {"index": i, "pid": state.pid, "built": built}
+
+
+def _write_error(job: BatchJob, name: str, i: int, exc: BaseException) -> OSError:
+    """A failed chunk write (a full disk) as one line naming the output array and the sequence, never the file
+    the writer was writing."""
+    reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else \
+        (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return OSError(f"{job.out}/{name}: writing sequence {i} failed ({reason})")
 
 
 # ------------------------------------------------------------------------------------------------ the driver

@@ -983,8 +983,12 @@ _MAX_STREAM_S = 366 * 86400
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
 @_RESIZE
+@click.option("--no-disk-check", is_flag=True,
+              help="Record even when a write probe says the disk cannot keep up with --out (frames will be "
+                   "dropped); also skips the probe that chooses each array's compression.")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
-                   pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, resize):
+                   pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, resize,
+                   no_disk_check):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     from .capture.twin import TwinDriver
@@ -1029,14 +1033,19 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     try:
         _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                     seconds, method, illuminant, pacing, policy, exr_every, half, seed, device,
-                    white=(white_roi, white_reflectance))
+                    white=(white_roi, white_reflectance), disk_check=not no_disk_check)
     finally:
         if hardware is not None:
             driver.close()  # the light's USB link and the camera
 
 
+#: Seconds of frames the frame ring of a recording stream holds.
+_RECORD_RING_S = 2.0
+
+
 def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
-                seconds, method, illuminant, pacing, policy, exr_every, half, seed, device, white=(None, None)):
+                seconds, method, illuminant, pacing, policy, exr_every, half, seed, device, white=(None, None),
+                disk_check=True):
     """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised."""
     import numpy as np
 
@@ -1045,24 +1054,45 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
     cam = description.camera
     policy = policy or ("drop_newest" if pacing == "paced" else "block")
     white_roi, white_reflectance = white
+    # a recording keeps every frame rather than the least latency: a frame ring of 2 s of frames rides out the
+    # stalls of a loaded machine or disk (the default ring, 4 sequences, favours latency)
+    n_slots = None
+    if out:
+        import math
+
+        rate = plan.rig_description(description).camera.frame_rate_hz
+        n_slots = max(4 * plan.K, 16, math.ceil(_RECORD_RING_S * rate))
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
-                    device=device, white_roi=white_roi, white_reflectance=white_reflectance)
+                    device=device, white_roi=white_roi, white_reflectance=white_reflectance, n_slots=n_slots)
     sinks, writer = stream.sinks, None
     if out:
         from pathlib import Path
 
-        from .recording import ZarrRecorder, check_free_space, expected_sequences, sequence_bytes
+        from .recording import (ZarrRecorder, check_free_space, check_write_rate, expected_sequences,
+                                sequence_bytes)
 
-        n_expected = expected_sequences(seconds, plan.rig_description(description).camera.frame_rate_hz, plan.K)
+        frame_rate = plan.rig_description(description).camera.frame_rate_hz
+        n_expected = expected_sequences(seconds, frame_rate, plan.K)
         per_sequence = sequence_bytes(stream.decoder.shapes(), frames_shape=(plan.K, cam.roi_height,
                                                                              cam.roi_width) if raw_frames else None)
         check_free_space(out, n_expected * per_sequence,
                          what=f"the recording ({n_expected} sequences x {per_sequence / 1e6:.1f} MB)")
+        disk_rate = None
+        if disk_check:
+            # before any frame: a disk slower than the recording makes a camera that never waits drop frames
+            # (a blocking ring only slows the run down, so there the probe only chooses the compression)
+            # (large chunks bypass the system's write buffer: what can wait is the stream's frame ring)
+            per_s = frame_rate / plan.K
+            disk_rate = check_write_rate(
+                out, per_sequence * per_s, seconds if policy != "block" else 0.0,
+                what=f"the recording ({per_sequence / 1e6:.1f} MB a sequence x {per_s:.1f} sequences/s)",
+                buffer_bytes=_RECORD_RING_S * per_sequence * per_s)
         meta = {"scene": truth.name, "illuminant": illuminant, "method": method, "seed": seed,
                 **({"scene_resampled": truth.resampled} if truth.resampled else {}),
                 **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {})}
-        writer = ZarrRecorder(out, plan, frames=raw_frames, basis=stream.decoder.basis, metadata=meta)
+        writer = ZarrRecorder(out, plan, frames=raw_frames, basis=stream.decoder.basis, metadata=meta,
+                              disk_rate=disk_rate)
         import shutil
 
         shutil.copyfile(plan_path, Path(out) / "plan.npz")  # what batch re-processes the frames with

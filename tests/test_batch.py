@@ -579,12 +579,14 @@ def test_a_full_disk_on_a_worker_is_one_line_naming_the_output(made, tmp_path, m
     out = tmp_path / "b.zarr"
     job, _ = prepare_batch(root / "rec.zarr", plan, bundle, out)
 
-    class FullDisk:
-        def __setitem__(self, index, value):
-            raise OSError(errno.ENOSPC, "No space left on device", str(out / "cube" / "c" / "1" / "0.9a1b.partial"))
+    real_write = batch.write_sequence_chunk
 
-    state, _ = batch._worker_state(job)
-    monkeypatch.setitem(batch._STATE, job.key, batch._WorkerState(state.queue, state.source, {"cube": FullDisk()}))
+    def full_disk(array, index, value, **kwargs):
+        if array.basename == "cube":
+            raise OSError(errno.ENOSPC, "No space left on device", str(out / "cube" / "c" / "1" / "0" / "0" / "0"))
+        return real_write(array, index, value, **kwargs)
+
+    monkeypatch.setattr(batch, "write_sequence_chunk", full_disk)
     record = process_sequence(job, 1)
     assert record["error"] == f"{out}/cube: writing sequence 1 failed (No space left on device)"
     assert open_recording_like(out)["done"][:].tolist() == [0] * N

@@ -93,22 +93,24 @@ def test_an_unclosed_recording_keeps_every_committed_sequence(tmp_path):
 
 
 def test_a_failed_write_is_not_committed_and_the_recording_stays_readable(tmp_path, monkeypatch):
-    import zarr
+    import os
+
+    from specgpu import recording
 
     rec, results = record(tmp_path / "rec.zarr", 2, close=False)
-    real = zarr.Array.__setitem__
+    real = recording.write_chunk
 
-    def full(self, key, value):
-        if self.basename == "XYZ":
+    def full(path, parts, **kwargs):
+        if f"{os.sep}XYZ{os.sep}" in path:
             raise OSError(28, "No space left on device")
-        return real(self, key, value)
+        return real(path, parts, **kwargs)
 
-    monkeypatch.setattr(zarr.Array, "__setitem__", full)
+    monkeypatch.setattr(recording, "write_chunk", full)
     with pytest.raises(OSError, match="No space"):
         rec.write(result(2, np.random.default_rng(9)))
     with pytest.raises(OSError, match="stopped on an earlier error"):
         rec.write(result(3, np.random.default_rng(9)))
-    monkeypatch.setattr(zarr.Array, "__setitem__", real)
+    monkeypatch.setattr(recording, "write_chunk", real)
     rec.close()
     opened = open_recording(tmp_path / "rec.zarr")
     assert opened.sequences == 2 and opened.attrs["status"] == "failed"
