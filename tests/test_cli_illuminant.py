@@ -132,7 +132,7 @@ def test_the_stream_preview_shows_a_white_under_A_as_white(tmp_path):
     from specgpu.stream import PreviewSink
 
     XYZ = np.broadcast_to(0.5 * white_point_XYZ("A"), (4, 4, 3)).astype(np.float32)
-    sink = PreviewSink(tmp_path / "preview.png", interval_s=0.0, illuminant="A")
+    sink = PreviewSink(tmp_path / "preview.png", interval_s=0.0, illuminant="A", background=False)
     sink.write(SimpleNamespace(arrays={"XYZ": XYZ}))
     for rgb in (sink.image, io.read_png(tmp_path / "preview.png")[0]):
         assert int(rgb[..., :3].max()) - int(rgb[..., :3].min()) <= 1, rgb[0, 0]  # neutral grey
