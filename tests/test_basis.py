@@ -235,7 +235,7 @@ def test_npz_with_a_damaged_member_is_refused(tmp_path, basis):
     with zipfile.ZipFile(damaged, "w") as z:
         for n, data in members.items():
             z.writestr(n, data)
-    with pytest.raises(ValueError, match=r"damaged\.npz: corrupt"):
+    with pytest.raises(ValueError, match=r"damaged\.npz: .*corrupt"):
         load_basis(damaged)
 
 
