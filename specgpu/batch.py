@@ -11,8 +11,8 @@ Resuming: an output that exists and was made by the same batch is continued: chu
 recomputed. "The same batch" is its identity, stored in the output's attributes: the source's path and content
 (a recording's ``recording_id`` with the CRC32C checksum of every committed frames chunk; a sequence folder's frame
 checksums from ``sequence.json``), the plan, the calibration and every option that changes a result (outputs,
-illuminant, dE method and reference). Any difference is refused in one line naming the option and both values;
-a source replaced by another recording at the same path is another source. A worker lost mid-run costs only its
+illuminant, observer, dE method and reference). Any difference is refused in one line naming the option and both
+values; a source replaced by another recording at the same path is another source. A worker lost mid-run costs only its
 own chunks: the scheduler gives its tasks to other workers (each chunk is written whole before it is marked done,
 and writing it again gives the same bytes).
 
@@ -41,6 +41,7 @@ import numpy as np
 
 from .recording import _CHANNELS, _chunk_keys, _codecs, _DirectIO, consolidate, open_recording, patterns_hash, \
     remove_partial_chunks, write_sequence_chunk
+from .spectra import DEFAULT_CMFS
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
 
@@ -185,13 +186,14 @@ class BatchJob:
     reference: np.ndarray | None = None
     device: str | None = None
     source_id: str = ""
+    observer: str = DEFAULT_CMFS
 
     @property
     def key(self) -> tuple:
         # the source's content id: a worker that outlives a batch (``--scheduler``) never reuses the handles of a
         # recording since replaced at the same path
         return (self.source, self.source_id, self.out, self.plan.hash, self.calibration.hash, self.outputs,
-                self.illuminant, self.method, self.device)
+                self.illuminant, self.observer, self.method, self.device)
 
 
 _STATE: dict = {}
@@ -283,8 +285,8 @@ def _process_sequence(job: BatchJob, i: int) -> dict:
     try:
         cube = put("cube", recover(folder, sequence=0, device=state.queue))
         if {"XYZ", "Lab", "dE"} & set(job.outputs):
-            XYZ = put("XYZ", to_XYZ(cube, job.plan, job.illuminant, device=state.queue))
-            Lab = put("Lab", to_Lab(XYZ, job.illuminant, device=state.queue))
+            XYZ = put("XYZ", to_XYZ(cube, job.plan, job.illuminant, observer=job.observer, device=state.queue))
+            Lab = put("Lab", to_Lab(XYZ, job.illuminant, observer=job.observer, device=state.queue))
             if "dE" in job.outputs:
                 put("dE", delta_E(job.reference, Lab, job.method, device=state.queue))
     finally:
@@ -334,7 +336,7 @@ _IDENTITY_NAMES = {
     "source_plan_hash": ("SOURCE's plan", lambda v: str(v)[:12]), "sequences": ("SOURCE's sequence count", str),
     "plan_hash": ("--plan", lambda v: str(v)[:12]), "calibration": ("--calib", lambda v: str(v)[:12]),
     "outputs": ("--outputs", lambda v: ",".join(v) if isinstance(v, list) else str(v)),
-    "illuminant": ("--illuminant", str), "method": ("--method", str),
+    "illuminant": ("--illuminant", str), "observer": ("--observer", str), "method": ("--method", str),
     "reference_sha256": ("--delta-e-ref", None),
 }
 
@@ -362,6 +364,8 @@ def _identity_mismatch(out: Path, attrs: dict, identity: dict) -> str | None:
     values; None when it is the same batch."""
     for key, value in identity.items():
         old = attrs.get(key)
+        if key == "observer" and key not in attrs and attrs.get("illuminant") is not None:
+            old = DEFAULT_CMFS  # made before the observer was recorded: its colours are the 2 degree observer's
         if old == value:
             continue
         if key == "reference_sha256":
@@ -376,15 +380,17 @@ def _identity_mismatch(out: Path, attrs: dict, identity: dict) -> str | None:
     return None
 
 
-def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None,
+def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
                   method="CIE 2000", reference=None, device=None) -> tuple[BatchJob, np.ndarray]:
     """Check the source against the plan, create (or reopen, to resume) the output; returns the job and the
     indices of the sequences still to compute. Every refusal is one line naming the file, found before the
     output is created. ``illuminant``: of XYZ, Lab and dE, recorded in the output; default the plan's own for a
-    tristimulus or camera plan, else D65 (:meth:`specgpu.plans.Plan.resolve_illuminant`)."""
+    tristimulus or camera plan, else D65 (:meth:`specgpu.plans.Plan.resolve_illuminant`); ``observer`` likewise
+    (:meth:`specgpu.plans.Plan.resolve_observer`: a tristimulus plan's own, else the 2 degree observer)."""
     import zarr
 
     illuminant = plan.resolve_illuminant(illuminant, name="the batch plan")
+    observer = plan.resolve_observer(observer, name="the batch plan")
     _remove_dead_writers_partials(source_path)
     source = open_source(source_path)
     outputs = tuple(dict.fromkeys(outputs))
@@ -411,7 +417,7 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
             raise ValueError(f"the dE reference must be one L,a,b or a {source.height} x {source.width} x 3 map, "
                              f"got shape {ref.shape}")
     if {"XYZ", "Lab", "dE"} & set(outputs):
-        plan.outputs_to_XYZ(illuminant)  # a plan whose outputs have no XYZ: refused here, not on every worker
+        plan.outputs_to_XYZ(illuminant, observer)  # a plan with no XYZ: refused here, not on every worker
     n, h, w = source.sequences, source.height, source.width
     if n == 0:
         raise ValueError(f"{source.path}: holds no committed sequence")
@@ -420,10 +426,12 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
                 "source_id": source.content_id, "source_plan_hash": source.plan_hash, "plan_hash": plan.hash,
                 "calibration": calibration.hash, "outputs": list(outputs), "sequences": n,
                 "illuminant": illuminant if {"XYZ", "Lab", "dE"} & set(outputs) else None,
+                "observer": observer if {"XYZ", "Lab", "dE"} & set(outputs) else None,
                 "method": method if "dE" in outputs else None,
                 "reference_sha256": _reference_hash(reference), "delta_e_ref": reference_label(reference)}
     job = BatchJob(str(source_path), str(out), plan, calibration, outputs, illuminant, method,
-                   None if reference is None else np.asarray(reference, np.float32), device, identity["source_id"])
+                   None if reference is None else np.asarray(reference, np.float32), device, identity["source_id"],
+                   observer)
     _remove_dead_creations(out)
     if out.exists() and _unfinished_creation(out):
         shutil.rmtree(out)  # made by an older specgpu killed before its first sequence: nothing in it to keep
@@ -539,9 +547,9 @@ def _create_output(out: Path, identity: dict, plan, method, outputs, source, n, 
         raise
 
 
-def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, method="CIE 2000",
-              reference=None, scheduler=None, workers: int = 1, client=None, progress: bool = True,
-              on_done=None, device=None) -> BatchReport:
+def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
+              method="CIE 2000", reference=None, scheduler=None, workers: int = 1, client=None,
+              progress: bool = True, on_done=None, device=None) -> BatchReport:
     """Re-process every sequence of ``source_path`` with ``plan`` into ``out`` on Dask (see the module docstring).
 
     Parameters
@@ -558,12 +566,12 @@ def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illumin
 
     with output_lock(out, make_parents=True):  # one batch per output: resuming, cleaning and writing are its own
         return _run_locked(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
-                           method=method, reference=reference, scheduler=scheduler, workers=workers, client=client,
-                           progress=progress, on_done=on_done, device=device)
+                           observer=observer, method=method, reference=reference, scheduler=scheduler,
+                           workers=workers, client=client, progress=progress, on_done=on_done, device=device)
 
 
-def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, method, reference, scheduler, workers,
-                client, progress, on_done, device) -> BatchReport:
+def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, observer, method, reference, scheduler,
+                workers, client, progress, on_done, device) -> BatchReport:
     import logging
     import time
     import uuid
@@ -572,7 +580,7 @@ def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, met
     from tqdm import tqdm
 
     job, todo = prepare_batch(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
-                              method=method, reference=reference, device=device)
+                              observer=observer, method=method, reference=reference, device=device)
     t0 = time.perf_counter()
     cluster = own = None
     failure = None

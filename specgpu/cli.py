@@ -341,6 +341,12 @@ _ILLUMINANT = click.option(
     help="Illuminant of XYZ, Lab and dE, recorded with every output [default: the plan's own for a tristimulus or "
          "camera plan, else D65]; another than a tristimulus or camera plan measures under is refused.")
 
+_OBSERVER = click.option(
+    "--observer", default=None,
+    help="Observer (colour-matching functions) of XYZ, Lab and dE, recorded with every output [default: the plan's "
+         "own for a tristimulus plan, else CIE 1931 2 Degree Standard Observer]; another than a tristimulus plan's "
+         "is refused.")
+
 
 def _hardware(description):
     """The rig's [hardware] table checked (None for the twin)."""
@@ -752,9 +758,10 @@ class _one_interrupt:
             signal.signal(sig, previous)
 
 
-def _parse_reference(text, height, width, illuminant, resize="scale", meta=None):
-    """--delta-e-ref: an 'L,a,b' colour, or a scene (built-in name, cube file, or a loaded scene) whose Lab is the
-    reference; a scene file of another size is fitted by ``resize``, said on stderr and in ``meta``."""
+def _parse_reference(text, height, width, illuminant, resize="scale", meta=None, observer=None):
+    """--delta-e-ref: an 'L,a,b' colour, or a scene (built-in name, cube file, or a loaded scene) whose Lab (under
+    ``illuminant`` for ``observer``, None: the 2 degree observer) is the reference; a scene file of another size is
+    fitted by ``resize``, said on stderr and in ``meta``."""
     import numpy as np
 
     from .rig.scene import SpectralScene
@@ -773,11 +780,13 @@ def _parse_reference(text, height, width, illuminant, resize="scale", meta=None)
     from .colorimetry import XYZ_to_Lab
     from .evaluate import scene_XYZ
     from .rig.scene import load_scene
+    from .spectra import DEFAULT_CMFS
 
     scene = load_scene(text, height, width, resize=resize)
     if not isinstance(text, SpectralScene):
         _resampled(f"--delta-e-ref {text}", scene, meta, "reference_resampled")
-    return XYZ_to_Lab(scene_XYZ(scene, illuminant), illuminant)
+    observer = observer or DEFAULT_CMFS
+    return XYZ_to_Lab(scene_XYZ(scene, illuminant, observer), illuminant, observer=observer)
 
 
 @main.command()
@@ -819,6 +828,7 @@ def salvage(seq):
               help="Colour-difference map to write (EXR; .png for a heat map).")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
 @_ILLUMINANT
+@_OBSERVER
 @click.option("--sequence", type=int, default=None, help="Recover one sequence (default: the mean of all).")
 @click.option("--half", is_flag=True, help="Write the cube in half precision.")
 @click.option("--sigma", "sigma_path", type=click.Path(dir_okay=False), default=None,
@@ -831,8 +841,8 @@ def salvage(seq):
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
 @_RESIZE
-def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, sequence, half, sigma_path,
-            de_sigma_path, device, white_roi, white_reflectance, resize):
+def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, sequence, half,
+            sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     from pathlib import Path
 
@@ -853,6 +863,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
     folder = read_capture(seq)
     plan = folder.plan
     illuminant = plan.resolve_illuminant(illuminant, name=f"the plan of {seq}")
+    observer = plan.resolve_observer(observer, name=f"the plan of {seq}")
     with _Busy("recovering"):
         if white_reflectance is not None and white_roi is None:
             raise click.UsageError("--white-reflectance needs --white-roi")
@@ -867,7 +878,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
         meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
                 "calibration": plan.calibration, "sequence_folder": str(seq),
                 "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant,
-                **({"observer": plan.observer} if plan.output == "XYZ" and plan.observer else {}),
+                "observer": observer,
                 **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {}),
                 **({"reflectance_scale_uncertainty": folder.calibration.reports["white_reflectance_uncertainty"]}
                    if "white_reflectance_uncertainty" in folder.calibration.reports else {}),
@@ -886,17 +897,18 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
             writes.append((out, lambda p, kind=kind: io.write_map(p, y, kind, half=half, metadata=meta)))
         XYZ = Lab = None
         if xyz_path or lab_path or de_path:
-            XYZ = to_XYZ(y, plan, illuminant, device=device)
-            Lab = to_Lab(XYZ, illuminant, device=device)
+            XYZ = to_XYZ(y, plan, illuminant, observer=observer, device=device)
+            Lab = to_Lab(XYZ, illuminant, observer=observer, device=device)
         if xyz_path:
             writes.append((xyz_path, lambda p: io.write_map(p, XYZ, "XYZ", metadata=meta)))
         if lab_path:
             writes.append((lab_path, lambda p: io.write_map(p, Lab, "Lab", metadata=meta)))
         if sigma_path or de_sigma_path:
-            _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device,
-                          white_roi, white_reflectance)
+            _sigma_writes(writes, folder, sequence, (illuminant, observer), sigma_path, de_sigma_path, XYZ, y,
+                          meta, device, white_roi, white_reflectance)
         if de_path:
-            dE = delta_E(_parse_reference(ref, height, width, illuminant, resize, meta), Lab, method, device=device)
+            dE = delta_E(_parse_reference(ref, height, width, illuminant, resize, meta, observer), Lab, method,
+                         device=device)
             if Path(de_path).suffix.lower() == ".png":
                 writes.append((de_path, lambda p: io.write_delta_E_png(p, dE, metadata=meta)))
             else:
@@ -918,17 +930,19 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
                + ", ".join(str(p) for p in written) + note)
 
 
-def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_path, XYZ, y, meta, device,
+def _sigma_writes(writes, folder, sequence, colours, sigma_path, de_sigma_path, XYZ, y, meta, device,
                   white_roi=None, white_reflectance=None):
-    """--sigma / --delta-e-sigma: the uncertainty maps of the recovery, appended to the writes."""
+    """--sigma / --delta-e-sigma: the uncertainty maps of the recovery, appended to the writes; ``colours``: the
+    (illuminant, observer) of the XYZ."""
     import numpy as np
 
     from . import io
     from .estimators import delta_E_sigma
     from .pipeline import to_XYZ, uncertainty
 
+    illuminant, observer = colours
     sigma, cov = uncertainty(folder, sequence=sequence, illuminant=illuminant if de_sigma_path else None,
-                             device=device, white_roi=white_roi, white_reflectance=white_reflectance)
+                             observer=observer, device=device, white_roi=white_roi, white_reflectance=white_reflectance)
     plan = folder.plan
     if sigma_path:
         rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)
@@ -936,8 +950,8 @@ def _sigma_writes(writes, folder, sequence, illuminant, sigma_path, de_sigma_pat
         sig = np.concatenate([sigma, rms], axis=-1)
         writes.append((sigma_path, lambda p: io.write_map(p, sig, names, metadata=meta)))
     if de_sigma_path:
-        xyz = XYZ if XYZ is not None else to_XYZ(y, plan, illuminant, device=device)
-        des = delta_E_sigma(np.nan_to_num(xyz), np.nan_to_num(cov), illuminant)
+        xyz = XYZ if XYZ is not None else to_XYZ(y, plan, illuminant, observer=observer, device=device)
+        des = delta_E_sigma(np.nan_to_num(xyz), np.nan_to_num(cov), illuminant, observer)
         des[~np.isfinite(xyz).all(axis=-1)] = np.nan
         writes.append((de_sigma_path, lambda p: io.write_map(p, des, ["dE2000_sigma"], metadata=meta)))
 
@@ -966,6 +980,7 @@ _MAX_STREAM_S = 366 * 86400
               help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it (default: the streamed scene).")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
 @_ILLUMINANT
+@_OBSERVER
 @click.option("--pacing", type=click.Choice(["paced", "free"]), default="paced", show_default=True,
               help="Twin pacing: at the camera's frame rate, or as fast as it renders.")
 @click.option("--policy", type=click.Choice(["drop_newest", "drop_oldest", "block"]), default=None,
@@ -987,7 +1002,7 @@ _MAX_STREAM_S = 366 * 86400
               help="Record even when a write probe says the disk cannot keep up with --out (frames will be "
                    "dropped); also skips the probe that chooses each array's compression.")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
-                   pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, resize,
+                   observer, pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, resize,
                    no_disk_check):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
@@ -1013,12 +1028,14 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     hardware = _hardware(description)  # a typo in [hardware] first, before any device or file work
     bundle, plan, truth = _experiment(description, plan_path, calib, scene, resize)
     illuminant = plan.resolve_illuminant(illuminant, name=str(plan_path))
+    observer = plan.resolve_observer(observer, name=str(plan_path))
     cam = description.camera
     check_scene_covers(truth, plan, description.light.line_fwhm_nm)
     reference = None
     if "dE" in wanted:
         # default: the streamed scene itself, as fitted to the frame above
-        reference = _parse_reference(ref or truth, cam.roi_height, cam.roi_width, illuminant, resize)
+        reference = _parse_reference(ref or truth, cam.roi_height, cam.roi_width, illuminant, resize,
+                                     observer=observer)
     if hardware is None:
         rig = TwinRig(plan.rig_description(description), scene=truth)
         if seed is not None:
@@ -1032,7 +1049,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
         pacing = "paced"
     try:
         _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
-                    seconds, method, illuminant, pacing, policy, exr_every, half, seed, device,
+                    seconds, method, (illuminant, observer), pacing, policy, exr_every, half, seed, device,
                     white=(white_roi, white_reflectance), disk_check=not no_disk_check)
     finally:
         if hardware is not None:
@@ -1044,14 +1061,16 @@ _RECORD_RING_S = 2.0
 
 
 def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
-                seconds, method, illuminant, pacing, policy, exr_every, half, seed, device, white=(None, None),
+                seconds, method, colours, pacing, policy, exr_every, half, seed, device, white=(None, None),
                 disk_check=True):
-    """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised."""
+    """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised;
+    ``colours``: the (illuminant, observer) of its XYZ, Lab and dE."""
     import numpy as np
 
     from .stream import ExrSequenceWriter, PreviewSink, Stream
 
     cam = description.camera
+    illuminant, observer = colours
     policy = policy or ("drop_newest" if pacing == "paced" else "block")
     white_roi, white_reflectance = white
     # a recording keeps every frame rather than the least latency: a frame ring of 2 s of frames rides out the
@@ -1063,7 +1082,8 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
         rate = plan.rig_description(description).camera.frame_rate_hz
         n_slots = max(4 * plan.K, 16, math.ceil(_RECORD_RING_S * rate))
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
-                    illuminant=illuminant, cube_dtype=np.float16 if half else np.float32, policy=policy,
+                    illuminant=illuminant, observer=observer, cube_dtype=np.float16 if half else np.float32,
+                    policy=policy,
                     device=device, white_roi=white_roi, white_reflectance=white_reflectance, n_slots=n_slots)
     sinks, writer = stream.sinks, None
     if out:
@@ -1088,7 +1108,7 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
                 out, per_sequence * per_s, seconds if policy != "block" else 0.0,
                 what=f"the recording ({per_sequence / 1e6:.1f} MB a sequence x {per_s:.1f} sequences/s)",
                 buffer_bytes=_RECORD_RING_S * per_sequence * per_s)
-        meta = {"scene": truth.name, "illuminant": illuminant, "method": method, "seed": seed,
+        meta = {"scene": truth.name, "illuminant": illuminant, "observer": observer, "method": method, "seed": seed,
                 **({"scene_resampled": truth.resampled} if truth.resampled else {}),
                 **({"white_roi": white_roi, "white_reflectance": white_reflectance or 0.99} if white_roi else {})}
         writer = ZarrRecorder(out, plan, frames=raw_frames, basis=stream.decoder.basis, metadata=meta,
@@ -1103,7 +1123,7 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
                                            dE_kind={"CIE 1976": "dE76", "CIE 1994": "dE94"}.get(method, "dE2000"),
                                            metadata=meta))
         if "XYZ" in wanted:
-            sinks.append(PreviewSink(Path(out) / "preview.png", illuminant=illuminant))
+            sinks.append(PreviewSink(Path(out) / "preview.png", illuminant=illuminant, observer=observer))
     tty = sys.stderr.isatty()
 
     def status(s):
@@ -1144,13 +1164,14 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
 @click.option("--delta-e-ref", "ref", default=None, help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it.")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
 @_ILLUMINANT
+@_OBSERVER
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (default: a LocalCluster).")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="LocalCluster worker processes (one thread and one OpenCL context each).")
 @click.option("--device", "device", default=None, help="OpenCL device selector (on every worker).")
 @_RESIZE
-def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, scheduler, workers, device,
-                  resize):
+def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, observer, scheduler, workers,
+                  device, resize):
     """Re-process the raw frames of a recording (specgpu stream --frames) or a sequence folder with a plan, on
     Dask: one task per sequence, resumable, equal to specgpu recover of each sequence."""
     from pathlib import Path
@@ -1168,6 +1189,7 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
         raise click.UsageError("the dE output and --delta-e-ref go together")
     plan = load_plan(plan_path)
     illuminant = plan.resolve_illuminant(illuminant, name=str(plan_path))
+    observer = plan.resolve_observer(observer, name=str(plan_path))
     calib = Path(calib) if calib else Path(source) / "calibration.npz"
     if not calib.is_file():
         raise click.UsageError(f"{calib} not found; give --calib")
@@ -1176,9 +1198,9 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
     reference = None
     if ref is not None:
         src = open_source(source)
-        reference = _parse_reference(ref, src.height, src.width, illuminant, resize)
-    report = run_batch(source, plan, bundle, out, outputs=wanted, illuminant=illuminant, method=method,
-                       reference=reference, scheduler=scheduler, workers=workers, device=device)
+        reference = _parse_reference(ref, src.height, src.width, illuminant, resize, observer=observer)
+    report = run_batch(source, plan, bundle, out, outputs=wanted, illuminant=illuminant, observer=observer,
+                       method=method, reference=reference, scheduler=scheduler, workers=workers, device=device)
     click.echo(f"{plan.method}: {report.computed} sequences computed on {report.workers} worker(s) in "
                f"{report.seconds:.1f} s ({report.sequences_per_s:.1f} sequences/s), {report.skipped} already done; "
                f"OpenCL contexts built {report.contexts_built}; wrote {out}")

@@ -25,6 +25,7 @@ from .plans import Plan, load_plan, save_plan
 from .recovery import apply_linear
 from .rig.config import RigDescription
 from .rig.twin import FaultSchedule, TwinRig
+from .spectra import DEFAULT_CMFS
 
 __all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder", "read_capture", "recover", "dark_warning", "to_XYZ", "to_Lab"]
 
@@ -418,10 +419,11 @@ def _sequence_decoders(folder: SequenceFolder, sequence, white_roi, white_reflec
 
 
 def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illuminant: str | None = None,
-                device=None, white_roi=None, white_reflectance=None) -> tuple[np.ndarray, np.ndarray | None]:
+                observer: str | None = None, device=None, white_roi=None,
+                white_reflectance=None) -> tuple[np.ndarray, np.ndarray | None]:
     """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames, options and
     corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
-    covariance (H, W, 3, 3) of their XYZ (:mod:`specgpu.estimators`); NaN where saturated."""
+    covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.estimators`); NaN where saturated."""
     from .correction import ambient_index
     from .estimators import constant_covariance, frame_covariance, frame_variance, output_covariance, sigma_map
 
@@ -430,7 +432,7 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
         raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
     plan, bundle = folder.plan, folder.calibration
     gain = bundle.flat_field
-    M = None if illuminant is None else plan.outputs_to_XYZ(illuminant)
+    M = None if illuminant is None else plan.outputs_to_XYZ(illuminant, observer)
     cov = None
     if white_roi is not None or ambient_index(plan) is not None:
         # decoded one sequence at a time by its own decoder: the variance of their mean is the sum of each
@@ -529,17 +531,22 @@ def _flatten_by_wavelength(frames, dark, ratio, bundle=None) -> np.ndarray:
     return f
 
 
-def to_XYZ(y: np.ndarray, plan: Plan, illuminant: str = "D65", *, device=None) -> np.ndarray:
-    """XYZ (Y = 1 for the white) of a plan's outputs (see :meth:`specgpu.plans.Plan.outputs_to_XYZ`)."""
-    plan.outputs_to_XYZ(illuminant)  # refuses outputs that have no XYZ, or XYZ under another illuminant
+def to_XYZ(y: np.ndarray, plan: Plan, illuminant: str = "D65", *, observer: str | None = None,
+           device=None) -> np.ndarray:
+    """XYZ (Y = 1 for the white) of a plan's outputs for ``observer`` (None: the plan's own for a tristimulus
+    plan, else the 2 degree observer; :meth:`specgpu.plans.Plan.resolve_observer`) (see
+    :meth:`specgpu.plans.Plan.outputs_to_XYZ`)."""
+    observer = plan.resolve_observer(observer)
+    plan.outputs_to_XYZ(illuminant, observer)  # refuses outputs with no XYZ, or XYZ under another light/observer
     if plan.output == "reflectance":  # the same weights, applied on the device
-        return reflectance_to_XYZ(y, plan.output_wavelengths, illuminant=illuminant, device=device)
+        return reflectance_to_XYZ(y, plan.output_wavelengths, illuminant=illuminant, cmfs=observer, device=device)
     return y  # a tristimulus plan's outputs are XYZ already
 
 
-def to_Lab(XYZ: np.ndarray, illuminant: str = "D65", *, device=None) -> np.ndarray:
-    """CIELAB of XYZ for the illuminant's white (colour-science's chromaticity table)."""
-    return XYZ_to_Lab(XYZ, illuminant=illuminant, device=device)
+def to_Lab(XYZ: np.ndarray, illuminant: str = "D65", *, observer: str = DEFAULT_CMFS, device=None) -> np.ndarray:
+    """CIELAB of XYZ for the illuminant's white as ``observer`` sees it (colour-science's chromaticity table):
+    the observer the XYZ was made for (a tristimulus plan's own, :meth:`specgpu.plans.Plan.resolve_observer`)."""
+    return XYZ_to_Lab(XYZ, illuminant=illuminant, observer=observer, device=device)
 
 
 def save_plan_and_calibration(directory, plan: Plan, bundle: CalibrationBundle) -> tuple[Path, Path]:

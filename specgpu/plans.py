@@ -45,7 +45,7 @@ import numpy as np
 
 from specgpu.basis import BasisTable, content_hash, load_npz, save_npz
 from specgpu.rig.scene import interpolation_matrix
-from specgpu.spectra import DEFAULT_CMFS, XYZ_weights, resolve_cmfs, resolve_illuminant_sd
+from specgpu.spectra import DEFAULT_CMFS, OBSERVERS, XYZ_weights, resolve_cmfs, resolve_illuminant_sd
 
 __all__ = [
     "Plan",
@@ -215,15 +215,17 @@ class Plan:
         rate = min(cam.frame_rate_hz, 1.0 / (self.exposure_s + description.light.switch_time_s + 1e-6))
         return replace(description, camera=replace(cam, exposure_s=float(self.exposure_s), frame_rate_hz=rate))
 
-    def outputs_to_XYZ(self, illuminant="D65", observer=DEFAULT_CMFS) -> np.ndarray:
+    def outputs_to_XYZ(self, illuminant="D65", observer=None) -> np.ndarray:
         """(3, B) matrix C with XYZ = C . y for this plan's outputs y (Y = 1 for the white): the colour-matching
-        weights under ``illuminant`` for reflectance outputs, the identity for a tristimulus plan made for the same
-        illuminant; any other output has no XYZ (ValueError)."""
+        weights of ``observer`` (None: :meth:`resolve_observer`'s default) under ``illuminant`` for reflectance
+        outputs, the identity for a tristimulus plan made for the same illuminant and observer; any other output
+        has no XYZ (ValueError)."""
         if self.output == "reflectance":
-            return XYZ_weights(self.output_wavelengths, illuminant, observer)
+            return XYZ_weights(self.output_wavelengths, illuminant, self.resolve_observer(observer))
         if self.output == "XYZ":
             if self.illuminant and self.illuminant.lower() != str(illuminant).lower():
                 raise ValueError(f"the plan measures XYZ under {self.illuminant}, not {illuminant}")
+            self.resolve_observer(observer)  # refuses another observer than the plan's
             return np.eye(3)
         raise ValueError(f"a {self.output!r} plan ({self.method}) has no XYZ")
 
@@ -258,6 +260,42 @@ class Plan:
             raise ValueError(f"{name} measures {self.output} under illuminant {own}, not {illuminant}: leave the "
                              f"illuminant out to use the plan's, or make a plan for {illuminant}")
         return own or illuminant
+
+    @property
+    def measured_observer(self) -> str:
+        """The observer the plan's outputs themselves are for: a tristimulus (XYZ) plan's colour-matching
+        functions, a camera simulator (RGB) plan's camera; empty for outputs that hold for any observer."""
+        return self.observer if self.output in ("XYZ", "RGB") else ""
+
+    def resolve_observer(self, observer=None, *, name: str = "the plan") -> str:
+        """The observer of the XYZ, Lab and dE made from this plan's outputs (their reference white is that
+        observer's), and the one to record with them; the counterpart of :meth:`resolve_illuminant`.
+
+        Parameters
+        ----------
+        observer : str, optional
+            The one asked for (a name of :data:`OBSERVERS`, in any case); None: the plan's own for a tristimulus
+            or camera plan (:attr:`measured_observer`), the CIE 1931 2 degree observer otherwise.
+        name : str
+            How an error names the plan (its file).
+
+        Raises
+        ------
+        ValueError
+            ``observer`` is no observer with a white-point table, or not the one a tristimulus or camera plan
+            measures for: its XYZ would be converted and compared against another observer's white.
+        """
+        own = self.measured_observer
+        if observer is None:
+            return own or DEFAULT_CMFS
+        asked = str(observer)
+        canonical = next((o for o in OBSERVERS if o.lower() == asked.lower()), None)
+        if canonical is None:
+            raise ValueError(f"observer {asked!r} is not one of {', '.join(OBSERVERS)}")
+        if own and own.lower() != canonical.lower():
+            raise ValueError(f"{name} measures {self.output} for the {own}, not the {canonical}: leave the "
+                             f"observer out to use the plan's, or make a plan for the {canonical}")
+        return own or canonical
 
     def check_calibration(self, bundle, name: str = "plan", calibration_name: str | None = None) -> None:
         """Refuse a plan designed with another calibration than ``bundle`` (stale plan); ``name`` and

@@ -13,6 +13,7 @@ import numpy as np
 
 __all__ = [
     "DEFAULT_CMFS",
+    "OBSERVERS",
     "spectral_shape",
     "resolve_cmfs",
     "resolve_illuminant_sd",
@@ -21,6 +22,8 @@ __all__ = [
 ]
 
 DEFAULT_CMFS = "CIE 1931 2 Degree Standard Observer"
+#: The observers XYZ, Lab and dE can be made for: colour-matching functions with an illuminant white-point table
+OBSERVERS = tuple(name for name in colour.CCS_ILLUMINANTS if name in colour.MSDS_CMFS and "Observer" in name)
 
 
 def spectral_shape(wavelengths: np.ndarray) -> colour.SpectralShape:

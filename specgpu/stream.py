@@ -111,6 +111,10 @@ class StreamDecoder:
         Illuminant of XYZ (Y = 1 for the perfect white), Lab and dE; default the plan's own for a tristimulus or
         camera plan, D65 otherwise (:meth:`specgpu.plans.Plan.resolve_illuminant`, which refuses another than a
         tristimulus plan measures under).
+    observer : str, optional
+        Observer of XYZ, Lab and dE (its white); default the plan's own for a tristimulus plan, the CIE 1931 2
+        degree observer otherwise (:meth:`specgpu.plans.Plan.resolve_observer`, which refuses another than a
+        tristimulus plan's).
     cube_dtype : float16 or float32
         Storage of the cube (float16 halves the memory traffic of the widest output).
     frame_shape : (int, int)
@@ -125,7 +129,7 @@ class StreamDecoder:
     """
 
     def __init__(self, plan, calibration, outputs, *, frame_shape, queue, reference=None, method="CIE 2000",
-                 illuminant=None, observer: str = DEFAULT_CMFS, cube_dtype=np.float16, white_roi=None,
+                 illuminant=None, observer: str | None = None, cube_dtype=np.float16, white_roi=None,
                  white_reflectance=None):
         # canonical names (the check is case-insensitive), each once
         outputs = tuple(dict.fromkeys(validate_method(name, {k: k for k in STREAM_OUTPUTS}, "stream output")
@@ -144,6 +148,7 @@ class StreamDecoder:
             raise ValueError(f"cube_dtype must be float16 or float32, got {self.cube_dtype}")
         self.method = validate_method(method, DELTA_E_METHODS) if "dE" in outputs else method
         self.illuminant = illuminant = plan.resolve_illuminant(illuminant)
+        self.observer = observer = plan.resolve_observer(observer)
         dark = calibration.dark_at(plan.exposure_s)
         gain = calibration.flat_field
         if tuple(np.shape(dark)) != (self.height, self.width):
@@ -594,11 +599,14 @@ class PreviewSink(Sink):
     illuminant : str
         The illuminant the XYZ is relative to (the stream's): its white is adapted (CAT02) to sRGB's D65 white, so
         a white under illuminant A previews white, not orange.
+    observer : str
+        The observer the XYZ is for (the stream's): the illuminant's white is looked up for it.
     background : bool
         Render on the preview's own thread (default); False renders inside :meth:`write`.
     """
 
-    def __init__(self, path=None, interval_s: float = 0.5, illuminant: str = "D65", background: bool = True):
+    def __init__(self, path=None, interval_s: float = 0.5, illuminant: str = "D65", background: bool = True, *,
+                 observer: str = DEFAULT_CMFS):
         import colour
 
         self.path = None if path is None else Path(path)
@@ -606,8 +614,9 @@ class PreviewSink(Sink):
             raise ValueError(f"{self.path}: the preview is a PNG; give a .png path")
         self.interval_s = float(interval_s)
         self.illuminant = str(illuminant)
+        self.observer = str(observer)
         self.background = bool(background)
-        white_xy = np.asarray(colour.XYZ_to_xy(white_point_XYZ(self.illuminant)), np.float64)
+        white_xy = np.asarray(colour.XYZ_to_xy(white_point_XYZ(self.illuminant, self.observer)), np.float64)
         # XYZ under the illuminant -> linear sRGB, the CAT02 adaptation to D65 folded in (rows: the image of X, Y, Z)
         self._M = np.asarray(colour.XYZ_to_RGB(np.eye(3), colour.models.RGB_COLOURSPACE_sRGB, illuminant=white_xy,
                                                chromatic_adaptation_transform="CAT02", apply_cctf_encoding=False),
@@ -666,6 +675,7 @@ class PreviewSink(Sink):
             from . import io
 
             io._write_png(self.path, self.image, {"specgpu:exposure_EV": repr(0.0), "illuminant": self.illuminant,
+                                                  "observer": self.observer,
                                                   "ImageDescription": "sRGB preview of XYZ, exposure +0.000 EV"})
         self.updates += 1
 
@@ -957,7 +967,7 @@ class Stream:
     sinks : sequence of Sink or callables
         Called in order for each result: any object with ``write(result)`` (and optionally ``close()``), or a
         callable (wrapped in :class:`CallbackSink`).
-    reference, method, illuminant, cube_dtype
+    reference, method, illuminant, observer, cube_dtype
         As :class:`StreamDecoder`.
     n_slots : int, optional
         Frames the ring holds (default 4 K, at least 16: room for jitter without adding latency at saturation).
@@ -997,9 +1007,10 @@ class Stream:
 
     def __init__(self, driver: CameraDriver, plan, calibration, *, outputs=("coefficients", "XYZ", "dE"),
                  sinks=(), reference=None, method: str = "CIE 2000", illuminant: str | None = None,
-                 cube_dtype=np.float16, n_slots: int | None = None, policy: str = "drop_newest", in_flight: int = 3,
-                 result_buffers: int = 6, readback: str = "auto", upload: str = "auto", align: str = "index",
-                 sync_max_dn: float | None = None, device=None, white_roi=None, white_reflectance=None):
+                 observer: str | None = None, cube_dtype=np.float16, n_slots: int | None = None,
+                 policy: str = "drop_newest", in_flight: int = 3, result_buffers: int = 6, readback: str = "auto",
+                 upload: str = "auto", align: str = "index", sync_max_dn: float | None = None, device=None,
+                 white_roi=None, white_reflectance=None):
         plan.check_calibration(calibration, name="stream plan")
         if policy not in POLICIES:
             raise ValueError(f"unknown ring policy {policy!r}; valid policies: {', '.join(POLICIES)}")
@@ -1015,7 +1026,7 @@ class Stream:
         self.queue = get_queue(device)
         self.decoder = StreamDecoder(plan, calibration, outputs, frame_shape=driver.frame_shape, queue=self.queue,
                                      reference=reference, method=method, illuminant=illuminant,
-                                     cube_dtype=cube_dtype, white_roi=white_roi,
+                                     observer=observer, cube_dtype=cube_dtype, white_roi=white_roi,
                                      white_reflectance=white_reflectance)
         self.sinks = [s if callable(getattr(s, "write", None)) else CallbackSink(s) for s in sinks]
         self.n_slots = max(4 * plan.K, 16) if n_slots is None else int(n_slots)
