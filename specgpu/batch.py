@@ -311,6 +311,7 @@ class _Pending:
     built: bool
     writes: list
     mapped: list
+    buffers: dict  # the device buffers (pooled) the mapped results are views of: never reused while written
 
 
 def _decoder(job: BatchJob, state):
@@ -377,7 +378,7 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
             ev = cl.enqueue_copy(q, arr, dev, is_blocking=False)
         arrays[name] = arr
         events.append(ev)
-    pending = _Pending(i, state, built, [], mapped)
+    pending = _Pending(i, state, built, [], mapped, outs)
     try:
         cl.wait_for_events(events)
         mask = arrays.pop("mask")
@@ -402,7 +403,7 @@ def _release(pending: _Pending) -> None:
         write.exception()
     for arr in pending.mapped:
         arr.base.release(pending.state.queue)
-    pending.mapped = []
+    pending.mapped, pending.buffers = [], {}  # unmapped: the buffers go back to the pool
 
 
 def _finish_sequence(job: BatchJob, pending: _Pending) -> dict:
