@@ -1,11 +1,16 @@
 """Batch re-processing on Dask distributed: the raw frames of a recording (or a sequence folder) through a plan.
 
-``specgpu batch REC.zarr --plan PLAN --out OUT.zarr`` runs one task per sequence on a Dask ``LocalCluster`` (or on
-any ``dask.distributed`` scheduler given by address). Each task reads one sequence's frames, recovers it exactly
-as ``specgpu recover SEQ --sequence i`` does (:func:`specgpu.pipeline.recover`, then ``to_XYZ`` / ``to_Lab`` /
-``delta_E`` when asked) and writes its chunk of the output recording, then marks the chunk done in the ``done``
-array. Workers keep their state between tasks (:func:`_worker_state`): the plan, calibration, OpenCL context and
-queue (with its built programs), the source and output handles are made once per worker process and reused.
+``specgpu batch REC.zarr --plan PLAN --out OUT.zarr`` runs its sequences as Dask tasks of up to 8 consecutive
+sequences (a task costs ~13 ms of its own) on a Dask ``LocalCluster`` (or on any ``dask.distributed`` scheduler
+given by address). Each sequence's frames are computed in one device pass as the stream computes them
+(:class:`specgpu.stream.StreamDecoder`: the cube by the plan's decoder, XYZ, Lab and dE fused from the same frames,
+the calibration's corrections applied as ``specgpu recover`` applies them; on a CPU device the frames are the
+device buffer and the results are mapped, no copy), equal to ``specgpu recover SEQ --sequence i`` and its
+``to_XYZ`` / ``to_Lab`` / ``delta_E`` to float rounding. Each output's chunk is written while the task's next
+sequence is computed, and the sequence is marked done in the ``done`` array once all of its chunks are written.
+Workers keep their state between tasks (:func:`_worker_state`): the plan, calibration, OpenCL context and queue
+(with its built programs and the decoder's device maps), the source and output handles are made once per worker
+process and reused.
 
 Resuming: an output that exists and was made by the same batch is continued: chunks marked done are never
 recomputed. "The same batch" is its identity, stored in the output's attributes: the source's path and content
@@ -333,7 +338,7 @@ def _decoder(job: BatchJob, state):
                             reference=job.reference if "dE" in job.outputs else None, method=job.method,
                             illuminant=job.illuminant, cube_dtype=np.float32, **kwargs)
         # on a CPU device the frames are the device buffer and the results are mapped (no copy either way)
-        dec.zero_copy = bool(state.queue.device.type & cl.device_type.CPU)
+        state._zero_copy = bool(state.queue.device.type & cl.device_type.CPU)
         state._decoder = dec
     return dec
 
@@ -359,7 +364,8 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
                          f"({dec.K}, {dec.height}, {dec.width})")
     host = dec.prepare_frames(raw) if dec.precorrect else raw
     flat = np.ascontiguousarray(host).reshape(-1)
-    if dec.zero_copy:
+    zero_copy = state._zero_copy
+    if zero_copy:
         buf = cl.Buffer(q.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=flat)
         frames = cla.Array(q, flat.shape, flat.dtype, data=buf)
     else:
@@ -369,7 +375,7 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
     arrays, mapped, events = {}, [], []
     for name, dev in outs.items():
         shape, dtype = shapes[name]
-        if dec.zero_copy:  # READ | WRITE: saturated pixels are set to NaN in place
+        if zero_copy:  # READ | WRITE: saturated pixels are set to NaN in place
             arr, ev = cl.enqueue_map_buffer(q, dev, cl.map_flags.READ | cl.map_flags.WRITE, 0, shape, dtype,
                                             is_blocking=False)
             mapped.append(arr)
