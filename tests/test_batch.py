@@ -685,3 +685,39 @@ def test_several_sequences_per_task_are_each_marked_done_and_a_failure_ends_the_
     assert _task_groups(range(6), 1) == [[0], [1], [2], [3], [4], [5]]
     assert _task_groups(range(100), 1) == [list(range(k, min(k + 8, 100))) for k in range(0, 100, 8)]
     assert _task_groups(range(40), 2) == [list(range(k, k + 5)) for k in range(0, 40, 5)]
+
+
+def test_the_batch_applies_recovers_frame_corrections(made, tmp_path):
+    """With a calibration that measured a sensor compression and a wavelength-dependent flat field, the frames are
+    corrected on the host before the one device pass exactly as recover corrects them: the batch's cube and XYZ
+    equal recover's (and its to_XYZ) to float rounding, and differ from an uncorrected decode."""
+    from dataclasses import replace
+
+    from specgpu.pipeline import read_capture, recover, to_XYZ
+
+    setup, root = made
+    plan, b = plan_and_calibration(root)
+    tilt = np.linspace(-1.0, 1.0, b.frame_shape[1], dtype=np.float32)[None, :]
+    flats = np.stack([b.flat_field * (1 + 0.04 * s * tilt) for s in (-1.0, 1.0)])
+    bundle = replace(b, flat_fields=flats, flat_wavelengths=np.array([450.0, 650.0]),
+                     reports={**b.reports, "linearity_c_per_dn2": 4e-8})
+    plan = replace(plan, calibration=bundle.hash)
+    assert bundle.flat_ratio(plan.patterns) is not None
+    frames = open_recording(root / "rec.zarr").read("frames", slice(0, 2))
+    K = plan.K
+    seq = tmp_path / "seq"
+    io.write_sequence(seq, frames.reshape(-1, *frames.shape[2:]),
+                      [{"frame_id": s * K + k, "pattern_index": k, "exposure_s": plan.exposure_s,
+                        "timestamp_s": (s * K + k) * 0.005} for s in range(2) for k in range(K)], plan.hash)
+    save_plan(seq / "plan.npz", plan)
+    save_calibration(seq / "calibration.npz", bundle)
+    run_batch(seq, plan, bundle, tmp_path / "out.zarr", outputs=("cube", "XYZ"), workers=1, progress=False)
+    out = open_recording_like(tmp_path / "out.zarr")
+    folder = read_capture(seq)
+    for i in range(2):
+        cube = recover(folder, sequence=i)
+        np.testing.assert_allclose(out["cube"][i], cube, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(out["XYZ"][i], to_XYZ(cube, plan), rtol=1e-5, atol=1e-6)
+    bare = open_recording_like(tmp_path / "out.zarr")["cube"][0]
+    plain = recover(replace(folder, calibration=b, plan=replace(plan, calibration=b.hash)), sequence=0)
+    assert np.nanmax(np.abs(bare - plain)) > 0.01  # the corrections matter
