@@ -721,3 +721,25 @@ def test_the_batch_applies_recovers_frame_corrections(made, tmp_path):
     bare = open_recording_like(tmp_path / "out.zarr")["cube"][0]
     plain = recover(replace(folder, calibration=b, plan=replace(plan, calibration=b.hash)), sequence=0)
     assert np.nanmax(np.abs(bare - plain)) > 0.01  # the corrections matter
+
+
+def test_the_copying_path_of_a_discrete_device_gives_the_same_chunks(made, tmp_path):
+    """On a discrete device the frames are copied to the device and the results back (no mapping): forced here on
+    the CPU device, the chunks equal those of the zero-copy path."""
+    from specgpu.batch import _decoder, _worker_state, prepare_batch, process_sequence
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    outs = []
+    for copy in (False, True):
+        out = tmp_path / f"b{int(copy)}.zarr"
+        job, _ = prepare_batch(root / "rec.zarr", plan, bundle, out, outputs=("cube", "XYZ", "Lab", "dE"),
+                               reference=[50.0, 0.0, 0.0])
+        state, _ = _worker_state(job)
+        _decoder(job, state)
+        state._zero_copy = not copy
+        assert not process_sequence(job, 1).get("error")
+        outs.append(open_recording_like(out))
+    for name in ("cube", "XYZ", "Lab", "dE"):
+        np.testing.assert_array_equal(outs[0][name][1], outs[1][name][1])
+    assert outs[1]["done"][:].tolist() == [0, 1, 0, 0, 0, 0]
