@@ -1,11 +1,16 @@
 """Batch re-processing on Dask distributed: the raw frames of a recording (or a sequence folder) through a plan.
 
-``specgpu batch REC.zarr --plan PLAN --out OUT.zarr`` runs one task per sequence on a Dask ``LocalCluster`` (or on
-any ``dask.distributed`` scheduler given by address). Each task reads one sequence's frames, recovers it exactly
-as ``specgpu recover SEQ --sequence i`` does (:func:`specgpu.pipeline.recover`, then ``to_XYZ`` / ``to_Lab`` /
-``delta_E`` when asked) and writes its chunk of the output recording, then marks the chunk done in the ``done``
-array. Workers keep their state between tasks (:func:`_worker_state`): the plan, calibration, OpenCL context and
-queue (with its built programs), the source and output handles are made once per worker process and reused.
+``specgpu batch REC.zarr --plan PLAN --out OUT.zarr`` runs its sequences as Dask tasks of up to 8 consecutive
+sequences (a task costs ~13 ms of its own) on a Dask ``LocalCluster`` (or on any ``dask.distributed`` scheduler
+given by address). Each sequence's frames are computed in one device pass as the stream computes them
+(:class:`specgpu.stream.StreamDecoder`: the cube by the plan's decoder, XYZ, Lab and dE fused from the same frames,
+the calibration's corrections applied as ``specgpu recover`` applies them; on a CPU device the frames are the
+device buffer and the results are mapped, no copy), equal to ``specgpu recover SEQ --sequence i`` and its
+``to_XYZ`` / ``to_Lab`` / ``delta_E`` to float rounding. Each output's chunk is written while the task's next
+sequence is computed, and the sequence is marked done in the ``done`` array once all of its chunks are written.
+Workers keep their state between tasks (:func:`_worker_state`): the plan, calibration, OpenCL context and queue
+(with its built programs and the decoder's device maps), the source and output handles are made once per worker
+process and reused.
 
 Resuming: an output that exists and was made by the same batch is continued: chunks marked done are never
 recomputed. "The same batch" is its identity, stored in the output's attributes: the source's path and content
@@ -252,54 +257,174 @@ def process_sequence(job: BatchJob, i: int) -> dict:
     try:
         return _process_sequence(job, int(i))
     except Exception as exc:  # noqa: BLE001 (reported to the driver as one line)
-        text = str(exc).strip()
-        line = text.splitlines()[0] if text else type(exc).__name__
-        if not isinstance(exc, (ValueError, OSError)):
-            line = f"{type(exc).__name__}: {line}"
-        if f"sequence {int(i)}" not in line:
-            line = f"{job.source}: sequence {int(i)}: {line}"
-        return {"index": int(i), "pid": os.getpid(), "built": False, "error": line}
+        return _error_record(job, int(i), exc)
+
+
+def process_sequences(job: BatchJob, indices) -> list[dict]:
+    """:func:`process_sequence` of several sequences in one task (a Dask task costs ~13 ms of its own), each
+    sequence written and marked done on its own as before: the writes of one sequence run while the next is
+    computed, and its ``done`` is marked once they returned. The records in order; the first failure ends the
+    list (its record carries ``error``), the sequences before it stay done."""
+    records, pending = [], None
+    for i in indices:
+        i = int(i)
+        try:
+            started = _start_sequence(job, i)
+        except Exception as exc:  # noqa: BLE001 (reported to the driver as one line)
+            started = _error_record(job, i, exc)
+        if pending is not None:
+            records.append(_finish_or_record(job, pending))
+            if records[-1].get("error"):
+                if isinstance(started, _Pending):
+                    _release(started)  # its writes are waited for, never marked done
+                return records
+        if isinstance(started, dict):
+            records.append(started)
+            return records
+        pending = started
+    if pending is not None:
+        records.append(_finish_or_record(job, pending))
+    return records
+
+
+def _error_record(job: BatchJob, i: int, exc: BaseException) -> dict:
+    text = str(exc).strip()
+    line = text.splitlines()[0] if text else type(exc).__name__
+    if not isinstance(exc, (ValueError, OSError)):
+        line = f"{type(exc).__name__}: {line}"
+    if f"sequence {int(i)}" not in line:
+        line = f"{job.source}: sequence {int(i)}: {line}"
+    return {"index": int(i), "pid": os.getpid(), "built": False, "error": line}
+
+
+def _finish_or_record(job: BatchJob, pending) -> dict:
+    try:
+        return _finish_sequence(job, pending)
+    except Exception as exc:  # noqa: BLE001
+        return _error_record(job, pending.index, exc)
 
 
 def _process_sequence(job: BatchJob, i: int) -> dict:
-    from .colorimetry import delta_E
-    from .pipeline import SequenceFolder, recover, to_Lab, to_XYZ
+    return _finish_sequence(job, _start_sequence(job, i))
+
+
+@dataclass
+class _Pending:
+    """A sequence computed and its chunks being written: waited for, unmapped and marked done by
+    :func:`_finish_sequence`."""
+
+    index: int
+    state: object
+    built: bool
+    writes: list
+    mapped: list
+    buffers: dict  # the device buffers (pooled) the mapped results are views of: never reused while written
+
+
+def _decoder(job: BatchJob, state):
+    """This worker's fused decoder of the job (:class:`specgpu.stream.StreamDecoder`, made once): the plan's A,
+    the calibration's dark, flat field and saturation level and, for colour outputs, the matrix to XYZ of the
+    plan's outputs with the white and the dE reference, on the device. The cube comes from one linear pass over
+    the frames and XYZ, Lab and dE from one fused pass over the same frames (never from the cube read back), as
+    the stream computes them; the host-side corrections recover applies (linearisation, per-pattern flat field,
+    an ambient frame) are applied to the frames first exactly as recover does (``prepare_frames``)."""
+    dec = state.__dict__.get("_decoder")
+    if dec is None:
+        import pyopencl as cl
+
+        from .stream import StreamDecoder
+
+        dec = StreamDecoder(job.plan, job.calibration, job.outputs,
+                            frame_shape=(state.source.height, state.source.width), queue=state.queue,
+                            reference=job.reference if "dE" in job.outputs else None, method=job.method,
+                            illuminant=job.illuminant, observer=job.observer, cube_dtype=np.float32)
+        # on a CPU device the frames are the device buffer and the results are mapped (no copy either way)
+        state._zero_copy = bool(state.queue.device.type & cl.device_type.CPU)
+        state._decoder = dec
+    return dec
+
+
+def _start_sequence(job: BatchJob, i: int) -> _Pending:
+    """Compute sequence ``i`` in one device pass and start writing each output's chunk (written as the recorder
+    writes: zarr's bytes, large chunks with direct I/O)."""
+    import pyopencl as cl
+    import pyopencl.array as cla
+
+    from .runtime import get_allocator
 
     state, built = _worker_state(job)
     handles = state.__dict__.setdefault("_arrays", {})  # zarr handles of the output, opened once per worker
     for name in (*job.outputs, "done"):
         if name not in handles:
             handles[name] = state.out[name]
-    # each output's chunk goes to its file as soon as it is computed (written as the recorder writes: zarr's bytes,
-    # large chunks with direct I/O) while the next output is computed; done is marked once every write returned
-    writes = []
-
-    def put(name, value):
-        if name in job.outputs:
-            writes.append((name, _writer_pool().submit(write_sequence_chunk, handles[name], i, value,
-                                                       direct=_DIRECT)))
-        return value
-
-    frames = state.source.frames(i)
-    folder = SequenceFolder(Path(job.source), frames[None], job.plan, job.calibration, [], {})
+    dec = _decoder(job, state)
+    q = state.queue
+    raw = state.source.frames(i)
+    if tuple(raw.shape) != (dec.K, dec.height, dec.width):
+        raise ValueError(f"{job.source}: sequence {i}: frames of shape {tuple(raw.shape)}, the batch needs "
+                         f"({dec.K}, {dec.height}, {dec.width})")
+    host = dec.prepare_frames(raw) if dec.precorrect else raw
+    flat = np.ascontiguousarray(host).reshape(-1)
+    zero_copy = state._zero_copy
+    if zero_copy:
+        buf = cl.Buffer(q.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=flat)
+        frames = cla.Array(q, flat.shape, flat.dtype, data=buf)
+    else:
+        frames = cla.to_device(q, flat, allocator=get_allocator(q))
+    outs = dec.enqueue(frames)
+    shapes = dec.shapes()
+    arrays, mapped, events = {}, [], []
+    for name, dev in outs.items():
+        shape, dtype = shapes[name]
+        if zero_copy:  # READ | WRITE: saturated pixels are set to NaN in place
+            arr, ev = cl.enqueue_map_buffer(q, dev, cl.map_flags.READ | cl.map_flags.WRITE, 0, shape, dtype,
+                                            is_blocking=False)
+            mapped.append(arr)
+        else:
+            arr = np.empty(shape, dtype)
+            ev = cl.enqueue_copy(q, arr, dev, is_blocking=False)
+        arrays[name] = arr
+        events.append(ev)
+    pending = _Pending(i, state, built, [], mapped, outs)
     try:
-        cube = put("cube", recover(folder, sequence=0, device=state.queue))
-        if {"XYZ", "Lab", "dE"} & set(job.outputs):
-            XYZ = put("XYZ", to_XYZ(cube, job.plan, job.illuminant, observer=job.observer, device=state.queue))
-            Lab = put("Lab", to_Lab(XYZ, job.illuminant, observer=job.observer, device=state.queue))
-            if "dE" in job.outputs:
-                put("dE", delta_E(job.reference, Lab, job.method, device=state.queue))
-    finally:
-        for _, write in writes:  # every write waited for before the chunk counts as done, or before failing
-            write.exception()
-    for name, write in writes:
+        cl.wait_for_events(events)
+        mask = arrays.pop("mask")
+        if mask.any():  # a sample at the sensor's maximum code: no valid measurement, NaN as recover makes it
+            saturated = (mask & 1).astype(bool)
+            for arr in arrays.values():
+                arr[saturated] = np.nan
+        for name in job.outputs:
+            pending.writes.append((name, _writer_pool().submit(write_sequence_chunk, handles[name], i,
+                                                               arrays[name],
+                                                               direct=_DIRECT)))
+    except BaseException:
+        _release(pending)
+        raise
+    del frames
+    return pending
+
+
+def _release(pending: _Pending) -> None:
+    """Wait for every write of ``pending``, then unmap its results."""
+    for _, write in pending.writes:
+        write.exception()
+    for arr in pending.mapped:
+        arr.base.release(pending.state.queue)
+    pending.mapped, pending.buffers = [], {}  # unmapped: the buffers go back to the pool
+
+
+def _finish_sequence(job: BatchJob, pending: _Pending) -> dict:
+    """Wait for the chunks of a started sequence, then mark it done (after every chunk is written)."""
+    i = pending.index
+    _release(pending)  # every write waited for before the chunk counts as done, or before failing
+    for name, write in pending.writes:
         if write.exception() is not None:
             raise _write_error(job, name, i, write.exception())
     try:
-        write_sequence_chunk(handles["done"], i, 1)  # after every chunk of the sequence is written
+        write_sequence_chunk(pending.state.__dict__["_arrays"]["done"], i, 1)
     except Exception as exc:  # noqa: BLE001
         raise _write_error(job, "done", i, exc) from None
-    return {"index": i, "pid": state.pid, "built": built}
+    return {"index": i, "pid": pending.state.pid, "built": pending.built}
 
 
 def _write_error(job: BatchJob, name: str, i: int, exc: BaseException) -> OSError:
@@ -547,6 +672,20 @@ def _create_output(out: Path, identity: dict, plan, method, outputs, source, n, 
         raise
 
 
+#: Sequences per Dask task at most: a task costs ~13 ms of its own, a sequence ~40 ms on 2 cores; more per task
+#: would leave workers idle at the end of a batch, and a killed worker's unfinished task is rerun whole (the
+#: sequences it had marked done are written again, the same bytes).
+_TASK_SEQUENCES = 8
+
+
+def _task_groups(todo, workers: int) -> list[list[int]]:
+    """``todo`` split into consecutive groups, one Dask task each: up to :data:`_TASK_SEQUENCES` sequences, and
+    at least 4 tasks per worker so that every worker has work to the end."""
+    todo = [int(i) for i in todo]
+    size = max(1, min(_TASK_SEQUENCES, len(todo) // (4 * max(1, int(workers)))))
+    return [todo[k:k + size] for k in range(0, len(todo), size)]
+
+
 def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
               method="CIE 2000", reference=None, scheduler=None, workers: int = 1, client=None,
               progress: bool = True, on_done=None, device=None) -> BatchReport:
@@ -598,21 +737,25 @@ def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, obs
             [shared] = client.scatter([job], broadcast=True)
             t0 = time.perf_counter()  # the cluster's start is not the batch's time
             run = uuid.uuid4().hex[:12]  # this run's task keys: never another batch's result on a shared scheduler
-            futures = [client.submit(process_sequence, shared, int(i), key=f"specgpu-batch-{i}-{run}", pure=False)
-                       for i in todo]
+            futures = [client.submit(process_sequences, shared, group, key=f"specgpu-batch-{group[0]}-{run}",
+                                     pure=False)
+                       for group in _task_groups(todo, len(client.scheduler_info().get("workers", {})) or 1)]
             with tqdm(total=len(todo), desc="batch", unit="seq", disable=not progress, leave=False) as bar:
                 for future in as_completed(futures):
-                    record = future.result()
+                    records = future.result()
                     future.release()
-                    if record.get("error"):
-                        failure = record["error"]
+                    for record in records:
+                        if record.get("error"):
+                            failure = record["error"]
+                            break
+                        pids[record["pid"]] = pids.get(record["pid"], 0) + 1
+                        built += bool(record["built"])
+                        bar.update()
+                        if on_done is not None:
+                            on_done(record)
+                    if failure is not None:
                         client.cancel(futures)
                         break
-                    pids[record["pid"]] = pids.get(record["pid"], 0) + 1
-                    built += bool(record["built"])
-                    bar.update()
-                    if on_done is not None:
-                        on_done(record)
         seconds = time.perf_counter() - t0
         n_workers = len(client.scheduler_info().get("workers", {}))
     finally:

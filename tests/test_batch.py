@@ -620,3 +620,126 @@ def test_any_changed_identity_entry_is_named_with_both_values(data):
         assert f"--delta-e-ref old-label, this run gives {identity['delta_e_ref']};" in message
     else:
         assert f"{name} {show(attrs[key])}, this run gives {show(identity[key])};" in message
+
+
+def test_the_one_pass_batch_equals_recover_and_its_colour_steps_saturated_pixels_included(made, tmp_path):
+    """The batch computes a sequence in one device pass (the cube from the frames, XYZ, Lab and dE fused from the
+    same frames, as the stream does): each output equals `specgpu recover SEQ --sequence i` and the offline colour
+    steps applied to its cube (to_XYZ, to_Lab, delta_E) to float rounding, and a pixel with a saturated sample is
+    NaN in every output, as recover makes it."""
+    from specgpu.colorimetry import delta_E
+    from specgpu.pipeline import to_Lab, to_XYZ
+
+    setup, root = made
+    plan, bundle = plan_and_calibration(root)
+    frames = open_recording(root / "rec.zarr").read("frames", slice(0, 2))
+    frames[1, 3, 10, 20] = bundle.max_code  # one saturated sample in the second sequence
+    K = plan.K
+    seq = tmp_path / "seq"
+    io.write_sequence(seq, frames.reshape(-1, *frames.shape[2:]),
+                      [{"frame_id": s * K + k, "pattern_index": k, "exposure_s": plan.exposure_s,
+                        "timestamp_s": (s * K + k) * 0.005} for s in range(2) for k in range(K)], plan.hash)
+    shutil.copyfile(root / "plan.npz", seq / "plan.npz")
+    shutil.copyfile(root / "calib.npz", seq / "calibration.npz")
+    ref = np.array([50.0, 0.0, 0.0], np.float32)
+    run_batch(seq, plan, bundle, tmp_path / "out.zarr", outputs=("cube", "XYZ", "Lab", "dE"), reference=ref,
+              workers=1, progress=False)
+    out = open_recording_like(tmp_path / "out.zarr")
+    for i in range(2):
+        r = CliRunner().invoke(main, ["recover", str(seq), "--sequence", str(i), "--out", str(tmp_path / "r.npz")])
+        assert r.exit_code == 0, r.output
+        cube = io.read_cube(tmp_path / "r.npz")[0]
+        XYZ = to_XYZ(cube, plan)
+        Lab = to_Lab(XYZ)
+        dE = delta_E(ref, Lab)
+        for name, want in (("cube", cube), ("XYZ", XYZ), ("Lab", Lab), ("dE", dE)):
+            got = out[name][i]
+            assert got.shape == want.shape and np.array_equal(np.isnan(got), np.isnan(want)), name
+            np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4 if name in ("Lab", "dE") else 1e-6,
+                                       err_msg=name)
+    for name in ("cube", "XYZ", "Lab", "dE"):
+        assert np.all(np.isnan(out[name][1][10, 20])) and not np.any(np.isnan(out[name][0][10, 20])), name
+
+
+def test_several_sequences_per_task_are_each_marked_done_and_a_failure_ends_the_task(made, tmp_path):
+    """One Dask task computes several sequences (its own cost amortised): each is written and marked done on its
+    own, in order; a sequence that fails ends the task with its one-line error, the sequences before it stay done
+    and those after it are left to a resumed run."""
+    from specgpu.batch import _task_groups, prepare_batch, process_sequences
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    out = tmp_path / "b.zarr"
+    job, todo = prepare_batch(root / "rec.zarr", plan, bundle, out)
+    records = process_sequences(job, [0, 1])
+    assert [r["index"] for r in records] == [0, 1] and not any(r.get("error") for r in records)
+    assert open_recording_like(out)["done"][:].tolist() == [1, 1, 0, 0, 0, 0]
+    records = process_sequences(job, [2, 99, 3])
+    assert [r["index"] for r in records] == [2, 99] and "sequence 99" in records[-1]["error"]
+    assert "\n" not in records[-1]["error"]
+    assert open_recording_like(out)["done"][:].tolist() == [1, 1, 1, 0, 0, 0]
+    frames = open_recording(root / "rec.zarr").read("frames", slice(0, 3))
+    for i in range(3):
+        np.testing.assert_array_equal(open_recording_like(out)["cube"][i], recovered(root, tmp_path, i, frames[i]))
+    # tasks: consecutive groups of at most 8, at least 4 per worker
+    assert _task_groups(range(6), 1) == [[0], [1], [2], [3], [4], [5]]
+    assert _task_groups(range(100), 1) == [list(range(k, min(k + 8, 100))) for k in range(0, 100, 8)]
+    assert _task_groups(range(40), 2) == [list(range(k, k + 5)) for k in range(0, 40, 5)]
+
+
+def test_the_batch_applies_recovers_frame_corrections(made, tmp_path):
+    """With a calibration that measured a sensor compression and a wavelength-dependent flat field, the frames are
+    corrected on the host before the one device pass exactly as recover corrects them: the batch's cube and XYZ
+    equal recover's (and its to_XYZ) to float rounding, and differ from an uncorrected decode."""
+    from dataclasses import replace
+
+    from specgpu.pipeline import read_capture, recover, to_XYZ
+
+    setup, root = made
+    plan, b = plan_and_calibration(root)
+    tilt = np.linspace(-1.0, 1.0, b.frame_shape[1], dtype=np.float32)[None, :]
+    flats = np.stack([b.flat_field * (1 + 0.04 * s * tilt) for s in (-1.0, 1.0)])
+    bundle = replace(b, flat_fields=flats, flat_wavelengths=np.array([450.0, 650.0]),
+                     reports={**b.reports, "linearity_c_per_dn2": 4e-8})
+    plan = replace(plan, calibration=bundle.hash)
+    assert bundle.flat_ratio(plan.patterns) is not None
+    frames = open_recording(root / "rec.zarr").read("frames", slice(0, 2))
+    K = plan.K
+    seq = tmp_path / "seq"
+    io.write_sequence(seq, frames.reshape(-1, *frames.shape[2:]),
+                      [{"frame_id": s * K + k, "pattern_index": k, "exposure_s": plan.exposure_s,
+                        "timestamp_s": (s * K + k) * 0.005} for s in range(2) for k in range(K)], plan.hash)
+    save_plan(seq / "plan.npz", plan)
+    save_calibration(seq / "calibration.npz", bundle)
+    run_batch(seq, plan, bundle, tmp_path / "out.zarr", outputs=("cube", "XYZ"), workers=1, progress=False)
+    out = open_recording_like(tmp_path / "out.zarr")
+    folder = read_capture(seq)
+    for i in range(2):
+        cube = recover(folder, sequence=i)
+        np.testing.assert_allclose(out["cube"][i], cube, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(out["XYZ"][i], to_XYZ(cube, plan), rtol=1e-5, atol=1e-6)
+    bare = open_recording_like(tmp_path / "out.zarr")["cube"][0]
+    plain = recover(replace(folder, calibration=b, plan=replace(plan, calibration=b.hash)), sequence=0)
+    assert np.nanmax(np.abs(bare - plain)) > 0.01  # the corrections matter
+
+
+def test_the_copying_path_of_a_discrete_device_gives_the_same_chunks(made, tmp_path):
+    """On a discrete device the frames are copied to the device and the results back (no mapping): forced here on
+    the CPU device, the chunks equal those of the zero-copy path."""
+    from specgpu.batch import _decoder, _worker_state, prepare_batch, process_sequence
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    outs = []
+    for copy in (False, True):
+        out = tmp_path / f"b{int(copy)}.zarr"
+        job, _ = prepare_batch(root / "rec.zarr", plan, bundle, out, outputs=("cube", "XYZ", "Lab", "dE"),
+                               reference=[50.0, 0.0, 0.0])
+        state, _ = _worker_state(job)
+        _decoder(job, state)
+        state._zero_copy = not copy
+        assert not process_sequence(job, 1).get("error")
+        outs.append(open_recording_like(out))
+    for name in ("cube", "XYZ", "Lab", "dE"):
+        np.testing.assert_array_equal(outs[0][name][1], outs[1][name][1])
+    assert outs[1]["done"][:].tolist() == [0, 1, 0, 0, 0, 0]
