@@ -192,6 +192,7 @@ class BatchJob:
     device: str | None = None
     source_id: str = ""
     observer: str = DEFAULT_CMFS
+    sequences: int = 0  # the source's committed sequences when the batch started (a recording may still grow)
 
     @property
     def key(self) -> tuple:
@@ -238,6 +239,8 @@ def _worker_state(job: BatchJob) -> tuple[_WorkerState, bool]:
         if state is not None:
             return state, False
         source = open_source(job.source)
+        if job.sequences and isinstance(source, _RecordingSource) and source.sequences > job.sequences:
+            source.sequences = job.sequences  # a recording still being written: its content as the batch saw it
         if job.source_id and source.content_id != job.source_id:
             raise ValueError(f"{job.source}: changed since the batch started (another recording or capture at "
                              "that path); run the batch again")
@@ -421,7 +424,8 @@ def _finish_sequence(job: BatchJob, pending: _Pending) -> dict:
         if write.exception() is not None:
             raise _write_error(job, name, i, write.exception())
     try:
-        write_sequence_chunk(pending.state.__dict__["_arrays"]["done"], i, 1)
+        # through zarr (a temporary renamed into place): a kill leaves the mark absent or whole, never an empty file
+        pending.state.__dict__["_arrays"]["done"][i] = 1
     except Exception as exc:  # noqa: BLE001
         raise _write_error(job, "done", i, exc) from None
     return {"index": i, "pid": pending.state.pid, "built": pending.built}
@@ -556,7 +560,7 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
                 "reference_sha256": _reference_hash(reference), "delta_e_ref": reference_label(reference)}
     job = BatchJob(str(source_path), str(out), plan, calibration, outputs, illuminant, method,
                    None if reference is None else np.asarray(reference, np.float32), device, identity["source_id"],
-                   observer)
+                   observer, n)
     _remove_dead_creations(out)
     if out.exists() and _unfinished_creation(out):
         shutil.rmtree(out)  # made by an older specgpu killed before its first sequence: nothing in it to keep
@@ -564,7 +568,7 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
         try:
             group = zarr.open_group(str(out), mode="r", zarr_format=3)
             attrs = dict(group.attrs)
-            done = group["done"][:]
+            done = _done_flags(group["done"])
         except Exception as exc:  # noqa: BLE001
             raise ValueError(f"{out}: exists and is not a batch output to resume ({type(exc).__name__}); "
                              "choose a new --out") from None
@@ -577,6 +581,21 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
     return job, np.arange(n)
 
 
+def _done_flags(done) -> np.ndarray:
+    """The ``done`` marks, one chunk at a time: a mark that cannot be read (cut by a crash) counts as not done, so
+    its sequence is computed again instead of the whole output being refused."""
+    try:
+        return np.asarray(done[:])
+    except Exception:  # noqa: BLE001 (a damaged chunk: read the others one by one)
+        flags = np.zeros(done.shape[0], np.uint8)
+        for i in range(done.shape[0]):
+            try:
+                flags[i] = done[i]
+            except Exception:  # noqa: BLE001
+                flags[i] = 0
+        return flags
+
+
 def _remove_dead_writers_partials(source_path) -> None:
     """The ``*.partial`` chunks a recorder killed by ``kill -9`` left in a recording (5 MB each for raw frames):
     removed when no live writer holds the recording's lock (a recording is never written again, so nothing
@@ -587,8 +606,8 @@ def _remove_dead_writers_partials(source_path) -> None:
     if not (path / "zarr.json").is_file() or not any(path.rglob("*.partial")):
         return
     try:
-        with output_lock(path):
-            remove_partial_chunks(path)
+        with output_lock(path):  # a recorder used from Python holds no lock: its metadata renames are left alone
+            remove_partial_chunks(path, chunks_only=True)
     except (OutputLocked, OSError):
         pass
 
@@ -767,7 +786,7 @@ def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, obs
 
     group = zarr.open_group(str(out), mode="r+", zarr_format=3)
     total = group["done"].shape[0]
-    done = int(np.count_nonzero(group["done"][:]))
+    done = int(np.count_nonzero(_done_flags(group["done"])))
     group.attrs["status"] = "complete" if done == total else "running"
     consolidate(out)
     if failure is not None:

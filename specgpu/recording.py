@@ -72,9 +72,12 @@ itself returns the fill value (0, NaN) for a chunk that is not on disk, never an
    sequences whose chunk is absent. A missing chunk of a committed sequence is damage: report it, never use
    the fill values it reads as.
 
-Chunks that a writer killed by ``kill -9`` left half written are files named ``*.partial`` (zarr writes a chunk to
-such a temporary and renames it); they are never read, and :func:`remove_partial_chunks` deletes them (``specgpu
-batch`` does so in its output before resuming it, and in a source recording that no live writer holds).
+A writer killed by ``kill -9`` may leave the chunk it was writing half written: the recorder writes each chunk
+straight to its own name (no temporary, no rename: see Writing), past ``sequences_committed``, where no specgpu
+reader looks; a reader that ignores the commit gets a checksum error there, not data. Metadata, ``done`` marks
+and chunks written through zarr itself go to a ``*.partial`` temporary that is renamed into place; such leftovers
+are never read, and :func:`remove_partial_chunks` deletes them (``specgpu batch`` does so in its output before
+resuming it, and in the chunk folders of a source recording that no live writer holds).
 """
 
 from __future__ import annotations
@@ -254,7 +257,7 @@ def write_chunk(path: str, parts, *, direct: _DirectIO | None = None) -> None:
     falls back to buffered writes, once and for all."""
     data, tail = parts
     use_direct = direct is not None and direct.state is not False and data.size >= _DIRECT_MIN_BYTES
-    flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC
+    flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_BINARY", 0)  # Windows: no newline translation
     made = False
     while True:
         try:
@@ -280,11 +283,13 @@ def write_chunk(path: str, parts, *, direct: _DirectIO | None = None) -> None:
                     raise
                 direct.state = False  # opened, but the writes are refused: buffered from now on
                 os.close(fd)
+                fd = -1  # closed: never closed again below (the number may be another thread's file by then)
                 fd = os.open(path, flags, 0o666)
         _write_all(fd, data)
         _write_all(fd, tail)
     finally:
-        os.close(fd)
+        if fd >= 0:
+            os.close(fd)
 
 
 def _fast_encoder(array):
@@ -576,12 +581,13 @@ class ZarrRecorder:
             make("frames", tuple(result.frames.shape), "uint16", ("pattern", "y", "x"), 0, {"units": "DN"})
         g.attrs.update({"outputs": sorted(arrays), "height": int(h), "width": int(w),
                         "compression": self.compression_report})
-        # each chunk's file: the array's folder and its chunk key with a {} for the sequence index
+        # each chunk's file: the array's folder and its chunk key around the sequence index (joined per write, so
+        # a folder name with braces is taken as it is)
         for name, arr in self._arrays.items():
             key = arr.metadata.encode_chunk_key((0,) * arr.ndim)
             parts = key.split("/")
             assert parts[1] == "0", key  # "c/<time>/0/..." (the default chunk key encoding)
-            self._paths[name] = os.path.join(str(self.path), name, *parts[:1], "{}", *parts[2:])
+            self._paths[name] = (os.path.join(str(self.path), name, *parts[:1]), tuple(parts[2:]))
 
     def _choose_compression(self, name, sample, dtype):
         """(encoder, zarr codec) of array ``name`` from its first chunk ``sample``; (None, None) for none."""
@@ -654,7 +660,8 @@ class ZarrRecorder:
         if value.shape != arr.shape[1:]:
             raise ValueError(f"{self.path}/{name}: a sequence's chunk is {value.shape}, the recording holds "
                              f"{arr.shape[1:]}")
-        write_chunk(self._paths[name].format(i), encode_chunk(value, arr.dtype, self._encoders.get(name)),
+        head, tail = self._paths[name]
+        write_chunk(os.path.join(head, str(int(i)), *tail), encode_chunk(value, arr.dtype, self._encoders.get(name)),
                     direct=self._direct)
 
     def _trim(self) -> None:
@@ -798,12 +805,16 @@ def missing_sequences(path, name: str) -> list[int]:
     return open_recording(path).missing(name)
 
 
-def remove_partial_chunks(path) -> list[Path]:
-    """Delete the ``*.partial`` chunk files a writer killed mid-write left in the zarr group at ``path`` (zarr
-    writes each chunk to such a temporary name and renames it; a leftover is never read and never completed).
-    Call it only while no writer is running on ``path``. Returns the files removed."""
+def remove_partial_chunks(path, *, chunks_only: bool = False) -> list[Path]:
+    """Delete the ``*.partial`` files a writer killed mid-write left in the zarr group at ``path`` (zarr writes
+    each file to such a temporary name and renames it; a leftover is never read and never completed). Call it only
+    while no writer is running on ``path``; ``chunks_only`` keeps to the chunk folders (``ARRAY/c/...``), never the
+    metadata a live writer may be renaming into place. Returns the files removed."""
     removed = []
-    for leftover in Path(path).rglob("*.partial"):
+    root = Path(path)
+    for leftover in root.rglob("*.partial"):
+        if chunks_only and "c" not in leftover.relative_to(root).parts[:-1]:
+            continue
         if leftover.is_file():
             try:
                 leftover.unlink()

@@ -743,3 +743,41 @@ def test_the_copying_path_of_a_discrete_device_gives_the_same_chunks(made, tmp_p
     for name in ("cube", "XYZ", "Lab", "dE"):
         np.testing.assert_array_equal(outs[0][name][1], outs[1][name][1])
     assert outs[1]["done"][:].tolist() == [0, 1, 0, 0, 0, 0]
+
+
+def test_a_done_mark_cut_by_a_crash_is_computed_again_not_refused(made, tmp_path):
+    """A kill while a ``done`` mark is written leaves its sequence to compute again: the output stays resumable
+    (the marks go through a temporary renamed into place; one found empty counts as not done)."""
+    from specgpu.batch import prepare_batch, process_sequence
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    out = tmp_path / "b.zarr"
+    job, todo = prepare_batch(root / "rec.zarr", plan, bundle, out)
+    assert process_sequence(job, 0).get("error") is None
+    assert process_sequence(job, 1).get("error") is None
+    mark = out / "done" / "c" / "1"
+    assert mark.is_file() and not list((out / "done").rglob("*.partial"))
+    mark.write_bytes(b"")  # what a kill between creating the file and writing it leaves
+    _, todo = prepare_batch(root / "rec.zarr", plan, bundle, out)
+    assert todo.tolist() == list(range(1, N))
+
+
+def test_a_recording_still_being_written_is_read_as_the_batch_saw_it(made, tmp_path):
+    """A worker opening a source recording that has committed more sequences since the batch started takes it
+    as the batch saw it (its first ``sequences``), not as another recording."""
+    import dataclasses
+
+    from specgpu import batch
+    from specgpu.batch import open_source, prepare_batch
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    job, _ = prepare_batch(root / "rec.zarr", plan, bundle, tmp_path / "b.zarr")
+    earlier = open_source(root / "rec.zarr")
+    earlier.sequences = N - 2  # the recording as a batch started two sequences earlier saw it
+    seen = dataclasses.replace(job, sequences=N - 2, source_id=earlier.content_id)
+    assert seen.source_id != job.source_id
+    state, built = batch._worker_state(seen)
+    assert built and state.source.sequences == N - 2
+    batch._STATE.pop(seen.key, None)

@@ -296,3 +296,16 @@ def test_the_preview_is_colour_sciences_srgb_within_one_code():
     want = (np.clip(want, 0, 1) * 255 + 0.5).astype(np.uint8)
     assert np.abs(sink.image.astype(int) - want).max() <= 1 and sink.image.dtype == np.uint8
     assert tuple(sink.image[0, 0]) == (0, 0, 0)
+
+
+def test_a_folder_name_with_braces_is_taken_as_it_is(tmp_path):
+    """Chunk paths are joined per write: braces in the recording's folder name are neither a format field nor
+    an escape (``{}`` failed, ``{{`` wrote the chunks into another folder)."""
+    rng = np.random.default_rng(3)
+    for name in ("run{}", "run{{0}}"):
+        path = tmp_path / name / "rec.zarr"
+        rec = ZarrRecorder(path, fake_plan(), frames=False, grow=2)
+        rec.write(result(0, rng))
+        rec.close()
+        assert (path / "cube" / "c" / "0" / "0" / "0" / "0").is_file()
+        assert open_recording(path).read("XYZ", 0).shape == (H, W, 3)
