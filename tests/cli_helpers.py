@@ -55,3 +55,12 @@ def tristimulus_rig(d):
     run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
     run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz")
     return d
+
+
+def plan_and_capture(d, plan: str, method: str, *plan_args, scene: str = "colorchecker", seq: str, sequences=None):
+    """In a folder made by :func:`tristimulus_rig`: ``specgpu plan METHOD *plan_args`` into ``d / plan``, then one
+    capture of ``scene`` with it into ``d / seq`` (seed 1); returns ``d``."""
+    run("plan", method, *plan_args, "--calib", d / "calib.npz", "--out", d / plan)
+    run("capture", "--rig", d / "rig.toml", "--plan", d / plan, "--calib", d / "calib.npz", "--scene", scene,
+        "--out", d / seq, "--seed", "1", *(("--sequences", str(sequences)) if sequences else ()))
+    return d

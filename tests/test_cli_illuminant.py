@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cli_helpers import one_line_error, run, tristimulus_rig
+from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
 from specgpu import io
 from specgpu.colorimetry import XYZ_to_Lab
 from specgpu.evaluate import evaluation_illuminant
@@ -24,11 +24,8 @@ NAMES = ("D65", "A", "D50", "E", "FL2")
 def bench_a(tmp_path_factory):
     """The small twin rig with a tristimulus plan for illuminant A (``triA.npz``) and one capture of the chart
     with it (``seqA``)."""
-    d = tristimulus_rig(tmp_path_factory.mktemp("illuminant"))
-    run("plan", "tristimulus", "--illuminant", "A", "--calib", d / "calib.npz", "--out", d / "triA.npz")
-    run("capture", "--rig", d / "rig.toml", "--plan", d / "triA.npz", "--calib", d / "calib.npz", "--scene",
-        "colorchecker", "--out", d / "seqA", "--seed", "1")
-    return d
+    return plan_and_capture(tristimulus_rig(tmp_path_factory.mktemp("illuminant")), "triA.npz", "tristimulus",
+                            "--illuminant", "A", seq="seqA")
 
 
 def test_recover_of_a_plan_for_A_makes_every_output_under_A(bench_a, tmp_path):

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cli_helpers import one_line_error, run, tristimulus_rig
+from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
 from specgpu import io
 from specgpu.colorimetry import XYZ_to_Lab, delta_E
 from specgpu.plans import Plan
@@ -26,11 +26,8 @@ TEN = "CIE 1964 10 Degree Standard Observer"
 def bench_10(tmp_path_factory):
     """The small twin rig with a tristimulus plan for the 10 degree observer (``tri10.npz``) and two sequences of
     the white plate captured with it (``seq10``)."""
-    d = tristimulus_rig(tmp_path_factory.mktemp("observer"))
-    run("plan", "tristimulus", "--observer", TEN, "--calib", d / "calib.npz", "--out", d / "tri10.npz")
-    run("capture", "--rig", d / "rig.toml", "--plan", d / "tri10.npz", "--calib", d / "calib.npz", "--scene",
-        "white", "--out", d / "seq10", "--sequences", "2", "--seed", "1")
-    return d
+    return plan_and_capture(tristimulus_rig(tmp_path_factory.mktemp("observer")), "tri10.npz", "tristimulus",
+                            "--observer", TEN, scene="white", seq="seq10", sequences=2)
 
 
 #: the plate in the field as the white reference: each sequence's decoder rescaled so the plate reads 0.99 of the
@@ -133,11 +130,7 @@ def test_a_batch_of_a_plan_for_the_10_degree_observer_equals_recover_and_records
 @pytest.fixture(scope="module")
 def narrowband(bench_10):
     """A reflectance plan (``nb.npz``) and one capture of the chart with it (``seqnb``)."""
-    d = bench_10
-    run("plan", "narrowband", "--step-nm", "50", "--calib", d / "calib.npz", "--out", d / "nb.npz")
-    run("capture", "--rig", d / "rig.toml", "--plan", d / "nb.npz", "--calib", d / "calib.npz", "--scene",
-        "colorchecker", "--out", d / "seqnb", "--seed", "1")
-    return d
+    return plan_and_capture(bench_10, "nb.npz", "narrowband", "--step-nm", "50", seq="seqnb")
 
 
 def test_a_reflectance_plan_makes_and_records_XYZ_for_the_observer_asked_for(narrowband, tmp_path):
