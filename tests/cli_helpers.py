@@ -64,3 +64,20 @@ def plan_and_capture(d, plan: str, method: str, *plan_args, scene: str = "colorc
     run("capture", "--rig", d / "rig.toml", "--plan", d / plan, "--calib", d / "calib.npz", "--scene", scene,
         "--out", d / seq, "--seed", "1", *(("--sequences", str(sequences)) if sequences else ()))
     return d
+
+
+HOLD = ("import sys, time; from specgpu.locks import output_lock\n"
+        "with output_lock(sys.argv[1]):\n    print('held', flush=True); time.sleep(60)\n")
+
+
+def lock_holder(path):
+    """Another process holding specgpu's output lock on ``path`` (for 60 s, or until killed); returns it once the
+    lock is held."""
+    import os
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-c", HOLD, str(path)], stdout=subprocess.PIPE, text=True,
+                            cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert proc.stdout.readline().strip() == "held"
+    return proc

@@ -11,7 +11,6 @@ import errno
 import os
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import pytest
 
 from specgpu import formats, io, locks
 
-from cli_helpers import one_line_error, run, tristimulus_rig
+from cli_helpers import lock_holder as holder, one_line_error, run, tristimulus_rig
 
 
 @pytest.fixture(scope="module")
@@ -148,17 +147,6 @@ def test_recover_refuses_an_output_on_a_reference_cubes_data_file(base, seq, tmp
     one_line_error(run("recover", seq, "--out", tmp_path / "c.exr", "--delta-e-ref", tmp_path / "ref.hdr",
                        "--delta-e", tmp_path / "ref.img", ok=False), "--delta-e", "ref.img", code=2)
     assert (tmp_path / "ref.img").stat().st_size == (base / "e.img").stat().st_size
-
-
-HOLD = ("import sys, time; from specgpu.locks import output_lock\n"
-        "with output_lock(sys.argv[1]):\n    print('held', flush=True); time.sleep(60)\n")
-
-
-def holder(path):
-    proc = subprocess.Popen([sys.executable, "-c", HOLD, str(path)], stdout=subprocess.PIPE, text=True,
-                            cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    assert proc.stdout.readline().strip() == "held"
-    return proc
 
 
 def refused_while_held(path, *args):

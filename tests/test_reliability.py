@@ -20,7 +20,7 @@ from hypothesis import given, settings, strategies as st
 
 from specgpu import io, locks
 
-from cli_helpers import RIG, one_line_error, run, tristimulus_rig
+from cli_helpers import RIG, lock_holder as _holder, one_line_error, run, tristimulus_rig
 
 
 def hidden(folder):
@@ -277,17 +277,6 @@ def test_temporaries_of_a_killed_writer_are_cleaned(seq, tmp_path):
 
 
 # ---- one writer per output ----------------------------------------------------------------------
-HOLD = ("import sys, time; from specgpu.locks import output_lock\n"
-        "with output_lock(sys.argv[1]):\n    print('held', flush=True); time.sleep(60)\n")
-
-
-def _holder(path):
-    proc = subprocess.Popen([sys.executable, "-c", HOLD, str(path)], stdout=subprocess.PIPE, text=True,
-                            cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    assert proc.stdout.readline().strip() == "held"
-    return proc
-
-
 @pytest.mark.parametrize("command", ["calibrate", "recover", "capture", "plan", "evaluate", "stream", "demo"])
 def test_a_second_writer_refuses_at_once_naming_the_holder(base, seq, tmp_path, command):
     out = {"calibrate": tmp_path / "c.npz", "recover": tmp_path / "c.exr", "capture": tmp_path / "s",
