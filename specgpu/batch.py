@@ -257,10 +257,7 @@ def process_sequence(job: BatchJob, i: int) -> dict:
 
     A failure is returned as ``error`` (one line naming the sequence), not raised: the driver stops the batch
     with that line, and no worker prints a traceback."""
-    try:
-        return _process_sequence(job, int(i))
-    except Exception as exc:  # noqa: BLE001 (reported to the driver as one line)
-        return _error_record(job, int(i), exc)
+    return process_sequences(job, [i])[0]
 
 
 def process_sequences(job: BatchJob, indices) -> list[dict]:
@@ -305,10 +302,6 @@ def _finish_or_record(job: BatchJob, pending) -> dict:
         return _finish_sequence(job, pending)
     except Exception as exc:  # noqa: BLE001
         return _error_record(job, pending.index, exc)
-
-
-def _process_sequence(job: BatchJob, i: int) -> dict:
-    return _finish_sequence(job, _start_sequence(job, i))
 
 
 @dataclass
