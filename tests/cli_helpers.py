@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from click.testing import CliRunner
 
-from specgpu.cli import main
+from specgpu.apps.cli import main
 
 #: a 320 x 240 twin: the paper's rig, small enough for quick CLI round trips
 RIG = "[camera]\nroi_width = 320\nroi_height = 240\n"
@@ -34,10 +34,10 @@ def one_line_error(result, *fragments, code=None):
 
 
 def stream_cli_files(setup, tmp_path):
-    """The rig TOML, calibration and plan of a :func:`specgpu.bench.stream_setup` written under ``tmp_path``;
+    """The rig TOML, calibration and plan of a :func:`specgpu.apps.bench.stream_setup` written under ``tmp_path``;
     returns the ``specgpu stream`` arguments that use them."""
-    from specgpu.calibration import save_calibration
-    from specgpu.plans import save_plan
+    from specgpu.calibration.bundle import save_calibration
+    from specgpu.planning.plans import save_plan
 
     cam = setup.description.camera
     (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
@@ -66,7 +66,7 @@ def plan_and_capture(d, plan: str, method: str, *plan_args, scene: str = "colorc
     return d
 
 
-HOLD = ("import sys, time; from specgpu.locks import output_lock\n"
+HOLD = ("import sys, time; from specgpu.core.locks import output_lock\n"
         "with output_lock(sys.argv[1]):\n    print('held', flush=True); time.sleep(60)\n")
 
 

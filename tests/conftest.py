@@ -7,7 +7,7 @@ import os
 import pytest
 from hypothesis import HealthCheck, settings
 
-from specgpu.runtime import SpecgpuDeviceError, get_queue, list_devices
+from specgpu.engine.runtime import SpecgpuDeviceError, get_queue, list_devices
 
 # Kernel builds make the first example of a property test slow; CI runs fewer examples.
 settings.register_profile("default", deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -33,7 +33,7 @@ def queue(request):
 
 @pytest.fixture(params=["cpu", "gpu"])
 def kernel_variant(request, monkeypatch):
-    """Runs a test once per kernel variant (specgpu.runtime.VARIANTS), forced on whatever device runs it: CI runs
+    """Runs a test once per kernel variant (specgpu.engine.runtime.VARIANTS), forced on whatever device runs it: CI runs
     the GPU kernels on PoCL and the CPU kernels on a GPU."""
     monkeypatch.setenv("SPECGPU_VARIANT", request.param)
     return request.param

@@ -8,7 +8,7 @@ reads OCL_ICD_VENDORS and Oclgrind its OCLGRIND_* checks once, at start).
 
 Before each case it writes ``@@case NAME`` to stderr, so the parent can tell which case an Oclgrind report (also
 written to stderr) belongs to; the results go to stdout as one JSON object per line: the case, the error of each
-output against the float64 reference (specgpu.selftest.compare) and its tolerance.
+output against the float64 reference (specgpu.engine.selftest.compare) and its tolerance.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ DATA = Path(__file__).resolve().parent / "data"
 
 
 def _compare(errors, tolerances, name, got, want, kind, tol):
-    from specgpu.selftest import compare
+    from specgpu.engine.selftest import compare
 
     err, message = compare(name, np.asarray(got), np.asarray(want), kind)
     errors[name] = err if not message else message
@@ -45,7 +45,7 @@ def _frames(rng, K, dtype, high):
 def _linear_case(seed, *, K, B, dtype, high, layout, out_dtype, dark=None, gain=False, saturation=None,
                  nonfinite=False):
     from reference import linear_ref, mask_ref
-    from specgpu.recovery import apply_linear
+    from specgpu.engine.linear_map import apply_linear
 
     def run():
         rng = np.random.default_rng(seed)
@@ -77,7 +77,7 @@ def _linear_case(seed, *, K, B, dtype, high, layout, out_dtype, dark=None, gain=
 def _no_tile():
     """The "gpu" variant's channels-last launch without its local-memory tile (a work-item per output element),
     which the engine takes where the tile does not fit the device's local memory."""
-    from specgpu import engine
+    from specgpu.engine import kernels as engine
 
     saved = engine._TILE_LOCAL_MAX
     engine._TILE_LOCAL_MAX = 0
@@ -103,8 +103,8 @@ def _sqrt_case():
     import pyopencl as cl
 
     from reference import linear_ref, mask_ref
-    from specgpu import engine
-    from specgpu.runtime import get_queue
+    from specgpu.engine import kernels as engine
+    from specgpu.engine.runtime import get_queue
 
     def run():
         queue = get_queue("oclgrind")
@@ -142,7 +142,7 @@ def _random_lab(rng):
 
 def _xyz_to_lab_case():
     from reference import XYZ_to_Lab_ref
-    from specgpu.colorimetry import XYZ_to_Lab
+    from specgpu.engine.colorimetry import XYZ_to_Lab
 
     def run():
         rng = np.random.default_rng(8)
@@ -158,7 +158,7 @@ def _xyz_to_lab_case():
 
 def _delta_e_case(method, single=False):
     from reference import delta_E_ref
-    from specgpu.colorimetry import delta_E
+    from specgpu.engine.colorimetry import delta_E
 
     def run():
         rng = np.random.default_rng(9)
@@ -174,7 +174,7 @@ def _delta_e_case(method, single=False):
 
 def _fused_case(method, single=False):
     from reference import XYZ_to_Lab_ref, delta_E_ref, linear_ref, mask_ref
-    from specgpu.colorimetry import frames_to_delta_E
+    from specgpu.engine.colorimetry import frames_to_delta_E
 
     def run():
         rng = np.random.default_rng(10)
@@ -200,13 +200,13 @@ def _fused_case(method, single=False):
 
 
 def _delta_e_sigma_case():
-    """The first-order dE2000 standard deviation kernel against specgpu.estimators.delta_E_sigma."""
+    """The first-order dE2000 standard deviation kernel against specgpu.planning.estimators.delta_E_sigma."""
     import pyopencl as cl
 
-    from specgpu import engine
-    from specgpu.estimators import delta_E_sigma
-    from specgpu.runtime import get_queue
-    from specgpu.spectra import white_point_XYZ
+    from specgpu.engine import kernels as engine
+    from specgpu.planning.estimators import delta_E_sigma
+    from specgpu.engine.runtime import get_queue
+    from specgpu.core.spectra import white_point_XYZ
 
     def run():
         queue = get_queue("oclgrind")
@@ -277,7 +277,7 @@ def run_cases(names) -> int:
             print(json.dumps({"case": name, "raised": f"{type(error).__name__}: {error}"}), flush=True)
             continue
         print(json.dumps({"case": name, "errors": errors, "tolerances": tolerances}), flush=True)
-    from specgpu import runtime
+    from specgpu.engine import runtime
 
     # the build options of every program made, so the parent can tell which variants and entries ran
     print(json.dumps({"programs": sorted(" ".join(key[2]) for key in runtime._programs)}), flush=True)
@@ -287,7 +287,7 @@ def run_cases(names) -> int:
 def run_race() -> int:
     """The "gpu" variant's channels-last tile with its barrier removed: work-items read tile entries other
     work-items write, unordered. The kernels are a copy with that one line taken out."""
-    from specgpu import runtime
+    from specgpu.engine import runtime
 
     source = runtime.kernel_dir()
     with tempfile.TemporaryDirectory() as tmp:

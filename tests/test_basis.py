@@ -7,7 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from specgpu.basis import (
+from specgpu.planning.basis import (
     COLORCHECKER_24_SETS,
     DEFAULT_WAVELENGTHS,
     REFLECTANCE_SETS,
@@ -21,7 +21,7 @@ from specgpu.basis import (
     save_basis,
     save_npz,
 )
-from specgpu.evaluate import true_patch_spectra
+from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.rig.scene import colorchecker_scene
 
 
@@ -240,7 +240,7 @@ def test_npz_with_a_damaged_member_is_refused(tmp_path, basis):
 
 
 def test_an_interrupted_save_keeps_the_previous_file(tmp_path, monkeypatch):
-    from specgpu.basis import load_npz, save_npz
+    from specgpu.planning.basis import load_npz, save_npz
 
     path = tmp_path / "table.npz"
     digest = save_npz(path, "specgpu.test", 1, {"a": np.arange(3)}, {"k": 1})

@@ -20,13 +20,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from specgpu import io
-from specgpu.batch import run_batch
-from specgpu.bench import stream_setup
-from specgpu.calibration import save_calibration
-from specgpu.cli import main
-from specgpu.plans import save_plan
-from specgpu.recording import ZarrRecorder, open_recording
-from specgpu.stream import Stream
+from specgpu.pipeline.batch import run_batch
+from specgpu.apps.bench import stream_setup
+from specgpu.calibration.bundle import save_calibration
+from specgpu.apps.cli import main
+from specgpu.planning.plans import save_plan
+from specgpu.io.recording import ZarrRecorder, open_recording
+from specgpu.pipeline.stream import Stream
 
 N = 6  # sequences in the recording
 
@@ -64,7 +64,7 @@ def recovered(root, tmp_path, sequence: int, frames=None) -> np.ndarray:
         K = frames.shape[0]
         io.write_sequence(seq, frames, [{"frame_id": k, "pattern_index": k, "exposure_s": 0.004,
                                          "timestamp_s": k * 0.005} for k in range(K)],
-                          __import__("specgpu.plans", fromlist=["load_plan"]).load_plan(root / "plan.npz").hash)
+                          __import__("specgpu.planning.plans", fromlist=["load_plan"]).load_plan(root / "plan.npz").hash)
         shutil.copyfile(root / "plan.npz", seq / "plan.npz")
         shutil.copyfile(root / "calib.npz", seq / "calibration.npz")
     out = tmp_path / f"r{sequence}.npz"
@@ -99,8 +99,8 @@ def test_cli_batch_of_a_recording_equals_recover_and_resumes(made, tmp_path):
 
 
 def test_batch_of_a_sequence_folder_equals_recover_per_sequence(made, tmp_path):
-    from specgpu.calibration import load_calibration
-    from specgpu.plans import load_plan
+    from specgpu.calibration.bundle import load_calibration
+    from specgpu.planning.plans import load_plan
 
     setup, root = made
     report = run_batch(root / "seq", load_plan(root / "plan.npz"), load_calibration(root / "calib.npz"),
@@ -110,8 +110,8 @@ def test_batch_of_a_sequence_folder_equals_recover_per_sequence(made, tmp_path):
     out = open_recording_like(tmp_path / "out.zarr")
     for i in range(3):
         np.testing.assert_array_equal(out["cube"][i], recovered(root, tmp_path, i))
-    from specgpu.colorimetry import delta_E
-    from specgpu.pipeline import to_Lab, to_XYZ
+    from specgpu.engine.colorimetry import delta_E
+    from specgpu.pipeline.recovery import to_Lab, to_XYZ
 
     XYZ = to_XYZ(out["cube"][1], setup.plan)
     np.testing.assert_allclose(out["XYZ"][1], XYZ, rtol=1e-6, atol=1e-7)
@@ -125,8 +125,8 @@ def open_recording_like(path):
 
 
 def test_an_interrupted_batch_resumes_without_recomputing_finished_chunks(made, tmp_path):
-    from specgpu.calibration import load_calibration
-    from specgpu.plans import load_plan
+    from specgpu.calibration.bundle import load_calibration
+    from specgpu.planning.plans import load_plan
 
     _, root = made
     plan, bundle = load_plan(root / "plan.npz"), load_calibration(root / "calib.npz")
@@ -159,8 +159,8 @@ def test_two_workers_each_build_one_context_and_a_killed_worker_loses_nothing(ma
     chunk is reported once, and the output is complete and equal to the undisturbed run."""
     from distributed import Client, LocalCluster
 
-    from specgpu.calibration import load_calibration
-    from specgpu.plans import load_plan
+    from specgpu.calibration.bundle import load_calibration
+    from specgpu.planning.plans import load_plan
 
     _, root = made
     plan, bundle = load_plan(root / "plan.npz"), load_calibration(root / "calib.npz")
@@ -199,7 +199,7 @@ def test_bad_input_is_one_line(made, tmp_path):
     # another plan: different patterns
     from dataclasses import replace
 
-    from specgpu.plans import save_plan as save
+    from specgpu.planning.plans import save_plan as save
 
     other = replace(setup.plan, patterns=setup.plan.patterns[::-1].copy())
     other.__dict__.pop("hash", None)
@@ -302,8 +302,8 @@ def record(setup, path, loops=2):
 
 
 def plan_and_calibration(root):
-    from specgpu.calibration import load_calibration
-    from specgpu.plans import load_plan
+    from specgpu.calibration.bundle import load_calibration
+    from specgpu.planning.plans import load_plan
 
     return load_plan(root / "plan.npz"), load_calibration(root / "calib.npz")
 
@@ -311,7 +311,7 @@ def plan_and_calibration(root):
 def test_a_resumed_batch_refuses_every_changed_result_option(made, tmp_path):
     """An output left by a killed batch (nothing or part done) is resumed only by the same batch: a changed dE
     reference, method, illuminant or output list would mix two batches' results in one output."""
-    from specgpu.batch import prepare_batch
+    from specgpu.pipeline.batch import prepare_batch
 
     _, root = made
     plan, bundle = plan_and_calibration(root)
@@ -336,7 +336,7 @@ def test_a_resumed_batch_refuses_every_changed_result_option(made, tmp_path):
 def test_a_source_replaced_at_the_same_path_is_not_resumed(made, tmp_path):
     """The source is identified by its content: another recording put at its path, a frames chunk replaced, or
     another capture in a sequence folder's place is another source, and its output is not resumed with it."""
-    from specgpu.batch import prepare_batch
+    from specgpu.pipeline.batch import prepare_batch
 
     setup, root = made
     plan, bundle = plan_and_calibration(root)
@@ -372,7 +372,7 @@ def test_a_source_replaced_at_the_same_path_is_not_resumed(made, tmp_path):
 def test_a_missing_chunk_of_a_committed_sequence_is_an_error(made, tmp_path):
     """zarr reads a chunk that is not on disk as fill values: a committed sequence without its chunk is damage,
     an error in open_recording().read and in batch (before the output is made), never zeros decoded."""
-    from specgpu.recording import missing_sequences
+    from specgpu.io.recording import missing_sequences
 
     _, root = made
     src = tmp_path / "cap.zarr"
@@ -398,7 +398,7 @@ def test_a_sequence_folder_source_holds_one_sequence_at_a_time(made, tmp_path):
     checksum)."""
     import tracemalloc
 
-    from specgpu.batch import open_source
+    from specgpu.pipeline.batch import open_source
 
     setup, root = made
     frames, _, _ = io.read_sequence(root / "seq")
@@ -461,7 +461,7 @@ def test_frames_of_another_size_are_refused_before_the_output_exists(made, tmp_p
     any worker started."""
     import json
 
-    from specgpu.recording import consolidate
+    from specgpu.io.recording import consolidate
 
     _, root = made
     src = tmp_path / "edited.zarr"
@@ -485,8 +485,8 @@ def test_an_output_killed_while_being_created_is_resumed(made, tmp_path, monkeyp
 
     import zarr
 
-    from specgpu import batch
-    from specgpu.batch import BATCH_FORMAT, prepare_batch
+    from specgpu.pipeline import batch
+    from specgpu.pipeline.batch import BATCH_FORMAT, prepare_batch
 
     _, root = made
     plan, bundle = plan_and_calibration(root)
@@ -517,7 +517,7 @@ def test_an_output_killed_while_being_created_is_resumed(made, tmp_path, monkeyp
 def test_resuming_removes_the_partial_chunks_a_killed_run_left(made, tmp_path):
     """zarr writes each chunk to ``*.partial`` and renames it: a kill -9 mid-write leaves that file; resuming the
     batch removes it (nothing else ever would)."""
-    from specgpu.batch import prepare_batch
+    from specgpu.pipeline.batch import prepare_batch
 
     _, root = made
     plan, bundle = plan_and_calibration(root)
@@ -529,7 +529,7 @@ def test_resuming_removes_the_partial_chunks_a_killed_run_left(made, tmp_path):
     prepare_batch(root / "rec.zarr", plan, bundle, out)
     assert not partial.exists() and not list(out.rglob("*.partial"))
     # a source recording whose writer was killed: its leftovers go once no live writer holds its lock
-    from specgpu.locks import output_lock
+    from specgpu.core.locks import output_lock
 
     src = tmp_path / "src.zarr"
     shutil.copytree(root / "rec.zarr", src)
@@ -571,8 +571,8 @@ def test_a_full_disk_on_a_worker_is_one_line_naming_the_output(made, tmp_path, m
     never zarr's temporary chunk file, and the sequence is not marked done."""
     import errno
 
-    from specgpu import batch
-    from specgpu.batch import prepare_batch, process_sequence
+    from specgpu.pipeline import batch
+    from specgpu.pipeline.batch import prepare_batch, process_sequence
 
     _, root = made
     plan, bundle = plan_and_calibration(root)
@@ -597,7 +597,7 @@ def test_a_full_disk_on_a_worker_is_one_line_naming_the_output(made, tmp_path, m
 def test_any_changed_identity_entry_is_named_with_both_values(data):
     """The resume check: the same identity resumes; any one entry changed is refused naming its option and both
     values (the dE reference by its label, decided by its checksum)."""
-    from specgpu.batch import _IDENTITY_NAMES, _identity_mismatch
+    from specgpu.pipeline.batch import _IDENTITY_NAMES, _identity_mismatch
 
     text = st.text(st.characters(min_codepoint=48, max_codepoint=122), min_size=1, max_size=12)
     identity = {key: data.draw(text, key) for key in _IDENTITY_NAMES}
@@ -627,8 +627,8 @@ def test_the_one_pass_batch_equals_recover_and_its_colour_steps_saturated_pixels
     same frames, as the stream does): each output equals `specgpu recover SEQ --sequence i` and the offline colour
     steps applied to its cube (to_XYZ, to_Lab, delta_E) to float rounding, and a pixel with a saturated sample is
     NaN in every output, as recover makes it."""
-    from specgpu.colorimetry import delta_E
-    from specgpu.pipeline import to_Lab, to_XYZ
+    from specgpu.engine.colorimetry import delta_E
+    from specgpu.pipeline.recovery import to_Lab, to_XYZ
 
     setup, root = made
     plan, bundle = plan_and_calibration(root)
@@ -665,7 +665,7 @@ def test_several_sequences_per_task_are_each_marked_done_and_a_failure_ends_the_
     """One Dask task computes several sequences (its own cost amortised): each is written and marked done on its
     own, in order; a sequence that fails ends the task with its one-line error, the sequences before it stay done
     and those after it are left to a resumed run."""
-    from specgpu.batch import _task_groups, prepare_batch, process_sequences
+    from specgpu.pipeline.batch import _task_groups, prepare_batch, process_sequences
 
     _, root = made
     plan, bundle = plan_and_calibration(root)
@@ -693,7 +693,7 @@ def test_the_batch_applies_recovers_frame_corrections(made, tmp_path):
     equal recover's (and its to_XYZ) to float rounding, and differ from an uncorrected decode."""
     from dataclasses import replace
 
-    from specgpu.pipeline import read_capture, recover, to_XYZ
+    from specgpu.pipeline.recovery import read_capture, recover, to_XYZ
 
     setup, root = made
     plan, b = plan_and_calibration(root)
@@ -726,7 +726,7 @@ def test_the_batch_applies_recovers_frame_corrections(made, tmp_path):
 def test_the_copying_path_of_a_discrete_device_gives_the_same_chunks(made, tmp_path):
     """On a discrete device the frames are copied to the device and the results back (no mapping): forced here on
     the CPU device, the chunks equal those of the zero-copy path."""
-    from specgpu.batch import _decoder, _worker_state, prepare_batch, process_sequence
+    from specgpu.pipeline.batch import _decoder, _worker_state, prepare_batch, process_sequence
 
     _, root = made
     plan, bundle = plan_and_calibration(root)
@@ -748,7 +748,7 @@ def test_the_copying_path_of_a_discrete_device_gives_the_same_chunks(made, tmp_p
 def test_a_done_mark_cut_by_a_crash_is_computed_again_not_refused(made, tmp_path):
     """A kill while a ``done`` mark is written leaves its sequence to compute again: the output stays resumable
     (the marks go through a temporary renamed into place; one found empty counts as not done)."""
-    from specgpu.batch import prepare_batch, process_sequence
+    from specgpu.pipeline.batch import prepare_batch, process_sequence
 
     _, root = made
     plan, bundle = plan_and_calibration(root)
@@ -768,8 +768,8 @@ def test_a_recording_still_being_written_is_read_as_the_batch_saw_it(made, tmp_p
     as the batch saw it (its first ``sequences``), not as another recording."""
     import dataclasses
 
-    from specgpu import batch
-    from specgpu.batch import open_source, prepare_batch
+    from specgpu.pipeline import batch
+    from specgpu.pipeline.batch import open_source, prepare_batch
 
     _, root = made
     plan, bundle = plan_and_calibration(root)

@@ -9,8 +9,8 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.bench import TOLERANCES, parse_sizes, run_bench
-from specgpu.cli import main
+from specgpu.apps.bench import TOLERANCES, parse_sizes, run_bench
+from specgpu.apps.cli import main
 
 CASES = {
     ("cube_float32", "planar"), ("cube_float32", "interleaved"),

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.calibration import (
+from specgpu.calibration.bundle import (
     CalibrationBundle,
     CalibrationRig,
     TwinCalibrationRig,
@@ -21,7 +21,7 @@ from specgpu.calibration import (
     save_calibration,
     spectral_loop,
 )
-from specgpu.plans import make_plan
+from specgpu.planning.plans import make_plan
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.light import LightParameters
@@ -214,7 +214,7 @@ def test_distribute_counts_property(spec, rows):
 
 # ---- a calibration that holds on an imperfect bench ----------------------------------------------------------
 def test_calibration_error_against_the_truth(calibrated, oracle):
-    from specgpu.calibration import calibration_error
+    from specgpu.calibration.bundle import calibration_error
 
     good = calibration_error(calibrated, DESC)
     assert good["rms_relative"] < 0.004 and good["rms_centroid_nm"] < 0.2
@@ -232,7 +232,7 @@ def lab_calibrated():
 
 
 def test_calibration_holds_on_the_lab_bench(lab_calibrated):
-    from specgpu.calibration import calibration_error
+    from specgpu.calibration.bundle import calibration_error
     from specgpu.rig.light import ProgrammableLight
 
     desc, bundle = lab_calibrated
@@ -276,7 +276,7 @@ def test_wavelength_dependent_flat_field(oracle):
 
 
 def test_tabulated_line_shape_reproduces_a_gaussian_slit():
-    from specgpu.calibration import _gaussian_columns, _tabulated_columns
+    from specgpu.calibration.bundle import _gaussian_columns, _tabulated_columns
 
     grid = np.arange(380.0, 781.0)
     centres = np.array([420.3, 555.0, 689.7])
@@ -298,7 +298,7 @@ def lab_measured(lab_calibrated):
 def test_measured_line_shape_follows_the_lab_slit(lab_measured):
     """The lab slit (flat-topped, FWHM growing with wavelength): the line tabulated from the probe scans cuts the
     model's band-shape error several-fold and changes neither the band responses nor the map."""
-    from specgpu.calibration import calibration_error
+    from specgpu.calibration.bundle import calibration_error
 
     desc, gaussian, measured = lab_measured
     assert measured.reports["slit_model"] == "measured" and gaussian.reports["slit_model"] == "gaussian"

@@ -16,7 +16,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from specgpu import io
-from specgpu.pipeline import INCOMPLETE_MARKER
+from specgpu.io import files as io_files
+from specgpu.pipeline.recovery import INCOMPLETE_MARKER
 
 from cli_helpers import one_line_error, run, tristimulus_rig
 
@@ -36,7 +37,7 @@ def capture_args(base, out):
 
 def stop_after(monkeypatch, n, error):
     """capture_plan raises ``error`` once ``n`` sequences have been handed to the writer."""
-    import specgpu.pipeline as pipeline
+    import specgpu.pipeline.recovery as pipeline
 
     real = pipeline.capture_plan
 
@@ -54,7 +55,7 @@ def stop_after(monkeypatch, n, error):
 
 
 def K_of(base):
-    from specgpu.plans import load_plan
+    from specgpu.planning.plans import load_plan
 
     return load_plan(base / "tri.npz").K
 
@@ -81,7 +82,7 @@ def test_interrupted_capture_keeps_its_complete_sequences(base, tmp_path, monkey
 def test_disk_full_mid_sequence_keeps_the_complete_ones_and_drops_the_partial(base, tmp_path, monkeypatch):
     out = tmp_path / "seq"
     K = K_of(base)
-    real = io._write_tiff
+    real = io_files._write_tiff
     calls = [0]
 
     def filling(path, frame):
@@ -90,7 +91,7 @@ def test_disk_full_mid_sequence_keeps_the_complete_ones_and_drops_the_partial(ba
             raise OSError(errno.ENOSPC, "No space left on device", str(path))
         return real(path, frame)
 
-    monkeypatch.setattr(io, "_write_tiff", filling)
+    monkeypatch.setattr(io_files, "_write_tiff", filling)
     result = run(*capture_args(base, out), ok=False)
     one_line_error(result, "No space left")
     assert f"kept 2 of {SEQUENCES} sequences" in result.output
@@ -101,7 +102,7 @@ def test_disk_full_mid_sequence_keeps_the_complete_ones_and_drops_the_partial(ba
 
 def test_a_capture_with_no_complete_sequence_leaves_nothing(base, tmp_path, monkeypatch):
     out = tmp_path / "seq"
-    import specgpu.pipeline as pipeline
+    import specgpu.pipeline.recovery as pipeline
 
     def failing(*args, **kwargs):
         raise RuntimeError("camera lost")
@@ -115,10 +116,10 @@ def killed_capture(base, folder: Path, monkeypatch, sequences: int = 3, extra_fr
     """The state ``kill -9`` leaves: ``sequences`` journaled sequences, ``extra_frames`` frames of the next one,
     no sequence.json (the cleanup the kill prevented is switched off). The kill itself is drilled in
     test_crash_drills.py."""
-    import specgpu.cli as cli
+    import specgpu.apps.cli as cli
 
     K = K_of(base)
-    real = io._write_tiff
+    real = io_files._write_tiff
     calls = [0]
 
     def dying(path, frame):
@@ -128,7 +129,7 @@ def killed_capture(base, folder: Path, monkeypatch, sequences: int = 3, extra_fr
         return real(path, frame)
 
     with monkeypatch.context() as m:
-        m.setattr(io, "_write_tiff", dying)
+        m.setattr(io_files, "_write_tiff", dying)
         m.setattr(cli, "_keep_or_abort", lambda *a, **k: None)
         run(*capture_args(base, folder), ok=False)
     assert not (folder / io.SEQUENCE_FILE).exists() and (folder / io.JOURNAL_FILE).exists()
@@ -255,7 +256,7 @@ def test_a_plan_of_another_length_is_named_not_taken_for_broken_sequences(base, 
 
 
 def test_an_index_that_does_not_read_back_is_withdrawn(base, killed, tmp_path, monkeypatch):
-    import specgpu.pipeline as pipeline
+    import specgpu.pipeline.recovery as pipeline
 
     out = copy_of(killed, tmp_path)
     journal = (out / io.JOURNAL_FILE).read_bytes()

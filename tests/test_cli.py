@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from click.testing import CliRunner
 
-from specgpu.cli import main
+from specgpu.apps.cli import main
 
 
 def test_info_lists_devices_and_the_choice(queue):

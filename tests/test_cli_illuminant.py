@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 
 from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
 from specgpu import io
-from specgpu.colorimetry import XYZ_to_Lab
-from specgpu.evaluate import evaluation_illuminant
-from specgpu.plans import Plan
+from specgpu.engine.colorimetry import XYZ_to_Lab
+from specgpu.pipeline.evaluate import evaluation_illuminant
+from specgpu.planning.plans import Plan
 
 NAMES = ("D65", "A", "D50", "E", "FL2")
 
@@ -92,7 +92,7 @@ def test_a_reflectance_cube_colours_are_evaluated_under_the_illuminant_they_were
 
 
 def test_a_stream_of_a_plan_for_A_records_A_and_its_colours_under_A(bench_a, tmp_path):
-    from specgpu.recording import open_recording
+    from specgpu.io.recording import open_recording
 
     d = bench_a
     args = ["stream", "--rig", d / "rig.toml", "--plan", d / "triA.npz", "--calib", d / "calib.npz", "--scene",
@@ -125,8 +125,8 @@ def test_a_batch_of_a_plan_for_A_computes_and_records_its_colours_under_A(bench_
 def test_the_stream_preview_shows_a_white_under_A_as_white(tmp_path):
     from types import SimpleNamespace
 
-    from specgpu.spectra import white_point_XYZ
-    from specgpu.stream import PreviewSink
+    from specgpu.core.spectra import white_point_XYZ
+    from specgpu.pipeline.stream import PreviewSink
 
     XYZ = np.broadcast_to(0.5 * white_point_XYZ("A"), (4, 4, 3)).astype(np.float32)
     sink = PreviewSink(tmp_path / "preview.png", interval_s=0.0, illuminant="A", background=False)
@@ -137,8 +137,8 @@ def test_the_stream_preview_shows_a_white_under_A_as_white(tmp_path):
 
 
 def test_the_demo_files_of_a_plan_for_A_record_A(bench_a, tmp_path):
-    from specgpu.demo import _evaluate
-    from specgpu.pipeline import read_capture, recover
+    from specgpu.apps.demo import _evaluate
+    from specgpu.pipeline.recovery import read_capture, recover
     from specgpu.rig.scene import colorchecker_scene
 
     folder = read_capture(bench_a / "seqA")

@@ -15,9 +15,9 @@ from hypothesis import strategies as st
 
 from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
 from specgpu import io
-from specgpu.colorimetry import XYZ_to_Lab, delta_E
-from specgpu.plans import Plan
-from specgpu.spectra import DEFAULT_CMFS, OBSERVERS
+from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E
+from specgpu.planning.plans import Plan
+from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS
 
 TEN = "CIE 1964 10 Degree Standard Observer"
 
@@ -41,7 +41,7 @@ def median_Lab(Lab):
 
 def chart_Lab(observer, shape=(240, 320)):
     """Lab per pixel of the colour chart under D65 for ``observer``: what --delta-e-ref colorchecker gives."""
-    from specgpu.evaluate import scene_XYZ
+    from specgpu.pipeline.evaluate import scene_XYZ
     from specgpu.rig.scene import load_scene
 
     return XYZ_to_Lab(scene_XYZ(load_scene("colorchecker", *shape), "D65", observer), "D65", observer=observer)
@@ -90,7 +90,7 @@ def test_recover_refuses_another_observer_than_the_plan_measures_for(bench_10, t
 
 
 def test_a_stream_of_a_plan_for_the_10_degree_observer_records_it_and_agrees_with_recover(bench_10, tmp_path):
-    from specgpu.recording import open_recording
+    from specgpu.io.recording import open_recording
 
     d = bench_10
     args = ["stream", "--rig", d / "rig.toml", "--plan", d / "tri10.npz", "--calib", d / "calib.npz", "--scene",
@@ -134,7 +134,7 @@ def narrowband(bench_10):
 
 
 def test_a_reflectance_plan_makes_and_records_XYZ_for_the_observer_asked_for(narrowband, tmp_path):
-    from specgpu.colorimetry import reflectance_to_XYZ
+    from specgpu.engine.colorimetry import reflectance_to_XYZ
 
     d = narrowband
     for name, extra in (("default", ()), ("ten", ("--observer", TEN))):
@@ -198,8 +198,8 @@ def test_delta_E_sigma_is_relative_to_the_observers_white(k):
     """A grey at ``k`` of an observer's white, with a covariance in proportion to that white, is the same colour
     with the same spread for either observer: its dE2000 sigma is the same only when each is taken relative to
     its own observer's white."""
-    from specgpu.estimators import delta_E_sigma
-    from specgpu.spectra import white_point_XYZ
+    from specgpu.planning.estimators import delta_E_sigma
+    from specgpu.core.spectra import white_point_XYZ
 
     S = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 5.0]]) * 1e-6
     got = {}

@@ -10,7 +10,7 @@ import pytest
 
 from cli_helpers import one_line_error, run, tristimulus_rig
 from specgpu import io
-from specgpu.evaluate import truth_cube
+from specgpu.pipeline.evaluate import truth_cube
 from specgpu.rig.scene import colorchecker_scene, write_scene
 
 STRETCH = "resampled 100 x 120 -> 320 x 240 pixels (stretch, nearest neighbour; aspect ratio 0.8333 -> 1.333)"

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cli_helpers import RIG, one_line_error, run
-from specgpu.cli import main
+from specgpu.apps.cli import main
 
 
 def lines(result):
@@ -97,7 +97,7 @@ def test_stream_help_does_not_ask_for_an_estimator_for_sigma():
 
 
 def test_study_table_prints_no_none():
-    from specgpu.estimators import format_study
+    from specgpu.planning.estimators import format_study
 
     row = {"name": "symmetric-9", "K": 9, "exposure_ms": 6.5, "rmse": (0.03, 0.001), "z": (1.0, 0.0),
            "expected_rmse": None, "rms": None}
@@ -108,7 +108,7 @@ def test_study_table_prints_no_none():
 # ---- info -------------------------------------------------------------------------------------------------------
 
 def test_info_devices_lists_the_opencl_devices_alone():
-    from specgpu.runtime import list_devices
+    from specgpu.engine.runtime import list_devices
 
     result = run("info", "--devices")
     out = lines(result)
@@ -150,12 +150,12 @@ def test_recover_on_a_zarr_recording_points_to_batch(rig, tmp_path):
 def test_read_capture_names_a_recording_without_frames(tmp_path):
     import zarr
 
-    from specgpu.pipeline import read_capture
+    from specgpu.pipeline.recovery import read_capture
 
     group = zarr.open_group(str(tmp_path / "r.zarr"), mode="w", zarr_format=3)
     group.attrs.update({"format": "specgpu.recording", "frames": False})
     with pytest.raises(ValueError, match=r"r\.zarr: a zarr recording without raw frames, not a sequence folder; "
-                                         r"its results are in it \(specgpu\.recording\.open_recording"):
+                                         r"its results are in it \(specgpu\.io\.recording\.open_recording"):
         read_capture(tmp_path / "r.zarr")
     zarr.open_group(str(tmp_path / "other.zarr"), mode="w", zarr_format=3)
     with pytest.raises(ValueError, match=r"other\.zarr: a zarr store, not a sequence folder"):

@@ -1,4 +1,4 @@
-"""colorimetry.cl through specgpu.colorimetry against colour-science, on every device.
+"""colorimetry.cl through specgpu.engine.colorimetry against colour-science, on every device.
 
 Per function, colour-science's four kinds of test: reference values, n-dimensional input, domain (several
 illuminants / observers / grids) and NaN / inf behaviour; plus random and edge inputs against the float64
@@ -26,7 +26,7 @@ from reference import (
     reflectance_to_XYZ_ref,
     sharma_pairs,
 )
-from specgpu.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
+from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
 
 DATA = Path(__file__).parent / "data"
 METHODS = ["CIE 1976", "CIE 1994", "CIE 2000"]

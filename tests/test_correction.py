@@ -8,12 +8,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.calibration import oracle_calibration
-from specgpu.correction import (ambient_index, corrected_decoder, parse_roi, probe_indices, white_gains,
+from specgpu.calibration.bundle import oracle_calibration
+from specgpu.planning.correction import (ambient_index, corrected_decoder, parse_roi, probe_indices, white_gains,
                                 white_reflectance_curve, with_ambient_frame, with_drift_probes)
-from specgpu.evaluate import evaluate_reflectance
-from specgpu.pipeline import SequenceFolder, capture_plan, recover
-from specgpu.plans import make_plan
+from specgpu.pipeline.evaluate import evaluate_reflectance
+from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover
+from specgpu.planning.plans import make_plan
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.realism import Drift, Realism
@@ -114,8 +114,8 @@ def test_white_reflectance_values_and_csv(tmp_path):
 def test_cli_recover_white_roi_outside_frame(setup, tmp_path):
     from click.testing import CliRunner
 
-    from specgpu.cli import main
-    from specgpu.pipeline import save_plan_and_calibration, write_capture
+    from specgpu.apps.cli import main
+    from specgpu.pipeline.recovery import save_plan_and_calibration, write_capture
 
     bundle, plan, scene, _ = setup
     plan_path, cal_path = save_plan_and_calibration(tmp_path, plan, bundle)
@@ -179,7 +179,7 @@ def test_drift_probe_lets_a_three_frame_plan_follow_a_colour_drift(setup):
     """Tristimulus (3 broad frames) under -200 K / -3 % / +5 nm, 4 sequences (the colour fitted once on their mean
     gains): the white's 3 numbers alone cannot tell a cut-on shift from a colour-temperature change; probes at 430
     and 650 nm halve the colour error the drift leaves."""
-    from specgpu.evaluate import evaluate_XYZ
+    from specgpu.pipeline.evaluate import evaluate_XYZ
 
     bundle, _, scene, roi = setup
     plan = make_plan("tristimulus", bundle, illuminant="D65")
@@ -199,7 +199,7 @@ def test_drift_probe_lets_a_three_frame_plan_follow_a_colour_drift(setup):
 
 
 def test_colour_is_fitted_once_on_the_sequences_mean_gains(setup, monkeypatch):
-    import specgpu.correction as corr
+    import specgpu.planning.correction as corr
 
     bundle, plan, scene, roi = setup
     seen = []
@@ -222,8 +222,8 @@ def test_colour_is_fitted_once_on_the_sequences_mean_gains(setup, monkeypatch):
 def test_cli_plan_drift_probe(setup, tmp_path):
     from cli_helpers import one_line_error, run
 
-    from specgpu.calibration import save_calibration
-    from specgpu.plans import load_plan
+    from specgpu.calibration.bundle import save_calibration
+    from specgpu.planning.plans import load_plan
 
     bundle = setup[0]
     cal = tmp_path / "cal.npz"
@@ -240,7 +240,7 @@ def test_cli_plan_drift_probe(setup, tmp_path):
 def test_colour_is_fitted_only_beyond_the_lights_own_fluctuation(setup):
     """With the light's fluctuation measured (as ``calibrate`` does), gains spread within it are one power change
     (per-pattern scaling); a colour tilt well beyond it is fitted (a decoder that is not a column scaling)."""
-    from specgpu.correction import gain_noise
+    from specgpu.planning.correction import gain_noise
 
     bundle, plan, _, _ = setup
     assert gain_noise(plan, bundle) is None  # the oracle bundle measured nothing

@@ -22,8 +22,8 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings, strategies as st
 
 from specgpu import io
-from specgpu.locks import lock_path
-from specgpu.recording import open_recording
+from specgpu.core.locks import lock_path
+from specgpu.io.recording import open_recording
 
 from cli_helpers import one_line_error, run, tristimulus_rig
 
@@ -85,7 +85,7 @@ def test_kill_calibrate(base, delay):
     kill_during(start("calibrate", "--rig", base / "rig.toml", "--out", out), out, delay,
                 lambda: run("calibrate", "--rig", base / "rig.toml", "--out", out, ok=False))
     if out.exists():  # only ever a whole bundle
-        from specgpu.calibration import load_calibration
+        from specgpu.calibration.bundle import load_calibration
 
         load_calibration(out)
     run("calibrate", "--rig", base / "rig.toml", "--out", out)  # the next run completes
@@ -182,7 +182,7 @@ def test_sigterm_drains_a_stream(base, tmp_path):
 
 
 def test_a_second_interrupt_during_the_drain_is_reported_not_obeyed(capsys):
-    from specgpu.cli import _one_interrupt
+    from specgpu.apps.cli import _one_interrupt
 
     with _one_interrupt():
         with pytest.raises(KeyboardInterrupt):

@@ -12,13 +12,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cli_helpers import run
-from specgpu.calibration import load_calibration
-from specgpu.correction import ambient_index
-from specgpu.formats import read_cube_npz
-from specgpu.plans import load_plan
+from specgpu.calibration.bundle import load_calibration
+from specgpu.planning.correction import ambient_index
+from specgpu.io.formats import read_cube_npz
+from specgpu.planning.plans import load_plan
 from specgpu.rig.config import load_rig
 from specgpu.rig.scene import write_scene
-from specgpu.study import LEVEL_EDGES, chart_errors, measured_chart_with_white
+from specgpu.apps.studies import LEVEL_EDGES, chart_errors, measured_chart_with_white
 
 SMALL = "[camera]\nroi_width = 320\nroi_height = 240\n"
 STRIP = 0.95
@@ -85,7 +85,7 @@ def test_no_ambient_on_a_lab_bench_is_flagged(lab):
 def test_calibration_measures_the_light_with_every_mirror_off(lab):
     """The lab calibration finds the room light and off-state (ideal: none), measures the dark level up to the
     longest default exposure, and dark_at reproduces each measured level."""
-    from specgpu.correction import ambient_needed
+    from specgpu.planning.correction import ambient_needed
 
     d, _, _ = lab
     b = load_calibration(d / "calib.npz")
@@ -106,7 +106,7 @@ def test_calibration_measures_the_light_with_every_mirror_off(lab):
 def test_ideal_bench_keeps_its_plans(tmp_path):
     """On the ideal twin (no light with every mirror off) the default plan is unchanged: no ambient frame, and
     recover trusts the calibration's dark."""
-    from specgpu.correction import ambient_needed
+    from specgpu.planning.correction import ambient_needed
 
     (tmp_path / "rig.toml").write_text(SMALL)
     run("calibrate", "--rig", tmp_path / "rig.toml", "--out", tmp_path / "calib.npz")
@@ -123,8 +123,8 @@ def test_ideal_bench_keeps_its_plans(tmp_path):
 
 def test_dark_warning_names_an_exposure_outside_the_measured_range(lab):
     """A bundle measured its dark level at some exposures only: a plan exposed outside them is flagged."""
-    from specgpu.pipeline import SequenceFolder, dark_warning
-    from specgpu.plans import make_plan
+    from specgpu.pipeline.recovery import SequenceFolder, dark_warning
+    from specgpu.planning.plans import make_plan
 
     d, _, _ = lab
     b = load_calibration(d / "calib.npz")
@@ -142,7 +142,7 @@ def test_dark_warning_names_an_exposure_outside_the_measured_range(lab):
 
 @pytest.fixture(scope="module")
 def oracle():
-    from specgpu.calibration import oracle_calibration
+    from specgpu.calibration.bundle import oracle_calibration
     from specgpu.rig.camera import CameraParameters
     from specgpu.rig.config import RigDescription
 

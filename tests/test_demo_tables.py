@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from specgpu.demo import DemoResult, demo_profiles, table1_lines
+from specgpu.apps.demo import DemoResult, demo_profiles, table1_lines
 from specgpu.rig.config import RigDescription
 
 
@@ -49,7 +49,7 @@ def test_table1_expected_columns_for_a_plan_that_records_one():
 
 
 def _small_lab():
-    from specgpu.demo import demo_profiles
+    from specgpu.apps.demo import demo_profiles
     from dataclasses import replace
 
     lab = demo_profiles()["lab"]
@@ -61,12 +61,12 @@ def test_estimator_rows_measured_on_the_chart_against_numpy():
     captured with the corrections, and px_rms against the NumPy RMS of the recovery's error over the patches."""
     import numpy as np
 
-    from specgpu.calibration import calibrate
-    from specgpu.demo import ESTIMATOR_ROWS
-    from specgpu.estimators import default_prior, study_plans
-    from specgpu.evaluate import truth_cube
-    from specgpu.pipeline import EVALUATION_CHART, default_basis
-    from specgpu.study import chart_with_white, measure_methods
+    from specgpu.calibration.bundle import calibrate
+    from specgpu.apps.demo import ESTIMATOR_ROWS
+    from specgpu.planning.estimators import default_prior, study_plans
+    from specgpu.pipeline.evaluate import truth_cube
+    from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis
+    from specgpu.apps.studies import chart_with_white, measure_methods
 
     desc = _small_lab()
     bundle = calibrate(desc, seed=0)

@@ -7,11 +7,11 @@ import sys
 import numpy as np
 import pytest
 
-from specgpu import design as D
-from specgpu import estimators as E
-from specgpu.calibration import oracle_calibration
-from specgpu.plans import make_plan
-from specgpu.recovery import apply_linear
+from specgpu.planning import design as D
+from specgpu.planning import estimators as E
+from specgpu.calibration.bundle import oracle_calibration
+from specgpu.planning.plans import make_plan
+from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.twin import TwinRig
@@ -83,7 +83,7 @@ def test_optimal_plan_recovers_the_held_out_chart_noise_free(bundle, optimal6):
     rig.load_sequence(optimal6.patterns)
     frames = np.stack([rig.expected_frame(k) for k in range(optimal6.K)])
     y = apply_linear(frames, optimal6.A, bundle.dark_at(optimal6.exposure_s), bundle.flat_field)
-    from specgpu.evaluate import truth_cube
+    from specgpu.pipeline.evaluate import truth_cube
 
     mask = np.any(list(scene.masks.values()), axis=0)
     err = np.sqrt(((y - truth_cube(scene, optimal6.output_wavelengths)) ** 2).mean(axis=-1))[mask].mean()
@@ -136,7 +136,7 @@ def test_hadamard_recovers_like_narrowband_and_gains_snr():
 
 
 def test_cli_plan_optimal_refusals(tmp_path, bundle):
-    from specgpu.calibration import save_calibration
+    from specgpu.calibration.bundle import save_calibration
 
     cal = tmp_path / "cal.npz"
     save_calibration(cal, bundle)

@@ -1,4 +1,4 @@
-"""ENVI cubes (specgpu.io): written for and checked by Spectral Python, read from it, refused in one line."""
+"""ENVI cubes (specgpu.io.files): written for and checked by Spectral Python, read from it, refused in one line."""
 
 from __future__ import annotations
 
@@ -111,7 +111,7 @@ def test_fuzzed_headers_give_a_cube_or_one_line(tmp_path_factory, body, prefix):
 def test_an_envi_scene_is_accepted_wherever_a_scene_is(tmp_path):
     from click.testing import CliRunner
 
-    from specgpu.cli import main
+    from specgpu.apps.cli import main
 
     scene = load_scene("colorchecker", 240, 320)
     io.write_cube(tmp_path / "chart.hdr", scene.reflectance, scene.wavelengths, interleave="bil")

@@ -6,11 +6,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu import estimators as E
-from specgpu.calibration import oracle_calibration
-from specgpu.pipeline import capture_plan
-from specgpu.plans import load_plan, make_plan, save_plan
-from specgpu.recovery import apply_linear
+from specgpu.planning import estimators as E
+from specgpu.calibration.bundle import oracle_calibration
+from specgpu.pipeline.recovery import capture_plan
+from specgpu.planning.plans import load_plan, make_plan, save_plan
+from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 
@@ -230,7 +230,7 @@ def test_sigma_map_needs_a_noise_model(bundle):
 
 def test_sigma_z_scores_on_the_twin(bundle, prior):
     """Standardised errors of a Wiener symmetric-9 recovery of the held-out chart on the noisy twin."""
-    from specgpu.evaluate import truth_cube
+    from specgpu.pipeline.evaluate import truth_cube
 
     names, wl, spec = E.held_out_spectra()
     scene = E.patch_scene(names, wl, spec, H, W)
@@ -253,7 +253,7 @@ def test_sigma_z_scores_on_the_twin(bundle, prior):
 def test_delta_e_sigma_against_monte_carlo():
     import colour
 
-    from specgpu.colorimetry import XYZ_to_Lab
+    from specgpu.engine.colorimetry import XYZ_to_Lab
 
     rng = np.random.default_rng(1)
     xyz = np.array([[0.3, 0.25, 0.2], [0.1, 0.12, 0.4], [0.6, 0.55, 0.3]])
@@ -308,7 +308,7 @@ def test_study_rows_on_the_lab_profile_with_corrections():
     recovery's error and the sigma above the ambient frame still agree (z std near 1)."""
     from dataclasses import replace
 
-    from specgpu.calibration import calibrate
+    from specgpu.calibration.bundle import calibrate
     from specgpu.rig.config import rig_from_dict
     from specgpu.rig.scene import white_tile_roi
 
@@ -392,8 +392,8 @@ def _spread_over_sigma(plan, bundle, scene, draws, seed):
     """Per brightness quintile (darkest first): sqrt(mean spread^2 / mean predicted variance) of the recoveries of
     ``draws`` noise draws, recovered and given their sigma as ``recover --sigma`` does; and the same with the
     light's fluctuation left out of the prediction."""
-    from specgpu.correction import ambient_index
-    from specgpu.pipeline import SequenceFolder, recover, uncertainty
+    from specgpu.planning.correction import ambient_index
+    from specgpu.pipeline.recovery import SequenceFolder, recover, uncertainty
 
     ys, var, var_nl = [], [], []
     dark = bundle.dark_at(plan.exposure_s)
@@ -422,7 +422,7 @@ def test_sigma_holds_for_a_multiplexed_plan_in_bright_pixels(bundle):
     (or taken at the prior's mean signal) the bright pixels' spread is twice the sigma. The fluctuation is common
     to every pixel of a frame, so the bright quintile sees only draws x K independent draws of it: its bounds are
     wide (about +-12 % at 1 sigma for 20 draws), the failure they catch is 2x."""
-    from specgpu.design import plan_hadamard
+    from specgpu.planning.design import plan_hadamard
     from specgpu.rig.scene import colorchecker_scene
 
     plan = plan_hadamard(bundle, bands=7)
@@ -456,7 +456,7 @@ def test_sigma_holds_with_an_ambient_frame_in_dark_pixels(bundle):
     """A plan with an ambient frame subtracts it from every frame: its own noise is in every output and counts as
     much as a frame's own read noise in the dark pixels of a narrowband plan (one frame per output); without it the
     darkest fifth's spread is about 1.3 times the sigma."""
-    from specgpu.correction import with_ambient_frame
+    from specgpu.planning.correction import with_ambient_frame
     from specgpu.rig.scene import colorchecker_scene
 
     plan = make_plan("narrowband", bundle, step_nm=25.0)

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from hw_fakes import Buffer, NodeMap, TimeoutException
-from specgpu.calibration import CalibrationRig, _rig, calibrate, oracle_calibration
+from specgpu.calibration.bundle import CalibrationRig, _rig, calibrate, oracle_calibration
 from specgpu.hardware.dlpc900 import DMDLayout, SimulatedDLPC900
 from specgpu.hardware.errors import BackendMissing
 from specgpu.hardware.rig import open_calibration_rig, open_hardware
-from specgpu.plans import make_plan
+from specgpu.planning.plans import make_plan
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.light import ProgrammableLight
@@ -234,7 +234,7 @@ def test_missing_spectrometer_backend_is_one_clear_error(tmp_path):
 
 
 def test_twin_and_hardware_rigs_share_one_interface():
-    from specgpu.calibration import TwinCalibrationRig
+    from specgpu.calibration.bundle import TwinCalibrationRig
 
     assert isinstance(TwinCalibrationRig(DESC), CalibrationRig)  # the hardware rig's check is above
 
@@ -245,8 +245,8 @@ def test_cli_calibrate_takes_the_hardware_path(tmp_path, monkeypatch):
     from click.testing import CliRunner
 
     import specgpu.hardware.rig as hw_rig
-    from specgpu.calibration import load_calibration
-    from specgpu.cli import main
+    from specgpu.calibration.bundle import load_calibration
+    from specgpu.apps.cli import main
     from specgpu.rig.config import load_rig
 
     real = hw_rig.open_calibration_rig

@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from hw_fakes import FakeCamera
-from specgpu.bench import offline_maps, stream_setup
+from specgpu.apps.bench import offline_maps, stream_setup
 from specgpu.hardware.dlpc900 import DMDLayout, SimulatedDLPC900
 from specgpu.rig.twin import TwinRig
 
@@ -45,11 +45,11 @@ class TwinBench:
 
 def test_cli_stream_on_the_simulated_hardware_rig(setup, tmp_path, monkeypatch):
     import specgpu.hardware.rig as hw_rig
-    from specgpu.calibration import save_calibration
-    from specgpu.cli import main
-    from specgpu.plans import save_plan
+    from specgpu.calibration.bundle import save_calibration
+    from specgpu.apps.cli import main
+    from specgpu.planning.plans import save_plan
     from specgpu.rig.scene import colorchecker_scene
-    from specgpu.recording import open_recording
+    from specgpu.io.recording import open_recording
 
     cam = setup.description.camera
     real = hw_rig.open_hardware

@@ -1,4 +1,4 @@
-"""specgpu.io: every file format round trip, band order, oiiotool interop, bad input (one line each)."""
+"""specgpu.io.files: every file format round trip, band order, oiiotool interop, bad input (one line each)."""
 
 from __future__ import annotations
 

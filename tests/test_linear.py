@@ -10,8 +10,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from reference import linear_ref, mask_ref
-from specgpu import runtime
-from specgpu.recovery import apply_linear
+from specgpu.engine import runtime
+from specgpu.engine.linear_map import apply_linear
 
 EPS32 = np.finfo(np.float32).eps
 
@@ -285,7 +285,7 @@ def test_gpu_channels_last_without_tile_per_output_element(queue, monkeypatch, K
     """The "gpu" variant writes channels last through a local-memory tile where it fits and with a work-item per
     output element where it does not: the second path, forced, against the reference (dark, gain, mask), and
     equal to the tiled one."""
-    from specgpu import engine
+    from specgpu.engine import kernels as engine
 
     monkeypatch.setenv("SPECGPU_VARIANT", "gpu")
     rng = np.random.default_rng(K * 1000 + B)
@@ -314,7 +314,7 @@ def test_pinned_row_chunked_transfers_equal_the_direct_path(queue, monkeypatch, 
     """The discrete-device path (pinned staging, row chunks on upload / compute / read-back queues), forced on
     any device: the same results and mask as the direct path, for chunks of one row, of an uneven number of rows
     and of the whole image, with per-frame dark, gain and saturation."""
-    from specgpu import transfer
+    from specgpu.engine import transfer
 
     rng = np.random.default_rng(chunk_rows)
     K, B, shape = 5, 7, (11, 13)
@@ -345,7 +345,7 @@ def test_pinned_row_chunked_transfers_equal_the_direct_path(queue, monkeypatch, 
 
 
 def test_transfer_mode_by_device_and_override(queue, monkeypatch):
-    from specgpu import transfer
+    from specgpu.engine import transfer
 
     monkeypatch.delenv("SPECGPU_TRANSFER", raising=False)
     assert transfer.transfer_mode(queue.device) == ("pinned" if runtime.is_discrete(queue.device) else "direct")
@@ -359,7 +359,7 @@ def test_transfer_mode_by_device_and_override(queue, monkeypatch):
 def test_prepared_launches_equal_the_engine_calls(queue, out_layout, out_dtype):
     """The stream's prepared launches (a kernel object of its own, fixed arguments set once) give what the
     engine's calls give, launch after launch with new frames, in the variant of the test (tests/conftest.py)."""
-    from specgpu import engine
+    from specgpu.engine import kernels as engine
 
     rng = np.random.default_rng(out_layout * 2 + (out_dtype == np.float16))
     K, B, n = 9, 7, 1001

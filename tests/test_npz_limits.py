@@ -13,8 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from specgpu import formats
-from specgpu.basis import load_npz, save_npz
+from specgpu.io import formats
+from specgpu.planning.basis import load_npz, save_npz
 from specgpu.rig.scene import read_scene
 
 

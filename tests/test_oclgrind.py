@@ -10,7 +10,7 @@ Skipped, with the reason, where Oclgrind is not installed (Debian / Ubuntu: ``ap
 
 Two Oclgrind 21.10 defects are reproduced here with reduced kernels (tests/data/oclgrind_defects.cl), so that
 what specgpu does about them stays justified: a vector ``c ? 1 : 0`` evaluates to 255 per true lane once clang
-has optimised it (specgpu.runtime builds for Oclgrind with -cl-opt-disable), and multi-lane vector components
+has optimised it (specgpu.engine.runtime builds for Oclgrind with -cl-opt-disable), and multi-lane vector components
 crash its uninitialised-value check (kernels/common.h builds vectors from single lanes).
 """
 
@@ -158,7 +158,7 @@ def test_a_missing_barrier_is_reported(oclgrind_env):
 def test_oclgrind_zero_extends_vector_booleans_to_255(oclgrind_env):
     """The simulator's defect behind the "cpu" variant's wrong masks, reduced (tests/data/oclgrind_defects.cl):
     optimised, ``v >= level ? (int8)(1) : (int8)(0)`` comes out 255 where OpenCL C (and PoCL, see the test below)
-    gives 1, while the explicit select() gives 1; unoptimised, both give 1, which is why specgpu.runtime builds
+    gives 1, while the explicit select() gives 1; unoptimised, both give 1, which is why specgpu.engine.runtime builds
     with -cl-opt-disable for Oclgrind. Should a later Oclgrind fix it, the first assertion fails and that option
     can go."""
     proc, reports = run_worker(oclgrind_env, "vector_bool", checks={})
@@ -206,7 +206,7 @@ def test_split_sincos_gives_the_same_ciede2000(queue):
     import pyopencl.array as cla
 
     from reference import random_Lab
-    from specgpu.runtime import get_kernel
+    from specgpu.engine.runtime import get_kernel
 
     rng = np.random.default_rng(12)
     n = 1001
@@ -224,12 +224,12 @@ def test_split_sincos_gives_the_same_ciede2000(queue):
 
 
 def test_nv_attributes_are_asked_only_of_devices_that_report_them():
-    """pyopencl's kernel invoker asks every device for NVIDIA's compute capability; specgpu.runtime makes that
+    """pyopencl's kernel invoker asks every device for NVIDIA's compute capability; specgpu.engine.runtime makes that
     query only of devices with the cl_nv_device_attribute_query extension (the others would answer
     CL_INVALID_VALUE, which Oclgrind's API check reports once per kernel object)."""
     import pyopencl.characterize as characterize
 
-    import specgpu.runtime  # noqa: F401  (installs the guard)
+    import specgpu.engine.runtime  # noqa: F401  (installs the guard)
 
     class Device:
         """Answers the NVIDIA queries as a real device does: with an error unless it has the extension."""

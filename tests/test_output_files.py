@@ -17,7 +17,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specgpu import formats, io, locks
+from specgpu import io
+from specgpu.io import files as io_files
+
+from specgpu.io import formats
+
+from specgpu.core import locks
 
 from cli_helpers import lock_holder as holder, one_line_error, run, tristimulus_rig
 
@@ -75,7 +80,7 @@ def test_every_output_gets_the_mode_a_plain_open_gives(base, seq, tmp_path, umas
         io.write_cube(out / "e.hdr", cube, wl)  # ENVI: header and data file
         io.write_cube(out / "c.npz", cube[:8, :8], wl)
         # the projector study's renderings
-        io._write_png(out / "projector.png", np.zeros((4, 4, 3), np.uint8), {"specgpu:illuminant": "A"})
+        io_files._write_png(out / "projector.png", np.zeros((4, 4, 3), np.uint8), {"specgpu:illuminant": "A"})
         reference = out / "plain.txt"
         with open(reference, "w") as fh:
             fh.write("what open() gives")

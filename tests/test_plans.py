@@ -9,16 +9,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.basis import COLORCHECKER_24_SETS, load_reflectances, pca_basis
-from specgpu.calibration import oracle_calibration
-from specgpu.plans import (
+from specgpu.planning.basis import COLORCHECKER_24_SETS, load_reflectances, pca_basis
+from specgpu.calibration.bundle import oracle_calibration
+from specgpu.planning.plans import (
     PLAN_METHODS,
     Plan,
     load_plan,
     make_plan,
     save_plan,
 )
-from specgpu.recovery import apply_linear
+from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.light import LightParameters

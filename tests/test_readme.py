@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from cli_helpers import RIG, run
-from specgpu.cli import main
+from specgpu.apps.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()

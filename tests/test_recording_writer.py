@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from specgpu import recording
-from specgpu.recording import ZarrRecorder, check_write_rate, open_recording, probe_write_rate
-from specgpu.stream import PreviewSink, StreamResult
+from specgpu.io import recording
+from specgpu.io.recording import ZarrRecorder, check_write_rate, open_recording, probe_write_rate
+from specgpu.pipeline.stream import PreviewSink, StreamResult
 
 # 1 MiB and more per chunk (frames 1.1 MB, cube 6.7 MB), sizes that are not a multiple of the 4 KiB direct-I/O block
 H, W, K, B = 241, 333, 7, 21
@@ -204,7 +204,7 @@ def test_check_write_rate_refuses_with_the_figures():
 
 @pytest.fixture(scope="module")
 def setup():
-    from specgpu.bench import stream_setup
+    from specgpu.apps.bench import stream_setup
 
     return stream_setup(320, 240, sequences=2, output_step_nm=10.0)
 
@@ -212,7 +212,7 @@ def setup():
 def test_cli_stream_refuses_a_disk_too_slow_before_it_starts(setup, tmp_path, monkeypatch):
     from cli_helpers import one_line_error, stream_cli_files
 
-    from specgpu.cli import main
+    from specgpu.apps.cli import main
 
     args = stream_cli_files(setup, tmp_path)
     monkeypatch.setattr(recording, "probe_write_rate", lambda path, *a, **k: 1e3)  # a fake slow disk
@@ -263,7 +263,7 @@ def test_write_sequence_chunk_writes_what_zarr_writes(tmp_path, compressors):
     import zarr
     from zarr.codecs import Crc32cCodec, ZstdCodec
 
-    from specgpu.recording import _blosc, write_sequence_chunk
+    from specgpu.io.recording import _blosc, write_sequence_chunk
 
     made = {"crc32c": lambda: Crc32cCodec(), "zstd": lambda: ZstdCodec(level=1),
             "blosc-lz4": lambda: _blosc("blosc-lz4", 4)[1]}

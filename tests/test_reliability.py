@@ -18,7 +18,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from specgpu import io, locks
+from specgpu import io
+from specgpu.io import files as io_files
+
+from specgpu.core import locks
 
 from cli_helpers import RIG, lock_holder as _holder, one_line_error, run, tristimulus_rig
 
@@ -77,7 +80,7 @@ def test_failed_later_write_keeps_every_previous_output(seq, tmp_path, monkeypat
             raise OSError(errno.ENOSPC, "No space left on device")
         return real(path, *args, **kwargs)
 
-    monkeypatch.setattr(io, "write_map", failing)
+    monkeypatch.setattr(io_files, "write_map", failing)
     result = run("recover", seq, "--out", tmp_path / "a.exr", "--xyz", tmp_path / "x.exr", ok=False)
     assert result.exit_code == 1
     assert {p: (tmp_path / p).read_bytes() for p in before} == before
@@ -144,7 +147,7 @@ def test_capture_replaces_an_interrupted_capture(base, tmp_path):
 
 # ---- an existing --out refused before capturing; frames written as they arrive ------------------------
 def test_capture_refuses_an_existing_sequence_before_capturing(base, seq, monkeypatch):
-    import specgpu.pipeline as pipeline
+    import specgpu.pipeline.recovery as pipeline
 
     def no_capture(*args, **kwargs):
         raise AssertionError("captured before refusing the folder")
@@ -155,7 +158,7 @@ def test_capture_refuses_an_existing_sequence_before_capturing(base, seq, monkey
 
 
 def test_capture_writes_each_sequence_as_it_arrives(base, tmp_path, monkeypatch):
-    import specgpu.pipeline as pipeline
+    import specgpu.pipeline.recovery as pipeline
 
     real = pipeline.capture_plan
     on_disk = []
@@ -213,8 +216,8 @@ def test_stream_refuses_a_duration_that_never_ends(base, value):
 
 # ---- apply_linear's arguments ----------------------------------------------------------------------
 def test_apply_linear_refuses_bad_arguments(monkeypatch):
-    from specgpu import validate
-    from specgpu.recovery import apply_linear
+    from specgpu.core import validate
+    from specgpu.engine.linear_map import apply_linear
 
     frames = np.ones((2, 4, 4), np.uint16)
     with pytest.raises(TypeError, match="complex"):
@@ -237,7 +240,7 @@ def test_apply_linear_refuses_bad_arguments(monkeypatch):
 @given(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=3), st.booleans(),
                  st.integers(-2**40, 2**40)))
 def test_check_level_accepts_only_finite_numbers(value):
-    from specgpu.validate import check_level
+    from specgpu.core.validate import check_level
 
     ok = isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(float(value))
     if ok:
@@ -258,7 +261,7 @@ def test_ctrl_c_during_recover_leaves_no_output(seq, tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return real(path, *args, **kwargs)
 
-    monkeypatch.setattr(io, "write_map", interrupted)
+    monkeypatch.setattr(io_files, "write_map", interrupted)
     result = run("recover", seq, "--out", tmp_path / "a.exr", "--xyz", tmp_path / "x.exr", "--lab",
                  tmp_path / "l.exr", ok=False)
     assert result.exit_code == 130
@@ -369,7 +372,7 @@ def test_unwritable_folder_is_refused_before_the_work_naming_the_output(base, tm
 
     (tmp_path / "ro").mkdir()
     monkeypatch.setattr(os, "open", read_only)
-    import specgpu.calibration as calibration
+    import specgpu.calibration.bundle as calibration
 
     monkeypatch.setattr(calibration, "calibrate", lambda *a, **k: pytest.fail("calibrated before refusing"))
     error = one_line_error(run("calibrate", "--rig", base / "rig.toml", "--out", tmp_path / "ro" / "c.npz",
@@ -385,13 +388,13 @@ def test_huge_sequence_header_names_the_file(seq, tmp_path, monkeypatch):
     def no_memory(*args, **kwargs):
         raise MemoryError("Unable to allocate 335 GiB")
 
-    monkeypatch.setattr(io.np, "empty", no_memory)
+    monkeypatch.setattr(io_files.np, "empty", no_memory)
     # the header's size is checked against the first frame before anything is allocated
     one_line_error(run("recover", seq, "--out", tmp_path / "c.exr", ok=False), "sequence.json", "100000 x 100000")
 
 
 def test_reflectance_to_XYZ_outside_the_cmfs_is_a_value_error():
-    from specgpu.colorimetry import reflectance_to_XYZ
+    from specgpu.engine.colorimetry import reflectance_to_XYZ
 
     w = np.arange(200.0, 300.0, 10.0)
     with pytest.raises(ValueError, match="colour-matching functions"):
@@ -399,7 +402,7 @@ def test_reflectance_to_XYZ_outside_the_cmfs_is_a_value_error():
 
 
 def test_plan_with_a_huge_decoder_is_refused_naming_the_file(base, tmp_path):
-    from specgpu.plans import load_plan
+    from specgpu.planning.plans import load_plan
 
     from dataclasses import replace
 
@@ -416,7 +419,7 @@ def test_plan_with_a_huge_decoder_is_refused_naming_the_file(base, tmp_path):
 
 
 def test_calibration_with_an_impossible_dark_is_refused(base, tmp_path):
-    from specgpu.calibration import load_calibration
+    from specgpu.calibration.bundle import load_calibration
 
     from dataclasses import replace
 
@@ -432,7 +435,7 @@ def test_calibration_with_an_impossible_dark_is_refused(base, tmp_path):
 
 
 def test_disk_full_during_capture_stops_it_and_keeps_the_complete_sequences(base, tmp_path, monkeypatch):
-    real = io._write_tiff
+    real = io_files._write_tiff
     frames = []
 
     def filling(path, frame):
@@ -441,7 +444,7 @@ def test_disk_full_during_capture_stops_it_and_keeps_the_complete_sequences(base
             raise OSError(errno.ENOSPC, "No space left on device")
         return real(path, frame)
 
-    monkeypatch.setattr(io, "_write_tiff", filling)
+    monkeypatch.setattr(io_files, "_write_tiff", filling)
     error = one_line_error(run("capture", "--rig", base / "rig.toml", "--plan", base / "tri.npz", "--calib",
                                base / "calib.npz", "--scene", "colorchecker", "--out", tmp_path / "s",
                                "--sequences", "20", ok=False), "No space left")

@@ -6,7 +6,7 @@ import colour
 import numpy as np
 import pytest
 
-from specgpu import render
+from specgpu.pipeline import projector as render
 from specgpu.rig.scene import colorchecker_scene, white_plate_scene
 
 

@@ -21,16 +21,3 @@ def test_programmable_light_is_a_light_source_once_capture_is_loaded():
     from specgpu.rig.light import ProgrammableLight
 
     assert isinstance(ProgrammableLight(), LightSource)
-
-
-def test_formats_and_checks_sit_below_every_room_and_the_rig_never_imports_io():
-    # the import arrows: the shared file formats and validators import no other specgpu module, and the rig reads
-    # its cubes and CSV curves through them, never through io (or recovery)
-    code = ("import sys\n"
-            "import specgpu.formats, specgpu.checks\n"
-            "low = sorted(m for m in sys.modules if m.startswith('specgpu'))\n"
-            "import specgpu.rig.scene, specgpu.rig.light, specgpu.rig.camera, specgpu.rig.config, specgpu.rig.twin\n"
-            "bad = sorted(m for m in sys.modules if m in ('specgpu.io', 'specgpu.recovery'))\n"
-            "print(','.join(low) + ';' + ','.join(bad))\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "specgpu,specgpu.checks,specgpu.formats;"

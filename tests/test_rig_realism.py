@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.calibration import TwinCalibrationRig, rig_fingerprint
+from specgpu.calibration.bundle import TwinCalibrationRig, rig_fingerprint
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription, dump_rig, load_rig, rig_from_dict
 from specgpu.rig.light import ProgrammableLight
@@ -242,7 +242,7 @@ def test_clock_runs_through_calibration_and_sets_the_capture_start():
 
 
 def test_capture_clock_starts_where_calibration_ended(monkeypatch):
-    import specgpu.pipeline as pipeline
+    import specgpu.pipeline.recovery as pipeline
 
     seen = {}
 

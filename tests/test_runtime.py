@@ -7,8 +7,8 @@ import pyopencl as cl
 import pyopencl.array as cla
 import pytest
 
-from specgpu import runtime
-from specgpu.recovery import apply_linear
+from specgpu.engine import runtime
+from specgpu.engine.linear_map import apply_linear
 
 
 def test_order_explicit_beats_array_and_environment(queue, monkeypatch):

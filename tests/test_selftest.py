@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from specgpu.selftest import CASES, compare, golden_path, load_golden, run_selftest
+from specgpu.engine.selftest import CASES, compare, golden_path, load_golden, run_selftest
 
 
 def test_every_kernel_reproduces_the_golden_set(queue):

@@ -19,15 +19,15 @@ import pytest
 from click.testing import CliRunner
 
 from specgpu import io
-from specgpu.bench import offline_maps, stream_setup
+from specgpu.apps.bench import offline_maps, stream_setup
 from specgpu.capture.session import capture_sequences
 from specgpu.capture.twin import TwinDriver
-from specgpu.cli import main
-from specgpu.colorimetry import delta_E
-from specgpu.pipeline import SequenceFolder, recover, to_Lab, to_XYZ
-from specgpu.recording import ZarrRecorder, open_recording
+from specgpu.apps.cli import main
+from specgpu.engine.colorimetry import delta_E
+from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ
+from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.rig.twin import FaultSchedule, TwinRig
-from specgpu.stream import (
+from specgpu.pipeline.stream import (
     ExrSequenceWriter,
     PreviewSink,
     ResultsRing,
@@ -293,8 +293,8 @@ def test_bad_arguments_are_one_line_errors(setup):
 
 
 def test_cli_stream_records_and_reports(setup, tmp_path):
-    from specgpu.calibration import save_calibration
-    from specgpu.plans import save_plan
+    from specgpu.calibration.bundle import save_calibration
+    from specgpu.planning.plans import save_plan
 
     cam = setup.description.camera
     (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
@@ -394,7 +394,7 @@ def _disk_full_after(monkeypatch, n_sequences: int, array: str = "XYZ"):
     """Every write of ``array`` after its first ``n_sequences`` fails as a full disk does."""
     import os
 
-    from specgpu import recording
+    from specgpu.io import recording
 
     real = recording.write_chunk
     count = [0]

@@ -1,7 +1,7 @@
 """The stream's white-reference drift correction and uncertainty outputs against ``specgpu recover``'s, at 320 x 240.
 
 A twin recording of the colorchecker with a 0.99 white tile above it (symmetric plan, K = 9, 31 bands) is
-replayed through :class:`specgpu.stream.Stream`; every streamed sequence is compared with the offline path on
+replayed through :class:`specgpu.pipeline.stream.Stream`; every streamed sequence is compared with the offline path on
 the frames its ids name: ``pipeline.recover(..., white_roi=...)`` for the drift correction, ``pipeline.uncertainty``
 and ``estimators.delta_E_sigma`` (what ``recover --sigma`` / ``--delta-e-sigma`` write) for the uncertainty.
 """
@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specgpu.bench import stream_setup
-from specgpu.colorimetry import delta_E
-from specgpu.correction import corrected_decoder, white_gains
-from specgpu.estimators import NoiseModel, delta_E_sigma, smooth_prior, with_estimator
-from specgpu.pipeline import SequenceFolder, recover, to_Lab, to_XYZ, uncertainty
-from specgpu.recording import ZarrRecorder, open_recording
+from specgpu.apps.bench import stream_setup
+from specgpu.engine.colorimetry import delta_E
+from specgpu.planning.correction import corrected_decoder, white_gains
+from specgpu.planning.estimators import NoiseModel, delta_E_sigma, smooth_prior, with_estimator
+from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ, uncertainty
+from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.rig.scene import white_tile_roi
-from specgpu.stream import LatencyHistogram, Stream
+from specgpu.pipeline.stream import LatencyHistogram, Stream
 
 from cli_helpers import stream_cli_files
 
@@ -153,7 +153,7 @@ def test_dE_sigma_alone_leaves_no_helper_maps(setup):
 def test_sigma_with_white_roi_uses_the_corrected_decoder(drifted):
     s = drifted
     got, _ = run_stream(s, ("sigma",), white_roi=ROI)
-    from specgpu.estimators import sigma_map
+    from specgpu.planning.estimators import sigma_map
 
     frames = seq_frames(s, 0)
     A = corrected_decoder(s.plan, white_gains(frames, s.plan, s.bundle, ROI), s.bundle)
@@ -258,7 +258,7 @@ def test_cli_stream_white_roi_and_sigma_are_recorded(setup, tmp_path):
     import zarr
     from click.testing import CliRunner
 
-    from specgpu.cli import main
+    from specgpu.apps.cli import main
 
     args = stream_cli_files(setup, tmp_path)
     result = CliRunner().invoke(main, [*args, "--seconds", "0.5", "--out", str(tmp_path / "rec"), "--policy",
@@ -281,7 +281,7 @@ def test_cli_stream_white_roi_and_sigma_are_recorded(setup, tmp_path):
 def test_cli_stream_white_roi_refusals_are_one_line(setup, tmp_path, extra, message):
     from click.testing import CliRunner
 
-    from specgpu.cli import main
+    from specgpu.apps.cli import main
 
     result = CliRunner().invoke(main, [*stream_cli_files(setup, tmp_path), "--seconds", "0.3", "--policy", "block",
                                        "--outputs", "XYZ", *extra])
@@ -363,7 +363,7 @@ def test_delta_e_sigma_kernel_equals_the_host_propagation(queue):
     import pyopencl as cl
 
     from specgpu import engine
-    from specgpu.spectra import white_point_XYZ
+    from specgpu.core.spectra import white_point_XYZ
 
     rng = np.random.default_rng(7)
     n = 999
@@ -395,7 +395,7 @@ def test_delta_E_sigma_matches_a_monte_carlo_of_ciede2000():
     drawn from the covariance: the RMS dE2000 of the draws is the predicted sigma (to sampling error)."""
     import colour
 
-    from specgpu.colorimetry import XYZ_to_Lab
+    from specgpu.engine.colorimetry import XYZ_to_Lab
 
     rng = np.random.default_rng(3)
     xyz = np.array([0.2, 0.25, 0.3])
@@ -452,7 +452,7 @@ def test_stream_applies_recovers_frame_corrections(corrected):
 def test_stream_subtracts_the_ambient_frame_as_recover_does(setup, white):
     from specgpu.capture.replay import record
     from specgpu.capture.twin import TwinDriver
-    from specgpu.correction import with_ambient_frame
+    from specgpu.planning.correction import with_ambient_frame
     from specgpu.rig.scene import colorchecker_scene
     from specgpu.rig.twin import TwinRig
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 from cli_helpers import one_line_error, run, stream_cli_files
 
-from specgpu.bench import stream_setup
-from specgpu.recording import open_recording
+from specgpu.apps.bench import stream_setup
+from specgpu.io.recording import open_recording
 
 
 @pytest.fixture(scope="module")
@@ -26,12 +26,12 @@ def test_a_stream_longer_than_a_year_is_refused_before_any_work(setup, tmp_path,
 def test_a_stream_that_fails_at_its_start_leaves_a_recording_marked_failed(setup, tmp_path, monkeypatch):
     """The camera fails before the first sequence: the command fails and its recording says ``failed`` with the
     reason and 0 sequences, never ``complete``."""
-    import specgpu.stream
+    import specgpu.pipeline.stream
 
     def camera_lost(driver, ring):
         raise OSError("camera lost at start")
 
-    monkeypatch.setattr(specgpu.stream, "run_producer", camera_lost)
+    monkeypatch.setattr(specgpu.pipeline.stream, "run_producer", camera_lost)
     args = stream_cli_files(setup, tmp_path)
     result = run(*args, "--seconds", "2", "--out", tmp_path / "rec.zarr", "--frames", ok=False)
     one_line_error(result, "camera lost at start")

@@ -8,11 +8,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from specgpu.validate import (
+from specgpu.core.validate import (
     check_frames,
     check_last_axis,
     check_matrix,
-    check_wavelengths,
+    check_band_wavelengths,
     validate_method,
 )
 
@@ -70,7 +70,7 @@ def test_check_matrix_refuses_non_finite(A):
 @given(start=st.floats(300, 500), step=st.floats(0.5, 20), n=st.integers(2, 80))
 def test_check_wavelengths_even_grids_pass(start, step, n):
     w = start + step * np.arange(n)
-    np.testing.assert_array_equal(check_wavelengths(w, n), w)
+    np.testing.assert_array_equal(check_band_wavelengths(w, n), w)
 
 
 @given(n=st.integers(3, 40), where=st.integers(0, 1000), shift=st.floats(0.1, 0.4))
@@ -78,7 +78,7 @@ def test_check_wavelengths_uneven_grids_fail(n, where, shift):
     w = 400 + 10.0 * np.arange(n)
     w[1 + where % (n - 2)] += shift * 10
     with pytest.raises(ValueError, match="evenly spaced"):
-        check_wavelengths(w, n)
+        check_band_wavelengths(w, n)
 
 
 @given(hnp.array_shapes(min_dims=1, max_dims=4, max_side=4), st.integers(1, 5))

@@ -17,7 +17,8 @@ CHECK = textwrap.dedent(
     import sys
     from pathlib import Path
     import specgpu
-    from specgpu import runtime, selftest
+    from specgpu.engine import runtime
+    from specgpu.engine import selftest
     site = Path(sys.argv[1]).resolve()
     assert Path(specgpu.__file__).resolve().is_relative_to(site), specgpu.__file__
     kdir = runtime.kernel_dir()

@@ -1,4 +1,4 @@
-"""zarr recordings (specgpu.recording): opened by xarray and Dask with no specgpu code, commit rule, bad input.
+"""zarr recordings (specgpu.io.recording): opened by xarray and Dask with no specgpu code, commit rule, bad input.
 
 The recorder is fed hand-built results here (no device needed); tests/test_stream.py records real streams.
 """
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from specgpu.recording import (ZarrRecorder, check_free_space, open_recording, patterns_hash, refuse_existing,
+from specgpu.io.recording import (ZarrRecorder, check_free_space, open_recording, patterns_hash, refuse_existing,
                                sequence_bytes)
-from specgpu.stream import StreamResult
+from specgpu.pipeline.stream import StreamResult
 
 H, W, K, B = 6, 8, 4, 5
 
@@ -95,7 +95,7 @@ def test_an_unclosed_recording_keeps_every_committed_sequence(tmp_path):
 def test_a_failed_write_is_not_committed_and_the_recording_stays_readable(tmp_path, monkeypatch):
     import os
 
-    from specgpu import recording
+    from specgpu.io import recording
 
     rec, results = record(tmp_path / "rec.zarr", 2, close=False)
     real = recording.write_chunk

@@ -29,13 +29,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specgpu.basis import save_basis  # noqa: E402
-from specgpu.calibration import load_calibration  # noqa: E402
-from specgpu.formats import read_cube_npz  # noqa: E402
-from specgpu.plans import load_plan  # noqa: E402
+from specgpu.planning.basis import save_basis  # noqa: E402
+from specgpu.calibration.bundle import load_calibration  # noqa: E402
+from specgpu.io.formats import read_cube_npz  # noqa: E402
+from specgpu.planning.plans import load_plan  # noqa: E402
 from specgpu.rig.config import load_rig  # noqa: E402
 from specgpu.rig.scene import write_scene  # noqa: E402
-from specgpu.study import LEVEL_EDGES, chart_errors, measured_chart_with_white, mean_std  # noqa: E402
+from specgpu.apps.studies import LEVEL_EDGES, chart_errors, measured_chart_with_white, mean_std  # noqa: E402
 
 #: plan options per variant; None: recover without the white ROI
 VARIANTS = {"default": [], "--ambient": ["--ambient"], "--no-ambient": ["--no-ambient"], "default, no ROI": None}
@@ -48,7 +48,7 @@ def run(*args):
     """``specgpu ARGS`` in-process; raises with the command's output when it fails."""
     from click.testing import CliRunner
 
-    from specgpu.cli import main
+    from specgpu.apps.cli import main
 
     res = CliRunner().invoke(main, [str(a) for a in args])
     if res.exit_code != 0:

@@ -3,7 +3,7 @@
     /work/venv/bin/python tools/calibration_truth.py [--profile lab] [--step 10] [--small]
         [--line-shape gaussian,measured]
 
-Calibrates the twin once per line-shape model and prints :func:`specgpu.calibration.calibration_error` over
+Calibrates the twin once per line-shape model and prints :func:`specgpu.calibration.bundle.calibration_error` over
 bands of ``--step`` nm across 400-700 nm: each band's response (model / truth - 1, RMS and worst), its centroid
 (nm) and its shape (RMS difference of the unit-area responses, relative to the true peak: the line shape's error).
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specgpu.calibration import calibrate, calibration_error  # noqa: E402
+from specgpu.calibration.bundle import calibrate, calibration_error  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import rig_from_dict  # noqa: E402
 

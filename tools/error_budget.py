@@ -10,7 +10,7 @@ chart with a white tile above it, and recover twice:
 
 - ``raw``: the calibration's dark level, the plan's decoder as made;
 - ``corrected``: an ambient frame per sequence (subtracted) and the white-ROI rescaling of each sequence's decoder
-  (:mod:`specgpu.correction`).
+  (:mod:`specgpu.planning.correction`).
 
 Prints per-patch RMSE (reflectance methods) and dE2000 (patch means) per method, and the calibration's error
 against the twin's truth (RMS relative band response). Runs at 320 x 240 unless ``--full``.
@@ -27,13 +27,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specgpu.calibration import calibrate, calibration_error  # noqa: E402
-from specgpu.demo import DEMO_METHODS, make_demo_plans  # noqa: E402
-from specgpu.pipeline import EVALUATION_CHART, default_basis  # noqa: E402
+from specgpu.calibration.bundle import calibrate, calibration_error  # noqa: E402
+from specgpu.apps.demo import DEMO_METHODS, make_demo_plans  # noqa: E402
+from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402
 from specgpu.rig.realism import LAB, Drift, Realism  # noqa: E402
-from specgpu.study import chart_with_white, mean_std, measure_methods  # noqa: E402
+from specgpu.apps.studies import chart_with_white, mean_std, measure_methods  # noqa: E402
 
 #: Effects whose lab value is a setting of another effect, not an effect of its own.
 _PERIODS = ("grating_ripple_period_nm", "sensor_ripple_period_nm")

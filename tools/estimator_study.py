@@ -29,8 +29,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specgpu import estimators as E  # noqa: E402
-from specgpu.calibration import calibrate  # noqa: E402
+from specgpu.planning import estimators as E  # noqa: E402
+from specgpu.calibration.bundle import calibrate  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription, rig_from_dict  # noqa: E402
 from specgpu.rig.scene import white_tile_roi  # noqa: E402
@@ -107,7 +107,7 @@ def main(argv=None):
                   f"{b['own']:.4f}")
     gains = []
     if args.hadamard:
-        from specgpu.design import hadamard_gain
+        from specgpu.planning.design import hadamard_gain
 
         print("\nHadamard-31 against narrowband-31, equal exposure 2 ms, grey 0.5 (noise: pixel std, mean over bands):")
         for read in (desc.camera.read_noise_e, 300.0):

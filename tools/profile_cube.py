@@ -23,7 +23,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from specgpu import runtime
+from specgpu.engine import runtime
 
 PROBES = r"""
 #include "common.h"

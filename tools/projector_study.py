@@ -15,7 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu import io, paper, render
+from specgpu import io
+from specgpu.io import files as io_files
+
+from specgpu.apps import paper
+
+from specgpu.pipeline import projector as render
 from specgpu.rig.scene import colorchecker_scene, natural_scene
 
 
@@ -42,7 +47,7 @@ def main(argv=None):
     for scene_name, scene in scenes.items():
         for name in render.PROJECTOR_TARGETS:
             rgb = render.render_scene(scene, name)
-            io._write_png(out / f"{scene_name}-{name.replace(' ', '-')}.png",
+            io_files._write_png(out / f"{scene_name}-{name.replace(' ', '-')}.png",
                           np.round(rgb * 255).astype(np.uint8), {"specgpu:illuminant": name})
         dE = render.metamer_map(scene, "LED white", "LED RGB")
         io.write_delta_E_png(out / f"{scene_name}-metamer-LEDs.png", dE, vmax=10.0)

@@ -1,6 +1,6 @@
 """Does ``specgpu recover --sigma`` predict the spread of the recoveries? For each plan, the same scene is captured
 on the twin with ``--draws`` fresh noise seeds, each draw recovered and its sigma computed as ``recover --sigma``
-does (:func:`specgpu.pipeline.recover` and :func:`specgpu.pipeline.uncertainty` on a one-sequence folder); per
+does (:func:`specgpu.pipeline.recovery.recover` and :func:`specgpu.pipeline.recovery.uncertainty` on a one-sequence folder); per
 pixel and output, the spread of the recoveries over the draws (standard deviation, ddof 1) is compared with the
 noise part of the predicted sigma (its mean variance less the prior's mismatch, which a Wiener plan's sigma holds
 and which is the same in every draw). Pixels are split into quintiles of brightness (the mean recovered output)
@@ -14,7 +14,7 @@ sigma understates the noise.
 Plans: ``hadamard`` (``plan hadamard --bands N``), ``symmetric`` (m = 5), ``narrowband`` (10 nm steps),
 ``wiener`` (symmetric with the Wiener decoder on the default prior), ``optimal`` (a 6-frame design; slow). Every
 plan gets the rig's noise model as ``specgpu plan`` records it. The rig is the default twin at ``--size`` (or
-``--profile``'s, e.g. ``lab``), calibrated by :func:`specgpu.calibration.calibrate`. ``--white-roi`` puts a 0.99
+``--profile``'s, e.g. ``lab``), calibrated by :func:`specgpu.calibration.bundle.calibrate`. ``--white-roi`` puts a 0.99
 white tile in the chart and recovers with the white's drift correction (the light's fluctuation is then divided
 out per sequence); ``--ambient`` gives every plan an ambient frame (``plan --ambient``), subtracted instead of the
 dark level.
@@ -35,17 +35,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specgpu.bench import parse_sizes  # noqa: E402
+from specgpu.apps.bench import parse_sizes  # noqa: E402
 
 PLANS = ("hadamard", "symmetric", "narrowband", "wiener", "optimal")
 
 
 def make_plans(description, bundle, names, bands: int) -> dict:
     """The named plans with the rig's noise model (as ``specgpu plan`` records it)."""
-    from specgpu.design import plan_hadamard, plan_optimal
-    from specgpu.estimators import NoiseModel, default_prior, with_estimator
-    from specgpu.pipeline import default_basis
-    from specgpu.plans import make_plan
+    from specgpu.planning.design import plan_hadamard, plan_optimal
+    from specgpu.planning.estimators import NoiseModel, default_prior, with_estimator
+    from specgpu.pipeline.recovery import default_basis
+    from specgpu.planning.plans import make_plan
 
     def noise_at(t):
         return NoiseModel.from_rig(description, t)
@@ -76,8 +76,8 @@ def spread_over_sigma(description, bundle, plan, scene, *, draws: int = 10, seed
     """Capture ``plan`` ``draws`` times, recover each draw with its sigma as ``recover --sigma`` does, and return
     ``{"ratio": [per brightness quantile, darkest first: sqrt(mean spread^2 / mean sigma^2)], "all": the same over
     every pixel, "brightness": [the quantiles' mean recovered output]}``."""
-    from specgpu.estimators import constant_variance
-    from specgpu.pipeline import SequenceFolder, capture_plan, recover, uncertainty
+    from specgpu.planning.estimators import constant_variance
+    from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, uncertainty
 
     ys, sigmas = [], []
     for i in range(draws):
@@ -123,7 +123,7 @@ def main(argv=None):
         if name not in PLANS:
             parser.error(f"unknown plan {name!r}; valid: {', '.join(PLANS)}")
 
-    from specgpu.calibration import calibrate
+    from specgpu.calibration.bundle import calibrate
     from specgpu.rig.config import rig_from_dict
     from specgpu.rig.scene import colorchecker_scene, white_tile_roi
 
@@ -137,7 +137,7 @@ def main(argv=None):
     roi = white_tile_roi(height, width) if args.white_roi else None
     plans = make_plans(description, bundle, names, args.bands)
     if args.ambient:
-        from specgpu.correction import with_ambient_frame
+        from specgpu.planning.correction import with_ambient_frame
 
         plans = {name: with_ambient_frame(plan) for name, plan in plans.items()}
     print(f"{width} x {height}{f', {args.profile} profile' if args.profile else ''}, {args.draws} draws per plan, "

@@ -19,8 +19,8 @@ import time
 import numpy as np
 import pyopencl.array as cla
 
-from specgpu.bench import parse_sizes, stream_setup
-from specgpu.stream import Stream, StreamDecoder
+from specgpu.apps.bench import parse_sizes, stream_setup
+from specgpu.pipeline.stream import Stream, StreamDecoder
 
 
 def main():

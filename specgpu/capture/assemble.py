@@ -36,7 +36,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from specgpu.capture.driver import FrameInfo, StreamEnd
-from specgpu.checks import check_number
+from specgpu.core.validate import check_number
 
 __all__ = ["Sequence", "AssemblyStats", "SequenceAssembler", "assemble_stream"]
 

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from specgpu.capture.driver import CameraDriver, FrameInfo, LightSource, StreamEnd
-from specgpu.checks import check_number
+from specgpu.core.validate import check_number
 
 __all__ = ["ReplayDriver", "RecordedLight", "record"]
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from specgpu.capture.driver import FrameInfo
-from specgpu.checks import check_number
+from specgpu.core.validate import check_number
 
 __all__ = ["RingBuffer", "Slot", "RingStats", "POLICIES", "run_producer"]
 

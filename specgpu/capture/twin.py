@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from specgpu.capture.driver import CameraDriver, FrameInfo, LightSource, StreamEnd
-from specgpu.checks import check_number
+from specgpu.core.validate import check_number
 from specgpu.rig.config import RigDescription, load_rig
 from specgpu.rig.light import ProgrammableLight
 from specgpu.rig.twin import FaultSchedule, TwinRig

@@ -35,7 +35,7 @@ import time
 import numpy as np
 
 from specgpu.capture.driver import CameraDriver, FrameInfo, LightSource, StreamEnd
-from specgpu.checks import check_number
+from specgpu.core.validate import check_number
 from specgpu.hardware.errors import BackendMissing, DeviceNotFound, DeviceTimeout, HardwareError
 
 __all__ = ["GenICamCamera", "MODES", "PIXEL_DTYPES", "open_acquirer"]

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from specgpu.checks import check_number
-from specgpu.formats import read_spectrum_csv
+from specgpu.core.validate import check_number
+from specgpu.io.formats import read_spectrum_csv
 from specgpu.hardware.errors import BackendMissing, DeviceNotFound, HardwareError
 from specgpu.rig.spectroradiometer import Spectroradiometer, SpectroradiometerParameters
 

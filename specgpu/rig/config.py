@@ -38,7 +38,7 @@ import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from specgpu.checks import check_number
+from specgpu.core.validate import check_number
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.sensors import expand_preset
 from specgpu.rig.light import LightParameters

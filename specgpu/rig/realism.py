@@ -65,7 +65,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
-from specgpu.checks import check_number
+from specgpu.core.validate import check_number
 
 __all__ = ["Realism", "Drift", "PROFILES", "profile_realism"]
 

@@ -6,7 +6,7 @@ boolean masks (the ColorChecker's 24 patches) that the evaluation can use.
 
 Sources:
 
-- cube files (read and written by :mod:`specgpu.formats`, shared with :mod:`specgpu.io`): OpenEXR in the
+- cube files (read and written by :mod:`specgpu.io.formats`, shared with :mod:`specgpu.io.files`): OpenEXR in the
   JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie), reflective channels named ``T.<wavelength><unit>``
   (e.g. ``T.550,000000nm``; ``.`` also accepted as decimal separator on reading), through OpenImageIO; or
   ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>`` arrays). Bands are ordered by wavelength, never by channel order in the file.
@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu import formats
-from specgpu.checks import check_array, check_number, check_wavelengths
+from specgpu.io import formats
+from specgpu.core.validate import check_array, check_number, check_wavelengths
 
 __all__ = [
     "SpectralScene", "read_scene", "write_scene", "colorchecker_scene", "white_plate_scene", "natural_scene",
@@ -239,8 +239,8 @@ def read_scene(path) -> SpectralScene:
             return _read_npz(path)
         if suffix == ".exr":
             return _read_exr(path)
-        if suffix == ".hdr":  # ENVI: header + raw data (specgpu.io, imported here: io imports rig)
-            from specgpu.io import read_cube_envi
+        if suffix == ".hdr":  # ENVI: header + raw data (specgpu.io.files, imported here: io imports rig)
+            from specgpu.io.files import read_cube_envi
 
             refl, wl, _ = read_cube_envi(path)
             return SpectralScene(wl, refl, {}, path.stem)

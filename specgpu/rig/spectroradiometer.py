@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from specgpu.checks import check_array, check_number
+from specgpu.core.validate import check_array, check_number
 
 __all__ = ["SpectroradiometerParameters", "Spectroradiometer"]
 

@@ -28,7 +28,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from specgpu.checks import check_number
+from specgpu.core.validate import check_number
 from specgpu.rig.camera import _NORMAL_TABLE, Camera, standard_normal_fill
 from specgpu.rig.config import FaultRates, RigDescription
 from specgpu.rig.light import ProgrammableLight

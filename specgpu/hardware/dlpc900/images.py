@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from specgpu.checks import check_number
+from specgpu.core.validate import check_number
 
 __all__ = ["DMDGeometry", "GEOMETRIES", "DMDLayout", "COMPRESSIONS", "BITS_PER_IMAGE", "encode_image",
            "decode_image", "image_header", "split_controllers", "join_controllers"]

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from specgpu.capture.driver import LightSource
-from specgpu.checks import check_number
+from specgpu.core.validate import check_number
 from specgpu.hardware.dlpc900.device import DLPC900, LutEntry
 from specgpu.hardware.dlpc900.images import BITS_PER_IMAGE, DMDLayout
 from specgpu.hardware.errors import LightFault
@@ -56,7 +56,7 @@ class DLPC900Light(LightSource):
         A :class:`~specgpu.rig.light.ProgrammableLight` for the wavelength grid and the emitted spectra
         (the paper's nominal light by default).
     calibration
-        Optional :class:`~specgpu.calibration.CalibrationBundle`: its column map sets the pattern width and its
+        Optional :class:`~specgpu.calibration.bundle.CalibrationBundle`: its column map sets the pattern width and its
         forward model gives :meth:`emitted_spectrum`.
     exposure_s
         How long each pattern is shown after its trigger (LUT exposure), s; at least the DMD's minimum
@@ -175,7 +175,7 @@ class DLPC900Light(LightSource):
         self._index = 0
 
     def load_plan(self, plan) -> None:
-        """Upload a :class:`~specgpu.plans.Plan`'s sequence: its target spectra, already quantized by the planner to
+        """Upload a :class:`~specgpu.planning.plans.Plan`'s sequence: its target spectra, already quantized by the planner to
         mirror counts through the calibration's column map, become DMD images, shown for the plan's exposure.
 
         The plan must have been made from this light's calibration (when the light has one) and for its rows.

@@ -1,0 +1,897 @@
+"""Throughput of the kernels against NumPy / colour-science baselines doing the same work, in one run.
+
+Four cases at each image size:
+
+1. ``cube_float32``: 9 uint16 frames (10-bit codes) -> 61-band float32 cube, planar (B, H, W) and
+   interleaved (H, W, B); baseline: a float32 NumPy matmul in the matching layout.
+2. ``cube_float16``: the same to float16; baseline: the float32 matmul ``.astype(np.float16)``.
+3. ``fused_dE2000``: 9 frames -> XYZ (M = C . A, 3 x 9) -> Lab -> dE2000 against a per-pixel reference Lab
+   image, one device pass; baseline: ``np.einsum`` + ``colour.XYZ_to_Lab`` + ``colour.delta_E("CIE 2000")``.
+4. ``XYZ_Lab_dE2000``: an XYZ image -> Lab -> dE2000 against the reference (two kernels, data stays on the
+   device); baseline: ``colour.XYZ_to_Lab`` + ``colour.delta_E("CIE 2000")``.
+
+Device timings are steady state: inputs already on the device, outputs drawn from the memory pool of
+:func:`specgpu.engine.runtime.get_allocator`, one untimed warm-up call (program build, pool priming), then the
+median wall time of enqueue + ``queue.finish()``. The NumPy-in / NumPy-out API call (``apply_linear``,
+``frames_to_delta_E``, ``XYZ_to_Lab`` + ``delta_E``) is timed too, so the host round trip is visible.
+Every device result is checked against its baseline, so the comparison is provably the same work.
+
+A measured copy bandwidth on the same device (``cl.enqueue_copy`` buffer to buffer, bytes moved = 2 x size)
+is the yardstick for the memory-bound cube cases.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import statistics
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from specgpu import __version__, engine
+from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, frames_to_delta_E
+from specgpu.engine.linear_map import LAYOUTS, apply_linear
+from specgpu.engine.runtime import get_allocator, get_queue
+from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
+
+__all__ = ["parse_sizes", "run_bench", "CaseResult", "copy_bandwidth", "format_report", "TARGETS",
+           "run_stream_bench", "format_stream_report", "stream_setup", "offline_maps", "StreamSetup",
+           "STREAM_TARGETS"]
+
+K_FRAMES = 9
+WAVELENGTHS = np.arange(400.0, 701.0, 5.0)  # 61 bands
+CODE_MAX = 1023  # 10-bit sensor codes stored in uint16
+LARGE_PIXELS = 1_000_000  # above this, fewer repeats (keeps the default run within ~3 minutes on 2 cores)
+
+#: The kernel targets: fused >= 20x the colour-science chain; cube >= 70% of copy bandwidth; float16 faster.
+TARGETS = {"fused_speedup": 20.0, "cube_fraction_of_copy": 0.70}
+
+# Largest acceptable difference to the baseline, by case: float32 rounding (different summation order),
+# float16 rounding (half an ulp at 2^-11 either side of the float32 value), dE2000 in float32 vs float64.
+TOLERANCES = {"cube_float32": 1e-5, "cube_float16": 2e-3, "fused_dE2000": 1e-3, "XYZ_Lab_dE2000": 1e-3}
+
+_SIZE = re.compile(r"\s*([0-9]+)\s*[xX]\s*([0-9]+)\s*", re.ASCII)
+
+
+def parse_sizes(text: str) -> list[tuple[int, int]]:
+    """Image sizes from a comma-separated ``"WxH,WxH"`` list.
+
+    Parameters
+    ----------
+    text : str
+        For example ``"640x480,2048x2048"``; ``X`` and spaces around the numbers are accepted.
+
+    Returns
+    -------
+    list of (int, int)
+        (width, height) pairs, both >= 1, in the order given.
+
+    Raises
+    ------
+    ValueError
+        Naming the first token that is not ``WxH`` with positive integers.
+    """
+    if not isinstance(text, str) or not text.strip():
+        raise ValueError(f"no image size given in {text!r}: expected e.g. '640x480,2048x2048'")
+    sizes = []
+    for token in text.split(","):
+        match = _SIZE.fullmatch(token)
+        if match is None:
+            raise ValueError(f"bad image size {token!r}: expected WxH with positive integers, e.g. '640x480'")
+        width, height = int(match.group(1)), int(match.group(2))
+        if width < 1 or height < 1:
+            raise ValueError(f"bad image size {token!r}: width and height must be at least 1")
+        sizes.append((width, height))
+    return sizes
+
+
+@dataclass
+class CaseResult:
+    """One benchmark row; times in milliseconds (medians), ``None`` where a figure does not apply."""
+
+    case: str
+    width: int
+    height: int
+    layout: str | None
+    device_ms: float
+    api_ms: float
+    baseline_ms: float
+    speedup: float
+    Mpix_per_s: float
+    GBps: float | None
+    fraction_of_copy: float | None
+    bytes_moved: int | None
+    max_diff: float
+    max_diff_kind: str
+    tolerance: float
+    within_tolerance: bool
+    repeats: int
+    api_repeats: int
+    baseline_repeats: int
+    baseline: str
+
+
+# ---------------------------------------------------------------------------------------------------- timing
+
+
+def _timed(fn: Callable, repeats: int, sync: Callable | None = None):
+    """Median wall time (ms) of ``fn()`` (+ ``sync()``) over ``repeats`` calls, and the last result."""
+    times, out = [], None
+    for _ in range(repeats):
+        out = None  # release the previous result first, so device outputs go back to the pool
+        start = time.perf_counter()
+        out = fn()
+        if sync is not None:
+            sync()
+        times.append(time.perf_counter() - start)
+    return 1e3 * statistics.median(times), out
+
+
+def _measure(queue, device: Callable, api: Callable, baseline: Callable, reps: tuple[int, int]):
+    """Time the three forms of one case; returns (device_ms, api_ms, baseline_ms, device result on the host,
+    baseline result).
+
+    The device form runs once untimed first (program build, memory pool primed), so the timed calls reuse
+    pooled outputs; the API result is dropped before the baseline runs (1 GB at 2048 x 2048 for the cube).
+    """
+    device()
+    queue.finish()
+    device_ms, out = _timed(device, reps[0], queue.finish)
+    result = out.get()
+    del out  # back to the pool
+    api_ms = _timed(api, reps[1])[0]
+    baseline_ms, expected = _timed(baseline, reps[1])
+    return device_ms, api_ms, baseline_ms, result, expected
+
+
+def _repeats(n_pixels: int, repeats: int | None) -> tuple[int, int]:
+    """(device repeats, API / baseline repeats): the slow host paths get fewer at large sizes."""
+    if repeats is not None:
+        return repeats, repeats
+    return (15, 5) if n_pixels <= LARGE_PIXELS else (5, 3)
+
+
+def copy_bandwidth(queue: cl.CommandQueue, size_mib: int = 256, repeats: int = 5) -> tuple[float, float]:
+    """Measured memory-copy bandwidth in GB/s (1e9 bytes): the device's buffer copy, and ``np.copyto``.
+
+    Both buffers are written before timing (no first-touch page faults) and one copy warms up. Bytes moved
+    per copy are 2 x size (read the source, write the destination).
+
+    Returns
+    -------
+    (float, float)
+        Device ``cl.enqueue_copy`` bandwidth and NumPy ``np.copyto`` bandwidth.
+    """
+    nbytes = size_mib << 20
+    src = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, nbytes)
+    dst = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, nbytes)
+    cl.enqueue_fill_buffer(queue, src, np.uint8(1), 0, nbytes)
+    cl.enqueue_fill_buffer(queue, dst, np.uint8(0), 0, nbytes)
+    cl.enqueue_copy(queue, dst, src, byte_count=nbytes)
+    queue.finish()
+    device_ms, _ = _timed(lambda: cl.enqueue_copy(queue, dst, src, byte_count=nbytes), repeats, queue.finish)
+    src.release()
+    dst.release()
+
+    host_src = np.ones(nbytes, np.uint8)
+    host_dst = np.zeros(nbytes, np.uint8)
+    np.copyto(host_dst, host_src)
+    host_ms, _ = _timed(lambda: np.copyto(host_dst, host_src), repeats)
+    return 2 * nbytes / (device_ms * 1e6), 2 * nbytes / (host_ms * 1e6)
+
+
+# ------------------------------------------------------------------------------------------------ test data
+
+
+def decoder_matrix() -> np.ndarray:
+    """A (61, 9) float32 decoder: Gaussian band weights around 9 illuminant centres, rows summing to
+    1 / 1023, so 10-bit codes map to reflectance in [0, 1] (a realistic range for the XYZ / Lab cases)."""
+    centres = np.linspace(WAVELENGTHS[0], WAVELENGTHS[-1], K_FRAMES)
+    A = np.exp(-0.5 * ((WAVELENGTHS[:, None] - centres[None, :]) / 30.0) ** 2)
+    return (A / A.sum(axis=1, keepdims=True) / CODE_MAX).astype(np.float32)
+
+
+@dataclass
+class _Data:
+    frames: np.ndarray  # (9, H, W) uint16
+    A: np.ndarray  # (61, 9) float32
+    M: np.ndarray  # (3, 9) float64, C . A
+    XYZ: np.ndarray  # (H, W, 3) float32, [0, 1]
+    reference: np.ndarray  # (H, W, 3) float32 Lab
+
+
+def _make_data(width: int, height: int, seed: int = 0) -> _Data:
+    import colour
+
+    rng = np.random.default_rng(seed)
+    frames = rng.integers(0, CODE_MAX + 1, size=(K_FRAMES, height, width), dtype=np.uint16)
+    A = decoder_matrix()
+    M = XYZ_weights(WAVELENGTHS, "D65") @ A.astype(np.float64)
+    XYZ = (frames.reshape(K_FRAMES, -1).T.astype(np.float32) @ M.T.astype(np.float32)).reshape(height, width, 3)
+    # The reference is the image's own Lab plus a few units of noise: dE values of a real comparison.
+    Lab = colour.XYZ_to_Lab(XYZ, _illuminant_xy())
+    reference = (Lab + rng.normal(0.0, 2.0, Lab.shape)).astype(np.float32)
+    return _Data(frames, A, M, XYZ, reference)
+
+
+def _illuminant_xy():
+    import colour
+
+    return colour.CCS_ILLUMINANTS[DEFAULT_CMFS]["D65"]
+
+
+def _max_abs_diff(a: np.ndarray, b: np.ndarray, chunk: int = 1 << 24) -> float:
+    """max |a - b| in float64, in chunks (the cube at 2048 x 2048 is 1 GB: no full-size temporaries)."""
+    a, b = a.reshape(-1), b.reshape(-1)
+    worst = 0.0
+    for i in range(0, a.size, chunk):
+        worst = max(worst, float(np.max(np.abs(a[i:i + chunk].astype(np.float64) - b[i:i + chunk]))))
+    return worst
+
+
+# ------------------------------------------------------------------------------------------------- the cases
+
+
+def _cube_case(queue, data: _Data, frames_dev, out_dtype, layout: str, reps: tuple[int, int]) -> CaseResult:
+    B, K = data.A.shape
+    _, height, width = data.frames.shape
+    n = width * height
+    out_layout = LAYOUTS[layout]
+    name = "cube_float32" if out_dtype == np.float32 else "cube_float16"
+
+    def device():
+        out, _ = engine.linear(queue, frames_dev, data.A, n=n, out_dtype=out_dtype, out_layout=out_layout)
+        return out
+
+    def api():
+        return apply_linear(data.frames, data.A, out_dtype=out_dtype, layout=layout, device=queue)
+
+    flat = data.frames.reshape(K, -1)
+    if layout == "planar":
+        def baseline():
+            y = data.A @ flat.astype(np.float32)
+            return y if out_dtype == np.float32 else y.astype(np.float16)
+        text = "A @ f.reshape(9,-1).astype(float32)"
+    else:
+        A_T = np.ascontiguousarray(data.A.T)
+
+        def baseline():
+            y = flat.T.astype(np.float32) @ A_T
+            return y if out_dtype == np.float32 else y.astype(np.float16)
+        text = "f.reshape(9,-1).T.astype(float32) @ A.T"
+    if out_dtype == np.float16:
+        text += " .astype(float16)"
+
+    device_ms, api_ms, baseline_ms, result, expected = _measure(queue, device, api, baseline, reps)
+    # Relative to the largest magnitude: element-wise relative error is meaningless near zero reflectance.
+    diff = _max_abs_diff(result, expected) / max(float(np.max(np.abs(expected))), 1e-30)
+    bytes_moved = n * (K * data.frames.itemsize + B * np.dtype(out_dtype).itemsize)
+    return _row(name, width, height, layout, device_ms, api_ms, baseline_ms, diff, "max relative",
+                reps, text, bytes_moved)
+
+
+def _fused_case(queue, data: _Data, frames_dev, reference_dev, reps: tuple[int, int]) -> CaseResult:
+    import colour
+
+    _, height, width = data.frames.shape
+    n = width * height
+    white = white_point_XYZ("D65")
+    xy = _illuminant_xy()
+
+    def device():
+        return engine.frames_to_delta_e(queue, frames_dev, data.M, white, reference_dev, n=n,
+                                        method="CIE 2000", reference_single=False).delta_E
+
+    def api():
+        return frames_to_delta_E(data.frames, data.M, data.reference, device=queue)
+
+    def baseline():
+        XYZ = np.einsum("ck,khw->hwc", data.M, data.frames)
+        return colour.delta_E(data.reference, colour.XYZ_to_Lab(XYZ, xy), method="CIE 2000")
+
+    device_ms, api_ms, baseline_ms, result, expected = _measure(queue, device, api, baseline, reps)
+    return _row("fused_dE2000", width, height, None, device_ms, api_ms, baseline_ms,
+                _max_abs_diff(result, expected), "max abs (dE)", reps,
+                "np.einsum + colour.XYZ_to_Lab + colour.delta_E(CIE 2000)")
+
+
+def _lab_case(queue, data: _Data, xyz_dev, reference_dev, reps: tuple[int, int]) -> CaseResult:
+    import colour
+
+    height, width, _ = data.XYZ.shape
+    n = width * height
+    white = white_point_XYZ("D65")
+    xy = _illuminant_xy()
+
+    def device():
+        lab = engine.xyz_to_lab(queue, xyz_dev, white, n=n)
+        return engine.delta_e(queue, reference_dev, lab, method="CIE 2000", n=n)
+
+    def api():
+        return delta_E(data.reference, XYZ_to_Lab(data.XYZ, "D65", device=queue), "CIE 2000", device=queue)
+
+    def baseline():
+        return colour.delta_E(data.reference, colour.XYZ_to_Lab(data.XYZ, xy), method="CIE 2000")
+
+    device_ms, api_ms, baseline_ms, result, expected = _measure(queue, device, api, baseline, reps)
+    return _row("XYZ_Lab_dE2000", width, height, None, device_ms, api_ms, baseline_ms,
+                _max_abs_diff(result, expected), "max abs (dE)", reps,
+                "colour.XYZ_to_Lab + colour.delta_E(CIE 2000)")
+
+
+def _row(case, width, height, layout, device_ms, api_ms, baseline_ms, diff, kind, reps, baseline,
+         bytes_moved=None) -> CaseResult:
+    n = width * height
+    tolerance = TOLERANCES[case]
+    return CaseResult(
+        case=case, width=width, height=height, layout=layout,
+        device_ms=device_ms, api_ms=api_ms, baseline_ms=baseline_ms,
+        speedup=baseline_ms / device_ms,
+        Mpix_per_s=n / (device_ms * 1e3),
+        GBps=None if bytes_moved is None else bytes_moved / (device_ms * 1e6),
+        fraction_of_copy=None, bytes_moved=bytes_moved,
+        max_diff=diff, max_diff_kind=kind, tolerance=tolerance,
+        within_tolerance=bool(math.isfinite(diff) and diff <= tolerance),
+        repeats=reps[0], api_repeats=reps[1], baseline_repeats=reps[1], baseline=baseline,
+    )
+
+
+def _steps(sizes):
+    """The (size, case, layout) work list, in the order it runs (for the progress bar)."""
+    for size in sizes:
+        for layout in ("planar", "interleaved"):
+            yield size, "cube_float32", layout
+            yield size, "cube_float16", layout
+        yield size, "fused_dE2000", None
+        yield size, "XYZ_Lab_dE2000", None
+
+
+# -------------------------------------------------------------------------------------------- the report
+
+
+def evaluate_targets(cases: list[CaseResult]) -> dict:
+    """The kernel targets (:data:`TARGETS`), per size (and layout) and overall.
+
+    Returns
+    -------
+    dict
+        ``{name: {"threshold", "passed", "results": [{"width", "height", "layout", "value", "passed"}]}}``;
+        ``passed`` is True only when every measured row meets the target.
+    """
+    def target(threshold, rows):
+        return {"threshold": threshold, "passed": bool(rows) and all(r["passed"] for r in rows), "results": rows}
+
+    fused = [dict(width=c.width, height=c.height, layout=None, value=c.speedup,
+                  passed=c.speedup >= TARGETS["fused_speedup"])
+             for c in cases if c.case == "fused_dE2000"]
+    cube = [dict(width=c.width, height=c.height, layout=c.layout, value=c.fraction_of_copy,
+                 passed=c.fraction_of_copy is not None and c.fraction_of_copy >= TARGETS["cube_fraction_of_copy"])
+            for c in cases if c.case == "cube_float32"]
+    f32 = {(c.width, c.height, c.layout): c for c in cases if c.case == "cube_float32"}
+    half = [dict(width=c.width, height=c.height, layout=c.layout,
+                 value=f32[(c.width, c.height, c.layout)].device_ms / c.device_ms,
+                 passed=c.device_ms < f32[(c.width, c.height, c.layout)].device_ms)
+            for c in cases if c.case == "cube_float16" and (c.width, c.height, c.layout) in f32]
+    return {
+        "fused_speedup_vs_colour_science": target(TARGETS["fused_speedup"], fused),
+        "cube_fraction_of_copy_bandwidth": target(TARGETS["cube_fraction_of_copy"], cube),
+        "float16_faster_than_float32": target(1.0, half),
+    }
+
+
+def _load_avg() -> float | None:
+    """The 1-minute load average (None where the system has none): the conditions a timing was taken under."""
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+
+
+def _fmt(value, spec: str, missing: str = "-") -> str:
+    return missing if value is None else format(value, spec)
+
+
+def format_report(report: dict, cases: list[CaseResult]) -> str:
+    """The printed report: device, copy bandwidth, the table of cases, and PASS / MISS per target."""
+    load = report.get("load_avg_1min") or {}
+    lines = [
+        f"specgpu {report['specgpu_version']} bench on {report['device']} ({report['platform']})"
+        + (f", {report['date_utc']}" if report.get("date_utc") else "")
+        + (f"; load average (1 min) {load['start']:.2f} at start, {load['end']:.2f} at end (the machine's other "
+           "work competes for the same cores)" if load.get("start") is not None else ""),
+        f"copy bandwidth: device {report['copy_bandwidth_GBps']:.2f} GB/s (cl.enqueue_copy, "
+        f"{report['copy_size_MiB']} MiB), numpy {report['numpy_copy_bandwidth_GBps']:.2f} GB/s (np.copyto)",
+        "times are medians in ms; device = data on the device, enqueue + finish; API = NumPy in / NumPy out",
+        "",
+    ]
+    header = ("case", "size", "layout", "device ms", "API ms", "Mpx/s", "GB/s", "baseline ms", "speedup",
+              "of copy", "max diff")
+    rows = [header]
+    for c in cases:
+        flag = "" if c.within_tolerance else " MISMATCH"
+        rows.append((
+            c.case, f"{c.width}x{c.height}", c.layout or "-", f"{c.device_ms:.2f}", f"{c.api_ms:.2f}",
+            f"{c.Mpix_per_s:.1f}", _fmt(c.GBps, ".2f"), f"{c.baseline_ms:.2f}", f"{c.speedup:.1f}x",
+            _fmt(None if c.fraction_of_copy is None else 100 * c.fraction_of_copy, ".0f") +
+            ("%" if c.fraction_of_copy is not None else ""),
+            f"{c.max_diff:.1e}{flag}",
+        ))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
+    for i, r in enumerate(rows):
+        lines.append("  ".join(cell.ljust(w) if j < 3 else cell.rjust(w) for j, (cell, w) in
+                               enumerate(zip(r, widths))).rstrip())
+        if i == 0:
+            lines.append("  ".join("-" * w for w in widths))
+    lines.append("")
+    lines.append("max diff: cube rows max |device - numpy| / max |numpy|; dE rows max |device - colour| "
+                 f"(tolerances: {', '.join(f'{k} {v:g}' for k, v in TOLERANCES.items())})")
+    for c in cases:
+        if not c.within_tolerance:
+            lines.append(f"MISMATCH: {c.case} {c.width}x{c.height} {c.layout or ''} max diff {c.max_diff:.3e} "
+                         f"> {c.tolerance:g}: device and baseline disagree")
+    lines.append("")
+    lines.append("targets:")
+    t = report["targets"]
+    for r in t["fused_speedup_vs_colour_science"]["results"]:
+        lines.append(f"  {'PASS' if r['passed'] else 'MISS'}  fused_dE2000 {r['width']}x{r['height']}: "
+                     f"{r['value']:.1f}x the colour-science chain (target >= {TARGETS['fused_speedup']:g}x)")
+    for r in t["cube_fraction_of_copy_bandwidth"]["results"]:
+        lines.append(f"  {'PASS' if r['passed'] else 'MISS'}  cube_float32 {r['width']}x{r['height']} {r['layout']}: "
+                     f"{100 * r['value']:.0f}% of copy bandwidth "
+                     f"(target >= {100 * TARGETS['cube_fraction_of_copy']:.0f}%)")
+    for r in t["float16_faster_than_float32"]["results"]:
+        lines.append(f"  {'PASS' if r['passed'] else 'MISS'}  cube_float16 {r['width']}x{r['height']} {r['layout']}: "
+                     f"{r['value']:.2f}x the speed of cube_float32 (target > 1x)")
+    return "\n".join(lines)
+
+
+def run_bench(sizes=((640, 480), (2048, 2048)), device=None, repeats: int | None = None,
+              json_path: str | Path | None = None, echo: Callable[[str], None] | None = print,
+              progress: bool = True, copy_mib: int = 256) -> dict:
+    """Run the four cases at each size, print the report and optionally write it as JSON.
+
+    Parameters
+    ----------
+    sizes : sequence of (int, int)
+        (width, height) image sizes.
+    device : optional
+        Device, queue or selector string (see :mod:`specgpu.engine.runtime`).
+    repeats : int, optional
+        Timed repetitions for every timing; default by size (device 15 and host 5 up to 1 Mpixel,
+        device 5 and host 3 above).
+    json_path : str or Path, optional
+        Where to write the figures as JSON.
+    echo : callable or None
+        Receives the printed report (None: print nothing).
+    progress : bool
+        Show a progress bar on stderr.
+    copy_mib : int
+        Size of the copy-bandwidth buffers in MiB (256 or more measures main memory, not caches).
+
+    Returns
+    -------
+    dict
+        The JSON report: ``device``, ``platform``, ``specgpu_version``, ``copy_bandwidth_GBps``,
+        ``numpy_copy_bandwidth_GBps``, ``date_utc``, ``load_avg_1min`` (``start``, ``end``), ``cases`` (one dict per :class:`CaseResult`) and ``targets``
+        (see :func:`evaluate_targets`).
+    """
+    from tqdm import tqdm
+
+    sizes = [(int(w), int(h)) for w, h in sizes]
+    if repeats is not None and repeats < 1:
+        raise ValueError(f"repeats must be at least 1, got {repeats}")
+    queue = get_queue(device)
+    pool = get_allocator(queue)
+    started, load_start = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), _load_avg()
+    steps = list(_steps(sizes))
+    bar = tqdm(total=len(steps) + 1, desc="specgpu bench", unit="case", file=sys.stderr, disable=not progress,
+               leave=False)
+    bar.set_postfix_str("copy bandwidth")
+    copy_GBps, numpy_copy_GBps = copy_bandwidth(queue, copy_mib)
+    bar.update()
+
+    cases: list[CaseResult] = []
+    try:
+        for width, height in sizes:
+            reps = _repeats(width * height, repeats)
+            data = _make_data(width, height)
+            frames_dev = cla.to_device(queue, data.frames.reshape(-1))
+            reference_dev = cla.to_device(queue, data.reference.reshape(-1))
+            xyz_dev = cla.to_device(queue, data.XYZ.reshape(-1))
+            for size, case, layout in steps:
+                if size != (width, height):
+                    continue
+                bar.set_postfix_str(f"{case} {width}x{height} {layout or ''}".rstrip())
+                if case.startswith("cube"):
+                    dtype = np.float32 if case == "cube_float32" else np.float16
+                    row = _cube_case(queue, data, frames_dev, dtype, layout, reps)
+                    row.fraction_of_copy = row.GBps / copy_GBps
+                elif case == "fused_dE2000":
+                    row = _fused_case(queue, data, frames_dev, reference_dev, reps)
+                else:
+                    row = _lab_case(queue, data, xyz_dev, reference_dev, reps)
+                cases.append(row)
+                bar.update()
+            del frames_dev, reference_dev, xyz_dev, data
+            pool.free_held()  # the next size needs other buffer sizes: give this size's back
+    finally:
+        bar.close()
+
+    report = {
+        "device": queue.device.name.strip(),
+        "platform": queue.device.platform.name.strip(),
+        "specgpu_version": __version__,
+        "copy_bandwidth_GBps": copy_GBps,
+        "numpy_copy_bandwidth_GBps": numpy_copy_GBps,
+        "copy_size_MiB": copy_mib,
+        "date_utc": started,
+        "load_avg_1min": {"start": load_start, "end": _load_avg()},
+        "cases": [asdict(c) for c in cases],
+    }
+    report["targets"] = evaluate_targets(cases)
+    if echo is not None:
+        echo(format_report(report, cases))
+    if json_path is not None:
+        Path(json_path).write_text(json.dumps(report, indent=2) + "\n")
+    return report
+
+
+# ------------------------------------------------------------------------------------------------------ the stream
+
+#: The stream's targets, raw frames per second into the stream.
+STREAM_TARGETS = {"coefficients_XYZ_dE2000_fps": 780.0, "cube_float16_fps": 200.0}
+
+
+@dataclass
+class StreamSetup:
+    """What the stream benchmark streams: a calibrated twin, a symmetric plan (K = 9, 61 output bands) whose
+    exposure fits the paced frame rate, a recording of ``sequences`` whole sequences of the colorchecker replayed
+    by :class:`~specgpu.capture.replay.ReplayDriver`, and the scene's per-pixel Lab as the dE reference."""
+
+    description: object
+    bundle: object
+    plan: object
+    frames: np.ndarray
+    infos: list
+    light: object
+    reference: np.ndarray
+
+    def driver(self, *, loops=None, pacing="free"):
+        from specgpu.capture.replay import ReplayDriver
+
+        return ReplayDriver(self.frames, self.infos, self.light, loops=loops, pacing=pacing)
+
+    def recorded_sequence(self, frame_ids) -> int:
+        """Index of the recorded sequence a result's frame ids replay (replay ids run on across loops)."""
+        return int(frame_ids[0]) // self.plan.K % (self.frames.shape[0] // self.plan.K)
+
+
+def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 200.0, sequences: int = 8,
+                 output_step_nm: float = 5.0, seed: int = 0, white_tile: float | None = None) -> StreamSetup:
+    """Calibrate the twin at ``width`` x ``height`` and ``frame_rate_hz``, plan the symmetric basis method with
+    an exposure that fits the frame period, and record ``sequences`` sequences of the colorchecker (10-bit);
+    ``white_tile``: with a reference white tile of that reflectance above the chart
+    (:func:`specgpu.rig.scene.white_tile_roi` gives its ROI)."""
+    from dataclasses import replace
+
+    from specgpu.calibration.bundle import calibrate
+    from specgpu.capture.replay import record
+    from specgpu.capture.twin import TwinDriver
+    from specgpu.pipeline.recovery import default_basis
+    from specgpu.planning.plans import plan_symmetric_basis
+    from specgpu.rig.config import RigDescription
+    from specgpu.rig.scene import colorchecker_scene
+    from specgpu.rig.twin import TwinRig
+
+    from specgpu.rig.sensors import camera_for_size
+
+    base = RigDescription()
+    switch = base.light.switch_time_s
+    # the paper's camera up to 640 x 480, else the smallest machine-vision sensor preset that holds the size
+    sensor = camera_for_size(width, height, base.camera)
+    frame_rate_hz = min(float(frame_rate_hz), replace(sensor, frame_rate_hz=1.0, exposure_s=0.5).max_frame_rate_hz)
+    exposure = 1.0 / frame_rate_hz - switch - 5e-6  # the longest exposure the light can follow at this rate
+    cam = replace(sensor, bit_depth=10, exposure_s=exposure, frame_rate_hz=frame_rate_hz)
+    description = replace(base, camera=cam)
+    bundle = calibrate(description, seed=seed)
+    plan = plan_symmetric_basis(bundle, default_basis(), m=5, max_exposure_s=exposure,
+                                output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm))
+    scene = colorchecker_scene(int(height), int(width), white_tile=white_tile)
+    rig = TwinRig(plan.rig_description(description), scene=scene)
+    rig.seed = seed + 1
+    frames, infos, light = record(TwinDriver(rig, patterns=plan.patterns, pacing="free"), plan.K * sequences)
+    return StreamSetup(description, bundle, plan, frames, infos, light, _scene_Lab(scene))
+
+
+def _scene_Lab(scene, illuminant="D65"):
+    from specgpu.engine.colorimetry import reflectance_to_XYZ
+
+    return XYZ_to_Lab(reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant), illuminant)
+
+
+def offline_maps(setup: StreamSetup, index: int, *, method: str = "CIE 2000", illuminant: str = "D65") -> dict:
+    """The offline path's maps (``pipeline.recover`` on a sequence folder written from the recording, then
+    ``to_XYZ``, ``to_Lab`` and ``delta_E``) for recorded sequence ``index``: what the stream must equal."""
+    import tempfile
+
+    from specgpu.calibration.bundle import save_calibration
+    from specgpu.capture.assemble import AssemblyStats, Sequence
+    from specgpu.pipeline.recovery import read_capture, recover, to_Lab, to_XYZ, write_capture
+    from specgpu.planning.plans import save_plan
+
+    K = setup.plan.K
+    sl = slice(index * K, (index + 1) * K)
+    seq = Sequence(setup.frames[sl], np.array([i.frame_id for i in setup.infos[sl]]),
+                   np.array([i.timestamp_s for i in setup.infos[sl]]), setup.plan.exposure_s, index)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        save_plan(tmp / "plan.npz", setup.plan)
+        save_calibration(tmp / "calib.npz", setup.bundle)
+        write_capture(tmp / "seq", [seq], AssemblyStats(), tmp / "plan.npz", tmp / "calib.npz")
+        folder = read_capture(tmp / "seq")
+        cube = recover(folder, sequence=0)
+    XYZ = to_XYZ(cube, setup.plan, illuminant)
+    Lab = to_Lab(XYZ, illuminant)
+    return {"cube": cube, "XYZ": XYZ, "Lab": Lab, "dE": delta_E(setup.reference, Lab, method)}
+
+
+def _max_rel(a, b) -> float:
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-12))
+
+
+class _Checker:
+    """A sink that checks every result against the offline maps of the recorded sequence it must come from:
+    consecutive frame ids, starting at pattern 0, and equal maps (a misaligned sequence cannot pass)."""
+
+    def __init__(self, setup: StreamSetup, expected: dict, outputs, tolerance: float = 1e-3):
+        self.setup, self.expected, self.outputs, self.tolerance = setup, expected, outputs, tolerance
+        self.checked = 0
+        self.misaligned = 0
+        self.worst = 0.0
+
+    def write(self, result):
+        K = self.setup.plan.K
+        ids = result.frame_ids
+        ok = bool(np.all(np.diff(ids) == 1)) and int(ids[0]) % K == 0
+        exp = self.expected[self.setup.recorded_sequence(ids)]
+        for name in self.outputs:
+            if name in exp and name in result.arrays:
+                if name == "dE":
+                    err = float(np.max(np.abs(result.arrays[name] - exp[name])))  # dE units
+                else:
+                    err = _max_rel(result.arrays[name], exp[name])
+                self.worst = max(self.worst, err)
+                ok = ok and err <= (2e-3 if name != "dE" else 0.05)
+        self.checked += 1
+        self.misaligned += not ok
+
+    def close(self):
+        pass
+
+
+class _MemoryRecorder:
+    """A sink that writes every result's cube into a preallocated in-memory recording (a ring of ``slots``)."""
+
+    def __init__(self, shape, dtype, slots: int = 4):
+        self.store = np.zeros((slots, *shape), dtype)
+        self.count = 0
+
+    def write(self, result):
+        np.copyto(self.store[self.count % len(self.store)], result.arrays["cube"])
+        self.count += 1
+
+    def close(self):
+        pass
+
+
+def _stream_row(case: str, report, *, target_fps=None, extra=None) -> dict:
+    row = {"case": case, **report.as_dict()}
+    if target_fps is not None:
+        row["target_fps"] = target_fps
+        row["passed"] = report.frames_per_s >= target_fps
+    row.update(extra or {})
+    return row
+
+
+#: The stream bench's cases; the sustained ones (free-running, ``block``) run ``rounds`` times interleaved.
+STREAM_CASES = ("fused", "sigma", "sigma_rms", "white", "dE_sigma", "cube", "paced", "overload", "equality")
+_SUSTAINED = {"fused": ("coefficients+XYZ+dE2000", ("coefficients", "XYZ", "dE"), False),
+              "sigma": ("coefficients+XYZ+dE2000+sigma", ("coefficients", "XYZ", "dE", "sigma"), False),
+              "sigma_rms": ("coefficients+XYZ+dE2000+sigma_rms", ("coefficients", "XYZ", "dE", "sigma_rms"), False),
+              "white": ("coefficients+XYZ+dE2000 with --white-roi", ("coefficients", "XYZ", "dE"), True),
+              "dE_sigma": ("coefficients+XYZ+dE2000+dE_sigma", ("coefficients", "XYZ", "dE", "dE_sigma"), False)}
+
+
+def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, overload_seconds: float = 10.0,
+                     width: int = 640, height: int = 480, device=None, json_path=None, echo=print,
+                     cases=("fused", "sigma", "sigma_rms", "white", "cube", "paced", "overload", "equality"),
+                     rounds: int = 1) -> dict:
+    """The stream at camera speed on this machine, each case checked for exactness.
+
+    Frames are replayed from a recording of the twin (:class:`~specgpu.capture.replay.ReplayDriver`): the twin
+    renders fresh noise at ~700 frames/s on 2 cores, slower than the pipeline, so it could not outrun it.
+
+    Cases
+    -----
+    fused
+        Coefficients (m = 5) + XYZ + dE2000 against the scene's per-pixel Lab, replay free-running with the
+        ``block`` ring policy (the rate is the pipeline's own), ``seconds`` long. Target 780 frames/s.
+    sigma
+        The same plus ``sigma`` (each of the 61 outputs' standard deviation and their RMS, float32; the plan
+        given the camera's noise model and its expected error on a smooth prior). Target 780 frames/s.
+    sigma_rms
+        The same with the RMS of the outputs' standard deviations only (one channel). Target 780 frames/s.
+    white
+        Fused with ``white_roi`` on the white tile above the chart (each sequence's decoder corrected on the
+        host and written to the device). Target 780 frames/s.
+    dE_sigma
+        Fused plus ``dE_sigma`` (XYZ covariance on the device, its dE2000 propagation on the host); no target,
+        not run by default.
+
+    The sustained cases (fused, sigma, white, dE_sigma) run ``rounds`` times interleaved; each row is the
+    median round's, with every round's frames/s and 1-minute load average beside it.
+    cube
+        The 61-band float16 cube, every one copied into an in-memory recording. Target 200 frames/s.
+    paced
+        Coefficients + XYZ + dE2000 at the camera's 200 fps (replay paced by the recorded timestamps), the
+        ``drop_newest`` policy, ``paced_seconds`` long: zero drops and zero misaligned sequences required.
+    overload
+        The float32 cube + XYZ + dE2000 with the replay free-running into a ``drop_newest`` ring for
+        ``overload_seconds``: every drop counted (ring refusals = id gaps, frames in = ids exposed), every result
+        checked against the offline maps of the sequence its ids name, peak RSS stated.
+    equality
+        Stream results (float32 cube, XYZ, Lab, dE2000) against ``pipeline.recover`` on the same frames.
+    """
+    from specgpu.rig.scene import white_tile_roi
+    from specgpu.pipeline.stream import Stream, current_rss_bytes
+
+    unknown = set(cases) - set(STREAM_CASES)
+    if unknown:
+        raise ValueError(f"unknown stream bench case(s) {sorted(unknown)}; valid: {', '.join(STREAM_CASES)}")
+    if int(rounds) < 1:
+        raise ValueError(f"rounds must be >= 1, got {rounds}")
+    echo = echo or (lambda _s: None)
+    t_setup = time.perf_counter()
+    setup = stream_setup(width, height, white_tile=0.99)
+    if {"sigma", "sigma_rms", "dE_sigma"} & set(cases):
+        from dataclasses import replace
+
+        from specgpu.planning.estimators import NoiseModel, smooth_prior, with_estimator
+
+        plan = with_estimator(setup.plan, setup.bundle, "projection", noise=NoiseModel.from_rig(
+            setup.description, setup.plan.exposure_s), prior=smooth_prior(np.arange(400.0, 700.0 + 1e-9, 5.0)))
+        setup = replace(setup, plan=plan)  # the decoder is unchanged: only its noise model and expected error
+    R = setup.frames.shape[0] // setup.plan.K
+    # the checkers need XYZ and dE only: the 61-band float32 cubes (75 MB each) would inflate the stated RSS
+    expected = {i: {k: v for k, v in offline_maps(setup, i).items() if k != "cube"} for i in range(R)}
+    echo(f"stream bench: {width} x {height}, K = {setup.plan.K}, {setup.plan.A.shape[0]} bands, "
+         f"{R} recorded sequences replayed (setup {time.perf_counter() - t_setup:.1f} s)")
+    common = {"reference": setup.reference, "device": device}
+    rows = []
+
+    def load():
+        return os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+
+    sustained = [c for c in _SUSTAINED if c in cases]
+    runs = {c: [] for c in sustained}
+    for _ in range(int(rounds)):
+        for c in sustained:  # interleaved: a change of the machine's load falls on every case alike
+            name, outputs, white = _SUSTAINED[c]
+            count = [0]
+            stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=outputs, policy="block",
+                            sinks=[lambda r: count.__setitem__(0, count[0] + 1)],
+                            white_roi=white_tile_roi(height, width) if white else None, **common)
+            rep = stream.run(seconds)
+            runs[c].append((rep, load()))
+    for c in sustained:
+        name = _SUSTAINED[c][0]
+        order = sorted(range(len(runs[c])), key=lambda i: runs[c][i][0].frames_per_s)
+        rep, load_avg = runs[c][order[len(order) // 2]]
+        rows.append(_stream_row(name, rep, target_fps=None if c == "dE_sigma" else
+                                STREAM_TARGETS["coefficients_XYZ_dE2000_fps"],
+                                extra={"load_avg_1min": load_avg, "rounds": len(runs[c]),
+                                       "frames_per_s_rounds": [r.frames_per_s for r, _ in runs[c]],
+                                       "load_avg_rounds": [a for _, a in runs[c]]}))
+    if "cube" in cases:
+        shape, _ = (height, width, setup.plan.A.shape[0]), None
+        recorder = _MemoryRecorder(shape, np.float16)
+        stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("cube",), cube_dtype=np.float16,
+                        policy="block", sinks=[recorder], device=device)
+        rep = stream.run(seconds)
+        rows.append(_stream_row("cube float16 61 bands to memory", rep, target_fps=STREAM_TARGETS["cube_float16_fps"],
+                                extra={"cubes_written": recorder.count, "load_avg_1min": load()}))
+    if "paced" in cases:
+        checker = _Checker(setup, expected, ("XYZ", "dE"))
+        stream = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=("coefficients", "XYZ", "dE"),
+                        policy="drop_newest", sinks=[checker], **common)
+        rep = stream.run(paced_seconds)
+        acc = rep.accounting()
+        passed = (rep.assembly.dropped == 0 and rep.ring.dropped == 0 and checker.misaligned == 0
+                  and rep.assembly.sequences_discarded == 0 and acc["balanced"] and checker.checked > 0
+                  and rep.frames_in == setup.plan.K * rep.sequences_out)
+        rows.append(_stream_row(f"paced {1 / setup.description.camera.frame_rate_hz * 1e3:.0f} ms period", rep,
+                                extra={"camera_fps": setup.description.camera.frame_rate_hz,
+                                       "checked": checker.checked, "misaligned": checker.misaligned,
+                                       "passed": passed, "load_avg_1min": load()}))
+    if "overload" in cases:
+        checker = _Checker(setup, expected, ("XYZ", "dE"))
+        stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("cube", "XYZ", "dE"),
+                        cube_dtype=np.float32, policy="drop_newest", sinks=[checker], **common)
+        rss = []  # resident memory sampled through the run: bounded means flat, not growing with time
+        rep = stream.run(overload_seconds, on_status=lambda _s: rss.append(current_rss_bytes()),
+                         status_interval_s=0.25)
+        half = len(rss) // 2
+        acc = rep.accounting()
+        total = rep.end.last_frame_id + 1  # the replay loses nothing itself: every id exposed was offered
+        passed = (rep.frames_in == total and rep.ring.dropped_newest == rep.assembly.dropped and acc["balanced"]
+                  and rep.ring.dropped > 0 and checker.misaligned == 0 and checker.checked == rep.sequences_out)
+        rows.append(_stream_row("overload (free-running replay, drop_newest)", rep,
+                                extra={"frames_offered": total, "checked": checker.checked,
+                                       "frames_into_ring_per_s": rep.ring.finalized / rep.seconds,
+                                       "rss_first_half_max_bytes": max(rss[:half] or [0]),
+                                       "rss_second_half_max_bytes": max(rss[half:] or [0]),
+                                       "misaligned": checker.misaligned, "passed": passed,
+                                       "load_avg_1min": load()}))
+    if "equality" in cases:
+        got = {}
+
+        def keep(result):
+            i = setup.recorded_sequence(result.frame_ids)
+            if i not in got:
+                got[i] = {k: v.copy() for k, v in result.arrays.items()}
+
+        stream = Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=("cube", "XYZ", "Lab", "dE"),
+                        cube_dtype=np.float32, policy="block", sinks=[keep], **common)
+        rep = stream.run()
+        expected = {i: offline_maps(setup, i) for i in range(R)}
+        diffs = {name: max(_max_rel(got[i][name], expected[i][name]) for i in got) for name in ("cube", "XYZ", "Lab")}
+        diffs["dE_abs"] = max(float(np.max(np.abs(got[i]["dE"] - expected[i]["dE"]))) for i in got)
+        passed = len(got) == R and all(v <= 1e-4 for k, v in diffs.items() if k != "dE_abs") and diffs["dE_abs"] < 1e-2
+        rows.append({"case": "stream vs offline pipeline.recover", "sequences": len(got), "max_rel_diff": diffs,
+                     "passed": passed, "sequences_out": rep.sequences_out})
+
+    report = {"device": get_queue(device).device.name.strip(), "width": width, "height": height,
+              "K": setup.plan.K, "bands": int(setup.plan.A.shape[0]), "cpu_count": os.cpu_count(),
+              "source": "ReplayDriver of a twin recording (pre-rendered frames, replayed at memory speed or paced)",
+              "cases": rows}
+    echo(format_stream_report(report))
+    if json_path is not None:
+        Path(json_path).write_text(json.dumps(report, indent=2, default=float) + "\n")
+    return report
+
+
+def format_stream_report(report: dict) -> str:
+    """The stream benchmark as text: one block per case with its figures and PASS / MISS."""
+    lines = [(f"stream on {report['device']} ({report['cpu_count']} CPUs), {report['width']} x "
+              f"{report['height']}, K = {report['K']}; source: {report['source']}")]
+    for row in report["cases"]:
+        mark = {True: "PASS", False: "MISS", None: "    "}[row.get("passed")]
+        if "frames_per_s" not in row:
+            lines.append(f"{mark}  {row['case']}: {row['sequences']} sequences, max relative difference "
+                         + ", ".join(f"{k} {v:.2e}" for k, v in row["max_rel_diff"].items()))
+            continue
+        rss = row["peak_rss_bytes"]
+        target = f" (target >= {row['target_fps']:.0f})" if "target_fps" in row else ""
+        lines.append(
+            f"{mark}  {row['case']}: {row['frames_per_s']:.0f} frames/s in{target}, {row['sequences_per_s']:.1f} "
+            f"sequences/s out over {row['seconds']:.1f} s; latency median {row['latency_ms_median']:.1f} ms, "
+            f"p99 {row['latency_ms_p99']:.1f} ms; ring drops {row['ring']['dropped']}, id gaps "
+            f"{row['assembly']['dropped']}, discarded {row['assembly']['sequences_discarded']}; CPU "
+            f"{row['cpu_cores']:.2f} cores; peak RSS {rss / 2**20:.0f} MiB"
+            + (f"; checked {row['checked']}, misaligned {row['misaligned']}" if "checked" in row else "")
+            + (f"; offered {row['frames_offered']} ({row['frames_into_ring_per_s']:.0f}/s into the ring); RSS max "
+               f"{row['rss_first_half_max_bytes'] / 2**20:.0f} MiB in the first half, "
+               f"{row['rss_second_half_max_bytes'] / 2**20:.0f} MiB in the second" if "frames_offered" in row else "")
+            + (f"; RSS at start {row['rss_start_bytes'] / 2**20:.0f} MiB" if row.get("rss_start_bytes") else "")
+            + (f"; load {row['load_avg_1min']:.2f}" if row.get("load_avg_1min") is not None else "")
+            + (f"; median of {row['rounds']} rounds: " + ", ".join(f"{v:.0f}" for v in row["frames_per_s_rounds"])
+               + " frames/s at load " + ", ".join(f"{v:.2f}" for v in row["load_avg_rounds"] if v is not None)
+               if row.get("rounds", 1) > 1 else ""))
+    return "\n".join(lines)

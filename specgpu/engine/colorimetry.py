@@ -1,0 +1,237 @@
+"""Device-backed colorimetry: reflectance -> XYZ -> CIELAB -> colour difference, NumPy in / NumPy out.
+
+Every function takes NumPy arrays (returned results are NumPy) or :class:`pyopencl.array.Array` inputs
+(results stay on that device, so work can chain without transfers). Channels are on the last axis and
+results are float32. Names and conventions follow colour-science:
+
+- XYZ is in the domain [0, 1] with Y = 1 for the perfect reflecting diffuser under the illuminant
+  (colour-science's ``sd_to_XYZ`` reports the same values scaled by 100);
+- CIELAB has L* in [0, 100] for 0 <= Y <= Yn;
+- ``delta_E(Lab_1, Lab_2, method)``: ``Lab_1`` is the reference (only CIE 1994 is asymmetric).
+
+Non-finite input is not an error for pixel data: a NaN or inf in a pixel gives a non-finite result in that
+pixel only (NaN in, NaN out; inf may come out as inf or NaN), never a finite wrong value and never a
+change in neighbouring pixels.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from specgpu.engine import kernels as engine
+from specgpu.engine.runtime import get_queue
+from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
+from specgpu.core.validate import (
+    as_float32,
+    check_frames,
+    check_last_axis,
+    check_matrix,
+    check_band_wavelengths,
+    is_device_array,
+    validate_method,
+)
+
+__all__ = [
+    "DELTA_E_METHODS",
+    "XYZ_to_Lab",
+    "delta_E",
+    "reflectance_to_XYZ",
+    "frames_to_delta_E",
+    "FusedResult",
+]
+
+#: Colour-difference formulae by name (colour-science's names; the short aliases are accepted too).
+DELTA_E_METHODS = {
+    "CIE 1976": "CIE 1976",
+    "CIE 1994": "CIE 1994",
+    "CIE 2000": "CIE 2000",
+    "cie1976": "CIE 1976",
+    "cie1994": "CIE 1994",
+    "cie2000": "CIE 2000",
+}
+
+
+def _result(dev, shape, on_device: bool):
+    dev = dev.reshape(shape)
+    return dev if on_device else dev.get()
+
+
+def XYZ_to_Lab(XYZ, illuminant="D65", *, observer: str = DEFAULT_CMFS, device=None):
+    """CIE XYZ -> CIE L*a*b* on the device.
+
+    Parameters
+    ----------
+    XYZ : array_like or pyopencl.array.Array, (..., 3)
+        Tristimulus values, domain [0, 1] (Y = 1 for the reference white).
+    illuminant : str or array_like
+        Reference white: a name of ``colour.CCS_ILLUMINANTS[observer]``, chromaticity xy (2,), or white XYZ (3,).
+    observer : str
+        Observer whose illuminant table a name is looked up in.
+    device : optional
+        Explicit device, queue or selector (see :mod:`specgpu.engine.runtime`).
+
+    Returns
+    -------
+    ndarray or pyopencl.array.Array, (..., 3), float32
+        L* in [0, 100], a* and b* roughly [-128, 127] for real colours.
+    """
+    XYZ = check_last_axis(XYZ, "XYZ")
+    white = white_point_XYZ(illuminant, observer)
+    queue = get_queue(device, like=(XYZ,))
+    n = int(np.prod(XYZ.shape[:-1], dtype=np.int64))
+    lab = engine.xyz_to_lab(queue, engine.to_device(queue, XYZ.reshape(-1)), white, n=n)
+    return _result(lab, XYZ.shape, is_device_array(XYZ))
+
+
+def delta_E(Lab_1, Lab_2, method: str = "CIE 2000", *, device=None):
+    """Colour difference between two CIELAB images, or an image and one colour, on the device.
+
+    Parameters
+    ----------
+    Lab_1, Lab_2 : array_like or pyopencl.array.Array, (..., 3)
+        CIELAB values; either may be a single colour (3,) broadcast against the other. ``Lab_1`` is the
+        reference (it sets the weights of CIE 1994).
+    method : str
+        ``"CIE 1976"``, ``"CIE 1994"`` (graphic arts: kL = 1, K1 = 0.045, K2 = 0.015) or ``"CIE 2000"``
+        (kL = kC = kH = 1), case-insensitive.
+
+    Returns
+    -------
+    ndarray or pyopencl.array.Array, (...,), float32
+        Non-negative differences.
+    """
+    method = validate_method(method, DELTA_E_METHODS)
+    Lab_1 = check_last_axis(Lab_1, "Lab_1")
+    Lab_2 = check_last_axis(Lab_2, "Lab_2")
+    single1, single2 = Lab_1.ndim == 1, Lab_2.ndim == 1
+    if not single1 and not single2 and Lab_1.shape != Lab_2.shape:
+        raise ValueError(f"Lab_1 {Lab_1.shape} and Lab_2 {Lab_2.shape} must have the same shape, or one be (3,)")
+    shape = Lab_2.shape[:-1] if single1 else Lab_1.shape[:-1]
+    queue = get_queue(device, like=(Lab_1, Lab_2))
+    n = int(np.prod(shape, dtype=np.int64))
+    # Two single colours are one pixel: the first read as an image of one, the second broadcast.
+    de = engine.delta_e(queue, engine.to_device(queue, Lab_1.reshape(-1)),
+                        engine.to_device(queue, Lab_2.reshape(-1)), method=method, n=n,
+                        single1=single1 and not single2, single2=single2)
+    return _result(de, shape, is_device_array(Lab_1) or is_device_array(Lab_2))
+
+
+def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, device=None):
+    """Spectral reflectance -> CIE XYZ under ``illuminant`` for the ``cmfs`` observer, on the device.
+
+    The weights are colour-science's ``msds_to_XYZ_integration`` ones (see :func:`specgpu.core.spectra.XYZ_weights`),
+    computed in float64 on the host; the device applies them to every pixel.
+
+    Parameters
+    ----------
+    R : array_like or pyopencl.array.Array, (..., B)
+        Reflectance factors, nominally [0, 1].
+    wavelengths : array_like, (B,)
+        Evenly spaced, increasing band centres in nm.
+    illuminant : str or colour.SpectralDistribution
+    cmfs : str or colour.MultiSpectralDistributions
+
+    Returns
+    -------
+    ndarray or pyopencl.array.Array, (..., 3), float32
+        XYZ with Y = 1 for the perfect reflecting diffuser.
+    """
+    R = as_float32(R, "R")
+    if R.ndim == 0:
+        raise ValueError("R must have bands on its last axis, got a scalar")
+    w = check_band_wavelengths(wavelengths, R.shape[-1])
+    W = check_matrix(XYZ_weights(w, illuminant, cmfs), "XYZ weights")
+    queue = get_queue(device, like=(R,))
+    n = int(np.prod(R.shape[:-1], dtype=np.int64))
+    frames = engine.to_device(queue, R.reshape(-1))
+    xyz, _ = engine.linear(queue, frames, W, n=n, in_layout=1, out_layout=1)
+    return _result(xyz, (*R.shape[:-1], 3), is_device_array(R))
+
+
+class FusedResult(NamedTuple):
+    """Results of :func:`frames_to_delta_E` when intermediates are asked for (None where not)."""
+
+    delta_E: object
+    XYZ: object
+    Lab: object
+    mask: object
+
+
+def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observer: str = DEFAULT_CMFS,
+                      method: str = "CIE 2000", dark=None, gain=None, saturation: float | None = None,
+                      return_XYZ: bool = False, return_Lab: bool = False, return_mask: bool = False,
+                      device=None):
+    """Frames -> XYZ -> Lab -> colour difference against a reference, fused in one device pass.
+
+    XYZ = M (o - dark) * gain per pixel with M = C . A (3 x K, composed on the host), then CIELAB for the
+    ``illuminant`` white, then ``delta_E(reference, Lab, method)``. No intermediate is stored unless asked for.
+
+    Parameters
+    ----------
+    frames : array_like or pyopencl.array.Array, (K, H, W) or (K, N)
+        uint8, uint16 or float32 frames of one illumination sequence.
+    A : array_like, (B, K) or (3, K)
+        Decoder from frames to the B outputs; when ``C`` is None it must already give XYZ (3 x K).
+    reference : array_like, (3,) or (H, W, 3)
+        Reference CIELAB colour, or a per-pixel reference image.
+    C : array_like, (3, B), optional
+        Outputs -> XYZ (for example :func:`specgpu.core.spectra.XYZ_weights` for spectral outputs).
+    illuminant, observer
+        Reference white of the Lab conversion (see :func:`XYZ_to_Lab`).
+    method : str
+        Colour-difference formula (see :func:`delta_E`).
+    dark : array_like, (H, W) or (K, H, W), optional
+        Dark level subtracted from every frame (or per frame), in frame units.
+    gain : array_like, (H, W), optional
+        Per-pixel gain (flat field) applied after the matrix.
+    saturation : float, optional
+        Sensor maximum code for the mask (default: the dtype's maximum for integer frames; none for float).
+    return_XYZ, return_Lab, return_mask : bool
+        Also return these intermediates; the mask is uint8, 1 = a frame at ``saturation``,
+        2 = a non-finite frame sample (OR-ed).
+
+    Returns
+    -------
+    delta_E : ndarray, (H, W), float32
+        When no intermediate is asked for; otherwise a :class:`FusedResult` (delta_E, XYZ, Lab, mask).
+    """
+    method = validate_method(method, DELTA_E_METHODS)
+    frames, K = check_frames(frames)
+    spatial = tuple(frames.shape[1:])
+    if C is None:
+        M = check_matrix(A, "A", columns=K, rows=3)
+    else:
+        A = check_matrix(A, "A", columns=K)
+        Cm = check_matrix(C, "C", columns=A.shape[0], columns_from="A (rows)")
+        if Cm.shape[0] != 3:
+            raise ValueError(f"C must map the outputs to XYZ (3 rows), got shape {Cm.shape}")
+        M = check_matrix(np.asarray(Cm, np.float64) @ np.asarray(A, np.float64), "C . A", rows=3)
+    reference = check_last_axis(reference, "reference")
+    if reference.ndim > 1 and reference.shape[:-1] != spatial:
+        raise ValueError(f"reference has shape {reference.shape}, expected (3,) or {(*spatial, 3)}")
+    white = white_point_XYZ(illuminant, observer)
+    on_device = is_device_array(frames)
+    queue = get_queue(device, like=(frames, reference, dark, gain))
+    dark_dev, dark_per_frame = engine.pixel_map(queue, dark, "dark", spatial, K)
+    gain_dev, _ = engine.pixel_map(queue, gain, "gain", spatial, None)
+    if saturation is None and frames.dtype.kind == "u":
+        saturation = float(np.iinfo(frames.dtype).max)
+    n = int(np.prod(spatial, dtype=np.int64))
+    out = engine.frames_to_delta_e(
+        queue, engine.to_device(queue, frames.reshape(-1)), M, white,
+        engine.to_device(queue, reference.reshape(-1)), n=n, method=method,
+        reference_single=reference.ndim == 1, dark=dark_dev, dark_per_frame=dark_per_frame, gain=gain_dev,
+        write_xyz=return_XYZ, write_lab=return_Lab, want_mask=return_mask, saturation=saturation,
+    )
+    de = _result(out.delta_E, spatial, on_device)
+    if not (return_XYZ or return_Lab or return_mask):
+        return de
+    return FusedResult(
+        delta_E=de,
+        XYZ=_result(out.XYZ, (*spatial, 3), on_device) if return_XYZ else None,
+        Lab=_result(out.Lab, (*spatial, 3), on_device) if return_Lab else None,
+        mask=_result(out.mask, spatial, on_device) if return_mask else None,
+    )
+

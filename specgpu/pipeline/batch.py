@@ -1,0 +1,788 @@
+"""Batch re-processing on Dask distributed: the raw frames of a recording (or a sequence folder) through a plan.
+
+``specgpu batch REC.zarr --plan PLAN --out OUT.zarr`` runs its sequences as Dask tasks of up to 8 consecutive
+sequences (a task costs ~13 ms of its own) on a Dask ``LocalCluster`` (or on any ``dask.distributed`` scheduler
+given by address). Each sequence's frames are computed in one device pass as the stream computes them
+(:class:`specgpu.pipeline.stream.StreamDecoder`: the cube by the plan's decoder, XYZ, Lab and dE fused from the same frames,
+the calibration's corrections applied as ``specgpu recover`` applies them; on a CPU device the frames are the
+device buffer and the results are mapped, no copy), equal to ``specgpu recover SEQ --sequence i`` and its
+``to_XYZ`` / ``to_Lab`` / ``delta_E`` to float rounding. Each output's chunk is written while the task's next
+sequence is computed, and the sequence is marked done in the ``done`` array once all of its chunks are written.
+Workers keep their state between tasks (:func:`_worker_state`): the plan, calibration, OpenCL context and queue
+(with its built programs and the decoder's device maps), the source and output handles are made once per worker
+process and reused.
+
+Resuming: an output that exists and was made by the same batch is continued: chunks marked done are never
+recomputed. "The same batch" is its identity, stored in the output's attributes: the source's path and content
+(a recording's ``recording_id`` with the CRC32C checksum of every committed frames chunk; a sequence folder's frame
+checksums from ``sequence.json``), the plan, the calibration and every option that changes a result (outputs,
+illuminant, observer, dE method and reference). Any difference is refused in one line naming the option and both
+values; a source replaced by another recording at the same path is another source. A worker lost mid-run costs only its
+own chunks: the scheduler gives its tasks to other workers (each chunk is written whole before it is marked done,
+and writing it again gives the same bytes).
+
+Everything that can be checked before work is checked before the output is created and the cluster started: the
+source against the plan and calibration (frame size included), every committed frames chunk (or listed frame
+file) present. The output is created complete under a temporary name and renamed into place, so a batch killed
+at any moment leaves either no output or one it can resume; resuming removes the ``*.partial`` chunks a killed
+writer left. A sequence that fails on a worker (a corrupt chunk, a full disk) stops the batch with one line
+naming it; what was done stays done.
+
+The output is a zarr v3 group laid out like a recording (:mod:`specgpu.io.recording`): ``cube`` / ``XYZ`` /
+``Lab`` / ``dE`` along ``time`` with one chunk per sequence, ``wavelength``, ``time`` and ``frame_id``, plus
+``done`` (time,) uint8.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from specgpu.io.recording import _CHANNELS, _chunk_keys, _codecs, _DirectIO, consolidate, open_recording, patterns_hash, \
+    remove_partial_chunks, write_sequence_chunk
+from specgpu.core.spectra import DEFAULT_CMFS
+
+__all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
+
+BATCH_FORMAT = "specgpu.batch"
+BATCH_VERSION = 2  # 2: the source identified by content, every result-changing option in the identity
+BATCH_OUTPUTS = ("cube", "XYZ", "Lab", "dE")
+
+
+# ---------------------------------------------------------------------------------------------------- sources
+
+
+class _RecordingSource:
+    """Raw frames of a zarr recording (``specgpu stream --frames``)."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.rec = open_recording(path)
+        if self.rec.sequences == 0:
+            raise ValueError(f"{self.path}: holds no committed sequence (status {self.rec.attrs.get('status')!r}"
+                             + (f": {self.rec.attrs['error']}" if self.rec.attrs.get("error") else "") + ")")
+        if not self.rec.attrs.get("frames") or "frames" not in self.rec.group:
+            raise ValueError(f"{self.path}: the recording has no raw frames to re-process "
+                             "(record them with specgpu stream --frames)")
+        self.sequences = self.rec.sequences
+        self.K = self.rec.K
+        arr = self.rec.group["frames"]
+        shape = arr.shape
+        if len(shape) != 4 or shape[1] != self.K or tuple(arr.chunks) != (1, *shape[1:]):
+            raise ValueError(f"{self.path}/frames: shape {tuple(shape)} in chunks {tuple(arr.chunks)} is not "
+                             f"(time, {self.K} patterns, y, x) in one chunk per sequence")
+        self.height, self.width = int(shape[2]), int(shape[3])
+        said = (self.rec.attrs.get("height"), self.rec.attrs.get("width"))
+        if said != (None, None) and said != (self.height, self.width):
+            raise ValueError(f"{self.path}/frames: frames are {self.height} x {self.width} but the recording says "
+                             f"{said[0]} x {said[1]}")
+        self.patterns_hash = self.rec.attrs.get("patterns_hash")
+        self.plan_hash = self.rec.attrs.get("plan_hash")
+        self.default_calibration = self.path / "calibration.npz"
+        self._id = None
+
+    @property
+    def content_id(self) -> str:
+        """The recording's ``recording_id`` with the CRC32C trailer of each committed frames chunk (4 bytes read
+        per chunk, no pixel): another recording put at this path, or a frames chunk replaced, changes it. A
+        committed sequence whose chunk is missing is a one-line error here, before any work."""
+        if self._id is None:
+            missing = self.rec.missing("frames")
+            if missing:
+                self.rec.read("frames", missing[0])  # the one-line error naming the recording and sequence
+            arr = self.rec.group["frames"]
+            digest = hashlib.sha256(f"{self.rec.attrs.get('recording_id')}|{self.sequences}".encode())
+            for i in range(self.sequences):
+                chunk = self.path / "frames" / _chunk_keys(arr, i)[0]
+                try:
+                    with open(chunk, "rb") as fh:
+                        fh.seek(-4, os.SEEK_END)
+                        digest.update(fh.read(4))
+                except OSError as exc:
+                    raise ValueError(f"{self.path}/frames: sequence {i}: chunk {chunk.name} unreadable "
+                                     f"({type(exc).__name__})") from None
+            self._id = digest.hexdigest()
+        return self._id
+
+    def frames(self, i: int) -> np.ndarray:
+        return self.rec.read("frames", i)
+
+    def frame_ids(self) -> np.ndarray:
+        return self.rec.read("frame_id", slice(0, self.sequences))
+
+    def times(self) -> np.ndarray:
+        return self.rec.read("time", slice(0, self.sequences))
+
+
+class _FolderSource:
+    """The sequences of a sequence folder (``specgpu capture``): ``sequence.json``, the plan and calibration
+    checked once per process, the frames read (and checked against their checksums) one sequence at a time, so
+    memory does not grow with the capture."""
+
+    def __init__(self, path):
+        from specgpu.io.files import check_frame_files
+        from specgpu.pipeline.recovery import read_capture_header
+
+        self.path = Path(path)
+        self.records, self.meta, plan, _ = read_capture_header(path)
+        check_frame_files(self.path, self.records)  # every listed frame there at its size, no pixel read
+        self.K = plan.K
+        self.sequences = len(self.records) // self.K
+        self.height, self.width = int(self.meta["height"]), int(self.meta["width"])
+        self.patterns_hash = patterns_hash(plan)
+        self.plan_hash = plan.hash
+        self.default_calibration = self.path / "calibration.npz"
+
+    @property
+    def content_id(self) -> str:
+        """The frames' names, sizes and SHA-256 checksums (from ``sequence.json``; each frame read is checked
+        against its own): another capture put at this path changes it."""
+        digest = hashlib.sha256(f"{self.plan_hash}|{self.height}x{self.width}".encode())
+        for r in self.records:
+            digest.update(f"|{r['file']}:{r['bytes']}:{r['sha256']}".encode())
+        return digest.hexdigest()
+
+    def frames(self, i: int) -> np.ndarray:
+        from specgpu.io.files import read_frames
+
+        if not 0 <= i < self.sequences:
+            raise ValueError(f"sequence {i} is out of range: {self.path} holds {self.sequences}")
+        return read_frames(self.path, self.records, self.meta, i * self.K, (i + 1) * self.K)
+
+    def frame_ids(self) -> np.ndarray:
+        return np.array([r["frame_id"] for r in self.records], np.int64).reshape(self.sequences, self.K)
+
+    def times(self) -> np.ndarray:
+        return np.array([r["timestamp_s"] for r in self.records], np.float64)[::self.K]
+
+
+def open_source(path):
+    """A zarr recording with raw frames, or a sequence folder; one-line errors naming the path."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no recording or sequence folder there")
+    if (path / "sequence.json").is_file():
+        return _FolderSource(path)
+    if (path / "zarr.json").is_file():
+        return _RecordingSource(path)
+    raise ValueError(f"{path}: neither a zarr recording (zarr.json) nor a sequence folder (sequence.json)")
+
+
+# ------------------------------------------------------------------------------------------------------- job
+
+
+@dataclass
+class BatchJob:
+    """Everything a worker needs, sent to each worker once (scattered); ``key`` names its cached state."""
+
+    source: str
+    out: str
+    plan: object
+    calibration: object
+    outputs: tuple
+    illuminant: str = "D65"
+    method: str = "CIE 2000"
+    reference: np.ndarray | None = None
+    device: str | None = None
+    source_id: str = ""
+    observer: str = DEFAULT_CMFS
+    sequences: int = 0  # the source's committed sequences when the batch started (a recording may still grow)
+
+    @property
+    def key(self) -> tuple:
+        # the source's content id: a worker that outlives a batch (``--scheduler``) never reuses the handles of a
+        # recording since replaced at the same path
+        return (self.source, self.source_id, self.out, self.plan.hash, self.calibration.hash, self.outputs,
+                self.illuminant, self.observer, self.method, self.device)
+
+
+_STATE: dict = {}
+_STATE_LOCK = threading.Lock()
+_STATES_KEPT = 4  # a long-lived worker keeps the states of its last few batches, not of every batch it ran
+_DIRECT = _DirectIO()  # whether the output's file system takes direct I/O (found on the first large chunk)
+_POOL: list = []
+
+
+def _writer_pool():
+    """This process's chunk writer threads (made on first use)."""
+    with _STATE_LOCK:
+        if not _POOL:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _POOL.append(ThreadPoolExecutor(max_workers=4, thread_name_prefix="specgpu-batch-writer"))
+        return _POOL[0]
+
+
+@dataclass
+class _WorkerState:
+    queue: object
+    source: object
+    out: object
+    builds: int = 1
+    pid: int = field(default_factory=os.getpid)
+
+
+def _worker_state(job: BatchJob) -> tuple[_WorkerState, bool]:
+    """This process's state for ``job``: built on the first task, reused by every later one."""
+    import zarr
+
+    from specgpu.engine.runtime import get_queue
+
+    with _STATE_LOCK:
+        state = _STATE.get(job.key)
+        if state is not None:
+            return state, False
+        source = open_source(job.source)
+        if job.sequences and isinstance(source, _RecordingSource) and source.sequences > job.sequences:
+            source.sequences = job.sequences  # a recording still being written: its content as the batch saw it
+        if job.source_id and source.content_id != job.source_id:
+            raise ValueError(f"{job.source}: changed since the batch started (another recording or capture at "
+                             "that path); run the batch again")
+        state = _WorkerState(queue=get_queue(job.device), source=source,
+                             out=zarr.open_group(job.out, mode="r+", zarr_format=3))
+        while len(_STATE) >= _STATES_KEPT:
+            _STATE.pop(next(iter(_STATE)))
+        _STATE[job.key] = state
+        return state, True
+
+
+def process_sequence(job: BatchJob, i: int) -> dict:
+    """Recover sequence ``i`` of the job's source and write its chunk of every output, then mark it done.
+
+    A failure is returned as ``error`` (one line naming the sequence), not raised: the driver stops the batch
+    with that line, and no worker prints a traceback."""
+    return process_sequences(job, [i])[0]
+
+
+def process_sequences(job: BatchJob, indices) -> list[dict]:
+    """:func:`process_sequence` of several sequences in one task (a Dask task costs ~13 ms of its own), each
+    sequence written and marked done on its own as before: the writes of one sequence run while the next is
+    computed, and its ``done`` is marked once they returned. The records in order; the first failure ends the
+    list (its record carries ``error``), the sequences before it stay done."""
+    records, pending = [], None
+    for i in indices:
+        i = int(i)
+        try:
+            started = _start_sequence(job, i)
+        except Exception as exc:  # noqa: BLE001 (reported to the driver as one line)
+            started = _error_record(job, i, exc)
+        if pending is not None:
+            records.append(_finish_or_record(job, pending))
+            if records[-1].get("error"):
+                if isinstance(started, _Pending):
+                    _release(started)  # its writes are waited for, never marked done
+                return records
+        if isinstance(started, dict):
+            records.append(started)
+            return records
+        pending = started
+    if pending is not None:
+        records.append(_finish_or_record(job, pending))
+    return records
+
+
+def _error_record(job: BatchJob, i: int, exc: BaseException) -> dict:
+    text = str(exc).strip()
+    line = text.splitlines()[0] if text else type(exc).__name__
+    if not isinstance(exc, (ValueError, OSError)):
+        line = f"{type(exc).__name__}: {line}"
+    if f"sequence {int(i)}" not in line:
+        line = f"{job.source}: sequence {int(i)}: {line}"
+    return {"index": int(i), "pid": os.getpid(), "built": False, "error": line}
+
+
+def _finish_or_record(job: BatchJob, pending) -> dict:
+    try:
+        return _finish_sequence(job, pending)
+    except Exception as exc:  # noqa: BLE001
+        return _error_record(job, pending.index, exc)
+
+
+@dataclass
+class _Pending:
+    """A sequence computed and its chunks being written: waited for, unmapped and marked done by
+    :func:`_finish_sequence`."""
+
+    index: int
+    state: object
+    built: bool
+    writes: list
+    mapped: list
+    buffers: dict  # the device buffers (pooled) the mapped results are views of: never reused while written
+
+
+def _decoder(job: BatchJob, state):
+    """This worker's fused decoder of the job (:class:`specgpu.pipeline.stream.StreamDecoder`, made once): the plan's A,
+    the calibration's dark, flat field and saturation level and, for colour outputs, the matrix to XYZ of the
+    plan's outputs with the white and the dE reference, on the device. The cube comes from one linear pass over
+    the frames and XYZ, Lab and dE from one fused pass over the same frames (never from the cube read back), as
+    the stream computes them; the host-side corrections recover applies (linearisation, per-pattern flat field,
+    an ambient frame) are applied to the frames first exactly as recover does (``prepare_frames``)."""
+    dec = state.__dict__.get("_decoder")
+    if dec is None:
+        import pyopencl as cl
+
+        from specgpu.pipeline.stream import StreamDecoder
+
+        dec = StreamDecoder(job.plan, job.calibration, job.outputs,
+                            frame_shape=(state.source.height, state.source.width), queue=state.queue,
+                            reference=job.reference if "dE" in job.outputs else None, method=job.method,
+                            illuminant=job.illuminant, observer=job.observer, cube_dtype=np.float32)
+        # on a CPU device the frames are the device buffer and the results are mapped (no copy either way)
+        state._zero_copy = bool(state.queue.device.type & cl.device_type.CPU)
+        state._decoder = dec
+    return dec
+
+
+def _start_sequence(job: BatchJob, i: int) -> _Pending:
+    """Compute sequence ``i`` in one device pass and start writing each output's chunk (written as the recorder
+    writes: zarr's bytes, large chunks with direct I/O)."""
+    import pyopencl as cl
+    import pyopencl.array as cla
+
+    from specgpu.engine.runtime import get_allocator
+
+    state, built = _worker_state(job)
+    handles = state.__dict__.setdefault("_arrays", {})  # zarr handles of the output, opened once per worker
+    for name in (*job.outputs, "done"):
+        if name not in handles:
+            handles[name] = state.out[name]
+    dec = _decoder(job, state)
+    q = state.queue
+    raw = state.source.frames(i)
+    if tuple(raw.shape) != (dec.K, dec.height, dec.width):
+        raise ValueError(f"{job.source}: sequence {i}: frames of shape {tuple(raw.shape)}, the batch needs "
+                         f"({dec.K}, {dec.height}, {dec.width})")
+    host = dec.prepare_frames(raw) if dec.precorrect else raw
+    flat = np.ascontiguousarray(host).reshape(-1)
+    zero_copy = state._zero_copy
+    if zero_copy:
+        buf = cl.Buffer(q.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=flat)
+        frames = cla.Array(q, flat.shape, flat.dtype, data=buf)
+    else:
+        frames = cla.to_device(q, flat, allocator=get_allocator(q))
+    outs = dec.enqueue(frames)
+    shapes = dec.shapes()
+    arrays, mapped, events = {}, [], []
+    for name, dev in outs.items():
+        shape, dtype = shapes[name]
+        if zero_copy:  # READ | WRITE: saturated pixels are set to NaN in place
+            arr, ev = cl.enqueue_map_buffer(q, dev, cl.map_flags.READ | cl.map_flags.WRITE, 0, shape, dtype,
+                                            is_blocking=False)
+            mapped.append(arr)
+        else:
+            arr = np.empty(shape, dtype)
+            ev = cl.enqueue_copy(q, arr, dev, is_blocking=False)
+        arrays[name] = arr
+        events.append(ev)
+    pending = _Pending(i, state, built, [], mapped, outs)
+    try:
+        cl.wait_for_events(events)
+        mask = arrays.pop("mask")
+        if mask.any():  # a sample at the sensor's maximum code: no valid measurement, NaN as recover makes it
+            saturated = (mask & 1).astype(bool)
+            for arr in arrays.values():
+                arr[saturated] = np.nan
+        for name in job.outputs:
+            pending.writes.append((name, _writer_pool().submit(write_sequence_chunk, handles[name], i,
+                                                               arrays[name],
+                                                               direct=_DIRECT)))
+    except BaseException:
+        _release(pending)
+        raise
+    del frames
+    return pending
+
+
+def _release(pending: _Pending) -> None:
+    """Wait for every write of ``pending``, then unmap its results."""
+    for _, write in pending.writes:
+        write.exception()
+    for arr in pending.mapped:
+        arr.base.release(pending.state.queue)
+    pending.mapped, pending.buffers = [], {}  # unmapped: the buffers go back to the pool
+
+
+def _finish_sequence(job: BatchJob, pending: _Pending) -> dict:
+    """Wait for the chunks of a started sequence, then mark it done (after every chunk is written)."""
+    i = pending.index
+    _release(pending)  # every write waited for before the chunk counts as done, or before failing
+    for name, write in pending.writes:
+        if write.exception() is not None:
+            raise _write_error(job, name, i, write.exception())
+    try:
+        # through zarr (a temporary renamed into place): a kill leaves the mark absent or whole, never an empty file
+        pending.state.__dict__["_arrays"]["done"][i] = 1
+    except Exception as exc:  # noqa: BLE001
+        raise _write_error(job, "done", i, exc) from None
+    return {"index": i, "pid": pending.state.pid, "built": pending.built}
+
+
+def _write_error(job: BatchJob, name: str, i: int, exc: BaseException) -> OSError:
+    """A failed chunk write (a full disk) as one line naming the output array and the sequence, never the file
+    the writer was writing."""
+    reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else \
+        (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return OSError(f"{job.out}/{name}: writing sequence {i} failed ({reason})")
+
+
+# ------------------------------------------------------------------------------------------------ the driver
+
+
+@dataclass
+class BatchReport:
+    sequences: int
+    computed: int
+    skipped: int
+    seconds: float
+    workers: int
+    contexts_built: int
+    pids: dict
+
+    @property
+    def sequences_per_s(self) -> float:
+        return self.computed / self.seconds if self.seconds > 0 else 0.0
+
+
+#: identity attribute -> (what it is called on the command line, how its value is shown in a refusal)
+_IDENTITY_NAMES = {
+    "format": ("the output format", str), "version": ("the batch format version", str),
+    "source": ("SOURCE", str),
+    "source_id": ("SOURCE's content (recording id and frame checksums)", lambda v: str(v)[:12]),
+    "source_plan_hash": ("SOURCE's plan", lambda v: str(v)[:12]), "sequences": ("SOURCE's sequence count", str),
+    "plan_hash": ("--plan", lambda v: str(v)[:12]), "calibration": ("--calib", lambda v: str(v)[:12]),
+    "outputs": ("--outputs", lambda v: ",".join(v) if isinstance(v, list) else str(v)),
+    "illuminant": ("--illuminant", str), "observer": ("--observer", str), "method": ("--method", str),
+    "reference_sha256": ("--delta-e-ref", None),
+}
+
+
+def reference_label(reference) -> str | None:
+    """How a dE reference is shown: ``L,a,b`` when it is one colour, else a per-pixel map by checksum."""
+    if reference is None:
+        return None
+    ref = np.asarray(reference, np.float32)
+    flat = ref.reshape(-1, ref.shape[-1]) if ref.ndim > 1 else ref.reshape(1, -1)
+    if np.all(flat == flat[0]):
+        return ",".join(f"{float(v):g}" for v in flat[0])
+    return f"a per-pixel Lab map {_reference_hash(ref)[:12]}"
+
+
+def _reference_hash(reference) -> str | None:
+    if reference is None:
+        return None
+    ref = np.ascontiguousarray(np.asarray(reference, np.float32))
+    return hashlib.sha256(repr(ref.shape).encode() + ref.tobytes()).hexdigest()
+
+
+def _identity_mismatch(out: Path, attrs: dict, identity: dict) -> str | None:
+    """One line naming the first identity entry ``out`` was made with that differs from this run's, with both
+    values; None when it is the same batch."""
+    for key, value in identity.items():
+        old = attrs.get(key)
+        if key == "observer" and key not in attrs and attrs.get("illuminant") is not None:
+            old = DEFAULT_CMFS  # made before the observer was recorded: its colours are the 2 degree observer's
+        if old == value:
+            continue
+        if key == "reference_sha256":
+            name, was, now = "--delta-e-ref", attrs.get("delta_e_ref"), identity.get("delta_e_ref")
+        elif key == "delta_e_ref":
+            continue  # the label: the checksum decides
+        else:
+            name, show = _IDENTITY_NAMES.get(key, (key, str))
+            was, now = (show(old) if old is not None else None), show(value)
+        return (f"{out}: holds a batch made with {name} {was if was is not None else '(none)'}, this run gives "
+                f"{now if now is not None else '(none)'}; resume only the same batch, or choose a new --out")
+    return None
+
+
+def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
+                  method="CIE 2000", reference=None, device=None) -> tuple[BatchJob, np.ndarray]:
+    """Check the source against the plan, create (or reopen, to resume) the output; returns the job and the
+    indices of the sequences still to compute. Every refusal is one line naming the file, found before the
+    output is created. ``illuminant``: of XYZ, Lab and dE, recorded in the output; default the plan's own for a
+    tristimulus or camera plan, else D65 (:meth:`specgpu.planning.plans.Plan.resolve_illuminant`); ``observer`` likewise
+    (:meth:`specgpu.planning.plans.Plan.resolve_observer`: a tristimulus plan's own, else the 2 degree observer)."""
+    import zarr
+
+    illuminant = plan.resolve_illuminant(illuminant, name="the batch plan")
+    observer = plan.resolve_observer(observer, name="the batch plan")
+    _remove_dead_writers_partials(source_path)
+    source = open_source(source_path)
+    outputs = tuple(dict.fromkeys(outputs))
+    unknown = [o for o in outputs if o not in BATCH_OUTPUTS]
+    if unknown or not outputs:
+        raise ValueError(f"unknown batch output {unknown[0] if unknown else '(none)'!r}; valid outputs: "
+                         f"{', '.join(BATCH_OUTPUTS)}")
+    if plan.K != source.K or patterns_hash(plan) != source.patterns_hash:
+        raise ValueError(f"{source.path}: recorded with plan {str(source.plan_hash)[:12]} ({source.K} patterns), "
+                         f"whose illumination sequence is not the given plan's ({plan.hash[:12]}, {plan.K} "
+                         "patterns); re-process frames only with a plan of the same patterns")
+    plan.check_calibration(calibration, name="the batch plan")
+    if tuple(calibration.frame_shape) != (source.height, source.width):
+        raise ValueError(f"{source.path}: frames are {source.height} x {source.width} pixels but the calibration "
+                         f"{calibration.hash[:12]} is for {calibration.frame_shape[0]} x "
+                         f"{calibration.frame_shape[1]}; re-process with the calibration of the capture")
+    if "dE" in outputs and reference is None:
+        raise ValueError("the dE output needs a reference (--delta-e-ref)")
+    if reference is not None and "dE" not in outputs:
+        reference = None  # no result uses it
+    if reference is not None:
+        ref = np.asarray(reference, np.float32)
+        if ref.shape not in ((3,), (source.height, source.width, 3)):
+            raise ValueError(f"the dE reference must be one L,a,b or a {source.height} x {source.width} x 3 map, "
+                             f"got shape {ref.shape}")
+    if {"XYZ", "Lab", "dE"} & set(outputs):
+        plan.outputs_to_XYZ(illuminant, observer)  # a plan with no XYZ: refused here, not on every worker
+    n, h, w = source.sequences, source.height, source.width
+    if n == 0:
+        raise ValueError(f"{source.path}: holds no committed sequence")
+    out = Path(out)
+    identity = {"format": BATCH_FORMAT, "version": BATCH_VERSION, "source": str(Path(source_path).resolve()),
+                "source_id": source.content_id, "source_plan_hash": source.plan_hash, "plan_hash": plan.hash,
+                "calibration": calibration.hash, "outputs": list(outputs), "sequences": n,
+                "illuminant": illuminant if {"XYZ", "Lab", "dE"} & set(outputs) else None,
+                "observer": observer if {"XYZ", "Lab", "dE"} & set(outputs) else None,
+                "method": method if "dE" in outputs else None,
+                "reference_sha256": _reference_hash(reference), "delta_e_ref": reference_label(reference)}
+    job = BatchJob(str(source_path), str(out), plan, calibration, outputs, illuminant, method,
+                   None if reference is None else np.asarray(reference, np.float32), device, identity["source_id"],
+                   observer, n)
+    _remove_dead_creations(out)
+    if out.exists() and _unfinished_creation(out):
+        shutil.rmtree(out)  # made by an older specgpu killed before its first sequence: nothing in it to keep
+    if out.exists():
+        try:
+            group = zarr.open_group(str(out), mode="r", zarr_format=3)
+            attrs = dict(group.attrs)
+            done = _done_flags(group["done"])
+        except Exception as exc:  # noqa: BLE001
+            raise ValueError(f"{out}: exists and is not a batch output to resume ({type(exc).__name__}); "
+                             "choose a new --out") from None
+        mismatch = _identity_mismatch(out, attrs, identity)
+        if mismatch:
+            raise ValueError(mismatch)
+        remove_partial_chunks(out)  # half-written chunks of a killed run (no writer runs on it now)
+        return job, np.flatnonzero(done == 0)
+    _create_output(out, identity, plan, method, outputs, source, n, h, w)
+    return job, np.arange(n)
+
+
+def _done_flags(done) -> np.ndarray:
+    """The ``done`` marks, one chunk at a time: a mark that cannot be read (cut by a crash) counts as not done, so
+    its sequence is computed again instead of the whole output being refused."""
+    try:
+        return np.asarray(done[:])
+    except Exception:  # noqa: BLE001 (a damaged chunk: read the others one by one)
+        flags = np.zeros(done.shape[0], np.uint8)
+        for i in range(done.shape[0]):
+            try:
+                flags[i] = done[i]
+            except Exception:  # noqa: BLE001
+                flags[i] = 0
+        return flags
+
+
+def _remove_dead_writers_partials(source_path) -> None:
+    """The ``*.partial`` chunks a recorder killed by ``kill -9`` left in a recording (5 MB each for raw frames):
+    removed when no live writer holds the recording's lock (a recording is never written again, so nothing
+    else would); a live writer's, or a recording we cannot lock (read-only), are left alone."""
+    from specgpu.core.locks import OutputLocked, output_lock
+
+    path = Path(source_path)
+    if not (path / "zarr.json").is_file() or not any(path.rglob("*.partial")):
+        return
+    try:
+        with output_lock(path):  # a recorder used from Python holds no lock: its metadata renames are left alone
+            remove_partial_chunks(path, chunks_only=True)
+    except (OutputLocked, OSError):
+        pass
+
+
+def _creation_name(out: Path, pid: int | None = None) -> Path:
+    return out.parent / f".{out.name}.{os.getpid() if pid is None else pid}.creating"
+
+
+def _remove_dead_creations(out: Path) -> None:
+    """Remove the half-made outputs (``.OUT.<pid>.creating``) of batches killed while creating ``out``."""
+    from specgpu.core.locks import pid_alive
+
+    prefix = f".{out.name}."
+    try:
+        entries = list(os.scandir(out.parent))
+    except OSError:
+        return
+    for entry in entries:
+        if entry.name.startswith(prefix) and entry.name.endswith(".creating"):
+            pid = entry.name[len(prefix):-len(".creating")]
+            if pid.isdigit() and not pid_alive(int(pid)):
+                shutil.rmtree(entry.path, ignore_errors=True)
+
+
+def _unfinished_creation(out: Path) -> bool:
+    """A batch output whose creation was cut before its ``done`` array existed (an older specgpu created it in
+    place): no sequence was computed in it."""
+    import json
+
+    try:
+        doc = json.loads((out / "zarr.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    attrs = doc.get("attributes", {}) if isinstance(doc, dict) else {}
+    return (isinstance(attrs, dict) and attrs.get("format") == BATCH_FORMAT and attrs.get("status") == "running"
+            and not (out / "done" / "zarr.json").exists())
+
+
+def _create_output(out: Path, identity: dict, plan, method, outputs, source, n, h, w) -> None:
+    """The output group made whole under a temporary name beside ``out``, then renamed to it: a batch killed
+    while creating it leaves no ``out`` (its temporary is removed by the next run)."""
+    import zarr
+
+    tmp = _creation_name(out)
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    try:
+        group = zarr.open_group(str(tmp), mode="w-", zarr_format=3)
+        group.attrs.update({**identity, "plan_method": plan.method, "status": "running"})
+
+        def make(name, tail, dtype, dims, fill, attrs=None):
+            group.create_array(name, shape=(n, *tail), chunks=(1, *tail), dtype=dtype, compressors=_codecs(),
+                               fill_value=fill, dimension_names=("time", *dims), attributes=attrs or {},
+                               config={"write_empty_chunks": True})
+
+        B = plan.A.shape[0]
+        reflectance = plan.output == "reflectance"
+        for name in outputs:
+            if name == "cube":
+                dim = "wavelength" if reflectance else "output"
+                make(name, (h, w, B), "float32", ("y", "x", dim), np.nan,
+                     {"wavelength_units": "nm"} if reflectance else
+                     {"channels": list(map(str, plan.output_labels))})
+            elif name in _CHANNELS:
+                make(name, (h, w, 3), "float32", ("y", "x", f"{name}_channel"), np.nan,
+                     {"channels": list(_CHANNELS[name])})
+            else:
+                make(name, (h, w), "float32", ("y", "x"), np.nan, {"method": method})
+        if "cube" in outputs and reflectance:
+            group.create_array("wavelength", data=np.asarray(plan.output_wavelengths, np.float64),
+                               dimension_names=("wavelength",), attributes={"units": "nm"}, compressors=_codecs())
+        group.create_array("frame_id", data=source.frame_ids(), chunks=(1, source.K),
+                           dimension_names=("time", "pattern"), compressors=_codecs())
+        group.create_array("time", data=source.times(), chunks=(1,), dimension_names=("time",),
+                           attributes={"units": "s"}, compressors=_codecs())
+        group.create_array("done", shape=(n,), chunks=(1,), dtype="uint8", fill_value=0, dimension_names=("time",),
+                           compressors=_codecs(), config={"write_empty_chunks": True})
+        os.rename(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+#: Sequences per Dask task at most: a task costs ~13 ms of its own, a sequence ~40 ms on 2 cores; more per task
+#: would leave workers idle at the end of a batch, and a killed worker's unfinished task is rerun whole (the
+#: sequences it had marked done are written again, the same bytes).
+_TASK_SEQUENCES = 8
+
+
+def _task_groups(todo, workers: int) -> list[list[int]]:
+    """``todo`` split into consecutive groups, one Dask task each: up to :data:`_TASK_SEQUENCES` sequences, and
+    at least 4 tasks per worker so that every worker has work to the end."""
+    todo = [int(i) for i in todo]
+    size = max(1, min(_TASK_SEQUENCES, len(todo) // (4 * max(1, int(workers)))))
+    return [todo[k:k + size] for k in range(0, len(todo), size)]
+
+
+def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
+              method="CIE 2000", reference=None, scheduler=None, workers: int = 1, client=None,
+              progress: bool = True, on_done=None, device=None) -> BatchReport:
+    """Re-process every sequence of ``source_path`` with ``plan`` into ``out`` on Dask (see the module docstring).
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        Address of a running ``dask.distributed`` scheduler; default a ``LocalCluster`` of ``workers`` processes
+        with one thread each.
+    client : distributed.Client, optional
+        Use this client (and its cluster) instead.
+    on_done : callable, optional
+        Given each finished task's record (``index``, ``pid``, ``built``) on the calling thread.
+    """
+    from specgpu.core.locks import output_lock
+
+    with output_lock(out, make_parents=True):  # one batch per output: resuming, cleaning and writing are its own
+        return _run_locked(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
+                           observer=observer, method=method, reference=reference, scheduler=scheduler,
+                           workers=workers, client=client, progress=progress, on_done=on_done, device=device)
+
+
+def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, observer, method, reference, scheduler,
+                workers, client, progress, on_done, device) -> BatchReport:
+    import logging
+    import time
+    import uuid
+
+    from distributed import Client, LocalCluster, as_completed
+    from tqdm import tqdm
+
+    job, todo = prepare_batch(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
+                              observer=observer, method=method, reference=reference, device=device)
+    t0 = time.perf_counter()
+    cluster = own = None
+    failure = None
+    try:
+        if client is None:
+            if scheduler:
+                client = own = Client(scheduler)
+            else:  # the workers' log lines (a worker restarted, ...) stay out of the command's output
+                cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", silence_logs=logging.ERROR)
+                client = own = Client(cluster)
+        pids: dict = {}
+        built = 0
+        if len(todo):
+            [shared] = client.scatter([job], broadcast=True)
+            t0 = time.perf_counter()  # the cluster's start is not the batch's time
+            run = uuid.uuid4().hex[:12]  # this run's task keys: never another batch's result on a shared scheduler
+            futures = [client.submit(process_sequences, shared, group, key=f"specgpu-batch-{group[0]}-{run}",
+                                     pure=False)
+                       for group in _task_groups(todo, len(client.scheduler_info().get("workers", {})) or 1)]
+            with tqdm(total=len(todo), desc="batch", unit="seq", disable=not progress, leave=False) as bar:
+                for future in as_completed(futures):
+                    records = future.result()
+                    future.release()
+                    for record in records:
+                        if record.get("error"):
+                            failure = record["error"]
+                            break
+                        pids[record["pid"]] = pids.get(record["pid"], 0) + 1
+                        built += bool(record["built"])
+                        bar.update()
+                        if on_done is not None:
+                            on_done(record)
+                    if failure is not None:
+                        client.cancel(futures)
+                        break
+        seconds = time.perf_counter() - t0
+        n_workers = len(client.scheduler_info().get("workers", {}))
+    finally:
+        if own is not None:
+            own.close()
+        if cluster is not None:
+            cluster.close()
+    import zarr
+
+    group = zarr.open_group(str(out), mode="r+", zarr_format=3)
+    total = group["done"].shape[0]
+    done = int(np.count_nonzero(_done_flags(group["done"])))
+    group.attrs["status"] = "complete" if done == total else "running"
+    consolidate(out)
+    if failure is not None:
+        raise ValueError(f"{failure} ({done} of {total} sequences done in {out}; run the batch again to resume)")
+    return BatchReport(sequences=total, computed=len(todo), skipped=total - len(todo), seconds=seconds,
+                       workers=n_workers, contexts_built=built, pids=pids)

@@ -1,0 +1,286 @@
+"""Accuracy of a recovery against a scene's ground truth: per pixel (error maps and their statistics) and, for
+a chart, per patch (the paper's Tables 2 and 3).
+
+Per patch: accuracy of a recovery against a scene's ground truth: spectral RMSE and colour differences.
+
+A chart scene (:class:`specgpu.rig.scene.SpectralScene`) carries one boolean mask per patch. The recovered image
+is averaged over each mask (the paper compares one spectrum per patch with a spectrometer reading), then:
+
+- spectral RMSE per patch, ``sqrt(mean_lambda (R_est - R_true)^2)`` over the recovery's own wavelengths, the
+  truth linearly interpolated there (paper Table 1's RMSE);
+- CIELAB colour differences (CIE 1976 dE*ab, CIE 2000) per patch under an illuminant, from XYZ of the
+  recovered and true spectra computed on the same wavelengths (so a method is judged on what it recovers, not
+  on the range it leaves out), or from a tristimulus plan's XYZ directly against the truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
+from specgpu.rig.scene import interpolation_matrix
+from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights
+
+__all__ = ["PatchReport", "patch_means", "rmse_per_patch", "delta_E_per_patch", "evaluate_reflectance",
+           "evaluate_XYZ", "true_patch_spectra", "PixelReport", "truth_cube", "scene_XYZ", "evaluate_pixels",
+           "evaluation_illuminant"]
+
+
+@dataclass(frozen=True)
+class PatchReport:
+    """Per-patch metrics.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Patch names, in mask order.
+    rmse : numpy.ndarray or None
+        (P,) spectral RMSE (reflectance units), None for colorimetric outputs.
+    delta_E_ab : numpy.ndarray
+        (P,) CIE 1976 dE*ab.
+    delta_E_2000 : numpy.ndarray
+        (P,) CIE 2000 dE00.
+    illuminant : str
+        Illuminant of the colour differences.
+    """
+
+    names: tuple
+    rmse: np.ndarray | None
+    delta_E_ab: np.ndarray
+    delta_E_2000: np.ndarray
+    illuminant: str
+
+    def summary(self) -> dict:
+        """``{metric: (average, maximum)}`` over the patches."""
+        out = {}
+        for key in ("rmse", "delta_E_ab", "delta_E_2000"):
+            v = getattr(self, key)
+            if v is not None:
+                out[key] = (float(np.mean(v)), float(np.max(v)))
+        return out
+
+    def worst(self, metric: str = "delta_E_ab") -> str:
+        """Name of the patch with the largest value of ``metric``."""
+        v = getattr(self, metric)
+        if v is None:
+            raise ValueError(f"this report has no {metric}")
+        return self.names[int(np.argmax(v))]
+
+
+def patch_means(image, masks: dict) -> tuple[tuple, np.ndarray]:
+    """Mean of an (H, W, C) image over each (H, W) boolean mask; returns (names, (P, C) float64).
+
+    Non-finite pixels (saturated or NaN recoveries) are left out of a patch's mean; a patch with no finite
+    pixel is NaN.
+    """
+    img = np.asarray(image)
+    if img.ndim != 3:
+        raise ValueError(f"image must be (H, W, C), got shape {img.shape}")
+    if not masks:
+        raise ValueError("masks is empty: the scene has no patches to evaluate")
+    names, rows = [], []
+    for name, m in masks.items():
+        m = np.asarray(m, bool)
+        if m.shape != img.shape[:2]:
+            raise ValueError(f"mask {name!r} has shape {m.shape}, the image {img.shape[:2]}")
+        px = img[m].astype(np.float64)
+        px = px[np.all(np.isfinite(px), axis=1)]
+        rows.append(px.mean(axis=0) if px.size else np.full(img.shape[2], np.nan))
+        names.append(str(name))
+    return tuple(names), np.array(rows)
+
+
+def true_patch_spectra(scene, wavelengths=None) -> tuple[tuple, np.ndarray]:
+    """A scene's per-patch mean reflectance, optionally interpolated to ``wavelengths`` (nm); (names, (P, B))."""
+    names, spectra = patch_means(scene.reflectance, scene.masks)
+    if wavelengths is None:
+        return names, spectra
+    return names, spectra @ _resampling(scene, wavelengths).T
+
+
+def rmse_per_patch(estimate, truth) -> np.ndarray:
+    """(P,) root-mean-square difference over the last axis of two (P, B) spectra sets."""
+    e, t = np.asarray(estimate, np.float64), np.asarray(truth, np.float64)
+    if e.shape != t.shape or e.ndim != 2:
+        raise ValueError(f"estimate {e.shape} and truth {t.shape} must both be (P, B)")
+    return np.sqrt(np.mean((e - t) ** 2, axis=1))
+
+
+def delta_E_per_patch(XYZ_estimate, XYZ_truth, illuminant="D65", observer: str = DEFAULT_CMFS) -> tuple:
+    """(dE*ab, dE2000), each (P,), between two (P, 3) XYZ sets (Y = 1 for the white) under ``illuminant``."""
+    a = np.asarray(XYZ_truth, np.float32)
+    b = np.asarray(XYZ_estimate, np.float32)
+    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"XYZ_estimate {b.shape} and XYZ_truth {a.shape} must both be (P, 3)")
+    lab_t = XYZ_to_Lab(a, illuminant, observer=observer)
+    lab_e = XYZ_to_Lab(b, illuminant, observer=observer)
+    return (np.asarray(delta_E(lab_t, lab_e, "CIE 1976"), np.float64),
+            np.asarray(delta_E(lab_t, lab_e, "CIE 2000"), np.float64))
+
+
+def evaluate_reflectance(cube, wavelengths, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS) -> PatchReport:
+    """Per-patch RMSE and colour differences of a recovered reflectance cube against a chart scene.
+
+    Parameters
+    ----------
+    cube : array_like, (H, W, B)
+        Recovered reflectance (the scene's frame size).
+    wavelengths : array_like, (B,)
+        Evenly spaced wavelengths of the cube, nm, within the scene's range.
+    scene : SpectralScene
+        The truth, with patch masks.
+    illuminant, cmfs
+        For the colour differences (XYZ on the cube's wavelengths for both).
+    """
+    wl = np.asarray(wavelengths, np.float64)
+    names, est = patch_means(cube, scene.masks)
+    _, truth = true_patch_spectra(scene, wl)
+    W = XYZ_weights(wl, illuminant, cmfs)
+    dab, d00 = delta_E_per_patch(est @ W.T, truth @ W.T, illuminant, _observer_name(cmfs))
+    return PatchReport(names, rmse_per_patch(est, truth), dab, d00, str(illuminant))
+
+
+def evaluate_XYZ(xyz, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS, wavelengths=None) -> PatchReport:
+    """Per-patch colour differences of an XYZ image (a tristimulus plan's output) against a chart scene.
+
+    The truth is the XYZ of each patch's mean reflectance under ``illuminant`` on ``wavelengths`` (the scene's
+    own grid by default).
+    """
+    names, est = patch_means(xyz, scene.masks)
+    if est.shape[1] != 3:
+        raise ValueError(f"xyz must have 3 channels, got {est.shape[1]}")
+    wl = scene.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
+    _, truth = true_patch_spectra(scene, wl)
+    W = XYZ_weights(wl, illuminant, cmfs)
+    dab, d00 = delta_E_per_patch(est, truth @ W.T, illuminant, _observer_name(cmfs))
+    return PatchReport(names, None, dab, d00, str(illuminant))
+
+
+def evaluation_illuminant(recorded, requested=None, *, colorimetric: bool, name: str = "the estimate") -> str:
+    """The illuminant to judge an estimate under, from the one its file records and the one asked for.
+
+    Parameters
+    ----------
+    recorded : str or None
+        The ``illuminant`` an estimate's metadata records (``specgpu recover`` writes the plan's for a tristimulus
+        plan, the one of its XYZ / Lab / dE outputs otherwise); None for a file that records none.
+    requested : str, optional
+        The one asked for; None: the recorded one, else D65.
+    colorimetric : bool
+        The estimate holds XYZ (relative to its illuminant's white): judging it under another illuminant compares
+        colours taken under two lights, so a contradiction is refused. A reflectance cube holds under any
+        illuminant and takes the one asked for.
+    name : str
+        How an error names the estimate (its file).
+
+    Raises
+    ------
+    ValueError
+        One line naming the file and both illuminants.
+    """
+    if recorded is not None and (not isinstance(recorded, str) or not recorded.strip()):
+        raise ValueError(f"{name}: the recorded illuminant {recorded!r} is not an illuminant name")
+    if requested is None:
+        return recorded or "D65"
+    if colorimetric and recorded and recorded.lower() != str(requested).lower():
+        raise ValueError(f"{name} holds XYZ under illuminant {recorded}, not {requested}: evaluating it under "
+                         f"{requested} would compare colours taken under two lights (leave --illuminant out to use "
+                         f"{recorded})")
+    return str(requested)
+
+
+def _observer_name(cmfs) -> str:
+    return cmfs if isinstance(cmfs, str) else getattr(cmfs, "name", DEFAULT_CMFS)
+
+
+# ---- per pixel ---------------------------------------------------------------------------------------------
+@dataclass
+class PixelReport:
+    """Per-pixel error maps of an estimate against the truth scene (float32, (H, W)); ``rmse`` is None for
+    colorimetric estimates."""
+
+    rmse: np.ndarray | None
+    delta_E_ab: np.ndarray
+    delta_E_2000: np.ndarray
+    illuminant: str
+
+    def statistics(self) -> dict:
+        """``{metric: {"mean", "median", "p95", "max"}}`` over the finite pixels."""
+        out = {}
+        for key in ("rmse", "delta_E_ab", "delta_E_2000"):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            v = v[np.isfinite(v)]
+            if v.size == 0:  # no valid pixel (a saturated capture): say so, do not crash
+                out[key] = {"mean": float("nan"), "median": float("nan"), "p95": float("nan"), "max": float("nan")}
+                continue
+            out[key] = {"mean": float(v.mean()), "median": float(np.median(v)),
+                        "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+        return out
+
+
+def _resampling(scene, wavelengths) -> np.ndarray:
+    """(B, B_scene) linear interpolation from the scene's bands to ``wavelengths``; a scene whose bands do not
+    cover them is an error (the truth is never extrapolated)."""
+    wl = np.asarray(wavelengths, np.float64)
+    lo, hi = float(scene.wavelengths[0]), float(scene.wavelengths[-1])
+    if wl.min() < lo - 1e-6 or wl.max() > hi + 1e-6:
+        raise ValueError(f"the truth scene {scene.name!r} covers {lo:g}-{hi:g} nm, not the estimate's "
+                         f"{wl.min():g}-{wl.max():g} nm")
+    return interpolation_matrix(wl, scene.wavelengths)
+
+
+def truth_cube(scene, wavelengths) -> np.ndarray:
+    """The scene's reflectance on ``wavelengths`` (H, W, B), float32 (see :func:`_resampling`)."""
+    M = _resampling(scene, wavelengths).astype(np.float32)
+    return np.einsum("hwk,bk->hwb", scene.reflectance, M, optimize=True).astype(np.float32)
+
+
+def scene_XYZ(scene, illuminant="D65", cmfs=DEFAULT_CMFS, *, wavelengths=None, device=None) -> np.ndarray:
+    """XYZ (Y = 1 for the white) of a scene under ``illuminant``: over the scene's own bands (its true colour), or
+    over ``wavelengths`` (the truth resampled to an estimate's bands, to judge a method on what it recovers)."""
+    if wavelengths is None:
+        return reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant, cmfs, device=device)
+    return reflectance_to_XYZ(truth_cube(scene, wavelengths), wavelengths, illuminant, cmfs, device=device)
+
+
+def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs=DEFAULT_CMFS,
+                    device=None) -> PixelReport:
+    """Per-pixel RMSE (reflectance estimates), dE*ab and dE2000 of an estimate against the truth scene.
+
+    Parameters
+    ----------
+    estimate : array_like, (H, W, B) or (H, W, 3)
+        Reflectance on ``wavelengths``, or XYZ (Y = 1 for white) when ``wavelengths`` is None.
+    scene : SpectralScene
+        The truth, of the estimate's frame size.
+    illuminant, cmfs
+        Of the colour differences: XYZ of the truth under ``illuminant`` on its own bands (on the estimate's
+        wavelengths for a reflectance estimate, so both sides see the same sampling).
+    """
+    est = np.asarray(estimate, np.float32)
+    if est.shape[:2] != scene.reflectance.shape[:2]:
+        raise ValueError(f"estimate is {est.shape[1]} x {est.shape[0]} pixels, the truth scene "
+                         f"{scene.reflectance.shape[1]} x {scene.reflectance.shape[0]}")
+    observer = _observer_name(cmfs)
+    if wavelengths is not None:
+        wl = np.asarray(wavelengths, np.float64)
+        if est.shape[2] != wl.size:
+            raise ValueError(f"estimate has {est.shape[2]} bands but {wl.size} wavelengths")
+        truth = truth_cube(scene, wl)
+        rmse = np.sqrt(np.mean((est - truth) ** 2, axis=-1))
+        XYZ_est = reflectance_to_XYZ(est, wl, illuminant, cmfs, device=device)
+        XYZ_true = reflectance_to_XYZ(truth, wl, illuminant, cmfs, device=device)  # scene_XYZ on wl, truth reused
+    else:
+        if est.shape[2] != 3:
+            raise ValueError(f"an XYZ estimate must have 3 channels, got {est.shape[2]}")
+        rmse = None
+        XYZ_est = est
+        XYZ_true = scene_XYZ(scene, illuminant, cmfs, device=device)
+    Lab_est = XYZ_to_Lab(XYZ_est, illuminant, observer=observer, device=device)
+    Lab_true = XYZ_to_Lab(XYZ_true, illuminant, observer=observer, device=device)
+    return PixelReport(rmse, delta_E(Lab_true, Lab_est, "CIE 1976", device=device),
+                       delta_E(Lab_true, Lab_est, "CIE 2000", device=device), str(illuminant))
