@@ -40,7 +40,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from specgpu.planning.basis import content_hash, load_npz, save_npz
+from specgpu.core.numerics import fit_levels
+from specgpu.io.tables import content_hash, load_npz, save_npz
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import interpolation_matrix, white_plate_scene
 
@@ -62,6 +63,10 @@ __all__ = [
     "distribute_counts",
     "MIRRORS_OFF_TOLERANCE",
 ]
+
+#: Longest exposure a plan picks (and the longest calibration measures the dark level at) unless told otherwise, s: long enough for the narrow bands of the paper's
+#: rig to use most of the camera's range, short enough that lamp drift within a sequence stays negligible.
+DEFAULT_MAX_EXPOSURE_S = 0.25
 
 CALIBRATION_FORMAT = "specgpu.calibration"
 CALIBRATION_VERSION = 1
@@ -919,8 +924,6 @@ def spectral_loop(rig, target, wavelengths=None, *, bundle: CalibrationBundle | 
     if initial is not None:
         f = light.check_pattern(initial, "initial") / p.rows
     elif bundle is not None:
-        from specgpu.planning.plans import fit_levels
-
         f = fit_levels(bundle.column_matrix, np.interp(bundle.wavelengths, src, t, left=0.0, right=0.0))
     else:
         f = np.full(p.columns, 0.5)
@@ -1163,8 +1166,6 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     inside = (centre >= equalize_range_nm[0]) & (centre <= equalize_range_nm[1])
     # Loop (a) runs at the exposure that lets the weakest band of the equalized range, every mirror on, reach
     # half the range above dark (the paper's dim blue end would otherwise sit a few DN above the noise).
-    from specgpu.planning.plans import DEFAULT_MAX_EXPOSURE_S
-
     headroom = max_code - float(np.mean(dark))
     weakest = float(full_out[inside].min())
     if not weakest > 0:
@@ -1247,8 +1248,6 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         flat_target = np.where(sel, 0.4 * float(lamp[sel].min()), 0.0)
         initial = None
         if perturbation > 0:
-            from specgpu.planning.plans import fit_levels
-
             f = fit_levels(bundle.column_matrix, flat_target)
             initial = np.clip(np.rint(f * (1 + perturbation * rng.uniform(-1, 1, f.size)) * p.rows), 0, p.rows)
         loop_b = spectral_loop(rig, flat_target, bundle=bundle, initial=initial)
@@ -1283,8 +1282,6 @@ def _dark_survey(rig, zero, repeats, seeds, measured, t_cal, win, white_reflecta
     (whether it exceeds :data:`MIRRORS_OFF_TOLERANCE`: then a plan needs an ambient frame); without,
     ``mirrors_off_light`` is None (not measured).
     """
-    from specgpu.planning.plans import DEFAULT_MAX_EXPOSURE_S
-
     t_long = max(t_cal, DEFAULT_MAX_EXPOSURE_S)
     levels = dict(measured)
     for t in (float(np.sqrt(t_cal * t_long)), t_long):

@@ -41,6 +41,10 @@ from specgpu.core.locks import (
     resolved,
     same_path,
 )
+from specgpu.core.numerics import (
+    fit_levels,
+    lipschitz_bound,
+)
 
 __all__ = [
     "DEFAULT_CMFS",
@@ -63,7 +67,9 @@ __all__ = [
     "check_result_size",
     "check_wavelengths",
     "clean_stale_temporaries",
+    "fit_levels",
     "is_device_array",
+    "lipschitz_bound",
     "lock_path",
     "normalised_to_peak",
     "output_lock",

@@ -28,6 +28,11 @@ from specgpu.io.formats import (
     write_failed,
     write_target,
 )
+from specgpu.io.tables import (
+    content_hash,
+    load_npz,
+    save_npz,
+)
 from specgpu.io.files import (
     ENVI_INTERLEAVES,
     JOURNAL_FILE,
@@ -93,6 +98,7 @@ __all__ = [
     "check_free_space",
     "check_write_rate",
     "companion_files",
+    "content_hash",
     "curve_on_grid",
     "disk_full",
     "error_of",
@@ -100,6 +106,7 @@ __all__ = [
     "final_names",
     "format_channel",
     "journal_header",
+    "load_npz",
     "missing_sequences",
     "new_temporary",
     "npz_members",
@@ -124,6 +131,7 @@ __all__ = [
     "remove_partial_chunks",
     "replace_with",
     "salvage_sequence",
+    "save_npz",
     "sequence_bytes",
     "validate_sequence_document",
     "verify_journal",

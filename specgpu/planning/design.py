@@ -200,7 +200,8 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
     starts, seed, iterations
         The search's starting points, their seed and its L-BFGS-B iterations per start (:func:`design_optimal`).
     """
-    from specgpu.planning.plans import DEFAULT_MAX_EXPOSURE_S, _base, _quantize
+    from specgpu.calibration.bundle import DEFAULT_MAX_EXPOSURE_S
+    from specgpu.planning.plans import _base, _quantize
 
     if prior.n < 1:
         raise ValueError("the training set is empty: give at least one spectrum")

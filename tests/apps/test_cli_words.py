@@ -86,7 +86,7 @@ def test_objective_is_spelled_as_in_the_readme():
 
     text = flat(run("plan", "--help").output)
     assert "--objective [rmse|dE2000|dEab]" in text
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
     assert "--objective rmse|dE2000|dEab" in readme
 
 

@@ -28,7 +28,7 @@ from reference import (
 )
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 METHODS = ["CIE 1976", "CIE 1994", "CIE 2000"]
 # absolute tolerances: float32 Lab and CIEDE2000 as documented; CIE 1976/1994 relative to the difference
 LAB_TOL = 1e-4

@@ -29,7 +29,7 @@ import pytest
 
 import specgpu
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parents[1]  # tests/: the worker script and the data
 WORKER = HERE / "oclgrind_worker.py"
 ICD_NAME = "liboclgrind-rt-icd.so"
 TIMEOUT_S = 600

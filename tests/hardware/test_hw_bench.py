@@ -347,7 +347,7 @@ def _long_capture():
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "tools" / "hw_long_capture.py"
+    path = Path(__file__).resolve().parents[2] / "tools" / "hw_long_capture.py"
     spec = importlib.util.spec_from_file_location("hw_long_capture", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

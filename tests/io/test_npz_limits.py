@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from specgpu.io import formats
-from specgpu.planning.basis import load_npz, save_npz
+from specgpu.io.tables import load_npz, save_npz
 from specgpu.rig.scene import read_scene
 
 

@@ -14,13 +14,12 @@ from specgpu.planning.basis import (
     BasisTable,
     evaluation_exclusions,
     load_basis,
-    load_npz,
     load_reflectances,
     pca_basis,
     read_reflectance_csv,
     save_basis,
-    save_npz,
 )
+from specgpu.io.tables import load_npz, save_npz
 from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.rig.scene import colorchecker_scene
 
@@ -240,7 +239,7 @@ def test_npz_with_a_damaged_member_is_refused(tmp_path, basis):
 
 
 def test_an_interrupted_save_keeps_the_previous_file(tmp_path, monkeypatch):
-    from specgpu.planning.basis import load_npz, save_npz
+    from specgpu.io.tables import load_npz, save_npz
 
     path = tmp_path / "table.npz"
     digest = save_npz(path, "specgpu.test", 1, {"a": np.arange(3)}, {"k": 1})

@@ -27,7 +27,7 @@ from specgpu.io.recording import open_recording
 
 from cli_helpers import one_line_error, run, tristimulus_rig
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 # no shrinking: each example is a subprocess killed at a time, and a failure is reported as found
 DRILL = settings(max_examples=2, deadline=None, derandomize=True, phases=[Phase.explicit, Phase.generate],
                  suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])

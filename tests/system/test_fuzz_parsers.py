@@ -24,7 +24,8 @@ from hypothesis import strategies as st
 
 from specgpu import io
 from specgpu.io import files as io_files
-from specgpu.planning.basis import BasisTable, load_basis, read_reflectance_csv, save_basis, save_npz
+from specgpu.planning.basis import BasisTable, load_basis, read_reflectance_csv, save_basis
+from specgpu.io.tables import save_npz
 from specgpu.calibration.bundle import CALIBRATION_FORMAT, CALIBRATION_VERSION, load_calibration, oracle_calibration, \
     save_calibration
 from specgpu.io.formats import read_spectrum_csv

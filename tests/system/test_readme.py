@@ -14,7 +14,7 @@ import pytest
 from cli_helpers import RIG, run
 from specgpu.apps.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = (ROOT / "README.md").read_text()
 
 

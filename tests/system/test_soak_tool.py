@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-SOAK = Path(__file__).resolve().parents[1] / "tools" / "soak.py"
+SOAK = Path(__file__).resolve().parents[2] / "tools" / "soak.py"
 
 
 def soak_module():
