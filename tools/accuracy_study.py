@@ -24,7 +24,7 @@ import sys
 import time
 import numpy as np
 
-from specgpu.calibration.bundle import calibrate, oracle_calibration
+from specgpu.calibration import calibrate, oracle_calibration
 from specgpu.pipeline.evaluate import evaluate_reflectance, evaluate_XYZ
 from specgpu.pipeline.recovery import EVALUATION_CHART, capture_plan, default_basis
 from specgpu.planning.plans import make_plan

@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specgpu.calibration.bundle import calibrate, calibration_error  # noqa: E402
+from specgpu.calibration import calibrate, calibration_error  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import rig_from_dict  # noqa: E402
 

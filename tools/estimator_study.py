@@ -30,7 +30,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from specgpu.planning import estimators as E  # noqa: E402
-from specgpu.calibration.bundle import calibrate  # noqa: E402
+from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription, rig_from_dict  # noqa: E402
 from specgpu.rig.scene import white_tile_roi  # noqa: E402

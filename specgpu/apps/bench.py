@@ -580,7 +580,7 @@ def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 
     (:func:`specgpu.rig.scene.white_tile_roi` gives its ROI)."""
     from dataclasses import replace
 
-    from specgpu.calibration.bundle import calibrate
+    from specgpu.calibration import calibrate
     from specgpu.capture.replay import record
     from specgpu.capture.twin import TwinDriver
     from specgpu.pipeline.recovery import default_basis

@@ -2,7 +2,7 @@
 
 The programmable light reproduces a target spectrum: CIE illuminants A and D65, a phosphor white LED and an
 RGB-mixing LED near 6500 K, or any SPD. :func:`project` runs the spectroradiometer feedback loop
-(:func:`specgpu.calibration.bundle.spectral_loop`, the paper's Fig. 8b) on the rig and reports the produced-vs-target
+(:func:`specgpu.calibration.spectral_loop`, the paper's Fig. 8b) on the rig and reports the produced-vs-target
 spectral RMSE, chromaticity, CCT and colour rendering index (colour-science). :func:`render_scene` renders a
 spectral scene's appearance under an illuminant as a display image, and :func:`metamer_map` gives per pixel the
 CIEDE2000 difference between a scene seen under two illuminants of the same white point: the white looks the
@@ -149,7 +149,7 @@ def project(target, *, rig=None, bundle=None, tolerance: float = 0.01, max_itera
         Fraction of the largest reachable multiple of the target that is asked for, in (0, 1], so the loop can
         raise columns as well as lower them.
     """
-    from specgpu.calibration.bundle import spectral_loop
+    from specgpu.calibration import spectral_loop
     from specgpu.rig.twin import TwinRig
 
     sd = target_spectrum(target)
