@@ -48,8 +48,9 @@ __all__ = [
     "save_calibration",
 ]
 
-#: Longest exposure a plan picks (and the longest calibration measures the dark level at) unless told otherwise, s: long enough for the narrow bands of the paper's
-#: rig to use most of the camera's range, short enough that lamp drift within a sequence stays negligible.
+#: Longest exposure a plan picks (and the longest calibration measures the dark level at) unless told otherwise,
+#: s: long enough for the narrow bands of the paper's rig to use most of the camera's range, short enough that lamp
+#: drift within a sequence stays negligible.
 DEFAULT_MAX_EXPOSURE_S = 0.25
 
 CALIBRATION_FORMAT = "specgpu.calibration"
@@ -448,7 +449,34 @@ class CalibrationBundle:
 
 
 def save_calibration(path, bundle: CalibrationBundle) -> str:
-    """Save a bundle as a versioned, hashed ``.npz``; return its hash (equal to ``bundle.hash``)."""
+    """Save a bundle as a versioned, hashed ``.npz`` (format ``specgpu.calibration``); return its hash.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write (``.npz``).
+    bundle : CalibrationBundle
+
+    Returns
+    -------
+    str
+        The file's content hash (SHA-256, hex), equal to ``bundle.hash``: plans made on the bundle reference it.
+
+    Raises
+    ------
+    RuntimeError
+        The written content's hash differs from the bundle's.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> from specgpu.calibration import oracle_calibration, save_calibration
+    >>> bundle = oracle_calibration()
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     digest = save_calibration(pathlib.Path(folder) / "calibration.npz", bundle)
+    >>> digest == bundle.hash
+    True
+    """
     digest = save_npz(path, CALIBRATION_FORMAT, CALIBRATION_VERSION, bundle._arrays(),
                       json.loads(json.dumps(bundle._meta())))
     if digest != bundle.hash:  # the file must be the bundle a plan will reference by hash
@@ -457,8 +485,38 @@ def save_calibration(path, bundle: CalibrationBundle) -> str:
 
 
 def load_calibration(path, *, rig: RigDescription | None = None) -> CalibrationBundle:
-    """Load a bundle; refuse (one-line ``ValueError`` naming the file) an unknown version, a corrupt file, or,
-    when ``rig`` is given, a bundle made on another rig configuration."""
+    """Load a bundle saved by :func:`save_calibration`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The bundle's ``.npz`` file.
+    rig : RigDescription, optional
+        The rig the bundle will be used on: a bundle made on another rig configuration (another
+        :func:`rig_fingerprint`) is refused as stale.
+
+    Returns
+    -------
+    CalibrationBundle
+
+    Raises
+    ------
+    ValueError
+        One line naming the file: not found, not a calibration bundle, an unknown version, a corrupt file (content
+        that does not match its hash), dark levels or flat-field gains the camera cannot give, or a stale bundle.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> from specgpu.calibration import load_calibration, oracle_calibration, save_calibration
+    >>> from specgpu.rig.config import RigDescription
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = pathlib.Path(folder) / "calibration.npz"
+    ...     digest = save_calibration(path, oracle_calibration())
+    ...     bundle = load_calibration(path, rig=RigDescription())
+    >>> bundle.hash == digest
+    True
+    """
     arrays, meta, _, digest = load_npz(path, CALIBRATION_FORMAT, (CALIBRATION_VERSION,))
     try:
         bundle = CalibrationBundle(**arrays, **meta)

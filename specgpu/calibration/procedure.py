@@ -389,14 +389,13 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     (6) the all-off level of the white from the short exposure up to the longest a plan picks by default (what
     :meth:`CalibrationBundle.dark_at` interpolates) and, where the rig can cap its lens, the camera's own dark:
     the difference is light the object gets with every mirror off (room light, the DMD's off-state), which
-    scales with the object's reflectance, so plans need an ambient frame where it is found
-    (:func:`_dark_survey`).
+    scales with the object's reflectance, so plans need an ambient frame where it is found.
 
     Parameters
     ----------
     description : RigDescription, optional
         The rig (the paper's by default). For the twin its camera exposure is the calibration exposure; the
-        bundle records its :func:`rig_fingerprint` either way.
+        bundle records its :func:`~specgpu.calibration.bundle.rig_fingerprint` either way.
     white_reflectance : float
         Reflectance of the reference white plate, in (0, 1.5] (its certificate's value).
     white_uncertainty : float
@@ -417,11 +416,12 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         Seed of the frames' temporal noise (twin) and of the perturbation.
     line_shape : str
         ``"gaussian"`` (default): a Gaussian of the light's design FWHM; ``"measured"``: each column's line shape
-        tabulated from the spectroradiometer's probe readings (:func:`measure_line_shapes`; no model of the slit;
-        the Gaussian where the spectroradiometer gives no ``response_matrix``). On the lab twin the measured shape
-        cuts the model's line-shape error tenfold (``tools/calibration_truth.py``) but changes no per-patch figure
-        (loop (a) already pins each band's response) and moves the symmetric plan's per-pixel noise (its decoder is
-        sensitive to the model's details), so it is not yet the default.
+        tabulated from the spectroradiometer's probe readings
+        (:func:`~specgpu.calibration.bundle.measure_line_shapes`; no model of the slit; the Gaussian where the
+        spectroradiometer gives no ``response_matrix``). On the lab twin the measured shape cuts the model's
+        line-shape error tenfold (``tools/calibration_truth.py``) but changes no per-patch figure (loop (a) already
+        pins each band's response) and moves the symmetric plan's per-pixel noise (its decoder is sensitive to the
+        model's details), so it is not yet the default.
     rig : CalibrationRig, optional
         The rig to measure (e.g. :func:`specgpu.hardware.rig.open_calibration_rig` for real devices, looking at the
         reference white); by default the twin of ``description`` looking at a white plate of ``white_reflectance``.
@@ -429,6 +429,25 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     Returns
     -------
     CalibrationBundle
+        Made on the rig :func:`~specgpu.calibration.bundle.rig_fingerprint` names, its loops' outcomes in
+        ``reports``.
+
+    Raises
+    ------
+    ValueError
+        An argument out of range, or a measurement that sees no light (the message names what to check).
+
+    Examples
+    --------
+    A quick calibration of the twin at the camera's smallest region of interest:
+
+    >>> from specgpu.calibration import calibrate
+    >>> from specgpu.rig.camera import CameraParameters
+    >>> from specgpu.rig.config import RigDescription
+    >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+    >>> bundle = calibrate(rig, repeats=1, band_step_nm=25.0, spectral_check=False)
+    >>> bundle.reports["loop_a"]["converged"]
+    True
     """
     d = description if description is not None else RigDescription()
     _check_arguments(white_reflectance, white_uncertainty, band_step_nm, perturbation, repeats, line_shape)

@@ -163,7 +163,8 @@ class CalibrationRig(Protocol):
     # Optional: ``capture_dark(repeats, *, exposure_s=None, noise_seed=None)`` -> (H, W) mean of frames with no
     # light reaching the sensor (lens capped, shutter closed). With it, calibration tells the camera's own dark
     # level from the light the object receives with every mirror off (room light, the DMD's off-state): see
-    # :func:`calibrate` step (6). A rig without it is assumed to have such light (plans then add an ambient frame).
+    # :func:`~specgpu.calibration.procedure.calibrate` step (6). A rig without it is assumed to have such light
+    # (plans then add an ambient frame).
 
 
 class TwinCalibrationRig:
@@ -191,8 +192,9 @@ class TwinCalibrationRig:
             self._scene = scene if scene is not None else white_plate_scene(d.camera.roi_height, d.camera.roi_width)
             self.rig = twin_at_exposure(d, self._scene)
         self._by_exposure: dict[float, object] = {}
-        #: The rig's own clock (s): it runs on through every capture and spectrum reading of the calibration, so
-        #: the lamp drifts during the procedure as on a bench; :func:`calibrate` records where it ended.
+        #: The rig's own clock (s): it runs on through every capture and spectrum reading of the calibration, so the
+        #: lamp drifts during the procedure as on a bench; :func:`~specgpu.calibration.procedure.calibrate` records
+        #: where it ended.
         self.clock_s = float(self.rig.clock_start_s)
 
     # the rig at each exposure; the calibration exposure's is ``rig`` itself (its spectroradiometer too)
