@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from specgpu.engine import kernels as engine
+from specgpu.engine import kernels
 from specgpu.engine.runtime import get_queue
 from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
 from specgpu.core.validate import (
@@ -81,7 +81,7 @@ def XYZ_to_Lab(XYZ, illuminant="D65", *, observer: str = DEFAULT_CMFS, device=No
     white = white_point_XYZ(illuminant, observer)
     queue = get_queue(device, like=(XYZ,))
     n = int(np.prod(XYZ.shape[:-1], dtype=np.int64))
-    lab = engine.xyz_to_lab(queue, engine.to_device(queue, XYZ.reshape(-1)), white, n=n)
+    lab = kernels.launch_XYZ_to_Lab(queue, kernels.to_device(queue, XYZ.reshape(-1)), white, n=n)
     return _result(lab, XYZ.shape, is_device_array(XYZ))
 
 
@@ -112,9 +112,9 @@ def delta_E(Lab_1, Lab_2, method: str = "CIE 2000", *, device=None):
     queue = get_queue(device, like=(Lab_1, Lab_2))
     n = int(np.prod(shape, dtype=np.int64))
     # Two single colours are one pixel: the first read as an image of one, the second broadcast.
-    de = engine.delta_e(queue, engine.to_device(queue, Lab_1.reshape(-1)),
-                        engine.to_device(queue, Lab_2.reshape(-1)), method=method, n=n,
-                        single1=single1 and not single2, single2=single2)
+    de = kernels.launch_delta_E(queue, kernels.to_device(queue, Lab_1.reshape(-1)),
+                                kernels.to_device(queue, Lab_2.reshape(-1)), method=method, n=n,
+                                single1=single1 and not single2, single2=single2)
     return _result(de, shape, is_device_array(Lab_1) or is_device_array(Lab_2))
 
 
@@ -145,8 +145,8 @@ def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, d
     W = check_matrix(XYZ_weights(w, illuminant, cmfs), "XYZ weights")
     queue = get_queue(device, like=(R,))
     n = int(np.prod(R.shape[:-1], dtype=np.int64))
-    frames = engine.to_device(queue, R.reshape(-1))
-    xyz, _ = engine.linear(queue, frames, W, n=n, in_layout=1, out_layout=1)
+    frames = kernels.to_device(queue, R.reshape(-1))
+    xyz, _ = kernels.launch_linear(queue, frames, W, n=n, in_layout=1, out_layout=1)
     return _result(xyz, (*R.shape[:-1], 3), is_device_array(R))
 
 
@@ -214,16 +214,16 @@ def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observe
     white = white_point_XYZ(illuminant, observer)
     on_device = is_device_array(frames)
     queue = get_queue(device, like=(frames, reference, dark, gain))
-    dark_dev, dark_per_frame = engine.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = engine.pixel_map(queue, gain, "gain", spatial, None)
+    dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", spatial, K)
+    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None)
     if saturation is None and frames.dtype.kind == "u":
         saturation = float(np.iinfo(frames.dtype).max)
     n = int(np.prod(spatial, dtype=np.int64))
-    out = engine.frames_to_delta_e(
-        queue, engine.to_device(queue, frames.reshape(-1)), M, white,
-        engine.to_device(queue, reference.reshape(-1)), n=n, method=method,
+    out = kernels.launch_frames_to_delta_E(
+        queue, kernels.to_device(queue, frames.reshape(-1)), M, white,
+        kernels.to_device(queue, reference.reshape(-1)), n=n, method=method,
         reference_single=reference.ndim == 1, dark=dark_dev, dark_per_frame=dark_per_frame, gain=gain_dev,
-        write_xyz=return_XYZ, write_lab=return_Lab, want_mask=return_mask, saturation=saturation,
+        write_XYZ=return_XYZ, write_Lab=return_Lab, want_mask=return_mask, saturation=saturation,
     )
     de = _result(out.delta_E, spatial, on_device)
     if not (return_XYZ or return_Lab or return_mask):

@@ -371,17 +371,17 @@ def test_prepared_launches_equal_the_engine_calls(queue, out_layout, out_dtype):
     reference = engine.to_device(queue, rng.uniform(-20, 60, 3 * n).astype(np.float32))
     lin = engine.prepare_linear(queue, np.uint16, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
                                 out_layout=out_layout, want_mask=True, saturation=1023.0)
-    fused = engine.prepare_frames_to_delta_e(queue, np.uint16, M, white, reference, n=n, reference_single=False,
-                                             dark=dark, gain=gain, write_xyz=True, write_lab=True)
+    fused = engine.prepare_frames_to_delta_E(queue, np.uint16, M, white, reference, n=n, reference_single=False,
+                                             dark=dark, gain=gain, write_XYZ=True, write_Lab=True)
     for seed in range(3):
         frames_host = np.random.default_rng(seed).integers(0, 1024, K * n).astype(np.uint16)
         frames = engine.to_device(queue, frames_host)
         got = lin.enqueue(frames.data)
         got_f = fused.enqueue(frames.data)
-        want, want_mask = engine.linear(queue, frames, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
-                                        out_layout=out_layout, want_mask=True, saturation=1023.0)
-        want_f = engine.frames_to_delta_e(queue, frames, M, white, reference, n=n, reference_single=False,
-                                          dark=dark, gain=gain, write_xyz=True, write_lab=True)
+        want, want_mask = engine.launch_linear(queue, frames, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
+                                               out_layout=out_layout, want_mask=True, saturation=1023.0)
+        want_f = engine.launch_frames_to_delta_E(queue, frames, M, white, reference, n=n, reference_single=False,
+                                                 dark=dark, gain=gain, write_XYZ=True, write_Lab=True)
         y = np.empty(B * n, out_dtype)
         m = np.empty(n, np.uint8)
         cl.enqueue_copy(queue, y, got["out"])
