@@ -76,6 +76,16 @@ def XYZ_to_Lab(XYZ, illuminant="D65", *, observer: str = DEFAULT_CMFS, device=No
     -------
     ndarray or pyopencl.array.Array, (..., 3), float32
         L* in [0, 100], a* and b* roughly [-128, 127] for real colours.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from specgpu.engine import XYZ_to_Lab
+    >>> Lab = XYZ_to_Lab(np.array([[0.20654008, 0.12197225, 0.05136952]]))
+    >>> Lab.shape, Lab.dtype
+    ((1, 3), dtype('float32'))
+    >>> Lab.astype(float).round(2).tolist()
+    [[41.53, 52.64, 26.92]]
     """
     XYZ = check_last_axis(XYZ, "XYZ")
     white = white_point_XYZ(illuminant, observer)
@@ -101,6 +111,18 @@ def delta_E(Lab_1, Lab_2, method: str = "CIE 2000", *, device=None):
     -------
     ndarray or pyopencl.array.Array, (...,), float32
         Non-negative differences.
+
+    Examples
+    --------
+    A reference colour against an image of two pixels (the first of Sharma, Wu and Dalal's CIEDE2000 pairs):
+
+    >>> import numpy as np
+    >>> from specgpu.engine import delta_E
+    >>> Lab = np.array([[50.0, 0.0, -82.7485], [50.0, 3.0, -79.7751]])
+    >>> delta_E([50.0, 2.6772, -79.7751], Lab).astype(float).round(4).tolist()
+    [2.0425, 0.1783]
+    >>> float(delta_E([50.0, 0.0, 0.0], [50.0, 3.0, 4.0], method="CIE 1976"))
+    5.0
     """
     method = validate_method(method, DELTA_E_METHODS)
     Lab_1 = check_last_axis(Lab_1, "Lab_1")
@@ -137,6 +159,17 @@ def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, d
     -------
     ndarray or pyopencl.array.Array, (..., 3), float32
         XYZ with Y = 1 for the perfect reflecting diffuser.
+
+    Examples
+    --------
+    The perfect reflecting diffuser and a 50 % grey on a 10 nm grid:
+
+    >>> import numpy as np
+    >>> from specgpu.engine import reflectance_to_XYZ
+    >>> wavelengths = np.arange(400, 701, 10)
+    >>> R = np.stack([np.ones(31), np.full(31, 0.5)])
+    >>> reflectance_to_XYZ(R, wavelengths).astype(float).round(3).tolist()
+    [[0.949, 1.0, 1.087], [0.475, 0.5, 0.544]]
     """
     R = as_float32(R, "R")
     if R.ndim == 0:
@@ -196,6 +229,24 @@ def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observe
     -------
     delta_E : ndarray, (H, W), float32
         When no intermediate is asked for; otherwise a :class:`FusedResult` (delta_E, XYZ, Lab, mask).
+
+    Examples
+    --------
+    Thirty-one narrowband frames of a 50 % grey (an ideal decoder: A is the identity, C the XYZ weights)
+    against the CIELAB colour of a 40 % grey:
+
+    >>> import numpy as np
+    >>> from specgpu.core import XYZ_weights
+    >>> from specgpu.engine import XYZ_to_Lab, frames_to_delta_E, reflectance_to_XYZ
+    >>> wavelengths = np.arange(400, 701, 10)
+    >>> frames = np.full((31, 2, 2), 0.5, np.float32)
+    >>> reference = XYZ_to_Lab(reflectance_to_XYZ(np.full(31, 0.4), wavelengths))
+    >>> dE = frames_to_delta_E(frames, np.eye(31), reference, C=XYZ_weights(wavelengths))
+    >>> dE.shape, dE.dtype, bool(np.allclose(dE, dE[0, 0]))
+    ((2, 2), dtype('float32'), True)
+    >>> result = frames_to_delta_E(frames, np.eye(31), reference, C=XYZ_weights(wavelengths), return_Lab=True)
+    >>> result.Lab.shape, result.XYZ is None
+    ((2, 2, 3), True)
     """
     method = validate_method(method, DELTA_E_METHODS)
     frames, K = check_frames(frames)

@@ -60,6 +60,23 @@ def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layou
     y : ndarray or pyopencl.array.Array
         (H, W, B) or (B, H, W) of ``out_dtype``; a :class:`LinearResult` (y, mask) when ``return_mask``.
         NaN samples in float frames propagate to the outputs of that pixel only.
+
+    Examples
+    --------
+    Two frames of 4 x 5 pixels, a dark level of 20 and two outputs (the mean and the difference):
+
+    >>> import numpy as np
+    >>> from specgpu.engine import apply_linear
+    >>> frames = np.full((2, 4, 5), 100, np.uint16)
+    >>> A = np.array([[0.5, 0.5], [1.0, -1.0]])
+    >>> y = apply_linear(frames, A, dark=np.full((4, 5), 20.0))
+    >>> y.shape, y.dtype
+    ((4, 5, 2), dtype('float32'))
+    >>> y[0, 0].tolist()
+    [80.0, 0.0]
+    >>> result = apply_linear(frames, A, layout="planar", return_mask=True)
+    >>> result.y.shape, int(result.mask.max())
+    ((2, 4, 5), 0)
     """
     frames, K = check_frames(frames)
     A = check_matrix(A, "A", columns=K)

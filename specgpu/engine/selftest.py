@@ -195,7 +195,36 @@ def compare(name: str, got: np.ndarray, expected: np.ndarray, kind: str) -> tupl
 
 
 def run_selftest(device=None, path: Path | None = None) -> SelftestReport:
-    """Run every golden case on ``device`` (default: the resolved device) and compare with the references."""
+    """Run every golden case on ``device`` and compare each output with its reference within its tolerance.
+
+    Parameters
+    ----------
+    device : optional
+        Explicit device, queue or selector (see :func:`specgpu.engine.runtime.get_queue`); default: the
+        resolved device.
+    path : path-like, optional
+        Golden file (default: :func:`golden_path`, the copy shipped with the package).
+
+    Returns
+    -------
+    SelftestReport
+        One :class:`CaseResult` per case; ``passed`` is True when every case passes, ``format()`` gives the
+        report ``specgpu selftest`` prints. A failing kernel is a failed case, not an exception.
+
+    Raises
+    ------
+    ValueError
+        The golden file is unreadable or not a specgpu golden file.
+
+    Examples
+    --------
+    >>> from specgpu.engine import run_selftest
+    >>> report = run_selftest()
+    >>> report.passed, report.failed_kernels()
+    (True, [])
+    >>> sorted(report.kernels())
+    ['delta_e', 'fused', 'linear', 'xyz_to_lab']
+    """
     queue = get_queue(device)
     manifest, arrays = load_golden(path)
     results = []
