@@ -212,8 +212,9 @@ def test_cli_commands_only_parse_and_call():
     assert not long, long
 
 
-# a citation of a file outside the repository, or of an issue / item number of the tracker
-CITATION = re.compile(r"\b(?:DESIGN|GPU|PAPER)\.md\b|\b(?:issue|item)s?\s+#?\d+", re.I)
+# a citation of a file outside the repository (the planning notes, the work machine's folders), or of an issue /
+# item number of the tracker
+CITATION = re.compile(r"\b(?:DESIGN|GPU|PAPER)\.md\b|(?<![\w.])/work/|\b(?:issue|item)s?\s+#?\d+", re.I)
 TEXT_SUFFIXES = {".py", ".md", ".toml", ".txt", ".cfg", ".ini", ".json", ".sh", ".cl", ".yaml", ".yml", ".rst"}
 
 
@@ -290,6 +291,7 @@ def test_the_source_checks_find_planted_faults(tmp_path):
     assert command_bodies(pkg) == {"specgpu/apps/cli.py:main": 1, "specgpu/apps/cli.py:long": MAX_COMMAND_LINES + 1,
                                    "specgpu/apps/cli.py:short": 1}
     assert CITATION.search("as issue " "19 says") and CITATION.search("see Item " "#7") and CITATION.search("GPU" ".md")
+    assert CITATION.search("run /" "work/venv/bin/python")
     assert not CITATION.search("the items of the list") and not CITATION.search("issue_id = 3")
 
 
