@@ -1,6 +1,6 @@
 """Calibration against the twin's truth: how far the bundle's model is from the bench it measured.
 
-    /work/venv/bin/python tools/calibration_truth.py [--profile lab] [--step 10] [--small]
+    python tools/calibration_truth.py [--profile lab] [--step 10] [--small]
         [--line-shape gaussian,measured]
 
 Calibrates the twin once per line-shape model and prints :func:`specgpu.calibration.bundle.calibration_error` over

@@ -1,6 +1,6 @@
 """Drift study: calibrate without drift, capture with a drifted lamp, recover with and without correction.
 
-    /work/venv/bin/python tools/drift_study.py [--profile lab] [--draws 3] [--small]
+    python tools/drift_study.py [--profile lab] [--draws 3] [--small]
         [--cct -200] [--output -0.03] [--cut-on 5] [--methods narrowband,symmetric,tristimulus-D65]
         [--probes 430,650]
 

@@ -1,6 +1,6 @@
 """Error budget: what each imperfection of a real bench costs each method, alone, with and without corrections.
 
-    /work/venv/bin/python tools/error_budget.py [--full] [--draws 1] [--methods narrowband,symmetric,tristimulus-D65]
+    python tools/error_budget.py [--full] [--draws 1] [--methods narrowband,symmetric,tristimulus-D65]
         [--effects stray_light_fraction,blur_px,...] [--json OUT.json]
 
 For the ideal twin and then for every ``[realism]`` effect switched on alone at its lab magnitude

@@ -14,7 +14,7 @@ predicted dE2000 sigma (``specgpu recover --delta-e-sigma``, first run).
 real bench, the lamp drifting for 30 min between calibration and capture) with the corrections ``specgpu demo``
 applies there: an ambient frame per sequence and a reference white tile above the chart rescaling each decoder.
 
-    /work/venv/bin/python tools/estimator_study.py [--small] [--profile ideal|lab] [--runs N] [--seed N]
+    python tools/estimator_study.py [--small] [--profile ideal|lab] [--runs N] [--seed N]
         [--methods a,b] [--json OUT]
 """
 
