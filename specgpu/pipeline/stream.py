@@ -674,8 +674,8 @@ class PreviewSink(Sink):
         self.image = lut[(np.clip(linear, 0, 1) * 65535 + 0.5).astype(np.uint16)]
         if self.path is not None:  # the image rendered once: the PNG is this image (written atomically)
             write_png(self.path, self.image, {"specgpu:exposure_EV": repr(0.0), "illuminant": self.illuminant,
-                                                  "observer": self.observer,
-                                                  "ImageDescription": "sRGB preview of XYZ, exposure +0.000 EV"})
+                                               "observer": self.observer,
+                                               "ImageDescription": "sRGB preview of XYZ, exposure +0.000 EV"})
         self.updates += 1
 
     def _run(self):

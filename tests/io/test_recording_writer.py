@@ -263,7 +263,7 @@ def test_write_sequence_chunk_writes_what_zarr_writes(tmp_path, compressors):
     import zarr
     from zarr.codecs import Crc32cCodec, ZstdCodec
 
-    from specgpu.io.recording import _blosc, write_sequence_chunk
+    from specgpu.io.chunks import _blosc, write_sequence_chunk
 
     made = {"crc32c": lambda: Crc32cCodec(), "zstd": lambda: ZstdCodec(level=1),
             "blosc-lz4": lambda: _blosc("blosc-lz4", 4)[1]}
