@@ -6,19 +6,25 @@ These are the same bytes zarr would write for the chunk, at about a third of zar
 chunk, copies the data in and copies it again to append the checksum. :func:`encode_chunk` gives the parts,
 :func:`write_chunk` writes them to one chunk file, :func:`write_sequence_chunk` writes the chunk of one sequence of
 an array. Chunks of 1 MiB and more go through direct I/O (:class:`DirectIO` remembers whether the file system takes
-it) as 8 MiB slices in flight at once.
+it) as 8 MiB slices in flight at once; :func:`probe_write_rate` measures how fast the disk takes such chunks.
 """
 
 from __future__ import annotations
 
 import errno
 import os
+import statistics
 import struct
 import threading
+import time
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["COMPRESSIONS", "DirectIO", "checksum_codecs", "encode_chunk", "write_chunk", "write_sequence_chunk"]
+__all__ = [
+    "COMPRESSIONS", "DirectIO", "checksum_codecs", "encode_chunk", "write_chunk", "write_sequence_chunk",
+    "probe_write_rate",
+]
 
 
 def checksum_codecs():
@@ -230,3 +236,49 @@ def write_sequence_chunk(array, index: int, value, *, direct: DirectIO | None = 
     key = array.metadata.encode_chunk_key((int(index),) + (0,) * (array.ndim - 1))
     path = os.path.join(str(array.store_path.store.root), *array.store_path.path.split("/"), *key.split("/"))
     write_chunk(path, encode_chunk(value, array.dtype, encoder), direct=direct)
+
+
+def probe_write_rate(path, nbytes: int = 64 << 20, *, repeats: int = 3, max_seconds: float = 2.0,
+                     direct: bool = True) -> float:
+    """Bytes/s the file system that will hold ``path`` takes a recording's large chunks at: ``nbytes`` written in
+    8 MiB blocks as the recorder writes them (direct I/O where the file system has it, else buffered) and synced
+    to the disk, the median of ``repeats`` (at most about ``max_seconds`` in all). The probe file is a hidden
+    temporary one next to ``path``, always removed."""
+    import mmap
+    import tempfile
+
+    probe = Path(path)
+    while not probe.exists():
+        probe = probe.parent
+    block = mmap.mmap(-1, _STAGE_BYTES)  # page aligned, as direct I/O needs
+    block.write(np.random.default_rng(0).integers(0, 256, _STAGE_BYTES, dtype=np.uint8).tobytes())  # incompressible
+    use_direct = direct and hasattr(os, "O_DIRECT")
+    rates = []
+    t_end = time.perf_counter() + max_seconds
+    for _ in range(max(1, int(repeats))):
+        fd, name = tempfile.mkstemp(prefix=".specgpu-write-probe-", dir=probe)
+        try:
+            if use_direct:
+                os.close(fd)
+                try:
+                    fd = os.open(name, os.O_WRONLY | os.O_DIRECT)
+                except OSError as exc:
+                    if exc.errno != errno.EINVAL:
+                        raise
+                    use_direct = False
+                    fd = os.open(name, os.O_WRONLY)
+            t0, written = time.perf_counter(), 0
+            while written < nbytes:
+                _write_all(fd, block)
+                written += _STAGE_BYTES
+                if time.perf_counter() > t_end:
+                    break
+            getattr(os, "fdatasync", os.fsync)(fd)  # macOS has fsync only
+            rates.append(written / max(time.perf_counter() - t0, 1e-9))
+        finally:
+            os.close(fd)
+            os.unlink(name)
+        if time.perf_counter() > t_end:
+            break
+    block.close()
+    return float(statistics.median(rates))

@@ -86,6 +86,18 @@ def write_cube(path, cube, wavelengths, *, half: bool = False, metadata=None, in
     ValueError
         One line naming the file: unknown suffix, wrong shape, NaN / non-positive / duplicate wavelengths,
         metadata that is not JSON.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import numpy as np
+    >>> from specgpu.io import read_cube, write_cube
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "cube.exr"
+    >>> write_cube(path, np.full((2, 3, 4), 0.5), [400, 500, 600, 700], metadata={"method": "demo"}).name
+    'cube.exr'
+    >>> cube, wavelengths, metadata = read_cube(path)
+    >>> cube.shape, wavelengths.tolist(), metadata
+    ((2, 3, 4), [400.0, 500.0, 600.0, 700.0], {'method': 'demo'})
     """
     path = Path(path)
     suffix = _suffix(path, (".exr", ".npz", ".hdr"), "spectral cube")
@@ -125,6 +137,19 @@ def read_cube(path) -> tuple[np.ndarray, np.ndarray, dict]:
     ValueError
         One line naming the file: unknown suffix, unreadable / truncated / corrupt file, no ``T.<wl>nm``
         channels, duplicate or degenerate wavelengths, NaN wavelengths, wrong shapes, bad metadata.
+
+    Examples
+    --------
+    Bands come back ordered by wavelength, whatever their order in the file:
+
+    >>> import pathlib, tempfile
+    >>> import numpy as np
+    >>> from specgpu.io import read_cube, write_cube
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "cube.npz"
+    >>> _ = write_cube(path, np.stack([np.zeros((2, 2)), np.ones((2, 2))], axis=-1), [600, 400])
+    >>> cube, wavelengths, _ = read_cube(path)
+    >>> wavelengths.tolist(), cube[0, 0].tolist()
+    ([400.0, 600.0], [1.0, 0.0])
     """
     path = Path(path)
     suffix = _suffix(path, (".exr", ".npz", ".hdr"), "spectral cube")
@@ -209,6 +234,16 @@ def write_map(path, data, kind, *, half: bool = False, metadata=None) -> Path:
     Returns
     -------
     pathlib.Path
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import numpy as np
+    >>> from specgpu.io import read_map, write_map
+    >>> path = write_map(pathlib.Path(tempfile.mkdtemp()) / "xyz.exr", np.full((2, 3, 3), 0.25), "XYZ")
+    >>> data, channels, metadata = read_map(path)
+    >>> data.shape, channels, metadata
+    ((2, 3, 3), ('X', 'Y', 'Z'), {})
     """
     path = Path(path)
     _suffix(path, (".exr",), "map")
@@ -247,6 +282,16 @@ def read_map(path, kind=None) -> tuple[np.ndarray, tuple[str, ...], dict]:
     ------
     FileNotFoundError, ValueError
         One line naming the file: unreadable, truncated or corrupt file, channels that are not the expected set.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import numpy as np
+    >>> from specgpu.io import read_map, write_map
+    >>> path = write_map(pathlib.Path(tempfile.mkdtemp()) / "xyz.exr", np.arange(6.0).reshape(1, 2, 3), "XYZ")
+    >>> data, channels, _ = read_map(path, ["Z", "X"])
+    >>> channels, data[0, 1].tolist()
+    (('Z', 'X'), [5.0, 3.0])
     """
     path = Path(path)
     _suffix(path, (".exr",), "map")

@@ -82,13 +82,11 @@ resuming it, and in the chunk folders of a source recording that no live writer 
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import itertools
 import math
 import os
 import shutil
-import statistics
 import time
 import uuid
 from dataclasses import dataclass
@@ -99,14 +97,13 @@ import numpy as np
 from specgpu.io.chunks import (
     _COMPRESS_MIN_BYTES,
     _COMPRESS_SAMPLE_BYTES,
-    _STAGE_BYTES,
     COMPRESSIONS,
     DirectIO,
     _blosc,
     _chunk_bytes,
-    _write_all,
     checksum_codecs,
     encode_chunk,
+    probe_write_rate,
     write_chunk,
 )
 
@@ -131,52 +128,6 @@ def patterns_hash(plan) -> str:
 
 
 
-
-
-def probe_write_rate(path, nbytes: int = 64 << 20, *, repeats: int = 3, max_seconds: float = 2.0,
-                     direct: bool = True) -> float:
-    """Bytes/s the file system that will hold ``path`` takes a recording's large chunks at: ``nbytes`` written in
-    8 MiB blocks as the recorder writes them (direct I/O where the file system has it, else buffered) and synced
-    to the disk, the median of ``repeats`` (at most about ``max_seconds`` in all). The probe file is a hidden
-    temporary one next to ``path``, always removed."""
-    import mmap
-    import tempfile
-
-    probe = Path(path)
-    while not probe.exists():
-        probe = probe.parent
-    block = mmap.mmap(-1, _STAGE_BYTES)  # page aligned, as direct I/O needs
-    block.write(np.random.default_rng(0).integers(0, 256, _STAGE_BYTES, dtype=np.uint8).tobytes())  # incompressible
-    use_direct = direct and hasattr(os, "O_DIRECT")
-    rates = []
-    t_end = time.perf_counter() + max_seconds
-    for _ in range(max(1, int(repeats))):
-        fd, name = tempfile.mkstemp(prefix=".specgpu-write-probe-", dir=probe)
-        try:
-            if use_direct:
-                os.close(fd)
-                try:
-                    fd = os.open(name, os.O_WRONLY | os.O_DIRECT)
-                except OSError as exc:
-                    if exc.errno != errno.EINVAL:
-                        raise
-                    use_direct = False
-                    fd = os.open(name, os.O_WRONLY)
-            t0, written = time.perf_counter(), 0
-            while written < nbytes:
-                _write_all(fd, block)
-                written += _STAGE_BYTES
-                if time.perf_counter() > t_end:
-                    break
-            getattr(os, "fdatasync", os.fsync)(fd)  # macOS has fsync only
-            rates.append(written / max(time.perf_counter() - t0, 1e-9))
-        finally:
-            os.close(fd)
-            os.unlink(name)
-        if time.perf_counter() > t_end:
-            break
-    block.close()
-    return float(statistics.median(rates))
 
 
 def write_buffer_bytes() -> int:
@@ -629,7 +580,42 @@ def remove_partial_chunks(path, *, chunks_only: bool = False) -> list[Path]:
 
 
 def open_recording(path) -> Recording:
-    """Open a recording written by :class:`ZarrRecorder`; one-line errors naming the folder."""
+    """Open a recording written by :class:`ZarrRecorder` and check its attributes and arrays.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The recording folder (``REC.zarr``).
+
+    Returns
+    -------
+    Recording
+        Its attributes (``attrs``), the number of committed sequences (``sequences``), the patterns per sequence
+        (``K``); :meth:`Recording.read` gives the committed sequences of an array, checked chunk by chunk.
+
+    Raises
+    ------
+    FileNotFoundError
+        The folder does not exist.
+    ValueError
+        One line naming the folder: not a zarr v3 group, not a specgpu recording or of another version, bad
+        attributes, an array missing or shorter than the committed sequences.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile, types
+    >>> import numpy as np
+    >>> from specgpu.io import ZarrRecorder, open_recording
+    >>> plan = types.SimpleNamespace(hash="ab" * 32, method="symmetric", calibration="cd" * 32, K=4,
+    ...                              patterns=np.eye(4, 3, dtype=int), output="reflectance",
+    ...                              output_wavelengths=np.linspace(400.0, 700.0, 5),
+    ...                              output_labels=("400", "475", "550", "625", "700"))
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "rec.zarr"
+    >>> ZarrRecorder(path, plan, metadata={"scene": "demo"}).close()
+    >>> recording = open_recording(path)
+    >>> recording.sequences, recording.K, recording.attrs["status"], recording.attrs["metadata"]
+    (0, 4, 'complete', {'scene': 'demo'})
+    """
     import zarr
 
     path = Path(path)

@@ -239,6 +239,19 @@ def write_sequence(directory, frames, records=None, plan_hash: str = "", *, meta
         One line naming the folder: frames of different shapes or non-16-bit values, a record count that does
         not match the frames, invalid records or plan hash. Frames written by this call are removed and no
         ``sequence.json`` is written.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import numpy as np
+    >>> from specgpu.io import read_sequence, write_sequence
+    >>> records = [{"frame_id": i, "pattern_index": i, "exposure_s": 0.01, "timestamp_s": 0.02 * i}
+    ...            for i in range(3)]
+    >>> folder = write_sequence(pathlib.Path(tempfile.mkdtemp()) / "seq", np.zeros((3, 4, 5), np.uint16),
+    ...                         records, plan_hash="0123abcd")
+    >>> frames, records_back, meta = read_sequence(folder)
+    >>> frames.shape, meta["n_frames"], meta["plan_hash"], records_back[2]["timestamp_s"]
+    ((3, 4, 5), 3, '0123abcd', 0.04)
     """
     directory = Path(directory)
     if hasattr(frames, "frame_records") and hasattr(frames, "frames"):  # a capture.assemble.Sequence
@@ -493,6 +506,19 @@ def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[d
     FileNotFoundError, ValueError
         One line naming the file: see :func:`read_sequence_header`; a listed frame missing, truncated (size
         differs), corrupt (checksum or decoding) or of the wrong shape or type.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import numpy as np
+    >>> from specgpu.io import read_sequence, write_sequence
+    >>> records = [{"frame_id": i, "pattern_index": i, "exposure_s": 0.01, "timestamp_s": 0.02 * i}
+    ...            for i in range(3)]
+    >>> folder = write_sequence(pathlib.Path(tempfile.mkdtemp()) / "seq", np.zeros((3, 4, 5), np.uint16),
+    ...                         records, plan_hash="0123abcd")
+    >>> frames, records_back, meta = read_sequence(folder)
+    >>> frames.shape, meta["n_frames"], meta["plan_hash"], records_back[2]["timestamp_s"]
+    ((3, 4, 5), 3, '0123abcd', 0.04)
     """
     directory = Path(directory)
     records, meta = read_sequence_header(directory)
