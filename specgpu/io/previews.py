@@ -23,6 +23,7 @@ PERCEPTUAL_COLORMAPS = ("magma", "inferno", "viridis", "plasma", "cividis")
 
 
 def write_png(path: Path, rgb8: np.ndarray, attributes: dict) -> Path:
+    """Write an (H, W, C) uint8 image as PNG, atomically, with ``attributes`` as its text metadata; return ``path``."""
     import OpenImageIO as oiio
 
     h, w, c = rgb8.shape
