@@ -1,4 +1,4 @@
-"""Spectral cubes and maps by file name, with the caller's metadata: the public home of specgpu's file formats.
+"""Spectral cubes and maps, the format chosen by the file name, with the caller's metadata; the formats at a glance.
 
 =====================  ===========================================================================================
 spectral cube          OpenEXR, JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie): one channel per band named
@@ -11,11 +11,10 @@ map                    OpenEXR with named channels: ``X,Y,Z`` (XYZ), ``L,a,b`` (
                        :func:`read_map`.
 preview                8-bit sRGB PNG from XYZ (colour-science's ``XYZ_to_sRGB``, clipped, with an exposure) and
                        a colour-difference heat map PNG (perceptual colormap; scale in the PNG text metadata).
-                       :func:`write_sRGB_preview`, :func:`write_delta_E_png`, :func:`read_png`.
+                       In :mod:`specgpu.io.previews`.
 frame sequence         a folder with 16-bit TIFF frames and ``sequence.json`` (format ``specgpu.sequence``,
                        version 1): per frame its file, frame id, pattern index, exposure, timestamp, size and
-                       SHA-256, plus the plan hash. :func:`write_sequence`, :func:`read_sequence`,
-                       :func:`read_sequence_header`, :func:`validate_sequence_document`.
+                       SHA-256, plus the plan hash. In :mod:`specgpu.io.sequence`.
 =====================  ===========================================================================================
 
 JCGT 2021 channel names (the paper's Section 3 and its reference code, ``afichet/spectral-exr``,
