@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 
 from specgpu import io
-from specgpu.io import files as io_files
 
 from specgpu.apps import paper
 
@@ -47,8 +46,8 @@ def main(argv=None):
     for scene_name, scene in scenes.items():
         for name in render.PROJECTOR_TARGETS:
             rgb = render.render_scene(scene, name)
-            io_files._write_png(out / f"{scene_name}-{name.replace(' ', '-')}.png",
-                          np.round(rgb * 255).astype(np.uint8), {"specgpu:illuminant": name})
+            io.write_png(out / f"{scene_name}-{name.replace(' ', '-')}.png",
+                         np.round(rgb * 255).astype(np.uint8), {"specgpu:illuminant": name})
         dE = render.metamer_map(scene, "LED white", "LED RGB")
         io.write_delta_E_png(out / f"{scene_name}-metamer-LEDs.png", dE, vmax=10.0)
         masks = list(scene.masks.values())

@@ -46,7 +46,7 @@ class _Group(click.Group):
             click.echo("specgpu: interrupted", err=True)
             sys.exit(130)
         except Exception as error:  # noqa: BLE001 (the CLI promises one line, not a traceback)
-            from specgpu.io.formats import final_names
+            from specgpu.io.paths import final_names
 
             text = final_names(str(error)).strip()  # an output's name, never its temporary's
             message = text.splitlines()[0] if text else type(error).__name__
@@ -79,7 +79,7 @@ class _terminate_as_interrupt:
 
 def _with_companions(named):
     """(option, path) pairs with each path's companion files (an ENVI header's data file) added after it."""
-    from specgpu.io.files import companion_files
+    from specgpu.io.cube import companion_files
 
     out = []
     for opt, path in named:
@@ -112,7 +112,7 @@ def _sequence_files(seq):
     """The files of a sequence folder a reader uses (its outputs must never land on them)."""
     from pathlib import Path
 
-    from specgpu.io.files import SEQUENCE_FILE
+    from specgpu.io.sequence import SEQUENCE_FILE
     from specgpu.pipeline.recovery import CALIBRATION_FILE, PLAN_FILE
 
     folder = Path(seq)
@@ -131,7 +131,7 @@ class _Staged:
         self.outputs = []  # the finals asked for, in order
 
     def path(self, final):
-        from specgpu.io.formats import new_temporary, write_target
+        from specgpu.io.paths import new_temporary, write_target
 
         final = write_target(final)  # through a symbolic link, as a plain open() writes
         tmp = new_temporary(final)  # the mode a plain open() gives, not mkstemp's 0600
@@ -144,7 +144,7 @@ class _Staged:
         it, before it."""
         from pathlib import Path
 
-        from specgpu.io.formats import final_names, write_target
+        from specgpu.io.paths import final_names, write_target
 
         tmp = self.path(final)
         self.outputs.append(Path(final))
@@ -166,7 +166,7 @@ class _Staged:
     def commit(self):
         import signal
 
-        from specgpu.io.formats import replace_with
+        from specgpu.io.paths import replace_with
 
         held = {signal.SIGINT, signal.SIGTERM}
         old = signal.pthread_sigmask(signal.SIG_BLOCK, held)

@@ -45,6 +45,7 @@ from specgpu.core.numerics import (
     fit_levels,
     lipschitz_bound,
 )
+from specgpu.core.text import one_line
 
 __all__ = [
     "DEFAULT_CMFS",
@@ -72,6 +73,7 @@ __all__ = [
     "lipschitz_bound",
     "lock_path",
     "normalised_to_peak",
+    "one_line",
     "output_lock",
     "output_locks",
     "pid_alive",

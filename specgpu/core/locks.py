@@ -8,7 +8,7 @@ recognised (its file is there, nobody holds it) and taken over; a live holder ma
 with one line naming the holder's pid.
 
 Temporary files are named after the process that writes them (``.<name>.<pid>.<random>.tmp<suffix>``, see
-:func:`specgpu.io.formats.atomic_path`); :func:`clean_stale_temporaries` removes those of processes no longer
+:func:`specgpu.io.paths.atomic_path`); :func:`clean_stale_temporaries` removes those of processes no longer
 alive, which is what a killed writer leaves behind.
 """
 
@@ -186,7 +186,7 @@ _PID_IN_TEMP = re.compile(r"\.(\d+)\.[^.]+\.tmp")
 def clean_stale_temporaries(path) -> list[Path]:
     """Remove the temporary files a dead writer left for ``path`` (and, for a folder, inside it); return them.
 
-    Only files named by :func:`specgpu.io.formats.atomic_path` (``.<name>.<pid>.<random>.tmp<suffix>``, possibly
+    Only files named by :func:`specgpu.io.paths.atomic_path` (``.<name>.<pid>.<random>.tmp<suffix>``, possibly
     nested: the temporary of a temporary) after pids no longer alive are removed; a live writer's are left alone.
     """
     path = Path(path)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from specgpu.core.validate import check_number
-from specgpu.io.formats import read_spectrum_csv
+from specgpu.io.npz import read_spectrum_csv
 from specgpu.hardware.errors import BackendMissing, DeviceNotFound, HardwareError
 from specgpu.rig.spectroradiometer import Spectroradiometer, SpectroradiometerParameters
 

@@ -2,64 +2,63 @@
 
 from __future__ import annotations
 
-from specgpu.io.formats import (
-    SPECTRAL_LAYOUT_VERSION,
-    atomic_path,
+from specgpu.core.text import one_line
+from specgpu.io.bands import (
     check_cube,
+)
+from specgpu.io.cube import (
+    MAP_KINDS,
+    companion_files,
+    read_cube,
+    read_map,
+    write_cube,
+    write_map,
+)
+from specgpu.io.envi import (
+    ENVI_INTERLEAVES,
+    read_cube_envi,
+    read_envi_header,
+    write_cube_envi,
+)
+from specgpu.io.exr import (
+    SPECTRAL_LAYOUT_VERSION,
+    format_channel,
+    parse_channel,
+    read_cube_exr,
+    read_exr,
+    write_cube_exr,
+    write_exr,
+)
+from specgpu.io.journal import (
+    journal_header,
+    salvage_sequence,
+    verify_journal,
+)
+from specgpu.io.npz import (
     curve_on_grid,
+    npz_members,
+    read_cube_npz,
+    read_spectrum_csv,
+    write_cube_npz,
+)
+from specgpu.io.paths import (
+    atomic_path,
     disk_full,
     error_of,
     final_name,
     final_names,
-    format_channel,
     new_temporary,
-    npz_members,
-    one_line,
     os_error,
-    parse_channel,
-    read_cube_exr,
-    read_cube_npz,
-    read_exr,
-    read_spectrum_csv,
     replace_with,
-    write_cube_exr,
-    write_cube_npz,
-    write_exr,
     write_failed,
     write_target,
 )
-from specgpu.io.tables import (
-    content_hash,
-    load_npz,
-    save_npz,
-)
-from specgpu.io.files import (
-    ENVI_INTERLEAVES,
-    JOURNAL_FILE,
-    MAP_KINDS,
+from specgpu.io.previews import (
     PERCEPTUAL_COLORMAPS,
-    SEQUENCE_FILE,
-    SEQUENCE_FORMAT,
-    SEQUENCE_VERSION,
-    SequenceWriter,
-    companion_files,
-    journal_header,
-    read_cube,
-    read_cube_envi,
-    read_envi_header,
-    read_map,
     read_png,
-    read_sequence,
-    read_sequence_header,
-    salvage_sequence,
-    validate_sequence_document,
-    verify_journal,
-    write_cube,
-    write_cube_envi,
     write_delta_E_png,
-    write_map,
+    write_png,
     write_sRGB_preview,
-    write_sequence,
 )
 from specgpu.io.recording import (
     COMPRESSIONS,
@@ -76,6 +75,22 @@ from specgpu.io.recording import (
     refuse_existing,
     remove_partial_chunks,
     sequence_bytes,
+)
+from specgpu.io.sequence import (
+    JOURNAL_FILE,
+    SEQUENCE_FILE,
+    SEQUENCE_FORMAT,
+    SEQUENCE_VERSION,
+    SequenceWriter,
+    read_sequence,
+    read_sequence_header,
+    validate_sequence_document,
+    write_sequence,
+)
+from specgpu.io.tables import (
+    content_hash,
+    load_npz,
+    save_npz,
 )
 
 __all__ = [
@@ -143,6 +158,7 @@ __all__ = [
     "write_exr",
     "write_failed",
     "write_map",
+    "write_png",
     "write_sRGB_preview",
     "write_sequence",
     "write_target",

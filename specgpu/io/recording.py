@@ -82,21 +82,30 @@ resuming it, and in the chunk folders of a source recording that no live writer 
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import itertools
 import math
 import os
 import shutil
-import statistics
-import struct
-import threading
 import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from specgpu.io.chunks import (
+    _COMPRESS_MIN_BYTES,
+    _COMPRESS_SAMPLE_BYTES,
+    COMPRESSIONS,
+    DirectIO,
+    _blosc,
+    _chunk_bytes,
+    checksum_codecs,
+    encode_chunk,
+    probe_write_rate,
+    write_chunk,
+)
 
 __all__ = ["RECORDING_FORMAT", "RECORDING_VERSION", "ZarrRecorder", "Recording", "open_recording",
            "patterns_hash", "sequence_bytes", "check_free_space", "refuse_existing", "missing_sequences",
@@ -108,7 +117,7 @@ RECORDING_VERSION = 1
 #: What a recording may hold along time besides the raw frames (specgpu.pipeline.stream.STREAM_OUTPUTS).
 _OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "sigma_rms", "dE_sigma")
 #: Channel dimension and channel names of each output.
-_CHANNELS = {"XYZ": ("X", "Y", "Z"), "Lab": ("L", "a", "b")}
+CHANNELS = {"XYZ": ("X", "Y", "Z"), "Lab": ("L", "a", "b")}
 
 
 def patterns_hash(plan) -> str:
@@ -118,261 +127,7 @@ def patterns_hash(plan) -> str:
     return hashlib.sha256(repr(n.shape).encode() + n.tobytes()).hexdigest()
 
 
-def _codecs():
-    from zarr.codecs import Crc32cCodec
 
-    return [Crc32cCodec()]
-
-
-#: Compressors a recording may use besides none: (cname, clevel, shuffle) of a Blosc codec, by label. Both are
-#: cheap enough for video rate; which pays back on a given disk is measured (ZarrRecorder, disk_rate).
-COMPRESSIONS = {"blosc-lz4": ("lz4", 5, "bitshuffle"), "blosc-zstd": ("zstd", 1, "bitshuffle")}
-#: Chunks smaller than this are never compressed (nothing to win against the per-chunk cost).
-_COMPRESS_MIN_BYTES = 1 << 18
-#: Bytes of a chunk each compressor is measured on.
-_COMPRESS_SAMPLE_BYTES = 1 << 20
-
-
-def _blosc(label: str, typesize: int):
-    """(numcodecs encoder, zarr codec for the array's metadata) of the compression ``label``, encoding the same
-    bytes (zarr's BloscCodec wraps the same numcodecs encoder)."""
-    from numcodecs import Blosc
-    from zarr.codecs import BloscCodec
-
-    cname, clevel, shuffle = COMPRESSIONS[label]
-    encoder = Blosc(cname=cname, clevel=clevel, shuffle={"shuffle": Blosc.SHUFFLE, "bitshuffle": Blosc.BITSHUFFLE}[
-        shuffle], blocksize=0, typesize=typesize)
-    return encoder, BloscCodec(cname=cname, clevel=clevel, shuffle=shuffle, typesize=typesize, blocksize=0)
-
-
-def _chunk_bytes(value, dtype) -> np.ndarray:
-    """The little-endian bytes of one chunk (zarr's ``bytes`` codec) as a flat uint8 view where no copy is needed."""
-    a = np.ascontiguousarray(value, dtype=np.dtype(dtype).newbyteorder("<"))
-    return a.reshape(-1).view(np.uint8)
-
-
-def encode_chunk(value, dtype, encoder=None) -> tuple:
-    """One chunk as zarr v3 stores it with the recorder's codecs: the bytes (compressed by ``encoder`` when given),
-    then their CRC32C (4 bytes, little-endian). Returns (flat uint8 data, checksum bytes): no concatenating copy."""
-    import google_crc32c
-
-    data = _chunk_bytes(value, dtype)
-    if encoder is not None:
-        data = np.frombuffer(encoder.encode(data), np.uint8)
-    return data, struct.pack("<I", google_crc32c.value(data))
-
-
-#: Chunks of at least this many bytes are written with direct I/O where the file system has it (below: buffered).
-_DIRECT_MIN_BYTES = 1 << 20
-#: Alignment of direct I/O (memory address, file offset and length), and the size of each thread's staging buffer.
-_ALIGN = 4096
-_STAGE_BYTES = 8 << 20
-_staging = threading.local()
-
-
-def _stage() -> np.ndarray:
-    """This thread's page-aligned staging buffer (direct I/O writes from aligned memory only)."""
-    buf = getattr(_staging, "buf", None)
-    if buf is None:
-        import mmap
-
-        _staging.map = mmap.mmap(-1, _STAGE_BYTES)  # anonymous maps are page aligned
-        buf = _staging.buf = np.frombuffer(_staging.map, np.uint8)
-    return buf
-
-
-def _write_all(fd: int, view) -> None:
-    view = memoryview(view).cast("B")
-    while view:
-        view = view[os.write(fd, view):]
-
-
-def _pwrite_all(fd: int, view, offset: int) -> None:
-    view = memoryview(view).cast("B")
-    while view:
-        done = os.pwrite(fd, view, offset)
-        view, offset = view[done:], offset + done
-
-
-_SLICES: list = []
-_SLICES_LOCK = threading.Lock()
-
-
-def _slice_pool():
-    """Threads writing the 8 MiB slices of one large chunk at once (a direct write waits for the disk: several in
-    flight keep it busy). Slices never submit work of their own, so writer threads may wait on them."""
-    with _SLICES_LOCK:
-        if not _SLICES:
-            from concurrent.futures import ThreadPoolExecutor
-
-            _SLICES.append(ThreadPoolExecutor(max_workers=4, thread_name_prefix="specgpu-chunk-slices"))
-        return _SLICES[0]
-
-
-def _write_direct(fd: int, data: np.ndarray, tail: bytes) -> None:
-    """``data`` (flat uint8) then ``tail`` through a file opened with O_DIRECT: whole aligned 8 MiB slices written
-    in parallel at their offsets, straight from ``data`` when it is aligned (else through each thread's staging
-    buffer), then the last block zero-padded and the file cut back to its length."""
-    n = data.size - data.size % _ALIGN
-    aligned = data.ctypes.data % _ALIGN == 0
-
-    def piece(start):
-        k = min(_STAGE_BYTES, n - start)
-        if aligned:
-            _pwrite_all(fd, data[start:start + k], start)
-        else:
-            stage = _stage()
-            stage[:k] = data[start:start + k]
-            _pwrite_all(fd, stage[:k], start)
-
-    starts = range(0, n, _STAGE_BYTES)
-    if len(starts) > 1:
-        list(_slice_pool().map(piece, starts))  # waits for every slice, re-raises the first error
-    else:
-        for start in starts:
-            piece(start)
-    stage = _stage()
-    last = data[n:].tobytes() + tail
-    padded = -(-len(last) // _ALIGN) * _ALIGN
-    stage[:padded] = 0
-    stage[:len(last)] = np.frombuffer(last, np.uint8)
-    _pwrite_all(fd, stage[:padded], n)
-    os.ftruncate(fd, data.size + len(tail))
-
-
-class _DirectIO:
-    """Whether the recording's file system takes O_DIRECT (decided by the first large chunk; then fixed)."""
-
-    def __init__(self, enabled: bool = True):
-        self.state = None if enabled and hasattr(os, "O_DIRECT") else False
-
-
-def write_chunk(path: str, parts, *, direct: _DirectIO | None = None) -> None:
-    """Write one chunk file (its folders made as needed): no temporary file and no sync. A chunk is written once,
-    before the commit count includes its sequence, so a write cut short is beyond the commit and never read.
-
-    ``parts`` is (flat uint8 data, bytes after it). With ``direct`` a chunk of at least 1 MiB is written with
-    direct I/O (O_DIRECT): from the process's memory to the disk, with none of the copy into the page cache and
-    write-back that cost more CPU than the whole stream on a small machine; a file system without it (tmpfs)
-    falls back to buffered writes, once and for all."""
-    data, tail = parts
-    use_direct = direct is not None and direct.state is not False and data.size >= _DIRECT_MIN_BYTES
-    flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_BINARY", 0)  # Windows: no newline translation
-    made = False
-    while True:
-        try:
-            fd = os.open(path, flags | (os.O_DIRECT if use_direct else 0), 0o666)
-            break
-        except FileNotFoundError:
-            if made:
-                raise
-            os.makedirs(os.path.dirname(path), exist_ok=True)
-            made = True
-        except OSError as exc:
-            if not use_direct or exc.errno != errno.EINVAL:
-                raise
-            direct.state, use_direct = False, False  # no O_DIRECT on this file system
-    try:
-        if use_direct:
-            try:
-                _write_direct(fd, data, tail)
-                direct.state = True
-                return
-            except OSError as exc:
-                if exc.errno != errno.EINVAL or direct.state:
-                    raise
-                direct.state = False  # opened, but the writes are refused: buffered from now on
-                os.close(fd)
-                fd = -1  # closed: never closed again below (the number may be another thread's file by then)
-                fd = os.open(path, flags, 0o666)
-        _write_all(fd, data)
-        _write_all(fd, tail)
-    finally:
-        if fd >= 0:
-            os.close(fd)
-
-
-def _fast_encoder(array):
-    """(True, Blosc encoder or None) when ``array``'s codecs are ones :func:`encode_chunk` writes (little-endian
-    bytes, optionally Blosc, then CRC32C) and it lives in a local folder; (False, None) otherwise."""
-    from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec
-    from zarr.storage import LocalStore
-
-    codecs = list(array.metadata.codecs) if array.metadata.zarr_format == 3 else []
-    if not isinstance(array.store_path.store, LocalStore) or len(codecs) not in (2, 3) \
-            or not isinstance(codecs[0], BytesCodec) or not isinstance(codecs[-1], Crc32cCodec) \
-            or (codecs[0].endian is not None and codecs[0].endian.value != "little"):
-        return False, None
-    if len(codecs) == 2:
-        return True, None
-    if not isinstance(codecs[1], BloscCodec):
-        return False, None
-    config = codecs[1].to_dict()["configuration"]
-    label = next((k for k, (cname, clevel, shuffle) in COMPRESSIONS.items()
-                  if (cname, clevel, shuffle) == (config["cname"], config["clevel"], config["shuffle"])), None)
-    if label is None or config.get("blocksize", 0) != 0:
-        return False, None
-    return True, _blosc(label, int(config["typesize"]))[0]
-
-
-def write_sequence_chunk(array, index: int, value, *, direct: _DirectIO | None = None) -> None:
-    """``array[index] = value`` for a zarr v3 array with one chunk per sequence along its first axis, written as
-    the recorder writes its chunks (:func:`encode_chunk`, :func:`write_chunk`: the same bytes as zarr, at a third
-    of its memory traffic, large chunks with direct I/O); arrays with other codecs or stores go through zarr."""
-    ok, encoder = _fast_encoder(array)
-    if not ok or array.chunks[1:] != array.shape[1:] or array.chunks[0] != 1:
-        array[index] = value
-        return
-    value = np.broadcast_to(np.asarray(value), array.shape[1:])
-    key = array.metadata.encode_chunk_key((int(index),) + (0,) * (array.ndim - 1))
-    path = os.path.join(str(array.store_path.store.root), *array.store_path.path.split("/"), *key.split("/"))
-    write_chunk(path, encode_chunk(value, array.dtype, encoder), direct=direct)
-
-
-def probe_write_rate(path, nbytes: int = 64 << 20, *, repeats: int = 3, max_seconds: float = 2.0,
-                     direct: bool = True) -> float:
-    """Bytes/s the file system that will hold ``path`` takes a recording's large chunks at: ``nbytes`` written in
-    8 MiB blocks as the recorder writes them (direct I/O where the file system has it, else buffered) and synced
-    to the disk, the median of ``repeats`` (at most about ``max_seconds`` in all). The probe file is a hidden
-    temporary one next to ``path``, always removed."""
-    import mmap
-    import tempfile
-
-    probe = Path(path)
-    while not probe.exists():
-        probe = probe.parent
-    block = mmap.mmap(-1, _STAGE_BYTES)  # page aligned, as direct I/O needs
-    block.write(np.random.default_rng(0).integers(0, 256, _STAGE_BYTES, dtype=np.uint8).tobytes())  # incompressible
-    use_direct = direct and hasattr(os, "O_DIRECT")
-    rates = []
-    t_end = time.perf_counter() + max_seconds
-    for _ in range(max(1, int(repeats))):
-        fd, name = tempfile.mkstemp(prefix=".specgpu-write-probe-", dir=probe)
-        try:
-            if use_direct:
-                os.close(fd)
-                try:
-                    fd = os.open(name, os.O_WRONLY | os.O_DIRECT)
-                except OSError as exc:
-                    if exc.errno != errno.EINVAL:
-                        raise
-                    use_direct = False
-                    fd = os.open(name, os.O_WRONLY)
-            t0, written = time.perf_counter(), 0
-            while written < nbytes:
-                _write_all(fd, block)
-                written += _STAGE_BYTES
-                if time.perf_counter() > t_end:
-                    break
-            getattr(os, "fdatasync", os.fsync)(fd)  # macOS has fsync only
-            rates.append(written / max(time.perf_counter() - t0, 1e-9))
-        finally:
-            os.close(fd)
-            os.unlink(name)
-        if time.perf_counter() > t_end:
-            break
-    block.close()
-    return float(statistics.median(rates))
 
 
 def write_buffer_bytes() -> int:
@@ -486,9 +241,9 @@ class ZarrRecorder:
     def __init__(self, path, plan, *, outputs=None, frames: bool = False, basis=None, metadata=None,
                  grow: int = 64, disk_rate: float | None = None, compression: str | None = None, threads: int = 4,
                  direct: bool = True):
-        import zarr
-
         from concurrent.futures import ThreadPoolExecutor
+
+        import zarr
 
         if compression is not None and compression != "none" and compression not in COMPRESSIONS:
             raise ValueError(f"compression must be none or one of {', '.join(COMPRESSIONS)}, got {compression!r}")
@@ -500,7 +255,7 @@ class ZarrRecorder:
         self.compression_report: dict = {}
         self._encoders: dict = {}
         self._paths: dict = {}
-        self._direct = _DirectIO(direct)
+        self._direct = DirectIO(direct)
         self._pool = ThreadPoolExecutor(max_workers=max(1, int(threads)), thread_name_prefix="specgpu-recorder")
 
         self.path = refuse_existing(path)
@@ -532,7 +287,7 @@ class ZarrRecorder:
             self._encoders[name] = encoder
             self._arrays[name] = g.create_array(
                 name, shape=(0, *tail), chunks=(1, *tail), dtype=dtype,
-                compressors=([codec] if codec is not None else []) + _codecs(), fill_value=fill,
+                compressors=([codec] if codec is not None else []) + checksum_codecs(), fill_value=fill,
                 dimension_names=("time", *dims), attributes=attrs or {}, config={"write_empty_chunks": True})
 
         sample_of = dict(arrays)
@@ -544,14 +299,14 @@ class ZarrRecorder:
         make("frame_id", (K,), "int64", ("pattern",), -1)
         make("timestamp_s", (K,), "float64", ("pattern",), np.nan, {"units": "s"})
         g.create_array("pattern", data=np.arange(K, dtype=np.int64), dimension_names=("pattern",),
-                       compressors=_codecs())
+                       compressors=checksum_codecs())
         for name, arr in arrays.items():
             fill = np.nan if np.issubdtype(arr.dtype, np.floating) else 0
             if name == "cube":
                 wl = np.asarray(self.plan.output_wavelengths, np.float64)
                 if self.plan.output == "reflectance" and wl.size == arr.shape[-1]:
                     dim = "wavelength"
-                    g.create_array("wavelength", data=wl, dimension_names=("wavelength",), compressors=_codecs(),
+                    g.create_array("wavelength", data=wl, dimension_names=("wavelength",), compressors=checksum_codecs(),
                                    attributes={"units": "nm"})
                     attrs = {"quantity": "reflectance", "wavelength_units": "nm"}
                 else:
@@ -561,15 +316,15 @@ class ZarrRecorder:
                 make(name, arr.shape, arr.dtype, ("y", "x", "component"), fill,
                      {"long_name": "coefficients in the output basis (cube = coefficients @ basis.T)"})
                 if self.basis is not None:
-                    g.create_array("basis", data=self.basis, compressors=_codecs(),
+                    g.create_array("basis", data=self.basis, compressors=checksum_codecs(),
                                    dimension_names=("basis_wavelength", "component"))
             elif name == "sigma":
                 make(name, arr.shape, arr.dtype, ("y", "x", "sigma_channel"), fill,
                      {"channels": [f"sigma_{label}" for label in self.plan.output_labels] + ["sigma_rms"],
                       "long_name": "standard deviation of each output, then their RMS"})
-            elif name in _CHANNELS:
+            elif name in CHANNELS:
                 make(name, arr.shape, arr.dtype, ("y", "x", f"{name}_channel"), fill,
-                     {"channels": list(_CHANNELS[name])})
+                     {"channels": list(CHANNELS[name])})
             else:
                 make(name, arr.shape, arr.dtype, ("y", "x", *(f"{name}_channel",) * (arr.ndim - 2)), fill)
         if getattr(result, "white_gains", None) is not None:
@@ -753,7 +508,7 @@ class Recording:
             if missing:
                 more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
                 raise ValueError(f"{self.path}/{name}: sequence {missing[0]}{more} is committed but its chunk "
-                                 f"{_chunk_keys(arr, missing[0])[0]} is missing; the recording is damaged there")
+                                 f"{chunk_keys(arr, missing[0])[0]} is missing; the recording is damaged there")
         try:
             return native(arr[index])
         except Exception as exc:  # noqa: BLE001 (zarr raises codec-specific errors)
@@ -772,7 +527,7 @@ def _along_time(arr) -> bool:
     return bool(names) and names[0] == "time" and arr.chunks[0] == 1
 
 
-def _chunk_keys(arr, i: int) -> list[str]:
+def chunk_keys(arr, i: int) -> list[str]:
     """The store keys of sequence ``i``'s chunks of ``arr`` (one chunk along time per sequence)."""
     grid = [range(math.ceil(n / c)) for n, c in zip(arr.shape[1:], arr.chunks[1:])]
     return [arr.metadata.encode_chunk_key((i, *rest)) for rest in itertools.product(*grid)]
@@ -787,7 +542,7 @@ def _missing_chunks(arr, sequences) -> list[int]:
         return []
     store, prefix = arr.store, f"{arr.path}/" if arr.path else ""
     if len(sequences) <= 4:
-        present = {key for i in sequences for key in _chunk_keys(arr, i)
+        present = {key for i in sequences for key in chunk_keys(arr, i)
                    if sync(store.exists(prefix + key))}
     else:  # one listing of the array's chunks, not one request per chunk
 
@@ -795,7 +550,7 @@ def _missing_chunks(arr, sequences) -> list[int]:
             return {key[len(prefix):] async for key in store.list_prefix(prefix + "c")}
 
         present = sync(listed())
-    return [i for i in sequences if not all(key in present for key in _chunk_keys(arr, i))]
+    return [i for i in sequences if not all(key in present for key in chunk_keys(arr, i))]
 
 
 def missing_sequences(path, name: str) -> list[int]:
@@ -825,7 +580,42 @@ def remove_partial_chunks(path, *, chunks_only: bool = False) -> list[Path]:
 
 
 def open_recording(path) -> Recording:
-    """Open a recording written by :class:`ZarrRecorder`; one-line errors naming the folder."""
+    """Open a recording written by :class:`ZarrRecorder` and check its attributes and arrays.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The recording folder (``REC.zarr``).
+
+    Returns
+    -------
+    Recording
+        Its attributes (``attrs``), the number of committed sequences (``sequences``), the patterns per sequence
+        (``K``); :meth:`Recording.read` gives the committed sequences of an array, checked chunk by chunk.
+
+    Raises
+    ------
+    FileNotFoundError
+        The folder does not exist.
+    ValueError
+        One line naming the folder: not a zarr v3 group, not a specgpu recording or of another version, bad
+        attributes, an array missing or shorter than the committed sequences.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile, types
+    >>> import numpy as np
+    >>> from specgpu.io import ZarrRecorder, open_recording
+    >>> plan = types.SimpleNamespace(hash="ab" * 32, method="symmetric", calibration="cd" * 32, K=4,
+    ...                              patterns=np.eye(4, 3, dtype=int), output="reflectance",
+    ...                              output_wavelengths=np.linspace(400.0, 700.0, 5),
+    ...                              output_labels=("400", "475", "550", "625", "700"))
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "rec.zarr"
+    >>> ZarrRecorder(path, plan, metadata={"scene": "demo"}).close()
+    >>> recording = open_recording(path)
+    >>> recording.sequences, recording.K, recording.attrs["status"], recording.attrs["metadata"]
+    (0, 4, 'complete', {'scene': 'demo'})
+    """
     import zarr
 
     path = Path(path)

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.io.formats import atomic_path, npz_members
+from specgpu.io.npz import npz_members
+from specgpu.io.paths import atomic_path
 
 __all__ = ["content_hash", "save_npz", "load_npz"]
 

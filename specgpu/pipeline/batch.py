@@ -44,8 +44,9 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.io.recording import _CHANNELS, _chunk_keys, _codecs, _DirectIO, consolidate, open_recording, patterns_hash, \
-    remove_partial_chunks, write_sequence_chunk
+from specgpu.io.chunks import DirectIO as _DirectIO, checksum_codecs as _codecs, write_sequence_chunk
+from specgpu.io.recording import CHANNELS as _CHANNELS, chunk_keys as _chunk_keys, consolidate, open_recording, \
+    patterns_hash, remove_partial_chunks
 from specgpu.core.spectra import DEFAULT_CMFS
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
@@ -126,7 +127,7 @@ class _FolderSource:
     memory does not grow with the capture."""
 
     def __init__(self, path):
-        from specgpu.io.files import check_frame_files
+        from specgpu.io.sequence import check_frame_files
         from specgpu.pipeline.recovery import read_capture_header
 
         self.path = Path(path)
@@ -149,7 +150,7 @@ class _FolderSource:
         return digest.hexdigest()
 
     def frames(self, i: int) -> np.ndarray:
-        from specgpu.io.files import read_frames
+        from specgpu.io.sequence import read_frames
 
         if not 0 <= i < self.sequences:
             raise ValueError(f"sequence {i} is out of range: {self.path} holds {self.sequences}")

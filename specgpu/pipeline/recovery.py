@@ -1,7 +1,7 @@
 """The offline main job as functions: capture a plan's sequences on the twin, keep them with their plan and
 calibration in one folder, and recover them; used by the CLI, ``specgpu demo`` and ``tools/accuracy_study.py``.
 
-A sequence folder (``specgpu capture``) holds the frames and ``sequence.json`` (:mod:`specgpu.io.files`), plus the
+A sequence folder (``specgpu capture``) holds the frames and ``sequence.json`` (:mod:`specgpu.io.sequence`), plus the
 plan (``plan.npz``) and calibration bundle (``calibration.npz``) it was captured with, so ``specgpu recover``
 needs nothing else; the hashes chain sequence -> plan -> calibration, and a mismatch is an error naming the
 file, never a silent wrong answer.
@@ -168,7 +168,7 @@ class CaptureWriter:
 
 def salvage_capture(directory) -> dict:
     """Make a capture folder left by a killed capture (no ``sequence.json``, its journal present) readable: index
-    every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.files.salvage_sequence`), keep
+    every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.journal.salvage_sequence`), keep
     the plan and calibration copies, remove the interrupted marker. Returns what was kept (``sequences``,
     ``frames_kept``, ``frames_journaled``, ``left_out``: each sequence not kept and why, ``stopped``).
 
@@ -297,7 +297,7 @@ def read_capture(directory) -> SequenceFolder:
 def read_capture_header(directory) -> tuple[list, dict, Plan, CalibrationBundle]:
     """What :func:`read_capture` checks, without reading a pixel: ``(records, meta, plan, calibration)`` of a
     sequence folder (``sequence.json`` validated, the plan and calibration matching it, whole sequences in pattern
-    order). The frames are then read per sequence (:func:`specgpu.io.files.read_frames`), so a reader's memory does
+    order). The frames are then read per sequence (:func:`specgpu.io.sequence.read_frames`), so a reader's memory does
     not grow with the capture."""
     directory = Path(directory)
     _check_not_zarr(directory)

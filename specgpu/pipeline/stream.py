@@ -47,6 +47,7 @@ from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.core.spectra import DEFAULT_CMFS, white_point_XYZ
 from specgpu.engine.transfer import pinned_empty
+from specgpu.io.previews import write_png
 from specgpu.core.validate import validate_method
 
 __all__ = [
@@ -533,7 +534,7 @@ class ResultsRing(Sink):
 
 
 class ExrSequenceWriter(Sink):
-    """Every ``every``-th result as OpenEXR files through :mod:`specgpu.io.files`: ``cube-<index>.exr`` (spectral
+    """Every ``every``-th result as OpenEXR files through :mod:`specgpu.io.cube`: ``cube-<index>.exr`` (spectral
     layout), ``XYZ-`` / ``Lab-`` / ``dE-<index>.exr`` maps. EXR encoding costs milliseconds per map, so a writer
     that must keep every sequence of a long recording is :class:`specgpu.io.recording.ZarrRecorder`.
 
@@ -583,7 +584,7 @@ class ExrSequenceWriter(Sink):
 
 class PreviewSink(Sink):
     """A live preview: the latest XYZ as 8-bit sRGB (:attr:`image`), refreshed at most every ``interval_s``, and
-    written as a PNG (atomically, through :func:`specgpu.io.files.write_sRGB_preview`) when ``path`` is given.
+    written as a PNG (atomically, through :func:`specgpu.io.previews.write_sRGB_preview`) when ``path`` is given.
 
     The rendering (a colour transform of every pixel and a PNG encode: 50-150 ms for 640 x 480 on a loaded CPU)
     runs on a thread of its own, so it never holds up the sinks after it (a recording): :meth:`write` only
@@ -672,11 +673,9 @@ class PreviewSink(Sink):
             linear = np.nan_to_num(np.clip(np.asarray(XYZ, np.float32), 0, None)) @ self._M.T
         self.image = lut[(np.clip(linear, 0, 1) * 65535 + 0.5).astype(np.uint16)]
         if self.path is not None:  # the image rendered once: the PNG is this image (written atomically)
-            from specgpu.io import files as io_files
-
-            io_files._write_png(self.path, self.image, {"specgpu:exposure_EV": repr(0.0), "illuminant": self.illuminant,
-                                                  "observer": self.observer,
-                                                  "ImageDescription": "sRGB preview of XYZ, exposure +0.000 EV"})
+            write_png(self.path, self.image, {"specgpu:exposure_EV": repr(0.0), "illuminant": self.illuminant,
+                                               "observer": self.observer,
+                                               "ImageDescription": "sRGB preview of XYZ, exposure +0.000 EV"})
         self.updates += 1
 
     def _run(self):

@@ -192,7 +192,7 @@ def read_training(path, wavelengths) -> tuple[np.ndarray, list]:
     if path.suffix.lower() == ".npz":
         if not path.is_file():
             raise ValueError(f"{path}: training file not found")
-        from specgpu.io.formats import npz_members
+        from specgpu.io.npz import npz_members
 
         npz_members(path)  # the declared sizes, checked before any array is inflated
         try:

@@ -30,7 +30,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from specgpu.core.validate import check_array, check_number, normalised_to_peak
-from specgpu.io.formats import curve_on_grid
+from specgpu.io.npz import curve_on_grid
 
 __all__ = ["CameraParameters", "Camera", "sensitivity_curve", "standard_normal_fill"]
 

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from specgpu.core.validate import check_array, check_number, normalised_to_peak
-from specgpu.io.formats import curve_on_grid
+from specgpu.io.npz import curve_on_grid
 
 __all__ = ["LightParameters", "ProgrammableLight", "PatternFit", "lamp_spd", "photopic_y"]
 

@@ -6,7 +6,7 @@ boolean masks (the ColorChecker's 24 patches) that the evaluation can use.
 
 Sources:
 
-- cube files (read and written by :mod:`specgpu.io.formats`, shared with :mod:`specgpu.io.files`): OpenEXR in the
+- cube files (:mod:`specgpu.io.exr`, :mod:`specgpu.io.npz`, :mod:`specgpu.io.envi`): OpenEXR in the
   JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie), reflective channels named ``T.<wavelength><unit>``
   (e.g. ``T.550,000000nm``; ``.`` also accepted as decimal separator on reading), through OpenImageIO; or
   ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>`` arrays). Bands are ordered by wavelength, never by channel order in the file.
@@ -27,7 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.io import formats
+from specgpu.io.envi import read_cube_envi
+from specgpu.io.exr import read_cube_exr, write_cube_exr
+from specgpu.io.npz import read_cube_npz, write_cube_npz
 from specgpu.core.validate import check_array, check_number, check_wavelengths
 
 __all__ = [
@@ -239,9 +241,7 @@ def read_scene(path) -> SpectralScene:
             return _read_npz(path)
         if suffix == ".exr":
             return _read_exr(path)
-        if suffix == ".hdr":  # ENVI: header + raw data (specgpu.io.files, imported here: io imports rig)
-            from specgpu.io.files import read_cube_envi
-
+        if suffix == ".hdr":  # ENVI: header + raw data
             refl, wl, _ = read_cube_envi(path)
             return SpectralScene(wl, refl, {}, path.stem)
     except ValueError as exc:
@@ -251,13 +251,13 @@ def read_scene(path) -> SpectralScene:
 
 
 def _read_npz(path: Path) -> SpectralScene:
-    refl, wl, extra = formats.read_cube_npz(path)
+    refl, wl, extra = read_cube_npz(path)
     masks = {k[5:]: m for k, m in extra.items() if k.startswith("mask_")}
     return SpectralScene(wl, refl, masks, path.stem)
 
 
 def _read_exr(path: Path) -> SpectralScene:
-    refl, wl, _ = formats.read_cube_exr(path)
+    refl, wl, _ = read_cube_exr(path)
     return SpectralScene(wl, refl, {}, path.stem)
 
 
@@ -269,11 +269,11 @@ def write_scene(path, scene: SpectralScene, *, half: bool = False) -> Path:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        return formats.write_cube_npz(path, scene.reflectance, scene.wavelengths,
+        return write_cube_npz(path, scene.reflectance, scene.wavelengths,
                                       {f"mask_{k}": m for k, m in scene.masks.items()})
     if suffix != ".exr":
         raise ValueError(f"{path}: unknown scene format {suffix!r}; expected .exr or .npz")
-    return formats.write_cube_exr(path, scene.reflectance, scene.wavelengths, half=half)
+    return write_cube_exr(path, scene.reflectance, scene.wavelengths, half=half)
 
 
 # ---- built-ins ---------------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""ENVI cubes (specgpu.io.files): written for and checked by Spectral Python, read from it, refused in one line."""
+"""ENVI cubes (specgpu.io.envi): written for and checked by Spectral Python, read from it, refused in one line."""
 
 from __future__ import annotations
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from specgpu.io import recording
+from specgpu.io import chunks, recording
 from specgpu.io.recording import ZarrRecorder, check_write_rate, open_recording, probe_write_rate
 from specgpu.pipeline.stream import PreviewSink, StreamResult
 
@@ -178,13 +178,13 @@ def test_the_commit_follows_every_chunk_of_its_sequence(tmp_path, monkeypatch):
 
 def test_probe_measures_a_slow_writer_and_leaves_nothing(tmp_path, monkeypatch):
     fast = probe_write_rate(tmp_path / "rec.zarr", 8 << 20, repeats=1)
-    real = recording._write_all
+    real = chunks._write_all
 
     def slow(fd, view):  # a disk taking 8 MiB in 0.2 s: about 42 MB/s
         time.sleep(0.2)
         real(fd, view)
 
-    monkeypatch.setattr(recording, "_write_all", slow)
+    monkeypatch.setattr(chunks, "_write_all", slow)
     rate = probe_write_rate(tmp_path / "rec.zarr", 16 << 20, repeats=1)
     assert rate < 45e6 < fast
     assert list(tmp_path.iterdir()) == []
@@ -263,7 +263,7 @@ def test_write_sequence_chunk_writes_what_zarr_writes(tmp_path, compressors):
     import zarr
     from zarr.codecs import Crc32cCodec, ZstdCodec
 
-    from specgpu.io.recording import _blosc, write_sequence_chunk
+    from specgpu.io.chunks import _blosc, write_sequence_chunk
 
     made = {"crc32c": lambda: Crc32cCodec(), "zstd": lambda: ZstdCodec(level=1),
             "blosc-lz4": lambda: _blosc("blosc-lz4", 4)[1]}

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.io.formats import read_spectrum_csv
+from specgpu.io.npz import read_spectrum_csv
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import FaultRates, RigDescription, load_rig, rig_from_dict
 from specgpu.rig.light import LightParameters

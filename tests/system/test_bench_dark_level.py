@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from cli_helpers import run
 from specgpu.calibration.bundle import load_calibration
 from specgpu.planning.correction import ambient_index
-from specgpu.io.formats import read_cube_npz
+from specgpu.io.npz import read_cube_npz
 from specgpu.planning.plans import load_plan
 from specgpu.rig.config import load_rig
 from specgpu.rig.scene import write_scene

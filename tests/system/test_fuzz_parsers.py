@@ -23,12 +23,12 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from specgpu import io
-from specgpu.io import files as io_files
+from specgpu.io import sequence as io_sequence
 from specgpu.planning.basis import BasisTable, load_basis, read_reflectance_csv, save_basis
 from specgpu.io.tables import save_npz
 from specgpu.calibration.bundle import CALIBRATION_FORMAT, CALIBRATION_VERSION, load_calibration, oracle_calibration, \
     save_calibration
-from specgpu.io.formats import read_spectrum_csv
+from specgpu.io.npz import read_spectrum_csv
 from specgpu.planning.plans import PLAN_FORMAT, PLAN_VERSION, load_plan, plan_narrowband, save_plan
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription, _toml_value, load_rig
@@ -194,7 +194,7 @@ def test_fuzz_exr_channels_and_header(tmp_path, names, meta, shape):
     names = [n for n in names if n and "\x00" not in n]
     assume(names)
     path = tmp_path / "s.exr"
-    from specgpu.io.formats import write_exr
+    from specgpu.io.exr import write_exr
     try:
         write_exr(path, np.ones((*shape, len(names)), np.float32), names,
                   attributes=None if meta is None else {"specgpu:metadata": meta})
@@ -291,7 +291,7 @@ def test_fuzz_tiff_frame(files, tmp_path, data):
     if got is not None:  # the checksum held: the bytes are those written
         assert np.array_equal(got[0], files["frames"])
     # the TIFF decoder alone (a sequence.json rewritten to the new size and hash)
-    got = read_or_refuse(io_files._read_tiff, frame, (4, 5))
+    got = read_or_refuse(io_sequence._read_tiff, frame, (4, 5))
     if got is not None:
         assert got.shape == (4, 5) and got.dtype == np.uint16
 
@@ -533,7 +533,7 @@ def test_plan_whose_decoder_overflows_float32_is_refused(files, tmp_path):
 
 
 def test_exr_channel_named_with_a_newline_gives_one_line(tmp_path):
-    from specgpu.io.formats import write_exr
+    from specgpu.io.exr import write_exr
 
     write_exr(tmp_path / "n.exr", np.ones((1, 1, 1), np.float32), ["a\nb"])
     with pytest.raises(ValueError) as exc:

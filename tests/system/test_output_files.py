@@ -18,9 +18,8 @@ import numpy as np
 import pytest
 
 from specgpu import io
-from specgpu.io import files as io_files
 
-from specgpu.io import formats
+from specgpu.io import paths
 
 from specgpu.core import locks
 
@@ -80,7 +79,7 @@ def test_every_output_gets_the_mode_a_plain_open_gives(base, seq, tmp_path, umas
         io.write_cube(out / "e.hdr", cube, wl)  # ENVI: header and data file
         io.write_cube(out / "c.npz", cube[:8, :8], wl)
         # the projector study's renderings
-        io_files._write_png(out / "projector.png", np.zeros((4, 4, 3), np.uint8), {"specgpu:illuminant": "A"})
+        io.write_png(out / "projector.png", np.zeros((4, 4, 3), np.uint8), {"specgpu:illuminant": "A"})
         reference = out / "plain.txt"
         with open(reference, "w") as fh:
             fh.write("what open() gives")
@@ -116,13 +115,13 @@ def test_a_rewritten_file_keeps_its_mode_and_a_link_is_written_through(base, seq
 def test_new_temporary_is_created_with_the_umask_and_named_after_its_file(tmp_path):
     old = os.umask(0o002)
     try:
-        tmp = formats.new_temporary(tmp_path / "a.exr")
+        tmp = paths.new_temporary(tmp_path / "a.exr")
     finally:
         os.umask(old)
     assert mode(tmp) == 0o664 and tmp.suffix == ".exr"
-    assert formats.final_name(tmp.name) == "a.exr"
-    assert formats.final_name(formats.new_temporary(tmp).name) == "a.exr"  # the temporary of a temporary
-    assert formats.final_name(tmp.with_suffix(".img").name) == "a.img"  # a companion renamed with it
+    assert paths.final_name(tmp.name) == "a.exr"
+    assert paths.final_name(paths.new_temporary(tmp).name) == "a.exr"  # the temporary of a temporary
+    assert paths.final_name(tmp.with_suffix(".img").name) == "a.img"  # a companion renamed with it
     assert locks.clean_stale_temporaries(tmp_path / "a.exr") == []  # a live writer's: left alone
 
 

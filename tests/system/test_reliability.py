@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from specgpu import io
-from specgpu.io import files as io_files
+from specgpu.io import sequence as io_sequence
 
 from specgpu.core import locks
 
@@ -388,7 +388,7 @@ def test_huge_sequence_header_names_the_file(seq, tmp_path, monkeypatch):
     def no_memory(*args, **kwargs):
         raise MemoryError("Unable to allocate 335 GiB")
 
-    monkeypatch.setattr(io_files.np, "empty", no_memory)
+    monkeypatch.setattr(io_sequence.np, "empty", no_memory)
     # the header's size is checked against the first frame before anything is allocated
     one_line_error(run("recover", seq, "--out", tmp_path / "c.exr", ok=False), "sequence.json", "100000 x 100000")
 
@@ -435,7 +435,7 @@ def test_calibration_with_an_impossible_dark_is_refused(base, tmp_path):
 
 
 def test_disk_full_during_capture_stops_it_and_keeps_the_complete_sequences(base, tmp_path, monkeypatch):
-    real = io_files._write_tiff
+    real = io_sequence._write_tiff
     frames = []
 
     def filling(path, frame):
@@ -444,7 +444,7 @@ def test_disk_full_during_capture_stops_it_and_keeps_the_complete_sequences(base
             raise OSError(errno.ENOSPC, "No space left on device")
         return real(path, frame)
 
-    monkeypatch.setattr(io_files, "_write_tiff", filling)
+    monkeypatch.setattr(io_sequence, "_write_tiff", filling)
     error = one_line_error(run("capture", "--rig", base / "rig.toml", "--plan", base / "tri.npz", "--calib",
                                base / "calib.npz", "--scene", "colorchecker", "--out", tmp_path / "s",
                                "--sequences", "20", ok=False), "No space left")

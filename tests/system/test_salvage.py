@@ -16,7 +16,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from specgpu import io
-from specgpu.io import files as io_files
+from specgpu.io import sequence as io_sequence
 from specgpu.pipeline.recovery import INCOMPLETE_MARKER
 
 from cli_helpers import one_line_error, run, tristimulus_rig
@@ -82,7 +82,7 @@ def test_interrupted_capture_keeps_its_complete_sequences(base, tmp_path, monkey
 def test_disk_full_mid_sequence_keeps_the_complete_ones_and_drops_the_partial(base, tmp_path, monkeypatch):
     out = tmp_path / "seq"
     K = K_of(base)
-    real = io_files._write_tiff
+    real = io_sequence._write_tiff
     calls = [0]
 
     def filling(path, frame):
@@ -91,7 +91,7 @@ def test_disk_full_mid_sequence_keeps_the_complete_ones_and_drops_the_partial(ba
             raise OSError(errno.ENOSPC, "No space left on device", str(path))
         return real(path, frame)
 
-    monkeypatch.setattr(io_files, "_write_tiff", filling)
+    monkeypatch.setattr(io_sequence, "_write_tiff", filling)
     result = run(*capture_args(base, out), ok=False)
     one_line_error(result, "No space left")
     assert f"kept 2 of {SEQUENCES} sequences" in result.output
@@ -119,7 +119,7 @@ def killed_capture(base, folder: Path, monkeypatch, sequences: int = 3, extra_fr
     import specgpu.apps.cli as cli
 
     K = K_of(base)
-    real = io_files._write_tiff
+    real = io_sequence._write_tiff
     calls = [0]
 
     def dying(path, frame):
@@ -129,7 +129,7 @@ def killed_capture(base, folder: Path, monkeypatch, sequences: int = 3, extra_fr
         return real(path, frame)
 
     with monkeypatch.context() as m:
-        m.setattr(io_files, "_write_tiff", dying)
+        m.setattr(io_sequence, "_write_tiff", dying)
         m.setattr(cli, "_keep_or_abort", lambda *a, **k: None)
         run(*capture_args(base, folder), ok=False)
     assert not (folder / io.SEQUENCE_FILE).exists() and (folder / io.JOURNAL_FILE).exists()

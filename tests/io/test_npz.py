@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from specgpu.io import formats
+from specgpu.io import npz
 from specgpu.io.tables import load_npz, save_npz
 from specgpu.rig.scene import read_scene
 
@@ -61,7 +61,7 @@ def test_a_plan_file_bomb_is_refused_as_a_corrupt_file(tmp_path):
 
 def test_more_than_the_memory_available_is_refused(tmp_path, monkeypatch):
     path = bomb(tmp_path / "big.npz", (100, 100, 3))
-    monkeypatch.setattr(formats, "available_memory_bytes", lambda: 100_000)
+    monkeypatch.setattr(npz, "available_memory_bytes", lambda: 100_000)
     with pytest.raises(ValueError, match=r"big\.npz: its arrays take 0\.00 GB once loaded but only 0\.00 GB of "
                                          r"memory are available"):
         read_scene(path)
@@ -106,7 +106,7 @@ _ARRAYS = st.dictionaries(
 def test_npz_members_reads_every_header_as_numpy_wrote_it(tmp_path, arrays, compressed):
     path = tmp_path / "a.npz"
     (np.savez_compressed if compressed else np.savez)(path, **arrays)
-    members = formats.npz_members(path)
+    members = npz.npz_members(path)
     assert members == {k: (v.shape, v.dtype) for k, v in arrays.items()}
 
 
@@ -125,7 +125,7 @@ def test_a_damaged_npz_is_refused_in_one_line_or_read_as_declared(tmp_path, data
         raw[i] ^= data.draw(st.integers(1, 255), "mask")
     path.write_bytes(bytes(raw))
     try:
-        members = formats.npz_members(path)
+        members = npz.npz_members(path)
     except ValueError as exc:
         assert str(exc).startswith(str(path)) and "\n" not in str(exc)
     else:

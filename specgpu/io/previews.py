@@ -1,0 +1,170 @@
+"""PNG previews: an 8-bit sRGB image from XYZ and a colour-difference heat map, and reading a PNG back.
+
+The sRGB preview uses colour-science's ``XYZ_to_sRGB``, clipped, with an exposure (automatic by default); the heat
+map uses a perceptually uniform colormap with its scale in the PNG text metadata. Both are written atomically.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from specgpu.core.text import one_line
+from specgpu.io.exr import write_image
+from specgpu.io.paths import _suffix
+
+__all__ = ["PERCEPTUAL_COLORMAPS", "write_png", "write_sRGB_preview", "write_delta_E_png", "read_png"]
+
+# ---- previews ------------------------------------------------------------------------------------------------------
+#: Perceptually uniform matplotlib colormaps accepted for heat maps.
+PERCEPTUAL_COLORMAPS = ("magma", "inferno", "viridis", "plasma", "cividis")
+
+
+def write_png(path: Path, rgb8: np.ndarray, attributes: dict) -> Path:
+    """Write an (H, W, C) uint8 image as PNG, atomically, with ``attributes`` as its text metadata; return ``path``."""
+    import OpenImageIO as oiio
+
+    h, w, c = rgb8.shape
+    spec = oiio.ImageSpec(w, h, c, "uint8")
+    spec.attribute("oiio:ColorSpace", "sRGB")
+    for key, value in attributes.items():
+        spec.attribute(key, str(value))
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
+    return write_image(path, rgb8, spec, "png", "PNG")
+
+
+def _auto_exposure_ev(Y: np.ndarray, percentile: float = 99.0) -> float:
+    finite = Y[np.isfinite(Y)]
+    level = float(np.percentile(finite, percentile)) if finite.size else 0.0
+    return 0.0 if level <= 0 else -math.log2(level)
+
+
+def write_sRGB_preview(path, XYZ, *, exposure="auto", illuminant=None, metadata=None) -> Path:
+    """Write an 8-bit sRGB PNG rendering of an XYZ map.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.png`` target, written atomically.
+    XYZ : array_like
+        (H, W, 3) tristimulus values, domain [0, 1] with Y = 1 for the perfect diffuser (colour-science's
+        reference scale). NaN pixels render black.
+    exposure : float or "auto"
+        Exposure in stops (EV): the image is ``XYZ * 2**exposure`` before encoding. ``"auto"`` picks the EV that
+        brings the 99th percentile of Y to 1 (specular outliers clip, the rest is not crushed); 0 shows the
+        values as they are (a perfect white at code 255).
+    illuminant : array_like, optional
+        CIE xy chromaticity of the XYZ white (e.g. illuminant A's (0.44758, 0.40745)); the rendering is
+        chromatically adapted (CAT02) from it to sRGB's D65 white. None: the XYZ is already relative to D65.
+    metadata : mapping, optional
+        Extra PNG text entries (str keys; values written as text).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``; the PNG text holds ``specgpu:exposure_EV`` (the exposure applied).
+    """
+    import colour
+
+    path = Path(path)
+    _suffix(path, (".png",), "preview")
+    arr = np.asarray(XYZ, dtype=np.float64)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise ValueError(f"{path}: XYZ must have shape (H, W, 3), got {arr.shape}")
+    if isinstance(exposure, str):
+        if exposure != "auto":
+            raise ValueError(f"{path}: exposure must be a number of stops or 'auto', got {exposure!r}")
+        ev = _auto_exposure_ev(arr[..., 1])
+    else:
+        ev = float(exposure)
+        if not math.isfinite(ev):
+            raise ValueError(f"{path}: exposure must be finite, got {exposure!r}")
+    kwargs = {}
+    if illuminant is not None:
+        kwargs["illuminant"] = np.asarray(illuminant, dtype=np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        rgb = colour.XYZ_to_sRGB(np.nan_to_num(arr * 2.0 ** ev, nan=0.0, posinf=0.0, neginf=0.0), **kwargs)
+    rgb8 = np.round(np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
+    attrs = {"specgpu:exposure_EV": repr(ev), "ImageDescription": f"sRGB preview of XYZ, exposure {ev:+.3f} EV"}
+    attrs.update({str(k): v for k, v in (metadata or {}).items()})
+    return write_png(path, rgb8, attrs)
+
+
+def write_delta_E_png(path, delta_E, *, vmax=None, colormap: str = "magma", quantity: str = "dE2000",
+                      metadata=None) -> Path:
+    """Write a colour-difference map as a heat-map PNG with a perceptually uniform colormap.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.png`` target, written atomically.
+    delta_E : array_like
+        (H, W) or (H, W, 1) colour differences, >= 0. NaN pixels render mid grey.
+    vmax : float, optional
+        dE mapped to the top of the colormap (larger values clip); default the largest finite value (1 if none
+        is positive). The bottom is 0.
+    colormap : str
+        One of :data:`PERCEPTUAL_COLORMAPS` (matplotlib's).
+    quantity : str
+        Name of the difference for the metadata (``"dE2000"``, ``"dE76"`` ...).
+    metadata : mapping, optional
+        Extra PNG text entries.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``; the PNG text holds the scale: ``specgpu:quantity``, ``specgpu:colormap``, ``specgpu:vmin``
+        (0), ``specgpu:vmax``, and a readable ``ImageDescription``.
+    """
+    import matplotlib
+
+    path = Path(path)
+    _suffix(path, (".png",), "heat map")
+    if colormap not in PERCEPTUAL_COLORMAPS:
+        raise ValueError(f"{path}: unknown colormap {colormap!r}; valid colormaps: {', '.join(PERCEPTUAL_COLORMAPS)}")
+    arr = np.asarray(delta_E, dtype=np.float64)
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    if arr.ndim != 2:
+        raise ValueError(f"{path}: delta_E must have shape (H, W) or (H, W, 1), got {arr.shape}")
+    finite = np.isfinite(arr)
+    if vmax is None:
+        top = float(arr[finite].max()) if finite.any() else 0.0
+        vmax = top if top > 0 else 1.0
+    vmax = float(vmax)
+    if not math.isfinite(vmax) or vmax <= 0:
+        raise ValueError(f"{path}: vmax must be finite and > 0, got {vmax!r}")
+    lut = np.round(matplotlib.colormaps[colormap](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0).astype(np.uint8)
+    index = np.round(np.clip(np.where(finite, arr, 0.0) / vmax, 0.0, 1.0) * 255.0).astype(np.intp)
+    rgb8 = lut[index]
+    rgb8[~finite] = 128
+    attrs = {"specgpu:quantity": quantity, "specgpu:colormap": colormap, "specgpu:vmin": "0",
+             "specgpu:vmax": repr(vmax),
+             "ImageDescription": f"{quantity} heat map, colormap {colormap}, 0 -> {vmax:g} (clipped above, NaN grey)"}
+    attrs.update({str(k): v for k, v in (metadata or {}).items()})
+    return write_png(path, rgb8, attrs)
+
+
+def read_png(path) -> tuple[np.ndarray, dict]:
+    """Read an 8-bit PNG: (H, W, C) uint8 pixels and its text metadata (name -> str)."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: PNG not found")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"{path}: cannot open PNG ({one_line(oiio.geterror())})")
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, "uint8")
+        err = inp.geterror()
+        if data is None or err:
+            raise ValueError(f"{path}: truncated or corrupt PNG ({one_line(err or 'no pixel data')})")
+        meta = {a.name: a.value for a in spec.extra_attribs}
+    finally:
+        inp.close()
+    return data.reshape(spec.height, spec.width, spec.nchannels), meta
