@@ -68,7 +68,7 @@ class LazyGroup(click.Group):
 
     def format_commands(self, ctx, formatter):
         limit = formatter.width - 6 - max(len(name) for name in self.list_commands(ctx))
-        rows = [(name, click.utils.make_default_short_help(self.lazy_commands[name][1], limit))
+        rows = [(name, click.Command(name, help=self.lazy_commands[name][1]).get_short_help_str(limit))
                 for name in self.list_commands(ctx)]
         if rows:
             with formatter.section("Commands"):
