@@ -16,15 +16,30 @@ from specgpu.capture.assemble import AssemblyStats, Sequence
 from specgpu.capture.replay import ReplayDriver, record
 from specgpu.capture.twin import TwinDriver
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
-from specgpu.pipeline.recovery import default_basis, read_capture, recover, to_Lab, to_XYZ, write_capture
+from specgpu.pipeline.recovery import (
+    default_basis,
+    read_capture,
+    recover,
+    to_Lab,
+    to_XYZ,
+    write_capture,
+)
 from specgpu.planning.plans import plan_symmetric_basis, save_plan
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.sensors import camera_for_size
 from specgpu.rig.twin import TwinRig
 
-__all__ = ["parse_sizes", "StreamSetup", "stream_setup", "offline_maps", "scene_Lab", "max_rel", "Checker",
-           "MemoryRecorder"]
+__all__ = [
+    "Checker",
+    "MemoryRecorder",
+    "StreamSetup",
+    "max_rel",
+    "offline_maps",
+    "parse_sizes",
+    "scene_Lab",
+    "stream_setup",
+]
 
 _SIZE = re.compile(r"\s*([0-9]+)\s*[xX]\s*([0-9]+)\s*", re.ASCII)
 

@@ -18,7 +18,7 @@ from specgpu.planning.estimators import NoiseModel, smooth_prior, with_estimator
 from specgpu.rig.scene import white_tile_roi
 from specgpu.testing import Checker, MemoryRecorder, max_rel, offline_maps, stream_setup
 
-__all__ = ["run_stream_bench", "format_stream_report", "STREAM_TARGETS", "STREAM_CASES"]
+__all__ = ["STREAM_CASES", "STREAM_TARGETS", "format_stream_report", "run_stream_bench"]
 # ------------------------------------------------------------------------------------------------------ the stream
 
 #: The stream's targets, raw frames per second into the stream.

@@ -7,10 +7,10 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-import specgpu.pipeline.recovery as recovery
 from specgpu.capture.session import capture_sequences
 from specgpu.hardware.drivers import open_driver
 from specgpu.io.recording import ZarrRecorder, check_free_space
+from specgpu.pipeline import recovery
 from specgpu.pipeline.stream import StreamResult
 
 __all__ = ["ZarrCapture", "capture_into", "keep_or_abort"]

@@ -10,9 +10,14 @@ import numpy as np
 
 from specgpu import io
 from specgpu.core.spectra import DEFAULT_CMFS
-from specgpu.pipeline.evaluate import evaluate_pixels, evaluate_reflectance, evaluate_XYZ, evaluation_illuminant
+from specgpu.pipeline.evaluate import (
+    evaluate_pixels,
+    evaluate_reflectance,
+    evaluate_XYZ,
+    evaluation_illuminant,
+)
 
-__all__ = ["read_recovered", "evaluation_report", "patch_table", "headline_line"]
+__all__ = ["evaluation_report", "headline_line", "patch_table", "read_recovered"]
 
 #: The report's short names of the headline figures.
 SHORT_NAMES = {"rmse": "rmse", "delta_E_ab": "dE76", "delta_E_2000": "dE2000"}

@@ -8,12 +8,17 @@ import math
 import shutil
 from pathlib import Path
 
-from specgpu.io.recording import (ZarrRecorder, check_free_space, check_write_rate, expected_sequences,
-                                  sequence_bytes)
+from specgpu.io.recording import (
+    ZarrRecorder,
+    check_free_space,
+    check_write_rate,
+    expected_sequences,
+    sequence_bytes,
+)
 from specgpu.pipeline.outputs import DELTA_E_KINDS
 from specgpu.pipeline.stream import ExrSequenceWriter, PreviewSink
 
-__all__ = ["RECORD_RING_S", "recording_slots", "add_recording", "stream_summary"]
+__all__ = ["RECORD_RING_S", "add_recording", "recording_slots", "stream_summary"]
 
 #: Seconds of frames the frame ring of a recording stream holds.
 RECORD_RING_S = 2.0

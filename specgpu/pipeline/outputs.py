@@ -14,8 +14,15 @@ from specgpu.pipeline.recovery import to_Lab, to_XYZ, uncertainty
 from specgpu.planning.correction import DEFAULT_WHITE_REFLECTANCE
 from specgpu.planning.estimators import delta_E_sigma
 
-__all__ = ["DELTA_E_KINDS", "white_metadata", "recovery_metadata", "stream_metadata", "sigma_with_rms",
-           "delta_E_sigma_map", "recovery_writes"]
+__all__ = [
+    "DELTA_E_KINDS",
+    "delta_E_sigma_map",
+    "recovery_metadata",
+    "recovery_writes",
+    "sigma_with_rms",
+    "stream_metadata",
+    "white_metadata",
+]
 
 #: The channel name of a colour-difference map, by formula.
 DELTA_E_KINDS = {"CIE 1976": "dE76", "CIE 1994": "dE94", "CIE 2000": "dE2000"}

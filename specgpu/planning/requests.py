@@ -10,7 +10,12 @@ import numpy as np
 
 from specgpu.calibration.bundle import rig_fingerprint
 from specgpu.planning.design import plan_hadamard, plan_optimal
-from specgpu.planning.estimators import NoiseModel, default_prior, training_spectra, with_estimator
+from specgpu.planning.estimators import (
+    NoiseModel,
+    default_prior,
+    training_spectra,
+    with_estimator,
+)
 from specgpu.planning.plans import make_plan
 from specgpu.rig.config import load_rig
 

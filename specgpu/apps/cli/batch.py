@@ -6,7 +6,15 @@ from pathlib import Path
 
 import click
 
-from specgpu.apps.cli.options import ILLUMINANT, OBSERVER, PLAN, RESIZE, command, output_list, parse_reference
+from specgpu.apps.cli.options import (
+    ILLUMINANT,
+    OBSERVER,
+    PLAN,
+    RESIZE,
+    command,
+    output_list,
+    parse_reference,
+)
 from specgpu.calibration.bundle import load_calibration
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS

@@ -12,7 +12,11 @@ from specgpu.apps.cli.options import PLAN, RESIZE, RIG, SCENE, command, experime
 from specgpu.hardware.drivers import hardware_config
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline import acquire
-from specgpu.pipeline.recovery import CaptureWriter, check_capture_folder, salvage_capture
+from specgpu.pipeline.recovery import (
+    CaptureWriter,
+    check_capture_folder,
+    salvage_capture,
+)
 from specgpu.rig.config import load_rig
 
 

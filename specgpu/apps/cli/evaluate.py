@@ -9,8 +9,13 @@ import click
 
 from specgpu import io
 from specgpu.apps.cli.options import RESIZE, Busy, command, lock, no_clash, resampled
-from specgpu.pipeline.evaluation_report import (colorimetry, evaluation_report, headline_line, patch_table,
-                                                read_recovered)
+from specgpu.pipeline.evaluation_report import (
+    colorimetry,
+    evaluation_report,
+    headline_line,
+    patch_table,
+    read_recovered,
+)
 from specgpu.rig.scene import load_scene
 
 

@@ -37,7 +37,7 @@ class Command(click.Command):
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort, SystemExit,
                 KeyboardInterrupt):
             raise
-        except Exception as error:  # noqa: BLE001 (the CLI promises one line, not a traceback)
+        except Exception as error:  # the CLI promises one line, not a traceback
             text = final_names(str(error)).strip()  # an output's name, never its temporary's
             message = text.splitlines()[0] if text else type(error).__name__
             raise click.ClickException(message) from error

@@ -11,7 +11,11 @@ from specgpu.core.validate import validate_method
 from specgpu.pipeline.projector import target_spectrum
 from specgpu.pipeline.recovery import default_basis
 from specgpu.planning.basis import load_basis
-from specgpu.planning.correction import ambient_needed, with_ambient_frame, with_drift_probes
+from specgpu.planning.correction import (
+    ambient_needed,
+    with_ambient_frame,
+    with_drift_probes,
+)
 from specgpu.planning.plans import PLAN_METHODS, save_plan
 from specgpu.planning.requests import estimated_plan
 

@@ -8,11 +8,21 @@ from pathlib import Path
 import click
 import numpy as np
 
-import specgpu.pipeline.recovery as recovery
-from specgpu.apps.cli.options import (ILLUMINANT, OBSERVER, RESIZE, Busy, Staged, command, lock, no_clash,
-                                      parse_reference, sequence_files)
+from specgpu.apps.cli.options import (
+    ILLUMINANT,
+    OBSERVER,
+    RESIZE,
+    Busy,
+    Staged,
+    command,
+    lock,
+    no_clash,
+    parse_reference,
+    sequence_files,
+)
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
+from specgpu.pipeline import recovery
 from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
 

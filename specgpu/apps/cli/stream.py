@@ -8,8 +8,21 @@ import sys
 import click
 import numpy as np
 
-from specgpu.apps.cli.options import (ILLUMINANT, OBSERVER, PLAN, RESIZE, RIG, SCENE, Finite, command, experiment,
-                                      lock, one_interrupt, output_list, parse_reference)
+from specgpu.apps.cli.options import (
+    ILLUMINANT,
+    OBSERVER,
+    PLAN,
+    RESIZE,
+    RIG,
+    SCENE,
+    Finite,
+    command,
+    experiment,
+    lock,
+    one_interrupt,
+    output_list,
+    parse_reference,
+)
 from specgpu.hardware.drivers import hardware_config, open_driver
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline.live import add_recording, recording_slots, stream_summary
