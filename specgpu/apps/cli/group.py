@@ -47,11 +47,12 @@ class terminate_as_interrupt:
 
 
 class LazyGroup(click.Group):
-    """click's lazy-loading group: ``commands`` maps each name to ``(module:attribute, summary)``; the module is
+    """click's lazy-loading group: ``lazy_commands`` maps each name to ``(module:attribute, summary)``; the module is
     imported when the command runs or shows its help, and the group's help lists the summaries (each the first
     paragraph of the command's help) without importing any. A usage error is one line (exit status 2) and an
     interrupt exits 130; a command's other errors are turned into one line by the command itself
-    (:class:`specgpu.apps.cli.options.Command`)."""
+    (:class:`specgpu.apps.cli.options.Command`, which names an output, never its temporary), any left over
+    here too."""
 
     def __init__(self, *args, lazy_commands=None, **kwargs):
         super().__init__(*args, **kwargs)
@@ -86,6 +87,11 @@ class LazyGroup(click.Group):
                 return super().invoke(ctx)
         except click.UsageError as error:  # a command's options and arguments, an unknown command
             raise one_line_usage(error) from error
+        except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort, SystemExit):
+            raise
         except KeyboardInterrupt:
             click.echo("specgpu: interrupted", err=True)
             sys.exit(130)
+        except Exception as error:  # outside a command's body (its options, its resources): still one line
+            text = str(error).strip()
+            raise click.ClickException(text.splitlines()[0] if text else type(error).__name__) from error
