@@ -35,7 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specgpu.apps.bench import parse_sizes  # noqa: E402
+from specgpu.testing import parse_sizes  # noqa: E402
 
 PLANS = ("hadamard", "symmetric", "narrowband", "wiener", "optimal")
 

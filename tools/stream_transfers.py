@@ -19,7 +19,7 @@ import time
 import numpy as np
 import pyopencl.array as cla
 
-from specgpu.apps.bench import parse_sizes, stream_setup
+from specgpu.testing import parse_sizes, stream_setup
 from specgpu.pipeline.stream import Stream, StreamDecoder
 
 

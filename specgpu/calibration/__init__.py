@@ -52,3 +52,7 @@ __all__ = [
     "save_calibration",
     "spectral_loop",
 ]
+
+from specgpu.calibration.session import calibrate_on_rig  # noqa: E402
+
+__all__ += ["calibrate_on_rig"]

@@ -9,3 +9,7 @@ from specgpu.hardware.usb import UsbDevice, list_usb_devices
 
 __all__ = ["BackendMissing", "CommandRejected", "DeviceDisconnected", "DeviceNotFound", "DeviceTimeout",
            "HardwareError", "LightFault", "ProtocolError", "UsbDevice", "list_usb_devices"]
+
+from specgpu.hardware.drivers import hardware_config, open_driver  # noqa: E402
+
+__all__ += ["hardware_config", "open_driver"]

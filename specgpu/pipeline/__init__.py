@@ -117,3 +117,10 @@ __all__ = [
     "truth_cube",
     "write_capture",
 ]
+
+from specgpu.pipeline.outputs import DELTA_E_KINDS, delta_E_sigma_map, recovery_metadata, recovery_writes, sigma_with_rms, stream_metadata, white_metadata  # noqa: E402, E501
+from specgpu.pipeline.live import RECORD_RING_S, add_recording, recording_slots, stream_summary  # noqa: E402
+from specgpu.pipeline.acquire import ZarrCapture, capture_into, keep_or_abort  # noqa: E402
+from specgpu.pipeline.evaluation_report import evaluation_report, headline_line, patch_table, read_recovered  # noqa: E402, E501
+
+__all__ += ["DELTA_E_KINDS", "delta_E_sigma_map", "recovery_metadata", "recovery_writes", "sigma_with_rms", "stream_metadata", "white_metadata", "RECORD_RING_S", "add_recording", "recording_slots", "stream_summary", "ZarrCapture", "capture_into", "keep_or_abort", "evaluation_report", "headline_line", "patch_table", "read_recovered"]  # noqa: E501

@@ -175,3 +175,7 @@ __all__ = [
     "with_drift_probes",
     "with_estimator",
 ]
+
+from specgpu.planning.requests import estimated_plan  # noqa: E402
+
+__all__ += ["estimated_plan"]

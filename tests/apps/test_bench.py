@@ -9,7 +9,8 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.apps.bench import TOLERANCES, parse_sizes, run_bench
+from specgpu.apps.bench import TOLERANCES, run_bench
+from specgpu.testing import parse_sizes
 from specgpu.apps.cli import main
 
 CASES = {

@@ -19,7 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 from specgpu import io
-from specgpu.apps.bench import offline_maps, stream_setup
+from specgpu.testing import offline_maps, stream_setup
 from specgpu.capture.session import capture_sequences
 from specgpu.capture.twin import TwinDriver
 from specgpu.apps.cli import main

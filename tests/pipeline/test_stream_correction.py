@@ -3,7 +3,8 @@
 A twin recording of the colorchecker with a 0.99 white tile above it (symmetric plan, K = 9, 31 bands) is
 replayed through :class:`specgpu.pipeline.stream.Stream`; every streamed sequence is compared with the offline path on
 the frames its ids name: ``pipeline.recover(..., white_roi=...)`` for the drift correction, ``pipeline.uncertainty``
-and ``estimators.delta_E_sigma`` (what ``recover --sigma`` / ``--delta-e-sigma`` write) for the uncertainty.
+and ``pipeline.outputs.sigma_with_rms`` / ``delta_E_sigma_map`` (what ``recover --sigma`` / ``--delta-e-sigma``
+write) for the uncertainty.
 """
 
 from __future__ import annotations
@@ -14,10 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specgpu.apps.bench import stream_setup
+from specgpu.testing import stream_setup
 from specgpu.engine.colorimetry import delta_E
 from specgpu.planning.correction import corrected_decoder, white_gains
 from specgpu.planning.estimators import NoiseModel, delta_E_sigma, smooth_prior, with_estimator
+from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
 from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ, uncertainty
 from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.rig.scene import white_tile_roi
@@ -133,13 +135,14 @@ def test_sigma_and_dE_sigma_equal_recover(setup):
     for i, (arrays, _) in got.items():
         folder = folder_of(setup, seq_frames(setup, i))
         sigma, cov = uncertainty(folder, sequence=0, illuminant="D65")
-        rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)
-        want = np.concatenate([sigma, rms], axis=-1)  # what recover --sigma writes
+        want, names = sigma_with_rms(sigma, setup.plan.output_labels)  # what recover --sigma writes
+        assert names[-1] == "sigma_rms"
+        rms = want[..., -1:]
         assert arrays["sigma"].shape == (H, W, setup.plan.A.shape[0] + 1)
         close(arrays["sigma"], want, rel=1e-5, name="sigma")
         close(arrays["sigma_rms"], rms[..., 0], rel=1e-5, name="sigma_rms")
         xyz = to_XYZ(recover(folder, sequence=0), setup.plan)
-        des = delta_E_sigma(np.nan_to_num(xyz), np.nan_to_num(cov), "D65")  # what recover --delta-e-sigma writes
+        des = delta_E_sigma_map(xyz, cov, "D65")  # what recover --delta-e-sigma writes
         assert float(np.median(des)) > 0.05
         np.testing.assert_allclose(arrays["dE_sigma"], des, rtol=1e-4, atol=1e-5)
         assert "XYZ_cov" not in arrays

@@ -182,9 +182,9 @@ def test_sigterm_drains_a_stream(base, tmp_path):
 
 
 def test_a_second_interrupt_during_the_drain_is_reported_not_obeyed(capsys):
-    from specgpu.apps.cli import _one_interrupt
+    from specgpu.apps.cli.options import one_interrupt
 
-    with _one_interrupt():
+    with one_interrupt():
         with pytest.raises(KeyboardInterrupt):
             os.kill(os.getpid(), signal.SIGTERM)
             time.sleep(1)

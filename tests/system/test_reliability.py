@@ -372,9 +372,9 @@ def test_unwritable_folder_is_refused_before_the_work_naming_the_output(base, tm
 
     (tmp_path / "ro").mkdir()
     monkeypatch.setattr(os, "open", read_only)
-    import specgpu.calibration as calibration
+    from specgpu.calibration import procedure
 
-    monkeypatch.setattr(calibration, "calibrate", lambda *a, **k: pytest.fail("calibrated before refusing"))
+    monkeypatch.setattr(procedure, "calibrate", lambda *a, **k: pytest.fail("calibrated before refusing"))
     error = one_line_error(run("calibrate", "--rig", base / "rig.toml", "--out", tmp_path / "ro" / "c.npz",
                                ok=False), "c.npz", "permission denied")
     assert ".tmp" not in error and ".lock" not in error

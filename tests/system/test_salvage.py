@@ -116,7 +116,7 @@ def killed_capture(base, folder: Path, monkeypatch, sequences: int = 3, extra_fr
     """The state ``kill -9`` leaves: ``sequences`` journaled sequences, ``extra_frames`` frames of the next one,
     no sequence.json (the cleanup the kill prevented is switched off). The kill itself is drilled in
     test_crash_drills.py."""
-    import specgpu.apps.cli as cli
+    from specgpu.pipeline import acquire
 
     K = K_of(base)
     real = io_sequence._write_tiff
@@ -130,7 +130,7 @@ def killed_capture(base, folder: Path, monkeypatch, sequences: int = 3, extra_fr
 
     with monkeypatch.context() as m:
         m.setattr(io_sequence, "_write_tiff", dying)
-        m.setattr(cli, "_keep_or_abort", lambda *a, **k: None)
+        m.setattr(acquire, "keep_or_abort", lambda *a, **k: None)
         run(*capture_args(base, folder), ok=False)
     assert not (folder / io.SEQUENCE_FILE).exists() and (folder / io.JOURNAL_FILE).exists()
     return folder

@@ -1,4 +1,4 @@
-"""The info, selftest and bench commands end to end: exit codes and one-line errors."""
+"""The info and selftest commands (specgpu.apps.cli.info) end to end: exit codes and one-line errors."""
 
 from __future__ import annotations
 
@@ -26,8 +26,3 @@ def test_unknown_device_is_one_line_and_nonzero():
     assert lines == ["Error: device='99:99' matches no OpenCL device (available: "
                      + lines[0].split("(available: ", 1)[1]]
 
-
-def test_help_of_every_command():
-    for command in ([], ["info"], ["selftest"], ["bench"]):
-        result = CliRunner().invoke(main, [*command, "--help"])
-        assert result.exit_code == 0 and "Usage:" in result.output

@@ -1,0 +1,136 @@
+"""``specgpu plan``: a measurement plan (the illuminant sequence and its decoder) from a calibration bundle."""
+
+from __future__ import annotations
+
+import click
+import numpy as np
+
+from specgpu.apps.cli.options import RIG, Busy, Finite, command, lock, no_clash
+from specgpu.calibration.bundle import load_calibration
+from specgpu.core.validate import validate_method
+from specgpu.pipeline.projector import target_spectrum
+from specgpu.pipeline.recovery import default_basis
+from specgpu.planning.basis import load_basis
+from specgpu.planning.correction import (
+    ambient_needed,
+    with_ambient_frame,
+    with_drift_probes,
+)
+from specgpu.planning.plans import PLAN_METHODS, save_plan
+from specgpu.planning.requests import estimated_plan
+
+
+def method_arguments(method, *, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm, illuminant,
+                     observer, camera, spectrum):
+    """The positional and keyword arguments of ``make_plan`` for METHOD, from the command's options."""
+    if method in ("narrowband", "reciprocal"):
+        return (), {"step_nm": step_nm, "bandwidth_nm": bandwidth_nm}
+    if method in ("biased", "symmetric"):
+        if basis_path:
+            basis = load_basis(basis_path)
+        else:
+            with Busy("building the basis"):
+                basis = default_basis(exclude_chart)
+        return (basis,), {"m": m, "output_wavelengths": np.arange(400.0, 700.0 + 1e-9, output_step_nm)}
+    if method == "tristimulus":
+        return (), {"illuminant": illuminant, "cmfs": observer}
+    if method == "camera":
+        return (), {"camera": camera, "illuminant": illuminant}
+    if method in ("optimal", "hadamard"):
+        return (), {}
+    sd = target_spectrum(spectrum)  # steady
+    return (sd.values, sd.wavelengths), {}
+
+
+def with_frames(plan, bundle, ambient, drift_probe):
+    """The plan with its drift probes and, where asked or where the calibration found light with every mirror
+    off (said on stderr), an ambient frame."""
+    if drift_probe:
+        plan = with_drift_probes(plan, bundle, sorted(drift_probe))
+    needed, why = ambient_needed(bundle)
+    if ambient is None and needed:
+        ambient = True
+        click.echo(f"adding an ambient frame: {why} (--no-ambient to leave it out)", err=True)
+    elif ambient is False and needed:
+        click.echo(f"Warning: no ambient frame although {why}: recover will subtract the white's all-off level "
+                   "and read darker objects too dark", err=True)
+    return with_ambient_frame(plan) if ambient else plan
+
+
+def summary(plan, digest, out):
+    """The line ``specgpu plan`` prints: frames, exposure, outputs, the file and the expected error."""
+    expected = plan.params.get("expected", {})
+    unit = "" if plan.output == "reflectance" else f" ({plan.output})"
+    note = f"; expected RMSE{unit} {expected['rmse']:.4f} on the prior" if "rmse" in expected else ""
+    for key in ("dE2000", "dEab"):
+        if key in expected:
+            note += f", expected {key} {expected[key]:.3f} (RMS)"
+    return (f"{plan.method}: {plan.K} frames at {plan.exposure_s * 1e3:.2f} ms, {plan.A.shape[0]} outputs "
+            f"({plan.output}); wrote {out} (plan {digest[:12]}, calibration {plan.calibration[:12]}){note}")
+
+
+@command("plan")
+@click.argument("method")
+@click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False), help="Calibration bundle.")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="Plan to write (.npz).")
+@click.option("--step-nm", type=Finite(min=0.1, max=300), default=10.0, show_default=True,
+              help="Band spacing (narrowband, reciprocal).")
+@click.option("--bandwidth-nm", type=Finite(min=0.1, max=300), default=None,
+              help="Band width (narrowband, reciprocal; default the step).")
+@click.option("--m", "m", type=int, default=5, show_default=True, help="Basis functions (biased, symmetric).")
+@click.option("--basis", "basis_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Basis table (.npz); default: PCA of colour-science's reflectances without --exclude-chart.")
+@click.option("--exclude-chart", default="ColorChecker N Ohta", show_default=True,
+              help="Chart left out of the default basis training (the one you evaluate on).")
+@click.option("--output-step-nm", type=Finite(min=0.1, max=300), default=10.0, show_default=True,
+              help="Output wavelength spacing of basis methods (400-700 nm).")
+@click.option("--illuminant", default="D65", show_default=True, help="Tristimulus / camera simulator illuminant.")
+@click.option("--observer", default="CIE 1931 2 Degree Standard Observer", show_default=True)
+@click.option("--camera", default="Nikon 5100 (NPL)", show_default=True, help="Camera simulator: sensitivities.")
+@click.option("--spectrum", default="D65", show_default=True,
+              help="Steady-state: target illuminant name (colour-science) for spectral rendering.")
+@click.option("--estimator", type=click.Choice(["projection", "wiener", "smooth"], case_sensitive=False),
+              default="projection", show_default=True,
+              help="Decoder: the method's own, Wiener on the training prior, or smoothness-regularised LS.")
+@click.option("--training", "training", multiple=True, type=click.Path(dir_okay=False),
+              help="Training spectra (CSV, or .npz with wavelengths and reflectance) added to the default prior; "
+                   "repeatable.")
+@click.option("--smooth-nm", type=float, default=40.0, show_default=True,
+              help="smooth estimator: correlation length of the smoothness prior, nm.")
+@click.option("--training-only", is_flag=True, help="Use only --training files for the prior (no built-in sets).")
+@click.option("--frames", type=click.IntRange(min=1, max=200), default=9, show_default=True,
+              help="optimal: number of illuminants.")
+@click.option("--objective", type=click.Choice(["rmse", "dE2000", "dEab"], case_sensitive=False), default="rmse",
+              show_default=True, metavar="[rmse|dE2000|dEab]",
+              help="optimal: the expected error minimised (colour differences under --illuminant).")
+@click.option("--target", type=float, default=None, help="optimal: refuse a design whose expected error is above it.")
+@click.option("--exposure-ms", type=float, default=None, help="optimal: expose at least this long (ms).")
+@click.option("--bands", type=int, default=31, show_default=True, help="hadamard: bands (3, 7, 15, 31, 63).")
+@click.option("--ambient/--no-ambient", default=None,
+              help="Add an ambient frame (every mirror off) to each sequence; recover subtracts it (1 frame more). "
+                   "Default: added where the calibration found light with every mirror off (room light, the DMD's "
+                   "off-state) or could not tell.")
+@click.option("--drift-probe", "drift_probe", type=float, multiple=True,
+              help="Add a 20 nm drift probe band at NM to each sequence, read by recover --white-roi's colour fit "
+                   "(1 frame more each; 430 and 650 let a 3-frame plan's drift correction hold). Repeatable.")
+@RIG
+def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
+                 illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,
+                 target, exposure_ms, bands, rig_path, smooth_nm, ambient, drift_probe):
+    """Design a measurement plan: the illuminant sequence and its decoder.
+
+    METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady, optimal, hadamard.
+    """
+    validate_method(method, {k: k for k in (*PLAN_METHODS, "optimal", "hadamard")}, "METHOD")
+    method = method.lower()
+    no_clash([("--out", out)], [("--calib", calib), ("--basis", basis_path)] + [("--training", t) for t in training])
+    lock(out)
+    bundle = load_calibration(calib)
+    args, kwargs = method_arguments(method, step_nm=step_nm, bandwidth_nm=bandwidth_nm, m=m, basis_path=basis_path,
+                                    exclude_chart=exclude_chart, output_step_nm=output_step_nm,
+                                    illuminant=illuminant, observer=observer, camera=camera, spectrum=spectrum)
+    plan = estimated_plan(method, bundle, args, kwargs, estimator.lower(), training, training_only, exclude_chart,
+                          frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path,
+                          smooth_nm, progress=Busy)
+    plan = with_frames(plan, bundle, ambient, drift_probe)
+    click.echo(summary(plan, save_plan(out, plan), out))

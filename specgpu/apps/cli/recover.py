@@ -1,0 +1,98 @@
+"""``specgpu recover``: a sequence folder recovered to a cube (or a tristimulus plan's map) and, when asked, XYZ,
+Lab, dE and uncertainty maps, written all or nothing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+
+from specgpu.apps.cli.options import (
+    ILLUMINANT,
+    OBSERVER,
+    RESIZE,
+    Busy,
+    Staged,
+    command,
+    lock,
+    no_clash,
+    parse_reference,
+    sequence_files,
+)
+from specgpu.core.validate import validate_method
+from specgpu.engine.colorimetry import DELTA_E_METHODS
+from specgpu.pipeline import recovery
+from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
+
+
+def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours):
+    """The recovery of ``folder`` (a refusal is one line naming why) and the metadata of its outputs."""
+    try:
+        y = recovery.recover(folder, sequence=sequence, device=device, white_roi=white_roi,
+                             white_reflectance=white_reflectance)
+    except ValueError as error:
+        raise click.ClickException(str(error)) from None
+    untrusted = recovery.dark_warning(folder, sequence)  # said once the spinner has gone, recorded with every output
+    meta = recovery_metadata(folder, seq, sequence=sequence, illuminant=colours[0], observer=colours[1],
+                             white_roi=white_roi, white_reflectance=white_reflectance, untrusted=untrusted)
+    return y, meta, untrusted
+
+
+@command()
+@click.argument("seq", type=click.Path(exists=True, file_okay=False))
+@click.option("--out", required=True, type=click.Path(dir_okay=False),
+              help="Recovered cube (.exr / .npz / .hdr ENVI); an XYZ map for a tristimulus plan.")
+@click.option("--interleave", type=click.Choice(["bsq", "bil", "bip"]), default="bsq", show_default=True,
+              help="ENVI (.hdr) cube layout: band sequential, interleaved by line or by pixel.")
+@click.option("--xyz", "xyz_path", type=click.Path(dir_okay=False), default=None, help="Also write XYZ (EXR).")
+@click.option("--lab", "lab_path", type=click.Path(dir_okay=False), default=None, help="Also write CIELAB (EXR).")
+@click.option("--delta-e-ref", "ref", default=None,
+              help="Reference: 'L,a,b', or a scene whose true colour per pixel (over all its bands) is it.")
+@click.option("--delta-e", "de_path", type=click.Path(dir_okay=False), default=None,
+              help="Colour-difference map to write (EXR; .png for a heat map).")
+@click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
+@ILLUMINANT
+@OBSERVER
+@click.option("--sequence", type=int, default=None, help="Recover one sequence (default: the mean of all).")
+@click.option("--half", is_flag=True, help="Write the cube in half precision.")
+@click.option("--sigma", "sigma_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the per-pixel standard deviation of each output and their RMS (EXR).")
+@click.option("--delta-e-sigma", "de_sigma_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the per-pixel dE2000 standard deviation (first-order, under --illuminant; EXR).")
+@click.option("--device", "device", default=None, help="OpenCL device selector.")
+@click.option("--white-roi", default=None, metavar="X,Y,W,H",
+              help="A reference white in the field: rescale each sequence's decoder for the light's drift.")
+@click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
+              help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@RESIZE
+def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, sequence, half,
+            sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize):
+    """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
+    if (ref is None) != (de_path is None):
+        raise click.UsageError("--delta-e-ref and --delta-e go together")
+    method = validate_method(method, DELTA_E_METHODS)
+    paths = {"out": out, "xyz_path": xyz_path, "lab_path": lab_path, "de_path": de_path, "sigma_path": sigma_path,
+             "de_sigma_path": de_sigma_path}
+    outputs = list(zip(("--out", "--xyz", "--lab", "--delta-e", "--sigma", "--delta-e-sigma"), paths.values()))
+    no_clash(outputs, sequence_files(seq) + ([("--delta-e-ref", ref)] if ref and Path(ref).exists() else []))
+    lock(*(p for _, p in outputs if p))  # before the work: a missing folder or a busy output is refused now
+    folder = recovery.read_capture(seq)
+    colours = (folder.plan.resolve_illuminant(illuminant, name=f"the plan of {seq}"),
+               folder.plan.resolve_observer(observer, name=f"the plan of {seq}"))
+    white = {"white_roi": white_roi, "white_reflectance": white_reflectance}
+    with Busy("recovering"):
+        if white_reflectance is not None and white_roi is None:
+            raise click.UsageError("--white-reflectance needs --white-roi")
+        y, meta, untrusted = recovered(folder, seq, sequence=sequence, device=device, colours=colours, **white)
+        writes = recovery_writes(folder, y, meta, **paths, colours=colours, sequence=sequence, half=half,
+                                 interleave=interleave, method=method, device=device, **white,
+                                 reference=lambda h, w, m: parse_reference(ref, h, w, colours[0], resize, m,
+                                                                           colours[1]))
+    if untrusted:
+        click.echo(f"Warning: {untrusted}", err=True)
+    written = Staged().write_all(writes)  # all or nothing: no output replaced until every one is written
+    saturated = int(np.isnan(y[..., 0]).sum())
+    note = f"; {saturated} saturated pixels left NaN" if saturated else ""
+    click.echo(f"{folder.plan.method}: {folder.plan.K} projections, {folder.sequences} sequences in {seq}; wrote "
+               + ", ".join(str(p) for p in written) + note)

@@ -1,0 +1,66 @@
+"""A plan as ``specgpu plan`` asks for it: the method's plan with the chosen decoder (the method's own, Wiener on
+a training prior, or smoothness-regularised least squares), the camera's noise model and the expected error
+recorded; the optimal design and the Hadamard plan made the same way."""
+
+from __future__ import annotations
+
+from contextlib import nullcontext
+
+import numpy as np
+
+from specgpu.calibration.bundle import rig_fingerprint
+from specgpu.planning.design import plan_hadamard, plan_optimal
+from specgpu.planning.estimators import (
+    NoiseModel,
+    default_prior,
+    training_spectra,
+    with_estimator,
+)
+from specgpu.planning.plans import make_plan
+from specgpu.rig.config import load_rig
+
+__all__ = ["estimated_plan"]
+
+
+def _quiet(desc):
+    return nullcontext()
+
+
+def estimated_plan(method, bundle, args, kwargs, estimator, training, training_only, exclude_chart, frames,
+                   objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path, smooth_nm=40.0,
+                   progress=_quiet):
+    """The plan of ``method`` with the chosen decoder, the camera's noise model and its expected error recorded.
+
+    ``args`` / ``kwargs`` go to :func:`~specgpu.planning.plans.make_plan`; ``frames``, ``objective``, ``target``
+    and ``exposure_ms`` to the optimal design, ``bands`` to the Hadamard plan; ``progress(description)`` gives a
+    context manager shown around the slow steps. A plan without a noise model is made only where no ``rig_path``
+    names the custom rig the calibration was made on and nothing needs one.
+    """
+    description = load_rig(rig_path)
+    plain = method not in ("optimal", "hadamard") and estimator == "projection" and not training
+    if plain and rig_path is None and bundle.rig and bundle.rig != rig_fingerprint(description):
+        return make_plan(method, bundle, *args, **kwargs)  # no --rig for a custom rig's camera: no noise model
+    if bundle.rig and bundle.rig != rig_fingerprint(description):
+        raise ValueError(f"{'--rig ' + str(rig_path) if rig_path else 'the default rig'} is not the rig the "
+                         "calibration was made on: give that rig's description with --rig (its camera's noise "
+                         "model is needed)")
+
+    def noise_at(t):
+        return NoiseModel.from_rig(description, t)
+
+    prior = None
+    if method == "optimal" or estimator == "wiener" or training or training_only:
+        with progress("building the training prior"):
+            prior = default_prior(exclude_chart, training_files=training, builtin=not training_only)
+    if method == "optimal":
+        tr = None
+        if objective.lower() != "rmse":
+            tr = training_spectra(exclude_chart, prior.wavelengths, training_files=training,
+                                  builtin=not training_only)
+        with progress(f"designing {frames} illuminants"):
+            return plan_optimal(bundle, prior, noise_at, frames=frames, objective=objective, illuminant=illuminant,
+                                training=tr, output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm),
+                                target=target, exposure_s=None if exposure_ms is None else exposure_ms / 1e3)
+    plan = plan_hadamard(bundle, bands=bands) if method == "hadamard" else make_plan(method, bundle, *args, **kwargs)
+    return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s),
+                          correlation_nm=smooth_nm)

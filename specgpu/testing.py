@@ -1,0 +1,195 @@
+"""Fixtures the tests and the benchmarks share: image-size parsing, a calibrated twin with a recorded stream to
+replay (:func:`stream_setup`), the offline maps a stream must equal (:func:`offline_maps`), and the sinks that check
+or keep a stream's results."""
+
+from __future__ import annotations
+
+import re
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from specgpu.calibration import calibrate, save_calibration
+from specgpu.capture.assemble import AssemblyStats, Sequence
+from specgpu.capture.replay import ReplayDriver, record
+from specgpu.capture.twin import TwinDriver
+from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
+from specgpu.pipeline.recovery import (
+    default_basis,
+    read_capture,
+    recover,
+    to_Lab,
+    to_XYZ,
+    write_capture,
+)
+from specgpu.planning.plans import plan_symmetric_basis, save_plan
+from specgpu.rig.config import RigDescription
+from specgpu.rig.scene import colorchecker_scene
+from specgpu.rig.sensors import camera_for_size
+from specgpu.rig.twin import TwinRig
+
+__all__ = [
+    "Checker",
+    "MemoryRecorder",
+    "StreamSetup",
+    "max_rel",
+    "offline_maps",
+    "parse_sizes",
+    "scene_Lab",
+    "stream_setup",
+]
+
+_SIZE = re.compile(r"\s*([0-9]+)\s*[xX]\s*([0-9]+)\s*", re.ASCII)
+
+
+def parse_sizes(text: str) -> list[tuple[int, int]]:
+    """Image sizes from a comma-separated ``"WxH,WxH"`` list.
+
+    Parameters
+    ----------
+    text : str
+        For example ``"640x480,2048x2048"``; ``X`` and spaces around the numbers are accepted.
+
+    Returns
+    -------
+    list of (int, int)
+        (width, height) pairs, both >= 1, in the order given.
+
+    Raises
+    ------
+    ValueError
+        Naming the first token that is not ``WxH`` with positive integers.
+    """
+    if not isinstance(text, str) or not text.strip():
+        raise ValueError(f"no image size given in {text!r}: expected e.g. '640x480,2048x2048'")
+    sizes = []
+    for token in text.split(","):
+        match = _SIZE.fullmatch(token)
+        if match is None:
+            raise ValueError(f"bad image size {token!r}: expected WxH with positive integers, e.g. '640x480'")
+        width, height = int(match.group(1)), int(match.group(2))
+        if width < 1 or height < 1:
+            raise ValueError(f"bad image size {token!r}: width and height must be at least 1")
+        sizes.append((width, height))
+    return sizes
+
+
+
+@dataclass
+class StreamSetup:
+    """What the stream benchmark streams: a calibrated twin, a symmetric plan (K = 9, 61 output bands) whose
+    exposure fits the paced frame rate, a recording of ``sequences`` whole sequences of the colorchecker replayed
+    by :class:`~specgpu.capture.replay.ReplayDriver`, and the scene's per-pixel Lab as the dE reference."""
+    description: object
+    bundle: object
+    plan: object
+    frames: np.ndarray
+    infos: list
+    light: object
+    reference: np.ndarray
+
+    def driver(self, *, loops=None, pacing="free"):
+
+        return ReplayDriver(self.frames, self.infos, self.light, loops=loops, pacing=pacing)
+
+    def recorded_sequence(self, frame_ids) -> int:
+        """Index of the recorded sequence a result's frame ids replay (replay ids run on across loops)."""
+        return int(frame_ids[0]) // self.plan.K % (self.frames.shape[0] // self.plan.K)
+
+
+def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 200.0, sequences: int = 8,
+                 output_step_nm: float = 5.0, seed: int = 0, white_tile: float | None = None) -> StreamSetup:
+    """Calibrate the twin at ``width`` x ``height`` and ``frame_rate_hz``, plan the symmetric basis method with
+    an exposure that fits the frame period, and record ``sequences`` sequences of the colorchecker (10-bit);
+    ``white_tile``: with a reference white tile of that reflectance above the chart
+    (:func:`specgpu.rig.scene.white_tile_roi` gives its ROI)."""
+    base = RigDescription()
+    switch = base.light.switch_time_s
+    # the paper's camera up to 640 x 480, else the smallest machine-vision sensor preset that holds the size
+    sensor = camera_for_size(width, height, base.camera)
+    frame_rate_hz = min(float(frame_rate_hz), replace(sensor, frame_rate_hz=1.0, exposure_s=0.5).max_frame_rate_hz)
+    exposure = 1.0 / frame_rate_hz - switch - 5e-6  # the longest exposure the light can follow at this rate
+    cam = replace(sensor, bit_depth=10, exposure_s=exposure, frame_rate_hz=frame_rate_hz)
+    description = replace(base, camera=cam)
+    bundle = calibrate(description, seed=seed)
+    plan = plan_symmetric_basis(bundle, default_basis(), m=5, max_exposure_s=exposure,
+                                output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm))
+    scene = colorchecker_scene(int(height), int(width), white_tile=white_tile)
+    rig = TwinRig(plan.rig_description(description), scene=scene)
+    rig.seed = seed + 1
+    frames, infos, light = record(TwinDriver(rig, patterns=plan.patterns, pacing="free"), plan.K * sequences)
+    return StreamSetup(description, bundle, plan, frames, infos, light, scene_Lab(scene))
+
+
+def scene_Lab(scene, illuminant="D65"):
+
+    return XYZ_to_Lab(reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant), illuminant)
+
+
+def offline_maps(setup: StreamSetup, index: int, *, method: str = "CIE 2000", illuminant: str = "D65") -> dict:
+    """The offline path's maps (``pipeline.recover`` on a sequence folder written from the recording, then
+    ``to_XYZ``, ``to_Lab`` and ``delta_E``) for recorded sequence ``index``: what the stream must equal."""
+    K = setup.plan.K
+    sl = slice(index * K, (index + 1) * K)
+    seq = Sequence(setup.frames[sl], np.array([i.frame_id for i in setup.infos[sl]]),
+                   np.array([i.timestamp_s for i in setup.infos[sl]]), setup.plan.exposure_s, index)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        save_plan(tmp / "plan.npz", setup.plan)
+        save_calibration(tmp / "calib.npz", setup.bundle)
+        write_capture(tmp / "seq", [seq], AssemblyStats(), tmp / "plan.npz", tmp / "calib.npz")
+        folder = read_capture(tmp / "seq")
+        cube = recover(folder, sequence=0)
+    XYZ = to_XYZ(cube, setup.plan, illuminant)
+    Lab = to_Lab(XYZ, illuminant)
+    return {"cube": cube, "XYZ": XYZ, "Lab": Lab, "dE": delta_E(setup.reference, Lab, method)}
+
+
+def max_rel(a, b) -> float:
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-12))
+
+
+class Checker:
+    """A sink that checks every result against the offline maps of the recorded sequence it must come from:
+    consecutive frame ids, starting at pattern 0, and equal maps (a misaligned sequence cannot pass)."""
+    def __init__(self, setup: StreamSetup, expected: dict, outputs, tolerance: float = 1e-3):
+        self.setup, self.expected, self.outputs, self.tolerance = setup, expected, outputs, tolerance
+        self.checked = 0
+        self.misaligned = 0
+        self.worst = 0.0
+
+    def write(self, result):
+        K = self.setup.plan.K
+        ids = result.frame_ids
+        ok = bool(np.all(np.diff(ids) == 1)) and int(ids[0]) % K == 0
+        exp = self.expected[self.setup.recorded_sequence(ids)]
+        for name in self.outputs:
+            if name in exp and name in result.arrays:
+                if name == "dE":
+                    err = float(np.max(np.abs(result.arrays[name] - exp[name])))  # dE units
+                else:
+                    err = max_rel(result.arrays[name], exp[name])
+                self.worst = max(self.worst, err)
+                ok = ok and err <= (2e-3 if name != "dE" else 0.05)
+        self.checked += 1
+        self.misaligned += not ok
+
+    def close(self):
+        pass
+
+
+class MemoryRecorder:
+    """A sink that writes every result's cube into a preallocated in-memory recording (a ring of ``slots``)."""
+    def __init__(self, shape, dtype, slots: int = 4):
+        self.store = np.zeros((slots, *shape), dtype)
+        self.count = 0
+
+    def write(self, result):
+        np.copyto(self.store[self.count % len(self.store)], result.arrays["cube"])
+        self.count += 1
+
+    def close(self):
+        pass
