@@ -584,7 +584,7 @@ def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 
     from specgpu.capture.replay import record
     from specgpu.capture.twin import TwinDriver
     from specgpu.pipeline.recovery import default_basis
-    from specgpu.planning.plans import plan_symmetric_basis
+    from specgpu.planning import plan_symmetric_basis
     from specgpu.rig.config import RigDescription
     from specgpu.rig.scene import colorchecker_scene
     from specgpu.rig.twin import TwinRig
@@ -623,7 +623,7 @@ def offline_maps(setup: StreamSetup, index: int, *, method: str = "CIE 2000", il
     from specgpu.calibration.bundle import save_calibration
     from specgpu.capture.assemble import AssemblyStats, Sequence
     from specgpu.pipeline.recovery import read_capture, recover, to_Lab, to_XYZ, write_capture
-    from specgpu.planning.plans import save_plan
+    from specgpu.planning import save_plan
 
     K = setup.plan.K
     sl = slice(index * K, (index + 1) * K)
@@ -763,7 +763,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     if {"sigma", "sigma_rms", "dE_sigma"} & set(cases):
         from dataclasses import replace
 
-        from specgpu.planning.estimators import NoiseModel, smooth_prior, with_estimator
+        from specgpu.planning import NoiseModel, smooth_prior, with_estimator
 
         plan = with_estimator(setup.plan, setup.bundle, "projection", noise=NoiseModel.from_rig(
             setup.description, setup.plan.exposure_s), prior=smooth_prior(np.arange(400.0, 700.0 + 1e-9, 5.0)))

@@ -362,7 +362,7 @@ def _experiment(description, plan_path, calib, scene, resize="scale"):
     """The rig's calibration, a plan made from that calibration (stale: an error) and the scene at the camera's
     resolution (fitted by ``resize``, said on stderr): what capture and stream both start from."""
     from specgpu.calibration.bundle import load_calibration
-    from specgpu.planning.plans import load_plan
+    from specgpu.planning import load_plan
     from specgpu.rig.scene import load_scene
 
     bundle = load_calibration(calib, rig=description)
@@ -489,7 +489,7 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
     import numpy as np
 
     from specgpu.calibration.bundle import load_calibration
-    from specgpu.planning.plans import PLAN_METHODS, save_plan
+    from specgpu.planning import PLAN_METHODS, save_plan
     from specgpu.core.validate import validate_method
 
     validate_method(method, {k: k for k in (*PLAN_METHODS, "optimal", "hadamard")}, "METHOD")
@@ -559,9 +559,9 @@ def _estimated_plan(method, bundle, args, kwargs, estimator, training, training_
     import numpy as np
 
     from specgpu.calibration.bundle import rig_fingerprint
-    from specgpu.planning.design import plan_hadamard, plan_optimal
-    from specgpu.planning.estimators import NoiseModel, default_prior, with_estimator
-    from specgpu.planning.plans import make_plan
+    from specgpu.planning import plan_hadamard, plan_optimal
+    from specgpu.planning import NoiseModel, default_prior, with_estimator
+    from specgpu.planning import make_plan
     from specgpu.rig.config import load_rig
 
     description = load_rig(rig_path)
@@ -583,7 +583,7 @@ def _estimated_plan(method, bundle, args, kwargs, estimator, training, training_
     if method == "optimal":
         tr = None
         if objective.lower() != "rmse":
-            from specgpu.planning.estimators import training_spectra
+            from specgpu.planning import training_spectra
 
             tr = training_spectra(exclude_chart, prior.wavelengths, training_files=training,
                                   builtin=not training_only)
@@ -937,7 +937,7 @@ def _sigma_writes(writes, folder, sequence, colours, sigma_path, de_sigma_path, 
     import numpy as np
 
     from specgpu import io
-    from specgpu.planning.estimators import delta_E_sigma
+    from specgpu.planning import delta_E_sigma
     from specgpu.pipeline.recovery import to_XYZ, uncertainty
 
     illuminant, observer = colours
@@ -1179,7 +1179,7 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
     from specgpu.pipeline.batch import BATCH_OUTPUTS, open_source, run_batch
     from specgpu.calibration.bundle import load_calibration
     from specgpu.engine.colorimetry import DELTA_E_METHODS
-    from specgpu.planning.plans import load_plan
+    from specgpu.planning import load_plan
     from specgpu.core.validate import validate_method
 
     wanted = tuple(validate_method(o.strip(), {k: k for k in BATCH_OUTPUTS}, "batch output")

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from specgpu.planning.priors import Prior
+
 __all__ = ["NoiseModel"]
 
 
@@ -72,7 +74,7 @@ class NoiseModel:
         g = self.gain_e_per_dn
         return float(g * self.light_rms ** 2), float(g * self.read_var_dn2)
 
-    def covariance(self, F, prior: "Prior") -> np.ndarray:
+    def covariance(self, F, prior: Prior) -> np.ndarray:
         """(K, K) diagonal noise covariance at the prior's expected signal ``F mu``."""
         F = np.asarray(F, np.float64)
         o = F @ prior.mean

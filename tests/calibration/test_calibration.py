@@ -21,7 +21,7 @@ from specgpu.calibration.bundle import (
     save_calibration,
     spectral_loop,
 )
-from specgpu.planning.plans import make_plan
+from specgpu.planning import make_plan
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.light import LightParameters

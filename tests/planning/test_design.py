@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from specgpu.planning import design as D
-from specgpu.planning import estimators as E
+import specgpu.planning as E
+from specgpu.apps import estimator_study as S
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.planning.plans import make_plan
+from specgpu.planning import make_plan
 from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
@@ -78,7 +79,7 @@ def test_optimal_beats_the_paper_design_in_expectation(bundle, prior, optimal6):
 
 def test_optimal_plan_recovers_the_held_out_chart_noise_free(bundle, optimal6):
     names, wl, spec = E.held_out_spectra()
-    scene = E.patch_scene(names, wl, spec, H, W)
+    scene = S.patch_scene(names, wl, spec, H, W)
     rig = TwinRig(optimal6.rig_description(DESC), scene=scene)
     rig.load_sequence(optimal6.patterns)
     frames = np.stack([rig.expected_frame(k) for k in range(optimal6.K)])
@@ -117,22 +118,6 @@ def test_s_matrix():
         np.testing.assert_allclose(np.linalg.inv(S.astype(float)), 2 / (n + 1) * (2 * S.T - 1), atol=1e-12)
     with pytest.raises(ValueError, match="hadamard bands"):
         D.s_matrix(10)
-
-
-def test_hadamard_recovers_like_narrowband_and_gains_snr():
-    """Equal exposure (2 ms), 15 bands each, a read-noise-limited camera (300 e-) and a steady light: Hadamard's
-    noise is lower by about the theory's (N + 1) / (2 sqrt N) = 2.07. (With the paper's camera, 14 e- of read
-    noise, the frames are shot-noise-limited and multiplexing loses instead.)"""
-    from dataclasses import replace
-
-    desc = RigDescription(camera=CameraParameters(roi_width=W, roi_height=H, read_noise_e=300.0))
-    desc = replace(desc, light=replace(desc.light, fluctuation_rms=0.0))
-    g = D.hadamard_gain(desc, bands=15, exposure_s=0.002, seed=11)
-    assert g["exposure_ms"] == pytest.approx(2.0) and g["narrowband_exposure_ms"] == pytest.approx(2.0)
-    np.testing.assert_allclose(g["hadamard_mean"], 0.5, atol=0.02)
-    np.testing.assert_allclose(g["narrowband_mean"], 0.5, atol=0.02)
-    assert g["theory"] == pytest.approx(16 / (2 * np.sqrt(15)))
-    assert 1.6 < g["gain"] < 2.4
 
 
 def test_cli_plan_optimal_refusals(tmp_path, bundle):

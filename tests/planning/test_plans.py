@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from specgpu.planning.basis import COLORCHECKER_24_SETS, load_reflectances, pca_basis
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.planning.plans import (
+from specgpu.planning import (
     PLAN_METHODS,
     Plan,
     load_plan,
