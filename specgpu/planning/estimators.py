@@ -31,8 +31,8 @@ from specgpu.core.spectra import XYZ_weights
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.priors import Prior, smooth_prior
 
-__all__ = ["ESTIMATORS", "forward", "output_weights", "wiener_decoder", "smooth_decoder", "expected_error",
-           "with_estimator"]
+__all__ = ["ESTIMATORS", "forward", "output_weights", "interp_rows", "wiener_decoder", "smooth_decoder",
+           "expected_error", "with_estimator"]
 
 #: Estimator names: the plan's own decoder, Wiener (LMMSE) on a training prior, smoothness-regularised LS.
 ESTIMATORS = ("projection", "wiener", "smooth")
@@ -50,13 +50,13 @@ def output_weights(plan, wavelengths) -> np.ndarray:
     reflectance plan, colour-matching weights for an XYZ plan; other outputs have no Wiener form (ValueError)."""
     wl = np.asarray(wavelengths, np.float64)
     if plan.output == "reflectance":
-        return _interp_rows(plan.output_wavelengths, wl)
+        return interp_rows(plan.output_wavelengths, wl)
     if plan.output == "XYZ":
         return XYZ_weights(wl, plan.illuminant or "D65", plan.observer or "CIE 1931 2 Degree Standard Observer")
     raise ValueError(f"a {plan.output!r} plan ({plan.method}) has no estimator other than its projection")
 
 
-def _interp_rows(points, grid) -> np.ndarray:
+def interp_rows(points, grid) -> np.ndarray:
     """(P, B) rows that linearly interpolate a function on ``grid`` at ``points`` (constant beyond the ends)."""
     p = np.asarray(points, np.float64)
     g = np.asarray(grid, np.float64)

@@ -9,7 +9,7 @@ import specgpu.planning as E
 from specgpu.apps import estimator_study as S
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning import make_plan
-from specgpu.planning.estimators import _interp_rows
+from specgpu.planning.estimators import interp_rows
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 
@@ -102,7 +102,7 @@ def test_cross_validated_error_against_numpy(bundle, spectra):
     idx = rng.permutation(spectra.shape[0])
     sets = {"a": spectra[idx[:40]], "b": spectra[idx[40:100]], "c": spectra[idx[100:]]}
     F = bundle.forward_matrix(plan.patterns, WL, plan.exposure_s)
-    Wm = _interp_rows(plan.output_wavelengths, WL)
+    Wm = interp_rows(plan.output_wavelengths, WL)
     g, rv, lr = noise.gain_e_per_dn, noise.read_var_dn2, noise.light_rms
     per = []
     for name, held in sets.items():

@@ -11,7 +11,7 @@ from specgpu.apps import estimator_study as S
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.recovery import capture_plan
 from specgpu.planning import load_plan, make_plan, save_plan
-from specgpu.planning.estimators import _interp_rows
+from specgpu.planning.estimators import interp_rows
 from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
@@ -39,7 +39,7 @@ def prior(spectra):
 def _random_problem(seed, K=6, P=31):
     rng = np.random.default_rng(seed)
     F = rng.uniform(0, 50, (K, WL.size))
-    Wout = _interp_rows(np.linspace(400, 700, P), WL)
+    Wout = interp_rows(np.linspace(400, 700, P), WL)
     noise = E.NoiseModel(rng.uniform(5, 50), rng.uniform(0.1, 5), rng.uniform(0, 0.02))
     return F, Wout, noise
 
