@@ -92,7 +92,8 @@ def study_plans(description, bundle, prior, basis, *, methods=None, training=Non
     """The plans of :data:`STUDY_METHODS` (or the named subset), every one with the camera's noise model and its
     expected error on the prior recorded. A colour objective (optimal-3) weighs the error by the colours of
     ``training`` (default: :func:`training_spectra` without ``chart``, the evaluation chart); ``starts`` and
-    ``iterations``: the designs' starting points and L-BFGS-B iterations (:func:`specgpu.planning.design.design_optimal`). With ``sets`` (the prior's spectra by set,
+    ``iterations``: the designs' starting points and L-BFGS-B iterations
+    (:func:`specgpu.planning.design.design_optimal`). With ``sets`` (the prior's spectra by set,
     :func:`training_sets`) every Wiener plan also records ``expected["rmse_cv"]``, its
     :func:`cross_validated_error`."""
     def noise_at(t):

@@ -15,8 +15,8 @@ therefore optimises the *shape* of each frame, ``F_k = cap x_k S / (x_k S 1)`` w
 L-BFGS-B with the analytic gradient, from several starts. The exposure is then the shortest at which every frame
 can reach ``cap`` with at most every mirror on (clipped to the light's switch time and to the longest exposure
 the frame time allows), the patterns are quantized to mirror counts, and the decoder is the Wiener decoder of the
-quantized frames (:func:`specgpu.planning.estimators.with_estimator`), so the recorded expected error is that of what the
-light will really emit.
+quantized frames (:func:`specgpu.planning.estimators.with_estimator`), so the recorded expected error is that
+of what the light will really emit.
 
 **Hadamard.** N narrow bands multiplexed by the rows of the S-matrix of order N (N = 3, 7, 15, 31, 63): each frame
 lights (N + 1) / 2 bands; ``A = diag(1 / c) S^-1`` gives the bands back. In read-noise-limited light it gains

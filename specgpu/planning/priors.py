@@ -61,8 +61,9 @@ def prior_from_spectra(reflectance, wavelengths, source: str = "") -> Prior:
 
 
 def read_training(path, wavelengths) -> tuple[np.ndarray, list]:
-    """Training spectra from a file, on ``wavelengths``: a CSV (:func:`specgpu.planning.basis.read_reflectance_csv`) or an
-    ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (N, B). Returns ((N, B), labels); one-line errors."""
+    """Training spectra from a file, on ``wavelengths``: a CSV
+    (:func:`specgpu.planning.basis.read_reflectance_csv`) or an ``.npz`` with ``wavelengths`` (B,) and
+    ``reflectance`` (N, B). Returns ((N, B), labels); one-line errors."""
     path = Path(path)
     wl = np.asarray(wavelengths, np.float64)
     if path.suffix.lower() == ".npz":
