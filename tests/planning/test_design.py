@@ -1,5 +1,5 @@
 """Illumination design: the Wiener objective's gradient, optimal plans within every limit of the light, one-line
-refusals, and Hadamard multiplexing (decoder and measured SNR gain)."""
+refusals, Hadamard multiplexing's S-matrix, and both made by name through the one plan registry."""
 
 import subprocess
 import sys
@@ -137,3 +137,14 @@ def test_cli_plan_optimal_refusals(tmp_path, bundle):
     r = subprocess.run(base + [str(rig), "--training-only"], capture_output=True, text=True, timeout=300)
     assert r.returncode != 0 and "training set is empty" in r.stderr
     assert len([line for line in r.stderr.splitlines() if line.startswith("Error")]) == 1
+
+
+def test_the_registry_makes_optimal_and_hadamard_plans_with_their_own_signatures(bundle, prior):
+    """make_plan dispatches to the designs with their own arguments: the same plans as calling them directly."""
+    had = make_plan("hadamard", bundle, bands=7)
+    assert had.method == "hadamard" and had.K == 7
+    np.testing.assert_array_equal(had.A, D.plan_hadamard(bundle, bands=7).A)
+    opt = make_plan("optimal", bundle, prior, noise_at, frames=3, starts=1, iterations=20)
+    assert opt.method == "optimal" and opt.K == 3 and opt.params["estimator"] == "wiener"
+    np.testing.assert_array_equal(opt.patterns, D.plan_optimal(bundle, prior, noise_at, frames=3, starts=1,
+                                                               iterations=20).patterns)

@@ -68,7 +68,8 @@ def physics_F(twin, plan, wavelengths):
 
 
 def test_unknown_method_lists_the_valid_ones(bundle):
-    with pytest.raises(ValueError, match="valid methods: narrowband, reciprocal, biased, symmetric, tristimulus"):
+    with pytest.raises(ValueError, match="valid methods: narrowband, reciprocal, biased, symmetric, tristimulus, "
+                                         "camera, steady, optimal, hadamard$"):
         make_plan("wiener", bundle)
 
 
