@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import specgpu.planning as E
-from specgpu.apps import estimator_study as S
+from specgpu.apps import estimator_study as study
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning import make_plan
 from specgpu.planning.estimators import interp_rows
@@ -35,16 +35,16 @@ def prior(spectra):
 
 def test_study_rows_on_the_held_out_chart(bundle, prior):
     names, wl, spec = E.held_out_spectra()
-    scene = S.patch_scene(names, wl, spec, H, W)
-    plans = S.study_plans(DESC, bundle, prior, E.held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
-    rows = S.study_rows(DESC, bundle, scene, plans, runs=2)
+    scene = study.patch_scene(names, wl, spec, H, W)
+    plans = study.study_plans(DESC, bundle, prior, E.held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
+    rows = study.study_rows(DESC, bundle, scene, plans, runs=2)
     nb, tri = rows
     assert nb["name"] == "narrowband-31" and nb["K"] == 31 and nb["runs"] == 2
     assert 0 < nb["rmse"][0] < 0.01 and nb["dE2000"][0] < 1.0 and nb["rmse"][1] >= 0
     assert 0.75 < nb["rms"][0] / nb["expected_rmse"] < 1.33
     assert 0.8 <= nb["z"][0] <= 1.25 and 0.8 <= tri["z"][0] <= 1.25
     assert "rmse" not in tri and tri["dEab"][0] > 0 and tri["expected_rmse"] is None
-    text = S.format_study(rows)
+    text = study.format_study(rows)
     assert "narrowband-31" in text and "tristimulus-D65" in text
 
 
@@ -52,8 +52,8 @@ def test_patch_scene_white_tile():
     from specgpu.rig.scene import white_tile_roi
 
     names, wl, spec = E.held_out_spectra()
-    plain = S.patch_scene(names, wl, spec, H, W)
-    tiled = S.patch_scene(names, wl, spec, H, W, white_tile=0.97)
+    plain = study.patch_scene(names, wl, spec, H, W)
+    tiled = study.patch_scene(names, wl, spec, H, W, white_tile=0.97)
     x, y, w, h = white_tile_roi(H, W)
     np.testing.assert_array_equal(tiled.reflectance[y:y + h, x:x + w], np.float32(0.97))
     assert set(tiled.masks) == set(plain.masks)
@@ -61,11 +61,11 @@ def test_patch_scene_white_tile():
     outside[max(0, y - 3):y + h + 3, max(0, x - 3):x + w + 3] = False
     np.testing.assert_array_equal(tiled.reflectance[outside], plain.reflectance[outside])
     with pytest.raises(ValueError, match="white_tile") as err:
-        S.patch_scene(names, wl, spec, H, W, white_tile=-1.0)
+        study.patch_scene(names, wl, spec, H, W, white_tile=-1.0)
     assert "\n" not in str(err.value)
     with pytest.raises(ValueError, match="no room"):
         many = [f"{n}-{i}" for i in range(10) for n in names]
-        S.patch_scene(many, wl, np.vstack([spec] * 10), H, W, white_tile=0.99)
+        study.patch_scene(many, wl, np.vstack([spec] * 10), H, W, white_tile=0.99)
 
 
 def test_study_rows_on_the_lab_profile_with_corrections():
@@ -81,15 +81,15 @@ def test_study_rows_on_the_lab_profile_with_corrections():
     bundle = calibrate(lab, seed=0)
     prior = E.default_prior()
     names, wl, spec = E.held_out_spectra()
-    scene = S.patch_scene(names, wl, spec, H, W, white_tile=0.99 * (1 + lab.realism.white_error))
-    plans = S.study_plans(lab, bundle, prior, None, methods=["optimal-3"])
-    rows = S.study_rows(lab, bundle, scene, plans, runs=1, de_sigma=False, white_roi=white_tile_roi(H, W))
+    scene = study.patch_scene(names, wl, spec, H, W, white_tile=0.99 * (1 + lab.realism.white_error))
+    plans = study.study_plans(lab, bundle, prior, None, methods=["optimal-3"])
+    rows = study.study_rows(lab, bundle, scene, plans, runs=1, de_sigma=False, white_roi=white_tile_roi(H, W))
     (r,) = rows
     assert r["K"] == 4  # the ambient frame beside the three designed ones
     assert 0.8 <= r["z"][0] <= 1.25 and r["dEab"][0] < 1.5
     assert 0.75 < r["rms"][0] / r["expected_rmse"] < 1.33
     # without the white tile's ROI the same plan is read raw (no ambient frame)
-    raw = S.study_rows(replace(lab), bundle, scene, plans, runs=1, de_sigma=False)
+    raw = study.study_rows(replace(lab), bundle, scene, plans, runs=1, de_sigma=False)
     assert raw[0]["K"] == 3
 
 
@@ -115,16 +115,16 @@ def test_cross_validated_error_against_numpy(bundle, spectra):
     S = prior.moment
     N = np.diag(np.maximum(F @ prior.mean, 0) / g + rv + lr ** 2 * np.diag(F @ S @ F.T))
     noise_part = np.mean(np.diag(plan.A @ N @ plan.A.T))
-    cv = S.cross_validated_error(plan, bundle, sets, prior, noise)
+    cv = study.cross_validated_error(plan, bundle, sets, prior, noise)
     assert cv["rmse"] == pytest.approx(np.sqrt(np.mean(per) + noise_part), rel=1e-9)
     assert cv["mismatch"]["b"] == pytest.approx(np.sqrt(per[1]), rel=1e-9)
     with pytest.raises(ValueError, match="at least two training sets") as err:
-        S.cross_validated_error(plan, bundle, {"a": spectra}, prior, noise)
+        study.cross_validated_error(plan, bundle, {"a": spectra}, prior, noise)
     assert "\n" not in str(err.value)
 
 
 def test_training_sets_split_the_database_by_set():
-    sets = S.training_sets()
+    sets = study.training_sets()
     db = E.training_database()
     assert sum(len(r) for r in sets.values()) == len(db) and "CIE 1995 TCS" not in sets
     assert sets["CIE 2017 CES"].shape == (99, db.reflectance.shape[1])
@@ -140,7 +140,7 @@ def test_hadamard_recovers_like_narrowband_and_gains_snr():
 
     desc = RigDescription(camera=CameraParameters(roi_width=W, roi_height=H, read_noise_e=300.0))
     desc = replace(desc, light=replace(desc.light, fluctuation_rms=0.0))
-    g = S.hadamard_gain(desc, bands=15, exposure_s=0.002, seed=11)
+    g = study.hadamard_gain(desc, bands=15, exposure_s=0.002, seed=11)
     assert g["exposure_ms"] == pytest.approx(2.0) and g["narrowband_exposure_ms"] == pytest.approx(2.0)
     np.testing.assert_allclose(g["hadamard_mean"], 0.5, atol=0.02)
     np.testing.assert_allclose(g["narrowband_mean"], 0.5, atol=0.02)

@@ -9,7 +9,7 @@ import pytest
 
 from specgpu.planning import design as D
 import specgpu.planning as E
-from specgpu.apps import estimator_study as S
+from specgpu.apps import estimator_study as study
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning import make_plan
 from specgpu.engine.linear_map import apply_linear
@@ -79,7 +79,7 @@ def test_optimal_beats_the_paper_design_in_expectation(bundle, prior, optimal6):
 
 def test_optimal_plan_recovers_the_held_out_chart_noise_free(bundle, optimal6):
     names, wl, spec = E.held_out_spectra()
-    scene = S.patch_scene(names, wl, spec, H, W)
+    scene = study.patch_scene(names, wl, spec, H, W)
     rig = TwinRig(optimal6.rig_description(DESC), scene=scene)
     rig.load_sequence(optimal6.patterns)
     frames = np.stack([rig.expected_frame(k) for k in range(optimal6.K)])

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import specgpu.planning as E
-from specgpu.apps import estimator_study as S
+from specgpu.apps import estimator_study as study
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.recovery import capture_plan
 from specgpu.planning import load_plan, make_plan, save_plan
@@ -122,7 +122,7 @@ def test_smooth_estimator_without_training(bundle):
     assert s.params["estimator"] == "smooth" and "smooth prior" in s.params["expected"]["prior"]
     wl = np.arange(400.0, 700.0 + 1e-9, 5.0)
     test = E.held_out_spectra(wavelengths=wl)[2]
-    assert S.chart_error(s, bundle, test, wl) < 0.01
+    assert study.chart_error(s, bundle, test, wl) < 0.01
 
 
 def test_empty_training_set_is_one_line(tmp_path):
@@ -235,7 +235,7 @@ def test_sigma_z_scores_on_the_twin(bundle, prior):
     from specgpu.pipeline.evaluate import truth_cube
 
     names, wl, spec = E.held_out_spectra()
-    scene = S.patch_scene(names, wl, spec, H, W)
+    scene = study.patch_scene(names, wl, spec, H, W)
     plan = E.with_estimator(make_plan("narrowband", bundle, step_nm=20.0), bundle, "wiener", prior=prior,
                             noise=E.NoiseModel.from_rig(DESC, make_plan("narrowband", bundle, step_nm=20.0).exposure_s))
     frames = capture_plan(DESC, plan, scene, noise_seed=3).sequences[0].frames
@@ -248,7 +248,7 @@ def test_sigma_z_scores_on_the_twin(bundle, prior):
     assert 0.8 <= z.std() <= 1.25
     # the exact prediction on the chart's spectra is the measured RMS error within 25 %
     wl = prior.wavelengths
-    predicted = S.chart_error(plan, bundle, E.held_out_spectra(wavelengths=wl)[2], wl)
+    predicted = study.chart_error(plan, bundle, E.held_out_spectra(wavelengths=wl)[2], wl)
     assert 0.8 <= np.sqrt((err ** 2).mean()) / predicted <= 1.25
 
 
