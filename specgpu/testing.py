@@ -24,7 +24,7 @@ from specgpu.pipeline.recovery import (
     to_XYZ,
     write_capture,
 )
-from specgpu.planning.plans import plan_symmetric_basis, save_plan
+from specgpu.planning import plan_symmetric_basis, save_plan
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.sensors import camera_for_size

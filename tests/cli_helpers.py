@@ -37,7 +37,7 @@ def stream_cli_files(setup, tmp_path):
     """The rig TOML, calibration and plan of a :func:`specgpu.testing.stream_setup` written under ``tmp_path``;
     returns the ``specgpu stream`` arguments that use them."""
     from specgpu.calibration.bundle import save_calibration
-    from specgpu.planning.plans import save_plan
+    from specgpu.planning import save_plan
 
     cam = setup.description.camera
     (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"

@@ -200,11 +200,11 @@ def _fused_case(method, single=False):
 
 
 def _delta_e_sigma_case():
-    """The first-order dE2000 standard deviation kernel against specgpu.planning.estimators.delta_E_sigma."""
+    """The first-order dE2000 standard deviation kernel against specgpu.planning.uncertainty.delta_E_sigma."""
     import pyopencl as cl
 
     from specgpu.engine import kernels as engine
-    from specgpu.planning.estimators import delta_E_sigma
+    from specgpu.planning import delta_E_sigma
     from specgpu.engine.runtime import get_queue
     from specgpu.core.spectra import white_point_XYZ
 

@@ -27,7 +27,7 @@ import numpy as np
 from specgpu.calibration import calibrate, oracle_calibration
 from specgpu.pipeline.evaluate import evaluate_reflectance, evaluate_XYZ
 from specgpu.pipeline.recovery import EVALUATION_CHART, capture_plan, default_basis
-from specgpu.planning.plans import make_plan
+from specgpu.planning import make_plan
 from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription

@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from specgpu.testing import parse_sizes, stream_setup  # noqa: E402
 from specgpu.calibration.bundle import save_calibration  # noqa: E402
-from specgpu.planning.plans import save_plan  # noqa: E402
+from specgpu.planning import save_plan  # noqa: E402
 from specgpu.io.recording import ZarrRecorder  # noqa: E402
 from specgpu.pipeline.stream import StreamResult  # noqa: E402
 

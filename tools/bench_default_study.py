@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from specgpu.planning.basis import save_basis  # noqa: E402
 from specgpu.calibration.bundle import load_calibration  # noqa: E402
 from specgpu.io.npz import read_cube_npz  # noqa: E402
-from specgpu.planning.plans import load_plan  # noqa: E402
+from specgpu.planning import load_plan  # noqa: E402
 from specgpu.rig.config import load_rig  # noqa: E402
 from specgpu.rig.scene import write_scene  # noqa: E402
 from specgpu.apps.studies import LEVEL_EDGES, chart_errors, measured_chart_with_white, mean_std  # noqa: E402

@@ -42,10 +42,10 @@ PLANS = ("hadamard", "symmetric", "narrowband", "wiener", "optimal")
 
 def make_plans(description, bundle, names, bands: int) -> dict:
     """The named plans with the rig's noise model (as ``specgpu plan`` records it)."""
-    from specgpu.planning.design import plan_hadamard, plan_optimal
-    from specgpu.planning.estimators import NoiseModel, default_prior, with_estimator
+    from specgpu.planning import plan_hadamard, plan_optimal
+    from specgpu.planning import NoiseModel, default_prior, with_estimator
     from specgpu.pipeline.recovery import default_basis
-    from specgpu.planning.plans import make_plan
+    from specgpu.planning import make_plan
 
     def noise_at(t):
         return NoiseModel.from_rig(description, t)
@@ -76,7 +76,7 @@ def spread_over_sigma(description, bundle, plan, scene, *, draws: int = 10, seed
     """Capture ``plan`` ``draws`` times, recover each draw with its sigma as ``recover --sigma`` does, and return
     ``{"ratio": [per brightness quantile, darkest first: sqrt(mean spread^2 / mean sigma^2)], "all": the same over
     every pixel, "brightness": [the quantiles' mean recovered output]}``."""
-    from specgpu.planning.estimators import constant_variance
+    from specgpu.planning import constant_variance
     from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, uncertainty
 
     ys, sigmas = [], []

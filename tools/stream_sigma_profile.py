@@ -26,7 +26,7 @@ import pyopencl.array as cla
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from specgpu.testing import parse_sizes, stream_setup  # noqa: E402
-from specgpu.planning.estimators import NoiseModel, smooth_prior, with_estimator  # noqa: E402
+from specgpu.planning import NoiseModel, smooth_prior, with_estimator  # noqa: E402
 from specgpu.rig.scene import white_tile_roi  # noqa: E402
 from specgpu.engine.runtime import get_queue  # noqa: E402
 from specgpu.pipeline.stream import StreamDecoder  # noqa: E402

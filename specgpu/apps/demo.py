@@ -36,7 +36,7 @@ from specgpu.calibration import calibrate, save_calibration
 from specgpu.pipeline.evaluate import (evaluate_pixels, evaluate_reflectance, evaluate_XYZ, patch_means, scene_XYZ,
                        true_patch_spectra)
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis, to_XYZ, write_capture
-from specgpu.planning.plans import make_plan, save_plan
+from specgpu.planning import make_plan, save_plan
 from specgpu.rig.config import RigDescription, load_rig
 
 __all__ = ["DEMO_METHODS", "ESTIMATOR_ROWS", "DemoResult", "run_demo", "format_tables"]
@@ -50,7 +50,7 @@ DEMO_METHODS = {
     "tristimulus-A": ("tristimulus", {"illuminant": "A"}),
 }
 OUTPUT_WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
-#: Rows beyond the paper (names of :data:`specgpu.planning.estimators.STUDY_METHODS`): Wiener decoder of symmetric-9 and
+#: Rows beyond the paper (names of :data:`specgpu.apps.estimator_study.STUDY_METHODS`): Wiener decoder of symmetric-9 and
 #: the designed illuminants, decoded with the prior of every colour-science set but the evaluation chart's, each
 #: recording the RMSE it expects on that prior.
 ESTIMATOR_ROWS = ("wiener-9", "optimal-9", "optimal-6", "optimal-3")
@@ -129,7 +129,8 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     rescales each sequence's decoder for the lamp's drift since calibration (:mod:`specgpu.planning.correction`).
     """
     from specgpu.calibration.bundle import calibration_error
-    from specgpu.planning.estimators import default_prior, study_plans, training_spectra
+    from specgpu.planning import default_prior, training_spectra
+    from specgpu.apps.estimator_study import study_plans
     from specgpu.apps.studies import chart_with_white, measure_methods
 
     t_start = time.perf_counter()

@@ -14,7 +14,7 @@ import numpy as np
 
 from specgpu.engine.runtime import get_queue
 from specgpu.pipeline.stream import Stream, current_rss_bytes
-from specgpu.planning.estimators import NoiseModel, smooth_prior, with_estimator
+from specgpu.planning import NoiseModel, smooth_prior, with_estimator
 from specgpu.rig.scene import white_tile_roi
 from specgpu.testing import Checker, MemoryRecorder, max_rel, offline_maps, stream_setup
 

@@ -215,7 +215,7 @@ def prepare_linear(queue, frames_dtype, A: np.ndarray, *, n: int, dark=None, dar
     the frames plus a constant); the device matrix is then A's B x K values followed by the B offsets
     (:func:`linear_matrix`). ``square`` ``(q, c)`` or ``(q, c, k)``: each sample above the dark, ``x``, enters
     the matrix as ``x + q (x - c)^2`` (a frame variance with the light's fluctuation,
-    :meth:`specgpu.planning.estimators.NoiseModel.light_square`), except frame ``k``'s (an ambient frame's variance
+    :meth:`specgpu.planning.noise.NoiseModel.light_square`), except frame ``k``'s (an ambient frame's variance
     sample)."""
     B = A.shape[0]
     K = A.shape[1]

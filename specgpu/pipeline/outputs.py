@@ -12,7 +12,7 @@ from specgpu.engine.colorimetry import delta_E
 from specgpu import io
 from specgpu.pipeline.recovery import to_Lab, to_XYZ, uncertainty
 from specgpu.planning.correction import DEFAULT_WHITE_REFLECTANCE
-from specgpu.planning.estimators import delta_E_sigma
+from specgpu.planning.uncertainty import delta_E_sigma
 
 __all__ = [
     "DELTA_E_KINDS",

@@ -21,7 +21,7 @@ from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save
 from specgpu.capture.session import CaptureResult, capture_sequences
 from specgpu.capture.twin import TwinDriver
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
-from specgpu.planning.plans import Plan, load_plan, save_plan
+from specgpu.planning import Plan, load_plan, save_plan
 from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.config import RigDescription
 from specgpu.rig.twin import FaultSchedule, TwinRig
@@ -423,9 +423,9 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
                 white_reflectance=None) -> tuple[np.ndarray, np.ndarray | None]:
     """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames, options and
     corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
-    covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.estimators`); NaN where saturated."""
+    covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.uncertainty`); NaN where saturated."""
     from specgpu.planning.correction import ambient_index
-    from specgpu.planning.estimators import constant_covariance, frame_covariance, frame_variance, output_covariance, sigma_map
+    from specgpu.planning import constant_covariance, frame_covariance, frame_variance, output_covariance, sigma_map
 
     used = folder.frames if sequence is None else folder.frames[sequence:sequence + 1]
     if sequence is not None and not 0 <= sequence < folder.sequences:

@@ -96,13 +96,13 @@ class StreamDecoder:
         ``"cube"``: the B outputs of the plan. ``"XYZ"``, ``"Lab"``, ``"dE"``: the fused colorimetric pass.
         ``"sigma"``: the standard deviation of each of the B outputs and their RMS (B + 1 channels, as
         ``specgpu recover --sigma``): the variance is linear in the frames' sample variances plus a constant
-        (:func:`specgpu.planning.estimators.sigma_map`), so the linear kernel computes it with ``A o A / g`` as the
+        (:func:`specgpu.planning.uncertainty.sigma_map`), so the linear kernel computes it with ``A o A / g`` as the
         matrix, each sample squared first for the light's fluctuation, and takes the square root of it plus the
         constant. ``"sigma_rms"``: the RMS channel alone (one
         row of the same map: B times fewer bytes written than ``"sigma"``). ``"dE_sigma"``: the first-order dE2000
         standard deviation (as ``recover --delta-e-sigma``): the XYZ covariance's six entries by the linear
         kernel, then a small kernel propagating them with XYZ to dE2000 (as
-        :func:`specgpu.planning.estimators.delta_E_sigma`). Both need the plan's noise model, which ``specgpu plan`` records
+        :func:`specgpu.planning.uncertainty.delta_E_sigma`). Both need the plan's noise model, which ``specgpu plan`` records
         (given ``--rig`` for a calibration made on a custom rig).
     reference : array_like, optional
         CIELAB reference of ``"dE"``: one colour (3,) or a per-pixel (H, W, 3) image. Required for ``"dE"``.
@@ -207,7 +207,7 @@ class StreamDecoder:
         # the uncertainty outputs: the noise model's dark and gain maps (estimators._noise_products)
         self.noise = None
         if {"sigma", "sigma_rms", "dE_sigma"} & set(outputs):
-            from specgpu.planning.estimators import NoiseModel, constant_covariance
+            from specgpu.planning import NoiseModel, constant_covariance
 
             if "noise" not in plan.params:
                 raise ValueError(f"the {plan.method} plan records no noise model, so it has no sigma; re-plan it "
@@ -275,7 +275,7 @@ class StreamDecoder:
 
     def _matrix_makers(self) -> list:
         """Per launch, in order: (a function of A giving (matrix, square-root offsets or None), launch kind)."""
-        from specgpu.planning.estimators import variance_rows
+        from specgpu.planning import variance_rows
 
         makers = []
         if "coefficients" in self.outputs:
@@ -326,7 +326,7 @@ class StreamDecoder:
         if self._ambient is not None and self.noise is not None:
             # the ambient frame's plane (a zero column of the decoder) carries its own variance sample for the
             # uncertainty launches (estimators.frame_variance)
-            from specgpu.planning.estimators import ambient_variance
+            from specgpu.planning import ambient_variance
 
             f[self._ambient] = ambient_variance(dark, self._dark_host, self.noise)
         f[raw >= self._calibration.max_code] = _PRECORRECT_MARK

@@ -1,4 +1,5 @@
-"""Basis tables, plans (one registry for every method), illumination design, estimators, uncertainty, drift correction."""
+"""Planning: basis tables, measurement plans (one registry for every method, the optimal design and Hadamard
+included), the noise model and training priors, the estimators, per-pixel uncertainty and drift correction."""
 
 from __future__ import annotations
 
@@ -16,19 +17,73 @@ from specgpu.planning.basis import (
     save_basis,
 )
 from specgpu.planning.plans import (
-    PLAN_METHODS,
+    PLAN_FORMAT,
     Plan,
-    camera_sensitivities,
     load_plan,
+    save_plan,
+)
+from specgpu.planning.registry import (
+    PLAN_METHODS,
     make_plan,
-    plan_biased_basis,
-    plan_camera_simulator,
+)
+from specgpu.planning.narrowband import (
     plan_narrowband,
     plan_reciprocal_narrowband,
-    plan_steady_state,
+)
+from specgpu.planning.basis_plans import (
+    plan_biased_basis,
     plan_symmetric_basis,
+)
+from specgpu.planning.response import (
+    camera_sensitivities,
+    plan_camera_simulator,
+    plan_steady_state,
     plan_tristimulus,
-    save_plan,
+)
+from specgpu.planning.design import (
+    OBJECTIVES,
+    design_optimal,
+    objective_weights,
+    plan_hadamard,
+    plan_optimal,
+    s_matrix,
+    wiener_objective,
+)
+from specgpu.planning.noise import (
+    NoiseModel,
+)
+from specgpu.planning.priors import (
+    HELD_OUT_CHART,
+    Prior,
+    default_prior,
+    held_out_basis,
+    held_out_spectra,
+    prior_from_spectra,
+    read_training,
+    smooth_prior,
+    subspace_bound,
+    training_database,
+    training_spectra,
+)
+from specgpu.planning.estimators import (
+    ESTIMATORS,
+    expected_error,
+    forward,
+    output_weights,
+    smooth_decoder,
+    wiener_decoder,
+    with_estimator,
+)
+from specgpu.planning.uncertainty import (
+    ambient_variance,
+    constant_covariance,
+    constant_variance,
+    delta_E_sigma,
+    frame_covariance,
+    frame_variance,
+    output_covariance,
+    sigma_map,
+    variance_rows,
 )
 from specgpu.planning.correction import (
     DEFAULT_WHITE_REFLECTANCE,
@@ -44,54 +99,6 @@ from specgpu.planning.correction import (
     with_ambient_frame,
     with_drift_probes,
 )
-from specgpu.planning.estimators import (
-    ESTIMATORS,
-    HELD_OUT_CHART,
-    NoiseModel,
-    Prior,
-    STUDY_METHODS,
-    ambient_variance,
-    chart_error,
-    constant_covariance,
-    cross_validated_error,
-    default_prior,
-    delta_E_sigma,
-    expected_error,
-    format_study,
-    forward,
-    frame_covariance,
-    frame_variance,
-    held_out_basis,
-    held_out_spectra,
-    output_covariance,
-    output_weights,
-    patch_scene,
-    prior_from_spectra,
-    prior_size_rows,
-    read_training,
-    sigma_map,
-    smooth_decoder,
-    smooth_prior,
-    study_plans,
-    study_rows,
-    subspace_bound,
-    training_database,
-    training_sets,
-    training_spectra,
-    variance_rows,
-    wiener_decoder,
-    with_estimator,
-)
-from specgpu.planning.design import (
-    OBJECTIVES,
-    design_optimal,
-    hadamard_gain,
-    objective_weights,
-    plan_hadamard,
-    plan_optimal,
-    s_matrix,
-    wiener_objective,
-)
 
 __all__ = [
     "BasisTable",
@@ -102,32 +109,29 @@ __all__ = [
     "HELD_OUT_CHART",
     "NoiseModel",
     "OBJECTIVES",
+    "PLAN_FORMAT",
     "PLAN_METHODS",
     "Plan",
     "Prior",
     "REFLECTANCE_SETS",
     "ReflectanceDatabase",
-    "STUDY_METHODS",
     "WhiteReference",
     "ambient_index",
     "ambient_needed",
     "ambient_variance",
     "camera_sensitivities",
-    "chart_error",
     "constant_covariance",
+    "constant_variance",
     "corrected_decoder",
-    "cross_validated_error",
     "default_prior",
     "delta_E_sigma",
     "design_optimal",
     "evaluation_exclusions",
     "expected_error",
-    "format_study",
     "forward",
     "frame_covariance",
     "frame_variance",
     "gain_noise",
-    "hadamard_gain",
     "held_out_basis",
     "held_out_spectra",
     "load_basis",
@@ -138,7 +142,6 @@ __all__ = [
     "output_covariance",
     "output_weights",
     "parse_roi",
-    "patch_scene",
     "pca_basis",
     "plan_biased_basis",
     "plan_camera_simulator",
@@ -150,7 +153,6 @@ __all__ = [
     "plan_symmetric_basis",
     "plan_tristimulus",
     "prior_from_spectra",
-    "prior_size_rows",
     "probe_indices",
     "read_reflectance_csv",
     "read_training",
@@ -160,11 +162,8 @@ __all__ = [
     "sigma_map",
     "smooth_decoder",
     "smooth_prior",
-    "study_plans",
-    "study_rows",
     "subspace_bound",
     "training_database",
-    "training_sets",
     "training_spectra",
     "variance_rows",
     "white_gains",

@@ -38,18 +38,13 @@ one-line ``ValueError`` naming the file.
 from __future__ import annotations
 
 import csv
-import hashlib
 import io
-import json
-import tokenize
-import zipfile
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from specgpu.io.tables import content_hash, load_npz, save_npz
+from specgpu.io.tables import load_npz, save_npz
 
 __all__ = [
     "REFLECTANCE_SETS",

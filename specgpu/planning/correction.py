@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from specgpu.planning.plans import _band_masks
+
 __all__ = ["ambient_needed", "with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi",
            "white_reflectance_curve", "white_gains", "gain_noise", "corrected_decoder", "WhiteReference",
            "DEFAULT_WHITE_REFLECTANCE"]
@@ -90,8 +92,6 @@ def with_drift_probes(plan, bundle, centres=DEFAULT_PROBE_NM, bandwidth_nm: floa
     Each probe's mirrors are thinned so that a white gives it at most the plan's brightest frame's level (it
     never saturates where the plan does not). Apply before :func:`with_ambient_frame`.
     """
-    from specgpu.planning.plans import _band_masks
-
     if probe_indices(plan):
         return plan
     if ambient_index(plan) is not None:

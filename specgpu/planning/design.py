@@ -15,8 +15,8 @@ therefore optimises the *shape* of each frame, ``F_k = cap x_k S / (x_k S 1)`` w
 L-BFGS-B with the analytic gradient, from several starts. The exposure is then the shortest at which every frame
 can reach ``cap`` with at most every mirror on (clipped to the light's switch time and to the longest exposure
 the frame time allows), the patterns are quantized to mirror counts, and the decoder is the Wiener decoder of the
-quantized frames (:func:`specgpu.planning.estimators.with_estimator`), so the recorded expected error is that of what the
-light will really emit.
+quantized frames (:func:`specgpu.planning.estimators.with_estimator`), so the recorded expected error is that
+of what the light will really emit.
 
 **Hadamard.** N narrow bands multiplexed by the rows of the S-matrix of order N (N = 3, 7, 15, 31, 63): each frame
 lights (N + 1) / 2 bands; ``A = diag(1 / c) S^-1`` gives the bands back. In read-noise-limited light it gains
@@ -26,13 +26,22 @@ lights (N + 1) / 2 bands; ``A = diag(1 / c) S^-1`` gives the bands back. In read
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
+import colour
 import numpy as np
 
-from specgpu.planning.estimators import NoiseModel, Prior, with_estimator
+from specgpu.calibration.bundle import DEFAULT_MAX_EXPOSURE_S
+from specgpu.core.spectra import XYZ_weights
+from specgpu.engine.colorimetry import XYZ_to_Lab
+from specgpu.planning.estimators import with_estimator
+from specgpu.planning.noise import NoiseModel
+from specgpu.planning.plans import _band_masks, _base, _quantize
+from specgpu.planning.priors import Prior
+from specgpu.rig.scene import interpolation_matrix
 
 __all__ = ["OBJECTIVES", "design_optimal", "plan_optimal", "plan_hadamard", "s_matrix", "objective_weights",
-           "wiener_objective", "hadamard_gain"]
+           "wiener_objective"]
 
 OBJECTIVES = ("rmse", "dE2000", "dEab")
 
@@ -48,16 +57,11 @@ def objective_weights(prior: Prior, objective: str, illuminant="D65", training=N
         return np.eye(B) / B
     if obj.lower() not in ("de2000", "deab"):
         raise ValueError(f"unknown objective {objective!r}; valid: {', '.join(OBJECTIVES)}")
-    from specgpu.core.spectra import XYZ_weights
-
     C = XYZ_weights(prior.wavelengths, illuminant)
     if training is None:
         raise ValueError("the dE2000 objective needs the training spectra")
     r = np.asarray(training, np.float64)
     xyz = r @ C.T
-    from specgpu.engine.colorimetry import XYZ_to_Lab
-    import colour
-
     lab = np.asarray(XYZ_to_Lab(xyz, illuminant), np.float64)
     h = 1e-4
     Js = []
@@ -161,8 +165,6 @@ def design_optimal(system, prior: Prior, noise: NoiseModel, K: int, cap: float, 
 
 def _system_on(bundle, wavelengths) -> np.ndarray:
     """(C, B) DN/s per full column per unit reflectance on ``wavelengths``."""
-    from specgpu.rig.scene import interpolation_matrix
-
     dl = float(bundle.wavelengths[1] - bundle.wavelengths[0])
     return dl * bundle.system_matrix.T @ interpolation_matrix(bundle.wavelengths, np.asarray(wavelengths, np.float64))
 
@@ -200,9 +202,6 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
     starts, seed, iterations
         The search's starting points, their seed and its L-BFGS-B iterations per start (:func:`design_optimal`).
     """
-    from specgpu.calibration.bundle import DEFAULT_MAX_EXPOSURE_S
-    from specgpu.planning.plans import _base, _quantize
-
     if prior.n < 1:
         raise ValueError("the training set is empty: give at least one spectrum")
     obj = {o.lower(): o for o in OBJECTIVES}.get(str(objective).lower())
@@ -250,14 +249,12 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
     if target is not None and value > target:
         raise ValueError(f"objective unreachable: the best {frames}-frame design expects {obj} {value:.4g}, above "
                          f"the target {target:g}")
-    from dataclasses import replace
-
     return replace(plan, params={**plan.params, "expected": exp})
 
 
 def s_matrix(n: int) -> np.ndarray:
     """The (n, n) 0/1 S-matrix (n = 2^k - 1) from the Sylvester Hadamard matrix of order n + 1."""
-    from scipy.linalg import hadamard
+    from scipy.linalg import hadamard  # scipy: heavy, needed by this design alone
 
     if not (isinstance(n, (int, np.integer)) and n >= 3 and (n + 1) & n == 0):
         raise ValueError(f"hadamard bands must be 3, 7, 15, 31, 63 ... (2^k - 1), got {n!r}")
@@ -269,8 +266,6 @@ def plan_hadamard(bundle, *, bands: int = 31, start_nm: float = 400.0, stop_nm: 
                   level: float = 0.9, max_exposure_s: float | None = None):
     """Multiplexed narrowband: ``bands`` equal bands over ``start_nm``-``stop_nm``, frame k lighting the bands of
     row k of the S-matrix; ``A = diag(1/c) S^-1`` with c the model output of each band on a white."""
-    from specgpu.planning.plans import _band_masks, _base
-
     Smat = s_matrix(bands)
     step = (stop_nm - start_nm) / (bands - 1)
     centres = np.linspace(start_nm, stop_nm, bands)
@@ -284,36 +279,3 @@ def plan_hadamard(bundle, *, bands: int = 31, start_nm: float = 400.0, stop_nm: 
     return _base(bundle, "hadamard", patterns, bundle.emitted(patterns), A, level, max_exposure_s,
                  output="reflectance", output_wavelengths=centres, output_labels=tuple(f"{x:g}nm" for x in centres),
                  illuminant="", observer="", params={"bands": int(bands), "bandwidth_nm": float(step)})
-
-
-def hadamard_gain(description, *, bands: int = 31, exposure_s: float = 0.002, reflectance: float = 0.5,
-                  seed: int = 0, bundle=None) -> dict:
-    """Measure Hadamard's SNR gain over plain narrowband at equal capture time on the twin: both plans with
-    ``bands`` equal bands at one exposure, a uniform grey scene, the per-band noise as the pixel-to-pixel standard
-    deviation over the central region (averaged over bands). Returns the two noises, the gain (narrowband noise
-    / Hadamard noise) and the read-noise-limited theory ``(N + 1) / (2 sqrt N)``."""
-    from specgpu.calibration.bundle import oracle_calibration
-    from specgpu.pipeline.recovery import capture_plan
-    from specgpu.planning.plans import make_plan
-    from specgpu.engine.linear_map import apply_linear
-    from specgpu.rig.scene import SpectralScene
-
-    bundle = bundle or oracle_calibration(description)
-    had = plan_hadamard(bundle, bands=bands, max_exposure_s=exposure_s)
-    nb = make_plan("narrowband", bundle, centres=had.output_wavelengths, bandwidth_nm=had.params["bandwidth_nm"],
-                   max_exposure_s=exposure_s)
-    cam = description.camera
-    h, w = cam.roi_height, cam.roi_width
-    scene = SpectralScene(np.array([380.0, 780.0]), np.full((h, w, 2), reflectance, np.float32), name="grey")
-    noise = {}
-    for plan in (had, nb):
-        frames = capture_plan(description, plan, scene, noise_seed=seed).sequences[0].frames
-        y = apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field)
-        c = y[h // 4:3 * h // 4, w // 4:3 * w // 4]
-        noise[plan.method] = float(c.std(axis=(0, 1)).mean())
-        noise[plan.method + "_mean"] = c.mean(axis=(0, 1)).tolist()
-    return {"bands": bands, "exposure_ms": had.exposure_s * 1e3, "narrowband_exposure_ms": nb.exposure_s * 1e3,
-            "narrowband_mean": noise["narrowband_mean"], "hadamard_mean": noise["hadamard_mean"],
-            "narrowband_noise": noise["narrowband"], "hadamard_noise": noise["hadamard"],
-            "gain": noise["narrowband"] / noise["hadamard"], "theory": (bands + 1) / (2 * math.sqrt(bands)),
-            "read_noise_e": float(cam.read_noise_e)}

@@ -10,13 +10,10 @@ import numpy as np
 
 from specgpu.calibration.bundle import rig_fingerprint
 from specgpu.planning.design import plan_hadamard, plan_optimal
-from specgpu.planning.estimators import (
-    NoiseModel,
-    default_prior,
-    training_spectra,
-    with_estimator,
-)
-from specgpu.planning.plans import make_plan
+from specgpu.planning.estimators import with_estimator
+from specgpu.planning.noise import NoiseModel
+from specgpu.planning.priors import default_prior, training_spectra
+from specgpu.planning.registry import make_plan
 from specgpu.rig.config import load_rig
 
 __all__ = ["estimated_plan"]

@@ -24,7 +24,7 @@ def work(tmp_path_factory):
 
 
 def test_plan_records_the_estimator(work):
-    from specgpu.planning.plans import load_plan
+    from specgpu.planning import load_plan
 
     plan = load_plan(work / "nb.npz")
     assert plan.params["estimator"] == "wiener" and plan.params["expected"]["rmse"] > 0

@@ -15,7 +15,7 @@ from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
 from specgpu import io
 from specgpu.engine.colorimetry import XYZ_to_Lab
 from specgpu.pipeline.evaluate import evaluation_illuminant
-from specgpu.planning.plans import Plan
+from specgpu.planning import Plan
 
 NAMES = ("D65", "A", "D50", "E", "FL2")
 

@@ -97,7 +97,7 @@ def test_stream_help_does_not_ask_for_an_estimator_for_sigma():
 
 
 def test_study_table_prints_no_none():
-    from specgpu.planning.estimators import format_study
+    from specgpu.apps.estimator_study import format_study
 
     row = {"name": "symmetric-9", "K": 9, "exposure_ms": 6.5, "rmse": (0.03, 0.001), "z": (1.0, 0.0),
            "expected_rmse": None, "rms": None}

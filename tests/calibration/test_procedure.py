@@ -6,7 +6,7 @@ import pytest
 
 from specgpu.calibration.bundle import calibration_error, rig_fingerprint
 from specgpu.calibration.procedure import calibrate
-from specgpu.planning.plans import make_plan
+from specgpu.planning import make_plan
 from specgpu.rig.light import ProgrammableLight
 
 

@@ -19,7 +19,7 @@ from specgpu.calibration.rigs import twin_at_exposure
 from specgpu.hardware.dlpc900 import DMDLayout, SimulatedDLPC900
 from specgpu.hardware.errors import BackendMissing
 from specgpu.hardware.rig import open_calibration_rig, open_hardware
-from specgpu.planning.plans import make_plan
+from specgpu.planning import make_plan
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.light import ProgrammableLight

@@ -155,7 +155,7 @@ def test_plan_from_calibration_uploaded_through_the_column_map():
     # A narrowband plan from the oracle calibration: its (K, 1024) mirror counts on the calibration's column map
     # become LightCrafter 6500 images; the controller ends up holding exactly the plan's patterns.
     from specgpu.calibration.bundle import oracle_calibration
-    from specgpu.planning.plans import plan_narrowband
+    from specgpu.planning import plan_narrowband
 
     bundle = oracle_calibration()
     plan = plan_narrowband(bundle, step_nm=20.0)

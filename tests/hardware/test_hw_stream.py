@@ -47,7 +47,7 @@ def test_cli_stream_on_the_simulated_hardware_rig(setup, tmp_path, monkeypatch):
     import specgpu.hardware.rig as hw_rig
     from specgpu.calibration.bundle import save_calibration
     from specgpu.apps.cli import main
-    from specgpu.planning.plans import save_plan
+    from specgpu.planning import save_plan
     from specgpu.rig.scene import colorchecker_scene
     from specgpu.io.recording import open_recording
 

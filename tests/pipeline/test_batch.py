@@ -24,7 +24,7 @@ from specgpu.pipeline.batch import run_batch
 from specgpu.testing import stream_setup
 from specgpu.calibration.bundle import save_calibration
 from specgpu.apps.cli import main
-from specgpu.planning.plans import save_plan
+from specgpu.planning import save_plan
 from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.pipeline.stream import Stream
 
@@ -100,7 +100,7 @@ def test_cli_batch_of_a_recording_equals_recover_and_resumes(made, tmp_path):
 
 def test_batch_of_a_sequence_folder_equals_recover_per_sequence(made, tmp_path):
     from specgpu.calibration.bundle import load_calibration
-    from specgpu.planning.plans import load_plan
+    from specgpu.planning import load_plan
 
     setup, root = made
     report = run_batch(root / "seq", load_plan(root / "plan.npz"), load_calibration(root / "calib.npz"),
@@ -126,7 +126,7 @@ def open_recording_like(path):
 
 def test_an_interrupted_batch_resumes_without_recomputing_finished_chunks(made, tmp_path):
     from specgpu.calibration.bundle import load_calibration
-    from specgpu.planning.plans import load_plan
+    from specgpu.planning import load_plan
 
     _, root = made
     plan, bundle = load_plan(root / "plan.npz"), load_calibration(root / "calib.npz")
@@ -160,7 +160,7 @@ def test_two_workers_each_build_one_context_and_a_killed_worker_loses_nothing(ma
     from distributed import Client, LocalCluster
 
     from specgpu.calibration.bundle import load_calibration
-    from specgpu.planning.plans import load_plan
+    from specgpu.planning import load_plan
 
     _, root = made
     plan, bundle = load_plan(root / "plan.npz"), load_calibration(root / "calib.npz")
@@ -199,7 +199,7 @@ def test_bad_input_is_one_line(made, tmp_path):
     # another plan: different patterns
     from dataclasses import replace
 
-    from specgpu.planning.plans import save_plan as save
+    from specgpu.planning import save_plan as save
 
     other = replace(setup.plan, patterns=setup.plan.patterns[::-1].copy())
     other.__dict__.pop("hash", None)
@@ -303,7 +303,7 @@ def record(setup, path, loops=2):
 
 def plan_and_calibration(root):
     from specgpu.calibration.bundle import load_calibration
-    from specgpu.planning.plans import load_plan
+    from specgpu.planning import load_plan
 
     return load_plan(root / "plan.npz"), load_calibration(root / "calib.npz")
 

@@ -294,7 +294,7 @@ def test_bad_arguments_are_one_line_errors(setup):
 
 def test_cli_stream_records_and_reports(setup, tmp_path):
     from specgpu.calibration.bundle import save_calibration
-    from specgpu.planning.plans import save_plan
+    from specgpu.planning import save_plan
 
     cam = setup.description.camera
     (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"

@@ -18,7 +18,7 @@ import pytest
 from specgpu.testing import stream_setup
 from specgpu.engine.colorimetry import delta_E
 from specgpu.planning.correction import corrected_decoder, white_gains
-from specgpu.planning.estimators import NoiseModel, delta_E_sigma, smooth_prior, with_estimator
+from specgpu.planning import NoiseModel, delta_E_sigma, smooth_prior, with_estimator
 from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
 from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ, uncertainty
 from specgpu.io.recording import ZarrRecorder, open_recording
@@ -156,7 +156,7 @@ def test_dE_sigma_alone_leaves_no_helper_maps(setup):
 def test_sigma_with_white_roi_uses_the_corrected_decoder(drifted):
     s = drifted
     got, _ = run_stream(s, ("sigma",), white_roi=ROI)
-    from specgpu.planning.estimators import sigma_map
+    from specgpu.planning import sigma_map
 
     frames = seq_frames(s, 0)
     A = corrected_decoder(s.plan, white_gains(frames, s.plan, s.bundle, ROI), s.bundle)

@@ -13,7 +13,7 @@ from specgpu.planning.correction import (ambient_index, corrected_decoder, parse
                                 white_reflectance_curve, with_ambient_frame, with_drift_probes)
 from specgpu.pipeline.evaluate import evaluate_reflectance
 from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover
-from specgpu.planning.plans import make_plan
+from specgpu.planning import make_plan
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.realism import Drift, Realism
@@ -199,12 +199,16 @@ def test_drift_probe_lets_a_three_frame_plan_follow_a_colour_drift(setup):
 
 
 def test_colour_is_fitted_once_on_the_sequences_mean_gains(setup, monkeypatch):
+    import specgpu.pipeline.recovery as recovery
     import specgpu.planning.correction as corr
 
     bundle, plan, scene, roi = setup
     seen = []
     real = corr.corrected_decoder
-    monkeypatch.setattr(corr, "corrected_decoder",
+    # patch the name where recover looks it up: its module's own binding when it imports the name at the top,
+    # else the correction module's attribute (read at call time); a missed patch leaves ``seen`` empty
+    where = recovery if hasattr(recovery, "corrected_decoder") else corr
+    monkeypatch.setattr(where, "corrected_decoder",
                         lambda p, g, *a, **k: seen.append(np.array(g)) or real(p, g, *a, **k))
     res = capture_plan(DESC, plan, scene, noise_seed=2, calibration=bundle, sequences=3)
     frames = np.stack([s.frames for s in res.sequences])
@@ -223,7 +227,7 @@ def test_cli_plan_drift_probe(setup, tmp_path):
     from cli_helpers import one_line_error, run
 
     from specgpu.calibration.bundle import save_calibration
-    from specgpu.planning.plans import load_plan
+    from specgpu.planning import load_plan
 
     bundle = setup[0]
     cal = tmp_path / "cal.npz"

@@ -1,5 +1,5 @@
 """Illumination design: the Wiener objective's gradient, optimal plans within every limit of the light, one-line
-refusals, and Hadamard multiplexing (decoder and measured SNR gain)."""
+refusals, Hadamard multiplexing's S-matrix, and both made by name through the one plan registry."""
 
 import subprocess
 import sys
@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from specgpu.planning import design as D
-from specgpu.planning import estimators as E
+import specgpu.planning as E
+from specgpu.apps import estimator_study as study
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.planning.plans import make_plan
+from specgpu.planning import make_plan
 from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
@@ -78,7 +79,7 @@ def test_optimal_beats_the_paper_design_in_expectation(bundle, prior, optimal6):
 
 def test_optimal_plan_recovers_the_held_out_chart_noise_free(bundle, optimal6):
     names, wl, spec = E.held_out_spectra()
-    scene = E.patch_scene(names, wl, spec, H, W)
+    scene = study.patch_scene(names, wl, spec, H, W)
     rig = TwinRig(optimal6.rig_description(DESC), scene=scene)
     rig.load_sequence(optimal6.patterns)
     frames = np.stack([rig.expected_frame(k) for k in range(optimal6.K)])
@@ -119,22 +120,6 @@ def test_s_matrix():
         D.s_matrix(10)
 
 
-def test_hadamard_recovers_like_narrowband_and_gains_snr():
-    """Equal exposure (2 ms), 15 bands each, a read-noise-limited camera (300 e-) and a steady light: Hadamard's
-    noise is lower by about the theory's (N + 1) / (2 sqrt N) = 2.07. (With the paper's camera, 14 e- of read
-    noise, the frames are shot-noise-limited and multiplexing loses instead.)"""
-    from dataclasses import replace
-
-    desc = RigDescription(camera=CameraParameters(roi_width=W, roi_height=H, read_noise_e=300.0))
-    desc = replace(desc, light=replace(desc.light, fluctuation_rms=0.0))
-    g = D.hadamard_gain(desc, bands=15, exposure_s=0.002, seed=11)
-    assert g["exposure_ms"] == pytest.approx(2.0) and g["narrowband_exposure_ms"] == pytest.approx(2.0)
-    np.testing.assert_allclose(g["hadamard_mean"], 0.5, atol=0.02)
-    np.testing.assert_allclose(g["narrowband_mean"], 0.5, atol=0.02)
-    assert g["theory"] == pytest.approx(16 / (2 * np.sqrt(15)))
-    assert 1.6 < g["gain"] < 2.4
-
-
 def test_cli_plan_optimal_refusals(tmp_path, bundle):
     from specgpu.calibration.bundle import save_calibration
 
@@ -152,3 +137,14 @@ def test_cli_plan_optimal_refusals(tmp_path, bundle):
     r = subprocess.run(base + [str(rig), "--training-only"], capture_output=True, text=True, timeout=300)
     assert r.returncode != 0 and "training set is empty" in r.stderr
     assert len([line for line in r.stderr.splitlines() if line.startswith("Error")]) == 1
+
+
+def test_the_registry_makes_optimal_and_hadamard_plans_with_their_own_signatures(bundle, prior):
+    """make_plan dispatches to the designs with their own arguments: the same plans as calling them directly."""
+    had = make_plan("hadamard", bundle, bands=7)
+    assert had.method == "hadamard" and had.K == 7
+    np.testing.assert_array_equal(had.A, D.plan_hadamard(bundle, bands=7).A)
+    opt = make_plan("optimal", bundle, prior, noise_at, frames=3, starts=1, iterations=20)
+    assert opt.method == "optimal" and opt.K == 3 and opt.params["estimator"] == "wiener"
+    np.testing.assert_array_equal(opt.patterns, D.plan_optimal(bundle, prior, noise_at, frames=3, starts=1,
+                                                               iterations=20).patterns)

@@ -6,10 +6,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.planning import estimators as E
+import specgpu.planning as E
+from specgpu.apps import estimator_study as study
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.recovery import capture_plan
-from specgpu.planning.plans import load_plan, make_plan, save_plan
+from specgpu.planning import load_plan, make_plan, save_plan
+from specgpu.planning.estimators import interp_rows
 from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
@@ -37,7 +39,7 @@ def prior(spectra):
 def _random_problem(seed, K=6, P=31):
     rng = np.random.default_rng(seed)
     F = rng.uniform(0, 50, (K, WL.size))
-    Wout = E._interp_rows(np.linspace(400, 700, P), WL)
+    Wout = interp_rows(np.linspace(400, 700, P), WL)
     noise = E.NoiseModel(rng.uniform(5, 50), rng.uniform(0.1, 5), rng.uniform(0, 0.02))
     return F, Wout, noise
 
@@ -120,7 +122,7 @@ def test_smooth_estimator_without_training(bundle):
     assert s.params["estimator"] == "smooth" and "smooth prior" in s.params["expected"]["prior"]
     wl = np.arange(400.0, 700.0 + 1e-9, 5.0)
     test = E.held_out_spectra(wavelengths=wl)[2]
-    assert E.chart_error(s, bundle, test, wl) < 0.01
+    assert study.chart_error(s, bundle, test, wl) < 0.01
 
 
 def test_empty_training_set_is_one_line(tmp_path):
@@ -233,7 +235,7 @@ def test_sigma_z_scores_on_the_twin(bundle, prior):
     from specgpu.pipeline.evaluate import truth_cube
 
     names, wl, spec = E.held_out_spectra()
-    scene = E.patch_scene(names, wl, spec, H, W)
+    scene = study.patch_scene(names, wl, spec, H, W)
     plan = E.with_estimator(make_plan("narrowband", bundle, step_nm=20.0), bundle, "wiener", prior=prior,
                             noise=E.NoiseModel.from_rig(DESC, make_plan("narrowband", bundle, step_nm=20.0).exposure_s))
     frames = capture_plan(DESC, plan, scene, noise_seed=3).sequences[0].frames
@@ -246,7 +248,7 @@ def test_sigma_z_scores_on_the_twin(bundle, prior):
     assert 0.8 <= z.std() <= 1.25
     # the exact prediction on the chart's spectra is the measured RMS error within 25 %
     wl = prior.wavelengths
-    predicted = E.chart_error(plan, bundle, E.held_out_spectra(wavelengths=wl)[2], wl)
+    predicted = study.chart_error(plan, bundle, E.held_out_spectra(wavelengths=wl)[2], wl)
     assert 0.8 <= np.sqrt((err ** 2).mean()) / predicted <= 1.25
 
 
@@ -268,66 +270,6 @@ def test_delta_e_sigma_against_monte_carlo():
         assert sig[i] == pytest.approx(np.sqrt(np.mean(de ** 2)), rel=0.1)
 
 
-def test_study_rows_on_the_held_out_chart(bundle, prior):
-    names, wl, spec = E.held_out_spectra()
-    scene = E.patch_scene(names, wl, spec, H, W)
-    plans = E.study_plans(DESC, bundle, prior, E.held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
-    rows = E.study_rows(DESC, bundle, scene, plans, runs=2)
-    nb, tri = rows
-    assert nb["name"] == "narrowband-31" and nb["K"] == 31 and nb["runs"] == 2
-    assert 0 < nb["rmse"][0] < 0.01 and nb["dE2000"][0] < 1.0 and nb["rmse"][1] >= 0
-    assert 0.75 < nb["rms"][0] / nb["expected_rmse"] < 1.33
-    assert 0.8 <= nb["z"][0] <= 1.25 and 0.8 <= tri["z"][0] <= 1.25
-    assert "rmse" not in tri and tri["dEab"][0] > 0 and tri["expected_rmse"] is None
-    text = E.format_study(rows)
-    assert "narrowband-31" in text and "tristimulus-D65" in text
-
-
-def test_patch_scene_white_tile():
-    from specgpu.rig.scene import white_tile_roi
-
-    names, wl, spec = E.held_out_spectra()
-    plain = E.patch_scene(names, wl, spec, H, W)
-    tiled = E.patch_scene(names, wl, spec, H, W, white_tile=0.97)
-    x, y, w, h = white_tile_roi(H, W)
-    np.testing.assert_array_equal(tiled.reflectance[y:y + h, x:x + w], np.float32(0.97))
-    assert set(tiled.masks) == set(plain.masks)
-    outside = np.ones((H, W), bool)
-    outside[max(0, y - 3):y + h + 3, max(0, x - 3):x + w + 3] = False
-    np.testing.assert_array_equal(tiled.reflectance[outside], plain.reflectance[outside])
-    with pytest.raises(ValueError, match="white_tile") as err:
-        E.patch_scene(names, wl, spec, H, W, white_tile=-1.0)
-    assert "\n" not in str(err.value)
-    with pytest.raises(ValueError, match="no room"):
-        many = [f"{n}-{i}" for i in range(10) for n in names]
-        E.patch_scene(many, wl, np.vstack([spec] * 10), H, W, white_tile=0.99)
-
-
-def test_study_rows_on_the_lab_profile_with_corrections():
-    """The lab profile's corrections in the study: an ambient frame per sequence and the white's rescaling; the
-    recovery's error and the sigma above the ambient frame still agree (z std near 1)."""
-    from dataclasses import replace
-
-    from specgpu.calibration import calibrate
-    from specgpu.rig.config import rig_from_dict
-    from specgpu.rig.scene import white_tile_roi
-
-    lab = rig_from_dict({"twin": {"profile": "lab"}, "camera": {"roi_width": W, "roi_height": H}}, source="<lab>")
-    bundle = calibrate(lab, seed=0)
-    prior = E.default_prior()
-    names, wl, spec = E.held_out_spectra()
-    scene = E.patch_scene(names, wl, spec, H, W, white_tile=0.99 * (1 + lab.realism.white_error))
-    plans = E.study_plans(lab, bundle, prior, None, methods=["optimal-3"])
-    rows = E.study_rows(lab, bundle, scene, plans, runs=1, de_sigma=False, white_roi=white_tile_roi(H, W))
-    (r,) = rows
-    assert r["K"] == 4  # the ambient frame beside the three designed ones
-    assert 0.8 <= r["z"][0] <= 1.25 and r["dEab"][0] < 1.5
-    assert 0.75 < r["rms"][0] / r["expected_rmse"] < 1.33
-    # without the white tile's ROI the same plan is read raw (no ambient frame)
-    raw = E.study_rows(replace(lab), bundle, scene, plans, runs=1, de_sigma=False)
-    assert raw[0]["K"] == 3
-
-
 def test_subspace_bound_against_numpy_svd():
     rng = np.random.default_rng(3)
     train = rng.uniform(0, 1, (40, 12)) @ np.diag(np.linspace(1, 0.1, 12))
@@ -347,45 +289,6 @@ def test_subspace_bound_against_numpy_svd():
         assert "\n" not in str(err.value)
     with pytest.raises(ValueError, match="one grid"):
         E.subspace_bound(train, test[:, :5], 3)
-
-
-def test_cross_validated_error_against_numpy(bundle, spectra):
-    prior = E.prior_from_spectra(spectra, WL, "test")
-    noise = E.NoiseModel.from_rig(DESC, 0.05)
-    plan = E.with_estimator(make_plan("narrowband", bundle, step_nm=30.0), bundle, "wiener", prior=prior,
-                            noise=noise)
-    rng = np.random.default_rng(5)
-    idx = rng.permutation(spectra.shape[0])
-    sets = {"a": spectra[idx[:40]], "b": spectra[idx[40:100]], "c": spectra[idx[100:]]}
-    F = bundle.forward_matrix(plan.patterns, WL, plan.exposure_s)
-    Wm = E._interp_rows(plan.output_wavelengths, WL)
-    g, rv, lr = noise.gain_e_per_dn, noise.read_var_dn2, noise.light_rms
-    per = []
-    for name, held in sets.items():
-        rest = np.concatenate([r for n, r in sets.items() if n != name])
-        S = rest.T @ rest / rest.shape[0]
-        o = F @ rest.mean(axis=0)
-        N = np.diag(np.maximum(o, 0) / g + rv + lr ** 2 * np.diag(F @ S @ F.T))
-        A = Wm @ S @ F.T @ np.linalg.inv(F @ S @ F.T + N)
-        per.append(np.mean((held @ (Wm - A @ F).T) ** 2))
-    S = prior.moment
-    N = np.diag(np.maximum(F @ prior.mean, 0) / g + rv + lr ** 2 * np.diag(F @ S @ F.T))
-    noise_part = np.mean(np.diag(plan.A @ N @ plan.A.T))
-    cv = E.cross_validated_error(plan, bundle, sets, prior, noise)
-    assert cv["rmse"] == pytest.approx(np.sqrt(np.mean(per) + noise_part), rel=1e-9)
-    assert cv["mismatch"]["b"] == pytest.approx(np.sqrt(per[1]), rel=1e-9)
-    with pytest.raises(ValueError, match="at least two training sets") as err:
-        E.cross_validated_error(plan, bundle, {"a": spectra}, prior, noise)
-    assert "\n" not in str(err.value)
-
-
-def test_training_sets_split_the_database_by_set():
-    sets = E.training_sets()
-    db = E.training_database()
-    assert sum(len(r) for r in sets.values()) == len(db) and "CIE 1995 TCS" not in sets
-    assert sets["CIE 2017 CES"].shape == (99, db.reflectance.shape[1])
-    first = db.labels.index(next(label for label in db.labels if label.startswith("RAW to ACES v1/")))
-    np.testing.assert_array_equal(sets["RAW to ACES v1"][0], db.reflectance[first])
 
 
 def _spread_over_sigma(plan, bundle, scene, draws, seed):
@@ -422,7 +325,7 @@ def test_sigma_holds_for_a_multiplexed_plan_in_bright_pixels(bundle):
     (or taken at the prior's mean signal) the bright pixels' spread is twice the sigma. The fluctuation is common
     to every pixel of a frame, so the bright quintile sees only draws x K independent draws of it: its bounds are
     wide (about +-12 % at 1 sigma for 20 draws), the failure they catch is 2x."""
-    from specgpu.planning.design import plan_hadamard
+    from specgpu.planning import plan_hadamard
     from specgpu.rig.scene import colorchecker_scene
 
     plan = plan_hadamard(bundle, bands=7)

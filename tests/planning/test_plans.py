@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from specgpu.planning.basis import COLORCHECKER_24_SETS, load_reflectances, pca_basis
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.planning.plans import (
+from specgpu.planning import (
     PLAN_METHODS,
     Plan,
     load_plan,
@@ -68,7 +68,8 @@ def physics_F(twin, plan, wavelengths):
 
 
 def test_unknown_method_lists_the_valid_ones(bundle):
-    with pytest.raises(ValueError, match="valid methods: narrowband, reciprocal, biased, symmetric, tristimulus"):
+    with pytest.raises(ValueError, match="valid methods: narrowband, reciprocal, biased, symmetric, tristimulus, "
+                                         "camera, steady, optimal, hadamard$"):
         make_plan("wiener", bundle)
 
 

@@ -15,7 +15,7 @@ from cli_helpers import run
 from specgpu.calibration.bundle import load_calibration
 from specgpu.planning.correction import ambient_index
 from specgpu.io.npz import read_cube_npz
-from specgpu.planning.plans import load_plan
+from specgpu.planning import load_plan
 from specgpu.rig.config import load_rig
 from specgpu.rig.scene import write_scene
 from specgpu.apps.studies import LEVEL_EDGES, chart_errors, measured_chart_with_white
@@ -124,7 +124,7 @@ def test_ideal_bench_keeps_its_plans(tmp_path):
 def test_dark_warning_names_an_exposure_outside_the_measured_range(lab):
     """A bundle measured its dark level at some exposures only: a plan exposed outside them is flagged."""
     from specgpu.pipeline.recovery import SequenceFolder, dark_warning
-    from specgpu.planning.plans import make_plan
+    from specgpu.planning import make_plan
 
     d, _, _ = lab
     b = load_calibration(d / "calib.npz")

@@ -29,7 +29,8 @@ from specgpu.io.tables import save_npz
 from specgpu.calibration.bundle import CALIBRATION_FORMAT, CALIBRATION_VERSION, load_calibration, oracle_calibration, \
     save_calibration
 from specgpu.io.npz import read_spectrum_csv
-from specgpu.planning.plans import PLAN_FORMAT, PLAN_VERSION, load_plan, plan_narrowband, save_plan
+from specgpu.planning import PLAN_FORMAT, load_plan, plan_narrowband, save_plan
+from specgpu.planning.plans import PLAN_VERSION
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription, _toml_value, load_rig
 

@@ -402,7 +402,7 @@ def test_reflectance_to_XYZ_outside_the_cmfs_is_a_value_error():
 
 
 def test_plan_with_a_huge_decoder_is_refused_naming_the_file(base, tmp_path):
-    from specgpu.planning.plans import load_plan
+    from specgpu.planning import load_plan
 
     from dataclasses import replace
 

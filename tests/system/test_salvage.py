@@ -55,7 +55,7 @@ def stop_after(monkeypatch, n, error):
 
 
 def K_of(base):
-    from specgpu.planning.plans import load_plan
+    from specgpu.planning import load_plan
 
     return load_plan(base / "tri.npz").K
 

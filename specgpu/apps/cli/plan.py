@@ -16,7 +16,7 @@ from specgpu.planning.correction import (
     with_ambient_frame,
     with_drift_probes,
 )
-from specgpu.planning.plans import PLAN_METHODS, save_plan
+from specgpu.planning import PLAN_METHODS, save_plan
 from specgpu.planning.requests import estimated_plan
 
 
