@@ -750,7 +750,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
         Stream results (float32 cube, XYZ, Lab, dE2000) against ``pipeline.recover`` on the same frames.
     """
     from specgpu.rig.scene import white_tile_roi
-    from specgpu.pipeline.stream import Stream, current_rss_bytes
+    from specgpu.pipeline import Stream, current_rss_bytes
 
     unknown = set(cases) - set(STREAM_CASES)
     if unknown:

@@ -686,7 +686,7 @@ class _ZarrCapture:
         return self.recorder.committed
 
     def add(self, sequence) -> None:
-        from specgpu.pipeline.stream import StreamResult
+        from specgpu.pipeline import StreamResult
 
         self.recorder.write(StreamResult(self.recorder.committed, sequence.cycle, sequence.frame_ids,
                                          sequence.timestamps_s, {}, 0.0, frames=sequence.frames))
@@ -1009,7 +1009,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     from specgpu.capture.twin import TwinDriver
     from specgpu.pipeline.recovery import check_scene_covers
     from specgpu.rig.twin import TwinRig
-    from specgpu.pipeline.stream import STREAM_OUTPUTS
+    from specgpu.pipeline import STREAM_OUTPUTS
     from specgpu.core.validate import validate_method
 
     # before any loading: a typo is an error naming the valid outputs
@@ -1067,7 +1067,7 @@ def _stream_run(driver, description, plan, bundle, truth, wanted, reference, out
     ``colours``: the (illuminant, observer) of its XYZ, Lab and dE."""
     import numpy as np
 
-    from specgpu.pipeline.stream import ExrSequenceWriter, PreviewSink, Stream
+    from specgpu.pipeline import ExrSequenceWriter, PreviewSink, Stream
 
     cam = description.camera
     illuminant, observer = colours

@@ -422,7 +422,7 @@ def refuse_existing(path) -> Path:
 
 def sequence_bytes(shapes: dict, *, frames_shape=None) -> int:
     """Bytes one sequence takes in a recording: ``shapes`` maps output -> ((H, W[, C]), dtype) (as
-    :meth:`specgpu.pipeline.stream.StreamDecoder.shapes`); ``frames_shape`` (K, H, W) adds the raw uint16 frames."""
+    :meth:`specgpu.pipeline.decoder.StreamDecoder.shapes`); ``frames_shape`` (K, H, W) adds the raw uint16 frames."""
     total = 0
     for name, (shape, dtype) in shapes.items():
         if name != "mask":

@@ -21,9 +21,15 @@ from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save
 from specgpu.capture.session import CaptureResult, capture_sequences
 from specgpu.capture.twin import TwinDriver
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
+from specgpu.pipeline.evaluate import true_patch_spectra
+from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
+from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
+from specgpu.planning.estimators import constant_covariance, frame_covariance, frame_variance, output_covariance, \
+    sigma_map
 from specgpu.planning.plans import Plan, load_plan, save_plan
 from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.config import RigDescription
+from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig
 from specgpu.core.spectra import DEFAULT_CMFS
 
@@ -242,10 +248,6 @@ def write_capture(directory, sequences, assembly, plan_path, calibration_path, *
 def default_basis(chart: str = EVALUATION_CHART):
     """The uncentred PCA basis of colour-science's measured reflectances with ``chart`` left out of training:
     every set holding the same patches, and any spectrum within 0.01 RMS of one of its patches."""
-    from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
-    from specgpu.pipeline.evaluate import true_patch_spectra
-    from specgpu.rig.scene import colorchecker_scene
-
     _, chart_spectra = true_patch_spectra(colorchecker_scene(24, 36, chart=chart), DEFAULT_WAVELENGTHS)
     return pca_basis(load_reflectances(exclude=evaluation_exclusions(chart), exclude_similar_to=chart_spectra))
 
@@ -355,8 +357,6 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     its own gains. A plan with an ambient frame (``plan --ambient``) has that frame subtracted
     instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
     """
-    from specgpu.planning.correction import ambient_index
-
     if white_roi is not None or ambient_index(folder.plan) is not None:
         plan, bundle = folder.plan, folder.calibration
         picked, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
@@ -393,8 +393,6 @@ def _sequence_decoders(folder: SequenceFolder, sequence, white_roi, white_reflec
     """What :func:`recover` decodes each picked sequence with, when it decodes them one by one (a white ROI or an
     ambient frame): the picked indices and, per sequence, its corrected frames (linearised, per-pattern flat
     ratio), the level subtracted (the ambient frame or the calibration's dark) and its decoder."""
-    from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
-
     plan, bundle = folder.plan, folder.calibration
     amb = ambient_index(plan)
     picked = range(folder.sequences) if sequence is None else [sequence]
@@ -424,9 +422,6 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
     """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames, options and
     corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
     covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.estimators`); NaN where saturated."""
-    from specgpu.planning.correction import ambient_index
-    from specgpu.planning.estimators import constant_covariance, frame_covariance, frame_variance, output_covariance, sigma_map
-
     used = folder.frames if sequence is None else folder.frames[sequence:sequence + 1]
     if sequence is not None and not 0 <= sequence < folder.sequences:
         raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
@@ -478,8 +473,6 @@ def dark_warning(folder: SequenceFolder, sequence: int | None = None) -> str | N
     further below that level than the camera's noise allows (5 standard deviations of the dark level's temporal
     noise, from the plan's noise model, 1 DN without one, plus 0.5 DN).
     """
-    from specgpu.planning.correction import ambient_index
-
     plan, bundle = folder.plan, folder.calibration
     if ambient_index(plan) is not None:
         return None
