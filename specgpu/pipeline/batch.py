@@ -3,9 +3,9 @@
 ``specgpu batch REC.zarr --plan PLAN --out OUT.zarr`` runs its sequences as Dask tasks of up to 8 consecutive
 sequences (a task costs ~13 ms of its own) on a Dask ``LocalCluster`` (or on any ``dask.distributed`` scheduler
 given by address). Each sequence's frames are computed in one device pass as the stream computes them
-(:class:`specgpu.pipeline.decoder.StreamDecoder`: the cube by the plan's decoder, XYZ, Lab and dE fused from the same frames,
-the calibration's corrections applied as ``specgpu recover`` applies them; on a CPU device the frames are the
-device buffer and the results are mapped, no copy), equal to ``specgpu recover SEQ --sequence i`` and its
+(:class:`specgpu.pipeline.decoder.StreamDecoder`: the cube by the plan's decoder, XYZ, Lab and dE fused from the
+same frames, the calibration's corrections applied as ``specgpu recover`` applies them; on a CPU device the
+frames are the device buffer and the results are mapped, no copy), equal to ``specgpu recover SEQ --sequence i`` and its
 ``to_XYZ`` / ``to_Lab`` / ``delta_E`` to float rounding. Each output's chunk is written while the task's next
 sequence is computed, and the sequence is marked done in the ``done`` array once all of its chunks are written.
 Workers keep their state between tasks (:func:`_worker_state`): the plan, calibration, OpenCL context and queue
@@ -202,8 +202,8 @@ class _Pending:
 
 
 def _decoder(job: BatchJob, state):
-    """This worker's fused decoder of the job (:class:`specgpu.pipeline.decoder.StreamDecoder`, made once): the plan's A,
-    the calibration's dark, flat field and saturation level and, for colour outputs, the matrix to XYZ of the
+    """This worker's fused decoder of the job (:class:`specgpu.pipeline.decoder.StreamDecoder`, made once): the
+    plan's A, the calibration's dark, flat field and saturation level and, for colour outputs, the matrix to XYZ of the
     plan's outputs with the white and the dE reference, on the device. The cube comes from one linear pass over
     the frames and XYZ, Lab and dE from one fused pass over the same frames (never from the cube read back), as
     the stream computes them; the host-side corrections recover applies (linearisation, per-pattern flat field,

@@ -194,10 +194,29 @@ def render_scene(scene, illuminant, *, adaptation: str = "CAT02", device=None) -
     XYZ under the illuminant (device), then sRGB for an observer adapted to the illuminant's white
     (``adaptation``, a colour-science chromatic adaptation transform; ``None`` shows the raw colour cast).
 
+    Parameters
+    ----------
+    scene : SpectralScene
+        Reflectance (H, W, B) on its wavelengths.
+    illuminant : str or colour.SpectralDistribution
+        A colour-science illuminant name (``"D65"``, ``"A"``, ...) or a spectrum.
+    adaptation : str or None
+        Chromatic adaptation transform to the illuminant's white.
+    device : optional
+        OpenCL device selector.
+
     Returns
     -------
     ndarray, (H, W, 3), float32
         Display-encoded sRGB in [0, 1] (clipped).
+
+    Examples
+    --------
+    >>> from specgpu.pipeline import render_scene
+    >>> from specgpu.rig import colorchecker_scene
+    >>> image = render_scene(colorchecker_scene(24, 36), "A")
+    >>> image.shape, str(image.dtype)
+    ((24, 36, 3), 'float32')
     """
     XYZ, white = _scene_XYZ(scene, illuminant, device)
     rgb = colour.XYZ_to_sRGB(np.asarray(XYZ, np.float64), illuminant=colour.XYZ_to_xy(white),

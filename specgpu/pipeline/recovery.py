@@ -66,6 +66,24 @@ def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: i
     calibration : CalibrationBundle, optional
         The bundle the plan was made from: the rig's clock starts where that calibration ended plus the rig's
         ``capture_delay`` (so the lamp has drifted on as on a bench); without it, at ``capture_delay``.
+
+    Returns
+    -------
+    CaptureResult
+        The complete sequences (each with its (K, H, W) ``frames``) and the assembler's counters (``assembly``).
+
+    Examples
+    --------
+    >>> from specgpu.calibration import oracle_calibration
+    >>> from specgpu.planning import make_plan
+    >>> from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
+    >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+    >>> bundle = oracle_calibration(rig)
+    >>> plan = make_plan("narrowband", bundle, step_nm=20.0)
+    >>> from specgpu.pipeline import capture_plan
+    >>> result = capture_plan(rig, plan, colorchecker_scene(240, 320), noise_seed=1, calibration=bundle)
+    >>> result.sequences[0].frames.shape == (plan.K, 240, 320)
+    True
     """
     if sequences < 1:
         raise ValueError(f"sequences must be >= 1, got {sequences}")
@@ -287,7 +305,39 @@ def _zarr_not_a_sequence(directory: Path) -> str:
 
 def read_capture(directory) -> SequenceFolder:
     """Read a sequence folder; refuse it when the plan or calibration is missing or does not match its hashes,
-    or when its frames are not whole sequences in pattern order."""
+    or when its frames are not whole sequences in pattern order.
+
+    Parameters
+    ----------
+    directory : path
+        A sequence folder written by ``specgpu capture`` (or :func:`write_capture`).
+
+    Returns
+    -------
+    SequenceFolder
+        Its frames (S, K, H, W), plan, calibration, frame records and metadata.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from specgpu.calibration import save_calibration
+    >>> from specgpu.pipeline import capture_plan, read_capture, write_capture
+    >>> from specgpu.planning import save_plan
+    >>> from specgpu.calibration import oracle_calibration
+    >>> from specgpu.planning import make_plan
+    >>> from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
+    >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+    >>> bundle = oracle_calibration(rig)
+    >>> plan = make_plan("narrowband", bundle, step_nm=20.0)
+    >>> result = capture_plan(rig, plan, colorchecker_scene(240, 320), noise_seed=1, calibration=bundle)
+    >>> root = Path(tempfile.mkdtemp())
+    >>> _ = save_plan(root / "plan.npz", plan), save_calibration(root / "calibration.npz", bundle)
+    >>> capture = write_capture(root / "capture", result.sequences, result.assembly, root / "plan.npz",
+    ...                         root / "calibration.npz")
+    >>> read_capture(capture).frames.shape == (1, plan.K, 240, 320)
+    True
+    """
     directory = Path(directory)
     _check_not_zarr(directory)
     _check_interrupted(directory)
@@ -356,6 +406,40 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     hours; each frame's own power fluctuation averages down over the sequences), each sequence then rescaled by
     its own gains. A plan with an ambient frame (``plan --ambient``) has that frame subtracted
     instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
+
+    Parameters
+    ----------
+    folder : SequenceFolder
+        Frames, plan and calibration (:func:`read_capture`).
+    sequence : int, optional
+        The sequence to recover; None averages all.
+    out_dtype : numpy dtype
+        Storage of the result.
+    device : optional
+        OpenCL device selector.
+    white_roi, white_reflectance : optional
+        The reference white in the field, as above.
+
+    Returns
+    -------
+    ndarray, (H, W, B)
+        The plan's outputs on ``plan.output_wavelengths`` (reflectance, or XYZ for a tristimulus plan); NaN
+        where saturated.
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> from specgpu.pipeline import SequenceFolder, capture_plan, recover
+    >>> from specgpu.calibration import oracle_calibration
+    >>> from specgpu.planning import make_plan
+    >>> from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
+    >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+    >>> bundle = oracle_calibration(rig)
+    >>> plan = make_plan("narrowband", bundle, step_nm=20.0)
+    >>> result = capture_plan(rig, plan, colorchecker_scene(240, 320), noise_seed=1, calibration=bundle)
+    >>> folder = SequenceFolder(Path("<memory>"), result.sequences[0].frames[None], plan, bundle, [], {})
+    >>> recover(folder).shape == (240, 320, len(plan.output_wavelengths))
+    True
     """
     if white_roi is not None or ambient_index(folder.plan) is not None:
         plan, bundle = folder.plan, folder.calibration
