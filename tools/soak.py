@@ -7,7 +7,7 @@ with random frame drops, duplicated frames and missed light triggers; a sink sle
 disk would. Every ``--sample-s`` seconds a line shows the resident memory and the counters. At the end the
 tool checks
 
-- the stream's own accounting (:meth:`specgpu.pipeline.stream_report.StreamReport.accounting`): frames in = into the ring +
+- the stream's own accounting (:meth:`specgpu.pipeline.StreamReport.accounting`): frames in = into the ring +
   refused; into the ring = delivered + discarded; delivered = K x sequences + duplicates + unused; sequences
   out = sequences complete;
 - exposures: every exposure the camera made (the driver's last frame id + 1) is a frame the assembler saw once

@@ -105,7 +105,7 @@ __all__ = ["RECORDING_FORMAT", "RECORDING_VERSION", "ZarrRecorder", "Recording",
 RECORDING_FORMAT = "specgpu.recording"
 RECORDING_VERSION = 1
 
-#: What a recording may hold along time besides the raw frames (specgpu.pipeline.stream.STREAM_OUTPUTS).
+#: What a recording may hold along time besides the raw frames (specgpu.pipeline.decoder.STREAM_OUTPUTS).
 _OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "sigma_rms", "dE_sigma")
 #: Channel dimension and channel names of each output.
 _CHANNELS = {"XYZ": ("X", "Y", "Z"), "Lab": ("L", "a", "b")}

@@ -11,7 +11,7 @@ Each sequence in flight holds one of ``result_buffers`` tokens from upload until
 sink keeps its tokens, the device thread waits for one, the frame ring fills and its policy acts
 (``drop_newest`` by default: the camera never waits, a lost frame is a frame-id gap the assembler counts, and no
 sequence is ever built across it). The counters of the ring, the assembler and the stream say where each frame
-went (:meth:`StreamReport.accounting`).
+went (:meth:`specgpu.pipeline.stream_report.StreamReport.accounting`).
 
 Device work per sequence is enqueued without blocking on one in-order queue: the upload of the K frames, the
 linear kernel (basis coefficients or the full cube), the fused XYZ -> Lab -> dE kernel against a reference, and the
@@ -23,6 +23,10 @@ Shutdown (:meth:`Stream.stop`, ``KeyboardInterrupt`` in :meth:`Stream.run`, the 
 driver's stream) stops the producer; every frame already in the ring is still assembled, every complete sequence
 still computed and handed to the sinks, and the frames left in an unfinished sequence are reported in the
 assembler's ``frames_unused`` / ``sequences_discarded``.
+
+This module is the runner (:class:`Stream`: the threads and the loop); the device work of a sequence is
+:class:`specgpu.pipeline.decoder.StreamDecoder`, the consumers of its results are in
+:mod:`specgpu.pipeline.sinks`, and what a finished stream reports is in :mod:`specgpu.pipeline.stream_report`.
 """
 
 from __future__ import annotations
@@ -165,8 +169,8 @@ class Stream:
         OpenCL device selector (see :mod:`specgpu.engine.runtime`).
     white_roi, white_reflectance : optional
         A reference white in the field (as :class:`StreamDecoder`): each sequence's gains are measured on its
-        host frames, its decoder corrected (:class:`specgpu.planning.correction.WhiteReference`) and the launches' matrices
-        written by non-blocking copies into one set of small device buffers per result token (reused only after
+        host frames, its decoder corrected (:class:`specgpu.planning.correction.WhiteReference`) and the launches'
+        matrices written by non-blocking copies into one set of small device buffers per result token (reused only after
         that sequence has left the sinks: no wait on the queue). The gains are in
         :attr:`StreamResult.white_gains`. A saturated or dark white stops the stream with a one-line error.
     """
