@@ -1,4 +1,4 @@
-"""Runs specgpu's kernels on the Oclgrind device for tests/test_oclgrind.py, in a process of its own (the ICD loader
+"""Runs specgpu's kernels on the Oclgrind device for tests/engine/test_oclgrind.py, in a process of its own (the ICD loader
 reads OCL_ICD_VENDORS and Oclgrind its OCLGRIND_* checks once, at start).
 
     python oclgrind_worker.py cases VARIANT [CASE ...]   every case (or the named ones) in kernel variant VARIANT
@@ -218,7 +218,7 @@ def _delta_e_sigma_case():
         const = np.diag([1e-7, 2e-7, 3e-7])
         pairs = [(i, j) for i in range(3) for j in range(i, 3)]
         six = np.stack([cov[:, i, j] for i, j in pairs], axis=-1).astype(np.float32)
-        launch = engine.prepare_delta_e_sigma(queue, white_point_XYZ("D65"), const, n=N)
+        launch = engine.prepare_delta_E_sigma(queue, white_point_XYZ("D65"), const, n=N)
         out = launch.enqueue(engine.to_device(queue, xyz.astype(np.float32).reshape(-1)).data,
                              inputs={1: engine.to_device(queue, six.reshape(-1)).data})
         got = np.empty(N, np.float32)

@@ -7,7 +7,7 @@ any spectrum within 0.01 RMS of a chart patch), plan narrowband-31, biased (m = 
 path, recover with ``apply_linear`` and print per-method RMSE, dE*ab and dE2000 (average, maximum) beside the
 paper's figures.
 
-    /work/venv/bin/python tools/accuracy_study.py [--small] [--seed N] [--runs N] [--json OUT.json]
+    python tools/accuracy_study.py [--small] [--seed N] [--runs N] [--json OUT.json]
 
 ``--small`` runs at 320 x 240 (faster; the paper's camera also ran at that ROI). ``--runs N`` repeats every
 capture with fresh noise N times: the tables show the first run, followed by the mean and standard deviation of
@@ -24,7 +24,7 @@ import sys
 import time
 import numpy as np
 
-from specgpu.calibration.bundle import calibrate, oracle_calibration
+from specgpu.calibration import calibrate, oracle_calibration
 from specgpu.pipeline.evaluate import evaluate_reflectance, evaluate_XYZ
 from specgpu.pipeline.recovery import EVALUATION_CHART, capture_plan, default_basis
 from specgpu.planning.plans import make_plan

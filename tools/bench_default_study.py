@@ -1,6 +1,6 @@
 """Default-path study: what a first-time user gets on a realistic (lab-profile) bench from the command line.
 
-    /work/venv/bin/python tools/bench_default_study.py [--small] [--draws 3] [--methods narrowband,symmetric]
+    python tools/bench_default_study.py [--small] [--draws 3] [--methods narrowband,symmetric]
         [--sequences 1] [--seed 0] [--json OUT.json]
 
 Every step is the ``specgpu`` command a user types, run in-process: a rig TOML with ``[twin] profile = "lab"``,

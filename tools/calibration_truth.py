@@ -1,6 +1,6 @@
 """Calibration against the twin's truth: how far the bundle's model is from the bench it measured.
 
-    /work/venv/bin/python tools/calibration_truth.py [--profile lab] [--step 10] [--small]
+    python tools/calibration_truth.py [--profile lab] [--step 10] [--small]
         [--line-shape gaussian,measured]
 
 Calibrates the twin once per line-shape model and prints :func:`specgpu.calibration.bundle.calibration_error` over
@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specgpu.calibration.bundle import calibrate, calibration_error  # noqa: E402
+from specgpu.calibration import calibrate, calibration_error  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import rig_from_dict  # noqa: E402
 

@@ -1,6 +1,6 @@
 """Drift study: calibrate without drift, capture with a drifted lamp, recover with and without correction.
 
-    /work/venv/bin/python tools/drift_study.py [--profile lab] [--draws 3] [--small]
+    python tools/drift_study.py [--profile lab] [--draws 3] [--small]
         [--cct -200] [--output -0.03] [--cut-on 5] [--methods narrowband,symmetric,tristimulus-D65]
         [--probes 430,650]
 
@@ -20,7 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specgpu.calibration.bundle import calibrate  # noqa: E402
+from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.apps.demo import DEMO_METHODS, make_demo_plans  # noqa: E402
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402

@@ -1,6 +1,6 @@
 """Error budget: what each imperfection of a real bench costs each method, alone, with and without corrections.
 
-    /work/venv/bin/python tools/error_budget.py [--full] [--draws 1] [--methods narrowband,symmetric,tristimulus-D65]
+    python tools/error_budget.py [--full] [--draws 1] [--methods narrowband,symmetric,tristimulus-D65]
         [--effects stray_light_fraction,blur_px,...] [--json OUT.json]
 
 For the ideal twin and then for every ``[realism]`` effect switched on alone at its lab magnitude
@@ -27,7 +27,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from specgpu.calibration.bundle import calibrate, calibration_error  # noqa: E402
+from specgpu.calibration import calibrate, calibration_error  # noqa: E402
 from specgpu.apps.demo import DEMO_METHODS, make_demo_plans  # noqa: E402
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402

@@ -14,7 +14,7 @@ predicted dE2000 sigma (``specgpu recover --delta-e-sigma``, first run).
 real bench, the lamp drifting for 30 min between calibration and capture) with the corrections ``specgpu demo``
 applies there: an ambient frame per sequence and a reference white tile above the chart rescaling each decoder.
 
-    /work/venv/bin/python tools/estimator_study.py [--small] [--profile ideal|lab] [--runs N] [--seed N]
+    python tools/estimator_study.py [--small] [--profile ideal|lab] [--runs N] [--seed N]
         [--methods a,b] [--json OUT]
 """
 
@@ -30,7 +30,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from specgpu.planning import estimators as E  # noqa: E402
-from specgpu.calibration.bundle import calibrate  # noqa: E402
+from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription, rig_from_dict  # noqa: E402
 from specgpu.rig.scene import white_tile_roi  # noqa: E402

@@ -14,7 +14,7 @@ sigma understates the noise.
 Plans: ``hadamard`` (``plan hadamard --bands N``), ``symmetric`` (m = 5), ``narrowband`` (10 nm steps),
 ``wiener`` (symmetric with the Wiener decoder on the default prior), ``optimal`` (a 6-frame design; slow). Every
 plan gets the rig's noise model as ``specgpu plan`` records it. The rig is the default twin at ``--size`` (or
-``--profile``'s, e.g. ``lab``), calibrated by :func:`specgpu.calibration.bundle.calibrate`. ``--white-roi`` puts a 0.99
+``--profile``'s, e.g. ``lab``), calibrated by :func:`specgpu.calibration.calibrate`. ``--white-roi`` puts a 0.99
 white tile in the chart and recovers with the white's drift correction (the light's fluctuation is then divided
 out per sequence); ``--ambient`` gives every plan an ambient frame (``plan --ambient``), subtracted instead of the
 dark level.
@@ -123,7 +123,7 @@ def main(argv=None):
         if name not in PLANS:
             parser.error(f"unknown plan {name!r}; valid: {', '.join(PLANS)}")
 
-    from specgpu.calibration.bundle import calibrate
+    from specgpu.calibration import calibrate
     from specgpu.rig.config import rig_from_dict
     from specgpu.rig.scene import colorchecker_scene, white_tile_roi
 

@@ -249,7 +249,7 @@ def _cube_case(queue, data: _Data, frames_dev, out_dtype, layout: str, reps: tup
     name = "cube_float32" if out_dtype == np.float32 else "cube_float16"
 
     def device():
-        out, _ = engine.linear(queue, frames_dev, data.A, n=n, out_dtype=out_dtype, out_layout=out_layout)
+        out, _ = engine.launch_linear(queue, frames_dev, data.A, n=n, out_dtype=out_dtype, out_layout=out_layout)
         return out
 
     def api():
@@ -288,8 +288,8 @@ def _fused_case(queue, data: _Data, frames_dev, reference_dev, reps: tuple[int, 
     xy = _illuminant_xy()
 
     def device():
-        return engine.frames_to_delta_e(queue, frames_dev, data.M, white, reference_dev, n=n,
-                                        method="CIE 2000", reference_single=False).delta_E
+        return engine.launch_frames_to_delta_E(queue, frames_dev, data.M, white, reference_dev, n=n,
+                                               method="CIE 2000", reference_single=False).delta_E
 
     def api():
         return frames_to_delta_E(data.frames, data.M, data.reference, device=queue)
@@ -313,8 +313,8 @@ def _lab_case(queue, data: _Data, xyz_dev, reference_dev, reps: tuple[int, int])
     xy = _illuminant_xy()
 
     def device():
-        lab = engine.xyz_to_lab(queue, xyz_dev, white, n=n)
-        return engine.delta_e(queue, reference_dev, lab, method="CIE 2000", n=n)
+        lab = engine.launch_XYZ_to_Lab(queue, xyz_dev, white, n=n)
+        return engine.launch_delta_E(queue, reference_dev, lab, method="CIE 2000", n=n)
 
     def api():
         return delta_E(data.reference, XYZ_to_Lab(data.XYZ, "D65", device=queue), "CIE 2000", device=queue)
@@ -580,7 +580,7 @@ def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 
     (:func:`specgpu.rig.scene.white_tile_roi` gives its ROI)."""
     from dataclasses import replace
 
-    from specgpu.calibration.bundle import calibrate
+    from specgpu.calibration import calibrate
     from specgpu.capture.replay import record
     from specgpu.capture.twin import TwinDriver
     from specgpu.pipeline.recovery import default_basis

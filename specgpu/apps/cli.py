@@ -409,7 +409,7 @@ class _Busy:
                    "spectroradiometer's probe readings (no model of the slit).")
 def calibrate(rig_path, out, seed, line_shape):
     """Run both feedback loops on the rig and write the calibration bundle."""
-    from specgpu.calibration.bundle import calibrate as run, save_calibration
+    from specgpu.calibration import calibrate as run, save_calibration
     from specgpu.rig.config import load_rig
 
     _no_clash([("--out", out)], [("--rig", rig_path)])

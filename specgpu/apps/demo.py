@@ -32,7 +32,7 @@ from specgpu import io
 
 from specgpu.apps import paper
 from specgpu.planning.basis import save_basis
-from specgpu.calibration.bundle import calibrate, save_calibration
+from specgpu.calibration import calibrate, save_calibration
 from specgpu.pipeline.evaluate import (evaluate_pixels, evaluate_reflectance, evaluate_XYZ, patch_means, scene_XYZ,
                        true_patch_spectra)
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis, to_XYZ, write_capture

@@ -106,11 +106,24 @@ def XYZ_weights(wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS) -> np.ndarray:
     wavelengths : array_like, (B,)
         Evenly spaced wavelengths in nm.
     illuminant : str or colour.SpectralDistribution
+        A name of ``colour.SDS_ILLUMINANTS`` or a spectral distribution.
     cmfs : str or colour.MultiSpectralDistributions
+        A name of ``colour.MSDS_CMFS`` or colour-matching functions.
 
     Returns
     -------
     ndarray, (3, B), float64
+        Rows X, Y, Z; each row sums to the white's tristimulus value (Y's row to 1).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from specgpu.core import XYZ_weights
+    >>> W = XYZ_weights(np.arange(400, 701, 10), "D65")
+    >>> W.shape
+    (3, 31)
+    >>> W.sum(axis=1).round(4).tolist()
+    [0.9494, 1.0, 1.0871]
     """
     w = np.asarray(wavelengths, dtype=np.float64)
     if isinstance(illuminant, str) and isinstance(cmfs, str):  # by name: computed once per grid (~1.4 ms each)

@@ -1,4 +1,10 @@
-"""The OpenCL engine: runtime (device order, program cache, the one kernel loader), launchers, transfers, the linear map, colorimetry, selftest."""
+"""The OpenCL engine: runtime (device order, program cache, the one kernel loader), launchers, transfers, the
+linear map, colorimetry, selftest.
+
+The NumPy-facing API (``apply_linear``, ``XYZ_to_Lab``, ``delta_E``, ``reflectance_to_XYZ``,
+``frames_to_delta_E``) validates its inputs and accepts host or device arrays; the ``launch_*`` and ``prepare_*``
+launchers of :mod:`specgpu.engine.kernels` take device arrays already validated.
+"""
 
 from __future__ import annotations
 
@@ -23,17 +29,17 @@ from specgpu.engine.kernels import (
     FusedOutputs,
     Prepared,
     VW,
-    delta_e,
-    frames_to_delta_e,
-    linear,
+    launch_XYZ_to_Lab,
+    launch_delta_E,
+    launch_frames_to_delta_E,
+    launch_linear,
     linear_matrix,
     matrix_on_device,
     pixel_map,
-    prepare_delta_e_sigma,
-    prepare_frames_to_delta_e,
+    prepare_delta_E_sigma,
+    prepare_frames_to_delta_E,
     prepare_linear,
     to_device,
-    xyz_to_lab,
 )
 from specgpu.engine.transfer import (
     MODES,
@@ -84,10 +90,8 @@ __all__ = [
     "apply_linear",
     "build_options",
     "delta_E",
-    "delta_e",
-    "frames_to_delta_E",
-    "frames_to_delta_e",
-    "get_allocator",
+        "frames_to_delta_E",
+        "get_allocator",
     "get_kernel",
     "get_queue",
     "golden_path",
@@ -95,7 +99,10 @@ __all__ = [
     "kernel_dir",
     "kernel_source",
     "kernel_variant",
-    "linear",
+    "launch_XYZ_to_Lab",
+    "launch_delta_E",
+    "launch_frames_to_delta_E",
+    "launch_linear",
     "linear_matrix",
     "linear_pipelined",
     "list_devices",
@@ -103,13 +110,12 @@ __all__ = [
     "matrix_on_device",
     "pinned_empty",
     "pixel_map",
-    "prepare_delta_e_sigma",
-    "prepare_frames_to_delta_e",
+    "prepare_delta_E_sigma",
+    "prepare_frames_to_delta_E",
     "prepare_linear",
     "reflectance_to_XYZ",
     "run_selftest",
     "select_device",
     "to_device",
     "transfer_mode",
-    "xyz_to_lab",
 ]

@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from specgpu.engine import kernels as engine
+from specgpu.engine import kernels
 from specgpu.engine.runtime import get_queue
 from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
 from specgpu.core.validate import (
@@ -76,12 +76,22 @@ def XYZ_to_Lab(XYZ, illuminant="D65", *, observer: str = DEFAULT_CMFS, device=No
     -------
     ndarray or pyopencl.array.Array, (..., 3), float32
         L* in [0, 100], a* and b* roughly [-128, 127] for real colours.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from specgpu.engine import XYZ_to_Lab
+    >>> Lab = XYZ_to_Lab(np.array([[0.20654008, 0.12197225, 0.05136952]]))
+    >>> Lab.shape, Lab.dtype
+    ((1, 3), dtype('float32'))
+    >>> Lab.astype(float).round(2).tolist()
+    [[41.53, 52.64, 26.92]]
     """
     XYZ = check_last_axis(XYZ, "XYZ")
     white = white_point_XYZ(illuminant, observer)
     queue = get_queue(device, like=(XYZ,))
     n = int(np.prod(XYZ.shape[:-1], dtype=np.int64))
-    lab = engine.xyz_to_lab(queue, engine.to_device(queue, XYZ.reshape(-1)), white, n=n)
+    lab = kernels.launch_XYZ_to_Lab(queue, kernels.to_device(queue, XYZ.reshape(-1)), white, n=n)
     return _result(lab, XYZ.shape, is_device_array(XYZ))
 
 
@@ -101,6 +111,18 @@ def delta_E(Lab_1, Lab_2, method: str = "CIE 2000", *, device=None):
     -------
     ndarray or pyopencl.array.Array, (...,), float32
         Non-negative differences.
+
+    Examples
+    --------
+    A reference colour against an image of two pixels (the first of Sharma, Wu and Dalal's CIEDE2000 pairs):
+
+    >>> import numpy as np
+    >>> from specgpu.engine import delta_E
+    >>> Lab = np.array([[50.0, 0.0, -82.7485], [50.0, 3.0, -79.7751]])
+    >>> delta_E([50.0, 2.6772, -79.7751], Lab).astype(float).round(4).tolist()
+    [2.0425, 0.1783]
+    >>> float(delta_E([50.0, 0.0, 0.0], [50.0, 3.0, 4.0], method="CIE 1976"))
+    5.0
     """
     method = validate_method(method, DELTA_E_METHODS)
     Lab_1 = check_last_axis(Lab_1, "Lab_1")
@@ -112,9 +134,9 @@ def delta_E(Lab_1, Lab_2, method: str = "CIE 2000", *, device=None):
     queue = get_queue(device, like=(Lab_1, Lab_2))
     n = int(np.prod(shape, dtype=np.int64))
     # Two single colours are one pixel: the first read as an image of one, the second broadcast.
-    de = engine.delta_e(queue, engine.to_device(queue, Lab_1.reshape(-1)),
-                        engine.to_device(queue, Lab_2.reshape(-1)), method=method, n=n,
-                        single1=single1 and not single2, single2=single2)
+    de = kernels.launch_delta_E(queue, kernels.to_device(queue, Lab_1.reshape(-1)),
+                                kernels.to_device(queue, Lab_2.reshape(-1)), method=method, n=n,
+                                single1=single1 and not single2, single2=single2)
     return _result(de, shape, is_device_array(Lab_1) or is_device_array(Lab_2))
 
 
@@ -137,6 +159,17 @@ def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, d
     -------
     ndarray or pyopencl.array.Array, (..., 3), float32
         XYZ with Y = 1 for the perfect reflecting diffuser.
+
+    Examples
+    --------
+    The perfect reflecting diffuser and a 50 % grey on a 10 nm grid:
+
+    >>> import numpy as np
+    >>> from specgpu.engine import reflectance_to_XYZ
+    >>> wavelengths = np.arange(400, 701, 10)
+    >>> R = np.stack([np.ones(31), np.full(31, 0.5)])
+    >>> reflectance_to_XYZ(R, wavelengths).astype(float).round(3).tolist()
+    [[0.949, 1.0, 1.087], [0.475, 0.5, 0.544]]
     """
     R = as_float32(R, "R")
     if R.ndim == 0:
@@ -145,8 +178,8 @@ def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, d
     W = check_matrix(XYZ_weights(w, illuminant, cmfs), "XYZ weights")
     queue = get_queue(device, like=(R,))
     n = int(np.prod(R.shape[:-1], dtype=np.int64))
-    frames = engine.to_device(queue, R.reshape(-1))
-    xyz, _ = engine.linear(queue, frames, W, n=n, in_layout=1, out_layout=1)
+    frames = kernels.to_device(queue, R.reshape(-1))
+    xyz, _ = kernels.launch_linear(queue, frames, W, n=n, in_layout=1, out_layout=1)
     return _result(xyz, (*R.shape[:-1], 3), is_device_array(R))
 
 
@@ -196,6 +229,24 @@ def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observe
     -------
     delta_E : ndarray, (H, W), float32
         When no intermediate is asked for; otherwise a :class:`FusedResult` (delta_E, XYZ, Lab, mask).
+
+    Examples
+    --------
+    Thirty-one narrowband frames of a 50 % grey (an ideal decoder: A is the identity, C the XYZ weights)
+    against the CIELAB colour of a 40 % grey:
+
+    >>> import numpy as np
+    >>> from specgpu.core import XYZ_weights
+    >>> from specgpu.engine import XYZ_to_Lab, frames_to_delta_E, reflectance_to_XYZ
+    >>> wavelengths = np.arange(400, 701, 10)
+    >>> frames = np.full((31, 2, 2), 0.5, np.float32)
+    >>> reference = XYZ_to_Lab(reflectance_to_XYZ(np.full(31, 0.4), wavelengths))
+    >>> dE = frames_to_delta_E(frames, np.eye(31), reference, C=XYZ_weights(wavelengths))
+    >>> dE.shape, dE.dtype, bool(np.allclose(dE, dE[0, 0]))
+    ((2, 2), dtype('float32'), True)
+    >>> result = frames_to_delta_E(frames, np.eye(31), reference, C=XYZ_weights(wavelengths), return_Lab=True)
+    >>> result.Lab.shape, result.XYZ is None
+    ((2, 2, 3), True)
     """
     method = validate_method(method, DELTA_E_METHODS)
     frames, K = check_frames(frames)
@@ -214,16 +265,16 @@ def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observe
     white = white_point_XYZ(illuminant, observer)
     on_device = is_device_array(frames)
     queue = get_queue(device, like=(frames, reference, dark, gain))
-    dark_dev, dark_per_frame = engine.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = engine.pixel_map(queue, gain, "gain", spatial, None)
+    dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", spatial, K)
+    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None)
     if saturation is None and frames.dtype.kind == "u":
         saturation = float(np.iinfo(frames.dtype).max)
     n = int(np.prod(spatial, dtype=np.int64))
-    out = engine.frames_to_delta_e(
-        queue, engine.to_device(queue, frames.reshape(-1)), M, white,
-        engine.to_device(queue, reference.reshape(-1)), n=n, method=method,
+    out = kernels.launch_frames_to_delta_E(
+        queue, kernels.to_device(queue, frames.reshape(-1)), M, white,
+        kernels.to_device(queue, reference.reshape(-1)), n=n, method=method,
         reference_single=reference.ndim == 1, dark=dark_dev, dark_per_frame=dark_per_frame, gain=gain_dev,
-        write_xyz=return_XYZ, write_lab=return_Lab, want_mask=return_mask, saturation=saturation,
+        write_XYZ=return_XYZ, write_Lab=return_Lab, want_mask=return_mask, saturation=saturation,
     )
     de = _result(out.delta_E, spatial, on_device)
     if not (return_XYZ or return_Lab or return_mask):

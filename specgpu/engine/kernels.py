@@ -1,7 +1,10 @@
 """Launchers of the two kernel families on device arrays (no validation here: the public API validates).
 
-Each launcher takes a queue and :class:`pyopencl.array.Array` inputs already of the right dtype and
-layout, specialises the kernel by -D macros (cached by :mod:`specgpu.engine.runtime`) and returns device arrays.
+Each ``launch_*`` function takes a queue and :class:`pyopencl.array.Array` inputs already of the right dtype and
+layout, specialises the kernel by -D macros (cached by :mod:`specgpu.engine.runtime`) and returns device arrays;
+each ``prepare_*`` function sets such a launch up once for repeated calls (:class:`Prepared`). The NumPy-facing
+functions of the same quantities (``apply_linear``, ``XYZ_to_Lab``, ``delta_E``, ``frames_to_delta_E``) are in
+:mod:`specgpu.engine.linear_map` and :mod:`specgpu.engine.colorimetry`.
 """
 
 from __future__ import annotations
@@ -122,9 +125,10 @@ def _data(a):
     return None if a is None else a.data
 
 
-def linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 0, dark: cla.Array | None = None,
-           dark_per_frame: bool = False, gain: cla.Array | None = None, out_dtype=np.float32,
-           out_layout: int = 0, want_mask: bool = False, saturation: float | None = None):
+def launch_linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 0,
+                  dark: cla.Array | None = None, dark_per_frame: bool = False, gain: cla.Array | None = None,
+                  out_dtype=np.float32, out_layout: int = 0, want_mask: bool = False,
+                  saturation: float | None = None):
     """y = A (o - dark) * gain over ``n`` pixels; returns (out (B*n,), mask (n,) or None) as flat device arrays."""
     B = A.shape[0]
     out_dtype = np.dtype(out_dtype)
@@ -205,7 +209,7 @@ class Prepared:
 def prepare_linear(queue, frames_dtype, A: np.ndarray, *, n: int, dark=None, dark_per_frame=False, gain=None,
                    out_dtype=np.float32, out_layout: int = 0, want_mask: bool = False, saturation=None,
                    sqrt_offsets=None, square=None) -> Prepared:
-    """:func:`linear` as a :class:`Prepared` launch; outputs ``out`` (B*n) and ``mask`` (n) when asked.
+    """:func:`launch_linear` as a :class:`Prepared` launch; outputs ``out`` (B*n) and ``mask`` (n) when asked.
 
     ``sqrt_offsets`` (B,): write ``sqrt(max(y_b + offset_b, 0))`` (a standard deviation from a variance linear in
     the frames plus a constant); the device matrix is then A's B x K values followed by the B offsets
@@ -246,25 +250,25 @@ def linear_matrix(A, sqrt_offsets=None) -> np.ndarray:
     return np.concatenate([A.reshape(-1), off])
 
 
-def prepare_frames_to_delta_e(queue, frames_dtype, M: np.ndarray, white, reference, *, n: int,
+def prepare_frames_to_delta_E(queue, frames_dtype, M: np.ndarray, white, reference, *, n: int,
                               method: str = "CIE 2000", reference_single: bool = True, dark=None,
-                              dark_per_frame: bool = False, gain=None, write_xyz: bool = False,
-                              write_lab: bool = False, want_mask: bool = False, saturation=None) -> Prepared:
-    """:func:`frames_to_delta_e` as a :class:`Prepared` launch; outputs among XYZ, Lab, delta_E, mask."""
+                              dark_per_frame: bool = False, gain=None, write_XYZ: bool = False,
+                              write_Lab: bool = False, want_mask: bool = False, saturation=None) -> Prepared:
+    """:func:`launch_frames_to_delta_E` as a :class:`Prepared` launch; outputs among XYZ, Lab, delta_E, mask."""
     K = M.shape[1]
     vw = _vw(queue)
     kernel = new_kernel(
         queue, "colorimetry.cl", "frames_to_delta_e",
-        DE_METHOD=DE_CODES[method], REF_SINGLE=reference_single, WRITE_XYZ=write_xyz, WRITE_LAB=write_lab,
+        DE_METHOD=DE_CODES[method], REF_SINGLE=reference_single, WRITE_XYZ=write_XYZ, WRITE_LAB=write_Lab,
         WRITE_DE=reference is not None, WRITE_MASK=want_mask, VW=_vw_macro(vw),
         **_input_macros(np.dtype(frames_dtype), K, 0, 0 if dark is None else (2 if dark_per_frame else 1),
                         gain is not None, saturation if want_mask else None),
     )
     M_dev = matrix_on_device(queue, M)
     outputs = {}
-    if write_xyz:
+    if write_XYZ:
         outputs["XYZ"] = (8, 12 * n)
-    if write_lab:
+    if write_Lab:
         outputs["Lab"] = (9, 12 * n)
     if reference is not None:
         outputs["delta_E"] = (10, 4 * n)
@@ -275,7 +279,7 @@ def prepare_frames_to_delta_e(queue, frames_dtype, M: np.ndarray, white, referen
                                            _data(reference), None, None, None, None, np.uint64(n)], 0, outputs)
 
 
-def prepare_delta_e_sigma(queue, white, constant_cov, *, n: int) -> Prepared:
+def prepare_delta_E_sigma(queue, white, constant_cov, *, n: int) -> Prepared:
     """The first-order dE2000 standard deviation of XYZ (3n, the launch's "frames") given the noise part of its
     covariance (6n: XX XY XZ YY YZ ZZ per pixel, input argument 1) and a constant (3, 3) covariance, as a
     :class:`Prepared` launch; output ``dE_sigma`` (n)."""
@@ -288,24 +292,29 @@ def prepare_delta_e_sigma(queue, white, constant_cov, *, n: int) -> Prepared:
                     {"dE_sigma": (6, 4 * n)})
 
 
-def xyz_to_lab(queue, xyz: cla.Array, white, *, n: int) -> cla.Array:
+def launch_XYZ_to_Lab(queue, XYZ: cla.Array, white, *, n: int) -> cla.Array:
+    """CIELAB (3n, flat) of ``n`` XYZ pixels (3n, flat) for the ``white`` XYZ, on the device (the launcher of
+    :func:`specgpu.engine.colorimetry.XYZ_to_Lab`)."""
     vw = _vw(queue)
     kernel = get_kernel(queue, "colorimetry.cl", "xyz_to_lab", VW=_vw_macro(vw))
     lab = _empty(queue, 3 * n, np.float32)
     if n:
         Xn, Yn, Zn = (np.float32(v) for v in white)
-        _launch(queue, kernel, n, xyz.data, lab.data, Xn, Yn, Zn, np.uint64(n), pixels_per_item=vw)
+        _launch(queue, kernel, n, XYZ.data, lab.data, Xn, Yn, Zn, np.uint64(n), pixels_per_item=vw)
     return lab
 
 
-def delta_e(queue, lab1: cla.Array, lab2: cla.Array, *, method: str, n: int, single1: bool = False,
-            single2: bool = False) -> cla.Array:
+def launch_delta_E(queue, Lab_1: cla.Array, Lab_2: cla.Array, *, method: str, n: int, single1: bool = False,
+                   single2: bool = False) -> cla.Array:
+    """Colour differences (n) of two flat CIELAB device arrays by ``method`` (a key of :data:`DE_CODES`); a
+    ``single`` flag reads that argument as one colour for every pixel (the launcher of
+    :func:`specgpu.engine.colorimetry.delta_E`)."""
     vw = _vw(queue)
     kernel = get_kernel(queue, "colorimetry.cl", "delta_e", DE_METHOD=DE_CODES[method],
                         LAB1_SINGLE=single1, LAB2_SINGLE=single2, VW=_vw_macro(vw))
     de = _empty(queue, n, np.float32)
     if n:
-        _launch(queue, kernel, n, lab1.data, lab2.data, de.data, np.uint64(n), pixels_per_item=vw)
+        _launch(queue, kernel, n, Lab_1.data, Lab_2.data, de.data, np.uint64(n), pixels_per_item=vw)
     return de
 
 
@@ -319,26 +328,26 @@ class FusedOutputs:
     mask: cla.Array | None
 
 
-def frames_to_delta_e(queue, frames: cla.Array, M: np.ndarray, white, reference: cla.Array | None, *, n: int,
-                      method: str = "CIE 2000", reference_single: bool = True, dark: cla.Array | None = None,
-                      dark_per_frame: bool = False, gain: cla.Array | None = None, write_xyz: bool = False,
-                      write_lab: bool = False, want_mask: bool = False, saturation: float | None = None
-                      ) -> FusedOutputs:
+def launch_frames_to_delta_E(queue, frames: cla.Array, M: np.ndarray, white, reference: cla.Array | None, *,
+                             n: int, method: str = "CIE 2000", reference_single: bool = True,
+                             dark: cla.Array | None = None, dark_per_frame: bool = False,
+                             gain: cla.Array | None = None, write_XYZ: bool = False, write_Lab: bool = False,
+                             want_mask: bool = False, saturation: float | None = None) -> FusedOutputs:
     """frames -> XYZ = M (o - dark) * gain -> Lab -> dE(reference, pixel) in one pass (M is 3 x K)."""
     K = M.shape[1]
     write_de = reference is not None
     vw = _vw(queue)
     kernel = get_kernel(
         queue, "colorimetry.cl", "frames_to_delta_e",
-        DE_METHOD=DE_CODES[method], REF_SINGLE=reference_single, WRITE_XYZ=write_xyz, WRITE_LAB=write_lab,
+        DE_METHOD=DE_CODES[method], REF_SINGLE=reference_single, WRITE_XYZ=write_XYZ, WRITE_LAB=write_Lab,
         WRITE_DE=write_de, WRITE_MASK=want_mask, VW=_vw_macro(vw),
         **_input_macros(frames.dtype, K, 0, 0 if dark is None else (2 if dark_per_frame else 1),
                         gain is not None, saturation if want_mask else None),
     )
     out = FusedOutputs(
         delta_E=_empty(queue, n, np.float32) if write_de else None,
-        XYZ=_empty(queue, 3 * n, np.float32) if write_xyz else None,
-        Lab=_empty(queue, 3 * n, np.float32) if write_lab else None,
+        XYZ=_empty(queue, 3 * n, np.float32) if write_XYZ else None,
+        Lab=_empty(queue, 3 * n, np.float32) if write_Lab else None,
         mask=_empty(queue, n, np.uint8) if want_mask else None,
     )
     M_dev = matrix_on_device(queue, M)

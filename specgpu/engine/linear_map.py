@@ -11,12 +11,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from specgpu.engine import kernels as engine
-
-from specgpu.engine import transfer
+from specgpu.core.validate import (check_frames, check_level, check_matrix, check_out_dtype, check_pixel_map,
+                                   check_result_size, is_device_array, validate_method)
+from specgpu.engine import kernels, transfer
 from specgpu.engine.runtime import get_queue
-from specgpu.core.validate import (check_frames, check_level, check_matrix, check_out_dtype, check_pixel_map, check_result_size,
-                       is_device_array, validate_method)
 
 __all__ = ["LAYOUTS", "apply_linear", "LinearResult"]
 
@@ -62,6 +60,23 @@ def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layou
     y : ndarray or pyopencl.array.Array
         (H, W, B) or (B, H, W) of ``out_dtype``; a :class:`LinearResult` (y, mask) when ``return_mask``.
         NaN samples in float frames propagate to the outputs of that pixel only.
+
+    Examples
+    --------
+    Two frames of 4 x 5 pixels, a dark level of 20 and two outputs (the mean and the difference):
+
+    >>> import numpy as np
+    >>> from specgpu.engine import apply_linear
+    >>> frames = np.full((2, 4, 5), 100, np.uint16)
+    >>> A = np.array([[0.5, 0.5], [1.0, -1.0]])
+    >>> y = apply_linear(frames, A, dark=np.full((4, 5), 20.0))
+    >>> y.shape, y.dtype
+    ((4, 5, 2), dtype('float32'))
+    >>> y[0, 0].tolist()
+    [80.0, 0.0]
+    >>> result = apply_linear(frames, A, layout="planar", return_mask=True)
+    >>> result.y.shape, int(result.mask.max())
+    ((2, 4, 5), 0)
     """
     frames, K = check_frames(frames)
     A = check_matrix(A, "A", columns=K)
@@ -86,10 +101,10 @@ def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layou
             queue, np.ascontiguousarray(frames), A, dark=dark_h, dark_per_frame=dark_per_frame, gain=gain_h,
             out_dtype=out_dtype, out_layout=out_layout, want_mask=return_mask, saturation=saturation)
         return LinearResult(y, mask) if return_mask else y
-    dark_dev, dark_per_frame = engine.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = engine.pixel_map(queue, gain, "gain", spatial, None)
-    y, mask = engine.linear(
-        queue, engine.to_device(queue, frames.reshape(-1)), A, n=n, dark=dark_dev, dark_per_frame=dark_per_frame,
+    dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", spatial, K)
+    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None)
+    y, mask = kernels.launch_linear(
+        queue, kernels.to_device(queue, frames.reshape(-1)), A, n=n, dark=dark_dev, dark_per_frame=dark_per_frame,
         gain=gain_dev, out_dtype=out_dtype, out_layout=out_layout, want_mask=return_mask, saturation=saturation,
     )
     on_device = is_device_array(frames)

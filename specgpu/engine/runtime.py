@@ -221,6 +221,32 @@ def get_queue(device=None, like=None) -> cl.CommandQueue:
     """The command queue for the resolved device: the caller's own queue when one is given or implied.
 
     One context and one in-order queue are kept per device, so programs built for it are reused.
+
+    Parameters
+    ----------
+    device : pyopencl.Device, CommandQueue, Context, str or None
+        Explicit choice (a queue is returned as it is); a string is a selector, ``"P:D"`` or a case-insensitive
+        substring of the platform or device name. None resolves in the fixed order of :func:`select_device`.
+    like : sequence of objects or None
+        Inputs of the call; the queue of the first :class:`pyopencl.array.Array` among them is returned.
+
+    Returns
+    -------
+    pyopencl.CommandQueue
+        An in-order queue with profiling enabled; the same object for every call that resolves to the device.
+
+    Raises
+    ------
+    SpecgpuDeviceError
+        No OpenCL platform, or a selector that matches no device.
+
+    Examples
+    --------
+    >>> import pyopencl as cl
+    >>> from specgpu.engine import get_queue
+    >>> queue = get_queue()
+    >>> isinstance(queue, cl.CommandQueue), get_queue() is queue, get_queue(queue) is queue
+    (True, True, True)
     """
     if isinstance(device, cl.CommandQueue):
         return device

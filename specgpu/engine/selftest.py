@@ -7,20 +7,24 @@ pairs. :func:`run_selftest` runs every case through the public API on the chosen
 
 Each output of a case has its own tolerance, either absolute ("abs": Lab 1e-4 and CIEDE2000 1e-3, the documented
 float32 bounds) or relative to the output's range ("range": max|error| / max(1, max|expected|); 1e-5 for float32
-matrix products, 1e-3 for float16 outputs, whose rounding is 2^-11 relative). Non-finite values must come out exactly where
-the reference has them, and masks must match exactly.
+matrix products, 1e-3 for float16 outputs, whose rounding is 2^-11 relative). Non-finite values must come out
+exactly where the reference has them, and masks must match exactly.
 """
 
 from __future__ import annotations
 
 import json
-import zipfile
 import time
+import zipfile
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
+
+from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
+from specgpu.engine.linear_map import apply_linear
+from specgpu.engine.runtime import get_queue
 
 __all__ = ["golden_path", "load_golden", "run_selftest", "SelftestReport", "CaseResult", "CASES"]
 
@@ -60,8 +64,6 @@ def load_golden(path: Path | None = None) -> tuple[dict, dict[str, dict[str, np.
 
 
 def _linear(d, device, **kw):
-    from specgpu.engine.linear_map import apply_linear
-
     dark = d.get("dark")
     gain = d.get("gain")
     sat = float(d["saturation"]) if "saturation" in d else None
@@ -73,27 +75,19 @@ def _linear(d, device, **kw):
 
 
 def _xyz_to_lab(d, device, **kw):
-    from specgpu.engine.colorimetry import XYZ_to_Lab
-
     return {"Lab": XYZ_to_Lab(d["XYZ"], illuminant=kw["illuminant"], device=device)}
 
 
 def _delta_e(d, device, **kw):
-    from specgpu.engine.colorimetry import delta_E
-
     return {"dE": delta_E(d["Lab_1"], d["Lab_2"], method=kw["method"], device=device)}
 
 
 def _reflectance_to_xyz(d, device, **kw):
-    from specgpu.engine.colorimetry import reflectance_to_XYZ
-
     return {"XYZ": reflectance_to_XYZ(d["R"], d["wavelengths"], illuminant=kw["illuminant"], cmfs=kw["cmfs"],
                                       device=device)}
 
 
 def _fused(d, device, **kw):
-    from specgpu.engine.colorimetry import frames_to_delta_E
-
     res = frames_to_delta_E(d["frames"], d["A"], d["reference"], C=d["C"], illuminant=kw["illuminant"],
                             method=kw["method"], dark=d.get("dark"), gain=d.get("gain"),
                             saturation=float(d["saturation"]), return_XYZ=True, return_Lab=True,
@@ -201,9 +195,36 @@ def compare(name: str, got: np.ndarray, expected: np.ndarray, kind: str) -> tupl
 
 
 def run_selftest(device=None, path: Path | None = None) -> SelftestReport:
-    """Run every golden case on ``device`` (default: the resolved device) and compare with the references."""
-    from specgpu.engine.runtime import get_queue
+    """Run every golden case on ``device`` and compare each output with its reference within its tolerance.
 
+    Parameters
+    ----------
+    device : optional
+        Explicit device, queue or selector (see :func:`specgpu.engine.runtime.get_queue`); default: the
+        resolved device.
+    path : path-like, optional
+        Golden file (default: :func:`golden_path`, the copy shipped with the package).
+
+    Returns
+    -------
+    SelftestReport
+        One :class:`CaseResult` per case; ``passed`` is True when every case passes, ``format()`` gives the
+        report ``specgpu selftest`` prints. A failing kernel is a failed case, not an exception.
+
+    Raises
+    ------
+    ValueError
+        The golden file is unreadable or not a specgpu golden file.
+
+    Examples
+    --------
+    >>> from specgpu.engine import run_selftest
+    >>> report = run_selftest()
+    >>> report.passed, report.failed_kernels()
+    (True, [])
+    >>> sorted(report.kernels())
+    ['delta_e', 'fused', 'linear', 'xyz_to_lab']
+    """
     queue = get_queue(device)
     manifest, arrays = load_golden(path)
     results = []

@@ -23,7 +23,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from specgpu.engine import kernels as engine
+from specgpu.engine import kernels
 from specgpu.engine.runtime import get_allocator, is_discrete, override
 
 __all__ = ["MODES", "transfer_mode", "pinned_empty", "linear_pipelined"]
@@ -141,7 +141,8 @@ def _rows_per_chunk(rows: int, row_out_bytes: int, chunk_bytes: int) -> int:
 def linear_pipelined(queue, frames: np.ndarray, A: np.ndarray, *, dark=None, dark_per_frame=False, gain=None,
                      out_dtype=np.float32, out_layout: int = 0, want_mask: bool = False, saturation=None,
                      chunk_bytes: int | None = None):
-    """:func:`engine.linear` for host frames (K, R, ...) with host results, through pinned staging and row chunks.
+    """:func:`specgpu.engine.kernels.launch_linear` for host frames (K, R, ...) with host results, through pinned
+    staging and row chunks.
 
     ``dark`` ((R, ...) or (K, R, ...)) and ``gain`` ((R, ...)) are host arrays already validated. Returns
     (y, mask): y (B, R, ...) planar or (R, ..., B) interleaved, mask (R, ...) or None, both NumPy arrays in pinned
@@ -185,14 +186,15 @@ def linear_pipelined(queue, frames: np.ndarray, A: np.ndarray, *, dark=None, dar
             dark_dev = gain_dev = None
             if dark is not None:
                 d = dark.reshape(K if dark_per_frame else 1, rows, row_px)[:, r0:r1]
-                dark_dev = engine.to_device(queue, np.ascontiguousarray(d, np.float32).reshape(-1))
+                dark_dev = kernels.to_device(queue, np.ascontiguousarray(d, np.float32).reshape(-1))
             if gain is not None:
-                gain_dev = engine.to_device(queue, np.ascontiguousarray(
+                gain_dev = kernels.to_device(queue, np.ascontiguousarray(
                     gain.reshape(rows, row_px)[r0:r1], np.float32).reshape(-1))
             cl.enqueue_barrier(queue, wait_for=[up])  # the compute queue waits for this chunk's upload only
-            out_dev, mask_dev = engine.linear(queue, frames_dev, A, n=m, dark=dark_dev, dark_per_frame=dark_per_frame,
-                                              gain=gain_dev, out_dtype=out_dtype, out_layout=out_layout,
-                                              want_mask=want_mask, saturation=saturation)
+            out_dev, mask_dev = kernels.launch_linear(queue, frames_dev, A, n=m, dark=dark_dev,
+                                                      dark_per_frame=dark_per_frame, gain=gain_dev,
+                                                      out_dtype=out_dtype, out_layout=out_layout,
+                                                      want_mask=want_mask, saturation=saturation)
             done = cl.enqueue_marker(queue)
             keep.append((frames_dev, dark_dev, gain_dev, out_dev, mask_dev))
             if out_layout:

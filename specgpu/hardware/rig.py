@@ -19,9 +19,9 @@ a rig TOML's ``[hardware]`` table would hold::
     spectrometer = "ocean"            # for calibration loop (b); "" for none
     spectrometer_calibration = "irradiance_cal.csv"
 
-:class:`HardwareRig` gives calibration loop (b) (:func:`specgpu.calibration.bundle.spectral_loop`) what it reads from a
+:class:`HardwareRig` gives calibration loop (b) (:func:`specgpu.calibration.spectral_loop`) what it reads from a
 twin rig: ``light``, ``spectroradiometer`` and ``measure_spectrum``; :class:`HardwareCalibrationRig`
-(:func:`open_calibration_rig`) adds the camera, so :func:`specgpu.calibration.bundle.calibrate` runs its whole procedure
+(:func:`open_calibration_rig`) adds the camera, so :func:`specgpu.calibration.calibrate` runs its whole procedure
 on real devices.
 """
 
@@ -265,7 +265,7 @@ _MAX_CODES = {"Mono8": 255, "Mono10": 1023, "Mono12": 4095, "Mono14": 16383, "Mo
 
 
 class HardwareCalibrationRig(HardwareRig):
-    """A real rig as a :class:`specgpu.calibration.bundle.CalibrationRig`: frames from the GenICam camera lit by the
+    """A real rig as a :class:`specgpu.calibration.CalibrationRig`: frames from the GenICam camera lit by the
     DLPC900 (:func:`open_hardware`, through :func:`~specgpu.capture.session.capture_sequences`: ring buffer and
     assembler), spectra from the Ocean spectrometer; the camera looks at the reference white.
 
@@ -371,7 +371,7 @@ class HardwareCalibrationRig(HardwareRig):
 
 def open_calibration_rig(rig=None, *, hardware=None, acquirer=None, transport=None,
                          spectrometer=None) -> HardwareCalibrationRig:
-    """The real rig a ``[hardware]`` table names, opened for :func:`specgpu.calibration.bundle.calibrate` (``rig=``).
+    """The real rig a ``[hardware]`` table names, opened for :func:`specgpu.calibration.calibrate` (``rig=``).
 
     Calibration needs the spectrometer (column-wavelength map, lamp power, loop (b)) with its irradiance
     calibration; a table without them is refused before any device is opened. ``acquirer``, ``transport`` and

@@ -306,14 +306,14 @@ class StreamDecoder:
                                                        **sat),
                                  {"out": kind, "mask": "mask"}))
             else:
-                launches.append((engine.prepare_frames_to_delta_e(
+                launches.append((engine.prepare_frames_to_delta_E(
                     q, dtype, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
                     else "CIE 2000", reference_single=self.reference_single, dark=self.dark, gain=self.gain,
-                    write_xyz="XYZ" in self.outputs or "dE_sigma" in self.outputs, write_lab="Lab" in self.outputs,
+                    write_XYZ="XYZ" in self.outputs or "dE_sigma" in self.outputs, write_Lab="Lab" in self.outputs,
                     **sat), {"XYZ": "XYZ", "Lab": "Lab", "delta_E": "dE", "mask": "mask"}))
             sat = {}
         if "dE_sigma" in self.outputs:  # on the XYZ and XYZ_cov buffers of the launches above
-            launches.append((engine.prepare_delta_e_sigma(q, self.white, self.cov_constant, n=n),
+            launches.append((engine.prepare_delta_E_sigma(q, self.white, self.cov_constant, n=n),
                              {"dE_sigma": "dE_sigma"}))
         self._prepared[dtype] = launches
         return launches

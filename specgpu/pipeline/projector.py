@@ -2,7 +2,7 @@
 
 The programmable light reproduces a target spectrum: CIE illuminants A and D65, a phosphor white LED and an
 RGB-mixing LED near 6500 K, or any SPD. :func:`project` runs the spectroradiometer feedback loop
-(:func:`specgpu.calibration.bundle.spectral_loop`, the paper's Fig. 8b) on the rig and reports the produced-vs-target
+(:func:`specgpu.calibration.spectral_loop`, the paper's Fig. 8b) on the rig and reports the produced-vs-target
 spectral RMSE, chromaticity, CCT and colour rendering index (colour-science). :func:`render_scene` renders a
 spectral scene's appearance under an illuminant as a display image, and :func:`metamer_map` gives per pixel the
 CIEDE2000 difference between a scene seen under two illuminants of the same white point: the white looks the
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import colour
 import numpy as np
 
-from specgpu.calibration.bundle import spectral_loop
+from specgpu.calibration import spectral_loop
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.core.validate import validate_method
 from specgpu.rig.twin import TwinRig

@@ -5,7 +5,7 @@ and every parameter can be overridden from a rig TOML (:func:`load_rig`).
 """
 
 from specgpu.rig.camera import Camera, CameraParameters, sensitivity_curve
-from specgpu.rig.config import FaultRates, RigDescription, load_rig, rig_from_dict
+from specgpu.rig.config import FaultRates, RigDescription, dump_rig, load_rig, rig_from_dict
 from specgpu.rig.light import LightParameters, PatternFit, ProgrammableLight, lamp_spd
 from specgpu.rig.scene import (BUILTIN_SCENES, SpectralScene, colorchecker_scene, load_scene, natural_scene,
                                read_scene, white_plate_scene, write_scene)
@@ -14,7 +14,7 @@ from specgpu.rig.twin import FaultSchedule, SNRReport, TwinRig, band_patterns, m
 
 __all__ = [
     "Camera", "CameraParameters", "sensitivity_curve",
-    "FaultRates", "RigDescription", "load_rig", "rig_from_dict",
+    "FaultRates", "RigDescription", "dump_rig", "load_rig", "rig_from_dict",
     "LightParameters", "PatternFit", "ProgrammableLight", "lamp_spd",
     "BUILTIN_SCENES", "SpectralScene", "colorchecker_scene", "load_scene", "natural_scene", "read_scene",
     "white_plate_scene", "write_scene",

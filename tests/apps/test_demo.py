@@ -61,7 +61,7 @@ def test_estimator_rows_measured_on_the_chart_against_numpy():
     captured with the corrections, and px_rms against the NumPy RMS of the recovery's error over the patches."""
     import numpy as np
 
-    from specgpu.calibration.bundle import calibrate
+    from specgpu.calibration import calibrate
     from specgpu.apps.demo import ESTIMATOR_ROWS
     from specgpu.planning.estimators import default_prior, study_plans
     from specgpu.pipeline.evaluate import truth_cube

@@ -1,4 +1,4 @@
-/* Reduced kernels of two Oclgrind 21.10 defects that specgpu's kernels met (tests/test_oclgrind.py runs them).
+/* Reduced kernels of two Oclgrind 21.10 defects that specgpu's kernels met (tests/engine/test_oclgrind.py runs them).
  *
  * vector_bool: the mask flags of kernels/common.h (load_sample) in their smallest form. OpenCL C defines a vector
  * c ? b : a as select(a, b, c), which takes b's lane where the most significant bit of c's lane is set, so

@@ -1,4 +1,4 @@
-"""linear.cl through recovery.apply_linear against the float64 NumPy reference, on every device."""
+"""linear.cl through apply_linear against the float64 NumPy reference, on every device."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from reference import linear_ref, mask_ref
-from specgpu.engine import runtime
+from specgpu.engine import kernels, runtime, transfer
 from specgpu.engine.linear_map import apply_linear
 
 EPS32 = np.finfo(np.float32).eps
@@ -285,8 +285,6 @@ def test_gpu_channels_last_without_tile_per_output_element(queue, monkeypatch, K
     """The "gpu" variant writes channels last through a local-memory tile where it fits and with a work-item per
     output element where it does not: the second path, forced, against the reference (dark, gain, mask), and
     equal to the tiled one."""
-    from specgpu.engine import kernels as engine
-
     monkeypatch.setenv("SPECGPU_VARIANT", "gpu")
     rng = np.random.default_rng(K * 1000 + B)
     npix = 67  # a group of 64 and a partial one
@@ -297,7 +295,8 @@ def test_gpu_channels_last_without_tile_per_output_element(queue, monkeypatch, K
     A = rng.normal(0, 1e-3, (B, K))
     kwargs = dict(out_dtype=out_dtype, layout="interleaved", saturation=1023, return_mask=True, device=queue)
     tiled = apply_linear(frames, A, dark, gain, **kwargs)
-    monkeypatch.setattr(engine, "_TILE_LOCAL_MAX", 0)
+    monkeypatch.setattr(kernels, "_TILE_LOCAL_MAX", 0)
+    assert not kernels._tile_fits(queue, B)  # the patch reaches the launcher: the per-element path runs
     res = apply_linear(frames, A, dark, gain, **kwargs)
     assert res.y.shape == (npix, B) and res.y.dtype == np.dtype(out_dtype)
     assert_close(res.y, linear_ref(frames, A, dark, gain),
@@ -314,8 +313,6 @@ def test_pinned_row_chunked_transfers_equal_the_direct_path(queue, monkeypatch, 
     """The discrete-device path (pinned staging, row chunks on upload / compute / read-back queues), forced on
     any device: the same results and mask as the direct path, for chunks of one row, of an uneven number of rows
     and of the whole image, with per-frame dark, gain and saturation."""
-    from specgpu.engine import transfer
-
     rng = np.random.default_rng(chunk_rows)
     K, B, shape = 5, 7, (11, 13)
     frames = rng.integers(0, 1000, (K, *shape), dtype=np.uint16)
@@ -345,8 +342,6 @@ def test_pinned_row_chunked_transfers_equal_the_direct_path(queue, monkeypatch, 
 
 
 def test_transfer_mode_by_device_and_override(queue, monkeypatch):
-    from specgpu.engine import transfer
-
     monkeypatch.delenv("SPECGPU_TRANSFER", raising=False)
     assert transfer.transfer_mode(queue.device) == ("pinned" if runtime.is_discrete(queue.device) else "direct")
     monkeypatch.setenv("SPECGPU_TRANSFER", "bogus")
@@ -356,32 +351,30 @@ def test_transfer_mode_by_device_and_override(queue, monkeypatch):
 
 
 @pytest.mark.parametrize("out_layout, out_dtype", [(0, np.float32), (1, np.float32), (0, np.float16), (1, np.float16)])
-def test_prepared_launches_equal_the_engine_calls(queue, out_layout, out_dtype):
+def test_prepared_launches_equal_the_direct_launches(queue, out_layout, out_dtype):
     """The stream's prepared launches (a kernel object of its own, fixed arguments set once) give what the
-    engine's calls give, launch after launch with new frames, in the variant of the test (tests/conftest.py)."""
-    from specgpu.engine import kernels as engine
-
+    direct launches give, launch after launch with new frames, in the variant of the test (tests/conftest.py)."""
     rng = np.random.default_rng(out_layout * 2 + (out_dtype == np.float16))
     K, B, n = 9, 7, 1001
     A = rng.normal(0, 1e-3, (B, K))
-    dark = engine.to_device(queue, rng.uniform(0, 5, n).astype(np.float32))
-    gain = engine.to_device(queue, rng.uniform(0.9, 1.1, n).astype(np.float32))
+    dark = kernels.to_device(queue, rng.uniform(0, 5, n).astype(np.float32))
+    gain = kernels.to_device(queue, rng.uniform(0.9, 1.1, n).astype(np.float32))
     M = rng.uniform(0, 1e-3, (3, K))
     white = (0.95047, 1.0, 1.08883)
-    reference = engine.to_device(queue, rng.uniform(-20, 60, 3 * n).astype(np.float32))
-    lin = engine.prepare_linear(queue, np.uint16, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
-                                out_layout=out_layout, want_mask=True, saturation=1023.0)
-    fused = engine.prepare_frames_to_delta_e(queue, np.uint16, M, white, reference, n=n, reference_single=False,
-                                             dark=dark, gain=gain, write_xyz=True, write_lab=True)
+    reference = kernels.to_device(queue, rng.uniform(-20, 60, 3 * n).astype(np.float32))
+    lin = kernels.prepare_linear(queue, np.uint16, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
+                                 out_layout=out_layout, want_mask=True, saturation=1023.0)
+    fused = kernels.prepare_frames_to_delta_E(queue, np.uint16, M, white, reference, n=n, reference_single=False,
+                                              dark=dark, gain=gain, write_XYZ=True, write_Lab=True)
     for seed in range(3):
         frames_host = np.random.default_rng(seed).integers(0, 1024, K * n).astype(np.uint16)
-        frames = engine.to_device(queue, frames_host)
+        frames = kernels.to_device(queue, frames_host)
         got = lin.enqueue(frames.data)
         got_f = fused.enqueue(frames.data)
-        want, want_mask = engine.linear(queue, frames, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
-                                        out_layout=out_layout, want_mask=True, saturation=1023.0)
-        want_f = engine.frames_to_delta_e(queue, frames, M, white, reference, n=n, reference_single=False,
-                                          dark=dark, gain=gain, write_xyz=True, write_lab=True)
+        want, want_mask = kernels.launch_linear(queue, frames, A, n=n, dark=dark, gain=gain, out_dtype=out_dtype,
+                                                out_layout=out_layout, want_mask=True, saturation=1023.0)
+        want_f = kernels.launch_frames_to_delta_E(queue, frames, M, white, reference, n=n, reference_single=False,
+                                                  dark=dark, gain=gain, write_XYZ=True, write_Lab=True)
         y = np.empty(B * n, out_dtype)
         m = np.empty(n, np.uint8)
         cl.enqueue_copy(queue, y, got["out"])

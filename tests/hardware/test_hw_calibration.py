@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from hw_fakes import Buffer, NodeMap, TimeoutException
-from specgpu.calibration.bundle import CalibrationRig, _rig, calibrate, oracle_calibration
+from specgpu.calibration import CalibrationRig, calibrate, oracle_calibration
+from specgpu.calibration.rigs import twin_at_exposure
 from specgpu.hardware.dlpc900 import DMDLayout, SimulatedDLPC900
 from specgpu.hardware.errors import BackendMissing
 from specgpu.hardware.rig import open_calibration_rig, open_hardware
@@ -56,7 +57,7 @@ class TwinCamera:
         assert (nm.TriggerMode.value, nm.LineSource.value) == ("Off", "ExposureActive")  # strobe-master wiring
         t = float(nm.ExposureTime.value) * 1e-6
         if t not in self._twins:
-            self._twins[t] = _rig(self.description, self.scene, t)
+            self._twins[t] = twin_at_exposure(self.description, self.scene, t)
         self.twin = self._twins[t]
         lut = [self.layout.mask_to_pattern(self.sim.entry_mask(j)) for j in range(self.sim.lut_entries)]
         assert all(self.sim.lut[j]["exposure_us"] == round(t * 1e6) for j in range(len(lut)))  # light follows
@@ -234,7 +235,7 @@ def test_missing_spectrometer_backend_is_one_clear_error(tmp_path):
 
 
 def test_twin_and_hardware_rigs_share_one_interface():
-    from specgpu.calibration.bundle import TwinCalibrationRig
+    from specgpu.calibration import TwinCalibrationRig
 
     assert isinstance(TwinCalibrationRig(DESC), CalibrationRig)  # the hardware rig's check is above
 

@@ -200,7 +200,7 @@ def test_ocean_spectrometer_counts_to_irradiance():
 def test_spectral_loop_b_runs_on_hardware_rig():
     # Loop (b) of the calibration against a HardwareRig: the DLPC900 light on the simulated controller, and a
     # spectrometer that sees what the controller displays (pattern decoded from the uploaded mirrors).
-    from specgpu.calibration.bundle import spectral_loop
+    from specgpu.calibration import spectral_loop
     from specgpu.rig.light import LightParameters, ProgrammableLight
 
     model = ProgrammableLight(LightParameters(columns=128, rows=64, fluctuation_rms=0.0))

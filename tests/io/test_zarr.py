@@ -1,6 +1,6 @@
 """zarr recordings (specgpu.io.recording): opened by xarray and Dask with no specgpu code, commit rule, bad input.
 
-The recorder is fed hand-built results here (no device needed); tests/test_stream.py records real streams.
+The recorder is fed hand-built results here (no device needed); tests/pipeline/test_stream.py records real streams.
 """
 
 from __future__ import annotations

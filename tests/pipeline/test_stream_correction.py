@@ -374,7 +374,7 @@ def test_delta_e_sigma_kernel_equals_the_host_propagation(queue):
     const = np.diag([1e-7, 2e-7, 3e-7])
     six = np.stack([cov[:, i, j] for i in range(3) for j in range(i, 3)], axis=-1).astype(np.float32)
     white = white_point_XYZ("D65")
-    launch = engine.prepare_delta_e_sigma(queue, white, const, n=n)
+    launch = engine.prepare_delta_E_sigma(queue, white, const, n=n)
     out = launch.enqueue(engine.to_device(queue, xyz.astype(np.float32).reshape(-1)).data,
                          inputs={1: engine.to_device(queue, six.reshape(-1)).data})
     got = np.empty(n, np.float32)

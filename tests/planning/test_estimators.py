@@ -308,7 +308,7 @@ def test_study_rows_on_the_lab_profile_with_corrections():
     recovery's error and the sigma above the ambient frame still agree (z std near 1)."""
     from dataclasses import replace
 
-    from specgpu.calibration.bundle import calibrate
+    from specgpu.calibration import calibrate
     from specgpu.rig.config import rig_from_dict
     from specgpu.rig.scene import white_tile_roi
 

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.calibration.bundle import TwinCalibrationRig, rig_fingerprint
+from specgpu.calibration import TwinCalibrationRig, rig_fingerprint
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription, dump_rig, load_rig, rig_from_dict
 from specgpu.rig.light import ProgrammableLight

@@ -28,6 +28,14 @@ def block(language: str, needle: str) -> str:
     return found[0]
 
 
+# the README's Python blocks, each found by a name only it holds; every block is one of them
+PYTHON_BLOCKS = ("apply_linear", "open_recording", "xr.open_zarr")
+
+
+def test_every_python_block_is_executed_by_a_test():
+    assert sorted(blocks("python")) == sorted(block("python", needle) for needle in PYTHON_BLOCKS)
+
+
 def test_python_api_snippet_runs():
     code = block("python", "apply_linear")
     ns: dict = {}
@@ -36,6 +44,8 @@ def test_python_api_snippet_runs():
     assert ns["cube16"].shape == (31, 480, 640) and ns["cube16"].dtype == np.float16
     assert ns["XYZ"].shape == ns["Lab"].shape == (480, 640, 3)
     assert ns["dE"].shape == (480, 640) and np.isfinite(ns["dE"]).all()
+    np.testing.assert_array_equal(ns["cube_read"], ns["cube"])
+    np.testing.assert_array_equal(ns["wl_read"], ns["wl"])
 
 
 @pytest.fixture(scope="module")

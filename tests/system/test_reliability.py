@@ -80,7 +80,7 @@ def test_failed_later_write_keeps_every_previous_output(seq, tmp_path, monkeypat
             raise OSError(errno.ENOSPC, "No space left on device")
         return real(path, *args, **kwargs)
 
-    monkeypatch.setattr(io_files, "write_map", failing)
+    monkeypatch.setattr(io, "write_map", failing)  # the package: where recover looks it up
     result = run("recover", seq, "--out", tmp_path / "a.exr", "--xyz", tmp_path / "x.exr", ok=False)
     assert result.exit_code == 1
     assert {p: (tmp_path / p).read_bytes() for p in before} == before
@@ -261,7 +261,7 @@ def test_ctrl_c_during_recover_leaves_no_output(seq, tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return real(path, *args, **kwargs)
 
-    monkeypatch.setattr(io_files, "write_map", interrupted)
+    monkeypatch.setattr(io, "write_map", interrupted)  # the package: where recover looks it up
     result = run("recover", seq, "--out", tmp_path / "a.exr", "--xyz", tmp_path / "x.exr", "--lab",
                  tmp_path / "l.exr", ok=False)
     assert result.exit_code == 130
@@ -372,7 +372,7 @@ def test_unwritable_folder_is_refused_before_the_work_naming_the_output(base, tm
 
     (tmp_path / "ro").mkdir()
     monkeypatch.setattr(os, "open", read_only)
-    import specgpu.calibration.bundle as calibration
+    import specgpu.calibration as calibration
 
     monkeypatch.setattr(calibration, "calibrate", lambda *a, **k: pytest.fail("calibrated before refusing"))
     error = one_line_error(run("calibrate", "--rig", base / "rig.toml", "--out", tmp_path / "ro" / "c.npz",

@@ -1,0 +1,80 @@
+"""The top-level API: every public name resolves to the object its subpackage exports, ``import specgpu`` stays
+cheap (no OpenCL, no colour-science), and the engine's examples run as written."""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+import subprocess
+import sys
+
+import pytest
+
+import specgpu
+
+#: The public API by the subpackage that owns each name (the contract the top-level package re-exports).
+API = {
+    "engine": ["apply_linear", "XYZ_to_Lab", "delta_E", "reflectance_to_XYZ", "frames_to_delta_E", "get_queue",
+               "run_selftest"],
+    "core": ["XYZ_weights"],
+    "io": ["read_cube", "write_cube", "read_map", "write_map", "read_sequence", "write_sequence", "open_recording"],
+    "planning": ["make_plan", "load_plan", "save_plan", "Plan", "PLAN_METHODS"],
+    "calibration": ["calibrate", "load_calibration", "save_calibration", "CalibrationBundle"],
+    "pipeline": ["recover", "read_capture", "capture_plan", "evaluate_reflectance", "evaluate_pixels",
+                 "render_scene"],
+    "rig": ["load_rig", "dump_rig", "colorchecker_scene", "load_scene"],
+}
+NAMES = [(room, name) for room, names in API.items() for name in names]
+
+
+@pytest.mark.parametrize(("room", "name"), NAMES, ids=[f"{room}.{name}" for room, name in NAMES])
+def test_each_public_name_is_the_object_its_subpackage_exports(room, name):
+    package = importlib.import_module(f"specgpu.{room}")
+    assert getattr(specgpu, name) is getattr(package, name)
+    assert name in package.__all__
+
+
+def test_the_listed_names_are_exactly_the_top_level_api():
+    assert sorted(specgpu.__all__) == sorted(name for _, name in NAMES)
+    assert set(dir(specgpu)) >= {name for _, name in NAMES}
+
+
+def test_importing_specgpu_loads_neither_opencl_nor_colour_science():
+    code = ("import sys, specgpu\n"
+            "heavy = sorted(m for m in sys.modules if m.split('.')[0] in ('pyopencl', 'colour', 'numpy')\n"
+            "               or m.startswith('specgpu.'))\n"
+            "print(','.join(heavy))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == ""
+
+
+def test_a_public_name_imports_only_its_own_subpackage_on_first_use():
+    code = ("import sys, specgpu\n"
+            "specgpu.read_cube\n"
+            "print('specgpu.engine' in sys.modules, 'specgpu.io' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "True"]
+
+
+def test_a_wrong_attribute_is_an_attribute_error_naming_it():
+    with pytest.raises(AttributeError, match="apply_lineer"):
+        specgpu.apply_lineer  # noqa: B018
+    assert not hasattr(specgpu, "xyz_to_lab")
+
+
+def test_the_version_is_kept():
+    assert isinstance(specgpu.__version__, str) and specgpu.__version__.count(".") == 2
+
+
+ENGINE_EXAMPLES = [("engine", name) for name in API["engine"]] + [("core", "XYZ_weights")]
+
+
+@pytest.mark.parametrize(("room", "name"), ENGINE_EXAMPLES, ids=[f"{r}.{n}" for r, n in ENGINE_EXAMPLES])
+def test_the_docstring_example_runs_as_written(room, name):
+    function = getattr(importlib.import_module(f"specgpu.{room}"), name)
+    tests = doctest.DocTestFinder(recurse=False).find(function, name, globs={})
+    assert tests and tests[0].examples, f"{name} has no >>> example"
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS)
+    for test in tests:
+        runner.run(test)
+    assert runner.failures == 0, f"{runner.failures} of the examples of {name} failed (output above)"
