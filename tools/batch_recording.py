@@ -21,7 +21,7 @@ from specgpu.testing import parse_sizes, stream_setup  # noqa: E402
 from specgpu.calibration.bundle import save_calibration  # noqa: E402
 from specgpu.planning import save_plan  # noqa: E402
 from specgpu.io.recording import ZarrRecorder  # noqa: E402
-from specgpu.pipeline.stream import StreamResult  # noqa: E402
+from specgpu.pipeline import StreamResult  # noqa: E402
 
 
 def main():

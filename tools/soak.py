@@ -7,7 +7,7 @@ with random frame drops, duplicated frames and missed light triggers; a sink sle
 disk would. Every ``--sample-s`` seconds a line shows the resident memory and the counters. At the end the
 tool checks
 
-- the stream's own accounting (:meth:`specgpu.pipeline.stream.StreamReport.accounting`): frames in = into the ring +
+- the stream's own accounting (:meth:`specgpu.pipeline.StreamReport.accounting`): frames in = into the ring +
   refused; into the ring = delivered + discarded; delivered = K x sequences + duplicates + unused; sequences
   out = sequences complete;
 - exposures: every exposure the camera made (the driver's last frame id + 1) is a frame the assembler saw once
@@ -40,7 +40,7 @@ from specgpu.planning import plan_tristimulus  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402
 from specgpu.rig.twin import FaultRates, FaultSchedule, TwinRig  # noqa: E402
-from specgpu.pipeline.stream import Sink, Stream, current_rss_bytes  # noqa: E402
+from specgpu.pipeline import Sink, Stream, current_rss_bytes  # noqa: E402
 
 MB = 1024 * 1024
 

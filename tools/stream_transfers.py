@@ -20,7 +20,7 @@ import numpy as np
 import pyopencl.array as cla
 
 from specgpu.testing import parse_sizes, stream_setup
-from specgpu.pipeline.stream import Stream, StreamDecoder
+from specgpu.pipeline import Stream, StreamDecoder
 
 
 def main():

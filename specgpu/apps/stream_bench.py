@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from specgpu.engine.runtime import get_queue
-from specgpu.pipeline.stream import Stream, current_rss_bytes
+from specgpu.pipeline.stream import Stream
+from specgpu.pipeline.stream_report import current_rss_bytes
 from specgpu.planning import NoiseModel, smooth_prior, with_estimator
 from specgpu.rig.scene import white_tile_roi
 from specgpu.testing import Checker, MemoryRecorder, max_rel, offline_maps, stream_setup

@@ -1,4 +1,5 @@
-"""Offline recovery, the stream, batch (Dask), evaluation and the spectral projector."""
+"""Offline recovery, the stream (decoder / runner / sinks / report), batch (Dask), evaluation and the spectral
+projector."""
 
 from __future__ import annotations
 
@@ -39,22 +40,23 @@ from specgpu.pipeline.projector import (
     spectrum_report,
     target_spectrum,
 )
-from specgpu.pipeline.stream import (
+from specgpu.pipeline.decoder import STREAM_OUTPUTS, StreamDecoder
+from specgpu.pipeline.sinks import (
     CallbackSink,
     ExrSequenceWriter,
-    LatencyHistogram,
     PreviewSink,
     ResultsRing,
-    STREAM_OUTPUTS,
     Sink,
-    Stream,
-    StreamDecoder,
-    StreamReport,
     StreamResult,
+)
+from specgpu.pipeline.stream_report import (
+    LatencyHistogram,
+    StreamReport,
     current_rss_bytes,
     peak_rss_bytes,
     peak_rss_reset,
 )
+from specgpu.pipeline.stream import Stream
 from specgpu.pipeline.batch import (
     BATCH_FORMAT,
     BATCH_OUTPUTS,

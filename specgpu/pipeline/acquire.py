@@ -11,7 +11,7 @@ from specgpu.capture.session import capture_sequences
 from specgpu.hardware.drivers import open_driver
 from specgpu.io.recording import ZarrRecorder, check_free_space
 from specgpu.pipeline import recovery
-from specgpu.pipeline.stream import StreamResult
+from specgpu.pipeline.sinks import StreamResult
 
 __all__ = ["ZarrCapture", "capture_into", "keep_or_abort"]
 

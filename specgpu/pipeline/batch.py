@@ -3,9 +3,9 @@
 ``specgpu batch REC.zarr --plan PLAN --out OUT.zarr`` runs its sequences as Dask tasks of up to 8 consecutive
 sequences (a task costs ~13 ms of its own) on a Dask ``LocalCluster`` (or on any ``dask.distributed`` scheduler
 given by address). Each sequence's frames are computed in one device pass as the stream computes them
-(:class:`specgpu.pipeline.stream.StreamDecoder`: the cube by the plan's decoder, XYZ, Lab and dE fused from the same frames,
-the calibration's corrections applied as ``specgpu recover`` applies them; on a CPU device the frames are the
-device buffer and the results are mapped, no copy), equal to ``specgpu recover SEQ --sequence i`` and its
+(:class:`specgpu.pipeline.decoder.StreamDecoder`: the cube by the plan's decoder, XYZ, Lab and dE fused from the
+same frames, the calibration's corrections applied as ``specgpu recover`` applies them; on a CPU device the
+frames are the device buffer and the results are mapped, no copy), equal to ``specgpu recover SEQ --sequence i`` and its
 ``to_XYZ`` / ``to_Lab`` / ``delta_E`` to float rounding. Each output's chunk is written while the task's next
 sequence is computed, and the sequence is marked done in the ``done`` array once all of its chunks are written.
 Workers keep their state between tasks (:func:`_worker_state`): the plan, calibration, OpenCL context and queue
@@ -35,7 +35,6 @@ The output is a zarr v3 group laid out like a recording (:mod:`specgpu.io.record
 
 from __future__ import annotations
 
-import hashlib
 import os
 import shutil
 import threading
@@ -43,11 +42,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
 
-from specgpu.io.chunks import DirectIO as _DirectIO, checksum_codecs as _codecs, write_sequence_chunk
-from specgpu.io.recording import CHANNELS as _CHANNELS, chunk_keys as _chunk_keys, consolidate, open_recording, \
-    patterns_hash, remove_partial_chunks
+from specgpu.core.locks import OutputLocked, output_lock, pid_alive
 from specgpu.core.spectra import DEFAULT_CMFS
+from specgpu.engine.runtime import get_allocator, get_queue
+from specgpu.io.chunks import DirectIO, checksum_codecs, write_sequence_chunk
+from specgpu.io.recording import CHANNELS, consolidate, patterns_hash, remove_partial_chunks
+from specgpu.pipeline.batch_source import _RecordingSource, _identity_mismatch, _reference_hash, open_source, \
+    reference_label
+from specgpu.pipeline.decoder import StreamDecoder
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
 
@@ -56,126 +61,6 @@ BATCH_VERSION = 2  # 2: the source identified by content, every result-changing 
 BATCH_OUTPUTS = ("cube", "XYZ", "Lab", "dE")
 
 
-# ---------------------------------------------------------------------------------------------------- sources
-
-
-class _RecordingSource:
-    """Raw frames of a zarr recording (``specgpu stream --frames``)."""
-
-    def __init__(self, path):
-        self.path = Path(path)
-        self.rec = open_recording(path)
-        if self.rec.sequences == 0:
-            raise ValueError(f"{self.path}: holds no committed sequence (status {self.rec.attrs.get('status')!r}"
-                             + (f": {self.rec.attrs['error']}" if self.rec.attrs.get("error") else "") + ")")
-        if not self.rec.attrs.get("frames") or "frames" not in self.rec.group:
-            raise ValueError(f"{self.path}: the recording has no raw frames to re-process "
-                             "(record them with specgpu stream --frames)")
-        self.sequences = self.rec.sequences
-        self.K = self.rec.K
-        arr = self.rec.group["frames"]
-        shape = arr.shape
-        if len(shape) != 4 or shape[1] != self.K or tuple(arr.chunks) != (1, *shape[1:]):
-            raise ValueError(f"{self.path}/frames: shape {tuple(shape)} in chunks {tuple(arr.chunks)} is not "
-                             f"(time, {self.K} patterns, y, x) in one chunk per sequence")
-        self.height, self.width = int(shape[2]), int(shape[3])
-        said = (self.rec.attrs.get("height"), self.rec.attrs.get("width"))
-        if said != (None, None) and said != (self.height, self.width):
-            raise ValueError(f"{self.path}/frames: frames are {self.height} x {self.width} but the recording says "
-                             f"{said[0]} x {said[1]}")
-        self.patterns_hash = self.rec.attrs.get("patterns_hash")
-        self.plan_hash = self.rec.attrs.get("plan_hash")
-        self.default_calibration = self.path / "calibration.npz"
-        self._id = None
-
-    @property
-    def content_id(self) -> str:
-        """The recording's ``recording_id`` with the CRC32C trailer of each committed frames chunk (4 bytes read
-        per chunk, no pixel): another recording put at this path, or a frames chunk replaced, changes it. A
-        committed sequence whose chunk is missing is a one-line error here, before any work."""
-        if self._id is None:
-            missing = self.rec.missing("frames")
-            if missing:
-                self.rec.read("frames", missing[0])  # the one-line error naming the recording and sequence
-            arr = self.rec.group["frames"]
-            digest = hashlib.sha256(f"{self.rec.attrs.get('recording_id')}|{self.sequences}".encode())
-            for i in range(self.sequences):
-                chunk = self.path / "frames" / _chunk_keys(arr, i)[0]
-                try:
-                    with open(chunk, "rb") as fh:
-                        fh.seek(-4, os.SEEK_END)
-                        digest.update(fh.read(4))
-                except OSError as exc:
-                    raise ValueError(f"{self.path}/frames: sequence {i}: chunk {chunk.name} unreadable "
-                                     f"({type(exc).__name__})") from None
-            self._id = digest.hexdigest()
-        return self._id
-
-    def frames(self, i: int) -> np.ndarray:
-        return self.rec.read("frames", i)
-
-    def frame_ids(self) -> np.ndarray:
-        return self.rec.read("frame_id", slice(0, self.sequences))
-
-    def times(self) -> np.ndarray:
-        return self.rec.read("time", slice(0, self.sequences))
-
-
-class _FolderSource:
-    """The sequences of a sequence folder (``specgpu capture``): ``sequence.json``, the plan and calibration
-    checked once per process, the frames read (and checked against their checksums) one sequence at a time, so
-    memory does not grow with the capture."""
-
-    def __init__(self, path):
-        from specgpu.io.sequence import check_frame_files
-        from specgpu.pipeline.recovery import read_capture_header
-
-        self.path = Path(path)
-        self.records, self.meta, plan, _ = read_capture_header(path)
-        check_frame_files(self.path, self.records)  # every listed frame there at its size, no pixel read
-        self.K = plan.K
-        self.sequences = len(self.records) // self.K
-        self.height, self.width = int(self.meta["height"]), int(self.meta["width"])
-        self.patterns_hash = patterns_hash(plan)
-        self.plan_hash = plan.hash
-        self.default_calibration = self.path / "calibration.npz"
-
-    @property
-    def content_id(self) -> str:
-        """The frames' names, sizes and SHA-256 checksums (from ``sequence.json``; each frame read is checked
-        against its own): another capture put at this path changes it."""
-        digest = hashlib.sha256(f"{self.plan_hash}|{self.height}x{self.width}".encode())
-        for r in self.records:
-            digest.update(f"|{r['file']}:{r['bytes']}:{r['sha256']}".encode())
-        return digest.hexdigest()
-
-    def frames(self, i: int) -> np.ndarray:
-        from specgpu.io.sequence import read_frames
-
-        if not 0 <= i < self.sequences:
-            raise ValueError(f"sequence {i} is out of range: {self.path} holds {self.sequences}")
-        return read_frames(self.path, self.records, self.meta, i * self.K, (i + 1) * self.K)
-
-    def frame_ids(self) -> np.ndarray:
-        return np.array([r["frame_id"] for r in self.records], np.int64).reshape(self.sequences, self.K)
-
-    def times(self) -> np.ndarray:
-        return np.array([r["timestamp_s"] for r in self.records], np.float64)[::self.K]
-
-
-def open_source(path):
-    """A zarr recording with raw frames, or a sequence folder; one-line errors naming the path."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no recording or sequence folder there")
-    if (path / "sequence.json").is_file():
-        return _FolderSource(path)
-    if (path / "zarr.json").is_file():
-        return _RecordingSource(path)
-    raise ValueError(f"{path}: neither a zarr recording (zarr.json) nor a sequence folder (sequence.json)")
-
-
-# ------------------------------------------------------------------------------------------------------- job
 
 
 @dataclass
@@ -206,7 +91,7 @@ class BatchJob:
 _STATE: dict = {}
 _STATE_LOCK = threading.Lock()
 _STATES_KEPT = 4  # a long-lived worker keeps the states of its last few batches, not of every batch it ran
-_DIRECT = _DirectIO()  # whether the output's file system takes direct I/O (found on the first large chunk)
+_DIRECT = DirectIO()  # whether the output's file system takes direct I/O (found on the first large chunk)
 _POOL: list = []
 
 
@@ -232,8 +117,6 @@ class _WorkerState:
 def _worker_state(job: BatchJob) -> tuple[_WorkerState, bool]:
     """This process's state for ``job``: built on the first task, reused by every later one."""
     import zarr
-
-    from specgpu.engine.runtime import get_queue
 
     with _STATE_LOCK:
         state = _STATE.get(job.key)
@@ -319,18 +202,14 @@ class _Pending:
 
 
 def _decoder(job: BatchJob, state):
-    """This worker's fused decoder of the job (:class:`specgpu.pipeline.stream.StreamDecoder`, made once): the plan's A,
-    the calibration's dark, flat field and saturation level and, for colour outputs, the matrix to XYZ of the
+    """This worker's fused decoder of the job (:class:`specgpu.pipeline.decoder.StreamDecoder`, made once): the
+    plan's A, the calibration's dark, flat field and saturation level and, for colour outputs, the matrix to XYZ of the
     plan's outputs with the white and the dE reference, on the device. The cube comes from one linear pass over
     the frames and XYZ, Lab and dE from one fused pass over the same frames (never from the cube read back), as
     the stream computes them; the host-side corrections recover applies (linearisation, per-pattern flat field,
     an ambient frame) are applied to the frames first exactly as recover does (``prepare_frames``)."""
     dec = state.__dict__.get("_decoder")
     if dec is None:
-        import pyopencl as cl
-
-        from specgpu.pipeline.stream import StreamDecoder
-
         dec = StreamDecoder(job.plan, job.calibration, job.outputs,
                             frame_shape=(state.source.height, state.source.width), queue=state.queue,
                             reference=job.reference if "dE" in job.outputs else None, method=job.method,
@@ -344,11 +223,6 @@ def _decoder(job: BatchJob, state):
 def _start_sequence(job: BatchJob, i: int) -> _Pending:
     """Compute sequence ``i`` in one device pass and start writing each output's chunk (written as the recorder
     writes: zarr's bytes, large chunks with direct I/O)."""
-    import pyopencl as cl
-    import pyopencl.array as cla
-
-    from specgpu.engine.runtime import get_allocator
-
     state, built = _worker_state(job)
     handles = state.__dict__.setdefault("_arrays", {})  # zarr handles of the output, opened once per worker
     for name in (*job.outputs, "done"):
@@ -451,58 +325,6 @@ class BatchReport:
         return self.computed / self.seconds if self.seconds > 0 else 0.0
 
 
-#: identity attribute -> (what it is called on the command line, how its value is shown in a refusal)
-_IDENTITY_NAMES = {
-    "format": ("the output format", str), "version": ("the batch format version", str),
-    "source": ("SOURCE", str),
-    "source_id": ("SOURCE's content (recording id and frame checksums)", lambda v: str(v)[:12]),
-    "source_plan_hash": ("SOURCE's plan", lambda v: str(v)[:12]), "sequences": ("SOURCE's sequence count", str),
-    "plan_hash": ("--plan", lambda v: str(v)[:12]), "calibration": ("--calib", lambda v: str(v)[:12]),
-    "outputs": ("--outputs", lambda v: ",".join(v) if isinstance(v, list) else str(v)),
-    "illuminant": ("--illuminant", str), "observer": ("--observer", str), "method": ("--method", str),
-    "reference_sha256": ("--delta-e-ref", None),
-}
-
-
-def reference_label(reference) -> str | None:
-    """How a dE reference is shown: ``L,a,b`` when it is one colour, else a per-pixel map by checksum."""
-    if reference is None:
-        return None
-    ref = np.asarray(reference, np.float32)
-    flat = ref.reshape(-1, ref.shape[-1]) if ref.ndim > 1 else ref.reshape(1, -1)
-    if np.all(flat == flat[0]):
-        return ",".join(f"{float(v):g}" for v in flat[0])
-    return f"a per-pixel Lab map {_reference_hash(ref)[:12]}"
-
-
-def _reference_hash(reference) -> str | None:
-    if reference is None:
-        return None
-    ref = np.ascontiguousarray(np.asarray(reference, np.float32))
-    return hashlib.sha256(repr(ref.shape).encode() + ref.tobytes()).hexdigest()
-
-
-def _identity_mismatch(out: Path, attrs: dict, identity: dict) -> str | None:
-    """One line naming the first identity entry ``out`` was made with that differs from this run's, with both
-    values; None when it is the same batch."""
-    for key, value in identity.items():
-        old = attrs.get(key)
-        if key == "observer" and key not in attrs and attrs.get("illuminant") is not None:
-            old = DEFAULT_CMFS  # made before the observer was recorded: its colours are the 2 degree observer's
-        if old == value:
-            continue
-        if key == "reference_sha256":
-            name, was, now = "--delta-e-ref", attrs.get("delta_e_ref"), identity.get("delta_e_ref")
-        elif key == "delta_e_ref":
-            continue  # the label: the checksum decides
-        else:
-            name, show = _IDENTITY_NAMES.get(key, (key, str))
-            was, now = (show(old) if old is not None else None), show(value)
-        return (f"{out}: holds a batch made with {name} {was if was is not None else '(none)'}, this run gives "
-                f"{now if now is not None else '(none)'}; resume only the same batch, or choose a new --out")
-    return None
-
-
 def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
                   method="CIE 2000", reference=None, device=None) -> tuple[BatchJob, np.ndarray]:
     """Check the source against the plan, create (or reopen, to resume) the output; returns the job and the
@@ -594,8 +416,6 @@ def _remove_dead_writers_partials(source_path) -> None:
     """The ``*.partial`` chunks a recorder killed by ``kill -9`` left in a recording (5 MB each for raw frames):
     removed when no live writer holds the recording's lock (a recording is never written again, so nothing
     else would); a live writer's, or a recording we cannot lock (read-only), are left alone."""
-    from specgpu.core.locks import OutputLocked, output_lock
-
     path = Path(source_path)
     if not (path / "zarr.json").is_file() or not any(path.rglob("*.partial")):
         return
@@ -612,8 +432,6 @@ def _creation_name(out: Path, pid: int | None = None) -> Path:
 
 def _remove_dead_creations(out: Path) -> None:
     """Remove the half-made outputs (``.OUT.<pid>.creating``) of batches killed while creating ``out``."""
-    from specgpu.core.locks import pid_alive
-
     prefix = f".{out.name}."
     try:
         entries = list(os.scandir(out.parent))
@@ -653,7 +471,7 @@ def _create_output(out: Path, identity: dict, plan, method, outputs, source, n, 
         group.attrs.update({**identity, "plan_method": plan.method, "status": "running"})
 
         def make(name, tail, dtype, dims, fill, attrs=None):
-            group.create_array(name, shape=(n, *tail), chunks=(1, *tail), dtype=dtype, compressors=_codecs(),
+            group.create_array(name, shape=(n, *tail), chunks=(1, *tail), dtype=dtype, compressors=checksum_codecs(),
                                fill_value=fill, dimension_names=("time", *dims), attributes=attrs or {},
                                config={"write_empty_chunks": True})
 
@@ -665,20 +483,20 @@ def _create_output(out: Path, identity: dict, plan, method, outputs, source, n, 
                 make(name, (h, w, B), "float32", ("y", "x", dim), np.nan,
                      {"wavelength_units": "nm"} if reflectance else
                      {"channels": list(map(str, plan.output_labels))})
-            elif name in _CHANNELS:
+            elif name in CHANNELS:
                 make(name, (h, w, 3), "float32", ("y", "x", f"{name}_channel"), np.nan,
-                     {"channels": list(_CHANNELS[name])})
+                     {"channels": list(CHANNELS[name])})
             else:
                 make(name, (h, w), "float32", ("y", "x"), np.nan, {"method": method})
         if "cube" in outputs and reflectance:
             group.create_array("wavelength", data=np.asarray(plan.output_wavelengths, np.float64),
-                               dimension_names=("wavelength",), attributes={"units": "nm"}, compressors=_codecs())
+                               dimension_names=("wavelength",), attributes={"units": "nm"}, compressors=checksum_codecs())
         group.create_array("frame_id", data=source.frame_ids(), chunks=(1, source.K),
-                           dimension_names=("time", "pattern"), compressors=_codecs())
+                           dimension_names=("time", "pattern"), compressors=checksum_codecs())
         group.create_array("time", data=source.times(), chunks=(1,), dimension_names=("time",),
-                           attributes={"units": "s"}, compressors=_codecs())
+                           attributes={"units": "s"}, compressors=checksum_codecs())
         group.create_array("done", shape=(n,), chunks=(1,), dtype="uint8", fill_value=0, dimension_names=("time",),
-                           compressors=_codecs(), config={"write_empty_chunks": True})
+                           compressors=checksum_codecs(), config={"write_empty_chunks": True})
         os.rename(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -714,8 +532,6 @@ def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illumin
     on_done : callable, optional
         Given each finished task's record (``index``, ``pid``, ``built``) on the calling thread.
     """
-    from specgpu.core.locks import output_lock
-
     with output_lock(out, make_parents=True):  # one batch per output: resuming, cleaning and writing are its own
         return _run_locked(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
                            observer=observer, method=method, reference=reference, scheduler=scheduler,

@@ -133,6 +133,22 @@ def evaluate_reflectance(cube, wavelengths, scene, *, illuminant="D65", cmfs=DEF
         The truth, with patch masks.
     illuminant, cmfs
         For the colour differences (XYZ on the cube's wavelengths for both).
+
+    Returns
+    -------
+    PatchReport
+        Per patch: RMSE, dE*ab and dE2000; ``summary()`` gives (mean, max) of each.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from specgpu.pipeline import evaluate_reflectance, truth_cube
+    >>> from specgpu.rig import colorchecker_scene
+    >>> scene = colorchecker_scene(24, 36)
+    >>> wavelengths = np.arange(400.0, 701.0, 10.0)
+    >>> report = evaluate_reflectance(truth_cube(scene, wavelengths), wavelengths, scene)
+    >>> report.summary()["rmse"]
+    (0.0, 0.0)
     """
     wl = np.asarray(wavelengths, np.float64)
     names, est = patch_means(cube, scene.masks)
@@ -260,6 +276,26 @@ def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs
     illuminant, cmfs
         Of the colour differences: XYZ of the truth under ``illuminant`` on its own bands (on the estimate's
         wavelengths for a reflectance estimate, so both sides see the same sampling).
+    wavelengths : array_like, (B,), optional
+        Band centres of a reflectance estimate, nm; None for an XYZ estimate.
+    device : optional
+        OpenCL device selector.
+
+    Returns
+    -------
+    PixelReport
+        Per-pixel maps (``rmse`` None for an XYZ estimate); ``statistics()`` summarises them.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from specgpu.pipeline import evaluate_pixels, truth_cube
+    >>> from specgpu.rig import colorchecker_scene
+    >>> scene = colorchecker_scene(24, 36)
+    >>> wavelengths = np.arange(400.0, 701.0, 10.0)
+    >>> report = evaluate_pixels(truth_cube(scene, wavelengths), scene, wavelengths=wavelengths)
+    >>> report.delta_E_2000.shape, report.statistics()["delta_E_2000"]["max"]
+    ((24, 36), 0.0)
     """
     est = np.asarray(estimate, np.float32)
     if est.shape[:2] != scene.reflectance.shape[:2]:

@@ -16,7 +16,7 @@ from specgpu.io.recording import (
     sequence_bytes,
 )
 from specgpu.pipeline.outputs import DELTA_E_KINDS
-from specgpu.pipeline.stream import ExrSequenceWriter, PreviewSink
+from specgpu.pipeline.sinks import ExrSequenceWriter, PreviewSink
 
 __all__ = ["RECORD_RING_S", "add_recording", "recording_slots", "stream_summary"]
 

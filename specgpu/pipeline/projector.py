@@ -16,8 +16,10 @@ from dataclasses import dataclass, field
 import colour
 import numpy as np
 
-from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
+from specgpu.calibration import spectral_loop
+from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.core.validate import validate_method
+from specgpu.rig.twin import TwinRig
 
 __all__ = [
     "PROJECTOR_TARGETS",
@@ -149,9 +151,6 @@ def project(target, *, rig=None, bundle=None, tolerance: float = 0.01, max_itera
         Fraction of the largest reachable multiple of the target that is asked for, in (0, 1], so the loop can
         raise columns as well as lower them.
     """
-    from specgpu.calibration import spectral_loop
-    from specgpu.rig.twin import TwinRig
-
     sd = target_spectrum(target)
     if not 0 < headroom <= 1:
         raise ValueError(f"headroom must lie in (0, 1], got {headroom!r}")
@@ -195,10 +194,29 @@ def render_scene(scene, illuminant, *, adaptation: str = "CAT02", device=None) -
     XYZ under the illuminant (device), then sRGB for an observer adapted to the illuminant's white
     (``adaptation``, a colour-science chromatic adaptation transform; ``None`` shows the raw colour cast).
 
+    Parameters
+    ----------
+    scene : SpectralScene
+        Reflectance (H, W, B) on its wavelengths.
+    illuminant : str or colour.SpectralDistribution
+        A colour-science illuminant name (``"D65"``, ``"A"``, ...) or a spectrum.
+    adaptation : str or None
+        Chromatic adaptation transform to the illuminant's white.
+    device : optional
+        OpenCL device selector.
+
     Returns
     -------
     ndarray, (H, W, 3), float32
         Display-encoded sRGB in [0, 1] (clipped).
+
+    Examples
+    --------
+    >>> from specgpu.pipeline import render_scene
+    >>> from specgpu.rig import colorchecker_scene
+    >>> image = render_scene(colorchecker_scene(24, 36), "A")
+    >>> image.shape, str(image.dtype)
+    ((24, 36, 3), 'float32')
     """
     XYZ, white = _scene_XYZ(scene, illuminant, device)
     rgb = colour.XYZ_to_sRGB(np.asarray(XYZ, np.float64), illuminant=colour.XYZ_to_xy(white),
@@ -217,8 +235,6 @@ def metamer_map(scene, illuminant_1, illuminant_2, *, method: str = "CIE 2000", 
     ndarray, (H, W), float32
         dE (``method``) between CIELAB under ``illuminant_1`` (reference) and under ``illuminant_2``.
     """
-    from specgpu.engine.colorimetry import DELTA_E_METHODS
-
     validate_method(method, DELTA_E_METHODS)
     XYZ_1, white_1 = _scene_XYZ(scene, illuminant_1, device)
     XYZ_2, white_2 = _scene_XYZ(scene, illuminant_2, device)

@@ -21,9 +21,15 @@ from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save
 from specgpu.capture.session import CaptureResult, capture_sequences
 from specgpu.capture.twin import TwinDriver
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
-from specgpu.planning import Plan, load_plan, save_plan
+from specgpu.pipeline.evaluate import true_patch_spectra
+from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
+from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
+from specgpu.planning.uncertainty import constant_covariance, frame_covariance, frame_variance, output_covariance, \
+    sigma_map
+from specgpu.planning.plans import Plan, load_plan, save_plan
 from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.config import RigDescription
+from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig
 from specgpu.core.spectra import DEFAULT_CMFS
 
@@ -60,6 +66,24 @@ def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: i
     calibration : CalibrationBundle, optional
         The bundle the plan was made from: the rig's clock starts where that calibration ended plus the rig's
         ``capture_delay`` (so the lamp has drifted on as on a bench); without it, at ``capture_delay``.
+
+    Returns
+    -------
+    CaptureResult
+        The complete sequences (each with its (K, H, W) ``frames``) and the assembler's counters (``assembly``).
+
+    Examples
+    --------
+    >>> from specgpu.calibration import oracle_calibration
+    >>> from specgpu.planning import make_plan
+    >>> from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
+    >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+    >>> bundle = oracle_calibration(rig)
+    >>> plan = make_plan("narrowband", bundle, step_nm=20.0)
+    >>> from specgpu.pipeline import capture_plan
+    >>> result = capture_plan(rig, plan, colorchecker_scene(240, 320), noise_seed=1, calibration=bundle)
+    >>> result.sequences[0].frames.shape == (plan.K, 240, 320)
+    True
     """
     if sequences < 1:
         raise ValueError(f"sequences must be >= 1, got {sequences}")
@@ -242,10 +266,6 @@ def write_capture(directory, sequences, assembly, plan_path, calibration_path, *
 def default_basis(chart: str = EVALUATION_CHART):
     """The uncentred PCA basis of colour-science's measured reflectances with ``chart`` left out of training:
     every set holding the same patches, and any spectrum within 0.01 RMS of one of its patches."""
-    from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
-    from specgpu.pipeline.evaluate import true_patch_spectra
-    from specgpu.rig.scene import colorchecker_scene
-
     _, chart_spectra = true_patch_spectra(colorchecker_scene(24, 36, chart=chart), DEFAULT_WAVELENGTHS)
     return pca_basis(load_reflectances(exclude=evaluation_exclusions(chart), exclude_similar_to=chart_spectra))
 
@@ -285,7 +305,39 @@ def _zarr_not_a_sequence(directory: Path) -> str:
 
 def read_capture(directory) -> SequenceFolder:
     """Read a sequence folder; refuse it when the plan or calibration is missing or does not match its hashes,
-    or when its frames are not whole sequences in pattern order."""
+    or when its frames are not whole sequences in pattern order.
+
+    Parameters
+    ----------
+    directory : path
+        A sequence folder written by ``specgpu capture`` (or :func:`write_capture`).
+
+    Returns
+    -------
+    SequenceFolder
+        Its frames (S, K, H, W), plan, calibration, frame records and metadata.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from specgpu.calibration import save_calibration
+    >>> from specgpu.pipeline import capture_plan, read_capture, write_capture
+    >>> from specgpu.planning import save_plan
+    >>> from specgpu.calibration import oracle_calibration
+    >>> from specgpu.planning import make_plan
+    >>> from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
+    >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+    >>> bundle = oracle_calibration(rig)
+    >>> plan = make_plan("narrowband", bundle, step_nm=20.0)
+    >>> result = capture_plan(rig, plan, colorchecker_scene(240, 320), noise_seed=1, calibration=bundle)
+    >>> root = Path(tempfile.mkdtemp())
+    >>> _ = save_plan(root / "plan.npz", plan), save_calibration(root / "calibration.npz", bundle)
+    >>> capture = write_capture(root / "capture", result.sequences, result.assembly, root / "plan.npz",
+    ...                         root / "calibration.npz")
+    >>> read_capture(capture).frames.shape == (1, plan.K, 240, 320)
+    True
+    """
     directory = Path(directory)
     _check_not_zarr(directory)
     _check_interrupted(directory)
@@ -354,9 +406,41 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     hours; each frame's own power fluctuation averages down over the sequences), each sequence then rescaled by
     its own gains. A plan with an ambient frame (``plan --ambient``) has that frame subtracted
     instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
-    """
-    from specgpu.planning.correction import ambient_index
 
+    Parameters
+    ----------
+    folder : SequenceFolder
+        Frames, plan and calibration (:func:`read_capture`).
+    sequence : int, optional
+        The sequence to recover; None averages all.
+    out_dtype : numpy dtype
+        Storage of the result.
+    device : optional
+        OpenCL device selector.
+    white_roi, white_reflectance : optional
+        The reference white in the field, as above.
+
+    Returns
+    -------
+    ndarray, (H, W, B)
+        The plan's outputs on ``plan.output_wavelengths`` (reflectance, or XYZ for a tristimulus plan); NaN
+        where saturated.
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> from specgpu.pipeline import SequenceFolder, capture_plan, recover
+    >>> from specgpu.calibration import oracle_calibration
+    >>> from specgpu.planning import make_plan
+    >>> from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
+    >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+    >>> bundle = oracle_calibration(rig)
+    >>> plan = make_plan("narrowband", bundle, step_nm=20.0)
+    >>> result = capture_plan(rig, plan, colorchecker_scene(240, 320), noise_seed=1, calibration=bundle)
+    >>> folder = SequenceFolder(Path("<memory>"), result.sequences[0].frames[None], plan, bundle, [], {})
+    >>> recover(folder).shape == (240, 320, len(plan.output_wavelengths))
+    True
+    """
     if white_roi is not None or ambient_index(folder.plan) is not None:
         plan, bundle = folder.plan, folder.calibration
         picked, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
@@ -393,8 +477,6 @@ def _sequence_decoders(folder: SequenceFolder, sequence, white_roi, white_reflec
     """What :func:`recover` decodes each picked sequence with, when it decodes them one by one (a white ROI or an
     ambient frame): the picked indices and, per sequence, its corrected frames (linearised, per-pattern flat
     ratio), the level subtracted (the ambient frame or the calibration's dark) and its decoder."""
-    from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
-
     plan, bundle = folder.plan, folder.calibration
     amb = ambient_index(plan)
     picked = range(folder.sequences) if sequence is None else [sequence]
@@ -424,9 +506,6 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
     """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames, options and
     corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
     covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.uncertainty`); NaN where saturated."""
-    from specgpu.planning.correction import ambient_index
-    from specgpu.planning import constant_covariance, frame_covariance, frame_variance, output_covariance, sigma_map
-
     used = folder.frames if sequence is None else folder.frames[sequence:sequence + 1]
     if sequence is not None and not 0 <= sequence < folder.sequences:
         raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
@@ -478,8 +557,6 @@ def dark_warning(folder: SequenceFolder, sequence: int | None = None) -> str | N
     further below that level than the camera's noise allows (5 standard deviations of the dark level's temporal
     noise, from the plan's noise model, 1 DN without one, plus 0.5 DN).
     """
-    from specgpu.planning.correction import ambient_index
-
     plan, bundle = folder.plan, folder.calibration
     if ambient_index(plan) is not None:
         return None

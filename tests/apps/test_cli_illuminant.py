@@ -126,7 +126,7 @@ def test_the_stream_preview_shows_a_white_under_A_as_white(tmp_path):
     from types import SimpleNamespace
 
     from specgpu.core.spectra import white_point_XYZ
-    from specgpu.pipeline.stream import PreviewSink
+    from specgpu.pipeline import PreviewSink
 
     XYZ = np.broadcast_to(0.5 * white_point_XYZ("A"), (4, 4, 3)).astype(np.float32)
     sink = PreviewSink(tmp_path / "preview.png", interval_s=0.0, illuminant="A", background=False)

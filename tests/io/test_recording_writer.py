@@ -18,7 +18,7 @@ from click.testing import CliRunner
 
 from specgpu.io import chunks, recording
 from specgpu.io.recording import ZarrRecorder, check_write_rate, open_recording, probe_write_rate
-from specgpu.pipeline.stream import PreviewSink, StreamResult
+from specgpu.pipeline import PreviewSink, StreamResult
 
 # 1 MiB and more per chunk (frames 1.1 MB, cube 6.7 MB), sizes that are not a multiple of the 4 KiB direct-I/O block
 H, W, K, B = 241, 333, 7, 21

@@ -14,7 +14,7 @@ from hypothesis import given, settings, strategies as st
 
 from specgpu.io.recording import (ZarrRecorder, check_free_space, open_recording, patterns_hash, refuse_existing,
                                sequence_bytes)
-from specgpu.pipeline.stream import StreamResult
+from specgpu.pipeline import StreamResult
 
 H, W, K, B = 6, 8, 4, 5
 

@@ -26,7 +26,7 @@ from specgpu.calibration.bundle import save_calibration
 from specgpu.apps.cli import main
 from specgpu.planning import save_plan
 from specgpu.io.recording import ZarrRecorder, open_recording
-from specgpu.pipeline.stream import Stream
+from specgpu.pipeline import Stream
 
 N = 6  # sequences in the recording
 
@@ -398,7 +398,7 @@ def test_a_sequence_folder_source_holds_one_sequence_at_a_time(made, tmp_path):
     checksum)."""
     import tracemalloc
 
-    from specgpu.pipeline.batch import open_source
+    from specgpu.pipeline.batch_source import open_source
 
     setup, root = made
     frames, _, _ = io.read_sequence(root / "seq")
@@ -485,7 +485,7 @@ def test_an_output_killed_while_being_created_is_resumed(made, tmp_path, monkeyp
 
     import zarr
 
-    from specgpu.pipeline import batch
+    from specgpu.pipeline import batch_source
     from specgpu.pipeline.batch import BATCH_FORMAT, prepare_batch
 
     _, root = made
@@ -496,7 +496,7 @@ def test_an_output_killed_while_being_created_is_resumed(made, tmp_path, monkeyp
         raise KeyboardInterrupt  # as a kill in the middle of making the output
 
     with monkeypatch.context() as m:
-        m.setattr(batch._RecordingSource, "times", killed)
+        m.setattr(batch_source._RecordingSource, "times", killed)
         with pytest.raises(KeyboardInterrupt):
             prepare_batch(root / "rec.zarr", plan, bundle, out)
     assert not out.exists() and not list(tmp_path.glob(".b.zarr.*"))
@@ -597,7 +597,7 @@ def test_a_full_disk_on_a_worker_is_one_line_naming_the_output(made, tmp_path, m
 def test_any_changed_identity_entry_is_named_with_both_values(data):
     """The resume check: the same identity resumes; any one entry changed is refused naming its option and both
     values (the dE reference by its label, decided by its checksum)."""
-    from specgpu.pipeline.batch import _IDENTITY_NAMES, _identity_mismatch
+    from specgpu.pipeline.batch_source import _IDENTITY_NAMES, _identity_mismatch
 
     text = st.text(st.characters(min_codepoint=48, max_codepoint=122), min_size=1, max_size=12)
     identity = {key: data.draw(text, key) for key in _IDENTITY_NAMES}

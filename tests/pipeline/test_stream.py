@@ -27,7 +27,7 @@ from specgpu.engine.colorimetry import delta_E
 from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ
 from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.rig.twin import FaultSchedule, TwinRig
-from specgpu.pipeline.stream import (
+from specgpu.pipeline import (
     ExrSequenceWriter,
     PreviewSink,
     ResultsRing,

@@ -28,7 +28,8 @@ from specgpu.io.recording import refuse_existing
 from specgpu.pipeline.live import add_recording, recording_slots, stream_summary
 from specgpu.pipeline.outputs import stream_metadata
 from specgpu.pipeline.recovery import check_scene_covers
-from specgpu.pipeline.stream import STREAM_OUTPUTS, Stream
+from specgpu.pipeline.decoder import STREAM_OUTPUTS
+from specgpu.pipeline.stream import Stream
 from specgpu.rig.config import load_rig
 
 #: the longest stream: a year (a longer one overflows the sequence count the free-space check works out)

@@ -1,0 +1,71 @@
+"""The stream's sinks on hand-made results, without a stream: the callback, the results ring's copies and drops,
+EXR snapshots every n-th result, the sRGB preview. Their work inside a running stream (backpressure, a recording)
+is tested in test_stream.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from specgpu import io
+from specgpu.pipeline.sinks import CallbackSink, ExrSequenceWriter, PreviewSink, ResultsRing, StreamResult
+
+
+def result(index: int, h: int = 4, w: int = 6) -> StreamResult:
+    XYZ = np.full((h, w, 3), 0.2 + 0.01 * index, np.float32)
+    dE = np.full((h, w), float(index), np.float32)
+    return StreamResult(index, cycle=index, frame_ids=np.arange(3) + 3 * index, timestamps_s=np.zeros(3),
+                        arrays={"XYZ": XYZ, "dE": dE}, latency_s=1e-3)
+
+
+def test_callback_sink_calls_and_refuses_what_is_not_callable():
+    seen = []
+    CallbackSink(seen.append).write(result(0))
+    assert [r.index for r in seen] == [0]
+    with pytest.raises(TypeError, match="needs a callable, got int"):
+        CallbackSink(3)
+
+
+def test_results_ring_keeps_copies_of_the_newest_and_counts_the_dropped():
+    ring = ResultsRing(capacity=2, outputs=("dE",))
+    for i in range(5):
+        r = result(i)
+        ring.write(r)
+        r.arrays["dE"][:] = -1  # the stream reuses its buffers once the sinks return
+    assert len(ring) == 2 and ring.written == 5 and ring.dropped == 3
+    got = ring.get(0)
+    assert got.index == 3 and set(got.arrays) == {"dE"} and np.all(got.arrays["dE"] == 3)
+    assert ring.get(0).index == 4 and ring.get(0) is None
+    ring.close()
+    assert ring.get() is None  # closed and empty: no wait
+    with pytest.raises(ValueError, match="capacity must be >= 1"):
+        ResultsRing(capacity=0)
+    with pytest.raises(ValueError, match="unknown results ring policy"):
+        ResultsRing(policy="wait")
+
+
+def test_exr_writer_writes_every_nth_result_readably(tmp_path):
+    writer = ExrSequenceWriter(tmp_path / "exr", every=2, metadata={"run": "unit"})
+    for i in range(4):
+        writer.write(result(i))
+    assert sorted(p.name for p in (tmp_path / "exr").iterdir()) == [
+        f"{n}-{i:06d}.exr" for n in ("XYZ", "dE") for i in (0, 2)]
+    data, _, meta = io.read_map(tmp_path / "exr" / "dE-000002.exr")
+    assert meta["frame_ids"] == [6, 7, 8] and meta["run"] == "unit"
+    np.testing.assert_array_equal(data[..., 0], 2.0)
+    with pytest.raises(ValueError, match="every must be >= 1"):
+        ExrSequenceWriter(tmp_path / "other", every=0)
+    cube = StreamResult(0, 0, np.arange(3), np.zeros(3), {"cube": np.zeros((4, 6, 5), np.float32)}, 0.0)
+    with pytest.raises(ValueError, match="needs its wavelengths"):
+        writer.write(cube)
+
+
+def test_preview_renders_srgb_and_refuses_what_it_cannot_show(tmp_path):
+    preview = PreviewSink(tmp_path / "p.png", interval_s=0.0, background=False)
+    preview.write(result(0))
+    assert preview.image.shape == (4, 6, 3) and preview.image.dtype == np.uint8 and preview.updates == 1
+    assert (tmp_path / "p.png").is_file()
+    with pytest.raises(ValueError, match="needs the XYZ output"):
+        preview.write(StreamResult(1, 1, np.arange(3), np.zeros(3), {"dE": np.zeros((4, 6), np.float32)}, 0.0))
+    with pytest.raises(ValueError, match="the preview is a PNG"):
+        PreviewSink(tmp_path / "p.jpg")
