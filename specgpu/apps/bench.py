@@ -32,15 +32,17 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable
 
+import colour
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
+from tqdm import tqdm
 
 from specgpu import __version__, engine
+from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, frames_to_delta_E
 from specgpu.engine.linear_map import LAYOUTS, apply_linear
 from specgpu.engine.runtime import get_allocator, get_queue
-from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
 from specgpu.testing import parse_sizes
 
 __all__ = ["parse_sizes", "run_bench", "CaseResult", "copy_bandwidth", "format_report", "TARGETS"]
@@ -174,7 +176,6 @@ class _Data:
 
 
 def _make_data(width: int, height: int, seed: int = 0) -> _Data:
-    import colour
 
     rng = np.random.default_rng(seed)
     frames = rng.integers(0, CODE_MAX + 1, size=(K_FRAMES, height, width), dtype=np.uint16)
@@ -188,7 +189,6 @@ def _make_data(width: int, height: int, seed: int = 0) -> _Data:
 
 
 def _illuminant_xy():
-    import colour
 
     return colour.CCS_ILLUMINANTS[DEFAULT_CMFS]["D65"]
 
@@ -244,7 +244,6 @@ def _cube_case(queue, data: _Data, frames_dev, out_dtype, layout: str, reps: tup
 
 
 def _fused_case(queue, data: _Data, frames_dev, reference_dev, reps: tuple[int, int]) -> CaseResult:
-    import colour
 
     _, height, width = data.frames.shape
     n = width * height
@@ -269,7 +268,6 @@ def _fused_case(queue, data: _Data, frames_dev, reference_dev, reps: tuple[int, 
 
 
 def _lab_case(queue, data: _Data, xyz_dev, reference_dev, reps: tuple[int, int]) -> CaseResult:
-    import colour
 
     height, width, _ = data.XYZ.shape
     n = width * height
@@ -445,7 +443,6 @@ def run_bench(sizes=((640, 480), (2048, 2048)), device=None, repeats: int | None
         ``numpy_copy_bandwidth_GBps``, ``date_utc``, ``load_avg_1min`` (``start``, ``end``), ``cases`` (one dict per :class:`CaseResult`) and ``targets``
         (see :func:`evaluate_targets`).
     """
-    from tqdm import tqdm
 
     sizes = [(int(w), int(h)) for w, h in sizes]
     if repeats is not None and repeats < 1:

@@ -23,20 +23,27 @@ from __future__ import annotations
 import html
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import colour
 import numpy as np
+from tqdm import tqdm
 
 from specgpu import io
-
 from specgpu.apps import paper
-from specgpu.planning.basis import save_basis
 from specgpu.calibration import calibrate, save_calibration
-from specgpu.pipeline.evaluate import (evaluate_pixels, evaluate_reflectance, evaluate_XYZ, patch_means, scene_XYZ,
-                       true_patch_spectra)
+from specgpu.pipeline.evaluate import (
+    evaluate_pixels,
+    evaluate_reflectance,
+    evaluate_XYZ,
+    patch_means,
+    scene_XYZ,
+    true_patch_spectra,
+)
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis, to_XYZ, write_capture
 from specgpu.planning import make_plan, save_plan
+from specgpu.planning.basis import save_basis
 from specgpu.rig.config import RigDescription, load_rig
 
 __all__ = ["DEMO_METHODS", "ESTIMATOR_ROWS", "DemoResult", "run_demo", "format_tables"]
@@ -82,7 +89,6 @@ class DemoResult:
 
 
 def _steps(echo, progress, n_profiles):
-    from tqdm import tqdm
 
     return tqdm(total=n_profiles * (2 + len(DEMO_METHODS) + len(ESTIMATOR_ROWS)) + 3, desc="demo", unit="step",
                 leave=False, disable=not progress)
@@ -91,7 +97,6 @@ def _steps(echo, progress, n_profiles):
 def demo_profiles(rig=None) -> dict:
     """label -> RigDescription the demo runs: the lab profile by default (or ``rig``), and beside it the same rig
     with every imperfection off (the ideal profile) when the main one has any."""
-    from dataclasses import replace
 
     from specgpu.rig.config import rig_from_dict
     from specgpu.rig.realism import Drift, Realism
@@ -128,10 +133,10 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     off-state light and the room light are on the scene) and the chart has a reference white tile whose ROI
     rescales each sequence's decoder for the lamp's drift since calibration (:mod:`specgpu.planning.correction`).
     """
-    from specgpu.calibration.bundle import calibration_error
-    from specgpu.planning import default_prior, training_spectra
     from specgpu.apps.estimator_study import study_plans
     from specgpu.apps.studies import chart_with_white, measure_methods
+    from specgpu.calibration.bundle import calibration_error
+    from specgpu.planning import default_prior, training_spectra
 
     t_start = time.perf_counter()
     out = Path(out)
@@ -226,7 +231,6 @@ def _evaluate(out, name, plan, y, scene, device):
 
 
 def _xy(illuminant):
-    import colour
 
     return colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"][illuminant]
 

@@ -22,11 +22,12 @@ import functools
 import os
 import threading
 from dataclasses import dataclass
-from importlib import resources
+from importlib import metadata, resources
 from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
+import pyopencl.characterize as characterize
 import pyopencl.tools  # noqa: F401  (cl.tools.MemoryPool)
 
 __all__ = [
@@ -78,7 +79,6 @@ def _ask_nv_attributes_only_of_devices_with_them() -> None:
     cl_nv_device_attribute_query extension: it is made here only of devices that report the extension, which gives
     the same answer without an invalid API call (a CL_INVALID_VALUE error per kernel object in API checkers such
     as Oclgrind's)."""
-    import pyopencl.characterize as characterize
 
     original = characterize.nv_compute_capability
     if getattr(original, "specgpu_guarded", False):
@@ -438,7 +438,6 @@ def program_cache_size() -> int:
 
 def describe(device=None) -> str:
     """The text of ``specgpu info``: platforms, devices with their selectors, the chosen device and versions."""
-    from importlib import metadata
 
     lines = []
     devices = list_devices()

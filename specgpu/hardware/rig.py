@@ -27,7 +27,7 @@ on real devices.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -200,7 +200,6 @@ def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n
         Exposure of the camera and of each pattern, s (a plan's: its dark frame and decoder are for it); default
         ``hardware.exposure_s``.
     """
-    from dataclasses import replace
 
     from specgpu.hardware.genicam import GenICamCamera
 

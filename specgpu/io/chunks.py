@@ -12,13 +12,17 @@ it) as 8 MiB slices in flight at once; :func:`probe_write_rate` measures how fas
 from __future__ import annotations
 
 import errno
+import mmap
 import os
 import statistics
 import struct
+import tempfile
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import google_crc32c
 import numpy as np
 
 __all__ = [
@@ -63,7 +67,6 @@ def _chunk_bytes(value, dtype) -> np.ndarray:
 def encode_chunk(value, dtype, encoder=None) -> tuple:
     """One chunk as zarr v3 stores it with the recorder's codecs: the bytes (compressed by ``encoder`` when given),
     then their CRC32C (4 bytes, little-endian). Returns (flat uint8 data, checksum bytes): no concatenating copy."""
-    import google_crc32c
 
     data = _chunk_bytes(value, dtype)
     if encoder is not None:
@@ -83,7 +86,6 @@ def _stage() -> np.ndarray:
     """This thread's page-aligned staging buffer (direct I/O writes from aligned memory only)."""
     buf = getattr(_staging, "buf", None)
     if buf is None:
-        import mmap
 
         _staging.map = mmap.mmap(-1, _STAGE_BYTES)  # anonymous maps are page aligned
         buf = _staging.buf = np.frombuffer(_staging.map, np.uint8)
@@ -112,7 +114,6 @@ def _slice_pool():
     flight keep it busy). Slices never submit work of their own, so writer threads may wait on them."""
     with _SLICES_LOCK:
         if not _SLICES:
-            from concurrent.futures import ThreadPoolExecutor
 
             _SLICES.append(ThreadPoolExecutor(max_workers=4, thread_name_prefix="specgpu-chunk-slices"))
         return _SLICES[0]
@@ -244,8 +245,6 @@ def probe_write_rate(path, nbytes: int = 64 << 20, *, repeats: int = 3, max_seco
     8 MiB blocks as the recorder writes them (direct I/O where the file system has it, else buffered) and synced
     to the disk, the median of ``repeats`` (at most about ``max_seconds`` in all). The probe file is a hidden
     temporary one next to ``path``, always removed."""
-    import mmap
-    import tempfile
 
     probe = Path(path)
     while not probe.exists():

@@ -7,6 +7,7 @@ type, interleave and byte order the header declares and finds the data file as E
 
 from __future__ import annotations
 
+import base64
 from pathlib import Path
 
 import numpy as np
@@ -66,7 +67,6 @@ def write_cube_envi(path, cube, wavelengths, *, interleave: str = "bsq", metadat
     metadata : mapping, optional
         JSON values, stored in the header as ``specgpu metadata`` (base64 JSON: ENVI values may not hold braces).
     """
-    import base64
 
     path = Path(path)
     if path.suffix.lower() != ".hdr":
@@ -139,7 +139,6 @@ def read_cube_envi(path) -> tuple[np.ndarray, np.ndarray, dict]:
         One line naming the file: no header or data file, a malformed header, a data file whose size is not
         what the header describes, no or bad wavelengths, unknown data type, interleave or units.
     """
-    import base64
 
     path = Path(path)
     fields = read_envi_header(path)

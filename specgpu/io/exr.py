@@ -14,6 +14,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 
 from specgpu.core.text import one_line
 from specgpu.io.bands import check_cube
@@ -120,7 +121,6 @@ def read_exr(path, what: str = "EXR") -> tuple[np.ndarray, list[str], dict]:
     ValueError
         The file cannot be opened as OpenEXR, is deep, or its pixels are truncated or corrupt.
     """
-    import OpenImageIO as oiio
 
     path = Path(path)
     _check_exists(path, what)
@@ -163,7 +163,6 @@ def write_exr(path, data, names, *, half: bool = False, attributes: dict | None 
     attributes : dict, optional
         Header attributes, name -> str, int or float.
     """
-    import OpenImageIO as oiio
 
     path = Path(path)
     arr = np.asarray(data, dtype=np.float32)
@@ -186,7 +185,6 @@ def write_exr(path, data, names, *, half: bool = False, attributes: dict | None 
 def write_image(path: Path, pixels: np.ndarray, spec, format_name: str, label: str) -> Path:
     """Write ``pixels`` (H, W, C) with an OpenImageIO ``spec`` through ``format_name``, atomically (temporary name,
     renamed at the end); a failure is a one-line ValueError naming the file."""
-    import OpenImageIO as oiio
 
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(format_name)

@@ -13,6 +13,8 @@ import os
 import re
 from pathlib import Path
 
+import OpenImageIO as oiio
+
 from specgpu.io.paths import atomic_path, error_of
 from specgpu.io.sequence import (
     _FRAME_NAME,
@@ -46,7 +48,6 @@ def _journal_line(raw: bytes):
 
 def _frame_shape(path: Path):
     """(height, width) of a frame file from its header, or None when it cannot be read as an image."""
-    import OpenImageIO as oiio
 
     inp = oiio.ImageInput.open(str(path))
     if inp is None:

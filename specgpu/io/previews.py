@@ -9,7 +9,9 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import colour
 import numpy as np
+import OpenImageIO as oiio
 
 from specgpu.core.text import one_line
 from specgpu.io.exr import write_image
@@ -24,7 +26,6 @@ PERCEPTUAL_COLORMAPS = ("magma", "inferno", "viridis", "plasma", "cividis")
 
 def write_png(path: Path, rgb8: np.ndarray, attributes: dict) -> Path:
     """Write an (H, W, C) uint8 image as PNG, atomically, with ``attributes`` as its text metadata; return ``path``."""
-    import OpenImageIO as oiio
 
     h, w, c = rgb8.shape
     spec = oiio.ImageSpec(w, h, c, "uint8")
@@ -67,7 +68,6 @@ def write_sRGB_preview(path, XYZ, *, exposure="auto", illuminant=None, metadata=
     pathlib.Path
         ``path``; the PNG text holds ``specgpu:exposure_EV`` (the exposure applied).
     """
-    import colour
 
     path = Path(path)
     _suffix(path, (".png",), "preview")
@@ -150,7 +150,6 @@ def write_delta_E_png(path, delta_E, *, vmax=None, colormap: str = "magma", quan
 
 def read_png(path) -> tuple[np.ndarray, dict]:
     """Read an 8-bit PNG: (H, W, C) uint8 pixels and its text metadata (name -> str)."""
-    import OpenImageIO as oiio
 
     path = Path(path)
     if not path.is_file():

@@ -89,6 +89,8 @@ import os
 import shutil
 import time
 import uuid
+import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -241,7 +243,6 @@ class ZarrRecorder:
     def __init__(self, path, plan, *, outputs=None, frames: bool = False, basis=None, metadata=None,
                  grow: int = 64, disk_rate: float | None = None, compression: str | None = None, threads: int = 4,
                  direct: bool = True):
-        from concurrent.futures import ThreadPoolExecutor
 
         import zarr
 
@@ -457,7 +458,6 @@ def native(a):
 
 def consolidate(path) -> None:
     """Consolidate a group's metadata into its root document (xarray then opens it from one read)."""
-    import warnings
 
     import zarr
 

@@ -20,6 +20,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 
 from specgpu.core.text import one_line
 from specgpu.io.metadata import _metadata_json
@@ -180,7 +181,6 @@ def _frame_array(frame, i: int, directory: Path, shape) -> np.ndarray:
 
 
 def _write_tiff(path: Path, frame: np.ndarray) -> tuple[int, str]:
-    import OpenImageIO as oiio
 
     h, w, _ = frame.shape
     spec = oiio.ImageSpec(w, h, 1, "uint16")
@@ -459,7 +459,6 @@ def read_sequence_header(directory) -> tuple[list[dict], dict]:
 
 
 def _read_tiff(path: Path, shape) -> np.ndarray:
-    import OpenImageIO as oiio
 
     inp = oiio.ImageInput.open(str(path))
     if inp is None:

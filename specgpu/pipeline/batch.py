@@ -35,23 +35,34 @@ The output is a zarr v3 group laid out like a recording (:mod:`specgpu.io.record
 
 from __future__ import annotations
 
+import json
+import logging
 import os
 import shutil
 import threading
+import time
+import uuid
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
+from tqdm import tqdm
 
 from specgpu.core.locks import OutputLocked, output_lock, pid_alive
 from specgpu.core.spectra import DEFAULT_CMFS
 from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.io.chunks import DirectIO, checksum_codecs, write_sequence_chunk
 from specgpu.io.recording import CHANNELS, consolidate, patterns_hash, remove_partial_chunks
-from specgpu.pipeline.batch_source import _RecordingSource, _identity_mismatch, _reference_hash, open_source, \
-    reference_label
+from specgpu.pipeline.batch_source import (
+    _identity_mismatch,
+    _RecordingSource,
+    _reference_hash,
+    open_source,
+    reference_label,
+)
 from specgpu.pipeline.decoder import StreamDecoder
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
@@ -99,7 +110,6 @@ def _writer_pool():
     """This process's chunk writer threads (made on first use)."""
     with _STATE_LOCK:
         if not _POOL:
-            from concurrent.futures import ThreadPoolExecutor
 
             _POOL.append(ThreadPoolExecutor(max_workers=4, thread_name_prefix="specgpu-batch-writer"))
         return _POOL[0]
@@ -447,7 +457,6 @@ def _remove_dead_creations(out: Path) -> None:
 def _unfinished_creation(out: Path) -> bool:
     """A batch output whose creation was cut before its ``done`` array existed (an older specgpu created it in
     place): no sequence was computed in it."""
-    import json
 
     try:
         doc = json.loads((out / "zarr.json").read_text(encoding="utf-8"))
@@ -540,12 +549,8 @@ def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illumin
 
 def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, observer, method, reference, scheduler,
                 workers, client, progress, on_done, device) -> BatchReport:
-    import logging
-    import time
-    import uuid
 
     from distributed import Client, LocalCluster, as_completed
-    from tqdm import tqdm
 
     job, todo = prepare_batch(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
                               observer=observer, method=method, reference=reference, device=device)

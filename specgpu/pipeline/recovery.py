@@ -9,6 +9,7 @@ file, never a silent wrong answer.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from dataclasses import dataclass
@@ -20,18 +21,23 @@ from specgpu import io
 from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save_calibration
 from specgpu.capture.session import CaptureResult, capture_sequences
 from specgpu.capture.twin import TwinDriver
+from specgpu.core.spectra import DEFAULT_CMFS
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
+from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
 from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
-from specgpu.planning.uncertainty import constant_covariance, frame_covariance, frame_variance, output_covariance, \
-    sigma_map
 from specgpu.planning.plans import Plan, load_plan, save_plan
-from specgpu.engine.linear_map import apply_linear
+from specgpu.planning.uncertainty import (
+    constant_covariance,
+    frame_covariance,
+    frame_variance,
+    output_covariance,
+    sigma_map,
+)
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig
-from specgpu.core.spectra import DEFAULT_CMFS
 
 __all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder", "read_capture", "recover", "dark_warning", "to_XYZ", "to_Lab"]
 
@@ -288,7 +294,6 @@ class SequenceFolder:
 
 def _zarr_not_a_sequence(directory: Path) -> str:
     """The refusal of a zarr recording where a sequence folder is read: say what it is and what reads it."""
-    import json
 
     try:
         attrs = json.loads((directory / "zarr.json").read_text()).get("attributes", {})

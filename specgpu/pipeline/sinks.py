@@ -12,6 +12,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
+import colour
 import numpy as np
 
 from specgpu import io
@@ -233,7 +234,6 @@ class PreviewSink(Sink):
 
     def __init__(self, path=None, interval_s: float = 0.5, illuminant: str = "D65", background: bool = True, *,
                  observer: str = DEFAULT_CMFS):
-        import colour
 
         self.path = None if path is None else Path(path)
         if self.path is not None and self.path.suffix.lower() != ".png":
@@ -286,7 +286,6 @@ class PreviewSink(Sink):
         colour-science's XYZ_to_sRGB as one matrix product and a table look-up (within one code value of it, ~10x
         faster)."""
         if cls._tables is None:
-            import colour
 
             codes = colour.models.eotf_inverse_sRGB(np.linspace(0.0, 1.0, 65536))
             cls._tables = (np.clip(codes, 0, 1) * 255 + 0.5).astype(np.uint8)

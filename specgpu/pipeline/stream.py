@@ -49,9 +49,13 @@ from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.engine.transfer import pinned_empty
 from specgpu.pipeline.decoder import STREAM_OUTPUTS, StreamDecoder
 from specgpu.pipeline.sinks import CallbackSink, StreamResult
-from specgpu.pipeline.stream_report import LatencyHistogram, StreamReport, current_rss_bytes, peak_rss_bytes, \
-    peak_rss_reset
-from specgpu.core.validate import validate_method
+from specgpu.pipeline.stream_report import (
+    LatencyHistogram,
+    StreamReport,
+    current_rss_bytes,
+    peak_rss_bytes,
+    peak_rss_reset,
+)
 
 __all__ = ["STREAM_OUTPUTS", "Stream"]
 

@@ -42,7 +42,11 @@ import io
 from dataclasses import dataclass
 from pathlib import Path
 
+import colour
+import colour.characterisation
+import colour.quality
 import numpy as np
+from colour.quality.cfi2017 import load_TCS_CIE2017
 
 from specgpu.io.tables import load_npz, save_npz
 
@@ -69,7 +73,6 @@ MAX_REFLECTANCE = 1.5
 
 def _colourchecker(name):
     def load():
-        import colour
 
         sds = colour.SDS_COLOURCHECKERS[name]
         return [(k, np.asarray(s.wavelengths, float), np.asarray(s.values, float)) for k, s in sds.items()]
@@ -78,7 +81,6 @@ def _colourchecker(name):
 
 def _quality(table, name):
     def load():
-        import colour.quality
 
         sds = getattr(colour.quality, table)[name]
         return [(k, np.asarray(s.wavelengths, float), np.asarray(s.values, float)) for k, s in sds.items()]
@@ -86,8 +88,6 @@ def _quality(table, name):
 
 
 def _cfi2017():
-    import colour
-    from colour.quality.cfi2017 import load_TCS_CIE2017
 
     msds = load_TCS_CIE2017(colour.SpectralShape(380, 780, 5))
     wl = np.asarray(msds.wavelengths, float)
@@ -95,7 +95,6 @@ def _cfi2017():
 
 
 def _rawtoaces():
-    import colour.characterisation
 
     msds = colour.characterisation.read_training_data_rawtoaces_v1()
     wl = np.asarray(msds.wavelengths, float)

@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+import colour
 import numpy as np
 
 from specgpu.core.validate import check_array, check_number, normalised_to_peak
@@ -173,7 +174,6 @@ class LightParameters:
 
 def photopic_y(wavelengths: np.ndarray) -> np.ndarray:
     """CIE 1931 2-degree y-bar colour-matching function sampled at ``wavelengths`` (nm); 0 outside 360-830."""
-    import colour
 
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     return np.interp(wavelengths, cmfs.wavelengths, cmfs.values[:, 1], left=0.0, right=0.0)
@@ -214,7 +214,6 @@ def lamp_spd(params: LightParameters, wavelengths: np.ndarray) -> np.ndarray:
         blaze = np.sinc(x) ** 2
         spd = spd * guide * blaze
     elif lamp == "kinoton-75p":
-        import colour
 
         sd = colour.SDS_LIGHT_SOURCES["Kinoton 75P"]
         spd = np.interp(wl, sd.wavelengths, sd.values, left=0.0, right=0.0)

@@ -25,12 +25,15 @@ import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import colour
 import numpy as np
+import skimage.data
+from skimage.transform import resize
 
+from specgpu.core.validate import check_array, check_number, check_wavelengths
 from specgpu.io.envi import read_cube_envi
 from specgpu.io.exr import read_cube_exr, write_cube_exr
 from specgpu.io.npz import read_cube_npz, write_cube_npz
-from specgpu.core.validate import check_array, check_number, check_wavelengths
 
 __all__ = [
     "SpectralScene", "read_scene", "write_scene", "colorchecker_scene", "white_plate_scene", "natural_scene",
@@ -314,7 +317,6 @@ def colorchecker_scene(height: int = 480, width: int = 640, *, chart: str = "Col
         Masks keyed by colour-science's patch names (``"dark skin"`` ... ``"black 2 (1.5 D)"``), in chart order;
         each covers the central 70 % of its patch, away from edges blurred by real optics.
     """
-    import colour
 
     if chart not in _CHARTS:
         raise ValueError(f"unknown chart {chart!r}; valid charts: {', '.join(_CHARTS)}")
@@ -367,9 +369,6 @@ _UPSAMPLING = ("Mallett 2019",)
 
 @functools.lru_cache(maxsize=8)
 def _natural_cube(image: str, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    import colour
-    import skimage.data
-    from skimage.transform import resize
 
     rgb = getattr(skimage.data, image)()[..., :3].astype(np.float64) / 255.0
     # Centre-crop to the target aspect ratio, then resample with anti-aliasing.

@@ -26,6 +26,7 @@ import math
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
+import colour
 import numpy as np
 
 from specgpu.core.validate import check_number
@@ -461,7 +462,6 @@ class TwinRig:
 def ambient_spectrum(wavelengths, lux: float) -> np.ndarray:
     """Spectral irradiance (W m^-2 nm^-1) of room light at ``lux``: CIE FL2 (a cool-white fluorescent tube, the
     commonest lab ceiling light) scaled to that illuminance."""
-    import colour
 
     from specgpu.rig.light import K_M, photopic_y
 
