@@ -32,7 +32,10 @@ from tqdm import tqdm
 
 from specgpu import io
 from specgpu.apps import paper
+from specgpu.apps.estimator_study import study_plans
+from specgpu.apps.studies import chart_with_white, mean_std, measure_methods
 from specgpu.calibration import calibrate, save_calibration
+from specgpu.calibration.bundle import calibration_error
 from specgpu.pipeline.evaluate import (
     evaluate_pixels,
     evaluate_reflectance,
@@ -42,9 +45,10 @@ from specgpu.pipeline.evaluate import (
     true_patch_spectra,
 )
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis, to_XYZ, write_capture
-from specgpu.planning import make_plan, save_plan
+from specgpu.planning import default_prior, make_plan, save_plan, training_spectra
 from specgpu.planning.basis import save_basis
-from specgpu.rig.config import RigDescription, load_rig
+from specgpu.rig.config import RigDescription, load_rig, rig_from_dict
+from specgpu.rig.realism import Drift, Realism
 
 __all__ = ["DEMO_METHODS", "ESTIMATOR_ROWS", "DemoResult", "run_demo", "format_tables"]
 
@@ -98,8 +102,6 @@ def demo_profiles(rig=None) -> dict:
     """label -> RigDescription the demo runs: the lab profile by default (or ``rig``), and beside it the same rig
     with every imperfection off (the ideal profile) when the main one has any."""
 
-    from specgpu.rig.config import rig_from_dict
-    from specgpu.rig.realism import Drift, Realism
 
     if rig is None:
         description = rig_from_dict({"twin": {"profile": "lab"}}, source="<lab profile>")
@@ -133,10 +135,6 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     off-state light and the room light are on the scene) and the chart has a reference white tile whose ROI
     rescales each sequence's decoder for the lamp's drift since calibration (:mod:`specgpu.planning.correction`).
     """
-    from specgpu.apps.estimator_study import study_plans
-    from specgpu.apps.studies import chart_with_white, measure_methods
-    from specgpu.calibration.bundle import calibration_error
-    from specgpu.planning import default_prior, training_spectra
 
     t_start = time.perf_counter()
     out = Path(out)
@@ -239,7 +237,6 @@ def _xy(illuminant):
 
 
 def _pm(values, digits: int) -> str:
-    from specgpu.apps.studies import mean_std
 
     if not values:
         return "-"
@@ -281,7 +278,6 @@ def _expected(r) -> str:
     exp = r.get("expected_rmse")
     if exp is None or not r.get("px_rms"):
         return ""
-    from specgpu.apps.studies import mean_std
 
     return f"{_pm(r['px_rms'], 4):>16}{exp:>9.4f}{mean_std(r['px_rms'])[0] / exp:>6.2f}"
 
@@ -343,7 +339,6 @@ def _report_json(result: DemoResult) -> dict:
                          "dE76_mean": s["delta_E_ab"][0], "dE76_max": s["delta_E_ab"][1],
                          "dE2000_mean": s["delta_E_2000"][0], "dE2000_max": s["delta_E_2000"][1],
                          "pixels": r["pixels"], "patches": rows}
-    from specgpu.apps.studies import mean_std
 
     draws = {label: {name: {k: {"values": v, "mean": mean_std(v)[0], "std": mean_std(v)[1]}
                             for k, v in rows.items() if isinstance(v, list)} | {"K": rows["K"]}

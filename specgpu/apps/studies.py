@@ -11,9 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.planning.correction import with_ambient_frame, with_drift_probes
-from specgpu.pipeline.evaluate import evaluate_pixels, evaluate_reflectance, evaluate_XYZ
+from specgpu.pipeline.evaluate import evaluate_pixels, evaluate_reflectance, evaluate_XYZ, truth_cube
 from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover
+from specgpu.planning.basis import DEFAULT_WAVELENGTHS, REFLECTANCE_SETS, load_reflectances, pca_basis
+from specgpu.planning.correction import with_ambient_frame, with_drift_probes
+from specgpu.rig.scene import SpectralScene, colorchecker_scene, white_tile_roi
 
 __all__ = ["measure_methods", "chart_with_white", "measured_chart_with_white", "chart_errors", "mean_std", "METRICS",
            "LEVEL_EDGES"]
@@ -26,7 +28,6 @@ METRICS = ("rmse", "dEab", "dE00", "px_rmse", "px_dE00", "px_rms")
 def chart_with_white(description, chart: str):
     """The evaluation chart with the reference white tile above it (the twin's white: the certificate's 0.99 off
     by the bench's ``white_error``) and the tile's ROI."""
-    from specgpu.rig.scene import colorchecker_scene, white_tile_roi
 
     cam = description.camera
     true_white = 0.99 * (1.0 + description.realism.white_error)
@@ -49,8 +50,6 @@ def measured_chart_with_white(description, height: int, width: int, *, basis: bo
 
     Returns (scene, roi) or (scene, roi, basis).
     """
-    from specgpu.planning.basis import DEFAULT_WAVELENGTHS, REFLECTANCE_SETS, load_reflectances, pca_basis
-    from specgpu.rig.scene import SpectralScene
 
     h, w = int(height), int(width)
     if h < 60 or w < 60:
@@ -97,7 +96,6 @@ def chart_errors(cube, wavelengths, scene) -> dict:
     patches), ``bias_400nm`` (mean recovered - true at the band nearest 400 nm over the patches' pixels) and
     ``bias_by_level`` (mean recovered - true over the patches' pixels and bands whose true reflectance lies in each
     :data:`LEVEL_EDGES` interval; NaN where none does)."""
-    from specgpu.pipeline.evaluate import truth_cube
 
     y = np.asarray(cube, np.float64)
     wl = np.asarray(wavelengths, np.float64)
@@ -153,7 +151,6 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
         plans), plus ``"K"`` (frames per sequence) and, for a plan that records one (an estimator's, a design's),
         ``"expected_rmse"``: the RMSE its decoder expects on its training prior.
     """
-    from specgpu.pipeline.evaluate import truth_cube
 
     out = {}
     patches = np.any(list(scene.masks.values()), axis=0) if scene.masks else None

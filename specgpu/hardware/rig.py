@@ -32,7 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
+from specgpu.capture.session import capture_sequences
 from specgpu.core.validate import check_number
+from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, SimulatedDLPC900, UsbTransport
+from specgpu.hardware.dlpc900.images import COMPRESSIONS, GEOMETRIES
+from specgpu.hardware.genicam import MODES, GenICamCamera
+from specgpu.hardware.ocean import OceanSpectrometer
+from specgpu.rig.config import RigDescription, load_rig
+from specgpu.rig.light import ProgrammableLight
 
 __all__ = ["HardwareConfig", "open_hardware", "open_light", "open_spectrometer", "HardwareRig",
            "HardwareCalibrationRig", "open_calibration_rig"]
@@ -100,8 +107,6 @@ class HardwareConfig:
     integration_time_s: float = 0.1
 
     def __post_init__(self):
-        from specgpu.hardware.dlpc900.images import COMPRESSIONS, GEOMETRIES
-        from specgpu.hardware.genicam import MODES
 
         for key, value, valid in (("light", self.light, LIGHTS), ("dmd", self.dmd, tuple(GEOMETRIES)),
                                   ("compression", self.compression, tuple(COMPRESSIONS)),
@@ -154,8 +159,6 @@ def _config(hardware) -> HardwareConfig:
 
 
 def _model(rig):
-    from specgpu.rig.config import RigDescription, load_rig
-    from specgpu.rig.light import ProgrammableLight
 
     if rig is None:
         return ProgrammableLight()
@@ -166,7 +169,6 @@ def _model(rig):
 def open_light(hardware=None, *, rig=None, calibration=None, transport=None):
     """The :class:`~specgpu.hardware.dlpc900.DLPC900Light` a :class:`HardwareConfig` names (``transport``
     overrides the USB or simulated one)."""
-    from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, SimulatedDLPC900, UsbTransport
 
     cfg = _config(hardware)
     if transport is None:
@@ -201,7 +203,6 @@ def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n
         ``hardware.exposure_s``.
     """
 
-    from specgpu.hardware.genicam import GenICamCamera
 
     cfg = _config(hardware)
     if exposure_s is not None:
@@ -222,7 +223,6 @@ def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n
 
 def open_spectrometer(hardware=None, *, device=None):
     """The spectrometer a :class:`HardwareConfig` names; ``ValueError`` if it names none."""
-    from specgpu.hardware.ocean import OceanSpectrometer
 
     cfg = _config(hardware)
     if cfg.spectrometer != "ocean" and device is None:
@@ -320,7 +320,6 @@ class HardwareCalibrationRig(HardwareRig):
     def capture_mean(self, patterns, repeats: int, *, exposure_s: float | None = None,
                      noise_seed: int | None = None) -> np.ndarray:
         """(K, H, W) float64 mean of ``repeats`` sequences of ``patterns`` captured at ``exposure_s`` (s)."""
-        from specgpu.capture.session import capture_sequences
 
         patterns = np.atleast_2d(np.asarray(patterns, np.int32))
         k = patterns.shape[0]
@@ -377,8 +376,6 @@ def open_calibration_rig(rig=None, *, hardware=None, acquirer=None, transport=No
     ``spectrometer`` (an :class:`~specgpu.hardware.ocean.OceanSpectrometer`, or a seabreeze-like device for it)
     replace the devices the table would open (tests, dry runs).
     """
-    from specgpu.hardware.ocean import OceanSpectrometer
-    from specgpu.rig.config import RigDescription, load_rig
 
     cfg = _config(hardware)
     desc = rig if isinstance(rig, RigDescription) else load_rig(rig)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from specgpu.hardware.dlpc900.transport import import_pyusb, no_backend_message
 from specgpu.hardware.errors import BackendMissing
 
 __all__ = ["UsbDevice", "list_usb_devices", "KNOWN_DEVICES"]
@@ -72,7 +73,6 @@ def list_usb_devices(*, known_only: bool = False, find=None) -> list[UsbDevice]:
         pyusb or its libusb backend is not installed (one line, with the fix).
     """
     if find is None:
-        from specgpu.hardware.dlpc900.transport import import_pyusb, no_backend_message
 
         core, _ = import_pyusb()
         try:

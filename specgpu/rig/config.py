@@ -40,9 +40,10 @@ from pathlib import Path
 
 from specgpu.core.validate import check_number
 from specgpu.rig.camera import CameraParameters
-from specgpu.rig.sensors import expand_preset
 from specgpu.rig.light import LightParameters
 from specgpu.rig.realism import CAPTURE_DELAY_S, PROFILES, Drift, Realism, profile_realism
+from specgpu.rig.scene import _NATURAL_IMAGES
+from specgpu.rig.sensors import PRESETS, expand_preset
 from specgpu.rig.spectroradiometer import SpectroradiometerParameters
 
 __all__ = ["FaultRates", "RigDescription", "load_rig", "rig_from_dict", "dump_rig", "PACING"]
@@ -221,7 +222,6 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
     if not isinstance(scene, str):
         raise ValueError(f"{source}: scene.source must be a string, got {scene!r}")
     if scene.startswith("natural:"):
-        from specgpu.rig.scene import _NATURAL_IMAGES
 
         if scene[8:] not in _NATURAL_IMAGES:
             raise ValueError(f"{source}: scene.source {scene!r}: unknown image; valid: {', '.join(_NATURAL_IMAGES)}")
@@ -304,7 +304,7 @@ def _toml_value(value) -> str:
     raise TypeError(f"cannot write {value!r} to TOML")
 
 
-def dump_rig(description: RigDescription | None = None) -> str:
+def dump_rig(description: RigDescription | None = None, *, hardware_defaults: dict | None = None) -> str:
     """The rig description as TOML text, every key ``load_rig`` reads written out (the paper's defaults if
     ``None``).
 
@@ -313,8 +313,13 @@ def dump_rig(description: RigDescription | None = None) -> str:
     value in force, so the text still round-trips and an edit of ``[twin] profile`` still acts: ``[camera]
     preset`` (its values are written out as the camera keys), ``[twin] capture_delay_s`` when it follows the
     profile, each ``[realism]`` key at the profile's value, and the ``[hardware]`` keys of a twin rig (an
-    uncommented ``[hardware]`` key drives real devices; their defaults from
-    :class:`specgpu.hardware.rig.HardwareConfig`).
+    uncommented ``[hardware]`` key drives real devices) when ``hardware_defaults`` gives them: the rig sits below
+    the hardware room and does not know its devices, so the caller passes
+    ``{f.name: f.default for f in dataclasses.fields(specgpu.hardware.HardwareConfig)}``.
+
+    >>> rig = load_rig(None)
+    >>> "[light]" in dump_rig(rig)
+    True
     """
     d = description if description is not None else RigDescription()
     data = d.to_dict()
@@ -328,7 +333,6 @@ def dump_rig(description: RigDescription | None = None) -> str:
     for name in ("light", "camera", "scene"):
         table(name, data[name])
         if name == "camera":
-            from specgpu.rig.sensors import PRESETS
 
             lines.insert(len(lines) - len(data[name]), "# preset = " + " | ".join(_toml_value(p) for p in PRESETS)
                          + "  # a sensor's data-sheet values for every camera key not given")
@@ -345,8 +349,5 @@ def dump_rig(description: RigDescription | None = None) -> str:
     if d.hardware:
         table("hardware", d.hardware)
     else:
-        from specgpu.hardware.rig import HardwareConfig
-
-        table("hardware", {}, {f.name: f.default for f in fields(HardwareConfig)},
-              "empty: the digital twin; any key here drives real devices")
+        table("hardware", {}, hardware_defaults or {}, "empty: the digital twin; any key here drives real devices")
     return "\n".join(lines) + "\n"

@@ -33,6 +33,7 @@ import numpy as np
 
 from specgpu.core.validate import check_array, check_number, normalised_to_peak
 from specgpu.io.npz import curve_on_grid
+from specgpu.rig.realism import Drift, Realism
 
 __all__ = ["LightParameters", "ProgrammableLight", "PatternFit", "lamp_spd", "photopic_y"]
 
@@ -308,7 +309,6 @@ class ProgrammableLight:
 
     def __init__(self, params: LightParameters | None = None, *, seed: int = 0, realism=None, drift=None,
                  clock_s: float = 0.0):
-        from specgpu.rig.realism import Drift, Realism
 
         self.params = params if params is not None else LightParameters()
         self.realism = r = realism if realism is not None else Realism()

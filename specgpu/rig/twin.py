@@ -32,7 +32,7 @@ import numpy as np
 from specgpu.core.validate import check_number
 from specgpu.rig.camera import _NORMAL_TABLE, Camera, standard_normal_fill
 from specgpu.rig.config import FaultRates, RigDescription
-from specgpu.rig.light import ProgrammableLight
+from specgpu.rig.light import K_M, ProgrammableLight, lamp_change, photopic_y
 from specgpu.rig.scene import SpectralScene, load_scene, white_plate_scene
 from specgpu.rig.spectroradiometer import Spectroradiometer
 
@@ -307,7 +307,6 @@ class TwinRig:
     def _colour_slopes(self) -> np.ndarray | None:
         """(K,) relative change of each loaded pattern's output on a white per K of lamp colour temperature (from
         the lamp's state at the clock start), or None when the colour does not drift on the clock."""
-        from specgpu.rig.light import lamp_change
 
         rate = self.realism.lamp_cct_drift_K_per_hour
         if not rate:
@@ -463,7 +462,6 @@ def ambient_spectrum(wavelengths, lux: float) -> np.ndarray:
     """Spectral irradiance (W m^-2 nm^-1) of room light at ``lux``: CIE FL2 (a cool-white fluorescent tube, the
     commonest lab ceiling light) scaled to that illuminance."""
 
-    from specgpu.rig.light import K_M, photopic_y
 
     wl = np.asarray(wavelengths, np.float64)
     sd = colour.SDS_ILLUMINANTS["FL2"]

@@ -34,6 +34,7 @@ from specgpu.core.validate import check_number
 from specgpu.hardware.dlpc900.device import DLPC900, LutEntry
 from specgpu.hardware.dlpc900.images import BITS_PER_IMAGE, DMDLayout
 from specgpu.hardware.errors import LightFault
+from specgpu.rig.light import ProgrammableLight
 
 __all__ = ["DLPC900Light", "DEFAULT_DARK_S"]
 
@@ -74,7 +75,6 @@ class DLPC900Light(LightSource):
     def __init__(self, device: DLPC900 | None = None, *, layout: DMDLayout | None = None, model=None,
                  calibration=None, exposure_s: float = 0.010, wait_for_trigger: bool = True,
                  compression: str = "erle", dark_s: float = DEFAULT_DARK_S):
-        from specgpu.rig.light import ProgrammableLight
 
         self.device = device if device is not None else DLPC900()
         self.model = model if model is not None else ProgrammableLight()
