@@ -16,14 +16,7 @@ from specgpu.capture.assemble import AssemblyStats, Sequence
 from specgpu.capture.replay import ReplayDriver, record
 from specgpu.capture.twin import TwinDriver
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
-from specgpu.pipeline.recovery import (
-    default_basis,
-    read_capture,
-    recover,
-    to_Lab,
-    to_XYZ,
-    write_capture,
-)
+from specgpu.pipeline import default_basis, read_capture, recover, to_Lab, to_XYZ, write_capture
 from specgpu.planning import plan_symmetric_basis, save_plan
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene
@@ -91,7 +84,6 @@ class StreamSetup:
     reference: np.ndarray
 
     def driver(self, *, loops=None, pacing="free"):
-
         return ReplayDriver(self.frames, self.infos, self.light, loops=loops, pacing=pacing)
 
     def recorded_sequence(self, frame_ids) -> int:
@@ -124,7 +116,6 @@ def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 
 
 
 def scene_Lab(scene, illuminant="D65"):
-
     return XYZ_to_Lab(reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant), illuminant)
 
 

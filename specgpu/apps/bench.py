@@ -176,7 +176,6 @@ class _Data:
 
 
 def _make_data(width: int, height: int, seed: int = 0) -> _Data:
-
     rng = np.random.default_rng(seed)
     frames = rng.integers(0, CODE_MAX + 1, size=(K_FRAMES, height, width), dtype=np.uint16)
     A = decoder_matrix()
@@ -188,8 +187,12 @@ def _make_data(width: int, height: int, seed: int = 0) -> _Data:
     return _Data(frames, A, M, XYZ, reference)
 
 
-def _illuminant_xy():
+def _D65() -> tuple:
+    """The D65 white (XYZ, Y = 100 scale of the kernels) and its chromaticity (colour-science's baseline)."""
+    return white_point_XYZ("D65"), _illuminant_xy()
 
+
+def _illuminant_xy():
     return colour.CCS_ILLUMINANTS[DEFAULT_CMFS]["D65"]
 
 
@@ -244,11 +247,8 @@ def _cube_case(queue, data: _Data, frames_dev, out_dtype, layout: str, reps: tup
 
 
 def _fused_case(queue, data: _Data, frames_dev, reference_dev, reps: tuple[int, int]) -> CaseResult:
-
     _, height, width = data.frames.shape
-    n = width * height
-    white = white_point_XYZ("D65")
-    xy = _illuminant_xy()
+    n, (white, xy) = width * height, _D65()
 
     def device():
         return engine.launch_frames_to_delta_E(queue, frames_dev, data.M, white, reference_dev, n=n,
@@ -268,11 +268,8 @@ def _fused_case(queue, data: _Data, frames_dev, reference_dev, reps: tuple[int, 
 
 
 def _lab_case(queue, data: _Data, xyz_dev, reference_dev, reps: tuple[int, int]) -> CaseResult:
-
     height, width, _ = data.XYZ.shape
-    n = width * height
-    white = white_point_XYZ("D65")
-    xy = _illuminant_xy()
+    n, (white, xy) = width * height, _D65()
 
     def device():
         lab = engine.launch_XYZ_to_Lab(queue, xyz_dev, white, n=n)

@@ -93,7 +93,6 @@ class DemoResult:
 
 
 def _steps(echo, progress, n_profiles):
-
     return tqdm(total=n_profiles * (2 + len(DEMO_METHODS) + len(ESTIMATOR_ROWS)) + 3, desc="demo", unit="step",
                 leave=False, disable=not progress)
 
@@ -229,7 +228,6 @@ def _evaluate(out, name, plan, y, scene, device):
 
 
 def _xy(illuminant):
-
     return colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"][illuminant]
 
 
@@ -237,7 +235,6 @@ def _xy(illuminant):
 
 
 def _pm(values, digits: int) -> str:
-
     if not values:
         return "-"
     mu, sd = mean_std(values)

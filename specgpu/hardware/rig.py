@@ -107,7 +107,6 @@ class HardwareConfig:
     integration_time_s: float = 0.1
 
     def __post_init__(self):
-
         for key, value, valid in (("light", self.light, LIGHTS), ("dmd", self.dmd, tuple(GEOMETRIES)),
                                   ("compression", self.compression, tuple(COMPRESSIONS)),
                                   ("camera_mode", self.camera_mode, MODES),
@@ -159,7 +158,6 @@ def _config(hardware) -> HardwareConfig:
 
 
 def _model(rig):
-
     if rig is None:
         return ProgrammableLight()
     desc = rig if isinstance(rig, RigDescription) else load_rig(rig)

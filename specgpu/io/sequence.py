@@ -181,7 +181,6 @@ def _frame_array(frame, i: int, directory: Path, shape) -> np.ndarray:
 
 
 def _write_tiff(path: Path, frame: np.ndarray) -> tuple[int, str]:
-
     h, w, _ = frame.shape
     spec = oiio.ImageSpec(w, h, 1, "uint16")
     spec.attribute("compression", "zip")
@@ -459,7 +458,6 @@ def read_sequence_header(directory) -> tuple[list[dict], dict]:
 
 
 def _read_tiff(path: Path, shape) -> np.ndarray:
-
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise ValueError(f"{path}: truncated or corrupt TIFF ({one_line(error_of(oiio))})")
@@ -508,16 +506,17 @@ def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[d
 
     Examples
     --------
+    A folder written by :func:`write_sequence` reads back frame for frame:
+
     >>> import pathlib, tempfile
     >>> import numpy as np
     >>> from specgpu.io import read_sequence, write_sequence
-    >>> records = [{"frame_id": i, "pattern_index": i, "exposure_s": 0.01, "timestamp_s": 0.02 * i}
-    ...            for i in range(3)]
-    >>> folder = write_sequence(pathlib.Path(tempfile.mkdtemp()) / "seq", np.zeros((3, 4, 5), np.uint16),
-    ...                         records, plan_hash="0123abcd")
-    >>> frames, records_back, meta = read_sequence(folder)
-    >>> frames.shape, meta["n_frames"], meta["plan_hash"], records_back[2]["timestamp_s"]
-    ((3, 4, 5), 3, '0123abcd', 0.04)
+    >>> seq = pathlib.Path(tempfile.mkdtemp()) / "two"
+    >>> stamps = [dict(frame_id=f, pattern_index=f, exposure_s=0.005, timestamp_s=f / 100) for f in (0, 1)]
+    >>> _ = write_sequence(seq, np.full((2, 3, 4), 7, np.uint16), stamps, plan_hash="feed")
+    >>> frames, _, header = read_sequence(seq)
+    >>> int(frames.sum()), header["height"], header["width"]
+    (168, 3, 4)
     """
     directory = Path(directory)
     records, meta = read_sequence_header(directory)

@@ -110,7 +110,6 @@ class _FolderSource:
         return digest.hexdigest()
 
     def frames(self, i: int) -> np.ndarray:
-
         if not 0 <= i < self.sequences:
             raise ValueError(f"sequence {i} is out of range: {self.path} holds {self.sequences}")
         return read_frames(self.path, self.records, self.meta, i * self.K, (i + 1) * self.K)

@@ -23,9 +23,18 @@ from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.rig.scene import interpolation_matrix
 from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights
 
-__all__ = ["PatchReport", "patch_means", "rmse_per_patch", "delta_E_per_patch", "evaluate_reflectance",
+__all__ = ["METRICS", "PatchReport", "patch_means", "rmse_per_patch", "delta_E_per_patch", "evaluate_reflectance",
            "evaluate_XYZ", "true_patch_spectra", "PixelReport", "truth_cube", "scene_XYZ", "evaluate_pixels",
            "evaluation_illuminant"]
+
+
+#: The error metrics of a report, in table order (``rmse`` is None for colorimetric estimates).
+METRICS = ("rmse", "delta_E_ab", "delta_E_2000")
+
+
+def _present_metrics(report) -> dict:
+    """``{metric: values}`` of the metrics a report holds."""
+    return {key: getattr(report, key) for key in METRICS if getattr(report, key) is not None}
 
 
 @dataclass(frozen=True)
@@ -54,12 +63,7 @@ class PatchReport:
 
     def summary(self) -> dict:
         """``{metric: (average, maximum)}`` over the patches."""
-        out = {}
-        for key in ("rmse", "delta_E_ab", "delta_E_2000"):
-            v = getattr(self, key)
-            if v is not None:
-                out[key] = (float(np.mean(v)), float(np.max(v)))
-        return out
+        return {key: (float(np.mean(v)), float(np.max(v))) for key, v in _present_metrics(self).items()}
 
     def worst(self, metric: str = "delta_E_ab") -> str:
         """Name of the patch with the largest value of ``metric``."""
@@ -225,10 +229,7 @@ class PixelReport:
     def statistics(self) -> dict:
         """``{metric: {"mean", "median", "p95", "max"}}`` over the finite pixels."""
         out = {}
-        for key in ("rmse", "delta_E_ab", "delta_E_2000"):
-            v = getattr(self, key)
-            if v is None:
-                continue
+        for key, v in _present_metrics(self).items():
             v = v[np.isfinite(v)]
             if v.size == 0:  # no valid pixel (a saturated capture): say so, do not crash
                 out[key] = {"mean": float("nan"), "median": float("nan"), "p95": float("nan"), "max": float("nan")}
@@ -288,14 +289,14 @@ def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs
 
     Examples
     --------
+    An estimate one percent too reflective everywhere has an RMSE of 0.01 at every pixel:
+
     >>> import numpy as np
-    >>> from specgpu.pipeline import evaluate_pixels, truth_cube
-    >>> from specgpu.rig import colorchecker_scene
-    >>> scene = colorchecker_scene(24, 36)
-    >>> wavelengths = np.arange(400.0, 701.0, 10.0)
-    >>> report = evaluate_pixels(truth_cube(scene, wavelengths), scene, wavelengths=wavelengths)
-    >>> report.delta_E_2000.shape, report.statistics()["delta_E_2000"]["max"]
-    ((24, 36), 0.0)
+    >>> from specgpu import pipeline, rig
+    >>> chart, grid = rig.colorchecker_scene(24, 36), np.arange(400.0, 701.0, 10.0)
+    >>> maps = pipeline.evaluate_pixels(pipeline.truth_cube(chart, grid) + 0.01, chart, wavelengths=grid)
+    >>> maps.rmse.shape, round(float(np.median(maps.rmse)), 4)
+    ((24, 36), 0.01)
     """
     est = np.asarray(estimate, np.float32)
     if est.shape[:2] != scene.reflectance.shape[:2]:

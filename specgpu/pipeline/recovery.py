@@ -39,7 +39,7 @@ from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig
 
-__all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder", "read_capture", "recover", "dark_warning", "to_XYZ", "to_Lab"]
+__all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder", "read_capture", "recover", "save_plan_and_calibration", "dark_warning", "to_XYZ", "to_Lab"]
 
 PLAN_FILE = "plan.npz"
 #: The chart the demo and the accuracy study evaluate on (and leave out of basis training).
@@ -324,24 +324,21 @@ def read_capture(directory) -> SequenceFolder:
 
     Examples
     --------
+    Two sequences of 7 Hadamard-coded frames, written as a capture folder and read back:
+
     >>> import tempfile
     >>> from pathlib import Path
-    >>> from specgpu.calibration import save_calibration
-    >>> from specgpu.pipeline import capture_plan, read_capture, write_capture
-    >>> from specgpu.planning import save_plan
-    >>> from specgpu.calibration import oracle_calibration
-    >>> from specgpu.planning import make_plan
-    >>> from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
-    >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
-    >>> bundle = oracle_calibration(rig)
-    >>> plan = make_plan("narrowband", bundle, step_nm=20.0)
-    >>> result = capture_plan(rig, plan, colorchecker_scene(240, 320), noise_seed=1, calibration=bundle)
+    >>> from specgpu import calibration, pipeline, planning, rig
+    >>> twin = rig.RigDescription(camera=rig.CameraParameters(roi_width=320, roi_height=240))
+    >>> cal = calibration.oracle_calibration(twin)
     >>> root = Path(tempfile.mkdtemp())
-    >>> _ = save_plan(root / "plan.npz", plan), save_calibration(root / "calibration.npz", bundle)
-    >>> capture = write_capture(root / "capture", result.sequences, result.assembly, root / "plan.npz",
-    ...                         root / "calibration.npz")
-    >>> read_capture(capture).frames.shape == (1, plan.K, 240, 320)
-    True
+    >>> codes = planning.make_plan("hadamard", cal, bands=7)
+    >>> shot = pipeline.capture_plan(twin, codes, rig.natural_scene(240, 320), sequences=2, noise_seed=5,
+    ...                              calibration=cal)
+    >>> plan_file, cal_file = pipeline.save_plan_and_calibration(root, codes, cal)
+    >>> folder = pipeline.write_capture(root / "capture", shot.sequences, shot.assembly, plan_file, cal_file)
+    >>> pipeline.read_capture(folder).frames.shape
+    (2, 7, 240, 320)
     """
     directory = Path(directory)
     _check_not_zarr(directory)
@@ -433,18 +430,19 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
 
     Examples
     --------
+    A white plate, captured on a small twin through 20 nm narrowband frames, recovers as a white plate:
+
     >>> from pathlib import Path
-    >>> from specgpu.pipeline import SequenceFolder, capture_plan, recover
-    >>> from specgpu.calibration import oracle_calibration
-    >>> from specgpu.planning import make_plan
-    >>> from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
-    >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
-    >>> bundle = oracle_calibration(rig)
-    >>> plan = make_plan("narrowband", bundle, step_nm=20.0)
-    >>> result = capture_plan(rig, plan, colorchecker_scene(240, 320), noise_seed=1, calibration=bundle)
-    >>> folder = SequenceFolder(Path("<memory>"), result.sequences[0].frames[None], plan, bundle, [], {})
-    >>> recover(folder).shape == (240, 320, len(plan.output_wavelengths))
-    True
+    >>> import numpy as np
+    >>> from specgpu import calibration, pipeline, planning, rig
+    >>> small = rig.RigDescription(camera=rig.CameraParameters(roi_width=320, roi_height=240))
+    >>> cal = calibration.oracle_calibration(small)
+    >>> bands = planning.make_plan("narrowband", cal, step_nm=20.0)
+    >>> shot = pipeline.capture_plan(small, bands, rig.white_plate_scene(240, 320), noise_seed=3, calibration=cal)
+    >>> cube = pipeline.recover(pipeline.SequenceFolder(Path("mem"), shot.sequences[0].frames[None], bands, cal,
+    ...                                                 [], {}))
+    >>> cube.shape[:2], bool(abs(np.nanmedian(cube) - 0.99) < 0.05)
+    ((240, 320), True)
     """
     if white_roi is not None or ambient_index(folder.plan) is not None:
         plan, bundle = folder.plan, folder.calibration

@@ -73,7 +73,6 @@ MAX_REFLECTANCE = 1.5
 
 def _colourchecker(name):
     def load():
-
         sds = colour.SDS_COLOURCHECKERS[name]
         return [(k, np.asarray(s.wavelengths, float), np.asarray(s.values, float)) for k, s in sds.items()]
     return load
@@ -81,21 +80,18 @@ def _colourchecker(name):
 
 def _quality(table, name):
     def load():
-
         sds = getattr(colour.quality, table)[name]
         return [(k, np.asarray(s.wavelengths, float), np.asarray(s.values, float)) for k, s in sds.items()]
     return load
 
 
 def _cfi2017():
-
     msds = load_TCS_CIE2017(colour.SpectralShape(380, 780, 5))
     wl = np.asarray(msds.wavelengths, float)
     return [(label, wl, np.asarray(msds.values[:, i], float)) for i, label in enumerate(msds.labels)]
 
 
 def _rawtoaces():
-
     msds = colour.characterisation.read_training_data_rawtoaces_v1()
     wl = np.asarray(msds.wavelengths, float)
     return [(label, wl, np.asarray(msds.values[:, i], float)) for i, label in enumerate(msds.labels)]

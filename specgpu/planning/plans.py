@@ -323,6 +323,7 @@ def load_plan(path, *, calibration=None) -> Plan:
     Returns
     -------
     Plan
+        The plan, its content hash checked against the one stored in the file.
 
     Raises
     ------
@@ -331,15 +332,19 @@ def load_plan(path, *, calibration=None) -> Plan:
 
     Examples
     --------
+    A plan loads against the calibration it was designed with, and is refused against any other:
+
     >>> import tempfile, pathlib
-    >>> from specgpu.calibration import oracle_calibration
-    >>> from specgpu.planning import load_plan, make_plan, save_plan
-    >>> from specgpu.rig import load_rig
-    >>> bundle = oracle_calibration(load_rig())
-    >>> path = pathlib.Path(tempfile.mkdtemp()) / "plan.npz"
-    >>> _ = save_plan(path, make_plan("narrowband", bundle, step_nm=20.0))
-    >>> load_plan(path, calibration=bundle).method
+    >>> from specgpu import calibration, planning, rig
+    >>> mine = calibration.oracle_calibration(rig.load_rig())
+    >>> bands = pathlib.Path(tempfile.mkdtemp()) / "bands.npz"
+    >>> _ = planning.save_plan(bands, planning.make_plan("narrowband", mine, step_nm=20.0))
+    >>> planning.load_plan(bands, calibration=mine).method
     'narrowband'
+    >>> brighter = calibration.oracle_calibration(rig.rig_from_dict({"light": {"illuminance_lux": 2000.0}}))
+    >>> planning.load_plan(bands, calibration=brighter)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ValueError: ...bands.npz is stale: made from calibration ..., the current one is ...; re-plan
     """
     arrays, meta, _, digest = load_npz(path, PLAN_FORMAT, (PLAN_VERSION,))
     try:

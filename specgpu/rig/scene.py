@@ -369,7 +369,6 @@ _UPSAMPLING = ("Mallett 2019",)
 
 @functools.lru_cache(maxsize=8)
 def _natural_cube(image: str, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-
     rgb = getattr(skimage.data, image)()[..., :3].astype(np.float64) / 255.0
     # Centre-crop to the target aspect ratio, then resample with anti-aliasing.
     ih, iw = rgb.shape[:2]

@@ -1,0 +1,50 @@
+"""Bounded least squares of light levels, against SciPy's solver, and the Lipschitz bound that sets its step."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import lsq_linear
+
+from specgpu.core.numerics import fit_levels, lipschitz_bound
+
+
+def banded(rows: int, cols: int, width: float, seed: int) -> np.ndarray:
+    """A narrow-banded, nonnegative system like the light's column spectra (one Gaussian per column)."""
+    rng = np.random.default_rng(seed)
+    centres = np.linspace(0, rows - 1, cols)
+    g = np.exp(-0.5 * ((np.arange(rows)[:, None] - centres[None]) / width) ** 2)
+    return g * rng.uniform(0.5, 1.5, cols)
+
+
+@pytest.mark.parametrize("upper", [1.0, None])
+def test_fit_levels_matches_scipys_bounded_least_squares(upper):
+    m = banded(120, 40, 2.5, 1)
+    target = 0.6 * m.sum(axis=1) * np.linspace(0.2, 1.1, 120)  # reachable in the middle, clipped at the ends
+    f = fit_levels(m, target, upper=upper, iterations=3000)
+    ref = lsq_linear(m, target, bounds=(0.0, np.inf if upper is None else upper), tol=1e-12).x
+    assert f.min() >= 0.0 and (upper is None or f.max() <= upper)
+    residual, best = np.linalg.norm(m @ f - target), np.linalg.norm(m @ ref - target)
+    assert residual <= best * (1 + 1e-3) + 1e-9
+
+
+def test_fit_levels_zero_columns_are_off_and_a_bad_target_is_an_error():
+    m = banded(50, 10, 2.0, 2)
+    m[:, 3] = 0.0
+    assert fit_levels(m, m.sum(axis=1) * 0.5)[3] == 0.0
+    with pytest.raises(ValueError, match=r"target must have shape \(50,\), got \(49,\)"):
+        fit_levels(m, np.ones(49))
+
+
+@settings(max_examples=40, deadline=None)
+@given(rows=st.integers(2, 60), cols=st.integers(1, 30), seed=st.integers(0, 2**32 - 1))
+def test_lipschitz_bound_bounds_the_largest_eigenvalue(rows, cols, seed):
+    m = np.random.default_rng(seed).uniform(0, 1, (rows, cols))
+    top = float(np.linalg.eigvalsh(m.T @ m)[-1])
+    assert top <= lipschitz_bound(m) <= 1.06 * top + 1e-12
+
+
+def test_lipschitz_bound_of_a_zero_matrix_is_one():
+    assert lipschitz_bound(np.zeros((4, 3))) == 1.0
