@@ -32,9 +32,11 @@ from specgpu.io.sequence import (
 __all__ = ["verify_journal", "journal_header", "salvage_sequence"]
 
 
-def _journal_line(raw: bytes):
-    """A journal line parsed and verified: (object, None), or (None, why it cannot be trusted). A line without a
-    checksum (a journal from a writer before checksums) is taken as it is; its frames are still verified."""
+def _journal_line(raw: bytes, checked: bool = False):
+    """A journal line parsed and verified: (object, None), or (None, why it cannot be trusted). In a journal whose
+    header carries a checksum (``checked``) every line must carry one: a flipped bit in the key ``check`` itself
+    leaves a line without it. A line of a journal from a writer before checksums is taken as it is; its frames are
+    still verified."""
     try:
         line = json.loads(raw)
     except (UnicodeDecodeError, json.JSONDecodeError):
@@ -43,6 +45,8 @@ def _journal_line(raw: bytes):
         return None, "not a JSON object"
     if "check" in line and line["check"] != _line_check(line):
         return None, "its checksum does not match its content"
+    if checked and "check" not in line:
+        return None, "its checksum is missing"
     return line, None
 
 
@@ -90,7 +94,7 @@ def verify_journal(directory, group: int) -> tuple[dict, dict]:
         if not raw.strip():
             continue
         n_lines += 1
-        entry, why = _journal_line(raw)
+        entry, why = _journal_line(raw, checked="check" in header)
         m = _FRAME_INDEX.match(entry["file"]) if entry is not None and isinstance(entry.get("file"), str) else None
         if m is None:
             damaged.append((number, why or "not a frame record"))

@@ -13,7 +13,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 from specgpu import io
 from specgpu.io import sequence as io_sequence
@@ -235,6 +235,9 @@ def test_a_refused_salvage_writes_nothing_and_can_be_run_again(base, killed, tmp
     assert not (out / io.SEQUENCE_FILE).exists() and (out / io.JOURNAL_FILE).read_bytes() == journal
     (out / "plan.npz").write_bytes(plan)
     lines = journal_lines(out)
+    header = json.loads(lines[0])
+    header.pop("check")  # a journal from a writer before checksums: its records are checked against the frames
+    lines[0] = json.dumps(header).encode()
     for i in range(1, len(lines) - 1):  # every record's height wrong: nothing intact
         r = json.loads(lines[i])
         r.pop("check")
@@ -313,6 +316,7 @@ def test_a_torn_journal_keeps_exactly_its_complete_sequences(base, killed, cut):
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(where=st.floats(min_value=0.0, max_value=1.0, exclude_max=True), bit=st.integers(min_value=0, max_value=7))
+@example(where=0.767578125, bit=0)  # the key "check" of a frame's line becomes "checj": the line lost its checksum
 def test_a_flipped_byte_keeps_exactly_the_sequences_whose_records_are_intact(base, killed, where, bit):
     K = K_of(base)
     with tempfile.TemporaryDirectory() as tmp:
