@@ -7,30 +7,13 @@ import pytest
 
 import specgpu.planning as E
 from specgpu.apps import estimator_study as study
-from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning import make_plan
 from specgpu.planning.estimators import interp_rows
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 
-H, W = 240, 320
-DESC = RigDescription(camera=CameraParameters(roi_width=W, roi_height=H))
-WL = np.arange(400.0, 700.0 + 1e-9, 5.0)
+from estimator_helpers import DESC, H, W, WL
 
-
-@pytest.fixture(scope="module")
-def bundle():
-    return oracle_calibration(DESC)
-
-
-@pytest.fixture(scope="module")
-def spectra():
-    return E.training_spectra()
-
-
-@pytest.fixture(scope="module")
-def prior(spectra):
-    return E.prior_from_spectra(spectra, WL, "test")
 
 
 def test_study_rows_on_the_held_out_chart(bundle, prior):

@@ -8,32 +8,13 @@ from hypothesis import strategies as st
 
 import specgpu.planning as E
 from specgpu.apps import estimator_study as study
-from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.recovery import capture_plan
 from specgpu.planning import load_plan, make_plan, save_plan
 from specgpu.planning.estimators import interp_rows
 from specgpu.engine.linear_map import apply_linear
-from specgpu.rig.camera import CameraParameters
-from specgpu.rig.config import RigDescription
 
-H, W = 240, 320
-DESC = RigDescription(camera=CameraParameters(roi_width=W, roi_height=H))
-WL = np.arange(400.0, 700.0 + 1e-9, 5.0)
+from estimator_helpers import DESC, H, W, WL
 
-
-@pytest.fixture(scope="module")
-def bundle():
-    return oracle_calibration(DESC)
-
-
-@pytest.fixture(scope="module")
-def spectra():
-    return E.training_spectra()
-
-
-@pytest.fixture(scope="module")
-def prior(spectra):
-    return E.prior_from_spectra(spectra, WL, "test")
 
 
 def _random_problem(seed, K=6, P=31):
