@@ -148,7 +148,7 @@ def _pm_cell(values, digits) -> Cell:
     if not values:
         return Cell("-")
     mu, sd = mean_std(values)
-    return cell(mu, digits, std=sd)
+    return cell(mu, digits, std=sd if len(values) > 1 else None)  # one draw: no spread to show
 
 
 #: Table 1's paper row per method (the paper's tristimulus imager has dE*ab only, Table 3).
@@ -266,7 +266,7 @@ def _maps_section(summaries) -> str:
                                                    title=f"{s.name}, under {s.illuminant}")),
                              f"{s.name}: ΔE00 per pixel, 0-{vmax:g}") for s in with_dE]
         out.append(f"<h2>Error maps</h2><p>CIEDE2000 per pixel against the truth, every map on one scale "
-                   f"(0 to {vmax:g} ΔE00, the largest 99th percentile; higher values clip, grey: no valid "
+                   f"(0 to {vmax:g} ΔE00, the largest 95th percentile; higher values clip, grey: no valid "
                    f"pixel).</p>" + card_grid(cards))
     with_sigma = [s for s in summaries.values() if s.sigma_map is not None]
     if with_sigma:

@@ -67,9 +67,9 @@ def sRGB_rendering(XYZ, illuminant: str = "D65") -> np.ndarray:
     return np.round(np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-def common_scale(maps, percentile: float = 99.0, floor: float = 1e-6) -> float:
+def common_scale(maps, percentile: float = 95.0, floor: float = 1e-6) -> float:
     """One colour-scale top for maps that are compared: the largest of their ``percentile``-th percentiles over
-    finite pixels (so one outlier does not flatten every map), rounded up to two significant digits."""
+    finite pixels (so the few pixels of a patch's edge, or one outlier, do not flatten every map), rounded up to two significant digits."""
     tops = [float(np.percentile(m[np.isfinite(m)], percentile)) for m in maps if np.isfinite(m).any()]
     top = max(tops, default=0.0)
     if top <= floor:

@@ -24,13 +24,14 @@ p,li{max-width:110ch}
 table{border-collapse:collapse;font-size:13px;font-variant-numeric:tabular-nums}
 caption{text-align:left;font-weight:600;padding:.3em 0;caption-side:top}
 th,td{border:1px solid #d0d0d0;padding:.2em .5em;text-align:right;white-space:nowrap}
-th{background:#eef1f4;position:sticky;top:0}
+th{background:#eef1f4;white-space:normal;vertical-align:bottom;max-width:9em}
+.sd{font-size:11px;color:#555;font-weight:400}
 td.text,th.text{text-align:left}
 tr.paper td{color:#555;font-style:italic;background:#fafafa}
 td.best{background:#dff3e0;font-weight:700}
 img{max-width:100%;height:auto;display:block}
 .grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(300px,1fr));gap:1em;align-items:start}
-.grid.wide{grid-template-columns:repeat(auto-fill,minmax(460px,1fr))}
+.grid.wide{grid-template-columns:repeat(auto-fill,minmax(640px,1fr))}
 figure{margin:0;min-width:0} figcaption{font-size:12px;color:#444;margin-top:.2em}
 .note{font-size:12px;color:#555}
 """
@@ -38,18 +39,19 @@ figure{margin:0;min-width:0} figcaption{font-size:12px;color:#444;margin-top:.2e
 
 @dataclass(frozen=True)
 class Cell:
-    """A table cell: its text, and the number that ranks it (None: not ranked) for the best-of-column mark."""
+    """A table cell: its text, the number that ranks it (None: not ranked) for the best-of-column mark, and a
+    second line in small type (a standard deviation), so wide ``mean ± std`` columns stay narrow."""
 
     text: str
     value: float | None = None
+    sub: str = ""
 
 
 def cell(value, digits: int = 2, *, std=None) -> Cell:
     """A numeric cell (``-`` for None or NaN), ``mean ± std`` when a std is given, ranked by the value."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return Cell("-")
-    text = f"{value:.{digits}f}" + (f" ± {std:.{digits}f}" if std is not None else "")
-    return Cell(text, float(value))
+    return Cell(f"{value:.{digits}f}", float(value), f"± {std:.{digits}f}" if std is not None else "")
 
 
 def html_table(columns, rows, *, caption: str = "", best_columns=(), row_classes=None, text_columns=1) -> str:
@@ -76,7 +78,8 @@ def html_table(columns, rows, *, caption: str = "", best_columns=(), row_classes
             classes = (["text"] if j < text_columns else []) + (
                 ["best"] if j in best and c.value is not None and c.value <= best[j] + 1e-12 else [])
             attr = f" class='{' '.join(classes)}'" if classes else ""
-            tds.append(f"<td{attr}>{html.escape(c.text)}</td>")
+            sub = f"<br><span class='sd'>{html.escape(c.sub)}</span>" if c.sub else ""
+            tds.append(f"<td{attr}>{html.escape(c.text)}{sub}</td>")
         out.append(tr + "".join(tds) + "</tr>")
     out.append("</tbody></table></div>")
     return "".join(out)
