@@ -21,6 +21,7 @@ import numpy as np
 
 from specgpu import io
 from specgpu.core.spectra import XYZ_weights
+from specgpu.io.sequence import read_frames
 from specgpu.pipeline.recovery import SequenceFolder, read_capture_header, recover
 
 __all__ = ["CUBE_SUFFIXES", "napari_get_reader", "read_layers", "cube_layers", "map_layers", "sequence_layers",
@@ -44,6 +45,14 @@ def wavelength_axis(wavelengths) -> tuple[float, float]:
     return 0.0, 1.0
 
 
+def _axes(names, translate, scale) -> dict:
+    """The layer's named axes and units: the wavelength in nm on an even grid (else a band index), pixels
+    elsewhere."""
+    in_nm = (translate, scale) != (0.0, 1.0)
+    return {"axis_labels": tuple(names),
+            "units": tuple(("nm" if in_nm else "pixel") if n == "wavelength" else "pixel" for n in names)}
+
+
 def _meta(role, source, **more) -> dict:
     return {"specgpu": {"role": role, "source": str(source), **more}}
 
@@ -56,8 +65,8 @@ def sRGB_of_cube(cube, wavelengths, illuminant: str = "D65", axis: int = -1):
         raise ValueError(f"unknown illuminant {illuminant!r}; valid: {', '.join(ILLUMINANTS)}")
     W = XYZ_weights(np.asarray(wavelengths, np.float64), illuminant).astype(np.float32)
 
-    def render(block):
-        b = np.moveaxis(np.asarray(block, np.float32), axis, -1)
+    def render(block):  # wavelengths on the last axis
+        b = np.asarray(block, np.float32)
         XYZ = np.nan_to_num(b @ W.T, nan=0.0, posinf=0.0, neginf=0.0)
         with np.errstate(invalid="ignore", over="ignore"):
             rgb = colour.XYZ_to_sRGB(XYZ, illuminant=np.asarray(xy))
@@ -68,7 +77,7 @@ def sRGB_of_cube(cube, wavelengths, illuminant: str = "D65", axis: int = -1):
 
         moved = da.moveaxis(cube, axis, -1).rechunk({-1: -1})
         return moved.map_blocks(render, dtype=np.uint8, chunks=moved.chunks[:-1] + ((3,),))
-    return render(cube)
+    return render(np.moveaxis(np.asarray(cube), axis, -1))
 
 
 def _limits(data, low=1.0, high=99.0) -> tuple[float, float]:
@@ -94,6 +103,7 @@ def cube_layers(path, cube=None, wavelengths=None, meta=None, *, illuminant="D65
          "image"),
         (data, {"name": "reflectance", "colormap": "gray", "contrast_limits": (0.0, 1.0),
                 "translate": (translate, 0.0, 0.0), "scale": (scale, 1.0, 1.0), "visible": False,
+                **_axes(("wavelength", "y", "x"), translate, scale),
                 "metadata": _meta("spectrum", path, wavelengths=wl, scene=scene, axes=("wavelength", "y", "x"))},
          "image"),
     ]
@@ -138,7 +148,7 @@ def sequence_layers(path, *, illuminant="D65") -> list:
     roi = recorded.get("white_roi")
 
     def frames_of(s):
-        return io.read_frames(path, records, meta, s * K, (s + 1) * K)
+        return read_frames(path, records, meta, s * K, (s + 1) * K)
 
     def recovered(s):
         one = SequenceFolder(path, frames_of(s)[None], plan, bundle, records, meta)
@@ -156,6 +166,7 @@ def sequence_layers(path, *, illuminant="D65") -> list:
         layers.append((da.moveaxis(y, -1, 0), {
             "name": "reflectance", "colormap": "gray", "contrast_limits": (0.0, 1.0), "visible": False,
             "translate": (translate, 0.0, 0.0, 0.0), "scale": (scale, 1.0, 1.0, 1.0),
+            **_axes(("wavelength", "sequence", "y", "x"), translate, scale),
             "metadata": _meta("spectrum", path, wavelengths=[float(v) for v in plan.output_wavelengths],
                               scene=recorded.get("scene"), axes=("wavelength", "sequence", "y", "x"))}, "image"))
         layers.insert(0, (sRGB_of_cube(y, plan.output_wavelengths, illuminant),
@@ -190,6 +201,7 @@ def recording_layers(path, *, illuminant="D65") -> list:
         layers.append((da.moveaxis(cube, -1, 0), {
             "name": "reflectance", "colormap": "gray", "contrast_limits": (0.0, 1.0), "visible": False,
             "translate": (translate, 0.0, 0.0, 0.0), "scale": (scale, 1.0, 1.0, 1.0),
+            **_axes(("wavelength", "time", "y", "x"), translate, scale),
             "metadata": _meta("spectrum", path, wavelengths=[float(v) for v in wl], scene=scene,
                               axes=("wavelength", "time", "y", "x"))}, "image"))
         if "sigma" in names:

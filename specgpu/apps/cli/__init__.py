@@ -51,6 +51,9 @@ COMMANDS = {
     "stream": ("specgpu.apps.cli.stream:stream_command",
                ("Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C "
                 "stops cleanly (everything captured is processed or reported).")),
+    "view": ("specgpu.apps.cli.view:view",
+             ("Open a cube or map (.exr, .npz, ENVI .hdr), a sequence folder or a zarr recording in napari, with the "
+              "spectrum widget (needs the viewer extra: pip install 'specgpu[viewer]').")),
 }
 
 __all__ = ["COMMANDS", "main"]
