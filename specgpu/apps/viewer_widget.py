@@ -220,10 +220,10 @@ def add_layers(viewer, layers) -> list:
     for data, kwargs, kind in layers:
         new = getattr(viewer, f"add_{kind}")(data, **kwargs)
         added += new if isinstance(new, list) else [new]
-    widest = max(added, key=lambda layer: layer.ndim, default=None)
-    labels = getattr(widest, "axis_labels", None)
-    if labels is not None and widest.ndim == viewer.dims.ndim:
-        viewer.dims.axis_labels = tuple(labels)
+    named = [layer for layer in added if "axes" in (layer.metadata.get("specgpu") or {})]
+    widest = max(named, key=lambda layer: (_role(layer) == "spectrum", layer.ndim), default=None)
+    if widest is not None and widest.ndim == viewer.dims.ndim:
+        viewer.dims.axis_labels = tuple(widest.metadata["specgpu"]["axes"])
     return added
 
 
