@@ -209,6 +209,7 @@ def recording_layers(path, *, illuminant="D65") -> list:
             layers.append((da.moveaxis(sigma, -1, 0), {
                 "name": "sigma", "colormap": "viridis", "visible": False, "contrast_limits": (0.0, 0.05),
                 "translate": (translate, 0.0, 0.0, 0.0), "scale": (scale, 1.0, 1.0, 1.0),
+                **_axes(("wavelength", "time", "y", "x"), translate, scale),
                 "metadata": _meta("sigma", path, wavelengths=[float(v) for v in wl])}, "image"))
     if "XYZ" in names:
         layers.append((da.moveaxis(lazy("XYZ"), -1, 0), {
@@ -218,7 +219,7 @@ def recording_layers(path, *, illuminant="D65") -> list:
         if name in names:
             data = lazy(name)
             cmap, limits = MAP_STYLE[name]
-            layers.append((data, {"name": name, "colormap": cmap, "opacity": 0.7, "visible": name == "dE",
+            layers.append((data, {"name": name, "colormap": cmap, "opacity": 0.7, "visible": False,
                                   "contrast_limits": limits or _limits(rec.read(name, 0)),
                                   "metadata": _meta(name, path)}, "image"))
     return layers

@@ -163,7 +163,9 @@ def test_the_core_install_has_no_qt():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     core = " ".join(project["dependencies"]).lower()
     assert not any(qt in core for qt in ("napari", "pyqt", "pyside", "qtpy", "pytest-qt"))
+    tests = " ".join(project["optional-dependencies"]["test"]).lower()
+    assert not any(qt in tests for qt in ("napari", "pyqt", "pyside", "pytest-qt"))  # pytest starts without Qt
     viewer = " ".join(project["optional-dependencies"]["viewer"]).lower()
-    assert "napari" in viewer and "pyqt5" in viewer
+    assert "napari" in viewer and "pyqt6" in viewer
     assert project["entry-points"]["napari.manifest"]["specgpu"] == "specgpu.apps:napari.yaml"
     assert (ROOT / "specgpu" / "apps" / "napari.yaml").is_file()
