@@ -45,7 +45,7 @@ class SpectrumProbe:
 
     def _slice(self, layer, t):
         """(B, H, W) of ``layer`` at time ``t`` (None: no time axis), as NumPy, cached per (layer, t)."""
-        key = (id(layer), t)
+        key = (id(layer), id(layer.data), t)  # a live view replaces the layer's data: a new key
         if self._cache[0] != key or self._cache[1] is None:
             data = layer.data if t is None else layer.data[:, t]
             self._cache = (key, np.asarray(data, np.float32), None)
