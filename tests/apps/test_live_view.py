@@ -60,3 +60,30 @@ def test_live_view_shows_the_stream_while_it_drops_nothing(qtbot):
     shown = widget.probe.pixel((float(plan.output_wavelengths[0]), 100.0, 150.0))["values"]
     assert any(np.allclose(shown, values, rtol=1e-6) for _, values in kept)
     assert "finished" in viewer.text_overlay.text and "drops 0" in viewer.text_overlay.text
+
+
+def test_stream_cli_view_runs_the_stream_through_the_live_view(monkeypatch, tmp_path):
+    """``specgpu stream --view`` hands the stream to the live view (faked here: no window) and prints its
+    summary; without --view the view is never opened."""
+    from cli_helpers import RIG, run
+
+    import specgpu.apps.cli.stream as cli_stream
+
+    calls = []
+
+    def fake_view(stream, seconds, **kwargs):
+        calls.append((seconds, kwargs))
+        return stream.run(seconds)
+
+    monkeypatch.setattr(cli_stream, "run_with_view", fake_view)
+    (tmp_path / "rig.toml").write_text(RIG)
+    run("calibrate", "--rig", tmp_path / "rig.toml", "--out", tmp_path / "calib.npz")
+    run("plan", "narrowband", "--calib", tmp_path / "calib.npz", "--out", tmp_path / "nb.npz")
+    args = ["stream", "--rig", tmp_path / "rig.toml", "--plan", tmp_path / "nb.npz", "--calib",
+            tmp_path / "calib.npz", "--seconds", "1", "--outputs", "cube,XYZ"]
+    result = run(*args, "--view")
+    assert len(calls) == 1 and calls[0][0] == 1.0
+    assert list(calls[0][1]["wavelengths"]) and calls[0][1]["illuminant"] == "D65"
+    assert "sequences out" in result.output
+    run(*args)
+    assert len(calls) == 1

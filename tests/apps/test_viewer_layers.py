@@ -169,3 +169,20 @@ def test_the_core_install_has_no_qt():
     assert "napari" in viewer and "pyqt6" in viewer
     assert project["entry-points"]["napari.manifest"]["specgpu"] == "specgpu.apps:napari.yaml"
     assert (ROOT / "specgpu" / "apps" / "napari.yaml").is_file()
+
+
+def test_cli_view_refuses_a_file_that_is_not_specgpus_in_one_line(tmp_path, monkeypatch):
+    from cli_helpers import one_line_error, run
+
+    import specgpu.apps.cli.view as cli_view
+
+    bad = tmp_path / "notes.txt"
+    bad.write_text("x")
+    monkeypatch.setattr(cli_view.importlib.util, "find_spec", lambda name: object())  # as if napari were there
+    one_line_error(run("view", bad, ok=False), "notes.txt", "not a specgpu cube", code=1)
+    opened = []
+    monkeypatch.setattr(cli_view, "open_viewer", lambda path: opened.append(path))
+    run("view", tmp_path)
+    assert opened == [str(tmp_path)]
+    monkeypatch.setattr(cli_view.importlib.util, "find_spec", lambda name: None)
+    one_line_error(run("view", tmp_path, ok=False), "pip install 'specgpu[viewer]'", code=1)
