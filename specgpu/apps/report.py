@@ -129,19 +129,20 @@ def summary_table(summaries) -> str:
 
 
 def patch_table_html(summaries, names) -> str:
-    """Per patch: each method's RMSE (reflectance recoveries) and dE2000; the lowest of each column marked."""
+    """Per patch, one table of each method's spectral RMSE (reflectance recoveries) and one of its dE2000, so
+    that many methods still fit the page; the lowest of each column marked."""
     with_patch = [s for s in summaries.values() if s.patch is not None]
-    columns = ["#", "patch"]
-    for s in with_patch:
-        columns += ([f"{s.name} RMSE"] if s.patch.rmse is not None else []) + [f"{s.name} ΔE00"]
-    rows = []
-    for i, name in enumerate(names):
-        row = [str(i + 1), name]
-        for s in with_patch:
-            row += ([cell(s.patch.rmse[i], 4)] if s.patch.rmse is not None else []) + [cell(s.patch.delta_E_2000[i])]
-        rows.append(row)
-    return html_table(columns, rows, caption="Per patch (lowest of each column marked)",
-                      best_columns=range(2, len(columns)), text_columns=2)
+    out = []
+    for key, label, digits in (("rmse", "spectral RMSE", 4), ("delta_E_2000", "ΔE00", 2)):
+        rows_of = [s for s in with_patch if getattr(s.patch, key) is not None]
+        if not rows_of:
+            continue
+        columns = ["#", "patch"] + [s.name for s in rows_of]
+        rows = [[str(i + 1), name] + [cell(getattr(s.patch, key)[i], digits) for s in rows_of]
+                for i, name in enumerate(names)]
+        out.append(html_table(columns, rows, caption=f"Per patch: {label} of each method (lowest of each column "
+                              "marked)", best_columns=range(2, len(columns)), text_columns=2))
+    return "".join(out)
 
 
 def _pm_cell(values, digits) -> Cell:
