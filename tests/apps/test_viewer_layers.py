@@ -9,6 +9,8 @@ from pathlib import Path
 import colour
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from specgpu import io
 from specgpu.apps.viewer_layers import (
@@ -186,3 +188,24 @@ def test_cli_view_refuses_a_file_that_is_not_specgpus_in_one_line(tmp_path, monk
     assert opened == [str(tmp_path)]
     monkeypatch.setattr(cli_view.importlib.util, "find_spec", lambda name: None)
     one_line_error(run("view", tmp_path, ok=False), "pip install 'specgpu[viewer]'", code=1)
+
+
+def test_XYZ_map_layers_are_its_rendering_and_three_channels(tmp_path):
+    XYZ = np.random.default_rng(3).uniform(0.05, 0.9, (6, 8, 3)).astype(np.float32)
+    path = io.write_map(tmp_path / "xyz.exr", XYZ, "XYZ", metadata={"illuminant": "A"})
+    layers = by_name(read_layers(path))
+    rgb, kw, _ = layers["sRGB (A)"]
+    xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["A"]
+    ref = np.round(np.clip(colour.XYZ_to_sRGB(XYZ.astype(np.float64), illuminant=xy), 0, 1) * 255)
+    assert kw["rgb"] and np.abs(rgb.astype(int) - ref).max() <= 1
+    data, kw_xyz, _ = layers["X+Y+Z"]
+    assert kw_xyz["channel_axis"] == 0
+    np.testing.assert_array_equal(data[1], XYZ[..., 1])
+
+
+@given(st.text(min_size=1, max_size=40))
+@settings(max_examples=200, deadline=None)
+def test_reader_hook_never_raises_on_any_path(text):
+    """napari asks every plugin about every path: the hook answers None or a reader, never an exception."""
+    got = napari_get_reader(text)
+    assert got is None or callable(got)
