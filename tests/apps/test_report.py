@@ -180,3 +180,18 @@ def test_cli_report_writes_the_page(run_folder, tmp_path):
     assert res.exit_code == 0, res.output
     assert out.is_file() and "wrote" in res.output
     assert Path(out).read_text().count("<table") >= 1
+
+
+def test_report_without_a_truth_shows_renderings_and_no_errors(run_folder, tmp_path):
+    """A capture whose recorded scene cannot be rebuilt: no error figure is made up, the page says so."""
+    import shutil
+
+    from specgpu.apps.report import report_folder
+
+    copy = tmp_path / "run"
+    shutil.copytree(run_folder / "narrowband", copy / "narrowband")
+    doc = (copy / "narrowband" / "sequence.json")
+    doc.write_text(doc.read_text().replace('"scene": "colorchecker"', '"scene": "elsewhere.exr"'))
+    text = report_folder(copy).read_text()
+    assert "No truth for this run" in text and "Error maps" not in text and "Recovered vs true" not in text
+    assert "narrowband under D65" in text and "Predicted uncertainty" in text
