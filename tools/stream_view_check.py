@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import tempfile
-from pathlib import Path
 
 from specgpu.apps.live_view import run_with_view
 from specgpu.calibration import calibrate
@@ -48,12 +46,11 @@ def main(argv=None) -> int:
     scene = colorchecker_scene(description.camera.roi_height, description.camera.roi_width)
     outputs = args.outputs.split(",")
     rows = {False: [], True: []}
-    with tempfile.TemporaryDirectory():
-        for _ in range(args.runs):
-            for view in (False, True):
-                rows[view].append(one_run(description, plan, bundle, scene, outputs, args.seconds, view))
-                print(f"{'view   ' if view else 'no view'}: {rows[view][-1][0]:.2f} sequences/s, "
-                      f"{rows[view][-1][1]:.1f} frames/s, drops {rows[view][-1][2]}", flush=True)
+    for _ in range(args.runs):
+        for view in (False, True):
+            rows[view].append(one_run(description, plan, bundle, scene, outputs, args.seconds, view))
+            print(f"{'view   ' if view else 'no view'}: {rows[view][-1][0]:.2f} sequences/s, "
+                  f"{rows[view][-1][1]:.1f} frames/s, drops {rows[view][-1][2]}", flush=True)
     plain = statistics.median(r[0] for r in rows[False])
     viewed = statistics.median(r[0] for r in rows[True])
     print(f"{description.camera.roi_width} x {description.camera.roi_height}, {plan.method} K={plan.K}, outputs "

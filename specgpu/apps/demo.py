@@ -37,14 +37,7 @@ from specgpu.apps.report import report_page, summarise_method, table1_html, tabl
 from specgpu.apps.studies import chart_with_white, mean_std, measure_methods
 from specgpu.calibration import calibrate, save_calibration
 from specgpu.calibration.bundle import calibration_error
-from specgpu.pipeline.evaluate import (
-    evaluate_pixels,
-    evaluate_reflectance,
-    evaluate_XYZ,
-    patch_means,
-    scene_XYZ,
-    true_patch_spectra,
-)
+from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
 from specgpu.pipeline.recovery import EVALUATION_CHART, SequenceFolder, default_basis, uncertainty, write_capture
 from specgpu.planning import default_prior, make_plan, save_plan, training_spectra
 from specgpu.planning.basis import save_basis

@@ -3,7 +3,6 @@ limits, sequence folders and recordings read lazily with one Dask chunk per sequ
 core install stays free of Qt."""
 
 import tomllib
-from dataclasses import replace
 from pathlib import Path
 
 import colour
