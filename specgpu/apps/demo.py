@@ -33,20 +33,15 @@ from tqdm import tqdm
 from specgpu import io
 from specgpu.apps import paper
 from specgpu.apps.estimator_study import study_plans
+from specgpu.apps.report import report_page, summarise_method, table1_html, table2_html, table3_html
 from specgpu.apps.studies import chart_with_white, mean_std, measure_methods
 from specgpu.calibration import calibrate, save_calibration
 from specgpu.calibration.bundle import calibration_error
-from specgpu.pipeline.evaluate import (
-    evaluate_pixels,
-    evaluate_reflectance,
-    evaluate_XYZ,
-    patch_means,
-    scene_XYZ,
-    true_patch_spectra,
-)
-from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis, to_XYZ, write_capture
+from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
+from specgpu.pipeline.recovery import EVALUATION_CHART, SequenceFolder, default_basis, uncertainty, write_capture
 from specgpu.planning import default_prior, make_plan, save_plan, training_spectra
 from specgpu.planning.basis import save_basis
+from specgpu.planning.noise import NoiseModel
 from specgpu.rig.config import RigDescription, load_rig, rig_from_dict
 from specgpu.rig.realism import Drift, Realism
 
@@ -176,14 +171,24 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
             main_plans, main_bundle, main_scene = plans, bundle, scene
         bar.update()
 
-        def keep(name, draw, y, plan, captured, _main=is_main, _scene=scene):
+        def keep(name, draw, y, plan, captured, _main=is_main, _scene=scene, _bundle=bundle, _roi=roi,
+                 _rig=description):
             if _main and draw == 0:  # the report's files: the first draw of the main profile
                 save_plan(out / "plans" / f"{name}.npz", plan)
+                white = {"white_roi": ",".join(map(str, _roi)), "white_tile": float(_scene.reflectance[
+                    _roi[1], _roi[0], 0]), "chart": EVALUATION_CHART} if corrections else {}
                 write_capture(out / "sequences" / name, captured.sequences, captured.assembly,
                               out / "plans" / f"{name}.npz", out / "calibration.npz",
-                              metadata={"scene": _scene.name}, overwrite=True)
+                              metadata={"scene": _scene.name, **white}, overwrite=True)
                 main_plans[name] = plan
-                result.methods[name] = _evaluate(out, name, plan, y, _scene, device)
+                sigma = None
+                if plan.output == "reflectance":  # the rig's noise model's per-pixel sigma: the spectra's band
+                    frames = np.stack([seq.frames for seq in captured.sequences])
+                    noisy = replace(plan, params={"noise": NoiseModel.from_rig(_rig, plan.exposure_s).as_params(),
+                                                  **plan.params})
+                    sigma = uncertainty(SequenceFolder(out, frames, noisy, _bundle, [], {}), device=device,
+                                        white_roi=white.get("white_roi"))[0]
+                result.methods[name] = _evaluate(out, name, plan, y, _scene, device, sigma)
             if draw == draws - 1:
                 bar.set_description(f"{label}: {name}")
                 bar.update()
@@ -198,33 +203,28 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     bar.update()
     result.seconds = time.perf_counter() - t_start
     (out / "report.json").write_text(json.dumps(_report_json(result), indent=1))
-    (out / "index.html").write_text(_html(result, main_plans))
+    (out / "index.html").write_text(_html(result, main_scene, main_bundle, device))
     bar.update()
     bar.close()
     return result
 
 
-def _evaluate(out, name, plan, y, scene, device):
+def _evaluate(out, name, plan, y, scene, device, sigma=None):
     # the illuminant of the colours (a tristimulus plan's own): what `specgpu evaluate` of these files judges under
     meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
             "illuminant": plan.resolve_illuminant(), **({"observer": plan.observer} if plan.output == "XYZ" else {})}
+    summary = summarise_method(name, plan, y, scene, sigma=sigma, device=device)
     if plan.output == "reflectance":
         io.write_cube(out / "cubes" / f"{name}.exr", y, plan.output_wavelengths, half=True, metadata=meta)
-        patch = evaluate_reflectance(y, plan.output_wavelengths, scene, illuminant="D65")
-        pixels = evaluate_pixels(y, scene, wavelengths=plan.output_wavelengths, illuminant="D65", device=device)
-        XYZ = to_XYZ(y, plan, "D65", device=device)
-        _, spectra = patch_means(y, scene.masks)
     else:
         io.write_map(out / "cubes" / f"{name}.exr", y, "XYZ", half=True, metadata=meta)
-        patch = evaluate_XYZ(y, scene, illuminant=plan.illuminant)
-        pixels = evaluate_pixels(y, scene, illuminant=plan.illuminant, device=device)
-        XYZ, spectra = y, None
-    io.write_map(out / "maps" / f"{name}-dE2000.exr", pixels.delta_E_2000, "dE2000", metadata=meta)
-    io.write_delta_E_png(out / "maps" / f"{name}-dE2000.png", pixels.delta_E_2000, vmax=10.0)
+    io.write_map(out / "maps" / f"{name}-dE2000.exr", summary.delta_E, "dE2000", metadata=meta)
+    io.write_delta_E_png(out / "maps" / f"{name}-dE2000.png", summary.delta_E, vmax=10.0)
     illuminant = None if plan.output == "reflectance" else _xy(plan.illuminant)
-    io.write_sRGB_preview(out / "png" / f"{name}.png", XYZ, exposure=0.0, illuminant=illuminant)
-    return {"patch": patch, "pixels": pixels.statistics(), "K": plan.K, "exposure_ms": plan.exposure_s * 1e3,
-            "spectra": spectra, "wavelengths": plan.output_wavelengths, "output": plan.output}
+    io.write_sRGB_preview(out / "png" / f"{name}.png", summary.XYZ, exposure=0.0, illuminant=illuminant)
+    return {"patch": summary.patch, "pixels": summary.pixels, "K": plan.K, "exposure_ms": plan.exposure_s * 1e3,
+            "spectra": summary.spectra, "wavelengths": plan.output_wavelengths, "output": plan.output,
+            "summary": summary}
 
 
 def _xy(illuminant):
@@ -388,23 +388,22 @@ def _figures(out, plans, result, scene, bundle):
         plt.close(fig)
 
 
-def _html(result: DemoResult, plans) -> str:
-    tables = html.escape(format_tables(result))
-    items = []
-    for name in result.methods:
-        items.append(f"<h3>{html.escape(name)}</h3><p><img src='png/{name}.png' width=320> "
-                     f"<img src='maps/{name}-dE2000.png' width=320> "
-                     f"<img src='figures/illuminants-{name}.png' width=480></p>")
-    spectra = "".join(f"<p><img src='figures/spectra-{m}.png' width=900></p>"
-                      for m in ("narrowband", "biased", "symmetric"))
-    return f"""<!doctype html><html><head><meta charset="utf-8"><title>specgpu demo</title>
-<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}} pre{{font-size:12px}}</style></head>
-<body><h1>specgpu demo: the paper's experiment on the digital twin</h1>
-<p>Tominaga and Horiuchi, JOSA A 29(9) 2012. Chart: {html.escape(EVALUATION_CHART)}, excluded from basis
-training. Run time {result.seconds:.1f} s. Figures: <a href="report.json">report.json</a>.</p>
-<p><img src="png/truth.png" width=320> (the scene under D65)</p>
-<h2>Tables</h2><pre>{tables}</pre>
-<h2>Recoveries: sRGB rendering, dE2000 against the truth (0-10), illuminant sequence</h2>{''.join(items)}
-<h2>Recovered vs true spectra</h2>{spectra}
-</body></html>
-"""
+def _html(result: DemoResult, scene, bundle, device) -> str:
+    """The report page (:func:`specgpu.apps.report.report_page`) with Tables 1-3, ours beside the paper's."""
+    m = result.methods
+    tables = table1_html(result.draws, ("narrowband", "biased", "symmetric", "tristimulus-D65", "tristimulus-A")
+                         + ESTIMATOR_ROWS)
+    if all(k in m for k in ("narrowband", "symmetric")):
+        tables += table2_html(m["narrowband"]["patch"], m["symmetric"]["patch"])
+    if all(k in m for k in ("tristimulus-D65", "tristimulus-A")):
+        tables += table3_html(m["tristimulus-D65"]["patch"], m["tristimulus-A"]["patch"])
+    profiles = "; ".join(f"{html.escape(k)}: corrections {html.escape(v['corrections'])}, calibration vs the "
+                         f"twin's truth {v['calibration_error']['rms_relative'] * 100:.2f} % RMS band response"
+                         for k, v in result.profiles.items())
+    intro = (f"<p>The paper's experiment (Tominaga and Horiuchi, JOSA A 29(9) 2012) on the digital twin: chart "
+             f"{html.escape(EVALUATION_CHART)}, left out of the basis training; profiles {profiles}. Tables 2, 3 "
+             f"and the figures: the {html.escape(result.main)} profile, first noise draw. Run time "
+             f"{result.seconds:.1f} s; every figure in <a href='report.json'>report.json</a>.</p>")
+    summaries = {name: r["summary"] for name, r in m.items()}
+    return report_page("specgpu demo: the paper's experiment on the digital twin", intro, summaries, scene=scene,
+                       bundle=bundle, tables=tables, device=device)

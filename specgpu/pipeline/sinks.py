@@ -100,21 +100,23 @@ class ResultsRing(Sink):
         Results kept, >= 1.
     outputs : sequence of str, optional
         Which arrays to keep (default all).
-    policy : {"drop_oldest", "block"}
-        When full: discard the oldest unread result (a live view wants the newest), or wait for the consumer
-        (backpressure up to the frame ring).
+    policy : {"drop_oldest", "drop_newest", "block"}
+        When full: discard the oldest unread result (a live view wants the newest), skip the new one without
+        copying it (a viewer that takes a result when it can draw one: the stream pays for no copy it would
+        not show), or wait for the consumer (backpressure up to the frame ring).
 
     Attributes
     ----------
     dropped : int
-        Results discarded unread (``drop_oldest``).
+        Results discarded unread (``drop_oldest``) or skipped (``drop_newest``).
     """
 
     def __init__(self, capacity: int = 8, outputs=None, policy: str = "drop_oldest"):
         if int(capacity) < 1:
             raise ValueError(f"capacity must be >= 1, got {capacity}")
-        if policy not in ("drop_oldest", "block"):
-            raise ValueError(f"unknown results ring policy {policy!r}; valid policies: drop_oldest, block")
+        if policy not in ("drop_oldest", "drop_newest", "block"):
+            raise ValueError(f"unknown results ring policy {policy!r}; valid policies: drop_oldest, drop_newest, "
+                             "block")
         self.capacity, self.policy = int(capacity), policy
         self.outputs = None if outputs is None else tuple(outputs)
         self._items: deque = deque()
@@ -124,6 +126,11 @@ class ResultsRing(Sink):
         self.written = 0
 
     def write(self, result):
+        if self.policy == "drop_newest":
+            with self._cond:
+                if len(self._items) >= self.capacity:  # full: skip it before paying for the copy
+                    self.dropped += 1
+                    return
         keep = {k: v.copy() for k, v in result.arrays.items() if self.outputs is None or k in self.outputs}
         copy = StreamResult(result.index, result.cycle, result.frame_ids.copy(), result.timestamps_s.copy(), keep,
                             result.latency_s, white_gains=None if result.white_gains is None

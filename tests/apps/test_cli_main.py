@@ -95,7 +95,9 @@ def test_demo_writes_the_report(tmp_path):
     figures = json.loads((report / "report.json").read_text())
     assert figures["methods"]["symmetric"]["projections"] == 9
     assert figures["methods"]["narrowband"]["rmse_mean"] < 0.02
-    assert "<img src='figures/spectra-narrowband.png'" in (report / "index.html").read_text()
+    page = (report / "index.html").read_text()  # one self-contained page: real tables, embedded images
+    assert page.count("<table") >= 4 and "<pre" not in page and "Recovered vs true spectra" in page
+    assert "src='data:image/png;base64," in page and "src='figures/" not in page
 
 
 # ------------------------------------------------------------------------------------------------ bad input

@@ -44,6 +44,25 @@ def test_results_ring_keeps_copies_of_the_newest_and_counts_the_dropped():
         ResultsRing(policy="wait")
 
 
+def test_results_ring_drop_newest_skips_without_copying_while_full():
+    ring = ResultsRing(capacity=1, outputs=("dE",), policy="drop_newest")
+    copies = []
+
+    class Counting(np.ndarray):
+        def copy(self, *args, **kwargs):
+            copies.append(1)
+            return np.ndarray.copy(self, *args, **kwargs)
+
+    for i in range(4):
+        r = result(i)
+        r.arrays["dE"] = r.arrays["dE"].view(Counting)
+        ring.write(r)
+    assert ring.written == 1 and ring.dropped == 3 and len(copies) == 1  # the skipped ones were never copied
+    assert ring.get(0).index == 0 and ring.get(0) is None
+    ring.write(result(7))  # taken: the next one is kept again
+    assert ring.get(0).index == 7
+
+
 def test_exr_writer_writes_every_nth_result_readably(tmp_path):
     writer = ExrSequenceWriter(tmp_path / "exr", every=2, metadata={"run": "unit"})
     for i in range(4):

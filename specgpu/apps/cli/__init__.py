@@ -38,6 +38,10 @@ COMMANDS = {
     "recover": ("specgpu.apps.cli.recover:recover",
                 ("Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all "
                  "succeed).")),
+    "report": ("specgpu.apps.cli.report:report",
+               ("Write the HTML report of a run folder (a capture folder, or folders of captures as the demo writes "
+                "them): each capture recovered, scored against its truth, with tables, spectra, error maps and "
+                "renderings.")),
     "salvage": ("specgpu.apps.cli.capture:salvage",
                 ("Index the complete sequences of a capture folder whose capture was killed (kill -9, a crash, power "
                  "loss).")),
@@ -47,6 +51,9 @@ COMMANDS = {
     "stream": ("specgpu.apps.cli.stream:stream_command",
                ("Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C "
                 "stops cleanly (everything captured is processed or reported).")),
+    "view": ("specgpu.apps.cli.view:view",
+             ("Open a cube or map (.exr, .npz, ENVI .hdr), a sequence folder or a zarr recording in napari, with the "
+              "spectrum widget (needs the viewer extra: pip install 'specgpu[viewer]').")),
 }
 
 __all__ = ["COMMANDS", "main"]

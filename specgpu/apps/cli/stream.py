@@ -23,6 +23,7 @@ from specgpu.apps.cli.options import (
     output_list,
     parse_reference,
 )
+from specgpu.apps.live_view import run_with_view
 from specgpu.hardware.drivers import hardware_config, open_driver
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline.live import add_recording, recording_slots, stream_summary
@@ -45,7 +46,7 @@ def status_line(s, tty):
 
 def stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                seconds, method, colours, pacing, policy, exr_every, half, seed, device, white=(None, None),
-               disk_check=True):
+               disk_check=True, view=False):
     """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised;
     ``colours``: the (illuminant, observer) of its XYZ, Lab and dE."""
     illuminant, observer = colours
@@ -65,7 +66,9 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
     tty = sys.stderr.isatty()
     try:
         with one_interrupt():
-            report = stream.run(seconds, on_status=lambda s: status_line(s, tty))
+            report = (run_with_view(stream, seconds, wavelengths=plan.output_wavelengths if plan.output ==
+                                    "reflectance" else None, illuminant=illuminant) if view
+                      else stream.run(seconds, on_status=lambda s: status_line(s, tty)))
     except BaseException as error:  # the recording says it failed (never "complete"), with the reason
         if writer is not None and not isinstance(error, KeyboardInterrupt):
             writer.mark_failed(f"{type(error).__name__}: {error}")
@@ -117,12 +120,15 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
 @RESIZE
+@click.option("--view", is_flag=True,
+              help="Show the latest results in napari while streaming (the viewer extra): the sRGB of XYZ, dE and "
+                   "the cube with the spectrum widget, as --outputs asks for them; the view never slows the stream.")
 @click.option("--no-disk-check", is_flag=True,
               help="Record even when a write probe says the disk cannot keep up with --out (frames will be "
                    "dropped); also skips the probe that chooses each array's compression.")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
                    observer, pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, resize,
-                   no_disk_check):
+                   view, no_disk_check):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     wanted = output_list(outputs, STREAM_OUTPUTS, "stream output")  # before any loading: a typo names the valid
@@ -148,7 +154,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     try:
         stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                    seconds, method, colours, pacing if hardware is None else "paced", policy, exr_every, half, seed,
-                   device, white=(white_roi, white_reflectance), disk_check=not no_disk_check)
+                   device, white=(white_roi, white_reflectance), disk_check=not no_disk_check, view=view)
     finally:
         if hardware is not None:
             driver.close()  # the light's USB link and the camera

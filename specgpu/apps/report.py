@@ -1,0 +1,388 @@
+"""The report a colour scientist reads: one self-contained HTML page per run, for ``specgpu demo`` and for
+``specgpu report RUN_FOLDER`` (any capture and its recovery).
+
+What each recovery contributes is summarised once (:func:`summarise_method`: per-patch and per-pixel errors
+against the truth, the dE2000 map, the predicted sigma, sRGB renderings under D65 and A, the patch spectra) and
+the page (:func:`report_page`) is built from the summaries: a summary at the top, the tables (ours beside the
+paper's for the demo), the recovered against the true spectrum of every patch for each method (with the
++- 1 sigma band of the noise model where a sigma map exists), error maps on one scale with their colour bars and
+units, the renderings, and each plan's illuminant sequence.
+"""
+
+from __future__ import annotations
+
+import html
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from specgpu import io
+from specgpu.apps import paper
+from specgpu.apps.report_figures import (
+    DELTA_E_LABEL,
+    SIGMA_LABEL,
+    common_scale,
+    figure_png,
+    illuminant_figure,
+    map_figure,
+    rgb_png,
+    spectra_figure,
+    sRGB_rendering,
+)
+from specgpu.apps.report_html import Cell, card_grid, cell, figure_card, html_table, page
+from specgpu.apps.studies import mean_std
+from specgpu.engine.colorimetry import reflectance_to_XYZ
+from specgpu.pipeline.evaluate import (
+    evaluate_pixels,
+    evaluate_reflectance,
+    evaluate_XYZ,
+    patch_means,
+    scene_XYZ,
+    true_patch_spectra,
+)
+from specgpu.pipeline.recovery import read_capture, recover, uncertainty
+from specgpu.rig.scene import colorchecker_scene, load_scene
+
+__all__ = ["RENDER_ILLUMINANTS", "MethodSummary", "summarise_method", "report_page", "summary_table",
+           "find_captures", "report_folder"]
+
+#: The illuminants every reflectance recovery (and the truth) is rendered under.
+RENDER_ILLUMINANTS = ("D65", "A")
+
+
+@dataclass
+class MethodSummary:
+    """What the report shows of one recovery (small: maps of (H, W), spectra of (P, B), 8-bit renderings).
+
+    ``patch`` / ``pixels`` / ``delta_E`` are None without a truth; ``spectra`` / ``sigma_spectra`` None for an XYZ
+    output or a scene without patches; ``sigma_map`` the RMS over bands of the predicted per-pixel sigma."""
+
+    name: str
+    plan: object
+    XYZ: np.ndarray
+    renderings: dict
+    patch: object = None
+    pixels: dict | None = None
+    delta_E: np.ndarray | None = None
+    spectra: np.ndarray | None = None
+    sigma_spectra: np.ndarray | None = None
+    sigma_map: np.ndarray | None = None
+
+    @property
+    def illuminant(self) -> str:
+        """The illuminant of :attr:`XYZ` and of the colour differences."""
+        return "D65" if self.plan.output == "reflectance" else self.plan.illuminant
+
+
+def summarise_method(name, plan, y, scene=None, *, sigma=None, device=None) -> MethodSummary:
+    """One recovery (``y``: the plan's outputs, (H, W, B)) scored against ``scene`` (None: no truth) as the demo
+    and ``specgpu evaluate`` score it (reflectance under D65 on its own bands, XYZ under its plan's illuminant);
+    ``sigma`` (H, W, B) the predicted per-pixel standard deviation of ``y``."""
+    y = np.asarray(y, np.float32)
+    reflectance = plan.output == "reflectance"
+    wl = plan.output_wavelengths
+    if reflectance:
+        renders = {ill: reflectance_to_XYZ(y, wl, ill, device=device) for ill in RENDER_ILLUMINANTS}
+        XYZ = renders["D65"]
+    else:
+        renders = {plan.illuminant: y}
+        XYZ = y
+    s = MethodSummary(name, plan, XYZ, {ill: sRGB_rendering(v, ill) for ill, v in renders.items()})
+    if sigma is not None and reflectance:
+        sig = np.asarray(sigma, np.float64)
+        s.sigma_map = np.sqrt(np.mean(sig ** 2, axis=-1)).astype(np.float32)
+    if scene is None:
+        return s
+    if reflectance:
+        s.patch = evaluate_reflectance(y, wl, scene, illuminant="D65") if scene.masks else None
+        px = evaluate_pixels(y, scene, wavelengths=wl, illuminant="D65", device=device)
+        if scene.masks:
+            _, s.spectra = patch_means(y, scene.masks)
+            if sigma is not None:
+                _, s.sigma_spectra = patch_means(np.asarray(sigma, np.float32), scene.masks)
+    else:
+        s.patch = evaluate_XYZ(y, scene, illuminant=plan.illuminant) if scene.masks else None
+        px = evaluate_pixels(y, scene, illuminant=plan.illuminant, device=device)
+    s.pixels, s.delta_E = px.statistics(), px.delta_E_2000
+    return s
+
+
+# ------------------------------------------------------------------------------------------------------- tables
+
+def summary_table(summaries) -> str:
+    """One row per method: frames, per-patch RMSE / dE*ab / dE2000 (mean and max) and per-pixel dE2000 (mean,
+    95th percentile); the lowest of each error column marked."""
+    columns = ["method", "frames", "RMSE patch mean", "RMSE patch max", "ΔE*ab patch mean", "ΔE*ab patch max",
+               "ΔE00 patch mean", "ΔE00 patch max", "ΔE00 pixel mean", "ΔE00 pixel p95"]
+    rows = []
+    for s in summaries.values():
+        summ = s.patch.summary() if s.patch is not None else {}
+        r = summ.get("rmse", (None, None))
+        ab = summ.get("delta_E_ab", (None, None))
+        d00 = summ.get("delta_E_2000", (None, None))
+        px = (s.pixels or {}).get("delta_E_2000", {})
+        rows.append([s.name, str(s.plan.K), cell(r[0], 4), cell(r[1], 4), cell(ab[0]), cell(ab[1]), cell(d00[0]),
+                     cell(d00[1]), cell(px.get("mean")), cell(px.get("p95"))])
+    return html_table(columns, rows, caption="Every recovery of this run against the truth (lowest of each "
+                      "error column marked)", best_columns=range(2, 10))
+
+
+def patch_table_html(summaries, names) -> str:
+    """Per patch, one table of each method's spectral RMSE (reflectance recoveries) and one of its dE2000, so
+    that many methods still fit the page; the lowest of each column marked."""
+    with_patch = [s for s in summaries.values() if s.patch is not None]
+    out = []
+    for key, label, digits in (("rmse", "spectral RMSE", 4), ("delta_E_2000", "ΔE00", 2)):
+        rows_of = [s for s in with_patch if getattr(s.patch, key) is not None]
+        if not rows_of:
+            continue
+        columns = ["#", "patch"] + [s.name for s in rows_of]
+        rows = [[str(i + 1), name] + [cell(getattr(s.patch, key)[i], digits) for s in rows_of]
+                for i, name in enumerate(names)]
+        out.append(html_table(columns, rows, caption=f"Per patch: {label} of each method (lowest of each column "
+                              "marked)", best_columns=range(2, len(columns)), text_columns=2))
+    return "".join(out)
+
+
+def _pm_cell(values, digits) -> Cell:
+    if not values:
+        return Cell("-")
+    mu, sd = mean_std(values)
+    return cell(mu, digits, std=sd if len(values) > 1 else None)  # one draw: no spread to show
+
+
+#: Table 1's paper row per method (the paper's tristimulus imager has dE*ab only, Table 3).
+_PAPER_TRISTIMULUS = {"tristimulus-D65": "D65", "tristimulus-A": "A"}
+
+
+def table1_html(draws: dict, methods) -> str:
+    """Table 1 as HTML: for every profile mean +- std over the noise draws, the paper's row beneath ours; the
+    lowest mean of each error column marked (among our rows and the paper's)."""
+    columns = ["method", "profile", "RMSE patch", "ΔE*ab patch", "ΔE00 patch", "RMSE pixel", "ΔE00 pixel",
+               "frames", "RMS pixel", "expected RMSE", "measured / expected"]
+    rows, classes = [], []
+    for name in methods:
+        for label, runs in draws.items():
+            r = runs.get(name)
+            if r is None:
+                continue
+            exp = r.get("expected_rmse")
+            extra = [Cell("-")] * 3
+            if exp is not None and r.get("px_rms"):
+                extra = [_pm_cell(r["px_rms"], 4), Cell(f"{exp:.4f}"), Cell(f"{mean_std(r['px_rms'])[0] / exp:.2f}")]
+            rows.append([name, label, _pm_cell(r.get("rmse"), 4), _pm_cell(r.get("dEab"), 2),
+                         _pm_cell(r.get("dE00"), 2), _pm_cell(r.get("px_rmse"), 4), _pm_cell(r.get("px_dE00"), 2),
+                         str(r["K"]), *extra])
+            classes.append(None)
+        if name in paper.TABLE1:
+            p = paper.TABLE1[name]
+            rows.append([name, "paper", cell(p[0], 4), cell(p[2]), "-", "-", "-", str(p[4]), "-", "-", "-"])
+            classes.append("paper")
+        elif name in _PAPER_TRISTIMULUS:
+            p = paper.TABLE3_SUMMARY[_PAPER_TRISTIMULUS[name]]
+            rows.append([name, "paper", "-", cell(p[0]), "-", "-", "-", "3", "-", "-", "-"])
+            classes.append("paper")
+    return html_table(columns, rows, caption="Table 1: spectral reflectance recovery, 24 patches (ΔE under D65, "
+                      "400-700 nm); mean ± std over the noise draws; the paper's row in italics",
+                      best_columns=(2, 3, 4, 5, 6), row_classes=classes, text_columns=2)
+
+
+def table2_html(nb, sy) -> str:
+    """Table 2 as HTML: per patch, narrowband (NB) and symmetric basis (SB), ours beside the paper's."""
+    columns = ["#", "patch", "RMSE NB", "paper", "RMSE SB", "paper", "ΔE*ab NB", "paper", "ΔE*ab SB", "paper"]
+    rows = []
+    for i, name in enumerate(paper.PATCHES):
+        p = paper.TABLE2[i]
+        rows.append([str(i + 1), name, cell(nb.rmse[i], 4), cell(p[0], 4), cell(sy.rmse[i], 4), cell(p[1], 4),
+                     cell(nb.delta_E_ab[i]), cell(p[2]), cell(sy.delta_E_ab[i]), cell(p[3])])
+    rows.append(["", "average", cell(np.mean(nb.rmse), 4), cell(np.mean([p[0] for p in paper.TABLE2]), 4),
+                 cell(np.mean(sy.rmse), 4), cell(np.mean([p[1] for p in paper.TABLE2]), 4),
+                 cell(np.mean(nb.delta_E_ab)), cell(np.mean([p[2] for p in paper.TABLE2])),
+                 cell(np.mean(sy.delta_E_ab)), cell(np.mean([p[3] for p in paper.TABLE2]))])
+    return html_table(columns, rows, caption="Table 2: per patch, narrowband (NB) and symmetric basis (SB), ours "
+                      "beside the paper's (lowest of each column marked)", best_columns=range(2, 10),
+                      row_classes=[None] * len(paper.PATCHES) + ["paper"], text_columns=2)
+
+
+def table3_html(d65, a) -> str:
+    """Table 3 as HTML: the tristimulus imager's dE*ab per patch under D65 and A, ours beside the paper's."""
+    columns = ["#", "patch", "ΔE*ab D65", "paper", "ΔE*ab A", "paper"]
+    rows = [[str(i + 1), name, cell(d65.delta_E_ab[i]), cell(paper.TABLE3[i][0]), cell(a.delta_E_ab[i]),
+             cell(paper.TABLE3[i][1])] for i, name in enumerate(paper.PATCHES)]
+    sd, sa = d65.summary()["delta_E_ab"], a.summary()["delta_E_ab"]
+    pd, pa = paper.TABLE3_SUMMARY["D65"], paper.TABLE3_SUMMARY["A"]
+    rows.append(["", "average", cell(sd[0]), cell(pd[0]), cell(sa[0]), cell(pa[0])])
+    rows.append(["", "maximum", Cell(f"{sd[1]:.2f}"), Cell(f"{pd[1]:.2f}"), Cell(f"{sa[1]:.2f}"), Cell(f"{pa[1]:.2f}")])
+    return html_table(columns, rows, caption="Table 3: tristimulus imager, ΔE*ab per patch under D65 and A, ours "
+                      "beside the paper's (lowest of each column marked)", best_columns=range(2, 6),
+                      row_classes=[None] * len(paper.PATCHES) + ["paper", "paper"], text_columns=2)
+
+
+# --------------------------------------------------------------------------------------------------- the page
+
+def _summary_lines(summaries) -> list[str]:
+    scored = [s for s in summaries.values() if s.pixels]
+    lines = []
+    if scored:
+        best = min(scored, key=lambda s: s.pixels["delta_E_2000"]["mean"])
+        lines.append(f"Lowest per-pixel ΔE00: <b>{html.escape(best.name)}</b> "
+                     f"({best.pixels['delta_E_2000']['mean']:.2f} mean, {best.plan.K} frames).")
+        spectral = [s for s in scored if s.patch is not None and s.patch.rmse is not None]
+        if spectral:
+            b = min(spectral, key=lambda s: float(np.mean(s.patch.rmse)))
+            lines.append(f"Lowest per-patch spectral RMSE: <b>{html.escape(b.name)}</b> "
+                         f"({float(np.mean(b.patch.rmse)):.4f} mean over {len(b.patch.names)} patches).")
+        fewest = min(scored, key=lambda s: (s.plan.K, s.pixels["delta_E_2000"]["mean"]))
+        lines.append(f"Fewest frames: <b>{html.escape(fewest.name)}</b> ({fewest.plan.K} frames, "
+                     f"{fewest.pixels['delta_E_2000']['mean']:.2f} per-pixel ΔE00).")
+    else:
+        lines.append("No truth for this run: renderings and predicted uncertainty only, no errors.")
+    return lines
+
+
+def _spectra_section(summaries, scene) -> str:
+    spectral = [s for s in summaries.values() if s.spectra is not None]
+    if not spectral or scene is None:
+        return ""
+    cards = []
+    names, truth = true_patch_spectra(scene)
+    for s in spectral:
+        band = "; band: ± 1σ predicted per pixel" if s.sigma_spectra is not None else ""
+        fig = spectra_figure(names, s.plan.output_wavelengths, s.spectra, scene.wavelengths, truth,
+                             sigma=s.sigma_spectra,
+                             title=f"{s.name} ({s.plan.K} frames): recovered (solid) vs true (broken){band}")
+        cards.append(figure_card(figure_png(fig), f"{s.name}: patch means, recovered vs true reflectance"))
+    return ("<h2>Recovered vs true spectra (the paper's Fig. 15)</h2><p>Each panel a patch: the recovery's mean "
+            "over the patch against the true reflectance; the band is ± 1σ of one pixel as the noise model "
+            "predicts it.</p>" + card_grid(cards, wide=True))
+
+
+def _maps_section(summaries) -> str:
+    out = []
+    with_dE = [s for s in summaries.values() if s.delta_E is not None]
+    if with_dE:
+        vmax = common_scale([s.delta_E for s in with_dE])
+        cards = [figure_card(figure_png(map_figure(s.delta_E, vmax=vmax, label=DELTA_E_LABEL,
+                                                   title=f"{s.name}, under {s.illuminant}")),
+                             f"{s.name}: ΔE00 per pixel, 0-{vmax:g}") for s in with_dE]
+        out.append(f"<h2>Error maps</h2><p>CIEDE2000 per pixel against the truth, every map on one scale "
+                   f"(0 to {vmax:g} ΔE00, the largest 95th percentile; higher values clip, grey: no valid "
+                   f"pixel).</p>" + card_grid(cards))
+    with_sigma = [s for s in summaries.values() if s.sigma_map is not None]
+    if with_sigma:
+        vmax = common_scale([s.sigma_map for s in with_sigma])
+        cards = [figure_card(figure_png(map_figure(s.sigma_map, vmax=vmax, label=SIGMA_LABEL, cmap="viridis",
+                                                   title=s.name)), f"{s.name}: predicted σ, 0-{vmax:g}")
+                 for s in with_sigma]
+        out.append(f"<h2>Predicted uncertainty</h2><p>The noise model's per-pixel standard deviation of the "
+                   f"recovered reflectance (RMS over bands), one scale (0 to {vmax:g}).</p>" + card_grid(cards))
+    return "".join(out)
+
+
+def _renderings_section(summaries, scene, device) -> str:
+    cards = []
+    if scene is not None:
+        for ill in RENDER_ILLUMINANTS:
+            cards.append(figure_card(rgb_png(sRGB_rendering(scene_XYZ(scene, ill, device=device), ill)),
+                                     f"truth under {ill}"))
+    for s in summaries.values():
+        for ill, rgb in s.renderings.items():
+            cards.append(figure_card(rgb_png(rgb), f"{s.name} under {ill}"))
+    return ("<h2>sRGB renderings</h2><p>Reflectance rendered under D65 and A (a tristimulus recovery under its "
+            "own illuminant), adapted to sRGB's D65 white (CAT02), a perfect white at code 255.</p>"
+            + card_grid(cards))
+
+
+def _illuminants_section(summaries, bundle) -> str:
+    if bundle is None:
+        return ""
+    cards = [figure_card(figure_png(illuminant_figure(s.plan, bundle, title=f"{s.name}: {s.plan.K} illuminants "
+                                                      "(wide: targets; thin: emitted)")), f"{s.name} illuminants")
+             for s in summaries.values()]
+    return ("<h2>Illuminant sequences</h2><p>Each plan's target spectra and what its quantized DMD patterns emit "
+            "by the calibrated model.</p>" + card_grid(cards, wide=True))
+
+
+def report_page(title: str, intro: str, summaries: dict, *, scene=None, bundle=None, tables: str = "",
+                device=None) -> str:
+    """The report as one HTML document: ``intro`` (HTML) and the summary on top, then ``tables`` (HTML; the
+    per-method and per-patch tables are added), spectra, error and sigma maps, renderings and illuminants."""
+    summary = ("<div class='summary'>" + intro + "<ul>" + "".join(f"<li>{line}</li>" for line in
+                                                                 _summary_lines(summaries)) + "</ul>"
+               + summary_table(summaries) + "</div>")
+    names = next((s.patch.names for s in summaries.values() if s.patch is not None), None)
+    patch = patch_table_html(summaries, names) if names and not tables else ""
+    body = (f"<h1>{html.escape(title)}</h1>{summary}"
+            + (f"<h2>Tables</h2>{tables}{patch}" if tables or patch else "")
+            + _spectra_section(summaries, scene) + _maps_section(summaries)
+            + _renderings_section(summaries, scene, device) + _illuminants_section(summaries, bundle))
+    return page(title, body)
+
+
+# --------------------------------------------------------------------------------------- specgpu report FOLDER
+
+def find_captures(folder) -> dict:
+    """name -> sequence folder of a run: the folder itself when it is one (named after it), else each folder
+    holding a ``sequence.json`` directly inside it or inside its ``sequences/`` (the demo's layout)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: not a folder")
+    if (folder / io.SEQUENCE_FILE).is_file():
+        return {folder.name: folder}
+    found = {}
+    for parent in (folder / "sequences", folder):
+        if parent.is_dir():
+            for sub in sorted(parent.iterdir()):
+                if (sub / io.SEQUENCE_FILE).is_file() and sub.name not in found:
+                    found[sub.name] = sub
+    if not found:
+        raise ValueError(f"{folder}: no capture in it (a folder with {io.SEQUENCE_FILE}, here or in "
+                         f"{folder / 'sequences'})")
+    return found
+
+
+def _truth_of(meta, height, width, truth):
+    """The truth scene of a capture: ``truth`` when given, else the scene its metadata records (the demo's chart
+    rebuilt with its white tile), None when the recorded one cannot be rebuilt (a scene from elsewhere)."""
+    recorded = meta.get("metadata", {}) or {}
+    if truth is not None:
+        return load_scene(truth, height, width)
+    name = recorded.get("scene")
+    if name == "colorchecker" and recorded.get("chart"):
+        return colorchecker_scene(height, width, chart=recorded["chart"], white_tile=recorded.get("white_tile"))
+    try:
+        return load_scene(name, height, width) if name else None
+    except (ValueError, OSError):
+        return None
+
+
+def report_folder(folder, *, out=None, truth=None, device=None) -> Path:
+    """Write the report of a run folder (one capture, or several: :func:`find_captures`) to ``out`` (default
+    ``FOLDER/report.html``): each capture recovered (the mean of its sequences, with the white ROI its metadata
+    records) and its sigma predicted, scored against ``truth`` (a scene name or file; default the scene the
+    capture records, when it can be rebuilt). Returns the path written."""
+    folder = Path(folder)
+    captures = find_captures(folder)
+    out = Path(out) if out is not None else folder / "report.html"
+    summaries, scene, bundle = {}, None, None
+    for name, path in captures.items():
+        seq = read_capture(path)
+        roi = (seq.meta.get("metadata", {}) or {}).get("white_roi")
+        y = recover(seq, device=device, white_roi=roi)
+        # the predicted sigma where the plan records the rig's noise model (planned with the rig)
+        noisy = seq.plan.output == "reflectance" and "noise" in seq.plan.params
+        sigma = uncertainty(seq, device=device, white_roi=roi)[0] if noisy else None
+        if scene is None:
+            scene = _truth_of(seq.meta, y.shape[0], y.shape[1], truth)
+        bundle = bundle or seq.calibration
+        summaries[name] = summarise_method(name, seq.plan, y, scene, sigma=sigma, device=device)
+    first = next(iter(captures.values()))
+    intro = (f"<p>Run folder <code>{html.escape(str(folder))}</code>: {len(captures)} capture(s) of "
+             f"{html.escape(str(scene.name) if scene is not None else 'an unknown scene')}, each recovered on the "
+             f"OpenCL device from its frames (the mean of its sequences) with the calibration and plan stored in "
+             f"it (first: <code>{html.escape(str(first))}</code>).</p>")
+    with io.atomic_path(out) as tmp:
+        tmp.write_text(report_page(f"specgpu report: {folder.name}", intro, summaries, scene=scene, bundle=bundle,
+                                   device=device))
+    return out

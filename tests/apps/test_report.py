@@ -1,0 +1,197 @@
+"""The HTML report: real tables with the best of each column marked, maps with colour bars on one scale, sRGB
+renderings against colour-science, and a run folder's report that parses, embeds every image and reaches no
+network."""
+
+from dataclasses import replace
+from html.parser import HTMLParser
+from pathlib import Path
+
+import colour
+import numpy as np
+import pytest
+
+from specgpu.apps.report_figures import (
+    DELTA_E_LABEL,
+    common_scale,
+    map_figure,
+    spectra_figure,
+    sRGB_rendering,
+)
+from specgpu.apps.report_html import Cell, cell, html_table, page
+
+
+class Elements(HTMLParser):
+    """Every start tag with its attributes, and the text inside <td> cells with their classes."""
+
+    def __init__(self):
+        super().__init__()
+        self.tags, self.cells, self._td = [], [], None
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append((tag, dict(attrs)))
+        if tag == "td":
+            self._td = [dict(attrs).get("class", ""), ""]
+
+    def handle_data(self, data):
+        if self._td is not None:
+            self._td[1] += data
+
+    def handle_endtag(self, tag):
+        if tag == "td" and self._td is not None:
+            self.cells.append(tuple(self._td))
+            self._td = None
+
+
+def parse(text) -> Elements:
+    p = Elements()
+    p.feed(text)
+    p.close()
+    return p
+
+
+def test_table_marks_the_lowest_of_each_ranked_column_and_every_tie():
+    rows = [["a", cell(0.5), cell(3.0)], ["b", cell(0.25), cell(3.0)], ["c", Cell("-"), cell(4.0)]]
+    doc = parse(html_table(["m", "x", "y"], rows, best_columns=(1, 2)))
+    best = [text for cls, text in doc.cells if "best" in cls]
+    assert best == ["3.00", "0.25", "3.00"]  # row by row
+    assert [t for t, _ in doc.tags][:2] == ["div", "table"]
+
+
+def test_cell_formats_mean_and_std_and_dashes_nan():
+    c = cell(1.234, 2, std=0.05)
+    assert (c.text, c.value, c.sub) == ("1.23", 1.234, "± 0.05")
+    assert "1.23<br><span class='sd'>± 0.05</span>" in html_table(["x"], [[c]], text_columns=0)
+    assert cell(float("nan")).text == "-" and cell(None).value is None
+
+
+def test_map_figure_has_a_colour_bar_with_its_unit_and_the_fixed_scale():
+    data = np.linspace(0, 20, 12 * 16).reshape(12, 16)
+    fig = map_figure(data, vmax=7.5, label=DELTA_E_LABEL, title="x")
+    bars = [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
+    assert len(bars) == 1
+    assert "CIELAB units" in bars[0].get_ylabel()
+    image = fig.axes[0].images[0]
+    assert image.get_clim() == (0.0, 7.5)
+    with pytest.raises(ValueError, match="vmax"):
+        map_figure(data, vmax=float("nan"), label="x")
+
+
+def test_common_scale_is_the_largest_percentile_rounded_up():
+    a = np.full((10, 10), 1.0)
+    b = np.full((40, 40), 3.14159)
+    b[0, :10] = 1e6  # a few outlier pixels (edges) do not set the scale
+    assert common_scale([a, b]) == pytest.approx(3.2)
+    assert common_scale([np.full((2, 2), np.nan)]) == 1.0
+
+
+def test_sRGB_rendering_matches_colour_science_and_adapts_illuminant_A_to_white():
+    XYZ = np.array([[[0.2, 0.3, 0.25], [0.5, 0.4, 0.1]]])
+    ref = np.round(np.clip(colour.XYZ_to_sRGB(XYZ), 0, 1) * 255)
+    assert np.abs(sRGB_rendering(XYZ).astype(int) - ref).max() <= 1
+    white_A = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["A"])
+    rgb = sRGB_rendering(white_A[None, None, :], "A")
+    assert rgb.min() >= 253  # the perfect white under A renders white after adaptation
+    with pytest.raises(ValueError, match="illuminant"):
+        sRGB_rendering(XYZ, "nope")
+
+
+def test_spectra_figure_draws_the_sigma_band():
+    wl = np.arange(400.0, 701.0, 50.0)
+    rec = np.full((2, wl.size), 0.5)
+    fig = spectra_figure(("a", "b"), wl, rec, wl, rec * 0.9, sigma=np.full((2, wl.size), 0.1))
+    band = fig.axes[0].collections[0]
+    ys = band.get_paths()[0].vertices[:, 1]
+    assert ys.min() == pytest.approx(0.4) and ys.max() == pytest.approx(0.6)
+
+
+def test_page_needs_no_network():
+    text = page("t", "<p>x</p>")
+    assert "http" not in text.replace("http-equiv", "")
+
+
+@pytest.fixture(scope="module")
+def run_folder(tmp_path_factory):
+    """A capture of the chart (narrowband, 20 nm steps) on a small twin, written as `specgpu capture` does."""
+    from specgpu.calibration import oracle_calibration, save_calibration
+    from specgpu.pipeline import capture_plan, write_capture
+    from specgpu.planning import make_plan, save_plan
+    from specgpu.planning.noise import NoiseModel
+    from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
+
+    root = tmp_path_factory.mktemp("run")
+    rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+    bundle = oracle_calibration(rig)
+    plan = make_plan("narrowband", bundle, step_nm=20.0)
+    plan = replace(plan, params={**plan.params, "noise": NoiseModel.from_rig(rig, plan.exposure_s).as_params()})
+    scene = colorchecker_scene(240, 320)
+    result = capture_plan(rig, plan, scene, noise_seed=3, calibration=bundle)
+    save_plan(root / "plan.npz", plan)
+    save_calibration(root / "calibration.npz", bundle)
+    write_capture(root / "narrowband", result.sequences, result.assembly, root / "plan.npz",
+                  root / "calibration.npz", metadata={"scene": scene.name})
+    return root
+
+
+def test_report_of_a_run_folder_parses_embeds_its_images_and_scores_the_capture(run_folder):
+    from specgpu.apps.report import report_folder
+
+    path = report_folder(run_folder)
+    assert path == run_folder / "report.html"
+    text = path.read_text()
+    doc = parse(text)
+    tags = [t for t, _ in doc.tags]
+    assert "pre" not in tags and tags.count("table") >= 2  # the summary and the per-patch table
+    images = [a["src"] for t, a in doc.tags if t == "img"]
+    # truth and recovery under D65 and A, one spectra plot, one dE map, one sigma map, one illuminant plot
+    assert len(images) == 8 and all(src.startswith("data:image/png;base64,") for src in images)
+    for t, a in doc.tags:
+        for key in ("src", "href"):
+            assert not str(a.get(key, "")).startswith(("http:", "https:", "//"))
+    assert "url(" not in text and "@import" not in text
+    assert "Recovered vs true spectra" in text and "± 1σ" in text and "CIEDE2000" in text
+    # the summary row's per-patch dE2000 is what `specgpu evaluate` computes on the same recovery
+    from specgpu.pipeline import evaluate_reflectance, read_capture, recover
+    from specgpu.rig import colorchecker_scene
+
+    seq = read_capture(run_folder / "narrowband")
+    y = recover(seq)
+    expected = evaluate_reflectance(y, seq.plan.output_wavelengths, colorchecker_scene(240, 320)).summary()
+    row = [c for c in doc.cells][:10]
+    assert row[0][1] == "narrowband"
+    assert float(row[6][1]) == pytest.approx(expected["delta_E_2000"][0], abs=0.006)
+
+
+def test_report_of_a_folder_without_a_capture_is_one_clear_error(tmp_path):
+    from specgpu.apps.report import report_folder
+
+    with pytest.raises(ValueError, match="no capture"):
+        report_folder(tmp_path)
+    with pytest.raises(FileNotFoundError, match="not a folder"):
+        report_folder(tmp_path / "missing")
+
+
+def test_cli_report_writes_the_page(run_folder, tmp_path):
+    from click.testing import CliRunner
+
+    from specgpu.apps.cli import main
+
+    out = tmp_path / "r.html"
+    res = CliRunner().invoke(main, ["report", str(run_folder), "--out", str(out), "--truth", "white"])
+    assert res.exit_code == 0, res.output
+    assert out.is_file() and "wrote" in res.output
+    assert Path(out).read_text().count("<table") >= 1
+
+
+def test_report_without_a_truth_shows_renderings_and_no_errors(run_folder, tmp_path):
+    """A capture whose recorded scene cannot be rebuilt: no error figure is made up, the page says so."""
+    import shutil
+
+    from specgpu.apps.report import report_folder
+
+    copy = tmp_path / "run"
+    shutil.copytree(run_folder / "narrowband", copy / "narrowband")
+    doc = (copy / "narrowband" / "sequence.json")
+    doc.write_text(doc.read_text().replace('"scene": "colorchecker"', '"scene": "elsewhere.exr"'))
+    text = report_folder(copy).read_text()
+    assert "No truth for this run" in text and "Error maps" not in text and "Recovered vs true" not in text
+    assert "narrowband under D65" in text and "Predicted uncertainty" in text

@@ -1,0 +1,210 @@
+"""The viewer's layer data (no napari needed): cubes with the wavelength axis first in nm, maps with colour maps and
+limits, sequence folders and recordings read lazily with one Dask chunk per sequence, and the reader hook; the
+core install stays free of Qt."""
+
+import tomllib
+from pathlib import Path
+
+import colour
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from specgpu import io
+from specgpu.apps.viewer_layers import (
+    ILLUMINANTS,
+    napari_get_reader,
+    read_layers,
+    sRGB_of_cube,
+    wavelength_axis,
+)
+from specgpu.core.spectra import XYZ_weights
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def by_name(layers):
+    return {(k["name"] if isinstance(k["name"], str) else "+".join(k["name"])): (d, k, t) for d, k, t in layers}
+
+
+@pytest.fixture
+def cube_file(tmp_path):
+    rng = np.random.default_rng(0)
+    wl = np.arange(400.0, 701.0, 10.0)
+    cube = rng.uniform(0.05, 0.9, (12, 16, wl.size)).astype(np.float32)
+    path = io.write_cube(tmp_path / "c.npz", cube, wl)
+    return path, cube, wl
+
+
+def test_cube_layers_put_the_wavelength_first_in_nm(cube_file):
+    path, cube, wl = cube_file
+    layers = by_name(read_layers(path))
+    data, kw, kind = layers["reflectance"]
+    assert kind == "image" and data.shape == (wl.size, 12, 16)
+    np.testing.assert_array_equal(data[:, 3, 5], cube[3, 5])
+    assert kw["translate"][0] == 400.0 and kw["scale"][0] == 10.0 and kw["units"][0] == "nm"
+    assert kw["axis_labels"] == ("wavelength", "y", "x")
+    assert kw["metadata"]["specgpu"]["wavelengths"] == list(wl)
+    rgb, kw_rgb, _ = layers["sRGB (D65)"]
+    assert kw_rgb["rgb"] and rgb.shape == (12, 16, 3) and rgb.dtype == np.uint8
+
+
+def test_sRGB_of_cube_against_colour_science_numpy_and_dask():
+    import dask.array as da
+
+    wl = np.arange(400.0, 701.0, 10.0)
+    rng = np.random.default_rng(1)
+    cube = rng.uniform(0, 1, (4, 5, wl.size)).astype(np.float32)
+    XYZ = cube.astype(np.float64) @ XYZ_weights(wl, "A").T
+    xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["A"]
+    ref = np.round(np.clip(colour.XYZ_to_sRGB(XYZ, illuminant=xy), 0, 1) * 255)
+    got = sRGB_of_cube(cube, wl, "A")
+    assert np.abs(got.astype(int) - ref).max() <= 1
+    lazy = sRGB_of_cube(da.from_array(np.moveaxis(cube, -1, 0), chunks=(wl.size, 2, 5)), wl, "A", axis=0)
+    np.testing.assert_array_equal(lazy.compute(), got)
+    assert "A" in ILLUMINANTS and "D65" in ILLUMINANTS
+    with pytest.raises(ValueError, match="unknown illuminant 'nope'"):
+        sRGB_of_cube(cube, wl, "nope")
+
+
+def test_wavelength_axis_is_nm_only_on_an_even_grid():
+    assert wavelength_axis([400, 410, 420]) == (400.0, 10.0)
+    assert wavelength_axis([400, 410, 430]) == (0.0, 1.0)
+
+
+def test_dE_map_layer_has_its_colour_map_and_limits(tmp_path):
+    de = np.linspace(0, 20, 6 * 8, dtype=np.float32).reshape(6, 8)
+    path = io.write_map(tmp_path / "de.exr", de, "dE2000")
+    (data, kw, kind), = read_layers(path)
+    assert kw["colormap"] == "magma" and kw["contrast_limits"] == (0.0, 10.0)
+    np.testing.assert_array_equal(data, de)
+
+
+def test_reader_hook_accepts_specgpu_paths_only(cube_file, tmp_path):
+    path, _, _ = cube_file
+    assert napari_get_reader(str(path)) is not None
+    assert napari_get_reader([str(path)]) is not None
+    assert napari_get_reader(str(tmp_path / "x.png")) is None
+    assert napari_get_reader(str(tmp_path)) is None  # a plain folder
+    assert napari_get_reader([str(path), str(path)]) is None
+    with pytest.raises(ValueError, match="neither a sequence folder"):
+        read_layers(tmp_path)
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    """Two sequences of the chart (narrowband, 20 nm) on the small twin, recording the scene."""
+    from specgpu.calibration import oracle_calibration, save_calibration
+    from specgpu.pipeline import capture_plan, write_capture
+    from specgpu.planning import make_plan, save_plan
+    from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
+
+    root = tmp_path_factory.mktemp("seq")
+    rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+    bundle = oracle_calibration(rig)
+    plan = make_plan("narrowband", bundle, step_nm=20.0)
+    result = capture_plan(rig, plan, colorchecker_scene(240, 320), sequences=2, noise_seed=5, calibration=bundle)
+    save_plan(root / "plan.npz", plan)
+    save_calibration(root / "calibration.npz", bundle)
+    return write_capture(root / "seq", result.sequences, result.assembly, root / "plan.npz", root / "calibration.npz",
+                         metadata={"scene": "colorchecker"})
+
+
+def test_sequence_folder_layers_are_lazy_and_recover_each_sequence(capture):
+    from specgpu.pipeline import read_capture, recover
+
+    layers = by_name(read_layers(capture))
+    data, kw, _ = layers["reflectance"]
+    folder = read_capture(capture)
+    assert data.shape == (len(folder.plan.output_wavelengths), 2, 240, 320)
+    assert data.chunks[1] == (1, 1)  # one chunk per sequence: recovered when the slider reaches it
+    assert kw["axis_labels"] == ("wavelength", "sequence", "y", "x")
+    assert kw["metadata"]["specgpu"]["scene"] == "colorchecker"
+    expected = recover(folder, sequence=1)
+    np.testing.assert_allclose(np.asarray(data[:, 1, 100, 150]), expected[100, 150], rtol=1e-5, atol=1e-6)
+    frames = layers["frames"][0]
+    assert frames.shape == (folder.plan.K, 2, 240, 320)
+    np.testing.assert_array_equal(np.asarray(frames[:, 0, 10, 20]), folder.frames[0, :, 10, 20])
+    assert layers["sRGB (D65)"][0].shape == (2, 240, 320, 3)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """A 1 s stream of the small twin with the cube, dE and sigma recorded."""
+    from cli_helpers import RIG, run
+
+    d = tmp_path_factory.mktemp("rec")
+    (d / "rig.toml").write_text(RIG)
+    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    run("plan", "narrowband", "--calib", d / "calib.npz", "--rig", d / "rig.toml", "--out", d / "nb.npz")
+    run("stream", "--rig", d / "rig.toml", "--plan", d / "nb.npz", "--calib", d / "calib.npz", "--seconds", "1",
+        "--scene", "colorchecker", "--outputs", "cube,XYZ,dE,sigma", "--out", d / "REC.zarr")
+    return d / "REC.zarr"
+
+
+def test_recording_layers_are_dask_with_a_time_axis(recording):
+    rec = io.open_recording(recording)
+    n = rec.sequences
+    assert n >= 1
+    layers = by_name(read_layers(recording))
+    cube, kw, _ = layers["reflectance"]
+    wl = np.asarray(rec.group["wavelength"][:])
+    assert cube.shape == (wl.size, n, 240, 320) and kw["axis_labels"][1] == "time"
+    np.testing.assert_array_equal(np.asarray(cube[:, n - 1, 50, 60]), rec.read("cube", n - 1)[50, 60])
+    de, kw_de, _ = layers["dE"]
+    assert de.shape == (n, 240, 320) and kw_de["colormap"] == "magma"
+    assert layers["sigma"][0].shape == cube.shape
+    xyz, kw_xyz, _ = layers["X+Y+Z"]
+    assert kw_xyz["channel_axis"] == 0 and xyz.shape == (3, n, 240, 320)
+    assert layers["sRGB (D65)"][0].shape == (n, 240, 320, 3)
+
+
+def test_the_core_install_has_no_qt():
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    core = " ".join(project["dependencies"]).lower()
+    assert not any(qt in core for qt in ("napari", "pyqt", "pyside", "qtpy", "pytest-qt"))
+    tests = " ".join(project["optional-dependencies"]["test"]).lower()
+    assert not any(qt in tests for qt in ("napari", "pyqt", "pyside", "pytest-qt"))  # pytest starts without Qt
+    viewer = " ".join(project["optional-dependencies"]["viewer"]).lower()
+    assert "napari" in viewer and "pyqt6" in viewer
+    assert project["entry-points"]["napari.manifest"]["specgpu"] == "specgpu.apps:napari.yaml"
+    assert (ROOT / "specgpu" / "apps" / "napari.yaml").is_file()
+
+
+def test_cli_view_refuses_a_file_that_is_not_specgpus_in_one_line(tmp_path, monkeypatch):
+    from cli_helpers import one_line_error, run
+
+    import specgpu.apps.cli.view as cli_view
+
+    bad = tmp_path / "notes.txt"
+    bad.write_text("x")
+    monkeypatch.setattr(cli_view.importlib.util, "find_spec", lambda name: object())  # as if napari were there
+    one_line_error(run("view", bad, ok=False), "notes.txt", "not a specgpu cube", code=1)
+    opened = []
+    monkeypatch.setattr(cli_view, "open_viewer", lambda path: opened.append(path))
+    run("view", tmp_path)
+    assert opened == [str(tmp_path)]
+    monkeypatch.setattr(cli_view.importlib.util, "find_spec", lambda name: None)
+    one_line_error(run("view", tmp_path, ok=False), "pip install 'specgpu[viewer]'", code=1)
+
+
+def test_XYZ_map_layers_are_its_rendering_and_three_channels(tmp_path):
+    XYZ = np.random.default_rng(3).uniform(0.05, 0.9, (6, 8, 3)).astype(np.float32)
+    path = io.write_map(tmp_path / "xyz.exr", XYZ, "XYZ", metadata={"illuminant": "A"})
+    layers = by_name(read_layers(path))
+    rgb, kw, _ = layers["sRGB (A)"]
+    xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["A"]
+    ref = np.round(np.clip(colour.XYZ_to_sRGB(XYZ.astype(np.float64), illuminant=xy), 0, 1) * 255)
+    assert kw["rgb"] and np.abs(rgb.astype(int) - ref).max() <= 1
+    data, kw_xyz, _ = layers["X+Y+Z"]
+    assert kw_xyz["channel_axis"] == 0
+    np.testing.assert_array_equal(data[1], XYZ[..., 1])
+
+
+@given(st.text(min_size=1, max_size=40))
+@settings(max_examples=200, deadline=None)
+def test_reader_hook_never_raises_on_any_path(text):
+    """napari asks every plugin about every path: the hook answers None or a reader, never an exception."""
+    got = napari_get_reader(text)
+    assert got is None or callable(got)
