@@ -8,7 +8,8 @@ from contextlib import nullcontext
 
 import numpy as np
 
-from specgpu.calibration.bundle import rig_fingerprint
+from specgpu.calibration.bundle import load_calibration, oracle_calibration, rig_fingerprint
+from specgpu.planning.bound import design_bound
 from specgpu.planning.budget import budget_plan
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
@@ -16,7 +17,7 @@ from specgpu.planning.priors import default_prior, training_spectra
 from specgpu.planning.registry import make_plan
 from specgpu.rig.config import load_rig
 
-__all__ = ["estimated_plan"]
+__all__ = ["estimated_plan", "requested_bound"]
 
 
 def _quiet(desc):
@@ -74,3 +75,23 @@ def estimated_plan(method, bundle, args, kwargs, estimator, training, training_o
                        **kwargs)
     return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s),
                           correlation_nm=smooth_nm)
+
+
+def requested_bound(calib, rig_path, frames, sequence_ms, exclude_chart, starts=8, progress=_quiet):
+    """:func:`~specgpu.planning.bound.design_bound` as ``specgpu bound`` asks for it: the calibration file
+    ``calib`` (None: the oracle calibration of the rig), the rig (``rig_path``, None: the default; its camera's
+    noise and read-out), the default prior without ``exclude_chart``."""
+    description = load_rig(rig_path)
+    if calib is None:
+        bundle = oracle_calibration(description)
+    else:
+        bundle = load_calibration(calib)
+        if bundle.rig and bundle.rig != rig_fingerprint(description):
+            raise ValueError(f"{'--rig ' + str(rig_path) if rig_path else 'the default rig'} is not the rig "
+                             f"{calib} was made on: give that rig's description with --rig")
+    with progress("building the training prior"):
+        prior = default_prior(exclude_chart)
+    with progress(f"designing {frames} illuminants ({starts} starts)"):
+        return design_bound(bundle, prior, lambda t: NoiseModel.from_rig(description, t), frames=int(frames),
+                            sequence_s=float(sequence_ms) / 1e3,
+                            min_frame_period_s=description.camera.min_frame_period_s, starts=starts)
