@@ -13,7 +13,9 @@ within 0.01 RMS of one of its patches); the rows of ``specgpu.planning.equal_tim
 6 in 40, 3 in 20) are captured ``--draws`` times with fresh noise, recovered on the device, and, with
 ``--denoise`` (the guided filter of ``recover --denoise``), denoised; per-pixel means over the patches' pixels of
 RMSE, dE2000 and dE*ab (D65), and the standard deviation of the standardised error (error / the per-pixel
-sigma, raw and carried through the filter), mean +- std over the draws.
+sigma, raw and carried through the filter), mean +- std over the draws; beside them the RMSE the plan expects on
+its prior and its noise-free RMSE on the chart's patch spectra (``floor``: the decoder's mismatch on this chart,
+which no denoiser removes).
 
 Then the natural scene ("natural": scikit-image's chelsea photograph upsampled to spectra, fine fur texture): the
 optimal 9-frame design within 60 ms, the per-pixel RMSE within 2 px of the scene's edges (the pixels whose true
@@ -42,7 +44,8 @@ from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery, denoised_sigma  # noqa: E402
 from specgpu.pipeline.evaluate import evaluate_pixels, truth_cube  # noqa: E402
 from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, uncertainty  # noqa: E402
-from specgpu.planning.basis import DEFAULT_WAVELENGTHS, load_reflectances, pca_basis  # noqa: E402
+from specgpu.planning.basis import DEFAULT_WAVELENGTHS, load_reflectances  # noqa: E402
+from specgpu.planning.estimators import forward, output_weights  # noqa: E402
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans, row_name  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402
@@ -109,7 +112,8 @@ def chart_table(description, bundle, key, draws, budgets, seed):
     print(f"\n{CHARTS[key]} ({len(scene.masks)} patches), {scene.reflectance.shape[1]} x "
           f"{scene.reflectance.shape[0]}, per-pixel means over the patches' pixels, mean +- std over {draws} draws")
     print(f"{'method':<22}{'seq ms':>7}{'':>10}{'RMSE':>17}{'dE2000':>13}{'dE*ab':>13}{'z std':>12}"
-          f"{'expected':>9}")
+          f"{'expected':>9}{'floor':>8}")
+    test = np.stack([scene.reflectance[m].mean(axis=0) for m in scene.masks.values()])
     for T in budgets:
         K, rows = EQUAL_TIME[T]
         for name in rows:
@@ -127,13 +131,26 @@ def chart_table(description, bundle, key, draws, budgets, seed):
                     mu, sd = mean_std(vals[k])
                     return f"{mu:.{digits}f}+-{sd:.{digits}f}"
                 exp = plan.params.get("expected", {}).get("rmse")
+                floor = noise_free_rmse(bundle, plan, scene.wavelengths, test)
                 print(f"{(name if variant == 'raw' else ''):<22}"
                       f"{(f'{plan.sequence_s * 1e3:.1f}' if variant == 'raw' else ''):>7}{variant:>10}"
                       f"{pm('rmse', 4):>17}{pm('dE00', 2):>13}{pm('dEab', 2):>13}{pm('z', 2):>12}"
-                      f"{(f'{exp:.4f}' if exp and variant == 'raw' else ''):>9}")
+                      f"{(f'{exp:.4f}' if exp and variant == 'raw' else ''):>9}"
+                      f"{(f'{floor:.4f}' if floor is not None and variant == 'raw' else ''):>8}")
         b = bounds[T]
         print(f"{'':<22}limit at {T:g} ms ({K} frames), expected RMSE on the prior: any design >= "
               f"{b.lower_rmse:.4f}; best found {b.achieved_rmse:.4f}; noise-free rank limit {b.noise_free_rmse:.4f}")
+
+
+def noise_free_rmse(bundle, plan, wavelengths, spectra):
+    """RMSE of the plan's decoder on the chart's patch spectra without noise (the error no denoiser removes: the
+    decoder's mismatch on this chart), over the patches and bands; None for a colorimetric plan."""
+    if plan.output != "reflectance":
+        return None
+    F = forward(bundle, plan, wavelengths)
+    W = output_weights(plan, wavelengths)
+    e = np.asarray(spectra, np.float64) @ (W - plan.A @ F).T
+    return float(np.sqrt(np.mean(e ** 2)))
 
 
 def edge_mask(scene, width=2, top=0.10):

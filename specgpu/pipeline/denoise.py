@@ -31,8 +31,8 @@ __all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "sequence_guide", "denoise_recovery"
 #: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/budget_study.py --tune``): on
 #: the CIE 2017 CES chart and the natural scene, the pair with the lowest per-pixel RMSE whose error within 2 px of
 #: the scene's edges is no worse than the raw recovery's.
-DENOISE_RADIUS = 3
-DENOISE_EPS = 1e-3
+DENOISE_RADIUS = 2
+DENOISE_EPS = 1e-4
 
 
 def _mean_frames(folder, sequence):

@@ -1,0 +1,102 @@
+"""recover --denoise: the guided filter of the frames' sum lowers the noise, its sigma map stays calibrated
+(the standard deviation of the standardised noise within [0.8, 1.25], over fresh noise draws), raw and denoised
+agree where the scene is flat; the command writes the denoised cube and sigma and refuses what it cannot carry."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import specgpu.planning as E
+from specgpu.calibration.bundle import oracle_calibration, save_calibration
+from specgpu.io import read_cube, read_map
+from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide
+from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, uncertainty
+from specgpu.rig.camera import CameraParameters
+from specgpu.rig.config import RigDescription
+from specgpu.rig.scene import colorchecker_scene, natural_scene
+from tests.cli_helpers import RIG, one_line_error, run
+
+DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+
+
+@pytest.fixture(scope="module")
+def bundle():
+    return oracle_calibration(DESC)
+
+
+def _plan(bundle, prior=None):
+    plan = E.plan_hadamard(bundle, bands=7)
+    return E.with_estimator(plan, bundle, "projection", prior=prior, noise=E.NoiseModel.from_rig(DESC,
+                                                                                                 plan.exposure_s))
+
+
+def _folder(bundle, plan, scene, seed):
+    res = capture_plan(DESC, plan, scene, noise_seed=seed, calibration=bundle)
+    return SequenceFolder(Path("<memory>"), np.stack([s.frames for s in res.sequences]), plan, bundle, [], {})
+
+
+@pytest.mark.parametrize("scene", ["natural", "chart"])
+def test_sigma_stays_calibrated_after_denoising(bundle, scene):
+    """z = (output - its mean over the draws) / sigma, raw and denoised: the noise the sigma map states."""
+    plan = _plan(bundle)
+    sc = natural_scene(240, 320) if scene == "natural" else colorchecker_scene(240, 320)
+    raw, den, sig_raw, sig_den = [], [], [], []
+    for d in range(10):
+        folder = _folder(bundle, plan, sc, 500 + d)
+        y = recover(folder)
+        s = uncertainty(folder)[0]
+        raw.append(y)
+        sig_raw.append(s)
+        den.append(denoise_recovery(folder, y))
+        sig_den.append(denoised_sigma(folder, s))
+    n = len(raw)
+    for ys, ss, name in ((raw, sig_raw, "raw"), (den, sig_den, "denoised")):
+        ys, ss = np.stack(ys), np.stack(ss)
+        z = (ys - ys.mean(axis=0)) / ss * np.sqrt(n / (n - 1))
+        assert 0.8 <= np.nanstd(z) <= 1.25, (name, np.nanstd(z))
+    # the filter lowered the noise (the light's fluctuation, common to every pixel of a frame, stays: Hadamard's
+    # bright frames make it most of this plan's noise), and its sigma says by how much
+    spread = [np.nanstd(np.stack(v) - np.stack(v).mean(0)) for v in (raw, den)]
+    rms = [np.sqrt(np.nanmean(np.stack(v) ** 2)) for v in (sig_raw, sig_den)]
+    assert spread[1] < 0.95 * spread[0]
+    assert spread[1] / spread[0] == pytest.approx(rms[1] / rms[0], rel=0.1)
+
+
+def test_flat_patches_keep_their_level_and_the_guide_is_normalised(bundle):
+    plan = _plan(bundle)
+    sc = colorchecker_scene(240, 320)
+    folder = _folder(bundle, plan, sc, 7)
+    g = sequence_guide(folder)
+    assert g.shape == (240, 320) and np.nanpercentile(g, 99) == pytest.approx(1.0, rel=1e-5)
+    y = recover(folder)
+    q = denoise_recovery(folder, y)
+    for mask in list(sc.masks.values())[:6]:  # a patch's mean is unchanged (the window lies inside it)
+        np.testing.assert_allclose(q[mask].mean(axis=0), y[mask].mean(axis=0), atol=2e-3)
+
+
+def test_cli_recover_denoise(tmp_path, bundle):
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG)
+    cal = tmp_path / "cal.npz"
+    save_calibration(cal, bundle)
+    run("plan", "hadamard", "--bands", "7", "--calib", cal, "--rig", rig, "--out", tmp_path / "p.npz", "--no-ambient")
+    run("capture", "--rig", rig, "--calib", cal, "--plan", tmp_path / "p.npz", "--scene", "natural", "--out",
+        tmp_path / "seq")
+    run("recover", tmp_path / "seq", "--out", tmp_path / "raw.npz", "--sigma", tmp_path / "raw-s.exr")
+    out = run("recover", tmp_path / "seq", "--out", tmp_path / "d.npz", "--sigma", tmp_path / "d-s.exr",
+              "--denoise").output
+    assert "wrote" in out
+    raw, den = read_cube(tmp_path / "raw.npz"), read_cube(tmp_path / "d.npz")
+    y_raw = raw[0] if isinstance(raw, tuple) else raw.reflectance
+    y_den = den[0] if isinstance(den, tuple) else den.reflectance
+    assert y_den.shape == y_raw.shape and not np.allclose(y_den, y_raw)
+    s_raw = read_map(tmp_path / "raw-s.exr")
+    s_den = read_map(tmp_path / "d-s.exr")
+    s_raw = s_raw[0] if isinstance(s_raw, tuple) else s_raw
+    s_den = s_den[0] if isinstance(s_den, tuple) else s_den
+    assert np.nanmedian(np.asarray(s_den)) < np.nanmedian(np.asarray(s_raw))
+    one_line_error(run("recover", tmp_path / "seq", "--out", tmp_path / "x.npz", "--denoise", "--delta-e-sigma",
+                       tmp_path / "x.exr", ok=False), "--delta-e-sigma", "--denoise")
+    one_line_error(run("recover", tmp_path / "seq", "--out", tmp_path / "x.npz", "--denoise", "--denoise-eps", "-1",
+                       ok=False), "--denoise-eps")
