@@ -143,14 +143,15 @@ def chart_table(description, bundle, key, draws, budgets, seed):
 
 
 def noise_free_rmse(bundle, plan, wavelengths, spectra):
-    """RMSE of the plan's decoder on the chart's patch spectra without noise (the error no denoiser removes: the
-    decoder's mismatch on this chart), over the patches and bands; None for a colorimetric plan."""
+    """The plan's decoder on the chart's patch spectra without noise (the error no denoiser removes: its mismatch on
+    this chart): the mean over the patches of each patch's RMSE over the bands, as the per-pixel figures beside
+    it; None for a colorimetric plan."""
     if plan.output != "reflectance":
         return None
     F = forward(bundle, plan, wavelengths)
     W = output_weights(plan, wavelengths)
     e = np.asarray(spectra, np.float64) @ (W - plan.A @ F).T
-    return float(np.sqrt(np.mean(e ** 2)))
+    return float(np.mean(np.sqrt(np.mean(e ** 2, axis=1))))
 
 
 def edge_mask(scene, width=2, top=0.10):
