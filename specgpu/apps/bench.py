@@ -9,8 +9,8 @@ Five cases at each image size:
    image, one device pass; baseline: ``np.einsum`` + ``colour.XYZ_to_Lab`` + ``colour.delta_E("CIE 2000")``.
 4. ``XYZ_Lab_dE2000``: an XYZ image -> Lab -> dE2000 against the reference (two kernels, data stays on the
    device); baseline: ``colour.XYZ_to_Lab`` + ``colour.delta_E("CIE 2000")``.
-5. ``guided_filter``: ``recover --denoise``'s guided filter of a 31-band cube (:mod:`specgpu.apps.bench_denoise`);
-   baseline: the same filter in NumPy with SciPy's box filter.
+5. ``guided_filter``: ``recover --denoise``'s guided filter of a 9-frame plan's outputs (their 9 coordinates,
+   :mod:`specgpu.apps.bench_denoise`); baseline: the same filter in NumPy with SciPy's box filter.
 
 Device timings are steady state: inputs already on the device, outputs drawn from the memory pool of
 :func:`specgpu.engine.runtime.get_allocator`, one untimed warm-up call (program build, pool priming), then the

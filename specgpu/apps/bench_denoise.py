@@ -1,6 +1,7 @@
-"""The denoiser's case of ``specgpu bench`` (``guided_filter``): a 31-band float32 cube (the plans' 400-700 nm
-outputs at 10 nm) smoothed by the guided filter of ``recover --denoise`` (radius and eps its defaults) on the
-device, against the same filter in NumPy with SciPy's box filter (windows clipped to the image, as the kernels)."""
+"""The denoiser's case of ``specgpu bench`` (``guided_filter``): what ``recover --denoise`` filters for a 9-frame
+plan, the 9 coordinates of its outputs in their subspace (:func:`specgpu.pipeline.denoise.output_subspace`),
+float32, smoothed by the guided filter (radius and eps its defaults) on the device, against the same filter in
+NumPy with SciPy's box filter (windows clipped to the image, as the kernels)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 
 __all__ = ["BANDS", "guided_numpy", "guided_case"]
 
-BANDS = 31
+BANDS = 9
 
 
 def guided_numpy(p, g, radius: int, eps: float) -> np.ndarray:
@@ -54,4 +55,4 @@ def guided_case(queue, width: int, height: int, reps, measure, row):
     device_ms, api_ms, baseline_ms, result, expected = measure(queue, device, api, baseline, reps)
     diff = float(np.max(np.abs(result - expected))) / max(float(np.max(np.abs(expected))), 1e-30)
     return row("guided_filter", width, height, None, device_ms, api_ms, baseline_ms, diff, "max relative", reps,
-               f"NumPy guided filter (scipy uniform_filter), {BANDS} bands, r {DENOISE_RADIUS}")
+               f"NumPy guided filter (scipy uniform_filter), {BANDS} channels, r {DENOISE_RADIUS}")

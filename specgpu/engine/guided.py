@@ -14,21 +14,33 @@ pixel) spreads to the outputs whose windows hold it.
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 
 from specgpu.core.validate import check_number
-from specgpu.engine.kernels import _empty, _launch, to_device
+from specgpu.engine.kernels import _empty, _launch_lock, to_device
 from specgpu.engine.runtime import get_kernel, get_queue
 
 __all__ = ["guided_filter", "box_box_variance"]
+
+
+def _run(queue, name, shape, *args):
+    """Enqueue ``name`` over the range ``shape`` (channels first), work-groups of one row of channels (at most
+    64 wide; the range padded to a multiple)."""
+    kernel = get_kernel(queue, "guided.cl", name)
+    local = (min(64, shape[0]),) + (1,) * (len(shape) - 1)
+    glob = (-(-shape[0] // local[0]) * local[0],) + tuple(shape[1:])
+    with _launch_lock:
+        kernel.set_args(*args)
+        return cl.enqueue_nd_range_kernel(queue, kernel, glob, local)
 
 
 def _box(queue, src, H, W, C, r):
     tmp = _empty(queue, H * W * C, np.float32)
     out = _empty(queue, H * W * C, np.float32)
     args = (np.int32(H), np.int32(W), np.int32(C), np.int32(r))
-    _launch(queue, get_kernel(queue, "guided.cl", "box_h"), H * W * C, src.data, tmp.data, *args, pixels_per_item=1)
-    _launch(queue, get_kernel(queue, "guided.cl", "box_v"), H * W * C, tmp.data, out.data, *args, pixels_per_item=1)
+    _run(queue, "box_h", (C, W, H), src.data, tmp.data, *args)
+    _run(queue, "box_v", (C, W, H), tmp.data, out.data, *args)
     return out
 
 
@@ -69,16 +81,13 @@ def guided_filter(image, guide, *, radius: int, eps: float, device=None):
     n = H * W
     C = 2 * B + 2
     x = _empty(queue, n * C, np.float32)
-    _launch(queue, get_kernel(queue, "guided.cl", "gf_products"), n * B, p.data, g.data, x.data, np.int32(B),
-            np.uint64(n), pixels_per_item=1)
+    _run(queue, "gf_products", (B, n), p.data, g.data, x.data, np.int32(B), np.uint64(n))
     m = _box(queue, x, H, W, C, r)
     ab = _empty(queue, n * 2 * B, np.float32)
-    _launch(queue, get_kernel(queue, "guided.cl", "gf_coeffs"), n * B, m.data, ab.data, np.int32(B),
-            np.float32(e), np.uint64(n), pixels_per_item=1)
+    _run(queue, "gf_coeffs", (B, n), m.data, ab.data, np.int32(B), np.float32(e), np.uint64(n))
     mab = _box(queue, ab, H, W, 2 * B, r)
     out = _empty(queue, n * B, np.float32)
-    _launch(queue, get_kernel(queue, "guided.cl", "gf_apply"), n * B, mab.data, g.data, out.data, np.int32(B),
-            np.uint64(n), pixels_per_item=1)
+    _run(queue, "gf_apply", (B, n), mab.data, g.data, out.data, np.int32(B), np.uint64(n))
     out = out.reshape(H, W, B)
     return out if on_device else out.get()
 

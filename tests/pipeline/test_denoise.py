@@ -100,3 +100,25 @@ def test_cli_recover_denoise(tmp_path, bundle):
                        tmp_path / "x.exr", ok=False), "--delta-e-sigma", "--denoise")
     one_line_error(run("recover", tmp_path / "seq", "--out", tmp_path / "x.npz", "--denoise", "--denoise-eps", "-1",
                        ok=False), "--denoise-eps")
+
+
+def test_filtering_the_output_subspace_equals_filtering_every_band(bundle):
+    from specgpu.engine.guided import guided_filter
+    from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, output_subspace
+
+    plan = E.plan_narrowband(bundle, step_nm=10.0)  # 31 outputs from 31 frames: full rank, filtered as they are
+    assert output_subspace(plan).shape == (31, 31)
+    plan = _plan(bundle)  # 7 outputs of 7 frames
+    folder = _folder(bundle, plan, natural_scene(240, 320), 3)
+    y = recover(folder)
+    every = guided_filter(y, sequence_guide(folder), radius=DENOISE_RADIUS, eps=DENOISE_EPS)
+    np.testing.assert_allclose(denoise_recovery(folder, y), every, atol=2e-5)
+    sym = E.with_estimator(E.plan_symmetric_basis(bundle, E.held_out_basis(), m=5,
+                                                  output_wavelengths=np.arange(400.0, 701.0, 10.0)),
+                           bundle, "projection", noise=E.NoiseModel.from_rig(DESC, 0.005))
+    U = output_subspace(sym)
+    assert U.shape == (31, 5)  # 9 frames, 5 basis functions: the outputs span 5 dimensions
+    folder = _folder(bundle, sym, natural_scene(240, 320), 4)
+    y = recover(folder)
+    every = guided_filter(y, sequence_guide(folder), radius=DENOISE_RADIUS, eps=DENOISE_EPS)
+    np.testing.assert_allclose(denoise_recovery(folder, y), every, atol=2e-5)
