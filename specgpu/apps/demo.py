@@ -263,7 +263,7 @@ def table1_lines(result: DemoResult, methods) -> list[str]:
     then, for a plan that records an expected RMSE (an estimator's or a design's), the measured RMS error over
     the patches' pixels, the expected RMSE and their ratio (measured / expected); then the paper's row where it
     has one. The one place Table 1 is built: add a method by adding its name."""
-    lines = [f"{'method':<16}{'profile':<8}{'RMSE patch':>16}{'dEab patch':>13}{'dE00 patch':>13}"
+    lines = [f"{'method':<22}{'profile':<8}{'RMSE patch':>16}{'dEab patch':>13}{'dE00 patch':>13}"
              f"{'RMSE pixel':>16}{'dE00 pixel':>13}{'seq ms':>8}{'proj.':>6}{'RMS pixel':>16}{'expected':>9}"
              f"{'ratio':>6}"]
     for name in methods:
@@ -271,15 +271,15 @@ def table1_lines(result: DemoResult, methods) -> list[str]:
             r = runs.get(name)
             if r is None:
                 continue
-            lines.append(f"{name:<16}{label:<8}{_pm(r.get('rmse'), 4):>16}{_pm(r.get('dEab'), 2):>13}"
+            lines.append(f"{name:<22}{label:<8}{_pm(r.get('rmse'), 4):>16}{_pm(r.get('dEab'), 2):>13}"
                          f"{_pm(r.get('dE00'), 2):>13}{_pm(r.get('px_rmse'), 4):>16}{_pm(r.get('px_dE00'), 2):>13}"
                          f"{_ms(r):>8}{r['K']:6d}{_expected(r)}")
         if name in paper.TABLE1:
             p = paper.TABLE1[name]
-            lines.append(f"{'':<16}{'paper':<8}{p[0]:>16.4f}{p[2]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{'-':>8}{p[4]:6d}")
+            lines.append(f"{'':<22}{'paper':<8}{p[0]:>16.4f}{p[2]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{'-':>8}{p[4]:6d}")
         elif name in _PAPER_ROWS:
             p = paper.TABLE3_SUMMARY[_PAPER_ROWS[name]]
-            lines.append(f"{'':<16}{'paper':<8}{'-':>16}{p[0]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{'-':>8}{3:6d}")
+            lines.append(f"{'':<22}{'paper':<8}{'-':>16}{p[0]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{'-':>8}{3:6d}")
     return lines
 
 
@@ -300,7 +300,7 @@ def equal_time_lines(result: DemoResult) -> list[str]:
         lines += table1_lines(result, names)[1:]
         b = result.bounds.get(T)
         if b is not None:
-            lines.append(f"{'':<16}{'limit':<8} expected RMSE on the prior: any {K}-frame design >= "
+            lines.append(f"{'':<22}{'limit':<8} expected RMSE on the prior: any {K}-frame design >= "
                          f"{b.lower_rmse:.4f}, best found {b.achieved_rmse:.4f} (noise-free rank limit "
                          f"{b.noise_free_rmse:.4f})")
     return lines
