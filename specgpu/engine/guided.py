@@ -23,13 +23,17 @@ from specgpu.engine.runtime import get_kernel, get_queue
 
 __all__ = ["guided_filter", "box_box_variance"]
 
+_GROUP = 128  # work-items per group
+
 
 def _run(queue, name, shape, *args):
-    """Enqueue ``name`` over the range ``shape`` (channels first), work-groups of one row of channels (at most
-    64 wide; the range padded to a multiple)."""
+    """Enqueue ``name`` over the range ``shape`` (channels first): work-groups of every channel of up to
+    ``_GROUP // channels`` pixels along the second axis (a few hundred thousand groups of one pixel each cost
+    more to schedule than their work on PoCL), the range padded to a multiple."""
     kernel = get_kernel(queue, "guided.cl", name)
-    local = (min(64, shape[0]),) + (1,) * (len(shape) - 1)
-    glob = (-(-shape[0] // local[0]) * local[0],) + tuple(shape[1:])
+    c = min(_GROUP, shape[0])
+    local = (c, max(1, _GROUP // c)) + (1,) * (len(shape) - 2)
+    glob = tuple(-(-n // l) * l for n, l in zip(shape, local))
     with _launch_lock:
         kernel.set_args(*args)
         return cl.enqueue_nd_range_kernel(queue, kernel, glob, local)
