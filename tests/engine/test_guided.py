@@ -49,7 +49,8 @@ def test_a_step_edge_of_the_guide_stays_sharp_and_flat_noise_goes(queue):
 
 
 @settings(max_examples=30, deadline=None)
-@given(r=st.one_of(st.integers(-3, 0), st.floats(0.5, 2.5).filter(lambda v: v != int(v))), eps=st.one_of(st.floats(-1, 0), st.just(float("nan"))))
+@given(r=st.one_of(st.integers(-3, 0), st.floats(0.5, 2.5).filter(lambda v: v != int(v))),
+       eps=st.one_of(st.floats(-1, 0), st.just(float("nan"))))
 def test_bad_radius_or_eps_is_one_line(r, eps):
     p = np.zeros((8, 8, 2), np.float32)
     g = np.zeros((8, 8), np.float32)
