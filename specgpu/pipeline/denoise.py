@@ -26,7 +26,8 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
 
-__all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "sequence_guide", "output_subspace", "denoise_recovery", "denoised_sigma"]
+__all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "sequence_guide", "output_subspace", "denoise_recovery", "denoised_sigma",
+           "stream_denoise"]
 
 #: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/budget_study.py --tune``): on
 #: the CIE 2017 CES chart and the natural scene, the pair with the lowest per-pixel RMSE whose error within 2 px of
@@ -108,3 +109,29 @@ def denoised_sigma(folder, sigma, *, sequence: int | None = None, radius: int = 
     own = np.minimum(np.nan_to_num(own), np.nan_to_num(total))  # never more than the whole
     var = box_box_variance(own, r) + (total - own)
     return np.sqrt(np.maximum(var, 0.0)).astype(np.float32)
+
+
+#: The stream outputs the guided filter applies to (linear in the frames, so filtering them is filtering the
+#: cube), and those it cannot be applied to yet.
+DENOISED_STREAM_OUTPUTS = ("coefficients", "cube", "XYZ")
+
+
+def stream_denoise(plan, outputs, cube_dtype, denoise) -> dict:
+    """The stream's denoising set-up for ``denoise`` = (radius, eps): the guide's row (every frame but an ambient
+    one), the channels of each filtered output; refuses (one line) outputs it cannot carry (Lab and dE are not
+    linear in the frames; the sigma maps are not carried through the filter in the stream) and a float16 cube."""
+    r, e = _check(*denoise)
+    bad = [o for o in outputs if o not in DENOISED_STREAM_OUTPUTS]
+    if bad:
+        raise ValueError(f"--denoise filters the stream's {', '.join(DENOISED_STREAM_OUTPUTS)} outputs; "
+                         f"{', '.join(bad)} cannot be denoised in the stream yet (leave them out, or recover the "
+                         "recording's frames with recover --denoise)")
+    if "cube" in outputs and np.dtype(cube_dtype) != np.float32:
+        raise ValueError("--denoise needs a float32 cube (leave --half out)")
+    row = np.ones((1, plan.K))
+    amb = ambient_index(plan)
+    if amb is not None:
+        row[0, amb] = 0.0
+    U, s, _ = np.linalg.svd(np.asarray(plan.A, np.float64), full_matrices=False)
+    m = int(plan.params.get("m", np.sum(s > s[0] * 1e-9))) if s.size else 0
+    return {"radius": r, "eps": e, "row": row, "channels": {"coefficients": m, "cube": plan.A.shape[0], "XYZ": 3}}

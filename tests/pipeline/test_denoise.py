@@ -122,3 +122,35 @@ def test_filtering_the_output_subspace_equals_filtering_every_band(bundle):
     y = recover(folder)
     every = guided_filter(y, sequence_guide(folder), radius=DENOISE_RADIUS, eps=DENOISE_EPS)
     np.testing.assert_allclose(denoise_recovery(folder, y), every, atol=2e-5)
+
+
+def test_stream_denoise_equals_recover_denoise():
+    """The stream's denoised coefficients, cube and XYZ equal recover --denoise on the same frames; outputs it
+    cannot carry are refused in one line."""
+    from specgpu.pipeline.recovery import to_XYZ
+    from specgpu.pipeline.stream import Stream
+    from specgpu.testing import stream_setup
+
+    setup = stream_setup(320, 240, sequences=2, output_step_nm=10.0)
+    got = []
+    stream = Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=("coefficients", "cube", "XYZ"),
+                    cube_dtype=np.float32, policy="block", denoise=(2, 1e-4),
+                    sinks=[lambda r: got.append((r.frame_ids.copy(), {k: v.copy() for k, v in r.arrays.items()}))])
+    stream.run()
+    assert len(got) == 2
+    K = setup.plan.K
+    for ids, maps in got:
+        i = setup.recorded_sequence(ids)
+        folder = SequenceFolder(Path("."), setup.frames[i * K:(i + 1) * K][None], setup.plan, setup.bundle, [], {})
+        raw = recover(folder)
+        want = denoise_recovery(folder, raw, radius=2, eps=1e-4)
+        scale = np.max(np.abs(want))
+        np.testing.assert_allclose(maps["cube"], want, atol=1e-4 * scale)
+        np.testing.assert_allclose(maps["coefficients"] @ stream.decoder.basis.T, want, atol=1e-4 * scale)
+        np.testing.assert_allclose(maps["XYZ"], to_XYZ(want, setup.plan), atol=1e-4)
+        assert np.abs(maps["cube"] - raw).max() > 10 * 1e-4 * scale  # it did filter
+    for outputs, why in ((("coefficients", "dE"), "dE cannot be denoised"), (("cube",), "float32 cube")):
+        with pytest.raises(ValueError, match=why) as info:
+            Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=outputs, reference=setup.reference,
+                   cube_dtype=np.float16, denoise=(2, 1e-4))
+        assert "\n" not in str(info.value)

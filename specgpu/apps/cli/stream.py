@@ -25,6 +25,7 @@ from specgpu.apps.cli.options import (
 )
 from specgpu.hardware.drivers import hardware_config, open_driver
 from specgpu.io.recording import refuse_existing
+from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.live import add_recording, recording_slots, stream_summary
 from specgpu.pipeline.outputs import stream_metadata
 from specgpu.pipeline.recovery import check_scene_covers
@@ -45,7 +46,7 @@ def status_line(s, tty):
 
 def stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                seconds, method, colours, pacing, policy, exr_every, half, seed, device, white=(None, None),
-               disk_check=True):
+               disk_check=True, denoise=None):
     """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised;
     ``colours``: the (illuminant, observer) of its XYZ, Lab and dE."""
     illuminant, observer = colours
@@ -54,11 +55,13 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, observer=observer, cube_dtype=np.float16 if half else np.float32,
                     policy=policy, device=device, white_roi=white_roi, white_reflectance=white_reflectance,
-                    n_slots=recording_slots(plan, description) if out else None)
+                    n_slots=recording_slots(plan, description) if out else None, denoise=denoise)
     writer = None
     if out:
         meta = stream_metadata(truth, illuminant=illuminant, observer=observer, method=method, seed=seed,
                                white_roi=white_roi, white_reflectance=white_reflectance)
+        if denoise is not None:
+            meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
         writer = add_recording(stream, plan, description, out, wanted=wanted, raw_frames=raw_frames,
                                plan_path=plan_path, calib=calib, seconds=seconds, policy=policy, meta=meta,
                                exr_every=exr_every, method=method, colours=colours, disk_check=disk_check)
@@ -116,13 +119,16 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
                    "recover --white-roi; the gains are recorded).")
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@click.option("--denoise", is_flag=True,
+              help="Denoise the coefficients, cube and XYZ outputs on the device (recover --denoise's guided filter; "
+                   "not with Lab, dE or the sigmas).")
 @RESIZE
 @click.option("--no-disk-check", is_flag=True,
               help="Record even when a write probe says the disk cannot keep up with --out (frames will be "
                    "dropped); also skips the probe that chooses each array's compression.")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
-                   observer, pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, resize,
-                   no_disk_check):
+                   observer, pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, denoise,
+                   resize, no_disk_check):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     wanted = output_list(outputs, STREAM_OUTPUTS, "stream output")  # before any loading: a typo names the valid
@@ -148,7 +154,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     try:
         stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                    seconds, method, colours, pacing if hardware is None else "paced", policy, exr_every, half, seed,
-                   device, white=(white_roi, white_reflectance), disk_check=not no_disk_check)
+                   device, white=(white_roi, white_reflectance), disk_check=not no_disk_check,
+                   denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None)
     finally:
         if hardware is not None:
             driver.close()  # the light's USB link and the camera
