@@ -154,3 +154,30 @@ def test_stream_denoise_equals_recover_denoise():
             Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=outputs, reference=setup.reference,
                    cube_dtype=np.float16, denoise=(2, 1e-4))
         assert "\n" not in str(info.value)
+
+
+def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
+    """``specgpu batch --denoise`` of a sequence folder: each sequence's cube equals recover --denoise of it; a
+    resumed batch asking otherwise, and Lab or dE with it, are refused in one line."""
+    import zarr
+
+    from specgpu.pipeline.recovery import read_capture
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG)
+    cal = tmp_path / "cal.npz"
+    save_calibration(cal, bundle)
+    run("plan", "hadamard", "--bands", "7", "--calib", cal, "--rig", rig, "--out", tmp_path / "p.npz", "--no-ambient")
+    run("capture", "--rig", rig, "--calib", cal, "--plan", tmp_path / "p.npz", "--scene", "natural", "--out",
+        tmp_path / "seq", "--sequences", "2")
+    run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "b.zarr", "--outputs",
+        "cube", "--denoise")
+    folder = read_capture(tmp_path / "seq")
+    cube = zarr.open_group(str(tmp_path / "b.zarr"), mode="r")["cube"]
+    for i in range(2):
+        want = denoise_recovery(folder, recover(folder, sequence=i), sequence=i)
+        np.testing.assert_allclose(cube[i], want, atol=1e-4 * np.max(np.abs(want)))
+    one_line_error(run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "b.zarr",
+                       "--outputs", "cube", ok=False), "--denoise")
+    one_line_error(run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "c.zarr",
+                       "--outputs", "cube,Lab", "--denoise", ok=False), "Lab cannot be denoised")
