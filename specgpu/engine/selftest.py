@@ -230,7 +230,7 @@ def run_selftest(device=None, path: Path | None = None) -> SelftestReport:
     >>> report.passed, report.failed_kernels()
     (True, [])
     >>> sorted(report.kernels())
-    ['delta_e', 'fused', 'linear', 'xyz_to_lab']
+    ['delta_e', 'fused', 'guided', 'linear', 'xyz_to_lab']
     """
     queue = get_queue(device)
     manifest, arrays = load_golden(path)
