@@ -75,3 +75,32 @@ def random_Lab(rng, shape):
 def sharma_pairs(path):
     d = np.loadtxt(path, delimiter=",", comments="#", skiprows=5)
     return d[:, 1:4], d[:, 4:7], d[:, 7]
+
+
+def guided_filter_numpy(p, g, r, eps):
+    """NumPy reference of the guided filter (He, Sun and Tang 2010) with windows clipped to the image: box
+    means by cumulative sums, divided by the number of pixels inside each window."""
+    p = np.asarray(p, np.float64)
+    g = np.asarray(g, np.float64)
+
+    def box(a):
+        H, W = a.shape[:2]
+        out = a
+        for axis, n in ((0, H), (1, W)):
+            c = np.cumsum(out, axis=axis)
+            c = np.concatenate([np.zeros_like(np.take(c, [0], axis=axis)), c], axis=axis)
+            idx = np.arange(n)
+            hi, lo = np.minimum(idx + r, n - 1) + 1, np.maximum(idx - r, 0)
+            s = np.take(c, hi, axis=axis) - np.take(c, lo, axis=axis)
+            shape = [1] * out.ndim
+            shape[axis] = n
+            out = s / (hi - lo).reshape(shape)
+        return out
+
+    gg = g[..., None]
+    mg, mp = box(gg), box(p)
+    cov = box(gg * p) - mg * mp
+    var = np.maximum(box(gg * gg) - mg * mg, 0.0)
+    a = cov / (var + eps)
+    b = mp - a * mg
+    return box(a) * gg + box(b)

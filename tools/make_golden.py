@@ -118,6 +118,14 @@ def main(out: Path = ROOT / "tests" / "data" / "golden.npz") -> None:
             expected_XYZ=XYZ, expected_Lab=Lab, expected_dE=ref.delta_E_ref(reference, Lab, method),
             expected_mask=ref.mask_ref(frames, 1023))
 
+    # ---- guided filter (recover --denoise): a step edge in the guide, noisy channels, windows clipped at borders
+    guide = rng.uniform(0.2, 0.4, (H, W)).astype(np.float32)
+    guide[:, W // 2:] += 0.5
+    image = (guide[..., None] * rng.uniform(0.2, 1.0, 5) + rng.normal(0, 0.02, (H, W, 5))).astype(np.float32)
+    for radius, eps in ((2, 1e-4), (4, 1e-2)):
+        add(f"guided_r{radius}_eps{eps:g}", {"q": ["abs", 2e-5]}, image=image, guide=guide,
+            expected_q=ref.guided_filter_numpy(image, guide, radius, eps))
+
     manifest = {"format": "specgpu-golden", "version": 1, "seed": SEED, "cases": cases}
     np.savez_compressed(out, _manifest=np.array(json.dumps(manifest)), **arrays)
     print(f"wrote {out}: {len(cases)} cases, {out.stat().st_size / 1024:.0f} KiB")

@@ -1,6 +1,6 @@
 """Throughput of the kernels against NumPy / colour-science baselines doing the same work, in one run.
 
-Four cases at each image size:
+Five cases at each image size:
 
 1. ``cube_float32``: 9 uint16 frames (10-bit codes) -> 61-band float32 cube, planar (B, H, W) and
    interleaved (H, W, B); baseline: a float32 NumPy matmul in the matching layout.
@@ -9,6 +9,8 @@ Four cases at each image size:
    image, one device pass; baseline: ``np.einsum`` + ``colour.XYZ_to_Lab`` + ``colour.delta_E("CIE 2000")``.
 4. ``XYZ_Lab_dE2000``: an XYZ image -> Lab -> dE2000 against the reference (two kernels, data stays on the
    device); baseline: ``colour.XYZ_to_Lab`` + ``colour.delta_E("CIE 2000")``.
+5. ``guided_filter``: ``recover --denoise``'s guided filter of a 9-frame plan's outputs (their 9 coordinates,
+   :mod:`specgpu.apps.bench_denoise`); baseline: the same filter in NumPy with SciPy's box filter.
 
 Device timings are steady state: inputs already on the device, outputs drawn from the memory pool of
 :func:`specgpu.engine.runtime.get_allocator`, one untimed warm-up call (program build, pool priming), then the
@@ -39,6 +41,7 @@ import pyopencl.array as cla
 from tqdm import tqdm
 
 from specgpu import __version__, engine
+from specgpu.apps.bench_denoise import guided_case
 from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, frames_to_delta_E
 from specgpu.engine.linear_map import LAYOUTS, apply_linear
@@ -57,7 +60,8 @@ TARGETS = {"fused_speedup": 20.0, "cube_fraction_of_copy": 0.70}
 
 # Largest acceptable difference to the baseline, by case: float32 rounding (different summation order),
 # float16 rounding (half an ulp at 2^-11 either side of the float32 value), dE2000 in float32 vs float64.
-TOLERANCES = {"cube_float32": 1e-5, "cube_float16": 2e-3, "fused_dE2000": 1e-3, "XYZ_Lab_dE2000": 1e-3}
+TOLERANCES = {"cube_float32": 1e-5, "cube_float16": 2e-3, "fused_dE2000": 1e-3, "XYZ_Lab_dE2000": 1e-3,
+              "guided_filter": 1e-4}
 
 
 @dataclass
@@ -312,6 +316,7 @@ def _steps(sizes):
             yield size, "cube_float16", layout
         yield size, "fused_dE2000", None
         yield size, "XYZ_Lab_dE2000", None
+        yield size, "guided_filter", None
 
 
 # -------------------------------------------------------------------------------------------- the report
@@ -413,7 +418,7 @@ def format_report(report: dict, cases: list[CaseResult]) -> str:
 def run_bench(sizes=((640, 480), (2048, 2048)), device=None, repeats: int | None = None,
               json_path: str | Path | None = None, echo: Callable[[str], None] | None = print,
               progress: bool = True, copy_mib: int = 256) -> dict:
-    """Run the four cases at each size, print the report and optionally write it as JSON.
+    """Run the five cases at each size, print the report and optionally write it as JSON.
 
     Parameters
     ----------
@@ -472,6 +477,8 @@ def run_bench(sizes=((640, 480), (2048, 2048)), device=None, repeats: int | None
                     row.fraction_of_copy = row.GBps / copy_GBps
                 elif case == "fused_dE2000":
                     row = _fused_case(queue, data, frames_dev, reference_dev, reps)
+                elif case == "guided_filter":
+                    row = guided_case(queue, width, height, reps, _measure, _row)
                 else:
                     row = _lab_case(queue, data, xyz_dev, reference_dev, reps)
                 cases.append(row)

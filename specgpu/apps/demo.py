@@ -40,6 +40,7 @@ from specgpu.calibration.bundle import calibration_error
 from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
 from specgpu.pipeline.recovery import EVALUATION_CHART, SequenceFolder, default_basis, uncertainty, write_capture
 from specgpu.planning import default_prior, make_plan, save_plan, training_spectra
+from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans, row_name
 from specgpu.planning.basis import save_basis
 from specgpu.planning.noise import NoiseModel
 from specgpu.rig.config import RigDescription, load_rig, rig_from_dict
@@ -85,10 +86,14 @@ class DemoResult:
     #: profile label -> what was done (corrections, calibration error against the twin's truth)
     profiles: dict = field(default_factory=dict)
     main: str = ""
+    #: budget (ms) -> the limit of any design of the equal-time rows' frame count (main profile)
+    bounds: dict = field(default_factory=dict)
 
 
 def _steps(echo, progress, n_profiles):
-    return tqdm(total=n_profiles * (2 + len(DEMO_METHODS) + len(ESTIMATOR_ROWS)) + 3, desc="demo", unit="step",
+    equal = sum(len(rows) for _, rows in EQUAL_TIME.values())
+    return tqdm(total=n_profiles * (2 + len(DEMO_METHODS) + len(ESTIMATOR_ROWS) + equal) + 3, desc="demo",
+                unit="step",
                 leave=False, disable=not progress)
 
 
@@ -156,8 +161,12 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
         # time) and 100 iterations (the design's expected error within 0.2 % of 300 iterations', in a third)
         plans.update(study_plans(description, bundle, prior, basis, methods=ESTIMATOR_ROWS, training=training,
                                  chart=EVALUATION_CHART, starts=1, iterations=100))
-        scene, roi = chart_with_white(description, EVALUATION_CHART)
         lab = description.realism.any or description.drift.any
+        # the methods at equal sequence time (an ambient frame per sequence on a lab rig, within the budget)
+        plans.update(equal_time_plans(description, bundle, prior, basis, training=training, extra_frames=int(lab)))
+        if is_main:
+            result.bounds = equal_time_bounds(description, bundle, prior, extra_frames=int(lab))
+        scene, roi = chart_with_white(description, EVALUATION_CHART)
         corrections = {"white_roi": roi, "ambient": True} if lab else {}
         error = calibration_error(bundle, description)
         result.profiles[label] = {
@@ -251,22 +260,46 @@ def table1_lines(result: DemoResult, methods) -> list[str]:
     then, for a plan that records an expected RMSE (an estimator's or a design's), the measured RMS error over
     the patches' pixels, the expected RMSE and their ratio (measured / expected); then the paper's row where it
     has one. The one place Table 1 is built: add a method by adding its name."""
-    lines = [f"{'method':<16}{'profile':<8}{'RMSE patch':>16}{'dEab patch':>13}{'dE00 patch':>13}"
-             f"{'RMSE pixel':>16}{'dE00 pixel':>13}{'proj.':>6}{'RMS pixel':>16}{'expected':>9}{'ratio':>6}"]
+    lines = [f"{'method':<22}{'profile':<8}{'RMSE patch':>16}{'dEab patch':>13}{'dE00 patch':>13}"
+             f"{'RMSE pixel':>16}{'dE00 pixel':>13}{'seq ms':>8}{'proj.':>6}{'RMS pixel':>16}{'expected':>9}"
+             f"{'ratio':>6}"]
     for name in methods:
         for label, runs in result.draws.items():
             r = runs.get(name)
             if r is None:
                 continue
-            lines.append(f"{name:<16}{label:<8}{_pm(r.get('rmse'), 4):>16}{_pm(r.get('dEab'), 2):>13}"
+            lines.append(f"{name:<22}{label:<8}{_pm(r.get('rmse'), 4):>16}{_pm(r.get('dEab'), 2):>13}"
                          f"{_pm(r.get('dE00'), 2):>13}{_pm(r.get('px_rmse'), 4):>16}{_pm(r.get('px_dE00'), 2):>13}"
-                         f"{r['K']:6d}{_expected(r)}")
+                         f"{_ms(r):>8}{r['K']:6d}{_expected(r)}")
         if name in paper.TABLE1:
             p = paper.TABLE1[name]
-            lines.append(f"{'':<16}{'paper':<8}{p[0]:>16.4f}{p[2]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{p[4]:6d}")
+            lines.append(f"{'':<22}{'paper':<8}{p[0]:>16.4f}{p[2]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{'-':>8}{p[4]:6d}")
         elif name in _PAPER_ROWS:
             p = paper.TABLE3_SUMMARY[_PAPER_ROWS[name]]
-            lines.append(f"{'':<16}{'paper':<8}{'-':>16}{p[0]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{3:6d}")
+            lines.append(f"{'':<22}{'paper':<8}{'-':>16}{p[0]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{'-':>8}{3:6d}")
+    return lines
+
+
+def _ms(r) -> str:
+    """The sequence time column: the plan's frames at its shortest frame period, ms."""
+    return f"{r['sequence_ms']:.1f}" if "sequence_ms" in r else "-"
+
+
+def equal_time_lines(result: DemoResult) -> list[str]:
+    """Table 1's equal-time rows: per budget, its methods (each within the budget, ambient frame included) and
+    the limit of any design of that frame count at that budget (expected RMSE on the prior)."""
+    lines = []
+    for T, (K, rows) in EQUAL_TIME.items():
+        names = [row_name(n, T) for n in rows]
+        if not any(n in runs for runs in result.draws.values() for n in names):
+            continue
+        lines.append(f"-- {K} frames within {T:g} ms per sequence --")
+        lines += table1_lines(result, names)[1:]
+        b = result.bounds.get(T)
+        if b is not None:
+            lines.append(f"{'':<22}{'limit':<8} expected RMSE on the prior: any {K}-frame design >= "
+                         f"{b.lower_rmse:.4f}, best found {b.achieved_rmse:.4f} (noise-free rank limit "
+                         f"{b.noise_free_rmse:.4f})")
     return lines
 
 
@@ -292,6 +325,7 @@ def format_tables(result: DemoResult) -> str:
              f"(prior without the chart): RMS pixel error over the patches beside the RMSE expected on the prior"]
     lines += table1_lines(result, ("narrowband", "biased", "symmetric", "tristimulus-D65", "tristimulus-A")
                           + ESTIMATOR_ROWS)
+    lines += equal_time_lines(result)
     if result.main:
         lines.append(f"(Tables 2 and 3: the {result.main} profile, first draw)")
     nb, sy = m["narrowband"]["patch"], m["symmetric"]["patch"]
@@ -339,9 +373,13 @@ def _report_json(result: DemoResult) -> dict:
 
     draws = {label: {name: {k: {"values": v, "mean": mean_std(v)[0], "std": mean_std(v)[1]}
                             for k, v in rows.items() if isinstance(v, list)} | {"K": rows["K"]}
+                     | {"sequence_ms": rows.get("sequence_ms")}
                      | ({"expected_rmse": rows["expected_rmse"]} if "expected_rmse" in rows else {})
                      for name, rows in runs.items()} for label, runs in result.draws.items()}
-    return {"main_profile": result.main, "profiles": result.profiles, "draws": draws,
+    bounds = {f"{T:g}ms": {"frames": b.frames, "lower_rmse": b.lower_rmse, "achieved_rmse": b.achieved_rmse,
+                           "noise_free_rmse": b.noise_free_rmse, "exposure_s": b.exposure_s}
+              for T, b in result.bounds.items()}
+    return {"main_profile": result.main, "profiles": result.profiles, "draws": draws, "bounds": bounds,
             "seconds": result.seconds, "calibration": result.calibration, "basis_cumulative_variance":
             result.basis_variance, "methods": methods,
             "paper": {"table1": paper.TABLE1, "table3": paper.TABLE3_SUMMARY}}

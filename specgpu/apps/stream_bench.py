@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from specgpu.engine.runtime import get_queue
+from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.stream import Stream
 from specgpu.pipeline.stream_report import current_rss_bytes
 from specgpu.planning import NoiseModel, smooth_prior, with_estimator
@@ -37,12 +38,15 @@ def _stream_row(case: str, report, *, target_fps=None, extra=None) -> dict:
 
 
 #: The stream bench's cases; the sustained ones (free-running, ``block``) run ``rounds`` times interleaved.
-STREAM_CASES = ("fused", "sigma", "sigma_rms", "white", "dE_sigma", "cube", "paced", "overload", "equality")
+STREAM_CASES = ("fused", "sigma", "sigma_rms", "white", "dE_sigma", "linear", "denoise", "cube", "paced", "overload",
+                "equality")
 _SUSTAINED = {"fused": ("coefficients+XYZ+dE2000", ("coefficients", "XYZ", "dE"), False),
               "sigma": ("coefficients+XYZ+dE2000+sigma", ("coefficients", "XYZ", "dE", "sigma"), False),
               "sigma_rms": ("coefficients+XYZ+dE2000+sigma_rms", ("coefficients", "XYZ", "dE", "sigma_rms"), False),
               "white": ("coefficients+XYZ+dE2000 with --white-roi", ("coefficients", "XYZ", "dE"), True),
-              "dE_sigma": ("coefficients+XYZ+dE2000+dE_sigma", ("coefficients", "XYZ", "dE", "dE_sigma"), False)}
+              "dE_sigma": ("coefficients+XYZ+dE2000+dE_sigma", ("coefficients", "XYZ", "dE", "dE_sigma"), False),
+              "linear": ("coefficients+XYZ", ("coefficients", "XYZ"), False),
+              "denoise": ("coefficients+XYZ with --denoise", ("coefficients", "XYZ"), False)}
 
 
 def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, overload_seconds: float = 10.0,
@@ -70,6 +74,9 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     dE_sigma
         Fused plus ``dE_sigma`` (XYZ covariance on the device, its dE2000 propagation on the host); no target,
         not run by default.
+    linear, denoise
+        Coefficients + XYZ, plain and with ``stream --denoise`` (the guided filter of both, its guide the
+        frames' sum): the denoiser's cost at equal outputs; no target, not run by default.
 
     The sustained cases (fused, sigma, white, dE_sigma) run ``rounds`` times interleaved; each row is the
     median round's, with every round's frames/s and 1-minute load average beside it.
@@ -119,14 +126,16 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
             count = [0]
             stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=outputs, policy="block",
                             sinks=[lambda r: count.__setitem__(0, count[0] + 1)],
-                            white_roi=white_tile_roi(height, width) if white else None, **common)
+                            white_roi=white_tile_roi(height, width) if white else None,
+                            denoise=(DENOISE_RADIUS, DENOISE_EPS) if c == "denoise" else None,
+                            **{k: v for k, v in common.items() if k != "reference" or "dE" in outputs})
             rep = stream.run(seconds)
             runs[c].append((rep, load()))
     for c in sustained:
         name = _SUSTAINED[c][0]
         order = sorted(range(len(runs[c])), key=lambda i: runs[c][i][0].frames_per_s)
         rep, load_avg = runs[c][order[len(order) // 2]]
-        rows.append(_stream_row(name, rep, target_fps=None if c == "dE_sigma" else
+        rows.append(_stream_row(name, rep, target_fps=None if c in ("dE_sigma", "linear", "denoise") else
                                 STREAM_TARGETS["coefficients_XYZ_dE2000_fps"],
                                 extra={"load_avg_1min": load_avg, "rounds": len(runs[c]),
                                        "frames_per_s_rounds": [r.frames_per_s for r, _ in runs[c]],

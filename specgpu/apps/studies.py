@@ -148,7 +148,7 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
     -------
     dict
         name -> {metric: [value per draw]} for :data:`METRICS` (``rmse``/``px_rmse``/``px_rms`` absent for XYZ
-        plans), plus ``"K"`` (frames per sequence) and, for a plan that records one (an estimator's, a design's),
+        plans), plus ``"K"`` (frames per sequence), ``"sequence_ms"`` (the plan's sequence time) and, for a plan that records one (an estimator's, a design's),
         ``"expected_rmse"``: the RMSE its decoder expects on its training prior.
     """
 
@@ -189,7 +189,7 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
                     err = (np.asarray(y, np.float64) - truth_cube(scene, plan.output_wavelengths))[patches]
                     rows["px_rms"].append(float(np.sqrt(np.mean(err ** 2))))
             rows.setdefault("reports", []).append(rep)
-        out[name] = {k: v for k, v in rows.items() if v} | {"K": plan.K}
+        out[name] = {k: v for k, v in rows.items() if v} | {"K": plan.K, "sequence_ms": plan.sequence_s * 1e3}
         expected = plan.params.get("expected", {}).get("rmse") if plan.output == "reflectance" else None
         if expected is not None:
             out[name]["expected_rmse"] = float(expected)

@@ -119,3 +119,7 @@ __all__ = [
     "to_device",
     "transfer_mode",
 ]
+
+from specgpu.engine.guided import box_box_variance, guided_filter  # noqa: E402
+
+__all__ += ["box_box_variance", "guided_filter"]

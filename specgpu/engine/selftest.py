@@ -24,6 +24,7 @@ import numpy as np
 
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
 from specgpu.engine.linear_map import apply_linear
+from specgpu.engine.guided import guided_filter
 from specgpu.engine.runtime import get_queue
 
 __all__ = ["golden_path", "load_golden", "run_selftest", "SelftestReport", "CaseResult", "CASES"]
@@ -95,6 +96,10 @@ def _fused(d, device, **kw):
     return {"XYZ": res.XYZ, "Lab": res.Lab, "dE": res.delta_E, "mask": res.mask}
 
 
+def _guided(d, device, **kw):
+    return {"q": guided_filter(d["image"], d["guide"], radius=kw["radius"], eps=kw["eps"], device=device)}
+
+
 #: kernel label, runner, keyword arguments; the expected arrays are in the golden file.
 CASES = {
     "linear_u16_planar_f32_dark_gain": ("linear", _linear, {"out_dtype": "float32", "layout": "planar"}),
@@ -114,6 +119,8 @@ CASES = {
                                    {"illuminant": "A", "cmfs": "CIE 1964 10 Degree Standard Observer"}),
     "fused_frames_to_de2000": ("fused", _fused, {"illuminant": "D65", "method": "CIE 2000"}),
     "fused_frames_to_de94": ("fused", _fused, {"illuminant": "D65", "method": "CIE 1994"}),
+    "guided_r2_eps0.0001": ("guided", _guided, {"radius": 2, "eps": 1e-4}),
+    "guided_r4_eps0.01": ("guided", _guided, {"radius": 4, "eps": 1e-2}),
 }
 
 
@@ -223,7 +230,7 @@ def run_selftest(device=None, path: Path | None = None) -> SelftestReport:
     >>> report.passed, report.failed_kernels()
     (True, [])
     >>> sorted(report.kernels())
-    ['delta_e', 'fused', 'linear', 'xyz_to_lab']
+    ['delta_e', 'fused', 'guided', 'linear', 'xyz_to_lab']
     """
     queue = get_queue(device)
     manifest, arrays = load_golden(path)

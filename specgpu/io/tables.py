@@ -32,10 +32,11 @@ def content_hash(arrays: dict, meta: dict) -> str:
     return h.hexdigest()
 
 
-def save_npz(path, kind: str, version: int, arrays: dict, meta: dict) -> str:
+def save_npz(path, kind: str, version: int, arrays: dict, meta: dict, extra: dict | None = None) -> str:
     """Write a versioned, hashed ``.npz``; return the content hash.
 
-    ``meta`` must be JSON-serializable; the hash covers it and every array.
+    ``meta`` must be JSON-serializable; the hash covers it and every array. ``extra``: further header entries
+    derived from the content (a plan's timing), for readers of the header alone; not hashed, ignored on load.
     """
     path = Path(path)
     arrays = {k: np.asarray(v) for k, v in arrays.items()}
@@ -44,6 +45,10 @@ def save_npz(path, kind: str, version: int, arrays: dict, meta: dict) -> str:
             raise ValueError(f"{path}: array {k!r} is not numeric")
     digest = content_hash(arrays, meta)
     header = {"format": kind, "version": int(version), "hash": digest, "meta": meta}
+    reserved = set(header) & set(extra or {})
+    if reserved:
+        raise ValueError(f"{path}: extra header entries may not replace {sorted(reserved)}")
+    header.update(json.loads(json.dumps(extra or {})))
     # np.savez adds ".npz" to a name without it; write through a file object to keep the path as given, to a
     # temporary name renamed over the target at the end: an interrupted save never destroys a good file
     if not path.parent.is_dir():

@@ -64,6 +64,7 @@ from specgpu.pipeline.batch_source import (
     reference_label,
 )
 from specgpu.pipeline.decoder import StreamDecoder
+from specgpu.pipeline.denoise import stream_denoise
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
 
@@ -90,13 +91,14 @@ class BatchJob:
     source_id: str = ""
     observer: str = DEFAULT_CMFS
     sequences: int = 0  # the source's committed sequences when the batch started (a recording may still grow)
+    denoise: tuple | None = None  # (radius, eps) of the guided filter of the linear outputs, or None
 
     @property
     def key(self) -> tuple:
         # the source's content id: a worker that outlives a batch (``--scheduler``) never reuses the handles of a
         # recording since replaced at the same path
         return (self.source, self.source_id, self.out, self.plan.hash, self.calibration.hash, self.outputs,
-                self.illuminant, self.observer, self.method, self.device)
+                self.illuminant, self.observer, self.method, self.device, self.denoise)
 
 
 _STATE: dict = {}
@@ -223,7 +225,8 @@ def _decoder(job: BatchJob, state):
         dec = StreamDecoder(job.plan, job.calibration, job.outputs,
                             frame_shape=(state.source.height, state.source.width), queue=state.queue,
                             reference=job.reference if "dE" in job.outputs else None, method=job.method,
-                            illuminant=job.illuminant, observer=job.observer, cube_dtype=np.float32)
+                            illuminant=job.illuminant, observer=job.observer, cube_dtype=np.float32,
+                            denoise=job.denoise)
         # on a CPU device the frames are the device buffer and the results are mapped (no copy either way)
         state._zero_copy = bool(state.queue.device.type & cl.device_type.CPU)
         state._decoder = dec
@@ -336,7 +339,7 @@ class BatchReport:
 
 
 def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
-                  method="CIE 2000", reference=None, device=None) -> tuple[BatchJob, np.ndarray]:
+                  method="CIE 2000", reference=None, device=None, denoise=None) -> tuple[BatchJob, np.ndarray]:
     """Check the source against the plan, create (or reopen, to resume) the output; returns the job and the
     indices of the sequences still to compute. Every refusal is one line naming the file, found before the
     output is created. ``illuminant``: of XYZ, Lab and dE, recorded in the output; default the plan's own for a
@@ -373,6 +376,9 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
                              f"got shape {ref.shape}")
     if {"XYZ", "Lab", "dE"} & set(outputs):
         plan.outputs_to_XYZ(illuminant, observer)  # a plan with no XYZ: refused here, not on every worker
+    if denoise is not None:  # outputs the filter cannot carry: refused here, not on every worker
+        stream_denoise(plan, outputs, np.float32, denoise)
+        denoise = (int(denoise[0]), float(denoise[1]))
     n, h, w = source.sequences, source.height, source.width
     if n == 0:
         raise ValueError(f"{source.path}: holds no committed sequence")
@@ -383,10 +389,11 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
                 "illuminant": illuminant if {"XYZ", "Lab", "dE"} & set(outputs) else None,
                 "observer": observer if {"XYZ", "Lab", "dE"} & set(outputs) else None,
                 "method": method if "dE" in outputs else None,
-                "reference_sha256": _reference_hash(reference), "delta_e_ref": reference_label(reference)}
+                "reference_sha256": _reference_hash(reference), "delta_e_ref": reference_label(reference),
+                "denoise": None if denoise is None else list(denoise)}
     job = BatchJob(str(source_path), str(out), plan, calibration, outputs, illuminant, method,
                    None if reference is None else np.asarray(reference, np.float32), device, identity["source_id"],
-                   observer, n)
+                   observer, n, denoise)
     _remove_dead_creations(out)
     if out.exists() and _unfinished_creation(out):
         shutil.rmtree(out)  # made by an older specgpu killed before its first sequence: nothing in it to keep
@@ -528,7 +535,7 @@ def _task_groups(todo, workers: int) -> list[list[int]]:
 
 def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
               method="CIE 2000", reference=None, scheduler=None, workers: int = 1, client=None,
-              progress: bool = True, on_done=None, device=None) -> BatchReport:
+              progress: bool = True, on_done=None, device=None, denoise=None) -> BatchReport:
     """Re-process every sequence of ``source_path`` with ``plan`` into ``out`` on Dask (see the module docstring).
 
     Parameters
@@ -540,20 +547,25 @@ def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illumin
         Use this client (and its cluster) instead.
     on_done : callable, optional
         Given each finished task's record (``index``, ``pid``, ``built``) on the calling thread.
+    denoise : (radius, eps), optional
+        Denoise the cube and XYZ with the guided filter of ``recover --denoise`` (recorded in the output's
+        identity: a resumed batch must ask the same).
     """
     with output_lock(out, make_parents=True):  # one batch per output: resuming, cleaning and writing are its own
         return _run_locked(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
                            observer=observer, method=method, reference=reference, scheduler=scheduler,
-                           workers=workers, client=client, progress=progress, on_done=on_done, device=device)
+                           workers=workers, client=client, progress=progress, on_done=on_done, device=device,
+                           denoise=denoise)
 
 
 def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, observer, method, reference, scheduler,
-                workers, client, progress, on_done, device) -> BatchReport:
+                workers, client, progress, on_done, device, denoise=None) -> BatchReport:
 
     from distributed import Client, LocalCluster, as_completed
 
     job, todo = prepare_batch(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
-                              observer=observer, method=method, reference=reference, device=device)
+                              observer=observer, method=method, reference=reference, device=device,
+                              denoise=denoise)
     t0 = time.perf_counter()
     cluster = own = None
     failure = None

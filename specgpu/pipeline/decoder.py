@@ -14,7 +14,9 @@ from specgpu import engine
 from specgpu.core.spectra import white_point_XYZ
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
+from specgpu.engine.guided import guided_filter
 from specgpu.engine.runtime import get_allocator
+from specgpu.pipeline.denoise import stream_denoise
 from specgpu.pipeline.recovery import corrected_signal
 from specgpu.planning.correction import WhiteReference, ambient_index
 from specgpu.planning.noise import NoiseModel
@@ -84,7 +86,7 @@ class StreamDecoder:
 
     def __init__(self, plan, calibration, outputs, *, frame_shape, queue, reference=None, method="CIE 2000",
                  illuminant=None, observer: str | None = None, cube_dtype=np.float16, white_roi=None,
-                 white_reflectance=None):
+                 white_reflectance=None, denoise=None):
         # canonical names (the check is case-insensitive), each once
         outputs = tuple(dict.fromkeys(validate_method(name, {k: k for k in STREAM_OUTPUTS}, "stream output")
                                       for name in outputs))
@@ -178,6 +180,8 @@ class StreamDecoder:
             self.cov_pairs = [(i, j) for i in range(3) for j in range(i, 3)]
             if "dE_sigma" in outputs:
                 self.cov_constant = self.to_XYZ @ const @ self.to_XYZ.T  # (3, 3) what no frame shows
+        self.denoise = None if denoise is None else stream_denoise(plan, outputs, self.cube_dtype, denoise)
+        self._guide_launches: dict = {}
         if "dE" in outputs:
             if reference is None:
                 raise ValueError("the dE output needs a reference (an L,a,b colour or a per-pixel Lab image)")
@@ -333,6 +337,28 @@ class StreamDecoder:
                 made = launch.enqueue(frames.data, None if matrices is None else matrices[i])
             for key, buf in made.items():
                 out[names[key]] = buf
+        if self.denoise is not None:
+            self._denoised(frames, out)
         return out
+
+    def _denoised(self, frames: cla.Array, out: dict) -> None:
+        """Replace the linear outputs in ``out`` by their guided filter (:mod:`specgpu.pipeline.denoise`): the
+        guide, the frames' sum above dark, by one more linear launch; its 99th percentile read on the host (a
+        blocking read of one plane) scales eps as ``recover --denoise`` does."""
+        dtype = np.dtype(frames.dtype)
+        launch = self._guide_launches.get(dtype)
+        if launch is None:
+            launch = engine.prepare_linear(self.queue, dtype, self.denoise["row"], n=self.n, dark=self.dark,
+                                           gain=self.gain, out_layout=1)
+            self._guide_launches[dtype] = launch
+        guide = cla.Array(self.queue, (self.height, self.width), np.float32, data=launch.enqueue(frames.data)["out"])
+        level = float(np.nanpercentile(guide.get(), 99))
+        if not level > 0:  # no light above dark: nothing to guide, the outputs stay as decoded
+            return
+        for name, channels in self.denoise["channels"].items():
+            if name in out:
+                image = cla.Array(self.queue, (self.height, self.width, channels), np.float32, data=out[name])
+                out[name] = guided_filter(image, guide, radius=self.denoise["radius"],
+                                          eps=self.denoise["eps"] * level ** 2).data
 
 

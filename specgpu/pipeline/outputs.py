@@ -12,6 +12,7 @@ from specgpu.engine.colorimetry import delta_E
 from specgpu import io
 from specgpu.pipeline.recovery import to_Lab, to_XYZ, uncertainty
 from specgpu.planning.correction import DEFAULT_WHITE_REFLECTANCE
+from specgpu.pipeline.denoise import denoised_sigma
 from specgpu.planning.uncertainty import delta_E_sigma
 
 __all__ = [
@@ -75,10 +76,13 @@ def delta_E_sigma_map(XYZ: np.ndarray, cov: np.ndarray, illuminant: str, observe
 
 def recovery_writes(folder, y, meta, *, out, colours, sequence=None, half=False, interleave="bsq", xyz_path=None,
                     lab_path=None, de_path=None, reference=None, method="CIE 2000", sigma_path=None,
-                    de_sigma_path=None, device=None, white_roi=None, white_reflectance=None) -> list:
+                    de_sigma_path=None, device=None, white_roi=None, white_reflectance=None,
+                    denoise_radius=None) -> list:
     """The outputs of ``specgpu recover`` as ``(final path, write(path)[, companion suffixes])`` entries, every
     map computed now and written later (all or nothing); ``colours``: the (illuminant, observer) of XYZ, Lab and
-    dE; ``reference``: called with (height, width, meta), gives the dE reference Lab."""
+    dE; ``reference``: called with (height, width, meta), gives the dE reference Lab; ``denoise_radius``: ``y``
+    was denoised (:mod:`specgpu.pipeline.denoise`) with that radius, so the sigma map is carried through the
+    filter (a dE sigma is then refused: its XYZ covariance is not carried through yet)."""
     plan = folder.plan
     illuminant, observer = colours
     writes = []
@@ -105,6 +109,11 @@ def recovery_writes(folder, y, meta, *, out, colours, sequence=None, half=False,
         sigma, cov = uncertainty(folder, sequence=sequence, illuminant=illuminant if de_sigma_path else None,
                                  observer=observer, device=device, white_roi=white_roi,
                                  white_reflectance=white_reflectance)
+        if denoise_radius is not None:
+            if de_sigma_path:
+                raise ValueError("--delta-e-sigma is not available with --denoise (the XYZ covariance is not carried "
+                                 "through the filter); leave one out")
+            sigma = denoised_sigma(folder, sigma, sequence=sequence, radius=denoise_radius, device=device)
         if sigma_path:
             sig, names = sigma_with_rms(sigma, plan.output_labels)
             writes.append((sigma_path, lambda p: io.write_map(p, sig, names, metadata=meta)))

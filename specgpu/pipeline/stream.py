@@ -178,6 +178,9 @@ class Stream:
         matrices written by non-blocking copies into one set of small device buffers per result token (reused only after
         that sequence has left the sinks: no wait on the queue). The gains are in
         :attr:`StreamResult.white_gains`. A saturated or dark white stops the stream with a one-line error.
+    denoise : (radius, eps), optional
+        Denoise the coefficients, cube and XYZ outputs with the guided filter of ``recover --denoise``
+        (:func:`specgpu.pipeline.denoise.stream_denoise`; other outputs are refused with it).
     """
 
     def __init__(self, driver: CameraDriver, plan, calibration, *, outputs=("coefficients", "XYZ", "dE"),
@@ -185,7 +188,7 @@ class Stream:
                  observer: str | None = None, cube_dtype=np.float16, n_slots: int | None = None,
                  policy: str = "drop_newest", in_flight: int = 3, result_buffers: int = 6, readback: str = "auto",
                  upload: str = "auto", align: str = "index", sync_max_dn: float | None = None, device=None,
-                 white_roi=None, white_reflectance=None):
+                 white_roi=None, white_reflectance=None, denoise=None):
         plan.check_calibration(calibration, name="stream plan")
         if policy not in POLICIES:
             raise ValueError(f"unknown ring policy {policy!r}; valid policies: {', '.join(POLICIES)}")
@@ -202,7 +205,7 @@ class Stream:
         self.decoder = StreamDecoder(plan, calibration, outputs, frame_shape=driver.frame_shape, queue=self.queue,
                                      reference=reference, method=method, illuminant=illuminant,
                                      observer=observer, cube_dtype=cube_dtype, white_roi=white_roi,
-                                     white_reflectance=white_reflectance)
+                                     white_reflectance=white_reflectance, denoise=denoise)
         self.sinks = [s if callable(getattr(s, "write", None)) else CallbackSink(s) for s in sinks]
         self.n_slots = max(4 * plan.K, 16) if n_slots is None else int(n_slots)
         self.policy = policy

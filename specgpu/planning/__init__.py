@@ -178,3 +178,11 @@ __all__ = [
 from specgpu.planning.requests import estimated_plan  # noqa: E402
 
 __all__ += ["estimated_plan"]
+
+from specgpu.planning.timing import budget_params, check_budget, exposure_within  # noqa: E402
+from specgpu.planning.budget import budget_plan  # noqa: E402
+from specgpu.planning.bound import Bound, design_bound  # noqa: E402
+from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans  # noqa: E402
+
+__all__ += ["exposure_within", "budget_params", "check_budget", "budget_plan", "Bound", "design_bound",
+            "EQUAL_TIME", "equal_time_bounds", "equal_time_plans"]

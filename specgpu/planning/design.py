@@ -38,6 +38,7 @@ from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.plans import _band_masks, _base, _quantize
 from specgpu.planning.priors import Prior
+from specgpu.planning.timing import budget_params, check_budget, exposure_within
 from specgpu.rig.scene import interpolation_matrix
 
 __all__ = ["OBJECTIVES", "design_optimal", "plan_optimal", "plan_hadamard", "s_matrix", "objective_weights",
@@ -108,10 +109,16 @@ def _shape_to_frames(x, Sb, cap):
 
 
 def design_optimal(system, prior: Prior, noise: NoiseModel, K: int, cap: float, *, P=None, starts: int = 4,
-                   iterations: int = 300, seed: int = 0) -> tuple[np.ndarray, float]:
-    """Frame shapes (K, C) >= 0 (column levels up to a per-frame scale) minimising the Wiener objective with
-    every frame at ``cap`` DN on a perfect white. ``system`` (C, B): DN/s per full column per unit reflectance on
-    the prior's grid. Returns (levels scaled so each row's maximum is 1, objective)."""
+                   iterations: int = 300, seed: int = 0, exposure_s: float | None = None,
+                   init=None) -> tuple[np.ndarray, float]:
+    """Frame shapes (K, C) >= 0 (column levels) minimising the Wiener objective. ``system`` (C, B): DN/s per full
+    column per unit reflectance on the prior's grid.
+
+    Without ``exposure_s`` every frame is at ``cap`` DN on a perfect white (the exposure follows the shapes);
+    returns (levels scaled so each row's maximum is 1, objective). With ``exposure_s`` (a time budget) the
+    levels are mirror fractions in [0, 1] at that exposure, each frame at ``min(cap, its white signal)``: a
+    narrow frame collects fewer photons than a broad one, and the search trades shape against light; returns
+    (the levels as designed, objective). ``init`` (K, C): a starting point tried first."""
     from scipy.optimize import minimize
 
     Sb = np.asarray(system, np.float64)
@@ -120,6 +127,9 @@ def design_optimal(system, prior: Prior, noise: NoiseModel, K: int, cap: float, 
         raise ValueError(f"frames must be an integer in [1, 200], got {K!r}")
     if not cap > 0:
         raise ValueError(f"cap must be > 0, got {cap!r}")
+    t = None if exposure_s is None else float(exposure_s)
+    if t is not None and not t > 0:
+        raise ValueError(f"exposure_s must be > 0, got {exposure_s!r}")
     P = np.eye(B) / B if P is None else np.asarray(P, np.float64)
     active = Sb.sum(axis=1) > 1e-12 * Sb.sum(axis=1).max()
     Sa = Sb[active]
@@ -134,19 +144,34 @@ def design_optimal(system, prior: Prior, noise: NoiseModel, K: int, cap: float, 
 
     def fun(z):
         x = z.reshape(K, -1)
-        F, g, s = _shape_to_frames(x, Sg, cap)
-        J, dF = wiener_objective(F, prior, noise, P)
-        dg = cap * (dF / s[:, None] - (np.einsum("kb,kb->k", dF, g) / s ** 2)[:, None])
+        g = x @ Sg  # (K, B) DN/s per unit reflectance
+        s = g.sum(axis=1)  # DN/s on a white
+        if t is None:
+            c, dc = cap / s, cap / s ** 2
+        else:  # the exposure's photons, dimmed to the cap where they would exceed it
+            lit = t * s > cap
+            c = np.where(lit, cap / s, t)
+            dc = np.where(lit, cap / s ** 2, 0.0)
+        J, dF = wiener_objective(c[:, None] * g, prior, noise, P)
+        dg = c[:, None] * dF - (dc * np.einsum("kb,kb->k", dF, g))[:, None]
         return J / scale, (dg @ Sg.T).ravel() / scale
 
     rng = np.random.default_rng(seed)
     best = (np.inf, None)
     NG = Sg.shape[0]
-    for start in range(starts):
-        if start == 0:  # smooth bumps across the range
+    x_init = None
+    if init is not None:
+        xi = np.asarray(init, np.float64)[:, active]
+        x_init = np.clip((xi @ G.T) / G.sum(axis=1), 1e-6, 1.0)
+        x_init = x_init / x_init.max(axis=1, keepdims=True)
+    for start in range(starts + (x_init is not None)):
+        if x_init is not None and start == 0:
+            x0 = x_init
+        elif start == (x_init is not None):  # smooth bumps across the range
             centres = np.linspace(0, NG - 1, K)
             idx = np.arange(NG)
             x0 = np.exp(-0.5 * ((idx[None, :] - centres[:, None]) / max(NG / (1.5 * K), 1.0)) ** 2) + 0.05
+            x0 = np.minimum(x0, 1.0)
         else:
             x0 = rng.uniform(0.05, 1.0, (K, NG))
         scale = 1.0
@@ -159,7 +184,8 @@ def design_optimal(system, prior: Prior, noise: NoiseModel, K: int, cap: float, 
     xg = best[1]
     levels = np.zeros((K, C))
     levels[:, active] = xg @ G
-    levels /= levels.max(axis=1, keepdims=True)
+    if t is None:
+        levels /= levels.max(axis=1, keepdims=True)
     return levels, float(best[0])
 
 
@@ -172,7 +198,8 @@ def _system_on(bundle, wavelengths) -> np.ndarray:
 def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: str = "rmse", illuminant="D65",
                  training=None, output_wavelengths=None, level: float = 0.9, max_exposure_s: float | None = None,
                  target: float | None = None, exposure_s: float | None = None, starts: int = 4, seed: int = 0,
-                 iterations: int = 300):
+                 iterations: int = 300, sequence_s: float | None = None, min_frame_period_s: float = 0.0,
+                 extra_frames: int = 0):
     """An optimal K-frame plan (see the module notes) with the Wiener decoder and its expected error recorded.
 
     Parameters
@@ -199,6 +226,12 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         reach ``level``.
     target : float, optional
         Refuse (one line) a design whose expected error (RMSE, or dE2000 for that objective) is above it.
+    sequence_s : float, optional
+        Time budget of one sequence, s: the exposure is capped so ``frames + extra_frames`` frame periods (exposure
+        plus the light's switch time, at least ``min_frame_period_s``, the camera's read-out) fit in it
+        (:func:`specgpu.planning.timing.exposure_within`). With a budget or a ``max_exposure_s`` the design is
+        photon-limited: at the capped exposure each frame's light is what its mirrors give, so the search trades
+        spectral shape against photons (broad frames collect more light) instead of lengthening the exposure.
     starts, seed, iterations
         The search's starting points, their seed and its L-BFGS-B iterations per start (:func:`design_optimal`).
     """
@@ -217,6 +250,10 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
     longest = DEFAULT_MAX_EXPOSURE_S if max_exposure_s is None else float(max_exposure_s)
     if longest < bundle.min_exposure_s:
         raise ValueError(f"max_exposure_s must be >= the light's switch time {bundle.min_exposure_s:g} s")
+    limited = sequence_s is not None or max_exposure_s is not None
+    if sequence_s is not None:
+        longest = min(longest, exposure_within(sequence_s, int(frames) + int(extra_frames), bundle.min_exposure_s,
+                                               min_frame_period_s))
     # the noise at a typical exposure for the shape search (the shot and read terms scale with the signal only)
     white = Sb.sum(axis=1)  # DN/s per full column on a white
     t_typ = float(np.clip(cap / (white.sum() / max(frames, 1)), bundle.min_exposure_s, longest))
@@ -224,12 +261,19 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         if not bundle.min_exposure_s <= exposure_s <= longest:
             raise ValueError(f"exposure_s must lie in [{bundle.min_exposure_s:g}, {longest:g}] s, got {exposure_s!r}")
         t_typ = float(exposure_s)
-    shapes, _ = design_optimal(Sb, prior, noise_at(t_typ), int(frames), cap, P=P, starts=starts, seed=seed,
-                               iterations=iterations)
-    # exposure: every frame reaches cap with its levels <= 1 (or as close as the longest exposure allows)
-    need = cap / (shapes @ white)
-    t = float(np.clip(max(need.max(), exposure_s or 0.0), bundle.min_exposure_s, longest))
-    levels = np.minimum(shapes * (cap / (t * (shapes @ white)))[:, None], 1.0)
+    if limited:  # photon-limited: the frames' light at the capped exposure, dimmed only where above the cap
+        x, _ = design_optimal(Sb, prior, noise_at(longest), int(frames), cap, P=P, starts=starts, seed=seed,
+                              iterations=iterations, exposure_s=longest)
+        sig = x @ white  # DN/s of each frame on a white
+        t = float(np.clip(max(min(longest, (cap / sig).max()), exposure_s or 0.0), bundle.min_exposure_s, longest))
+        levels = x * np.minimum(1.0, cap / (t * sig))[:, None]
+    else:
+        shapes, _ = design_optimal(Sb, prior, noise_at(t_typ), int(frames), cap, P=P, starts=starts, seed=seed,
+                                   iterations=iterations)
+        # exposure: every frame reaches cap with its levels <= 1 (or as close as the longest exposure allows)
+        need = cap / (shapes @ white)
+        t = float(np.clip(max(need.max(), exposure_s or 0.0), bundle.min_exposure_s, longest))
+        levels = np.minimum(shapes * (cap / (t * (shapes @ white)))[:, None], 1.0)
     patterns = _quantize(levels, bundle.rows)
     if np.any(patterns.sum(axis=1) == 0):
         raise ValueError("a designed frame quantizes to no mirror on: raise max_exposure_s or lower frames")
@@ -237,7 +281,8 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
     plan = _base(bundle, "optimal", patterns, targets, np.zeros((ow.size, patterns.shape[0])), level, t,
                  output="reflectance", output_wavelengths=ow, output_labels=tuple(f"{x:g}nm" for x in ow),
                  illuminant="", observer="", params={"frames": int(frames), "objective": obj,
-                                                     "objective_illuminant": str(illuminant)})
+                                                     "objective_illuminant": str(illuminant),
+                                                     **budget_params(sequence_s, min_frame_period_s)})
     plan = with_estimator(plan, bundle, "wiener", prior=prior, noise=noise_at(plan.exposure_s))
     exp = dict(plan.params["expected"])
     F = bundle.forward_matrix(plan.patterns, prior.wavelengths, plan.exposure_s)
@@ -246,10 +291,12 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
     if obj != "rmse":
         exp[obj] = float(math.sqrt(max(Jw, 0.0)))
     value = exp[obj]
+    plan = replace(plan, params={**plan.params, "expected": exp})
+    check_budget(plan, extra_frames)
     if target is not None and value > target:
         raise ValueError(f"objective unreachable: the best {frames}-frame design expects {obj} {value:.4g}, above "
                          f"the target {target:g}")
-    return replace(plan, params={**plan.params, "expected": exp})
+    return plan
 
 
 def s_matrix(n: int) -> np.ndarray:

@@ -158,6 +158,29 @@ class Plan:
         """Number of frames (projections) per sequence."""
         return self.patterns.shape[0]
 
+    @property
+    def frame_period_s(self) -> float:
+        """Shortest frame period the plan runs at, s: its exposure plus the light's switch time, or the camera's
+        shortest frame period (read-out) where the design recorded it (``params["min_frame_period_s"]``) and it
+        is longer."""
+        floor = float(self.params.get("min_frame_period_s", 0.0) or 0.0)
+        return max(float(self.exposure_s) + float(self.min_exposure_s), floor)
+
+    @property
+    def sequence_s(self) -> float:
+        """Time one sequence of the plan takes, s: K frame periods (every frame, ambient and probes included)."""
+        return self.K * self.frame_period_s
+
+    @property
+    def timing(self) -> dict:
+        """Exposure, frame period and sequence time (s), sequences per second and, for a plan designed within a
+        time budget, the budget (plain data; :func:`save_plan` writes it beside the hashed content)."""
+        out = {"exposure_s": float(self.exposure_s), "frame_period_s": self.frame_period_s,
+               "sequence_s": self.sequence_s, "sequences_per_s": 1.0 / self.sequence_s, "frames": self.K}
+        if "sequence_budget_s" in self.params:
+            out["sequence_budget_s"] = float(self.params["sequence_budget_s"])
+        return out
+
     def _arrays(self) -> dict:
         return {"patterns": self.patterns, "target_spectra": self.target_spectra,
                 "light_wavelengths": self.light_wavelengths, "A": self.A,
@@ -177,7 +200,9 @@ class Plan:
 
     def rig_description(self, description):
         """The rig description to capture this plan with: the camera at the plan's exposure, its frame rate
-        lowered if the exposure plus the light's switch time needs a longer period (never raised).
+        lowered if the exposure plus the light's switch time needs a longer period; a plan designed within a
+        sequence-time budget runs at its own :attr:`frame_period_s` (within the camera's fastest rate), so a
+        sequence takes the time it was designed for.
 
         Parameters
         ----------
@@ -189,6 +214,8 @@ class Plan:
         """
         cam = description.camera
         rate = min(cam.frame_rate_hz, 1.0 / (self.exposure_s + description.light.switch_time_s + 1e-6))
+        if "sequence_budget_s" in self.params:  # a plan designed within a time budget runs at its own rate
+            rate = min(cam.max_frame_rate_hz, 1.0 / (self.frame_period_s + 1e-6))
         return replace(description, camera=replace(cam, exposure_s=float(self.exposure_s), frame_rate_hz=rate))
 
     def outputs_to_XYZ(self, illuminant="D65", observer=None) -> np.ndarray:
@@ -307,7 +334,7 @@ def save_plan(path, plan: Plan) -> str:
     >>> save_plan(path, plan) == plan.hash == load_plan(path).hash
     True
     """
-    return save_npz(path, PLAN_FORMAT, PLAN_VERSION, plan._arrays(), plan._meta())
+    return save_npz(path, PLAN_FORMAT, PLAN_VERSION, plan._arrays(), plan._meta(), extra={"timing": plan.timing})
 
 
 def load_plan(path, *, calibration=None) -> Plan:

@@ -8,15 +8,16 @@ from contextlib import nullcontext
 
 import numpy as np
 
-from specgpu.calibration.bundle import rig_fingerprint
-from specgpu.planning.design import plan_hadamard, plan_optimal
+from specgpu.calibration.bundle import load_calibration, oracle_calibration, rig_fingerprint
+from specgpu.planning.bound import design_bound
+from specgpu.planning.budget import budget_plan
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.priors import default_prior, training_spectra
 from specgpu.planning.registry import make_plan
 from specgpu.rig.config import load_rig
 
-__all__ = ["estimated_plan"]
+__all__ = ["estimated_plan", "requested_bound"]
 
 
 def _quiet(desc):
@@ -25,17 +26,23 @@ def _quiet(desc):
 
 def estimated_plan(method, bundle, args, kwargs, estimator, training, training_only, exclude_chart, frames,
                    objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path, smooth_nm=40.0,
-                   progress=_quiet):
+                   progress=_quiet, sequence_ms=None, extra_frames=0):
     """The plan of ``method`` with the chosen decoder, the camera's noise model and its expected error recorded.
 
     ``args`` / ``kwargs`` go to :func:`~specgpu.planning.plans.make_plan`; ``frames``, ``objective``, ``target``
     and ``exposure_ms`` to the optimal design, ``bands`` to the Hadamard plan; ``progress(description)`` gives a
     context manager shown around the slow steps. A plan without a noise model is made only where no ``rig_path``
-    names the custom rig the calibration was made on and nothing needs one.
+    names the custom rig the calibration was made on and nothing needs one. ``sequence_ms``: the time budget of
+    one sequence with ``extra_frames`` frames more (:func:`specgpu.planning.budget.budget_plan`); every plan
+    records the camera's read-out floor of the frame period.
     """
     description = load_rig(rig_path)
+    sequence_s = None if sequence_ms is None else float(sequence_ms) / 1e3
     plain = method not in ("optimal", "hadamard") and estimator == "projection" and not training
     if plain and rig_path is None and bundle.rig and bundle.rig != rig_fingerprint(description):
+        if sequence_s is not None:
+            raise ValueError("a time budget needs the rig the calibration was made on (its camera's read-out): "
+                             "give that rig's description with --rig")
         return make_plan(method, bundle, *args, **kwargs)  # no --rig for a custom rig's camera: no noise model
     if bundle.rig and bundle.rig != rig_fingerprint(description):
         raise ValueError(f"{'--rig ' + str(rig_path) if rig_path else 'the default rig'} is not the rig the "
@@ -44,6 +51,8 @@ def estimated_plan(method, bundle, args, kwargs, estimator, training, training_o
 
     def noise_at(t):
         return NoiseModel.from_rig(description, t)
+
+    floor = description.camera.min_frame_period_s
 
     prior = None
     if method == "optimal" or estimator == "wiener" or training or training_only:
@@ -55,9 +64,34 @@ def estimated_plan(method, bundle, args, kwargs, estimator, training, training_o
             tr = training_spectra(exclude_chart, prior.wavelengths, training_files=training,
                                   builtin=not training_only)
         with progress(f"designing {frames} illuminants"):
-            return plan_optimal(bundle, prior, noise_at, frames=frames, objective=objective, illuminant=illuminant,
-                                training=tr, output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm),
-                                target=target, exposure_s=None if exposure_ms is None else exposure_ms / 1e3)
-    plan = plan_hadamard(bundle, bands=bands) if method == "hadamard" else make_plan(method, bundle, *args, **kwargs)
+            return budget_plan("optimal", bundle, sequence_s, prior, noise_at, frames=frames, objective=objective,
+                               illuminant=illuminant, training=tr,
+                               output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm), target=target,
+                               exposure_s=None if exposure_ms is None else exposure_ms / 1e3,
+                               min_frame_period_s=floor, extra_frames=extra_frames)
+    if method == "hadamard":
+        args, kwargs = (), {"bands": bands}
+    plan = budget_plan(method, bundle, sequence_s, *args, min_frame_period_s=floor, extra_frames=extra_frames,
+                       **kwargs)
     return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s),
                           correlation_nm=smooth_nm)
+
+
+def requested_bound(calib, rig_path, frames, sequence_ms, exclude_chart, starts=8, progress=_quiet):
+    """:func:`~specgpu.planning.bound.design_bound` as ``specgpu bound`` asks for it: the calibration file
+    ``calib`` (None: the oracle calibration of the rig), the rig (``rig_path``, None: the default; its camera's
+    noise and read-out), the default prior without ``exclude_chart``."""
+    description = load_rig(rig_path)
+    if calib is None:
+        bundle = oracle_calibration(description)
+    else:
+        bundle = load_calibration(calib)
+        if bundle.rig and bundle.rig != rig_fingerprint(description):
+            raise ValueError(f"{'--rig ' + str(rig_path) if rig_path else 'the default rig'} is not the rig "
+                             f"{calib} was made on: give that rig's description with --rig")
+    with progress("building the training prior"):
+        prior = default_prior(exclude_chart)
+    with progress(f"designing {frames} illuminants ({starts} starts)"):
+        return design_bound(bundle, prior, lambda t: NoiseModel.from_rig(description, t), frames=int(frames),
+                            sequence_s=float(sequence_ms) / 1e3,
+                            min_frame_period_s=description.camera.min_frame_period_s, starts=starts)

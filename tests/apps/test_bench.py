@@ -16,7 +16,7 @@ from specgpu.apps.cli import main
 CASES = {
     ("cube_float32", "planar"), ("cube_float32", "interleaved"),
     ("cube_float16", "planar"), ("cube_float16", "interleaved"),
-    ("fused_dE2000", None), ("XYZ_Lab_dE2000", None),
+    ("fused_dE2000", None), ("XYZ_Lab_dE2000", None), ("guided_filter", None),
 }
 
 # ------------------------------------------------------------------------------------------------ parse_sizes

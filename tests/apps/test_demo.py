@@ -99,3 +99,20 @@ def test_estimator_rows_measured_on_the_chart_against_numpy():
     assert rms["optimal-9"] < 0.015 and rows["optimal-3"]["dEab"][0] < 1.5
     for n in plans:
         assert 0.6 < rms[n] / rows[n]["expected_rmse"] < 1.5, (n, rms[n], rows[n]["expected_rmse"])
+
+
+def test_equal_time_rows_with_their_sequence_time_and_limit():
+    from specgpu.apps.demo import equal_time_lines
+    from specgpu.planning.bound import Bound
+
+    r = result()
+    r.draws["lab"]["optimal-9@60ms"] = {"rmse": [0.01], "dEab": [0.5], "dE00": [0.4], "px_rmse": [0.012],
+                                        "px_dE00": [0.9], "px_rms": [0.013], "K": 10, "sequence_ms": 59.9,
+                                        "expected_rmse": 0.0125}
+    r.bounds = {60.0: Bound(9, 0.054, 0.0059, 0.0082, 0.0078, 0.0121, 4)}
+    lines = equal_time_lines(r)
+    assert lines[0] == "-- 9 frames within 60 ms per sequence --"
+    row = next(line for line in lines if line.startswith("optimal-9@60ms"))
+    assert row.split()[-5:-3] == ["59.9", "10"]  # the sequence time beside the frame count
+    assert any("limit" in line and ">= 0.0082" in line and "0.0121" in line for line in lines)
+    assert not any("40 ms" in line for line in lines)  # a budget with no row measured is left out

@@ -13,7 +13,7 @@ from specgpu.engine.selftest import CASES, compare, golden_path, load_golden, ru
 def test_every_kernel_reproduces_the_golden_set(queue):
     report = run_selftest(device=queue)
     assert report.passed, report.format(verbose=True)
-    assert set(report.kernels()) == {"linear", "xyz_to_lab", "delta_e", "fused"}
+    assert set(report.kernels()) == {"linear", "xyz_to_lab", "delta_e", "fused", "guided"}
     assert len(report.cases) == len(CASES)
     assert "PASS: every kernel reproduces the golden set" in report.format()
 

@@ -20,6 +20,10 @@ COMMANDS = {
                "on Dask: one task per sequence, resumable, equal to specgpu recover of each sequence.")),
     "bench": ("specgpu.apps.cli.bench:bench",
               "Throughput of each kernel against NumPy / colour-science baselines measured in the same run."),
+    "bound": ("specgpu.apps.cli.bound:bound",
+              ("The lowest expected per-pixel RMSE any K-frame linear design can reach on the rig within a sequence "
+               "time (shot and read noise, the training prior), beside the best design found: the limit lies "
+               "between the two.")),
     "calibrate": ("specgpu.apps.cli.calibrate:calibrate",
                   "Run both feedback loops on the rig and write the calibration bundle."),
     "capture": ("specgpu.apps.cli.capture:capture",

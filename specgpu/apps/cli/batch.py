@@ -19,6 +19,7 @@ from specgpu.calibration.bundle import load_calibration
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.pipeline.batch import BATCH_OUTPUTS, open_source, run_batch
+from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.planning.plans import load_plan
 
 
@@ -50,8 +51,10 @@ def plan_calibration(plan, source, plan_path, calib):
               help="LocalCluster worker processes (one thread and one OpenCL context each).")
 @click.option("--device", "device", default=None, help="OpenCL device selector (on every worker).")
 @RESIZE
+@click.option("--denoise", is_flag=True,
+              help="Denoise the cube and XYZ (recover --denoise's guided filter; not with Lab or dE).")
 def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, observer, scheduler, workers,
-                  device, resize):
+                  device, resize, denoise):
     """Re-process the raw frames of a recording (specgpu stream --frames) or a sequence folder with a plan, on
     Dask: one task per sequence, resumable, equal to specgpu recover of each sequence."""
     wanted = output_list(outputs, BATCH_OUTPUTS, "batch output")
@@ -67,7 +70,8 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
         src = open_source(source)
         reference = parse_reference(ref, src.height, src.width, illuminant, resize, observer=observer)
     report = run_batch(source, plan, bundle, out, outputs=wanted, illuminant=illuminant, observer=observer,
-                       method=method, reference=reference, scheduler=scheduler, workers=workers, device=device)
+                       method=method, reference=reference, scheduler=scheduler, workers=workers, device=device,
+                       denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None)
     click.echo(f"{plan.method}: {report.computed} sequences computed on {report.workers} worker(s) in "
                f"{report.seconds:.1f} s ({report.sequences_per_s:.1f} sequences/s), {report.skipped} already done; "
                f"OpenCL contexts built {report.contexts_built}; wrote {out}")

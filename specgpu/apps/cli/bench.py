@@ -40,7 +40,8 @@ def sizes_option(text, option, one=False):
               help="With --stream: length of the case paced at the camera's 200 fps.")
 @click.option("--stream-cases", default="fused,sigma,sigma_rms,white,cube,paced,overload,equality",
               show_default=True,
-              help="With --stream: comma-separated cases to run (also dE_sigma).")
+              help="With --stream: comma-separated cases to run (also dE_sigma; linear and denoise: the cost of "
+                   "--denoise).")
 @click.option("--stream-rounds", type=click.IntRange(min=1), default=1, show_default=True,
               help="With --stream: interleaved rounds of the sustained cases (fused, sigma, sigma_rms, white, "
                    "dE_sigma); "

@@ -57,15 +57,25 @@ def with_frames(plan, bundle, ambient, drift_probe):
     return with_ambient_frame(plan) if ambient else plan
 
 
+def added_frames(bundle, ambient, drift_probe) -> int:
+    """Frames :func:`with_frames` will add to each sequence (so a time budget leaves room for them)."""
+    return len(drift_probe) + int(bool(ambient) or (ambient is None and ambient_needed(bundle)[0]))
+
+
 def summary(plan, digest, out):
-    """The line ``specgpu plan`` prints: frames, exposure, outputs, the file and the expected error."""
+    """The line ``specgpu plan`` prints: frames, exposure, frame period and sequence time, outputs, the file and
+    the expected error."""
     expected = plan.params.get("expected", {})
     unit = "" if plan.output == "reflectance" else f" ({plan.output})"
     note = f"; expected RMSE{unit} {expected['rmse']:.4f} on the prior" if "rmse" in expected else ""
     for key in ("dE2000", "dEab"):
         if key in expected:
             note += f", expected {key} {expected[key]:.3f} (RMS)"
-    return (f"{plan.method}: {plan.K} frames at {plan.exposure_s * 1e3:.2f} ms, {plan.A.shape[0]} outputs "
+    budget = plan.params.get("sequence_budget_s")
+    within = f" (budget {budget * 1e3:g} ms)" if budget is not None else ""
+    return (f"{plan.method}: {plan.K} frames at {plan.exposure_s * 1e3:.2f} ms exposure, "
+            f"{plan.frame_period_s * 1e3:.2f} ms frame period, {plan.sequence_s * 1e3:.1f} ms per sequence{within} "
+            f"({1.0 / plan.sequence_s:.1f} sequences/s), {plan.A.shape[0]} outputs "
             f"({plan.output}); wrote {out} (plan {digest[:12]}, calibration {plan.calibration[:12]}){note}")
 
 
@@ -105,6 +115,9 @@ def summary(plan, digest, out):
               help="optimal: the expected error minimised (colour differences under --illuminant).")
 @click.option("--target", type=float, default=None, help="optimal: refuse a design whose expected error is above it.")
 @click.option("--exposure-ms", type=float, default=None, help="optimal: expose at least this long (ms).")
+@click.option("--sequence-ms", type=Finite(min=0.001, max=1e6), default=None,
+              help="Design within this time per sequence (ms, every frame included): the exposure is capped so the "
+                   "frames fit; the optimal design trades spectral shape against photons under the cap.")
 @click.option("--bands", type=int, default=31, show_default=True, help="hadamard: bands (3, 7, 15, 31, 63).")
 @click.option("--ambient/--no-ambient", default=None,
               help="Add an ambient frame (every mirror off) to each sequence; recover subtracts it (1 frame more). "
@@ -116,7 +129,7 @@ def summary(plan, digest, out):
 @RIG
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
                  illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,
-                 target, exposure_ms, bands, rig_path, smooth_nm, ambient, drift_probe):
+                 target, exposure_ms, sequence_ms, bands, rig_path, smooth_nm, ambient, drift_probe):
     """Design a measurement plan: the illuminant sequence and its decoder.
 
     METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady, optimal, hadamard.
@@ -131,6 +144,7 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
                                     illuminant=illuminant, observer=observer, camera=camera, spectrum=spectrum)
     plan = estimated_plan(method, bundle, args, kwargs, estimator.lower(), training, training_only, exclude_chart,
                           frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path,
-                          smooth_nm, progress=Busy)
+                          smooth_nm, progress=Busy, sequence_ms=sequence_ms,
+                          extra_frames=added_frames(bundle, ambient, drift_probe))
     plan = with_frames(plan, bundle, ambient, drift_probe)
     click.echo(summary(plan, save_plan(out, plan), out))

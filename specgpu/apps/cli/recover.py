@@ -11,6 +11,7 @@ import numpy as np
 from specgpu.apps.cli.options import (
     ILLUMINANT,
     OBSERVER,
+    Finite,
     RESIZE,
     Busy,
     Staged,
@@ -23,19 +24,25 @@ from specgpu.apps.cli.options import (
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.pipeline import recovery
+from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery
 from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
 
-def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours):
-    """The recovery of ``folder`` (a refusal is one line naming why) and the metadata of its outputs."""
+def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours, denoise=None):
+    """The recovery of ``folder`` (a refusal is one line naming why), denoised when ``denoise`` gives (radius,
+    eps), and the metadata of its outputs."""
     try:
         y = recovery.recover(folder, sequence=sequence, device=device, white_roi=white_roi,
                              white_reflectance=white_reflectance)
+        if denoise is not None:
+            y = denoise_recovery(folder, y, sequence=sequence, radius=denoise[0], eps=denoise[1], device=device)
     except ValueError as error:
         raise click.ClickException(str(error)) from None
     untrusted = recovery.dark_warning(folder, sequence)  # said once the spinner has gone, recorded with every output
     meta = recovery_metadata(folder, seq, sequence=sequence, illuminant=colours[0], observer=colours[1],
                              white_roi=white_roi, white_reflectance=white_reflectance, untrusted=untrusted)
+    if denoise is not None:
+        meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
     return y, meta, untrusted
 
 
@@ -65,9 +72,17 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
               help="A reference white in the field: rescale each sequence's decoder for the light's drift.")
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@click.option("--denoise", is_flag=True,
+              help="Remove per-pixel noise without losing edges: a guided filter on the device, guided by the sum of "
+                   "the frames; --sigma is carried through it.")
+@click.option("--denoise-radius", type=click.IntRange(min=1, max=64), default=DENOISE_RADIUS, show_default=True,
+              help="--denoise: window radius, px.")
+@click.option("--denoise-eps", type=Finite(min=1e-12, max=1e3), default=DENOISE_EPS, show_default=True,
+              help="--denoise: regularisation, in units of the frame sum's 99th percentile squared.")
 @RESIZE
 def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, sequence, half,
-            sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize):
+            sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize, denoise, denoise_radius,
+            denoise_eps):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     if (ref is None) != (de_path is None):
         raise click.UsageError("--delta-e-ref and --delta-e go together")
@@ -84,9 +99,11 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
     with Busy("recovering"):
         if white_reflectance is not None and white_roi is None:
             raise click.UsageError("--white-reflectance needs --white-roi")
-        y, meta, untrusted = recovered(folder, seq, sequence=sequence, device=device, colours=colours, **white)
+        y, meta, untrusted = recovered(folder, seq, sequence=sequence, device=device, colours=colours, **white,
+                                       denoise=(denoise_radius, denoise_eps) if denoise else None)
         writes = recovery_writes(folder, y, meta, **paths, colours=colours, sequence=sequence, half=half,
                                  interleave=interleave, method=method, device=device, **white,
+                                 denoise_radius=denoise_radius if denoise else None,
                                  reference=lambda h, w, m: parse_reference(ref, h, w, colours[0], resize, m,
                                                                            colours[1]))
     if untrusted:

@@ -26,6 +26,8 @@ from specgpu.apps.cli.options import (
 from specgpu.apps.live_view import run_with_view
 from specgpu.hardware.drivers import hardware_config, open_driver
 from specgpu.io.recording import refuse_existing
+from specgpu.pipeline.accumulate import AccumulateSink
+from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.live import add_recording, recording_slots, stream_summary
 from specgpu.pipeline.outputs import stream_metadata
 from specgpu.pipeline.recovery import check_scene_covers
@@ -46,23 +48,30 @@ def status_line(s, tty):
 
 def stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                seconds, method, colours, pacing, policy, exr_every, half, seed, device, white=(None, None),
-               disk_check=True, view=False):
+               disk_check=True, view=False, denoise=None, accumulate=None):
     """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised;
     ``colours``: the (illuminant, observer) of its XYZ, Lab and dE."""
     illuminant, observer = colours
+    accumulator = None if accumulate is None else AccumulateSink(accumulate, wanted)  # refused before any output
     policy = policy or ("drop_newest" if pacing == "paced" else "block")
     white_roi, white_reflectance = white
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, observer=observer, cube_dtype=np.float16 if half else np.float32,
                     policy=policy, device=device, white_roi=white_roi, white_reflectance=white_reflectance,
-                    n_slots=recording_slots(plan, description) if out else None)
+                    n_slots=recording_slots(plan, description) if out else None, denoise=denoise)
     writer = None
     if out:
         meta = stream_metadata(truth, illuminant=illuminant, observer=observer, method=method, seed=seed,
                                white_roi=white_roi, white_reflectance=white_reflectance)
+        if denoise is not None:
+            meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
+        if accumulate is not None:
+            meta["accumulate"] = f"running estimate over up to {accumulate} sequences, reset beyond 3 sigma"
         writer = add_recording(stream, plan, description, out, wanted=wanted, raw_frames=raw_frames,
                                plan_path=plan_path, calib=calib, seconds=seconds, policy=policy, meta=meta,
                                exr_every=exr_every, method=method, colours=colours, disk_check=disk_check)
+    if accumulator is not None:  # first in line: the recording and every other sink see the running estimate
+        stream.sinks.insert(0, accumulator)
     tty = sys.stderr.isatty()
     try:
         with one_interrupt():
@@ -119,6 +128,12 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
                    "recover --white-roi; the gains are recorded).")
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@click.option("--denoise", is_flag=True,
+              help="Denoise the coefficients, cube and XYZ outputs on the device (recover --denoise's guided filter; "
+                   "not with Lab, dE or the sigmas).")
+@click.option("--accumulate", type=click.IntRange(min=2), default=None, metavar="N",
+              help="A still scene: each pixel's running estimate over up to N sequences, restarted where it changes "
+                   "beyond its noise (needs the cube and sigma or sigma_rms outputs).")
 @RESIZE
 @click.option("--view", is_flag=True,
               help="Show the latest results in napari while streaming (the viewer extra): the sRGB of XYZ, dE and "
@@ -127,8 +142,8 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
               help="Record even when a write probe says the disk cannot keep up with --out (frames will be "
                    "dropped); also skips the probe that chooses each array's compression.")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
-                   observer, pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, resize,
-                   view, no_disk_check):
+                   observer, pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, denoise,
+                   accumulate, resize, view, no_disk_check):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     wanted = output_list(outputs, STREAM_OUTPUTS, "stream output")  # before any loading: a typo names the valid
@@ -154,7 +169,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     try:
         stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                    seconds, method, colours, pacing if hardware is None else "paced", policy, exr_every, half, seed,
-                   device, white=(white_roi, white_reflectance), disk_check=not no_disk_check, view=view)
+                   device, white=(white_roi, white_reflectance), disk_check=not no_disk_check, view=view,
+                   denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None, accumulate=accumulate)
     finally:
         if hardware is not None:
             driver.close()  # the light's USB link and the camera

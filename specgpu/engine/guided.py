@@ -1,0 +1,111 @@
+"""The guided filter on the device (:func:`guided_filter`): edge-aware smoothing of a multi-channel image (a
+recovery's outputs) by a one-channel guide of higher SNR (the sum of a sequence's frames), and the variance
+such smoothing leaves of independent per-pixel noise (:func:`box_box_variance`).
+
+The filter (He, Sun and Tang, "Guided image filtering", ECCV 2010) fits in every (2r + 1)^2 window a linear model
+``p = a g + b`` of each channel p on the guide g, ``a = cov(g, p) / (var g + eps)``, and outputs the mean of the
+models over the windows covering a pixel, ``q = mean(a) g + mean(b)``. Where the guide is flat within its noise
+(``var g << eps``) the output is the window mean of p (noise averaged down); across an edge of the guide
+(``var g >> eps``) the output follows the guide, so the edge stays sharp. An edge the guide does not show (two
+spectra of equal frame sum) is smoothed like a flat region. Windows are clipped to the image. NaN (a saturated
+pixel) spreads to the outputs whose windows hold it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from specgpu.core.validate import check_number
+from specgpu.engine.kernels import _empty, _launch_lock, to_device
+from specgpu.engine.runtime import get_kernel, get_queue
+
+__all__ = ["guided_filter", "box_box_variance"]
+
+_GROUP = 128  # work-items per group
+
+
+def _run(queue, name, shape, *args):
+    """Enqueue ``name`` over the range ``shape`` (channels first): work-groups of every channel of up to
+    ``_GROUP // channels`` pixels along the second axis (a few hundred thousand groups of one pixel each cost
+    more to schedule than their work on PoCL), the range padded to a multiple."""
+    kernel = get_kernel(queue, "guided.cl", name)
+    c = min(_GROUP, shape[0])
+    local = (c, max(1, _GROUP // c)) + (1,) * (len(shape) - 2)
+    glob = tuple(-(-n // l) * l for n, l in zip(shape, local))
+    with _launch_lock:
+        kernel.set_args(*args)
+        return cl.enqueue_nd_range_kernel(queue, kernel, glob, local)
+
+
+def _box(queue, src, H, W, C, r):
+    tmp = _empty(queue, H * W * C, np.float32)
+    out = _empty(queue, H * W * C, np.float32)
+    args = (np.int32(H), np.int32(W), np.int32(C), np.int32(r))
+    _run(queue, "box_h", (C, W, H), src.data, tmp.data, *args)
+    _run(queue, "box_v", (C, W, H), tmp.data, out.data, *args)
+    return out
+
+
+def guided_filter(image, guide, *, radius: int, eps: float, device=None):
+    """Edge-aware smoothing of ``image`` (H, W, B) guided by ``guide`` (H, W), on the OpenCL device.
+
+    Parameters
+    ----------
+    image : array_like or pyopencl.array.Array
+        (H, W, B) float32 (a device array is filtered where it lives and a device array returned).
+    guide : array_like or pyopencl.array.Array
+        (H, W), on the scale that ``eps`` is given in.
+    radius : int
+        Window radius r (windows of (2r + 1)^2 pixels), >= 1.
+    eps : float
+        Regularisation, in the guide's units squared (> 0): guide variations within a window well below
+        ``sqrt(eps)`` are smoothed over, those well above it kept.
+    device : optional
+        OpenCL device selector.
+
+    Returns
+    -------
+    numpy.ndarray or pyopencl.array.Array
+        (H, W, B) float32.
+    """
+    r = int(check_number("radius", radius, integer=True, low=1, high=1024))
+    e = float(check_number("eps", eps, low=0, low_open=True))
+    on_device = isinstance(image, cla.Array)
+    shape = tuple(image.shape)
+    if len(shape) != 3 or 0 in shape:
+        raise ValueError(f"image must be (H, W, B) with no empty axis, got shape {shape}")
+    H, W, B = shape
+    if tuple(guide.shape) != (H, W):
+        raise ValueError(f"guide must be (H, W) = ({H}, {W}), got shape {tuple(guide.shape)}")
+    queue = get_queue(device, like=(image, guide))
+    p = to_device(queue, image if on_device else np.asarray(image, np.float32), np.float32)
+    g = to_device(queue, guide if isinstance(guide, cla.Array) else np.asarray(guide, np.float32), np.float32)
+    n = H * W
+    C = 2 * B + 2
+    x = _empty(queue, n * C, np.float32)
+    _run(queue, "gf_products", (B, n), p.data, g.data, x.data, np.int32(B), np.uint64(n))
+    m = _box(queue, x, H, W, C, r)
+    ab = _empty(queue, n * 2 * B, np.float32)
+    _run(queue, "gf_coeffs", (B, n), m.data, ab.data, np.int32(B), np.float32(e), np.uint64(n))
+    mab = _box(queue, ab, H, W, 2 * B, r)
+    out = _empty(queue, n * B, np.float32)
+    _run(queue, "gf_apply", (B, n), mab.data, g.data, out.data, np.int32(B), np.uint64(n))
+    out = out.reshape(H, W, B)
+    return out if on_device else out.get()
+
+
+def box_box_variance(variance, radius: int) -> np.ndarray:
+    """(H, W, B) variance of the mean of box means of radius ``radius`` (the guided filter where its guide is
+    flat) of independent per-pixel noise of ``variance`` (H, W, B): the variance convolved with the squared
+    weights of a box convolved with a box, ``t(d)^2`` with ``t(d) = (2r + 1 - |d|) / (2r + 1)^2`` along each axis
+    (borders: the edge pixels repeated)."""
+    from scipy.ndimage import correlate1d  # scipy: heavy, needed only here
+
+    r = int(check_number("radius", radius, integer=True, low=1, high=1024))
+    d = np.arange(-2 * r, 2 * r + 1)
+    t2 = ((2 * r + 1 - np.abs(d)) / (2 * r + 1) ** 2) ** 2
+    v = np.asarray(variance, np.float64)
+    v = correlate1d(correlate1d(v, t2, axis=0, mode="nearest"), t2, axis=1, mode="nearest")
+    return v.astype(np.float32)
