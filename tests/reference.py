@@ -75,3 +75,32 @@ def random_Lab(rng, shape):
 def sharma_pairs(path):
     d = np.loadtxt(path, delimiter=",", comments="#", skiprows=5)
     return d[:, 1:4], d[:, 4:7], d[:, 7]
+
+
+def linear_warp_ref(frames, A, shifts, dark=None, gain=None):
+    """Motion-compensated linear map in float64: y(x) = A s(x), s_k the corrected frame (o_k - dark) * gain sampled
+    bilinearly at x + d_k; NaN where a sample point lies outside [0, W-1] x [0, H-1]. Returns (y (H, W, B),
+    outside (H, W) bool)."""
+    o = np.asarray(frames, np.float64)
+    K, h, w = o.shape
+    c = o - (0 if dark is None else np.asarray(dark, np.float64))
+    if gain is not None:
+        c = c * np.asarray(gain, np.float64)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    s = np.empty((K, h, w))
+    outside = np.zeros((h, w), bool)
+    for k in range(K):
+        sx, sy = xx + shifts[k][0], yy + shifts[k][1]
+        out = (sx < -1e-3) | (sy < -1e-3) | (sx > w - 1 + 1e-3) | (sy > h - 1 + 1e-3)
+        outside |= out
+        sx, sy = np.clip(sx, 0, w - 1), np.clip(sy, 0, h - 1)
+        x0 = np.minimum(np.floor(sx).astype(int), w - 1)
+        y0 = np.minimum(np.floor(sy).astype(int), h - 1)
+        x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+        fx, fy = sx - x0, sy - y0
+        ck = c[k]
+        s[k] = (ck[y0, x0] * (1 - fx) * (1 - fy) + ck[y0, x1] * fx * (1 - fy) + ck[y1, x0] * (1 - fx) * fy
+                + ck[y1, x1] * fx * fy)
+    y = np.tensordot(s, np.asarray(A, np.float64), axes=(0, 1))
+    y[outside] = np.nan
+    return y, outside

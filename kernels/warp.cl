@@ -1,0 +1,110 @@
+/* specgpu motion-compensated linear kernel: y(x) = A s(x) with s_k(x) the corrected frame k sampled at x + d_k.
+ *
+ * A moving scene lands on different pixels in different frames of a sequence. Output pixel x is where a scene
+ * point is at the sequence's reference time; frame k saw that point at x + d_k (d_k = (dx_k, dy_k), a global
+ * translation per frame, in pixels). The sample is the bilinear interpolation, at x + d_k, of the corrected frame
+ * c_k(p) = (o_k(p) - dark(p)) * gain(p): dark level and flat field belong to the sensor pixel p, so they are
+ * applied before interpolation (for d = 0 this is exactly A (o - dark) * gain of linear.cl).
+ *
+ * A pixel whose sample point of any frame lies outside the field [0, W-1] x [0, H-1] has no measurement: its
+ * outputs are NaN and its mask has bit 4 (MASK_OUTSIDE). Bit 1: a frame pixel used (non-zero weight) is at
+ * SAT_LEVEL; bit 2: a non-finite float input. One work-item per output pixel, channels-last output (N, B) float32.
+ *
+ * Macros (as common.h): K, B, IN_T, HAS_DARK (0 / 1 per pixel / 2 per frame), HAS_GAIN, SAT_LEVEL, IS_FLOAT_IN.
+ * Arguments: frames (K, H, W), A (B x K, constant), shifts (K x 2: dx, dy, constant), dark, gain, out (N x B),
+ * mask (N), width, height.
+ */
+#ifndef K
+#define K 1
+#endif
+#ifndef B
+#define B 1
+#endif
+#ifndef IN_T
+#define IN_T float
+#endif
+#ifndef HAS_DARK
+#define HAS_DARK 0
+#endif
+#ifndef HAS_GAIN
+#define HAS_GAIN 0
+#endif
+#ifndef IS_FLOAT_IN
+#define IS_FLOAT_IN 0
+#endif
+
+#define MASK_SATURATED 1
+#define MASK_NONFINITE 2
+#define MASK_OUTSIDE 4
+
+inline float corrected(__global const IN_T *restrict plane, __global const float *restrict dark,
+                       __global const float *restrict gain, uint k, ulong n, ulong p, float w, int *flags)
+{
+    const float v = (float)plane[p];
+#ifdef SAT_LEVEL
+    if (w > 0.0f && v >= SAT_LEVEL) *flags |= MASK_SATURATED;
+#endif
+#if IS_FLOAT_IN
+    if (w > 0.0f && !isfinite(v)) *flags |= MASK_NONFINITE;
+#endif
+    float c = v;
+#if HAS_DARK == 1
+    c -= dark[p];
+#elif HAS_DARK == 2
+    c -= dark[(ulong)k * n + p];
+#endif
+#if HAS_GAIN
+    c *= gain[p];
+#endif
+    return w > 0.0f ? c * w : 0.0f; /* a zero weight never lets a NaN neighbour in */
+}
+
+__kernel void linear_warp(__global const IN_T *restrict frames,
+                          __constant const float *restrict A,
+                          __constant const float *restrict shifts,
+                          __global const float *restrict dark,
+                          __global const float *restrict gain,
+                          __global float *restrict out,
+                          __global uchar *restrict mask,
+                          const uint width,
+                          const uint height)
+{
+    const ulong i = get_global_id(0);
+    const ulong n = (ulong)width * height;
+    if (i >= n) return;
+    const int x = (int)(i % width), y = (int)(i / width);
+    float s[K];
+    int flags = 0;
+    for (uint k = 0; k < K; ++k) {
+        const float sx = (float)x + shifts[2 * k], sy = (float)y + shifts[2 * k + 1];
+        /* a tolerance of 1/1024 px keeps a sample that lands on the border by rounding */
+        if (!(sx >= -0.0009765625f && sy >= -0.0009765625f && sx <= (float)(width - 1) + 0.0009765625f
+              && sy <= (float)(height - 1) + 0.0009765625f)) {
+            flags |= MASK_OUTSIDE;
+            s[k] = 0.0f;
+            continue;
+        }
+        const float cx = clamp(sx, 0.0f, (float)(width - 1)), cy = clamp(sy, 0.0f, (float)(height - 1));
+        const int x0 = min((int)cx, (int)width - 1), y0 = min((int)cy, (int)height - 1);
+        const int x1 = min(x0 + 1, (int)width - 1), y1 = min(y0 + 1, (int)height - 1);
+        const float fx = cx - (float)x0, fy = cy - (float)y0;
+        __global const IN_T *plane = frames + (ulong)k * n;
+        const ulong r0 = (ulong)y0 * width, r1 = (ulong)y1 * width;
+        s[k] = corrected(plane, dark, gain, k, n, r0 + x0, (1.0f - fx) * (1.0f - fy), &flags)
+             + corrected(plane, dark, gain, k, n, r0 + x1, fx * (1.0f - fy), &flags)
+             + corrected(plane, dark, gain, k, n, r1 + x0, (1.0f - fx) * fy, &flags)
+             + corrected(plane, dark, gain, k, n, r1 + x1, fx * fy, &flags);
+    }
+    __global float *dst = out + i * B;
+    if (flags & MASK_OUTSIDE) {
+        for (uint b = 0; b < B; ++b) dst[b] = NAN;
+    } else {
+        for (uint b = 0; b < B; ++b) {
+            __constant const float *row = A + b * K;
+            float acc = 0.0f;
+            for (uint k = 0; k < K; ++k) acc = row[k] * s[k] + acc;
+            dst[b] = acc;
+        }
+    }
+    mask[i] = (uchar)flags;
+}
