@@ -16,6 +16,14 @@ from specgpu.pipeline.recovery import (
     to_XYZ,
     write_capture,
 )
+from specgpu.pipeline.moving import (
+    MOTION_MODES,
+    MotionEstimate,
+    MovingRecovery,
+    check_motion_mode,
+    estimate_global_motion,
+    recover_moving,
+)
 from specgpu.pipeline.evaluate import (
     PatchReport,
     PixelReport,
@@ -106,6 +114,12 @@ __all__ = [
     "project",
     "read_capture",
     "recover",
+    "MOTION_MODES",
+    "MotionEstimate",
+    "MovingRecovery",
+    "check_motion_mode",
+    "estimate_global_motion",
+    "recover_moving",
     "render_scene",
     "rgb_led_spectrum",
     "rmse_per_patch",
