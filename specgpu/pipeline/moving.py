@@ -86,7 +86,8 @@ def registration_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.n
 
 
 def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int | None = None,
-                           upsample: int = 50, binning: int = 1, pairs: str = "all", cutoff: float = 0.12) -> MotionEstimate:
+                           upsample: int = 50, binning: int = 1, pairs: str = "all", cutoff: float = 0.12,
+                           max_gap: int = 8) -> MotionEstimate:
     """A translation per frame of one sequence, relative to the sequence's reference time.
 
     Parameters
@@ -108,9 +109,11 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         Standard deviation (cycles per pixel) of the Gaussian weight on the spatial frequencies of the whitened
         cross-power spectrum.
     pairs : {"all", "reference"}
-        Register every pair of frames and solve for the displacements by least squares (K (K - 1) / 2
-        registrations, each frame's error averaged over K - 1 of them), or each frame to the reference frame only
-        (K - 1 registrations).
+        Register every pair of frames at most ``max_gap`` apart and solve for the displacements by least squares
+        (for K = 9, all 36 pairs: each frame's error averaged over 8 registrations), or each frame to the
+        reference frame only (K - 1 registrations).
+    max_gap : int
+        The furthest apart (in frames) two frames registered with ``pairs="all"`` are.
 
     Returns
     -------
@@ -164,8 +167,8 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     idx = np.flatnonzero(usable)
     if pairs == "reference":
         links = [(reference_frame, int(k)) for k in idx if k != reference_frame]
-    else:  # every pair: K - 1 unknowns from K (K - 1) / 2 measurements, solved by least squares
-        links = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:]]
+    else:  # every pair up to max_gap frames apart: K - 1 unknowns from up to K (K - 1) / 2 measurements
+        links = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:] if b - a <= max_gap]
     rows, rhs, errs = [], [], {}
     for a, b in links:
         shift, err, _ = phase_cross_correlation(spectrum(a), spectrum(b), upsample_factor=upsample,

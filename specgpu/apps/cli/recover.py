@@ -23,14 +23,15 @@ from specgpu.apps.cli.options import (
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.pipeline import recovery
+from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
 
-def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours):
+def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours, motion="none"):
     """The recovery of ``folder`` (a refusal is one line naming why) and the metadata of its outputs."""
     try:
         y = recovery.recover(folder, sequence=sequence, device=device, white_roi=white_roi,
-                             white_reflectance=white_reflectance)
+                             white_reflectance=white_reflectance, motion=motion)
     except ValueError as error:
         raise click.ClickException(str(error)) from None
     untrusted = recovery.dark_warning(folder, sequence)  # said once the spinner has gone, recorded with every output
@@ -65,9 +66,12 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
               help="A reference white in the field: rescale each sequence's decoder for the light's drift.")
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
+              show_default=True, help="Compensate a global translation per frame (one sequence at a time); pixels "
+              "some frame saw outside the field are NaN.")
 @RESIZE
 def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, sequence, half,
-            sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize):
+            sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize, motion):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     if (ref is None) != (de_path is None):
         raise click.UsageError("--delta-e-ref and --delta-e go together")
@@ -84,7 +88,8 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
     with Busy("recovering"):
         if white_reflectance is not None and white_roi is None:
             raise click.UsageError("--white-reflectance needs --white-roi")
-        y, meta, untrusted = recovered(folder, seq, sequence=sequence, device=device, colours=colours, **white)
+        y, meta, untrusted = recovered(folder, seq, sequence=sequence, device=device, colours=colours,
+                                       motion=motion, **white)
         writes = recovery_writes(folder, y, meta, **paths, colours=colours, sequence=sequence, half=half,
                                  interleave=interleave, method=method, device=device, **white,
                                  reference=lambda h, w, m: parse_reference(ref, h, w, colours[0], resize, m,
@@ -93,6 +98,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
         click.echo(f"Warning: {untrusted}", err=True)
     written = Staged().write_all(writes)  # all or nothing: no output replaced until every one is written
     saturated = int(np.isnan(y[..., 0]).sum())
-    note = f"; {saturated} saturated pixels left NaN" if saturated else ""
+    note = f"; {saturated} {'saturated or out-of-field' if motion != 'none' else 'saturated'} pixels left NaN" \
+        if saturated else ""
     click.echo(f"{folder.plan.method}: {folder.plan.K} projections, {folder.sequences} sequences in {seq}; wrote "
                + ", ".join(str(p) for p in written) + note)
