@@ -20,6 +20,7 @@ frame's time for odd K), which is where the twin's truth puts the scene
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy import fft, ndimage
@@ -27,9 +28,11 @@ from skimage.registration import phase_cross_correlation
 
 from specgpu.core.validate import validate_method
 from specgpu.engine.warp_map import apply_linear_warped
+from specgpu.io.npz import write_cube_npz
+from specgpu.rig.twin import TwinRig
 
 __all__ = ["MOTION_MODES", "MotionEstimate", "MovingRecovery", "check_motion_mode", "estimate_global_motion",
-           "recover_moving", "registration_image"]
+           "recover_moving", "registration_image", "truth_recorder", "TRUTH_FOLDER"]
 
 #: How frames are decoded with respect to motion: as they are, or compensated for a global translation per frame.
 MOTION_MODES = {
@@ -246,3 +249,26 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     y = res.y
     y[(res.mask & 1) > 0] = np.nan
     return MovingRecovery(y, res.mask, estimates)
+
+
+#: Sub-folder of a sequence folder captured on a moving twin that holds each sequence's truth.
+TRUTH_FOLDER = "motion_truth"
+
+
+def truth_recorder(directory, description, plan, scene):
+    """A callable ``(index, sequence)`` that writes the truth of each sequence captured on a moving twin into
+    ``directory/motion_truth/sequence_<index>.npz``: a scene cube (``wavelengths``, ``reflectance``: the scene at
+    the sequence's reference time, so ``specgpu evaluate CUBE --truth`` reads it), with ``displacement`` (K, 2),
+    each frame's true displacement from the reference time, px, and ``reference_time_s``."""
+    rig = TwinRig(plan.rig_description(description), scene=scene)
+    rig.load_sequence(plan.patterns)
+    folder = Path(directory) / TRUTH_FOLDER
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def record(index: int, sequence) -> Path:
+        truth = rig.motion_truth(sequence.timestamps_s)
+        return write_cube_npz(folder / f"sequence_{index:04d}.npz", truth["reflectance"], rig.scene.wavelengths,
+                              extra={"displacement": truth["displacement"],
+                                     "reference_time_s": np.array(truth["reference_time_s"])})
+
+    return record

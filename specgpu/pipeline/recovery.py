@@ -491,7 +491,7 @@ def _recover_moving(folder: SequenceFolder, sequence, white_roi, out_dtype, devi
     if sequence is None:
         if folder.sequences != 1:
             raise ValueError(f"motion=global recovers one sequence at a time (the scene moves between sequences); "
-                             f"{folder.path} holds {folder.sequences}: give sequence")
+                             f"{folder.path} holds {folder.sequences}: give the sequence (--sequence N)")
         sequence = 0
     if not 0 <= sequence < folder.sequences:
         raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
