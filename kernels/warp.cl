@@ -1,8 +1,8 @@
 /* specgpu motion-compensated linear kernel: y(x) = A s(x) with s_k(x) the corrected frame k sampled at x + d_k.
  *
  * A moving scene lands on different pixels in different frames of a sequence. Output pixel x is where a scene
- * point is at the sequence's reference time; frame k saw that point at x + d_k (d_k = (dx_k, dy_k), a global
- * translation per frame, in pixels). The sample is the bilinear interpolation, at x + d_k, of the corrected frame
+ * point is at the sequence's reference time; frame k saw that point at M_k (x, y, 1): a 2 x 3 affine map per frame
+ * (a translation d_k is (1, 0, dx_k; 0, 1, dy_k)), in pixels. The sample is the bilinear interpolation, at x + d_k, of the corrected frame
  * c_k(p) = (o_k(p) - dark(p)) * gain(p): dark level and flat field belong to the sensor pixel p, so they are
  * applied before interpolation (for d = 0 this is exactly A (o - dark) * gain of linear.cl).
  *
@@ -11,7 +11,7 @@
  * SAT_LEVEL; bit 2: a non-finite float input. One work-item per output pixel, channels-last output (N, B) float32.
  *
  * Macros (as common.h): K, B, IN_T, HAS_DARK (0 / 1 per pixel / 2 per frame), HAS_GAIN, SAT_LEVEL, IS_FLOAT_IN.
- * Arguments: frames (K, H, W), A (B x K, constant), shifts (K x 2: dx, dy, constant), dark, gain, out (N x B),
+ * Arguments: frames (K, H, W), A (B x K, constant), motion (K x 6: the rows of M_k, constant), dark, gain, out (N x B),
  * mask (N), width, height.
  */
 #ifndef K
@@ -61,7 +61,7 @@ inline float corrected(__global const IN_T *restrict plane, __global const float
 
 __kernel void linear_warp(__global const IN_T *restrict frames,
                           __constant const float *restrict A,
-                          __constant const float *restrict shifts,
+                          __constant const float *restrict motion,
                           __global const float *restrict dark,
                           __global const float *restrict gain,
                           __global float *restrict out,
@@ -76,7 +76,9 @@ __kernel void linear_warp(__global const IN_T *restrict frames,
     float s[K];
     int flags = 0;
     for (uint k = 0; k < K; ++k) {
-        const float sx = (float)x + shifts[2 * k], sy = (float)y + shifts[2 * k + 1];
+        __constant const float *m = motion + 6 * k;
+        const float sx = m[0] * (float)x + (m[1] * (float)y + m[2]);
+        const float sy = m[3] * (float)x + (m[4] * (float)y + m[5]);
         /* a tolerance of 1/1024 px keeps a sample that lands on the border by rounding */
         if (!(sx >= -0.0009765625f && sy >= -0.0009765625f && sx <= (float)(width - 1) + 0.0009765625f
               && sy <= (float)(height - 1) + 0.0009765625f)) {

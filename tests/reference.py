@@ -79,8 +79,8 @@ def sharma_pairs(path):
 
 def linear_warp_ref(frames, A, shifts, dark=None, gain=None):
     """Motion-compensated linear map in float64: y(x) = A s(x), s_k the corrected frame (o_k - dark) * gain sampled
-    bilinearly at x + d_k; NaN where a sample point lies outside [0, W-1] x [0, H-1]. Returns (y (H, W, B),
-    outside (H, W) bool)."""
+    bilinearly at x + d_k (``shifts`` (K, 2)) or at M_k (x, y, 1) (``shifts`` (K, 2, 3)); NaN where a sample point
+    lies outside [0, W-1] x [0, H-1]. Returns (y (H, W, B), outside (H, W) bool)."""
     o = np.asarray(frames, np.float64)
     K, h, w = o.shape
     c = o - (0 if dark is None else np.asarray(dark, np.float64))
@@ -90,7 +90,11 @@ def linear_warp_ref(frames, A, shifts, dark=None, gain=None):
     s = np.empty((K, h, w))
     outside = np.zeros((h, w), bool)
     for k in range(K):
-        sx, sy = xx + shifts[k][0], yy + shifts[k][1]
+        m = np.asarray(shifts[k], np.float64)
+        if m.shape == (2,):
+            sx, sy = xx + m[0], yy + m[1]
+        else:
+            sx, sy = m[0, 0] * xx + m[0, 1] * yy + m[0, 2], m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
         out = (sx < -1e-3) | (sy < -1e-3) | (sx > w - 1 + 1e-3) | (sy > h - 1 + 1e-3)
         outside |= out
         sx, sy = np.clip(sx, 0, w - 1), np.clip(sy, 0, h - 1)

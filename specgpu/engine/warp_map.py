@@ -23,16 +23,23 @@ MASK_OUTSIDE = 4
 
 
 def check_shifts(shifts, K: int, name: str = "shifts") -> np.ndarray:
-    """A finite (K, 2) array of per-frame displacements (x, y) in pixels, returned float32 C-contiguous."""
+    """Per-frame motion as (K, 6) float32 rows of 2 x 3 affine maps: from a finite (K, 2) array of displacements
+    (dx, dy) px, or (K, 2, 3) affine maps (x', y') = M (x, y, 1)."""
     try:
         d = np.asarray(shifts, dtype=np.float64)
     except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a (K, 2) array of numbers, got {type(shifts).__name__}") from None
-    if d.shape != (K, 2):
-        raise ValueError(f"{name} must have shape ({K}, 2) (dx, dy per frame), got {d.shape}")
+        raise TypeError(f"{name} must be a (K, 2) or (K, 2, 3) array of numbers, got {type(shifts).__name__}") from None
+    if d.shape == (K, 2):
+        m = np.zeros((K, 2, 3))
+        m[:, 0, 0] = m[:, 1, 1] = 1.0
+        m[:, :, 2] = d
+        d = m
+    if d.shape != (K, 2, 3):
+        raise ValueError(f"{name} must have shape ({K}, 2) (dx, dy per frame) or ({K}, 2, 3) (an affine map per "
+                         f"frame), got {d.shape}")
     if not np.all(np.isfinite(d)):
         raise ValueError(f"{name} must be finite")
-    return np.ascontiguousarray(d, dtype=np.float32)
+    return np.ascontiguousarray(d.reshape(K, 6), dtype=np.float32)
 
 
 def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: float | None = None,
@@ -45,10 +52,10 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
         uint8, uint16 or float32 frames of one sequence.
     A : array_like, (B, K)
         Decoder.
-    shifts : array_like, (K, 2)
+    shifts : array_like, (K, 2) or (K, 2, 3)
         Displacement (dx, dy) of each frame from the reference time, px: the scene point at pixel x at the
         reference time was seen at x + d_k in frame k. All zero gives :func:`~specgpu.engine.apply_linear`'s
-        result.
+        result. Or an affine map per frame: the point was seen at M_k (x, y, 1) (a rotation, a zoom).
     dark : array_like, (H, W) or (K, H, W), optional
         Dark level of the sensor pixels.
     gain : array_like, (H, W), optional

@@ -44,6 +44,10 @@ MOTION_MODES = {
 #: frame): its displacement is interpolated in time from the others.
 MIN_SIGNAL_SHARE = 0.05
 
+#: A pair's registration that disagrees by more than this (px) with the least-squares solution of all the others
+#: is dropped (a failed correlation peak); with ``pairs="all"`` each frame is registered to up to 16 others.
+OUTLIER_PX = 0.5
+
 
 @dataclass(frozen=True)
 class MotionEstimate:
@@ -186,13 +190,26 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     raw[reference_frame] = 0.0
     others = [int(k) for k in idx if k != reference_frame]
     if others:
-        M = np.asarray(rows)[:, others]
-        sol, *_ = np.linalg.lstsq(M, np.asarray(rhs), rcond=None)  # the reference frame is held at 0
+        M, rhs = np.asarray(rows)[:, others], np.asarray(rhs)
+        keep = np.ones(len(rows), bool)
+        for _ in range(4):  # drop registrations that disagree with the others (a failed peak), then solve again
+            sol, *_ = np.linalg.lstsq(M[keep], rhs[keep], rcond=None)  # the reference frame is held at 0
+            residual = np.abs(M @ sol - rhs).max(axis=1)
+            bad = residual > max(OUTLIER_PX, 4.0 * float(np.median(residual[keep])))
+            if not (bad & keep).any() or np.linalg.matrix_rank(M[keep & ~bad]) < len(others):
+                break
+            keep &= ~bad
         raw[others] = sol
     error = np.array([np.mean(errs[k]) if k in errs else np.nan for k in range(K)])
-    if not usable.all():
-        for c in range(2):
-            raw[~usable, c] = np.interp(np.flatnonzero(~usable), idx, raw[idx, c])
+    if not usable.all():  # linear in time between (or beyond) the nearest two registered frames
+        for k in np.flatnonzero(~usable):
+            if idx.size == 1:
+                raw[k] = raw[idx[0]]
+                continue
+            lo = idx[idx < k][-1:]
+            hi = idx[idx > k][:1]
+            a, b = (lo[0], hi[0]) if lo.size and hi.size else tuple(idx[:2] if not lo.size else idx[-2:])
+            raw[k] = raw[a] + (raw[b] - raw[a]) * (k - a) / (b - a)
     # the reference time is the mean of the frames' times: the middle frame's for odd K, half-way between the
     # middle two for even K
     mid = (K - 1) / 2.0

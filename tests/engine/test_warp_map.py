@@ -95,3 +95,20 @@ def test_saturation_is_flagged_only_where_a_saturated_sample_is_used(queue):
 def test_bad_shifts_are_refused(shifts, words):
     with pytest.raises((ValueError, TypeError), match=words):
         apply_linear_warped(np.zeros((2, 4, 4), np.float32), np.eye(2), shifts)
+
+
+def test_affine_maps_match_the_reference(queue):
+    rng = np.random.default_rng(6)
+    frames = rng.uniform(0, 100, (3, 40, 50)).astype(np.float32)
+    A = rng.normal(0, 1, (4, 3))
+    a = np.radians([0.0, 0.7, -1.2])
+    M = np.stack([[[np.cos(t), -np.sin(t), 1.5 + 20 * np.sin(t)], [np.sin(t), np.cos(t), -0.5 - 20 * np.sin(t)]]
+                  for t in a])
+    got = apply_linear_warped(frames, A, M, return_mask=True, device=queue)
+    ref, outside = linear_warp_ref(frames, A, M.astype(np.float32))
+    np.testing.assert_array_equal((got.mask & MASK_OUTSIDE) > 0, outside)
+    assert np.all(np.abs(got.y[~outside] - ref[~outside]) <= tolerance(frames, A)[~outside])
+    translation = np.tile(np.eye(2, 3), (3, 1, 1))
+    translation[:, :, 2] = [[0, 0], [1.25, -0.5], [2, 3]]
+    np.testing.assert_array_equal(apply_linear_warped(frames, A, translation, device=queue),
+                                  apply_linear_warped(frames, A, translation[:, :, 2], device=queue))
