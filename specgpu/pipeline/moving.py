@@ -31,13 +31,15 @@ from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.io.npz import write_cube_npz
 from specgpu.rig.twin import TwinRig
 
-__all__ = ["MOTION_MODES", "MotionEstimate", "MovingRecovery", "check_motion_mode", "estimate_global_motion",
+__all__ = ["MASK_INCONSISTENT", "inconsistent_pixels", "MOTION_MODES", "MotionEstimate", "MovingRecovery", "check_motion_mode", "estimate_global_motion",
            "recover_moving", "registration_image", "truth_recorder", "TRUTH_FOLDER"]
 
 #: How frames are decoded with respect to motion: as they are, or compensated for a global translation per frame.
 MOTION_MODES = {
     "none": "decode every pixel's samples where they are (a still scene)",
     "global": "estimate a translation per frame (phase correlation of gradient images) and sample frame k at x + d_k",
+    "affine": "estimate an affine map per frame (translation, rotation, zoom; tiles registered and fitted) and "
+              "sample frame k at M_k x",
 }
 
 #: A frame whose mean signal is below this share of the brightest frame's is not registered (a dark or ambient
@@ -64,18 +66,21 @@ class MotionEstimate:
         registered): near 1 when the two images share little.
     reference_frame : int
         The frame the others were registered to.
+    model : str
+        ``"translation"``: ``shifts`` is (K, 2); ``"affine"``: (K, 2, 3), frame k saw the point at reference
+        position x at ``shifts[k] @ (x, y, 1)``.
     """
 
     shifts: np.ndarray
     registered: np.ndarray
     error: np.ndarray
     reference_frame: int
+    model: str = "translation"
 
 
-def registration_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarray:
+def gradient_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarray:
     """The spectrum-independent image a frame is registered on: gradient magnitude (Sobel) of the
-    dark-subtracted, flat-fielded frame over its mean, under a Hann window (phase correlation assumes periodic
-    images), float32; ``binning`` averages b x b pixels first (faster, coarser)."""
+    dark-subtracted, flat-fielded frame over its mean, float32; ``binning`` averages b x b pixels first."""
     f = np.asarray(frame, np.float32)
     if dark is not None:
         f = f - np.asarray(dark, np.float32)
@@ -86,15 +91,41 @@ def registration_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.n
         f = f[:h, :w].reshape(h // binning, binning, w // binning, binning).mean(axis=(1, 3))
     mean = float(np.mean(f))
     f = f / mean if mean > 0 else f
-    g = np.hypot(ndimage.sobel(f, 0), ndimage.sobel(f, 1))
-    wy = np.hanning(g.shape[0]).astype(np.float32)
-    wx = np.hanning(g.shape[1]).astype(np.float32)
-    return g * wy[:, None] * wx[None, :]
+    return np.hypot(ndimage.sobel(f, 0), ndimage.sobel(f, 1))
+
+
+def hann(image: np.ndarray) -> np.ndarray:
+    """``image`` under a 2-D Hann window (phase correlation assumes periodic images)."""
+    wy = np.hanning(image.shape[0]).astype(np.float32)
+    wx = np.hanning(image.shape[1]).astype(np.float32)
+    return image * wy[:, None] * wx[None, :]
+
+
+def registration_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarray:
+    """:func:`gradient_image` under a Hann window."""
+    return hann(gradient_image(frame, dark, gain, binning=binning))
+
+
+def _whitened(image: np.ndarray, cutoff: float) -> np.ndarray:
+    """Phase-only spectrum of ``image`` weighted towards low spatial frequencies: a sub-pixel shift of a sampled
+    image is a linear phase only well below the Nyquist frequency (interpolation and the pixels' own footprint
+    bend it towards zero near it, which would bias the estimate towards no motion)."""
+    F = fft.fft2(image)
+    fy = fft.fftfreq(F.shape[0])[:, None]
+    fx = fft.fftfreq(F.shape[1])[None, :]
+    return F / np.maximum(np.abs(F), 1e-30) * np.exp(-0.25 * (fx**2 + fy**2) / cutoff**2)
+
+
+def _register(a: np.ndarray, b: np.ndarray, upsample: int) -> tuple[np.ndarray, float]:
+    """(x, y) displacement of the content of whitened spectrum ``b`` relative to ``a``, and the error."""
+    shift, err, _ = phase_cross_correlation(a, b, upsample_factor=upsample, normalization=None, space="fourier")
+    return -np.asarray(shift[::-1], np.float64), float(err)
 
 
 def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int | None = None,
                            upsample: int = 50, binning: int = 1, pairs: str = "all", cutoff: float = 0.12,
-                           max_gap: int = 8) -> MotionEstimate:
+                           max_gap: int = 8, model: str = "translation", tiles: int = 4,
+                           robust: bool = True) -> MotionEstimate:
     """A translation per frame of one sequence, relative to the sequence's reference time.
 
     Parameters
@@ -121,6 +152,13 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         reference frame only (K - 1 registrations).
     max_gap : int
         The furthest apart (in frames) two frames registered with ``pairs="all"`` are.
+    model : {"translation", "affine"}
+        A displacement per frame, or an affine map per frame (rotation, zoom, shear): each frame's translation is
+        refined by registering ``tiles`` x ``tiles`` tiles of it to the reference frame and fitting the map.
+    robust : bool
+        Translation model: check each frame's whole-image translation against its tiles' median and take the
+        tiles' consensus where they disagree (an object moving over the scene can dominate the whole-image
+        correlation); costs ``tiles``^2 small registrations per frame.
 
     Returns
     -------
@@ -150,25 +188,24 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     if reference_frame is None:
         middle = [k for k in range(max(0, K // 2 - 1), min(K, K // 2 + 2)) if usable[k]]
         reference_frame = max(middle or list(np.flatnonzero(usable)), key=lambda k: level[k])
+    if model not in ("translation", "affine"):
+        raise ValueError(f"model must be one of translation, affine, got {model!r}")
+    if model == "affine" and binning != 1:
+        raise ValueError("model='affine' registers tiles at full resolution: binning must be 1")
     if pairs not in ("all", "reference"):
         raise ValueError(f"pairs must be one of all, reference, got {pairs!r}")
     if not 0 <= reference_frame < K or not usable[reference_frame]:
         raise ValueError(f"reference_frame {reference_frame} is not a usable frame of the {K}")
-    spectra = {}
-    weight = None
+    spectra, gradients = {}, {}
+
+    def gradient(k):
+        if k not in gradients:
+            gradients[k] = gradient_image(frames[k], dark_of(k), gain, binning=binning)
+        return gradients[k]
 
     def spectrum(k):
-        # phase only (whitened), weighted towards low spatial frequencies: a sub-pixel shift of a sampled image
-        # is a linear phase only well below the Nyquist frequency (interpolation and the pixels' own footprint
-        # bend it towards zero near it, which would bias the estimate towards no motion)
-        nonlocal weight
         if k not in spectra:
-            F = fft.fft2(registration_image(frames[k], dark_of(k), gain, binning=binning))
-            if weight is None:
-                fy = fft.fftfreq(F.shape[0])[:, None]
-                fx = fft.fftfreq(F.shape[1])[None, :]
-                weight = np.exp(-0.5 * (fx**2 + fy**2) / cutoff**2)
-            spectra[k] = F / np.maximum(np.abs(F), 1e-30) * np.sqrt(weight)
+            spectra[k] = _whitened(hann(gradient(k)), cutoff)
         return spectra[k]
 
     idx = np.flatnonzero(usable)
@@ -178,14 +215,13 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         links = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:] if b - a <= max_gap]
     rows, rhs, errs = [], [], {}
     for a, b in links:
-        shift, err, _ = phase_cross_correlation(spectrum(a), spectrum(b), upsample_factor=upsample,
-                                                normalization=None, space="fourier")
+        d, err = _register(spectrum(a), spectrum(b), upsample)
         row = np.zeros(K)
         row[b], row[a] = 1.0, -1.0
         rows.append(row)
-        rhs.append(-np.asarray(shift[::-1], np.float64) * binning)  # (row, col) moving b onto a -> (x, y) of b - a
-        errs.setdefault(a, []).append(float(err))
-        errs.setdefault(b, []).append(float(err))
+        rhs.append(d * binning)  # x, y of frame b less those of frame a
+        errs.setdefault(a, []).append(err)
+        errs.setdefault(b, []).append(err)
     raw = np.full((K, 2), np.nan)
     raw[reference_frame] = 0.0
     others = [int(k) for k in idx if k != reference_frame]
@@ -201,21 +237,148 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
             keep &= ~bad
         raw[others] = sol
     error = np.array([np.mean(errs[k]) if k in errs else np.nan for k in range(K)])
-    if not usable.all():  # linear in time between (or beyond) the nearest two registered frames
-        for k in np.flatnonzero(~usable):
-            if idx.size == 1:
-                raw[k] = raw[idx[0]]
-                continue
-            lo = idx[idx < k][-1:]
-            hi = idx[idx > k][:1]
-            a, b = (lo[0], hi[0]) if lo.size and hi.size else tuple(idx[:2] if not lo.size else idx[-2:])
-            raw[k] = raw[a] + (raw[b] - raw[a]) * (k - a) / (b - a)
     # the reference time is the mean of the frames' times: the middle frame's for odd K, half-way between the
     # middle two for even K
     mid = (K - 1) / 2.0
     lo, hi = int(np.floor(mid)), int(np.ceil(mid))
-    shifts = raw - 0.5 * (raw[lo] + raw[hi])
-    return MotionEstimate(shifts, usable, error, int(reference_frame))
+    if model == "translation":
+        if robust and binning == 1:
+            for k in idx:
+                if k != reference_frame:
+                    raw[k] = _dominant_translation(gradient(reference_frame), gradient(int(k)), raw[k], upsample,
+                                                   cutoff, tiles)
+        raw = _fill_in_time(raw, usable)
+        return MotionEstimate(raw - 0.5 * (raw[lo] + raw[hi]), usable, error, int(reference_frame), model)
+    maps = np.tile(np.eye(3), (K, 1, 1))
+    for k in idx:
+        if k != reference_frame:
+            maps[k] = _affine_to(gradient(reference_frame), gradient(int(k)), raw[k], upsample, cutoff, tiles)
+    maps = _fill_in_time(maps, usable)
+    to_mid = np.linalg.inv(0.5 * (maps[lo] + maps[hi]))
+    return MotionEstimate((maps @ to_mid)[:, :2, :], usable, error, int(reference_frame), model)
+
+
+def _fill_in_time(values: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """``values`` (K, ...) of the frames not ``usable`` linear in time between (or beyond) the nearest two usable
+    frames."""
+    values = values.copy()
+    idx = np.flatnonzero(usable)
+    for k in np.flatnonzero(~usable):
+        if idx.size == 1:
+            values[k] = values[idx[0]]
+            continue
+        lo, hi = idx[idx < k][-1:], idx[idx > k][:1]
+        a, b = (lo[0], hi[0]) if lo.size and hi.size else tuple(idx[:2] if not lo.size else idx[-2:])
+        values[k] = values[a] + (values[b] - values[a]) * (k - a) / (b - a)
+    return values
+
+
+def _tile_displacements(g_ref, g_k, shift, upsample: int, cutoff: float, tiles: int):
+    """Centres (N, 2) of the tiles of a ``tiles`` x ``tiles`` grid of the reference image and where frame k saw
+    each (N, 2): every tile registered where the global ``shift`` puts it (tiles it moves off the field skipped)."""
+    h, w = g_ref.shape
+    th, tw = h // tiles, w // tiles
+    t = np.rint(np.asarray(shift)).astype(int)
+    src, dst = [], []
+    for i in range(tiles):
+        for j in range(tiles):
+            y0, x0 = i * th, j * tw
+            ys, xs = y0 + t[1], x0 + t[0]
+            if ys < 0 or xs < 0 or ys + th > h or xs + tw > w:
+                continue
+            d, _ = _register(_whitened(hann(g_ref[y0:y0 + th, x0:x0 + tw]), cutoff),
+                             _whitened(hann(g_k[ys:ys + th, xs:xs + tw]), cutoff), upsample)
+            c = np.array([x0 + (tw - 1) / 2.0, y0 + (th - 1) / 2.0])
+            src.append(c)
+            dst.append(c + t + d)
+    return np.reshape(src, (-1, 2)), np.reshape(dst, (-1, 2))
+
+
+def _dominant_translation(g_ref, g_k, shift, upsample: int, cutoff: float, tiles: int) -> np.ndarray:
+    """The translation most of the field shares: ``shift`` (the whole-image registration) unless the tiles'
+    median is more than :data:`OUTLIER_PX` from it (a smaller, strongly textured object moving on its own
+    dominates the whole-image correlation), then the mean of the tiles within :data:`OUTLIER_PX` of their
+    median."""
+    src, dst = _tile_displacements(g_ref, g_k, shift, upsample, cutoff, tiles)
+    if len(src) < 3:
+        return np.asarray(shift, np.float64)
+    d = dst - src
+    med = np.median(d, axis=0)
+    if np.abs(med - shift).max() <= OUTLIER_PX:
+        return np.asarray(shift, np.float64)
+    near = np.abs(d - med).max(axis=1) <= OUTLIER_PX
+    return d[near].mean(axis=0) if near.sum() >= 3 else med
+
+
+def _affine_to(g_ref: np.ndarray, g_k: np.ndarray, shift, upsample: int, cutoff: float, tiles: int) -> np.ndarray:
+    """(3, 3) affine map of reference-frame positions to frame k's: the tiles' displacements
+    (:func:`_tile_displacements`) fitted by least squares, tiles more than :data:`OUTLIER_PX` off the fit dropped;
+    the global translation where fewer than 3 tiles register."""
+    src, dst = _tile_displacements(g_ref, g_k, shift, upsample, cutoff, tiles)
+    out = np.eye(3)
+    out[:2, 2] = shift
+    if len(src) < 3:
+        return out
+    X = np.c_[src, np.ones(len(src))]
+    Y = dst
+    keep = np.ones(len(src), bool)
+    for _ in range(4):
+        M, *_ = np.linalg.lstsq(X[keep], Y[keep], rcond=None)
+        residual = np.abs(X @ M - Y).max(axis=1)
+        bad = residual > max(OUTLIER_PX, 4.0 * float(np.median(residual[keep])))
+        if not (bad & keep).any() or (keep & ~bad).sum() < 3:
+            break
+        keep &= ~bad
+    out[:2] = M.T
+    return out
+
+
+#: Mask bit of a pixel whose compensated frames disagree (an object moving on its own, an occlusion).
+MASK_INCONSISTENT = 8
+
+
+def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9, threshold: float = 0.3,
+                        texture: float = 0.5) -> np.ndarray:
+    """(H, W) bool: pixels where the motion-compensated frames disagree, so their decoded spectrum would mix
+    surfaces.
+
+    Each frame's :func:`gradient_image` is sampled where the motion says that frame saw each pixel; where the
+    motion is right, their edges coincide whatever the illuminant (their contrasts differ, not their places). Per
+    pixel, the normalised cross-correlation over a ``window`` x ``window`` neighbourhood between each compensated
+    gradient image and their median is computed; a pixel is inconsistent where the median has texture (local
+    energy above ``texture`` times the field's mean) and some frame correlates below ``threshold``. Untextured
+    regions are never flagged: there, samples from a few pixels away hold the same spectrum.
+    """
+    frames = np.asarray(frames)
+    K, h, w = frames.shape
+    dark = None if dark is None else np.asarray(dark, np.float32)
+    maps = np.asarray(shifts, np.float64)
+    if maps.shape == (K, 2):
+        maps = np.concatenate([np.tile(np.eye(2), (K, 1, 1)), maps[:, :, None]], axis=2)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    aligned = np.empty((K, h, w), np.float32)
+    for k in range(K):
+        g = gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
+        m = maps[k]
+        sx = m[0, 0] * xx + m[0, 1] * yy + m[0, 2]
+        sy = m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
+        aligned[k] = ndimage.map_coordinates(g, [sy, sx], order=1, mode="nearest")
+    ref = np.median(aligned, axis=0)
+
+    def box(a):
+        return ndimage.uniform_filter(a, window, mode="nearest")
+
+    mr = box(ref)
+    vr = np.maximum(box(ref * ref) - mr * mr, 0.0)
+    textured = vr > texture * float(np.mean(vr))
+    worst = np.ones((h, w), np.float32)
+    for k in range(K):
+        a = aligned[k]
+        ma = box(a)
+        va = np.maximum(box(a * a) - ma * ma, 0.0)
+        ncc = (box(a * ref) - ma * mr) / np.sqrt(np.maximum(va * vr, 1e-30))
+        np.minimum(worst, ncc, out=worst)
+    return textured & (worst < threshold)
 
 
 def check_motion_mode(motion) -> str:
@@ -234,7 +397,7 @@ class MovingRecovery:
 
 
 def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 50, binning: int = 1,
-                   shifts=None, device=None) -> MovingRecovery:
+                   shifts=None, model: str = "translation", check: bool = True, device=None) -> MovingRecovery:
     """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
     with frame k sampled at x + d_k in one device pass.
 
@@ -244,28 +407,34 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     A : array_like, (B, K)
     dark, gain, saturation
         As :func:`specgpu.engine.apply_linear`.
-    upsample, binning
+    upsample, binning, model
         Of :func:`estimate_global_motion`.
-    shifts : array_like, (K, 2), optional
+    shifts : array_like, (K, 2) or (K, 2, 3), optional
         Known displacements (e.g. the twin's truth); no estimation then.
+    check : bool
+        Flag (mask bit 8) and leave NaN the pixels whose compensated frames disagree
+        (:func:`inconsistent_pixels`): an object moving on its own, an occlusion.
     device : optional
         OpenCL device selector.
 
     Returns
     -------
     MovingRecovery
-        ``y`` (H, W, B) float32, NaN where a pixel was seen outside the field or saturated; ``mask`` (H, W) uint8
-        (1 saturated, 2 non-finite, 4 outside the field); ``estimates`` [MotionEstimate] (empty with ``shifts``).
+        ``y`` (H, W, B) float32, NaN where a pixel was seen outside the field, saturated or inconsistent;
+        ``mask`` (H, W) uint8 (1 saturated, 2 non-finite, 4 outside the field, 8 inconsistent); ``estimates`` [MotionEstimate] (empty with ``shifts``).
     """
     estimates = []
     if shifts is None:
-        est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning)
+        est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model)
         estimates.append(est)
         shifts = est.shifts
     res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True, device=device)
-    y = res.y
-    y[(res.mask & 1) > 0] = np.nan
-    return MovingRecovery(y, res.mask, estimates)
+    y, mask = res.y, res.mask
+    if check:
+        bad = inconsistent_pixels(frames, shifts, dark, gain)
+        mask[bad] |= MASK_INCONSISTENT
+    y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
+    return MovingRecovery(y, mask, estimates)
 
 
 #: Sub-folder of a sequence folder captured on a moving twin that holds each sequence's truth.

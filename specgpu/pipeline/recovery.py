@@ -425,9 +425,9 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         OpenCL device selector.
     white_roi, white_reflectance : optional
         The reference white in the field, as above.
-    motion : {"none", "global"}
-        ``"global"``: the scene moved during the sequence; a translation per frame is estimated and compensated
-        in the decoding pass (:mod:`specgpu.pipeline.moving`), the outputs are the scene at the sequence's
+    motion : {"none", "global", "affine"}
+        ``"global"``: the scene moved during the sequence; a translation per frame (``"affine"``: an affine map,
+        for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`), the outputs are the scene at the sequence's
         reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene
         moves between sequences too): ``sequence`` is required unless the folder holds one.
 
@@ -453,7 +453,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     True
     """
     if check_motion_mode(motion) != "none":
-        return _recover_moving(folder, sequence, white_roi, out_dtype, device)
+        return _recover_moving(folder, sequence, white_roi, out_dtype, device,
+                               "affine" if motion.lower() == "affine" else "translation")
     if white_roi is not None or ambient_index(folder.plan) is not None:
         plan, bundle = folder.plan, folder.calibration
         picked, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
@@ -486,8 +487,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     return y
 
 
-def _recover_moving(folder: SequenceFolder, sequence, white_roi, out_dtype, device) -> np.ndarray:
-    """:func:`recover` of one sequence of a moving scene (``motion="global"``)."""
+def _recover_moving(folder: SequenceFolder, sequence, white_roi, out_dtype, device, model) -> np.ndarray:
+    """:func:`recover` of one sequence of a moving scene (``motion="global"`` or ``"affine"``)."""
     if sequence is None:
         if folder.sequences != 1:
             raise ValueError(f"motion=global recovers one sequence at a time (the scene moves between sequences); "
@@ -505,7 +506,7 @@ def _recover_moving(folder: SequenceFolder, sequence, white_roi, out_dtype, devi
     if ratio is not None or bundle.reports.get("linearity_c_per_dn2", 0.0) > 0:
         frames = _flatten_by_wavelength(frames, dark, ratio, bundle)
     res = recover_moving(frames, plan.A, dark=dark, gain=bundle.flat_field, saturation=float(bundle.max_code),
-                         device=device)
+                         model=model, device=device)
     return res.y.astype(out_dtype, copy=False)
 
 

@@ -190,6 +190,22 @@ class Trajectory:
         """Rotation of the background at ``t_frames`` (frame periods), degrees."""
         return np.asarray(t_frames, np.float64) * self.params.rotation_deg_per_frame
 
+    def maps(self, t_frames, t_ref: float, shape) -> np.ndarray:
+        """(N, 2, 3) affine maps taking a background point's position (x, y) at ``t_ref`` to its position at each
+        of ``t_frames`` (frame periods), for a field of ``shape`` (height, width)."""
+        h, w = shape
+        c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+        t = np.atleast_1d(np.asarray(t_frames, np.float64))
+        d = self.displacement(t)
+        d_ref = self.displacement(float(t_ref))
+        out = np.empty((t.size, 2, 3))
+        for i, a in enumerate(np.radians(self.angle(t) - self.angle(float(t_ref)))):
+            # a turn by +a counter-clockwise on screen (y down) is (cos a, sin a; -sin a, cos a) in (x, y)
+            rot = np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]])
+            out[i, :, :2] = rot
+            out[i, :, 2] = c + d[i] - rot @ (c + d_ref)
+        return out
+
     def object_displacement(self, t_frames) -> np.ndarray:
         """(..., 2) displacement (x, y) of the object at ``t_frames``, px."""
         t = np.asarray(t_frames, np.float64)

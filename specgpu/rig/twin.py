@@ -368,6 +368,7 @@ class TwinRig:
             ``reflectance`` (H, W, B) the scene as it is at the reference time; ``displacement`` (K, 2) each
             frame's displacement (x, y) of the background from the reference time to its mid-exposure, px (a scene
             point at x at the reference time is at x + displacement in that frame, the rotation aside);
+            ``maps`` (K, 2, 3) the affine maps of reference-time positions to each frame's (rotation included);
             ``reference_time_s``; ``object_mask`` (H, W) the object's footprint at the reference time (None
             without an object).
         """
@@ -377,11 +378,13 @@ class TwinRig:
         t_ref = float(np.mean(mid))
         if self._moving is None:
             return {"reflectance": self._scene.reflectance, "displacement": np.zeros((mid.size, 2)),
-                    "reference_time_s": t_ref * period, "object_mask": None}
+                    "maps": np.tile(np.eye(2, 3), (mid.size, 1, 1)), "reference_time_s": t_ref * period,
+                    "object_mask": None}
         tr = self._moving.trajectory
         obj = self._object_cube if self._moving.object_images is not None else None
         return {"reflectance": self._moving.reflectance(self._scene.reflectance, obj, t_ref),
                 "displacement": tr.displacement(mid) - tr.displacement(t_ref),
+                "maps": tr.maps(mid, t_ref, self.camera.shape),
                 "reference_time_s": t_ref * period, "object_mask": self._moving.object_mask(t_ref)}
 
     def _colour_slopes(self) -> np.ndarray | None:

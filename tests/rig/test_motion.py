@@ -146,3 +146,24 @@ def test_the_motion_parser_accepts_or_names_the_key(table):
         return
     assert isinstance(m, MotionParameters)
     assert all(abs(c) <= 200 for c in m.velocity_px_per_frame + m.object_velocity_px_per_frame)
+
+
+def test_the_true_maps_carry_a_reference_time_point_to_where_each_frame_sees_it():
+    """A bright dot rendered at the reference time lands, in frame k's image, where the true map sends it."""
+    m = MotionParameters(velocity_px_per_frame=(1.0, -0.5), rotation_deg_per_frame=1.0)
+    tr = Trajectory(m, 200.0)
+    h, w = 120, 160
+    img = np.zeros((h, w), np.float32)
+    img[30, 40] = 1.0  # the dot at t = 0 (scene coordinates = image coordinates at t = 0)
+    t_ref, t_k = 0.0, 4.0
+    seen = warp_image(img, tr.displacement(t_k), float(tr.angle(t_k)))
+    y, x = np.unravel_index(np.argmax(seen), seen.shape)
+    cy, cx = ndimage_centroid(seen, y, x)
+    M = tr.maps([t_k], t_ref, (h, w))[0]
+    np.testing.assert_allclose(M @ [40.0, 30.0, 1.0], [cx, cy], atol=0.1)
+
+
+def ndimage_centroid(img, y, x, r=2):
+    win = img[y - r:y + r + 1, x - r:x + r + 1]
+    yy, xx = np.mgrid[y - r:y + r + 1, x - r:x + r + 1]
+    return float((win * yy).sum() / win.sum()), float((win * xx).sum() / win.sum())
