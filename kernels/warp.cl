@@ -14,27 +14,11 @@
  * Arguments: frames (K, H, W), A (B x K, constant), motion (K x 6: the rows of M_k, constant), dark, gain, out (N x B),
  * mask (N), width, height.
  */
-#ifndef K
-#define K 1
-#endif
+#include "common.h"
+
 #ifndef B
 #define B 1
 #endif
-#ifndef IN_T
-#define IN_T float
-#endif
-#ifndef HAS_DARK
-#define HAS_DARK 0
-#endif
-#ifndef HAS_GAIN
-#define HAS_GAIN 0
-#endif
-#ifndef IS_FLOAT_IN
-#define IS_FLOAT_IN 0
-#endif
-
-#define MASK_SATURATED 1
-#define MASK_NONFINITE 2
 #define MASK_OUTSIDE 4
 
 inline float corrected(__global const IN_T *restrict plane, __global const float *restrict dark,
@@ -59,6 +43,32 @@ inline float corrected(__global const IN_T *restrict plane, __global const float
     return w > 0.0f ? c * w : 0.0f; /* a zero weight never lets a NaN neighbour in */
 }
 
+/* Frame k's corrected sample at M_k (x, y, 1), bilinear; flags MASK_OUTSIDE (and returns 0) off the field. */
+inline float warp_sample(__global const IN_T *restrict frames, __constant const float *restrict motion,
+                         __global const float *restrict dark, __global const float *restrict gain, uint k, ulong n,
+                         int x, int y, uint width, uint height, int *flags)
+{
+    __constant const float *m = motion + 6 * k;
+    const float sx = m[0] * (float)x + (m[1] * (float)y + m[2]);
+    const float sy = m[3] * (float)x + (m[4] * (float)y + m[5]);
+    /* a tolerance of 1/1024 px keeps a sample that lands on the border by rounding */
+    if (!(sx >= -0.0009765625f && sy >= -0.0009765625f && sx <= (float)(width - 1) + 0.0009765625f
+          && sy <= (float)(height - 1) + 0.0009765625f)) {
+        *flags |= MASK_OUTSIDE;
+        return 0.0f;
+    }
+    const float cx = clamp(sx, 0.0f, (float)(width - 1)), cy = clamp(sy, 0.0f, (float)(height - 1));
+    const int x0 = min((int)cx, (int)width - 1), y0 = min((int)cy, (int)height - 1);
+    const int x1 = min(x0 + 1, (int)width - 1), y1 = min(y0 + 1, (int)height - 1);
+    const float fx = cx - (float)x0, fy = cy - (float)y0;
+    __global const IN_T *plane = frames + (ulong)k * n;
+    const ulong r0 = (ulong)y0 * width, r1 = (ulong)y1 * width;
+    return corrected(plane, dark, gain, k, n, r0 + x0, (1.0f - fx) * (1.0f - fy), flags)
+         + corrected(plane, dark, gain, k, n, r0 + x1, fx * (1.0f - fy), flags)
+         + corrected(plane, dark, gain, k, n, r1 + x0, (1.0f - fx) * fy, flags)
+         + corrected(plane, dark, gain, k, n, r1 + x1, fx * fy, flags);
+}
+
 __kernel void linear_warp(__global const IN_T *restrict frames,
                           __constant const float *restrict A,
                           __constant const float *restrict motion,
@@ -73,30 +83,27 @@ __kernel void linear_warp(__global const IN_T *restrict frames,
     const ulong n = (ulong)width * height;
     if (i >= n) return;
     const int x = (int)(i % width), y = (int)(i / width);
-    float s[K];
     int flags = 0;
-    for (uint k = 0; k < K; ++k) {
-        __constant const float *m = motion + 6 * k;
-        const float sx = m[0] * (float)x + (m[1] * (float)y + m[2]);
-        const float sy = m[3] * (float)x + (m[4] * (float)y + m[5]);
-        /* a tolerance of 1/1024 px keeps a sample that lands on the border by rounding */
-        if (!(sx >= -0.0009765625f && sy >= -0.0009765625f && sx <= (float)(width - 1) + 0.0009765625f
-              && sy <= (float)(height - 1) + 0.0009765625f)) {
-            flags |= MASK_OUTSIDE;
-            s[k] = 0.0f;
-            continue;
+#if K <= 128
+    /* the K samples in named registers (PoCL keeps a private array in memory), the products unrolled */
+#define W_SAMPLE(k) const float s##k = warp_sample(frames, motion, dark, gain, k, n, x, y, width, height, &flags);
+#define W_FMA(k) acc = row[k] * s##k + acc;
+    REP_(K, W_SAMPLE)
+    __global float *dst = out + i * B;
+    if (flags & MASK_OUTSIDE) {
+        for (uint b = 0; b < B; ++b) dst[b] = NAN;
+    } else {
+        for (uint b = 0; b < B; ++b) {
+            __constant const float *row = A + b * K;
+            float acc = 0.0f;
+            REP_(K, W_FMA)
+            dst[b] = acc;
         }
-        const float cx = clamp(sx, 0.0f, (float)(width - 1)), cy = clamp(sy, 0.0f, (float)(height - 1));
-        const int x0 = min((int)cx, (int)width - 1), y0 = min((int)cy, (int)height - 1);
-        const int x1 = min(x0 + 1, (int)width - 1), y1 = min(y0 + 1, (int)height - 1);
-        const float fx = cx - (float)x0, fy = cy - (float)y0;
-        __global const IN_T *plane = frames + (ulong)k * n;
-        const ulong r0 = (ulong)y0 * width, r1 = (ulong)y1 * width;
-        s[k] = corrected(plane, dark, gain, k, n, r0 + x0, (1.0f - fx) * (1.0f - fy), &flags)
-             + corrected(plane, dark, gain, k, n, r0 + x1, fx * (1.0f - fy), &flags)
-             + corrected(plane, dark, gain, k, n, r1 + x0, (1.0f - fx) * fy, &flags)
-             + corrected(plane, dark, gain, k, n, r1 + x1, fx * fy, &flags);
     }
+#else
+    float s[K];
+    for (uint k = 0; k < K; ++k)
+        s[k] = warp_sample(frames, motion, dark, gain, k, n, x, y, width, height, &flags);
     __global float *dst = out + i * B;
     if (flags & MASK_OUTSIDE) {
         for (uint b = 0; b < B; ++b) dst[b] = NAN;
@@ -108,5 +115,6 @@ __kernel void linear_warp(__global const IN_T *restrict frames,
             dst[b] = acc;
         }
     }
+#endif
     mask[i] = (uchar)flags;
 }

@@ -67,8 +67,9 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
 @click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
-              show_default=True, help="Compensate a global translation per frame (one sequence at a time); pixels "
-              "some frame saw outside the field are NaN.")
+              show_default=True, help="Compensate a scene that moved: a translation (global) or an affine map "
+              "(affine) per frame, one sequence at a time; pixels seen outside the field or whose frames disagree "
+              "are NaN.")
 @RESIZE
 def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, sequence, half,
             sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize, motion):
