@@ -17,12 +17,16 @@ from specgpu.pipeline.recovery import (
     write_capture,
 )
 from specgpu.pipeline.moving import (
+    MASK_INCONSISTENT,
     MOTION_MODES,
+    TRUTH_FOLDER,
     MotionEstimate,
     MovingRecovery,
     check_motion_mode,
     estimate_global_motion,
+    inconsistent_pixels,
     recover_moving,
+    truth_recorder,
 )
 from specgpu.pipeline.evaluate import (
     PatchReport,
@@ -114,12 +118,16 @@ __all__ = [
     "project",
     "read_capture",
     "recover",
+    "MASK_INCONSISTENT",
     "MOTION_MODES",
+    "TRUTH_FOLDER",
     "MotionEstimate",
     "MovingRecovery",
     "check_motion_mode",
     "estimate_global_motion",
+    "inconsistent_pixels",
     "recover_moving",
+    "truth_recorder",
     "render_scene",
     "rgb_led_spectrum",
     "rmse_per_patch",

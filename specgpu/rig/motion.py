@@ -29,7 +29,7 @@ import numpy as np
 
 from specgpu.core.validate import check_number
 
-__all__ = ["MotionParameters", "MOTION_KEYS", "motion_from_table", "Trajectory", "warp_image"]
+__all__ = ["MotionParameters", "MOTION_KEYS", "motion_from_table", "MovingScene", "Trajectory", "warp_image"]
 
 #: Largest speed accepted, px per frame period: beyond it a frame is smeared over a good part of the field.
 MAX_SPEED = 200.0
@@ -160,8 +160,9 @@ class Trajectory:
 
     _PARTIALS = 24  # sinusoids per axis of the vibration
 
-    def __init__(self, params: MotionParameters, frame_rate_hz: float):
+    def __init__(self, params: MotionParameters, frame_rate_hz: float, field_radius_px: float = 400.0):
         self.params = params
+        self.field_radius_px = float(field_radius_px)  # centre to corner: how far a rotation moves the field most
         self.frame_rate_hz = float(frame_rate_hz)
         p = params
         if p.vibration_rms_px:
@@ -220,7 +221,7 @@ class Trajectory:
         t = np.array([start_frames, start_frames + exposure_frames])
         travel = float(np.max(np.abs(np.diff(self.displacement(t), axis=0))))
         travel = max(travel, float(np.max(np.abs(np.diff(self.object_displacement(t), axis=0)))))
-        travel += abs(self.params.rotation_deg_per_frame) * exposure_frames * math.pi / 180 * 400  # ~ a corner
+        travel += abs(self.params.rotation_deg_per_frame) * exposure_frames * math.pi / 180 * self.field_radius_px
         n = int(min(16, max(1, math.ceil(travel / 0.25))))
         return start_frames + (np.arange(n) + 0.5) * exposure_frames / n
 

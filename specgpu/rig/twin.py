@@ -328,7 +328,7 @@ class TwinRig:
         ambient = None if amb is None else images(self._scene, amb[None, :])[0]
         m = d.motion
         if not m.object:
-            return MovingScene(Trajectory(m, d.camera.frame_rate_hz), bg, ambient)
+            return MovingScene(Trajectory(m, d.camera.frame_rate_hz, math.hypot(h, w) / 2), bg, ambient)
         oh, ow = m.object_size_px if all(m.object_size_px) else (max(1, h // 3), max(1, w // 3))
         obj = load_scene(m.object, min(oh, h), min(ow, w), resize="stretch")
         y0, x0 = (h - obj.shape[0]) // 2, (w - obj.shape[1]) // 2
@@ -344,7 +344,7 @@ class TwinRig:
         if amb is not None:
             oamb = np.zeros((h, w), np.float32)
             oamb[where[1:]] = images(obj, amb[None, :])[0]
-        return MovingScene(Trajectory(m, d.camera.frame_rate_hz), bg, ambient, canvas, oamb, alpha)
+        return MovingScene(Trajectory(m, d.camera.frame_rate_hz, math.hypot(h, w) / 2), bg, ambient, canvas, oamb, alpha)
 
     def moving_mean(self, pattern_index: int, timestamp_s: float) -> np.ndarray:
         """(H, W) noise-free signal (DN above the offset, float32) of a frame of a moving world exposed from
