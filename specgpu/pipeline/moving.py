@@ -338,7 +338,7 @@ MASK_INCONSISTENT = 8
 
 
 def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9, threshold: float = 0.3,
-                        texture: float = 0.5) -> np.ndarray:
+                        texture: float = 0.5, own: float = 4.0) -> np.ndarray:
     """(H, W) bool: pixels where the motion-compensated frames disagree, so their decoded spectrum would mix
     surfaces.
 
@@ -346,8 +346,9 @@ def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9
     motion is right, their edges coincide whatever the illuminant (their contrasts differ, not their places). Per
     pixel, the normalised cross-correlation over a ``window`` x ``window`` neighbourhood between each compensated
     gradient image and their median is computed; a pixel is inconsistent where the median has texture (local
-    energy above ``texture`` times the field's mean) and some frame correlates below ``threshold``. Untextured
-    regions are never flagged: there, samples from a few pixels away hold the same spectrum.
+    energy above ``texture`` times the field's mean) and some frame with structure of its own there (local energy
+    above ``own`` times its median: not just noise) correlates below ``threshold``. Untextured regions are never
+    flagged: there, samples from a few pixels away hold the same spectrum.
     """
     frames = np.asarray(frames)
     K, h, w = frames.shape
@@ -377,6 +378,9 @@ def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9
         ma = box(a)
         va = np.maximum(box(a * a) - ma * ma, 0.0)
         ncc = (box(a * ref) - ma * mr) / np.sqrt(np.maximum(va * vr, 1e-30))
+        # only where this frame has structure of its own above its noise (a dim, noisy frame correlates with
+        # nothing, and says nothing about the motion)
+        ncc[va <= own * float(np.median(va))] = 1.0
         np.minimum(worst, ncc, out=worst)
     return textured & (worst < threshold)
 
