@@ -8,10 +8,10 @@
  *
  * A pixel whose sample point of any frame lies outside the field [0, W-1] x [0, H-1] has no measurement: its
  * outputs are NaN and its mask has bit 4 (MASK_OUTSIDE). Bit 1: a frame pixel used (non-zero weight) is at
- * SAT_LEVEL; bit 2: a non-finite float input. One work-item per output pixel, channels-last output (N, B) float32.
+ * SAT_LEVEL; bit 2: a non-finite float input. One work-item per output pixel, planar output (B, N) float32.
  *
  * Macros (as common.h): K, B, IN_T, HAS_DARK (0 / 1 per pixel / 2 per frame), HAS_GAIN, SAT_LEVEL, IS_FLOAT_IN.
- * Arguments: frames (K, H, W), A (B x K, constant), motion (K x 6: the rows of M_k, constant), dark, gain, out (N x B),
+ * Arguments: frames (K, H, W), A (B x K, constant), motion (K x 6: the rows of M_k, constant), dark, gain, out (B x N),
  * mask (N), width, height.
  */
 #include "common.h"
@@ -26,10 +26,10 @@ inline float corrected(__global const IN_T *restrict plane, __global const float
 {
     const float v = (float)plane[p];
 #ifdef SAT_LEVEL
-    if (w > 0.0f && v >= SAT_LEVEL) *flags |= MASK_SATURATED;
+    *flags |= (w > 0.0f && v >= SAT_LEVEL) ? MASK_SATURATED : 0;
 #endif
 #if IS_FLOAT_IN
-    if (w > 0.0f && !isfinite(v)) *flags |= MASK_NONFINITE;
+    *flags |= (w > 0.0f && !isfinite(v)) ? MASK_NONFINITE : 0;
 #endif
     float c = v;
 #if HAS_DARK == 1
@@ -51,12 +51,11 @@ inline float warp_sample(__global const IN_T *restrict frames, __constant const 
     __constant const float *m = motion + 6 * k;
     const float sx = m[0] * (float)x + (m[1] * (float)y + m[2]);
     const float sy = m[3] * (float)x + (m[4] * (float)y + m[5]);
-    /* a tolerance of 1/1024 px keeps a sample that lands on the border by rounding */
-    if (!(sx >= -0.0009765625f && sy >= -0.0009765625f && sx <= (float)(width - 1) + 0.0009765625f
-          && sy <= (float)(height - 1) + 0.0009765625f)) {
-        *flags |= MASK_OUTSIDE;
-        return 0.0f;
-    }
+    /* a tolerance of 1/1024 px keeps a sample that lands on the border by rounding; no branch, so the work-items
+     * of a group stay in step (PoCL vectorises across them) */
+    const int inside = sx >= -0.0009765625f && sy >= -0.0009765625f && sx <= (float)(width - 1) + 0.0009765625f
+                       && sy <= (float)(height - 1) + 0.0009765625f;
+    *flags |= inside ? 0 : MASK_OUTSIDE;
     const float cx = clamp(sx, 0.0f, (float)(width - 1)), cy = clamp(sy, 0.0f, (float)(height - 1));
     const int x0 = min((int)cx, (int)width - 1), y0 = min((int)cy, (int)height - 1);
     const int x1 = min(x0 + 1, (int)width - 1), y1 = min(y0 + 1, (int)height - 1);
@@ -89,31 +88,23 @@ __kernel void linear_warp(__global const IN_T *restrict frames,
 #define W_SAMPLE(k) const float s##k = warp_sample(frames, motion, dark, gain, k, n, x, y, width, height, &flags);
 #define W_FMA(k) acc = row[k] * s##k + acc;
     REP_(K, W_SAMPLE)
-    __global float *dst = out + i * B;
-    if (flags & MASK_OUTSIDE) {
-        for (uint b = 0; b < B; ++b) dst[b] = NAN;
-    } else {
-        for (uint b = 0; b < B; ++b) {
-            __constant const float *row = A + b * K;
-            float acc = 0.0f;
-            REP_(K, W_FMA)
-            dst[b] = acc;
-        }
+    const int outside = flags & MASK_OUTSIDE;
+    for (uint b = 0; b < B; ++b) {
+        __constant const float *row = A + b * K;
+        float acc = 0.0f;
+        REP_(K, W_FMA)
+        out[(ulong)b * n + i] = outside ? NAN : acc; /* planar: consecutive work-items, consecutive addresses */
     }
 #else
     float s[K];
     for (uint k = 0; k < K; ++k)
         s[k] = warp_sample(frames, motion, dark, gain, k, n, x, y, width, height, &flags);
-    __global float *dst = out + i * B;
-    if (flags & MASK_OUTSIDE) {
-        for (uint b = 0; b < B; ++b) dst[b] = NAN;
-    } else {
-        for (uint b = 0; b < B; ++b) {
-            __constant const float *row = A + b * K;
-            float acc = 0.0f;
-            for (uint k = 0; k < K; ++k) acc = row[k] * s[k] + acc;
-            dst[b] = acc;
-        }
+    const int outside = flags & MASK_OUTSIDE;
+    for (uint b = 0; b < B; ++b) {
+        __constant const float *row = A + b * K;
+        float acc = 0.0f;
+        for (uint k = 0; k < K; ++k) acc = row[k] * s[k] + acc;
+        out[(ulong)b * n + i] = outside ? NAN : acc;
     }
 #endif
     mask[i] = (uchar)flags;

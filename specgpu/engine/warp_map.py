@@ -110,9 +110,9 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
         kernels._launch(queue, kernel, n, f_dev.data, A_dev.data, d_dev.data, kernels._data(dark_dev),
                         kernels._data(gain_dev), out.data, mask.data, np.uint32(w), np.uint32(h),
                         pixels_per_item=1)
-    y = out.get()[:n * B].reshape(h, w, B)
-    if planar:
-        y = np.ascontiguousarray(np.moveaxis(y, -1, 0))
+    y = out.get()[:n * B].reshape(B, h, w)  # the kernel writes planes (coalesced stores)
+    if not planar:
+        y = np.ascontiguousarray(np.moveaxis(y, 0, -1))
     if not return_mask:
         return y
     return LinearResult(y, mask.get()[:n].reshape(h, w))
