@@ -10,8 +10,10 @@
  * outputs are NaN and its mask has bit 4 (MASK_OUTSIDE). Bit 1: a frame pixel used (non-zero weight) is at
  * SAT_LEVEL; bit 2: a non-finite float input. One work-item per output pixel, planar output (B, N) float32.
  *
- * Macros (as common.h): K, B, IN_T, HAS_DARK (0 / 1 per pixel / 2 per frame), HAS_GAIN, SAT_LEVEL, IS_FLOAT_IN.
- * Arguments: frames (K, H, W), A (B x K, constant), motion (K x 6: the rows of M_k, constant), dark, gain, out (B x N),
+ * Macros (as common.h): K, B, IN_T, HAS_DARK (0 / 1 per pixel / 2 per frame), HAS_GAIN, SAT_LEVEL, IS_FLOAT_IN;
+ * FLOW = 1: a displacement per pixel and frame instead (dense motion, flow (K, 2, N): frame k saw pixel i at
+ * (x + flow[k][0][i], y + flow[k][1][i])), the affine maps unused.
+ * Arguments: frames (K, H, W), A (B x K, constant), motion (K x 6: the rows of M_k, constant), flow, dark, gain, out (B x N),
  * mask (N), width, height.
  */
 #include "common.h"
@@ -20,6 +22,10 @@
 #define B 1
 #endif
 #define MASK_OUTSIDE 4
+
+#ifndef FLOW
+#define FLOW 0
+#endif
 
 inline float corrected(__global const IN_T *restrict plane, __global const float *restrict dark,
                        __global const float *restrict gain, uint k, ulong n, ulong p, float w, int *flags)
@@ -45,12 +51,18 @@ inline float corrected(__global const IN_T *restrict plane, __global const float
 
 /* Frame k's corrected sample at M_k (x, y, 1), bilinear; flags MASK_OUTSIDE (and returns 0) off the field. */
 inline float warp_sample(__global const IN_T *restrict frames, __constant const float *restrict motion,
-                         __global const float *restrict dark, __global const float *restrict gain, uint k, ulong n,
-                         int x, int y, uint width, uint height, int *flags)
+                         __global const float *restrict flow, __global const float *restrict dark,
+                         __global const float *restrict gain, uint k, ulong n, int x, int y, uint width, uint height,
+                         int *flags)
 {
+#if FLOW
+    const ulong i = (ulong)y * width + x;
+    const float sx = (float)x + flow[2 * k * n + i], sy = (float)y + flow[(2 * k + 1) * n + i];
+#else
     __constant const float *m = motion + 6 * k;
     const float sx = m[0] * (float)x + (m[1] * (float)y + m[2]);
     const float sy = m[3] * (float)x + (m[4] * (float)y + m[5]);
+#endif
     /* a tolerance of 1/1024 px keeps a sample that lands on the border by rounding; no branch, so the work-items
      * of a group stay in step (PoCL vectorises across them) */
     const int inside = sx >= -0.0009765625f && sy >= -0.0009765625f && sx <= (float)(width - 1) + 0.0009765625f
@@ -71,6 +83,7 @@ inline float warp_sample(__global const IN_T *restrict frames, __constant const 
 __kernel void linear_warp(__global const IN_T *restrict frames,
                           __constant const float *restrict A,
                           __constant const float *restrict motion,
+                          __global const float *restrict flow,
                           __global const float *restrict dark,
                           __global const float *restrict gain,
                           __global float *restrict out,
@@ -85,7 +98,7 @@ __kernel void linear_warp(__global const IN_T *restrict frames,
     int flags = 0;
 #if K <= 128
     /* the K samples in named registers (PoCL keeps a private array in memory), the products unrolled */
-#define W_SAMPLE(k) const float s##k = warp_sample(frames, motion, dark, gain, k, n, x, y, width, height, &flags);
+#define W_SAMPLE(k) const float s##k = warp_sample(frames, motion, flow, dark, gain, k, n, x, y, width, height, &flags);
 #define W_FMA(k) acc = row[k] * s##k + acc;
     REP_(K, W_SAMPLE)
     const int outside = flags & MASK_OUTSIDE;
@@ -98,7 +111,7 @@ __kernel void linear_warp(__global const IN_T *restrict frames,
 #else
     float s[K];
     for (uint k = 0; k < K; ++k)
-        s[k] = warp_sample(frames, motion, dark, gain, k, n, x, y, width, height, &flags);
+        s[k] = warp_sample(frames, motion, flow, dark, gain, k, n, x, y, width, height, &flags);
     const int outside = flags & MASK_OUTSIDE;
     for (uint b = 0; b < B; ++b) {
         __constant const float *row = A + b * K;

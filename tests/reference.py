@@ -93,6 +93,8 @@ def linear_warp_ref(frames, A, shifts, dark=None, gain=None):
         m = np.asarray(shifts[k], np.float64)
         if m.shape == (2,):
             sx, sy = xx + m[0], yy + m[1]
+        elif m.shape == (2, h, w):
+            sx, sy = xx + m[0], yy + m[1]
         else:
             sx, sy = m[0, 0] * xx + m[0, 1] * yy + m[0, 2], m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
         out = (sx < -1e-3) | (sy < -1e-3) | (sx > w - 1 + 1e-3) | (sy > h - 1 + 1e-3)

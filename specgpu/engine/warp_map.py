@@ -22,9 +22,10 @@ __all__ = ["apply_linear_warped", "MASK_OUTSIDE", "check_shifts"]
 MASK_OUTSIDE = 4
 
 
-def check_shifts(shifts, K: int, name: str = "shifts") -> np.ndarray:
+def check_shifts(shifts, K: int, name: str = "shifts", spatial: tuple | None = None) -> np.ndarray:
     """Per-frame motion as (K, 6) float32 rows of 2 x 3 affine maps: from a finite (K, 2) array of displacements
-    (dx, dy) px, or (K, 2, 3) affine maps (x', y') = M (x, y, 1)."""
+    (dx, dy) px, or (K, 2, 3) affine maps (x', y') = M (x, y, 1); or, given the frames' ``spatial`` (H, W), a
+    (K, 2, H, W) flow (a displacement per pixel and frame), returned as it is in float32."""
     try:
         d = np.asarray(shifts, dtype=np.float64)
     except (TypeError, ValueError):
@@ -34,12 +35,14 @@ def check_shifts(shifts, K: int, name: str = "shifts") -> np.ndarray:
         m[:, 0, 0] = m[:, 1, 1] = 1.0
         m[:, :, 2] = d
         d = m
-    if d.shape != (K, 2, 3):
-        raise ValueError(f"{name} must have shape ({K}, 2) (dx, dy per frame) or ({K}, 2, 3) (an affine map per "
-                         f"frame), got {d.shape}")
+    flow = spatial is not None and d.shape == (K, 2, *spatial)
+    if d.shape != (K, 2, 3) and not flow:
+        raise ValueError(f"{name} must have shape ({K}, 2) (dx, dy per frame), ({K}, 2, 3) (an affine map per "
+                         f"frame)" + (f" or ({K}, 2, {spatial[0]}, {spatial[1]}) (a flow)" if spatial else "")
+                         + f", got {d.shape}")
     if not np.all(np.isfinite(d)):
         raise ValueError(f"{name} must be finite")
-    return np.ascontiguousarray(d.reshape(K, 6), dtype=np.float32)
+    return np.ascontiguousarray(d if flow else d.reshape(K, 6), dtype=np.float32)
 
 
 def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: float | None = None,
@@ -55,7 +58,8 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
     shifts : array_like, (K, 2) or (K, 2, 3)
         Displacement (dx, dy) of each frame from the reference time, px: the scene point at pixel x at the
         reference time was seen at x + d_k in frame k. All zero gives :func:`~specgpu.engine.apply_linear`'s
-        result. Or an affine map per frame: the point was seen at M_k (x, y, 1) (a rotation, a zoom).
+        result. Or an affine map per frame: the point was seen at M_k (x, y, 1) (a rotation, a zoom); or
+        (K, 2, H, W), a displacement per pixel and frame (dense motion).
     dark : array_like, (H, W) or (K, H, W), optional
         Dark level of the sensor pixels.
     gain : array_like, (H, W), optional
@@ -84,7 +88,8 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
     if frames.ndim != 3:
         raise ValueError(f"frames must be (K, H, W) to be warped, got shape {tuple(frames.shape)}")
     A = check_matrix(A, "A", columns=K)
-    d = check_shifts(shifts, K)
+    d = check_shifts(shifts, K, spatial=tuple(frames.shape[1:]))
+    flow = d.ndim == 4
     planar = validate_method(layout, {"interleaved": 0, "planar": 1}, "layout")
     spatial = tuple(frames.shape[1:])
     h, w = spatial
@@ -98,16 +103,18 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
     n = h * w
     macros = dict(K=K, B=B, IN_T=DTYPE_TO_CTYPE[frames.dtype],
                   HAS_DARK=0 if dark is None else (2 if dark_per_frame else 1), HAS_GAIN=gain is not None,
-                  IS_FLOAT_IN=frames.dtype == np.float32,
+                  IS_FLOAT_IN=frames.dtype == np.float32, FLOW=True if flow else None,
                   SAT_LEVEL=None if saturation is None else repr(float(saturation)) + "f")
     kernel = get_kernel(queue, "warp.cl", "linear_warp", **macros)
     f_dev = kernels.to_device(queue, frames.reshape(-1))
     out = kernels._empty(queue, max(n * B, 1), np.float32)
     mask = kernels._empty(queue, max(n, 1), np.uint8)
     A_dev = kernels.matrix_on_device(queue, A)
-    d_dev = kernels.matrix_on_device(queue, d)
+    d_dev = kernels.matrix_on_device(queue, np.zeros((K, 6), np.float32) if flow else d)
+    flow_dev = kernels.to_device(queue, d.reshape(-1)) if flow else None
     if n:
-        kernels._launch(queue, kernel, n, f_dev.data, A_dev.data, d_dev.data, kernels._data(dark_dev),
+        kernels._launch(queue, kernel, n, f_dev.data, A_dev.data, d_dev.data, kernels._data(flow_dev),
+                        kernels._data(dark_dev),
                         kernels._data(gain_dev), out.data, mask.data, np.uint32(w), np.uint32(h),
                         pixels_per_item=1)
     y = out.get()[:n * B].reshape(B, h, w)  # the kernel writes planes (coalesced stores)

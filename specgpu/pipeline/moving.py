@@ -41,6 +41,8 @@ MOTION_MODES = {
     "affine": "estimate an affine map per frame (translation, rotation, zoom; tiles registered and fitted) and "
               "sample frame k at M_k x",
 }
+# A coarse tile flow (estimate_global_motion(model="flow")) exists for study but is no mode yet: on the twin's moving
+# chart it lowers the error for one plan and raises it for another (tools/motion_study.py, object-flow rows).
 
 #: A frame whose mean signal is below this share of the brightest frame's is not registered (a dark or ambient
 #: frame): its displacement is interpolated in time from the others.
@@ -125,7 +127,7 @@ def _register(a: np.ndarray, b: np.ndarray, upsample: int) -> tuple[np.ndarray, 
 def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int | None = None,
                            upsample: int = 50, binning: int = 1, pairs: str = "all", cutoff: float = 0.12,
                            max_gap: int = 8, model: str = "translation", tiles: int = 4,
-                           robust: bool = True) -> MotionEstimate:
+                           robust: bool = True, flow_tiles: tuple = (6, 8)) -> MotionEstimate:
     """A translation per frame of one sequence, relative to the sequence's reference time.
 
     Parameters
@@ -152,9 +154,12 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         reference frame only (K - 1 registrations).
     max_gap : int
         The furthest apart (in frames) two frames registered with ``pairs="all"`` are.
-    model : {"translation", "affine"}
+    model : {"translation", "affine", "flow"}
         A displacement per frame, or an affine map per frame (rotation, zoom, shear): each frame's translation is
-        refined by registering ``tiles`` x ``tiles`` tiles of it to the reference frame and fitting the map.
+        refined by registering ``tiles`` x ``tiles`` tiles of it to the reference frame and fitting the map; or a
+        coarse flow: ``flow_tiles`` (rows, columns) tiles registered, their displacements interpolated to every
+        pixel (an object moving on its own; ``shifts`` is then (K, 2, H, W)). Experimental: tiles that straddle
+        two motions take one of them, so it is not offered as a recovery mode.
     robust : bool
         Translation model: check each frame's whole-image translation against its tiles' median and take the
         tiles' consensus where they disagree (an object moving over the scene can dominate the whole-image
@@ -188,10 +193,10 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     if reference_frame is None:
         middle = [k for k in range(max(0, K // 2 - 1), min(K, K // 2 + 2)) if usable[k]]
         reference_frame = max(middle or list(np.flatnonzero(usable)), key=lambda k: level[k])
-    if model not in ("translation", "affine"):
-        raise ValueError(f"model must be one of translation, affine, got {model!r}")
-    if model == "affine" and binning != 1:
-        raise ValueError("model='affine' registers tiles at full resolution: binning must be 1")
+    if model not in ("translation", "affine", "flow"):
+        raise ValueError(f"model must be one of translation, affine, flow, got {model!r}")
+    if model != "translation" and binning != 1:
+        raise ValueError(f"model={model!r} registers tiles at full resolution: binning must be 1")
     if pairs not in ("all", "reference"):
         raise ValueError(f"pairs must be one of all, reference, got {pairs!r}")
     if not 0 <= reference_frame < K or not usable[reference_frame]:
@@ -241,6 +246,9 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     # middle two for even K
     mid = (K - 1) / 2.0
     lo, hi = int(np.floor(mid)), int(np.ceil(mid))
+    if model == "flow":
+        return MotionEstimate(_flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, flow_tiles, usable,
+                                          lo, hi), usable, error, int(reference_frame), model)
     if model == "translation":
         if robust and binning == 1:
             for k in idx:
@@ -258,6 +266,37 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     return MotionEstimate((maps @ to_mid)[:, :2, :], usable, error, int(reference_frame), model)
 
 
+def _flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, tiles, usable, lo, hi) -> np.ndarray:
+    """(K, 2, H, W) displacement per pixel and frame from the reference time: each frame's tiles registered to the
+    reference frame's around the frame's global translation (a tile off the field, or one whose correlation error
+    is above :data:`FLOW_MAX_ERROR`, a weak peak, keeps the global translation),
+    interpolated bilinearly between the tiles' centres."""
+    g_ref = gradient(reference_frame)
+    h, w = g_ref.shape
+    ty, tx = tiles
+    th, tw = h // ty, w // tx
+    K = raw.shape[0]
+    grids = np.zeros((K, 2, ty, tx))
+    for k in idx:
+        grids[k] = np.asarray(raw[k])[:, None, None]
+        if k == reference_frame:
+            continue
+        src, dst = _tile_displacements(g_ref, gradient(int(k)), raw[k], upsample, cutoff, (ty, tx),
+                                       max_error=FLOW_MAX_ERROR)
+        for c, d in zip(src, dst - src):
+            grids[k, :, int(round((c[1] - (th - 1) / 2.0) / th)), int(round((c[0] - (tw - 1) / 2.0) / tw))] = d
+    grids = _fill_in_time(grids, usable)
+    grids = grids - 0.5 * (grids[lo] + grids[hi])
+    yy = (np.arange(h) - (th - 1) / 2.0) / th
+    xx = (np.arange(w) - (tw - 1) / 2.0) / tw
+    coords = np.meshgrid(yy, xx, indexing="ij")
+    out = np.empty((K, 2, h, w), np.float32)
+    for k in range(K):
+        for c in range(2):
+            out[k, c] = ndimage.map_coordinates(grids[k, c], coords, order=1, mode="nearest")
+    return out
+
+
 def _fill_in_time(values: np.ndarray, usable: np.ndarray) -> np.ndarray:
     """``values`` (K, ...) of the frames not ``usable`` linear in time between (or beyond) the nearest two usable
     frames."""
@@ -273,21 +312,25 @@ def _fill_in_time(values: np.ndarray, usable: np.ndarray) -> np.ndarray:
     return values
 
 
-def _tile_displacements(g_ref, g_k, shift, upsample: int, cutoff: float, tiles: int):
-    """Centres (N, 2) of the tiles of a ``tiles`` x ``tiles`` grid of the reference image and where frame k saw
-    each (N, 2): every tile registered where the global ``shift`` puts it (tiles it moves off the field skipped)."""
+def _tile_displacements(g_ref, g_k, shift, upsample: int, cutoff: float, tiles, max_error: float = 1.0):
+    """Centres (N, 2) of the tiles of a ``tiles`` x ``tiles`` (or (rows, columns)) grid of the reference image and
+    where frame k saw each (N, 2): every tile registered where the global ``shift`` puts it (tiles it moves off
+    the field skipped, and those whose correlation error is above ``max_error``)."""
     h, w = g_ref.shape
-    th, tw = h // tiles, w // tiles
+    ty, tx = (tiles, tiles) if np.isscalar(tiles) else tiles
+    th, tw = h // ty, w // tx
     t = np.rint(np.asarray(shift)).astype(int)
     src, dst = [], []
-    for i in range(tiles):
-        for j in range(tiles):
+    for i in range(ty):
+        for j in range(tx):
             y0, x0 = i * th, j * tw
             ys, xs = y0 + t[1], x0 + t[0]
             if ys < 0 or xs < 0 or ys + th > h or xs + tw > w:
                 continue
-            d, _ = _register(_whitened(hann(g_ref[y0:y0 + th, x0:x0 + tw]), cutoff),
-                             _whitened(hann(g_k[ys:ys + th, xs:xs + tw]), cutoff), upsample)
+            d, err = _register(_whitened(hann(g_ref[y0:y0 + th, x0:x0 + tw]), cutoff),
+                               _whitened(hann(g_k[ys:ys + th, xs:xs + tw]), cutoff), upsample)
+            if err > max_error:
+                continue
             c = np.array([x0 + (tw - 1) / 2.0, y0 + (th - 1) / 2.0])
             src.append(c)
             dst.append(c + t + d)
@@ -333,6 +376,10 @@ def _affine_to(g_ref: np.ndarray, g_k: np.ndarray, shift, upsample: int, cutoff:
     return out
 
 
+#: A tile of the flow whose phase correlation error is above this found no clear peak (too little structure, or
+#: structure that differs between the two illuminants); it keeps its frame's global translation.
+FLOW_MAX_ERROR = 0.95
+
 #: Mask bit of a pixel whose compensated frames disagree (an object moving on its own, an occlusion).
 MASK_INCONSISTENT = 8
 
@@ -356,13 +403,17 @@ def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9
     maps = np.asarray(shifts, np.float64)
     if maps.shape == (K, 2):
         maps = np.concatenate([np.tile(np.eye(2), (K, 1, 1)), maps[:, :, None]], axis=2)
+    flow = maps.shape == (K, 2, h, w)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     aligned = np.empty((K, h, w), np.float32)
     for k in range(K):
         g = gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
         m = maps[k]
-        sx = m[0, 0] * xx + m[0, 1] * yy + m[0, 2]
-        sy = m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
+        if flow:
+            sx, sy = xx + m[0], yy + m[1]
+        else:
+            sx = m[0, 0] * xx + m[0, 1] * yy + m[0, 2]
+            sy = m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
         aligned[k] = ndimage.map_coordinates(g, [sy, sx], order=1, mode="nearest")
     ref = np.median(aligned, axis=0)
 

@@ -454,7 +454,7 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     """
     if check_motion_mode(motion) != "none":
         return _recover_moving(folder, sequence, white_roi, out_dtype, device,
-                               "affine" if motion.lower() == "affine" else "translation")
+                               {"global": "translation"}.get(motion.lower(), motion.lower()))
     if white_roi is not None or ambient_index(folder.plan) is not None:
         plan, bundle = folder.plan, folder.calibration
         picked, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)

@@ -112,3 +112,21 @@ def test_affine_maps_match_the_reference(queue):
     translation[:, :, 2] = [[0, 0], [1.25, -0.5], [2, 3]]
     np.testing.assert_array_equal(apply_linear_warped(frames, A, translation, device=queue),
                                   apply_linear_warped(frames, A, translation[:, :, 2], device=queue))
+
+
+def test_a_flow_field_matches_the_reference_and_a_uniform_one_the_translation(queue):
+    rng = np.random.default_rng(7)
+    K, h, w = 3, 30, 40
+    frames = rng.integers(0, 1000, (K, h, w)).astype(np.uint16)
+    A = rng.normal(0, 1, (5, K))
+    dark = rng.uniform(0, 5, (h, w)).astype(np.float32)
+    yy, xx = np.mgrid[0:h, 0:w]
+    flow = np.stack([np.stack([2.5 * np.sin(xx / 7.0 + k), 1.5 * np.cos(yy / 5.0 - k)]) for k in range(K)])
+    got = apply_linear_warped(frames, A, flow, dark, return_mask=True, device=queue)
+    ref, outside = linear_warp_ref(frames, A, flow.astype(np.float32), dark)
+    np.testing.assert_array_equal((got.mask & MASK_OUTSIDE) > 0, outside)
+    assert np.all(np.abs(got.y[~outside] - ref[~outside]) <= tolerance(frames, A, dark)[~outside])
+    shifts = np.array([[1.25, -0.5], [0.0, 0.0], [-2.0, 0.75]])
+    uniform = np.broadcast_to(shifts[:, :, None, None], (K, 2, h, w))
+    np.testing.assert_array_equal(apply_linear_warped(frames, A, uniform, dark, device=queue),
+                                  apply_linear_warped(frames, A, shifts, dark, device=queue))
