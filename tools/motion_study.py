@@ -16,9 +16,10 @@ within 3 px of an edge of the scene (a step of the true reflectance of more than
 each over the pixels every recovery has (the compensated one leaves NaN where some frame saw outside the field:
 and where its frames disagree after compensation, an object moving on its own: that share is the ``flagged``
 column); with a moving object the scores leave out a 3 px band about its edges. Mean +- std over ``--draws``
-noise draws. ``ratio`` is compensated over still. The ``-affine`` cases compensate an affine map per frame.
+noise draws. ``ratio`` is compensated over still. The ``-affine`` cases compensate an affine map per frame, the
+``-flow`` ones the experimental coarse tile flow.
 
-    PYTHONPATH=. python tools/motion_study.py                 # the table (a few minutes)
+    PYTHONPATH=. python tools/motion_study.py --cases t1,t3,t10,vib,rot,rot-affine,object,object-flow  # ~6 min
     PYTHONPATH=. python tools/motion_study.py --small --draws 1 --cases t3
 """
 

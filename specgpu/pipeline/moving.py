@@ -11,6 +11,11 @@ extra frame is needed and the latency is the sequence itself. (Registering a fra
 the previous sequence also avoids the spectrum, but the sensor's fixed pattern, still on the sensor while the
 scene moves, then pulls the estimate to zero, and a vibration near the sequence rate is invisible at lag K.)
 
+An **affine** map per frame (a rotation, a zoom) is fitted to the translations of a grid of tiles; each frame's
+global translation is checked against its tiles too, so that an object moving on its own over the scene cannot
+take the estimate over. After compensation, pixels whose frames still disagree (the object, an occlusion) are
+found from their compensated gradient images (:func:`inconsistent_pixels`), flagged and left NaN.
+
 The displacements are taken relative to the sequence's reference time, the mean of its frames' times (the middle
 frame's time for odd K), which is where the twin's truth puts the scene
 (``TwinRig.motion_truth``). The decoder then samples frame k at x + d_k in the same device pass
