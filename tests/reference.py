@@ -104,3 +104,38 @@ def guided_filter_numpy(p, g, r, eps):
     a = cov / (var + eps)
     b = mp - a * mg
     return box(a) * gg + box(b)
+
+
+def linear_warp_ref(frames, A, shifts, dark=None, gain=None):
+    """Motion-compensated linear map in float64: y(x) = A s(x), s_k the corrected frame (o_k - dark) * gain sampled
+    bilinearly at x + d_k (``shifts`` (K, 2)) or at M_k (x, y, 1) (``shifts`` (K, 2, 3)); NaN where a sample point
+    lies outside [0, W-1] x [0, H-1]. Returns (y (H, W, B), outside (H, W) bool)."""
+    o = np.asarray(frames, np.float64)
+    K, h, w = o.shape
+    c = o - (0 if dark is None else np.asarray(dark, np.float64))
+    if gain is not None:
+        c = c * np.asarray(gain, np.float64)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    s = np.empty((K, h, w))
+    outside = np.zeros((h, w), bool)
+    for k in range(K):
+        m = np.asarray(shifts[k], np.float64)
+        if m.shape == (2,):
+            sx, sy = xx + m[0], yy + m[1]
+        elif m.shape == (2, h, w):
+            sx, sy = xx + m[0], yy + m[1]
+        else:
+            sx, sy = m[0, 0] * xx + m[0, 1] * yy + m[0, 2], m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
+        out = (sx < -1e-3) | (sy < -1e-3) | (sx > w - 1 + 1e-3) | (sy > h - 1 + 1e-3)
+        outside |= out
+        sx, sy = np.clip(sx, 0, w - 1), np.clip(sy, 0, h - 1)
+        x0 = np.minimum(np.floor(sx).astype(int), w - 1)
+        y0 = np.minimum(np.floor(sy).astype(int), h - 1)
+        x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+        fx, fy = sx - x0, sy - y0
+        ck = c[k]
+        s[k] = (ck[y0, x0] * (1 - fx) * (1 - fy) + ck[y0, x1] * fx * (1 - fy) + ck[y1, x0] * (1 - fx) * fy
+                + ck[y1, x1] * fx * fy)
+    y = np.tensordot(s, np.asarray(A, np.float64), axes=(0, 1))
+    y[outside] = np.nan
+    return y, outside

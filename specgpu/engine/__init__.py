@@ -52,6 +52,11 @@ from specgpu.engine.linear_map import (
     LinearResult,
     apply_linear,
 )
+from specgpu.engine.warp_map import (
+    MASK_OUTSIDE,
+    apply_linear_warped,
+    check_shifts,
+)
 from specgpu.engine.colorimetry import (
     DELTA_E_METHODS,
     FusedResult,
@@ -87,7 +92,10 @@ __all__ = [
     "VARIANTS",
     "VW",
     "XYZ_to_Lab",
+    "MASK_OUTSIDE",
     "apply_linear",
+    "apply_linear_warped",
+    "check_shifts",
     "build_options",
     "delta_E",
         "frames_to_delta_E",

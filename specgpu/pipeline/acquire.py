@@ -10,7 +10,7 @@ from pathlib import Path
 from specgpu.capture.session import capture_sequences
 from specgpu.hardware.drivers import open_driver
 from specgpu.io.recording import ZarrRecorder, check_free_space
-from specgpu.pipeline import recovery
+from specgpu.pipeline import moving, recovery
 from specgpu.pipeline.sinks import StreamResult
 
 __all__ = ["ZarrCapture", "capture_into", "keep_or_abort"]
@@ -52,7 +52,13 @@ def capture_into(writer, on_sequence, description, hardware, plan, bundle, truth
     """Capture on the twin (:func:`~specgpu.pipeline.recovery.capture_plan`) or the rig's devices, each complete
     sequence written as it arrives, then ``on_sequence()``; returns the capture's result."""
 
+    # a moving twin: each sequence's truth at its reference time kept beside its frames (a sequence folder)
+    record = moving.truth_recorder(writer.directory, description, plan, truth) \
+        if hardware is None and description.motion.any and hasattr(writer, "directory") else None
+
     def keep(sequence):
+        if record is not None:
+            record(writer.sequences, sequence)
         writer.add(sequence)
         on_sequence()
 

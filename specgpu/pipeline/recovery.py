@@ -25,6 +25,7 @@ from specgpu.core.spectra import DEFAULT_CMFS
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.evaluate import true_patch_spectra
+from specgpu.pipeline.moving import check_motion_mode, recover_moving
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
 from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
 from specgpu.planning.plans import Plan, load_plan, save_plan
@@ -395,7 +396,7 @@ def _capture_plan(directory: Path, records, meta) -> tuple[Plan, CalibrationBund
 
 
 def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None,
-            white_roi=None, white_reflectance=None) -> np.ndarray:
+            white_roi=None, white_reflectance=None, motion: str = "none") -> np.ndarray:
     """The plan's outputs (H, W, B) from a sequence folder: one sequence, or the mean of all (``sequence=None``:
     averaging repeated sequences of a still scene lowers the temporal noise).
 
@@ -421,6 +422,11 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         OpenCL device selector.
     white_roi, white_reflectance : optional
         The reference white in the field, as above.
+    motion : {"none", "global", "affine"}
+        ``"global"``: the scene moved during the sequence; a translation per frame (``"affine"``: an affine map,
+        for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`), the outputs are the scene at the sequence's
+        reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene
+        moves between sequences too): ``sequence`` is required unless the folder holds one.
 
     Returns
     -------
@@ -444,6 +450,9 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     >>> cube.shape[:2], bool(abs(np.nanmedian(cube) - 0.99) < 0.05)
     ((240, 320), True)
     """
+    if check_motion_mode(motion) != "none":
+        return _recover_moving(folder, sequence, white_roi, out_dtype, device,
+                               {"global": "translation"}.get(motion.lower(), motion.lower()))
     if white_roi is not None or ambient_index(folder.plan) is not None:
         plan, bundle = folder.plan, folder.calibration
         picked, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
@@ -474,6 +483,29 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     if saturated.any():
         y[saturated] = np.nan
     return y
+
+
+def _recover_moving(folder: SequenceFolder, sequence, white_roi, out_dtype, device, model) -> np.ndarray:
+    """:func:`recover` of one sequence of a moving scene (``motion="global"`` or ``"affine"``)."""
+    if sequence is None:
+        if folder.sequences != 1:
+            raise ValueError(f"motion=global recovers one sequence at a time (the scene moves between sequences); "
+                             f"{folder.path} holds {folder.sequences}: give the sequence (--sequence N)")
+        sequence = 0
+    if not 0 <= sequence < folder.sequences:
+        raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
+    if white_roi is not None or ambient_index(folder.plan) is not None:
+        raise ValueError("motion=global does not combine with a reference white or an ambient frame yet (both "
+                         "assume the same pixels in every frame)")
+    plan, bundle = folder.plan, folder.calibration
+    frames = folder.frames[sequence]
+    dark = bundle.dark_at(plan.exposure_s)
+    ratio = bundle.flat_ratio(plan.patterns)
+    if ratio is not None or bundle.reports.get("linearity_c_per_dn2", 0.0) > 0:
+        frames = _flatten_by_wavelength(frames, dark, ratio, bundle)
+    res = recover_moving(frames, plan.A, dark=dark, gain=bundle.flat_field, saturation=float(bundle.max_code),
+                         model=model, device=device)
+    return res.y.astype(out_dtype, copy=False)
 
 
 def _sequence_decoders(folder: SequenceFolder, sequence, white_roi, white_reflectance):

@@ -7,6 +7,7 @@ and every parameter can be overridden from a rig TOML (:func:`load_rig`).
 from specgpu.rig.camera import Camera, CameraParameters, sensitivity_curve
 from specgpu.rig.config import FaultRates, RigDescription, dump_rig, load_rig, rig_from_dict
 from specgpu.rig.light import LightParameters, PatternFit, ProgrammableLight, lamp_spd
+from specgpu.rig.motion import MotionParameters, MovingScene, Trajectory, motion_from_table, warp_image
 from specgpu.rig.scene import (BUILTIN_SCENES, SpectralScene, colorchecker_scene, load_scene, natural_scene,
                                read_scene, white_plate_scene, write_scene)
 from specgpu.rig.spectroradiometer import Spectroradiometer, SpectroradiometerParameters
@@ -16,6 +17,7 @@ __all__ = [
     "Camera", "CameraParameters", "sensitivity_curve",
     "FaultRates", "RigDescription", "dump_rig", "load_rig", "rig_from_dict",
     "LightParameters", "PatternFit", "ProgrammableLight", "lamp_spd",
+    "MotionParameters", "MovingScene", "Trajectory", "motion_from_table", "warp_image",
     "BUILTIN_SCENES", "SpectralScene", "colorchecker_scene", "load_scene", "natural_scene", "read_scene",
     "white_plate_scene", "write_scene",
     "Spectroradiometer", "SpectroradiometerParameters",

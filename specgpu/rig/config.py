@@ -22,6 +22,8 @@ A rig TOML has up to six tables; every key is optional and defaults to the paper
     stray_light_fraction = 0.003
     [drift]                      # Drift: the light's change since calibration (not in the rig fingerprint)
     lamp_cct_K = -200
+    [motion]                     # MotionParameters: the world moves during the capture (specgpu.rig.motion)
+    velocity_px_per_frame = [3.0, 0.0]
 
 ``[twin] profile`` is ``"ideal"`` (default: the twin is the planner's model) or ``"lab"`` (every imperfection on
 at a typical magnitude, :mod:`specgpu.rig.realism`); ``[twin] capture_delay_s`` is the time from a calibration's
@@ -41,6 +43,7 @@ from pathlib import Path
 from specgpu.core.validate import check_number
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.light import LightParameters
+from specgpu.rig.motion import MotionParameters, motion_from_table
 from specgpu.rig.realism import CAPTURE_DELAY_S, PROFILES, Drift, Realism, profile_realism
 from specgpu.rig.scene import _NATURAL_IMAGES
 from specgpu.rig.sensors import PRESETS, expand_preset
@@ -122,6 +125,7 @@ class RigDescription:
     realism: Realism | None = None  # None: the profile's
     drift: Drift = field(default_factory=Drift)
     capture_delay_s: float | None = None
+    motion: MotionParameters = field(default_factory=MotionParameters)
 
     def __post_init__(self):
         check_number("twin.seed", self.seed, low=0, high=2**63 - 1, integer=True)
@@ -152,10 +156,11 @@ class RigDescription:
             **({"hardware": dict(self.hardware)} if self.hardware else {}),
             **({"realism": self.realism.to_dict()} if self.realism != profile_realism(self.profile) else {}),
             **({"drift": self.drift.to_dict()} if self.drift.any else {}),
+            **({"motion": self.motion.to_dict()} if self.motion != MotionParameters() else {}),
         }
 
 
-_TABLES = ("light", "camera", "scene", "twin", "faults", "spectroradiometer", "hardware", "realism", "drift")
+_TABLES = ("light", "camera", "scene", "twin", "faults", "spectroradiometer", "hardware", "realism", "drift", "motion")
 _TWIN_KEYS = ("seed", "pacing", "profile", "capture_delay_s")
 _PATH_KEYS = {("light", "lamp"), ("camera", "sensitivity")}
 
@@ -244,6 +249,14 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
     given = _build(Realism, table, "realism", source, base)
     realism = dataclasses.replace(profile_realism(profile), **{k: getattr(given, k) for k in table})
     drift = _build(Drift, data.get("drift", {}), "drift", source, base)
+    motion = motion_from_table(data.get("motion", {}), source)
+    if motion.object and motion.object not in ("colorchecker", "white", "natural") \
+            and not motion.object.startswith("natural:"):
+        p = Path(motion.object)
+        obj = str(p if p.is_absolute() or base is None else base / p)
+        if not Path(obj).is_file():
+            raise ValueError(f"{source}: motion.object file not found: {obj}")
+        motion = dataclasses.replace(motion, object=obj)
     seed = twin.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ValueError(f"{source}: twin.seed must be an integer, got {seed!r}")
@@ -258,7 +271,8 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
         return RigDescription(light=light, camera=camera, scene=scene, seed=seed, pacing=pacing, faults=faults,
                               source=source, spectroradiometer=meter, hardware=hardware,
                               base_dir=str(base) if base is not None else "", profile=profile, realism=realism,
-                              drift=drift, capture_delay_s=None if delay is None else float(delay))
+                              drift=drift, capture_delay_s=None if delay is None else float(delay),
+                              motion=motion)
     except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
 
@@ -346,6 +360,10 @@ def dump_rig(description: RigDescription | None = None, *, hardware_defaults: di
     table("realism", {k: v for k, v in own.items() if v != profile[k]},
           {k: v for k, v in own.items() if v == profile[k]}, f"commented keys: the {d.profile} profile's values")
     table("drift", d.drift.to_dict(), note="the light's change since calibration (not in the rig fingerprint)")
+    still = MotionParameters().to_dict()
+    own = d.motion.to_dict()
+    table("motion", {k: v for k, v in own.items() if v != still[k]}, {k: v for k, v in own.items() if v == still[k]},
+          "the world moves during the capture; commented keys: a still world")
     if d.hardware:
         table("hardware", d.hardware)
     else:

@@ -33,7 +33,8 @@ from specgpu.core.validate import check_number
 from specgpu.rig.camera import _NORMAL_TABLE, Camera, standard_normal_fill
 from specgpu.rig.config import FaultRates, RigDescription
 from specgpu.rig.light import K_M, ProgrammableLight, lamp_change, photopic_y
-from specgpu.rig.scene import SpectralScene, load_scene, white_plate_scene
+from specgpu.rig.motion import MovingScene, Trajectory
+from specgpu.rig.scene import SpectralScene, interpolation_matrix, load_scene, white_plate_scene
 from specgpu.rig.spectroradiometer import Spectroradiometer
 
 __all__ = ["FaultSchedule", "TwinRig", "SNRReport", "measure_snr", "band_patterns"]
@@ -193,6 +194,7 @@ class TwinRig:
         """Photograph another scene (built-in name, path or :class:`SpectralScene`), resampled to the ROI."""
         self._scene = load_scene(scene, *self.camera.shape)
         self._maps = None
+        self._moving = None
 
     def load_sequence(self, patterns) -> None:
         """Load a (K, columns) pattern sequence into the light; the per-pattern frames are recomputed lazily."""
@@ -302,7 +304,88 @@ class TwinRig:
         self._maps = (mean_dn, offset_dn.astype(np.float32))
         self._chunk_scratch = np.empty(_CHUNK, np.float32)
         self._cct_slope = self._colour_slopes()
+        self._moving = self._moving_scene() if self.description.motion.any else None
         return self._maps
+
+    def _moving_scene(self) -> MovingScene:
+        """The per-pattern images of the scene (and of the ``[motion]`` object) before the field, for frames of a
+        moving world."""
+        d, r = self.description, self.realism
+        if self._field_terms() is not None or r.blur_px or r.lateral_ca_px:
+            raise ValueError(f"{d.source}: [motion] needs a rig without realism.vignetting, field_colour, blur_px "
+                             "and lateral_ca_px (they act on the sensor's image, not on the moving scene)")
+        h, w = self.camera.shape
+        wl = self.light.wavelengths
+        resp = self.camera.responsivity(wl)
+        weights = self.exposure_s * self.light.sequence_spectra * resp[None, :]
+        amb = self.exposure_s * ambient_spectrum(wl, r.ambient_lux) * resp if r.ambient_lux else None
+
+        def images(scene, wts):
+            wb = scene.band_weights(wl, wts).astype(np.float32)
+            return (wb @ scene.reflectance.reshape(-1, wb.shape[1]).T).reshape(-1, *scene.shape)
+
+        bg = images(self._scene, weights)
+        ambient = None if amb is None else images(self._scene, amb[None, :])[0]
+        m = d.motion
+        if not m.object:
+            return MovingScene(Trajectory(m, d.camera.frame_rate_hz, math.hypot(h, w) / 2), bg, ambient)
+        oh, ow = m.object_size_px if all(m.object_size_px) else (max(1, h // 3), max(1, w // 3))
+        obj = load_scene(m.object, min(oh, h), min(ow, w), resize="stretch")
+        y0, x0 = (h - obj.shape[0]) // 2, (w - obj.shape[1]) // 2
+        where = (slice(None), slice(y0, y0 + obj.shape[0]), slice(x0, x0 + obj.shape[1]))
+        canvas = np.zeros_like(bg)
+        canvas[where] = images(obj, weights)
+        alpha = np.zeros((h, w), np.float32)
+        alpha[where[1:]] = 1.0
+        cube = np.zeros((h, w, self._scene.wavelengths.size), np.float32)
+        cube[where[1:]] = obj.reflectance @ interpolation_matrix(self._scene.wavelengths, obj.wavelengths).T
+        self._object_cube = cube
+        oamb = None
+        if amb is not None:
+            oamb = np.zeros((h, w), np.float32)
+            oamb[where[1:]] = images(obj, amb[None, :])[0]
+        return MovingScene(Trajectory(m, d.camera.frame_rate_hz, math.hypot(h, w) / 2), bg, ambient, canvas, oamb, alpha)
+
+    def moving_mean(self, pattern_index: int, timestamp_s: float) -> np.ndarray:
+        """(H, W) noise-free signal (DN above the offset, float32) of a frame of a moving world exposed from
+        ``timestamp_s``: what :meth:`render` draws its noise around (the still world's is a per-pattern map)."""
+        mean_dn, _ = self._ensure_maps()
+        if self._moving is None:
+            return mean_dn[pattern_index]
+        period = self.frame_period_s
+        sig = self._moving.frame(pattern_index, timestamp_s / period, self.exposure_s / period, self.field)
+        sig *= self.camera.prnu
+        np.maximum(sig, 0.0, out=sig)
+        sig /= np.float32(self.camera.params.gain_e_per_dn)
+        return sig
+
+    def motion_truth(self, timestamps_s) -> dict:
+        """The truth of one sequence at its reference time, the mean of its frames' mid-exposure times.
+
+        Returns
+        -------
+        dict
+            ``reflectance`` (H, W, B) the scene as it is at the reference time; ``displacement`` (K, 2) each
+            frame's displacement (x, y) of the background from the reference time to its mid-exposure, px (a scene
+            point at x at the reference time is at x + displacement in that frame, the rotation aside);
+            ``maps`` (K, 2, 3) the affine maps of reference-time positions to each frame's (rotation included);
+            ``reference_time_s``; ``object_mask`` (H, W) the object's footprint at the reference time (None
+            without an object).
+        """
+        self._ensure_maps()
+        period = self.frame_period_s
+        mid = (np.asarray(timestamps_s, np.float64) + self.exposure_s / 2.0) / period
+        t_ref = float(np.mean(mid))
+        if self._moving is None:
+            return {"reflectance": self._scene.reflectance, "displacement": np.zeros((mid.size, 2)),
+                    "maps": np.tile(np.eye(2, 3), (mid.size, 1, 1)), "reference_time_s": t_ref * period,
+                    "object_mask": None}
+        tr = self._moving.trajectory
+        obj = self._object_cube if self._moving.object_images is not None else None
+        return {"reflectance": self._moving.reflectance(self._scene.reflectance, obj, t_ref),
+                "displacement": tr.displacement(mid) - tr.displacement(t_ref),
+                "maps": tr.maps(mid, t_ref, self.camera.shape),
+                "reference_time_s": t_ref * period, "object_mask": self._moving.object_mask(t_ref)}
 
     def _colour_slopes(self) -> np.ndarray | None:
         """(K,) relative change of each loaded pattern's output on a white per K of lamp colour temperature (from
@@ -399,6 +482,8 @@ class TwinRig:
         n = x.size
         xf, zf, of = x.reshape(-1), z.reshape(-1), out.reshape(-1)
         mean, offset = mean_dn[pattern_index].reshape(-1), offset_dn.reshape(-1)
+        if self._moving is not None:  # the world moves: this frame's own noise-free image, at its exposure time
+            mean = self.moving_mean(pattern_index, timestamp_s).reshape(-1)
         if self.noise == "pool":
             pool = self._noise_pool()
             base = int(rng.integers(0, pool.size - n + 1))

@@ -215,6 +215,7 @@ def _keys_read_by_load_rig() -> dict:
 
     from specgpu.hardware.rig import HardwareConfig
     from specgpu.rig.config import _TABLES, _TWIN_KEYS
+    from specgpu.rig.motion import MOTION_KEYS
     from specgpu.rig.realism import Drift, Realism
     from specgpu.rig.spectroradiometer import SpectroradiometerParameters
 
@@ -223,7 +224,8 @@ def _keys_read_by_load_rig() -> dict:
 
     keys = {"light": names(LightParameters), "camera": names(CameraParameters) | {"preset"}, "scene": {"source"},
             "twin": set(_TWIN_KEYS), "faults": names(FaultRates), "spectroradiometer": names(SpectroradiometerParameters),
-            "realism": names(Realism), "drift": names(Drift), "hardware": names(HardwareConfig)}
+            "realism": names(Realism), "drift": names(Drift), "hardware": names(HardwareConfig),
+            "motion": set(MOTION_KEYS)}
     assert set(keys) == set(_TABLES)  # a new table must be listed here too
     return keys
 

@@ -25,15 +25,20 @@ from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.pipeline import recovery
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery
+from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
 
-def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours, denoise=None):
-    """The recovery of ``folder`` (a refusal is one line naming why), denoised when ``denoise`` gives (radius,
-    eps), and the metadata of its outputs."""
+def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours, denoise=None,
+              motion="none"):
+    """The recovery of ``folder`` (a refusal is one line naming why), motion-compensated when ``motion`` is not
+    "none", denoised when ``denoise`` gives (radius, eps), and the metadata of its outputs."""
     try:
+        if denoise is not None and motion != "none":
+            raise ValueError("--denoise with --motion: the filter's guide (the sum of the frames) is not "
+                             "motion-compensated, so it would mix the surfaces the compensation separated")
         y = recovery.recover(folder, sequence=sequence, device=device, white_roi=white_roi,
-                             white_reflectance=white_reflectance)
+                             white_reflectance=white_reflectance, motion=motion)
         if denoise is not None:
             y = denoise_recovery(folder, y, sequence=sequence, radius=denoise[0], eps=denoise[1], device=device)
     except ValueError as error:
@@ -43,6 +48,8 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
                              white_roi=white_roi, white_reflectance=white_reflectance, untrusted=untrusted)
     if denoise is not None:
         meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
+    if motion != "none":
+        meta["motion"] = f"{motion} compensation of each frame, estimated within the sequence"
     return y, meta, untrusted
 
 
@@ -79,10 +86,14 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
               help="--denoise: window radius, px.")
 @click.option("--denoise-eps", type=Finite(min=1e-12, max=1e3), default=DENOISE_EPS, show_default=True,
               help="--denoise: regularisation, in units of the frame sum's 99th percentile squared.")
+@click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
+              show_default=True, help="Compensate a scene that moved: a translation (global) or an affine map "
+              "(affine) per frame, one sequence at a time; pixels seen outside the field or whose frames disagree "
+              "are NaN.")
 @RESIZE
 def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, sequence, half,
             sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize, denoise, denoise_radius,
-            denoise_eps):
+            denoise_eps, motion):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     if (ref is None) != (de_path is None):
         raise click.UsageError("--delta-e-ref and --delta-e go together")
@@ -100,7 +111,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
         if white_reflectance is not None and white_roi is None:
             raise click.UsageError("--white-reflectance needs --white-roi")
         y, meta, untrusted = recovered(folder, seq, sequence=sequence, device=device, colours=colours, **white,
-                                       denoise=(denoise_radius, denoise_eps) if denoise else None)
+                                       denoise=(denoise_radius, denoise_eps) if denoise else None, motion=motion)
         writes = recovery_writes(folder, y, meta, **paths, colours=colours, sequence=sequence, half=half,
                                  interleave=interleave, method=method, device=device, **white,
                                  denoise_radius=denoise_radius if denoise else None,
@@ -110,6 +121,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
         click.echo(f"Warning: {untrusted}", err=True)
     written = Staged().write_all(writes)  # all or nothing: no output replaced until every one is written
     saturated = int(np.isnan(y[..., 0]).sum())
-    note = f"; {saturated} saturated pixels left NaN" if saturated else ""
+    note = f"; {saturated} {'saturated or out-of-field' if motion != 'none' else 'saturated'} pixels left NaN" \
+        if saturated else ""
     click.echo(f"{folder.plan.method}: {folder.plan.K} projections, {folder.sequences} sequences in {seq}; wrote "
                + ", ".join(str(p) for p in written) + note)

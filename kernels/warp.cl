@@ -1,0 +1,124 @@
+/* specgpu motion-compensated linear kernel: y(x) = A s(x) with s_k(x) the corrected frame k sampled at x + d_k.
+ *
+ * A moving scene lands on different pixels in different frames of a sequence. Output pixel x is where a scene
+ * point is at the sequence's reference time; frame k saw that point at M_k (x, y, 1): a 2 x 3 affine map per frame
+ * (a translation d_k is (1, 0, dx_k; 0, 1, dy_k)), in pixels. The sample is the bilinear interpolation, at x + d_k, of the corrected frame
+ * c_k(p) = (o_k(p) - dark(p)) * gain(p): dark level and flat field belong to the sensor pixel p, so they are
+ * applied before interpolation (for d = 0 this is exactly A (o - dark) * gain of linear.cl).
+ *
+ * A pixel whose sample point of any frame lies outside the field [0, W-1] x [0, H-1] has no measurement: its
+ * outputs are NaN and its mask has bit 4 (MASK_OUTSIDE). Bit 1: a frame pixel used (non-zero weight) is at
+ * SAT_LEVEL; bit 2: a non-finite float input. One work-item per output pixel, planar output (B, N) float32.
+ *
+ * Macros (as common.h): K, B, IN_T, HAS_DARK (0 / 1 per pixel / 2 per frame), HAS_GAIN, SAT_LEVEL, IS_FLOAT_IN;
+ * FLOW = 1: a displacement per pixel and frame instead (dense motion, flow (K, 2, N): frame k saw pixel i at
+ * (x + flow[k][0][i], y + flow[k][1][i])), the affine maps unused.
+ * Arguments: frames (K, H, W), A (B x K, constant), motion (K x 6: the rows of M_k, constant), flow, dark, gain, out (B x N),
+ * mask (N), width, height.
+ */
+#include "common.h"
+
+#ifndef B
+#define B 1
+#endif
+#define MASK_OUTSIDE 4
+
+#ifndef FLOW
+#define FLOW 0
+#endif
+
+inline float corrected(__global const IN_T *restrict plane, __global const float *restrict dark,
+                       __global const float *restrict gain, uint k, ulong n, ulong p, float w, int *flags)
+{
+    const float v = (float)plane[p];
+#ifdef SAT_LEVEL
+    *flags |= (w > 0.0f && v >= SAT_LEVEL) ? MASK_SATURATED : 0;
+#endif
+#if IS_FLOAT_IN
+    *flags |= (w > 0.0f && !isfinite(v)) ? MASK_NONFINITE : 0;
+#endif
+    float c = v;
+#if HAS_DARK == 1
+    c -= dark[p];
+#elif HAS_DARK == 2
+    c -= dark[(ulong)k * n + p];
+#endif
+#if HAS_GAIN
+    c *= gain[p];
+#endif
+    return w > 0.0f ? c * w : 0.0f; /* a zero weight never lets a NaN neighbour in */
+}
+
+/* Frame k's corrected sample at M_k (x, y, 1), bilinear; flags MASK_OUTSIDE (and returns 0) off the field. */
+inline float warp_sample(__global const IN_T *restrict frames, __constant const float *restrict motion,
+                         __global const float *restrict flow, __global const float *restrict dark,
+                         __global const float *restrict gain, uint k, ulong n, int x, int y, uint width, uint height,
+                         int *flags)
+{
+#if FLOW
+    const ulong i = (ulong)y * width + x;
+    const float sx = (float)x + flow[2 * k * n + i], sy = (float)y + flow[(2 * k + 1) * n + i];
+#else
+    __constant const float *m = motion + 6 * k;
+    const float sx = m[0] * (float)x + (m[1] * (float)y + m[2]);
+    const float sy = m[3] * (float)x + (m[4] * (float)y + m[5]);
+#endif
+    /* a tolerance of 1/1024 px keeps a sample that lands on the border by rounding; no branch, so the work-items
+     * of a group stay in step (PoCL vectorises across them) */
+    const int inside = sx >= -0.0009765625f && sy >= -0.0009765625f && sx <= (float)(width - 1) + 0.0009765625f
+                       && sy <= (float)(height - 1) + 0.0009765625f;
+    *flags |= inside ? 0 : MASK_OUTSIDE;
+    const float cx = clamp(sx, 0.0f, (float)(width - 1)), cy = clamp(sy, 0.0f, (float)(height - 1));
+    const int x0 = min((int)cx, (int)width - 1), y0 = min((int)cy, (int)height - 1);
+    const int x1 = min(x0 + 1, (int)width - 1), y1 = min(y0 + 1, (int)height - 1);
+    const float fx = cx - (float)x0, fy = cy - (float)y0;
+    __global const IN_T *plane = frames + (ulong)k * n;
+    const ulong r0 = (ulong)y0 * width, r1 = (ulong)y1 * width;
+    return corrected(plane, dark, gain, k, n, r0 + x0, (1.0f - fx) * (1.0f - fy), flags)
+         + corrected(plane, dark, gain, k, n, r0 + x1, fx * (1.0f - fy), flags)
+         + corrected(plane, dark, gain, k, n, r1 + x0, (1.0f - fx) * fy, flags)
+         + corrected(plane, dark, gain, k, n, r1 + x1, fx * fy, flags);
+}
+
+__kernel void linear_warp(__global const IN_T *restrict frames,
+                          __constant const float *restrict A,
+                          __constant const float *restrict motion,
+                          __global const float *restrict flow,
+                          __global const float *restrict dark,
+                          __global const float *restrict gain,
+                          __global float *restrict out,
+                          __global uchar *restrict mask,
+                          const uint width,
+                          const uint height)
+{
+    const ulong i = get_global_id(0);
+    const ulong n = (ulong)width * height;
+    if (i >= n) return;
+    const int x = (int)(i % width), y = (int)(i / width);
+    int flags = 0;
+#if K <= 128
+    /* the K samples in named registers (PoCL keeps a private array in memory), the products unrolled */
+#define W_SAMPLE(k) const float s##k = warp_sample(frames, motion, flow, dark, gain, k, n, x, y, width, height, &flags);
+#define W_FMA(k) acc = row[k] * s##k + acc;
+    REP_(K, W_SAMPLE)
+    const int outside = flags & MASK_OUTSIDE;
+    for (uint b = 0; b < B; ++b) {
+        __constant const float *row = A + b * K;
+        float acc = 0.0f;
+        REP_(K, W_FMA)
+        out[(ulong)b * n + i] = outside ? NAN : acc; /* planar: consecutive work-items, consecutive addresses */
+    }
+#else
+    float s[K];
+    for (uint k = 0; k < K; ++k)
+        s[k] = warp_sample(frames, motion, flow, dark, gain, k, n, x, y, width, height, &flags);
+    const int outside = flags & MASK_OUTSIDE;
+    for (uint b = 0; b < B; ++b) {
+        __constant const float *row = A + b * K;
+        float acc = 0.0f;
+        for (uint k = 0; k < K; ++k) acc = row[k] * s[k] + acc;
+        out[(ulong)b * n + i] = outside ? NAN : acc;
+    }
+#endif
+    mask[i] = (uchar)flags;
+}

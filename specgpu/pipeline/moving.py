@@ -1,0 +1,520 @@
+"""Motion of a scene during a sequence, estimated on the host, and the motion-compensated recovery it drives.
+
+A sequence takes K frame periods; anything that moves in that time lands on different pixels in different frames.
+**Global** motion (the scene or the camera translates, shakes on its tripod) is one displacement per frame. It is
+estimated here by phase correlation (``skimage.registration.phase_cross_correlation``, sub-pixel by its upsampled
+DFT) between each frame and a reference frame of the same sequence, on images that do not depend on the light's
+spectrum: the gradient magnitude of each dark-subtracted, flat-fielded frame normalised by its mean. Edges stay
+where they are whatever the illuminant, while the relative brightness of two surfaces does not; the gradient
+magnitude keeps the first and discards the sign of the second, and phase correlation whitens what is left. So no
+extra frame is needed and the latency is the sequence itself. (Registering a frame with the same pattern's frame of
+the previous sequence also avoids the spectrum, but the sensor's fixed pattern, still on the sensor while the
+scene moves, then pulls the estimate to zero, and a vibration near the sequence rate is invisible at lag K.)
+
+An **affine** map per frame (a rotation, a zoom) is fitted to the translations of a grid of tiles; each frame's
+global translation is checked against its tiles too, so that an object moving on its own over the scene cannot
+take the estimate over. After compensation, pixels whose frames still disagree (the object, an occlusion) are
+found from their compensated gradient images (:func:`inconsistent_pixels`), flagged and left NaN.
+
+The displacements are taken relative to the sequence's reference time, the mean of its frames' times (the middle
+frame's time for odd K), which is where the twin's truth puts the scene
+(``TwinRig.motion_truth``). The decoder then samples frame k at x + d_k in the same device pass
+(:func:`specgpu.engine.warp_map.apply_linear_warped`); pixels some frame saw outside the field are NaN and flagged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import fft, ndimage
+from skimage.registration import phase_cross_correlation
+
+from specgpu.core.validate import validate_method
+from specgpu.engine.warp_map import apply_linear_warped
+from specgpu.io.npz import write_cube_npz
+from specgpu.rig.twin import TwinRig
+
+__all__ = ["MASK_INCONSISTENT", "inconsistent_pixels", "MOTION_MODES", "MotionEstimate", "MovingRecovery", "check_motion_mode", "estimate_global_motion",
+           "recover_moving", "registration_image", "truth_recorder", "TRUTH_FOLDER"]
+
+#: How frames are decoded with respect to motion: as they are, or compensated for a global translation per frame.
+MOTION_MODES = {
+    "none": "decode every pixel's samples where they are (a still scene)",
+    "global": "estimate a translation per frame (phase correlation of gradient images) and sample frame k at x + d_k",
+    "affine": "estimate an affine map per frame (translation, rotation, zoom; tiles registered and fitted) and "
+              "sample frame k at M_k x",
+}
+# A coarse tile flow (estimate_global_motion(model="flow")) exists for study but is no mode yet: on the twin's moving
+# chart it lowers the error for one plan and raises it for another (tools/motion_study.py, object-flow rows).
+
+#: A frame whose mean signal is below this share of the brightest frame's is not registered (a dark or ambient
+#: frame): its displacement is interpolated in time from the others.
+MIN_SIGNAL_SHARE = 0.05
+
+#: A pair's registration that disagrees by more than this (px) with the least-squares solution of all the others
+#: is dropped (a failed correlation peak); with ``pairs="all"`` each frame is registered to up to 16 others.
+OUTLIER_PX = 0.5
+
+
+@dataclass(frozen=True)
+class MotionEstimate:
+    """Displacements of one sequence's frames.
+
+    Attributes
+    ----------
+    shifts : numpy.ndarray
+        (K, 2) displacement (x, y) of each frame from the reference time, px.
+    registered : numpy.ndarray
+        (K,) bool: the frame was registered (False: interpolated from the others).
+    error : numpy.ndarray
+        (K,) phase correlation's translation-invariant normalised RMS error of each registration (NaN if not
+        registered): near 1 when the two images share little.
+    reference_frame : int
+        The frame the others were registered to.
+    model : str
+        ``"translation"``: ``shifts`` is (K, 2); ``"affine"``: (K, 2, 3), frame k saw the point at reference
+        position x at ``shifts[k] @ (x, y, 1)``.
+    """
+
+    shifts: np.ndarray
+    registered: np.ndarray
+    error: np.ndarray
+    reference_frame: int
+    model: str = "translation"
+
+
+def gradient_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarray:
+    """The spectrum-independent image a frame is registered on: gradient magnitude (Sobel) of the
+    dark-subtracted, flat-fielded frame over its mean, float32; ``binning`` averages b x b pixels first."""
+    f = np.asarray(frame, np.float32)
+    if dark is not None:
+        f = f - np.asarray(dark, np.float32)
+    if gain is not None:
+        f = f * np.asarray(gain, np.float32)
+    if binning > 1:
+        h, w = (f.shape[0] // binning) * binning, (f.shape[1] // binning) * binning
+        f = f[:h, :w].reshape(h // binning, binning, w // binning, binning).mean(axis=(1, 3))
+    mean = float(np.mean(f))
+    f = f / mean if mean > 0 else f
+    return np.hypot(ndimage.sobel(f, 0), ndimage.sobel(f, 1))
+
+
+def hann(image: np.ndarray) -> np.ndarray:
+    """``image`` under a 2-D Hann window (phase correlation assumes periodic images)."""
+    wy = np.hanning(image.shape[0]).astype(np.float32)
+    wx = np.hanning(image.shape[1]).astype(np.float32)
+    return image * wy[:, None] * wx[None, :]
+
+
+def registration_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarray:
+    """:func:`gradient_image` under a Hann window."""
+    return hann(gradient_image(frame, dark, gain, binning=binning))
+
+
+def _whitened(image: np.ndarray, cutoff: float) -> np.ndarray:
+    """Phase-only spectrum of ``image`` weighted towards low spatial frequencies: a sub-pixel shift of a sampled
+    image is a linear phase only well below the Nyquist frequency (interpolation and the pixels' own footprint
+    bend it towards zero near it, which would bias the estimate towards no motion)."""
+    F = fft.fft2(image)
+    fy = fft.fftfreq(F.shape[0])[:, None]
+    fx = fft.fftfreq(F.shape[1])[None, :]
+    return F / np.maximum(np.abs(F), 1e-30) * np.exp(-0.25 * (fx**2 + fy**2) / cutoff**2)
+
+
+def _register(a: np.ndarray, b: np.ndarray, upsample: int) -> tuple[np.ndarray, float]:
+    """(x, y) displacement of the content of whitened spectrum ``b`` relative to ``a``, and the error."""
+    shift, err, _ = phase_cross_correlation(a, b, upsample_factor=upsample, normalization=None, space="fourier")
+    return -np.asarray(shift[::-1], np.float64), float(err)
+
+
+def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int | None = None,
+                           upsample: int = 50, binning: int = 1, pairs: str = "all", cutoff: float = 0.12,
+                           max_gap: int = 8, model: str = "translation", tiles: int = 4,
+                           robust: bool = True, flow_tiles: tuple = (6, 8)) -> MotionEstimate:
+    """A translation per frame of one sequence, relative to the sequence's reference time.
+
+    Parameters
+    ----------
+    frames : array_like, (K, H, W)
+        The raw frames of one sequence.
+    dark : array_like, (H, W) or (K, H, W), optional
+        Dark level subtracted before registration.
+    gain : array_like, (H, W), optional
+        Flat field applied before registration (the light's spot and the lens's falloff stay on the sensor; left
+        in, they pull the estimate towards zero).
+    reference_frame : int, optional
+        The frame the others are registered to (default: the brightest of the middle three).
+    upsample : int
+        Sub-pixel resolution 1 / upsample px of the phase correlation peak.
+    binning : int
+        Average b x b pixels before registering (b times faster FFTs; the shifts are scaled back).
+    cutoff : float
+        Standard deviation (cycles per pixel) of the Gaussian weight on the spatial frequencies of the whitened
+        cross-power spectrum.
+    pairs : {"all", "reference"}
+        Register every pair of frames at most ``max_gap`` apart and solve for the displacements by least squares
+        (for K = 9, all 36 pairs: each frame's error averaged over 8 registrations), or each frame to the
+        reference frame only (K - 1 registrations).
+    max_gap : int
+        The furthest apart (in frames) two frames registered with ``pairs="all"`` are.
+    model : {"translation", "affine", "flow"}
+        A displacement per frame, or an affine map per frame (rotation, zoom, shear): each frame's translation is
+        refined by registering ``tiles`` x ``tiles`` tiles of it to the reference frame and fitting the map; or a
+        coarse flow: ``flow_tiles`` (rows, columns) tiles registered, their displacements interpolated to every
+        pixel (an object moving on its own; ``shifts`` is then (K, 2, H, W)). Experimental: tiles that straddle
+        two motions take one of them, so it is not offered as a recovery mode.
+    robust : bool
+        Translation model: check each frame's whole-image translation against its tiles' median and take the
+        tiles' consensus where they disagree (an object moving over the scene can dominate the whole-image
+        correlation); costs ``tiles``^2 small registrations per frame.
+
+    Returns
+    -------
+    MotionEstimate
+        Each frame's displacement from the position at the reference time (the middle frame's for odd K, the mean
+        of the middle two's for even K); a frame too dark to register (below :data:`MIN_SIGNAL_SHARE` of the
+        brightest) is interpolated linearly in time.
+    """
+    frames = np.asarray(frames)
+    if frames.ndim != 3:
+        raise ValueError(f"frames must be (K, H, W), got shape {frames.shape}")
+    K = frames.shape[0]
+    upsample = int(upsample)
+    if upsample < 1:
+        raise ValueError(f"upsample must be >= 1, got {upsample}")
+    dark = None if dark is None else np.asarray(dark, np.float32)
+    per_frame_dark = dark is not None and dark.ndim == 3
+
+    def dark_of(k):
+        return None if dark is None else (dark[k] if per_frame_dark else dark)
+
+    level = np.array([float(np.mean(frames[k], dtype=np.float64)) - (0.0 if dark is None else float(np.mean(dark_of(k))))
+                      for k in range(K)])
+    usable = level >= MIN_SIGNAL_SHARE * max(float(level.max()), 1e-30)
+    if usable.sum() < 1:
+        raise ValueError("no frame of the sequence has signal to register")
+    if reference_frame is None:
+        middle = [k for k in range(max(0, K // 2 - 1), min(K, K // 2 + 2)) if usable[k]]
+        reference_frame = max(middle or list(np.flatnonzero(usable)), key=lambda k: level[k])
+    if model not in ("translation", "affine", "flow"):
+        raise ValueError(f"model must be one of translation, affine, flow, got {model!r}")
+    if model != "translation" and binning != 1:
+        raise ValueError(f"model={model!r} registers tiles at full resolution: binning must be 1")
+    if pairs not in ("all", "reference"):
+        raise ValueError(f"pairs must be one of all, reference, got {pairs!r}")
+    if not 0 <= reference_frame < K or not usable[reference_frame]:
+        raise ValueError(f"reference_frame {reference_frame} is not a usable frame of the {K}")
+    spectra, gradients = {}, {}
+
+    def gradient(k):
+        if k not in gradients:
+            gradients[k] = gradient_image(frames[k], dark_of(k), gain, binning=binning)
+        return gradients[k]
+
+    def spectrum(k):
+        if k not in spectra:
+            spectra[k] = _whitened(hann(gradient(k)), cutoff)
+        return spectra[k]
+
+    idx = np.flatnonzero(usable)
+    if pairs == "reference":
+        links = [(reference_frame, int(k)) for k in idx if k != reference_frame]
+    else:  # every pair up to max_gap frames apart: K - 1 unknowns from up to K (K - 1) / 2 measurements
+        links = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:] if b - a <= max_gap]
+    rows, rhs, errs = [], [], {}
+    for a, b in links:
+        d, err = _register(spectrum(a), spectrum(b), upsample)
+        row = np.zeros(K)
+        row[b], row[a] = 1.0, -1.0
+        rows.append(row)
+        rhs.append(d * binning)  # x, y of frame b less those of frame a
+        errs.setdefault(a, []).append(err)
+        errs.setdefault(b, []).append(err)
+    raw = np.full((K, 2), np.nan)
+    raw[reference_frame] = 0.0
+    others = [int(k) for k in idx if k != reference_frame]
+    if others:
+        M, rhs = np.asarray(rows)[:, others], np.asarray(rhs)
+        keep = np.ones(len(rows), bool)
+        for _ in range(4):  # drop registrations that disagree with the others (a failed peak), then solve again
+            sol, *_ = np.linalg.lstsq(M[keep], rhs[keep], rcond=None)  # the reference frame is held at 0
+            residual = np.abs(M @ sol - rhs).max(axis=1)
+            bad = residual > max(OUTLIER_PX, 4.0 * float(np.median(residual[keep])))
+            if not (bad & keep).any() or np.linalg.matrix_rank(M[keep & ~bad]) < len(others):
+                break
+            keep &= ~bad
+        raw[others] = sol
+    error = np.array([np.mean(errs[k]) if k in errs else np.nan for k in range(K)])
+    # the reference time is the mean of the frames' times: the middle frame's for odd K, half-way between the
+    # middle two for even K
+    mid = (K - 1) / 2.0
+    lo, hi = int(np.floor(mid)), int(np.ceil(mid))
+    if model == "flow":
+        return MotionEstimate(_flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, flow_tiles, usable,
+                                          lo, hi), usable, error, int(reference_frame), model)
+    if model == "translation":
+        if robust and binning == 1:
+            for k in idx:
+                if k != reference_frame:
+                    raw[k] = _dominant_translation(gradient(reference_frame), gradient(int(k)), raw[k], upsample,
+                                                   cutoff, tiles)
+        raw = _fill_in_time(raw, usable)
+        return MotionEstimate(raw - 0.5 * (raw[lo] + raw[hi]), usable, error, int(reference_frame), model)
+    maps = np.tile(np.eye(3), (K, 1, 1))
+    for k in idx:
+        if k != reference_frame:
+            maps[k] = _affine_to(gradient(reference_frame), gradient(int(k)), raw[k], upsample, cutoff, tiles)
+    maps = _fill_in_time(maps, usable)
+    to_mid = np.linalg.inv(0.5 * (maps[lo] + maps[hi]))
+    return MotionEstimate((maps @ to_mid)[:, :2, :], usable, error, int(reference_frame), model)
+
+
+def _flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, tiles, usable, lo, hi) -> np.ndarray:
+    """(K, 2, H, W) displacement per pixel and frame from the reference time: each frame's tiles registered to the
+    reference frame's around the frame's global translation (a tile off the field, or one whose correlation error
+    is above :data:`FLOW_MAX_ERROR`, a weak peak, keeps the global translation),
+    interpolated bilinearly between the tiles' centres."""
+    g_ref = gradient(reference_frame)
+    h, w = g_ref.shape
+    ty, tx = tiles
+    th, tw = h // ty, w // tx
+    K = raw.shape[0]
+    grids = np.zeros((K, 2, ty, tx))
+    for k in idx:
+        grids[k] = np.asarray(raw[k])[:, None, None]
+        if k == reference_frame:
+            continue
+        src, dst = _tile_displacements(g_ref, gradient(int(k)), raw[k], upsample, cutoff, (ty, tx),
+                                       max_error=FLOW_MAX_ERROR)
+        for c, d in zip(src, dst - src):
+            grids[k, :, int(round((c[1] - (th - 1) / 2.0) / th)), int(round((c[0] - (tw - 1) / 2.0) / tw))] = d
+    grids = _fill_in_time(grids, usable)
+    grids = grids - 0.5 * (grids[lo] + grids[hi])
+    yy = (np.arange(h) - (th - 1) / 2.0) / th
+    xx = (np.arange(w) - (tw - 1) / 2.0) / tw
+    coords = np.meshgrid(yy, xx, indexing="ij")
+    out = np.empty((K, 2, h, w), np.float32)
+    for k in range(K):
+        for c in range(2):
+            out[k, c] = ndimage.map_coordinates(grids[k, c], coords, order=1, mode="nearest")
+    return out
+
+
+def _fill_in_time(values: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """``values`` (K, ...) of the frames not ``usable`` linear in time between (or beyond) the nearest two usable
+    frames."""
+    values = values.copy()
+    idx = np.flatnonzero(usable)
+    for k in np.flatnonzero(~usable):
+        if idx.size == 1:
+            values[k] = values[idx[0]]
+            continue
+        lo, hi = idx[idx < k][-1:], idx[idx > k][:1]
+        a, b = (lo[0], hi[0]) if lo.size and hi.size else tuple(idx[:2] if not lo.size else idx[-2:])
+        values[k] = values[a] + (values[b] - values[a]) * (k - a) / (b - a)
+    return values
+
+
+def _tile_displacements(g_ref, g_k, shift, upsample: int, cutoff: float, tiles, max_error: float = 1.0):
+    """Centres (N, 2) of the tiles of a ``tiles`` x ``tiles`` (or (rows, columns)) grid of the reference image and
+    where frame k saw each (N, 2): every tile registered where the global ``shift`` puts it (tiles it moves off
+    the field skipped, and those whose correlation error is above ``max_error``)."""
+    h, w = g_ref.shape
+    ty, tx = (tiles, tiles) if np.isscalar(tiles) else tiles
+    th, tw = h // ty, w // tx
+    t = np.rint(np.asarray(shift)).astype(int)
+    src, dst = [], []
+    for i in range(ty):
+        for j in range(tx):
+            y0, x0 = i * th, j * tw
+            ys, xs = y0 + t[1], x0 + t[0]
+            if ys < 0 or xs < 0 or ys + th > h or xs + tw > w:
+                continue
+            d, err = _register(_whitened(hann(g_ref[y0:y0 + th, x0:x0 + tw]), cutoff),
+                               _whitened(hann(g_k[ys:ys + th, xs:xs + tw]), cutoff), upsample)
+            if err > max_error:
+                continue
+            c = np.array([x0 + (tw - 1) / 2.0, y0 + (th - 1) / 2.0])
+            src.append(c)
+            dst.append(c + t + d)
+    return np.reshape(src, (-1, 2)), np.reshape(dst, (-1, 2))
+
+
+def _dominant_translation(g_ref, g_k, shift, upsample: int, cutoff: float, tiles: int) -> np.ndarray:
+    """The translation most of the field shares: ``shift`` (the whole-image registration) unless the tiles'
+    median is more than :data:`OUTLIER_PX` from it (a smaller, strongly textured object moving on its own
+    dominates the whole-image correlation), then the mean of the tiles within :data:`OUTLIER_PX` of their
+    median."""
+    src, dst = _tile_displacements(g_ref, g_k, shift, upsample, cutoff, tiles)
+    if len(src) < 3:
+        return np.asarray(shift, np.float64)
+    d = dst - src
+    med = np.median(d, axis=0)
+    if np.abs(med - shift).max() <= OUTLIER_PX:
+        return np.asarray(shift, np.float64)
+    near = np.abs(d - med).max(axis=1) <= OUTLIER_PX
+    return d[near].mean(axis=0) if near.sum() >= 3 else med
+
+
+def _affine_to(g_ref: np.ndarray, g_k: np.ndarray, shift, upsample: int, cutoff: float, tiles: int) -> np.ndarray:
+    """(3, 3) affine map of reference-frame positions to frame k's: the tiles' displacements
+    (:func:`_tile_displacements`) fitted by least squares, tiles more than :data:`OUTLIER_PX` off the fit dropped;
+    the global translation where fewer than 3 tiles register."""
+    src, dst = _tile_displacements(g_ref, g_k, shift, upsample, cutoff, tiles)
+    out = np.eye(3)
+    out[:2, 2] = shift
+    if len(src) < 3:
+        return out
+    X = np.c_[src, np.ones(len(src))]
+    Y = dst
+    keep = np.ones(len(src), bool)
+    for _ in range(4):
+        M, *_ = np.linalg.lstsq(X[keep], Y[keep], rcond=None)
+        residual = np.abs(X @ M - Y).max(axis=1)
+        bad = residual > max(OUTLIER_PX, 4.0 * float(np.median(residual[keep])))
+        if not (bad & keep).any() or (keep & ~bad).sum() < 3:
+            break
+        keep &= ~bad
+    out[:2] = M.T
+    return out
+
+
+#: A tile of the flow whose phase correlation error is above this found no clear peak (too little structure, or
+#: structure that differs between the two illuminants); it keeps its frame's global translation.
+FLOW_MAX_ERROR = 0.95
+
+#: Mask bit of a pixel whose compensated frames disagree (an object moving on its own, an occlusion).
+MASK_INCONSISTENT = 8
+
+
+def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9, threshold: float = 0.3,
+                        texture: float = 0.5, own: float = 4.0) -> np.ndarray:
+    """(H, W) bool: pixels where the motion-compensated frames disagree, so their decoded spectrum would mix
+    surfaces.
+
+    Each frame's :func:`gradient_image` is sampled where the motion says that frame saw each pixel; where the
+    motion is right, their edges coincide whatever the illuminant (their contrasts differ, not their places). Per
+    pixel, the normalised cross-correlation over a ``window`` x ``window`` neighbourhood between each compensated
+    gradient image and their median is computed; a pixel is inconsistent where the median has texture (local
+    energy above ``texture`` times the field's mean) and some frame with structure of its own there (local energy
+    above ``own`` times its median: not just noise) correlates below ``threshold``. Untextured regions are never
+    flagged: there, samples from a few pixels away hold the same spectrum.
+    """
+    frames = np.asarray(frames)
+    K, h, w = frames.shape
+    dark = None if dark is None else np.asarray(dark, np.float32)
+    maps = np.asarray(shifts, np.float64)
+    if maps.shape == (K, 2):
+        maps = np.concatenate([np.tile(np.eye(2), (K, 1, 1)), maps[:, :, None]], axis=2)
+    flow = maps.shape == (K, 2, h, w)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    aligned = np.empty((K, h, w), np.float32)
+    for k in range(K):
+        g = gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
+        m = maps[k]
+        if flow:
+            sx, sy = xx + m[0], yy + m[1]
+        else:
+            sx = m[0, 0] * xx + m[0, 1] * yy + m[0, 2]
+            sy = m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
+        aligned[k] = ndimage.map_coordinates(g, [sy, sx], order=1, mode="nearest")
+    ref = np.median(aligned, axis=0)
+
+    def box(a):
+        return ndimage.uniform_filter(a, window, mode="nearest")
+
+    mr = box(ref)
+    vr = np.maximum(box(ref * ref) - mr * mr, 0.0)
+    textured = vr > texture * float(np.mean(vr))
+    worst = np.ones((h, w), np.float32)
+    for k in range(K):
+        a = aligned[k]
+        ma = box(a)
+        va = np.maximum(box(a * a) - ma * ma, 0.0)
+        ncc = (box(a * ref) - ma * mr) / np.sqrt(np.maximum(va * vr, 1e-30))
+        # only where this frame has structure of its own above its noise (a dim, noisy frame correlates with
+        # nothing, and says nothing about the motion)
+        ncc[va <= own * float(np.median(va))] = 1.0
+        np.minimum(worst, ncc, out=worst)
+    return textured & (worst < threshold)
+
+
+def check_motion_mode(motion) -> str:
+    """``motion`` as a key of :data:`MOTION_MODES` (an unknown one is an error listing them)."""
+    validate_method(motion, MOTION_MODES, "motion")
+    return motion.lower()
+
+
+@dataclass(frozen=True)
+class MovingRecovery:
+    """A motion-compensated recovery: the outputs at the reference time, the mask and each sequence's motion."""
+
+    y: np.ndarray
+    mask: np.ndarray
+    estimates: list
+
+
+def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 50, binning: int = 1,
+                   shifts=None, model: str = "translation", check: bool = True, device=None) -> MovingRecovery:
+    """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
+    with frame k sampled at x + d_k in one device pass.
+
+    Parameters
+    ----------
+    frames : array_like, (K, H, W)
+    A : array_like, (B, K)
+    dark, gain, saturation
+        As :func:`specgpu.engine.apply_linear`.
+    upsample, binning, model
+        Of :func:`estimate_global_motion`.
+    shifts : array_like, (K, 2) or (K, 2, 3), optional
+        Known displacements (e.g. the twin's truth); no estimation then.
+    check : bool
+        Flag (mask bit 8) and leave NaN the pixels whose compensated frames disagree
+        (:func:`inconsistent_pixels`): an object moving on its own, an occlusion.
+    device : optional
+        OpenCL device selector.
+
+    Returns
+    -------
+    MovingRecovery
+        ``y`` (H, W, B) float32, NaN where a pixel was seen outside the field, saturated or inconsistent;
+        ``mask`` (H, W) uint8 (1 saturated, 2 non-finite, 4 outside the field, 8 inconsistent); ``estimates`` [MotionEstimate] (empty with ``shifts``).
+    """
+    estimates = []
+    if shifts is None:
+        est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model)
+        estimates.append(est)
+        shifts = est.shifts
+    res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True, device=device)
+    y, mask = res.y, res.mask
+    if check:
+        bad = inconsistent_pixels(frames, shifts, dark, gain)
+        mask[bad] |= MASK_INCONSISTENT
+    y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
+    return MovingRecovery(y, mask, estimates)
+
+
+#: Sub-folder of a sequence folder captured on a moving twin that holds each sequence's truth.
+TRUTH_FOLDER = "motion_truth"
+
+
+def truth_recorder(directory, description, plan, scene):
+    """A callable ``(index, sequence)`` that writes the truth of each sequence captured on a moving twin into
+    ``directory/motion_truth/sequence_<index>.npz``: a scene cube (``wavelengths``, ``reflectance``: the scene at
+    the sequence's reference time, so ``specgpu evaluate CUBE --truth`` reads it), with ``displacement`` (K, 2),
+    each frame's true displacement from the reference time, px, and ``reference_time_s``."""
+    rig = TwinRig(plan.rig_description(description), scene=scene)
+    rig.load_sequence(plan.patterns)
+    folder = Path(directory) / TRUTH_FOLDER
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def record(index: int, sequence) -> Path:
+        truth = rig.motion_truth(sequence.timestamps_s)
+        return write_cube_npz(folder / f"sequence_{index:04d}.npz", truth["reflectance"], rig.scene.wavelengths,
+                              extra={"displacement": truth["displacement"],
+                                     "reference_time_s": np.array(truth["reference_time_s"])})
+
+    return record

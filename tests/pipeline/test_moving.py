@@ -1,0 +1,141 @@
+"""Global motion estimation and motion-compensated recovery on the moving twin."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from specgpu.calibration.bundle import oracle_calibration
+from specgpu.engine.linear_map import apply_linear
+from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, estimate_global_motion,
+                                     inconsistent_pixels, recover_moving)
+from specgpu.pipeline.recovery import SequenceFolder, recover
+from specgpu.planning.registry import make_plan
+from specgpu.rig import CameraParameters, RigDescription, natural_scene
+from specgpu.rig.motion import MotionParameters
+from specgpu.rig.twin import TwinRig
+
+CAM = CameraParameters(roi_width=320, roi_height=240, frame_rate_hz=200.0, exposure_s=0.0049)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    desc = RigDescription(camera=CAM)
+    bundle = oracle_calibration(desc)
+    plan = make_plan("narrowband", bundle, step_nm=50.0, max_exposure_s=0.0049)  # 7 bands, 400-700 nm
+    return desc, bundle, plan, natural_scene(240, 320)
+
+
+def frames_of(desc, plan, scene, motion, seed=5):
+    """One sequence of ``plan`` on the moving twin, rendered frame by frame, with its truth."""
+    rig = TwinRig(plan.rig_description(replace(desc, motion=motion)), scene=scene, seed=seed)
+    rig.load_sequence(plan.patterns)
+    ts = np.arange(plan.K) * rig.frame_period_s
+    frames = np.stack([rig.render(k, k, ts[k])[0] for k in range(plan.K)])
+    return frames, rig.motion_truth(ts)
+
+
+@pytest.mark.parametrize("motion", [MotionParameters(velocity_px_per_frame=(3.0, 1.0)),
+                                    MotionParameters(velocity_px_per_frame=(-0.37, 1.21)),
+                                    MotionParameters(vibration_rms_px=0.5, vibration_hz=20.0, seed=2)])
+def test_registration_recovers_known_shifts_within_a_tenth_of_a_pixel(setup, motion):
+    desc, bundle, plan, scene = setup
+    frames, truth = frames_of(desc, plan, scene, motion)
+    est = estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field)
+    assert est.registered.all()
+    np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.1)
+    np.testing.assert_array_equal(est.shifts[plan.K // 2], 0.0)  # odd K: the middle frame is at the reference time
+
+
+def test_a_still_sequence_registers_at_zero(setup):
+    desc, bundle, plan, scene = setup
+    frames, _ = frames_of(desc, plan, scene, MotionParameters())
+    est = estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field)
+    assert np.abs(est.shifts).max() <= 0.05
+
+
+def test_a_dark_frame_is_interpolated_not_registered(setup):
+    desc, bundle, plan, scene = setup
+    frames, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(2.0, 0.0)))
+    dark = bundle.dark_at(plan.exposure_s)
+    frames = frames.copy()
+    frames[2] = np.rint(dark).astype(frames.dtype)
+    est = estimate_global_motion(frames, dark, bundle.flat_field)
+    assert est.registered.tolist() == [k != 2 for k in range(plan.K)]
+    np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.1)
+
+
+def test_compensation_brings_the_moving_error_back_to_the_still_one(setup):
+    desc, bundle, plan, scene = setup
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    still, _ = frames_of(desc, plan, scene, MotionParameters())
+    moving, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(3.0, 1.0)))
+    idx = [int(np.argmin(np.abs(scene.wavelengths - w))) for w in plan.output_wavelengths]
+
+    def rmse(y, refl):
+        return float(np.sqrt(np.nanmean((y[12:-12, 20:-20] - refl[12:-12, 20:-20][..., idx]) ** 2)))
+
+    e_still = rmse(apply_linear(still, plan.A, dark, gain), scene.reflectance)
+    e_moving = rmse(apply_linear(moving, plan.A, dark, gain), truth["reflectance"])
+    res = recover_moving(moving, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code))
+    e_comp = rmse(res.y, truth["reflectance"])
+    assert e_moving > 2 * e_still
+    assert e_comp < 1.3 * e_still
+    # the field's edges that some frame did not see are NaN and flagged, the rest is finite
+    outside = (res.mask & 4) > 0
+    assert outside[:, :9].all() and outside[:, -9:].all() and outside[:3].all() and outside[-3:].all()
+    assert not outside[4:-4, 10:-10].any()
+    assert np.isnan(res.y[outside]).all() and np.isfinite(res.y[res.mask == 0]).all()
+    assert ((res.mask & MASK_INCONSISTENT) > 0).mean() < 0.02  # few false alarms where the motion is right
+
+
+def test_recover_with_motion_is_recover_moving_of_the_same_frames(setup):
+    desc, bundle, plan, scene = setup
+    moving, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(1.5, 0.5)))
+    folder = SequenceFolder(Path("<memory>"), moving[None], plan, bundle, [], {})
+    y = recover(folder, motion="global")
+    ref = recover_moving(moving, plan.A, dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field,
+                         saturation=float(bundle.max_code)).y
+    np.testing.assert_array_equal(np.isnan(y), np.isnan(ref))
+    np.testing.assert_allclose(y, ref, rtol=1e-6, atol=1e-7)
+    two = SequenceFolder(Path("two"), np.stack([moving, moving]), plan, bundle, [], {})
+    with pytest.raises(ValueError, match="one sequence at a time"):
+        recover(two, motion="global")
+    assert np.isfinite(recover(two, motion="global", sequence=1)[120, 160]).all()
+
+
+def test_motion_modes_are_checked():
+    assert check_motion_mode("GLOBAL") == "global" and set(MOTION_MODES) >= {"none", "global"}
+    with pytest.raises(ValueError, match="motion='flow' is not one of"):
+        check_motion_mode("flow")
+
+
+def test_an_object_moving_on_its_own_is_flagged_not_decoded(setup):
+    """A chart moving over the still scene: the background's motion is found despite it, and the chart's
+    textured pixels, whose frames disagree after compensation, are flagged and NaN; elsewhere almost nothing."""
+    desc, bundle, plan, scene = setup
+    m = MotionParameters(object="colorchecker", object_velocity_px_per_frame=(3.0, 0.0))
+    frames, truth = frames_of(desc, plan, scene, m)
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code))
+    np.testing.assert_allclose(res.estimates[0].shifts, 0.0, atol=0.1)  # the background stands still
+    flagged = (res.mask & MASK_INCONSISTENT) > 0
+    inside = truth["object_mask"] > 0.5
+    assert flagged[inside].mean() > 0.15 and flagged[~inside].mean() < 0.03
+    assert np.isnan(res.y[flagged]).all()
+    still, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(1.0, 0.5)))
+    est = estimate_global_motion(still, dark, gain)
+    assert inconsistent_pixels(still, est.shifts, dark, gain).mean() < 0.03  # 50 nm bands: their edges differ most
+
+
+def test_the_coarse_flow_of_a_translation_is_that_translation(setup):
+    desc, bundle, plan, scene = setup
+    frames, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(2.0, 1.0)))
+    est = estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field, model="flow",
+                                 flow_tiles=(3, 4))
+    assert est.shifts.shape == (plan.K, 2, 240, 320)
+    err = np.abs(est.shifts - truth["displacement"][:, :, None, None])
+    assert np.median(err) < 0.05 and np.percentile(err, 95) < 0.3  # an 80 x 80 px tile: a few tenths at worst

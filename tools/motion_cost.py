@@ -1,0 +1,83 @@
+"""What motion compensation costs per sequence: the decoding pass with and without the warp, and the host's motion
+estimation and consistency check, on frames of the moving twin.
+
+Medians over ``--repeats`` calls (after one warm-up), at 640 x 480 with a 9-frame plan decoded to 31 outputs by
+default, on the OpenCL device specgpu picks; the rates are sequences per second of each step alone.
+
+    PYTHONPATH=. python tools/motion_cost.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from specgpu.engine.linear_map import apply_linear
+from specgpu.engine.runtime import get_queue
+from specgpu.engine.warp_map import apply_linear_warped
+from specgpu.pipeline.moving import estimate_global_motion, inconsistent_pixels
+from specgpu.rig import CameraParameters, RigDescription, natural_scene
+from specgpu.rig.motion import MotionParameters
+from specgpu.rig.twin import TwinRig
+
+
+def median_s(fn, repeats):
+    fn()
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--width", type=int, default=640)
+    ap.add_argument("--height", type=int, default=480)
+    ap.add_argument("--frames", type=int, default=9)
+    ap.add_argument("--outputs", type=int, default=31)
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args(argv)
+    h, w, K = args.height, args.width, args.frames
+    desc = RigDescription(camera=CameraParameters(roi_width=w, roi_height=h, frame_rate_hz=200.0, exposure_s=0.0049),
+                          motion=MotionParameters(velocity_px_per_frame=(2.4, 1.8)))
+    rig = TwinRig(desc, scene=natural_scene(h, w))
+    cols = rig.light.params.columns
+    patterns = np.zeros((K, cols), np.int32)
+    for k in range(K):  # K broad, overlapping bands
+        patterns[k, k * cols // (K + 1):(k + 2) * cols // (K + 1)] = rig.light.params.rows
+    rig.load_sequence(patterns)
+    frames = np.stack([rig.render(k, k, k * rig.frame_period_s)[0] for k in range(K)])
+    A = np.random.default_rng(0).normal(0, 1, (args.outputs, K))
+    dark = np.full((h, w), 16.0, np.float32)
+    gain = np.ones((h, w), np.float32)
+    queue = get_queue()
+    est = estimate_global_motion(frames, dark, gain)
+    print(f"{w} x {h}, K = {K}, B = {args.outputs}, uint16 frames, device {queue.device.name.strip()}; "
+          f"median of {args.repeats}")
+    rows = [
+        ("decode (linear.cl)", lambda: apply_linear(frames, A, dark, gain, device=queue)),
+        ("decode with a shift per frame (warp.cl)",
+         lambda: apply_linear_warped(frames, A, est.shifts, dark, gain, device=queue)),
+        ("estimate: translation, every pair (36)", lambda: estimate_global_motion(frames, dark, gain, robust=False)),
+        ("estimate: translation, to the reference (8)",
+         lambda: estimate_global_motion(frames, dark, gain, pairs="reference", robust=False)),
+        ("estimate: translation, to the reference, 2x2 binned",
+         lambda: estimate_global_motion(frames, dark, gain, pairs="reference", robust=False, binning=2)),
+        ("estimate: translation, every pair + tile check (default)",
+         lambda: estimate_global_motion(frames, dark, gain)),
+        ("estimate: affine", lambda: estimate_global_motion(frames, dark, gain, model="affine")),
+        ("consistency check", lambda: inconsistent_pixels(frames, est.shifts, dark, gain)),
+    ]
+    base = None
+    for name, fn in rows:
+        s = median_s(fn, args.repeats)
+        base = base or s
+        print(f"  {name:<58} {s * 1e3:9.1f} ms  {1.0 / s:8.1f} seq/s  {s / base:6.2f} x decode")
+
+
+if __name__ == "__main__":
+    main()
