@@ -59,3 +59,10 @@ def test_motion_needs_one_sequence(moving, tmp_path):
                    "one sequence at a time", "--sequence")
     one_line_error(run("recover", moving / "seq", "--out", tmp_path / "c.npz", "--motion", "flow", ok=False),
                    "--motion", code=2)
+
+
+def test_denoise_with_motion_is_refused_and_writes_nothing(moving, tmp_path):
+    result = run("recover", moving / "seq", "--out", tmp_path / "c.npz", "--sequence", "0", "--motion", "global",
+                 "--denoise", ok=False)
+    one_line_error(result, "--denoise with --motion", "not motion-compensated")
+    assert not (tmp_path / "c.npz").exists()
