@@ -2,11 +2,11 @@
 with the ambient frame it adds, and a budget too short for the frames is one line."""
 
 import pytest
+from cli_helpers import RIG, one_line_error, run
 
 from specgpu.calibration.bundle import oracle_calibration, save_calibration
 from specgpu.planning import load_plan
 from specgpu.rig.config import load_rig
-from tests.cli_helpers import RIG, one_line_error, run
 
 
 @pytest.fixture(scope="module")

@@ -3,9 +3,10 @@ it cannot carry in one line."""
 
 import json
 
+from cli_helpers import RIG, one_line_error, run
+
 from specgpu.calibration.bundle import oracle_calibration, save_calibration
 from specgpu.rig.config import load_rig
-from tests.cli_helpers import RIG, one_line_error, run
 
 
 def test_stream_denoise(tmp_path):

@@ -4,10 +4,11 @@ flat field (noise averaged down as the mean of box means predicts); one-line ref
 import numpy as np
 import pyopencl.array as cla
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from reference import guided_filter_numpy
 
 from specgpu.engine.guided import box_box_variance, guided_filter
-from tests.reference import guided_filter_numpy
 
 
 @pytest.mark.parametrize("shape, r, eps", [((61, 47, 5), 1, 1e-3), ((40, 70, 31), 3, 1e-2), ((9, 13, 2), 10, 0.5),

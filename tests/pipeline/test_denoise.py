@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import RIG, one_line_error, run
 
 import specgpu.planning as E
 from specgpu.calibration.bundle import oracle_calibration, save_calibration
@@ -15,7 +16,6 @@ from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, unc
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene, natural_scene
-from tests.cli_helpers import RIG, one_line_error, run
 
 DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
 

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from cli_helpers import one_line_error, run
 
 import specgpu.planning as E
 from specgpu.calibration.bundle import oracle_calibration
@@ -14,7 +15,6 @@ from specgpu.planning import design as D
 from specgpu.planning.bound import design_bound, frame_information, waterfill_mse
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
-from tests.cli_helpers import one_line_error, run
 
 DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
 

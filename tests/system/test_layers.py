@@ -305,3 +305,15 @@ def test_programmable_light_is_a_light_source_once_capture_is_loaded():
     from specgpu.rig.light import ProgrammableLight
 
     assert isinstance(ProgrammableLight(), LightSource)
+
+
+def test_tests_import_their_helpers_as_ci_runs_them():
+    """`pytest` (as CI runs it) puts tests/ on the path, not the repository: a helper is `cli_helpers`, never
+    `tests.cli_helpers`, which imports only under `python -m pytest` from the repository's root."""
+    bad = []
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            bad += [f"{path.relative_to(ROOT)}:{node.lineno}" for n in names if n.split(".")[0] == "tests"]
+    assert not bad, bad
