@@ -230,9 +230,9 @@ def add_layers(viewer, layers) -> list:
 def open_viewer(path, *, show: bool = True, run: bool = True):
     """A napari viewer on a specgpu path (cube or map, sequence folder, recording) with the spectrum dock widget;
     ``run`` starts napari's event loop (returns when the window closes). Returns the viewer."""
+    layers = read_layers(path)  # first: a path that is not specgpu's is refused with or without napari
     import napari
 
-    layers = read_layers(path)
     viewer = napari.Viewer(title=f"specgpu: {path}", show=show)
     add_layers(viewer, layers)
     viewer.window.add_dock_widget(SpectrumWidget(viewer), name="Spectrum", area="right")
