@@ -26,3 +26,8 @@ def spectra():
 @pytest.fixture(scope="module")
 def prior(spectra):
     return E.prior_from_spectra(spectra, WL, "test")
+
+
+def noise_at(exposure_s):
+    """The noise model of DESC's camera at an exposure (s)."""
+    return E.NoiseModel.from_rig(DESC, exposure_s)

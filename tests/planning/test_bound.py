@@ -10,27 +10,15 @@ import pytest
 from cli_helpers import one_line_error, run
 
 import specgpu.planning as E
-from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning import design as D
 from specgpu.planning.bound import design_bound, frame_information, waterfill_mse
-from specgpu.rig.camera import CameraParameters
-from specgpu.rig.config import RigDescription
 
-DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
-
-
-@pytest.fixture(scope="module")
-def bundle():
-    return oracle_calibration(DESC)
+from estimator_helpers import noise_at  # the bundle fixture: tests/planning/conftest.py
 
 
 @pytest.fixture(scope="module")
 def prior():
     return E.default_prior()
-
-
-def noise_at(t):
-    return E.NoiseModel.from_rig(DESC, t)
 
 
 def test_frame_information_is_the_box_maximum():

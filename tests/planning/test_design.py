@@ -10,29 +10,16 @@ import pytest
 from specgpu.planning import design as D
 import specgpu.planning as E
 from specgpu.apps import estimator_study as study
-from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning import make_plan
 from specgpu.engine.linear_map import apply_linear
-from specgpu.rig.camera import CameraParameters
-from specgpu.rig.config import RigDescription
 from specgpu.rig.twin import TwinRig
 
-H, W = 240, 320
-DESC = RigDescription(camera=CameraParameters(roi_width=W, roi_height=H))
-
-
-@pytest.fixture(scope="module")
-def bundle():
-    return oracle_calibration(DESC)
+from estimator_helpers import DESC, H, W, noise_at  # the bundle fixture: tests/planning/conftest.py
 
 
 @pytest.fixture(scope="module")
 def prior():
     return E.default_prior()
-
-
-def noise_at(t):
-    return E.NoiseModel.from_rig(DESC, t)
 
 
 def test_objective_gradient_matches_finite_differences(prior):
