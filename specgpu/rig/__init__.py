@@ -8,8 +8,16 @@ from specgpu.rig.camera import Camera, CameraParameters, sensitivity_curve
 from specgpu.rig.config import FaultRates, RigDescription, dump_rig, load_rig, rig_from_dict
 from specgpu.rig.light import LightParameters, PatternFit, ProgrammableLight, lamp_spd
 from specgpu.rig.motion import MotionParameters, MovingScene, Trajectory, motion_from_table, warp_image
-from specgpu.rig.scene import (BUILTIN_SCENES, SpectralScene, colorchecker_scene, load_scene, natural_scene,
-                               read_scene, white_plate_scene, write_scene)
+from specgpu.rig.scene import (
+                               BUILTIN_SCENES,
+                               SpectralScene,
+                               colorchecker_scene,
+                               load_scene,
+                               natural_scene,
+                               read_scene,
+                               white_plate_scene,
+                               write_scene,
+)
 from specgpu.rig.spectroradiometer import Spectroradiometer, SpectroradiometerParameters
 from specgpu.rig.twin import FaultSchedule, SNRReport, TwinRig, band_patterns, measure_snr
 

@@ -48,6 +48,7 @@ from specgpu.rig.realism import CAPTURE_DELAY_S, PROFILES, Drift, Realism, profi
 from specgpu.rig.scene import _NATURAL_IMAGES
 from specgpu.rig.sensors import PRESETS, expand_preset
 from specgpu.rig.spectroradiometer import SpectroradiometerParameters
+from specgpu.rig.tables import build_table
 
 __all__ = ["FaultRates", "RigDescription", "load_rig", "rig_from_dict", "dump_rig", "PACING"]
 
@@ -162,45 +163,6 @@ class RigDescription:
 
 _TABLES = ("light", "camera", "scene", "twin", "faults", "spectroradiometer", "hardware", "realism", "drift", "motion")
 _TWIN_KEYS = ("seed", "pacing", "profile", "capture_delay_s")
-_PATH_KEYS = {("light", "lamp"), ("camera", "sensitivity")}
-
-
-def _build(cls, table: dict, section: str, source: str, base: Path | None, converters: dict | None = None):
-    valid = {f.name: f for f in fields(cls)}
-    kwargs = {}
-    for key, value in table.items():
-        if key not in valid:
-            raise ValueError(f"{source}: unknown key {section}.{key}; valid keys: {', '.join(valid)}")
-        default = valid[key].default
-        if isinstance(default, bool) or isinstance(value, bool):
-            kind = {int: "an integer", float: "a number", str: "a string"}.get(type(default), "a list")
-            raise ValueError(f"{source}: {section}.{key} must be {kind}, got {value!r}")
-        if isinstance(default, str):
-            if not isinstance(value, str):
-                raise ValueError(f"{source}: {section}.{key} must be a string, got {value!r}")
-            if (section, key) in _PATH_KEYS and base is not None and value not in ("xenon", "kinoton-75p", "cmos"):
-                p = Path(value)
-                value = str(p if p.is_absolute() else base / p)
-                if not Path(value).is_file():
-                    raise ValueError(f"{source}: {section}.{key} file not found: {value}")
-        elif isinstance(default, tuple):
-            if not isinstance(value, list) or len(value) != len(default):
-                raise ValueError(f"{source}: {section}.{key} must be a list of {len(default)} numbers, got {value!r}")
-            value = tuple(value)
-        elif isinstance(default, int) and not isinstance(default, bool):
-            if isinstance(value, float) and value.is_integer():
-                value = int(value)
-            if not isinstance(value, int):
-                raise ValueError(f"{source}: {section}.{key} must be an integer, got {value!r}")
-        elif isinstance(default, float):
-            if not isinstance(value, (int, float)):
-                raise ValueError(f"{source}: {section}.{key} must be a number, got {value!r}")
-            value = float(value)
-        kwargs[key] = value
-    try:
-        return cls(**kwargs)
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
 
 
 def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDescription:
@@ -213,12 +175,12 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
             raise ValueError(f"{source}: unknown table [{table}]; valid tables: {', '.join(_TABLES)}")
         if not isinstance(value, dict):
             raise ValueError(f"{source}: [{table}] must be a table, got {value!r}")
-    light = _build(LightParameters, data.get("light", {}), "light", source, base)
+    light = build_table(LightParameters, data.get("light", {}), "light", source, base)
     try:  # [camera] preset = "cmv4000": the preset's values under the keys given (specgpu.rig.sensors)
         camera_table = expand_preset(data.get("camera", {}))
     except ValueError as error:
         raise ValueError(f"{source}: {error}") from None
-    camera = _build(CameraParameters, camera_table, "camera", source, base)
+    camera = build_table(CameraParameters, camera_table, "camera", source, base)
     scene_table = dict(data.get("scene", {}))
     extra = set(scene_table) - {"source"}
     if extra:
@@ -246,9 +208,9 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
     if delay is not None and (isinstance(delay, bool) or not isinstance(delay, (int, float))):
         raise ValueError(f"{source}: twin.capture_delay_s must be a number, got {delay!r}")
     table = data.get("realism", {})
-    given = _build(Realism, table, "realism", source, base)
+    given = build_table(Realism, table, "realism", source, base)
     realism = dataclasses.replace(profile_realism(profile), **{k: getattr(given, k) for k in table})
-    drift = _build(Drift, data.get("drift", {}), "drift", source, base)
+    drift = build_table(Drift, data.get("drift", {}), "drift", source, base)
     motion = motion_from_table(data.get("motion", {}), source)
     if motion.object and motion.object not in ("colorchecker", "white", "natural") \
             and not motion.object.startswith("natural:"):
@@ -261,8 +223,8 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ValueError(f"{source}: twin.seed must be an integer, got {seed!r}")
     pacing = twin.get("pacing", "free")
-    faults = _build(FaultRates, data.get("faults", {}), "faults", source, base)
-    meter = _build(SpectroradiometerParameters, data.get("spectroradiometer", {}), "spectroradiometer", source, base)
+    faults = build_table(FaultRates, data.get("faults", {}), "faults", source, base)
+    meter = build_table(SpectroradiometerParameters, data.get("spectroradiometer", {}), "spectroradiometer", source, base)
     hardware = dict(data.get("hardware", {}))
     for key, value in hardware.items():
         if isinstance(value, (dict, list)):

@@ -28,6 +28,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from specgpu.core.validate import check_number
+from specgpu.rig.tables import build_table
 
 __all__ = ["MotionParameters", "MOTION_KEYS", "motion_from_table", "MovingScene", "Trajectory", "warp_image"]
 
@@ -113,26 +114,7 @@ MOTION_KEYS = tuple(f.name for f in fields(MotionParameters))
 def motion_from_table(table, source: str = "<dict>") -> MotionParameters:
     """The ``[motion]`` table of a rig TOML as :class:`MotionParameters`; every error is one line naming the
     file and the key."""
-    if not isinstance(table, dict):
-        raise ValueError(f"{source}: [motion] must be a table, got {table!r}")
-    kwargs = {}
-    for key, value in table.items():
-        if key not in MOTION_KEYS:
-            raise ValueError(f"{source}: unknown key motion.{key}; valid keys: {', '.join(MOTION_KEYS)}")
-        default = MotionParameters.__dataclass_fields__[key].default
-        if isinstance(default, bool) and not isinstance(value, bool):
-            raise ValueError(f"{source}: motion.{key} must be true or false, got {value!r}")
-        if isinstance(default, (int, float)) and not isinstance(default, bool) and isinstance(value, bool):
-            raise ValueError(f"{source}: motion.{key} must be a number, got {value!r}")
-        if isinstance(default, tuple):
-            if not isinstance(value, list) or len(value) != 2 or any(isinstance(c, bool) for c in value):
-                raise ValueError(f"{source}: motion.{key} must be a list of 2 numbers, got {value!r}")
-            value = tuple(value)
-        kwargs[key] = value
-    try:
-        return MotionParameters(**kwargs)
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
+    return build_table(MotionParameters, table, "motion", source)
 
 
 def warp_image(image: np.ndarray, shift, angle_deg: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:
