@@ -13,6 +13,8 @@ from io import BytesIO
 import colour
 import numpy as np
 
+from specgpu.io.previews import sRGB8
+
 __all__ = ["DELTA_E_LABEL", "SIGMA_LABEL", "figure_png", "rgb_png", "sRGB_rendering", "map_figure",
            "spectra_figure", "illuminant_figure", "common_scale"]
 
@@ -61,10 +63,7 @@ def sRGB_rendering(XYZ, illuminant: str = "D65") -> np.ndarray:
     xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"].get(illuminant)
     if xy is None:
         raise ValueError(f"unknown illuminant {illuminant!r} for an sRGB rendering")
-    arr = np.nan_to_num(np.asarray(XYZ, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    with np.errstate(invalid="ignore", over="ignore"):
-        rgb = colour.XYZ_to_sRGB(arr, illuminant=np.asarray(xy))
-    return np.round(np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
+    return sRGB8(XYZ, xy)
 
 
 def common_scale(maps, percentile: float = 95.0, floor: float = 1e-6) -> float:

@@ -20,7 +20,9 @@ import colour
 import numpy as np
 
 from specgpu import io
+from specgpu.apps.report_figures import sRGB_rendering
 from specgpu.core.spectra import XYZ_weights
+from specgpu.io.previews import sRGB8
 from specgpu.io.sequence import read_frames
 from specgpu.pipeline.recovery import SequenceFolder, read_capture_header, recover
 
@@ -66,11 +68,7 @@ def sRGB_of_cube(cube, wavelengths, illuminant: str = "D65", axis: int = -1):
     W = XYZ_weights(np.asarray(wavelengths, np.float64), illuminant).astype(np.float32)
 
     def render(block):  # wavelengths on the last axis
-        b = np.asarray(block, np.float32)
-        XYZ = np.nan_to_num(b @ W.T, nan=0.0, posinf=0.0, neginf=0.0)
-        with np.errstate(invalid="ignore", over="ignore"):
-            rgb = colour.XYZ_to_sRGB(XYZ, illuminant=np.asarray(xy))
-        return np.round(np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
+        return sRGB8(np.asarray(block, np.float32) @ W.T, xy)
 
     if hasattr(cube, "map_blocks"):  # a Dask array: one rendering per block (per sequence)
         import dask.array as da
@@ -116,10 +114,7 @@ def map_layers(path) -> list:
     kind = meta.get("kind") or ("XYZ" if tuple(names) == ("X", "Y", "Z") else "map")
     if tuple(names) == ("X", "Y", "Z"):
         illuminant = meta.get("illuminant") if meta.get("illuminant") in ILLUMINANTS else "D65"
-        xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"][illuminant]
-        with np.errstate(invalid="ignore", over="ignore"):
-            rgb = colour.XYZ_to_sRGB(np.nan_to_num(data.astype(np.float64)), illuminant=np.asarray(xy))
-        rgb8 = np.round(np.clip(np.nan_to_num(rgb), 0, 1) * 255).astype(np.uint8)
+        rgb8 = sRGB_rendering(data, illuminant)
         return [(rgb8, {"name": f"sRGB ({illuminant})", "rgb": True, "metadata": _meta("sRGB", path)}, "image"),
                 (np.moveaxis(data, -1, 0), {"name": ["X", "Y", "Z"], "channel_axis": 0, "visible": False,
                                             "colormap": ["red", "green", "blue"], "contrast_limits": [(0.0, 1.0)] * 3,

@@ -58,6 +58,7 @@ from specgpu.io.previews import (
     read_png,
     write_delta_E_png,
     write_png,
+    sRGB8,
     write_sRGB_preview,
 )
 from specgpu.io.recording import (
@@ -159,6 +160,7 @@ __all__ = [
     "write_failed",
     "write_map",
     "write_png",
+    "sRGB8",
     "write_sRGB_preview",
     "write_sequence",
     "write_target",

@@ -17,7 +17,7 @@ from specgpu.core.text import one_line
 from specgpu.io.exr import write_image
 from specgpu.io.paths import _suffix
 
-__all__ = ["PERCEPTUAL_COLORMAPS", "write_png", "write_sRGB_preview", "write_delta_E_png", "read_png"]
+__all__ = ["PERCEPTUAL_COLORMAPS", "sRGB8", "write_png", "write_sRGB_preview", "write_delta_E_png", "read_png"]
 
 # ---- previews ------------------------------------------------------------------------------------------------------
 #: Perceptually uniform matplotlib colormaps accepted for heat maps.
@@ -41,6 +41,16 @@ def _auto_exposure_ev(Y: np.ndarray, percentile: float = 99.0) -> float:
     finite = Y[np.isfinite(Y)]
     level = float(np.percentile(finite, percentile)) if finite.size else 0.0
     return 0.0 if level <= 0 else -math.log2(level)
+
+
+def sRGB8(XYZ, illuminant=None) -> np.ndarray:
+    """(..., 3) uint8 sRGB of XYZ (Y = 1 for the white at code 255), chromatically adapted (CAT02) from the white
+    of chromaticity ``illuminant`` (xy; None: D65) to sRGB's; NaN and infinite values render black."""
+    arr = np.nan_to_num(np.asarray(XYZ, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    kwargs = {} if illuminant is None else {"illuminant": np.asarray(illuminant, np.float64)}
+    with np.errstate(invalid="ignore", over="ignore"):
+        rgb = colour.XYZ_to_sRGB(arr, **kwargs)
+    return np.round(np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def write_sRGB_preview(path, XYZ, *, exposure="auto", illuminant=None, metadata=None) -> Path:
@@ -85,9 +95,7 @@ def write_sRGB_preview(path, XYZ, *, exposure="auto", illuminant=None, metadata=
     kwargs = {}
     if illuminant is not None:
         kwargs["illuminant"] = np.asarray(illuminant, dtype=np.float64)
-    with np.errstate(invalid="ignore", over="ignore"):
-        rgb = colour.XYZ_to_sRGB(np.nan_to_num(arr * 2.0 ** ev, nan=0.0, posinf=0.0, neginf=0.0), **kwargs)
-    rgb8 = np.round(np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
+    rgb8 = sRGB8(arr * 2.0 ** ev, kwargs.get("illuminant"))
     attrs = {"specgpu:exposure_EV": repr(ev), "ImageDescription": f"sRGB preview of XYZ, exposure {ev:+.3f} EV"}
     attrs.update({str(k): v for k, v in (metadata or {}).items()})
     return write_png(path, rgb8, attrs)
