@@ -14,6 +14,7 @@ Nothing here imports Qt or napari: readers return napari's layer-data tuples ``(
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import colour
@@ -142,9 +143,13 @@ def sequence_layers(path, *, illuminant="D65") -> list:
     recorded = meta.get("metadata", {}) or {}
     roi = recorded.get("white_roi")
 
+    # the frames layer, the cube and its sRGB are computed apart by napari: each sequence is read and recovered
+    # once, for the sequence shown and the one before it
+    @functools.lru_cache(maxsize=2)
     def frames_of(s):
         return read_frames(path, records, meta, s * K, (s + 1) * K)
 
+    @functools.lru_cache(maxsize=2)
     def recovered(s):
         one = SequenceFolder(path, frames_of(s)[None], plan, bundle, records, meta)
         return recover(one, white_roi=roi)
