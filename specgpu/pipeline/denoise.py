@@ -47,14 +47,20 @@ def _mean_frames(folder, sequence):
     return frames, dark, used.shape[0], amb
 
 
+def guide_row(plan) -> np.ndarray:
+    """(1, K) decoder of the guide: the sum of every frame but an ambient one."""
+    row = np.ones((1, plan.K))
+    amb = ambient_index(plan)
+    if amb is not None:
+        row[0, amb] = 0.0
+    return row
+
+
 def sequence_guide(folder, *, sequence: int | None = None, device=None) -> np.ndarray:
     """(H, W) float32: the sum of the plan's frames above dark, flat-fielded (the ambient frame left out), of one
     sequence or the mean of all, divided by its 99th percentile."""
-    frames, dark, _, amb = _mean_frames(folder, sequence)
-    row = np.ones((1, folder.plan.K))
-    if amb is not None:
-        row[0, amb] = 0.0
-    g = np.asarray(apply_linear(frames, row, dark, folder.calibration.flat_field, device=device))[..., 0]
+    frames, dark, _, _ = _mean_frames(folder, sequence)
+    g = np.asarray(apply_linear(frames, guide_row(folder.plan), dark, folder.calibration.flat_field, device=device))[..., 0]
     level = float(np.nanpercentile(g, 99)) if np.isfinite(g).any() else 0.0
     if not level > 0:
         raise ValueError(f"{folder.path}: the frames hold no light above dark: nothing to guide the denoising")
@@ -128,10 +134,5 @@ def stream_denoise(plan, outputs, cube_dtype, denoise) -> dict:
                          "recording's frames with recover --denoise)")
     if "cube" in outputs and np.dtype(cube_dtype) != np.float32:
         raise ValueError("--denoise needs a float32 cube (leave --half out)")
-    row = np.ones((1, plan.K))
-    amb = ambient_index(plan)
-    if amb is not None:
-        row[0, amb] = 0.0
-    U, s, _ = np.linalg.svd(np.asarray(plan.A, np.float64), full_matrices=False)
-    m = int(plan.params.get("m", np.sum(s > s[0] * 1e-9))) if s.size else 0
-    return {"radius": r, "eps": e, "row": row, "channels": {"coefficients": m, "cube": plan.A.shape[0], "XYZ": 3}}
+    m = int(plan.params["m"]) if "m" in plan.params else output_subspace(plan).shape[1]
+    return {"radius": r, "eps": e, "row": guide_row(plan), "channels": {"coefficients": m, "cube": plan.A.shape[0], "XYZ": 3}}
