@@ -450,9 +450,10 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     >>> cube.shape[:2], bool(abs(np.nanmedian(cube) - 0.99) < 0.05)
     ((240, 320), True)
     """
-    if check_motion_mode(motion) != "none":
+    mode = check_motion_mode(motion)
+    if mode != "none":
         return _recover_moving(folder, sequence, white_roi, out_dtype, device,
-                               {"global": "translation"}.get(motion.lower(), motion.lower()))
+                               "translation" if mode == "global" else mode)
     if white_roi is not None or ambient_index(folder.plan) is not None:
         plan, bundle = folder.plan, folder.calibration
         picked, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
