@@ -155,3 +155,7 @@ from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recove
 from specgpu.pipeline.accumulate import ACCUMULATED_OUTPUTS, AccumulateSink  # noqa: E402
 
 __all__ += ["DENOISE_EPS", "DENOISE_RADIUS", "denoise_recovery", "denoised_sigma", "output_subspace", "sequence_guide", "stream_denoise", "ACCUMULATED_OUTPUTS", "AccumulateSink"]  # noqa: E501
+
+from specgpu.pipeline.moving_decode import MOTION_OUTPUTS, MovingDecoder, check_motion_options  # noqa: E402
+
+__all__ += ["MOTION_OUTPUTS", "MovingDecoder", "check_motion_options"]
