@@ -105,3 +105,76 @@ def test_the_decoder_stacks_its_outputs_into_one_pass_equal_to_recover(moving):
     assert maps["mask"].dtype == np.uint8 and maps["estimate"].shifts.shape == (plan.K, 2)
     np.testing.assert_allclose(maps["estimate"].shifts, (np.arange(plan.K) - plan.K // 2)[:, None] * [2.0, 1.0],
                                atol=0.1)
+
+
+# ------------------------------------------------------------------------------------------------------ the stream
+
+def twin_driver(plan, bundle, sequences, seed=7):
+    from specgpu.capture.twin import TwinDriver
+    from specgpu.rig.twin import TwinRig
+
+    rig = TwinRig(plan.rig_description(RigDescription(camera=CAM, motion=MOTION)), scene=natural_scene(240, 320))
+    rig.seed = seed
+    return TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K * sequences, pacing="free")
+
+
+def streamed(plan, bundle, motion, sequences=2):
+    from specgpu.pipeline.stream import Stream
+
+    kept = []
+
+    def keep(result):
+        kept.append(({k: np.array(v) for k, v in result.arrays.items()}, np.array(result.frames), result.motion))
+
+    report = Stream(twin_driver(plan, bundle, sequences), plan, bundle, outputs=("cube", "XYZ", "Lab", "dE"),
+                    reference=LAB_REF, cube_dtype=np.float32, policy="block", sinks=[keep], motion=motion).run()
+    assert report.sequences_out == sequences == len(kept)
+    return kept
+
+
+def test_a_stream_with_motion_equals_recover_with_motion_of_the_same_frames(moving):
+    from pathlib import Path
+
+    from specgpu.pipeline.recovery import SequenceFolder
+
+    _, plan, bundle, _, _ = moving
+    compensated = streamed(plan, bundle, "global")
+    for maps, frames, estimate in compensated:
+        folder = SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {})
+        want = recover(folder, sequence=0, motion="global")
+        assert 0 < np.isnan(want[..., 0]).mean() < 0.2
+        assert_close_nan(maps["cube"], want, rtol=1e-6, atol=1e-6)
+        XYZ = to_XYZ(want, plan)
+        assert_close_nan(maps["XYZ"], XYZ, rtol=1e-5, atol=1e-6)
+        assert_close_nan(maps["dE"], delta_E(np.array(LAB_REF, np.float32), to_Lab(XYZ)), atol=1e-3)
+        np.testing.assert_allclose(estimate.shifts, (np.arange(plan.K) - plan.K // 2)[:, None] * [2.0, 1.0],
+                                   atol=0.1)
+    # the same moving twin streamed without compensation: the same frames (same seed), far from recover --motion
+    plain = streamed(plan, bundle, "none")
+    for (maps, frames, estimate), (still, still_frames, none) in zip(compensated, plain):
+        np.testing.assert_array_equal(frames, still_frames)
+        assert none is None
+        ok = np.isfinite(maps["cube"][..., 0])
+        assert np.abs(still["cube"][ok] - maps["cube"][ok]).mean() > 0.01
+
+
+def test_stream_motion_on_the_command_line(moving, tmp_path):
+    import zarr
+
+    root, _, _, plan_path, calib_path = moving
+    (tmp_path / "rig.toml").write_text("[camera]\nroi_width = 320\nroi_height = 240\nframe_rate_hz = 200.0\n"
+                                       "exposure_s = 0.0049\n[motion]\nvelocity_px_per_frame = [2.0, 1.0]\n")
+    args = ["stream", "--rig", tmp_path / "rig.toml", "--plan", plan_path, "--calib", calib_path, "--scene",
+            "natural", "--pacing", "free", "--seconds", "0.3"]
+    one_line_error(run(*args, "--motion", "flow", ok=False), "--motion", code=2)
+    one_line_error(run(*args, "--motion", "global", "--outputs", "cube,sigma", ok=False), "sigma", "--motion")
+    one_line_error(run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--denoise", ok=False), "--denoise")
+    one_line_error(run(*args, "--motion", "affine", "--outputs", "cube", "--accumulate", "3", ok=False),
+                   "--accumulate")
+    one_line_error(run(*args, "--motion", "global", "--white-roi", "0,0,8,8", "--outputs", "cube", ok=False),
+                   "--white-roi")
+    done = run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--out", tmp_path / "rec.zarr")
+    rec = zarr.open_group(str(tmp_path / "rec.zarr"), mode="r")
+    assert "global" in str(rec.attrs["metadata"].get("motion")), (done.output, dict(rec.attrs))
+    cube = np.asarray(rec["cube"][0], np.float32)
+    assert 0 < np.isnan(cube[..., 0]).mean() < 0.2  # the field's moving border: NaN, never a made-up value
