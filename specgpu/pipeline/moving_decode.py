@@ -15,11 +15,14 @@ frame, measured on fixed pixels) are refused in one line naming the option (:fun
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E
-from specgpu.pipeline.moving import check_motion_mode, recover_moving
+from specgpu.engine.warp_map import apply_linear_warped
+from specgpu.pipeline.moving import MASK_INCONSISTENT, check_motion_mode, estimate_global_motion, inconsistent_pixels
 from specgpu.pipeline.recovery import corrected_signal
 from specgpu.planning.correction import ambient_index
 
@@ -115,6 +118,10 @@ class MovingDecoder:
         if {"XYZ", "Lab", "dE"} & set(self.outputs):
             add("XYZ", plan.outputs_to_XYZ(self.illuminant, self.observer) @ A)
         self.matrix = np.vstack(rows)
+        #: host seconds spent so far in each step (estimate, warped pass, consistency check, colour), and the
+        #: sequences decoded: where a moving stream's time goes
+        self.seconds = dict.fromkeys(("estimate", "warp", "check", "colour"), 0.0)
+        self.sequences = 0
 
     def frames(self, raw) -> np.ndarray:
         """The frames the estimator and the warped pass read: ``raw``, or corrected as recover corrects them
@@ -129,11 +136,21 @@ class MovingDecoder:
         """The maps of one sequence (K, H, W) by output name, plus ``mask`` (H, W) uint8 (1 saturated, 4 outside
         the field, 8 inconsistent), NaN where masked; ``estimate``: the sequence's
         :class:`specgpu.pipeline.moving.MotionEstimate`."""
-        res = recover_moving(self.frames(raw), self.matrix, dark=self.dark, gain=self.calibration.flat_field,
-                             saturation=float(self.calibration.max_code), model=self.model, device=self.device)
+        # the steps of specgpu.pipeline.moving.recover_moving, with its defaults, each timed
+        frames, gain = self.frames(raw), self.calibration.flat_field
+        t0 = time.perf_counter()
+        est = estimate_global_motion(frames, self.dark, gain, model=self.model)
+        t1 = time.perf_counter()
+        res = apply_linear_warped(frames, self.matrix, est.shifts, self.dark, gain,
+                                  saturation=float(self.calibration.max_code), return_mask=True, device=self.device)
+        t2 = time.perf_counter()
+        y, mask = res.y, res.mask
+        mask[inconsistent_pixels(frames, est.shifts, self.dark, gain)] |= MASK_INCONSISTENT
+        y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
+        t3 = time.perf_counter()
         out = {}
         for name, rows in self.slices.items():
-            out[name] = np.ascontiguousarray(res.y[..., rows])
+            out[name] = np.ascontiguousarray(y[..., rows])
         if "cube" in out:
             out["cube"] = out["cube"].astype(self.cube_dtype, copy=False)
         XYZ = out.get("XYZ")
@@ -145,6 +162,7 @@ class MovingDecoder:
                 out["dE"] = np.asarray(delta_E(self.reference, Lab, self.method, device=self.device), np.float32)
         if "XYZ" not in self.outputs:
             out.pop("XYZ", None)
-        out["mask"] = res.mask
-        return {**{name: out[name] for name in self.outputs}, "mask": out["mask"],
-                "estimate": res.estimates[0] if res.estimates else None}
+        for step, seconds in zip(self.seconds, (t1 - t0, t2 - t1, t3 - t2, time.perf_counter() - t3)):
+            self.seconds[step] += seconds
+        self.sequences += 1
+        return {**{name: out[name] for name in self.outputs}, "mask": mask, "estimate": est}
