@@ -24,6 +24,7 @@ frame's time for odd K), which is where the twin's truth puts the scene
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -118,9 +119,18 @@ def _whitened(image: np.ndarray, cutoff: float) -> np.ndarray:
     image is a linear phase only well below the Nyquist frequency (interpolation and the pixels' own footprint
     bend it towards zero near it, which would bias the estimate towards no motion)."""
     F = fft.fft2(image)
-    fy = fft.fftfreq(F.shape[0])[:, None]
-    fx = fft.fftfreq(F.shape[1])[None, :]
-    return F / np.maximum(np.abs(F), 1e-30) * np.exp(-0.25 * (fx**2 + fy**2) / cutoff**2)
+    return F / np.maximum(np.abs(F), 1e-30) * _frequency_weight(F.shape, float(cutoff))
+
+
+@functools.lru_cache(maxsize=16)
+def _frequency_weight(shape: tuple, cutoff: float) -> np.ndarray:
+    """The Gaussian weight of :func:`_whitened` on an FFT grid of ``shape``: made once per (shape, cutoff), not per
+    image (a sequence whitens K whole images and many tiles of the same few shapes)."""
+    fy = fft.fftfreq(shape[0])[:, None]
+    fx = fft.fftfreq(shape[1])[None, :]
+    weight = np.exp(-0.25 * (fx**2 + fy**2) / cutoff**2)
+    weight.flags.writeable = False
+    return weight
 
 
 def _register(a: np.ndarray, b: np.ndarray, upsample: int) -> tuple[np.ndarray, float]:
@@ -130,7 +140,7 @@ def _register(a: np.ndarray, b: np.ndarray, upsample: int) -> tuple[np.ndarray, 
 
 
 def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int | None = None,
-                           upsample: int = 50, binning: int = 1, pairs: str = "all", cutoff: float = 0.12,
+                           upsample: int = 10, binning: int = 1, pairs: str = "all", cutoff: float = 0.12,
                            max_gap: int = 8, model: str = "translation", tiles: int = 4,
                            robust: bool = True, flow_tiles: tuple = (6, 8)) -> MotionEstimate:
     """A translation per frame of one sequence, relative to the sequence's reference time.
@@ -147,7 +157,10 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     reference_frame : int, optional
         The frame the others are registered to (default: the brightest of the middle three).
     upsample : int
-        Sub-pixel resolution 1 / upsample px of the phase correlation peak.
+        Sub-pixel resolution 1 / upsample px of the phase correlation peak. 10 by default: each displacement is
+        the least-squares solution of many pairs' peaks, whose rounding averages out; on the moving twin 1/10 px
+        peaks give the same errors as 1/50 px ones (largest 0.08 px, median 0.04 px over 24 sequences at 640 x 480)
+        at two thirds of the time or less (``tools/motion_registration.py``).
     binning : int
         Average b x b pixels before registering (b times faster FFTs; the shifts are scaled back).
     cutoff : float
@@ -456,7 +469,7 @@ class MovingRecovery:
     estimates: list
 
 
-def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 50, binning: int = 1,
+def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 10, binning: int = 1,
                    shifts=None, model: str = "translation", check: bool = True, device=None) -> MovingRecovery:
     """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
     with frame k sampled at x + d_k in one device pass.
