@@ -37,7 +37,7 @@ from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.io.npz import write_cube_npz
 from specgpu.rig.twin import TwinRig
 
-__all__ = ["MASK_INCONSISTENT", "inconsistent_pixels", "MOTION_MODES", "MotionEstimate", "MovingRecovery", "check_motion_mode", "estimate_global_motion",
+__all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "MOTION_MODES", "MotionEstimate", "MovingRecovery", "check_motion_mode", "estimate_global_motion",
            "recover_moving", "registration_image", "truth_recorder", "TRUTH_FOLDER"]
 
 #: How frames are decoded with respect to motion: as they are, or compensated for a global translation per frame.
@@ -531,3 +531,29 @@ def truth_recorder(directory, description, plan, scene):
                                      "reference_time_s": np.array(truth["reference_time_s"])})
 
     return record
+
+
+def sequence_truth(directory, sequence: int | None = None) -> Path:
+    """The truth file a recovery of ``directory`` (a sequence folder captured on a moving twin) is scored against:
+    ``motion_truth/sequence_<sequence>.npz``; with ``sequence`` None, the folder's only one. Refused in one line
+    when the folder keeps no truth, when ``sequence`` has none, or when several do and none is named."""
+    directory = Path(directory)
+    try:  # as a recovery's metadata records it (a number, or its text in an EXR header)
+        sequence = None if sequence is None else int(sequence)
+    except (TypeError, ValueError):
+        sequence = None
+    folder = directory / TRUTH_FOLDER
+    kept = sorted(folder.glob("sequence_*.npz")) if folder.is_dir() else []
+    if not kept:
+        raise ValueError(f"{directory}: holds no motion truth ({TRUTH_FOLDER}/sequence_NNNN.npz: a capture on a "
+                         "moving twin keeps it); give the true scene (colorchecker, white, natural or a cube file)")
+    if sequence is not None:
+        path = folder / f"sequence_{int(sequence):04d}.npz"
+        if not path.is_file():
+            raise ValueError(f"{directory}: holds no motion truth of sequence {int(sequence)} ({len(kept)} kept: "
+                             f"{kept[0].name} .. {kept[-1].name})")
+        return path
+    if len(kept) > 1:
+        raise ValueError(f"{directory}: holds the motion truth of {len(kept)} sequences and the recovery does not "
+                         f"record which it is; give --truth {folder}/sequence_NNNN.npz")
+    return kept[0]
