@@ -178,3 +178,20 @@ def test_stream_motion_on_the_command_line(moving, tmp_path):
     assert "global" in str(rec.attrs["metadata"].get("motion")), (done.output, dict(rec.attrs))
     cube = np.asarray(rec["cube"][0], np.float32)
     assert 0 < np.isnan(cube[..., 0]).mean() < 0.2  # the field's moving border: NaN, never a made-up value
+
+
+def test_the_stream_bench_puts_the_motion_rate_beside_the_static_one(tmp_path):
+    import json
+
+    out = tmp_path / "bench.json"
+    result = run("bench", "--stream", "--stream-size", "320x240", "--stream-seconds", "0.5", "--stream-cases",
+                 "motion", "--json", out)
+    rows = {row["case"]: row for row in json.loads(out.read_text())["cases"]}
+    assert set(rows) == {"coefficients+XYZ", "coefficients+XYZ with --motion global", "motion global / static"}
+    ratio = rows["motion global / static"]
+    assert ratio["static_frames_per_s"] == rows["coefficients+XYZ"]["frames_per_s"] > 0
+    assert ratio["motion_frames_per_s"] == rows["coefficients+XYZ with --motion global"]["frames_per_s"] > 0
+    assert ratio["ratio"] == pytest.approx(ratio["motion_frames_per_s"] / ratio["static_frames_per_s"])
+    steps = ratio["ms_per_sequence"]
+    assert set(steps) == {"estimate", "warp", "check", "colour"} and all(v > 0 for v in steps.values())
+    assert f"ratio {ratio['ratio']:.3f}" in result.output
