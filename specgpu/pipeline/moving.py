@@ -25,7 +25,7 @@ frame's time for odd K), which is where the twin's truth puts the scene
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -85,6 +85,9 @@ class MotionEstimate:
     error: np.ndarray
     reference_frame: int
     model: str = "translation"
+    #: The full-resolution gradient images (:func:`gradient_image`) registered, per frame (None for a frame not
+    #: registered); what :func:`inconsistent_pixels` reads again (None when the estimate registered binned images).
+    gradients: tuple | None = field(default=None, repr=False, compare=False)
 
 
 def gradient_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarray:
@@ -250,6 +253,9 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
             spectra[k] = _whitened(hann(gradient(k)), cutoff)
         return spectra[k]
 
+    def kept_gradients():
+        return tuple(gradients.get(k) for k in range(K)) if binning == 1 else None
+
     idx = np.flatnonzero(usable)
     if pairs == "reference":
         links = [(reference_frame, int(k)) for k in idx if k != reference_frame]
@@ -293,14 +299,15 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
                     raw[k] = _dominant_translation(gradient(reference_frame), gradient(int(k)), raw[k], upsample,
                                                    cutoff, tiles)
         raw = _fill_in_time(raw, usable)
-        return MotionEstimate(raw - 0.5 * (raw[lo] + raw[hi]), usable, error, int(reference_frame), model)
+        return MotionEstimate(raw - 0.5 * (raw[lo] + raw[hi]), usable, error, int(reference_frame), model,
+                              kept_gradients())
     maps = np.tile(np.eye(3), (K, 1, 1))
     for k in idx:
         if k != reference_frame:
             maps[k] = _affine_to(gradient(reference_frame), gradient(int(k)), raw[k], upsample, cutoff, tiles)
     maps = _fill_in_time(maps, usable)
     to_mid = np.linalg.inv(0.5 * (maps[lo] + maps[hi]))
-    return MotionEstimate((maps @ to_mid)[:, :2, :], usable, error, int(reference_frame), model)
+    return MotionEstimate((maps @ to_mid)[:, :2, :], usable, error, int(reference_frame), model, kept_gradients())
 
 
 def _flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, tiles, usable, lo, hi) -> np.ndarray:
@@ -422,7 +429,7 @@ MASK_INCONSISTENT = 8
 
 
 def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9, threshold: float = 0.3,
-                        texture: float = 0.5, own: float = 4.0) -> np.ndarray:
+                        texture: float = 0.5, own: float = 4.0, gradients=None) -> np.ndarray:
     """(H, W) bool: pixels where the motion-compensated frames disagree, so their decoded spectrum would mix
     surfaces.
 
@@ -432,7 +439,8 @@ def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9
     gradient image and their median is computed; a pixel is inconsistent where the median has texture (local
     energy above ``texture`` times the field's mean) and some frame with structure of its own there (local energy
     above ``own`` times its median: not just noise) correlates below ``threshold``. Untextured regions are never
-    flagged: there, samples from a few pixels away hold the same spectrum.
+    flagged: there, samples from a few pixels away hold the same spectrum. ``gradients``: the frames' gradient
+    images already made (:attr:`MotionEstimate.gradients`; a None entry is made here).
     """
     frames = np.asarray(frames)
     K, h, w = frames.shape
@@ -444,7 +452,8 @@ def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     aligned = np.empty((K, h, w), np.float32)
     for k in range(K):
-        g = gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
+        g = gradients[k] if gradients is not None and gradients[k] is not None else \
+            gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
         m = maps[k]
         if flow:
             sx, sy = xx + m[0], yy + m[1]
@@ -515,15 +524,16 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         ``y`` (H, W, B) float32, NaN where a pixel was seen outside the field, saturated or inconsistent;
         ``mask`` (H, W) uint8 (1 saturated, 2 non-finite, 4 outside the field, 8 inconsistent); ``estimates`` [MotionEstimate] (empty with ``shifts``).
     """
-    estimates = []
+    estimates, gradients = [], None
     if shifts is None:
         est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model)
-        estimates.append(est)
+        gradients = est.gradients
+        estimates.append(replace(est, gradients=None))  # the images are for the check below, not to be kept
         shifts = est.shifts
     res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True, device=device)
     y, mask = res.y, res.mask
     if check:
-        bad = inconsistent_pixels(frames, shifts, dark, gain)
+        bad = inconsistent_pixels(frames, shifts, dark, gain, gradients=gradients)
         mask[bad] |= MASK_INCONSISTENT
     y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
     return MovingRecovery(y, mask, estimates)

@@ -16,6 +16,7 @@ frame, measured on fixed pixels) are refused in one line naming the option (:fun
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -145,7 +146,7 @@ class MovingDecoder:
                                   saturation=float(self.calibration.max_code), return_mask=True, device=self.device)
         t2 = time.perf_counter()
         y, mask = res.y, res.mask
-        mask[inconsistent_pixels(frames, est.shifts, self.dark, gain)] |= MASK_INCONSISTENT
+        mask[inconsistent_pixels(frames, est.shifts, self.dark, gain, gradients=est.gradients)] |= MASK_INCONSISTENT
         y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
         t3 = time.perf_counter()
         out = {}
@@ -165,4 +166,5 @@ class MovingDecoder:
         for step, seconds in zip(self.seconds, (t1 - t0, t2 - t1, t3 - t2, time.perf_counter() - t3)):
             self.seconds[step] += seconds
         self.sequences += 1
-        return {**{name: out[name] for name in self.outputs}, "mask": mask, "estimate": est}
+        return {**{name: out[name] for name in self.outputs}, "mask": mask,
+                "estimate": replace(est, gradients=None)}  # the images served the check; not kept with a result
