@@ -25,6 +25,7 @@ frame's time for odd K), which is where the twin's truth puts the scene
 from __future__ import annotations
 
 import functools
+import threading
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -152,12 +153,27 @@ def _one_blas_thread(fn):
     """``fn`` run with the BLAS library on one thread. The sub-pixel peak search multiplies small matrices (about
     15 x H by H x W per registration, over a hundred per sequence); OpenBLAS splits each over all cores, and on a
     machine whose cores are busy (the stream's own threads, another process) its threads wait on each other: on 2
-    shared cores a 640 x 480 sequence's estimate took 2.3-4.8 s with 2 threads and 0.3-0.5 s with one."""
+    shared cores a 640 x 480 sequence's estimate took 2.3-4.8 s with 2 threads and 0.3-0.5 s with one. The limit
+    is process-wide: held from the first of concurrent calls (the stream estimates sequences on several threads)
+    until the last returns, then restored."""
     @functools.wraps(fn)
     def wrapped(*args, **kwargs):
-        with _blas().limit(limits=1, user_api="blas"):
+        with _BLAS_LOCK:
+            if _BLAS_HELD["count"] == 0:
+                _BLAS_HELD["limiter"] = _blas().limit(limits=1, user_api="blas")
+            _BLAS_HELD["count"] += 1
+        try:
             return fn(*args, **kwargs)
+        finally:
+            with _BLAS_LOCK:
+                _BLAS_HELD["count"] -= 1
+                if _BLAS_HELD["count"] == 0:
+                    _BLAS_HELD.pop("limiter").restore_original_limits()
     return wrapped
+
+
+_BLAS_LOCK = threading.Lock()
+_BLAS_HELD: dict = {"count": 0}
 
 
 @_one_blas_thread

@@ -15,6 +15,7 @@ frame, measured on fixed pixels) are refused in one line naming the option (:fun
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import replace
 
@@ -123,6 +124,7 @@ class MovingDecoder:
         #: sequences decoded: where a moving stream's time goes
         self.seconds = dict.fromkeys(("estimate", "warp", "check", "colour"), 0.0)
         self.sequences = 0
+        self._lock = threading.Lock()  # decode may run on several threads at once (the stream's)
 
     def frames(self, raw) -> np.ndarray:
         """The frames the estimator and the warped pass read: ``raw``, or corrected as recover corrects them
@@ -163,8 +165,9 @@ class MovingDecoder:
                 out["dE"] = np.asarray(delta_E(self.reference, Lab, self.method, device=self.device), np.float32)
         if "XYZ" not in self.outputs:
             out.pop("XYZ", None)
-        for step, seconds in zip(self.seconds, (t1 - t0, t2 - t1, t3 - t2, time.perf_counter() - t3)):
-            self.seconds[step] += seconds
-        self.sequences += 1
+        with self._lock:
+            for step, seconds in zip(self.seconds, (t1 - t0, t2 - t1, t3 - t2, time.perf_counter() - t3)):
+                self.seconds[step] += seconds
+            self.sequences += 1
         return {**{name: out[name] for name in self.outputs}, "mask": mask,
                 "estimate": replace(est, gradients=None)}  # the images served the check; not kept with a result

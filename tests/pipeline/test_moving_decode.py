@@ -195,3 +195,23 @@ def test_the_stream_bench_puts_the_motion_rate_beside_the_static_one(tmp_path):
     steps = ratio["ms_per_sequence"]
     assert set(steps) == {"estimate", "warp", "check", "colour"} and all(v > 0 for v in steps.values())
     assert f"ratio {ratio['ratio']:.3f}" in result.output
+
+
+def test_a_sequence_that_fails_to_decode_ends_the_moving_stream_with_its_error(moving):
+    from specgpu.pipeline.stream import Stream
+
+    _, plan, bundle, _, _ = moving
+    stream = Stream(twin_driver(plan, bundle, 4), plan, bundle, outputs=("cube",), policy="block", motion="global")
+    calls = []
+    decode = stream.moving.decode
+
+    def failing(frames):
+        calls.append(1)
+        if len(calls) == 2:
+            raise ValueError("no frame of the sequence has signal to register")
+        return decode(frames)
+
+    stream.moving.decode = failing
+    with pytest.raises(ValueError, match="no frame of the sequence has signal"):
+        stream.run(30)
+    assert len(calls) >= 2
