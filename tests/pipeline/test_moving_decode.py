@@ -215,3 +215,11 @@ def test_a_sequence_that_fails_to_decode_ends_the_moving_stream_with_its_error(m
     with pytest.raises(ValueError, match="no frame of the sequence has signal"):
         stream.run(30)
     assert len(calls) >= 2
+
+
+def test_affine_motion_decodes_as_recover_affine(moving):
+    root, plan, bundle, _, _ = moving
+    folder = read_capture(root / "seq")
+    maps = MovingDecoder(plan, bundle, ("cube",), mode="affine").decode(folder.frames[1])
+    assert maps["estimate"].model == "affine" and maps["estimate"].shifts.shape == (plan.K, 2, 3)
+    assert_close_nan(maps["cube"], recovered(root, 1, "affine"), rtol=1e-6, atol=1e-6)
