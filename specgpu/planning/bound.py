@@ -8,7 +8,8 @@ whose error covariance is ``(S^-1 + F^T N^-1 F)^-1`` (S: the prior's second mome
 lowers that error, so the result stays below what any real design reaches:
 
 * the light's fluctuation term is dropped (``v_k >= s_read^2 + F_k mu / g``);
-* each frame's spectrum may be any ``0 <= F_k <= t w`` (w: the response with every mirror on, t the longest
+* each frame's spectrum may be any ``0 <= F_k <= t w`` (w: the response with every mirror on that lights the
+  prior's range, as the designs, :func:`specgpu.planning.design.columns_within`; t the longest
   exposure the budget allows), not only what the slit's blur lets the mirrors make, and no sign or shape limit;
 * the information ``I = sum_k F_k F_k^T / v_k`` is kept only through its rank (<= K) and trace
   (<= K c, c the largest ``|F|^2 / v`` of one frame: exact over the box, and at most ``sum u_b F_b / v`` under

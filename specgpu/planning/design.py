@@ -3,7 +3,9 @@ of the Wiener decoder for a training prior and the camera's noise (``specgpu pla
 narrowband (``specgpu plan hadamard``).
 
 **Optimal.** A frame's model output per unit reflectance is ``F_k = t (n_k / rows) S`` (S: DN/s per full column
-per unit reflectance, from the calibration; n_k the mirror counts; t the common exposure). More light always
+per unit reflectance, from the calibration; n_k the mirror counts; t the common exposure). Only columns whose
+light falls within the prior's wavelength range are lit (:func:`columns_within`): beyond it the prior knows nothing
+of the reflectance, and light there would be decoded as if it were the end band's. More light always
 lowers the relative noise, so the best frames reach the camera's usable range on a perfect white; the design
 therefore optimises the *shape* of each frame, ``F_k = cap x_k S / (x_k S 1)`` with ``x_k >= 0`` column levels and
 ``cap`` the level the plan allows above dark, minimising the expected weighted error of the Wiener estimate
@@ -41,7 +43,7 @@ from specgpu.planning.priors import Prior
 from specgpu.planning.timing import budget_params, check_budget, exposure_within
 from specgpu.rig.scene import interpolation_matrix
 
-__all__ = ["OBJECTIVES", "design_optimal", "plan_optimal", "plan_hadamard", "s_matrix", "objective_weights",
+__all__ = ["OBJECTIVES", "WITHIN_PRIOR", "columns_within", "design_optimal", "plan_optimal", "plan_hadamard", "s_matrix", "objective_weights",
            "wiener_objective"]
 
 OBJECTIVES = ("rmse", "dE2000", "dEab")
@@ -189,17 +191,38 @@ def design_optimal(system, prior: Prior, noise: NoiseModel, K: int, cap: float, 
     return levels, float(best[0])
 
 
+#: The least share of a column's camera signal (on a white) that must fall within the prior's wavelength range
+#: for a design to light it (:func:`columns_within`).
+WITHIN_PRIOR = 0.99
+
+
+def columns_within(bundle, wavelengths, share: float = WITHIN_PRIOR) -> np.ndarray:
+    """(C,) bool: the light's columns of which at least ``share`` of the camera signal on a white falls within
+    ``wavelengths``' range. Light outside the prior's range measures a reflectance the prior cannot predict: the
+    decoder takes it for the end band's (constant beyond the ends), so a design that lit the far red beyond 700
+    nm (where leaves and skin rise steeply) biased every band it decodes."""
+    wl = np.asarray(wavelengths, np.float64)
+    bw = np.asarray(bundle.wavelengths, np.float64)
+    sm = np.asarray(bundle.system_matrix, np.float64)  # (G, C) DN/s per nm per full column
+    inside = sm[(bw >= wl.min()) & (bw <= wl.max())].sum(axis=0)
+    total = sm.sum(axis=0)
+    return inside >= share * np.where(total > 0, total, np.inf)
+
+
 def _system_on(bundle, wavelengths) -> np.ndarray:
-    """(C, B) DN/s per full column per unit reflectance on ``wavelengths``."""
+    """(C, B) DN/s per full column per unit reflectance on ``wavelengths``; zero for a column whose light falls
+    outside their range (:func:`columns_within`), which a design therefore never lights."""
     dl = float(bundle.wavelengths[1] - bundle.wavelengths[0])
-    return dl * bundle.system_matrix.T @ interpolation_matrix(bundle.wavelengths, np.asarray(wavelengths, np.float64))
+    wl = np.asarray(wavelengths, np.float64)
+    S = dl * bundle.system_matrix.T @ interpolation_matrix(bundle.wavelengths, wl)
+    return S * columns_within(bundle, wl)[:, None]
 
 
 def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: str = "rmse", illuminant="D65",
                  training=None, output_wavelengths=None, level: float = 0.9, max_exposure_s: float | None = None,
                  target: float | None = None, exposure_s: float | None = None, starts: int = 4, seed: int = 0,
                  iterations: int = 300, sequence_s: float | None = None, min_frame_period_s: float = 0.0,
-                 extra_frames: int = 0):
+                 extra_frames: int = 0, denoise_radius: int | None = None):
     """An optimal K-frame plan (see the module notes) with the Wiener decoder and its expected error recorded.
 
     Parameters
