@@ -21,7 +21,7 @@ from specgpu.core.validate import check_number
 from specgpu.engine.kernels import _empty, _launch_lock, to_device
 from specgpu.engine.runtime import get_kernel, get_queue
 
-__all__ = ["guided_filter", "box_box_variance"]
+__all__ = ["guided_filter", "box_box_variance", "flat_variance_reduction"]
 
 _GROUP = 128  # work-items per group
 
@@ -109,3 +109,13 @@ def box_box_variance(variance, radius: int) -> np.ndarray:
     v = np.asarray(variance, np.float64)
     v = correlate1d(correlate1d(v, t2, axis=0, mode="nearest"), t2, axis=1, mode="nearest")
     return v.astype(np.float32)
+
+
+def flat_variance_reduction(radius: int) -> float:
+    """How many times the guided filter of radius ``radius`` lowers the variance of independent per-pixel noise
+    where its guide is flat (the mean of box means, :func:`box_box_variance` far from a border):
+    ``1 / (sum_d t(d)^2)^2``, about 54 at radius 2. At an edge the filter follows the guide and lowers it less."""
+    r = int(check_number("radius", radius, integer=True, low=1, high=1024))
+    d = np.arange(-2 * r, 2 * r + 1)
+    t2 = ((2 * r + 1 - np.abs(d)) / (2 * r + 1) ** 2) ** 2
+    return float(1.0 / t2.sum() ** 2)

@@ -26,7 +26,7 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
 
-__all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "sequence_guide", "output_subspace", "denoise_recovery", "denoised_sigma",
+__all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace", "denoise_recovery", "denoised_sigma",
            "stream_denoise"]
 
 #: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/budget_study.py --tune``): on
@@ -65,6 +65,23 @@ def sequence_guide(folder, *, sequence: int | None = None, device=None) -> np.nd
     if not level > 0:
         raise ValueError(f"{folder.path}: the frames hold no light above dark: nothing to guide the denoising")
     return (g / level).astype(np.float32)
+
+
+def denoise_design_warning(plan, radius: int | None) -> str | None:
+    """One line when a plan designed for the filter (``specgpu plan --denoise``, ``params["denoise"]``) is
+    recovered without it (``radius`` None) or with another radius: its decoder is made for the filtered noise, so
+    unfiltered it is noisier than a plan designed for none; None otherwise."""
+    designed = plan.params.get("denoise") if isinstance(plan.params, dict) else None
+    if not designed:
+        return None
+    r = int(designed["radius"])
+    if radius is None:
+        return (f"the {plan.method} plan's decoder is designed for --denoise --denoise-radius {r}: without the "
+                "filter its outputs are noisier than those of a plan designed for none")
+    if int(radius) != r:
+        return (f"the {plan.method} plan's decoder is designed for --denoise-radius {r}, filtered here with "
+                f"{int(radius)}")
+    return None
 
 
 def _check(radius, eps):

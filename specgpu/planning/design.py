@@ -36,6 +36,7 @@ import numpy as np
 from specgpu.calibration.bundle import DEFAULT_MAX_EXPOSURE_S
 from specgpu.core.spectra import XYZ_weights
 from specgpu.engine.colorimetry import XYZ_to_Lab
+from specgpu.engine.guided import flat_variance_reduction
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.plans import _band_masks, _base, _quantize
@@ -257,6 +258,15 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         spectral shape against photons (broad frames collect more light) instead of lengthening the exposure.
     starts, seed, iterations
         The search's starting points, their seed and its L-BFGS-B iterations per start (:func:`design_optimal`).
+    denoise_radius : int, optional
+        Design for outputs that ``recover --denoise`` will filter with this radius: the frames and the Wiener
+        decoder are made for the shot and read noise the filter leaves where the scene is flat
+        (:func:`specgpu.engine.guided.flat_variance_reduction` times lower; the light's fluctuation, common to a
+        frame, unchanged), so the design spends fewer photons on averaging noise and more on spectral shape. The
+        plan's noise model stays the camera's (its sigma maps are the raw outputs'); ``params["denoise"]`` records
+        the radius and the reduction, ``params["expected"]`` the error without the filter and
+        ``rmse_at_decoder_noise`` on flat regions with it. Without the filter such a plan is noisier than one
+        designed for none.
     """
     if prior.n < 1:
         raise ValueError("the training set is empty: give at least one spectrum")
@@ -267,6 +277,13 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         raise ValueError(f"level must lie in (0, 1], got {level!r}")
     ow = np.arange(400.0, 700.0 + 1e-9, 10.0) if output_wavelengths is None else np.asarray(output_wavelengths, float)
     P = objective_weights(prior, obj, illuminant, training)
+    camera_noise_at = noise_at
+    reduction = None
+    if denoise_radius is not None:
+        reduction = flat_variance_reduction(denoise_radius)
+
+        def noise_at(t):  # the noise the filter leaves where the scene is flat: what the design and decoder see
+            return camera_noise_at(t).averaged(reduction)
     Sb = _system_on(bundle, prior.wavelengths)
     cap = level * (bundle.max_code - float(np.mean(bundle.dark)))
     # the frame time follows the exposure (Plan.rig_description lowers the frame rate), as for narrowband plans
@@ -305,15 +322,20 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
                  output="reflectance", output_wavelengths=ow, output_labels=tuple(f"{x:g}nm" for x in ow),
                  illuminant="", observer="", params={"frames": int(frames), "objective": obj,
                                                      "objective_illuminant": str(illuminant),
-                                                     **budget_params(sequence_s, min_frame_period_s)})
-    plan = with_estimator(plan, bundle, "wiener", prior=prior, noise=noise_at(plan.exposure_s))
+                                                     **budget_params(sequence_s, min_frame_period_s),
+                                                     **({} if reduction is None else {"denoise": {
+                                                         "radius": int(denoise_radius),
+                                                         "variance_reduction": reduction}})})
+    plan = with_estimator(plan, bundle, "wiener", prior=prior, noise=camera_noise_at(plan.exposure_s),
+                          decoder_noise=None if reduction is None else noise_at(plan.exposure_s))
     exp = dict(plan.params["expected"])
     F = bundle.forward_matrix(plan.patterns, prior.wavelengths, plan.exposure_s)
     Jw, _ = wiener_objective(F, prior, noise_at(plan.exposure_s), P)
     exp["objective_value"] = float(Jw)
     if obj != "rmse":
         exp[obj] = float(math.sqrt(max(Jw, 0.0)))
-    value = exp[obj]
+    # the objective and the target at the noise the decoder is built for (the filtered one with denoise_radius)
+    value = exp["rmse_at_decoder_noise"] if obj == "rmse" and reduction is not None else exp[obj]
     plan = replace(plan, params={**plan.params, "expected": exp})
     check_budget(plan, extra_frames)
     if target is not None and value > target:

@@ -161,3 +161,24 @@ def test_a_design_lights_only_the_wavelengths_its_prior_knows(bundle, prior):
     within = light[:, (wl >= 450) & (wl <= 650)].sum(axis=1) / light.sum(axis=1)
     assert within.min() >= 0.99 - 1e-9
 
+
+def test_a_design_for_denoising_trades_averaged_noise_for_shape(bundle, prior):
+    from specgpu.engine.guided import flat_variance_reduction
+    from specgpu.planning.budget import budget_plan
+
+    kw = dict(frames=6, starts=1, iterations=100, min_frame_period_s=DESC.camera.min_frame_period_s)
+    plain = budget_plan("optimal", bundle, 0.040, prior, noise_at, **kw)
+    for_filter = budget_plan("optimal", bundle, 0.040, prior, noise_at, denoise_radius=2, **kw)
+    n = flat_variance_reduction(2)
+    assert for_filter.params["denoise"] == {"radius": 2, "variance_reduction": n}
+    assert E.NoiseModel.from_params(for_filter.params["noise"]) == noise_at(for_filter.exposure_s)
+    quiet = noise_at(for_filter.exposure_s).averaged(n)
+
+    def at(plan, noise):  # the expected RMSE of the plan's decoder at a noise
+        F = E.forward(bundle, plan, prior.wavelengths)
+        return E.expected_error(plan.A, F, E.output_weights(plan, prior.wavelengths), prior, noise)["rmse"]
+
+    # where the filter flattens the noise the plan designed for it is better; at the camera's noise, worse
+    assert at(for_filter, quiet) < at(plain, noise_at(plain.exposure_s).averaged(n))
+    assert at(for_filter, quiet) == pytest.approx(for_filter.params["expected"]["rmse_at_decoder_noise"], rel=1e-9)
+    assert for_filter.params["expected"]["rmse"] > plain.params["expected"]["rmse"]
