@@ -155,3 +155,7 @@ from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design
 from specgpu.pipeline.accumulate import ACCUMULATED_OUTPUTS, AccumulateSink  # noqa: E402
 
 __all__ += ["DENOISE_EPS", "DENOISE_RADIUS", "denoise_design_warning", "denoise_recovery", "denoised_sigma", "output_subspace", "sequence_guide", "stream_denoise", "ACCUMULATED_OUTPUTS", "AccumulateSink"]  # noqa: E501
+
+from specgpu.pipeline.moving_scores import RECOVERIES, compare_motion, edge_band, motion_scores  # noqa: E402
+
+__all__ += ["RECOVERIES", "compare_motion", "edge_band", "motion_scores"]
