@@ -135,21 +135,28 @@ def denoised_sigma(folder, sigma, *, sequence: int | None = None, radius: int = 
 
 
 #: The stream outputs the guided filter applies to (linear in the frames, so filtering them is filtering the
-#: cube), and those it cannot be applied to yet.
+#: cube), and those computed from the filtered XYZ (CIELAB and dE, as recover --denoise computes them from the
+#: filtered cube).
 DENOISED_STREAM_OUTPUTS = ("coefficients", "cube", "XYZ")
+FROM_DENOISED_XYZ = ("Lab", "dE")
 
 
 def stream_denoise(plan, outputs, cube_dtype, denoise) -> dict:
     """The stream's denoising set-up for ``denoise`` = (radius, eps): the guide's row (every frame but an ambient
-    one), the channels of each filtered output; refuses (one line) outputs it cannot carry (Lab and dE are not
-    linear in the frames; the sigma maps are not carried through the filter in the stream) and a float16 cube."""
+    one), the channels of each filtered output (XYZ too when Lab or dE come from it), and whether Lab and dE are
+    recomputed from the filtered XYZ; refuses (one line) the sigma maps (not carried through the filter in the
+    stream) and a float16 cube."""
     r, e = _check(*denoise)
-    bad = [o for o in outputs if o not in DENOISED_STREAM_OUTPUTS]
+    bad = [o for o in outputs if o not in DENOISED_STREAM_OUTPUTS + FROM_DENOISED_XYZ]
     if bad:
-        raise ValueError(f"--denoise filters the stream's {', '.join(DENOISED_STREAM_OUTPUTS)} outputs; "
-                         f"{', '.join(bad)} cannot be denoised in the stream yet (leave them out, or recover the "
-                         "recording's frames with recover --denoise)")
+        raise ValueError(f"--denoise filters the stream's {', '.join(DENOISED_STREAM_OUTPUTS)} outputs and computes "
+                         f"{', '.join(FROM_DENOISED_XYZ)} from the filtered XYZ; {', '.join(bad)} cannot be denoised "
+                         "in the stream yet (leave them out, or recover the recording's frames with recover "
+                         "--denoise --sigma)")
     if "cube" in outputs and np.dtype(cube_dtype) != np.float32:
         raise ValueError("--denoise needs a float32 cube (leave --half out)")
     m = int(plan.params["m"]) if "m" in plan.params else output_subspace(plan).shape[1]
-    return {"radius": r, "eps": e, "row": guide_row(plan), "channels": {"coefficients": m, "cube": plan.A.shape[0], "XYZ": 3}}
+    derived = [o for o in outputs if o in FROM_DENOISED_XYZ]
+    channels = {"coefficients": m, "cube": plan.A.shape[0], "XYZ": 3}
+    filtered = {k: v for k, v in channels.items() if k in outputs or (k == "XYZ" and derived)}
+    return {"radius": r, "eps": e, "row": guide_row(plan), "channels": filtered, "from_XYZ": derived}
