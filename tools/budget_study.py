@@ -10,16 +10,20 @@ fluctuation), calibrated by both feedback loops, for each chart:
 
 the prior and the basis are trained on every other set colour-science ships minus the chart (and any spectrum
 within 0.01 RMS of one of its patches); the rows of ``specgpu.planning.equal_time.EQUAL_TIME`` (9 frames in 60 ms,
-6 in 40, 3 in 20) are captured ``--draws`` times with fresh noise, recovered on the device, and, with
-``--denoise`` (the guided filter of ``recover --denoise``), denoised; per-pixel means over the patches' pixels of
+6 in 40, 3 in 20; each optimal row also designed for the filter, ``+denoise``: ``specgpu plan --denoise``) are
+captured ``--draws`` times with fresh noise, recovered on the device, and denoised (the guided filter of
+``recover --denoise``); the optimal rows also as ``white+dn``: ``recover --white-roi --denoise`` on the chart's
+reference white, which divides each frame's light fluctuation (common to every pixel of a frame, so no spatial
+filter removes it) out by the white's own reading; per-pixel means over the patches' pixels of
 RMSE, dE2000 and dE*ab (D65), and the standard deviation of the standardised error (error / the per-pixel
 sigma, raw and carried through the filter), mean +- std over the draws; beside them the RMSE the plan expects on
-its prior and its noise-free RMSE on the chart's patch spectra (``floor``: the decoder's mismatch on this chart,
-which no denoiser removes).
+its prior (denoised rows: where the filter flattens the noise, for a plan designed for it) and its noise-free
+RMSE on the chart's patch spectra (``floor``: the decoder's mismatch on this chart, which no denoiser removes).
 
 Then the natural scene ("natural": scikit-image's chelsea photograph upsampled to spectra, fine fur texture): the
-optimal 9-frame design within 60 ms, the per-pixel RMSE within 2 px of the scene's edges (the pixels whose true
-mean-reflectance gradient is in the top 10 %) and elsewhere, raw and denoised.
+optimal 9-frame design within 60 ms, and the same designed for the filter, the per-pixel RMSE within 2 px of the
+scene's edges (the pixels whose true mean-reflectance gradient is in the top 10 %) and elsewhere, raw and
+denoised, each as a ratio to the plain design's raw error.
 
 ``--tune`` measures the denoiser's radius and eps on the CES chart and the natural scene instead.
 
@@ -41,6 +45,7 @@ import specgpu.planning as E  # noqa: E402
 from specgpu.apps.estimator_study import patch_scene  # noqa: E402
 from specgpu.apps.studies import measured_chart_with_white, mean_std  # noqa: E402
 from specgpu.calibration import calibrate  # noqa: E402
+from specgpu.engine.guided import flat_variance_reduction  # noqa: E402
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery, denoised_sigma  # noqa: E402
 from specgpu.pipeline.evaluate import evaluate_pixels, truth_cube  # noqa: E402
 from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, uncertainty  # noqa: E402
@@ -49,32 +54,39 @@ from specgpu.planning.estimators import forward, output_weights  # noqa: E402
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans, row_name  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402
-from specgpu.rig.scene import natural_scene  # noqa: E402
+from specgpu.rig.scene import natural_scene, white_tile_roi  # noqa: E402
 
 CHARTS = {"ces": "CIE 2017 CES", "tcs": "CIE 1995 TCS"}
 
 
 def chart_setup(description, key):
-    """(scene, prior, basis, training) for a chart: the scene at the camera's size, and the prior, basis and
-    training spectra without the chart's set and any spectrum within 0.01 RMS of one of its patches."""
+    """(scene, prior, basis, training, white ROI) for a chart: the scene at the camera's size with a reference
+    white beside the patches (the bench's, 0.99 off by its ``white_error``) and that white's ROI for
+    ``recover --white-roi``, and the prior, basis and training spectra without the chart's set and any spectrum
+    within 0.01 RMS of one of its patches."""
     cam = description.camera
     chart = CHARTS[key]
     if key == "ces":
-        scene, _, basis = measured_chart_with_white(description, cam.roi_height, cam.roi_width, basis=True)
+        scene, roi, basis = measured_chart_with_white(description, cam.roi_height, cam.roi_width, basis=True)
     else:
         names, wl, spectra = E.held_out_spectra(chart)
-        scene = patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=chart)
+        scene = patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=chart,
+                            white_tile=0.99 * (1.0 + description.realism.white_error))
+        roi = white_tile_roi(cam.roi_height, cam.roi_width)
         basis = E.held_out_basis(chart)
     test = np.stack([np.interp(DEFAULT_WAVELENGTHS, scene.wavelengths, scene.reflectance[m].mean(axis=0))
                      for m in scene.masks.values()])
     db = load_reflectances(exclude=E.evaluation_exclusions(chart), exclude_similar_to=test)
     prior = E.prior_from_spectra(db.reflectance, DEFAULT_WAVELENGTHS, f"colour-science sets without {chart}")
-    return scene, prior, basis, db.reflectance
+    return scene, prior, basis, db.reflectance, ",".join(str(int(v)) for v in roi)
 
 
-def measure(description, bundle, plan, scene, seed, denoise=(DENOISE_RADIUS, DENOISE_EPS), mask=None):
-    """One capture of ``plan`` on ``scene``: {raw, denoised} -> per-pixel RMSE / dE2000 / dE*ab means over
-    ``mask`` (default the patches), z std, and the seconds the denoising took."""
+def measure(description, bundle, plan, scene, seed, denoise=(DENOISE_RADIUS, DENOISE_EPS), mask=None,
+            white_roi=None):
+    """One capture of ``plan`` on ``scene``: {raw, denoised and, given the reference white's ROI, white+dn
+    (``recover --white-roi --denoise``: each frame's light fluctuation divided out by the white's own reading)} ->
+    per-pixel RMSE / dE2000 / dE*ab means over ``mask`` (default the patches), z std, and the seconds the
+    denoising took."""
     res = capture_plan(description, plan, scene, noise_seed=seed, calibration=bundle)
     folder = SequenceFolder(Path("<memory>"), np.stack([s.frames for s in res.sequences]), plan, bundle, [], {})
     y = recover(folder)
@@ -90,6 +102,11 @@ def measure(description, bundle, plan, scene, seed, denoise=(DENOISE_RADIUS, DEN
         yd = denoise_recovery(folder, y, radius=denoise[0], eps=denoise[1])
         seconds = time.perf_counter() - t0
         variants["denoised"] = (yd, None if sigma is None else denoised_sigma(folder, sigma, radius=denoise[0]))
+        if white_roi is not None:
+            yw = recover(folder, white_roi=white_roi)
+            sw = uncertainty(folder, white_roi=white_roi)[0] if refl else None
+            variants["white+dn"] = (denoise_recovery(folder, yw, radius=denoise[0], eps=denoise[1]),
+                                    None if sw is None else denoised_sigma(folder, sw, radius=denoise[0]))
     truth = truth_cube(scene, wl) if refl else None
     for name, (v, s) in variants.items():
         px = evaluate_pixels(v, scene, wavelengths=wl, illuminant=ill)
@@ -105,10 +122,12 @@ def measure(description, bundle, plan, scene, seed, denoise=(DENOISE_RADIUS, DEN
 
 
 def chart_table(description, bundle, key, draws, budgets, seed):
-    scene, prior, basis, training = chart_setup(description, key)
+    scene, prior, basis, training, roi = chart_setup(description, key)
     plans = equal_time_plans(description, bundle, prior, basis, training=training, budgets=budgets, starts=4,
-                             iterations=300)
+                             iterations=300, denoise_radius=DENOISE_RADIUS)
     bounds = equal_time_bounds(description, bundle, prior, budgets=budgets)
+    filtered = equal_time_bounds(description, bundle, prior, budgets=budgets,
+                                 averaged=flat_variance_reduction(DENOISE_RADIUS))
     print(f"\n{CHARTS[key]} ({len(scene.masks)} patches), {scene.reflectance.shape[1]} x "
           f"{scene.reflectance.shape[0]}, per-pixel means over the patches' pixels, mean +- std over {draws} draws")
     print(f"{'method':<22}{'seq ms':>7}{'':>10}{'RMSE':>17}{'dE2000':>13}{'dE*ab':>13}{'z std':>12}"
@@ -116,11 +135,13 @@ def chart_table(description, bundle, key, draws, budgets, seed):
     test = np.stack([scene.reflectance[m].mean(axis=0) for m in scene.masks.values()])
     for T in budgets:
         K, rows = EQUAL_TIME[T]
-        for name in rows:
+        names = [n for name in rows for n in (name, f"{name}+denoise") if row_name(n, T) in plans]
+        for name in names:
             plan = plans[row_name(name, T)]
             acc = {}
             for d in range(draws):
-                m, _ = measure(description, bundle, plan, scene, 1000 * seed + 31 * d + K)
+                m, _ = measure(description, bundle, plan, scene, 1000 * seed + 31 * d + K,
+                               white_roi=roi if plan.method == "optimal" else None)
                 for variant, vals in m.items():
                     for k, v in vals.items():
                         acc.setdefault(variant, {}).setdefault(k, []).append(v)
@@ -130,16 +151,21 @@ def chart_table(description, bundle, key, draws, budgets, seed):
                         return "-"
                     mu, sd = mean_std(vals[k])
                     return f"{mu:.{digits}f}+-{sd:.{digits}f}"
-                exp = plan.params.get("expected", {}).get("rmse")
+                expected = plan.params.get("expected", {})
+                # raw: at the camera's noise; denoised: where the filter flattens it (a plan designed for it)
+                exp = expected.get({"raw": "rmse", "denoised": "rmse_at_decoder_noise"}.get(variant, ""))
                 floor = noise_free_rmse(bundle, plan, scene.wavelengths, test)
                 print(f"{(name if variant == 'raw' else ''):<22}"
                       f"{(f'{plan.sequence_s * 1e3:.1f}' if variant == 'raw' else ''):>7}{variant:>10}"
                       f"{pm('rmse', 4):>17}{pm('dE00', 2):>13}{pm('dEab', 2):>13}{pm('z', 2):>12}"
-                      f"{(f'{exp:.4f}' if exp and variant == 'raw' else ''):>9}"
+                      f"{(f'{exp:.4f}' if exp else ''):>9}"
                       f"{(f'{floor:.4f}' if floor is not None and variant == 'raw' else ''):>8}")
         b = bounds[T]
         print(f"{'':<22}limit at {T:g} ms ({K} frames), expected RMSE on the prior: any design >= "
               f"{b.lower_rmse:.4f}; best found {b.achieved_rmse:.4f}; noise-free rank limit {b.noise_free_rmse:.4f}")
+        f = filtered[T]
+        print(f"{'':<22}where the filter flattens the noise ({f.averaged:.0f} pixels): any design >= "
+              f"{f.lower_rmse:.4f}; best found {f.achieved_rmse:.4f}")
 
 
 def noise_free_rmse(bundle, plan, wavelengths, spectra):
@@ -169,31 +195,37 @@ def natural_table(description, bundle, draws, seed, denoise=(DENOISE_RADIUS, DEN
     cam = description.camera
     scene = natural_scene(cam.roi_height, cam.roi_width)
     prior = E.default_prior(E.HELD_OUT_CHART)
-    plan = _optimal9(description, bundle, prior)
+    plans = {"optimal-9": _optimal9(description, bundle, prior),
+             "optimal-9+denoise": _optimal9(description, bundle, prior, denoise_radius=denoise[0])}
     near = edge_mask(scene)
     masks = {"within 2 px of edges": near, "elsewhere": ~near}
-    print(f"\nnatural scene ({scene.name}), optimal-9 within 60 ms ({plan.sequence_s * 1e3:.1f} ms), per-pixel "
-          f"RMSE, mean +- std over {draws} draws")
+    print(f"\nnatural scene ({scene.name}), optimal-9 within 60 ms "
+          f"({plans['optimal-9'].sequence_s * 1e3:.1f} ms), per-pixel RMSE, mean +- std over {draws} draws; "
+          "ratio: to optimal-9 raw")
     for label, mask in masks.items():
         acc = {}
-        for d in range(draws):
-            m, _ = measure(description, bundle, plan, scene, 7000 + d, denoise=denoise, mask=mask)
-            for variant, vals in m.items():
-                acc.setdefault(variant, []).append(vals["rmse"])
-        raw, den = mean_std(acc["raw"]), mean_std(acc["denoised"])
-        print(f"  {label:<22} ({mask.mean() * 100:4.1f} % of pixels): raw {raw[0]:.4f}+-{raw[1]:.4f}, denoised "
-              f"{den[0]:.4f}+-{den[1]:.4f} (ratio {den[0] / raw[0]:.2f})")
+        for name, plan in plans.items():
+            for d in range(draws):
+                m, _ = measure(description, bundle, plan, scene, 7000 + d, denoise=denoise, mask=mask)
+                for variant, vals in m.items():
+                    acc.setdefault((name, variant), []).append(vals["rmse"])
+        base = mean_std(acc[("optimal-9", "raw")])[0]
+        for (name, variant), vals in acc.items():
+            mu, sd = mean_std(vals)
+            print(f"  {label:<22} ({mask.mean() * 100:4.1f} % of pixels) {name:<18} {variant:<9} {mu:.4f}+-{sd:.4f} "
+                  f"(ratio {mu / base:.2f})")
 
 
-def _optimal9(description, bundle, prior):
+def _optimal9(description, bundle, prior, denoise_radius=None):
     return E.budget_plan("optimal", bundle, 0.060, prior, lambda t: E.NoiseModel.from_rig(description, t),
-                         frames=9, starts=4, min_frame_period_s=description.camera.min_frame_period_s)
+                         frames=9, starts=4, min_frame_period_s=description.camera.min_frame_period_s,
+                         denoise_radius=denoise_radius)
 
 
 def tune(description, bundle, seed):
     """Per-pixel RMSE of optimal-9 within 60 ms, raw and denoised for a grid of (radius, eps), on the CES chart's
     patches and the natural scene within 2 px of its edges and elsewhere."""
-    scene, prior, _, _ = chart_setup(description, "ces")
+    scene, prior, _, _, _ = chart_setup(description, "ces")
     plan = _optimal9(description, bundle, prior)
     cam = description.camera
     nat = natural_scene(cam.roi_height, cam.roi_width)

@@ -8,7 +8,7 @@ scene still and with the scene moving (same noise seed), and recovered three way
 - still: the still sequence, decoded as it is, against the scene;
 - moving: the moving sequence decoded as it is (what specgpu did before motion compensation), against the scene
   as it was at the sequence's reference time (the mean of its frames' mid-exposure times);
-- compensated: ``recover_moving`` (a translation per frame estimated from the frames themselves by phase
+- compensated: ``recover_moving`` (:func:`specgpu.pipeline.moving_scores.compare_motion`; a translation per frame estimated from the frames themselves by phase
   correlation, then frame k sampled at x + d_k in the decoding pass), against the same truth.
 
 Per-pixel RMSE (reflectance, 400-700 nm at 10 nm) and dE2000 (D65) are averaged over the field and over the pixels
@@ -28,23 +28,18 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
 
 import numpy as np
-from scipy import ndimage
 
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.engine.linear_map import apply_linear
-from specgpu.pipeline.evaluate import evaluate_pixels
-from specgpu.pipeline.moving import recover_moving
-from specgpu.pipeline.recovery import capture_plan, default_basis
+from specgpu.pipeline.moving_scores import compare_motion
+from specgpu.pipeline.recovery import default_basis
 from specgpu.planning.design import plan_optimal
 from specgpu.planning.estimators import NoiseModel
 from specgpu.planning.priors import default_prior
 from specgpu.planning.registry import make_plan
-from specgpu.rig import CameraParameters, RigDescription, SpectralScene, natural_scene
+from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
-from specgpu.rig.twin import TwinRig
 
 EXPOSURE_S = 0.0049  # 200 fps less the light's 80 us switch time (and a margin)
 
@@ -84,76 +79,6 @@ def make_plans(desc, bundle, names):
     return plans
 
 
-def edge_band(reflectance, threshold, width=3):
-    """Pixels within ``width`` px of a step of the reflectance above ``threshold`` (RMS over bands)."""
-    r = reflectance
-    dx = np.sqrt(np.mean((r[:, 1:] - r[:, :-1]) ** 2, axis=2)) > threshold
-    dy = np.sqrt(np.mean((r[1:] - r[:-1]) ** 2, axis=2)) > threshold
-    edges = np.zeros(r.shape[:2], bool)
-    edges[:, 1:] |= dx
-    edges[:, :-1] |= dx
-    edges[1:] |= dy
-    edges[:-1] |= dy
-    return ndimage.distance_transform_edt(~edges) <= width
-
-
-def scores(y, truth, wavelengths, valid, band):
-    rep = evaluate_pixels(y, truth, wavelengths=wavelengths)
-    out = {}
-    for name, where in (("field", valid), ("edge", valid & band)):
-        out[f"rmse_{name}"] = float(np.mean(rep.rmse[where]))
-        out[f"dE_{name}"] = float(np.mean(rep.delta_E_2000[where]))
-    return out
-
-
-def run_case(desc, bundle, plan, scene, motion, seed, edge, model="translation"):
-    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
-    still = capture_plan(desc, plan, scene, noise_seed=seed).sequences[0]
-    moving_desc = replace(desc, motion=motion)
-    seq = capture_plan(moving_desc, plan, scene, noise_seed=seed).sequences[0]
-    rig = TwinRig(plan.rig_description(moving_desc), scene=scene)
-    truth = rig.motion_truth(seq.timestamps_s)
-    t_scene = SpectralScene(scene.wavelengths, truth["reflectance"], name="truth at the reference time")
-    t0 = time.perf_counter()
-    comp = recover_moving(seq.frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code), model=model)
-    t_comp = time.perf_counter() - t0
-    y_still = apply_linear(still.frames, plan.A, dark, gain)
-    y_moving = apply_linear(seq.frames, plan.A, dark, gain)
-    valid = np.all(np.isfinite(comp.y), axis=2) & np.all(np.isfinite(y_still), axis=2) \
-        & np.all(np.isfinite(y_moving), axis=2)
-    flagged = float(1.0 - valid.mean())
-    obj = truth["object_mask"]
-    object_flagged = None
-    if obj is not None:  # scored outside a 3 px band about the object's edges at the reference time
-        inside = obj > 0.5
-        border = ndimage.distance_transform_edt(~inside) <= 3
-        border &= ndimage.distance_transform_edt(inside) <= 3
-        object_flagged = (float((~valid & inside).sum() / inside.sum()), float((~valid & ~inside).mean()))
-        valid &= ~border
-    ow = plan.output_wavelengths
-    band_still = edge_band(scene.reflectance, edge)
-    band_moving = edge_band(truth["reflectance"], edge)
-    est = comp.estimates[0].shifts
-    if est.ndim == 4:  # flow: the background's error, away from the object
-        away = np.ones(scene.shape, bool) if truth["object_mask"] is None else \
-            ndimage.distance_transform_edt(truth["object_mask"] < 0.5) > 40
-        shift_error = float(np.abs(est - truth["displacement"][:, :, None, None])[:, :, away].max())
-    elif est.ndim == 3:  # affine: the error of the displacement at the corners of the field
-        h, w = scene.shape
-        corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], float)
-        true_maps = truth["maps"]
-        shift_error = float(np.abs(np.einsum("kij,cj->kci", est - true_maps, corners)).max())
-    else:
-        shift_error = float(np.abs(est - truth["displacement"]).max())
-    return {"still": scores(y_still, scene, ow, valid, band_still),
-            "moving": scores(y_moving, t_scene, ow, valid, band_moving),
-            "compensated": scores(comp.y, t_scene, ow, valid, band_moving),
-            "flagged": flagged, "object_flagged": object_flagged,
-            "edge_share": float((valid & band_moving).sum() / max(valid.sum(), 1)),
-            "shift_error_px": shift_error,
-            "seconds": t_comp}
-
-
 def fmt(values, digits):
     v = np.asarray(values, float)
     return f"{v.mean():.{digits}f}" + (f"+-{v.std():.{digits}f}" if v.size > 1 else "")
@@ -190,8 +115,10 @@ def main(argv=None):
             if pname == "narrowband-31" and case not in NARROWBAND_CASES:
                 continue
             model = case.rpartition("-")[2] if case.endswith(("-affine", "-flow")) else "translation"
-            runs = [run_case(desc, bundle, plan, scene, motion, 1000 + 31 * d, args.edge, model)
+            runs = [compare_motion(desc, bundle, plan, scene, motion, 1000 + 31 * d, edge=args.edge, model=model)
                     for d in range(args.draws)]
+            for run in runs:
+                run.pop("maps")  # the error maps: for the demo's figures, not the table
             row = {"case": case, "motion": label, "plan": pname, "runs": runs}
             rows.append(row)
             for kind in ("still", "moving", "compensated"):

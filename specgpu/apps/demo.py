@@ -5,7 +5,9 @@ plans narrowband-31, biased-6, symmetric-9 and the tristimulus imager for D65 an
 Wiener decoder of symmetric-9 and designed illuminants with 9, 6 and 3 frames (:data:`ESTIMATOR_ROWS`, their
 prior: every colour-science set but the chart's), captures the 24-patch chart
 at the camera's resolution through the capture path, recovers on the OpenCL device, evaluates per patch and per
-pixel, prints Tables 1, 2 and 3 beside the paper's, and writes a report folder:
+pixel, prints Tables 1, 2 and 3 beside the paper's and a moving-scene section (symmetric-9 at 200 fps on a scene
+translating 3 px per frame: still, moving as decoded, motion-compensated; :mod:`specgpu.apps.moving_demo`), and
+writes a report folder:
 
     index.html                  the tables and every figure, one page
     report.json                 every figure of the run, machine-readable
@@ -33,6 +35,7 @@ from tqdm import tqdm
 from specgpu import io
 from specgpu.apps import paper
 from specgpu.apps.estimator_study import study_plans
+from specgpu.apps.moving_demo import moving_html, moving_lines, moving_section
 from specgpu.apps.report import report_page, summarise_method, table1_html, table2_html, table3_html
 from specgpu.apps.studies import chart_with_white, mean_std, measure_methods
 from specgpu.calibration import calibrate, save_calibration
@@ -88,11 +91,13 @@ class DemoResult:
     main: str = ""
     #: budget (ms) -> the limit of any design of the equal-time rows' frame count (main profile)
     bounds: dict = field(default_factory=dict)
+    #: the moving-scene section (:func:`specgpu.apps.moving_demo.moving_section`)
+    moving: dict = field(default_factory=dict)
 
 
 def _steps(echo, progress, n_profiles):
     equal = sum(len(rows) for _, rows in EQUAL_TIME.values())
-    return tqdm(total=n_profiles * (2 + len(DEMO_METHODS) + len(ESTIMATOR_ROWS) + equal) + 3, desc="demo",
+    return tqdm(total=n_profiles * (2 + len(DEMO_METHODS) + len(ESTIMATOR_ROWS) + equal) + 4, desc="demo",
                 unit="step",
                 leave=False, disable=not progress)
 
@@ -207,6 +212,9 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
         for rows in result.draws[label].values():
             rows.pop("reports", None)
 
+    bar.set_description("a moving scene")
+    result.moving = moving_section(profiles[main], basis, seed=seed)
+    bar.update()
     bar.set_description("figures")
     _figures(out, main_plans, result, main_scene, main_bundle)
     bar.update()
@@ -326,6 +334,8 @@ def format_tables(result: DemoResult) -> str:
     lines += table1_lines(result, ("narrowband", "biased", "symmetric", "tristimulus-D65", "tristimulus-A")
                           + ESTIMATOR_ROWS)
     lines += equal_time_lines(result)
+    if result.moving:
+        lines += moving_lines(result.moving)
     if result.main:
         lines.append(f"(Tables 2 and 3: the {result.main} profile, first draw)")
     nb, sy = m["narrowband"]["patch"], m["symmetric"]["patch"]
@@ -379,7 +389,9 @@ def _report_json(result: DemoResult) -> dict:
     bounds = {f"{T:g}ms": {"frames": b.frames, "lower_rmse": b.lower_rmse, "achieved_rmse": b.achieved_rmse,
                            "noise_free_rmse": b.noise_free_rmse, "exposure_s": b.exposure_s}
               for T, b in result.bounds.items()}
+    moving = {k: v for k, v in result.moving.items() if k != "maps"}
     return {"main_profile": result.main, "profiles": result.profiles, "draws": draws, "bounds": bounds,
+            "moving_scene": moving,
             "seconds": result.seconds, "calibration": result.calibration, "basis_cumulative_variance":
             result.basis_variance, "methods": methods,
             "paper": {"table1": paper.TABLE1, "table3": paper.TABLE3_SUMMARY}}
@@ -444,4 +456,5 @@ def _html(result: DemoResult, scene, bundle, device) -> str:
              f"{result.seconds:.1f} s; every figure in <a href='report.json'>report.json</a>.</p>")
     summaries = {name: r["summary"] for name, r in m.items()}
     return report_page("specgpu demo: the paper's experiment on the digital twin", intro, summaries, scene=scene,
-                       bundle=bundle, tables=tables, device=device)
+                       bundle=bundle, tables=tables, device=device,
+                       sections=moving_html(result.moving) if result.moving else "")

@@ -305,16 +305,17 @@ def _illuminants_section(summaries, bundle) -> str:
 
 
 def report_page(title: str, intro: str, summaries: dict, *, scene=None, bundle=None, tables: str = "",
-                device=None) -> str:
+                device=None, sections: str = "") -> str:
     """The report as one HTML document: ``intro`` (HTML) and the summary on top, then ``tables`` (HTML; the
-    per-method and per-patch tables are added), spectra, error and sigma maps, renderings and illuminants."""
+    per-method and per-patch tables are added), ``sections`` (HTML, each with its own heading), spectra, error
+    and sigma maps, renderings and illuminants."""
     summary = ("<div class='summary'>" + intro + "<ul>" + "".join(f"<li>{line}</li>" for line in
                                                                  _summary_lines(summaries)) + "</ul>"
                + summary_table(summaries) + "</div>")
     names = next((s.patch.names for s in summaries.values() if s.patch is not None), None)
     patch = patch_table_html(summaries, names) if names and not tables else ""
     body = (f"<h1>{html.escape(title)}</h1>{summary}"
-            + (f"<h2>Tables</h2>{tables}{patch}" if tables or patch else "")
+            + (f"<h2>Tables</h2>{tables}{patch}" if tables or patch else "") + sections
             + _spectra_section(summaries, scene) + _maps_section(summaries)
             + _renderings_section(summaries, scene, device) + _illuminants_section(summaries, bundle))
     return page(title, body)

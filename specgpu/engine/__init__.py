@@ -128,6 +128,6 @@ __all__ = [
     "transfer_mode",
 ]
 
-from specgpu.engine.guided import box_box_variance, guided_filter  # noqa: E402
+from specgpu.engine.guided import box_box_variance, flat_variance_reduction, guided_filter  # noqa: E402
 
-__all__ += ["box_box_variance", "guided_filter"]
+__all__ += ["box_box_variance", "flat_variance_reduction", "guided_filter"]

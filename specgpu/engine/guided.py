@@ -21,7 +21,7 @@ from specgpu.core.validate import check_number
 from specgpu.engine.kernels import _empty, _launch_lock, to_device
 from specgpu.engine.runtime import get_kernel, get_queue
 
-__all__ = ["guided_filter", "box_box_variance"]
+__all__ = ["guided_filter", "box_box_variance", "flat_variance_reduction"]
 
 _GROUP = 128  # work-items per group
 
@@ -39,12 +39,14 @@ def _run(queue, name, shape, *args):
         return cl.enqueue_nd_range_kernel(queue, kernel, glob, local)
 
 
-def _box(queue, src, H, W, C, r):
+def _box(queue, src, H, W, C, r, keep):
+    """Box means along x then y; the intermediate image is appended to ``keep`` (see :func:`guided_filter`)."""
     tmp = _empty(queue, H * W * C, np.float32)
     out = _empty(queue, H * W * C, np.float32)
     args = (np.int32(H), np.int32(W), np.int32(C), np.int32(r))
     _run(queue, "box_h", (C, W, H), src.data, tmp.data, *args)
     _run(queue, "box_v", (C, W, H), tmp.data, out.data, *args)
+    keep.append(tmp)
     return out
 
 
@@ -84,16 +86,24 @@ def guided_filter(image, guide, *, radius: int, eps: float, device=None):
     g = to_device(queue, guide if isinstance(guide, cla.Array) else np.asarray(guide, np.float32), np.float32)
     n = H * W
     C = 2 * B + 2
+    # Every intermediate stays referenced until the last kernel has run: the memory pool is the context's, shared
+    # by every queue and thread on it, and a buffer back in it while a queued kernel still uses it could be
+    # handed to another queue's work and overwritten.
+    keep = [p, g]
     x = _empty(queue, n * C, np.float32)
     _run(queue, "gf_products", (B, n), p.data, g.data, x.data, np.int32(B), np.uint64(n))
-    m = _box(queue, x, H, W, C, r)
+    m = _box(queue, x, H, W, C, r, keep)
     ab = _empty(queue, n * 2 * B, np.float32)
     _run(queue, "gf_coeffs", (B, n), m.data, ab.data, np.int32(B), np.float32(e), np.uint64(n))
-    mab = _box(queue, ab, H, W, 2 * B, r)
+    mab = _box(queue, ab, H, W, 2 * B, r, keep)
     out = _empty(queue, n * B, np.float32)
-    _run(queue, "gf_apply", (B, n), mab.data, g.data, out.data, np.int32(B), np.uint64(n))
+    done = _run(queue, "gf_apply", (B, n), mab.data, g.data, out.data, np.int32(B), np.uint64(n))
+    keep += [x, m, ab, mab]
     out = out.reshape(H, W, B)
-    return out if on_device else out.get()
+    if not on_device:
+        return out.get()
+    done.wait()
+    return out
 
 
 def box_box_variance(variance, radius: int) -> np.ndarray:
@@ -109,3 +119,13 @@ def box_box_variance(variance, radius: int) -> np.ndarray:
     v = np.asarray(variance, np.float64)
     v = correlate1d(correlate1d(v, t2, axis=0, mode="nearest"), t2, axis=1, mode="nearest")
     return v.astype(np.float32)
+
+
+def flat_variance_reduction(radius: int) -> float:
+    """How many times the guided filter of radius ``radius`` lowers the variance of independent per-pixel noise
+    where its guide is flat (the mean of box means, :func:`box_box_variance` far from a border):
+    ``1 / (sum_d t(d)^2)^2``, about 54 at radius 2. At an edge the filter follows the guide and lowers it less."""
+    r = int(check_number("radius", radius, integer=True, low=1, high=1024))
+    d = np.arange(-2 * r, 2 * r + 1)
+    t2 = ((2 * r + 1 - np.abs(d)) / (2 * r + 1) ** 2) ** 2
+    return float(1.0 / t2.sum() ** 2)

@@ -268,6 +268,8 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
     shapes = dec.shapes()
     arrays, mapped, events = {}, [], []
     for name, dev in outs.items():
+        if name not in shapes:  # a buffer the decoder computes from and keeps on the device (a denoised Lab's XYZ)
+            continue
         shape, dtype = shapes[name]
         if zero_copy:  # READ | WRITE: saturated pixels are set to NaN in place
             arr, ev = cl.enqueue_map_buffer(q, dev, cl.map_flags.READ | cl.map_flags.WRITE, 0, shape, dtype,

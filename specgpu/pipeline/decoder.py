@@ -181,6 +181,8 @@ class StreamDecoder:
             if "dE_sigma" in outputs:
                 self.cov_constant = self.to_XYZ @ const @ self.to_XYZ.T  # (3, 3) what no frame shows
         self.denoise = None if denoise is None else stream_denoise(plan, outputs, self.cube_dtype, denoise)
+        #: Lab and dE computed after the filter from the filtered XYZ instead of in the fused colour kernel
+        self._lab_from_filtered = bool(self.denoise and self.denoise["from_XYZ"])
         self._guide_launches: dict = {}
         if "dE" in outputs:
             if reference is None:
@@ -314,7 +316,8 @@ class StreamDecoder:
                 launches.append((engine.prepare_frames_to_delta_E(
                     q, dtype, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
                     else "CIE 2000", reference_single=self.reference_single, dark=self.dark, gain=self.gain,
-                    write_XYZ="XYZ" in self.outputs or "dE_sigma" in self.outputs, write_Lab="Lab" in self.outputs,
+                    write_XYZ="XYZ" in self.outputs or "dE_sigma" in self.outputs or self._lab_from_filtered,
+                    write_Lab="Lab" in self.outputs and not self._lab_from_filtered,
                     **sat), {"XYZ": "XYZ", "Lab": "Lab", "delta_E": "dE", "mask": "mask"}))
             sat = {}
         if "dE_sigma" in self.outputs:  # on the XYZ and XYZ_cov buffers of the launches above
@@ -342,9 +345,9 @@ class StreamDecoder:
         return out
 
     def _denoised(self, frames: cla.Array, out: dict) -> None:
-        """Replace the linear outputs in ``out`` by their guided filter (:mod:`specgpu.pipeline.denoise`): the
-        guide, the frames' sum above dark, by one more linear launch; its 99th percentile read on the host (a
-        blocking read of one plane) scales eps as ``recover --denoise`` does."""
+        """Replace the linear outputs in ``out`` by their guided filter (:mod:`specgpu.pipeline.denoise`), and Lab
+        and dE by those of the filtered XYZ: the guide, the frames' sum above dark, by one more linear launch; its
+        99th percentile read on the host (a blocking read of one plane) scales eps as ``recover --denoise`` does."""
         dtype = np.dtype(frames.dtype)
         launch = self._guide_launches.get(dtype)
         if launch is None:
@@ -353,12 +356,18 @@ class StreamDecoder:
             self._guide_launches[dtype] = launch
         guide = cla.Array(self.queue, (self.height, self.width), np.float32, data=launch.enqueue(frames.data)["out"])
         level = float(np.nanpercentile(guide.get(), 99))
-        if not level > 0:  # no light above dark: nothing to guide, the outputs stay as decoded
-            return
         for name, channels in self.denoise["channels"].items():
-            if name in out:
+            if name in out and level > 0:  # no light above dark: nothing to guide, the outputs stay as decoded
                 image = cla.Array(self.queue, (self.height, self.width, channels), np.float32, data=out[name])
                 out[name] = guided_filter(image, guide, radius=self.denoise["radius"],
                                           eps=self.denoise["eps"] * level ** 2).data
+        if self._lab_from_filtered:  # CIELAB and dE of the filtered XYZ, as recover --denoise computes them
+            xyz = cla.Array(self.queue, (3 * self.n,), np.float32, data=out["XYZ"])
+            lab = engine.launch_XYZ_to_Lab(self.queue, xyz, self.white, n=self.n)
+            if "Lab" in self.outputs:
+                out["Lab"] = lab.data
+            if "dE" in self.outputs:
+                out["dE"] = engine.launch_delta_E(self.queue, self.reference, lab, method=self.method, n=self.n,
+                                                  single1=self.reference_single).data
 
 

@@ -26,7 +26,7 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
 
-__all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "sequence_guide", "output_subspace", "denoise_recovery", "denoised_sigma",
+__all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace", "denoise_recovery", "denoised_sigma",
            "stream_denoise"]
 
 #: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/budget_study.py --tune``): on
@@ -65,6 +65,23 @@ def sequence_guide(folder, *, sequence: int | None = None, device=None) -> np.nd
     if not level > 0:
         raise ValueError(f"{folder.path}: the frames hold no light above dark: nothing to guide the denoising")
     return (g / level).astype(np.float32)
+
+
+def denoise_design_warning(plan, radius: int | None) -> str | None:
+    """One line when a plan designed for the filter (``specgpu plan --denoise``, ``params["denoise"]``) is
+    recovered without it (``radius`` None) or with another radius: its decoder is made for the filtered noise, so
+    unfiltered it is noisier than a plan designed for none; None otherwise."""
+    designed = plan.params.get("denoise") if isinstance(plan.params, dict) else None
+    if not designed:
+        return None
+    r = int(designed["radius"])
+    if radius is None:
+        return (f"the {plan.method} plan's decoder is designed for --denoise --denoise-radius {r}: without the "
+                "filter its outputs are noisier than those of a plan designed for none")
+    if int(radius) != r:
+        return (f"the {plan.method} plan's decoder is designed for --denoise-radius {r}, filtered here with "
+                f"{int(radius)}")
+    return None
 
 
 def _check(radius, eps):
@@ -118,21 +135,28 @@ def denoised_sigma(folder, sigma, *, sequence: int | None = None, radius: int = 
 
 
 #: The stream outputs the guided filter applies to (linear in the frames, so filtering them is filtering the
-#: cube), and those it cannot be applied to yet.
+#: cube), and those computed from the filtered XYZ (CIELAB and dE, as recover --denoise computes them from the
+#: filtered cube).
 DENOISED_STREAM_OUTPUTS = ("coefficients", "cube", "XYZ")
+FROM_DENOISED_XYZ = ("Lab", "dE")
 
 
 def stream_denoise(plan, outputs, cube_dtype, denoise) -> dict:
     """The stream's denoising set-up for ``denoise`` = (radius, eps): the guide's row (every frame but an ambient
-    one), the channels of each filtered output; refuses (one line) outputs it cannot carry (Lab and dE are not
-    linear in the frames; the sigma maps are not carried through the filter in the stream) and a float16 cube."""
+    one), the channels of each filtered output (XYZ too when Lab or dE come from it), and whether Lab and dE are
+    recomputed from the filtered XYZ; refuses (one line) the sigma maps (not carried through the filter in the
+    stream) and a float16 cube."""
     r, e = _check(*denoise)
-    bad = [o for o in outputs if o not in DENOISED_STREAM_OUTPUTS]
+    bad = [o for o in outputs if o not in DENOISED_STREAM_OUTPUTS + FROM_DENOISED_XYZ]
     if bad:
-        raise ValueError(f"--denoise filters the stream's {', '.join(DENOISED_STREAM_OUTPUTS)} outputs; "
-                         f"{', '.join(bad)} cannot be denoised in the stream yet (leave them out, or recover the "
-                         "recording's frames with recover --denoise)")
+        raise ValueError(f"--denoise filters the stream's {', '.join(DENOISED_STREAM_OUTPUTS)} outputs and computes "
+                         f"{', '.join(FROM_DENOISED_XYZ)} from the filtered XYZ; {', '.join(bad)} cannot be denoised "
+                         "in the stream yet (leave them out, or recover the recording's frames with recover "
+                         "--denoise --sigma)")
     if "cube" in outputs and np.dtype(cube_dtype) != np.float32:
         raise ValueError("--denoise needs a float32 cube (leave --half out)")
     m = int(plan.params["m"]) if "m" in plan.params else output_subspace(plan).shape[1]
-    return {"radius": r, "eps": e, "row": guide_row(plan), "channels": {"coefficients": m, "cube": plan.A.shape[0], "XYZ": 3}}
+    derived = [o for o in outputs if o in FROM_DENOISED_XYZ]
+    channels = {"coefficients": m, "cube": plan.A.shape[0], "XYZ": 3}
+    filtered = {k: v for k, v in channels.items() if k in outputs or (k == "XYZ" and derived)}
+    return {"radius": r, "eps": e, "row": guide_row(plan), "channels": filtered, "from_XYZ": derived}

@@ -8,7 +8,8 @@ whose error covariance is ``(S^-1 + F^T N^-1 F)^-1`` (S: the prior's second mome
 lowers that error, so the result stays below what any real design reaches:
 
 * the light's fluctuation term is dropped (``v_k >= s_read^2 + F_k mu / g``);
-* each frame's spectrum may be any ``0 <= F_k <= t w`` (w: the response with every mirror on, t the longest
+* each frame's spectrum may be any ``0 <= F_k <= t w`` (w: the response with every mirror on that lights the
+  prior's range, as the designs, :func:`specgpu.planning.design.columns_within`; t the longest
   exposure the budget allows), not only what the slit's blur lets the mirrors make, and no sign or shape limit;
 * the information ``I = sum_k F_k F_k^T / v_k`` is kept only through its rank (<= K) and trace
   (<= K c, c the largest ``|F|^2 / v`` of one frame: exact over the box, and at most ``sum u_b F_b / v`` under
@@ -47,6 +48,8 @@ class Bound:
     noise_free_rmse : the error of K noise-free measurements (the prior's rank-K limit; no light can do better).
     achieved_rmse : expected RMSE of the best design found (an achievable error; the limit is at most this).
     starts : starting points of that search.
+    averaged : the shot and read noise taken as a mean over this many pixels (1: one pixel's; more: where a
+        spatial filter flattens it, ``specgpu bound --denoise``).
     """
 
     frames: int
@@ -56,11 +59,14 @@ class Bound:
     noise_free_rmse: float
     achieved_rmse: float
     starts: int
+    averaged: float = 1.0
 
     def lines(self) -> list[str]:
+        noise = "shot and read noise" if self.averaged == 1.0 else \
+            f"shot and read noise averaged over {self.averaged:.0f} pixels, as the filter does where the scene is flat"
         return [f"{self.frames} frames within {self.sequence_s * 1e3:g} ms per sequence (exposure at most "
                 f"{self.exposure_s * 1e3:.3f} ms):",
-                f"  lower bound, any linear design: RMSE >= {self.lower_rmse:.4f} (shot and read noise; frames "
+                f"  lower bound, any linear design: RMSE >= {self.lower_rmse:.4f} ({noise}; frames "
                 "relaxed to any spectrum within every mirror's light)",
                 f"  best design found ({self.starts} starts): RMSE {self.achieved_rmse:.4f} (achievable: the limit "
                 "lies between the two)",
@@ -119,15 +125,18 @@ def waterfill_mse(eigenvalues, frames: int, information: float) -> float:
 
 
 def design_bound(bundle, prior: Prior, noise_at, *, frames: int, sequence_s: float, min_frame_period_s: float = 0.0,
-                 level: float = 0.9, starts: int = 8, iterations: int = 300, seed: int = 0) -> Bound:
+                 level: float = 0.9, starts: int = 8, iterations: int = 300, seed: int = 0,
+                 averaged: float = 1.0) -> Bound:
     """The limit of ``frames``-frame linear designs within ``sequence_s`` on ``bundle``'s light and camera, for
     ``prior`` and the camera's noise ``noise_at(exposure_s) -> NoiseModel`` (see the module notes).
 
-    ``level``: the fraction of the range above dark a frame may reach on a white (the designs' own).
+    ``level``: the fraction of the range above dark a frame may reach on a white (the designs' own);
+    ``averaged``: the shot and read noise taken as a mean over that many pixels (:meth:`NoiseModel.averaged`:
+    the limit where ``recover --denoise`` flattens the noise, the light's fluctuation kept).
     """
     K = int(frames)
     t = exposure_within(sequence_s, K, bundle.min_exposure_s, min_frame_period_s)
-    noise: NoiseModel = noise_at(t)
+    noise: NoiseModel = noise_at(t).averaged(averaged)
     Sb = _system_on(bundle, prior.wavelengths)  # (C, B) DN/s per full column per unit reflectance
     B = prior.wavelengths.size
     cap = level * (bundle.max_code - float(np.mean(bundle.dark)))
@@ -138,4 +147,5 @@ def design_bound(bundle, prior: Prior, noise_at, *, frames: int, sequence_s: flo
     noise_free = math.sqrt(max(np.sort(np.clip(s, 0, None))[::-1][K:].sum(), 0.0) / B)
     _, J = design_optimal(Sb, prior, noise, K, cap, starts=int(starts), iterations=int(iterations), seed=seed,
                           exposure_s=t)
-    return Bound(K, float(sequence_s), float(t), lower, noise_free, math.sqrt(max(J, 0.0)), int(starts))
+    return Bound(K, float(sequence_s), float(t), lower, noise_free, math.sqrt(max(J, 0.0)), int(starts),
+                 float(averaged))

@@ -3,7 +3,9 @@ of the Wiener decoder for a training prior and the camera's noise (``specgpu pla
 narrowband (``specgpu plan hadamard``).
 
 **Optimal.** A frame's model output per unit reflectance is ``F_k = t (n_k / rows) S`` (S: DN/s per full column
-per unit reflectance, from the calibration; n_k the mirror counts; t the common exposure). More light always
+per unit reflectance, from the calibration; n_k the mirror counts; t the common exposure). Only columns whose
+light falls within the prior's wavelength range are lit (:func:`columns_within`): beyond it the prior knows nothing
+of the reflectance, and light there would be decoded as if it were the end band's. More light always
 lowers the relative noise, so the best frames reach the camera's usable range on a perfect white; the design
 therefore optimises the *shape* of each frame, ``F_k = cap x_k S / (x_k S 1)`` with ``x_k >= 0`` column levels and
 ``cap`` the level the plan allows above dark, minimising the expected weighted error of the Wiener estimate
@@ -34,6 +36,7 @@ import numpy as np
 from specgpu.calibration.bundle import DEFAULT_MAX_EXPOSURE_S
 from specgpu.core.spectra import XYZ_weights
 from specgpu.engine.colorimetry import XYZ_to_Lab
+from specgpu.engine.guided import flat_variance_reduction
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.plans import _band_masks, _base, _quantize
@@ -41,7 +44,7 @@ from specgpu.planning.priors import Prior
 from specgpu.planning.timing import budget_params, check_budget, exposure_within
 from specgpu.rig.scene import interpolation_matrix
 
-__all__ = ["OBJECTIVES", "design_optimal", "plan_optimal", "plan_hadamard", "s_matrix", "objective_weights",
+__all__ = ["OBJECTIVES", "WITHIN_PRIOR", "columns_within", "design_optimal", "plan_optimal", "plan_hadamard", "s_matrix", "objective_weights",
            "wiener_objective"]
 
 OBJECTIVES = ("rmse", "dE2000", "dEab")
@@ -189,17 +192,38 @@ def design_optimal(system, prior: Prior, noise: NoiseModel, K: int, cap: float, 
     return levels, float(best[0])
 
 
+#: The least share of a column's camera signal (on a white) that must fall within the prior's wavelength range
+#: for a design to light it (:func:`columns_within`).
+WITHIN_PRIOR = 0.99
+
+
+def columns_within(bundle, wavelengths, share: float = WITHIN_PRIOR) -> np.ndarray:
+    """(C,) bool: the light's columns of which at least ``share`` of the camera signal on a white falls within
+    ``wavelengths``' range. Light outside the prior's range measures a reflectance the prior cannot predict: the
+    decoder takes it for the end band's (constant beyond the ends), so a design that lit the far red beyond 700
+    nm (where leaves and skin rise steeply) biased every band it decodes."""
+    wl = np.asarray(wavelengths, np.float64)
+    bw = np.asarray(bundle.wavelengths, np.float64)
+    sm = np.asarray(bundle.system_matrix, np.float64)  # (G, C) DN/s per nm per full column
+    inside = sm[(bw >= wl.min()) & (bw <= wl.max())].sum(axis=0)
+    total = sm.sum(axis=0)
+    return inside >= share * np.where(total > 0, total, np.inf)
+
+
 def _system_on(bundle, wavelengths) -> np.ndarray:
-    """(C, B) DN/s per full column per unit reflectance on ``wavelengths``."""
+    """(C, B) DN/s per full column per unit reflectance on ``wavelengths``; zero for a column whose light falls
+    outside their range (:func:`columns_within`), which a design therefore never lights."""
     dl = float(bundle.wavelengths[1] - bundle.wavelengths[0])
-    return dl * bundle.system_matrix.T @ interpolation_matrix(bundle.wavelengths, np.asarray(wavelengths, np.float64))
+    wl = np.asarray(wavelengths, np.float64)
+    S = dl * bundle.system_matrix.T @ interpolation_matrix(bundle.wavelengths, wl)
+    return S * columns_within(bundle, wl)[:, None]
 
 
 def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: str = "rmse", illuminant="D65",
                  training=None, output_wavelengths=None, level: float = 0.9, max_exposure_s: float | None = None,
                  target: float | None = None, exposure_s: float | None = None, starts: int = 4, seed: int = 0,
                  iterations: int = 300, sequence_s: float | None = None, min_frame_period_s: float = 0.0,
-                 extra_frames: int = 0):
+                 extra_frames: int = 0, denoise_radius: int | None = None):
     """An optimal K-frame plan (see the module notes) with the Wiener decoder and its expected error recorded.
 
     Parameters
@@ -234,6 +258,15 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         spectral shape against photons (broad frames collect more light) instead of lengthening the exposure.
     starts, seed, iterations
         The search's starting points, their seed and its L-BFGS-B iterations per start (:func:`design_optimal`).
+    denoise_radius : int, optional
+        Design for outputs that ``recover --denoise`` will filter with this radius: the frames and the Wiener
+        decoder are made for the shot and read noise the filter leaves where the scene is flat
+        (:func:`specgpu.engine.guided.flat_variance_reduction` times lower; the light's fluctuation, common to a
+        frame, unchanged), so the design spends fewer photons on averaging noise and more on spectral shape. The
+        plan's noise model stays the camera's (its sigma maps are the raw outputs'); ``params["denoise"]`` records
+        the radius and the reduction, ``params["expected"]`` the error without the filter and
+        ``rmse_at_decoder_noise`` on flat regions with it. Without the filter such a plan is noisier than one
+        designed for none.
     """
     if prior.n < 1:
         raise ValueError("the training set is empty: give at least one spectrum")
@@ -244,6 +277,13 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         raise ValueError(f"level must lie in (0, 1], got {level!r}")
     ow = np.arange(400.0, 700.0 + 1e-9, 10.0) if output_wavelengths is None else np.asarray(output_wavelengths, float)
     P = objective_weights(prior, obj, illuminant, training)
+    camera_noise_at = noise_at
+    reduction = None
+    if denoise_radius is not None:
+        reduction = flat_variance_reduction(denoise_radius)
+
+        def noise_at(t):  # the noise the filter leaves where the scene is flat: what the design and decoder see
+            return camera_noise_at(t).averaged(reduction)
     Sb = _system_on(bundle, prior.wavelengths)
     cap = level * (bundle.max_code - float(np.mean(bundle.dark)))
     # the frame time follows the exposure (Plan.rig_description lowers the frame rate), as for narrowband plans
@@ -282,15 +322,20 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
                  output="reflectance", output_wavelengths=ow, output_labels=tuple(f"{x:g}nm" for x in ow),
                  illuminant="", observer="", params={"frames": int(frames), "objective": obj,
                                                      "objective_illuminant": str(illuminant),
-                                                     **budget_params(sequence_s, min_frame_period_s)})
-    plan = with_estimator(plan, bundle, "wiener", prior=prior, noise=noise_at(plan.exposure_s))
+                                                     **budget_params(sequence_s, min_frame_period_s),
+                                                     **({} if reduction is None else {"denoise": {
+                                                         "radius": int(denoise_radius),
+                                                         "variance_reduction": reduction}})})
+    plan = with_estimator(plan, bundle, "wiener", prior=prior, noise=camera_noise_at(plan.exposure_s),
+                          decoder_noise=None if reduction is None else noise_at(plan.exposure_s))
     exp = dict(plan.params["expected"])
     F = bundle.forward_matrix(plan.patterns, prior.wavelengths, plan.exposure_s)
     Jw, _ = wiener_objective(F, prior, noise_at(plan.exposure_s), P)
     exp["objective_value"] = float(Jw)
     if obj != "rmse":
         exp[obj] = float(math.sqrt(max(Jw, 0.0)))
-    value = exp[obj]
+    # the objective and the target at the noise the decoder is built for (the filtered one with denoise_radius)
+    value = exp["rmse_at_decoder_noise"] if obj == "rmse" and reduction is not None else exp[obj]
     plan = replace(plan, params={**plan.params, "expected": exp})
     check_budget(plan, extra_frames)
     if target is not None and value > target:

@@ -35,11 +35,13 @@ def row_name(name: str, budget_ms: float) -> str:
 
 
 def equal_time_plans(description, bundle, prior, basis, *, training=None, extra_frames: int = 0, budgets=None,
-                     starts: int = 1, iterations: int = 100) -> dict:
+                     starts: int = 1, iterations: int = 100, denoise_radius: int | None = None) -> dict:
     """The plans of :data:`EQUAL_TIME` (``budgets``: a subset of its keys), each within its budget with
     ``extra_frames`` frames more per sequence (an ambient frame), named by :func:`row_name`, every one with the
     camera's noise model and its expected error on ``prior`` recorded. ``training``: the spectra of a colour
-    objective's weighting (the prior's own set); ``starts``, ``iterations``: the designs' search."""
+    objective's weighting (the prior's own set); ``starts``, ``iterations``: the designs' search;
+    ``denoise_radius``: each optimal row also designed for ``recover --denoise`` at that radius
+    (:func:`specgpu.planning.design.plan_optimal`), named ``<name>+denoise``."""
 
     def noise_at(t):
         return NoiseModel.from_rig(description, t)
@@ -52,28 +54,33 @@ def equal_time_plans(description, bundle, prior, basis, *, training=None, extra_
         for name, (method, kw, est) in rows.items():
             if method == "optimal":
                 tr = training if kw.get("objective", "rmse") != "rmse" else None
-                plan = budget_plan("optimal", bundle, T / 1e3, prior, noise_at, output_wavelengths=ow, training=tr,
-                                   starts=starts, iterations=iterations, min_frame_period_s=floor,
-                                   extra_frames=extra_frames, **kw)
-            else:
-                args = (basis,) if method in ("biased", "symmetric") else ()
-                extra = {"output_wavelengths": ow} if method in ("biased", "symmetric") else {}
-                plan = budget_plan(method, bundle, T / 1e3, *args, min_frame_period_s=floor,
-                                   extra_frames=extra_frames, **kw, **extra)
-                plan = with_estimator(plan, bundle, est, prior=prior, noise=noise_at(plan.exposure_s))
-            plans[row_name(name, T)] = plan
+                made = {name: None}
+                if denoise_radius is not None:
+                    made[f"{name}+denoise"] = int(denoise_radius)
+                for label, radius in made.items():
+                    plans[row_name(label, T)] = budget_plan(
+                        "optimal", bundle, T / 1e3, prior, noise_at, output_wavelengths=ow, training=tr,
+                        starts=starts, iterations=iterations, min_frame_period_s=floor, extra_frames=extra_frames,
+                        denoise_radius=radius, **kw)
+                continue
+            args = (basis,) if method in ("biased", "symmetric") else ()
+            extra = {"output_wavelengths": ow} if method in ("biased", "symmetric") else {}
+            plan = budget_plan(method, bundle, T / 1e3, *args, min_frame_period_s=floor,
+                               extra_frames=extra_frames, **kw, **extra)
+            plans[row_name(name, T)] = with_estimator(plan, bundle, est, prior=prior, noise=noise_at(plan.exposure_s))
     return plans
 
 
 def equal_time_bounds(description, bundle, prior, *, extra_frames: int = 0, budgets=None, starts: int = 4,
-                      iterations: int = 300) -> dict:
+                      iterations: int = 300, averaged: float = 1.0) -> dict:
     """budget (ms) -> :class:`~specgpu.planning.bound.Bound` of :data:`EQUAL_TIME`'s frame count at that budget
-    (``extra_frames`` frames of the budget left to an ambient frame)."""
+    (``extra_frames`` frames of the budget left to an ambient frame; ``averaged``: the shot and read noise as a
+    mean over that many pixels, where a filter flattens it)."""
     out = {}
     for T in (EQUAL_TIME if budgets is None else budgets):
         K, _ = EQUAL_TIME[T]
         per = (T / 1e3) * K / (K + extra_frames)  # the share of the budget the K designed frames get
         out[T] = design_bound(bundle, prior, lambda t: NoiseModel.from_rig(description, t), frames=K,
                               sequence_s=per, min_frame_period_s=description.camera.min_frame_period_s,
-                              starts=starts, iterations=iterations)
+                              starts=starts, iterations=iterations, averaged=averaged)
     return out

@@ -94,18 +94,29 @@ def expected_error(A, F, W, prior: Prior, noise: NoiseModel) -> dict:
 
 
 def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, noise: NoiseModel,
-                   correlation_nm: float = 40.0):
+                   correlation_nm: float = 40.0, decoder_noise: NoiseModel | None = None):
     """The plan with its decoder replaced by ``estimator`` (:data:`ESTIMATORS`), with the noise model and the
     expected error recorded in ``params`` (``"estimator"``, ``"noise"``, ``"expected"``: RMSE, per-output
-    mismatch variance). ``"projection"`` keeps the decoder and records its expected error when a prior is given."""
+    mismatch variance). ``"projection"`` keeps the decoder and records its expected error when a prior is given.
+
+    ``decoder_noise``: build the Wiener or smooth decoder for this noise instead of ``noise`` (the noise left after
+    a spatial filter, :meth:`NoiseModel.averaged`); ``noise``, the camera's own, stays the plan's noise model (the
+    per-pixel sigma maps come from it) and the expected error is stated at both (``expected["rmse"]`` at ``noise``,
+    ``expected["rmse_at_decoder_noise"]``), ``params["decoder_noise"]`` recording the other."""
     est = str(estimator).lower()
     if est not in ESTIMATORS:
         raise ValueError(f"unknown estimator {estimator!r}; valid: {', '.join(ESTIMATORS)}")
     if est == "wiener" and prior is None:
         raise ValueError("the wiener estimator needs a training prior")
+    if decoder_noise is not None and est == "projection":
+        raise ValueError("a decoder for another noise needs the wiener or smooth estimator (projection has none)")
     params = dict(plan.params)
     params["estimator"] = est
     params["noise"] = noise.as_params()
+    params.pop("decoder_noise", None)
+    if decoder_noise is not None:
+        params["decoder_noise"] = decoder_noise.as_params()
+    built_for = noise if decoder_noise is None else decoder_noise
     A = plan.A
     if est == "projection" and plan.output not in ("reflectance", "XYZ"):
         prior = None  # RGB / relative outputs: the decoder stays and no expected error can be stated
@@ -114,9 +125,9 @@ def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, 
         F = forward(bundle, plan, wl)
         W = output_weights(plan, wl)
         if est == "wiener":
-            A = wiener_decoder(F, W, prior, noise)
+            A = wiener_decoder(F, W, prior, built_for)
         elif est == "smooth":
-            A = smooth_decoder(F, W, noise, wl, correlation_nm=correlation_nm)
+            A = smooth_decoder(F, W, built_for, wl, correlation_nm=correlation_nm)
             params["smooth_correlation_nm"] = float(correlation_nm)
             if prior is None:  # the expected error on the smoothness prior itself
                 prior = smooth_prior(wl, correlation_nm=correlation_nm)
@@ -129,4 +140,6 @@ def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, 
             params["expected"] = {"rmse": e["rmse"], "mismatch_var": e["mismatch"].tolist(),
                                   "noise_var": e["noise"].tolist(), "mismatch_cov": mismatch.ravel().tolist(),
                                   "prior": prior.source, "n_training": prior.n}
+            if decoder_noise is not None:
+                params["expected"]["rmse_at_decoder_noise"] = expected_error(A, F, W, prior, decoder_noise)["rmse"]
     return replace(plan, A=np.asarray(A, np.float64), params=params)

@@ -63,6 +63,15 @@ class NoiseModel:
         except (KeyError, TypeError) as exc:
             raise ValueError(f"plan noise model is incomplete ({exc})") from None
 
+    def averaged(self, pixels: float) -> "NoiseModel":
+        """The noise of a mean over ``pixels`` pixels of independent shot and read noise (a spatial filter where
+        the scene is flat): those terms divided by ``pixels``; the light's fluctuation, common to every pixel of a
+        frame, stays."""
+        n = float(pixels)
+        if not (math.isfinite(n) and n >= 1):
+            raise ValueError(f"averaged pixels must be finite and >= 1, got {pixels!r}")
+        return NoiseModel(self.gain_e_per_dn * n, self.read_var_dn2 / n, self.light_rms)
+
     def as_params(self) -> dict:
         return {"gain_e_per_dn": float(self.gain_e_per_dn), "read_var_dn2": float(self.read_var_dn2),
                 "light_rms": float(self.light_rms)}

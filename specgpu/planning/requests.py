@@ -5,10 +5,12 @@ recorded; the optimal design and the Hadamard plan made the same way."""
 from __future__ import annotations
 
 from contextlib import nullcontext
+from dataclasses import replace
 
 import numpy as np
 
 from specgpu.calibration.bundle import load_calibration, oracle_calibration, rig_fingerprint
+from specgpu.engine.guided import flat_variance_reduction
 from specgpu.planning.bound import design_bound
 from specgpu.planning.budget import budget_plan
 from specgpu.planning.estimators import with_estimator
@@ -26,7 +28,7 @@ def _quiet(desc):
 
 def estimated_plan(method, bundle, args, kwargs, estimator, training, training_only, exclude_chart, frames,
                    objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path, smooth_nm=40.0,
-                   progress=_quiet, sequence_ms=None, extra_frames=0):
+                   progress=_quiet, sequence_ms=None, extra_frames=0, denoise_radius=None):
     """The plan of ``method`` with the chosen decoder, the camera's noise model and its expected error recorded.
 
     ``args`` / ``kwargs`` go to :func:`~specgpu.planning.plans.make_plan`; ``frames``, ``objective``, ``target``
@@ -34,8 +36,13 @@ def estimated_plan(method, bundle, args, kwargs, estimator, training, training_o
     context manager shown around the slow steps. A plan without a noise model is made only where no ``rig_path``
     names the custom rig the calibration was made on and nothing needs one. ``sequence_ms``: the time budget of
     one sequence with ``extra_frames`` frames more (:func:`specgpu.planning.budget.budget_plan`); every plan
-    records the camera's read-out floor of the frame period.
+    records the camera's read-out floor of the frame period. ``denoise_radius``: the decoder (and the optimal
+    design) made for the noise ``recover --denoise`` leaves with that radius (the wiener or smooth estimator,
+    or the optimal design; :func:`specgpu.planning.design.plan_optimal`).
     """
+    if denoise_radius is not None and method != "optimal" and estimator == "projection":
+        raise ValueError(f"--denoise designs the decoder for the filtered noise: the {method} plan's own decoder "
+                         "has no noise to design for; give --estimator wiener (or smooth)")
     description = load_rig(rig_path)
     sequence_s = None if sequence_ms is None else float(sequence_ms) / 1e3
     plain = method not in ("optimal", "hadamard") and estimator == "projection" and not training
@@ -68,19 +75,27 @@ def estimated_plan(method, bundle, args, kwargs, estimator, training, training_o
                                illuminant=illuminant, training=tr,
                                output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm), target=target,
                                exposure_s=None if exposure_ms is None else exposure_ms / 1e3,
-                               min_frame_period_s=floor, extra_frames=extra_frames)
+                               min_frame_period_s=floor, extra_frames=extra_frames, denoise_radius=denoise_radius)
     if method == "hadamard":
         args, kwargs = (), {"bands": bands}
     plan = budget_plan(method, bundle, sequence_s, *args, min_frame_period_s=floor, extra_frames=extra_frames,
                        **kwargs)
+    if denoise_radius is None:
+        return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s),
+                              correlation_nm=smooth_nm)
+    reduction = flat_variance_reduction(denoise_radius)
+    plan = replace(plan, params={**plan.params, "denoise": {"radius": int(denoise_radius),
+                                                            "variance_reduction": reduction}})
     return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s),
-                          correlation_nm=smooth_nm)
+                          correlation_nm=smooth_nm, decoder_noise=noise_at(plan.exposure_s).averaged(reduction))
 
 
-def requested_bound(calib, rig_path, frames, sequence_ms, exclude_chart, starts=8, progress=_quiet):
+def requested_bound(calib, rig_path, frames, sequence_ms, exclude_chart, starts=8, progress=_quiet,
+                    denoise_radius=None):
     """:func:`~specgpu.planning.bound.design_bound` as ``specgpu bound`` asks for it: the calibration file
     ``calib`` (None: the oracle calibration of the rig), the rig (``rig_path``, None: the default; its camera's
-    noise and read-out), the default prior without ``exclude_chart``."""
+    noise and read-out), the default prior without ``exclude_chart``; ``denoise_radius``: the limit where
+    ``recover --denoise`` with that radius flattens the shot and read noise."""
     description = load_rig(rig_path)
     if calib is None:
         bundle = oracle_calibration(description)
@@ -94,4 +109,5 @@ def requested_bound(calib, rig_path, frames, sequence_ms, exclude_chart, starts=
     with progress(f"designing {frames} illuminants ({starts} starts)"):
         return design_bound(bundle, prior, lambda t: NoiseModel.from_rig(description, t), frames=int(frames),
                             sequence_s=float(sequence_ms) / 1e3,
-                            min_frame_period_s=description.camera.min_frame_period_s, starts=starts)
+                            min_frame_period_s=description.camera.min_frame_period_s, starts=starts,
+                            averaged=1.0 if denoise_radius is None else flat_variance_reduction(denoise_radius))

@@ -42,3 +42,32 @@ def test_a_budget_too_short_is_one_line(files):
     one_line_error(run("plan", "symmetric", "--calib", cal, "--rig", rig, "--out", d / "s.npz", "--sequence-ms",
                        "10", ok=False), "cannot hold", "at least")
     assert not (d / "s.npz").exists()
+
+
+def test_plan_for_denoise_records_it_and_recover_warns_without_the_filter(files):
+    d, rig, cal = files
+    out = run("plan", "optimal", "--frames", "4", "--calib", cal, "--rig", rig, "--out", d / "o.npz",
+              "--sequence-ms", "40", "--no-ambient", "--denoise").output
+    assert "where recover --denoise --denoise-radius 2 flattens the noise" in out
+    plan = load_plan(d / "o.npz")
+    assert plan.params["denoise"]["radius"] == 2 and plan.params["denoise"]["variance_reduction"] > 50
+    assert plan.params["expected"]["rmse_at_decoder_noise"] < plan.params["expected"]["rmse"]
+    run("capture", "--rig", rig, "--plan", d / "o.npz", "--calib", cal, "--scene", "colorchecker", "--out",
+        d / "seq", "--sequences", "1")
+    plain = run("recover", d / "seq", "--out", d / "plain.npz")
+    assert "designed for --denoise --denoise-radius 2" in plain.stderr
+    other = run("recover", d / "seq", "--out", d / "r3.npz", "--denoise", "--denoise-radius", "3")
+    assert "designed for --denoise-radius 2, filtered here with 3" in other.stderr
+    same = run("recover", d / "seq", "--out", d / "r2.npz", "--denoise")
+    assert "designed for" not in same.stderr
+
+
+def test_plan_for_denoise_needs_a_decoder_with_a_noise_model(files):
+    d, rig, cal = files
+    one_line_error(run("plan", "hadamard", "--bands", "7", "--calib", cal, "--rig", rig, "--out", d / "hd.npz",
+                       "--denoise", ok=False), "--estimator wiener")
+    assert not (d / "hd.npz").exists()
+    run("plan", "hadamard", "--bands", "7", "--calib", cal, "--rig", rig, "--out", d / "hw.npz", "--denoise",
+        "--estimator", "wiener", "--no-ambient")
+    plan = load_plan(d / "hw.npz")
+    assert plan.params["denoise"]["radius"] == 2 and "decoder_noise" in plan.params

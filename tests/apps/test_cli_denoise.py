@@ -1,5 +1,5 @@
-"""``specgpu stream --denoise``: runs with the linear outputs, records that it denoised, and refuses the outputs
-it cannot carry in one line."""
+"""``specgpu stream --denoise``: runs with the linear outputs and with Lab, records that it denoised, and refuses
+the outputs it cannot carry in one line."""
 
 import json
 
@@ -21,7 +21,9 @@ def test_stream_denoise(tmp_path):
     assert "sequences" in out
     attrs = json.loads((tmp_path / "rec.zarr" / "zarr.json").read_text())["attributes"]
     assert "guided filter" in json.dumps(attrs)
-    one_line_error(run(*base, ok=False), "dE cannot be denoised")
+    out = run(*base, "--outputs", "XYZ,Lab", "--out", tmp_path / "lab.zarr").output  # Lab of the filtered XYZ
+    assert "sequences" in out
+    one_line_error(run(*base, "--outputs", "cube,sigma", ok=False), "sigma cannot be denoised")
 
 
 def test_stream_accumulate(tmp_path):

@@ -98,6 +98,11 @@ def test_demo_writes_the_report(tmp_path):
     page = (report / "index.html").read_text()  # one self-contained page: real tables, embedded images
     assert page.count("<table") >= 4 and "<pre" not in page and "Recovered vs true spectra" in page
     assert "src='data:image/png;base64," in page and "src='figures/" not in page
+    # the moving-scene section: the motion visible, compensation giving the still scene's error back
+    assert "Moving scene: symmetric-9 at 200 fps" in result.output and "<h2>A moving scene</h2>" in page
+    rows = figures["moving_scene"]["rows"]
+    assert rows["moving"]["rmse_field"] > 1.5 * rows["still"]["rmse_field"]
+    assert rows["compensated"]["rmse_field"] < 1.3 * rows["still"]["rmse_field"]
 
 
 # ------------------------------------------------------------------------------------------------ bad input

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from reference import guided_filter_numpy
 
-from specgpu.engine.guided import box_box_variance, guided_filter
+from specgpu.engine.guided import box_box_variance, flat_variance_reduction, guided_filter
 
 
 @pytest.mark.parametrize("shape, r, eps", [((61, 47, 5), 1, 1e-3), ((40, 70, 31), 3, 1e-2), ((9, 13, 2), 10, 0.5),
@@ -77,3 +77,14 @@ def test_box_box_variance_is_the_sum_of_squared_weights():
     np.testing.assert_allclose(out[10 - 2 * r:10 + 2 * r + 1, 10 - 2 * r:10 + 2 * r + 1, 0], np.outer(t, t) ** 2,
                                rtol=1e-5, atol=1e-12)
     assert box_box_variance(np.ones((15, 15, 1)), r)[7, 7, 0] == pytest.approx(np.sum(np.outer(t, t) ** 2), rel=1e-5)
+
+
+@pytest.mark.parametrize("r", [1, 2, 4])
+def test_flat_variance_reduction_is_what_the_filter_does_on_a_flat_guide(queue, r):
+    rng = np.random.default_rng(r)
+    H = W = 160
+    p = rng.normal(0.0, 1.0, (H, W, 2)).astype(np.float32)
+    q = guided_filter(p, np.full((H, W), 0.5, np.float32), radius=r, eps=1e-3, device=queue)
+    inner = q[3 * r:-3 * r, 3 * r:-3 * r]
+    assert 1.0 / inner.var() == pytest.approx(flat_variance_reduction(r), rel=0.12)
+    assert flat_variance_reduction(2) == pytest.approx(625.0 ** 2 / 85.0 ** 2)  # (sum of the triangle's squares)^-2

@@ -10,9 +10,10 @@ from cli_helpers import RIG, one_line_error, run
 
 import specgpu.planning as E
 from specgpu.calibration.bundle import oracle_calibration, save_calibration
+from specgpu.engine.colorimetry import XYZ_to_Lab
 from specgpu.io import read_cube, read_map
-from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide
-from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, uncertainty
+from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide, stream_denoise
+from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, to_XYZ, uncertainty
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene, natural_scene
@@ -125,15 +126,17 @@ def test_filtering_the_output_subspace_equals_filtering_every_band(bundle):
 
 
 def test_stream_denoise_equals_recover_denoise():
-    """The stream's denoised coefficients, cube and XYZ equal recover --denoise on the same frames; outputs it
-    cannot carry are refused in one line."""
-    from specgpu.pipeline.recovery import to_XYZ
+    """The stream's denoised coefficients, cube and XYZ equal recover --denoise on the same frames, its Lab and dE
+    those of the filtered XYZ (colour-science's); outputs it cannot carry are refused in one line."""
+    import colour
+
     from specgpu.pipeline.stream import Stream
     from specgpu.testing import stream_setup
 
     setup = stream_setup(320, 240, sequences=2, output_step_nm=10.0)
     got = []
-    stream = Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=("coefficients", "cube", "XYZ"),
+    stream = Stream(setup.driver(loops=1), setup.plan, setup.bundle,
+                    outputs=("coefficients", "cube", "XYZ", "Lab", "dE"), reference=setup.reference,
                     cube_dtype=np.float32, policy="block", denoise=(2, 1e-4),
                     sinks=[lambda r: got.append((r.frame_ids.copy(), {k: v.copy() for k, v in r.arrays.items()}))])
     stream.run()
@@ -148,8 +151,16 @@ def test_stream_denoise_equals_recover_denoise():
         np.testing.assert_allclose(maps["cube"], want, atol=1e-4 * scale)
         np.testing.assert_allclose(maps["coefficients"] @ stream.decoder.basis.T, want, atol=1e-4 * scale)
         np.testing.assert_allclose(maps["XYZ"], to_XYZ(want, setup.plan), atol=1e-4)
+        lab = colour.XYZ_to_Lab(maps["XYZ"].astype(np.float64), colour.CCS_ILLUMINANTS[
+            "CIE 1931 2 Degree Standard Observer"]["D65"])
+        np.testing.assert_allclose(maps["Lab"], lab, atol=2e-3)
+        ref = np.broadcast_to(np.asarray(setup.reference, np.float64), lab.shape)
+        np.testing.assert_allclose(maps["dE"], colour.delta_E(ref, lab, method="CIE 2000"), atol=2e-3)
         assert np.abs(maps["cube"] - raw).max() > 10 * 1e-4 * scale  # it did filter
-    for outputs, why in ((("coefficients", "dE"), "dE cannot be denoised"), (("cube",), "float32 cube")):
+    with pytest.raises(ValueError, match="sigma_rms cannot be denoised") as info:
+        stream_denoise(setup.plan, ("cube", "sigma_rms"), np.float32, (2, 1e-4))
+    assert "\n" not in str(info.value)
+    for outputs, why in ((("cube",), "float32 cube"),):
         with pytest.raises(ValueError, match=why) as info:
             Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=outputs, reference=setup.reference,
                    cube_dtype=np.float16, denoise=(2, 1e-4))
@@ -179,5 +190,10 @@ def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
         np.testing.assert_allclose(cube[i], want, atol=1e-4 * np.max(np.abs(want)))
     one_line_error(run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "b.zarr",
                        "--outputs", "cube", ok=False), "--denoise")
-    one_line_error(run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "c.zarr",
-                       "--outputs", "cube,Lab", "--denoise", ok=False), "Lab cannot be denoised")
+    # Lab from the filtered XYZ, as recover --denoise computes it from the filtered cube
+    run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "c.zarr", "--outputs", "Lab",
+        "--denoise")
+    lab = zarr.open_group(str(tmp_path / "c.zarr"), mode="r")["Lab"]
+    for i in range(2):
+        want = denoise_recovery(folder, recover(folder, sequence=i), sequence=i)
+        np.testing.assert_allclose(lab[i], XYZ_to_Lab(to_XYZ(want, folder.plan)), atol=2e-3)

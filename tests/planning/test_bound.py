@@ -79,3 +79,18 @@ def test_cli_bound_prints_and_refuses(tmp_path):
     best = float(out.split("RMSE ")[2].split()[0])
     assert 0 < lower <= best
     one_line_error(run("bound", "--frames", "9", "--sequence-ms", "5", "--rig", rig, ok=False), "cannot hold 9 frames")
+
+
+def test_the_limit_where_a_filter_flattens_the_noise_is_lower_and_says_so(bundle, prior):
+    kw = dict(frames=4, sequence_s=0.04, starts=1, iterations=60)
+    one = design_bound(bundle, prior, noise_at, **kw)
+    flat = design_bound(bundle, prior, noise_at, averaged=54.0, **kw)
+    assert flat.noise_free_rmse == pytest.approx(one.noise_free_rmse)
+    assert flat.noise_free_rmse <= flat.lower_rmse < one.lower_rmse
+    assert flat.achieved_rmse < one.achieved_rmse
+    assert "averaged over 54 pixels" in " ".join(flat.lines()) and "averaged" not in " ".join(one.lines())
+    # a design for the filtered noise, stated at that noise, lies above its limit
+    plan = E.plan_optimal(bundle, prior, noise_at, frames=4, sequence_s=0.04, starts=1, iterations=60,
+                          output_wavelengths=prior.wavelengths, denoise_radius=2)
+    assert plan.params["expected"]["rmse_at_decoder_noise"] >= design_bound(
+        bundle, prior, noise_at, averaged=plan.params["denoise"]["variance_reduction"], **kw).lower_rmse

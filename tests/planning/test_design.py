@@ -135,3 +135,50 @@ def test_the_registry_makes_optimal_and_hadamard_plans_with_their_own_signatures
     assert opt.method == "optimal" and opt.K == 3 and opt.params["estimator"] == "wiener"
     np.testing.assert_array_equal(opt.patterns, D.plan_optimal(bundle, prior, noise_at, frames=3, starts=1,
                                                                iterations=20).patterns)
+
+
+def test_a_design_lights_only_the_wavelengths_its_prior_knows(bundle, prior):
+    from specgpu.planning.budget import budget_plan
+
+    plan = budget_plan("optimal", bundle, 0.060, prior, noise_at, frames=9, starts=1, iterations=100,
+                       min_frame_period_s=DESC.camera.min_frame_period_s)
+    inside = D.columns_within(bundle, prior.wavelengths)
+    assert inside.any() and not inside.all()
+    assert not plan.patterns[:, ~inside].any()
+    # a surface that differs from another only beyond the prior's 700 nm (a leaf's red edge) decodes the same
+    wl = bundle.wavelengths
+    F = E.forward(bundle, plan, wl)
+    r = np.interp(wl, prior.wavelengths, prior.mean)
+    edge = r + np.where(wl > 705.0, 0.4 * np.minimum((wl - 705.0) / 40.0, 1.0), 0.0)
+    shift = plan.A @ F @ (edge - r)
+    assert np.sqrt(np.mean(shift ** 2)) < 0.003
+    # a prior on a narrower range narrows the light the same way
+    keep = (prior.wavelengths >= 450) & (prior.wavelengths <= 650)
+    narrow = E.Prior(prior.wavelengths[keep], prior.moment[np.ix_(keep, keep)], prior.mean[keep], prior.n, "narrow")
+    npl = budget_plan("optimal", bundle, 0.060, narrow, noise_at, frames=4, starts=1, iterations=50,
+                      min_frame_period_s=DESC.camera.min_frame_period_s)
+    light = E.forward(bundle, npl, wl)
+    within = light[:, (wl >= 450) & (wl <= 650)].sum(axis=1) / light.sum(axis=1)
+    assert within.min() >= 0.99 - 1e-9
+
+
+def test_a_design_for_denoising_trades_averaged_noise_for_shape(bundle, prior):
+    from specgpu.engine.guided import flat_variance_reduction
+    from specgpu.planning.budget import budget_plan
+
+    kw = dict(frames=6, starts=1, iterations=100, min_frame_period_s=DESC.camera.min_frame_period_s)
+    plain = budget_plan("optimal", bundle, 0.040, prior, noise_at, **kw)
+    for_filter = budget_plan("optimal", bundle, 0.040, prior, noise_at, denoise_radius=2, **kw)
+    n = flat_variance_reduction(2)
+    assert for_filter.params["denoise"] == {"radius": 2, "variance_reduction": n}
+    assert E.NoiseModel.from_params(for_filter.params["noise"]) == noise_at(for_filter.exposure_s)
+    quiet = noise_at(for_filter.exposure_s).averaged(n)
+
+    def at(plan, noise):  # the expected RMSE of the plan's decoder at a noise
+        F = E.forward(bundle, plan, prior.wavelengths)
+        return E.expected_error(plan.A, F, E.output_weights(plan, prior.wavelengths), prior, noise)["rmse"]
+
+    # where the filter flattens the noise the plan designed for it is better; at the camera's noise, worse
+    assert at(for_filter, quiet) < at(plain, noise_at(plain.exposure_s).averaged(n))
+    assert at(for_filter, quiet) == pytest.approx(for_filter.params["expected"]["rmse_at_decoder_noise"], rel=1e-9)
+    assert for_filter.params["expected"]["rmse"] > plain.params["expected"]["rmse"]

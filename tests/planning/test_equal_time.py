@@ -45,3 +45,15 @@ def test_the_limit_lies_below_the_rmse_designs(made):
             if plan.output == "reflectance" and plan.params.get("objective", "rmse") == "rmse":
                 # on the output grid, not the prior's: a little margin for the resampling
                 assert plan.params["expected"]["rmse"] >= 0.95 * b.lower_rmse, (name, T)
+
+
+def test_rows_designed_for_the_filter_sit_beside_the_optimal_ones():
+    bundle = oracle_calibration(DESC)
+    prior = E.default_prior()
+    plans = equal_time_plans(DESC, bundle, prior, E.held_out_basis(), budgets=(40.0,), iterations=30,
+                             denoise_radius=2)
+    assert set(plans) == {row_name(n, 40.0) for n in ("biased-6", "wiener-6", "optimal-6", "optimal-6+denoise")}
+    plain, filtered = plans[row_name("optimal-6", 40.0)], plans[row_name("optimal-6+denoise", 40.0)]
+    assert "denoise" not in plain.params and filtered.params["denoise"]["radius"] == 2
+    assert filtered.sequence_s <= 0.040 * (1 + 1e-9)
+    assert filtered.params["expected"]["rmse_at_decoder_noise"] < plain.params["expected"]["rmse"]

@@ -372,3 +372,38 @@ def test_variance_rows_is_the_covariance_of_frames_above_an_ambient_frame(K, Q, 
     v = p.copy()
     v[amb] = w
     np.testing.assert_allclose(E.variance_rows(L, R, amb) @ v, want, rtol=1e-10, atol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(-10, 1e4) | st.just(float("nan")))
+def test_an_averaged_noise_lowers_shot_and_read_and_keeps_the_light(n):
+    base = E.NoiseModel(30.0, 0.5, 0.01)
+    if not (np.isfinite(n) and n >= 1):
+        with pytest.raises(ValueError, match="averaged pixels"):
+            base.averaged(n)
+        return
+    a = base.averaged(n)
+    F = np.array([[10.0, 20.0], [5.0, 1.0]])
+    prior = E.Prior(np.array([500.0, 600.0]), np.eye(2) * 0.01 + 0.2, np.array([0.4, 0.5]), 3, "test")
+    full, avg = np.diag(base.covariance(F, prior)), np.diag(a.covariance(F, prior))
+    light = (base.light_rms ** 2) * np.einsum("kb,bc,kc->k", F, prior.moment, F)
+    np.testing.assert_allclose(avg - light, (full - light) / n, rtol=1e-9)
+
+
+def test_a_decoder_for_another_noise_keeps_the_cameras_noise_model(bundle, prior):
+    plan = make_plan("hadamard", bundle, bands=7)
+    camera = E.NoiseModel.from_rig(DESC, plan.exposure_s)
+    quiet = camera.averaged(50.0)
+    w = E.with_estimator(plan, bundle, "wiener", prior=prior, noise=camera, decoder_noise=quiet)
+    F = E.forward(bundle, plan, prior.wavelengths)
+    Wout = E.output_weights(plan, prior.wavelengths)
+    np.testing.assert_allclose(w.A, E.wiener_decoder(F, Wout, prior, quiet), rtol=1e-12)
+    assert E.NoiseModel.from_params(w.params["noise"]) == camera  # the sigma maps use the camera's noise
+    assert E.NoiseModel.from_params(w.params["decoder_noise"]) == quiet
+    plain = E.with_estimator(plan, bundle, "wiener", prior=prior, noise=camera)
+    # stated at the camera's noise the decoder for less noise does worse, at its own noise better
+    assert w.params["expected"]["rmse"] > plain.params["expected"]["rmse"]
+    assert w.params["expected"]["rmse_at_decoder_noise"] < plain.params["expected"]["rmse"]
+    assert "decoder_noise" not in plain.params
+    with pytest.raises(ValueError, match="projection has none"):
+        E.with_estimator(plan, bundle, "projection", prior=prior, noise=camera, decoder_noise=quiet)

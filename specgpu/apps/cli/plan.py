@@ -8,6 +8,7 @@ import numpy as np
 from specgpu.apps.cli.options import RIG, Busy, Finite, command, lock, no_clash
 from specgpu.calibration.bundle import load_calibration
 from specgpu.core.validate import validate_method
+from specgpu.pipeline.denoise import DENOISE_RADIUS
 from specgpu.pipeline.projector import target_spectrum
 from specgpu.pipeline.recovery import default_basis
 from specgpu.planning.basis import load_basis
@@ -68,6 +69,9 @@ def summary(plan, digest, out):
     expected = plan.params.get("expected", {})
     unit = "" if plan.output == "reflectance" else f" ({plan.output})"
     note = f"; expected RMSE{unit} {expected['rmse']:.4f} on the prior" if "rmse" in expected else ""
+    if "rmse_at_decoder_noise" in expected and "denoise" in plan.params:
+        note += (f" ({expected['rmse_at_decoder_noise']:.4f} where recover --denoise --denoise-radius "
+                 f"{plan.params['denoise']['radius']} flattens the noise)")
     for key in ("dE2000", "dEab"):
         if key in expected:
             note += f", expected {key} {expected[key]:.3f} (RMS)"
@@ -118,6 +122,11 @@ def summary(plan, digest, out):
 @click.option("--sequence-ms", type=Finite(min=0.001, max=1e6), default=None,
               help="Design within this time per sequence (ms, every frame included): the exposure is capped so the "
                    "frames fit; the optimal design trades spectral shape against photons under the cap.")
+@click.option("--denoise", is_flag=True,
+              help="Design the decoder (and the optimal frames) for recover --denoise: for the shot and read noise "
+                   "the guided filter leaves where the scene is flat (optimal, or --estimator wiener / smooth).")
+@click.option("--denoise-radius", type=click.IntRange(min=1, max=64), default=DENOISE_RADIUS, show_default=True,
+              help="With --denoise: the radius recover --denoise will filter with.")
 @click.option("--bands", type=int, default=31, show_default=True, help="hadamard: bands (3, 7, 15, 31, 63).")
 @click.option("--ambient/--no-ambient", default=None,
               help="Add an ambient frame (every mirror off) to each sequence; recover subtracts it (1 frame more). "
@@ -129,7 +138,8 @@ def summary(plan, digest, out):
 @RIG
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
                  illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,
-                 target, exposure_ms, sequence_ms, bands, rig_path, smooth_nm, ambient, drift_probe):
+                 target, exposure_ms, sequence_ms, bands, rig_path, smooth_nm, ambient, drift_probe, denoise,
+                 denoise_radius):
     """Design a measurement plan: the illuminant sequence and its decoder.
 
     METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady, optimal, hadamard.
@@ -145,6 +155,7 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
     plan = estimated_plan(method, bundle, args, kwargs, estimator.lower(), training, training_only, exclude_chart,
                           frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path,
                           smooth_nm, progress=Busy, sequence_ms=sequence_ms,
-                          extra_frames=added_frames(bundle, ambient, drift_probe))
+                          extra_frames=added_frames(bundle, ambient, drift_probe),
+                          denoise_radius=denoise_radius if denoise else None)
     plan = with_frames(plan, bundle, ambient, drift_probe)
     click.echo(summary(plan, save_plan(out, plan), out))

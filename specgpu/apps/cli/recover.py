@@ -24,7 +24,7 @@ from specgpu.apps.cli.options import (
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.pipeline import recovery
-from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery
+from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning, denoise_recovery
 from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
@@ -119,6 +119,9 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
                                                                            colours[1]))
     if untrusted:
         click.echo(f"Warning: {untrusted}", err=True)
+    mismatch = denoise_design_warning(folder.plan, denoise_radius if denoise else None)
+    if mismatch:
+        click.echo(f"Warning: {mismatch}", err=True)
     written = Staged().write_all(writes)  # all or nothing: no output replaced until every one is written
     saturated = int(np.isnan(y[..., 0]).sum())
     note = f"; {saturated} {'saturated or out-of-field' if motion != 'none' else 'saturated'} pixels left NaN" \

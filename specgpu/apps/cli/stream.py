@@ -135,8 +135,8 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
 @click.option("--denoise", is_flag=True,
-              help="Denoise the coefficients, cube and XYZ outputs on the device (recover --denoise's guided filter; "
-                   "not with Lab, dE or the sigmas).")
+              help="Denoise the coefficients, cube and XYZ outputs on the device (recover --denoise's guided filter), "
+                   "Lab and dE computed from the filtered XYZ (not with the sigmas).")
 @click.option("--accumulate", type=click.IntRange(min=2), default=None, metavar="N",
               help="A still scene: each pixel's running estimate over up to N sequences, restarted where it changes "
                    "beyond its noise (needs the cube and sigma or sigma_rms outputs).")
