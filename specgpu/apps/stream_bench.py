@@ -38,15 +38,16 @@ def _stream_row(case: str, report, *, target_fps=None, extra=None) -> dict:
 
 
 #: The stream bench's cases; the sustained ones (free-running, ``block``) run ``rounds`` times interleaved.
-STREAM_CASES = ("fused", "sigma", "sigma_rms", "white", "dE_sigma", "linear", "denoise", "cube", "paced", "overload",
-                "equality")
+STREAM_CASES = ("fused", "sigma", "sigma_rms", "white", "dE_sigma", "linear", "denoise", "motion", "cube", "paced",
+                "overload", "equality")
 _SUSTAINED = {"fused": ("coefficients+XYZ+dE2000", ("coefficients", "XYZ", "dE"), False),
               "sigma": ("coefficients+XYZ+dE2000+sigma", ("coefficients", "XYZ", "dE", "sigma"), False),
               "sigma_rms": ("coefficients+XYZ+dE2000+sigma_rms", ("coefficients", "XYZ", "dE", "sigma_rms"), False),
               "white": ("coefficients+XYZ+dE2000 with --white-roi", ("coefficients", "XYZ", "dE"), True),
               "dE_sigma": ("coefficients+XYZ+dE2000+dE_sigma", ("coefficients", "XYZ", "dE", "dE_sigma"), False),
               "linear": ("coefficients+XYZ", ("coefficients", "XYZ"), False),
-              "denoise": ("coefficients+XYZ with --denoise", ("coefficients", "XYZ"), False)}
+              "denoise": ("coefficients+XYZ with --denoise", ("coefficients", "XYZ"), False),
+              "motion": ("coefficients+XYZ with --motion global", ("coefficients", "XYZ"), False)}
 
 
 def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, overload_seconds: float = 10.0,
@@ -77,6 +78,12 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     linear, denoise
         Coefficients + XYZ, plain and with ``stream --denoise`` (the guided filter of both, its guide the
         frames' sum): the denoiser's cost at equal outputs; no target, not run by default.
+    motion
+        Coefficients + XYZ with ``stream --motion global`` (each sequence's displacements estimated on the host,
+        its frames decoded through the warped kernel), beside ``linear`` (run with it, interleaved) and their
+        ratio, with the host seconds per sequence of each step (estimate, warped pass, consistency check,
+        colour); the replayed chart is still, so this is the compensation's cost, not its accuracy. Not run by
+        default.
 
     The sustained cases (fused, sigma, white, dE_sigma) run ``rounds`` times interleaved; each row is the
     median round's, with every round's frames/s and 1-minute load average beside it.
@@ -118,7 +125,8 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     def load():
         return os.getloadavg()[0] if hasattr(os, "getloadavg") else None
 
-    sustained = [c for c in _SUSTAINED if c in cases]
+    sustained = [c for c in _SUSTAINED if c in cases or (c == "linear" and "motion" in cases)]
+    steps = {}  # the motion case's seconds per step, summed over its rounds
     runs = {c: [] for c in sustained}
     for _ in range(int(rounds)):
         for c in sustained:  # interleaved: a change of the machine's load falls on every case alike
@@ -128,18 +136,25 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
                             sinks=[lambda r: count.__setitem__(0, count[0] + 1)],
                             white_roi=white_tile_roi(height, width) if white else None,
                             denoise=(DENOISE_RADIUS, DENOISE_EPS) if c == "denoise" else None,
+                            motion="global" if c == "motion" else "none",
                             **{k: v for k, v in common.items() if k != "reference" or "dE" in outputs})
             rep = stream.run(seconds)
+            if stream.moving is not None:
+                for step, s in stream.moving.seconds.items():
+                    steps[step] = steps.get(step, 0.0) + s
+                steps["sequences"] = steps.get("sequences", 0) + stream.moving.sequences
             runs[c].append((rep, load()))
     for c in sustained:
         name = _SUSTAINED[c][0]
         order = sorted(range(len(runs[c])), key=lambda i: runs[c][i][0].frames_per_s)
         rep, load_avg = runs[c][order[len(order) // 2]]
-        rows.append(_stream_row(name, rep, target_fps=None if c in ("dE_sigma", "linear", "denoise") else
+        rows.append(_stream_row(name, rep, target_fps=None if c in ("dE_sigma", "linear", "denoise", "motion") else
                                 STREAM_TARGETS["coefficients_XYZ_dE2000_fps"],
                                 extra={"load_avg_1min": load_avg, "rounds": len(runs[c]),
                                        "frames_per_s_rounds": [r.frames_per_s for r, _ in runs[c]],
                                        "load_avg_rounds": [a for _, a in runs[c]]}))
+    if "motion" in cases:
+        rows.append(_motion_row(rows, steps))
     if "cube" in cases:
         shape, _ = (height, width, setup.plan.A.shape[0]), None
         recorder = MemoryRecorder(shape, np.float16)
@@ -208,12 +223,28 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     return report
 
 
+def _motion_row(rows, steps) -> dict:
+    """The motion case's rate beside the static one of the same run (the linear case), their ratio, and the host
+    milliseconds per sequence of each step of the compensated decoding."""
+    fps = {r["case"]: r["frames_per_s"] for r in rows}
+    moving, still = fps[_SUSTAINED["motion"][0]], fps[_SUSTAINED["linear"][0]]
+    n = max(int(steps.get("sequences", 0)), 1)
+    return {"case": "motion global / static", "motion_frames_per_s": moving, "static_frames_per_s": still,
+            "ratio": moving / still if still > 0 else float("nan"),
+            "ms_per_sequence": {k: v / n * 1e3 for k, v in steps.items() if k != "sequences"}}
+
+
 def format_stream_report(report: dict) -> str:
     """The stream benchmark as text: one block per case with its figures and PASS / MISS."""
     lines = [(f"stream on {report['device']} ({report['cpu_count']} CPUs), {report['width']} x "
               f"{report['height']}, K = {report['K']}; source: {report['source']}")]
     for row in report["cases"]:
         mark = {True: "PASS", False: "MISS", None: "    "}[row.get("passed")]
+        if "ratio" in row:
+            lines.append(f"{mark}  {row['case']}: {row['motion_frames_per_s']:.0f} frames/s with --motion global, "
+                         f"{row['static_frames_per_s']:.0f} static, ratio {row['ratio']:.3f}; ms per sequence: "
+                         + ", ".join(f"{k} {v:.1f}" for k, v in row["ms_per_sequence"].items()))
+            continue
         if "frames_per_s" not in row:
             lines.append(f"{mark}  {row['case']}: {row['sequences']} sequences, max relative difference "
                          + ", ".join(f"{k} {v:.2e}" for k, v in row["max_rel_diff"].items()))

@@ -21,6 +21,7 @@ from specgpu.pipeline.moving import (
     MASK_INCONSISTENT,
     MOTION_MODES,
     TRUTH_FOLDER,
+    sequence_truth,
     MotionEstimate,
     MovingRecovery,
     check_motion_mode,
@@ -122,6 +123,7 @@ __all__ = [
     "MASK_INCONSISTENT",
     "MOTION_MODES",
     "TRUTH_FOLDER",
+    "sequence_truth",
     "MotionEstimate",
     "MovingRecovery",
     "check_motion_mode",
@@ -159,3 +161,7 @@ __all__ += ["DENOISE_EPS", "DENOISE_RADIUS", "denoise_design_warning", "denoise_
 from specgpu.pipeline.moving_scores import RECOVERIES, compare_motion, edge_band, motion_scores  # noqa: E402
 
 __all__ += ["RECOVERIES", "compare_motion", "edge_band", "motion_scores"]
+
+from specgpu.pipeline.moving_decode import MOTION_OUTPUTS, MovingDecoder, check_motion_options  # noqa: E402
+
+__all__ += ["MOTION_OUTPUTS", "MovingDecoder", "check_motion_options"]

@@ -31,6 +31,11 @@ naming it; what was done stays done.
 The output is a zarr v3 group laid out like a recording (:mod:`specgpu.io.recording`): ``cube`` / ``XYZ`` /
 ``Lab`` / ``dE`` along ``time`` with one chunk per sequence, ``wavelength``, ``time`` and ``frame_id``, plus
 ``done`` (time,) uint8.
+
+A scene that moved during each sequence (``--motion global|affine``) is decoded one sequence at a time exactly as
+``specgpu recover --motion`` decodes it (:class:`specgpu.pipeline.moving_decode.MovingDecoder`: the displacements
+estimated within the sequence on the host, one warped device pass, pixels seen outside the field or whose frames
+disagree NaN); the mode is part of the output's identity.
 """
 
 from __future__ import annotations
@@ -65,6 +70,7 @@ from specgpu.pipeline.batch_source import (
 )
 from specgpu.pipeline.decoder import StreamDecoder
 from specgpu.pipeline.denoise import stream_denoise
+from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
 
@@ -92,13 +98,14 @@ class BatchJob:
     observer: str = DEFAULT_CMFS
     sequences: int = 0  # the source's committed sequences when the batch started (a recording may still grow)
     denoise: tuple | None = None  # (radius, eps) of the guided filter of the linear outputs, or None
+    motion: str = "none"  # "global" / "affine": each sequence decoded motion-compensated, as recover --motion
 
     @property
     def key(self) -> tuple:
         # the source's content id: a worker that outlives a batch (``--scheduler``) never reuses the handles of a
         # recording since replaced at the same path
         return (self.source, self.source_id, self.out, self.plan.hash, self.calibration.hash, self.outputs,
-                self.illuminant, self.observer, self.method, self.device, self.denoise)
+                self.illuminant, self.observer, self.method, self.device, self.denoise, self.motion)
 
 
 _STATE: dict = {}
@@ -241,6 +248,8 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
     for name in (*job.outputs, "done"):
         if name not in handles:
             handles[name] = state.out[name]
+    if job.motion != "none":
+        return _start_moving(job, i, state, built, handles)
     dec = _decoder(job, state)
     q = state.queue
     raw = state.source.frames(i)
@@ -287,6 +296,29 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
         _release(pending)
         raise
     del frames
+    return pending
+
+
+def _start_moving(job: BatchJob, i: int, state, built: bool, handles: dict) -> _Pending:
+    """Sequence ``i`` decoded motion-compensated on the host and device as ``recover --motion`` decodes it
+    (:class:`specgpu.pipeline.moving_decode.MovingDecoder`, made once per worker), its chunks written as
+    :func:`_start_sequence` writes them."""
+    dec = state.__dict__.get("_moving")
+    if dec is None:
+        dec = state._moving = MovingDecoder(job.plan, job.calibration, job.outputs, mode=job.motion,
+                                            reference=job.reference if "dE" in job.outputs else None,
+                                            method=job.method, illuminant=job.illuminant, observer=job.observer,
+                                            device=state.queue)
+    raw = state.source.frames(i)
+    h, w = state.source.height, state.source.width
+    if tuple(raw.shape) != (job.plan.K, h, w):
+        raise ValueError(f"{job.source}: sequence {i}: frames of shape {tuple(raw.shape)}, the batch needs "
+                         f"({job.plan.K}, {h}, {w})")
+    arrays = dec.decode(raw)
+    pending = _Pending(i, state, built, [], [], {})
+    for name in job.outputs:
+        pending.writes.append((name, _writer_pool().submit(write_sequence_chunk, handles[name], i, arrays[name],
+                                                           direct=_DIRECT)))
     return pending
 
 
@@ -341,7 +373,8 @@ class BatchReport:
 
 
 def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
-                  method="CIE 2000", reference=None, device=None, denoise=None) -> tuple[BatchJob, np.ndarray]:
+                  method="CIE 2000", reference=None, device=None, denoise=None,
+                  motion="none") -> tuple[BatchJob, np.ndarray]:
     """Check the source against the plan, create (or reopen, to resume) the output; returns the job and the
     indices of the sequences still to compute. Every refusal is one line naming the file, found before the
     output is created. ``illuminant``: of XYZ, Lab and dE, recorded in the output; default the plan's own for a
@@ -378,6 +411,7 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
                              f"got shape {ref.shape}")
     if {"XYZ", "Lab", "dE"} & set(outputs):
         plan.outputs_to_XYZ(illuminant, observer)  # a plan with no XYZ: refused here, not on every worker
+    motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise)  # before any work
     if denoise is not None:  # outputs the filter cannot carry: refused here, not on every worker
         stream_denoise(plan, outputs, np.float32, denoise)
         denoise = (int(denoise[0]), float(denoise[1]))
@@ -392,10 +426,11 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
                 "observer": observer if {"XYZ", "Lab", "dE"} & set(outputs) else None,
                 "method": method if "dE" in outputs else None,
                 "reference_sha256": _reference_hash(reference), "delta_e_ref": reference_label(reference),
-                "denoise": None if denoise is None else list(denoise)}
+                "denoise": None if denoise is None else list(denoise),
+                "motion": None if motion == "none" else motion}
     job = BatchJob(str(source_path), str(out), plan, calibration, outputs, illuminant, method,
                    None if reference is None else np.asarray(reference, np.float32), device, identity["source_id"],
-                   observer, n, denoise)
+                   observer, n, denoise, motion)
     _remove_dead_creations(out)
     if out.exists() and _unfinished_creation(out):
         shutil.rmtree(out)  # made by an older specgpu killed before its first sequence: nothing in it to keep
@@ -537,7 +572,7 @@ def _task_groups(todo, workers: int) -> list[list[int]]:
 
 def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
               method="CIE 2000", reference=None, scheduler=None, workers: int = 1, client=None,
-              progress: bool = True, on_done=None, device=None, denoise=None) -> BatchReport:
+              progress: bool = True, on_done=None, device=None, denoise=None, motion="none") -> BatchReport:
     """Re-process every sequence of ``source_path`` with ``plan`` into ``out`` on Dask (see the module docstring).
 
     Parameters
@@ -552,22 +587,25 @@ def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illumin
     denoise : (radius, eps), optional
         Denoise the cube and XYZ with the guided filter of ``recover --denoise`` (recorded in the output's
         identity: a resumed batch must ask the same).
+    motion : {"none", "global", "affine"}
+        Decode each sequence motion-compensated exactly as ``recover --motion`` (the displacements estimated
+        within the sequence; pixels seen outside the field or inconsistent are NaN); in the output's identity.
     """
     with output_lock(out, make_parents=True):  # one batch per output: resuming, cleaning and writing are its own
         return _run_locked(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
                            observer=observer, method=method, reference=reference, scheduler=scheduler,
                            workers=workers, client=client, progress=progress, on_done=on_done, device=device,
-                           denoise=denoise)
+                           denoise=denoise, motion=motion)
 
 
 def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, observer, method, reference, scheduler,
-                workers, client, progress, on_done, device, denoise=None) -> BatchReport:
+                workers, client, progress, on_done, device, denoise=None, motion="none") -> BatchReport:
 
     from distributed import Client, LocalCluster, as_completed
 
     job, todo = prepare_batch(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
                               observer=observer, method=method, reference=reference, device=device,
-                              denoise=denoise)
+                              denoise=denoise, motion=motion)
     t0 = time.perf_counter()
     cluster = own = None
     failure = None

@@ -45,7 +45,8 @@ def recovery_metadata(folder, seq, *, sequence, illuminant, observer, white_roi=
     reports = folder.calibration.reports
     return {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
             "calibration": plan.calibration, "sequence_folder": str(seq),
-            "sequences_averaged": 1 if sequence is not None else folder.sequences, "illuminant": illuminant,
+            "sequences_averaged": 1 if sequence is not None else folder.sequences,
+            **({"sequence": int(sequence)} if sequence is not None else {}), "illuminant": illuminant,
             "observer": observer, **white_metadata(white_roi, white_reflectance),
             **({"reflectance_scale_uncertainty": reports["white_reflectance_uncertainty"]}
                if "white_reflectance_uncertainty" in reports else {}),

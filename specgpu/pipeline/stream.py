@@ -24,6 +24,12 @@ driver's stream) stops the producer; every frame already in the ring is still as
 still computed and handed to the sinks, and the frames left in an unfinished sequence are reported in the
 assembler's ``frames_unused`` / ``sequences_discarded``.
 
+A scene that moves during each sequence (``motion="global"`` or ``"affine"``) is decoded one sequence at a time as
+``specgpu recover --motion`` decodes it (:class:`specgpu.pipeline.moving_decode.MovingDecoder`): the device thread
+hands each complete sequence to :data:`MOTION_THREADS` decoding threads (the estimate on the host is most of the
+cost, and much of it runs outside the GIL: two threads decode about 1.5 times as many sequences per second on 2
+cores) and takes their maps, host arrays (no map, no pinned set), in the sequences' order.
+
 This module is the runner (:class:`Stream`: the threads and the loop); the device work of a sequence is
 :class:`specgpu.pipeline.decoder.StreamDecoder`, the consumers of its results are in
 :mod:`specgpu.pipeline.sinks`, and what a finished stream reports is in :mod:`specgpu.pipeline.stream_report`.
@@ -31,11 +37,13 @@ This module is the runner (:class:`Stream`: the threads and the loop); the devic
 
 from __future__ import annotations
 
+import os
 import queue as queue_module
 import resource
 import threading
 import time
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +56,7 @@ from specgpu.capture.ringbuffer import POLICIES, RingBuffer, run_producer
 from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.engine.transfer import pinned_empty
 from specgpu.pipeline.decoder import STREAM_OUTPUTS, StreamDecoder
+from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
 from specgpu.pipeline.sinks import CallbackSink, StreamResult
 from specgpu.pipeline.stream_report import (
     LatencyHistogram,
@@ -60,6 +69,8 @@ from specgpu.pipeline.stream_report import (
 __all__ = ["STREAM_OUTPUTS", "Stream"]
 
 READBACKS = ("auto", "map", "copy", "pinned")
+#: Threads decoding the sequences of a moving scene at once (each holds one sequence's frames and maps).
+MOTION_THREADS = max(1, min(2, os.cpu_count() or 1))
 UPLOADS = ("auto", "host_ptr", "pinned", "copy")
 
 
@@ -126,6 +137,8 @@ class _InFlight:
     host_set: object = None
     matrix_set: object = None
     white_gains: object = None
+    motion: object = None
+    decoding: object = None  # a moving scene's sequence: the future of its maps
 
 
 class Stream:
@@ -181,6 +194,11 @@ class Stream:
     denoise : (radius, eps), optional
         Denoise the coefficients, cube and XYZ outputs with the guided filter of ``recover --denoise``
         (:func:`specgpu.pipeline.denoise.stream_denoise`; other outputs are refused with it).
+    motion : {"none", "global", "affine"}
+        Compensate a scene that moves during each sequence, as ``recover --motion``: each sequence's
+        displacements estimated within it and its frames decoded through the warped kernel; outputs of
+        :data:`specgpu.pipeline.moving_decode.MOTION_OUTPUTS` only, not with ``white_roi`` or ``denoise``. Each
+        result's :attr:`StreamResult.motion` holds the sequence's estimate.
     """
 
     def __init__(self, driver: CameraDriver, plan, calibration, *, outputs=("coefficients", "XYZ", "dE"),
@@ -188,8 +206,9 @@ class Stream:
                  observer: str | None = None, cube_dtype=np.float16, n_slots: int | None = None,
                  policy: str = "drop_newest", in_flight: int = 3, result_buffers: int = 6, readback: str = "auto",
                  upload: str = "auto", align: str = "index", sync_max_dn: float | None = None, device=None,
-                 white_roi=None, white_reflectance=None, denoise=None):
+                 white_roi=None, white_reflectance=None, denoise=None, motion: str = "none"):
         plan.check_calibration(calibration, name="stream plan")
+        motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise, white_roi=white_roi)
         if policy not in POLICIES:
             raise ValueError(f"unknown ring policy {policy!r}; valid policies: {', '.join(POLICIES)}")
         if readback not in READBACKS:
@@ -206,6 +225,11 @@ class Stream:
                                      reference=reference, method=method, illuminant=illuminant,
                                      observer=observer, cube_dtype=cube_dtype, white_roi=white_roi,
                                      white_reflectance=white_reflectance, denoise=denoise)
+        self.moving = None if motion == "none" else MovingDecoder(
+            plan, calibration, self.decoder.outputs, mode=motion, reference=reference, method=method,
+            illuminant=illuminant, observer=observer, cube_dtype=cube_dtype, device=self.queue)
+        if self.moving is not None:
+            readback = upload = "copy"  # the maps are made on the host: no mapped or pinned sets to recycle
         self.sinks = [s if callable(getattr(s, "write", None)) else CallbackSink(s) for s in sinks]
         self.n_slots = max(4 * plan.K, 16) if n_slots is None else int(n_slots)
         self.policy = policy
@@ -286,6 +310,8 @@ class Stream:
              for m in self.decoder.matrices(self.plan.A)]
             for _ in range(self.result_buffers if self.decoder.white_reference is not None else 0))
         self._ended = threading.Event()
+        self._motion_pool = (ThreadPoolExecutor(MOTION_THREADS, thread_name_prefix="specgpu-stream-motion")
+                             if self.moving is not None else None)
         self.decoder.warm_up(frames_dtype)
         peak_rss_reset()
         rss_start = current_rss_bytes()
@@ -319,6 +345,8 @@ class Stream:
                 pass
             for t in (producer, device, sinks):
                 t.join()
+            if self._motion_pool is not None:  # every sequence handed to it was taken, or the stream failed
+                self._motion_pool.shutdown(wait=True, cancel_futures=True)
             self._recycle_done()  # the last results' maps, now that no thread uses the queue
             ring.close()
             get_allocator(self.queue).free_held()  # the stream's buffers go back to the system, not to the pool
@@ -376,7 +404,8 @@ class Stream:
                 index += 1
                 while len(pending) > self.in_flight:
                     self._complete(pending.popleft())
-                while pending and _finished(pending[0].events):
+                while pending and (pending[0].decoding.done() if pending[0].decoding is not None
+                                   else _finished(pending[0].events)):
                     self._complete(pending.popleft())
             while pending:
                 self._complete(pending.popleft())
@@ -395,6 +424,9 @@ class Stream:
 
     def _submit(self, index: int, seq, arrival) -> _InFlight:
         self._acquire_token()  # a slow sink holds every buffer: wait here, and the frame ring's policy acts
+        if self.moving is not None:  # estimated and decoded now: the maps come back as host arrays
+            return _InFlight(index, seq, arrival if arrival is not None else time.perf_counter(), {}, {}, [],
+                             [seq], decoding=self._motion_pool.submit(self.moving.decode, seq.frames))
         q, dec = self.queue, self.decoder
         keep = [seq]
         host_frames = dec.prepare_frames(seq.frames) if dec.precorrect else seq.frames
@@ -451,11 +483,16 @@ class Stream:
                          keep, host_set=host_set, matrix_set=matrix_set, white_gains=gains)
 
     def _complete(self, item: _InFlight):
-        cl.wait_for_events(item.events)
+        if item.decoding is not None:
+            item.host = item.decoding.result()  # a decoding error is raised here, on the device thread
+            item.motion = item.host.pop("estimate")
+        if item.events:
+            cl.wait_for_events(item.events)
         t = time.perf_counter()
         # the result's own dict: the sinks' view may drop or add maps, the mapped ones are all unmapped later
         result = StreamResult(item.index, item.seq.cycle, item.seq.frame_ids, item.seq.timestamps_s, dict(item.host),
-                              t - item.t_arrival, frames=item.seq.frames, white_gains=item.white_gains)
+                              t - item.t_arrival, frames=item.seq.frames, white_gains=item.white_gains,
+                              motion=item.motion)
         if self.upload == "pinned":
             item.pinned = item.keep[1]
         item.keep = [item.seq]  # frames and their device buffer are no longer needed

@@ -66,3 +66,23 @@ def test_denoise_with_motion_is_refused_and_writes_nothing(moving, tmp_path):
                  "--denoise", ok=False)
     one_line_error(result, "--denoise with --motion", "not motion-compensated")
     assert not (tmp_path / "c.npz").exists()
+
+
+def test_evaluate_takes_the_sequence_folder_as_truth(moving, tmp_path):
+    seq = moving / "seq"
+    run("recover", seq, "--out", tmp_path / "comp.npz", "--sequence", "1", "--motion", "global")
+    by_file = run("evaluate", tmp_path / "comp.npz", "--truth", seq / "motion_truth" / "sequence_0001.npz")
+    by_folder = run("evaluate", tmp_path / "comp.npz", "--truth", seq)
+    assert mean_rmse(by_folder) == mean_rmse(by_file)
+    other = run("evaluate", tmp_path / "comp.npz", "--truth", seq / "motion_truth" / "sequence_0000.npz")
+    assert mean_rmse(other) > mean_rmse(by_folder)  # the scene moved between the sequences: the right one counts
+
+
+def test_evaluate_refuses_a_folder_without_the_truth_it_needs(moving, tmp_path):
+    seq = moving / "seq"
+    run("recover", seq, "--out", tmp_path / "mean.npz")  # both sequences averaged: no one truth
+    one_line_error(run("evaluate", tmp_path / "mean.npz", "--truth", seq, ok=False), "2 sequences",
+                   "sequence_NNNN.npz")
+    (tmp_path / "still").mkdir()
+    one_line_error(run("evaluate", tmp_path / "mean.npz", "--truth", tmp_path / "still", ok=False),
+                   "holds no motion truth")

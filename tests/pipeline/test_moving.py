@@ -139,3 +139,20 @@ def test_the_coarse_flow_of_a_translation_is_that_translation(setup):
     assert est.shifts.shape == (plan.K, 2, 240, 320)
     err = np.abs(est.shifts - truth["displacement"][:, :, None, None])
     assert np.median(err) < 0.05 and np.percentile(err, 95) < 0.3  # an 80 x 80 px tile: a few tenths at worst
+
+
+def test_the_check_on_the_estimates_own_gradient_images_is_the_check_on_fresh_ones(setup):
+    desc, bundle, plan, scene = setup
+    m = MotionParameters(velocity_px_per_frame=(1.0, 0.5), object="colorchecker",
+                         object_velocity_px_per_frame=(3.0, 0.0))
+    frames, _ = frames_of(desc, plan, scene, m)
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    est = estimate_global_motion(frames, dark, gain)
+    assert len(est.gradients) == plan.K and all(g.shape == (240, 320) for g in est.gradients)
+    reused = inconsistent_pixels(frames, est.shifts, dark, gain, gradients=est.gradients)
+    fresh = inconsistent_pixels(frames, est.shifts, dark, gain)
+    assert reused.any()
+    np.testing.assert_array_equal(reused, fresh)
+    res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code))
+    np.testing.assert_array_equal((res.mask & MASK_INCONSISTENT) > 0, fresh)
+    assert res.estimates[0].gradients is None  # not kept with the result

@@ -20,6 +20,7 @@ from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.pipeline.batch import BATCH_OUTPUTS, open_source, run_batch
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
+from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.planning.plans import load_plan
 
 
@@ -53,8 +54,12 @@ def plan_calibration(plan, source, plan_path, calib):
 @RESIZE
 @click.option("--denoise", is_flag=True,
               help="Denoise the cube and XYZ (recover --denoise's guided filter; not with Lab or dE).")
+@click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
+              show_default=True, help="Compensate a scene that moved during each sequence, as recover --motion: a "
+              "translation (global) or an affine map (affine) per frame, estimated within the sequence; pixels seen "
+              "outside the field or whose frames disagree are NaN.")
 def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, observer, scheduler, workers,
-                  device, resize, denoise):
+                  device, resize, denoise, motion):
     """Re-process the raw frames of a recording (specgpu stream --frames) or a sequence folder with a plan, on
     Dask: one task per sequence, resumable, equal to specgpu recover of each sequence."""
     wanted = output_list(outputs, BATCH_OUTPUTS, "batch output")
@@ -71,7 +76,7 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
         reference = parse_reference(ref, src.height, src.width, illuminant, resize, observer=observer)
     report = run_batch(source, plan, bundle, out, outputs=wanted, illuminant=illuminant, observer=observer,
                        method=method, reference=reference, scheduler=scheduler, workers=workers, device=device,
-                       denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None)
+                       denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None, motion=motion.lower())
     click.echo(f"{plan.method}: {report.computed} sequences computed on {report.workers} worker(s) in "
                f"{report.seconds:.1f} s ({report.sequences_per_s:.1f} sequences/s), {report.skipped} already done; "
                f"OpenCL contexts built {report.contexts_built}; wrote {out}")

@@ -16,13 +16,16 @@ from specgpu.pipeline.evaluation_report import (
     patch_table,
     read_recovered,
 )
+from specgpu.pipeline.moving import sequence_truth
 from specgpu.rig.scene import load_scene
 
 
 @command()
 @click.argument("cube", type=click.Path(exists=True, dir_okay=False))
 @click.option("--truth", required=True,
-              help="The true scene: colorchecker, white, natural[:image] or a .exr / .npz / .hdr (ENVI) cube.")
+              help="The true scene: colorchecker, white, natural[:image] or a .exr / .npz / .hdr (ENVI) cube; or "
+                   "the sequence folder of a capture on a moving twin (its motion_truth/ at the sequence the cube "
+                   "records).")
 @click.option("--illuminant", default=None,
               help="Illuminant of the colour differences [default: the one the file records (a tristimulus plan's "
                    "own), else D65]; another than an XYZ map records is refused.")
@@ -36,6 +39,8 @@ def evaluate(cube, truth, illuminant, json_path, device, resize):
         no_clash([("--json", json_path)], [("CUBE", cube), ("--truth", truth if Path(truth).exists() else None)])
         lock(json_path)
     data, wavelengths, meta = read_recovered(cube)
+    if Path(truth).is_dir():  # a moving capture's folder: the truth of the sequence the cube was recovered from
+        truth = str(sequence_truth(truth, meta.get("sequence")))
     illuminant, cmfs = colorimetry(cube, meta, illuminant, colorimetric=wavelengths is None)
     height, width = data.shape[:2]
     scene = resampled(f"--truth {truth}", load_scene(truth, height, width, resize=resize))

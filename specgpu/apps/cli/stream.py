@@ -32,6 +32,8 @@ from specgpu.pipeline.live import add_recording, recording_slots, stream_summary
 from specgpu.pipeline.outputs import stream_metadata
 from specgpu.pipeline.recovery import check_scene_covers
 from specgpu.pipeline.decoder import STREAM_OUTPUTS
+from specgpu.pipeline.moving import MOTION_MODES
+from specgpu.pipeline.moving_decode import check_motion_options
 from specgpu.pipeline.stream import Stream
 from specgpu.rig.config import load_rig
 
@@ -48,23 +50,27 @@ def status_line(s, tty):
 
 def stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                seconds, method, colours, pacing, policy, exr_every, half, seed, device, white=(None, None),
-               disk_check=True, view=False, denoise=None, accumulate=None):
+               disk_check=True, view=False, denoise=None, accumulate=None, motion="none"):
     """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised;
     ``colours``: the (illuminant, observer) of its XYZ, Lab and dE."""
     illuminant, observer = colours
+    white_roi, white_reflectance = white
+    motion = check_motion_options(motion, plan, outputs=wanted, denoise=denoise, accumulate=accumulate,
+                                  white_roi=white_roi)  # before any output: one line naming the option
     accumulator = None if accumulate is None else AccumulateSink(accumulate, wanted)  # refused before any output
     policy = policy or ("drop_newest" if pacing == "paced" else "block")
-    white_roi, white_reflectance = white
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, observer=observer, cube_dtype=np.float16 if half else np.float32,
                     policy=policy, device=device, white_roi=white_roi, white_reflectance=white_reflectance,
-                    n_slots=recording_slots(plan, description) if out else None, denoise=denoise)
+                    n_slots=recording_slots(plan, description) if out else None, denoise=denoise, motion=motion)
     writer = None
     if out:
         meta = stream_metadata(truth, illuminant=illuminant, observer=observer, method=method, seed=seed,
                                white_roi=white_roi, white_reflectance=white_reflectance)
         if denoise is not None:
             meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
+        if motion != "none":
+            meta["motion"] = f"{motion} compensation of each frame, estimated within the sequence"
         if accumulate is not None:
             meta["accumulate"] = f"running estimate over up to {accumulate} sequences, reset beyond 3 sigma"
         writer = add_recording(stream, plan, description, out, wanted=wanted, raw_frames=raw_frames,
@@ -134,6 +140,10 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
 @click.option("--accumulate", type=click.IntRange(min=2), default=None, metavar="N",
               help="A still scene: each pixel's running estimate over up to N sequences, restarted where it changes "
                    "beyond its noise (needs the cube and sigma or sigma_rms outputs).")
+@click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
+              show_default=True, help="Compensate a scene that moves during each sequence, as recover --motion: a "
+              "translation (global) or an affine map (affine) per frame, estimated within the sequence; not with "
+              "the sigmas, --denoise, --accumulate or --white-roi.")
 @RESIZE
 @click.option("--view", is_flag=True,
               help="Show the latest results in napari while streaming (the viewer extra): the sRGB of XYZ, dE and "
@@ -143,7 +153,7 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
                    "dropped); also skips the probe that chooses each array's compression.")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
                    observer, pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, denoise,
-                   accumulate, resize, view, no_disk_check):
+                   accumulate, motion, resize, view, no_disk_check):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     wanted = output_list(outputs, STREAM_OUTPUTS, "stream output")  # before any loading: a typo names the valid
@@ -170,7 +180,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
         stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                    seconds, method, colours, pacing if hardware is None else "paced", policy, exr_every, half, seed,
                    device, white=(white_roi, white_reflectance), disk_check=not no_disk_check, view=view,
-                   denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None, accumulate=accumulate)
+                   denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None, accumulate=accumulate,
+                   motion=motion.lower())
     finally:
         if hardware is not None:
             driver.close()  # the light's USB link and the camera

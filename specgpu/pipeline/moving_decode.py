@@ -1,0 +1,173 @@
+"""Motion-compensated decoding of one sequence into the maps ``specgpu batch`` and ``specgpu stream`` write.
+
+``specgpu recover --motion`` decodes one sequence of a moving scene through :func:`specgpu.pipeline.moving.recover_moving`:
+the frames corrected as recover corrects them (the sensor's linearisation, the per-pattern flat ratio), each
+frame's displacement estimated within the sequence, one warped device pass, the pixels seen outside the field or
+whose compensated frames disagree left NaN with their mask bits. :class:`MovingDecoder` runs exactly that on each
+sequence of a batch or a stream, with every linear output the caller asks for (basis coefficients, the cube, XYZ)
+stacked as rows of one decoder, so the estimate and the warped pass are made once per sequence; Lab and dE follow
+from XYZ as the offline path computes them (:func:`specgpu.pipeline.recovery.to_Lab`, ``delta_E``).
+
+Outputs that are not motion-compensated (the sigmas: their variance model assumes each pixel's samples came from
+one sensor pixel; the denoiser's guide; the running estimate of a still scene; a reference white or an ambient
+frame, measured on fixed pixels) are refused in one line naming the option (:func:`check_motion_options`).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from specgpu.core.validate import validate_method
+from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E
+from specgpu.engine.warp_map import apply_linear_warped
+from specgpu.pipeline.moving import MASK_INCONSISTENT, check_motion_mode, estimate_global_motion, inconsistent_pixels
+from specgpu.pipeline.recovery import corrected_signal
+from specgpu.planning.correction import ambient_index
+
+__all__ = ["MOTION_OUTPUTS", "MovingDecoder", "check_motion_options", "motion_model"]
+
+#: The outputs a motion-compensated decoding carries: linear maps of the warped samples, and colour from them.
+MOTION_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE")
+
+
+def motion_model(mode: str) -> str:
+    """The estimator's model of a motion mode (``"global"``: one translation per frame)."""
+    return "translation" if mode == "global" else mode
+
+
+def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, accumulate=None, white_roi=None) -> str:
+    """``motion`` checked (a key of :data:`specgpu.pipeline.moving.MOTION_MODES`) and, unless ``"none"``, every
+    option that cannot be motion-compensated yet refused in one line naming it. Returns the mode."""
+    mode = check_motion_mode(motion)
+    if mode == "none":
+        return mode
+    for name in outputs:
+        if name not in MOTION_OUTPUTS:
+            raise ValueError(f"the {name} output with --motion {mode}: its noise model assumes each pixel's "
+                             f"samples came from one sensor pixel, which motion compensation breaks; motion "
+                             f"outputs are {', '.join(MOTION_OUTPUTS)}")
+    if denoise is not None:
+        raise ValueError("--denoise with --motion: the filter's guide (the sum of the frames) is not "
+                         "motion-compensated, so it would mix the surfaces the compensation separated")
+    if accumulate is not None:
+        raise ValueError("--accumulate with --motion: the running estimate averages each pixel over sequences of "
+                         "a still scene, and a moving scene is at another place in every sequence")
+    if white_roi is not None:
+        raise ValueError("--white-roi with --motion: the reference white is measured on fixed pixels, which the "
+                         "scene moves across")
+    if plan is not None and ambient_index(plan) is not None:
+        raise ValueError(f"--motion {mode} with a plan with an ambient frame: the ambient frame is subtracted "
+                         "from fixed pixels, which the scene moves across")
+    return mode
+
+
+class MovingDecoder:
+    """One sequence of a moving scene decoded as ``recover --motion`` decodes it, into the maps asked for.
+
+    Parameters
+    ----------
+    plan, calibration
+        The plan (decoder A) and the calibration it was made from.
+    outputs : sequence of str
+        Of :data:`MOTION_OUTPUTS`; ``"coefficients"`` are in the plan's output basis, as
+        :class:`specgpu.pipeline.decoder.StreamDecoder` makes them (``basis``, ``A_coefficients``).
+    mode : {"global", "affine"}
+    reference : array_like, optional
+        CIELAB reference of ``"dE"``: (3,) or (H, W, 3).
+    method, illuminant, observer
+        Of dE, and of XYZ / Lab (resolved by the plan as the stream resolves them).
+    cube_dtype : numpy dtype
+        Storage of the cube (float16 or float32).
+    device : optional
+        OpenCL device selector or queue of the warped pass.
+    """
+
+    def __init__(self, plan, calibration, outputs, *, mode: str, reference=None, method="CIE 2000",
+                 illuminant=None, observer=None, cube_dtype=np.float32, device=None):
+        mode = check_motion_options(mode, plan, outputs=outputs)
+        if mode == "none":
+            raise ValueError("a MovingDecoder needs a motion mode other than none")
+        self.plan, self.calibration, self.outputs = plan, calibration, tuple(outputs)
+        self.model = motion_model(mode)
+        self.device = device
+        self.cube_dtype = np.dtype(cube_dtype)
+        self.illuminant = plan.resolve_illuminant(illuminant)
+        self.observer = plan.resolve_observer(observer)
+        self.method = validate_method(method, DELTA_E_METHODS) if "dE" in self.outputs else method
+        self.reference = None if reference is None else np.asarray(reference, np.float32)
+        if "dE" in self.outputs and self.reference is None:
+            raise ValueError("the dE output needs a reference (an L,a,b colour or a per-pixel Lab image)")
+        self.dark = np.asarray(calibration.dark_at(plan.exposure_s), np.float32)
+        self.ratio = calibration.flat_ratio(plan.patterns)
+        self.precorrect = self.ratio is not None or calibration.reports.get("linearity_c_per_dn2", 0.0) > 0
+        A = np.asarray(plan.A, np.float64)
+        rows, self.slices = [], {}
+
+        def add(name, matrix):
+            self.slices[name] = slice(sum(len(r) for r in rows), sum(len(r) for r in rows) + len(matrix))
+            rows.append(np.asarray(matrix, np.float64))
+
+        if "coefficients" in self.outputs:
+            U, s, Vt = np.linalg.svd(A, full_matrices=False)
+            m = int(plan.params.get("m", np.sum(s > s[0] * 1e-9)))
+            add("coefficients", s[:m, None] * Vt[:m])
+        if "cube" in self.outputs:
+            add("cube", A)
+        if {"XYZ", "Lab", "dE"} & set(self.outputs):
+            add("XYZ", plan.outputs_to_XYZ(self.illuminant, self.observer) @ A)
+        self.matrix = np.vstack(rows)
+        #: host seconds spent so far in each step (estimate, warped pass, consistency check, colour), and the
+        #: sequences decoded: where a moving stream's time goes
+        self.seconds = dict.fromkeys(("estimate", "warp", "check", "colour"), 0.0)
+        self.sequences = 0
+        self._lock = threading.Lock()  # decode may run on several threads at once (the stream's)
+
+    def frames(self, raw) -> np.ndarray:
+        """The frames the estimator and the warped pass read: ``raw``, or corrected as recover corrects them
+        (linearised, per-pattern flat ratio; the dark level added back, the pass subtracts it)."""
+        if not self.precorrect:
+            return np.asarray(raw)
+        f = corrected_signal(raw, self.dark, self.ratio, self.calibration)
+        f += self.dark[None]
+        return f
+
+    def decode(self, raw) -> dict:
+        """The maps of one sequence (K, H, W) by output name, plus ``mask`` (H, W) uint8 (1 saturated, 4 outside
+        the field, 8 inconsistent), NaN where masked; ``estimate``: the sequence's
+        :class:`specgpu.pipeline.moving.MotionEstimate`."""
+        # the steps of specgpu.pipeline.moving.recover_moving, with its defaults, each timed
+        frames, gain = self.frames(raw), self.calibration.flat_field
+        t0 = time.perf_counter()
+        est = estimate_global_motion(frames, self.dark, gain, model=self.model)
+        t1 = time.perf_counter()
+        res = apply_linear_warped(frames, self.matrix, est.shifts, self.dark, gain,
+                                  saturation=float(self.calibration.max_code), return_mask=True, device=self.device)
+        t2 = time.perf_counter()
+        y, mask = res.y, res.mask
+        mask[inconsistent_pixels(frames, est.shifts, self.dark, gain, gradients=est.gradients)] |= MASK_INCONSISTENT
+        y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
+        t3 = time.perf_counter()
+        out = {}
+        for name, rows in self.slices.items():
+            out[name] = np.ascontiguousarray(y[..., rows])
+        if "cube" in out:
+            out["cube"] = out["cube"].astype(self.cube_dtype, copy=False)
+        XYZ = out.get("XYZ")
+        if {"Lab", "dE"} & set(self.outputs):
+            Lab = np.asarray(XYZ_to_Lab(XYZ, self.illuminant, observer=self.observer, device=self.device))
+            if "Lab" in self.outputs:
+                out["Lab"] = Lab
+            if "dE" in self.outputs:
+                out["dE"] = np.asarray(delta_E(self.reference, Lab, self.method, device=self.device), np.float32)
+        if "XYZ" not in self.outputs:
+            out.pop("XYZ", None)
+        with self._lock:
+            for step, seconds in zip(self.seconds, (t1 - t0, t2 - t1, t3 - t2, time.perf_counter() - t3)):
+                self.seconds[step] += seconds
+            self.sequences += 1
+        return {**{name: out[name] for name in self.outputs}, "mask": mask,
+                "estimate": replace(est, gradients=None)}  # the images served the check; not kept with a result

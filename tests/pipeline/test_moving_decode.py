@@ -1,0 +1,225 @@
+"""Motion compensation wherever frames are decoded: `specgpu batch --motion` and `specgpu stream --motion` give what
+`specgpu recover --motion` gives on the same frames, and what cannot be compensated is refused in one line."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from cli_helpers import one_line_error, run
+
+from specgpu.calibration.bundle import oracle_calibration
+from specgpu.capture.assemble import AssemblyStats
+from specgpu.engine.colorimetry import delta_E
+from specgpu.pipeline.batch import run_batch
+from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
+from specgpu.pipeline.recovery import read_capture, recover, save_plan_and_calibration, to_Lab, to_XYZ, write_capture
+from specgpu.pipeline.recovery import capture_plan
+from specgpu.planning.registry import make_plan
+from specgpu.rig import CameraParameters, RigDescription, natural_scene
+from specgpu.rig.motion import MotionParameters
+
+CAM = CameraParameters(roi_width=320, roi_height=240, frame_rate_hz=200.0, exposure_s=0.0049)
+MOTION = MotionParameters(velocity_px_per_frame=(2.0, 1.0))
+LAB_REF = [50.0, 0.0, 0.0]
+
+
+@pytest.fixture(scope="module")
+def moving(tmp_path_factory):
+    """A sequence folder of 2 sequences of a 7-band narrowband plan on a twin whose scene drifts 2 px per frame
+    in x and 1 in y, with its plan and calibration files."""
+    root = tmp_path_factory.mktemp("moving-decode")
+    desc = RigDescription(camera=CAM)
+    bundle = oracle_calibration(desc)
+    plan = make_plan("narrowband", bundle, step_nm=50.0, max_exposure_s=0.0049)
+    shot = capture_plan(replace(desc, motion=MOTION), plan, natural_scene(240, 320), sequences=2, noise_seed=3,
+                        calibration=bundle)
+    plan_path, calib_path = save_plan_and_calibration(root, plan, bundle)
+    write_capture(root / "seq", shot.sequences, shot.assembly or AssemblyStats(), plan_path, calib_path)
+    return root, plan, bundle, plan_path, calib_path
+
+
+def recovered(root, sequence, motion):
+    return recover(read_capture(root / "seq"), sequence=sequence, motion=motion)
+
+
+def assert_close_nan(a, b, **tol):
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    np.testing.assert_allclose(np.nan_to_num(a), np.nan_to_num(b), **tol)
+
+
+def test_batch_with_motion_equals_recover_with_motion(moving, tmp_path):
+    import zarr
+
+    root, plan, bundle, _, _ = moving
+    report = run_batch(root / "seq", plan, bundle, tmp_path / "out.zarr", outputs=("cube", "XYZ", "Lab", "dE"),
+                       reference=LAB_REF, workers=1, progress=False, motion="global")
+    assert report.computed == 2
+    out = zarr.open_group(str(tmp_path / "out.zarr"), mode="r")
+    assert out.attrs["motion"] == "global"
+    for i in range(2):
+        want = recovered(root, i, "global")
+        assert 0 < np.isnan(want[..., 0]).mean() < 0.2  # the drift leaves a border seen outside the field
+        assert_close_nan(out["cube"][i], want, rtol=1e-6, atol=1e-6)
+        XYZ = to_XYZ(want, plan)
+        assert_close_nan(out["XYZ"][i], XYZ, rtol=1e-5, atol=1e-6)
+        assert_close_nan(out["Lab"][i], to_Lab(XYZ), atol=1e-3)
+        assert_close_nan(out["dE"][i], delta_E(np.array(LAB_REF, np.float32), to_Lab(XYZ)), atol=1e-3)
+    # the comparison can fail: the same frames decoded without compensation are far from it
+    still = recovered(root, 1, "none")
+    moved = np.asarray(out["cube"][1])
+    ok = np.isfinite(moved[..., 0])
+    assert np.abs(still[ok] - moved[ok]).mean() > 10 * np.abs(moved[ok] - recovered(root, 1, "global")[ok]).mean()
+    assert np.abs(still[ok] - moved[ok]).mean() > 0.01
+
+
+def test_batch_motion_is_checked_in_one_line(moving, tmp_path):
+    root, _, _, plan_path, calib_path = moving
+    args = ["batch", root / "seq", "--plan", plan_path, "--calib", calib_path, "--out", tmp_path / "o.zarr"]
+    one_line_error(run(*args, "--motion", "flow", ok=False), "--motion", code=2)
+    one_line_error(run(*args, "--motion", "global", "--denoise", ok=False), "--denoise with --motion")
+    assert not (tmp_path / "o.zarr").exists()
+
+
+def test_options_that_are_not_motion_compensated_are_named(moving):
+    _, plan, _, _, _ = moving
+    assert check_motion_options("None", plan, outputs=("sigma",), denoise=(4, 1e-3), accumulate=3) == "none"
+    for kw, name in (({"outputs": ("cube", "sigma")}, "sigma"), ({"outputs": ("dE_sigma",)}, "dE_sigma"),
+                     ({"denoise": (4, 1e-3)}, "--denoise"), ({"accumulate": 4}, "--accumulate"),
+                     ({"white_roi": "0,0,8,8"}, "--white-roi")):
+        with pytest.raises(ValueError, match=name):
+            check_motion_options("global", plan, **kw)
+    with pytest.raises(ValueError, match="motion"):
+        check_motion_options("sideways", plan)
+
+
+def test_the_decoder_stacks_its_outputs_into_one_pass_equal_to_recover(moving):
+    root, plan, bundle, _, _ = moving
+    folder = read_capture(root / "seq")
+    dec = MovingDecoder(plan, bundle, ("cube", "XYZ"), mode="global")
+    maps = dec.decode(folder.frames[0])
+    assert dec.matrix.shape == (plan.A.shape[0] + 3, plan.K)
+    assert_close_nan(maps["cube"], recovered(root, 0, "global"), rtol=1e-6, atol=1e-6)
+    assert maps["mask"].dtype == np.uint8 and maps["estimate"].shifts.shape == (plan.K, 2)
+    np.testing.assert_allclose(maps["estimate"].shifts, (np.arange(plan.K) - plan.K // 2)[:, None] * [2.0, 1.0],
+                               atol=0.1)
+
+
+# ------------------------------------------------------------------------------------------------------ the stream
+
+def twin_driver(plan, bundle, sequences, seed=7):
+    from specgpu.capture.twin import TwinDriver
+    from specgpu.rig.twin import TwinRig
+
+    rig = TwinRig(plan.rig_description(RigDescription(camera=CAM, motion=MOTION)), scene=natural_scene(240, 320))
+    rig.seed = seed
+    return TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K * sequences, pacing="free")
+
+
+def streamed(plan, bundle, motion, sequences=2):
+    from specgpu.pipeline.stream import Stream
+
+    kept = []
+
+    def keep(result):
+        kept.append(({k: np.array(v) for k, v in result.arrays.items()}, np.array(result.frames), result.motion))
+
+    report = Stream(twin_driver(plan, bundle, sequences), plan, bundle, outputs=("cube", "XYZ", "Lab", "dE"),
+                    reference=LAB_REF, cube_dtype=np.float32, policy="block", sinks=[keep], motion=motion).run()
+    assert report.sequences_out == sequences == len(kept)
+    return kept
+
+
+def test_a_stream_with_motion_equals_recover_with_motion_of_the_same_frames(moving):
+    from pathlib import Path
+
+    from specgpu.pipeline.recovery import SequenceFolder
+
+    _, plan, bundle, _, _ = moving
+    compensated = streamed(plan, bundle, "global")
+    for maps, frames, estimate in compensated:
+        folder = SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {})
+        want = recover(folder, sequence=0, motion="global")
+        assert 0 < np.isnan(want[..., 0]).mean() < 0.2
+        assert_close_nan(maps["cube"], want, rtol=1e-6, atol=1e-6)
+        XYZ = to_XYZ(want, plan)
+        assert_close_nan(maps["XYZ"], XYZ, rtol=1e-5, atol=1e-6)
+        assert_close_nan(maps["dE"], delta_E(np.array(LAB_REF, np.float32), to_Lab(XYZ)), atol=1e-3)
+        np.testing.assert_allclose(estimate.shifts, (np.arange(plan.K) - plan.K // 2)[:, None] * [2.0, 1.0],
+                                   atol=0.1)
+    # the same moving twin streamed without compensation: the same frames (same seed), far from recover --motion
+    plain = streamed(plan, bundle, "none")
+    for (maps, frames, estimate), (still, still_frames, none) in zip(compensated, plain):
+        np.testing.assert_array_equal(frames, still_frames)
+        assert none is None
+        ok = np.isfinite(maps["cube"][..., 0])
+        assert np.abs(still["cube"][ok] - maps["cube"][ok]).mean() > 0.01
+
+
+def test_stream_motion_on_the_command_line(moving, tmp_path):
+    import zarr
+
+    root, _, _, plan_path, calib_path = moving
+    (tmp_path / "rig.toml").write_text("[camera]\nroi_width = 320\nroi_height = 240\nframe_rate_hz = 200.0\n"
+                                       "exposure_s = 0.0049\n[motion]\nvelocity_px_per_frame = [2.0, 1.0]\n")
+    args = ["stream", "--rig", tmp_path / "rig.toml", "--plan", plan_path, "--calib", calib_path, "--scene",
+            "natural", "--pacing", "free", "--seconds", "0.3"]
+    one_line_error(run(*args, "--motion", "flow", ok=False), "--motion", code=2)
+    one_line_error(run(*args, "--motion", "global", "--outputs", "cube,sigma", ok=False), "sigma", "--motion")
+    one_line_error(run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--denoise", ok=False), "--denoise")
+    one_line_error(run(*args, "--motion", "affine", "--outputs", "cube", "--accumulate", "3", ok=False),
+                   "--accumulate")
+    one_line_error(run(*args, "--motion", "global", "--white-roi", "0,0,8,8", "--outputs", "cube", ok=False),
+                   "--white-roi")
+    done = run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--out", tmp_path / "rec.zarr")
+    rec = zarr.open_group(str(tmp_path / "rec.zarr"), mode="r")
+    assert "global" in str(rec.attrs["metadata"].get("motion")), (done.output, dict(rec.attrs))
+    cube = np.asarray(rec["cube"][0], np.float32)
+    assert 0 < np.isnan(cube[..., 0]).mean() < 0.2  # the field's moving border: NaN, never a made-up value
+
+
+def test_the_stream_bench_puts_the_motion_rate_beside_the_static_one(tmp_path):
+    import json
+
+    out = tmp_path / "bench.json"
+    result = run("bench", "--stream", "--stream-size", "320x240", "--stream-seconds", "0.5", "--stream-cases",
+                 "motion", "--json", out)
+    rows = {row["case"]: row for row in json.loads(out.read_text())["cases"]}
+    assert set(rows) == {"coefficients+XYZ", "coefficients+XYZ with --motion global", "motion global / static"}
+    ratio = rows["motion global / static"]
+    assert ratio["static_frames_per_s"] == rows["coefficients+XYZ"]["frames_per_s"] > 0
+    assert ratio["motion_frames_per_s"] == rows["coefficients+XYZ with --motion global"]["frames_per_s"] > 0
+    assert ratio["ratio"] == pytest.approx(ratio["motion_frames_per_s"] / ratio["static_frames_per_s"])
+    steps = ratio["ms_per_sequence"]
+    assert set(steps) == {"estimate", "warp", "check", "colour"} and all(v > 0 for v in steps.values())
+    assert f"ratio {ratio['ratio']:.3f}" in result.output
+
+
+def test_a_sequence_that_fails_to_decode_ends_the_moving_stream_with_its_error(moving):
+    from specgpu.pipeline.stream import Stream
+
+    _, plan, bundle, _, _ = moving
+    stream = Stream(twin_driver(plan, bundle, 4), plan, bundle, outputs=("cube",), policy="block", motion="global")
+    calls = []
+    decode = stream.moving.decode
+
+    def failing(frames):
+        calls.append(1)
+        if len(calls) == 2:
+            raise ValueError("no frame of the sequence has signal to register")
+        return decode(frames)
+
+    stream.moving.decode = failing
+    with pytest.raises(ValueError, match="no frame of the sequence has signal"):
+        stream.run(30)
+    assert len(calls) >= 2
+
+
+def test_affine_motion_decodes_as_recover_affine(moving):
+    root, plan, bundle, _, _ = moving
+    folder = read_capture(root / "seq")
+    maps = MovingDecoder(plan, bundle, ("cube",), mode="affine").decode(folder.frames[1])
+    assert maps["estimate"].model == "affine" and maps["estimate"].shifts.shape == (plan.K, 2, 3)
+    assert_close_nan(maps["cube"], recovered(root, 1, "affine"), rtol=1e-6, atol=1e-6)
