@@ -26,7 +26,7 @@ from specgpu.apps.report_figures import (
     figure_png,
     illuminant_figure,
     map_figure,
-    rgb_png,
+    rgb_jpeg,
     spectra_figure,
     sRGB_rendering,
 )
@@ -284,11 +284,11 @@ def _renderings_section(summaries, scene, device) -> str:
     cards = []
     if scene is not None:
         for ill in RENDER_ILLUMINANTS:
-            cards.append(figure_card(rgb_png(sRGB_rendering(scene_XYZ(scene, ill, device=device), ill)),
-                                     f"truth under {ill}"))
+            cards.append(figure_card(rgb_jpeg(sRGB_rendering(scene_XYZ(scene, ill, device=device), ill)),
+                                     f"truth under {ill}", "image/jpeg"))
     for s in summaries.values():
         for ill, rgb in s.renderings.items():
-            cards.append(figure_card(rgb_png(rgb), f"{s.name} under {ill}"))
+            cards.append(figure_card(rgb_jpeg(rgb), f"{s.name} under {ill}", "image/jpeg"))
     return ("<h2>sRGB renderings</h2><p>Reflectance rendered under D65 and A (a tristimulus recovery under its "
             "own illuminant), adapted to sRGB's D65 white (CAT02), a perfect white at code 255.</p>"
             + card_grid(cards))

@@ -85,15 +85,15 @@ def html_table(columns, rows, *, caption: str = "", best_columns=(), row_classes
     return "".join(out)
 
 
-def image_tag(png: bytes, alt: str) -> str:
-    """An ``<img>`` holding ``png`` as a data URI (the page needs no other file)."""
-    data = base64.b64encode(png).decode("ascii")
-    return f"<img src='data:image/png;base64,{data}' alt='{html.escape(alt, quote=True)}'>"
+def image_tag(image: bytes, alt: str, mime: str = "image/png") -> str:
+    """An ``<img>`` holding ``image`` (of type ``mime``) as a data URI (the page needs no other file)."""
+    data = base64.b64encode(image).decode("ascii")
+    return f"<img src='data:{mime};base64,{data}' alt='{html.escape(alt, quote=True)}'>"
 
 
-def figure_card(png: bytes, caption: str) -> str:
+def figure_card(image: bytes, caption: str, mime: str = "image/png") -> str:
     """An image with its caption below."""
-    return f"<figure>{image_tag(png, caption)}<figcaption>{html.escape(caption)}</figcaption></figure>"
+    return f"<figure>{image_tag(image, caption, mime)}<figcaption>{html.escape(caption)}</figcaption></figure>"
 
 
 def card_grid(cards, *, wide: bool = False) -> str:

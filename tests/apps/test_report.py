@@ -2,6 +2,7 @@
 renderings against colour-science, and a run folder's report that parses, embeds every image and reaches no
 network."""
 
+import base64
 from dataclasses import replace
 from html.parser import HTMLParser
 from pathlib import Path
@@ -143,7 +144,14 @@ def test_report_of_a_run_folder_parses_embeds_its_images_and_scores_the_capture(
     assert "pre" not in tags and tags.count("table") >= 2  # the summary and the per-patch table
     images = [a["src"] for t, a in doc.tags if t == "img"]
     # truth and recovery under D65 and A, one spectra plot, one dE map, one sigma map, one illuminant plot
-    assert len(images) == 8 and all(src.startswith("data:image/png;base64,") for src in images)
+    assert len(images) == 8
+    # the four renderings as JPEG (a photograph's content), the plots and maps as PNG, each a complete image
+    kinds = [src.split(";")[0] for src in images]
+    assert kinds.count("data:image/jpeg") == 4 and kinds.count("data:image/png") == 4
+    for src in images:
+        raw = base64.b64decode(src.split(",", 1)[1])
+        assert raw.startswith(b"\xff\xd8") and raw.endswith(b"\xff\xd9") if "jpeg" in src else \
+            raw.startswith(b"\x89PNG") and raw.endswith(b"IEND\xaeB`\x82")
     for t, a in doc.tags:
         for key in ("src", "href"):
             assert not str(a.get(key, "")).startswith(("http:", "https:", "//"))
