@@ -48,6 +48,19 @@ def stream_cli_files(setup, tmp_path):
             str(tmp_path / "calib.npz"), "--scene", "colorchecker"]
 
 
+def hadamard_rig(d, bundle=None):
+    """Write the small twin rig into folder ``d`` with a calibration (``bundle``, default the rig's exact model) and
+    a Hadamard-7 plan without an ambient frame made through the CLI; returns the paths (rig, calibration, plan)."""
+    from specgpu.calibration.bundle import oracle_calibration, save_calibration
+    from specgpu.rig.config import load_rig
+
+    rig, cal, plan = d / "rig.toml", d / "cal.npz", d / "p.npz"
+    rig.write_text(RIG)
+    save_calibration(cal, oracle_calibration(load_rig(rig)) if bundle is None else bundle)
+    run("plan", "hadamard", "--bands", "7", "--calib", cal, "--rig", rig, "--out", plan, "--no-ambient")
+    return rig, cal, plan
+
+
 def tristimulus_rig(d):
     """Write the small twin rig into folder ``d`` and make ``calib.npz`` and a tristimulus plan ``tri.npz`` there
     through the CLI; returns ``d``."""

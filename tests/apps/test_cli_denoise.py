@@ -3,19 +3,12 @@ the outputs it cannot carry in one line."""
 
 import json
 
-from cli_helpers import RIG, one_line_error, run
-
-from specgpu.calibration.bundle import oracle_calibration, save_calibration
-from specgpu.rig.config import load_rig
+from cli_helpers import hadamard_rig, one_line_error, run
 
 
 def test_stream_denoise(tmp_path):
-    rig = tmp_path / "rig.toml"
-    rig.write_text(RIG)
-    cal = tmp_path / "cal.npz"
-    save_calibration(cal, oracle_calibration(load_rig(rig)))
-    run("plan", "hadamard", "--bands", "7", "--calib", cal, "--rig", rig, "--out", tmp_path / "p.npz", "--no-ambient")
-    base = ["stream", "--rig", rig, "--plan", tmp_path / "p.npz", "--calib", cal, "--scene", "natural",
+    rig, cal, plan = hadamard_rig(tmp_path)
+    base = ["stream", "--rig", rig, "--plan", plan, "--calib", cal, "--scene", "natural",
             "--seconds", "0.3", "--pacing", "free", "--denoise"]
     out = run(*base, "--outputs", "coefficients,XYZ", "--out", tmp_path / "rec.zarr").output
     assert "sequences" in out
@@ -27,12 +20,8 @@ def test_stream_denoise(tmp_path):
 
 
 def test_stream_accumulate(tmp_path):
-    rig = tmp_path / "rig.toml"
-    rig.write_text(RIG)
-    cal = tmp_path / "cal.npz"
-    save_calibration(cal, oracle_calibration(load_rig(rig)))
-    run("plan", "hadamard", "--bands", "7", "--calib", cal, "--rig", rig, "--out", tmp_path / "p.npz", "--no-ambient")
-    base = ["stream", "--rig", rig, "--plan", tmp_path / "p.npz", "--calib", cal, "--scene", "colorchecker",
+    rig, cal, plan = hadamard_rig(tmp_path)
+    base = ["stream", "--rig", rig, "--plan", plan, "--calib", cal, "--scene", "colorchecker",
             "--seconds", "0.5", "--pacing", "free", "--accumulate", "4"]
     out = run(*base, "--outputs", "cube,sigma_rms", "--out", tmp_path / "rec.zarr").output
     assert "sequences" in out

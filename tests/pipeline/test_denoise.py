@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import RIG, one_line_error, run
+from cli_helpers import hadamard_rig, one_line_error, run
 
 import specgpu.planning as E
-from specgpu.calibration.bundle import oracle_calibration, save_calibration
+from specgpu.calibration.bundle import oracle_calibration
 from specgpu.engine.colorimetry import XYZ_to_Lab
 from specgpu.io import read_cube, read_map
 from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide, stream_denoise
@@ -77,11 +77,7 @@ def test_flat_patches_keep_their_level_and_the_guide_is_normalised(bundle):
 
 
 def test_cli_recover_denoise(tmp_path, bundle):
-    rig = tmp_path / "rig.toml"
-    rig.write_text(RIG)
-    cal = tmp_path / "cal.npz"
-    save_calibration(cal, bundle)
-    run("plan", "hadamard", "--bands", "7", "--calib", cal, "--rig", rig, "--out", tmp_path / "p.npz", "--no-ambient")
+    rig, cal, _ = hadamard_rig(tmp_path, bundle)
     run("capture", "--rig", rig, "--calib", cal, "--plan", tmp_path / "p.npz", "--scene", "natural", "--out",
         tmp_path / "seq")
     run("recover", tmp_path / "seq", "--out", tmp_path / "raw.npz", "--sigma", tmp_path / "raw-s.exr")
@@ -174,11 +170,7 @@ def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
 
     from specgpu.pipeline.recovery import read_capture
 
-    rig = tmp_path / "rig.toml"
-    rig.write_text(RIG)
-    cal = tmp_path / "cal.npz"
-    save_calibration(cal, bundle)
-    run("plan", "hadamard", "--bands", "7", "--calib", cal, "--rig", rig, "--out", tmp_path / "p.npz", "--no-ambient")
+    rig, cal, _ = hadamard_rig(tmp_path, bundle)
     run("capture", "--rig", rig, "--calib", cal, "--plan", tmp_path / "p.npz", "--scene", "natural", "--out",
         tmp_path / "seq", "--sequences", "2")
     run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "b.zarr", "--outputs",
