@@ -3,13 +3,13 @@ renderings against colour-science, and a run folder's report that parses, embeds
 network."""
 
 import base64
-from dataclasses import replace
 from html.parser import HTMLParser
 from pathlib import Path
 
 import colour
 import numpy as np
 import pytest
+from capture_helpers import write_chart_capture
 
 from specgpu.apps.report_figures import (
     DELTA_E_LABEL,
@@ -113,23 +113,8 @@ def test_page_needs_no_network():
 @pytest.fixture(scope="module")
 def run_folder(tmp_path_factory):
     """A capture of the chart (narrowband, 20 nm steps) on a small twin, written as `specgpu capture` does."""
-    from specgpu.calibration import oracle_calibration, save_calibration
-    from specgpu.pipeline import capture_plan, write_capture
-    from specgpu.planning import make_plan, save_plan
-    from specgpu.planning.noise import NoiseModel
-    from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
-
     root = tmp_path_factory.mktemp("run")
-    rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
-    bundle = oracle_calibration(rig)
-    plan = make_plan("narrowband", bundle, step_nm=20.0)
-    plan = replace(plan, params={**plan.params, "noise": NoiseModel.from_rig(rig, plan.exposure_s).as_params()})
-    scene = colorchecker_scene(240, 320)
-    result = capture_plan(rig, plan, scene, noise_seed=3, calibration=bundle)
-    save_plan(root / "plan.npz", plan)
-    save_calibration(root / "calibration.npz", bundle)
-    write_capture(root / "narrowband", result.sequences, result.assembly, root / "plan.npz",
-                  root / "calibration.npz", metadata={"scene": scene.name})
+    write_chart_capture(root, "narrowband", noise_seed=3, noise_model=True)
     return root
 
 

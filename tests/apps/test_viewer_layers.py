@@ -8,6 +8,7 @@ from pathlib import Path
 import colour
 import numpy as np
 import pytest
+from capture_helpers import write_chart_capture
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -95,20 +96,7 @@ def test_reader_hook_accepts_specgpu_paths_only(cube_file, tmp_path):
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
     """Two sequences of the chart (narrowband, 20 nm) on the small twin, recording the scene."""
-    from specgpu.calibration import oracle_calibration, save_calibration
-    from specgpu.pipeline import capture_plan, write_capture
-    from specgpu.planning import make_plan, save_plan
-    from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
-
-    root = tmp_path_factory.mktemp("seq")
-    rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
-    bundle = oracle_calibration(rig)
-    plan = make_plan("narrowband", bundle, step_nm=20.0)
-    result = capture_plan(rig, plan, colorchecker_scene(240, 320), sequences=2, noise_seed=5, calibration=bundle)
-    save_plan(root / "plan.npz", plan)
-    save_calibration(root / "calibration.npz", bundle)
-    return write_capture(root / "seq", result.sequences, result.assembly, root / "plan.npz", root / "calibration.npz",
-                         metadata={"scene": "colorchecker"})
+    return write_chart_capture(tmp_path_factory.mktemp("seq"), "seq", sequences=2, noise_seed=5)
 
 
 def test_sequence_folder_layers_are_lazy_and_recover_each_sequence(capture):

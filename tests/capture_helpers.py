@@ -1,0 +1,28 @@
+"""A capture folder of the chart on the small twin, for the report and viewer tests."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from specgpu.calibration import oracle_calibration, save_calibration
+from specgpu.pipeline import capture_plan, write_capture
+from specgpu.planning import make_plan, save_plan
+from specgpu.planning.noise import NoiseModel
+from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
+
+
+def write_chart_capture(root, folder: str, *, sequences: int = 1, noise_seed: int, noise_model: bool = False):
+    """The chart captured with a narrowband plan (20 nm steps) on the 320 x 240 twin, written as ``specgpu capture``
+    writes it into ``root / folder`` with ``plan.npz`` and ``calibration.npz`` beside it (``noise_model``: the plan
+    records the camera's noise, so sigma maps can be made); returns the capture folder."""
+    rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+    bundle = oracle_calibration(rig)
+    plan = make_plan("narrowband", bundle, step_nm=20.0)
+    if noise_model:
+        plan = replace(plan, params={**plan.params, "noise": NoiseModel.from_rig(rig, plan.exposure_s).as_params()})
+    scene = colorchecker_scene(240, 320)
+    result = capture_plan(rig, plan, scene, sequences=sequences, noise_seed=noise_seed, calibration=bundle)
+    save_plan(root / "plan.npz", plan)
+    save_calibration(root / "calibration.npz", bundle)
+    return write_capture(root / folder, result.sequences, result.assembly, root / "plan.npz",
+                         root / "calibration.npz", metadata={"scene": scene.name})
