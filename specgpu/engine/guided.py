@@ -106,6 +106,14 @@ def guided_filter(image, guide, *, radius: int, eps: float, device=None):
     return out
 
 
+def _box_box_squares(radius: int) -> np.ndarray:
+    """The squared weights ``t(d)^2`` along one axis of a box mean of radius ``radius`` convolved with another,
+    ``t(d) = (2r + 1 - |d|) / (2r + 1)^2`` for ``|d| <= 2r``."""
+    r = int(check_number("radius", radius, integer=True, low=1, high=1024))
+    d = np.arange(-2 * r, 2 * r + 1)
+    return ((2 * r + 1 - np.abs(d)) / (2 * r + 1) ** 2) ** 2
+
+
 def box_box_variance(variance, radius: int) -> np.ndarray:
     """(H, W, B) variance of the mean of box means of radius ``radius`` (the guided filter where its guide is
     flat) of independent per-pixel noise of ``variance`` (H, W, B): the variance convolved with the squared
@@ -113,9 +121,7 @@ def box_box_variance(variance, radius: int) -> np.ndarray:
     (borders: the edge pixels repeated)."""
     from scipy.ndimage import correlate1d  # scipy: heavy, needed only here
 
-    r = int(check_number("radius", radius, integer=True, low=1, high=1024))
-    d = np.arange(-2 * r, 2 * r + 1)
-    t2 = ((2 * r + 1 - np.abs(d)) / (2 * r + 1) ** 2) ** 2
+    t2 = _box_box_squares(radius)
     v = np.asarray(variance, np.float64)
     v = correlate1d(correlate1d(v, t2, axis=0, mode="nearest"), t2, axis=1, mode="nearest")
     return v.astype(np.float32)
@@ -125,7 +131,4 @@ def flat_variance_reduction(radius: int) -> float:
     """How many times the guided filter of radius ``radius`` lowers the variance of independent per-pixel noise
     where its guide is flat (the mean of box means, :func:`box_box_variance` far from a border):
     ``1 / (sum_d t(d)^2)^2``, about 54 at radius 2. At an edge the filter follows the guide and lowers it less."""
-    r = int(check_number("radius", radius, integer=True, low=1, high=1024))
-    d = np.arange(-2 * r, 2 * r + 1)
-    t2 = ((2 * r + 1 - np.abs(d)) / (2 * r + 1) ** 2) ** 2
-    return float(1.0 / t2.sum() ** 2)
+    return float(1.0 / _box_box_squares(radius).sum() ** 2)
