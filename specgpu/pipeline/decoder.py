@@ -313,9 +313,11 @@ class StreamDecoder:
                                                        **sat),
                                  {"out": kind, "mask": "mask"}))
             else:
+                # with Lab and dE made after the filter from the filtered XYZ, this pass writes XYZ alone
                 launches.append((engine.prepare_frames_to_delta_E(
-                    q, dtype, self.M, self.white, self.reference, n=n, method=self.method if "dE" in self.outputs
-                    else "CIE 2000", reference_single=self.reference_single, dark=self.dark, gain=self.gain,
+                    q, dtype, self.M, self.white, None if self._lab_from_filtered else self.reference, n=n,
+                    method=self.method if "dE" in self.outputs else "CIE 2000",
+                    reference_single=self.reference_single, dark=self.dark, gain=self.gain,
                     write_XYZ="XYZ" in self.outputs or "dE_sigma" in self.outputs or self._lab_from_filtered,
                     write_Lab="Lab" in self.outputs and not self._lab_from_filtered,
                     **sat), {"XYZ": "XYZ", "Lab": "Lab", "delta_E": "dE", "mask": "mask"}))
