@@ -44,8 +44,8 @@ from specgpu.planning.priors import Prior
 from specgpu.planning.timing import budget_params, check_budget, exposure_within
 from specgpu.rig.scene import interpolation_matrix
 
-__all__ = ["OBJECTIVES", "WITHIN_PRIOR", "columns_within", "design_optimal", "plan_optimal", "plan_hadamard", "s_matrix", "objective_weights",
-           "wiener_objective"]
+__all__ = ["OBJECTIVES", "WITHIN_PRIOR", "columns_within", "denoise_params", "design_optimal", "plan_optimal",
+           "plan_hadamard", "s_matrix", "objective_weights", "wiener_objective"]
 
 OBJECTIVES = ("rmse", "dE2000", "dEab")
 
@@ -219,6 +219,12 @@ def _system_on(bundle, wavelengths) -> np.ndarray:
     return S * columns_within(bundle, wl)[:, None]
 
 
+def denoise_params(radius: int) -> dict:
+    """What a plan designed for ``recover --denoise --denoise-radius radius`` records as ``params["denoise"]``: the
+    radius and the variance reduction where the scene is flat (:func:`flat_variance_reduction`)."""
+    return {"radius": int(radius), "variance_reduction": flat_variance_reduction(radius)}
+
+
 def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: str = "rmse", illuminant="D65",
                  training=None, output_wavelengths=None, level: float = 0.9, max_exposure_s: float | None = None,
                  target: float | None = None, exposure_s: float | None = None, starts: int = 4, seed: int = 0,
@@ -278,9 +284,9 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
     ow = np.arange(400.0, 700.0 + 1e-9, 10.0) if output_wavelengths is None else np.asarray(output_wavelengths, float)
     P = objective_weights(prior, obj, illuminant, training)
     camera_noise_at = noise_at
-    reduction = None
-    if denoise_radius is not None:
-        reduction = flat_variance_reduction(denoise_radius)
+    denoise = None if denoise_radius is None else denoise_params(denoise_radius)
+    reduction = None if denoise is None else denoise["variance_reduction"]
+    if denoise is not None:
 
         def noise_at(t):  # the noise the filter leaves where the scene is flat: what the design and decoder see
             return camera_noise_at(t).averaged(reduction)
@@ -323,9 +329,7 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
                  illuminant="", observer="", params={"frames": int(frames), "objective": obj,
                                                      "objective_illuminant": str(illuminant),
                                                      **budget_params(sequence_s, min_frame_period_s),
-                                                     **({} if reduction is None else {"denoise": {
-                                                         "radius": int(denoise_radius),
-                                                         "variance_reduction": reduction}})})
+                                                     **({} if denoise is None else {"denoise": denoise})})
     plan = with_estimator(plan, bundle, "wiener", prior=prior, noise=camera_noise_at(plan.exposure_s),
                           decoder_noise=None if reduction is None else noise_at(plan.exposure_s))
     exp = dict(plan.params["expected"])

@@ -13,6 +13,7 @@ from specgpu.calibration.bundle import load_calibration, oracle_calibration, rig
 from specgpu.engine.guided import flat_variance_reduction
 from specgpu.planning.bound import design_bound
 from specgpu.planning.budget import budget_plan
+from specgpu.planning.design import denoise_params
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.priors import default_prior, training_spectra
@@ -83,11 +84,11 @@ def estimated_plan(method, bundle, args, kwargs, estimator, training, training_o
     if denoise_radius is None:
         return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s),
                               correlation_nm=smooth_nm)
-    reduction = flat_variance_reduction(denoise_radius)
-    plan = replace(plan, params={**plan.params, "denoise": {"radius": int(denoise_radius),
-                                                            "variance_reduction": reduction}})
-    return with_estimator(plan, bundle, estimator, prior=prior, noise=noise_at(plan.exposure_s),
-                          correlation_nm=smooth_nm, decoder_noise=noise_at(plan.exposure_s).averaged(reduction))
+    denoise = denoise_params(denoise_radius)
+    plan = replace(plan, params={**plan.params, "denoise": denoise})
+    camera = noise_at(plan.exposure_s)
+    return with_estimator(plan, bundle, estimator, prior=prior, noise=camera, correlation_nm=smooth_nm,
+                          decoder_noise=camera.averaged(denoise["variance_reduction"]))
 
 
 def requested_bound(calib, rig_path, frames, sequence_ms, exclude_chart, starts=8, progress=_quiet,
