@@ -213,7 +213,7 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
             rows.pop("reports", None)
 
     bar.set_description("a moving scene")
-    result.moving = moving_section(profiles[main], basis, seed=seed)
+    result.moving = moving_section(profiles.get("ideal", profiles[main]), basis, seed=seed)
     bar.update()
     bar.set_description("figures")
     _figures(out, main_plans, result, main_scene, main_bundle)

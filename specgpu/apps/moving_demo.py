@@ -20,7 +20,6 @@ from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.moving_scores import RECOVERIES, compare_motion
 from specgpu.planning import make_plan
 from specgpu.rig.motion import MotionParameters
-from specgpu.rig.realism import Drift, Realism
 from specgpu.rig.scene import natural_scene
 
 __all__ = ["MOVING_MOTION", "moving_section", "moving_lines", "moving_html"]
@@ -33,11 +32,11 @@ _MAP_LABEL = "RMSE per pixel (reflectance, 400-700 nm)"
 
 
 def moving_section(description, basis, *, seed: int = 0) -> dict:
-    """The section's figures on ``description``'s camera size (its imperfections off, 200 fps): ``rows``
+    """The section's figures on ``description`` (the demo's rig with its imperfections off) at 200 fps: ``rows``
     (recovery -> scores), ``maps`` (recovery -> per-pixel RMSE), the flagged share, the largest error of the
     estimated displacement (px), the compensation's seconds, and what was run."""
-    desc = replace(description, profile="ideal", realism=Realism(), drift=Drift(), capture_delay_s=None,
-                   camera=replace(description.camera, frame_rate_hz=_FRAME_RATE_HZ, exposure_s=_EXPOSURE_S))
+    desc = replace(description, camera=replace(description.camera, frame_rate_hz=_FRAME_RATE_HZ,
+                                               exposure_s=_EXPOSURE_S))
     bundle = oracle_calibration(desc)
     plan = make_plan("symmetric", bundle, basis, m=5, output_wavelengths=np.arange(400.0, 701.0, 10.0),
                      max_exposure_s=_EXPOSURE_S)
