@@ -145,16 +145,16 @@ def chart_table(description, bundle, key, draws, budgets, seed):
                 for variant, vals in m.items():
                     for k, v in vals.items():
                         acc.setdefault(variant, {}).setdefault(k, []).append(v)
+            expected = plan.params.get("expected", {})
+            floor = noise_free_rmse(bundle, plan, scene.wavelengths, test)
             for variant, vals in acc.items():
                 def pm(k, digits):
                     if k not in vals:
                         return "-"
                     mu, sd = mean_std(vals[k])
                     return f"{mu:.{digits}f}+-{sd:.{digits}f}"
-                expected = plan.params.get("expected", {})
                 # raw: at the camera's noise; denoised: where the filter flattens it (a plan designed for it)
                 exp = expected.get({"raw": "rmse", "denoised": "rmse_at_decoder_noise"}.get(variant, ""))
-                floor = noise_free_rmse(bundle, plan, scene.wavelengths, test)
                 print(f"{(name if variant == 'raw' else ''):<22}"
                       f"{(f'{plan.sequence_s * 1e3:.1f}' if variant == 'raw' else ''):>7}{variant:>10}"
                       f"{pm('rmse', 4):>17}{pm('dE00', 2):>13}{pm('dEab', 2):>13}{pm('z', 2):>12}"
