@@ -39,7 +39,7 @@ from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.io.npz import write_cube_npz
 from specgpu.rig.twin import TwinRig
 
-__all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "MOTION_MODES", "MotionEstimate", "MovingRecovery", "check_motion_mode", "estimate_global_motion",
+__all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "consistency", "MOTION_MODES", "MotionEstimate", "MovingRecovery", "check_motion_mode", "estimate_global_motion",
            "recover_moving", "registration_image", "truth_recorder", "TRUTH_FOLDER"]
 
 #: How frames are decoded with respect to motion: as they are, or compensated for a global translation per frame.
@@ -458,6 +458,17 @@ def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9
     flagged: there, samples from a few pixels away hold the same spectrum. ``gradients``: the frames' gradient
     images already made (:attr:`MotionEstimate.gradients`; a None entry is made here).
     """
+    textured, worst = consistency(frames, shifts, dark, gain, window=window, texture=texture, own=own,
+                                  gradients=gradients)
+    return textured & (worst < threshold)
+
+
+def consistency(frames, shifts, dark=None, gain=None, *, window: int = 9, texture: float = 0.5, own: float = 4.0,
+                gradients=None) -> tuple[np.ndarray, np.ndarray]:
+    """The two maps :func:`inconsistent_pixels` thresholds, (H, W) each: ``textured`` (bool: the median
+    compensated gradient image has structure there) and ``worst`` (float32: the lowest normalised
+    cross-correlation of a frame with structure of its own against that median; 1 where none has). Two
+    hypotheses of a pixel's motion are compared by their ``worst``."""
     frames = np.asarray(frames)
     K, h, w = frames.shape
     dark = None if dark is None else np.asarray(dark, np.float32)
@@ -495,7 +506,7 @@ def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9
         # nothing, and says nothing about the motion)
         ncc[va <= own * float(np.median(va))] = 1.0
         np.minimum(worst, ncc, out=worst)
-    return textured & (worst < threshold)
+    return textured, worst
 
 
 def check_motion_mode(motion) -> str:
