@@ -23,12 +23,18 @@ from specgpu.pipeline.moving import (
     TRUTH_FOLDER,
     sequence_truth,
     MotionEstimate,
-    MovingRecovery,
     check_motion_mode,
+    consistency,
     estimate_global_motion,
     inconsistent_pixels,
-    recover_moving,
     truth_recorder,
+)
+from specgpu.pipeline.moving_layers import (
+    MASK_LAYER,
+    MovingRecovery,
+    ObjectLayer,
+    decode_object_layers,
+    recover_moving,
 )
 from specgpu.pipeline.evaluate import (
     PatchReport,
@@ -127,6 +133,10 @@ __all__ = [
     "MotionEstimate",
     "MovingRecovery",
     "check_motion_mode",
+    "consistency",
+    "MASK_LAYER",
+    "ObjectLayer",
+    "decode_object_layers",
     "estimate_global_motion",
     "inconsistent_pixels",
     "recover_moving",

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import functools
 import threading
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -35,12 +35,11 @@ from skimage.registration import phase_cross_correlation
 from threadpoolctl import ThreadpoolController
 
 from specgpu.core.validate import validate_method
-from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.io.npz import write_cube_npz
 from specgpu.rig.twin import TwinRig
 
-__all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "consistency", "MOTION_MODES", "MotionEstimate", "MovingRecovery", "check_motion_mode", "estimate_global_motion",
-           "recover_moving", "registration_image", "truth_recorder", "TRUTH_FOLDER"]
+__all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "consistency", "MOTION_MODES", "MotionEstimate", "check_motion_mode", "estimate_global_motion",
+           "registration_image", "truth_recorder", "TRUTH_FOLDER"]
 
 #: How frames are decoded with respect to motion: as they are, or compensated for a global translation per frame.
 MOTION_MODES = {
@@ -513,57 +512,6 @@ def check_motion_mode(motion) -> str:
     """``motion`` as a key of :data:`MOTION_MODES` (an unknown one is an error listing them)."""
     validate_method(motion, MOTION_MODES, "motion")
     return motion.lower()
-
-
-@dataclass(frozen=True)
-class MovingRecovery:
-    """A motion-compensated recovery: the outputs at the reference time, the mask and each sequence's motion."""
-
-    y: np.ndarray
-    mask: np.ndarray
-    estimates: list
-
-
-def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 10, binning: int = 1,
-                   shifts=None, model: str = "translation", check: bool = True, device=None) -> MovingRecovery:
-    """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
-    with frame k sampled at x + d_k in one device pass.
-
-    Parameters
-    ----------
-    frames : array_like, (K, H, W)
-    A : array_like, (B, K)
-    dark, gain, saturation
-        As :func:`specgpu.engine.apply_linear`.
-    upsample, binning, model
-        Of :func:`estimate_global_motion`.
-    shifts : array_like, (K, 2) or (K, 2, 3), optional
-        Known displacements (e.g. the twin's truth); no estimation then.
-    check : bool
-        Flag (mask bit 8) and leave NaN the pixels whose compensated frames disagree
-        (:func:`inconsistent_pixels`): an object moving on its own, an occlusion.
-    device : optional
-        OpenCL device selector.
-
-    Returns
-    -------
-    MovingRecovery
-        ``y`` (H, W, B) float32, NaN where a pixel was seen outside the field, saturated or inconsistent;
-        ``mask`` (H, W) uint8 (1 saturated, 2 non-finite, 4 outside the field, 8 inconsistent); ``estimates`` [MotionEstimate] (empty with ``shifts``).
-    """
-    estimates, gradients = [], None
-    if shifts is None:
-        est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model)
-        gradients = est.gradients
-        estimates.append(replace(est, gradients=None))  # the images are for the check below, not to be kept
-        shifts = est.shifts
-    res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True, device=device)
-    y, mask = res.y, res.mask
-    if check:
-        bad = inconsistent_pixels(frames, shifts, dark, gain, gradients=gradients)
-        mask[bad] |= MASK_INCONSISTENT
-    y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
-    return MovingRecovery(y, mask, estimates)
 
 
 #: Sub-folder of a sequence folder captured on a moving twin that holds each sequence's truth.

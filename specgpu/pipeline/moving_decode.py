@@ -1,6 +1,6 @@
 """Motion-compensated decoding of one sequence into the maps ``specgpu batch`` and ``specgpu stream`` write.
 
-``specgpu recover --motion`` decodes one sequence of a moving scene through :func:`specgpu.pipeline.moving.recover_moving`:
+``specgpu recover --motion`` decodes one sequence of a moving scene through :func:`specgpu.pipeline.moving_layers.recover_moving`:
 the frames corrected as recover corrects them (the sensor's linearisation, the per-pattern flat ratio), each
 frame's displacement estimated within the sequence, one warped device pass, the pixels seen outside the field or
 whose compensated frames disagree left NaN with their mask bits. :class:`MovingDecoder` runs exactly that on each
@@ -25,6 +25,7 @@ from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E
 from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.pipeline.moving import MASK_INCONSISTENT, check_motion_mode, estimate_global_motion, inconsistent_pixels
+from specgpu.pipeline.moving_layers import decode_object_layers
 from specgpu.pipeline.recovery import corrected_signal
 from specgpu.planning.correction import ambient_index
 
@@ -137,8 +138,9 @@ class MovingDecoder:
 
     def decode(self, raw) -> dict:
         """The maps of one sequence (K, H, W) by output name, plus ``mask`` (H, W) uint8 (1 saturated, 4 outside
-        the field, 8 inconsistent), NaN where masked; ``estimate``: the sequence's
-        :class:`specgpu.pipeline.moving.MotionEstimate`."""
+        the field, 8 inconsistent, 16 decoded with an object's own motion), NaN where masked; ``estimate``: the
+        sequence's :class:`specgpu.pipeline.moving.MotionEstimate`; ``layers``: its
+        :class:`specgpu.pipeline.moving_layers.ObjectLayer` list."""
         # the steps of specgpu.pipeline.moving.recover_moving, with its defaults, each timed
         frames, gain = self.frames(raw), self.calibration.flat_field
         t0 = time.perf_counter()
@@ -149,6 +151,8 @@ class MovingDecoder:
         t2 = time.perf_counter()
         y, mask = res.y, res.mask
         mask[inconsistent_pixels(frames, est.shifts, self.dark, gain, gradients=est.gradients)] |= MASK_INCONSISTENT
+        layers = decode_object_layers(frames, self.matrix, est, y, mask, self.dark, gain,
+                                      saturation=float(self.calibration.max_code), device=self.device)
         y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
         t3 = time.perf_counter()
         out = {}
@@ -170,4 +174,4 @@ class MovingDecoder:
                 self.seconds[step] += seconds
             self.sequences += 1
         return {**{name: out[name] for name in self.outputs}, "mask": mask,
-                "estimate": replace(est, gradients=None)}  # the images served the check; not kept with a result
+                "estimate": replace(est, gradients=None), "layers": layers}  # the images served the check; not kept with a result

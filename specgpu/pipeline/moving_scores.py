@@ -1,6 +1,6 @@
 """How much a moving scene costs a recovery, and how much compensation gives back (:func:`compare_motion`): one
 sequence of a plan captured with the scene still and with it moving (the same noise), recovered as it is and
-motion-compensated (:func:`specgpu.pipeline.moving.recover_moving`), each scored per pixel against its truth (the
+motion-compensated (:func:`specgpu.pipeline.moving_layers.recover_moving`), each scored per pixel against its truth (the
 scene, or the scene at the moving sequence's reference time) over the field and near the scene's edges, with the
 per-pixel error maps. Used by ``specgpu demo``'s moving-scene section and ``tools/motion_study.py``.
 """
@@ -15,7 +15,7 @@ from scipy import ndimage
 
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.evaluate import evaluate_pixels
-from specgpu.pipeline.moving import recover_moving
+from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.recovery import capture_plan
 from specgpu.rig.scene import SpectralScene
 from specgpu.rig.twin import TwinRig

@@ -25,7 +25,8 @@ from specgpu.core.spectra import DEFAULT_CMFS
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.evaluate import true_patch_spectra
-from specgpu.pipeline.moving import check_motion_mode, recover_moving
+from specgpu.pipeline.moving import check_motion_mode
+from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
 from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
 from specgpu.planning.plans import Plan, load_plan, save_plan

@@ -11,7 +11,8 @@ import pytest
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, estimate_global_motion,
-                                     inconsistent_pixels, recover_moving)
+                                     inconsistent_pixels)
+from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.recovery import SequenceFolder, recover
 from specgpu.planning.registry import make_plan
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
@@ -153,6 +154,6 @@ def test_the_check_on_the_estimates_own_gradient_images_is_the_check_on_fresh_on
     fresh = inconsistent_pixels(frames, est.shifts, dark, gain)
     assert reused.any()
     np.testing.assert_array_equal(reused, fresh)
-    res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code))
+    res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code), layers=False)
     np.testing.assert_array_equal((res.mask & MASK_INCONSISTENT) > 0, fresh)
     assert res.estimates[0].gradients is None  # not kept with the result

@@ -1,0 +1,350 @@
+"""The motion-compensated recovery of one sequence (:func:`recover_moving`), with a second motion layer: an object
+moving on its own over a scene whose global motion is compensated.
+
+Global compensation samples every frame where the scene's (or camera's) motion says it saw each pixel; a hand, a
+chart on a conveyor, anything moving on its own is then misregistered, and the consistency check
+(:func:`specgpu.pipeline.moving.consistency`) flags its textured pixels and leaves them NaN. When the flagged
+pixels gather into a region of some size, that region is taken to be one object with a motion of its own:
+
+1. its translation per frame is registered on the frames' gradient images restricted to the region (the whitened
+   cross-power of the region of the reference frame against each frame; the strongest correlation peak away from
+   the background's displacement is the object's, refined to sub-pixel by a Gaussian fit of the peak);
+2. the frames are decoded again with that motion, in the same kind of warped device pass;
+3. a flagged pixel of the region takes the object's decoding only where the frames, compensated by the object's
+   motion, positively agree there (textured under that alignment, and every frame with structure correlating with
+   the median). Pixels consistent under neither motion (a background strip the object covered during the sequence,
+   an object's boundary against its background) stay flagged and NaN.
+
+Pixels decoded with an object's motion carry :data:`MASK_LAYER` in the mask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy import fft, ndimage
+from skimage.morphology import convex_hull_image
+
+from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
+from specgpu.pipeline.moving import (MASK_INCONSISTENT, _whitened, consistency, estimate_global_motion,
+                                     gradient_image, hann, inconsistent_pixels)
+
+__all__ = ["MASK_LAYER", "ObjectLayer", "MovingRecovery", "flagged_regions", "estimate_layer_motion",
+           "object_footprint", "occluded_by", "decode_object_layers", "recover_moving"]
+
+#: Mask bit of a pixel decoded with the motion of an object of its own (not the global motion).
+MASK_LAYER = 16
+
+#: A flagged region is tried as an object when it holds at least this share of the field's pixels.
+MIN_LAYER_SHARE = 0.002
+
+#: Flagged pixels closer than this (px) belong to one region (an object's textured parts are separated by its
+#: flat ones).
+JOIN_PX = 12
+
+#: The object's peak must be at least this far (px) from the background's displacement to be a motion of its own,
+#: and at least this share of the background's peak height.
+MIN_SEPARATION_PX = 1.0
+MIN_PEAK_SHARE = 0.2
+
+#: A region is an object's when its motion makes at least this share of the region's pixels agree.
+MIN_SEED_SHARE = 0.02
+
+#: A pixel seeds an object's footprint where the frames' worst correlation under its motion beats the global
+#: motion's by this.
+SEED_MARGIN = 0.3
+
+#: Correlation peaks tried per frame as the object's, highest first.
+CANDIDATES = 3
+
+#: A frame's peak agrees with a steady motion of the object (relative to the background) within this, px.
+STEADY_TOLERANCE_PX = 1.0
+
+
+@dataclass(frozen=True)
+class ObjectLayer:
+    """One object's motion and what it changed.
+
+    Attributes
+    ----------
+    shifts : numpy.ndarray
+        (K, 2) displacement (x, y) of the object in each frame from the reference time, px.
+    box : tuple
+        (y0, y1, x0, x1) of the region registered.
+    pixels : int
+        Pixels decoded with the object's motion (its footprint at the reference time, less those its frames
+        disagree on).
+    occluded : int
+        Pixels of the background the object covered in some frame of the sequence (flagged).
+    """
+
+    shifts: np.ndarray
+    box: tuple
+    pixels: int
+    occluded: int = 0
+
+
+def flagged_regions(flagged, *, min_share: float = MIN_LAYER_SHARE, join_px: int = JOIN_PX,
+                    max_regions: int = 2) -> list:
+    """The regions of the (H, W) bool ``flagged`` map worth a layer: flagged pixels within ``join_px`` of each
+    other joined, regions holding at least ``min_share`` of the field's pixels flagged, largest first, at most
+    ``max_regions``; each an (H, W) bool mask (the joined region)."""
+    flagged = np.asarray(flagged, bool)
+    if not flagged.any():
+        return []
+    joined = ndimage.binary_dilation(flagged, iterations=int(join_px))
+    labels, n = ndimage.label(joined)
+    counts = ndimage.sum_labels(flagged, labels, index=np.arange(1, n + 1))
+    order = np.argsort(counts)[::-1]
+    minimum = float(min_share) * flagged.size
+    return [labels == (i + 1) for i in order[:max_regions] if counts[i] >= minimum]
+
+
+def object_footprint(seed, *, min_pixels: int = 16) -> np.ndarray:
+    """(H, W) bool: where the object is at the reference time, from ``seed`` (its pixels whose frames positively
+    agree under its motion: textured ones, such as the edges of its patches, which are sparse, since an object's
+    flat parts carry no texture to agree on): the convex hull of the seed's pieces of at least ``min_pixels``. A
+    background pixel the hull takes in is decoded with the object's motion, which samples other background points
+    (never the object), and the check still flags it where they differ in texture."""
+    labels, n = ndimage.label(seed)
+    sizes = ndimage.sum_labels(seed, labels, index=np.arange(1, n + 1))
+    kept = np.isin(labels, 1 + np.flatnonzero(sizes >= min_pixels))
+    if not kept.any():
+        return kept
+    return convex_hull_image(kept)
+
+
+def occluded_by(footprint, relative) -> np.ndarray:
+    """(H, W) bool: pixels outside ``footprint`` (the object at the reference time) that the object covered in some
+    frame: frame k saw background point x at x + b_k and the object's point at p + o_k, so x is hidden where it lies
+    in the footprint moved by ``relative[k]`` = o_k - b_k (a partly covered pixel counts)."""
+    F = np.asarray(footprint, np.float32)
+    hidden = np.zeros(F.shape, bool)
+    for dx, dy in np.asarray(relative, np.float64):
+        hidden |= ndimage.shift(F, (dy, dx), order=1, mode="constant", cval=0.0) > 1e-3
+    return hidden & ~np.asarray(footprint, bool)
+
+
+def _gaussian_peak(c: np.ndarray, y: int, x: int) -> np.ndarray:
+    """Sub-pixel (y, x) of the peak of the periodic surface ``c`` at integer (y, x): a Gaussian through the peak and
+    its two neighbours on each axis (a parabola where a value is not positive)."""
+    h, w = c.shape
+    out = []
+    for axis, (i, n) in enumerate(((y, h), (x, w))):
+        lo = c[(y - 1) % h, x] if axis == 0 else c[y, (x - 1) % w]
+        hi = c[(y + 1) % h, x] if axis == 0 else c[y, (x + 1) % w]
+        mid = c[y, x]
+        if min(lo, mid, hi) > 0:
+            lo, mid, hi = np.log(lo), np.log(mid), np.log(hi)
+        den = lo - 2.0 * mid + hi
+        out.append(i + (0.5 * (lo - hi) / den if den < 0 else 0.0))
+    return np.asarray(out)
+
+
+def estimate_layer_motion(gradients, region, background, reference_frame: int, usable, *, cutoff: float = 0.12,
+                          margin: int = 16):
+    """The object's displacement per frame relative to the reference frame, or None where none stands out; and the
+    box registered.
+
+    In each frame the highest correlation peaks away from the background's are the object's candidates; the object
+    is taken to move steadily relative to the background over one sequence, so the candidates most frames agree on
+    are its (:func:`_steady_motion`), and a frame none of whose peaks agrees (the object too close to the background's
+    displacement there, a dim frame) takes the steady motion's displacement.
+
+    Parameters
+    ----------
+    gradients : sequence of (H, W) arrays
+        Each frame's gradient image (:func:`specgpu.pipeline.moving.gradient_image`; None for a frame not used).
+    region : (H, W) bool
+        The flagged region the object is in (at the reference time).
+    background : (K, 2)
+        The global displacement of each frame (its relative displacements are excluded from the object's peak).
+    reference_frame : int
+    usable : (K,) bool
+        Frames to register (the others are filled in time).
+    """
+    K = len(gradients)
+    h, w = gradients[reference_frame].shape
+    ys, xs = np.nonzero(region)
+    y0, y1 = max(int(ys.min()) - margin, 0), min(int(ys.max()) + 1 + margin, h)
+    x0, x1 = max(int(xs.min()) - margin, 0), min(int(xs.max()) + 1 + margin, w)
+    box = (y0, y1, x0, x1)
+    weight = ndimage.gaussian_filter(region[y0:y1, x0:x1].astype(np.float32), 2.0)
+    ref = _whitened(hann(gradients[reference_frame][y0:y1, x0:x1] * weight), cutoff)
+    ch, cw = y1 - y0, x1 - x0
+    yy = np.fft.fftfreq(ch, 1.0 / ch)[:, None]
+    xx = np.fft.fftfreq(cw, 1.0 / cw)[None, :]
+    background = np.asarray(background, np.float64)
+    bg_rel = background - background[reference_frame]
+    candidates = []  # (frame, displacement relative to the background's, peak height)
+    for k in np.flatnonzero(usable):
+        if k == reference_frame:
+            continue
+        mov = _whitened(hann(gradients[k][y0:y1, x0:x1]), cutoff)
+        c = np.real(fft.ifft2(ref * np.conj(mov)))
+        # the peak of a content displaced by d is at -d (mod the crop); the background's is where its displacement
+        # puts it, and the object's is among the highest other local maxima
+        bx, by = bg_rel[k]
+        near_bg = ((yy + by + ch / 2) % ch - ch / 2) ** 2 + ((xx + bx + cw / 2) % cw - cw / 2) ** 2 <= 2.25
+        bg_peak = float(c[near_bg].max()) if near_bg.any() else 0.0
+        peaks = (c == ndimage.maximum_filter(c, size=3, mode="wrap")) & ~near_bg & (c >= MIN_PEAK_SHARE * bg_peak)
+        iy, ix = np.nonzero(peaks)
+        for j in np.argsort(c[iy, ix])[::-1][:CANDIDATES]:
+            sy, sx = _gaussian_peak(c, int(iy[j]), int(ix[j]))
+            d = -np.array([(sx + cw / 2) % cw - cw / 2, (sy + ch / 2) % ch - ch / 2])
+            if np.hypot(*(d - bg_rel[k])) >= MIN_SEPARATION_PX:
+                candidates.append((int(k), d - bg_rel[k], float(c[iy[j], ix[j]])))
+    relative = _steady_motion(candidates, reference_frame, K)
+    if relative is None:
+        return None, box
+    return bg_rel + relative, box
+
+
+def _steady_motion(candidates, reference_frame: int, K: int):
+    """(K, 2) displacement of the object relative to the background in each frame, from the frames' candidate
+    peaks: the velocity (px per frame, relative to the background) most frames' candidates agree with within
+    :data:`STEADY_TOLERANCE_PX` (each candidate proposes one), refined by least squares over those; each agreeing
+    frame keeps its own measurement, the others take the velocity's. None when fewer than two frames agree."""
+    if not candidates:
+        return None
+    frames = np.array([k for k, _, _ in candidates])
+    disp = np.array([r for _, r, _ in candidates])
+    height = np.array([p for _, _, p in candidates])
+    dt = (frames - reference_frame).astype(np.float64)
+    best, best_score = None, (0, 0.0)
+    for i in range(len(candidates)):
+        v = disp[i] / dt[i]
+        near = np.hypot(*(disp - v * dt[:, None]).T) <= STEADY_TOLERANCE_PX
+        score = (len(set(frames[near].tolist())), float(height[near].sum()))
+        if score > best_score:
+            best, best_score = near, score
+    if best is None or best_score[0] < 2:
+        return None
+    # one measurement per agreeing frame: its highest candidate near the fit
+    v = np.linalg.lstsq(dt[best, None], disp[best], rcond=None)[0][0]
+    out = (np.arange(K) - reference_frame)[:, None] * v[None, :]
+    for k in set(frames[best].tolist()):
+        pick = np.flatnonzero(best & (frames == k))
+        out[k] = disp[pick[np.argmax(height[pick])]]
+    out[reference_frame] = 0.0
+    return out
+
+
+def decode_object_layers(frames, A, estimate, y, mask, dark=None, gain=None, *, saturation=None, device=None,
+                         threshold: float = 0.3, min_share: float = MIN_LAYER_SHARE) -> list:
+    """Decode again, with an object's own motion, the flagged regions of a globally compensated recovery.
+
+    ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (NaN and :data:`MASK_INCONSISTENT` where
+    flagged) and are updated in place: a pixel flagged inconsistent in a region takes the object's decoding where
+    the frames compensated by the object's motion agree there (its mask bit 8 cleared, bit 16 set). ``estimate``:
+    the global :class:`specgpu.pipeline.moving.MotionEstimate` (translation model; its gradient images are reused
+    where kept). Returns the :class:`ObjectLayer` of each region decoded (empty: none found).
+    """
+    frames = np.asarray(frames)
+    if estimate.model != "translation":
+        return []
+    K = frames.shape[0]
+    dark = None if dark is None else np.asarray(dark, np.float32)
+    flagged = (mask & MASK_INCONSISTENT) > 0
+    regions = flagged_regions(flagged, min_share=min_share)
+    if not regions:
+        return []
+    kept = estimate.gradients or (None,) * K
+    gradients = [kept[k] if kept[k] is not None else
+                 gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
+                 for k in range(K)]
+    mid = (K - 1) / 2.0
+    lo, hi = int(np.floor(mid)), int(np.ceil(mid))
+    layers, wide_global = [], None
+    for region in regions:
+        raw, box = estimate_layer_motion(gradients, region, estimate.shifts, estimate.reference_frame,
+                                         estimate.registered)
+        if raw is None:
+            continue
+        shifts = raw - 0.5 * (raw[lo] + raw[hi])
+        res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True,
+                                  device=device)
+        textured, worst = consistency(frames, shifts, dark, gain, gradients=gradients)
+        valid = (res.mask & (1 | 2 | MASK_OUTSIDE)) == 0
+        if wide_global is None:
+            textured_global, wide_global = consistency(frames, estimate.shifts, dark, gain, gradients=gradients)
+        # the object's pixels: its motion makes the frames agree there, and clearly better than the global one
+        # (or where it makes a pixel the global motion left flagged agree)
+        agree = valid & textured & (worst >= threshold)
+        seed = agree & ((worst - wide_global >= SEED_MARGIN) | (region & flagged))
+        if seed.sum() < MIN_SEED_SHARE * region.sum():
+            continue  # the object's motion explains too little of the region to be an object's
+        # less any background it took in: where the global motion makes the frames clearly agree better
+        footprint = object_footprint(seed)
+        footprint &= ~(textured_global & (wide_global >= threshold) & (wide_global - worst >= SEED_MARGIN))
+        use = footprint & valid & ~(textured & (worst < threshold))
+        y[use] = res.y[use]
+        mask[use] = res.mask[use] | np.uint8(MASK_LAYER)
+        background = estimate.shifts if estimate.shifts.shape == shifts.shape else np.zeros_like(shifts)
+        hidden = (footprint & ~use) | occluded_by(footprint, shifts - background)
+        mask[hidden] |= np.uint8(MASK_INCONSISTENT)
+        flagged = (flagged & ~use) | hidden
+        layers.append(ObjectLayer(shifts, box, int(use.sum()), int((hidden & ~footprint).sum())))
+    return layers
+
+
+@dataclass(frozen=True)
+class MovingRecovery:
+    """A motion-compensated recovery: the outputs at the reference time, the mask and each sequence's motion."""
+
+    y: np.ndarray
+    mask: np.ndarray
+    estimates: list
+    #: the :class:`ObjectLayer` of each object decoded with its own motion
+    layers: list = field(default_factory=list)
+
+
+def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 10, binning: int = 1,
+                   shifts=None, model: str = "translation", check: bool = True, layers: bool = True,
+                   device=None) -> MovingRecovery:
+    """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
+    with frame k sampled at x + d_k in one device pass.
+
+    Parameters
+    ----------
+    frames : array_like, (K, H, W)
+    A : array_like, (B, K)
+    dark, gain, saturation
+        As :func:`specgpu.engine.apply_linear`.
+    upsample, binning, model
+        Of :func:`~specgpu.pipeline.moving.estimate_global_motion`.
+    shifts : array_like, (K, 2) or (K, 2, 3), optional
+        Known displacements (e.g. the twin's truth); no estimation then.
+    check : bool
+        Flag (mask bit 8) and leave NaN the pixels whose compensated frames disagree
+        (:func:`~specgpu.pipeline.moving.inconsistent_pixels`): an object moving on its own, an occlusion.
+    layers : bool
+        With ``check`` and an estimated translation per frame: decode the flagged regions again with an object's own
+        motion where one stands out (:func:`decode_object_layers`).
+    device : optional
+        OpenCL device selector.
+
+    Returns
+    -------
+    MovingRecovery
+        ``y`` (H, W, B) float32, NaN where a pixel was seen outside the field, saturated or inconsistent;
+        ``mask`` (H, W) uint8 (1 saturated, 2 non-finite, 4 outside the field, 8 inconsistent, 16 decoded with an
+        object's own motion); ``estimates`` [MotionEstimate] (empty with ``shifts``); ``layers`` [ObjectLayer].
+    """
+    est, gradients = None, None
+    if shifts is None:
+        est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model)
+        gradients = est.gradients
+        shifts = est.shifts
+    res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True, device=device)
+    y, mask = res.y, res.mask
+    found = []
+    if check:
+        bad = inconsistent_pixels(frames, shifts, dark, gain, gradients=gradients)
+        mask[bad] |= MASK_INCONSISTENT
+        if layers and est is not None:
+            found = decode_object_layers(frames, A, est, y, mask, dark, gain, saturation=saturation, device=device)
+    y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
+    # the gradient images served the check and the layers; not kept with a result
+    return MovingRecovery(y, mask, [] if est is None else [replace(est, gradients=None)], found)

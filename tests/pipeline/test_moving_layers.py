@@ -1,0 +1,125 @@
+"""A second motion layer: an object moving on its own over the scene, registered and decoded with its own motion."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from specgpu.calibration.bundle import oracle_calibration
+from specgpu.pipeline.evaluate import evaluate_pixels
+from specgpu.pipeline.moving import MASK_INCONSISTENT
+from specgpu.pipeline.moving_decode import MovingDecoder
+from specgpu.pipeline.moving_layers import MASK_LAYER, flagged_regions, occluded_by, recover_moving
+from specgpu.planning.registry import make_plan
+from specgpu.rig import CameraParameters, RigDescription, natural_scene
+from specgpu.rig.motion import MotionParameters
+from specgpu.rig.scene import SpectralScene
+from specgpu.rig.twin import TwinRig
+
+CAM = CameraParameters(roi_width=320, roi_height=240, frame_rate_hz=200.0, exposure_s=0.0049)
+OBJECT = MotionParameters(object="colorchecker", object_velocity_px_per_frame=(3.0, 0.0), object_size_px=(100, 140))
+
+
+@pytest.fixture(scope="module")
+def setup():
+    desc = RigDescription(camera=CAM)
+    bundle = oracle_calibration(desc)
+    plan = make_plan("narrowband", bundle, step_nm=50.0, max_exposure_s=0.0049)  # 7 bands, 400-700 nm
+    return desc, bundle, plan, natural_scene(240, 320)
+
+
+def frames_of(desc, plan, scene, motion, seed=5):
+    rig = TwinRig(plan.rig_description(replace(desc, motion=motion)), scene=scene, seed=seed)
+    rig.load_sequence(plan.patterns)
+    ts = np.arange(plan.K) * rig.frame_period_s
+    return np.stack([rig.render(k, k, ts[k])[0] for k in range(plan.K)]), rig.motion_truth(ts)
+
+
+@pytest.fixture(scope="module")
+def chart_over_scene(setup):
+    desc, bundle, plan, scene = setup
+    frames, truth = frames_of(desc, plan, scene, OBJECT)
+    kw = dict(dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field, saturation=float(bundle.max_code))
+    return frames, truth, recover_moving(frames, plan.A, **kw), recover_moving(frames, plan.A, layers=False, **kw)
+
+
+def test_the_objects_own_motion_is_registered(setup, chart_over_scene):
+    _, _, plan, _ = setup
+    _, _, res, _ = chart_over_scene
+    assert len(res.layers) == 1, [(layer.shifts, layer.box, layer.pixels) for layer in res.layers]
+    t = np.arange(plan.K) - plan.K // 2  # frame periods from the reference time (the middle frame)
+    np.testing.assert_allclose(res.layers[0].shifts, np.c_[3.0 * t, np.zeros(plan.K)], atol=0.2)
+    # the background stands still (an object of a fifth of the field pulls its estimate by up to 0.2 px)
+    np.testing.assert_allclose(res.estimates[0].shifts, 0.0, atol=0.2)
+
+
+def test_the_object_is_decoded_not_flagged_and_its_spectra_are_right(setup, chart_over_scene):
+    _, _, plan, scene = setup
+    _, truth, res, single = chart_over_scene
+    obj = truth["object_mask"] > 0.5
+    flagged_before = ((single.mask & MASK_INCONSISTENT) > 0)[obj].mean()
+    flagged_after = ((res.mask & MASK_INCONSISTENT) > 0)[obj].mean()
+    assert flagged_before > 0.1 and flagged_after < 0.5 * flagged_before
+    layer = (res.mask & MASK_LAYER) > 0
+    assert layer[obj].mean() > 0.8  # most of the object, flat patches included, is decoded with its motion
+    assert (layer & ~obj).sum() < 0.1 * layer.sum()
+    at_reference = SpectralScene(scene.wavelengths, truth["reflectance"], name="truth at the reference time")
+    rep = evaluate_pixels(res.y, at_reference, wavelengths=plan.output_wavelengths)
+    single_rep = evaluate_pixels(single.y, at_reference, wavelengths=plan.output_wavelengths)
+    both = obj & np.isfinite(rep.rmse) & np.isfinite(single_rep.rmse)
+    # on the object's pixels both decode, the object's motion gives the right spectra and the background's does not
+    assert np.mean(rep.rmse[both]) < 0.5 * np.mean(single_rep.rmse[both])
+    assert np.nanmean(rep.rmse[layer & obj]) < 0.06, np.nanmean(rep.rmse[layer & obj])
+
+
+def test_background_the_object_covered_during_the_sequence_is_flagged(setup, chart_over_scene):
+    _, _, plan, _ = setup
+    _, truth, res, single = chart_over_scene
+    obj = truth["object_mask"] > 0.5
+    t = np.arange(plan.K) - plan.K // 2
+    covered = occluded_by(obj, np.c_[3.0 * t, np.zeros(plan.K)])
+    assert covered.sum() > 2 * 100 * 8  # two strips about 9 px wide along the object's 100 px height
+    nan = ~np.all(np.isfinite(res.y), axis=2)
+    nan_single = ~np.all(np.isfinite(single.y), axis=2)
+    assert nan[covered].mean() > 1.5 * nan_single[covered].mean(), (nan[covered].mean(), nan_single[covered].mean())
+    assert np.all(nan == ((res.mask & (1 | 4 | MASK_INCONSISTENT)) > 0))  # every NaN is flagged, every flag NaN
+
+
+def test_a_scene_without_an_object_of_its_own_gets_no_layer(setup):
+    desc, bundle, plan, scene = setup
+    frames, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(3.0, 1.0)))
+    kw = dict(dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field, saturation=float(bundle.max_code))
+    res, single = recover_moving(frames, plan.A, **kw), recover_moving(frames, plan.A, layers=False, **kw)
+    assert res.layers == [] and not ((res.mask & MASK_LAYER) > 0).any()
+    np.testing.assert_array_equal(res.y, single.y)
+
+
+def test_the_stream_decoder_decodes_the_object_layer_as_recover_does(setup, chart_over_scene):
+    _, bundle, plan, _ = setup
+    frames, _, res, _ = chart_over_scene
+    maps = MovingDecoder(plan, bundle, ("cube",), mode="global").decode(frames)
+    assert len(maps["layers"]) == 1
+    np.testing.assert_array_equal(maps["mask"], res.mask)
+    np.testing.assert_allclose(np.nan_to_num(maps["cube"]), np.nan_to_num(res.y), rtol=1e-5, atol=1e-6)
+
+
+def test_occluded_by_is_the_footprint_swept_by_the_relative_motion_less_itself():
+    F = np.zeros((20, 30), bool)
+    F[5:15, 10:20] = True
+    hidden = occluded_by(F, [[-3.0, 0.0], [0.0, 0.0], [3.0, 0.0]])
+    expected = np.zeros_like(F)
+    expected[5:15, 7:10] = expected[5:15, 20:23] = True
+    np.testing.assert_array_equal(hidden, expected)
+    # a sub-pixel shift covers the next column partly: it counts as hidden
+    assert occluded_by(F, [[0.5, 0.0]])[5:15, 20].all()
+
+
+def test_flagged_regions_joins_nearby_flags_and_drops_small_ones():
+    flagged = np.zeros((200, 300), bool)
+    flagged[50:60, 50:60] = flagged[50:60, 70:80] = True  # 20 px apart: one region at join_px 12
+    flagged[150:152, 250:252] = True  # 4 px: too small
+    regions = flagged_regions(flagged, min_share=0.002)
+    assert len(regions) == 1 and regions[0][55, 65] and not regions[0][151, 251]
+    assert flagged_regions(np.zeros((10, 10), bool)) == []
