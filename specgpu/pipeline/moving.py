@@ -36,6 +36,7 @@ from skimage.registration import phase_cross_correlation
 from threadpoolctl import ThreadpoolController
 
 from specgpu.core.validate import validate_method
+from specgpu.engine.consistency import consistency_maps
 from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.io.npz import write_cube_npz
 from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_peak, second_peak_ratio,
@@ -526,43 +527,13 @@ def consistency(frames, shifts, dark=None, gain=None, *, window: int = 9, textur
     cross-correlation of a frame with structure of its own against that median; 1 where none has). Two
     hypotheses of a pixel's motion are compared by their ``worst``."""
     frames = np.asarray(frames)
-    K, h, w = frames.shape
+    K = frames.shape[0]
     dark = None if dark is None else np.asarray(dark, np.float32)
-    maps = np.asarray(shifts, np.float64)
-    if maps.shape == (K, 2):
-        maps = np.concatenate([np.tile(np.eye(2), (K, 1, 1)), maps[:, :, None]], axis=2)
-    flow = maps.shape == (K, 2, h, w)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    aligned = np.empty((K, h, w), np.float32)
-    for k in range(K):
-        g = gradients[k] if gradients is not None and gradients[k] is not None else \
-            gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
-        m = maps[k]
-        if flow:
-            sx, sy = xx + m[0], yy + m[1]
-        else:
-            sx = m[0, 0] * xx + m[0, 1] * yy + m[0, 2]
-            sy = m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
-        aligned[k] = ndimage.map_coordinates(g, [sy, sx], order=1, mode="nearest")
-    ref = np.median(aligned, axis=0)
-
-    def box(a):
-        return ndimage.uniform_filter(a, window, mode="nearest")
-
-    mr = box(ref)
-    vr = np.maximum(box(ref * ref) - mr * mr, 0.0)
-    textured = vr > texture * float(np.mean(vr))
-    worst = np.ones((h, w), np.float32)
-    for k in range(K):
-        a = aligned[k]
-        ma = box(a)
-        va = np.maximum(box(a * a) - ma * ma, 0.0)
-        ncc = (box(a * ref) - ma * mr) / np.sqrt(np.maximum(va * vr, 1e-30))
-        # only where this frame has structure of its own above its noise (a dim, noisy frame correlates with
-        # nothing, and says nothing about the motion)
-        ncc[va <= own * float(np.median(va))] = 1.0
-        np.minimum(worst, ncc, out=worst)
-    return textured, worst
+    g = np.stack([gradients[k] if gradients is not None and gradients[k] is not None else
+                  gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
+                  for k in range(K)])
+    # on the device for translations and affine maps (kernels/consistency.cl), in SciPy for a flow
+    return consistency_maps(g, shifts, window=window, texture=texture, own=own)
 
 
 def check_motion_mode(motion) -> str:
