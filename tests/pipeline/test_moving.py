@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from specgpu.calibration.bundle import oracle_calibration
+from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
-from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, estimate_global_motion,
-                                     inconsistent_pixels, recover_moving)
+from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, consistency,
+                                     estimate_global_motion, inconsistent_pixels, recover_moving)
 from specgpu.pipeline.recovery import SequenceFolder, recover
 from specgpu.planning.registry import make_plan
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
@@ -156,3 +157,22 @@ def test_the_check_on_the_estimates_own_gradient_images_is_the_check_on_fresh_on
     res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code))
     np.testing.assert_array_equal((res.mask & MASK_INCONSISTENT) > 0, fresh)
     assert res.estimates[0].gradients is None  # not kept with the result
+
+
+def test_the_device_check_flags_what_the_scipy_check_flags_around_an_occluding_object(setup):
+    """The consistency check runs on the device for translations; on a chart moving over a moving scene (it
+    occludes and uncovers the background) its maps are those of the straightforward SciPy computation
+    (map_coordinates, median, uniform_filter) on the same gradient images, to float32 rounding."""
+    desc, bundle, plan, scene = setup
+    m = MotionParameters(velocity_px_per_frame=(1.0, 0.5), object="colorchecker",
+                         object_velocity_px_per_frame=(3.0, 0.0))
+    frames, _ = frames_of(desc, plan, scene, m)
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    est = estimate_global_motion(frames, dark, gain)
+    textured, worst = consistency(frames, est.shifts, dark, gain, gradients=est.gradients)
+    want_textured, want_worst = consistency_maps_numpy(np.stack(est.gradients), est.shifts)
+    flagged = textured & (worst < 0.3)
+    assert flagged.sum() > 1000
+    np.testing.assert_array_equal(textured, want_textured)
+    np.testing.assert_array_equal(flagged, want_textured & (want_worst < 0.3))
+    np.testing.assert_allclose(worst, want_worst, rtol=0, atol=1e-3)
