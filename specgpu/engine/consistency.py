@@ -17,10 +17,11 @@ import numpy as np
 import pyopencl as cl
 from scipy import ndimage
 
+from specgpu.core.validate import check_frames
 from specgpu.engine import kernels
-from specgpu.engine.runtime import get_kernel, get_queue
+from specgpu.engine.runtime import DTYPE_TO_CTYPE, get_kernel, get_queue
 
-__all__ = ["consistency_maps", "consistency_maps_numpy", "exact_median"]
+__all__ = ["consistency_maps", "consistency_maps_numpy", "exact_median", "gradient_images"]
 
 #: Work-items per group along a row (each 8 pixels); a group is one row's stretch
 _GROUP = 16
@@ -39,6 +40,40 @@ def _maps(motion, K: int, spatial: tuple) -> np.ndarray:
     return maps
 
 
+def gradient_images(frames, dark=None, gain=None, *, device=None) -> np.ndarray:
+    """(K, H, W) float32: each frame's gradient magnitude (Sobel, borders mirrored) of the dark-subtracted,
+    flat-fielded frame over its mean, on the device: what ``hypot(sobel(c, 0), sobel(c, 1))`` of
+    ``c = (frame - dark) * gain / mean`` gives on the host (a frame whose mean is not positive is not divided)."""
+    frames, K = check_frames(frames)
+    if frames.ndim != 3:
+        raise ValueError(f"frames must be (K, H, W), got shape {tuple(frames.shape)}")
+    h, w = frames.shape[1:]
+    queue = get_queue(device, like=(frames, dark, gain))
+    dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", (h, w), K)
+    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", (h, w), None)
+    stride = -(-w // 8) * 8
+    macros = dict(K=K, STRIDE=stride, IN_T=DTYPE_TO_CTYPE[frames.dtype], IS_FLOAT_IN=frames.dtype == np.float32,
+                  HAS_DARK=0 if dark is None else (2 if dark_per_frame else 1), HAS_GAIN=gain is not None)
+    f_dev = kernels.to_device(queue, frames.reshape(-1))
+    sums = kernels._empty(queue, K * h, np.float32)
+    out = kernels._empty(queue, K * h * stride, np.float32)
+    common = (f_dev.data, kernels._data(dark_dev), kernels._data(gain_dev))
+    dims = (np.uint32(w), np.uint32(h))
+    rows = get_kernel(queue, "consistency.cl", "frame_row_sums", **macros)
+    with kernels._launch_lock:
+        rows.set_args(*common, sums.data, *dims)
+        cl.enqueue_nd_range_kernel(queue, rows, (-(-h // _GROUP) * _GROUP, K), (_GROUP, 1))
+    mean = sums.get().reshape(K, h).sum(axis=1, dtype=np.float64) / (h * w)
+    scale = np.where(mean > 0, 1.0 / np.where(mean > 0, mean, 1.0), 1.0).astype(np.float32)
+    sobel = get_kernel(queue, "consistency.cl", "gradient_magnitude", **macros)
+    items = -(-stride // 8)
+    with kernels._launch_lock:
+        sobel.set_args(*common, kernels.to_device(queue, scale).data, out.data, *dims)
+        cl.enqueue_nd_range_kernel(queue, sobel, (-(-items // _GROUP) * _GROUP, h, K), (_GROUP, 1, 1))
+    g = out.get().reshape(K, h, stride)
+    return g if stride == w else np.ascontiguousarray(g[:, :, :w])
+
+
 def exact_median(values: np.ndarray) -> float:
     """``numpy.median`` of ``values`` (float32, any shape), the same number, in a fraction of its time on a large
     array: a sample's quantiles bracket the median, the values between them are counted and only those
@@ -47,10 +82,10 @@ def exact_median(values: np.ndarray) -> float:
     n = v.size
     if n < 4096:
         return float(np.median(v))
-    sample = np.sort(v[::16])
+    sample = v[::16]
     spread = int(4 * np.sqrt(sample.size)) + 1  # 8 standard deviations of the sample's rank of the median
-    lo = sample[max(sample.size // 2 - spread, 0)]
-    hi = sample[min(sample.size // 2 + spread, sample.size - 1)]
+    bracket = [max(sample.size // 2 - spread, 0), min(sample.size // 2 + spread, sample.size - 1)]
+    lo, hi = np.partition(sample, bracket)[bracket]
     below = int(np.count_nonzero(v < lo))
     inside = v[(v >= lo) & (v <= hi)]
     ranks = [(n - 1) // 2 - below, n // 2 - below]  # the middle one or two of the whole, within the bracket
