@@ -3,7 +3,8 @@
  *
  * Four passes, each work-item 8 consecutive pixels of a row (float8: how PoCL vectorises, as kernels/common.h).
  * Rows are stored STRIDE floats apart (the width rounded up to 8; the lanes beyond the width hold copies of the
- * last column's values and are not read back); the aligned images have HALF more columns each side.
+ * last column's values and are not read back); the aligned images have HALF more columns each side (and up to a
+ * whole number of vectors).
  *   consistency_align  each frame's gradient image g_k sampled bilinearly at M_k (x, y, 1), the coordinates
  *                      clamped to the field (scipy.ndimage.map_coordinates, order=1, mode="nearest"), and the
  *                      median of the K samples (the mean of the middle two for even K, as numpy.median):
@@ -19,14 +20,6 @@
  *   consistency_worst  worst = min over k of ncc_k where va_k > own_k (a frame with structure of its own), 1
  *                      elsewhere; textured = vr > level
  * Macros: K, WINDOW (odd), STRIDE; TRANSLATE = 1: every map is a translation (rows read as vectors).
- *
- * The gradient images themselves (what the motion estimate registers and this check compares) come from two more
- * kernels, over the raw frames (K, H, W) of type IN_T with the dark level (HAS_DARK 0 / 1 per pixel / 2 per frame)
- * and flat field (HAS_GAIN) of kernels/common.h:
- *   frame_row_sums     per frame and row, the sum of the corrected frame c = (o - dark) * gain: (K, H)
- *   gradient_magnitude hypot of the Sobel derivatives of c along y and x (borders mirrored: the row or column
- *                      beyond the edge is the edge's, scipy.ndimage.sobel's mode="reflect") times scale[k]
- *                      (1 / the frame's mean): (K, H, STRIDE)
  */
 
 #ifndef K
@@ -42,7 +35,7 @@
 #ifndef TRANSLATE
 #define TRANSLATE 0
 #endif
-#define PADDED (STRIDE + 2 * HALF)
+#define PADDED ((STRIDE + 2 * HALF + 7) / 8 * 8) /* a whole number of vectors */
 #ifndef ROWS
 #define ROWS 16
 #endif
@@ -240,102 +233,3 @@ __kernel void consistency_worst(__global const float *restrict maps, __constant 
     vstore8(convert_uchar8(-(vload8(0, maps + (ulong)(2 * K) * plane + o) > (float8)(level))), 0, textured + o);
 }
 
-#ifdef IN_T
-#ifndef HAS_DARK
-#define HAS_DARK 0
-#endif
-#ifndef HAS_GAIN
-#define HAS_GAIN 0
-#endif
-
-/* the corrected frame k at the lanes' pixels p (a gather: any pixels) */
-inline float8 corrected_at(__global const IN_T *restrict frames, __global const float *restrict dark,
-                           __global const float *restrict gain, uint k, ulong n, int8 p)
-{
-    __global const IN_T *o = frames + (ulong)k * n;
-    float8 c = (float8)((float)o[p.s0], (float)o[p.s1], (float)o[p.s2], (float)o[p.s3], (float)o[p.s4],
-                        (float)o[p.s5], (float)o[p.s6], (float)o[p.s7]);
-#if HAS_DARK
-    __global const float *d = dark + (HAS_DARK == 2 ? (ulong)k * n : 0);
-    c -= (float8)(d[p.s0], d[p.s1], d[p.s2], d[p.s3], d[p.s4], d[p.s5], d[p.s6], d[p.s7]);
-#endif
-#if HAS_GAIN
-    c *= (float8)(gain[p.s0], gain[p.s1], gain[p.s2], gain[p.s3], gain[p.s4], gain[p.s5], gain[p.s6], gain[p.s7]);
-#endif
-    return c;
-}
-
-/* the corrected frame k at 8 consecutive pixels from p (vector loads) */
-inline float8 corrected_row(__global const IN_T *restrict frames, __global const float *restrict dark,
-                            __global const float *restrict gain, uint k, ulong n, ulong p)
-{
-#if IS_FLOAT_IN
-    float8 c = vload8(0, frames + (ulong)k * n + p);
-#else
-    float8 c = convert_float8(vload8(0, frames + (ulong)k * n + p));
-#endif
-#if HAS_DARK == 1
-    c -= vload8(0, dark + p);
-#elif HAS_DARK == 2
-    c -= vload8(0, dark + (ulong)k * n + p);
-#endif
-#if HAS_GAIN
-    c *= vload8(0, gain + p);
-#endif
-    return c;
-}
-
-/* work-items over (row, frame) */
-__kernel void frame_row_sums(__global const IN_T *restrict frames, __global const float *restrict dark,
-                             __global const float *restrict gain, __global float *restrict sums,
-                             const uint width, const uint height)
-{
-    const uint y = get_global_id(0), k = get_global_id(1);
-    if (y >= height || k >= K) return;
-    const ulong n = (ulong)width * height, row = (ulong)y * width;
-    float8 acc = (float8)(0.0f);
-    uint x = 0;
-    for (; x + 8 <= width; x += 8) acc += corrected_row(frames, dark, gain, k, n, row + x);
-    float s = acc.s0 + acc.s1 + acc.s2 + acc.s3 + acc.s4 + acc.s5 + acc.s6 + acc.s7;
-    for (; x < width; ++x) {
-        const int8 p = (int8)((int)(row + x));
-        s += corrected_at(frames, dark, gain, k, n, p).s0;
-    }
-    sums[(ulong)k * height + y] = s;
-}
-
-/* work-items over (x / 8, y, frame) */
-__kernel void gradient_magnitude(__global const IN_T *restrict frames, __global const float *restrict dark,
-                                 __global const float *restrict gain, __constant const float *restrict scale,
-                                 __global float *restrict out, const uint width, const uint height)
-{
-    const int x0 = 8 * get_global_id(0), y = get_global_id(1);
-    const uint k = get_global_id(2);
-    if (x0 >= STRIDE || y >= (int)height || k >= K) return;
-    const ulong n = (ulong)width * height;
-    const int ya = max(y - 1, 0), yb = min(y + 1, (int)height - 1);
-    float8 l0, c0, r0, l1, c1, r1, l2, c2, r2;  /* rows y - 1, y, y + 1; columns x - 1, x, x + 1 */
-    if (x0 >= 1 && x0 + 9 <= (int)width) {
-        const ulong p0 = (ulong)ya * width + x0, p1 = (ulong)y * width + x0, p2 = (ulong)yb * width + x0;
-        l0 = corrected_row(frames, dark, gain, k, n, p0 - 1); c0 = corrected_row(frames, dark, gain, k, n, p0);
-        r0 = corrected_row(frames, dark, gain, k, n, p0 + 1);
-        l1 = corrected_row(frames, dark, gain, k, n, p1 - 1); c1 = corrected_row(frames, dark, gain, k, n, p1);
-        r1 = corrected_row(frames, dark, gain, k, n, p1 + 1);
-        l2 = corrected_row(frames, dark, gain, k, n, p2 - 1); c2 = corrected_row(frames, dark, gain, k, n, p2);
-        r2 = corrected_row(frames, dark, gain, k, n, p2 + 1);
-    } else {
-        const int8 x = min(x0 + (int8)(0, 1, 2, 3, 4, 5, 6, 7), (int)width - 1);
-        const int8 xl = max(x - 1, 0), xr = min(x + 1, (int)width - 1);
-        const int w = (int)width;
-        l0 = corrected_at(frames, dark, gain, k, n, ya * w + xl); c0 = corrected_at(frames, dark, gain, k, n, ya * w + x);
-        r0 = corrected_at(frames, dark, gain, k, n, ya * w + xr);
-        l1 = corrected_at(frames, dark, gain, k, n, y * w + xl); c1 = corrected_at(frames, dark, gain, k, n, y * w + x);
-        r1 = corrected_at(frames, dark, gain, k, n, y * w + xr);
-        l2 = corrected_at(frames, dark, gain, k, n, yb * w + xl); c2 = corrected_at(frames, dark, gain, k, n, yb * w + x);
-        r2 = corrected_at(frames, dark, gain, k, n, yb * w + xr);
-    }
-    const float8 gy = (l2 + 2.0f * c2 + r2) - (l0 + 2.0f * c0 + r0);
-    const float8 gx = (r0 + 2.0f * r1 + r2) - (l0 + 2.0f * l1 + l2);
-    vstore8(sqrt(gx * gx + gy * gy) * scale[k], 0, out + (ulong)k * STRIDE * height + (ulong)y * STRIDE + x0);
-}
-#endif

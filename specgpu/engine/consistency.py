@@ -17,11 +17,10 @@ import numpy as np
 import pyopencl as cl
 from scipy import ndimage
 
-from specgpu.core.validate import check_frames
 from specgpu.engine import kernels
-from specgpu.engine.runtime import DTYPE_TO_CTYPE, get_kernel, get_queue
+from specgpu.engine.runtime import get_kernel, get_queue
 
-__all__ = ["consistency_maps", "consistency_maps_numpy", "exact_median", "gradient_images"]
+__all__ = ["consistency_maps", "consistency_maps_numpy", "exact_median"]
 
 #: Work-items per group along a row (each 8 pixels); a group is one row's stretch
 _GROUP = 16
@@ -38,40 +37,6 @@ def _maps(motion, K: int, spatial: tuple) -> np.ndarray:
         raise ValueError(f"motion must be ({K}, 2), ({K}, 2, 3) or ({K}, 2, {spatial[0]}, {spatial[1]}), "
                          f"got {maps.shape}")
     return maps
-
-
-def gradient_images(frames, dark=None, gain=None, *, device=None) -> np.ndarray:
-    """(K, H, W) float32: each frame's gradient magnitude (Sobel, borders mirrored) of the dark-subtracted,
-    flat-fielded frame over its mean, on the device: what ``hypot(sobel(c, 0), sobel(c, 1))`` of
-    ``c = (frame - dark) * gain / mean`` gives on the host (a frame whose mean is not positive is not divided)."""
-    frames, K = check_frames(frames)
-    if frames.ndim != 3:
-        raise ValueError(f"frames must be (K, H, W), got shape {tuple(frames.shape)}")
-    h, w = frames.shape[1:]
-    queue = get_queue(device, like=(frames, dark, gain))
-    dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", (h, w), K)
-    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", (h, w), None)
-    stride = -(-w // 8) * 8
-    macros = dict(K=K, STRIDE=stride, IN_T=DTYPE_TO_CTYPE[frames.dtype], IS_FLOAT_IN=frames.dtype == np.float32,
-                  HAS_DARK=0 if dark is None else (2 if dark_per_frame else 1), HAS_GAIN=gain is not None)
-    f_dev = kernels.to_device(queue, frames.reshape(-1))
-    sums = kernels._empty(queue, K * h, np.float32)
-    out = kernels._empty(queue, K * h * stride, np.float32)
-    common = (f_dev.data, kernels._data(dark_dev), kernels._data(gain_dev))
-    dims = (np.uint32(w), np.uint32(h))
-    rows = get_kernel(queue, "consistency.cl", "frame_row_sums", **macros)
-    with kernels._launch_lock:
-        rows.set_args(*common, sums.data, *dims)
-        cl.enqueue_nd_range_kernel(queue, rows, (-(-h // _GROUP) * _GROUP, K), (_GROUP, 1))
-    mean = sums.get().reshape(K, h).sum(axis=1, dtype=np.float64) / (h * w)
-    scale = np.where(mean > 0, 1.0 / np.where(mean > 0, mean, 1.0), 1.0).astype(np.float32)
-    sobel = get_kernel(queue, "consistency.cl", "gradient_magnitude", **macros)
-    items = -(-stride // 8)
-    with kernels._launch_lock:
-        sobel.set_args(*common, kernels.to_device(queue, scale).data, out.data, *dims)
-        cl.enqueue_nd_range_kernel(queue, sobel, (-(-items // _GROUP) * _GROUP, h, K), (_GROUP, 1, 1))
-    g = out.get().reshape(K, h, stride)
-    return g if stride == w else np.ascontiguousarray(g[:, :, :w])
 
 
 def exact_median(values: np.ndarray) -> float:
@@ -141,7 +106,7 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
 
     Parameters
     ----------
-    gradients : array_like, (K, H, W)
+    gradients : array_like, (K, H, W), or a sequence of K (H, W) arrays
         Each frame's gradient image (float32).
     motion : array_like, (K, 2), (K, 2, 3) or (K, 2, H, W)
         Where frame k saw each pixel: x + d_k, M_k (x, y, 1), or x + flow_k(x).
@@ -161,25 +126,29 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
         On the device for translations and affine maps with an odd ``window``; on the host (the same
         computation in SciPy) for a flow or an even window.
     """
-    g = np.ascontiguousarray(gradients, np.float32)
-    if g.ndim != 3:
-        raise ValueError(f"gradients must be (K, H, W), got shape {g.shape}")
-    K, h, w = g.shape
+    planes = [np.ascontiguousarray(p, np.float32) for p in gradients] if isinstance(gradients, (list, tuple)) \
+        else np.ascontiguousarray(gradients, np.float32)
+    shapes = {np.shape(p) for p in planes}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise ValueError(f"gradients must be (K, H, W), got shape {np.shape(gradients)}")
+    K, (h, w) = len(planes), next(iter(shapes))
     maps = _maps(motion, K, (h, w))
     window = int(window)
     if window < 1:
         raise ValueError(f"window must be >= 1, got {window}")
     if maps.ndim == 4 or window % 2 == 0 or not np.all(np.isfinite(maps)):
-        return consistency_maps_numpy(g, maps, window=window, texture=texture, own=own)
-    queue = get_queue(device, like=(g,))
+        return consistency_maps_numpy(planes, maps, window=window, texture=texture, own=own)
+    queue = get_queue(device)
     stride = -(-w // 8) * 8
     half = window // 2
-    padded = stride + 2 * half
+    padded = -(-(stride + 2 * half) // 8) * 8  # as kernels/consistency.cl: a whole number of 8-pixel vectors
     translate = bool(np.all(maps[:, :, :2] == np.eye(2)))
     macros = dict(K=K, WINDOW=window, STRIDE=stride, TRANSLATE=translate, ROWS=_ROWS)
     dims = (np.uint32(w), np.uint32(h))
     plane = stride * h
-    grads = kernels.to_device(queue, g.reshape(-1))
+    grads = kernels._empty(queue, K * h * w, np.float32)
+    for k, p in enumerate(planes):  # each image straight into its place (no stacked copy on the host)
+        cl.enqueue_copy(queue, grads.data, p, dst_offset=k * p.nbytes, is_blocking=False)
     motion_dev = kernels.to_device(queue, maps.reshape(-1), np.float32)  # a new one every sequence: not cached
     aligned = kernels._empty(queue, (K + 1) * padded * h, np.float32)
     rows = kernels._empty(queue, (3 * K + 2) * plane, np.float32)

@@ -266,7 +266,9 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     def dark_of(k):
         return None if dark is None else (dark[k] if per_frame_dark else dark)
 
-    level = np.array([float(np.mean(frames[k], dtype=np.float64)) - (0.0 if dark is None else float(np.mean(dark_of(k))))
+    dark_level = None if dark is None else np.mean(dark, axis=(-2, -1), dtype=np.float64)  # one per dark frame
+    level = np.array([float(np.mean(frames[k], dtype=np.float64))
+                      - (0.0 if dark is None else float(dark_level[k] if per_frame_dark else dark_level))
                       for k in range(K)])
     usable = level >= MIN_SIGNAL_SHARE * max(float(level.max()), 1e-30)
     if usable.sum() < 1:
@@ -529,9 +531,9 @@ def consistency(frames, shifts, dark=None, gain=None, *, window: int = 9, textur
     frames = np.asarray(frames)
     K = frames.shape[0]
     dark = None if dark is None else np.asarray(dark, np.float32)
-    g = np.stack([gradients[k] if gradients is not None and gradients[k] is not None else
-                  gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
-                  for k in range(K)])
+    g = [gradients[k] if gradients is not None and gradients[k] is not None else
+         gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
+         for k in range(K)]
     # on the device for translations and affine maps (kernels/consistency.cl), in SciPy for a flow
     return consistency_maps(g, shifts, window=window, texture=texture, own=own)
 

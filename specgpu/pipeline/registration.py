@@ -122,17 +122,25 @@ def fit_peak(surface: np.ndarray) -> tuple[np.ndarray, float]:
     return np.array([px, py], np.float64), c
 
 
+def _circular_max(a: np.ndarray, start: int, length: int, axis: int) -> float:
+    """Largest value of ``a`` over ``length`` indices from ``start`` along ``axis``, wrapping round (views)."""
+    n = a.shape[axis]
+    start %= n
+    parts = [(start, min(start + length, n)), (0, max(start + length - n, 0))]
+    return max(float((a[lo:hi] if axis == 0 else a[:, lo:hi]).max()) for lo, hi in parts if hi > lo)
+
+
 def second_peak_ratio(surface: np.ndarray, peak: np.ndarray, radius: int) -> float:
     """The highest value of a periodic correlation surface more than ``radius`` px (along either axis) from
     ``peak`` (x, y), over the value at ``peak``'s nearest sample: near 1 where two displacements compete."""
     h, w = surface.shape
     x, y = int(round(peak[0])) % w, int(round(peak[1])) % h
     top = float(surface[y, x])
-    if top <= 0.0:
-        return 1.0
-    rolled = np.roll(surface, (radius - y, radius - x), axis=(0, 1))  # the peak at (radius, radius)
-    rest = max(float(rolled[2 * radius + 1:].max(initial=-np.inf)),
-               float(rolled[:2 * radius + 1, 2 * radius + 1:].max(initial=-np.inf)))
+    side = 2 * radius + 1
+    if top <= 0.0 or side >= min(h, w):
+        return 1.0  # no clear top, or no sample far enough from it
+    band = surface[np.arange(y - radius, y + radius + 1) % h]  # the rows about the peak (a small copy)
+    rest = max(_circular_max(surface, y + radius + 1, h - side, 0), _circular_max(band, x + radius + 1, w - side, 1))
     return rest / top
 
 

@@ -84,6 +84,15 @@ def test_device_maps_are_the_float64_check(queue, K, kind):
     assert_matches(*consistency_maps_numpy(g, maps), ref)
 
 
+@pytest.mark.parametrize("window", [5, 7, 11])
+def test_other_odd_windows_are_the_float64_check(queue, window):
+    rng = np.random.default_rng(window)
+    g = gradient_like(rng, 5, 48, 70)
+    g[2, 10:30, 20:50] = rng.uniform(0, 3, (20, 30))
+    maps = motions(rng, 5, "translation")
+    assert_matches(*consistency_maps(list(g), maps, window=window, device=queue), reference(g, maps, window))
+
+
 def test_translations_given_as_displacements_are_the_maps(queue):
     rng = np.random.default_rng(3)
     g = gradient_like(rng, 7, 40, 48)
