@@ -16,6 +16,7 @@
  * Arguments: frames (K, H, W), A (B x K, constant), motion (K x 6: the rows of M_k, constant), flow, dark, gain, out (B x N),
  * mask (N), width, height.
  * linear_warp_translate: the same result where every M_k is a translation, 8 pixels of a row per work-item.
+ * OUT_INTERLEAVED = 1: out (N x B) instead (the host's (H, W, B) with no transposition after).
  */
 #include "common.h"
 
@@ -26,6 +27,17 @@
 
 #ifndef FLOW
 #define FLOW 0
+#endif
+
+/* OUT_INTERLEAVED = 1: out is (N, B), the outputs of a pixel together (what the host returns as (H, W, B));
+ * else planar (B, N) */
+#ifndef OUT_INTERLEAVED
+#define OUT_INTERLEAVED 0
+#endif
+#if OUT_INTERLEAVED
+#define OUT_AT(b, i) ((ulong)(i) * B + (b))
+#else
+#define OUT_AT(b, i) ((ulong)(b) * n + (i))
 #endif
 
 inline float corrected(__global const IN_T *restrict plane, __global const float *restrict dark,
@@ -101,7 +113,7 @@ inline void warp_pixel(__global const IN_T *restrict frames, __constant const fl
         __constant const float *row = A + b * K;
         float acc = 0.0f;
         REP_(K, W_FMA)
-        out[(ulong)b * n + i] = outside ? NAN : acc; /* planar: consecutive work-items, consecutive addresses */
+        out[OUT_AT(b, i)] = outside ? NAN : acc; /* planar: consecutive work-items, consecutive addresses */
     }
 #else
     float s[K];
@@ -112,7 +124,7 @@ inline void warp_pixel(__global const IN_T *restrict frames, __constant const fl
         __constant const float *row = A + b * K;
         float acc = 0.0f;
         for (uint k = 0; k < K; ++k) acc = row[k] * s[k] + acc;
-        out[(ulong)b * n + i] = outside ? NAN : acc;
+        out[OUT_AT(b, i)] = outside ? NAN : acc;
     }
 #endif
     mask[i] = (uchar)flags;
@@ -212,7 +224,13 @@ __kernel void linear_warp_translate(__global const IN_T *restrict frames,
         __constant const float *row = A + b * K;
         float8 acc = (float8)(0.0f);
         REP_(K, T_FMA)
+#if OUT_INTERLEAVED  /* the 8 pixels' B outputs are 8 B consecutive floats */
+        __global float *o = out + i * B + b;
+        o[0] = acc.s0; o[B] = acc.s1; o[2 * B] = acc.s2; o[3 * B] = acc.s3;
+        o[4 * B] = acc.s4; o[5 * B] = acc.s5; o[6 * B] = acc.s6; o[7 * B] = acc.s7;
+#else
         vstore8(acc, 0, out + (ulong)b * n + i);
+#endif
     }
     vstore8(convert_uchar8(flags), 0, mask + i);
 }

@@ -109,6 +109,9 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
                   HAS_DARK=0 if dark is None else (2 if dark_per_frame else 1), HAS_GAIN=gain is not None,
                   IS_FLOAT_IN=frames.dtype == np.float32, FLOW=True if flow else None,
                   SAT_LEVEL=None if saturation is None else repr(float(saturation)) + "f")
+    translate = n and not flow and K <= 128 and bool(np.all(d[:, [0, 1, 3, 4]] == np.array([1, 0, 0, 1], np.float32)))
+    interleaved = bool(translate and not planar)  # the row kernel writes (H, W, B) itself
+    macros["OUT_INTERLEAVED"] = interleaved
     kernel = get_kernel(queue, "warp.cl", "linear_warp", **macros)
     f_dev = kernels.to_device(queue, frames.reshape(-1))
     out = kernels._empty(queue, max(n * B, 1), np.float32)
@@ -118,7 +121,7 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
     flow_dev = kernels.to_device(queue, d.reshape(-1)) if flow else None
     args = (f_dev.data, A_dev.data, d_dev.data, kernels._data(flow_dev), kernels._data(dark_dev),
             kernels._data(gain_dev), out.data, mask.data, np.uint32(w), np.uint32(h))
-    if n and not flow and K <= 128 and np.all(d[:, [0, 1, 3, 4]] == np.array([1, 0, 0, 1], np.float32)):
+    if translate:
         # translations: 8 pixels of a row per work-item, the frames read as vectors
         translate = get_kernel(queue, "warp.cl", "linear_warp_translate", **macros)
         items = -(-w // 8)
@@ -127,9 +130,12 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
             cl.enqueue_nd_range_kernel(queue, translate, (-(-items // _ROW_GROUP) * _ROW_GROUP, h), (_ROW_GROUP, 1))
     elif n:
         kernels._launch(queue, kernel, n, *args, pixels_per_item=1)
-    y = out.get()[:n * B].reshape(B, h, w)  # the kernel writes planes (coalesced stores)
-    if not planar:
-        y = np.ascontiguousarray(np.moveaxis(y, 0, -1))
+    if interleaved:
+        y = out.get()[:n * B].reshape(h, w, B)
+    else:
+        y = out.get()[:n * B].reshape(B, h, w)  # the kernel writes planes (coalesced stores)
+        if not planar:
+            y = np.ascontiguousarray(np.moveaxis(y, 0, -1))
     if not return_mask:
         return y
     return LinearResult(y, mask.get()[:n].reshape(h, w))

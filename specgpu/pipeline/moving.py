@@ -105,16 +105,15 @@ class MotionEstimate:
 def gradient_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarray:
     """The spectrum-independent image a frame is registered on: gradient magnitude (Sobel) of the
     dark-subtracted, flat-fielded frame over its mean, float32; ``binning`` averages b x b pixels first."""
-    f = np.asarray(frame, np.float32)
-    if dark is not None:
-        f = f - np.asarray(dark, np.float32)
+    f = np.subtract(frame, dark, dtype=np.float32) if dark is not None else np.array(frame, np.float32)
     if gain is not None:
-        f = f * np.asarray(gain, np.float32)
+        f *= np.asarray(gain, np.float32)
     f = bin_image(f, binning)
     mean = float(np.mean(f, dtype=np.float64))
+    g = sobel_magnitude(f)  # linear in f: the division by the mean on the result
     if mean > 0:
-        f = f * np.float32(1.0 / mean)
-    return sobel_magnitude(f)
+        g *= np.float32(1.0 / mean)
+    return g
 
 
 def hann(image: np.ndarray) -> np.ndarray:

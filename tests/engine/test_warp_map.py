@@ -157,3 +157,6 @@ def test_translations_read_as_rows_are_the_per_pixel_warp(queue, dtype):
     assert good.sum() > 0.5 * h * w
     tol = tolerance(np.nan_to_num(frames), A, dark, gain)[good]
     assert np.all(np.abs(rows.y[good] - ref[good]) <= tol) and np.all(np.abs(pixels.y[good] - ref[good]) <= tol)
+    # written as (H, W, B) by the kernel, or as planes (B, H, W) when asked: the same numbers
+    planes = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, layout="planar", device=queue)
+    np.testing.assert_array_equal(np.moveaxis(planes, 0, -1), rows.y)
