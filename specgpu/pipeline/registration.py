@@ -23,6 +23,7 @@ the scene) or where the scene repeats itself; only then is the slower check on t
 from __future__ import annotations
 
 import functools
+import threading
 
 import numpy as np
 from scipy import fft
@@ -33,21 +34,42 @@ __all__ = ["sobel_magnitude", "bin_image", "hann_window", "frequency_weight", "w
 
 def sobel_magnitude(image: np.ndarray) -> np.ndarray:
     """Gradient magnitude ``hypot(sobel(f, 0), sobel(f, 1))`` of a 2-D image as ``scipy.ndimage.sobel`` makes it
-    (borders mirrored, ``mode="reflect"``), float32, by whole-array slicing."""
-    p = np.pad(np.asarray(image, np.float32), 1, mode="symmetric")
+    (borders mirrored, ``mode="reflect"``), float32, by whole-array slicing into scratch arrays kept per thread
+    (fresh temporaries of a frame's size cost more in page faults than the arithmetic)."""
+    f = np.asarray(image, np.float32)
+    h, w = f.shape
+    p, s, gx = _scratch(("sobel", h, w), ((h + 2, w + 2), (h + 2, w + 2), (h, w)))
+    p[1:-1, 1:-1] = f  # mirrored by one pixel: scipy's "reflect" repeats the edge
+    p[0, 1:-1], p[-1, 1:-1] = f[0], f[-1]
+    p[:, 0], p[:, -1] = p[:, 1], p[:, -2]
     # derivative along rows (axis 0) of the image smoothed [1, 2, 1] along columns, and the transpose
-    s = p[:, 1:-1] * 2.0
-    s += p[:, :-2]
-    s += p[:, 2:]
-    gy = s[2:] - s[:-2]
-    s = p[1:-1] * 2.0
-    s += p[:-2]
-    s += p[2:]
-    gx = s[:, 2:] - s[:, :-2]
+    sx = s[:, :w]
+    np.multiply(p[:, 1:-1], 2.0, out=sx)
+    sx += p[:, :-2]
+    sx += p[:, 2:]
+    gy = np.subtract(sx[2:], sx[:-2])
+    sy = s[:h]
+    np.multiply(p[1:-1], 2.0, out=sy)
+    sy += p[:-2]
+    sy += p[2:]
+    np.subtract(sy[:, 2:], sy[:, :-2], out=gx)
     gy *= gy
     gx *= gx
     gy += gx
     return np.sqrt(gy, out=gy)
+
+
+_SCRATCH = threading.local()
+
+
+def _scratch(key, shapes) -> list:
+    """float32 arrays of ``shapes`` kept by the calling thread under ``key`` (reused by its next call)."""
+    kept = getattr(_SCRATCH, "arrays", None)
+    if kept is None:
+        kept = _SCRATCH.arrays = {}
+    if key not in kept:
+        kept[key] = [np.empty(shape, np.float32) for shape in shapes]
+    return kept[key]
 
 
 def bin_image(image: np.ndarray, binning: int) -> np.ndarray:
