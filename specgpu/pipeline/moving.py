@@ -194,7 +194,7 @@ _BLAS_HELD: dict = {"count": 0}
 
 @_one_blas_thread
 def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int | None = None,
-                           upsample: int = 10, binning: int = 1, pairs: str = "reference", cutoff: float = 0.12,
+                           upsample: int = 10, binning: int = 1, pairs: str = "auto", cutoff: float = 0.12,
                            max_gap: int = 8, model: str = "translation", tiles: int = 4,
                            robust: bool = True, flow_tiles: tuple = (6, 8), peak: str = "fit",
                            ambiguous: float = AMBIGUOUS_PEAK) -> MotionEstimate:
@@ -219,17 +219,21 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         (:func:`specgpu.pipeline.registration.fit_peak`; the weighted surface is a Gaussian, so this is exact to
         about 0.01 px of a 1/100 px upsampled DFT) on real single-precision FFTs; or skimage's upsampled DFT
         (``phase_cross_correlation``), five to ten times slower. On the moving twin at 640 x 480 (24 sequences,
-        ``tools/motion_registration.py``) the defaults (fit, reference pairs) err by at most 0.07 px, median
-        0.04 px, in a tenth of the time of the upsampled DFT of all pairs (0.08, 0.04).
+        ``tools/motion_registration.py``) the defaults (fit, reference pairs there) err by at most 0.07 px, median
+        0.04 px, in an eighth of the time of the upsampled DFT of all pairs (0.08, 0.04).
     binning : int
         Average b x b pixels before registering (b times faster FFTs; the shifts are scaled back).
     cutoff : float
         Standard deviation (cycles per pixel) of the Gaussian weight on the spatial frequencies of the whitened
         cross-power spectrum.
-    pairs : {"reference", "all"}
-        Register each frame to the reference frame only (K - 1 registrations: the default, as accurate on the
-        moving twin as all pairs, whose long gaps pair the most different bands), or every pair of frames at most
-        ``max_gap`` apart and solve for the displacements by least squares (for K = 9, all 36 pairs).
+    pairs : {"auto", "reference", "all"}
+        Which pairs of frames are registered; the displacements are their least-squares solution, pairs that
+        disagree with the others by more than :data:`OUTLIER_PX` dropped. ``"reference"``: each frame to the
+        reference frame (K - 1 registrations; on the moving twin as accurate as all pairs, whose long gaps pair
+        the most different bands); ``"all"``: every pair at most ``max_gap`` apart (for K = 9, 36); ``"auto"`` (the
+        default, with ``peak="fit"``): the reference pairs, and every pair as well where one of their correlation
+        surfaces has a rival peak (see ``ambiguous``): a scene that repeats itself (a chart's grid of patches) can
+        put one pair's peak a whole period off, which only the other pairs outvote.
     max_gap : int
         The furthest apart (in frames) two frames registered with ``pairs="all"`` are.
     model : {"translation", "affine", "flow"}
@@ -279,8 +283,8 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         raise ValueError(f"model must be one of translation, affine, flow, got {model!r}")
     if model != "translation" and binning != 1:
         raise ValueError(f"model={model!r} registers tiles at full resolution: binning must be 1")
-    if pairs not in ("all", "reference"):
-        raise ValueError(f"pairs must be one of all, reference, got {pairs!r}")
+    if pairs not in ("auto", "reference", "all"):
+        raise ValueError(f"pairs must be one of auto, reference, all, got {pairs!r}")
     if not 0 <= reference_frame < K or not usable[reference_frame]:
         raise ValueError(f"reference_frame {reference_frame} is not a usable frame of the {K}")
     if peak not in ("fit", "dft"):
@@ -320,19 +324,29 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         return tuple(gradients.get(k) for k in range(K))
 
     idx = np.flatnonzero(usable)
-    if pairs == "reference":
-        links = [(reference_frame, int(k)) for k in idx if k != reference_frame]
-    else:  # every pair up to max_gap frames apart: K - 1 unknowns from up to K (K - 1) / 2 measurements
-        links = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:] if b - a <= max_gap]
+    every = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:] if b - a <= max_gap]
+    to_reference = [(min(reference_frame, int(k)), max(reference_frame, int(k))) for k in idx if k != reference_frame]
+    links = every if pairs == "all" else to_reference
     rows, rhs, errs = [], [], {}
-    for a, b in links:
-        d, err = register(a, b)
-        row = np.zeros(K)
-        row[b], row[a] = 1.0, -1.0
-        rows.append(row)
-        rhs.append(d * binning)  # x, y of frame b less those of frame a
-        errs.setdefault(a, []).append(err)
-        errs.setdefault(b, []).append(err)
+
+    def more_links():  # "auto": every pair as well where a frame's correlation with the reference has a rival peak
+        if pairs != "auto" or not fit or max(ambiguity.values(), default=0.0) <= ambiguous:
+            return []
+        done = set(to_reference)
+        return [link for link in every if link not in done]
+
+    def measure(pairs_):
+        for a, b in pairs_:
+            d, err = register(a, b)
+            row = np.zeros(K)
+            row[b], row[a] = 1.0, -1.0
+            rows.append(row)
+            rhs.append(d * binning)  # x, y of frame b less those of frame a
+            errs.setdefault(a, []).append(err)
+            errs.setdefault(b, []).append(err)
+
+    measure(links)
+    measure(more_links())  # after the reference pairs: their peaks say whether the others are needed
     raw = np.full((K, 2), np.nan)
     raw[reference_frame] = 0.0
     others = [int(k) for k in idx if k != reference_frame]
