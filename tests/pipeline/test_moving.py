@@ -13,9 +13,11 @@ from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, consistency,
                                      estimate_global_motion, inconsistent_pixels, recover_moving)
-from specgpu.pipeline.recovery import SequenceFolder, recover
+from specgpu.pipeline.recovery import SequenceFolder, default_basis, recover
+from specgpu.planning.basis_plans import plan_symmetric_basis
 from specgpu.planning.registry import make_plan
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
+from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.twin import TwinRig
 
@@ -176,3 +178,16 @@ def test_the_device_check_flags_what_the_scipy_check_flags_around_an_occluding_o
     np.testing.assert_array_equal(textured, want_textured)
     np.testing.assert_array_equal(flagged, want_textured & (want_worst < 0.3))
     np.testing.assert_allclose(worst, want_worst, rtol=0, atol=1e-3)
+
+
+def test_a_still_chart_whose_patches_repeat_registers_at_zero(setup):
+    """A colour chart is a grid of equal patches: the correlation of two frames has a peak at every multiple of
+    the patch pitch, and a frame registered to the reference frame alone locks a whole period off on the stream
+    bench's scene (a chart under a 9-frame basis plan). Such a rival peak brings in the other pairs of frames, whose
+    least-squares solution outvotes it."""
+    desc, bundle, _, _ = setup
+    plan = plan_symmetric_basis(bundle, default_basis(), m=5, max_exposure_s=0.0049)
+    frames, _ = frames_of(desc, plan, colorchecker_scene(240, 320, white_tile=0.99), MotionParameters())
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    assert np.abs(estimate_global_motion(frames, dark, gain, pairs="reference").shifts).max() > 10  # the trap
+    assert np.abs(estimate_global_motion(frames, dark, gain).shifts).max() <= 0.1
