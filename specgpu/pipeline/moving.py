@@ -67,8 +67,8 @@ OUTLIER_PX = 0.5
 #: With the fitted peak (``peak="fit"``), a frame's translation is checked against its tiles only where the
 #: correlation surface of the frame and the reference frame has a second peak (1.5 standard deviations of the
 #: peak or more away) above this share of the first: two motions compete (an object moving on its own), or the
-#: scene repeats itself. On the moving twin a still chart over a still scene gives 0.5 or more, a scene alone 0.2
-#: or less.
+#: scene repeats itself. On the moving twin a chart moving over the still natural scene gives 0.45 or more, the
+#: natural scene alone moving 0.2 or less.
 AMBIGUOUS_PEAK = 0.3
 
 
@@ -222,7 +222,8 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         ``tools/motion_registration.py``) the defaults (fit, reference pairs there) err by at most 0.07 px, median
         0.04 px, in an eighth of the time of the upsampled DFT of all pairs (0.08, 0.04).
     binning : int
-        Average b x b pixels before registering (b times faster FFTs; the shifts are scaled back).
+        Average the gradient images over b x b pixels before registering (faster FFTs; the shifts are scaled
+        back; the images kept for the consistency check stay at full resolution).
     cutoff : float
         Standard deviation (cycles per pixel) of the Gaussian weight on the spatial frequencies of the whitened
         cross-power spectrum.
@@ -231,9 +232,9 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         disagree with the others by more than :data:`OUTLIER_PX` dropped. ``"reference"``: each frame to the
         reference frame (K - 1 registrations; on the moving twin as accurate as all pairs, whose long gaps pair
         the most different bands); ``"all"``: every pair at most ``max_gap`` apart (for K = 9, 36); ``"auto"`` (the
-        default, with ``peak="fit"``): the reference pairs, and every pair as well where one of their correlation
+        default): with ``peak="fit"`` the reference pairs, and every pair as well where one of their correlation
         surfaces has a rival peak (see ``ambiguous``): a scene that repeats itself (a chart's grid of patches) can
-        put one pair's peak a whole period off, which only the other pairs outvote.
+        put one pair's peak a whole period off, which only the other pairs outvote; with ``"dft"`` every pair.
     max_gap : int
         The furthest apart (in frames) two frames registered with ``pairs="all"`` are.
     model : {"translation", "affine", "flow"}
@@ -326,7 +327,7 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     idx = np.flatnonzero(usable)
     every = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:] if b - a <= max_gap]
     to_reference = [(min(reference_frame, int(k)), max(reference_frame, int(k))) for k in idx if k != reference_frame]
-    links = every if pairs == "all" else to_reference
+    links = every if pairs == "all" or (pairs == "auto" and not fit) else to_reference
     rows, rhs, errs = [], [], {}
 
     def more_links():  # "auto": every pair as well where a frame's correlation with the reference has a rival peak
@@ -464,8 +465,9 @@ def _dominant_translation(g_ref, g_k, shift, upsample: int, cutoff: float, tiles
     """The translation most of the field shares: ``shift`` (the whole-image registration) unless the tiles'
     median is more than :data:`OUTLIER_PX` from it (a smaller, strongly textured object moving on its own
     dominates the whole-image correlation), then the mean of the tiles within :data:`OUTLIER_PX` of their
-    median, the tiles registered again at that median. ``reference_tiles``: registered by :func:`specgpu.pipeline.registration.tile_displacements` (the
-    fitted peak), the reference's tiles' spectra kept there across frames; None: by the upsampled DFT."""
+    median, the tiles registered again at that median. ``reference_tiles``: the tiles registered by
+    :func:`specgpu.pipeline.registration.tile_displacements` (the fitted peak), the reference's tiles' spectra
+    kept in it across frames; None: by the upsampled DFT."""
     def tiles_at(where):
         src, dst = _tile_displacements(g_ref, g_k, where, upsample, cutoff, tiles) if reference_tiles is None \
             else tile_displacements(g_ref, g_k, where, cutoff, tiles, reference_tiles)
@@ -540,7 +542,8 @@ def consistency(frames, shifts, dark=None, gain=None, *, window: int = 9, textur
     """The two maps :func:`inconsistent_pixels` thresholds, (H, W) each: ``textured`` (bool: the median
     compensated gradient image has structure there) and ``worst`` (float32: the lowest normalised
     cross-correlation of a frame with structure of its own against that median; 1 where none has). Two
-    hypotheses of a pixel's motion are compared by their ``worst``."""
+    hypotheses of a pixel's motion are compared by their ``worst``. The per-pixel work runs on the default OpenCL
+    device for translations and affine maps (:func:`specgpu.engine.consistency.consistency_maps`)."""
     frames = np.asarray(frames)
     K = frames.shape[0]
     dark = None if dark is None else np.asarray(dark, np.float32)
