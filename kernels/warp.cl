@@ -15,6 +15,8 @@
  * (x + flow[k][0][i], y + flow[k][1][i])), the affine maps unused.
  * Arguments: frames (K, H, W), A (B x K, constant), motion (K x 6: the rows of M_k, constant), flow, dark, gain, out (B x N),
  * mask (N), width, height.
+ * linear_warp_translate: the same result where every M_k is a translation, 8 pixels of a row per work-item.
+ * OUT_INTERLEAVED = 1: out (N x B) instead (the host's (H, W, B) with no transposition after).
  */
 #include "common.h"
 
@@ -25,6 +27,17 @@
 
 #ifndef FLOW
 #define FLOW 0
+#endif
+
+/* OUT_INTERLEAVED = 1: out is (N, B), the outputs of a pixel together (what the host returns as (H, W, B));
+ * else planar (B, N) */
+#ifndef OUT_INTERLEAVED
+#define OUT_INTERLEAVED 0
+#endif
+#if OUT_INTERLEAVED
+#define OUT_AT(b, i) ((ulong)(i) * B + (b))
+#else
+#define OUT_AT(b, i) ((ulong)(b) * n + (i))
 #endif
 
 inline float corrected(__global const IN_T *restrict plane, __global const float *restrict dark,
@@ -80,20 +93,14 @@ inline float warp_sample(__global const IN_T *restrict frames, __constant const 
          + corrected(plane, dark, gain, k, n, r1 + x1, fx * fy, flags);
 }
 
-__kernel void linear_warp(__global const IN_T *restrict frames,
-                          __constant const float *restrict A,
-                          __constant const float *restrict motion,
-                          __global const float *restrict flow,
-                          __global const float *restrict dark,
-                          __global const float *restrict gain,
-                          __global float *restrict out,
-                          __global uchar *restrict mask,
-                          const uint width,
-                          const uint height)
+/* Output pixel i = (x, y): its K samples and B outputs, and its mask. */
+inline void warp_pixel(__global const IN_T *restrict frames, __constant const float *restrict A,
+                       __constant const float *restrict motion, __global const float *restrict flow,
+                       __global const float *restrict dark, __global const float *restrict gain,
+                       __global float *restrict out, __global uchar *restrict mask, uint width, uint height,
+                       ulong i)
 {
-    const ulong i = get_global_id(0);
     const ulong n = (ulong)width * height;
-    if (i >= n) return;
     const int x = (int)(i % width), y = (int)(i / width);
     int flags = 0;
 #if K <= 128
@@ -106,7 +113,7 @@ __kernel void linear_warp(__global const IN_T *restrict frames,
         __constant const float *row = A + b * K;
         float acc = 0.0f;
         REP_(K, W_FMA)
-        out[(ulong)b * n + i] = outside ? NAN : acc; /* planar: consecutive work-items, consecutive addresses */
+        out[OUT_AT(b, i)] = outside ? NAN : acc; /* planar: consecutive work-items, consecutive addresses */
     }
 #else
     float s[K];
@@ -117,8 +124,114 @@ __kernel void linear_warp(__global const IN_T *restrict frames,
         __constant const float *row = A + b * K;
         float acc = 0.0f;
         for (uint k = 0; k < K; ++k) acc = row[k] * s[k] + acc;
-        out[(ulong)b * n + i] = outside ? NAN : acc;
+        out[OUT_AT(b, i)] = outside ? NAN : acc;
     }
 #endif
     mask[i] = (uchar)flags;
 }
+
+__kernel void linear_warp(__global const IN_T *restrict frames,
+                          __constant const float *restrict A,
+                          __constant const float *restrict motion,
+                          __global const float *restrict flow,
+                          __global const float *restrict dark,
+                          __global const float *restrict gain,
+                          __global float *restrict out,
+                          __global uchar *restrict mask,
+                          const uint width,
+                          const uint height)
+{
+    const ulong i = get_global_id(0);
+    if (i >= (ulong)width * height) return;
+    warp_pixel(frames, A, motion, flow, dark, gain, out, mask, width, height, i);
+}
+
+#if K <= 128 && !FLOW
+/* Every frame's motion a translation (the affine maps' linear parts the identity): every pixel of frame k has the
+ * same bilinear weights, so a work-item takes 8 consecutive pixels of a row and reads each frame's four
+ * neighbours as rows of 8 (vload8), the weights scalars, the corrections (dark, gain) vectors: what PoCL runs
+ * as vector code. Where some lane's sample point or neighbour is off the field, or the row ends within the 8,
+ * each pixel goes through linear_warp's code. Work-items over (x / 8, y). */
+inline float8 corrected8(__global const IN_T *restrict plane, __global const float *restrict dark,
+                         __global const float *restrict gain, uint k, ulong n, ulong p, float w, int8 *flags)
+{
+    if (w <= 0.0f) return (float8)(0.0f); /* a zero weight never lets a NaN or saturated neighbour in */
+#if IS_FLOAT_IN
+    const float8 v = vload8(0, plane + p);
+    *flags |= isfinite(v) ? (int8)(0) : (int8)(MASK_NONFINITE);
+#else
+    const float8 v = convert_float8(vload8(0, plane + p));
+#endif
+#ifdef SAT_LEVEL
+    *flags |= v >= (float8)(SAT_LEVEL) ? (int8)(MASK_SATURATED) : (int8)(0);
+#endif
+    float8 c = v;
+#if HAS_DARK == 1
+    c -= vload8(0, dark + p);
+#elif HAS_DARK == 2
+    c -= vload8(0, dark + (ulong)k * n + p);
+#endif
+#if HAS_GAIN
+    c *= vload8(0, gain + p);
+#endif
+    return c * w;
+}
+
+inline float8 translate_sample(__global const IN_T *restrict frames, __constant const float *restrict motion,
+                               __global const float *restrict dark, __global const float *restrict gain, uint k,
+                               ulong n, int x0, int y, uint width, int8 *flags)
+{
+    const float dx = motion[6 * k + 2], dy = motion[6 * k + 5];
+    const float fdx = floor(dx), fdy = floor(dy);
+    const float fx = dx - fdx, fy = dy - fdy;
+    const ulong p = (ulong)(y + (int)fdy) * width + (ulong)(x0 + (int)fdx);
+    __global const IN_T *plane = frames + (ulong)k * n;
+    return corrected8(plane, dark, gain, k, n, p, (1.0f - fx) * (1.0f - fy), flags)
+         + corrected8(plane, dark, gain, k, n, p + 1, fx * (1.0f - fy), flags)
+         + corrected8(plane, dark, gain, k, n, p + width, (1.0f - fx) * fy, flags)
+         + corrected8(plane, dark, gain, k, n, p + width + 1, fx * fy, flags);
+}
+
+__kernel void linear_warp_translate(__global const IN_T *restrict frames,
+                                    __constant const float *restrict A,
+                                    __constant const float *restrict motion,
+                                    __global const float *restrict flow,
+                                    __global const float *restrict dark,
+                                    __global const float *restrict gain,
+                                    __global float *restrict out,
+                                    __global uchar *restrict mask,
+                                    const uint width,
+                                    const uint height)
+{
+    const int x0 = 8 * get_global_id(0), y = get_global_id(1);
+    if (x0 >= (int)width || y >= (int)height) return;
+    const ulong n = (ulong)width * height, i = (ulong)y * width + x0;
+    int interior = x0 + 8 <= (int)width;
+    for (uint k = 0; k < K; ++k) {
+        const int ix = x0 + (int)floor(motion[6 * k + 2]), iy = y + (int)floor(motion[6 * k + 5]);
+        interior &= ix >= 0 && ix + 8 <= (int)width - 1 && iy >= 0 && iy + 1 <= (int)height - 1;
+    }
+    if (!interior) {
+        for (int j = 0; j < 8 && x0 + j < (int)width; ++j)
+            warp_pixel(frames, A, motion, flow, dark, gain, out, mask, width, height, i + j);
+        return;
+    }
+    int8 flags = (int8)(0);
+#define T_SAMPLE(k) const float8 t##k = translate_sample(frames, motion, dark, gain, k, n, x0, y, width, &flags);
+#define T_FMA(k) acc = row[k] * t##k + acc;
+    REP_(K, T_SAMPLE)
+    for (uint b = 0; b < B; ++b) {
+        __constant const float *row = A + b * K;
+        float8 acc = (float8)(0.0f);
+        REP_(K, T_FMA)
+#if OUT_INTERLEAVED  /* the 8 pixels' B outputs are 8 B consecutive floats */
+        __global float *o = out + i * B + b;
+        o[0] = acc.s0; o[B] = acc.s1; o[2 * B] = acc.s2; o[3 * B] = acc.s3;
+        o[4 * B] = acc.s4; o[5 * B] = acc.s5; o[6 * B] = acc.s6; o[7 * B] = acc.s7;
+#else
+        vstore8(acc, 0, out + (ulong)b * n + i);
+#endif
+    }
+    vstore8(convert_uchar8(flags), 0, mask + i);
+}
+#endif

@@ -9,7 +9,7 @@ of the estimate (the settings run in turn on each sequence, so a change of the m
 setting alike).
 
     PYTHONPATH=. python tools/motion_registration.py                         # 320 x 240, the settings below
-    PYTHONPATH=. python tools/motion_registration.py --size 640x480 --settings "upsample=50;upsample=10"
+    PYTHONPATH=. python tools/motion_registration.py --size 640x480 --settings "peak='dft',pairs='all';"
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ MOTIONS = (MotionParameters(velocity_px_per_frame=(3.0, 1.0)), MotionParameters(
            MotionParameters(velocity_px_per_frame=(2.4, 1.8)), MotionParameters(velocity_px_per_frame=(0.13, -0.71)),
            MotionParameters(vibration_rms_px=1.0, vibration_hz=35.0, seed=4))
 
-SETTINGS = "upsample=50;upsample=20;upsample=10;max_gap=3;pairs='reference';binning=2;binning=2,cutoff=0.2"
+SETTINGS = ("peak='dft',pairs='all';peak='dft',pairs='all',upsample=50;;pairs='all';peak='dft';binning=2;"
+            "binning=2,cutoff=0.24")
 
 
 def frames_of(desc, plan, scene, motion, seed):

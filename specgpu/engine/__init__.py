@@ -131,3 +131,6 @@ __all__ = [
 from specgpu.engine.guided import box_box_variance, flat_variance_reduction, guided_filter  # noqa: E402
 
 __all__ += ["box_box_variance", "flat_variance_reduction", "guided_filter"]
+from specgpu.engine.consistency import consistency_maps, consistency_maps_numpy, exact_median  # noqa: E402
+
+__all__ += ["consistency_maps", "consistency_maps_numpy", "exact_median"]

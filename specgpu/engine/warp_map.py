@@ -10,6 +10,7 @@ sample point of some frame falls outside the field are NaN and flagged (``MASK_O
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 
 from specgpu.core.validate import check_frames, check_level, check_matrix, validate_method
 from specgpu.engine import kernels
@@ -20,6 +21,9 @@ __all__ = ["apply_linear_warped", "MASK_OUTSIDE", "check_shifts"]
 
 #: Mask bit of a pixel whose sample point of some frame lies outside the field.
 MASK_OUTSIDE = 4
+
+#: Work-items per group of the translation kernel along a row (each 8 pixels)
+_ROW_GROUP = 16
 
 
 def check_shifts(shifts, K: int, name: str = "shifts", spatial: tuple | None = None) -> np.ndarray:
@@ -105,6 +109,9 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
                   HAS_DARK=0 if dark is None else (2 if dark_per_frame else 1), HAS_GAIN=gain is not None,
                   IS_FLOAT_IN=frames.dtype == np.float32, FLOW=True if flow else None,
                   SAT_LEVEL=None if saturation is None else repr(float(saturation)) + "f")
+    translate = n and not flow and K <= 128 and bool(np.all(d[:, [0, 1, 3, 4]] == np.array([1, 0, 0, 1], np.float32)))
+    interleaved = bool(translate and not planar)  # the row kernel writes (H, W, B) itself
+    macros["OUT_INTERLEAVED"] = interleaved
     kernel = get_kernel(queue, "warp.cl", "linear_warp", **macros)
     f_dev = kernels.to_device(queue, frames.reshape(-1))
     out = kernels._empty(queue, max(n * B, 1), np.float32)
@@ -112,14 +119,23 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
     A_dev = kernels.matrix_on_device(queue, A)
     d_dev = kernels.matrix_on_device(queue, np.zeros((K, 6), np.float32) if flow else d)
     flow_dev = kernels.to_device(queue, d.reshape(-1)) if flow else None
-    if n:
-        kernels._launch(queue, kernel, n, f_dev.data, A_dev.data, d_dev.data, kernels._data(flow_dev),
-                        kernels._data(dark_dev),
-                        kernels._data(gain_dev), out.data, mask.data, np.uint32(w), np.uint32(h),
-                        pixels_per_item=1)
-    y = out.get()[:n * B].reshape(B, h, w)  # the kernel writes planes (coalesced stores)
-    if not planar:
-        y = np.ascontiguousarray(np.moveaxis(y, 0, -1))
+    args = (f_dev.data, A_dev.data, d_dev.data, kernels._data(flow_dev), kernels._data(dark_dev),
+            kernels._data(gain_dev), out.data, mask.data, np.uint32(w), np.uint32(h))
+    if translate:
+        # translations: 8 pixels of a row per work-item, the frames read as vectors
+        translate = get_kernel(queue, "warp.cl", "linear_warp_translate", **macros)
+        items = -(-w // 8)
+        with kernels._launch_lock:
+            translate.set_args(*args)
+            cl.enqueue_nd_range_kernel(queue, translate, (-(-items // _ROW_GROUP) * _ROW_GROUP, h), (_ROW_GROUP, 1))
+    elif n:
+        kernels._launch(queue, kernel, n, *args, pixels_per_item=1)
+    if interleaved:
+        y = out.get()[:n * B].reshape(h, w, B)
+    else:
+        y = out.get()[:n * B].reshape(B, h, w)  # the kernel writes planes (coalesced stores)
+        if not planar:
+            y = np.ascontiguousarray(np.moveaxis(y, 0, -1))
     if not return_mask:
         return y
     return LinearResult(y, mask.get()[:n].reshape(h, w))

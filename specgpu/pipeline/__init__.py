@@ -175,3 +175,8 @@ __all__ += ["RECOVERIES", "compare_motion", "edge_band", "motion_scores"]
 from specgpu.pipeline.moving_decode import MOTION_OUTPUTS, MovingDecoder, check_motion_options  # noqa: E402
 
 __all__ += ["MOTION_OUTPUTS", "MovingDecoder", "check_motion_options"]
+from specgpu.pipeline.registration import (  # noqa: E402
+    correlation_surface, fit_peak, second_peak_ratio, sobel_magnitude, tile_displacements, whitened_half_spectrum)
+
+__all__ += ["correlation_surface", "fit_peak", "second_peak_ratio", "sobel_magnitude", "tile_displacements",
+            "whitened_half_spectrum"]

@@ -2,8 +2,9 @@
 
 A sequence takes K frame periods; anything that moves in that time lands on different pixels in different frames.
 **Global** motion (the scene or the camera translates, shakes on its tripod) is one displacement per frame. It is
-estimated here by phase correlation (``skimage.registration.phase_cross_correlation``, sub-pixel by its upsampled
-DFT) between each frame and a reference frame of the same sequence, on images that do not depend on the light's
+estimated here by phase correlation between each frame and a reference frame of the same sequence (real
+single-precision FFTs, the sub-pixel peak by a Gaussian fit: :mod:`specgpu.pipeline.registration`; or
+``skimage.registration.phase_cross_correlation``'s upsampled DFT), on images that do not depend on the light's
 spectrum: the gradient magnitude of each dark-subtracted, flat-fielded frame normalised by its mean. Edges stay
 where they are whatever the illuminant, while the relative brightness of two surfaces does not; the gradient
 magnitude keeps the first and discards the sign of the second, and phase correlation whitens what is left. So no
@@ -35,7 +36,10 @@ from skimage.registration import phase_cross_correlation
 from threadpoolctl import ThreadpoolController
 
 from specgpu.core.validate import validate_method
+from specgpu.engine.consistency import consistency_maps
 from specgpu.io.npz import write_cube_npz
+from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_peak, second_peak_ratio,
+                                           sobel_magnitude, tile_displacements, whitened_half_spectrum)
 from specgpu.rig.twin import TwinRig
 
 __all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "consistency", "MOTION_MODES", "MotionEstimate", "check_motion_mode", "estimate_global_motion",
@@ -58,6 +62,13 @@ MIN_SIGNAL_SHARE = 0.05
 #: A pair's registration that disagrees by more than this (px) with the least-squares solution of all the others
 #: is dropped (a failed correlation peak); with ``pairs="all"`` each frame is registered to up to 16 others.
 OUTLIER_PX = 0.5
+
+#: With the fitted peak (``peak="fit"``), a frame's translation is checked against its tiles only where the
+#: correlation surface of the frame and the reference frame has a second peak (1.5 standard deviations of the
+#: peak or more away) above this share of the first: two motions compete (an object moving on its own), or the
+#: scene repeats itself. On the moving twin a chart moving over the still natural scene gives 0.45 or more, the
+#: natural scene alone moving 0.2 or less.
+AMBIGUOUS_PEAK = 0.3
 
 
 @dataclass(frozen=True)
@@ -93,17 +104,15 @@ class MotionEstimate:
 def gradient_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarray:
     """The spectrum-independent image a frame is registered on: gradient magnitude (Sobel) of the
     dark-subtracted, flat-fielded frame over its mean, float32; ``binning`` averages b x b pixels first."""
-    f = np.asarray(frame, np.float32)
-    if dark is not None:
-        f = f - np.asarray(dark, np.float32)
+    f = np.subtract(frame, dark, dtype=np.float32) if dark is not None else np.array(frame, np.float32)
     if gain is not None:
-        f = f * np.asarray(gain, np.float32)
-    if binning > 1:
-        h, w = (f.shape[0] // binning) * binning, (f.shape[1] // binning) * binning
-        f = f[:h, :w].reshape(h // binning, binning, w // binning, binning).mean(axis=(1, 3))
-    mean = float(np.mean(f))
-    f = f / mean if mean > 0 else f
-    return np.hypot(ndimage.sobel(f, 0), ndimage.sobel(f, 1))
+        f *= np.asarray(gain, np.float32)
+    f = bin_image(f, binning)
+    mean = float(np.mean(f, dtype=np.float64))
+    g = sobel_magnitude(f)  # linear in f: the division by the mean on the result
+    if mean > 0:
+        g *= np.float32(1.0 / mean)
+    return g
 
 
 def hann(image: np.ndarray) -> np.ndarray:
@@ -143,6 +152,13 @@ def _register(a: np.ndarray, b: np.ndarray, upsample: int) -> tuple[np.ndarray, 
     return -np.asarray(shift[::-1], np.float64), float(err)
 
 
+def _half_spectrum_energy(F: np.ndarray, width: int) -> float:
+    """Sum of |F|^2 over the whole spectrum of an image ``width`` wide of which ``F`` is the ``rfft2`` half (the
+    columns mirrored in the other half counted twice: all but the first and, for an even width, the last)."""
+    power = np.einsum("ij,ij->j", F.real, F.real) + np.einsum("ij,ij->j", F.imag, F.imag)
+    return float(power.sum() * 2.0 - power[0] - (power[-1] if width % 2 == 0 else 0.0))
+
+
 @functools.lru_cache(maxsize=1)
 def _blas() -> ThreadpoolController:
     return ThreadpoolController()
@@ -177,9 +193,10 @@ _BLAS_HELD: dict = {"count": 0}
 
 @_one_blas_thread
 def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int | None = None,
-                           upsample: int = 10, binning: int = 1, pairs: str = "all", cutoff: float = 0.12,
+                           upsample: int = 10, binning: int = 1, pairs: str = "auto", cutoff: float = 0.12,
                            max_gap: int = 8, model: str = "translation", tiles: int = 4,
-                           robust: bool = True, flow_tiles: tuple = (6, 8)) -> MotionEstimate:
+                           robust: bool = True, flow_tiles: tuple = (6, 8), peak: str = "fit",
+                           ambiguous: float = AMBIGUOUS_PEAK) -> MotionEstimate:
     """A translation per frame of one sequence, relative to the sequence's reference time.
 
     Parameters
@@ -194,19 +211,29 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     reference_frame : int, optional
         The frame the others are registered to (default: the brightest of the middle three).
     upsample : int
-        Sub-pixel resolution 1 / upsample px of the phase correlation peak. 10 by default: each displacement is
-        the least-squares solution of many pairs' peaks, whose rounding averages out; on the moving twin 1/10 px
-        peaks give the same errors as 1/50 px ones (largest 0.08 px, median 0.04 px over 24 sequences at 640 x 480)
-        at two thirds of the time or less (``tools/motion_registration.py``).
+        With ``peak="dft"``: sub-pixel resolution 1 / upsample px of the phase correlation peak (on the moving
+        twin 1/10 px peaks give the same errors as 1/50 px ones).
+    peak : {"fit", "dft"}
+        How the correlation peak is located to a fraction of a pixel: a Gaussian through the samples across it
+        (:func:`specgpu.pipeline.registration.fit_peak`; the weighted surface is a Gaussian, so this is exact to
+        about 0.01 px of a 1/100 px upsampled DFT) on real single-precision FFTs; or skimage's upsampled DFT
+        (``phase_cross_correlation``), five to ten times slower. On the moving twin at 640 x 480 (24 sequences,
+        ``tools/motion_registration.py``) the defaults (fit, reference pairs there) err by at most 0.07 px, median
+        0.04 px, in an eighth of the time of the upsampled DFT of all pairs (0.08, 0.04).
     binning : int
-        Average b x b pixels before registering (b times faster FFTs; the shifts are scaled back).
+        Average the gradient images over b x b pixels before registering (faster FFTs; the shifts are scaled
+        back; the images kept for the consistency check stay at full resolution).
     cutoff : float
         Standard deviation (cycles per pixel) of the Gaussian weight on the spatial frequencies of the whitened
         cross-power spectrum.
-    pairs : {"all", "reference"}
-        Register every pair of frames at most ``max_gap`` apart and solve for the displacements by least squares
-        (for K = 9, all 36 pairs: each frame's error averaged over 8 registrations), or each frame to the
-        reference frame only (K - 1 registrations).
+    pairs : {"auto", "reference", "all"}
+        Which pairs of frames are registered; the displacements are their least-squares solution, pairs that
+        disagree with the others by more than :data:`OUTLIER_PX` dropped. ``"reference"``: each frame to the
+        reference frame (K - 1 registrations; on the moving twin as accurate as all pairs, whose long gaps pair
+        the most different bands); ``"all"``: every pair at most ``max_gap`` apart (for K = 9, 36); ``"auto"`` (the
+        default): with ``peak="fit"`` the reference pairs, and every pair as well where one of their correlation
+        surfaces has a rival peak (see ``ambiguous``): a scene that repeats itself (a chart's grid of patches) can
+        put one pair's peak a whole period off, which only the other pairs outvote; with ``"dft"`` every pair.
     max_gap : int
         The furthest apart (in frames) two frames registered with ``pairs="all"`` are.
     model : {"translation", "affine", "flow"}
@@ -218,7 +245,9 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     robust : bool
         Translation model: check each frame's whole-image translation against its tiles' median and take the
         tiles' consensus where they disagree (an object moving over the scene can dominate the whole-image
-        correlation); costs ``tiles``^2 small registrations per frame.
+        correlation); costs ``tiles``^2 small registrations per frame. With ``peak="fit"`` only when some frame's
+        correlation with the reference frame has a second peak above ``ambiguous`` times the first (see
+        :data:`AMBIGUOUS_PEAK`), then for every frame; with ``"dft"`` always.
 
     Returns
     -------
@@ -240,7 +269,9 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     def dark_of(k):
         return None if dark is None else (dark[k] if per_frame_dark else dark)
 
-    level = np.array([float(np.mean(frames[k], dtype=np.float64)) - (0.0 if dark is None else float(np.mean(dark_of(k))))
+    dark_level = None if dark is None else np.mean(dark, axis=(-2, -1), dtype=np.float64)  # one per dark frame
+    level = np.array([float(np.mean(frames[k], dtype=np.float64))
+                      - (0.0 if dark is None else float(dark_level[k] if per_frame_dark else dark_level))
                       for k in range(K)])
     usable = level >= MIN_SIGNAL_SHARE * max(float(level.max()), 1e-30)
     if usable.sum() < 1:
@@ -252,39 +283,70 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         raise ValueError(f"model must be one of translation, affine, flow, got {model!r}")
     if model != "translation" and binning != 1:
         raise ValueError(f"model={model!r} registers tiles at full resolution: binning must be 1")
-    if pairs not in ("all", "reference"):
-        raise ValueError(f"pairs must be one of all, reference, got {pairs!r}")
+    if pairs not in ("auto", "reference", "all"):
+        raise ValueError(f"pairs must be one of auto, reference, all, got {pairs!r}")
     if not 0 <= reference_frame < K or not usable[reference_frame]:
         raise ValueError(f"reference_frame {reference_frame} is not a usable frame of the {K}")
-    spectra, gradients = {}, {}
+    if peak not in ("fit", "dft"):
+        raise ValueError(f"peak must be one of fit, dft, got {peak!r}")
+    fit = peak == "fit"
+    spectra, gradients, ambiguity, energies = {}, {}, {}, {}
 
-    def gradient(k):
+    def gradient(k):  # full resolution (the consistency check reads them again); binned to be registered
         if k not in gradients:
-            gradients[k] = gradient_image(frames[k], dark_of(k), gain, binning=binning)
+            gradients[k] = gradient_image(frames[k], dark_of(k), gain)
         return gradients[k]
 
     def spectrum(k):
         if k not in spectra:
-            spectra[k] = _whitened(hann(gradient(k)), cutoff)
+            image = bin_image(gradient(k), binning)
+            spectra[k] = whitened_half_spectrum(image, cutoff) if fit else _whitened(hann(image), cutoff)
         return spectra[k]
 
+    def energy(k):
+        if k not in energies:
+            energies[k] = _half_spectrum_energy(spectrum(k), gradient(k).shape[1] // binning)
+        return energies[k]
+
+    def register(a, b):
+        if not fit:
+            return _register(spectrum(a), spectrum(b), upsample)
+        shape = tuple(n // binning for n in gradient(a).shape)
+        surface = correlation_surface(spectrum(a), spectrum(b), shape)
+        d, top = fit_peak(surface)
+        if reference_frame in (a, b):  # how clearly the whole image moves as one: the tiles' check needed?
+            ambiguity[b if a == reference_frame else a] = second_peak_ratio(
+                surface, d, max(1, int(np.ceil(1.5 / (2.0 * np.pi * cutoff)))))  # 1.5 sigma of the peak
+        amp = energy(a) * energy(b) / float(surface.size) ** 2
+        return d, float(np.sqrt(abs(1.0 - top * top / max(amp, 1e-30))))
+
     def kept_gradients():
-        return tuple(gradients.get(k) for k in range(K)) if binning == 1 else None
+        return tuple(gradients.get(k) for k in range(K))
 
     idx = np.flatnonzero(usable)
-    if pairs == "reference":
-        links = [(reference_frame, int(k)) for k in idx if k != reference_frame]
-    else:  # every pair up to max_gap frames apart: K - 1 unknowns from up to K (K - 1) / 2 measurements
-        links = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:] if b - a <= max_gap]
+    every = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:] if b - a <= max_gap]
+    to_reference = [(min(reference_frame, int(k)), max(reference_frame, int(k))) for k in idx if k != reference_frame]
+    links = every if pairs == "all" or (pairs == "auto" and not fit) else to_reference
     rows, rhs, errs = [], [], {}
-    for a, b in links:
-        d, err = _register(spectrum(a), spectrum(b), upsample)
-        row = np.zeros(K)
-        row[b], row[a] = 1.0, -1.0
-        rows.append(row)
-        rhs.append(d * binning)  # x, y of frame b less those of frame a
-        errs.setdefault(a, []).append(err)
-        errs.setdefault(b, []).append(err)
+
+    def more_links():  # "auto": every pair as well where a frame's correlation with the reference has a rival peak
+        if pairs != "auto" or not fit or max(ambiguity.values(), default=0.0) <= ambiguous:
+            return []
+        done = set(to_reference)
+        return [link for link in every if link not in done]
+
+    def measure(pairs_):
+        for a, b in pairs_:
+            d, err = register(a, b)
+            row = np.zeros(K)
+            row[b], row[a] = 1.0, -1.0
+            rows.append(row)
+            rhs.append(d * binning)  # x, y of frame b less those of frame a
+            errs.setdefault(a, []).append(err)
+            errs.setdefault(b, []).append(err)
+
+    measure(links)
+    measure(more_links())  # after the reference pairs: their peaks say whether the others are needed
     raw = np.full((K, 2), np.nan)
     raw[reference_frame] = 0.0
     others = [int(k) for k in idx if k != reference_frame]
@@ -308,11 +370,16 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         return MotionEstimate(_flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, flow_tiles, usable,
                                           lo, hi), usable, error, int(reference_frame), model)
     if model == "translation":
-        if robust and binning == 1:
+        if robust:
+            reference_tiles = {}
+            # with the fitted peak, only where some frame's whole-image peak has a rival: then every frame, since a
+            # second motion is the scene's, not one frame's (an object's peak can fall just below the threshold in
+            # the frame where it is nearest the background's, and take that frame's estimate over)
+            rival = max(ambiguity.values(), default=0.0) > ambiguous
             for k in idx:
-                if k != reference_frame:
+                if k != reference_frame and (not fit or rival or ambiguity.get(int(k), 1.0) > ambiguous):
                     raw[k] = _dominant_translation(gradient(reference_frame), gradient(int(k)), raw[k], upsample,
-                                                   cutoff, tiles)
+                                                   cutoff, tiles, reference_tiles if fit else None)
         raw = _fill_in_time(raw, usable)
         return MotionEstimate(raw - 0.5 * (raw[lo] + raw[hi]), usable, error, int(reference_frame), model,
                               kept_gradients())
@@ -396,18 +463,29 @@ def _tile_displacements(g_ref, g_k, shift, upsample: int, cutoff: float, tiles, 
     return np.reshape(src, (-1, 2)), np.reshape(dst, (-1, 2))
 
 
-def _dominant_translation(g_ref, g_k, shift, upsample: int, cutoff: float, tiles: int) -> np.ndarray:
+def _dominant_translation(g_ref, g_k, shift, upsample: int, cutoff: float, tiles: int,
+                          reference_tiles: dict | None = None) -> np.ndarray:
     """The translation most of the field shares: ``shift`` (the whole-image registration) unless the tiles'
     median is more than :data:`OUTLIER_PX` from it (a smaller, strongly textured object moving on its own
     dominates the whole-image correlation), then the mean of the tiles within :data:`OUTLIER_PX` of their
-    median."""
-    src, dst = _tile_displacements(g_ref, g_k, shift, upsample, cutoff, tiles)
-    if len(src) < 3:
+    median, the tiles registered again at that median. ``reference_tiles``: the tiles registered by
+    :func:`specgpu.pipeline.registration.tile_displacements` (the fitted peak), the reference's tiles' spectra
+    kept in it across frames; None: by the upsampled DFT."""
+    def tiles_at(where):
+        src, dst = _tile_displacements(g_ref, g_k, where, upsample, cutoff, tiles) if reference_tiles is None \
+            else tile_displacements(g_ref, g_k, where, cutoff, tiles, reference_tiles)
+        return dst - src
+
+    d = tiles_at(shift)
+    if len(d) < 3:
         return np.asarray(shift, np.float64)
-    d = dst - src
     med = np.median(d, axis=0)
     if np.abs(med - shift).max() <= OUTLIER_PX:
         return np.asarray(shift, np.float64)
+    if np.any(np.rint(med) != np.rint(shift)):  # again where the tiles overlap fully: each peak more accurate
+        again = tiles_at(med)
+        if len(again) >= 3:
+            d, med = again, np.median(again, axis=0)
     near = np.abs(d - med).max(axis=1) <= OUTLIER_PX
     return d[near].mean(axis=0) if near.sum() >= 3 else med
 
@@ -467,45 +545,16 @@ def consistency(frames, shifts, dark=None, gain=None, *, window: int = 9, textur
     """The two maps :func:`inconsistent_pixels` thresholds, (H, W) each: ``textured`` (bool: the median
     compensated gradient image has structure there) and ``worst`` (float32: the lowest normalised
     cross-correlation of a frame with structure of its own against that median; 1 where none has). Two
-    hypotheses of a pixel's motion are compared by their ``worst``."""
+    hypotheses of a pixel's motion are compared by their ``worst``. The per-pixel work runs on the default OpenCL
+    device for translations and affine maps (:func:`specgpu.engine.consistency.consistency_maps`)."""
     frames = np.asarray(frames)
-    K, h, w = frames.shape
+    K = frames.shape[0]
     dark = None if dark is None else np.asarray(dark, np.float32)
-    maps = np.asarray(shifts, np.float64)
-    if maps.shape == (K, 2):
-        maps = np.concatenate([np.tile(np.eye(2), (K, 1, 1)), maps[:, :, None]], axis=2)
-    flow = maps.shape == (K, 2, h, w)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    aligned = np.empty((K, h, w), np.float32)
-    for k in range(K):
-        g = gradients[k] if gradients is not None and gradients[k] is not None else \
-            gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
-        m = maps[k]
-        if flow:
-            sx, sy = xx + m[0], yy + m[1]
-        else:
-            sx = m[0, 0] * xx + m[0, 1] * yy + m[0, 2]
-            sy = m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
-        aligned[k] = ndimage.map_coordinates(g, [sy, sx], order=1, mode="nearest")
-    ref = np.median(aligned, axis=0)
-
-    def box(a):
-        return ndimage.uniform_filter(a, window, mode="nearest")
-
-    mr = box(ref)
-    vr = np.maximum(box(ref * ref) - mr * mr, 0.0)
-    textured = vr > texture * float(np.mean(vr))
-    worst = np.ones((h, w), np.float32)
-    for k in range(K):
-        a = aligned[k]
-        ma = box(a)
-        va = np.maximum(box(a * a) - ma * ma, 0.0)
-        ncc = (box(a * ref) - ma * mr) / np.sqrt(np.maximum(va * vr, 1e-30))
-        # only where this frame has structure of its own above its noise (a dim, noisy frame correlates with
-        # nothing, and says nothing about the motion)
-        ncc[va <= own * float(np.median(va))] = 1.0
-        np.minimum(worst, ncc, out=worst)
-    return textured, worst
+    g = [gradients[k] if gradients is not None and gradients[k] is not None else
+         gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
+         for k in range(K)]
+    # on the device for translations and affine maps (kernels/consistency.cl), in SciPy for a flow
+    return consistency_maps(g, shifts, window=window, texture=texture, own=own)
 
 
 def check_motion_mode(motion) -> str:

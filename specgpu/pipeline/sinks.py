@@ -58,6 +58,9 @@ class StreamResult:
     motion : specgpu.pipeline.moving.MotionEstimate, optional
         The sequence's estimated displacements (a stream with ``motion``): the maps are the scene at the
         sequence's reference time, NaN where a frame saw it outside the field or the frames disagree.
+    layers : list, optional
+        The :class:`specgpu.pipeline.moving_layers.ObjectLayer` of each object decoded with its own motion (a
+        stream with ``motion``; their pixels carry mask bit 16).
     """
 
     index: int
@@ -70,6 +73,7 @@ class StreamResult:
     frames: np.ndarray | None = None
     white_gains: np.ndarray | None = None
     motion: object = None
+    layers: list | None = None
 
 
 class Sink:

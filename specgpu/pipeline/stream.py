@@ -138,6 +138,7 @@ class _InFlight:
     matrix_set: object = None
     white_gains: object = None
     motion: object = None
+    layers: list | None = None
     decoding: object = None  # a moving scene's sequence: the future of its maps
 
 
@@ -486,13 +487,14 @@ class Stream:
         if item.decoding is not None:
             item.host = item.decoding.result()  # a decoding error is raised here, on the device thread
             item.motion = item.host.pop("estimate")
+            item.layers = item.host.pop("layers")
         if item.events:
             cl.wait_for_events(item.events)
         t = time.perf_counter()
         # the result's own dict: the sinks' view may drop or add maps, the mapped ones are all unmapped later
         result = StreamResult(item.index, item.seq.cycle, item.seq.frame_ids, item.seq.timestamps_s, dict(item.host),
                               t - item.t_arrival, frames=item.seq.frames, white_gains=item.white_gains,
-                              motion=item.motion)
+                              motion=item.motion, layers=item.layers)
         if self.upload == "pinned":
             item.pinned = item.keep[1]
         item.keep = [item.seq]  # frames and their device buffer are no longer needed

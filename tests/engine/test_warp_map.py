@@ -130,3 +130,33 @@ def test_a_flow_field_matches_the_reference_and_a_uniform_one_the_translation(qu
     uniform = np.broadcast_to(shifts[:, :, None, None], (K, 2, h, w))
     np.testing.assert_array_equal(apply_linear_warped(frames, A, uniform, dark, device=queue),
                                   apply_linear_warped(frames, A, shifts, dark, device=queue))
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32])
+def test_translations_read_as_rows_are_the_per_pixel_warp(queue, dtype):
+    """Translations go through the row kernel (8 pixels per work-item, frames read as vectors; the lanes near the
+    field's edges, where a sample point leaves the field, per pixel): the float64 reference, and the same samples,
+    flags and NaNs as the per-pixel kernel given the same motion as a flow (a displacement per pixel)."""
+    rng = np.random.default_rng(11)
+    K, B, h, w = 5, 4, 31, 83  # a width not a multiple of 8: the last work-item of each row is partial
+    frames = (rng.integers(0, 1000, (K, h, w)) if dtype == np.uint16 else rng.uniform(0, 1, (K, h, w))).astype(dtype)
+    frames[2, 10, 40] = 1000 if dtype == np.uint16 else np.nan  # a saturated / non-finite sample inside
+    A = rng.normal(0, 1, (B, K))
+    shifts = np.array([[0.0, 0.0], [2.5, -1.25], [-3.7, 0.6], [1.0, 2.0], [0.3, -0.9]])
+    dark = rng.uniform(0, 5, (K, h, w)).astype(np.float32)
+    gain = rng.uniform(0.8, 1.2, (h, w)).astype(np.float32)
+    saturation = 1000.0 if dtype == np.uint16 else None
+    rows = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True, device=queue)
+    flow = np.broadcast_to(shifts[:, :, None, None], (K, 2, h, w))
+    pixels = apply_linear_warped(frames, A, flow, dark, gain, saturation=saturation, return_mask=True, device=queue)
+    np.testing.assert_array_equal(rows.mask, pixels.mask)
+    np.testing.assert_array_equal(np.isnan(rows.y), np.isnan(pixels.y))
+    assert ((rows.mask & 3) > 0).sum() >= 2  # the bad sample flags the pixels that use it
+    ref, outside = linear_warp_ref(frames, A, shifts.astype(np.float32), dark, gain)
+    good = ~outside & (rows.mask == 0)
+    assert good.sum() > 0.5 * h * w
+    tol = tolerance(np.nan_to_num(frames), A, dark, gain)[good]
+    assert np.all(np.abs(rows.y[good] - ref[good]) <= tol) and np.all(np.abs(pixels.y[good] - ref[good]) <= tol)
+    # written as (H, W, B) by the kernel, or as planes (B, H, W) when asked: the same numbers
+    planes = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, layout="planar", device=queue)
+    np.testing.assert_array_equal(np.moveaxis(planes, 0, -1), rows.y)

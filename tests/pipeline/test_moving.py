@@ -9,13 +9,16 @@ import numpy as np
 import pytest
 
 from specgpu.calibration.bundle import oracle_calibration
+from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
-from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, estimate_global_motion,
-                                     inconsistent_pixels)
+from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, consistency,
+                                     estimate_global_motion, inconsistent_pixels)
 from specgpu.pipeline.moving_layers import recover_moving
-from specgpu.pipeline.recovery import SequenceFolder, recover
+from specgpu.pipeline.recovery import SequenceFolder, default_basis, recover
+from specgpu.planning.basis_plans import plan_symmetric_basis
 from specgpu.planning.registry import make_plan
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
+from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.twin import TwinRig
 
@@ -121,7 +124,7 @@ def test_an_object_moving_on_its_own_is_flagged_not_decoded(setup):
     m = MotionParameters(object="colorchecker", object_velocity_px_per_frame=(3.0, 0.0))
     frames, truth = frames_of(desc, plan, scene, m)
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
-    res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code))
+    res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code), layers=False)
     np.testing.assert_allclose(res.estimates[0].shifts, 0.0, atol=0.1)  # the background stands still
     flagged = (res.mask & MASK_INCONSISTENT) > 0
     inside = truth["object_mask"] > 0.5
@@ -157,3 +160,35 @@ def test_the_check_on_the_estimates_own_gradient_images_is_the_check_on_fresh_on
     res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code), layers=False)
     np.testing.assert_array_equal((res.mask & MASK_INCONSISTENT) > 0, fresh)
     assert res.estimates[0].gradients is None  # not kept with the result
+
+
+def test_the_device_check_flags_what_the_scipy_check_flags_around_an_occluding_object(setup):
+    """The consistency check runs on the device for translations; on a chart moving over a moving scene (it
+    occludes and uncovers the background) its maps are those of the straightforward SciPy computation
+    (map_coordinates, median, uniform_filter) on the same gradient images, to float32 rounding."""
+    desc, bundle, plan, scene = setup
+    m = MotionParameters(velocity_px_per_frame=(1.0, 0.5), object="colorchecker",
+                         object_velocity_px_per_frame=(3.0, 0.0))
+    frames, _ = frames_of(desc, plan, scene, m)
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    est = estimate_global_motion(frames, dark, gain)
+    textured, worst = consistency(frames, est.shifts, dark, gain, gradients=est.gradients)
+    want_textured, want_worst = consistency_maps_numpy(np.stack(est.gradients), est.shifts)
+    flagged = textured & (worst < 0.3)
+    assert flagged.sum() > 1000
+    np.testing.assert_array_equal(textured, want_textured)
+    np.testing.assert_array_equal(flagged, want_textured & (want_worst < 0.3))
+    np.testing.assert_allclose(worst, want_worst, rtol=0, atol=1e-3)
+
+
+def test_a_still_chart_whose_patches_repeat_registers_at_zero(setup):
+    """A colour chart is a grid of equal patches: the correlation of two frames has a peak at every multiple of
+    the patch pitch, and a frame registered to the reference frame alone locks a whole period off on the stream
+    bench's scene (a chart under a 9-frame basis plan). Such a rival peak brings in the other pairs of frames, whose
+    least-squares solution outvotes it."""
+    desc, bundle, _, _ = setup
+    plan = plan_symmetric_basis(bundle, default_basis(), m=5, max_exposure_s=0.0049)
+    frames, _ = frames_of(desc, plan, colorchecker_scene(240, 320, white_tile=0.99), MotionParameters())
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    assert np.abs(estimate_global_motion(frames, dark, gain, pairs="reference").shifts).max() > 10  # the trap
+    assert np.abs(estimate_global_motion(frames, dark, gain).shifts).max() <= 0.1

@@ -1,0 +1,206 @@
+"""Fast phase correlation of gradient images: what the global motion estimate of a live stream can afford.
+
+The estimate of :mod:`specgpu.pipeline.moving` registers every pair of a sequence's frames (36 for K = 9) and a
+few tiles of each frame. Three things make that cheap enough to keep up with a camera on a few CPU cores:
+
+* **Real FFTs in single precision.** The registration images are real, so each spectrum is a half spectrum
+  (``scipy.fft.rfft2``, float32 in, complex64 out) and each correlation surface one ``irfft2``: a quarter of the
+  work of a complex double-precision FFT, and the same result to far below the estimate's noise.
+* **The sub-pixel peak by a fit, not an upsampled DFT.** The whitened cross-power spectrum carries a Gaussian
+  weight (:func:`frequency_weight`, ``exp(-f^2 / (2 cutoff^2))`` over the pair), so the correlation surface of a
+  translation is a Gaussian of standard deviation ``1 / (2 pi cutoff)`` px around it (1.3 px at the default
+  cutoff), sampled at the pixels. The logarithm of a Gaussian is a parabola: three samples through the peak along
+  each axis give its centre exactly, with no upsampled DFT around it (what ``skimage``'s
+  ``phase_cross_correlation`` spends most of its time on).
+* **The gradient images by slicing** (:func:`sobel_magnitude`): the Sobel operator as a few whole-array float32
+  additions, the result of ``scipy.ndimage.sobel`` (its ``reflect`` border) at a fraction of its time.
+
+The correlation surface also says whether its peak can be trusted: :func:`second_peak_ratio`, the highest value
+away from the main peak over the main peak, is high where two motions compete (an object moving on its own over
+the scene) or where the scene repeats itself; only then is the slower check on tiles worth its time.
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+
+import numpy as np
+from scipy import fft
+
+__all__ = ["sobel_magnitude", "bin_image", "hann_window", "frequency_weight", "whitened_half_spectrum",
+           "correlation_surface", "fit_peak", "second_peak_ratio", "tile_displacements"]
+
+
+def sobel_magnitude(image: np.ndarray) -> np.ndarray:
+    """Gradient magnitude ``hypot(sobel(f, 0), sobel(f, 1))`` of a 2-D image as ``scipy.ndimage.sobel`` makes it
+    (borders mirrored, ``mode="reflect"``), float32, by whole-array slicing into scratch arrays kept per thread
+    (fresh temporaries of a frame's size cost more in page faults than the arithmetic)."""
+    f = np.asarray(image, np.float32)
+    h, w = f.shape
+    p, s, gx = _scratch(("sobel", h, w), ((h + 2, w + 2), (h + 2, w + 2), (h, w)))
+    p[1:-1, 1:-1] = f  # mirrored by one pixel: scipy's "reflect" repeats the edge
+    p[0, 1:-1], p[-1, 1:-1] = f[0], f[-1]
+    p[:, 0], p[:, -1] = p[:, 1], p[:, -2]
+    # derivative along rows (axis 0) of the image smoothed [1, 2, 1] along columns, and the transpose
+    sx = s[:, :w]
+    np.multiply(p[:, 1:-1], 2.0, out=sx)
+    sx += p[:, :-2]
+    sx += p[:, 2:]
+    gy = np.subtract(sx[2:], sx[:-2])
+    sy = s[:h]
+    np.multiply(p[1:-1], 2.0, out=sy)
+    sy += p[:-2]
+    sy += p[2:]
+    np.subtract(sy[:, 2:], sy[:, :-2], out=gx)
+    gy *= gy
+    gx *= gx
+    gy += gx
+    return np.sqrt(gy, out=gy)
+
+
+_SCRATCH = threading.local()
+
+
+def _scratch(key, shapes) -> list:
+    """float32 arrays of ``shapes`` kept by the calling thread under ``key`` (reused by its next call)."""
+    kept = getattr(_SCRATCH, "arrays", None)
+    if kept is None:
+        kept = _SCRATCH.arrays = {}
+    if key not in kept:
+        kept[key] = [np.empty(shape, np.float32) for shape in shapes]
+    return kept[key]
+
+
+def bin_image(image: np.ndarray, binning: int) -> np.ndarray:
+    """``image`` averaged over ``binning`` x ``binning`` blocks (a remainder row or column dropped), float32."""
+    f = np.asarray(image, np.float32)
+    if binning <= 1:
+        return f
+    h, w = (f.shape[0] // binning) * binning, (f.shape[1] // binning) * binning
+    return f[:h, :w].reshape(h // binning, binning, w // binning, binning).mean(axis=(1, 3), dtype=np.float32)
+
+
+@functools.lru_cache(maxsize=16)
+def hann_window(shape: tuple) -> np.ndarray:
+    """The 2-D Hann window of ``shape`` (float32; phase correlation assumes periodic images)."""
+    window = np.outer(np.hanning(shape[0]), np.hanning(shape[1])).astype(np.float32)
+    window.flags.writeable = False
+    return window
+
+
+@functools.lru_cache(maxsize=16)
+def frequency_weight(shape: tuple, cutoff: float) -> np.ndarray:
+    """Gaussian weight ``exp(-f^2 / (4 cutoff^2))`` of one half spectrum (``rfft2`` layout) of an image of
+    ``shape``, float32: the product of two such spectra is weighted ``exp(-f^2 / (2 cutoff^2))``, so the
+    correlation peak of a translation is a Gaussian of ``1 / (2 pi cutoff)`` px."""
+    fy = fft.fftfreq(shape[0])[:, None]
+    fx = fft.rfftfreq(shape[1])[None, :]
+    weight = np.exp(-0.25 * (fx**2 + fy**2) / cutoff**2).astype(np.float32)
+    weight.flags.writeable = False
+    return weight
+
+
+def whitened_half_spectrum(image: np.ndarray, cutoff: float) -> np.ndarray:
+    """Phase-only half spectrum of ``image`` under a Hann window, weighted by :func:`frequency_weight`
+    (complex64, ``rfft2`` layout)."""
+    image = np.asarray(image, np.float32)
+    F = fft.rfft2(image * hann_window(image.shape), workers=1)
+    magnitude = np.abs(F)
+    np.maximum(magnitude, 1e-30, out=magnitude)
+    np.divide(frequency_weight(image.shape, float(cutoff)), magnitude, out=magnitude)
+    F *= magnitude
+    return F
+
+
+def correlation_surface(Fa: np.ndarray, Fb: np.ndarray, shape: tuple) -> np.ndarray:
+    """(H, W) float32 phase correlation of two :func:`whitened_half_spectrum` s of images of ``shape``: it peaks
+    at the displacement of the content of image b relative to image a (periodic: index -1 is -1 px)."""
+    return fft.irfft2(Fb * np.conj(Fa), s=shape, workers=1)
+
+
+def _vertex(left: float, centre: float, right: float) -> float:
+    """Offset in [-0.5, 0.5] of the maximum of the Gaussian (or, where a sample is not positive, the parabola)
+    through three samples one apart."""
+    if left > 0.0 and right > 0.0 and centre > 0.0:
+        left, centre, right = np.log(left), np.log(centre), np.log(right)
+    curvature = left - 2.0 * centre + right
+    if curvature >= 0.0:  # no maximum between them (a flat or noisy top): the sample itself
+        return 0.0
+    return float(np.clip(0.5 * (left - right) / curvature, -0.5, 0.5))
+
+
+def fit_peak(surface: np.ndarray) -> tuple[np.ndarray, float]:
+    """(x, y) of the highest peak of a periodic correlation surface, sub-pixel by a Gaussian through the three
+    samples across it along each axis, in [-N/2, N/2) px; and the peak's value."""
+    h, w = surface.shape
+    i = int(np.argmax(surface))
+    y, x = divmod(i, w)
+    c = float(surface[y, x])
+    dy = _vertex(float(surface[(y - 1) % h, x]), c, float(surface[(y + 1) % h, x]))
+    dx = _vertex(float(surface[y, (x - 1) % w]), c, float(surface[y, (x + 1) % w]))
+    px = (x + w // 2) % w - w // 2 + dx
+    py = (y + h // 2) % h - h // 2 + dy
+    return np.array([px, py], np.float64), c
+
+
+def _circular_max(a: np.ndarray, start: int, length: int, axis: int) -> float:
+    """Largest value of ``a`` over ``length`` indices from ``start`` along ``axis``, wrapping round (views)."""
+    n = a.shape[axis]
+    start %= n
+    parts = [(start, min(start + length, n)), (0, max(start + length - n, 0))]
+    return max(float((a[lo:hi] if axis == 0 else a[:, lo:hi]).max()) for lo, hi in parts if hi > lo)
+
+
+def second_peak_ratio(surface: np.ndarray, peak: np.ndarray, radius: int) -> float:
+    """The highest value of a periodic correlation surface more than ``radius`` px (along either axis) from
+    ``peak`` (x, y), over the value at ``peak``'s nearest sample: near 1 where two displacements compete."""
+    h, w = surface.shape
+    x, y = int(round(peak[0])) % w, int(round(peak[1])) % h
+    top = float(surface[y, x])
+    side = 2 * radius + 1
+    if top <= 0.0 or side >= min(h, w):
+        return 1.0  # no clear top, or no sample far enough from it
+    band = surface[np.arange(y - radius, y + radius + 1) % h]  # the rows about the peak (a small copy)
+    rest = max(_circular_max(surface, y + radius + 1, h - side, 0), _circular_max(band, x + radius + 1, w - side, 1))
+    return rest / top
+
+
+def tile_displacements(g_ref: np.ndarray, g_k: np.ndarray, shift, cutoff: float, tiles: int,
+                       reference_spectra: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (N, 2) of the ``tiles`` x ``tiles`` tiles of the reference image ``g_ref`` and where image
+    ``g_k`` saw each (N, 2): every tile registered (all at once, by :func:`fit_peak`) where the global ``shift``
+    (x, y) puts it in ``g_k``; tiles it moves off the field are skipped. ``reference_spectra``: a dict kept by the
+    caller across the frames of a sequence, so the reference's tiles are transformed once."""
+    h, w = g_ref.shape
+    th, tw = h // tiles, w // tiles
+    t = np.rint(np.asarray(shift, np.float64)).astype(int)
+    cells = [(i * th, j * tw) for i in range(tiles) for j in range(tiles)
+             if 0 <= i * th + t[1] and i * th + t[1] + th <= h and 0 <= j * tw + t[0] and j * tw + t[0] + tw <= w]
+    if not cells:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    cache = {} if reference_spectra is None else reference_spectra
+    key = (id(g_ref), tiles, float(cutoff))
+    if key not in cache:
+        stack = np.stack([g_ref[i * th:(i + 1) * th, j * tw:(j + 1) * tw] for i in range(tiles)
+                          for j in range(tiles)])
+        cache[key] = _whitened_stack(stack, cutoff)
+    ref = cache[key]
+    index = [(y0 // th) * tiles + x0 // tw for y0, x0 in cells]
+    moving = _whitened_stack(np.stack([g_k[y0 + t[1]:y0 + t[1] + th, x0 + t[0]:x0 + t[0] + tw]
+                                       for y0, x0 in cells]), cutoff)
+    surfaces = fft.irfft2(moving * np.conj(ref[index]), s=(th, tw), axes=(-2, -1), workers=1)
+    src = np.array([[x0 + (tw - 1) / 2.0, y0 + (th - 1) / 2.0] for y0, x0 in cells])
+    d = np.array([fit_peak(s)[0] for s in surfaces])
+    return src, src + t + d
+
+
+def _whitened_stack(stack: np.ndarray, cutoff: float) -> np.ndarray:
+    """:func:`whitened_half_spectrum` of each image of an (N, H, W) stack."""
+    stack = np.asarray(stack, np.float32)
+    F = fft.rfft2(stack * hann_window(stack.shape[1:]), axes=(-2, -1), workers=1)
+    magnitude = np.abs(F)
+    np.maximum(magnitude, 1e-30, out=magnitude)
+    np.divide(frequency_weight(stack.shape[1:], float(cutoff)), magnitude, out=magnitude)
+    F *= magnitude
+    return F
