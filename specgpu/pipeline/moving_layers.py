@@ -101,18 +101,20 @@ def flagged_regions(flagged, *, min_share: float = MIN_LAYER_SHARE, join_px: int
     return [labels == (i + 1) for i in order[:max_regions] if counts[i] >= minimum]
 
 
-def object_footprint(seed, *, min_pixels: int = 16) -> np.ndarray:
+def object_footprint(seed, *, min_pixels: int = 16, reach_px: float = 20.0) -> np.ndarray:
     """(H, W) bool: where the object is at the reference time, from ``seed`` (its pixels whose frames positively
     agree under its motion: textured ones, such as the edges of its patches, which are sparse, since an object's
-    flat parts carry no texture to agree on): the convex hull of the seed's pieces of at least ``min_pixels``. A
-    background pixel the hull takes in is decoded with the object's motion, which samples other background points
-    (never the object), and the check still flags it where they differ in texture."""
+    flat parts carry no texture to agree on): the convex hull of the seed's pieces of at least ``min_pixels``, within
+    ``reach_px`` of them (a concave object's hull spans background). A background pixel the footprint takes in is
+    decoded with the object's motion, which samples other background points (never the object), and the check
+    still flags it where they differ in texture."""
     labels, n = ndimage.label(seed)
     sizes = ndimage.sum_labels(seed, labels, index=np.arange(1, n + 1))
     kept = np.isin(labels, 1 + np.flatnonzero(sizes >= min_pixels))
     if not kept.any():
         return kept
-    return convex_hull_image(kept)
+    near = ndimage.distance_transform_edt(~kept) <= reach_px
+    return convex_hull_image(kept) & near
 
 
 def occluded_by(footprint, relative) -> np.ndarray:
