@@ -7,13 +7,17 @@ chart on a conveyor, anything moving on its own is then misregistered, and the c
 pixels gather into a region of some size, that region is taken to be one object with a motion of its own:
 
 1. its translation per frame is registered on the frames' gradient images restricted to the region (the whitened
-   cross-power of the region of the reference frame against each frame; the strongest correlation peak away from
-   the background's displacement is the object's, refined to sub-pixel by a Gaussian fit of the peak);
+   cross-power of the region of the reference frame against each frame: the highest correlation peaks away from
+   the background's displacement, refined to sub-pixel by a Gaussian fit, are the candidates, and the steady motion
+   most frames' candidates agree on, up to :data:`MAX_LAYER_SPEED_PX` per frame, is the object's);
 2. the frames are decoded again with that motion, in the same kind of warped device pass;
-3. a flagged pixel of the region takes the object's decoding only where the frames, compensated by the object's
-   motion, positively agree there (textured under that alignment, and every frame with structure correlating with
-   the median). Pixels consistent under neither motion (a background strip the object covered during the sequence,
-   an object's boundary against its background) stay flagged and NaN.
+3. the object's footprint at the reference time is found: the convex hull of the pixels its motion makes agree
+   (textured, every frame with structure correlating with the median) clearly better than the global motion, less
+   the rim the check's window adds. Its pixels take the object's decoding unless the frames, compensated by the
+   object's motion, disagree there; a pixel of the rim takes it only where they positively agree;
+4. the background the object covered in some frame of the sequence (the footprint moved by the object's motion
+   relative to the background's) is flagged: its samples mix the two surfaces. So are the object's pixels its own
+   decoding cannot give. Pixels consistent under neither motion stay flagged and NaN.
 
 Pixels decoded with an object's motion carry :data:`MASK_LAYER` in the mask.
 """
@@ -55,6 +59,16 @@ MIN_SEED_SHARE = 0.02
 #: motion's by this.
 SEED_MARGIN = 0.3
 
+#: The consistency check's window (px; :func:`specgpu.pipeline.moving.consistency`'s default).
+WINDOW = 9
+
+#: The fastest motion of an object relative to the background (px per frame) a layer is made for. A repeating
+#: texture (a chart's patches) moving too slowly for its own peak to leave the background's offers peaks one period
+#: off in every frame, which a steady motion of a period per frame also explains and the check cannot refute (the
+#: patches' edges line up a period off): on the twin's chart that period is 22 px and more. Faster objects stay as
+#: the global check leaves them, flagged where their frames disagree.
+MAX_LAYER_SPEED_PX = 12.0
+
 #: Correlation peaks tried per frame as the object's, highest first.
 CANDIDATES = 3
 
@@ -76,7 +90,7 @@ class ObjectLayer:
         Pixels decoded with the object's motion (its footprint at the reference time, less those its frames
         disagree on).
     occluded : int
-        Pixels of the background the object covered in some frame of the sequence (flagged).
+        Pixels of the background the object covered in some frame of the sequence (flagged and NaN).
     """
 
     shifts: np.ndarray
@@ -195,8 +209,9 @@ def estimate_layer_motion(gradients, region, background, reference_frame: int, u
         for j in np.argsort(c[iy, ix])[::-1][:CANDIDATES]:
             sy, sx = _gaussian_peak(c, int(iy[j]), int(ix[j]))
             d = -np.array([(sx + cw / 2) % cw - cw / 2, (sy + ch / 2) % ch - ch / 2])
-            if np.hypot(*(d - bg_rel[k])) >= MIN_SEPARATION_PX:
-                candidates.append((int(k), d - bg_rel[k], float(c[iy[j], ix[j]])))
+            r = d - bg_rel[k]
+            if np.hypot(*r) >= MIN_SEPARATION_PX:
+                candidates.append((int(k), r, float(c[iy[j], ix[j]])))
     relative = _steady_motion(candidates, reference_frame, K)
     if relative is None:
         return None, box
@@ -207,7 +222,8 @@ def _steady_motion(candidates, reference_frame: int, K: int):
     """(K, 2) displacement of the object relative to the background in each frame, from the frames' candidate
     peaks: the velocity (px per frame, relative to the background) most frames' candidates agree with within
     :data:`STEADY_TOLERANCE_PX` (each candidate proposes one), refined by least squares over those; each agreeing
-    frame keeps its own measurement, the others take the velocity's. None when fewer than two frames agree."""
+    frame keeps its own measurement, the others take the velocity's. None when fewer than two frames agree, or when
+    the velocity is above :data:`MAX_LAYER_SPEED_PX`."""
     if not candidates:
         return None
     frames = np.array([k for k, _, _ in candidates])
@@ -225,6 +241,8 @@ def _steady_motion(candidates, reference_frame: int, K: int):
         return None
     # one measurement per agreeing frame: its highest candidate near the fit
     v = np.linalg.lstsq(dt[best, None], disp[best], rcond=None)[0][0]
+    if np.hypot(*v) > MAX_LAYER_SPEED_PX:
+        return None  # faster than any layer is trusted with: likely a repeating texture one period off
     out = (np.arange(K) - reference_frame)[:, None] * v[None, :]
     for k in set(frames[best].tolist()):
         pick = np.flatnonzero(best & (frames == k))
@@ -237,11 +255,13 @@ def decode_object_layers(frames, A, estimate, y, mask, dark=None, gain=None, *, 
                          threshold: float = 0.3, min_share: float = MIN_LAYER_SHARE) -> list:
     """Decode again, with an object's own motion, the flagged regions of a globally compensated recovery.
 
-    ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (NaN and :data:`MASK_INCONSISTENT` where
-    flagged) and are updated in place: a pixel flagged inconsistent in a region takes the object's decoding where
-    the frames compensated by the object's motion agree there (its mask bit 8 cleared, bit 16 set). ``estimate``:
-    the global :class:`specgpu.pipeline.moving.MotionEstimate` (translation model; its gradient images are reused
-    where kept). Returns the :class:`ObjectLayer` of each region decoded (empty: none found).
+    ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (:data:`MASK_INCONSISTENT` where flagged)
+    and are updated in place: the object's footprint takes the object's decoding (bit 16, the object pass's own
+    mask bits; bit 8 cleared); the background it covered and the object's pixels it cannot decode are NaN with bit
+    8 (or the object pass's saturated / outside bit). Pixels flagged by the global check elsewhere keep their bit
+    8: the caller leaves them NaN. ``estimate``: the global :class:`specgpu.pipeline.moving.MotionEstimate`
+    (translation model; its gradient images are reused where kept). Returns the :class:`ObjectLayer` of each
+    region decoded (empty: none found).
     """
     frames = np.asarray(frames)
     if estimate.model != "translation":
@@ -278,16 +298,25 @@ def decode_object_layers(frames, A, estimate, y, mask, dark=None, gain=None, *, 
         if seed.sum() < MIN_SEED_SHARE * region.sum():
             continue  # the object's motion explains too little of the region to be an object's
         # less any background it took in: where the global motion makes the frames clearly agree better
-        footprint = object_footprint(seed)
-        footprint &= ~(textured_global & (wide_global >= threshold) & (wide_global - worst >= SEED_MARGIN))
-        use = footprint & valid & ~(textured & (worst < threshold))
+        hull = object_footprint(seed)
+        hull &= ~(textured_global & (wide_global >= threshold) & (wide_global - worst >= SEED_MARGIN))
+        # the seeds reach about half a window past the object's edge (their window holds its texture): the object
+        # is the hull less that rim, and a rim pixel is the object's only where its motion positively agrees
+        footprint = ndimage.binary_erosion(hull, iterations=WINDOW // 2)
+        background = estimate.shifts if estimate.shifts.shape == shifts.shape else np.zeros_like(shifts)
+        covered = occluded_by(footprint, shifts - background)
+        use = valid & ~covered & ((footprint & ~(textured & (worst < threshold))) | (hull & ~footprint & agree))
         y[use] = res.y[use]
         mask[use] = res.mask[use] | np.uint8(MASK_LAYER)
-        background = estimate.shifts if estimate.shifts.shape == shifts.shape else np.zeros_like(shifts)
-        hidden = (footprint & ~use) | occluded_by(footprint, shifts - background)
-        mask[hidden] |= np.uint8(MASK_INCONSISTENT)
+        # the object's pixels its own decoding cannot give (its frames disagree, or its pass saw a sample
+        # saturated or outside the field: that reason kept), and the background it covered in some frame
+        hidden = (footprint & ~use) | covered
+        mask[hidden] = (mask[hidden] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+        failed = footprint & ~valid & ~covered
+        mask[failed] = (mask[failed] & ~np.uint8(MASK_INCONSISTENT)) | (res.mask[failed] & np.uint8(1 | 2 | MASK_OUTSIDE))
+        y[hidden] = np.nan
         flagged = (flagged & ~use) | hidden
-        layers.append(ObjectLayer(shifts, box, int(use.sum()), int((hidden & ~footprint).sum())))
+        layers.append(ObjectLayer(shifts, box, int(use.sum()), int(covered.sum())))
     return layers
 
 
