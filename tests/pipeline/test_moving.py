@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from specgpu.calibration.bundle import oracle_calibration
+from moving_helpers import frames_of, moving_setup
+
 from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, consistency,
@@ -16,30 +16,13 @@ from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_moti
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.recovery import SequenceFolder, default_basis, recover
 from specgpu.planning.basis_plans import plan_symmetric_basis
-from specgpu.planning.registry import make_plan
-from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.motion import MotionParameters
-from specgpu.rig.twin import TwinRig
-
-CAM = CameraParameters(roi_width=320, roi_height=240, frame_rate_hz=200.0, exposure_s=0.0049)
 
 
 @pytest.fixture(scope="module")
 def setup():
-    desc = RigDescription(camera=CAM)
-    bundle = oracle_calibration(desc)
-    plan = make_plan("narrowband", bundle, step_nm=50.0, max_exposure_s=0.0049)  # 7 bands, 400-700 nm
-    return desc, bundle, plan, natural_scene(240, 320)
-
-
-def frames_of(desc, plan, scene, motion, seed=5):
-    """One sequence of ``plan`` on the moving twin, rendered frame by frame, with its truth."""
-    rig = TwinRig(plan.rig_description(replace(desc, motion=motion)), scene=scene, seed=seed)
-    rig.load_sequence(plan.patterns)
-    ts = np.arange(plan.K) * rig.frame_period_s
-    frames = np.stack([rig.render(k, k, ts[k])[0] for k in range(plan.K)])
-    return frames, rig.motion_truth(ts)
+    return moving_setup()
 
 
 @pytest.mark.parametrize("motion", [MotionParameters(velocity_px_per_frame=(3.0, 1.0)),

@@ -7,34 +7,21 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from specgpu.calibration.bundle import oracle_calibration
+from moving_helpers import frames_of, moving_setup
+
 from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving import MASK_INCONSISTENT
 from specgpu.pipeline.moving_decode import MovingDecoder
 from specgpu.pipeline.moving_layers import MASK_LAYER, flagged_regions, occluded_by, recover_moving
-from specgpu.planning.registry import make_plan
-from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.scene import SpectralScene
-from specgpu.rig.twin import TwinRig
 
-CAM = CameraParameters(roi_width=320, roi_height=240, frame_rate_hz=200.0, exposure_s=0.0049)
 OBJECT = MotionParameters(object="colorchecker", object_velocity_px_per_frame=(3.0, 0.0), object_size_px=(100, 140))
 
 
 @pytest.fixture(scope="module")
 def setup():
-    desc = RigDescription(camera=CAM)
-    bundle = oracle_calibration(desc)
-    plan = make_plan("narrowband", bundle, step_nm=50.0, max_exposure_s=0.0049)  # 7 bands, 400-700 nm
-    return desc, bundle, plan, natural_scene(240, 320)
-
-
-def frames_of(desc, plan, scene, motion, seed=5):
-    rig = TwinRig(plan.rig_description(replace(desc, motion=motion)), scene=scene, seed=seed)
-    rig.load_sequence(plan.patterns)
-    ts = np.arange(plan.K) * rig.frame_period_s
-    return np.stack([rig.render(k, k, ts[k])[0] for k in range(plan.K)]), rig.motion_truth(ts)
+    return moving_setup()
 
 
 @pytest.fixture(scope="module")
