@@ -128,13 +128,21 @@ def test_the_coarse_flow_of_a_translation_is_that_translation(setup):
     assert np.median(err) < 0.05 and np.percentile(err, 95) < 0.3  # an 80 x 80 px tile: a few tenths at worst
 
 
-def test_the_check_on_the_estimates_own_gradient_images_is_the_check_on_fresh_ones(setup):
+@pytest.fixture(scope="module")
+def chart_over_drift(setup):
+    """A chart moving 3 px/frame over a scene drifting (1, 0.5) px/frame (it occludes and uncovers the background):
+    the frames, dark, flat field and global estimate."""
     desc, bundle, plan, scene = setup
     m = MotionParameters(velocity_px_per_frame=(1.0, 0.5), object="colorchecker",
                          object_velocity_px_per_frame=(3.0, 0.0))
     frames, _ = frames_of(desc, plan, scene, m)
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
-    est = estimate_global_motion(frames, dark, gain)
+    return frames, dark, gain, estimate_global_motion(frames, dark, gain)
+
+
+def test_the_check_on_the_estimates_own_gradient_images_is_the_check_on_fresh_ones(setup, chart_over_drift):
+    _, bundle, plan, _ = setup
+    frames, dark, gain, est = chart_over_drift
     assert len(est.gradients) == plan.K and all(g.shape == (240, 320) for g in est.gradients)
     reused = inconsistent_pixels(frames, est.shifts, dark, gain, gradients=est.gradients)
     fresh = inconsistent_pixels(frames, est.shifts, dark, gain)
@@ -145,16 +153,11 @@ def test_the_check_on_the_estimates_own_gradient_images_is_the_check_on_fresh_on
     assert res.estimates[0].gradients is None  # not kept with the result
 
 
-def test_the_device_check_flags_what_the_scipy_check_flags_around_an_occluding_object(setup):
+def test_the_device_check_flags_what_the_scipy_check_flags_around_an_occluding_object(chart_over_drift):
     """The consistency check runs on the device for translations; on a chart moving over a moving scene (it
     occludes and uncovers the background) its maps are those of the straightforward SciPy computation
     (map_coordinates, median, uniform_filter) on the same gradient images, to float32 rounding."""
-    desc, bundle, plan, scene = setup
-    m = MotionParameters(velocity_px_per_frame=(1.0, 0.5), object="colorchecker",
-                         object_velocity_px_per_frame=(3.0, 0.0))
-    frames, _ = frames_of(desc, plan, scene, m)
-    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
-    est = estimate_global_motion(frames, dark, gain)
+    frames, dark, gain, est = chart_over_drift
     textured, worst = consistency(frames, est.shifts, dark, gain, gradients=est.gradients)
     want_textured, want_worst = consistency_maps_numpy(np.stack(est.gradients), est.shifts)
     flagged = textured & (worst < 0.3)
