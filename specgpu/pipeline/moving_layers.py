@@ -27,12 +27,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import fft, ndimage
+from scipy import ndimage
 from skimage.morphology import convex_hull_image
 
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
-from specgpu.pipeline.moving import (MASK_INCONSISTENT, _whitened, consistency, estimate_global_motion,
-                                     gradient_image, hann, inconsistent_pixels)
+from specgpu.pipeline.moving import (MASK_INCONSISTENT, consistency, estimate_global_motion, gradient_image,
+                                     inconsistent_pixels)
+from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
 __all__ = ["MASK_LAYER", "ObjectLayer", "MovingRecovery", "flagged_regions", "estimate_layer_motion",
            "object_footprint", "occluded_by", "decode_object_layers", "recover_moving"]
@@ -142,22 +143,6 @@ def occluded_by(footprint, relative) -> np.ndarray:
     return hidden & ~np.asarray(footprint, bool)
 
 
-def _gaussian_peak(c: np.ndarray, y: int, x: int) -> np.ndarray:
-    """Sub-pixel (y, x) of the peak of the periodic surface ``c`` at integer (y, x): a Gaussian through the peak and
-    its two neighbours on each axis (a parabola where a value is not positive)."""
-    h, w = c.shape
-    out = []
-    for axis, (i, n) in enumerate(((y, h), (x, w))):
-        lo = c[(y - 1) % h, x] if axis == 0 else c[y, (x - 1) % w]
-        hi = c[(y + 1) % h, x] if axis == 0 else c[y, (x + 1) % w]
-        mid = c[y, x]
-        if min(lo, mid, hi) > 0:
-            lo, mid, hi = np.log(lo), np.log(mid), np.log(hi)
-        den = lo - 2.0 * mid + hi
-        out.append(i + (0.5 * (lo - hi) / den if den < 0 else 0.0))
-    return np.asarray(out)
-
-
 def estimate_layer_motion(gradients, region, background, reference_frame: int, usable, *, cutoff: float = 0.12,
                           margin: int = 16):
     """The object's displacement per frame relative to the reference frame, or None where none stands out; and the
@@ -187,7 +172,7 @@ def estimate_layer_motion(gradients, region, background, reference_frame: int, u
     x0, x1 = max(int(xs.min()) - margin, 0), min(int(xs.max()) + 1 + margin, w)
     box = (y0, y1, x0, x1)
     weight = ndimage.gaussian_filter(region[y0:y1, x0:x1].astype(np.float32), 2.0)
-    ref = _whitened(hann(gradients[reference_frame][y0:y1, x0:x1] * weight), cutoff)
+    ref = whitened_half_spectrum(gradients[reference_frame][y0:y1, x0:x1] * weight, cutoff)
     ch, cw = y1 - y0, x1 - x0
     yy = np.fft.fftfreq(ch, 1.0 / ch)[:, None]
     xx = np.fft.fftfreq(cw, 1.0 / cw)[None, :]
@@ -197,19 +182,16 @@ def estimate_layer_motion(gradients, region, background, reference_frame: int, u
     for k in np.flatnonzero(usable):
         if k == reference_frame:
             continue
-        mov = _whitened(hann(gradients[k][y0:y1, x0:x1]), cutoff)
-        c = np.real(fft.ifft2(ref * np.conj(mov)))
-        # the peak of a content displaced by d is at -d (mod the crop); the background's is where its displacement
-        # puts it, and the object's is among the highest other local maxima
+        c = correlation_surface(ref, whitened_half_spectrum(gradients[k][y0:y1, x0:x1], cutoff), (ch, cw))
+        # the surface peaks at the displacement of each content: the background's where its displacement puts it,
+        # and the object's among the highest other local maxima
         bx, by = bg_rel[k]
-        near_bg = ((yy + by + ch / 2) % ch - ch / 2) ** 2 + ((xx + bx + cw / 2) % cw - cw / 2) ** 2 <= 2.25
+        near_bg = ((yy - by + ch / 2) % ch - ch / 2) ** 2 + ((xx - bx + cw / 2) % cw - cw / 2) ** 2 <= 2.25
         bg_peak = float(c[near_bg].max()) if near_bg.any() else 0.0
         peaks = (c == ndimage.maximum_filter(c, size=3, mode="wrap")) & ~near_bg & (c >= MIN_PEAK_SHARE * bg_peak)
         iy, ix = np.nonzero(peaks)
         for j in np.argsort(c[iy, ix])[::-1][:CANDIDATES]:
-            sy, sx = _gaussian_peak(c, int(iy[j]), int(ix[j]))
-            d = -np.array([(sx + cw / 2) % cw - cw / 2, (sy + ch / 2) % ch - ch / 2])
-            r = d - bg_rel[k]
+            r = peak_at(c, int(iy[j]), int(ix[j])) - bg_rel[k]
             if np.hypot(*r) >= MIN_SEPARATION_PX:
                 candidates.append((int(k), r, float(c[iy[j], ix[j]])))
     relative = _steady_motion(candidates, reference_frame, K)

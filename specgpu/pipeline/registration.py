@@ -29,7 +29,7 @@ import numpy as np
 from scipy import fft
 
 __all__ = ["sobel_magnitude", "bin_image", "hann_window", "frequency_weight", "whitened_half_spectrum",
-           "correlation_surface", "fit_peak", "second_peak_ratio", "tile_displacements"]
+           "correlation_surface", "fit_peak", "peak_at", "second_peak_ratio", "tile_displacements"]
 
 
 def sobel_magnitude(image: np.ndarray) -> np.ndarray:
@@ -133,15 +133,18 @@ def _vertex(left: float, centre: float, right: float) -> float:
 def fit_peak(surface: np.ndarray) -> tuple[np.ndarray, float]:
     """(x, y) of the highest peak of a periodic correlation surface, sub-pixel by a Gaussian through the three
     samples across it along each axis, in [-N/2, N/2) px; and the peak's value."""
+    y, x = divmod(int(np.argmax(surface)), surface.shape[1])
+    return peak_at(surface, y, x), float(surface[y, x])
+
+
+def peak_at(surface: np.ndarray, y: int, x: int) -> np.ndarray:
+    """(x, y) of the peak of a periodic correlation surface whose top sample is at row ``y``, column ``x``,
+    sub-pixel as :func:`fit_peak` locates it, in [-N/2, N/2) px."""
     h, w = surface.shape
-    i = int(np.argmax(surface))
-    y, x = divmod(i, w)
     c = float(surface[y, x])
     dy = _vertex(float(surface[(y - 1) % h, x]), c, float(surface[(y + 1) % h, x]))
     dx = _vertex(float(surface[y, (x - 1) % w]), c, float(surface[y, (x + 1) % w]))
-    px = (x + w // 2) % w - w // 2 + dx
-    py = (y + h // 2) % h - h // 2 + dy
-    return np.array([px, py], np.float64), c
+    return np.array([(x + w // 2) % w - w // 2 + dx, (y + h // 2) % h - h // 2 + dy], np.float64)
 
 
 def _circular_max(a: np.ndarray, start: int, length: int, axis: int) -> float:
