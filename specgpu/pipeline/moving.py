@@ -42,7 +42,7 @@ from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_p
                                            sobel_magnitude, tile_displacements, whitened_half_spectrum)
 from specgpu.rig.twin import TwinRig
 
-__all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "consistency", "MOTION_MODES", "MotionEstimate", "check_motion_mode", "estimate_global_motion",
+__all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD", "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode", "estimate_global_motion",
            "registration_image", "truth_recorder", "TRUTH_FOLDER"]
 
 #: How frames are decoded with respect to motion: as they are, or compensated for a global translation per frame.
@@ -362,37 +362,35 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
             keep &= ~bad
         raw[others] = sol
     error = np.array([np.mean(errs[k]) if k in errs else np.nan for k in range(K)])
-    # the reference time is the mean of the frames' times: the middle frame's for odd K, half-way between the
-    # middle two for even K
-    mid = (K - 1) / 2.0
-    lo, hi = int(np.floor(mid)), int(np.ceil(mid))
+    # displacements from the reference time (at_reference_time: the mean of the frames' times)
     if model == "flow":
-        return MotionEstimate(_flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, flow_tiles, usable,
-                                          lo, hi), usable, error, int(reference_frame), model)
+        return MotionEstimate(_flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, flow_tiles, usable),
+                              usable, error, int(reference_frame), model)
     if model == "translation":
         if robust:
             reference_tiles = {}
             # with the fitted peak, only where some frame's whole-image peak has a rival: then every frame, since a
             # second motion is the scene's, not one frame's (an object's peak can fall just below the threshold in
-            # the frame where it is nearest the background's, and take that frame's estimate over)
+            # the frame where it is nearest the background's, and take that frame's estimate over); and a frame
+            # never correlated with the reference frame, whose peak was not looked at
             rival = max(ambiguity.values(), default=0.0) > ambiguous
             for k in idx:
-                if k != reference_frame and (not fit or rival or ambiguity.get(int(k), 1.0) > ambiguous):
+                if k != reference_frame and (not fit or rival or int(k) not in ambiguity):
                     raw[k] = _dominant_translation(gradient(reference_frame), gradient(int(k)), raw[k], upsample,
                                                    cutoff, tiles, reference_tiles if fit else None)
         raw = _fill_in_time(raw, usable)
-        return MotionEstimate(raw - 0.5 * (raw[lo] + raw[hi]), usable, error, int(reference_frame), model,
+        return MotionEstimate(raw - at_reference_time(raw), usable, error, int(reference_frame), model,
                               kept_gradients())
     maps = np.tile(np.eye(3), (K, 1, 1))
     for k in idx:
         if k != reference_frame:
             maps[k] = _affine_to(gradient(reference_frame), gradient(int(k)), raw[k], upsample, cutoff, tiles)
     maps = _fill_in_time(maps, usable)
-    to_mid = np.linalg.inv(0.5 * (maps[lo] + maps[hi]))
+    to_mid = np.linalg.inv(at_reference_time(maps))
     return MotionEstimate((maps @ to_mid)[:, :2, :], usable, error, int(reference_frame), model, kept_gradients())
 
 
-def _flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, tiles, usable, lo, hi) -> np.ndarray:
+def _flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, tiles, usable) -> np.ndarray:
     """(K, 2, H, W) displacement per pixel and frame from the reference time: each frame's tiles registered to the
     reference frame's around the frame's global translation (a tile off the field, or one whose correlation error
     is above :data:`FLOW_MAX_ERROR`, a weak peak, keeps the global translation),
@@ -412,7 +410,7 @@ def _flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, tiles, us
         for c, d in zip(src, dst - src):
             grids[k, :, int(round((c[1] - (th - 1) / 2.0) / th)), int(round((c[0] - (tw - 1) / 2.0) / tw))] = d
     grids = _fill_in_time(grids, usable)
-    grids = grids - 0.5 * (grids[lo] + grids[hi])
+    grids = grids - at_reference_time(grids)
     yy = (np.arange(h) - (th - 1) / 2.0) / th
     xx = (np.arange(w) - (tw - 1) / 2.0) / tw
     coords = np.meshgrid(yy, xx, indexing="ij")
@@ -421,6 +419,22 @@ def _flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, tiles, us
         for c in range(2):
             out[k, c] = ndimage.map_coordinates(grids[k, c], coords, order=1, mode="nearest")
     return out
+
+
+def at_reference_time(values: np.ndarray) -> np.ndarray:
+    """The value at a sequence's reference time of per-frame ``values`` (K, ...): the middle frame's for odd K, the
+    mean of the middle two frames' for even K (the mean of the frames' times)."""
+    mid = (len(values) - 1) / 2.0
+    return 0.5 * (values[int(np.floor(mid))] + values[int(np.ceil(mid))])
+
+
+def frame_gradients(frames, dark=None, gain=None, gradients=None) -> list:
+    """Each frame's :func:`gradient_image`, taking those already made (``gradients``: a sequence with None where
+    one is to be made, or None)."""
+    dark = None if dark is None else np.asarray(dark, np.float32)
+    return [gradients[k] if gradients is not None and gradients[k] is not None else
+            gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
+            for k in range(len(frames))]
 
 
 def _fill_in_time(values: np.ndarray, usable: np.ndarray) -> np.ndarray:
@@ -517,11 +531,14 @@ def _affine_to(g_ref: np.ndarray, g_k: np.ndarray, shift, upsample: int, cutoff:
 #: structure that differs between the two illuminants); it keeps its frame's global translation.
 FLOW_MAX_ERROR = 0.95
 
+#: A pixel is inconsistent where some frame correlates below this with the median (:func:`inconsistent_pixels`).
+CHECK_THRESHOLD = 0.3
+
 #: Mask bit of a pixel whose compensated frames disagree (an object moving on its own, an occlusion).
 MASK_INCONSISTENT = 8
 
 
-def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9, threshold: float = 0.3,
+def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9, threshold: float = CHECK_THRESHOLD,
                         texture: float = 0.5, own: float = 4.0, gradients=None) -> np.ndarray:
     """(H, W) bool: pixels where the motion-compensated frames disagree, so their decoded spectrum would mix
     surfaces.
@@ -547,12 +564,7 @@ def consistency(frames, shifts, dark=None, gain=None, *, window: int = 9, textur
     cross-correlation of a frame with structure of its own against that median; 1 where none has). Two
     hypotheses of a pixel's motion are compared by their ``worst``. The per-pixel work runs on the default OpenCL
     device for translations and affine maps (:func:`specgpu.engine.consistency.consistency_maps`)."""
-    frames = np.asarray(frames)
-    K = frames.shape[0]
-    dark = None if dark is None else np.asarray(dark, np.float32)
-    g = [gradients[k] if gradients is not None and gradients[k] is not None else
-         gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
-         for k in range(K)]
+    g = frame_gradients(np.asarray(frames), dark, gain, gradients)
     # on the device for translations and affine maps (kernels/consistency.cl), in SciPy for a flow
     return consistency_maps(g, shifts, window=window, texture=texture, own=own)
 

@@ -3,7 +3,7 @@
 ``specgpu recover --motion`` decodes one sequence of a moving scene through :func:`specgpu.pipeline.moving_layers.recover_moving`:
 the frames corrected as recover corrects them (the sensor's linearisation, the per-pattern flat ratio), each
 frame's displacement estimated within the sequence, one warped device pass, the pixels seen outside the field or
-whose compensated frames disagree left NaN with their mask bits. :class:`MovingDecoder` runs exactly that on each
+whose compensated frames disagree left NaN with their mask bits. :class:`MovingDecoder` calls it on each
 sequence of a batch or a stream, with every linear output the caller asks for (basis coefficients, the cube, XYZ)
 stacked as rows of one decoder, so the estimate and the warped pass are made once per sequence; Lab and dE follow
 from XYZ as the offline path computes them (:func:`specgpu.pipeline.recovery.to_Lab`, ``delta_E``).
@@ -17,15 +17,13 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import replace
 
 import numpy as np
 
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E
-from specgpu.engine.warp_map import apply_linear_warped
-from specgpu.pipeline.moving import MASK_INCONSISTENT, check_motion_mode, estimate_global_motion, inconsistent_pixels
-from specgpu.pipeline.moving_layers import decode_object_layers
+from specgpu.pipeline.moving import check_motion_mode
+from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.recovery import corrected_signal
 from specgpu.planning.correction import ambient_index
 
@@ -121,8 +119,8 @@ class MovingDecoder:
         if {"XYZ", "Lab", "dE"} & set(self.outputs):
             add("XYZ", plan.outputs_to_XYZ(self.illuminant, self.observer) @ A)
         self.matrix = np.vstack(rows)
-        #: host seconds spent so far in each step (estimate, warped pass, consistency check, colour), and the
-        #: sequences decoded: where a moving stream's time goes
+        #: host seconds spent so far in each step (estimate, warped pass, consistency check with the object
+        #: layers, colour), and the sequences decoded: where a moving stream's time goes
         self.seconds = dict.fromkeys(("estimate", "warp", "check", "colour"), 0.0)
         self.sequences = 0
         self._lock = threading.Lock()  # decode may run on several threads at once (the stream's)
@@ -141,19 +139,12 @@ class MovingDecoder:
         the field, 8 inconsistent, 16 decoded with an object's own motion), NaN where masked; ``estimate``: the
         sequence's :class:`specgpu.pipeline.moving.MotionEstimate`; ``layers``: its
         :class:`specgpu.pipeline.moving_layers.ObjectLayer` list."""
-        # the steps of specgpu.pipeline.moving.recover_moving, with its defaults, each timed
-        frames, gain = self.frames(raw), self.calibration.flat_field
-        t0 = time.perf_counter()
-        est = estimate_global_motion(frames, self.dark, gain, model=self.model)
-        t1 = time.perf_counter()
-        res = apply_linear_warped(frames, self.matrix, est.shifts, self.dark, gain,
-                                  saturation=float(self.calibration.max_code), return_mask=True, device=self.device)
-        t2 = time.perf_counter()
-        y, mask = res.y, res.mask
-        mask[inconsistent_pixels(frames, est.shifts, self.dark, gain, gradients=est.gradients)] |= MASK_INCONSISTENT
-        layers = decode_object_layers(frames, self.matrix, est, y, mask, self.dark, gain,
-                                      saturation=float(self.calibration.max_code), device=self.device)
-        y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
+        frames = self.frames(raw)
+        steps = {}
+        rec = recover_moving(frames, self.matrix, dark=self.dark, gain=self.calibration.flat_field,
+                             saturation=float(self.calibration.max_code), model=self.model, device=self.device,
+                             seconds=steps)
+        y, mask, est = rec.y, rec.mask, rec.estimates[0]
         t3 = time.perf_counter()
         out = {}
         for name, rows in self.slices.items():
@@ -170,8 +161,7 @@ class MovingDecoder:
         if "XYZ" not in self.outputs:
             out.pop("XYZ", None)
         with self._lock:
-            for step, seconds in zip(self.seconds, (t1 - t0, t2 - t1, t3 - t2, time.perf_counter() - t3)):
+            for step, seconds in {**steps, "colour": time.perf_counter() - t3}.items():
                 self.seconds[step] += seconds
             self.sequences += 1
-        return {**{name: out[name] for name in self.outputs}, "mask": mask,
-                "estimate": replace(est, gradients=None), "layers": layers}  # the images served the check; not kept with a result
+        return {**{name: out[name] for name in self.outputs}, "mask": mask, "estimate": est, "layers": rec.layers}  # the images served the check; not kept with a result

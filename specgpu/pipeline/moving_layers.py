@@ -24,6 +24,7 @@ Pixels decoded with an object's motion carry :data:`MASK_LAYER` in the mask.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -31,8 +32,8 @@ from scipy import ndimage
 from skimage.morphology import convex_hull_image
 
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
-from specgpu.pipeline.moving import (MASK_INCONSISTENT, consistency, estimate_global_motion, gradient_image,
-                                     inconsistent_pixels)
+from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency, estimate_global_motion,
+                                     frame_gradients)
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
 __all__ = ["MASK_LAYER", "ObjectLayer", "MovingRecovery", "flagged_regions", "estimate_layer_motion",
@@ -233,8 +234,8 @@ def _steady_motion(candidates, reference_frame: int, K: int):
     return out
 
 
-def decode_object_layers(frames, A, estimate, y, mask, dark=None, gain=None, *, saturation=None, device=None,
-                         threshold: float = 0.3, min_share: float = MIN_LAYER_SHARE) -> list:
+def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=None, *, saturation=None, device=None,
+                         threshold: float = CHECK_THRESHOLD, min_share: float = MIN_LAYER_SHARE) -> list:
     """Decode again, with an object's own motion, the flagged regions of a globally compensated recovery.
 
     ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (:data:`MASK_INCONSISTENT` where flagged)
@@ -242,46 +243,39 @@ def decode_object_layers(frames, A, estimate, y, mask, dark=None, gain=None, *, 
     mask bits; bit 8 cleared); the background it covered and the object's pixels it cannot decode are NaN with bit
     8 (or the object pass's saturated / outside bit). Pixels flagged by the global check elsewhere keep their bit
     8: the caller leaves them NaN. ``estimate``: the global :class:`specgpu.pipeline.moving.MotionEstimate`
-    (translation model; its gradient images are reused where kept). Returns the :class:`ObjectLayer` of each
-    region decoded (empty: none found).
+    (translation model; its gradient images are reused where kept); ``check``: the (textured, worst) maps of the
+    global motion's :func:`~specgpu.pipeline.moving.consistency`, whose flags ``mask`` holds. Returns the
+    :class:`ObjectLayer` of each region decoded (empty: none found).
     """
     frames = np.asarray(frames)
     if estimate.model != "translation":
         return []
-    K = frames.shape[0]
-    dark = None if dark is None else np.asarray(dark, np.float32)
     flagged = (mask & MASK_INCONSISTENT) > 0
     regions = flagged_regions(flagged, min_share=min_share)
     if not regions:
         return []
-    kept = estimate.gradients or (None,) * K
-    gradients = [kept[k] if kept[k] is not None else
-                 gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
-                 for k in range(K)]
-    mid = (K - 1) / 2.0
-    lo, hi = int(np.floor(mid)), int(np.ceil(mid))
-    layers, wide_global = [], None
+    gradients = frame_gradients(frames, dark, gain, estimate.gradients)
+    textured_global, worst_global = check
+    layers = []
     for region in regions:
         raw, box = estimate_layer_motion(gradients, region, estimate.shifts, estimate.reference_frame,
                                          estimate.registered)
         if raw is None:
             continue
-        shifts = raw - 0.5 * (raw[lo] + raw[hi])
+        shifts = raw - at_reference_time(raw)
         res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True,
                                   device=device)
         textured, worst = consistency(frames, shifts, dark, gain, gradients=gradients)
         valid = (res.mask & (1 | 2 | MASK_OUTSIDE)) == 0
-        if wide_global is None:
-            textured_global, wide_global = consistency(frames, estimate.shifts, dark, gain, gradients=gradients)
         # the object's pixels: its motion makes the frames agree there, and clearly better than the global one
         # (or where it makes a pixel the global motion left flagged agree)
         agree = valid & textured & (worst >= threshold)
-        seed = agree & ((worst - wide_global >= SEED_MARGIN) | (region & flagged))
+        seed = agree & ((worst - worst_global >= SEED_MARGIN) | (region & flagged))
         if seed.sum() < MIN_SEED_SHARE * region.sum():
             continue  # the object's motion explains too little of the region to be an object's
         # less any background it took in: where the global motion makes the frames clearly agree better
         hull = object_footprint(seed)
-        hull &= ~(textured_global & (wide_global >= threshold) & (wide_global - worst >= SEED_MARGIN))
+        hull &= ~(textured_global & (worst_global >= threshold) & (worst_global - worst >= SEED_MARGIN))
         # the seeds reach about half a window past the object's edge (their window holds its texture): the object
         # is the hull less that rim, and a rim pixel is the object's only where its motion positively agrees
         footprint = ndimage.binary_erosion(hull, iterations=WINDOW // 2)
@@ -315,7 +309,7 @@ class MovingRecovery:
 
 def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 10, binning: int = 1,
                    shifts=None, model: str = "translation", check: bool = True, layers: bool = True,
-                   device=None) -> MovingRecovery:
+                   device=None, seconds: dict | None = None) -> MovingRecovery:
     """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
     with frame k sampled at x + d_k in one device pass.
 
@@ -336,7 +330,10 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         With ``check`` and an estimated translation per frame: decode the flagged regions again with an object's own
         motion where one stands out (:func:`decode_object_layers`).
     device : optional
-        OpenCL device selector.
+        OpenCL device selector (or queue).
+    seconds : dict, optional
+        Host seconds of each step (``"estimate"``, ``"warp"``, ``"check"``: the check, the layers and the NaN)
+        added to it.
 
     Returns
     -------
@@ -345,19 +342,30 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         ``mask`` (H, W) uint8 (1 saturated, 2 non-finite, 4 outside the field, 8 inconsistent, 16 decoded with an
         object's own motion); ``estimates`` [MotionEstimate] (empty with ``shifts``); ``layers`` [ObjectLayer].
     """
+    clock = [time.perf_counter()]
+
+    def lap(step):  # host seconds of each step, added to ``seconds``
+        clock.append(time.perf_counter())
+        if seconds is not None:
+            seconds[step] = seconds.get(step, 0.0) + clock[-1] - clock[-2]
+
     est, gradients = None, None
     if shifts is None:
         est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model)
         gradients = est.gradients
         shifts = est.shifts
+    lap("estimate")
     res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True, device=device)
     y, mask = res.y, res.mask
+    lap("warp")
     found = []
     if check:
-        bad = inconsistent_pixels(frames, shifts, dark, gain, gradients=gradients)
-        mask[bad] |= MASK_INCONSISTENT
+        maps = consistency(frames, shifts, dark, gain, gradients=gradients)
+        mask[maps[0] & (maps[1] < CHECK_THRESHOLD)] |= MASK_INCONSISTENT
         if layers and est is not None:
-            found = decode_object_layers(frames, A, est, y, mask, dark, gain, saturation=saturation, device=device)
+            found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
+                                         device=device)
     y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
+    lap("check")
     # the gradient images served the check and the layers; not kept with a result
     return MovingRecovery(y, mask, [] if est is None else [replace(est, gradients=None)], found)
