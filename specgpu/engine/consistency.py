@@ -156,11 +156,8 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
 
     def launch(name, columns, *args, strips=False):
         kernel = get_kernel(queue, "consistency.cl", name, **macros)
-        items = -(-columns // 8)
-        with kernels._launch_lock:
-            kernel.set_args(*args, *dims)
-            cl.enqueue_nd_range_kernel(queue, kernel, (-(-items // _GROUP) * _GROUP, -(-h // _ROWS) if strips else h),
-                                       (_GROUP, 1))
+        kernels.launch_range(queue, kernel, (-(-columns // 8), -(-h // _ROWS) if strips else h), (_GROUP, 1), *args,
+                             *dims)
 
     launch("consistency_align", padded, grads.data, motion_dev.data, aligned.data)
     launch("consistency_rows", stride, aligned.data, rows.data)

@@ -14,11 +14,10 @@ pixel) spreads to the outputs whose windows hold it.
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 import pyopencl.array as cla
 
 from specgpu.core.validate import check_number
-from specgpu.engine.kernels import _empty, _launch_lock, to_device
+from specgpu.engine.kernels import _empty, launch_range, to_device
 from specgpu.engine.runtime import get_kernel, get_queue
 
 __all__ = ["guided_filter", "box_box_variance", "flat_variance_reduction"]
@@ -33,10 +32,7 @@ def _run(queue, name, shape, *args):
     kernel = get_kernel(queue, "guided.cl", name)
     c = min(_GROUP, shape[0])
     local = (c, max(1, _GROUP // c)) + (1,) * (len(shape) - 2)
-    glob = tuple(-(-n // l) * l for n, l in zip(shape, local))
-    with _launch_lock:
-        kernel.set_args(*args)
-        return cl.enqueue_nd_range_kernel(queue, kernel, glob, local)
+    return launch_range(queue, kernel, shape, local, *args)
 
 
 def _box(queue, src, H, W, C, r, keep):

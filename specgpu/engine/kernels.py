@@ -80,6 +80,16 @@ def pixel_map(queue, a, name: str, spatial: tuple, planes: int | None):
     return to_device(queue, a.reshape(-1)), per_plane
 
 
+def launch_range(queue, kernel, shape: tuple, local: tuple, *args):
+    """Enqueue ``kernel`` with ``args`` over the range ``shape`` in work-groups of ``local``, the range padded to a
+    multiple of it (the extra work-items return at once); arguments set and enqueued under one lock (a Kernel's
+    arguments are shared by every thread)."""
+    glob = tuple(-(-int(n) // int(g)) * int(g) for n, g in zip(shape, local))
+    with _launch_lock:
+        kernel.set_args(*args)
+        return cl.enqueue_nd_range_kernel(queue, kernel, glob, tuple(local))
+
+
 def _launch(queue, kernel, n_pixels: int, *args, pixels_per_item: int = VW):
     items = -(-n_pixels // pixels_per_item)
     # A fixed work-group size on every device: on GPUs for occupancy, on CPU devices because PoCL sizes groups

@@ -10,7 +10,6 @@ sample point of some frame falls outside the field are NaN and flagged (``MASK_O
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 
 from specgpu.core.validate import check_frames, check_level, check_matrix, validate_method
 from specgpu.engine import kernels
@@ -124,10 +123,7 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
     if translate:
         # translations: 8 pixels of a row per work-item, the frames read as vectors
         translate = get_kernel(queue, "warp.cl", "linear_warp_translate", **macros)
-        items = -(-w // 8)
-        with kernels._launch_lock:
-            translate.set_args(*args)
-            cl.enqueue_nd_range_kernel(queue, translate, (-(-items // _ROW_GROUP) * _ROW_GROUP, h), (_ROW_GROUP, 1))
+        kernels.launch_range(queue, translate, (-(-w // 8), h), (_ROW_GROUP, 1), *args)
     elif n:
         kernels._launch(queue, kernel, n, *args, pixels_per_item=1)
     if interleaved:
