@@ -38,7 +38,7 @@ from threadpoolctl import ThreadpoolController
 from specgpu.core.validate import validate_method
 from specgpu.engine.consistency import consistency_maps
 from specgpu.io.npz import write_cube_npz
-from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_peak, second_peak_ratio,
+from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_peak, hann_window, second_peak_ratio,
                                            sobel_magnitude, tile_displacements, whitened_half_spectrum)
 from specgpu.rig.twin import TwinRig
 
@@ -116,10 +116,9 @@ def gradient_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarr
 
 
 def hann(image: np.ndarray) -> np.ndarray:
-    """``image`` under a 2-D Hann window (phase correlation assumes periodic images)."""
-    wy = np.hanning(image.shape[0]).astype(np.float32)
-    wx = np.hanning(image.shape[1]).astype(np.float32)
-    return image * wy[:, None] * wx[None, :]
+    """``image`` under a 2-D Hann window (:func:`specgpu.pipeline.registration.hann_window`; phase correlation
+    assumes periodic images)."""
+    return image * hann_window(image.shape)
 
 
 def registration_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarray:
