@@ -401,7 +401,7 @@ class Stream:
                         arrivals.pop(fid, None)
                 if seq is None:
                     continue
-                pending.append(self._submit(index, seq, arrival))
+                pending.append(self._submit(index, seq, arrival, pending))
                 index += 1
                 while len(pending) > self.in_flight:
                     self._complete(pending.popleft())
@@ -417,14 +417,21 @@ class Stream:
         finally:
             self._done.put(None)
 
-    def _acquire_token(self):
-        while not self._tokens.acquire(timeout=0.05):
+    def _acquire_token(self, pending):
+        """A result buffer for the next sequence. The tokens come back only once the sinks have a result, so while
+        none is free the results still on the device (``pending``, oldest first) are completed and handed to them:
+        a sequence assembled from frames already waiting in the ring, before the previous one's events finished,
+        would otherwise wait for a token that only that previous result frees (with one result buffer, a hang)."""
+        while not self._tokens.acquire(timeout=0.0 if pending else 0.05):
+            if pending:
+                self._complete(pending.popleft())
+                continue
             self._recycle_done()
             if self._errors:
                 raise RuntimeError("stream: stopped on an error while waiting for a result buffer")
 
-    def _submit(self, index: int, seq, arrival) -> _InFlight:
-        self._acquire_token()  # a slow sink holds every buffer: wait here, and the frame ring's policy acts
+    def _submit(self, index: int, seq, arrival, pending) -> _InFlight:
+        self._acquire_token(pending)  # a slow sink holds every buffer: wait here, and the frame ring's policy acts
         if self.moving is not None:  # estimated and decoded now: the maps come back as host arrays
             return _InFlight(index, seq, arrival if arrival is not None else time.perf_counter(), {}, {}, [],
                              [seq], decoding=self._motion_pool.submit(self.moving.decode, seq.frames))

@@ -224,6 +224,26 @@ def test_stop_mid_sequence_reports_the_partial_one(setup):
     assert report.accounting()["balanced"]
 
 
+def test_one_result_buffer_never_hangs_when_frames_are_waiting(setup):
+    """Recorded frames replayed as fast as they are read, one result buffer: the next sequence is assembled from
+    frames already in the ring before the previous one's device work has finished. Its token comes back only once
+    that previous result reaches the sinks, so the device thread hands it over instead of waiting for it."""
+    from specgpu.capture.replay import ReplayDriver
+
+    done = {}
+
+    def run():
+        done["report"] = Stream(ReplayDriver(setup.frames, setup.infos, setup.light, loops=4), setup.plan,
+                                setup.bundle, outputs=("cube", "XYZ"), policy="block", result_buffers=1,
+                                in_flight=1, n_slots=4 * setup.plan.K).run()
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(120)
+    assert not thread.is_alive(), "the stream hung waiting for a result buffer"
+    assert done["report"].sequences_out == 16 and done["report"].accounting()["balanced"]
+
+
 def test_a_failing_sink_stops_the_stream_and_is_reported(setup):
     calls = []
 
