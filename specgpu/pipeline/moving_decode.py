@@ -120,7 +120,8 @@ class MovingDecoder:
             add("cube", A)
         if {"XYZ", "Lab", "dE"} & set(self.outputs):
             add("XYZ", plan.outputs_to_XYZ(self.illuminant, self.observer) @ A)
-        self.matrix = np.vstack(rows)
+        # sigma_rms alone: the pass still decodes the plan's outputs (its mask says which pixels have samples)
+        self.matrix = np.vstack(rows) if rows else A
         if "sigma_rms" in self.outputs:
             if "noise" not in plan.params:
                 raise ValueError(f"the {plan.method} plan records no noise model, so it has no sigma; re-plan it "

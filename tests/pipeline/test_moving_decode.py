@@ -239,8 +239,12 @@ def test_sigma_rms_with_motion_bounds_the_noise_of_the_compensated_cube(moving):
     _, plan, bundle, _, _ = moving
     desc = RigDescription(camera=CAM, motion=MOTION)
     dec = MovingDecoder(plan, bundle, ("cube", "sigma_rms"), mode="global")
-    draws = [dec.decode(capture_plan(desc, plan, natural_scene(240, 320), noise_seed=seed,
-                                     calibration=bundle).sequences[0].frames) for seed in (11, 12)]
+    frames = [capture_plan(desc, plan, natural_scene(240, 320), noise_seed=seed, calibration=bundle).sequences[0].frames
+              for seed in (11, 12)]
+    draws = [dec.decode(f) for f in frames]
+    alone = MovingDecoder(plan, bundle, ("sigma_rms",), mode="global").decode(frames[0])
+    assert set(alone) == {"sigma_rms", "mask", "estimate", "layers"}
+    np.testing.assert_array_equal(alone["sigma_rms"], draws[0]["sigma_rms"])
     a, b = (np.asarray(d["cube"], np.float64) for d in draws)
     sigma = np.asarray(draws[0]["sigma_rms"], np.float64)
     np.testing.assert_array_equal(np.isnan(sigma), np.isnan(a[..., 0]))
