@@ -34,6 +34,7 @@ from skimage.morphology import convex_hull_image
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
 from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency, estimate_global_motion,
                                      frame_gradients)
+from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
 __all__ = ["MASK_LAYER", "ObjectLayer", "MovingRecovery", "flagged_regions", "estimate_layer_motion",
@@ -309,7 +310,7 @@ class MovingRecovery:
 
 def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 10, binning: int = 1,
                    shifts=None, model: str = "translation", check: bool = True, layers: bool = True,
-                   device=None, seconds: dict | None = None) -> MovingRecovery:
+                   device=None, seconds: dict | None = None, reference_frames=None) -> MovingRecovery:
     """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
     with frame k sampled at x + d_k in one device pass.
 
@@ -334,6 +335,12 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     seconds : dict, optional
         Host seconds of each step (``"estimate"``, ``"warp"``, ``"check"``: the check, the layers and the NaN)
         added to it.
+    reference_frames : sequence of int, optional
+        The sequence's broadband reference frames (a plan made with ``--reference-every``,
+        :func:`specgpu.planning.reference_frames.reference_indices`): the motion is estimated from them alone
+        (:func:`specgpu.pipeline.reference_motion.estimate_reference_motion`), and the global consistency check
+        reads the other frames only (the decoder does not read the reference frames, so their samples cannot mix
+        surfaces into the outputs).
 
     Returns
     -------
@@ -350,17 +357,34 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
             seconds[step] = seconds.get(step, 0.0) + clock[-1] - clock[-2]
 
     est, gradients = None, None
-    if shifts is None:
+    refs = [] if not reference_frames else check_reference_frames(reference_frames, len(frames))
+    if shifts is None and refs:
+        est = estimate_reference_motion(frames, refs, dark, gain, upsample=upsample, model=model)
+        gradients = est.gradients
+        shifts = est.shifts
+    elif shifts is None:
         est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model)
         gradients = est.gradients
         shifts = est.shifts
     lap("estimate")
-    res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True, device=device)
+    use = [k for k in range(len(frames)) if k not in set(refs)]
+    if refs:  # the decoder reads no reference frame: where they saw outside the field or saturated does not matter
+        d = dark if dark is None or np.ndim(dark) < 3 else np.asarray(dark)[use]
+        res = apply_linear_warped(np.asarray(frames)[use], np.asarray(A)[:, use], np.asarray(shifts)[use], d, gain,
+                                  saturation=saturation, return_mask=True, device=device)
+    else:
+        res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True,
+                                  device=device)
     y, mask = res.y, res.mask
     lap("warp")
     found = []
     if check:
-        maps = consistency(frames, shifts, dark, gain, gradients=gradients)
+        if refs:  # over the frames the decoder reads; every frame's gradient image made once (the layers read them)
+            gradients = frame_gradients(frames, dark, gain, gradients)
+            est = None if est is None else replace(est, gradients=tuple(gradients))
+            maps = consistency(np.asarray(frames)[use], np.asarray(shifts)[use], gradients=[gradients[k] for k in use])
+        else:
+            maps = consistency(frames, shifts, dark, gain, gradients=gradients)
         mask[maps[0] & (maps[1] < CHECK_THRESHOLD)] |= MASK_INCONSISTENT
         if layers and est is not None:
             found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
