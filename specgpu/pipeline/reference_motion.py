@@ -80,7 +80,8 @@ def estimate_reference_motion(frames, reference_frames, dark=None, gain=None, *,
     cutoff, tiles, upsample, robust, ambiguous
         As :func:`~specgpu.pipeline.moving.estimate_global_motion` (``upsample``: the affine tiles' peaks).
     interpolation : {"cubic", "linear"}
-        How the pattern frames' displacements follow from the reference frames' (:func:`interpolate_in_time`).
+        How the pattern frames' displacements follow from the reference frames' (:func:`interpolate_in_time`;
+        the frames are one frame period apart, as a plan runs them).
 
     Returns
     -------
@@ -115,7 +116,7 @@ def estimate_reference_motion(frames, reference_frames, dark=None, gain=None, *,
         amp = energy[centre] * energy[k] / float(surface.size) ** 2
         error[k] = float(np.sqrt(abs(1.0 - top * top / max(amp, 1e-30))))
         rival = max(rival, second_peak_ratio(surface, d, max(1, int(np.ceil(1.5 / (2.0 * np.pi * cutoff))))))
-    error[centre] = float(np.nanmean(error[refs])) if len(refs) > 1 else np.nan
+    error[centre] = float(np.nanmean(error[refs]))  # the mean of its registrations, as the global estimate's
     registered = np.zeros(K, bool)
     registered[refs] = True
     kept = tuple(gradients.get(k) for k in range(K))

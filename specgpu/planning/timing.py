@@ -21,7 +21,7 @@ def exposure_within(sequence_s: float, frames: int, switch_s: float, min_frame_p
     sequence_s : float
         The budget of one sequence, s (> 0).
     frames : int
-        Frames per sequence (ambient and probe frames included).
+        Frames per sequence (ambient, probe and reference frames included).
     switch_s : float
         The light's switch time, s: the shortest exposure it can follow, and the time between two exposures.
     min_frame_period_s : float
