@@ -338,9 +338,9 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     reference_frames : sequence of int, optional
         The sequence's broadband reference frames (a plan made with ``--reference-every``,
         :func:`specgpu.planning.reference_frames.reference_indices`): the motion is estimated from them alone
-        (:func:`specgpu.pipeline.reference_motion.estimate_reference_motion`), and the global consistency check
-        reads the other frames only (the decoder does not read the reference frames, so their samples cannot mix
-        surfaces into the outputs).
+        (:func:`specgpu.pipeline.reference_motion.estimate_reference_motion`), and the warped pass and the global
+        consistency check read the other frames only (the decoder does not read the reference frames: where they
+        saw outside the field, saturated or disagree cannot reach the outputs).
 
     Returns
     -------
