@@ -164,9 +164,9 @@ from specgpu.pipeline.evaluation_report import evaluation_report, headline_line,
 __all__ += ["DELTA_E_KINDS", "delta_E_sigma_map", "recovery_metadata", "recovery_writes", "sigma_with_rms", "stream_metadata", "white_metadata", "RECORD_RING_S", "add_recording", "recording_slots", "stream_summary", "ZarrCapture", "capture_into", "keep_or_abort", "evaluation_report", "headline_line", "patch_table", "read_recovered"]  # noqa: E501
 
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning, denoise_recovery, denoised_sigma, output_subspace, sequence_guide, stream_denoise  # noqa: E402, E501
-from specgpu.pipeline.accumulate import ACCUMULATED_OUTPUTS, AccumulateSink  # noqa: E402
+from specgpu.pipeline.accumulate import ACCUMULATED_OUTPUTS, AccumulateSink, sequence_displacement, shift_image  # noqa: E402, E501
 
-__all__ += ["DENOISE_EPS", "DENOISE_RADIUS", "denoise_design_warning", "denoise_recovery", "denoised_sigma", "output_subspace", "sequence_guide", "stream_denoise", "ACCUMULATED_OUTPUTS", "AccumulateSink"]  # noqa: E501
+__all__ += ["DENOISE_EPS", "DENOISE_RADIUS", "denoise_design_warning", "denoise_recovery", "denoised_sigma", "output_subspace", "sequence_guide", "stream_denoise", "ACCUMULATED_OUTPUTS", "AccumulateSink", "sequence_displacement", "shift_image"]  # noqa: E501
 
 from specgpu.pipeline.moving_scores import RECOVERIES, compare_motion, edge_band, motion_scores  # noqa: E402
 

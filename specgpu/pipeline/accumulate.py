@@ -12,6 +12,20 @@ the stream's ``sigma_rms`` or the last channel of ``sigma``). There the estimate
 so a moving object leaves no trail longer than one sequence. Only outputs linear in the frames are averaged
 (``coefficients``, ``cube``, ``XYZ``): the mean of Lab or dE is not those of the averaged frames. The sigma maps
 stay those of one sequence (the accumulated noise falls as ``1 / sqrt(c)``, the prior's mismatch does not).
+
+**Along the motion** (``stream --accumulate N --motion global|affine``): each sequence is decoded at its own
+reference time, and the scene has moved between two of them. Before the update the running estimate (and its
+counts) is moved with the scene: the displacement between the two sequences is registered on their decoded cubes
+(the band mean's gradient image, phase correlation with a sub-pixel peak as the frames within a sequence are
+registered, then refined on tiles so that an object moving on its own does not pull it; two reflectance maps need
+no illuminant in common), and the estimate is resampled where the new
+sequence's pixels were (:func:`shift_image`, cubic convolution; NaN, so restarted, where they were outside the
+field). The change
+test then restarts every pixel the translation does not carry: an object moving on its own, a surface that came
+into view, a registration that failed. The sigma is the motion decoder's ``sigma_rms`` (an upper bound at the
+warped samples). Each resampling by a fraction of a pixel weighs neighbouring pixels of the estimate, which
+softens detail near the sampling frequency a little (cubic convolution rather than bilinear interpolation keeps
+repeated resampling from blurring fine texture); a translation by whole pixels is exact.
 """
 
 from __future__ import annotations
@@ -19,8 +33,19 @@ from __future__ import annotations
 import numpy as np
 
 from specgpu.core.validate import check_number
+from specgpu.pipeline.moving import gradient_image
+from specgpu.pipeline.registration import correlation_surface, fit_peak, tile_displacements, whitened_half_spectrum
 
-__all__ = ["ACCUMULATED_OUTPUTS", "AccumulateSink"]
+__all__ = ["ACCUMULATED_OUTPUTS", "AccumulateSink", "sequence_displacement", "shift_image"]
+
+#: The correlation weight's cutoff (cycles per pixel) of the registration between sequences, the within-sequence
+#: estimate's default.
+CUTOFF = 0.12
+#: The grid of tiles (per side, at most; none smaller than MIN_TILE_PX) registered about the whole-image peak, and
+#: how near their median a tile counts.
+TILES = 4
+MIN_TILE_PX = 32
+AGREE_PX = 0.5
 
 #: The stream outputs the accumulation averages.
 ACCUMULATED_OUTPUTS = ("coefficients", "cube", "XYZ")
@@ -39,6 +64,8 @@ class AccumulateSink:
         refused.
     threshold : float
         The change test's multiple of the expected difference (default 3).
+    motion : bool
+        Move the estimate with the scene between sequences (see the module notes).
 
     Attributes
     ----------
@@ -46,9 +73,11 @@ class AccumulateSink:
         (H, W) sequences in each pixel's current estimate.
     resets : list of float
         Per result after the first, the fraction of pixels restarted.
+    shifts : list of numpy.ndarray
+        With ``motion``, per result after the first: the (x, y) displacement of the scene since the previous one.
     """
 
-    def __init__(self, sequences: int, outputs, *, threshold: float = 3.0):
+    def __init__(self, sequences: int, outputs, *, threshold: float = 3.0, motion: bool = False):
         self.N = int(check_number("--accumulate", sequences, integer=True, low=2, high=1_000_000))
         self.threshold = float(check_number("threshold", threshold, low=0, low_open=True))
         outputs = tuple(outputs)
@@ -60,9 +89,12 @@ class AccumulateSink:
             raise ValueError("--accumulate needs the cube and sigma (or sigma_rms) outputs: a pixel's change is "
                              "judged against its noise")
         self.names = [o for o in ACCUMULATED_OUTPUTS if o in outputs]
+        self.motion = bool(motion)
         self.mean: dict | None = None
         self.counts = None
         self.resets: list[float] = []
+        self.shifts: list[np.ndarray] = []
+        self._image = None
 
     def write(self, result) -> None:
         a = result.arrays
@@ -71,13 +103,21 @@ class AccumulateSink:
             s = np.asarray(a["sigma_rms"], np.float32).reshape(y["cube"].shape[:2])
         else:
             s = np.asarray(a["sigma"], np.float32)[..., -1]
+        image = registration_image(y["cube"]) if self.motion else None
         if self.mean is None or self.mean["cube"].shape != y["cube"].shape:
             self.mean = {name: v.copy() for name, v in y.items()}
             self.counts = np.ones(y["cube"].shape[:2], np.int64)
+            self._image = image
             return
+        if self.motion:  # the estimate moved with the scene to this sequence's reference time
+            shift = displacement(self._image, image)
+            self._image = image
+            self.shifts.append(shift)
+            self.mean = {name: shift_image(m, shift) for name, m in self.mean.items()}
+            self.counts = np.maximum(shift_image(self.counts, np.round(shift), fill=0), 1)  # 1 where it was out
         c = self.counts
         d = np.sqrt(np.mean((y["cube"] - self.mean["cube"]) ** 2, axis=-1))
-        still = d <= self.threshold * s * np.sqrt(1.0 + 1.0 / c)  # NaN (saturated) is a change
+        still = d <= self.threshold * s * np.sqrt(1.0 + 1.0 / c)  # NaN (saturated, out of the field) is a change
         c = np.where(still, np.minimum(c + 1, self.N), 1)
         w = (1.0 / c).astype(np.float32)[..., None]
         for name in self.names:
@@ -90,3 +130,87 @@ class AccumulateSink:
 
     def close(self) -> None:
         pass
+
+
+def registration_image(cube) -> np.ndarray:
+    """The image two sequences' decoded ``cube`` s (H, W, B) are registered on: the gradient image of the band mean
+    (non-finite pixels at the field's mean)."""
+    image = np.mean(np.asarray(cube, np.float32), axis=-1)
+    bad = ~np.isfinite(image)
+    if bad.any():
+        image[bad] = float(np.mean(image[~bad])) if not bad.all() else 0.0
+    return gradient_image(image)
+
+
+def displacement(previous, image) -> np.ndarray:
+    """(x, y) displacement, px, of the content of :func:`registration_image` ``image`` relative to ``previous``:
+    the whole-image correlation peak, then the tiles of a grid of up to :data:`TILES` x :data:`TILES` registered
+    about it and the mean of those within :data:`AGREE_PX` of their median (an object moving on its own pulls the
+    whole-image peak; it holds few tiles). Images too small for 2 x 2 tiles of :data:`MIN_TILE_PX` keep the
+    whole-image peak."""
+    shape = np.shape(image)
+    d = fit_peak(correlation_surface(whitened_half_spectrum(previous, CUTOFF), whitened_half_spectrum(image, CUTOFF),
+                                     shape))[0]
+    tiles = min(TILES, min(shape) // MIN_TILE_PX)
+    if tiles < 2:
+        return d
+    src, dst = tile_displacements(previous, image, d, CUTOFF, tiles)
+    if len(src) < 3:
+        return d
+    t = dst - src
+    median = np.median(t, axis=0)
+    near = np.abs(t - median).max(axis=1) <= AGREE_PX
+    return t[near].mean(axis=0) if near.sum() >= 3 else median
+
+
+def sequence_displacement(previous_cube, cube) -> np.ndarray:
+    """(x, y) displacement, px, of the scene in the decoded ``cube`` (H, W, B) since ``previous_cube``: where a
+    point seen at x in the previous one is seen now, x + d."""
+    return displacement(registration_image(previous_cube), registration_image(cube))
+
+
+def shift_image(a, shift, *, fill=np.nan) -> np.ndarray:
+    """``a`` (H, W, ...) moved by ``shift`` (x, y) px: ``out(x) = a(x - shift)``, by separable cubic convolution
+    (Keys, a = -1/2: exact for whole pixels and for quadratics, far less smoothing than bilinear, so repeated
+    resampling keeps texture), ``fill`` where a sample it reads is outside ``a``. Float arrays come back float32;
+    integer ones (whole-pixel shifts only) as they are."""
+    a = np.asarray(a)
+    out = a if a.dtype.kind in "iu" else a.astype(np.float32)
+    for axis, d in ((1, float(shift[0])), (0, float(shift[1]))):
+        out = _shift_axis(out, -d, axis, fill)
+    return out
+
+
+def _keys(t: float) -> np.ndarray:
+    """The four cubic-convolution weights (Keys, a = -1/2) of the samples at -1, 0, 1, 2 for a point ``t`` in
+    [0, 1) past sample 0."""
+    return np.array([((-0.5 * t + 1.0) * t - 0.5) * t,
+                     (1.5 * t - 2.5) * t * t + 1.0,
+                     ((-1.5 * t + 2.0) * t + 0.5) * t,
+                     (0.5 * t - 0.5) * t * t], np.float64)
+
+
+def _shift_axis(a: np.ndarray, s: float, axis: int, fill) -> np.ndarray:
+    """``out[i] = a(i + s)`` along ``axis`` (cubic convolution of the four samples about ``i + s``; the sample
+    itself for whole pixels), ``fill`` where one of them is outside."""
+    n = a.shape[axis]
+    i = int(np.floor(s))
+    t = s - i
+    if t and a.dtype.kind in "iu":
+        raise ValueError(f"an integer image moves by whole pixels only, got {-s!r}")
+    taps = (0,) if not t else (-1, 0, 1, 2)
+    weights = (1.0,) if not t else _keys(t)
+    out = np.full_like(a, fill)
+    lo, hi = max(0, -i - taps[0]), min(n, n - i - taps[-1])  # the output indices whose samples all lie inside
+    if hi <= lo:
+        return out
+    put = [slice(None)] * a.ndim
+    put[axis] = slice(lo, hi)
+    acc = None
+    for tap, w in zip(taps, weights):
+        take = [slice(None)] * a.ndim
+        take[axis] = slice(lo + i + tap, hi + i + tap)
+        term = a[tuple(take)] if not t else a[tuple(take)] * np.float32(w)
+        acc = term if acc is None else acc + term
+    out[tuple(put)] = acc
+    return out

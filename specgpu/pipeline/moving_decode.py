@@ -8,9 +8,13 @@ sequence of a batch or a stream, with every linear output the caller asks for (b
 stacked as rows of one decoder, so the estimate and the warped pass are made once per sequence; Lab and dE follow
 from XYZ as the offline path computes them (:func:`specgpu.pipeline.recovery.to_Lab`, ``delta_E``).
 
-Outputs that are not motion-compensated (the sigmas: their variance model assumes each pixel's samples came from
-one sensor pixel; the denoiser's guide; the running estimate of a still scene; a reference white or an ambient
-frame, measured on fixed pixels) are refused in one line naming the option (:func:`check_motion_options`).
+``sigma_rms`` is the noise model's RMS standard deviation at the warped samples
+(:func:`specgpu.planning.uncertainty.frame_variance` with the sequence's shifts; an object layer's pixels with its
+own): an upper bound, since interpolation averages up to four sensor pixels' noise. It serves the running estimate
+along the motion (``stream --accumulate N --motion``). Outputs that are not motion-compensated (the per-band sigmas
+and dE's, whose covariance model assumes each sample came from one sensor pixel; the denoiser's guide; a reference
+white or an ambient frame, measured on fixed pixels) are refused in one line naming the option
+(:func:`check_motion_options`).
 """
 
 from __future__ import annotations
@@ -27,11 +31,12 @@ from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.recovery import corrected_signal
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.reference_frames import reference_indices
+from specgpu.planning.uncertainty import constant_variance, frame_variance
 
 __all__ = ["MOTION_OUTPUTS", "MovingDecoder", "check_motion_options", "motion_model"]
 
 #: The outputs a motion-compensated decoding carries: linear maps of the warped samples, and colour from them.
-MOTION_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE")
+MOTION_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma_rms")
 
 
 def motion_model(mode: str) -> str:
@@ -39,7 +44,7 @@ def motion_model(mode: str) -> str:
     return "translation" if mode == "global" else mode
 
 
-def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, accumulate=None, white_roi=None) -> str:
+def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, white_roi=None) -> str:
     """``motion`` checked (a key of :data:`specgpu.pipeline.moving.MOTION_MODES`) and, unless ``"none"``, every
     option that cannot be motion-compensated yet refused in one line naming it. Returns the mode."""
     mode = check_motion_mode(motion)
@@ -47,15 +52,12 @@ def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, accumul
         return mode
     for name in outputs:
         if name not in MOTION_OUTPUTS:
-            raise ValueError(f"the {name} output with --motion {mode}: its noise model assumes each pixel's "
+            raise ValueError(f"the {name} output with --motion {mode}: its covariance model assumes each pixel's "
                              f"samples came from one sensor pixel, which motion compensation breaks; motion "
                              f"outputs are {', '.join(MOTION_OUTPUTS)}")
     if denoise is not None:
         raise ValueError("--denoise with --motion: the filter's guide (the sum of the frames) is not "
                          "motion-compensated, so it would mix the surfaces the compensation separated")
-    if accumulate is not None:
-        raise ValueError("--accumulate with --motion: the running estimate averages each pixel over sequences of "
-                         "a still scene, and a moving scene is at another place in every sequence")
     if white_roi is not None:
         raise ValueError("--white-roi with --motion: the reference white is measured on fixed pixels, which the "
                          "scene moves across")
@@ -121,6 +123,13 @@ class MovingDecoder:
         if {"XYZ", "Lab", "dE"} & set(self.outputs):
             add("XYZ", plan.outputs_to_XYZ(self.illuminant, self.observer) @ A)
         self.matrix = np.vstack(rows)
+        if "sigma_rms" in self.outputs:
+            if "noise" not in plan.params:
+                raise ValueError(f"the {plan.method} plan records no noise model, so it has no sigma; re-plan it "
+                                 "with specgpu plan --rig RIG.toml (the rig the calibration was made on) to record one")
+            # the one row whose square is the mean over the outputs of A^2: frame_variance gives the mean variance
+            self.rms_row = np.sqrt(np.mean(A * A, axis=0, keepdims=True))
+            self.rms_constant = np.float32(np.mean(constant_variance(plan), dtype=np.float64))
         #: host seconds spent so far in each step (estimate, warped pass, consistency check with the object
         #: layers, colour), and the sequences decoded: where a moving stream's time goes
         self.seconds = dict.fromkeys(("estimate", "warp", "check", "colour"), 0.0)
@@ -162,8 +171,33 @@ class MovingDecoder:
                 out["dE"] = np.asarray(delta_E(self.reference, Lab, self.method, device=self.device), np.float32)
         if "XYZ" not in self.outputs:
             out.pop("XYZ", None)
+        if "sigma_rms" in self.outputs:
+            out["sigma_rms"] = self.sigma_rms(frames, rec)
         with self._lock:
             for step, seconds in {**steps, "colour": time.perf_counter() - t3}.items():
                 self.seconds[step] += seconds
             self.sequences += 1
-        return {**{name: out[name] for name in self.outputs}, "mask": mask, "estimate": est, "layers": rec.layers}  # the images served the check; not kept with a result
+        return {**{name: out[name] for name in self.outputs}, "mask": mask, "estimate": est, "layers": rec.layers}
+
+    def sigma_rms(self, frames, rec) -> np.ndarray:
+        """(H, W) float32: the RMS over the outputs of their standard deviation at the samples ``rec`` decoded (the
+        sequence's shifts; an object layer's own inside its box, on the pixels decoded with it), NaN where the
+        outputs are (an upper bound: see the module notes)."""
+        gain = self.calibration.flat_field
+
+        def variance(shifts):
+            return frame_variance(frames, self.plan, self.dark, gain, A=self.rms_row, shifts=shifts,
+                                  device=self.device)[..., 0]
+
+        var = variance(rec.estimates[0].shifts)
+        own = (rec.mask & np.uint8(16)) != 0
+        for layer in rec.layers:
+            y0, y1, x0, x1 = layer.box
+            inside = own[y0:y1, x0:x1]
+            if inside.any():
+                var[y0:y1, x0:x1][inside] = variance(layer.shifts)[y0:y1, x0:x1][inside]
+        var += self.rms_constant
+        np.maximum(var, 0.0, out=var)
+        np.sqrt(var, out=var)
+        var[(rec.mask & np.uint8(~16 & 0xFF)) != 0] = np.nan
+        return var  # the images served the check; not kept with a result

@@ -19,6 +19,7 @@ import numpy as np
 
 from specgpu.core.spectra import DEFAULT_CMFS, white_point_XYZ
 from specgpu.engine.linear_map import apply_linear
+from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.noise import NoiseModel
 
@@ -42,7 +43,7 @@ def sigma_map(frames, plan, dark, gain, *, sequences: int = 1, light: bool = Tru
 
 
 def frame_variance(frames, plan, dark, gain, *, A=None, sequences: int = 1, light: bool = True, ambient_dark=None,
-                   device=None) -> np.ndarray:
+                   shifts=None, device=None) -> np.ndarray:
     """(H, W, P) float32: the part of each output's variance the frames' noise makes, for the decoder ``A`` (the
     plan's by default) applied to the mean of ``sequences`` sequences (no constant term): each frame's shot, read
     and dark noise and, with ``light``, the light's fluctuation at the frame's own signal.
@@ -52,9 +53,14 @@ def frame_variance(frames, plan, dark, gain, *, A=None, sequences: int = 1, ligh
     noise is then in every output, ``(sum_k A_k)^2`` times, and the room light it holds adds shot noise to every
     frame: ``var y = gain^2 [sum_k A_k^2 (s_k / g + (l s_k)^2) + (sum_k A_k^2 + (sum_k A_k)^2) (a / g +
     s_read^2)]`` with ``s_k`` each frame above the ambient frame and ``a`` the ambient frame above the dark level
-    (:func:`variance_rows`, :func:`ambient_variance`)."""
+    (:func:`variance_rows`, :func:`ambient_variance`).
+
+    ``shifts`` (a motion-compensated recovery's, :func:`specgpu.engine.warp_map.apply_linear_warped`): each
+    frame's variance sampled bilinearly where that frame saw the pixel, NaN outside the field. Interpolation
+    averages up to four sensor pixels' noise, so this is an upper bound of the compensated outputs' variance (at
+    most 4 times it, at half-pixel shifts in both directions)."""
     A = np.asarray(plan.A if A is None else A, np.float64)
-    return _noise_products(frames, plan, dark, gain, (A, A), sequences, device, light, ambient_dark)
+    return _noise_products(frames, plan, dark, gain, (A, A), sequences, device, light, ambient_dark, shifts)
 
 
 def output_covariance(frames, plan, dark, gain, M, *, sequences: int = 1, light: bool = True, ambient_dark=None,
@@ -112,12 +118,13 @@ def ambient_variance(ambient_frame, dark, noise: NoiseModel) -> np.ndarray:
     return a
 
 
-def _noise_products(frames, plan, dark, gain, pair, sequences, device, light=True, ambient_dark=None):
+def _noise_products(frames, plan, dark, gain, pair, sequences, device, light=True, ambient_dark=None, shifts=None):
     """``gain^2 sum_k rows_k var(o_k) / S`` per pixel, ``rows = variance_rows(*pair)``: the frames' samples above
     the shifted dark ``dark - g s_read^2`` through apply_linear with ``rows / g`` (linear in the frames), or, with
     the light's fluctuation, the samples first mapped to ``x + q (x - c)^2`` (:meth:`NoiseModel.light_square`, as
     the stream's kernels). With an ambient frame (``dark`` is that frame): the samples above it, squared for the
-    light, and the ambient frame's own sample :func:`ambient_variance`."""
+    light, and the ambient frame's own sample :func:`ambient_variance`. ``shifts``: sampled where each frame saw the
+    pixel (:func:`specgpu.engine.warp_map.apply_linear_warped`; not with an ambient frame)."""
     if "noise" not in plan.params:
         raise ValueError(f"the {plan.method} plan records no noise model; re-plan it with specgpu plan --rig RIG.toml "
                          "(the rig the calibration was made on) to record one")
@@ -128,6 +135,15 @@ def _noise_products(frames, plan, dark, gain, pair, sequences, device, light=Tru
     rows = variance_rows(*pair, ambient=amb)
     matrix = rows / noise.gain_e_per_dn / sequences
     g = None if gain is None else np.asarray(gain, np.float32) ** 2
+    if shifts is not None and amb is not None:
+        raise ValueError(f"the {plan.method} plan subtracts its ambient frame from fixed pixels: its noise model has "
+                         "no motion-compensated form")
+
+    def apply(x, d):
+        if shifts is None:
+            return apply_linear(x, matrix, d, g, device=device)
+        return apply_linear_warped(x, matrix, shifts, d, g, device=device)
+
     if amb is not None:
         if ambient_dark is None:
             raise ValueError(f"the {plan.method} plan subtracts its ambient frame: its noise model needs the "
@@ -146,8 +162,8 @@ def _noise_products(frames, plan, dark, gain, pair, sequences, device, light=Tru
         s *= s
         s *= q
         x += s
-        return np.asarray(apply_linear(x, matrix, None, g, device=device), np.float32)
-    return np.asarray(apply_linear(frames, matrix, d, g, device=device), np.float32)
+        return np.asarray(apply(x, None), np.float32)
+    return np.asarray(apply(frames, d), np.float32)
 
 
 def constant_covariance(plan) -> np.ndarray:

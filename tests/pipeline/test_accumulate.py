@@ -52,3 +52,98 @@ def test_refusals_are_one_line():
         assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="--accumulate"):
         AccumulateSink(1, ("cube", "sigma"))
+
+
+# ------------------------------------------------------------------------------------------- along the motion
+
+from specgpu.pipeline.accumulate import sequence_displacement, shift_image  # noqa: E402
+
+
+def _texture(shape, bands, seed=1):
+    """A smooth random texture as a function of continuous (x, y): sums of sinusoids up to 0.12 cycles per px, so
+    any translation of it is known exactly."""
+    rng = np.random.default_rng(seed)
+    n = 12
+    freq = rng.uniform(-0.12, 0.12, (n, 2))
+    phase = rng.uniform(0, 2 * np.pi, n)
+    amp = rng.uniform(0.02, 0.06, (bands, n))
+
+    def at(dx=0.0, dy=0.0):
+        y, x = np.mgrid[:shape[0], :shape[1]].astype(np.float64)
+        waves = np.cos(2 * np.pi * (freq[:, 0, None, None] * (x - dx) + freq[:, 1, None, None] * (y - dy))
+                       + phase[:, None, None])
+        return (0.5 + np.einsum("bn,nhw->hwb", amp, waves)).astype(np.float32)
+    return at
+
+
+def test_shift_image_whole_pixels_is_a_slice_and_a_quadratic_is_exact():
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(20, 30, 2)).astype(np.float32)
+    out = shift_image(a, (3, -2))  # out(x) = a(x - shift)
+    np.testing.assert_array_equal(out[:18, 3:], a[2:, :27])
+    assert np.isnan(out[:, :3]).all() and np.isnan(out[18:]).all()
+    counts = np.arange(600).reshape(20, 30)
+    moved = shift_image(counts, (-4, 1), fill=0)
+    assert moved.dtype == counts.dtype and moved[0].max() == 0 and moved[1, 0] == counts[0, 4]
+    with pytest.raises(ValueError, match="whole pixels"):
+        shift_image(counts, (0.5, 0))
+    # cubic convolution reproduces a quadratic exactly at a fractional shift, NaN where it reads outside
+    y, x = np.mgrid[:20, :30].astype(np.float64)
+    q = lambda x, y: 0.3 + 0.01 * x - 0.02 * y + 0.001 * x * x + 0.002 * x * y - 0.0015 * y * y  # noqa: E731
+    out = shift_image(q(x, y)[..., None], (1.3, -0.6))[..., 0]
+    inside = np.isfinite(out)
+    assert inside.sum() == (20 - 3) * (30 - 3)  # the four samples a fractional shift reads span three pixels
+    np.testing.assert_allclose(out[inside], q(x - 1.3, y + 0.6)[inside], atol=1e-5)
+
+
+def test_the_estimate_moves_with_the_scene_and_its_noise_falls():
+    """A texture translating (3.4, -1.7) px per sequence: each step is registered on the decoded cubes, the running
+    estimate follows the scene (its error against the moved truth falls as the noise averages), the strips that
+    come into view restart, and without the motion the textured pixels restart at every sequence."""
+    shape, sigma, step = (64, 96), 0.01, np.array([3.4, -1.7])
+    truth = _texture(shape, 6)
+    rng = np.random.default_rng(7)
+    sinks = {m: AccumulateSink(4, ("cube", "sigma_rms"), motion=m) for m in (True, False)}
+    for s in range(8):
+        clean = truth(*(s * step))
+        y = clean + rng.normal(0, sigma, clean.shape).astype(np.float32)
+        for sink in sinks.values():
+            r = _result(y, sigma)
+            sink.write(r)
+            if sink.motion:
+                est = r.arrays["cube"]
+    moving = sinks[True]
+    np.testing.assert_allclose(np.array(moving.shifts), np.tile(step, (7, 1)), atol=0.05)
+    full = moving.counts == 4
+    assert full.mean() > 0.7
+    err = est[full] - clean[full]
+    assert 0.3 * sigma < err.std() < 0.65 * sigma and abs(err.mean()) < 0.1 * sigma
+    # the columns on the left came into view with the last step (the scene moves 3.4 px to the right), and the
+    # bottom rows (it moves 1.7 px up): restarted
+    assert (moving.counts[:, :4] == 1).all() and (moving.counts[-2:] == 1).all()
+    assert max(moving.resets) < 0.2
+    assert min(sinks[False].resets) > 0.5  # held still, the moving texture is a change nearly everywhere
+
+
+def test_sequence_displacement_and_an_object_of_its_own_restarts():
+    shape, sigma, step = (128, 192), 0.01, np.array([-2.25, 1.5])
+    truth = _texture(shape, 6, seed=4)
+    a, b = truth(), truth(*step)
+    np.testing.assert_allclose(sequence_displacement(a, b), step, atol=0.05)
+    rng = np.random.default_rng(2)
+    other = _texture(shape, 6, seed=9)
+    sink = AccumulateSink(3, ("cube", "sigma_rms"), motion=True)
+    for s in range(5):
+        y = truth(*(s * step)) + rng.normal(0, sigma, shape + (6,)).astype(np.float32)
+        x0 = 80 + 4 * s  # a textured patch moving 4 px per sequence its own way (right), over the background
+        patch = other(4.0 * s, 0.0)[40:72, x0:x0 + 40]
+        y[40:72, x0:x0 + 40] = patch
+        r = _result(y.astype(np.float32), sigma)
+        sink.write(r)
+    # registered on the background (the whole-image peak alone is pulled 0.3 px towards the patch)
+    np.testing.assert_allclose(sink.shifts, np.tile(step, (4, 1)), atol=0.1)
+    # the patch's pixels restart (but where its texture happens to match the background's within the noise), so
+    # the estimate there is the patch, with no trail of the background
+    assert (sink.counts[40:72, 96:136] == 1).mean() > 0.75
+    assert np.sqrt(np.mean((r.arrays["cube"][40:72, 96:136] - patch) ** 2)) < 3 * sigma
+    assert np.median(sink.counts[88:, 8:80]) == 3  # the background's are averaged

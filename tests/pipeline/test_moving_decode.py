@@ -16,6 +16,8 @@ from specgpu.pipeline.batch import run_batch
 from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
 from specgpu.pipeline.recovery import read_capture, recover, save_plan_and_calibration, to_Lab, to_XYZ, write_capture
 from specgpu.pipeline.recovery import capture_plan
+from specgpu.planning.estimators import with_estimator
+from specgpu.planning.noise import NoiseModel
 from specgpu.planning.registry import make_plan
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
@@ -33,6 +35,7 @@ def moving(tmp_path_factory):
     desc = RigDescription(camera=CAM)
     bundle = oracle_calibration(desc)
     plan = make_plan("narrowband", bundle, step_nm=50.0, max_exposure_s=0.0049)
+    plan = with_estimator(plan, bundle, "projection", noise=NoiseModel.from_rig(desc, plan.exposure_s))  # sigma_rms
     shot = capture_plan(replace(desc, motion=MOTION), plan, natural_scene(240, 320), sequences=2, noise_seed=3,
                         calibration=bundle)
     plan_path, calib_path = save_plan_and_calibration(root, plan, bundle)
@@ -85,10 +88,10 @@ def test_batch_motion_is_checked_in_one_line(moving, tmp_path):
 
 def test_options_that_are_not_motion_compensated_are_named(moving):
     _, plan, _, _, _ = moving
-    assert check_motion_options("None", plan, outputs=("sigma",), denoise=(4, 1e-3), accumulate=3) == "none"
+    assert check_motion_options("None", plan, outputs=("sigma",), denoise=(4, 1e-3)) == "none"
+    assert check_motion_options("global", plan, outputs=("cube", "sigma_rms")) == "global"
     for kw, name in (({"outputs": ("cube", "sigma")}, "sigma"), ({"outputs": ("dE_sigma",)}, "dE_sigma"),
-                     ({"denoise": (4, 1e-3)}, "--denoise"), ({"accumulate": 4}, "--accumulate"),
-                     ({"white_roi": "0,0,8,8"}, "--white-roi")):
+                     ({"denoise": (4, 1e-3)}, "--denoise"), ({"white_roi": "0,0,8,8"}, "--white-roi")):
         with pytest.raises(ValueError, match=name):
             check_motion_options("global", plan, **kw)
     with pytest.raises(ValueError, match="motion"):
@@ -170,7 +173,7 @@ def test_stream_motion_on_the_command_line(moving, tmp_path):
     one_line_error(run(*args, "--motion", "global", "--outputs", "cube,sigma", ok=False), "sigma", "--motion")
     one_line_error(run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--denoise", ok=False), "--denoise")
     one_line_error(run(*args, "--motion", "affine", "--outputs", "cube", "--accumulate", "3", ok=False),
-                   "--accumulate")
+                   "--accumulate needs the cube and sigma")
     one_line_error(run(*args, "--motion", "global", "--white-roi", "0,0,8,8", "--outputs", "cube", ok=False),
                    "--white-roi")
     done = run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--out", tmp_path / "rec.zarr")
@@ -178,6 +181,10 @@ def test_stream_motion_on_the_command_line(moving, tmp_path):
     assert "global" in str(rec.attrs["metadata"].get("motion")), (done.output, dict(rec.attrs))
     cube = np.asarray(rec["cube"][0], np.float32)
     assert 0 < np.isnan(cube[..., 0]).mean() < 0.2  # the field's moving border: NaN, never a made-up value
+    run(*args, "--motion", "global", "--outputs", "cube,sigma_rms", "--accumulate", "3", "--out", tmp_path / "acc.zarr")
+    acc = zarr.open_group(str(tmp_path / "acc.zarr"), mode="r")
+    assert "moved with the scene" in str(acc.attrs["metadata"].get("accumulate"))
+    assert np.isfinite(np.asarray(acc["sigma_rms"][0], np.float32)).mean() > 0.8
 
 
 def test_the_stream_bench_puts_the_motion_rate_beside_the_static_one(tmp_path):
@@ -223,3 +230,48 @@ def test_affine_motion_decodes_as_recover_affine(moving):
     maps = MovingDecoder(plan, bundle, ("cube",), mode="affine").decode(folder.frames[1])
     assert maps["estimate"].model == "affine" and maps["estimate"].shifts.shape == (plan.K, 2, 3)
     assert_close_nan(maps["cube"], recovered(root, 1, "affine"), rtol=1e-6, atol=1e-6)
+
+
+def test_sigma_rms_with_motion_bounds_the_noise_of_the_compensated_cube(moving):
+    """Two noise draws of the same moving sequence decoded with compensation: the RMS over the bands of their
+    noise is at most the decoder's sigma_rms (an upper bound: interpolation averages neighbouring pixels' noise)
+    and not far below it; NaN exactly where the cube is."""
+    _, plan, bundle, _, _ = moving
+    desc = RigDescription(camera=CAM, motion=MOTION)
+    dec = MovingDecoder(plan, bundle, ("cube", "sigma_rms"), mode="global")
+    draws = [dec.decode(capture_plan(desc, plan, natural_scene(240, 320), noise_seed=seed,
+                                     calibration=bundle).sequences[0].frames) for seed in (11, 12)]
+    a, b = (np.asarray(d["cube"], np.float64) for d in draws)
+    sigma = np.asarray(draws[0]["sigma_rms"], np.float64)
+    np.testing.assert_array_equal(np.isnan(sigma), np.isnan(a[..., 0]))
+    ok = np.isfinite(a[..., 0]) & np.isfinite(b[..., 0])
+    noise_var = np.mean((a - b)[ok] ** 2, axis=-1) / 2.0
+    ratio = np.sqrt(noise_var.mean() / np.mean(sigma[ok] ** 2))
+    assert 0.6 < ratio < 1.05, ratio
+
+
+def test_stream_accumulates_along_the_motion(moving, tmp_path):
+    """``stream --motion global --accumulate N``: the running estimate moves with the scene (each step between
+    sequences registered), so after a few sequences its noise is below one sequence's."""
+    from specgpu.pipeline.accumulate import AccumulateSink
+    from specgpu.pipeline.stream import Stream
+
+    _, plan, bundle, _, _ = moving
+    runs = {}
+    for seed in (7, 8):
+        sink = AccumulateSink(4, ("cube", "sigma_rms"), motion=True)
+        single = []
+        keep = lambda r: single.append(np.array(r.arrays["cube"]))  # noqa: E731
+        report = Stream(twin_driver(plan, bundle, 5, seed=seed), plan, bundle, outputs=("cube", "sigma_rms"),
+                        cube_dtype=np.float32, policy="block", sinks=[keep, sink], motion="global").run()
+        assert report.sequences_out == 5
+        runs[seed] = (single, sink)
+    step = plan.K * np.array(MOTION.velocity_px_per_frame)
+    np.testing.assert_allclose(runs[7][1].shifts, np.tile(step, (4, 1)), atol=0.1)
+    last = {seed: (single[-1], sink.mean["cube"]) for seed, (single, sink) in runs.items()}
+    ok = np.all([np.isfinite(m[..., 0]) for pair in last.values() for m in pair], axis=0)
+    ok &= runs[7][1].counts == 4
+    assert ok.mean() > 0.5
+    one = np.std((last[7][0] - last[8][0])[ok])
+    averaged = np.std((last[7][1] - last[8][1])[ok])
+    assert averaged < 0.65 * one, (averaged, one)

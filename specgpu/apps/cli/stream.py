@@ -55,9 +55,10 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
     ``colours``: the (illuminant, observer) of its XYZ, Lab and dE."""
     illuminant, observer = colours
     white_roi, white_reflectance = white
-    motion = check_motion_options(motion, plan, outputs=wanted, denoise=denoise, accumulate=accumulate,
+    motion = check_motion_options(motion, plan, outputs=wanted, denoise=denoise,
                                   white_roi=white_roi)  # before any output: one line naming the option
-    accumulator = None if accumulate is None else AccumulateSink(accumulate, wanted)  # refused before any output
+    accumulator = (None if accumulate is None else  # refused before any output
+                   AccumulateSink(accumulate, wanted, motion=motion != "none"))
     policy = policy or ("drop_newest" if pacing == "paced" else "block")
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, observer=observer, cube_dtype=np.float16 if half else np.float32,
@@ -72,7 +73,8 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
         if motion != "none":
             meta["motion"] = f"{motion} compensation of each frame, estimated within the sequence"
         if accumulate is not None:
-            meta["accumulate"] = f"running estimate over up to {accumulate} sequences, reset beyond 3 sigma"
+            meta["accumulate"] = (f"running estimate over up to {accumulate} sequences, reset beyond 3 sigma"
+                                  + (", moved with the scene between sequences" if motion != "none" else ""))
         writer = add_recording(stream, plan, description, out, wanted=wanted, raw_frames=raw_frames,
                                plan_path=plan_path, calib=calib, seconds=seconds, policy=policy, meta=meta,
                                exr_every=exr_every, method=method, colours=colours, disk_check=disk_check)
@@ -138,12 +140,12 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
               help="Denoise the coefficients, cube and XYZ outputs on the device (recover --denoise's guided filter), "
                    "Lab and dE computed from the filtered XYZ (not with the sigmas).")
 @click.option("--accumulate", type=click.IntRange(min=2), default=None, metavar="N",
-              help="A still scene: each pixel's running estimate over up to N sequences, restarted where it changes "
-                   "beyond its noise (needs the cube and sigma or sigma_rms outputs).")
+              help="Each pixel's running estimate over up to N sequences, restarted where it changes beyond its "
+                   "noise (needs the cube and sigma or sigma_rms outputs); with --motion it moves with the scene.")
 @click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moves during each sequence, as recover --motion: a "
-              "translation (global) or an affine map (affine) per frame, estimated within the sequence; not with "
-              "the sigmas, --denoise, --accumulate or --white-roi.")
+              "translation (global) or an affine map (affine) per frame, estimated within the sequence; of the "
+              "sigmas only sigma_rms (an upper bound), not with --denoise or --white-roi.")
 @RESIZE
 @click.option("--view", is_flag=True,
               help="Show the latest results in napari while streaming (the viewer extra): the sRGB of XYZ, dE and "
