@@ -13,6 +13,7 @@ from specgpu.pipeline.moving_decode import MovingDecoder
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.reference_motion import (check_reference_frames, estimate_reference_motion,
                                                interpolate_in_time)
+from specgpu.planning.estimators import NoiseModel, with_estimator
 from specgpu.planning.reference_frames import pattern_indices, reference_indices, with_reference_frames
 from specgpu.rig.motion import MotionParameters
 
@@ -21,6 +22,7 @@ from specgpu.rig.motion import MotionParameters
 def setup():
     """(rig description, calibration, the 7-band plan, it with a reference frame every 3, the natural scene)."""
     desc, bundle, plan, scene = moving_setup()
+    plan = with_estimator(plan, bundle, "projection", noise=NoiseModel.from_rig(desc, plan.exposure_s))  # sigmas
     return desc, bundle, plan, with_reference_frames(plan, bundle, 3), scene
 
 
@@ -99,7 +101,7 @@ def test_the_moving_decoder_compensates_from_the_reference_frames(setup):
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
     frames, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(3.0, 1.0)))
     still, _ = frames_of(desc, plan, scene, MotionParameters())
-    out = MovingDecoder(plan, bundle, ("cube",), mode="global").decode(frames)
+    out = MovingDecoder(plan, bundle, ("cube", "sigma_rms"), mode="global").decode(frames)
     est = out["estimate"]
     assert np.flatnonzero(est.registered).tolist() == reference_indices(plan)
     np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.1)
@@ -124,3 +126,17 @@ def test_the_moving_decoder_compensates_from_the_reference_frames(setup):
     assert outside[:, : int(np.floor(-pats.min()))].all()
     assert not outside[40:-40, lo_pattern:lo_reference].any()
     assert np.isnan(out["cube"][outside]).all()
+    # the noise of the outputs: where they are, and the reference frames' zero columns add none
+    decoded = np.isfinite(out["cube"]).all(axis=2)
+    assert np.array_equal(np.isfinite(out["sigma_rms"]), decoded)
+    bare_sigma = MovingDecoder(bare, bundle, ("cube", "sigma_rms"), mode="global").sigma_rms(
+        frames[pattern_indices(plan)], _Rec(out["estimate"].shifts[pattern_indices(plan)], out["mask"]))
+    np.testing.assert_allclose(out["sigma_rms"][decoded], bare_sigma[decoded], rtol=1e-4)
+
+
+class _Rec:
+    """The parts of a MovingRecovery that MovingDecoder.sigma_rms reads."""
+
+    def __init__(self, shifts, mask):
+        self.estimates = [type("E", (), {"shifts": shifts})()]
+        self.mask, self.layers = mask, []
