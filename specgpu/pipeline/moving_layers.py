@@ -236,7 +236,8 @@ def _steady_motion(candidates, reference_frame: int, K: int):
 
 
 def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=None, *, saturation=None, device=None,
-                         threshold: float = CHECK_THRESHOLD, min_share: float = MIN_LAYER_SHARE) -> list:
+                         threshold: float = CHECK_THRESHOLD, min_share: float = MIN_LAYER_SHARE,
+                         read=None) -> list:
     """Decode again, with an object's own motion, the flagged regions of a globally compensated recovery.
 
     ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (:data:`MASK_INCONSISTENT` where flagged)
@@ -246,7 +247,8 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
     8: the caller leaves them NaN. ``estimate``: the global :class:`specgpu.pipeline.moving.MotionEstimate`
     (translation model; its gradient images are reused where kept); ``check``: the (textured, worst) maps of the
     global motion's :func:`~specgpu.pipeline.moving.consistency`, whose flags ``mask`` holds. Returns the
-    :class:`ObjectLayer` of each region decoded (empty: none found).
+    :class:`ObjectLayer` of each region decoded (empty: none found). ``read``: the frames the decoder reads (all
+    by default; a plan's broadband reference frames left out, as the global pass and check leave them out).
     """
     frames = np.asarray(frames)
     if estimate.model != "translation":
@@ -264,9 +266,8 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         if raw is None:
             continue
         shifts = raw - at_reference_time(raw)
-        res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True,
-                                  device=device)
-        textured, worst = consistency(frames, shifts, dark, gain, gradients=gradients)
+        res = _warped(frames, A, shifts, dark, gain, read, saturation=saturation, return_mask=True, device=device)
+        textured, worst = consistency(*_reading(read, frames, shifts), gradients=_reading(read, gradients)[0])
         valid = (res.mask & (1 | 2 | MASK_OUTSIDE)) == 0
         # the object's pixels: its motion makes the frames agree there, and clearly better than the global one
         # (or where it makes a pixel the global motion left flagged agree)
@@ -295,6 +296,22 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         flagged = (flagged & ~use) | hidden
         layers.append(ObjectLayer(shifts, box, int(use.sum()), int(covered.sum())))
     return layers
+
+
+def _reading(read, *arrays) -> list:
+    """Each of ``arrays`` (per frame along its first axis, or a list) at the frames ``read`` (None: as it is)."""
+    if read is None:
+        return list(arrays)
+    return [[a[k] for k in read] if isinstance(a, (list, tuple)) else np.asarray(a)[read] for a in arrays]
+
+
+def _warped(frames, A, shifts, dark, gain, read, **kw):
+    """:func:`~specgpu.engine.warp_map.apply_linear_warped` of the frames ``read`` only (None: every frame)."""
+    if read is None:
+        return apply_linear_warped(frames, A, shifts, dark, gain, **kw)
+    frames, shifts = _reading(read, frames, shifts)
+    dark = dark if dark is None or np.ndim(dark) < 3 else np.asarray(dark)[read]
+    return apply_linear_warped(frames, np.asarray(A)[:, read], shifts, dark, gain, **kw)
 
 
 @dataclass(frozen=True)
@@ -367,28 +384,22 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         gradients = est.gradients
         shifts = est.shifts
     lap("estimate")
-    use = [k for k in range(len(frames)) if k not in set(refs)]
-    if refs:  # the decoder reads no reference frame: where they saw outside the field or saturated does not matter
-        d = dark if dark is None or np.ndim(dark) < 3 else np.asarray(dark)[use]
-        res = apply_linear_warped(np.asarray(frames)[use], np.asarray(A)[:, use], np.asarray(shifts)[use], d, gain,
-                                  saturation=saturation, return_mask=True, device=device)
-    else:
-        res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True,
-                                  device=device)
+    # the decoder reads no reference frame: where they saw outside the field, saturated or disagree does not matter
+    read = [k for k in range(len(frames)) if k not in set(refs)] if refs else None
+    res = _warped(frames, A, shifts, dark, gain, read, saturation=saturation, return_mask=True, device=device)
     y, mask = res.y, res.mask
     lap("warp")
     found = []
     if check:
-        if refs:  # over the frames the decoder reads; every frame's gradient image made once (the layers read them)
+        if refs:  # every frame's gradient image made once (the layers read them)
             gradients = frame_gradients(frames, dark, gain, gradients)
             est = None if est is None else replace(est, gradients=tuple(gradients))
-            maps = consistency(np.asarray(frames)[use], np.asarray(shifts)[use], gradients=[gradients[k] for k in use])
-        else:
-            maps = consistency(frames, shifts, dark, gain, gradients=gradients)
+        maps = consistency(*_reading(read, frames, shifts), None if read else dark, gain,
+                           gradients=None if gradients is None else _reading(read, gradients)[0])
         mask[maps[0] & (maps[1] < CHECK_THRESHOLD)] |= MASK_INCONSISTENT
         if layers and est is not None:
             found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
-                                         device=device)
+                                         device=device, read=read)
     y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
     lap("check")
     # the gradient images served the check and the layers; not kept with a result
