@@ -21,6 +21,12 @@ noise draws. ``ratio`` is compensated over still. The ``-affine`` cases compensa
 
     PYTHONPATH=. python tools/motion_study.py --cases t1,t3,t10,vib,rot,rot-affine,object,object-flow  # ~6 min
     PYTHONPATH=. python tools/motion_study.py --small --draws 1 --cases t3
+
+A plan named ``NAME+refM`` is NAME with a broadband reference frame before its first frame and after every M
+(``specgpu plan --reference-every M``); its motion is estimated from those frames alone:
+
+    PYTHONPATH=. python tools/motion_study.py --draws 3 --cases t1,t3,t10,vib \
+        --plans symmetric-9,symmetric-9+ref3,symmetric-9+ref9   # ~2.5 min
 """
 
 from __future__ import annotations
