@@ -6,8 +6,10 @@
  * c_k(p) = (o_k(p) - dark(p)) * gain(p): dark level and flat field belong to the sensor pixel p, so they are
  * applied before interpolation (for d = 0 this is exactly A (o - dark) * gain of linear.cl).
  *
- * A pixel whose sample point of any frame lies outside the field [0, W-1] x [0, H-1] has no measurement: its
- * outputs are NaN and its mask has bit 4 (MASK_OUTSIDE). Bit 1: a frame pixel used (non-zero weight) is at
+ * A pixel whose sample point of any frame lies outside the field has no measurement: its outputs are NaN and its
+ * mask has bit 4 (MASK_OUTSIDE). The field is the sensor's footprint, [-1/2, W-1/2] x [-1/2, H-1/2] in pixel
+ * centres: a point within half a pixel of an edge pixel's centre was seen by that pixel, and takes its value (the
+ * interpolation's taps clamped to the field), so a frame displaced by a fraction of a pixel loses no border. Bit 1: a frame pixel used (non-zero weight) is at
  * SAT_LEVEL; bit 2: a non-finite float input. One work-item per output pixel, planar output (B, N) float32.
  *
  * Macros (as common.h): K, B, IN_T, HAS_DARK (0 / 1 per pixel / 2 per frame), HAS_GAIN, SAT_LEVEL, IS_FLOAT_IN;
@@ -76,10 +78,10 @@ inline float warp_sample(__global const IN_T *restrict frames, __constant const 
     const float sx = m[0] * (float)x + (m[1] * (float)y + m[2]);
     const float sy = m[3] * (float)x + (m[4] * (float)y + m[5]);
 #endif
-    /* a tolerance of 1/1024 px keeps a sample that lands on the border by rounding; no branch, so the work-items
-     * of a group stay in step (PoCL vectorises across them) */
-    const int inside = sx >= -0.0009765625f && sy >= -0.0009765625f && sx <= (float)(width - 1) + 0.0009765625f
-                       && sy <= (float)(height - 1) + 0.0009765625f;
+    /* the edge pixels' footprints, plus a tolerance of 1/1024 px that keeps a sample landing on their edge by
+     * rounding; no branch, so the work-items of a group stay in step (PoCL vectorises across them) */
+    const int inside = sx >= -0.5009765625f && sy >= -0.5009765625f && sx <= (float)width - 0.4990234375f
+                       && sy <= (float)height - 0.4990234375f;
     *flags |= inside ? 0 : MASK_OUTSIDE;
     const float cx = clamp(sx, 0.0f, (float)(width - 1)), cy = clamp(sy, 0.0f, (float)(height - 1));
     const int x0 = min((int)cx, (int)width - 1), y0 = min((int)cy, (int)height - 1);

@@ -108,8 +108,9 @@ def guided_filter_numpy(p, g, r, eps):
 
 def linear_warp_ref(frames, A, shifts, dark=None, gain=None):
     """Motion-compensated linear map in float64: y(x) = A s(x), s_k the corrected frame (o_k - dark) * gain sampled
-    bilinearly at x + d_k (``shifts`` (K, 2)) or at M_k (x, y, 1) (``shifts`` (K, 2, 3)); NaN where a sample point
-    lies outside [0, W-1] x [0, H-1]. Returns (y (H, W, B), outside (H, W) bool)."""
+    bilinearly at x + d_k (``shifts`` (K, 2)) or at M_k (x, y, 1) (``shifts`` (K, 2, 3)), its coordinates clamped
+    to the pixel centres; NaN where a sample point lies outside the sensor's footprint [-1/2, W-1/2] x
+    [-1/2, H-1/2]. Returns (y (H, W, B), outside (H, W) bool)."""
     o = np.asarray(frames, np.float64)
     K, h, w = o.shape
     c = o - (0 if dark is None else np.asarray(dark, np.float64))
@@ -126,7 +127,7 @@ def linear_warp_ref(frames, A, shifts, dark=None, gain=None):
             sx, sy = xx + m[0], yy + m[1]
         else:
             sx, sy = m[0, 0] * xx + m[0, 1] * yy + m[0, 2], m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
-        out = (sx < -1e-3) | (sy < -1e-3) | (sx > w - 1 + 1e-3) | (sy > h - 1 + 1e-3)
+        out = (sx < -0.5 - 1e-3) | (sy < -0.5 - 1e-3) | (sx > w - 0.5 + 1e-3) | (sy > h - 0.5 + 1e-3)
         outside |= out
         sx, sy = np.clip(sx, 0, w - 1), np.clip(sy, 0, h - 1)
         x0 = np.minimum(np.floor(sx).astype(int), w - 1)
