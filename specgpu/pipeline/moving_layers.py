@@ -258,11 +258,19 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
     if not regions:
         return []
     gradients = frame_gradients(frames, dark, gain, estimate.gradients)
+    # the frames the object is registered in: the global estimate's; with reference frames every frame (they alone
+    # are too few, two where M >= K, for a steady motion to be told from one frame's candidate peaks)
+    usable = estimate.registered if read is None else np.ones(len(frames), bool)
+    # and registered to the global estimate's reference frame, or with reference frames (whose own anchor may be far
+    # from the middle: the first of two) to the brightest of the middle frames, as the global estimate picks its own
+    anchor = estimate.reference_frame
+    if read is not None:
+        near = [k for k in range(len(frames)) if abs(k - (len(frames) - 1) / 2.0) <= 1.0]
+        anchor = max(near, key=lambda k: float(np.mean(frames[k], dtype=np.float64)))
     textured_global, worst_global = check
     layers = []
     for region in regions:
-        raw, box = estimate_layer_motion(gradients, region, estimate.shifts, estimate.reference_frame,
-                                         estimate.registered)
+        raw, box = estimate_layer_motion(gradients, region, estimate.shifts, anchor, usable)
         if raw is None:
             continue
         shifts = raw - at_reference_time(raw)

@@ -10,7 +10,7 @@ from moving_helpers import frames_of, moving_setup
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.moving import MASK_INCONSISTENT
 from specgpu.pipeline.moving_decode import MovingDecoder
-from specgpu.pipeline.moving_layers import recover_moving
+from specgpu.pipeline.moving_layers import MASK_LAYER, recover_moving
 from specgpu.pipeline.reference_motion import (check_reference_frames, estimate_reference_motion,
                                                interpolate_in_time)
 from specgpu.planning.estimators import NoiseModel, with_estimator
@@ -140,3 +140,20 @@ class _Rec:
     def __init__(self, shifts, mask):
         self.estimates = [type("E", (), {"shifts": shifts})()]
         self.mask, self.layers = mask, []
+
+
+@pytest.mark.parametrize("every", [3, 7])
+def test_an_object_over_the_scene_gets_its_own_layer_with_reference_frames(setup, every):
+    """With two reference frames only (M >= K) as with four: the object is registered in every frame."""
+    desc, bundle, bare, _, scene = setup
+    plan = with_reference_frames(bare, bundle, every)
+    motion = MotionParameters(object="colorchecker", object_velocity_px_per_frame=(3.0, 0.0),
+                              object_size_px=(100, 140))
+    frames, truth = frames_of(desc, plan, scene, motion)
+    res = recover_moving(frames, plan.A, dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field,
+                         saturation=float(bundle.max_code), reference_frames=reference_indices(plan))
+    assert len(res.layers) == 1
+    t = np.arange(plan.K) - (plan.K - 1) / 2.0  # frame periods from the reference time
+    np.testing.assert_allclose(res.layers[0].shifts, np.c_[3.0 * t, np.zeros(plan.K)], atol=0.2)
+    obj = truth["object_mask"] > 0.5
+    assert ((res.mask & MASK_LAYER) > 0)[obj].mean() > 0.7  # most of the object decoded with its own motion
