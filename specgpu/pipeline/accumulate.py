@@ -116,14 +116,18 @@ class AccumulateSink:
             self.mean = {name: shift_image(m, shift) for name, m in self.mean.items()}
             self.counts = np.maximum(shift_image(self.counts, np.round(shift), fill=0), 1)  # 1 where it was out
         c = self.counts
-        d = np.sqrt(np.mean((y["cube"] - self.mean["cube"]) ** 2, axis=-1))
+        diff = y["cube"] - self.mean["cube"]
+        d = np.sqrt(np.einsum("hwb,hwb->hw", diff, diff) / np.float32(diff.shape[-1]))
         still = d <= self.threshold * s * np.sqrt(1.0 + 1.0 / c)  # NaN (saturated, out of the field) is a change
         c = np.where(still, np.minimum(c + 1, self.N), 1)
         w = (1.0 / c).astype(np.float32)[..., None]
-        for name in self.names:
-            m = self.mean[name] + (y[name] - self.mean[name]) * w
-            m = np.where(still[..., None], m, y[name])
-            self.mean[name] = m
+        changed = ~still
+        for name in self.names:  # m + (y - m) / c in place, then the restarted pixels set to y
+            m = self.mean[name]
+            step = diff if name == "cube" else y[name] - m
+            step *= w
+            m += step
+            m[changed] = y[name][changed]
             a[name][...] = m  # in place: the sinks after this one see the estimate
         self.counts = c
         self.resets.append(float(1.0 - still.mean()))
@@ -206,11 +210,16 @@ def _shift_axis(a: np.ndarray, s: float, axis: int, fill) -> np.ndarray:
         return out
     put = [slice(None)] * a.ndim
     put[axis] = slice(lo, hi)
-    acc = None
-    for tap, w in zip(taps, weights):
+    acc = out[tuple(put)]  # a view: the taps are summed in place, with one scratch array
+    scratch = None
+    for j, (tap, w) in enumerate(zip(taps, weights)):
         take = [slice(None)] * a.ndim
         take[axis] = slice(lo + i + tap, hi + i + tap)
-        term = a[tuple(take)] if not t else a[tuple(take)] * np.float32(w)
-        acc = term if acc is None else acc + term
-    out[tuple(put)] = acc
+        if not t:
+            acc[...] = a[tuple(take)]
+        elif j == 0:
+            np.multiply(a[tuple(take)], np.float32(w), out=acc)
+        else:
+            scratch = np.multiply(a[tuple(take)], np.float32(w), out=scratch)
+            acc += scratch
     return out
