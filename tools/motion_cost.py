@@ -5,6 +5,7 @@ Medians over ``--repeats`` calls (after one warm-up), at 640 x 480 with a 9-fram
 default, on the OpenCL device specgpu picks; the rates are sequences per second of each step alone.
 
     PYTHONPATH=. python tools/motion_cost.py
+    PYTHONPATH=. python tools/motion_cost.py --reference-every 3   # and the estimate from broadband reference frames
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
 from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.pipeline.moving import estimate_global_motion, inconsistent_pixels
+from specgpu.pipeline.reference_motion import estimate_reference_motion
+from specgpu.planning.reference_frames import reference_positions
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.twin import TwinRig
@@ -40,6 +43,9 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=9)
     ap.add_argument("--outputs", type=int, default=31)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--reference-every", type=int, default=None,
+                    help="also time the estimate of the same frames with a broadband frame (every mirror on) before "
+                         "the first and after every M (specgpu plan --reference-every M)")
     args = ap.parse_args(argv)
     h, w, K = args.height, args.width, args.frames
     desc = RigDescription(camera=CameraParameters(roi_width=w, roi_height=h, frame_rate_hz=200.0, exposure_s=0.0049),
@@ -51,6 +57,15 @@ def main(argv=None):
         patterns[k, k * cols // (K + 1):(k + 2) * cols // (K + 1)] = rig.light.params.rows
     rig.load_sequence(patterns)
     frames = np.stack([rig.render(k, k, k * rig.frame_period_s)[0] for k in range(K)])
+    with_refs = None
+    if args.reference_every:
+        refs = reference_positions(K, args.reference_every)
+        n = K + len(refs)
+        interleaved = np.zeros((n, cols), np.int32)
+        interleaved[refs] = rig.light.params.rows // 3  # broadband, about the bands' level on a white
+        interleaved[[k for k in range(n) if k not in refs]] = patterns
+        rig.load_sequence(interleaved)
+        with_refs = (refs, np.stack([rig.render(k, k, k * rig.frame_period_s)[0] for k in range(n)]))
     A = np.random.default_rng(0).normal(0, 1, (args.outputs, K))
     dark = np.full((h, w), 16.0, np.float32)
     gain = np.ones((h, w), np.float32)
@@ -75,6 +90,17 @@ def main(argv=None):
         ("estimate: affine", lambda: estimate_global_motion(frames, dark, gain, model="affine")),
         ("consistency check", lambda: inconsistent_pixels(frames, est.shifts, dark, gain)),
     ]
+    if with_refs is not None:
+        refs, ref_frames = with_refs
+        n = len(ref_frames)
+        rows += [
+            (f"estimate: every frame of {n} to the reference (cross-spectrum)",
+             lambda: estimate_global_motion(ref_frames, dark, gain)),
+            (f"estimate: from the {len(refs)} reference frames of {n} (every {args.reference_every})",
+             lambda: estimate_reference_motion(ref_frames, refs, dark, gain)),
+            (f"estimate: affine from the {len(refs)} reference frames",
+             lambda: estimate_reference_motion(ref_frames, refs, dark, gain, model="affine")),
+        ]
     base = None
     for name, fn in rows:
         s = median_s(fn, args.repeats)

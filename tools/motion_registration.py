@@ -10,6 +10,14 @@ setting alike).
 
     PYTHONPATH=. python tools/motion_registration.py                         # 320 x 240, the settings below
     PYTHONPATH=. python tools/motion_registration.py --size 640x480 --settings "peak='dft',pairs='all';"
+
+With ``--reference-every M`` the plans get a broadband reference frame before their first frame and after every M
+(``specgpu plan --reference-every M``), and a setting that starts with ``reference`` runs
+``estimate_reference_motion`` (the reference frames registered to each other, every frame interpolated in time)
+instead, its other keys passed on to it:
+
+    PYTHONPATH=. python tools/motion_registration.py --size 640x480 --reference-every 3 \
+        --settings ";reference;reference,interpolation='linear'"
 """
 
 from __future__ import annotations
@@ -22,6 +30,8 @@ import numpy as np
 
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.moving import estimate_global_motion
+from specgpu.pipeline.reference_motion import estimate_reference_motion
+from specgpu.planning.reference_frames import reference_indices, with_reference_frames
 from specgpu.planning.registry import make_plan
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
@@ -59,6 +69,8 @@ def main(argv=None):
     ap.add_argument("--size", default="320x240", help="WxH of the frames")
     ap.add_argument("--settings", default=SETTINGS, help="';'-separated settings, each 'key=value,...' ('' for the "
                                                           "defaults)")
+    ap.add_argument("--reference-every", type=int, default=None,
+                    help="plans with a broadband reference frame every M frames (settings 'reference...' use them)")
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
     desc = RigDescription(camera=CameraParameters(roi_width=w, roi_height=h, frame_rate_hz=200.0, exposure_s=0.0049))
@@ -67,18 +79,26 @@ def main(argv=None):
     cases = []
     for step in (50.0, 40.0):
         plan = make_plan("narrowband", bundle, step_nm=step, max_exposure_s=0.0049)
+        if args.reference_every:
+            plan = with_reference_frames(plan, bundle, args.reference_every)
+        refs = reference_indices(plan)
         dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
         for motion in MOTIONS:
             for seed in (5, 6):
                 frames, truth = frames_of(desc, plan, scene, motion, seed)
-                cases.append((frames, truth, dark, gain))
+                cases.append((frames, truth, dark, gain, refs))
     settings = args.settings.split(";")
     errors = {s: [] for s in settings}
     times = {s: [] for s in settings}
-    for frames, truth, dark, gain in cases:
+    for frames, truth, dark, gain, refs in cases:
         for s in settings:
             t = time.perf_counter()
-            est = estimate_global_motion(frames, dark, gain, **parse_setting(s))
+            if s.startswith("reference"):
+                if not refs:
+                    raise SystemExit(f"setting {s!r} needs --reference-every")
+                est = estimate_reference_motion(frames, refs, dark, gain, **parse_setting(s[len("reference"):]))
+            else:
+                est = estimate_global_motion(frames, dark, gain, **parse_setting(s))
             times[s].append(time.perf_counter() - t)
             errors[s].append(float(np.abs(est.shifts - truth).max()))
     print(f"{w} x {h}, {len(cases)} sequences of the moving twin; per sequence its largest per-frame error, px")

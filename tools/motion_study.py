@@ -21,6 +21,12 @@ noise draws. ``ratio`` is compensated over still. The ``-affine`` cases compensa
 
     PYTHONPATH=. python tools/motion_study.py --cases t1,t3,t10,vib,rot,rot-affine,object,object-flow  # ~6 min
     PYTHONPATH=. python tools/motion_study.py --small --draws 1 --cases t3
+
+A plan named ``NAME+refM`` is NAME with a broadband reference frame before its first frame and after every M
+(``specgpu plan --reference-every M``); its motion is estimated from those frames alone:
+
+    PYTHONPATH=. python tools/motion_study.py --draws 3 --cases t1,t3,t10,vib \
+        --plans symmetric-9,symmetric-9+ref3,symmetric-9+ref9   # ~2.5 min
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ from specgpu.pipeline.recovery import default_basis
 from specgpu.planning.design import plan_optimal
 from specgpu.planning.estimators import NoiseModel
 from specgpu.planning.priors import default_prior
+from specgpu.planning.reference_frames import with_reference_frames
 from specgpu.planning.registry import make_plan
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
@@ -63,9 +70,15 @@ NARROWBAND_CASES = ("t3",)
 
 
 def make_plans(desc, bundle, names):
+    """The plans by name; ``NAME+refM`` is NAME with a broadband reference frame before its first frame and after
+    every M (``specgpu plan ... --reference-every M``): the motion is then estimated from those alone."""
     ow = np.arange(400.0, 701.0, 10.0)
     plans = {}
-    for name in names:
+    for full in names:
+        name, _, ref = full.partition("+ref")
+        if ref:
+            plans[full] = with_reference_frames(make_plans(desc, bundle, [name])[name], bundle, int(ref))
+            continue
         if name == "symmetric-9":
             plans[name] = make_plan("symmetric", bundle, default_basis(), m=5, output_wavelengths=ow,
                                     max_exposure_s=EXPOSURE_S)

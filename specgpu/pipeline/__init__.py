@@ -180,3 +180,8 @@ from specgpu.pipeline.registration import (  # noqa: E402
 
 __all__ += ["correlation_surface", "fit_peak", "second_peak_ratio", "sobel_magnitude", "tile_displacements",
             "whitened_half_spectrum"]
+
+from specgpu.pipeline.reference_motion import (  # noqa: E402
+    check_reference_frames, estimate_reference_motion, interpolate_in_time)
+
+__all__ += ["check_reference_frames", "estimate_reference_motion", "interpolate_in_time"]

@@ -34,6 +34,7 @@ from skimage.morphology import convex_hull_image
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
 from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency, estimate_global_motion,
                                      frame_gradients)
+from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
 __all__ = ["MASK_LAYER", "ObjectLayer", "MovingRecovery", "flagged_regions", "estimate_layer_motion",
@@ -235,7 +236,8 @@ def _steady_motion(candidates, reference_frame: int, K: int):
 
 
 def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=None, *, saturation=None, device=None,
-                         threshold: float = CHECK_THRESHOLD, min_share: float = MIN_LAYER_SHARE) -> list:
+                         threshold: float = CHECK_THRESHOLD, min_share: float = MIN_LAYER_SHARE,
+                         read=None) -> list:
     """Decode again, with an object's own motion, the flagged regions of a globally compensated recovery.
 
     ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (:data:`MASK_INCONSISTENT` where flagged)
@@ -245,7 +247,8 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
     8: the caller leaves them NaN. ``estimate``: the global :class:`specgpu.pipeline.moving.MotionEstimate`
     (translation model; its gradient images are reused where kept); ``check``: the (textured, worst) maps of the
     global motion's :func:`~specgpu.pipeline.moving.consistency`, whose flags ``mask`` holds. Returns the
-    :class:`ObjectLayer` of each region decoded (empty: none found).
+    :class:`ObjectLayer` of each region decoded (empty: none found). ``read``: the frames the decoder reads (all
+    by default; a plan's broadband reference frames left out, as the global pass and check leave them out).
     """
     frames = np.asarray(frames)
     if estimate.model != "translation":
@@ -255,17 +258,24 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
     if not regions:
         return []
     gradients = frame_gradients(frames, dark, gain, estimate.gradients)
+    # the frames the object is registered in: the global estimate's; with reference frames every frame (they alone
+    # are too few, two where M >= K, for a steady motion to be told from one frame's candidate peaks)
+    usable = estimate.registered if read is None else np.ones(len(frames), bool)
+    # and registered to the global estimate's reference frame, or with reference frames (whose own anchor may be far
+    # from the middle: the first of two) to the brightest of the middle frames, as the global estimate picks its own
+    anchor = estimate.reference_frame
+    if read is not None:
+        near = [k for k in range(len(frames)) if abs(k - (len(frames) - 1) / 2.0) <= 1.0]
+        anchor = max(near, key=lambda k: float(np.mean(frames[k], dtype=np.float64)))
     textured_global, worst_global = check
     layers = []
     for region in regions:
-        raw, box = estimate_layer_motion(gradients, region, estimate.shifts, estimate.reference_frame,
-                                         estimate.registered)
+        raw, box = estimate_layer_motion(gradients, region, estimate.shifts, anchor, usable)
         if raw is None:
             continue
         shifts = raw - at_reference_time(raw)
-        res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True,
-                                  device=device)
-        textured, worst = consistency(frames, shifts, dark, gain, gradients=gradients)
+        res = _warped(frames, A, shifts, dark, gain, read, saturation=saturation, return_mask=True, device=device)
+        textured, worst = consistency(*_reading(read, frames, shifts), gradients=_reading(read, gradients)[0])
         valid = (res.mask & (1 | 2 | MASK_OUTSIDE)) == 0
         # the object's pixels: its motion makes the frames agree there, and clearly better than the global one
         # (or where it makes a pixel the global motion left flagged agree)
@@ -296,6 +306,22 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
     return layers
 
 
+def _reading(read, *arrays) -> list:
+    """Each of ``arrays`` (per frame along its first axis, or a list) at the frames ``read`` (None: as it is)."""
+    if read is None:
+        return list(arrays)
+    return [[a[k] for k in read] if isinstance(a, (list, tuple)) else np.asarray(a)[read] for a in arrays]
+
+
+def _warped(frames, A, shifts, dark, gain, read, **kw):
+    """:func:`~specgpu.engine.warp_map.apply_linear_warped` of the frames ``read`` only (None: every frame)."""
+    if read is None:
+        return apply_linear_warped(frames, A, shifts, dark, gain, **kw)
+    frames, shifts = _reading(read, frames, shifts)
+    dark = dark if dark is None or np.ndim(dark) < 3 else np.asarray(dark)[read]
+    return apply_linear_warped(frames, np.asarray(A)[:, read], shifts, dark, gain, **kw)
+
+
 @dataclass(frozen=True)
 class MovingRecovery:
     """A motion-compensated recovery: the outputs at the reference time, the mask and each sequence's motion."""
@@ -309,7 +335,7 @@ class MovingRecovery:
 
 def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 10, binning: int = 1,
                    shifts=None, model: str = "translation", check: bool = True, layers: bool = True,
-                   device=None, seconds: dict | None = None) -> MovingRecovery:
+                   device=None, seconds: dict | None = None, reference_frames=None) -> MovingRecovery:
     """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
     with frame k sampled at x + d_k in one device pass.
 
@@ -334,6 +360,12 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     seconds : dict, optional
         Host seconds of each step (``"estimate"``, ``"warp"``, ``"check"``: the check, the layers and the NaN)
         added to it.
+    reference_frames : sequence of int, optional
+        The sequence's broadband reference frames (a plan made with ``--reference-every``,
+        :func:`specgpu.planning.reference_frames.reference_indices`): the motion is estimated from them alone
+        (:func:`specgpu.pipeline.reference_motion.estimate_reference_motion`), and the warped pass and the global
+        consistency check read the other frames only (the decoder does not read the reference frames: where they
+        saw outside the field, saturated or disagree cannot reach the outputs).
 
     Returns
     -------
@@ -350,21 +382,32 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
             seconds[step] = seconds.get(step, 0.0) + clock[-1] - clock[-2]
 
     est, gradients = None, None
-    if shifts is None:
+    refs = [] if not reference_frames else check_reference_frames(reference_frames, len(frames))
+    if shifts is None and refs:
+        est = estimate_reference_motion(frames, refs, dark, gain, upsample=upsample, model=model)
+        gradients = est.gradients
+        shifts = est.shifts
+    elif shifts is None:
         est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model)
         gradients = est.gradients
         shifts = est.shifts
     lap("estimate")
-    res = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True, device=device)
+    # the decoder reads no reference frame: where they saw outside the field, saturated or disagree does not matter
+    read = [k for k in range(len(frames)) if k not in set(refs)] if refs else None
+    res = _warped(frames, A, shifts, dark, gain, read, saturation=saturation, return_mask=True, device=device)
     y, mask = res.y, res.mask
     lap("warp")
     found = []
     if check:
-        maps = consistency(frames, shifts, dark, gain, gradients=gradients)
+        if refs:  # every frame's gradient image made once (the layers read them)
+            gradients = frame_gradients(frames, dark, gain, gradients)
+            est = None if est is None else replace(est, gradients=tuple(gradients))
+        maps = consistency(*_reading(read, frames, shifts), None if read else dark, gain,
+                           gradients=None if gradients is None else _reading(read, gradients)[0])
         mask[maps[0] & (maps[1] < CHECK_THRESHOLD)] |= MASK_INCONSISTENT
         if layers and est is not None:
             found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
-                                         device=device)
+                                         device=device, read=read)
     y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
     lap("check")
     # the gradient images served the check and the layers; not kept with a result

@@ -179,10 +179,17 @@ from specgpu.planning.requests import estimated_plan  # noqa: E402
 
 __all__ += ["estimated_plan"]
 
-from specgpu.planning.timing import budget_params, check_budget, exposure_within  # noqa: E402
+from specgpu.planning.timing import budget_params, check_budget, exposure_within, extra_count  # noqa: E402
 from specgpu.planning.budget import budget_plan  # noqa: E402
 from specgpu.planning.bound import Bound, design_bound  # noqa: E402
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans  # noqa: E402
 
-__all__ += ["exposure_within", "budget_params", "check_budget", "budget_plan", "Bound", "design_bound",
+__all__ += ["exposure_within", "budget_params", "check_budget", "extra_count", "budget_plan", "Bound", "design_bound",
             "EQUAL_TIME", "equal_time_bounds", "equal_time_plans"]
+
+from specgpu.planning.reference_frames import (  # noqa: E402
+    check_reference_every, pattern_indices, reference_count, reference_indices, reference_positions,
+    with_reference_frames)
+
+__all__ += ["check_reference_every", "pattern_indices", "reference_count", "reference_indices",
+            "reference_positions", "with_reference_frames"]

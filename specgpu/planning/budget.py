@@ -13,13 +13,13 @@ from dataclasses import replace
 
 from specgpu.planning.design import plan_optimal
 from specgpu.planning.registry import make_plan
-from specgpu.planning.timing import budget_params, check_budget, exposure_within
+from specgpu.planning.timing import budget_params, check_budget, exposure_within, extra_count
 
 __all__ = ["budget_plan"]
 
 
 def budget_plan(method: str, bundle, sequence_s: float | None, *args, min_frame_period_s: float = 0.0,
-                extra_frames: int = 0, **kwargs):
+                extra_frames=0, **kwargs):
     """The plan of ``method`` (a key of :data:`specgpu.planning.registry.PLAN_METHODS`) whose sequence, with
     ``extra_frames`` frames more (an ambient frame, drift probes added afterwards), fits ``sequence_s``.
 
@@ -34,8 +34,8 @@ def budget_plan(method: str, bundle, sequence_s: float | None, *args, min_frame_
         The method's own arguments (``max_exposure_s`` a further cap).
     min_frame_period_s : float
         The camera's shortest frame period (read-out) at its ROI, s.
-    extra_frames : int
-        Frames the caller adds to each sequence after planning.
+    extra_frames : int or callable
+        Frames the caller adds to each sequence after planning (a callable: of the plan's K, for reference frames).
 
     Returns
     -------
@@ -59,10 +59,10 @@ def budget_plan(method: str, bundle, sequence_s: float | None, *args, min_frame_
     floor = float(min_frame_period_s)
     if method == "optimal":
         return plan_optimal(bundle, *args, sequence_s=sequence_s, min_frame_period_s=floor,
-                            extra_frames=int(extra_frames), **kwargs)
+                            extra_frames=extra_frames, **kwargs)
     plan = make_plan(method, bundle, *args, **kwargs)
     if sequence_s is not None:
-        cap = exposure_within(sequence_s, plan.K + int(extra_frames), bundle.min_exposure_s, floor)
+        cap = exposure_within(sequence_s, plan.K + extra_count(extra_frames, plan.K), bundle.min_exposure_s, floor)
         if plan.exposure_s > cap:
             given = kwargs.pop("max_exposure_s", None)
             plan = make_plan(method, bundle, *args, max_exposure_s=cap if given is None else min(cap, given),

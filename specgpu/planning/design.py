@@ -41,7 +41,7 @@ from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.plans import _band_masks, _base, _quantize
 from specgpu.planning.priors import Prior
-from specgpu.planning.timing import budget_params, check_budget, exposure_within
+from specgpu.planning.timing import budget_params, check_budget, exposure_within, extra_count
 from specgpu.rig.scene import interpolation_matrix
 
 __all__ = ["OBJECTIVES", "WITHIN_PRIOR", "columns_within", "denoise_params", "design_optimal", "plan_optimal",
@@ -229,7 +229,7 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
                  training=None, output_wavelengths=None, level: float = 0.9, max_exposure_s: float | None = None,
                  target: float | None = None, exposure_s: float | None = None, starts: int = 4, seed: int = 0,
                  iterations: int = 300, sequence_s: float | None = None, min_frame_period_s: float = 0.0,
-                 extra_frames: int = 0, denoise_radius: int | None = None):
+                 extra_frames=0, denoise_radius: int | None = None):
     """An optimal K-frame plan (see the module notes) with the Wiener decoder and its expected error recorded.
 
     Parameters
@@ -298,7 +298,8 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
         raise ValueError(f"max_exposure_s must be >= the light's switch time {bundle.min_exposure_s:g} s")
     limited = sequence_s is not None or max_exposure_s is not None
     if sequence_s is not None:
-        longest = min(longest, exposure_within(sequence_s, int(frames) + int(extra_frames), bundle.min_exposure_s,
+        longest = min(longest, exposure_within(sequence_s, int(frames) + extra_count(extra_frames, frames),
+                                               bundle.min_exposure_s,
                                                min_frame_period_s))
     # the noise at a typical exposure for the shape search (the shot and read terms scale with the signal only)
     white = Sb.sum(axis=1)  # DN/s per full column on a white

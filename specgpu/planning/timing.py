@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["exposure_within", "budget_params", "check_budget"]
+__all__ = ["exposure_within", "budget_params", "check_budget", "extra_count"]
 
 
 def exposure_within(sequence_s: float, frames: int, switch_s: float, min_frame_period_s: float = 0.0) -> float:
@@ -21,7 +21,7 @@ def exposure_within(sequence_s: float, frames: int, switch_s: float, min_frame_p
     sequence_s : float
         The budget of one sequence, s (> 0).
     frames : int
-        Frames per sequence (ambient and probe frames included).
+        Frames per sequence (ambient, probe and reference frames included).
     switch_s : float
         The light's switch time, s: the shortest exposure it can follow, and the time between two exposures.
     min_frame_period_s : float
@@ -54,12 +54,20 @@ def budget_params(sequence_s, min_frame_period_s: float = 0.0) -> dict:
     return {"sequence_budget_s": float(sequence_s), "min_frame_period_s": float(min_frame_period_s)}
 
 
-def check_budget(plan, extra_frames: int = 0) -> None:
-    """Refuse (ValueError) a plan that, with ``extra_frames`` frames more, overruns its recorded budget."""
+def extra_count(extra_frames, frames: int) -> int:
+    """Frames added after planning to a sequence of ``frames``: ``extra_frames`` itself, or what it gives for
+    ``frames`` where it is a callable (reference frames, whose number follows the plan's frames)."""
+    return int(extra_frames(int(frames)) if callable(extra_frames) else extra_frames)
+
+
+def check_budget(plan, extra_frames=0) -> None:
+    """Refuse (ValueError) a plan that, with ``extra_frames`` frames more (an int, or a callable of the plan's K:
+    :func:`extra_count`), overruns its recorded budget."""
     budget = plan.params.get("sequence_budget_s")
     if budget is None:
         return
-    took = (plan.K + int(extra_frames)) * plan.frame_period_s
+    extra = extra_count(extra_frames, plan.K)
+    took = (plan.K + extra) * plan.frame_period_s
     if took > float(budget) * (1 + 1e-9) + 1e-9:
-        raise ValueError(f"{plan.method}: {plan.K + int(extra_frames)} frames of {plan.frame_period_s * 1e3:.3f} ms "
+        raise ValueError(f"{plan.method}: {plan.K + extra} frames of {plan.frame_period_s * 1e3:.3f} ms "
                          f"take {took * 1e3:.2f} ms, over the {float(budget) * 1e3:g} ms budget")

@@ -18,6 +18,7 @@ from specgpu.planning.correction import (
     with_drift_probes,
 )
 from specgpu.planning import PLAN_METHODS, save_plan
+from specgpu.planning.reference_frames import reference_count, reference_indices, with_reference_frames
 from specgpu.planning.requests import estimated_plan
 
 
@@ -43,9 +44,16 @@ def method_arguments(method, *, step_nm, bandwidth_nm, m, basis_path, exclude_ch
     return (sd.values, sd.wavelengths), {}
 
 
-def with_frames(plan, bundle, ambient, drift_probe):
+def with_frames(plan, bundle, ambient, drift_probe, reference_every=None):
     """The plan with its drift probes and, where asked or where the calibration found light with every mirror
-    off (said on stderr), an ambient frame."""
+    off (said on stderr), an ambient frame; or, with ``reference_every``, its broadband reference frames (no
+    ambient frame then: see :func:`added_frames`)."""
+    if reference_every is not None:
+        needed, why = ambient_needed(bundle)
+        if ambient is None and needed:
+            click.echo(f"no ambient frame with --reference-every although {why}: recover --motion cannot subtract "
+                       "one from a moving scene", err=True)
+        return with_reference_frames(plan, bundle, reference_every)
     if drift_probe:
         plan = with_drift_probes(plan, bundle, sorted(drift_probe))
     needed, why = ambient_needed(bundle)
@@ -58,8 +66,15 @@ def with_frames(plan, bundle, ambient, drift_probe):
     return with_ambient_frame(plan) if ambient else plan
 
 
-def added_frames(bundle, ambient, drift_probe) -> int:
-    """Frames :func:`with_frames` will add to each sequence (so a time budget leaves room for them)."""
+def added_frames(bundle, ambient, drift_probe, reference_every=None):
+    """Frames :func:`with_frames` will add to each sequence (so a time budget leaves room for them): a number, or
+    with ``reference_every`` a callable of the plan's frames. Reference frames are refused in one line with an
+    ambient frame or drift probes (corrections on fixed pixels, which a moving scene moves across)."""
+    if reference_every is not None:
+        if ambient or drift_probe:
+            raise click.UsageError("--reference-every does not combine with --ambient or --drift-probe: both serve "
+                                   "corrections on fixed pixels, which the moving scene it is for moves across")
+        return lambda frames: reference_count(frames, reference_every)
     return len(drift_probe) + int(bool(ambient) or (ambient is None and ambient_needed(bundle)[0]))
 
 
@@ -77,7 +92,9 @@ def summary(plan, digest, out):
             note += f", expected {key} {expected[key]:.3f} (RMS)"
     budget = plan.params.get("sequence_budget_s")
     within = f" (budget {budget * 1e3:g} ms)" if budget is not None else ""
-    return (f"{plan.method}: {plan.K} frames at {plan.exposure_s * 1e3:.2f} ms exposure, "
+    refs = len(reference_indices(plan))
+    among = f" ({refs} broadband reference frames among them)" if refs else ""
+    return (f"{plan.method}: {plan.K} frames{among} at {plan.exposure_s * 1e3:.2f} ms exposure, "
             f"{plan.frame_period_s * 1e3:.2f} ms frame period, {plan.sequence_s * 1e3:.1f} ms per sequence{within} "
             f"({1.0 / plan.sequence_s:.1f} sequences/s), {plan.A.shape[0]} outputs "
             f"({plan.output}); wrote {out} (plan {digest[:12]}, calibration {plan.calibration[:12]}){note}")
@@ -135,11 +152,15 @@ def summary(plan, digest, out):
 @click.option("--drift-probe", "drift_probe", type=float, multiple=True,
               help="Add a 20 nm drift probe band at NM to each sequence, read by recover --white-roi's colour fit "
                    "(1 frame more each; 430 and 650 let a 3-frame plan's drift correction hold). Repeatable.")
+@click.option("--reference-every", "reference_every", type=click.IntRange(min=1), default=None, metavar="M",
+              help="Add a broadband reference frame before the first frame and after every M frames (the decoder "
+                   "does not read them; recover/stream/batch --motion registers them to each other instead of "
+                   "the differently lit frames). More frames per sequence; no ambient frame or drift probes.")
 @RIG
 def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclude_chart, output_step_nm,
                  illuminant, observer, camera, spectrum, estimator, training, training_only, frames, objective,
                  target, exposure_ms, sequence_ms, bands, rig_path, smooth_nm, ambient, drift_probe, denoise,
-                 denoise_radius):
+                 denoise_radius, reference_every):
     """Design a measurement plan: the illuminant sequence and its decoder.
 
     METHOD is one of: narrowband, reciprocal, biased, symmetric, tristimulus, camera, steady, optimal, hadamard.
@@ -155,7 +176,7 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
     plan = estimated_plan(method, bundle, args, kwargs, estimator.lower(), training, training_only, exclude_chart,
                           frames, objective, target, exposure_ms, bands, illuminant, output_step_nm, rig_path,
                           smooth_nm, progress=Busy, sequence_ms=sequence_ms,
-                          extra_frames=added_frames(bundle, ambient, drift_probe),
+                          extra_frames=added_frames(bundle, ambient, drift_probe, reference_every),
                           denoise_radius=denoise_radius if denoise else None)
-    plan = with_frames(plan, bundle, ambient, drift_probe)
+    plan = with_frames(plan, bundle, ambient, drift_probe, reference_every)
     click.echo(summary(plan, save_plan(out, plan), out))
