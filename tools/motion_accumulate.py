@@ -23,16 +23,14 @@ from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
-from motion_study import CASES, EXPOSURE_S, fmt, make_plans
+from motion_study import CASES, fmt, twin_setup
 from scipy import ndimage
 
-from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.accumulate import AccumulateSink
 from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving_decode import MovingDecoder
 from specgpu.pipeline.moving_scores import edge_band
 from specgpu.planning.estimators import NoiseModel, with_estimator
-from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.scene import SpectralScene
 from specgpu.rig.twin import TwinRig
@@ -72,12 +70,8 @@ def main(argv=None):
     ap.add_argument("--edge", type=float, default=0.08, help="RMS reflectance step that counts as an edge")
     args = ap.parse_args(argv)
     t_start = time.perf_counter()
-    w, h = (320, 240) if args.small else (640, 480)
-    desc = RigDescription(camera=CameraParameters(roi_width=w, roi_height=h, frame_rate_hz=200.0,
-                                                  exposure_s=EXPOSURE_S))
-    bundle = oracle_calibration(desc)
-    plans = make_plans(desc, bundle, args.plans.split(","))
-    scene = natural_scene(h, w)
+    desc, bundle, plans, scene = twin_setup(args.small, args.plans)
+    w, h = desc.camera.roi_width, desc.camera.roi_height
     print(f"twin: paper's noise, {w} x {h}, 200 fps; scene {scene.name}; oracle calibration; {args.draws} draws; "
           f"{args.sequences} sequences, the last scored; --accumulate {args.accumulate} along the motion")
     head = (f"{'motion':<32} {'plan':<12} {'':<12} {'RMSE field':>14} {'RMSE edge':>14} {'dE00 field':>12} "

@@ -92,6 +92,16 @@ def make_plans(desc, bundle, names):
     return plans
 
 
+def twin_setup(small: bool, plan_names: str):
+    """(description, oracle calibration, plans by name, natural scene) of the study: 640 x 480 (320 x 240 if
+    ``small``) at 200 fps; ``plan_names`` comma-separated (:func:`make_plans`)."""
+    w, h = (320, 240) if small else (640, 480)
+    desc = RigDescription(camera=CameraParameters(roi_width=w, roi_height=h, frame_rate_hz=200.0,
+                                                  exposure_s=EXPOSURE_S))
+    bundle = oracle_calibration(desc)
+    return desc, bundle, make_plans(desc, bundle, plan_names.split(",")), natural_scene(h, w)
+
+
 def fmt(values, digits):
     v = np.asarray(values, float)
     return f"{v.mean():.{digits}f}" + (f"+-{v.std():.{digits}f}" if v.size > 1 else "")
@@ -107,12 +117,8 @@ def main(argv=None):
     ap.add_argument("--json", help="write the rows here")
     args = ap.parse_args(argv)
     t_start = time.perf_counter()
-    w, h = (320, 240) if args.small else (640, 480)
-    desc = RigDescription(camera=CameraParameters(roi_width=w, roi_height=h, frame_rate_hz=200.0,
-                                                  exposure_s=EXPOSURE_S))
-    bundle = oracle_calibration(desc)
-    plans = make_plans(desc, bundle, args.plans.split(","))
-    scene = natural_scene(h, w)
+    desc, bundle, plans, scene = twin_setup(args.small, args.plans)
+    w, h = desc.camera.roi_width, desc.camera.roi_height
     print(f"twin: paper's noise, {w} x {h}, 200 fps; scene {scene.name}; oracle calibration; "
           f"{args.draws} draws; edge band: within 3 px of an RMS step > {args.edge}")
     for name, plan in plans.items():
