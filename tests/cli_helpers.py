@@ -9,6 +9,9 @@ from specgpu.apps.cli import main
 
 #: a 320 x 240 twin: the paper's rig, small enough for quick CLI round trips
 RIG = "[camera]\nroi_width = 320\nroi_height = 240\n"
+#: a 320 x 240 rig at 200 fps whose natural scene drifts 2 px per frame in x and 1 in y
+MOVING_RIG = ("[camera]\nroi_width = 320\nroi_height = 240\nframe_rate_hz = 200.0\nexposure_s = 0.0049\n"
+              "[scene]\nsource = \"natural\"\n[motion]\nvelocity_px_per_frame = [2.0, 1.0]\n")
 
 
 def run(*args, ok=True):

@@ -9,13 +9,9 @@ import re
 import numpy as np
 import pytest
 
-from cli_helpers import one_line_error, run
+from cli_helpers import MOVING_RIG as RIG, one_line_error, run
 from specgpu.planning import load_plan
 from specgpu.planning.reference_frames import pattern_indices, reference_indices
-
-RIG = ("[camera]\nroi_width = 320\nroi_height = 240\nframe_rate_hz = 200.0\nexposure_s = 0.0049\n"
-       "[scene]\nsource = \"natural\"\n[motion]\nvelocity_px_per_frame = [2.0, 1.0]\n")
-
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
