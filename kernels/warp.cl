@@ -9,8 +9,9 @@
  * A pixel whose sample point of any frame lies outside the field has no measurement: its outputs are NaN and its
  * mask has bit 4 (MASK_OUTSIDE). The field is the sensor's footprint, [-1/2, W-1/2] x [-1/2, H-1/2] in pixel
  * centres: a point within half a pixel of an edge pixel's centre was seen by that pixel, and takes its value (the
- * interpolation's taps clamped to the field), so a frame displaced by a fraction of a pixel loses no border. Bit 1: a frame pixel used (non-zero weight) is at
- * SAT_LEVEL; bit 2: a non-finite float input. One work-item per output pixel, planar output (B, N) float32.
+ * interpolation's taps clamped to the field), so a frame displaced by a fraction of a pixel loses no border.
+ * Bit 1: a frame pixel used (non-zero weight) is at SAT_LEVEL; bit 2: a non-finite float input. One work-item per
+ * output pixel, planar output (B, N) float32.
  *
  * Macros (as common.h): K, B, IN_T, HAS_DARK (0 / 1 per pixel / 2 per frame), HAS_GAIN, SAT_LEVEL, IS_FLOAT_IN;
  * FLOW = 1: a displacement per pixel and frame instead (dense motion, flow (K, 2, N): frame k saw pixel i at

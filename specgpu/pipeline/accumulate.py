@@ -1,5 +1,5 @@
-"""Temporal accumulation for scenes that hold still (``specgpu stream --accumulate N``): a running estimate per
-pixel over up to N sequences, reset where the pixel changes beyond its noise (:class:`AccumulateSink`).
+"""Temporal accumulation (``specgpu stream --accumulate N``): a running estimate per pixel over up to N sequences,
+reset where the pixel changes beyond its noise (:class:`AccumulateSink`); under ``--motion`` it moves with the scene.
 
 Each new sequence's outputs ``y`` update the running mean ``m`` of ``c`` sequences (``c`` capped at N, so the
 estimate follows the last N or so: a recursive mean that becomes an exponential one of time constant N)::
@@ -20,10 +20,11 @@ counts) is moved with the scene: the displacement between the two sequences is r
 registered, then refined on tiles so that an object moving on its own does not pull it; two reflectance maps need
 no illuminant in common), and the estimate is resampled where the new
 sequence's pixels were (:func:`shift_image`, cubic convolution; NaN, so restarted, where they were outside the
-field). The change
+field, more than half a pixel beyond an edge pixel's centre). The change
 test then restarts every pixel the translation does not carry: an object moving on its own, a surface that came
 into view, a registration that failed. The sigma is the motion decoder's ``sigma_rms`` (an upper bound at the
-warped samples). Each resampling by a fraction of a pixel weighs neighbouring pixels of the estimate, which
+warped samples: up to twice the standard deviation at half-pixel shifts, so the test is up to twice as tolerant
+there). Each resampling by a fraction of a pixel weighs neighbouring pixels of the estimate, which
 softens detail near the sampling frequency a little (cubic convolution rather than bilinear interpolation keeps
 repeated resampling from blurring fine texture); a translation by whole pixels is exact.
 """
@@ -103,7 +104,7 @@ class AccumulateSink:
             s = np.asarray(a["sigma_rms"], np.float32).reshape(y["cube"].shape[:2])
         else:
             s = np.asarray(a["sigma"], np.float32)[..., -1]
-        image = registration_image(y["cube"]) if self.motion else None
+        image = cube_registration_image(y["cube"]) if self.motion else None
         if self.mean is None or self.mean["cube"].shape != y["cube"].shape:
             self.mean = {name: v.copy() for name, v in y.items()}
             self.counts = np.ones(y["cube"].shape[:2], np.int64)
@@ -136,7 +137,7 @@ class AccumulateSink:
         pass
 
 
-def registration_image(cube) -> np.ndarray:
+def cube_registration_image(cube) -> np.ndarray:
     """The image two sequences' decoded ``cube`` s (H, W, B) are registered on: the gradient image of the band mean
     (non-finite pixels at the field's mean)."""
     image = np.mean(np.asarray(cube, np.float32), axis=-1)
@@ -147,7 +148,7 @@ def registration_image(cube) -> np.ndarray:
 
 
 def displacement(previous, image) -> np.ndarray:
-    """(x, y) displacement, px, of the content of :func:`registration_image` ``image`` relative to ``previous``:
+    """(x, y) displacement, px, of the content of :func:`cube_registration_image` ``image`` relative to ``previous``:
     the whole-image correlation peak, then the tiles of a grid of up to :data:`TILES` x :data:`TILES` registered
     about it and the mean of those within :data:`AGREE_PX` of their median (an object moving on its own pulls the
     whole-image peak; it holds few tiles). Images too small for 2 x 2 tiles of :data:`MIN_TILE_PX` keep the
@@ -170,16 +171,23 @@ def displacement(previous, image) -> np.ndarray:
 def sequence_displacement(previous_cube, cube) -> np.ndarray:
     """(x, y) displacement, px, of the scene in the decoded ``cube`` (H, W, B) since ``previous_cube``: where a
     point seen at x in the previous one is seen now, x + d."""
-    return displacement(registration_image(previous_cube), registration_image(cube))
+    return displacement(cube_registration_image(previous_cube), cube_registration_image(cube))
 
 
 def shift_image(a, shift, *, fill=np.nan) -> np.ndarray:
     """``a`` (H, W, ...) moved by ``shift`` (x, y) px: ``out(x) = a(x - shift)``, by separable cubic convolution
     (Keys, a = -1/2: exact for whole pixels and for quadratics, far less smoothing than bilinear, so repeated
-    resampling keeps texture), ``fill`` where a sample it reads is outside ``a``. Float arrays come back float32;
-    integer ones (whole-pixel shifts only) as they are."""
+    resampling keeps texture). The field is the pixels' footprint: ``fill`` only where the sample point lies more
+    than half a pixel beyond an edge pixel's centre; nearer the edge the taps are clamped to it. Where a tap reads
+    a NaN the nearest sample is taken, so a NaN stays one pixel instead of spreading over the taps' reach. Float
+    arrays come back float32; integer ones (whole-pixel shifts only, a finite ``fill``) as they are."""
     a = np.asarray(a)
-    out = a if a.dtype.kind in "iu" else a.astype(np.float32)
+    if a.dtype.kind in "iu":
+        if not np.isfinite(fill):
+            raise ValueError(f"an integer image needs a finite fill, got {fill!r}")
+        out = a
+    else:
+        out = np.asarray(a, np.float32)  # never written: each axis makes a new array
     for axis, d in ((1, float(shift[0])), (0, float(shift[1]))):
         out = _shift_axis(out, -d, axis, fill)
     return out
@@ -194,32 +202,45 @@ def _keys(t: float) -> np.ndarray:
                      (0.5 * t - 0.5) * t * t], np.float64)
 
 
+def _along(a: np.ndarray, axis: int, start: int, stop: int) -> np.ndarray:
+    """``a[start:stop]`` along ``axis`` (a view)."""
+    index = [slice(None)] * a.ndim
+    index[axis] = slice(start, stop)
+    return a[tuple(index)]
+
+
 def _shift_axis(a: np.ndarray, s: float, axis: int, fill) -> np.ndarray:
-    """``out[i] = a(i + s)`` along ``axis`` (cubic convolution of the four samples about ``i + s``; the sample
-    itself for whole pixels), ``fill`` where one of them is outside."""
+    """``out[j] = a(j + s)`` along ``axis``: the sample itself for whole pixels (``fill`` off the field); else the
+    cubic convolution of the four samples about ``j + s``, clamped to the field, ``fill`` where ``j + s`` is outside
+    [-1/2, n - 1/2], the nearest sample where a tap is NaN."""
     n = a.shape[axis]
     i = int(np.floor(s))
     t = s - i
     if t and a.dtype.kind in "iu":
         raise ValueError(f"an integer image moves by whole pixels only, got {-s!r}")
-    taps = (0,) if not t else (-1, 0, 1, 2)
-    weights = (1.0,) if not t else _keys(t)
     out = np.full_like(a, fill)
-    lo, hi = max(0, -i - taps[0]), min(n, n - i - taps[-1])  # the output indices whose samples all lie inside
-    if hi <= lo:
+    if not t:
+        lo, hi = max(0, -i), min(n, n - i)
+        if hi > lo:
+            _along(out, axis, lo, hi)[...] = _along(a, axis, lo + i, hi + i)
         return out
-    put = [slice(None)] * a.ndim
-    put[axis] = slice(lo, hi)
-    acc = out[tuple(put)]  # a view: the taps are summed in place, with one scratch array
+    inside = np.flatnonzero(np.abs(np.arange(n) + s - (n - 1) / 2.0) <= n / 2.0)
+    if not len(inside):
+        return out
+    lo, hi = int(inside[0]), int(inside[-1]) + 1
+    # two samples of the edge beyond each end: the taps clamped to the field, read as plain slices
+    padded = np.pad(a, [(2, 2) if ax == axis else (0, 0) for ax in range(a.ndim)], mode="edge")
+    acc = _along(out, axis, lo, hi)  # a view: the taps are summed in place, with one scratch array
     scratch = None
-    for j, (tap, w) in enumerate(zip(taps, weights)):
-        take = [slice(None)] * a.ndim
-        take[axis] = slice(lo + i + tap, hi + i + tap)
-        if not t:
-            acc[...] = a[tuple(take)]
-        elif j == 0:
-            np.multiply(a[tuple(take)], np.float32(w), out=acc)
+    for j, (tap, w) in enumerate(zip((-1, 0, 1, 2), _keys(t))):
+        src = _along(padded, axis, lo + i + tap + 2, hi + i + tap + 2)
+        if j == 0:
+            np.multiply(src, np.float32(w), out=acc)
         else:
-            scratch = np.multiply(a[tuple(take)], np.float32(w), out=scratch)
+            scratch = np.multiply(src, np.float32(w), out=scratch)
             acc += scratch
+    bad = np.isnan(acc)
+    if bad.any():  # a NaN among the taps: the nearest sample (NaN only if it is)
+        nearest = _along(padded, axis, lo + i + int(t >= 0.5) + 2, hi + i + int(t >= 0.5) + 2)
+        acc[bad] = nearest[bad]
     return out

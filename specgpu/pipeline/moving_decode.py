@@ -182,8 +182,8 @@ class MovingDecoder:
 
     def sigma_rms(self, frames, rec) -> np.ndarray:
         """(H, W) float32: the RMS over the outputs of their standard deviation at the samples ``rec`` decoded (the
-        sequence's shifts; an object layer's own inside its box, on the pixels decoded with it), NaN where the
-        outputs are (an upper bound: see the module notes)."""
+        sequence's shifts; an object layer's own on the pixels decoded with it), NaN where the outputs are (an
+        upper bound: see the module notes)."""
         gain = self.calibration.flat_field
 
         def variance(shifts):
@@ -192,11 +192,10 @@ class MovingDecoder:
 
         var = variance(rec.estimates[0].shifts)
         own = (rec.mask & np.uint8(16)) != 0
-        for layer in rec.layers:
-            y0, y1, x0, x1 = layer.box
-            inside = own[y0:y1, x0:x1]
-            if inside.any():
-                var[y0:y1, x0:x1][inside] = variance(layer.shifts)[y0:y1, x0:x1][inside]
+        for layer in rec.layers:  # in the order their decodings were given, as the outputs' were
+            mine = own & layer.decoded
+            if mine.any():
+                var[mine] = variance(layer.shifts)[mine]
         var += self.rms_constant
         np.maximum(var, 0.0, out=var)
         np.sqrt(var, out=var)

@@ -94,12 +94,16 @@ class ObjectLayer:
         disagree on).
     occluded : int
         Pixels of the background the object covered in some frame of the sequence (flagged and NaN).
+    decoded : numpy.ndarray or None
+        (H, W) bool: the pixels this layer's decoding was given (a later layer or its own flags may take some back:
+        the mask's bit 16 says which still hold it).
     """
 
     shifts: np.ndarray
     box: tuple
     pixels: int
     occluded: int = 0
+    decoded: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 def flagged_regions(flagged, *, min_share: float = MIN_LAYER_SHARE, join_px: int = JOIN_PX,
@@ -302,7 +306,7 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         mask[failed] = (mask[failed] & ~np.uint8(MASK_INCONSISTENT)) | (res.mask[failed] & np.uint8(1 | 2 | MASK_OUTSIDE))
         y[hidden] = np.nan
         flagged = (flagged & ~use) | hidden
-        layers.append(ObjectLayer(shifts, box, int(use.sum()), int(covered.sum())))
+        layers.append(ObjectLayer(shifts, box, int(use.sum()), int(covered.sum()), decoded=use))
     return layers
 
 

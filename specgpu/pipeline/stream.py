@@ -422,11 +422,13 @@ class Stream:
         none is free the results still on the device (``pending``, oldest first) are completed and handed to them:
         a sequence assembled from frames already waiting in the ring, before the previous one's events finished,
         would otherwise wait for a token that only that previous result frees (with one result buffer, a hang)."""
-        while not self._tokens.acquire(timeout=0.0 if pending else 0.05):
+        while True:
+            self._recycle_done()  # the tokens of results the sinks are done with
+            if self._tokens.acquire(timeout=0.0 if pending else 0.05):
+                return
             if pending:
                 self._complete(pending.popleft())
                 continue
-            self._recycle_done()
             if self._errors:
                 raise RuntimeError("stream: stopped on an error while waiting for a result buffer")
 

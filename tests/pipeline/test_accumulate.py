@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from specgpu.pipeline.accumulate import AccumulateSink
+from specgpu.pipeline.accumulate import AccumulateSink, sequence_displacement, shift_image
 
 
 def _result(cube, sigma):
@@ -56,8 +56,6 @@ def test_refusals_are_one_line():
 
 # ------------------------------------------------------------------------------------------- along the motion
 
-from specgpu.pipeline.accumulate import sequence_displacement, shift_image  # noqa: E402
-
 
 def _texture(shape, bands, seed=1):
     """A smooth random texture as a function of continuous (x, y): sums of sinusoids up to 0.12 cycles per px, so
@@ -86,14 +84,23 @@ def test_shift_image_whole_pixels_is_a_slice_and_a_quadratic_is_exact():
     moved = shift_image(counts, (-4, 1), fill=0)
     assert moved.dtype == counts.dtype and moved[0].max() == 0 and moved[1, 0] == counts[0, 4]
     with pytest.raises(ValueError, match="whole pixels"):
-        shift_image(counts, (0.5, 0))
-    # cubic convolution reproduces a quadratic exactly at a fractional shift, NaN where it reads outside
+        shift_image(counts, (0.5, 0), fill=0)
+    # cubic convolution reproduces a quadratic exactly at a fractional shift where its four taps are inside; NaN
+    # only where the sample point is beyond the pixels' footprint (x - 1.3 < -1/2: the first column; y + 0.6 >
+    # 19.5: the last row), the taps clamped to the field nearer the edge
     y, x = np.mgrid[:20, :30].astype(np.float64)
     q = lambda x, y: 0.3 + 0.01 * x - 0.02 * y + 0.001 * x * x + 0.002 * x * y - 0.0015 * y * y  # noqa: E731
     out = shift_image(q(x, y)[..., None], (1.3, -0.6))[..., 0]
-    inside = np.isfinite(out)
-    assert inside.sum() == (20 - 3) * (30 - 3)  # the four samples a fractional shift reads span three pixels
-    np.testing.assert_allclose(out[inside], q(x - 1.3, y + 0.6)[inside], atol=1e-5)
+    assert np.isnan(out[:, 0]).all() and np.isnan(out[-1]).all() and np.isfinite(out[:-1, 1:]).all()
+    np.testing.assert_allclose(out[1:18, 3:], q(x - 1.3, y + 0.6)[1:18, 3:], atol=1e-5)
+    assert abs(out[0, 1] - q(0.0, 0.6)) < 0.01  # the clamped taps near the edge: close, not exact
+    # a NaN of the estimate stays where its nearest sample is, instead of spreading over the taps' reach
+    holed = q(x, y)[..., None].copy()
+    holed[8, 12] = np.nan
+    moved = shift_image(holed, (1.3, -0.6))[..., 0]
+    assert np.argwhere(np.isnan(moved[:-1, 1:])).tolist() == [[7, 12]]  # y + 0.6 -> 8, x - 1.3 -> 12 (+1 column)
+    with pytest.raises(ValueError, match="finite fill"):
+        shift_image(counts, (1, 0))
 
 
 def test_the_estimate_moves_with_the_scene_and_its_noise_falls():
@@ -120,7 +127,7 @@ def test_the_estimate_moves_with_the_scene_and_its_noise_falls():
     assert 0.3 * sigma < err.std() < 0.65 * sigma and abs(err.mean()) < 0.1 * sigma
     # the columns on the left came into view with the last step (the scene moves 3.4 px to the right), and the
     # bottom rows (it moves 1.7 px up): restarted
-    assert (moving.counts[:, :4] == 1).all() and (moving.counts[-2:] == 1).all()
+    assert (moving.counts[:, :3] == 1).all() and (moving.counts[-2:] == 1).all()
     assert max(moving.resets) < 0.2
     assert min(sinks[False].resets) > 0.5  # held still, the moving texture is a change nearly everywhere
 

@@ -13,6 +13,9 @@ from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving import MASK_INCONSISTENT
 from specgpu.pipeline.moving_decode import MovingDecoder
 from specgpu.pipeline.moving_layers import MASK_LAYER, flagged_regions, occluded_by, recover_moving
+from specgpu.planning.estimators import with_estimator
+from specgpu.planning.noise import NoiseModel
+from specgpu.planning.uncertainty import constant_variance, frame_variance
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.scene import SpectralScene
 
@@ -124,3 +127,28 @@ def test_flagged_regions_joins_nearby_flags_and_drops_small_ones():
     regions = flagged_regions(flagged, min_share=0.002)
     assert len(regions) == 1 and regions[0][55, 65] and not regions[0][151, 251]
     assert flagged_regions(np.zeros((10, 10), bool)) == []
+
+
+def test_sigma_rms_reads_an_object_layers_pixels_with_its_own_motion(setup, chart_over_scene):
+    """The motion decoder's sigma_rms: on the pixels an object layer decoded, the noise model at that layer's
+    samples; elsewhere at the background's; NaN exactly where the cube is."""
+    desc, bundle, plan, _ = setup
+    frames = chart_over_scene[0]
+    plan = with_estimator(plan, bundle, "projection", noise=NoiseModel.from_rig(desc, plan.exposure_s))
+    dec = MovingDecoder(plan, bundle, ("cube", "sigma_rms"), mode="global")
+    maps = dec.decode(frames)
+    sigma = maps["sigma_rms"]
+    np.testing.assert_array_equal(np.isnan(sigma), np.isnan(maps["cube"][..., 0]))
+    (layer,) = maps["layers"]
+    own = (maps["mask"] & MASK_LAYER) != 0
+    assert own.sum() > 1000 and not (own & ~layer.decoded).any()
+
+    def at(shifts):
+        var = frame_variance(frames, plan, dec.dark, bundle.flat_field, A=dec.rms_row, shifts=shifts)[..., 0]
+        return np.sqrt(var + np.mean(constant_variance(plan)))
+
+    np.testing.assert_allclose(sigma[own], at(layer.shifts)[own], rtol=1e-5)
+    rest = np.isfinite(sigma) & ~own
+    np.testing.assert_allclose(sigma[rest], at(maps["estimate"].shifts)[rest], rtol=1e-5)
+    # the two motions' samples differ on the object: the comparison can fail
+    assert np.nanmax(np.abs(at(layer.shifts)[own] - at(maps["estimate"].shifts)[own])) > 1e-3
