@@ -1,7 +1,7 @@
 /* specgpu consistency check of a motion-compensated sequence: do the frames' gradient images agree once each is
  * sampled where the motion says that frame saw each pixel?
  *
- * Four passes, each work-item 8 consecutive pixels of a row (float8: the width PoCL vectorises these loops to).
+ * Four passes; each work-item covers 8 consecutive pixels of a row (float8: the width PoCL vectorises these loops to).
  * Rows are stored STRIDE floats apart (the width rounded up to 8; the lanes beyond the width hold copies of the
  * last column's values and are not read back); the aligned images have HALF more columns each side (and up to a
  * whole number of vectors).

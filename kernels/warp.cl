@@ -133,16 +133,13 @@ inline void warp_pixel(__global const IN_T *restrict frames, __constant const fl
     mask[i] = (uchar)flags;
 }
 
-__kernel void linear_warp(__global const IN_T *restrict frames,
-                          __constant const float *restrict A,
-                          __constant const float *restrict motion,
-                          __global const float *restrict flow,
-                          __global const float *restrict dark,
-                          __global const float *restrict gain,
-                          __global float *restrict out,
-                          __global uchar *restrict mask,
-                          const uint width,
-                          const uint height)
+/* The arguments of both kernels (the host sets the same ones for either) */
+#define WARP_KERNEL_ARGS __global const IN_T *restrict frames, __constant const float *restrict A, \
+    __constant const float *restrict motion, __global const float *restrict flow, \
+    __global const float *restrict dark, __global const float *restrict gain, __global float *restrict out, \
+    __global uchar *restrict mask, const uint width, const uint height
+
+__kernel void linear_warp(WARP_KERNEL_ARGS)
 {
     const ulong i = get_global_id(0);
     if (i >= (ulong)width * height) return;
@@ -195,16 +192,7 @@ inline float8 translate_sample(__global const IN_T *restrict frames, __constant 
          + corrected8(plane, dark, gain, k, n, p + width + 1, fx * fy, flags);
 }
 
-__kernel void linear_warp_translate(__global const IN_T *restrict frames,
-                                    __constant const float *restrict A,
-                                    __constant const float *restrict motion,
-                                    __global const float *restrict flow,
-                                    __global const float *restrict dark,
-                                    __global const float *restrict gain,
-                                    __global float *restrict out,
-                                    __global uchar *restrict mask,
-                                    const uint width,
-                                    const uint height)
+__kernel void linear_warp_translate(WARP_KERNEL_ARGS)
 {
     const int x0 = 8 * get_global_id(0), y = get_global_id(1);
     if (x0 >= (int)width || y >= (int)height) return;
