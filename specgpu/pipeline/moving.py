@@ -38,8 +38,9 @@ from threadpoolctl import ThreadpoolController
 from specgpu.core.validate import validate_method
 from specgpu.engine.consistency import consistency_maps
 from specgpu.io.npz import write_cube_npz
-from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_peak, hann_window, second_peak_ratio,
-                                           sobel_magnitude, tile_displacements, whitened_half_spectrum)
+from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_peak, half_spectrum_energy, hann_window,
+                                           peak_error, second_peak_ratio, sobel_magnitude, tile_displacements,
+                                           whitened_half_spectrum)
 from specgpu.rig.twin import TwinRig
 
 __all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD", "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode", "estimate_global_motion",
@@ -149,13 +150,6 @@ def _register(a: np.ndarray, b: np.ndarray, upsample: int) -> tuple[np.ndarray, 
     """(x, y) displacement of the content of whitened spectrum ``b`` relative to ``a``, and the error."""
     shift, err, _ = phase_cross_correlation(a, b, upsample_factor=upsample, normalization=None, space="fourier")
     return -np.asarray(shift[::-1], np.float64), float(err)
-
-
-def _half_spectrum_energy(F: np.ndarray, width: int) -> float:
-    """Sum of |F|^2 over the whole spectrum of an image ``width`` wide of which ``F`` is the ``rfft2`` half (the
-    columns mirrored in the other half counted twice: all but the first and, for an even width, the last)."""
-    power = np.einsum("ij,ij->j", F.real, F.real) + np.einsum("ij,ij->j", F.imag, F.imag)
-    return float(power.sum() * 2.0 - power[0] - (power[-1] if width % 2 == 0 else 0.0))
 
 
 @functools.lru_cache(maxsize=1)
@@ -304,7 +298,7 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
 
     def energy(k):
         if k not in energies:
-            energies[k] = _half_spectrum_energy(spectrum(k), gradient(k).shape[1] // binning)
+            energies[k] = half_spectrum_energy(spectrum(k), gradient(k).shape[1] // binning)
         return energies[k]
 
     def register(a, b):
@@ -316,8 +310,7 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         if reference_frame in (a, b):  # how clearly the whole image moves as one: the tiles' check needed?
             ambiguity[b if a == reference_frame else a] = second_peak_ratio(
                 surface, d, max(1, int(np.ceil(1.5 / (2.0 * np.pi * cutoff)))))  # 1.5 sigma of the peak
-        amp = energy(a) * energy(b) / float(surface.size) ** 2
-        return d, float(np.sqrt(abs(1.0 - top * top / max(amp, 1e-30))))
+        return d, peak_error(top, energy(a), energy(b), surface.size)
 
     def kept_gradients():
         return tuple(gradients.get(k) for k in range(K))

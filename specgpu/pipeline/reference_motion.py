@@ -21,11 +21,12 @@ rival peak.
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import CubicSpline, interp1d
 
-from specgpu.pipeline.moving import (MotionEstimate, _affine_to, _dominant_translation,
-                                     _half_spectrum_energy, _one_blas_thread, at_reference_time, gradient_image)
-from specgpu.pipeline.registration import correlation_surface, fit_peak, whitened_half_spectrum
+from specgpu.pipeline.moving import (MotionEstimate, _affine_to, _dominant_translation, _one_blas_thread,
+                                     at_reference_time, gradient_image)
+from specgpu.pipeline.registration import (correlation_surface, fit_peak, half_spectrum_energy, peak_error,
+                                           whitened_half_spectrum)
 
 __all__ = ["check_reference_frames", "estimate_reference_motion", "interpolate_in_time"]
 
@@ -53,12 +54,7 @@ def interpolate_in_time(times, values, at, kind: str = "cubic") -> np.ndarray:
         raise ValueError(f"interpolation must be cubic or linear, got {kind!r}")
     if kind == "cubic" and t.size >= 3:
         return CubicSpline(t, v, axis=0, bc_type="not-a-knot", extrapolate=True)(at)
-    flat = v.reshape(t.size, -1)
-    out = np.empty((at.size, flat.shape[1]))
-    j = np.clip(np.searchsorted(t, at, side="right") - 1, 0, t.size - 2)  # the piece each time falls in
-    w = ((at - t[j]) / (t[j + 1] - t[j]))[:, None]
-    out[:] = flat[j] * (1.0 - w) + flat[j + 1] * w
-    return out.reshape(at.size, *v.shape[1:])
+    return interp1d(t, v, axis=0, assume_sorted=True, fill_value="extrapolate")(at)
 
 
 @_one_blas_thread
@@ -111,7 +107,7 @@ def estimate_reference_motion(frames, reference_frames, dark=None, gain=None, *,
                  for k in refs}
     shape = gradients[centre].shape
     spectra = {k: whitened_half_spectrum(gradients[k], cutoff) for k in refs}
-    energy = {k: _half_spectrum_energy(spectra[k], shape[1]) for k in refs}
+    energy = {k: half_spectrum_energy(spectra[k], shape[1]) for k in refs}
     raw = np.zeros((len(refs), 2))
     error = np.full(K, np.nan)
     for i, k in enumerate(refs):
@@ -120,8 +116,7 @@ def estimate_reference_motion(frames, reference_frames, dark=None, gain=None, *,
         surface = correlation_surface(spectra[centre], spectra[k], shape)
         d, top = fit_peak(surface)
         raw[i] = d
-        amp = energy[centre] * energy[k] / float(surface.size) ** 2
-        error[k] = float(np.sqrt(abs(1.0 - top * top / max(amp, 1e-30))))
+        error[k] = peak_error(top, energy[centre], energy[k], surface.size)
     error[centre] = float(np.nanmean(error[refs]))  # the mean of its registrations, as the global estimate's
     registered = np.zeros(K, bool)
     registered[refs] = True

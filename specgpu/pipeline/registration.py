@@ -29,7 +29,8 @@ import numpy as np
 from scipy import fft
 
 __all__ = ["sobel_magnitude", "bin_image", "hann_window", "frequency_weight", "whitened_half_spectrum",
-           "correlation_surface", "fit_peak", "peak_at", "second_peak_ratio", "tile_displacements"]
+           "half_spectrum_energy", "correlation_surface", "fit_peak", "peak_at", "peak_error", "second_peak_ratio",
+           "tile_displacements"]
 
 
 def sobel_magnitude(image: np.ndarray) -> np.ndarray:
@@ -111,6 +112,21 @@ def whitened_half_spectrum(image: np.ndarray, cutoff: float) -> np.ndarray:
     np.divide(frequency_weight(image.shape, float(cutoff)), magnitude, out=magnitude)
     F *= magnitude
     return F
+
+
+def half_spectrum_energy(F: np.ndarray, width: int) -> float:
+    """Sum of |F|^2 over the whole spectrum of an image ``width`` wide of which ``F`` is the ``rfft2`` half (the
+    columns mirrored in the other half counted twice: all but the first and, for an even width, the last)."""
+    power = np.einsum("ij,ij->j", F.real, F.real) + np.einsum("ij,ij->j", F.imag, F.imag)
+    return float(power.sum() * 2.0 - power[0] - (power[-1] if width % 2 == 0 else 0.0))
+
+
+def peak_error(top: float, energy_a: float, energy_b: float, size: int) -> float:
+    """The registration error of a correlation peak of height ``top`` between two spectra of
+    :func:`half_spectrum_energy` ``energy_a`` and ``energy_b`` over a surface of ``size`` samples: near 0 where the
+    images match once moved, near 1 where they share little."""
+    amp = energy_a * energy_b / float(size) ** 2
+    return float(np.sqrt(abs(1.0 - top * top / max(amp, 1e-30))))
 
 
 def correlation_surface(Fa: np.ndarray, Fb: np.ndarray, shape: tuple) -> np.ndarray:
