@@ -420,11 +420,13 @@ def at_reference_time(values: np.ndarray) -> np.ndarray:
     return 0.5 * (values[int(np.floor(mid))] + values[int(np.ceil(mid))])
 
 
-def frame_gradients(frames, dark=None, gain=None, gradients=None) -> list:
-    """Each frame's :func:`gradient_image`, taking those already made (``gradients``: a sequence with None where
-    one is to be made, or None)."""
+def frame_gradients(frames, dark=None, gain=None, gradients=None, which=None) -> list:
+    """Each frame's :func:`gradient_image` (``dark``: (H, W) or one per frame), taking those already made
+    (``gradients``: a sequence with None where one is to be made, or None); ``which``: only those frames, None for
+    the others."""
     dark = None if dark is None else np.asarray(dark, np.float32)
-    return [gradients[k] if gradients is not None and gradients[k] is not None else
+    wanted = range(len(frames)) if which is None else {int(k) for k in which}
+    return [None if k not in wanted else gradients[k] if gradients is not None and gradients[k] is not None else
             gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
             for k in range(len(frames))]
 

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline, interp1d
 
 from specgpu.pipeline.moving import (MotionEstimate, _affine_to, _dominant_translation, _one_blas_thread,
-                                     at_reference_time, gradient_image)
+                                     at_reference_time, frame_gradients)
 from specgpu.pipeline.registration import (correlation_surface, fit_peak, half_spectrum_energy, peak_error,
                                            whitened_half_spectrum)
 
@@ -100,11 +100,10 @@ def estimate_reference_motion(frames, reference_frames, dark=None, gain=None, *,
     refs = check_reference_frames(reference_frames, K)
     if model not in ("translation", "affine"):
         raise ValueError(f"model must be translation or affine with reference frames, got {model!r}")
-    dark = None if dark is None else np.asarray(dark, np.float32)
     mid = (K - 1) / 2.0
     centre = min(refs, key=lambda k: (abs(k - mid), k))  # the reference frame nearest the middle of the sequence
-    gradients = {k: gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
-                 for k in refs}
+    kept = tuple(frame_gradients(frames, dark, gain, which=refs))
+    gradients = {k: kept[k] for k in refs}
     shape = gradients[centre].shape
     spectra = {k: whitened_half_spectrum(gradients[k], cutoff) for k in refs}
     energy = {k: half_spectrum_energy(spectra[k], shape[1]) for k in refs}
@@ -120,7 +119,6 @@ def estimate_reference_motion(frames, reference_frames, dark=None, gain=None, *,
     error[centre] = float(np.nanmean(error[refs]))  # the mean of its registrations, as the global estimate's
     registered = np.zeros(K, bool)
     registered[refs] = True
-    kept = tuple(gradients.get(k) for k in range(K))
     times = np.asarray(refs, np.float64)
     every = np.arange(K, dtype=np.float64)
     if model == "translation":
