@@ -389,15 +389,16 @@ class Stream:
                     if self.ring.closed and self.ring.stats().pending == 0:
                         break
                     continue
+                info = slot.info  # read before the release: the driver's thread may refill the slot at once
                 try:
-                    seq = self.assembler.push(slot.array, slot.info)
+                    seq = self.assembler.push(slot.array, info)
                 finally:
                     self.ring.release(slot)
                 arrivals = self.driver.arrivals
-                arrival = arrivals.pop(slot.info.frame_id, None)
+                arrival = arrivals.pop(info.frame_id, None)
                 if len(arrivals) > 2 * self.n_slots:
                     # stamps of frames the ring discarded unread (drop_oldest) would pile up over a long run
-                    for fid in [f for f in list(arrivals) if f < slot.info.frame_id]:
+                    for fid in [f for f in list(arrivals) if f < info.frame_id]:
                         arrivals.pop(fid, None)
                 if seq is None:
                     continue

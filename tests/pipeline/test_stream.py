@@ -244,6 +244,25 @@ def test_one_result_buffer_never_hangs_when_frames_are_waiting(setup):
     assert done["report"].sequences_out == 16 and done["report"].accounting()["balanced"]
 
 
+def test_a_slot_refilled_the_moment_it_is_released_loses_no_frame(setup, monkeypatch):
+    """The driver's thread may take a released slot back at once (its metadata reset while it is filled): the
+    stream reads what it needs of a frame before it releases the slot, so every frame keeps its arrival stamp."""
+    from specgpu.capture.ringbuffer import RingBuffer
+    from specgpu.capture.replay import ReplayDriver
+
+    release = RingBuffer.release
+
+    def release_and_refill(self, slot):
+        release(self, slot)
+        slot.info = None  # what an immediate acquire for filling does to the slot
+
+    monkeypatch.setattr(RingBuffer, "release", release_and_refill)
+    report = Stream(ReplayDriver(setup.frames, setup.infos, setup.light, loops=2), setup.plan, setup.bundle,
+                    outputs=("XYZ",), policy="block").run()
+    assert report.sequences_out == 8 and report.accounting()["balanced"] and not report.sink_errors
+    assert report.latency.count == 8 and np.isfinite(report.latency.mean)  # each result timed from its frame
+
+
 def test_a_failing_sink_stops_the_stream_and_is_reported(setup):
     calls = []
 
