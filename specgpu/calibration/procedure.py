@@ -163,6 +163,12 @@ def _column_map(bench: _Bench, line_shape: str) -> _ColumnMap:
     return _ColumnMap(col_wl, col_power, slope, icpt, full, line)
 
 
+#: A pixel whose white reading is under this fraction of the field centre's is unlit (outside the light's spot);
+#: calibration refuses a field with more than UNLIT_SHARE of them (isolated dead pixels stay under it).
+UNLIT_FRACTION = 0.02
+UNLIT_SHARE = 1e-3
+
+
 def _flat_field(bench: _Bench, dark):
     """Step (3): the flat field from a broadband pattern on the white at about half the camera's range.
     Returns (flat (H, W) float32, its mirror count, the probe's mirror count, the probe's level DN)."""
@@ -179,7 +185,14 @@ def _flat_field(bench: _Bench, dark):
         raise ValueError("calibrate: the white gives no signal; check the light and the camera")
     n_flat = int(min(p.rows, max(1, round(n_probe * 0.5 * max_code / lvl))))  # about half the range
     white_mean = bench.capture(np.full((1, p.columns), n_flat, np.int32), 2 * bench.repeats)[0] - dark
-    flat = (float(np.median(white_mean[small])) / np.maximum(white_mean, 1e-6)).astype(np.float32)
+    centre = float(np.median(white_mean[small]))
+    unlit = float(np.mean(white_mean < UNLIT_FRACTION * centre))
+    if unlit > UNLIT_SHARE:  # a few dead pixels pass; a field the light does not cover has no flat field
+        raise ValueError(f"calibrate: {unlit:.1%} of the camera's {white_mean.shape[1]} x {white_mean.shape[0]} "
+                         f"field gets under {UNLIT_FRACTION:.0%} of the centre's light on the white: the light's "
+                         "spot does not cover the field; frame a smaller field (camera.object_pixel_um, a longer "
+                         "lens) or widen the spot (light.spot_diameter_mm)")
+    flat = (centre / np.maximum(white_mean, 1e-6)).astype(np.float32)
     return flat, n_flat, n_probe, lvl
 
 

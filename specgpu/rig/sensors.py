@@ -25,6 +25,11 @@ Sources of the figures (data sheets as published; the rest is said to be assumed
     pixel as the IMX250 (same full well and read noise; the Pregius second generation shares one pixel design),
     and, as a stated model, the IMX250's 12-bit pixel clock and overhead: 23.8 fps at full resolution.
 
+Every preset frames the paper's object field: its lens images the width the paper's camera sees (640 pixels of
+48 um on the object, 30.72 mm) onto the sensor's width (``object_pixel_um`` = 30720 / sensor_width), so the
+light's spot covers the field as in the paper. The bare sensor with the paper's 48 um pixels on the object would
+see a field wider than the spot, whose corners get under 1 % of the centre's light: no flat field corrects that.
+
 Quantum efficiency peaks (Pregius monochrome about 0.65, CMV4000 about 0.60 including fill factor) and dark
 currents of the Sony parts are typical published values, used as assumed; the spectral shape stays the
 documented ``"cmos"`` model unless a CSV is given.
@@ -36,7 +41,7 @@ from dataclasses import fields, replace
 
 from specgpu.rig.camera import CameraParameters
 
-__all__ = ["PRESETS", "preset_names", "camera_preset", "expand_preset", "camera_for_size"]
+__all__ = ["OBJECT_FIELD_MM", "PRESETS", "preset_names", "camera_preset", "expand_preset", "camera_for_size"]
 
 # Per preset: the CameraParameters fields that differ from the paper's camera. Exposure and frame rate are
 # chosen inside the sensor's frame-rate limit.
@@ -62,8 +67,20 @@ _PRESET_FIELDS: dict[str, dict] = {
     ),
 }
 
+#: Width of the object the paper's camera sees, mm (640 pixels of 48 um): the field every preset frames.
+OBJECT_FIELD_MM = CameraParameters().sensor_width * CameraParameters().object_pixel_um * 1e-3
+
+
+def _framed(values: dict) -> dict:
+    """A preset's fields with the lens that frames :data:`OBJECT_FIELD_MM` on its sensor's width."""
+    if "sensor_width" not in values or "object_pixel_um" in values:
+        return values
+    return {**values, "object_pixel_um": OBJECT_FIELD_MM * 1e3 / values["sensor_width"]}
+
+
 #: Preset name -> CameraParameters (built once; each is checked by CameraParameters itself).
-PRESETS: dict[str, CameraParameters] = {name: CameraParameters(**values) for name, values in _PRESET_FIELDS.items()}
+PRESETS: dict[str, CameraParameters] = {name: CameraParameters(**_framed(values))
+                                        for name, values in _PRESET_FIELDS.items()}
 
 
 def preset_names() -> tuple[str, ...]:
@@ -94,7 +111,8 @@ def expand_preset(table: dict) -> dict:
 def camera_for_size(width: int, height: int, base: CameraParameters | None = None) -> CameraParameters:
     """A camera that reads ``width`` x ``height`` frames: ``base`` (the paper's camera by default) with that ROI
     when its sensor holds it, else the smallest preset sensor that holds it (ROI centred), else a sensor of
-    exactly that size with the IMX250's pixel and 12-bit timing model."""
+    exactly that size with the IMX250's pixel and 12-bit timing model (each preset's lens framing the paper's
+    object field on its sensor's width)."""
     base = base if base is not None else CameraParameters()
     width, height = int(width), int(height)
     candidates = [base] + sorted(PRESETS.values(), key=lambda p: p.sensor_width * p.sensor_height)
@@ -104,7 +122,8 @@ def camera_for_size(width: int, height: int, base: CameraParameters | None = Non
             break
     else:
         chosen = replace(PRESETS["imx250"], sensor_width=width, sensor_height=height, roi_width=width,
-                         roi_height=height, frame_rate_hz=1.0, exposure_s=0.5)
+                         roi_height=height, frame_rate_hz=1.0, exposure_s=0.5,
+                         object_pixel_um=OBJECT_FIELD_MM * 1e3 / width)
     rate = min(chosen.frame_rate_hz, _max_rate(chosen, width, height))
     return replace(chosen, roi_width=width, roi_height=height, frame_rate_hz=rate,
                    exposure_s=min(chosen.exposure_s, 0.9 / rate))

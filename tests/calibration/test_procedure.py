@@ -1,6 +1,8 @@
 """The whole calibration on the noisy twin from a perturbed start: the loops converge, the bundle matches the
 twin's truth (on the paper's rig and on the imperfect lab bench), and arguments are checked."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -119,3 +121,18 @@ def test_light_fluctuation_is_measured(small_rig, calibrated):
     t = calibrated.reports["light_fluctuation_exposure_s"]
     truth = p.fluctuation_rms * np.sqrt(p.fluctuation_reference_exposure_s / t)
     assert 0.5 * truth < calibrated.reports["light_fluctuation"] < 1.6 * truth  # 16 frames: +-18 % (1 sigma)
+
+
+def test_a_field_wider_than_the_light_spot_is_refused_in_one_line(small_rig):
+    # 320 px of 400 um on the object: a 128 mm field under the 80 mm spot, whose corners get almost no light; the
+    # flat field there would hold gains of thousands (or divide by zero), so calibration names the cause instead
+    wide = replace(small_rig, camera=replace(small_rig.camera, object_pixel_um=400.0))
+    with pytest.raises(ValueError) as err:
+        calibrate(wide, repeats=2, seed=1)
+    msg = str(err.value)
+    assert "\n" not in msg and "spot does not cover the field" in msg and "320 x 240" in msg
+    share = float(msg.split("% of the camera")[0].split("calibrate: ")[1])
+    # the share the message gives is the share of the field under 2 % of the centre's light, from the spot model
+    light = ProgrammableLight(small_rig.light)
+    profile = light.field_profile(240, 320, 0.4)
+    assert share == pytest.approx(100 * np.mean(profile < 0.02 * profile.max()), abs=3.0)

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from specgpu.rig import sensors
 from specgpu.rig.camera import Camera, CameraParameters
 from specgpu.rig.config import dump_rig, rig_from_dict
+from specgpu.rig.light import LightParameters, ProgrammableLight
 
 
 @pytest.mark.parametrize("name, size, bits, full_well, read_noise, fps", [
@@ -84,3 +85,19 @@ def test_a_preset_camera_exposes_frames_of_its_roi():
     # mean DN of a 5000 e- signal: (signal + pedestal + dark) / gain, within the noise of 307200 pixels
     expected = (5000.0 + params.pedestal_e + params.dark_current_e_per_s * params.exposure_s) / params.gain_e_per_dn
     assert frame.mean() == pytest.approx(expected, rel=0.01)
+
+
+@pytest.mark.parametrize("name", [n for n in sensors.PRESETS if n != "paper"])
+def test_every_preset_frames_the_paper_object_field_inside_the_light_spot(name):
+    cam = sensors.PRESETS[name]
+    paper = CameraParameters()
+    assert cam.sensor_width * cam.object_pixel_um == pytest.approx(paper.sensor_width * paper.object_pixel_um)
+    # the paper's light spot then lights the sensor's corners as it lights the paper's (over half the centre's)
+    light = ProgrammableLight(LightParameters())
+    corner = light.field_profile(cam.sensor_height, cam.sensor_width, cam.object_pixel_um * 1e-3)[0, 0]
+    assert corner > 0.5
+
+
+def test_a_camera_for_a_size_beyond_every_preset_frames_the_same_field():
+    cam = sensors.camera_for_size(5000, 400)
+    assert cam.sensor_width * cam.object_pixel_um == pytest.approx(sensors.OBJECT_FIELD_MM * 1e3)
