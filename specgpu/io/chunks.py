@@ -202,6 +202,12 @@ def write_chunk(path: str, parts, *, direct: DirectIO | None = None) -> None:
             os.close(fd)
 
 
+def _endian(codec) -> str | None:
+    """A zarr BytesCodec's byte order as text: an ``Endian`` enum up to zarr 3.1, a plain string from 3.2 on."""
+    endian = codec.endian
+    return getattr(endian, "value", endian)
+
+
 def _fast_encoder(array):
     """(True, Blosc encoder or None) when ``array``'s codecs are ones :func:`encode_chunk` writes (little-endian
     bytes, optionally Blosc, then CRC32C) and it lives in a local folder; (False, None) otherwise."""
@@ -211,7 +217,7 @@ def _fast_encoder(array):
     codecs = list(array.metadata.codecs) if array.metadata.zarr_format == 3 else []
     if not isinstance(array.store_path.store, LocalStore) or len(codecs) not in (2, 3) \
             or not isinstance(codecs[0], BytesCodec) or not isinstance(codecs[-1], Crc32cCodec) \
-            or (codecs[0].endian is not None and codecs[0].endian.value != "little"):
+            or _endian(codecs[0]) not in (None, "little"):
         return False, None
     if len(codecs) == 2:
         return True, None
