@@ -383,7 +383,9 @@ def test_delta_e_sigma_kernel_equals_the_host_propagation(queue):
     got = np.empty(n, np.float32)
     cl.enqueue_copy(queue, got, out["dE_sigma"])
     want = delta_E_sigma(xyz.astype(np.float32), six_to_full(six) + const, "D65")
-    np.testing.assert_allclose(got, want, rtol=2e-4, atol=1e-6)
+    # a GPU contracts the chain into FMAs and its float32 division and square root may round differently (OpenCL
+    # allows 2.5 and 3 ulp): an H100 differs from the host by up to 2.6e-4 relative; a sigma needs no more
+    np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-6)
 
 
 def six_to_full(six):
