@@ -3,6 +3,8 @@ the one-line error check every refusal must pass."""
 
 from __future__ import annotations
 
+import os
+
 from click.testing import CliRunner
 
 from specgpu.apps.cli import main
@@ -12,6 +14,12 @@ RIG = "[camera]\nroi_width = 320\nroi_height = 240\n"
 #: a 320 x 240 rig at 200 fps whose natural scene drifts 2 px per frame in x and 1 in y
 MOVING_RIG = ("[camera]\nroi_width = 320\nroi_height = 240\nframe_rate_hz = 200.0\nexposure_s = 0.0049\n"
               "[scene]\nsource = \"natural\"\n[motion]\nvelocity_px_per_frame = [2.0, 1.0]\n")
+
+
+def python_path(*first) -> str:
+    """A PYTHONPATH for a subprocess: ``first`` ahead of this process's own entries, which are kept (an
+    interpreter whose packages come from PYTHONPATH still finds them; ``first`` still wins)."""
+    return os.pathsep.join([*map(str, first), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))])
 
 
 def run(*args, ok=True):

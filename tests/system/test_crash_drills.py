@@ -25,7 +25,7 @@ from specgpu import io
 from specgpu.core.locks import lock_path
 from specgpu.io.recording import open_recording
 
-from cli_helpers import one_line_error, run, tristimulus_rig
+from cli_helpers import one_line_error, python_path, run, tristimulus_rig
 
 ROOT = Path(__file__).resolve().parents[2]
 # no shrinking: each example is a subprocess killed at a time, and a failure is reported as found
@@ -43,7 +43,7 @@ def base(tmp_path_factory):
 
 
 def start(*args) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env = dict(os.environ, PYTHONPATH=python_path(ROOT))
     return subprocess.Popen([sys.executable, "-m", "specgpu", *map(str, args)], cwd=ROOT, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
 

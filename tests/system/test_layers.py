@@ -14,6 +14,7 @@ import sys
 import tomllib
 from pathlib import Path
 
+from cli_helpers import python_path
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "specgpu"
@@ -34,7 +35,7 @@ def lint_imports(cwd: Path) -> subprocess.CompletedProcess:
     """Run import-linter on the package found under ``cwd`` (its pyproject.toml holds the contracts)."""
     code = ("import sys; from importlinter.cli import lint_imports_command; "
             "sys.argv = ['lint-imports', '--no-cache', '--no-logo']; lint_imports_command()")
-    env = {**os.environ, "PYTHONPATH": str(cwd)}
+    env = {**os.environ, "PYTHONPATH": python_path(cwd)}
     return subprocess.run([sys.executable, "-c", code], cwd=cwd, env=env, capture_output=True, text=True,
                           timeout=300)
 

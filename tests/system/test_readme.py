@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli_helpers import RIG, run
+from cli_helpers import RIG, python_path, run
 from specgpu.apps.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -91,7 +91,7 @@ def test_step_by_step_experiment_runs_as_written(tmp_path):
                           ("python", f'exec "{sys.executable}" "$@"')):
         (bin_dir / name).write_text(f"#!/bin/sh\n{command}\n")
         (bin_dir / name).chmod(0o755)
-    env = {"PATH": f"{bin_dir}:/usr/bin:/bin", "PYTHONPATH": str(ROOT), "HOME": str(Path.home())}
+    env = {"PATH": f"{bin_dir}:/usr/bin:/bin", "PYTHONPATH": python_path(ROOT), "HOME": str(Path.home())}
     work = tmp_path / "work"
     work.mkdir()
     result = subprocess.run(["bash", "-e", "-c", code], cwd=work, env=env, capture_output=True, text=True,

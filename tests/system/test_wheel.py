@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from cli_helpers import python_path
+
 ROOT = Path(__file__).resolve().parents[2]
 
 CHECK = textwrap.dedent(
@@ -55,7 +57,7 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
                     str(wheels[0])], check=True)
     kernels = ",".join(sorted(p.name for p in (ROOT / "kernels").glob("*.cl")))
     result = subprocess.run([sys.executable, "-c", CHECK, str(site), kernels], cwd=tmp_path, capture_output=True, text=True,
-                            env={"PYTHONPATH": str(site), "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
+                            env={"PYTHONPATH": python_path(site), "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
     assert result.returncode == 0, result.stdout + result.stderr
     assert "linear.cl ['linear_apply']" in result.stdout
     assert "colorimetry.cl ['delta_e', 'delta_e_sigma', 'frames_to_delta_e', 'xyz_to_lab']" in result.stdout
