@@ -23,7 +23,8 @@ from specgpu.testing import Checker, MemoryRecorder, max_rel, offline_maps, stre
 __all__ = ["STREAM_CASES", "STREAM_TARGETS", "format_stream_report", "run_stream_bench"]
 # ------------------------------------------------------------------------------------------------------ the stream
 
-#: The stream's targets, raw frames per second into the stream.
+#: The stream's targets, raw frames per second into the stream, at the paper's 640 x 480 (other sizes print their
+#: rates without a verdict).
 STREAM_TARGETS = {"coefficients_XYZ_dE2000_fps": 780.0, "cube_float16_fps": 200.0}
 
 
@@ -151,12 +152,13 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
                     steps[step] = steps.get(step, 0.0) + s
                 steps["sequences"] = steps.get("sequences", 0) + stream.moving.sequences
             runs[c].append((rep, load()))
+    targets = STREAM_TARGETS if (int(width), int(height)) == (640, 480) else {}
     for c in sustained:
         name = _SUSTAINED[c][0]
         order = sorted(range(len(runs[c])), key=lambda i: runs[c][i][0].frames_per_s)
         rep, load_avg = runs[c][order[len(order) // 2]]
         rows.append(_stream_row(name, rep, target_fps=None if c in ("dE_sigma", "linear", "denoise", "motion") else
-                                STREAM_TARGETS["coefficients_XYZ_dE2000_fps"],
+                                targets.get("coefficients_XYZ_dE2000_fps"),
                                 extra={"load_avg_1min": load_avg, "rounds": len(runs[c]),
                                        "frames_per_s_rounds": [r.frames_per_s for r, _ in runs[c]],
                                        "load_avg_rounds": [a for _, a in runs[c]]}))
@@ -168,7 +170,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
         stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("cube",), cube_dtype=np.float16,
                         policy="block", sinks=[recorder], device=device)
         rep = stream.run(seconds)
-        rows.append(_stream_row("cube float16 61 bands to memory", rep, target_fps=STREAM_TARGETS["cube_float16_fps"],
+        rows.append(_stream_row("cube float16 61 bands to memory", rep, target_fps=targets.get("cube_float16_fps"),
                                 extra={"cubes_written": recorder.count, "load_avg_1min": load()}))
     if "paced" in cases:
         checker = Checker(setup, expected, ("XYZ", "dE"))
