@@ -71,6 +71,7 @@ def main(argv=None):
     gain = np.ones((h, w), np.float32)
     queue = get_queue()
     est = estimate_global_motion(frames, dark, gain)
+    flow = estimate_global_motion(frames, dark, gain, model="flow")
     print(f"{w} x {h}, K = {K}, B = {args.outputs}, uint16 frames, device {queue.device.name.strip()}; "
           f"median of {args.repeats}")
     rows = [
@@ -89,6 +90,11 @@ def main(argv=None):
          lambda: estimate_global_motion(frames, dark, gain)),
         ("estimate: affine", lambda: estimate_global_motion(frames, dark, gain, model="affine")),
         ("consistency check", lambda: inconsistent_pixels(frames, est.shifts, dark, gain)),
+        # the dense case: a displacement per pixel and frame (the coarse tile flow, a study option, not a mode)
+        ("estimate: coarse tile flow (6 x 8 tiles)", lambda: estimate_global_motion(frames, dark, gain, model="flow")),
+        ("decode with a flow field per frame (warp.cl, FLOW)",
+         lambda: apply_linear_warped(frames, A, flow.shifts, dark, gain, device=queue)),
+        ("consistency check of a flow (SciPy)", lambda: inconsistent_pixels(frames, flow.shifts, dark, gain)),
     ]
     if with_refs is not None:
         refs, ref_frames = with_refs
