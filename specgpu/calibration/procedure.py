@@ -171,7 +171,8 @@ UNLIT_SHARE = 1e-3
 
 def _flat_field(bench: _Bench, dark):
     """Step (3): the flat field from a broadband pattern on the white at about half the camera's range.
-    Returns (flat (H, W) float32, its mirror count, the probe's mirror count, the probe's level DN)."""
+    Returns (flat (H, W) float32, its mirror count, the probe's mirror count, the probe's level DN, the number of
+    unlit pixels: dead, or outside the light, their gains capped at 1 / UNLIT_FRACTION)."""
     rig, win, small = bench.rig, bench.win, bench.small
     p, max_code = rig.light.params, int(rig.max_code)
     n_probe = p.rows // 8
@@ -192,8 +193,10 @@ def _flat_field(bench: _Bench, dark):
                          f"field gets under {UNLIT_FRACTION:.0%} of the centre's light on the white: the light's "
                          "spot does not cover the field; frame a smaller field (camera.object_pixel_um, a longer "
                          "lens) or widen the spot (light.spot_diameter_mm)")
-    flat = (centre / np.maximum(white_mean, 1e-6)).astype(np.float32)
-    return flat, n_flat, n_probe, lvl
+    # a dead pixel (or one stuck at the dark level) reads no white: its gain is capped rather than ~1e8, which would
+    # make the bundle unloadable; its count is reported
+    flat = (centre / np.maximum(white_mean, UNLIT_FRACTION * centre)).astype(np.float32)
+    return flat, n_flat, n_probe, lvl, int(np.sum(white_mean < UNLIT_FRACTION * centre))
 
 
 #: The bands of the wavelength-dependent flat field, nm.
@@ -471,7 +474,7 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     zero = np.zeros((1, p.columns), np.int32)
     dark, t_short, dark_short, rate = _dark_level(bench, zero, t_cal)  # (1)
     columns = _column_map(bench, line_shape)  # (2)
-    flat, n_flat, n_probe, lvl = _flat_field(bench, dark)  # (3)
+    flat, n_flat, n_probe, lvl, unlit = _flat_field(bench, dark)  # (3)
     flat_bands, flat_wl = _flat_field_bands(bench, dark, flat, n_flat, columns.wavelengths)
     linearity_c = _linearity(bench, dark, n_probe, lvl)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9E27]))
@@ -488,7 +491,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     reports = {"source": "calibrated", "loop_a": loop_a.summary(), "band_step_nm": float(band_step_nm),
                "column_map": {"slope_nm": float(columns.slope), "intercept_nm": float(columns.intercept)},
                "level_dn_per_reflectance": level, "loop_a_exposure_s": t_a, "repeats": int(repeats),
-               "white_reflectance_uncertainty": float(white_uncertainty), "linearity_c_per_dn2": linearity_c}
+               "white_reflectance_uncertainty": float(white_uncertainty), "linearity_c_per_dn2": linearity_c,
+               "unlit_pixels": unlit}
     if fluctuation is not None:
         reports["light_fluctuation"] = fluctuation
         reports["light_fluctuation_exposure_s"] = t_cal

@@ -136,3 +136,25 @@ def test_a_field_wider_than_the_light_spot_is_refused_in_one_line(small_rig):
     light = ProgrammableLight(small_rig.light)
     profile = light.field_profile(240, 320, 0.4)
     assert share == pytest.approx(100 * np.mean(profile < 0.02 * profile.max()), abs=3.0)
+
+
+@pytest.mark.parametrize("pixel", [(5, 5), (120, 160)])  # a corner, and inside the window the levels are read on
+def test_a_dead_pixel_gets_a_capped_gain_and_the_bundle_still_loads(small_rig, pixel, monkeypatch, tmp_path):
+    from specgpu.calibration.bundle import load_calibration, save_calibration
+    from specgpu.calibration.procedure import UNLIT_FRACTION
+    from specgpu.rig import camera as camera_module
+
+    init = camera_module.Camera.__init__
+
+    def with_a_dead_pixel(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        self.prnu[pixel] = 0.0  # no response at all: it reads the dark level under any light
+
+    monkeypatch.setattr(camera_module.Camera, "__init__", with_a_dead_pixel)
+    bundle = calibrate(small_rig, repeats=2, seed=1)
+    assert bundle.reports["unlit_pixels"] == 1
+    assert bundle.flat_field[pixel] == pytest.approx(1.0 / UNLIT_FRACTION, rel=1e-3)
+    others = np.delete(bundle.flat_field.ravel(), pixel[0] * bundle.flat_field.shape[1] + pixel[1])
+    assert others.max() < 1.6  # every other pixel keeps its measured gain
+    save_calibration(tmp_path / "c.npz", bundle)
+    assert load_calibration(tmp_path / "c.npz").reports["unlit_pixels"] == 1
