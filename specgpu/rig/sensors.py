@@ -26,9 +26,13 @@ Sources of the figures (data sheets as published; the rest is said to be assumed
     and, as a stated model, the IMX250's 12-bit pixel clock and overhead: 23.8 fps at full resolution.
 
 Every preset frames the paper's object field: its lens images the width the paper's camera sees (640 pixels of
-48 um on the object, 30.72 mm) onto the sensor's width (``object_pixel_um`` = 30720 / sensor_width), so the
-light's spot covers the field as in the paper. The bare sensor with the paper's 48 um pixels on the object would
-see a field wider than the spot, whose corners get under 1 % of the centre's light: no flat field corrects that.
+48 um on the object, 30.72 mm) onto the sensor's longer side (``object_pixel_um`` = 30720 / that side's pixels),
+so the light's spot covers the field as in the paper. The bare sensor with the paper's 48 um pixels on the object
+would see a field wider than the spot, whose corners get under 1 % of the centre's light: no flat field corrects
+that (calibration refuses such a field). The longer lens has its price: a magnification of 0.27-0.46 instead of
+0.07-0.12, so the image irradiance is 0.54-0.71 of what the bare sensor would get (the ``(1 + m)^2`` of
+:meth:`~specgpu.rig.camera.Camera.responsivity`), and a preset cropped to 640 x 480 sees a 5-10 mm
+field. A rig TOML that gives ``object_pixel_um`` beside the preset keeps its own.
 
 Quantum efficiency peaks (Pregius monochrome about 0.65, CMV4000 about 0.60 including fill factor) and dark
 currents of the Sony parts are typical published values, used as assumed; the spectral shape stays the
@@ -41,7 +45,7 @@ from dataclasses import fields, replace
 
 from specgpu.rig.camera import CameraParameters
 
-__all__ = ["OBJECT_FIELD_MM", "PRESETS", "preset_names", "camera_preset", "expand_preset", "camera_for_size"]
+__all__ = ["OBJECT_FIELD_MM", "PRESETS", "framing_um", "preset_names", "camera_preset", "expand_preset", "camera_for_size"]
 
 # Per preset: the CameraParameters fields that differ from the paper's camera. Exposure and frame rate are
 # chosen inside the sensor's frame-rate limit.
@@ -72,10 +76,16 @@ OBJECT_FIELD_MM = CameraParameters().sensor_width * CameraParameters().object_pi
 
 
 def _framed(values: dict) -> dict:
-    """A preset's fields with the lens that frames :data:`OBJECT_FIELD_MM` on its sensor's width."""
+    """A preset's fields with the lens that frames :data:`OBJECT_FIELD_MM` on its sensor's longer side."""
     if "sensor_width" not in values or "object_pixel_um" in values:
         return values
-    return {**values, "object_pixel_um": OBJECT_FIELD_MM * 1e3 / values["sensor_width"]}
+    return {**values, "object_pixel_um": framing_um(values["sensor_width"], values["sensor_height"])}
+
+
+def framing_um(width: int, height: int) -> float:
+    """Object pixel (um) of the lens that images :data:`OBJECT_FIELD_MM` onto the longer side of a sensor of
+    ``width`` x ``height`` pixels."""
+    return OBJECT_FIELD_MM * 1e3 / max(int(width), int(height))
 
 
 #: Preset name -> CameraParameters (built once; each is checked by CameraParameters itself).
@@ -112,7 +122,7 @@ def camera_for_size(width: int, height: int, base: CameraParameters | None = Non
     """A camera that reads ``width`` x ``height`` frames: ``base`` (the paper's camera by default) with that ROI
     when its sensor holds it, else the smallest preset sensor that holds it (ROI centred), else a sensor of
     exactly that size with the IMX250's pixel and 12-bit timing model (each preset's lens framing the paper's
-    object field on its sensor's width)."""
+    object field on its sensor's longer side)."""
     base = base if base is not None else CameraParameters()
     width, height = int(width), int(height)
     candidates = [base] + sorted(PRESETS.values(), key=lambda p: p.sensor_width * p.sensor_height)
@@ -123,7 +133,7 @@ def camera_for_size(width: int, height: int, base: CameraParameters | None = Non
     else:
         chosen = replace(PRESETS["imx250"], sensor_width=width, sensor_height=height, roi_width=width,
                          roi_height=height, frame_rate_hz=1.0, exposure_s=0.5,
-                         object_pixel_um=OBJECT_FIELD_MM * 1e3 / width)
+                         object_pixel_um=framing_um(width, height))
     rate = min(chosen.frame_rate_hz, _max_rate(chosen, width, height))
     return replace(chosen, roi_width=width, roi_height=height, frame_rate_hz=rate,
                    exposure_s=min(chosen.exposure_s, 0.9 / rate))

@@ -91,13 +91,17 @@ def test_a_preset_camera_exposes_frames_of_its_roi():
 def test_every_preset_frames_the_paper_object_field_inside_the_light_spot(name):
     cam = sensors.PRESETS[name]
     paper = CameraParameters()
-    assert cam.sensor_width * cam.object_pixel_um == pytest.approx(paper.sensor_width * paper.object_pixel_um)
+    longer = max(cam.sensor_width, cam.sensor_height)
+    assert longer * cam.object_pixel_um == pytest.approx(paper.sensor_width * paper.object_pixel_um)
     # the paper's light spot then lights the sensor's corners as it lights the paper's (over half the centre's)
     light = ProgrammableLight(LightParameters())
     corner = light.field_profile(cam.sensor_height, cam.sensor_width, cam.object_pixel_um * 1e-3)[0, 0]
     assert corner > 0.5
 
 
-def test_a_camera_for_a_size_beyond_every_preset_frames_the_same_field():
-    cam = sensors.camera_for_size(5000, 400)
-    assert cam.sensor_width * cam.object_pixel_um == pytest.approx(sensors.OBJECT_FIELD_MM * 1e3)
+@pytest.mark.parametrize("size", [(5000, 400), (400, 5000), (4500, 4500)])
+def test_a_camera_for_a_size_beyond_every_preset_frames_the_same_field(size):
+    cam = sensors.camera_for_size(*size)
+    assert max(size) * cam.object_pixel_um == pytest.approx(sensors.OBJECT_FIELD_MM * 1e3)
+    light = ProgrammableLight(LightParameters())  # a tall sensor is framed by its height: its corners are lit
+    assert light.field_profile(size[1], size[0], cam.object_pixel_um * 1e-3)[0, 0] > 0.5
