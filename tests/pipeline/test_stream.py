@@ -253,8 +253,8 @@ def test_a_slot_refilled_the_moment_it_is_released_loses_no_frame(setup, monkeyp
     release = RingBuffer.release
 
     def release_and_refill(self, slot):
+        slot.info = None  # what an acquire for filling does to the slot the moment it is free
         release(self, slot)
-        slot.info = None  # what an immediate acquire for filling does to the slot
 
     monkeypatch.setattr(RingBuffer, "release", release_and_refill)
     report = Stream(ReplayDriver(setup.frames, setup.infos, setup.light, loops=2), setup.plan, setup.bundle,
@@ -374,6 +374,13 @@ def test_cli_bench_stream_reports_every_case(tmp_path):
     assert "passed" not in rows["coefficients+XYZ+dE2000"] and "target >=" not in result.output
     bad = CliRunner().invoke(main, ["bench", "--stream", "--stream-size", "640"])
     assert bad.exit_code == 2 and "--stream-size" in bad.output
+
+
+def test_stream_rate_targets_are_judged_at_640_x_480_only():
+    from specgpu.apps.stream_bench import STREAM_TARGETS, stream_targets
+
+    assert stream_targets(640, 480) == STREAM_TARGETS and stream_targets(640, 480) is not STREAM_TARGETS
+    assert stream_targets(2048, 2048) == {} and stream_targets(480, 640) == {} and stream_targets(320, 240) == {}
 
 
 def test_arrival_stamps_stay_bounded_under_drop_oldest(setup):
