@@ -245,11 +245,13 @@ def tune(description, bundle, seed):
 def subspace_table(description, keys):
     """Per chart, the mean over its patches of the RMSE of each patch's spectrum projected onto the best
     K-dimensional subspace of the training spectra its plans are designed on (uncentred: a linear decoder;
-    centred: an affine one), and onto the chart's own best K (no training set could teach better). With no noise at
-    all, no decoder linear in K measurements and designed on that training set does better than the first two:
-    the per-pixel means of the tables above are these patches' errors plus the noise's."""
-    print("noise-free bound on each chart's patches (mean over patches of the RMSE), K measurements, decoders "
-          "designed on the plans' training spectra")
+    centred: an affine one), and onto the chart's own best K-dimensional subspace. A decoder of K noise-free
+    measurements writes spectra in a K-dimensional subspace, and a design optimal for the training spectra
+    converges to their best one as the noise vanishes: the first two columns are what such designs reach with no
+    noise at all (a reference, not a strict bound: another subspace could suit this chart better by chance); the
+    third is what no training set could improve much on."""
+    print("noise-free subspace reference on each chart's patches (mean over patches of the RMSE), K measurements, "
+          "subspaces of the plans' training spectra")
     print(f"{'chart':<26}{'K':>3}{'linear':>9}{'affine':>9}{'own K':>9}")
 
     def mean_rmse(training, test, K, centred=False):
@@ -278,7 +280,7 @@ def main(argv=None):
     ap.add_argument("--tune", action="store_true", help="measure the denoiser's radius and eps")
     ap.add_argument("--no-natural", action="store_true")
     ap.add_argument("--subspace-bound", action="store_true",
-                    help="only: each chart's noise-free linear bound with K = 3, 6, 9 (no capture, no calibration)")
+                    help="only: each chart's noise-free subspace reference with K = 3, 6, 9 (no capture, no calibration)")
     a = ap.parse_args(argv)
     w, h = (320, 240) if a.small else (640, 480)
     description = RigDescription(camera=CameraParameters(roi_width=w, roi_height=h))

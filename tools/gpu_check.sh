@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
-# The GPU measurement set in one command: the figures the README's "On a GPU" table waits for.
+# The GPU measurement set in one command: the figures of the README's GPU table, each beside its target.
 #
-# On the project machine, once (downloads the wheels the GPU machine cannot fetch; .whl/ is git-ignored locally):
+# On a machine with a package index, once (downloads the wheels a GPU machine without one installs; .whl/ is
+# git-ignored):
 #     tools/gpu_check.sh fetch
-# Then, on the GPU machine (the device tool: carry [".whl"]; each call is limited to 10 minutes, so three calls):
+# Then, on the GPU machine, with .whl/ copied beside the source tree (three parts of under 10 minutes each):
 #     bash tools/gpu_check.sh info bench   # selftest; bench 640x480 .. 4096x4096 incl. NumPy in / NumPy out
-#     bash tools/gpu_check.sh stream       # bench --stream 2048x2048 and 640x480 (fused, 61-band f16 cube)
-#     bash tools/gpu_check.sh tests        # the whole suite
+#     bash tools/gpu_check.sh stream       # bench --stream 2048x2048 and 640x480 (fused, 61-band f16 cube, motion,
+#                                          # denoise)
+#     bash tools/gpu_check.sh tests        # the whole suite (in parallel where pytest-xdist is installed)
 # or `bash tools/gpu_check.sh all` where no time limit applies. Everything lands under $OUT (default ./gpu_out):
 # info.txt, bench.json / bench.txt, stream_*.json / .txt, tests.txt, and summary.txt (the GPU targets, each
 # with its figure; `python tools/gpu_summary.py DIR` redoes it over the files of several calls put together).
