@@ -36,7 +36,12 @@
 #define OUT_SQRT 0
 #endif
 #if OUT_SQRT
-#define POST(y, b) y = sqrt(fmax(y + A[B * K + (b)], 0.0f))
+/* a standard deviation from a variance: NaN stays NaN (a pixel with no response; fmax would return the 0) */
+#define POST(y, b)                                                   \
+    do {                                                             \
+        const floatv v_ = y + A[B * K + (b)];                        \
+        y = isnan(v_) ? v_ : sqrt(fmax(v_, 0.0f));                   \
+    } while (0)
 #else
 #define POST(y, b)
 #endif

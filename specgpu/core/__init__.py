@@ -42,12 +42,15 @@ from specgpu.core.locks import (
     same_path,
 )
 from specgpu.core.numerics import (
+    DEAD_PIXEL_GAIN,
     fit_levels,
+    live_gain,
     lipschitz_bound,
 )
 from specgpu.core.text import one_line
 
 __all__ = [
+    "DEAD_PIXEL_GAIN",
     "DEFAULT_CMFS",
     "FRAME_DTYPES",
     "OBSERVERS",
@@ -71,6 +74,7 @@ __all__ = [
     "fit_levels",
     "is_device_array",
     "lipschitz_bound",
+    "live_gain",
     "lock_path",
     "normalised_to_peak",
     "one_line",

@@ -1,4 +1,5 @@
-"""Small numerics the rooms share: bounded least squares of light levels over column spectra."""
+"""Small numerics the rooms share: bounded least squares of light levels over column spectra, and the flat-field
+gain of a pixel with no response."""
 
 from __future__ import annotations
 
@@ -6,7 +7,27 @@ import math
 
 import numpy as np
 
-__all__ = ["fit_levels", "lipschitz_bound"]
+__all__ = ["DEAD_PIXEL_GAIN", "fit_levels", "lipschitz_bound", "live_gain"]
+
+#: Flat-field gain calibration gives a pixel the white does not reach (under 1 / DEAD_PIXEL_GAIN of the field
+#: centre's reading: dead, or outside the light). Such a pixel has no measurement; a gain at or above it marks one.
+DEAD_PIXEL_GAIN = 50.0
+
+
+def live_gain(gain):
+    """The flat field as the decoding kernels take it: float32, NaN at the pixels with no response (gain at or above
+    :data:`DEAD_PIXEL_GAIN`), so every output of such a pixel, and every warped sample that reads it, is NaN rather
+    than its noise times the capped gain. ``None`` stays ``None``; the host's own uses of the flat field (the
+    registration images) keep the finite map."""
+    if gain is None:
+        return None
+    g = np.asarray(gain, np.float32)
+    dead = g >= DEAD_PIXEL_GAIN
+    if not dead.any():
+        return g
+    g = g.copy()
+    g[dead] = np.nan
+    return g
 
 
 def fit_levels(system, target, *, upper: float | None = 1.0, iterations: int = 400) -> np.ndarray:

@@ -206,18 +206,21 @@ def as_float32(a, name: str):
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
-def check_pixel_map(a, name: str, spatial: tuple[int, ...], planes: int | None = None):
+def check_pixel_map(a, name: str, spatial: tuple[int, ...], planes: int | None = None, *,
+                    nan_marks_dead: bool = False):
     """A per-pixel float map of shape ``spatial`` or, when ``planes`` is given, also (planes, *spatial).
 
     Returns (float32 array or device array, per_plane flag). Non-finite values are refused: calibration
-    data (dark frames, flat fields) must be finite.
+    data (dark frames, flat fields) must be finite. With ``nan_marks_dead`` (a gain map) NaN is allowed: it marks a
+    pixel with no response (:func:`specgpu.core.numerics.live_gain`), whose outputs are NaN; inf is still refused.
     """
     allowed = [tuple(spatial)] + ([(planes, *spatial)] if planes else [])
     a = as_float32(a, name)
     if not is_device_array(a):
-        bad = ~np.isfinite(a)
+        bad = np.isinf(a) if nan_marks_dead else ~np.isfinite(a)
         if bad.any():
-            raise ValueError(f"{name} contains NaN or inf at {int(bad.sum())} pixels")
+            raise ValueError(f"{name} contains {'inf' if nan_marks_dead else 'NaN or inf'} at {int(bad.sum())} "
+                             "pixels")
     if tuple(a.shape) not in allowed:
         wanted = " or ".join("(" + ", ".join(map(str, s)) + ")" for s in allowed)
         raise ValueError(f"{name} has shape {_shape(a)}, expected {wanted} to match the frames")

@@ -218,7 +218,7 @@ def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observe
     dark : array_like, (H, W) or (K, H, W), optional
         Dark level subtracted from every frame (or per frame), in frame units.
     gain : array_like, (H, W), optional
-        Per-pixel gain (flat field) applied after the matrix.
+        Per-pixel gain (flat field) applied after the matrix; NaN marks a pixel with no response (outputs NaN).
     saturation : float, optional
         Sensor maximum code for the mask (default: the dtype's maximum for integer frames; none for float).
     return_XYZ, return_Lab, return_mask : bool
@@ -266,7 +266,7 @@ def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observe
     on_device = is_device_array(frames)
     queue = get_queue(device, like=(frames, reference, dark, gain))
     dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None)
+    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None, nan_marks_dead=True)
     if saturation is None and frames.dtype.kind == "u":
         saturation = float(np.iinfo(frames.dtype).max)
     n = int(np.prod(spatial, dtype=np.int64))

@@ -42,7 +42,8 @@ def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layou
     dark : array_like, (H, W) or (K, H, W), optional
         Dark level subtracted from every frame (or one per frame, for frames of different exposure).
     gain : array_like, (H, W), optional
-        Per-pixel gain (flat field), applied to the outputs.
+        Per-pixel gain (flat field), applied to the outputs; NaN marks a pixel with no response (a dead pixel,
+        :func:`specgpu.core.numerics.live_gain`): its outputs are NaN.
     out_dtype : float32 or float16
         float16 stores round to nearest even; values beyond 65504 become inf.
     layout : {"interleaved", "planar"}
@@ -96,13 +97,13 @@ def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layou
     if host_only and spatial and transfer.transfer_mode(queue.device) == "pinned":
         # a discrete device: pinned staging and row chunks that overlap upload, compute and read-back
         dark_h, dark_per_frame = (None, False) if dark is None else check_pixel_map(dark, "dark", spatial, K)
-        gain_h = None if gain is None else check_pixel_map(gain, "gain", spatial, None)[0]
+        gain_h = None if gain is None else check_pixel_map(gain, "gain", spatial, None, nan_marks_dead=True)[0]
         y, mask = transfer.linear_pipelined(
             queue, np.ascontiguousarray(frames), A, dark=dark_h, dark_per_frame=dark_per_frame, gain=gain_h,
             out_dtype=out_dtype, out_layout=out_layout, want_mask=return_mask, saturation=saturation)
         return LinearResult(y, mask) if return_mask else y
     dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None)
+    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None, nan_marks_dead=True)
     y, mask = kernels.launch_linear(
         queue, kernels.to_device(queue, frames.reshape(-1)), A, n=n, dark=dark_dev, dark_per_frame=dark_per_frame,
         gain=gain_dev, out_dtype=out_dtype, out_layout=out_layout, want_mask=return_mask, saturation=saturation,

@@ -66,7 +66,8 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
     dark : array_like, (H, W) or (K, H, W), optional
         Dark level of the sensor pixels.
     gain : array_like, (H, W), optional
-        Flat field of the sensor pixels (applied to each sample before interpolation).
+        Flat field of the sensor pixels (applied to each sample before interpolation); NaN marks a pixel with no
+        response: an output that samples it is NaN.
     saturation : float, optional
         Level at or above which a used sample flags the pixel saturated (default: the integer dtype's maximum).
     return_mask : bool
@@ -102,7 +103,7 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
         saturation = float(np.iinfo(frames.dtype).max)
     queue = get_queue(device, like=(frames, dark, gain))
     dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None)
+    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None, nan_marks_dead=True)
     n = h * w
     macros = dict(K=K, B=B, IN_T=DTYPE_TO_CTYPE[frames.dtype],
                   HAS_DARK=0 if dark is None else (2 if dark_per_frame else 1), HAS_GAIN=gain is not None,

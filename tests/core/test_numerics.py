@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import lsq_linear
 
-from specgpu.core.numerics import fit_levels, lipschitz_bound
+from specgpu.core.numerics import DEAD_PIXEL_GAIN, fit_levels, lipschitz_bound, live_gain
 
 
 def banded(rows: int, cols: int, width: float, seed: int) -> np.ndarray:
@@ -48,3 +48,13 @@ def test_lipschitz_bound_bounds_the_largest_eigenvalue(rows, cols, seed):
 
 def test_lipschitz_bound_of_a_zero_matrix_is_one():
     assert lipschitz_bound(np.zeros((4, 3))) == 1.0
+
+
+def test_live_gain_marks_only_the_dead_gains():
+    g = np.array([[1.0, 2.5], [DEAD_PIXEL_GAIN, 49.9]], np.float32)
+    out = live_gain(g)
+    assert np.isnan(out[1, 0]) and np.array_equal(out[[0, 0, 1], [0, 1, 1]], g[[0, 0, 1], [0, 1, 1]])
+    assert g[1, 0] == DEAD_PIXEL_GAIN  # the caller's map is left as it was
+    assert live_gain(None) is None
+    ones = np.ones((2, 2))
+    assert live_gain(ones).dtype == np.float32 and np.array_equal(live_gain(ones), ones)

@@ -164,6 +164,28 @@ def test_nan_propagates_to_that_pixel_only(queue):
     assert_close(y[finite], linear_ref(frames, A)[finite], np.moveaxis(bound(frames, A), 0, -1)[finite])
 
 
+@pytest.mark.parametrize("layout", ["interleaved", "planar"])
+def test_a_nan_gain_leaves_that_pixel_nan_only(queue, layout):
+    """NaN in the gain map marks a pixel with no response (a calibration's dead pixel): its outputs are NaN, every
+    other pixel as the NumPy reference; inf is still refused in one line."""
+    rng = np.random.default_rng(8)
+    K, shape = 5, (11, 17)  # the dead pixel in a partial vector of the CPU variant too
+    frames = frames_of(rng, np.uint16, K, shape)
+    gain = rng.uniform(0.8, 1.2, shape).astype(np.float32)
+    gain[3, 16] = np.nan
+    A = rng.normal(0, 1, (4, K))
+    y = np.asarray(apply_linear(frames, A, None, gain, layout=layout, device=queue))
+    y = y if layout == "interleaved" else np.moveaxis(y, 0, -1)
+    want = linear_ref(frames, A, None, gain)  # NaN there too: NumPy's product propagates it
+    assert np.isnan(y[3, 16]).all() and np.isnan(want[3, 16]).all()
+    live = np.isfinite(gain)
+    assert np.isfinite(y[live]).all()
+    assert_close(y[live], want[live], np.moveaxis(bound(frames, A, None, np.nan_to_num(gain)), 0, -1)[live])
+    gain[0, 0] = np.inf
+    with pytest.raises(ValueError, match=r"^gain contains inf at 1 pixels$"):
+        apply_linear(frames, A, None, gain, device=queue)
+
+
 def test_float16_overflow_is_inf(queue):
     frames = np.full((1, 2, 9), 1000, np.uint16)
     y = apply_linear(frames, [[100.0]], out_dtype=np.float16, device=queue)

@@ -160,3 +160,28 @@ def test_translations_read_as_rows_are_the_per_pixel_warp(queue, dtype):
     # written as (H, W, B) by the kernel, or as planes (B, H, W) when asked: the same numbers
     planes = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, layout="planar", device=queue)
     np.testing.assert_array_equal(np.moveaxis(planes, 0, -1), rows.y)
+
+
+@pytest.mark.parametrize("motion", ["affine", "translation"])
+def test_a_nan_gain_spoils_exactly_the_outputs_that_sample_it(queue, motion):
+    """A NaN gain (a dead pixel) makes NaN every output whose bilinear footprint gives it a weight above zero, and
+    no other: the reference with that gain huge instead shows which outputs read it."""
+    rng = np.random.default_rng(9)
+    frames = rng.uniform(0, 100, (3, 30, 41)).astype(np.float32)
+    A = rng.normal(0, 1, (2, 3))
+    if motion == "affine":
+        a = np.radians([0.0, 0.9, -1.3])
+        shifts = np.stack([[[np.cos(t), -np.sin(t), 0.4], [np.sin(t), np.cos(t), -0.7]] for t in a]).astype(np.float32)
+    else:
+        shifts = np.array([[0.0, 0.0], [1.3, -0.4], [-2.6, 0.75]], np.float32)  # the rows of 8 pixels
+    gain = rng.uniform(0.9, 1.1, (30, 41)).astype(np.float32)
+    gain[14, 20] = np.nan
+    got = apply_linear_warped(frames, A, shifts, None, gain, return_mask=True, device=queue)
+    huge = np.where(np.isnan(gain), 1e30, gain)
+    ref, outside = linear_warp_ref(frames, A, shifts, gain=huge)
+    reads = (np.abs(ref) > 1e12).any(axis=-1) & ~outside
+    bad = ~np.isfinite(got.y).all(axis=-1) & ~outside
+    assert reads.sum() >= 3 and np.array_equal(bad, reads)
+    live = ~reads & ~outside
+    ref_live, _ = linear_warp_ref(frames, A, shifts, gain=np.nan_to_num(gain))
+    assert np.all(np.abs(got.y[live] - ref_live[live]) <= tolerance(frames, A)[live])
