@@ -26,7 +26,7 @@ from specgpu.calibration.rigs import (
     centre_window,
     distribute_counts,
 )
-from specgpu.core.numerics import fit_levels
+from specgpu.core.numerics import DEAD_PIXEL_GAIN, fit_levels
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import white_plate_scene
 
@@ -163,16 +163,17 @@ def _column_map(bench: _Bench, line_shape: str) -> _ColumnMap:
     return _ColumnMap(col_wl, col_power, slope, icpt, full, line)
 
 
-#: A pixel whose white reading is under this fraction of the field centre's is unlit (outside the light's spot);
-#: calibration refuses a field with more than UNLIT_SHARE of them (isolated dead pixels stay under it).
-UNLIT_FRACTION = 0.02
+#: A pixel whose white reading is under this fraction of the field centre's is unlit (outside the light's spot, or
+#: dead): its gain is DEAD_PIXEL_GAIN, which the decoders read as "no measurement" (NaN). Calibration refuses a
+#: field with more than UNLIT_SHARE of them (isolated dead pixels stay under it).
+UNLIT_FRACTION = 1.0 / DEAD_PIXEL_GAIN
 UNLIT_SHARE = 1e-3
 
 
 def _flat_field(bench: _Bench, dark):
     """Step (3): the flat field from a broadband pattern on the white at about half the camera's range.
     Returns (flat (H, W) float32, its mirror count, the probe's mirror count, the probe's level DN, the number of
-    unlit pixels: dead, or outside the light, their gains capped at 1 / UNLIT_FRACTION)."""
+    unlit pixels: dead, or outside the light, their gain DEAD_PIXEL_GAIN)."""
     rig, win, small = bench.rig, bench.win, bench.small
     p, max_code = rig.light.params, int(rig.max_code)
     n_probe = p.rows // 8
@@ -187,16 +188,18 @@ def _flat_field(bench: _Bench, dark):
     n_flat = int(min(p.rows, max(1, round(n_probe * 0.5 * max_code / lvl))))  # about half the range
     white_mean = bench.capture(np.full((1, p.columns), n_flat, np.int32), 2 * bench.repeats)[0] - dark
     centre = float(np.median(white_mean[small]))
-    unlit = float(np.mean(white_mean < UNLIT_FRACTION * centre))
+    unlit_map = white_mean * DEAD_PIXEL_GAIN <= centre  # under UNLIT_FRACTION of the centre: every live gain < 50
+    unlit = float(np.mean(unlit_map))
     if unlit > UNLIT_SHARE:  # a few dead pixels pass; a field the light does not cover has no flat field
         raise ValueError(f"calibrate: {unlit:.1%} of the camera's {white_mean.shape[1]} x {white_mean.shape[0]} "
                          f"field gets under {UNLIT_FRACTION:.0%} of the centre's light on the white: the light's "
                          "spot does not cover the field; frame a smaller field (camera.object_pixel_um, a longer "
                          "lens) or widen the spot (light.spot_diameter_mm)")
-    # a dead pixel (or one stuck at the dark level) reads no white: its gain is capped rather than ~1e8, which would
-    # make the bundle unloadable; its count is reported
-    flat = (centre / np.maximum(white_mean, UNLIT_FRACTION * centre)).astype(np.float32)
-    return flat, n_flat, n_probe, lvl, int(np.sum(white_mean < UNLIT_FRACTION * centre))
+    # a dead pixel (or one stuck at the dark level) reads no white: its gain is DEAD_PIXEL_GAIN, which the decoders
+    # read as "no measurement" (NaN), rather than ~1e8, which would make the bundle unloadable; its count is reported
+    flat = (centre / np.maximum(white_mean, centre / DEAD_PIXEL_GAIN)).astype(np.float32)
+    flat[unlit_map] = DEAD_PIXEL_GAIN
+    return flat, n_flat, n_probe, lvl, int(np.sum(unlit_map))
 
 
 #: The bands of the wavelength-dependent flat field, nm.

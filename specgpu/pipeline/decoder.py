@@ -11,6 +11,7 @@ import numpy as np
 import pyopencl.array as cla
 
 from specgpu import engine
+from specgpu.core.numerics import live_gain
 from specgpu.core.spectra import white_point_XYZ
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
@@ -106,7 +107,7 @@ class StreamDecoder:
         self.illuminant = illuminant = plan.resolve_illuminant(illuminant)
         self.observer = observer = plan.resolve_observer(observer)
         dark = calibration.dark_at(plan.exposure_s)
-        gain = calibration.flat_field
+        gain = live_gain(calibration.flat_field)  # NaN where a pixel has no response: its outputs NaN
         if tuple(np.shape(dark)) != (self.height, self.width):
             raise ValueError(f"calibration maps are {np.shape(dark)} but the frames are {self.height} x {self.width}")
         # a sample at the sensor's maximum code has no valid measurement: its pixel's outputs become NaN, as

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from specgpu.core.numerics import live_gain
 from specgpu.core.validate import check_number
 from specgpu.engine.guided import box_box_variance, guided_filter
 from specgpu.engine.linear_map import apply_linear
@@ -60,7 +61,8 @@ def sequence_guide(folder, *, sequence: int | None = None, device=None) -> np.nd
     """(H, W) float32: the sum of the plan's frames above dark, flat-fielded (the ambient frame left out), of one
     sequence or the mean of all, divided by its 99th percentile."""
     frames, dark, _, _ = _mean_frames(folder, sequence)
-    g = np.asarray(apply_linear(frames, guide_row(folder.plan), dark, folder.calibration.flat_field, device=device))[..., 0]
+    g = np.asarray(apply_linear(frames, guide_row(folder.plan), dark, live_gain(folder.calibration.flat_field),
+                                device=device))[..., 0]
     level = float(np.nanpercentile(g, 99)) if np.isfinite(g).any() else 0.0
     if not level > 0:
         raise ValueError(f"{folder.path}: the frames hold no light above dark: nothing to guide the denoising")

@@ -31,6 +31,7 @@ import numpy as np
 from scipy import ndimage
 from skimage.morphology import convex_hull_image
 
+from specgpu.core.numerics import live_gain
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
 from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency, estimate_global_motion,
                                      frame_gradients)
@@ -318,7 +319,9 @@ def _reading(read, *arrays) -> list:
 
 
 def _warped(frames, A, shifts, dark, gain, read, **kw):
-    """:func:`~specgpu.engine.warp_map.apply_linear_warped` of the frames ``read`` only (None: every frame)."""
+    """:func:`~specgpu.engine.warp_map.apply_linear_warped` of the frames ``read`` only (None: every frame); a
+    sample of a pixel with no response (:func:`specgpu.core.numerics.live_gain`) makes its output NaN."""
+    gain = live_gain(gain)
     if read is None:
         return apply_linear_warped(frames, A, shifts, dark, gain, **kw)
     frames, shifts = _reading(read, frames, shifts)

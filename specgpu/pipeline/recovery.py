@@ -21,6 +21,7 @@ from specgpu import io
 from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save_calibration
 from specgpu.capture.session import CaptureResult, capture_sequences
 from specgpu.capture.twin import TwinDriver
+from specgpu.core.numerics import live_gain
 from specgpu.core.spectra import DEFAULT_CMFS
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.engine.linear_map import apply_linear
@@ -461,7 +462,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         picked, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
         y = None
         for fr, dark, A in decoded:
-            ys = np.asarray(apply_linear(fr, A, dark, bundle.flat_field, out_dtype=np.float32, device=device))
+            ys = np.asarray(apply_linear(fr, A, dark, live_gain(bundle.flat_field), out_dtype=np.float32,
+                                         device=device))
             y = ys if y is None else y + ys
         y = (y / len(picked)).astype(out_dtype)
         saturated = np.any(folder.frames[list(picked)] >= bundle.max_code, axis=(0, 1))
@@ -480,8 +482,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     ratio = bundle.flat_ratio(plan.patterns)
     if ratio is not None or bundle.reports.get("linearity_c_per_dn2", 0.0) > 0:
         frames = _flatten_by_wavelength(frames, bundle.dark_at(plan.exposure_s), ratio, bundle)
-    y = apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), bundle.flat_field, out_dtype=out_dtype,
-                     device=device)
+    y = apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), live_gain(bundle.flat_field),
+                     out_dtype=out_dtype, device=device)
     saturated = np.any(used >= bundle.max_code, axis=(0, 1))
     if saturated.any():
         y[saturated] = np.nan

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from specgpu.core.numerics import live_gain
 from specgpu.planning.plans import _band_masks
 
 __all__ = ["ambient_needed", "with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi",
@@ -295,8 +296,10 @@ class WhiteReference:
             raise ValueError(f"--white-roi {x},{y},{w},{h} is saturated in frame {k}: choose a darker white or a "
                              f"shorter exposure")
         d = bundle.dark_at(plan.exposure_s) if dark is None else np.asarray(dark)
-        flat = bundle.flat_field[sl]
-        measured = np.array([float(np.mean((patch[k] - d[sl]) * flat)) for k in range(patch.shape[0])])
+        flat = live_gain(bundle.flat_field[sl])  # a dead pixel in the ROI is left out of the white's mean
+        if not np.isfinite(flat).any():
+            raise ValueError(f"--white-roi {x},{y},{w},{h} holds only dead pixels (no response in the calibration)")
+        measured = np.array([float(np.nanmean((patch[k] - d[sl]) * flat)) for k in range(patch.shape[0])])
         predicted, lit = self.predicted, self.lit_gain
         gains = np.ones(patch.shape[0])
         bad = lit & ~(measured > 0.02 * predicted)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import colour
 import numpy as np
 
+from specgpu.core.numerics import live_gain
 from specgpu.core.spectra import DEFAULT_CMFS, white_point_XYZ
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.warp_map import apply_linear_warped
@@ -134,7 +135,7 @@ def _noise_products(frames, plan, dark, gain, pair, sequences, device, light=Tru
     amb = ambient_index(plan)
     rows = variance_rows(*pair, ambient=amb)
     matrix = rows / noise.gain_e_per_dn / sequences
-    g = None if gain is None else np.asarray(gain, np.float32) ** 2
+    g = None if gain is None else live_gain(gain) ** 2  # NaN where a pixel has no response
     if shifts is not None and amb is not None:
         raise ValueError(f"the {plan.method} plan subtracts its ambient frame from fixed pixels: its noise model has "
                          "no motion-compensated form")
