@@ -139,7 +139,7 @@ def test_a_field_wider_than_the_light_spot_is_refused_in_one_line(small_rig):
 
 
 @pytest.mark.parametrize("pixel", [(5, 5), (120, 160)])  # a corner, and inside the window the levels are read on
-def test_a_dead_pixel_gets_a_capped_gain_and_the_bundle_still_loads(small_rig, pixel, monkeypatch, tmp_path):
+def test_a_dead_pixel_gets_the_dead_pixel_gain_and_the_bundle_still_loads(small_rig, pixel, monkeypatch, tmp_path):
     from specgpu.calibration.bundle import load_calibration, save_calibration
     from specgpu.calibration.procedure import UNLIT_FRACTION
     from specgpu.rig import camera as camera_module
