@@ -67,11 +67,12 @@ def test_recover_and_its_uncertainty_leave_the_dead_pixel_nan(dead):
 
 def test_the_stream_leaves_the_dead_pixel_nan_as_recover(dead):
     results = []
-    Stream(dead.driver(loops=1), dead.plan, dead.bundle, outputs=("cube", "XYZ", "sigma"), policy="block",
+    outputs = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "sigma_rms", "dE_sigma")
+    Stream(dead.driver(loops=1), dead.plan, dead.bundle, outputs=outputs, reference=dead.reference, policy="block",
            sinks=[results.append]).run()
     assert results
     first = results[0].arrays
-    for name in ("cube", "XYZ", "sigma"):
+    for name in outputs:
         assert only_the_dead_pixels_are_nan(first[name]), name
     expected = offline_maps(dead, dead.recorded_sequence(results[0].frame_ids))["cube"]
     np.testing.assert_allclose(np.asarray(first["cube"], np.float32), expected, rtol=2e-3, atol=2e-3)
