@@ -199,7 +199,8 @@ def _flat_field(bench: _Bench, dark):
     # read as "no measurement" (NaN), rather than ~1e8, which would make the bundle unloadable; its count is reported
     flat = (centre / np.maximum(white_mean, centre / DEAD_PIXEL_GAIN)).astype(np.float32)
     flat[unlit_map] = DEAD_PIXEL_GAIN
-    return flat, n_flat, n_probe, lvl, int(np.sum(unlit_map))
+    # the float32 map decides (a live gain that rounds up to 50 counts as dead, as the decoders will read it)
+    return flat, n_flat, n_probe, lvl, int(np.sum(flat >= DEAD_PIXEL_GAIN))
 
 
 #: The bands of the wavelength-dependent flat field, nm.
@@ -216,6 +217,7 @@ def _flat_field_bands(bench: _Bench, dark, flat, n_flat: int, col_wl):
     p, max_code = rig.light.params, int(rig.max_code)
     flat_bands, flat_wl = [], []
     flat_departure = 0.0
+    live = flat < DEAD_PIXEL_GAIN  # dead pixels read nothing in any band: left out, their gain kept
     for a, b in _FLAT_BANDS_NM:
         band = (col_wl >= a) & (col_wl < b)
         if not band.any():
@@ -228,13 +230,19 @@ def _flat_field_bands(bench: _Bench, dark, flat, n_flat: int, col_wl):
                 break
             n_band = max(1, n_band // 2)
         m_band = m_band - dark
-        if not float(np.median(m_band[small])) > 0 or np.any(m_band <= 0):
+        if not float(np.median(m_band[small])) > 0 or np.any(m_band[live] <= 0):
             continue  # too dim to flat-field with (the broadband flat serves)
-        # keep the smooth part of the band's departure from the broadband flat (the per-pixel part is noise here)
-        ratio = gaussian_filter((float(np.median(m_band[small])) / m_band) / flat, 6.0, mode="nearest")
-        flat_bands.append((flat * ratio).astype(np.float32))
+        # keep the smooth part of the band's departure from the broadband flat (the per-pixel part is noise here),
+        # blurred over the live pixels only (normalised by their weight)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            raw = np.where(live, (float(np.median(m_band[small])) / m_band) / flat, 0.0)
+        ratio = gaussian_filter(raw, 6.0, mode="nearest") / gaussian_filter(live.astype(np.float64), 6.0,
+                                                                              mode="nearest")
+        band_flat = (flat * ratio).astype(np.float32)
+        band_flat[~live] = DEAD_PIXEL_GAIN
+        flat_bands.append(band_flat)
         flat_wl.append(float(col_wl[band].mean()))
-        flat_departure = max(flat_departure, float(np.max(np.abs(ratio - 1.0))))
+        flat_departure = max(flat_departure, float(np.max(np.abs(ratio[live] - 1.0))))
     if flat_bands and flat_departure < 0.005:
         flat_bands = []  # the field is the same at every wavelength to within the measurement: one flat serves
     return flat_bands, flat_wl
