@@ -8,7 +8,7 @@ models over the windows covering a pixel, ``q = mean(a) g + mean(b)``. Where the
 (``var g << eps``) the output is the window mean of p (noise averaged down); across an edge of the guide
 (``var g >> eps``) the output follows the guide, so the edge stays sharp. An edge the guide does not show (two
 spectra of equal frame sum) is smoothed like a flat region. Windows are clipped to the image. NaN (a saturated
-pixel) spreads to the outputs whose windows hold it.
+pixel, or a dead one) spreads to the outputs whose windows hold it: (4 radius + 1)^2 pixels about it.
 """
 
 from __future__ import annotations

@@ -106,8 +106,8 @@ def gradient_image(frame, dark=None, gain=None, *, binning: int = 1) -> np.ndarr
     """The spectrum-independent image a frame is registered on: gradient magnitude (Sobel) of the
     dark-subtracted, flat-fielded frame over its mean, float32; ``binning`` averages b x b pixels first."""
     f = np.subtract(frame, dark, dtype=np.float32) if dark is not None else np.array(frame, np.float32)
-    if gain is not None:
-        f *= np.asarray(gain, np.float32)
+    if gain is not None:  # a NaN gain (a pixel with no response) reads 0 here: one NaN would spoil the FFTs
+        f *= np.nan_to_num(np.asarray(gain, np.float32), nan=0.0)
     f = bin_image(f, binning)
     mean = float(np.mean(f, dtype=np.float64))
     g = sobel_magnitude(f)  # linear in f: the division by the mean on the result
