@@ -11,7 +11,7 @@ from moving_helpers import frames_of, moving_setup
 
 from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
-from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, consistency,
+from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, consistency, gradient_image,
                                      estimate_global_motion, inconsistent_pixels)
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.recovery import SequenceFolder, default_basis, recover
@@ -178,3 +178,17 @@ def test_a_still_chart_whose_patches_repeat_registers_at_zero(setup):
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
     assert np.abs(estimate_global_motion(frames, dark, gain, pairs="reference").shifts).max() > 10  # the trap
     assert np.abs(estimate_global_motion(frames, dark, gain).shifts).max() <= 0.1
+
+
+def test_a_nan_gain_reads_as_zero_in_the_registration_image():
+    """A gain map whose NaN marks a dead pixel (what the decoders take) gives a finite registration image: one NaN
+    would spoil every FFT of the estimate."""
+    rng = np.random.default_rng(4)
+    frame = rng.uniform(100, 900, (40, 50)).astype(np.float32)
+    gain = np.ones((40, 50), np.float32)
+    gain[20, 25] = np.nan
+    got = gradient_image(frame, None, gain)
+    zero = gain.copy()
+    zero[20, 25] = 0.0
+    assert np.isfinite(got).all()
+    np.testing.assert_array_equal(got, gradient_image(frame, None, zero))
