@@ -267,9 +267,11 @@ class ZarrRecorder:
         self.committed = 0
         self.failed: str | None = None
         self._arrays: dict = {}
-        self.group = zarr.open_group(str(self.path), mode="w-", zarr_format=3)
         self.recording_id = uuid.uuid4().hex  # tells this recording from any other later put at the same path
-        self.group.attrs.update({
+        # the group is created with its attributes, and every later change is one write of zarr.json
+        # (update_attributes): zarr's attrs.update writes the file once per key, and a crash between two of those
+        # writes left a recording with some of its attributes (sequences_committed missing: unreadable)
+        self.group = zarr.open_group(str(self.path), mode="w-", zarr_format=3, attributes={
             "format": RECORDING_FORMAT, "version": RECORDING_VERSION, "recording_id": self.recording_id,
             "plan_hash": plan.hash,
             "plan_method": plan.method, "calibration": plan.calibration, "patterns_hash": patterns_hash(plan),
@@ -335,8 +337,8 @@ class ZarrRecorder:
             if result.frames is None:
                 raise ValueError(f"{self.path}: raw frames were asked for but the stream passes none")
             make("frames", tuple(result.frames.shape), "uint16", ("pattern", "y", "x"), 0, {"units": "DN"})
-        g.attrs.update({"outputs": sorted(arrays), "height": int(h), "width": int(w),
-                        "compression": self.compression_report})
+        g.update_attributes({"outputs": sorted(arrays), "height": int(h), "width": int(w),
+                             "compression": self.compression_report})
         # each chunk's file: the array's folder and its chunk key around the sequence index (joined per write, so
         # a folder name with braces is taken as it is)
         for name, arr in self._arrays.items():
@@ -432,9 +434,9 @@ class ZarrRecorder:
     def close(self) -> None:
         self._pool.shutdown(wait=True)
         self._trim()
-        self.group.attrs.update({"status": "failed" if self.failed else "complete",
-                                 "sequences_committed": self.committed,
-                                 **({"error": self.failed} if self.failed else {})})
+        self.group.update_attributes({"status": "failed" if self.failed else "complete",
+                                      "sequences_committed": self.committed,
+                                      **({"error": self.failed} if self.failed else {})})
         consolidate(self.path)
 
     def mark_failed(self, reason: str) -> None:
@@ -443,7 +445,8 @@ class ZarrRecorder:
         stay readable."""
         self.failed = self.failed or (str(reason).strip().splitlines() or ["failed"])[0]
         self._pool.shutdown(wait=True)
-        self.group.attrs.update({"status": "failed", "error": self.failed, "sequences_committed": self.committed})
+        self.group.update_attributes({"status": "failed", "error": self.failed,
+                                      "sequences_committed": self.committed})
         consolidate(self.path)
 
 

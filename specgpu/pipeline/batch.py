@@ -521,7 +521,7 @@ def _create_output(out: Path, identity: dict, plan, method, outputs, source, n, 
         shutil.rmtree(tmp)
     try:
         group = zarr.open_group(str(tmp), mode="w-", zarr_format=3)
-        group.attrs.update({**identity, "plan_method": plan.method, "status": "running"})
+        group.update_attributes({**identity, "plan_method": plan.method, "status": "running"})  # one write
 
         def make(name, tail, dtype, dims, fill, attrs=None):
             group.create_array(name, shape=(n, *tail), chunks=(1, *tail), dtype=dtype, compressors=checksum_codecs(),

@@ -5,6 +5,7 @@ The recorder is fed hand-built results here (no device needed); tests/pipeline/t
 
 from __future__ import annotations
 
+import json
 import types
 import warnings
 
@@ -202,3 +203,25 @@ def test_fuzzed_recording_attributes_give_a_recording_or_one_line(tmp_path_facto
     else:
         for name in rec.attrs.get("outputs") or []:
             assert rec.read(name, slice(0, rec.sequences)).shape[0] == rec.sequences
+
+
+def test_every_write_of_the_recordings_attributes_is_whole(tmp_path, monkeypatch):
+    """A crash can stop the recorder between any two writes of the group's zarr.json: every version it writes holds
+    every attribute a reader needs (zarr's attrs.update wrote one key per write, and a kill -9 between two of them
+    left a recording without sequences_committed)."""
+    from zarr.storage import LocalStore
+
+    versions = []
+    set_ = LocalStore.set
+
+    async def keep(self, key, value, *args, **kwargs):
+        if key == "zarr.json" and str(tmp_path) in str(self.root):
+            versions.append(json.loads(value.to_bytes()))
+        return await set_(self, key, value, *args, **kwargs)
+
+    monkeypatch.setattr(LocalStore, "set", keep)
+    record(tmp_path / "rec.zarr", 4)
+    assert len(versions) >= 3  # created, laid out at the first result, a commit per sequence, closed
+    for attrs in (v["attributes"] for v in versions):
+        assert {"format", "version", "K", "sequences_committed", "status", "outputs"} <= set(attrs), sorted(attrs)
+    assert versions[-1]["attributes"]["status"] == "complete" and versions[-1]["attributes"]["sequences_committed"] == 4
