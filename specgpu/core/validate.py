@@ -227,6 +227,12 @@ def check_pixel_map(a, name: str, spatial: tuple[int, ...], planes: int | None =
     return a, tuple(a.shape) != tuple(spatial)
 
 
+def check_gain_map(a, spatial: tuple[int, ...]):
+    """A flat field (``gain``) of shape ``spatial`` as :func:`check_pixel_map` checks it, NaN allowed (a pixel with
+    no response); returns the float32 array or device array."""
+    return check_pixel_map(a, "gain", spatial, None, nan_marks_dead=True)[0]
+
+
 def check_last_axis(a, name: str, size: int = 3, allow_single: bool = True):
     """An array with ``size`` channels on its last axis, float32 (NumPy input converted, NaN allowed)."""
     a = as_float32(a, name)

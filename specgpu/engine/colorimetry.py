@@ -266,7 +266,7 @@ def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observe
     on_device = is_device_array(frames)
     queue = get_queue(device, like=(frames, reference, dark, gain))
     dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None, nan_marks_dead=True)
+    gain_dev = kernels.gain_map(queue, gain, spatial)
     if saturation is None and frames.dtype.kind == "u":
         saturation = float(np.iinfo(frames.dtype).max)
     n = int(np.prod(spatial, dtype=np.int64))

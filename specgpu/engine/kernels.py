@@ -16,7 +16,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from specgpu.core.validate import check_pixel_map
+from specgpu.core.validate import check_gain_map, check_pixel_map
 from specgpu.engine.runtime import DTYPE_TO_CTYPE, VARIANTS, get_allocator, get_kernel, kernel_variant, new_kernel
 
 VW = 8  # pixels per work-item of the "cpu" variant, as kernels/common.h
@@ -72,13 +72,18 @@ def to_device(queue: cl.CommandQueue, a, dtype=None) -> cla.Array:
     return cla.to_device(queue, host, allocator=get_allocator(queue))
 
 
-def pixel_map(queue, a, name: str, spatial: tuple, planes: int | None, *, nan_marks_dead: bool = False):
-    """A validated dark frame / flat field on the device (None stays None); returns (array, per-plane flag).
-    ``nan_marks_dead``: a gain map whose NaN marks pixels with no response (their outputs NaN)."""
+def pixel_map(queue, a, name: str, spatial: tuple, planes: int | None):
+    """A validated dark frame / flat field on the device (None stays None); returns (array, per-plane flag)."""
     if a is None:
         return None, False
-    a, per_plane = check_pixel_map(a, name, spatial, planes, nan_marks_dead=nan_marks_dead)
+    a, per_plane = check_pixel_map(a, name, spatial, planes)
     return to_device(queue, a.reshape(-1)), per_plane
+
+
+def gain_map(queue, gain, spatial: tuple):
+    """A validated flat field on the device (None stays None), its NaN marking pixels with no response (their
+    outputs NaN: :func:`specgpu.core.numerics.live_gain`)."""
+    return None if gain is None else to_device(queue, check_gain_map(gain, spatial).reshape(-1))
 
 
 def launch_range(queue, kernel, shape: tuple, local: tuple, *args):
@@ -223,7 +228,8 @@ def prepare_linear(queue, frames_dtype, A: np.ndarray, *, n: int, dark=None, dar
     """:func:`launch_linear` as a :class:`Prepared` launch; outputs ``out`` (B*n) and ``mask`` (n) when asked.
 
     ``sqrt_offsets`` (B,): write ``sqrt(max(y_b + offset_b, 0))`` (a standard deviation from a variance linear in
-    the frames plus a constant; NaN where the variance is NaN, as NumPy's ``maximum`` gives it); the device matrix is then A's B x K values followed by the B offsets
+    the frames plus a constant; NaN where the variance is NaN, as NumPy's ``maximum`` gives it); the device
+    matrix is then A's B x K values followed by the B offsets
     (:func:`linear_matrix`). ``square`` ``(q, c)`` or ``(q, c, k)``: each sample above the dark, ``x``, enters
     the matrix as ``x + q (x - c)^2`` (a frame variance with the light's fluctuation,
     :meth:`specgpu.planning.noise.NoiseModel.light_square`), except frame ``k``'s (an ambient frame's variance

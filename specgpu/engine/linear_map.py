@@ -11,8 +11,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from specgpu.core.validate import (check_frames, check_level, check_matrix, check_out_dtype, check_pixel_map,
-                                   check_result_size, is_device_array, validate_method)
+from specgpu.core.validate import (check_frames, check_gain_map, check_level, check_matrix, check_out_dtype,
+                                   check_pixel_map, check_result_size, is_device_array, validate_method)
 from specgpu.engine import kernels, transfer
 from specgpu.engine.runtime import get_queue
 
@@ -97,13 +97,13 @@ def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layou
     if host_only and spatial and transfer.transfer_mode(queue.device) == "pinned":
         # a discrete device: pinned staging and row chunks that overlap upload, compute and read-back
         dark_h, dark_per_frame = (None, False) if dark is None else check_pixel_map(dark, "dark", spatial, K)
-        gain_h = None if gain is None else check_pixel_map(gain, "gain", spatial, None, nan_marks_dead=True)[0]
+        gain_h = None if gain is None else check_gain_map(gain, spatial)
         y, mask = transfer.linear_pipelined(
             queue, np.ascontiguousarray(frames), A, dark=dark_h, dark_per_frame=dark_per_frame, gain=gain_h,
             out_dtype=out_dtype, out_layout=out_layout, want_mask=return_mask, saturation=saturation)
         return LinearResult(y, mask) if return_mask else y
     dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None, nan_marks_dead=True)
+    gain_dev = kernels.gain_map(queue, gain, spatial)
     y, mask = kernels.launch_linear(
         queue, kernels.to_device(queue, frames.reshape(-1)), A, n=n, dark=dark_dev, dark_per_frame=dark_per_frame,
         gain=gain_dev, out_dtype=out_dtype, out_layout=out_layout, want_mask=return_mask, saturation=saturation,

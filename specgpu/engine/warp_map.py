@@ -103,7 +103,7 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
         saturation = float(np.iinfo(frames.dtype).max)
     queue = get_queue(device, like=(frames, dark, gain))
     dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", spatial, K)
-    gain_dev, _ = kernels.pixel_map(queue, gain, "gain", spatial, None, nan_marks_dead=True)
+    gain_dev = kernels.gain_map(queue, gain, spatial)
     n = h * w
     macros = dict(K=K, B=B, IN_T=DTYPE_TO_CTYPE[frames.dtype],
                   HAS_DARK=0 if dark is None else (2 if dark_per_frame else 1), HAS_GAIN=gain is not None,
