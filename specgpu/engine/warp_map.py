@@ -49,7 +49,7 @@ def check_shifts(shifts, K: int, name: str = "shifts", spatial: tuple | None = N
 
 
 def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: float | None = None,
-                        return_mask: bool = False, layout: str = "interleaved", device=None):
+                        return_mask: bool = False, layout: str = "interleaved", device=None, read=None):
     """y(x) = A s(x), with s_k(x) the corrected frame k, (o_k - dark) * gain, sampled bilinearly at x + d_k.
 
     Parameters
@@ -74,6 +74,9 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
         Also return the uint8 (H, W) mask: 1 saturated, 2 non-finite input, 4 outside the field (OR-ed).
     layout : {"interleaved", "planar"}
         Output (H, W, B) or (B, H, W).
+    read : sequence of int, optional
+        Only these frames are read (and A's columns, the shifts and a per-frame dark with them): a frame no output
+        reads, such as a broadband reference frame, flags no pixel wherever it saw it.
 
     Returns
     -------
@@ -88,6 +91,10 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
     >>> y[1, 2].tolist(), bool(np.isnan(y[1, 5]).all())
     ([2.0, 3.5], True)
     """
+    if read is not None:
+        read = [int(k) for k in read]
+        frames, A, shifts = np.asarray(frames)[read], np.asarray(A)[:, read], np.asarray(shifts)[read]
+        dark = dark if dark is None or np.ndim(dark) < 3 else np.asarray(dark)[read]
     frames, K = check_frames(frames)
     if frames.ndim != 3:
         raise ValueError(f"frames must be (K, H, W) to be warped, got shape {tuple(frames.shape)}")

@@ -321,12 +321,7 @@ def _reading(read, *arrays) -> list:
 def _warped(frames, A, shifts, dark, gain, read, **kw):
     """:func:`~specgpu.engine.warp_map.apply_linear_warped` of the frames ``read`` only (None: every frame); a
     sample of a pixel with no response (:func:`specgpu.core.numerics.live_gain`) makes its output NaN."""
-    gain = live_gain(gain)
-    if read is None:
-        return apply_linear_warped(frames, A, shifts, dark, gain, **kw)
-    frames, shifts = _reading(read, frames, shifts)
-    dark = dark if dark is None or np.ndim(dark) < 3 else np.asarray(dark)[read]
-    return apply_linear_warped(frames, np.asarray(A)[:, read], shifts, dark, gain, **kw)
+    return apply_linear_warped(frames, A, shifts, dark, live_gain(gain), read=read, **kw)
 
 
 @dataclass(frozen=True)

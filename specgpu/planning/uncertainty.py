@@ -144,10 +144,8 @@ def _noise_products(frames, plan, dark, gain, pair, sequences, device, light=Tru
         if shifts is None:
             return apply_linear(x, matrix, d, g, device=device)
         # a frame no output reads (a broadband reference frame) adds no noise, wherever it saw the pixel
-        read = np.flatnonzero(np.any(matrix != 0, axis=0))
-        d = d if d is None or np.ndim(d) < 3 else np.asarray(d)[read]
-        return apply_linear_warped(np.asarray(x)[read], matrix[:, read], np.asarray(shifts)[read], d, g,
-                                   device=device)
+        return apply_linear_warped(x, matrix, shifts, d, g, device=device,
+                                   read=np.flatnonzero(np.any(matrix != 0, axis=0)))
 
     if amb is not None:
         if ambient_dark is None:
