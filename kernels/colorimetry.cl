@@ -131,7 +131,5 @@ __kernel void delta_e_sigma(__global const float *restrict xyz,
     const floatv gL = delta_e_2000(L, a, b, L + 0.5f, a, b) * 2.0f;
     const floatv ga = delta_e_2000(L, a, b, L, a + 0.5f, b) * 2.0f;
     const floatv gb = delta_e_2000(L, a, b, L, a, b + 0.5f) * 2.0f;
-    const floatv var_ = gL * gL * var_L + ga * ga * var_a + gb * gb * var_b;
-    /* NaN stays NaN (a pixel with no response; fmax would return the 0) */
-    store_f(isnan(var_) ? var_ : sqrt(fmax(var_, 0.0f)), out, base, count);
+    store_f(sd_of_variance(gL * gL * var_L + ga * ga * var_a + gb * gb * var_b), out, base, count);
 }

@@ -296,6 +296,10 @@ inline floatv load_frame(__global const IN_T *frames, ulong n, uint k, ulong bas
 }
 #endif /* VW */
 
+/* A standard deviation from a variance: sqrt(max(v, 0)), NaN kept NaN (a pixel with no response; fmax alone would
+ * return the 0), as NumPy's sqrt(maximum(v, 0)) gives it. */
+inline floatv sd_of_variance(floatv v) { return isnan(v) ? v : sqrt(fmax(v, 0.0f)); }
+
 /* ------------------------------------------------------------------------------- the per-pixel linear map */
 
 /* One frame sample of VW pixels: flag saturated / non-finite values, subtract the dark level.

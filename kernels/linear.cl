@@ -36,12 +36,7 @@
 #define OUT_SQRT 0
 #endif
 #if OUT_SQRT
-/* a standard deviation from a variance: NaN stays NaN (a pixel with no response; fmax would return the 0) */
-#define POST(y, b)                                                   \
-    do {                                                             \
-        const floatv v_ = y + A[B * K + (b)];                        \
-        y = isnan(v_) ? v_ : sqrt(fmax(v_, 0.0f));                   \
-    } while (0)
+#define POST(y, b) y = sd_of_variance(y + A[B * K + (b)])
 #else
 #define POST(y, b)
 #endif
