@@ -460,10 +460,9 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     if white_roi is not None or ambient_index(folder.plan) is not None:
         plan, bundle = folder.plan, folder.calibration
         picked, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
-        y = None
+        y, gain = None, live_gain(bundle.flat_field)
         for fr, dark, A in decoded:
-            ys = np.asarray(apply_linear(fr, A, dark, live_gain(bundle.flat_field), out_dtype=np.float32,
-                                         device=device))
+            ys = np.asarray(apply_linear(fr, A, dark, gain, out_dtype=np.float32, device=device))
             y = ys if y is None else y + ys
         y = (y / len(picked)).astype(out_dtype)
         saturated = np.any(folder.frames[list(picked)] >= bundle.max_code, axis=(0, 1))
