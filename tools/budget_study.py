@@ -280,7 +280,8 @@ def main(argv=None):
     ap.add_argument("--tune", action="store_true", help="measure the denoiser's radius and eps")
     ap.add_argument("--no-natural", action="store_true")
     ap.add_argument("--subspace-bound", action="store_true",
-                    help="only: each chart's noise-free subspace reference with K = 3, 6, 9 (no capture, no calibration)")
+                    help="only: each chart's noise-free subspace reference with K = 3, 6, 9 (no capture, no "
+                         "calibration)")
     a = ap.parse_args(argv)
     w, h = (320, 240) if a.small else (640, 480)
     description = RigDescription(camera=CameraParameters(roi_width=w, roi_height=h))

@@ -45,7 +45,8 @@ from dataclasses import fields, replace
 
 from specgpu.rig.camera import CameraParameters
 
-__all__ = ["OBJECT_FIELD_MM", "PRESETS", "framing_um", "preset_names", "camera_preset", "expand_preset", "camera_for_size"]
+__all__ = ["OBJECT_FIELD_MM", "PRESETS", "framing_um", "preset_names", "camera_preset", "expand_preset",
+           "camera_for_size"]
 
 # Per preset: the CameraParameters fields that differ from the paper's camera. Exposure and frame rate are
 # chosen inside the sensor's frame-rate limit.
@@ -71,8 +72,9 @@ _PRESET_FIELDS: dict[str, dict] = {
     ),
 }
 
+_PAPER = CameraParameters()
 #: Width of the object the paper's camera sees, mm (640 pixels of 48 um): the field every preset frames.
-OBJECT_FIELD_MM = CameraParameters().sensor_width * CameraParameters().object_pixel_um * 1e-3
+OBJECT_FIELD_MM = _PAPER.sensor_width * _PAPER.object_pixel_um * 1e-3
 
 
 def _framed(values: dict) -> dict:
