@@ -62,34 +62,35 @@ def main(argv=None):
         rig.seed = 3
         rig.load_sequence(plan.patterns)
         frames = [rig.render(i % K, i, i * rig.frame_period_s)[0].astype(np.float32) for i in range(2 * K)]
-        moving = rig._moving
-        tr = moving.trajectory
         inside = np.zeros((h, w), bool)
         inside[BORDER:-BORDER, BORDER:-BORDER] = True
+        truths = []  # per k: where a point of frame k is in frame K + k (background, object), and the object's pixels
+        for k in range(K):
+            pair = rig.motion_truth(np.array([k, K + k]) * rig.frame_period_s)  # relative to their mean time
+            mask = rig.motion_truth(np.array([k]) * rig.frame_period_s)["object_mask"]  # at frame k's own time
+            own = np.zeros((h, w), bool) if mask is None else mask > 0.99
+            truths.append({
+                "background": pair["displacement"][1] - pair["displacement"][0],
+                "object": K * np.asarray(motion.object_velocity_px_per_frame, np.float64),
+                # the object's own pixels away from its edge (where the flow mixes it with what it covers), and
+                # the background: neither the object nor a 6 px ring about it
+                "core": binary_erosion(own, iterations=6) & inside,
+                "background_px": inside & (np.ones((h, w), bool) if mask is None else
+                                           binary_erosion(~(mask > 0.01), iterations=6)),
+            })
         for preset in args.presets.split(","):
             dis = cv2.DISOpticalFlow_create(PRESETS[preset])
             bg, ob, ms = [], [], []
-            for k in range(K):
+            for k, truth in enumerate(truths):
                 a, b = frames[k], frames[K + k]
                 lo, hi = np.percentile(a, 0.5), np.percentile(a, 99.5)
                 t0 = time.perf_counter()
                 flow = dis.calc(eight_bit(a, lo, hi), eight_bit(b, lo, hi), None)
                 ms.append((time.perf_counter() - t0) * 1e3)
-                # mid-exposure times of the two frames, frame periods; where a point of frame k is in frame K + k
-                ta, tb = k + rig.exposure_s / rig.frame_period_s / 2, K + k + rig.exposure_s / rig.frame_period_s / 2
-                truth_bg = tr.displacement(np.array(tb)) - tr.displacement(np.array(ta))
-                err = np.hypot(flow[..., 0] - truth_bg[0], flow[..., 1] - truth_bg[1])
-                mask = moving.object_mask(ta)
-                own = np.zeros((h, w), bool) if mask is None else mask > 0.99
-                # the object's own pixels, away from its edge (where the flow mixes it with what it covers)
-                if own.any():
-                    core = binary_erosion(own, iterations=6)
-                    truth_ob = tr.object_displacement(np.array(tb)) - tr.object_displacement(np.array(ta))
-                    e_ob = np.hypot(flow[..., 0] - truth_ob[0], flow[..., 1] - truth_ob[1])
-                    ob.append(e_ob[core & inside])
-                near = np.zeros((h, w), bool) if mask is None else \
-                    ~binary_erosion(~(mask > 0.01), iterations=6)  # the object and a 6 px ring: not background
-                bg.append(err[inside & ~near])
+                for part, px, out in (("background", "background_px", bg), ("object", "core", ob)):
+                    if truth[px].any():
+                        d = truth[part]
+                        out.append(np.hypot(flow[..., 0] - d[0], flow[..., 1] - d[1])[truth[px]])
             bg = np.concatenate(bg)
             ob = np.concatenate(ob) if ob else None
             ob_text = "-" if ob is None else f"{np.median(ob):.3f} / {np.percentile(ob, 90):.2f}"
