@@ -19,7 +19,9 @@
  *                      maps (2 K + 2) planes = va_k, ncc_k, vr, m(r)
  *   consistency_worst  worst = min over k of ncc_k where va_k > own_k (a frame with structure of its own), 1
  *                      elsewhere; textured = vr > level
- * Macros: K, WINDOW (odd), STRIDE; TRANSLATE = 1: every map is a translation (rows read as vectors).
+ * Macros: K, WINDOW (odd), STRIDE; TRANSLATE = 1: every map is a translation (rows read as vectors); FLOW = 1: a
+ * displacement per pixel and frame instead of the maps (flow (K, 2, H, W): frame k saw pixel (x, y) at
+ * (x + flow[k][0][y][x], y + flow[k][1][y][x])), read at the lane's clamped column.
  */
 
 #ifndef K
@@ -34,6 +36,9 @@
 #endif
 #ifndef TRANSLATE
 #define TRANSLATE 0
+#endif
+#ifndef FLOW
+#define FLOW 0
 #endif
 #define PADDED ((STRIDE + 2 * HALF + 7) / 8 * 8) /* a whole number of vectors */
 #ifndef ROWS
@@ -57,7 +62,8 @@ inline float8 sample8(__global const float *restrict g, float8 sx, float8 sy, ui
 }
 
 __kernel void consistency_align(__global const float *restrict grads, __constant const float *restrict motion,
-                                __global float *restrict aligned, const uint width, const uint height)
+                                __global const float *restrict flow, __global float *restrict aligned,
+                                const uint width, const uint height)
 {
     const int c0 = 8 * get_global_id(0), y = get_global_id(1);
     if (c0 >= PADDED || y >= (int)height) return;
@@ -69,7 +75,16 @@ __kernel void consistency_align(__global const float *restrict grads, __constant
     for (uint k = 0; k < K; ++k) {
         __constant const float *m = motion + 6 * k;
         __global const float *g = grads + (ulong)k * n;
-#if TRANSLATE
+#if FLOW
+        {
+            const int8 xi = clamp(first + lane, 0, (int)width - 1);
+            const int8 i = (int8)(y * (int)width) + xi;
+            __global const float *fx = flow + (ulong)(2 * k) * n, *fy = fx + n;
+            const float8 dx = (float8)(fx[i.s0], fx[i.s1], fx[i.s2], fx[i.s3], fx[i.s4], fx[i.s5], fx[i.s6], fx[i.s7]);
+            const float8 dy = (float8)(fy[i.s0], fy[i.s1], fy[i.s2], fy[i.s3], fy[i.s4], fy[i.s5], fy[i.s6], fy[i.s7]);
+            s[k] = sample8(g, x + dx, (float8)((float)y) + dy, width, height);
+        }
+#elif TRANSLATE
         /* every lane the same fraction; whole rows read as vectors where no lane's samples are clamped */
         const float sx0 = (float)first + m[2], sy = (float)y + m[5];
         const int ix = (int)floor(sx0), iy = (int)floor(sy);

@@ -18,7 +18,8 @@ import numpy as np
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
 from specgpu.engine.warp_map import apply_linear_warped
-from specgpu.pipeline.moving import estimate_global_motion, inconsistent_pixels
+from specgpu.pipeline.moving import estimate_global_motion, frame_gradients, inconsistent_pixels
+from specgpu.pipeline.moving_flow import flow_field, tile_motion
 from specgpu.pipeline.reference_motion import estimate_reference_motion
 from specgpu.planning.reference_frames import reference_positions
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
@@ -71,7 +72,13 @@ def main(argv=None):
     gain = np.ones((h, w), np.float32)
     queue = get_queue()
     est = estimate_global_motion(frames, dark, gain)
-    flow = estimate_global_motion(frames, dark, gain, model="flow")
+    gradients = frame_gradients(frames, dark, gain, est.gradients)
+
+    def tile_flow():  # the flow mode's own estimate, from the global one and the gradient images
+        motion = tile_motion(gradients, est.shifts, est.reference_frame, est.registered)
+        return flow_field(motion, est.shifts, (h, w))
+
+    flow = tile_flow()
     print(f"{w} x {h}, K = {K}, B = {args.outputs}, uint16 frames, device {queue.device.name.strip()}; "
           f"median of {args.repeats}")
     rows = [
@@ -90,11 +97,12 @@ def main(argv=None):
          lambda: estimate_global_motion(frames, dark, gain)),
         ("estimate: affine", lambda: estimate_global_motion(frames, dark, gain, model="affine")),
         ("consistency check", lambda: inconsistent_pixels(frames, est.shifts, dark, gain)),
-        # the dense case: a displacement per pixel and frame (the coarse tile flow, a study option, not a mode)
-        ("estimate: coarse tile flow (6 x 8 tiles)", lambda: estimate_global_motion(frames, dark, gain, model="flow")),
+        # the dense case (--motion flow): a displacement per pixel and frame, on top of the global estimate
+        ("estimate: the flow's tiles and field (after the global)", tile_flow),
         ("decode with a flow field per frame (warp.cl, FLOW)",
-         lambda: apply_linear_warped(frames, A, flow.shifts, dark, gain, device=queue)),
-        ("consistency check of a flow (SciPy)", lambda: inconsistent_pixels(frames, flow.shifts, dark, gain)),
+         lambda: apply_linear_warped(frames, A, flow, dark, gain, device=queue)),
+        ("consistency check of a flow (consistency.cl, FLOW)",
+         lambda: inconsistent_pixels(frames, flow, dark, gain, gradients=gradients)),
     ]
     if with_refs is not None:
         refs, ref_frames = with_refs

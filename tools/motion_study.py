@@ -58,6 +58,7 @@ CASES = {
     "vib": ("vibration 0.5 px RMS, 20 Hz", MotionParameters(vibration_rms_px=0.5, vibration_hz=20.0, seed=1)),
     "rot": ("rotation 0.2 deg/frame", MotionParameters(rotation_deg_per_frame=0.2)),
     "rot-affine": ("rotation 0.2 deg/frame, affine", MotionParameters(rotation_deg_per_frame=0.2)),
+    "rot-flow": ("rotation 0.2 deg/frame, flow", MotionParameters(rotation_deg_per_frame=0.2)),
     "object": ("chart 3 px/frame over the scene", MotionParameters(object="colorchecker",
                                                                    object_velocity_px_per_frame=(3.0, 0.0))),
     "object-affine": ("chart 3 px/frame over the scene, affine",

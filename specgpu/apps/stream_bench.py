@@ -45,8 +45,8 @@ def _stream_row(case: str, report, *, target_fps=None, extra=None) -> dict:
 
 
 #: The stream bench's cases; the sustained ones (free-running, ``block``) run ``rounds`` times interleaved.
-STREAM_CASES = ("fused", "sigma", "sigma_rms", "white", "dE_sigma", "linear", "denoise", "motion", "cube", "paced",
-                "overload", "equality")
+STREAM_CASES = ("fused", "sigma", "sigma_rms", "white", "dE_sigma", "linear", "denoise", "motion", "motion_flow",
+                "cube", "paced", "overload", "equality")
 _SUSTAINED = {"fused": ("coefficients+XYZ+dE2000", ("coefficients", "XYZ", "dE"), False),
               "sigma": ("coefficients+XYZ+dE2000+sigma", ("coefficients", "XYZ", "dE", "sigma"), False),
               "sigma_rms": ("coefficients+XYZ+dE2000+sigma_rms", ("coefficients", "XYZ", "dE", "sigma_rms"), False),
@@ -54,7 +54,10 @@ _SUSTAINED = {"fused": ("coefficients+XYZ+dE2000", ("coefficients", "XYZ", "dE")
               "dE_sigma": ("coefficients+XYZ+dE2000+dE_sigma", ("coefficients", "XYZ", "dE", "dE_sigma"), False),
               "linear": ("coefficients+XYZ", ("coefficients", "XYZ"), False),
               "denoise": ("coefficients+XYZ with --denoise", ("coefficients", "XYZ"), False),
-              "motion": ("coefficients+XYZ with --motion global", ("coefficients", "XYZ"), False)}
+              "motion": ("coefficients+XYZ with --motion global", ("coefficients", "XYZ"), False),
+              "motion_flow": ("coefficients+XYZ with --motion flow", ("coefficients", "XYZ"), False)}
+#: The motion mode of each case that compensates one
+_MOTION = {"motion": "global", "motion_flow": "flow"}
 
 
 def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, overload_seconds: float = 10.0,
@@ -91,6 +94,9 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
         ratio, with the host seconds per sequence of each step (estimate, warped pass, consistency check,
         colour); the replayed chart is still, so this is the compensation's cost, not its accuracy. Not run by
         default.
+    motion_flow
+        Coefficients + XYZ with ``stream --motion flow`` (the global decoding, then the tiles' flow, its warped
+        pass and its own consistency check, every sequence): the dense mode's rate; no target, not run by default.
 
     The sustained cases (fused, sigma, white, dE_sigma) run ``rounds`` times interleaved; each row is the
     median round's, with every round's frames/s and 1-minute load average beside it.
@@ -142,18 +148,18 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
                       sinks=[lambda r: count.__setitem__(0, count[0] + 1)],
                       white_roi=white_tile_roi(height, width) if white else None,
                       denoise=(DENOISE_RADIUS, DENOISE_EPS) if c == "denoise" else None,
-                      motion="global" if c == "motion" else "none",
+                      motion=_MOTION.get(c, "none"),
                       **{k: v for k, v in common.items() if k != "reference" or "dE" in outputs})
 
     for c in sustained:
-        if c in ("motion", "denoise"):  # their kernels are built at the first sequence: not inside the timed run
+        if c in ("motion", "motion_flow", "denoise"):  # kernels built at the first sequence: not in the timed run
             case_stream(c, [0]).run(0.5)
     for _ in range(int(rounds)):
         for c in sustained:  # interleaved: a change of the machine's load falls on every case alike
             count = [0]
             stream = case_stream(c, count)
             rep = stream.run(seconds)
-            if stream.moving is not None:
+            if c == "motion":
                 for step, s in stream.moving.seconds.items():
                     steps[step] = steps.get(step, 0.0) + s
                 steps["sequences"] = steps.get("sequences", 0) + stream.moving.sequences
@@ -163,7 +169,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
         name = _SUSTAINED[c][0]
         order = sorted(range(len(runs[c])), key=lambda i: runs[c][i][0].frames_per_s)
         rep, load_avg = runs[c][order[len(order) // 2]]
-        rows.append(_stream_row(name, rep, target_fps=None if c in ("dE_sigma", "linear", "denoise", "motion") else
+        rows.append(_stream_row(name, rep, target_fps=None if c in ("dE_sigma", "linear", "denoise", *_MOTION) else
                                 targets.get("coefficients_XYZ_dE2000_fps"),
                                 extra={"load_avg_1min": load_avg, "rounds": len(runs[c]),
                                        "frames_per_s_rounds": [r.frames_per_s for r, _ in runs[c]],

@@ -4,9 +4,9 @@ correlation) by which pixels whose compensated frames disagree are found.
 Each frame's gradient image is sampled where the motion says that frame saw each pixel; their median is the
 reference, and per pixel the normalised cross-correlation of each frame with it over a ``window`` x ``window``
 box is computed. :func:`consistency_maps` runs this as four device passes (``kernels/consistency.cl``) for a
-translation or an affine map per frame, and as the straightforward NumPy / SciPy computation
-(:func:`consistency_maps_numpy`, ``map_coordinates`` and ``uniform_filter``) for a dense flow: on a 640 x 480
-sequence of 9 frames the host way costs about 200 ms, most of a live stream's time per sequence. Only two
+translation or an affine map per frame, or a displacement per pixel and frame (a dense flow);
+:func:`consistency_maps_numpy` is the straightforward NumPy / SciPy computation (``map_coordinates`` and
+``uniform_filter``), the tests' reference: on a 640 x 480 sequence of 9 frames it costs about 200 ms. Only two
 statistics over the whole field stay on the host (the mean variance of the reference, each frame's median
 variance), from maps read back once.
 """
@@ -123,8 +123,7 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
     textured : (H, W) bool
     worst : (H, W) float32
         The lowest correlation of a frame with structure of its own against the reference; 1 where none has.
-        On the device for translations and affine maps with an odd ``window``; on the host (the same
-        computation in SciPy) for a flow or an even window.
+        On the device with an odd ``window``; on the host (the same computation in SciPy) for an even window.
     """
     planes = [np.ascontiguousarray(p, np.float32) for p in gradients] if isinstance(gradients, (list, tuple)) \
         else np.ascontiguousarray(gradients, np.float32)
@@ -136,20 +135,23 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
     window = int(window)
     if window < 1:
         raise ValueError(f"window must be >= 1, got {window}")
-    if maps.ndim == 4 or window % 2 == 0 or not np.all(np.isfinite(maps)):
+    if window % 2 == 0 or not np.all(np.isfinite(maps)):
         return consistency_maps_numpy(planes, maps, window=window, texture=texture, own=own)
+    flow = maps.ndim == 4
     queue = get_queue(device)
     stride = -(-w // 8) * 8
     half = window // 2
     padded = -(-(stride + 2 * half) // 8) * 8  # as kernels/consistency.cl: a whole number of 8-pixel vectors
-    translate = bool(np.all(maps[:, :, :2] == np.eye(2)))
-    macros = dict(K=K, WINDOW=window, STRIDE=stride, TRANSLATE=translate, ROWS=_ROWS)
+    translate = not flow and bool(np.all(maps[:, :, :2] == np.eye(2)))
+    macros = dict(K=K, WINDOW=window, STRIDE=stride, TRANSLATE=translate, ROWS=_ROWS, FLOW=True if flow else None)
     dims = (np.uint32(w), np.uint32(h))
     plane = stride * h
     grads = kernels._empty(queue, K * h * w, np.float32)
     for k, p in enumerate(planes):  # each image straight into its place (no stacked copy on the host)
         cl.enqueue_copy(queue, grads.data, p, dst_offset=k * p.nbytes, is_blocking=False)
-    motion_dev = kernels.to_device(queue, maps.reshape(-1), np.float32)  # a new one every sequence: not cached
+    # a new one every sequence: not cached; a flow is read per pixel, the maps then unused
+    motion_dev = kernels.to_device(queue, np.zeros(6 * K) if flow else maps.reshape(-1), np.float32)
+    flow_dev = kernels.to_device(queue, maps.reshape(-1), np.float32) if flow else None
     aligned = kernels._empty(queue, (K + 1) * padded * h, np.float32)
     rows = kernels._empty(queue, (3 * K + 2) * plane, np.float32)
     stats = kernels._empty(queue, (2 * K + 2) * plane, np.float32)
@@ -159,7 +161,7 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
         kernels.launch_range(queue, kernel, (-(-columns // 8), -(-h // _ROWS) if strips else h), (_GROUP, 1), *args,
                              *dims)
 
-    launch("consistency_align", padded, grads.data, motion_dev.data, aligned.data)
+    launch("consistency_align", padded, grads.data, motion_dev.data, kernels._data(flow_dev), aligned.data)
     launch("consistency_rows", stride, aligned.data, rows.data)
     launch("consistency_cols", stride, rows.data, stats.data, strips=True)
     va = stats[:K * plane].get().reshape(K, h, stride)[:, :, :w]

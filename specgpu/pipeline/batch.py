@@ -587,7 +587,7 @@ def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illumin
     denoise : (radius, eps), optional
         Denoise the cube and XYZ with the guided filter of ``recover --denoise`` (recorded in the output's
         identity: a resumed batch must ask the same).
-    motion : {"none", "global", "affine"}
+    motion : {"none", "global", "affine", "flow"}
         Decode each sequence motion-compensated exactly as ``recover --motion`` (the displacements estimated
         within the sequence; pixels seen outside the field or inconsistent are NaN); in the output's identity.
     """

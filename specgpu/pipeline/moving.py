@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import fft, ndimage
+from scipy import fft
 from skimage.registration import phase_cross_correlation
 from threadpoolctl import ThreadpoolController
 
@@ -52,9 +52,9 @@ MOTION_MODES = {
     "global": "estimate a translation per frame (phase correlation of gradient images) and sample frame k at x + d_k",
     "affine": "estimate an affine map per frame (translation, rotation, zoom; tiles registered and fitted) and "
               "sample frame k at M_k x",
+    "flow": "global, then a dense flow (tiles registered, a steady velocity each, interpolated per pixel) decodes "
+            "the pixels the global motion leaves inconsistent: frame k sampled at x + d_k(x)",
 }
-# A coarse tile flow (estimate_global_motion(model="flow")) exists for study but is no mode yet: on the twin's moving
-# chart it lowers the error for one plan and raises it for another (tools/motion_study.py, object-flow rows).
 
 #: A frame whose mean signal is below this share of the brightest frame's is not registered (a dark or ambient
 #: frame): its displacement is interpolated in time from the others.
@@ -188,7 +188,7 @@ _BLAS_HELD: dict = {"count": 0}
 def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int | None = None,
                            upsample: int = 10, binning: int = 1, pairs: str = "auto", cutoff: float = 0.12,
                            max_gap: int = 8, model: str = "translation", tiles: int = 4,
-                           robust: bool = True, flow_tiles: tuple = (6, 8), peak: str = "fit",
+                           robust: bool = True, peak: str = "fit",
                            ambiguous: float = AMBIGUOUS_PEAK) -> MotionEstimate:
     """A translation per frame of one sequence, relative to the sequence's reference time.
 
@@ -229,12 +229,10 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         put one pair's peak a whole period off, which only the other pairs outvote; with ``"dft"`` every pair.
     max_gap : int
         The furthest apart (in frames) two frames registered with ``pairs="all"`` are.
-    model : {"translation", "affine", "flow"}
+    model : {"translation", "affine"}
         A displacement per frame, or an affine map per frame (rotation, zoom, shear): each frame's translation is
-        refined by registering ``tiles`` x ``tiles`` tiles of it to the reference frame and fitting the map; or a
-        coarse flow: ``flow_tiles`` (rows, columns) tiles registered, their displacements interpolated to every
-        pixel (an object moving on its own; ``shifts`` is then (K, 2, H, W)). Experimental: tiles that straddle
-        two motions take one of them, so it is not offered as a recovery mode.
+        refined by registering ``tiles`` x ``tiles`` tiles of it to the reference frame and fitting the map. (A
+        displacement per pixel: :mod:`specgpu.pipeline.moving_flow`, from this estimate.)
     robust : bool
         Translation model: check each frame's whole-image translation against its tiles' median and take the
         tiles' consensus where they disagree (an object moving over the scene can dominate the whole-image
@@ -272,8 +270,8 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     if reference_frame is None:
         middle = [k for k in range(max(0, K // 2 - 1), min(K, K // 2 + 2)) if usable[k]]
         reference_frame = max(middle or list(np.flatnonzero(usable)), key=lambda k: level[k])
-    if model not in ("translation", "affine", "flow"):
-        raise ValueError(f"model must be one of translation, affine, flow, got {model!r}")
+    if model not in ("translation", "affine"):
+        raise ValueError(f"model must be one of translation, affine, got {model!r}")
     if model != "translation" and binning != 1:
         raise ValueError(f"model={model!r} registers tiles at full resolution: binning must be 1")
     if pairs not in ("auto", "reference", "all"):
@@ -355,9 +353,6 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         raw[others] = sol
     error = np.array([np.mean(errs[k]) if k in errs else np.nan for k in range(K)])
     # displacements from the reference time (at_reference_time: the mean of the frames' times)
-    if model == "flow":
-        return MotionEstimate(_flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, flow_tiles, usable),
-                              usable, error, int(reference_frame), model)
     if model == "translation":
         if robust:
             reference_tiles = {}
@@ -380,37 +375,6 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     maps = _fill_in_time(maps, usable)
     to_mid = np.linalg.inv(at_reference_time(maps))
     return MotionEstimate((maps @ to_mid)[:, :2, :], usable, error, int(reference_frame), model, kept_gradients())
-
-
-def _flow_field(raw, idx, reference_frame, gradient, upsample, cutoff, tiles, usable) -> np.ndarray:
-    """(K, 2, H, W) displacement per pixel and frame from the reference time: each frame's tiles registered to the
-    reference frame's around the frame's global translation (a tile off the field, or one whose correlation error
-    is above :data:`FLOW_MAX_ERROR`, a weak peak, keeps the global translation),
-    interpolated bilinearly between the tiles' centres."""
-    g_ref = gradient(reference_frame)
-    h, w = g_ref.shape
-    ty, tx = tiles
-    th, tw = h // ty, w // tx
-    K = raw.shape[0]
-    grids = np.zeros((K, 2, ty, tx))
-    for k in idx:
-        grids[k] = np.asarray(raw[k])[:, None, None]
-        if k == reference_frame:
-            continue
-        src, dst = _tile_displacements(g_ref, gradient(int(k)), raw[k], upsample, cutoff, (ty, tx),
-                                       max_error=FLOW_MAX_ERROR)
-        for c, d in zip(src, dst - src):
-            grids[k, :, int(round((c[1] - (th - 1) / 2.0) / th)), int(round((c[0] - (tw - 1) / 2.0) / tw))] = d
-    grids = _fill_in_time(grids, usable)
-    grids = grids - at_reference_time(grids)
-    yy = (np.arange(h) - (th - 1) / 2.0) / th
-    xx = (np.arange(w) - (tw - 1) / 2.0) / tw
-    coords = np.meshgrid(yy, xx, indexing="ij")
-    out = np.empty((K, 2, h, w), np.float32)
-    for k in range(K):
-        for c in range(2):
-            out[k, c] = ndimage.map_coordinates(grids[k, c], coords, order=1, mode="nearest")
-    return out
 
 
 def at_reference_time(values: np.ndarray) -> np.ndarray:
@@ -521,10 +485,6 @@ def _affine_to(g_ref: np.ndarray, g_k: np.ndarray, shift, upsample: int, cutoff:
     return out
 
 
-#: A tile of the flow whose phase correlation error is above this found no clear peak (too little structure, or
-#: structure that differs between the two illuminants); it keeps its frame's global translation.
-FLOW_MAX_ERROR = 0.95
-
 #: A pixel is inconsistent where some frame correlates below this with the median (:func:`inconsistent_pixels`).
 CHECK_THRESHOLD = 0.3
 
@@ -557,9 +517,9 @@ def consistency(frames, shifts, dark=None, gain=None, *, window: int = 9, textur
     compensated gradient image has structure there) and ``worst`` (float32: the lowest normalised
     cross-correlation of a frame with structure of its own against that median; 1 where none has). Two
     hypotheses of a pixel's motion are compared by their ``worst``. The per-pixel work runs on the default OpenCL
-    device for translations and affine maps (:func:`specgpu.engine.consistency.consistency_maps`)."""
+    device (:func:`specgpu.engine.consistency.consistency_maps`)."""
     g = frame_gradients(np.asarray(frames), dark, gain, gradients)
-    # on the device for translations and affine maps (kernels/consistency.cl), in SciPy for a flow
+    # on the device (kernels/consistency.cl)
     return consistency_maps(g, shifts, window=window, texture=texture, own=own)
 
 

@@ -61,6 +61,9 @@ def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, white_r
     if white_roi is not None:
         raise ValueError("--white-roi with --motion: the reference white is measured on fixed pixels, which the "
                          "scene moves across")
+    if mode == "flow" and plan is not None and reference_indices(plan):
+        raise ValueError("--motion flow with a plan with broadband reference frames: the flow is estimated from "
+                         "every frame of the sequence; compensate with --motion global or affine")
     if plan is not None and ambient_index(plan) is not None:
         raise ValueError(f"--motion {mode} with a plan with an ambient frame: the ambient frame is subtracted "
                          "from fixed pixels, which the scene moves across")
@@ -77,7 +80,7 @@ class MovingDecoder:
     outputs : sequence of str
         Of :data:`MOTION_OUTPUTS`; ``"coefficients"`` are in the plan's output basis, as
         :class:`specgpu.pipeline.decoder.StreamDecoder` makes them (``basis``, ``A_coefficients``).
-    mode : {"global", "affine"}
+    mode : {"global", "affine", "flow"}
     reference : array_like, optional
         CIELAB reference of ``"dE"``: (3,) or (H, W, 3).
     method, illuminant, observer

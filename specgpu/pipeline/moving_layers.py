@@ -35,6 +35,7 @@ from specgpu.core.numerics import live_gain
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
 from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency, estimate_global_motion,
                                      frame_gradients)
+from specgpu.pipeline.moving_flow import choose_flow, flow_field, tile_motion
 from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
@@ -324,6 +325,34 @@ def _warped(frames, A, shifts, dark, gain, read, **kw):
     return apply_linear_warped(frames, A, shifts, dark, live_gain(gain), read=read, **kw)
 
 
+def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, saturation, device):
+    """The flow's part of a ``model="flow"`` recovery (:mod:`specgpu.pipeline.moving_flow`), in place on ``y`` and
+    ``mask``: each pixel the flow's decoding gives (:func:`~specgpu.pipeline.moving_flow.choose_flow`, with the
+    global check's ``maps``; every pixel without them). Returns ``est`` with ``shifts`` the (K, 2, H, W)
+    displacement each pixel was decoded with and ``model`` "flow"."""
+    K, h, w = np.shape(frames)
+    per_pixel = np.empty((K, 2, h, w), np.float32)
+    per_pixel[...] = np.asarray(est.shifts, np.float32)[:, :, None, None]
+    held = np.zeros((h, w), bool)
+    for layer in layers:  # the pixels an object's own motion decoded
+        mine = layer.decoded & ((mask & np.uint8(MASK_LAYER)) != 0)
+        per_pixel[:, :, mine] = np.asarray(layer.shifts, np.float32)[:, :, None]
+        held |= mine
+    motion = tile_motion(gradients, est.shifts, est.reference_frame, est.registered)
+    if motion.measured.any() and np.any(motion.velocity != 0):
+        flow = flow_field(motion, est.shifts, (h, w))
+        res = _warped(frames, A, flow, dark, gain, None, saturation=saturation, return_mask=True, device=device)
+        if maps is not None:
+            flow_maps = consistency(frames, flow, dark, gain, gradients=gradients)
+            use = choose_flow(mask, maps, res.mask, flow_maps, held, threshold=CHECK_THRESHOLD,
+                              inconsistent=MASK_INCONSISTENT)
+        else:
+            use = np.ones((h, w), bool)
+        y[use], mask[use] = res.y[use], res.mask[use]
+        per_pixel[:, :, use] = flow[:, :, use]
+    return replace(est, shifts=per_pixel, model="flow")
+
+
 @dataclass(frozen=True)
 class MovingRecovery:
     """A motion-compensated recovery: the outputs at the reference time, the mask and each sequence's motion."""
@@ -383,8 +412,13 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         if seconds is not None:
             seconds[step] = seconds.get(step, 0.0) + clock[-1] - clock[-2]
 
-    est, gradients = None, None
+    est, gradients, maps = None, None, None
+    dense = model == "flow"
+    model = "translation" if dense else model  # the flow starts from the global translation
     refs = [] if not reference_frames else check_reference_frames(reference_frames, len(frames))
+    if dense and refs:
+        raise ValueError("a flow is estimated from every frame of the sequence: with broadband reference frames, "
+                         "compensate a translation (global) or an affine map per frame")
     if shifts is None and refs:
         est = estimate_reference_motion(frames, refs, dark, gain, upsample=upsample, model=model)
         gradients = est.gradients
@@ -410,6 +444,10 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         if layers and est is not None:
             found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
                                          device=device, read=read)
+    if dense and est is not None:
+        gradients = frame_gradients(frames, dark, gain, gradients)
+        est = _with_flow(frames, A, est, gradients, y, mask, found, maps if check else None, dark, gain,
+                         saturation=saturation, device=device)
     y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
     lap("check")
     # the gradient images served the check and the layers; not kept with a result

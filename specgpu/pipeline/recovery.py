@@ -425,7 +425,7 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         OpenCL device selector.
     white_roi, white_reflectance : optional
         The reference white in the field, as above.
-    motion : {"none", "global", "affine"}
+    motion : {"none", "global", "affine", "flow"}
         ``"global"``: the scene moved during the sequence; a translation per frame (``"affine"``: an affine map,
         for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`), the outputs are the scene at the sequence's
         reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene

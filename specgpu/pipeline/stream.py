@@ -195,7 +195,7 @@ class Stream:
     denoise : (radius, eps), optional
         Denoise the coefficients, cube and XYZ outputs with the guided filter of ``recover --denoise``
         (:func:`specgpu.pipeline.denoise.stream_denoise`; other outputs are refused with it).
-    motion : {"none", "global", "affine"}
+    motion : {"none", "global", "affine", "flow"}
         Compensate a scene that moves during each sequence, as ``recover --motion``: each sequence's
         displacements estimated within it and its frames decoded through the warped kernel; outputs of
         :data:`specgpu.pipeline.moving_decode.MOTION_OUTPUTS` only, not with ``white_roi`` or ``denoise``. Each

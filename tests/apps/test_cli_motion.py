@@ -53,7 +53,7 @@ def test_recover_with_motion_compensation_scores_better_against_the_truth(moving
 def test_motion_needs_one_sequence(moving, tmp_path):
     one_line_error(run("recover", moving / "seq", "--out", tmp_path / "c.npz", "--motion", "global", ok=False),
                    "one sequence at a time", "--sequence")
-    one_line_error(run("recover", moving / "seq", "--out", tmp_path / "c.npz", "--motion", "flow", ok=False),
+    one_line_error(run("recover", moving / "seq", "--out", tmp_path / "c.npz", "--motion", "optical", ok=False),
                    "--motion", code=2)
 
 

@@ -103,14 +103,40 @@ def test_translations_given_as_displacements_are_the_maps(queue):
     np.testing.assert_array_equal(a[1], b[1])
 
 
-def test_a_flow_and_an_even_window_are_checked_on_the_host():
+def flow_reference(gradients, flow, window=9, texture=0.5, own=4.0):
+    """:func:`reference` of a dense flow: frame k sampled at (x + flow[k, 0], y + flow[k, 1])."""
+    g = np.asarray(gradients, np.float64)
+    K, h, w = g.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    # each pixel's own affine map: the identity plus its displacement, sampled through reference's formula
+    aligned = np.stack([ndimage.map_coordinates(g[k], [yy + flow[k, 1], xx + flow[k, 0]], order=1, mode="nearest")
+                        for k in range(K)])
+    flat = np.tile(np.eye(2, 3), (K, 1, 1))  # the aligned images as they are: the rest of reference's check
+    return reference(aligned, flat, window, texture, own)
+
+
+@pytest.mark.parametrize("K", [5, 6])
+def test_a_dense_flow_on_the_device_is_the_float64_check(queue, K):
+    rng = np.random.default_rng(40 + K)
+    h, w = 45, 77
+    g = gradient_like(rng, K, h, w)
+    g[2, 10:30, 20:50] = rng.uniform(0, 3, (20, 30))
+    yy, xx = np.mgrid[0:h, 0:w]
+    # a smooth field with a step (two motions), reaching outside the field at the borders
+    flow = np.stack([np.stack([rng.uniform(-3, 3) + 0.03 * xx * rng.uniform(-1, 1) + 2.5 * (xx > 40),
+                               rng.uniform(-3, 3) + 0.02 * yy * rng.uniform(-1, 1)]) for _ in range(K)])
+    ref = flow_reference(g, flow)
+    assert_matches(*consistency_maps(g, flow, device=queue), ref)
+    assert_matches(*consistency_maps_numpy(g, flow), ref)
+
+
+def test_an_even_window_is_checked_on_the_host():
     rng = np.random.default_rng(4)
     g = gradient_like(rng, 5, 30, 40)
-    flow = np.broadcast_to(rng.uniform(-2, 2, (5, 2, 1, 1)), (5, 2, 30, 40))
-    for motion, window in ((flow, 9), (flow[:, :, 0, 0], 8)):
-        got, want = consistency_maps(g, motion, window=window), consistency_maps_numpy(g, motion, window=window)
-        np.testing.assert_array_equal(got[0], want[0])
-        np.testing.assert_array_equal(got[1], want[1])
+    motion = rng.uniform(-2, 2, (5, 2))
+    got, want = consistency_maps(g, motion, window=8), consistency_maps_numpy(g, motion, window=8)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
 
 
 def test_bad_arguments_are_refused():

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -81,7 +82,7 @@ def test_batch_with_motion_equals_recover_with_motion(moving, tmp_path):
 def test_batch_motion_is_checked_in_one_line(moving, tmp_path):
     root, _, _, plan_path, calib_path = moving
     args = ["batch", root / "seq", "--plan", plan_path, "--calib", calib_path, "--out", tmp_path / "o.zarr"]
-    one_line_error(run(*args, "--motion", "flow", ok=False), "--motion", code=2)
+    one_line_error(run(*args, "--motion", "optical", ok=False), "--motion", code=2)
     one_line_error(run(*args, "--motion", "global", "--denoise", ok=False), "--denoise with --motion")
     assert not (tmp_path / "o.zarr").exists()
 
@@ -161,6 +162,29 @@ def test_a_stream_with_motion_equals_recover_with_motion_of_the_same_frames(movi
         assert np.abs(still["cube"][ok] - maps["cube"][ok]).mean() > 0.01
 
 
+def test_a_stream_and_a_batch_with_a_flow_equal_recover_with_a_flow(moving, tmp_path):
+    import zarr
+
+    from specgpu.pipeline.recovery import SequenceFolder
+
+    root, plan, bundle, _, _ = moving
+    for maps, frames, estimate in streamed(plan, bundle, "flow"):
+        folder = SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {})
+        want = recover(folder, sequence=0, motion="flow")
+        assert 0 < np.isnan(want[..., 0]).mean() < 0.2
+        assert_close_nan(maps["cube"], want, rtol=1e-6, atol=1e-6)
+        assert_close_nan(maps["dE"], delta_E(np.array(LAB_REF, np.float32), to_Lab(to_XYZ(want, plan))), atol=1e-3)
+        assert estimate.model == "flow" and estimate.shifts.shape == (plan.K, 2, *frames.shape[1:])
+        # the drift is one translation: the flow is it, to a few hundredths of a px per frame
+        drift = (np.arange(plan.K) - plan.K // 2)[:, None, None, None] * np.array([2.0, 1.0])[None, :, None, None]
+        assert np.median(np.abs(estimate.shifts - drift)) < 0.1
+    run_batch(root / "seq", plan, bundle, tmp_path / "out.zarr", outputs=("cube",), workers=1, progress=False,
+              motion="flow")
+    out = zarr.open_group(str(tmp_path / "out.zarr"), mode="r")
+    assert out.attrs["motion"] == "flow"
+    assert_close_nan(out["cube"][1], recovered(root, 1, "flow"), rtol=1e-6, atol=1e-6)
+
+
 def test_stream_motion_on_the_command_line(moving, tmp_path):
     import zarr
 
@@ -169,7 +193,7 @@ def test_stream_motion_on_the_command_line(moving, tmp_path):
                                        "exposure_s = 0.0049\n[motion]\nvelocity_px_per_frame = [2.0, 1.0]\n")
     args = ["stream", "--rig", tmp_path / "rig.toml", "--plan", plan_path, "--calib", calib_path, "--scene",
             "natural", "--pacing", "free", "--seconds", "0.3"]
-    one_line_error(run(*args, "--motion", "flow", ok=False), "--motion", code=2)
+    one_line_error(run(*args, "--motion", "optical", ok=False), "--motion", code=2)
     one_line_error(run(*args, "--motion", "global", "--outputs", "cube,sigma", ok=False), "sigma", "--motion")
     one_line_error(run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--denoise", ok=False), "--denoise")
     one_line_error(run(*args, "--motion", "affine", "--outputs", "cube", "--accumulate", "3", ok=False),

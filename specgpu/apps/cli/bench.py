@@ -41,7 +41,8 @@ def sizes_option(text, option, one=False):
 @click.option("--stream-cases", default="fused,sigma,sigma_rms,white,cube,paced,overload,equality",
               show_default=True,
               help="With --stream: comma-separated cases to run (also dE_sigma; linear and denoise: the cost of "
-                   "--denoise; motion: the rate with --motion global beside the static one).")
+                   "--denoise; motion: the rate with --motion global beside the static one; motion_flow: the rate "
+                   "with --motion flow).")
 @click.option("--stream-rounds", type=click.IntRange(min=1), default=1, show_default=True,
               help="With --stream: interleaved rounds of the sustained cases (fused, sigma, sigma_rms, white, "
                    "dE_sigma); "

@@ -1,0 +1,247 @@
+"""Dense motion of one sequence (``--motion flow``): a displacement per pixel and frame, for scenes whose parts move
+differently (an object on its own, a rotation or a zoom a translation cannot follow, a non-rigid motion).
+
+The flow is a block-matching one, on the same spectrum-independent gradient images as the global estimate
+(:func:`specgpu.pipeline.moving.gradient_image`): between two frames lit by different spectra the brightness of a
+surface changes, the place of its edges does not, so a brightness-constancy flow has nothing to hold on to.
+
+1. The global translation of each frame is estimated first (:func:`specgpu.pipeline.moving.estimate_global_motion`).
+2. The reference frame is cut into tiles of about :data:`TILE_PX` px; each tile is registered in every other frame by
+   phase correlation around where the global motion and its own motion so far put it (the frames nearest the
+   reference first, so that a tile moving on its own is followed however far it goes in the sequence).
+3. Within one sequence (tens of milliseconds) a part of the scene moves steadily relative to the rest: each tile's
+   motion is fitted as one velocity relative to the global translation, frames whose peak disagrees with it by
+   more than :data:`STEADY_PX` dropped (a repeating texture's peak a period off, a tile an occlusion covers). A
+   tile with too little structure, or whose frames agree on no velocity, takes its neighbours' (the nearest tile
+   that has one; none: the global motion).
+4. The velocities are interpolated bilinearly between the tiles' centres: frame k saw pixel x at
+   x + d_k + v(x) (t_k - t_ref), d_k the global translation, t_ref the reference time.
+
+A tile that straddles two motions takes one of them, and the interpolation blurs a motion boundary over a tile;
+so the flow is a second hypothesis beside the global one (with its object layers,
+:func:`specgpu.pipeline.moving_layers.recover_moving`), not a replacement: a pixel the global compensation leaves
+flagged, its frames disagreeing, is decoded with the flow where the frames compensated by the flow agree
+(:func:`rescue_with_flow`). Every other pixel keeps the global decoding; a pixel consistent under neither stays
+NaN and flagged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import fft, ndimage
+
+from specgpu.pipeline.moving import at_reference_time
+from specgpu.pipeline.registration import frequency_weight, hann_window
+
+__all__ = ["TILE_PX", "STEADY_PX", "MIN_PEAK_SHARE", "TileMotion", "tile_motion", "flow_field", "choose_flow"]
+
+#: Side of the flow's tiles, px (the field divided into the nearest whole number of tiles each way).
+TILE_PX = 48
+
+#: A frame's tile displacement counts towards the tile's velocity where it lies within this (px) of it.
+STEADY_PX = 1.0
+
+#: A tile's correlation peak counts where it holds at least this share of a perfect match's (the peak of a tile
+#: registered to itself): below it the tile has too little structure, or structure that differs between the two
+#: illuminants.
+MIN_PEAK_SHARE = 0.3
+
+#: A tile's velocity stands where at least this many frames besides the reference agree on it.
+MIN_FRAMES = 3
+
+
+class TileMotion:
+    """Each tile's velocity relative to the global translation.
+
+    Attributes
+    ----------
+    centres : tuple of numpy.ndarray
+        (rows, columns) of the tiles' centres, px.
+    velocity : numpy.ndarray
+        (ty, tx, 2) velocity (x, y) of each tile relative to the global translation, px per frame (filled from the
+        nearest measured tile where not measured).
+    measured : numpy.ndarray
+        (ty, tx) bool: the tile's own frames gave its velocity.
+    correction : numpy.ndarray
+        (K, 2) what the measured tiles add to each frame's global translation (the median of their displacements
+        less their own steady motion), px, from the reference frame.
+    """
+
+    def __init__(self, centres, velocity, measured, correction):
+        self.centres, self.velocity, self.measured, self.correction = centres, velocity, measured, correction
+
+
+def _whitened_tiles(stack: np.ndarray, cutoff: float) -> np.ndarray:
+    """Phase-only half spectra of an (N, th, tw) stack under a Hann window, Gaussian-weighted (as
+    :func:`specgpu.pipeline.registration.whitened_half_spectrum`)."""
+    F = fft.rfft2(stack * hann_window(stack.shape[1:]), axes=(-2, -1), workers=1)
+    magnitude = np.abs(F)
+    np.maximum(magnitude, 1e-30, out=magnitude)
+    np.divide(frequency_weight(stack.shape[1:], float(cutoff)), magnitude, out=magnitude)
+    F *= magnitude
+    return F
+
+
+def _peaks(surfaces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) sub-pixel (x, y) of the highest peak of each periodic surface of an (N, h, w) stack, in [-N/2, N/2)
+    px (a Gaussian through the three samples across it along each axis), and (N,) the peak values."""
+    n, h, w = surfaces.shape
+    flat = surfaces.reshape(n, -1)
+    top = np.argmax(flat, axis=1)
+    y, x = np.divmod(top, w)
+    rows = np.arange(n)
+    c = flat[rows, top]
+
+    def vertex(left, right):
+        ok = (left > 0) & (right > 0) & (c > 0)
+        l, m, r = (np.where(ok, np.log(np.where(ok, v, 1.0)), v) for v in (left, c, right))
+        curvature = l - 2.0 * m + r
+        with np.errstate(divide="ignore", invalid="ignore"):
+            offset = np.where(curvature < 0, 0.5 * (l - r) / curvature, 0.0)
+        return np.clip(offset, -0.5, 0.5)
+
+    dy = vertex(surfaces[rows, (y - 1) % h, x], surfaces[rows, (y + 1) % h, x])
+    dx = vertex(surfaces[rows, y, (x - 1) % w], surfaces[rows, y, (x + 1) % w])
+    return np.stack([(x + w // 2) % w - w // 2 + dx, (y + h // 2) % h - h // 2 + dy], axis=1), c
+
+
+def tile_motion(gradients, shifts, reference_frame: int, usable, *, tile_px: int = TILE_PX,
+                cutoff: float = 0.12) -> TileMotion:
+    """The velocity of each tile of the reference frame relative to the global translation (steps 2 and 3 of the
+    module notes).
+
+    Parameters
+    ----------
+    gradients : sequence of (H, W) arrays
+        Each frame's gradient image (None for a frame not registered).
+    shifts : array_like, (K, 2)
+        The global displacement of each frame from the reference time, px.
+    reference_frame : int
+        The frame the tiles are cut from.
+    usable : array_like, (K,) bool
+        The frames that can be registered.
+    tile_px : int
+        Tile side, px.
+    cutoff : float
+        Of the whitened cross-power spectrum's Gaussian weight (as the global estimate's).
+    """
+    g_ref = np.asarray(gradients[reference_frame], np.float32)
+    h, w = g_ref.shape
+    ty, tx = max(1, int(round(h / tile_px))), max(1, int(round(w / tile_px)))
+    th, tw = h // ty, w // tx
+    shifts = np.asarray(shifts, np.float64)
+    K = len(shifts)
+    ref_tiles = g_ref[:ty * th, :tx * tw].reshape(ty, th, tx, tw).swapaxes(1, 2).reshape(-1, th, tw)
+    F_ref = _whitened_tiles(ref_tiles, cutoff)
+    # the peak of a tile registered to itself (the same for every tile: whitened spectra share their magnitude)
+    self_peak = _peaks(fft.irfft2(F_ref * np.conj(F_ref), s=(th, tw), axes=(-2, -1), workers=1))[1]
+    y0 = (np.arange(ty) * th)[:, None].repeat(tx, 1).reshape(-1)
+    x0 = (np.arange(tx) * tw)[None, :].repeat(ty, 0).reshape(-1)
+    n = ty * tx
+    t = np.arange(K, dtype=np.float64) - reference_frame
+    relative = np.full((K, n, 2), np.nan)  # each tile's displacement relative to the global one, from the reference
+    velocity = np.zeros((n, 2))
+    order = sorted((k for k in range(K) if usable[k] and k != reference_frame), key=lambda k: (abs(t[k]), k))
+    for k in order:
+        g_k = np.asarray(gradients[k], np.float32)
+        # where the global motion and the tile's velocity so far put the tile in frame k
+        guess = (shifts[k] - shifts[reference_frame])[None, :] + velocity * t[k]
+        offset = np.rint(guess).astype(int)
+        ys, xs = y0 + offset[:, 1], x0 + offset[:, 0]
+        inside = (ys >= 0) & (xs >= 0) & (ys + th <= h) & (xs + tw <= w)
+        if not inside.any():
+            continue
+        idx = np.flatnonzero(inside)
+        moving = np.stack([g_k[ys[i]:ys[i] + th, xs[i]:xs[i] + tw] for i in idx])
+        surfaces = fft.irfft2(_whitened_tiles(moving, cutoff) * np.conj(F_ref[idx]), s=(th, tw), axes=(-2, -1),
+                              workers=1)
+        d, top = _peaks(surfaces)
+        strong = top >= MIN_PEAK_SHARE * self_peak[idx]
+        rel = offset[idx] + d - (shifts[k] - shifts[reference_frame])[None, :]
+        relative[k, idx[strong]] = rel[strong]
+        velocity = _fit_velocities(relative, t)
+    fitted, measured = _steady(relative, t)
+    # the global translation of each frame as the measured tiles see it, their own steady motion taken out (the
+    # whole-image correlation of a scene whose parts move differently is a compromise between them)
+    residual = relative[:, measured] - fitted[measured][None] * t[:, None, None]
+    near = np.abs(residual).max(axis=2) <= STEADY_PX
+    correction = np.zeros((K, 2))
+    for k in range(K):
+        if near[k].sum() >= MIN_FRAMES:
+            correction[k] = np.median(residual[k, near[k]], axis=0)
+    grid = np.zeros((ty, tx, 2))
+    grid.reshape(n, 2)[measured] = fitted[measured]
+    measured = measured.reshape(ty, tx)
+    if measured.any() and not measured.all():  # the nearest measured tile's
+        _, (iy, ix) = ndimage.distance_transform_edt(~measured, return_indices=True)
+        grid = grid[iy, ix]
+    # each tile's velocity with its neighbours' (a 3 x 3 median: a tile's own is noisy to a few tenths of a px per
+    # frame; the median keeps a linear field, a rotation's or a zoom's, and a step between two motions)
+    grid = np.stack([ndimage.median_filter(grid[..., c], size=3, mode="nearest") for c in range(2)], axis=-1)
+    centres = (np.arange(ty) * th + (th - 1) / 2.0, np.arange(tx) * tw + (tw - 1) / 2.0)
+    return TileMotion(centres, grid, measured, correction)
+
+
+def _fit_velocities(relative: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N, 2) velocity of each tile from the frames registered so far (least squares through the reference frame,
+    whose relative displacement is 0 by construction; 0 where none is)."""
+    have = np.isfinite(relative[..., 0])  # (K, N)
+    tt = np.where(have, t[:, None], 0.0)
+    num = np.nansum(relative * tt[..., None], axis=0)
+    den = np.sum(tt * tt, axis=0)
+    return np.where(den[:, None] > 0, num / np.maximum(den, 1e-30)[:, None], 0.0)
+
+
+def _steady(relative: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) velocities and (N,) bool ``measured``: each tile's frames' implied velocities' median, the frames
+    within :data:`STEADY_PX` of it kept and fitted again; measured where at least :data:`MIN_FRAMES` agree."""
+    K, n, _ = relative.shape
+    with np.errstate(invalid="ignore", divide="ignore"):
+        implied = relative / np.where(t != 0, t, np.nan)[:, None, None]
+    start = np.zeros((n, 2))
+    some = np.isfinite(implied[..., 0]).any(axis=0)  # tiles with a frame besides the reference registered
+    if some.any():
+        start[some] = np.nanmedian(implied[:, some], axis=0)
+    residual = np.abs(relative - start[None] * t[:, None, None]).max(axis=2)
+    keep = np.isfinite(residual) & (residual <= STEADY_PX)
+    fitted = _fit_velocities(np.where(keep[..., None], relative, np.nan), t)
+    residual = np.abs(relative - fitted[None] * t[:, None, None]).max(axis=2)
+    keep = np.isfinite(residual) & (residual <= STEADY_PX)
+    return _fit_velocities(np.where(keep[..., None], relative, np.nan), t), keep.sum(axis=0) >= MIN_FRAMES
+
+
+def flow_field(motion: TileMotion, shifts, shape: tuple) -> np.ndarray:
+    """(K, 2, H, W) float32 displacement of each pixel in each frame from the reference time: the global
+    ``shifts`` (K, 2) with the tiles' correction, plus the tiles' velocities, interpolated bilinearly between their centres, times each frame's
+    time from the reference time (the mean of the frames' indices)."""
+    h, w = shape
+    shifts = np.asarray(shifts, np.float64)
+    K = len(shifts)
+    (cy, cx), grid = motion.centres, motion.velocity
+    yy = (np.arange(h) - cy[0]) / (cy[1] - cy[0]) if len(cy) > 1 else np.zeros(h)
+    xx = (np.arange(w) - cx[0]) / (cx[1] - cx[0]) if len(cx) > 1 else np.zeros(w)
+    coords = np.meshgrid(yy, xx, indexing="ij")
+    v = np.stack([ndimage.map_coordinates(grid[..., c], coords, order=1, mode="nearest") for c in range(2)])
+    t = np.arange(K, dtype=np.float64) - (K - 1) / 2.0
+    c = np.asarray(motion.correction, np.float64)
+    shifts = shifts + c - at_reference_time(c)
+    out = np.empty((K, 2, h, w), np.float32)
+    for k in range(K):
+        out[k] = v * np.float32(t[k])
+        out[k] += shifts[k].astype(np.float32)[:, None, None]
+    return out
+
+
+def choose_flow(mask, maps, mask_flow, flow_maps, held, *, threshold: float, inconsistent: int) -> np.ndarray:
+    """(H, W) bool: the pixels decoded with the flow rather than the global motion. Under the flow a pixel is
+    consistent where its frames agree (not ``textured``, or ``worst`` >= ``threshold``: ``flow_maps``) and its
+    pass flagged nothing (``mask_flow``); it is taken there unless an object layer decoded the pixel (``held``) or
+    the global decoding is consistent too and its frames agree better: a pixel the global decoding left
+    inconsistent (``mask`` bit ``inconsistent``), or whose global median image has no texture, takes the flow;
+    a textured one the better correlated of the two (``maps``: the global check's)."""
+    textured_g, worst_g = maps
+    textured_f, worst_f = flow_maps
+    consistent = (~textured_f | (worst_f >= threshold)) & (mask_flow == 0)
+    flagged = (mask & np.uint8(inconsistent)) != 0
+    better = ~textured_g | (textured_f & (worst_f >= worst_g))
+    return consistent & ~held & (flagged | better)

@@ -1,0 +1,144 @@
+"""The dense flow (``--motion flow``): tile velocities against known motions, the field, the choice of decoding per
+pixel, and the flow recovery on the moving twin against its truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from moving_helpers import frames_of, moving_setup
+
+from specgpu.pipeline.moving import MASK_INCONSISTENT, estimate_global_motion, frame_gradients
+from specgpu.pipeline.moving_flow import TileMotion, choose_flow, flow_field, tile_motion
+from specgpu.pipeline.moving_layers import recover_moving
+from specgpu.rig.motion import MotionParameters
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return moving_setup()
+
+
+def textured(rng, h, w):
+    return np.abs(ndimage.gaussian_filter(rng.normal(0, 1, (h, w)), 1.2)).astype(np.float32)
+
+
+def shifted(image, dx, dy):
+    """``image`` whose content moved by (dx, dy) px (bilinear; edges repeated)."""
+    h, w = image.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    return ndimage.map_coordinates(image, [yy - dy, xx - dx], order=1, mode="nearest").astype(np.float32)
+
+
+def test_tiles_find_the_velocity_of_a_part_that_moves_on_its_own():
+    """Gradient-like images whose right half moves 2.5 px per frame to the left relative to the left half, which
+    drifts with the global translation: the right half's tiles measure -2.5 px/frame, the left half's 0, and the
+    frames' global translation is taken from the tiles."""
+    rng = np.random.default_rng(0)
+    K, h, w, ref = 7, 192, 288, 3
+    base = textured(rng, h, w + 60)
+    shifts = np.array([[0.7 * (k - ref), -0.4 * (k - ref)] for k in range(K)])
+    grads = []
+    for k in range(K):
+        left = shifted(base, *shifts[k])[:, :w]
+        right = shifted(base, shifts[k, 0] - 2.5 * (k - ref), shifts[k, 1])[:, 30:w + 30]
+        grads.append(np.where(np.arange(w) < w // 2, left, right) + rng.uniform(0, 0.01, (h, w)).astype(np.float32))
+    motion = tile_motion(grads, shifts - shifts[(K - 1) // 2], ref, np.ones(K, bool), tile_px=48)
+    v = motion.velocity
+    assert v.shape == (4, 6, 2) and motion.measured.mean() > 0.9
+    # the tiles straddling the boundary (columns 2 and 3 of 6 hold both halves) take either motion
+    np.testing.assert_allclose(v[:, :2], 0.0, atol=0.1)
+    np.testing.assert_allclose(v[:, 4:, 0], -2.5, atol=0.1)
+    np.testing.assert_allclose(v[:, 4:, 1], 0.0, atol=0.1)
+    np.testing.assert_allclose(motion.correction, 0.0, atol=0.1)
+
+
+def test_the_field_is_the_global_shift_plus_velocity_times_time():
+    K, h, w = 5, 40, 60
+    shifts = np.array([[k - 2.0, 0.5 * (k - 2.0)] for k in range(K)])
+    velocity = np.zeros((2, 3, 2))
+    velocity[:, :, 0] = [[0.0, 1.0, 2.0]] * 2  # a velocity rising along x between the tiles' centres
+    motion = TileMotion((np.array([9.5, 29.5]), np.array([9.5, 29.5, 49.5])), velocity, np.ones((2, 3), bool),
+                        np.zeros((K, 2)))
+    flow = flow_field(motion, shifts, (h, w))
+    assert flow.shape == (K, 2, h, w) and flow.dtype == np.float32
+    x = np.arange(w)
+    v_x = np.clip((x - 9.5) / 20.0, 0.0, 2.0)  # linear between the centres, the outer value beyond them
+    for k in range(K):
+        np.testing.assert_allclose(flow[k, 0], np.broadcast_to(shifts[k, 0] + v_x * (k - 2), (h, w)), atol=1e-5)
+        np.testing.assert_allclose(flow[k, 1], np.full((h, w), shifts[k, 1]), atol=1e-6)
+    motion.correction = np.array([[0.3, 0.0]] * K)  # the same for every frame: nothing at the reference time
+    np.testing.assert_allclose(flow_field(motion, shifts, (h, w)), flow, atol=1e-6)
+
+
+def test_the_flow_is_chosen_where_it_is_consistent_and_the_global_decoding_is_not_better():
+    mask = np.array([[MASK_INCONSISTENT, 0, 0, 0, MASK_INCONSISTENT, 0]], np.uint8)
+    textured_g = np.array([[True, True, False, True, True, True]])
+    worst_g = np.array([[0.1, 0.9, 1.0, 0.6, 0.1, 0.5]], np.float32)
+    textured_f = np.array([[True, True, True, True, True, False]])
+    worst_f = np.array([[0.8, 0.8, 0.9, 0.7, 0.2, 1.0]], np.float32)
+    mask_f = np.zeros_like(mask)
+    held = np.zeros(mask.shape, bool)
+    use = choose_flow(mask, (textured_g, worst_g), mask_f, (textured_f, worst_f), held, threshold=0.3,
+                      inconsistent=MASK_INCONSISTENT)
+    # flagged globally, consistent under the flow: flow; global better correlated: global; global untextured:
+    # flow; flow better: flow; inconsistent under both: neither; flow untextured and global textured: global
+    assert use.tolist() == [[True, False, True, True, False, False]]
+    held[0, 0] = True  # an object layer's pixel keeps its decoding
+    mask_f[0, 2] = 4  # the flow saw this one outside the field
+    use = choose_flow(mask, (textured_g, worst_g), mask_f, (textured_f, worst_f), held, threshold=0.3,
+                      inconsistent=MASK_INCONSISTENT)
+    assert use.tolist() == [[False, False, False, True, False, False]]
+
+
+def test_a_rotation_is_followed_by_the_flow_where_a_translation_is_flagged(setup):
+    """A rotation of 0.3 deg per frame: the global translation leaves much of the field flagged; the flow decodes
+    most of it, and its displacement per pixel is the rotation's."""
+    desc, bundle, plan, scene = setup
+    frames, truth = frames_of(desc, plan, scene, MotionParameters(rotation_deg_per_frame=0.3))
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    kw = dict(dark=dark, gain=gain, saturation=float(bundle.max_code))
+    glob = recover_moving(frames, plan.A, **kw)
+    flow = recover_moving(frames, plan.A, model="flow", **kw)
+    K, h, w = frames.shape
+    est = flow.estimates[0]
+    assert est.model == "flow" and est.shifts.shape == (K, 2, h, w)
+    yy, xx = np.mgrid[0:h, 0:w]
+    M = truth["maps"]
+    true = np.stack([np.stack([M[k, 0, 0] * xx + M[k, 0, 1] * yy + M[k, 0, 2] - xx,
+                               M[k, 1, 0] * xx + M[k, 1, 1] * yy + M[k, 1, 2] - yy]) for k in range(K)])
+    decoded = np.isfinite(flow.y[..., 0])
+    err = np.abs(est.shifts - true).max(axis=1)[:, decoded]
+    err_global = np.abs(glob.estimates[0].shifts[:, :, None] - true[:, :, decoded]).max(axis=1)
+    assert np.median(err) < 0.2 and np.percentile(err, 90) < 0.5 * np.percentile(err_global, 90)
+    flagged_g, flagged_f = (glob.mask & MASK_INCONSISTENT) > 0, (flow.mask & MASK_INCONSISTENT) > 0
+    assert flagged_g.mean() > 0.01 and flagged_f.mean() < 0.5 * flagged_g.mean(), (flagged_g.mean(), flagged_f.mean())
+    ow = np.isfinite(flow.y).all(axis=2) & np.isfinite(glob.y).all(axis=2)
+    np.testing.assert_array_equal(np.isnan(flow.y[..., 0]), (flow.mask & (1 | 4 | MASK_INCONSISTENT)) > 0)
+    assert ow.mean() > 0.5
+
+
+def test_a_plain_translation_gives_the_same_decoding_as_global(setup):
+    """Nothing moves on its own: the tiles measure no velocity of their own, and the flow recovery is the
+    global one to within the noise of their velocities (a few hundredths of a px per frame)."""
+    desc, bundle, plan, scene = setup
+    frames, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(2.0, 1.0)))
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    kw = dict(dark=dark, gain=gain, saturation=float(bundle.max_code))
+    est = estimate_global_motion(frames, dark, gain)
+    motion = tile_motion(frame_gradients(frames, dark, gain, est.gradients), est.shifts, est.reference_frame,
+                         est.registered)
+    assert np.abs(motion.velocity).max() < 0.15
+    glob, flow = recover_moving(frames, plan.A, **kw), recover_moving(frames, plan.A, model="flow", **kw)
+    both = np.isfinite(glob.y[..., 0]) & np.isfinite(flow.y[..., 0])
+    assert both.mean() > 0.9
+    diff = np.abs(glob.y[both] - flow.y[both])
+    assert np.percentile(diff, 99) < 0.02 * np.abs(glob.y[both]).max() and np.median(diff) < 0.002
+
+
+def test_a_flow_with_broadband_reference_frames_is_refused_in_one_line(setup):
+    desc, bundle, plan, scene = setup
+    frames, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(1.0, 0.0)))
+    with pytest.raises(ValueError, match="reference frames"):
+        recover_moving(frames, plan.A, model="flow", reference_frames=[0])
