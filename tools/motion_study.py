@@ -17,9 +17,10 @@ each over the pixels every recovery has (the compensated one leaves NaN where so
 and where its frames disagree after compensation, an object moving on its own: that share is the ``flagged``
 column); with a moving object the scores leave out a 3 px band about its edges. Mean +- std over ``--draws``
 noise draws. ``ratio`` is compensated over still. The ``-affine`` cases compensate an affine map per frame, the
-``-flow`` ones the experimental coarse tile flow.
+``-flow`` ones the dense flow (``--motion flow``: the global decoding, then the tiles' flow where it agrees better).
 
-    PYTHONPATH=. python tools/motion_study.py --cases t1,t3,t10,vib,rot,rot-affine,object,object-flow  # ~6 min
+    PYTHONPATH=. python tools/motion_study.py --cases t1,t3,t10,vib,rot,rot-affine,object  # ~6 min
+    PYTHONPATH=. python tools/motion_study.py --draws 3 --cases t3-flow,rot-flow,object-flow --plans symmetric-9,optimal-9
     PYTHONPATH=. python tools/motion_study.py --small --draws 1 --cases t3
 
 A plan named ``NAME+refM`` is NAME with a broadband reference frame before its first frame and after every M

@@ -19,7 +19,8 @@ found from their compensated gradient images (:func:`inconsistent_pixels`), flag
 
 The displacements are taken relative to the sequence's reference time, the mean of its frames' times (the middle
 frame's time for odd K), which is where the twin's truth puts the scene
-(``TwinRig.motion_truth``). The decoder then samples frame k at x + d_k in the same device pass
+(``TwinRig.motion_truth``). (A displacement per pixel, ``--motion flow``, starts from this estimate:
+:mod:`specgpu.pipeline.moving_flow`.) The decoder then samples frame k at x + d_k in the same device pass
 (:func:`specgpu.engine.warp_map.apply_linear_warped`); pixels some frame saw outside the field are NaN and flagged.
 """
 
