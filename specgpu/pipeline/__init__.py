@@ -181,6 +181,10 @@ from specgpu.pipeline.registration import (  # noqa: E402
 __all__ += ["correlation_surface", "fit_peak", "second_peak_ratio", "sobel_magnitude", "tile_displacements",
             "whitened_half_spectrum"]
 
+from specgpu.pipeline.moving_flow import TileMotion, choose_flow, flow_field, tile_motion  # noqa: E402
+
+__all__ += ["TileMotion", "choose_flow", "flow_field", "tile_motion"]
+
 from specgpu.pipeline.reference_motion import (  # noqa: E402
     check_reference_frames, estimate_reference_motion, interpolate_in_time)
 

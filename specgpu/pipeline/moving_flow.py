@@ -31,7 +31,7 @@ import numpy as np
 from scipy import fft, ndimage
 
 from specgpu.pipeline.moving import at_reference_time
-from specgpu.pipeline.registration import frequency_weight, hann_window
+from specgpu.pipeline.registration import whitened_stack
 
 __all__ = ["TILE_PX", "STEADY_PX", "MIN_PEAK_SHARE", "TileMotion", "tile_motion", "flow_field", "choose_flow"]
 
@@ -69,17 +69,6 @@ class TileMotion:
 
     def __init__(self, centres, velocity, measured, correction):
         self.centres, self.velocity, self.measured, self.correction = centres, velocity, measured, correction
-
-
-def _whitened_tiles(stack: np.ndarray, cutoff: float) -> np.ndarray:
-    """Phase-only half spectra of an (N, th, tw) stack under a Hann window, Gaussian-weighted (as
-    :func:`specgpu.pipeline.registration.whitened_half_spectrum`)."""
-    F = fft.rfft2(stack * hann_window(stack.shape[1:]), axes=(-2, -1), workers=1)
-    magnitude = np.abs(F)
-    np.maximum(magnitude, 1e-30, out=magnitude)
-    np.divide(frequency_weight(stack.shape[1:], float(cutoff)), magnitude, out=magnitude)
-    F *= magnitude
-    return F
 
 
 def _peaks(surfaces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +121,7 @@ def tile_motion(gradients, shifts, reference_frame: int, usable, *, tile_px: int
     shifts = np.asarray(shifts, np.float64)
     K = len(shifts)
     ref_tiles = g_ref[:ty * th, :tx * tw].reshape(ty, th, tx, tw).swapaxes(1, 2).reshape(-1, th, tw)
-    F_ref = _whitened_tiles(ref_tiles, cutoff)
+    F_ref = whitened_stack(ref_tiles, cutoff)
     # the peak of a tile registered to itself (the same for every tile: whitened spectra share their magnitude)
     self_peak = _peaks(fft.irfft2(F_ref * np.conj(F_ref), s=(th, tw), axes=(-2, -1), workers=1))[1]
     y0 = (np.arange(ty) * th)[:, None].repeat(tx, 1).reshape(-1)
@@ -153,7 +142,7 @@ def tile_motion(gradients, shifts, reference_frame: int, usable, *, tile_px: int
             continue
         idx = np.flatnonzero(inside)
         moving = np.stack([g_k[ys[i]:ys[i] + th, xs[i]:xs[i] + tw] for i in idx])
-        surfaces = fft.irfft2(_whitened_tiles(moving, cutoff) * np.conj(F_ref[idx]), s=(th, tw), axes=(-2, -1),
+        surfaces = fft.irfft2(whitened_stack(moving, cutoff) * np.conj(F_ref[idx]), s=(th, tw), axes=(-2, -1),
                               workers=1)
         d, top = _peaks(surfaces)
         strong = top >= MIN_PEAK_SHARE * self_peak[idx]

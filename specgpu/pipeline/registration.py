@@ -30,7 +30,7 @@ from scipy import fft
 
 __all__ = ["sobel_magnitude", "bin_image", "hann_window", "frequency_weight", "whitened_half_spectrum",
            "half_spectrum_energy", "correlation_surface", "fit_peak", "peak_at", "peak_error", "second_peak_ratio",
-           "tile_displacements"]
+           "tile_displacements", "whitened_stack"]
 
 
 def sobel_magnitude(image: np.ndarray) -> np.ndarray:
@@ -203,10 +203,10 @@ def tile_displacements(g_ref: np.ndarray, g_k: np.ndarray, shift, cutoff: float,
     if key not in cache:
         stack = np.stack([g_ref[i * th:(i + 1) * th, j * tw:(j + 1) * tw] for i in range(tiles)
                           for j in range(tiles)])
-        cache[key] = _whitened_stack(stack, cutoff)
+        cache[key] = whitened_stack(stack, cutoff)
     ref = cache[key]
     index = [(y0 // th) * tiles + x0 // tw for y0, x0 in cells]
-    moving = _whitened_stack(np.stack([g_k[y0 + t[1]:y0 + t[1] + th, x0 + t[0]:x0 + t[0] + tw]
+    moving = whitened_stack(np.stack([g_k[y0 + t[1]:y0 + t[1] + th, x0 + t[0]:x0 + t[0] + tw]
                                        for y0, x0 in cells]), cutoff)
     surfaces = fft.irfft2(moving * np.conj(ref[index]), s=(th, tw), axes=(-2, -1), workers=1)
     src = np.array([[x0 + (tw - 1) / 2.0, y0 + (th - 1) / 2.0] for y0, x0 in cells])
@@ -214,7 +214,7 @@ def tile_displacements(g_ref: np.ndarray, g_k: np.ndarray, shift, cutoff: float,
     return src, src + t + d
 
 
-def _whitened_stack(stack: np.ndarray, cutoff: float) -> np.ndarray:
+def whitened_stack(stack: np.ndarray, cutoff: float) -> np.ndarray:
     """:func:`whitened_half_spectrum` of each image of an (N, H, W) stack."""
     stack = np.asarray(stack, np.float32)
     F = fft.rfft2(stack * hann_window(stack.shape[1:]), axes=(-2, -1), workers=1)
