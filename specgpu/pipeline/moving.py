@@ -54,7 +54,8 @@ MOTION_MODES = {
     "affine": "estimate an affine map per frame (translation, rotation, zoom; tiles registered and fitted) and "
               "sample frame k at M_k x",
     "flow": "global, then a dense flow (tiles registered, a steady velocity each, interpolated per pixel) decodes "
-            "the pixels the global motion leaves inconsistent: frame k sampled at x + d_k(x)",
+            "each pixel whose frames it makes agree where the global motion leaves it inconsistent, untextured or "
+            "less consistent: frame k sampled at x + d_k(x)",
 }
 
 #: A frame whose mean signal is below this share of the brightest frame's is not registered (a dark or ambient

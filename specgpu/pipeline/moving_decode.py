@@ -27,6 +27,7 @@ import numpy as np
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E
 from specgpu.pipeline.moving import check_motion_mode
+from specgpu.pipeline.moving_flow import MIN_FRAMES
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.recovery import corrected_signal
 from specgpu.planning.correction import ambient_index
@@ -61,6 +62,10 @@ def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, white_r
     if white_roi is not None:
         raise ValueError("--white-roi with --motion: the reference white is measured on fixed pixels, which the "
                          "scene moves across")
+    if mode == "flow" and plan is not None and plan.K < MIN_FRAMES + 1:
+        raise ValueError(f"--motion flow needs a plan of at least {MIN_FRAMES + 1} frames (each tile's steady motion "
+                         f"is fitted to {MIN_FRAMES} frames besides the reference), the {plan.method} plan has "
+                         f"{plan.K}")
     if mode == "flow" and plan is not None and reference_indices(plan):
         raise ValueError("--motion flow with a plan with broadband reference frames: the flow is estimated from "
                          "every frame of the sequence; compensate with --motion global or affine")

@@ -11,18 +11,21 @@ surface changes, the place of its edges does not, so a brightness-constancy flow
    reference first, so that a tile moving on its own is followed however far it goes in the sequence).
 3. Within one sequence (tens of milliseconds) a part of the scene moves steadily relative to the rest: each tile's
    motion is fitted as one velocity relative to the global translation, frames whose peak disagrees with it by
-   more than :data:`STEADY_PX` dropped (a repeating texture's peak a period off, a tile an occlusion covers). A
-   tile with too little structure, or whose frames agree on no velocity, takes its neighbours' (the nearest tile
-   that has one; none: the global motion).
+   more than :data:`STEADY_PX` dropped (a repeating texture's peak a period off, a tile an occlusion covers),
+   together with a correction of each frame's global translation that the tiles agree on (the whole-image
+   correlation of a scene whose parts move differently, a rotation's, is a compromise between them). A tile with
+   too little structure, or whose frames agree on no velocity, takes the nearest measured tile's; then each
+   tile's velocity is the median of its 3 x 3 neighbourhood's.
 4. The velocities are interpolated bilinearly between the tiles' centres: frame k saw pixel x at
    x + d_k + v(x) (t_k - t_ref), d_k the global translation, t_ref the reference time.
 
 A tile that straddles two motions takes one of them, and the interpolation blurs a motion boundary over a tile;
 so the flow is a second hypothesis beside the global one (with its object layers,
-:func:`specgpu.pipeline.moving_layers.recover_moving`), not a replacement: a pixel the global compensation leaves
-flagged, its frames disagreeing, is decoded with the flow where the frames compensated by the flow agree
-(:func:`rescue_with_flow`). Every other pixel keeps the global decoding; a pixel consistent under neither stays
-NaN and flagged.
+:func:`specgpu.pipeline.moving_layers.recover_moving`), not a replacement (:func:`choose_flow`): a pixel takes the
+flow's decoding where the frames the flow compensates agree and the global decoding is flagged, has no texture or
+agrees clearly less well; an object layer's pixels keep theirs, and a pixel consistent under neither stays NaN and
+flagged. The steady fit needs :data:`MIN_FRAMES` frames besides the reference: a flow needs sequences of at least
+``MIN_FRAMES + 1`` frames.
 """
 
 from __future__ import annotations
@@ -33,7 +36,8 @@ from scipy import fft, ndimage
 from specgpu.pipeline.moving import at_reference_time
 from specgpu.pipeline.registration import whitened_stack
 
-__all__ = ["TILE_PX", "STEADY_PX", "MIN_PEAK_SHARE", "TileMotion", "tile_motion", "flow_field", "choose_flow"]
+__all__ = ["TILE_PX", "STEADY_PX", "MIN_PEAK_SHARE", "MIN_FRAMES", "MIN_TILES", "TileMotion", "tile_motion",
+           "flow_field", "choose_flow"]
 
 #: Side of the flow's tiles, px (the field divided into the nearest whole number of tiles each way).
 TILE_PX = 48
@@ -48,6 +52,10 @@ MIN_PEAK_SHARE = 0.3
 
 #: A tile's velocity stands where at least this many frames besides the reference agree on it.
 MIN_FRAMES = 3
+
+#: A frame's correction of its global translation is taken where at least this many measured tiles were registered
+#: in it (0 elsewhere, interpolated in time between the frames that have one).
+MIN_TILES = 3
 
 
 class TileMotion:
@@ -114,15 +122,22 @@ def tile_motion(gradients, shifts, reference_frame: int, usable, *, tile_px: int
     cutoff : float
         Of the whitened cross-power spectrum's Gaussian weight (as the global estimate's).
     """
+    shifts = np.asarray(shifts, np.float64)
+    K = len(shifts)
+    usable = np.asarray(usable, bool)
+    if shifts.shape != (K, 2) or len(gradients) != K or usable.shape != (K,):
+        raise ValueError(f"tile_motion needs one gradient image, one (dx, dy) shift and one usable flag per frame, "
+                         f"got {len(gradients)} images, shifts of shape {shifts.shape}, {usable.size} flags")
+    if not 0 <= int(reference_frame) < K or gradients[reference_frame] is None:
+        raise ValueError(f"reference_frame {reference_frame} is not a frame with a gradient image of the {K}")
     g_ref = np.asarray(gradients[reference_frame], np.float32)
     h, w = g_ref.shape
     ty, tx = max(1, int(round(h / tile_px))), max(1, int(round(w / tile_px)))
     th, tw = h // ty, w // tx
-    shifts = np.asarray(shifts, np.float64)
-    K = len(shifts)
     ref_tiles = g_ref[:ty * th, :tx * tw].reshape(ty, th, tx, tw).swapaxes(1, 2).reshape(-1, th, tw)
     F_ref = whitened_stack(ref_tiles, cutoff)
-    # the peak of a tile registered to itself (the same for every tile: whitened spectra share their magnitude)
+    # the peak of a tile registered to itself (the same for every tile with structure, whose whitened spectrum has
+    # the weight's magnitude; 0 for a tile with none, a clipped patch, which is never measured)
     self_peak = _peaks(fft.irfft2(F_ref * np.conj(F_ref), s=(th, tw), axes=(-2, -1), workers=1))[1]
     y0 = (np.arange(ty) * th)[:, None].repeat(tx, 1).reshape(-1)
     x0 = (np.arange(tx) * tw)[None, :].repeat(ty, 0).reshape(-1)
@@ -145,19 +160,11 @@ def tile_motion(gradients, shifts, reference_frame: int, usable, *, tile_px: int
         surfaces = fft.irfft2(whitened_stack(moving, cutoff) * np.conj(F_ref[idx]), s=(th, tw), axes=(-2, -1),
                               workers=1)
         d, top = _peaks(surfaces)
-        strong = top >= MIN_PEAK_SHARE * self_peak[idx]
+        strong = (self_peak[idx] > 0) & (top >= MIN_PEAK_SHARE * self_peak[idx])
         rel = offset[idx] + d - (shifts[k] - shifts[reference_frame])[None, :]
         relative[k, idx[strong]] = rel[strong]
-        velocity = _fit_velocities(relative, t)
-    fitted, measured = _steady(relative, t)
-    # the global translation of each frame as the measured tiles see it, their own steady motion taken out (the
-    # whole-image correlation of a scene whose parts move differently is a compromise between them)
-    residual = relative[:, measured] - fitted[measured][None] * t[:, None, None]
-    near = np.abs(residual).max(axis=2) <= STEADY_PX
-    correction = np.zeros((K, 2))
-    for k in range(K):
-        if near[k].sum() >= MIN_FRAMES:
-            correction[k] = np.median(residual[k, near[k]], axis=0)
+        velocity = _implied_median(relative, t)  # robust to a peak a texture's period off in an early frame
+    fitted, measured, correction = _steady(relative, t)
     grid = np.zeros((ty, tx, 2))
     grid.reshape(n, 2)[measured] = fitted[measured]
     measured = measured.reshape(ty, tx)
@@ -167,8 +174,22 @@ def tile_motion(gradients, shifts, reference_frame: int, usable, *, tile_px: int
     # each tile's velocity with its neighbours' (a 3 x 3 median: a tile's own is noisy to a few tenths of a px per
     # frame; the median keeps a linear field, a rotation's or a zoom's, and a step between two motions)
     grid = np.stack([ndimage.median_filter(grid[..., c], size=3, mode="nearest") for c in range(2)], axis=-1)
-    centres = (np.arange(ty) * th + (th - 1) / 2.0, np.arange(tx) * tw + (tw - 1) / 2.0)
+    # where the tiles' centres (cut from the reference frame) are at the reference time, the field's time
+    dx, dy = shifts[reference_frame]
+    centres = (np.arange(ty) * th + (th - 1) / 2.0 - dy, np.arange(tx) * tw + (tw - 1) / 2.0 - dx)
     return TileMotion(centres, grid, measured, correction)
+
+
+def _implied_median(relative: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N, 2): each tile's median over its registered frames of its displacement over its time from the reference
+    frame (0 where none is registered)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        implied = relative / np.where(t != 0, t, np.nan)[:, None, None]
+    out = np.zeros(implied.shape[1:])
+    some = np.isfinite(implied[..., 0]).any(axis=0)
+    if some.any():
+        out[some] = np.nanmedian(implied[:, some], axis=0)
+    return out
 
 
 def _fit_velocities(relative: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -181,31 +202,45 @@ def _fit_velocities(relative: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.where(den[:, None] > 0, num / np.maximum(den, 1e-30)[:, None], 0.0)
 
 
-def _steady(relative: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 2) velocities and (N,) bool ``measured``: each tile's frames' implied velocities' median, the frames
-    within :data:`STEADY_PX` of it kept and fitted again; measured where at least :data:`MIN_FRAMES` agree."""
+def _steady(relative: np.ndarray, t: np.ndarray, rounds: int = 3) -> tuple:
+    """Each tile's steady velocity and each frame's correction of the global translation, fitted together:
+    ``relative`` (K, N, 2) = velocity_n t_k + correction_k, robustly. A tile's velocity starts from the median of
+    its frames' implied velocities and is fitted to the frames within :data:`STEADY_PX` of that line; a frame's
+    correction is the median over the measured tiles (those with at least :data:`MIN_FRAMES` such frames) of
+    what their velocities leave. A frame whose global translation is off by more than :data:`STEADY_PX` (a
+    rotation's whole-image correlation, which no translation fits) is then corrected rather than dropped by every
+    tile. Returns (N, 2) velocities, (N,) bool ``measured``, (K, 2) corrections (0 at the reference frame)."""
     K, n, _ = relative.shape
-    with np.errstate(invalid="ignore", divide="ignore"):
-        implied = relative / np.where(t != 0, t, np.nan)[:, None, None]
-    start = np.zeros((n, 2))
-    some = np.isfinite(implied[..., 0]).any(axis=0)  # tiles with a frame besides the reference registered
-    if some.any():
-        start[some] = np.nanmedian(implied[:, some], axis=0)
-    residual = np.abs(relative - start[None] * t[:, None, None]).max(axis=2)
-    keep = np.isfinite(residual) & (residual <= STEADY_PX)
-    fitted = _fit_velocities(np.where(keep[..., None], relative, np.nan), t)
-    residual = np.abs(relative - fitted[None] * t[:, None, None]).max(axis=2)
-    keep = np.isfinite(residual) & (residual <= STEADY_PX)
-    return _fit_velocities(np.where(keep[..., None], relative, np.nan), t), keep.sum(axis=0) >= MIN_FRAMES
+    finite = np.isfinite(relative[..., 0])
+    correction = np.zeros((K, 2))
+    velocity, measured = np.zeros((n, 2)), np.zeros(n, bool)
+    for _ in range(rounds):
+        adjusted = relative - correction[:, None, :]
+        start = _implied_median(adjusted, t)
+        keep = np.abs(adjusted - start[None] * t[:, None, None]).max(axis=2) <= STEADY_PX  # NaN: False
+        velocity = _fit_velocities(np.where(keep[..., None], adjusted, np.nan), t)
+        keep = np.abs(adjusted - velocity[None] * t[:, None, None]).max(axis=2) <= STEADY_PX
+        measured = keep.sum(axis=0) >= MIN_FRAMES
+        left = relative - velocity[None] * t[:, None, None]
+        have = np.array([(measured & finite[k]).sum() >= MIN_TILES for k in range(K)])
+        for k in np.flatnonzero(have):
+            correction[k] = np.median(left[k, measured & finite[k]], axis=0)
+        if have.any():  # a frame no measured tile was registered in: interpolated in time (its global shift was)
+            for c in range(2):
+                correction[~have, c] = np.interp(np.flatnonzero(~have), np.flatnonzero(have), correction[have, c])
+    return velocity, measured, correction
 
 
 def flow_field(motion: TileMotion, shifts, shape: tuple) -> np.ndarray:
     """(K, 2, H, W) float32 displacement of each pixel in each frame from the reference time: the global
-    ``shifts`` (K, 2) with the tiles' correction, plus the tiles' velocities, interpolated bilinearly between their centres, times each frame's
-    time from the reference time (the mean of the frames' indices)."""
+    ``shifts`` (K, 2) with the tiles' correction, plus the tiles' velocities (interpolated bilinearly between their
+    centres) times each frame's time from the reference time (the mean of the frames' indices)."""
     h, w = shape
     shifts = np.asarray(shifts, np.float64)
     K = len(shifts)
+    if shifts.shape != (K, 2) or np.shape(motion.correction) != (K, 2):
+        raise ValueError(f"flow_field needs (K, 2) shifts and the tiles' (K, 2) correction of the same K, got "
+                         f"{shifts.shape} and {np.shape(motion.correction)}")
     (cy, cx), grid = motion.centres, motion.velocity
     yy = (np.arange(h) - cy[0]) / (cy[1] - cy[0]) if len(cy) > 1 else np.zeros(h)
     xx = (np.arange(w) - cx[0]) / (cx[1] - cx[0]) if len(cx) > 1 else np.zeros(w)
@@ -221,16 +256,21 @@ def flow_field(motion: TileMotion, shifts, shape: tuple) -> np.ndarray:
     return out
 
 
-def choose_flow(mask, maps, mask_flow, flow_maps, held, *, threshold: float, inconsistent: int) -> np.ndarray:
-    """(H, W) bool: the pixels decoded with the flow rather than the global motion. Under the flow a pixel is
-    consistent where its frames agree (not ``textured``, or ``worst`` >= ``threshold``: ``flow_maps``) and its
-    pass flagged nothing (``mask_flow``); it is taken there unless an object layer decoded the pixel (``held``) or
-    the global decoding is consistent too and its frames agree better: a pixel the global decoding left
-    inconsistent (``mask`` bit ``inconsistent``), or whose global median image has no texture, takes the flow;
-    a textured one the better correlated of the two (``maps``: the global check's)."""
+def choose_flow(mask, maps, mask_flow, flow_maps, held, *, threshold: float, inconsistent: int,
+                margin: float = 0.2) -> np.ndarray:
+    """(H, W) bool: the pixels decoded with the flow rather than the global motion (or an object layer's).
+
+    Under the flow a pixel is consistent where its frames agree (not ``textured``, or ``worst`` >= ``threshold``:
+    ``flow_maps``) and its pass flagged nothing (``mask_flow``). It takes the flow there where the global decoding
+    is flagged inconsistent (``mask`` bit ``inconsistent``), has no texture, or is not better correlated by more
+    than ``margin`` (``maps``: the global check's). A pixel an object layer decoded (``held``) takes it only on
+    positive evidence, its frames textured and agreeing under the flow: a layer's translation is right for an object
+    that moves as one, and keeps its flat parts, which no check can judge; a part of the scene that turns or
+    deforms is taken by the flow where it shows."""
     textured_g, worst_g = maps
     textured_f, worst_f = flow_maps
-    consistent = (~textured_f | (worst_f >= threshold)) & (mask_flow == 0)
+    agree = worst_f >= threshold
+    consistent = (~textured_f | agree) & (mask_flow == 0)
     flagged = (mask & np.uint8(inconsistent)) != 0
-    better = ~textured_g | (textured_f & (worst_f >= worst_g))
-    return consistent & ~held & (flagged | better)
+    better = ~textured_g | (textured_f & (worst_f >= worst_g - margin))
+    return consistent & (~held | (textured_f & agree)) & (flagged | better)

@@ -35,7 +35,7 @@ from specgpu.core.numerics import live_gain
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
 from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency, estimate_global_motion,
                                      frame_gradients)
-from specgpu.pipeline.moving_flow import choose_flow, flow_field, tile_motion
+from specgpu.pipeline.moving_flow import MIN_FRAMES, choose_flow, flow_field, tile_motion
 from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
@@ -376,8 +376,13 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     A : array_like, (B, K)
     dark, gain, saturation
         As :func:`specgpu.engine.apply_linear`.
-    upsample, binning, model
+    upsample, binning
         Of :func:`~specgpu.pipeline.moving.estimate_global_motion`.
+    model : {"translation", "affine", "flow"}
+        A translation or an affine map per frame (:func:`~specgpu.pipeline.moving.estimate_global_motion`); or
+        ``"flow"``: the translation's decoding, then a dense flow where it agrees better
+        (:mod:`specgpu.pipeline.moving_flow`): ``estimates[0].shifts`` is then (K, 2, H, W), the displacement each
+        pixel was decoded with.
     shifts : array_like, (K, 2) or (K, 2, 3), optional
         Known displacements (e.g. the twin's truth); no estimation then.
     check : bool
@@ -419,6 +424,12 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     if dense and refs:
         raise ValueError("a flow is estimated from every frame of the sequence: with broadband reference frames, "
                          "compensate a translation (global) or an affine map per frame")
+    if dense and shifts is not None:
+        raise ValueError("model='flow' estimates its own displacement per pixel: give shifts with the translation or "
+                         "affine model")
+    if dense and len(frames) < MIN_FRAMES + 1:
+        raise ValueError(f"a flow needs sequences of at least {MIN_FRAMES + 1} frames (each tile's steady motion is "
+                         f"fitted to {MIN_FRAMES} frames besides the reference), got {len(frames)}")
     if shifts is None and refs:
         est = estimate_reference_motion(frames, refs, dark, gain, upsample=upsample, model=model)
         gradients = est.gradients
