@@ -49,8 +49,10 @@
 inline float8 sample8(__global const float *restrict g, float8 sx, float8 sy, uint width, uint height)
 {
     const float8 cx = clamp(sx, 0.0f, (float)(width - 1)), cy = clamp(sy, 0.0f, (float)(height - 1));
-    const int8 x0 = min(convert_int8_rtz(cx), (int)width - 1), y0 = min(convert_int8_rtz(cy), (int)height - 1);
-    const int8 x1 = min(x0 + 1, (int)width - 1), y1 = min(y0 + 1, (int)height - 1);
+    /* integer min and clamp with vector bounds: Oclgrind 21.10 evaluates their vector-by-scalar forms wrongly */
+    const int8 last_x = (int8)((int)width - 1), last_y = (int8)((int)height - 1);
+    const int8 x0 = min(convert_int8_rtz(cx), last_x), y0 = min(convert_int8_rtz(cy), last_y);
+    const int8 x1 = min(x0 + 1, last_x), y1 = min(y0 + 1, last_y);
     const float8 fx = cx - convert_float8(x0), fy = cy - convert_float8(y0);
     const int8 a = y0 * (int)width + x0, b = y0 * (int)width + x1, c = y1 * (int)width + x0, d = y1 * (int)width + x1;
     const float8 ga = (float8)(g[a.s0], g[a.s1], g[a.s2], g[a.s3], g[a.s4], g[a.s5], g[a.s6], g[a.s7]);
@@ -69,7 +71,8 @@ __kernel void consistency_align(__global const float *restrict grads, __constant
     if (c0 >= PADDED || y >= (int)height) return;
     const ulong n = (ulong)width * height, plane = (ulong)PADDED * height, o = (ulong)y * PADDED + c0;
     const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    const float8 x = convert_float8(clamp(c0 - HALF + lane, 0, (int)width - 1));
+    const int8 last_x = (int8)((int)width - 1);
+    const float8 x = convert_float8(clamp(c0 - HALF + lane, (int8)(0), last_x));
     const int first = c0 - HALF;  /* x of lane 0 before clamping */
     float8 s[K];
     for (uint k = 0; k < K; ++k) {
@@ -77,7 +80,7 @@ __kernel void consistency_align(__global const float *restrict grads, __constant
         __global const float *g = grads + (ulong)k * n;
 #if FLOW
         {
-            const int8 xi = clamp(first + lane, 0, (int)width - 1);
+            const int8 xi = clamp(first + lane, (int8)(0), last_x);
             const int8 i = (int8)(y * (int)width) + xi;
             __global const float *fx = flow + (ulong)(2 * k) * n, *fy = fx + n;
             const float8 dx = (float8)(fx[i.s0], fx[i.s1], fx[i.s2], fx[i.s3], fx[i.s4], fx[i.s5], fx[i.s6], fx[i.s7]);

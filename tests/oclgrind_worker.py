@@ -5,6 +5,7 @@ reads OCL_ICD_VENDORS and Oclgrind its OCLGRIND_* checks once, at start).
     python oclgrind_worker.py race                       the channels-last tile without its barrier
     python oclgrind_worker.py vector_bool                the reduced mask-flag kernel (tests/data/oclgrind_defects.cl)
     python oclgrind_worker.py shuffle KERNEL             one of its reduced shuffle kernels
+    python oclgrind_worker.py min_vector_scalar          its reduced integer min of a vector and a scalar
 
 Before each case it writes ``@@case NAME`` to stderr, so the parent can tell which case an Oclgrind report (also
 written to stderr) belongs to; the results go to stdout as one JSON object per line: the case, the error of each
@@ -234,6 +235,66 @@ def _delta_e_sigma_case():
     return run
 
 
+def _motion(rng, K, kind):
+    """Per-frame motion of ``kind`` on SHAPE: (K, 2) translations, (K, 2, 3) affine maps or a (K, 2, H, W) flow,
+    reaching a pixel or two outside the field."""
+    h, w = SHAPE
+    if kind == "translate":
+        return rng.uniform(-1.6, 1.6, (K, 2))
+    if kind == "affine":
+        maps = np.tile(np.eye(2, 3), (K, 1, 1))
+        angle = rng.uniform(-0.05, 0.05, K)
+        maps[:, 0, 0] = maps[:, 1, 1] = np.cos(angle)
+        maps[:, 0, 1], maps[:, 1, 0] = -np.sin(angle), np.sin(angle)
+        maps[:, :, 2] = rng.uniform(-1.2, 1.2, (K, 2))
+        return maps
+    yy, xx = np.mgrid[0:h, 0:w]
+    return np.stack([np.stack([1.5 * np.sin(xx / 3.0 + k), np.cos(yy / 2.0 - k)]) for k in range(K)])
+
+
+def _warp_case(kind):
+    from reference import linear_warp_ref
+    from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
+
+    def run():
+        rng = np.random.default_rng({"translate": 21, "affine": 22, "flow": 23}[kind])
+        K, B = 4, 5
+        frames = _frames(rng, K, np.uint16, 4095)
+        A = rng.normal(0, 1e-2, (B, K))
+        dark = rng.uniform(0, 5, SHAPE).astype(np.float32)
+        gain = rng.uniform(0.9, 1.1, SHAPE).astype(np.float32)
+        motion = _motion(rng, K, kind)
+        got = apply_linear_warped(frames, A, motion, dark, gain, return_mask=True, device="oclgrind")
+        want, outside = linear_warp_ref(frames, A, np.asarray(motion, np.float32), dark, gain)
+        errors, tolerances = {}, {}
+        inside = ~outside
+        _compare(errors, tolerances, "y", got.y[inside], want[inside], "abs", 1e-3)
+        _compare(errors, tolerances, "outside", ((got.mask & MASK_OUTSIDE) > 0).astype(np.float32),
+                 outside.astype(np.float32), "abs", 0.0)
+        return errors, tolerances
+
+    return run
+
+
+def _consistency_case(kind):
+    from specgpu.engine.consistency import consistency_maps, consistency_maps_numpy
+
+    def run():
+        rng = np.random.default_rng({"translate": 31, "affine": 32, "flow": 33}[kind])
+        K = 5
+        grads = rng.uniform(0.0, 1.0, (K, *SHAPE)).astype(np.float32)
+        motion = _motion(rng, K, kind)
+        textured, worst = consistency_maps(grads, motion, window=5, device="oclgrind")
+        textured_ref, worst_ref = consistency_maps_numpy(grads, motion, window=5)
+        errors, tolerances = {}, {}
+        _compare(errors, tolerances, "worst", worst, worst_ref, "abs", 1e-3)
+        _compare(errors, tolerances, "textured", textured.astype(np.float32), textured_ref.astype(np.float32),
+                 "abs", 0.0)
+        return errors, tolerances
+
+    return run
+
+
 def cases() -> dict:
     """Every kernel entry and build variant the host launches, on small images (name -> callable returning
     (errors, tolerances)). The kernel variant (cpu / gpu) comes from SPECGPU_VARIANT."""
@@ -264,6 +325,8 @@ def cases() -> dict:
         "fused_de2000": _fused_case("CIE 2000"),
         "fused_de2000_single_reference": _fused_case("CIE 2000", single=True),
         "delta_e_sigma": _delta_e_sigma_case(),
+        **{f"warp_{kind}": _warp_case(kind) for kind in ("translate", "affine", "flow")},
+        **{f"consistency_{kind}": _consistency_case(kind) for kind in ("translate", "affine", "flow")},
     }
 
 
@@ -334,6 +397,24 @@ def run_vector_bool() -> int:
     return 0
 
 
+def run_min_vector_scalar() -> int:
+    """min_vector_scalar of tests/data/oclgrind_defects.cl, unoptimised (as specgpu builds for Oclgrind): one JSON
+    object on stdout."""
+    import pyopencl as cl
+
+    context, queue = _oclgrind_context()
+    program = cl.Program(context, (DATA / "oclgrind_defects.cl").read_text()).build(options=["-cl-opt-disable"])
+    x = np.array([-3, 0, 4, 10, 11, 25, 7, 10], np.int32)
+    out = np.zeros(16, np.int32)
+    mf = cl.mem_flags
+    x_buf = cl.Buffer(context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+    out_buf = cl.Buffer(context, mf.WRITE_ONLY, out.nbytes)
+    program.min_vector_scalar(queue, (1,), None, x_buf, out_buf, np.int32(10))
+    cl.enqueue_copy(queue, out, out_buf)
+    print(json.dumps({"x": x.tolist(), "scalar": out[:8].tolist(), "vector": out[8:].tolist()}), flush=True)
+    return 0
+
+
 def run_shuffle(kernel: str) -> int:
     """One pairs_* kernel of tests/data/oclgrind_defects.cl; its output on stdout as JSON."""
     import pyopencl as cl
@@ -362,4 +443,6 @@ if __name__ == "__main__":
         sys.exit(run_vector_bool())
     if mode == "shuffle":
         sys.exit(run_shuffle(sys.argv[2]))
-    raise SystemExit(f"unknown mode {mode!r}: cases, race, vector_bool or shuffle")
+    if mode == "min_vector_scalar":
+        sys.exit(run_min_vector_scalar())
+    raise SystemExit(f"unknown mode {mode!r}: cases, race, vector_bool, shuffle or min_vector_scalar")

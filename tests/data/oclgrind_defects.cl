@@ -1,4 +1,4 @@
-/* Reduced kernels of two Oclgrind 21.10 defects that specgpu's kernels met (tests/engine/test_oclgrind.py runs them).
+/* Reduced kernels of three Oclgrind 21.10 defects that specgpu's kernels met (tests/engine/test_oclgrind.py runs them).
  *
  * vector_bool: the mask flags of kernels/common.h (load_sample) in their smallest form. OpenCL C defines a vector
  * c ? b : a as select(a, b, c), which takes b's lane where the most significant bit of c's lane is set, so
@@ -11,7 +11,12 @@
  * pairs_multi_lane / pairs_single_lane: the same vector built from two-lane components ((p).s01) and from
  * single lanes. The first compiles to shuffles that widen a 2-lane vector to 8 lanes with undefined lanes, on
  * which Oclgrind's uninitialised-value check (OCLGRIND_UNINITIALIZED=1) crashes the process (a segmentation
- * fault in its plugin); the second is the same shuffle without them. kernels/common.h uses single lanes. */
+ * fault in its plugin); the second is the same shuffle without them. kernels/common.h uses single lanes.
+ *
+ * min_vector_scalar: OpenCL C's integer min(gentype, sgentype), a vector against a scalar, as kernels/consistency.cl
+ * clamped its sample indices to the field. Oclgrind returns zeros or garbage for it, optimised or not, where the
+ * same min with the scalar made a vector first is right (and PoCL is right for both); kernels/consistency.cl uses
+ * vector bounds. */
 
 __kernel void vector_bool(__global const float *x, __global int *out, const float level)
 {
@@ -30,4 +35,11 @@ __kernel void pairs_single_lane(__global const float *v, __global float *out)
 {
     const float8 p = vload8(0, v), q = vload8(1, v);
     vstore8((float8)(p.s0, p.s1, q.s0, q.s1, p.s4, p.s5, q.s4, q.s5), 0, out);
+}
+
+__kernel void min_vector_scalar(__global const int *x, __global int *out, const int last)
+{
+    const int8 v = vload8(0, x);
+    vstore8(min(v, last), 0, out);
+    vstore8(min(v, (int8)(last)), 1, out);
 }
