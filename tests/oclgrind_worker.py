@@ -6,6 +6,7 @@ reads OCL_ICD_VENDORS and Oclgrind its OCLGRIND_* checks once, at start).
     python oclgrind_worker.py vector_bool                the reduced mask-flag kernel (tests/data/oclgrind_defects.cl)
     python oclgrind_worker.py shuffle KERNEL             one of its reduced shuffle kernels
     python oclgrind_worker.py min_vector_scalar          its reduced integer min of a vector and a scalar
+    python oclgrind_worker.py offset_write               its copy of a buffer written from the host at an offset
 
 Before each case it writes ``@@case NAME`` to stderr, so the parent can tell which case an Oclgrind report (also
 written to stderr) belongs to; the results go to stdout as one JSON object per line: the case, the error of each
@@ -415,6 +416,32 @@ def run_min_vector_scalar() -> int:
     return 0
 
 
+def run_offset_write() -> int:
+    """copy_floats of tests/data/oclgrind_defects.cl on a buffer written whole, then on one written in two halves
+    (the second at an offset); a case marker on stderr before each, the second copy's output on stdout as JSON."""
+    import pyopencl as cl
+
+    context, queue = _oclgrind_context()
+    program = cl.Program(context, (DATA / "oclgrind_defects.cl").read_text()).build(options=["-cl-opt-disable"])
+    data = np.arange(32, dtype=np.float32)
+    mf = cl.mem_flags
+    out = np.zeros(32, np.float32)
+    for case in ("from offset 0", "at an offset"):
+        print(f"@@case {case}", file=sys.stderr, flush=True)
+        buf = cl.Buffer(context, mf.READ_ONLY, data.nbytes)
+        if case == "from offset 0":
+            cl.enqueue_copy(queue, buf, data)
+        else:
+            cl.enqueue_copy(queue, buf, data[:16])
+            cl.enqueue_copy(queue, buf, data[16:], dst_offset=data[:16].nbytes)
+        out_buf = cl.Buffer(context, mf.WRITE_ONLY, out.nbytes)
+        program.copy_floats(queue, (32,), None, buf, out_buf)
+        cl.enqueue_copy(queue, out, out_buf)
+        queue.finish()
+    print(json.dumps({"out": out.astype(int).tolist()}), flush=True)
+    return 0
+
+
 def run_shuffle(kernel: str) -> int:
     """One pairs_* kernel of tests/data/oclgrind_defects.cl; its output on stdout as JSON."""
     import pyopencl as cl
@@ -445,4 +472,6 @@ if __name__ == "__main__":
         sys.exit(run_shuffle(sys.argv[2]))
     if mode == "min_vector_scalar":
         sys.exit(run_min_vector_scalar())
-    raise SystemExit(f"unknown mode {mode!r}: cases, race, vector_bool, shuffle or min_vector_scalar")
+    if mode == "offset_write":
+        sys.exit(run_offset_write())
+    raise SystemExit(f"unknown mode {mode!r}: cases, race, vector_bool, shuffle, min_vector_scalar or offset_write")

@@ -150,7 +150,8 @@ def main(argv=None):
             ratio = lambda key: [run["compensated"][key] / run["still"][key] for run in runs]  # noqa: E731
             print(f"{'':<32} {'':<14} {'ratio':<12} {fmt(ratio('rmse_field'), 2):>14} {fmt(ratio('rmse_edge'), 2):>14} "
                   f"{fmt(ratio('dE_field'), 2):>12} {fmt(ratio('dE_edge'), 2):>12}   flagged "
-                  f"{fmt([100 * run['flagged'] for run in runs], 1)} %, shift error <= "
+                  f"{fmt([100 * run['flagged'] for run in runs], 1)} %, shift error "
+                  f"{'99th percentile' if model == 'flow' else '<='} "
                   f"{max(run['shift_error_px'] for run in runs):.3f} px, edge band "
                   f"{100 * np.mean([run['edge_share'] for run in runs]):.0f} % of the field, compensation "
                   f"{np.median([run['seconds'] for run in runs]):.2f} s")

@@ -147,8 +147,11 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
     dims = (np.uint32(w), np.uint32(h))
     plane = stride * h
     grads = kernels._empty(queue, K * h * w, np.float32)
-    for k, p in enumerate(planes):  # each image straight into its place (no stacked copy on the host)
-        cl.enqueue_copy(queue, grads.data, p, dst_offset=k * p.nbytes, is_blocking=False)
+    if isinstance(planes, np.ndarray):  # one write from the start (a simulator such as Oclgrind tracks those)
+        cl.enqueue_copy(queue, grads.data, planes, is_blocking=False)
+    else:
+        for k, p in enumerate(planes):  # each image straight into its place (no stacked copy on the host)
+            cl.enqueue_copy(queue, grads.data, p, dst_offset=k * p.nbytes, is_blocking=False)
     # a new one every sequence: not cached; a flow is read per pixel, the maps then unused
     motion_dev = kernels.to_device(queue, np.zeros(6 * K) if flow else maps.reshape(-1), np.float32)
     flow_dev = kernels.to_device(queue, maps.reshape(-1), np.float32) if flow else None

@@ -23,8 +23,9 @@ A tile that straddles two motions takes one of them, and the interpolation blurs
 so the flow is a second hypothesis beside the global one (with its object layers,
 :func:`specgpu.pipeline.moving_layers.recover_moving`), not a replacement (:func:`choose_flow`): a pixel takes the
 flow's decoding where the frames the flow compensates agree and the global decoding is flagged, has no texture or
-agrees clearly less well; an object layer's pixels keep theirs, and a pixel consistent under neither stays NaN and
-flagged. The steady fit needs :data:`MIN_FRAMES` frames besides the reference: a flow needs sequences of at least
+is not better correlated by more than a margin; an object layer's pixel takes it only where its frames are textured
+and agree under the flow (the layer's own agreement is not compared: its check's maps are not kept), and a pixel
+consistent under neither stays NaN and flagged. The steady fit needs :data:`MIN_FRAMES` frames besides the reference: a flow needs sequences of at least
 ``MIN_FRAMES + 1`` frames.
 """
 
@@ -174,7 +175,9 @@ def tile_motion(gradients, shifts, reference_frame: int, usable, *, tile_px: int
     # each tile's velocity with its neighbours' (a 3 x 3 median: a tile's own is noisy to a few tenths of a px per
     # frame; the median keeps a linear field, a rotation's or a zoom's, and a step between two motions)
     grid = np.stack([ndimage.median_filter(grid[..., c], size=3, mode="nearest") for c in range(2)], axis=-1)
-    # where the tiles' centres (cut from the reference frame) are at the reference time, the field's time
+    # where the tiles' centres (cut from the reference frame) are at the reference time, the field's time: moved
+    # back by the reference frame's global displacement (each tile's own motion over that time, under a pixel per
+    # frame of it for a reference frame next to the middle, is left out: the grid stays regular)
     dx, dy = shifts[reference_frame]
     centres = (np.arange(ty) * th + (th - 1) / 2.0 - dy, np.arange(tx) * tw + (tw - 1) / 2.0 - dx)
     return TileMotion(centres, grid, measured, correction)
@@ -225,7 +228,10 @@ def _steady(relative: np.ndarray, t: np.ndarray, rounds: int = 3) -> tuple:
         have = np.array([(measured & finite[k]).sum() >= MIN_TILES for k in range(K)])
         for k in np.flatnonzero(have):
             correction[k] = np.median(left[k, measured & finite[k]], axis=0)
-        if have.any():  # a frame no measured tile was registered in: interpolated in time (its global shift was)
+        anchor = t == 0  # the reference frame: the tiles were cut from it, its correction is 0 by definition
+        correction[anchor] = 0.0
+        have |= anchor
+        if not have.all():  # a frame no measured tile was registered in: interpolated in time (its global shift was)
             for c in range(2):
                 correction[~have, c] = np.interp(np.flatnonzero(~have), np.flatnonzero(have), correction[have, c])
     return velocity, measured, correction

@@ -380,8 +380,8 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         Of :func:`~specgpu.pipeline.moving.estimate_global_motion`.
     model : {"translation", "affine", "flow"}
         A translation or an affine map per frame (:func:`~specgpu.pipeline.moving.estimate_global_motion`); or
-        ``"flow"``: the translation's decoding, then a dense flow where it agrees better
-        (:mod:`specgpu.pipeline.moving_flow`): ``estimates[0].shifts`` is then (K, 2, H, W), the displacement each
+        ``"flow"``: the translation's decoding, then a dense flow where its frames agree and the translation's are
+        flagged, untextured or not clearly better correlated (:mod:`specgpu.pipeline.moving_flow`): ``estimates[0].shifts`` is then (K, 2, H, W), the displacement each
         pixel was decoded with.
     shifts : array_like, (K, 2) or (K, 2, 3), optional
         Known displacements (e.g. the twin's truth); no estimation then.

@@ -1,4 +1,4 @@
-/* Reduced kernels of three Oclgrind 21.10 defects that specgpu's kernels met (tests/engine/test_oclgrind.py runs them).
+/* Reduced kernels of four Oclgrind 21.10 defects that specgpu's kernels met (tests/engine/test_oclgrind.py runs them).
  *
  * vector_bool: the mask flags of kernels/common.h (load_sample) in their smallest form. OpenCL C defines a vector
  * c ? b : a as select(a, b, c), which takes b's lane where the most significant bit of c's lane is set, so
@@ -16,7 +16,11 @@
  * min_vector_scalar: OpenCL C's integer min(gentype, sgentype), a vector against a scalar, as kernels/consistency.cl
  * clamped its sample indices to the field. Oclgrind returns zeros or garbage for it, optimised or not, where the
  * same min with the scalar made a vector first is right (and PoCL is right for both); kernels/consistency.cl uses
- * vector bounds. */
+ * vector bounds.
+ *
+ * copy_floats: a plain copy, run on a buffer written from the host in one write from offset 0, then on one written
+ * in two halves (the second at an offset, as engine.consistency uploads a list of images): Oclgrind's
+ * uninitialised-value check reports the second half's values as uninitialised, though they are right. */
 
 __kernel void vector_bool(__global const float *x, __global int *out, const float level)
 {
@@ -42,4 +46,9 @@ __kernel void min_vector_scalar(__global const int *x, __global int *out, const 
     const int8 v = vload8(0, x);
     vstore8(min(v, last), 0, out);
     vstore8(min(v, (int8)(last)), 1, out);
+}
+
+__kernel void copy_floats(__global const float *in, __global float *out)
+{
+    out[get_global_id(0)] = in[get_global_id(0)];
 }

@@ -9,10 +9,13 @@ from scipy import ndimage
 
 from moving_helpers import frames_of, moving_setup
 
+from specgpu.engine import consistency as consistency_module
 from specgpu.engine.warp_map import apply_linear_warped
-from specgpu.pipeline.moving import MASK_INCONSISTENT, estimate_global_motion, frame_gradients
+from specgpu.pipeline.moving import MASK_INCONSISTENT, at_reference_time, estimate_global_motion, frame_gradients
 from specgpu.pipeline.moving_flow import TileMotion, choose_flow, flow_field, tile_motion
+from specgpu.pipeline.moving_decode import check_motion_options
 from specgpu.pipeline.moving_layers import recover_moving
+from specgpu.planning.registry import make_plan
 from specgpu.rig.motion import MotionParameters
 
 
@@ -35,9 +38,9 @@ def shifted(image, dx, dy):
 @pytest.mark.parametrize("K, ref", [(7, 3), (7, 1), (6, 2), (6, 3)])
 def test_tiles_find_the_velocity_of_a_part_that_moves_on_its_own(K, ref):
     """Gradient-like images whose right half moves 2.5 px per frame to the left relative to the left half, which
-    drifts with the global translation: the right half's tiles measure -2.5 px/frame, the left half's 0, the frames'
-    global translation needs no correction, and the field is the truth, whichever frame the tiles are cut from (the
-    middle one or not, K odd or even)."""
+    drifts with the global translation: the right half's tiles measure -2.5 px/frame, the left half's 0, the error
+    of the global translation given is found, and the field is the truth, whichever frame the tiles are cut from
+    (the middle one or not, K odd or even)."""
     rng = np.random.default_rng(K + 10 * ref)
     h, w = 192, 288
     base = textured(rng, h, w + 60)
@@ -48,16 +51,23 @@ def test_tiles_find_the_velocity_of_a_part_that_moves_on_its_own(K, ref):
         left = shifted(base, *shifts[k])[:, :w]
         right = shifted(base, shifts[k, 0] - 2.5 * (k - mid), shifts[k, 1])[:, 30:w + 30]
         grads.append(np.where(np.arange(w) < w // 2, left, right) + rng.uniform(0, 0.01, (h, w)).astype(np.float32))
-    motion = tile_motion(grads, shifts, ref, np.ones(K, bool), tile_px=48)
+    # the global estimate given is off by up to a pixel, differently in each frame (as a rotation's whole-image
+    # correlation is), and exact at the reference time, where an estimate's displacements are zero by definition
+    error = rng.uniform(-0.9, 0.9, (K, 2))
+    error -= at_reference_time(error)
+    motion = tile_motion(grads, shifts + error, ref, np.ones(K, bool), tile_px=48)
     v = motion.velocity
     # border tiles the motion takes off the field in the frames furthest from the reference are not measured
     assert v.shape == (4, 6, 2) and motion.measured.mean() > 0.7
-    # the tiles straddling the boundary (columns 2 and 3 of 6 hold both halves) take either motion
-    np.testing.assert_allclose(v[:, :2], 0.0, atol=0.1)
-    np.testing.assert_allclose(v[:, 4:, 0], -2.5, atol=0.1)
-    np.testing.assert_allclose(v[:, 4:, 1], 0.0, atol=0.1)
-    np.testing.assert_allclose(motion.correction, 0.0, atol=0.1)
-    flow = flow_field(motion, shifts, (h, w))
+    # the tiles straddling the boundary (columns 2 and 3 of 6 hold both halves) take either motion; a motion steady
+    # in time can sit in the velocities or in the frames' corrections (the field is the same), so the halves are
+    # compared with each other, and the left half's whole motion with the error it corrects
+    np.testing.assert_allclose(v[:, :2], np.broadcast_to(v[0, 0], (4, 2, 2)), atol=0.1)
+    np.testing.assert_allclose(v[:, 4:, 0] - v[0, 0, 0], -2.5, atol=0.1)
+    np.testing.assert_allclose(v[:, 4:, 1] - v[0, 0, 1], 0.0, atol=0.1)
+    t = np.arange(K) - ref
+    np.testing.assert_allclose(motion.correction + v[0, 0] * t[:, None], -(error - error[ref]), atol=0.1)
+    flow = flow_field(motion, shifts + error, (h, w))
     for k in range(K):  # well inside each half, a tile away from the boundary
         np.testing.assert_allclose(flow[k, :, 20:-20, 20:80], shifts[k][:, None, None] + 0 * flow[k, :, 20:-20, 20:80],
                                    atol=0.15)
@@ -210,14 +220,23 @@ def test_without_the_check_every_pixel_takes_the_flow(setup):
 
 
 def test_the_flow_check_runs_on_the_device(monkeypatch, setup):
-    """The consistency check of a flow is the device's (the host's reference is not called)."""
-    from specgpu.engine import consistency as module
-
+    """A flow recovery's consistency checks (the global one and the flow's) are the device's: the host's reference
+    computation is never called."""
     def refuse(*_a, **_k):
-        raise AssertionError("the host's check ran")
+        raise AssertionError("the host's consistency check ran")
 
-    monkeypatch.setattr(module, "consistency_maps_numpy", refuse)
-    rng = np.random.default_rng(2)
-    g = np.stack([textured(rng, 40, 56) for _ in range(4)])
-    textured_map, worst = module.consistency_maps(g, rng.uniform(-1, 1, (4, 2, 40, 56)))
-    assert textured_map.shape == worst.shape == (40, 56) and np.isfinite(worst).all()
+    monkeypatch.setattr(consistency_module, "consistency_maps_numpy", refuse)
+    desc, bundle, plan, scene = setup
+    frames, _ = frames_of(desc, plan, scene, MotionParameters(rotation_deg_per_frame=0.3))
+    res = recover_moving(frames, plan.A, dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field,
+                         model="flow")
+    assert res.estimates[0].model == "flow" and np.isfinite(res.y[..., 0]).mean() > 0.9
+
+
+def test_a_plan_too_short_for_a_flow_is_refused_in_one_line(setup):
+    _, bundle, _, _ = setup
+    short = make_plan("narrowband", bundle, step_nm=150.0, max_exposure_s=0.0049)
+    assert short.K == 3
+    with pytest.raises(ValueError, match="--motion flow needs a plan of at least 4 frames"):
+        check_motion_options("flow", short)
+    assert check_motion_options("global", short) == "global"
