@@ -378,6 +378,20 @@ def _oclgrind_context():
     return context, cl.CommandQueue(context)
 
 
+def run_reduced(kernel, context, queue, x, *scalars) -> np.ndarray:
+    """One work-item of a reduced kernel of tests/data/oclgrind_defects.cl that reads 8 values ``x`` and writes two
+    rows of 8 ints: the rows (16,) int32 (also the suite's devices' check, tests/engine/test_oclgrind.py)."""
+    import pyopencl as cl
+
+    out = np.zeros(16, np.int32)
+    mf = cl.mem_flags
+    x_buf = cl.Buffer(context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+    out_buf = cl.Buffer(context, mf.WRITE_ONLY, out.nbytes)
+    kernel(queue, (1,), None, x_buf, out_buf, *scalars)
+    cl.enqueue_copy(queue, out, out_buf)
+    return out
+
+
 def run_vector_bool() -> int:
     """vector_bool of tests/data/oclgrind_defects.cl, optimised and not: one JSON object per build on stdout."""
     import pyopencl as cl
@@ -387,12 +401,7 @@ def run_vector_bool() -> int:
     x = np.array([0, 5, 10, 3, 20, 1, 10, 0], np.float32)
     for options in ([], ["-cl-opt-disable"]):
         program = cl.Program(context, source).build(options=options)
-        out = np.zeros(16, np.int32)
-        mf = cl.mem_flags
-        x_buf = cl.Buffer(context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
-        out_buf = cl.Buffer(context, mf.WRITE_ONLY, out.nbytes)
-        program.vector_bool(queue, (1,), None, x_buf, out_buf, np.float32(10))
-        cl.enqueue_copy(queue, out, out_buf)
+        out = run_reduced(program.vector_bool, context, queue, x, np.float32(10))
         print(json.dumps({"options": options, "x": x.tolist(), "ternary": out[:8].tolist(),
                           "select": out[8:].tolist()}), flush=True)
     return 0
@@ -406,12 +415,7 @@ def run_min_vector_scalar() -> int:
     context, queue = _oclgrind_context()
     program = cl.Program(context, (DATA / "oclgrind_defects.cl").read_text()).build(options=["-cl-opt-disable"])
     x = np.array([-3, 0, 4, 10, 11, 25, 7, 10], np.int32)
-    out = np.zeros(16, np.int32)
-    mf = cl.mem_flags
-    x_buf = cl.Buffer(context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
-    out_buf = cl.Buffer(context, mf.WRITE_ONLY, out.nbytes)
-    program.min_vector_scalar(queue, (1,), None, x_buf, out_buf, np.int32(10))
-    cl.enqueue_copy(queue, out, out_buf)
+    out = run_reduced(program.min_vector_scalar, context, queue, x, np.int32(10))
     print(json.dumps({"x": x.tolist(), "scalar": out[:8].tolist(), "vector": out[8:].tolist()}), flush=True)
     return 0
 

@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 
 import specgpu
+from oclgrind_worker import run_reduced
 
 HERE = Path(__file__).resolve().parents[1]  # tests/: the worker script and the data
 WORKER = HERE / "oclgrind_worker.py"
@@ -194,12 +195,7 @@ def test_vector_bool_reduced_kernel_on_the_test_devices(queue):
 
     program = cl.Program(queue.context, (HERE / "data" / "oclgrind_defects.cl").read_text()).build()
     x = np.array([0, 5, 10, 3, 20, 1, 10, 0], np.float32)
-    out = np.zeros(16, np.int32)
-    mf = cl.mem_flags
-    x_buf = cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
-    out_buf = cl.Buffer(queue.context, mf.WRITE_ONLY, out.nbytes)
-    program.vector_bool(queue, (1,), None, x_buf, out_buf, np.float32(10))
-    cl.enqueue_copy(queue, out, out_buf)
+    out = run_reduced(program.vector_bool, queue.context, queue, x, np.float32(10))
     expected = (x >= 10).astype(np.int32)
     np.testing.assert_array_equal(out[:8], expected)
     np.testing.assert_array_equal(out[8:], expected)
@@ -291,12 +287,7 @@ def test_min_of_a_vector_and_a_scalar_on_the_test_devices(queue):
 
     program = cl.Program(queue.context, (HERE / "data" / "oclgrind_defects.cl").read_text()).build()
     x = np.array([-3, 0, 4, 10, 11, 25, 7, 10], np.int32)
-    out = np.zeros(16, np.int32)
-    mf = cl.mem_flags
-    x_buf = cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
-    out_buf = cl.Buffer(queue.context, mf.WRITE_ONLY, out.nbytes)
-    program.min_vector_scalar(queue, (1,), None, x_buf, out_buf, np.int32(10))
-    cl.enqueue_copy(queue, out, out_buf)
+    out = run_reduced(program.min_vector_scalar, queue.context, queue, x, np.int32(10))
     np.testing.assert_array_equal(out[:8], np.minimum(x, 10))
     np.testing.assert_array_equal(out[8:], np.minimum(x, 10))
 
