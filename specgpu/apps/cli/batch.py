@@ -56,7 +56,8 @@ def plan_calibration(plan, source, plan_path, calib):
               help="Denoise the cube and XYZ (recover --denoise's guided filter; not with Lab or dE).")
 @click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moved during each sequence, as recover --motion: a "
-              "translation (global) or an affine map (affine) per frame, estimated within the sequence; pixels seen "
+              "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "
+              "estimated within the sequence; pixels seen "
               "outside the field or whose frames disagree are NaN.")
 def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, observer, scheduler, workers,
                   device, resize, denoise, motion):

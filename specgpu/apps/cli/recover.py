@@ -88,8 +88,8 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
               help="--denoise: regularisation, in units of the frame sum's 99th percentile squared.")
 @click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moved: a translation (global) or an affine map "
-              "(affine) per frame, one sequence at a time; pixels seen outside the field or whose frames disagree "
-              "are NaN.")
+              "(affine) per frame, or a displacement per pixel (flow: global, then a tile flow where it agrees "
+              "better), one sequence at a time; pixels seen outside the field or whose frames disagree are NaN.")
 @RESIZE
 def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, sequence, half,
             sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize, denoise, denoise_radius,

@@ -144,7 +144,8 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
                    "noise (needs the cube and sigma or sigma_rms outputs); with --motion it moves with the scene.")
 @click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moves during each sequence, as recover --motion: a "
-              "translation (global) or an affine map (affine) per frame, estimated within the sequence; of the "
+              "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "
+              "estimated within the sequence; of the "
               "sigmas only sigma_rms (an upper bound), not with --denoise or --white-roi.")
 @RESIZE
 @click.option("--view", is_flag=True,
