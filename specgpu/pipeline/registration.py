@@ -29,8 +29,8 @@ import numpy as np
 from scipy import fft
 
 __all__ = ["sobel_magnitude", "bin_image", "hann_window", "frequency_weight", "whitened_half_spectrum",
-           "half_spectrum_energy", "correlation_surface", "fit_peak", "peak_at", "peak_error", "second_peak_ratio",
-           "tile_displacements", "whitened_stack"]
+           "half_spectrum_energy", "correlation_surface", "fit_peak", "fit_peaks", "peak_at", "peaks_at", "peak_error",
+           "second_peak_ratio", "tile_displacements", "whitened_stack"]
 
 
 def sobel_magnitude(image: np.ndarray) -> np.ndarray:
@@ -105,13 +105,7 @@ def frequency_weight(shape: tuple, cutoff: float) -> np.ndarray:
 def whitened_half_spectrum(image: np.ndarray, cutoff: float) -> np.ndarray:
     """Phase-only half spectrum of ``image`` under a Hann window, weighted by :func:`frequency_weight`
     (complex64, ``rfft2`` layout)."""
-    image = np.asarray(image, np.float32)
-    F = fft.rfft2(image * hann_window(image.shape), workers=1)
-    magnitude = np.abs(F)
-    np.maximum(magnitude, 1e-30, out=magnitude)
-    np.divide(frequency_weight(image.shape, float(cutoff)), magnitude, out=magnitude)
-    F *= magnitude
-    return F
+    return whitened_stack(np.asarray(image)[None], cutoff)[0]
 
 
 def half_spectrum_energy(F: np.ndarray, width: int) -> float:
@@ -135,32 +129,51 @@ def correlation_surface(Fa: np.ndarray, Fb: np.ndarray, shape: tuple) -> np.ndar
     return fft.irfft2(Fb * np.conj(Fa), s=shape, workers=1)
 
 
-def _vertex(left: float, centre: float, right: float) -> float:
-    """Offset in [-0.5, 0.5] of the maximum of the Gaussian (or, where a sample is not positive, the parabola)
-    through three samples one apart."""
-    if left > 0.0 and right > 0.0 and centre > 0.0:
-        left, centre, right = np.log(left), np.log(centre), np.log(right)
-    curvature = left - 2.0 * centre + right
-    if curvature >= 0.0:  # no maximum between them (a flat or noisy top): the sample itself
-        return 0.0
-    return float(np.clip(0.5 * (left - right) / curvature, -0.5, 0.5))
+def _vertex(left: np.ndarray, centre: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Offsets in [-0.5, 0.5] of the maxima of the Gaussians (or, where a sample is not positive, the parabolas)
+    through three samples one apart, each argument one sample of every triple (float64 arrays)."""
+    positive = (left > 0.0) & (right > 0.0) & (centre > 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        left, centre, right = (np.where(positive, np.log(np.where(positive, v, 1.0)), v) for v in (left, centre, right))
+        curvature = left - 2.0 * centre + right
+        # no maximum between them (a flat or noisy top): the sample itself
+        offset = np.where(curvature < 0.0, 0.5 * (left - right) / curvature, 0.0)
+    return np.clip(offset, -0.5, 0.5)
 
 
 def fit_peak(surface: np.ndarray) -> tuple[np.ndarray, float]:
     """(x, y) of the highest peak of a periodic correlation surface, sub-pixel by a Gaussian through the three
     samples across it along each axis, in [-N/2, N/2) px; and the peak's value."""
-    y, x = divmod(int(np.argmax(surface)), surface.shape[1])
-    return peak_at(surface, y, x), float(surface[y, x])
+    d, top = fit_peaks(np.asarray(surface)[None])
+    return d[0], float(top[0])
+
+
+def fit_peaks(surfaces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fit_peak` of each surface of an (N, H, W) stack at once: (N, 2) peaks (x, y) and (N,) their values."""
+    surfaces = np.asarray(surfaces)
+    n, h, w = surfaces.shape
+    y, x = np.divmod(np.argmax(surfaces.reshape(n, -1), axis=1), w)
+    return peaks_at(surfaces, y, x), surfaces[np.arange(n), y, x].astype(np.float64)
 
 
 def peak_at(surface: np.ndarray, y: int, x: int) -> np.ndarray:
     """(x, y) of the peak of a periodic correlation surface whose top sample is at row ``y``, column ``x``,
     sub-pixel as :func:`fit_peak` locates it, in [-N/2, N/2) px."""
-    h, w = surface.shape
-    c = float(surface[y, x])
-    dy = _vertex(float(surface[(y - 1) % h, x]), c, float(surface[(y + 1) % h, x]))
-    dx = _vertex(float(surface[y, (x - 1) % w]), c, float(surface[y, (x + 1) % w]))
-    return np.array([(x + w // 2) % w - w // 2 + dx, (y + h // 2) % h - h // 2 + dy], np.float64)
+    return peaks_at(np.asarray(surface)[None], np.array([int(y)]), np.array([int(x)]))[0]
+
+
+def peaks_at(surfaces: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """:func:`peak_at` of each surface of an (N, H, W) stack, its top sample at (``y[i]``, ``x[i]``): (N, 2)."""
+    n, h, w = surfaces.shape
+    rows = np.arange(n)
+
+    def at(yy, xx):
+        return surfaces[rows, yy, xx].astype(np.float64)
+
+    c = at(y, x)
+    dy = _vertex(at((y - 1) % h, x), c, at((y + 1) % h, x))
+    dx = _vertex(at(y, (x - 1) % w), c, at(y, (x + 1) % w))
+    return np.stack([(x + w // 2) % w - w // 2 + dx, (y + h // 2) % h - h // 2 + dy], axis=1)
 
 
 def _circular_max(a: np.ndarray, start: int, length: int, axis: int) -> float:
@@ -210,8 +223,7 @@ def tile_displacements(g_ref: np.ndarray, g_k: np.ndarray, shift, cutoff: float,
                                        for y0, x0 in cells]), cutoff)
     surfaces = fft.irfft2(moving * np.conj(ref[index]), s=(th, tw), axes=(-2, -1), workers=1)
     src = np.array([[x0 + (tw - 1) / 2.0, y0 + (th - 1) / 2.0] for y0, x0 in cells])
-    d = np.array([fit_peak(s)[0] for s in surfaces])
-    return src, src + t + d
+    return src, src + t + fit_peaks(surfaces)[0]
 
 
 def whitened_stack(stack: np.ndarray, cutoff: float) -> np.ndarray:
