@@ -198,9 +198,11 @@ class MovingDecoder:
             return frame_variance(frames, self.plan, self.dark, gain, A=self.rms_row, shifts=shifts,
                                   device=self.device)[..., 0]
 
-        var = variance(rec.estimates[0].shifts)
+        shifts = rec.estimates[0].shifts
+        var = variance(shifts)
         own = (rec.mask & np.uint8(16)) != 0
-        for layer in rec.layers:  # in the order their decodings were given, as the outputs' were
+        # a displacement per pixel (a flow's) holds the layers' own already
+        for layer in rec.layers if np.ndim(shifts) != 4 else ():  # in the order their decodings were given
             mine = own & layer.decoded
             if mine.any():
                 var[mine] = variance(layer.shifts)[mine]

@@ -25,17 +25,19 @@ so the flow is a second hypothesis beside the global one (with its object layers
 flow's decoding where the frames the flow compensates agree and the global decoding is flagged, has no texture or
 is not better correlated by more than a margin; an object layer's pixel takes it only where its frames are textured
 and agree under the flow (the layer's own agreement is not compared: its check's maps are not kept), and a pixel
-consistent under neither stays NaN and flagged. The steady fit needs :data:`MIN_FRAMES` frames besides the reference: a flow needs sequences of at least
-``MIN_FRAMES + 1`` frames.
+consistent under neither stays NaN and flagged. The steady fit needs :data:`MIN_FRAMES` frames besides the
+reference: a flow needs sequences of at least ``MIN_FRAMES + 1`` frames.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import fft, ndimage
 
 from specgpu.pipeline.moving import at_reference_time
-from specgpu.pipeline.registration import whitened_stack
+from specgpu.pipeline.registration import fit_peaks, whitened_stack
 
 __all__ = ["TILE_PX", "STEADY_PX", "MIN_PEAK_SHARE", "MIN_FRAMES", "MIN_TILES", "TileMotion", "tile_motion",
            "flow_field", "choose_flow"]
@@ -59,6 +61,7 @@ MIN_FRAMES = 3
 MIN_TILES = 3
 
 
+@dataclass
 class TileMotion:
     """Each tile's velocity relative to the global translation.
 
@@ -76,31 +79,10 @@ class TileMotion:
         less their own steady motion), px, from the reference frame.
     """
 
-    def __init__(self, centres, velocity, measured, correction):
-        self.centres, self.velocity, self.measured, self.correction = centres, velocity, measured, correction
-
-
-def _peaks(surfaces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 2) sub-pixel (x, y) of the highest peak of each periodic surface of an (N, h, w) stack, in [-N/2, N/2)
-    px (a Gaussian through the three samples across it along each axis), and (N,) the peak values."""
-    n, h, w = surfaces.shape
-    flat = surfaces.reshape(n, -1)
-    top = np.argmax(flat, axis=1)
-    y, x = np.divmod(top, w)
-    rows = np.arange(n)
-    c = flat[rows, top]
-
-    def vertex(left, right):
-        ok = (left > 0) & (right > 0) & (c > 0)
-        l, m, r = (np.where(ok, np.log(np.where(ok, v, 1.0)), v) for v in (left, c, right))
-        curvature = l - 2.0 * m + r
-        with np.errstate(divide="ignore", invalid="ignore"):
-            offset = np.where(curvature < 0, 0.5 * (l - r) / curvature, 0.0)
-        return np.clip(offset, -0.5, 0.5)
-
-    dy = vertex(surfaces[rows, (y - 1) % h, x], surfaces[rows, (y + 1) % h, x])
-    dx = vertex(surfaces[rows, y, (x - 1) % w], surfaces[rows, y, (x + 1) % w])
-    return np.stack([(x + w // 2) % w - w // 2 + dx, (y + h // 2) % h - h // 2 + dy], axis=1), c
+    centres: tuple
+    velocity: np.ndarray
+    measured: np.ndarray
+    correction: np.ndarray
 
 
 def tile_motion(gradients, shifts, reference_frame: int, usable, *, tile_px: int = TILE_PX,
@@ -139,7 +121,7 @@ def tile_motion(gradients, shifts, reference_frame: int, usable, *, tile_px: int
     F_ref = whitened_stack(ref_tiles, cutoff)
     # the peak of a tile registered to itself (the same for every tile with structure, whose whitened spectrum has
     # the weight's magnitude; 0 for a tile with none, a clipped patch, which is never measured)
-    self_peak = _peaks(fft.irfft2(F_ref * np.conj(F_ref), s=(th, tw), axes=(-2, -1), workers=1))[1]
+    self_peak = fit_peaks(fft.irfft2(F_ref * np.conj(F_ref), s=(th, tw), axes=(-2, -1), workers=1))[1]
     y0 = (np.arange(ty) * th)[:, None].repeat(tx, 1).reshape(-1)
     x0 = (np.arange(tx) * tw)[None, :].repeat(ty, 0).reshape(-1)
     n = ty * tx
@@ -160,7 +142,7 @@ def tile_motion(gradients, shifts, reference_frame: int, usable, *, tile_px: int
         moving = np.stack([g_k[ys[i]:ys[i] + th, xs[i]:xs[i] + tw] for i in idx])
         surfaces = fft.irfft2(whitened_stack(moving, cutoff) * np.conj(F_ref[idx]), s=(th, tw), axes=(-2, -1),
                               workers=1)
-        d, top = _peaks(surfaces)
+        d, top = fit_peaks(surfaces)
         strong = (self_peak[idx] > 0) & (top >= MIN_PEAK_SHARE * self_peak[idx])
         rel = offset[idx] + d - (shifts[k] - shifts[reference_frame])[None, :]
         relative[k, idx[strong]] = rel[strong]

@@ -381,8 +381,8 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     model : {"translation", "affine", "flow"}
         A translation or an affine map per frame (:func:`~specgpu.pipeline.moving.estimate_global_motion`); or
         ``"flow"``: the translation's decoding, then a dense flow where its frames agree and the translation's are
-        flagged, untextured or not clearly better correlated (:mod:`specgpu.pipeline.moving_flow`): ``estimates[0].shifts`` is then (K, 2, H, W), the displacement each
-        pixel was decoded with.
+        flagged, untextured or not clearly better correlated (:mod:`specgpu.pipeline.moving_flow`):
+        ``estimates[0].shifts`` is then (K, 2, H, W), the displacement each pixel was decoded with.
     shifts : array_like, (K, 2) or (K, 2, 3), optional
         Known displacements (e.g. the twin's truth); no estimation then.
     check : bool
@@ -445,10 +445,10 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     y, mask = res.y, res.mask
     lap("warp")
     found = []
+    if dense or (check and refs):  # every frame's gradient image made once (the check, the layers, the flow)
+        gradients = frame_gradients(frames, dark, gain, gradients)
+        est = None if est is None else replace(est, gradients=tuple(gradients))
     if check:
-        if refs:  # every frame's gradient image made once (the layers read them)
-            gradients = frame_gradients(frames, dark, gain, gradients)
-            est = None if est is None else replace(est, gradients=tuple(gradients))
         maps = consistency(*_reading(read, frames, shifts), None if read else dark, gain,
                            gradients=None if gradients is None else _reading(read, gradients)[0])
         mask[maps[0] & (maps[1] < CHECK_THRESHOLD)] |= MASK_INCONSISTENT
@@ -456,7 +456,6 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
             found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
                                          device=device, read=read)
     if dense and est is not None:
-        gradients = frame_gradients(frames, dark, gain, gradients)
         est = _with_flow(frames, A, est, gradients, y, mask, found, maps if check else None, dark, gain,
                          saturation=saturation, device=device)
     y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
