@@ -148,81 +148,130 @@ __kernel void linear_warp(WARP_KERNEL_ARGS)
 
 #if K <= 128 && !FLOW
 /* Every frame's motion a translation (the affine maps' linear parts the identity): every pixel of frame k has the
- * same bilinear weights, so a work-item takes 8 consecutive pixels of a row and reads each frame's four
- * neighbours as rows of 8 (vload8), the weights scalars, the corrections (dark, gain) vectors: what PoCL runs
- * as vector code. Where some lane's sample point or neighbour is off the field, or the row ends within the 8,
- * each pixel goes through linear_warp's code. Work-items over (x / 8, y). */
-inline float8 corrected8(__global const IN_T *restrict plane, __global const float *restrict dark,
-                         __global const float *restrict gain, uint k, ulong n, ulong p, float w, int8 *flags)
+ * same bilinear weights, so a work-item takes 8 consecutive pixels of a row and reads each frame's two source rows
+ * as vectors of 8 (vload8) and the ninth pixel after them, the weights scalars, the corrections (dark, gain)
+ * vectors: what PoCL runs as vector code. A work-item goes down STRIP rows: the lower source row of one output row
+ * is the upper one of the next, so each source row is read and corrected once, not twice (and each pixel once, not
+ * twice, along the row: the right neighbours are the row shifted by one lane). The arithmetic is linear_warp's,
+ * tap by tap (the same products, summed in the same order), with each weight from the fraction of d_k rather than
+ * of x + d_k: the same bits where x + d_k is exact in float32, as it is for a d_k of a few binary digits. Where
+ * some lane's sample point or neighbour is off the field, or the row ends within the 8, that row's pixels go
+ * through linear_warp's code. Work-items over (x / 8, y / STRIP). */
+#ifndef STRIP
+#define STRIP 8
+#endif
+
+/* Frame k's source row at p, corrected: c0 its 8 pixels, c1 the 8 pixels one to the right (the ninth read as a
+ * scalar), f0 / f1 their saturated / non-finite flags (applied where the tap's weight is above zero). */
+inline void corrected_row(__global const IN_T *restrict plane, __global const float *restrict dark,
+                          __global const float *restrict gain, uint k, ulong n, ulong p, float8 *c0, float8 *c1,
+                          int8 *f0, int8 *f1)
 {
-    if (w <= 0.0f) return (float8)(0.0f); /* a zero weight never lets a NaN or saturated neighbour in */
+    int8 fv = (int8)(0);
+    int f8 = 0;
 #if IS_FLOAT_IN
     const float8 v = vload8(0, plane + p);
-    *flags |= isfinite(v) ? (int8)(0) : (int8)(MASK_NONFINITE);
+    const float v8 = plane[p + 8];
+    fv |= isfinite(v) ? (int8)(0) : (int8)(MASK_NONFINITE);
+    f8 |= isfinite(v8) ? 0 : MASK_NONFINITE;
 #else
     const float8 v = convert_float8(vload8(0, plane + p));
+    const float v8 = (float)plane[p + 8];
 #endif
 #ifdef SAT_LEVEL
-    *flags |= v >= (float8)(SAT_LEVEL) ? (int8)(MASK_SATURATED) : (int8)(0);
+    fv |= v >= (float8)(SAT_LEVEL) ? (int8)(MASK_SATURATED) : (int8)(0);
+    f8 |= v8 >= SAT_LEVEL ? MASK_SATURATED : 0;
 #endif
     float8 c = v;
+    float c8 = v8;
 #if HAS_DARK == 1
     c -= vload8(0, dark + p);
+    c8 -= dark[p + 8];
 #elif HAS_DARK == 2
     c -= vload8(0, dark + (ulong)k * n + p);
+    c8 -= dark[(ulong)k * n + p + 8];
 #endif
 #if HAS_GAIN
     c *= vload8(0, gain + p);
+    c8 *= gain[p + 8];
 #endif
-    return c * w;
+    *c0 = c;
+    *c1 = (float8)(c.s123, c.s4567, c8);
+    *f0 = fv;
+    *f1 = (int8)(fv.s123, fv.s4567, f8);
 }
 
-inline float8 translate_sample(__global const IN_T *restrict frames, __constant const float *restrict motion,
-                               __global const float *restrict dark, __global const float *restrict gain, uint k,
-                               ulong n, int x0, int y, uint width, int8 *flags)
+/* A tap's term as corrected() makes it: zero where its weight is, never a NaN or saturated neighbour let in */
+inline float8 tap8(float8 c, int8 f, float w, int8 *flags)
 {
-    const float dx = motion[6 * k + 2], dy = motion[6 * k + 5];
-    const float fdx = floor(dx), fdy = floor(dy);
-    const float fx = dx - fdx, fy = dy - fdy;
-    const ulong p = (ulong)(y + (int)fdy) * width + (ulong)(x0 + (int)fdx);
-    __global const IN_T *plane = frames + (ulong)k * n;
-    return corrected8(plane, dark, gain, k, n, p, (1.0f - fx) * (1.0f - fy), flags)
-         + corrected8(plane, dark, gain, k, n, p + 1, fx * (1.0f - fy), flags)
-         + corrected8(plane, dark, gain, k, n, p + width, (1.0f - fx) * fy, flags)
-         + corrected8(plane, dark, gain, k, n, p + width + 1, fx * fy, flags);
+    if (w <= 0.0f) return (float8)(0.0f);
+    *flags |= f;
+    return c * w;
 }
 
 __kernel void linear_warp_translate(WARP_KERNEL_ARGS)
 {
-    const int x0 = 8 * get_global_id(0), y = get_global_id(1);
-    if (x0 >= (int)width || y >= (int)height) return;
-    const ulong n = (ulong)width * height, i = (ulong)y * width + x0;
-    int interior = x0 + 8 <= (int)width;
+    const int x0 = 8 * get_global_id(0), top = STRIP * get_global_id(1);
+    if (x0 >= (int)width || top >= (int)height) return;
+    const ulong n = (ulong)width * height;
+    const int rows = min(STRIP, (int)height - top);
+    int columns = x0 + 8 <= (int)width; /* the 8 pixels and each frame's 9 source columns within the field */
     for (uint k = 0; k < K; ++k) {
-        const int ix = x0 + (int)floor(motion[6 * k + 2]), iy = y + (int)floor(motion[6 * k + 5]);
-        interior &= ix >= 0 && ix + 8 <= (int)width - 1 && iy >= 0 && iy + 1 <= (int)height - 1;
+        const int ix = x0 + (int)floor(motion[6 * k + 2]);
+        columns &= ix >= 0 && ix + 8 <= (int)width - 1;
     }
-    if (!interior) {
-        for (int j = 0; j < 8 && x0 + j < (int)width; ++j)
-            warp_pixel(frames, A, motion, flow, dark, gain, out, mask, width, height, i + j);
-        return;
-    }
-    int8 flags = (int8)(0);
-#define T_SAMPLE(k) const float8 t##k = translate_sample(frames, motion, dark, gain, k, n, x0, y, width, &flags);
+    /* each frame's source rows so far (the upper row of the next output row), valid while `held` */
+    float8 up0[K], up1[K];
+    int8 upf0[K], upf1[K];
+    int held = 0;
+    for (int r = 0; r < rows; ++r) {
+        const int y = top + r;
+        const ulong i = (ulong)y * width + x0;
+        int interior = columns;
+        for (uint k = 0; k < K; ++k) {
+            const int iy = y + (int)floor(motion[6 * k + 5]);
+            interior &= iy >= 0 && iy + 1 <= (int)height - 1;
+        }
+        if (!interior) {
+            for (int j = 0; j < 8 && x0 + j < (int)width; ++j)
+                warp_pixel(frames, A, motion, flow, dark, gain, out, mask, width, height, i + j);
+            held = 0;
+            continue;
+        }
+        int8 flags = (int8)(0);
+#define T_SAMPLE(k) float8 t##k;                                                                                   \
+        {                                                                                                          \
+            const float dx = motion[6 * k + 2], dy = motion[6 * k + 5];                                            \
+            const float fdx = floor(dx), fdy = floor(dy);                                                          \
+            const float fx = dx - fdx, fy = dy - fdy;                                                              \
+            const ulong p = (ulong)(y + (int)fdy) * width + (ulong)(x0 + (int)fdx);                                \
+            __global const IN_T *plane = frames + (ulong)k * n;                                                    \
+            if (!held) corrected_row(plane, dark, gain, k, n, p, &up0[k], &up1[k], &upf0[k], &upf1[k]);            \
+            float8 d0, d1;                                                                                         \
+            int8 df0, df1;                                                                                         \
+            corrected_row(plane, dark, gain, k, n, p + width, &d0, &d1, &df0, &df1);                               \
+            t##k = tap8(up0[k], upf0[k], (1.0f - fx) * (1.0f - fy), &flags)                                        \
+                 + tap8(up1[k], upf1[k], fx * (1.0f - fy), &flags)                                                 \
+                 + tap8(d0, df0, (1.0f - fx) * fy, &flags)                                                         \
+                 + tap8(d1, df1, fx * fy, &flags);                                                                 \
+            up0[k] = d0; up1[k] = d1; upf0[k] = df0; upf1[k] = df1;                                                \
+        }
 #define T_FMA(k) acc = row[k] * t##k + acc;
-    REP_(K, T_SAMPLE)
-    for (uint b = 0; b < B; ++b) {
-        __constant const float *row = A + b * K;
-        float8 acc = (float8)(0.0f);
-        REP_(K, T_FMA)
+        REP_(K, T_SAMPLE)
+        held = 1;
+        for (uint b = 0; b < B; ++b) {
+            __constant const float *row = A + b * K;
+            float8 acc = (float8)(0.0f);
+            REP_(K, T_FMA)
 #if OUT_INTERLEAVED  /* the 8 pixels' B outputs are 8 B consecutive floats */
-        __global float *o = out + i * B + b;
-        o[0] = acc.s0; o[B] = acc.s1; o[2 * B] = acc.s2; o[3 * B] = acc.s3;
-        o[4 * B] = acc.s4; o[5 * B] = acc.s5; o[6 * B] = acc.s6; o[7 * B] = acc.s7;
+            __global float *o = out + i * B + b;
+            o[0] = acc.s0; o[B] = acc.s1; o[2 * B] = acc.s2; o[3 * B] = acc.s3;
+            o[4 * B] = acc.s4; o[5 * B] = acc.s5; o[6 * B] = acc.s6; o[7 * B] = acc.s7;
 #else
-        vstore8(acc, 0, out + (ulong)b * n + i);
+            vstore8(acc, 0, out + (ulong)b * n + i);
 #endif
+        }
+        vstore8(convert_uchar8(flags), 0, mask + i);
     }
-    vstore8(convert_uchar8(flags), 0, mask + i);
 }
 #endif

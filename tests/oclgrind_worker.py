@@ -258,20 +258,42 @@ def _warp_case(kind):
     from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
 
     def run():
-        rng = np.random.default_rng({"translate": 21, "affine": 22, "flow": 23}[kind])
+        rng = np.random.default_rng({"translate": 21, "affine": 22, "flow": 23, "strips": 24}[kind])
         K, B = 4, 5
-        frames = _frames(rng, K, np.uint16, 4095)
+        if kind == "strips":
+            # translations the row kernel runs as vectors down its strips of rows (the upper source row held from
+            # the row above) on most of a 21 x 35 field: three strips, the last partial, and a partial column of
+            # work-items; one frame whole pixels (its right and lower taps of weight zero), one sample saturated
+            shape = (21, 35)
+            frames = rng.integers(0, 4000, (K, *shape)).astype(np.uint16)
+            saturated = [(2, 9, 12), (3, 4, 20)]  # frame, row, column
+            for k, r, c in saturated:
+                frames[k, r, c] = 4095
+            motion = np.array([[0.0, 0.0], [1.25, 0.5], [0.6, 1.75], [1.0, 1.0]])
+        else:
+            shape = SHAPE
+            frames = _frames(rng, K, np.uint16, 4095)
+            motion = _motion(rng, K, kind)
         A = rng.normal(0, 1e-2, (B, K))
-        dark = rng.uniform(0, 5, SHAPE).astype(np.float32)
-        gain = rng.uniform(0.9, 1.1, SHAPE).astype(np.float32)
-        motion = _motion(rng, K, kind)
-        got = apply_linear_warped(frames, A, motion, dark, gain, return_mask=True, device="oclgrind")
+        dark = rng.uniform(0, 5, shape).astype(np.float32)
+        gain = rng.uniform(0.9, 1.1, shape).astype(np.float32)
+        got = apply_linear_warped(frames, A, motion, dark, gain, return_mask=True, device="oclgrind",
+                                  saturation=4095.0 if kind == "strips" else None)
         want, outside = linear_warp_ref(frames, A, np.asarray(motion, np.float32), dark, gain)
         errors, tolerances = {}, {}
         inside = ~outside
         _compare(errors, tolerances, "y", got.y[inside], want[inside], "abs", 1e-3)
         _compare(errors, tolerances, "outside", ((got.mask & MASK_OUTSIDE) > 0).astype(np.float32),
                  outside.astype(np.float32), "abs", 0.0)
+        if kind == "strips":  # the saturated sample flags the outputs whose taps read it with a weight above zero
+            near = np.zeros(shape, bool)
+            for k, r, c in saturated:
+                dx, dy = motion[k]
+                for ty in {int(np.floor(dy)), int(np.ceil(dy))}:
+                    for tx in {int(np.floor(dx)), int(np.ceil(dx))}:
+                        near[r - ty, c - tx] = True
+            _compare(errors, tolerances, "saturated", ((got.mask & 1) > 0).astype(np.float32),
+                     near.astype(np.float32), "abs", 0.0)
         return errors, tolerances
 
     return run
@@ -326,7 +348,7 @@ def cases() -> dict:
         "fused_de2000": _fused_case("CIE 2000"),
         "fused_de2000_single_reference": _fused_case("CIE 2000", single=True),
         "delta_e_sigma": _delta_e_sigma_case(),
-        **{f"warp_{kind}": _warp_case(kind) for kind in ("translate", "affine", "flow")},
+        **{f"warp_{kind}": _warp_case(kind) for kind in ("translate", "strips", "affine", "flow")},
         **{f"consistency_{kind}": _consistency_case(kind) for kind in ("translate", "affine", "flow")},
     }
 

@@ -23,6 +23,9 @@ MASK_OUTSIDE = 4
 
 #: Work-items per group of the translation kernel along a row (each 8 pixels)
 _ROW_GROUP = 16
+#: Rows each work-item of the translation kernel goes down (kernels/warp.cl's STRIP): a source row read once serves
+#: two output rows
+_STRIP = 8
 
 
 def check_shifts(shifts, K: int, name: str = "shifts", spatial: tuple | None = None) -> np.ndarray:
@@ -129,9 +132,9 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
     args = (f_dev.data, A_dev.data, d_dev.data, kernels._data(flow_dev), kernels._data(dark_dev),
             kernels._data(gain_dev), out.data, mask.data, np.uint32(w), np.uint32(h))
     if translate:
-        # translations: 8 pixels of a row per work-item, the frames read as vectors
-        translate = get_kernel(queue, "warp.cl", "linear_warp_translate", **macros)
-        kernels.launch_range(queue, translate, (-(-w // 8), h), (_ROW_GROUP, 1), *args)
+        # translations: 8 pixels of a row per work-item, down a strip of rows, the frames read as vectors
+        translate = get_kernel(queue, "warp.cl", "linear_warp_translate", STRIP=_STRIP, **macros)
+        kernels.launch_range(queue, translate, (-(-w // 8), -(-h // _STRIP)), (_ROW_GROUP, 1), *args)
     elif n:
         kernels._launch(queue, kernel, n, *args, pixels_per_item=1)
     if interleaved:

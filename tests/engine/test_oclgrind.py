@@ -114,14 +114,15 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     float16 entry and register transpose, the "gpu" variant's local-memory tile and per-element launch, mask,
     dark, gain, square root; XYZ -> Lab; dE76 / 94 / 2000 alone and fused; the dE2000 sigma; the motion-compensated
     linear map and the consistency check, each with translations, affine maps and a flow; the check's images given
-    as one array, uploaded in one write: see the offset-write test below) on 99 pixels (two
-    work-groups, the second partial): no Oclgrind report, and every output within its tolerance."""
+    as one array, uploaded in one write: see the offset-write test below) on 99 pixels (two work-groups, the second
+    partial), and the map's translations on 21 x 35 pixels as well, which the row kernel runs down its strips of
+    rows: no Oclgrind report, and every output within its tolerance."""
     proc, reports = run_worker(oclgrind_env, "cases", variant)
     assert proc.returncode == 0, f"the worker ended with {proc.returncode}:\n{proc.stderr[-4000:]}"
     cases, programs = results(proc)
     failures = case_failures(proc, cases, reports)
     assert not failures, "\n".join(failures)
-    assert len(cases) == 23, sorted(cases)
+    assert len(cases) == 24, sorted(cases)
 
     # the variant's own code paths were built (the variant comes from SPECGPU_VARIANT in the worker); the motion
     # kernels' programs (the warp's OUT_INTERLEAVED, the check's WINDOW) have one work shape for every device
