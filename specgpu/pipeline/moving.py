@@ -39,9 +39,9 @@ from threadpoolctl import ThreadpoolController
 from specgpu.core.validate import validate_method
 from specgpu.engine.consistency import consistency_maps
 from specgpu.io.npz import write_cube_npz
-from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_peak, half_spectrum_energy, hann_window,
-                                           peak_error, second_peak_ratio, sobel_magnitude, tile_displacements,
-                                           whitened_half_spectrum)
+from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_peak_within, half_spectrum_energy,
+                                           hann_window, peak_error, second_peak_ratio, sobel_magnitude,
+                                           tile_displacements, whitened_half_spectrum)
 from specgpu.rig.twin import TwinRig
 
 __all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD", "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode", "estimate_global_motion",
@@ -72,6 +72,14 @@ OUTLIER_PX = 0.5
 #: scene repeats itself. On the moving twin a chart moving over the still natural scene gives 0.45 or more, the
 #: natural scene alone moving 0.2 or less.
 AMBIGUOUS_PEAK = 0.3
+
+#: The fastest motion (px per frame) the global estimate looks for: a pair of frames g frames apart is correlated
+#: over displacements of at most ``g`` times this (and the width of the peak) along each axis. A scene that repeats
+#: itself (a chart's grid of patches, 100 px apart at 640 x 480) correlates almost as well, or better, a period
+#: off; a period beyond reach is then neither taken nor counted as a rival, so a still or slow chart needs no
+#: more than the reference pairs. 16 px per frame is 64 px between the middle and the last frame of 9, beyond
+#: the speeds the object layers separate (:data:`specgpu.pipeline.moving_layers.MAX_LAYER_SPEED_PX`).
+MAX_SPEED_PX_PER_FRAME = 16.0
 
 
 @dataclass(frozen=True)
@@ -191,7 +199,8 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
                            upsample: int = 10, binning: int = 1, pairs: str = "auto", cutoff: float = 0.12,
                            max_gap: int = 8, model: str = "translation", tiles: int = 4,
                            robust: bool = True, peak: str = "fit",
-                           ambiguous: float = AMBIGUOUS_PEAK) -> MotionEstimate:
+                           ambiguous: float = AMBIGUOUS_PEAK,
+                           max_speed: float | None = MAX_SPEED_PX_PER_FRAME) -> MotionEstimate:
     """A translation per frame of one sequence, relative to the sequence's reference time.
 
     Parameters
@@ -241,6 +250,10 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         correlation); costs ``tiles``^2 small registrations per frame. With ``peak="fit"`` only when some frame's
         correlation with the reference frame has a second peak above ``ambiguous`` times the first (see
         :data:`AMBIGUOUS_PEAK`), then for every frame; with ``"dft"`` always.
+    max_speed : float or None
+        With ``peak="fit"``: the fastest motion looked for, px per frame (:data:`MAX_SPEED_PX_PER_FRAME`): each
+        pair's peak, and its rivals, are sought within that speed times the frames between them; None: anywhere
+        on the surface.
 
     Returns
     -------
@@ -282,6 +295,8 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         raise ValueError(f"reference_frame {reference_frame} is not a usable frame of the {K}")
     if peak not in ("fit", "dft"):
         raise ValueError(f"peak must be one of fit, dft, got {peak!r}")
+    if max_speed is not None and not (np.isfinite(max_speed) and max_speed > 0):
+        raise ValueError(f"max_speed must be a positive number of px per frame or None, got {max_speed!r}")
     fit = peak == "fit"
     spectra, gradients, ambiguity, energies = {}, {}, {}, {}
 
@@ -306,10 +321,12 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
             return _register(spectrum(a), spectrum(b), upsample)
         shape = tuple(n // binning for n in gradient(a).shape)
         surface = correlation_surface(spectrum(a), spectrum(b), shape)
-        d, top = fit_peak(surface)
+        radius = max(1, int(np.ceil(1.5 / (2.0 * np.pi * cutoff))))  # 1.5 sigma of the peak
+        # the displacements the motion can have reached between the two frames (binned px)
+        within = None if max_speed is None else int(np.ceil(max_speed * abs(b - a) / binning)) + radius
+        d, top = fit_peak_within(surface, within)
         if reference_frame in (a, b):  # how clearly the whole image moves as one: the tiles' check needed?
-            ambiguity[b if a == reference_frame else a] = second_peak_ratio(
-                surface, d, max(1, int(np.ceil(1.5 / (2.0 * np.pi * cutoff)))))  # 1.5 sigma of the peak
+            ambiguity[b if a == reference_frame else a] = second_peak_ratio(surface, d, radius, within)
         return d, peak_error(top, energy(a), energy(b), surface.size)
 
     def kept_gradients():

@@ -29,8 +29,8 @@ import numpy as np
 from scipy import fft
 
 __all__ = ["sobel_magnitude", "bin_image", "hann_window", "frequency_weight", "whitened_half_spectrum",
-           "half_spectrum_energy", "correlation_surface", "fit_peak", "fit_peaks", "peak_at", "peaks_at", "peak_error",
-           "second_peak_ratio", "tile_displacements", "whitened_stack"]
+           "half_spectrum_energy", "correlation_surface", "fit_peak", "fit_peak_within", "fit_peaks", "peak_at",
+           "peaks_at", "peak_error", "second_peak_ratio", "tile_displacements", "whitened_stack"]
 
 
 def sobel_magnitude(image: np.ndarray) -> np.ndarray:
@@ -148,6 +148,30 @@ def fit_peak(surface: np.ndarray) -> tuple[np.ndarray, float]:
     return d[0], float(top[0])
 
 
+def _window(surface: np.ndarray, within: int | None):
+    """The rows and columns of a periodic surface within ``within`` px of zero displacement along each axis
+    (index arrays, wrapping round), or None where that window holds the whole surface."""
+    h, w = surface.shape
+    if within is None or 2 * int(within) + 1 >= min(h, w):
+        return None
+    r = np.arange(-int(within), int(within) + 1)
+    return r % h, r % w
+
+
+def fit_peak_within(surface: np.ndarray, within: int | None) -> tuple[np.ndarray, float]:
+    """:func:`fit_peak` of the highest sample at most ``within`` px from zero displacement along each axis (None:
+    anywhere): a displacement the motion cannot have reached (a repeating scene's peak a period away) is not
+    looked at. The sub-pixel fit reads the samples on either side, inside the window or not."""
+    rc = _window(surface, within)
+    if rc is None:
+        return fit_peak(surface)
+    rows, cols = rc
+    box = surface[np.ix_(rows, cols)]
+    i, j = np.unravel_index(int(np.argmax(box)), box.shape)
+    y, x = int(rows[i]), int(cols[j])
+    return peak_at(surface, y, x), float(surface[y, x])
+
+
 def fit_peaks(surfaces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fit_peak` of each surface of an (N, H, W) stack at once: (N, 2) peaks (x, y) and (N,) their values."""
     surfaces = np.asarray(surfaces)
@@ -184,13 +208,27 @@ def _circular_max(a: np.ndarray, start: int, length: int, axis: int) -> float:
     return max(float((a[lo:hi] if axis == 0 else a[:, lo:hi]).max()) for lo, hi in parts if hi > lo)
 
 
-def second_peak_ratio(surface: np.ndarray, peak: np.ndarray, radius: int) -> float:
+def second_peak_ratio(surface: np.ndarray, peak: np.ndarray, radius: int, within: int | None = None) -> float:
     """The highest value of a periodic correlation surface more than ``radius`` px (along either axis) from
-    ``peak`` (x, y), over the value at ``peak``'s nearest sample: near 1 where two displacements compete."""
+    ``peak`` (x, y), over the value at ``peak``'s nearest sample: near 1 where two displacements compete.
+    ``within``: only displacements at most that far from zero along each axis compete (the window of
+    :func:`fit_peak_within`); None: the whole surface."""
     h, w = surface.shape
     x, y = int(round(peak[0])) % w, int(round(peak[1])) % h
     top = float(surface[y, x])
     side = 2 * radius + 1
+    rc = _window(surface, within)
+    if rc is not None:
+        if top <= 0.0:
+            return 1.0
+        rows, cols = rc
+        box = surface[np.ix_(rows, cols)].copy()
+        # the peak's own (2 radius + 1)^2 samples, where they fall in the window, do not compete
+        dy = (rows - y + h // 2) % h - h // 2
+        dx = (cols - x + w // 2) % w - w // 2
+        box[np.ix_(np.abs(dy) <= radius, np.abs(dx) <= radius)] = -np.inf
+        rest = float(box.max())
+        return rest / top if np.isfinite(rest) else 0.0
     if top <= 0.0 or side >= min(h, w):
         return 1.0  # no clear top, or no sample far enough from it
     band = surface[np.arange(y - radius, y + radius + 1) % h]  # the rows about the peak (a small copy)

@@ -14,6 +14,7 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, consistency, gradient_image,
                                      estimate_global_motion, inconsistent_pixels)
 from specgpu.pipeline.moving_layers import recover_moving
+from specgpu.pipeline.registration import fit_peak_within, second_peak_ratio
 from specgpu.pipeline.recovery import SequenceFolder, default_basis, recover
 from specgpu.planning.basis_plans import plan_symmetric_basis
 from specgpu.rig.scene import colorchecker_scene
@@ -159,15 +160,53 @@ def test_the_device_check_flags_what_the_scipy_check_flags_around_an_occluding_o
 
 def test_a_still_chart_whose_patches_repeat_registers_at_zero(setup):
     """A colour chart is a grid of equal patches: the correlation of two frames has a peak at every multiple of
-    the patch pitch, and a frame registered to the reference frame alone locks a whole period off on the stream
-    bench's scene (a chart under a 9-frame basis plan). Such a rival peak brings in the other pairs of frames, whose
-    least-squares solution outvotes it."""
+    the patch pitch, and a frame registered to the reference frame alone, anywhere on the surface, locks a whole
+    period off on the stream bench's scene (a chart under a 9-frame basis plan). Within the displacements the motion
+    can have reached (a period beyond them) the reference pairs alone are right; where the period is within reach,
+    its rival peak brings in the other pairs of frames, whose least-squares solution outvotes it."""
     desc, bundle, _, _ = setup
     plan = plan_symmetric_basis(bundle, default_basis(), m=5, max_exposure_s=0.0049)
     frames, _ = frames_of(desc, plan, colorchecker_scene(240, 320, white_tile=0.99), MotionParameters())
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
-    assert np.abs(estimate_global_motion(frames, dark, gain, pairs="reference").shifts).max() > 10  # the trap
+    trap = estimate_global_motion(frames, dark, gain, pairs="reference", max_speed=None)
+    assert np.abs(trap.shifts).max() > 10  # the trap
+    assert np.abs(estimate_global_motion(frames, dark, gain, pairs="reference").shifts).max() <= 0.1
     assert np.abs(estimate_global_motion(frames, dark, gain).shifts).max() <= 0.1
+    # a period within reach of every pair: the other pairs outvote it
+    assert np.abs(estimate_global_motion(frames, dark, gain, max_speed=60.0).shifts).max() <= 0.1
+
+
+def _two_peaks(h=96, w=128, near=(3.3, -2.6), far=(-40.0, 21.0), far_height=1.5):
+    """A periodic surface with a Gaussian peak near zero displacement and a higher one far from it."""
+    y = (np.arange(h) + h // 2) % h - h // 2
+    x = (np.arange(w) + w // 2) % w - w // 2
+
+    def bump(c, height):
+        return height * np.exp(-((x[None, :] - c[0]) ** 2 + (y[:, None] - c[1]) ** 2) / (2 * 1.3 ** 2))
+
+    return (bump(near, 1.0) + bump(far, far_height)).astype(np.float32)
+
+
+def test_the_peak_is_sought_within_reach_of_the_motion():
+    """Within a window of displacements the near peak is found to a hundredth of a pixel and the far, higher one is
+    neither taken nor a rival; with no window (or one wide enough to hold it) the far one wins or competes."""
+    surface = _two_peaks()
+    d, top = fit_peak_within(surface, 10)
+    np.testing.assert_allclose(d, [3.3, -2.6], atol=0.01)
+    assert top == surface[-3, 3]  # its highest sample, (3, -3)
+    assert second_peak_ratio(surface, d, 2, within=10) < 0.2  # its own tail only
+    far, _ = fit_peak_within(surface, None)
+    np.testing.assert_allclose(far, [-40.0, 21.0], atol=0.01)
+    np.testing.assert_allclose(fit_peak_within(surface, 60)[0], far)
+    assert second_peak_ratio(surface, d, 2, within=60) == pytest.approx(surface.max() / top)
+    assert second_peak_ratio(surface, d, 2) == pytest.approx(second_peak_ratio(surface, d, 2, within=200))
+
+
+@pytest.mark.parametrize("bad", [0.0, -3.0, float("nan"), float("inf")])
+def test_a_max_speed_that_is_not_a_positive_number_is_refused(bad):
+    frames = np.ones((3, 16, 16), np.float32)
+    with pytest.raises(ValueError, match="max_speed"):
+        estimate_global_motion(frames, max_speed=bad)
 
 
 def test_a_nan_gain_reads_as_zero_in_the_registration_image():
