@@ -9,6 +9,8 @@
 #     bash tools/gpu_check.sh stream       # bench --stream 2048x2048 and 640x480 (fused, 61-band f16 cube, motion,
 #                                          # denoise)
 #     bash tools/gpu_check.sh tests        # the whole suite (in parallel where pytest-xdist is installed)
+#     bash tools/gpu_check.sh motion       # the motion stream against the static one, each motion step's cost,
+#                                          # and the kernel and motion tests on the GPU (one call of ~6 minutes)
 # or `bash tools/gpu_check.sh all` where no time limit applies. Everything lands under $OUT (default ./gpu_out):
 # info.txt, bench.json / bench.txt, stream_*.json / .txt, tests.txt, and summary.txt (the GPU targets, each
 # with its figure; `python tools/gpu_summary.py DIR` redoes it over the files of several calls put together).
@@ -90,11 +92,22 @@ for part in "${PARTS[@]}"; do
         timeout 200 python3 -c 'import sys; from specgpu.apps.cli import main; sys.argv[0] = "specgpu"; main()' \
             bench --stream --device "$DEV" --stream-size 640x480 --stream-cases motion,linear,denoise \
             --stream-seconds 5 --json "$OUT/stream_640_extra.json" 2>&1 | tee "$OUT/stream_640_extra.txt" ;;
+    motion)  # --motion global / flow against the static stream, each step's cost, the kernel and motion tests
+        timeout 150 python3 -c 'import sys; from specgpu.apps.cli import main; sys.argv[0] = "specgpu"; main()' \
+            bench --stream --device "$DEV" --stream-size 640x480 --stream-cases motion --stream-seconds 5 \
+            --stream-rounds 3 --json "$OUT/stream_640_motion.json" 2>&1 | tee "$OUT/stream_640_motion.txt"
+        SPECGPU_DEVICE=$DEV timeout 90 python3 tools/motion_cost.py --repeats 9 --outputs 8 2>&1 \
+            | tee "$OUT/motion_cost.txt"
+        XDIST=(); python3 -c 'import xdist' 2>/dev/null && XDIST=(-n 8)
+        SPECGPU_DEVICE=$DEV timeout 200 python3 -m pytest -q -p no:cacheprovider -p no:randomly "${XDIST[@]}" \
+            tests/engine tests/pipeline/test_moving.py tests/pipeline/test_moving_decode.py \
+            tests/pipeline/test_moving_layers.py tests/pipeline/test_moving_flow.py 2>&1 | tail -30 \
+            | tee "$OUT/tests_motion.txt" ;;
     tests)  # the whole suite on the GPU (both kernel variants are forced inside the kernel tests)
         XDIST=(); python3 -c 'import xdist' 2>/dev/null && XDIST=(-n 8)   # 16 cores there: the suite in parallel
         SPECGPU_DEVICE=$DEV timeout 560 python3 -m pytest -q -p no:cacheprovider -p no:randomly "${XDIST[@]}" \
             2>&1 | tail -40 | tee "$OUT/tests.txt" ;;
-    *) echo "unknown part $part (fetch, all, info, bench, stream, tests)" >&2; exit 2 ;;
+    *) echo "unknown part $part (fetch, all, info, bench, stream, motion, tests)" >&2; exit 2 ;;
     esac
 done
 

@@ -26,9 +26,10 @@ assembler's ``frames_unused`` / ``sequences_discarded``.
 
 A scene that moves during each sequence (``motion="global"`` or ``"affine"``) is decoded one sequence at a time as
 ``specgpu recover --motion`` decodes it (:class:`specgpu.pipeline.moving_decode.MovingDecoder`): the device thread
-hands each complete sequence to :data:`MOTION_THREADS` decoding threads (the estimate on the host is most of the
-cost, and much of it runs outside the GIL: two threads decode about 1.5 times as many sequences per second on 2
-cores) and takes their maps, host arrays (no map, no pinned set), in the sequences' order.
+hands each complete sequence to :data:`MOTION_THREADS` decoding threads, one per core up to 8 (the estimate on the
+host is most of the cost, and much of it runs outside the GIL: two threads decode about 1.5 times as many
+sequences per second on 2 cores) and takes their maps, host arrays (no map, no pinned set), in the sequences'
+order.
 
 This module is the runner (:class:`Stream`: the threads and the loop); the device work of a sequence is
 :class:`specgpu.pipeline.decoder.StreamDecoder`, the consumers of its results are in
@@ -69,8 +70,10 @@ from specgpu.pipeline.stream_report import (
 __all__ = ["STREAM_OUTPUTS", "Stream"]
 
 READBACKS = ("auto", "map", "copy", "pinned")
-#: Threads decoding the sequences of a moving scene at once (each holds one sequence's frames and maps).
-MOTION_THREADS = max(1, min(2, os.cpu_count() or 1))
+#: Threads decoding the sequences of a moving scene at once (each holds one sequence's frames and maps): one per
+#: core up to 8 (the estimate's FFTs and array arithmetic run outside the GIL; a GPU machine's 16 cores decode
+#: several sequences at once while its device does the rest).
+MOTION_THREADS = max(1, min(8, os.cpu_count() or 1))
 UPLOADS = ("auto", "host_ptr", "pinned", "copy")
 
 
@@ -164,9 +167,11 @@ class Stream:
         Frame ring policy when full: ``"drop_newest"`` (default: the camera never waits), ``"drop_oldest"`` or
         ``"block"`` (the driver waits: for replayed or simulated frames, measures the pipeline's own rate).
     in_flight : int
-        Sequences enqueued on the device before the device thread waits for the oldest.
+        Sequences enqueued on the device before the device thread waits for the oldest (with ``motion``, at least
+        :data:`MOTION_THREADS`: one for each decoding thread).
     result_buffers : int
-        Sequences between upload and the end of the sinks (>= in_flight); the bound on result memory.
+        Sequences between upload and the end of the sinks (>= in_flight); the bound on result memory (with
+        ``motion``, at least the sequences in flight).
     readback : {"auto", "map", "copy", "pinned"}
         Results read by mapping the device outputs (zero copy on CPU devices), copied into fresh host arrays, or
         copied by DMA into pinned host arrays (``ALLOC_HOST_PTR``, mapped once, one set per result buffer and
@@ -231,6 +236,9 @@ class Stream:
             illuminant=illuminant, observer=observer, cube_dtype=cube_dtype, device=self.queue)
         if self.moving is not None:
             readback = upload = "copy"  # the maps are made on the host: no mapped or pinned sets to recycle
+            # a sequence in flight for each decoding thread, and a result buffer for each
+            in_flight = max(int(in_flight), MOTION_THREADS)
+            result_buffers = max(int(result_buffers), in_flight)
         self.sinks = [s if callable(getattr(s, "write", None)) else CallbackSink(s) for s in sinks]
         self.n_slots = max(4 * plan.K, 16) if n_slots is None else int(n_slots)
         self.policy = policy

@@ -255,6 +255,19 @@ def test_a_sequence_that_fails_to_decode_ends_the_moving_stream_with_its_error(m
     assert len(calls) >= 2
 
 
+def test_a_moving_stream_keeps_a_sequence_in_flight_for_each_decoding_thread(moving):
+    """The decoding threads are only busy together with as many sequences in flight (and result buffers) as
+    there are threads, whatever smaller depth was asked for."""
+    from specgpu.pipeline.stream import MOTION_THREADS, Stream
+
+    _, plan, bundle, _, _ = moving
+    stream = Stream(twin_driver(plan, bundle, 1), plan, bundle, outputs=("cube",), motion="global", in_flight=1,
+                    result_buffers=1)
+    assert stream.in_flight == max(1, MOTION_THREADS) and stream.result_buffers == stream.in_flight
+    still = Stream(twin_driver(plan, bundle, 1), plan, bundle, outputs=("cube",), in_flight=1, result_buffers=1)
+    assert (still.in_flight, still.result_buffers) == (1, 1)
+
+
 def test_affine_motion_decodes_as_recover_affine(moving):
     root, plan, bundle, _, _ = moving
     folder = read_capture(root / "seq")
