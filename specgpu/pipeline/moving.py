@@ -200,7 +200,7 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
                            max_gap: int = 8, model: str = "translation", tiles: int = 4,
                            robust: bool = True, peak: str = "fit",
                            ambiguous: float = AMBIGUOUS_PEAK,
-                           max_speed: float | None = MAX_SPEED_PX_PER_FRAME) -> MotionEstimate:
+                           max_speed: float | None = MAX_SPEED_PX_PER_FRAME, gradients=None) -> MotionEstimate:
     """A translation per frame of one sequence, relative to the sequence's reference time.
 
     Parameters
@@ -254,6 +254,9 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         With ``peak="fit"``: the fastest motion looked for, px per frame (:data:`MAX_SPEED_PX_PER_FRAME`): each
         pair's peak, and its rivals, are sought within that speed times the frames between them; None: anywhere
         on the surface.
+    gradients : sequence, optional
+        The frames' :func:`gradient_image` s already made (K entries, None where one is to be made here; e.g. on
+        the device, :func:`frame_gradients`): registered as they are.
 
     Returns
     -------
@@ -298,7 +301,16 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     if max_speed is not None and not (np.isfinite(max_speed) and max_speed > 0):
         raise ValueError(f"max_speed must be a positive number of px per frame or None, got {max_speed!r}")
     fit = peak == "fit"
+    given = gradients
     spectra, gradients, ambiguity, energies = {}, {}, {}, {}
+    if given is not None:
+        if len(given) != K:
+            raise ValueError(f"gradients must hold one image (or None) per frame, {K}, got {len(given)}")
+        for k, g in enumerate(given):
+            if g is not None:
+                if np.shape(g) != frames.shape[1:]:
+                    raise ValueError(f"gradients[{k}] is {np.shape(g)}, the frames are {frames.shape[1:]}")
+                gradients[k] = np.asarray(g, np.float32)
 
     def gradient(k):  # full resolution (the consistency check reads them again); binned to be registered
         if k not in gradients:

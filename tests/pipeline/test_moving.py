@@ -12,7 +12,7 @@ from moving_helpers import frames_of, moving_setup
 from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.moving import (MASK_INCONSISTENT, MOTION_MODES, check_motion_mode, consistency, gradient_image,
-                                     estimate_global_motion, inconsistent_pixels)
+                                     estimate_global_motion, frame_gradients, inconsistent_pixels)
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.registration import fit_peak_within, second_peak_ratio
 from specgpu.pipeline.recovery import SequenceFolder, default_basis, recover
@@ -207,6 +207,22 @@ def test_a_max_speed_that_is_not_a_positive_number_is_refused(bad):
     frames = np.ones((3, 16, 16), np.float32)
     with pytest.raises(ValueError, match="max_speed"):
         estimate_global_motion(frames, max_speed=bad)
+
+
+def test_the_estimate_of_given_gradient_images_is_the_estimate_of_its_own(setup):
+    """Gradient images made elsewhere (the device) are registered as they are: the same shifts as those the
+    estimate makes itself, and a set of the wrong length or size is refused in one line."""
+    desc, bundle, plan, scene = setup
+    frames, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(1.7, -0.6)))
+    dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
+    own = estimate_global_motion(frames, dark, gain)
+    made = frame_gradients(frames, dark, gain)
+    given = estimate_global_motion(frames, dark, gain, gradients=made)
+    np.testing.assert_array_equal(given.shifts, own.shifts)
+    with pytest.raises(ValueError, match="one image"):
+        estimate_global_motion(frames, dark, gain, gradients=made[:-1])
+    with pytest.raises(ValueError, match=r"gradients\[0\]"):
+        estimate_global_motion(frames, dark, gain, gradients=[m[:-1] for m in made])
 
 
 def test_a_nan_gain_reads_as_zero_in_the_registration_image():
