@@ -302,12 +302,12 @@ class PreparedWarp:
     matrix_index = 5
 
     def enqueue(self, frames, shifts, matrix=None) -> dict:
-        """Enqueue both kernels on ``frames`` (the K_in frames, a flat :class:`pyopencl.array.Array` of the
-        prepared dtype or a :class:`pyopencl.Buffer`) displaced by ``shifts`` ((K_in, 2) (dx, dy) px, finite; only
-        the rows of the frames read are used), written to the device without waiting. Returns name -> a fresh
-        pooled buffer of each output group, and ``"mask"`` (N uint8: 1 saturated, 2 non-finite input, 4 outside
-        the field). ``matrix``: a device buffer of the prepared A's size (B x K float32, the columns read) used
-        for this launch and the next ones (a per-sequence decoder)."""
+        """Enqueue the warp (after the correction pass, with ``corrected_planes``) on ``frames`` (the K_in frames, a
+        flat :class:`pyopencl.array.Array` of the prepared dtype or a :class:`pyopencl.Buffer`) displaced by
+        ``shifts`` ((K_in, 2) (dx, dy) px, finite; only the rows of the frames read are used), written to the
+        device without waiting. Returns name -> a fresh pooled buffer of each output group, and ``"mask"`` (N uint8:
+        1 saturated, 2 non-finite input, 4 outside the field). ``matrix``: a device buffer of the prepared A's size
+        (B x K float32, the columns read) used for this launch and the next ones (a per-sequence decoder)."""
         if isinstance(frames, cla.Array):
             if frames.dtype != self.frames_dtype or frames.offset:
                 raise ValueError(f"frames must be a {self.frames_dtype} device array of its own buffer (no offset), "
@@ -347,10 +347,11 @@ class PreparedWarp:
 
 
 def prepare_linear_warped(queue, frames_dtype, A, shape, dark=None, gain=None, *, saturation=None, read=None,
-                          outputs=None) -> PreparedWarp:
-    """:class:`PreparedWarp` (the translation decoding of a stream, set up once)."""
+                          outputs=None, corrected_planes: bool = False) -> PreparedWarp:
+    """:class:`PreparedWarp` (the translation decoding of a stream, set up once), named as the engine's other
+    ``prepare_*`` launchers."""
     return PreparedWarp(queue, frames_dtype, A, shape, dark, gain, saturation=saturation, read=read,
-                        outputs=outputs)
+                        outputs=outputs, corrected_planes=corrected_planes)
 
 
 def _output_groups(outputs, B: int) -> list[tuple[str, int, int]]:

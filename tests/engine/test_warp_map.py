@@ -389,6 +389,7 @@ def test_a_prepared_launch_is_apply_linear_warped(queue, corrected_planes):
     (dict(frames_dtype=np.int32), "frames_dtype"),
     (dict(shape=(0, 4)), "positive"),
     (dict(dark=np.zeros((3, 4))), "dark has shape"),
+    (dict(A=np.ones((3, 129))), "at most 128 frames"),
 ])
 def test_a_prepared_launch_refuses_bad_settings(queue, change, words):
     from specgpu.engine.warp_map import PreparedWarp
