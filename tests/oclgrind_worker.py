@@ -261,9 +261,9 @@ def _warp_case(kind):
         rng = np.random.default_rng({"translate": 21, "affine": 22, "flow": 23, "strips": 24}[kind])
         K, B = 4, 5
         if kind == "strips":
-            # translations the row kernel runs as vectors down its strips of rows (the upper source row held from
-            # the row above) on most of a 21 x 35 field: three strips, the last partial, and a partial column of
-            # work-items; one frame whole pixels (its right and lower taps of weight zero), one sample saturated
+            # translations the two-pass path runs as vectors along strips of rows (the upper source row held from
+            # the row above) on most of a 21 x 35 field: six strips, the last partial, rows ending within a step of
+            # 8; one frame whole pixels (its right and lower taps of weight zero), one sample saturated
             shape = (21, 35)
             frames = rng.integers(0, 4000, (K, *shape)).astype(np.uint16)
             saturated = [(2, 9, 12), (3, 4, 20)]  # frame, row, column
@@ -294,6 +294,63 @@ def _warp_case(kind):
                         near[r - ty, c - tx] = True
             _compare(errors, tolerances, "saturated", ((got.mask & 1) > 0).astype(np.float32),
                      near.astype(np.float32), "abs", 0.0)
+        return errors, tolerances
+
+    return run
+
+
+def _warp_groups_case(shape):
+    """The translation path as the stream prepares it (specgpu.engine.warp_map.PreparedWarp): float frames with a
+    NaN and an inf (one at the field's corner, read by clamped taps), four of five frames read from one device
+    buffer, a dark per frame, a gain with a dead pixel, frames shifted by sub-pixels, whole pixels and one axis'
+    whole pixels, and the outputs in two groups (interleaved, planar), on ``shape``: 21 x 35, or 5 x 270 (two
+    work-items along a row, the second ending within a step of 8). The outputs that read no flagged sample against
+    the float64 reference; the mask and the NaNs against the per-pixel kernel's (a uniform flow), which the other
+    warp cases check."""
+    import pyopencl as cl
+
+    from reference import linear_warp_ref
+    from specgpu.engine.kernels import to_device
+    from specgpu.engine.runtime import get_queue
+    from specgpu.engine.warp_map import MASK_OUTSIDE, PreparedWarp, apply_linear_warped
+
+    def run():
+        queue = get_queue("oclgrind")
+        rng = np.random.default_rng(25)
+        K_in = 5
+        h, w = shape
+        read = [3, 0, 4, 1]
+        frames = rng.uniform(0, 100, (K_in, *shape)).astype(np.float32)
+        frames[0, h // 2, w // 2] = np.nan
+        frames[4, 0, w - 1] = np.inf
+        A = rng.normal(0, 1e-2, (5, K_in))
+        dark = rng.uniform(0, 5, (K_in, *shape)).astype(np.float32)
+        gain = rng.uniform(0.9, 1.1, shape).astype(np.float32)
+        gain[h // 3, w // 5] = np.nan
+        shifts = np.zeros((K_in, 2))
+        shifts[read] = [[0.7, -1.2], [0.0, 0.0], [1.0, 0.4], [-1.5, 0.25]]
+        warp = PreparedWarp(queue, np.float32, A, shape, dark, gain, saturation=99.0, read=read,
+                            outputs=[("a", 3, "interleaved"), ("b", 2, "planar")])
+        out = warp.enqueue(to_device(queue, frames.reshape(-1)), shifts)
+        a, b, mask = np.empty((h, w, 3), np.float32), np.empty((2, h, w), np.float32), np.empty(shape, np.uint8)
+        for buf, host in ((out["a"], a), (out["b"], b), (out["mask"], mask)):
+            cl.enqueue_copy(queue, host, buf)
+        y = np.concatenate([a, np.moveaxis(b, 0, -1)], axis=-1)
+        flow = np.broadcast_to(shifts[:, :, None, None], (K_in, 2, h, w))
+        exact = apply_linear_warped(frames, A, flow, dark, gain, saturation=99.0, read=read, return_mask=True,
+                                    device="oclgrind")
+        sel = frames[read]
+        want, outside = linear_warp_ref(np.nan_to_num(sel, nan=0, posinf=0), A[:, read],
+                                        shifts[read].astype(np.float32), dark[read], np.nan_to_num(gain, nan=1e30))
+        clean = (mask == 0) & (np.abs(want) < 1e20).all(axis=-1)  # no flag, no dead pixel read
+        assert clean.sum() > 0.5 * h * w and (mask & 1).any() and (mask & 2).any() and (mask & 4).any()
+        errors, tolerances = {}, {}
+        _compare(errors, tolerances, "y", y[clean], want[clean], "abs", 1e-3)
+        _compare(errors, tolerances, "mask", mask, exact.mask, "abs", 0)
+        _compare(errors, tolerances, "nan", np.isnan(y).astype(np.float32), np.isnan(exact.y).astype(np.float32),
+                 "abs", 0.0)
+        _compare(errors, tolerances, "outside", ((mask & MASK_OUTSIDE) > 0).astype(np.float32),
+                 outside.astype(np.float32), "abs", 0.0)
         return errors, tolerances
 
     return run
@@ -349,6 +406,8 @@ def cases() -> dict:
         "fused_de2000_single_reference": _fused_case("CIE 2000", single=True),
         "delta_e_sigma": _delta_e_sigma_case(),
         **{f"warp_{kind}": _warp_case(kind) for kind in ("translate", "strips", "affine", "flow")},
+        "warp_groups": _warp_groups_case((21, 35)),
+        "warp_groups_wide": _warp_groups_case((5, 270)),
         **{f"consistency_{kind}": _consistency_case(kind) for kind in ("translate", "affine", "flow")},
     }
 

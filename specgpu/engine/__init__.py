@@ -55,8 +55,10 @@ from specgpu.engine.linear_map import (
 )
 from specgpu.engine.warp_map import (
     MASK_OUTSIDE,
+    PreparedWarp,
     apply_linear_warped,
     check_shifts,
+    prepare_linear_warped,
 )
 from specgpu.engine.colorimetry import (
     DELTA_E_METHODS,
@@ -88,6 +90,7 @@ __all__ = [
     "LinearResult",
     "MODES",
     "Prepared",
+    "PreparedWarp",
     "SelftestReport",
     "SpecgpuDeviceError",
     "VARIANTS",
@@ -123,6 +126,7 @@ __all__ = [
     "prepare_delta_E_sigma",
     "prepare_frames_to_delta_E",
     "prepare_linear",
+    "prepare_linear_warped",
     "reflectance_to_XYZ",
     "run_selftest",
     "select_device",

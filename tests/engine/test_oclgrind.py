@@ -115,18 +115,23 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     dark, gain, square root; XYZ -> Lab; dE76 / 94 / 2000 alone and fused; the dE2000 sigma; the motion-compensated
     linear map and the consistency check, each with translations, affine maps and a flow; the check's images given
     as one array, uploaded in one write: see the offset-write test below) on 99 pixels (two work-groups, the second
-    partial), and the map's translations on 21 x 35 pixels as well, which the row kernel runs down its strips of
-    rows: no Oclgrind report, and every output within its tolerance."""
+    partial), and the map's translations on 21 x 35 pixels as well, which its two passes run along strips of rows,
+    and as the stream prepares them (output groups interleaved and planar, frames read from a larger buffer, float
+    frames with NaN and inf, a dead pixel) on 21 x 35 and 5 x 270 pixels: no Oclgrind report, and every output
+    within its tolerance."""
     proc, reports = run_worker(oclgrind_env, "cases", variant)
     assert proc.returncode == 0, f"the worker ended with {proc.returncode}:\n{proc.stderr[-4000:]}"
     cases, programs = results(proc)
     failures = case_failures(proc, cases, reports)
     assert not failures, "\n".join(failures)
-    assert len(cases) == 24, sorted(cases)
+    assert len(cases) == 26, sorted(cases)
 
     # the variant's own code paths were built (the variant comes from SPECGPU_VARIANT in the worker); the motion
-    # kernels' programs (the warp's OUT_INTERLEAVED, the check's WINDOW) have one work shape for every device
-    warp = [p for p in programs if "-DOUT_INTERLEAVED=" in p]
+    # kernels' programs (the warp's OUT_INTERLEAVED per pixel or GROUPS for translations, the check's WINDOW) have
+    # one set of entries for every device, the translations a work shape per variant
+    warp = [p for p in programs if "-DOUT_INTERLEAVED=" in p or "-DGROUPS=" in p]
+    steps = "-DXSTEPS=1 " if variant == "gpu" else "-DXSTEPS=16 "
+    assert all(steps in p + " " for p in warp if "-DGROUPS=" in p)
     check = [p for p in programs if "-DWINDOW=" in p]
     linear = [p for p in programs if "-DB=" in p and p not in warp]
     if variant == "gpu":
@@ -138,9 +143,10 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     assert any("-DOUT_SQRT=1" in p for p in linear)
     for method in (76, 94, 2000):
         assert any(f"-DDE_METHOD={method}" in p for p in programs)
-    # the motion kernels' variants: the warp's translations by rows and flow per pixel; the consistency check's
-    # translations, affine maps (neither) and flow
-    assert any("-DOUT_INTERLEAVED=1" in p for p in warp) and any("-DFLOW=1" in p for p in warp)
+    # the motion kernels' variants: the warp's translations in two passes (one and two output groups) and flow per
+    # pixel; the consistency check's translations, affine maps (neither) and flow
+    assert any("-DGROUPS=1" in p for p in warp) and any("-DGROUPS=2" in p for p in warp)
+    assert any("-DFLOW=1" in p for p in warp)
     assert any("-DTRANSLATE=1" in p for p in check) and any("-DFLOW=1" in p for p in check)
     assert any("-DTRANSLATE=0" in p and "-DFLOW" not in p for p in check)
 
