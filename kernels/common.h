@@ -65,6 +65,15 @@ typedef int intv;
 #define SPLIT_SINCOS 0 /* 1: CIEDE2000's hue sine and cosine from sin() and cos(), not sincos() (see delta_e_2000) */
 #endif
 
+/* Helpers the compiler must inline: PoCL's clang leaves larger ones as calls, each passing its vectors through
+ * the stack. Only where it optimises: unoptimised (Oclgrind builds with -cl-opt-disable) the forced inlining leaves
+ * intrinsics the simulator does not know. */
+#if defined(__clang__) && defined(__OPTIMIZE__)
+#define ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define ALWAYS_INLINE inline
+#endif
+
 #define MASK_SATURATED 1
 #define MASK_NONFINITE 2
 
