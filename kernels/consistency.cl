@@ -34,8 +34,8 @@
  * Maps are stored STRIDE floats a row (the width rounded up to 8 V); the lanes beyond the width hold the values of
  * clamped columns and are neither counted nor read back.
  *
- * Macros: K, WINDOW (odd), V, ROWS, STRIDE, SAMPLE_ROWS; TRANSLATE = 1: every map is a translation, given per frame as the
- * whole and fractional pixels (ix, iy, fx, fy) (rows read as vectors, each source row's horizontal interpolation
+ * Macros: K, WINDOW (odd), V, ROWS, STRIDE, SAMPLE_ROWS; TRANSLATE = 1: every map is a translation, given per frame
+ * as the whole and fractional pixels (ix, iy, fx, fy) (rows read as vectors, each source row's horizontal interpolation
  * made once for the two output rows that read it); FLOW = 1: a displacement per pixel and frame instead of the maps
  * (flow (K, 2, H, W): frame k saw pixel (x, y) at (x + flow[k][0][y][x], y + flow[k][1][y][x])), read at the lane's
  * clamped column; else the 2 x 3 affine maps. SCALED = 1: frame k's samples multiplied by scale[k] (the gradient
@@ -467,7 +467,8 @@ __kernel void consistency_strips(__global const float *restrict grads, __global 
                 const int8 may = va > (float8)(as_float(br.z));
                 if (!(may.s0 | may.s1 | may.s2 | may.s3 | may.s4 | may.s5 | may.s6 | may.s7)) continue;
                 const float8 vv = va * vr;
-                const float8 ncc = (col[3 * k + 2][j] * inv - ma * mr) / sqrt(vv > (float8)(1e-30f) ? vv : (float8)(1e-30f));
+                const float8 ncc = (col[3 * k + 2][j] * inv - ma * mr)
+                                   / sqrt(vv > (float8)(1e-30f) ? vv : (float8)(1e-30f));
                 const int8 sure = va > (float8)(as_float(br.w));
                 least = (sure & (ncc < least)) ? ncc : least;
                 const int8 open = valid & may & ~sure;

@@ -78,8 +78,8 @@ def apply_scale(queue, images: cla.Array, scale: cla.Array) -> cla.Array:
     """``images`` (K, H, W) multiplied in place by their frame's ``scale``; returns them."""
     K, h, w = images.shape
     n = h * w
-    kernels.launch_range(queue, get_kernel(queue, "gradient.cl", "gradient_apply"), (-(-n // 8), K), (64, 1),
-                         images.data, scale.data, np.uint32(w), np.uint32(h))
+    kernel = get_kernel(queue, "gradient.cl", "gradient_apply", GROWS=_ROWS)
+    kernels.launch_range(queue, kernel, (-(-n // 8), K), (64, 1), images.data, scale.data, np.uint32(w), np.uint32(h))
     return images
 
 
