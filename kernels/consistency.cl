@@ -69,6 +69,9 @@
 #ifndef SCALED
 #define SCALED 0
 #endif
+#ifndef REFRESH
+#define REFRESH 16
+#endif
 #ifndef SELECT_GROUP
 #define SELECT_GROUP 1
 #endif
@@ -239,15 +242,30 @@ ALWAYS_INLINE float8 row_box(float8 q[NV], int j)
 #endif
 }
 
-/* one row's sums of a quantity into slot s of the ring, the column sums c moved on: started at the strip's first
- * row (step 0), added while the window fills (1), the row WINDOW above taken off after (2) */
-ALWAYS_INLINE void advance(float8 q[NV], float8 ring[V], float8 c[V], int step)
+/* one row's sums of a quantity into slot of its ring (the last WINDOW rows' sums), the column sums c moved on:
+ * started at the strip's first row (step 0), added while the window fills (1), the row WINDOW above taken off
+ * after (2), or summed again from the ring (3: every REFRESH rows, so that a strip's running sums carry the rounding
+ * of at most REFRESH steps) */
+ALWAYS_INLINE void advance(float8 q[NV], float8 ring[WINDOW][V], int slot, float8 c[V], int step)
 {
     for (int j = 0; j < V; ++j) {
         const float8 s = row_box(q, j);
-        c[j] = step == 0 ? s : step == 1 ? c[j] + s : c[j] + s - ring[j];
-        ring[j] = s;
+        if (step == 3) {
+            ring[slot][j] = s;
+            float8 t = ring[0][j];
+            for (int i = 1; i < WINDOW; ++i) t += ring[i][j];
+            c[j] = t;
+        } else {
+            c[j] = step == 0 ? s : step == 1 ? c[j] + s : c[j] + s - ring[slot][j];
+            ring[slot][j] = s;
+        }
     }
+}
+
+/* advance's step at virtual row v (y0 - HALF is the first) of a strip from row y0 */
+ALWAYS_INLINE int strip_step(int v, int y0)
+{
+    return v == y0 - HALF ? 0 : v <= y0 + HALF ? 1 : (v - y0 - HALF) % REFRESH == 0 ? 3 : 2;
 }
 
 ALWAYS_INLINE float8 positive(float8 v)
@@ -271,7 +289,7 @@ __kernel void consistency_sample(__global const float *restrict grads, __global 
     const int first = x0 - HALF;
     const ulong plane = (ulong)STRIDE * sample_rows;
     const float inv = 1.0f / (float)(WINDOW * WINDOW);
-    float8 ring[WINDOW][2 * K][V];
+    float8 ring[2 * K][WINDOW][V];
     float8 col[2 * K][V];
     float8 a[K][NV];
     float8 cache[K][NV];
@@ -280,12 +298,12 @@ __kernel void consistency_sample(__global const float *restrict grads, __global 
     for (int v = y0 - HALF; v < y1 + HALF; ++v) {
         sample_row(grads, scale, motion, flow, clamp(v, 0, (int)height - 1), first, width, height, a, cache, cached);
         const int slot = (v - (y0 - HALF)) % WINDOW;
-        const int step_ = v == y0 - HALF ? 0 : v <= y0 + HALF ? 1 : 2;
+        const int step = strip_step(v, y0);
         for (int k = 0; k < K; ++k) {
             float8 q[NV];
-            advance(a[k], ring[slot][2 * k], col[2 * k], step_);
+            advance(a[k], ring[2 * k], slot, col[2 * k], step);
             for (int j = 0; j < NV; ++j) q[j] = a[k][j] * a[k][j];
-            advance(q, ring[slot][2 * k + 1], col[2 * k + 1], step_);
+            advance(q, ring[2 * k + 1], slot, col[2 * k + 1], step);
         }
         if (v < y0 + HALF) continue;
         const int y = v - HALF;
@@ -404,7 +422,7 @@ __kernel void consistency_strips(__global const float *restrict grads, __global 
     const int first = x0 - HALF;
     const float inv = 1.0f / (float)(WINDOW * WINDOW);
     const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    float8 ring[WINDOW][3 * K + 2][V];
+    float8 ring[3 * K + 2][WINDOW][V];
     float8 col[3 * K + 2][V];
     float8 a[K][NV];
     float8 cache[K][NV];
@@ -420,16 +438,16 @@ __kernel void consistency_strips(__global const float *restrict grads, __global 
         float8 r[NV], q[NV];
         for (int j = 0; j < NV; ++j) r[j] = median8(a, j);
         const int slot = (v - (y0 - HALF)) % WINDOW;
-        const int step = v == y0 - HALF ? 0 : v <= y0 + HALF ? 1 : 2;
-        advance(r, ring[slot][3 * K], col[3 * K], step);
+        const int step = strip_step(v, y0);
+        advance(r, ring[3 * K], slot, col[3 * K], step);
         for (int j = 0; j < NV; ++j) q[j] = r[j] * r[j];
-        advance(q, ring[slot][3 * K + 1], col[3 * K + 1], step);
+        advance(q, ring[3 * K + 1], slot, col[3 * K + 1], step);
         for (int k = 0; k < K; ++k) {
-            advance(a[k], ring[slot][3 * k], col[3 * k], step);
+            advance(a[k], ring[3 * k], slot, col[3 * k], step);
             for (int j = 0; j < NV; ++j) q[j] = a[k][j] * a[k][j];
-            advance(q, ring[slot][3 * k + 1], col[3 * k + 1], step);
+            advance(q, ring[3 * k + 1], slot, col[3 * k + 1], step);
             for (int j = 0; j < NV; ++j) q[j] = a[k][j] * r[j];
-            advance(q, ring[slot][3 * k + 2], col[3 * k + 2], step);
+            advance(q, ring[3 * k + 2], slot, col[3 * k + 2], step);
         }
         if (v < y0 + HALF) continue;
         const int y = v - HALF;
