@@ -268,6 +268,48 @@ ALWAYS_INLINE int strip_step(int v, int y0)
     return v == y0 - HALF ? 0 : v <= y0 + HALF ? 1 : (v - y0 - HALF) % REFRESH == 0 ? 3 : 2;
 }
 
+/* Appending the lanes of v where m is true (a comparison's result) to a list at its count c, returning the new
+ * count. Every lane is written from c on, the count moving past the true ones: the list needs room for 8 past its
+ * count, which a work-item's lists have (its pixels so far are fewer by 8 at least). With AVX-512 (PoCL on such a
+ * CPU) the true lanes are packed in a register (vcompressps) and stored as one vector; else one lane at a time. */
+#if VEC_DEREF && defined(__AVX512VL__)
+typedef float packed_in __attribute__((vector_size(32)));
+ALWAYS_INLINE uint lane_bits(int8 m)
+{
+    return (uint)__builtin_ia32_movmskps256((packed_in)as_float8(m));
+}
+
+ALWAYS_INLINE uint append8(__global float *list, uint c, float8 v, uint bits)
+{
+    STORE8(float, as_float8(__builtin_ia32_compresssf256_mask((packed_in)v, (packed_in)v, (uchar)bits)), list + c);
+    return c + (uint)__builtin_popcount(bits);
+}
+#else
+ALWAYS_INLINE uint lane_bits(int8 m)
+{
+    return (uint)((m.s0 & 1) | (m.s1 & 2) | (m.s2 & 4) | (m.s3 & 8) | (m.s4 & 16) | (m.s5 & 32) | (m.s6 & 64)
+                  | (m.s7 & 128));
+}
+
+ALWAYS_INLINE uint append8(__global float *list, uint c, float8 v, uint bits)
+{
+    const float lanes[8] = {v.s0, v.s1, v.s2, v.s3, v.s4, v.s5, v.s6, v.s7};
+    for (int l = 0; l < 8; ++l) {
+        list[c] = lanes[l];
+        c += (bits >> l) & 1u;
+    }
+    return c;
+}
+#endif
+
+/* whether any lane of a comparison's result is true (PoCL's any() is a call) */
+ALWAYS_INLINE bool any8(int8 m)
+{
+    const int4 t = m.lo | m.hi;
+    const int2 u = t.lo | t.hi;
+    return (u.x | u.y) != 0;
+}
+
 ALWAYS_INLINE float8 positive(float8 v)
 {
     return v > (float8)(0.0f) ? v : (float8)(0.0f);
@@ -324,11 +366,12 @@ __kernel void consistency_sample(__global const float *restrict grads, __global 
 /* The values of ranks r0 <= r1 (counted from 0) among a work-group's values, as order keys, into state[0] and
  * state[1] (local: state[0..4] hold the two prefixes, the ranks left within them and the mask of the digits found):
  * three radix passes (digits of 11, 11 and 10 bits), each counting the digit of the values whose higher digits are
- * those found so far (one count for both ranks while they share them). The values are lists l in [0, lists) of
+ * those found so far (one count for both ranks while they share them); after fewer than three passes the keys found
+ * have their lower digits 0. The values are lists l in [0, lists) of
  * LENGTH(l) values AT(l, e), each work-item taking the lists from its local id on in steps of the group's size;
  * hist (2 BINS) is local scratch. The state lives in local memory, written by the first work-item between
  * barriers: nothing private is carried across them (PoCL lost private arrays kept over barriers in loops). */
-#define SELECT_TWO(lists, LENGTH, AT, r0, r1, hist, state)                                                      \
+#define SELECT_TWO(lists, LENGTH, AT, r0, r1, hist, state, passes)                                              \
     do {                                                                                                       \
         const uint lid_ = get_local_id(0), group_ = get_local_size(0);                                         \
         if (lid_ == 0) {                                                                                       \
@@ -336,7 +379,7 @@ __kernel void consistency_sample(__global const float *restrict grads, __global 
             (state)[2] = (r0);                                                                                 \
             (state)[3] = (r1);                                                                                 \
         }                                                                                                      \
-        for (int pass_ = 0; pass_ < 3; ++pass_) {                                                              \
+        for (int pass_ = 0; pass_ < (passes); ++pass_) {                                                       \
             const uint shift_ = pass_ == 0 ? 21u : pass_ == 1 ? 10u : 0u;                                      \
             const uint digits_ = pass_ == 2 ? 1024u : 2048u;                                                   \
             for (uint b_ = lid_; b_ < 2 * BINS; b_ += group_) (hist)[b_] = 0u;                                 \
@@ -376,22 +419,24 @@ __kernel void consistency_sample(__global const float *restrict grads, __global 
 #define COUNT_UP(p) (*(p) += 1u)
 #endif
 
-#define SAMPLE_LENGTH(l) width
-#define SAMPLE_AT(l, e) s[(ulong)(l) * STRIDE + (e)]
+#define SAMPLE_LENGTH(l) ((width + 3) / 4)
+#define SAMPLE_AT(l, e) s[(ulong)(l) * STRIDE + 4 * (e)]
 
-/* per frame (one work-group each): the sample's values of ranks its middle -+ spread, as the bracket of the field's
- * median: bracket[k] = (lo key, hi key, own lo, own hi), the last two as float bits */
+/* per frame (one work-group each): the values of ranks middle -+ spread of every fourth column of the sample (its
+ * error is its strips', not its count's), to 21 bits (two radix passes; lo's lower bits 0, hi's 1: the bracket only
+ * widens), as the bracket of the field's median: bracket[k] = (lo key, hi key, own lo, own hi), the last two as
+ * float bits */
 __kernel void consistency_bracket(__global const float *restrict sample, const uint sample_rows, const uint spread,
                                   const float own, __global uint4 *restrict bracket, const uint width)
 {
     __local uint hist[2 * BINS];
     __local uint state[5];
     __global const float *s = sample + (ulong)get_group_id(0) * STRIDE * sample_rows;
-    const uint count = sample_rows * width;
+    const uint count = sample_rows * ((width + 3) / 4);
     SELECT_TWO(sample_rows, SAMPLE_LENGTH, SAMPLE_AT, count / 2 > spread ? count / 2 - spread : 0u,
-               min(count / 2 + spread, count - 1u), hist, state);
+               min(count / 2 + spread, count - 1u), hist, state, 2);
     if (get_local_id(0) == 0) {
-        const uint lo = state[0], hi = state[1];
+        const uint lo = state[0], hi = state[1] | 0x3ffu;
         bracket[get_group_id(0)] = (uint4)(lo, hi, as_uint(own * key_value(lo)), as_uint(own * key_value(hi)));
     }
 }
@@ -427,10 +472,12 @@ __kernel void consistency_strips(__global const float *restrict grads, __global 
     float8 a[K][NV];
     float8 cache[K][NV];
     int cached[K];
-    uint n_below[K], n_kept[K], n_open[K];
+    uint n_kept[K], n_open[K];
+    int8 n_below[K];  /* per lane, less the count (a true lane is -1) */
     for (int k = 0; k < K; ++k) {
         cached[k] = -1;
-        n_below[k] = n_kept[k] = n_open[k] = 0u;
+        n_kept[k] = n_open[k] = 0u;
+        n_below[k] = (int8)(0);
     }
     float8 vr_sum = (float8)(0.0f);
     for (int v = y0 - HALF; v < y1 + HALF; ++v) {
@@ -467,41 +514,23 @@ __kernel void consistency_strips(__global const float *restrict grads, __global 
                 const uint8 key = order_key8(va);
                 const int8 under = valid & (key < (uint8)(br.x));
                 const int8 inside = valid & (key >= (uint8)(br.x)) & (key <= (uint8)(br.y));
-                n_below[k] -= under.s0 + under.s1 + under.s2 + under.s3 + under.s4 + under.s5 + under.s6 + under.s7;
-                const float vals[8] = {va.s0, va.s1, va.s2, va.s3, va.s4, va.s5, va.s6, va.s7};
-                if (inside.s0 | inside.s1 | inside.s2 | inside.s3 | inside.s4 | inside.s5 | inside.s6 | inside.s7) {
-                    /* every lane written at the list's end, which moves on past the kept ones (no branch) */
-                    __global float *list = kept + ((ulong)k * nw + w) * CAP;
-                    const int taken[8] = {inside.s0, inside.s1, inside.s2, inside.s3, inside.s4, inside.s5,
-                                          inside.s6, inside.s7};
-                    uint c = n_kept[k];
-                    for (int l = 0; l < 8; ++l) {
-                        list[c] = vals[l];
-                        c -= taken[l];
-                    }
-                    n_kept[k] = c;
-                }
+                n_below[k] += under;
+                const ulong list = ((ulong)k * nw + w) * CAP;
+                if (any8(inside)) n_kept[k] = append8(kept + list, n_kept[k], va, lane_bits(inside));
                 /* the frame may count where va_k is above own lo: its correlation then */
                 const int8 may = va > (float8)(as_float(br.z));
-                if (!(may.s0 | may.s1 | may.s2 | may.s3 | may.s4 | may.s5 | may.s6 | may.s7)) continue;
+                if (!any8(may)) continue;
                 const float8 vv = va * vr;
                 const float8 ncc = (col[3 * k + 2][j] * inv - ma * mr)
                                    / sqrt(vv > (float8)(1e-30f) ? vv : (float8)(1e-30f));
                 const int8 sure = va > (float8)(as_float(br.w));
                 least = (sure & (ncc < least)) ? ncc : least;
                 const int8 open = valid & may & ~sure;
-                if (open.s0 | open.s1 | open.s2 | open.s3 | open.s4 | open.s5 | open.s6 | open.s7) {
-                    const ulong base = ((ulong)k * nw + w) * CAP;
-                    const int taken[8] = {open.s0, open.s1, open.s2, open.s3, open.s4, open.s5, open.s6, open.s7};
-                    const float nccs[8] = {ncc.s0, ncc.s1, ncc.s2, ncc.s3, ncc.s4, ncc.s5, ncc.s6, ncc.s7};
-                    uint c = n_open[k];
-                    for (int l = 0; l < 8; ++l) {
-                        open_at[base + c] = (uint)o + l;
-                        open_va[base + c] = vals[l];
-                        open_ncc[base + c] = nccs[l];
-                        c -= taken[l];
-                    }
-                    n_open[k] = c;
+                if (any8(open)) {
+                    const uint bits = lane_bits(open), c = n_open[k];
+                    append8((__global float *)(open_at + list), c, as_float8((uint8)((uint)o) + as_uint8(lane)), bits);
+                    append8(open_va + list, c, va, bits);
+                    n_open[k] = append8(open_ncc + list, c, ncc, bits);
                 }
             }
             STORE8(float, least, worst + o);
@@ -509,7 +538,8 @@ __kernel void consistency_strips(__global const float *restrict grads, __global 
     }
     vstore8(vr_sum, w, vr_sums);
     for (int k = 0; k < K; ++k) {
-        below[k * nw + w] = n_below[k];
+        const int8 b = n_below[k];
+        below[k * nw + w] = -(b.s0 + b.s1 + b.s2 + b.s3 + b.s4 + b.s5 + b.s6 + b.s7);
         kept_count[k * nw + w] = n_kept[k];
         open_count[k * nw + w] = n_open[k];
     }
@@ -546,7 +576,7 @@ __kernel void consistency_median(__global const uint *restrict below, __global c
 #define KEPT_AT(l, e) lists[(ulong)(l) * CAP + (e)]
     /* every group through the selection's barriers (the level's and a missed frame's with nothing to select) */
     SELECT_TWO(level || missed ? 0u : nw, KEPT_LENGTH, KEPT_AT, missed ? 0u : (uint)first, missed ? 0u : (uint)second,
-               hist, state);
+               hist, state, 3);
     if (get_local_id(0) != 0) return;
     if (level) {
         /* compensated sum of the work-items' sums (each of at most ROWS 8 V values) */

@@ -187,7 +187,7 @@ def _check(queue, grads: cla.Array, maps: np.ndarray, scale, *, window: int, tex
     kernels.launch_range(queue, kernel("consistency_sample"), (columns, taken), (1, 1), grads.data,
                          kernels._data(scale), motion.data, kernels._data(flow_dev), sample.data, np.uint32(step),
                          np.uint32(offset), np.uint32(sample_rows), *dims)
-    count = sample_rows * w
+    count = sample_rows * -(-w // 4)  # the bracket reads every fourth column of the sample
     # the sample's va_k are made in strips of other heights than the field's (their column sums rounded otherwise):
     # a margin of ranks even where the sample is the whole field
     spread = int(np.ceil(_BRACKET * count)) + 8
