@@ -101,9 +101,18 @@ typedef uchar8 uchar8_u __attribute__((aligned(1)));
 #define VEC8U(T) VEC8U_(T)
 #define LOAD8(T, p) (*(__global const VEC8U(T) *)(p))
 #define STORE8(T, v, p) (*(__global VEC8U(T) *)(p) = (v))
+typedef float16 float16_u __attribute__((aligned(4)));
+typedef ushort16 ushort16_u __attribute__((aligned(2)));
+typedef uchar16 uchar16_u __attribute__((aligned(1)));
+#define VEC16U_(T) T##16_u
+#define VEC16U(T) VEC16U_(T)
+#define LOAD16(T, p) (*(__global const VEC16U(T) *)(p))
+#define STORE16(T, v, p) (*(__global VEC16U(T) *)(p) = (v))
 #else
 #define LOAD8(T, p) vload8(0, (__global const T *)(p))
 #define STORE8(T, v, p) vstore8((v), 0, (__global T *)(p))
+#define LOAD16(T, p) vload16(0, (__global const T *)(p))
+#define STORE16(T, v, p) vstore16((v), 0, (__global T *)(p))
 #endif
 
 #if VW == 8

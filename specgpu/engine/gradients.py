@@ -23,7 +23,7 @@ __all__ = ["gradient_images", "frames_on_device"]
 
 #: Rows of the strip each work-item of gradient_sobel runs down (a corrected row read once for three output rows)
 _ROWS = 64
-#: Work-items per group along a row (each 8 pixels)
+#: Work-items per group along a row (each 16 pixels)
 _GROUP = 1
 
 
@@ -59,7 +59,7 @@ def launch_gradients(queue, frames: cla.Array, dark=None, gain=None) -> tuple[cl
     gain_dev = kernels.gain_map(queue, gain, (h, w))
     macros = dict(K=K, IN_T=DTYPE_TO_CTYPE[np.dtype(frames.dtype)],
                   HAS_DARK=0 if dark is None else 2 if per_frame else 1, HAS_GAIN=gain is not None, GROWS=_ROWS)
-    columns, strips = -(-w // 8), -(-h // _ROWS)
+    columns, strips = -(-w // 16), -(-h // _ROWS)
     group = min(_GROUP, columns)
     padded = -(-columns // group) * group
     out = kernels._empty(queue, K * h * w, np.float32)
