@@ -165,9 +165,8 @@ def _check(queue, grads: cla.Array, maps: np.ndarray, scale, *, window: int, tex
                   SCALED=scale is not None, SAMPLE_ROWS=_SAMPLE_ROWS, SELECT_GROUP=group)
     dims = (np.uint32(w), np.uint32(h))
     # a new one every sequence: not cached; a flow is read per pixel, the maps then unused
-    motion = kernels.to_device(queue, np.zeros(6 * K) if flow else _motion_rows(maps, translate, w).reshape(-1),
-                               np.float32)
-    flow_dev = kernels.to_device(queue, maps.reshape(-1), np.float32) if flow else None
+    motion = _upload(queue, np.zeros(6 * K) if flow else _motion_rows(maps, translate, w))
+    flow_dev = _upload(queue, maps) if flow else None
     columns, strips = stride // (8 * V), -(-h // rows)
     nw = columns * strips
     cap = rows * 8 * V
@@ -228,8 +227,17 @@ def _check(queue, grads: cla.Array, maps: np.ndarray, scale, *, window: int, tex
     if missed.any():  # the sample misled: every value kept and every frame undecided, the medians exact again
         everything = np.tile(np.array([0, 0xFFFFFFFF, np.float32(-np.inf).view(np.uint32),
                                        np.float32(np.inf).view(np.uint32)], np.uint32), K)
-        textured_out, worst_out, missed = settle(kernels.to_device(queue, everything).data)
+        textured_out, worst_out, missed = settle(_upload(queue, everything).data)
     return textured_out, worst_out
+
+
+def _upload(queue, a) -> cla.Array:
+    """``a`` (float32, or as it is if uint32) in a new device array, written without waiting (to_device waits for
+    the queue, the check's passes before included)."""
+    host = np.ascontiguousarray(a, np.uint32 if np.asarray(a).dtype == np.uint32 else np.float32).reshape(-1)
+    dev = kernels._empty(queue, host.size, host.dtype)
+    cl.enqueue_copy(queue, dev.data, host, is_blocking=False)  # the event holds the host array until it is copied
+    return dev
 
 
 def _gradients_on_device(queue, gradients) -> cla.Array:
