@@ -65,6 +65,15 @@ typedef int intv;
 #define SPLIT_SINCOS 0 /* 1: CIEDE2000's hue sine and cosine from sin() and cos(), not sincos() (see delta_e_2000) */
 #endif
 
+/* Helpers the compiler must inline: PoCL's clang leaves larger ones as calls, each passing its vectors through
+ * the stack. Only where it optimises: unoptimised (Oclgrind builds with -cl-opt-disable) the forced inlining leaves
+ * intrinsics the simulator does not know. */
+#if defined(__clang__) && defined(__OPTIMIZE__)
+#define ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define ALWAYS_INLINE inline
+#endif
+
 #define MASK_SATURATED 1
 #define MASK_NONFINITE 2
 
@@ -92,9 +101,18 @@ typedef uchar8 uchar8_u __attribute__((aligned(1)));
 #define VEC8U(T) VEC8U_(T)
 #define LOAD8(T, p) (*(__global const VEC8U(T) *)(p))
 #define STORE8(T, v, p) (*(__global VEC8U(T) *)(p) = (v))
+typedef float16 float16_u __attribute__((aligned(4)));
+typedef ushort16 ushort16_u __attribute__((aligned(2)));
+typedef uchar16 uchar16_u __attribute__((aligned(1)));
+#define VEC16U_(T) T##16_u
+#define VEC16U(T) VEC16U_(T)
+#define LOAD16(T, p) (*(__global const VEC16U(T) *)(p))
+#define STORE16(T, v, p) (*(__global VEC16U(T) *)(p) = (v))
 #else
 #define LOAD8(T, p) vload8(0, (__global const T *)(p))
 #define STORE8(T, v, p) vstore8((v), 0, (__global T *)(p))
+#define LOAD16(T, p) vload16(0, (__global const T *)(p))
+#define STORE16(T, v, p) vstore16((v), 0, (__global T *)(p))
 #endif
 
 #if VW == 8

@@ -356,21 +356,120 @@ def _warp_groups_case(shape):
     return run
 
 
+def _check_errors(textured, worst, grads, motion, window, own):
+    from specgpu.engine.consistency import consistency_maps_numpy
+
+    textured_ref, worst_ref = consistency_maps_numpy(grads, motion, window=window, own=own)
+    assert (worst_ref < 0.9).any() and textured_ref.any(), "the case must have pixels that disagree"
+    errors, tolerances = {}, {}
+    _compare(errors, tolerances, "worst", worst, worst_ref, "abs", 1e-3)
+    _compare(errors, tolerances, "textured", textured.astype(np.float32), textured_ref.astype(np.float32), "abs", 0.0)
+    return errors, tolerances
+
+
+@contextlib.contextmanager
+def _counting_strips():
+    """The names of the consistency kernels launched inside, in order."""
+    from specgpu.engine import kernels as engine
+
+    names = []
+    launch = engine.launch_range
+
+    def counting(queue, kernel, *args):
+        names.append(kernel.function_name)
+        return launch(queue, kernel, *args)
+
+    engine.launch_range = counting
+    try:
+        yield names
+    finally:
+        engine.launch_range = launch
+
+
 def _consistency_case(kind):
-    from specgpu.engine.consistency import consistency_maps, consistency_maps_numpy
+    """The check of gradient images given as one array (uploaded in one write: see the offset-write test), own = 1
+    so that frames count and the undecided lists fill: translations, affine maps or a flow with a 5-pixel window;
+    "window9" a 9-pixel window (the row sums by swizzles) on 21 x 35 pixels."""
+    from specgpu.engine.consistency import consistency_maps
 
     def run():
-        rng = np.random.default_rng({"translate": 31, "affine": 32, "flow": 33}[kind])
+        rng = np.random.default_rng({"translate": 31, "affine": 32, "flow": 33, "window9": 34}[kind])
         K = 5
-        grads = rng.uniform(0.0, 1.0, (K, *SHAPE)).astype(np.float32)
-        motion = _motion(rng, K, kind)
-        textured, worst = consistency_maps(grads, motion, window=5, device="oclgrind")
-        textured_ref, worst_ref = consistency_maps_numpy(grads, motion, window=5)
-        errors, tolerances = {}, {}
-        _compare(errors, tolerances, "worst", worst, worst_ref, "abs", 1e-3)
-        _compare(errors, tolerances, "textured", textured.astype(np.float32), textured_ref.astype(np.float32),
-                 "abs", 0.0)
+        shape = (21, 35) if kind == "window9" else SHAPE
+        grads = rng.uniform(0.0, 1.0, (K, *shape)).astype(np.float32)
+        window = 9 if kind == "window9" else 5
+        motion = rng.uniform(-1.6, 1.6, (K, 2)) if kind == "window9" else _motion(rng, K, kind)
+        textured, worst = consistency_maps(grads, motion, window=window, own=1.0, device="oclgrind")
+        return _check_errors(textured, worst, grads, motion, window, 1.0)
+
+    return run
+
+
+def _consistency_misled_case():
+    """Strips of 8 rows, a sample of 2 strips of 2 rows holding all the texture: some frame's median is outside the
+    sample's bracket, and the strips run again with every value kept (runs: how many more or fewer than 2)."""
+    from specgpu.engine import consistency as check
+
+    def run():
+        rng = np.random.default_rng(35)
+        K, shape = 4, (24, 11)
+        saved = check._ROWS, check._SAMPLE_ROWS, check._SAMPLE_STRIPS
+        check._ROWS, check._SAMPLE_ROWS, check._SAMPLE_STRIPS = 8, 2, 2
+        try:
+            grads = rng.uniform(0.0, 0.3, (K, *shape)).astype(np.float32)
+            for row in (6, 7, 18, 19):  # the sampled rows: strips 3 and 9 of 12
+                grads[:, row] += rng.uniform(0.0, 6.0, (K, shape[1])).astype(np.float32)
+            grads[1, 10:16, 2:8] = rng.uniform(0.0, 3.0, (6, 6))
+            motion = rng.uniform(-1.2, 1.2, (K, 2))
+            with _counting_strips() as launched:
+                textured, worst = check.consistency_maps(grads, motion, window=5, own=1.0, device="oclgrind")
+        finally:
+            check._ROWS, check._SAMPLE_ROWS, check._SAMPLE_STRIPS = saved
+        errors, tolerances = _check_errors(textured, worst, grads, motion, 5, 1.0)
+        _compare(errors, tolerances, "runs", np.float32(launched.count("consistency_strips")), np.float32(2), "abs",
+                 0.0)
         return errors, tolerances
+
+    return run
+
+
+def _gradient_case(dtype, dark):
+    """engine.gradients.gradient_images against the host's gradient_image: a flat field with a dead pixel, one
+    dark frame or one per frame."""
+    from specgpu.engine.gradients import gradient_images
+    from specgpu.pipeline.moving import gradient_image
+
+    def run():
+        rng = np.random.default_rng(41 if dark == "single" else 42)
+        K = 3
+        frames = _frames(rng, K, dtype, 4095 if dtype == np.uint16 else 1000.0)
+        d = rng.uniform(0, 5, (K, *SHAPE) if dark == "per frame" else SHAPE).astype(np.float32)
+        g = rng.uniform(0.9, 1.1, SHAPE).astype(np.float32)
+        g[4, 6] = np.nan
+        got = gradient_images(frames, d, g, device="oclgrind").get()
+        want = np.stack([gradient_image(f, d[k] if d.ndim == 3 else d, g) for k, f in enumerate(frames)])
+        errors, tolerances = {}, {}
+        _compare(errors, tolerances, "gradients", got, want, "range", 1e-5)
+        return errors, tolerances
+
+    return run
+
+
+def _consistency_frames_case():
+    """engine.consistency.consistency_from_frames: the gradient images made on the device and the check's samples
+    scaled by each frame's 1 / mean (SCALED), against the host's check of the host's images."""
+    from specgpu.engine.consistency import consistency_from_frames
+    from specgpu.pipeline.moving import gradient_image
+
+    def run():
+        rng = np.random.default_rng(43)
+        K = 4
+        frames = _frames(rng, K, np.uint16, 4095)
+        dark = rng.uniform(0, 5, SHAPE).astype(np.float32)
+        motion = rng.uniform(-1.6, 1.6, (K, 2))
+        textured, worst = consistency_from_frames(frames, motion, dark, window=5, own=1.0, device="oclgrind")
+        grads = np.stack([gradient_image(f, dark) for f in frames])
+        return _check_errors(textured, worst, grads, motion, 5, 1.0)
 
     return run
 
@@ -408,7 +507,11 @@ def cases() -> dict:
         **{f"warp_{kind}": _warp_case(kind) for kind in ("translate", "strips", "affine", "flow")},
         "warp_groups": _warp_groups_case((21, 35)),
         "warp_groups_wide": _warp_groups_case((5, 270)),
-        **{f"consistency_{kind}": _consistency_case(kind) for kind in ("translate", "affine", "flow")},
+        **{f"consistency_{kind}": _consistency_case(kind) for kind in ("translate", "affine", "flow", "window9")},
+        "consistency_misled": _consistency_misled_case(),
+        "consistency_from_frames": _consistency_frames_case(),
+        "gradients_u16_dark_dead_pixel": _gradient_case(np.uint16, "single"),
+        "gradients_f32_dark_per_frame": _gradient_case(np.float32, "per frame"),
     }
 
 

@@ -137,6 +137,8 @@ __all__ = [
 from specgpu.engine.guided import box_box_variance, flat_variance_reduction, guided_filter  # noqa: E402
 
 __all__ += ["box_box_variance", "flat_variance_reduction", "guided_filter"]
-from specgpu.engine.consistency import consistency_maps, consistency_maps_numpy, exact_median  # noqa: E402
+from specgpu.engine.consistency import (consistency_from_frames, consistency_maps,  # noqa: E402
+                                        consistency_maps_numpy, exact_median)
+from specgpu.engine.gradients import gradient_images  # noqa: E402
 
-__all__ += ["consistency_maps", "consistency_maps_numpy", "exact_median"]
+__all__ += ["consistency_from_frames", "consistency_maps", "consistency_maps_numpy", "exact_median", "gradient_images"]

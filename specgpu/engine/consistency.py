@@ -3,29 +3,48 @@ correlation) by which pixels whose compensated frames disagree are found.
 
 Each frame's gradient image is sampled where the motion says that frame saw each pixel; their median is the
 reference, and per pixel the normalised cross-correlation of each frame with it over a ``window`` x ``window``
-box is computed. :func:`consistency_maps` runs this as four device passes (``kernels/consistency.cl``) for a
-translation or an affine map per frame, or a displacement per pixel and frame (a dense flow);
-:func:`consistency_maps_numpy` is the straightforward NumPy / SciPy computation (``map_coordinates`` and
-``uniform_filter``), the tests' reference: on a 640 x 480 sequence of 9 frames it costs about 200 ms. Only two
-statistics over the whole field stay on the host (the mean variance of the reference, each frame's median
-variance), from maps read back once.
+box is computed. :func:`consistency_maps` runs this on the device (``kernels/consistency.cl``) for a translation
+or an affine map per frame, or a displacement per pixel and frame (a dense flow), on gradient images from the
+host or already on the device; :func:`consistency_from_frames` from the raw frames, the gradient images made on
+the device too (:mod:`specgpu.engine.gradients`). :func:`consistency_maps_numpy` is the straightforward NumPy /
+SciPy computation (``map_coordinates`` and ``uniform_filter``), the tests' reference: on a 640 x 480 sequence of 9
+frames it costs about 200 ms.
+
+Two statistics of the whole field enter the maps (the mean variance of the reference, each frame's median
+variance), so every pixel's variances are known before any pixel's result. Rather than write 2 K + 1 maps of them
+for a second pass, the device brackets each frame's median from a sample of the field first, decides every
+(pixel, frame) whose variance is clear of the bracketed threshold in the one pass that makes them, and keeps the
+few that are not, with the variances near the median (whose exact median it then selects); the host reads back
+only the two maps (see ``kernels/consistency.cl``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pyopencl as cl
+import pyopencl.array as cla
 from scipy import ndimage
 
 from specgpu.engine import kernels
-from specgpu.engine.runtime import get_kernel, get_queue
+from specgpu.engine.gradients import apply_scale, frames_on_device, launch_gradients
+from specgpu.engine.runtime import get_kernel, get_queue, kernel_variant
 
-__all__ = ["consistency_maps", "consistency_maps_numpy", "exact_median"]
+__all__ = ["consistency_maps", "consistency_from_frames", "consistency_maps_numpy", "exact_median"]
 
-#: Work-items per group along a row (each 8 pixels); a group is one row's stretch
-_GROUP = 16
-#: Rows of the strip each work-item of the column sums runs down
-_ROWS = 16
+#: Output vectors (8 pixels each) a work-item of the check covers along a row on a CPU device, and the rows of its
+#: strip (the first WINDOW - 1 rows of a strip only fill its column sums)
+_V = 8
+_ROWS = 64
+#: The most private memory a work-item's ring of row sums takes on a CPU device (it and the column sums stay in the
+#: core's caches; PoCL keeps them on a thread's stack)
+_RING_BYTES = 72 * 1024
+#: The sample that brackets each frame's median: this many strips of this many rows, spread over the field
+_SAMPLE_STRIPS = 8
+_SAMPLE_ROWS = 8
+#: The bracket: the sample's values this share of its count either side of its middle. Strips are no random sample
+#: (a scene's texture varies over the field): on the moving twin's natural scene the median of 8 strips of 8 rows
+#: lay up to 1.7 % of the field's count from the field's. A median outside the bracket costs a second pass.
+_BRACKET = 0.04
 
 
 def _maps(motion, K: int, spatial: tuple) -> np.ndarray:
@@ -100,14 +119,182 @@ def consistency_maps_numpy(gradients, motion, *, window: int = 9, texture: float
     return textured, worst
 
 
+def _layout(queue, K: int, window: int) -> tuple[int, int, int]:
+    """(vectors per work-item along a row, rows of its strip, work-items per group of the selections) for the
+    queue's device: on a CPU device wide, tall strips (a row's samples and medians are made for the work-item's
+    columns and HALF more each side, a strip's first WINDOW - 1 rows only fill the column sums), as wide as keeps
+    the ring of row sums (WINDOW rows of 3 K + 2 sums of V vectors) within :data:`_RING_BYTES`, and one work-item a
+    selection; on a GPU many small strips (work-items to fill it) and a group counting with local atomics."""
+    if kernel_variant(queue.device) == "gpu":
+        return 1, 16, 64
+    return max(1, min(_V, _RING_BYTES // (window * (3 * K + 2) * 32))), _ROWS, 1
+
+
+def _motion_rows(maps: np.ndarray, translate: bool, width: int) -> np.ndarray:
+    """(K, 6) float32 rows of the motion as kernels/consistency.cl reads them: with ``translate`` each frame's
+    whole and fractional pixels (ix, iy, fx, fy, 0, 0) (the fraction made in float64, so every lane shares it;
+    translations beyond the field held at its size plus one, which samples the same clamped edge), else the 2 x 3
+    maps."""
+    K = len(maps)
+    if not translate:
+        return np.ascontiguousarray(maps.reshape(K, 6), np.float32)
+    d = maps[:, :, 2]
+    whole = np.floor(d)
+    part = (d - whole).astype(np.float32)
+    carry = part >= np.float32(1.0)  # a fraction just below 1 rounds to 1 in float32: the next whole pixel
+    whole[carry] += 1.0
+    part[carry] = 0.0
+    far = np.abs(whole) > width + 1
+    whole = np.clip(whole, -(width + 1), width + 1)
+    part[far] = 0.0
+    rows = np.zeros((K, 6), np.float32)
+    rows[:, 0:2], rows[:, 2:4] = whole, part
+    return rows
+
+
+def _check(queue, grads: cla.Array, maps: np.ndarray, scale, *, window: int, texture: float,
+           own: float) -> tuple[np.ndarray, np.ndarray]:
+    """The check on the device of K gradient images ``grads`` (a (K, H, W) float32 device array; ``scale``: a (K,)
+    device array its samples are multiplied by, or None) under finite ``maps`` (``_maps``), odd ``window``."""
+    K, h, w = grads.shape
+    flow = maps.ndim == 4
+    V, rows, group = _layout(queue, K, window)
+    stride = -(-w // (8 * V)) * 8 * V
+    translate = not flow and bool(np.all(maps[:, :, :2] == np.eye(2)))
+    macros = dict(K=K, WINDOW=window, V=V, ROWS=rows, STRIDE=stride, TRANSLATE=translate, FLOW=True if flow else None,
+                  SCALED=scale is not None, SAMPLE_ROWS=_SAMPLE_ROWS, SELECT_GROUP=group)
+    dims = (np.uint32(w), np.uint32(h))
+    # a new one every sequence: not cached; a flow is read per pixel, the maps then unused
+    motion = _upload(queue, np.zeros(6 * K) if flow else _motion_rows(maps, translate, w))
+    flow_dev = _upload(queue, maps) if flow else None
+    columns, strips = stride // (8 * V), -(-h // rows)
+    nw = columns * strips
+    cap = rows * 8 * V
+
+    def kernel(name):
+        return get_kernel(queue, "consistency.cl", name, **macros)
+
+    # the sample: whole strips of SAMPLE_ROWS rows spread over the field (every row of a small one)
+    full = h // _SAMPLE_ROWS
+    if full <= _SAMPLE_STRIPS:
+        step, offset, taken, sample_rows = 1, 0, -(-h // _SAMPLE_ROWS), h
+    else:
+        step = full // _SAMPLE_STRIPS
+        offset, taken = step // 2, _SAMPLE_STRIPS
+        sample_rows = taken * _SAMPLE_ROWS
+    sample = kernels._empty(queue, K * stride * sample_rows, np.float32)
+    kernels.launch_range(queue, kernel("consistency_sample"), (columns, taken), (1, 1), grads.data,
+                         kernels._data(scale), motion.data, kernels._data(flow_dev), sample.data, np.uint32(step),
+                         np.uint32(offset), np.uint32(sample_rows), *dims)
+    count = sample_rows * -(-w // 4)  # the bracket reads every fourth column of the sample
+    # the sample's va_k are made in strips of other heights than the field's (their column sums rounded otherwise):
+    # a margin of ranks even where the sample is the whole field
+    spread = int(np.ceil(_BRACKET * count)) + 8
+    bracket = kernels._empty(queue, 4 * K, np.uint32)
+    kernels.launch_range(queue, kernel("consistency_bracket"), (K * group,), (group,), sample.data,
+                         np.uint32(sample_rows), np.uint32(spread), np.float32(own), bracket.data, np.uint32(w))
+
+    worst = kernels._empty(queue, stride * h, np.float32)
+    vr_map = kernels._empty(queue, stride * h, np.float32)
+    textured = kernels._empty(queue, stride * h, np.uint8)
+    vr_sums = kernels._empty(queue, 8 * nw, np.float32)
+    below, kept_count, open_count = (kernels._empty(queue, K * nw, np.uint32) for _ in range(3))
+    kept, open_va, open_ncc = (kernels._empty(queue, K * nw * cap, np.float32) for _ in range(3))
+    open_at = kernels._empty(queue, K * nw * cap, np.uint32)
+    thresholds = kernels._empty(queue, K + 1, np.float32)
+    status = kernels._empty(queue, K, np.uint32)
+
+    def settle(bracket_buffer):
+        kernels.launch_range(queue, kernel("consistency_strips"), (columns, strips), (1, 1), grads.data,
+                             kernels._data(scale), motion.data, kernels._data(flow_dev), bracket_buffer, worst.data,
+                             vr_map.data, vr_sums.data, below.data, kept_count.data, kept.data, open_count.data,
+                             open_at.data, open_va.data, open_ncc.data, *dims)
+        kernels.launch_range(queue, kernel("consistency_median"), ((K + 1) * group,), (group,), below.data,
+                             kept_count.data, kept.data, vr_sums.data, np.uint32(nw), np.float32(own),
+                             np.float32(texture), thresholds.data, status.data, *dims)
+        kernels.launch_range(queue, kernel("consistency_settle"), (nw,), (1,), open_count.data, open_at.data,
+                             open_va.data, open_ncc.data, thresholds.data, vr_map.data, worst.data, textured.data,
+                             np.uint32(nw), np.uint32(columns), np.uint32(h))
+        out_worst, out_textured = np.empty((h, w), np.float32), np.empty((h, w), np.uint8)
+        missed = np.empty(K, np.uint32)
+        for host, dev, size in ((out_worst, worst, 4), (out_textured, textured, 1)):
+            cl.enqueue_copy(queue, host, dev.data, buffer_origin=(0, 0), host_origin=(0, 0), region=(w * size, h),
+                            buffer_pitches=(stride * size,), host_pitches=(w * size,), is_blocking=False)
+        cl.enqueue_copy(queue, missed, status.data, is_blocking=True)
+        return out_textured.view(bool), out_worst, missed
+
+    textured_out, worst_out, missed = settle(bracket.data)
+    if missed.any():  # the sample misled: every value kept and every frame undecided, the medians exact again
+        everything = np.tile(np.array([0, 0xFFFFFFFF, np.float32(-np.inf).view(np.uint32),
+                                       np.float32(np.inf).view(np.uint32)], np.uint32), K)
+        textured_out, worst_out, missed = settle(_upload(queue, everything).data)
+    return textured_out, worst_out
+
+
+def _upload(queue, a) -> cla.Array:
+    """``a`` (float32, or as it is if uint32) in a new device array, written without waiting (to_device waits for
+    the queue, the check's passes before included)."""
+    host = np.ascontiguousarray(a, np.uint32 if np.asarray(a).dtype == np.uint32 else np.float32).reshape(-1)
+    dev = kernels._empty(queue, host.size, host.dtype)
+    cl.enqueue_copy(queue, dev.data, host, is_blocking=False)  # the event holds the host array until it is copied
+    return dev
+
+
+def _gradients_on_device(queue, gradients) -> cla.Array:
+    """The gradient images as a (K, H, W) float32 device array: a device array as it is, NumPy uploaded (an array in
+    one write from the start, which a simulator such as Oclgrind tracks; a list each image straight into its
+    place, no stacked copy on the host)."""
+    if isinstance(gradients, cla.Array):
+        if gradients.ndim != 3 or gradients.dtype != np.float32 or not gradients.flags.c_contiguous:
+            raise ValueError(f"gradients on the device must be a C-contiguous (K, H, W) float32 array, got "
+                             f"{gradients.shape} {gradients.dtype}")
+        return kernels.to_device(queue, gradients)
+    planes = [np.ascontiguousarray(p, np.float32) for p in gradients] if isinstance(gradients, (list, tuple)) \
+        else np.ascontiguousarray(gradients, np.float32)
+    K, (h, w) = len(planes), np.shape(planes[0])
+    grads = kernels._empty(queue, K * h * w, np.float32)
+    if isinstance(planes, np.ndarray):
+        cl.enqueue_copy(queue, grads.data, planes, is_blocking=False)
+    else:
+        for k, p in enumerate(planes):
+            cl.enqueue_copy(queue, grads.data, p, dst_offset=k * p.nbytes, is_blocking=False)
+    return grads.reshape(K, h, w)
+
+
+def _shape_of(gradients) -> tuple:
+    """(K, H, W) of the gradient images, refused in one line unless K images of one 2-D shape."""
+    if isinstance(gradients, cla.Array):
+        shape = tuple(gradients.shape)
+        if len(shape) != 3:
+            raise ValueError(f"gradients must be (K, H, W), got shape {shape}")
+        return shape
+    shapes = {np.shape(p) for p in gradients} if isinstance(gradients, (list, tuple)) else None
+    if shapes is not None:
+        if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+            raise ValueError(f"gradients must be (K, H, W), got images of shapes {sorted(shapes)}")
+        return (len(gradients), *next(iter(shapes)))
+    shape = np.shape(gradients)
+    if len(shape) != 3:
+        raise ValueError(f"gradients must be (K, H, W), got shape {shape}")
+    return shape
+
+
+def _window(window) -> int:
+    window = int(window)
+    if window < 1:
+        raise ValueError(f"window must be >= 1, got {window}")
+    return window
+
+
 def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5, own: float = 4.0,
                      device=None) -> tuple[np.ndarray, np.ndarray]:
     """The consistency check's two maps of K gradient images under each frame's motion.
 
     Parameters
     ----------
-    gradients : array_like, (K, H, W), or a sequence of K (H, W) arrays
-        Each frame's gradient image (float32).
+    gradients : array_like, (K, H, W), a sequence of K (H, W) arrays, or a pyopencl.array.Array
+        Each frame's gradient image (float32); on the device already (as
+        :func:`specgpu.engine.gradients.gradient_images` gives them), they are read there.
     motion : array_like, (K, 2), (K, 2, 3) or (K, 2, H, W)
         Where frame k saw each pixel: x + d_k, M_k (x, y, 1), or x + flow_k(x).
     window : int
@@ -116,63 +303,66 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
         ``textured``: the reference's local variance above ``texture`` times its mean over the field; a frame's
         correlation counts where its local variance is above ``own`` times its median over the field.
     device : optional
-        OpenCL device selector or queue.
+        OpenCL device selector or queue (default: the queue of device gradients).
 
     Returns
     -------
     textured : (H, W) bool
     worst : (H, W) float32
         The lowest correlation of a frame with structure of its own against the reference; 1 where none has.
-        On the device with an odd ``window``; on the host (the same computation in SciPy) for an even window.
+        On the device with an odd ``window`` and finite motion (kernels/consistency.cl); on the host (the same
+        computation in SciPy, :func:`consistency_maps_numpy`) otherwise.
     """
-    planes = [np.ascontiguousarray(p, np.float32) for p in gradients] if isinstance(gradients, (list, tuple)) \
-        else np.ascontiguousarray(gradients, np.float32)
-    shapes = {np.shape(p) for p in planes}
-    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
-        raise ValueError(f"gradients must be (K, H, W), got shape {np.shape(gradients)}")
-    K, (h, w) = len(planes), next(iter(shapes))
+    K, h, w = _shape_of(gradients)
     maps = _maps(motion, K, (h, w))
-    window = int(window)
-    if window < 1:
-        raise ValueError(f"window must be >= 1, got {window}")
+    window = _window(window)
     if window % 2 == 0 or not np.all(np.isfinite(maps)):
-        return consistency_maps_numpy(planes, maps, window=window, texture=texture, own=own)
-    flow = maps.ndim == 4
-    queue = get_queue(device)
-    stride = -(-w // 8) * 8
-    half = window // 2
-    padded = -(-(stride + 2 * half) // 8) * 8  # as kernels/consistency.cl: a whole number of 8-pixel vectors
-    translate = not flow and bool(np.all(maps[:, :, :2] == np.eye(2)))
-    macros = dict(K=K, WINDOW=window, STRIDE=stride, TRANSLATE=translate, ROWS=_ROWS, FLOW=True if flow else None)
-    dims = (np.uint32(w), np.uint32(h))
-    plane = stride * h
-    grads = kernels._empty(queue, K * h * w, np.float32)
-    if isinstance(planes, np.ndarray):  # one write from the start (a simulator such as Oclgrind tracks those)
-        cl.enqueue_copy(queue, grads.data, planes, is_blocking=False)
+        host = gradients.get() if isinstance(gradients, cla.Array) else gradients
+        return consistency_maps_numpy(host, maps, window=window, texture=texture, own=own)
+    queue = get_queue(device, like=[gradients])
+    return _check(queue, _gradients_on_device(queue, gradients), maps, None, window=window, texture=texture, own=own)
+
+
+def consistency_from_frames(frames, motion, dark=None, gain=None, *, window: int = 9, texture: float = 0.5,
+                            own: float = 4.0, return_gradients: bool = False, shape=None, dtype=None, device=None):
+    """The consistency check of a sequence from its raw frames, on the device: each frame's gradient image
+    (:func:`specgpu.engine.gradients.gradient_images`, never leaving the device) and :func:`consistency_maps`.
+
+    Parameters
+    ----------
+    frames : array_like (K, H, W), pyopencl.array.Array or pyopencl.Buffer
+        Raw frames (uint8, uint16 or float32); a Buffer with ``shape`` and ``dtype``.
+    motion : array_like, (K, 2), (K, 2, 3) or (K, 2, H, W)
+        As :func:`consistency_maps`; finite.
+    dark : array_like, (H, W) or (K, H, W), optional
+    gain : array_like, (H, W), optional
+        As :func:`specgpu.pipeline.moving.gradient_image` takes them (a NaN gain reads 0).
+    window, texture, own
+        As :func:`consistency_maps` (an even window is checked on the host, from the images read back).
+    return_gradients : bool
+        Also return the gradient images, a (K, H, W) float32 device array (``.get()``: NumPy), for the callers that
+        read them again (the object layers, the flow).
+    device : optional
+        OpenCL device selector or queue.
+
+    Returns
+    -------
+    (textured, worst) or (textured, worst, gradients)
+        As :func:`consistency_maps`; the check's samples of each frame are its unscaled gradient magnitude times
+        the frame's 1 / mean (one pass fewer), equal to the check of the gradient images to float32 rounding.
+    """
+    queue = get_queue(device, like=[frames, dark, gain])
+    frames_dev = frames_on_device(queue, frames, shape=shape, dtype=dtype)
+    K, h, w = frames_dev.shape
+    maps = _maps(motion, K, (h, w))
+    if not np.all(np.isfinite(maps)):
+        raise ValueError("motion must be finite")
+    window = _window(window)
+    images, scale = launch_gradients(queue, frames_dev, dark, gain)
+    if return_gradients or window % 2 == 0:
+        images, scale = apply_scale(queue, images, scale), None
+    if window % 2 == 0:
+        maps_out = consistency_maps_numpy(images.get(), maps, window=window, texture=texture, own=own)
     else:
-        for k, p in enumerate(planes):  # each image straight into its place (no stacked copy on the host)
-            cl.enqueue_copy(queue, grads.data, p, dst_offset=k * p.nbytes, is_blocking=False)
-    # a new one every sequence: not cached; a flow is read per pixel, the maps then unused
-    motion_dev = kernels.to_device(queue, np.zeros(6 * K) if flow else maps.reshape(-1), np.float32)
-    flow_dev = kernels.to_device(queue, maps.reshape(-1), np.float32) if flow else None
-    aligned = kernels._empty(queue, (K + 1) * padded * h, np.float32)
-    rows = kernels._empty(queue, (3 * K + 2) * plane, np.float32)
-    stats = kernels._empty(queue, (2 * K + 2) * plane, np.float32)
-
-    def launch(name, columns, *args, strips=False):
-        kernel = get_kernel(queue, "consistency.cl", name, **macros)
-        kernels.launch_range(queue, kernel, (-(-columns // 8), -(-h // _ROWS) if strips else h), (_GROUP, 1), *args,
-                             *dims)
-
-    launch("consistency_align", padded, grads.data, motion_dev.data, kernels._data(flow_dev), aligned.data)
-    launch("consistency_rows", stride, aligned.data, rows.data)
-    launch("consistency_cols", stride, rows.data, stats.data, strips=True)
-    va = stats[:K * plane].get().reshape(K, h, stride)[:, :, :w]
-    vr = stats[2 * K * plane:(2 * K + 1) * plane].get().reshape(h, stride)[:, :w]
-    own_k = np.array([own * exact_median(v) for v in va], np.float32)
-    worst = kernels._empty(queue, plane, np.float32)
-    textured = kernels._empty(queue, plane, np.uint8)
-    launch("consistency_worst", stride, stats.data, kernels.to_device(queue, own_k).data,
-           np.float32(texture * float(np.mean(vr))), worst.data, textured.data)
-    return (textured.get().reshape(h, stride)[:, :w].astype(bool),
-            np.ascontiguousarray(worst.get().reshape(h, stride)[:, :w]))
+        maps_out = _check(queue, images, maps, scale, window=window, texture=texture, own=own)
+    return (*maps_out, images) if return_gradients else maps_out

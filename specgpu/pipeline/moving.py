@@ -37,7 +37,8 @@ from skimage.registration import phase_cross_correlation
 from threadpoolctl import ThreadpoolController
 
 from specgpu.core.validate import validate_method
-from specgpu.engine.consistency import consistency_maps
+from specgpu.engine.consistency import consistency_from_frames, consistency_maps
+from specgpu.engine.gradients import gradient_images
 from specgpu.io.npz import write_cube_npz
 from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_peak_within, half_spectrum_energy,
                                            hann_window, peak_error, second_peak_ratio, sobel_magnitude,
@@ -418,12 +419,41 @@ def at_reference_time(values: np.ndarray) -> np.ndarray:
 def frame_gradients(frames, dark=None, gain=None, gradients=None, which=None) -> list:
     """Each frame's :func:`gradient_image` (``dark``: (H, W) or one per frame), taking those already made
     (``gradients``: a sequence with None where one is to be made, or None); ``which``: only those frames, None for
-    the others."""
+    the others. The ones to make are made together on the default OpenCL device
+    (:func:`specgpu.engine.gradients.gradient_images`, equal to the host's to float32 rounding, a tenth of its
+    time); on the host where the device cannot take the inputs as they are (an integer type other than uint8 or
+    uint16, a dark frame or flat field that is not finite)."""
     dark = None if dark is None else np.asarray(dark, np.float32)
     wanted = range(len(frames)) if which is None else {int(k) for k in which}
-    return [None if k not in wanted else gradients[k] if gradients is not None and gradients[k] is not None else
-            gradient_image(frames[k], None if dark is None else (dark[k] if dark.ndim == 3 else dark), gain)
-            for k in range(len(frames))]
+    out = [gradients[k] if gradients is not None and k in wanted else None for k in range(len(frames))]
+    made = [k for k in range(len(frames)) if k in wanted and out[k] is None]
+    if not made:
+        return out
+
+    def dark_of(k):
+        return None if dark is None else (dark[k] if dark.ndim == 3 else dark)
+
+    stack = np.asarray([frames[k] for k in made])
+    if _device_takes(stack, dark, gain):
+        per_frame = None if dark is None else (dark[made] if dark.ndim == 3 else dark)
+        for k, image in zip(made, gradient_images(stack, per_frame, gain).get()):
+            out[k] = image
+    else:
+        for k in made:
+            out[k] = gradient_image(frames[k], dark_of(k), gain)
+    return out
+
+
+def _device_takes(frames: np.ndarray, dark, gain) -> bool:
+    """Whether :func:`specgpu.engine.gradients.gradient_images` takes these inputs as :func:`gradient_image` does:
+    uint8, uint16 or float frames (float64 is made float32 by both), a finite dark frame, a flat field with no
+    infinity (a NaN reads 0 in both). (The device refuses the others, the host computes on.)"""
+    if frames.ndim != 3 or frames.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        return False
+    if frames.dtype == np.float64 and np.abs(frames[np.isfinite(frames)]).max(initial=0.0) > np.finfo(np.float32).max:
+        return False
+    return (dark is None or bool(np.isfinite(dark).all())) and (
+        gain is None or not bool(np.isinf(np.asarray(gain, np.float32)).any()))
 
 
 def _fill_in_time(values: np.ndarray, usable: np.ndarray) -> np.ndarray:
@@ -548,9 +578,14 @@ def consistency(frames, shifts, dark=None, gain=None, *, window: int = 9, textur
     compensated gradient image has structure there) and ``worst`` (float32: the lowest normalised
     cross-correlation of a frame with structure of its own against that median; 1 where none has). Two
     hypotheses of a pixel's motion are compared by their ``worst``. The per-pixel work runs on the default OpenCL
-    device (:func:`specgpu.engine.consistency.consistency_maps`)."""
-    g = frame_gradients(np.asarray(frames), dark, gain, gradients)
-    # on the device (kernels/consistency.cl)
+    device (:func:`specgpu.engine.consistency.consistency_maps`); where no gradient image is given, they are made
+    there too and never read back (:func:`specgpu.engine.consistency.consistency_from_frames`)."""
+    frames = np.asarray(frames)
+    none_given = gradients is None or all(g is None for g in gradients)
+    if none_given and np.all(np.isfinite(np.asarray(shifts, np.float64))) and _device_takes(
+            frames, None if dark is None else np.asarray(dark, np.float32), gain):
+        return consistency_from_frames(frames, shifts, dark, gain, window=window, texture=texture, own=own)
+    g = frame_gradients(frames, dark, gain, gradients)
     return consistency_maps(g, shifts, window=window, texture=texture, own=own)
 
 

@@ -1,14 +1,20 @@
-"""kernels/consistency.cl through consistency_maps against a float64 NumPy / SciPy reference, on every device."""
+"""kernels/consistency.cl through consistency_maps and consistency_from_frames against a float64 NumPy / SciPy
+reference, on every device."""
 
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from specgpu.engine.consistency import consistency_maps, consistency_maps_numpy, exact_median
+from specgpu.engine import consistency as check
+from specgpu.engine import kernels
+from specgpu.engine.consistency import consistency_from_frames, consistency_maps, consistency_maps_numpy, exact_median
+from specgpu.pipeline.moving import gradient_image
 
 
 def reference(gradients, maps, window=9, texture=0.5, own=4.0):
@@ -54,9 +60,10 @@ def motions(rng, K, kind):
     return maps
 
 
-def assert_matches(textured, worst, ref):
+def assert_matches(textured, worst, ref, thorough=True):
     """``textured`` equal and ``worst`` within float32 rounding of the reference, except at pixels whose variance
-    lies within 1e-4 (relative) of a threshold (float32 sums put them either side)."""
+    lies within 1e-4 (relative) of a threshold (float32 sums put them either side); ``thorough``: the case has
+    pixels of every kind (consistent, inconsistent, textured or not)."""
     vr, level, va, thresholds, ncc = ref
     near_texture = np.abs(vr - level) <= 1e-4 * level
     np.testing.assert_array_equal(textured[~near_texture], (vr > level)[~near_texture])
@@ -68,7 +75,8 @@ def assert_matches(textured, worst, ref):
     assert conditioned.mean() > 0.9 and (~near_own).mean() > 0.99
     assert np.abs(worst - want)[conditioned].max() < 2e-3
     assert worst.dtype == np.float32 and textured.dtype == bool
-    assert (want < 0.3).any() and (want > 0.9).any() and textured.any() and not textured.all()
+    if thorough:
+        assert (want < 0.3).any() and (want > 0.9).any() and textured.any() and not textured.all()
 
 
 @pytest.mark.parametrize("K", [5, 6])
@@ -145,8 +153,134 @@ def test_bad_arguments_are_refused():
         consistency_maps(g, np.zeros((2, 2)))
     with pytest.raises(ValueError, match="gradients must be"):
         consistency_maps(g[0], np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="gradients must be"):
+        consistency_maps([g[0], g[1, :5]], np.zeros((2, 2)))
     with pytest.raises(ValueError, match="window must be"):
         consistency_maps(g, np.zeros((3, 2)), window=0)
+    frames = np.ones((3, 10, 12), np.uint16)
+    with pytest.raises(ValueError, match=r"motion must be \(3, 2\)"):
+        consistency_from_frames(frames, np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="motion must be finite"):
+        consistency_from_frames(frames, np.array([[0.0, 0.0], [np.nan, 1.0], [0.0, 0.0]]))
+    with pytest.raises(ValueError, match="frames must be"):
+        consistency_from_frames(frames[0], np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="dark has shape"):
+        consistency_from_frames(frames, np.zeros((3, 2)), dark=np.zeros((10, 13), np.float32))
+
+
+def strips_launched(monkeypatch) -> list:
+    """The names of the consistency kernels launched from now on, in order."""
+    names = []
+    launch = kernels.launch_range
+
+    def counting(queue, kernel, *args):
+        names.append(kernel.function_name)
+        return launch(queue, kernel, *args)
+
+    monkeypatch.setattr(kernels, "launch_range", counting)
+    return names
+
+
+def test_gradients_on_the_device_are_read_where_they_are(queue, monkeypatch):
+    """A device array is checked in place: the same maps as from NumPy, bit for bit (the same kernels), and the
+    field's medians found from the sample's bracket in one pass of the strips."""
+    rng = np.random.default_rng(11)
+    g = gradient_like(rng, 6, 150, 130)  # sampled in strips (not the whole field)
+    g[2, 40:90, 30:80] = rng.uniform(0, 3, (50, 50))
+    maps = motions(rng, 6, "translation")
+    launched = strips_launched(monkeypatch)
+    on_host = consistency_maps(g, maps, device=queue)
+    on_device = consistency_maps(cla.to_device(queue, g), maps)
+    np.testing.assert_array_equal(on_device[0], on_host[0])
+    np.testing.assert_array_equal(on_device[1], on_host[1])
+    assert launched.count("consistency_strips") == 2  # once per call: no sample misled
+    assert_matches(*on_host, reference(g, maps))
+
+
+def test_a_misleading_sample_still_gives_the_exact_medians(queue, monkeypatch):
+    """Where the sample's strips are not like the field (here the only rows with texture), the field's median of
+    some frame's variance is not within the sample's bracket: the strips run again with every value kept, and the
+    maps are the exact check's."""
+    rng = np.random.default_rng(12)
+    K, h, w = 5, 160, 72
+    g = rng.uniform(0.0, 0.01, (K, h, w)).astype(np.float32)
+    full = h // check._SAMPLE_ROWS
+    step = full // check._SAMPLE_STRIPS
+    for i in range(check._SAMPLE_STRIPS):  # the sampled strips get all the texture
+        y0 = (step // 2 + i * step) * check._SAMPLE_ROWS
+        g[:, y0:y0 + check._SAMPLE_ROWS] += np.abs(rng.normal(0, 1, (K, check._SAMPLE_ROWS, w))).astype(np.float32)
+    g[1, 30:60, 10:40] = rng.uniform(0, 3, (30, 30))
+    maps = motions(rng, K, "translation")
+    launched = strips_launched(monkeypatch)
+    got = consistency_maps(g, maps, device=queue)
+    assert launched.count("consistency_strips") == 2
+    assert_matches(*got, reference(g, maps), thorough=False)
+
+
+@pytest.mark.parametrize("K, window, shape", [(1, 9, (30, 40)), (2, 9, (30, 40)), (16, 9, (70, 90)),
+                                              (9, 15, (50, 70)), (9, 3, (50, 70)), (5, 9, (5, 3))])
+def test_frame_counts_windows_and_tiny_fields(queue, K, window, shape):
+    rng = np.random.default_rng(K * 100 + window)
+    g = gradient_like(rng, K, *shape)
+    maps = motions(rng, K, "translation")
+    textured, worst = consistency_maps(g, maps, window=window, device=queue)
+    vr, level, va, thresholds, ncc = reference(g, maps, window)
+    np.testing.assert_array_equal(textured, vr > level)
+    want = np.where(va > thresholds[:, None, None], ncc, 1.0).min(axis=0)
+    assert np.abs(worst - want).max() < 2e-3
+
+
+@pytest.mark.parametrize("kind", ["translation", "affine", "flow"])
+def test_the_check_from_frames_is_the_check_of_their_gradient_images(queue, kind):
+    """consistency_from_frames (the gradient images made on the device and never read back; the check's samples
+    scaled by each frame's 1 / mean) against the float64 check of the host's gradient_image."""
+    rng = np.random.default_rng({"translation": 21, "affine": 22, "flow": 23}[kind])
+    K, h, w = 5, 61, 75
+    scene = np.abs(ndimage.gaussian_filter(rng.normal(0, 1, (h + 16, w + 16)), 1.5)) * 3000
+    frames = np.stack([scene[8 + dy:8 + dy + h, 8 + dx:8 + dx + w] * rng.uniform(0.5, 1.5) + 200
+                       + rng.normal(0, 5, (h, w)) for dy, dx in rng.integers(-3, 4, (K, 2))])
+    frames[2, 20:40, 25:55] = rng.uniform(200, 6000, (20, 30))
+    frames = frames.astype(np.uint16)
+    dark = rng.uniform(150, 250, (h, w)).astype(np.float32)
+    gain = rng.uniform(0.9, 1.1, (h, w)).astype(np.float32)
+    gain[10, 10] = np.nan
+    if kind == "flow":
+        yy, xx = np.mgrid[0:h, 0:w]
+        motion = np.stack([np.stack([rng.uniform(-3, 3) + 0.02 * xx, rng.uniform(-3, 3) + 0.01 * yy])
+                           for _ in range(K)])
+    else:
+        motion = motions(rng, K, kind)
+    grads = np.stack([gradient_image(f, dark, gain) for f in frames])
+    ref = flow_reference(grads, motion) if kind == "flow" else reference(grads, motion)
+    textured, worst, images = consistency_from_frames(frames, motion, dark, gain, return_gradients=True,
+                                                      device=queue)
+    assert_matches(textured, worst, ref)
+    np.testing.assert_allclose(images.get(), grads, rtol=2e-6, atol=2e-6 * float(grads.max()))
+    # with the images scaled on the device first (return_gradients): the same maps as without, to rounding
+    again = consistency_from_frames(frames, motion, dark, gain, device=queue)
+    assert_matches(*again, ref)
+
+
+def test_frames_on_the_device_and_an_even_window(queue):
+    rng = np.random.default_rng(24)
+    frames = (rng.uniform(0, 1000, (5, 40, 44)) + 2000 * (np.arange(44) % 7 < 2)).astype(np.float32)
+    frames[1, 10:30, 5:25] = rng.uniform(0, 9000, (20, 20))  # an occluder: some pixels disagree
+    motion = rng.uniform(-2, 2, (5, 2))
+    grads = np.stack([gradient_image(f) for f in frames])
+    buffer = cl.Buffer(queue.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=frames)
+    got = consistency_from_frames(buffer, motion, shape=frames.shape, dtype=np.float32, device=queue)
+    assert_matches(*got, reference(grads, motion_maps(motion)), thorough=False)
+    assert (got[1] < 0.3).any() and got[0].any()
+    even = consistency_from_frames(cla.to_device(queue, frames), motion, window=8)
+    want = consistency_maps_numpy(grads, motion, window=8)
+    np.testing.assert_array_equal(even[0], want[0])
+    np.testing.assert_allclose(even[1], want[1], atol=1e-4)
+
+
+def motion_maps(shifts):
+    maps = np.tile(np.eye(2, 3), (len(shifts), 1, 1))
+    maps[:, :, 2] = shifts
+    return maps
 
 
 @settings(max_examples=40, deadline=None)

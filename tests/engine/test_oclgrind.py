@@ -117,28 +117,34 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     as one array, uploaded in one write: see the offset-write test below) on 99 pixels (two work-groups, the second
     partial), and the map's translations on 21 x 35 pixels as well, which its two passes run along strips of rows,
     and as the stream prepares them (output groups interleaved and planar, frames read from a larger buffer, float
-    frames with NaN and inf, a dead pixel) on 21 x 35 and 5 x 270 pixels: no Oclgrind report, and every output
-    within its tolerance."""
+    frames with NaN and inf, a dead pixel) on 21 x 35 and 5 x 270 pixels; the check with a 9-pixel window on
+    21 x 35 pixels, with a sample that misleads its bracket (the strips run twice), and from raw frames (the
+    gradient images made on the device, the samples scaled); the gradient images alone with a dead pixel and a dark
+    frame per frame: no Oclgrind report, and every output within its tolerance."""
     proc, reports = run_worker(oclgrind_env, "cases", variant)
     assert proc.returncode == 0, f"the worker ended with {proc.returncode}:\n{proc.stderr[-4000:]}"
     cases, programs = results(proc)
     failures = case_failures(proc, cases, reports)
     assert not failures, "\n".join(failures)
-    assert len(cases) == 26, sorted(cases)
+    assert len(cases) == 31, sorted(cases)
 
     # the variant's own code paths were built (the variant comes from SPECGPU_VARIANT in the worker); the motion
-    # kernels' programs (the warp's OUT_INTERLEAVED per pixel or GROUPS for translations, the check's WINDOW) have
-    # one set of entries for every device, the translations a work shape per variant
+    # kernels' programs (the warp's OUT_INTERLEAVED per pixel or GROUPS for translations, the check's WINDOW, the
+    # gradient images' GROWS) have one set of entries for every device, the translations a work shape per variant,
+    # the check's strips and selections one per variant
     warp = [p for p in programs if "-DOUT_INTERLEAVED=" in p or "-DGROUPS=" in p]
     steps = "-DXSTEPS=1 " if variant == "gpu" else "-DXSTEPS=16 "
     assert all(steps in p + " " for p in warp if "-DGROUPS=" in p)
     check = [p for p in programs if "-DWINDOW=" in p]
+    gradient = [p for p in programs if "-DGROWS=" in p]
     linear = [p for p in programs if "-DB=" in p and p not in warp]
     if variant == "gpu":
-        assert all("-DVW=1" in p for p in programs if p not in warp + check)
+        assert all("-DVW=1" in p for p in programs if p not in warp + check + gradient)
         assert any("-DTILE=1" in p for p in linear) and any("-DTILE=0" in p for p in linear)
+        assert all("-DSELECT_GROUP=64" in p and "-DV=1 " in p for p in check)  # small strips, atomic counts
     else:
         assert not any("-DVW=1" in p for p in programs)
+        assert all("-DSELECT_GROUP=1" in p for p in check)
         assert any("-DOUT_HALF=1" in p and "-DOUT_LAYOUT=0" in p for p in linear)  # linear_apply_h16
     assert any("-DOUT_SQRT=1" in p for p in linear)
     for method in (76, 94, 2000):
@@ -149,6 +155,9 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     assert any("-DFLOW=1" in p for p in warp)
     assert any("-DTRANSLATE=1" in p for p in check) and any("-DFLOW=1" in p for p in check)
     assert any("-DTRANSLATE=0" in p and "-DFLOW" not in p for p in check)
+    assert any("-DWINDOW=9" in p for p in check) and any("-DSCALED=1" in p for p in check)
+    assert any("-DHAS_DARK=2" in p and "-DIN_T=float" in p for p in gradient)
+    assert any("-DHAS_GAIN=1" in p and "-DIN_T=ushort" in p for p in gradient)
 
 
 def case_failures(proc, cases, reports) -> list[str]:

@@ -63,8 +63,9 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
     assert "colorimetry.cl ['delta_e', 'delta_e_sigma', 'frames_to_delta_e', 'xyz_to_lab']" in result.stdout
     assert "guided.cl ['box_h', 'box_v', 'gf_apply', 'gf_coeffs', 'gf_products']" in result.stdout
     assert "warp.cl ['linear_warp', 'linear_warp_translate']" in result.stdout
-    assert ("consistency.cl ['consistency_align', 'consistency_cols', 'consistency_rows', 'consistency_worst']"
-            in result.stdout)
+    assert ("consistency.cl ['consistency_bracket', 'consistency_median', 'consistency_sample', 'consistency_settle', "
+            "'consistency_strips']" in result.stdout)
+    assert "gradient.cl ['gradient_apply', 'gradient_scale', 'gradient_sobel']" in result.stdout
     assert "PASS" in result.stdout
 
 
