@@ -78,7 +78,8 @@ void linear_apply(__global const IN_T *restrict frames,
     const uint lid = get_local_id(0);
     const ulong base = get_global_id(0);
     const ulong first = base - lid;
-    if (first >= n) return; /* the whole group is past the end: no work-item of it reaches the barrier */
+    /* no return before the barrier, not even a whole group's past the end: PoCL 3.0's work-group loops
+     * (POCL_WORK_GROUP_METHOD=loopvec, its default on CPUs) crash on a kernel that returns before a barrier */
     if (base < n) {
         const uint count = 1;
         LOAD_PIXELS();
@@ -99,7 +100,7 @@ void linear_apply(__global const IN_T *restrict frames,
 #endif
     }
     barrier(CLK_LOCAL_MEM_FENCE);
-    const uint pixels = n - first < GROUP ? (uint)(n - first) : GROUP;
+    const uint pixels = first >= n ? 0 : (n - first < GROUP ? (uint)(n - first) : GROUP);
     const uint total = pixels * B;
     __global OUT_T *dst = out + first * B;
     for (uint j = lid; j < total; j += GROUP) {
