@@ -28,12 +28,16 @@ CHECK = textwrap.dedent(
     sources = sorted(p.name for p in kdir.glob("*.cl"))
     assert sources == sys.argv[2].split(","), sources  # every kernel file of the repository, no other
     queue = runtime.get_queue()
-    # every kernel of every file, with the colour-difference family switched on; the warped decoder for 16-bit frames
-    macros = {"guided.cl": {}, "warp.cl": dict(K=3, B=2, IN_T="ushort", HAS_DARK=0, HAS_GAIN=0, IS_FLOAT_IN=0)}
+    # every kernel of every file, with the colour-difference family switched on; the warped decoders for 16-bit
+    # frames: the per-pixel one, and the translation's (built where output groups are given)
+    warp = dict(K=3, B=2, IN_T="ushort", HAS_DARK=0, HAS_GAIN=0, IS_FLOAT_IN=0)
+    macros = {"guided.cl": [{}], "warp.cl": [warp, dict(warp, GROUPS=1, G0_ROWS=2, G0_IL=1)]}
     for name in sources:
-        options = runtime.build_options(**macros.get(name, dict(DE_METHOD=2000, K=3, B=2)))
-        program = runtime.get_program(queue.context, name, options)
-        print(name, sorted(k.function_name for k in program.program.all_kernels()))
+        found = set()
+        for m in macros.get(name, [dict(DE_METHOD=2000, K=3, B=2)]):
+            program = runtime.get_program(queue.context, name, runtime.build_options(**m))
+            found.update(k.function_name for k in program.program.all_kernels())
+        print(name, sorted(found))
     assert selftest.golden_path().resolve().is_relative_to(site)
     report = selftest.run_selftest()
     print(report.format())
@@ -62,7 +66,7 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
     assert "linear.cl ['linear_apply']" in result.stdout
     assert "colorimetry.cl ['delta_e', 'delta_e_sigma', 'frames_to_delta_e', 'xyz_to_lab']" in result.stdout
     assert "guided.cl ['box_h', 'box_v', 'gf_apply', 'gf_coeffs', 'gf_products']" in result.stdout
-    assert "warp.cl ['linear_warp', 'linear_warp_translate']" in result.stdout
+    assert "warp.cl ['linear_warp', 'linear_warp_translate', 'warp_correct']" in result.stdout
     assert ("consistency.cl ['consistency_bracket', 'consistency_median', 'consistency_sample', 'consistency_settle', "
             "'consistency_strips']" in result.stdout)
     assert "gradient.cl ['gradient_apply', 'gradient_scale', 'gradient_sobel']" in result.stdout
