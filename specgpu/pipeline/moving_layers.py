@@ -435,7 +435,9 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         gradients = est.gradients
         shifts = est.shifts
     elif shifts is None:
-        est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model)
+        # every frame's gradient image made at once on the device: the estimate registers them, the check reads them
+        est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model,
+                                     gradients=frame_gradients(frames, dark, gain))
         gradients = est.gradients
         shifts = est.shifts
     lap("estimate")
