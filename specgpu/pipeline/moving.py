@@ -82,6 +82,14 @@ AMBIGUOUS_PEAK = 0.3
 #: the speeds the object layers separate (:data:`specgpu.pipeline.moving_layers.MAX_LAYER_SPEED_PX`).
 MAX_SPEED_PX_PER_FRAME = 16.0
 
+#: Where a pair's best peak within reach of :data:`MAX_SPEED_PX_PER_FRAME` is below this share of the surface's
+#: highest, which lies beyond reach, the scene moves faster than that: the sequence is estimated again over the
+#: whole surface. A faster motion leaves only noise within reach (on the moving twin at 20 and 30 px per frame its
+#: best peak there is 0.1-0.3 of the true one), which no later step would catch: the warp would take it, and the
+#: consistency check judges textured pixels only. A repeating scene's peak a period off is about as high as the
+#: true one, so it stays out of reach.
+BEYOND_REACH = 0.5
+
 
 @dataclass(frozen=True)
 class MotionEstimate:
@@ -338,6 +346,8 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         # the displacements the motion can have reached between the two frames (binned px)
         within = None if max_speed is None else int(np.ceil(max_speed * abs(b - a) / binning)) + radius
         d, top = fit_peak_within(surface, within)
+        if within is not None and top < BEYOND_REACH * float(surface.max()):
+            beyond.append((a, b))
         if reference_frame in (a, b):  # how clearly the whole image moves as one: the tiles' check needed?
             ambiguity[b if a == reference_frame else a] = second_peak_ratio(surface, d, radius, within)
         return d, peak_error(top, energy(a), energy(b), surface.size)
@@ -349,7 +359,7 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     every = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:] if b - a <= max_gap]
     to_reference = [(min(reference_frame, int(k)), max(reference_frame, int(k))) for k in idx if k != reference_frame]
     links = every if pairs == "all" or (pairs == "auto" and not fit) else to_reference
-    rows, rhs, errs = [], [], {}
+    rows, rhs, errs, beyond = [], [], {}, []
 
     def more_links():  # "auto": every pair as well where a frame's correlation with the reference has a rival peak
         if pairs != "auto" or not fit or max(ambiguity.values(), default=0.0) <= ambiguous:
@@ -368,6 +378,11 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
             errs.setdefault(b, []).append(err)
 
     measure(links)
+    if beyond:  # a motion faster than the reach: looked for anywhere (BEYOND_REACH)
+        return estimate_global_motion(frames, dark, gain, reference_frame=reference_frame, upsample=upsample,
+                                      binning=binning, pairs=pairs, cutoff=cutoff, max_gap=max_gap, model=model,
+                                      tiles=tiles, robust=robust, peak=peak, ambiguous=ambiguous, max_speed=None,
+                                      gradients=kept_gradients())
     measure(more_links())  # after the reference pairs: their peaks say whether the others are needed
     raw = np.full((K, 2), np.nan)
     raw[reference_frame] = 0.0
