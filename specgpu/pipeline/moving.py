@@ -262,7 +262,8 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     max_speed : float or None
         With ``peak="fit"``: the fastest motion looked for, px per frame (:data:`MAX_SPEED_PX_PER_FRAME`): each
         pair's peak, and its rivals, are sought within that speed times the frames between them; None: anywhere
-        on the surface.
+        on the surface. Where some pair's best peak within reach is below :data:`BEYOND_REACH` of the surface's
+        highest, the scene moves faster: the sequence is estimated again with None.
     gradients : sequence, optional
         The frames' :func:`gradient_image` s already made (K entries, None where one is to be made here; e.g. on
         the device, :func:`frame_gradients`): registered as they are.
