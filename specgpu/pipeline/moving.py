@@ -82,13 +82,17 @@ AMBIGUOUS_PEAK = 0.3
 #: the speeds the object layers separate (:data:`specgpu.pipeline.moving_layers.MAX_LAYER_SPEED_PX`).
 MAX_SPEED_PX_PER_FRAME = 16.0
 
-#: Where a pair's best peak within reach of :data:`MAX_SPEED_PX_PER_FRAME` is below this share of the surface's
-#: highest, which lies beyond reach, the scene moves faster than that: the sequence is estimated again over the
-#: whole surface. A faster motion leaves only noise within reach (on the moving twin at 20 and 30 px per frame its
-#: best peak there is 0.1-0.3 of the true one), which no later step would catch: the warp would take it, and the
-#: consistency check judges textured pixels only. A repeating scene's peak a period off is about as high as the
-#: true one, so it stays out of reach.
-BEYOND_REACH = 0.5
+#: Where a reference pair's best peak within reach of :data:`MAX_SPEED_PX_PER_FRAME` is below this share of the
+#: surface's highest, which lies beyond reach, or sits on the edge of the reach below it, the scene moves faster
+#: than that: the sequence is estimated again over the whole surface. A faster motion leaves within reach only
+#: noise (on the moving twin at 18 to 30 px per frame, the pair furthest out of reach: 0.02-0.11 of the true peak) or the
+#: tail of the true peak on the edge (17 px per frame), which no later step would catch: the warp would take it,
+#: and the consistency check judges textured pixels only. Two peaks that are both real stay apart: a repeating
+#: scene's peak a period off (the true one is 0.9 of it or more), and an object moving faster than the reach over
+#: a still scene (a chart at 25 px per frame over the natural scene: the scene's peak is 0.44-0.73 of the
+#: chart's), whose motion is the object layers' to find, not the scene's. A false peak within reach that is not
+#: noise (a fixed pattern the flat field left, a still overlay) holds the estimate there all the same.
+BEYOND_REACH = 0.2
 
 
 @dataclass(frozen=True)
@@ -116,8 +120,9 @@ class MotionEstimate:
     error: np.ndarray
     reference_frame: int
     model: str = "translation"
-    #: The full-resolution gradient images (:func:`gradient_image`) registered, per frame (None for a frame not
-    #: registered); what :func:`inconsistent_pixels` reads again (None when the estimate registered binned images).
+    #: The full-resolution gradient images (:func:`gradient_image`) the estimate had, per frame: those it made (a
+    #: frame it registered) and those it was given (``gradients=``, which may hold every frame); None for a frame
+    #: it neither made nor was given. What :func:`inconsistent_pixels` reads again.
     gradients: tuple | None = field(default=None, repr=False, compare=False)
 
 
@@ -262,8 +267,9 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     max_speed : float or None
         With ``peak="fit"``: the fastest motion looked for, px per frame (:data:`MAX_SPEED_PX_PER_FRAME`): each
         pair's peak, and its rivals, are sought within that speed times the frames between them; None: anywhere
-        on the surface. Where some pair's best peak within reach is below :data:`BEYOND_REACH` of the surface's
-        highest, the scene moves faster: the sequence is estimated again with None.
+        on the surface. Where a pair of the first round (the reference pairs, or every pair with ``pairs="all"``)
+        has its best peak within reach below :data:`BEYOND_REACH` of the surface's highest, or on the edge of the
+        reach below it, the scene moves faster: the sequence is estimated again with None.
     gradients : sequence, optional
         The frames' :func:`gradient_image` s already made (K entries, None where one is to be made here; e.g. on
         the device, :func:`frame_gradients`): registered as they are.
@@ -347,8 +353,11 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         # the displacements the motion can have reached between the two frames (binned px)
         within = None if max_speed is None else int(np.ceil(max_speed * abs(b - a) / binning)) + radius
         d, top = fit_peak_within(surface, within)
-        if within is not None and top < BEYOND_REACH * float(surface.max()):
-            beyond.append((a, b))
+        if within is not None and (a, b) in first_round:
+            highest = float(surface.max())
+            on_edge = float(np.abs(d).max()) >= within - 1  # the tail of a peak just beyond reach
+            if top < BEYOND_REACH * highest or (on_edge and top < highest):
+                beyond.append((a, b))
         if reference_frame in (a, b):  # how clearly the whole image moves as one: the tiles' check needed?
             ambiguity[b if a == reference_frame else a] = second_peak_ratio(surface, d, radius, within)
         return d, peak_error(top, energy(a), energy(b), surface.size)
@@ -360,6 +369,7 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
     every = [(int(a), int(b)) for i, a in enumerate(idx) for b in idx[i + 1:] if b - a <= max_gap]
     to_reference = [(min(reference_frame, int(k)), max(reference_frame, int(k))) for k in idx if k != reference_frame]
     links = every if pairs == "all" or (pairs == "auto" and not fit) else to_reference
+    first_round = set(links)  # the pairs whose peaks say whether the motion is beyond reach
     rows, rhs, errs, beyond = [], [], {}, []
 
     def more_links():  # "auto": every pair as well where a frame's correlation with the reference has a rival peak
@@ -432,11 +442,11 @@ def at_reference_time(values: np.ndarray) -> np.ndarray:
     return 0.5 * (values[int(np.floor(mid))] + values[int(np.ceil(mid))])
 
 
-def frame_gradients(frames, dark=None, gain=None, gradients=None, which=None) -> list:
+def frame_gradients(frames, dark=None, gain=None, gradients=None, which=None, device=None) -> list:
     """Each frame's :func:`gradient_image` (``dark``: (H, W) or one per frame), taking those already made
     (``gradients``: a sequence with None where one is to be made, or None); ``which``: only those frames, None for
-    the others. The ones to make are made together on the default OpenCL device
-    (:func:`specgpu.engine.gradients.gradient_images`, equal to the host's to float32 rounding, a tenth of its
+    the others. The ones to make are made together on the OpenCL ``device`` (a selector or queue; default: the
+    default device; :func:`specgpu.engine.gradients.gradient_images`, equal to the host's to float32 rounding, a tenth of its
     time); on the host where the device cannot take the inputs as they are (an integer type other than uint8 or
     uint16, a dark frame or flat field that is not finite)."""
     dark = None if dark is None else np.asarray(dark, np.float32)
@@ -452,7 +462,7 @@ def frame_gradients(frames, dark=None, gain=None, gradients=None, which=None) ->
     stack = np.asarray([frames[k] for k in made])
     if _device_takes(stack, dark, gain):
         per_frame = None if dark is None else (dark[made] if dark.ndim == 3 else dark)
-        for k, image in zip(made, gradient_images(stack, per_frame, gain).get()):
+        for k, image in zip(made, gradient_images(stack, per_frame, gain, device=device).get()):
             out[k] = image
     else:
         for k in made:

@@ -263,7 +263,7 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
     regions = flagged_regions(flagged, min_share=min_share)
     if not regions:
         return []
-    gradients = frame_gradients(frames, dark, gain, estimate.gradients)
+    gradients = frame_gradients(frames, dark, gain, estimate.gradients, device=device)
     # the frames the object is registered in: the global estimate's; with reference frames every frame (they alone
     # are too few, two where M >= K, for a steady motion to be told from one frame's candidate peaks)
     usable = estimate.registered if read is None else np.ones(len(frames), bool)
@@ -437,7 +437,7 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     elif shifts is None:
         # every frame's gradient image made at once on the device: the estimate registers them, the check reads them
         est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model,
-                                     gradients=frame_gradients(frames, dark, gain))
+                                     gradients=frame_gradients(frames, dark, gain, device=device))
         gradients = est.gradients
         shifts = est.shifts
     lap("estimate")
@@ -448,7 +448,7 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     lap("warp")
     found = []
     if dense or (check and refs):  # every frame's gradient image made once (the check, the layers, the flow)
-        gradients = frame_gradients(frames, dark, gain, gradients)
+        gradients = frame_gradients(frames, dark, gain, gradients, device=device)
         est = None if est is None else replace(est, gradients=tuple(gradients))
     if check:
         maps = consistency(*_reading(read, frames, shifts), None if read else dark, gain,

@@ -13,6 +13,7 @@ from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.moving import (MASK_INCONSISTENT, MAX_SPEED_PX_PER_FRAME, MOTION_MODES, check_motion_mode, consistency, gradient_image,
                                      estimate_global_motion, frame_gradients, inconsistent_pixels)
+from specgpu.pipeline import moving
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.registration import fit_peak_within, second_peak_ratio
 from specgpu.pipeline.recovery import SequenceFolder, default_basis, recover
@@ -176,12 +177,12 @@ def test_a_still_chart_whose_patches_repeat_registers_at_zero(setup):
     assert np.abs(estimate_global_motion(frames, dark, gain, max_speed=60.0).shifts).max() <= 0.1
 
 
-@pytest.mark.parametrize("velocity", [(20.0, 3.0), (-30.0, 0.0)])
+@pytest.mark.parametrize("velocity", [(17.0, 0.0), (18.0, 5.0), (20.0, 3.0), (-30.0, 0.0)])
 def test_a_motion_faster_than_the_reach_is_looked_for_anywhere(setup, velocity):
-    """A scene moving faster than MAX_SPEED_PX_PER_FRAME leaves only noise within reach of the peak search; the
-    estimate sees its peaks there far below the surface's highest and searches the whole surface, so the shifts
-    are right (within the window they came out 48-60 px off, and the warp took them with a fraction of the field
-    flagged), and the compensated decoding is as good as a still one's."""
+    """A scene moving faster than MAX_SPEED_PX_PER_FRAME leaves within reach of the peak search only noise, or the
+    tail of the true peak on the edge of the reach (17 px a frame); the estimate sees that and searches the whole
+    surface, so the shifts are right (searched within reach only they came out 1.5 to 60 px off, and the warp took
+    them with a fraction of the field flagged), and the compensated decoding is as good as a still one's."""
     desc, bundle, plan, scene = setup
     assert max(abs(v) for v in velocity) > MAX_SPEED_PX_PER_FRAME
     frames, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=velocity))
@@ -196,6 +197,39 @@ def test_a_motion_faster_than_the_reach_is_looked_for_anywhere(setup, velocity):
     e_comp = float(np.sqrt(np.mean((res.y[seen] - truth["reflectance"][..., idx][seen]) ** 2)))
     assert seen.mean() > 0.4 and e_comp < 1.3 * e_still  # 30 px a frame leaves 0.44 of the field in every frame
     assert ((res.mask & MASK_INCONSISTENT) > 0).mean() < 0.1  # few false alarms: 0.8 % of the field at 20 px, 4.9 at 30
+
+
+def test_an_object_faster_than_the_reach_over_a_still_scene_leaves_the_scene_still(setup):
+    """A chart moving 25 px a frame over the still scene: its peak lies beyond reach and the scene's within, both
+    real (the scene's 0.44-0.73 of the chart's, above BEYOND_REACH), so the whole surface is not searched and the
+    scene's motion, none, is the estimate (searched everywhere, the chart's motion was taken, 98 px off)."""
+    desc, bundle, plan, scene = setup
+    frames, truth = frames_of(desc, plan, scene, MotionParameters(object="colorchecker",
+                                                                  object_velocity_px_per_frame=(25.0, 0.0)))
+    est = estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field)
+    np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.1)
+    assert np.abs(truth["displacement"]).max() == 0.0
+
+
+def test_a_motion_within_reach_is_estimated_once(setup, monkeypatch):
+    """A scene moving within reach never sends the estimate to the whole surface: one estimate, not two."""
+    desc, bundle, plan, scene = setup
+    frames, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(12.0, -4.0)))
+    calls = []
+    inner = moving.estimate_global_motion
+
+    def counted(*args, **kwargs):
+        calls.append(kwargs.get("max_speed", MAX_SPEED_PX_PER_FRAME))
+        return inner(*args, **kwargs)
+
+    monkeypatch.setattr(moving, "estimate_global_motion", counted)
+    est = moving.estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field)
+    np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.2)  # 36 px out: 0.10 off
+    assert calls == [MAX_SPEED_PX_PER_FRAME]
+    fast, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(20.0, 3.0)))
+    calls.clear()
+    moving.estimate_global_motion(fast, bundle.dark_at(plan.exposure_s), bundle.flat_field)
+    assert calls == [MAX_SPEED_PX_PER_FRAME, None]  # the counter sees the second search
 
 
 def _two_peaks(h=96, w=128, near=(3.3, -2.6), far=(-40.0, 21.0), far_height=1.5):
