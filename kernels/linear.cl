@@ -102,7 +102,7 @@ void linear_apply(__global const IN_T *restrict frames,
     barrier(CLK_LOCAL_MEM_FENCE);
     const uint pixels = first >= n ? 0 : (n - first < GROUP ? (uint)(n - first) : GROUP);
     const uint total = pixels * B;
-    __global OUT_T *dst = out + first * B;
+    __global OUT_T *dst = out + (pixels ? first * B : 0); /* a group past the end writes nothing */
     for (uint j = lid; j < total; j += GROUP) {
 #if OUT_HALF
         vstore_half_rte(tile[j], j, dst);

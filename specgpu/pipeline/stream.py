@@ -171,7 +171,8 @@ class Stream:
         :data:`MOTION_THREADS`: one for each decoding thread).
     result_buffers : int
         Sequences between upload and the end of the sinks (>= in_flight); the bound on result memory (with
-        ``motion``, at least the sequences in flight).
+        ``motion``, at least the sequences in flight: up to :data:`MOTION_THREADS`, 8 on a machine of 8 cores or
+        more, each holding a sequence's maps: 134 MB for 8 float32 outputs at 2048 x 2048).
     readback : {"auto", "map", "copy", "pinned"}
         Results read by mapping the device outputs (zero copy on CPU devices), copied into fresh host arrays, or
         copied by DMA into pinned host arrays (``ALLOC_HOST_PTR``, mapped once, one set per result buffer and
