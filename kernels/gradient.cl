@@ -4,8 +4,8 @@
  * f = (o - dark) * gain of a raw frame o (a NaN gain reads 0: a pixel with no response), its Sobel gradient
  * magnitude sqrt(gy^2 + gx^2) with the border mirrored by one pixel (the edge repeated: scipy.ndimage.sobel's
  * "reflect"), over the frame's mean of f:
- *   gradient_sobel  the magnitude of each frame (unscaled, K planes of H x W), each work-item 16 columns of a strip
- *                   of GROWS rows (each corrected row read once for the three output rows that use it), and its
+ *   gradient_sobel  the magnitude of each frame (unscaled, K planes of H x W); a work-item takes 16 columns of a
+ *                   strip of GROWS rows (each corrected row read once for the three output rows that use it), and its
  *                   compensated sum of f (Kahan, per lane, then over the lanes): (sum, carry) per work-item
  *   gradient_scale  per frame the mean from those sums (compensated again: the float64 mean to float32 rounding),
  *                   scale = 1 / mean where the mean is positive, else 1
