@@ -134,7 +134,7 @@ def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: 
     translate = (n and not flow and K <= MAX_TRANSLATE_FRAMES
                  and bool(np.all(d[:, [0, 1, 3, 4]] == np.array([1, 0, 0, 1], np.float32))))
     if translate:
-        # translations: the frames corrected once, then the warp of the corrected planes (PreparedWarp)
+        # translations: one pass of PreparedWarp, the raw frames corrected as they are read
         launch = PreparedWarp(queue, frames.dtype, A, (h, w), dark, gain, saturation=saturation,
                               outputs=[("y", B, "planar" if planar else "interleaved")])
         out = launch.enqueue(kernels.to_device(queue, frames.reshape(-1)), d[:, [2, 5]])
@@ -270,8 +270,6 @@ class PreparedWarp:
         self.alloc = get_allocator(queue)
         self._frame_of = cla.to_device(queue, np.asarray(read, np.uint32))
         self._motion = self.alloc(4 * 6 * K)
-        self._motion_host = np.zeros((K, 6), np.float32)
-        self._motion_host[:, 0] = self._motion_host[:, 4] = 1.0
         self._pending: list = []  # the shifts' non-blocking writes not yet known complete (their host copies)
         self._A = kernels.matrix_on_device(queue, A[:, read])
         self._dark, self._gain = dark_dev, gain_dev  # kept alive with the kernels that read them
@@ -316,17 +314,11 @@ class PreparedWarp:
         if frames.size < self._frames_bytes:
             raise ValueError(f"the frames buffer holds {frames.size} bytes, fewer than the {self.K_in} frames of "
                              f"{self.shape[0]} x {self.shape[1]} {self.frames_dtype} ({self._frames_bytes} bytes)")
-        try:
-            d = np.asarray(shifts, np.float64)
-        except (TypeError, ValueError):
-            raise TypeError(f"shifts must be a ({self.K_in}, 2) array of numbers, got "
-                            f"{type(shifts).__name__}") from None
-        if d.shape != (self.K_in, 2):
-            raise ValueError(f"shifts must have shape ({self.K_in}, 2) (dx, dy per frame), got {d.shape}")
-        if not np.all(np.isfinite(d)):
-            raise ValueError("shifts must be finite")
-        host = self._motion_host.copy()
-        host[:, [2, 5]] = d[self.read]
+        rows = check_shifts(shifts, self.K_in)  # (K_in, 6): the 2 x 3 maps the kernel reads
+        if not np.all(rows[:, [0, 1, 3, 4]] == np.array([1, 0, 0, 1], np.float32)):
+            raise ValueError(f"shifts must be translations, ({self.K_in}, 2) (dx, dy per frame): the prepared warp "
+                             "samples no affine map (apply_linear_warped does)")
+        host = np.ascontiguousarray(rows[self.read])
         self._pending = [e for e in self._pending
                          if e.command_execution_status != cl.command_execution_status.COMPLETE]
         self._pending.append(cl.enqueue_copy(self.queue, self._motion, host, is_blocking=False))
