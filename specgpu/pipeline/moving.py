@@ -85,13 +85,14 @@ MAX_SPEED_PX_PER_FRAME = 16.0
 #: Where a reference pair's best peak within reach of :data:`MAX_SPEED_PX_PER_FRAME` is below this share of the
 #: surface's highest, which lies beyond reach, or sits on the edge of the reach below it, the scene moves faster
 #: than that: the sequence is estimated again over the whole surface. A faster motion leaves within reach only
-#: noise (on the moving twin at 18 to 30 px per frame, the pair furthest out of reach: 0.02-0.11 of the true peak) or the
-#: tail of the true peak on the edge (17 px per frame), which no later step would catch: the warp would take it,
-#: and the consistency check judges textured pixels only. Two peaks that are both real stay apart: a repeating
-#: scene's peak a period off (the true one is 0.9 of it or more), and an object moving faster than the reach over
-#: a still scene (a chart at 25 px per frame over the natural scene: the scene's peak is 0.44-0.73 of the
-#: chart's), whose motion is the object layers' to find, not the scene's. A false peak within reach that is not
-#: noise (a fixed pattern the flat field left, a still overlay) holds the estimate there all the same.
+#: noise (on the moving twin at 18 to 30 px per frame, the pair furthest out of reach: 0.02-0.11 of the true
+#: peak) or the tail of the true peak on the edge (17 px per frame), which no later step would catch: the warp
+#: would take it, and the consistency check judges textured pixels only. Two peaks that are both real stay
+#: apart: a repeating scene's peak a period off (the true one is 0.9 of it or more), and an object moving faster
+#: than the reach over a still scene (a chart at 25 px per frame over the natural scene: the scene's peak is
+#: 0.44-0.73 of the chart's), whose motion is the object layers' to find, not the scene's. A false peak within
+#: reach that is not noise (a fixed pattern the flat field left, a still overlay) holds the estimate there all the
+#: same.
 BEYOND_REACH = 0.2
 
 
@@ -446,9 +447,9 @@ def frame_gradients(frames, dark=None, gain=None, gradients=None, which=None, de
     """Each frame's :func:`gradient_image` (``dark``: (H, W) or one per frame), taking those already made
     (``gradients``: a sequence with None where one is to be made, or None); ``which``: only those frames, None for
     the others. The ones to make are made together on the OpenCL ``device`` (a selector or queue; default: the
-    default device; :func:`specgpu.engine.gradients.gradient_images`, equal to the host's to float32 rounding, a tenth of its
-    time); on the host where the device cannot take the inputs as they are (an integer type other than uint8 or
-    uint16, a dark frame or flat field that is not finite)."""
+    default device; :func:`specgpu.engine.gradients.gradient_images`, equal to the host's to float32 rounding, a
+    tenth of its time); on the host where the device cannot take the inputs as they are (an integer type other
+    than uint8 or uint16, a dark frame or flat field that is not finite)."""
     dark = None if dark is None else np.asarray(dark, np.float32)
     wanted = range(len(frames)) if which is None else {int(k) for k in which}
     out = [gradients[k] if gradients is not None and k in wanted else None for k in range(len(frames))]
@@ -459,7 +460,8 @@ def frame_gradients(frames, dark=None, gain=None, gradients=None, which=None, de
     def dark_of(k):
         return None if dark is None else (dark[k] if dark.ndim == 3 else dark)
 
-    stack = np.asarray([frames[k] for k in made])
+    frames = np.asarray(frames)
+    stack = frames if len(made) == len(frames) else frames[made]  # every frame (the usual case): no copy
     if _device_takes(stack, dark, gain):
         per_frame = None if dark is None else (dark[made] if dark.ndim == 3 else dark)
         for k, image in zip(made, gradient_images(stack, per_frame, gain, device=device).get()):

@@ -11,8 +11,9 @@ from moving_helpers import frames_of, moving_setup
 
 from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
-from specgpu.pipeline.moving import (MASK_INCONSISTENT, MAX_SPEED_PX_PER_FRAME, MOTION_MODES, check_motion_mode, consistency, gradient_image,
-                                     estimate_global_motion, frame_gradients, inconsistent_pixels)
+from specgpu.pipeline.moving import (MASK_INCONSISTENT, MAX_SPEED_PX_PER_FRAME, MOTION_MODES, check_motion_mode,
+                                     consistency, estimate_global_motion, frame_gradients, gradient_image,
+                                     inconsistent_pixels)
 from specgpu.pipeline import moving
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.registration import fit_peak_within, second_peak_ratio
