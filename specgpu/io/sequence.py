@@ -29,7 +29,7 @@ from specgpu.io.paths import atomic_path, error_of, os_error, write_failed
 __all__ = [
     "SEQUENCE_FORMAT", "SEQUENCE_VERSION", "SEQUENCE_FILE", "JOURNAL_FILE", "JOURNAL_FORMAT",
     "validate_sequence_document", "write_sequence", "SequenceWriter", "read_sequence_header", "read_sequence",
-    "check_frame_files", "read_frames"
+    "check_frame_files", "read_frames", "capture_hash"
 ]
 
 # ---- frame sequences -----------------------------------------------------------------------------------------------
@@ -576,3 +576,20 @@ def read_frames(directory, records, meta, start: int, stop: int, *, verify: bool
     for j, i in enumerate(range(start, stop)):
         out[j] = _read_listed_frame(directory, i, records[i], shape, verify)
     return out
+
+
+def capture_hash(records) -> str:
+    """A capture's identity: SHA-256 over its frames' own SHA-256 digests, in capture order (``records`` from
+    :func:`read_sequence_header`). A copy of the folder keeps it; any other capture, or the same one recaptured
+    with other noise, has another. What a recovery records, so its scores can be checked against the right
+    truth.
+
+    Examples
+    --------
+    >>> capture_hash([{"sha256": "0" * 64}]) == capture_hash([{"sha256": "0" * 64}]) != capture_hash([])
+    True
+    """
+    digest = hashlib.sha256()
+    for rec in records:
+        digest.update(str(rec["sha256"]).encode("ascii"))
+    return digest.hexdigest()
