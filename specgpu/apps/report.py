@@ -12,6 +12,7 @@ units, the renderings, and each plan's illuminant sequence.
 from __future__ import annotations
 
 import html
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,11 +42,13 @@ from specgpu.pipeline.evaluate import (
     scene_XYZ,
     true_patch_spectra,
 )
+from specgpu.pipeline.motion_record import motion_notice, moved
+from specgpu.pipeline.moving import sequence_truth
 from specgpu.pipeline.recovery import read_capture, recover, uncertainty
 from specgpu.rig.scene import colorchecker_scene, load_scene
 
 __all__ = ["RENDER_ILLUMINANTS", "MethodSummary", "summarise_method", "report_page", "summary_table",
-           "find_captures", "report_folder"]
+           "find_captures", "capture_names", "recovered_capture", "report_folder", "REPORT_MOTION"]
 
 #: The illuminants every reflectance recovery (and the truth) is rendered under.
 RENDER_ILLUMINANTS = ("D65", "A")
@@ -304,20 +307,21 @@ def _illuminants_section(summaries, bundle) -> str:
             "by the calibrated model.</p>" + card_grid(cards, wide=True))
 
 
-def report_page(title: str, intro: str, summaries: dict, *, scene=None, bundle=None, tables: str = "",
+def report_page(title: str, intro, summaries: dict, *, scene=None, bundle=None, tables: str = "",
                 device=None, sections: str = "") -> str:
-    """The report as one HTML document: ``intro`` (HTML) and the summary on top, then ``tables`` (HTML; the
+    """The report as one HTML document: ``intro`` (HTML, or a callable returning it, called once every figure is
+    drawn, so that a run time it states counts them) and the summary on top, then ``tables`` (HTML; the
     per-method and per-patch tables are added), ``sections`` (HTML, each with its own heading), spectra, error
     and sigma maps, renderings and illuminants."""
-    summary = ("<div class='summary'>" + intro + "<ul>" + "".join(f"<li>{line}</li>" for line in
-                                                                 _summary_lines(summaries)) + "</ul>"
-               + summary_table(summaries) + "</div>")
     names = next((s.patch.names for s in summaries.values() if s.patch is not None), None)
     patch = patch_table_html(summaries, names) if names and not tables else ""
-    body = (f"<h1>{html.escape(title)}</h1>{summary}"
-            + (f"<h2>Tables</h2>{tables}{patch}" if tables or patch else "") + sections
-            + _spectra_section(summaries, scene) + _maps_section(summaries)
+    rest = (_spectra_section(summaries, scene) + _maps_section(summaries)
             + _renderings_section(summaries, scene, device) + _illuminants_section(summaries, bundle))
+    summary = ("<div class='summary'>" + (intro() if callable(intro) else intro) + "<ul>"
+               + "".join(f"<li>{line}</li>" for line in _summary_lines(summaries)) + "</ul>"
+               + summary_table(summaries) + "</div>")
+    body = (f"<h1>{html.escape(title)}</h1>{summary}"
+            + (f"<h2>Tables</h2>{tables}{patch}" if tables or patch else "") + sections + rest)
     return page(title, body)
 
 
@@ -358,31 +362,73 @@ def _truth_of(meta, height, width, truth):
         return None
 
 
-def report_folder(folder, *, out=None, truth=None, device=None) -> Path:
+def capture_names(plans: dict) -> dict:
+    """folder name -> the name a capture goes by in the report: its plan's method (``plans``: folder name -> plan),
+    with the folder's name beside it where two captures share a method."""
+    methods = [p.method for p in plans.values()]
+    return {name: p.method if methods.count(p.method) == 1 or name == p.method else f"{p.method} ({name})"
+            for name, p in plans.items()}
+
+
+#: The compensation the report decodes a capture that moved with (``specgpu recover --motion``'s mode).
+REPORT_MOTION = "global"
+
+
+def recovered_capture(seq, *, truth=None, device=None, say=None) -> tuple:
+    """One capture as the report shows it: ``(y, sigma, scene, note)``. A still capture is the mean of its
+    sequences (the white ROI its metadata records), scored against ``truth`` or the scene it records. A capture
+    that moved (:func:`specgpu.pipeline.motion_record.moved`) is its first sequence decoded with motion
+    compensation (``recover --motion global --sequence 0``), scored against that sequence's recorded motion truth
+    unless ``truth`` is given; ``note`` (HTML-free text, also passed to ``say``) says so, None for a still one."""
+    meta = seq.meta.get("metadata", {}) or {}
+    roi = meta.get("white_roi")
+    noisy = seq.plan.output == "reflectance" and "noise" in seq.plan.params
+    h, w = seq.frames.shape[-2:]
+    if not moved(seq):
+        y = recover(seq, device=device, white_roi=roi)
+        sigma = uncertainty(seq, device=device, white_roi=roi)[0] if noisy else None
+        return y, sigma, _truth_of(seq.meta, h, w, truth), None
+    y = recover(seq, sequence=0, device=device, motion=REPORT_MOTION)
+    sigma = uncertainty(seq, sequence=0, device=device)[0] if noisy else None
+    scene = load_scene(truth if truth is not None else sequence_truth(seq.path, 0), h, w)
+    against = "the truth given" if truth is not None else "its recorded motion truth"
+    note = motion_notice(seq, f"reported as `specgpu recover --motion {REPORT_MOTION} --sequence 0` decodes it "
+                              f"(sequence 0 of {seq.sequences}, motion-compensated), scored against {against}")
+    if say is not None:
+        say(note)
+    return y, sigma, scene, note
+
+
+def report_folder(folder, *, out=None, truth=None, device=None, say=None) -> Path:
     """Write the report of a run folder (one capture, or several: :func:`find_captures`) to ``out`` (default
-    ``FOLDER/report.html``): each capture recovered (the mean of its sequences, with the white ROI its metadata
-    records) and its sigma predicted, scored against ``truth`` (a scene name or file; default the scene the
-    capture records, when it can be rebuilt). Returns the path written."""
+    ``FOLDER/report.html``): each capture recovered (:func:`recovered_capture`: the mean of its sequences, or for
+    a capture that moved its first sequence motion-compensated) and its sigma predicted, scored against ``truth``
+    (a scene name or file; default the scene the capture records, when it can be rebuilt), named by its plan's
+    method (:func:`capture_names`). ``say`` gets the one line about each capture that moved. The page states the
+    whole job's run time, its figures included. Returns the path written."""
+    t_start = time.perf_counter()
     folder = Path(folder)
     captures = find_captures(folder)
     out = Path(out) if out is not None else folder / "report.html"
-    summaries, scene, bundle = {}, None, None
-    for name, path in captures.items():
-        seq = read_capture(path)
-        roi = (seq.meta.get("metadata", {}) or {}).get("white_roi")
-        y = recover(seq, device=device, white_roi=roi)
-        # the predicted sigma where the plan records the rig's noise model (planned with the rig)
-        noisy = seq.plan.output == "reflectance" and "noise" in seq.plan.params
-        sigma = uncertainty(seq, device=device, white_roi=roi)[0] if noisy else None
-        if scene is None:
-            scene = _truth_of(seq.meta, y.shape[0], y.shape[1], truth)
+    summaries, scene, bundle, notes = {}, None, None, []
+    seqs = {name: read_capture(path) for name, path in captures.items()}
+    names = capture_names({name: seq.plan for name, seq in seqs.items()})
+    for name, seq in seqs.items():
+        y, sigma, own, note = recovered_capture(seq, truth=truth, device=device, say=say)
+        notes += [note] if note else []
+        scene = scene if scene is not None else own
         bundle = bundle or seq.calibration
-        summaries[name] = summarise_method(name, seq.plan, y, scene, sigma=sigma, device=device)
+        summaries[names[name]] = summarise_method(names[name], seq.plan, y, own, sigma=sigma, device=device)
     first = next(iter(captures.values()))
-    intro = (f"<p>Run folder <code>{html.escape(str(folder))}</code>: {len(captures)} capture(s) of "
-             f"{html.escape(str(scene.name) if scene is not None else 'an unknown scene')}, each recovered on the "
-             f"OpenCL device from its frames (the mean of its sequences) with the calibration and plan stored in "
-             f"it (first: <code>{html.escape(str(first))}</code>).</p>")
+
+    def intro():  # made last, once every figure is drawn: the run time counts them
+        how = ("each recovered on the OpenCL device from its frames (the mean of its sequences, a capture that "
+               "moved as said below) with the calibration and plan stored in it")
+        return (f"<p>Run folder <code>{html.escape(str(folder))}</code>: {len(captures)} capture(s) of "
+                f"{html.escape(str(scene.name) if scene is not None else 'an unknown scene')}, {how} (first: "
+                f"<code>{html.escape(str(first))}</code>). Run time {time.perf_counter() - t_start:.1f} s, "
+                "figures included.</p>" + "".join(f"<p class='note'>{html.escape(n)}</p>" for n in notes))
+
     with io.atomic_path(out) as tmp:
         tmp.write_text(report_page(f"specgpu report: {folder.name}", intro, summaries, scene=scene, bundle=bundle,
                                    device=device))

@@ -23,5 +23,6 @@ def report(run_folder, out, truth, device):
     each capture recovered, scored against its truth, with tables, spectra, error maps and renderings."""
     lock(out or Path(run_folder) / "report.html")
     with Busy("reporting"):
-        path = report_folder(run_folder, out=out, truth=truth, device=device)
+        path = report_folder(run_folder, out=out, truth=truth, device=device,
+                             say=lambda line: click.echo(line, err=True))
     click.echo(f"wrote {path}")
