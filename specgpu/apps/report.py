@@ -32,7 +32,6 @@ from specgpu.apps.report_figures import (
     sRGB_rendering,
 )
 from specgpu.apps.report_html import Cell, card_grid, cell, figure_card, html_table, page
-from specgpu.apps.studies import mean_std
 from specgpu.engine.colorimetry import reflectance_to_XYZ
 from specgpu.pipeline.evaluate import (
     evaluate_pixels,
@@ -148,49 +147,6 @@ def patch_table_html(summaries, names) -> str:
     return "".join(out)
 
 
-def _pm_cell(values, digits) -> Cell:
-    if not values:
-        return Cell("-")
-    mu, sd = mean_std(values)
-    return cell(mu, digits, std=sd if len(values) > 1 else None)  # one draw: no spread to show
-
-
-#: Table 1's paper row per method (the paper's tristimulus imager has dE*ab only, Table 3).
-_PAPER_TRISTIMULUS = {"tristimulus-D65": "D65", "tristimulus-A": "A"}
-
-
-def table1_html(draws: dict, methods) -> str:
-    """Table 1 as HTML: for every profile mean +- std over the noise draws, the paper's row beneath ours; the
-    lowest mean of each error column marked (among our rows and the paper's)."""
-    columns = ["method", "profile", "RMSE patch", "ΔE*ab patch", "ΔE00 patch", "RMSE pixel", "ΔE00 pixel",
-               "frames", "RMS pixel", "expected RMSE", "measured / expected"]
-    rows, classes = [], []
-    for name in methods:
-        for label, runs in draws.items():
-            r = runs.get(name)
-            if r is None:
-                continue
-            exp = r.get("expected_rmse")
-            extra = [Cell("-")] * 3
-            if exp is not None and r.get("px_rms"):
-                extra = [_pm_cell(r["px_rms"], 4), Cell(f"{exp:.4f}"), Cell(f"{mean_std(r['px_rms'])[0] / exp:.2f}")]
-            rows.append([name, label, _pm_cell(r.get("rmse"), 4), _pm_cell(r.get("dEab"), 2),
-                         _pm_cell(r.get("dE00"), 2), _pm_cell(r.get("px_rmse"), 4), _pm_cell(r.get("px_dE00"), 2),
-                         str(r["K"]), *extra])
-            classes.append(None)
-        if name in paper.TABLE1:
-            p = paper.TABLE1[name]
-            rows.append([name, "paper", cell(p[0], 4), cell(p[2]), "-", "-", "-", str(p[4]), "-", "-", "-"])
-            classes.append("paper")
-        elif name in _PAPER_TRISTIMULUS:
-            p = paper.TABLE3_SUMMARY[_PAPER_TRISTIMULUS[name]]
-            rows.append([name, "paper", "-", cell(p[0]), "-", "-", "-", "3", "-", "-", "-"])
-            classes.append("paper")
-    return html_table(columns, rows, caption="Table 1: spectral reflectance recovery, 24 patches (ΔE under D65, "
-                      "400-700 nm); mean ± std over the noise draws; the paper's row in italics",
-                      best_columns=(2, 3, 4, 5, 6), row_classes=classes, text_columns=2)
-
-
 def table2_html(nb, sy) -> str:
     """Table 2 as HTML: per patch, narrowband (NB) and symmetric basis (SB), ours beside the paper's."""
     columns = ["#", "patch", "RMSE NB", "paper", "RMSE SB", "paper", "ΔE*ab NB", "paper", "ΔE*ab SB", "paper"]
@@ -300,9 +256,8 @@ def _renderings_section(summaries, scene, device) -> str:
 def _illuminants_section(summaries, bundle) -> str:
     if bundle is None:
         return ""
-    cards = [figure_card(figure_png(illuminant_figure(s.plan, bundle, title=f"{s.name}: {s.plan.K} illuminants "
-                                                      "(wide: targets; thin: emitted)")), f"{s.name} illuminants")
-             for s in summaries.values()]
+    cards = [figure_card(figure_png(illuminant_figure(s.plan, bundle, title=f"{s.name}: {s.plan.K} illuminants")),
+                         f"{s.name} illuminants: targets dashed, emitted solid") for s in summaries.values()]
     return ("<h2>Illuminant sequences</h2><p>Each plan's target spectra and what its quantized DMD patterns emit "
             "by the calibrated model.</p>" + card_grid(cards, wide=True))
 

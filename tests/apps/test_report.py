@@ -269,3 +269,22 @@ def test_a_lone_value_is_not_marked_lowest_and_a_spanning_cell_is_not_ranked():
     doc = parse(html_table(["m", "x", "y"], rows, best_columns=(1, 2)))
     assert [text for cls, text in doc.cells if "best" in cls] == ["0.50", "1.00"]
     assert ("td", {"class": "text", "colspan": "3"}) in doc.tags
+
+
+def test_illuminant_figure_tells_targets_from_emitted_by_style_and_legend():
+    from specgpu.apps.report_figures import illuminant_figure
+    from specgpu.calibration import oracle_calibration
+    from specgpu.planning import make_plan
+    from specgpu.rig import CameraParameters, RigDescription
+
+    bundle = oracle_calibration(RigDescription(camera=CameraParameters(roi_width=320, roi_height=240)))
+    plan = make_plan("narrowband", bundle, step_nm=50.0)
+    ax = illuminant_figure(plan, bundle).axes[0]
+    styles = [line.get_linestyle() for line in ax.get_lines()]
+    assert styles == ["--", "-"] * plan.K  # each illuminant: its target dashed, what it emits solid
+    targets, emitted = ax.get_lines()[0::2], ax.get_lines()[1::2]
+    assert all(t.get_color() == e.get_color() for t, e in zip(targets, emitted))
+    assert min(t.get_linewidth() for t in targets) > max(e.get_linewidth() for e in emitted)
+    legend = ax.get_legend()
+    assert [t.get_text() for t in legend.get_texts()] == ["target", "emitted by the quantized pattern"]
+    assert [h.get_linestyle() for h in legend.legend_handles] == ["--", "-"]
