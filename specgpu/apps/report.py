@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import html
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -257,7 +257,7 @@ def _illuminants_section(summaries, bundle) -> str:
     if bundle is None:
         return ""
     cards = [figure_card(figure_png(illuminant_figure(s.plan, bundle, title=f"{s.name}: {s.plan.K} illuminants")),
-                         f"{s.name} illuminants: targets dashed, emitted solid") for s in summaries.values()]
+                         f"{s.name} illuminants: targets wide and faint, emitted dashed") for s in summaries.values()]
     return ("<h2>Illuminant sequences</h2><p>Each plan's target spectra and what its quantized DMD patterns emit "
             "by the calibrated model.</p>" + card_grid(cards, wide=True))
 
@@ -347,6 +347,8 @@ def recovered_capture(seq, *, truth=None, device=None, say=None) -> tuple:
     sigma = uncertainty(seq, sequence=0, device=device)[0] if noisy else None
     scene = load_scene(truth if truth is not None else sequence_truth(seq.path, 0), h, w)
     against = "the truth given" if truth is not None else "its recorded motion truth"
+    if truth is None:  # named after the scene captured, not the truth file's name
+        scene = replace(scene, name=f"{meta.get('scene') or 'a scene'} moving (its truth at sequence 0)")
     note = motion_notice(seq, f"reported as `specgpu recover --motion {REPORT_MOTION} --sequence 0` decodes it "
                               f"(sequence 0 of {seq.sequences}, motion-compensated), scored against {against}")
     if say is not None:

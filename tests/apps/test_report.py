@@ -241,14 +241,18 @@ def moving_folder(tmp_path_factory):
 
 @pytest.mark.slow  # the report's motion-compensated decoding, then the same decoded again to check its score
 def test_report_of_a_moving_capture_compensates_and_scores_against_its_motion_truth(moving_folder, tmp_path):
-    from specgpu.apps.report import report_folder
     from specgpu.pipeline import evaluate_pixels, read_capture, recover
     from specgpu.rig.scene import load_scene
 
-    said = []
-    text = report_folder(moving_folder, out=tmp_path / "r.html", say=said.append).read_text()
-    line, = said
+    from click.testing import CliRunner
+
+    from specgpu.apps.cli import main
+
+    res = CliRunner().invoke(main, ["report", str(moving_folder), "--out", str(tmp_path / "r.html")])
+    assert res.exit_code == 0, res.output
+    line, = [line for line in res.output.splitlines() if "--motion" in line]
     assert "captured while the scene moved" in line and "--motion global --sequence 0" in line
+    text = (tmp_path / "r.html").read_text()
     assert "motion-compensated" in text and "motion truth" in text
     seq = read_capture(moving_folder)
     truth0 = load_scene(moving_folder / "motion_truth" / "sequence_0000.npz", 240, 320)
@@ -281,10 +285,11 @@ def test_illuminant_figure_tells_targets_from_emitted_by_style_and_legend():
     plan = make_plan("narrowband", bundle, step_nm=50.0)
     ax = illuminant_figure(plan, bundle).axes[0]
     styles = [line.get_linestyle() for line in ax.get_lines()]
-    assert styles == ["--", "-"] * plan.K  # each illuminant: its target dashed, what it emits solid
+    assert styles == ["-", "--"] * plan.K  # each illuminant: its target a faint band, what it emits dashed
     targets, emitted = ax.get_lines()[0::2], ax.get_lines()[1::2]
     assert all(t.get_color() == e.get_color() for t, e in zip(targets, emitted))
     assert min(t.get_linewidth() for t in targets) > max(e.get_linewidth() for e in emitted)
     legend = ax.get_legend()
-    assert [t.get_text() for t in legend.get_texts()] == ["target", "emitted by the quantized pattern"]
-    assert [h.get_linestyle() for h in legend.legend_handles] == ["--", "-"]
+    assert min(t.get_alpha() for t in targets) < 0.5 <= min(e.get_alpha() for e in emitted)
+    assert [t.get_text() for t in legend.get_texts()] == ["target", "emitted by its quantized pattern"]
+    assert [h.get_linestyle() for h in legend.legend_handles] == ["-", "--"]
