@@ -41,7 +41,7 @@ from specgpu.pipeline.evaluate import (
     scene_XYZ,
     true_patch_spectra,
 )
-from specgpu.pipeline.motion_record import motion_notice, moved
+from specgpu.pipeline.motion_record import motion_notice, moved, without_motion
 from specgpu.pipeline.moving import sequence_truth
 from specgpu.pipeline.recovery import read_capture, recover, uncertainty
 from specgpu.rig.scene import colorchecker_scene, load_scene
@@ -334,7 +334,8 @@ def recovered_capture(seq, *, truth=None, device=None, say=None) -> tuple:
     sequences (the white ROI its metadata records), scored against ``truth`` or the scene it records. A capture
     that moved (:func:`specgpu.pipeline.motion_record.moved`) is its first sequence decoded with motion
     compensation (``recover --motion global --sequence 0``), scored against that sequence's recorded motion truth
-    unless ``truth`` is given; ``note`` (HTML-free text, also passed to ``say``) says so, None for a still one."""
+    unless ``truth`` is given; ``note`` (HTML-free text, also passed to ``say``) says so, None for a still one.
+    One the compensation refuses (a white ROI, an ambient frame) is reported as a still one, its note saying why."""
     meta = seq.meta.get("metadata", {}) or {}
     roi = meta.get("white_roi")
     noisy = seq.plan.output == "reflectance" and "noise" in seq.plan.params
@@ -343,7 +344,15 @@ def recovered_capture(seq, *, truth=None, device=None, say=None) -> tuple:
         y = recover(seq, device=device, white_roi=roi)
         sigma = uncertainty(seq, device=device, white_roi=roi)[0] if noisy else None
         return y, sigma, _truth_of(seq.meta, h, w, truth), None
-    y = recover(seq, sequence=0, device=device, motion=REPORT_MOTION)
+    try:
+        y = recover(seq, sequence=0, device=device, motion=REPORT_MOTION)
+    except ValueError as why:  # a capture the compensation does not take yet (a white ROI, an ambient frame)
+        note = without_motion(seq, averaged=True) + f" (the report could not compensate it: {why})"
+        if say is not None:
+            say(note)
+        y = recover(seq, device=device, white_roi=roi)
+        sigma = uncertainty(seq, device=device, white_roi=roi)[0] if noisy else None
+        return y, sigma, _truth_of(seq.meta, h, w, truth), note
     sigma = uncertainty(seq, sequence=0, device=device)[0] if noisy else None
     scene = load_scene(truth if truth is not None else sequence_truth(seq.path, 0), h, w)
     against = "the truth given" if truth is not None else "its recorded motion truth"

@@ -293,3 +293,22 @@ def test_illuminant_figure_tells_targets_from_emitted_by_style_and_legend():
     assert min(t.get_alpha() for t in targets) < 0.5 <= min(e.get_alpha() for e in emitted)
     assert [t.get_text() for t in legend.get_texts()] == ["target", "emitted by its quantized pattern"]
     assert [h.get_linestyle() for h in legend.legend_handles] == ["-", "--"]
+
+
+def test_a_moving_capture_the_compensation_refuses_is_reported_as_still_with_the_reason(moving_folder, tmp_path,
+                                                                                      monkeypatch):
+    import specgpu.apps.report as report
+
+    real = report.recover
+
+    def refusing(folder, **kwargs):
+        if kwargs.get("motion", "none") != "none":
+            raise ValueError("motion=global does not combine with a reference white")
+        return real(folder, **kwargs)
+
+    monkeypatch.setattr(report, "recover", refusing)
+    said = []
+    text = report.report_folder(moving_folder, out=tmp_path / "r.html", say=said.append).read_text()
+    line, = said
+    assert "averaged" in line and "could not compensate it: motion=global does not combine" in line
+    assert "could not compensate" in text
