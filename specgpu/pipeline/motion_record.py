@@ -33,12 +33,18 @@ def _truth_files(directory: Path) -> dict:
     return {int(m.group(1)): p for p in folder.iterdir() if (m := _TRUTH_NAME.match(p.name)) and p.is_file()}
 
 
+def _rig_motion(source):
+    """The ``[motion]`` parameters of a rig description, or None for anything else (a sequence folder)."""
+    motion = getattr(source, "motion", None)
+    return motion if motion is not None and hasattr(motion, "any") else None
+
+
 def moved(source) -> bool:
     """Whether ``source`` moved while it was captured: a rig description (its ``[motion]`` table moves the twin's
     world), or a sequence folder (a path or a :class:`~specgpu.pipeline.recovery.SequenceFolder`: it keeps the
     motion truth of its sequences, which a capture on a moving twin records)."""
-    motion = getattr(source, "motion", None)
-    if motion is not None and hasattr(motion, "any"):
+    motion = _rig_motion(source)
+    if motion is not None:
         return bool(motion.any)
     return bool(_truth_files(Path(getattr(source, "path", source))))
 
@@ -50,7 +56,7 @@ def motion_notice(source, doing: str) -> str | None:
     on their own."""
     if not moved(source):
         return None
-    if getattr(source, "motion", None) is not None and hasattr(source.motion, "any"):
+    if _rig_motion(source) is not None:
         what = "the rig's [motion] table moves the scene during each sequence"
     else:
         what = (f"{Path(getattr(source, 'path', source))}: captured while the scene moved (its {TRUTH_FOLDER}/ "
@@ -64,7 +70,6 @@ def without_motion(source, *, averaged: bool) -> str | None:
     also = " and its sequences averaged" if averaged else ""
     return motion_notice(source, f"without --motion each sequence is decoded as if still{also}, blurring what "
                                  f"moved: give {_MODES}" + (" with --sequence N" if averaged else ""))
-
 
 
 def renumber_truth(directory, kept) -> None:
