@@ -8,7 +8,8 @@ aligns it with the cube. Sequence folders and recordings are read lazily (Dask, 
 sequence is read, and a sequence folder's recovered on the device, only when the time slider reaches it.
 
 Each layer's ``metadata["specgpu"]`` says what it holds (``role``: ``"spectrum"``, ``"sigma"``, ``"sRGB"``,
-``"dE"``, ...; ``wavelengths``; ``scene``: the truth the capture records), which the spectrum widget reads.
+``"dE"``, ...; ``wavelengths``; ``scene``: the truth the capture records, or ``truths``: one motion truth file per
+sequence of a capture that moved), which the spectrum widget reads.
 Nothing here imports Qt or napari: readers return napari's layer-data tuples ``(data, kwargs, layer_type)``.
 """
 
@@ -25,15 +26,19 @@ from specgpu.apps.report_figures import sRGB_rendering
 from specgpu.core.spectra import XYZ_weights
 from specgpu.io.previews import sRGB8
 from specgpu.io.sequence import read_frames
+from specgpu.pipeline.motion_record import motion_notice, moved
+from specgpu.pipeline.moving import TRUTH_FOLDER
 from specgpu.pipeline.recovery import SequenceFolder, read_capture_header, recover
 
 __all__ = ["CUBE_SUFFIXES", "napari_get_reader", "read_layers", "cube_layers", "map_layers", "sequence_layers",
-           "recording_layers", "sRGB_of_cube", "wavelength_axis", "ILLUMINANTS"]
+           "recording_layers", "sRGB_of_cube", "wavelength_axis", "ILLUMINANTS", "VIEW_MOTION", "motion_note"]
 
 CUBE_SUFFIXES = (".exr", ".npz", ".hdr")
 #: The illuminants a rendering can be chosen under (colour-science's CIE 1931 names with a chromaticity).
 ILLUMINANTS = tuple(name for name in colour.SDS_ILLUMINANTS
                     if name in colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"])
+#: The compensation a sequence folder captured while the scene moved is decoded with (recover's --motion mode).
+VIEW_MOTION = "global"
 #: Colour map and limits of each map kind: (colormap, (low, high) or None for the data's 1st-99th percentile).
 MAP_STYLE = {"dE": ("magma", (0.0, 10.0)), "dE_sigma": ("magma", None), "sigma": ("viridis", None),
              "sigma_rms": ("viridis", None)}
@@ -132,7 +137,10 @@ def map_layers(path) -> list:
 
 def sequence_layers(path, *, illuminant="D65") -> list:
     """Layers of a sequence folder, lazily: the raw frames (sequence, pattern, y, x) and, recovered on the device
-    when the slider reaches a sequence, the plan's outputs (wavelength, sequence, y, x) with their sRGB."""
+    when the slider reaches a sequence, the plan's outputs (wavelength, sequence, y, x) with their sRGB. A capture
+    that moved (:func:`specgpu.pipeline.motion_record.moved`) is decoded with motion compensation
+    (:data:`VIEW_MOTION`), and its spectrum layer records, instead of a still scene, the motion truth file of each
+    sequence (``truths``)."""
     import dask
     import dask.array as da
 
@@ -142,6 +150,10 @@ def sequence_layers(path, *, illuminant="D65") -> list:
     S = len(records) // K
     recorded = meta.get("metadata", {}) or {}
     roi = recorded.get("white_roi")
+    # a capture that moved: each sequence decoded motion-compensated, its truth the one recorded for it
+    moving = moved(path)
+    truths = [str(p) if p.is_file() else None for p in (path / TRUTH_FOLDER / f"sequence_{s:04d}.npz"
+                                                        for s in range(S))] if moving else None
 
     # the frames layer, the cube and its sRGB are computed apart by napari: each sequence is read and recovered
     # once, for the sequence shown and the one before it
@@ -152,7 +164,7 @@ def sequence_layers(path, *, illuminant="D65") -> list:
     @functools.lru_cache(maxsize=2)
     def recovered(s):
         one = SequenceFolder(path, frames_of(s)[None], plan, bundle, records, meta)
-        return recover(one, white_roi=roi)
+        return recover(one, motion=VIEW_MOTION) if moving else recover(one, white_roi=roi)
 
     B = len(plan.output_wavelengths)
     # pattern first, then sequence: the frames line up with the cube's (wavelength, sequence, y, x)
@@ -168,11 +180,21 @@ def sequence_layers(path, *, illuminant="D65") -> list:
             "translate": (translate, 0.0, 0.0, 0.0), "scale": (scale, 1.0, 1.0, 1.0),
             **_axes(("wavelength", "sequence", "y", "x"), translate, scale),
             "metadata": _meta("spectrum", path, wavelengths=[float(v) for v in plan.output_wavelengths],
-                              scene=recorded.get("scene"), axes=("wavelength", "sequence", "y", "x"))}, "image"))
+                              scene=None if moving else recorded.get("scene"), truths=truths,
+                              motion=VIEW_MOTION if moving else "none", axes=("wavelength", "sequence", "y", "x"))},
+            "image"))
         layers.insert(0, (sRGB_of_cube(y, plan.output_wavelengths, illuminant),
                           {"name": f"sRGB ({illuminant})", "rgb": True,
                            "metadata": _meta("sRGB", path, illuminant=illuminant)}, "image"))
     return layers
+
+
+def motion_note(path) -> str | None:
+    """The one line ``specgpu view`` says of a sequence folder captured while the scene moved (None otherwise):
+    what :func:`sequence_layers` shows of it."""
+    return motion_notice(path, f"shown as `specgpu recover --motion {VIEW_MOTION} --sequence N` decodes each "
+                               "sequence (motion-compensated), the spectrum widget's truth the motion truth recorded "
+                               "for the sequence shown") if Path(path).is_dir() else None
 
 
 def recording_layers(path, *, illuminant="D65") -> list:

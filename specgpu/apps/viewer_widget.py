@@ -57,10 +57,12 @@ class SpectrumProbe:
             data = data[t]
         return np.asarray(data, np.float32)
 
-    def truth(self, layer, shape):
-        """The true scene the data records (``metadata scene``), at the data's size; None when it has none or it
-        cannot be rebuilt."""
-        name = _role(layer) and layer.metadata["specgpu"].get("scene")
+    def truth(self, layer, shape, t=None):
+        """The true scene the data records at time step ``t`` (``metadata truths[t]``, a capture that moved, else
+        ``scene``), at the data's size; None when it has none or it cannot be rebuilt."""
+        meta = layer.metadata["specgpu"] if _role(layer) else {}
+        truths = meta.get("truths")
+        name = (truths[t] if t is not None and 0 <= t < len(truths) else None) if truths else meta.get("scene")
         if not name:
             return None
         key = (name, shape)
@@ -91,7 +93,7 @@ class SpectrumProbe:
         if sigma_layer is not None and sigma_layer.data.shape == layer.data.shape:
             data = sigma_layer.data if t is None else sigma_layer.data[:, t]
             sigma = np.asarray(data[:, y, x], np.float64)
-        scene = self.truth(layer, cube.shape[1:])
+        scene = self.truth(layer, cube.shape[1:], t)
         truth = (scene.wavelengths, scene.reflectance[y, x].astype(np.float64)) if scene is not None else None
         return {"wavelengths": wl, "values": cube[:, y, x].astype(np.float64), "sigma": sigma, "truth": truth,
                 "y": y, "x": x, "t": t}
@@ -115,7 +117,7 @@ class SpectrumProbe:
         out = {"wavelengths": np.asarray(layer.metadata["specgpu"]["wavelengths"], np.float64),
                "values": pixels.mean(axis=1), "std": pixels.std(axis=1), "pixels": int(ok.sum()), "truth": None,
                "dE": None}
-        scene = self.truth(layer, (h, w))
+        scene = self.truth(layer, (h, w), t)
         if scene is not None:
             out["truth"] = (scene.wavelengths, scene.reflectance[mask].astype(np.float64).mean(axis=0))
         de_layer = self.layer("dE")

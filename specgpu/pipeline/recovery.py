@@ -27,6 +27,7 @@ from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.pipeline.moving import check_motion_mode
+from specgpu.pipeline.motion_record import renumber_truth
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
 from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
@@ -204,7 +205,9 @@ def salvage_capture(directory) -> dict:
     """Make a capture folder left by a killed capture (no ``sequence.json``, its journal present) readable: index
     every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.journal.salvage_sequence`), keep
     the plan and calibration copies, remove the interrupted marker. Returns what was kept (``sequences``,
-    ``frames_kept``, ``frames_journaled``, ``left_out``: each sequence not kept and why, ``stopped``).
+    ``frames_kept``, ``frames_journaled``, ``left_out``: each sequence not kept and why, ``kept_sequences``,
+    ``stopped``). The motion truth of a capture on a moving twin is renumbered with the sequences
+    (:func:`specgpu.pipeline.motion_record.renumber_truth`).
 
     Verify first, commit last: the plan copy must be the plan the journal names and match the calibration copy
     before anything is written; the index written must read back as a sequence folder before the journal is
@@ -227,7 +230,12 @@ def salvage_capture(directory) -> dict:
         plan.check_calibration(bundle, name=f"{directory / PLAN_FILE}")
 
     check(io.journal_header(directory))  # before the frames are grouped in sequences of the plan's length
-    info = io.salvage_sequence(directory, plan.K, check=check, confirm=lambda: read_capture(directory))
+
+    def confirm():  # the index reads back; then a moving capture's truth follows its sequences' new numbers
+        salvaged = read_capture(directory).meta["metadata"]["salvaged"]
+        renumber_truth(directory, salvaged["kept_sequences"])
+
+    info = io.salvage_sequence(directory, plan.K, check=check, confirm=confirm)
     (directory / INCOMPLETE_MARKER).unlink(missing_ok=True)
     return info
 

@@ -196,3 +196,51 @@ def test_reader_hook_never_raises_on_any_path(text):
     """napari asks every plugin about every path: the hook answers None or a reader, never an exception."""
     got = napari_get_reader(text)
     assert got is None or callable(got)
+
+
+@pytest.fixture(scope="module")
+def moving_folder(tmp_path_factory):
+    from capture_helpers import write_moving_capture
+
+    return write_moving_capture(tmp_path_factory.mktemp("moving"), "seqm")
+
+
+def test_a_capture_that_moved_is_decoded_compensated_with_each_sequences_truth(moving_folder):
+    from specgpu.apps.viewer_layers import VIEW_MOTION, motion_note
+
+    layers = by_name(read_layers(moving_folder))
+    data, kw, _ = layers["reflectance"]
+    meta = kw["metadata"]["specgpu"]
+    assert meta["scene"] is None and meta["motion"] == VIEW_MOTION == "global"
+    assert meta["truths"] == [str(moving_folder / "motion_truth" / f"sequence_{s:04d}.npz") for s in range(2)]
+    cube = np.asarray(data[:, 1])
+    # compensated: the pixels some frame saw outside the field are NaN along the edges the scene moved from
+    edge = np.isnan(cube[0])
+    assert edge[:, :2].all() and 0 < edge.mean() < 0.2
+    note = motion_note(moving_folder)
+    assert "\n" not in note and "captured while the scene moved" in note and "--motion global" in note
+    assert motion_note(moving_folder / "plan.npz") is None
+
+
+def test_a_still_capture_keeps_its_scene_and_no_motion_note(tmp_path):
+    from specgpu.apps.viewer_layers import motion_note
+
+    folder = write_chart_capture(tmp_path, "seq", noise_seed=1)
+    meta = by_name(read_layers(folder))["reflectance"][1]["metadata"]["specgpu"]
+    assert meta["scene"] == "colorchecker" and meta["truths"] is None and meta["motion"] == "none"
+    assert motion_note(folder) is None
+
+
+def test_the_spectrum_probe_takes_the_truth_of_the_sequence_shown(tmp_path):
+    from types import SimpleNamespace
+
+    from specgpu.apps.viewer_widget import SpectrumProbe
+
+    wl = [500.0, 600.0]
+    paths = [io.write_cube(tmp_path / f"t{s}.npz", np.full((4, 6, 2), 0.1 + s / 4, np.float32), wl)
+             for s in range(2)]
+    layer = SimpleNamespace(metadata={"specgpu": {"role": "spectrum", "scene": None,
+                                                  "truths": [str(p) for p in paths]}})
+    probe = SpectrumProbe(viewer=None)
+    assert [float(probe.truth(layer, (4, 6), t).reflectance[1, 2, 0]) for t in (0, 1)] == pytest.approx([0.1, 0.35])
+    assert probe.truth(layer, (4, 6), None) is None

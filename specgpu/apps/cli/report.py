@@ -22,6 +22,9 @@ def report(run_folder, out, truth, device):
     """Write the HTML report of a run folder (a capture folder, or folders of captures as the demo writes them):
     each capture recovered, scored against its truth, with tables, spectra, error maps and renderings."""
     lock(out or Path(run_folder) / "report.html")
+    notes = []  # said once the progress line has gone
     with Busy("reporting"):
-        path = report_folder(run_folder, out=out, truth=truth, device=device)
+        path = report_folder(run_folder, out=out, truth=truth, device=device, say=notes.append)
+    for line in notes:
+        click.echo(line, err=True)
     click.echo(f"wrote {path}")

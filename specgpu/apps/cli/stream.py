@@ -33,6 +33,7 @@ from specgpu.pipeline.outputs import stream_metadata
 from specgpu.pipeline.recovery import check_scene_covers
 from specgpu.pipeline.decoder import STREAM_OUTPUTS
 from specgpu.pipeline.moving import MOTION_MODES
+from specgpu.pipeline.motion_record import without_motion
 from specgpu.pipeline.moving_decode import check_motion_options
 from specgpu.pipeline.stream import Stream
 from specgpu.rig.config import load_rig
@@ -57,6 +58,9 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
     white_roi, white_reflectance = white
     motion = check_motion_options(motion, plan, outputs=wanted, denoise=denoise,
                                   white_roi=white_roi)  # before any output: one line naming the option
+    notice = without_motion(description, averaged=False) if motion == "none" else None
+    if notice:
+        click.echo(f"Warning: {notice}", err=True)
     accumulator = (None if accumulate is None else  # refused before any output
                    AccumulateSink(accumulate, wanted, motion=motion != "none"))
     policy = policy or ("drop_newest" if pacing == "paced" else "block")
