@@ -551,6 +551,10 @@ def _resaved(files, tmp_path, name, **changes):
     ({"dark_rate_dn_per_s": None}, "dark_rate_dn_per_s must be a finite number"),
     ({"column_wavelengths": lambda c: np.where(np.arange(c.size) == 3, np.nan, c)}, "column_wavelengths"),
     ({"responsivity": lambda r: r.astype(np.complex128)}, "responsivity must hold real numbers"),
+    # all zero: every plan from it would divide by zero (an SVD that does not converge), so the file is refused
+    ({"responsivity": np.zeros_like}, "responsivity is zero at every wavelength"),
+    ({"column_power": np.zeros_like}, "column_power is zero at every column"),
+    ({"responsivity": lambda r: np.where(np.arange(r.size) == 7, np.inf, r)}, "responsivity must be (G="),
 ])
 def test_hand_made_calibration_with_bad_values_is_refused(files, tmp_path, change, message):
     path = _resaved(files, tmp_path, "calib.npz", **change)
