@@ -125,7 +125,8 @@ def budget_note(plan, sequence_ms) -> None:
 @click.option("--output-step-nm", type=Finite(min=0.1, max=300), default=10.0, show_default=True,
               help="Output wavelength spacing of basis methods (400-700 nm).")
 @click.option("--illuminant", default="D65", show_default=True, help="Tristimulus / camera simulator illuminant.")
-@click.option("--observer", default="CIE 1931 2 Degree Standard Observer", show_default=True)
+@click.option("--observer", default="CIE 1931 2 Degree Standard Observer", show_default=True,
+              help="Tristimulus: the colour-matching functions (colour-science name) whose XYZ the plan recovers.")
 @click.option("--camera", default="Nikon 5100 (NPL)", show_default=True, help="Camera simulator: sensitivities.")
 @click.option("--spectrum", default="D65", show_default=True,
               help="Steady-state: target illuminant name (colour-science) for spectral rendering.")
