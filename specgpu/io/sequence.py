@@ -49,6 +49,20 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
 
+def _roi_inside(roi, width: int, height: int) -> bool:
+    """Whether ``roi`` (``"X,Y,W,H"`` or four integers) is a region of at least one pixel inside the frame."""
+    parts = roi.split(",") if isinstance(roi, str) else roi
+    if not isinstance(parts, list) or len(parts) != 4:
+        return False
+    try:
+        x, y, w, h = (int(p.strip()) if isinstance(p, str) else p for p in parts)
+    except ValueError:
+        return False
+    if not all(_is_int(v) for v in (x, y, w, h)):
+        return False
+    return w >= 1 and h >= 1 and x >= 0 and y >= 0 and x + w <= width and y + h <= height
+
+
 def validate_sequence_document(doc, path="sequence.json") -> dict:
     """Check a parsed ``sequence.json`` and return it normalized (plain Python ints, floats and strings).
 
@@ -59,7 +73,8 @@ def validate_sequence_document(doc, path="sequence.json") -> dict:
          "frames": [{"file": "frame_000000.tif", "frame_id": int >= 0 (strictly increasing),
                      "pattern_index": int >= 0, "exposure_s": float > 0, "timestamp_s": finite float (s),
                      "bytes": int >= 0, "sha256": 64 hex digits}, ...]  (at least one; files unique plain names),
-         "n_frames": len(frames) (optional), "metadata": {...}  (optional JSON object)}
+         "n_frames": len(frames) (optional), "metadata": {...}  (optional JSON object; its "white_roi", the
+         reference white recover uses, "X,Y,W,H" inside the frame)}
 
     Extra keys in a frame record are kept (a newer writer's additions), so are unknown top-level keys.
 
@@ -97,6 +112,10 @@ def validate_sequence_document(doc, path="sequence.json") -> dict:
     metadata = doc.get("metadata", {})
     if not isinstance(metadata, dict):
         fail(f"metadata must be a JSON object, got {type(metadata).__name__}")
+    roi = metadata.get("white_roi")
+    if roi is not None and not _roi_inside(roi, dims["width"], dims["height"]):  # recover and the report use it
+        fail(f"metadata.white_roi must be X,Y,W,H in whole pixels inside the {dims['width']} x {dims['height']} "
+             f"frame, got {roi!r}")
     frames = doc.get("frames")
     if not isinstance(frames, list) or not frames:
         fail("frames must be a non-empty list")

@@ -53,7 +53,8 @@ def plan_calibration(plan, source, plan_path, calib):
 @click.option("--device", "device", default=None, help="OpenCL device selector (on every worker).")
 @RESIZE
 @click.option("--denoise", is_flag=True,
-              help="Denoise the cube and XYZ (recover --denoise's guided filter; not with Lab or dE).")
+              help="Denoise the cube and XYZ (recover --denoise's guided filter), Lab and dE computed from the "
+                   "filtered XYZ.")
 @click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moved during each sequence, as recover --motion: a "
               "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "

@@ -38,7 +38,7 @@ def sizes_option(text, option, one=False):
               help="With --stream: length of each sustained case.")
 @click.option("--paced-seconds", type=click.FloatRange(min=0.5), default=60.0, show_default=True,
               help="With --stream: length of the case paced at the camera's 200 fps.")
-@click.option("--stream-cases", default="fused,sigma,sigma_rms,white,cube,paced,overload,equality",
+@click.option("--stream-cases", default="fused, sigma, sigma_rms, white, cube, paced, overload, equality",
               show_default=True,
               help="With --stream: comma-separated cases to run (also dE_sigma; linear and denoise: the cost of "
                    "--denoise; motion: the rate with --motion global beside the static one; motion_flow: the rate "

@@ -59,7 +59,8 @@ def run_capture(writer, out, description, hardware, plan, bundle, truth, sequenc
 @click.option("--out", required=True, type=click.Path(file_okay=False),
               help="Sequence folder to write; a name ending in .zarr writes a zarr recording of the raw frames "
                    "instead (for specgpu batch).")
-@click.option("--sequences", type=click.IntRange(min=1), default=1, show_default=True)
+@click.option("--sequences", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Sequences of the plan to capture (K frames each).")
 @click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=None,
               help="Seed of the frames' temporal noise.")
 @RESIZE

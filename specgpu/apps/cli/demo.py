@@ -12,7 +12,8 @@ from specgpu.apps.demo import format_tables, run_demo
 @click.option("--out", default="specgpu-report", show_default=True, type=click.Path(file_okay=False),
               help="Report folder.")
 @RIG
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Seed of the twin's noise (calibration and captures): a seed gives the same figures each run.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
 @click.option("--draws", type=click.IntRange(1, 50), default=2, show_default=True,
               help="Noise draws per method and profile (tables give mean +- std).")

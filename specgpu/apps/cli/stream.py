@@ -175,7 +175,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     colours = (plan.resolve_illuminant(illuminant, name=str(plan_path)),
                plan.resolve_observer(observer, name=str(plan_path)))
     cam = description.camera
-    check_scene_covers(truth, plan, description.light.line_fwhm_nm)
+    check_scene_covers(truth, plan, description.light.line_fwhm_nm, rig=description)
     reference = None
     if "dE" in wanted:  # default: the streamed scene itself, as fitted to the frame above
         reference = parse_reference(ref or truth, cam.roi_height, cam.roi_width, colours[0], resize,
