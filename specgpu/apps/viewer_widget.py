@@ -240,8 +240,9 @@ def SpectrumWidget(napari_viewer):
 def add_layers(viewer, layers) -> list:
     """Add napari layer-data tuples ``(data, kwargs, layer_type)`` to ``viewer``; the viewer's axes take the
     layers' names (wavelength, time or sequence, y, x). The layers are added hidden and shown once the time slider
-    is on a sequence they can show (napari opens at the middle one, which may be one a zarr output refuses: see
-    :func:`unreadable`). Returns the layers added."""
+    is on a sequence they can show: napari opens at the middle one, which may be one a zarr output refuses (see
+    :func:`unreadable`; a corrupt chunk found on the way joins those). Returns the layers added; a zarr output with
+    no sequence to show is a one-line error."""
     added, shown = [], []
     for data, kwargs, kind in layers:
         visible = kwargs.get("visible", True)
@@ -253,18 +254,32 @@ def add_layers(viewer, layers) -> list:
     widest = max(named, key=lambda layer: (_role(layer) == "spectrum", layer.ndim), default=None)
     if widest is not None and widest.ndim == viewer.dims.ndim:
         viewer.dims.axis_labels = tuple(widest.metadata["specgpu"]["axes"])
-    bad = unreadable(added)
     labels = tuple(viewer.dims.axis_labels)
-    if bad and "time" in labels:
-        axis = labels.index("time")
-        steps = int(viewer.dims.nsteps[axis])
-        now = int(viewer.dims.current_step[axis])
-        readable = sorted((i for i in range(steps) if i not in bad), key=lambda i: (abs(i - now), i))
-        if now in bad and readable:
-            viewer.dims.set_current_step(axis, readable[0])
-    for layer, visible in zip(added, shown):
-        layer.visible = visible
-    return added
+    if "time" not in labels:
+        for layer, visible in zip(added, shown):
+            layer.visible = visible
+        return added
+    # a zarr output: from the middle sequence outwards, the first one every layer shown can read (a corrupt chunk
+    # is found only by reading it: its sequence then joins the unreadable ones)
+    axis = labels.index("time")
+    now = int(viewer.dims.current_step[axis])
+    source = next((layer.metadata["specgpu"].get("source") for layer in added if _role(layer)), "")
+    bad = unreadable(added)
+    for step in sorted(range(int(viewer.dims.nsteps[axis])), key=lambda i: (abs(i - now), i)):
+        viewer.dims.set_current_step(axis, step)
+        try:  # (a sequence missing only a hidden layer's chunk is shown)
+            for layer, visible in zip(added, shown):
+                layer.visible = visible
+            return added
+        except ValueError as exc:  # "PATH/ARRAY: ..." (Recording.read)
+            name = str(exc).removeprefix(f"{source}/").split(":", 1)[0]
+            bad.setdefault(step, f"its {name} chunk cannot be read")
+            for layer in added:
+                layer.visible = False
+                if _role(layer):
+                    layer.metadata["specgpu"]["unreadable"] = dict(sorted(bad.items()))
+    first, why = next(iter(sorted(bad.items())))
+    raise ValueError(f"{source}: no sequence can be shown, every one is damaged (sequence {first}: {why}, ...)")
 
 
 def unreadable(layers) -> dict:

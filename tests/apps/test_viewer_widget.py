@@ -190,3 +190,22 @@ def test_the_viewer_opens_on_a_whole_sequence_and_refuses_the_damaged_one(make_v
     viewer.cursor.position = tuple(viewer.dims.point[:-2]) + (5.0, 5.0)
     widget.on_move()  # the dock names the refusal there too
     assert widget.status.text().startswith(f"{bad}/coefficients: sequence 1 is committed but its chunk")
+
+
+def test_a_corrupt_chunk_where_the_viewer_opens_moves_it_to_a_whole_sequence(make_viewer, default_zarr, tmp_path):
+    _, path, _ = default_zarr
+    bad = damaged_copy(path, tmp_path / "bad.zarr", corrupt=[("coefficients", 1)])  # found only by reading it
+    viewer = make_viewer()
+    added = add_layers(viewer, read_layers(bad))
+    assert viewer.dims.current_step[1] == 0 and viewer.layers["sRGB (D65)"].visible
+    assert unreadable_note(bad, added) == (f"{bad}: sequence 1 is damaged (its coefficients chunk cannot be read); "
+                                           "the viewer refuses what is missing there")
+    no_dE = damaged_copy(path, tmp_path / "no-dE.zarr", missing=[("dE", i) for i in range(3)])
+    viewer = make_viewer()
+    add_layers(viewer, read_layers(no_dE))  # the dE layer is hidden: every sequence's sRGB can be shown
+    assert viewer.dims.current_step[1] == 1 and viewer.layers["sRGB (D65)"].visible
+    gone = damaged_copy(path, tmp_path / "gone.zarr", missing=[("coefficients", i) for i in range(3)])
+    with pytest.raises(ValueError) as refused:
+        add_layers(make_viewer(), read_layers(gone))
+    assert str(refused.value) == (f"{gone}: no sequence can be shown, every one is damaged (sequence 0: its "
+                                  "coefficients chunk is missing, ...)")
