@@ -58,3 +58,21 @@ def test_napari_opens_a_default_recording_through_the_plugin(make_napari_viewer,
     np.testing.assert_allclose(widget.figure.axes[0].lines[-1].get_ydata(),
                                rec.read("coefficients", t)[60, 80] @ rec.array("basis")[:].T, rtol=1e-5, atol=1e-6)
     assert widget.status.text() == f"x 80, y 60, sequence {t}"
+
+
+def test_specgpu_view_names_the_damaged_sequences_and_opens_on_a_whole_one(default_zarr, tmp_path, capsys):
+    from zarr_helpers import damaged_copy
+
+    from specgpu.apps.viewer_widget import open_viewer
+
+    _, path, _ = default_zarr
+    bad = damaged_copy(path, tmp_path / "bad.zarr", missing=[("coefficients", 1)])
+    viewer = open_viewer(bad, show=False, run=False)
+    try:
+        note = (f"{bad}: sequence 1 is damaged (its coefficients chunk is missing); the viewer refuses what is "
+                "missing there")
+        assert capsys.readouterr().err.strip() == f"specgpu: {note}"
+        assert viewer.status == note and viewer.dims.current_step[1] == 0
+        assert viewer.dims.axis_labels == ("wavelength", "time", "y", "x")
+    finally:
+        viewer.close()
