@@ -522,9 +522,11 @@ class Recording:
         try:
             return native(arr[index])
         except Exception as exc:  # noqa: BLE001 (zarr raises codec-specific errors)
-            raise ValueError(f"{self.path}/{name}: corrupt or unreadable chunk at sequence {index} "
-                             f"({type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''})"
-                             ) from None
+            detail = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+            # zarr's checksum error quotes both checksums as raw bytes, which say nothing to a reader
+            why = ("its CRC32C checksum does not match its bytes" if "checksum" in detail.lower()
+                   else f"{type(exc).__name__}: {detail}")
+            raise ValueError(f"{self.path}/{name}: corrupt or unreadable chunk at sequence {index} ({why})") from None
 
     def missing(self, name: str) -> list[int]:
         """The committed sequences whose chunk of array ``name`` is not on disk (empty when it is whole)."""
