@@ -54,11 +54,11 @@ import pyopencl.array as cla
 from specgpu.capture.assemble import AssemblyStats, SequenceAssembler
 from specgpu.capture.driver import CameraDriver, FrameInfo, StreamEnd
 from specgpu.capture.ringbuffer import POLICIES, RingBuffer, run_producer
+from specgpu.core.text import one_line
 from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.engine.transfer import pinned_empty
 from specgpu.pipeline.decoder import STREAM_OUTPUTS, StreamDecoder
 from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
-from specgpu.core.text import one_line
 from specgpu.pipeline.sinks import CallbackSink, StreamResult, sink_label
 from specgpu.pipeline.stream_report import (
     BEHIND,
