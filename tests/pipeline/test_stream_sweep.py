@@ -118,18 +118,34 @@ def test_every_output_reaches_every_sink(rig, tmp_path, monkeypatch, motion, out
     assert view.views[0].shown == n
 
 
-def test_accumulated_sigma_is_recorded(rig, tmp_path, monkeypatch):
-    """``--accumulate 3`` on a still scene: the recorded sigma_rms of the k-th sequence is one sequence's over
-    sqrt(min(k + 1, 3)), as the running estimate's noise falls."""
+def test_the_accumulated_sigma_is_recorded_and_true(rig, tmp_path, monkeypatch):
+    """``--accumulate 3`` on a still scene, twice with other noise: the recorded sigma_rms of the k-th sequence is
+    one sequence's times sqrt(v), v the running mean's variance factor (1 / (k + 1) up to 3 sequences, then that
+    of a recursive mean of weight 1 / 3), and it is the running estimates' own: the two estimates differ by what
+    their recorded sigmas say (z-scores of RMS 1)."""
     monkeypatch.setattr(stream_cli, "run_with_view", View())
-    out = tmp_path / "rec.zarr"
-    result = stream(rig, out, ("cube", "sigma_rms"), "--accumulate", "3", seconds=0.4)
-    assert result.exit_code == 0, result.output
-    sigma = open_recording(out).read("sigma_rms", slice(None))
-    assert sigma.shape[0] >= 3
-    single = np.nanmedian(sigma[0])
-    for k in range(1, sigma.shape[0]):
-        assert np.nanmedian(sigma[k]) == pytest.approx(single / np.sqrt(min(k + 1, 3)), rel=0.05), k
+    recorded = []
+    for seed in (1, 2):
+        out = tmp_path / f"rec{seed}.zarr"
+        result = stream(rig, out, ("cube", "sigma_rms"), "--accumulate", "3", "--seed", seed, "--pacing", "free",
+                        seconds=0.4)
+        assert result.exit_code == 0, result.output
+        rec = open_recording(out)
+        recorded.append((rec.read("cube", slice(None)), rec.read("sigma_rms", slice(None))))
+    n = min(cube.shape[0] for cube, _ in recorded)
+    assert n >= 3
+    for cube, sigma in recorded:
+        single, v = np.nanmedian(sigma[0]), 1.0
+        for k in range(1, n):
+            w = 1.0 / min(k + 1, 3)
+            v = (1.0 - w) ** 2 * v + w * w
+            assert np.nanmedian(sigma[k]) == pytest.approx(single * np.sqrt(v), rel=0.05), k
+    (a, sa), (b, sb) = recorded
+    for k in range(1, n):
+        ms = np.mean((a[k] - b[k]) ** 2, axis=-1)  # the squared difference over the bands
+        s2 = sa[k] ** 2 + sb[k] ** 2
+        ok = np.isfinite(ms) & np.isfinite(s2)
+        assert 0.9 < np.sqrt(np.mean(ms[ok]) / np.mean(s2[ok])) < 1.12, k
 
 
 def fail(calls):
