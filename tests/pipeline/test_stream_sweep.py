@@ -201,7 +201,7 @@ def test_a_source_behind_the_plan_says_so_with_both_rates(rig, tmp_path, monkeyp
     status = [re.search(pattern, line) for line in lines[:-1]]
     assert any(status), result.output
     summary = re.search(pattern, lines[-1])
-    assert summary and 10 <= int(summary.group(1)) <= 40, lines[-1]
+    assert summary and 5 <= int(summary.group(1)) <= 40, lines[-1]
     assert "dropped 0" in lines[-1]
 
 
