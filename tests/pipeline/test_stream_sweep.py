@@ -32,11 +32,11 @@ HEIGHT, WIDTH = 240, 320
 DENOISED = ("coefficients", "cube", "XYZ", "Lab", "dE")
 
 #: (motion, outputs, extra options): each output alone and all together, then what --denoise and --accumulate
-#: accept, then every motion mode with each output it accepts
+#: accept and a half-precision cube, then every motion mode with each output it accepts
 CASES = ([("none", (name,), ()) for name in STREAM_OUTPUTS] + [("none", STREAM_OUTPUTS, ())]
          + [("none", DENOISED, ("--denoise",)),
             ("none", ("coefficients", "cube", "XYZ", "sigma"), ("--accumulate", "3")),
-            ("none", ("cube", "sigma_rms"), ("--accumulate", "3"))]
+            ("none", ("cube", "sigma_rms"), ("--accumulate", "3")), ("none", ("cube", "XYZ"), ("--half",))]
          + [(mode, (name,), ()) for mode in ("global", "affine", "flow") for name in MOTION_OUTPUTS]
          + [("global", ("cube", "XYZ", "sigma_rms"), ("--accumulate", "3"))])
 
