@@ -23,13 +23,19 @@ from specgpu.apps.viewer_layers import wavelength_axis
 from specgpu.apps.viewer_widget import SpectrumWidget
 from specgpu.pipeline.sinks import ResultsRing
 
-__all__ = ["VIEW_OUTPUTS", "LiveView", "run_with_view"]
+__all__ = ["VIEW_OUTPUTS", "LiveView", "run_with_view", "view_ring"]
 
 #: Seconds between the window's opening and the stream's start.
 START_DELAY_S = 1.0
 #: The stream outputs the view shows (the others are not copied into its ring); the coefficients make the cube
 #: when the stream has none (its default outputs).
 VIEW_OUTPUTS = ("XYZ", "dE", "cube", "coefficients", "sigma")
+
+
+def view_ring() -> ResultsRing:
+    """The results ring a view polls: one result, skipped while the view has not taken the previous one, and
+    optional to the stream (a view that fails is stopped and reported; the recording goes on)."""
+    return ResultsRing(capacity=1, outputs=VIEW_OUTPUTS, policy="drop_newest", optional=True, label="view")
 
 
 class LiveView:
@@ -104,20 +110,21 @@ class LiveView:
 
 
 def run_with_view(stream, seconds, *, wavelengths=None, illuminant: str = "D65", close_when_done: bool = False,
-                  interval_ms: int = 200, title: str = "specgpu stream"):
+                  interval_ms: int = 200, title: str = "specgpu stream", on_sink_stopped=None):
     """Run ``stream`` for ``seconds`` in a thread while napari shows its latest results; returns the stream's
     report (after the window is closed, or at once when ``close_when_done``). An error in the stream is raised
-    here."""
+    here; ``on_sink_stopped`` is given each optional sink the stream stopped (the view's ring among them), from
+    the stream's thread."""
     import napari
     from qtpy.QtCore import QTimer
 
-    ring = ResultsRing(capacity=1, outputs=VIEW_OUTPUTS, policy="drop_newest")
+    ring = view_ring()
     stream.sinks.append(ring)
     outcome = {}
 
     def work():
         try:
-            outcome["report"] = stream.run(seconds)
+            outcome["report"] = stream.run(seconds, on_sink_stopped=on_sink_stopped)
         except BaseException as error:  # noqa: BLE001 (re-raised on the main thread)
             outcome["error"] = error
         finally:

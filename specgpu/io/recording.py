@@ -236,11 +236,15 @@ class ZarrRecorder:
 
     Attributes
     ----------
+    label : str
+        Its name in a stream's reports.
     committed : int
         Sequences whose every chunk is written (what a reader sees).
     failed : str or None
         The error that stopped the recording.
     """
+
+    label = "recording"
 
     def __init__(self, path, plan, *, outputs=None, frames: bool = False, basis=None, metadata=None,
                  grow: int = 64, disk_rate: float | None = None, compression: str | None = None, threads: int = 4,
