@@ -1,10 +1,11 @@
-"""Foundations every room shares: the validators, spectra and wavelength grids, file locks."""
+"""Foundations every room shares: the validators, spectra and wavelength grids, file locks, the output guard."""
 
 from __future__ import annotations
 
 from specgpu.core.validate import (
     FRAME_DTYPES,
     OUT_DTYPES,
+    BadArgument,
     as_float32,
     available_memory_bytes,
     check_array,
@@ -32,6 +33,7 @@ from specgpu.core.spectra import (
     spectral_shape,
     white_point_XYZ,
 )
+from specgpu.core.guard import OutputClash, check_outputs
 from specgpu.core.locks import (
     OutputLocked,
     clean_stale_temporaries,
@@ -56,6 +58,8 @@ __all__ = [
     "FRAME_DTYPES",
     "OBSERVERS",
     "OUT_DTYPES",
+    "BadArgument",
+    "OutputClash",
     "OutputLocked",
     "XYZ_weights",
     "as_float32",
@@ -67,6 +71,7 @@ __all__ = [
     "check_level",
     "check_matrix",
     "check_number",
+    "check_outputs",
     "check_out_dtype",
     "check_gain_map",
     "check_pixel_map",
