@@ -42,7 +42,6 @@ from specgpu.core.locks import (
     output_locks,
     pid_alive,
     resolved,
-    same_path,
 )
 from specgpu.core.numerics import (
     DEAD_PIXEL_GAIN,
@@ -91,7 +90,6 @@ __all__ = [
     "resolve_cmfs",
     "resolve_illuminant_sd",
     "resolved",
-    "same_path",
     "spectral_shape",
     "validate_method",
     "white_point_XYZ",

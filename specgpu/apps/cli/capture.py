@@ -8,7 +8,7 @@ import sys
 import click
 from tqdm import tqdm
 
-from specgpu.apps.cli.options import PLAN, RESIZE, RIG, SCENE, command, experiment, lock
+from specgpu.apps.cli.options import PLAN, RESIZE, RIG, SCENE, command, experiment, lock, no_clash
 from specgpu.hardware.drivers import hardware_config
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline import acquire
@@ -65,6 +65,7 @@ def run_capture(writer, out, description, hardware, plan, bundle, truth, sequenc
 @RESIZE
 def capture(rig_path, plan_path, calib, scene, out, sequences, seed, resize):
     """Capture sequences of a plan on the rig (the twin by default) into a sequence folder."""
+    no_clash([("--out", out)], [("--rig", rig_path), ("--plan", plan_path), ("--calib", calib), ("--scene", scene)])
     description = load_rig(rig_path)
     hardware = hardware_config(description)  # a typo in [hardware] first, before any device or file work
     bundle, plan, truth = experiment(description, plan_path, calib, scene, resize)

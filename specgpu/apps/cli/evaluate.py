@@ -35,8 +35,8 @@ from specgpu.rig.scene import load_scene
 def evaluate(cube, truth, illuminant, json_path, device, resize):
     """Accuracy of a recovered cube (.exr, .npz or ENVI .hdr; or an XYZ map) against the true scene: per pixel,
     and per patch for a chart."""
+    no_clash([("--json", json_path)], [("CUBE", cube), ("--truth", truth)])
     if json_path:
-        no_clash([("--json", json_path)], [("CUBE", cube), ("--truth", truth if Path(truth).exists() else None)])
         lock(json_path)
     data, wavelengths, meta = read_recovered(cube)
     if Path(truth).is_dir():  # a moving capture's folder: the truth of the sequence the cube was recovered from

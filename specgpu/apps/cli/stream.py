@@ -19,6 +19,7 @@ from specgpu.apps.cli.options import (
     command,
     experiment,
     lock,
+    no_clash,
     one_interrupt,
     output_list,
     parse_reference,
@@ -162,6 +163,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     wanted = output_list(outputs, STREAM_OUTPUTS, "stream output")  # before any loading: a typo names the valid
     if white_reflectance is not None and white_roi is None:
         raise click.UsageError("--white-reflectance needs --white-roi")
+    no_clash([("--out", out)], [("--rig", rig_path), ("--plan", plan_path), ("--calib", calib), ("--scene", scene),
+                                ("--delta-e-ref", ref), ("--white-reflectance", white_reflectance)])
     if out:
         lock(out, folder=True)  # one recorder per folder: a second stream into it refuses at once
         refuse_existing(out)  # before any work: a recording is never mixed with another run
