@@ -8,6 +8,7 @@ import sys
 import click
 from tqdm import tqdm
 
+from specgpu.apps.cli.group import kept
 from specgpu.apps.cli.options import PLAN, RESIZE, RIG, SCENE, command, experiment, lock, no_clash
 from specgpu.hardware.drivers import hardware_config
 from specgpu.io.recording import refuse_existing
@@ -44,7 +45,9 @@ def run_capture(writer, out, description, hardware, plan, bundle, truth, sequenc
         writer.close(result.assembly, metadata=meta)
     except BaseException as error:
         said = acquire.keep_or_abort(writer, error, out, sequences, meta)
-        if said:
+        if said and isinstance(error, KeyboardInterrupt) and "; kept " in said:  # said in the interrupt's line
+            kept(out, said.split("; kept ", 1)[1])
+        elif said:
             click.echo(said, err=True)
         raise
     return result

@@ -16,11 +16,12 @@ import click
 import numpy as np
 from tqdm import tqdm
 
+from specgpu.apps.cli.group import watch_outputs
 from specgpu.calibration.bundle import load_calibration
-from specgpu.core.guard import OutputClash, check_outputs
+from specgpu.core.guard import check_outputs
 from specgpu.core.locks import output_locks
 from specgpu.core.spectra import DEFAULT_CMFS
-from specgpu.core.validate import validate_method
+from specgpu.core.validate import BadArgument, validate_method
 from specgpu.engine.colorimetry import XYZ_to_Lab
 from specgpu.io import JOURNAL_FILE, SEQUENCE_FILE, companion_files
 from specgpu.io import final_names, new_temporary, replace_with, write_target
@@ -33,8 +34,9 @@ from specgpu.rig.scene import SpectralScene, load_scene, validate_resize
 
 
 class Command(click.Command):
-    """A command whose errors are one line on stderr and exit status 1 (click's own errors, usage errors and
-    interrupts pass through to the group)."""
+    """A command whose errors are one line on stderr: exit status 2 for a bad argument (an unknown name, an output
+    over an input: :class:`specgpu.core.validate.BadArgument`, wherever below it is found), 1 for any other
+    failure (click's own errors, usage errors and interrupts pass through to the group)."""
 
     def invoke(self, ctx):
         try:
@@ -42,6 +44,8 @@ class Command(click.Command):
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort, SystemExit,
                 KeyboardInterrupt):
             raise
+        except BadArgument as error:
+            raise click.UsageError(final_names(str(error)).strip().splitlines()[0]) from error
         except Exception as error:  # the CLI promises one line, not a traceback
             text = final_names(str(error)).strip()  # an output's name, never its temporary's
             message = text.splitlines()[0] if text else type(error).__name__
@@ -115,12 +119,10 @@ def no_clash(outputs, inputs=()):
     ``inputs`` are (option, path) pairs, each input expanded to all that reading it reads (:func:`read_paths`).
     Refuses, as a usage error naming both paths, an output that is an input, lies inside a folder read whole,
     holds an input, or names the same file as another output (companions count: an ENVI header's data file is
-    written with it)."""
+    written with it). The outputs are watched from here on, so an interrupt can say which were written."""
     outputs = with_companions(outputs)
-    try:
-        check_outputs(outputs, [pair for label, path in inputs for pair in read_paths(label, path)])
-    except OutputClash as error:
-        raise click.UsageError(str(error)) from None
+    check_outputs(outputs, [pair for label, path in inputs for pair in read_paths(label, path)])
+    watch_outputs(path for _, path in outputs)
 
 
 class Staged:

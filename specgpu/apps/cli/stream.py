@@ -8,6 +8,7 @@ import sys
 import click
 import numpy as np
 
+from specgpu.apps.cli.group import kept
 from specgpu.apps.cli.options import (
     ILLUMINANT,
     OBSERVER,
@@ -90,10 +91,16 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
     except BaseException as error:  # the recording says it failed (never "complete"), with the reason
         if writer is not None and not isinstance(error, KeyboardInterrupt):
             writer.mark_failed(f"{type(error).__name__}: {error}")
+        elif writer is not None:
+            kept(out, f"{writer.committed} complete sequences in {out}")
         raise
     if tty:
         click.echo("", err=True)
     click.echo(stream_summary(report, out, writer))
+    if report.interrupted and not report.sink_errors:  # drained and summarised: still an interrupted run (130)
+        if writer is not None:
+            kept(out, f"{writer.committed} complete sequences in {out}")
+        raise KeyboardInterrupt
     if report.sink_errors:
         saved = (f"; {writer.committed} sequences saved in {out}, {report.sequences_out - writer.committed} lost"
                  if writer is not None else "")
