@@ -166,6 +166,21 @@ def test_recover_interrupted_once_its_outputs_are_written_says_it_kept_them(made
     assert (tmp_path / "c.npz").is_file() and (tmp_path / "x.exr").is_file()
 
 
+def test_salvage_interrupted_once_its_index_is_written_says_it_kept_it(tmp_path, monkeypatch):
+    import specgpu.apps.cli.capture as cli_capture
+
+    def indexed_then_interrupted(seq):
+        (Path(seq) / "sequence.json").write_text("{}")  # the index in place, then Ctrl-C
+        raise KeyboardInterrupt
+
+    (tmp_path / "seq").mkdir()
+    monkeypatch.setattr(cli_capture, "salvage_capture", indexed_then_interrupted)
+    result = run("salvage", tmp_path / "seq", ok=False)
+    assert result.exit_code == 130, result.output
+    assert result.output.strip().splitlines()[-1] == \
+        f"specgpu: interrupted; kept {tmp_path / 'seq' / 'sequence.json'}", result.output
+
+
 def test_capture_interrupted_after_two_sequences_says_it_kept_them(made, tmp_path, monkeypatch):
     import specgpu.pipeline.recovery as pipeline
 

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import click
 from tqdm import tqdm
@@ -11,6 +12,7 @@ from tqdm import tqdm
 from specgpu.apps.cli.group import kept
 from specgpu.apps.cli.options import PLAN, RESIZE, RIG, SCENE, command, experiment, lock, no_clash
 from specgpu.hardware.drivers import hardware_config
+from specgpu.io import SEQUENCE_FILE
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline import acquire
 from specgpu.pipeline.recovery import (
@@ -93,6 +95,8 @@ def salvage(seq):
     sequences left out and why). No frame is deleted, and the journal only once the index reads back: a refused
     salvage can be run again.
     """
+    # salvage writes the folder's own index, by design; named as an output so an interrupt says if it was written
+    no_clash([("SEQ's index", Path(seq) / SEQUENCE_FILE)])
     lock(seq, folder=True)  # not while a capture is still writing into it
     info = salvage_capture(seq)
     for gone in info["left_out"]:
