@@ -10,8 +10,8 @@ capture's ``motion_truth`` folder). An output clashes with an input when
   in the folder points to (reading the folder reads it too);
 - the output is an existing folder that holds an input (a folder output is written into).
 
-Two outputs naming one file clash too: the second would replace the first. The check runs before any work, so a
-refused command has read and written nothing; the error names both paths.
+Two outputs naming one file clash too: the second would replace the first. Commands call it before any work, so
+a refused command has written nothing; the error names both paths.
 """
 
 from __future__ import annotations
