@@ -147,9 +147,9 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
 
     t_start = time.perf_counter()
     out = Path(out)
+    profiles = demo_profiles(rig)  # a bad rig refused before the report folder is made
     for sub in ("plans", "sequences", "cubes", "maps", "png", "figures"):
         (out / sub).mkdir(parents=True, exist_ok=True)
-    profiles = demo_profiles(rig)
     main = next(iter(profiles))
     bar = _steps(echo, progress, len(profiles))
     bar.set_description("basis")

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from specgpu.core.validate import BadArgument
 from specgpu.engine.runtime import get_queue
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.stream import Stream
@@ -117,7 +118,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
 
     unknown = set(cases) - set(STREAM_CASES)
     if unknown:
-        raise ValueError(f"unknown stream bench case(s) {sorted(unknown)}; valid: {', '.join(STREAM_CASES)}")
+        raise BadArgument(f"unknown stream bench case(s) {sorted(unknown)}; valid: {', '.join(STREAM_CASES)}")
     if int(rounds) < 1:
         raise ValueError(f"rounds must be >= 1, got {rounds}")
     echo = echo or (lambda _s: None)

@@ -11,6 +11,8 @@ import functools
 import colour
 import numpy as np
 
+from specgpu.core.validate import BadArgument
+
 __all__ = [
     "DEFAULT_CMFS",
     "OBSERVERS",
@@ -42,7 +44,7 @@ def resolve_cmfs(cmfs) -> colour.MultiSpectralDistributions:
             if name.lower() == cmfs.lower():
                 return colour.MSDS_CMFS[name]
         observers = [n for n in colour.MSDS_CMFS if "Observer" in n]
-        raise ValueError(f"cmfs={cmfs!r} is not a known observer; try one of {observers}")
+        raise BadArgument(f"cmfs={cmfs!r} is not a known observer; try one of {observers}")
     raise TypeError(f"cmfs must be a name or colour.MultiSpectralDistributions, not {type(cmfs).__name__}")
 
 
@@ -54,7 +56,7 @@ def resolve_illuminant_sd(illuminant) -> colour.SpectralDistribution:
         for name in colour.SDS_ILLUMINANTS:
             if name.lower() == illuminant.lower():
                 return colour.SDS_ILLUMINANTS[name]
-        raise ValueError(
+        raise BadArgument(
             f"illuminant={illuminant!r} has no spectrum in colour.SDS_ILLUMINANTS (e.g. 'D65', 'A', 'D50', 'FL2')"
         )
     raise TypeError(

@@ -12,6 +12,7 @@ from specgpu.apps.cli.options import (
     PLAN,
     RESIZE,
     command,
+    no_clash,
     output_list,
     parse_reference,
 )
@@ -64,6 +65,7 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
                   device, resize, denoise, motion):
     """Re-process the raw frames of a recording (specgpu stream --frames) or a sequence folder with a plan, on
     Dask: one task per sequence, resumable, equal to specgpu recover of each sequence."""
+    no_clash([("--out", out)], [("SOURCE", source), ("--plan", plan_path), ("--calib", calib), ("--delta-e-ref", ref)])
     wanted = output_list(outputs, BATCH_OUTPUTS, "batch output")
     method = validate_method(method, DELTA_E_METHODS)
     if ("dE" in wanted) != (ref is not None):

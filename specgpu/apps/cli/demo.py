@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from specgpu.apps.cli.options import RIG, command, lock
+from specgpu.apps.cli.options import RIG, command, lock, no_clash
 from specgpu.apps.demo import format_tables, run_demo
 
 
@@ -20,6 +20,7 @@ from specgpu.apps.demo import format_tables, run_demo
 def demo(out, rig_path, seed, device, draws):
     """The main job on the built-in twin: calibrate, plan, capture the chart, recover, evaluate; prints the
     paper's Tables 1-3 beside ours and writes a report folder with index.html."""
+    no_clash([("--out", out)], [("--rig", rig_path)])
     lock(out, folder=True)
     result = run_demo(out, rig=rig_path, seed=seed, echo=click.echo, device=device, draws=draws)
     click.echo(format_tables(result))

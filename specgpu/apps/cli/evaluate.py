@@ -42,8 +42,8 @@ from specgpu.rig.scene import load_scene
 def evaluate(cube, truth, illuminant, json_path, exclude_invalid, device, resize):
     """Accuracy of a recovered cube (.exr, .npz or ENVI .hdr; or an XYZ map) against the true scene: per pixel,
     and per patch for a chart, with the pixels left out counted by cause."""
+    no_clash([("--json", json_path)], [("CUBE", cube), ("--truth", truth)])
     if json_path:
-        no_clash([("--json", json_path)], [("CUBE", cube), ("--truth", truth if Path(truth).exists() else None)])
         lock(json_path)
     data, wavelengths, meta = read_recovered(cube)
     scene_source = truth_file(truth, meta)  # a moving capture's folder: the truth of the cube's sequence

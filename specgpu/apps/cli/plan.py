@@ -177,7 +177,8 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
     """
     validate_method(method, {k: k for k in (*PLAN_METHODS, "optimal", "hadamard")}, "METHOD")
     method = method.lower()
-    no_clash([("--out", out)], [("--calib", calib), ("--basis", basis_path)] + [("--training", t) for t in training])
+    no_clash([("--out", out)], [("--calib", calib), ("--basis", basis_path), ("--rig", rig_path),
+                                ("--spectrum", spectrum), *(("--training", t) for t in training)])
     lock(out)
     bundle = load_calibration(calib)
     args, kwargs = method_arguments(method, step_nm=step_nm, bandwidth_nm=bandwidth_nm, m=m, basis_path=basis_path,

@@ -3,8 +3,6 @@ Lab, dE and uncertainty maps, written all or nothing."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 import numpy as np
 
@@ -19,7 +17,6 @@ from specgpu.apps.cli.options import (
     lock,
     no_clash,
     parse_reference,
-    sequence_files,
 )
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
@@ -106,7 +103,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
     paths = {"out": out, "xyz_path": xyz_path, "lab_path": lab_path, "de_path": de_path, "sigma_path": sigma_path,
              "de_sigma_path": de_sigma_path}
     outputs = list(zip(("--out", "--xyz", "--lab", "--delta-e", "--sigma", "--delta-e-sigma"), paths.values()))
-    no_clash(outputs, sequence_files(seq) + ([("--delta-e-ref", ref)] if ref and Path(ref).exists() else []))
+    no_clash(outputs, [("SEQ", seq), ("--delta-e-ref", ref), ("--white-reflectance", white_reflectance)])
     lock(*(p for _, p in outputs if p))  # before the work: a missing folder or a busy output is refused now
     folder = recovery.read_capture(seq)
     colours = (folder.plan.resolve_illuminant(illuminant, name=f"the plan of {seq}"),

@@ -8,6 +8,7 @@ import sys
 import click
 import numpy as np
 
+from specgpu.apps.cli.group import kept
 from specgpu.apps.cli.options import (
     ILLUMINANT,
     OBSERVER,
@@ -19,6 +20,7 @@ from specgpu.apps.cli.options import (
     command,
     experiment,
     lock,
+    no_clash,
     one_interrupt,
     output_list,
     parse_reference,
@@ -104,10 +106,16 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
     except BaseException as error:  # the recording says it failed (never "complete"), with the reason
         if writer is not None and not isinstance(error, KeyboardInterrupt):
             writer.mark_failed(f"{type(error).__name__}: {error}")
+        elif writer is not None:
+            kept(out, f"{writer.committed} complete sequences in {out}")
         raise
     if tty:
         click.echo("", err=True)
     click.echo(stream_summary(report, out, writer))
+    if report.interrupted and not report.sink_errors:  # drained and summarised: still an interrupted run (130)
+        if writer is not None:
+            kept(out, f"{writer.committed} complete sequences in {out}")
+        raise KeyboardInterrupt
     if report.sink_errors:
         saved = (f"; {writer.committed} sequences saved in {out}, {report.sequences_out - writer.committed} lost"
                  if writer is not None else "")
@@ -177,6 +185,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     wanted = output_list(outputs, STREAM_OUTPUTS, "stream output")  # before any loading: a typo names the valid
     if white_reflectance is not None and white_roi is None:
         raise click.UsageError("--white-reflectance needs --white-roi")
+    no_clash([("--out", out)], [("--rig", rig_path), ("--plan", plan_path), ("--calib", calib), ("--scene", scene),
+                                ("--delta-e-ref", ref), ("--white-reflectance", white_reflectance)])
     if out:
         lock(out, folder=True)  # one recorder per folder: a second stream into it refuses at once
         refuse_existing(out)  # before any work: a recording is never mixed with another run
