@@ -13,6 +13,7 @@ from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving import MASK_INCONSISTENT
 from specgpu.pipeline.moving_decode import MovingDecoder
 from specgpu.pipeline.moving_layers import MASK_LAYER, flagged_regions, occluded_by, recover_moving
+from specgpu.pipeline.moving_residual import residual_check
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.uncertainty import constant_variance, frame_variance
@@ -31,7 +32,8 @@ def setup():
 def chart_over_scene(setup):
     desc, bundle, plan, scene = setup
     frames, truth = frames_of(desc, plan, scene, OBJECT)
-    kw = dict(dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field, saturation=float(bundle.max_code))
+    kw = dict(dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field, saturation=float(bundle.max_code),
+              residual=residual_check(plan, bundle))  # as recover and the stream decoder check it
     return frames, truth, recover_moving(frames, plan.A, **kw), recover_moving(frames, plan.A, layers=False, **kw)
 
 
@@ -73,7 +75,8 @@ def test_background_the_object_covered_during_the_sequence_is_flagged(setup, cha
     assert covered.sum() > 2 * 100 * 8  # two strips about 9 px wide along the object's 100 px height
     nan = ~np.all(np.isfinite(res.y), axis=2)
     nan_single = ~np.all(np.isfinite(single.y), axis=2)
-    assert nan[covered].mean() > 1.5 * nan_single[covered].mean(), (nan[covered].mean(), nan_single[covered].mean())
+    # the layer flags the strips as a whole (the global check alone only where some frame has structure there)
+    assert nan[covered].mean() > nan_single[covered].mean() + 0.05, (nan[covered].mean(), nan_single[covered].mean())
     assert np.all(nan == ((res.mask & (1 | 4 | MASK_INCONSISTENT)) > 0))  # every NaN is flagged, every flag NaN
 
 
