@@ -45,7 +45,7 @@ from specgpu.pipeline.moving_flow import MIN_FRAMES, choose_flow, flow_field, ti
 from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
-__all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "refuted", "ObjectLayer", "MovingRecovery", "flagged_regions", "estimate_layer_motion",
+__all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery", "flagged_regions", "estimate_layer_motion",
            "object_footprint", "occluded_by", "decode_object_layers", "recover_moving"]
 
 #: Mask bit of a pixel decoded with the motion of an object of its own (not the global motion).
@@ -332,8 +332,8 @@ def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
     """:func:`~specgpu.engine.warp_map.apply_linear_warped` of the frames ``read`` only (None: every frame); a
     sample of a pixel with no response (:func:`specgpu.core.numerics.live_gain`) makes its output NaN. With a
     ``residual`` (:class:`~specgpu.pipeline.moving_residual.ResidualCheck`; ``return_mask``), the same pass also
-    outputs each pixel's compensated samples, and a pixel no single reflectance explains is flagged
-    :data:`MASK_INCONSISTENT` in the mask."""
+    outputs what the check needs of each pixel's compensated samples, and a pixel no single reflectance explains
+    is flagged :data:`MASK_INCONSISTENT` in the mask."""
     if residual is None:
         return apply_linear_warped(frames, A, shifts, dark, live_gain(gain), read=read, **kw)
     A = np.asarray(A, np.float64)
@@ -379,6 +379,18 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
 #: from where they are), not because it holds. On the twin an estimate taken over by a chart moving 14 px per frame
 #: left 95 % of the field flagged and a few hundred wrong pixels unflagged; affine maps pulled by a chart 65 %.
 MAX_REFUTED_SHARE = 0.5
+
+
+def grow_flags(mask) -> None:
+    """Flag (in place) the pixels next to an inconsistent one (8-connected) that their own pass saw in the field.
+    A compensated sample is bilinear, read from the 2 x 2 sensor pixels about its point, so where samples that mix
+    surfaces begin is known to a pixel: the pixel beside a flagged one reads sensor pixels the flagged one reads,
+    and its check, a statistic of few samples, may pass just below its threshold. (On the twin at 640 x 480 every
+    unflagged pixel decoded wrong in the cases of ``tools/motion_flags.py`` lay within 1.4 px of a flagged one.)"""
+    flagged = (mask & np.uint8(MASK_INCONSISTENT)) != 0
+    ring = ndimage.binary_dilation(flagged, structure=np.ones((3, 3), bool)) & ~flagged
+    ring &= (mask & np.uint8(1 | 2 | MASK_OUTSIDE)) == 0
+    mask[ring] = (mask[ring] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
 
 
 def refuted(mask) -> bool:
@@ -512,6 +524,7 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         est = _with_flow(frames, A, est, gradients, y, mask, found, maps if check else None, dark, gain,
                          saturation=saturation, device=device, residual=residual)
     if check:
+        grow_flags(mask)
         refuted(mask)
     y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
     lap("check")

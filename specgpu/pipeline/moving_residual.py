@@ -109,19 +109,29 @@ def residual_chi2(samples, check: ResidualCheck, gain=None) -> np.ndarray:
     flat-fielded by ``gain`` (H, W), as the decoder reads them; NaN where a sample is."""
     s = np.asarray(samples, np.float32)
     h, w, n = s.shape
-    P = np.asarray(check.project, np.float32)
-    r = s.reshape(-1, n) @ P.T  # (N, r)
-    g = np.ones(h * w, np.float32) if gain is None else np.asarray(gain, np.float32).reshape(-1)
-    g = np.where(np.isfinite(g) & (g > 0), g, np.float32(1.0))
-    raw = np.maximum(s.reshape(-1, n) / g[:, None], 0.0)  # the raw signal above dark, DN
+    s = s.reshape(-1, n).astype(np.float64)
+    P = np.asarray(check.project, np.float64)
+    r = len(P)
+    g = np.ones(h * w) if gain is None else np.asarray(gain, np.float64).reshape(-1)
+    g = np.where(np.isfinite(g) & (g > 0), g, 1.0)
     nm = check.noise
-    var = (raw / np.float32(nm.gain_e_per_dn) + np.float32(nm.read_var_dn2) + (np.float32(nm.light_rms) * raw) ** 2)
-    var *= (g * g)[:, None]
-    # C = P diag(var) P^T + mismatch, per pixel
-    C = np.einsum("ik,nk,jk->nij", P, var, P) + np.asarray(check.mismatch, np.float32)[None]
-    good = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
-    chi = np.full(h * w, np.nan, np.float32)
-    if good.any():
-        sol = np.linalg.solve(C[good].astype(np.float64), r[good, :, None].astype(np.float64))[..., 0]
-        chi[good] = np.einsum("ni,ni->n", r[good], sol)
-    return chi.reshape(h, w)
+    raw = np.maximum(s / g[:, None], 0.0)  # the raw signal above dark, DN
+    var = (raw / nm.gain_e_per_dn + nm.read_var_dn2 + (nm.light_rms * raw) ** 2) * (g * g)[:, None]
+    # each pixel's covariance C = P diag(var) P^T + mismatch, its lower triangle as one product with the variances
+    pairs = [(i, j) for i in range(r) for j in range(i + 1)]
+    C = var @ np.stack([P[i] * P[j] for i, j in pairs], axis=1)
+    C += np.array([check.mismatch[i, j] for i, j in pairs])[None]
+    entry = {pair: C[:, m] for m, pair in enumerate(pairs)}
+    res = s @ P.T
+    # chi2 = |L^-1 res|^2 with C = L L^T: a Cholesky factorisation and forward substitution per pixel, each step
+    # one operation over every pixel (r is a few: the frames the plan's model leaves free)
+    L, z = {}, []
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j in range(r):
+            d = entry[(j, j)] - sum(L[(j, m)] ** 2 for m in range(j))
+            L[(j, j)] = np.sqrt(d)
+            for i in range(j + 1, r):
+                L[(i, j)] = (entry[(i, j)] - sum(L[(i, m)] * L[(j, m)] for m in range(j))) / L[(j, j)]
+            z.append((res[:, j] - sum(L[(j, m)] * z[m] for m in range(j))) / L[(j, j)])
+        chi = sum(zj * zj for zj in z)
+    return np.asarray(chi, np.float32).reshape(h, w)

@@ -14,7 +14,7 @@ from specgpu.calibration.bundle import oracle_calibration
 from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving import MASK_INCONSISTENT
-from specgpu.pipeline.moving_layers import MAX_REFUTED_SHARE, recover_moving, refuted
+from specgpu.pipeline.moving_layers import MASK_LAYER, MAX_REFUTED_SHARE, grow_flags, recover_moving, refuted
 from specgpu.pipeline.moving_residual import residual_check, residual_chi2
 from specgpu.pipeline.recovery import default_basis
 from specgpu.planning.basis_plans import plan_symmetric_basis
@@ -100,6 +100,36 @@ def test_a_wrong_motion_is_never_decoded_into_a_wrong_spectrum(setup, bound):
     err = rmse_map(res.y, scene.reflectance, scene.wavelengths, plan)
     decoded = np.all(np.isfinite(res.y), axis=2)
     assert not np.any(err[decoded] > bound)
+
+
+def test_chi2_is_each_pixels_residual_weighed_by_its_own_covariance(setup):
+    _, bundle, plan, _ = setup
+    check = residual_check(plan, bundle)
+    rng = np.random.default_rng(3)
+    samples = rng.uniform(20.0, 900.0, (6, 7, plan.K)).astype(np.float32)
+    gain = rng.uniform(0.8, 1.2, (6, 7)).astype(np.float32)
+    samples[2, 3, 4] = np.nan
+    chi = residual_chi2(samples, check, gain)
+    nm, P = check.noise, check.project
+    for y, x in [(0, 0), (5, 6), (3, 2)]:
+        raw = np.maximum(samples[y, x] / gain[y, x], 0.0)
+        var = (raw / nm.gain_e_per_dn + nm.read_var_dn2 + (nm.light_rms * raw) ** 2) * gain[y, x] ** 2
+        r = P @ samples[y, x].astype(np.float64)
+        expected = r @ np.linalg.solve(P @ np.diag(var) @ P.T + check.mismatch, r)
+        assert chi[y, x] == pytest.approx(expected, rel=1e-4)
+    assert np.isnan(chi[2, 3]) and np.isfinite(np.delete(chi.reshape(-1), 2 * 7 + 3)).all()
+
+
+def test_flags_grow_one_pixel_into_what_was_seen():
+    mask = np.zeros((7, 7), np.uint8)
+    mask[3, 3] = MASK_INCONSISTENT
+    mask[2, 2] = MASK_LAYER
+    mask[:, 4] = 4  # outside the field: keeps its own reason
+    grow_flags(mask)
+    expected = np.zeros((7, 7), np.uint8)
+    expected[2:5, 2:4] = MASK_INCONSISTENT
+    expected[:, 4] = 4
+    np.testing.assert_array_equal(mask, expected)
 
 
 def test_a_motion_the_field_refutes_flags_every_pixel():
