@@ -45,8 +45,9 @@ from specgpu.pipeline.moving_flow import MIN_FRAMES, choose_flow, flow_field, ti
 from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
-__all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery", "flagged_regions", "estimate_layer_motion",
-           "object_footprint", "occluded_by", "decode_object_layers", "recover_moving"]
+__all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
+           "flagged_regions", "estimate_layer_motion", "object_footprint", "occluded_by", "decode_object_layers",
+           "recover_moving"]
 
 #: Mask bit of a pixel decoded with the motion of an object of its own (not the global motion).
 MASK_LAYER = 16
@@ -381,14 +382,25 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
 MAX_REFUTED_SHARE = 0.5
 
 
+#: Pixels not flagged that flagged ones enclose are flagged too where they are fewer than this: the check's window.
+ISLAND_PX = WINDOW * WINDOW
+
+
 def grow_flags(mask) -> None:
     """Flag (in place) the pixels next to an inconsistent one (8-connected) that their own pass saw in the field.
     A compensated sample is bilinear, read from the 2 x 2 sensor pixels about its point, so where samples that mix
     surfaces begin is known to a pixel: the pixel beside a flagged one reads sensor pixels the flagged one reads,
     and its check, a statistic of few samples, may pass just below its threshold. (On the twin at 640 x 480 every
-    unflagged pixel decoded wrong in the cases of ``tools/motion_flags.py`` lay within 1.4 px of a flagged one.)"""
+    unflagged pixel decoded wrong in the cases of ``tools/motion_flags.py`` lay within 1.4 px of a flagged one.)
+    The islands of fewer than :data:`ISLAND_PX` pixels the flags enclose are flagged as well."""
     flagged = (mask & np.uint8(MASK_INCONSISTENT)) != 0
     ring = ndimage.binary_dilation(flagged, structure=np.ones((3, 3), bool)) & ~flagged
+    # and the islands the flags enclose, smaller than the check's window: a region whose motion is refuted all
+    # about them (an object fast enough to be over a pixel in one frame only leaves its flat inside so)
+    labels, n = ndimage.label(~(flagged | ring))
+    if n:
+        sizes = ndimage.sum_labels(np.ones(labels.shape), labels, index=np.arange(1, n + 1))
+        ring |= np.isin(labels, 1 + np.flatnonzero(sizes < ISLAND_PX))
     ring &= (mask & np.uint8(1 | 2 | MASK_OUTSIDE)) == 0
     mask[ring] = (mask[ring] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
 
@@ -501,9 +513,10 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     # the decoder reads no reference frame: where they saw outside the field, saturated or disagree does not matter
     read = [k for k in range(len(frames)) if k not in set(refs)] if refs else None
     residual = residual if check else None
-    if residual is not None and (residual.K != len(frames) or list(residual.frames) != (read or list(range(len(frames))))):
+    reading = read or list(range(len(frames)))
+    if residual is not None and (residual.K != len(frames) or list(residual.frames) != reading):
         raise ValueError(f"the residual check is for {residual.K} frames reading {list(residual.frames)}; the "
-                         f"sequence has {len(frames)} reading {read or list(range(len(frames)))}")
+                         f"sequence has {len(frames)} reading {reading}")
     res = _warped(frames, A, shifts, dark, gain, read, residual, saturation=saturation, return_mask=True,
                   device=device)
     y, mask = res.y, res.mask

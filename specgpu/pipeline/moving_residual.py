@@ -1,22 +1,22 @@
-"""The per-pixel residual check of a motion-compensated decoding: are a pixel's K compensated samples explained by
-one reflectance?
+"""The per-pixel residual check of a motion-compensated decoding: are a pixel's K compensated samples explained by one
+reflectance?
 
 The gradient-image check (:func:`specgpu.pipeline.moving.consistency`) compares each frame with the others over a
 window; where no frame has structure of its own it cannot judge, and a wrong motion that samples flat surfaces of
-different colours there decodes a wrong spectrum. The linear model judges every pixel on its own: the plan's
-decoder A turns the samples s (K) into a reflectance y = A s, the calibration's forward matrix E predicts the
-frames that reflectance would have made, E y, and the residual ``(I - E A) s`` is what no single reflectance
-explains. For a pixel whose samples come from one surface it holds the camera's noise and the part of the
-surface's spectrum outside the plan's model (the mismatch); samples of different surfaces add what their spectra
-do not share.
+different colours there decodes a wrong spectrum. The linear model judges every pixel on its own: the plan's decoder
+A turns the samples s (K) into a reflectance y = A s, the calibration's forward matrix E predicts the frames that
+reflectance would have made, E y, and the residual ``(I - E A) s`` is what no single reflectance explains. For a
+pixel whose samples come from one surface it holds the camera's noise and the part of the surface's spectrum outside
+the plan's model (the mismatch); samples of different surfaces add what their spectra do not share.
 
 Per pixel the residual's components along the r directions ``I - E A`` does not null (``r = K - rank(E A)`` for a
-basis plan; for narrowband, which decodes every frame on its own, ``E A`` is the reflectance linear between the
-band centres, a weaker check whose mismatch the prior mostly covers) are weighed by their covariance, the noise at the pixel's samples (the plan's noise model) plus the mismatch of a
-smooth prior (:func:`specgpu.planning.priors.smooth_prior`): ``chi2 = r^T C^-1 r``, chi-square with r degrees of
-freedom where the samples agree. A pixel is flagged where it exceeds the chi-square's ``1 - P_FALSE`` quantile.
-The samples come from the warped pass itself (rows of the identity appended to the decoder), so the check costs
-no extra pass over the frames and judges every decoding: global, affine, an object layer's and the flow's.
+basis plan; for narrowband, which decodes every frame on its own, ``E A`` is the reflectance linear between the band
+centres, a weaker check whose mismatch the prior mostly covers) are weighed by their covariance, the noise at the
+pixel's samples (the plan's noise model) plus the mismatch of a smooth prior
+(:func:`specgpu.planning.priors.smooth_prior`): ``chi2 = r^T C^-1 r``, chi-square with r degrees of freedom where
+the samples agree. A pixel is flagged where it exceeds the chi-square's ``1 - P_FALSE`` quantile. The samples come
+from the warped pass itself (rows of the identity appended to the decoder), so the check costs no extra pass over
+the frames and judges every decoding: global, affine, an object layer's and the flow's.
 """
 
 from __future__ import annotations

@@ -121,15 +121,21 @@ def test_chi2_is_each_pixels_residual_weighed_by_its_own_covariance(setup):
 
 
 def test_flags_grow_one_pixel_into_what_was_seen():
-    mask = np.zeros((7, 7), np.uint8)
+    mask = np.zeros((20, 20), np.uint8)
     mask[3, 3] = MASK_INCONSISTENT
     mask[2, 2] = MASK_LAYER
     mask[:, 4] = 4  # outside the field: keeps its own reason
     grow_flags(mask)
-    expected = np.zeros((7, 7), np.uint8)
+    expected = np.zeros((20, 20), np.uint8)
     expected[2:5, 2:4] = MASK_INCONSISTENT
     expected[:, 4] = 4
     np.testing.assert_array_equal(mask, expected)
+    # an island the flags enclose goes with them; one as large as the check's window does not
+    for side, flagged in ((8, True), (12, False)):  # the islands left once the flags grew their ring
+        mask = np.full((side + 4, side + 4), MASK_INCONSISTENT, np.uint8)
+        mask[2:-2, 2:-2] = 0
+        grow_flags(mask)
+        assert np.all(mask[3:-3, 3:-3] == MASK_INCONSISTENT) == flagged
 
 
 def test_a_motion_the_field_refutes_flags_every_pixel():
