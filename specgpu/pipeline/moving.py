@@ -15,7 +15,9 @@ scene moves, then pulls the estimate to zero, and a vibration near the sequence 
 An **affine** map per frame (a rotation, a zoom) is fitted to the translations of a grid of tiles; each frame's
 global translation is checked against its tiles too, so that an object moving on its own over the scene cannot
 take the estimate over. After compensation, pixels whose frames still disagree (the object, an occlusion) are
-found from their compensated gradient images (:func:`inconsistent_pixels`), flagged and left NaN.
+found from their compensated gradient images (:func:`inconsistent_pixels`) and, where those cannot tell (no frame
+has structure there), from the decoding's residual (:mod:`specgpu.pipeline.moving_residual`), flagged and left
+NaN.
 
 The displacements are taken relative to the sequence's reference time, the mean of its frames' times (the middle
 frame's time for odd K), which is where the twin's truth puts the scene
@@ -87,7 +89,7 @@ MAX_SPEED_PX_PER_FRAME = 16.0
 #: than that: the sequence is estimated again over the whole surface. A faster motion leaves within reach only
 #: noise (on the moving twin at 18 to 30 px per frame, the pair furthest out of reach: 0.02-0.11 of the true
 #: peak) or the tail of the true peak on the edge (17 px per frame), which no later step would catch: the warp
-#: would take it, and the consistency check judges textured pixels only. Two peaks that are both real stay
+#: would take it, and the consistency check cannot judge flat pixels. Two peaks that are both real stay
 #: apart: a repeating scene's peak a period off (the true one is 0.9 of it or more), and an object moving faster
 #: than the reach over a still scene (a chart at 25 px per frame over the natural scene: the scene's peak is
 #: 0.44-0.73 of the chart's), whose motion is the object layers' to find, not the scene's. A false peak within
@@ -589,15 +591,16 @@ def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9
     Each frame's :func:`gradient_image` is sampled where the motion says that frame saw each pixel; where the
     motion is right, their edges coincide whatever the illuminant (their contrasts differ, not their places). Per
     pixel, the normalised cross-correlation over a ``window`` x ``window`` neighbourhood between each compensated
-    gradient image and their median is computed; a pixel is inconsistent where the median has texture (local
-    energy above ``texture`` times the field's mean) and some frame with structure of its own there (local energy
-    above ``own`` times its median: not just noise) correlates below ``threshold``. Untextured regions are never
-    flagged: there, samples from a few pixels away hold the same spectrum. ``gradients``: the frames' gradient
-    images already made (:attr:`MotionEstimate.gradients`; a None entry is made here).
+    gradient image and their median is computed; a pixel is inconsistent where some frame with structure of its
+    own there (local energy above ``own`` times its median: not just noise) correlates below ``threshold``,
+    whether or not the median has texture: a wrong motion leaves the median of misaligned images flat where each
+    frame has an edge. Where no frame has structure this check cannot judge; the residual check of the decoding
+    does (:mod:`specgpu.pipeline.moving_residual`). ``gradients``: the frames' gradient images already made
+    (:attr:`MotionEstimate.gradients`; a None entry is made here).
     """
-    textured, worst = consistency(frames, shifts, dark, gain, window=window, texture=texture, own=own,
+    _, worst = consistency(frames, shifts, dark, gain, window=window, texture=texture, own=own,
                                   gradients=gradients)
-    return textured & (worst < threshold)
+    return worst < threshold
 
 
 def consistency(frames, shifts, dark=None, gain=None, *, window: int = 9, texture: float = 0.5, own: float = 4.0,

@@ -29,6 +29,7 @@ from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E
 from specgpu.pipeline.moving import check_motion_mode
 from specgpu.pipeline.moving_flow import MIN_FRAMES
 from specgpu.pipeline.moving_layers import recover_moving
+from specgpu.pipeline.moving_residual import residual_check
 from specgpu.pipeline.recovery import corrected_signal
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.reference_frames import reference_indices
@@ -113,6 +114,7 @@ class MovingDecoder:
             raise ValueError("the dE output needs a reference (an L,a,b colour or a per-pixel Lab image)")
         self.dark = np.asarray(calibration.dark_at(plan.exposure_s), np.float32)
         self.reference_frames = reference_indices(plan)  # the motion from them where the plan has them
+        self.residual = residual_check(plan, calibration)  # every pixel's samples judged against the plan's model
         self.ratio = calibration.flat_ratio(plan.patterns)
         self.precorrect = self.ratio is not None or calibration.reports.get("linearity_c_per_dn2", 0.0) > 0
         A = np.asarray(plan.A, np.float64)
@@ -163,7 +165,7 @@ class MovingDecoder:
         steps = {}
         rec = recover_moving(frames, self.matrix, dark=self.dark, gain=self.calibration.flat_field,
                              saturation=float(self.calibration.max_code), model=self.model, device=self.device,
-                             seconds=steps, reference_frames=self.reference_frames)
+                             seconds=steps, reference_frames=self.reference_frames, residual=self.residual)
         y, mask, est = rec.y, rec.mask, rec.estimates[0]
         t3 = time.perf_counter()
         out = {}

@@ -248,8 +248,8 @@ def choose_flow(mask, maps, mask_flow, flow_maps, held, *, threshold: float, inc
                 margin: float = 0.2) -> np.ndarray:
     """(H, W) bool: the pixels decoded with the flow rather than the global motion (or an object layer's).
 
-    Under the flow a pixel is consistent where its frames agree (not ``textured``, or ``worst`` >= ``threshold``:
-    ``flow_maps``) and its pass flagged nothing (``mask_flow``). It takes the flow there where the global decoding
+    Under the flow a pixel is consistent where its frames agree (``worst`` >= ``threshold``, ``flow_maps``; 1 where
+    no frame has structure of its own) and its pass flagged nothing (``mask_flow``: its residual included). It takes the flow there where the global decoding
     is flagged inconsistent (``mask`` bit ``inconsistent``), has no texture, or is not better correlated by more
     than ``margin`` (``maps``: the global check's). A pixel an object layer decoded (``held``) takes it only on
     positive evidence, its frames textured and agreeing under the flow: a layer's translation is right for an object
@@ -258,7 +258,7 @@ def choose_flow(mask, maps, mask_flow, flow_maps, held, *, threshold: float, inc
     textured_g, worst_g = maps
     textured_f, worst_f = flow_maps
     agree = worst_f >= threshold
-    consistent = (~textured_f | agree) & (mask_flow == 0)
+    consistent = agree & (mask_flow == 0)
     flagged = (mask & np.uint8(inconsistent)) != 0
     better = ~textured_g | (textured_f & (worst_f >= worst_g - margin))
     return consistent & (~held | (textured_f & agree)) & (flagged | better)

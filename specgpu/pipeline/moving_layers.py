@@ -3,7 +3,8 @@ moving on its own over a scene whose global motion is compensated.
 
 Global compensation samples every frame where the scene's (or camera's) motion says it saw each pixel; a hand, a
 chart on a conveyor, anything moving on its own is then misregistered, and the consistency check
-(:func:`specgpu.pipeline.moving.consistency`) flags its textured pixels and leaves them NaN. When the flagged
+(:func:`specgpu.pipeline.moving.consistency`) flags its pixels where some frame has structure, the residual
+check (:mod:`specgpu.pipeline.moving_residual`) where its samples mix spectra, and leaves them NaN. When the flagged
 pixels gather into a region of some size, that region is taken to be one object with a motion of its own:
 
 1. its translation per frame is registered on the frames' gradient images restricted to the region (the whitened
@@ -19,7 +20,10 @@ pixels gather into a region of some size, that region is taken to be one object 
    relative to the background's) is flagged: its samples mix the two surfaces. So are the object's pixels its own
    decoding cannot give. Pixels consistent under neither motion stay flagged and NaN.
 
-Pixels decoded with an object's motion carry :data:`MASK_LAYER` in the mask.
+Pixels decoded with an object's motion carry :data:`MASK_LAYER` in the mask. A motion under which the checks flag
+most of the field (:data:`MAX_REFUTED_SHARE`) is refuted and every pixel flagged (:func:`refuted`): an estimate
+taken over by a fast object, an affine map pulled by one; what passes under it passes because nothing there can
+tell, not because it holds.
 """
 
 from __future__ import annotations
@@ -32,15 +36,18 @@ from scipy import ndimage
 from skimage.morphology import convex_hull_image
 
 from specgpu.core.numerics import live_gain
+from specgpu.engine.linear_map import LinearResult
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
 from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency, estimate_global_motion,
                                      frame_gradients)
+from specgpu.pipeline.moving_residual import residual_chi2
 from specgpu.pipeline.moving_flow import MIN_FRAMES, choose_flow, flow_field, tile_motion
 from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
-__all__ = ["MASK_LAYER", "ObjectLayer", "MovingRecovery", "flagged_regions", "estimate_layer_motion",
-           "object_footprint", "occluded_by", "decode_object_layers", "recover_moving"]
+__all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
+           "flagged_regions", "estimate_layer_motion", "object_footprint", "occluded_by", "decode_object_layers",
+           "recover_moving"]
 
 #: Mask bit of a pixel decoded with the motion of an object of its own (not the global motion).
 MASK_LAYER = 16
@@ -243,7 +250,7 @@ def _steady_motion(candidates, reference_frame: int, K: int):
 
 def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=None, *, saturation=None, device=None,
                          threshold: float = CHECK_THRESHOLD, min_share: float = MIN_LAYER_SHARE,
-                         read=None) -> list:
+                         read=None, residual=None) -> list:
     """Decode again, with an object's own motion, the flagged regions of a globally compensated recovery.
 
     ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (:data:`MASK_INCONSISTENT` where flagged)
@@ -254,7 +261,8 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
     (translation model; its gradient images are reused where kept); ``check``: the (textured, worst) maps of the
     global motion's :func:`~specgpu.pipeline.moving.consistency`, whose flags ``mask`` holds. Returns the
     :class:`ObjectLayer` of each region decoded (empty: none found). ``read``: the frames the decoder reads (all
-    by default; a plan's broadband reference frames left out, as the global pass and check leave them out).
+    by default; a plan's broadband reference frames left out, as the global pass and check leave them out);
+    ``residual``: the :class:`~specgpu.pipeline.moving_residual.ResidualCheck` the object's decoding must pass too.
     """
     frames = np.asarray(frames)
     if estimate.model != "translation":
@@ -280,12 +288,14 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         if raw is None:
             continue
         shifts = raw - at_reference_time(raw)
-        res = _warped(frames, A, shifts, dark, gain, read, saturation=saturation, return_mask=True, device=device)
+        res = _warped(frames, A, shifts, dark, gain, read, residual, saturation=saturation, return_mask=True,
+                      device=device)
         textured, worst = consistency(*_reading(read, frames, shifts), gradients=_reading(read, gradients)[0])
         valid = (res.mask & (1 | 2 | MASK_OUTSIDE)) == 0
+        fits = (res.mask & MASK_INCONSISTENT) == 0  # one reflectance explains the samples the object's motion takes
         # the object's pixels: its motion makes the frames agree there, and clearly better than the global one
         # (or where it makes a pixel the global motion left flagged agree)
-        agree = valid & textured & (worst >= threshold)
+        agree = valid & fits & textured & (worst >= threshold)
         seed = agree & ((worst - worst_global >= SEED_MARGIN) | (region & flagged))
         if seed.sum() < MIN_SEED_SHARE * region.sum():
             continue  # the object's motion explains too little of the region to be an object's
@@ -297,7 +307,7 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         footprint = ndimage.binary_erosion(hull, iterations=WINDOW // 2)
         background = estimate.shifts if estimate.shifts.shape == shifts.shape else np.zeros_like(shifts)
         covered = occluded_by(footprint, shifts - background)
-        use = valid & ~covered & ((footprint & ~(textured & (worst < threshold))) | (hull & ~footprint & agree))
+        use = valid & fits & ~covered & ((footprint & (worst >= threshold)) | (hull & ~footprint & agree))
         y[use] = res.y[use]
         mask[use] = res.mask[use] | np.uint8(MASK_LAYER)
         # the object's pixels its own decoding cannot give (its frames disagree, or its pass saw a sample
@@ -319,13 +329,24 @@ def _reading(read, *arrays) -> list:
     return [[a[k] for k in read] if isinstance(a, (list, tuple)) else np.asarray(a)[read] for a in arrays]
 
 
-def _warped(frames, A, shifts, dark, gain, read, **kw):
+def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
     """:func:`~specgpu.engine.warp_map.apply_linear_warped` of the frames ``read`` only (None: every frame); a
-    sample of a pixel with no response (:func:`specgpu.core.numerics.live_gain`) makes its output NaN."""
-    return apply_linear_warped(frames, A, shifts, dark, live_gain(gain), read=read, **kw)
+    sample of a pixel with no response (:func:`specgpu.core.numerics.live_gain`) makes its output NaN. With a
+    ``residual`` (:class:`~specgpu.pipeline.moving_residual.ResidualCheck`; ``return_mask``), the same pass also
+    outputs what the check needs of each pixel's compensated samples, and a pixel no single reflectance explains
+    is flagged :data:`MASK_INCONSISTENT` in the mask."""
+    if residual is None:
+        return apply_linear_warped(frames, A, shifts, dark, live_gain(gain), read=read, **kw)
+    A = np.asarray(A, np.float64)
+    res = apply_linear_warped(frames, np.vstack([A, residual.rows]), shifts, dark, live_gain(gain), read=read, **kw)
+    B = A.shape[0]
+    chi = residual_chi2(res.y[..., B:], residual, gain)
+    mask = res.mask
+    mask[chi > residual.threshold] |= np.uint8(MASK_INCONSISTENT)
+    return LinearResult(np.ascontiguousarray(res.y[..., :B]), mask)
 
 
-def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, saturation, device):
+def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, saturation, device, residual=None):
     """The flow's part of a ``model="flow"`` recovery (:mod:`specgpu.pipeline.moving_flow`), in place on ``y`` and
     ``mask``: each pixel the flow's decoding gives (:func:`~specgpu.pipeline.moving_flow.choose_flow`, with the
     global check's ``maps``; every pixel without them). Returns ``est`` with ``shifts`` the (K, 2, H, W)
@@ -341,7 +362,8 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
     motion = tile_motion(gradients, est.shifts, est.reference_frame, est.registered)
     if motion.measured.any() and np.any(motion.velocity != 0):
         flow = flow_field(motion, est.shifts, (h, w))
-        res = _warped(frames, A, flow, dark, gain, None, saturation=saturation, return_mask=True, device=device)
+        res = _warped(frames, A, flow, dark, gain, None, residual, saturation=saturation, return_mask=True,
+                      device=device)
         if maps is not None:
             flow_maps = consistency(frames, flow, dark, gain, gradients=gradients)
             use = choose_flow(mask, maps, res.mask, flow_maps, held, threshold=CHECK_THRESHOLD,
@@ -351,6 +373,48 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
         y[use], mask[use] = res.y[use], res.mask[use]
         per_pixel[:, :, use] = flow[:, :, use]
     return replace(est, shifts=per_pixel, model="flow")
+
+
+#: A motion under which the checks flag more than this share of the pixels in the field is refuted: the scene does
+#: not move so, and the pixels that pass under it pass because nothing there can tell (flat surfaces sampled far
+#: from where they are), not because it holds. On the twin an estimate taken over by a chart moving 14 px per frame
+#: left 95 % of the field flagged and a few hundred wrong pixels unflagged; affine maps pulled by a chart 65 %.
+MAX_REFUTED_SHARE = 0.5
+
+
+#: Pixels not flagged that flagged ones enclose are flagged too where they are fewer than this: the check's window.
+ISLAND_PX = WINDOW * WINDOW
+
+
+def grow_flags(mask) -> None:
+    """Flag (in place) the pixels next to an inconsistent one (8-connected) that their own pass saw in the field.
+    A compensated sample is bilinear, read from the 2 x 2 sensor pixels about its point, so where samples that mix
+    surfaces begin is known to a pixel: the pixel beside a flagged one reads sensor pixels the flagged one reads,
+    and its check, a statistic of few samples, may pass just below its threshold. (On the twin at 640 x 480 every
+    unflagged pixel decoded wrong in the cases of ``tools/motion_flags.py`` lay within 1.4 px of a flagged one.)
+    The islands of fewer than :data:`ISLAND_PX` pixels the flags enclose are flagged as well."""
+    flagged = (mask & np.uint8(MASK_INCONSISTENT)) != 0
+    ring = ndimage.binary_dilation(flagged, structure=np.ones((3, 3), bool)) & ~flagged
+    # and the islands the flags enclose, smaller than the check's window: a region whose motion is refuted all
+    # about them (an object fast enough to be over a pixel in one frame only leaves its flat inside so)
+    labels, n = ndimage.label(~(flagged | ring))
+    if n:
+        sizes = ndimage.sum_labels(np.ones(labels.shape), labels, index=np.arange(1, n + 1))
+        ring |= np.isin(labels, 1 + np.flatnonzero(sizes < ISLAND_PX))
+    ring &= (mask & np.uint8(1 | 2 | MASK_OUTSIDE)) == 0
+    mask[ring] = (mask[ring] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+
+
+def refuted(mask) -> bool:
+    """Flag every pixel of ``mask`` (in place, :data:`MASK_INCONSISTENT`) where more than
+    :data:`MAX_REFUTED_SHARE` of the pixels in the field (not saturated, non-finite or outside it) are flagged
+    inconsistent: the motion they were decoded with is not the scene's. Returns whether it did."""
+    seen = (mask & np.uint8(1 | 2 | MASK_OUTSIDE)) == 0
+    flagged = seen & ((mask & np.uint8(MASK_INCONSISTENT)) != 0)
+    if not seen.any() or flagged.sum() <= MAX_REFUTED_SHARE * seen.sum():
+        return False
+    mask[seen] = (mask[seen] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+    return True
 
 
 @dataclass(frozen=True)
@@ -366,7 +430,7 @@ class MovingRecovery:
 
 def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 10, binning: int = 1,
                    shifts=None, model: str = "translation", check: bool = True, layers: bool = True,
-                   device=None, seconds: dict | None = None, reference_frames=None) -> MovingRecovery:
+                   device=None, seconds: dict | None = None, reference_frames=None, residual=None) -> MovingRecovery:
     """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
     with frame k sampled at x + d_k in one device pass.
 
@@ -402,6 +466,11 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         (:func:`specgpu.pipeline.reference_motion.estimate_reference_motion`), and the warped pass and the global
         consistency check read the other frames only (the decoder does not read the reference frames: where they
         saw outside the field, saturated or disagree cannot reach the outputs).
+    residual : ResidualCheck, optional
+        With ``check``: every decoding (global, an object layer's, the flow's) also flags the pixels whose
+        compensated samples no single reflectance explains (:mod:`specgpu.pipeline.moving_residual`; made for the
+        plan by :func:`~specgpu.pipeline.moving_residual.residual_check`). Without it only the gradient images
+        judge, which cannot where no frame has structure of its own.
 
     Returns
     -------
@@ -443,7 +512,13 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     lap("estimate")
     # the decoder reads no reference frame: where they saw outside the field, saturated or disagree does not matter
     read = [k for k in range(len(frames)) if k not in set(refs)] if refs else None
-    res = _warped(frames, A, shifts, dark, gain, read, saturation=saturation, return_mask=True, device=device)
+    residual = residual if check else None
+    reading = read or list(range(len(frames)))
+    if residual is not None and (residual.K != len(frames) or list(residual.frames) != reading):
+        raise ValueError(f"the residual check is for {residual.K} frames reading {list(residual.frames)}; the "
+                         f"sequence has {len(frames)} reading {reading}")
+    res = _warped(frames, A, shifts, dark, gain, read, residual, saturation=saturation, return_mask=True,
+                  device=device)
     y, mask = res.y, res.mask
     lap("warp")
     found = []
@@ -453,13 +528,17 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     if check:
         maps = consistency(*_reading(read, frames, shifts), None if read else dark, gain,
                            gradients=None if gradients is None else _reading(read, gradients)[0])
-        mask[maps[0] & (maps[1] < CHECK_THRESHOLD)] |= MASK_INCONSISTENT
+        # every pixel judged, textured or not: a frame with structure of its own that the others do not share
+        mask[maps[1] < CHECK_THRESHOLD] |= MASK_INCONSISTENT
         if layers and est is not None:
             found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
-                                         device=device, read=read)
+                                         device=device, read=read, residual=residual)
     if dense and est is not None:
         est = _with_flow(frames, A, est, gradients, y, mask, found, maps if check else None, dark, gain,
-                         saturation=saturation, device=device)
+                         saturation=saturation, device=device, residual=residual)
+    if check:
+        grow_flags(mask)
+        refuted(mask)
     y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
     lap("check")
     # the gradient images served the check and the layers; not kept with a result

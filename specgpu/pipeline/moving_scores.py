@@ -16,6 +16,7 @@ from scipy import ndimage
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving_layers import recover_moving
+from specgpu.pipeline.moving_residual import residual_check
 from specgpu.pipeline.recovery import capture_plan
 from specgpu.planning.reference_frames import reference_indices
 from specgpu.rig.scene import SpectralScene
@@ -80,7 +81,7 @@ def compare_motion(description, bundle, plan, scene, motion, seed: int, *, edge:
     t_scene = SpectralScene(scene.wavelengths, truth["reflectance"], name="truth at the reference time")
     t0 = time.perf_counter()
     comp = recover_moving(seq.frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code), model=model,
-                          reference_frames=reference_indices(plan))
+                          reference_frames=reference_indices(plan), residual=residual_check(plan, bundle))
     seconds = time.perf_counter() - t0
     recovered = {"still": apply_linear(still.frames, plan.A, dark, gain),
                  "moving": apply_linear(seq.frames, plan.A, dark, gain), "compensated": comp.y}

@@ -29,6 +29,7 @@ from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.pipeline.moving import check_motion_mode
 from specgpu.pipeline.motion_record import renumber_truth
 from specgpu.pipeline.moving_layers import recover_moving
+from specgpu.pipeline.moving_residual import residual_check
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
 from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
 from specgpu.planning.plans import Plan, load_plan, save_plan
@@ -522,7 +523,8 @@ def _recover_moving(folder: SequenceFolder, sequence, white_roi, out_dtype, devi
     if ratio is not None or bundle.reports.get("linearity_c_per_dn2", 0.0) > 0:
         frames = _flatten_by_wavelength(frames, dark, ratio, bundle)
     res = recover_moving(frames, plan.A, dark=dark, gain=bundle.flat_field, saturation=float(bundle.max_code),
-                         model=model, device=device, reference_frames=reference_indices(plan))
+                         model=model, device=device, reference_frames=reference_indices(plan),
+                         residual=residual_check(plan, bundle))
     return res.y.astype(out_dtype, copy=False)
 
 

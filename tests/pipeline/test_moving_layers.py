@@ -13,6 +13,7 @@ from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving import MASK_INCONSISTENT
 from specgpu.pipeline.moving_decode import MovingDecoder
 from specgpu.pipeline.moving_layers import MASK_LAYER, flagged_regions, occluded_by, recover_moving
+from specgpu.pipeline.moving_residual import residual_check
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.uncertainty import constant_variance, frame_variance
@@ -31,7 +32,8 @@ def setup():
 def chart_over_scene(setup):
     desc, bundle, plan, scene = setup
     frames, truth = frames_of(desc, plan, scene, OBJECT)
-    kw = dict(dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field, saturation=float(bundle.max_code))
+    kw = dict(dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field, saturation=float(bundle.max_code),
+              residual=residual_check(plan, bundle))  # as recover and the stream decoder check it
     return frames, truth, recover_moving(frames, plan.A, **kw), recover_moving(frames, plan.A, layers=False, **kw)
 
 
@@ -53,14 +55,17 @@ def test_the_object_is_decoded_not_flagged_and_its_spectra_are_right(setup, char
     flagged_after = ((res.mask & MASK_INCONSISTENT) > 0)[obj].mean()
     assert flagged_before > 0.1 and flagged_after < 0.7 * flagged_before
     layer = (res.mask & MASK_LAYER) > 0
-    assert layer[obj].mean() > 0.7  # most of the object, flat patches included, is decoded with its motion
+    # most of the object, flat patches included, is decoded with its motion (less the ring the flags grow by about
+    # the pixels it cannot decode)
+    assert layer[obj].mean() > 0.65
     assert (layer & ~obj).sum() < 0.1 * layer.sum()
     at_reference = SpectralScene(scene.wavelengths, truth["reflectance"], name="truth at the reference time")
     rep = evaluate_pixels(res.y, at_reference, wavelengths=plan.output_wavelengths)
     single_rep = evaluate_pixels(single.y, at_reference, wavelengths=plan.output_wavelengths)
     both = obj & np.isfinite(rep.rmse) & np.isfinite(single_rep.rmse)
     # on the object's pixels both decode, the object's motion gives the right spectra and the background's does not
-    assert np.mean(rep.rmse[both]) < 0.5 * np.mean(single_rep.rmse[both])
+    # (the few the global decoding leaves unflagged there, whose samples fit one spectrum)
+    assert np.mean(rep.rmse[both]) < 0.6 * np.mean(single_rep.rmse[both])
     assert np.nanmean(rep.rmse[layer & obj]) < 0.06, np.nanmean(rep.rmse[layer & obj])
 
 
@@ -73,7 +78,8 @@ def test_background_the_object_covered_during_the_sequence_is_flagged(setup, cha
     assert covered.sum() > 2 * 100 * 8  # two strips about 9 px wide along the object's 100 px height
     nan = ~np.all(np.isfinite(res.y), axis=2)
     nan_single = ~np.all(np.isfinite(single.y), axis=2)
-    assert nan[covered].mean() > 1.5 * nan_single[covered].mean(), (nan[covered].mean(), nan_single[covered].mean())
+    # the layer flags the strips as a whole (the global check alone only where some frame has structure there)
+    assert nan[covered].mean() > nan_single[covered].mean(), (nan[covered].mean(), nan_single[covered].mean())
     assert np.all(nan == ((res.mask & (1 | 4 | MASK_INCONSISTENT)) > 0))  # every NaN is flagged, every flag NaN
 
 
