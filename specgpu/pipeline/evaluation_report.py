@@ -15,6 +15,7 @@ from specgpu.pipeline.evaluate import (
     evaluate_reflectance,
     evaluate_XYZ,
     evaluation_illuminant,
+    evaluation_integration,
 )
 
 __all__ = ["evaluation_report", "headline_line", "patch_table", "read_recovered"]
@@ -45,21 +46,26 @@ def colorimetry(path, meta, illuminant, colorimetric):
 
 
 def evaluation_report(cube, data, wavelengths, meta, scene, illuminant, cmfs, *, device=None,
-                      progress=lambda desc: nullcontext()) -> dict:
+                      progress=lambda desc: nullcontext(), integration=None) -> dict:
     """The evaluation report: per-pixel statistics, per-patch rows for a chart, and the headline figures
-    (``<short>_mean`` / ``<short>_max``; ``headline`` keeps them by long name)."""
+    (``<short>_mean`` / ``<short>_max``; ``headline`` keeps them by long name). ``integration``: the one asked
+    for, else the one the file records (:func:`specgpu.pipeline.evaluate.evaluation_integration`)."""
+    integration = evaluation_integration(meta.get("integration"), integration, colorimetric=wavelengths is None,
+                                         name=str(cube))
     with progress("evaluating"):
         pixels = evaluate_pixels(data, scene, wavelengths=wavelengths, illuminant=illuminant, cmfs=cmfs,
-                                 device=device)
+                                 integration=integration, device=device)
     stats = pixels.statistics()
     report = {"cube": str(cube), "truth": scene.name, "illuminant": illuminant,
               **({"observer": cmfs} if cmfs != DEFAULT_CMFS else {}),
+              **({"integration": integration} if integration != "rectangle" else {}),
               **({"truth_resampled": scene.resampled} if scene.resampled else {}),
               "projections": meta.get("projections"), "plan_method": meta.get("plan_method"), "pixels": stats}
     headline = {k: stats[k] for k in stats}
     if scene.masks:
-        patch = (evaluate_reflectance(data, wavelengths, scene, illuminant=illuminant) if wavelengths is not None
-                 else evaluate_XYZ(data, scene, illuminant=illuminant, cmfs=cmfs))
+        patch = (evaluate_reflectance(data, wavelengths, scene, illuminant=illuminant, integration=integration)
+                 if wavelengths is not None
+                 else evaluate_XYZ(data, scene, illuminant=illuminant, cmfs=cmfs, integration=integration))
         rows = []
         for i, name in enumerate(patch.names):
             row = {"patch": name, "dE76": float(patch.delta_E_ab[i]), "dE2000": float(patch.delta_E_2000[i])}
