@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from specgpu import io
-from specgpu.apps.cli.options import RESIZE, Busy, command, lock, no_clash, resampled
+from specgpu.apps.cli.options import RESIZE, Busy, command, integration_option, lock, no_clash, resampled
 from specgpu.pipeline.evaluation_report import (
     colorimetry,
     evaluation_report,
@@ -32,7 +32,8 @@ from specgpu.rig.scene import load_scene
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the report here.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
 @RESIZE
-def evaluate(cube, truth, illuminant, json_path, device, resize):
+@integration_option(None, " [default: the one the file records, else rectangle]")
+def evaluate(cube, truth, illuminant, json_path, device, resize, integration):
     """Accuracy of a recovered cube (.exr, .npz or ENVI .hdr; or an XYZ map) against the true scene: per pixel,
     and per patch for a chart."""
     if json_path:
@@ -45,7 +46,7 @@ def evaluate(cube, truth, illuminant, json_path, device, resize):
     height, width = data.shape[:2]
     scene = resampled(f"--truth {truth}", load_scene(truth, height, width, resize=resize))
     result = evaluation_report(cube, data, wavelengths, meta, scene, illuminant, cmfs, device=device,
-                               progress=Busy)
+                               progress=Busy, integration=integration)
     report = result["report"]
     if scene.masks:
         click.echo("\n".join(patch_table(report["patches"])))
