@@ -99,6 +99,7 @@ def XYZ_to_Lab(XYZ, illuminant="D65", *, observer: str = DEFAULT_CMFS, wavelengt
 
     A perfect white on a 10 nm grid, with the white of that grid:
 
+    >>> from specgpu.engine import reflectance_to_XYZ
     >>> wavelengths = np.arange(400, 701, 10)
     >>> XYZ = reflectance_to_XYZ(np.ones(31), wavelengths)
     >>> (XYZ_to_Lab(XYZ, wavelengths=wavelengths).astype(float).round(3) + 0.0).tolist()
