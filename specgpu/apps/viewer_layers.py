@@ -66,7 +66,9 @@ def sRGB_of_cube(cube, wavelengths, illuminant: str = "D65", axis: int = -1):
     xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"].get(illuminant)
     if xy is None:
         raise ValueError(f"unknown illuminant {illuminant!r}; valid: {', '.join(ILLUMINANTS)}")
-    W = XYZ_weights(np.asarray(wavelengths, np.float64), illuminant).astype(np.float32)
+    W = XYZ_weights(np.asarray(wavelengths, np.float64), illuminant)
+    xy = colour.XYZ_to_xy(W.sum(axis=1))  # the white of these weights: a perfect white renders as 255
+    W = W.astype(np.float32)
 
     def render(block):  # wavelengths on the last axis
         return sRGB8(np.asarray(block, np.float32) @ W.T, xy)

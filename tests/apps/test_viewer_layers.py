@@ -196,3 +196,13 @@ def test_reader_hook_never_raises_on_any_path(text):
     """napari asks every plugin about every path: the hook answers None or a reader, never an exception."""
     got = napari_get_reader(text)
     assert got is None or callable(got)
+
+
+@pytest.mark.parametrize("step", [10.0, 20.0])
+@pytest.mark.parametrize("illuminant", ["D65", "A", "FL2"])
+def test_a_perfect_white_renders_as_255_under_any_illuminant(illuminant, step):
+    """The rendering adapts from the white of the cube's own weights: a reflectance of 1 is (255, 255, 255) (from
+    the tabulated chromaticity FL2's white on a 10 nm grid came out (255, 255, 232))."""
+    wl = np.arange(400.0, 701.0, step)
+    np.testing.assert_array_equal(sRGB_of_cube(np.ones((2, 3, wl.size), np.float32), wl, illuminant),
+                                  np.full((2, 3, 3), 255))
