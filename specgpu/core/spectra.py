@@ -217,15 +217,17 @@ def _XYZ_weights(w: np.ndarray, illuminant, cmfs, integration: str) -> np.ndarra
 
 
 def _ASTM_E308_weights(w: np.ndarray, illuminant, cmfs) -> np.ndarray:
-    """colour-science's ASTM E308 XYZ is linear in the reflectance, so its weights are its XYZ of the B unit
-    spectra (one call over the identity); the grid is checked first, so colour-science never reshapes it."""
+    """The weights of colour-science's ASTM E308 XYZ, which is linear in the reflectance: for 10 and 20 nm its
+    XYZ of the B unit spectra (one call over the identity), for 1 and 5 nm the rectangle weights it integrates
+    with, folded onto the grid. The grid is checked first, so colour-science never reshapes it."""
     step = float(w[1] - w[0]) if w.size > 1 else 0.0
     interval = int(round(step))
     if w.size < 2 or interval not in ASTM_E308_INTERVALS or abs(step - interval) > 1e-9 \
             or not np.allclose(np.diff(w), step, rtol=0, atol=1e-9):
-        raise ValueError(f"integration 'ASTM E308' has tables for grids of {', '.join(map(str, ASTM_E308_INTERVALS))} "
-                         f"nm intervals, not wavelengths {w[0]:g}-{w[-1]:g} nm every {step:g} nm; use integration "
-                         "'rectangle' or resample the cube")
+        intervals = ", ".join(map(str, ASTM_E308_INTERVALS))
+        raise ValueError(f"integration 'ASTM E308' has tables for grids of {intervals} nm intervals, not "
+                         f"wavelengths {w[0]:g}-{w[-1]:g} nm every {step:g} nm; use integration 'rectangle' or "
+                         "resample the cube")
     base = min(interval, 10)
     if abs(w[0] / base - round(w[0] / base)) > 1e-9:
         raise ValueError(f"integration 'ASTM E308' needs a {interval} nm grid on multiples of {base} nm, not one "
