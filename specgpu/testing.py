@@ -92,11 +92,14 @@ class StreamSetup:
 
 
 def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 200.0, sequences: int = 8,
-                 output_step_nm: float = 5.0, seed: int = 0, white_tile: float | None = None) -> StreamSetup:
+                 output_step_nm: float = 5.0, seed: int = 0, white_tile: float | None = None,
+                 progress=None) -> StreamSetup:
     """Calibrate the twin at ``width`` x ``height`` and ``frame_rate_hz``, plan the symmetric basis method with
     an exposure that fits the frame period, and record ``sequences`` sequences of the colorchecker (10-bit);
     ``white_tile``: with a reference white tile of that reflectance above the chart
-    (:func:`specgpu.rig.scene.white_tile_roi` gives its ROI)."""
+    (:func:`specgpu.rig.scene.white_tile_roi` gives its ROI). ``progress``, if given, is called with a line
+    naming each step as it starts (each takes seconds to tens of seconds)."""
+    say = progress or (lambda _line: None)
     base = RigDescription()
     switch = base.light.switch_time_s
     # the paper's camera up to 640 x 480, else the smallest machine-vision sensor preset that holds the size
@@ -105,12 +108,15 @@ def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 
     exposure = 1.0 / frame_rate_hz - switch - 5e-6  # the longest exposure the light can follow at this rate
     cam = replace(sensor, bit_depth=10, exposure_s=exposure, frame_rate_hz=frame_rate_hz)
     description = replace(base, camera=cam)
+    say(f"calibrating the twin at {width} x {height}, {frame_rate_hz:g} frames/s (both feedback loops)")
     bundle = calibrate(description, seed=seed)
+    say("planning the symmetric basis method (m = 5) on the default basis")
     plan = plan_symmetric_basis(bundle, default_basis(), m=5, max_exposure_s=exposure,
                                 output_wavelengths=np.arange(400.0, 700.0 + 1e-9, output_step_nm))
     scene = colorchecker_scene(int(height), int(width), white_tile=white_tile)
     rig = TwinRig(plan.rig_description(description), scene=scene)
     rig.seed = seed + 1
+    say(f"recording {sequences} sequences of {plan.K} frames of the chart on the twin")
     frames, infos, light = record(TwinDriver(rig, patterns=plan.patterns, pacing="free"), plan.K * sequences)
     return StreamSetup(description, bundle, plan, frames, infos, light, scene_Lab(scene))
 

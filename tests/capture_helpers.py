@@ -26,3 +26,28 @@ def write_chart_capture(root, folder: str, *, sequences: int = 1, noise_seed: in
     save_calibration(root / "calibration.npz", bundle)
     return write_capture(root / folder, result.sequences, result.assembly, root / "plan.npz",
                          root / "calibration.npz", metadata={"scene": scene.name})
+
+
+def write_moving_capture(root, folder: str, *, sequences: int = 2, noise_seed: int = 4):
+    """The natural scene drifting 2 px per frame in x and 1 in y on the 320 x 240 twin at 200 fps, captured with a
+    narrowband plan (40 nm steps) into ``root / folder`` with each sequence's motion truth beside it, as
+    ``specgpu capture`` on a rig with a [motion] table writes it; returns the capture folder."""
+    from specgpu.pipeline.moving import truth_recorder
+    from specgpu.rig import natural_scene
+    from specgpu.rig.motion import MotionParameters
+
+    rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240, frame_rate_hz=200.0,
+                                                 exposure_s=0.0049),
+                         motion=MotionParameters(velocity_px_per_frame=(2.0, 1.0)))
+    bundle = oracle_calibration(rig)
+    plan = make_plan("narrowband", bundle, step_nm=40.0)
+    scene = natural_scene(240, 320)
+    result = capture_plan(rig, plan, scene, sequences=sequences, noise_seed=noise_seed, calibration=bundle)
+    save_plan(root / "plan.npz", plan)
+    save_calibration(root / "calibration.npz", bundle)
+    out = write_capture(root / folder, result.sequences, result.assembly, root / "plan.npz",
+                        root / "calibration.npz", metadata={"scene": scene.name})
+    record = truth_recorder(out, rig, plan, scene)
+    for s, sequence in enumerate(result.sequences):
+        record(s, sequence)
+    return out

@@ -9,10 +9,20 @@ from hypothesis import HealthCheck, settings
 
 from specgpu.engine.runtime import SpecgpuDeviceError, get_queue, list_devices
 
-# Kernel builds make the first example of a property test slow; CI runs fewer examples.
+# Kernel builds make the first example of a property test slow; CI runs fewer examples, and the same ones every
+# run (derandomized: each test's seed is fixed by the test itself), so a failure in CI reproduces anywhere.
 settings.register_profile("default", deadline=None, suppress_health_check=[HealthCheck.too_slow])
-settings.register_profile("ci", deadline=None, max_examples=40, suppress_health_check=[HealthCheck.too_slow])
-settings.load_profile("ci" if os.environ.get("CI") else "default")
+settings.register_profile("ci", deadline=None, max_examples=40, suppress_health_check=[HealthCheck.too_slow],
+                          derandomize=True, database=None, print_blob=True)
+PROFILE = "ci" if os.environ.get("CI") else "default"
+settings.load_profile(PROFILE)
+
+
+def pytest_report_header(config):
+    """Say in the header how the property tests draw their examples, so a run's log tells how to repeat it."""
+    if settings.default.derandomize:
+        return f"hypothesis: profile {PROFILE!r}, derandomized (a seed fixed per test: each run draws alike)"
+    return f"hypothesis: profile {PROFILE!r}, random examples (CI=1 draws the fixed ones CI runs)"
 
 
 def _devices():

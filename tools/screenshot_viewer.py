@@ -1,7 +1,7 @@
 """napari's own screenshot of ``specgpu view``: the viewer on a cube, sequence folder or recording with the
 spectrum widget showing one pixel's spectrum (or a region's mean +- std) against the truth.
 
-    xvfb-run -a python tools/screenshot_viewer.py REC.zarr --pixel 170,200 --out docs/viewer-screenshot.png
+    xvfb-run -a python tools/screenshot_viewer.py REC.zarr --pixel 190,230 --colors 256 --out docs/viewer-screenshot.png
     xvfb-run -a python tools/screenshot_viewer.py REC.zarr --region 150,180,40,40 --out viewer-region.png
 
 Needs the viewer extra (pip install 'specgpu[viewer]') and a display with OpenGL (a desktop, or Xvfb with Mesa:
@@ -24,6 +24,8 @@ def main(argv=None) -> int:
     parser.add_argument("--sequence", type=int, default=0, help="The time step (sequence) to show.")
     parser.add_argument("--out", type=Path, default=Path("viewer-screenshot.png"))
     parser.add_argument("--size", default="1500,860", metavar="W,H", help="Window size (px).")
+    parser.add_argument("--colors", type=int, default=0, metavar="N",
+                        help="Save the picture with a palette of N colours (a smaller PNG for the docs; 0: as taken).")
     args = parser.parse_args(argv)
 
     import napari
@@ -61,6 +63,12 @@ def main(argv=None) -> int:
     viewer.reset_view()
     QApplication.processEvents()
     viewer.screenshot(str(args.out), canvas_only=False, flash=False)
+    if args.colors:
+        from PIL import Image
+
+        picture = Image.open(args.out).convert("RGB")
+        picture.quantize(colors=args.colors, method=Image.Quantize.MEDIANCUT,
+                         dither=Image.Dither.NONE).save(args.out, optimize=True)
     print(f"wrote {args.out}")
     viewer.close()
     return 0

@@ -36,14 +36,16 @@ from specgpu import io
 from specgpu.apps import paper
 from specgpu.apps.estimator_study import study_plans
 from specgpu.apps.moving_demo import moving_html, moving_lines, moving_section
-from specgpu.apps.report import report_page, summarise_method, table1_html, table2_html, table3_html
+from specgpu.apps.report_figures import illuminant_figure
+from specgpu.apps.report import report_page, summarise_method, table2_html, table3_html
+from specgpu.apps.table1 import Table1, equal_time_rows, method_rows, table1, table1_html, table1_text
 from specgpu.apps.studies import chart_with_white, mean_std, measure_methods
 from specgpu.calibration import calibrate, save_calibration
 from specgpu.calibration.bundle import calibration_error
 from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
 from specgpu.pipeline.recovery import EVALUATION_CHART, SequenceFolder, default_basis, uncertainty, write_capture
 from specgpu.planning import default_prior, make_plan, save_plan, training_spectra
-from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans, row_name
+from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans
 from specgpu.planning.basis import save_basis
 from specgpu.planning.noise import NoiseModel
 from specgpu.rig.config import RigDescription, load_rig, rig_from_dict
@@ -64,6 +66,9 @@ OUTPUT_WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
 #: the designed illuminants, decoded with the prior of every colour-science set but the evaluation chart's, each
 #: recording the RMSE it expects on that prior.
 ESTIMATOR_ROWS = ("wiener-9", "optimal-9", "optimal-6", "optimal-3")
+#: The caption of the report's Table 1.
+TABLE1_CAPTION = ("Table 1: spectral reflectance recovery, 24 patches (ΔE under D65, 400-700 nm); mean ± std "
+                  "over the noise draws; the paper's row in italics; beneath, the methods at equal sequence time")
 
 
 def make_demo_plans(bundle, basis, names=None) -> dict:
@@ -142,9 +147,9 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
 
     t_start = time.perf_counter()
     out = Path(out)
+    profiles = demo_profiles(rig)  # a bad rig refused before the report folder is made
     for sub in ("plans", "sequences", "cubes", "maps", "png", "figures"):
         (out / sub).mkdir(parents=True, exist_ok=True)
-    profiles = demo_profiles(rig)
     main = next(iter(profiles))
     bar = _steps(echo, progress, len(profiles))
     bar.set_description("basis")
@@ -218,9 +223,9 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     bar.set_description("figures")
     _figures(out, main_plans, result, main_scene, main_bundle)
     bar.update()
-    result.seconds = time.perf_counter() - t_start
+    page = _html(result, main_scene, main_bundle, device, t_start)  # its figures drawn, then the run time taken
     (out / "report.json").write_text(json.dumps(_report_json(result), indent=1))
-    (out / "index.html").write_text(_html(result, main_scene, main_bundle, device))
+    (out / "index.html").write_text(page)
     bar.update()
     bar.close()
     return result
@@ -251,73 +256,24 @@ def _xy(illuminant):
 # ---------------------------------------------------------------------------------------------------- tables
 
 
-def _pm(values, digits: int) -> str:
-    if not values:
-        return "-"
-    mu, sd = mean_std(values)
-    return f"{mu:.{digits}f}+-{sd:.{digits}f}"
-
-
-#: Table 1's paper column per method (the paper's tristimulus imager has dE*ab only, Table 3).
-_PAPER_ROWS = {"tristimulus-D65": "D65", "tristimulus-A": "A"}
-
-
 def table1_lines(result: DemoResult, methods) -> list[str]:
-    """Rows of Table 1 for ``methods`` (names of ``result.draws``' methods): for every profile run, mean +- std
-    over the noise draws of per-patch RMSE, dE*ab, dE2000 (patch means) and per-pixel RMSE and dE2000 means,
-    then, for a plan that records an expected RMSE (an estimator's or a design's), the measured RMS error over
-    the patches' pixels, the expected RMSE and their ratio (measured / expected); then the paper's row where it
-    has one. The one place Table 1 is built: add a method by adding its name."""
-    lines = [f"{'method':<22}{'profile':<8}{'RMSE patch':>16}{'dEab patch':>13}{'dE00 patch':>13}"
-             f"{'RMSE pixel':>16}{'dE00 pixel':>13}{'seq ms':>8}{'proj.':>6}{'RMS pixel':>16}{'expected':>9}"
-             f"{'ratio':>6}"]
-    for name in methods:
-        for label, runs in result.draws.items():
-            r = runs.get(name)
-            if r is None:
-                continue
-            lines.append(f"{name:<22}{label:<8}{_pm(r.get('rmse'), 4):>16}{_pm(r.get('dEab'), 2):>13}"
-                         f"{_pm(r.get('dE00'), 2):>13}{_pm(r.get('px_rmse'), 4):>16}{_pm(r.get('px_dE00'), 2):>13}"
-                         f"{_ms(r):>8}{r['K']:6d}{_expected(r)}")
-        if name in paper.TABLE1:
-            p = paper.TABLE1[name]
-            lines.append(f"{'':<22}{'paper':<8}{p[0]:>16.4f}{p[2]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{'-':>8}{p[4]:6d}")
-        elif name in _PAPER_ROWS:
-            p = paper.TABLE3_SUMMARY[_PAPER_ROWS[name]]
-            lines.append(f"{'':<22}{'paper':<8}{'-':>16}{p[0]:>13.2f}{'-':>13}{'-':>16}{'-':>13}{'-':>8}{3:6d}")
-    return lines
-
-
-def _ms(r) -> str:
-    """The sequence time column: the plan's frames at its shortest frame period, ms."""
-    return f"{r['sequence_ms']:.1f}" if "sequence_ms" in r else "-"
+    """The console's Table 1 for ``methods`` (names of ``result.draws``' methods): the header and, for every
+    profile run, mean +- std over the noise draws of per-patch RMSE, dE*ab, dE2000 (patch means), per-pixel RMSE
+    and dE2000 means, the sequence time and frame count, then, for a plan that records an expected RMSE (an
+    estimator's or a design's), the measured RMS error over the patches' pixels, the expected RMSE and their
+    ratio; then the paper's row where it has one (:mod:`specgpu.apps.table1`, which the report's page renders
+    too)."""
+    return table1_text(Table1(method_rows(result.draws, methods)))
 
 
 def equal_time_lines(result: DemoResult) -> list[str]:
-    """Table 1's equal-time rows: per budget, its methods (each within the budget, ambient frame included) and
-    the limit of any design of that frame count at that budget (expected RMSE on the prior)."""
-    lines = []
-    for T, (K, rows) in EQUAL_TIME.items():
-        names = [row_name(n, T) for n in rows]
-        if not any(n in runs for runs in result.draws.values() for n in names):
-            continue
-        lines.append(f"-- {K} frames within {T:g} ms per sequence --")
-        lines += table1_lines(result, names)[1:]
-        b = result.bounds.get(T)
-        if b is not None:
-            lines.append(f"{'':<22}{'limit':<8} expected RMSE on the prior: any {K}-frame design >= "
-                         f"{b.lower_rmse:.4f}, best found {b.achieved_rmse:.4f} (noise-free rank limit "
-                         f"{b.noise_free_rmse:.4f})")
-    return lines
+    """Table 1's equal-time rows on the console: per budget, its methods (each within the budget, ambient frame
+    included) and the limit of any design of that frame count at that budget (expected RMSE on the prior)."""
+    return table1_text(Table1(equal_time_rows(result.draws, result.bounds)), header=False)
 
 
-def _expected(r) -> str:
-    """The measured RMS, expected RMSE and ratio columns of a Table 1 row (empty without an expected RMSE)."""
-    exp = r.get("expected_rmse")
-    if exp is None or not r.get("px_rms"):
-        return ""
-
-    return f"{_pm(r['px_rms'], 4):>16}{exp:>9.4f}{mean_std(r['px_rms'])[0] / exp:>6.2f}"
+#: Table 1's methods beside the paper's, before the equal-time rows.
+TABLE1_METHODS = ("narrowband", "biased", "symmetric", "tristimulus-D65", "tristimulus-A") + ESTIMATOR_ROWS
 
 
 def format_tables(result: DemoResult) -> str:
@@ -331,9 +287,7 @@ def format_tables(result: DemoResult) -> str:
              f"Table 1: spectral reflectance recovery, 24 patches (dE under D65, 400-700 nm); mean +- std over "
              f"{draws} noise draws; patch means and per-pixel means; beyond the paper, wiener-9 and optimal-K "
              f"(prior without the chart): RMS pixel error over the patches beside the RMSE expected on the prior"]
-    lines += table1_lines(result, ("narrowband", "biased", "symmetric", "tristimulus-D65", "tristimulus-A")
-                          + ESTIMATOR_ROWS)
-    lines += equal_time_lines(result)
+    lines += table1_text(table1(result.draws, TABLE1_METHODS, result.bounds))
     if result.moving:
         lines += moving_lines(result.moving)
     if result.main:
@@ -424,25 +378,17 @@ def _figures(out, plans, result, scene, bundle):
         fig.savefig(out / "figures" / f"spectra-{method}.png", dpi=80)
         plt.close(fig)
     for name, plan in plans.items():
-        fig, ax = plt.subplots(figsize=(8, 4))
-        emitted = bundle.emitted(plan.patterns)  # the calibrated model of what the patterns emit
-        for k in range(plan.K):
-            ax.plot(plan.light_wavelengths, plan.target_spectra[k], lw=3, alpha=0.35, color=f"C{k % 10}")
-            ax.plot(bundle.wavelengths, emitted[k], lw=1, color=f"C{k % 10}")
-        ax.set_xlabel("wavelength (nm)")
-        ax.set_ylabel("spectral irradiance (W m$^{-2}$ nm$^{-1}$)")
-        ax.set_title(f"{name}: {plan.K} illuminants (wide: targets; thin: emitted by the quantized patterns)",
-                     fontsize=10)
-        fig.tight_layout()
+        fig = illuminant_figure(plan, bundle, title=f"{name}: {plan.K} illuminants")
         fig.savefig(out / "figures" / f"illuminants-{name}.png", dpi=80)
         plt.close(fig)
 
 
-def _html(result: DemoResult, scene, bundle, device) -> str:
-    """The report page (:func:`specgpu.apps.report.report_page`) with Tables 1-3, ours beside the paper's."""
+def _html(result: DemoResult, scene, bundle, device, t_start: float) -> str:
+    """The report page (:func:`specgpu.apps.report.report_page`) with Tables 1-3, ours beside the paper's; the
+    run time it states, and ``result.seconds``, count the whole job from ``t_start`` (``time.perf_counter``), the
+    page's figures included."""
     m = result.methods
-    tables = table1_html(result.draws, ("narrowband", "biased", "symmetric", "tristimulus-D65", "tristimulus-A")
-                         + ESTIMATOR_ROWS)
+    tables = table1_html(table1(result.draws, TABLE1_METHODS, result.bounds), TABLE1_CAPTION)
     if all(k in m for k in ("narrowband", "symmetric")):
         tables += table2_html(m["narrowband"]["patch"], m["symmetric"]["patch"])
     if all(k in m for k in ("tristimulus-D65", "tristimulus-A")):
@@ -450,10 +396,15 @@ def _html(result: DemoResult, scene, bundle, device) -> str:
     profiles = "; ".join(f"{html.escape(k)}: corrections {html.escape(v['corrections'])}, calibration vs the "
                          f"twin's truth {v['calibration_error']['rms_relative'] * 100:.2f} % RMS band response"
                          for k, v in result.profiles.items())
-    intro = (f"<p>The paper's experiment (Tominaga and Horiuchi, JOSA A 29(9) 2012) on the digital twin: chart "
-             f"{html.escape(EVALUATION_CHART)}, left out of the basis training; profiles {profiles}. Tables 2, 3 "
-             f"and the figures: the {html.escape(result.main)} profile, first noise draw. Run time "
-             f"{result.seconds:.1f} s; every figure in <a href='report.json'>report.json</a>.</p>")
+
+    def intro():  # made once every figure of the page is drawn: the run time counts them
+        result.seconds = time.perf_counter() - t_start
+        return (f"<p>The paper's experiment (Tominaga and Horiuchi, JOSA A 29(9) 2012) on the digital twin: chart "
+                f"{html.escape(EVALUATION_CHART)}, left out of the basis training; profiles {profiles}. Tables 2, "
+                f"3 and the figures: the {html.escape(result.main)} profile, first noise draw. Run time "
+                f"{result.seconds:.1f} s, figures included; every figure in <a href='report.json'>report.json</a>."
+                "</p>")
+
     summaries = {name: r["summary"] for name, r in m.items()}
     return report_page("specgpu demo: the paper's experiment on the digital twin", intro, summaries, scene=scene,
                        bundle=bundle, tables=tables, device=device,

@@ -5,9 +5,10 @@ The stream runs in a thread of its own; the viewer (on the main thread, as Qt re
 previous one (``drop_newest``, before any copy): the ring never waits for the viewer and copies only the results
 the viewer shows (a few a second, not every sequence), so a slow window shows fewer results and the stream's
 frames are never dropped for it. Each shown result updates the sRGB rendering (from XYZ), the dE map, and the
-cube (wavelength first, in nm) the spectrum widget reads; the status overlay gives frames/s, sequences/s, the
-drop counters, the results the view skipped and the latency. When the stream ends the window stays open on its
-last result (``close_when_done`` closes it, for scripts and tests).
+cube (wavelength first, in nm; made from the coefficients and the plan's basis when the stream streams those
+and no cube, as by default) the spectrum widget reads, each layer on named axes; the status overlay gives
+frames/s, sequences/s, the drop counters, the results the view skipped and the latency. When the stream ends the
+window stays open on its last result (``close_when_done`` closes it, for scripts and tests).
 """
 
 from __future__ import annotations
@@ -22,20 +23,29 @@ from specgpu.apps.viewer_layers import wavelength_axis
 from specgpu.apps.viewer_widget import SpectrumWidget
 from specgpu.pipeline.sinks import ResultsRing
 
-__all__ = ["VIEW_OUTPUTS", "LiveView", "run_with_view"]
+__all__ = ["VIEW_OUTPUTS", "LiveView", "run_with_view", "view_ring"]
 
 #: Seconds between the window's opening and the stream's start.
 START_DELAY_S = 1.0
-#: The stream outputs the view shows (the others are not copied into its ring).
-VIEW_OUTPUTS = ("XYZ", "dE", "cube", "sigma")
+#: The stream outputs the view shows (the others are not copied into its ring); the coefficients make the cube
+#: when the stream has none (its default outputs).
+VIEW_OUTPUTS = ("XYZ", "dE", "cube", "coefficients", "sigma")
+
+
+def view_ring() -> ResultsRing:
+    """The results ring a view polls: one result, skipped while the view has not taken the previous one, and
+    optional to the stream (a view that fails is stopped and reported; the recording goes on)."""
+    return ResultsRing(capacity=1, outputs=VIEW_OUTPUTS, policy="drop_newest", optional=True, label="view")
 
 
 class LiveView:
     """The napari layers of a running stream, updated from a results ring (no Qt here but through the viewer)."""
 
-    def __init__(self, viewer, stream, ring, *, wavelengths=None, illuminant: str = "D65"):
+    def __init__(self, viewer, stream, ring, *, wavelengths=None, illuminant: str = "D65", basis=None):
         self.viewer, self.stream, self.ring = viewer, stream, ring
         self.wavelengths = None if wavelengths is None else [float(w) for w in wavelengths]
+        # (m, B): coefficients @ basis^T is the cube of a stream that streams coefficients and no cube
+        self.basis_T = None if basis is None else np.asarray(basis, np.float32).T
         self.illuminant = illuminant
         self.shown = 0
         self.started = time.perf_counter()
@@ -51,24 +61,29 @@ class LiveView:
     def show(self, result) -> None:
         """Put one result's maps into the viewer's layers."""
         arrays = result.arrays
-        if "cube" in arrays and self.wavelengths is not None:
+        cube = arrays.get("cube")
+        if cube is None and "coefficients" in arrays and self.basis_T is not None:
+            cube = np.asarray(arrays["coefficients"], np.float32) @ self.basis_T
+        if cube is not None and self.wavelengths is not None:
             translate, scale = wavelength_axis(self.wavelengths)
-            cube = np.moveaxis(np.asarray(arrays["cube"], np.float32), -1, 0)
+            cube = np.moveaxis(np.asarray(cube, np.float32), -1, 0)
             self._set("reflectance", cube, colormap="gray", contrast_limits=(0.0, 1.0), visible=False,
-                      translate=(translate, 0.0, 0.0), scale=(scale, 1.0, 1.0),
+                      translate=(translate, 0.0, 0.0), scale=(scale, 1.0, 1.0), axis_labels=("wavelength", "y", "x"),
                       metadata={"specgpu": {"role": "spectrum", "wavelengths": self.wavelengths,
                                             "axes": ("wavelength", "y", "x")}})
             if "sigma" in arrays:
                 sigma = np.moveaxis(np.asarray(arrays["sigma"], np.float32)[..., :len(self.wavelengths)], -1, 0)
                 self._set("sigma", sigma, colormap="viridis", visible=False, contrast_limits=(0.0, 0.05),
                           translate=(translate, 0.0, 0.0), scale=(scale, 1.0, 1.0),
+                          axis_labels=("wavelength", "y", "x"),
                           metadata={"specgpu": {"role": "sigma"}})
         if "XYZ" in arrays:
             self._set(f"sRGB ({self.illuminant})", sRGB_rendering(arrays["XYZ"], self.illuminant), rgb=True,
+                      axis_labels=("y", "x"),
                       metadata={"specgpu": {"role": "sRGB", "illuminant": self.illuminant}})
         if "dE" in arrays:
             self._set("dE", np.asarray(arrays["dE"], np.float32), colormap="magma", contrast_limits=(0.0, 10.0),
-                      opacity=0.7, visible=False, metadata={"specgpu": {"role": "dE"}})
+                      opacity=0.7, visible=False, axis_labels=("y", "x"), metadata={"specgpu": {"role": "dE"}})
         self.shown += 1
 
     def status_text(self, done: bool = False) -> str:
@@ -95,20 +110,21 @@ class LiveView:
 
 
 def run_with_view(stream, seconds, *, wavelengths=None, illuminant: str = "D65", close_when_done: bool = False,
-                  interval_ms: int = 200, title: str = "specgpu stream"):
+                  interval_ms: int = 200, title: str = "specgpu stream", on_sink_stopped=None):
     """Run ``stream`` for ``seconds`` in a thread while napari shows its latest results; returns the stream's
     report (after the window is closed, or at once when ``close_when_done``). An error in the stream is raised
-    here."""
+    here; ``on_sink_stopped`` is given each optional sink the stream stopped (the view's ring among them), from
+    the stream's thread."""
     import napari
     from qtpy.QtCore import QTimer
 
-    ring = ResultsRing(capacity=1, outputs=VIEW_OUTPUTS, policy="drop_newest")
+    ring = view_ring()
     stream.sinks.append(ring)
     outcome = {}
 
     def work():
         try:
-            outcome["report"] = stream.run(seconds)
+            outcome["report"] = stream.run(seconds, on_sink_stopped=on_sink_stopped)
         except BaseException as error:  # noqa: BLE001 (re-raised on the main thread)
             outcome["error"] = error
         finally:
@@ -117,7 +133,8 @@ def run_with_view(stream, seconds, *, wavelengths=None, illuminant: str = "D65",
     viewer = napari.Viewer(title=title)
     viewer.text_overlay.visible = True
     viewer.text_overlay.position = "top_left"
-    view = LiveView(viewer, stream, ring, wavelengths=wavelengths, illuminant=illuminant)
+    view = LiveView(viewer, stream, ring, wavelengths=wavelengths, illuminant=illuminant,
+                    basis=getattr(getattr(stream, "decoder", None), "basis", None))
     viewer.window.add_dock_widget(SpectrumWidget(viewer), name="Spectrum", area="right")
     thread = threading.Thread(target=work, name="specgpu-stream-view", daemon=True)
     timer = QTimer()

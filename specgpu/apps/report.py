@@ -12,7 +12,8 @@ units, the renderings, and each plan's illuminant sequence.
 from __future__ import annotations
 
 import html
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,6 @@ from specgpu.apps.report_figures import (
     sRGB_rendering,
 )
 from specgpu.apps.report_html import Cell, card_grid, cell, figure_card, html_table, page
-from specgpu.apps.studies import mean_std
 from specgpu.engine.colorimetry import reflectance_to_XYZ
 from specgpu.pipeline.evaluate import (
     evaluate_pixels,
@@ -41,11 +41,13 @@ from specgpu.pipeline.evaluate import (
     scene_XYZ,
     true_patch_spectra,
 )
+from specgpu.pipeline.motion_record import motion_notice, moved, without_motion
+from specgpu.pipeline.moving import sequence_truth
 from specgpu.pipeline.recovery import read_capture, recover, uncertainty
 from specgpu.rig.scene import colorchecker_scene, load_scene
 
 __all__ = ["RENDER_ILLUMINANTS", "MethodSummary", "summarise_method", "report_page", "summary_table",
-           "find_captures", "report_folder"]
+           "find_captures", "capture_names", "recovered_capture", "report_folder", "REPORT_MOTION"]
 
 #: The illuminants every reflectance recovery (and the truth) is rendered under.
 RENDER_ILLUMINANTS = ("D65", "A")
@@ -143,49 +145,6 @@ def patch_table_html(summaries, names) -> str:
         out.append(html_table(columns, rows, caption=f"Per patch: {label} of each method (lowest of each column "
                               "marked)", best_columns=range(2, len(columns)), text_columns=2))
     return "".join(out)
-
-
-def _pm_cell(values, digits) -> Cell:
-    if not values:
-        return Cell("-")
-    mu, sd = mean_std(values)
-    return cell(mu, digits, std=sd if len(values) > 1 else None)  # one draw: no spread to show
-
-
-#: Table 1's paper row per method (the paper's tristimulus imager has dE*ab only, Table 3).
-_PAPER_TRISTIMULUS = {"tristimulus-D65": "D65", "tristimulus-A": "A"}
-
-
-def table1_html(draws: dict, methods) -> str:
-    """Table 1 as HTML: for every profile mean +- std over the noise draws, the paper's row beneath ours; the
-    lowest mean of each error column marked (among our rows and the paper's)."""
-    columns = ["method", "profile", "RMSE patch", "ΔE*ab patch", "ΔE00 patch", "RMSE pixel", "ΔE00 pixel",
-               "frames", "RMS pixel", "expected RMSE", "measured / expected"]
-    rows, classes = [], []
-    for name in methods:
-        for label, runs in draws.items():
-            r = runs.get(name)
-            if r is None:
-                continue
-            exp = r.get("expected_rmse")
-            extra = [Cell("-")] * 3
-            if exp is not None and r.get("px_rms"):
-                extra = [_pm_cell(r["px_rms"], 4), Cell(f"{exp:.4f}"), Cell(f"{mean_std(r['px_rms'])[0] / exp:.2f}")]
-            rows.append([name, label, _pm_cell(r.get("rmse"), 4), _pm_cell(r.get("dEab"), 2),
-                         _pm_cell(r.get("dE00"), 2), _pm_cell(r.get("px_rmse"), 4), _pm_cell(r.get("px_dE00"), 2),
-                         str(r["K"]), *extra])
-            classes.append(None)
-        if name in paper.TABLE1:
-            p = paper.TABLE1[name]
-            rows.append([name, "paper", cell(p[0], 4), cell(p[2]), "-", "-", "-", str(p[4]), "-", "-", "-"])
-            classes.append("paper")
-        elif name in _PAPER_TRISTIMULUS:
-            p = paper.TABLE3_SUMMARY[_PAPER_TRISTIMULUS[name]]
-            rows.append([name, "paper", "-", cell(p[0]), "-", "-", "-", "3", "-", "-", "-"])
-            classes.append("paper")
-    return html_table(columns, rows, caption="Table 1: spectral reflectance recovery, 24 patches (ΔE under D65, "
-                      "400-700 nm); mean ± std over the noise draws; the paper's row in italics",
-                      best_columns=(2, 3, 4, 5, 6), row_classes=classes, text_columns=2)
 
 
 def table2_html(nb, sy) -> str:
@@ -297,27 +256,27 @@ def _renderings_section(summaries, scene, device) -> str:
 def _illuminants_section(summaries, bundle) -> str:
     if bundle is None:
         return ""
-    cards = [figure_card(figure_png(illuminant_figure(s.plan, bundle, title=f"{s.name}: {s.plan.K} illuminants "
-                                                      "(wide: targets; thin: emitted)")), f"{s.name} illuminants")
-             for s in summaries.values()]
+    cards = [figure_card(figure_png(illuminant_figure(s.plan, bundle, title=f"{s.name}: {s.plan.K} illuminants")),
+                         f"{s.name} illuminants: targets wide and faint, emitted dashed") for s in summaries.values()]
     return ("<h2>Illuminant sequences</h2><p>Each plan's target spectra and what its quantized DMD patterns emit "
             "by the calibrated model.</p>" + card_grid(cards, wide=True))
 
 
-def report_page(title: str, intro: str, summaries: dict, *, scene=None, bundle=None, tables: str = "",
+def report_page(title: str, intro, summaries: dict, *, scene=None, bundle=None, tables: str = "",
                 device=None, sections: str = "") -> str:
-    """The report as one HTML document: ``intro`` (HTML) and the summary on top, then ``tables`` (HTML; the
+    """The report as one HTML document: ``intro`` (HTML, or a callable returning it, called once every figure is
+    drawn, so that a run time it states counts them) and the summary on top, then ``tables`` (HTML; the
     per-method and per-patch tables are added), ``sections`` (HTML, each with its own heading), spectra, error
     and sigma maps, renderings and illuminants."""
-    summary = ("<div class='summary'>" + intro + "<ul>" + "".join(f"<li>{line}</li>" for line in
-                                                                 _summary_lines(summaries)) + "</ul>"
-               + summary_table(summaries) + "</div>")
     names = next((s.patch.names for s in summaries.values() if s.patch is not None), None)
     patch = patch_table_html(summaries, names) if names and not tables else ""
-    body = (f"<h1>{html.escape(title)}</h1>{summary}"
-            + (f"<h2>Tables</h2>{tables}{patch}" if tables or patch else "") + sections
-            + _spectra_section(summaries, scene) + _maps_section(summaries)
+    rest = (_spectra_section(summaries, scene) + _maps_section(summaries)
             + _renderings_section(summaries, scene, device) + _illuminants_section(summaries, bundle))
+    summary = ("<div class='summary'>" + (intro() if callable(intro) else intro) + "<ul>"
+               + "".join(f"<li>{line}</li>" for line in _summary_lines(summaries)) + "</ul>"
+               + summary_table(summaries) + "</div>")
+    body = (f"<h1>{html.escape(title)}</h1>{summary}"
+            + (f"<h2>Tables</h2>{tables}{patch}" if tables or patch else "") + sections + rest)
     return page(title, body)
 
 
@@ -358,31 +317,84 @@ def _truth_of(meta, height, width, truth):
         return None
 
 
-def report_folder(folder, *, out=None, truth=None, device=None) -> Path:
+def capture_names(plans: dict) -> dict:
+    """folder name -> the name a capture goes by in the report: its plan's method (``plans``: folder name -> plan),
+    with the folder's name beside it where two captures share a method."""
+    methods = [p.method for p in plans.values()]
+    return {name: p.method if methods.count(p.method) == 1 or name == p.method else f"{p.method} ({name})"
+            for name, p in plans.items()}
+
+
+#: The compensation the report decodes a capture that moved with (``specgpu recover --motion``'s mode).
+REPORT_MOTION = "global"
+
+
+def recovered_capture(seq, *, truth=None, device=None, say=None) -> tuple:
+    """One capture as the report shows it: ``(y, sigma, scene, note)``. A still capture is the mean of its
+    sequences (the white ROI its metadata records), scored against ``truth`` or the scene it records. A capture
+    that moved (:func:`specgpu.pipeline.motion_record.moved`) is its first sequence decoded with motion
+    compensation (``recover --motion global --sequence 0``), scored against that sequence's recorded motion truth
+    unless ``truth`` is given; ``note`` (HTML-free text, also passed to ``say``) says so, None for a still one.
+    One the compensation refuses (a white ROI, an ambient frame) is reported as a still one, its note saying why."""
+    meta = seq.meta.get("metadata", {}) or {}
+    roi = meta.get("white_roi")
+    noisy = seq.plan.output == "reflectance" and "noise" in seq.plan.params
+    h, w = seq.frames.shape[-2:]
+    if not moved(seq):
+        y = recover(seq, device=device, white_roi=roi)
+        sigma = uncertainty(seq, device=device, white_roi=roi)[0] if noisy else None
+        return y, sigma, _truth_of(seq.meta, h, w, truth), None
+    try:
+        y = recover(seq, sequence=0, device=device, motion=REPORT_MOTION)
+    except ValueError as why:  # a capture the compensation does not take yet (a white ROI, an ambient frame)
+        note = without_motion(seq, averaged=True) + f" (the report could not compensate it: {why})"
+        if say is not None:
+            say(note)
+        y = recover(seq, device=device, white_roi=roi)
+        sigma = uncertainty(seq, device=device, white_roi=roi)[0] if noisy else None
+        return y, sigma, _truth_of(seq.meta, h, w, truth), note
+    sigma = uncertainty(seq, sequence=0, device=device)[0] if noisy else None
+    scene = load_scene(truth if truth is not None else sequence_truth(seq.path, 0), h, w)
+    against = "the truth given" if truth is not None else "its recorded motion truth"
+    if truth is None:  # named after the scene captured, not the truth file's name
+        scene = replace(scene, name=f"{meta.get('scene') or 'a scene'} moving (its truth at sequence 0)")
+    note = motion_notice(seq, f"reported as `specgpu recover --motion {REPORT_MOTION} --sequence 0` decodes it "
+                              f"(sequence 0 of {seq.sequences}, motion-compensated), scored against {against}")
+    if say is not None:
+        say(note)
+    return y, sigma, scene, note
+
+
+def report_folder(folder, *, out=None, truth=None, device=None, say=None) -> Path:
     """Write the report of a run folder (one capture, or several: :func:`find_captures`) to ``out`` (default
-    ``FOLDER/report.html``): each capture recovered (the mean of its sequences, with the white ROI its metadata
-    records) and its sigma predicted, scored against ``truth`` (a scene name or file; default the scene the
-    capture records, when it can be rebuilt). Returns the path written."""
+    ``FOLDER/report.html``): each capture recovered (:func:`recovered_capture`: the mean of its sequences, or for
+    a capture that moved its first sequence motion-compensated) and its sigma predicted, scored against ``truth``
+    (a scene name or file; default the scene the capture records, when it can be rebuilt), named by its plan's
+    method (:func:`capture_names`). ``say`` gets the one line about each capture that moved. The page states the
+    whole job's run time, its figures included. Returns the path written."""
+    t_start = time.perf_counter()
     folder = Path(folder)
     captures = find_captures(folder)
     out = Path(out) if out is not None else folder / "report.html"
-    summaries, scene, bundle = {}, None, None
-    for name, path in captures.items():
-        seq = read_capture(path)
-        roi = (seq.meta.get("metadata", {}) or {}).get("white_roi")
-        y = recover(seq, device=device, white_roi=roi)
-        # the predicted sigma where the plan records the rig's noise model (planned with the rig)
-        noisy = seq.plan.output == "reflectance" and "noise" in seq.plan.params
-        sigma = uncertainty(seq, device=device, white_roi=roi)[0] if noisy else None
-        if scene is None:
-            scene = _truth_of(seq.meta, y.shape[0], y.shape[1], truth)
+    summaries, scene, bundle, notes = {}, None, None, []
+    seqs = {name: read_capture(path) for name, path in captures.items()}
+    names = capture_names({name: seq.plan for name, seq in seqs.items()})
+    for name, seq in seqs.items():
+        y, sigma, own, note = recovered_capture(seq, truth=truth, device=device, say=say)
+        notes += [note] if note else []
+        scene = scene if scene is not None else own
         bundle = bundle or seq.calibration
-        summaries[name] = summarise_method(name, seq.plan, y, scene, sigma=sigma, device=device)
+        summaries[names[name]] = summarise_method(names[name], seq.plan, y, own, sigma=sigma, device=device)
     first = next(iter(captures.values()))
-    intro = (f"<p>Run folder <code>{html.escape(str(folder))}</code>: {len(captures)} capture(s) of "
-             f"{html.escape(str(scene.name) if scene is not None else 'an unknown scene')}, each recovered on the "
-             f"OpenCL device from its frames (the mean of its sequences) with the calibration and plan stored in "
-             f"it (first: <code>{html.escape(str(first))}</code>).</p>")
+
+    def intro():  # made last, once every figure is drawn: the run time counts them
+        how = ("each recovered on the OpenCL device from its frames (the mean of its sequences, a capture that "
+               "moved as said below) with the calibration and plan stored in it")
+        return (f"<p>Run folder <code>{html.escape(str(folder))}</code>: {len(captures)} capture(s) of "
+                f"{html.escape(str(scene.name) if scene is not None else 'an unknown scene')}, {how} (first: "
+                f"<code>{html.escape(str(first))}</code>). Run time {time.perf_counter() - t_start:.1f} s, "
+                "figures included.</p>" + "".join(f"<p class='note'>{html.escape(n)}</p>" for n in notes))
+
     with io.atomic_path(out) as tmp:
         tmp.write_text(report_page(f"specgpu report: {folder.name}", intro, summaries, scene=scene, bundle=bundle,
                                    device=device))

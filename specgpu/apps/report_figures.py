@@ -141,16 +141,28 @@ def spectra_figure(names, wavelengths, recovered, truth_wavelengths, truth, *, s
     return fig
 
 
+#: How an illuminant plot tells the targets from what the patterns emit: (line style, width, opacity) of each; a
+#: pattern emits nearly its target, so the target is a wide faint band and the emitted curve a dashed line on it.
+TARGET_STYLE, EMITTED_STYLE = ("-", 4.0, 0.3), ("--", 1.2, 1.0)
+
+
 def illuminant_figure(plan, bundle, *, title: str = ""):
-    """A plan's illuminant sequence: each target spectrum (wide, faint) and what its quantized DMD pattern emits
-    by the calibrated model (thin). Returns the figure."""
+    """A plan's illuminant sequence: each target spectrum (solid, wide and faint) and what its quantized DMD
+    pattern emits by the calibrated model (dashed, thin), one colour per illuminant, with a legend naming both
+    styles. Returns the figure."""
+    from matplotlib.lines import Line2D
+
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 3.4), layout="constrained")
     emitted = bundle.emitted(plan.patterns)
     for k in range(plan.K):
-        ax.plot(plan.light_wavelengths, plan.target_spectra[k], lw=3, alpha=0.35, color=f"C{k % 10}")
-        ax.plot(bundle.wavelengths, emitted[k], lw=1, color=f"C{k % 10}")
+        for (ls, lw, alpha), wl, curve in ((TARGET_STYLE, plan.light_wavelengths, plan.target_spectra[k]),
+                                          (EMITTED_STYLE, bundle.wavelengths, emitted[k])):
+            ax.plot(wl, curve, ls=ls, lw=lw, alpha=alpha, color=f"C{k % 10}")
+    ax.legend(handles=[Line2D([], [], color="0.3", ls=ls, lw=lw, alpha=alpha, label=label) for (ls, lw, alpha), label
+                       in ((TARGET_STYLE, "target"), (EMITTED_STYLE, "emitted by its quantized pattern"))],
+              fontsize=7, loc="upper right", title="colour: illuminant", title_fontsize=7)
     ax.set_xlabel("wavelength (nm)")
     ax.set_ylabel("spectral irradiance (W m$^{-2}$ nm$^{-1}$)")
-    ax.set_title(title or f"{plan.method}: {plan.K} illuminants (wide: targets; thin: emitted)", fontsize=9)
+    ax.set_title(title or f"{plan.method}: {plan.K} illuminants", fontsize=9)
     return fig

@@ -28,6 +28,8 @@ th{background:#eef1f4;white-space:normal;vertical-align:bottom;max-width:9em}
 .sd{font-size:11px;color:#555;font-weight:400}
 td.text,th.text{text-align:left}
 tr.paper td{color:#555;font-style:italic;background:#fafafa}
+tr.section td{background:#eef1f4;font-weight:600}
+tr.limit td{color:#555}
 td.best{background:#dff3e0;font-weight:700}
 img{max-width:100%;height:auto;display:block}
 .grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(300px,1fr));gap:1em;align-items:start}
@@ -39,12 +41,14 @@ figure{margin:0;min-width:0} figcaption{font-size:12px;color:#444;margin-top:.2e
 
 @dataclass(frozen=True)
 class Cell:
-    """A table cell: its text, the number that ranks it (None: not ranked) for the best-of-column mark, and a
-    second line in small type (a standard deviation), so wide ``mean ± std`` columns stay narrow."""
+    """A table cell: its text, the number that ranks it (None: not ranked) for the best-of-column mark, a
+    second line in small type (a standard deviation), so wide ``mean ± std`` columns stay narrow, and the number
+    of columns it spans (a section heading or a note across a table's row)."""
 
     text: str
     value: float | None = None
     sub: str = ""
+    span: int = 1
 
 
 def cell(value, digits: int = 2, *, std=None) -> Cell:
@@ -57,12 +61,15 @@ def cell(value, digits: int = 2, *, std=None) -> Cell:
 def html_table(columns, rows, *, caption: str = "", best_columns=(), row_classes=None, text_columns=1) -> str:
     """A ``<table>`` in a scrolling box: ``columns`` the header texts, ``rows`` lists of cells (:class:`Cell` or
     plain text), the lowest ranked value of each column in ``best_columns`` (indices) marked best (every tie);
-    ``row_classes`` a class per row (e.g. ``"paper"``); the first ``text_columns`` columns left-aligned."""
+    ``row_classes`` a class per row (e.g. ``"paper"``); the first ``text_columns`` columns left-aligned. A column
+    is marked only where it has two ranked values or more: a lone value is the lowest of nothing. A cell spanning
+    several columns (``Cell.span``) stands for them all and is never ranked."""
     rows = [[c if isinstance(c, Cell) else Cell(str(c)) for c in row] for row in rows]
+    at = [{j: c for j, c in zip(_columns(r), r) if c.span == 1 and c.value is not None} for r in rows]
     best = {}
     for j in best_columns:
-        values = [r[j].value for r in rows if j < len(r) and r[j].value is not None]
-        if values:
+        values = [cells[j].value for cells in at if j in cells]
+        if len(values) > 1:
             best[j] = min(values)
     out = ["<div class='table-wrap'><table>"]
     if caption:
@@ -74,15 +81,25 @@ def html_table(columns, rows, *, caption: str = "", best_columns=(), row_classes
         klass = (row_classes or [None] * len(rows))[i]
         tr = f"<tr class='{html.escape(klass)}'>" if klass else "<tr>"
         tds = []
-        for j, c in enumerate(row):
-            classes = (["text"] if j < text_columns else []) + (
-                ["best"] if j in best and c.value is not None and c.value <= best[j] + 1e-12 else [])
-            attr = f" class='{' '.join(classes)}'" if classes else ""
+        for j, c in zip(_columns(row), row):
+            classes = (["text"] if j < text_columns or c.span > 1 else []) + (
+                ["best"] if j in best and c.span == 1 and c.value is not None and c.value <= best[j] + 1e-12 else [])
+            attr = (f" class='{' '.join(classes)}'" if classes else "") + (f" colspan='{c.span}'" if c.span > 1
+                                                                            else "")
             sub = f"<br><span class='sd'>{html.escape(c.sub)}</span>" if c.sub else ""
             tds.append(f"<td{attr}>{html.escape(c.text)}{sub}</td>")
         out.append(tr + "".join(tds) + "</tr>")
     out.append("</tbody></table></div>")
     return "".join(out)
+
+
+def _columns(row) -> list[int]:
+    """The column each cell of ``row`` starts in (a cell spanning several moves the ones after it)."""
+    starts, j = [], 0
+    for c in row:
+        starts.append(j)
+        j += max(1, c.span)
+    return starts
 
 
 def image_tag(image: bytes, alt: str, mime: str = "image/png") -> str:

@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from specgpu.core.validate import BadArgument
 from specgpu.engine.runtime import get_queue
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.stream import Stream
@@ -63,8 +65,9 @@ _MOTION = {"motion": "global", "motion_flow": "flow"}
 def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, overload_seconds: float = 10.0,
                      width: int = 640, height: int = 480, device=None, json_path=None, echo=print,
                      cases=("fused", "sigma", "sigma_rms", "white", "cube", "paced", "overload", "equality"),
-                     rounds: int = 1) -> dict:
-    """The stream at camera speed on this machine, each case checked for exactness.
+                     rounds: int = 1, progress: bool = True) -> dict:
+    """The stream at camera speed on this machine, each case checked for exactness; with ``progress``, a line on
+    stderr as each step of the set-up (about a minute at 640 x 480) and each case starts.
 
     Frames are replayed from a recording of the twin (:class:`~specgpu.capture.replay.ReplayDriver`): the twin
     renders fresh noise at ~700 frames/s on 2 cores, slower than the pipeline, so it could not outrun it.
@@ -115,19 +118,20 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
 
     unknown = set(cases) - set(STREAM_CASES)
     if unknown:
-        raise ValueError(f"unknown stream bench case(s) {sorted(unknown)}; valid: {', '.join(STREAM_CASES)}")
+        raise BadArgument(f"unknown stream bench case(s) {sorted(unknown)}; valid: {', '.join(STREAM_CASES)}")
     if int(rounds) < 1:
         raise ValueError(f"rounds must be >= 1, got {rounds}")
     echo = echo or (lambda _s: None)
+    say = _stderr_line if progress else (lambda _s: None)
     t_setup = time.perf_counter()
-    setup = stream_setup(width, height, white_tile=0.99)
+    setup = stream_setup(width, height, white_tile=0.99, progress=say)
     if {"sigma", "sigma_rms", "dE_sigma"} & set(cases):
-
-
+        say("the decoder's noise model and its expected error on a smooth prior (the sigma cases)")
         plan = with_estimator(setup.plan, setup.bundle, "projection", noise=NoiseModel.from_rig(
             setup.description, setup.plan.exposure_s), prior=smooth_prior(np.arange(400.0, 700.0 + 1e-9, 5.0)))
         setup = replace(setup, plan=plan)  # the decoder is unchanged: only its noise model and expected error
     R = setup.frames.shape[0] // setup.plan.K
+    say(f"the offline maps of the {R} recorded sequences (what every streamed result is checked against)")
     # the checkers need XYZ and dE only: the 61-band float32 cubes (75 MB each) would inflate the stated RSS
     expected = {i: {k: v for k, v in offline_maps(setup, i).items() if k != "cube"} for i in range(R)}
     echo(f"stream bench: {width} x {height}, K = {setup.plan.K}, {setup.plan.A.shape[0]} bands, "
@@ -154,8 +158,9 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     for c in sustained:
         if c in ("motion", "motion_flow", "denoise"):  # kernels built at the first sequence: not in the timed run
             case_stream(c, [0]).run(0.5)
-    for _ in range(int(rounds)):
+    for r in range(int(rounds)):
         for c in sustained:  # interleaved: a change of the machine's load falls on every case alike
+            say(f"case {c}, {seconds:g} s" + (f" (round {r + 1} of {rounds})" if rounds > 1 else ""))
             count = [0]
             stream = case_stream(c, count)
             rep = stream.run(seconds)
@@ -177,6 +182,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     if "motion" in cases:
         rows.append(_motion_row(rows, steps))
     if "cube" in cases:
+        say(f"case cube, {seconds:g} s")
         shape, _ = (height, width, setup.plan.A.shape[0]), None
         recorder = MemoryRecorder(shape, np.float16)
         stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("cube",), cube_dtype=np.float16,
@@ -185,6 +191,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
         rows.append(_stream_row("cube float16 61 bands to memory", rep, target_fps=targets.get("cube_float16_fps"),
                                 extra={"cubes_written": recorder.count, "load_avg_1min": load()}))
     if "paced" in cases:
+        say(f"case paced, {paced_seconds:g} s")
         checker = Checker(setup, expected, ("XYZ", "dE"))
         stream = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=("coefficients", "XYZ", "dE"),
                         policy="drop_newest", sinks=[checker], **common)
@@ -198,6 +205,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
                                        "checked": checker.checked, "misaligned": checker.misaligned,
                                        "passed": passed, "load_avg_1min": load()}))
     if "overload" in cases:
+        say(f"case overload, {overload_seconds:g} s")
         checker = Checker(setup, expected, ("XYZ", "dE"))
         stream = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("cube", "XYZ", "dE"),
                         cube_dtype=np.float32, policy="drop_newest", sinks=[checker], **common)
@@ -217,6 +225,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
                                        "misaligned": checker.misaligned, "passed": passed,
                                        "load_avg_1min": load()}))
     if "equality" in cases:
+        say("case equality (each recorded sequence once)")
         got = {}
 
         def keep(result):
@@ -242,6 +251,10 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     if json_path is not None:
         Path(json_path).write_text(json.dumps(report, indent=2, default=float) + "\n")
     return report
+
+
+def _stderr_line(text: str) -> None:
+    print(f"stream bench: {text} ...", file=sys.stderr, flush=True)
 
 
 def _motion_row(rows, steps) -> dict:

@@ -9,12 +9,14 @@ builds the Qt widget around it (napari's widget contribution calls it with the v
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 from specgpu.apps.viewer_layers import ILLUMINANTS, read_layers, sRGB_of_cube
 from specgpu.rig.scene import load_scene
 
-__all__ = ["SpectrumProbe", "SpectrumWidget", "add_layers", "open_viewer"]
+__all__ = ["SpectrumProbe", "SpectrumWidget", "add_layers", "open_viewer", "unreadable", "unreadable_note"]
 
 
 def _role(layer):
@@ -57,10 +59,12 @@ class SpectrumProbe:
             data = data[t]
         return np.asarray(data, np.float32)
 
-    def truth(self, layer, shape):
-        """The true scene the data records (``metadata scene``), at the data's size; None when it has none or it
-        cannot be rebuilt."""
-        name = _role(layer) and layer.metadata["specgpu"].get("scene")
+    def truth(self, layer, shape, t=None):
+        """The true scene the data records at time step ``t`` (``metadata truths[t]``, a capture that moved, else
+        ``scene``), at the data's size; None when it has none or it cannot be rebuilt."""
+        meta = layer.metadata["specgpu"] if _role(layer) else {}
+        truths = meta.get("truths")
+        name = (truths[t] if t is not None and 0 <= t < len(truths) else None) if truths else meta.get("scene")
         if not name:
             return None
         key = (name, shape)
@@ -91,7 +95,7 @@ class SpectrumProbe:
         if sigma_layer is not None and sigma_layer.data.shape == layer.data.shape:
             data = sigma_layer.data if t is None else sigma_layer.data[:, t]
             sigma = np.asarray(data[:, y, x], np.float64)
-        scene = self.truth(layer, cube.shape[1:])
+        scene = self.truth(layer, cube.shape[1:], t)
         truth = (scene.wavelengths, scene.reflectance[y, x].astype(np.float64)) if scene is not None else None
         return {"wavelengths": wl, "values": cube[:, y, x].astype(np.float64), "sigma": sigma, "truth": truth,
                 "y": y, "x": x, "t": t}
@@ -115,7 +119,7 @@ class SpectrumProbe:
         out = {"wavelengths": np.asarray(layer.metadata["specgpu"]["wavelengths"], np.float64),
                "values": pixels.mean(axis=1), "std": pixels.std(axis=1), "pixels": int(ok.sum()), "truth": None,
                "dE": None}
-        scene = self.truth(layer, (h, w))
+        scene = self.truth(layer, (h, w), t)
         if scene is not None:
             out["truth"] = (scene.wavelengths, scene.reflectance[mask].astype(np.float64).mean(axis=0))
         de_layer = self.layer("dE")
@@ -142,7 +146,8 @@ class SpectrumProbe:
 
 def SpectrumWidget(napari_viewer):
     """The spectrum dock widget for ``napari_viewer`` (a Qt widget: a plot, a region button, an illuminant
-    choice and a status line)."""
+    choice and a status line). It opens on the spectrum of the image's centre pixel, follows the cursor, and
+    keeps the pixel last shown when the time slider moves."""
     from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
     from matplotlib.figure import Figure
     from qtpy.QtWidgets import QComboBox, QHBoxLayout, QLabel, QPushButton, QVBoxLayout, QWidget
@@ -183,14 +188,30 @@ def SpectrumWidget(napari_viewer):
         ax.legend(fontsize=7, loc="upper left")
         canvas.draw_idle()
 
-    def on_move(viewer=None, event=None):
-        result = probe.pixel()
+    shown = {}  # the pixel last plotted: the plot follows it along the time slider
+
+    def show(position=None):
+        """Plot the spectrum at a world ``position`` (default the cursor); a sequence the data refuses (a
+        damaged recording's) is named in the status line instead."""
+        try:
+            result = probe.pixel(position)
+        except ValueError as exc:
+            status.setText(str(exc))
+            return
         if result is None:
             return
+        shown["yx"] = (float(result["y"]), float(result["x"]))
         band = (result["sigma"], "± 1σ predicted") if result["sigma"] is not None else None
         where = f"x {result['x']}, y {result['y']}" + (f", sequence {result['t']}" if result["t"] is not None else "")
         draw(result, f"pixel {where}", band)
         status.setText(where)
+
+    def on_move(viewer=None, event=None):
+        show()
+
+    def on_step(event=None):
+        if "yx" in shown:
+            show(tuple(napari_viewer.dims.point[:-2]) + shown["yx"])
 
     def on_region():
         shapes = next((la for la in reversed(napari_viewer.layers) if la.__class__.__name__ == "Shapes"), None)
@@ -205,26 +226,80 @@ def SpectrumWidget(napari_viewer):
             if de else ""))
 
     napari_viewer.mouse_move_callbacks.append(on_move)
+    napari_viewer.dims.events.point.connect(on_step)
+    spectrum = probe.layer("spectrum")
+    if spectrum is not None:  # the centre pixel's spectrum until the cursor moves
+        h, w = spectrum.data.shape[-2:]
+        show(tuple(napari_viewer.dims.point[:-2]) + ((h - 1) // 2, (w - 1) // 2))
     button.clicked.connect(on_region)
     illuminants.currentTextChanged.connect(lambda name: probe.render(name))
     widget.probe, widget.figure, widget.status, widget.on_move, widget.on_region = (probe, figure, status, on_move,
                                                                                     on_region)
-    widget.illuminants = illuminants
+    widget.illuminants, widget.on_step = illuminants, on_step
     return widget
 
 
 def add_layers(viewer, layers) -> list:
     """Add napari layer-data tuples ``(data, kwargs, layer_type)`` to ``viewer``; the viewer's axes take the
-    layers' names (wavelength, time or sequence, y, x). Returns the layers added."""
-    added = []
+    layers' names (wavelength, time or sequence, y, x). The layers are added hidden and shown once the time slider
+    is on a sequence they can show: napari opens at the middle one, which may be one a zarr output refuses (see
+    :func:`unreadable`; a corrupt chunk found on the way joins those). Returns the layers added; a zarr output with
+    no sequence to show is a one-line error."""
+    added, shown = [], []
     for data, kwargs, kind in layers:
-        new = getattr(viewer, f"add_{kind}")(data, **kwargs)
-        added += new if isinstance(new, list) else [new]
+        visible = kwargs.get("visible", True)
+        new = getattr(viewer, f"add_{kind}")(data, **{**kwargs, "visible": False})
+        new = new if isinstance(new, list) else [new]
+        added += new
+        shown += list(visible) if isinstance(visible, (list, tuple)) else [visible] * len(new)
     named = [layer for layer in added if "axes" in (layer.metadata.get("specgpu") or {})]
     widest = max(named, key=lambda layer: (_role(layer) == "spectrum", layer.ndim), default=None)
     if widest is not None and widest.ndim == viewer.dims.ndim:
         viewer.dims.axis_labels = tuple(widest.metadata["specgpu"]["axes"])
-    return added
+    labels = tuple(viewer.dims.axis_labels)
+    if "time" not in labels:
+        for layer, visible in zip(added, shown):
+            layer.visible = visible
+        return added
+    # a zarr output: from the middle sequence outwards, the first one every layer shown can read (a corrupt chunk
+    # is found only by reading it: its sequence then joins the unreadable ones)
+    axis = labels.index("time")
+    now = int(viewer.dims.current_step[axis])
+    source = next((layer.metadata["specgpu"].get("source") for layer in added if _role(layer)), "")
+    bad = unreadable(added)
+    for step in sorted(range(int(viewer.dims.nsteps[axis])), key=lambda i: (abs(i - now), i)):
+        viewer.dims.set_current_step(axis, step)
+        try:  # (a sequence missing only a hidden layer's chunk is shown)
+            for layer, visible in zip(added, shown):
+                layer.visible = visible
+            return added
+        except ValueError as exc:  # "PATH/ARRAY: ..." (Recording.read)
+            name = str(exc).removeprefix(f"{source}/").split(":", 1)[0]
+            bad.setdefault(step, f"its {name} chunk cannot be read")
+            for layer in added:
+                layer.visible = False
+                if _role(layer):
+                    layer.metadata["specgpu"]["unreadable"] = dict(sorted(bad.items()))
+    first, why = next(iter(sorted(bad.items())))
+    raise ValueError(f"{source}: no sequence can be shown, every one is damaged (sequence {first}: {why}, ...)")
+
+
+def unreadable(layers) -> dict:
+    """{sequence: why} of the sequences of which the layers (of a zarr recording or batch output) refuse some."""
+    bad = {}
+    for layer in layers:
+        bad.update((getattr(layer, "metadata", None) or {}).get("specgpu", {}).get("unreadable") or {})
+    return dict(sorted(bad.items()))
+
+
+def unreadable_note(path, layers) -> str | None:
+    """One line naming the damaged sequences of ``path`` and why; None when every one is whole."""
+    bad = unreadable(layers)
+    if not bad:
+        return None
+    first, why = next(iter(bad.items()))
+    more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
+    return f"{path}: sequence {first} is damaged ({why}){more}; the viewer refuses what is missing there"
 
 
 def open_viewer(path, *, show: bool = True, run: bool = True):
@@ -234,7 +309,11 @@ def open_viewer(path, *, show: bool = True, run: bool = True):
     import napari
 
     viewer = napari.Viewer(title=f"specgpu: {path}", show=show)
-    add_layers(viewer, layers)
+    added = add_layers(viewer, layers)
+    note = unreadable_note(path, added)
+    if note:
+        print(f"specgpu: {note}", file=sys.stderr)
+        viewer.status = note
     viewer.window.add_dock_widget(SpectrumWidget(viewer), name="Spectrum", area="right")
     if run:
         napari.run()

@@ -240,6 +240,10 @@ class CalibrationBundle:
         rho = np.asarray(self.responsivity, np.float64)
         if rho.shape != g.shape or np.any(rho < 0) or not np.all(np.isfinite(rho)):
             raise ValueError(f"responsivity must be (G={g.size},) finite and non-negative")
+        # all zero: no frame gives a signal, and every plan would divide by zero (no design, no decoder)
+        for k, v, where in (("column_power", cp, "column"), ("responsivity", rho, "wavelength")):
+            if not np.any(v > 0):
+                raise ValueError(f"{k} is zero at every {where}: the light and camera model gives no signal")
         dark = np.asarray(self.dark, np.float32)
         flat = np.asarray(self.flat_field, np.float32)
         if dark.ndim != 2 or flat.shape != dark.shape:

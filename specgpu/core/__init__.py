@@ -1,10 +1,11 @@
-"""Foundations every room shares: the validators, spectra and wavelength grids, file locks."""
+"""Foundations every room shares: the validators, spectra and wavelength grids, file locks, the output guard."""
 
 from __future__ import annotations
 
 from specgpu.core.validate import (
     FRAME_DTYPES,
     OUT_DTYPES,
+    BadArgument,
     as_float32,
     available_memory_bytes,
     check_array,
@@ -32,6 +33,7 @@ from specgpu.core.spectra import (
     spectral_shape,
     white_point_XYZ,
 )
+from specgpu.core.guard import OutputClash, check_outputs
 from specgpu.core.locks import (
     OutputLocked,
     clean_stale_temporaries,
@@ -40,7 +42,6 @@ from specgpu.core.locks import (
     output_locks,
     pid_alive,
     resolved,
-    same_path,
 )
 from specgpu.core.numerics import (
     DEAD_PIXEL_GAIN,
@@ -56,6 +57,8 @@ __all__ = [
     "FRAME_DTYPES",
     "OBSERVERS",
     "OUT_DTYPES",
+    "BadArgument",
+    "OutputClash",
     "OutputLocked",
     "XYZ_weights",
     "as_float32",
@@ -67,6 +70,7 @@ __all__ = [
     "check_level",
     "check_matrix",
     "check_number",
+    "check_outputs",
     "check_out_dtype",
     "check_gain_map",
     "check_pixel_map",
@@ -86,7 +90,6 @@ __all__ = [
     "resolve_cmfs",
     "resolve_illuminant_sd",
     "resolved",
-    "same_path",
     "spectral_shape",
     "validate_method",
     "white_point_XYZ",

@@ -26,7 +26,7 @@ except ImportError:  # pragma: no cover - Windows: locks by exclusive creation a
     fcntl = None
 
 __all__ = ["OutputLocked", "resolved", "lock_path", "output_lock", "output_locks", "pid_alive",
-           "clean_stale_temporaries", "same_path"]
+           "clean_stale_temporaries"]
 
 
 class OutputLocked(RuntimeError):
@@ -213,12 +213,3 @@ def clean_stale_temporaries(path) -> list[Path]:
             except OSError:
                 pass
     return removed
-
-
-def same_path(a, b) -> bool:
-    """Whether two paths name the same file (existing: same inode; otherwise the same absolute path)."""
-    a, b = Path(a), Path(b)
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return os.path.realpath(a) == os.path.realpath(b)

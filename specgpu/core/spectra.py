@@ -25,7 +25,7 @@ import warnings
 import colour
 import numpy as np
 
-from specgpu.core.validate import validate_method
+from specgpu.core.validate import BadArgument, validate_method
 
 __all__ = [
     "DEFAULT_CMFS",
@@ -74,7 +74,7 @@ def resolve_cmfs(cmfs) -> colour.MultiSpectralDistributions:
             if name.lower() == cmfs.lower():
                 return colour.MSDS_CMFS[name]
         observers = [n for n in colour.MSDS_CMFS if "Observer" in n]
-        raise ValueError(f"cmfs={cmfs!r} is not a known observer; try one of {observers}")
+        raise BadArgument(f"cmfs={cmfs!r} is not a known observer; try one of {observers}")
     raise TypeError(f"cmfs must be a name or colour.MultiSpectralDistributions, not {type(cmfs).__name__}")
 
 
@@ -86,7 +86,7 @@ def resolve_illuminant_sd(illuminant) -> colour.SpectralDistribution:
         for name in colour.SDS_ILLUMINANTS:
             if name.lower() == illuminant.lower():
                 return colour.SDS_ILLUMINANTS[name]
-        raise ValueError(
+        raise BadArgument(
             f"illuminant={illuminant!r} has no spectrum in colour.SDS_ILLUMINANTS (e.g. 'D65', 'A', 'D50', 'FL2')"
         )
     raise TypeError(

@@ -21,6 +21,11 @@ import numpy as np
 import pyopencl.array as cla
 
 
+class BadArgument(ValueError):
+    """A value the caller chose is not one the function takes (an unknown name, an output over an input): the
+    caller's mistake, not the data's, so the command line reports it as a usage error (exit status 2)."""
+
+
 def check_number(name: str, value, *, low=None, high=None, low_open=False, integer=False) -> float:
     """Return ``value`` as a float (or int) after checking it is finite and inside ``[low, high]``.
 
@@ -131,12 +136,13 @@ def _shape(a) -> str:
 
 
 def validate_method(method: str, methods: Mapping, argument: str = "method"):
-    """The entry of ``methods`` named ``method`` (case-insensitive); ValueError listing the valid names."""
+    """The entry of ``methods`` named ``method`` (case-insensitive); :class:`BadArgument` (a ValueError) listing
+    the valid names."""
     if isinstance(method, str):
         for name, value in methods.items():
             if name.lower() == method.lower():
                 return value
-    raise ValueError(f"{argument}={method!r} is not one of {', '.join(repr(m) for m in methods)}")
+    raise BadArgument(f"{argument}={method!r} is not one of {', '.join(repr(m) for m in methods)}")
 
 
 def check_frames(frames, name: str = "frames"):

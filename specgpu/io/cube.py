@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from specgpu.core.text import short_list
 from specgpu.io.envi import (
     _envi_data_candidates,
     envi_data_path,
@@ -251,7 +252,8 @@ def write_map(path, data, kind, *, half: bool = False, metadata=None) -> Path:
     if arr.ndim == 2 and len(names) == 1:
         arr = arr[..., None]
     if arr.ndim != 3 or arr.shape[2] != len(names):
-        raise ValueError(f"{path}: a {'/'.join(names)} map must have shape (H, W, {len(names)}), got {arr.shape}")
+        raise ValueError(f"{path}: a {short_list(names, sep='/')} map must have shape (H, W, {len(names)}), "
+                         f"got {arr.shape}")
     meta = _metadata_json(path, metadata)
     return write_exr(path, arr, names, half=half, attributes={} if meta is None else {_META_ATTRIBUTE: meta})
 
@@ -301,8 +303,8 @@ def read_map(path, kind=None) -> tuple[np.ndarray, tuple[str, ...], dict]:
         wanted = _channels_of(kind, path)
         missing = [n for n in wanted if n not in names]
         if missing:
-            label = kind if isinstance(kind, str) else "/".join(wanted)
-            raise ValueError(f"{path}: not a {label} map: expected channels {', '.join(wanted)}, "
+            label = kind if isinstance(kind, str) else short_list(wanted, sep="/")
+            raise ValueError(f"{path}: not a {label} map: expected channels {short_list(wanted)}, "
                              f"found {', '.join(names[:8])}{', ...' if len(names) > 8 else ''}")
     index = [names.index(n) for n in wanted]
     return np.ascontiguousarray(data[..., index]), tuple(wanted), _metadata_from(path, attributes)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
-from specgpu.core.text import one_line
+from specgpu.core.text import one_line, short_list
 from specgpu.io.bands import check_cube
 from specgpu.io.paths import _check_exists, atomic_path, error_of, write_failed
 
@@ -170,7 +170,8 @@ def write_exr(path, data, names, *, half: bool = False, attributes: dict | None 
     if arr.ndim != 3 or arr.shape[2] != len(names) or arr.shape[0] < 1 or arr.shape[1] < 1:
         raise ValueError(f"{path}: data must have shape (H, W, {len(names)}) with H, W >= 1, got {arr.shape}")
     if len(set(names)) != len(names):
-        raise ValueError(f"{path}: channel names must be unique, got {names}")
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        raise ValueError(f"{path}: channel names must be unique; repeated: {short_list(repeated)}")
     if not path.parent.is_dir():
         raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
     h, w, c = arr.shape

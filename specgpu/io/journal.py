@@ -76,6 +76,7 @@ def verify_journal(directory, group: int) -> tuple[dict, dict]:
     info : dict
         ``frames_journaled``, ``frames_kept``, ``sequences``, ``sequences_journaled``, ``left_out`` (one
         ``{"sequence", "first_file", "last_file", "reason"}`` per sequence not kept, 0-based in capture order),
+        ``kept_sequences`` (the capture-order index of each sequence kept, in the index's order),
         ``stopped`` (the reasons in one line, or None) and ``frames_unindexed`` (frame files outside the index).
 
     Raises
@@ -137,7 +138,9 @@ def verify_journal(directory, group: int) -> tuple[dict, dict]:
                          f"({left_out[0]['reason'] if left_out else 'nothing journaled'})")
     frames = [{k: v for k, v in e.items() if k not in ("height", "width", "check")} for e in kept]
     names = {e["file"] for e in frames}
+    gone = {x["sequence"] for x in left_out}
     info = {"frames_journaled": n_lines, "frames_kept": len(kept), "sequences": len(kept) // group,
+            "kept_sequences": [s for s in range(n_sequences) if s not in gone],
             "sequences_journaled": n_sequences, "left_out": left_out, "stopped": stopped,
             "frames_unindexed": sum(1 for p in directory.iterdir() if _FRAME_RE.match(p.name) and p.name not in names)}
     meta = {k: v for k, v in (header.get("header") or {}).items()}

@@ -1,7 +1,8 @@
 """PNG previews: an 8-bit sRGB image from XYZ and a colour-difference heat map, and reading a PNG back.
 
 The sRGB preview uses colour-science's ``XYZ_to_sRGB``, clipped, with an exposure (automatic by default); the heat
-map uses a perceptually uniform colormap with its scale in the PNG text metadata. Both are written atomically.
+map uses a perceptually uniform colormap, with a colour bar drawn beside it (its scale, so the image reads on its
+own) and the scale in the PNG text metadata. Both are written atomically.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ from specgpu.core.text import one_line
 from specgpu.io.exr import write_image
 from specgpu.io.paths import _suffix
 
-__all__ = ["PERCEPTUAL_COLORMAPS", "sRGB8", "write_png", "write_sRGB_preview", "write_delta_E_png", "read_png"]
+__all__ = ["PERCEPTUAL_COLORMAPS", "MIN_BAR_HEIGHT", "sRGB8", "write_png", "write_sRGB_preview", "write_delta_E_png",
+           "read_png"]
 
 # ---- previews ------------------------------------------------------------------------------------------------------
 #: Perceptually uniform matplotlib colormaps accepted for heat maps.
@@ -101,9 +103,55 @@ def write_sRGB_preview(path, XYZ, *, exposure="auto", illuminant=None, metadata=
     return write_png(path, rgb8, attrs)
 
 
+#: The least height of a heat map's colour bar, px: a smaller map is drawn at the top left, the rest left white.
+MIN_BAR_HEIGHT = 200
+
+
+def _colour_bar(height: int, vmax: float, colormap: str, quantity: str, *, clipped: bool, nan: bool) -> np.ndarray:
+    """(height, width, 3) uint8: a vertical colour bar from 0 (bottom) to ``vmax`` (top) with its ticks, the
+    quantity above it, an arrow on top when values above ``vmax`` were clipped and, when ``nan``, the grey of NaN
+    pixels labelled below it. Text grows with the height, so the bar reads at any map size."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+    from matplotlib.ticker import MaxNLocator
+
+    ticks = [float(t) for t in MaxNLocator(nbins=6).tick_values(0.0, vmax) if 0.0 <= t <= vmax * (1 + 1e-9)]
+    if vmax - ticks[-1] > 0.1 * vmax:
+        ticks.append(vmax)  # the top of the scale is labelled, whatever it is
+    else:
+        ticks[-1] = vmax
+    labels = [f"{t:.3g}" for t in ticks]
+    dpi = 100.0
+    text = int(np.clip(round(height / 24), 11, 30))  # text height, px
+    bar_x, bar_w = 0.6 * text, 1.6 * text
+    width = int(round(max(bar_x + bar_w + text * (1.2 + 0.62 * max(map(len, labels))),
+                          text * (0.8 + 0.62 * len(quantity)))))
+    fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, facecolor="white")
+    canvas = FigureCanvasAgg(fig)
+    top, bottom = 2.2 * text / height, (2.6 if nan else 1.0) * text / height
+    points = text * 72.0 / dpi
+    bar = fig.add_axes((bar_x / width, bottom, bar_w / width, 1.0 - top - bottom))
+    cbar = fig.colorbar(ScalarMappable(norm=Normalize(0.0, vmax), cmap=colormap), cax=bar,
+                        extend="max" if clipped else "neither")
+    cbar.set_ticks(ticks)
+    cbar.set_ticklabels(labels)
+    cbar.ax.tick_params(labelsize=points, length=0.3 * points)
+    fig.text(0.5, 1.0 - 0.4 * text / height, quantity, ha="center", va="top", fontsize=points)
+    if nan:  # the grey NaN pixels are drawn in
+        fig.patches.append(Rectangle((bar_x / width, 0.4 * text / height), bar_w / width, 1.2 * text / height,
+                                     transform=fig.transFigure, figure=fig, facecolor=(128 / 255,) * 3,
+                                     edgecolor="black", linewidth=0.5))
+        fig.text((bar_x + bar_w + 0.4 * text) / width, 1.0 * text / height, "NaN", va="center", fontsize=points)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+
+
 def write_delta_E_png(path, delta_E, *, vmax=None, colormap: str = "magma", quantity: str = "dE2000",
-                      metadata=None) -> Path:
-    """Write a colour-difference map as a heat-map PNG with a perceptually uniform colormap.
+                      metadata=None, colorbar: bool = True) -> Path:
+    """Write a colour-difference map as a heat-map PNG with a perceptually uniform colormap and its colour bar.
 
     Parameters
     ----------
@@ -120,12 +168,17 @@ def write_delta_E_png(path, delta_E, *, vmax=None, colormap: str = "magma", quan
         Name of the difference for the metadata (``"dE2000"``, ``"dE76"`` ...).
     metadata : mapping, optional
         Extra PNG text entries.
+    colorbar : bool
+        Draw the colour bar (the scale, with ``quantity`` above it) to the right of the map. The map keeps its
+        pixels at the top left of the image (pixel (y, x) of the map is pixel (y, x) of the PNG); a map lower
+        than :data:`MIN_BAR_HEIGHT` is padded below with white.
 
     Returns
     -------
     pathlib.Path
         ``path``; the PNG text holds the scale: ``specgpu:quantity``, ``specgpu:colormap``, ``specgpu:vmin``
-        (0), ``specgpu:vmax``, and a readable ``ImageDescription``.
+        (0), ``specgpu:vmax``, the map's own size ``specgpu:map_width`` and ``specgpu:map_height``, and a readable
+        ``ImageDescription``.
     """
     import matplotlib
 
@@ -149,9 +202,20 @@ def write_delta_E_png(path, delta_E, *, vmax=None, colormap: str = "magma", quan
     index = np.round(np.clip(np.where(finite, arr, 0.0) / vmax, 0.0, 1.0) * 255.0).astype(np.intp)
     rgb8 = lut[index]
     rgb8[~finite] = 128
+    height, width = arr.shape
+    if colorbar:
+        clipped = bool(finite.any() and arr[finite].max() > vmax)
+        bar = _colour_bar(max(height, MIN_BAR_HEIGHT), vmax, colormap, quantity, clipped=clipped,
+                          nan=not finite.all())
+        canvas = np.full((bar.shape[0], width + bar.shape[1], 3), 255, np.uint8)
+        canvas[:height, :width] = rgb8
+        canvas[:, width:] = bar
+        rgb8 = canvas
     attrs = {"specgpu:quantity": quantity, "specgpu:colormap": colormap, "specgpu:vmin": "0",
-             "specgpu:vmax": repr(vmax),
-             "ImageDescription": f"{quantity} heat map, colormap {colormap}, 0 -> {vmax:g} (clipped above, NaN grey)"}
+             "specgpu:vmax": repr(vmax), "specgpu:map_width": str(width), "specgpu:map_height": str(height),
+             "ImageDescription": f"{quantity} heat map, colormap {colormap}, 0 -> {vmax:g} (clipped above, NaN grey)"
+                                 + (f"; the map is the {width} x {height} pixels at the top left, its colour bar "
+                                    "to the right" if colorbar else "")}
     attrs.update({str(k): v for k, v in (metadata or {}).items()})
     return write_png(path, rgb8, attrs)
 

@@ -11,7 +11,9 @@ Layout of ``REC.zarr`` (format ``specgpu.io.recording``, version 1)::
     timestamp_s    (time, pattern)             float64, s: exposure start of each frame
     cycle          (time,)                     int64, the assembler's cycle
     cube           (time, y, x, wavelength)    the plan's outputs; ``wavelength`` (nm) is a coordinate array
-    coefficients   (time, y, x, component)     basis coefficients; the basis is the ``basis`` array (wavelength, component)
+    coefficients   (time, y, x, component)     basis coefficients; the basis is the ``basis`` array (basis_wavelength,
+                                               component), and for a reflectance plan ``basis_wavelength`` (nm) is
+                                               its coordinate array: ``cube = coefficients @ basis.T``
     XYZ, Lab       (time, y, x, channel)       channel names in the array's ``channels`` attribute
     dE             (time, y, x)
     sigma          (time, y, x, sigma_channel) standard deviation of each plan output, then their RMS (channel names
@@ -234,11 +236,15 @@ class ZarrRecorder:
 
     Attributes
     ----------
+    label : str
+        Its name in a stream's reports.
     committed : int
         Sequences whose every chunk is written (what a reader sees).
     failed : str or None
         The error that stopped the recording.
     """
+
+    label = "recording"
 
     def __init__(self, path, plan, *, outputs=None, frames: bool = False, basis=None, metadata=None,
                  grow: int = 64, disk_rate: float | None = None, compression: str | None = None, threads: int = 4,
@@ -321,6 +327,11 @@ class ZarrRecorder:
                 if self.basis is not None:
                     g.create_array("basis", data=self.basis, compressors=checksum_codecs(),
                                    dimension_names=("basis_wavelength", "component"))
+                    wl = np.asarray(self.plan.output_wavelengths, np.float64)
+                    if self.plan.output == "reflectance" and wl.shape == self.basis.shape[:1]:
+                        # the basis's wavelengths: the coefficients make a reflectance cube without the plan
+                        g.create_array("basis_wavelength", data=wl, dimension_names=("basis_wavelength",),
+                                       compressors=checksum_codecs(), attributes={"units": "nm"})
             elif name == "sigma":
                 make(name, arr.shape, arr.dtype, ("y", "x", "sigma_channel"), fill,
                      {"channels": [f"sigma_{label}" for label in self.plan.output_labels] + ["sigma_rms"],
@@ -515,9 +526,11 @@ class Recording:
         try:
             return native(arr[index])
         except Exception as exc:  # noqa: BLE001 (zarr raises codec-specific errors)
-            raise ValueError(f"{self.path}/{name}: corrupt or unreadable chunk at sequence {index} "
-                             f"({type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''})"
-                             ) from None
+            detail = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+            # zarr's checksum error quotes both checksums as raw bytes, which say nothing to a reader
+            why = ("its CRC32C checksum does not match its bytes" if "checksum" in detail.lower()
+                   else f"{type(exc).__name__}: {detail}")
+            raise ValueError(f"{self.path}/{name}: corrupt or unreadable chunk at sequence {index} ({why})") from None
 
     def missing(self, name: str) -> list[int]:
         """The committed sequences whose chunk of array ``name`` is not on disk (empty when it is whole)."""

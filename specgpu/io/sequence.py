@@ -29,7 +29,7 @@ from specgpu.io.paths import atomic_path, error_of, os_error, write_failed
 __all__ = [
     "SEQUENCE_FORMAT", "SEQUENCE_VERSION", "SEQUENCE_FILE", "JOURNAL_FILE", "JOURNAL_FORMAT",
     "validate_sequence_document", "write_sequence", "SequenceWriter", "read_sequence_header", "read_sequence",
-    "check_frame_files", "read_frames"
+    "check_frame_files", "read_frames", "capture_hash"
 ]
 
 # ---- frame sequences -----------------------------------------------------------------------------------------------
@@ -49,6 +49,20 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
 
+def _roi_inside(roi, width: int, height: int) -> bool:
+    """Whether ``roi`` (``"X,Y,W,H"`` or four integers) is a region of at least one pixel inside the frame."""
+    parts = roi.split(",") if isinstance(roi, str) else roi
+    if not isinstance(parts, list) or len(parts) != 4:
+        return False
+    try:
+        x, y, w, h = (int(p.strip()) if isinstance(p, str) else p for p in parts)
+    except ValueError:
+        return False
+    if not all(_is_int(v) for v in (x, y, w, h)):
+        return False
+    return w >= 1 and h >= 1 and x >= 0 and y >= 0 and x + w <= width and y + h <= height
+
+
 def validate_sequence_document(doc, path="sequence.json") -> dict:
     """Check a parsed ``sequence.json`` and return it normalized (plain Python ints, floats and strings).
 
@@ -59,7 +73,8 @@ def validate_sequence_document(doc, path="sequence.json") -> dict:
          "frames": [{"file": "frame_000000.tif", "frame_id": int >= 0 (strictly increasing),
                      "pattern_index": int >= 0, "exposure_s": float > 0, "timestamp_s": finite float (s),
                      "bytes": int >= 0, "sha256": 64 hex digits}, ...]  (at least one; files unique plain names),
-         "n_frames": len(frames) (optional), "metadata": {...}  (optional JSON object)}
+         "n_frames": len(frames) (optional), "metadata": {...}  (optional JSON object; its "white_roi", the
+         reference white recover uses, "X,Y,W,H" inside the frame)}
 
     Extra keys in a frame record are kept (a newer writer's additions), so are unknown top-level keys.
 
@@ -97,6 +112,10 @@ def validate_sequence_document(doc, path="sequence.json") -> dict:
     metadata = doc.get("metadata", {})
     if not isinstance(metadata, dict):
         fail(f"metadata must be a JSON object, got {type(metadata).__name__}")
+    roi = metadata.get("white_roi")
+    if roi is not None and not _roi_inside(roi, dims["width"], dims["height"]):  # recover and the report use it
+        fail(f"metadata.white_roi must be X,Y,W,H in whole pixels inside the {dims['width']} x {dims['height']} "
+             f"frame, got {roi!r}")
     frames = doc.get("frames")
     if not isinstance(frames, list) or not frames:
         fail("frames must be a non-empty list")
@@ -576,3 +595,20 @@ def read_frames(directory, records, meta, start: int, stop: int, *, verify: bool
     for j, i in enumerate(range(start, stop)):
         out[j] = _read_listed_frame(directory, i, records[i], shape, verify)
     return out
+
+
+def capture_hash(records) -> str:
+    """A capture's identity: SHA-256 over its frames' own SHA-256 digests, in capture order (``records`` from
+    :func:`read_sequence_header`). A copy of the folder keeps it; any other capture, or the same one recaptured
+    with other noise, has another. What a recovery records, so its scores can be checked against the right
+    truth.
+
+    Examples
+    --------
+    >>> capture_hash([{"sha256": "0" * 64}]) == capture_hash([{"sha256": "0" * 64}]) != capture_hash([])
+    True
+    """
+    digest = hashlib.sha256()
+    for rec in records:
+        digest.update(str(rec["sha256"]).encode("ascii"))
+    return digest.hexdigest()

@@ -85,11 +85,13 @@ from specgpu.pipeline.batch import (
     prepare_batch,
     run_batch,
 )
+from specgpu.pipeline.batch_output import BatchOutput, open_batch_output
 
 __all__ = [
     "BATCH_FORMAT",
     "BATCH_OUTPUTS",
     "BatchJob",
+    "BatchOutput",
     "BatchReport",
     "CallbackSink",
     "CaptureWriter",
@@ -119,6 +121,7 @@ __all__ = [
     "evaluate_reflectance",
     "evaluation_illuminant",
     "metamer_map",
+    "open_batch_output",
     "patch_means",
     "peak_rss_bytes",
     "peak_rss_reset",

@@ -10,8 +10,15 @@ unless the pixel changed: the RMS over the cube's bands of ``y - m`` exceeds ``t
 size without a change, ``sigma_rms sqrt(1 + 1 / c)`` (``sigma_rms``: the RMS of the per-band standard deviations,
 the stream's ``sigma_rms`` or the last channel of ``sigma``). There the estimate restarts from ``y`` (``c = 1``),
 so a moving object leaves no trail longer than one sequence. Only outputs linear in the frames are averaged
-(``coefficients``, ``cube``, ``XYZ``): the mean of Lab or dE is not those of the averaged frames. The sigma maps
-stay those of one sequence (the accumulated noise falls as ``1 / sqrt(c)``, the prior's mismatch does not).
+(``coefficients``, ``cube``, ``XYZ``): the mean of Lab or dE is not those of the averaged frames.
+
+**The sigma of the estimate**: the sigma maps (``sigma``, ``sigma_rms``) are replaced by the estimate's own, so a
+recording's uncertainty stays true. Each pixel keeps the factor ``v`` by which the running estimate's noise
+variance is below one sequence's: 1 at a (re)start, and after an update of weight ``w = 1 / min(c + 1, N)``
+``v <- (1 - w)^2 v + w^2`` (``1 / c`` while ``c <= N``, tending to ``1 / (2 N - 1)`` beyond). The noise part of
+the variance (what the frames show) is scaled by ``v``; the prior's mismatch (the plan's constant variance, the
+same in every sequence) is not averaged down and stays. The change test expects ``sigma_rms sqrt(1 + v)``, one
+sequence's sigma against the estimate's.
 
 **Along the motion** (``stream --accumulate N --motion global|affine``): each sequence is decoded at its own
 reference time, and the scene has moved between two of them. Before the update the running estimate (and its
@@ -50,6 +57,8 @@ AGREE_PX = 0.5
 
 #: The stream outputs the accumulation averages.
 ACCUMULATED_OUTPUTS = ("coefficients", "cube", "XYZ")
+#: The sigma maps it makes the running estimate's.
+SIGMA_OUTPUTS = ("sigma", "sigma_rms")
 
 
 class AccumulateSink:
@@ -67,18 +76,25 @@ class AccumulateSink:
         The change test's multiple of the expected difference (default 3).
     motion : bool
         Move the estimate with the scene between sequences (see the module notes).
+    constant_variance : array_like, optional
+        (B,) the variance of each plan output that no frame shows (the prior's mismatch:
+        :func:`specgpu.planning.uncertainty.constant_variance`), kept as it is in the accumulated sigma; default
+        none.
 
     Attributes
     ----------
     counts : numpy.ndarray or None
         (H, W) sequences in each pixel's current estimate.
+    factor : numpy.ndarray or None
+        (H, W) the estimate's noise variance over one sequence's (see the module notes).
     resets : list of float
         Per result after the first, the fraction of pixels restarted.
     shifts : list of numpy.ndarray
         With ``motion``, per result after the first: the (x, y) displacement of the scene since the previous one.
     """
 
-    def __init__(self, sequences: int, outputs, *, threshold: float = 3.0, motion: bool = False):
+    def __init__(self, sequences: int, outputs, *, threshold: float = 3.0, motion: bool = False,
+                 constant_variance=None):
         self.N = int(check_number("--accumulate", sequences, integer=True, low=2, high=1_000_000))
         self.threshold = float(check_number("threshold", threshold, low=0, low_open=True))
         outputs = tuple(outputs)
@@ -93,6 +109,11 @@ class AccumulateSink:
         self.motion = bool(motion)
         self.mean: dict | None = None
         self.counts = None
+        self.factor = None
+        k = np.zeros(0) if constant_variance is None else np.asarray(constant_variance, np.float64).reshape(-1)
+        if not np.all(np.isfinite(k)) or np.any(k < 0):
+            raise ValueError("constant_variance must be finite and >= 0")
+        self.constant = k
         self.resets: list[float] = []
         self.shifts: list[np.ndarray] = []
         self._image = None
@@ -108,6 +129,7 @@ class AccumulateSink:
         if self.mean is None or self.mean["cube"].shape != y["cube"].shape:
             self.mean = {name: v.copy() for name, v in y.items()}
             self.counts = np.ones(y["cube"].shape[:2], np.int64)
+            self.factor = np.ones(y["cube"].shape[:2], np.float32)
             self._image = image
             return
         if self.motion:  # the estimate moved with the scene to this sequence's reference time
@@ -116,12 +138,16 @@ class AccumulateSink:
             self.shifts.append(shift)
             self.mean = {name: shift_image(m, shift) for name, m in self.mean.items()}
             self.counts = np.maximum(shift_image(self.counts, np.round(shift), fill=0), 1)  # 1 where it was out
-        c = self.counts
+            factor = shift_image(self.factor, shift)
+            self.factor = np.where(np.isfinite(factor), np.clip(factor, 0.0, 1.0), 1.0).astype(np.float32)
+        c, v = self.counts, self.factor
         diff = y["cube"] - self.mean["cube"]
         d = np.sqrt(np.einsum("hwb,hwb->hw", diff, diff) / np.float32(diff.shape[-1]))
-        still = d <= self.threshold * s * np.sqrt(1.0 + 1.0 / c)  # NaN (saturated, out of the field) is a change
+        still = d <= self.threshold * s * np.sqrt(1.0 + v)  # NaN (saturated, out of the field) is a change
         c = np.where(still, np.minimum(c + 1, self.N), 1)
-        w = (1.0 / c).astype(np.float32)[..., None]
+        w = (1.0 / c).astype(np.float32)
+        self.factor = np.where(still, (1.0 - w) ** 2 * v + w * w, 1.0).astype(np.float32)
+        w = w[..., None]
         changed = ~still
         for name in self.names:  # m + (y - m) / c in place, then the restarted pixels set to y
             m = self.mean[name]
@@ -132,6 +158,22 @@ class AccumulateSink:
             a[name][...] = m  # in place: the sinks after this one see the estimate
         self.counts = c
         self.resets.append(float(1.0 - still.mean()))
+        self._scale_sigma(a)
+
+    def _scale_sigma(self, a) -> None:
+        """The result's sigma maps, in place, made the running estimate's: the noise variance times
+        :attr:`factor`, the constant variance kept (see the module notes)."""
+        v = self.factor
+        rms = np.float32(self.constant.mean()) if self.constant.size else np.float32(0.0)
+        for name in SIGMA_OUTPUTS:
+            if name not in a:
+                continue
+            sigma = a[name]
+            f = v.reshape(v.shape + (1,) * (sigma.ndim - 2))
+            # the RMS channel's constant is the mean of the constant variances
+            k = rms if name == "sigma_rms" or not self.constant.size else np.append(self.constant, rms)
+            sigma2 = np.asarray(sigma, np.float32) ** 2
+            sigma[...] = np.sqrt(f * np.maximum(sigma2 - k, 0.0) + k)
 
     def close(self) -> None:
         pass

@@ -141,6 +141,11 @@ def denoised_sigma(folder, sigma, *, sequence: int | None = None, radius: int = 
 #: filtered cube).
 DENOISED_STREAM_OUTPUTS = ("coefficients", "cube", "XYZ")
 FROM_DENOISED_XYZ = ("Lab", "dE")
+#: Where denoised sigma maps are made: ``recover --denoise --sigma`` carries the sigma through the filter, and it
+#: reads a sequence folder (what ``specgpu capture`` writes), not a stream's recording.
+DENOISED_SIGMA_ADVICE = ("; for denoised sigma maps capture a sequence folder and recover it: specgpu capture --rig "
+                         "RIG.toml --plan PLAN.npz --calib CALIB.npz --out SEQ, then specgpu recover SEQ --out "
+                         "CUBE.exr --denoise --sigma SIGMA.exr")
 
 
 def stream_denoise(plan, outputs, cube_dtype, denoise) -> dict:
@@ -153,8 +158,8 @@ def stream_denoise(plan, outputs, cube_dtype, denoise) -> dict:
     if bad:
         raise ValueError(f"--denoise filters the stream's {', '.join(DENOISED_STREAM_OUTPUTS)} outputs and computes "
                          f"{', '.join(FROM_DENOISED_XYZ)} from the filtered XYZ; {', '.join(bad)} cannot be denoised "
-                         "in the stream yet (leave them out, or recover the recording's frames with recover "
-                         "--denoise --sigma)")
+                         f"in the stream (leave {'them' if len(bad) > 1 else 'it'} out"
+                         f"{DENOISED_SIGMA_ADVICE if {'sigma', 'sigma_rms'} & set(bad) else ''})")
     if "cube" in outputs and np.dtype(cube_dtype) != np.float32:
         raise ValueError("--denoise needs a float32 cube (leave --half out)")
     m = int(plan.params["m"]) if "m" in plan.params else output_subspace(plan).shape[1]

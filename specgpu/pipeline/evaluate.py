@@ -25,11 +25,75 @@ from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, resolve_integration,
 
 __all__ = ["METRICS", "PatchReport", "patch_means", "rmse_per_patch", "delta_E_per_patch", "evaluate_reflectance",
            "evaluate_XYZ", "true_patch_spectra", "PixelReport", "truth_cube", "scene_XYZ", "evaluate_pixels",
-           "evaluation_illuminant", "evaluation_integration"]
+           "evaluation_illuminant", "evaluation_integration", "PLAUSIBLE_RANGE", "EXCLUSION_CAUSES",
+           "screen_estimate"]
 
 
 #: The error metrics of a report, in table order (``rmse`` is None for colorimetric estimates).
 METRICS = ("rmse", "delta_E_ab", "delta_E_2000")
+
+#: The values an estimate's channel may plausibly take, inclusive: a reflectance, or XYZ with Y = 1 for the
+#: perfect white. Wider than a true scene's reflectance (at most 1.5): ten times the white covers fluorescence,
+#: specular highlights and noise on top, minus one the noise of a dark pixel; a value outside is no measurement
+#: (an overflow, a corrupt file, a fill value such as 1e30), and its square or its XYZ could overflow float32.
+PLAUSIBLE_RANGE = (-1.0, 10.0)
+
+#: Why a pixel is left out of the scores, in report order: NaN in any channel (the recovery flagged it:
+#: saturated, seen outside the field), an infinite value, a finite value outside :data:`PLAUSIBLE_RANGE`, or an
+#: estimate that is valid but whose error is not finite (the truth holds NaN there).
+EXCLUSION_CAUSES = ("flagged", "non_finite", "out_of_range", "unscored")
+
+
+def screen_estimate(estimate, *, invalid: str = "exclude", name: str = "the estimate") -> tuple[np.ndarray, dict]:
+    """The pixels of an estimate that can be scored, and why the others cannot.
+
+    Parameters
+    ----------
+    estimate : array_like, (H, W, C)
+        Reflectance or XYZ.
+    invalid : {"exclude", "refuse"}
+        What to do with a pixel holding an infinite value or one outside :data:`PLAUSIBLE_RANGE` (a recovery
+        writes neither: it flags a pixel it cannot recover as NaN): leave it out and count it, or refuse the
+        estimate.
+    name : str
+        How a refusal names the estimate (its file).
+
+    Returns
+    -------
+    valid : numpy.ndarray
+        (H, W) bool, the pixels every channel of which is finite and plausible.
+    counts : dict
+        ``{cause: pixels}`` for ``flagged``, ``non_finite`` and ``out_of_range`` (each pixel counted once, under
+        the first cause that applies).
+
+    Raises
+    ------
+    ValueError
+        ``invalid="refuse"`` and some pixel is infinite or out of range: one line naming ``name`` and both counts.
+    """
+    if invalid not in ("exclude", "refuse"):
+        raise ValueError(f"invalid must be 'exclude' or 'refuse', got {invalid!r}")
+    est = np.asarray(estimate)
+    if est.ndim != 3:
+        raise ValueError(f"{name}: an estimate must be (H, W, C), got shape {est.shape}")
+    lo, hi = PLAUSIBLE_RANGE
+    flagged = np.isnan(est).any(axis=-1)
+    non_finite = np.isinf(est).any(axis=-1) & ~flagged
+    out_of_range = ((est < lo) | (est > hi)).any(axis=-1) & ~flagged & ~non_finite
+    counts = {"flagged": int(flagged.sum()), "non_finite": int(non_finite.sum()),
+              "out_of_range": int(out_of_range.sum())}
+    if invalid == "refuse" and counts["non_finite"] + counts["out_of_range"]:
+        raise ValueError(f"{name}: {counts['non_finite'] + counts['out_of_range']} pixels hold values no recovery "
+                         f"writes ({counts['non_finite']} infinite, {counts['out_of_range']} outside the plausible "
+                         f"range {lo:g} to {hi:g}), first at row {_first(non_finite | out_of_range)}; a pixel that "
+                         "cannot be recovered is NaN (evaluate --exclude-invalid leaves them out, counted)")
+    return ~(flagged | non_finite | out_of_range), counts
+
+
+def _first(mask) -> str:
+    """'y, column x' of the first true pixel of an (H, W) mask."""
+    y, x = np.argwhere(mask)[0]
+    return f"{int(y)}, column {int(x)}"
 
 
 def _present_metrics(report) -> dict:
@@ -235,18 +299,40 @@ def evaluation_illuminant(recorded, requested=None, *, colorimetric: bool, name:
 @dataclass
 class PixelReport:
     """Per-pixel error maps of an estimate against the truth scene (float32, (H, W)); ``rmse`` is None for
-    colorimetric estimates."""
+    colorimetric estimates.
+
+    ``valid`` marks the pixels the estimate could be scored at (None: every pixel) and ``excluded`` counts the
+    others by cause (see :func:`screen_estimate`); their maps are NaN. :meth:`counts` adds the pixels whose error
+    came out non-finite all the same."""
 
     rmse: np.ndarray | None
     delta_E_ab: np.ndarray
     delta_E_2000: np.ndarray
     illuminant: str
+    valid: np.ndarray | None = None
+    excluded: dict | None = None
+
+    def scored(self) -> np.ndarray:
+        """(H, W) bool: the pixels where every metric is finite, the ones the statistics are over."""
+        return np.logical_and.reduce([np.isfinite(v) for v in _present_metrics(self).values()])
+
+    def counts(self) -> dict:
+        """``{"pixels": total, "scored": n, "excluded": {cause: n}}``, one count per cause of
+        :data:`EXCLUSION_CAUSES`; ``scored`` plus the excluded is the total."""
+        scored = self.scored()
+        valid = np.ones(scored.shape, bool) if self.valid is None else self.valid
+        excluded = {"flagged": 0, "non_finite": 0, "out_of_range": 0, **(self.excluded or {})}
+        if self.valid is None:  # maps made without screening: what is not finite was flagged
+            excluded["flagged"] = int((~scored).sum())
+        excluded["unscored"] = int((valid & ~scored).sum())
+        return {"pixels": int(scored.size), "scored": int(scored.sum()), "excluded": excluded}
 
     def statistics(self) -> dict:
-        """``{metric: {"mean", "median", "p95", "max"}}`` over the finite pixels."""
+        """``{metric: {"mean", "median", "p95", "max"}}`` over the scored pixels (:meth:`scored`)."""
         out = {}
+        scored = self.scored()
         for key, v in _present_metrics(self).items():
-            v = v[np.isfinite(v)]
+            v = v[scored]
             if v.size == 0:  # no valid pixel (a saturated capture): say so, do not crash
                 out[key] = {"mean": float("nan"), "median": float("nan"), "p95": float("nan"), "max": float("nan")}
                 continue
@@ -285,7 +371,8 @@ def scene_XYZ(scene, illuminant="D65", cmfs=DEFAULT_CMFS, *, wavelengths=None, i
 
 
 def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs=DEFAULT_CMFS,
-                    integration: str = "rectangle", device=None) -> PixelReport:
+                    integration: str = "rectangle", device=None, invalid: str = "exclude",
+                    name: str = "the estimate") -> PixelReport:
     """Per-pixel RMSE (reflectance estimates), dE*ab and dE2000 of an estimate against the truth scene.
 
     Parameters
@@ -304,11 +391,17 @@ def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs
         Band centres of a reflectance estimate, nm; None for an XYZ estimate.
     device : optional
         OpenCL device selector.
+    invalid : {"exclude", "refuse"}
+        A pixel holding an infinite or implausible value (:func:`screen_estimate`): left out and counted, or a
+        ValueError naming ``name``. NaN pixels (flagged by the recovery) are always left out and counted.
+    name : str
+        How a refusal names the estimate.
 
     Returns
     -------
     PixelReport
-        Per-pixel maps (``rmse`` None for an XYZ estimate); ``statistics()`` summarises them.
+        Per-pixel maps (``rmse`` None for an XYZ estimate), NaN where a pixel was left out; ``statistics()``
+        summarises them, ``counts()`` says how many pixels were scored and why the others were not.
 
     Examples
     --------
@@ -325,6 +418,8 @@ def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs
     if est.shape[:2] != scene.reflectance.shape[:2]:
         raise ValueError(f"estimate is {est.shape[1]} x {est.shape[0]} pixels, the truth scene "
                          f"{scene.reflectance.shape[1]} x {scene.reflectance.shape[0]}")
+    valid, excluded = screen_estimate(est, invalid=invalid, name=name)
+    est = np.where(valid[..., None], est, np.float32(np.nan))  # nothing left out reaches the arithmetic
     if wavelengths is not None:
         wl = np.asarray(wavelengths, np.float64)
         if est.shape[2] != wl.size:
@@ -345,4 +440,4 @@ def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs
     Lab_est = XYZ_to_Lab(XYZ_est, white, device=device)
     Lab_true = XYZ_to_Lab(XYZ_true, white, device=device)
     return PixelReport(rmse, delta_E(Lab_true, Lab_est, "CIE 1976", device=device),
-                       delta_E(Lab_true, Lab_est, "CIE 2000", device=device), str(illuminant))
+                       delta_E(Lab_true, Lab_est, "CIE 2000", device=device), str(illuminant), valid, excluded)

@@ -18,7 +18,7 @@ from specgpu.io.recording import (
 from specgpu.pipeline.outputs import DELTA_E_KINDS
 from specgpu.pipeline.sinks import ExrSequenceWriter, PreviewSink
 
-__all__ = ["RECORD_RING_S", "add_recording", "recording_slots", "stream_summary"]
+__all__ = ["RECORD_RING_S", "add_recording", "behind_text", "recording_slots", "stream_summary"]
 
 #: Seconds of frames the frame ring of a recording stream holds.
 RECORD_RING_S = 2.0
@@ -62,19 +62,27 @@ def add_recording(stream, plan, description, out, *, wanted, raw_frames, plan_pa
     if exr_every:
         stream.sinks.append(ExrSequenceWriter(Path(out) / "exr", wavelengths=plan.output_wavelengths,
                                               every=exr_every, dE_kind=DELTA_E_KINDS.get(method, "dE2000"),
-                                              metadata=meta))
+                                              metadata=meta, output_labels=plan.output_labels))
     if "XYZ" in wanted:
         stream.sinks.append(PreviewSink(Path(out) / "preview.png", illuminant=illuminant, observer=observer,
                                         white=stream.decoder.white))
     return writer
 
 
+def behind_text(rate_hz, plan_rate_hz) -> str:
+    """How far a source that falls behind the plan is, both rates in frames/s."""
+    return f"behind the plan: frames delivered at {rate_hz:.0f}/s, the plan's rate is {plan_rate_hz:.0f}/s"
+
+
 def stream_summary(report, out=None, writer=None) -> str:
-    """The one line a finished stream prints: frames in, sequences out, drops, latency, what was written."""
+    """The one line a finished stream prints: frames in, sequences out, drops, latency, a source behind the plan's
+    frame rate, the optional sinks stopped, what was written."""
     a = report.assembly
     return (f"{report.frames_in} frames in ({report.frames_per_s:.0f}/s), {report.sequences_out} sequences out "
             f"({report.sequences_per_s:.1f}/s); dropped {a.dropped} (ring {report.ring.dropped}), duplicated "
             f"{a.duplicates}, missed triggers {a.missed_triggers}, discarded {a.sequences_discarded}; latency "
             f"median {report.latency_ms(50):.1f} ms, p99 {report.latency_ms(99):.1f} ms"
             + (" (interrupted)" if report.interrupted else "")
+            + (f"; {behind_text(report.frame_rate_hz, report.plan_frame_rate_hz)}" if report.behind else "")
+            + "".join(f"; {line}" for line in report.sinks_stopped)
             + (f"; wrote {out} ({writer.committed} sequences)" if out and not report.sink_errors else ""))

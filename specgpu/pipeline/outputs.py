@@ -10,6 +10,7 @@ import numpy as np
 
 from specgpu.engine.colorimetry import delta_E
 from specgpu import io
+from specgpu.io.sequence import capture_hash
 from specgpu.pipeline.recovery import to_Lab, to_XYZ, uncertainty
 from specgpu.planning.correction import DEFAULT_WHITE_REFLECTANCE
 from specgpu.pipeline.denoise import denoised_sigma
@@ -38,13 +39,17 @@ def white_metadata(white_roi, white_reflectance) -> dict:
 
 def recovery_metadata(folder, seq, *, sequence, illuminant, observer, white_roi=None, white_reflectance=None,
                       untrusted=None, integration: str = "rectangle") -> dict:
-    """The metadata every output of ``specgpu recover`` records: the plan, its calibration, the sequences
-    averaged, the colorimetry, the reference white, the reflectance scale's uncertainty and a dark-level
-    warning."""
+    """The metadata every output of ``specgpu recover`` records: the plan, its calibration, the capture (its
+    folder, its identity :func:`specgpu.io.sequence.capture_hash` and the scene it recorded, so ``specgpu
+    evaluate`` can tell another truth), the sequences averaged, the colorimetry (with the integration of its XYZ
+    and white), the reference white, the reflectance scale's uncertainty and a dark-level warning."""
     plan = folder.plan
     reports = folder.calibration.reports
+    scene = (folder.meta.get("metadata") or {}).get("scene")
     return {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
             "calibration": plan.calibration, "sequence_folder": str(seq),
+            **({"capture": capture_hash(folder.records)} if folder.records else {}),
+            **({"scene": scene} if isinstance(scene, str) else {}),
             "sequences_averaged": 1 if sequence is not None else folder.sequences,
             **({"sequence": int(sequence)} if sequence is not None else {}), "illuminant": illuminant,
             "observer": observer, "integration": integration, **white_metadata(white_roi, white_reflectance),

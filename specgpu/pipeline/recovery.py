@@ -26,6 +26,7 @@ from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.pipeline.moving import check_motion_mode
+from specgpu.pipeline.motion_record import renumber_truth
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
 from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
@@ -39,7 +40,7 @@ from specgpu.planning.uncertainty import (
     sigma_map,
 )
 from specgpu.rig.config import RigDescription
-from specgpu.rig.scene import colorchecker_scene
+from specgpu.rig.scene import colorchecker_scene, read_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig
 
 __all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder", "read_capture", "recover", "save_plan_and_calibration", "dark_warning", "to_XYZ", "to_Lab"]
@@ -96,7 +97,7 @@ def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: i
     """
     if sequences < 1:
         raise ValueError(f"sequences must be >= 1, got {sequences}")
-    check_scene_covers(scene, plan, description.light.line_fwhm_nm)
+    check_scene_covers(scene, plan, description.light.line_fwhm_nm, rig=description)
     clock = description.capture_delay
     if calibration is not None:
         clock += float(calibration.reports.get("rig_clock_end_s", 0.0))
@@ -108,17 +109,23 @@ def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: i
     return capture_sequences(driver, plan.K, on_sequence=on_sequence)
 
 
-def check_scene_covers(scene, plan: Plan, slack_nm: float = 5.0) -> None:
+def check_scene_covers(scene, plan: Plan, slack_nm: float = 5.0, *, rig: RigDescription | None = None) -> None:
     """Refuse a scene whose bands do not cover the wavelengths the plan's illuminants light (above 1 % of their
-    peak, less ``slack_nm``): its reflectance there would be made up, never measured."""
+    peak, less ``slack_nm``): its reflectance there would be made up, never measured. Given ``rig``, its
+    ``[motion] object`` cube is held to the same test, named by the key and the rig file."""
     targets = np.asarray(plan.target_spectra, np.float64)
     lit = plan.light_wavelengths[targets.max(axis=0) > 0.01 * targets.max()]
     if lit.size == 0:
         return
-    lo, hi = float(scene.wavelengths[0]), float(scene.wavelengths[-1])
-    if lo > lit[0] + slack_nm or hi < lit[-1] - slack_nm:
-        raise ValueError(f"scene {scene.name!r} covers {lo:g}-{hi:g} nm but the {plan.method} plan lights "
-                         f"{lit[0]:g}-{lit[-1]:g} nm; give a scene whose bands cover its illuminants")
+    cubes = [(f"scene {scene.name!r}", scene.wavelengths)]
+    obj = "" if rig is None else rig.motion.object
+    if Path(obj).suffix.lower() in (".exr", ".npz", ".hdr"):  # a file (built-ins span the visible)
+        cubes.append((f"{rig.source}: [motion] object {obj}", read_scene(obj).wavelengths))
+    for what, wavelengths in cubes:
+        lo, hi = float(wavelengths[0]), float(wavelengths[-1])
+        if lo > lit[0] + slack_nm or hi < lit[-1] - slack_nm:
+            raise ValueError(f"{what} covers {lo:g}-{hi:g} nm but the {plan.method} plan lights "
+                             f"{lit[0]:g}-{lit[-1]:g} nm; give a cube whose bands cover its illuminants")
 
 
 #: Written first into a sequence folder being captured and removed once ``sequence.json`` is written: a folder
@@ -203,7 +210,9 @@ def salvage_capture(directory) -> dict:
     """Make a capture folder left by a killed capture (no ``sequence.json``, its journal present) readable: index
     every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.journal.salvage_sequence`), keep
     the plan and calibration copies, remove the interrupted marker. Returns what was kept (``sequences``,
-    ``frames_kept``, ``frames_journaled``, ``left_out``: each sequence not kept and why, ``stopped``).
+    ``frames_kept``, ``frames_journaled``, ``left_out``: each sequence not kept and why, ``kept_sequences``,
+    ``stopped``). The motion truth of a capture on a moving twin is renumbered with the sequences
+    (:func:`specgpu.pipeline.motion_record.renumber_truth`).
 
     Verify first, commit last: the plan copy must be the plan the journal names and match the calibration copy
     before anything is written; the index written must read back as a sequence folder before the journal is
@@ -226,7 +235,12 @@ def salvage_capture(directory) -> dict:
         plan.check_calibration(bundle, name=f"{directory / PLAN_FILE}")
 
     check(io.journal_header(directory))  # before the frames are grouped in sequences of the plan's length
-    info = io.salvage_sequence(directory, plan.K, check=check, confirm=lambda: read_capture(directory))
+
+    def confirm():  # the index reads back; then a moving capture's truth follows its sequences' new numbers
+        salvaged = read_capture(directory).meta["metadata"]["salvaged"]
+        renumber_truth(directory, salvaged["kept_sequences"])
+
+    info = io.salvage_sequence(directory, plan.K, check=check, confirm=confirm)
     (directory / INCOMPLETE_MARKER).unlink(missing_ok=True)
     return info
 

@@ -20,7 +20,7 @@ from specgpu.capture.ringbuffer import wait_for_items
 from specgpu.core.spectra import DEFAULT_CMFS, white_point_XYZ
 from specgpu.io.previews import write_png
 
-__all__ = ["CallbackSink", "ExrSequenceWriter", "PreviewSink", "ResultsRing", "Sink", "StreamResult"]
+__all__ = ["CallbackSink", "ExrSequenceWriter", "PreviewSink", "ResultsRing", "Sink", "StreamResult", "sink_label"]
 
 
 # ----------------------------------------------------------------------------------------------------- results
@@ -78,13 +78,31 @@ class StreamResult:
 
 class Sink:
     """A consumer of results: :meth:`write` is called on the sink thread for each result in order, :meth:`close`
-    once at the end. A sink that is slower than the stream makes the frame ring's policy act (backpressure)."""
+    once at the end. A sink that is slower than the stream makes the frame ring's policy act (backpressure).
+
+    Attributes
+    ----------
+    optional : bool
+        A sink the stream can do without (snapshots, a preview, a view): when it fails the stream reports it in
+        one line, stops that sink and keeps going. A failing sink that is not optional (a recording, a caller's
+        callback) stops the capture; the sequences already captured still reach the other sinks.
+    label : str or None
+        The sink's name in those reports (default: its class name).
+    """
+
+    optional: bool = False
+    label: str | None = None
 
     def write(self, result: StreamResult) -> None:  # pragma: no cover - interface
         raise NotImplementedError
 
     def close(self) -> None:
         """Flush and release what the sink holds."""
+
+
+def sink_label(sink) -> str:
+    """The name a stream gives ``sink`` in its reports: its ``label``, else its class name."""
+    return getattr(sink, "label", None) or type(sink).__name__
 
 
 class CallbackSink(Sink):
@@ -112,6 +130,10 @@ class ResultsRing(Sink):
         When full: discard the oldest unread result (a live view wants the newest), skip the new one without
         copying it (a viewer that takes a result when it can draw one: the stream pays for no copy it would
         not show), or wait for the consumer (backpressure up to the frame ring).
+    optional : bool
+        The stream can do without it (a live view): see :class:`Sink`.
+    label : str, optional
+        Its name in the stream's reports.
 
     Attributes
     ----------
@@ -119,13 +141,15 @@ class ResultsRing(Sink):
         Results discarded unread (``drop_oldest``) or skipped (``drop_newest``).
     """
 
-    def __init__(self, capacity: int = 8, outputs=None, policy: str = "drop_oldest"):
+    def __init__(self, capacity: int = 8, outputs=None, policy: str = "drop_oldest", *, optional: bool = False,
+                 label: str | None = None):
         if int(capacity) < 1:
             raise ValueError(f"capacity must be >= 1, got {capacity}")
         if policy not in ("drop_oldest", "drop_newest", "block"):
             raise ValueError(f"unknown results ring policy {policy!r}; valid policies: drop_oldest, drop_newest, "
                              "block")
         self.capacity, self.policy = int(capacity), policy
+        self.optional, self.label = bool(optional), label
         self.outputs = None if outputs is None else tuple(outputs)
         self._items: deque = deque()
         self._cond = threading.Condition()
@@ -178,8 +202,9 @@ class ResultsRing(Sink):
 
 class ExrSequenceWriter(Sink):
     """Every ``every``-th result as OpenEXR files through :mod:`specgpu.io.exr`: ``cube-<index>.exr`` (spectral
-    layout), ``XYZ-`` / ``Lab-`` / ``dE-<index>.exr`` maps. EXR encoding costs milliseconds per map, so a writer
-    that must keep every sequence of a long recording is :class:`specgpu.io.recording.ZarrRecorder`.
+    layout), ``XYZ-`` / ``Lab-`` / ``dE-<index>.exr`` maps, and every other output as a map of named channels
+    (:meth:`channels`). EXR encoding costs milliseconds per map, so a writer that must keep every sequence of a long
+    recording is :class:`specgpu.io.recording.ZarrRecorder`. Snapshots are optional to a stream (:class:`Sink`).
 
     Parameters
     ----------
@@ -191,16 +216,38 @@ class ExrSequenceWriter(Sink):
     dE_kind : str
         Map kind of the dE channel (``"dE2000"``, ``"dE94"``, ``"dE76"``).
     metadata : mapping, optional
+    output_labels : sequence of str, optional
+        The plan's output labels, which name the ``sigma`` map's channels (``sigma_<label>``, then ``sigma_rms``).
     """
 
-    def __init__(self, directory, *, wavelengths=None, every: int = 1, dE_kind: str = "dE2000", metadata=None):
+    optional = True
+    label = "EXR snapshots"
+
+    def __init__(self, directory, *, wavelengths=None, every: int = 1, dE_kind: str = "dE2000", metadata=None,
+                 output_labels=None):
         if int(every) < 1:
             raise ValueError(f"every must be >= 1, got {every}")
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=True)
         self.wavelengths = None if wavelengths is None else np.asarray(wavelengths, np.float64)
         self.every, self.dE_kind, self.metadata = int(every), dE_kind, dict(metadata or {})
+        self.output_labels = None if output_labels is None else [str(v) for v in output_labels]
         self.files: list[Path] = []
+
+    def channels(self, name: str, arr) -> tuple[str, ...]:
+        """The channel names of output ``name``'s map ``arr``: a map of one channel (H, W) is that channel, named
+        after the output (``dE_sigma``, ``sigma_rms``); ``coefficients`` are ``c0``, ``c1``...; ``sigma`` is
+        ``sigma_<label>`` per plan output (``sigma_<i>`` without the labels), then ``sigma_rms``; any other
+        ``<name>_<i>``."""
+        if arr.ndim == 2:
+            return (name,)
+        n = arr.shape[-1]
+        if name == "coefficients":
+            return tuple(f"c{i}" for i in range(n))
+        if name == "sigma":
+            labels = self.output_labels if self.output_labels and len(self.output_labels) == n - 1 else range(n - 1)
+            return (*(f"sigma_{label}" for label in labels), "sigma_rms")
+        return tuple(f"{name}_{i}" for i in range(n))
 
     def write(self, result):
         if result.index % self.every:
@@ -219,8 +266,7 @@ class ExrSequenceWriter(Sink):
             elif name == "dE":
                 self.files.append(io.write_map(path, arr, self.dE_kind, metadata=meta))
             else:
-                self.files.append(io.write_map(path, arr, tuple(f"c{i}" for i in range(arr.shape[-1])),
-                                               metadata=meta))
+                self.files.append(io.write_map(path, arr, self.channels(name, arr), metadata=meta))
 
 
 class PreviewSink(Sink):
@@ -248,7 +294,12 @@ class PreviewSink(Sink):
     white : array_like, (3,), optional
         The white XYZ the XYZ is relative to (the stream decoder's, of the plan's grid: a perfect white previews
         as 255); None: :func:`specgpu.core.spectra.white_point_XYZ` of ``illuminant`` and ``observer``.
+
+    A preview is optional to a stream (:class:`Sink`): one that fails is stopped, the stream goes on.
     """
+
+    optional = True
+    label = "preview"
 
     def __init__(self, path=None, interval_s: float = 0.5, illuminant: str = "D65", background: bool = True, *,
                  observer: str = DEFAULT_CMFS, white=None):

@@ -54,12 +54,14 @@ import pyopencl.array as cla
 from specgpu.capture.assemble import AssemblyStats, SequenceAssembler
 from specgpu.capture.driver import CameraDriver, FrameInfo, StreamEnd
 from specgpu.capture.ringbuffer import POLICIES, RingBuffer, run_producer
+from specgpu.core.text import one_line
 from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.engine.transfer import pinned_empty
 from specgpu.pipeline.decoder import STREAM_OUTPUTS, StreamDecoder
 from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
-from specgpu.pipeline.sinks import CallbackSink, StreamResult
+from specgpu.pipeline.sinks import CallbackSink, StreamResult, sink_label
 from specgpu.pipeline.stream_report import (
+    BEHIND,
     LatencyHistogram,
     StreamReport,
     current_rss_bytes,
@@ -75,6 +77,10 @@ READBACKS = ("auto", "map", "copy", "pinned")
 #: several sequences at once while its device does the rest).
 MOTION_THREADS = max(1, min(8, os.cpu_count() or 1))
 UPLOADS = ("auto", "host_ptr", "pinned", "copy")
+#: Frames over which the live status measures the rate the source delivers at.
+RATE_WINDOW = 64
+#: The longest reason a report of a failed sink gives, characters.
+SINK_REASON_CHARS = 160
 
 
 # ------------------------------------------------------------------------------------------------------ stream
@@ -82,7 +88,8 @@ UPLOADS = ("auto", "host_ptr", "pinned", "copy")
 
 class _ArrivalDriver(CameraDriver):
     """Wraps the stream's driver: stamps each delivered frame's arrival (perf_counter) by frame id, for latency,
-    and ends the stream at a sequence boundary once ``stop`` is set.
+    and ends the stream at a sequence boundary once ``stop`` is set; keeps the (frame id, arrival) of the first, the
+    last and the latest :data:`RATE_WINDOW` frames, the rate the source delivers at.
 
     After a stop request the camera keeps being read until the light has shown the sequence's last pattern, so
     the sequence being exposed is completed rather than cut (at most K more frames: with missed triggers the last
@@ -97,6 +104,8 @@ class _ArrivalDriver(CameraDriver):
         self.delivered = 0
         self._last_pattern = n_patterns - 1
         self._after_stop = 0
+        self.first = self.last = None
+        self.recent: deque = deque(maxlen=RATE_WINDOW)
 
     frame_shape = property(lambda self: self.inner.frame_shape)
     dtype = property(lambda self: self.inner.dtype)
@@ -108,6 +117,8 @@ class _ArrivalDriver(CameraDriver):
         self._last_pattern = self.k - 1
         self._after_stop = 0
         self.arrivals.clear()
+        self.first = self.last = None
+        self.recent.clear()
         self.inner.start()
 
     def stop(self) -> StreamEnd:
@@ -120,11 +131,24 @@ class _ArrivalDriver(CameraDriver):
             self._after_stop += 1
         info = self.inner.fill(out)
         if info is not None:
+            now = time.perf_counter()
             self.delivered += 1
             self._last_pattern = int(info.pattern_index)
             if out is not None:
-                self.arrivals[info.frame_id] = time.perf_counter()
+                self.arrivals[info.frame_id] = now
+            self.last = (int(info.frame_id), now)
+            if self.first is None:
+                self.first = self.last
+            self.recent.append(self.last)
         return info
+
+
+def frame_rate(first, last, least_frames: int = 2) -> float | None:
+    """Frames per second between two (frame id, arrival s) stamps, by frame id: a frame the source lost on the
+    way is a drop the assembler counts, not a slower source; None with fewer than ``least_frames`` between."""
+    if first is None or last is None or last[0] - first[0] < least_frames - 1 or last[1] <= first[1]:
+        return None
+    return (last[0] - first[0]) / (last[1] - first[1])
 
 
 @dataclass
@@ -206,6 +230,15 @@ class Stream:
         displacements estimated within it and its frames decoded through the warped kernel; outputs of
         :data:`specgpu.pipeline.moving_decode.MOTION_OUTPUTS` only, not with ``white_roi`` or ``denoise``. Each
         result's :attr:`StreamResult.motion` holds the sequence's estimate.
+    frame_rate_hz : float, optional
+        The rate the plan's frames are meant to come at (default: the plan's shortest frame period's); a source
+        that delivers slower (a twin that cannot render that fast, a pipeline that holds a blocking ring back)
+        is said in :meth:`status` and in the report, with both rates.
+
+    A sink that fails is stopped and reported in one line naming it: an optional one (:class:`Sink` ``optional``:
+    EXR snapshots, a preview, a view) in :attr:`StreamReport.sinks_stopped`, the stream going on; any other in
+    :attr:`StreamReport.sink_errors`, the capture stopping at the next sequence boundary while the sequences
+    already captured still reach every sink that has not failed.
     """
 
     def __init__(self, driver: CameraDriver, plan, calibration, *, outputs=("coefficients", "XYZ", "dE"),
@@ -214,7 +247,7 @@ class Stream:
                  policy: str = "drop_newest", in_flight: int = 3, result_buffers: int = 6, readback: str = "auto",
                  upload: str = "auto", align: str = "index", sync_max_dn: float | None = None, device=None,
                  white_roi=None, white_reflectance=None, denoise=None, motion: str = "none",
-                 integration: str = "rectangle"):
+                 integration: str = "rectangle", frame_rate_hz: float | None = None):
         plan.check_calibration(calibration, name="stream plan")
         motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise, white_roi=white_roi)
         if policy not in POLICIES:
@@ -251,6 +284,10 @@ class Stream:
         self.readback = ("map" if on_cpu else "pinned") if readback == "auto" else readback
         self.upload = ("host_ptr" if on_cpu else "pinned") if upload == "auto" else upload
         self.align, self.sync_max_dn = align, sync_max_dn
+        self.frame_rate_hz = float(1.0 / plan.frame_period_s if frame_rate_hz is None else frame_rate_hz)
+        if not (np.isfinite(self.frame_rate_hz) and self.frame_rate_hz > 0):
+            raise ValueError(f"frame_rate_hz must be a positive number, got {frame_rate_hz!r}")
+        self._sinks_stopped: list[str] = []
         self._interrupted = False
         self._status_lock = threading.Lock()
         self.ring: RingBuffer | None = None
@@ -265,19 +302,27 @@ class Stream:
         self._stop.set()
 
     def status(self) -> dict:
-        """A live snapshot: frames in, sequences out, drops, latency of the latest results (thread-safe)."""
+        """A live snapshot: frames in, sequences out, drops, latency of the latest results, the rate the source
+        delivers at over its latest :data:`RATE_WINDOW` frames beside the plan's, and the sinks stopped
+        (thread-safe)."""
         ring = self.ring.stats() if self.ring is not None else None
         with self._status_lock:
             lat = list(self.latency.recent)
             out = self.sequences_out
         a = self.assembler.stats if self.assembler is not None else AssemblyStats()
+        recent = tuple(self.driver.recent)
+        rate = frame_rate(recent[0], recent[-1], least_frames=RATE_WINDOW // 4) if recent else None
         return {"frames_in": self.driver.delivered, "sequences_out": out,
                 "ring_dropped": ring.dropped if ring else 0, "assembler_dropped": a.dropped,
                 "discarded": a.sequences_discarded, "pending": ring.pending if ring else 0,
-                "latency_ms": float(np.median(lat) * 1e3) if lat else float("nan")}
+                "latency_ms": float(np.median(lat) * 1e3) if lat else float("nan"),
+                "frame_rate_hz": rate, "plan_frame_rate_hz": self.frame_rate_hz,
+                "behind": rate is not None and rate < BEHIND * self.frame_rate_hz,
+                "sinks_stopped": list(self._sinks_stopped)}
 
     # ---- the run ---------------------------------------------------------------------------------------------
-    def run(self, seconds: float | None = None, *, on_status=None, status_interval_s: float = 0.5) -> StreamReport:
+    def run(self, seconds: float | None = None, *, on_status=None, status_interval_s: float = 0.5,
+            on_sink_stopped=None) -> StreamReport:
         """Stream until ``seconds`` have passed, the driver's stream ends, :meth:`stop` is called or Ctrl-C.
 
         Parameters
@@ -286,6 +331,8 @@ class Stream:
             Capture time limit (the frames captured by then are still processed).
         on_status : callable, optional
             Given :meth:`status` every ``status_interval_s`` from the calling thread (a live status line).
+        on_sink_stopped : callable, optional
+            Given the one-line report of each optional sink the stream stopped, from the calling thread, soon after.
 
         Returns
         -------
@@ -303,6 +350,8 @@ class Stream:
         self.latency = LatencyHistogram()
         self._errors: list[BaseException] = []
         self._sink_errors: list[str] = []
+        self._sinks_stopped = []
+        told = 0  # stopped sinks reported to on_sink_stopped
         self._tokens = threading.Semaphore(self.result_buffers)
         self._done: queue_module.Queue = queue_module.Queue()
         self._recycle: deque = deque()
@@ -349,6 +398,7 @@ class Stream:
                 if on_status is not None and now >= next_status:
                     on_status(self.status())
                     next_status = now + status_interval_s
+                told = _tell(on_sink_stopped, self._sinks_stopped, told)
                 self._ended.wait(0.05)
         except KeyboardInterrupt:
             self.stop()  # drain: the threads finish what was captured (a second Ctrl-C abandons the drain)
@@ -366,6 +416,7 @@ class Stream:
         end = self.driver.stop()
         seconds_run = time.perf_counter() - t0
         usage1 = resource.getrusage(resource.RUSAGE_SELF)
+        _tell(on_sink_stopped, self._sinks_stopped, told)
         if self._errors:
             raise self._errors[0]
         stats = self.assembler.finish(end)
@@ -376,7 +427,8 @@ class Stream:
             end=end, seconds=seconds_run, latency=self.latency,
             cpu_s=(usage1.ru_utime + usage1.ru_stime) - (usage0.ru_utime + usage0.ru_stime),
             peak_rss_bytes=peak_rss_bytes(), interrupted=self._interrupted, sink_errors=self._sink_errors,
-            rss_start_bytes=rss_start)
+            rss_start_bytes=rss_start, sinks_stopped=list(self._sinks_stopped),
+            frame_rate_hz=frame_rate(self.driver.first, self.driver.last), plan_frame_rate_hz=self.frame_rate_hz)
 
     def _produce(self):
         try:
@@ -540,6 +592,8 @@ class Stream:
 
     # ---- sink thread -----------------------------------------------------------------------------------------
     def _sink_loop(self):
+        active = list(self.sinks)  # the sinks still written to: a failed one leaves it
+        failed = set()
         try:
             while True:
                 entry = self._done.get()
@@ -552,24 +606,45 @@ class Stream:
                     for arr in result.arrays.values():
                         arr[saturated] = np.nan
                     result.saturated_pixels = int(np.count_nonzero(saturated))
-                try:
-                    if not self._sink_errors:
-                        for sink in self.sinks:
-                            sink.write(result)
-                except Exception as exc:  # noqa: BLE001 (reported; the stream stops and drains)
-                    self._sink_errors.append(f"{type(exc).__name__}: {exc}")
-                    self._stop.set()
+                for sink in list(active):
+                    try:
+                        sink.write(result)
+                    except Exception as exc:  # noqa: BLE001 (reported; see _sink_failed)
+                        active.remove(sink)
+                        failed.add(id(sink))
+                        self._sink_failed(sink, exc)
                 with self._status_lock:
                     self.sequences_out += 1
                     self.latency.add(result.latency_s)
                 self._recycle.append(item)
         finally:
-            for sink in self.sinks:
+            for sink in self.sinks:  # every one, a failed one too (a recording then says it failed)
                 try:
                     getattr(sink, "close", lambda: None)()
                 except Exception as exc:  # noqa: BLE001
-                    self._sink_errors.append(f"{type(exc).__name__} closing {type(sink).__name__}: {exc}")
+                    if id(sink) not in failed:  # a failed sink's close repeats the error already reported
+                        self._sink_failed(sink, exc, closing=True)
             self._ended.set()
+
+    def _sink_failed(self, sink, exc, *, closing: bool = False) -> None:
+        """Report a sink that raised, in one short line naming it: an optional one is stopped and the stream goes
+        on; any other stops the capture (what was captured still reaches the sinks that have not failed)."""
+        reason = one_line(f"{type(exc).__name__}: {exc}", SINK_REASON_CHARS)
+        where = " closing" if closing else ""
+        if getattr(sink, "optional", False):
+            self._sinks_stopped.append(f"{sink_label(sink)} stopped{where}: {reason}")
+        else:
+            self._sink_errors.append(f"{sink_label(sink)}{where}: {reason}")
+            self._stop.set()
+
+
+def _tell(callback, messages: list, told: int) -> int:
+    """Hand ``messages[told:]`` to ``callback`` (when given); returns how many have been handed."""
+    n = len(messages)
+    if callback is not None:
+        for message in messages[told:n]:
+            callback(message)
+    return n
 
 
 def _finished(events) -> bool:

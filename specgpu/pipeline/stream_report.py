@@ -15,7 +15,11 @@ from specgpu.capture.assemble import AssemblyStats
 from specgpu.capture.driver import StreamEnd
 from specgpu.capture.ringbuffer import RingStats
 
-__all__ = ["LatencyHistogram", "StreamReport", "current_rss_bytes", "peak_rss_bytes", "peak_rss_reset"]
+__all__ = ["BEHIND", "LatencyHistogram", "StreamReport", "current_rss_bytes", "peak_rss_bytes", "peak_rss_reset"]
+
+#: A source delivering below this fraction of the plan's frame rate is behind it (a paced source keeps within a
+#: percent of it; a twin that cannot render at the plan's rate falls far below).
+BEHIND = 0.95
 
 
 # ------------------------------------------------------------------------------------------------------ report
@@ -47,10 +51,17 @@ class StreamReport:
     interrupted : bool
         The run ended by :meth:`Stream.stop` or Ctrl-C rather than by time or the end of the driver's stream.
     sink_errors : list of str
-        Exceptions raised by sinks (the stream stops at the first one).
+        One line per failed sink that is not optional, naming it (the capture stops at the first one).
     rss_start_bytes : int or None
         Resident memory when the stream started (what the process held before: the peak minus this is the
         stream's own).
+    sinks_stopped : list of str
+        One line per optional sink (EXR snapshots, preview, view) that failed and was stopped while the stream
+        went on, naming it and the reason.
+    frame_rate_hz : float or None
+        The rate the source delivered frames at, frames/s, by frame id from the first frame to the last.
+    plan_frame_rate_hz : float or None
+        The rate the plan's frames are meant to come at (see :attr:`behind`).
     """
 
     frames_in: int
@@ -65,6 +76,16 @@ class StreamReport:
     interrupted: bool
     sink_errors: list = field(default_factory=list)
     rss_start_bytes: int | None = None
+    sinks_stopped: list = field(default_factory=list)
+    frame_rate_hz: float | None = None
+    plan_frame_rate_hz: float | None = None
+
+    @property
+    def behind(self) -> bool:
+        """The source delivered below :data:`BEHIND` of the plan's frame rate: the stream ran slower than the
+        plan, whatever the drop counters say (a twin that renders late drops nothing, it is only late)."""
+        return (self.frame_rate_hz is not None and self.plan_frame_rate_hz is not None
+                and self.frame_rate_hz < BEHIND * self.plan_frame_rate_hz)
 
     @property
     def frames_per_s(self) -> float:
@@ -114,7 +135,9 @@ class StreamReport:
                 "ring": {**{k: getattr(self.ring, k) for k in self.ring.__dataclass_fields__},
                          "dropped": self.ring.dropped},
                 "assembly": self.assembly.as_dict(), "accounting": self.accounting(),
-                "sink_errors": list(self.sink_errors)}
+                "sink_errors": list(self.sink_errors), "sinks_stopped": list(self.sinks_stopped),
+                "frame_rate_hz": self.frame_rate_hz, "plan_frame_rate_hz": self.plan_frame_rate_hz,
+                "behind": self.behind}
 
 
 class LatencyHistogram:

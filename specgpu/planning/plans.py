@@ -29,6 +29,7 @@ import numpy as np
 from specgpu.calibration.bundle import DEFAULT_MAX_EXPOSURE_S
 from specgpu.core.numerics import fit_levels
 from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS, XYZ_weights, resolve_integration, white_point_XYZ
+from specgpu.core.validate import BadArgument
 from specgpu.io.tables import content_hash, load_npz, save_npz
 
 __all__ = ["Plan", "PLAN_FORMAT", "PLAN_VERSION", "OUTPUTS", "save_plan", "load_plan"]
@@ -311,7 +312,7 @@ class Plan:
         asked = str(observer)
         canonical = next((o for o in OBSERVERS if o.lower() == asked.lower()), None)
         if canonical is None:
-            raise ValueError(f"observer {asked!r} is not one of {', '.join(OBSERVERS)}")
+            raise BadArgument(f"observer {asked!r} is not one of {', '.join(OBSERVERS)}")
         if own and own.lower() != canonical.lower():
             raise ValueError(f"{name} measures {self.output} for the {own}, not the {canonical}: leave the "
                              f"observer out to use the plan's, or make a plan for the {canonical}")

@@ -11,6 +11,7 @@ import numpy as np
 
 from specgpu.core.numerics import fit_levels
 from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, resolve_cmfs, resolve_illuminant_sd
+from specgpu.core.validate import BadArgument
 from specgpu.planning.basis import BasisTable
 from specgpu.planning.plans import Plan, _base, _design_frames, _on_grid, _quantize
 from specgpu.rig.scene import interpolation_matrix
@@ -104,7 +105,7 @@ def camera_sensitivities(name: str):
     """RGB sensitivities colour-science ships (``colour.MSDS_CAMERA_SENSITIVITIES``), by name."""
     table = colour.MSDS_CAMERA_SENSITIVITIES
     if name not in table:
-        raise ValueError(f"unknown camera {name!r}; valid cameras: {', '.join(table)}")
+        raise BadArgument(f"unknown camera {name!r}; valid cameras: {', '.join(table)}")
     return table[name]
 
 

@@ -30,7 +30,7 @@ import numpy as np
 import skimage.data
 from skimage.transform import resize
 
-from specgpu.core.validate import check_array, check_number, check_wavelengths
+from specgpu.core.validate import BadArgument, check_array, check_number, check_wavelengths
 from specgpu.io.envi import read_cube_envi
 from specgpu.io.exr import read_cube_exr, write_cube_exr
 from specgpu.io.npz import read_cube_npz, write_cube_npz
@@ -444,5 +444,5 @@ def load_scene(source, height: int = 480, width: int = 640, *, resize: str = "sc
     path = Path(text)
     if path.suffix.lower() in (".exr", ".npz", ".hdr"):
         return resample_scene(read_scene(path), height, width, resize, label=str(path))
-    raise ValueError(f"unknown scene {text!r}; give a .exr, .npz or .hdr (ENVI) file or one of: "
+    raise BadArgument(f"unknown scene {text!r}; give a .exr, .npz or .hdr (ENVI) file or one of: "
                      f"{', '.join(BUILTIN_SCENES)}, natural:<image> with <image> one of {', '.join(_NATURAL_IMAGES)}")

@@ -330,7 +330,11 @@ class TwinRig:
         if not m.object:
             return MovingScene(Trajectory(m, d.camera.frame_rate_hz, math.hypot(h, w) / 2), bg, ambient)
         oh, ow = m.object_size_px if all(m.object_size_px) else (max(1, h // 3), max(1, w // 3))
-        obj = load_scene(m.object, min(oh, h), min(ow, w), resize="stretch")
+        try:
+            obj = load_scene(m.object, min(oh, h), min(ow, w), resize="stretch")
+        except ValueError as exc:  # a built-in drawn too small for its layout, or an unreadable cube
+            raise ValueError(f"{d.source}: [motion] object {m.object!r} at object_size_px = [{oh}, {ow}]: "
+                             f"{exc}") from None
         y0, x0 = (h - obj.shape[0]) // 2, (w - obj.shape[1]) // 2
         where = (slice(None), slice(y0, y0 + obj.shape[0]), slice(x0, x0 + obj.shape[1]))
         canvas = np.zeros_like(bg)

@@ -71,3 +71,19 @@ def test_plan_for_denoise_needs_a_decoder_with_a_noise_model(files):
         "--estimator", "wiener", "--no-ambient")
     plan = load_plan(d / "hw.npz")
     assert plan.params["denoise"]["radius"] == 2 and "decoder_noise" in plan.params
+
+
+def test_an_optimal_plan_without_a_budget_says_its_sequence_time_and_the_option(files):
+    """Without --sequence-ms the optimal design takes the longest useful exposures: a one-line note on stderr
+    gives its sequence time and points to --sequence-ms; with a budget, no note."""
+    d, rig, cal = files
+    free = run("plan", "optimal", "--frames", "3", "--calib", cal, "--rig", rig, "--out", d / "of.npz",
+               "--no-ambient")
+    plan = load_plan(d / "of.npz")
+    notes = [line for line in free.stderr.splitlines() if line.startswith("note: no --sequence-ms")]
+    assert len(notes) == 1
+    assert f"{plan.exposure_s * 1e3:.1f} ms a frame, {plan.sequence_s * 1e3:.0f} ms a sequence" in notes[0]
+    assert notes[0].endswith("--sequence-ms T designs within T ms a sequence")
+    capped = run("plan", "optimal", "--frames", "3", "--calib", cal, "--rig", rig, "--out", d / "oc.npz",
+                 "--no-ambient", "--sequence-ms", "60")
+    assert "--sequence-ms" not in capped.stderr and load_plan(d / "oc.npz").sequence_s <= 0.060 * (1 + 1e-9)

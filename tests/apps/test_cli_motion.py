@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from cli_helpers import MOVING_RIG as RIG, one_line_error, run
+from specgpu import io
 from specgpu.io.npz import read_cube_npz
 
 @pytest.fixture(scope="module")
@@ -82,3 +83,27 @@ def test_evaluate_refuses_a_folder_without_the_truth_it_needs(moving, tmp_path):
     (tmp_path / "still").mkdir()
     one_line_error(run("evaluate", tmp_path / "mean.npz", "--truth", tmp_path / "still", ok=False),
                    "holds no motion truth")
+
+
+def motion_lines(result):
+    return [line for line in result.output.splitlines() if "--motion" in line]
+
+
+def test_recover_without_motion_says_in_one_line_that_the_capture_moved(moving, tmp_path):
+    seq = moving / "seq"
+    mean = run("recover", seq, "--out", tmp_path / "mean.npz")
+    said, = motion_lines(mean)
+    assert said.startswith("Warning: ") and f"{seq}: captured while the scene moved" in said
+    assert "averaged" in said and "--sequence N" in said
+    assert io.read_cube(tmp_path / "mean.npz")[2]["motion"] == "none: the capture moved, decoded as if still"
+    one, = motion_lines(run("recover", seq, "--out", tmp_path / "one.npz", "--sequence", "1"))
+    assert "averaged" not in one and "give --motion" in one
+    assert motion_lines(run("recover", seq, "--out", tmp_path / "c.npz", "--sequence", "1", "--motion", "global")) \
+        == []
+
+
+def test_stream_of_a_moving_rig_without_motion_says_so_in_one_line(moving):
+    args = ["stream", "--rig", moving / "rig.toml", "--plan", moving / "plan.npz", "--calib", moving / "calib.npz",
+            "--seconds", "0.1", "--pacing", "free", "--outputs", "XYZ"]
+    said, = motion_lines(run(*args))
+    assert said.startswith("Warning: the rig's [motion] table moves the scene") and "give --motion" in said

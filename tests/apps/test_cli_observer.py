@@ -88,7 +88,7 @@ def test_recover_refuses_another_observer_than_the_plan_measures_for(bench_10, t
     run("recover", bench_10 / "seq10", "--out", tmp_path / "t.exr", "--observer", TEN.lower())
     assert io.read_map(tmp_path / "t.exr")[2]["observer"] == TEN
     result = run("recover", bench_10 / "seq10", "--out", tmp_path / "u.exr", "--observer", "CIE 2 deg", ok=False)
-    one_line_error(result, "observer 'CIE 2 deg' is not one of", DEFAULT_CMFS, TEN, code=1)
+    one_line_error(result, "observer 'CIE 2 deg' is not one of", DEFAULT_CMFS, TEN, code=2)  # a typo: usage
 
 
 def test_a_stream_of_a_plan_for_the_10_degree_observer_records_it_and_agrees_with_recover(bench_10, tmp_path):

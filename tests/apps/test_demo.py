@@ -116,3 +116,21 @@ def test_equal_time_rows_with_their_sequence_time_and_limit():
     assert row.split()[-5:-3] == ["59.9", "10"]  # the sequence time beside the frame count
     assert any("limit" in line and ">= 0.0082" in line and "0.0121" in line for line in lines)
     assert not any("40 ms" in line for line in lines)  # a budget with no row measured is left out
+
+
+def test_the_demo_pages_run_time_counts_its_figures(monkeypatch):
+    import time
+
+    import specgpu.apps.report as report
+    from specgpu.apps.demo import _html
+
+    def slow_figures(summaries, bundle):  # the page's last figures, drawn in half a second
+        time.sleep(0.5)
+        return "<h2>Illuminant sequences</h2>"
+
+    monkeypatch.setattr(report, "_illuminants_section", slow_figures)
+    r = result()
+    start = time.perf_counter()
+    page = _html(r, None, None, None, start)
+    assert 0.5 <= r.seconds <= time.perf_counter() - start
+    assert f"Run time {r.seconds:.1f} s, figures included" in page and "Illuminant sequences" in page

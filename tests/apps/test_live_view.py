@@ -87,3 +87,26 @@ def test_stream_cli_view_runs_the_stream_through_the_live_view(monkeypatch, tmp_
     assert "sequences out" in result.output
     run(*args)
     assert len(calls) == 1
+
+
+def test_live_view_of_the_default_outputs_makes_the_cube_from_the_coefficients(qtbot):
+    """`stream --view` with the default outputs (coefficients, XYZ, dE): the spectrum widget reads the cube the
+    coefficients and the plan's basis make, and every layer names its axes."""
+    from types import SimpleNamespace
+
+    from napari.components import ViewerModel
+
+    rng = np.random.default_rng(5)
+    wl = np.arange(400.0, 701.0, 10.0)
+    basis = np.linalg.qr(rng.normal(size=(wl.size, 5)))[0]
+    coefficients = rng.normal(size=(24, 32, 5)).astype(np.float32)
+    viewer = ViewerModel()
+    view = LiveView(viewer, None, None, wavelengths=wl, basis=basis)
+    widget = SpectrumWidget(viewer)
+    qtbot.addWidget(widget)
+    view.show(SimpleNamespace(arrays={"coefficients": coefficients, "XYZ": rng.uniform(0, 1, (24, 32, 3)),
+                                      "dE": rng.uniform(0, 5, (24, 32)).astype(np.float32)}))
+    assert viewer.dims.axis_labels == ("wavelength", "y", "x")
+    np.testing.assert_allclose(widget.probe.pixel((400.0, 7.0, 9.0))["values"], coefficients[7, 9] @ basis.T,
+                               rtol=1e-5, atol=1e-6)
+    assert {layer.name for layer in viewer.layers} == {"reflectance", "sRGB (D65)", "dE"}

@@ -188,3 +188,127 @@ def test_report_without_a_truth_shows_renderings_and_no_errors(run_folder, tmp_p
     text = report_folder(copy).read_text()
     assert "No truth for this run" in text and "Error maps" not in text and "Recovered vs true" not in text
     assert "narrowband under D65" in text and "Predicted uncertainty" in text
+
+
+def test_a_report_on_one_capture_names_it_by_its_plan_and_marks_no_lowest(run_folder, tmp_path):
+    import shutil
+
+    from specgpu.apps.report import report_folder
+
+    shutil.copytree(run_folder / "narrowband", tmp_path / "my-run")
+    doc = parse(report_folder(tmp_path / "my-run", out=tmp_path / "r.html").read_text())
+    assert doc.cells[0][1] == "narrowband"  # the plan's method, not the folder's name
+    assert not any("best" in cls for cls, _ in doc.cells[:10])  # one row: nothing to be lowest against
+
+
+def test_capture_names_tell_apart_captures_of_one_method():
+    from types import SimpleNamespace
+
+    from specgpu.apps.report import capture_names
+
+    plans = {"tristimulus-D65": SimpleNamespace(method="tristimulus"), "a": SimpleNamespace(method="symmetric"),
+             "tristimulus": SimpleNamespace(method="tristimulus")}
+    assert capture_names(plans) == {"tristimulus-D65": "tristimulus (tristimulus-D65)", "a": "symmetric",
+                                    "tristimulus": "tristimulus"}
+
+
+def test_report_runtime_counts_the_figures(run_folder, tmp_path, monkeypatch):
+    import re
+    import time
+
+    import specgpu.apps.report as report
+
+    real = report.figure_png
+
+    def slow(fig, *args, **kwargs):
+        time.sleep(0.5)
+        return real(fig, *args, **kwargs)
+
+    monkeypatch.setattr(report, "figure_png", slow)  # 4 figures: 2 s of figures the run time must count
+    start = time.perf_counter()
+    text = report.report_folder(run_folder, out=tmp_path / "r.html").read_text()
+    seconds = float(re.search(r"Run time ([0-9.]+) s, figures included", text).group(1))
+    assert 2.0 <= seconds <= time.perf_counter() - start + 0.05
+
+
+@pytest.fixture(scope="module")
+def moving_folder(tmp_path_factory):
+    from capture_helpers import write_moving_capture
+
+    root = tmp_path_factory.mktemp("moving")
+    return write_moving_capture(root, "seqm")
+
+
+@pytest.mark.slow  # the report's motion-compensated decoding, then the same decoded again to check its score
+def test_report_of_a_moving_capture_compensates_and_scores_against_its_motion_truth(moving_folder, tmp_path):
+    from specgpu.pipeline import evaluate_pixels, read_capture, recover
+    from specgpu.rig.scene import load_scene
+
+    from click.testing import CliRunner
+
+    from specgpu.apps.cli import main
+
+    res = CliRunner().invoke(main, ["report", str(moving_folder), "--out", str(tmp_path / "r.html")])
+    assert res.exit_code == 0, res.output
+    line, = [line for line in res.output.splitlines() if "--motion" in line]
+    assert "captured while the scene moved" in line and "--motion global --sequence 0" in line
+    text = (tmp_path / "r.html").read_text()
+    assert "motion-compensated" in text and "motion truth" in text
+    seq = read_capture(moving_folder)
+    truth0 = load_scene(moving_folder / "motion_truth" / "sequence_0000.npz", 240, 320)
+    wl = seq.plan.output_wavelengths
+    compensated = evaluate_pixels(recover(seq, sequence=0, motion="global"), truth0, wavelengths=wl).statistics()
+    averaged = evaluate_pixels(recover(seq), truth0, wavelengths=wl).statistics()
+    row = parse(text).cells[:10]
+    assert row[0][1] == "narrowband"
+    got = float(row[8][1])  # the per-pixel dE00 mean
+    assert got == pytest.approx(compensated["delta_E_2000"]["mean"], abs=0.006)
+    assert got < 0.7 * averaged["delta_E_2000"]["mean"]  # what the report said before: the frames averaged
+
+
+def test_a_lone_value_is_not_marked_lowest_and_a_spanning_cell_is_not_ranked():
+    one = parse(html_table(["m", "x"], [["a", cell(0.5)]], best_columns=(1,)))
+    assert one.cells == [("text", "a"), ("", "0.50")]
+    rows = [["a", cell(0.5), cell(2.0)], [Cell("a note", 0.1, span=3)], ["b", cell(0.7), cell(1.0)]]
+    doc = parse(html_table(["m", "x", "y"], rows, best_columns=(1, 2)))
+    assert [text for cls, text in doc.cells if "best" in cls] == ["0.50", "1.00"]
+    assert ("td", {"class": "text", "colspan": "3"}) in doc.tags
+
+
+def test_illuminant_figure_tells_targets_from_emitted_by_style_and_legend():
+    from specgpu.apps.report_figures import illuminant_figure
+    from specgpu.calibration import oracle_calibration
+    from specgpu.planning import make_plan
+    from specgpu.rig import CameraParameters, RigDescription
+
+    bundle = oracle_calibration(RigDescription(camera=CameraParameters(roi_width=320, roi_height=240)))
+    plan = make_plan("narrowband", bundle, step_nm=50.0)
+    ax = illuminant_figure(plan, bundle).axes[0]
+    styles = [line.get_linestyle() for line in ax.get_lines()]
+    assert styles == ["-", "--"] * plan.K  # each illuminant: its target a faint band, what it emits dashed
+    targets, emitted = ax.get_lines()[0::2], ax.get_lines()[1::2]
+    assert all(t.get_color() == e.get_color() for t, e in zip(targets, emitted))
+    assert min(t.get_linewidth() for t in targets) > max(e.get_linewidth() for e in emitted)
+    legend = ax.get_legend()
+    assert min(t.get_alpha() for t in targets) < 0.5 <= min(e.get_alpha() for e in emitted)
+    assert [t.get_text() for t in legend.get_texts()] == ["target", "emitted by its quantized pattern"]
+    assert [h.get_linestyle() for h in legend.legend_handles] == ["-", "--"]
+
+
+def test_a_moving_capture_the_compensation_refuses_is_reported_as_still_with_the_reason(moving_folder, tmp_path,
+                                                                                      monkeypatch):
+    import specgpu.apps.report as report
+
+    real = report.recover
+
+    def refusing(folder, **kwargs):
+        if kwargs.get("motion", "none") != "none":
+            raise ValueError("motion=global does not combine with a reference white")
+        return real(folder, **kwargs)
+
+    monkeypatch.setattr(report, "recover", refusing)
+    said = []
+    text = report.report_folder(moving_folder, out=tmp_path / "r.html", say=said.append).read_text()
+    line, = said
+    assert "averaged" in line and "could not compensate it: motion=global does not combine" in line
+    assert "could not compensate" in text

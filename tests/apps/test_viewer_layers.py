@@ -11,6 +11,7 @@ import pytest
 from capture_helpers import write_chart_capture
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from zarr_helpers import damaged_copy
 
 from specgpu import io
 from specgpu.apps.viewer_layers import (
@@ -206,3 +207,135 @@ def test_a_perfect_white_renders_as_255_under_any_illuminant(illuminant, step):
     wl = np.arange(400.0, 701.0, step)
     np.testing.assert_array_equal(sRGB_of_cube(np.ones((2, 3, wl.size), np.float32), wl, illuminant),
                                   np.full((2, 3, 3), 255))
+
+
+@pytest.fixture(scope="module")
+def moving_folder(tmp_path_factory):
+    from capture_helpers import write_moving_capture
+
+    return write_moving_capture(tmp_path_factory.mktemp("moving"), "seqm")
+
+
+def test_a_capture_that_moved_is_decoded_compensated_with_each_sequences_truth(moving_folder):
+    from specgpu.apps.viewer_layers import VIEW_MOTION, motion_note
+
+    layers = by_name(read_layers(moving_folder))
+    data, kw, _ = layers["reflectance"]
+    meta = kw["metadata"]["specgpu"]
+    assert meta["scene"] is None and meta["motion"] == VIEW_MOTION == "global"
+    assert meta["truths"] == [str(moving_folder / "motion_truth" / f"sequence_{s:04d}.npz") for s in range(2)]
+    cube = np.asarray(data[:, 1])
+    # compensated: the pixels some frame saw outside the field are NaN along the edges the scene moved from
+    edge = np.isnan(cube[0])
+    assert edge[:, :2].all() and 0 < edge.mean() < 0.2
+    note = motion_note(moving_folder)
+    assert "\n" not in note and "captured while the scene moved" in note and "--motion global" in note
+    assert motion_note(moving_folder / "plan.npz") is None
+
+
+def test_a_still_capture_keeps_its_scene_and_no_motion_note(tmp_path):
+    from specgpu.apps.viewer_layers import motion_note
+
+    folder = write_chart_capture(tmp_path, "seq", noise_seed=1)
+    meta = by_name(read_layers(folder))["reflectance"][1]["metadata"]["specgpu"]
+    assert meta["scene"] == "colorchecker" and meta["truths"] is None and meta["motion"] == "none"
+    assert motion_note(folder) is None
+
+
+def test_the_spectrum_probe_takes_the_truth_of_the_sequence_shown(tmp_path):
+    from types import SimpleNamespace
+
+    from specgpu.apps.viewer_widget import SpectrumProbe
+
+    wl = [500.0, 600.0]
+    paths = [io.write_cube(tmp_path / f"t{s}.npz", np.full((4, 6, 2), 0.1 + s / 4, np.float32), wl)
+             for s in range(2)]
+    layer = SimpleNamespace(metadata={"specgpu": {"role": "spectrum", "scene": None,
+                                                  "truths": [str(p) for p in paths]}})
+    probe = SpectrumProbe(viewer=None)
+    assert [float(probe.truth(layer, (4, 6), t).reflectance[1, 2, 0]) for t in (0, 1)] == pytest.approx([0.1, 0.35])
+    assert probe.truth(layer, (4, 6), None) is None
+
+
+def test_a_default_recording_shows_reflectance_from_its_coefficients(default_zarr):
+    """What `specgpu stream --out` records by default (coefficients, XYZ, dE): the reflectance is made from the
+    coefficients and their recorded basis, with its sRGB shown and every other layer hidden, on named axes."""
+    setup, path, _ = default_zarr
+    rec = io.open_recording(path)
+    layers = by_name(read_layers(path))
+    assert set(layers) == {"sRGB (D65)", "reflectance", "X+Y+Z", "dE"}
+    cube, kw, _ = layers["reflectance"]
+    wl = setup.plan.output_wavelengths
+    assert cube.shape == (wl.size, 3, 240, 320) and cube.chunks[1] == (1, 1, 1)
+    assert kw["metadata"]["specgpu"]["wavelengths"] == list(wl)
+    assert kw["translate"][0] == 400.0 and kw["scale"][0] == 10.0
+    basis = rec.array("basis")[:]
+    expected = rec.read("coefficients", 1) @ basis.T
+    np.testing.assert_allclose(np.moveaxis(np.asarray(cube[:, 1]), 0, -1), expected, rtol=1e-5, atol=1e-6)
+    rgb, kw_rgb, _ = layers["sRGB (D65)"]
+    assert np.abs(np.asarray(rgb[1]).astype(int) - sRGB_of_cube(expected, wl, "D65")).max() <= 1  # float32 rounding
+    assert np.asarray(rgb[1]).mean() > 20  # the chart, not a black canvas
+    for name, (_, kwargs, _) in layers.items():
+        labels = kwargs["axis_labels"]
+        assert (labels[0] if name == "X+Y+Z" else labels)[-3:] == ("time", "y", "x"), name
+        assert kwargs.get("visible", True) is (name == "sRGB (D65)"), name
+
+
+def test_a_recording_without_basis_wavelengths_takes_them_from_its_plan(default_zarr, tmp_path):
+    import zarr
+
+    from specgpu.io.recording import consolidate
+    from specgpu.planning import load_plan, make_plan
+
+    setup, path, _ = default_zarr
+    old = damaged_copy(path, tmp_path / "old.zarr")
+    del zarr.open_group(str(old), mode="r+")["basis_wavelength"]
+    consolidate(old)
+    cube, kw, _ = by_name(read_layers(old))["reflectance"]
+    assert kw["metadata"]["specgpu"]["wavelengths"] == list(load_plan(old / "plan.npz").output_wavelengths)
+    np.testing.assert_array_equal(np.asarray(cube[:, 0, 5, 7]), np.asarray(by_name(read_layers(path))["reflectance"]
+                                                                           [0][:, 0, 5, 7]))
+    # another plan's copy says nothing of this basis: no reflectance, the sRGB of the recorded XYZ instead
+    from specgpu.planning import save_plan
+
+    save_plan(old / "plan.npz", make_plan("narrowband", setup.bundle, step_nm=10.0))
+    layers = by_name(read_layers(old))
+    assert "reflectance" not in layers
+    XYZ = io.open_recording(old).read("XYZ", 2)
+    from specgpu.apps.report_figures import sRGB_rendering
+
+    np.testing.assert_array_equal(np.asarray(layers["sRGB (D65)"][0][2]), sRGB_rendering(XYZ, "D65"))
+
+
+def test_a_damaged_recording_is_refused_in_one_line_naming_the_sequence(default_zarr, tmp_path):
+    _, path, _ = default_zarr
+    bad = damaged_copy(path, tmp_path / "bad.zarr", missing=[("dE", 1)], corrupt=[("XYZ", 2)])
+    layers = by_name(read_layers(bad))
+    de = layers["dE"][0]
+    np.testing.assert_array_equal(np.asarray(de[0]), io.open_recording(path).read("dE", 0))
+    with pytest.raises(ValueError) as missing:  # zarr alone reads it as NaN
+        np.asarray(de[1])
+    assert str(missing.value).startswith(f"{bad}/dE: sequence 1 ") and "missing" in str(missing.value)
+    with pytest.raises(ValueError) as corrupt:  # zarr alone names neither the recording nor the sequence
+        np.asarray(layers["X+Y+Z"][0][:, 2])
+    assert str(corrupt.value).startswith(f"{bad}/XYZ: corrupt or unreadable chunk at sequence 2 ")
+    assert "\n" not in str(missing.value) + str(corrupt.value)
+    assert layers["dE"][1]["metadata"]["specgpu"]["unreadable"] == {1: "its dE chunk is missing"}
+
+
+def test_a_batch_output_opens_with_the_sequences_it_computed(default_zarr):
+    _, path, out = default_zarr
+    assert napari_get_reader(str(out)) is not None
+    layers = by_name(read_layers(out))
+    assert set(layers) == {"sRGB (D65)", "reflectance", "X+Y+Z", "dE"}
+    cube, kw, _ = layers["reflectance"]
+    assert kw["axis_labels"] == ("wavelength", "time", "y", "x") and cube.shape[1] == 3
+    assert kw["metadata"]["specgpu"]["unreadable"] == {1: "not computed yet"}
+    streamed = by_name(read_layers(path))
+    # the batch decodes the recorded frames as the stream did
+    np.testing.assert_allclose(np.asarray(cube[:, 2]), np.asarray(streamed["reflectance"][0][:, 2]), rtol=1e-4,
+                               atol=1e-5)
+    np.testing.assert_allclose(np.asarray(layers["X+Y+Z"][0][:, 0]), np.asarray(streamed["X+Y+Z"][0][:, 0]),
+                               rtol=1e-4, atol=1e-5)
+    with pytest.raises(ValueError, match=r"out\.zarr/dE: sequence 1 is not computed yet"):
+        np.asarray(layers["dE"][0][1])

@@ -16,7 +16,8 @@ pytest.importorskip("pytestqt", reason="pytest-qt is not installed (the test ext
 
 from specgpu import io  # noqa: E402
 from specgpu.apps.viewer_layers import read_layers, sRGB_of_cube  # noqa: E402
-from specgpu.apps.viewer_widget import SpectrumWidget, add_layers  # noqa: E402
+from specgpu.apps.viewer_widget import SpectrumWidget, add_layers, unreadable_note  # noqa: E402
+from zarr_helpers import damaged_copy  # noqa: E402
 
 
 @pytest.fixture
@@ -150,3 +151,61 @@ def test_manifest_is_valid_and_names_the_reader_and_widget():
     assert commands["specgpu.get_reader"] == "specgpu.apps.viewer_layers:napari_get_reader"
     assert commands["specgpu.spectrum_widget"] == "specgpu.apps.viewer_widget:SpectrumWidget"
     assert manifest.contributions.readers[0].accepts_directories
+
+
+def test_a_default_recording_opens_on_named_axes_with_a_spectrum(make_viewer, qtbot, default_zarr):
+    """`specgpu view REC.zarr` on what `specgpu stream --out` records by default: axes named, the sRGB shown, the
+    dock showing the centre pixel's spectrum (from the coefficients), which follows the time slider."""
+    _, path, _ = default_zarr
+    rec = io.open_recording(path)
+    basis = rec.array("basis")[:]
+    viewer = make_viewer()
+    add_layers(viewer, read_layers(path))
+    assert viewer.dims.axis_labels == ("wavelength", "time", "y", "x")
+    assert [layer.name for layer in viewer.layers if layer.visible] == ["sRGB (D65)"]
+    widget = widget_for(qtbot, viewer)
+    t = viewer.dims.current_step[1]
+    np.testing.assert_allclose(widget.figure.axes[0].lines[-1].get_ydata(),
+                               rec.read("coefficients", t)[119, 159] @ basis.T, rtol=1e-5, atol=1e-6)
+    assert widget.status.text() == f"x 159, y 119, sequence {t}"
+    viewer.dims.set_current_step(1, 2)
+    np.testing.assert_allclose(widget.figure.axes[0].lines[-1].get_ydata(),
+                               rec.read("coefficients", 2)[119, 159] @ basis.T, rtol=1e-5, atol=1e-6)
+    assert widget.status.text() == "x 159, y 119, sequence 2"
+
+
+def test_the_viewer_opens_on_a_whole_sequence_and_refuses_the_damaged_one(make_viewer, qtbot, default_zarr,
+                                                                        tmp_path):
+    _, path, _ = default_zarr
+    # napari opens at the middle step: sequence 1 of 3, whose coefficients are gone
+    bad = damaged_copy(path, tmp_path / "bad.zarr", missing=[("coefficients", 1)])
+    viewer = make_viewer()
+    added = add_layers(viewer, read_layers(bad))
+    assert viewer.dims.current_step[1] == 0 and viewer.layers["sRGB (D65)"].visible
+    assert unreadable_note(bad, added) == (f"{bad}: sequence 1 is damaged (its coefficients chunk is missing); the "
+                                           "viewer refuses what is missing there")
+    widget = widget_for(qtbot, viewer)
+    with pytest.raises(ValueError, match=r"bad\.zarr/coefficients: sequence 1 is committed but its chunk"):
+        viewer.dims.set_current_step(1, 1)
+    viewer.cursor.position = tuple(viewer.dims.point[:-2]) + (5.0, 5.0)
+    widget.on_move()  # the dock names the refusal there too
+    assert widget.status.text().startswith(f"{bad}/coefficients: sequence 1 is committed but its chunk")
+
+
+def test_a_corrupt_chunk_where_the_viewer_opens_moves_it_to_a_whole_sequence(make_viewer, default_zarr, tmp_path):
+    _, path, _ = default_zarr
+    bad = damaged_copy(path, tmp_path / "bad.zarr", corrupt=[("coefficients", 1)])  # found only by reading it
+    viewer = make_viewer()
+    added = add_layers(viewer, read_layers(bad))
+    assert viewer.dims.current_step[1] == 0 and viewer.layers["sRGB (D65)"].visible
+    assert unreadable_note(bad, added) == (f"{bad}: sequence 1 is damaged (its coefficients chunk cannot be read); "
+                                           "the viewer refuses what is missing there")
+    no_dE = damaged_copy(path, tmp_path / "no-dE.zarr", missing=[("dE", i) for i in range(3)])
+    viewer = make_viewer()
+    add_layers(viewer, read_layers(no_dE))  # the dE layer is hidden: every sequence's sRGB can be shown
+    assert viewer.dims.current_step[1] == 1 and viewer.layers["sRGB (D65)"].visible
+    gone = damaged_copy(path, tmp_path / "gone.zarr", missing=[("coefficients", i) for i in range(3)])
+    with pytest.raises(ValueError) as refused:
+        add_layers(make_viewer(), read_layers(gone))
+    assert str(refused.value) == (f"{gone}: no sequence can be shown, every one is damaged (sequence 0: its "
+                                  "coefficients chunk is missing, ...)")

@@ -12,6 +12,7 @@ from file_helpers import (
 )
 
 from specgpu import io
+from specgpu.io.previews import MIN_BAR_HEIGHT
 
 
 # ---- previews ----------------------------------------------------------------------------------------------------------
@@ -74,3 +75,37 @@ def test_delta_E_heat_map_png(tmp_path):
         io.write_delta_E_png(tmp_path / "j.png", dE, colormap="jet")
     with raises_one_line(ValueError, r"j\.png: vmax must be finite and > 0"):
         io.write_delta_E_png(tmp_path / "j.png", dE, vmax=0)
+
+
+def test_delta_E_heat_map_carries_its_colour_bar_beside_the_map(tmp_path):
+    dE = np.linspace(0.0, 12.0, 240 * 320).reshape(240, 320)
+    dE[:10, :10] = np.nan
+    io.write_delta_E_png(tmp_path / "d.png", dE, vmax=10.0, colormap="viridis")
+    rgb, meta = io.read_png(tmp_path / "d.png")
+    lut = np.round(matplotlib.colormaps["viridis"](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint8)
+    assert rgb.shape[0] == 240 and rgb.shape[1] > 320 + 40  # the map, then the bar to its right
+    assert (int(meta["specgpu:map_width"]), int(meta["specgpu:map_height"])) == (320, 240)
+    assert "colour bar" in meta["ImageDescription"]
+    index = np.round(np.clip(np.nan_to_num(dE) / 10.0, 0, 1) * 255).astype(int)
+    expected = np.where(np.isnan(dE)[..., None], np.uint8(128), lut[index])
+    np.testing.assert_array_equal(rgb[:, :320], expected)  # the map's pixels are where they were, unscaled
+    panel = rgb[:, 320:].astype(int)
+    distance = np.abs(panel[:, :, None, :] - lut[None, None].astype(int)).sum(axis=-1)  # (H, w, 256)
+    on_scale = distance.min(axis=-1) <= 6
+    column = int(np.argmax(on_scale.sum(axis=0)))  # the bar: the column most of whose pixels are the colormap's
+    rows = np.nonzero(on_scale[:, column])[0]
+    level = distance[rows, column].argmin(axis=-1)
+    assert rows.size > 0.6 * 240  # the bar spans most of the height
+    assert level[0] > 240 and level[-1] < 16 and rows[0] < 0.2 * 240 and rows[-1] > 0.8 * 240  # vmax on top, 0 below
+    assert (np.diff(level) <= 2).all()  # the scale runs down without a jump back
+    assert (panel.sum(axis=-1) < 100).sum() > 100  # its numbers and its quantity, in black
+    assert (np.abs(panel - 128).sum(axis=-1) == 0).sum() > 50  # the grey of NaN pixels is drawn in
+
+
+def test_a_small_heat_map_gets_a_readable_bar_and_can_go_without(tmp_path):
+    dE = np.array([[0.0, 2.5], [5.0, 1.0]])
+    io.write_delta_E_png(tmp_path / "d.png", dE)
+    rgb = io.read_png(tmp_path / "d.png")[0]
+    assert rgb.shape[0] == MIN_BAR_HEIGHT and (rgb[2:, :2] == 255).all()  # the map at the top left, then white
+    io.write_delta_E_png(tmp_path / "bare.png", dE, colorbar=False)
+    assert io.read_png(tmp_path / "bare.png")[0].shape == (2, 2, 3)

@@ -156,6 +156,23 @@ def test_sequence_with_unknown_format_version(seq):
         io.read_sequence(seq)
 
 
+@pytest.mark.parametrize("roi", ["0,0,41,32", "1,1,0,2", "a,b,c,d", "1,2,3", [0, 0, 2.5, 2], 7])
+def test_a_recorded_white_roi_outside_the_frame_names_the_file_and_the_key(seq, roi):
+    """The white ROI a capture records (what recover and the report use) is checked where the file is read."""
+    doc = json.loads((seq / "sequence.json").read_text())
+    doc["metadata"] = {"white_roi": roi}
+    (seq / "sequence.json").write_text(json.dumps(doc))
+    with raises_one_line(ValueError, r"seq/sequence\.json: metadata\.white_roi must be X,Y,W,H in whole pixels "
+                                     r"inside the 40 x 32 frame, got "):
+        io.read_sequence_header(seq)
+    doc["metadata"] = {"white_roi": "1,1,39,31"}  # the largest inside, and the list form
+    (seq / "sequence.json").write_text(json.dumps(doc))
+    assert io.read_sequence_header(seq)[1]["metadata"]["white_roi"] == "1,1,39,31"
+    doc["metadata"] = {"white_roi": [0, 0, 40, 32]}
+    (seq / "sequence.json").write_text(json.dumps(doc))
+    assert io.read_sequence_header(seq)[1]["metadata"]["white_roi"] == [0, 0, 40, 32]
+
+
 def test_sequence_with_a_missing_frame(seq):
     (seq / "frame_000002.tif").unlink()
     with raises_one_line(ValueError, r"frame_000002\.tif: frame 2 \(frame id 102\) listed in sequence\.json is missing"):

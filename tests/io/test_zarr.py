@@ -81,6 +81,30 @@ def test_dask_reads_one_chunk_per_sequence(tmp_path):
                                [r.arrays["cube"].mean(axis=(0, 1)) for r in results], rtol=1e-6)
 
 
+@pytest.mark.parametrize("output", ["reflectance", "XYZ"])
+def test_coefficients_keep_their_basis_and_its_wavelengths(tmp_path, output):
+    import xarray as xr
+
+    rng = np.random.default_rng(2)
+    basis = np.linalg.qr(rng.normal(size=(B, 3)))[0]
+    plan = types.SimpleNamespace(**{**vars(fake_plan()), "output": output})
+    rec = ZarrRecorder(tmp_path / "rec.zarr", plan, basis=basis)
+    coefficients = rng.random((H, W, 3), dtype=np.float32)
+    ids = np.arange(K)
+    rec.write(StreamResult(0, 0, ids, ids * 0.005, {"coefficients": coefficients}, 0.01))
+    rec.close()
+    ds = xr.open_zarr(tmp_path / "rec.zarr")
+    cube = xr.dot(ds["coefficients"], ds["basis"], dim="component").isel(time=0)
+    np.testing.assert_allclose(cube.values, coefficients @ basis.T, rtol=1e-5, atol=1e-6)
+    if output == "reflectance":  # the cube is labelled by wavelength with no plan at hand
+        np.testing.assert_array_equal(ds["basis_wavelength"].values, np.linspace(400.0, 700.0, B))
+        assert ds["basis_wavelength"].attrs["units"] == "nm"
+        np.testing.assert_allclose(cube.sel(basis_wavelength=550.0).values, (coefficients @ basis.T)[..., 2],
+                                   rtol=1e-5, atol=1e-6)
+    else:  # a basis of other outputs than reflectance has no wavelengths
+        assert "basis_wavelength" not in ds.variables
+
+
 def test_an_unclosed_recording_keeps_every_committed_sequence(tmp_path):
     """A recording never closed (the process killed): arrays hold a block past the commit; the committed
     sequences read back exactly and the commit count says where they end."""
@@ -130,6 +154,7 @@ def test_a_corrupt_chunk_is_a_one_line_error(tmp_path):
     with pytest.raises(ValueError, match=r"rec.zarr/frames: corrupt or unreadable chunk at sequence 1") as err:
         opened.read("frames", 1)
     assert "\n" not in str(err.value)
+    assert str(err.value).endswith("(its CRC32C checksum does not match its bytes)")  # not zarr's raw bytes
 
 
 def test_bad_recordings_are_one_line_errors(tmp_path):

@@ -44,6 +44,37 @@ def test_a_still_scene_is_averaged_and_a_change_restarts():
     assert max(sink.resets[:7]) < 0.005  # no false restarts of a still scene
 
 
+@pytest.mark.parametrize("constant", [0.0, 0.01])
+def test_the_recorded_sigma_is_the_estimates_own(constant):
+    """Noise of a per-pixel sigma and a fixed per-pixel bias of variance ``constant`` (the prior's mismatch, the
+    same in every sequence): the accumulated estimate's error over its recorded sigma has z-scores of spread 1,
+    while the mean stays a plain mean (N sequences) and then a recursive one; the RMS channel agrees."""
+    rng = np.random.default_rng(3)
+    shape, N = (40, 50, 6), 4
+    truth = rng.uniform(0.2, 0.8, shape).astype(np.float32)
+    noise = rng.uniform(0.01, 0.04, shape[:2]).astype(np.float32)[..., None] * np.ones(shape[-1], np.float32)
+    bias = rng.normal(0.0, np.sqrt(constant), shape).astype(np.float32) if constant else 0.0
+    total = np.sqrt(noise ** 2 + constant)  # one sequence's sigma: the noise and the mismatch
+    rms = np.sqrt(np.mean(total ** 2, axis=-1))
+    sink = AccumulateSink(N, ("cube", "sigma"), threshold=50.0,
+                          constant_variance=np.full(shape[-1], constant) if constant else None)
+    for k in range(12):
+        y = (truth + bias + rng.normal(0.0, 1.0, shape) * noise).astype(np.float32)
+        r = SimpleNamespace(arrays={"cube": y, "sigma": np.concatenate([total, rms[..., None]], -1).copy()})
+        sink.write(r)
+        c = min(k + 1, N)
+        z = (r.arrays["cube"] - truth) / r.arrays["sigma"][..., :-1]
+        assert np.std(z) == pytest.approx(1.0, abs=0.05), (k, np.std(z))
+        if k > 0:
+            assert np.std((r.arrays["cube"] - truth - bias) / noise) < (0.75 if k >= 2 else 0.8)  # it did fall
+        if k < N:  # a plain mean of k + 1 sequences: the noise variance over k + 1
+            np.testing.assert_allclose(sink.factor, 1.0 / c, rtol=1e-5)
+        want_rms = np.sqrt(sink.factor * np.mean(noise ** 2, axis=-1) + constant)
+        np.testing.assert_allclose(r.arrays["sigma"][..., -1], want_rms, rtol=1e-4)
+    # beyond N the recursive mean of weight 1 / N: its variance tends to 1 / (2 N - 1) of one sequence's
+    assert sink.factor.mean() == pytest.approx(1.0 / (2 * N - 1), rel=0.05)
+
+
 def test_refusals_are_one_line():
     for outputs, why in ((("cube", "sigma_rms", "dE"), "not linear"), (("cube", "XYZ"), "needs the cube and sigma"),
                          (("XYZ", "sigma"), "needs the cube")):

@@ -10,7 +10,7 @@ from cli_helpers import hadamard_rig, one_line_error, run
 
 import specgpu.planning as E
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.engine.colorimetry import XYZ_to_Lab
+from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E
 from specgpu.io import read_cube, read_map
 from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide, stream_denoise
 from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, to_XYZ, uncertainty
@@ -165,7 +165,8 @@ def test_stream_denoise_equals_recover_denoise():
 
 def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
     """``specgpu batch --denoise`` of a sequence folder: each sequence's cube equals recover --denoise of it; a
-    resumed batch asking otherwise, and Lab or dE with it, are refused in one line."""
+    resumed batch asking otherwise is refused in one line; Lab and dE come from the filtered XYZ (as its help
+    says)."""
     import zarr
 
     from specgpu.pipeline.recovery import read_capture
@@ -183,10 +184,13 @@ def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
     one_line_error(run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "b.zarr",
                        "--outputs", "cube", ok=False), "--denoise")
     # Lab from the filtered XYZ, as recover --denoise computes it from the filtered cube
-    run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "c.zarr", "--outputs", "Lab",
-        "--denoise")
-    lab = zarr.open_group(str(tmp_path / "c.zarr"), mode="r")["Lab"]
+    run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "c.zarr", "--outputs",
+        "Lab,dE", "--delta-e-ref", "50,10,-10", "--denoise")
+    group = zarr.open_group(str(tmp_path / "c.zarr"), mode="r")
     for i in range(2):
         want = denoise_recovery(folder, recover(folder, sequence=i), sequence=i)
-        np.testing.assert_allclose(lab[i], XYZ_to_Lab(to_XYZ(want, folder.plan), folder.plan.white_XYZ("D65")),
-                                   atol=2e-3)
+        lab = XYZ_to_Lab(to_XYZ(want, folder.plan), folder.plan.white_XYZ("D65"))
+        np.testing.assert_allclose(group["Lab"][i], lab, atol=2e-3)
+        reference = np.broadcast_to(np.float32([50.0, 10.0, -10.0]), lab.shape)
+        np.testing.assert_allclose(group["dE"][i], delta_E(reference, lab), atol=2e-3)
+    assert "not with Lab or dE" not in " ".join(run("batch", "--help").output.split())

@@ -79,6 +79,35 @@ def test_exr_writer_writes_every_nth_result_readably(tmp_path):
         writer.write(cube)
 
 
+def test_exr_writer_names_every_output_s_channels(tmp_path):
+    """A map of one channel (H, W) is written as one channel named after its output, the sigma map's channels
+    after the plan's outputs, the coefficients c0...; each reads back equal."""
+    h, w = 5, 320  # as wide as a stream's frames: a (H, W) map once came out as W channels
+    rng = np.random.default_rng(0)
+    arrays = {"sigma_rms": rng.random((h, w), np.float32), "dE_sigma": rng.random((h, w), np.float32),
+              "sigma": rng.random((h, w, 4), np.float32), "coefficients": rng.random((h, w, 2), np.float32)}
+    writer = ExrSequenceWriter(tmp_path, output_labels=("450", "550", "650"))
+    writer.write(StreamResult(0, 0, np.arange(3), np.zeros(3), arrays, 0.0))
+    want = {"sigma_rms": ("sigma_rms",), "dE_sigma": ("dE_sigma",),
+            "sigma": ("sigma_450", "sigma_550", "sigma_650", "sigma_rms"), "coefficients": ("c0", "c1")}
+    for name, channels in want.items():
+        data, got, _ = io.read_map(tmp_path / f"{name}-000000.exr", channels)
+        assert got == channels
+        np.testing.assert_array_equal(data, arrays[name].reshape(h, w, -1))
+    unlabelled = ExrSequenceWriter(tmp_path / "u")  # no labels: numbered
+    assert unlabelled.channels("sigma", arrays["sigma"]) == ("sigma_0", "sigma_1", "sigma_2", "sigma_rms")
+    assert writer.optional and writer.label == "EXR snapshots"
+
+
+def test_a_map_of_many_channels_refused_in_one_short_line(tmp_path):
+    names = [f"c{i}" for i in range(320)]
+    with pytest.raises(ValueError) as info:
+        io.write_map(tmp_path / "m.exr", np.zeros((4, 320), np.float32), names)
+    message = str(info.value)
+    assert "c0/c1/c2/.../c319 (320) map must have shape (H, W, 320), got (4, 320)" in message
+    assert len(message) < 200 and "\n" not in message
+
+
 def test_preview_renders_srgb_and_refuses_what_it_cannot_show(tmp_path):
     preview = PreviewSink(tmp_path / "p.png", interval_s=0.0, background=False)
     preview.write(result(0))

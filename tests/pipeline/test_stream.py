@@ -263,7 +263,9 @@ def test_a_slot_refilled_the_moment_it_is_released_loses_no_frame(setup, monkeyp
     assert report.latency.count == 8 and np.isfinite(report.latency.mean)  # each result timed from its frame
 
 
-def test_a_failing_sink_stops_the_stream_and_is_reported(setup):
+def test_a_failing_sink_stops_the_stream_and_the_captured_sequences_reach_the_others(setup):
+    """A sink that is not optional fails on its 2nd result: it is named in one line, capture stops at a sequence
+    boundary (not at the time limit), and every sequence captured still reaches the sink after it."""
     calls = []
 
     def bad(result):
@@ -271,9 +273,13 @@ def test_a_failing_sink_stops_the_stream_and_is_reported(setup):
         if len(calls) == 2:
             raise ValueError("disk full")
 
-    report = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("XYZ",), policy="block", sinks=[bad]).run(20)
-    assert report.sink_errors == ["ValueError: disk full"] and report.seconds < 10
-    assert report.accounting()["balanced"]
+    after = Collect()
+    report = Stream(setup.driver(), setup.plan, setup.bundle, outputs=("XYZ",), policy="block",
+                    sinks=[bad, after]).run(20)
+    assert report.sink_errors == ["CallbackSink: ValueError: disk full"] and report.seconds < 10
+    assert report.accounting()["balanced"] and not report.sinks_stopped
+    assert calls == [0, 1]  # stopped at its failure
+    assert len(after.results) == report.sequences_out >= 2  # nothing captured was lost to the sink after it
 
 
 def test_sinks_write_readable_files(setup, expected, tmp_path):

@@ -34,3 +34,29 @@ def test_memory_probes_report_the_process():
     now, peak = current_rss_bytes(), peak_rss_bytes()
     assert peak is not None and peak > 0
     assert now is None or 0 < now <= peak
+
+
+def test_a_source_below_the_plan_s_frame_rate_is_behind():
+    """Measured by frame id between two arrivals (a frame lost on the way is a drop, not a slower source); behind
+    below 95 % of the plan's rate, said with both rates in the summary."""
+    from specgpu.capture.assemble import AssemblyStats
+    from specgpu.capture.driver import StreamEnd
+    from specgpu.capture.ringbuffer import RingStats
+    from specgpu.pipeline.live import stream_summary
+    from specgpu.pipeline.stream import frame_rate
+    from specgpu.pipeline.stream_report import StreamReport
+
+    assert frame_rate((0, 10.0), (90, 11.0)) == 90.0
+    assert frame_rate((0, 10.0), (0, 11.0)) is None and frame_rate(None, (9, 1.0)) is None
+    assert frame_rate((0, 10.0), (10, 11.0), least_frames=16) is None
+
+    def report(rate):
+        return StreamReport(frames_in=90, sequences_out=10, ring=RingStats(*[0] * 10), assembly=AssemblyStats(),
+                            end=StreamEnd(89, 8), seconds=1.0, latency=LatencyHistogram(), cpu_s=0.5,
+                            peak_rss_bytes=None, interrupted=False, frame_rate_hz=rate, plan_frame_rate_hz=150.0)
+
+    assert not report(149.0).behind and not report(143.0).behind and not report(None).behind
+    slow = report(56.0)
+    assert slow.behind and slow.as_dict()["behind"]
+    assert "behind the plan: frames delivered at 56/s, the plan's rate is 150/s" in stream_summary(slow)
+    assert "behind" not in stream_summary(report(149.0))

@@ -167,3 +167,16 @@ def ndimage_centroid(img, y, x, r=2):
     win = img[y - r:y + r + 1, x - r:x + r + 1]
     yy, xx = np.mgrid[y - r:y + r + 1, x - r:x + r + 1]
     return float((win * yy).sum() / win.sum()), float((win * xx).sum() / win.sum())
+
+
+def test_an_object_too_small_for_its_layout_names_the_key_and_the_rig_file(tmp_path):
+    """The chart needs 24 x 36 px: a 1 x 1 object is refused with the key and the rig file, not a bare 'height'."""
+    desc = rig_from_dict({"camera": {"roi_width": 320, "roi_height": 240},
+                          "motion": {"object": "colorchecker", "object_size_px": [1, 1]}}, source="my-rig.toml")
+    rig = TwinRig(desc)
+    with pytest.raises(ValueError) as err:
+        rig.load_sequence(patterns(rig))
+        rig.render(0, 0, 0.0)
+    msg = str(err.value)
+    assert msg.startswith("my-rig.toml: [motion] object 'colorchecker' at object_size_px = [1, 1]: ")
+    assert msg.endswith("height must be >= 24, got 1") and "\n" not in msg

@@ -322,22 +322,55 @@ def _bad_array(data, arr: np.ndarray):
     a = np.array(arr, copy=True)
     if kind in ("nan", "inf", "huge", "negative") and a.size and a.dtype.kind == "f" and a.dtype.itemsize >= 4:
         flat = a.reshape(-1)
-        flat[data.draw(st.integers(0, flat.size - 1))] = {"nan": np.nan, "inf": np.inf, "huge": 1e300,
-                                                          "negative": -1e30}[kind]
+        with np.errstate(over="ignore"):  # "huge" in a float32 field is inf, as a file could hold
+            flat[data.draw(st.integers(0, flat.size - 1))] = {"nan": np.nan, "inf": np.inf, "huge": 1e300,
+                                                              "negative": -1e30}[kind]
         return a
     if kind == "shape" and a.ndim:
         return a[..., : max(0, a.shape[-1] - data.draw(st.integers(1, 3)))]
     if kind == "empty":
         return np.zeros((0,) * max(a.ndim, 1), a.dtype)
     if kind == "dtype":
+        dtype = np.dtype(data.draw(st.sampled_from([np.int8, np.complex128, np.bool_, np.float16])))
+        if a.dtype.kind == "c" and dtype.kind != "c":  # an earlier mutation made it complex: drop the imaginary
+            a = a.real  # part here, or the cast warns (an error in this module)
         try:
             with np.errstate(all="ignore"):
-                return a.astype(data.draw(st.sampled_from([np.int8, np.complex128, np.bool_, np.float16])))
+                return a.astype(dtype)
         except (TypeError, ValueError):  # an earlier mutation made it text
             return a
     if kind == "scalar":
         return np.array(data.draw(st.floats()))
     return np.array(data.draw(st.text(max_size=5)))
+
+
+def test_ci_draws_the_same_examples_every_run(pytestconfig):
+    """The "ci" profile is derandomized (a fixed seed per test) and the header says which profile ran."""
+    ci = settings.get_profile("ci")
+    assert ci.derandomize and ci.database is None and ci.print_blob
+    headers = pytestconfig.hook.pytest_report_header(config=pytestconfig, start_path=pytestconfig.rootpath)
+    ours = [h for h in headers if isinstance(h, str) and h.startswith("hypothesis: profile ")]
+    assert len(ours) == 1
+    assert ("derandomized" in ours[0]) == settings.default.derandomize
+
+
+class Scripted:
+    """Stands for hypothesis's ``data``: each draw returns the next scripted value."""
+
+    def __init__(self, *values):
+        self._values = list(values)
+
+    def draw(self, strategy):
+        return self._values.pop(0)
+
+
+@pytest.mark.parametrize("dtype", [np.int8, np.bool_, np.float16, np.complex128])
+def test_a_complex_field_mutated_again_to_another_dtype_is_drawn_without_a_warning(dtype):
+    """Two mutations of one field (complex, then another dtype) draw a wrong-typed array, not a ComplexWarning."""
+    got = _bad_array(Scripted("dtype", dtype), np.array([1.5 + 2.0j, -3.0 + 1.0j]))
+    assert got.dtype == np.dtype(dtype)
+    np.testing.assert_array_equal(got, np.array([1.5 + 2.0j, -3.0 + 1.0j]).astype(dtype) if dtype is np.complex128
+                                  else np.array([1.5, -3.0]).astype(dtype))
 
 
 @fuzz(200)
@@ -519,6 +552,10 @@ def _resaved(files, tmp_path, name, **changes):
     ({"dark_rate_dn_per_s": None}, "dark_rate_dn_per_s must be a finite number"),
     ({"column_wavelengths": lambda c: np.where(np.arange(c.size) == 3, np.nan, c)}, "column_wavelengths"),
     ({"responsivity": lambda r: r.astype(np.complex128)}, "responsivity must hold real numbers"),
+    # all zero: every plan from it would divide by zero (an SVD that does not converge), so the file is refused
+    ({"responsivity": np.zeros_like}, "responsivity is zero at every wavelength"),
+    ({"column_power": np.zeros_like}, "column_power is zero at every column"),
+    ({"responsivity": lambda r: np.where(np.arange(r.size) == 7, np.inf, r)}, "responsivity must be (G="),
 ])
 def test_hand_made_calibration_with_bad_values_is_refused(files, tmp_path, change, message):
     path = _resaved(files, tmp_path, "calib.npz", **change)

@@ -346,3 +346,37 @@ def test_a_flipped_byte_keeps_exactly_the_sequences_whose_records_are_intact(bas
                                                    for i in range(s * K, (s + 1) * K)]
             left = [x["sequence"] for x in meta["metadata"]["salvaged"]["left_out"]]
             assert left == [s for s in range(len(original) // K) if s not in intact]
+
+
+def test_salvage_renumbers_a_moving_captures_truth_with_its_sequences(tmp_path, monkeypatch):
+    """A killed capture on a moving twin with a gap (a damaged sequence left out): after salvage, the truth file
+    of each sequence is the one taken at that sequence's own reference time, and the others are kept aside."""
+    from cli_helpers import MOVING_RIG
+    from specgpu.calibration.bundle import oracle_calibration, save_calibration
+    from specgpu.io.npz import read_cube_npz
+    from specgpu.rig.config import load_rig
+
+    (tmp_path / "rig.toml").write_text(MOVING_RIG)
+    save_calibration(tmp_path / "calib.npz", oracle_calibration(load_rig(tmp_path / "rig.toml")))
+    run("plan", "tristimulus", "--calib", tmp_path / "calib.npz", "--out", tmp_path / "tri.npz")
+    out = killed_capture(tmp_path, tmp_path / "seq", monkeypatch, sequences=4)
+    K = K_of(tmp_path)
+    truth = out / "motion_truth"
+    assert sorted(p.name for p in truth.iterdir()) == [f"sequence_{s:04d}.npz" for s in range(5)]
+    victim = out / frame_files(out)[K + 1]  # a frame of the second sequence: sequence 1 is left out
+    victim.write_bytes(victim.read_bytes()[:-10])
+    captured = {s: read_cube_npz(truth / f"sequence_{s:04d}.npz")[2]["reference_time_s"] for s in range(5)}
+    run("salvage", out)
+    _, records, meta = io.read_sequence(out)
+    assert meta["metadata"]["salvaged"]["kept_sequences"] == [0, 2, 3]
+    exposure = records[0]["exposure_s"]
+    assert sorted(p.name for p in truth.glob("sequence_*.npz")) == [f"sequence_{s:04d}.npz" for s in range(3)]
+    for n in range(3):
+        reference = float(read_cube_npz(truth / f"sequence_{n:04d}.npz")[2]["reference_time_s"])
+        # the truth at the middle frame's mid-exposure of the sequence now numbered n
+        assert reference == pytest.approx(records[n * K + K // 2]["timestamp_s"] + exposure / 2, abs=1e-9)
+    now_1 = read_cube_npz(truth / "sequence_0001.npz")[2]["reference_time_s"]
+    assert float(now_1) == pytest.approx(float(captured[2]))  # the third captured sequence is sequence 1 now
+    kept_aside = sorted(p.name for p in (truth / "left_out").iterdir())
+    assert kept_aside == ["sequence_0001.npz", "sequence_0004.npz"]  # the damaged and the unfinished sequence
+    assert not any(p.name.startswith("motion_truth.") for p in out.iterdir())

@@ -13,6 +13,7 @@ from specgpu.apps.cli.options import (
     PLAN,
     RESIZE,
     command,
+    no_clash,
     output_list,
     parse_reference,
 )
@@ -55,7 +56,8 @@ def plan_calibration(plan, source, plan_path, calib):
 @click.option("--device", "device", default=None, help="OpenCL device selector (on every worker).")
 @RESIZE
 @click.option("--denoise", is_flag=True,
-              help="Denoise the cube and XYZ (recover --denoise's guided filter; not with Lab or dE).")
+              help="Denoise the cube and XYZ (recover --denoise's guided filter), Lab and dE computed from the "
+                   "filtered XYZ.")
 @click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moved during each sequence, as recover --motion: a "
               "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "
@@ -66,6 +68,7 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
                   device, resize, denoise, motion):
     """Re-process the raw frames of a recording (specgpu stream --frames) or a sequence folder with a plan, on
     Dask: one task per sequence, resumable, equal to specgpu recover of each sequence."""
+    no_clash([("--out", out)], [("SOURCE", source), ("--plan", plan_path), ("--calib", calib), ("--delta-e-ref", ref)])
     wanted = output_list(outputs, BATCH_OUTPUTS, "batch output")
     method = validate_method(method, DELTA_E_METHODS)
     if ("dE" in wanted) != (ref is not None):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from specgpu.apps.bench import run_bench
-from specgpu.apps.cli.options import command
+from specgpu.apps.cli.options import command, no_clash
 from specgpu.apps.stream_bench import run_stream_bench
 from specgpu.testing import parse_sizes
 
@@ -38,7 +38,7 @@ def sizes_option(text, option, one=False):
               help="With --stream: length of each sustained case.")
 @click.option("--paced-seconds", type=click.FloatRange(min=0.5), default=60.0, show_default=True,
               help="With --stream: length of the case paced at the camera's 200 fps.")
-@click.option("--stream-cases", default="fused,sigma,sigma_rms,white,cube,paced,overload,equality",
+@click.option("--stream-cases", default="fused, sigma, sigma_rms, white, cube, paced, overload, equality",
               show_default=True,
               help="With --stream: comma-separated cases to run (also dE_sigma; linear and denoise: the cost of "
                    "--denoise; motion: the rate with --motion global beside the static one; motion_flow: the rate "
@@ -50,6 +50,7 @@ def sizes_option(text, option, one=False):
 def bench(device, json_path, sizes, repeats, stream, stream_size, stream_seconds, paced_seconds, stream_cases,
           stream_rounds):
     """Throughput of each kernel against NumPy / colour-science baselines measured in the same run."""
+    no_clash([("--json", json_path)])
     if not stream:
         run_bench(sizes=sizes_option(sizes, "--sizes"), device=device, repeats=repeats, json_path=json_path,
                   echo=click.echo)

@@ -4,12 +4,15 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import click
 from tqdm import tqdm
 
-from specgpu.apps.cli.options import PLAN, RESIZE, RIG, SCENE, command, experiment, lock
+from specgpu.apps.cli.group import kept
+from specgpu.apps.cli.options import PLAN, RESIZE, RIG, SCENE, command, experiment, lock, no_clash
 from specgpu.hardware.drivers import hardware_config
+from specgpu.io import SEQUENCE_FILE
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline import acquire
 from specgpu.pipeline.recovery import (
@@ -44,7 +47,9 @@ def run_capture(writer, out, description, hardware, plan, bundle, truth, sequenc
         writer.close(result.assembly, metadata=meta)
     except BaseException as error:
         said = acquire.keep_or_abort(writer, error, out, sequences, meta)
-        if said:
+        if said and isinstance(error, KeyboardInterrupt) and "; kept " in said:  # said in the interrupt's line
+            kept(out, said.split("; kept ", 1)[1])
+        elif said:
             click.echo(said, err=True)
         raise
     return result
@@ -59,12 +64,14 @@ def run_capture(writer, out, description, hardware, plan, bundle, truth, sequenc
 @click.option("--out", required=True, type=click.Path(file_okay=False),
               help="Sequence folder to write; a name ending in .zarr writes a zarr recording of the raw frames "
                    "instead (for specgpu batch).")
-@click.option("--sequences", type=click.IntRange(min=1), default=1, show_default=True)
+@click.option("--sequences", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Sequences of the plan to capture (K frames each).")
 @click.option("--seed", type=click.IntRange(min=0, max=2**63 - 1), default=None,
               help="Seed of the frames' temporal noise.")
 @RESIZE
 def capture(rig_path, plan_path, calib, scene, out, sequences, seed, resize):
     """Capture sequences of a plan on the rig (the twin by default) into a sequence folder."""
+    no_clash([("--out", out)], [("--rig", rig_path), ("--plan", plan_path), ("--calib", calib), ("--scene", scene)])
     description = load_rig(rig_path)
     hardware = hardware_config(description)  # a typo in [hardware] first, before any device or file work
     bundle, plan, truth = experiment(description, plan_path, calib, scene, resize)
@@ -89,6 +96,8 @@ def salvage(seq):
     sequences left out and why). No frame is deleted, and the journal only once the index reads back: a refused
     salvage can be run again.
     """
+    # salvage writes the folder's own index, by design; named as an output so an interrupt says if it was written
+    no_clash([("SEQ's index", Path(seq) / SEQUENCE_FILE)])
     lock(seq, folder=True)  # not while a capture is still writing into it
     info = salvage_capture(seq)
     for gone in info["left_out"]:

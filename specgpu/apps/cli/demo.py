@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from specgpu.apps.cli.options import RIG, command, lock
+from specgpu.apps.cli.options import RIG, command, lock, no_clash
 from specgpu.apps.demo import format_tables, run_demo
 
 
@@ -12,13 +12,15 @@ from specgpu.apps.demo import format_tables, run_demo
 @click.option("--out", default="specgpu-report", show_default=True, type=click.Path(file_okay=False),
               help="Report folder.")
 @RIG
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Seed of the twin's noise (calibration and captures): a seed gives the same figures each run.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
 @click.option("--draws", type=click.IntRange(1, 50), default=2, show_default=True,
               help="Noise draws per method and profile (tables give mean +- std).")
 def demo(out, rig_path, seed, device, draws):
     """The main job on the built-in twin: calibrate, plan, capture the chart, recover, evaluate; prints the
     paper's Tables 1-3 beside ours and writes a report folder with index.html."""
+    no_clash([("--out", out)], [("--rig", rig_path)])
     lock(out, folder=True)
     result = run_demo(out, rig=rig_path, seed=seed, echo=click.echo, device=device, draws=draws)
     click.echo(format_tables(result))

@@ -5,13 +5,58 @@ Only click and the standard library are imported here, so ``specgpu --help`` sta
 from __future__ import annotations
 
 import importlib
+import os
 import signal
 import sys
 import threading
 
 import click
 
-__all__ = ["LazyGroup", "one_line_usage", "terminate_as_interrupt"]
+__all__ = ["LazyGroup", "one_line_usage", "terminate_as_interrupt", "watch_outputs", "kept", "interrupted_line"]
+
+_WATCHED = "specgpu.watched_outputs"  # click's context meta, shared by the group and its command
+_KEPT = "specgpu.kept"
+
+
+def _state(path):
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
+def watch_outputs(paths) -> None:
+    """Note the state of these outputs now (before the command writes them), so that an interrupt can say which
+    of them it leaves written (:func:`interrupted_line`)."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is not None:
+        watched = ctx.meta.setdefault(_WATCHED, {})
+        for path in paths:
+            watched.setdefault(str(path), _state(path))
+
+
+def kept(path, what: str) -> None:
+    """Say what an interrupted command keeps at output ``path`` (``what``: "3 of 5 sequences in seq"), in place of
+    the plain path :func:`interrupted_line` would name."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is not None:
+        ctx.meta.setdefault(_KEPT, {})[str(path)] = what
+
+
+def interrupted_line(ctx) -> str:
+    """The one line of an interrupted command: ``specgpu: interrupted; kept ...`` naming every output it wrote
+    or changed (a folder output without a word from its command is said to be incomplete), or ``...; nothing
+    written``."""
+    said = ctx.meta.get(_KEPT, {})
+    parts = []
+    for path, before in ctx.meta.get(_WATCHED, {}).items():
+        if path in said:
+            parts.append(said[path])
+        elif _state(path) not in (None, before):
+            parts.append(f"{path}, incomplete" if os.path.isdir(path) else path)
+    parts += [what for path, what in said.items() if path not in ctx.meta.get(_WATCHED, {})]
+    return "specgpu: interrupted; " + (f"kept {'; '.join(parts)}" if parts else "nothing written")
 
 
 def one_line_usage(error: click.UsageError) -> click.UsageError:
@@ -49,8 +94,9 @@ class terminate_as_interrupt:
 class LazyGroup(click.Group):
     """click's lazy-loading group: ``lazy_commands`` maps each name to ``(module:attribute, summary)``; the module is
     imported when the command runs or shows its help, and the group's help lists the summaries (each the first
-    paragraph of the command's help) without importing any. A usage error is one line (exit status 2) and an
-    interrupt exits 130; a command's other errors are turned into one line by the command itself
+    paragraph of the command's help) without importing any. The exit status follows one rule: 0 done, 2 a usage
+    error (one line), 1 any other failure (one line), 130 interrupted (one line saying what was kept,
+    :func:`interrupted_line`); a command's other errors are turned into one line by the command itself
     (:class:`specgpu.apps.cli.options.Command`, which names an output, never its temporary), any left over
     here too."""
 
@@ -89,8 +135,8 @@ class LazyGroup(click.Group):
             raise one_line_usage(error) from error
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort, SystemExit):
             raise
-        except KeyboardInterrupt:
-            click.echo("specgpu: interrupted", err=True)
+        except KeyboardInterrupt:  # exit 130 with what is kept, wherever the command was when stopped
+            click.echo(interrupted_line(ctx), err=True)
             sys.exit(130)
         except Exception as error:  # outside a command's body (its options, its resources): still one line
             text = str(error).strip()

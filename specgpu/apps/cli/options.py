@@ -4,7 +4,9 @@ lock on each, all-or-nothing writes), the progress line and the scene and refere
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import os
 import signal
 import sys
 import threading
@@ -14,22 +16,27 @@ import click
 import numpy as np
 from tqdm import tqdm
 
+from specgpu.apps.cli.group import watch_outputs
 from specgpu.calibration.bundle import load_calibration
-from specgpu.core.locks import output_locks, same_path
+from specgpu.core.guard import check_outputs
+from specgpu.core.locks import output_locks
 from specgpu.core.spectra import DEFAULT_CMFS, resolve_integration
-from specgpu.core.validate import validate_method
+from specgpu.core.validate import BadArgument, validate_method
 from specgpu.engine.colorimetry import XYZ_to_Lab
-from specgpu.io import SEQUENCE_FILE, companion_files
+from specgpu.io import JOURNAL_FILE, SEQUENCE_FILE, companion_files
 from specgpu.io import final_names, new_temporary, replace_with, write_target
 from specgpu.pipeline.evaluate import scene_XYZ
+from specgpu.pipeline.moving import TRUTH_FOLDER
 from specgpu.pipeline.recovery import CALIBRATION_FILE, PLAN_FILE
 from specgpu.planning.plans import load_plan
+from specgpu.rig.config import load_rig
 from specgpu.rig.scene import SpectralScene, load_scene, validate_resize
 
 
 class Command(click.Command):
-    """A command whose errors are one line on stderr and exit status 1 (click's own errors, usage errors and
-    interrupts pass through to the group)."""
+    """A command whose errors are one line on stderr: exit status 2 for a bad argument (an unknown name, an output
+    over an input: :class:`specgpu.core.validate.BadArgument`, wherever below it is found), 1 for any other
+    failure (click's own errors, usage errors and interrupts pass through to the group)."""
 
     def invoke(self, ctx):
         try:
@@ -37,6 +44,8 @@ class Command(click.Command):
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort, SystemExit,
                 KeyboardInterrupt):
             raise
+        except BadArgument as error:
+            raise click.UsageError(final_names(str(error)).strip().splitlines()[0]) from error
         except Exception as error:  # the CLI promises one line, not a traceback
             text = final_names(str(error)).strip()  # an output's name, never its temporary's
             message = text.splitlines()[0] if text else type(error).__name__
@@ -59,28 +68,61 @@ def with_companions(named):
     return out
 
 
-def no_clash(outputs, inputs=()):
-    """Refuse (a usage error naming both options) two outputs that are one file, or an output that is an input:
-    writing it would silently replace the other result or destroy the input. Companion files count: an ENVI
-    header's data file is an input with its header, and an output written with it."""
-    outputs = with_companions(outputs)
-    inputs = with_companions(inputs)
-    for i, (opt, path) in enumerate(outputs):
-        for other, other_path in outputs[:i]:
-            if same_path(path, other_path):
-                raise click.UsageError(f"{other} and {opt} both name {path}; give each output its own file")
-        for source, source_path in inputs:
-            if same_path(path, source_path):
-                raise click.UsageError(f"{opt} {path} is the input {source}; writing it would destroy that input, "
-                                       "choose another file")
-
-
-def sequence_files(seq):
-    """The files of a sequence folder a reader uses (its outputs must never land on them)."""
+def sequence_files(seq, label="SEQ"):
+    """What reading the capture folder ``seq`` reads: its index, journal, plan, calibration and frames, and its
+    ``motion_truth`` folder whole. A new file beside them (a report, a cube) changes none of it."""
     folder = Path(seq)
-    files = [(f"SEQ's {name}", folder / name) for name in (SEQUENCE_FILE, PLAN_FILE, CALIBRATION_FILE)]
-    files += [(f"SEQ's {p.name}", p) for p in folder.glob("frame_*.tif")]
-    return [("SEQ", folder), *files]
+    names = (SEQUENCE_FILE, JOURNAL_FILE, PLAN_FILE, CALIBRATION_FILE, TRUTH_FOLDER)
+    files = [(f"{label}'s {name}", folder / name) for name in names]
+    return files + [(f"{label}'s {p.name}", p) for p in sorted(folder.glob("frame_*.tif"))]
+
+
+def is_capture(folder) -> bool:
+    folder = Path(folder)
+    return any((folder / name).exists() for name in (SEQUENCE_FILE, JOURNAL_FILE)) or \
+        next(folder.glob("frame_*.tif"), None) is not None
+
+
+def rig_files(rig_path):
+    """The files a rig TOML names (a scene cube, a moving object, CSV curves): inputs of whoever reads the rig.
+    A rig that does not load names none here (the command refuses it with its own message)."""
+    try:
+        description = load_rig(rig_path)
+    except (ValueError, OSError):
+        return []
+    found, todo = [], [description]
+    while todo:
+        item = todo.pop()
+        for field in dataclasses.fields(item):
+            value = getattr(item, field.name)
+            if dataclasses.is_dataclass(value):
+                todo.append(value)
+            elif isinstance(value, str) and value and os.path.isfile(value):
+                found.append((f"{rig_path}'s {field.name}", value))
+    return found
+
+
+def read_paths(label, path):
+    """Everything reading the input ``path`` reads: a capture folder's files (:func:`sequence_files`), any
+    other folder whole (a zarr recording), a file with its companions and, for a rig TOML, the files it names.
+    A name that is no path on disk (a built-in scene) reads nothing here."""
+    if path is None or not os.path.exists(path):
+        return []
+    if os.path.isdir(path):
+        return sequence_files(path, label) if is_capture(path) else [(label, path)]
+    found = with_companions([(label, path)])
+    return found + rig_files(path) if str(path).lower().endswith(".toml") else found
+
+
+def no_clash(outputs, inputs=()):
+    """The output guard (:func:`specgpu.core.guard.check_outputs`) of every command that writes: ``outputs`` and
+    ``inputs`` are (option, path) pairs, each input expanded to all that reading it reads (:func:`read_paths`).
+    Refuses, as a usage error naming both paths, an output that is an input, lies inside a folder read whole,
+    holds an input, or names the same file as another output (companions count: an ENVI header's data file is
+    written with it). The outputs are watched from here on, so an interrupt can say which were written."""
+    outputs = with_companions(outputs)
+    check_outputs(outputs, [pair for label, path in inputs for pair in read_paths(label, path)])
+    watch_outputs(path for _, path in outputs)
 
 
 class Staged:

@@ -100,6 +100,15 @@ def summary(plan, digest, out):
             f"({plan.output}); wrote {out} (plan {digest[:12]}, calibration {plan.calibration[:12]}){note}")
 
 
+def budget_note(plan, sequence_ms) -> None:
+    """Without ``--sequence-ms`` the optimal design takes the longest exposures that gain photons, seconds a
+    sequence where a moving scene or a stream wants far less: say so on stderr, with the option that caps it."""
+    if sequence_ms is None and plan.method == "optimal":
+        click.echo(f"note: no --sequence-ms, so the optimal design exposes {plan.exposure_s * 1e3:.1f} ms a frame, "
+                   f"{plan.sequence_s * 1e3:.0f} ms a sequence; --sequence-ms T designs within T ms a sequence",
+                   err=True)
+
+
 @command("plan")
 @click.argument("method")
 @click.option("--calib", required=True, type=click.Path(exists=True, dir_okay=False), help="Calibration bundle.")
@@ -116,7 +125,8 @@ def summary(plan, digest, out):
 @click.option("--output-step-nm", type=Finite(min=0.1, max=300), default=10.0, show_default=True,
               help="Output wavelength spacing of basis methods (400-700 nm).")
 @click.option("--illuminant", default="D65", show_default=True, help="Tristimulus / camera simulator illuminant.")
-@click.option("--observer", default="CIE 1931 2 Degree Standard Observer", show_default=True)
+@click.option("--observer", default="CIE 1931 2 Degree Standard Observer", show_default=True,
+              help="Tristimulus: the colour-matching functions (colour-science name) whose XYZ the plan recovers.")
 @click.option("--camera", default="Nikon 5100 (NPL)", show_default=True, help="Camera simulator: sensitivities.")
 @click.option("--spectrum", default="D65", show_default=True,
               help="Steady-state: target illuminant name (colour-science) for spectral rendering.")
@@ -167,7 +177,8 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
     """
     validate_method(method, {k: k for k in (*PLAN_METHODS, "optimal", "hadamard")}, "METHOD")
     method = method.lower()
-    no_clash([("--out", out)], [("--calib", calib), ("--basis", basis_path)] + [("--training", t) for t in training])
+    no_clash([("--out", out)], [("--calib", calib), ("--basis", basis_path), ("--rig", rig_path),
+                                ("--spectrum", spectrum), *(("--training", t) for t in training)])
     lock(out)
     bundle = load_calibration(calib)
     args, kwargs = method_arguments(method, step_nm=step_nm, bandwidth_nm=bandwidth_nm, m=m, basis_path=basis_path,
@@ -179,4 +190,5 @@ def plan_command(method, calib, out, step_nm, bandwidth_nm, m, basis_path, exclu
                           extra_frames=added_frames(bundle, ambient, drift_probe, reference_every),
                           denoise_radius=denoise_radius if denoise else None)
     plan = with_frames(plan, bundle, ambient, drift_probe, reference_every)
+    budget_note(plan, sequence_ms)
     click.echo(summary(plan, save_plan(out, plan), out))

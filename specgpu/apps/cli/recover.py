@@ -3,8 +3,6 @@ Lab, dE and uncertainty maps, written all or nothing."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 import numpy as np
 
@@ -20,20 +18,21 @@ from specgpu.apps.cli.options import (
     lock,
     no_clash,
     parse_reference,
-    sequence_files,
 )
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.pipeline import recovery
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning, denoise_recovery
 from specgpu.pipeline.moving import MOTION_MODES
+from specgpu.pipeline.motion_record import without_motion
 from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
 
 def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours, denoise=None,
               motion="none", integration="rectangle"):
     """The recovery of ``folder`` (a refusal is one line naming why), motion-compensated when ``motion`` is not
-    "none", denoised when ``denoise`` gives (radius, eps), and the metadata of its outputs."""
+    "none", denoised when ``denoise`` gives (radius, eps), the metadata of its outputs and the warnings to say (a
+    dark level not to be trusted; a capture that moved, recovered without ``--motion``)."""
     try:
         if denoise is not None and motion != "none":
             raise ValueError("--denoise with --motion: the filter's guide (the sum of the frames) is not "
@@ -45,6 +44,7 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
     except ValueError as error:
         raise click.ClickException(str(error)) from None
     untrusted = recovery.dark_warning(folder, sequence)  # said once the spinner has gone, recorded with every output
+    notice = without_motion(folder, averaged=sequence is None) if motion == "none" else None
     meta = recovery_metadata(folder, seq, sequence=sequence, illuminant=colours[0], observer=colours[1],
                              white_roi=white_roi, white_reflectance=white_reflectance, untrusted=untrusted,
                              integration=integration)
@@ -52,7 +52,9 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
         meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
     if motion != "none":
         meta["motion"] = f"{motion} compensation of each frame, estimated within the sequence"
-    return y, meta, untrusted
+    elif notice:
+        meta["motion"] = "none: the capture moved, decoded as if still"
+    return y, meta, [w for w in (untrusted, notice) if w]
 
 
 @command()
@@ -105,7 +107,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
     paths = {"out": out, "xyz_path": xyz_path, "lab_path": lab_path, "de_path": de_path, "sigma_path": sigma_path,
              "de_sigma_path": de_sigma_path}
     outputs = list(zip(("--out", "--xyz", "--lab", "--delta-e", "--sigma", "--delta-e-sigma"), paths.values()))
-    no_clash(outputs, sequence_files(seq) + ([("--delta-e-ref", ref)] if ref and Path(ref).exists() else []))
+    no_clash(outputs, [("SEQ", seq), ("--delta-e-ref", ref), ("--white-reflectance", white_reflectance)])
     lock(*(p for _, p in outputs if p))  # before the work: a missing folder or a busy output is refused now
     folder = recovery.read_capture(seq)
     colours = (folder.plan.resolve_illuminant(illuminant, name=f"the plan of {seq}"),
@@ -114,7 +116,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
     with Busy("recovering"):
         if white_reflectance is not None and white_roi is None:
             raise click.UsageError("--white-reflectance needs --white-roi")
-        y, meta, untrusted = recovered(folder, seq, sequence=sequence, device=device, colours=colours, **white,
+        y, meta, warnings = recovered(folder, seq, sequence=sequence, device=device, colours=colours, **white,
                                        denoise=(denoise_radius, denoise_eps) if denoise else None, motion=motion,
                                        integration=integration)
         writes = recovery_writes(folder, y, meta, **paths, colours=colours, sequence=sequence, half=half,
@@ -122,8 +124,8 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
                                  denoise_radius=denoise_radius if denoise else None, integration=integration,
                                  reference=lambda h, w, m: parse_reference(ref, h, w, colours[0], resize, m,
                                                                            colours[1], integration))
-    if untrusted:
-        click.echo(f"Warning: {untrusted}", err=True)
+    for warning in warnings:
+        click.echo(f"Warning: {warning}", err=True)
     mismatch = denoise_design_warning(folder.plan, denoise_radius if denoise else None)
     if mismatch:
         click.echo(f"Warning: {mismatch}", err=True)

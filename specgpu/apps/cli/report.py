@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from specgpu.apps.cli.options import DEVICE, Busy, command, lock
-from specgpu.apps.report import report_folder
+from specgpu.apps.cli.options import DEVICE, Busy, command, lock, no_clash
+from specgpu.apps.report import find_captures, report_folder
 
 
 @command()
@@ -21,7 +21,13 @@ from specgpu.apps.report import report_folder
 def report(run_folder, out, truth, device):
     """Write the HTML report of a run folder (a capture folder, or folders of captures as the demo writes them):
     each capture recovered, scored against its truth, with tables, spectra, error maps and renderings."""
-    lock(out or Path(run_folder) / "report.html")
+    out = out or Path(run_folder) / "report.html"
+    no_clash([("--out", out)], [*((f"RUN_FOLDER's capture {name}", path)
+                                   for name, path in find_captures(run_folder).items()), ("--truth", truth)])
+    lock(out)
+    notes = []  # said once the progress line has gone
     with Busy("reporting"):
-        path = report_folder(run_folder, out=out, truth=truth, device=device)
+        path = report_folder(run_folder, out=out, truth=truth, device=device, say=notes.append)
+    for line in notes:
+        click.echo(line, err=True)
     click.echo(f"wrote {path}")

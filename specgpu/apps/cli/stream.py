@@ -8,6 +8,7 @@ import sys
 import click
 import numpy as np
 
+from specgpu.apps.cli.group import kept
 from specgpu.apps.cli.options import (
     ILLUMINANT,
     INTEGRATION,
@@ -20,6 +21,7 @@ from specgpu.apps.cli.options import (
     command,
     experiment,
     lock,
+    no_clash,
     one_interrupt,
     output_list,
     parse_reference,
@@ -29,13 +31,15 @@ from specgpu.hardware.drivers import hardware_config, open_driver
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline.accumulate import AccumulateSink
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
-from specgpu.pipeline.live import add_recording, recording_slots, stream_summary
+from specgpu.pipeline.live import add_recording, behind_text, recording_slots, stream_summary
 from specgpu.pipeline.outputs import stream_metadata
 from specgpu.pipeline.recovery import check_scene_covers
 from specgpu.pipeline.decoder import STREAM_OUTPUTS
 from specgpu.pipeline.moving import MOTION_MODES
+from specgpu.pipeline.motion_record import without_motion
 from specgpu.pipeline.moving_decode import check_motion_options
 from specgpu.pipeline.stream import Stream
+from specgpu.planning.uncertainty import constant_variance
 from specgpu.rig.config import load_rig
 
 #: the longest stream: a year (a longer one overflows the sequence count the free-space check works out)
@@ -45,8 +49,14 @@ MAX_STREAM_S = 366 * 86400
 def status_line(s, tty):
     """The live status line (rewritten in place on a terminal)."""
     line = (f"frames in {s['frames_in']}, sequences out {s['sequences_out']}, drops {s['assembler_dropped']} "
-            f"(ring {s['ring_dropped']}), discarded {s['discarded']}, latency {s['latency_ms']:.1f} ms")
+            f"(ring {s['ring_dropped']}), discarded {s['discarded']}, latency {s['latency_ms']:.1f} ms"
+            + (f", {behind_text(s['frame_rate_hz'], s['plan_frame_rate_hz'])}" if s.get("behind") else ""))
     click.echo(("\r" + line + "   ") if tty else line, err=True, nl=not tty)
+
+
+def sink_stopped_line(message, tty):
+    """An optional sink the stream stopped, said once on stderr (below the live status line on a terminal)."""
+    click.echo(("\n" if tty else "") + f"Warning: {message}; the stream goes on", err=True)
 
 
 def stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
@@ -58,14 +68,19 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
     white_roi, white_reflectance = white
     motion = check_motion_options(motion, plan, outputs=wanted, denoise=denoise,
                                   white_roi=white_roi)  # before any output: one line naming the option
+    notice = without_motion(description, averaged=False) if motion == "none" else None
+    if notice:
+        click.echo(f"Warning: {notice}", err=True)
     accumulator = (None if accumulate is None else  # refused before any output
-                   AccumulateSink(accumulate, wanted, motion=motion != "none"))
+                   AccumulateSink(accumulate, wanted, motion=motion != "none",
+                                  constant_variance=constant_variance(plan)))
     policy = policy or ("drop_newest" if pacing == "paced" else "block")
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, observer=observer, cube_dtype=np.float16 if half else np.float32,
                     policy=policy, device=device, white_roi=white_roi, white_reflectance=white_reflectance,
                     n_slots=recording_slots(plan, description) if out else None, denoise=denoise, motion=motion,
-                    integration=integration)
+                    integration=integration,
+                    frame_rate_hz=plan.rig_description(description).camera.frame_rate_hz)
     writer = None
     if out:
         meta = stream_metadata(truth, illuminant=illuminant, observer=observer, method=method, seed=seed,
@@ -76,25 +91,33 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
             meta["motion"] = f"{motion} compensation of each frame, estimated within the sequence"
         if accumulate is not None:
             meta["accumulate"] = (f"running estimate over up to {accumulate} sequences, reset beyond 3 sigma"
-                                  + (", moved with the scene between sequences" if motion != "none" else ""))
+                                  + (", moved with the scene between sequences" if motion != "none" else "")
+                                  + "; the sigma maps are the running estimate's")
         writer = add_recording(stream, plan, description, out, wanted=wanted, raw_frames=raw_frames,
                                plan_path=plan_path, calib=calib, seconds=seconds, policy=policy, meta=meta,
                                exr_every=exr_every, method=method, colours=colours, disk_check=disk_check)
     if accumulator is not None:  # first in line: the recording and every other sink see the running estimate
         stream.sinks.insert(0, accumulator)
     tty = sys.stderr.isatty()
+    stopped = lambda m: sink_stopped_line(m, tty and not view)  # noqa: E731
     try:
         with one_interrupt():
             report = (run_with_view(stream, seconds, wavelengths=plan.output_wavelengths if plan.output ==
-                                    "reflectance" else None, illuminant=illuminant) if view
-                      else stream.run(seconds, on_status=lambda s: status_line(s, tty)))
+                                    "reflectance" else None, illuminant=illuminant, on_sink_stopped=stopped) if view
+                      else stream.run(seconds, on_status=lambda s: status_line(s, tty), on_sink_stopped=stopped))
     except BaseException as error:  # the recording says it failed (never "complete"), with the reason
         if writer is not None and not isinstance(error, KeyboardInterrupt):
             writer.mark_failed(f"{type(error).__name__}: {error}")
+        elif writer is not None:
+            kept(out, f"{writer.committed} complete sequences in {out}")
         raise
     if tty:
         click.echo("", err=True)
     click.echo(stream_summary(report, out, writer))
+    if report.interrupted and not report.sink_errors:  # drained and summarised: still an interrupted run (130)
+        if writer is not None:
+            kept(out, f"{writer.committed} complete sequences in {out}")
+        raise KeyboardInterrupt
     if report.sink_errors:
         saved = (f"; {writer.committed} sequences saved in {out}, {report.sequences_out - writer.committed} lost"
                  if writer is not None else "")
@@ -165,6 +188,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     wanted = output_list(outputs, STREAM_OUTPUTS, "stream output")  # before any loading: a typo names the valid
     if white_reflectance is not None and white_roi is None:
         raise click.UsageError("--white-reflectance needs --white-roi")
+    no_clash([("--out", out)], [("--rig", rig_path), ("--plan", plan_path), ("--calib", calib), ("--scene", scene),
+                                ("--delta-e-ref", ref), ("--white-reflectance", white_reflectance)])
     if out:
         lock(out, folder=True)  # one recorder per folder: a second stream into it refuses at once
         refuse_existing(out)  # before any work: a recording is never mixed with another run
@@ -174,7 +199,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     colours = (plan.resolve_illuminant(illuminant, name=str(plan_path)),
                plan.resolve_observer(observer, name=str(plan_path)))
     cam = description.camera
-    check_scene_covers(truth, plan, description.light.line_fwhm_nm)
+    check_scene_covers(truth, plan, description.light.line_fwhm_nm, rig=description)
     reference = None
     if "dE" in wanted:  # default: the streamed scene itself, as fitted to the frame above
         reference = parse_reference(ref or truth, cam.roi_height, cam.roi_width, colours[0], resize,

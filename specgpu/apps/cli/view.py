@@ -7,6 +7,7 @@ import importlib.util
 import click
 
 from specgpu.apps.cli.options import command
+from specgpu.apps.viewer_layers import motion_note
 from specgpu.apps.viewer_widget import open_viewer
 
 
@@ -17,4 +18,7 @@ def view(path):
     spectrum widget (needs the viewer extra: pip install 'specgpu[viewer]')."""
     if importlib.util.find_spec("napari") is None:
         raise click.ClickException("specgpu view needs napari: pip install 'specgpu[viewer]'")
+    note = motion_note(path)
+    if note:
+        click.echo(note, err=True)
     open_viewer(path)
