@@ -170,7 +170,8 @@ def XYZ_weights(wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, integration
     ------
     ValueError
         A grid outside the colour-matching functions, an unknown integration, or an ASTM E308 integration on a
-        grid it has no table for.
+        grid it has no table for (:class:`specgpu.core.validate.BadArgument`: the caller's choice, a usage error
+        on the command line).
 
     Examples
     --------
@@ -225,16 +226,16 @@ def _ASTM_E308_weights(w: np.ndarray, illuminant, cmfs) -> np.ndarray:
     if w.size < 2 or interval not in ASTM_E308_INTERVALS or abs(step - interval) > 1e-9 \
             or not np.allclose(np.diff(w), step, rtol=0, atol=1e-9):
         intervals = ", ".join(map(str, ASTM_E308_INTERVALS))
-        raise ValueError(f"integration 'ASTM E308' has tables for grids of {intervals} nm intervals, not "
+        raise BadArgument(f"integration 'ASTM E308' has tables for grids of {intervals} nm intervals, not "
                          f"wavelengths {w[0]:g}-{w[-1]:g} nm every {step:g} nm; use integration 'rectangle' or "
                          "resample the cube")
     base = min(interval, 10)
     if abs(w[0] / base - round(w[0] / base)) > 1e-9:
-        raise ValueError(f"integration 'ASTM E308' needs a {interval} nm grid on multiples of {base} nm, not one "
+        raise BadArgument(f"integration 'ASTM E308' needs a {interval} nm grid on multiples of {base} nm, not one "
                          f"starting at {w[0]:g} nm; use integration 'rectangle' or resample the cube")
     inside = (w >= 360.0 - 1e-9) & (w <= 780.0 + 1e-9)
     if not inside.any():
-        raise ValueError(f"integration 'ASTM E308' covers 360-780 nm, not wavelengths {w[0]:g}-{w[-1]:g} nm")
+        raise BadArgument(f"integration 'ASTM E308' covers 360-780 nm, not wavelengths {w[0]:g}-{w[-1]:g} nm")
     if interval in (1, 5):
         # colour-science integrates these by the rectangle rule against the 360-780 nm functions at the grid's
         # interval, the reflectance held at its end values beyond the grid: the rectangle weights of that range,

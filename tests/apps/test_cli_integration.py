@@ -64,6 +64,13 @@ def test_an_unknown_integration_is_a_usage_error_naming_the_option(bench, tmp_pa
     one_line_error(result, "--integration", "'simpson'", code=2)
 
 
+def test_a_grid_ASTM_E308_has_no_table_for_is_a_usage_error(tmp_path):
+    cube = tmp_path / "c15.npz"
+    io.write_cube(cube, np.full((24, 36, 21), 0.5, np.float32), np.arange(400.0, 701.0, 15.0))
+    one_line_error(run("evaluate", cube, "--truth", "colorchecker", "--integration", "astm-e308", ok=False),
+                   "ASTM E308", "every 15 nm", code=2)
+
+
 def test_a_tristimulus_plan_and_its_XYZ_map_are_refused_another_integration(bench, tmp_path):
     d = bench
     one_line_error(run("recover", d / "seqtri", "--out", tmp_path / "t.exr", "--xyz", tmp_path / "x.exr",

@@ -10,6 +10,7 @@ import pytest
 
 from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS, WHITE_WAVELENGTHS, XYZ_weights, resolve_cmfs, \
     resolve_illuminant_sd, resolve_integration, white_point_XYZ
+from specgpu.core.validate import BadArgument
 
 GRID = np.arange(400.0, 701.0, 10.0)
 
@@ -110,7 +111,7 @@ def test_ASTM_E308_equals_colour_sciences_sd_to_XYZ(wavelengths, observer):
     (np.array([550.0]), "every 0 nm"),
 ], ids=["7nm", "10nm-off-tenths", "1nm-off-integers", "one-band"])
 def test_ASTM_E308_refuses_a_grid_it_has_no_table_for_in_one_line(wavelengths, why):
-    with pytest.raises(ValueError, match="ASTM E308") as error:
+    with pytest.raises(BadArgument, match="ASTM E308") as error:  # the caller's choice: a usage error
         XYZ_weights(wavelengths, "D65", integration="ASTM E308")
     assert why in str(error.value) and "\n" not in str(error.value)
 
