@@ -42,7 +42,7 @@ from tqdm import tqdm
 
 from specgpu import __version__, engine
 from specgpu.apps.bench_denoise import guided_case
-from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
+from specgpu.core.spectra import XYZ_weights, white_point_XYZ
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, frames_to_delta_E
 from specgpu.engine.linear_map import LAYOUTS, apply_linear
 from specgpu.engine.runtime import get_allocator, get_queue
