@@ -122,7 +122,8 @@ def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 
 
 
 def scene_Lab(scene, illuminant="D65"):
-    return XYZ_to_Lab(reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant), illuminant)
+    XYZ = reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant)
+    return XYZ_to_Lab(XYZ, illuminant, wavelengths=scene.wavelengths)
 
 
 def offline_maps(setup: StreamSetup, index: int, *, method: str = "CIE 2000", illuminant: str = "D65") -> dict:
@@ -140,7 +141,7 @@ def offline_maps(setup: StreamSetup, index: int, *, method: str = "CIE 2000", il
         folder = read_capture(tmp / "seq")
         cube = recover(folder, sequence=0)
     XYZ = to_XYZ(cube, setup.plan, illuminant)
-    Lab = to_Lab(XYZ, illuminant)
+    Lab = to_Lab(XYZ, setup.plan, illuminant)
     return {"cube": cube, "XYZ": XYZ, "Lab": Lab, "dE": delta_E(setup.reference, Lab, method)}
 
 

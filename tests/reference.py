@@ -5,6 +5,8 @@ Used by the tests and by ``tools/make_golden.py`` (which writes the golden set t
 
 from __future__ import annotations
 
+import warnings
+
 import colour
 import numpy as np
 
@@ -34,8 +36,17 @@ def mask_ref(frames, saturation=None):
     return mask
 
 
-def XYZ_to_Lab_ref(XYZ, illuminant="D65"):
-    xy = colour.CCS_ILLUMINANTS[OBSERVER][illuminant] if isinstance(illuminant, str) else illuminant
+def XYZ_to_Lab_ref(XYZ, illuminant="D65", observer=OBSERVER, wavelengths=None, integration="rectangle"):
+    """colour-science's CIELAB for the white of a named illuminant as the package defines it, built by
+    colour-science alone: the perfect diffuser integrated on ``wavelengths`` (360-780 nm at 1 nm by default) by
+    ``integration``; or for the white given as xy / XYZ."""
+    if isinstance(illuminant, str):
+        w = np.arange(360.0, 781.0, 1.0) if wavelengths is None else np.asarray(wavelengths, np.float64)
+        white = reflectance_to_XYZ_ref(np.ones(w.size), w, illuminant, observer, integration)
+        xy = colour.XYZ_to_xy(white)
+    else:
+        xy = np.asarray(illuminant, dtype=np.float64)
+        xy = colour.XYZ_to_xy(xy) if xy.shape == (3,) else xy
     return colour.XYZ_to_Lab(np.asarray(XYZ, dtype=np.float64), xy)
 
 
@@ -46,11 +57,20 @@ def delta_E_ref(Lab_1, Lab_2, method):
     return colour.delta_E(a, b, method=method)
 
 
-def reflectance_to_XYZ_ref(R, wavelengths, illuminant="D65", cmfs=OBSERVER):
+def reflectance_to_XYZ_ref(R, wavelengths, illuminant="D65", cmfs=OBSERVER, integration="rectangle"):
+    """colour-science's XYZ / 100: its integration on the grid (rectangle rule) or its ASTM E308 tables."""
     w = np.asarray(wavelengths, dtype=np.float64)
+    R = np.asarray(R, dtype=np.float64)
+    if integration == "ASTM E308":
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            XYZ = [colour.sd_to_XYZ(colour.SpectralDistribution(r, w), colour.MSDS_CMFS[cmfs],
+                                    colour.SDS_ILLUMINANTS[illuminant], method="ASTM E308")
+                   for r in R.reshape(-1, w.size)]
+        return np.reshape(XYZ, (*R.shape[:-1], 3)) / 100
     shape = colour.SpectralShape(w[0], w[-1], w[1] - w[0])
-    return colour.msds_to_XYZ(np.asarray(R, dtype=np.float64), colour.MSDS_CMFS[cmfs],
-                              colour.SDS_ILLUMINANTS[illuminant], method="Integration", shape=shape) / 100
+    return colour.msds_to_XYZ(R, colour.MSDS_CMFS[cmfs], colour.SDS_ILLUMINANTS[illuminant], method="Integration",
+                              shape=shape) / 100
 
 
 def near_hue_discontinuity(Lab_1, Lab_2, margin_deg=0.5):

@@ -126,6 +126,20 @@ def main(out: Path = ROOT / "tests" / "data" / "golden.npz") -> None:
         add(f"guided_r{radius}_eps{eps:g}", {"q": ["abs", 2e-5]}, image=image, guide=guide,
             expected_q=ref.guided_filter_numpy(image, guide, radius, eps))
 
+    # ---- reflectance -> XYZ -> Lab with the white of the grid: the first row a perfect white, (100, 0, 0)
+    for name, wl, illuminant, cmfs, integration in (
+            ("reflectance_white_to_lab_d65_10nm", np.arange(400, 701, 10, dtype=np.float64), "D65",
+             "CIE 1931 2 Degree Standard Observer", "rectangle"),
+            ("reflectance_white_to_lab_a_astm_20nm", np.arange(400, 701, 20, dtype=np.float64), "A",
+             "CIE 1964 10 Degree Standard Observer", "ASTM E308")):
+        R = rng.uniform(0, 1, (H, W, wl.size)).astype(np.float32)
+        R[0] = 1.0
+        XYZ = ref.reflectance_to_XYZ_ref(R, wl, illuminant, cmfs, integration)
+        Lab = ref.XYZ_to_Lab_ref(XYZ, illuminant, cmfs, wl, integration)
+        assert np.abs(Lab[0] - [100.0, 0.0, 0.0]).max() < 1e-9
+        add(name, {"XYZ": ["abs", 1e-5], "Lab": ["abs", 2e-4]}, R=R, wavelengths=wl, expected_XYZ=XYZ,
+            expected_Lab=Lab)
+
     manifest = {"format": "specgpu-golden", "version": 1, "seed": SEED, "cases": cases}
     np.savez_compressed(out, _manifest=np.array(json.dumps(manifest)), **arrays)
     print(f"wrote {out}: {len(cases)} cases, {out.stat().st_size / 1024:.0f} KiB")

@@ -42,7 +42,7 @@ from tqdm import tqdm
 
 from specgpu import __version__, engine
 from specgpu.apps.bench_denoise import guided_case
-from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
+from specgpu.core.spectra import XYZ_weights, white_point_XYZ
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, frames_to_delta_E
 from specgpu.engine.linear_map import LAYOUTS, apply_linear
 from specgpu.engine.runtime import get_allocator, get_queue
@@ -192,12 +192,13 @@ def _make_data(width: int, height: int, seed: int = 0) -> _Data:
 
 
 def _D65() -> tuple:
-    """The D65 white (XYZ, Y = 100 scale of the kernels) and its chromaticity (colour-science's baseline)."""
-    return white_point_XYZ("D65"), _illuminant_xy()
+    """The D65 white of the benchmark's grid (XYZ, Y = 1, what the kernels take) and its chromaticity
+    (colour-science's baseline)."""
+    return white_point_XYZ("D65", wavelengths=WAVELENGTHS), _illuminant_xy()
 
 
 def _illuminant_xy():
-    return colour.CCS_ILLUMINANTS[DEFAULT_CMFS]["D65"]
+    return colour.XYZ_to_xy(white_point_XYZ("D65", wavelengths=WAVELENGTHS))
 
 
 def _max_abs_diff(a: np.ndarray, b: np.ndarray, chunk: int = 1 << 24) -> float:
@@ -259,7 +260,7 @@ def _fused_case(queue, data: _Data, frames_dev, reference_dev, reps: tuple[int, 
                                                method="CIE 2000", reference_single=False).delta_E
 
     def api():
-        return frames_to_delta_E(data.frames, data.M, data.reference, device=queue)
+        return frames_to_delta_E(data.frames, data.M, data.reference, wavelengths=WAVELENGTHS, device=queue)
 
     def baseline():
         XYZ = np.einsum("ck,khw->hwc", data.M, data.frames)
@@ -280,7 +281,8 @@ def _lab_case(queue, data: _Data, xyz_dev, reference_dev, reps: tuple[int, int])
         return engine.launch_delta_E(queue, reference_dev, lab, method="CIE 2000", n=n)
 
     def api():
-        return delta_E(data.reference, XYZ_to_Lab(data.XYZ, "D65", device=queue), "CIE 2000", device=queue)
+        return delta_E(data.reference, XYZ_to_Lab(data.XYZ, "D65", wavelengths=WAVELENGTHS, device=queue),
+                       "CIE 2000", device=queue)
 
     def baseline():
         return colour.delta_E(data.reference, colour.XYZ_to_Lab(data.XYZ, xy), method="CIE 2000")

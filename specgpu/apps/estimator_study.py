@@ -199,7 +199,7 @@ def study_rows(description, bundle, scene, plans: dict, *, runs: int = 3, seed: 
             if de_sigma and run == 0:
                 xyz = to_XYZ(y.astype(np.float32), plan, ill, device=device)
                 cov = output_covariance(frames, plan, dark, gain, plan.outputs_to_XYZ(ill), **kw)
-                ds = delta_E_sigma(np.asarray(xyz)[mask], cov[mask], ill)
+                ds = delta_E_sigma(np.asarray(xyz)[mask], cov[mask], plan.white_XYZ(ill))
                 acc["dE_ratio"].append(float(np.sqrt((px.delta_E_2000[mask] ** 2).mean() / (ds ** 2).mean())))
             acc["dEab"].append(float(px.delta_E_ab[mask].mean()))
             if refl:
@@ -232,8 +232,9 @@ def _patch_errors(ym, tm, plan, illuminant) -> dict:
         xe, xt = ym @ C.T, tm @ C.T
     else:
         xe, xt = ym, tm
-    le = np.asarray(XYZ_to_Lab(xe, illuminant), np.float64)
-    lt = np.asarray(XYZ_to_Lab(xt, illuminant), np.float64)
+    white = plan.white_XYZ(illuminant)  # of the grid the XYZ were integrated on
+    le = np.asarray(XYZ_to_Lab(xe, white), np.float64)
+    lt = np.asarray(XYZ_to_Lab(xt, white), np.float64)
     out["patch_dE2000"] = float(np.mean(colour.delta_E(lt, le, method="CIE 2000")))
     out["patch_dEab"] = float(np.mean(colour.delta_E(lt, le, method="CIE 1976")))
     return out

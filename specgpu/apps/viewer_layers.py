@@ -40,8 +40,8 @@ from specgpu.pipeline.recovery import PLAN_FILE, SequenceFolder, read_capture_he
 from specgpu.planning.plans import load_plan
 
 __all__ = ["CUBE_SUFFIXES", "napari_get_reader", "read_layers", "cube_layers", "map_layers", "sequence_layers",
-           "recording_layers", "batch_layers", "results_layers", "recorded_basis", "sRGB_of_cube", "wavelength_axis",
-           "ILLUMINANTS", "VIEW_MOTION", "motion_note"]
+           "recording_layers", "batch_layers", "results_layers", "recorded_basis", "recorded_white_xy", "sRGB_of_cube",
+           "wavelength_axis", "ILLUMINANTS", "VIEW_MOTION", "motion_note"]
 
 CUBE_SUFFIXES = (".exr", ".npz", ".hdr")
 #: The illuminants a rendering can be chosen under (colour-science's CIE 1931 names with a chromaticity).
@@ -81,7 +81,9 @@ def sRGB_of_cube(cube, wavelengths, illuminant: str = "D65", axis: int = -1):
     xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"].get(illuminant)
     if xy is None:
         raise ValueError(f"unknown illuminant {illuminant!r}; valid: {', '.join(ILLUMINANTS)}")
-    W = XYZ_weights(np.asarray(wavelengths, np.float64), illuminant).astype(np.float32)
+    W = XYZ_weights(np.asarray(wavelengths, np.float64), illuminant)
+    xy = colour.XYZ_to_xy(W.sum(axis=1))  # the white of these weights: a perfect white renders as 255
+    W = W.astype(np.float32)
 
     def render(block):  # wavelengths on the last axis
         return sRGB8(np.asarray(block, np.float32) @ W.T, xy)
@@ -263,11 +265,30 @@ def _time_layer(data, name, meta, **kwargs):
     return data, {"name": name, "axis_labels": ("time", "y", "x"), "metadata": meta, **kwargs}, "image"
 
 
-def results_layers(results, path, *, illuminant="D65", scene=None, xyz_illuminant="D65") -> list:
+def recorded_white_xy(results, path, illuminant, colours):
+    """The chromaticity of the white a recording's (or batch output's) XYZ is relative to: its plan's
+    (:meth:`specgpu.planning.plans.Plan.white_XYZ` for the ``observer`` and ``integration`` of ``colours``, what
+    the decoder divided by), so a perfect white renders as 255; None when the plan is missing or not the one the
+    XYZ were decoded with."""
+    plan_file = Path(path) / PLAN_FILE
+    if not plan_file.is_file():
+        return None
+    try:
+        plan = load_plan(plan_file)
+        if plan.hash != results.attrs.get("plan_hash"):
+            return None
+        white = plan.white_XYZ(illuminant, colours.get("observer"), colours.get("integration") or "rectangle")
+    except (ValueError, OSError):
+        return None
+    return np.asarray(colour.XYZ_to_xy(white), np.float64)
+
+
+def results_layers(results, path, *, illuminant="D65", scene=None, xyz_illuminant="D65", xyz_colours=None) -> list:
     """Layers of a zarr recording or batch output, lazily (one Dask chunk per sequence): the reflectance
     (wavelength, time, y, x; from the cube, or from the coefficients and their basis) with its sRGB (else the sRGB
-    of XYZ), hidden XYZ channels, dE and sigma maps with colour maps and limits. Every layer names its axes and
-    lists in its metadata (``unreadable``) the sequences it refuses."""
+    of XYZ, adapted from the white of the plan's weights, :func:`recorded_white_xy`, for the ``observer`` and
+    ``integration`` of ``xyz_colours``), hidden XYZ channels, dE and sigma maps with colour maps and limits. Every
+    layer names its axes and lists in its metadata (``unreadable``) the sequences it refuses."""
     n = results.sequences
     names = [name for name in results.attrs.get("outputs", []) if name in results.group]
     unreadable = _unreadable(results, names)
@@ -297,7 +318,9 @@ def results_layers(results, path, *, illuminant="D65", scene=None, xyz_illuminan
                 "name": "sigma", "colormap": "viridis", "visible": False, "contrast_limits": (0.0, 0.05), **spectral,
                 "metadata": _meta("sigma", path, wavelengths=wavelengths, unreadable=unreadable)}, "image"))
     elif "XYZ" in names:
-        rgb = _lazy(results, "XYZ", n, block=lambda x: sRGB_rendering(x[0], xyz_illuminant)[None])
+        xy = recorded_white_xy(results, path, xyz_illuminant, xyz_colours or {})
+        rgb = _lazy(results, "XYZ", n, block=lambda x: (sRGB_rendering(x[0], xyz_illuminant) if xy is None
+                                                        else sRGB8(x[0], xy))[None])
         layers.append(_time_layer(rgb, f"sRGB ({xyz_illuminant})",
                                   _meta("sRGB", path, illuminant=xyz_illuminant, unreadable=unreadable), rgb=True))
     if "XYZ" in names:
@@ -332,14 +355,15 @@ def recording_layers(path, *, illuminant="D65") -> list:
         raise ValueError(f"{path}: the recording holds no committed sequence")
     meta = rec.attrs.get("metadata") or {}
     return results_layers(rec, path, illuminant=illuminant, scene=meta.get("scene"),
-                          xyz_illuminant=_illuminant(meta.get("illuminant")))
+                          xyz_illuminant=_illuminant(meta.get("illuminant")), xyz_colours=meta)
 
 
 def batch_layers(path, *, illuminant="D65") -> list:
     """Layers of a ``specgpu batch`` output (:func:`results_layers`): every sequence of its source along time,
     those the batch has not computed refused."""
     out = open_batch_output(path)
-    return results_layers(out, path, illuminant=illuminant, xyz_illuminant=_illuminant(out.attrs.get("illuminant")))
+    return results_layers(out, path, illuminant=illuminant, xyz_illuminant=_illuminant(out.attrs.get("illuminant")),
+                          xyz_colours=out.attrs)
 
 
 def _illuminant(name) -> str:

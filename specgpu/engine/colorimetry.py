@@ -5,8 +5,11 @@ Every function takes NumPy arrays (returned results are NumPy) or :class:`pyopen
 results are float32. Names and conventions follow colour-science:
 
 - XYZ is in the domain [0, 1] with Y = 1 for the perfect reflecting diffuser under the illuminant
-  (colour-science's ``sd_to_XYZ`` reports the same values scaled by 100);
-- CIELAB has L* in [0, 100] for 0 <= Y <= Yn;
+  (colour-science's ``sd_to_XYZ`` reports the same values scaled by 100), integrated by the rectangle rule on
+  the cube's own grid (nothing outside it), or with ASTM E308's tables (``integration="ASTM E308"``);
+- CIELAB has L* in [0, 100] for 0 <= Y <= Yn; the white (Xn, Yn, Zn) of a named illuminant is
+  :func:`specgpu.core.spectra.white_point_XYZ`'s, the perfect diffuser integrated with the same weights as the
+  XYZ (give the XYZ's ``wavelengths`` and ``integration``), so a perfect white is exactly (100, 0, 0);
 - ``delta_E(Lab_1, Lab_2, method)``: ``Lab_1`` is the reference (only CIE 1994 is asymmetric).
 
 Non-finite input is not an error for pixel data: a NaN or inf in a pixel gives a non-finite result in that
@@ -58,17 +61,24 @@ def _result(dev, shape, on_device: bool):
     return dev if on_device else dev.get()
 
 
-def XYZ_to_Lab(XYZ, illuminant="D65", *, observer: str = DEFAULT_CMFS, device=None):
+def XYZ_to_Lab(XYZ, illuminant="D65", *, observer: str = DEFAULT_CMFS, wavelengths=None,
+               integration: str = "rectangle", device=None):
     """CIE XYZ -> CIE L*a*b* on the device.
 
     Parameters
     ----------
     XYZ : array_like or pyopencl.array.Array, (..., 3)
         Tristimulus values, domain [0, 1] (Y = 1 for the reference white).
-    illuminant : str or array_like
-        Reference white: a name of ``colour.CCS_ILLUMINANTS[observer]``, chromaticity xy (2,), or white XYZ (3,).
+    illuminant : str, colour.SpectralDistribution or array_like
+        Reference white: a name of ``colour.SDS_ILLUMINANTS`` or a spectrum, whose white is the perfect diffuser
+        integrated as the XYZ was (:func:`specgpu.core.spectra.white_point_XYZ`); or the white outright as
+        chromaticity xy (2,) or XYZ (3,).
     observer : str
-        Observer whose illuminant table a name is looked up in.
+        Observer (colour-matching functions) of the XYZ.
+    wavelengths : array_like, (B,), optional
+        The grid the XYZ was integrated on (:func:`reflectance_to_XYZ`'s); None: 360-780 nm at 1 nm.
+    integration : str
+        How the XYZ was integrated: ``"rectangle"`` or ``"ASTM E308"``.
     device : optional
         Explicit device, queue or selector (see :mod:`specgpu.engine.runtime`).
 
@@ -81,14 +91,22 @@ def XYZ_to_Lab(XYZ, illuminant="D65", *, observer: str = DEFAULT_CMFS, device=No
     --------
     >>> import numpy as np
     >>> from specgpu.engine import XYZ_to_Lab
-    >>> Lab = XYZ_to_Lab(np.array([[0.20654008, 0.12197225, 0.05136952]]))
+    >>> Lab = XYZ_to_Lab(np.array([[0.20654008, 0.12197225, 0.05136952]]), [0.3127, 0.3290])
     >>> Lab.shape, Lab.dtype
     ((1, 3), dtype('float32'))
     >>> Lab.astype(float).round(2).tolist()
     [[41.53, 52.64, 26.92]]
+
+    A perfect white on a 10 nm grid, with the white of that grid:
+
+    >>> from specgpu.engine import reflectance_to_XYZ
+    >>> wavelengths = np.arange(400, 701, 10)
+    >>> XYZ = reflectance_to_XYZ(np.ones(31), wavelengths)
+    >>> (XYZ_to_Lab(XYZ, wavelengths=wavelengths).astype(float).round(3) + 0.0).tolist()
+    [100.0, 0.0, 0.0]
     """
     XYZ = check_last_axis(XYZ, "XYZ")
-    white = white_point_XYZ(illuminant, observer)
+    white = white_point_XYZ(illuminant, observer, wavelengths=wavelengths, integration=integration)
     queue = get_queue(device, like=(XYZ,))
     n = int(np.prod(XYZ.shape[:-1], dtype=np.int64))
     lab = kernels.launch_XYZ_to_Lab(queue, kernels.to_device(queue, XYZ.reshape(-1)), white, n=n)
@@ -140,11 +158,14 @@ def delta_E(Lab_1, Lab_2, method: str = "CIE 2000", *, device=None):
     return _result(de, shape, is_device_array(Lab_1) or is_device_array(Lab_2))
 
 
-def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, device=None):
+def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, integration: str = "rectangle",
+                       device=None):
     """Spectral reflectance -> CIE XYZ under ``illuminant`` for the ``cmfs`` observer, on the device.
 
-    The weights are colour-science's ``msds_to_XYZ_integration`` ones (see :func:`specgpu.core.spectra.XYZ_weights`),
-    computed in float64 on the host; the device applies them to every pixel.
+    The weights are :func:`specgpu.core.spectra.XYZ_weights`': colour-science's ``msds_to_XYZ_integration`` ones
+    (rectangle rule on the grid, nothing outside it) or its ASTM E308 ones, computed in float64 on the host; the
+    device applies them to every pixel. Their white is :func:`XYZ_to_Lab`'s for the same ``wavelengths`` and
+    ``integration``.
 
     Parameters
     ----------
@@ -154,6 +175,9 @@ def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, d
         Evenly spaced, increasing band centres in nm.
     illuminant : str or colour.SpectralDistribution
     cmfs : str or colour.MultiSpectralDistributions
+    integration : str
+        ``"rectangle"`` (default) or ``"ASTM E308"`` (colour-science's ``sd_to_XYZ(method="ASTM E308")``; grids
+        of 1, 5, 10 or 20 nm only).
 
     Returns
     -------
@@ -175,7 +199,7 @@ def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, d
     if R.ndim == 0:
         raise ValueError("R must have bands on its last axis, got a scalar")
     w = check_band_wavelengths(wavelengths, R.shape[-1])
-    W = check_matrix(XYZ_weights(w, illuminant, cmfs), "XYZ weights")
+    W = check_matrix(XYZ_weights(w, illuminant, cmfs, integration=integration), "XYZ weights")
     queue = get_queue(device, like=(R,))
     n = int(np.prod(R.shape[:-1], dtype=np.int64))
     frames = kernels.to_device(queue, R.reshape(-1))
@@ -193,9 +217,9 @@ class FusedResult(NamedTuple):
 
 
 def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observer: str = DEFAULT_CMFS,
-                      method: str = "CIE 2000", dark=None, gain=None, saturation: float | None = None,
-                      return_XYZ: bool = False, return_Lab: bool = False, return_mask: bool = False,
-                      device=None):
+                      wavelengths=None, integration: str = "rectangle", method: str = "CIE 2000", dark=None,
+                      gain=None, saturation: float | None = None, return_XYZ: bool = False,
+                      return_Lab: bool = False, return_mask: bool = False, device=None):
     """Frames -> XYZ -> Lab -> colour difference against a reference, fused in one device pass.
 
     XYZ = M (o - dark) * gain per pixel with M = C . A (3 x K, composed on the host), then CIELAB for the
@@ -211,8 +235,9 @@ def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observe
         Reference CIELAB colour, or a per-pixel reference image.
     C : array_like, (3, B), optional
         Outputs -> XYZ (for example :func:`specgpu.core.spectra.XYZ_weights` for spectral outputs).
-    illuminant, observer
-        Reference white of the Lab conversion (see :func:`XYZ_to_Lab`).
+    illuminant, observer, wavelengths, integration
+        Reference white of the Lab conversion (see :func:`XYZ_to_Lab`): give the grid and integration ``C``'s
+        weights were made with, so a perfect white is (100, 0, 0).
     method : str
         Colour-difference formula (see :func:`delta_E`).
     dark : array_like, (H, W) or (K, H, W), optional
@@ -240,8 +265,8 @@ def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observe
     >>> from specgpu.engine import XYZ_to_Lab, frames_to_delta_E, reflectance_to_XYZ
     >>> wavelengths = np.arange(400, 701, 10)
     >>> frames = np.full((31, 2, 2), 0.5, np.float32)
-    >>> reference = XYZ_to_Lab(reflectance_to_XYZ(np.full(31, 0.4), wavelengths))
-    >>> dE = frames_to_delta_E(frames, np.eye(31), reference, C=XYZ_weights(wavelengths))
+    >>> reference = XYZ_to_Lab(reflectance_to_XYZ(np.full(31, 0.4), wavelengths), wavelengths=wavelengths)
+    >>> dE = frames_to_delta_E(frames, np.eye(31), reference, C=XYZ_weights(wavelengths), wavelengths=wavelengths)
     >>> dE.shape, dE.dtype, bool(np.allclose(dE, dE[0, 0]))
     ((2, 2), dtype('float32'), True)
     >>> result = frames_to_delta_E(frames, np.eye(31), reference, C=XYZ_weights(wavelengths), return_Lab=True)
@@ -262,7 +287,7 @@ def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observe
     reference = check_last_axis(reference, "reference")
     if reference.ndim > 1 and reference.shape[:-1] != spatial:
         raise ValueError(f"reference has shape {reference.shape}, expected (3,) or {(*spatial, 3)}")
-    white = white_point_XYZ(illuminant, observer)
+    white = white_point_XYZ(illuminant, observer, wavelengths=wavelengths, integration=integration)
     on_device = is_device_array(frames)
     queue = get_queue(device, like=(frames, reference, dark, gain))
     dark_dev, dark_per_frame = kernels.pixel_map(queue, dark, "dark", spatial, K)

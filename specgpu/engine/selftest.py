@@ -79,6 +79,13 @@ def _xyz_to_lab(d, device, **kw):
     return {"Lab": XYZ_to_Lab(d["XYZ"], illuminant=kw["illuminant"], device=device)}
 
 
+def _reflectance_to_lab(d, device, **kw):
+    colours = {"wavelengths": d["wavelengths"], "integration": kw["integration"]}
+    XYZ = reflectance_to_XYZ(d["R"], d["wavelengths"], illuminant=kw["illuminant"], cmfs=kw["cmfs"],
+                             integration=kw["integration"], device=device)
+    return {"XYZ": XYZ, "Lab": XYZ_to_Lab(XYZ, kw["illuminant"], observer=kw["cmfs"], device=device, **colours)}
+
+
 def _delta_e(d, device, **kw):
     return {"dE": delta_E(d["Lab_1"], d["Lab_2"], method=kw["method"], device=device)}
 
@@ -121,6 +128,13 @@ CASES = {
     "fused_frames_to_de94": ("fused", _fused, {"illuminant": "D65", "method": "CIE 1994"}),
     "guided_r2_eps0.0001": ("guided", _guided, {"radius": 2, "eps": 1e-4}),
     "guided_r4_eps0.01": ("guided", _guided, {"radius": 4, "eps": 1e-2}),
+    # a perfect white in the first row: (100, 0, 0) with the white of the cube's grid and integration
+    "reflectance_white_to_lab_d65_10nm": ("xyz_to_lab", _reflectance_to_lab,
+                                          {"illuminant": "D65", "cmfs": "CIE 1931 2 Degree Standard Observer",
+                                           "integration": "rectangle"}),
+    "reflectance_white_to_lab_a_astm_20nm": ("xyz_to_lab", _reflectance_to_lab,
+                                             {"illuminant": "A", "cmfs": "CIE 1964 10 Degree Standard Observer",
+                                              "integration": "ASTM E308"}),
 }
 
 

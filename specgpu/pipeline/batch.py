@@ -57,7 +57,7 @@ import pyopencl.array as cla
 from tqdm import tqdm
 
 from specgpu.core.locks import OutputLocked, output_lock, pid_alive
-from specgpu.core.spectra import DEFAULT_CMFS
+from specgpu.core.spectra import DEFAULT_CMFS, resolve_integration
 from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.io.chunks import DirectIO, checksum_codecs, write_sequence_chunk
 from specgpu.io.recording import CHANNELS, consolidate, patterns_hash, remove_partial_chunks
@@ -99,13 +99,15 @@ class BatchJob:
     sequences: int = 0  # the source's committed sequences when the batch started (a recording may still grow)
     denoise: tuple | None = None  # (radius, eps) of the guided filter of the linear outputs, or None
     motion: str = "none"  # "global" / "affine": each sequence decoded motion-compensated, as recover --motion
+    integration: str = "rectangle"  # how reflectance is integrated to XYZ (and the white of Lab and dE)
 
     @property
     def key(self) -> tuple:
         # the source's content id: a worker that outlives a batch (``--scheduler``) never reuses the handles of a
         # recording since replaced at the same path
         return (self.source, self.source_id, self.out, self.plan.hash, self.calibration.hash, self.outputs,
-                self.illuminant, self.observer, self.method, self.device, self.denoise, self.motion)
+                self.illuminant, self.observer, self.method, self.device, self.denoise, self.motion,
+                self.integration)
 
 
 _STATE: dict = {}
@@ -233,7 +235,7 @@ def _decoder(job: BatchJob, state):
                             frame_shape=(state.source.height, state.source.width), queue=state.queue,
                             reference=job.reference if "dE" in job.outputs else None, method=job.method,
                             illuminant=job.illuminant, observer=job.observer, cube_dtype=np.float32,
-                            denoise=job.denoise)
+                            denoise=job.denoise, integration=job.integration)
         # on a CPU device the frames are the device buffer and the results are mapped (no copy either way)
         state._zero_copy = bool(state.queue.device.type & cl.device_type.CPU)
         state._decoder = dec
@@ -308,7 +310,7 @@ def _start_moving(job: BatchJob, i: int, state, built: bool, handles: dict) -> _
         dec = state._moving = MovingDecoder(job.plan, job.calibration, job.outputs, mode=job.motion,
                                             reference=job.reference if "dE" in job.outputs else None,
                                             method=job.method, illuminant=job.illuminant, observer=job.observer,
-                                            device=state.queue)
+                                            device=state.queue, integration=job.integration)
     raw = state.source.frames(i)
     h, w = state.source.height, state.source.width
     if tuple(raw.shape) != (job.plan.K, h, w):
@@ -373,13 +375,15 @@ class BatchReport:
 
 
 def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
-                  method="CIE 2000", reference=None, device=None, denoise=None,
-                  motion="none") -> tuple[BatchJob, np.ndarray]:
+                  method="CIE 2000", reference=None, device=None, denoise=None, motion="none",
+                  integration: str = "rectangle") -> tuple[BatchJob, np.ndarray]:
     """Check the source against the plan, create (or reopen, to resume) the output; returns the job and the
     indices of the sequences still to compute. Every refusal is one line naming the file, found before the
     output is created. ``illuminant``: of XYZ, Lab and dE, recorded in the output; default the plan's own for a
     tristimulus or camera plan, else D65 (:meth:`specgpu.planning.plans.Plan.resolve_illuminant`); ``observer`` likewise
-    (:meth:`specgpu.planning.plans.Plan.resolve_observer`: a tristimulus plan's own, else the 2 degree observer)."""
+    (:meth:`specgpu.planning.plans.Plan.resolve_observer`: a tristimulus plan's own, else the 2 degree observer);
+    ``integration``: of reflectance to XYZ and of the white (:meth:`specgpu.planning.plans.Plan.white_XYZ`),
+    recorded too."""
     import zarr
 
     illuminant = plan.resolve_illuminant(illuminant, name="the batch plan")
@@ -410,7 +414,8 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
             raise ValueError(f"the dE reference must be one L,a,b or a {source.height} x {source.width} x 3 map, "
                              f"got shape {ref.shape}")
     if {"XYZ", "Lab", "dE"} & set(outputs):
-        plan.outputs_to_XYZ(illuminant, observer)  # a plan with no XYZ: refused here, not on every worker
+        # a plan with no XYZ, or a grid the integration has no table for: refused here, not on every worker
+        plan.outputs_to_XYZ(illuminant, observer, integration)
     motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise)  # before any work
     if denoise is not None:  # outputs the filter cannot carry: refused here, not on every worker
         stream_denoise(plan, outputs, np.float32, denoise)
@@ -424,13 +429,14 @@ def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), ill
                 "calibration": calibration.hash, "outputs": list(outputs), "sequences": n,
                 "illuminant": illuminant if {"XYZ", "Lab", "dE"} & set(outputs) else None,
                 "observer": observer if {"XYZ", "Lab", "dE"} & set(outputs) else None,
+                "integration": resolve_integration(integration) if {"XYZ", "Lab", "dE"} & set(outputs) else None,
                 "method": method if "dE" in outputs else None,
                 "reference_sha256": _reference_hash(reference), "delta_e_ref": reference_label(reference),
                 "denoise": None if denoise is None else list(denoise),
                 "motion": None if motion == "none" else motion}
     job = BatchJob(str(source_path), str(out), plan, calibration, outputs, illuminant, method,
                    None if reference is None else np.asarray(reference, np.float32), device, identity["source_id"],
-                   observer, n, denoise, motion)
+                   observer, n, denoise, motion, resolve_integration(integration))
     _remove_dead_creations(out)
     if out.exists() and _unfinished_creation(out):
         shutil.rmtree(out)  # made by an older specgpu killed before its first sequence: nothing in it to keep
@@ -572,7 +578,8 @@ def _task_groups(todo, workers: int) -> list[list[int]]:
 
 def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
               method="CIE 2000", reference=None, scheduler=None, workers: int = 1, client=None,
-              progress: bool = True, on_done=None, device=None, denoise=None, motion="none") -> BatchReport:
+              progress: bool = True, on_done=None, device=None, denoise=None, motion="none",
+              integration: str = "rectangle") -> BatchReport:
     """Re-process every sequence of ``source_path`` with ``plan`` into ``out`` on Dask (see the module docstring).
 
     Parameters
@@ -590,22 +597,25 @@ def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illumin
     motion : {"none", "global", "affine", "flow"}
         Decode each sequence motion-compensated exactly as ``recover --motion`` (the displacements estimated
         within the sequence; pixels seen outside the field or inconsistent are NaN); in the output's identity.
+    integration : {"rectangle", "ASTM E308"}
+        How reflectance outputs are integrated to XYZ, and the white of Lab and dE with them; in the identity.
     """
     with output_lock(out, make_parents=True):  # one batch per output: resuming, cleaning and writing are its own
         return _run_locked(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
                            observer=observer, method=method, reference=reference, scheduler=scheduler,
                            workers=workers, client=client, progress=progress, on_done=on_done, device=device,
-                           denoise=denoise, motion=motion)
+                           denoise=denoise, motion=motion, integration=integration)
 
 
 def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, observer, method, reference, scheduler,
-                workers, client, progress, on_done, device, denoise=None, motion="none") -> BatchReport:
+                workers, client, progress, on_done, device, denoise=None, motion="none",
+                integration="rectangle") -> BatchReport:
 
     from distributed import Client, LocalCluster, as_completed
 
     job, todo = prepare_batch(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
                               observer=observer, method=method, reference=reference, device=device,
-                              denoise=denoise, motion=motion)
+                              denoise=denoise, motion=motion, integration=integration)
     t0 = time.perf_counter()
     cluster = own = None
     failure = None

@@ -145,6 +145,7 @@ _IDENTITY_NAMES = {
     "plan_hash": ("--plan", lambda v: str(v)[:12]), "calibration": ("--calib", lambda v: str(v)[:12]),
     "outputs": ("--outputs", lambda v: ",".join(v) if isinstance(v, list) else str(v)),
     "illuminant": ("--illuminant", str), "observer": ("--observer", str), "method": ("--method", str),
+    "integration": ("--integration", str),
     "reference_sha256": ("--delta-e-ref", None), "denoise": ("--denoise", str), "motion": ("--motion", str),
 }
 

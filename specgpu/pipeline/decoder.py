@@ -12,7 +12,6 @@ import pyopencl.array as cla
 
 from specgpu import engine
 from specgpu.core.numerics import live_gain
-from specgpu.core.spectra import white_point_XYZ
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.engine.guided import guided_filter
@@ -72,6 +71,10 @@ class StreamDecoder:
         Observer of XYZ, Lab and dE (its white); default the plan's own for a tristimulus plan, the CIE 1931 2
         degree observer otherwise (:meth:`specgpu.planning.plans.Plan.resolve_observer`, which refuses another than a
         tristimulus plan's).
+    integration : str
+        How reflectance outputs are integrated to XYZ: ``"rectangle"`` (default) or ``"ASTM E308"``
+        (:func:`specgpu.core.spectra.XYZ_weights`); the white of Lab and dE is the perfect diffuser integrated the
+        same way (:meth:`specgpu.planning.plans.Plan.white_XYZ`), so a white scene decodes to (100, 0, 0).
     cube_dtype : float16 or float32
         Storage of the cube (float16 halves the memory traffic of the widest output).
     frame_shape : (int, int)
@@ -87,7 +90,7 @@ class StreamDecoder:
 
     def __init__(self, plan, calibration, outputs, *, frame_shape, queue, reference=None, method="CIE 2000",
                  illuminant=None, observer: str | None = None, cube_dtype=np.float16, white_roi=None,
-                 white_reflectance=None, denoise=None):
+                 white_reflectance=None, denoise=None, integration: str = "rectangle"):
         # canonical names (the check is case-insensitive), each once
         outputs = tuple(dict.fromkeys(validate_method(name, {k: k for k in STREAM_OUTPUTS}, "stream output")
                                       for name in outputs))
@@ -146,9 +149,9 @@ class StreamDecoder:
         self.reference = None
         self.reference_single = True
         if colour:
-            self.to_XYZ = plan.outputs_to_XYZ(illuminant, observer)
+            self.to_XYZ = plan.outputs_to_XYZ(illuminant, observer, integration)
             self.M = self.to_XYZ @ A
-            self.white = white_point_XYZ(illuminant, observer)
+            self.white = plan.white_XYZ(illuminant, observer, integration)
         # the white reference: parsed and checked now (an ROI outside the frame is refused before any streaming)
         if white_reflectance is not None and white_roi is None:
             raise ValueError("--white-reflectance needs --white-roi")

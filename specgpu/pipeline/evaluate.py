@@ -21,11 +21,12 @@ import numpy as np
 
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.rig.scene import interpolation_matrix
-from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights
+from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, resolve_integration, white_point_XYZ
 
 __all__ = ["METRICS", "PatchReport", "patch_means", "rmse_per_patch", "delta_E_per_patch", "evaluate_reflectance",
            "evaluate_XYZ", "true_patch_spectra", "PixelReport", "truth_cube", "scene_XYZ", "evaluate_pixels",
-           "evaluation_illuminant", "PLAUSIBLE_RANGE", "EXCLUSION_CAUSES", "screen_estimate"]
+           "evaluation_illuminant", "evaluation_integration", "PLAUSIBLE_RANGE", "EXCLUSION_CAUSES",
+           "screen_estimate"]
 
 
 #: The error metrics of a report, in table order (``rmse`` is None for colorimetric estimates).
@@ -175,19 +176,24 @@ def rmse_per_patch(estimate, truth) -> np.ndarray:
     return np.sqrt(np.mean((e - t) ** 2, axis=1))
 
 
-def delta_E_per_patch(XYZ_estimate, XYZ_truth, illuminant="D65", observer: str = DEFAULT_CMFS) -> tuple:
-    """(dE*ab, dE2000), each (P,), between two (P, 3) XYZ sets (Y = 1 for the white) under ``illuminant``."""
+def delta_E_per_patch(XYZ_estimate, XYZ_truth, illuminant="D65", observer: str = DEFAULT_CMFS, *,
+                      wavelengths=None, integration: str = "rectangle") -> tuple:
+    """(dE*ab, dE2000), each (P,), between two (P, 3) XYZ sets (Y = 1 for the white) under ``illuminant``, the
+    white integrated on ``wavelengths`` by ``integration`` as the XYZ were
+    (:func:`specgpu.core.spectra.white_point_XYZ`)."""
     a = np.asarray(XYZ_truth, np.float32)
     b = np.asarray(XYZ_estimate, np.float32)
     if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3:
         raise ValueError(f"XYZ_estimate {b.shape} and XYZ_truth {a.shape} must both be (P, 3)")
-    lab_t = XYZ_to_Lab(a, illuminant, observer=observer)
-    lab_e = XYZ_to_Lab(b, illuminant, observer=observer)
+    white = white_point_XYZ(illuminant, observer, wavelengths=wavelengths, integration=integration)
+    lab_t = XYZ_to_Lab(a, white)
+    lab_e = XYZ_to_Lab(b, white)
     return (np.asarray(delta_E(lab_t, lab_e, "CIE 1976"), np.float64),
             np.asarray(delta_E(lab_t, lab_e, "CIE 2000"), np.float64))
 
 
-def evaluate_reflectance(cube, wavelengths, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS) -> PatchReport:
+def evaluate_reflectance(cube, wavelengths, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS,
+                         integration: str = "rectangle") -> PatchReport:
     """Per-patch RMSE and colour differences of a recovered reflectance cube against a chart scene.
 
     Parameters
@@ -198,8 +204,8 @@ def evaluate_reflectance(cube, wavelengths, scene, *, illuminant="D65", cmfs=DEF
         Evenly spaced wavelengths of the cube, nm, within the scene's range.
     scene : SpectralScene
         The truth, with patch masks.
-    illuminant, cmfs
-        For the colour differences (XYZ on the cube's wavelengths for both).
+    illuminant, cmfs, integration
+        For the colour differences (XYZ on the cube's wavelengths for both, and the white of that grid).
 
     Returns
     -------
@@ -220,25 +226,40 @@ def evaluate_reflectance(cube, wavelengths, scene, *, illuminant="D65", cmfs=DEF
     wl = np.asarray(wavelengths, np.float64)
     names, est = patch_means(cube, scene.masks)
     _, truth = true_patch_spectra(scene, wl)
-    W = XYZ_weights(wl, illuminant, cmfs)
-    dab, d00 = delta_E_per_patch(est @ W.T, truth @ W.T, illuminant, _observer_name(cmfs))
+    W = XYZ_weights(wl, illuminant, cmfs, integration=integration)
+    dab, d00 = delta_E_per_patch(est @ W.T, truth @ W.T, illuminant, cmfs, wavelengths=wl, integration=integration)
     return PatchReport(names, rmse_per_patch(est, truth), dab, d00, str(illuminant))
 
 
-def evaluate_XYZ(xyz, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS, wavelengths=None) -> PatchReport:
+def evaluate_XYZ(xyz, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS, wavelengths=None,
+                 integration: str = "rectangle") -> PatchReport:
     """Per-patch colour differences of an XYZ image (a tristimulus plan's output) against a chart scene.
 
     The truth is the XYZ of each patch's mean reflectance under ``illuminant`` on ``wavelengths`` (the scene's
-    own grid by default).
+    own grid by default), integrated by ``integration``; both Labs take the white of that grid.
     """
     names, est = patch_means(xyz, scene.masks)
     if est.shape[1] != 3:
         raise ValueError(f"xyz must have 3 channels, got {est.shape[1]}")
     wl = scene.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
     _, truth = true_patch_spectra(scene, wl)
-    W = XYZ_weights(wl, illuminant, cmfs)
-    dab, d00 = delta_E_per_patch(est, truth @ W.T, illuminant, _observer_name(cmfs))
+    W = XYZ_weights(wl, illuminant, cmfs, integration=integration)
+    dab, d00 = delta_E_per_patch(est, truth @ W.T, illuminant, cmfs, wavelengths=wl, integration=integration)
     return PatchReport(names, None, dab, d00, str(illuminant))
+
+
+def evaluation_integration(recorded, requested=None, *, colorimetric: bool, name: str = "the estimate") -> str:
+    """The integration to judge an estimate with (as :func:`evaluation_illuminant` for the illuminant): the one
+    asked for, else the one its file records, else ``"rectangle"``; an XYZ estimate made with another than the
+    one asked for is refused (its truth would be integrated otherwise than it was)."""
+    asked = None if requested is None else resolve_integration(requested)
+    kept = resolve_integration(recorded) if isinstance(recorded, str) and recorded else None
+    if asked is None:
+        return kept or "rectangle"
+    if colorimetric and kept and kept != asked:
+        raise ValueError(f"{name} holds XYZ integrated by {kept}, not {asked}: leave --integration out to use "
+                         f"{kept}")
+    return asked
 
 
 def evaluation_illuminant(recorded, requested=None, *, colorimetric: bool, name: str = "the estimate") -> str:
@@ -272,10 +293,6 @@ def evaluation_illuminant(recorded, requested=None, *, colorimetric: bool, name:
                          f"{requested} would compare colours taken under two lights (leave --illuminant out to use "
                          f"{recorded})")
     return str(requested)
-
-
-def _observer_name(cmfs) -> str:
-    return cmfs if isinstance(cmfs, str) else getattr(cmfs, "name", DEFAULT_CMFS)
 
 
 # ---- per pixel ---------------------------------------------------------------------------------------------
@@ -341,16 +358,21 @@ def truth_cube(scene, wavelengths) -> np.ndarray:
     return np.einsum("hwk,bk->hwb", scene.reflectance, M, optimize=True).astype(np.float32)
 
 
-def scene_XYZ(scene, illuminant="D65", cmfs=DEFAULT_CMFS, *, wavelengths=None, device=None) -> np.ndarray:
+def scene_XYZ(scene, illuminant="D65", cmfs=DEFAULT_CMFS, *, wavelengths=None, integration: str = "rectangle",
+              device=None) -> np.ndarray:
     """XYZ (Y = 1 for the white) of a scene under ``illuminant``: over the scene's own bands (its true colour), or
-    over ``wavelengths`` (the truth resampled to an estimate's bands, to judge a method on what it recovers)."""
+    over ``wavelengths`` (the truth resampled to an estimate's bands, to judge a method on what it recovers); its
+    white is :func:`specgpu.core.spectra.white_point_XYZ` on the same grid."""
     if wavelengths is None:
-        return reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant, cmfs, device=device)
-    return reflectance_to_XYZ(truth_cube(scene, wavelengths), wavelengths, illuminant, cmfs, device=device)
+        return reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant, cmfs, integration=integration,
+                                  device=device)
+    return reflectance_to_XYZ(truth_cube(scene, wavelengths), wavelengths, illuminant, cmfs,
+                              integration=integration, device=device)
 
 
 def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs=DEFAULT_CMFS,
-                    device=None, invalid: str = "exclude", name: str = "the estimate") -> PixelReport:
+                    integration: str = "rectangle", device=None, invalid: str = "exclude",
+                    name: str = "the estimate") -> PixelReport:
     """Per-pixel RMSE (reflectance estimates), dE*ab and dE2000 of an estimate against the truth scene.
 
     Parameters
@@ -361,7 +383,10 @@ def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs
         The truth, of the estimate's frame size.
     illuminant, cmfs
         Of the colour differences: XYZ of the truth under ``illuminant`` on its own bands (on the estimate's
-        wavelengths for a reflectance estimate, so both sides see the same sampling).
+        wavelengths for a reflectance estimate, so both sides see the same sampling); both Labs take the white of
+        that grid.
+    integration : str
+        ``"rectangle"`` (default) or ``"ASTM E308"``: how both are integrated to XYZ.
     wavelengths : array_like, (B,), optional
         Band centres of a reflectance estimate, nm; None for an XYZ estimate.
     device : optional
@@ -395,22 +420,24 @@ def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs
                          f"{scene.reflectance.shape[1]} x {scene.reflectance.shape[0]}")
     valid, excluded = screen_estimate(est, invalid=invalid, name=name)
     est = np.where(valid[..., None], est, np.float32(np.nan))  # nothing left out reaches the arithmetic
-    observer = _observer_name(cmfs)
     if wavelengths is not None:
         wl = np.asarray(wavelengths, np.float64)
         if est.shape[2] != wl.size:
             raise ValueError(f"estimate has {est.shape[2]} bands but {wl.size} wavelengths")
         truth = truth_cube(scene, wl)
         rmse = np.sqrt(np.mean((est - truth) ** 2, axis=-1))
-        XYZ_est = reflectance_to_XYZ(est, wl, illuminant, cmfs, device=device)
-        XYZ_true = reflectance_to_XYZ(truth, wl, illuminant, cmfs, device=device)  # scene_XYZ on wl, truth reused
+        XYZ_est = reflectance_to_XYZ(est, wl, illuminant, cmfs, integration=integration, device=device)
+        XYZ_true = reflectance_to_XYZ(truth, wl, illuminant, cmfs, integration=integration,
+                                      device=device)  # scene_XYZ on wl, truth reused
     else:
         if est.shape[2] != 3:
             raise ValueError(f"an XYZ estimate must have 3 channels, got {est.shape[2]}")
         rmse = None
         XYZ_est = est
-        XYZ_true = scene_XYZ(scene, illuminant, cmfs, device=device)
-    Lab_est = XYZ_to_Lab(XYZ_est, illuminant, observer=observer, device=device)
-    Lab_true = XYZ_to_Lab(XYZ_true, illuminant, observer=observer, device=device)
+        wl = scene.wavelengths
+        XYZ_true = scene_XYZ(scene, illuminant, cmfs, integration=integration, device=device)
+    white = white_point_XYZ(illuminant, cmfs, wavelengths=wl, integration=integration)
+    Lab_est = XYZ_to_Lab(XYZ_est, white, device=device)
+    Lab_true = XYZ_to_Lab(XYZ_true, white, device=device)
     return PixelReport(rmse, delta_E(Lab_true, Lab_est, "CIE 1976", device=device),
                        delta_E(Lab_true, Lab_est, "CIE 2000", device=device), str(illuminant), valid, excluded)

@@ -22,6 +22,7 @@ from specgpu.pipeline.evaluate import (
     evaluate_reflectance,
     evaluate_XYZ,
     evaluation_illuminant,
+    evaluation_integration,
 )
 from specgpu.pipeline.moving import TRUTH_FOLDER, sequence_truth
 
@@ -113,12 +114,13 @@ def _finite_or_none(value):
     return value if math.isfinite(value) else None
 
 
-def _patch_rows(data, wavelengths, valid, scene, illuminant, cmfs) -> tuple[list, dict]:
+def _patch_rows(data, wavelengths, valid, scene, illuminant, cmfs, integration="rectangle") -> tuple[list, dict]:
     """Per-patch rows (NaN for a patch with no valid pixel: null in JSON) and the per-patch headline over the
-    patches that have a value."""
+    patches that have a value; both sides integrated to XYZ by ``integration``."""
     kept = np.where(valid[..., None], data, np.float32(np.nan))  # what the per-pixel scores left out, left out
-    patch = (evaluate_reflectance(kept, wavelengths, scene, illuminant=illuminant) if wavelengths is not None
-             else evaluate_XYZ(kept, scene, illuminant=illuminant, cmfs=cmfs))
+    patch = (evaluate_reflectance(kept, wavelengths, scene, illuminant=illuminant, integration=integration)
+             if wavelengths is not None
+             else evaluate_XYZ(kept, scene, illuminant=illuminant, cmfs=cmfs, integration=integration))
     rows = []
     for i, name in enumerate(patch.names):
         mask = np.asarray(scene.masks[name], bool)
@@ -138,7 +140,8 @@ def _patch_rows(data, wavelengths, valid, scene, illuminant, cmfs) -> tuple[list
 
 
 def evaluation_report(cube, data, wavelengths, meta, scene, illuminant, cmfs, *, device=None,
-                      progress=lambda desc: nullcontext(), invalid: str = "refuse", truth=None) -> dict:
+                      progress=lambda desc: nullcontext(), invalid: str = "refuse", truth=None,
+                      integration=None) -> dict:
     """The evaluation report: per-pixel statistics, per-patch rows for a chart, the headline figures
     (``<short>_mean`` / ``<short>_max``; ``headline`` keeps them by long name, per patch for a chart, per pixel
     otherwise), the pixels scored and those left out by cause (``excluded``, see
@@ -146,14 +149,18 @@ def evaluation_report(cube, data, wavelengths, meta, scene, illuminant, cmfs, *,
     another capture than ``truth`` (the ``--truth`` given; None: not checked).
 
     ``invalid``: ``"refuse"`` a cube holding an infinite or implausible value (a ValueError naming ``cube``), or
-    ``"exclude"`` those pixels, counted."""
+    ``"exclude"`` those pixels, counted. ``integration``: the one asked for, else the one the file records
+    (:func:`specgpu.pipeline.evaluate.evaluation_integration`)."""
+    integration = evaluation_integration(meta.get("integration"), integration, colorimetric=wavelengths is None,
+                                         name=str(cube))
     with progress("evaluating"):
         pixels = evaluate_pixels(data, scene, wavelengths=wavelengths, illuminant=illuminant, cmfs=cmfs,
-                                 device=device, invalid=invalid, name=str(cube))
+                                 integration=integration, device=device, invalid=invalid, name=str(cube))
     stats = pixels.statistics()
     counts = pixels.counts()
     report = {"cube": str(cube), "truth": scene.name, "illuminant": illuminant,
               **({"observer": cmfs} if cmfs != DEFAULT_CMFS else {}),
+              **({"integration": integration} if integration != "rectangle" else {}),
               **({"truth_resampled": scene.resampled} if scene.resampled else {}),
               "projections": meta.get("projections"), "plan_method": meta.get("plan_method"),
               "pixels": {k: {s: _finite_or_none(x) for s, x in v.items()} for k, v in stats.items()},
@@ -165,7 +172,7 @@ def evaluation_report(cube, data, wavelengths, meta, scene, illuminant, cmfs, *,
     headline = {k: stats[k] for k in stats}
     if scene.masks:
         valid = pixels.valid if pixels.valid is not None else np.ones(data.shape[:2], bool)
-        report["patches"], headline = _patch_rows(data, wavelengths, valid, scene, illuminant, cmfs)
+        report["patches"], headline = _patch_rows(data, wavelengths, valid, scene, illuminant, cmfs, integration)
         report["patches_scored"] = sum(1 for row in report["patches"] if row["dE76"] is not None)
     for key, short in SHORT_NAMES.items():
         if key in headline:

@@ -64,7 +64,8 @@ def add_recording(stream, plan, description, out, *, wanted, raw_frames, plan_pa
                                               every=exr_every, dE_kind=DELTA_E_KINDS.get(method, "dE2000"),
                                               metadata=meta, output_labels=plan.output_labels))
     if "XYZ" in wanted:
-        stream.sinks.append(PreviewSink(Path(out) / "preview.png", illuminant=illuminant, observer=observer))
+        stream.sinks.append(PreviewSink(Path(out) / "preview.png", illuminant=illuminant, observer=observer,
+                                        white=stream.decoder.white))
     return writer
 
 

@@ -89,8 +89,9 @@ class MovingDecoder:
     mode : {"global", "affine", "flow"}
     reference : array_like, optional
         CIELAB reference of ``"dE"``: (3,) or (H, W, 3).
-    method, illuminant, observer
-        Of dE, and of XYZ / Lab (resolved by the plan as the stream resolves them).
+    method, illuminant, observer, integration
+        Of dE, and of XYZ / Lab (resolved by the plan as the stream resolves them; Lab's white is the plan's
+        :meth:`specgpu.planning.plans.Plan.white_XYZ`).
     cube_dtype : numpy dtype
         Storage of the cube (float16 or float32).
     device : optional
@@ -98,7 +99,7 @@ class MovingDecoder:
     """
 
     def __init__(self, plan, calibration, outputs, *, mode: str, reference=None, method="CIE 2000",
-                 illuminant=None, observer=None, cube_dtype=np.float32, device=None):
+                 illuminant=None, observer=None, cube_dtype=np.float32, device=None, integration="rectangle"):
         mode = check_motion_options(mode, plan, outputs=outputs)
         if mode == "none":
             raise ValueError("a MovingDecoder needs a motion mode other than none")
@@ -108,6 +109,7 @@ class MovingDecoder:
         self.cube_dtype = np.dtype(cube_dtype)
         self.illuminant = plan.resolve_illuminant(illuminant)
         self.observer = plan.resolve_observer(observer)
+        self.integration = integration
         self.method = validate_method(method, DELTA_E_METHODS) if "dE" in self.outputs else method
         self.reference = None if reference is None else np.asarray(reference, np.float32)
         if "dE" in self.outputs and self.reference is None:
@@ -131,7 +133,8 @@ class MovingDecoder:
         if "cube" in self.outputs:
             add("cube", A)
         if {"XYZ", "Lab", "dE"} & set(self.outputs):
-            add("XYZ", plan.outputs_to_XYZ(self.illuminant, self.observer) @ A)
+            add("XYZ", plan.outputs_to_XYZ(self.illuminant, self.observer, integration) @ A)
+            self.white = plan.white_XYZ(self.illuminant, self.observer, integration)
         # sigma_rms alone: the pass still decodes the plan's outputs (its mask says which pixels have samples)
         self.matrix = np.vstack(rows) if rows else A
         if "sigma_rms" in self.outputs:
@@ -175,7 +178,7 @@ class MovingDecoder:
             out["cube"] = out["cube"].astype(self.cube_dtype, copy=False)
         XYZ = out.get("XYZ")
         if {"Lab", "dE"} & set(self.outputs):
-            Lab = np.asarray(XYZ_to_Lab(XYZ, self.illuminant, observer=self.observer, device=self.device))
+            Lab = np.asarray(XYZ_to_Lab(XYZ, self.white, device=self.device))
             if "Lab" in self.outputs:
                 out["Lab"] = Lab
             if "dE" in self.outputs:

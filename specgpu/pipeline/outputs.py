@@ -38,11 +38,11 @@ def white_metadata(white_roi, white_reflectance) -> dict:
 
 
 def recovery_metadata(folder, seq, *, sequence, illuminant, observer, white_roi=None, white_reflectance=None,
-                      untrusted=None) -> dict:
+                      untrusted=None, integration: str = "rectangle") -> dict:
     """The metadata every output of ``specgpu recover`` records: the plan, its calibration, the capture (its
     folder, its identity :func:`specgpu.io.sequence.capture_hash` and the scene it recorded, so ``specgpu
-    evaluate`` can tell another truth), the sequences averaged, the colorimetry, the reference white, the
-    reflectance scale's uncertainty and a dark-level warning."""
+    evaluate`` can tell another truth), the sequences averaged, the colorimetry (with the integration of its XYZ
+    and white), the reference white, the reflectance scale's uncertainty and a dark-level warning."""
     plan = folder.plan
     reports = folder.calibration.reports
     scene = (folder.meta.get("metadata") or {}).get("scene")
@@ -52,15 +52,17 @@ def recovery_metadata(folder, seq, *, sequence, illuminant, observer, white_roi=
             **({"scene": scene} if isinstance(scene, str) else {}),
             "sequences_averaged": 1 if sequence is not None else folder.sequences,
             **({"sequence": int(sequence)} if sequence is not None else {}), "illuminant": illuminant,
-            "observer": observer, **white_metadata(white_roi, white_reflectance),
+            "observer": observer, "integration": integration, **white_metadata(white_roi, white_reflectance),
             **({"reflectance_scale_uncertainty": reports["white_reflectance_uncertainty"]}
                if "white_reflectance_uncertainty" in reports else {}),
             **({"dark_untrusted": untrusted} if untrusted else {})}
 
 
-def stream_metadata(truth, *, illuminant, observer, method, seed, white_roi=None, white_reflectance=None) -> dict:
+def stream_metadata(truth, *, illuminant, observer, method, seed, white_roi=None, white_reflectance=None,
+                    integration: str = "rectangle") -> dict:
     """The metadata a stream's recording (and its EXR maps) records."""
-    return {"scene": truth.name, "illuminant": illuminant, "observer": observer, "method": method, "seed": seed,
+    return {"scene": truth.name, "illuminant": illuminant, "observer": observer, "integration": integration,
+            "method": method, "seed": seed,
             **({"scene_resampled": truth.resampled} if truth.resampled else {}),
             **white_metadata(white_roi, white_reflectance)}
 
@@ -72,10 +74,11 @@ def sigma_with_rms(sigma: np.ndarray, labels) -> tuple[np.ndarray, list[str]]:
     return np.concatenate([sigma, rms], axis=-1), [f"sigma_{label}" for label in labels] + ["sigma_rms"]
 
 
-def delta_E_sigma_map(XYZ: np.ndarray, cov: np.ndarray, illuminant: str, observer: str | None = None) -> np.ndarray:
-    """The first-order dE2000 standard deviation per pixel from XYZ and its covariance; NaN where XYZ is not
-    finite (a saturated pixel)."""
-    des = delta_E_sigma(np.nan_to_num(XYZ), np.nan_to_num(cov), illuminant, observer)
+def delta_E_sigma_map(XYZ: np.ndarray, cov: np.ndarray, white) -> np.ndarray:
+    """The first-order dE2000 standard deviation per pixel from XYZ and its covariance, for the reference white
+    XYZ ``white`` (:meth:`specgpu.planning.plans.Plan.white_XYZ`); NaN where XYZ is not finite (a saturated
+    pixel)."""
+    des = delta_E_sigma(np.nan_to_num(XYZ), np.nan_to_num(cov), white)
     des[~np.isfinite(XYZ).all(axis=-1)] = np.nan
     return des
 
@@ -83,12 +86,13 @@ def delta_E_sigma_map(XYZ: np.ndarray, cov: np.ndarray, illuminant: str, observe
 def recovery_writes(folder, y, meta, *, out, colours, sequence=None, half=False, interleave="bsq", xyz_path=None,
                     lab_path=None, de_path=None, reference=None, method="CIE 2000", sigma_path=None,
                     de_sigma_path=None, device=None, white_roi=None, white_reflectance=None,
-                    denoise_radius=None) -> list:
+                    denoise_radius=None, integration: str = "rectangle") -> list:
     """The outputs of ``specgpu recover`` as ``(final path, write(path)[, companion suffixes])`` entries, every
     map computed now and written later (all or nothing); ``colours``: the (illuminant, observer) of XYZ, Lab and
-    dE; ``reference``: called with (height, width, meta), gives the dE reference Lab; ``denoise_radius``: ``y``
-    was denoised (:mod:`specgpu.pipeline.denoise`) with that radius, so the sigma map is carried through the
-    filter (a dE sigma is then refused: its XYZ covariance is not carried through yet)."""
+    dE, integrated by ``integration`` (the white of Lab and dE the same); ``reference``: called with (height,
+    width, meta), gives the dE reference Lab; ``denoise_radius``: ``y`` was denoised
+    (:mod:`specgpu.pipeline.denoise`) with that radius, so the sigma map is carried through the filter (a dE sigma
+    is then refused: its XYZ covariance is not carried through yet)."""
     plan = folder.plan
     illuminant, observer = colours
     writes = []
@@ -105,8 +109,8 @@ def recovery_writes(folder, y, meta, *, out, colours, sequence=None, half=False,
         writes.append((out, lambda p, kind=kind: io.write_map(p, y, kind, half=half, metadata=meta)))
     XYZ = Lab = None
     if xyz_path or lab_path or de_path:
-        XYZ = to_XYZ(y, plan, illuminant, observer=observer, device=device)
-        Lab = to_Lab(XYZ, illuminant, observer=observer, device=device)
+        XYZ = to_XYZ(y, plan, illuminant, observer=observer, integration=integration, device=device)
+        Lab = to_Lab(XYZ, plan, illuminant, observer=observer, integration=integration, device=device)
     if xyz_path:
         writes.append((xyz_path, lambda p: io.write_map(p, XYZ, "XYZ", metadata=meta)))
     if lab_path:
@@ -114,7 +118,7 @@ def recovery_writes(folder, y, meta, *, out, colours, sequence=None, half=False,
     if sigma_path or de_sigma_path:
         sigma, cov = uncertainty(folder, sequence=sequence, illuminant=illuminant if de_sigma_path else None,
                                  observer=observer, device=device, white_roi=white_roi,
-                                 white_reflectance=white_reflectance)
+                                 white_reflectance=white_reflectance, integration=integration)
         if denoise_radius is not None:
             if de_sigma_path:
                 raise ValueError("--delta-e-sigma is not available with --denoise (the XYZ covariance is not carried "
@@ -124,8 +128,9 @@ def recovery_writes(folder, y, meta, *, out, colours, sequence=None, half=False,
             sig, names = sigma_with_rms(sigma, plan.output_labels)
             writes.append((sigma_path, lambda p: io.write_map(p, sig, names, metadata=meta)))
         if de_sigma_path:
-            xyz = XYZ if XYZ is not None else to_XYZ(y, plan, illuminant, observer=observer, device=device)
-            des = delta_E_sigma_map(xyz, cov, illuminant, observer)
+            xyz = XYZ if XYZ is not None else to_XYZ(y, plan, illuminant, observer=observer,
+                                                     integration=integration, device=device)
+            des = delta_E_sigma_map(xyz, cov, plan.white_XYZ(illuminant, observer, integration))
             writes.append((de_sigma_path, lambda p: io.write_map(p, des, ["dE2000_sigma"], metadata=meta)))
     if de_path:
         height, width = y.shape[:2]

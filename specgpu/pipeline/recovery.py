@@ -22,7 +22,6 @@ from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save
 from specgpu.capture.session import CaptureResult, capture_sequences
 from specgpu.capture.twin import TwinDriver
 from specgpu.core.numerics import live_gain
-from specgpu.core.spectra import DEFAULT_CMFS
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.evaluate import true_patch_spectra
@@ -556,8 +555,8 @@ def _sequence_decoders(folder: SequenceFolder, sequence, white_roi, white_reflec
 
 
 def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illuminant: str | None = None,
-                observer: str | None = None, device=None, white_roi=None,
-                white_reflectance=None) -> tuple[np.ndarray, np.ndarray | None]:
+                observer: str | None = None, device=None, white_roi=None, white_reflectance=None,
+                integration: str = "rectangle") -> tuple[np.ndarray, np.ndarray | None]:
     """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames, options and
     corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
     covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.uncertainty`); NaN where saturated."""
@@ -566,7 +565,7 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
         raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
     plan, bundle = folder.plan, folder.calibration
     gain = bundle.flat_field
-    M = None if illuminant is None else plan.outputs_to_XYZ(illuminant, observer)
+    M = None if illuminant is None else plan.outputs_to_XYZ(illuminant, observer, integration)
     cov = None
     if white_roi is not None or ambient_index(plan) is not None:
         # decoded one sequence at a time by its own decoder: the variance of their mean is the sum of each
@@ -664,21 +663,24 @@ def _flatten_by_wavelength(frames, dark, ratio, bundle=None) -> np.ndarray:
 
 
 def to_XYZ(y: np.ndarray, plan: Plan, illuminant: str = "D65", *, observer: str | None = None,
-           device=None) -> np.ndarray:
+           integration: str = "rectangle", device=None) -> np.ndarray:
     """XYZ (Y = 1 for the white) of a plan's outputs for ``observer`` (None: the plan's own for a tristimulus
-    plan, else the 2 degree observer; :meth:`specgpu.planning.plans.Plan.resolve_observer`) (see
-    :meth:`specgpu.planning.plans.Plan.outputs_to_XYZ`)."""
+    plan, else the 2 degree observer; :meth:`specgpu.planning.plans.Plan.resolve_observer`), reflectance integrated
+    by ``integration`` (see :meth:`specgpu.planning.plans.Plan.outputs_to_XYZ`)."""
     observer = plan.resolve_observer(observer)
-    plan.outputs_to_XYZ(illuminant, observer)  # refuses outputs with no XYZ, or XYZ under another light/observer
+    plan.outputs_to_XYZ(illuminant, observer, integration)  # refuses outputs with no XYZ, or another light/observer
     if plan.output == "reflectance":  # the same weights, applied on the device
-        return reflectance_to_XYZ(y, plan.output_wavelengths, illuminant=illuminant, cmfs=observer, device=device)
+        return reflectance_to_XYZ(y, plan.output_wavelengths, illuminant=illuminant, cmfs=observer,
+                                  integration=integration, device=device)
     return y  # a tristimulus plan's outputs are XYZ already
 
 
-def to_Lab(XYZ: np.ndarray, illuminant: str = "D65", *, observer: str = DEFAULT_CMFS, device=None) -> np.ndarray:
-    """CIELAB of XYZ for the illuminant's white as ``observer`` sees it (colour-science's chromaticity table):
-    the observer the XYZ was made for (a tristimulus plan's own, :meth:`specgpu.planning.plans.Plan.resolve_observer`)."""
-    return XYZ_to_Lab(XYZ, illuminant=illuminant, observer=observer, device=device)
+def to_Lab(XYZ: np.ndarray, plan: Plan, illuminant: str = "D65", *, observer: str | None = None,
+           integration: str = "rectangle", device=None) -> np.ndarray:
+    """CIELAB of :func:`to_XYZ`'s XYZ: its white is the plan's (:meth:`specgpu.planning.plans.Plan.white_XYZ`,
+    the perfect diffuser integrated with the same weights), so a perfect white is (100, 0, 0)."""
+    white = plan.white_XYZ(illuminant, plan.resolve_observer(observer), integration)
+    return XYZ_to_Lab(XYZ, illuminant=white, device=device)
 
 
 def save_plan_and_calibration(directory, plan: Plan, bundle: CalibrationBundle) -> tuple[Path, Path]:

@@ -291,6 +291,9 @@ class PreviewSink(Sink):
         The observer the XYZ is for (the stream's): the illuminant's white is looked up for it.
     background : bool
         Render on the preview's own thread (default); False renders inside :meth:`write`.
+    white : array_like, (3,), optional
+        The white XYZ the XYZ is relative to (the stream decoder's, of the plan's grid: a perfect white previews
+        as 255); None: :func:`specgpu.core.spectra.white_point_XYZ` of ``illuminant`` and ``observer``.
 
     A preview is optional to a stream (:class:`Sink`): one that fails is stopped, the stream goes on.
     """
@@ -299,7 +302,7 @@ class PreviewSink(Sink):
     label = "preview"
 
     def __init__(self, path=None, interval_s: float = 0.5, illuminant: str = "D65", background: bool = True, *,
-                 observer: str = DEFAULT_CMFS):
+                 observer: str = DEFAULT_CMFS, white=None):
 
         self.path = None if path is None else Path(path)
         if self.path is not None and self.path.suffix.lower() != ".png":
@@ -308,7 +311,8 @@ class PreviewSink(Sink):
         self.illuminant = str(illuminant)
         self.observer = str(observer)
         self.background = bool(background)
-        white_xy = np.asarray(colour.XYZ_to_xy(white_point_XYZ(self.illuminant, self.observer)), np.float64)
+        white = white_point_XYZ(self.illuminant if white is None else white, self.observer)
+        white_xy = np.asarray(colour.XYZ_to_xy(white), np.float64)
         # XYZ under the illuminant -> linear sRGB, the CAT02 adaptation to D65 folded in (rows: the image of X, Y, Z)
         self._M = np.asarray(colour.XYZ_to_RGB(np.eye(3), colour.models.RGB_COLOURSPACE_sRGB, illuminant=white_xy,
                                                chromatic_adaptation_transform="CAT02", apply_cctf_encoding=False),

@@ -183,7 +183,7 @@ class Stream:
     sinks : sequence of Sink or callables
         Called in order for each result: any object with ``write(result)`` (and optionally ``close()``), or a
         callable (wrapped in :class:`CallbackSink`).
-    reference, method, illuminant, observer, cube_dtype
+    reference, method, illuminant, observer, integration, cube_dtype
         As :class:`StreamDecoder`.
     n_slots : int, optional
         Frames the ring holds (default 4 K, at least 16: room for jitter without adding latency at saturation).
@@ -247,7 +247,7 @@ class Stream:
                  policy: str = "drop_newest", in_flight: int = 3, result_buffers: int = 6, readback: str = "auto",
                  upload: str = "auto", align: str = "index", sync_max_dn: float | None = None, device=None,
                  white_roi=None, white_reflectance=None, denoise=None, motion: str = "none",
-                 frame_rate_hz: float | None = None):
+                 integration: str = "rectangle", frame_rate_hz: float | None = None):
         plan.check_calibration(calibration, name="stream plan")
         motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise, white_roi=white_roi)
         if policy not in POLICIES:
@@ -265,10 +265,12 @@ class Stream:
         self.decoder = StreamDecoder(plan, calibration, outputs, frame_shape=driver.frame_shape, queue=self.queue,
                                      reference=reference, method=method, illuminant=illuminant,
                                      observer=observer, cube_dtype=cube_dtype, white_roi=white_roi,
-                                     white_reflectance=white_reflectance, denoise=denoise)
+                                     white_reflectance=white_reflectance, denoise=denoise,
+                                     integration=integration)
         self.moving = None if motion == "none" else MovingDecoder(
             plan, calibration, self.decoder.outputs, mode=motion, reference=reference, method=method,
-            illuminant=illuminant, observer=observer, cube_dtype=cube_dtype, device=self.queue)
+            illuminant=illuminant, observer=observer, cube_dtype=cube_dtype, device=self.queue,
+            integration=integration)
         if self.moving is not None:
             readback = upload = "copy"  # the maps are made on the host: no mapped or pinned sets to recycle
             # a sequence in flight for each decoding thread, and a result buffer for each

@@ -66,13 +66,13 @@ def objective_weights(prior: Prior, objective: str, illuminant="D65", training=N
         raise ValueError("the dE2000 objective needs the training spectra")
     r = np.asarray(training, np.float64)
     xyz = r @ C.T
-    lab = np.asarray(XYZ_to_Lab(xyz, illuminant), np.float64)
+    lab = np.asarray(XYZ_to_Lab(xyz, illuminant, wavelengths=prior.wavelengths), np.float64)
     h = 1e-4
     Js = []
     for j in range(3):
         d = np.zeros(3)
         d[j] = h
-        Js.append((np.asarray(XYZ_to_Lab(xyz + d, illuminant), np.float64) - lab) / h)
+        Js.append((np.asarray(XYZ_to_Lab(xyz + d, illuminant, wavelengths=prior.wavelengths), np.float64) - lab) / h)
     J = np.stack(Js, axis=-1)  # (N, 3, 3)
     G = np.empty((r.shape[0], 3))
     for i in range(3):

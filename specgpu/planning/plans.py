@@ -28,7 +28,7 @@ import numpy as np
 
 from specgpu.calibration.bundle import DEFAULT_MAX_EXPOSURE_S
 from specgpu.core.numerics import fit_levels
-from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS, XYZ_weights
+from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS, XYZ_weights, resolve_integration, white_point_XYZ
 from specgpu.core.validate import BadArgument
 from specgpu.io.tables import content_hash, load_npz, save_npz
 
@@ -219,19 +219,36 @@ class Plan:
             rate = min(cam.max_frame_rate_hz, 1.0 / (self.frame_period_s + 1e-6))
         return replace(description, camera=replace(cam, exposure_s=float(self.exposure_s), frame_rate_hz=rate))
 
-    def outputs_to_XYZ(self, illuminant="D65", observer=None) -> np.ndarray:
+    def outputs_to_XYZ(self, illuminant="D65", observer=None, integration: str = "rectangle") -> np.ndarray:
         """(3, B) matrix C with XYZ = C . y for this plan's outputs y (Y = 1 for the white): the colour-matching
-        weights of ``observer`` (None: :meth:`resolve_observer`'s default) under ``illuminant`` for reflectance
-        outputs, the identity for a tristimulus plan made for the same illuminant and observer; any other output
-        has no XYZ (ValueError)."""
+        weights of ``observer`` (None: :meth:`resolve_observer`'s default) under ``illuminant`` on the output
+        wavelengths, integrated by ``integration`` (:func:`specgpu.core.spectra.XYZ_weights`) for reflectance
+        outputs; the identity for a tristimulus plan made for the same illuminant and observer (its frames
+        integrate by the rectangle rule on the light's grid, so another integration is refused); any other output
+        has no XYZ (ValueError). Its white is :meth:`white_XYZ`."""
+        integration = resolve_integration(integration)
         if self.output == "reflectance":
-            return XYZ_weights(self.output_wavelengths, illuminant, self.resolve_observer(observer))
+            return XYZ_weights(self.output_wavelengths, illuminant, self.resolve_observer(observer),
+                               integration=integration)
         if self.output == "XYZ":
             if self.illuminant and self.illuminant.lower() != str(illuminant).lower():
                 raise ValueError(f"the plan measures XYZ under {self.illuminant}, not {illuminant}")
             self.resolve_observer(observer)  # refuses another observer than the plan's
+            if integration != "rectangle":
+                raise ValueError(f"a {self.method} plan measures XYZ integrated by the rectangle rule on the light's "
+                                 f"grid, not by {integration}; leave the integration out")
             return np.eye(3)
         raise ValueError(f"a {self.output!r} plan ({self.method}) has no XYZ")
+
+    def white_XYZ(self, illuminant="D65", observer=None, integration: str = "rectangle") -> np.ndarray:
+        """(3,) the reference white of the XYZ :meth:`outputs_to_XYZ` gives: the perfect diffuser integrated with
+        the same weights (:func:`specgpu.core.spectra.white_point_XYZ` on the output wavelengths, or on the light's
+        grid for a tristimulus plan, whose frames were made for those weights), so a perfect white's Lab is
+        (100, 0, 0). Refuses what :meth:`outputs_to_XYZ` refuses."""
+        self.outputs_to_XYZ(illuminant, observer, integration)
+        grid = self.output_wavelengths if self.output == "reflectance" else self.light_wavelengths
+        return white_point_XYZ(illuminant, self.resolve_observer(observer), wavelengths=grid,
+                               integration=integration)
 
     @property
     def measured_illuminant(self) -> str:

@@ -185,20 +185,23 @@ def constant_variance(plan) -> np.ndarray:
     return np.diag(constant_covariance(plan)).copy()
 
 
-def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65", observer: str | None = None) -> np.ndarray:
+def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65", observer: str | None = None, *, wavelengths=None,
+                  integration: str = "rectangle") -> np.ndarray:
     """First-order propagation of an XYZ covariance (..., 3, 3) to dE2000 (..., ): the colour difference of a
     small perturbation is (to first order) its CIEDE2000 metric at the colour, ``dE^2 = dLab^T G dLab``; the
     sigma is ``sqrt(trace(G J C J^T))`` with J the XYZ -> Lab Jacobian at each pixel (analytic) and G the local
     CIEDE2000 metric (its diagonal along L*, a*, b*, by finite differences of colour-science's ``delta_E``; the
-    stream's ``delta_e_sigma`` kernel computes the same on the device). The white is ``illuminant``'s for
-    ``observer`` (None: the CIE 1931 2 degree observer), the one the XYZ was made for."""
+    stream's ``delta_e_sigma`` kernel computes the same on the device). The white is
+    :func:`specgpu.core.spectra.white_point_XYZ`'s for ``illuminant`` (a name, or the white as xy or XYZ),
+    ``observer`` (None: the CIE 1931 2 degree observer), ``wavelengths`` and ``integration``: the grid and
+    integration the XYZ was made with."""
     xyz = np.asarray(XYZ, np.float64)
     C = np.asarray(XYZ_sigma_cov, np.float64)
     shape = xyz.shape[:-1]
     x = xyz.reshape(-1, 3)
     C = C.reshape(-1, 3, 3)
     # the XYZ -> Lab Jacobian analytically (CIE 1976: f(t) = t^(1/3) above (24/116)^3, linear below), in float64
-    white = white_point_XYZ(illuminant, observer or DEFAULT_CMFS)
+    white = white_point_XYZ(illuminant, observer or DEFAULT_CMFS, wavelengths=wavelengths, integration=integration)
     lab = colour.XYZ_to_Lab(x, colour.XYZ_to_xy(white))
     eps = 216.0 / 24389.0
     t = x / white

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
 from specgpu import io
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E
-from specgpu.planning import Plan
+from specgpu.planning import Plan, load_plan
 from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS
 
 TEN = "CIE 1964 10 Degree Standard Observer"
@@ -44,7 +44,8 @@ def chart_Lab(observer, shape=(240, 320)):
     from specgpu.pipeline.evaluate import scene_XYZ
     from specgpu.rig.scene import load_scene
 
-    return XYZ_to_Lab(scene_XYZ(load_scene("colorchecker", *shape), "D65", observer), "D65", observer=observer)
+    scene = load_scene("colorchecker", *shape)
+    return XYZ_to_Lab(scene_XYZ(scene, "D65", observer), "D65", observer=observer, wavelengths=scene.wavelengths)
 
 
 def test_recover_of_a_plan_for_the_10_degree_observer_makes_Lab_and_dE_against_its_white(bench_10, tmp_path):
@@ -57,7 +58,8 @@ def test_recover_of_a_plan_for_the_10_degree_observer_makes_Lab_and_dE_against_i
         assert meta["observer"] == TEN and meta["illuminant"] == "D65", path
     XYZ = io.read_map(out["xyz"], "XYZ")[0]
     Lab = io.read_map(out["lab"], "Lab")[0]
-    np.testing.assert_allclose(Lab, XYZ_to_Lab(XYZ, "D65", observer=TEN), atol=1e-3)  # the 10 degree white
+    # the 10 degree white, integrated on the plan's grid
+    np.testing.assert_allclose(Lab, XYZ_to_Lab(XYZ, load_plan(d / "tri10.npz").white_XYZ("D65", TEN)), atol=1e-3)
     L, a, b = median_Lab(Lab)
     assert 99 < L < 100.5 and abs(a) < 0.3 and abs(b) < 0.3, (L, a, b)  # the white plate is neutral
     # against the 2 degree observer's D65 white (what was computed before) the same white is measurably yellow
@@ -101,7 +103,7 @@ def test_a_stream_of_a_plan_for_the_10_degree_observer_records_it_and_agrees_wit
     assert rec.attrs["metadata"]["observer"] == TEN and rec.sequences >= 1
     XYZ = rec.read("XYZ", slice(0, 1))[0]
     Lab = rec.read("Lab", slice(0, 1))[0]
-    np.testing.assert_allclose(Lab, XYZ_to_Lab(XYZ, "D65", observer=TEN), atol=2e-3)
+    np.testing.assert_allclose(Lab, XYZ_to_Lab(XYZ, load_plan(d / "tri10.npz").white_XYZ("D65", TEN)), atol=2e-3)
     np.testing.assert_allclose(rec.read("dE", slice(0, 1))[0], delta_E(chart_Lab(TEN), Lab, "CIE 1976"), atol=2e-2)
     # the same white as recover makes of it (another noise draw: close, not equal), neutral
     run("recover", d / "seq10", "--out", tmp_path / "tri.exr", "--lab", tmp_path / "lab.exr", *ROI)
@@ -122,7 +124,8 @@ def test_a_batch_of_a_plan_for_the_10_degree_observer_equals_recover_and_records
         "--delta-e-ref", "colorchecker", "--delta-e", tmp_path / "dE.exr", "--method", "CIE 1976")
     np.testing.assert_allclose(group["Lab"][1], io.read_map(tmp_path / "lab.exr", "Lab")[0], atol=1e-3)
     np.testing.assert_allclose(group["dE"][1], io.read_map(tmp_path / "dE.exr", "dE76")[0][..., 0], atol=1e-3)
-    np.testing.assert_allclose(group["Lab"][1], XYZ_to_Lab(group["XYZ"][1], "D65", observer=TEN), atol=2e-3)
+    white = load_plan(d / "tri10.npz").white_XYZ("D65", TEN)
+    np.testing.assert_allclose(group["Lab"][1], XYZ_to_Lab(group["XYZ"][1], white), atol=2e-3)
     one_line_error(run("batch", d / "seq10", "--plan", d / "tri10.npz", "--out", tmp_path / "c.zarr", "--outputs",
                        "XYZ", "--observer", DEFAULT_CMFS, ok=False), "tri10.npz", f"not the {DEFAULT_CMFS}")
 
@@ -144,8 +147,8 @@ def test_a_reflectance_plan_makes_and_records_XYZ_for_the_observer_asked_for(nar
     assert meta["observer"] == TEN and io.read_cube(tmp_path / "default.npz")[2]["observer"] == DEFAULT_CMFS
     XYZ = io.read_map(tmp_path / "ten.exr", "XYZ")[0]
     np.testing.assert_allclose(XYZ, reflectance_to_XYZ(cube, wl, "D65", TEN), atol=1e-5)
-    np.testing.assert_allclose(io.read_map(tmp_path / "ten-lab.exr", "Lab")[0], XYZ_to_Lab(XYZ, "D65", observer=TEN),
-                               atol=1e-3)
+    np.testing.assert_allclose(io.read_map(tmp_path / "ten-lab.exr", "Lab")[0],
+                               XYZ_to_Lab(XYZ, "D65", observer=TEN, wavelengths=wl), atol=1e-3)
     assert not np.allclose(XYZ, io.read_map(tmp_path / "default.exr", "XYZ")[0], atol=1e-3, equal_nan=True)
 
 

@@ -146,5 +146,7 @@ def test_an_output_in_a_linked_folder_of_the_truth_is_refused(w):
 def test_a_new_file_beside_a_capture_is_still_allowed(w):
     """A report or a cube beside a capture's files destroys nothing: the report's default is there."""
     run("recover", w / "seqm", "--sequence", "0", "--out", w / "seqm" / "cube.npz")
-    run("evaluate", w / "seqm" / "cube.npz", "--truth", w / "seqm", "--json", w / "seqm" / "score.json")
+    # decoded as if still, the moving capture leaves a few implausible pixels at its edges: scored without them
+    run("evaluate", w / "seqm" / "cube.npz", "--truth", w / "seqm", "--json", w / "seqm" / "score.json",
+        "--exclude-invalid")
     assert (w / "seqm" / "score.json").is_file()

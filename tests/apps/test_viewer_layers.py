@@ -199,6 +199,16 @@ def test_reader_hook_never_raises_on_any_path(text):
     assert got is None or callable(got)
 
 
+@pytest.mark.parametrize("step", [10.0, 20.0])
+@pytest.mark.parametrize("illuminant", ["D65", "A", "FL2"])
+def test_a_perfect_white_renders_as_255_under_any_illuminant(illuminant, step):
+    """The rendering adapts from the white of the cube's own weights: a reflectance of 1 is (255, 255, 255) (from
+    the tabulated chromaticity FL2's white on a 10 nm grid came out (255, 255, 232))."""
+    wl = np.arange(400.0, 701.0, step)
+    np.testing.assert_array_equal(sRGB_of_cube(np.ones((2, 3, wl.size), np.float32), wl, illuminant),
+                                  np.full((2, 3, 3), 255))
+
+
 @pytest.fixture(scope="module")
 def moving_folder(tmp_path_factory):
     from capture_helpers import write_moving_capture
@@ -295,6 +305,32 @@ def test_a_recording_without_basis_wavelengths_takes_them_from_its_plan(default_
     from specgpu.apps.report_figures import sRGB_rendering
 
     np.testing.assert_array_equal(np.asarray(layers["sRGB (D65)"][0][2]), sRGB_rendering(XYZ, "D65"))
+
+
+def test_the_sRGB_of_a_recordings_XYZ_adapts_from_the_white_of_its_plan(default_zarr, tmp_path):
+    """Without a reflectance to render, the recorded XYZ is rendered from the white the decoder divided by (the
+    plan's weights'), not from the illuminant's tabulated chromaticity."""
+    import colour
+    import zarr
+
+    from specgpu.apps.viewer_layers import recorded_white_xy
+    from specgpu.io.previews import sRGB8
+    from specgpu.io.recording import consolidate
+
+    setup, path, _ = default_zarr
+    old = damaged_copy(path, tmp_path / "xyz.zarr")
+    group = zarr.open_group(str(old), mode="r+")
+    del group["coefficients"]
+    group.attrs["outputs"] = [name for name in group.attrs["outputs"] if name != "coefficients"]
+    consolidate(old)
+    rec = io.open_recording(old)
+    meta = rec.attrs["metadata"]
+    xy = recorded_white_xy(rec, old, "D65", meta)
+    np.testing.assert_allclose(xy, colour.XYZ_to_xy(setup.plan.white_XYZ("D65", meta.get("observer"),
+                                                                         meta.get("integration") or "rectangle")))
+    layers = by_name(read_layers(old))
+    assert "reflectance" not in layers
+    np.testing.assert_array_equal(np.asarray(layers["sRGB (D65)"][0][1]), sRGB8(rec.read("XYZ", 1), xy))
 
 
 def test_a_damaged_recording_is_refused_in_one_line_naming_the_sequence(default_zarr, tmp_path):

@@ -26,6 +26,7 @@ from reference import (
     reflectance_to_XYZ_ref,
     sharma_pairs,
 )
+from specgpu.core.spectra import OBSERVERS, XYZ_weights
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -45,12 +46,14 @@ def de_tolerance(method, expected):
 @pytest.mark.usefixtures("kernel_variant")  # both kernel variants on every device
 class TestXYZ_to_Lab:
     def test_reference_values(self, queue):
-        # colour-science's documented example (D65, CIE 1931 2 degree)
+        # colour-science's documented example (D65's tabulated chromaticity, CIE 1931 2 degree)
         XYZ = np.array([0.20654008, 0.12197225, 0.05136952])
-        np.testing.assert_allclose(XYZ_to_Lab(XYZ, device=queue), [41.52787529, 52.63858304, 26.92317922],
+        xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+        np.testing.assert_allclose(XYZ_to_Lab(XYZ, xy, device=queue), [41.52787529, 52.63858304, 26.92317922],
                                    atol=LAB_TOL)
-        # the white maps to L* = 100, a* = b* = 0; black to 0
-        white = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
+        # the white of a named illuminant (with no grid: the diffuser over 360-780 nm at 1 nm) maps to
+        # L* = 100, a* = b* = 0; black to 0
+        white = reflectance_to_XYZ(np.ones(421), np.arange(360.0, 781.0), device=queue)
         np.testing.assert_allclose(XYZ_to_Lab(white, device=queue), [100, 0, 0], atol=LAB_TOL)
         np.testing.assert_allclose(XYZ_to_Lab(np.zeros(3), device=queue), [0, 0, 0], atol=LAB_TOL)
 
@@ -84,7 +87,7 @@ class TestXYZ_to_Lab:
         expected = XYZ_to_Lab_ref(XYZ, xy)
         np.testing.assert_allclose(XYZ_to_Lab(XYZ, xy, device=queue), expected, atol=LAB_TOL)
         np.testing.assert_allclose(XYZ_to_Lab(XYZ, colour.xy_to_XYZ(xy), device=queue), expected, atol=LAB_TOL)
-        with pytest.raises(ValueError, match="not in colour.CCS_ILLUMINANTS"):
+        with pytest.raises(ValueError, match="'D66' has no spectrum"):
             XYZ_to_Lab(XYZ, "D66")
         with pytest.raises(ValueError, match="xy"):
             XYZ_to_Lab(XYZ, [0.3, 0.4, 0.5, 0.6])
@@ -377,3 +380,47 @@ class TestFramesToDeltaE:
 
 def test_method_table_lists_colour_science_names():
     assert {"CIE 1976", "CIE 1994", "CIE 2000"} <= set(DELTA_E_METHODS)
+
+
+# ------------------------------------------------------------------------------- a perfect white through each path
+
+#: every grid kind the package takes: ASTM E308's 1, 5, 10 and 20 nm intervals (one reaching past 360-780 nm), and
+#: grids only the rectangle rule takes (7 nm, 2.5 nm); illuminants of each family (daylight, tungsten, equal
+#: energy, fluorescent, LED, ISO 7589's 350-690 nm table). Every illuminant colour-science has is checked on
+#: every grid on the host (tests/core/test_spectra.py); the device applies whatever white the host gives it.
+ASTM_GRIDS = [np.arange(400.0, 701.0, 1.0), np.arange(380.0, 781.0, 5.0), np.arange(400.0, 701.0, 10.0),
+              np.arange(400.0, 701.0, 20.0), np.arange(340.0, 831.0, 10.0)]
+WHITE_ILLUMINANTS = ["D65", "A", "D50", "E", "FL2", "FL3.1", "LED-B5", "ISO 7589 Photoflood"]
+WHITE_CASES = ([(w, "rectangle") for w in [*ASTM_GRIDS, np.arange(403.0, 698.0, 7.0), np.arange(420.0, 680.1, 2.5)]]
+               + [(w, "ASTM E308") for w in ASTM_GRIDS])
+
+
+@pytest.mark.parametrize("observer", OBSERVERS)
+@pytest.mark.parametrize("wavelengths, integration", WHITE_CASES,
+                         ids=[f"{w[0]:g}-{w[-1]:g}/{w[1] - w[0]:g}-{i}" for w, i in WHITE_CASES])
+def test_a_perfect_white_is_Lab_100_0_0_through_every_device_path(queue, wavelengths, integration, observer):
+    """The perfect diffuser through reflectance_to_XYZ then XYZ_to_Lab, and as frames through the fused
+    frames_to_delta_E (a one-frame decoder giving reflectance 1 in every band, C the XYZ weights): L* = 100,
+    a* = b* = 0 within 1e-3 and dE2000 against (100, 0, 0) below 1e-3, each path taking its white from
+    white_point_XYZ for the grid and integration its XYZ was made with."""
+    B = wavelengths.size
+    colours = dict(observer=observer, wavelengths=wavelengths, integration=integration)
+    for illuminant in WHITE_ILLUMINANTS:
+        XYZ = reflectance_to_XYZ(np.ones((2, B)), wavelengths, illuminant, observer, integration=integration,
+                                 device=queue)
+        Lab = XYZ_to_Lab(XYZ, illuminant, device=queue, **colours)
+        np.testing.assert_allclose(Lab, [[100, 0, 0]] * 2, atol=1e-3, err_msg=illuminant)
+        C = XYZ_weights(wavelengths, illuminant, observer, integration=integration)
+        fused = frames_to_delta_E(np.ones((1, 2, 2), np.float32), np.ones((B, 1)), np.array([100.0, 0, 0]), C=C,
+                                  illuminant=illuminant, return_Lab=True, device=queue, **colours)
+        np.testing.assert_allclose(fused.Lab.reshape(-1, 3), [[100, 0, 0]] * 4, atol=1e-3, err_msg=illuminant)
+        assert float(fused.delta_E.max()) < 1e-3, illuminant
+
+
+def test_the_white_of_another_grid_is_not_neutral(queue):
+    """What the one white mends: XYZ integrated on 400-700 nm at 10 nm under D65 against the white of another grid
+    (360-780 nm at 1 nm, what a name with no grid means) is off neutral by more than the 1e-3 asked of a white."""
+    wavelengths = np.arange(400.0, 701.0, 10.0)
+    XYZ = reflectance_to_XYZ(np.ones(31), wavelengths, device=queue)
+    assert float(np.abs(XYZ_to_Lab(XYZ, device=queue)[1:]).max()) > 0.05
+    np.testing.assert_allclose(XYZ_to_Lab(XYZ, wavelengths=wavelengths, device=queue), [100, 0, 0], atol=1e-4)

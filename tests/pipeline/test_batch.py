@@ -115,7 +115,8 @@ def test_batch_of_a_sequence_folder_equals_recover_per_sequence(made, tmp_path):
 
     XYZ = to_XYZ(out["cube"][1], setup.plan)
     np.testing.assert_allclose(out["XYZ"][1], XYZ, rtol=1e-6, atol=1e-7)
-    np.testing.assert_allclose(out["dE"][1], delta_E(np.array([50.0, 0, 0], np.float32), to_Lab(XYZ)), atol=1e-4)
+    np.testing.assert_allclose(out["dE"][1], delta_E(np.array([50.0, 0, 0], np.float32), to_Lab(XYZ, setup.plan)),
+                               atol=1e-4)
 
 
 def open_recording_like(path):
@@ -650,12 +651,13 @@ def test_the_one_pass_batch_equals_recover_and_its_colour_steps_saturated_pixels
         assert r.exit_code == 0, r.output
         cube = io.read_cube(tmp_path / "r.npz")[0]
         XYZ = to_XYZ(cube, plan)
-        Lab = to_Lab(XYZ)
+        Lab = to_Lab(XYZ, plan)
         dE = delta_E(ref, Lab)
         for name, want in (("cube", cube), ("XYZ", XYZ), ("Lab", Lab), ("dE", dE)):
             got = out[name][i]
             assert got.shape == want.shape and np.array_equal(np.isnan(got), np.isnan(want)), name
-            np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4 if name in ("Lab", "dE") else 1e-6,
+            # a* is 500 (f(X) - f(Y)): a float32 rounding of either, fused or not, is up to 1.2e-4 of it
+            np.testing.assert_allclose(got, want, rtol=1e-5, atol=2e-4 if name in ("Lab", "dE") else 1e-6,
                                        err_msg=name)
     for name in ("cube", "XYZ", "Lab", "dE"):
         assert np.all(np.isnan(out[name][1][10, 20])) and not np.any(np.isnan(out[name][0][10, 20])), name

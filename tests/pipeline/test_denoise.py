@@ -147,8 +147,8 @@ def test_stream_denoise_equals_recover_denoise():
         np.testing.assert_allclose(maps["cube"], want, atol=1e-4 * scale)
         np.testing.assert_allclose(maps["coefficients"] @ stream.decoder.basis.T, want, atol=1e-4 * scale)
         np.testing.assert_allclose(maps["XYZ"], to_XYZ(want, setup.plan), atol=1e-4)
-        lab = colour.XYZ_to_Lab(maps["XYZ"].astype(np.float64), colour.CCS_ILLUMINANTS[
-            "CIE 1931 2 Degree Standard Observer"]["D65"])
+        # the white of the plan's grid, as the stream's Lab takes it
+        lab = colour.XYZ_to_Lab(maps["XYZ"].astype(np.float64), colour.XYZ_to_xy(setup.plan.white_XYZ("D65")))
         np.testing.assert_allclose(maps["Lab"], lab, atol=2e-3)
         ref = np.broadcast_to(np.asarray(setup.reference, np.float64), lab.shape)
         np.testing.assert_allclose(maps["dE"], colour.delta_E(ref, lab, method="CIE 2000"), atol=2e-3)
@@ -189,7 +189,7 @@ def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
     group = zarr.open_group(str(tmp_path / "c.zarr"), mode="r")
     for i in range(2):
         want = denoise_recovery(folder, recover(folder, sequence=i), sequence=i)
-        lab = XYZ_to_Lab(to_XYZ(want, folder.plan))
+        lab = XYZ_to_Lab(to_XYZ(want, folder.plan), folder.plan.white_XYZ("D65"))
         np.testing.assert_allclose(group["Lab"][i], lab, atol=2e-3)
         reference = np.broadcast_to(np.float32([50.0, 10.0, -10.0]), lab.shape)
         np.testing.assert_allclose(group["dE"][i], delta_E(reference, lab), atol=2e-3)

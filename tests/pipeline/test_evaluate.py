@@ -45,8 +45,8 @@ def test_rmse_and_colour_differences_per_patch_equal_the_references():
     truth, estimate = rng.uniform(0, 1, (6, 31)), rng.uniform(0, 1, (6, 31))
     np.testing.assert_allclose(rmse_per_patch(estimate, truth), np.sqrt(((estimate - truth) ** 2).mean(1)))
     XYZ_t, XYZ_e = rng.uniform(0.05, 0.9, (6, 3)), rng.uniform(0.05, 0.9, (6, 3))
-    ab, de2000 = delta_E_per_patch(XYZ_e, XYZ_t, "D65")
     xy = colour.CCS_ILLUMINANTS[DEFAULT_CMFS]["D65"]
+    ab, de2000 = delta_E_per_patch(XYZ_e, XYZ_t, xy)
     lab_t, lab_e = colour.XYZ_to_Lab(XYZ_t, xy), colour.XYZ_to_Lab(XYZ_e, xy)
     np.testing.assert_allclose(ab, colour.delta_E(lab_t, lab_e, method="CIE 1976"), rtol=1e-4, atol=1e-4)
     np.testing.assert_allclose(de2000, colour.delta_E(lab_t, lab_e, method="CIE 2000"), rtol=1e-4, atol=1e-4)

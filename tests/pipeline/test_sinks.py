@@ -117,3 +117,16 @@ def test_preview_renders_srgb_and_refuses_what_it_cannot_show(tmp_path):
         preview.write(StreamResult(1, 1, np.arange(3), np.zeros(3), {"dE": np.zeros((4, 6), np.float32)}, 0.0))
     with pytest.raises(ValueError, match="the preview is a PNG"):
         PreviewSink(tmp_path / "p.jpg")
+
+
+@pytest.mark.parametrize("illuminant", ["D65", "A", "FL2"])
+def test_the_preview_of_a_perfect_white_is_255_with_the_streams_white(illuminant):
+    """Given the stream decoder's white (of the plan's grid), a perfect white previews as (255, 255, 255)."""
+    from types import SimpleNamespace
+
+    from specgpu.core.spectra import XYZ_weights
+
+    white = XYZ_weights(np.arange(400.0, 701.0, 10.0), illuminant).sum(axis=1)
+    sink = PreviewSink(None, interval_s=0.0, illuminant=illuminant, background=False, white=white)
+    sink.write(SimpleNamespace(arrays={"XYZ": np.broadcast_to(white, (2, 3, 3)).astype(np.float32)}))
+    np.testing.assert_array_equal(sink.image[..., :3], np.full((2, 3, 3), 255))

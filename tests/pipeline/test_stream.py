@@ -55,7 +55,7 @@ def offline(setup, frames):
     folder = SequenceFolder(Path("."), frames[None], setup.plan, setup.bundle, [], {})
     cube = recover(folder, sequence=0)
     XYZ = to_XYZ(cube, setup.plan)
-    Lab = to_Lab(XYZ)
+    Lab = to_Lab(XYZ, setup.plan)
     return {"cube": cube, "XYZ": XYZ, "Lab": Lab, "dE": delta_E(setup.reference, Lab)}
 
 

@@ -100,7 +100,7 @@ def test_white_roi_stream_equals_recover_white_roi(drifted):
         XYZ = to_XYZ(cube, s.plan)
         close(arrays["cube"], cube, name="cube")
         close(arrays["XYZ"], XYZ, name="XYZ")
-        np.testing.assert_allclose(arrays["dE"], delta_E(s.reference, to_Lab(XYZ)), rtol=0, atol=2e-3)
+        np.testing.assert_allclose(arrays["dE"], delta_E(s.reference, to_Lab(XYZ, s.plan)), rtol=0, atol=2e-3)
     # and the correction matters: without it the cube is off by the drift
     plain, _ = run_stream(s, ("cube",))
     assert np.nanmax(np.abs(plain[0][0]["cube"] - got[0][0]["cube"])) > 0.02
@@ -142,7 +142,7 @@ def test_sigma_and_dE_sigma_equal_recover(setup):
         close(arrays["sigma"], want, rel=1e-5, name="sigma")
         close(arrays["sigma_rms"], rms[..., 0], rel=1e-5, name="sigma_rms")
         xyz = to_XYZ(recover(folder, sequence=0), setup.plan)
-        des = delta_E_sigma_map(xyz, cov, "D65")  # what recover --delta-e-sigma writes
+        des = delta_E_sigma_map(xyz, cov, setup.plan.white_XYZ("D65"))  # what recover --delta-e-sigma writes
         assert float(np.median(des)) > 0.05
         np.testing.assert_allclose(arrays["dE_sigma"], des, rtol=1e-4, atol=1e-5)
         assert "XYZ_cov" not in arrays
@@ -481,5 +481,5 @@ def test_stream_subtracts_the_ambient_frame_as_recover_does(setup, white):
         # the ambient frame as the dark level, its own noise and the room light's shot noise in the sigma
         sigma, cov = uncertainty(folder_of(s, fr), sequence=0, white_roi=roi, illuminant="D65")
         close(arrays["sigma"][..., :-1], sigma, rel=1e-5, name="sigma")
-        des = delta_E_sigma(np.nan_to_num(to_XYZ(cube, plan)), np.nan_to_num(cov), "D65")
+        des = delta_E_sigma(np.nan_to_num(to_XYZ(cube, plan)), np.nan_to_num(cov), plan.white_XYZ("D65"))
         np.testing.assert_allclose(arrays["dE_sigma"], des, rtol=1e-4, atol=1e-5)

@@ -33,7 +33,7 @@ COMMANDS = {
               "paper's Tables 1-3 beside ours and writes a report folder with index.html.")),
     "evaluate": ("specgpu.apps.cli.evaluate:evaluate",
                  ("Accuracy of a recovered cube (.exr, .npz or ENVI .hdr; or an XYZ map) against the true scene: per "
-                  "pixel, and per patch for a chart.")),
+                  "pixel, and per patch for a chart, with the pixels left out counted by cause.")),
     "info": ("specgpu.apps.cli.info:info",
              ("OpenCL platforms and devices, the one chosen, and versions; --devices: the OpenCL devices alone; "
               "--usb: the USB devices too.")),

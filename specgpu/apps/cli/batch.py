@@ -8,6 +8,7 @@ import click
 
 from specgpu.apps.cli.options import (
     ILLUMINANT,
+    INTEGRATION,
     OBSERVER,
     PLAN,
     RESIZE,
@@ -48,6 +49,7 @@ def plan_calibration(plan, source, plan_path, calib):
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
 @ILLUMINANT
 @OBSERVER
+@INTEGRATION
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (default: a LocalCluster).")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="LocalCluster worker processes (one thread and one OpenCL context each).")
@@ -61,7 +63,8 @@ def plan_calibration(plan, source, plan_path, calib):
               "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "
               "estimated within the sequence; pixels seen "
               "outside the field or whose frames disagree are NaN.")
-def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, observer, scheduler, workers,
+def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, observer, integration, scheduler,
+                  workers,
                   device, resize, denoise, motion):
     """Re-process the raw frames of a recording (specgpu stream --frames) or a sequence folder with a plan, on
     Dask: one task per sequence, resumable, equal to specgpu recover of each sequence."""
@@ -77,10 +80,12 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
     reference = None
     if ref is not None:
         src = open_source(source)
-        reference = parse_reference(ref, src.height, src.width, illuminant, resize, observer=observer)
+        reference = parse_reference(ref, src.height, src.width, illuminant, resize, observer=observer,
+                                    integration=integration)
     report = run_batch(source, plan, bundle, out, outputs=wanted, illuminant=illuminant, observer=observer,
                        method=method, reference=reference, scheduler=scheduler, workers=workers, device=device,
-                       denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None, motion=motion.lower())
+                       denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None, motion=motion.lower(),
+                       integration=integration)
     click.echo(f"{plan.method}: {report.computed} sequences computed on {report.workers} worker(s) in "
                f"{report.seconds:.1f} s ({report.sequences_per_s:.1f} sequences/s), {report.skipped} already done; "
                f"OpenCL contexts built {report.contexts_built}; wrote {out}")

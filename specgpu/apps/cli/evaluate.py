@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from specgpu import io
-from specgpu.apps.cli.options import RESIZE, Busy, command, lock, no_clash, resampled
+from specgpu.apps.cli.options import RESIZE, Busy, command, integration_option, lock, no_clash, resampled
 from specgpu.pipeline.evaluate import PLAUSIBLE_RANGE
 from specgpu.pipeline.evaluation_report import (
     colorimetry,
@@ -39,7 +39,8 @@ from specgpu.rig.scene import load_scene
                    "instead of refusing it. NaN pixels (flagged by the recovery) are always left out and counted.")
 @click.option("--device", "device", default=None, help="OpenCL device selector.")
 @RESIZE
-def evaluate(cube, truth, illuminant, json_path, exclude_invalid, device, resize):
+@integration_option(None, " [default: the one the file records, else rectangle]")
+def evaluate(cube, truth, illuminant, json_path, exclude_invalid, device, resize, integration):
     """Accuracy of a recovered cube (.exr, .npz or ENVI .hdr; or an XYZ map) against the true scene: per pixel,
     and per patch for a chart, with the pixels left out counted by cause."""
     no_clash([("--json", json_path)], [("CUBE", cube), ("--truth", truth)])
@@ -51,7 +52,8 @@ def evaluate(cube, truth, illuminant, json_path, exclude_invalid, device, resize
     height, width = data.shape[:2]
     scene = resampled(f"--truth {scene_source}", load_scene(scene_source, height, width, resize=resize))
     result = evaluation_report(cube, data, wavelengths, meta, scene, illuminant, cmfs, device=device,
-                               progress=Busy, invalid="exclude" if exclude_invalid else "refuse", truth=truth)
+                               progress=Busy, invalid="exclude" if exclude_invalid else "refuse", truth=truth,
+                               integration=integration)
     report = result["report"]
     if "truth_mismatch" in report:
         click.echo(f"Warning: {report['truth_mismatch']}", err=True)

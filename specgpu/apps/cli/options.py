@@ -20,7 +20,7 @@ from specgpu.apps.cli.group import watch_outputs
 from specgpu.calibration.bundle import load_calibration
 from specgpu.core.guard import check_outputs
 from specgpu.core.locks import output_locks
-from specgpu.core.spectra import DEFAULT_CMFS
+from specgpu.core.spectra import DEFAULT_CMFS, resolve_integration
 from specgpu.core.validate import BadArgument, validate_method
 from specgpu.engine.colorimetry import XYZ_to_Lab
 from specgpu.io import JOURNAL_FILE, SEQUENCE_FILE, companion_files
@@ -229,6 +229,27 @@ ILLUMINANT = click.option(
     help="Illuminant of XYZ, Lab and dE, recorded with every output [default: the plan's own for a tristimulus or "
          "camera plan, else D65]; another than a tristimulus or camera plan measures under is refused.")
 
+def integration_option(default="rectangle", note=""):
+    """``--integration``: how reflectance is integrated to XYZ (the white of Lab and dE with it), checked as a
+    usage error naming the option."""
+
+    def check(ctx, param, value):
+        try:
+            return None if value is None else resolve_integration(value)
+        except ValueError as error:
+            raise click.BadParameter(str(error)) from None
+
+    return click.option(
+        "--integration", default=default, show_default=default is not None, callback=check,
+        metavar="rectangle|astm-e308",
+        help="How reflectance is integrated to XYZ, and the white of Lab and dE with it: the rectangle rule on the "
+             "cube's own grid, or ASTM E308's tables (what colorimetry software and instruments report; grids of "
+             "1, 5, 10 or 20 nm)." + note)
+
+
+INTEGRATION = integration_option()
+
+
 OBSERVER = click.option(
     "--observer", default=None,
     help="Observer (colour-matching functions) of XYZ, Lab and dE, recorded with every output [default: the plan's "
@@ -305,10 +326,12 @@ class one_interrupt:
             signal.signal(sig, previous)
 
 
-def parse_reference(text, height, width, illuminant, resize="scale", meta=None, observer=None):
+def parse_reference(text, height, width, illuminant, resize="scale", meta=None, observer=None,
+                    integration="rectangle"):
     """--delta-e-ref: an 'L,a,b' colour, or a scene (built-in name, cube file, or a loaded scene) whose Lab (under
-    ``illuminant`` for ``observer``, None: the 2 degree observer) is the reference; a scene file of another size is
-    fitted by ``resize``, said on stderr and in ``meta``."""
+    ``illuminant`` for ``observer``, None: the 2 degree observer; integrated by ``integration`` on the scene's
+    bands, with the white of that grid) is the reference; a scene file of another size is fitted by ``resize``,
+    said on stderr and in ``meta``."""
     parts = [] if isinstance(text, SpectralScene) else text.split(",")
     if len(parts) == 3:
         try:
@@ -324,7 +347,8 @@ def parse_reference(text, height, width, illuminant, resize="scale", meta=None, 
     if not isinstance(text, SpectralScene):
         resampled(f"--delta-e-ref {text}", scene, meta, "reference_resampled")
     observer = observer or DEFAULT_CMFS
-    return XYZ_to_Lab(scene_XYZ(scene, illuminant, observer), illuminant, observer=observer)
+    XYZ = scene_XYZ(scene, illuminant, observer, integration=integration)
+    return XYZ_to_Lab(XYZ, illuminant, observer=observer, wavelengths=scene.wavelengths, integration=integration)
 
 
 def output_list(text, valid, what):

@@ -8,6 +8,7 @@ import numpy as np
 
 from specgpu.apps.cli.options import (
     ILLUMINANT,
+    INTEGRATION,
     OBSERVER,
     Finite,
     RESIZE,
@@ -28,7 +29,7 @@ from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
 
 def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours, denoise=None,
-              motion="none"):
+              motion="none", integration="rectangle"):
     """The recovery of ``folder`` (a refusal is one line naming why), motion-compensated when ``motion`` is not
     "none", denoised when ``denoise`` gives (radius, eps), the metadata of its outputs and the warnings to say (a
     dark level not to be trusted; a capture that moved, recovered without ``--motion``)."""
@@ -45,7 +46,8 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
     untrusted = recovery.dark_warning(folder, sequence)  # said once the spinner has gone, recorded with every output
     notice = without_motion(folder, averaged=sequence is None) if motion == "none" else None
     meta = recovery_metadata(folder, seq, sequence=sequence, illuminant=colours[0], observer=colours[1],
-                             white_roi=white_roi, white_reflectance=white_reflectance, untrusted=untrusted)
+                             white_roi=white_roi, white_reflectance=white_reflectance, untrusted=untrusted,
+                             integration=integration)
     if denoise is not None:
         meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
     if motion != "none":
@@ -70,6 +72,7 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
 @ILLUMINANT
 @OBSERVER
+@INTEGRATION
 @click.option("--sequence", type=int, default=None, help="Recover one sequence (default: the mean of all).")
 @click.option("--half", is_flag=True, help="Write the cube in half precision.")
 @click.option("--sigma", "sigma_path", type=click.Path(dir_okay=False), default=None,
@@ -93,7 +96,8 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
               "(affine) per frame, or a displacement per pixel (flow: global, then a tile flow where it agrees "
               "better), one sequence at a time; pixels seen outside the field or whose frames disagree are NaN.")
 @RESIZE
-def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, sequence, half,
+def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, integration,
+            sequence, half,
             sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize, denoise, denoise_radius,
             denoise_eps, motion):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
@@ -113,12 +117,13 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
         if white_reflectance is not None and white_roi is None:
             raise click.UsageError("--white-reflectance needs --white-roi")
         y, meta, warnings = recovered(folder, seq, sequence=sequence, device=device, colours=colours, **white,
-                                       denoise=(denoise_radius, denoise_eps) if denoise else None, motion=motion)
+                                       denoise=(denoise_radius, denoise_eps) if denoise else None, motion=motion,
+                                       integration=integration)
         writes = recovery_writes(folder, y, meta, **paths, colours=colours, sequence=sequence, half=half,
                                  interleave=interleave, method=method, device=device, **white,
-                                 denoise_radius=denoise_radius if denoise else None,
+                                 denoise_radius=denoise_radius if denoise else None, integration=integration,
                                  reference=lambda h, w, m: parse_reference(ref, h, w, colours[0], resize, m,
-                                                                           colours[1]))
+                                                                           colours[1], integration))
     for warning in warnings:
         click.echo(f"Warning: {warning}", err=True)
     mismatch = denoise_design_warning(folder.plan, denoise_radius if denoise else None)

@@ -11,6 +11,7 @@ import numpy as np
 from specgpu.apps.cli.group import kept
 from specgpu.apps.cli.options import (
     ILLUMINANT,
+    INTEGRATION,
     OBSERVER,
     PLAN,
     RESIZE,
@@ -60,9 +61,9 @@ def sink_stopped_line(message, tty):
 
 def stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                seconds, method, colours, pacing, policy, exr_every, half, seed, device, white=(None, None),
-               disk_check=True, view=False, denoise=None, accumulate=None, motion="none"):
+               disk_check=True, view=False, denoise=None, accumulate=None, motion="none", integration="rectangle"):
     """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised;
-    ``colours``: the (illuminant, observer) of its XYZ, Lab and dE."""
+    ``colours``: the (illuminant, observer) of its XYZ, Lab and dE; ``integration``: of its XYZ and white."""
     illuminant, observer = colours
     white_roi, white_reflectance = white
     motion = check_motion_options(motion, plan, outputs=wanted, denoise=denoise,
@@ -78,11 +79,12 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
                     illuminant=illuminant, observer=observer, cube_dtype=np.float16 if half else np.float32,
                     policy=policy, device=device, white_roi=white_roi, white_reflectance=white_reflectance,
                     n_slots=recording_slots(plan, description) if out else None, denoise=denoise, motion=motion,
+                    integration=integration,
                     frame_rate_hz=plan.rig_description(description).camera.frame_rate_hz)
     writer = None
     if out:
         meta = stream_metadata(truth, illuminant=illuminant, observer=observer, method=method, seed=seed,
-                               white_roi=white_roi, white_reflectance=white_reflectance)
+                               white_roi=white_roi, white_reflectance=white_reflectance, integration=integration)
         if denoise is not None:
             meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
         if motion != "none":
@@ -143,6 +145,7 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
 @ILLUMINANT
 @OBSERVER
+@INTEGRATION
 @click.option("--pacing", type=click.Choice(["paced", "free"]), default="paced", show_default=True,
               help="Twin pacing: at the camera's frame rate, or as fast as it renders.")
 @click.option("--policy", type=click.Choice(["drop_newest", "drop_oldest", "block"]), default=None,
@@ -178,8 +181,8 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
               help="Record even when a write probe says the disk cannot keep up with --out (frames will be "
                    "dropped); also skips the probe that chooses each array's compression.")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
-                   observer, pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance, denoise,
-                   accumulate, motion, resize, view, no_disk_check):
+                   observer, integration, pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance,
+                   denoise, accumulate, motion, resize, view, no_disk_check):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     wanted = output_list(outputs, STREAM_OUTPUTS, "stream output")  # before any loading: a typo names the valid
@@ -200,7 +203,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     reference = None
     if "dE" in wanted:  # default: the streamed scene itself, as fitted to the frame above
         reference = parse_reference(ref or truth, cam.roi_height, cam.roi_width, colours[0], resize,
-                                    observer=colours[1])
+                                    observer=colours[1], integration=integration)
     # real devices: the plan uploaded to the light, frames from the camera (a camera never waits: paced)
     driver = open_driver(description, plan, hardware=hardware, scene=truth, calibration=bundle, seed=seed,
                          pacing=pacing)
@@ -209,7 +212,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
                    seconds, method, colours, pacing if hardware is None else "paced", policy, exr_every, half, seed,
                    device, white=(white_roi, white_reflectance), disk_check=not no_disk_check, view=view,
                    denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None, accumulate=accumulate,
-                   motion=motion.lower())
+                   motion=motion.lower(), integration=integration)
     finally:
         if hardware is not None:
             driver.close()  # the light's USB link and the camera
