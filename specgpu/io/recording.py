@@ -111,7 +111,7 @@ from specgpu.io.chunks import (
     write_chunk,
 )
 
-__all__ = ["RECORDING_FORMAT", "RECORDING_VERSION", "ZarrRecorder", "Recording", "open_recording",
+__all__ = ["RECORDING_FORMAT", "RECORDING_VERSION", "ZarrRecorder", "Recording", "open_recording", "open_zarr_group",
            "patterns_hash", "sequence_bytes", "check_free_space", "refuse_existing", "missing_sequences",
            "remove_partial_chunks", "probe_write_rate", "check_write_rate", "COMPRESSIONS"]
 
@@ -595,6 +595,46 @@ def remove_partial_chunks(path, *, chunks_only: bool = False) -> list[Path]:
     return removed
 
 
+def open_zarr_group(path, what: str, format_id: str, version: int):
+    """Open a zarr v3 group read-only and check its format id and version.
+
+    Parameters
+    ----------
+    path : path-like
+        The group's folder.
+    what : str
+        What the group is, for the messages (``"recording"``, ``"batch output"``).
+    format_id, version : str, int
+        The ``format`` and ``version`` attributes the group must carry.
+
+    Returns
+    -------
+    (zarr.Group, dict)
+        The group and a copy of its attributes.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        One line naming the folder: it does not exist; not a zarr v3 group, another format or another version.
+    """
+    import zarr
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: {what} not found")
+    try:
+        group = zarr.open_group(str(path), mode="r", zarr_format=3)
+    except Exception as exc:  # noqa: BLE001
+        raise ValueError(f"{path}: not a zarr v3 {what} ({type(exc).__name__})") from None
+    attrs = dict(group.attrs)
+    if attrs.get("format") != format_id:
+        raise ValueError(f"{path}: not a specgpu {what} (format {str(attrs.get('format'))[:40]!r})")
+    if type(attrs.get("version")) is not int or attrs["version"] != version:
+        raise ValueError(f"{path}: {what} version {str(attrs.get('version'))[:20]} is not supported "
+                         f"(this specgpu reads {version})")
+    return group, attrs
+
+
 def open_recording(path) -> Recording:
     """Open a recording written by :class:`ZarrRecorder` and check its attributes and arrays.
 
@@ -632,21 +672,8 @@ def open_recording(path) -> Recording:
     >>> recording.sequences, recording.K, recording.attrs["status"], recording.attrs["metadata"]
     (0, 4, 'complete', {'scene': 'demo'})
     """
-    import zarr
-
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: recording not found")
-    try:
-        group = zarr.open_group(str(path), mode="r", zarr_format=3)
-    except Exception as exc:  # noqa: BLE001
-        raise ValueError(f"{path}: not a zarr v3 recording ({type(exc).__name__})") from None
-    attrs = dict(group.attrs)
-    if attrs.get("format") != RECORDING_FORMAT:
-        raise ValueError(f"{path}: not a specgpu recording (format {attrs.get('format')!r})")
-    if type(attrs.get("version")) is not int or attrs["version"] != RECORDING_VERSION:
-        raise ValueError(f"{path}: recording version {attrs.get('version')!r} is not supported "
-                         f"(this specgpu reads {RECORDING_VERSION})")
+    group, attrs = open_zarr_group(path, "recording", RECORDING_FORMAT, RECORDING_VERSION)
     n = attrs.get("sequences_committed")
     if not isinstance(n, int) or isinstance(n, bool) or n < 0:
         raise ValueError(f"{path}: sequences_committed must be an integer >= 0, got {n!r}")

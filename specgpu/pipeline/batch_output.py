@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.io.recording import Recording
+from specgpu.io.recording import Recording, open_zarr_group
 from specgpu.pipeline.batch import BATCH_FORMAT, BATCH_OUTPUTS, BATCH_VERSION, _done_flags
 
 __all__ = ["BatchOutput", "open_batch_output"]
@@ -80,21 +80,8 @@ def open_batch_output(path) -> BatchOutput:
         One line naming the folder: not a zarr v3 group, not a batch output or of another version, bad outputs,
         an array missing or shorter than the sequences.
     """
-    import zarr
-
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: batch output not found")
-    try:
-        group = zarr.open_group(str(path), mode="r", zarr_format=3)
-    except Exception as exc:  # noqa: BLE001
-        raise ValueError(f"{path}: not a zarr v3 batch output ({type(exc).__name__})") from None
-    attrs = dict(group.attrs)
-    if attrs.get("format") != BATCH_FORMAT:
-        raise ValueError(f"{path}: not a specgpu batch output (format {str(attrs.get('format'))[:40]!r})")
-    if type(attrs.get("version")) is not int or attrs["version"] != BATCH_VERSION:
-        raise ValueError(f"{path}: batch output version {str(attrs.get('version'))[:20]} is not supported "
-                         f"(this specgpu reads {BATCH_VERSION})")
+    group, attrs = open_zarr_group(path, "batch output", BATCH_FORMAT, BATCH_VERSION)
     outputs = attrs.get("outputs")
     if not isinstance(outputs, list) or not outputs or not all(o in BATCH_OUTPUTS for o in outputs):
         raise ValueError(f"{path}: outputs must be a list of {', '.join(BATCH_OUTPUTS)}, got {str(outputs)[:80]}")
