@@ -164,12 +164,18 @@ def test_sigterm_drains_a_stream(base, tmp_path):
     proc = start("stream", "--rig", base / "rig.toml", "--plan", base / "tri.npz", "--calib", base / "calib.npz",
                  "--scene", "colorchecker", "--seconds", "60", "--outputs", "XYZ", "--pacing", "free", "--out", out)
     lock = lock_path(out)
+
+    def committed():
+        try:
+            return open_recording(out).sequences
+        except (OSError, ValueError):  # not created yet, or its group being written
+            return 0
+
+    # the signal comes once a sequence is committed (a fixed wait is too short on a loaded machine), so what the
+    # drain must keep is known to exist
     deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None:
-        if (out / "zarr.json").exists() or (lock.exists() and time.monotonic() > deadline - 100):
-            break
-        time.sleep(0.05)
-    time.sleep(2.0)
+    while time.monotonic() < deadline and proc.poll() is None and committed() == 0:
+        time.sleep(0.1)
     proc.send_signal(signal.SIGTERM)
     try:
         _, err = proc.communicate(timeout=60)
