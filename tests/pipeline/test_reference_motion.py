@@ -156,4 +156,6 @@ def test_an_object_over_the_scene_gets_its_own_layer_with_reference_frames(setup
     t = np.arange(plan.K) - (plan.K - 1) / 2.0  # frame periods from the reference time
     np.testing.assert_allclose(res.layers[0].shifts, np.c_[3.0 * t, np.zeros(plan.K)], atol=0.2)
     obj = truth["object_mask"] > 0.5
-    assert ((res.mask & MASK_LAYER) > 0)[obj].mean() > 0.7  # most of the object decoded with its own motion
+    # most of the object decoded with its own motion (less the ring the flags grow by about the pixels it cannot
+    # decode), as without reference frames
+    assert ((res.mask & MASK_LAYER) > 0)[obj].mean() > 0.65
