@@ -35,7 +35,7 @@ from specgpu.io.sequence import read_frames
 from specgpu.pipeline.batch import BATCH_FORMAT
 from specgpu.pipeline.batch_output import open_batch_output
 from specgpu.pipeline.motion_record import motion_notice, moved
-from specgpu.pipeline.moving import TRUTH_FOLDER
+from specgpu.pipeline.moving import TRUTH_FOLDER, truth_name
 from specgpu.pipeline.recovery import PLAN_FILE, SequenceFolder, read_capture_header, recover
 from specgpu.planning.plans import load_plan
 
@@ -164,7 +164,7 @@ def sequence_layers(path, *, illuminant="D65") -> list:
     roi = recorded.get("white_roi")
     # a capture that moved: each sequence decoded motion-compensated, its truth the one recorded for it
     moving = moved(path)
-    truths = [str(p) if p.is_file() else None for p in (path / TRUTH_FOLDER / f"sequence_{s:04d}.npz"
+    truths = [str(p) if p.is_file() else None for p in (path / TRUTH_FOLDER / truth_name(s)
                                                         for s in range(S))] if moving else None
 
     # the frames layer, the cube and its sRGB are computed apart by napari: each sequence is read and recovered

@@ -14,7 +14,7 @@ import re
 import shutil
 from pathlib import Path
 
-from specgpu.pipeline.moving import TRUTH_FOLDER
+from specgpu.pipeline.moving import TRUTH_FOLDER, truth_name
 
 __all__ = ["moved", "motion_notice", "without_motion", "renumber_truth", "LEFT_OUT_FOLDER"]
 
@@ -94,7 +94,7 @@ def renumber_truth(directory, kept) -> None:
     new_index = {int(c): n for n, c in enumerate(kept)}
     for captured, path in sorted(files.items()):
         n = new_index.get(captured)
-        _link(path, staged / f"sequence_{n:04d}.npz" if n is not None else staged / LEFT_OUT_FOLDER / path.name)
+        _link(path, staged / truth_name(n) if n is not None else staged / LEFT_OUT_FOLDER / path.name)
     earlier = folder / LEFT_OUT_FOLDER
     if earlier.is_dir():
         for path in earlier.iterdir():

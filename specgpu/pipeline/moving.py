@@ -47,7 +47,7 @@ from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_p
                                            tile_displacements, whitened_half_spectrum)
 from specgpu.rig.twin import TwinRig
 
-__all__ = ["MASK_INCONSISTENT", "sequence_truth", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD", "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode", "estimate_global_motion",
+__all__ = ["MASK_INCONSISTENT", "sequence_truth", "truth_name", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD", "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode", "estimate_global_motion",
            "registration_image", "truth_recorder", "TRUTH_FOLDER"]
 
 #: How frames are decoded with respect to motion: as they are, or compensated for a global translation per frame.
@@ -630,6 +630,11 @@ def check_motion_mode(motion) -> str:
 TRUTH_FOLDER = "motion_truth"
 
 
+def truth_name(sequence: int) -> str:
+    """The file name of sequence ``sequence``'s motion truth in ``motion_truth/``."""
+    return f"sequence_{int(sequence):04d}.npz"
+
+
 def truth_recorder(directory, description, plan, scene):
     """A callable ``(index, sequence)`` that writes the truth of each sequence captured on a moving twin into
     ``directory/motion_truth/sequence_<index>.npz``: a scene cube (``wavelengths``, ``reflectance``: the scene at
@@ -642,7 +647,7 @@ def truth_recorder(directory, description, plan, scene):
 
     def record(index: int, sequence) -> Path:
         truth = rig.motion_truth(sequence.timestamps_s)
-        return write_cube_npz(folder / f"sequence_{index:04d}.npz", truth["reflectance"], rig.scene.wavelengths,
+        return write_cube_npz(folder / truth_name(index), truth["reflectance"], rig.scene.wavelengths,
                               extra={"displacement": truth["displacement"],
                                      "reference_time_s": np.array(truth["reference_time_s"])})
 
@@ -664,7 +669,7 @@ def sequence_truth(directory, sequence: int | None = None) -> Path:
         raise ValueError(f"{directory}: holds no motion truth ({TRUTH_FOLDER}/sequence_NNNN.npz: a capture on a "
                          "moving twin keeps it); give the true scene (colorchecker, white, natural or a cube file)")
     if sequence is not None:
-        path = folder / f"sequence_{int(sequence):04d}.npz"
+        path = folder / truth_name(sequence)
         if not path.is_file():
             raise ValueError(f"{directory}: holds no motion truth of sequence {int(sequence)} ({len(kept)} kept: "
                              f"{kept[0].name} .. {kept[-1].name})")
