@@ -593,7 +593,6 @@ class Stream:
     # ---- sink thread -----------------------------------------------------------------------------------------
     def _sink_loop(self):
         active = list(self.sinks)  # the sinks still written to: a failed one leaves it
-        failed = set()
         try:
             while True:
                 entry = self._done.get()
@@ -611,7 +610,6 @@ class Stream:
                         sink.write(result)
                     except Exception as exc:  # noqa: BLE001 (reported; see _sink_failed)
                         active.remove(sink)
-                        failed.add(id(sink))
                         self._sink_failed(sink, exc)
                 with self._status_lock:
                     self.sequences_out += 1
@@ -622,7 +620,7 @@ class Stream:
                 try:
                     getattr(sink, "close", lambda: None)()
                 except Exception as exc:  # noqa: BLE001
-                    if id(sink) not in failed:  # a failed sink's close repeats the error already reported
+                    if any(sink is a for a in active):  # a failed sink's close repeats the error reported
                         self._sink_failed(sink, exc, closing=True)
             self._ended.set()
 
