@@ -24,6 +24,8 @@ MAX_COMMAND_LINES = 40
 TOP_LEVEL_FILES = {"__init__.py", "__main__.py", "testing.py"}
 # optional or heavy third-party packages a function may import when it needs them (and only these)
 LOCAL_IMPORTS_ALLOWED = {"dask", "zarr", "numcodecs", "distributed", "napari", "usb", "harvesters", "genicam", "seabreeze",
+                         # the LED controller's pyserial; the OL490's pythonnet (clr) and the .NET namespace it opens
+                         "serial", "clr", "System",
                          "scipy", "matplotlib",
                          # the Qt shim napari ships: the spectrum widget's Qt classes, only with the viewer extra
                          "qtpy"}
