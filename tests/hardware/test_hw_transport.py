@@ -145,6 +145,24 @@ def test_list_usb_devices_names_what_specgpu_drives(fake_usb):
     assert [d.backend for d in list_usb_devices(known_only=True)] == ["dlpc900", "genicam", "seabreeze"]
 
 
+def test_list_usb_devices_names_led_boards_and_the_ol490_when_its_id_is_given(fake_usb, monkeypatch):
+    monkeypatch.delenv("SPECGPU_OL490_USB", raising=False)
+    fake_usb.extend([UsbDev(0x16C0, 0x0483, 1, 2), UsbDev(0x2341, 0x0043, 1, 3), UsbDev(0x16C0, 0x0478, 1, 4),
+                     UsbDev(0x1234, 0xABCD, 1, 6)])
+    found = list_usb_devices()
+    assert [d.backend for d in found] == ["led", "led", "", ""]  # a Teensy in its bootloader (0478) is not serial
+    assert str(found[0]) == "bus 001 address 002  16c0:0483  Teensy USB serial (LED controller board) [led]"
+    assert found[1].description == "Arduino (LED controller board)"
+    monkeypatch.setenv("SPECGPU_OL490_USB", "1234:abcd")
+    ol490 = list_usb_devices()[3]
+    assert (ol490.backend, ol490.description) == ("ol490", "Optronic Laboratories OL490 (VID:PID from "
+                                                            "SPECGPU_OL490_USB)")
+    monkeypatch.setenv("SPECGPU_OL490_USB", "OL490")
+    with pytest.raises(ValueError, match=r"^SPECGPU_OL490_USB must be the OL490's VID:PID in hex \(e.g. 1234:abcd\), "
+                                         r"got 'OL490'$"):
+        list_usb_devices()
+
+
 # ---- optional backends: a clear one-line error when absent ------------------------------------------------------
 def test_missing_harvesters_and_seabreeze_are_clear(monkeypatch):
     from specgpu.hardware.genicam import open_acquirer

@@ -36,7 +36,8 @@ def usb_lines():
               help="List only the OpenCL devices, one a line: selector, name, type (* the one chosen).")
 @click.option("--usb", is_flag=True,
               help="Also list the USB devices found, naming those specgpu drives (DLPC900 light, USB3 Vision "
-                   "camera, Ocean spectrometer).")
+                   "camera, Ocean spectrometer, a Teensy or Arduino LED controller board, the OL490 when "
+                   "SPECGPU_OL490_USB gives its VID:PID).")
 def info(device, devices_only, usb):
     """OpenCL platforms and devices, the one chosen, and versions; --devices: the OpenCL devices alone; --usb:
     the USB devices too."""
