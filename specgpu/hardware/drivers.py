@@ -1,5 +1,5 @@
 """The camera driver a rig description names: the digital twin when it has no ``[hardware]`` table, else the real
-devices (a GenICam camera lit by a DLPC900), each with a plan's illuminant sequence uploaded. The one place that
+devices (a GenICam camera lit by a DLPC900, an LED array or an OL490), each with a plan's illuminant sequence uploaded. The one place that
 chooses between the two, for the stream and the capture alike."""
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ def hardware_config(description):
     if not description.hardware:
         return None
     return hardware_rig.HardwareConfig.from_dict(description.hardware, source=description.source,
-                                                 base_dir=description.base_dir or None)
+                                                 base_dir=description.base_dir or None,
+                                                 kind=getattr(description.light, "kind", None))
 
 
 def open_driver(description, plan, *, hardware=None, scene=None, calibration=None, seed=None, pacing="paced",

@@ -19,6 +19,21 @@ a rig TOML's ``[hardware]`` table would hold::
     spectrometer = "ocean"            # for calibration loop (b); "" for none
     spectrometer_calibration = "irradiance_cal.csv"
 
+An LED array on the specgpu LED controller board, or the OL490 (each stepped by the camera's strobe, so
+``camera_mode`` stays ``"strobe-master"``)::
+
+    [hardware]
+    light = "led"                     # or "led-simulated"; "ol490" or "ol490-simulated"
+    light_port = "/dev/ttyACM0"       # the board's serial port (COM3, or a pyserial URL)
+    light_channels = 8                # channels used (0: all the board has)
+    light_spectra = "leds.csv"        # wavelength nm, one column per channel at full duty
+    ol490_sdk = "C:/Program Files/OL490/OL490_SDK_Dll.dll"
+    ol490_slit = 2                    # the stored calibration of slit 1 to 4
+    ol490_grey_bits = 6               # grey depth 1 to 6 bit (deeper: slower frames)
+
+A rig whose ``[light]`` table says ``kind = "led"`` (or ``"ol490"``, ``"dmd"``) and whose ``[hardware]`` table
+names no ``light`` gets that kind's device (:func:`~specgpu.hardware.lights.light_for_kind`).
+
 :class:`HardwareRig` gives calibration loop (b) (:func:`specgpu.calibration.spectral_loop`) what it reads from a
 twin rig: ``light``, ``spectroradiometer`` and ``measure_spectrum``; :class:`HardwareCalibrationRig`
 (:func:`open_calibration_rig`) adds the camera, so :func:`specgpu.calibration.calibrate` runs its whole procedure
@@ -37,6 +52,8 @@ from specgpu.core.validate import check_number
 from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, SimulatedDLPC900, UsbTransport
 from specgpu.hardware.dlpc900.images import COMPRESSIONS, GEOMETRIES
 from specgpu.hardware.genicam import MODES, GenICamCamera
+from specgpu.hardware.lights import KIND_LIGHTS, light_for_kind, open_led_light, open_ol490_light
+from specgpu.hardware.ol490.sdk import DEFAULT_SDK_TYPE
 from specgpu.hardware.ocean import OceanSpectrometer
 from specgpu.rig.config import RigDescription, load_rig
 from specgpu.rig.light import ProgrammableLight
@@ -44,8 +61,10 @@ from specgpu.rig.light import ProgrammableLight
 __all__ = ["HardwareConfig", "open_hardware", "open_light", "open_spectrometer", "HardwareRig",
            "HardwareCalibrationRig", "open_calibration_rig"]
 
-LIGHTS = ("dlpc900", "dlpc900-simulated")
+LIGHTS = tuple(v for values in KIND_LIGHTS.values() for v in values)
 SPECTROMETERS = ("", "ocean")
+#: Keys naming files, resolved against the rig file's folder.
+FILE_KEYS = ("camera_cti", "spectrometer_calibration", "light_spectra", "ol490_sdk")
 
 
 @dataclass(frozen=True)
@@ -55,11 +74,29 @@ class HardwareConfig:
     Attributes
     ----------
     light : str
-        ``"dlpc900"`` (USB) or ``"dlpc900-simulated"`` (:class:`~specgpu.hardware.dlpc900.SimulatedDLPC900`).
+        ``"dlpc900"`` (USB) or ``"dlpc900-simulated"`` (:class:`~specgpu.hardware.dlpc900.SimulatedDLPC900`);
+        ``"led"`` (:class:`~specgpu.hardware.led.LedLight` on ``light_port``) or ``"led-simulated"``; ``"ol490"``
+        (:class:`~specgpu.hardware.ol490.OL490Light` through ``ol490_sdk``) or ``"ol490-simulated"``.
     dmd : str
         ``"lightcrafter-6500"`` or ``"lightcrafter-9000"``.
     light_serial : str
-        USB serial of the controller ("" for the first).
+        USB serial of the DLPC900 controller, or serial number of the OL490 ("" for the first).
+    light_port : str
+        Serial port of the LED controller board (``/dev/ttyACM0``, ``COM3`` or a pyserial URL).
+    light_channels : int
+        LED channels used (0: all the board has, or as many as ``light_spectra`` gives).
+    light_spectra : str
+        CSV of the LED channels' spectra: wavelength nm, then one column per channel at full duty (W m^-2 nm^-1).
+    light_holdoff_us : int
+        Shortest interval between two LED steps; an edge sooner is a missed trigger (-1: the board's own).
+    ol490_sdk : str
+        The OL490 SDK assembly (.dll), loaded through pythonnet.
+    ol490_sdk_type : str
+        The SDK's library class, ``Namespace.Type``.
+    ol490_slit : int
+        The OL490's stored calibration to load, slit 1 to 4.
+    ol490_grey_bits : int
+        The OL490's grey depth, 1 to 6 bit.
     compression : str
         Image upload encoding: ``"erle"``, ``"rle"`` or ``"none"``.
     camera_cti : str
@@ -91,6 +128,14 @@ class HardwareConfig:
     light: str = "dlpc900"
     dmd: str = "lightcrafter-6500"
     light_serial: str = ""
+    light_port: str = ""
+    light_channels: int = 0
+    light_spectra: str = ""
+    light_holdoff_us: int = -1
+    ol490_sdk: str = ""
+    ol490_sdk_type: str = DEFAULT_SDK_TYPE
+    ol490_slit: int = 1
+    ol490_grey_bits: int = 6
     compression: str = "erle"
     camera_cti: str = ""
     camera_serial: str = ""
@@ -121,13 +166,27 @@ class HardwareConfig:
                              f"falls only in the dark time), got {self.dark_time_s!r}")
         check_number("hardware.camera_first_frame_id", self.camera_first_frame_id, low=-1, integer=True)
         check_number("hardware.integration_time_s", self.integration_time_s, low=0, low_open=True, high=600)
+        check_number("hardware.light_channels", self.light_channels, low=0, high=64, integer=True)
+        check_number("hardware.light_holdoff_us", self.light_holdoff_us, low=-1, high=1_000_000, integer=True)
+        check_number("hardware.ol490_slit", self.ol490_slit, low=1, high=4, integer=True)
+        check_number("hardware.ol490_grey_bits", self.ol490_grey_bits, low=1, high=6, integer=True)
+        if self.light == "led" and not self.light_port:
+            raise ValueError("hardware.light_port names no serial port: set it to the LED controller's port (e.g. "
+                             "/dev/ttyACM0 or COM3)")
+        if self.light.startswith(("led", "ol490")) and self.camera_mode != "strobe-master":
+            raise ValueError(f"hardware.camera_mode must be 'strobe-master' with hardware.light = {self.light!r}: the "
+                             f"camera's strobe steps the light")
 
     @classmethod
-    def from_dict(cls, table: dict, *, source: str = "<dict>", base_dir=None) -> HardwareConfig:
+    def from_dict(cls, table: dict, *, source: str = "<dict>", base_dir=None, kind: str | None = None) -> HardwareConfig:
         """From a ``[hardware]`` table; unknown keys and wrong types are errors naming ``source`` and the key.
-        Relative file paths resolve against ``base_dir``."""
+        Relative file paths resolve against ``base_dir``. ``kind``, the rig's ``[light] kind``, gives the light
+        when the table names none and must agree with the one it names."""
         valid = {f.name: f for f in fields(cls)}
         kwargs = {}
+        light = light_for_kind(kind, table.get("light"), source=source)
+        if light is not None:
+            table = {**table, "light": light}
         for key, value in dict(table).items():
             if key not in valid:
                 raise ValueError(f"{source}: unknown key hardware.{key}; valid keys: {', '.join(valid)}")
@@ -135,7 +194,7 @@ class HardwareConfig:
             if isinstance(default, str):
                 if not isinstance(value, str):
                     raise ValueError(f"{source}: hardware.{key} must be a string, got {value!r}")
-                if key in ("camera_cti", "spectrometer_calibration") and value and base_dir is not None:
+                if key in FILE_KEYS and value and base_dir is not None:
                     p = Path(value)
                     value = str(p if p.is_absolute() else Path(base_dir) / p)
             elif isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -147,13 +206,22 @@ class HardwareConfig:
             raise ValueError(f"{source}: {exc}") from None
 
 
-def _config(hardware) -> HardwareConfig:
+def _kind(rig):
+    """The rig's ``[light] kind`` when its description has one (the rig model's key), else None."""
+    if rig is None:
+        return None
+    desc = rig if isinstance(rig, RigDescription) else load_rig(rig)
+    return getattr(desc.light, "kind", None)
+
+
+def _config(hardware, rig=None) -> HardwareConfig:
     if hardware is None:
-        return HardwareConfig()
+        hardware = {}
     if isinstance(hardware, HardwareConfig):
+        light_for_kind(_kind(rig), hardware.light)  # a light of another kind than the rig's is refused
         return hardware
     if isinstance(hardware, dict):
-        return HardwareConfig.from_dict(hardware)
+        return HardwareConfig.from_dict(hardware, kind=_kind(rig))
     raise ValueError(f"hardware must be a HardwareConfig or a [hardware] table, got {type(hardware).__name__}")
 
 
@@ -165,10 +233,15 @@ def _model(rig):
 
 
 def open_light(hardware=None, *, rig=None, calibration=None, transport=None):
-    """The :class:`~specgpu.hardware.dlpc900.DLPC900Light` a :class:`HardwareConfig` names (``transport``
-    overrides the USB or simulated one)."""
+    """The light a :class:`HardwareConfig` names: a :class:`~specgpu.hardware.dlpc900.DLPC900Light`, an
+    :class:`~specgpu.hardware.led.LedLight` or an :class:`~specgpu.hardware.ol490.OL490Light` (``transport``
+    overrides the USB or simulated link: a DLPC900 transport, the LED board's serial port, the OL490's SDK)."""
 
-    cfg = _config(hardware)
+    cfg = _config(hardware, rig)
+    if cfg.light.startswith("led"):
+        return open_led_light(cfg, port=transport)
+    if cfg.light.startswith("ol490"):
+        return open_ol490_light(cfg, model=_model(rig), calibration=calibration, sdk=transport)
     if transport is None:
         transport = (SimulatedDLPC900(cfg.dmd) if cfg.light == "dlpc900-simulated"
                      else UsbTransport(serial=cfg.light_serial or None))
@@ -180,7 +253,8 @@ def open_light(hardware=None, *, rig=None, calibration=None, transport=None):
 
 def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n_frames: int | None = None,
                   acquirer=None, transport=None, check_light: bool = True, exposure_s: float | None = None):
-    """The camera driver of a real rig (registered as ``"vision-dlpc900"``): a GenICam camera lit by a DLPC900.
+    """The camera driver of a real rig (registered as ``"vision-dlpc900"``): a GenICam camera lit by the light the
+    table names (a DLPC900, an LED array or an OL490).
 
     Parameters
     ----------
@@ -202,7 +276,7 @@ def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n
     """
 
 
-    cfg = _config(hardware)
+    cfg = _config(hardware, rig)
     if exposure_s is not None:
         cfg = replace(cfg, exposure_s=float(exposure_s))  # checked as hardware.exposure_s is
     light = open_light(cfg, rig=rig, calibration=calibration, transport=transport)

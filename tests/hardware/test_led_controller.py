@@ -268,3 +268,52 @@ def test_pyserial_loop_echo_and_a_missing_port():
         LedController("loop://")  # a port that only echoes the host's own line
     with pytest.raises(DeviceNotFound, match=r"^LED controller port /dev/specgpu-no-such-tty cannot be opened"):
         LedController("/dev/specgpu-no-such-tty")
+
+
+# ---- chosen by the rig's [hardware] table ---------------------------------------------------------------------------
+def test_rig_table_opens_the_led_light_behind_the_camera(tmp_path):
+    from types import SimpleNamespace
+
+    from specgpu.hardware.drivers import hardware_config
+    from specgpu.hardware.rig import open_hardware
+
+    wl = np.arange(400.0, 701.0, 10.0)
+    spectra = np.exp(-0.5 * ((wl[None, :] - np.linspace(420, 680, CHANNELS)[:, None]) / 15) ** 2)
+    (tmp_path / "leds.csv").write_text("# wavelength, channels\n" + "\n".join(
+        ",".join(f"{v:.12g}" for v in (w, *col)) for w, col in zip(wl, spectra.T)))
+    rig = SimpleNamespace(hardware={"light_port": "/dev/ttyACM0", "light_spectra": "leds.csv"}, source="rig.toml",
+                          base_dir=str(tmp_path), light=SimpleNamespace(kind="led"))
+    cfg = hardware_config(rig)  # [light] kind = "led" picks the LED board when [hardware] names no light
+    assert (cfg.light, cfg.light_spectra) == ("led", str(tmp_path / "leds.csv"))
+    board = SimulatedLedBoard()
+    k = 3
+    camera = open_hardware(hardware=cfg, patterns=patterns(k), transport=SimulatedSerial(board),
+                           acquirer=LedCamera(board, 2 * k), n_frames=2 * k, exposure_s=0.005)
+    light = camera.light
+    assert isinstance(light, LedLight) and light.channels == CHANNELS  # as many as the spectra file has
+    np.testing.assert_allclose(light.emitted_spectrum(2), light.sequence[2] @ spectra, rtol=1e-6)
+    assert len(capture_sequences(camera, k).sequences) == 2
+    rig.hardware = {"light": "dlpc900"}
+    with pytest.raises(ValueError, match=r"^rig.toml: light.kind = 'led' but hardware.light = 'dlpc900'; set "
+                                         r"hardware.light to 'led' or 'led-simulated'$"):
+        hardware_config(rig)
+    rig.hardware, rig.light = {"light": "led"}, SimpleNamespace()
+    with pytest.raises(ValueError, match=r"^rig.toml: hardware.light_port names no serial port"):
+        hardware_config(rig)
+    rig.hardware = {"light": "led-simulated", "camera_mode": "hardware-trigger"}
+    with pytest.raises(ValueError, match="camera_mode must be 'strobe-master' with hardware.light = 'led-simulated'"):
+        hardware_config(rig)
+
+
+def test_rig_table_names_a_port_pyserial_opens():
+    pytest.importorskip("serial")
+    from specgpu.hardware.rig import open_light
+
+    board = SimulatedLedBoard()
+    url, stop = serve(board)
+    try:
+        light = open_light({"light": "led", "light_port": url, "light_channels": 3, "light_holdoff_us": 250})
+        assert light.channels == 3 and board.channels == 3 and board.holdoff_us == 250
+        light.close()
+    finally:
+        stop()

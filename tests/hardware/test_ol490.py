@@ -184,3 +184,17 @@ def test_dotnet_adapter_calls_the_sdk_methods_its_table_names(monkeypatch):
     sdk.load_sequence(np.ones((2, 2), int))
     assert log == [("OpenDevice", ("123",)), (DOTNET_CALLS["set_grey_depth"], (4,)),
                    (DOTNET_CALLS["send_pattern"], ([0, 1, 2],)), (DOTNET_CALLS["load_sequence"], ([[1, 1], [1, 1]],))]
+
+
+def test_rig_table_opens_the_ol490_light_with_its_slit_and_grey_depth():
+    from specgpu.hardware.rig import HardwareConfig, open_light
+
+    sim = SimulatedOL490Sdk()
+    ol = open_light({"light": "ol490", "ol490_slit": 4, "ol490_grey_bits": 3}, transport=sim)
+    assert isinstance(ol, OL490Light) and (sim.calibration, sim.bits) == (4, 3)
+    assert ol.max_frame_rate_hz == pytest.approx(16000 / 7)
+    assert isinstance(open_light({"light": "ol490-simulated"}), OL490Light)
+    with pytest.raises(ValueError, match="hardware.ol490_grey_bits must"):
+        HardwareConfig.from_dict({"light": "ol490", "ol490_grey_bits": 8})
+    with pytest.raises(BackendMissing, match="set hardware.ol490_sdk"):
+        open_light({"light": "ol490"})  # a real unit, and no SDK assembly named
