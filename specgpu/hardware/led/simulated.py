@@ -117,7 +117,7 @@ class SimulatedLedBoard:
         text = line.rstrip(b"\r\n")
         body, star, cc = text.rpartition(b"*")
         try:
-            if not star or int(cc, 16) != crc8(body):
+            if not star or len(cc) != 2 or int(cc, 16) != crc8(body):
                 return self._err(1, "checksum mismatch")
         except ValueError:
             return self._err(1, "checksum mismatch")
