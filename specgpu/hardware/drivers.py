@@ -1,6 +1,6 @@
 """The camera driver a rig description names: the digital twin when it has no ``[hardware]`` table, else the real
-devices (a GenICam camera lit by a DLPC900, an LED array or an OL490), each with a plan's illuminant sequence uploaded. The one place that
-chooses between the two, for the stream and the capture alike."""
+devices (a GenICam camera lit by a DLPC900, an LED array or an OL490), each with a plan's illuminant sequence
+uploaded. The one place that chooses between the two, for the stream and the capture alike."""
 
 from __future__ import annotations
 

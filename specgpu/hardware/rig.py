@@ -178,7 +178,8 @@ class HardwareConfig:
                              f"camera's strobe steps the light")
 
     @classmethod
-    def from_dict(cls, table: dict, *, source: str = "<dict>", base_dir=None, kind: str | None = None) -> HardwareConfig:
+    def from_dict(cls, table: dict, *, source: str = "<dict>", base_dir=None,
+                  kind: str | None = None) -> HardwareConfig:
         """From a ``[hardware]`` table; unknown keys and wrong types are errors naming ``source`` and the key.
         Relative file paths resolve against ``base_dir``. ``kind``, the rig's ``[light] kind``, gives the light
         when the table names none and must agree with the one it names."""
@@ -449,8 +450,13 @@ def open_calibration_rig(rig=None, *, hardware=None, acquirer=None, transport=No
     replace the devices the table would open (tests, dry runs).
     """
 
-    cfg = _config(hardware)
     desc = rig if isinstance(rig, RigDescription) else load_rig(rig)
+    cfg = _config(hardware, desc)
+    if not cfg.light.startswith("dlpc900"):
+        # the bundle's column map and forward model are a DMD column light's; an LED array's channel spectra come
+        # from hardware.light_spectra, and the OL490's loop has not been run on a unit
+        raise ValueError(f"calibration on real devices needs a DLPC900 light (hardware.light = 'dlpc900'), got "
+                         f"hardware.light = {cfg.light!r}")
     if spectrometer is None or not isinstance(spectrometer, OceanSpectrometer):
         if cfg.spectrometer != "ocean" and spectrometer is None:
             raise ValueError("calibration needs a spectrometer: set hardware.spectrometer = 'ocean' (and "

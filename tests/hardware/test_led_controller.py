@@ -317,3 +317,13 @@ def test_rig_table_names_a_port_pyserial_opens():
         light.close()
     finally:
         stop()
+
+
+def test_calibration_on_real_devices_refuses_a_light_it_cannot_calibrate():
+    from specgpu.hardware.rig import open_calibration_rig
+    from specgpu.rig.config import RigDescription
+
+    for light in ("led-simulated", "ol490-simulated"):
+        with pytest.raises(ValueError, match=rf"^calibration on real devices needs a DLPC900 light \(hardware.light "
+                                             rf"= 'dlpc900'\), got hardware.light = '{light}'$"):
+            open_calibration_rig(RigDescription(), hardware={"light": light, "spectrometer": "ocean"})

@@ -36,8 +36,8 @@ def script():
     """Protocol lines (bytes), trigger edges ("!TRIG us") and output probes ("!PWM"), good and bad."""
     good = [frame(*f).rstrip(b"\n") for f in (
         ("ID",), ("ARM",), ("STEP", 0, 1), ("CH", 0), ("CH", 3), ("SEQ", 0), ("SEQ", 3), ("STEP", 0, 1, 2),
-        ("STEP", 0, 4096, 0, 0), ("DARK", 0), ("STEP", 1, 4095, 0, 7), ("END",), ("SHOW", 1), ("STEP", 2, 0, 2048, 4095),
-        ("END",), ("HOLD", 2_000_000), ("HOLD", 500), ("SHOW", 1))]
+        ("STEP", 0, 4096, 0, 0), ("DARK", 0), ("STEP", 1, 4095, 0, 7), ("END",), ("SHOW", 1),
+        ("STEP", 2, 0, 2048, 4095), ("END",), ("HOLD", 2_000_000), ("HOLD", 500), ("SHOW", 1))]
     bad = [b"ID*00", b"ID", b"ID*3", frame("STEP", "x").rstrip(b"\n"), frame("FOO", 1).rstrip(b"\n"),
            b"ID 1*" + b"%02X" % crc8(b"ID 1"), b"X" * 200]
     run = [frame(*f).rstrip(b"\n") for f in (("ARM",), ("SEQ", 2), ("SHOW", 0), ("CH", 2))]

@@ -82,8 +82,8 @@ class LedLight(LightSource):
         if p.ndim != 2 or p.shape[1] != self.channels or p.shape[0] < 1:
             raise ValueError(f"LED light: patterns must be (K, {self.channels}) duty fractions, got {p.shape}")
         if p.shape[0] > self.controller.identity.max_steps:
-            raise ValueError(f"LED light: {p.shape[0]} patterns exceed the board's {self.controller.identity.max_steps} "
-                             f"steps")
+            raise ValueError(f"LED light: {p.shape[0]} patterns exceed the board's "
+                             f"{self.controller.identity.max_steps} steps")
         if not np.isfinite(p).all() or p.min() < 0 or p.max() > 1:
             raise ValueError("LED light: duties must be finite fractions in [0, 1]")
         return p
