@@ -165,7 +165,7 @@ def test_an_edge_inside_the_hold_off_is_counted_as_missed():
 def test_board_that_does_not_answer_times_out_naming_the_port():
     board = SimulatedLedBoard()
     board.mute = True
-    with pytest.raises(DeviceTimeout, match=r"^LED controller on sim://led did not answer ID within 0.5 s: is the "
+    with pytest.raises(DeviceTimeout, match=r"^LED controller on sim://led did not answer ID within 1 s: is the "
                                             r"board connected"):
         controller(board)
     board = SimulatedLedBoard()

@@ -27,7 +27,7 @@ __all__ = ["LedController", "open_serial", "FIRMWARE_PATH"]
 FIRMWARE_PATH = "tools/firmware/led_controller/led_controller.ino"
 
 
-def open_serial(port: str, *, baudrate: int = 115200, timeout_s: float = 0.5):
+def open_serial(port: str, *, baudrate: int = 115200, timeout_s: float = 1.0):
     """Open ``port`` (a device path or a pyserial URL) with pyserial.
 
     Raises
@@ -64,7 +64,7 @@ class LedController:
         Line rate (USB CDC boards ignore it).
     """
 
-    def __init__(self, port, *, timeout_s: float = 0.5, baudrate: int = 115200):
+    def __init__(self, port, *, timeout_s: float = 1.0, baudrate: int = 115200):
         self.timeout_s = check_number("timeout_s", timeout_s, low=0, low_open=True, high=60)
         if isinstance(port, str):
             self.port = port

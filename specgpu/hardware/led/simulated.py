@@ -246,7 +246,7 @@ class SimulatedSerial:
     ``readline`` returns ``b""`` when the board has not answered (as pyserial's does at its timeout).
     """
 
-    def __init__(self, board: SimulatedLedBoard | None = None, port: str = "sim://led", timeout: float = 0.5):
+    def __init__(self, board: SimulatedLedBoard | None = None, port: str = "sim://led", timeout: float = 1.0):
         self.board = board if board is not None else SimulatedLedBoard()
         self.port, self.timeout = port, timeout
         self.is_open = True
