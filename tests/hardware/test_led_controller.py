@@ -327,3 +327,20 @@ def test_calibration_on_real_devices_refuses_a_light_it_cannot_calibrate():
         with pytest.raises(ValueError, match=rf"^calibration on real devices needs a DLPC900 light \(hardware.light "
                                              rf"= 'dlpc900'\), got hardware.light = '{light}'$"):
             open_calibration_rig(RigDescription(), hardware={"light": light, "spectrometer": "ocean"})
+
+
+def test_channel_count_left_by_an_earlier_session_is_set_again():
+    board = SimulatedLedBoard()
+    board.channels = 3  # as an earlier session left it: the board keeps its state between connections
+    light = LedLight(controller(board))
+    assert board.channels == 13
+    light.load_sequence(np.full((2, 13), 0.5))
+    assert board.complete
+
+
+def test_a_late_reply_to_a_timed_out_command_is_not_taken_for_the_next_ones():
+    board = SimulatedLedBoard()
+    port = SimulatedSerial(board)
+    ctl = LedController(port)
+    port._replies += frame("OK", 3)  # the board's answer to a command the host had given up on
+    assert ctl.status().pulses == 0

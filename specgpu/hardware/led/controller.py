@@ -86,7 +86,10 @@ class LedController:
         """Send one command line and return the values of its ``OK`` reply (errors: module docstring)."""
         if self._serial is None:
             raise DeviceDisconnected(f"{self.who} is closed")
+        flush = getattr(self._serial, "reset_input_buffer", None)
         try:
+            if flush is not None:
+                flush()  # a late reply to an earlier, timed-out command must not pass for this one's
             self._serial.write(frame(word, *args))
             line = self._serial.readline()
         except OSError as exc:  # pyserial's SerialException is an OSError

@@ -56,8 +56,7 @@ class LedLight(LightSource):
         self.controller = controller
         ident = controller.identity
         n = ident.max_channels if channels is None else int(channels)
-        if n != controller.channels:
-            controller.set_channels(n)
+        controller.set_channels(n)  # always: the board keeps the count an earlier session set
         self.channels = n
         if (spectra is None) != (wavelengths is None):
             raise ValueError("LED light: give both wavelengths and spectra, or neither")
