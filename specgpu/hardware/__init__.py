@@ -1,4 +1,5 @@
-"""Real devices behind the capture interfaces: the DLPC900 light (:mod:`.dlpc900`), GenICam cameras through
+"""Real devices behind the capture interfaces: the DLPC900 light (:mod:`.dlpc900`), LED arrays on a serial controller
+board (:mod:`.led`), the OL490 through its vendor's SDK (:mod:`.ol490`), GenICam cameras through
 harvesters (:mod:`.genicam`), Ocean spectrometers through python-seabreeze (:mod:`.ocean`) and the USB device list
 (:func:`list_usb_devices`). Optional dependencies load only when a backend is used.
 """
