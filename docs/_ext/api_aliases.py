@@ -20,10 +20,11 @@ from sphinx.util.nodes import make_refnode
 
 
 FIELD = object()  # what _import gives for a dataclass field: it exists, with no object of its own
+MISSING = object()  # what _import gives for a name that does not exist
 
 
 def _import(path: str):
-    """The object a dotted path names, or None."""
+    """The object a dotted path names, :data:`FIELD` for a dataclass field without one, or :data:`MISSING`."""
     parts = path.split(".")
     for cut in range(len(parts), 0, -1):
         try:
@@ -36,9 +37,9 @@ def _import(path: str):
             except AttributeError:
                 # a dataclass field without a default is no class attribute, yet it exists
                 fields = getattr(obj, "__dataclass_fields__", {}) if inspect.isclass(obj) else {}
-                return FIELD if attribute in fields and attribute == parts[-1] else None
+                return FIELD if attribute in fields and attribute == parts[-1] else MISSING
         return obj
-    return None
+    return MISSING
 
 
 def _scopes(path: str) -> list[str]:
@@ -103,7 +104,7 @@ def _documented(env) -> dict[int, tuple[str, str]]:
         cache = {}
         for name, entry in env.get_domain("py").objects.items():
             obj = _import(name)
-            if obj is not None and not isinstance(obj, (int, float, str, tuple, bool)) and obj is not None:
+            if obj is not MISSING and obj is not None and not isinstance(obj, (int, float, str, tuple, bool)):
                 cache.setdefault(id(obj), (entry.docname, entry.node_id))
         env._specgpu_documented = cache
     return cache
@@ -115,9 +116,9 @@ def resolve(app, env, node, contnode):
     fallback = _defined_once(node["reftarget"].lstrip("~."))
     for name in [*_candidates(node), *([fallback] if fallback else [])]:
         obj = _import(name)
-        if obj is None:
+        if obj is MISSING:
             continue
-        found = None if obj is FIELD else _documented(env).get(id(obj))
+        found = None if obj is FIELD or obj is None else _documented(env).get(id(obj))
         if found is not None:
             docname, anchor = found
             return make_refnode(app.builder, node["refdoc"], docname, anchor, contnode, name)
