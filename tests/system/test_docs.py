@@ -87,3 +87,30 @@ def test_every_page_has_one_title():
     assert len(pages) > 15
     untitled = [str(p.relative_to(ROOT)) for p in pages if len(re.findall(r"^# \S", p.read_text(), flags=re.M)) != 1]
     assert not untitled, untitled
+
+
+def _sphinx_build(tmp_path, body: str) -> tuple[int, str]:
+    """A one-page Sphinx project using the site's reference resolver, built with -W -n; (status, warnings)."""
+    build_main = pytest.importorskip("sphinx.cmd.build").build_main
+    src = tmp_path / "src"
+    src.mkdir()
+    (src / "conf.py").write_text(f"import sys\nsys.path.insert(0, {str(DOCS / '_ext')!r})\n"
+                                 f"sys.path.insert(0, {str(ROOT)!r})\n"
+                                 "extensions = ['sphinx.ext.autodoc', 'api_aliases']\n")
+    (src / "index.rst").write_text("Test\n====\n\n.. autofunction:: specgpu.io.open_recording\n\n" + body + "\n")
+    warnings = tmp_path / "warnings.txt"
+    status = build_main(["-q", "-W", "-n", "-w", str(warnings), "-b", "html", str(src), str(tmp_path / "out")])
+    return status, warnings.read_text() if warnings.exists() else ""
+
+
+def test_a_reference_by_another_name_of_a_documented_object_resolves(tmp_path):
+    status, warnings = _sphinx_build(tmp_path, "See :func:`specgpu.io.recording.open_recording` and "
+                                               ":mod:`specgpu.io.recording`.")
+    assert status == 0, warnings
+    page = (tmp_path / "out" / "index.html").read_text()
+    assert 'href="#specgpu.io.open_recording"' in page  # linked to where it is documented
+
+
+def test_a_stale_reference_fails_the_strict_build(tmp_path):
+    status, warnings = _sphinx_build(tmp_path, "See :func:`specgpu.io.recording.no_such_reader`.")
+    assert status != 0 and "specgpu.io.recording.no_such_reader" in warnings
