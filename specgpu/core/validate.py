@@ -146,7 +146,7 @@ def validate_method(method: str, methods: Mapping, argument: str = "method"):
 
 
 def check_frames(frames, name: str = "frames"):
-    """A stack of K frames, shape (K, *spatial), dtype uint8, uint16 or float32 (float64 becomes float32).
+    """A stack of K frames, shape ``(K, *spatial)``, dtype uint8, uint16 or float32 (float64 becomes float32).
 
     Returns the array (NumPy, C-contiguous, or the device array as given) and K.
     """
@@ -214,7 +214,7 @@ def as_float32(a, name: str):
 
 def check_pixel_map(a, name: str, spatial: tuple[int, ...], planes: int | None = None, *,
                     nan_marks_dead: bool = False):
-    """A per-pixel float map of shape ``spatial`` or, when ``planes`` is given, also (planes, *spatial).
+    """A per-pixel float map of shape ``spatial`` or, when ``planes`` is given, also ``(planes, *spatial)``.
 
     Returns (float32 array or device array, per_plane flag). Non-finite values are refused: calibration
     data (dark frames, flat fields) must be finite. With ``nan_marks_dead`` (a gain map) NaN is allowed: it marks a

@@ -179,7 +179,7 @@ class PreparedWarp:
     row read once as vectors and corrected as it is read, the taps off the field clamped to it as the per-pixel
     kernel clamps them (a sample point within the edge pixel's half reads that pixel through two equal taps: its
     value to float32 rounding). With ``corrected_planes``, ``warp_correct`` first writes the corrected frames
-    (:attr:`corrected`) and their flags (:attr:`flags`), which the warp then reads, with the same outputs and mask
+    (``corrected``) and their flags (``flags``), which the warp then reads, with the same outputs and mask
     bit for bit. The shifts' device buffer (and the corrected planes) are allocated once; the planes are overwritten
     by each call, so a kernel that reads them (a consistency check) is enqueued before the next call on the same
     (in-order) queue.

@@ -51,13 +51,13 @@ class StreamDecoder:
         ``"cube"``: the B outputs of the plan. ``"XYZ"``, ``"Lab"``, ``"dE"``: the fused colorimetric pass.
         ``"sigma"``: the standard deviation of each of the B outputs and their RMS (B + 1 channels, as
         ``specgpu recover --sigma``): the variance is linear in the frames' sample variances plus a constant
-        (:func:`specgpu.planning.estimators.sigma_map`), so the linear kernel computes it with ``A o A / g`` as the
+        (:func:`specgpu.planning.uncertainty.sigma_map`), so the linear kernel computes it with ``A o A / g`` as the
         matrix, each sample squared first for the light's fluctuation, and takes the square root of it plus the
         constant. ``"sigma_rms"``: the RMS channel alone (one
         row of the same map: B times fewer bytes written than ``"sigma"``). ``"dE_sigma"``: the first-order dE2000
         standard deviation (as ``recover --delta-e-sigma``): the XYZ covariance's six entries by the linear
         kernel, then a small kernel propagating them with XYZ to dE2000 (as
-        :func:`specgpu.planning.estimators.delta_E_sigma`). Both need the plan's noise model, which ``specgpu plan`` records
+        :func:`specgpu.planning.uncertainty.delta_E_sigma`). Both need the plan's noise model, which ``specgpu plan`` records
         (given ``--rig`` for a calibration made on a custom rig).
     reference : array_like, optional
         CIELAB reference of ``"dE"``: one colour (3,) or a per-pixel (H, W, 3) image. Required for ``"dE"``.

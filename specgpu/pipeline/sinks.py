@@ -270,7 +270,7 @@ class ExrSequenceWriter(Sink):
 
 
 class PreviewSink(Sink):
-    """A live preview: the latest XYZ as 8-bit sRGB (:attr:`image`), refreshed at most every ``interval_s``, and
+    """A live preview: the latest XYZ as 8-bit sRGB (``image``), refreshed at most every ``interval_s``, and
     written as a PNG (atomically, through :func:`specgpu.io.previews.write_sRGB_preview`) when ``path`` is given.
 
     The rendering (a colour transform of every pixel and a PNG encode: 50-150 ms for 640 x 480 on a loaded CPU)

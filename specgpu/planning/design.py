@@ -249,7 +249,7 @@ def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: 
     output_wavelengths : array_like, optional
         Reflectance output grid (default 400-700 nm every 10 nm).
     level, max_exposure_s
-        As :func:`specgpu.planning.plans.plan_narrowband`.
+        As :func:`specgpu.planning.narrowband.plan_narrowband`.
     exposure_s : float, optional
         Expose at least this long (the frames dimmed to stay at ``level``): a longer exposure averages the light's
         frame-to-frame fluctuation down, at a lower frame rate. Default: the shortest at which every frame can

@@ -70,8 +70,8 @@ def reference_positions(frames: int, every: int) -> list[int]:
 
 
 def with_reference_frames(plan, bundle, every):
-    """The plan with a broadband reference frame before its first frame and after every ``every`` of its frames
-    (see the module docstring); the decoder gets zero columns for them.
+    """The plan with broadband reference frames added (see the module docstring): one before its first frame and
+    one after every ``every`` of its frames; the decoder gets zero columns for them.
 
     Parameters
     ----------

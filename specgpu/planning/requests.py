@@ -32,7 +32,7 @@ def estimated_plan(method, bundle, args, kwargs, estimator, training, training_o
                    progress=_quiet, sequence_ms=None, extra_frames=0, denoise_radius=None):
     """The plan of ``method`` with the chosen decoder, the camera's noise model and its expected error recorded.
 
-    ``args`` / ``kwargs`` go to :func:`~specgpu.planning.plans.make_plan`; ``frames``, ``objective``, ``target``
+    ``args`` / ``kwargs`` go to :func:`~specgpu.planning.registry.make_plan`; ``frames``, ``objective``, ``target``
     and ``exposure_ms`` to the optimal design, ``bands`` to the Hadamard plan; ``progress(description)`` gives a
     context manager shown around the slow steps. A plan without a noise model is made only where no ``rig_path``
     names the custom rig the calibration was made on and nothing needs one. ``sequence_ms``: the time budget of

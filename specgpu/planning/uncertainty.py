@@ -94,7 +94,7 @@ def frame_covariance(frames, plan, dark, gain, M, *, A=None, sequences: int = 1,
 
 
 def variance_rows(left, right, ambient: int | None = None) -> np.ndarray:
-    """(R, K) the rows whose products with the frames' sample variances give ``cov(left . o, right . o)`` per
+    """(R, K) the rows whose products with the frames' sample variances give ``cov(left @ o, right @ o)`` per
     pixel: ``left * right``; with an ambient frame (index ``ambient``, subtracted from every frame) its column is
     ``sum_k left_k right_k + (sum_k left_k) (sum_k right_k)`` (its noise in every output, and the room light's
     shot noise it stands for in every frame; :func:`frame_variance`)."""

@@ -81,13 +81,13 @@ def test_unknown_scene_error_names_envi():
         load_scene("chart.tif", 8, 8)
 
 
-def test_objective_is_spelled_as_in_the_readme():
+def test_objective_is_spelled_as_in_the_guide():
     from pathlib import Path
 
     text = flat(run("plan", "--help").output)
     assert "--objective [rmse|dE2000|dEab]" in text
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-    assert "--objective rmse|dE2000|dEab" in readme
+    guide = (Path(__file__).resolve().parents[2] / "docs" / "guide" / "plans.md").read_text()
+    assert "--objective rmse|dE2000|dEab" in guide
 
 
 def test_stream_help_does_not_ask_for_an_estimator_for_sigma():
