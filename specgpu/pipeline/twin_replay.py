@@ -1,73 +1,30 @@
-"""Fixtures the tests and the benchmarks share: image-size parsing, a calibrated twin with a recorded stream to
-replay (:func:`stream_setup`), the offline maps a stream must equal (:func:`offline_maps`), and the sinks that check
-or keep a stream's results."""
+"""A replayable twin workload: a calibrated twin with a recorded stream of the colorchecker to replay
+(:func:`stream_setup`) and the offline maps a stream of it must equal (:func:`offline_maps`). The stream's tests
+and ``specgpu bench --stream`` (:mod:`specgpu.apps.bench.stream`) run on it, so both measure the same work."""
 
 from __future__ import annotations
 
-import re
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from specgpu.calibration import calibrate, save_calibration
+from specgpu.calibration.bundle import save_calibration
+from specgpu.calibration.procedure import calibrate
 from specgpu.capture.assemble import AssemblyStats, Sequence
 from specgpu.capture.replay import ReplayDriver, record
 from specgpu.capture.twin import TwinDriver
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
-from specgpu.pipeline import default_basis, read_capture, recover, to_Lab, to_XYZ, write_capture
-from specgpu.planning import plan_symmetric_basis, save_plan
+from specgpu.pipeline.recovery import default_basis, read_capture, recover, to_Lab, to_XYZ, write_capture
+from specgpu.planning.basis_plans import plan_symmetric_basis
+from specgpu.planning.plans import save_plan
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.sensors import camera_for_size
 from specgpu.rig.twin import TwinRig
 
-__all__ = [
-    "Checker",
-    "MemoryRecorder",
-    "StreamSetup",
-    "max_rel",
-    "offline_maps",
-    "parse_sizes",
-    "scene_Lab",
-    "stream_setup",
-]
-
-_SIZE = re.compile(r"\s*([0-9]+)\s*[xX]\s*([0-9]+)\s*", re.ASCII)
-
-
-def parse_sizes(text: str) -> list[tuple[int, int]]:
-    """Image sizes from a comma-separated ``"WxH,WxH"`` list.
-
-    Parameters
-    ----------
-    text : str
-        For example ``"640x480,2048x2048"``; ``X`` and spaces around the numbers are accepted.
-
-    Returns
-    -------
-    list of (int, int)
-        (width, height) pairs, both >= 1, in the order given.
-
-    Raises
-    ------
-    ValueError
-        Naming the first token that is not ``WxH`` with positive integers.
-    """
-    if not isinstance(text, str) or not text.strip():
-        raise ValueError(f"no image size given in {text!r}: expected e.g. '640x480,2048x2048'")
-    sizes = []
-    for token in text.split(","):
-        match = _SIZE.fullmatch(token)
-        if match is None:
-            raise ValueError(f"bad image size {token!r}: expected WxH with positive integers, e.g. '640x480'")
-        width, height = int(match.group(1)), int(match.group(2))
-        if width < 1 or height < 1:
-            raise ValueError(f"bad image size {token!r}: width and height must be at least 1")
-        sizes.append((width, height))
-    return sizes
-
+__all__ = ["StreamSetup", "offline_maps", "scene_Lab", "stream_setup"]
 
 
 @dataclass
@@ -143,51 +100,3 @@ def offline_maps(setup: StreamSetup, index: int, *, method: str = "CIE 2000", il
     XYZ = to_XYZ(cube, setup.plan, illuminant)
     Lab = to_Lab(XYZ, setup.plan, illuminant)
     return {"cube": cube, "XYZ": XYZ, "Lab": Lab, "dE": delta_E(setup.reference, Lab, method)}
-
-
-def max_rel(a, b) -> float:
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-12))
-
-
-class Checker:
-    """A sink that checks every result against the offline maps of the recorded sequence it must come from:
-    consecutive frame ids, starting at pattern 0, and equal maps (a misaligned sequence cannot pass)."""
-    def __init__(self, setup: StreamSetup, expected: dict, outputs, tolerance: float = 1e-3):
-        self.setup, self.expected, self.outputs, self.tolerance = setup, expected, outputs, tolerance
-        self.checked = 0
-        self.misaligned = 0
-        self.worst = 0.0
-
-    def write(self, result):
-        K = self.setup.plan.K
-        ids = result.frame_ids
-        ok = bool(np.all(np.diff(ids) == 1)) and int(ids[0]) % K == 0
-        exp = self.expected[self.setup.recorded_sequence(ids)]
-        for name in self.outputs:
-            if name in exp and name in result.arrays:
-                if name == "dE":
-                    err = float(np.max(np.abs(result.arrays[name] - exp[name])))  # dE units
-                else:
-                    err = max_rel(result.arrays[name], exp[name])
-                self.worst = max(self.worst, err)
-                ok = ok and err <= (2e-3 if name != "dE" else 0.05)
-        self.checked += 1
-        self.misaligned += not ok
-
-    def close(self):
-        pass
-
-
-class MemoryRecorder:
-    """A sink that writes every result's cube into a preallocated in-memory recording (a ring of ``slots``)."""
-    def __init__(self, shape, dtype, slots: int = 4):
-        self.store = np.zeros((slots, *shape), dtype)
-        self.count = 0
-
-    def write(self, result):
-        np.copyto(self.store[self.count % len(self.store)], result.arrays["cube"])
-        self.count += 1
-
-    def close(self):
-        pass

@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from hw_fakes import FakeCamera
-from specgpu.testing import offline_maps, stream_setup
+from specgpu.pipeline.twin_replay import offline_maps, stream_setup
 from specgpu.hardware.dlpc900 import DMDLayout, SimulatedDLPC900
 from specgpu.rig.twin import TwinRig
 

@@ -204,7 +204,7 @@ def test_check_write_rate_refuses_with_the_figures():
 
 @pytest.fixture(scope="module")
 def setup():
-    from specgpu.testing import stream_setup
+    from specgpu.pipeline.twin_replay import stream_setup
 
     return stream_setup(320, 240, sequences=2, output_step_nm=10.0)
 

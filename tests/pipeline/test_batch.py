@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from specgpu import io
 from specgpu.pipeline.batch import run_batch
-from specgpu.testing import stream_setup
+from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.calibration.bundle import save_calibration
 from specgpu.apps.cli import main
 from specgpu.planning import save_plan

@@ -127,7 +127,7 @@ def test_stream_denoise_equals_recover_denoise():
     import colour
 
     from specgpu.pipeline.stream import Stream
-    from specgpu.testing import stream_setup
+    from specgpu.pipeline.twin_replay import stream_setup
 
     setup = stream_setup(320, 240, sequences=2, output_step_nm=10.0)
     got = []

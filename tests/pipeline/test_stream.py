@@ -19,7 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 from specgpu import io
-from specgpu.testing import offline_maps, stream_setup
+from specgpu.pipeline.twin_replay import offline_maps, stream_setup
 from specgpu.capture.session import capture_sequences
 from specgpu.capture.twin import TwinDriver
 from specgpu.apps.cli import main
@@ -380,13 +380,6 @@ def test_cli_bench_stream_reports_every_case(tmp_path):
     assert "passed" not in rows["coefficients+XYZ+dE2000"] and "target >=" not in result.output
     bad = CliRunner().invoke(main, ["bench", "--stream", "--stream-size", "640"])
     assert bad.exit_code == 2 and "--stream-size" in bad.output
-
-
-def test_stream_rate_targets_are_judged_at_640_x_480_only():
-    from specgpu.apps.stream_bench import STREAM_TARGETS, stream_targets
-
-    assert stream_targets(640, 480) == STREAM_TARGETS and stream_targets(640, 480) is not STREAM_TARGETS
-    assert stream_targets(2048, 2048) == {} and stream_targets(480, 640) == {} and stream_targets(320, 240) == {}
 
 
 def test_arrival_stamps_stay_bounded_under_drop_oldest(setup):

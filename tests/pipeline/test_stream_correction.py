@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specgpu.testing import stream_setup
+from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.engine.colorimetry import delta_E
 from specgpu.planning.correction import corrected_decoder, white_gains
 from specgpu.planning import NoiseModel, delta_E_sigma, smooth_prior, with_estimator

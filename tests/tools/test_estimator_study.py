@@ -1,25 +1,26 @@
-"""The estimator study: the held-out chart as a scene, the study's plans captured, recovered and measured beside
-their expected error, the cross-validated error of a Wiener plan, the training sets, and Hadamard's measured SNR
-gain over narrowband."""
+"""The estimator study (``tools/studies/estimator_study.py`` and its ``estimator_rows``): the study's plans captured,
+recovered and measured beside their expected error, the table it prints, and Hadamard's measured SNR gain over
+narrowband."""
 
 import numpy as np
 import pytest
 
 import specgpu.planning as E
-from specgpu.apps import estimator_study as study
-from specgpu.planning import make_plan
-from specgpu.planning.estimators import interp_rows
+from specgpu.planning.estimator_plans import study_plans
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
+from specgpu.rig.scene import patch_scene
 
-from estimator_helpers import DESC, H, W, WL
+from estimator_helpers import DESC, H, W
+from tool_helpers import load_tool
 
+study = load_tool("studies/estimator_rows.py")
 
 
 def test_study_rows_on_the_held_out_chart(bundle, prior):
     names, wl, spec = E.held_out_spectra()
-    scene = study.patch_scene(names, wl, spec, H, W)
-    plans = study.study_plans(DESC, bundle, prior, E.held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
+    scene = patch_scene(names, wl, spec, H, W)
+    plans = study_plans(DESC, bundle, prior, E.held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
     rows = study.study_rows(DESC, bundle, scene, plans, runs=2)
     nb, tri = rows
     assert nb["name"] == "narrowband-31" and nb["K"] == 31 and nb["runs"] == 2
@@ -29,26 +30,6 @@ def test_study_rows_on_the_held_out_chart(bundle, prior):
     assert "rmse" not in tri and tri["dEab"][0] > 0 and tri["expected_rmse"] is None
     text = study.format_study(rows)
     assert "narrowband-31" in text and "tristimulus-D65" in text
-
-
-def test_patch_scene_white_tile():
-    from specgpu.rig.scene import white_tile_roi
-
-    names, wl, spec = E.held_out_spectra()
-    plain = study.patch_scene(names, wl, spec, H, W)
-    tiled = study.patch_scene(names, wl, spec, H, W, white_tile=0.97)
-    x, y, w, h = white_tile_roi(H, W)
-    np.testing.assert_array_equal(tiled.reflectance[y:y + h, x:x + w], np.float32(0.97))
-    assert set(tiled.masks) == set(plain.masks)
-    outside = np.ones((H, W), bool)
-    outside[max(0, y - 3):y + h + 3, max(0, x - 3):x + w + 3] = False
-    np.testing.assert_array_equal(tiled.reflectance[outside], plain.reflectance[outside])
-    with pytest.raises(ValueError, match="white_tile") as err:
-        study.patch_scene(names, wl, spec, H, W, white_tile=-1.0)
-    assert "\n" not in str(err.value)
-    with pytest.raises(ValueError, match="no room"):
-        many = [f"{n}-{i}" for i in range(10) for n in names]
-        study.patch_scene(many, wl, np.vstack([spec] * 10), H, W, white_tile=0.99)
 
 
 def test_study_rows_on_the_lab_profile_with_corrections():
@@ -64,8 +45,8 @@ def test_study_rows_on_the_lab_profile_with_corrections():
     bundle = calibrate(lab, seed=0)
     prior = E.default_prior()
     names, wl, spec = E.held_out_spectra()
-    scene = study.patch_scene(names, wl, spec, H, W, white_tile=0.99 * (1 + lab.realism.white_error))
-    plans = study.study_plans(lab, bundle, prior, None, methods=["optimal-3"])
+    scene = patch_scene(names, wl, spec, H, W, white_tile=0.99 * (1 + lab.realism.white_error))
+    plans = study_plans(lab, bundle, prior, None, methods=["optimal-3"])
     rows = study.study_rows(lab, bundle, scene, plans, runs=1, de_sigma=False, white_roi=white_tile_roi(H, W))
     (r,) = rows
     assert r["K"] == 4  # the ambient frame beside the three designed ones
@@ -74,45 +55,6 @@ def test_study_rows_on_the_lab_profile_with_corrections():
     # without the white tile's ROI the same plan is read raw (no ambient frame)
     raw = study.study_rows(replace(lab), bundle, scene, plans, runs=1, de_sigma=False)
     assert raw[0]["K"] == 3
-
-
-def test_cross_validated_error_against_numpy(bundle, spectra):
-    prior = E.prior_from_spectra(spectra, WL, "test")
-    noise = E.NoiseModel.from_rig(DESC, 0.05)
-    plan = E.with_estimator(make_plan("narrowband", bundle, step_nm=30.0), bundle, "wiener", prior=prior,
-                            noise=noise)
-    rng = np.random.default_rng(5)
-    idx = rng.permutation(spectra.shape[0])
-    sets = {"a": spectra[idx[:40]], "b": spectra[idx[40:100]], "c": spectra[idx[100:]]}
-    F = bundle.forward_matrix(plan.patterns, WL, plan.exposure_s)
-    Wm = interp_rows(plan.output_wavelengths, WL)
-    g, rv, lr = noise.gain_e_per_dn, noise.read_var_dn2, noise.light_rms
-    per = []
-    for name, held in sets.items():
-        rest = np.concatenate([r for n, r in sets.items() if n != name])
-        S = rest.T @ rest / rest.shape[0]
-        o = F @ rest.mean(axis=0)
-        N = np.diag(np.maximum(o, 0) / g + rv + lr ** 2 * np.diag(F @ S @ F.T))
-        A = Wm @ S @ F.T @ np.linalg.inv(F @ S @ F.T + N)
-        per.append(np.mean((held @ (Wm - A @ F).T) ** 2))
-    S = prior.moment
-    N = np.diag(np.maximum(F @ prior.mean, 0) / g + rv + lr ** 2 * np.diag(F @ S @ F.T))
-    noise_part = np.mean(np.diag(plan.A @ N @ plan.A.T))
-    cv = study.cross_validated_error(plan, bundle, sets, prior, noise)
-    assert cv["rmse"] == pytest.approx(np.sqrt(np.mean(per) + noise_part), rel=1e-9)
-    assert cv["mismatch"]["b"] == pytest.approx(np.sqrt(per[1]), rel=1e-9)
-    with pytest.raises(ValueError, match="at least two training sets") as err:
-        study.cross_validated_error(plan, bundle, {"a": spectra}, prior, noise)
-    assert "\n" not in str(err.value)
-
-
-def test_training_sets_split_the_database_by_set():
-    sets = study.training_sets()
-    db = E.training_database()
-    assert sum(len(r) for r in sets.values()) == len(db) and "CIE 1995 TCS" not in sets
-    assert sets["CIE 2017 CES"].shape == (99, db.reflectance.shape[1])
-    first = db.labels.index(next(label for label in db.labels if label.startswith("RAW to ACES v1/")))
-    np.testing.assert_array_equal(sets["RAW to ACES v1"][0], db.reflectance[first])
 
 
 def test_hadamard_recovers_like_narrowband_and_gains_snr():
@@ -129,3 +71,10 @@ def test_hadamard_recovers_like_narrowband_and_gains_snr():
     np.testing.assert_allclose(g["narrowband_mean"], 0.5, atol=0.02)
     assert g["theory"] == pytest.approx(16 / (2 * np.sqrt(15)))
     assert 1.6 < g["gain"] < 2.4
+
+
+def test_study_table_prints_no_none():
+    row = {"name": "symmetric-9", "K": 9, "exposure_ms": 6.5, "rmse": (0.03, 0.001), "z": (1.0, 0.0),
+           "expected_rmse": None, "rms": None}
+    text = study.format_study([row])
+    assert "None" not in text and "symmetric-9" in text

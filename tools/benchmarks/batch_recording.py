@@ -1,6 +1,6 @@
 """Write a long raw-frame recording for `specgpu batch` measurements, from the twin's frames.
 
-    python tools/batch_recording.py --sequences 2000 --size 640x480 --out /tmp/rec.zarr
+    PYTHONPATH=. python tools/benchmarks/batch_recording.py --sequences 2000 --size 640x480 --out /tmp/rec.zarr
 
 The twin (stream_setup: calibrated 200 fps camera, symmetric plan, K = 9) records 8 sequences of the colorchecker;
 they are replayed in turn, with running frame ids, into a ZarrRecorder with raw frames only (what `specgpu stream
@@ -15,9 +15,10 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from specgpu.testing import parse_sizes, stream_setup  # noqa: E402
+from specgpu.apps.bench.sizes import parse_sizes  # noqa: E402
+from specgpu.pipeline.twin_replay import stream_setup  # noqa: E402
 from specgpu.calibration.bundle import save_calibration  # noqa: E402
 from specgpu.planning import save_plan  # noqa: E402
 from specgpu.io.recording import ZarrRecorder  # noqa: E402
@@ -33,7 +34,8 @@ def main():
     (width, height), = parse_sizes(args.size)
     setup = stream_setup(width, height, sequences=8, output_step_nm=10.0)
     K = setup.plan.K
-    rec = ZarrRecorder(args.out, setup.plan, outputs=(), frames=True, metadata={"source": "tools/batch_recording.py"})
+    rec = ZarrRecorder(args.out, setup.plan, outputs=(), frames=True,
+                       metadata={"source": "tools/benchmarks/batch_recording.py"})
     save_plan(Path(args.out) / "plan.npz", setup.plan)
     save_calibration(Path(args.out) / "calibration.npz", setup.bundle)
     t0 = time.perf_counter()

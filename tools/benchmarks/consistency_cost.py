@@ -8,8 +8,8 @@ OpenCL device specgpu picks. "before" is the implementation at git revision ``--
 consistency.py`` and ``kernels/consistency.cl`` read with ``git show``, the kernels built from that text); left out
 where this is no git checkout or the revision is unknown.
 
-    PYTHONPATH=. python tools/consistency_cost.py
-    PYTHONPATH=. python tools/consistency_cost.py --before main --repeats 30 --kernels
+    PYTHONPATH=. python tools/benchmarks/consistency_cost.py
+    PYTHONPATH=. python tools/benchmarks/consistency_cost.py --before main --repeats 30 --kernels
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.twin import TwinRig
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def twin_frames(h: int, w: int, K: int):

@@ -3,19 +3,20 @@
 #
 # On a machine with a package index, once (downloads the wheels a GPU machine without one installs; .whl/ is
 # git-ignored):
-#     tools/gpu_check.sh fetch
+#     tools/benchmarks/gpu_check.sh fetch
 # Then, on the GPU machine, with .whl/ copied beside the source tree (three parts of under 10 minutes each):
-#     bash tools/gpu_check.sh info bench   # selftest; bench 640x480 .. 4096x4096 incl. NumPy in / NumPy out
-#     bash tools/gpu_check.sh stream       # bench --stream 2048x2048 and 640x480 (fused, 61-band f16 cube, motion,
-#                                          # denoise)
-#     bash tools/gpu_check.sh tests        # the whole suite (in parallel where pytest-xdist is installed)
-#     bash tools/gpu_check.sh motion       # the motion stream against the static one, each motion step's cost,
-#                                          # and the kernel and motion tests on the GPU (one call of ~6 minutes)
-# or `bash tools/gpu_check.sh all` where no time limit applies. Everything lands under $OUT (default ./gpu_out):
-# info.txt, bench.json / bench.txt, stream_*.json / .txt, tests.txt, and summary.txt (the GPU targets, each
-# with its figure; `python tools/gpu_summary.py DIR` redoes it over the files of several calls put together).
+#     bash tools/benchmarks/gpu_check.sh info bench  # selftest; bench 640x480 .. 4096x4096 incl. NumPy in / out
+#     bash tools/benchmarks/gpu_check.sh stream      # bench --stream 2048x2048 and 640x480 (fused, 61-band f16
+#                                                    # cube, motion, denoise)
+#     bash tools/benchmarks/gpu_check.sh tests       # the whole suite (in parallel where pytest-xdist is installed)
+#     bash tools/benchmarks/gpu_check.sh motion      # the motion stream against the static one, each motion step's
+#                                                    # cost, and the kernel and motion tests on the GPU (~6 minutes)
+# or `bash tools/benchmarks/gpu_check.sh all` where no time limit applies. Everything lands under $OUT (default
+# ./gpu_out): info.txt, bench.json / bench.txt, stream_*.json / .txt, tests.txt, and summary.txt (the GPU targets,
+# each with its figure; `python tools/benchmarks/gpu_summary.py DIR` redoes it over the files of several calls put
+# together).
 set -u -o pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 OUT=${OUT:-$PWD/gpu_out}
 mkdir -p "$OUT"
 PARTS=("$@")
@@ -96,7 +97,7 @@ for part in "${PARTS[@]}"; do
         timeout 150 python3 -c 'import sys; from specgpu.apps.cli import main; sys.argv[0] = "specgpu"; main()' \
             bench --stream --device "$DEV" --stream-size 640x480 --stream-cases motion --stream-seconds 5 \
             --stream-rounds 3 --json "$OUT/stream_640_motion.json" 2>&1 | tee "$OUT/stream_640_motion.txt"
-        SPECGPU_DEVICE=$DEV timeout 90 python3 tools/motion_cost.py --repeats 9 --outputs 8 2>&1 \
+        SPECGPU_DEVICE=$DEV timeout 90 python3 tools/benchmarks/motion_cost.py --repeats 9 --outputs 8 2>&1 \
             | tee "$OUT/motion_cost.txt"
         XDIST=(); python3 -c 'import xdist' 2>/dev/null && XDIST=(-n 8)
         SPECGPU_DEVICE=$DEV timeout 200 python3 -m pytest -q -p no:cacheprovider -p no:randomly "${XDIST[@]}" \
@@ -111,4 +112,4 @@ for part in "${PARTS[@]}"; do
     esac
 done
 
-python3 tools/gpu_summary.py "$OUT" 2>&1 | tee "$OUT/summary.txt"
+PYTHONPATH=. python3 tools/benchmarks/gpu_summary.py "$OUT" 2>&1 | tee "$OUT/summary.txt"

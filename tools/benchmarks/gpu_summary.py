@@ -1,6 +1,6 @@
-"""The GPU targets against the figures tools/gpu_check.sh wrote (bench.json, stream_*.json, tests.txt).
+"""The GPU targets against the figures tools/benchmarks/gpu_check.sh wrote (bench.json, stream_*.json, tests.txt).
 
-    python tools/gpu_summary.py OUT_DIR
+    PYTHONPATH=. python tools/benchmarks/gpu_summary.py OUT_DIR
 
 Prints one line per target: the figure, the threshold and PASS / MISS (or "not measured" when its file is absent).
 """
@@ -81,5 +81,5 @@ def summarise(out: Path) -> list[str]:
 
 if __name__ == "__main__":
     if len(sys.argv) != 2:
-        sys.exit("usage: python tools/gpu_summary.py OUT_DIR")
+        sys.exit("usage: python tools/benchmarks/gpu_summary.py OUT_DIR")
     print("\n".join(summarise(Path(sys.argv[1]))))

@@ -10,7 +10,7 @@ every OpenCL worker thread on a CPU device):
 
 and the bytes moved per second of each, so a shortfall against the copy bandwidth can be attributed.
 
-    python tools/profile_cube.py [--size 640x480] [--repeats 15]
+    PYTHONPATH=. python tools/benchmarks/profile_cube.py [--size 640x480] [--repeats 15]
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 What the frames' own path can carry on this machine, the ceiling below which a stream whose device work is
 negligible (a GPU) is capped by something else: its per-sequence upload, launches, read-back and result handling.
 
-    PYTHONPATH=. python tools/stream_host_path.py --size 640x480 --runs 3
+    PYTHONPATH=. python tools/benchmarks/stream_host_path.py --size 640x480 --runs 3
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import time
 
 from specgpu.capture.assemble import SequenceAssembler, assemble_stream
 from specgpu.capture.ringbuffer import RingBuffer, run_producer
-from specgpu.testing import stream_setup
+from specgpu.pipeline.twin_replay import stream_setup
 
 
 def main(argv=None):

@@ -1,7 +1,7 @@
 """Where the stream's uncertainty outputs and white-reference correction spend their time, per 640 x 480 sequence
 (K = 9, the bench's symmetric plan with 61 output bands):
 
-    python tools/stream_sigma_profile.py [--size 640x480] [--repeats 15]
+    PYTHONPATH=. python tools/benchmarks/stream_sigma_profile.py [--size 640x480] [--repeats 15]
 
 Prints the device time of each launch of a sequence alone (enqueue + finish on the warm decoder, median of
 ``--repeats``): coefficients, sigma (61 bands + RMS), sigma_rms, the XYZ covariance, the fused XYZ / dE2000 pass
@@ -23,9 +23,10 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from specgpu.testing import parse_sizes, stream_setup  # noqa: E402
+from specgpu.apps.bench.sizes import parse_sizes  # noqa: E402
+from specgpu.pipeline.twin_replay import stream_setup  # noqa: E402
 from specgpu.planning import NoiseModel, smooth_prior, with_estimator  # noqa: E402
 from specgpu.rig.scene import white_tile_roi  # noqa: E402
 from specgpu.engine.runtime import get_queue  # noqa: E402

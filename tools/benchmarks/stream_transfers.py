@@ -2,7 +2,7 @@
 x readback (map, copy), on the stream bench's fused case (coefficients + XYZ + dE2000, replayed frames, ``block``
 ring policy so the rate is the pipeline's own).
 
-    python tools/stream_transfers.py [--size 640x480] [--seconds 8] [--rounds 2]
+    PYTHONPATH=. python tools/benchmarks/stream_transfers.py [--size 640x480] [--seconds 8] [--rounds 2]
 
 Prints one line per combination and round (combinations interleaved, so a neighbour's load on a shared machine
 hits them alike): frames/s in, sequences/s out, latency median / p99, CPU cores; then the device time of each
@@ -19,7 +19,8 @@ import time
 import numpy as np
 import pyopencl.array as cla
 
-from specgpu.testing import parse_sizes, stream_setup
+from specgpu.apps.bench.sizes import parse_sizes
+from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.pipeline import Stream, StreamDecoder
 
 

@@ -2,7 +2,7 @@
 the chart, symmetric-9 by default) run without and with the napari view, alternately, and the median rate and
 drops of each printed, with their ratio.
 
-    xvfb-run -a python tools/stream_view_check.py --seconds 10 --runs 3
+    PYTHONPATH=. xvfb-run -a python tools/benchmarks/stream_view_check.py --seconds 10 --runs 3
 
 Needs the viewer extra and a display with OpenGL (a desktop, or Xvfb with Mesa). The view closes itself when the
 stream ends.

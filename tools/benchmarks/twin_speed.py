@@ -1,6 +1,6 @@
 """How fast the digital twin renders frames (frames/s) through its driver, at 640 x 480 and at 320 x 240.
 
-Usage: python tools/twin_speed.py [--frames N] [--patterns K]
+Usage: PYTHONPATH=. python tools/benchmarks/twin_speed.py [--frames N] [--patterns K]
 
 Renders N frames of a K-pattern sequence on the ColorChecker scene through ``TwinDriver.fill`` into one
 preallocated slot (the streaming path's cost), with fresh noise and with the noise pool, and prints frames/s.

@@ -1,7 +1,8 @@
 """What the motion-compensated decoding of a stream costs on the device against the static decoding: bare kernel
 times, every buffer already on the device.
 
-The twin's 9-frame basis plan at 640 x 480 (specgpu.testing.stream_setup), uint16 frames with the calibration's
+The twin's 9-frame basis plan at 640 x 480 (specgpu.pipeline.twin_replay.stream_setup), uint16 frames with the
+calibration's
 dark and flat field, and the cases:
 
 * the static decoder as the stream launches it for the outputs ("coefficients", "XYZ")
@@ -17,8 +18,8 @@ Each repetition runs every case once, in turn (the order rotated each time), and
 end of the queue; the table gives the median and the 25th percentile over ``--repeats`` repetitions, and each
 median over the static decoder's.
 
-    PYTHONPATH=. python tools/warp_cost.py
-    PYTHONPATH=. python tools/warp_cost.py --old dc279a8     # and that commit's one-pass kernel
+    PYTHONPATH=. python tools/benchmarks/warp_cost.py
+    PYTHONPATH=. python tools/benchmarks/warp_cost.py --old dc279a8     # and that commit's one-pass kernel
 """
 
 from __future__ import annotations
@@ -37,9 +38,9 @@ from specgpu.engine import runtime
 from specgpu.engine.runtime import get_queue
 from specgpu.engine.warp_map import PreparedWarp, check_shifts
 from specgpu.pipeline.decoder import StreamDecoder
-from specgpu.testing import stream_setup
+from specgpu.pipeline.twin_replay import stream_setup
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def old_kernel(queue, rev: str, macros: dict) -> cl.Kernel:

@@ -2,7 +2,7 @@
 (``tests/hw_fakes.py``: 16-bit block ids that wrap from 65535 to 1, strobe-master wiring), the GenICam driver, the
 ring buffer and the assembler, for N frames; every completed sequence is compared with the frames its patterns give.
 
-    python tools/hw_long_capture.py --frames 100000 --patterns 30
+    PYTHONPATH=. python tools/maintenance/hw_long_capture.py --frames 100000 --patterns 30
 
 prints frames, sequences, wraps, drops and the wall time, and exits non-zero if any sequence does not match its
 patterns or any frame was lost.
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from hw_fakes import FakeCamera  # noqa: E402

@@ -4,7 +4,7 @@ Inputs are small, seeded and of odd sizes (19 x 13 = 247 pixels, not a multiple 
 expected outputs are computed in float64 by the NumPy / colour-science references of tests/reference.py, and
 the CIEDE2000 case uses Sharma, Wu and Dalal's published pairs. Run from the repository root:
 
-    python tools/make_golden.py
+    PYTHONPATH=. python tools/maintenance/make_golden.py
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests"))
 
 import reference as ref  # noqa: E402

@@ -1,6 +1,6 @@
 """Screenshot a specgpu HTML report in a real browser (headless Chromium) and check its layout.
 
-    python tools/screenshot_report.py specgpu-report/index.html --widths 1000 1400 --out shots/
+    PYTHONPATH=. python tools/maintenance/screenshot_report.py specgpu-report/index.html --widths 1000 1400 --out shots/
 
 For each width: a screenshot of the page's top (``report-<width>.png``, the window ``--height`` px high), and a
 layout check in the same browser: the page must not scroll sideways, and no table, image, figure or text block

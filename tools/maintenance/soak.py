@@ -1,6 +1,6 @@
 """Soak test: stream the twin at 200 fps for minutes with injected faults and a sink that stalls now and then.
 
-    python tools/soak.py --minutes 10
+    PYTHONPATH=. python tools/maintenance/soak.py --minutes 10
 
 The twin camera runs paced (each frame delivered no earlier than its exposure ends, at the rig's frame rate)
 with random frame drops, duplicated frames and missed light triggers; a sink sleeps now and then as a slow
@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from specgpu.calibration.bundle import oracle_calibration  # noqa: E402
 from specgpu.capture.twin import TwinDriver  # noqa: E402

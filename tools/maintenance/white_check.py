@@ -7,7 +7,7 @@ its Lab and dE2000 against (100, 0, 0)) and the stream's decoder (a narrowband p
 under a few illuminants); then the largest |XYZ - colour-science's| (0-1 scale) of ASTM E308 on random spectra.
 Run from the repository root:
 
-    python tools/white_check.py
+    PYTHONPATH=. python tools/maintenance/white_check.py
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import colour
 import numpy as np
 import pyopencl as cl
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from specgpu import engine  # noqa: E402
 from specgpu.calibration.bundle import oracle_calibration  # noqa: E402

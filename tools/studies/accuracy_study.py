@@ -7,7 +7,7 @@ any spectrum within 0.01 RMS of a chart patch), plan narrowband-31, biased (m = 
 path, recover with ``apply_linear`` and print per-method RMSE, dE*ab and dE2000 (average, maximum) beside the
 paper's figures.
 
-    python tools/accuracy_study.py [--small] [--seed N] [--runs N] [--json OUT.json]
+    PYTHONPATH=. python tools/studies/accuracy_study.py [--small] [--seed N] [--runs N] [--json OUT.json]
 
 ``--small`` runs at 320 x 240 (faster; the paper's camera also ran at that ROI). ``--runs N`` repeats every
 capture with fresh noise N times: the tables show the first run, followed by the mean and standard deviation of

@@ -1,6 +1,6 @@
 """Default-path study: what a first-time user gets on a realistic (lab-profile) bench from the command line.
 
-    python tools/bench_default_study.py [--small] [--draws 3] [--methods narrowband,symmetric]
+    PYTHONPATH=. python tools/studies/bench_default_study.py [--small] [--draws 3] [--methods narrowband,symmetric]
         [--sequences 1] [--seed 0] [--json OUT.json]
 
 Every step is the ``specgpu`` command a user types, run in-process: a rig TOML with ``[twin] profile = "lab"``,
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from specgpu.planning.basis import save_basis  # noqa: E402
 from specgpu.calibration.bundle import load_calibration  # noqa: E402
@@ -35,7 +35,8 @@ from specgpu.io.npz import read_cube_npz  # noqa: E402
 from specgpu.planning import load_plan  # noqa: E402
 from specgpu.rig.config import load_rig  # noqa: E402
 from specgpu.rig.scene import write_scene  # noqa: E402
-from specgpu.apps.studies import LEVEL_EDGES, chart_errors, measured_chart_with_white, mean_std  # noqa: E402
+from specgpu.apps.demo_measure import mean_std  # noqa: E402
+from measured_chart import LEVEL_EDGES, chart_errors, measured_chart_with_white  # noqa: E402
 
 #: plan options per variant; None: recover without the white ROI
 VARIANTS = {"default": [], "--ambient": ["--ambient"], "--no-ambient": ["--no-ambient"], "default, no ROI": None}

@@ -27,7 +27,7 @@ denoised, each as a ratio to the plain design's raw error.
 
 ``--tune`` measures the denoiser's radius and eps on the CES chart and the natural scene instead.
 
-    python tools/budget_study.py [--draws N] [--charts ces,tcs] [--budgets 60,40,20] [--small] [--tune]
+    PYTHONPATH=. python tools/studies/budget_study.py [--draws N] [--charts ces,tcs] [--budgets 60,40,20] [--small] [--tune]
 """
 
 from __future__ import annotations
@@ -39,11 +39,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import specgpu.planning as E  # noqa: E402
-from specgpu.apps.estimator_study import patch_scene  # noqa: E402
-from specgpu.apps.studies import measured_chart_with_white, mean_std  # noqa: E402
+from specgpu.apps.demo_measure import mean_std  # noqa: E402
+from specgpu.rig.scene import patch_scene  # noqa: E402
+from measured_chart import measured_chart_with_white  # noqa: E402
 from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.engine.guided import flat_variance_reduction  # noqa: E402
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery, denoised_sigma  # noqa: E402

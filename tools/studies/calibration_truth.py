@@ -1,6 +1,6 @@
 """Calibration against the twin's truth: how far the bundle's model is from the bench it measured.
 
-    python tools/calibration_truth.py [--profile lab] [--step 10] [--small]
+    PYTHONPATH=. python tools/studies/calibration_truth.py [--profile lab] [--step 10] [--small]
         [--line-shape gaussian,measured]
 
 Calibrates the twin once per line-shape model and prints :func:`specgpu.calibration.bundle.calibration_error` over
@@ -16,7 +16,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from specgpu.calibration import calibrate, calibration_error  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402

@@ -1,6 +1,6 @@
 """Drift study: calibrate without drift, capture with a drifted lamp, recover with and without correction.
 
-    python tools/drift_study.py [--profile lab] [--draws 3] [--small]
+    PYTHONPATH=. python tools/studies/drift_study.py [--profile lab] [--draws 3] [--small]
         [--cct -200] [--output -0.03] [--cut-on 5] [--methods narrowband,symmetric,tristimulus-D65]
         [--probes 430,650]
 
@@ -18,7 +18,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.apps.demo import DEMO_METHODS, make_demo_plans  # noqa: E402
@@ -26,7 +26,7 @@ from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis  # noqa: E
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import rig_from_dict  # noqa: E402
 from specgpu.rig.realism import Drift  # noqa: E402
-from specgpu.apps.studies import chart_with_white, mean_std, measure_methods  # noqa: E402
+from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods  # noqa: E402
 
 
 def main(argv=None):

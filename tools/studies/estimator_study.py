@@ -14,7 +14,7 @@ predicted dE2000 sigma (``specgpu recover --delta-e-sigma``, first run).
 real bench, the lamp drifting for 30 min between calibration and capture) with the corrections ``specgpu demo``
 applies there: an ambient frame per sequence and a reference white tile above the chart rescaling each decoder.
 
-    python tools/estimator_study.py [--small] [--profile ideal|lab] [--runs N] [--seed N]
+    PYTHONPATH=. python tools/studies/estimator_study.py [--small] [--profile ideal|lab] [--runs N] [--seed N]
         [--methods a,b] [--json OUT]
 """
 
@@ -27,14 +27,15 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import specgpu.planning as E  # noqa: E402
-from specgpu.apps import estimator_study as study  # noqa: E402
+from estimator_rows import format_study, hadamard_gain, prior_size_rows, study_rows  # noqa: E402
 from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription, rig_from_dict  # noqa: E402
-from specgpu.rig.scene import white_tile_roi  # noqa: E402
+from specgpu.planning.estimator_plans import STUDY_METHODS, study_plans, training_sets  # noqa: E402
+from specgpu.rig.scene import patch_scene, white_tile_roi  # noqa: E402
 
 
 def main(argv=None):
@@ -44,7 +45,7 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--profile", choices=("ideal", "lab"), default="ideal",
                     help="the twin's profile (default ideal: the paper's rig with no imperfection)")
-    ap.add_argument("--methods", default=None, help=f"comma-separated subset of {', '.join(study.STUDY_METHODS)}")
+    ap.add_argument("--methods", default=None, help=f"comma-separated subset of {', '.join(STUDY_METHODS)}")
     ap.add_argument("--prior-sizes", default=None,
                     help="also: how the held-out error of optimal-9 depends on the prior's size, e.g. 10,30,100,300")
     ap.add_argument("--hadamard", action="store_true",
@@ -57,8 +58,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     methods = None if args.methods is None else [m.strip() for m in args.methods.split(",")]
     for m in methods or ():
-        if m not in study.STUDY_METHODS:
-            ap.error(f"unknown method {m!r}; valid: {', '.join(study.STUDY_METHODS)}")
+        if m not in STUDY_METHODS:
+            ap.error(f"unknown method {m!r}; valid: {', '.join(STUDY_METHODS)}")
     t0 = time.perf_counter()
     cam = CameraParameters(roi_width=320, roi_height=240) if args.small else CameraParameters()
     if args.profile == "lab":
@@ -75,21 +76,21 @@ def main(argv=None):
     roi = None
     if args.profile == "lab":  # the twin's white: its certificate's 0.99 off by the bench's white_error
         roi = white_tile_roi(cam.roi_height, cam.roi_width)
-        scene = study.patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=E.HELD_OUT_CHART,
+        scene = patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=E.HELD_OUT_CHART,
                               white_tile=0.99 * (1.0 + desc.realism.white_error))
     else:
-        scene = study.patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=E.HELD_OUT_CHART)
+        scene = patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=E.HELD_OUT_CHART)
     print(f"rig: paper defaults, {args.profile} profile"
           f"{' (corrections: ambient frame, white ROI ' + ','.join(map(str, roi)) + ')' if roi else ''}, "
           f"{cam.roi_width} x {cam.roi_height}, seed {args.seed}; held-out chart: "
           f"{E.HELD_OUT_CHART} ({len(names)} patches); prior: {prior.source}; {args.runs} runs per method")
-    plans = study.study_plans(desc, bundle, prior, basis, methods=methods,
-                          sets=study.training_sets(E.HELD_OUT_CHART, prior.wavelengths))
-    rows = study.study_rows(desc, bundle, scene, plans, runs=args.runs, seed=args.seed, white_roi=roi)
-    print(study.format_study(rows))
+    plans = study_plans(desc, bundle, prior, basis, methods=methods,
+                          sets=training_sets(E.HELD_OUT_CHART, prior.wavelengths))
+    rows = study_rows(desc, bundle, scene, plans, runs=args.runs, seed=args.seed, white_roi=roi)
+    print(format_study(rows))
     sizes = []
     if args.prior_sizes:
-        sizes = study.prior_size_rows(desc, bundle, [int(s) for s in args.prior_sizes.split(",")], seed=args.seed)
+        sizes = prior_size_rows(desc, bundle, [int(s) for s in args.prior_sizes.split(",")], seed=args.seed)
         print("\noptimal-9 against the prior's size (random subsets; expected on the prior, exact on the chart):")
         print(f"{'spectra':>8} {'expected RMSE':>14} {'chart RMSE':>11}")
         for r in sizes:
@@ -108,8 +109,6 @@ def main(argv=None):
                   f"{b['own']:.4f}")
     gains = []
     if args.hadamard:
-        from specgpu.apps.estimator_study import hadamard_gain
-
         print("\nHadamard-31 against narrowband-31, equal exposure 2 ms, grey 0.5 (noise: pixel std, mean over bands):")
         for read in (desc.camera.read_noise_e, 300.0):
             d = replace(desc, camera=replace(desc.camera, read_noise_e=read))

@@ -7,9 +7,9 @@ scaled to 8 bits, which is what it takes) from frame k of one sequence to frame 
 true displacement of the background and of a moving object, per pixel. No package of specgpu's depends on OpenCV:
 
     pip install opencv-python-headless          # about 50 MB
-    PYTHONPATH=. python tools/flow_dis_study.py --cases t1,t3,vib,object
+    PYTHONPATH=. python tools/studies/flow_dis_study.py --cases t1,t3,vib,object
 
-At 640 x 480 with the symmetric-9 plan (tools/motion_study.py's rig: paper noise, 200 fps).
+At 640 x 480 with the symmetric-9 plan (tools/studies/motion_study.py's rig: paper noise, 200 fps).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from specgpu.rig.twin import TwinRig  # noqa: E402
 try:
     import cv2
 except ImportError:  # pragma: no cover - the study's own optional dependency
-    sys.exit("tools/flow_dis_study.py needs OpenCV: pip install opencv-python-headless")
+    sys.exit("tools/studies/flow_dis_study.py needs OpenCV: pip install opencv-python-headless")
 
 PRESETS = {"ultrafast": 0, "fast": 1, "medium": 2}  # cv2.DISOPTICAL_FLOW_PRESET_*
 BORDER = 30  # px left out at the field's edges (content enters and leaves there)

@@ -1,6 +1,6 @@
 """Temporal accumulation along the motion on the twin: one sequence against the running estimate over up to N.
 
-The twin and plans of ``tools/motion_study.py`` (the paper's noise, 640 x 480 at 200 fps, the natural scene,
+The twin and plans of ``tools/studies/motion_study.py`` (the paper's noise, 640 x 480 at 200 fps, the natural scene,
 oracle calibration). For each motion case, ``--sequences`` consecutive sequences are rendered frame by frame, each
 decoded motion-compensated (:class:`specgpu.pipeline.moving_decode.MovingDecoder`: cube and sigma_rms) and fed to
 the running estimate that moves with the scene (:class:`specgpu.pipeline.accumulate.AccumulateSink` with
@@ -11,8 +11,8 @@ out a 3 px band about a moving object's edges). ``noise`` is the part of the err
 draws (the RMS of the difference of two draws over sqrt 2), which is what accumulation can remove; the rest (the
 prior's mismatch, the compensation's interpolation) stays. Mean +- std over ``--draws`` draws.
 
-    PYTHONPATH=. python tools/motion_accumulate.py                      # ~4 min
-    PYTHONPATH=. python tools/motion_accumulate.py --small --draws 2 --cases t3 --plans symmetric-9
+    PYTHONPATH=. python tools/studies/motion_accumulate.py                      # ~4 min
+    PYTHONPATH=. python tools/studies/motion_accumulate.py --small --draws 2 --cases t3 --plans symmetric-9
 """
 
 from __future__ import annotations

@@ -10,8 +10,8 @@ of the field (NaN: outside the field, saturated or inconsistent), and the RMSE (
 and dE2000 95th percentile of the unflagged pixels. ``--sweep`` adds every speed of the scene and of a chart
 (0-50 px per frame) in each mode.
 
-    PYTHONPATH=. python tools/motion_flags.py                      # the cases at 640 x 480 (~2 min)
-    PYTHONPATH=. python tools/motion_flags.py --size 320x240 --sweep
+    PYTHONPATH=. python tools/studies/motion_flags.py                      # the cases at 640 x 480 (~2 min)
+    PYTHONPATH=. python tools/studies/motion_flags.py --size 320x240 --sweep
 """
 
 from __future__ import annotations

@@ -8,15 +8,15 @@ sequence's largest per-frame error |estimate - truth| (px), how many sequences e
 of the estimate (the settings run in turn on each sequence, so a change of the machine's load falls on every
 setting alike).
 
-    PYTHONPATH=. python tools/motion_registration.py                         # 320 x 240, the settings below
-    PYTHONPATH=. python tools/motion_registration.py --size 640x480 --settings "peak='dft',pairs='all';"
+    PYTHONPATH=. python tools/studies/motion_registration.py                         # 320 x 240, the settings below
+    PYTHONPATH=. python tools/studies/motion_registration.py --size 640x480 --settings "peak='dft',pairs='all';"
 
 With ``--reference-every M`` the plans get a broadband reference frame before their first frame and after every M
 (``specgpu plan --reference-every M``), and a setting that starts with ``reference`` runs
 ``estimate_reference_motion`` (the reference frames registered to each other, every frame interpolated in time)
 instead, its other keys passed on to it:
 
-    PYTHONPATH=. python tools/motion_registration.py --size 640x480 --reference-every 3 \
+    PYTHONPATH=. python tools/studies/motion_registration.py --size 640x480 --reference-every 3 \
         --settings ";reference;reference,interpolation='linear'"
 """
 

@@ -19,14 +19,14 @@ column); with a moving object the scores leave out a 3 px band about its edges. 
 noise draws. ``ratio`` is compensated over still. The ``-affine`` cases compensate an affine map per frame, the
 ``-flow`` ones the dense flow (``--motion flow``: the global decoding, then the tiles' flow where it agrees better).
 
-    PYTHONPATH=. python tools/motion_study.py --cases t1,t3,t10,vib,rot,rot-affine,object  # ~6 min
-    PYTHONPATH=. python tools/motion_study.py --draws 3 --cases t3-flow,rot-flow,object-flow --plans symmetric-9,optimal-9
-    PYTHONPATH=. python tools/motion_study.py --small --draws 1 --cases t3
+    PYTHONPATH=. python tools/studies/motion_study.py --cases t1,t3,t10,vib,rot,rot-affine,object  # ~6 min
+    PYTHONPATH=. python tools/studies/motion_study.py --draws 3 --cases t3-flow,rot-flow,object-flow --plans symmetric-9,optimal-9
+    PYTHONPATH=. python tools/studies/motion_study.py --small --draws 1 --cases t3
 
 A plan named ``NAME+refM`` is NAME with a broadband reference frame before its first frame and after every M
 (``specgpu plan --reference-every M``); its motion is estimated from those frames alone:
 
-    PYTHONPATH=. python tools/motion_study.py --draws 3 --cases t1,t3,t10,vib \
+    PYTHONPATH=. python tools/studies/motion_study.py --draws 3 --cases t1,t3,t10,vib \
         --plans symmetric-9,symmetric-9+ref3,symmetric-9+ref9   # ~2.5 min
 """
 

@@ -5,7 +5,7 @@ the loop on the spectroradiometer; prints produced-vs-target RMSE, xy, CCT and C
 paper's RMSE for A and D65); writes sRGB renderings of the chart and a natural scene under each illuminant and
 the metamer map between the two LEDs (same white point) as PNG.
 
-    python tools/projector_study.py [--out projector] [--iterations 40]
+    PYTHONPATH=. python tools/studies/projector_study.py [--out projector] [--iterations 40]
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ reference frame every ``--every`` frames, its decoder the Wiener estimator on th
 made the same way); per-pixel RMSE (400-700 nm at 10 nm) and dE2000 (D65) over the field and within 3 px of edges,
 mean +- std over ``--draws`` noise draws, and each decoder's expected RMSE on the prior.
 
-    PYTHONPATH=. python tools/reference_decode_study.py --every 3 --draws 3
+    PYTHONPATH=. python tools/studies/reference_decode_study.py --every 3 --draws 3
 """
 
 from __future__ import annotations

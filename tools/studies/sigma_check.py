@@ -7,7 +7,7 @@ and which is the same in every draw). Pixels are split into quintiles of brightn
 and each quintile reports ``sqrt(mean spread^2 / mean sigma^2)``: 1 when the noise model holds, above 1 when
 sigma understates the noise.
 
-    python tools/sigma_check.py [--size 320x240] [--draws 10] [--plans hadamard,symmetric,narrowband,wiener]
+    PYTHONPATH=. python tools/studies/sigma_check.py [--size 320x240] [--draws 10] [--plans hadamard,symmetric,narrowband,wiener]
                                 [--bands 7] [--seed 0] [--white-roi] [--ambient] [--profile lab]
                                 [--json out.json]
 
@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from specgpu.testing import parse_sizes  # noqa: E402
+from specgpu.apps.bench.sizes import parse_sizes  # noqa: E402
 
 PLANS = ("hadamard", "symmetric", "narrowband", "wiener", "optimal")
 

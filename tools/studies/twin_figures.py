@@ -1,6 +1,6 @@
 """The digital twin's headline figures: SNR (paper Section 2.F), DMD round trip, fault-drill counts.
 
-Usage: python tools/twin_figures.py [--seeds N] [--drill-frames N]
+Usage: PYTHONPATH=. python tools/studies/twin_figures.py [--seeds N] [--drill-frames N]
 
 - sensor and temporal SNR measured like the paper (R, G, B at 90 fps on a reference white, mean / std of 100
   repeats), at 640 x 480 for seed 0 and at 320 x 240 over N seeds (the light's fluctuation is common to a frame,
@@ -8,7 +8,7 @@ Usage: python tools/twin_figures.py [--seeds N] [--drill-frames N]
 - spectrum -> DMD pattern -> spectrum relative RMSE for CIE A, D65, an equal-energy white and narrow bands;
 - a fault drill: random drops, duplicates and missed triggers through twin -> ring buffer -> assembler, injected
   against counted.
-(Render speed: tools/twin_speed.py.)
+(Render speed: tools/benchmarks/twin_speed.py.)
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ Five cases at each image size:
 4. ``XYZ_Lab_dE2000``: an XYZ image -> Lab -> dE2000 against the reference (two kernels, data stays on the
    device); baseline: ``colour.XYZ_to_Lab`` + ``colour.delta_E("CIE 2000")``.
 5. ``guided_filter``: ``recover --denoise``'s guided filter of a 9-frame plan's outputs (their 9 coordinates,
-   :mod:`specgpu.apps.bench_denoise`); baseline: the same filter in NumPy with SciPy's box filter.
+   :mod:`specgpu.apps.bench.denoise`); baseline: the same filter in NumPy with SciPy's box filter.
 
 Device timings are steady state: inputs already on the device, outputs drawn from the memory pool of
 :func:`specgpu.engine.runtime.get_allocator`, one untimed warm-up call (program build, pool priming), then the
@@ -41,14 +41,13 @@ import pyopencl.array as cla
 from tqdm import tqdm
 
 from specgpu import __version__, engine
-from specgpu.apps.bench_denoise import guided_case
+from specgpu.apps.bench.denoise import guided_case
 from specgpu.core.spectra import XYZ_weights, white_point_XYZ
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, frames_to_delta_E
 from specgpu.engine.linear_map import LAYOUTS, apply_linear
 from specgpu.engine.runtime import get_allocator, get_queue
-from specgpu.testing import parse_sizes
 
-__all__ = ["parse_sizes", "run_bench", "CaseResult", "copy_bandwidth", "format_report", "TARGETS"]
+__all__ = ["run_bench", "CaseResult", "copy_bandwidth", "format_report", "TARGETS"]
 
 K_FRAMES = 9
 WAVELENGTHS = np.arange(400.0, 701.0, 5.0)  # 61 bands

@@ -20,9 +20,10 @@ from specgpu.pipeline.stream import Stream
 from specgpu.pipeline.stream_report import current_rss_bytes
 from specgpu.planning import NoiseModel, smooth_prior, with_estimator
 from specgpu.rig.scene import white_tile_roi
-from specgpu.testing import Checker, MemoryRecorder, max_rel, offline_maps, stream_setup
+from specgpu.pipeline.twin_replay import StreamSetup, offline_maps, stream_setup
 
-__all__ = ["STREAM_CASES", "STREAM_TARGETS", "format_stream_report", "run_stream_bench", "stream_targets"]
+__all__ = ["STREAM_CASES", "STREAM_TARGETS", "Checker", "MemoryRecorder", "format_stream_report", "max_rel",
+           "run_stream_bench", "stream_targets"]
 # ------------------------------------------------------------------------------------------------------ the stream
 
 #: The stream's targets, raw frames per second into the stream, at the paper's 640 x 480 (other sizes print their
@@ -301,3 +302,53 @@ def format_stream_report(report: dict) -> str:
                + " frames/s at load " + ", ".join(f"{v:.2f}" for v in row["load_avg_rounds"] if v is not None)
                if row.get("rounds", 1) > 1 else ""))
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------- the bench's sinks
+
+def max_rel(a, b) -> float:
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-12))
+
+
+class Checker:
+    """A sink that checks every result against the offline maps of the recorded sequence it must come from:
+    consecutive frame ids, starting at pattern 0, and equal maps (a misaligned sequence cannot pass)."""
+    def __init__(self, setup: StreamSetup, expected: dict, outputs, tolerance: float = 1e-3):
+        self.setup, self.expected, self.outputs, self.tolerance = setup, expected, outputs, tolerance
+        self.checked = 0
+        self.misaligned = 0
+        self.worst = 0.0
+
+    def write(self, result):
+        K = self.setup.plan.K
+        ids = result.frame_ids
+        ok = bool(np.all(np.diff(ids) == 1)) and int(ids[0]) % K == 0
+        exp = self.expected[self.setup.recorded_sequence(ids)]
+        for name in self.outputs:
+            if name in exp and name in result.arrays:
+                if name == "dE":
+                    err = float(np.max(np.abs(result.arrays[name] - exp[name])))  # dE units
+                else:
+                    err = max_rel(result.arrays[name], exp[name])
+                self.worst = max(self.worst, err)
+                ok = ok and err <= (2e-3 if name != "dE" else 0.05)
+        self.checked += 1
+        self.misaligned += not ok
+
+    def close(self):
+        pass
+
+
+class MemoryRecorder:
+    """A sink that writes every result's cube into a preallocated in-memory recording (a ring of ``slots``)."""
+    def __init__(self, shape, dtype, slots: int = 4):
+        self.store = np.zeros((slots, *shape), dtype)
+        self.count = 0
+
+    def write(self, result):
+        np.copyto(self.store[self.count % len(self.store)], result.arrays["cube"])
+        self.count += 1
+
+    def close(self):
+        pass
