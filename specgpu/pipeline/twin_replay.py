@@ -79,6 +79,7 @@ def stream_setup(width: int = 640, height: int = 480, *, frame_rate_hz: float = 
 
 
 def scene_Lab(scene, illuminant="D65"):
+    """The scene's per-pixel Lab under ``illuminant``, its white from the scene's own grid: a stream's dE reference."""
     XYZ = reflectance_to_XYZ(scene.reflectance, scene.wavelengths, illuminant)
     return XYZ_to_Lab(XYZ, illuminant, wavelengths=scene.wavelengths)
 

@@ -307,6 +307,7 @@ def format_stream_report(report: dict) -> str:
 # ------------------------------------------------------------------------------------- the bench's sinks
 
 def max_rel(a, b) -> float:
+    """The largest absolute difference of ``a`` from ``b`` relative to the largest magnitude of ``b``."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-12))
 
