@@ -81,5 +81,5 @@ def summarise(out: Path) -> list[str]:
 
 if __name__ == "__main__":
     if len(sys.argv) != 2:
-        sys.exit("usage: python tools/benchmarks/gpu_summary.py OUT_DIR")
+        sys.exit("usage: PYTHONPATH=. python tools/benchmarks/gpu_summary.py OUT_DIR")
     print("\n".join(summarise(Path(sys.argv[1]))))
