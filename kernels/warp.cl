@@ -165,7 +165,7 @@ __kernel void linear_warp(WARP_KERNEL_ARGS)
  * row, (o - dark) * gain with the operations of corrected() above, so the same bits. Or, where a later step reads
  * the corrected frames too (a consistency check), warp_correct writes them first, each plane read as float32 with a
  * uchar plane of its flags (1 saturated, 2 non-finite input), and the kernel samples those (FROM_CORRECTED = 1): the
- * same outputs and mask, bit for bit. tools/warp_cost.py measures both against the static decoder. */
+ * same outputs and mask, bit for bit. tools/benchmarks/warp_cost.py measures both against the static decoder. */
 
 #ifndef STRIP
 #define STRIP 8

@@ -1,6 +1,7 @@
 """Fakes of a harvesters / GenICam camera shared by the hardware tests: feature nodes, the node map, the exceptions
 harvesters and genicam raise, a fetched buffer, and :class:`FakeCamera`, an acquirer wired to a
-:class:`~specgpu.hardware.dlpc900.SimulatedDLPC900` as a camera is on the bench.
+:class:`~specgpu.hardware.dlpc900.SimulatedDLPC900` as a camera is on the bench; and the twin behind a simulated
+bench for calibration (:class:`TwinCamera`, :class:`TwinSeaBreeze`, :func:`hardware_table`).
 
 They behave like real cameras where a capture depends on it:
 
@@ -21,6 +22,19 @@ They behave like real cameras where a capture depends on it:
 from __future__ import annotations
 
 import numpy as np
+
+from specgpu.calibration.rigs import twin_at_exposure
+from specgpu.hardware.dlpc900 import DMDLayout
+from specgpu.rig.camera import CameraParameters
+from specgpu.rig.config import RigDescription
+from specgpu.rig.light import ProgrammableLight
+from specgpu.rig.scene import white_plate_scene
+
+#: The simulated bench of the hardware calibration tests: the twin at 320 x 240, a white plate of reflectance
+#: ``WHITE``, a spectrometer with a dark offset of ``DARK_COUNTS``.
+DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
+WHITE = 0.99
+DARK_COUNTS = 800.0
 
 
 class AccessException(Exception):
@@ -214,3 +228,106 @@ class FakeCamera:
             if n not in self.lost:
                 stamp = int(round(t * 1000)) if self.timestamps else None
                 return Buffer(self.render(light), gev_block_id(self.first_id, n, self.id_bits), stamp)
+
+
+# ---- the twin behind the fakes: what the simulated bench's camera and spectrometer see ---------------------
+
+class TwinCamera:
+    """A free-running GenICam camera (strobe-master) whose frames are the twin's, lit by the controller's display.
+
+    At start it reads the exposure from its ExposureTime feature and the controller's LUT (each entry's mirrors
+    decoded back to mirror counts); each exposure's strobe is a TRIG_IN_1 edge, and the frame is the twin's
+    rendering of the entry now on display. Frame ids start at 1 (GigE Vision); ``lost`` exposures are made but
+    never delivered.
+    """
+
+    def __init__(self, sim, description=DESC, *, lost=()):
+        cam = description.camera
+        self.sim, self.description = sim, description
+        self.layout = DMDLayout(sim.geometry, description.light.columns, description.light.rows)
+        self.scene = white_plate_scene(cam.roi_height, cam.roi_width, reflectance=WHITE)
+        self.remote_device = type("Remote", (), {"node_map": NodeMap(cam.roi_height, cam.roi_width,
+                                                                     f"Mono{cam.bit_depth}")})()
+        self.lost = set(lost)
+        self.starts = 0
+        self.started = False
+        self._twins = {}
+        self.exposures = []
+
+    def start(self):
+        nm = self.remote_device.node_map
+        assert (nm.TriggerMode.value, nm.LineSource.value) == ("Off", "ExposureActive")  # strobe-master wiring
+        t = float(nm.ExposureTime.value) * 1e-6
+        if t not in self._twins:
+            self._twins[t] = twin_at_exposure(self.description, self.scene, t)
+        self.twin = self._twins[t]
+        lut = [self.layout.mask_to_pattern(self.sim.entry_mask(j)) for j in range(self.sim.lut_entries)]
+        assert all(self.sim.lut[j]["exposure_us"] == round(t * 1e6) for j in range(len(lut)))  # light follows
+        self.twin.load_sequence(np.stack(lut))
+        self.twin.seed = 1000 + self.starts  # fresh temporal noise for every capture, as a real sensor
+        self.starts += 1
+        self.exposures.append(t)
+        self.n, self.started = 0, True
+        self.out = np.empty(self.twin.camera.shape, np.uint16)
+
+    def stop(self):
+        self.started = False
+
+    def fetch(self, timeout=None):
+        while True:
+            if not self.started:
+                raise TimeoutException("no buffer")
+            n = self.n
+            self.n += 1
+            position = self.sim.trigger_in()  # the exposure's strobe edge shows the next entry
+            if position < 0:
+                raise TimeoutException("sequencer stopped")
+            self.twin.render(position, n, n * 0.011, self.out)
+            if n not in self.lost:
+                return Buffer(self.out.copy(), 1 + n, 1_000_000 + n * 11_000_000)
+
+
+class TwinSeaBreeze:
+    """A seabreeze-like spectrometer: the twin light's spectral irradiance of the mirrors the controller displays,
+    sampled on the instrument's pixels, in counts (through the inverse of ``CAL``) plus a dark offset."""
+
+    def __init__(self, sim, description=DESC, cal=1.0):
+        self.sim = sim
+        self.layout = DMDLayout(sim.geometry, description.light.columns, description.light.rows)
+        self.model = ProgrammableLight(description.light, seed=description.seed)
+        self.pixels = np.linspace(340.0, 830.0, 1961)
+        self.cal = cal
+        self.t = 0.1
+        self.rng = np.random.default_rng(7)
+        self.closed = False
+
+    def wavelengths(self):
+        return self.pixels
+
+    def integration_time_micros(self, us):
+        self.t = us * 1e-6
+
+    def intensities(self, correct_dark_counts=True, correct_nonlinearity=True):
+        mask = self.sim.displayed_mask()
+        spd = (self.model.pattern_to_spectrum(self.layout.mask_to_pattern(mask)) if mask.any()
+               else np.zeros(self.model.wavelengths.shape))
+        irr = np.interp(self.pixels, self.model.wavelengths, spd, left=0.0, right=0.0)
+        counts = irr * self.t / self.cal + DARK_COUNTS
+        return counts + self.rng.normal(0.0, 0.5, counts.shape)
+
+    def close(self):
+        self.closed = True
+
+
+def spectrometer_cal():
+    """An irradiance calibration scale putting the all-on spectrum at about 30000 counts in 0.1 s."""
+    return float(ProgrammableLight(DESC.light).max_spectrum.max()) * 0.1 / 30000.0
+
+
+def hardware_table(tmp_path, **extra):
+    """The [hardware] table of the simulated bench: the simulated controller, an Ocean spectrometer calibrated by
+    :func:`spectrometer_cal` (a CSV under ``tmp_path``), the twin camera's exposure."""
+    csv = tmp_path / "irradiance_cal.csv"
+    csv.write_text("\n".join(f"{wl:g},{spectrometer_cal():.9g}" for wl in (330.0, 850.0)) + "\n")
+    return {"light": "dlpc900-simulated", "spectrometer": "ocean", "spectrometer_calibration": str(csv),
+            "camera_first_frame_id": 1, "exposure_s": DESC.camera.exposure_s, **extra}

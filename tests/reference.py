@@ -1,6 +1,6 @@
 """Float64 references the kernels are checked against: NumPy for the linear map, colour-science for colorimetry.
 
-Used by the tests and by ``tools/make_golden.py`` (which writes the golden set the selftest reproduces).
+Used by the tests and by ``tools/maintenance/make_golden.py`` (which writes the golden set the selftest reproduces).
 """
 
 from __future__ import annotations

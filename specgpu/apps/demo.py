@@ -34,18 +34,18 @@ from tqdm import tqdm
 
 from specgpu import io
 from specgpu.apps import paper
-from specgpu.apps.estimator_study import study_plans
+from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods
 from specgpu.apps.moving_demo import moving_html, moving_lines, moving_section
 from specgpu.apps.report_figures import illuminant_figure
 from specgpu.apps.report import report_page, summarise_method, table2_html, table3_html
 from specgpu.apps.table1 import Table1, equal_time_rows, method_rows, table1, table1_html, table1_text
-from specgpu.apps.studies import chart_with_white, mean_std, measure_methods
 from specgpu.calibration import calibrate, save_calibration
 from specgpu.calibration.bundle import calibration_error
 from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
 from specgpu.pipeline.recovery import EVALUATION_CHART, SequenceFolder, default_basis, uncertainty, write_capture
 from specgpu.planning import default_prior, make_plan, save_plan, training_spectra
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans
+from specgpu.planning.estimator_plans import study_plans
 from specgpu.planning.basis import save_basis
 from specgpu.planning.noise import NoiseModel
 from specgpu.rig.config import RigDescription, load_rig, rig_from_dict
@@ -62,8 +62,8 @@ DEMO_METHODS = {
     "tristimulus-A": ("tristimulus", {"illuminant": "A"}),
 }
 OUTPUT_WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
-#: Rows beyond the paper (names of :data:`specgpu.apps.estimator_study.STUDY_METHODS`): Wiener decoder of symmetric-9 and
-#: the designed illuminants, decoded with the prior of every colour-science set but the evaluation chart's, each
+#: Rows beyond the paper (names of :data:`specgpu.planning.estimator_plans.STUDY_METHODS`): Wiener decoder of
+#: symmetric-9 and the designed illuminants, decoded with the prior of every colour-science set but the evaluation chart's, each
 #: recording the RMSE it expects on that prior.
 ESTIMATOR_ROWS = ("wiener-9", "optimal-9", "optimal-6", "optimal-3")
 #: The caption of the report's Table 1.
@@ -89,7 +89,8 @@ class DemoResult:
     calibration: dict
     basis_variance: list
     methods: dict = field(default_factory=dict)  # name -> {"patch": PatchReport, "pixels": stats, "K", ...}
-    #: profile label -> method name -> {metric: [value per noise draw]} (:func:`specgpu.apps.studies.measure_methods`)
+    #: profile label -> method name -> {metric: [value per noise draw]}
+    #: (:func:`specgpu.apps.demo_measure.measure_methods`)
     draws: dict = field(default_factory=dict)
     #: profile label -> what was done (corrections, calibration error against the twin's truth)
     profiles: dict = field(default_factory=dict)

@@ -4,7 +4,7 @@ compensated (:func:`specgpu.pipeline.moving_scores.compare_motion`): per-pixel R
 and within 3 px of the scene's edges, and the three error maps on one scale.
 
 The rig is the demo's with every imperfection off at 200 fps and the twin's own (oracle) calibration, so the
-section isolates motion; ``tools/motion_study.py`` runs every motion case with more plans and draws.
+section isolates motion; ``tools/studies/motion_study.py`` runs every motion case with more plans and draws.
 """
 
 from __future__ import annotations

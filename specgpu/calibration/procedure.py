@@ -446,8 +446,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         tabulated from the spectroradiometer's probe readings
         (:func:`~specgpu.calibration.bundle.measure_line_shapes`; no model of the slit; the Gaussian where the
         spectroradiometer gives no ``response_matrix``). On the lab twin the measured shape cuts the model's
-        line-shape error tenfold (``tools/calibration_truth.py``) but changes no per-patch figure (loop (a) already
-        pins each band's response) and moves the symmetric plan's per-pixel noise (its decoder is sensitive to the
+        line-shape error tenfold (``tools/studies/calibration_truth.py``) but changes no per-patch figure (loop (a)
+        already pins each band's response) and moves the symmetric plan's per-pixel noise (its decoder is sensitive to the
         model's details), so it is not yet the default.
     rig : CalibrationRig, optional
         The rig to measure (e.g. :func:`specgpu.hardware.rig.open_calibration_rig` for real devices, looking at the

@@ -2,8 +2,8 @@
 
 The golden set (``tests/data/golden.npz``, shipped in the wheel as ``specgpu/_golden/golden.npz``) holds small
 inputs with odd image sizes (not a multiple of the vector width) and the outputs computed in float64 by the
-NumPy / colour-science references (``tools/make_golden.py``), plus Sharma, Wu and Dalal's published CIEDE2000
-pairs. :func:`run_selftest` runs every case through the public API on the chosen device and compares.
+NumPy / colour-science references (``tools/maintenance/make_golden.py``), plus Sharma, Wu and Dalal's published
+CIEDE2000 pairs. :func:`run_selftest` runs every case through the public API on the chosen device and compares.
 
 Each output of a case has its own tolerance, either absolute ("abs": Lab 1e-4 and CIEDE2000 1e-3, the documented
 float32 bounds) or relative to the output's range ("range": max|error| / max(1, max|expected|); 1e-5 for float32

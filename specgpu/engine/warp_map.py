@@ -9,8 +9,8 @@ the field are NaN and flagged (``MASK_OUTSIDE``), never a made-up value.
 Translations run through :class:`PreparedWarp` (``linear_warp_translate``): every pixel of a frame has the same
 bilinear weights, so 8 output pixels of a row take their samples from 9 consecutive source pixels of two rows,
 read as vectors and corrected as they are read, each source row once for the two output rows it serves; about
-what the static decoder costs (``tools/warp_cost.py``). Where a later step reads the corrected frames too, they are
-written first (``warp_correct``) and the warp samples them, with the same result. Affine maps and flows run a
+what the static decoder costs (``tools/benchmarks/warp_cost.py``). Where a later step reads the corrected frames
+too, they are written first (``warp_correct``) and the warp samples them, with the same result. Affine maps and flows run a
 work-item per pixel (``linear_warp``).
 """
 

@@ -239,7 +239,7 @@ def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int
         (:func:`specgpu.pipeline.registration.fit_peak`; the weighted surface is a Gaussian, so this is exact to
         about 0.01 px of a 1/100 px upsampled DFT) on real single-precision FFTs; or skimage's upsampled DFT
         (``phase_cross_correlation``), five to ten times slower. On the moving twin at 640 x 480 (24 sequences,
-        ``tools/motion_registration.py``) the defaults (fit, reference pairs there) err by at most 0.07 px, median
+        ``tools/studies/motion_registration.py``) the defaults (fit, reference pairs there) err by at most 0.07 px, median
         0.04 px, in an eighth of the time of the upsampled DFT of all pairs (0.08, 0.04).
     binning : int
         Average the gradient images over b x b pixels before registering (faster FFTs; the shifts are scaled

@@ -391,7 +391,7 @@ def grow_flags(mask) -> None:
     A compensated sample is bilinear, read from the 2 x 2 sensor pixels about its point, so where samples that mix
     surfaces begin is known to a pixel: the pixel beside a flagged one reads sensor pixels the flagged one reads,
     and its check, a statistic of few samples, may pass just below its threshold. (On the twin at 640 x 480 every
-    unflagged pixel decoded wrong in the cases of ``tools/motion_flags.py`` lay within 1.4 px of a flagged one.)
+    unflagged pixel decoded wrong in the cases of ``tools/studies/motion_flags.py`` lay within 1.4 px of a flagged one.)
     The islands of fewer than :data:`ISLAND_PX` pixels the flags enclose are flagged as well."""
     flagged = (mask & np.uint8(MASK_INCONSISTENT)) != 0
     ring = ndimage.binary_dilation(flagged, structure=np.ones((3, 3), bool)) & ~flagged

@@ -2,7 +2,7 @@
 sequence of a plan captured with the scene still and with it moving (the same noise), recovered as it is and
 motion-compensated (:func:`specgpu.pipeline.moving_layers.recover_moving`), each scored per pixel against its truth (the
 scene, or the scene at the moving sequence's reference time) over the field and near the scene's edges, with the
-per-pixel error maps. Used by ``specgpu demo``'s moving-scene section and ``tools/motion_study.py``.
+per-pixel error maps. Used by ``specgpu demo``'s moving-scene section and ``tools/studies/motion_study.py``.
 """
 
 from __future__ import annotations

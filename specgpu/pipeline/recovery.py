@@ -1,5 +1,5 @@
 """The offline main job as functions: capture a plan's sequences on the twin, keep them with their plan and
-calibration in one folder, and recover them; used by the CLI, ``specgpu demo`` and ``tools/accuracy_study.py``.
+calibration in one folder, and recover them; used by the CLI, ``specgpu demo`` and ``tools/studies/accuracy_study.py``.
 
 A sequence folder (``specgpu capture``) holds the frames and ``sequence.json`` (:mod:`specgpu.io.sequence`), plus the
 plan (``plan.npz``) and calibration bundle (``calibration.npz``) it was captured with, so ``specgpu recover``

@@ -208,7 +208,7 @@ class Stream:
         the queue), or copied by ``enqueue_copy`` straight from the sequence into a pooled device buffer;
         ``"auto"``: host_ptr on CPU devices, pinned elsewhere.
         Measured on PoCL (2 cores), 640 x 480, coefficients + XYZ + dE2000, best of 3 interleaved rounds
-        (``python tools/stream_transfers.py --seconds 4 --rounds 3``): host_ptr + map 1028 frames/s, copy + map
+        (``python tools/benchmarks/stream_transfers.py --seconds 4 --rounds 3``): host_ptr + map 1028 frames/s, copy + map
         965, host_ptr + copy 936, pinned + map 913, copy + copy 854, pinned + copy 833; mapping the outputs is
         worth ~10 %, and ALLOC_HOST_PTR staging buys nothing on a CPU device (it adds a host copy). The device
         alone needs 7.4 ms per sequence (1219 frames/s), 6.3 ms of it the dE2000 pass.

@@ -25,7 +25,7 @@ Between calibration and capture the lamp's output and colour change and the ligh
   carrying the frame's own power fluctuation (about 2 % at the tristimulus exposure): too few to tell a cut-on
   shift from a colour-temperature change. Probes at 430 nm (the guide's cut-on) and 650 nm make the fit
   over-determined at both ends. Cost: one frame per probe per sequence (tristimulus 3 + 2 probes + ambient -> 6
-  frames). Lab, drift -200 K / -3 % / +5 nm, white ROI in both runs (``tools/drift_study.py --draws 3 --probes
+  frames). Lab, drift -200 K / -3 % / +5 nm, white ROI in both runs (``tools/studies/drift_study.py --draws 3 --probes
   430,650``): tristimulus dE00 0.26 against 0.23 without drift (1.13x); one probe at 430 nm 0.33 (1.43x); none
   0.43 (1.87x).
 """

@@ -1,7 +1,7 @@
 """Methods compared at equal sequence time (:data:`EQUAL_TIME`): the paper's designs, their Wiener decoders and
 the photon-limited optimal designs, each made within one budget per frame count (9 frames in 60 ms, 6 in 40 ms,
 3 in 20 ms: video rate), and the limit of any design of that frame count at that budget
-(:func:`equal_time_bounds`). Used by ``specgpu demo``'s Table 1 and ``tools/budget_study.py``.
+(:func:`equal_time_bounds`). Used by ``specgpu demo``'s Table 1 and ``tools/studies/budget_study.py``.
 """
 
 from __future__ import annotations

@@ -14,8 +14,8 @@ the spectrum keeps the light's own broadband shape) until a white gives the leve
 at the plan's exposure: it never saturates where the plan's own frames do not. The decoder gets a zero column for
 each reference frame: the decode is the plan's own, and a still scene decodes exactly as without them. Reading them
 too gains little: a Wiener decoder re-fitted over all 13 frames of symmetric-9 with M = 3 lowers the still scene's
-per-pixel RMSE from 0.0294 to 0.0279 and its dE2000 from 4.45 to 4.41 (``tools/reference_decode_study.py``, 640 x
-480, 3 draws), and would make the reference frames' samples part of every output, so that where they saw outside
+per-pixel RMSE from 0.0294 to 0.0279 and its dE2000 from 4.45 to 4.41
+(``tools/studies/reference_decode_study.py``, 640 x 480, 3 draws), and would make the reference frames' samples part of every output, so that where they saw outside
 the field or disagree after compensation would count too. Their indices are recorded in
 ``params["reference_frames"]`` (:func:`reference_indices`), the interval in ``params["reference_every"]``.
 

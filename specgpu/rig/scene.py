@@ -22,6 +22,7 @@ scene: the same chart can be photographed under a flat or a falling-off spot.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,8 +37,9 @@ from specgpu.io.exr import read_cube_exr, write_cube_exr
 from specgpu.io.npz import read_cube_npz, write_cube_npz
 
 __all__ = [
-    "SpectralScene", "read_scene", "write_scene", "colorchecker_scene", "white_plate_scene", "natural_scene",
-    "load_scene", "BUILTIN_SCENES", "interpolation_matrix", "RESIZE_MODES", "validate_resize", "resample_scene",
+    "SpectralScene", "read_scene", "write_scene", "colorchecker_scene", "patch_scene", "white_plate_scene",
+    "natural_scene", "load_scene", "BUILTIN_SCENES", "interpolation_matrix", "RESIZE_MODES", "validate_resize",
+    "resample_scene",
 ]
 
 MAX_REFLECTANCE = 1.5
@@ -347,6 +349,42 @@ def colorchecker_scene(height: int = 480, width: int = 640, *, chart: str = "Col
         x, y, tw, th = white_tile_roi(h, w)
         refl[max(0, y - 3):y + th + 3, max(0, x - 3):x + tw + 3, :] = wt
     return SpectralScene(wl, refl, masks, "colorchecker")
+
+
+def patch_scene(names, wavelengths, spectra, height: int = 240, width: int = 320, *, surround: float = 0.03,
+                name: str = "held-out chart", white_tile: float | None = None):
+    """A chart scene of arbitrary patch spectra (N, B): a grid of square patches on a dark surround, one mask
+    per patch (its central 70 %), like :func:`colorchecker_scene`; ``white_tile`` (a flat reflectance) puts a
+    reference white above the patches at :func:`white_tile_roi` (not a mask), for the drift correction of a lab
+    rig."""
+    spectra = np.asarray(spectra, np.float64)
+    n = spectra.shape[0]
+    cols = int(math.ceil(math.sqrt(n * width / height)))
+    rows = int(math.ceil(n / cols))
+    pitch = min(width / (cols + 0.4), height / (rows + 0.4))
+    size = 0.84 * pitch
+    x0 = (width - cols * pitch) / 2 + (pitch - size) / 2
+    y0 = (height - rows * pitch) / 2 + (pitch - size) / 2
+    refl = np.full((height, width, spectra.shape[1]), surround, np.float32)
+    masks = {}
+    for k in range(n):
+        r, c = divmod(k, cols)
+        ya, xa = y0 + r * pitch, x0 + c * pitch
+        refl[int(round(ya)):int(round(ya + size)), int(round(xa)):int(round(xa + size))] = spectra[k]
+        m = np.zeros((height, width), bool)
+        inset = 0.15 * size
+        y0i, y1i = int(round(ya + inset)), int(round(ya + size - inset))
+        m[y0i:y1i, int(round(xa + inset)):int(round(xa + size - inset))] = True
+        masks[str(names[k])] = m
+    if white_tile is not None:
+        wt = check_number("white_tile", white_tile, low=0, low_open=True, high=1.5)
+        x, y, tw, th = white_tile_roi(height, width)
+        tile = np.zeros((height, width), bool)
+        tile[max(0, y - 3):y + th + 3, max(0, x - 3):x + tw + 3] = True
+        if np.any(tile & np.any(list(masks.values()), axis=0)):
+            raise ValueError(f"white_tile: no room above {n} patches at {width} x {height}")
+        refl[tile] = wt
+    return SpectralScene(np.asarray(wavelengths, np.float64), refl, masks, name)
 
 
 def white_plate_scene(height: int = 480, width: int = 640, *, reflectance: float = 0.99,

@@ -15,7 +15,7 @@ Rendering is built for speed: each pattern's noise-free frame (scene, spot field
 gain folded into one DN map per pattern, plus one offset map with pedestal, dark current and DSNU) is computed once
 per loaded sequence; a frame then costs one table-driven Gaussian draw and a few vectorized passes over
 cache-sized chunks, with the noise's variance derived from the signal itself so that shot noise follows the
-light's power exactly (``tools/twin_speed.py`` measures frames/s).
+light's power exactly (``tools/benchmarks/twin_speed.py`` measures frames/s).
 Everything random is keyed by (seed, frame id), so a frame's content does not depend on which other frames
 were rendered: a run is deterministic for a seed, and a duplicate is re-rendered bit-identical.
 """

@@ -9,8 +9,8 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.apps.bench import TOLERANCES, run_bench
-from specgpu.testing import parse_sizes
+from specgpu.apps.bench.kernels import TOLERANCES, run_bench
+from specgpu.apps.bench.sizes import parse_sizes
 from specgpu.apps.cli import main
 
 CASES = {

@@ -96,15 +96,6 @@ def test_stream_help_does_not_ask_for_an_estimator_for_sigma():
     assert "--estimator" not in text and "noise model" in text
 
 
-def test_study_table_prints_no_none():
-    from specgpu.apps.estimator_study import format_study
-
-    row = {"name": "symmetric-9", "K": 9, "exposure_ms": 6.5, "rmse": (0.03, 0.001), "z": (1.0, 0.0),
-           "expected_rmse": None, "rms": None}
-    text = format_study([row])
-    assert "None" not in text and "symmetric-9" in text
-
-
 # ---- info -------------------------------------------------------------------------------------------------------
 
 def test_info_devices_lists_the_opencl_devices_alone():

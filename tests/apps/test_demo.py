@@ -64,10 +64,10 @@ def test_estimator_rows_measured_on_the_chart_against_numpy():
     from specgpu.calibration import calibrate
     from specgpu.apps.demo import ESTIMATOR_ROWS
     from specgpu.planning import default_prior
-    from specgpu.apps.estimator_study import study_plans
+    from specgpu.planning.estimator_plans import study_plans
     from specgpu.pipeline.evaluate import truth_cube
     from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis
-    from specgpu.apps.studies import chart_with_white, measure_methods
+    from specgpu.apps.demo_measure import chart_with_white, measure_methods
 
     desc = _small_lab()
     bundle = calibrate(desc, seed=0)

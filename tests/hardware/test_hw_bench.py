@@ -342,12 +342,12 @@ def test_timeout_and_fault_accounting_unchanged_on_the_bench():
         capture_sequences(camera, 3)
 
 
-# ---- a long capture through the id wrap (tools/hw_long_capture.py) ----------------------------------------------
+# ---- a long capture through the id wrap (tools/maintenance/hw_long_capture.py) ---------------------------------
 def _long_capture():
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[2] / "tools" / "hw_long_capture.py"
+    path = Path(__file__).resolve().parents[2] / "tools" / "maintenance" / "hw_long_capture.py"
     spec = importlib.util.spec_from_file_location("hw_long_capture", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -6,12 +6,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import hadamard_rig, one_line_error, run
 
 import specgpu.planning as E
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E
-from specgpu.io import read_cube, read_map
 from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide, stream_denoise
 from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, to_XYZ, uncertainty
 from specgpu.rig.camera import CameraParameters
@@ -76,29 +73,6 @@ def test_flat_patches_keep_their_level_and_the_guide_is_normalised(bundle):
         np.testing.assert_allclose(q[mask].mean(axis=0), y[mask].mean(axis=0), atol=2e-3)
 
 
-def test_cli_recover_denoise(tmp_path, bundle):
-    rig, cal, _ = hadamard_rig(tmp_path, bundle)
-    run("capture", "--rig", rig, "--calib", cal, "--plan", tmp_path / "p.npz", "--scene", "natural", "--out",
-        tmp_path / "seq")
-    run("recover", tmp_path / "seq", "--out", tmp_path / "raw.npz", "--sigma", tmp_path / "raw-s.exr")
-    out = run("recover", tmp_path / "seq", "--out", tmp_path / "d.npz", "--sigma", tmp_path / "d-s.exr",
-              "--denoise").output
-    assert "wrote" in out
-    raw, den = read_cube(tmp_path / "raw.npz"), read_cube(tmp_path / "d.npz")
-    y_raw = raw[0] if isinstance(raw, tuple) else raw.reflectance
-    y_den = den[0] if isinstance(den, tuple) else den.reflectance
-    assert y_den.shape == y_raw.shape and not np.allclose(y_den, y_raw)
-    s_raw = read_map(tmp_path / "raw-s.exr")
-    s_den = read_map(tmp_path / "d-s.exr")
-    s_raw = s_raw[0] if isinstance(s_raw, tuple) else s_raw
-    s_den = s_den[0] if isinstance(s_den, tuple) else s_den
-    assert np.nanmedian(np.asarray(s_den)) < np.nanmedian(np.asarray(s_raw))
-    one_line_error(run("recover", tmp_path / "seq", "--out", tmp_path / "x.npz", "--denoise", "--delta-e-sigma",
-                       tmp_path / "x.exr", ok=False), "--delta-e-sigma", "--denoise")
-    one_line_error(run("recover", tmp_path / "seq", "--out", tmp_path / "x.npz", "--denoise", "--denoise-eps", "-1",
-                       ok=False), "--denoise-eps")
-
-
 def test_filtering_the_output_subspace_equals_filtering_every_band(bundle):
     from specgpu.engine.guided import guided_filter
     from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, output_subspace
@@ -127,7 +101,7 @@ def test_stream_denoise_equals_recover_denoise():
     import colour
 
     from specgpu.pipeline.stream import Stream
-    from specgpu.testing import stream_setup
+    from specgpu.pipeline.twin_replay import stream_setup
 
     setup = stream_setup(320, 240, sequences=2, output_step_nm=10.0)
     got = []
@@ -161,36 +135,3 @@ def test_stream_denoise_equals_recover_denoise():
             Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=outputs, reference=setup.reference,
                    cube_dtype=np.float16, denoise=(2, 1e-4))
         assert "\n" not in str(info.value)
-
-
-def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
-    """``specgpu batch --denoise`` of a sequence folder: each sequence's cube equals recover --denoise of it; a
-    resumed batch asking otherwise is refused in one line; Lab and dE come from the filtered XYZ (as its help
-    says)."""
-    import zarr
-
-    from specgpu.pipeline.recovery import read_capture
-
-    rig, cal, _ = hadamard_rig(tmp_path, bundle)
-    run("capture", "--rig", rig, "--calib", cal, "--plan", tmp_path / "p.npz", "--scene", "natural", "--out",
-        tmp_path / "seq", "--sequences", "2")
-    run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "b.zarr", "--outputs",
-        "cube", "--denoise")
-    folder = read_capture(tmp_path / "seq")
-    cube = zarr.open_group(str(tmp_path / "b.zarr"), mode="r")["cube"]
-    for i in range(2):
-        want = denoise_recovery(folder, recover(folder, sequence=i), sequence=i)
-        np.testing.assert_allclose(cube[i], want, atol=1e-4 * np.max(np.abs(want)))
-    one_line_error(run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "b.zarr",
-                       "--outputs", "cube", ok=False), "--denoise")
-    # Lab from the filtered XYZ, as recover --denoise computes it from the filtered cube
-    run("batch", tmp_path / "seq", "--plan", tmp_path / "p.npz", "--out", tmp_path / "c.zarr", "--outputs",
-        "Lab,dE", "--delta-e-ref", "50,10,-10", "--denoise")
-    group = zarr.open_group(str(tmp_path / "c.zarr"), mode="r")
-    for i in range(2):
-        want = denoise_recovery(folder, recover(folder, sequence=i), sequence=i)
-        lab = XYZ_to_Lab(to_XYZ(want, folder.plan), folder.plan.white_XYZ("D65"))
-        np.testing.assert_allclose(group["Lab"][i], lab, atol=2e-3)
-        reference = np.broadcast_to(np.float32([50.0, 10.0, -10.0]), lab.shape)
-        np.testing.assert_allclose(group["dE"][i], delta_E(reference, lab), atol=2e-3)
-    assert "not with Lab or dE" not in " ".join(run("batch", "--help").output.split())

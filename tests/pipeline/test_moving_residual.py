@@ -167,7 +167,7 @@ def chart(speed):
 
 #: The drill: pairs of (scene speed, object speed, rotation, mode) that cover each value of each with each mode at
 #: least once, at 320 x 240. The full sweep (every speed 0-50 px per frame, each mode, 320 x 240 and 640 x 480) is
-#: ``python tools/motion_flags.py --sweep``, too long for the suite.
+#: ``python tools/studies/motion_flags.py --sweep``, too long for the suite.
 DRILL = {
     "still-global": (MotionParameters(), "translation"),
     "scene-20-global": (MotionParameters(velocity_px_per_frame=(20.0, 0.0)), "translation"),

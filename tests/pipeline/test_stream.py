@@ -8,7 +8,6 @@ name, so a sequence built across a lost or shifted frame cannot pass.
 from __future__ import annotations
 
 import _thread
-import json
 import threading
 import time
 import types
@@ -16,13 +15,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 from specgpu import io
-from specgpu.testing import offline_maps, stream_setup
+from specgpu.pipeline.twin_replay import offline_maps, stream_setup
 from specgpu.capture.session import capture_sequences
 from specgpu.capture.twin import TwinDriver
-from specgpu.apps.cli import main
 from specgpu.engine.colorimetry import delta_E
 from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ
 from specgpu.io.recording import ZarrRecorder, open_recording
@@ -34,7 +31,6 @@ from specgpu.pipeline import (
     Stream,
 )
 
-from cli_helpers import stream_cli_files
 
 ALL = ("coefficients", "cube", "XYZ", "Lab", "dE")
 
@@ -337,58 +333,6 @@ def test_bad_arguments_are_one_line_errors(setup):
         Stream(*args, outputs=("dE",), reference=np.zeros((2, 3)))
 
 
-def test_cli_stream_records_and_reports(setup, tmp_path):
-    from specgpu.calibration.bundle import save_calibration
-    from specgpu.planning import save_plan
-
-    cam = setup.description.camera
-    (tmp_path / "rig.toml").write_text(f"[camera]\nroi_width = {cam.roi_width}\nroi_height = {cam.roi_height}\n"
-                                       f"exposure_s = {cam.exposure_s!r}\nframe_rate_hz = {cam.frame_rate_hz!r}\n")
-    save_calibration(tmp_path / "calib.npz", setup.bundle)
-    save_plan(tmp_path / "plan.npz", setup.plan)
-    result = CliRunner().invoke(main, ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan",
-                                       str(tmp_path / "plan.npz"), "--calib", str(tmp_path / "calib.npz"),
-                                       "--scene", "colorchecker", "--seconds", "1", "--out", str(tmp_path / "out"),
-                                       "--policy", "block"])  # no drops however busy the machine
-    assert result.exit_code == 0, result.output
-    assert "frames in" in result.output and "dropped 0 (ring 0)" in result.output
-    recording = open_recording(tmp_path / "out")
-    assert recording.attrs["plan_hash"] == setup.plan.hash and recording.sequences >= 10
-    assert f"wrote {tmp_path / 'out'} ({recording.sequences} sequences)" in result.output
-    assert (tmp_path / "out" / "preview.png").is_file()
-    bad = CliRunner().invoke(main, ["stream", "--rig", str(tmp_path / "rig.toml"), "--plan",
-                                    str(tmp_path / "plan.npz"), "--calib", str(tmp_path / "calib.npz"),
-                                    "--seconds", "1", "--outputs", "XYZ,spectrum"])
-    assert bad.exit_code != 0 and "spectrum" in bad.output
-
-
-def test_cli_bench_stream_reports_every_case(tmp_path):
-    out = tmp_path / "bench.json"
-    result = CliRunner().invoke(main, ["bench", "--stream", "--stream-size", "320x240", "--stream-seconds", "0.5",
-                                       "--paced-seconds", "0.5", "--stream-cases", "fused,paced,overload,equality",
-                                       "--json", str(out)])
-    assert result.exit_code == 0, result.output
-    report = json.loads(out.read_text())
-    rows = {row["case"].split(" ")[0]: row for row in report["cases"]}
-    assert set(rows) == {"coefficients+XYZ+dE2000", "paced", "overload", "stream"}
-    for row in report["cases"]:
-        if row["case"] != "coefficients+XYZ+dE2000":  # a throughput target, not a correctness check
-            assert row["passed"], row
-    assert rows["overload"]["ring"]["dropped"] == rows["overload"]["assembly"]["dropped"] > 0
-    assert "PASS" in result.output and "frames/s in" in result.output
-    # the rate targets are stated for 640 x 480: at 320 x 240 the rate is printed without a verdict
-    assert "passed" not in rows["coefficients+XYZ+dE2000"] and "target >=" not in result.output
-    bad = CliRunner().invoke(main, ["bench", "--stream", "--stream-size", "640"])
-    assert bad.exit_code == 2 and "--stream-size" in bad.output
-
-
-def test_stream_rate_targets_are_judged_at_640_x_480_only():
-    from specgpu.apps.stream_bench import STREAM_TARGETS, stream_targets
-
-    assert stream_targets(640, 480) == STREAM_TARGETS and stream_targets(640, 480) is not STREAM_TARGETS
-    assert stream_targets(2048, 2048) == {} and stream_targets(480, 640) == {} and stream_targets(320, 240) == {}
-
-
 def test_arrival_stamps_stay_bounded_under_drop_oldest(setup):
     """Frames the ring discards unread never reach the device thread; their arrival stamps must not pile up."""
     stream = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=("XYZ",), policy="drop_oldest",
@@ -482,37 +426,3 @@ def test_a_full_disk_stops_capture_and_keeps_the_committed_sequences(setup, expe
     for j in range(3):
         want = expected[setup.recorded_sequence(ds["frame_id"].values[j])]
         np.testing.assert_allclose(ds["dE"].values[j], want["dE"], atol=2e-3)
-
-
-def test_cli_stream_on_a_full_disk_says_what_was_saved_and_lost(setup, tmp_path, monkeypatch):
-    args = stream_cli_files(setup, tmp_path)
-    _disk_full_after(monkeypatch, 2)
-    result = CliRunner().invoke(main, [*args, "--seconds", "20", "--out", str(tmp_path / "rec.zarr")])
-    assert result.exit_code == 1
-    last = result.output.strip().splitlines()[-1]
-    assert "wrote" not in result.output and "No space left on device" in last
-    saved, lost = (int(x) for x in __import__("re").search(r"; (\d+) sequences saved in .*rec.zarr, (\d+) lost",
-                                                         last).groups())
-    assert saved == 2 and lost >= 1
-    monkeypatch.undo()
-    assert open_recording(tmp_path / "rec.zarr").sequences == 2
-
-
-def test_cli_stream_refuses_a_recording_that_cannot_fit_or_an_existing_folder(setup, tmp_path, monkeypatch):
-    import shutil
-    from collections import namedtuple
-
-    args = stream_cli_files(setup, tmp_path)
-    usage = namedtuple("usage", "total used free")
-    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 10**6, 10**6))
-    result = CliRunner().invoke(main, [*args, "--seconds", "60", "--out", str(tmp_path / "rec.zarr")])
-    assert result.exit_code == 1 and not (tmp_path / "rec.zarr").exists()
-    assert result.output.count("\n") == 1
-    assert __import__("re").search(r"the recording \(\d+ sequences x [0-9.]+ MB\) needs about [0-9.]+ GB but only "
-                                   r"0.00 GB are free", result.output)
-    monkeypatch.undo()
-    (tmp_path / "old.zarr").mkdir()
-    (tmp_path / "old.zarr" / "XYZ-000001.npy").write_bytes(b"a killed run's chunk")
-    result = CliRunner().invoke(main, [*args, "--seconds", "1", "--out", str(tmp_path / "old.zarr")])
-    assert result.exit_code == 1 and result.output.count("\n") == 1 and "already exists" in result.output
-    assert [p.name for p in (tmp_path / "old.zarr").iterdir()] == ["XYZ-000001.npy"]

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specgpu.testing import stream_setup
+from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.engine.colorimetry import delta_E
 from specgpu.planning.correction import corrected_decoder, white_gains
 from specgpu.planning import NoiseModel, delta_E_sigma, smooth_prior, with_estimator
@@ -25,7 +25,6 @@ from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.rig.scene import white_tile_roi
 from specgpu.pipeline import LatencyHistogram, Stream
 
-from cli_helpers import stream_cli_files
 
 SEQUENCES = 3
 H, W = 240, 320
@@ -247,50 +246,6 @@ def test_stream_latency_counts_every_result(setup):
     got, report = run_stream(setup, ("XYZ",))
     assert report.latency.count == report.sequences_out == SEQUENCES
     assert report.latency.min <= report.latency_ms(50) / 1e3 <= report.latency.max
-
-
-def _chart_white_roi():
-    from specgpu.rig.scene import colorchecker_scene
-
-    mask = colorchecker_scene(H, W).masks["white 9.5 (.05 D)"]
-    ys, xs = np.nonzero(mask)
-    return f"{xs.min()},{ys.min()},{xs.max() - xs.min() + 1},{ys.max() - ys.min() + 1}"
-
-
-def test_cli_stream_white_roi_and_sigma_are_recorded(setup, tmp_path):
-    import zarr
-    from click.testing import CliRunner
-
-    from specgpu.apps.cli import main
-
-    args = stream_cli_files(setup, tmp_path)
-    result = CliRunner().invoke(main, [*args, "--seconds", "0.5", "--out", str(tmp_path / "rec"), "--policy",
-                                       "block", "--outputs", "XYZ,sigma,dE_sigma", "--white-roi", _chart_white_roi(),
-                                       "--white-reflectance", "0.9"])
-    assert result.exit_code == 0, result.output
-    g = zarr.open_group(str(tmp_path / "rec"), mode="r")
-    n = g.attrs["sequences_committed"]
-    assert n >= 1 and g["white_gains"].shape == (n, setup.plan.K) and g["sigma"].shape[0] == n
-    assert np.all(np.isfinite(np.asarray(g["white_gains"]))) and g["dE_sigma"].shape == (n, H, W)
-    assert g.attrs["metadata"]["white_roi"] == _chart_white_roi()
-    assert g.attrs["metadata"]["white_reflectance"] == "0.9"
-
-
-@pytest.mark.parametrize("extra, message", [
-    (["--white-roi", f"{W},0,4,4"], "--white-roi"),
-    (["--white-reflectance", "0.9"], "--white-reflectance needs --white-roi"),
-    (["--white-roi", "0,0,4,4"], "gives no signal"),
-])
-def test_cli_stream_white_roi_refusals_are_one_line(setup, tmp_path, extra, message):
-    from click.testing import CliRunner
-
-    from specgpu.apps.cli import main
-
-    result = CliRunner().invoke(main, [*stream_cli_files(setup, tmp_path), "--seconds", "0.3", "--policy", "block",
-                                       "--outputs", "XYZ", *extra])
-    assert result.exit_code != 0 and message in result.output
-    assert "Traceback" not in result.output
-    assert len([line for line in result.output.splitlines() if message in line]) == 1
 
 
 # ---- the kernels behind them, against float64 NumPy references, in both variants on each device ---------------

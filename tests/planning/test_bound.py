@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 import pytest
-from cli_helpers import one_line_error, run
 
 import specgpu.planning as E
 from specgpu.planning import design as D
@@ -68,17 +67,6 @@ def test_bound_lies_below_every_feasible_design(bundle, prior):
     plan = E.plan_optimal(bundle, prior, noise_at, frames=K, sequence_s=T, starts=1, iterations=60,
                           output_wavelengths=prior.wavelengths)
     assert plan.params["expected"]["rmse"] >= b.lower_rmse
-
-
-def test_cli_bound_prints_and_refuses(tmp_path):
-    rig = tmp_path / "rig.toml"
-    rig.write_text("[camera]\nroi_width = 320\nroi_height = 240\n")
-    out = run("bound", "--frames", "3", "--sequence-ms", "30", "--starts", "1", "--rig", rig).output
-    assert "lower bound" in out and "best design found" in out
-    lower = float(out.split("RMSE >= ")[1].split()[0])
-    best = float(out.split("RMSE ")[2].split()[0])
-    assert 0 < lower <= best
-    one_line_error(run("bound", "--frames", "9", "--sequence-ms", "5", "--rig", rig, ok=False), "cannot hold 9 frames")
 
 
 def test_the_limit_where_a_filter_flattens_the_noise_is_lower_and_says_so(bundle, prior):

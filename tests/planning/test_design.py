@@ -9,9 +9,9 @@ import pytest
 
 from specgpu.planning import design as D
 import specgpu.planning as E
-from specgpu.apps import estimator_study as study
 from specgpu.planning import make_plan
 from specgpu.engine.linear_map import apply_linear
+from specgpu.rig.scene import patch_scene
 from specgpu.rig.twin import TwinRig
 
 from estimator_helpers import DESC, H, W, noise_at  # the bundle fixture: tests/planning/conftest.py
@@ -66,7 +66,7 @@ def test_optimal_beats_the_paper_design_in_expectation(bundle, prior, optimal6):
 
 def test_optimal_plan_recovers_the_held_out_chart_noise_free(bundle, optimal6):
     names, wl, spec = E.held_out_spectra()
-    scene = study.patch_scene(names, wl, spec, H, W)
+    scene = patch_scene(names, wl, spec, H, W)
     rig = TwinRig(optimal6.rig_description(DESC), scene=scene)
     rig.load_sequence(optimal6.patterns)
     frames = np.stack([rig.expected_frame(k) for k in range(optimal6.K)])

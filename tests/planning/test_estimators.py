@@ -7,11 +7,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import specgpu.planning as E
-from specgpu.apps import estimator_study as study
 from specgpu.pipeline.recovery import capture_plan
 from specgpu.planning import load_plan, make_plan, save_plan
+from specgpu.planning.estimator_plans import chart_error
 from specgpu.planning.estimators import interp_rows
 from specgpu.engine.linear_map import apply_linear
+from specgpu.rig.scene import patch_scene
 
 from estimator_helpers import DESC, H, W, WL
 
@@ -103,7 +104,7 @@ def test_smooth_estimator_without_training(bundle):
     assert s.params["estimator"] == "smooth" and "smooth prior" in s.params["expected"]["prior"]
     wl = np.arange(400.0, 700.0 + 1e-9, 5.0)
     test = E.held_out_spectra(wavelengths=wl)[2]
-    assert study.chart_error(s, bundle, test, wl) < 0.01
+    assert chart_error(s, bundle, test, wl) < 0.01
 
 
 def test_empty_training_set_is_one_line(tmp_path):
@@ -247,7 +248,7 @@ def test_sigma_z_scores_on_the_twin(bundle, prior):
     from specgpu.pipeline.evaluate import truth_cube
 
     names, wl, spec = E.held_out_spectra()
-    scene = study.patch_scene(names, wl, spec, H, W)
+    scene = patch_scene(names, wl, spec, H, W)
     plan = E.with_estimator(make_plan("narrowband", bundle, step_nm=20.0), bundle, "wiener", prior=prior,
                             noise=E.NoiseModel.from_rig(DESC, make_plan("narrowband", bundle, step_nm=20.0).exposure_s))
     frames = capture_plan(DESC, plan, scene, noise_seed=3).sequences[0].frames
@@ -260,7 +261,7 @@ def test_sigma_z_scores_on_the_twin(bundle, prior):
     assert 0.8 <= z.std() <= 1.25
     # the exact prediction on the chart's spectra is the measured RMS error within 25 %
     wl = prior.wavelengths
-    predicted = study.chart_error(plan, bundle, E.held_out_spectra(wavelengths=wl)[2], wl)
+    predicted = chart_error(plan, bundle, E.held_out_spectra(wavelengths=wl)[2], wl)
     assert 0.8 <= np.sqrt((err ** 2).mean()) / predicted <= 1.25
 
 

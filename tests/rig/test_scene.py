@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from specgpu.rig.scene import (RESIZE_MODES, SpectralScene, colorchecker_scene, load_scene, natural_scene,
-                               read_scene, resample_scene, validate_resize, white_plate_scene, write_scene)
+                               patch_scene, read_scene, resample_scene, validate_resize, white_plate_scene,
+                               white_tile_roi, write_scene)
 
 
 def small_cube(h=6, w=5, wl=(400.0, 450.0, 500.0, 600.0), seed=0):
@@ -297,3 +298,25 @@ def test_every_mode_fills_the_frame_with_source_spectra_or_refuses(h, w, fh, fw,
     assert inside.all() or mode == "pad"
     if mode == "crop" or mode == "pad":  # uniform: one scale factor on both axes
         assert out.resampled == "" or f"({mode}, nearest neighbour" in out.resampled
+
+
+# ---- a chart of arbitrary patch spectra ----------------------------------------------------------------------
+
+def test_patch_scene_white_tile():
+    # 14 patches, as the held-out chart has
+    names, wl = [f"patch {i}" for i in range(14)], np.arange(400.0, 701.0, 10.0)
+    spec = np.random.default_rng(3).uniform(0.05, 0.9, (14, wl.size))
+    plain = patch_scene(names, wl, spec, 240, 320)
+    tiled = patch_scene(names, wl, spec, 240, 320, white_tile=0.97)
+    x, y, w, h = white_tile_roi(240, 320)
+    np.testing.assert_array_equal(tiled.reflectance[y:y + h, x:x + w], np.float32(0.97))
+    assert set(tiled.masks) == set(plain.masks)
+    outside = np.ones((240, 320), bool)
+    outside[max(0, y - 3):y + h + 3, max(0, x - 3):x + w + 3] = False
+    np.testing.assert_array_equal(tiled.reflectance[outside], plain.reflectance[outside])
+    with pytest.raises(ValueError, match="white_tile") as err:
+        patch_scene(names, wl, spec, 240, 320, white_tile=-1.0)
+    assert "\n" not in str(err.value)
+    with pytest.raises(ValueError, match="no room"):
+        many = [f"{n}-{i}" for i in range(10) for n in names]
+        patch_scene(many, wl, np.vstack([spec] * 10), 240, 320, white_tile=0.99)

@@ -12,13 +12,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cli_helpers import run
+from tool_helpers import load_tool
 from specgpu.calibration.bundle import load_calibration
 from specgpu.planning.correction import ambient_index
 from specgpu.io.npz import read_cube_npz
 from specgpu.planning import load_plan
 from specgpu.rig.config import load_rig
 from specgpu.rig.scene import write_scene
-from specgpu.apps.studies import LEVEL_EDGES, chart_errors, measured_chart_with_white
+
+measured_chart = load_tool("studies/measured_chart.py")
+LEVEL_EDGES, chart_errors = measured_chart.LEVEL_EDGES, measured_chart.chart_errors
+measured_chart_with_white = measured_chart.measured_chart_with_white
 
 SMALL = "[camera]\nroi_width = 320\nroi_height = 240\n"
 STRIP = 0.95

@@ -18,7 +18,7 @@ from specgpu.pipeline.recovery import SequenceFolder, recover, uncertainty
 from specgpu.planning.correction import white_gains
 from specgpu.rig import camera as camera_module
 from specgpu.rig.scene import white_tile_roi
-from specgpu.testing import offline_maps, stream_setup
+from specgpu.pipeline.twin_replay import offline_maps, stream_setup
 
 DEAD = (150, 90)  # (row, column) on a patch of the 320 x 240 chart
 ROI = white_tile_roi(240, 320)  # the reference white above the chart, with a second dead pixel inside

@@ -21,7 +21,7 @@ PACKAGE = ROOT / "specgpu"
 
 MAX_MODULE_LINES = 700
 MAX_COMMAND_LINES = 40
-TOP_LEVEL_FILES = {"__init__.py", "__main__.py", "testing.py"}
+TOP_LEVEL_FILES = {"__init__.py", "__main__.py"}
 # optional or heavy third-party packages a function may import when it needs them (and only these)
 LOCAL_IMPORTS_ALLOWED = {"dask", "zarr", "numcodecs", "distributed", "napari", "usb", "harvesters", "genicam", "seabreeze",
                          # the LED controller's pyserial; the OL490's pythonnet (clr) and the .NET namespace it opens
@@ -320,3 +320,78 @@ def test_tests_import_their_helpers_as_ci_runs_them():
                      else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             bad += [f"{path.relative_to(ROOT)}:{node.lineno}" for n in names if n.split(".")[0] == "tests"]
     assert not bad, bad
+
+
+# --- the tests keep to the layers too ------------------------------------------------------------------------------
+
+def _imports(path: Path) -> list[tuple[int, list[str]]]:
+    """(line, the modules one import statement names) for every absolute import of a file, in functions too;
+    ``from specgpu import apps`` names ``specgpu`` and ``specgpu.apps``."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out.append((node.lineno, [a.name for a in node.names]))
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.append((node.lineno, [node.module] + [f"{node.module}.{a.name}" for a in node.names]))
+    return sorted(out)
+
+
+def _is_apps(module: str) -> bool:
+    return module == "specgpu.apps" or module.startswith("specgpu.apps.")
+
+
+def apps_imports(tests: Path = ROOT / "tests") -> list[str]:
+    """``file:line: chain`` for every import by which a test of a room below ``apps`` (a file under
+    ``tests/<room>/``, or the ``conftest.py`` every test runs under) reaches ``specgpu.apps``: directly, or through
+    the helpers beside the room folders (``cli_helpers`` imports the command line), however deep."""
+    helpers = {p.stem: p for p in tests.glob("*.py")}
+    reached: dict[str, str | None] = {}
+
+    def reach(stem: str, seen: frozenset = frozenset()) -> str | None:
+        """The chain by which helper ``stem`` reaches ``specgpu.apps``, or None."""
+        if stem not in reached:
+            chain = None
+            for _, names in _imports(helpers[stem]):
+                chain = next((n for n in names if _is_apps(n)), None)
+                tops = [n for n in names if n in helpers and n not in seen | {stem}]
+                chain = chain or next((f"{t} -> {c}" for t in tops if (c := reach(t, seen | {stem}))), None)
+                if chain:
+                    break
+            reached[stem] = chain
+        return reached[stem]
+
+    paths = [tests / "conftest.py"] if (tests / "conftest.py").exists() else []
+    for room in sorted(rooms() - {"apps"}):
+        paths += sorted((tests / room).rglob("*.py"))
+    found = []
+    for path in paths:
+        for line, names in _imports(path):
+            chain = next((n for n in names if _is_apps(n)), None)
+            chain = chain or next((f"{n} -> {reach(n)}" for n in names if n in helpers and reach(n)), None)
+            if chain:
+                found.append(f"{path.relative_to(tests.parent)}:{line}: {chain}")
+    return found
+
+
+def test_no_test_of_a_lower_room_imports_apps():
+    """A room's tests need nothing above it: a test of the command line (or the demo, the viewer, the bench) lives
+    in tests/apps/, so the rooms below can be tested, and moved, without the programs built on them."""
+    found = apps_imports()
+    assert not found, "\n".join(found)
+
+
+def test_the_apps_import_check_finds_planted_imports(tmp_path):
+    tests = tmp_path / "tests"
+    for folder in ("io", "pipeline", "apps"):
+        (tests / folder).mkdir(parents=True)
+    (tests / "cli_helpers.py").write_text("from specgpu.apps.cli import main\n")
+    (tests / "deep_helpers.py").write_text("import numpy\nimport cli_helpers\n")
+    (tests / "plain_helpers.py").write_text("from specgpu.io import read_cube\n")
+    (tests / "io" / "test_a.py").write_text("import plain_helpers\n\ndef test():\n    from specgpu import apps\n")
+    (tests / "io" / "test_b.py").write_text("from deep_helpers import x\nimport specgpu.pipeline\n")
+    (tests / "pipeline" / "test_c.py").write_text("import specgpu.apps.demo as demo\n")
+    (tests / "apps" / "test_d.py").write_text("from cli_helpers import run\nfrom specgpu.apps.cli import main\n")
+    at = "tests/{}.py:{}: ".format  # (a path in prose would be checked as a citation of a file that exists)
+    assert apps_imports(tests) == [at("io/test_a", 4) + "specgpu.apps",
+                                   at("io/test_b", 1) + "deep_helpers -> cli_helpers -> specgpu.apps.cli",
+                                   at("pipeline/test_c", 1) + "specgpu.apps.demo"]

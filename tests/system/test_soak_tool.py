@@ -1,4 +1,4 @@
-"""tools/soak.py: a short soak passes with its checks listed; bad arguments are refused."""
+"""tools/maintenance/soak.py: a short soak passes with its checks listed; bad arguments are refused."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-SOAK = Path(__file__).resolve().parents[2] / "tools" / "soak.py"
+SOAK = Path(__file__).resolve().parents[2] / "tools" / "maintenance" / "soak.py"
 
 
 def soak_module():

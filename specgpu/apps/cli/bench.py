@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import click
 
-from specgpu.apps.bench import run_bench
+from specgpu.apps.bench.kernels import run_bench
+from specgpu.apps.bench.sizes import parse_sizes
+from specgpu.apps.bench.stream import run_stream_bench
 from specgpu.apps.cli.options import command, no_clash
-from specgpu.apps.stream_bench import run_stream_bench
-from specgpu.testing import parse_sizes
 
 
 def sizes_option(text, option, one=False):
