@@ -27,7 +27,7 @@ ROOT = HERE.parents[1]
 #: file the command writes. Small sizes, so that a refresh takes a few minutes on a laptop.
 COMMANDS = {
     "bench": "specgpu bench --sizes 320x240 --json OUT",
-    "accuracy": "python tools/accuracy_study.py --small --runs 3 --json OUT",
+    "accuracy": "python tools/studies/accuracy_study.py --small --runs 3 --json OUT",
 }
 
 
