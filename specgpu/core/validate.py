@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from collections.abc import Mapping
 
 import numpy as np
-import pyopencl.array as cla
 
 
 class BadArgument(ValueError):
@@ -127,8 +127,13 @@ FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
 OUT_DTYPES = (np.dtype(np.float32), np.dtype(np.float16))
 
 
-def is_device_array(a) -> bool:
-    return isinstance(a, cla.Array)
+def is_device_array(a: object) -> bool:
+    """Whether ``a`` is a device array (:class:`pyopencl.array.Array`).
+
+    Only a process that has imported pyopencl can hold one, so the check never imports OpenCL itself.
+    """
+    cla = sys.modules.get("pyopencl.array")
+    return cla is not None and isinstance(a, cla.Array)
 
 
 def _shape(a) -> str:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import colour
 import numpy as np
 import OpenImageIO as oiio
 
@@ -48,6 +47,7 @@ def _auto_exposure_ev(Y: np.ndarray, percentile: float = 99.0) -> float:
 def sRGB8(XYZ, illuminant=None) -> np.ndarray:
     """(..., 3) uint8 sRGB of XYZ (Y = 1 for the white at code 255), chromatically adapted (CAT02) from the white
     of chromaticity ``illuminant`` (xy; None: D65) to sRGB's; NaN and infinite values render black."""
+    import colour  # colour-science takes seconds to import: only the preview needs it
     arr = np.nan_to_num(np.asarray(XYZ, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     kwargs = {} if illuminant is None else {"illuminant": np.asarray(illuminant, np.float64)}
     with np.errstate(invalid="ignore", over="ignore"):

@@ -24,7 +24,7 @@ MAX_COMMAND_LINES = 40
 TOP_LEVEL_FILES = {"__init__.py", "__main__.py", "testing.py"}
 # optional or heavy third-party packages a function may import when it needs them (and only these)
 LOCAL_IMPORTS_ALLOWED = {"dask", "zarr", "numcodecs", "distributed", "napari", "usb", "harvesters", "genicam", "seabreeze",
-                         "scipy", "matplotlib",
+                         "scipy", "matplotlib", "colour",
                          # the Qt shim napari ships: the spectrum widget's Qt classes, only with the viewer extra
                          "qtpy"}
 
