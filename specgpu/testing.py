@@ -14,7 +14,7 @@ import numpy as np
 from specgpu.calibration import calibrate, save_calibration
 from specgpu.capture.assemble import AssemblyStats, Sequence
 from specgpu.capture.replay import ReplayDriver, record
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.pipeline import default_basis, read_capture, recover, to_Lab, to_XYZ, write_capture
 from specgpu.planning import plan_symmetric_basis, save_plan

@@ -35,7 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from specgpu.calibration.bundle import oracle_calibration  # noqa: E402
-from specgpu.capture.twin import TwinDriver  # noqa: E402
+from specgpu.capture.twin_driver import TwinDriver  # noqa: E402
 from specgpu.planning import plan_tristimulus  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402

@@ -13,9 +13,9 @@ from .bundle import (
     save_calibration,
 )
 from .loops import LoopResult, camera_loop, spectral_loop
+from .on_rig import calibrate_on_rig
 from .procedure import MIRRORS_OFF_TOLERANCE, calibrate
 from .rigs import CalibrationRig, TwinCalibrationRig, as_calibration_rig, capture_mean, distribute_counts
-from .session import calibrate_on_rig
 
 __all__ = [
     "as_calibration_rig",

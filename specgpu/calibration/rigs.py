@@ -16,7 +16,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from specgpu.capture.session import capture_sequences
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import white_plate_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig

@@ -1,6 +1,6 @@
 """Public names of :mod:`specgpu.hardware`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
-from .drivers import hardware_config, open_driver
+from .drivers import hardware_config, open_rig_driver
 from .errors import (
     BackendMissing,
     CommandRejected,
@@ -23,7 +23,7 @@ __all__ = [
     "HardwareError",
     "LightFault",
     "list_usb_devices",
-    "open_driver",
+    "open_rig_driver",
     "ProtocolError",
     "UsbDevice",
 ]

@@ -5,10 +5,10 @@ chooses between the two, for the stream and the capture alike."""
 from __future__ import annotations
 
 import specgpu.hardware.rig as hardware_rig
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.rig.twin import TwinRig
 
-__all__ = ["hardware_config", "open_driver"]
+__all__ = ["hardware_config", "open_rig_driver"]
 
 
 def hardware_config(description):
@@ -20,7 +20,7 @@ def hardware_config(description):
                                                  base_dir=description.base_dir or None)
 
 
-def open_driver(description, plan, *, hardware=None, scene=None, calibration=None, seed=None, pacing="paced",
+def open_rig_driver(description, plan, *, hardware=None, scene=None, calibration=None, seed=None, pacing="paced",
                 n_frames=None):
     """Open the camera driver of ``description`` with ``plan``'s patterns.
 

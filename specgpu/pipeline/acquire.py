@@ -8,7 +8,7 @@ import shutil
 from pathlib import Path
 
 from specgpu.capture.session import capture_sequences
-from specgpu.hardware.drivers import open_driver
+from specgpu.hardware.drivers import open_rig_driver
 from specgpu.io.recording import ZarrRecorder, check_free_space
 from specgpu.pipeline import moving, recovery
 from specgpu.pipeline.sinks import StreamResult
@@ -66,7 +66,7 @@ def capture_into(writer, on_sequence, description, hardware, plan, bundle, truth
         return recovery.capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed,
                                      on_sequence=keep, calibration=bundle)
     # real devices: the same ring buffer and assembler, the plan uploaded to the light
-    driver = open_driver(description, plan, hardware=hardware, calibration=bundle, n_frames=plan.K * sequences)
+    driver = open_rig_driver(description, plan, hardware=hardware, calibration=bundle, n_frames=plan.K * sequences)
     try:
         return capture_sequences(driver, plan.K, on_sequence=keep)
     finally:

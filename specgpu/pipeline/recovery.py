@@ -20,7 +20,7 @@ import numpy as np
 from specgpu import io
 from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save_calibration
 from specgpu.capture.session import CaptureResult, capture_sequences
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.core.numerics import live_gain
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.engine.linear_map import apply_linear

@@ -290,7 +290,7 @@ class ProgrammableLight:
     """The OL490-like programmable light source of the twin.
 
     It implements :class:`specgpu.capture.driver.LightSource` (registered as a virtual subclass by
-    :mod:`specgpu.capture.twin`: the rig model never imports the capture package).
+    :mod:`specgpu.capture.twin_driver`: the rig model never imports the capture package).
 
     Parameters
     ----------

@@ -23,7 +23,7 @@ def test_live_view_shows_the_stream_while_it_drops_nothing(qtbot):
     from napari.components import ViewerModel
 
     from specgpu.calibration import oracle_calibration
-    from specgpu.hardware.drivers import open_driver
+    from specgpu.hardware.drivers import open_rig_driver
     from specgpu.pipeline.stream import Stream
     from specgpu.planning import make_plan
     from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
@@ -31,7 +31,7 @@ def test_live_view_shows_the_stream_while_it_drops_nothing(qtbot):
     rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
     bundle = oracle_calibration(rig)
     plan = make_plan("narrowband", bundle, step_nm=40.0)
-    driver = open_driver(rig, plan, scene=colorchecker_scene(240, 320), calibration=bundle, seed=1, pacing="paced")
+    driver = open_rig_driver(rig, plan, scene=colorchecker_scene(240, 320), calibration=bundle, seed=1, pacing="paced")
     stream = Stream(driver, plan, bundle, outputs=["cube", "XYZ"])
     ring = ResultsRing(capacity=1, outputs=VIEW_OUTPUTS, policy="drop_newest")
     kept = []

@@ -21,7 +21,7 @@ from click.testing import CliRunner
 from specgpu import io
 from specgpu.testing import offline_maps, stream_setup
 from specgpu.capture.session import capture_sequences
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.apps.cli import main
 from specgpu.engine.colorimetry import delta_E
 from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ

@@ -456,7 +456,7 @@ def test_stream_applies_recovers_frame_corrections(corrected):
 @pytest.mark.parametrize("white", [True, False])
 def test_stream_subtracts_the_ambient_frame_as_recover_does(setup, white):
     from specgpu.capture.replay import record
-    from specgpu.capture.twin import TwinDriver
+    from specgpu.capture.twin_driver import TwinDriver
     from specgpu.planning.correction import with_ambient_frame
     from specgpu.rig.scene import colorchecker_scene
     from specgpu.rig.twin import TwinRig

@@ -7,6 +7,7 @@ import doctest
 import importlib
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -78,3 +79,17 @@ def test_the_docstring_example_runs_as_written(room, name):
     for test in tests:
         runner.run(test)
     assert runner.failures == 0, f"{runner.failures} of the examples of {name} failed (output above)"
+
+
+def test_a_name_two_rooms_export_is_one_object():
+    """One name, one meaning: no two rooms export different objects under the same name."""
+    seen: dict[str, tuple[str, object]] = {}
+    clashes = []
+    for room in sorted(p.parent.name for p in Path(specgpu.__file__).parent.glob("*/__init__.pyi")):
+        package = importlib.import_module(f"specgpu.{room}")
+        for name in package.__all__:
+            value = getattr(package, name)
+            if name in seen and seen[name][1] is not value:
+                clashes.append(f"{name}: specgpu.{seen[name][0]} and specgpu.{room}")
+            seen.setdefault(name, (room, value))
+    assert not clashes, clashes
