@@ -76,7 +76,7 @@ def spread_over_sigma(description, bundle, plan, scene, *, draws: int = 10, seed
     """Capture ``plan`` ``draws`` times, recover each draw with its sigma as ``recover --sigma`` does, and return
     ``{"ratio": [per brightness quantile, darkest first: sqrt(mean spread^2 / mean sigma^2)], "all": the same over
     every pixel, "brightness": [the quantiles' mean recovered output]}``."""
-    from specgpu.planning import constant_variance
+    from specgpu.planning.uncertainty import constant_variance
     from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, uncertainty
 
     ys, sigmas = [], []

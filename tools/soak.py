@@ -40,7 +40,8 @@ from specgpu.planning import plan_tristimulus  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402
 from specgpu.rig.twin import FaultRates, FaultSchedule, TwinRig  # noqa: E402
-from specgpu.pipeline import Sink, Stream, current_rss_bytes  # noqa: E402
+from specgpu.pipeline import Sink, Stream
+from specgpu.pipeline.stream_report import current_rss_bytes
 
 MB = 1024 * 1024
 

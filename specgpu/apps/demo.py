@@ -44,7 +44,8 @@ from specgpu.calibration import calibrate, save_calibration
 from specgpu.calibration.bundle import calibration_error
 from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
 from specgpu.pipeline.recovery import EVALUATION_CHART, SequenceFolder, default_basis, uncertainty, write_capture
-from specgpu.planning import default_prior, make_plan, save_plan, training_spectra
+from specgpu.planning import default_prior, make_plan, save_plan
+from specgpu.planning.priors import training_spectra
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans
 from specgpu.planning.basis import save_basis
 from specgpu.planning.noise import NoiseModel

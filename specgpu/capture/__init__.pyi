@@ -1,13 +1,11 @@
 """Public names of :mod:`specgpu.capture`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
-from .assemble import AssemblyStats, Sequence, SequenceAssembler, assemble_stream
+from .assemble import Sequence, SequenceAssembler
 from .driver import DRIVERS, CameraDriver, FrameInfo, LightSource, StreamEnd, open_driver
-from .ringbuffer import POLICIES, RingBuffer, RingStats, Slot, run_producer
+from .ringbuffer import POLICIES, RingBuffer
 from .session import CaptureResult, capture_sequences
 
 __all__ = [
-    "assemble_stream",
-    "AssemblyStats",
     "CameraDriver",
     "capture_sequences",
     "CaptureResult",
@@ -17,10 +15,7 @@ __all__ = [
     "open_driver",
     "POLICIES",
     "RingBuffer",
-    "RingStats",
-    "run_producer",
     "Sequence",
     "SequenceAssembler",
-    "Slot",
     "StreamEnd",
 ]

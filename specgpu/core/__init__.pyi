@@ -1,81 +1,20 @@
 """Public names of :mod:`specgpu.core`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
 from .guard import OutputClash, check_outputs
-from .locks import OutputLocked, clean_stale_temporaries, lock_path, output_lock, output_locks, pid_alive, resolved
-from .numerics import DEAD_PIXEL_GAIN, fit_levels, lipschitz_bound, live_gain
-from .spectra import (
-    DEFAULT_CMFS,
-    OBSERVERS,
-    XYZ_weights,
-    resolve_cmfs,
-    resolve_illuminant_sd,
-    spectral_shape,
-    white_point_XYZ,
-)
-from .text import one_line
-from .validate import (
-    FRAME_DTYPES,
-    OUT_DTYPES,
-    BadArgument,
-    as_float32,
-    available_memory_bytes,
-    check_array,
-    check_band_wavelengths,
-    check_frames,
-    check_gain_map,
-    check_last_axis,
-    check_level,
-    check_matrix,
-    check_number,
-    check_out_dtype,
-    check_pixel_map,
-    check_result_size,
-    check_wavelengths,
-    is_device_array,
-    normalised_to_peak,
-    validate_method,
-)
+from .locks import OutputLocked, output_lock
+from .spectra import DEFAULT_CMFS, OBSERVERS, XYZ_weights, resolve_cmfs, resolve_illuminant_sd, white_point_XYZ
+from .validate import BadArgument
 
 __all__ = [
-    "as_float32",
-    "available_memory_bytes",
     "BadArgument",
-    "check_array",
-    "check_band_wavelengths",
-    "check_frames",
-    "check_gain_map",
-    "check_last_axis",
-    "check_level",
-    "check_matrix",
-    "check_number",
-    "check_out_dtype",
     "check_outputs",
-    "check_pixel_map",
-    "check_result_size",
-    "check_wavelengths",
-    "clean_stale_temporaries",
-    "DEAD_PIXEL_GAIN",
     "DEFAULT_CMFS",
-    "fit_levels",
-    "FRAME_DTYPES",
-    "is_device_array",
-    "lipschitz_bound",
-    "live_gain",
-    "lock_path",
-    "normalised_to_peak",
     "OBSERVERS",
-    "one_line",
-    "OUT_DTYPES",
     "output_lock",
-    "output_locks",
     "OutputClash",
     "OutputLocked",
-    "pid_alive",
     "resolve_cmfs",
     "resolve_illuminant_sd",
-    "resolved",
-    "spectral_shape",
-    "validate_method",
     "white_point_XYZ",
     "XYZ_weights",
 ]

@@ -1,109 +1,49 @@
 """Public names of :mod:`specgpu.engine`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
 from .colorimetry import DELTA_E_METHODS, FusedResult, XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
-from .consistency import consistency_from_frames, consistency_maps, consistency_maps_numpy, exact_median
-from .gradients import gradient_images
-from .guided import box_box_variance, flat_variance_reduction, guided_filter
+from .guided import guided_filter
 from .kernels import (
-    DE_CODES,
-    VW,
-    FusedOutputs,
-    Prepared,
-    gain_map,
     launch_delta_E,
     launch_frames_to_delta_E,
     launch_linear,
     launch_XYZ_to_Lab,
     linear_matrix,
-    matrix_on_device,
-    pixel_map,
     prepare_delta_E_sigma,
     prepare_frames_to_delta_E,
     prepare_linear,
     to_device,
 )
 from .linear_map import LAYOUTS, LinearResult, apply_linear
-from .runtime import (
-    DTYPE_TO_CTYPE,
-    VARIANTS,
-    DeviceInfo,
-    SpecgpuDeviceError,
-    build_options,
-    get_allocator,
-    get_kernel,
-    get_queue,
-    is_discrete,
-    kernel_dir,
-    kernel_source,
-    kernel_variant,
-    list_devices,
-    select_device,
-)
-from .selftest import CASES, CaseResult, SelftestReport, golden_path, load_golden, run_selftest
-from .transfer import MODES, linear_pipelined, pinned_empty, transfer_mode
-from .warp_map import MASK_OUTSIDE, PreparedWarp, apply_linear_warped, check_shifts, prepare_linear_warped
+from .runtime import DeviceInfo, SpecgpuDeviceError, get_queue, list_devices, select_device
+from .selftest import SelftestReport, run_selftest
+from .warp_map import apply_linear_warped
 
 __all__ = [
     "apply_linear",
     "apply_linear_warped",
-    "box_box_variance",
-    "build_options",
-    "CaseResult",
-    "CASES",
-    "check_shifts",
-    "consistency_from_frames",
-    "consistency_maps",
-    "consistency_maps_numpy",
-    "DE_CODES",
     "delta_E",
     "DELTA_E_METHODS",
     "DeviceInfo",
-    "DTYPE_TO_CTYPE",
-    "exact_median",
-    "flat_variance_reduction",
     "frames_to_delta_E",
-    "FusedOutputs",
     "FusedResult",
-    "gain_map",
-    "get_allocator",
-    "get_kernel",
     "get_queue",
-    "golden_path",
-    "gradient_images",
     "guided_filter",
-    "is_discrete",
-    "kernel_dir",
-    "kernel_source",
-    "kernel_variant",
     "launch_delta_E",
     "launch_frames_to_delta_E",
     "launch_linear",
     "launch_XYZ_to_Lab",
     "LAYOUTS",
     "linear_matrix",
-    "linear_pipelined",
     "LinearResult",
     "list_devices",
-    "load_golden",
-    "MASK_OUTSIDE",
-    "matrix_on_device",
-    "MODES",
-    "pinned_empty",
-    "pixel_map",
     "prepare_delta_E_sigma",
     "prepare_frames_to_delta_E",
     "prepare_linear",
-    "prepare_linear_warped",
-    "Prepared",
-    "PreparedWarp",
     "reflectance_to_XYZ",
     "run_selftest",
     "select_device",
     "SelftestReport",
     "SpecgpuDeviceError",
     "to_device",
-    "transfer_mode",
-    "VARIANTS",
-    "VW",
     "XYZ_to_Lab",
 ]

@@ -1,48 +1,12 @@
 """Public names of :mod:`specgpu.io`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
-from .bands import check_cube
-from .cube import MAP_KINDS, companion_files, read_cube, read_map, write_cube, write_map
+from .cube import MAP_KINDS, read_cube, read_map, write_cube, write_map
 from .envi import ENVI_INTERLEAVES, read_cube_envi, read_envi_header, write_cube_envi
-from .exr import (
-    SPECTRAL_LAYOUT_VERSION,
-    format_channel,
-    parse_channel,
-    read_cube_exr,
-    read_exr,
-    write_cube_exr,
-    write_exr,
-)
-from .journal import journal_header, salvage_sequence, verify_journal
-from .npz import curve_on_grid, npz_members, read_cube_npz, read_spectrum_csv, write_cube_npz
-from .paths import (
-    atomic_path,
-    disk_full,
-    error_of,
-    final_name,
-    final_names,
-    new_temporary,
-    os_error,
-    replace_with,
-    write_failed,
-    write_target,
-)
-from .previews import PERCEPTUAL_COLORMAPS, read_png, sRGB8, write_delta_E_png, write_png, write_sRGB_preview
-from .recording import (
-    COMPRESSIONS,
-    RECORDING_FORMAT,
-    RECORDING_VERSION,
-    Recording,
-    ZarrRecorder,
-    check_free_space,
-    check_write_rate,
-    missing_sequences,
-    open_recording,
-    patterns_hash,
-    probe_write_rate,
-    refuse_existing,
-    remove_partial_chunks,
-    sequence_bytes,
-)
+from .exr import SPECTRAL_LAYOUT_VERSION, read_cube_exr, read_exr, write_cube_exr, write_exr
+from .journal import salvage_sequence
+from .npz import read_cube_npz, read_spectrum_csv, write_cube_npz
+from .previews import PERCEPTUAL_COLORMAPS, read_png, write_delta_E_png, write_png, write_sRGB_preview
+from .recording import COMPRESSIONS, RECORDING_FORMAT, RECORDING_VERSION, Recording, ZarrRecorder, open_recording
 from .sequence import (
     JOURNAL_FILE,
     SEQUENCE_FILE,
@@ -51,39 +15,19 @@ from .sequence import (
     SequenceWriter,
     read_sequence,
     read_sequence_header,
-    validate_sequence_document,
     write_sequence,
 )
 from .tables import content_hash, load_npz, save_npz
 
 __all__ = [
-    "atomic_path",
-    "check_cube",
-    "check_free_space",
-    "check_write_rate",
-    "companion_files",
     "COMPRESSIONS",
     "content_hash",
-    "curve_on_grid",
-    "disk_full",
     "ENVI_INTERLEAVES",
-    "error_of",
-    "final_name",
-    "final_names",
-    "format_channel",
     "JOURNAL_FILE",
-    "journal_header",
     "load_npz",
     "MAP_KINDS",
-    "missing_sequences",
-    "new_temporary",
-    "npz_members",
     "open_recording",
-    "os_error",
-    "parse_channel",
-    "patterns_hash",
     "PERCEPTUAL_COLORMAPS",
-    "probe_write_rate",
     "read_cube",
     "read_cube_envi",
     "read_cube_exr",
@@ -98,31 +42,22 @@ __all__ = [
     "Recording",
     "RECORDING_FORMAT",
     "RECORDING_VERSION",
-    "refuse_existing",
-    "remove_partial_chunks",
-    "replace_with",
     "salvage_sequence",
     "save_npz",
-    "sequence_bytes",
     "SEQUENCE_FILE",
     "SEQUENCE_FORMAT",
     "SEQUENCE_VERSION",
     "SequenceWriter",
     "SPECTRAL_LAYOUT_VERSION",
-    "sRGB8",
-    "validate_sequence_document",
-    "verify_journal",
     "write_cube",
     "write_cube_envi",
     "write_cube_exr",
     "write_cube_npz",
     "write_delta_E_png",
     "write_exr",
-    "write_failed",
     "write_map",
     "write_png",
     "write_sequence",
     "write_sRGB_preview",
-    "write_target",
     "ZarrRecorder",
 ]

@@ -1,102 +1,24 @@
 """Public names of :mod:`specgpu.pipeline`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
-from .accumulate import ACCUMULATED_OUTPUTS, AccumulateSink, sequence_displacement, shift_image
-from .acquire import ZarrCapture, capture_into, keep_or_abort
+from .accumulate import AccumulateSink
+from .acquire import ZarrCapture, capture_into
 from .batch import BATCH_FORMAT, BATCH_OUTPUTS, BatchJob, BatchReport, prepare_batch, run_batch
 from .batch_output import BatchOutput, open_batch_output
 from .decoder import STREAM_OUTPUTS, StreamDecoder
-from .denoise import (
-    DENOISE_EPS,
-    DENOISE_RADIUS,
-    denoise_design_warning,
-    denoise_recovery,
-    denoised_sigma,
-    output_subspace,
-    sequence_guide,
-    stream_denoise,
-)
-from .evaluate import (
-    PatchReport,
-    PixelReport,
-    delta_E_per_patch,
-    evaluate_pixels,
-    evaluate_reflectance,
-    evaluate_XYZ,
-    evaluation_illuminant,
-    patch_means,
-    rmse_per_patch,
-    scene_XYZ,
-    true_patch_spectra,
-    truth_cube,
-)
-from .evaluation_report import evaluation_report, headline_line, patch_table, read_recovered
-from .live import RECORD_RING_S, add_recording, recording_slots, stream_summary
-from .moving import (
-    MASK_INCONSISTENT,
-    MOTION_MODES,
-    TRUTH_FOLDER,
-    MotionEstimate,
-    check_motion_mode,
-    consistency,
-    estimate_global_motion,
-    inconsistent_pixels,
-    sequence_truth,
-    truth_recorder,
-)
-from .moving_decode import MOTION_OUTPUTS, MovingDecoder, check_motion_options
-from .moving_flow import TileMotion, choose_flow, flow_field, tile_motion
-from .moving_layers import MASK_LAYER, MovingRecovery, ObjectLayer, decode_object_layers, recover_moving
-from .moving_scores import RECOVERIES, compare_motion, edge_band, motion_scores
-from .outputs import (
-    DELTA_E_KINDS,
-    delta_E_sigma_map,
-    recovery_metadata,
-    recovery_writes,
-    sigma_with_rms,
-    stream_metadata,
-    white_metadata,
-)
-from .projector import (
-    PROJECTOR_TARGETS,
-    ProjectionReport,
-    metamer_map,
-    project,
-    render_scene,
-    rgb_led_spectrum,
-    spectrum_report,
-    target_spectrum,
-)
-from .recovery import (
-    CaptureWriter,
-    SequenceFolder,
-    capture_plan,
-    check_capture_folder,
-    dark_warning,
-    default_basis,
-    read_capture,
-    recover,
-    save_plan_and_calibration,
-    to_Lab,
-    to_XYZ,
-    write_capture,
-)
-from .reference_motion import check_reference_frames, estimate_reference_motion, interpolate_in_time
-from .registration import (
-    correlation_surface,
-    fit_peak,
-    second_peak_ratio,
-    sobel_magnitude,
-    tile_displacements,
-    whitened_half_spectrum,
-)
-from .sinks import CallbackSink, ExrSequenceWriter, PreviewSink, ResultsRing, Sink, StreamResult
+from .denoise import denoise_recovery
+from .evaluate import PatchReport, PixelReport, evaluate_pixels, evaluate_reflectance, evaluate_XYZ
+from .evaluation_report import evaluation_report
+from .moving import MOTION_MODES, MotionEstimate, estimate_global_motion
+from .moving_decode import MovingDecoder
+from .moving_layers import MovingRecovery, recover_moving
+from .projector import PROJECTOR_TARGETS, ProjectionReport, metamer_map, project, render_scene
+from .recovery import SequenceFolder, capture_plan, read_capture, recover, write_capture
+from .sinks import CallbackSink, ExrSequenceWriter, PreviewSink, Sink, StreamResult
 from .stream import Stream
-from .stream_report import LatencyHistogram, StreamReport, current_rss_bytes, peak_rss_bytes, peak_rss_reset
+from .stream_report import StreamReport
 
 __all__ = [
-    "ACCUMULATED_OUTPUTS",
     "AccumulateSink",
-    "add_recording",
     "BATCH_FORMAT",
     "BATCH_OUTPUTS",
     "BatchJob",
@@ -105,60 +27,20 @@ __all__ = [
     "CallbackSink",
     "capture_into",
     "capture_plan",
-    "CaptureWriter",
-    "check_capture_folder",
-    "check_motion_mode",
-    "check_motion_options",
-    "check_reference_frames",
-    "choose_flow",
-    "compare_motion",
-    "consistency",
-    "correlation_surface",
-    "current_rss_bytes",
-    "dark_warning",
-    "decode_object_layers",
-    "default_basis",
-    "DELTA_E_KINDS",
-    "delta_E_per_patch",
-    "delta_E_sigma_map",
-    "denoise_design_warning",
-    "DENOISE_EPS",
-    "DENOISE_RADIUS",
     "denoise_recovery",
-    "denoised_sigma",
-    "edge_band",
     "estimate_global_motion",
-    "estimate_reference_motion",
     "evaluate_pixels",
     "evaluate_reflectance",
     "evaluate_XYZ",
-    "evaluation_illuminant",
     "evaluation_report",
     "ExrSequenceWriter",
-    "fit_peak",
-    "flow_field",
-    "headline_line",
-    "inconsistent_pixels",
-    "interpolate_in_time",
-    "keep_or_abort",
-    "LatencyHistogram",
-    "MASK_INCONSISTENT",
-    "MASK_LAYER",
     "metamer_map",
     "MOTION_MODES",
-    "MOTION_OUTPUTS",
-    "motion_scores",
     "MotionEstimate",
     "MovingDecoder",
     "MovingRecovery",
-    "ObjectLayer",
     "open_batch_output",
-    "output_subspace",
-    "patch_means",
-    "patch_table",
     "PatchReport",
-    "peak_rss_bytes",
-    "peak_rss_reset",
     "PixelReport",
     "prepare_batch",
     "PreviewSink",
@@ -166,51 +48,17 @@ __all__ = [
     "ProjectionReport",
     "PROJECTOR_TARGETS",
     "read_capture",
-    "read_recovered",
-    "RECORD_RING_S",
-    "recording_slots",
     "recover",
     "recover_moving",
-    "RECOVERIES",
-    "recovery_metadata",
-    "recovery_writes",
     "render_scene",
-    "ResultsRing",
-    "rgb_led_spectrum",
-    "rmse_per_patch",
     "run_batch",
-    "save_plan_and_calibration",
-    "scene_XYZ",
-    "second_peak_ratio",
-    "sequence_displacement",
-    "sequence_guide",
-    "sequence_truth",
     "SequenceFolder",
-    "shift_image",
-    "sigma_with_rms",
     "Sink",
-    "sobel_magnitude",
-    "spectrum_report",
     "Stream",
-    "stream_denoise",
-    "stream_metadata",
     "STREAM_OUTPUTS",
-    "stream_summary",
     "StreamDecoder",
     "StreamReport",
     "StreamResult",
-    "target_spectrum",
-    "tile_displacements",
-    "tile_motion",
-    "TileMotion",
-    "to_Lab",
-    "to_XYZ",
-    "true_patch_spectra",
-    "truth_cube",
-    "TRUTH_FOLDER",
-    "truth_recorder",
-    "white_metadata",
-    "whitened_half_spectrum",
     "write_capture",
     "ZarrCapture",
 ]

@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from specgpu import io
+from specgpu.io.journal import journal_header
+from specgpu.io.paths import atomic_path
 from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save_calibration
 from specgpu.capture.session import CaptureResult, capture_sequences
 from specgpu.capture.twin_driver import TwinDriver
@@ -160,7 +162,7 @@ class CaptureWriter:
                                "its complete sequences, a capture into this folder replaces it\n", encoding="utf-8")
         self._copies = []
         for source, name in ((plan_path, PLAN_FILE), (calibration_path, CALIBRATION_FILE)):
-            with io.atomic_path(directory / name) as tmp:
+            with atomic_path(directory / name) as tmp:
                 shutil.copyfile(source, tmp)
             self._copies.append(directory / name)
         self.frames = io.SequenceWriter(directory, self.plan.hash, overwrite=True,
@@ -235,7 +237,7 @@ def salvage_capture(directory) -> dict:
                              "and salvage again")
         plan.check_calibration(bundle, name=f"{directory / PLAN_FILE}")
 
-    check(io.journal_header(directory))  # before the frames are grouped in sequences of the plan's length
+    check(journal_header(directory))  # before the frames are grouped in sequences of the plan's length
 
     def confirm():  # the index reads back; then a moving capture's truth follows its sequences' new numbers
         salvaged = read_capture(directory).meta["metadata"]["salvaged"]

@@ -1,142 +1,42 @@
 """Public names of :mod:`specgpu.planning`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
-from .basis import (
-    COLORCHECKER_24_SETS,
-    DEFAULT_WAVELENGTHS,
-    REFLECTANCE_SETS,
-    BasisTable,
-    ReflectanceDatabase,
-    evaluation_exclusions,
-    load_basis,
-    load_reflectances,
-    pca_basis,
-    read_reflectance_csv,
-    save_basis,
-)
+from .basis import BasisTable, load_basis, load_reflectances, pca_basis, save_basis
 from .basis_plans import plan_biased_basis, plan_symmetric_basis
 from .bound import Bound, design_bound
 from .budget import budget_plan
-from .correction import (
-    DEFAULT_WHITE_REFLECTANCE,
-    WhiteReference,
-    ambient_index,
-    ambient_needed,
-    corrected_decoder,
-    gain_noise,
-    parse_roi,
-    probe_indices,
-    white_gains,
-    white_reflectance_curve,
-    with_ambient_frame,
-    with_drift_probes,
-)
-from .design import (
-    OBJECTIVES,
-    design_optimal,
-    objective_weights,
-    plan_hadamard,
-    plan_optimal,
-    s_matrix,
-    wiener_objective,
-)
+from .correction import WhiteReference, corrected_decoder, with_ambient_frame, with_drift_probes
+from .design import OBJECTIVES, design_optimal, plan_hadamard, plan_optimal
 from .equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans
-from .estimators import (
-    ESTIMATORS,
-    expected_error,
-    forward,
-    output_weights,
-    smooth_decoder,
-    wiener_decoder,
-    with_estimator,
-)
+from .estimators import ESTIMATORS, expected_error, wiener_decoder, with_estimator
 from .narrowband import plan_narrowband, plan_reciprocal_narrowband
 from .noise import NoiseModel
 from .plans import PLAN_FORMAT, Plan, load_plan, save_plan
-from .priors import (
-    HELD_OUT_CHART,
-    Prior,
-    default_prior,
-    held_out_basis,
-    held_out_spectra,
-    prior_from_spectra,
-    read_training,
-    smooth_prior,
-    subspace_bound,
-    training_database,
-    training_spectra,
-)
-from .reference_frames import (
-    check_reference_every,
-    pattern_indices,
-    reference_count,
-    reference_indices,
-    reference_positions,
-    with_reference_frames,
-)
+from .priors import Prior, default_prior, prior_from_spectra, smooth_prior
+from .reference_frames import with_reference_frames
 from .registry import PLAN_METHODS, make_plan
-from .requests import estimated_plan
-from .response import camera_sensitivities, plan_camera_simulator, plan_steady_state, plan_tristimulus
-from .timing import budget_params, check_budget, exposure_within, extra_count
-from .uncertainty import (
-    ambient_variance,
-    constant_covariance,
-    constant_variance,
-    delta_E_sigma,
-    frame_covariance,
-    frame_variance,
-    output_covariance,
-    sigma_map,
-    variance_rows,
-)
+from .response import plan_camera_simulator, plan_steady_state, plan_tristimulus
+from .uncertainty import delta_E_sigma, sigma_map
 
 __all__ = [
-    "ambient_index",
-    "ambient_needed",
-    "ambient_variance",
     "BasisTable",
     "Bound",
-    "budget_params",
     "budget_plan",
-    "camera_sensitivities",
-    "check_budget",
-    "check_reference_every",
-    "COLORCHECKER_24_SETS",
-    "constant_covariance",
-    "constant_variance",
     "corrected_decoder",
     "default_prior",
-    "DEFAULT_WAVELENGTHS",
-    "DEFAULT_WHITE_REFLECTANCE",
     "delta_E_sigma",
     "design_bound",
     "design_optimal",
     "EQUAL_TIME",
     "equal_time_bounds",
     "equal_time_plans",
-    "estimated_plan",
     "ESTIMATORS",
-    "evaluation_exclusions",
     "expected_error",
-    "exposure_within",
-    "extra_count",
-    "forward",
-    "frame_covariance",
-    "frame_variance",
-    "gain_noise",
-    "held_out_basis",
-    "HELD_OUT_CHART",
-    "held_out_spectra",
     "load_basis",
     "load_plan",
     "load_reflectances",
     "make_plan",
     "NoiseModel",
-    "objective_weights",
     "OBJECTIVES",
-    "output_covariance",
-    "output_weights",
-    "parse_roi",
-    "pattern_indices",
     "pca_basis",
     "Plan",
     "plan_biased_basis",
@@ -152,29 +52,12 @@ __all__ = [
     "plan_tristimulus",
     "Prior",
     "prior_from_spectra",
-    "probe_indices",
-    "read_reflectance_csv",
-    "read_training",
-    "reference_count",
-    "reference_indices",
-    "reference_positions",
-    "REFLECTANCE_SETS",
-    "ReflectanceDatabase",
-    "s_matrix",
     "save_basis",
     "save_plan",
     "sigma_map",
-    "smooth_decoder",
     "smooth_prior",
-    "subspace_bound",
-    "training_database",
-    "training_spectra",
-    "variance_rows",
-    "white_gains",
-    "white_reflectance_curve",
     "WhiteReference",
     "wiener_decoder",
-    "wiener_objective",
     "with_ambient_frame",
     "with_drift_probes",
     "with_estimator",

@@ -1,9 +1,9 @@
 """Public names of :mod:`specgpu.rig`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
-from .camera import Camera, CameraParameters, sensitivity_curve
+from .camera import Camera, CameraParameters
 from .config import FaultRates, RigDescription, dump_rig, load_rig, rig_from_dict
-from .light import LightParameters, PatternFit, ProgrammableLight, lamp_spd
-from .motion import MotionParameters, MovingScene, Trajectory, motion_from_table, warp_image
+from .light import LightParameters, ProgrammableLight
+from .motion import MotionParameters, MovingScene
 from .scene import (
     BUILTIN_SCENES,
     SpectralScene,
@@ -15,10 +15,9 @@ from .scene import (
     write_scene,
 )
 from .spectroradiometer import Spectroradiometer, SpectroradiometerParameters
-from .twin import FaultSchedule, SNRReport, TwinRig, band_patterns, measure_snr
+from .twin import FaultSchedule, SNRReport, TwinRig, measure_snr
 
 __all__ = [
-    "band_patterns",
     "BUILTIN_SCENES",
     "Camera",
     "CameraParameters",
@@ -26,28 +25,22 @@ __all__ = [
     "dump_rig",
     "FaultRates",
     "FaultSchedule",
-    "lamp_spd",
     "LightParameters",
     "load_rig",
     "load_scene",
     "measure_snr",
-    "motion_from_table",
     "MotionParameters",
     "MovingScene",
     "natural_scene",
-    "PatternFit",
     "ProgrammableLight",
     "read_scene",
     "rig_from_dict",
     "RigDescription",
-    "sensitivity_curve",
     "SNRReport",
     "SpectralScene",
     "Spectroradiometer",
     "SpectroradiometerParameters",
-    "Trajectory",
     "TwinRig",
-    "warp_image",
     "white_plate_scene",
     "write_scene",
 ]

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import specgpu.planning as E
+from specgpu.planning.priors import held_out_basis, held_out_spectra, training_database
 from specgpu.apps import estimator_study as study
 from specgpu.planning import make_plan
 from specgpu.planning.estimators import interp_rows
@@ -17,9 +18,9 @@ from estimator_helpers import DESC, H, W, WL
 
 
 def test_study_rows_on_the_held_out_chart(bundle, prior):
-    names, wl, spec = E.held_out_spectra()
+    names, wl, spec = held_out_spectra()
     scene = study.patch_scene(names, wl, spec, H, W)
-    plans = study.study_plans(DESC, bundle, prior, E.held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
+    plans = study.study_plans(DESC, bundle, prior, held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
     rows = study.study_rows(DESC, bundle, scene, plans, runs=2)
     nb, tri = rows
     assert nb["name"] == "narrowband-31" and nb["K"] == 31 and nb["runs"] == 2
@@ -34,7 +35,7 @@ def test_study_rows_on_the_held_out_chart(bundle, prior):
 def test_patch_scene_white_tile():
     from specgpu.rig.scene import white_tile_roi
 
-    names, wl, spec = E.held_out_spectra()
+    names, wl, spec = held_out_spectra()
     plain = study.patch_scene(names, wl, spec, H, W)
     tiled = study.patch_scene(names, wl, spec, H, W, white_tile=0.97)
     x, y, w, h = white_tile_roi(H, W)
@@ -63,7 +64,7 @@ def test_study_rows_on_the_lab_profile_with_corrections():
     lab = rig_from_dict({"twin": {"profile": "lab"}, "camera": {"roi_width": W, "roi_height": H}}, source="<lab>")
     bundle = calibrate(lab, seed=0)
     prior = E.default_prior()
-    names, wl, spec = E.held_out_spectra()
+    names, wl, spec = held_out_spectra()
     scene = study.patch_scene(names, wl, spec, H, W, white_tile=0.99 * (1 + lab.realism.white_error))
     plans = study.study_plans(lab, bundle, prior, None, methods=["optimal-3"])
     rows = study.study_rows(lab, bundle, scene, plans, runs=1, de_sigma=False, white_roi=white_tile_roi(H, W))
@@ -108,7 +109,7 @@ def test_cross_validated_error_against_numpy(bundle, spectra):
 
 def test_training_sets_split_the_database_by_set():
     sets = study.training_sets()
-    db = E.training_database()
+    db = training_database()
     assert sum(len(r) for r in sets.values()) == len(db) and "CIE 1995 TCS" not in sets
     assert sets["CIE 2017 CES"].shape == (99, db.reflectance.shape[1])
     first = db.labels.index(next(label for label in db.labels if label.startswith("RAW to ACES v1/")))

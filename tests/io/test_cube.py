@@ -19,6 +19,7 @@ from file_helpers import (
 )
 
 from specgpu import io
+from specgpu.io.exr import parse_channel
 
 
 # ---- cubes -------------------------------------------------------------------------------------------------------------
@@ -71,7 +72,7 @@ def test_exr_bands_are_ordered_by_wavelength_not_by_channel_order(tmp_path):
     write_exr_channels(tmp_path / "s.exr", names + ["R", "G", "S0.500,000000nm"], np.concatenate([data, extra], 2))
     # OpenEXR stores channels sorted by name (OpenImageIO then moves R, G first): the order seen by a reader is
     # neither the one written nor the wavelengths'.
-    seen = [io.parse_channel(n) for n in oiio.ImageInput.open(str(tmp_path / "s.exr")).spec().channelnames]
+    seen = [parse_channel(n) for n in oiio.ImageInput.open(str(tmp_path / "s.exr")).spec().channelnames]
     seen = [v for v in seen if v is not None]
     assert seen != sorted(seen) and seen != nm
     cube, wl, _ = io.read_cube(tmp_path / "s.exr")

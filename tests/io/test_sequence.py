@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from specgpu import io
+from specgpu.io.sequence import validate_sequence_document
 from specgpu.capture.assemble import Sequence
 from specgpu.capture.driver import FrameInfo
 
@@ -234,9 +235,9 @@ def sequence_documents(draw):
 @settings(max_examples=60, deadline=None)
 @given(sequence_documents())
 def test_valid_sequence_documents_pass_and_survive_json(doc):
-    out = io.validate_sequence_document(doc, "x/sequence.json")
+    out = validate_sequence_document(doc, "x/sequence.json")
     assert out == doc
-    assert io.validate_sequence_document(json.loads(json.dumps(out)), "x/sequence.json") == doc
+    assert validate_sequence_document(json.loads(json.dumps(out)), "x/sequence.json") == doc
 
 
 # (where, key, bad value): each breaks one rule of the document.
@@ -266,7 +267,7 @@ def test_each_broken_rule_is_a_one_line_error_naming_the_file(doc, mutation, dat
     else:
         target[key] = value
     with raises_one_line(ValueError, r"^x/sequence\.json: "):
-        io.validate_sequence_document(bad, "x/sequence.json")
+        validate_sequence_document(bad, "x/sequence.json")
 
 
 @settings(max_examples=40, deadline=None)
@@ -284,6 +285,6 @@ def test_frame_ids_out_of_capture_order_or_repeated_files_are_rejected(doc, data
         bad["frames"][i]["file"] = bad["frames"][0]["file"]
         match = r"is listed twice"
     with raises_one_line(ValueError, match):
-        io.validate_sequence_document(bad, "x/sequence.json")
+        validate_sequence_document(bad, "x/sequence.json")
     with raises_one_line(ValueError, r"must hold a JSON object"):
-        io.validate_sequence_document([doc], "x/sequence.json")
+        validate_sequence_document([doc], "x/sequence.json")

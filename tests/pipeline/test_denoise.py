@@ -9,6 +9,7 @@ import pytest
 from cli_helpers import hadamard_rig, one_line_error, run
 
 import specgpu.planning as E
+from specgpu.planning.priors import held_out_basis
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E
 from specgpu.io import read_cube, read_map
@@ -110,7 +111,7 @@ def test_filtering_the_output_subspace_equals_filtering_every_band(bundle):
     y = recover(folder)
     every = guided_filter(y, sequence_guide(folder), radius=DENOISE_RADIUS, eps=DENOISE_EPS)
     np.testing.assert_allclose(denoise_recovery(folder, y), every, atol=2e-5)
-    sym = E.with_estimator(E.plan_symmetric_basis(bundle, E.held_out_basis(), m=5,
+    sym = E.with_estimator(E.plan_symmetric_basis(bundle, held_out_basis(), m=5,
                                                   output_wavelengths=np.arange(400.0, 701.0, 10.0)),
                            bundle, "projection", noise=E.NoiseModel.from_rig(DESC, 0.005))
     U = output_subspace(sym)

@@ -27,12 +27,8 @@ from specgpu.engine.colorimetry import delta_E
 from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ
 from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.rig.twin import FaultSchedule, TwinRig
-from specgpu.pipeline import (
-    ExrSequenceWriter,
-    PreviewSink,
-    ResultsRing,
-    Stream,
-)
+from specgpu.pipeline import ExrSequenceWriter, PreviewSink, Stream
+from specgpu.pipeline.sinks import ResultsRing
 
 from cli_helpers import stream_cli_files
 

@@ -23,7 +23,8 @@ from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
 from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ, uncertainty
 from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.rig.scene import white_tile_roi
-from specgpu.pipeline import LatencyHistogram, Stream
+from specgpu.pipeline import Stream
+from specgpu.pipeline.stream_report import LatencyHistogram
 
 from cli_helpers import stream_cli_files
 

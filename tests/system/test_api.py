@@ -93,3 +93,33 @@ def test_a_name_two_rooms_export_is_one_object():
                 clashes.append(f"{name}: specgpu.{seen[name][0]} and specgpu.{room}")
             seen.setdefault(name, (room, value))
     assert not clashes, clashes
+
+
+#: What a room's list may hold at most: its users' surface, not every helper it has
+MAX_ROOM_NAMES = 50
+
+
+def room_names() -> dict[str, list[str]]:
+    rooms = sorted(p.parent.name for p in Path(specgpu.__file__).parent.glob("*/__init__.pyi"))
+    return {room: importlib.import_module(f"specgpu.{room}").__all__ for room in rooms}
+
+
+def test_a_room_lists_its_users_surface_not_its_helpers():
+    sizes = {room: len(names) for room, names in room_names().items()}
+    assert max(sizes.values()) <= MAX_ROOM_NAMES, sizes
+    listed = {name for names in room_names().values() for name in names}
+    # the write helpers of io.paths and the validators of core.validate serve the rooms, through their modules
+    helpers = {"atomic_path", "disk_full", "error_of", "final_name", "new_temporary", "os_error", "replace_with",
+               "write_failed", "write_target", "check_array", "check_frames", "check_matrix", "as_float32", "one_line"}
+    assert not listed & helpers
+
+
+def test_every_listed_function_and_class_is_documented():
+    undocumented = []
+    for room, names in room_names().items():
+        package = importlib.import_module(f"specgpu.{room}")
+        for name in names:
+            value = getattr(package, name)
+            if callable(value) and not (value.__doc__ or "").strip():
+                undocumented.append(f"specgpu.{room}.{name}")
+    assert not undocumented, undocumented
