@@ -63,9 +63,9 @@ DEMO_METHODS = {
     "tristimulus-A": ("tristimulus", {"illuminant": "A"}),
 }
 OUTPUT_WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
-#: Rows beyond the paper (names of :data:`specgpu.apps.estimator_study.STUDY_METHODS`): Wiener decoder of symmetric-9 and
-#: the designed illuminants, decoded with the prior of every colour-science set but the evaluation chart's, each
-#: recording the RMSE it expects on that prior.
+#: Rows beyond the paper (names of :data:`specgpu.apps.estimator_study.STUDY_METHODS`): Wiener decoder of
+#: symmetric-9 and the designed illuminants, decoded with the prior of every colour-science set but the evaluation
+#: chart's, each recording the RMSE it expects on that prior.
 ESTIMATOR_ROWS = ("wiener-9", "optimal-9", "optimal-6", "optimal-3")
 #: The caption of the report's Table 1.
 TABLE1_CAPTION = ("Table 1: spectral reflectance recovery, 24 patches (ΔE under D65, 400-700 nm); mean ± std "
@@ -85,6 +85,8 @@ def make_demo_plans(bundle, basis, names=None) -> dict:
 
 @dataclass
 class DemoResult:
+    """What ``specgpu demo`` made: its folder, how long it took, and the numbers its report shows."""
+
     out: Path
     seconds: float
     calibration: dict

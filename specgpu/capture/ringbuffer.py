@@ -1,7 +1,7 @@
-"""A preallocated ring of frame slots between the acquisition thread and its consumer.
+r"""A preallocated ring of frame slots between the acquisition thread and its consumer.
 
-The producer ``acquire()``\\ s a free slot, lets the driver fill it in place (zero copy), and ``finalize()``\\ s it
-with the frame's metadata; the consumer ``get()``\\ s the oldest finalized slot, reads it, and ``release()``\\ s it.
+The producer ``acquire()``\ s a free slot, lets the driver fill it in place (zero copy), and ``finalize()``\ s it
+with the frame's metadata; the consumer ``get()``\ s the oldest finalized slot, reads it, and ``release()``\ s it.
 Slots are views into one (n_slots, H, W) array allocated once.
 
 When no slot is free, the policy decides (explicitly chosen, never implicit):

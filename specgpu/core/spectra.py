@@ -45,6 +45,9 @@ __all__ = [
 ]
 
 DEFAULT_CMFS = "CIE 1931 2 Degree Standard Observer"
+#: The observers XYZ, Lab and dE can be made for: colour-matching functions with an illuminant white-point table
+#: (read from colour-science on first use, by the module's ``__getattr__``)
+OBSERVERS: tuple[str, ...]
 #: How reflectance is integrated to XYZ (the keys; the CLI's ``--integration`` takes the short spellings too)
 INTEGRATIONS = {"rectangle": "rectangle", "ASTM E308": "ASTM E308", "astm-e308": "ASTM E308"}
 #: The measurement intervals (nm) ASTM E308 has tables for

@@ -168,7 +168,8 @@ def check_frames(frames, name: str = "frames"):
                 raise ValueError(f"{name} has values beyond float32 range (max |value| {np.max(np.abs(finite)):.3g})")
             frames = frames.astype(np.float32)
         if frames.dtype not in FRAME_DTYPES:
-            raise TypeError(f"{name} has dtype {frames.dtype}; supported: uint8, uint16, float32 (float64 is converted)")
+            raise TypeError(f"{name} has dtype {frames.dtype}; supported: uint8, uint16, float32 "
+                            "(float64 is converted)")
         frames = np.ascontiguousarray(frames)
     if frames.ndim < 2:
         raise ValueError(f"{name} must have shape (K, H, W) or (K, N), got {_shape(frames)}")

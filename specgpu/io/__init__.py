@@ -1,4 +1,5 @@
-"""File formats: Fichet 2021 spectral EXR, ENVI, npz / CSV, previews, sequence folders (journal, salvage), zarr recordings."""
+"""File formats: Fichet 2021 spectral EXR, ENVI, npz / CSV, previews, sequence folders (journal, salvage), zarr
+recordings."""
 
 import lazy_loader
 

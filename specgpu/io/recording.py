@@ -315,7 +315,8 @@ class ZarrRecorder:
                 wl = np.asarray(self.plan.output_wavelengths, np.float64)
                 if self.plan.output == "reflectance" and wl.size == arr.shape[-1]:
                     dim = "wavelength"
-                    g.create_array("wavelength", data=wl, dimension_names=("wavelength",), compressors=checksum_codecs(),
+                    g.create_array("wavelength", data=wl, dimension_names=("wavelength",),
+                                   compressors=checksum_codecs(),
                                    attributes={"units": "nm"})
                     attrs = {"quantity": "reflectance", "wavelength_units": "nm"}
                 else:

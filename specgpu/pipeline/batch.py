@@ -361,6 +361,8 @@ def _write_error(job: BatchJob, name: str, i: int, exc: BaseException) -> OSErro
 
 @dataclass
 class BatchReport:
+    """What a batch did: the sequences it saw, computed and skipped (already in the output)."""
+
     sequences: int
     computed: int
     skipped: int
@@ -549,7 +551,8 @@ def _create_output(out: Path, identity: dict, plan, method, outputs, source, n, 
                 make(name, (h, w), "float32", ("y", "x"), np.nan, {"method": method})
         if "cube" in outputs and reflectance:
             group.create_array("wavelength", data=np.asarray(plan.output_wavelengths, np.float64),
-                               dimension_names=("wavelength",), attributes={"units": "nm"}, compressors=checksum_codecs())
+                               dimension_names=("wavelength",), attributes={"units": "nm"},
+                               compressors=checksum_codecs())
         group.create_array("frame_id", data=source.frame_ids(), chunks=(1, source.K),
                            dimension_names=("time", "pattern"), compressors=checksum_codecs())
         group.create_array("time", data=source.times(), chunks=(1,), dimension_names=("time",),

@@ -57,7 +57,8 @@ class StreamDecoder:
         row of the same map: B times fewer bytes written than ``"sigma"``). ``"dE_sigma"``: the first-order dE2000
         standard deviation (as ``recover --delta-e-sigma``): the XYZ covariance's six entries by the linear
         kernel, then a small kernel propagating them with XYZ to dE2000 (as
-        :func:`specgpu.planning.estimators.delta_E_sigma`). Both need the plan's noise model, which ``specgpu plan`` records
+        :func:`specgpu.planning.estimators.delta_E_sigma`). Both need the plan's noise model, which ``specgpu plan``
+        records
         (given ``--rig`` for a calibration made on a custom rig).
     reference : array_like, optional
         CIELAB reference of ``"dE"``: one colour (3,) or a per-pixel (H, W, 3) image. Required for ``"dE"``.
@@ -271,7 +272,8 @@ class StreamDecoder:
     def prepare_frames(self, raw) -> np.ndarray:
         """(K, H, W) float32 frames for the kernels when the calibration or plan needs host-side corrections
         (``precorrect``): the dark level (or the plan's ambient frame) subtracted, linearised and scaled by the
-        per-pattern flat ratio exactly as :func:`specgpu.pipeline.recovery.recover` does; a sample at the sensor's maximum
+        per-pattern flat ratio exactly as :func:`specgpu.pipeline.recovery.recover` does; a sample at the sensor's
+        maximum
         code is set to a marker the kernels flag as saturated."""
         raw = np.asarray(raw)
         dark = raw[self._ambient].astype(np.float32) if self._ambient is not None else self._dark_host

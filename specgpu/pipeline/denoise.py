@@ -27,8 +27,8 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
 
-__all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace", "denoise_recovery", "denoised_sigma",
-           "stream_denoise"]
+__all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace",
+           "denoise_recovery", "denoised_sigma", "stream_denoise"]
 
 #: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/budget_study.py --tune``): on
 #: the CIE 2017 CES chart and the natural scene, the pair with the lowest per-pixel RMSE whose error within 2 px of

@@ -47,8 +47,9 @@ from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_p
                                            tile_displacements, whitened_half_spectrum)
 from specgpu.rig.twin import TwinRig
 
-__all__ = ["MASK_INCONSISTENT", "sequence_truth", "truth_name", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD", "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode", "estimate_global_motion",
-           "registration_image", "truth_recorder", "TRUTH_FOLDER"]
+__all__ = ["MASK_INCONSISTENT", "sequence_truth", "truth_name", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD",
+           "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode",
+           "estimate_global_motion", "registration_image", "truth_recorder", "TRUTH_FOLDER"]
 
 #: How frames are decoded with respect to motion: as they are, or compensated for a global translation per frame.
 MOTION_MODES = {

@@ -1,6 +1,7 @@
 """Motion-compensated decoding of one sequence into the maps ``specgpu batch`` and ``specgpu stream`` write.
 
-``specgpu recover --motion`` decodes one sequence of a moving scene through :func:`specgpu.pipeline.moving_layers.recover_moving`:
+``specgpu recover --motion`` decodes one sequence of a moving scene through
+:func:`specgpu.pipeline.moving_layers.recover_moving`:
 the frames corrected as recover corrects them (the sensor's linearisation, the per-pattern flat ratio), each
 frame's displacement estimated within the sequence, one warped device pass, the pixels seen outside the field or
 whose compensated frames disagree left NaN with their mask bits. :class:`MovingDecoder` calls it on each

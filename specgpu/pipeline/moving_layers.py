@@ -38,7 +38,8 @@ from skimage.morphology import convex_hull_image
 from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import LinearResult
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
-from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency, estimate_global_motion,
+from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency,
+                                     estimate_global_motion,
                                      frame_gradients)
 from specgpu.pipeline.moving_residual import residual_chi2
 from specgpu.pipeline.moving_flow import MIN_FRAMES, choose_flow, flow_field, tile_motion
@@ -315,7 +316,8 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         hidden = (footprint & ~use) | covered
         mask[hidden] = (mask[hidden] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
         failed = footprint & ~valid & ~covered
-        mask[failed] = (mask[failed] & ~np.uint8(MASK_INCONSISTENT)) | (res.mask[failed] & np.uint8(1 | 2 | MASK_OUTSIDE))
+        mask[failed] = ((mask[failed] & ~np.uint8(MASK_INCONSISTENT))
+                        | (res.mask[failed] & np.uint8(1 | 2 | MASK_OUTSIDE)))
         y[hidden] = np.nan
         flagged = (flagged & ~use) | hidden
         layers.append(ObjectLayer(shifts, box, int(use.sum()), int(covered.sum()), decoded=use))

@@ -46,7 +46,8 @@ from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene, read_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig
 
-__all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder", "read_capture", "recover", "save_plan_and_calibration", "dark_warning", "to_XYZ", "to_Lab"]
+__all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder",
+           "read_capture", "recover", "save_plan_and_calibration", "dark_warning", "to_XYZ", "to_Lab"]
 
 PLAN_FILE = "plan.npz"
 #: The chart the demo and the accuracy study evaluate on (and leave out of basis training).
@@ -211,7 +212,8 @@ class CaptureWriter:
 
 def salvage_capture(directory) -> dict:
     """Make a capture folder left by a killed capture (no ``sequence.json``, its journal present) readable: index
-    every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.journal.salvage_sequence`), keep
+    every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.journal.salvage_sequence`),
+    keep
     the plan and calibration copies, remove the interrupted marker. Returns what was kept (``sequences``,
     ``frames_kept``, ``frames_journaled``, ``left_out``: each sequence not kept and why, ``kept_sequences``,
     ``stopped``). The motion truth of a capture on a moving twin is renumbered with the sequences
@@ -424,7 +426,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
 
     ``white_roi`` (``"X,Y,W,H"``) names a reference white of ``white_reflectance`` (a number or a CSV; 0.99 by
     default) in the field: each sequence's decoder is rescaled for the light's drift since calibration
-    (:mod:`specgpu.planning.correction`): the colour change fitted once on the sequences' mean white gains (it drifts over
+    (:mod:`specgpu.planning.correction`): the colour change fitted once on the sequences' mean white gains (it drifts
+    over
     hours; each frame's own power fluctuation averages down over the sequences), each sequence then rescaled by
     its own gains. A plan with an ambient frame (``plan --ambient``) has that frame subtracted
     instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
@@ -443,7 +446,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         The reference white in the field, as above.
     motion : {"none", "global", "affine", "flow"}
         ``"global"``: the scene moved during the sequence; a translation per frame (``"affine"``: an affine map,
-        for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`), the outputs are the scene at the sequence's
+        for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`), the
+        outputs are the scene at the sequence's
         reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene
         moves between sequences too): ``sequence`` is required unless the folder holds one.
 

@@ -313,7 +313,8 @@ class Camera:
             return (s * self.prnu + offset + self.dsnu_e) / p.gain_e_per_dn
         return (s + offset) / p.gain_e_per_dn
 
-    def temporal_variance_dn(self, signal_e, exposure_s: float | None = None, *, quantization: bool = True) -> np.ndarray:
+    def temporal_variance_dn(self, signal_e, exposure_s: float | None = None, *,
+                             quantization: bool = True) -> np.ndarray:
         """Temporal variance (DN^2) of one pixel per the noise model: shot + dark shot + read (+ 1/12 quantization)."""
         p = self.params
         var_e = np.asarray(signal_e, dtype=np.float64) + self.dark_electrons(exposure_s) + p.read_noise_e**2

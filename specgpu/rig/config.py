@@ -224,7 +224,8 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
         raise ValueError(f"{source}: twin.seed must be an integer, got {seed!r}")
     pacing = twin.get("pacing", "free")
     faults = build_table(FaultRates, data.get("faults", {}), "faults", source, base)
-    meter = build_table(SpectroradiometerParameters, data.get("spectroradiometer", {}), "spectroradiometer", source, base)
+    meter = build_table(SpectroradiometerParameters, data.get("spectroradiometer", {}), "spectroradiometer", source,
+                        base)
     hardware = dict(data.get("hardware", {}))
     for key, value in hardware.items():
         if isinstance(value, (dict, list)):

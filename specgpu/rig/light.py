@@ -329,7 +329,8 @@ class ProgrammableLight:
         if r.slit_flat_top or r.slit_fwhm_slope:
             g = _slit_matrix(self._wl, self._column_nm, p.line_fwhm_nm, r.slit_flat_top, r.slit_fwhm_slope)
         else:
-            g = np.exp(-0.5 * ((self._wl[:, None] - self._column_nm[None, :]) / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
+            offset = self._wl[:, None] - self._column_nm[None, :]
+            g = np.exp(-0.5 * (offset / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
         m = g * (lamp_at_col * dcol)[None, :]
         if p.second_order_leakage > 0:
             # Second order: the column for lambda_c also passes lambda_c / 2, at half the bandwidth.

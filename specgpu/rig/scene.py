@@ -9,7 +9,8 @@ Sources:
 - cube files (:mod:`specgpu.io.exr`, :mod:`specgpu.io.npz`, :mod:`specgpu.io.envi`): OpenEXR in the
   JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie), reflective channels named ``T.<wavelength><unit>``
   (e.g. ``T.550,000000nm``; ``.`` also accepted as decimal separator on reading), through OpenImageIO; or
-  ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>`` arrays). Bands are ordered by wavelength, never by channel order in the file.
+  ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>`` arrays). Bands are
+  ordered by wavelength, never by channel order in the file.
 - built-ins (:data:`BUILTIN_SCENES`): ``"colorchecker"`` (the 24-patch chart as an image from colour-science's
   measured spectra, with one mask per patch), ``"white"`` (a reference white plate) and ``"natural"`` (a
   scikit-image sample photograph turned into reflectance by Mallett and Yuksel's 2019 spectral upsampling,
@@ -340,7 +341,8 @@ def colorchecker_scene(height: int = 480, width: int = 640, *, chart: str = "Col
         refl[ys, xs, :] = spectra[k]
         m = np.zeros((h, w), bool)
         inset = 0.15 * size
-        m[int(round(ya + inset)):int(round(ya + size - inset)), int(round(xa + inset)):int(round(xa + size - inset))] = True
+        m[int(round(ya + inset)):int(round(ya + size - inset)),
+          int(round(xa + inset)):int(round(xa + size - inset))] = True
         masks[name] = m
     if white_tile is not None:
         wt = check_number("white_tile", white_tile, low=0, low_open=True, high=MAX_REFLECTANCE)

@@ -348,7 +348,8 @@ class TwinRig:
         if amb is not None:
             oamb = np.zeros((h, w), np.float32)
             oamb[where[1:]] = images(obj, amb[None, :])[0]
-        return MovingScene(Trajectory(m, d.camera.frame_rate_hz, math.hypot(h, w) / 2), bg, ambient, canvas, oamb, alpha)
+        return MovingScene(Trajectory(m, d.camera.frame_rate_hz, math.hypot(h, w) / 2), bg, ambient, canvas, oamb,
+                           alpha)
 
     def moving_mean(self, pattern_index: int, timestamp_s: float) -> np.ndarray:
         """(H, W) noise-free signal (DN above the offset, float32) of a frame of a moving world exposed from

@@ -51,7 +51,8 @@ def test_live_view_shows_the_stream_while_it_drops_nothing(qtbot):
     report = out["report"]
     assert not report.sink_errors
     assert report.assembly.dropped == 0 and report.ring.dropped == 0  # the view cost the stream no frame
-    assert view.shown >= 2 and report.sequences_out >= view.shown, (view.shown, report.sequences_out, ring.dropped, ring.written, len(kept), report.frames_in)
+    assert view.shown >= 2 and report.sequences_out >= view.shown, (view.shown, report.sequences_out, ring.dropped,
+                                                                    ring.written, len(kept), report.frames_in)
     assert view.shown + ring.dropped == len(kept)  # every result was shown or skipped, none lost
     cube = viewer.layers["reflectance"].data
     assert cube.shape == (len(plan.output_wavelengths), 240, 320)

@@ -22,7 +22,7 @@ from specgpu import io
 from specgpu.io.exr import parse_channel
 
 
-# ---- cubes -------------------------------------------------------------------------------------------------------------
+# ---- cubes -----------------------------------------------------------------------------------------------------------
 def test_cube_exr_float_round_trip_is_identical(tmp_path):
     cube = cube_data()
     wl = np.array([400.0, 450.0, 500.5, 600.0])
@@ -96,7 +96,7 @@ def test_oiiotool_info_shows_the_jcgt_channels(tmp_path, half):
     assert "specgpu:metadata" in res.stdout and "narrowband" in res.stdout
 
 
-# ---- cubes: bad input --------------------------------------------------------------------------------------------------
+# ---- cubes: bad input ------------------------------------------------------------------------------------------------
 def test_missing_cube_file(tmp_path):
     for name in ("none.exr", "none.npz"):
         with raises_one_line(FileNotFoundError, rf"{name}: spectral cube not found"):
@@ -194,7 +194,7 @@ def test_metadata_must_be_json(tmp_path):
     assert not (tmp_path / "m.exr").exists()
 
 
-# ---- maps --------------------------------------------------------------------------------------------------------------
+# ---- maps ------------------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("kind, channels", [("XYZ", 3), ("Lab", 3), ("dE2000", 1), (("RMSE",), 1)])
 def test_map_round_trip(tmp_path, kind, channels):
     rng = np.random.default_rng(2)

@@ -137,14 +137,14 @@ def test_training_files_csv_and_npz(tmp_path, spectra):
 
 @settings(max_examples=40, deadline=None)
 @given(st.floats(-1e3, 1e6) | st.just(float("nan")), st.floats(-10, 1e4) | st.just(float("inf")), st.floats(-1, 2))
-def test_noise_model_validator(g, r, l):
-    ok = np.isfinite(g) and g > 0 and np.isfinite(r) and r >= 0 and 0 <= l < 1
+def test_noise_model_validator(g, r, rms):
+    ok = np.isfinite(g) and g > 0 and np.isfinite(r) and r >= 0 and 0 <= rms < 1
     if ok:
-        n = E.NoiseModel(g, r, l)
+        n = E.NoiseModel(g, r, rms)
         assert E.NoiseModel.from_params(n.as_params()) == n
     else:
         with pytest.raises(ValueError, match="noise"):
-            E.NoiseModel(g, r, l)
+            E.NoiseModel(g, r, rms)
 
 
 def test_noise_model_from_the_camera():

@@ -23,8 +23,8 @@ MAX_MODULE_LINES = 700
 MAX_COMMAND_LINES = 40
 TOP_LEVEL_FILES = {"__init__.py", "__main__.py", "testing.py"}
 # optional or heavy third-party packages a function may import when it needs them (and only these)
-LOCAL_IMPORTS_ALLOWED = {"dask", "zarr", "numcodecs", "distributed", "napari", "usb", "harvesters", "genicam", "seabreeze",
-                         "scipy", "matplotlib", "colour",
+LOCAL_IMPORTS_ALLOWED = {"dask", "zarr", "numcodecs", "distributed", "napari", "usb", "harvesters", "genicam",
+                         "seabreeze", "scipy", "matplotlib", "colour",
                          # the Qt shim napari ships: the spectrum widget's Qt classes, only with the viewer extra
                          "qtpy"}
 
@@ -89,7 +89,7 @@ def modules(root: Path = PACKAGE) -> dict[str, Path]:
 
 
 def room(module: str, root: Path = PACKAGE) -> str:
-    """``specgpu.io.files`` -> ``io``; the package's own top-level files are the room ``specgpu``."""
+    """``specgpu.io.cube`` -> ``io``; the package's own top-level files are the room ``specgpu``."""
     parts = module.split(".")
     return parts[1] if len(parts) > 1 and (root / parts[1]).is_dir() else parts[0]
 
@@ -291,7 +291,8 @@ def test_the_source_checks_find_planted_faults(tmp_path):
                                       "specgpu/io/npz.py:8: specgpu.core.spectra._grid"]
     assert local_imports(pkg) == [("specgpu/io/npz.py:5", "zarr"), ("specgpu/io/npz.py:6", "colour"),
                                   ("specgpu/io/npz.py:7", "specgpu.core")]
-    assert command_bodies(pkg) == {"specgpu/apps/cli/group.py:main": 1, "specgpu/apps/cli/group.py:long": MAX_COMMAND_LINES + 1,
+    assert command_bodies(pkg) == {"specgpu/apps/cli/group.py:main": 1,
+                                   "specgpu/apps/cli/group.py:long": MAX_COMMAND_LINES + 1,
                                    "specgpu/apps/cli/group.py:short": 1}
     assert CITATION.search("as issue " "19 says") and CITATION.search("see Item " "#7") and CITATION.search("GPU" ".md")
     assert CITATION.search("run /" "work/venv/bin/python")
