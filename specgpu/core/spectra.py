@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from specgpu.core.validate import BadArgument, validate_method
+from numpy.typing import ArrayLike
 
 if TYPE_CHECKING:
     import colour
@@ -115,7 +116,7 @@ def resolve_illuminant_sd(illuminant) -> colour.SpectralDistribution:
     )
 
 
-def white_point_XYZ(illuminant="D65", observer=DEFAULT_CMFS, *, wavelengths=None,
+def white_point_XYZ(illuminant: str = "D65", observer=DEFAULT_CMFS, *, wavelengths: ArrayLike | None = None,
                     integration: str = "rectangle") -> np.ndarray:
     """The reference white of XYZ, Lab and dE: the XYZ of the perfect reflecting diffuser (float64, (3,)).
 
@@ -162,7 +163,8 @@ def white_point_XYZ(illuminant="D65", observer=DEFAULT_CMFS, *, wavelengths=None
     raise ValueError(f"illuminant must be a name, xy (2,) or white XYZ (3,), got shape {value.shape}")
 
 
-def XYZ_weights(wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, integration: str = "rectangle") -> np.ndarray:
+def XYZ_weights(wavelengths: ArrayLike, illuminant: str = "D65", cmfs=DEFAULT_CMFS, *,
+                integration: str = "rectangle") -> np.ndarray:
     """The 3 x B matrix W with XYZ = W . R for reflectance R sampled at ``wavelengths``.
 
     ``"rectangle"``: the weights of colour-science's ``msds_to_XYZ_integration`` on the grid itself (illuminant

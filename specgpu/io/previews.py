@@ -16,6 +16,8 @@ import OpenImageIO as oiio
 from specgpu.core.text import one_line
 from specgpu.io.exr import write_image
 from specgpu.io.paths import _suffix
+import os
+from numpy.typing import ArrayLike
 
 __all__ = ["PERCEPTUAL_COLORMAPS", "MIN_BAR_HEIGHT", "sRGB8", "write_png", "write_sRGB_preview", "write_delta_E_png",
            "read_png"]
@@ -55,7 +57,8 @@ def sRGB8(XYZ, illuminant=None) -> np.ndarray:
     return np.round(np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-def write_sRGB_preview(path, XYZ, *, exposure="auto", illuminant=None, metadata=None) -> Path:
+def write_sRGB_preview(path: str | os.PathLike[str], XYZ: ArrayLike, *, exposure: str = "auto",
+                       illuminant: ArrayLike | None = None, metadata: dict | None = None) -> Path:
     """Write an 8-bit sRGB PNG rendering of an XYZ map.
 
     Parameters
@@ -149,8 +152,9 @@ def _colour_bar(height: int, vmax: float, colormap: str, quantity: str, *, clipp
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
-def write_delta_E_png(path, delta_E, *, vmax=None, colormap: str = "magma", quantity: str = "dE2000",
-                      metadata=None, colorbar: bool = True) -> Path:
+def write_delta_E_png(path: str | os.PathLike[str], delta_E: ArrayLike, *, vmax: float | None = None,
+                      colormap: str = "magma", quantity: str = "dE2000",
+                      metadata: dict | None = None, colorbar: bool = True) -> Path:
     """Write a colour-difference map as a heat-map PNG with a perceptually uniform colormap and its colour bar.
 
     Parameters
@@ -220,7 +224,7 @@ def write_delta_E_png(path, delta_E, *, vmax=None, colormap: str = "magma", quan
     return write_png(path, rgb8, attrs)
 
 
-def read_png(path) -> tuple[np.ndarray, dict]:
+def read_png(path: str | os.PathLike[str]) -> tuple[np.ndarray, dict]:
     """Read an 8-bit PNG: (H, W, C) uint8 pixels and its text metadata (name -> str)."""
 
     path = Path(path)

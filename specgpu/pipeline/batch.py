@@ -71,6 +71,12 @@ from specgpu.pipeline.batch_source import (
 from specgpu.pipeline.decoder import StreamDecoder
 from specgpu.pipeline.denoise import stream_denoise
 from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.planning.plans import Plan
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
 
@@ -376,8 +382,9 @@ class BatchReport:
         return self.computed / self.seconds if self.seconds > 0 else 0.0
 
 
-def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
-                  method="CIE 2000", reference=None, device=None, denoise=None, motion="none",
+def prepare_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: CalibrationBundle,
+                  out: str | os.PathLike[str], *, outputs=("cube",), illuminant=None, observer=None,
+                  method: str = "CIE 2000", reference=None, device=None, denoise=None, motion: str = "none",
                   integration: str = "rectangle") -> tuple[BatchJob, np.ndarray]:
     """Check the source against the plan, create (or reopen, to resume) the output; returns the job and the
     indices of the sequences still to compute. Every refusal is one line naming the file, found before the
@@ -579,9 +586,10 @@ def _task_groups(todo, workers: int) -> list[list[int]]:
     return [todo[k:k + size] for k in range(0, len(todo), size)]
 
 
-def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
-              method="CIE 2000", reference=None, scheduler=None, workers: int = 1, client=None,
-              progress: bool = True, on_done=None, device=None, denoise=None, motion="none",
+def run_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: CalibrationBundle,
+              out: str | os.PathLike[str], *, outputs=("cube",), illuminant=None, observer=None,
+              method: str = "CIE 2000", reference=None, scheduler: str | None = None, workers: int = 1, client=None,
+              progress: bool = True, on_done=None, device=None, denoise: ArrayLike | None = None, motion: str = "none",
               integration: str = "rectangle") -> BatchReport:
     """Re-process every sequence of ``source_path`` with ``plan`` into ``out`` on Dask (see the module docstring).
 

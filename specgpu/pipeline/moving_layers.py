@@ -45,6 +45,7 @@ from specgpu.pipeline.moving_residual import residual_chi2
 from specgpu.pipeline.moving_flow import MIN_FRAMES, choose_flow, flow_field, tile_motion
 from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
+from numpy.typing import ArrayLike
 
 __all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
            "flagged_regions", "estimate_layer_motion", "object_footprint", "occluded_by", "decode_object_layers",
@@ -430,8 +431,9 @@ class MovingRecovery:
     layers: list = field(default_factory=list)
 
 
-def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 10, binning: int = 1,
-                   shifts=None, model: str = "translation", check: bool = True, layers: bool = True,
+def recover_moving(frames: ArrayLike, A: ArrayLike, *, dark: ArrayLike | None = None, gain: ArrayLike | None = None,
+                   saturation=None, upsample: int = 10, binning: int = 1,
+                   shifts: ArrayLike | None = None, model: str = "translation", check: bool = True, layers: bool = True,
                    device=None, seconds: dict | None = None, reference_frames=None, residual=None) -> MovingRecovery:
     """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
     with frame k sampled at x + d_k in one device pass.

@@ -43,7 +43,7 @@ from specgpu.planning.uncertainty import (
     sigma_map,
 )
 from specgpu.rig.config import RigDescription
-from specgpu.rig.scene import colorchecker_scene, read_scene
+from specgpu.rig.scene import SpectralScene, colorchecker_scene, read_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig
 
 __all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder",
@@ -55,8 +55,9 @@ EVALUATION_CHART = "ColorChecker N Ohta"
 CALIBRATION_FILE = "calibration.npz"
 
 
-def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: int = 1, noise_seed: int | None = None,
-                 faults: FaultSchedule | None = None, on_sequence=None, calibration=None) -> CaptureResult:
+def capture_plan(description: RigDescription, plan: Plan, scene: SpectralScene, *, sequences: int = 1,
+                 noise_seed: int | None = None, faults: FaultSchedule | None = None, on_sequence=None,
+                 calibration: CalibrationBundle | None = None) -> CaptureResult:
     """Capture ``sequences`` repetitions of ``plan``'s illuminant sequence of ``scene`` on the twin.
 
     The camera runs at the plan's exposure, at the fastest frame rate the camera and the light's switch time allow
@@ -213,8 +214,7 @@ class CaptureWriter:
 def salvage_capture(directory) -> dict:
     """Make a capture folder left by a killed capture (no ``sequence.json``, its journal present) readable: index
     every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.journal.salvage_sequence`),
-    keep
-    the plan and calibration copies, remove the interrupted marker. Returns what was kept (``sequences``,
+    keep the plan and calibration copies, remove the interrupted marker. Returns what was kept (``sequences``,
     ``frames_kept``, ``frames_journaled``, ``left_out``: each sequence not kept and why, ``kept_sequences``,
     ``stopped``). The motion truth of a capture on a moving twin is renumbered with the sequences
     (:func:`specgpu.pipeline.motion_record.renumber_truth`).
@@ -270,7 +270,8 @@ def check_capture_folder(directory, *, overwrite: bool = False) -> None:
                               "choose a new or empty folder")
 
 
-def write_capture(directory, sequences, assembly, plan_path, calibration_path, *, metadata=None,
+def write_capture(directory: str | os.PathLike[str], sequences, assembly, plan_path: str | os.PathLike[str],
+                  calibration_path, *, metadata: dict | None = None,
                   overwrite: bool = False) -> Path:
     """Write complete sequences (from :func:`capture_plan`) into a sequence folder with copies of the plan and
     calibration; ``assembly`` is the assembler's counters, kept in ``sequence.json``.
@@ -330,7 +331,7 @@ def _zarr_not_a_sequence(directory: Path) -> str:
             "(specgpu.io.recording.open_recording, or xarray.open_zarr), and recover reads capture folders")
 
 
-def read_capture(directory) -> SequenceFolder:
+def read_capture(directory: str | os.PathLike[str]) -> SequenceFolder:
     """Read a sequence folder; refuse it when the plan or calibration is missing or does not match its hashes,
     or when its frames are not whole sequences in pattern order.
 
@@ -427,8 +428,7 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     ``white_roi`` (``"X,Y,W,H"``) names a reference white of ``white_reflectance`` (a number or a CSV; 0.99 by
     default) in the field: each sequence's decoder is rescaled for the light's drift since calibration
     (:mod:`specgpu.planning.correction`): the colour change fitted once on the sequences' mean white gains (it drifts
-    over
-    hours; each frame's own power fluctuation averages down over the sequences), each sequence then rescaled by
+    over hours; each frame's own power fluctuation averages down over the sequences), each sequence then rescaled by
     its own gains. A plan with an ambient frame (``plan --ambient``) has that frame subtracted
     instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
 
@@ -447,9 +447,9 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     motion : {"none", "global", "affine", "flow"}
         ``"global"``: the scene moved during the sequence; a translation per frame (``"affine"``: an affine map,
         for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`), the
-        outputs are the scene at the sequence's
-        reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene
-        moves between sequences too): ``sequence`` is required unless the folder holds one.
+        outputs are the scene at the sequence's reference time, and pixels some frame saw outside the field are NaN.
+        One sequence at a time (the scene moves between sequences too): ``sequence`` is required unless the folder
+        holds one.
 
     Returns
     -------

@@ -35,6 +35,8 @@ from specgpu.core.validate import BadArgument, check_array, check_number, check_
 from specgpu.io.envi import read_cube_envi
 from specgpu.io.exr import read_cube_exr, write_cube_exr
 from specgpu.io.npz import read_cube_npz, write_cube_npz
+import os
+from numpy.typing import ArrayLike
 
 __all__ = [
     "SpectralScene", "read_scene", "write_scene", "colorchecker_scene", "white_plate_scene", "natural_scene",
@@ -91,7 +93,7 @@ class SpectralScene:
         """(height, width) in pixels."""
         return self.reflectance.shape[:2]
 
-    def band_weights(self, wavelengths, weights) -> np.ndarray:
+    def band_weights(self, wavelengths: ArrayLike, weights: ArrayLike) -> np.ndarray:
         """Fold spectral weights on a uniform grid into per-band weights of this scene.
 
         With the reflectance linearly interpolated between bands (held constant beyond the first and last band),
@@ -227,7 +229,7 @@ def interpolation_matrix(grid, band_wavelengths) -> np.ndarray:
 
 
 # ---- files ---------------------------------------------------------------------------------------------------
-def read_scene(path) -> SpectralScene:
+def read_scene(path: str | os.PathLike[str]) -> SpectralScene:
     """Read a spectral cube: ``.exr`` (JCGT 2021 ``T.<wl>nm`` channels) or ``.npz`` (``wavelengths``, ``reflectance``).
 
     Raises
@@ -265,7 +267,7 @@ def _read_exr(path: Path) -> SpectralScene:
     return SpectralScene(wl, refl, {}, path.stem)
 
 
-def write_scene(path, scene: SpectralScene, *, half: bool = False) -> Path:
+def write_scene(path: str | os.PathLike[str], scene: SpectralScene, *, half: bool = False) -> Path:
     """Write a scene as ``.exr`` (JCGT ``T.<wl>nm`` channels, float32 or half) or ``.npz`` (masks as ``mask_*``).
 
     The file appears under its name only once complete (written to a temporary name, then renamed).
@@ -352,7 +354,7 @@ def colorchecker_scene(height: int = 480, width: int = 640, *, chart: str = "Col
 
 
 def white_plate_scene(height: int = 480, width: int = 640, *, reflectance: float = 0.99,
-                      wavelengths=None) -> SpectralScene:
+                      wavelengths: ArrayLike | None = None) -> SpectralScene:
     """A uniform reference white plate of flat ``reflectance`` (default 0.99, a pressed-PTFE standard).
 
     ``wavelengths`` defaults to 380-780 nm at 5 nm. The mask ``"plate"`` covers the whole image.

@@ -123,3 +123,46 @@ def test_every_listed_function_and_class_is_documented():
             if callable(value) and not (value.__doc__ or "").strip():
                 undocumented.append(f"specgpu.{room}.{name}")
     assert not undocumented, undocumented
+
+
+#: The least share of the listed functions' parameters that carry an annotation (py.typed promises types)
+MIN_ANNOTATED = 0.75
+
+
+def listed_signatures():
+    """(qualified name, inspect.Signature) of every function a room lists, and of its listed classes' methods."""
+    import inspect
+
+    for room, names in room_names().items():
+        package = importlib.import_module(f"specgpu.{room}")
+        for name in names:
+            value = getattr(package, name)
+            if inspect.isclass(value):
+                members = [(f"{name}.{m}", f) for m, f in vars(value).items()
+                           if inspect.isfunction(f) and (m == "__init__" or not m.startswith("_"))]
+            elif inspect.isfunction(value):
+                members = [(name, value)]
+            else:
+                continue
+            for qualified, function in members:
+                yield f"specgpu.{room}.{qualified}", inspect.signature(function)
+
+
+def test_the_listed_functions_are_annotated():
+    params = [(where, p) for where, sig in listed_signatures() for p in sig.parameters.values()
+              if p.name not in ("self", "cls")]
+    annotated = sum(p.annotation is not p.empty for _, p in params)
+    assert len(params) > 500
+    assert annotated / len(params) >= MIN_ANNOTATED, f"{annotated} of {len(params)} parameters annotated"
+
+
+@pytest.mark.parametrize(("room", "name", "parameter"), [
+    ("engine", "apply_linear", "frames"), ("engine", "reflectance_to_XYZ", "R"),
+    ("io", "write_cube", "cube"), ("io", "write_cube", "wavelengths"), ("core", "XYZ_weights", "wavelengths"),
+    ("pipeline", "evaluate_reflectance", "cube"),
+])
+def test_arrays_going_in_are_array_like(room, name, parameter):
+    import inspect
+
+    function = getattr(importlib.import_module(f"specgpu.{room}"), name)
+    assert "ArrayLike" in str(inspect.signature(function).parameters[parameter].annotation)

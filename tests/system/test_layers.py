@@ -21,7 +21,7 @@ PACKAGE = ROOT / "specgpu"
 
 MAX_MODULE_LINES = 700
 MAX_COMMAND_LINES = 40
-TOP_LEVEL_FILES = {"__init__.py", "__main__.py", "testing.py"}
+TOP_LEVEL_FILES = {"__init__.py", "__main__.py", "testing.py", "py.typed"}
 # optional or heavy third-party packages a function may import when it needs them (and only these)
 LOCAL_IMPORTS_ALLOWED = {"dask", "zarr", "numcodecs", "distributed", "napari", "usb", "harvesters", "genicam",
                          "seabreeze", "scipy", "matplotlib", "colour",

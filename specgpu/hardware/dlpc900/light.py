@@ -176,8 +176,7 @@ class DLPC900Light(LightSource):
 
     def load_plan(self, plan) -> None:
         """Upload a :class:`~specgpu.planning.plans.Plan`'s sequence: its target spectra, already quantized by the
-        planner to
-        mirror counts through the calibration's column map, become DMD images, shown for the plan's exposure.
+        planner to mirror counts through the calibration's column map, become DMD images, shown for the plan's exposure.
 
         The plan must have been made from this light's calibration (when the light has one) and for its rows.
         """
