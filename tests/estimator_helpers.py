@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import specgpu.planning as E
+from specgpu.planning.priors import training_spectra
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
@@ -20,7 +21,7 @@ def bundle():
 
 @pytest.fixture(scope="module")
 def spectra():
-    return E.training_spectra()
+    return training_spectra()
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
-"""Runs specgpu's kernels on the Oclgrind device for tests/engine/test_oclgrind.py, in a process of its own (the ICD loader
-reads OCL_ICD_VENDORS and Oclgrind its OCLGRIND_* checks once, at start).
+"""Runs specgpu's kernels on the Oclgrind device for tests/engine/test_oclgrind.py, in a process of its own (the ICD
+loader reads OCL_ICD_VENDORS and Oclgrind its OCLGRIND_* checks once, at start).
 
     python oclgrind_worker.py cases VARIANT [CASE ...]   every case (or the named ones) in kernel variant VARIANT
     python oclgrind_worker.py race                       the channels-last tile without its barrier

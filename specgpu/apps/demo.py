@@ -43,7 +43,8 @@ from specgpu.calibration import calibrate, save_calibration
 from specgpu.calibration.bundle import calibration_error
 from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
 from specgpu.pipeline.recovery import EVALUATION_CHART, SequenceFolder, default_basis, uncertainty, write_capture
-from specgpu.planning import default_prior, make_plan, save_plan, training_spectra
+from specgpu.planning import default_prior, make_plan, save_plan
+from specgpu.planning.priors import training_spectra
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans
 from specgpu.planning.estimator_plans import study_plans
 from specgpu.planning.basis import save_basis
@@ -63,8 +64,8 @@ DEMO_METHODS = {
 }
 OUTPUT_WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
 #: Rows beyond the paper (names of :data:`specgpu.planning.estimator_plans.STUDY_METHODS`): Wiener decoder of
-#: symmetric-9 and the designed illuminants, decoded with the prior of every colour-science set but the evaluation chart's, each
-#: recording the RMSE it expects on that prior.
+#: symmetric-9 and the designed illuminants, decoded with the prior of every colour-science set but the evaluation
+#: chart's, each recording the RMSE it expects on that prior.
 ESTIMATOR_ROWS = ("wiener-9", "optimal-9", "optimal-6", "optimal-3")
 #: The caption of the report's Table 1.
 TABLE1_CAPTION = ("Table 1: spectral reflectance recovery, 24 patches (ΔE under D65, 400-700 nm); mean ± std "
@@ -84,6 +85,8 @@ def make_demo_plans(bundle, basis, names=None) -> dict:
 
 @dataclass
 class DemoResult:
+    """What ``specgpu demo`` made: its folder, how long it took, and the numbers its report shows."""
+
     out: Path
     seconds: float
     calibration: dict

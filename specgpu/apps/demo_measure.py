@@ -58,8 +58,9 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
     -------
     dict
         name -> {metric: [value per draw]} for :data:`METRICS` (``rmse``/``px_rmse``/``px_rms`` absent for XYZ
-        plans), plus ``"K"`` (frames per sequence), ``"sequence_ms"`` (the plan's sequence time) and, for a plan that records one (an estimator's, a design's),
-        ``"expected_rmse"``: the RMSE its decoder expects on its training prior.
+        plans), plus ``"K"`` (frames per sequence), ``"sequence_ms"`` (the plan's sequence time) and, for a plan that
+        records one (an estimator's, a design's), ``"expected_rmse"``: the RMSE its decoder expects on its training
+        prior.
     """
 
     out = {}

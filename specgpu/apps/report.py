@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from specgpu import io
+from specgpu.io.paths import atomic_path
 from specgpu.apps import paper
 from specgpu.apps.report_figures import (
     DELTA_E_LABEL,
@@ -395,7 +396,7 @@ def report_folder(folder, *, out=None, truth=None, device=None, say=None) -> Pat
                 f"<code>{html.escape(str(first))}</code>). Run time {time.perf_counter() - t_start:.1f} s, "
                 "figures included.</p>" + "".join(f"<p class='note'>{html.escape(n)}</p>" for n in notes))
 
-    with io.atomic_path(out) as tmp:
+    with atomic_path(out) as tmp:
         tmp.write_text(report_page(f"specgpu report: {folder.name}", intro, summaries, scene=scene, bundle=bundle,
                                    device=device))
     return out

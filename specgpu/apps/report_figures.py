@@ -70,7 +70,8 @@ def sRGB_rendering(XYZ, illuminant: str = "D65") -> np.ndarray:
 
 def common_scale(maps, percentile: float = 95.0, floor: float = 1e-6) -> float:
     """One colour-scale top for maps that are compared: the largest of their ``percentile``-th percentiles over
-    finite pixels (so the few pixels of a patch's edge, or one outlier, do not flatten every map), rounded up to two significant digits."""
+    finite pixels (so the few pixels of a patch's edge, or one outlier, do not flatten every map), rounded up to two
+    significant digits."""
     tops = [float(np.percentile(m[np.isfinite(m)], percentile)) for m in maps if np.isfinite(m).any()]
     top = max(tops, default=0.0)
     if top <= floor:

@@ -71,6 +71,8 @@ class Row:
 
 @dataclass
 class Table1:
+    """Table 1 of the paper as measured here: one row per method, the columns of :data:`COLUMNS`."""
+
     rows: list
     columns: tuple = COLUMNS
 

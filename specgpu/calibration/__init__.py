@@ -6,53 +6,7 @@ Modules: :mod:`~specgpu.calibration.bundle` (the bundle, its file and fingerprin
 :mod:`~specgpu.calibration.procedure` (:func:`calibrate`, the whole procedure).
 """
 
-from __future__ import annotations
+import lazy_loader
 
-from specgpu.calibration.bundle import (
-    CALIBRATION_FORMAT,
-    CALIBRATION_VERSION,
-    DEFAULT_MAX_EXPOSURE_S,
-    CalibrationBundle,
-    calibration_error,
-    load_calibration,
-    measure_line_shapes,
-    oracle_calibration,
-    rig_fingerprint,
-    save_calibration,
-)
-from specgpu.calibration.loops import LoopResult, camera_loop, spectral_loop
-from specgpu.calibration.procedure import MIRRORS_OFF_TOLERANCE, calibrate
-from specgpu.calibration.rigs import (
-    CalibrationRig,
-    TwinCalibrationRig,
-    as_calibration_rig,
-    capture_mean,
-    distribute_counts,
-)
-
-__all__ = [
-    "CALIBRATION_FORMAT",
-    "CALIBRATION_VERSION",
-    "DEFAULT_MAX_EXPOSURE_S",
-    "MIRRORS_OFF_TOLERANCE",
-    "CalibrationBundle",
-    "CalibrationRig",
-    "LoopResult",
-    "TwinCalibrationRig",
-    "as_calibration_rig",
-    "calibrate",
-    "calibration_error",
-    "camera_loop",
-    "capture_mean",
-    "distribute_counts",
-    "load_calibration",
-    "measure_line_shapes",
-    "oracle_calibration",
-    "rig_fingerprint",
-    "save_calibration",
-    "spectral_loop",
-]
-
-from specgpu.calibration.session import calibrate_on_rig  # noqa: E402
-
-__all__ += ["calibrate_on_rig"]
+# The names are listed in __init__.pyi; each loads its module on first use, so importing the room is cheap.
+__getattr__, __dir__, __all__ = lazy_loader.attach_stub(__name__, __file__)

@@ -34,6 +34,8 @@ from specgpu.io.tables import content_hash, load_npz, save_npz
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import interpolation_matrix, white_plate_scene
 from specgpu.rig.twin import TwinRig
+import os
+from numpy.typing import ArrayLike
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -340,12 +342,12 @@ class CalibrationBundle:
         A pattern's product ``I V`` is ``system_matrix @ (n / rows)``."""
         return self.column_matrix * self.responsivity[:, None]
 
-    def emitted(self, patterns) -> np.ndarray:
+    def emitted(self, patterns: ArrayLike) -> np.ndarray:
         """(..., G) estimated spectral irradiance of mirror-count patterns (..., C), W m^-2 nm^-1."""
         n = np.asarray(patterns, np.float64)
         return (n / self.rows) @ self.column_matrix.T
 
-    def forward_matrix(self, patterns, wavelengths, exposure_s: float) -> np.ndarray:
+    def forward_matrix(self, patterns: ArrayLike, wavelengths: ArrayLike, exposure_s: float) -> np.ndarray:
         """(K, B) model camera output (DN above dark, flat-fielded) per unit reflectance sampled at
         ``wavelengths`` (linear interpolation, constant beyond the ends, as the twin's scenes), for each pattern.
 
@@ -356,7 +358,7 @@ class CalibrationBundle:
         prod = (n / self.rows) @ self.system_matrix.T  # (K, G): I V in DN/s per nm
         return exposure_s * dl * prod @ interpolation_matrix(self.wavelengths, np.asarray(wavelengths, np.float64))
 
-    def flat_ratio(self, patterns) -> np.ndarray | None:
+    def flat_ratio(self, patterns: ArrayLike) -> np.ndarray | None:
         """(K, H, W) float32 per-pattern correction of the flat field, ``flat(lambda_k) / flat_field``, at each
         pattern's response centroid ``lambda_k`` (linear between the measured bands, constant beyond); None when
         the bundle has one flat field. Multiply a pattern's dark-subtracted frame by it before decoding."""
@@ -452,7 +454,7 @@ class CalibrationBundle:
                              f"{rig_fingerprint(description)[:12]}); recalibrate")
 
 
-def save_calibration(path, bundle: CalibrationBundle) -> str:
+def save_calibration(path: str | os.PathLike[str], bundle: CalibrationBundle) -> str:
     """Save a bundle as a versioned, hashed ``.npz`` (format ``specgpu.calibration``); return its hash.
 
     Parameters
@@ -488,7 +490,7 @@ def save_calibration(path, bundle: CalibrationBundle) -> str:
     return digest
 
 
-def load_calibration(path, *, rig: RigDescription | None = None) -> CalibrationBundle:
+def load_calibration(path: str | os.PathLike[str], *, rig: RigDescription | None = None) -> CalibrationBundle:
     """Load a bundle saved by :func:`save_calibration`.
 
     Parameters

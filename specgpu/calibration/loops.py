@@ -22,6 +22,7 @@ from specgpu.calibration.rigs import (
     distribute_counts,
 )
 from specgpu.core.numerics import fit_levels
+from numpy.typing import ArrayLike
 
 __all__ = ["LoopResult", "camera_loop", "spectral_loop"]
 
@@ -71,7 +72,8 @@ class LoopResult:
                 "history": [float(h) for h in self.history], "clipped": int(np.sum(self.clipped))}
 
 
-def camera_loop(rig, masks, targets, *, flat_field=None, dark=None, initial_levels=None, repeats: int = 8,
+def camera_loop(rig, masks: ArrayLike, targets: ArrayLike, *, flat_field: ArrayLike | None = None,
+                dark: ArrayLike | None = None, initial_levels: ArrayLike | None = None, repeats: int = 8,
                 tolerance: float = 0.01, max_iterations: int = 10, noise_seed: int = 0,
                 exposure_s: float | None = None) -> LoopResult:
     """Loop (a): adjust each pattern's power until the camera output on the rig's scene matches its target.
@@ -138,7 +140,8 @@ def camera_loop(rig, masks, targets, *, flat_field=None, dark=None, initial_leve
                       clipped)
 
 
-def spectral_loop(rig, target, wavelengths=None, *, bundle: CalibrationBundle | None = None, initial=None,
+def spectral_loop(rig, target: ArrayLike, wavelengths: ArrayLike | None = None, *,
+                  bundle: CalibrationBundle | None = None, initial=None,
                   tolerance: float = 0.005, max_iterations: int = 20, averages: int = 2) -> LoopResult:
     """Loop (b): adjust one pattern until the spectroradiometer's reading matches a target spectrum.
 

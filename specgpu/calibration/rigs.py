@@ -16,10 +16,15 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from specgpu.capture.session import capture_sequences
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import white_plate_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.rig.scene import SpectralScene
 
 __all__ = [
     "CalibrationRig",
@@ -148,7 +153,7 @@ class CalibrationRig(Protocol):
     frame_period_s: float
     max_spectrum: np.ndarray | None
 
-    def capture_mean(self, patterns, repeats: int, *, exposure_s: float | None = None,
+    def capture_mean(self, patterns: ArrayLike, repeats: int, *, exposure_s: float | None = None,
                      noise_seed: int | None = None) -> np.ndarray:
         """(K, H, W) float64 mean of ``repeats`` captured sequences of ``patterns`` (K, C) mirror counts, at
         ``exposure_s`` (the calibration exposure by default). ``noise_seed`` gives simulated frames fresh temporal
@@ -181,7 +186,7 @@ class TwinCalibrationRig:
         Use this twin (its description and scene) for the calibration exposure instead of building one.
     """
 
-    def __init__(self, description: RigDescription | None = None, *, scene=None, rig=None):
+    def __init__(self, description: RigDescription | None = None, *, scene: SpectralScene | None = None, rig=None):
         if rig is not None:
             self.rig = rig
             self.description = rig.description
@@ -234,7 +239,7 @@ class TwinCalibrationRig:
     def max_spectrum(self) -> np.ndarray:
         return self.rig.light.max_spectrum
 
-    def capture_mean(self, patterns, repeats: int, *, exposure_s: float | None = None,
+    def capture_mean(self, patterns: ArrayLike, repeats: int, *, exposure_s: float | None = None,
                      noise_seed: int | None = None) -> np.ndarray:
         rig = self._at(exposure_s)
         if rig.clock_start_s != self.clock_s:

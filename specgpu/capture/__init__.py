@@ -4,14 +4,7 @@ Backends are chosen by name (:func:`open_driver`: the digital twin ``"twin"`` by
 frames) and imported on demand.
 """
 
-from specgpu.capture.assemble import AssemblyStats, Sequence, SequenceAssembler, assemble_stream
-from specgpu.capture.driver import DRIVERS, CameraDriver, FrameInfo, LightSource, StreamEnd, open_driver
-from specgpu.capture.ringbuffer import POLICIES, RingBuffer, RingStats, Slot, run_producer
-from specgpu.capture.session import CaptureResult, capture_sequences
+import lazy_loader
 
-__all__ = [
-    "AssemblyStats", "Sequence", "SequenceAssembler", "assemble_stream",
-    "DRIVERS", "CameraDriver", "FrameInfo", "LightSource", "StreamEnd", "open_driver",
-    "POLICIES", "RingBuffer", "RingStats", "Slot", "run_producer",
-    "CaptureResult", "capture_sequences",
-]
+# The names are listed in __init__.pyi; each loads its module on first use, so importing the room is cheap.
+__getattr__, __dir__, __all__ = lazy_loader.attach_stub(__name__, __file__)

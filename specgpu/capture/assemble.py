@@ -144,7 +144,8 @@ class SequenceAssembler:
             if self.k < 2:
                 raise ValueError("align='sync' needs n_patterns >= 2 (a dark pattern 0 and at least one other)")
             if sync_pattern not in (None, 0):
-                raise ValueError(f"align='sync' uses pattern 0 as the dark sync pattern, got sync_pattern={sync_pattern}")
+                raise ValueError("align='sync' uses pattern 0 as the dark sync pattern, "
+                                 f"got sync_pattern={sync_pattern}")
             if sync_max_dn is None:
                 raise ValueError("sync_max_dn is required with align='sync' (the brightest mean a dark frame may have)")
             check_number("sync_max_dn", sync_max_dn)
@@ -229,7 +230,8 @@ class SequenceAssembler:
         if self._buf is None:
             self._buf = np.empty((self.k,) + frame.shape, frame.dtype)
         elif self._buf.shape[1:] != frame.shape:
-            raise ValueError(f"frame {info.frame_id}: shape {frame.shape} differs from the stream's {self._buf.shape[1:]}")
+            raise ValueError(f"frame {info.frame_id}: shape {frame.shape} differs from the stream's "
+                             f"{self._buf.shape[1:]}")
         self._buf[pos] = frame
         self._ids[pos] = info.frame_id
         self._ts[pos] = info.timestamp_s

@@ -134,7 +134,7 @@ class CameraDriver(abc.ABC):
 
 #: Backend name -> "module:Class". Imported on demand, so a backend's dependencies load only when used.
 DRIVERS: dict[str, str] = {
-    "twin": "specgpu.capture.twin:TwinDriver",
+    "twin": "specgpu.capture.twin_driver:TwinDriver",
     "replay": "specgpu.capture.replay:ReplayDriver",
     "vision-dlpc900": "specgpu.hardware.rig:open_hardware",  # GenICam camera lit by a DLPC900 (specgpu.hardware)
 }

@@ -1,7 +1,7 @@
-"""A preallocated ring of frame slots between the acquisition thread and its consumer.
+r"""A preallocated ring of frame slots between the acquisition thread and its consumer.
 
-The producer ``acquire()``\\ s a free slot, lets the driver fill it in place (zero copy), and ``finalize()``\\ s it
-with the frame's metadata; the consumer ``get()``\\ s the oldest finalized slot, reads it, and ``release()``\\ s it.
+The producer ``acquire()``\ s a free slot, lets the driver fill it in place (zero copy), and ``finalize()``\ s it
+with the frame's metadata; the consumer ``get()``\ s the oldest finalized slot, reads it, and ``release()``\ s it.
 Slots are views into one (n_slots, H, W) array allocated once.
 
 When no slot is free, the policy decides (explicitly chosen, never implicit):
@@ -26,6 +26,7 @@ import numpy as np
 
 from specgpu.capture.driver import FrameInfo
 from specgpu.core.validate import check_number
+from numpy.typing import DTypeLike
 
 __all__ = ["RingBuffer", "Slot", "RingStats", "POLICIES", "run_producer"]
 
@@ -123,7 +124,7 @@ class RingBuffer:
         ``"block"``, ``"drop_oldest"`` or ``"drop_newest"`` (see the module docstring).
     """
 
-    def __init__(self, n_slots: int, frame_shape, dtype=np.uint16, policy: str = "block"):
+    def __init__(self, n_slots: int, frame_shape, dtype: DTypeLike = np.uint16, policy: str = "block"):
         n = check_number("n_slots", n_slots, low=2, high=1 << 20, integer=True)
         if policy not in POLICIES:
             raise ValueError(f"unknown ring policy {policy!r}; valid policies: {', '.join(POLICIES)}")

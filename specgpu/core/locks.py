@@ -144,7 +144,7 @@ class _Lock:
 
 
 @contextmanager
-def output_lock(path, *, make_parents: bool = False):
+def output_lock(path: str | os.PathLike[str], *, make_parents: bool = False):
     """Hold the exclusive lock of one output file or folder for the ``with`` block (``make_parents``: create its
     missing parent folders first, as for an output folder).
 

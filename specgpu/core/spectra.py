@@ -21,11 +21,15 @@ from __future__ import annotations
 
 import functools
 import warnings
+from typing import TYPE_CHECKING
 
-import colour
 import numpy as np
 
 from specgpu.core.validate import BadArgument, validate_method
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    import colour
 
 __all__ = [
     "DEFAULT_CMFS",
@@ -43,7 +47,8 @@ __all__ = [
 
 DEFAULT_CMFS = "CIE 1931 2 Degree Standard Observer"
 #: The observers XYZ, Lab and dE can be made for: colour-matching functions with an illuminant white-point table
-OBSERVERS = tuple(name for name in colour.CCS_ILLUMINANTS if name in colour.MSDS_CMFS and "Observer" in name)
+#: (read from colour-science on first use, by the module's ``__getattr__``)
+OBSERVERS: tuple[str, ...]
 #: How reflectance is integrated to XYZ (the keys; the CLI's ``--integration`` takes the short spellings too)
 INTEGRATIONS = {"rectangle": "rectangle", "ASTM E308": "ASTM E308", "astm-e308": "ASTM E308"}
 #: The measurement intervals (nm) ASTM E308 has tables for
@@ -53,6 +58,20 @@ ASTM_E308_INTERVALS = (1, 5, 10, 20)
 WHITE_WAVELENGTHS = np.arange(360.0, 781.0, 1.0)
 
 
+@functools.cache
+def _observers() -> tuple[str, ...]:
+    import colour  # colour-science takes seconds to import: loaded by the first function that needs its tables
+
+    return tuple(name for name in colour.CCS_ILLUMINANTS if name in colour.MSDS_CMFS and "Observer" in name)
+
+
+def __getattr__(name: str):
+    # OBSERVERS is read from colour-science's tables, so it is made on first use (PEP 562), not at import
+    if name == "OBSERVERS":
+        return _observers()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def resolve_integration(integration: str) -> str:
     """The canonical name of an integration of :data:`INTEGRATIONS` (case-insensitive); ValueError listing them."""
     return validate_method(integration, INTEGRATIONS, "integration")
@@ -60,6 +79,7 @@ def resolve_integration(integration: str) -> str:
 
 def spectral_shape(wavelengths: np.ndarray) -> colour.SpectralShape:
     """The colour-science shape of an evenly spaced wavelength grid (nm)."""
+    import colour
     w = np.asarray(wavelengths, dtype=np.float64)
     interval = float(w[1] - w[0]) if w.size > 1 else 1.0
     return colour.SpectralShape(float(w[0]), float(w[-1]), interval)
@@ -67,6 +87,7 @@ def spectral_shape(wavelengths: np.ndarray) -> colour.SpectralShape:
 
 def resolve_cmfs(cmfs) -> colour.MultiSpectralDistributions:
     """Colour-matching functions by name (a key of ``colour.MSDS_CMFS``) or as given."""
+    import colour
     if isinstance(cmfs, colour.MultiSpectralDistributions):
         return cmfs
     if isinstance(cmfs, str):
@@ -80,6 +101,7 @@ def resolve_cmfs(cmfs) -> colour.MultiSpectralDistributions:
 
 def resolve_illuminant_sd(illuminant) -> colour.SpectralDistribution:
     """An illuminant spectrum by name (a key of ``colour.SDS_ILLUMINANTS``, e.g. ``"D65"``, ``"A"``) or as given."""
+    import colour
     if isinstance(illuminant, colour.SpectralDistribution):
         return illuminant
     if isinstance(illuminant, str):
@@ -94,7 +116,7 @@ def resolve_illuminant_sd(illuminant) -> colour.SpectralDistribution:
     )
 
 
-def white_point_XYZ(illuminant="D65", observer=DEFAULT_CMFS, *, wavelengths=None,
+def white_point_XYZ(illuminant: str = "D65", observer=DEFAULT_CMFS, *, wavelengths: ArrayLike | None = None,
                     integration: str = "rectangle") -> np.ndarray:
     """The reference white of XYZ, Lab and dE: the XYZ of the perfect reflecting diffuser (float64, (3,)).
 
@@ -122,10 +144,11 @@ def white_point_XYZ(illuminant="D65", observer=DEFAULT_CMFS, *, wavelengths=None
     >>> white_point_XYZ("D65", wavelengths=np.arange(400, 701, 10)).round(4).tolist()
     [0.9494, 1.0, 1.0871]
     """
+    import colour
     if isinstance(illuminant, (str, colour.SpectralDistribution)):
         if isinstance(illuminant, str) and isinstance(observer, str) \
-                and not any(o.lower() == observer.lower() for o in OBSERVERS):
-            raise ValueError(f"observer={observer!r} has no illuminant table; try one of {list(OBSERVERS)}")
+                and not any(o.lower() == observer.lower() for o in _observers()):
+            raise ValueError(f"observer={observer!r} has no illuminant table; try one of {list(_observers())}")
         grid = WHITE_WAVELENGTHS if wavelengths is None else wavelengths
         return XYZ_weights(grid, illuminant, observer, integration=integration).sum(axis=1)
     value = np.asarray(illuminant, dtype=np.float64)
@@ -140,7 +163,8 @@ def white_point_XYZ(illuminant="D65", observer=DEFAULT_CMFS, *, wavelengths=None
     raise ValueError(f"illuminant must be a name, xy (2,) or white XYZ (3,), got shape {value.shape}")
 
 
-def XYZ_weights(wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, integration: str = "rectangle") -> np.ndarray:
+def XYZ_weights(wavelengths: ArrayLike, illuminant: str = "D65", cmfs=DEFAULT_CMFS, *,
+                integration: str = "rectangle") -> np.ndarray:
     """The 3 x B matrix W with XYZ = W . R for reflectance R sampled at ``wavelengths``.
 
     ``"rectangle"``: the weights of colour-science's ``msds_to_XYZ_integration`` on the grid itself (illuminant
@@ -221,6 +245,7 @@ def _ASTM_E308_weights(w: np.ndarray, illuminant, cmfs) -> np.ndarray:
     """The weights of colour-science's ASTM E308 XYZ, which is linear in the reflectance: for 10 and 20 nm its
     XYZ of the B unit spectra (one call over the identity), for 1 and 5 nm the rectangle weights it integrates
     with, folded onto the grid. The grid is checked first, so colour-science never reshapes it."""
+    import colour
     step = float(w[1] - w[0]) if w.size > 1 else 0.0
     interval = int(round(step))
     if w.size < 2 or interval not in ASTM_E308_INTERVALS or abs(step - interval) > 1e-9 \

@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from collections.abc import Mapping
 
 import numpy as np
-import pyopencl.array as cla
 
 
 class BadArgument(ValueError):
@@ -127,8 +127,13 @@ FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
 OUT_DTYPES = (np.dtype(np.float32), np.dtype(np.float16))
 
 
-def is_device_array(a) -> bool:
-    return isinstance(a, cla.Array)
+def is_device_array(a: object) -> bool:
+    """Whether ``a`` is a device array (:class:`pyopencl.array.Array`).
+
+    Only a process that has imported pyopencl can hold one, so the check never imports OpenCL itself.
+    """
+    cla = sys.modules.get("pyopencl.array")
+    return cla is not None and isinstance(a, cla.Array)
 
 
 def _shape(a) -> str:
@@ -163,7 +168,8 @@ def check_frames(frames, name: str = "frames"):
                 raise ValueError(f"{name} has values beyond float32 range (max |value| {np.max(np.abs(finite)):.3g})")
             frames = frames.astype(np.float32)
         if frames.dtype not in FRAME_DTYPES:
-            raise TypeError(f"{name} has dtype {frames.dtype}; supported: uint8, uint16, float32 (float64 is converted)")
+            raise TypeError(f"{name} has dtype {frames.dtype}; supported: uint8, uint16, float32 "
+                            "(float64 is converted)")
         frames = np.ascontiguousarray(frames)
     if frames.ndim < 2:
         raise ValueError(f"{name} must have shape (K, H, W) or (K, N), got {_shape(frames)}")

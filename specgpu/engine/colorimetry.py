@@ -35,6 +35,7 @@ from specgpu.core.validate import (
     is_device_array,
     validate_method,
 )
+from numpy.typing import ArrayLike
 
 __all__ = [
     "DELTA_E_METHODS",
@@ -61,7 +62,8 @@ def _result(dev, shape, on_device: bool):
     return dev if on_device else dev.get()
 
 
-def XYZ_to_Lab(XYZ, illuminant="D65", *, observer: str = DEFAULT_CMFS, wavelengths=None,
+def XYZ_to_Lab(XYZ: ArrayLike, illuminant: str = "D65", *, observer: str = DEFAULT_CMFS,
+               wavelengths: ArrayLike | None = None,
                integration: str = "rectangle", device=None):
     """CIE XYZ -> CIE L*a*b* on the device.
 
@@ -113,7 +115,7 @@ def XYZ_to_Lab(XYZ, illuminant="D65", *, observer: str = DEFAULT_CMFS, wavelengt
     return _result(lab, XYZ.shape, is_device_array(XYZ))
 
 
-def delta_E(Lab_1, Lab_2, method: str = "CIE 2000", *, device=None):
+def delta_E(Lab_1: ArrayLike, Lab_2: ArrayLike, method: str = "CIE 2000", *, device=None):
     """Colour difference between two CIELAB images, or an image and one colour, on the device.
 
     Parameters
@@ -158,7 +160,8 @@ def delta_E(Lab_1, Lab_2, method: str = "CIE 2000", *, device=None):
     return _result(de, shape, is_device_array(Lab_1) or is_device_array(Lab_2))
 
 
-def reflectance_to_XYZ(R, wavelengths, illuminant="D65", cmfs=DEFAULT_CMFS, *, integration: str = "rectangle",
+def reflectance_to_XYZ(R: ArrayLike, wavelengths: ArrayLike, illuminant: str = "D65", cmfs=DEFAULT_CMFS, *,
+                       integration: str = "rectangle",
                        device=None):
     """Spectral reflectance -> CIE XYZ under ``illuminant`` for the ``cmfs`` observer, on the device.
 
@@ -216,9 +219,11 @@ class FusedResult(NamedTuple):
     mask: object
 
 
-def frames_to_delta_E(frames, A, reference, *, C=None, illuminant="D65", observer: str = DEFAULT_CMFS,
-                      wavelengths=None, integration: str = "rectangle", method: str = "CIE 2000", dark=None,
-                      gain=None, saturation: float | None = None, return_XYZ: bool = False,
+def frames_to_delta_E(frames: ArrayLike, A: ArrayLike, reference: ArrayLike, *, C: ArrayLike | None = None,
+                      illuminant: str = "D65", observer: str = DEFAULT_CMFS,
+                      wavelengths: ArrayLike | None = None, integration: str = "rectangle",
+                      method: str = "CIE 2000", dark: ArrayLike | None = None,
+                      gain: ArrayLike | None = None, saturation: float | None = None, return_XYZ: bool = False,
                       return_Lab: bool = False, return_mask: bool = False, device=None):
     """Frames -> XYZ -> Lab -> colour difference against a reference, fused in one device pass.
 

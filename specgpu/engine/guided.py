@@ -19,6 +19,7 @@ import pyopencl.array as cla
 from specgpu.core.validate import check_number
 from specgpu.engine.kernels import _empty, launch_range, to_device
 from specgpu.engine.runtime import get_kernel, get_queue
+from numpy.typing import ArrayLike
 
 __all__ = ["guided_filter", "box_box_variance", "flat_variance_reduction"]
 
@@ -46,7 +47,7 @@ def _box(queue, src, H, W, C, r, keep):
     return out
 
 
-def guided_filter(image, guide, *, radius: int, eps: float, device=None):
+def guided_filter(image: ArrayLike, guide: ArrayLike, *, radius: int, eps: float, device=None):
     """Edge-aware smoothing of ``image`` (H, W, B) guided by ``guide`` (H, W), on the OpenCL device.
 
     Parameters

@@ -18,6 +18,8 @@ import pyopencl.array as cla
 
 from specgpu.core.validate import check_gain_map, check_pixel_map
 from specgpu.engine.runtime import DTYPE_TO_CTYPE, VARIANTS, get_allocator, get_kernel, kernel_variant, new_kernel
+from numpy.typing import ArrayLike
+from numpy.typing import DTypeLike
 
 VW = 8  # pixels per work-item of the "cpu" variant, as kernels/common.h
 _GROUP = 64  # work-group size; the global size is padded to a multiple of it
@@ -58,7 +60,7 @@ def _c_float(x: float) -> str:
     return repr(float(x)) + "f"
 
 
-def to_device(queue: cl.CommandQueue, a, dtype=None) -> cla.Array:
+def to_device(queue: cl.CommandQueue, a, dtype: DTypeLike | None = None) -> cla.Array:
     """``a`` as a device array on ``queue``'s context (no copy when it already is one of the right dtype)."""
     if isinstance(a, cla.Array):
         if a.context != queue.context:
@@ -141,9 +143,9 @@ def _data(a):
     return None if a is None else a.data
 
 
-def launch_linear(queue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 0,
+def launch_linear(queue: cl.CommandQueue, frames: cla.Array, A: np.ndarray, *, n: int, in_layout: int = 0,
                   dark: cla.Array | None = None, dark_per_frame: bool = False, gain: cla.Array | None = None,
-                  out_dtype=np.float32, out_layout: int = 0, want_mask: bool = False,
+                  out_dtype: DTypeLike = np.float32, out_layout: int = 0, want_mask: bool = False,
                   saturation: float | None = None):
     """y = A (o - dark) * gain over ``n`` pixels; returns (out (B*n,), mask (n,) or None) as flat device arrays."""
     B = A.shape[0]
@@ -222,9 +224,10 @@ class Prepared:
         return out
 
 
-def prepare_linear(queue, frames_dtype, A: np.ndarray, *, n: int, dark=None, dark_per_frame=False, gain=None,
-                   out_dtype=np.float32, out_layout: int = 0, want_mask: bool = False, saturation=None,
-                   sqrt_offsets=None, square=None) -> Prepared:
+def prepare_linear(queue: cl.CommandQueue, frames_dtype: DTypeLike, A: np.ndarray, *, n: int,
+                   dark: ArrayLike | None = None, dark_per_frame: bool = False, gain: ArrayLike | None = None,
+                   out_dtype: DTypeLike = np.float32, out_layout: int = 0, want_mask: bool = False, saturation=None,
+                   sqrt_offsets: ArrayLike | None = None, square=None) -> Prepared:
     """:func:`launch_linear` as a :class:`Prepared` launch; outputs ``out`` (B*n) and ``mask`` (n) when asked.
 
     ``sqrt_offsets`` (B,): write ``sqrt(max(y_b + offset_b, 0))`` (a standard deviation from a variance linear in
@@ -255,7 +258,7 @@ def prepare_linear(queue, frames_dtype, A: np.ndarray, *, n: int, dark=None, dar
                                                 np.uint64(n)], 0, outputs)
 
 
-def linear_matrix(A, sqrt_offsets=None) -> np.ndarray:
+def linear_matrix(A: ArrayLike, sqrt_offsets: ArrayLike | None = None) -> np.ndarray:
     """The float32 values of a linear launch's matrix argument: A (B x K) row-major, then the B offsets of a
     square-root output."""
     A = np.ascontiguousarray(A, np.float32)
@@ -267,9 +270,10 @@ def linear_matrix(A, sqrt_offsets=None) -> np.ndarray:
     return np.concatenate([A.reshape(-1), off])
 
 
-def prepare_frames_to_delta_E(queue, frames_dtype, M: np.ndarray, white, reference, *, n: int,
-                              method: str = "CIE 2000", reference_single: bool = True, dark=None,
-                              dark_per_frame: bool = False, gain=None, write_XYZ: bool = False,
+def prepare_frames_to_delta_E(queue: cl.CommandQueue, frames_dtype: DTypeLike, M: np.ndarray, white, reference, *,
+                              n: int,
+                              method: str = "CIE 2000", reference_single: bool = True, dark: ArrayLike | None = None,
+                              dark_per_frame: bool = False, gain: ArrayLike | None = None, write_XYZ: bool = False,
                               write_Lab: bool = False, want_mask: bool = False, saturation=None) -> Prepared:
     """:func:`launch_frames_to_delta_E` as a :class:`Prepared` launch; outputs among XYZ, Lab, delta_E, mask."""
     K = M.shape[1]
@@ -296,7 +300,7 @@ def prepare_frames_to_delta_E(queue, frames_dtype, M: np.ndarray, white, referen
                                            _data(reference), None, None, None, None, np.uint64(n)], 0, outputs)
 
 
-def prepare_delta_E_sigma(queue, white, constant_cov, *, n: int) -> Prepared:
+def prepare_delta_E_sigma(queue: cl.CommandQueue, white, constant_cov, *, n: int) -> Prepared:
     """The first-order dE2000 standard deviation of XYZ (3n, the launch's "frames") given the noise part of its
     covariance (6n: XX XY XZ YY YZ ZZ per pixel, input argument 1) and a constant (3, 3) covariance, as a
     :class:`Prepared` launch; output ``dE_sigma`` (n)."""
@@ -309,7 +313,7 @@ def prepare_delta_E_sigma(queue, white, constant_cov, *, n: int) -> Prepared:
                     {"dE_sigma": (6, 4 * n)})
 
 
-def launch_XYZ_to_Lab(queue, XYZ: cla.Array, white, *, n: int) -> cla.Array:
+def launch_XYZ_to_Lab(queue: cl.CommandQueue, XYZ: cla.Array, white, *, n: int) -> cla.Array:
     """CIELAB (3n, flat) of ``n`` XYZ pixels (3n, flat) for the ``white`` XYZ, on the device (the launcher of
     :func:`specgpu.engine.colorimetry.XYZ_to_Lab`)."""
     vw = _vw(queue)
@@ -321,7 +325,8 @@ def launch_XYZ_to_Lab(queue, XYZ: cla.Array, white, *, n: int) -> cla.Array:
     return lab
 
 
-def launch_delta_E(queue, Lab_1: cla.Array, Lab_2: cla.Array, *, method: str, n: int, single1: bool = False,
+def launch_delta_E(queue: cl.CommandQueue, Lab_1: cla.Array, Lab_2: cla.Array, *, method: str, n: int,
+                   single1: bool = False,
                    single2: bool = False) -> cla.Array:
     """Colour differences (n) of two flat CIELAB device arrays by ``method`` (a key of :data:`DE_CODES`); a
     ``single`` flag reads that argument as one colour for every pixel (the launcher of
@@ -345,7 +350,8 @@ class FusedOutputs:
     mask: cla.Array | None
 
 
-def launch_frames_to_delta_E(queue, frames: cla.Array, M: np.ndarray, white, reference: cla.Array | None, *,
+def launch_frames_to_delta_E(queue: cl.CommandQueue, frames: cla.Array, M: np.ndarray, white,
+                             reference: cla.Array | None, *,
                              n: int, method: str = "CIE 2000", reference_single: bool = True,
                              dark: cla.Array | None = None, dark_per_frame: bool = False,
                              gain: cla.Array | None = None, write_XYZ: bool = False, write_Lab: bool = False,

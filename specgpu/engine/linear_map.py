@@ -15,6 +15,8 @@ from specgpu.core.validate import (check_frames, check_gain_map, check_level, ch
                                    check_pixel_map, check_result_size, is_device_array, validate_method)
 from specgpu.engine import kernels, transfer
 from specgpu.engine.runtime import get_queue
+from numpy.typing import ArrayLike
+from numpy.typing import DTypeLike
 
 __all__ = ["LAYOUTS", "apply_linear", "LinearResult"]
 
@@ -29,7 +31,8 @@ class LinearResult(NamedTuple):
     mask: object
 
 
-def apply_linear(frames, A, dark=None, gain=None, *, out_dtype=np.float32, layout: str = "interleaved",
+def apply_linear(frames: ArrayLike, A: ArrayLike, dark: ArrayLike | None = None, gain: ArrayLike | None = None, *,
+                 out_dtype: DTypeLike = np.float32, layout: str = "interleaved",
                  saturation: float | None = None, return_mask: bool = False, device=None):
     """y = A (o - dark) * gain for every pixel of a frame stack, on the device.
 

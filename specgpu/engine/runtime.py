@@ -209,7 +209,8 @@ def _device_of(device) -> cl.Device:
         return device.devices[0]
     if isinstance(device, str):
         return _match_selector(device, list_devices(), "device=")
-    raise TypeError(f"device must be a pyopencl Device, CommandQueue, Context or selector string, not {type(device).__name__}")
+    raise TypeError("device must be a pyopencl Device, CommandQueue, Context or selector string, "
+                    f"not {type(device).__name__}")
 
 
 _lock = threading.Lock()
@@ -358,8 +359,8 @@ def _device_options(device: cl.Device) -> list[str]:
     """Options a device family needs. PoCL's clang honours under-aligned vector types, which replace its
     out-of-line vloadn / vstoren calls by inline unaligned moves (kernels/common.h, VEC_DEREF).
 
-    Oclgrind, the conformance-checking OpenCL simulator (tests/engine/test_oclgrind.py), interprets the LLVM IR its clang
-    makes, and two of its defects are avoided here. Optimised, a vector ``c ? 1 : 0`` (the mask flags) becomes a
+    Oclgrind, the conformance-checking OpenCL simulator (tests/engine/test_oclgrind.py), interprets the LLVM IR its
+    clang makes, and two of its defects are avoided here. Optimised, a vector ``c ? 1 : 0`` (the mask flags) becomes a
     zero extension of a vector of booleans, which Oclgrind 21.10 evaluates to 255 instead of 1 per true lane;
     unoptimised IR keeps the select, which it evaluates right (tests/data/oclgrind_defects.cl has the reduced
     kernel). Its uninitialised-read check stops at the private out-pointer of sincos(), so CIEDE2000 calls sin()

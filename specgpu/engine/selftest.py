@@ -143,6 +143,8 @@ CASES = {
 
 @dataclass
 class CaseResult:
+    """One golden case run on the device: its kernel, whether it passed, and its error against the golden output."""
+
     name: str
     kernel: str
     passed: bool
@@ -154,6 +156,8 @@ class CaseResult:
 
 @dataclass
 class SelftestReport:
+    """The regression suite on one device: the device, the golden set read and every case's result."""
+
     device: str
     golden: str
     cases: list[CaseResult]

@@ -25,6 +25,7 @@ from specgpu.core.validate import check_frames, check_level, check_matrix, valid
 from specgpu.engine import kernels
 from specgpu.engine.linear_map import LinearResult
 from specgpu.engine.runtime import DTYPE_TO_CTYPE, get_allocator, get_kernel, get_queue, kernel_variant, new_kernel
+from numpy.typing import ArrayLike
 
 __all__ = ["apply_linear_warped", "MASK_OUTSIDE", "check_shifts", "PreparedWarp", "prepare_linear_warped"]
 
@@ -69,7 +70,8 @@ def check_shifts(shifts, K: int, name: str = "shifts", spatial: tuple | None = N
     return np.ascontiguousarray(d if flow else d.reshape(K, 6), dtype=np.float32)
 
 
-def apply_linear_warped(frames, A, shifts, dark=None, gain=None, *, saturation: float | None = None,
+def apply_linear_warped(frames: ArrayLike, A: ArrayLike, shifts: ArrayLike, dark: ArrayLike | None = None,
+                        gain: ArrayLike | None = None, *, saturation: float | None = None,
                         return_mask: bool = False, layout: str = "interleaved", device=None, read=None):
     """y(x) = A s(x), with s_k(x) the corrected frame k, (o_k - dark) * gain, sampled bilinearly at x + d_k.
 

@@ -4,13 +4,7 @@ harvesters (:mod:`.genicam`), Ocean spectrometers through python-seabreeze (:mod
 (:func:`list_usb_devices`). Optional dependencies load only when a backend is used.
 """
 
-from specgpu.hardware.errors import (BackendMissing, CommandRejected, DeviceDisconnected, DeviceNotFound,
-                                     DeviceTimeout, HardwareError, LightFault, ProtocolError)
-from specgpu.hardware.usb import UsbDevice, list_usb_devices
+import lazy_loader
 
-__all__ = ["BackendMissing", "CommandRejected", "DeviceDisconnected", "DeviceNotFound", "DeviceTimeout",
-           "HardwareError", "LightFault", "ProtocolError", "UsbDevice", "list_usb_devices"]
-
-from specgpu.hardware.drivers import hardware_config, open_driver  # noqa: E402
-
-__all__ += ["hardware_config", "open_driver"]
+# The names are listed in __init__.pyi; each loads its module on first use, so importing the room is cheap.
+__getattr__, __dir__, __all__ = lazy_loader.attach_stub(__name__, __file__)

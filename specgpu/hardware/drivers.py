@@ -5,13 +5,18 @@ uploaded. The one place that chooses between the two, for the stream and the cap
 from __future__ import annotations
 
 import specgpu.hardware.rig as hardware_rig
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.rig.twin import TwinRig
+from typing import TYPE_CHECKING
 
-__all__ = ["hardware_config", "open_driver"]
+if TYPE_CHECKING:
+    from specgpu.rig.config import RigDescription
+    from specgpu.rig.scene import SpectralScene
+
+__all__ = ["hardware_config", "open_rig_driver"]
 
 
-def hardware_config(description):
+def hardware_config(description: RigDescription):
     """The rig description's ``[hardware]`` table checked, as a :class:`~specgpu.hardware.rig.HardwareConfig`;
     None for the twin (no table)."""
     if not description.hardware:
@@ -21,8 +26,9 @@ def hardware_config(description):
                                                  kind=getattr(description.light, "kind", None))
 
 
-def open_driver(description, plan, *, hardware=None, scene=None, calibration=None, seed=None, pacing="paced",
-                n_frames=None):
+def open_rig_driver(description: RigDescription, plan, *, hardware=None, scene: SpectralScene | None = None,
+                    calibration=None, seed: int | None = None, pacing: str = "paced",
+                n_frames: int | None = None):
     """Open the camera driver of ``description`` with ``plan``'s patterns.
 
     Parameters

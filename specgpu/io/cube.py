@@ -52,12 +52,15 @@ from specgpu.io.exr import read_cube_exr, read_exr, write_cube_exr, write_exr
 from specgpu.io.metadata import _META_ATTRIBUTE, _metadata_from, _metadata_json
 from specgpu.io.npz import read_cube_npz, write_cube_npz
 from specgpu.io.paths import _suffix
+import os
+from numpy.typing import ArrayLike
 
 __all__ = ["write_cube", "read_cube", "companion_files", "MAP_KINDS", "write_map", "read_map"]
 
 
 # ---- spectral cubes ------------------------------------------------------------------------------------------------
-def write_cube(path, cube, wavelengths, *, half: bool = False, metadata=None, interleave: str = "bsq") -> Path:
+def write_cube(path: str | os.PathLike[str], cube: ArrayLike, wavelengths: ArrayLike, *, half: bool = False,
+               metadata: dict | None = None, interleave: str = "bsq") -> Path:
     """Write a spectral cube: OpenEXR in the JCGT 2021 layout (``.exr``), ``.npz`` or ENVI (``.hdr`` + ``.img``,
     :func:`write_cube_envi`; ``interleave`` ``"bsq"``, ``"bil"`` or ``"bip"``).
 
@@ -113,7 +116,7 @@ def write_cube(path, cube, wavelengths, *, half: bool = False, metadata=None, in
     return write_cube_exr(path, cube, wavelengths, half=half, attributes=attrs)
 
 
-def read_cube(path) -> tuple[np.ndarray, np.ndarray, dict]:
+def read_cube(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, dict]:
     """Read a spectral cube written by specgpu or any JCGT 2021 writer (or an ``.npz`` cube).
 
     Parameters
@@ -213,7 +216,8 @@ def _channels_of(kind, path) -> tuple[str, ...]:
     return names
 
 
-def write_map(path, data, kind, *, half: bool = False, metadata=None) -> Path:
+def write_map(path: str | os.PathLike[str], data: ArrayLike, kind, *, half: bool = False,
+              metadata: dict | None = None) -> Path:
     """Write an XYZ, Lab or colour-difference map (or any named channels) as OpenEXR, atomically.
 
     Parameters
@@ -258,7 +262,7 @@ def write_map(path, data, kind, *, half: bool = False, metadata=None) -> Path:
     return write_exr(path, arr, names, half=half, attributes={} if meta is None else {_META_ATTRIBUTE: meta})
 
 
-def read_map(path, kind=None) -> tuple[np.ndarray, tuple[str, ...], dict]:
+def read_map(path: str | os.PathLike[str], kind=None) -> tuple[np.ndarray, tuple[str, ...], dict]:
     """Read a map written by :func:`write_map` (or any OpenEXR file).
 
     Parameters

@@ -16,6 +16,8 @@ from specgpu.core.text import one_line
 from specgpu.io.bands import check_cube, wavelength_order
 from specgpu.io.metadata import _META_ATTRIBUTE, _metadata_from, _metadata_json
 from specgpu.io.paths import atomic_path
+import os
+from numpy.typing import ArrayLike
 
 __all__ = [
     "ENVI_DATA_TYPES", "ENVI_INTERLEAVES", "envi_data_path", "write_cube_envi", "read_envi_header",
@@ -46,7 +48,8 @@ def _envi_data_candidates(path: Path, data_file: str | None = None) -> list[Path
         path.with_suffix("")]
 
 
-def write_cube_envi(path, cube, wavelengths, *, interleave: str = "bsq", metadata=None) -> Path:
+def write_cube_envi(path: str | os.PathLike[str], cube: ArrayLike, wavelengths: ArrayLike, *, interleave: str = "bsq",
+                    metadata: dict | None = None) -> Path:
     """Write an (H, W, B) cube as ENVI: ``CUBE.hdr`` (text header) and ``CUBE.img`` (raw float32, little endian).
 
     The header names ``wavelength`` (nm, shortest exact decimals) and ``wavelength units = Nanometers``, so ENVI,
@@ -94,7 +97,7 @@ def write_cube_envi(path, cube, wavelengths, *, interleave: str = "bsq", metadat
     return path
 
 
-def read_envi_header(path) -> dict:
+def read_envi_header(path: str | os.PathLike[str]) -> dict:
     """Parse an ENVI header into a dict of lower-case keys to strings (``{...}`` values unwrapped, joined)."""
     path = Path(path)
     if not path.is_file():
@@ -127,7 +130,7 @@ def read_envi_header(path) -> dict:
     return fields
 
 
-def read_cube_envi(path) -> tuple[np.ndarray, np.ndarray, dict]:
+def read_cube_envi(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, dict]:
     """Read an ENVI cube (``.hdr`` + data file) into (H, W, B) float32, bands by increasing wavelength.
 
     Accepts every interleave, byte order and numeric ``data type``, a header offset, and wavelengths in nm or

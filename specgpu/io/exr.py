@@ -19,6 +19,8 @@ import OpenImageIO as oiio
 from specgpu.core.text import one_line, short_list
 from specgpu.io.bands import check_cube
 from specgpu.io.paths import _check_exists, atomic_path, error_of, write_failed
+from numpy.typing import ArrayLike
+import os
 
 __all__ = [
     "SPECTRAL_LAYOUT_VERSION", "format_channel", "parse_channel", "read_exr", "write_exr", "write_image",
@@ -102,7 +104,7 @@ def parse_channel(name: str) -> float | None:
 
 
 # ---- OpenEXR -----------------------------------------------------------------------------------------------------
-def read_exr(path, what: str = "EXR") -> tuple[np.ndarray, list[str], dict]:
+def read_exr(path: str | os.PathLike[str], what: str = "EXR") -> tuple[np.ndarray, list[str], dict]:
     """Read every channel of an OpenEXR file as float32.
 
     Returns
@@ -149,7 +151,8 @@ def read_exr(path, what: str = "EXR") -> tuple[np.ndarray, list[str], dict]:
     return np.ascontiguousarray(data.reshape(spec.height, spec.width, spec.nchannels), np.float32), names, attributes
 
 
-def write_exr(path, data, names, *, half: bool = False, attributes: dict | None = None) -> Path:
+def write_exr(path: str | os.PathLike[str], data: ArrayLike, names, *, half: bool = False,
+              attributes: dict | None = None) -> Path:
     """Write an (H, W, C) array as an OpenEXR file with the given channel names, atomically.
 
     Parameters
@@ -201,7 +204,7 @@ def write_image(path: Path, pixels: np.ndarray, spec, format_name: str, label: s
     return path
 
 
-def read_cube_exr(path) -> tuple[np.ndarray, np.ndarray, dict]:
+def read_cube_exr(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, dict]:
     """Read the reflective spectral channels of a JCGT 2021 OpenEXR file, bands ordered by wavelength.
 
     Returns
@@ -239,7 +242,8 @@ def read_cube_exr(path) -> tuple[np.ndarray, np.ndarray, dict]:
     return cube, wavelengths, attributes
 
 
-def write_cube_exr(path, cube, wavelengths, *, half: bool = False, attributes: dict | None = None) -> Path:
+def write_cube_exr(path: str | os.PathLike[str], cube: ArrayLike, wavelengths: ArrayLike, *, half: bool = False,
+                   attributes: dict | None = None) -> Path:
     """Write an (H, W, B) cube as JCGT 2021 reflective channels ``T.<wl>nm`` (float32 or half), atomically.
 
     The header carries ``spectralLayoutVersion = "1.0"`` plus ``attributes``.

@@ -220,7 +220,8 @@ def _journaled_frame_problem(directory: Path, entry) -> str | None:
     return None
 
 
-def salvage_sequence(directory, group: int, *, metadata=None, check=None, confirm=None) -> dict:
+def salvage_sequence(directory: str | os.PathLike[str], group: int, *, metadata: dict | None = None, check=None,
+                     confirm=None) -> dict:
     """Index what an interrupted capture journaled: write ``sequence.json`` for every whole sequence of ``group``
     frames that :func:`verify_journal` finds intact; the others are left out, each with its reason (in the
     returned ``left_out`` and in ``sequence.json``'s ``metadata.salvaged``).

@@ -24,6 +24,8 @@ from specgpu.core.validate import (
 )
 from specgpu.io.bands import check_cube, wavelength_order
 from specgpu.io.paths import _check_exists, atomic_path
+import os
+from numpy.typing import ArrayLike
 
 __all__ = [
     "NPZ_UNIFORM_BYTES", "NPZ_MAX_RATIO", "npz_members", "read_cube_npz", "write_cube_npz", "read_spectrum_csv",
@@ -88,7 +90,7 @@ def npz_members(path) -> dict:
     return members
 
 
-def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
+def read_cube_npz(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, dict]:
     """Read a ``.npz`` cube, bands ordered by wavelength.
 
     Returns
@@ -137,7 +139,8 @@ def read_cube_npz(path) -> tuple[np.ndarray, np.ndarray, dict]:
     return refl[..., order], wl[order], extra
 
 
-def write_cube_npz(path, cube, wavelengths, extra: dict | None = None) -> Path:
+def write_cube_npz(path: str | os.PathLike[str], cube: ArrayLike, wavelengths: ArrayLike,
+                   extra: dict | None = None) -> Path:
     """Write a cube as compressed ``.npz`` (``wavelengths``, ``reflectance`` plus ``extra`` arrays), atomically."""
     path = Path(path)
     arr, wl = check_cube(path, cube, wavelengths)
@@ -152,7 +155,7 @@ def write_cube_npz(path, cube, wavelengths, extra: dict | None = None) -> Path:
 
 
 # ---- CSV spectral curves -----------------------------------------------------------------------------------------
-def read_spectrum_csv(path) -> tuple[np.ndarray, np.ndarray]:
+def read_spectrum_csv(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     """Read a two-column CSV spectral curve: wavelength (nm), value.
 
     Lines starting with ``#`` and a single non-numeric header line are skipped; separators may be commas,

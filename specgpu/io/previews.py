@@ -10,13 +10,14 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import colour
 import numpy as np
 import OpenImageIO as oiio
 
 from specgpu.core.text import one_line
 from specgpu.io.exr import write_image
 from specgpu.io.paths import _suffix
+import os
+from numpy.typing import ArrayLike
 
 __all__ = ["PERCEPTUAL_COLORMAPS", "MIN_BAR_HEIGHT", "sRGB8", "write_png", "write_sRGB_preview", "write_delta_E_png",
            "read_png"]
@@ -48,6 +49,7 @@ def _auto_exposure_ev(Y: np.ndarray, percentile: float = 99.0) -> float:
 def sRGB8(XYZ, illuminant=None) -> np.ndarray:
     """(..., 3) uint8 sRGB of XYZ (Y = 1 for the white at code 255), chromatically adapted (CAT02) from the white
     of chromaticity ``illuminant`` (xy; None: D65) to sRGB's; NaN and infinite values render black."""
+    import colour  # colour-science takes seconds to import: only the preview needs it
     arr = np.nan_to_num(np.asarray(XYZ, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     kwargs = {} if illuminant is None else {"illuminant": np.asarray(illuminant, np.float64)}
     with np.errstate(invalid="ignore", over="ignore"):
@@ -55,7 +57,8 @@ def sRGB8(XYZ, illuminant=None) -> np.ndarray:
     return np.round(np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-def write_sRGB_preview(path, XYZ, *, exposure="auto", illuminant=None, metadata=None) -> Path:
+def write_sRGB_preview(path: str | os.PathLike[str], XYZ: ArrayLike, *, exposure: str = "auto",
+                       illuminant: ArrayLike | None = None, metadata: dict | None = None) -> Path:
     """Write an 8-bit sRGB PNG rendering of an XYZ map.
 
     Parameters
@@ -149,8 +152,9 @@ def _colour_bar(height: int, vmax: float, colormap: str, quantity: str, *, clipp
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
-def write_delta_E_png(path, delta_E, *, vmax=None, colormap: str = "magma", quantity: str = "dE2000",
-                      metadata=None, colorbar: bool = True) -> Path:
+def write_delta_E_png(path: str | os.PathLike[str], delta_E: ArrayLike, *, vmax: float | None = None,
+                      colormap: str = "magma", quantity: str = "dE2000",
+                      metadata: dict | None = None, colorbar: bool = True) -> Path:
     """Write a colour-difference map as a heat-map PNG with a perceptually uniform colormap and its colour bar.
 
     Parameters
@@ -220,7 +224,7 @@ def write_delta_E_png(path, delta_E, *, vmax=None, colormap: str = "magma", quan
     return write_png(path, rgb8, attrs)
 
 
-def read_png(path) -> tuple[np.ndarray, dict]:
+def read_png(path: str | os.PathLike[str]) -> tuple[np.ndarray, dict]:
     """Read an 8-bit PNG: (H, W, C) uint8 pixels and its text metadata (name -> str)."""
 
     path = Path(path)

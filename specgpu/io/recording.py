@@ -246,9 +246,9 @@ class ZarrRecorder:
 
     label = "recording"
 
-    def __init__(self, path, plan, *, outputs=None, frames: bool = False, basis=None, metadata=None,
-                 grow: int = 64, disk_rate: float | None = None, compression: str | None = None, threads: int = 4,
-                 direct: bool = True):
+    def __init__(self, path: str | os.PathLike[str], plan, *, outputs=None, frames: bool = False, basis=None,
+                 metadata: dict | None = None, grow: int = 64, disk_rate: float | None = None,
+                 compression: str | None = None, threads: int = 4, direct: bool = True):
 
         import zarr
 
@@ -315,8 +315,8 @@ class ZarrRecorder:
                 wl = np.asarray(self.plan.output_wavelengths, np.float64)
                 if self.plan.output == "reflectance" and wl.size == arr.shape[-1]:
                     dim = "wavelength"
-                    g.create_array("wavelength", data=wl, dimension_names=("wavelength",), compressors=checksum_codecs(),
-                                   attributes={"units": "nm"})
+                    g.create_array("wavelength", data=wl, dimension_names=("wavelength",),
+                                   compressors=checksum_codecs(), attributes={"units": "nm"})
                     attrs = {"quantity": "reflectance", "wavelength_units": "nm"}
                 else:
                     dim, attrs = "output", {"channels": [str(s) for s in self.plan.output_labels]}
@@ -635,7 +635,7 @@ def open_zarr_group(path, what: str, format_id: str, version: int):
     return group, attrs
 
 
-def open_recording(path) -> Recording:
+def open_recording(path: str | os.PathLike[str]) -> Recording:
     """Open a recording written by :class:`ZarrRecorder` and check its attributes and arrays.
 
     Parameters

@@ -25,6 +25,7 @@ import OpenImageIO as oiio
 from specgpu.core.text import one_line
 from specgpu.io.metadata import _metadata_json
 from specgpu.io.paths import atomic_path, error_of, os_error, write_failed
+from numpy.typing import ArrayLike
 
 __all__ = [
     "SEQUENCE_FORMAT", "SEQUENCE_VERSION", "SEQUENCE_FILE", "JOURNAL_FILE", "JOURNAL_FORMAT",
@@ -218,7 +219,8 @@ def _write_tiff(path: Path, frame: np.ndarray) -> tuple[int, str]:
     return len(raw), hashlib.sha256(raw).hexdigest()
 
 
-def write_sequence(directory, frames, records=None, plan_hash: str = "", *, metadata=None,
+def write_sequence(directory: str | os.PathLike[str], frames: ArrayLike, records=None, plan_hash: str = "", *,
+                   metadata: dict | None = None,
                    overwrite: bool = False) -> Path:
     """Write a captured frame sequence: 16-bit TIFF frames and ``sequence.json``, the JSON last.
 
@@ -323,7 +325,8 @@ class SequenceWriter:
         Keep the journal; this JSON object (for example the capture's metadata and K) is its first line.
     """
 
-    def __init__(self, directory, plan_hash: str, *, overwrite: bool = False, journal: dict | None = None):
+    def __init__(self, directory: str | os.PathLike[str], plan_hash: str, *, overwrite: bool = False,
+                 journal: dict | None = None):
         directory = self.directory = Path(directory)
         _check_plan_hash(directory, plan_hash)
         self.plan_hash = plan_hash
@@ -382,7 +385,7 @@ class SequenceWriter:
         del self.entries[n_frames:], self.written[n_frames:]
         self.committed = min(self.committed, n_frames)
 
-    def close(self, metadata=None) -> Path:
+    def close(self, metadata: dict | None = None) -> Path:
         """Validate the whole document and write ``sequence.json`` (atomically, synced); return the folder."""
         meta_text = _metadata_json(self.directory, metadata)
         if not self.entries:
@@ -436,7 +439,7 @@ def _append_synced(path: Path, lines, *, fresh: bool = False) -> None:
         raise os_error(path, exc) from None
 
 
-def read_sequence_header(directory) -> tuple[list[dict], dict]:
+def read_sequence_header(directory: str | os.PathLike[str]) -> tuple[list[dict], dict]:
     """Read and validate only ``sequence.json`` of a sequence folder (no pixels).
 
     Returns
@@ -497,7 +500,7 @@ def _read_tiff(path: Path, shape) -> np.ndarray:
     return data.reshape(shape)
 
 
-def read_sequence(directory, *, verify: bool = True) -> tuple[np.ndarray, list[dict], dict]:
+def read_sequence(directory: str | os.PathLike[str], *, verify: bool = True) -> tuple[np.ndarray, list[dict], dict]:
     """Read a frame sequence folder written by :func:`write_sequence`.
 
     Parameters

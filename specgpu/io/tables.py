@@ -17,6 +17,7 @@ import numpy as np
 
 from specgpu.io.npz import npz_members
 from specgpu.io.paths import atomic_path
+import os
 
 __all__ = ["content_hash", "save_npz", "load_npz"]
 
@@ -32,7 +33,8 @@ def content_hash(arrays: dict, meta: dict) -> str:
     return h.hexdigest()
 
 
-def save_npz(path, kind: str, version: int, arrays: dict, meta: dict, extra: dict | None = None) -> str:
+def save_npz(path: str | os.PathLike[str], kind: str, version: int, arrays: dict, meta: dict,
+             extra: dict | None = None) -> str:
     """Write a versioned, hashed ``.npz``; return the content hash.
 
     ``meta`` must be JSON-serializable; the hash covers it and every array. ``extra``: further header entries
@@ -58,7 +60,7 @@ def save_npz(path, kind: str, version: int, arrays: dict, meta: dict, extra: dic
     return digest
 
 
-def load_npz(path, kind: str, versions) -> tuple[dict, dict, int, str]:
+def load_npz(path: str | os.PathLike[str], kind: str, versions) -> tuple[dict, dict, int, str]:
     """Read a file written by :func:`save_npz`; check its format, version and hash.
 
     Returns

@@ -8,10 +8,17 @@ import shutil
 from pathlib import Path
 
 from specgpu.capture.session import capture_sequences
-from specgpu.hardware.drivers import open_driver
+from specgpu.hardware.drivers import open_rig_driver
 from specgpu.io.recording import ZarrRecorder, check_free_space
 from specgpu.pipeline import moving, recovery
 from specgpu.pipeline.sinks import StreamResult
+import os
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.planning.plans import Plan
+    from specgpu.rig.config import RigDescription
 
 __all__ = ["ZarrCapture", "capture_into", "keep_or_abort"]
 
@@ -20,7 +27,8 @@ class ZarrCapture:
     """``capture --out SEQ.zarr``: each complete sequence's raw frames committed to a zarr recording as it arrives
     (what was committed stays readable if the capture is cut short); the writer interface of CaptureWriter."""
 
-    def __init__(self, out, plan, plan_path, calib, sequences, sequence_bytes, metadata):
+    def __init__(self, out: str | os.PathLike[str], plan: Plan, plan_path: str | os.PathLike[str], calib, sequences,
+                 sequence_bytes, metadata: dict):
         check_free_space(out, sequences * (sequence_bytes + 4096),
                          what=f"the recording ({sequences} sequences of {plan.K} raw frames)")
         self.recorder = ZarrRecorder(out, plan, outputs=(), frames=True, metadata=metadata)
@@ -35,20 +43,21 @@ class ZarrCapture:
         self.recorder.write(StreamResult(self.recorder.committed, sequence.cycle, sequence.frame_ids,
                                          sequence.timestamps_s, {}, 0.0, frames=sequence.frames))
 
-    def close(self, assembly, metadata=None) -> None:
+    def close(self, assembly, metadata: dict | None = None) -> None:
         self.recorder.close()
 
     def abort(self, error=None) -> None:
         self.recorder.failed = self.recorder.failed or f"{type(error).__name__}: {error}"
         self.recorder.close()
 
-    def keep(self, assembly, metadata=None, *, reason: str, requested: int | None = None) -> None:
+    def keep(self, assembly, metadata: dict | None = None, *, reason: str, requested: int | None = None) -> None:
         """A capture cut short: the committed sequences stay (each was committed as it arrived)."""
         self.recorder.failed = self.recorder.failed or reason
         self.recorder.close()
 
 
-def capture_into(writer, on_sequence, description, hardware, plan, bundle, truth, sequences, seed):
+def capture_into(writer, on_sequence, description: RigDescription, hardware, plan: Plan, bundle: CalibrationBundle,
+                 truth, sequences, seed):
     """Capture on the twin (:func:`~specgpu.pipeline.recovery.capture_plan`) or the rig's devices, each complete
     sequence written as it arrives, then ``on_sequence()``; returns the capture's result."""
 
@@ -66,7 +75,7 @@ def capture_into(writer, on_sequence, description, hardware, plan, bundle, truth
         return recovery.capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed,
                                      on_sequence=keep, calibration=bundle)
     # real devices: the same ring buffer and assembler, the plan uploaded to the light
-    driver = open_driver(description, plan, hardware=hardware, calibration=bundle, n_frames=plan.K * sequences)
+    driver = open_rig_driver(description, plan, hardware=hardware, calibration=bundle, n_frames=plan.K * sequences)
     try:
         return capture_sequences(driver, plan.K, on_sequence=keep)
     finally:

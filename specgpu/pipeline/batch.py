@@ -71,6 +71,12 @@ from specgpu.pipeline.batch_source import (
 from specgpu.pipeline.decoder import StreamDecoder
 from specgpu.pipeline.denoise import stream_denoise
 from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.planning.plans import Plan
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
 
@@ -361,6 +367,8 @@ def _write_error(job: BatchJob, name: str, i: int, exc: BaseException) -> OSErro
 
 @dataclass
 class BatchReport:
+    """What a batch did: the sequences it saw, computed and skipped (already in the output)."""
+
     sequences: int
     computed: int
     skipped: int
@@ -374,8 +382,9 @@ class BatchReport:
         return self.computed / self.seconds if self.seconds > 0 else 0.0
 
 
-def prepare_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
-                  method="CIE 2000", reference=None, device=None, denoise=None, motion="none",
+def prepare_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: CalibrationBundle,
+                  out: str | os.PathLike[str], *, outputs=("cube",), illuminant=None, observer=None,
+                  method: str = "CIE 2000", reference=None, device=None, denoise=None, motion: str = "none",
                   integration: str = "rectangle") -> tuple[BatchJob, np.ndarray]:
     """Check the source against the plan, create (or reopen, to resume) the output; returns the job and the
     indices of the sequences still to compute. Every refusal is one line naming the file, found before the
@@ -549,7 +558,8 @@ def _create_output(out: Path, identity: dict, plan, method, outputs, source, n, 
                 make(name, (h, w), "float32", ("y", "x"), np.nan, {"method": method})
         if "cube" in outputs and reflectance:
             group.create_array("wavelength", data=np.asarray(plan.output_wavelengths, np.float64),
-                               dimension_names=("wavelength",), attributes={"units": "nm"}, compressors=checksum_codecs())
+                               dimension_names=("wavelength",), attributes={"units": "nm"},
+                               compressors=checksum_codecs())
         group.create_array("frame_id", data=source.frame_ids(), chunks=(1, source.K),
                            dimension_names=("time", "pattern"), compressors=checksum_codecs())
         group.create_array("time", data=source.times(), chunks=(1,), dimension_names=("time",),
@@ -576,9 +586,10 @@ def _task_groups(todo, workers: int) -> list[list[int]]:
     return [todo[k:k + size] for k in range(0, len(todo), size)]
 
 
-def run_batch(source_path, plan, calibration, out, *, outputs=("cube",), illuminant=None, observer=None,
-              method="CIE 2000", reference=None, scheduler=None, workers: int = 1, client=None,
-              progress: bool = True, on_done=None, device=None, denoise=None, motion="none",
+def run_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: CalibrationBundle,
+              out: str | os.PathLike[str], *, outputs=("cube",), illuminant=None, observer=None,
+              method: str = "CIE 2000", reference=None, scheduler: str | None = None, workers: int = 1, client=None,
+              progress: bool = True, on_done=None, device=None, denoise: ArrayLike | None = None, motion: str = "none",
               integration: str = "rectangle") -> BatchReport:
     """Re-process every sequence of ``source_path`` with ``plan`` into ``out`` on Dask (see the module docstring).
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from specgpu.io.recording import Recording, open_zarr_group
 from specgpu.pipeline.batch import BATCH_FORMAT, BATCH_OUTPUTS, BATCH_VERSION, _done_flags
+import os
 
 __all__ = ["BatchOutput", "open_batch_output"]
 
@@ -59,7 +60,7 @@ class BatchOutput(Recording):
         return [i for i in super().missing(name) if self.done[i]]
 
 
-def open_batch_output(path) -> BatchOutput:
+def open_batch_output(path: str | os.PathLike[str]) -> BatchOutput:
     """Open a ``specgpu batch`` output and check its format, version and arrays.
 
     Parameters

@@ -21,6 +21,13 @@ from specgpu.pipeline.recovery import corrected_signal
 from specgpu.planning.correction import WhiteReference, ambient_index
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.uncertainty import ambient_variance, constant_covariance, variance_rows
+from numpy.typing import ArrayLike
+from numpy.typing import DTypeLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.planning.plans import Plan
 
 __all__ = ["STREAM_OUTPUTS", "StreamDecoder"]
 
@@ -57,7 +64,8 @@ class StreamDecoder:
         row of the same map: B times fewer bytes written than ``"sigma"``). ``"dE_sigma"``: the first-order dE2000
         standard deviation (as ``recover --delta-e-sigma``): the XYZ covariance's six entries by the linear
         kernel, then a small kernel propagating them with XYZ to dE2000 (as
-        :func:`specgpu.planning.uncertainty.delta_E_sigma`). Both need the plan's noise model, which ``specgpu plan`` records
+        :func:`specgpu.planning.uncertainty.delta_E_sigma`). Both need the plan's noise model, which ``specgpu plan``
+        records
         (given ``--rig`` for a calibration made on a custom rig).
     reference : array_like, optional
         CIELAB reference of ``"dE"``: one colour (3,) or a per-pixel (H, W, 3) image. Required for ``"dE"``.
@@ -88,8 +96,9 @@ class StreamDecoder:
         The white's reflectance (0.99 by default); only with ``white_roi``.
     """
 
-    def __init__(self, plan, calibration, outputs, *, frame_shape, queue, reference=None, method="CIE 2000",
-                 illuminant=None, observer: str | None = None, cube_dtype=np.float16, white_roi=None,
+    def __init__(self, plan: Plan, calibration: CalibrationBundle, outputs, *, frame_shape, queue, reference=None,
+                 method: str = "CIE 2000",
+                 illuminant=None, observer: str | None = None, cube_dtype: DTypeLike = np.float16, white_roi=None,
                  white_reflectance=None, denoise=None, integration: str = "rectangle"):
         # canonical names (the check is case-insensitive), each once
         outputs = tuple(dict.fromkeys(validate_method(name, {k: k for k in STREAM_OUTPUTS}, "stream output")
@@ -225,7 +234,7 @@ class StreamDecoder:
         ``dE_sigma`` is computed from), which stay on the device."""
         return self.shapes()
 
-    def matrices(self, A) -> list[np.ndarray]:
+    def matrices(self, A: ArrayLike) -> list[np.ndarray]:
         """The float32 matrix argument of each launch (in :meth:`_launches`' order) for the decoder ``A`` (B x K):
         what a per-sequence decoder (the white reference's) writes into the launches' matrix buffers."""
         return [engine.linear_matrix(*make(np.asarray(A, np.float64))) for make, _ in self._matrix_makers()]
@@ -268,10 +277,11 @@ class StreamDecoder:
         """What the kernels read: the raw frames, or float32 when :meth:`prepare_frames` corrects them first."""
         return np.dtype(np.float32) if self.precorrect else None
 
-    def prepare_frames(self, raw) -> np.ndarray:
+    def prepare_frames(self, raw: ArrayLike) -> np.ndarray:
         """(K, H, W) float32 frames for the kernels when the calibration or plan needs host-side corrections
         (``precorrect``): the dark level (or the plan's ambient frame) subtracted, linearised and scaled by the
-        per-pattern flat ratio exactly as :func:`specgpu.pipeline.recovery.recover` does; a sample at the sensor's maximum
+        per-pattern flat ratio exactly as :func:`specgpu.pipeline.recovery.recover` does; a sample at the sensor's
+        maximum
         code is set to a marker the kernels flag as saturated."""
         raw = np.asarray(raw)
         dark = raw[self._ambient].astype(np.float32) if self._ambient is not None else self._dark_host
@@ -283,7 +293,7 @@ class StreamDecoder:
         f[raw >= self._calibration.max_code] = _PRECORRECT_MARK
         return f
 
-    def warm_up(self, dtype=np.uint16) -> None:
+    def warm_up(self, dtype: DTypeLike = np.uint16) -> None:
         """Build every kernel and prime the memory pool on a blank sequence, so the clock of a stream never pays
         for a program build."""
         blank = cla.zeros(self.queue, (self.K * self.n,), np.dtype(dtype), allocator=get_allocator(self.queue))

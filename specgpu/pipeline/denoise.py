@@ -26,9 +26,10 @@ from specgpu.engine.guided import box_box_variance, guided_filter
 from specgpu.engine.linear_map import apply_linear
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
+from numpy.typing import ArrayLike
 
-__all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace", "denoise_recovery", "denoised_sigma",
-           "stream_denoise"]
+__all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace",
+           "denoise_recovery", "denoised_sigma", "stream_denoise"]
 
 #: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/studies/budget_study.py --tune``): on
 #: the CIE 2017 CES chart and the natural scene, the pair with the lowest per-pixel RMSE whose error within 2 px of
@@ -99,7 +100,7 @@ def output_subspace(plan) -> np.ndarray:
     return U[:, s > 1e-9 * s.max()] if s.size and s.max() > 0 else U[:, :0]
 
 
-def denoise_recovery(folder, y, *, sequence: int | None = None, radius: int = DENOISE_RADIUS,
+def denoise_recovery(folder, y: ArrayLike, *, sequence: int | None = None, radius: int = DENOISE_RADIUS,
                      eps: float = DENOISE_EPS, device=None) -> np.ndarray:
     """The outputs ``y`` (H, W, B) of :func:`specgpu.pipeline.recovery.recover` for ``folder`` (and ``sequence``)
     smoothed by the guided filter of the frames' sum (see the module notes); float32.

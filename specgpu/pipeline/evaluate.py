@@ -22,6 +22,11 @@ import numpy as np
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.rig.scene import interpolation_matrix
 from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, resolve_integration, white_point_XYZ
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.rig.scene import SpectralScene
 
 __all__ = ["METRICS", "PatchReport", "patch_means", "rmse_per_patch", "delta_E_per_patch", "evaluate_reflectance",
            "evaluate_XYZ", "true_patch_spectra", "PixelReport", "truth_cube", "scene_XYZ", "evaluate_pixels",
@@ -192,7 +197,8 @@ def delta_E_per_patch(XYZ_estimate, XYZ_truth, illuminant="D65", observer: str =
             np.asarray(delta_E(lab_t, lab_e, "CIE 2000"), np.float64))
 
 
-def evaluate_reflectance(cube, wavelengths, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS,
+def evaluate_reflectance(cube: ArrayLike, wavelengths: ArrayLike, scene: SpectralScene, *, illuminant: str = "D65",
+                         cmfs=DEFAULT_CMFS,
                          integration: str = "rectangle") -> PatchReport:
     """Per-patch RMSE and colour differences of a recovered reflectance cube against a chart scene.
 
@@ -231,7 +237,8 @@ def evaluate_reflectance(cube, wavelengths, scene, *, illuminant="D65", cmfs=DEF
     return PatchReport(names, rmse_per_patch(est, truth), dab, d00, str(illuminant))
 
 
-def evaluate_XYZ(xyz, scene, *, illuminant="D65", cmfs=DEFAULT_CMFS, wavelengths=None,
+def evaluate_XYZ(xyz: ArrayLike, scene: SpectralScene, *, illuminant: str = "D65", cmfs=DEFAULT_CMFS,
+                 wavelengths: ArrayLike | None = None,
                  integration: str = "rectangle") -> PatchReport:
     """Per-patch colour differences of an XYZ image (a tristimulus plan's output) against a chart scene.
 
@@ -370,7 +377,8 @@ def scene_XYZ(scene, illuminant="D65", cmfs=DEFAULT_CMFS, *, wavelengths=None, i
                               integration=integration, device=device)
 
 
-def evaluate_pixels(estimate, scene, *, wavelengths=None, illuminant="D65", cmfs=DEFAULT_CMFS,
+def evaluate_pixels(estimate: ArrayLike, scene: SpectralScene, *, wavelengths: ArrayLike | None = None,
+                    illuminant: str = "D65", cmfs=DEFAULT_CMFS,
                     integration: str = "rectangle", device=None, invalid: str = "exclude",
                     name: str = "the estimate") -> PixelReport:
     """Per-pixel RMSE (reflectance estimates), dE*ab and dE2000 of an estimate against the truth scene.

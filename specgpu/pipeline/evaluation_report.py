@@ -25,6 +25,11 @@ from specgpu.pipeline.evaluate import (
     evaluation_integration,
 )
 from specgpu.pipeline.moving import TRUTH_FOLDER, sequence_truth
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.rig.scene import SpectralScene
 
 __all__ = ["evaluation_report", "headline_line", "pixel_line", "patch_table", "read_recovered", "truth_file",
            "truth_mismatch"]
@@ -139,7 +144,8 @@ def _patch_rows(data, wavelengths, valid, scene, illuminant, cmfs, integration="
     return rows, headline
 
 
-def evaluation_report(cube, data, wavelengths, meta, scene, illuminant, cmfs, *, device=None,
+def evaluation_report(cube: ArrayLike, data, wavelengths: ArrayLike, meta, scene: SpectralScene, illuminant, cmfs, *,
+                      device=None,
                       progress=lambda desc: nullcontext(), invalid: str = "refuse", truth=None,
                       integration=None) -> dict:
     """The evaluation report: per-pixel statistics, per-patch rows for a chart, the headline figures

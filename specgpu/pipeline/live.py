@@ -32,7 +32,8 @@ def recording_slots(plan, description) -> int:
     return max(4 * plan.K, 16, math.ceil(RECORD_RING_S * rate))
 
 
-def add_recording(stream, plan, description, out, *, wanted, raw_frames, plan_path, calib, seconds, policy, meta, exr_every,
+def add_recording(stream, plan, description, out, *, wanted, raw_frames, plan_path, calib, seconds, policy, meta,
+                  exr_every,
                   method, colours, disk_check=True):
     """Check the disk, open the zarr recorder of ``out`` and append it (and the EXR maps, the preview) to the
     stream's sinks; returns the recorder."""

@@ -46,9 +46,11 @@ from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_p
                                            hann_window, peak_error, second_peak_ratio, sobel_magnitude,
                                            tile_displacements, whitened_half_spectrum)
 from specgpu.rig.twin import TwinRig
+from numpy.typing import ArrayLike
 
-__all__ = ["MASK_INCONSISTENT", "sequence_truth", "truth_name", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD", "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode", "estimate_global_motion",
-           "registration_image", "truth_recorder", "TRUTH_FOLDER"]
+__all__ = ["MASK_INCONSISTENT", "sequence_truth", "truth_name", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD",
+           "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode",
+           "estimate_global_motion", "registration_image", "truth_recorder", "TRUTH_FOLDER"]
 
 #: How frames are decoded with respect to motion: as they are, or compensated for a global translation per frame.
 MOTION_MODES = {
@@ -212,7 +214,8 @@ _BLAS_HELD: dict = {"count": 0}
 
 
 @_one_blas_thread
-def estimate_global_motion(frames, dark=None, gain=None, *, reference_frame: int | None = None,
+def estimate_global_motion(frames: ArrayLike, dark: ArrayLike | None = None, gain: ArrayLike | None = None, *,
+                           reference_frame: int | None = None,
                            upsample: int = 10, binning: int = 1, pairs: str = "auto", cutoff: float = 0.12,
                            max_gap: int = 8, model: str = "translation", tiles: int = 4,
                            robust: bool = True, peak: str = "fit",

@@ -1,6 +1,7 @@
 """Motion-compensated decoding of one sequence into the maps ``specgpu batch`` and ``specgpu stream`` write.
 
-``specgpu recover --motion`` decodes one sequence of a moving scene through :func:`specgpu.pipeline.moving_layers.recover_moving`:
+``specgpu recover --motion`` decodes one sequence of a moving scene through
+:func:`specgpu.pipeline.moving_layers.recover_moving`:
 the frames corrected as recover corrects them (the sensor's linearisation, the per-pattern flat ratio), each
 frame's displacement estimated within the sequence, one warped device pass, the pixels seen outside the field or
 whose compensated frames disagree left NaN with their mask bits. :class:`MovingDecoder` calls it on each
@@ -34,6 +35,13 @@ from specgpu.pipeline.recovery import corrected_signal
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.reference_frames import reference_indices
 from specgpu.planning.uncertainty import constant_variance, frame_variance
+from numpy.typing import ArrayLike
+from numpy.typing import DTypeLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.planning.plans import Plan
 
 __all__ = ["MOTION_OUTPUTS", "MovingDecoder", "check_motion_options", "motion_model"]
 
@@ -98,8 +106,9 @@ class MovingDecoder:
         OpenCL device selector or queue of the warped pass.
     """
 
-    def __init__(self, plan, calibration, outputs, *, mode: str, reference=None, method="CIE 2000",
-                 illuminant=None, observer=None, cube_dtype=np.float32, device=None, integration="rectangle"):
+    def __init__(self, plan: Plan, calibration: CalibrationBundle, outputs, *, mode: str, reference=None,
+                 method: str = "CIE 2000", illuminant=None, observer=None, cube_dtype: DTypeLike = np.float32,
+                 device=None, integration: str = "rectangle"):
         mode = check_motion_options(mode, plan, outputs=outputs)
         if mode == "none":
             raise ValueError("a MovingDecoder needs a motion mode other than none")
@@ -150,7 +159,7 @@ class MovingDecoder:
         self.sequences = 0
         self._lock = threading.Lock()  # decode may run on several threads at once (the stream's)
 
-    def frames(self, raw) -> np.ndarray:
+    def frames(self, raw: ArrayLike) -> np.ndarray:
         """The frames the estimator and the warped pass read: ``raw``, or corrected as recover corrects them
         (linearised, per-pattern flat ratio; the dark level added back, the pass subtracts it)."""
         if not self.precorrect:
@@ -159,7 +168,7 @@ class MovingDecoder:
         f += self.dark[None]
         return f
 
-    def decode(self, raw) -> dict:
+    def decode(self, raw: ArrayLike) -> dict:
         """The maps of one sequence (K, H, W) by output name, plus ``mask`` (H, W) uint8 (1 saturated, 4 outside
         the field, 8 inconsistent, 16 decoded with an object's own motion), NaN where masked; ``estimate``: the
         sequence's :class:`specgpu.pipeline.moving.MotionEstimate`; ``layers``: its
@@ -193,7 +202,7 @@ class MovingDecoder:
             self.sequences += 1
         return {**{name: out[name] for name in self.outputs}, "mask": mask, "estimate": est, "layers": rec.layers}
 
-    def sigma_rms(self, frames, rec) -> np.ndarray:
+    def sigma_rms(self, frames: ArrayLike, rec) -> np.ndarray:
         """(H, W) float32: the RMS over the outputs of their standard deviation at the samples ``rec`` decoded (the
         sequence's shifts; an object layer's own on the pixels decoded with it), NaN where the outputs are (an
         upper bound: see the module notes)."""

@@ -249,8 +249,9 @@ def choose_flow(mask, maps, mask_flow, flow_maps, held, *, threshold: float, inc
     """(H, W) bool: the pixels decoded with the flow rather than the global motion (or an object layer's).
 
     Under the flow a pixel is consistent where its frames agree (``worst`` >= ``threshold``, ``flow_maps``; 1 where
-    no frame has structure of its own) and its pass flagged nothing (``mask_flow``: its residual included). It takes the flow there where the global decoding
-    is flagged inconsistent (``mask`` bit ``inconsistent``), has no texture, or is not better correlated by more
+    no frame has structure of its own) and its pass flagged nothing (``mask_flow``: its residual included). It takes
+    the flow there where the global decoding is flagged inconsistent (``mask`` bit ``inconsistent``), has no texture, or
+    is not better correlated by more
     than ``margin`` (``maps``: the global check's). A pixel an object layer decoded (``held``) takes it only on
     positive evidence, its frames textured and agreeing under the flow: a layer's translation is right for an object
     that moves as one, and keeps its flat parts, which no check can judge; a part of the scene that turns or

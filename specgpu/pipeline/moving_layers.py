@@ -38,12 +38,14 @@ from skimage.morphology import convex_hull_image
 from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import LinearResult
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
-from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency, estimate_global_motion,
+from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency,
+                                     estimate_global_motion,
                                      frame_gradients)
 from specgpu.pipeline.moving_residual import residual_chi2
 from specgpu.pipeline.moving_flow import MIN_FRAMES, choose_flow, flow_field, tile_motion
 from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
+from numpy.typing import ArrayLike
 
 __all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
            "flagged_regions", "estimate_layer_motion", "object_footprint", "occluded_by", "decode_object_layers",
@@ -315,7 +317,8 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         hidden = (footprint & ~use) | covered
         mask[hidden] = (mask[hidden] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
         failed = footprint & ~valid & ~covered
-        mask[failed] = (mask[failed] & ~np.uint8(MASK_INCONSISTENT)) | (res.mask[failed] & np.uint8(1 | 2 | MASK_OUTSIDE))
+        mask[failed] = ((mask[failed] & ~np.uint8(MASK_INCONSISTENT))
+                        | (res.mask[failed] & np.uint8(1 | 2 | MASK_OUTSIDE)))
         y[hidden] = np.nan
         flagged = (flagged & ~use) | hidden
         layers.append(ObjectLayer(shifts, box, int(use.sum()), int(covered.sum()), decoded=use))
@@ -428,8 +431,9 @@ class MovingRecovery:
     layers: list = field(default_factory=list)
 
 
-def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample: int = 10, binning: int = 1,
-                   shifts=None, model: str = "translation", check: bool = True, layers: bool = True,
+def recover_moving(frames: ArrayLike, A: ArrayLike, *, dark: ArrayLike | None = None, gain: ArrayLike | None = None,
+                   saturation=None, upsample: int = 10, binning: int = 1,
+                   shifts: ArrayLike | None = None, model: str = "translation", check: bool = True, layers: bool = True,
                    device=None, seconds: dict | None = None, reference_frames=None, residual=None) -> MovingRecovery:
     """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
     with frame k sampled at x + d_k in one device pass.

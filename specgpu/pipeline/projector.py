@@ -20,6 +20,11 @@ from specgpu.calibration import spectral_loop
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.core.validate import validate_method
 from specgpu.rig.twin import TwinRig
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.rig.scene import SpectralScene
 
 __all__ = [
     "PROJECTOR_TARGETS",
@@ -133,7 +138,8 @@ class ProjectionReport:
                 "target": self.target_colour, "produced": self.produced_colour, "loop": self.loop}
 
 
-def project(target, *, rig=None, bundle=None, tolerance: float = 0.01, max_iterations: int = 20,
+def project(target, *, rig: TwinRig | None = None, bundle: CalibrationBundle | None = None, tolerance: float = 0.01,
+            max_iterations: int = 20,
             headroom: float = 0.9) -> ProjectionReport:
     """Produce ``target`` with the programmable light, closing the loop on the spectroradiometer.
 
@@ -188,7 +194,7 @@ def _scene_XYZ(scene, illuminant, device):
     return XYZ, np.asarray(white, np.float64)
 
 
-def render_scene(scene, illuminant, *, adaptation: str = "CAT02", device=None) -> np.ndarray:
+def render_scene(scene: SpectralScene, illuminant, *, adaptation: str = "CAT02", device=None) -> np.ndarray:
     """The appearance of a spectral scene under ``illuminant`` as an sRGB image.
 
     XYZ under the illuminant (device), then sRGB for an observer adapted to the illuminant's white
@@ -224,7 +230,8 @@ def render_scene(scene, illuminant, *, adaptation: str = "CAT02", device=None) -
     return np.clip(rgb, 0.0, 1.0).astype(np.float32)
 
 
-def metamer_map(scene, illuminant_1, illuminant_2, *, method: str = "CIE 2000", device=None) -> np.ndarray:
+def metamer_map(scene: SpectralScene, illuminant_1, illuminant_2, *, method: str = "CIE 2000",
+                device=None) -> np.ndarray:
     """Per-pixel colour difference of the scene seen under two illuminants, each with its own white.
 
     For two sources of the same white point (the paper's white and RGB LEDs) a white surface gives 0 and

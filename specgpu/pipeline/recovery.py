@@ -18,9 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from specgpu import io
+from specgpu.io.journal import journal_header
+from specgpu.io.paths import atomic_path
 from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save_calibration
 from specgpu.capture.session import CaptureResult, capture_sequences
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.core.numerics import live_gain
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.engine.linear_map import apply_linear
@@ -41,10 +43,11 @@ from specgpu.planning.uncertainty import (
     sigma_map,
 )
 from specgpu.rig.config import RigDescription
-from specgpu.rig.scene import colorchecker_scene, read_scene
+from specgpu.rig.scene import SpectralScene, colorchecker_scene, read_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig
 
-__all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder", "read_capture", "recover", "save_plan_and_calibration", "dark_warning", "to_XYZ", "to_Lab"]
+__all__ = ["capture_plan", "write_capture", "CaptureWriter", "check_capture_folder", "default_basis", "SequenceFolder",
+           "read_capture", "recover", "save_plan_and_calibration", "dark_warning", "to_XYZ", "to_Lab"]
 
 PLAN_FILE = "plan.npz"
 #: The chart the demo and the accuracy study evaluate on (and leave out of basis training).
@@ -52,8 +55,9 @@ EVALUATION_CHART = "ColorChecker N Ohta"
 CALIBRATION_FILE = "calibration.npz"
 
 
-def capture_plan(description: RigDescription, plan: Plan, scene, *, sequences: int = 1, noise_seed: int | None = None,
-                 faults: FaultSchedule | None = None, on_sequence=None, calibration=None) -> CaptureResult:
+def capture_plan(description: RigDescription, plan: Plan, scene: SpectralScene, *, sequences: int = 1,
+                 noise_seed: int | None = None, faults: FaultSchedule | None = None, on_sequence=None,
+                 calibration: CalibrationBundle | None = None) -> CaptureResult:
     """Capture ``sequences`` repetitions of ``plan``'s illuminant sequence of ``scene`` on the twin.
 
     The camera runs at the plan's exposure, at the fastest frame rate the camera and the light's switch time allow
@@ -160,7 +164,7 @@ class CaptureWriter:
                                "its complete sequences, a capture into this folder replaces it\n", encoding="utf-8")
         self._copies = []
         for source, name in ((plan_path, PLAN_FILE), (calibration_path, CALIBRATION_FILE)):
-            with io.atomic_path(directory / name) as tmp:
+            with atomic_path(directory / name) as tmp:
                 shutil.copyfile(source, tmp)
             self._copies.append(directory / name)
         self.frames = io.SequenceWriter(directory, self.plan.hash, overwrite=True,
@@ -209,8 +213,8 @@ class CaptureWriter:
 
 def salvage_capture(directory) -> dict:
     """Make a capture folder left by a killed capture (no ``sequence.json``, its journal present) readable: index
-    every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.journal.salvage_sequence`), keep
-    the plan and calibration copies, remove the interrupted marker. Returns what was kept (``sequences``,
+    every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.journal.salvage_sequence`),
+    keep the plan and calibration copies, remove the interrupted marker. Returns what was kept (``sequences``,
     ``frames_kept``, ``frames_journaled``, ``left_out``: each sequence not kept and why, ``kept_sequences``,
     ``stopped``). The motion truth of a capture on a moving twin is renumbered with the sequences
     (:func:`specgpu.pipeline.motion_record.renumber_truth`).
@@ -235,7 +239,7 @@ def salvage_capture(directory) -> dict:
                              "and salvage again")
         plan.check_calibration(bundle, name=f"{directory / PLAN_FILE}")
 
-    check(io.journal_header(directory))  # before the frames are grouped in sequences of the plan's length
+    check(journal_header(directory))  # before the frames are grouped in sequences of the plan's length
 
     def confirm():  # the index reads back; then a moving capture's truth follows its sequences' new numbers
         salvaged = read_capture(directory).meta["metadata"]["salvaged"]
@@ -266,7 +270,8 @@ def check_capture_folder(directory, *, overwrite: bool = False) -> None:
                               "choose a new or empty folder")
 
 
-def write_capture(directory, sequences, assembly, plan_path, calibration_path, *, metadata=None,
+def write_capture(directory: str | os.PathLike[str], sequences, assembly, plan_path: str | os.PathLike[str],
+                  calibration_path, *, metadata: dict | None = None,
                   overwrite: bool = False) -> Path:
     """Write complete sequences (from :func:`capture_plan`) into a sequence folder with copies of the plan and
     calibration; ``assembly`` is the assembler's counters, kept in ``sequence.json``.
@@ -326,7 +331,7 @@ def _zarr_not_a_sequence(directory: Path) -> str:
             "(specgpu.io.recording.open_recording, or xarray.open_zarr), and recover reads capture folders")
 
 
-def read_capture(directory) -> SequenceFolder:
+def read_capture(directory: str | os.PathLike[str]) -> SequenceFolder:
     """Read a sequence folder; refuse it when the plan or calibration is missing or does not match its hashes,
     or when its frames are not whole sequences in pattern order.
 
@@ -422,8 +427,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
 
     ``white_roi`` (``"X,Y,W,H"``) names a reference white of ``white_reflectance`` (a number or a CSV; 0.99 by
     default) in the field: each sequence's decoder is rescaled for the light's drift since calibration
-    (:mod:`specgpu.planning.correction`): the colour change fitted once on the sequences' mean white gains (it drifts over
-    hours; each frame's own power fluctuation averages down over the sequences), each sequence then rescaled by
+    (:mod:`specgpu.planning.correction`): the colour change fitted once on the sequences' mean white gains (it drifts
+    over hours; each frame's own power fluctuation averages down over the sequences), each sequence then rescaled by
     its own gains. A plan with an ambient frame (``plan --ambient``) has that frame subtracted
     instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
 
@@ -441,9 +446,10 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         The reference white in the field, as above.
     motion : {"none", "global", "affine", "flow"}
         ``"global"``: the scene moved during the sequence; a translation per frame (``"affine"``: an affine map,
-        for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`), the outputs are the scene at the sequence's
-        reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene
-        moves between sequences too): ``sequence`` is required unless the folder holds one.
+        for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`), the
+        outputs are the scene at the sequence's reference time, and pixels some frame saw outside the field are NaN.
+        One sequence at a time (the scene moves between sequences too): ``sequence`` is required unless the folder
+        holds one.
 
     Returns
     -------

@@ -19,6 +19,8 @@ from specgpu import io
 from specgpu.capture.ringbuffer import wait_for_items
 from specgpu.core.spectra import DEFAULT_CMFS, white_point_XYZ
 from specgpu.io.previews import write_png
+import os
+from numpy.typing import ArrayLike
 
 __all__ = ["CallbackSink", "ExrSequenceWriter", "PreviewSink", "ResultsRing", "Sink", "StreamResult", "sink_label"]
 
@@ -223,7 +225,8 @@ class ExrSequenceWriter(Sink):
     optional = True
     label = "EXR snapshots"
 
-    def __init__(self, directory, *, wavelengths=None, every: int = 1, dE_kind: str = "dE2000", metadata=None,
+    def __init__(self, directory: str | os.PathLike[str], *, wavelengths: ArrayLike | None = None, every: int = 1,
+                 dE_kind: str = "dE2000", metadata: dict | None = None,
                  output_labels=None):
         if int(every) < 1:
             raise ValueError(f"every must be >= 1, got {every}")
@@ -301,7 +304,8 @@ class PreviewSink(Sink):
     optional = True
     label = "preview"
 
-    def __init__(self, path=None, interval_s: float = 0.5, illuminant: str = "D65", background: bool = True, *,
+    def __init__(self, path: str | os.PathLike[str] | None = None, interval_s: float = 0.5, illuminant: str = "D65",
+                 background: bool = True, *,
                  observer: str = DEFAULT_CMFS, white=None):
 
         self.path = None if path is None else Path(path)

@@ -68,6 +68,12 @@ from specgpu.pipeline.stream_report import (
     peak_rss_bytes,
     peak_rss_reset,
 )
+from numpy.typing import DTypeLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.planning.plans import Plan
 
 __all__ = ["STREAM_OUTPUTS", "Stream"]
 
@@ -241,9 +247,10 @@ class Stream:
     already captured still reach every sink that has not failed.
     """
 
-    def __init__(self, driver: CameraDriver, plan, calibration, *, outputs=("coefficients", "XYZ", "dE"),
+    def __init__(self, driver: CameraDriver, plan: Plan, calibration: CalibrationBundle, *,
+                 outputs=("coefficients", "XYZ", "dE"),
                  sinks=(), reference=None, method: str = "CIE 2000", illuminant: str | None = None,
-                 observer: str | None = None, cube_dtype=np.float16, n_slots: int | None = None,
+                 observer: str | None = None, cube_dtype: DTypeLike = np.float16, n_slots: int | None = None,
                  policy: str = "drop_newest", in_flight: int = 3, result_buffers: int = 6, readback: str = "auto",
                  upload: str = "auto", align: str = "index", sync_max_dn: float | None = None, device=None,
                  white_roi=None, white_reflectance=None, denoise=None, motion: str = "none",

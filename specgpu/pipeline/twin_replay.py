@@ -14,7 +14,7 @@ from specgpu.calibration.bundle import save_calibration
 from specgpu.calibration.procedure import calibrate
 from specgpu.capture.assemble import AssemblyStats, Sequence
 from specgpu.capture.replay import ReplayDriver, record
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.pipeline.recovery import default_basis, read_capture, recover, to_Lab, to_XYZ, write_capture
 from specgpu.planning.basis_plans import plan_symmetric_basis

@@ -49,6 +49,8 @@ import numpy as np
 from colour.quality.cfi2017 import load_TCS_CIE2017
 
 from specgpu.io.tables import load_npz, save_npz
+from numpy.typing import ArrayLike
+import os
 
 __all__ = [
     "REFLECTANCE_SETS",
@@ -238,7 +240,8 @@ def evaluation_exclusions(chart: str) -> tuple[str, ...]:
     return (chart,)
 
 
-def load_reflectances(sets=None, *, wavelengths=None, csv_files=(), exclude=(), exclude_similar_to=None,
+def load_reflectances(sets=None, *, wavelengths: ArrayLike | None = None, csv_files=(), exclude=(),
+                      exclude_similar_to: ArrayLike | None = None,
                       similarity_tolerance: float = 0.01) -> ReflectanceDatabase:
     """Gather training reflectances on one grid.
 
@@ -367,7 +370,7 @@ class BasisTable:
             raise ValueError(f"m must be an integer in [1, {self.functions.shape[1]}], got {m!r}")
         return self.functions[:, :m]
 
-    def project(self, reflectance, m: int) -> np.ndarray:
+    def project(self, reflectance: ArrayLike, m: int) -> np.ndarray:
         """Best m-term approximation (..., B) of reflectances on the basis grid (least squares)."""
         phi = self.first(m)
         r = np.asarray(reflectance, dtype=np.float64) - self.mean
@@ -412,7 +415,7 @@ _BASIS_FORMAT = "specgpu.basis"
 _BASIS_VERSION = 1
 
 
-def save_basis(path, table: BasisTable) -> str:
+def save_basis(path: str | os.PathLike[str], table: BasisTable) -> str:
     """Save a basis table (versioned ``.npz``); return its content hash."""
     arrays = {"wavelengths": table.wavelengths, "functions": table.functions,
               "singular_values": table.singular_values, "mean": table.mean}
@@ -420,7 +423,7 @@ def save_basis(path, table: BasisTable) -> str:
     return save_npz(path, _BASIS_FORMAT, _BASIS_VERSION, arrays, meta)
 
 
-def load_basis(path) -> BasisTable:
+def load_basis(path: str | os.PathLike[str]) -> BasisTable:
     """Load a basis table written by :func:`save_basis` (one-line ``ValueError`` naming the file if unusable)."""
     arrays, meta, _, _ = load_npz(path, _BASIS_FORMAT, (_BASIS_VERSION,))
     try:

@@ -12,6 +12,11 @@ import numpy as np
 from specgpu.planning.basis import BasisTable
 from specgpu.planning.plans import Plan, _base, _design_frames, _on_grid
 from specgpu.rig.scene import interpolation_matrix
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
 
 __all__ = ["plan_symmetric_basis", "plan_biased_basis"]
 
@@ -51,7 +56,8 @@ def _basis_plan(bundle, basis, m, method, frames, D_rows, output_wavelengths, le
                  params=params)
 
 
-def plan_symmetric_basis(bundle, basis: BasisTable, *, m: int = 5, output_wavelengths=None, level: float = 0.9,
+def plan_symmetric_basis(bundle: CalibrationBundle, basis: BasisTable, *, m: int = 5,
+                         output_wavelengths: ArrayLike | None = None, level: float = 0.9,
                          max_exposure_s: float | None = None) -> Plan:
     """Symmetric basis design (eq. (5), (6)): ``S_j = S_j+ - S_j-``, 2m - 1 frames (one for the non-negative S_1).
 
@@ -89,7 +95,8 @@ def plan_symmetric_basis(bundle, basis: BasisTable, *, m: int = 5, output_wavele
                        {"frames": [[int(j), float(s)] for j, s in where]})
 
 
-def plan_biased_basis(bundle, basis: BasisTable, *, m: int = 5, output_wavelengths=None, level: float = 0.9,
+def plan_biased_basis(bundle: CalibrationBundle, basis: BasisTable, *, m: int = 5, output_wavelengths=None,
+                      level: float = 0.9,
                       max_exposure_s: float | None = None) -> Plan:
     """Biased basis design (eq. (5), (6)): frames ``S_j + K`` (K the smallest bias making every function
     non-negative) and one bias frame ``K``: m + 1 frames. Parameters as :func:`plan_symmetric_basis`."""

@@ -33,6 +33,10 @@ from specgpu.planning.design import _system_on, design_optimal
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.priors import Prior
 from specgpu.planning.timing import exposure_within
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
 
 __all__ = ["Bound", "design_bound", "frame_information", "waterfill_mse"]
 
@@ -124,7 +128,8 @@ def waterfill_mse(eigenvalues, frames: int, information: float) -> float:
     return float(np.sum(pos / (1.0 + pos * d)) + tail)
 
 
-def design_bound(bundle, prior: Prior, noise_at, *, frames: int, sequence_s: float, min_frame_period_s: float = 0.0,
+def design_bound(bundle: CalibrationBundle, prior: Prior, noise_at, *, frames: int, sequence_s: float,
+                 min_frame_period_s: float = 0.0,
                  level: float = 0.9, starts: int = 8, iterations: int = 300, seed: int = 0,
                  averaged: float = 1.0) -> Bound:
     """The limit of ``frames``-frame linear designs within ``sequence_s`` on ``bundle``'s light and camera, for

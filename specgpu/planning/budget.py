@@ -14,12 +14,17 @@ from dataclasses import replace
 from specgpu.planning.design import plan_optimal
 from specgpu.planning.registry import make_plan
 from specgpu.planning.timing import budget_params, check_budget, exposure_within, extra_count
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
 
 __all__ = ["budget_plan"]
 
 
-def budget_plan(method: str, bundle, sequence_s: float | None, *args, min_frame_period_s: float = 0.0,
-                extra_frames=0, **kwargs):
+def budget_plan(method: str, bundle: CalibrationBundle, sequence_s: float | None, *args,
+                min_frame_period_s: float = 0.0,
+                extra_frames: int = 0, **kwargs):
     """The plan of ``method`` (a key of :data:`specgpu.planning.registry.PLAN_METHODS`) whose sequence, with
     ``extra_frames`` frames more (an ambient frame, drift probes added afterwards), fits ``sequence_s``.
 

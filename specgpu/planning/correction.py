@@ -39,6 +39,12 @@ import numpy as np
 
 from specgpu.core.numerics import live_gain
 from specgpu.planning.plans import _band_masks
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.planning.plans import Plan
 
 __all__ = ["ambient_needed", "with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi",
            "white_reflectance_curve", "white_gains", "gain_noise", "corrected_decoder", "WhiteReference",
@@ -65,7 +71,7 @@ def ambient_needed(bundle) -> tuple[bool, str]:
     return True, f"the calibration found light on the object with every mirror off{share}"
 
 
-def with_ambient_frame(plan):
+def with_ambient_frame(plan: Plan):
     """The plan with one more pattern, every mirror off, at the end of its sequence (the ambient frame).
 
     The decoder gets a zero column for it; :func:`ambient_index` finds it again (``params["ambient_frame"]``).
@@ -86,7 +92,8 @@ DEFAULT_PROBE_NM = (430.0, 650.0)
 PROBE_BANDWIDTH_NM = 20.0
 
 
-def with_drift_probes(plan, bundle, centres=DEFAULT_PROBE_NM, bandwidth_nm: float = PROBE_BANDWIDTH_NM):
+def with_drift_probes(plan: Plan, bundle: CalibrationBundle, centres: ArrayLike = DEFAULT_PROBE_NM,
+                      bandwidth_nm: float = PROBE_BANDWIDTH_NM):
     """The plan with a narrow band per ``centres`` (nm) appended to its sequence (drift probes, see the module
     docstring); the decoder gets zero columns for them (``params["drift_probes"]`` lists their indices).
 
@@ -217,7 +224,8 @@ def gain_noise(plan, bundle, sequences: int = 1) -> float | None:
     return float(f) * float(np.sqrt(float(t) / plan.exposure_s)) / float(np.sqrt(max(1, int(sequences))))
 
 
-def corrected_decoder(plan, gains, bundle=None, white=None, *, sequences: int = 1) -> np.ndarray:
+def corrected_decoder(plan: Plan, gains: ArrayLike, bundle: CalibrationBundle | None = None, white=None, *,
+                      sequences: int = 1) -> np.ndarray:
     """The plan's decoder corrected for one sequence's white gains.
 
     Without ``bundle``: each column rescaled, ``A[:, k] / gains[k]`` (exact for a change of each pattern's power).
@@ -259,7 +267,7 @@ class WhiteReference:
         Default: the calibration's dark frame's.
     """
 
-    def __init__(self, plan, bundle, roi=None, white=None, *, frame_shape=None):
+    def __init__(self, plan: Plan, bundle: CalibrationBundle, roi=None, white=None, *, frame_shape=None):
         self.plan, self.bundle, self.white = plan, bundle, white
         shape = tuple(np.shape(bundle.dark)[-2:]) if frame_shape is None else tuple(frame_shape)
         self.roi = None if roi is None else parse_roi(roi, shape)
@@ -279,7 +287,7 @@ class WhiteReference:
         self._bumps = None
         self._target = None
 
-    def gains(self, frames, *, dark=None) -> np.ndarray:
+    def gains(self, frames: ArrayLike, *, dark: ArrayLike | None = None) -> np.ndarray:
         """(K,) gains of one sequence's frames (K, H, W) (see :func:`white_gains`)."""
         if self.roi is None:
             raise ValueError("this white reference has no --white-roi")
@@ -344,7 +352,7 @@ class WhiteReference:
                 break
         return a
 
-    def decoder(self, gains, *, sequences: int = 1) -> np.ndarray:
+    def decoder(self, gains: ArrayLike, *, sequences: int = 1) -> np.ndarray:
         """The plan's decoder corrected for gains, one sequence's or the mean of ``sequences`` (see
         :func:`corrected_decoder`)."""
         plan, F, rho, base, lit = self.plan, self.F, self.rho, self.predicted, self.lit

@@ -43,6 +43,11 @@ from specgpu.planning.plans import _band_masks, _base, _quantize
 from specgpu.planning.priors import Prior
 from specgpu.planning.timing import budget_params, check_budget, exposure_within, extra_count
 from specgpu.rig.scene import interpolation_matrix
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
 
 __all__ = ["OBJECTIVES", "WITHIN_PRIOR", "columns_within", "denoise_params", "design_optimal", "plan_optimal",
            "plan_hadamard", "s_matrix", "objective_weights", "wiener_objective"]
@@ -225,11 +230,13 @@ def denoise_params(radius: int) -> dict:
     return {"radius": int(radius), "variance_reduction": flat_variance_reduction(radius)}
 
 
-def plan_optimal(bundle, prior: Prior, noise_at, *, frames: int = 9, objective: str = "rmse", illuminant="D65",
-                 training=None, output_wavelengths=None, level: float = 0.9, max_exposure_s: float | None = None,
+def plan_optimal(bundle: CalibrationBundle, prior: Prior, noise_at, *, frames: int = 9, objective: str = "rmse",
+                 illuminant: str = "D65",
+                 training: ArrayLike | None = None, output_wavelengths: ArrayLike | None = None, level: float = 0.9,
+                 max_exposure_s: float | None = None,
                  target: float | None = None, exposure_s: float | None = None, starts: int = 4, seed: int = 0,
                  iterations: int = 300, sequence_s: float | None = None, min_frame_period_s: float = 0.0,
-                 extra_frames=0, denoise_radius: int | None = None):
+                 extra_frames: int = 0, denoise_radius: int | None = None):
     """An optimal K-frame plan (see the module notes) with the Wiener decoder and its expected error recorded.
 
     Parameters
@@ -359,7 +366,7 @@ def s_matrix(n: int) -> np.ndarray:
     return (H[1:, 1:] < 0).astype(np.int32)
 
 
-def plan_hadamard(bundle, *, bands: int = 31, start_nm: float = 400.0, stop_nm: float = 700.0,
+def plan_hadamard(bundle: CalibrationBundle, *, bands: int = 31, start_nm: float = 400.0, stop_nm: float = 700.0,
                   level: float = 0.9, max_exposure_s: float | None = None):
     """Multiplexed narrowband: ``bands`` equal bands over ``start_nm``-``stop_nm``, frame k lighting the bands of
     row k of the S-matrix; ``A = diag(1/c) S^-1`` with c the model output of each band on a white."""

@@ -12,6 +12,11 @@ from specgpu.planning.bound import design_bound
 from specgpu.planning.budget import budget_plan
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.rig.config import RigDescription
 
 __all__ = ["EQUAL_TIME", "equal_time_plans", "equal_time_bounds", "row_name"]
 
@@ -34,7 +39,8 @@ def row_name(name: str, budget_ms: float) -> str:
     return f"{name}@{budget_ms:g}ms"
 
 
-def equal_time_plans(description, bundle, prior, basis, *, training=None, extra_frames: int = 0, budgets=None,
+def equal_time_plans(description: RigDescription, bundle: CalibrationBundle, prior, basis, *, training=None,
+                     extra_frames: int = 0, budgets=None,
                      starts: int = 1, iterations: int = 100, denoise_radius: int | None = None) -> dict:
     """The plans of :data:`EQUAL_TIME` (``budgets``: a subset of its keys), each within its budget with
     ``extra_frames`` frames more per sequence (an ambient frame), named by :func:`row_name`, every one with the
@@ -71,7 +77,8 @@ def equal_time_plans(description, bundle, prior, basis, *, training=None, extra_
     return plans
 
 
-def equal_time_bounds(description, bundle, prior, *, extra_frames: int = 0, budgets=None, starts: int = 4,
+def equal_time_bounds(description: RigDescription, bundle: CalibrationBundle, prior, *, extra_frames: int = 0,
+                      budgets=None, starts: int = 4,
                       iterations: int = 300, averaged: float = 1.0) -> dict:
     """budget (ms) -> :class:`~specgpu.planning.bound.Bound` of :data:`EQUAL_TIME`'s frame count at that budget
     (``extra_frames`` frames of the budget left to an ambient frame; ``averaged``: the shot and read noise as a

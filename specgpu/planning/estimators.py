@@ -30,6 +30,12 @@ import numpy as np
 from specgpu.core.spectra import XYZ_weights
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.priors import Prior, smooth_prior
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.planning.plans import Plan
 
 __all__ = ["ESTIMATORS", "forward", "output_weights", "interp_rows", "wiener_decoder", "smooth_decoder",
            "expected_error", "with_estimator"]
@@ -64,7 +70,7 @@ def interp_rows(points, grid) -> np.ndarray:
 
 
 # ---- decoders ----------------------------------------------------------------------------------------------------
-def wiener_decoder(F, W, prior: Prior, noise: NoiseModel) -> np.ndarray:
+def wiener_decoder(F: ArrayLike, W: ArrayLike, prior: Prior, noise: NoiseModel) -> np.ndarray:
     """LMMSE decoder (P, K) through the origin: ``W S F^T (F S F^T + N)^-1``."""
     F = np.asarray(F, np.float64)
     S = prior.moment
@@ -79,7 +85,7 @@ def smooth_decoder(F, W, noise: NoiseModel, wavelengths, *, correlation_nm: floa
     return wiener_decoder(F, W, smooth_prior(wavelengths, correlation_nm=correlation_nm), noise)
 
 
-def expected_error(A, F, W, prior: Prior, noise: NoiseModel) -> dict:
+def expected_error(A: ArrayLike, F: ArrayLike, W: ArrayLike, prior: Prior, noise: NoiseModel) -> dict:
     """Expected error of a decoder (P, K) on the prior: ``{"mse": (P,) total, "mismatch": (P,) the part with no
     noise, "noise": (P,) the part from the noise, "rmse": sqrt(mean mse)}``."""
     A = np.asarray(A, np.float64)
@@ -93,7 +99,8 @@ def expected_error(A, F, W, prior: Prior, noise: NoiseModel) -> dict:
     return {"mse": mse, "mismatch": mismatch, "noise": noise_part, "rmse": float(math.sqrt(max(mse.mean(), 0.0)))}
 
 
-def with_estimator(plan, bundle, estimator: str, *, prior: Prior | None = None, noise: NoiseModel,
+def with_estimator(plan: Plan, bundle: CalibrationBundle, estimator: str, *, prior: Prior | None = None,
+                   noise: NoiseModel,
                    correlation_nm: float = 40.0, decoder_noise: NoiseModel | None = None):
     """The plan with its decoder replaced by ``estimator`` (:data:`ESTIMATORS`), with the noise model and the
     expected error recorded in ``params`` (``"estimator"``, ``"noise"``, ``"expected"``: RMSE, per-output

@@ -7,11 +7,17 @@ from __future__ import annotations
 import numpy as np
 
 from specgpu.planning.plans import Plan, _band_masks, _base, _check_centres, _quantize
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
 
 __all__ = ["plan_narrowband", "plan_reciprocal_narrowband"]
 
 
-def plan_narrowband(bundle, *, centres=None, step_nm: float = 10.0, bandwidth_nm: float | None = None,
+def plan_narrowband(bundle: CalibrationBundle, *, centres: ArrayLike | None = None, step_nm: float = 10.0,
+                    bandwidth_nm: float | None = None,
                     start_nm: float = 400.0, stop_nm: float = 700.0, level: float = 0.9,
                     max_exposure_s: float | None = None) -> Plan:
     """Narrow-band sequence (eq. (2)-(4)): every mirror on in the columns within ``bandwidth_nm / 2`` of each centre.
@@ -50,7 +56,8 @@ def _narrow(bundle, method, c, bw, patterns, level, max_exposure_s):
                  illuminant="", observer="", params={"bandwidth_nm": bw, "centres_nm": c.tolist()})
 
 
-def plan_reciprocal_narrowband(bundle, *, centres=None, step_nm: float = 10.0, bandwidth_nm: float | None = None,
+def plan_reciprocal_narrowband(bundle: CalibrationBundle, *, centres: ArrayLike | None = None, step_nm: float = 10.0,
+                               bandwidth_nm: float | None = None,
                                start_nm: float = 400.0, stop_nm: float = 700.0, level: float = 0.9,
                                max_exposure_s: float | None = None) -> Plan:
     """Narrow bands shaped as ``1 / (lamp V)`` (eq. (4), last remark): each column's level is a common factor

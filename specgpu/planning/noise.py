@@ -15,6 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from specgpu.planning.priors import Prior
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.rig.config import RigDescription
 
 __all__ = ["NoiseModel"]
 
@@ -46,7 +51,7 @@ class NoiseModel:
             raise ValueError(f"noise light_rms must lie in [0, 1), got {self.light_rms!r}")
 
     @classmethod
-    def from_rig(cls, description, exposure_s: float) -> "NoiseModel":
+    def from_rig(cls, description: RigDescription, exposure_s: float) -> "NoiseModel":
         """The noise of a rig description's camera and light at an exposure (s): the conversion gain, read noise
         and dark current the camera is specified with, quantization 1/12 DN^2, the light's fluctuation."""
         cam, light = description.camera, description.light
@@ -83,7 +88,7 @@ class NoiseModel:
         g = self.gain_e_per_dn
         return float(g * self.light_rms ** 2), float(g * self.read_var_dn2)
 
-    def covariance(self, F, prior: Prior) -> np.ndarray:
+    def covariance(self, F: ArrayLike, prior: Prior) -> np.ndarray:
         """(K, K) diagonal noise covariance at the prior's expected signal ``F mu``."""
         F = np.asarray(F, np.float64)
         o = F @ prior.mean

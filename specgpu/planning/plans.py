@@ -31,6 +31,12 @@ from specgpu.core.numerics import fit_levels
 from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS, XYZ_weights, resolve_integration, white_point_XYZ
 from specgpu.core.validate import BadArgument
 from specgpu.io.tables import content_hash, load_npz, save_npz
+import os
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.rig.config import RigDescription
 
 __all__ = ["Plan", "PLAN_FORMAT", "PLAN_VERSION", "OUTPUTS", "save_plan", "load_plan"]
 
@@ -199,7 +205,7 @@ class Plan:
         """Content hash (SHA-256 hex) that a capture records."""
         return content_hash(self._arrays(), self._meta())
 
-    def rig_description(self, description):
+    def rig_description(self, description: RigDescription):
         """The rig description to capture this plan with: the camera at the plan's exposure, its frame rate
         lowered if the exposure plus the light's switch time needs a longer period; a plan designed within a
         sequence-time budget runs at its own :attr:`frame_period_s` (within the camera's fastest rate), so a
@@ -219,7 +225,7 @@ class Plan:
             rate = min(cam.max_frame_rate_hz, 1.0 / (self.frame_period_s + 1e-6))
         return replace(description, camera=replace(cam, exposure_s=float(self.exposure_s), frame_rate_hz=rate))
 
-    def outputs_to_XYZ(self, illuminant="D65", observer=None, integration: str = "rectangle") -> np.ndarray:
+    def outputs_to_XYZ(self, illuminant: str = "D65", observer=None, integration: str = "rectangle") -> np.ndarray:
         """(3, B) matrix C with XYZ = C . y for this plan's outputs y (Y = 1 for the white): the colour-matching
         weights of ``observer`` (None: :meth:`resolve_observer`'s default) under ``illuminant`` on the output
         wavelengths, integrated by ``integration`` (:func:`specgpu.core.spectra.XYZ_weights`) for reflectance
@@ -240,7 +246,7 @@ class Plan:
             return np.eye(3)
         raise ValueError(f"a {self.output!r} plan ({self.method}) has no XYZ")
 
-    def white_XYZ(self, illuminant="D65", observer=None, integration: str = "rectangle") -> np.ndarray:
+    def white_XYZ(self, illuminant: str = "D65", observer=None, integration: str = "rectangle") -> np.ndarray:
         """(3,) the reference white of the XYZ :meth:`outputs_to_XYZ` gives: the perfect diffuser integrated with
         the same weights (:func:`specgpu.core.spectra.white_point_XYZ` on the output wavelengths, or on the light's
         grid for a tristimulus plan, whose frames were made for those weights), so a perfect white's Lab is
@@ -256,7 +262,7 @@ class Plan:
         (RGB) plan's own; empty for outputs that hold under any illuminant (reflectance, relative signal)."""
         return self.illuminant if self.output in ("XYZ", "RGB") else ""
 
-    def resolve_illuminant(self, illuminant=None, *, name: str = "the plan") -> str:
+    def resolve_illuminant(self, illuminant: str | None = None, *, name: str = "the plan") -> str:
         """The illuminant of the XYZ, Lab and dE made from this plan's outputs, and the one to record with them.
 
         Parameters
@@ -288,7 +294,7 @@ class Plan:
         functions, a camera simulator (RGB) plan's camera; empty for outputs that hold for any observer."""
         return self.observer if self.output in ("XYZ", "RGB") else ""
 
-    def resolve_observer(self, observer=None, *, name: str = "the plan") -> str:
+    def resolve_observer(self, observer: str | None = None, *, name: str = "the plan") -> str:
         """The observer of the XYZ, Lab and dE made from this plan's outputs (their reference white is that
         observer's), and the one to record with them; the counterpart of :meth:`resolve_illuminant`.
 
@@ -318,7 +324,8 @@ class Plan:
                              f"observer out to use the plan's, or make a plan for the {canonical}")
         return own or canonical
 
-    def check_calibration(self, bundle, name: str = "plan", calibration_name: str | None = None) -> None:
+    def check_calibration(self, bundle: CalibrationBundle, name: str = "plan",
+                          calibration_name: str | None = None) -> None:
         """Refuse a plan designed with another calibration than ``bundle`` (stale plan); ``name`` and
         ``calibration_name`` are the files the message names."""
         if self.calibration != bundle.hash:
@@ -327,7 +334,7 @@ class Plan:
                              f"{current} {bundle.hash[:12]}; re-plan")
 
 
-def save_plan(path, plan: Plan) -> str:
+def save_plan(path: str | os.PathLike[str], plan: Plan) -> str:
     """Save a plan as a versioned, hashed ``.npz`` (format ``"specgpu.plan"``).
 
     Parameters
@@ -355,7 +362,7 @@ def save_plan(path, plan: Plan) -> str:
     return save_npz(path, PLAN_FORMAT, PLAN_VERSION, plan._arrays(), plan._meta(), extra={"timing": plan.timing})
 
 
-def load_plan(path, *, calibration=None) -> Plan:
+def load_plan(path: str | os.PathLike[str], *, calibration: CalibrationBundle | None = None) -> Plan:
     """Load a plan saved by :func:`save_plan`.
 
     Parameters

@@ -18,6 +18,7 @@ import numpy as np
 from specgpu.io.npz import npz_members
 from specgpu.planning.basis import (DEFAULT_WAVELENGTHS, MAX_REFLECTANCE, REFLECTANCE_SETS, evaluation_exclusions,
                                     load_reflectances, pca_basis, read_reflectance_csv)
+from numpy.typing import ArrayLike
 
 __all__ = ["HELD_OUT_CHART", "Prior", "prior_from_spectra", "read_training", "held_out_spectra", "training_database",
            "held_out_basis", "training_spectra", "default_prior", "smooth_prior", "subspace_bound"]
@@ -47,7 +48,7 @@ class Prior:
     source: str = ""
 
 
-def prior_from_spectra(reflectance, wavelengths, source: str = "") -> Prior:
+def prior_from_spectra(reflectance: ArrayLike, wavelengths: ArrayLike, source: str = "") -> Prior:
     """The prior of (N, B) training spectra on ``wavelengths``; an empty set is a one-line error."""
     r = np.asarray(reflectance, np.float64)
     wl = np.asarray(wavelengths, np.float64).reshape(-1)
@@ -141,7 +142,8 @@ def _training(chart, wavelengths, training_files, builtin):
     return r, wl, "; ".join(source) or "no training files"
 
 
-def default_prior(chart: str = HELD_OUT_CHART, wavelengths=None, *, training_files=(), builtin: bool = True) -> Prior:
+def default_prior(chart: str = HELD_OUT_CHART, wavelengths: ArrayLike | None = None, *, training_files=(),
+                  builtin: bool = True) -> Prior:
     """Every reflectance set colour-science ships minus ``chart`` (and every set of the same patches, and any
     spectrum within 0.01 RMS of one of its patches), plus the user's training files; on ``wavelengths``
     (default 400-700 nm at 5 nm). ``builtin=False`` uses the files alone (none: a one-line error)."""
@@ -150,7 +152,8 @@ def default_prior(chart: str = HELD_OUT_CHART, wavelengths=None, *, training_fil
 
 
 
-def smooth_prior(wavelengths, *, correlation_nm: float = 40.0, level: float = 0.4, spread: float = 0.25) -> Prior:
+def smooth_prior(wavelengths: ArrayLike, *, correlation_nm: float = 40.0, level: float = 0.4,
+                 spread: float = 0.25) -> Prior:
     """A prior with no training set: a flat level (RMS ``level``) plus a smooth variation (RMS ``spread``,
     squared-exponential correlation over ``correlation_nm``): second moment ``level^2 11^T + spread^2 K``."""
     wl = np.asarray(wavelengths, np.float64).reshape(-1)

@@ -34,6 +34,11 @@ import numpy as np
 
 from specgpu.planning.correction import ambient_index, probe_indices
 from specgpu.planning.timing import check_budget
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
+    from specgpu.planning.plans import Plan
 
 __all__ = ["check_reference_every", "reference_count", "reference_positions", "with_reference_frames",
            "reference_indices", "pattern_indices"]
@@ -69,7 +74,7 @@ def reference_positions(frames: int, every: int) -> list[int]:
     return [i * (every + 1) for i in range(groups)] + [int(frames) + groups]
 
 
-def with_reference_frames(plan, bundle, every):
+def with_reference_frames(plan: Plan, bundle: CalibrationBundle, every: int):
     """The plan with broadband reference frames added (see the module docstring): one before its first frame and
     one after every ``every`` of its frames; the decoder gets zero columns for them.
 

@@ -9,6 +9,10 @@ from specgpu.planning.design import plan_hadamard, plan_optimal
 from specgpu.planning.narrowband import plan_narrowband, plan_reciprocal_narrowband
 from specgpu.planning.plans import Plan
 from specgpu.planning.response import plan_camera_simulator, plan_steady_state, plan_tristimulus
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
 
 __all__ = ["PLAN_METHODS", "make_plan"]
 
@@ -26,7 +30,7 @@ PLAN_METHODS = {
 }
 
 
-def make_plan(method: str, bundle, *args, **kwargs) -> Plan:
+def make_plan(method: str, bundle: CalibrationBundle, *args, **kwargs) -> Plan:
     """Make a plan by method name.
 
     Parameters

@@ -15,6 +15,11 @@ from specgpu.core.validate import BadArgument
 from specgpu.planning.basis import BasisTable
 from specgpu.planning.plans import Plan, _base, _design_frames, _on_grid, _quantize
 from specgpu.rig.scene import interpolation_matrix
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.calibration.bundle import CalibrationBundle
 
 __all__ = ["plan_tristimulus", "camera_sensitivities", "plan_camera_simulator", "plan_steady_state"]
 
@@ -65,7 +70,8 @@ def _response_plan(bundle, method, responses, W, labels, output, illuminant, obs
                  params=params)
 
 
-def plan_tristimulus(bundle, *, illuminant="D65", cmfs=DEFAULT_CMFS, correction: str = "diagonal",
+def plan_tristimulus(bundle: CalibrationBundle, *, illuminant: str = "D65", cmfs=DEFAULT_CMFS,
+                     correction: str = "diagonal",
                      basis: BasisTable | None = None, m: int = 3, level: float = 0.9,
                      max_exposure_s: float | None = None) -> Plan:
     """Tristimulus imager (eq. (7)-(11)): three frames with ``I_x V = E_T x``, ``I_y V = E_T y``, ``I_z V = E_T z``.
@@ -109,7 +115,8 @@ def camera_sensitivities(name: str):
     return table[name]
 
 
-def plan_camera_simulator(bundle, *, camera="Nikon 5100 (NPL)", illuminant="D65", correction: str = "diagonal",
+def plan_camera_simulator(bundle: CalibrationBundle, *, camera: str = "Nikon 5100 (NPL)", illuminant: str = "D65",
+                          correction: str = "diagonal",
                           basis: BasisTable | None = None, m: int = 3, level: float = 0.9,
                           max_exposure_s: float | None = None) -> Plan:
     """Camera simulator: frames with ``I V = E R_c`` for a camera's response functions R_c under illuminant E,
@@ -146,7 +153,8 @@ def plan_camera_simulator(bundle, *, camera="Nikon 5100 (NPL)", illuminant="D65"
 
 
 # ---- steady state ----------------------------------------------------------------------------------------------
-def plan_steady_state(bundle, spectrum, wavelengths=None, *, fit: str = "scale", level: float = 0.9,
+def plan_steady_state(bundle: CalibrationBundle, spectrum: ArrayLike, wavelengths: ArrayLike | None = None, *,
+                      fit: str = "scale", level: float = 0.9,
                       max_exposure_s: float | None = None) -> Plan:
     """One pattern emitting a target spectral irradiance, every frame (spectral rendering, paper Section 3).
 

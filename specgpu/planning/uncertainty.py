@@ -23,12 +23,18 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.noise import NoiseModel
+from numpy.typing import ArrayLike
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.planning.plans import Plan
 
 __all__ = ["sigma_map", "frame_variance", "output_covariance", "frame_covariance", "variance_rows",
            "ambient_variance", "constant_covariance", "constant_variance", "delta_E_sigma"]
 
 
-def sigma_map(frames, plan, dark, gain, *, sequences: int = 1, light: bool = True, ambient_dark=None,
+def sigma_map(frames: ArrayLike, plan: Plan, dark: ArrayLike, gain: ArrayLike, *, sequences: int = 1,
+              light: bool = True, ambient_dark=None,
               device=None) -> np.ndarray:
     """(H, W, P) standard deviation of each output per pixel (float32), from the frames (K, H, W) the outputs
     were recovered from (the mean of ``sequences`` sequences): ``var y = gain^2 sum_k A^2 (o / g + s_read^2 +
@@ -185,7 +191,8 @@ def constant_variance(plan) -> np.ndarray:
     return np.diag(constant_covariance(plan)).copy()
 
 
-def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant="D65", observer: str | None = None, *, wavelengths=None,
+def delta_E_sigma(XYZ, XYZ_sigma_cov, illuminant: str = "D65", observer: str | None = None, *,
+                  wavelengths: ArrayLike | None = None,
                   integration: str = "rectangle") -> np.ndarray:
     """First-order propagation of an XYZ covariance (..., 3, 3) to dE2000 (..., ): the colour difference of a
     small perturbation is (to first order) its CIEDE2000 metric at the colour, ``dE^2 = dLab^T G dLab``; the

@@ -4,30 +4,7 @@ Everything is NumPy on the host; the defaults reproduce the paper's rig (Tominag
 and every parameter can be overridden from a rig TOML (:func:`load_rig`).
 """
 
-from specgpu.rig.camera import Camera, CameraParameters, sensitivity_curve
-from specgpu.rig.config import FaultRates, RigDescription, dump_rig, load_rig, rig_from_dict
-from specgpu.rig.light import LightParameters, PatternFit, ProgrammableLight, lamp_spd
-from specgpu.rig.motion import MotionParameters, MovingScene, Trajectory, motion_from_table, warp_image
-from specgpu.rig.scene import (
-                               BUILTIN_SCENES,
-                               SpectralScene,
-                               colorchecker_scene,
-                               load_scene,
-                               natural_scene,
-                               read_scene,
-                               white_plate_scene,
-                               write_scene,
-)
-from specgpu.rig.spectroradiometer import Spectroradiometer, SpectroradiometerParameters
-from specgpu.rig.twin import FaultSchedule, SNRReport, TwinRig, band_patterns, measure_snr
+import lazy_loader
 
-__all__ = [
-    "Camera", "CameraParameters", "sensitivity_curve",
-    "FaultRates", "RigDescription", "dump_rig", "load_rig", "rig_from_dict",
-    "LightParameters", "PatternFit", "ProgrammableLight", "lamp_spd",
-    "MotionParameters", "MovingScene", "Trajectory", "motion_from_table", "warp_image",
-    "BUILTIN_SCENES", "SpectralScene", "colorchecker_scene", "load_scene", "natural_scene", "read_scene",
-    "white_plate_scene", "write_scene",
-    "Spectroradiometer", "SpectroradiometerParameters",
-    "FaultSchedule", "SNRReport", "TwinRig", "band_patterns", "measure_snr",
-]
+# The names are listed in __init__.pyi; each loads its module on first use, so importing the room is cheap.
+__getattr__, __dir__, __all__ = lazy_loader.attach_stub(__name__, __file__)

@@ -31,6 +31,7 @@ import numpy as np
 
 from specgpu.core.validate import check_array, check_number, normalised_to_peak
 from specgpu.io.npz import curve_on_grid
+from numpy.typing import ArrayLike
 
 __all__ = ["CameraParameters", "Camera", "sensitivity_curve", "standard_normal_fill"]
 
@@ -257,7 +258,7 @@ class Camera:
         """Size of one pixel on the object, mm."""
         return self.params.object_pixel_um * 1e-3
 
-    def responsivity(self, wavelengths) -> np.ndarray:
+    def responsivity(self, wavelengths: ArrayLike) -> np.ndarray:
         """Electrons per second per nm, per (W m^-2 nm^-1) of object irradiance, for reflectance 1.
 
         ``QE(lambda) lambda / (h c) * A_pixel * T / (4 N^2 (1 + m)^2)`` for a Lambertian object.
@@ -272,7 +273,8 @@ class Camera:
         optics = p.lens_transmittance / (4.0 * p.f_number**2 * (1.0 + p.magnification) ** 2)
         return qe * (wl * 1e-9) / (PLANCK_H * LIGHT_C) * area * optics
 
-    def signal_electrons(self, irradiance, wavelengths, reflectance=1.0, exposure_s: float | None = None) -> np.ndarray:
+    def signal_electrons(self, irradiance, wavelengths: ArrayLike, reflectance: float = 1.0,
+                         exposure_s: float | None = None) -> np.ndarray:
         """Mean photo-electrons for a spectral irradiance on an object of the given reflectance (no PRNU, no field).
 
         Parameters
@@ -301,7 +303,8 @@ class Camera:
         t = self.params.exposure_s if exposure_s is None else exposure_s
         return self.params.dark_current_e_per_s * t
 
-    def expected_dn(self, signal_e, exposure_s: float | None = None, *, fixed_pattern: bool = True) -> np.ndarray:
+    def expected_dn(self, signal_e: ArrayLike, exposure_s: float | None = None, *,
+                    fixed_pattern: bool = True) -> np.ndarray:
         """Expected raw output (DN, before rounding and clipping) for a signal in electrons.
 
         With ``fixed_pattern`` the PRNU and DSNU maps are applied (``signal_e`` must broadcast to the frame).
@@ -313,13 +316,14 @@ class Camera:
             return (s * self.prnu + offset + self.dsnu_e) / p.gain_e_per_dn
         return (s + offset) / p.gain_e_per_dn
 
-    def temporal_variance_dn(self, signal_e, exposure_s: float | None = None, *, quantization: bool = True) -> np.ndarray:
+    def temporal_variance_dn(self, signal_e: ArrayLike, exposure_s: float | None = None, *,
+                             quantization: bool = True) -> np.ndarray:
         """Temporal variance (DN^2) of one pixel per the noise model: shot + dark shot + read (+ 1/12 quantization)."""
         p = self.params
         var_e = np.asarray(signal_e, dtype=np.float64) + self.dark_electrons(exposure_s) + p.read_noise_e**2
         return var_e / p.gain_e_per_dn**2 + (1.0 / 12.0 if quantization else 0.0)
 
-    def expose(self, signal_e, rng: np.random.Generator, *, exposure_s: float | None = None,
+    def expose(self, signal_e: ArrayLike, rng: np.random.Generator, *, exposure_s: float | None = None,
                out: np.ndarray | None = None) -> np.ndarray:
         """One noisy frame (uint16 DN) for a per-pixel mean signal in electrons (PRNU applied here).
 

@@ -49,6 +49,7 @@ from specgpu.rig.scene import _NATURAL_IMAGES
 from specgpu.rig.sensors import PRESETS, expand_preset
 from specgpu.rig.spectroradiometer import SpectroradiometerParameters
 from specgpu.rig.tables import build_table
+import os
 
 __all__ = ["FaultRates", "RigDescription", "load_rig", "rig_from_dict", "dump_rig", "PACING"]
 
@@ -224,7 +225,8 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
         raise ValueError(f"{source}: twin.seed must be an integer, got {seed!r}")
     pacing = twin.get("pacing", "free")
     faults = build_table(FaultRates, data.get("faults", {}), "faults", source, base)
-    meter = build_table(SpectroradiometerParameters, data.get("spectroradiometer", {}), "spectroradiometer", source, base)
+    meter = build_table(SpectroradiometerParameters, data.get("spectroradiometer", {}), "spectroradiometer", source,
+                        base)
     hardware = dict(data.get("hardware", {}))
     for key, value in hardware.items():
         if isinstance(value, (dict, list)):
@@ -239,7 +241,7 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
         raise ValueError(f"{source}: {exc}") from None
 
 
-def load_rig(path=None) -> RigDescription:
+def load_rig(path: str | os.PathLike[str] | None = None) -> RigDescription:
     """Read a rig TOML (``None``: the paper's rig with every default).
 
     Raises

@@ -34,6 +34,7 @@ import numpy as np
 from specgpu.core.validate import check_array, check_number, normalised_to_peak
 from specgpu.io.npz import curve_on_grid
 from specgpu.rig.realism import Drift, Realism
+from numpy.typing import ArrayLike
 
 __all__ = ["LightParameters", "ProgrammableLight", "PatternFit", "lamp_spd", "photopic_y"]
 
@@ -290,7 +291,7 @@ class ProgrammableLight:
     """The OL490-like programmable light source of the twin.
 
     It implements :class:`specgpu.capture.driver.LightSource` (registered as a virtual subclass by
-    :mod:`specgpu.capture.twin`: the rig model never imports the capture package).
+    :mod:`specgpu.capture.twin_driver`: the rig model never imports the capture package).
 
     Parameters
     ----------
@@ -329,7 +330,8 @@ class ProgrammableLight:
         if r.slit_flat_top or r.slit_fwhm_slope:
             g = _slit_matrix(self._wl, self._column_nm, p.line_fwhm_nm, r.slit_flat_top, r.slit_fwhm_slope)
         else:
-            g = np.exp(-0.5 * ((self._wl[:, None] - self._column_nm[None, :]) / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
+            offset = self._wl[:, None] - self._column_nm[None, :]
+            g = np.exp(-0.5 * (offset / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
         m = g * (lamp_at_col * dcol)[None, :]
         if p.second_order_leakage > 0:
             # Second order: the column for lambda_c also passes lambda_c / 2, at half the bandwidth.
@@ -402,7 +404,7 @@ class ProgrammableLight:
         return t
 
     # ---- pattern <-> spectrum --------------------------------------------------------------------------
-    def check_pattern(self, pattern, name: str = "pattern") -> np.ndarray:
+    def check_pattern(self, pattern: ArrayLike, name: str = "pattern") -> np.ndarray:
         """Validate mirror counts: integers in [0, rows] with ``columns`` entries on the last axis."""
         arr = np.asarray(pattern)
         if arr.ndim < 1 or arr.shape[-1] != self.params.columns:
@@ -417,7 +419,7 @@ class ProgrammableLight:
                              f"got [{int(arr.min())}, {int(arr.max())}]")
         return arr.astype(np.int32)
 
-    def pattern_to_spectrum(self, pattern) -> np.ndarray:
+    def pattern_to_spectrum(self, pattern: ArrayLike) -> np.ndarray:
         """Spectral irradiance (W m^-2 nm^-1, on :attr:`wavelengths`) emitted for mirror counts ``pattern``.
 
         ``pattern`` may be (columns,) or (K, columns); the result has the grid on the last axis.
@@ -431,14 +433,14 @@ class ProgrammableLight:
         """Spectral irradiance with every mirror off (DMD off-state background; zeros on an ideal light)."""
         return np.zeros_like(self._wl) if self._offset is None else self._offset
 
-    def illuminance(self, pattern) -> np.ndarray:
+    def illuminance(self, pattern: ArrayLike) -> np.ndarray:
         """Illuminance (lux) at the spot centre for mirror counts ``pattern`` ((columns,) or (K, columns)).
 
         ``683 lm/W * integral E(lambda) ybar(lambda) dlambda`` with the CIE 1931 2-degree ybar.
         """
         return K_M * self.pattern_to_spectrum(pattern) @ photopic_y(self._wl)
 
-    def pattern_to_mirrors(self, pattern) -> np.ndarray:
+    def pattern_to_mirrors(self, pattern: ArrayLike) -> np.ndarray:
         """The (rows, columns) boolean mirror image of a pattern: in each column, its count of mirrors on,
         centred on the column (where the vertically spread beam is strongest is irrelevant in this model)."""
         n = self.check_pattern(pattern, "pattern")
@@ -448,7 +450,7 @@ class ProgrammableLight:
         start = (self.params.rows - n) // 2
         return (rows >= start[None, :]) & (rows < (start + n)[None, :])
 
-    def spectrum_to_pattern(self, target, wavelengths=None, *, fit: str = "clip") -> PatternFit:
+    def spectrum_to_pattern(self, target, wavelengths: ArrayLike | None = None, *, fit: str = "clip") -> PatternFit:
         """Quantized pattern whose emission best matches ``target`` (bounded least squares, then rounding).
 
         Parameters
@@ -525,7 +527,7 @@ class ProgrammableLight:
         return f
 
     # ---- the sequence and the trigger ------------------------------------------------------------------
-    def load_sequence(self, patterns) -> None:
+    def load_sequence(self, patterns: ArrayLike) -> None:
         """Load a (K, columns) sequence of mirror-count patterns (time-varying mode); pattern 0 is shown."""
         n = self.check_pattern(patterns, "patterns")
         if n.ndim != 2 or n.shape[0] < 1:
@@ -535,7 +537,7 @@ class ProgrammableLight:
         self._index = 0
         self.sequence_version += 1  # lets a renderer know its cached per-pattern frames are stale
 
-    def set_steady(self, pattern) -> None:
+    def set_steady(self, pattern: ArrayLike) -> None:
         """Steady-state mode: the same pattern for every frame (a sequence of length 1)."""
         n = self.check_pattern(pattern, "pattern")
         if n.ndim != 1:
@@ -576,7 +578,8 @@ class ProgrammableLight:
         p = self.params
         return p.fluctuation_rms * math.sqrt(p.fluctuation_reference_exposure_s / exposure_s)
 
-    def power_factors(self, timestamps_s, exposure_s: float, rng: np.random.Generator | None = None) -> np.ndarray:
+    def power_factors(self, timestamps_s: ArrayLike, exposure_s: float,
+                      rng: np.random.Generator | None = None) -> np.ndarray:
         """Relative emitted power averaged over each exposure starting at ``timestamps_s`` (s).
 
         ``1 + drift * t / 3600 + flicker averaged over the exposure + fluctuation``; the fluctuation is drawn from

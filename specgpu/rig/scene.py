@@ -9,7 +9,8 @@ Sources:
 - cube files (:mod:`specgpu.io.exr`, :mod:`specgpu.io.npz`, :mod:`specgpu.io.envi`): OpenEXR in the
   JCGT 2021 spectral layout (Fichet, Pacanowski, Wilkie), reflective channels named ``T.<wavelength><unit>``
   (e.g. ``T.550,000000nm``; ``.`` also accepted as decimal separator on reading), through OpenImageIO; or
-  ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>`` arrays). Bands are ordered by wavelength, never by channel order in the file.
+  ``.npz`` with ``wavelengths`` (B,) and ``reflectance`` (H, W, B) (and optional ``mask_<name>`` arrays). Bands are
+  ordered by wavelength, never by channel order in the file.
 - built-ins (:data:`BUILTIN_SCENES`): ``"colorchecker"`` (the 24-patch chart as an image from colour-science's
   measured spectra, with one mask per patch), ``"white"`` (a reference white plate) and ``"natural"`` (a
   scikit-image sample photograph turned into reflectance by Mallett and Yuksel's 2019 spectral upsampling,
@@ -35,6 +36,8 @@ from specgpu.core.validate import BadArgument, check_array, check_number, check_
 from specgpu.io.envi import read_cube_envi
 from specgpu.io.exr import read_cube_exr, write_cube_exr
 from specgpu.io.npz import read_cube_npz, write_cube_npz
+import os
+from numpy.typing import ArrayLike
 
 __all__ = [
     "SpectralScene", "read_scene", "write_scene", "colorchecker_scene", "patch_scene", "white_plate_scene",
@@ -92,7 +95,7 @@ class SpectralScene:
         """(height, width) in pixels."""
         return self.reflectance.shape[:2]
 
-    def band_weights(self, wavelengths, weights) -> np.ndarray:
+    def band_weights(self, wavelengths: ArrayLike, weights: ArrayLike) -> np.ndarray:
         """Fold spectral weights on a uniform grid into per-band weights of this scene.
 
         With the reflectance linearly interpolated between bands (held constant beyond the first and last band),
@@ -228,7 +231,7 @@ def interpolation_matrix(grid, band_wavelengths) -> np.ndarray:
 
 
 # ---- files ---------------------------------------------------------------------------------------------------
-def read_scene(path) -> SpectralScene:
+def read_scene(path: str | os.PathLike[str]) -> SpectralScene:
     """Read a spectral cube: ``.exr`` (JCGT 2021 ``T.<wl>nm`` channels) or ``.npz`` (``wavelengths``, ``reflectance``).
 
     Raises
@@ -266,7 +269,7 @@ def _read_exr(path: Path) -> SpectralScene:
     return SpectralScene(wl, refl, {}, path.stem)
 
 
-def write_scene(path, scene: SpectralScene, *, half: bool = False) -> Path:
+def write_scene(path: str | os.PathLike[str], scene: SpectralScene, *, half: bool = False) -> Path:
     """Write a scene as ``.exr`` (JCGT ``T.<wl>nm`` channels, float32 or half) or ``.npz`` (masks as ``mask_*``).
 
     The file appears under its name only once complete (written to a temporary name, then renamed).
@@ -342,7 +345,8 @@ def colorchecker_scene(height: int = 480, width: int = 640, *, chart: str = "Col
         refl[ys, xs, :] = spectra[k]
         m = np.zeros((h, w), bool)
         inset = 0.15 * size
-        m[int(round(ya + inset)):int(round(ya + size - inset)), int(round(xa + inset)):int(round(xa + size - inset))] = True
+        m[int(round(ya + inset)):int(round(ya + size - inset)),
+          int(round(xa + inset)):int(round(xa + size - inset))] = True
         masks[name] = m
     if white_tile is not None:
         wt = check_number("white_tile", white_tile, low=0, low_open=True, high=MAX_REFLECTANCE)
@@ -388,7 +392,7 @@ def patch_scene(names, wavelengths, spectra, height: int = 240, width: int = 320
 
 
 def white_plate_scene(height: int = 480, width: int = 640, *, reflectance: float = 0.99,
-                      wavelengths=None) -> SpectralScene:
+                      wavelengths: ArrayLike | None = None) -> SpectralScene:
     """A uniform reference white plate of flat ``reflectance`` (default 0.99, a pressed-PTFE standard).
 
     ``wavelengths`` defaults to 380-780 nm at 5 nm. The mask ``"plate"`` covers the whole image.

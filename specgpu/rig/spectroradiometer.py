@@ -17,6 +17,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from specgpu.core.validate import check_array, check_number
+from numpy.typing import ArrayLike
 
 __all__ = ["SpectroradiometerParameters", "Spectroradiometer"]
 
@@ -85,7 +86,7 @@ class Spectroradiometer:
         self.wavelengths = p.wavelength_min_nm + p.step_nm * np.arange(count)
         self._rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5BEC]))
 
-    def response_matrix(self, wavelengths) -> np.ndarray:
+    def response_matrix(self, wavelengths: ArrayLike) -> np.ndarray:
         """(samples, grid) weights: each sample is the bandpass-weighted mean of a spectrum on ``wavelengths``."""
         wl = check_array("wavelengths", wavelengths, ndim=1)
         if wl.size < 2 or np.any(np.diff(wl) <= 0):
@@ -101,7 +102,8 @@ class Spectroradiometer:
         w = tri * dw[None, :]
         return w / fwhm  # a triangle of unit peak has area fwhm: a flat spectrum reads back unchanged
 
-    def measure(self, spectrum, wavelengths, rng: np.random.Generator | None = None) -> np.ndarray:
+    def measure(self, spectrum: ArrayLike, wavelengths: ArrayLike,
+                rng: np.random.Generator | None = None) -> np.ndarray:
         """Measure a spectral irradiance (W m^-2 nm^-1) given on ``wavelengths``; returns values on
         :attr:`wavelengths` with bandpass, noise and scale error applied (never negative)."""
         s = check_array("spectrum", spectrum, ndim=1, low=0.0)

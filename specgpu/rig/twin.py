@@ -36,6 +36,7 @@ from specgpu.rig.light import K_M, ProgrammableLight, lamp_change, photopic_y
 from specgpu.rig.motion import MovingScene, Trajectory
 from specgpu.rig.scene import SpectralScene, interpolation_matrix, load_scene, white_plate_scene
 from specgpu.rig.spectroradiometer import Spectroradiometer
+from numpy.typing import ArrayLike
 
 __all__ = ["FaultSchedule", "TwinRig", "SNRReport", "measure_snr", "band_patterns"]
 
@@ -146,7 +147,8 @@ class TwinRig:
         light to switch between exposures.
     """
 
-    def __init__(self, description: RigDescription | None = None, *, scene=None, seed: int | None = None,
+    def __init__(self, description: RigDescription | None = None, *, scene: SpectralScene | None = None,
+                 seed: int | None = None,
                  clock_start_s: float = 0.0):
         self.description = description if description is not None else RigDescription()
         d = self.description
@@ -190,13 +192,13 @@ class TwinRig:
     def scene(self) -> SpectralScene:
         return self._scene
 
-    def set_scene(self, scene) -> None:
+    def set_scene(self, scene: SpectralScene) -> None:
         """Photograph another scene (built-in name, path or :class:`SpectralScene`), resampled to the ROI."""
         self._scene = load_scene(scene, *self.camera.shape)
         self._maps = None
         self._moving = None
 
-    def load_sequence(self, patterns) -> None:
+    def load_sequence(self, patterns: ArrayLike) -> None:
         """Load a (K, columns) pattern sequence into the light; the per-pattern frames are recomputed lazily."""
         self.light.load_sequence(patterns)
         self._maps = None
@@ -251,7 +253,7 @@ class TwinRig:
         return e
 
     # ---- the physics ----------------------------------------------------------------------------------------
-    def signal_electrons(self, spectra=None) -> np.ndarray:
+    def signal_electrons(self, spectra: ArrayLike | None = None) -> np.ndarray:
         """(K, H, W) mean photo-electrons per pattern (field profile included, PRNU not), float32.
 
         ``spectra``: (K, grid) irradiance on the light's grid; the loaded sequence's by default.
@@ -348,7 +350,8 @@ class TwinRig:
         if amb is not None:
             oamb = np.zeros((h, w), np.float32)
             oamb[where[1:]] = images(obj, amb[None, :])[0]
-        return MovingScene(Trajectory(m, d.camera.frame_rate_hz, math.hypot(h, w) / 2), bg, ambient, canvas, oamb, alpha)
+        return MovingScene(Trajectory(m, d.camera.frame_rate_hz, math.hypot(h, w) / 2), bg, ambient, canvas, oamb,
+                           alpha)
 
     def moving_mean(self, pattern_index: int, timestamp_s: float) -> np.ndarray:
         """(H, W) noise-free signal (DN above the offset, float32) of a frame of a moving world exposed from
@@ -363,7 +366,7 @@ class TwinRig:
         sig /= np.float32(self.camera.params.gain_e_per_dn)
         return sig
 
-    def motion_truth(self, timestamps_s) -> dict:
+    def motion_truth(self, timestamps_s: ArrayLike) -> dict:
         """The truth of one sequence at its reference time, the mean of its frames' mid-exposure times.
 
         Returns

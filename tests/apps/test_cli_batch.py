@@ -64,7 +64,8 @@ def recovered(root, tmp_path, sequence: int, frames=None) -> np.ndarray:
         K = frames.shape[0]
         io.write_sequence(seq, frames, [{"frame_id": k, "pattern_index": k, "exposure_s": 0.004,
                                          "timestamp_s": k * 0.005} for k in range(K)],
-                          __import__("specgpu.planning.plans", fromlist=["load_plan"]).load_plan(root / "plan.npz").hash)
+                          __import__("specgpu.planning.plans",
+                                     fromlist=["load_plan"]).load_plan(root / "plan.npz").hash)
         shutil.copyfile(root / "plan.npz", seq / "plan.npz")
         shutil.copyfile(root / "calib.npz", seq / "calibration.npz")
     out = tmp_path / f"r{sequence}.npz"

@@ -125,7 +125,7 @@ INTERRUPTED = {  # the command, and the function it does its work with (patched 
     "evaluate": ("specgpu.apps.cli.evaluate.evaluation_report",
                  lambda d, o: ["evaluate", d / "cube.npz", "--truth", "colorchecker", "--json", o]),
     "report": ("specgpu.apps.cli.report.report_folder", lambda d, o: ["report", d / "seq", "--out", o]),
-    "stream": ("specgpu.apps.cli.stream.open_driver",
+    "stream": ("specgpu.apps.cli.stream.open_rig_driver",
                lambda d, o: ["stream", *rig_plan(d), "--seconds", "0.2", "--out", o]),
     "batch": ("specgpu.apps.cli.batch.run_batch",
               lambda d, o: ["batch", d / "seq", "--plan", d / "plan.npz", "--out", o]),

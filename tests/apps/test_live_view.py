@@ -23,7 +23,7 @@ def test_live_view_shows_the_stream_while_it_drops_nothing(qtbot):
     from napari.components import ViewerModel
 
     from specgpu.calibration import oracle_calibration
-    from specgpu.hardware.drivers import open_driver
+    from specgpu.hardware.drivers import open_rig_driver
     from specgpu.pipeline.stream import Stream
     from specgpu.planning import make_plan
     from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
@@ -31,7 +31,7 @@ def test_live_view_shows_the_stream_while_it_drops_nothing(qtbot):
     rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
     bundle = oracle_calibration(rig)
     plan = make_plan("narrowband", bundle, step_nm=40.0)
-    driver = open_driver(rig, plan, scene=colorchecker_scene(240, 320), calibration=bundle, seed=1, pacing="paced")
+    driver = open_rig_driver(rig, plan, scene=colorchecker_scene(240, 320), calibration=bundle, seed=1, pacing="paced")
     stream = Stream(driver, plan, bundle, outputs=["cube", "XYZ"])
     ring = ResultsRing(capacity=1, outputs=VIEW_OUTPUTS, policy="drop_newest")
     kept = []
@@ -51,7 +51,8 @@ def test_live_view_shows_the_stream_while_it_drops_nothing(qtbot):
     report = out["report"]
     assert not report.sink_errors
     assert report.assembly.dropped == 0 and report.ring.dropped == 0  # the view cost the stream no frame
-    assert view.shown >= 2 and report.sequences_out >= view.shown, (view.shown, report.sequences_out, ring.dropped, ring.written, len(kept), report.frames_in)
+    assert view.shown >= 2 and report.sequences_out >= view.shown, (view.shown, report.sequences_out, ring.dropped,
+                                                                    ring.written, len(kept), report.frames_in)
     assert view.shown + ring.dropped == len(kept)  # every result was shown or skipped, none lost
     cube = viewer.layers["reflectance"].data
     assert cube.shape == (len(plan.output_wavelengths), 240, 320)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from specgpu.capture import DRIVERS, CameraDriver, FrameInfo, LightSource, StreamEnd, capture_sequences
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 
 
 class ReplayLight(LightSource):
@@ -82,5 +82,5 @@ def test_another_backend_goes_through_the_same_capture_path():
 
 
 def test_twin_is_the_default_backend_and_a_real_subclass():
-    assert DRIVERS["twin"] == "specgpu.capture.twin:TwinDriver"
+    assert DRIVERS["twin"] == "specgpu.capture.twin_driver:TwinDriver"
     assert issubclass(TwinDriver, CameraDriver)

@@ -5,7 +5,7 @@ import pytest
 
 from specgpu.capture import capture_sequences, open_driver
 from specgpu.capture.replay import RecordedLight, ReplayDriver, record
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.twin import FaultSchedule, TwinRig

@@ -19,9 +19,10 @@ from file_helpers import (
 )
 
 from specgpu import io
+from specgpu.io.exr import parse_channel
 
 
-# ---- cubes -------------------------------------------------------------------------------------------------------------
+# ---- cubes -----------------------------------------------------------------------------------------------------------
 def test_cube_exr_float_round_trip_is_identical(tmp_path):
     cube = cube_data()
     wl = np.array([400.0, 450.0, 500.5, 600.0])
@@ -71,7 +72,7 @@ def test_exr_bands_are_ordered_by_wavelength_not_by_channel_order(tmp_path):
     write_exr_channels(tmp_path / "s.exr", names + ["R", "G", "S0.500,000000nm"], np.concatenate([data, extra], 2))
     # OpenEXR stores channels sorted by name (OpenImageIO then moves R, G first): the order seen by a reader is
     # neither the one written nor the wavelengths'.
-    seen = [io.parse_channel(n) for n in oiio.ImageInput.open(str(tmp_path / "s.exr")).spec().channelnames]
+    seen = [parse_channel(n) for n in oiio.ImageInput.open(str(tmp_path / "s.exr")).spec().channelnames]
     seen = [v for v in seen if v is not None]
     assert seen != sorted(seen) and seen != nm
     cube, wl, _ = io.read_cube(tmp_path / "s.exr")
@@ -95,7 +96,7 @@ def test_oiiotool_info_shows_the_jcgt_channels(tmp_path, half):
     assert "specgpu:metadata" in res.stdout and "narrowband" in res.stdout
 
 
-# ---- cubes: bad input --------------------------------------------------------------------------------------------------
+# ---- cubes: bad input ------------------------------------------------------------------------------------------------
 def test_missing_cube_file(tmp_path):
     for name in ("none.exr", "none.npz"):
         with raises_one_line(FileNotFoundError, rf"{name}: spectral cube not found"):
@@ -193,7 +194,7 @@ def test_metadata_must_be_json(tmp_path):
     assert not (tmp_path / "m.exr").exists()
 
 
-# ---- maps --------------------------------------------------------------------------------------------------------------
+# ---- maps ------------------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("kind, channels", [("XYZ", 3), ("Lab", 3), ("dE2000", 1), (("RMSE",), 1)])
 def test_map_round_trip(tmp_path, kind, channels):
     rng = np.random.default_rng(2)

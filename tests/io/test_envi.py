@@ -83,7 +83,8 @@ def test_bad_headers_and_arguments_are_one_line(tmp_path):
         with pytest.raises(ValueError, match=message) as err:
             io.read_cube(tmp_path / "b.hdr")
         assert "\n" not in str(err.value) and str(err.value).startswith(str(tmp_path / "b.hdr"))
-    (tmp_path / "b.hdr").write_text("\n".join(l for l in text.splitlines() if not l.startswith("wavelength =")))
+    kept = [line for line in text.splitlines() if not line.startswith("wavelength =")]
+    (tmp_path / "b.hdr").write_text("\n".join(kept))
     with pytest.raises(ValueError, match="no 'wavelength' list"):
         io.read_cube(tmp_path / "b.hdr")
     with pytest.raises(ValueError, match="ENVI has no half-float"):

@@ -9,7 +9,7 @@ from file_helpers import (
 from hypothesis import given
 from hypothesis import strategies as st
 
-from specgpu import io
+from specgpu.io.exr import format_channel, parse_channel
 
 
 # ---- channel names ---------------------------------------------------------------------------------------------------
@@ -28,7 +28,7 @@ from specgpu import io
     ("R", None), ("T.nm", None), ("T.550", None), ("T550nm", None), ("T.-550nm", None),
 ])
 def test_parse_channel_follows_the_jcgt_grammar(name, nm):
-    got = io.parse_channel(name)
+    got = parse_channel(name)
     if nm is None:
         assert got is None
     else:
@@ -36,19 +36,19 @@ def test_parse_channel_follows_the_jcgt_grammar(name, nm):
 
 
 def test_format_channel_writes_the_reference_form():
-    assert io.format_channel(550) == "T.550,000000nm"
-    assert io.format_channel(405.5) == "T.405,500000nm"
-    assert io.format_channel(405.12345678) == "T.405,12345678nm"  # six decimals would lose it
+    assert format_channel(550) == "T.550,000000nm"
+    assert format_channel(405.5) == "T.405,500000nm"
+    assert format_channel(405.12345678) == "T.405,12345678nm"  # six decimals would lose it
     for bad in (0, -1, float("nan"), float("inf"), "x"):
         with raises_one_line(ValueError, "wavelength must be"):
-            io.format_channel(bad)
+            format_channel(bad)
 
 
 @given(st.floats(min_value=1e-300, max_value=1e300, allow_nan=False, allow_infinity=False))
 def test_channel_name_round_trip_is_exact(wl):
-    name = io.format_channel(wl)
+    name = format_channel(wl)
     assert name.startswith("T.") and name.endswith("nm") and "." not in name[2:]  # comma: no OpenEXR layer split
-    assert io.parse_channel(name) == wl
+    assert parse_channel(name) == wl
 
 
 _SI = {"": 0, "da": 1, "h": 2, "k": 3, "M": 6, "d": -1, "c": -2, "m": -3, "u": -6, "n": -9, "p": -12}
@@ -58,14 +58,14 @@ _SI = {"": 0, "da": 1, "h": 2, "k": 3, "M": 6, "d": -1, "c": -2, "m": -3, "u": -
        st.sampled_from([",", "."]))
 def test_parse_channel_applies_si_prefixes_and_either_separator(value, prefix, sep):
     name = "T." + repr(value).replace(".", sep) + prefix + "m"
-    assert io.parse_channel(name) == pytest.approx(value * 10.0 ** (_SI[prefix] + 9), rel=1e-12)
-    hz = io.parse_channel("T." + repr(value).replace(".", sep) + prefix + "Hz")
+    assert parse_channel(name) == pytest.approx(value * 10.0 ** (_SI[prefix] + 9), rel=1e-12)
+    hz = parse_channel("T." + repr(value).replace(".", sep) + prefix + "Hz")
     assert hz == pytest.approx(299_792_458.0 / (value * 10.0 ** _SI[prefix]) * 1e9, rel=1e-12)
 
 
 @given(st.text(max_size=20))
 def test_parse_channel_never_raises_and_rejects_non_reflective_names(text):
-    got = io.parse_channel(text)
+    got = parse_channel(text)
     if not text.startswith("T."):
         assert got is None
     else:

@@ -15,7 +15,7 @@ from specgpu import io
 from specgpu.io.previews import MIN_BAR_HEIGHT
 
 
-# ---- previews ----------------------------------------------------------------------------------------------------------
+# ---- previews --------------------------------------------------------------------------------------------------------
 def test_sRGB_preview_adapts_from_the_given_illuminant(tmp_path):
     xy_a = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["A"]
     white_a = np.broadcast_to(colour.xy_to_XYZ(xy_a) * 0.9, (2, 2, 3))

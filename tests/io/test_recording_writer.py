@@ -195,7 +195,8 @@ def test_check_write_rate_refuses_with_the_figures():
         check_write_rate("REC.zarr", need, 30, rate=200e6, buffer_bytes=2e9, what="the recording (52 MB x 10/s)")
     message = str(err.value)
     assert "\n" not in message and message.startswith("REC.zarr: the disk cannot keep up")
-    assert "needs 520 MB/s" in message and "measured 200 MB/s" in message and "9.60 GB would pile up" in message and "2.00 GB can wait" in message
+    assert "needs 520 MB/s" in message and "measured 200 MB/s" in message
+    assert "9.60 GB would pile up" in message and "2.00 GB can wait" in message
     # what the system buffers covers a short recording; a disk faster than the need always passes
     assert check_write_rate("REC.zarr", need, 5, rate=200e6, buffer_bytes=2e9) == 200e6
     assert check_write_rate("REC.zarr", need, 3600, rate=600e6, buffer_bytes=0) == 600e6

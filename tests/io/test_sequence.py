@@ -18,11 +18,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from specgpu import io
+from specgpu.io.sequence import validate_sequence_document
 from specgpu.capture.assemble import Sequence
 from specgpu.capture.driver import FrameInfo
 
 
-# ---- frame sequences ---------------------------------------------------------------------------------------------------
+# ---- frame sequences -------------------------------------------------------------------------------------------------
 def frames_and_records(n=4, h=5, w=6, seed=5, first_id=100):
     rng = np.random.default_rng(seed)
     frames = rng.integers(0, 65536, (n, h, w), dtype=np.uint16)
@@ -100,7 +101,8 @@ def test_sequence_write_bad_input(tmp_path):
     with raises_one_line(ValueError, r"d: frame 1 has shape \(4, 6\), the first frame \(5, 6\)"):
         io.write_sequence(tmp_path / "d", [frames[0], frames[1][:4]], records[:2], "p")
     seq = Sequence(frames=frames, frame_ids=np.arange(4), timestamps_s=np.zeros(4), exposure_s=0.0, cycle=0)
-    with raises_one_line(ValueError, r"sequence\.json: frames\[0\]\.exposure_s must be a finite number > 0 \(s\), got 0\.0"):
+    with raises_one_line(ValueError,
+                         r"sequence\.json: frames\[0\]\.exposure_s must be a finite number > 0 \(s\), got 0\.0"):
         io.write_sequence(tmp_path / "h", seq, plan_hash="p")  # rejected before any frame is written
     with raises_one_line(ValueError, r"e: plan_hash must be a non-empty string"):
         io.write_sequence(tmp_path / "e", frames, records, "")
@@ -175,7 +177,8 @@ def test_a_recorded_white_roi_outside_the_frame_names_the_file_and_the_key(seq, 
 
 def test_sequence_with_a_missing_frame(seq):
     (seq / "frame_000002.tif").unlink()
-    with raises_one_line(ValueError, r"frame_000002\.tif: frame 2 \(frame id 102\) listed in sequence\.json is missing"):
+    with raises_one_line(ValueError,
+                         r"frame_000002\.tif: frame 2 \(frame id 102\) listed in sequence\.json is missing"):
         io.read_sequence(seq)
 
 
@@ -234,9 +237,9 @@ def sequence_documents(draw):
 @settings(max_examples=60, deadline=None)
 @given(sequence_documents())
 def test_valid_sequence_documents_pass_and_survive_json(doc):
-    out = io.validate_sequence_document(doc, "x/sequence.json")
+    out = validate_sequence_document(doc, "x/sequence.json")
     assert out == doc
-    assert io.validate_sequence_document(json.loads(json.dumps(out)), "x/sequence.json") == doc
+    assert validate_sequence_document(json.loads(json.dumps(out)), "x/sequence.json") == doc
 
 
 # (where, key, bad value): each breaks one rule of the document.
@@ -266,7 +269,7 @@ def test_each_broken_rule_is_a_one_line_error_naming_the_file(doc, mutation, dat
     else:
         target[key] = value
     with raises_one_line(ValueError, r"^x/sequence\.json: "):
-        io.validate_sequence_document(bad, "x/sequence.json")
+        validate_sequence_document(bad, "x/sequence.json")
 
 
 @settings(max_examples=40, deadline=None)
@@ -284,6 +287,6 @@ def test_frame_ids_out_of_capture_order_or_repeated_files_are_rejected(doc, data
         bad["frames"][i]["file"] = bad["frames"][0]["file"]
         match = r"is listed twice"
     with raises_one_line(ValueError, match):
-        io.validate_sequence_document(bad, "x/sequence.json")
+        validate_sequence_document(bad, "x/sequence.json")
     with raises_one_line(ValueError, r"must hold a JSON object"):
-        io.validate_sequence_document([doc], "x/sequence.json")
+        validate_sequence_document([doc], "x/sequence.json")

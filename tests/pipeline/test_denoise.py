@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import specgpu.planning as E
+from specgpu.planning.priors import held_out_basis
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide, stream_denoise
 from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, to_XYZ, uncertainty
@@ -84,7 +85,7 @@ def test_filtering_the_output_subspace_equals_filtering_every_band(bundle):
     y = recover(folder)
     every = guided_filter(y, sequence_guide(folder), radius=DENOISE_RADIUS, eps=DENOISE_EPS)
     np.testing.assert_allclose(denoise_recovery(folder, y), every, atol=2e-5)
-    sym = E.with_estimator(E.plan_symmetric_basis(bundle, E.held_out_basis(), m=5,
+    sym = E.with_estimator(E.plan_symmetric_basis(bundle, held_out_basis(), m=5,
                                                   output_wavelengths=np.arange(400.0, 701.0, 10.0)),
                            bundle, "projection", noise=E.NoiseModel.from_rig(DESC, 0.005))
     U = output_subspace(sym)

@@ -105,7 +105,7 @@ def test_the_decoder_stacks_its_outputs_into_one_pass_equal_to_recover(moving):
 # ------------------------------------------------------------------------------------------------------ the stream
 
 def twin_driver(plan, bundle, sequences, seed=7):
-    from specgpu.capture.twin import TwinDriver
+    from specgpu.capture.twin_driver import TwinDriver
     from specgpu.rig.twin import TwinRig
 
     rig = TwinRig(plan.rig_description(RigDescription(camera=CAM, motion=MOTION)), scene=natural_scene(240, 320))

@@ -23,7 +23,8 @@ from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
 from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ, uncertainty
 from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.rig.scene import white_tile_roi
-from specgpu.pipeline import LatencyHistogram, Stream
+from specgpu.pipeline import Stream
+from specgpu.pipeline.stream_report import LatencyHistogram
 
 
 SEQUENCES = 3
@@ -411,7 +412,7 @@ def test_stream_applies_recovers_frame_corrections(corrected):
 @pytest.mark.parametrize("white", [True, False])
 def test_stream_subtracts_the_ambient_frame_as_recover_does(setup, white):
     from specgpu.capture.replay import record
-    from specgpu.capture.twin import TwinDriver
+    from specgpu.capture.twin_driver import TwinDriver
     from specgpu.planning.correction import with_ambient_frame
     from specgpu.rig.scene import colorchecker_scene
     from specgpu.rig.twin import TwinRig

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import specgpu.planning as E
+from specgpu.planning.priors import held_out_basis
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning import design as D
 from specgpu.planning.budget import budget_plan
@@ -33,7 +34,7 @@ def prior():
 
 @pytest.fixture(scope="module")
 def basis():
-    return E.held_out_basis()
+    return held_out_basis()
 
 
 def noise_at(t):

@@ -9,6 +9,8 @@ import pytest
 
 from specgpu.planning import design as D
 import specgpu.planning as E
+from specgpu.planning.estimators import forward, output_weights
+from specgpu.planning.priors import held_out_basis, held_out_spectra, training_spectra
 from specgpu.planning import make_plan
 from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.scene import patch_scene
@@ -57,7 +59,7 @@ def test_optimal_plan_respects_every_limit(bundle, optimal6):
 
 
 def test_optimal_beats_the_paper_design_in_expectation(bundle, prior, optimal6):
-    basis = E.held_out_basis()
+    basis = held_out_basis()
     biased = make_plan("biased", bundle, basis, m=5, output_wavelengths=np.arange(400.0, 701.0, 10.0))
     w = E.with_estimator(biased, bundle, "wiener", prior=prior, noise=noise_at(biased.exposure_s))
     assert optimal6.params["expected"]["rmse"] < 0.8 * w.params["expected"]["rmse"]
@@ -65,7 +67,7 @@ def test_optimal_beats_the_paper_design_in_expectation(bundle, prior, optimal6):
 
 
 def test_optimal_plan_recovers_the_held_out_chart_noise_free(bundle, optimal6):
-    names, wl, spec = E.held_out_spectra()
+    names, wl, spec = held_out_spectra()
     scene = patch_scene(names, wl, spec, H, W)
     rig = TwinRig(optimal6.rig_description(DESC), scene=scene)
     rig.load_sequence(optimal6.patterns)
@@ -92,7 +94,7 @@ def test_unreachable_objective_and_empty_training_are_one_line(bundle, prior):
 
 
 def test_colour_objective_design(bundle, prior):
-    p = D.plan_optimal(bundle, prior, noise_at, frames=3, objective="dEab", training=E.training_spectra(), starts=1)
+    p = D.plan_optimal(bundle, prior, noise_at, frames=3, objective="dEab", training=training_spectra(), starts=1)
     assert p.params["objective"] == "dEab" and p.params["expected"]["dEab"] > 0
     assert p.patterns.max() <= bundle.rows and p.expected_level.max() <= 0.9 + 1e-9
 
@@ -147,7 +149,7 @@ def test_a_design_lights_only_the_wavelengths_its_prior_knows(bundle, prior):
     assert not plan.patterns[:, ~inside].any()
     # a surface that differs from another only beyond the prior's 700 nm (a leaf's red edge) decodes the same
     wl = bundle.wavelengths
-    F = E.forward(bundle, plan, wl)
+    F = forward(bundle, plan, wl)
     r = np.interp(wl, prior.wavelengths, prior.mean)
     edge = r + np.where(wl > 705.0, 0.4 * np.minimum((wl - 705.0) / 40.0, 1.0), 0.0)
     shift = plan.A @ F @ (edge - r)
@@ -157,7 +159,7 @@ def test_a_design_lights_only_the_wavelengths_its_prior_knows(bundle, prior):
     narrow = E.Prior(prior.wavelengths[keep], prior.moment[np.ix_(keep, keep)], prior.mean[keep], prior.n, "narrow")
     npl = budget_plan("optimal", bundle, 0.060, narrow, noise_at, frames=4, starts=1, iterations=50,
                       min_frame_period_s=DESC.camera.min_frame_period_s)
-    light = E.forward(bundle, npl, wl)
+    light = forward(bundle, npl, wl)
     within = light[:, (wl >= 450) & (wl <= 650)].sum(axis=1) / light.sum(axis=1)
     assert within.min() >= 0.99 - 1e-9
 
@@ -175,8 +177,8 @@ def test_a_design_for_denoising_trades_averaged_noise_for_shape(bundle, prior):
     quiet = noise_at(for_filter.exposure_s).averaged(n)
 
     def at(plan, noise):  # the expected RMSE of the plan's decoder at a noise
-        F = E.forward(bundle, plan, prior.wavelengths)
-        return E.expected_error(plan.A, F, E.output_weights(plan, prior.wavelengths), prior, noise)["rmse"]
+        F = forward(bundle, plan, prior.wavelengths)
+        return E.expected_error(plan.A, F, output_weights(plan, prior.wavelengths), prior, noise)["rmse"]
 
     # where the filter flattens the noise the plan designed for it is better; at the camera's noise, worse
     assert at(for_filter, quiet) < at(plain, noise_at(plain.exposure_s).averaged(n))

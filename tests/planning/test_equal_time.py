@@ -4,6 +4,7 @@ records its expected error, and the limit at each budget lies below the designs'
 import pytest
 
 import specgpu.planning as E
+from specgpu.planning.priors import HELD_OUT_CHART, held_out_basis, training_spectra
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning.correction import with_ambient_frame
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans, row_name
@@ -17,8 +18,8 @@ DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
 def made():
     bundle = oracle_calibration(DESC)
     prior = E.default_prior()
-    training = E.training_spectra(E.HELD_OUT_CHART, prior.wavelengths)
-    plans = equal_time_plans(DESC, bundle, prior, E.held_out_basis(), training=training, extra_frames=1,
+    training = training_spectra(HELD_OUT_CHART, prior.wavelengths)
+    plans = equal_time_plans(DESC, bundle, prior, held_out_basis(), training=training, extra_frames=1,
                              iterations=40)
     bounds = equal_time_bounds(DESC, bundle, prior, extra_frames=1, starts=1, iterations=40)
     return plans, bounds
@@ -50,7 +51,7 @@ def test_the_limit_lies_below_the_rmse_designs(made):
 def test_rows_designed_for_the_filter_sit_beside_the_optimal_ones():
     bundle = oracle_calibration(DESC)
     prior = E.default_prior()
-    plans = equal_time_plans(DESC, bundle, prior, E.held_out_basis(), budgets=(40.0,), iterations=30,
+    plans = equal_time_plans(DESC, bundle, prior, held_out_basis(), budgets=(40.0,), iterations=30,
                              denoise_radius=2)
     assert set(plans) == {row_name(n, 40.0) for n in ("biased-6", "wiener-6", "optimal-6", "optimal-6+denoise")}
     plain, filtered = plans[row_name("optimal-6", 40.0)], plans[row_name("optimal-6+denoise", 40.0)]

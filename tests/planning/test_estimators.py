@@ -7,6 +7,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import specgpu.planning as E
+from specgpu.planning.estimators import forward, output_weights, smooth_decoder
+from specgpu.planning.priors import HELD_OUT_CHART, held_out_spectra, read_training, subspace_bound
+from specgpu.planning.uncertainty import constant_covariance, constant_variance, frame_variance, variance_rows
 from specgpu.pipeline.recovery import capture_plan
 from specgpu.planning import load_plan, make_plan, save_plan
 from specgpu.planning.estimator_plans import chart_error
@@ -37,10 +40,10 @@ def test_prior_is_the_second_moment(spectra):
 
 
 def test_default_prior_leaves_the_held_out_chart_out(spectra):
-    _, _, test = E.held_out_spectra(E.HELD_OUT_CHART, WL)
+    _, _, test = held_out_spectra(HELD_OUT_CHART, WL)
     d = np.sqrt(((spectra[:, None, :] - test[None]) ** 2).mean(axis=-1))
     assert d.min() >= 0.01
-    assert "ColorChecker" not in E.HELD_OUT_CHART
+    assert "ColorChecker" not in HELD_OUT_CHART
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -83,7 +86,7 @@ def test_expected_error_is_the_exact_average(spectra, prior):
 def test_smooth_against_a_stacked_least_squares():
     """The smooth decoder is the regularised least squares argmin |N^-1/2 (F r - o)|^2 + r^T C^-1 r."""
     F, Wout, noise = _random_problem(6, K=9)
-    A = E.smooth_decoder(F, Wout, noise, WL, correlation_nm=40.0)
+    A = smooth_decoder(F, Wout, noise, WL, correlation_nm=40.0)
     sp = E.smooth_prior(WL, correlation_nm=40.0)
     N = np.diag(noise.covariance(F, sp))
     # whitened coordinates r = U lam^1/2 z, |z|^2 = r^T C^-1 r: a ridge least squares, stacked
@@ -103,7 +106,7 @@ def test_smooth_estimator_without_training(bundle):
     s = E.with_estimator(plan, bundle, "smooth", noise=E.NoiseModel.from_rig(DESC, plan.exposure_s))
     assert s.params["estimator"] == "smooth" and "smooth prior" in s.params["expected"]["prior"]
     wl = np.arange(400.0, 700.0 + 1e-9, 5.0)
-    test = E.held_out_spectra(wavelengths=wl)[2]
+    test = held_out_spectra(wavelengths=wl)[2]
     assert chart_error(s, bundle, test, wl) < 0.01
 
 
@@ -130,19 +133,19 @@ def test_training_files_csv_and_npz(tmp_path, spectra):
     bad = tmp_path / "bad.npz"
     np.savez(bad, wl=WL)
     with pytest.raises(ValueError, match="bad.npz"):
-        E.read_training(bad, WL)
+        read_training(bad, WL)
 
 
 @settings(max_examples=40, deadline=None)
 @given(st.floats(-1e3, 1e6) | st.just(float("nan")), st.floats(-10, 1e4) | st.just(float("inf")), st.floats(-1, 2))
-def test_noise_model_validator(g, r, l):
-    ok = np.isfinite(g) and g > 0 and np.isfinite(r) and r >= 0 and 0 <= l < 1
+def test_noise_model_validator(g, r, rms):
+    ok = np.isfinite(g) and g > 0 and np.isfinite(r) and r >= 0 and 0 <= rms < 1
     if ok:
-        n = E.NoiseModel(g, r, l)
+        n = E.NoiseModel(g, r, rms)
         assert E.NoiseModel.from_params(n.as_params()) == n
     else:
         with pytest.raises(ValueError, match="noise"):
-            E.NoiseModel(g, r, l)
+            E.NoiseModel(g, r, rms)
 
 
 def test_noise_model_from_the_camera():
@@ -195,13 +198,13 @@ def test_sigma_map_against_numpy(bundle, prior):
     # shot, read and dark noise, and the light's fluctuation at each frame's own signal (it scales the frame)
     var_o = o / n.gain_e_per_dn + n.read_var_dn2 + (n.light_rms * o) ** 2
     ref = np.einsum("bk,khw->hwb", plan.A ** 2, var_o) * gain[..., None].astype(np.float64) ** 2 / 2
-    ref += E.constant_variance(plan)
+    ref += constant_variance(plan)
     np.testing.assert_allclose(sig, np.sqrt(ref), rtol=2e-4)
     # the constant is the prior's mismatch alone (the light is no longer in it at the prior's mean signal)
-    np.testing.assert_allclose(E.constant_variance(plan), plan.params["expected"]["mismatch_var"], rtol=1e-9)
+    np.testing.assert_allclose(constant_variance(plan), plan.params["expected"]["mismatch_var"], rtol=1e-9)
     # without the light (a white reference divides it out) only the linear part stays
     ref_nl = np.einsum("bk,khw->hwb", plan.A ** 2, o / n.gain_e_per_dn + n.read_var_dn2)
-    ref_nl = ref_nl * gain[..., None].astype(np.float64) ** 2 / 2 + E.constant_variance(plan)
+    ref_nl = ref_nl * gain[..., None].astype(np.float64) ** 2 / 2 + constant_variance(plan)
     np.testing.assert_allclose(E.sigma_map(frames, plan, dark, gain, sequences=2, light=False), np.sqrt(ref_nl),
                                rtol=2e-4)
 
@@ -220,10 +223,10 @@ def test_frame_variance_at_warped_samples_against_numpy(bundle, prior):
     n = E.NoiseModel.from_params(plan.params["noise"])
     o = frames.astype(np.float64) - dark
     sensor = (o / n.gain_e_per_dn + n.read_var_dn2 + (n.light_rms * o) ** 2) * gain.astype(np.float64) ** 2
-    np.testing.assert_allclose(E.frame_variance(frames, plan, dark, gain, shifts=np.zeros((plan.K, 2))),
-                               E.frame_variance(frames, plan, dark, gain), rtol=1e-5)
+    np.testing.assert_allclose(frame_variance(frames, plan, dark, gain, shifts=np.zeros((plan.K, 2))),
+                               frame_variance(frames, plan, dark, gain), rtol=1e-5)
     shifts = rng.uniform(-2.5, 2.5, (plan.K, 2))
-    got = E.frame_variance(frames, plan, dark, gain, shifts=shifts)
+    got = frame_variance(frames, plan, dark, gain, shifts=shifts)
     yy, xx = np.mgrid[:24, :32].astype(np.float64)
     # sampled as the warped pass samples: bilinear, clamped to the pixel centres; outside the sensor's footprint
     # (more than half a pixel beyond an edge pixel's centre) no sample at all
@@ -247,7 +250,7 @@ def test_sigma_z_scores_on_the_twin(bundle, prior):
     """Standardised errors of a Wiener symmetric-9 recovery of the held-out chart on the noisy twin."""
     from specgpu.pipeline.evaluate import truth_cube
 
-    names, wl, spec = E.held_out_spectra()
+    names, wl, spec = held_out_spectra()
     scene = patch_scene(names, wl, spec, H, W)
     plan = E.with_estimator(make_plan("narrowband", bundle, step_nm=20.0), bundle, "wiener", prior=prior,
                             noise=E.NoiseModel.from_rig(DESC, make_plan("narrowband", bundle, step_nm=20.0).exposure_s))
@@ -261,7 +264,7 @@ def test_sigma_z_scores_on_the_twin(bundle, prior):
     assert 0.8 <= z.std() <= 1.25
     # the exact prediction on the chart's spectra is the measured RMS error within 25 %
     wl = prior.wavelengths
-    predicted = chart_error(plan, bundle, E.held_out_spectra(wavelengths=wl)[2], wl)
+    predicted = chart_error(plan, bundle, held_out_spectra(wavelengths=wl)[2], wl)
     assert 0.8 <= np.sqrt((err ** 2).mean()) / predicted <= 1.25
 
 
@@ -290,18 +293,18 @@ def test_subspace_bound_against_numpy_svd():
     for K in (1, 4, 12):
         U = np.linalg.svd(train, full_matrices=False)[2][:K].T
         ref = np.sqrt(np.mean((test - test @ U @ U.T) ** 2))
-        assert E.subspace_bound(train, test, K) == pytest.approx(ref, rel=1e-9, abs=1e-12)
+        assert subspace_bound(train, test, K) == pytest.approx(ref, rel=1e-9, abs=1e-12)
         mu = train.mean(axis=0)
         Uc = np.linalg.svd(train - mu, full_matrices=False)[2][:K].T
         refc = np.sqrt(np.mean(((test - mu) - (test - mu) @ Uc @ Uc.T) ** 2))
-        assert E.subspace_bound(train, test, K, centred=True) == pytest.approx(refc, rel=1e-9, abs=1e-12)
-    assert E.subspace_bound(train, test, 12) < 1e-12
+        assert subspace_bound(train, test, K, centred=True) == pytest.approx(refc, rel=1e-9, abs=1e-12)
+    assert subspace_bound(train, test, 12) < 1e-12
     for bad in (0, 13, 2.5):
         with pytest.raises(ValueError, match="K must be") as err:
-            E.subspace_bound(train, test, bad)
+            subspace_bound(train, test, bad)
         assert "\n" not in str(err.value)
     with pytest.raises(ValueError, match="one grid"):
-        E.subspace_bound(train, test[:, :5], 3)
+        subspace_bound(train, test[:, :5], 3)
 
 
 def _spread_over_sigma(plan, bundle, scene, draws, seed):
@@ -358,14 +361,14 @@ def test_constant_covariance_is_the_mismatch_and_reads_an_older_plans_constant(b
     P = plan.A.shape[0]
     exp = plan.params["expected"]
     assert "constant_cov" not in exp
-    C = E.constant_covariance(plan)
+    C = constant_covariance(plan)
     np.testing.assert_allclose(np.diag(C), exp["mismatch_var"], rtol=1e-9)
     np.testing.assert_allclose(C, C.T, atol=1e-15)
     # a plan saved before the light was taken per pixel: its recorded constant (mismatch + light) is used as it is
     old = {k: v for k, v in exp.items() if k != "mismatch_cov"}
     old["constant_cov"] = (C + 1e-4 * np.eye(P)).ravel().tolist()
     older = replace(plan, params={**plan.params, "expected": old})
-    np.testing.assert_allclose(E.constant_covariance(older), C + 1e-4 * np.eye(P), rtol=1e-12)
+    np.testing.assert_allclose(constant_covariance(older), C + 1e-4 * np.eye(P), rtol=1e-12)
 
 
 def test_sigma_holds_with_an_ambient_frame_in_dark_pixels(bundle):
@@ -393,7 +396,7 @@ def test_variance_rows_is_the_covariance_of_frames_above_an_ambient_frame(K, Q, 
     L, R = rng.normal(size=(Q, K)), rng.normal(size=(Q, K))
     p, w = rng.uniform(0, 3, K), float(rng.uniform(0, 2))
     if amb is None:
-        np.testing.assert_allclose(E.variance_rows(L, R) @ p, np.einsum("qk,k,qk->q", L, p, R), rtol=1e-12)
+        np.testing.assert_allclose(variance_rows(L, R) @ p, np.einsum("qk,k,qk->q", L, p, R), rtol=1e-12)
         return
     L[:, amb] = R[:, amb] = 0.0
     T_L, T_R = L.copy(), R.copy()
@@ -403,7 +406,7 @@ def test_variance_rows_is_the_covariance_of_frames_above_an_ambient_frame(K, Q, 
     want = np.einsum("qk,k,qk->q", T_L, var, T_R)
     v = p.copy()
     v[amb] = w
-    np.testing.assert_allclose(E.variance_rows(L, R, amb) @ v, want, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(variance_rows(L, R, amb) @ v, want, rtol=1e-10, atol=1e-12)
 
 
 @settings(max_examples=30, deadline=None)
@@ -427,8 +430,8 @@ def test_a_decoder_for_another_noise_keeps_the_cameras_noise_model(bundle, prior
     camera = E.NoiseModel.from_rig(DESC, plan.exposure_s)
     quiet = camera.averaged(50.0)
     w = E.with_estimator(plan, bundle, "wiener", prior=prior, noise=camera, decoder_noise=quiet)
-    F = E.forward(bundle, plan, prior.wavelengths)
-    Wout = E.output_weights(plan, prior.wavelengths)
+    F = forward(bundle, plan, prior.wavelengths)
+    Wout = output_weights(plan, prior.wavelengths)
     np.testing.assert_allclose(w.A, E.wiener_decoder(F, Wout, prior, quiet), rtol=1e-12)
     assert E.NoiseModel.from_params(w.params["noise"]) == camera  # the sigma maps use the camera's noise
     assert E.NoiseModel.from_params(w.params["decoder_noise"]) == quiet

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.rig.camera import Camera, CameraParameters, sensitivity_curve
 from specgpu.rig.config import RigDescription
 from specgpu.rig.light import LightParameters

@@ -73,13 +73,15 @@ jitter_s = 1e-6
     rig = TwinRig(d)
     assert rig.camera.shape == (240, 320)
     # The lamp CSV rises linearly from 1 to 2: the all-on spectrum follows it inside the slit-blurred edges.
-    ratio = rig.light.max_spectrum[rig.light.wavelengths == 700][0] / rig.light.max_spectrum[rig.light.wavelengths == 450][0]
+    spectrum, wl = rig.light.max_spectrum, rig.light.wavelengths
+    ratio = spectrum[wl == 700][0] / spectrum[wl == 450][0]
     assert ratio == pytest.approx((1 + 320 / 400) / (1 + 70 / 400), rel=1e-3)
     assert d.to_dict()["camera"]["bit_depth"] == 12
 
 
 @pytest.mark.parametrize("text, message", [
-    ("[lights]\nrows = 2\n", r"unknown table \[lights\]; valid tables: light, camera, scene, twin, faults, spectroradiometer"),
+    ("[lights]\nrows = 2\n",
+     r"unknown table \[lights\]; valid tables: light, camera, scene, twin, faults, spectroradiometer"),
     ("[light]\nrowz = 2\n", r"unknown key light.rowz; valid keys: lamp, "),
     ("[camera]\nbit_depth = 10.5\n", r"camera.bit_depth must be an integer, got 10.5"),
     ("[camera]\nexposure_s = \"fast\"\n", r"camera.exposure_s must be a number, got 'fast'"),
@@ -223,7 +225,8 @@ def _keys_read_by_load_rig() -> dict:
         return {f.name for f in fields(cls)}
 
     keys = {"light": names(LightParameters), "camera": names(CameraParameters) | {"preset"}, "scene": {"source"},
-            "twin": set(_TWIN_KEYS), "faults": names(FaultRates), "spectroradiometer": names(SpectroradiometerParameters),
+            "twin": set(_TWIN_KEYS), "faults": names(FaultRates),
+            "spectroradiometer": names(SpectroradiometerParameters),
             "realism": names(Realism), "drift": names(Drift), "hardware": names(HardwareConfig),
             "motion": set(MOTION_KEYS)}
     assert set(keys) == set(_TABLES)  # a new table must be listed here too

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from specgpu.capture.driver import FrameInfo, StreamEnd
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import FaultRates, RigDescription
 from specgpu.rig.light import LightParameters

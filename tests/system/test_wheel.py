@@ -60,7 +60,8 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(site),
                     str(wheels[0])], check=True)
     kernels = ",".join(sorted(p.name for p in (ROOT / "kernels").glob("*.cl")))
-    result = subprocess.run([sys.executable, "-c", CHECK, str(site), kernels], cwd=tmp_path, capture_output=True, text=True,
+    result = subprocess.run([sys.executable, "-c", CHECK, str(site), kernels], cwd=tmp_path, capture_output=True,
+                            text=True,
                             env={"PYTHONPATH": python_path(site), "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
     assert result.returncode == 0, result.stdout + result.stderr
     assert "linear.cl ['linear_apply']" in result.stdout
@@ -94,3 +95,18 @@ def test_wheel_and_sdist_carry_the_license(tmp_path):
     with tarfile.open(sdist) as t:
         member = next(m for m in t.getmembers() if m.name.endswith("/LICENSE") and m.name.count("/") == 1)
         assert t.extractfile(member).read().decode() == text
+
+
+@pytest.mark.skipif(importlib.util.find_spec("hatchling") is None, reason="hatchling (the build backend) is absent")
+def test_wheel_carries_the_type_information(tmp_path):
+    """py.typed (PEP 561) and every room's __init__.pyi, the names type checkers and the lazy loader read."""
+    import zipfile
+
+    subprocess.run([sys.executable, "-m", "hatchling", "build", "-t", "wheel", "-d", str(tmp_path)], cwd=ROOT,
+                   check=True, capture_output=True)
+    wheel, = tmp_path.glob("specgpu-*.whl")
+    with zipfile.ZipFile(wheel) as z:
+        names = set(z.namelist())
+    stubs = {str(p.relative_to(ROOT)) for p in (ROOT / "specgpu").glob("*/__init__.pyi")}
+    assert len(stubs) >= 9
+    assert {"specgpu/py.typed", *stubs} <= names

@@ -15,7 +15,7 @@ import statistics
 
 from specgpu.apps.live_view import run_with_view
 from specgpu.calibration import calibrate
-from specgpu.hardware.drivers import open_driver
+from specgpu.hardware.drivers import open_rig_driver
 from specgpu.pipeline.recovery import default_basis
 from specgpu.pipeline.stream import Stream
 from specgpu.planning import make_plan
@@ -24,7 +24,7 @@ from specgpu.rig.scene import colorchecker_scene
 
 
 def one_run(description, plan, bundle, scene, outputs, seconds, view):
-    driver = open_driver(description, plan, hardware=None, scene=scene, calibration=bundle, seed=1, pacing="paced")
+    driver = open_rig_driver(description, plan, hardware=None, scene=scene, calibration=bundle, seed=1, pacing="paced")
     stream = Stream(driver, plan, bundle, outputs=outputs, policy="drop_newest", reference=None)
     if view:
         report = run_with_view(stream, seconds, wavelengths=plan.output_wavelengths, close_when_done=True)

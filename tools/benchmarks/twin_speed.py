@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from specgpu.capture.twin import TwinDriver
+from specgpu.capture.twin_driver import TwinDriver
 from specgpu.rig.config import RigDescription
 from specgpu.rig.twin import TwinRig
 

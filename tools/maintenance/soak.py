@@ -35,12 +35,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from specgpu.calibration.bundle import oracle_calibration  # noqa: E402
-from specgpu.capture.twin import TwinDriver  # noqa: E402
+from specgpu.capture.twin_driver import TwinDriver  # noqa: E402
 from specgpu.planning import plan_tristimulus  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402
 from specgpu.rig.twin import FaultRates, FaultSchedule, TwinRig  # noqa: E402
-from specgpu.pipeline import Sink, Stream, current_rss_bytes  # noqa: E402
+from specgpu.pipeline import Sink, Stream
+from specgpu.pipeline.stream_report import current_rss_bytes
 
 MB = 1024 * 1024
 
@@ -150,7 +151,8 @@ def main(argv=None) -> int:
         rss = current_rss_bytes()
         samples.append((t, rss, dict(status)))
         print(f"t {t:7.1f} s  RSS {rss / MB:7.1f} MB  frames in {status['frames_in']:7d}  sequences out "
-              f"{status['sequences_out']:6d}  dropped {status['assembler_dropped']:4d} (ring {status['ring_dropped']:4d})"
+              f"{status['sequences_out']:6d}  dropped {status['assembler_dropped']:4d} "
+              f"(ring {status['ring_dropped']:4d})"
               f"  discarded {status['discarded']:4d}  stalls {sink.stalls:4d}  latency {status['latency_ms']:6.1f} ms",
               flush=True)
 
@@ -184,15 +186,16 @@ def main(argv=None) -> int:
     print()
     print(f"{report.frames_in} frames in over {report.seconds:.1f} s ({report.frames_per_s:.1f}/s) from {exposures} "
           f"exposures; {report.sequences_out} sequences out ({report.sequences_per_s:.1f}/s); latency median "
-          f"{report.latency_ms(50):.1f} ms, p99 {report.latency_ms(99):.1f} ms; CPU {report.cpu_s / report.seconds:.2f} "
-          "cores")
+          f"{report.latency_ms(50):.1f} ms, p99 {report.latency_ms(99):.1f} ms; "
+          f"CPU {report.cpu_s / report.seconds:.2f} cores")
     print(f"injected: dropped {faults['dropped']}, duplicated {faults['duplicated']}, missed triggers "
           f"{faults['missed_triggers']}; the sink stalled {sink.stalls} times ({args.stall_ms:g} ms)")
     print(f"assembler: received {a.frames_received}, dropped {a.dropped}, duplicates {a.duplicates}, missed triggers "
           f"{a.missed_triggers}, sequences complete {a.sequences_complete}, discarded {a.sequences_discarded}, "
           f"frames unused {a.frames_unused}; ring: delivered {r.delivered}, dropped newest {r.dropped_newest}, "
           f"oldest {r.dropped_oldest}, high water {r.high_water}")
-    print(f"RSS: start {samples[0][1] / MB:.1f} MB, after warm-up ({warm_up_s:g} s) {base / MB if base else float('nan'):.1f}"
+    print(f"RSS: start {samples[0][1] / MB:.1f} MB, after warm-up ({warm_up_s:g} s) "
+          f"{base / MB if base else float('nan'):.1f}"
           f" MB, end {rss_end / MB:.1f} MB, peak {(report.peak_rss_bytes or 0) / MB:.1f} MB; growth after warm-up "
           f"{growth:+.1f} MB")
     for error in report.sink_errors:

@@ -42,6 +42,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import specgpu.planning as E  # noqa: E402
+from specgpu.planning.basis import evaluation_exclusions
+from specgpu.planning.priors import HELD_OUT_CHART, held_out_basis, held_out_spectra
 from specgpu.apps.demo_measure import mean_std  # noqa: E402
 from specgpu.rig.scene import patch_scene  # noqa: E402
 from measured_chart import measured_chart_with_white  # noqa: E402
@@ -70,14 +72,14 @@ def chart_setup(description, key):
     if key == "ces":
         scene, roi, basis = measured_chart_with_white(description, cam.roi_height, cam.roi_width, basis=True)
     else:
-        names, wl, spectra = E.held_out_spectra(chart)
+        names, wl, spectra = held_out_spectra(chart)
         scene = patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=chart,
                             white_tile=0.99 * (1.0 + description.realism.white_error))
         roi = white_tile_roi(cam.roi_height, cam.roi_width)
-        basis = E.held_out_basis(chart)
+        basis = held_out_basis(chart)
     test = np.stack([np.interp(DEFAULT_WAVELENGTHS, scene.wavelengths, scene.reflectance[m].mean(axis=0))
                      for m in scene.masks.values()])
-    db = load_reflectances(exclude=E.evaluation_exclusions(chart), exclude_similar_to=test)
+    db = load_reflectances(exclude=evaluation_exclusions(chart), exclude_similar_to=test)
     prior = E.prior_from_spectra(db.reflectance, DEFAULT_WAVELENGTHS, f"colour-science sets without {chart}")
     return scene, prior, basis, db.reflectance, ",".join(str(int(v)) for v in roi)
 
@@ -195,7 +197,7 @@ def edge_mask(scene, width=2, top=0.10):
 def natural_table(description, bundle, draws, seed, denoise=(DENOISE_RADIUS, DENOISE_EPS)):
     cam = description.camera
     scene = natural_scene(cam.roi_height, cam.roi_width)
-    prior = E.default_prior(E.HELD_OUT_CHART)
+    prior = E.default_prior(HELD_OUT_CHART)
     plans = {"optimal-9": _optimal9(description, bundle, prior),
              "optimal-9+denoise": _optimal9(description, bundle, prior, denoise_radius=denoise[0])}
     near = edge_mask(scene)

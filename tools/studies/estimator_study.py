@@ -30,6 +30,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import specgpu.planning as E  # noqa: E402
+from specgpu.planning.priors import HELD_OUT_CHART, held_out_basis, held_out_spectra, subspace_bound, training_spectra
 from estimator_rows import format_study, hadamard_gain, prior_size_rows, study_rows  # noqa: E402
 from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
@@ -70,22 +71,22 @@ def main(argv=None):
     else:
         desc = RigDescription(camera=cam, seed=args.seed)
     bundle = calibrate(desc, seed=args.seed)
-    prior = E.default_prior(E.HELD_OUT_CHART)
-    basis = E.held_out_basis(E.HELD_OUT_CHART)
-    names, wl, spectra = E.held_out_spectra(E.HELD_OUT_CHART)
+    prior = E.default_prior(HELD_OUT_CHART)
+    basis = held_out_basis(HELD_OUT_CHART)
+    names, wl, spectra = held_out_spectra(HELD_OUT_CHART)
     roi = None
     if args.profile == "lab":  # the twin's white: its certificate's 0.99 off by the bench's white_error
         roi = white_tile_roi(cam.roi_height, cam.roi_width)
-        scene = patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=E.HELD_OUT_CHART,
+        scene = patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=HELD_OUT_CHART,
                               white_tile=0.99 * (1.0 + desc.realism.white_error))
     else:
-        scene = patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=E.HELD_OUT_CHART)
+        scene = patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=HELD_OUT_CHART)
     print(f"rig: paper defaults, {args.profile} profile"
           f"{' (corrections: ambient frame, white ROI ' + ','.join(map(str, roi)) + ')' if roi else ''}, "
           f"{cam.roi_width} x {cam.roi_height}, seed {args.seed}; held-out chart: "
-          f"{E.HELD_OUT_CHART} ({len(names)} patches); prior: {prior.source}; {args.runs} runs per method")
+          f"{HELD_OUT_CHART} ({len(names)} patches); prior: {prior.source}; {args.runs} runs per method")
     plans = study_plans(desc, bundle, prior, basis, methods=methods,
-                          sets=training_sets(E.HELD_OUT_CHART, prior.wavelengths))
+                          sets=training_sets(HELD_OUT_CHART, prior.wavelengths))
     rows = study_rows(desc, bundle, scene, plans, runs=args.runs, seed=args.seed, white_roi=roi)
     print(format_study(rows))
     sizes = []
@@ -97,13 +98,13 @@ def main(argv=None):
             print(f"{r['n']:>8} {r['expected_rmse']:>14.4f} {r['chart_rmse']:>11.4f}")
     bounds = []
     if args.bound:
-        train = E.training_spectra(E.HELD_OUT_CHART, prior.wavelengths)
-        _, _, test = E.held_out_spectra(E.HELD_OUT_CHART, prior.wavelengths)
+        train = training_spectra(HELD_OUT_CHART, prior.wavelengths)
+        _, _, test = held_out_spectra(HELD_OUT_CHART, prior.wavelengths)
         print(f"\nnoise-free linear bound on the held-out chart, K measurements learnt from the prior ({len(train)} "
               f"spectra; the chart's own top K beside it, for scale):")
         for K in (3, 6, 9):
-            b = {"K": K, "uncentred": E.subspace_bound(train, test, K),
-                 "centred": E.subspace_bound(train, test, K, centred=True), "own": E.subspace_bound(test, test, K)}
+            b = {"K": K, "uncentred": subspace_bound(train, test, K),
+                 "centred": subspace_bound(train, test, K, centred=True), "own": subspace_bound(test, test, K)}
             bounds.append(b)
             print(f"  K {K}: RMSE {b['uncentred']:.4f} (affine {b['centred']:.4f}); the chart's own subspace "
                   f"{b['own']:.4f}")
@@ -118,7 +119,7 @@ def main(argv=None):
                   f"{g['hadamard_noise']:.4f}: gain {g['gain']:.2f} (read-noise-limited theory {g['theory']:.2f})")
     print(f"({time.perf_counter() - t0:.0f} s)")
     if args.json:
-        Path(args.json).write_text(json.dumps({"chart": E.HELD_OUT_CHART, "profile": args.profile,
+        Path(args.json).write_text(json.dumps({"chart": HELD_OUT_CHART, "profile": args.profile,
                                                "prior": prior.source, "size": [cam.roi_width, cam.roi_height],
                                                "rows": rows, "prior_sizes": sizes, "hadamard": gains,
                                                "bounds": bounds}, indent=1))

@@ -8,7 +8,8 @@ scene still and with the scene moving (same noise seed), and recovered three way
 - still: the still sequence, decoded as it is, against the scene;
 - moving: the moving sequence decoded as it is (what specgpu did before motion compensation), against the scene
   as it was at the sequence's reference time (the mean of its frames' mid-exposure times);
-- compensated: ``recover_moving`` (:func:`specgpu.pipeline.moving_scores.compare_motion`; a translation per frame estimated from the frames themselves by phase
+- compensated: ``recover_moving`` (:func:`specgpu.pipeline.moving_scores.compare_motion`; a translation per frame
+estimated from the frames themselves by phase
   correlation, then frame k sampled at x + d_k in the decoding pass), against the same truth.
 
 Per-pixel RMSE (reflectance, 400-700 nm at 10 nm) and dE2000 (D65) are averaged over the field and over the pixels
@@ -20,7 +21,8 @@ noise draws. ``ratio`` is compensated over still. The ``-affine`` cases compensa
 ``-flow`` ones the dense flow (``--motion flow``: the global decoding, then the tiles' flow where it agrees better).
 
     PYTHONPATH=. python tools/studies/motion_study.py --cases t1,t3,t10,vib,rot,rot-affine,object  # ~6 min
-    PYTHONPATH=. python tools/studies/motion_study.py --draws 3 --cases t3-flow,rot-flow,object-flow --plans symmetric-9,optimal-9
+    PYTHONPATH=. python tools/studies/motion_study.py --draws 3 --cases t3-flow,rot-flow,object-flow \
+        --plans symmetric-9,optimal-9
     PYTHONPATH=. python tools/studies/motion_study.py --small --draws 1 --cases t3
 
 A plan named ``NAME+refM`` is NAME with a broadband reference frame before its first frame and after every M

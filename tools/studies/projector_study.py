@@ -32,7 +32,8 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
 
     print("projector: target vs produced (spectroradiometer), RMSE on the CIE scale (100 at 560 nm)")
-    print(f"{'target':<10}{'RMSE':>7}{'400-700':>8}{'rel.':>8}{'iter':>6}{'conv':>6}   {'xy target':>16} {'xy produced':>16}"
+    print(f"{'target':<10}{'RMSE':>7}{'400-700':>8}{'rel.':>8}{'iter':>6}{'conv':>6}   "
+          f"{'xy target':>16} {'xy produced':>16}"
           f"{'CCT t':>8}{'CCT p':>8}{'Ra t':>7}{'Ra p':>7}  paper RMSE")
     for name in render.PROJECTOR_TARGETS:
         r = render.project(name, max_iterations=args.iterations)

@@ -1,6 +1,7 @@
 """Does ``specgpu recover --sigma`` predict the spread of the recoveries? For each plan, the same scene is captured
 on the twin with ``--draws`` fresh noise seeds, each draw recovered and its sigma computed as ``recover --sigma``
-does (:func:`specgpu.pipeline.recovery.recover` and :func:`specgpu.pipeline.recovery.uncertainty` on a one-sequence folder); per
+does (:func:`specgpu.pipeline.recovery.recover` and :func:`specgpu.pipeline.recovery.uncertainty` on a one-sequence
+folder); per
 pixel and output, the spread of the recoveries over the draws (standard deviation, ddof 1) is compared with the
 noise part of the predicted sigma (its mean variance less the prior's mismatch, which a Wiener plan's sigma holds
 and which is the same in every draw). Pixels are split into quintiles of brightness (the mean recovered output)
@@ -76,7 +77,7 @@ def spread_over_sigma(description, bundle, plan, scene, *, draws: int = 10, seed
     """Capture ``plan`` ``draws`` times, recover each draw with its sigma as ``recover --sigma`` does, and return
     ``{"ratio": [per brightness quantile, darkest first: sqrt(mean spread^2 / mean sigma^2)], "all": the same over
     every pixel, "brightness": [the quantiles' mean recovered output]}``."""
-    from specgpu.planning import constant_variance
+    from specgpu.planning.uncertainty import constant_variance
     from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, uncertainty
 
     ys, sigmas = [], []

@@ -443,8 +443,8 @@ def run_bench(sizes=((640, 480), (2048, 2048)), device=None, repeats: int | None
     -------
     dict
         The JSON report: ``device``, ``platform``, ``specgpu_version``, ``copy_bandwidth_GBps``,
-        ``numpy_copy_bandwidth_GBps``, ``date_utc``, ``load_avg_1min`` (``start``, ``end``), ``cases`` (one dict per :class:`CaseResult`) and ``targets``
-        (see :func:`evaluate_targets`).
+        ``numpy_copy_bandwidth_GBps``, ``date_utc``, ``load_avg_1min`` (``start``, ``end``), ``cases`` (one dict per
+        :class:`CaseResult`) and ``targets`` (see :func:`evaluate_targets`).
     """
 
     sizes = [(int(w), int(h)) for w, h in sizes]

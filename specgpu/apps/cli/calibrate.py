@@ -6,7 +6,7 @@ import click
 
 from specgpu.apps.cli.options import RIG, Busy, command, lock, no_clash
 from specgpu.calibration.bundle import save_calibration
-from specgpu.calibration.session import calibrate_on_rig
+from specgpu.calibration.on_rig import calibrate_on_rig
 from specgpu.hardware.drivers import hardware_config
 from specgpu.rig.config import load_rig
 

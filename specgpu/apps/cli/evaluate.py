@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from specgpu import io
+from specgpu.io.paths import atomic_path
 from specgpu.apps.cli.options import RESIZE, Busy, command, integration_option, lock, no_clash, resampled
 from specgpu.pipeline.evaluate import PLAUSIBLE_RANGE
 from specgpu.pipeline.evaluation_report import (
@@ -62,5 +62,5 @@ def evaluate(cube, truth, illuminant, json_path, exclude_invalid, device, resize
     click.echo(headline_line(report, result["headline"], bool(scene.masks)))
     click.echo(pixel_line(report, result["pixel_statistics"], bool(scene.masks)))
     if json_path:
-        with io.atomic_path(Path(json_path)) as tmp:
+        with atomic_path(Path(json_path)) as tmp:
             tmp.write_text(json.dumps(report, indent=1, allow_nan=False))

@@ -23,8 +23,9 @@ from specgpu.core.locks import output_locks
 from specgpu.core.spectra import DEFAULT_CMFS, resolve_integration
 from specgpu.core.validate import BadArgument, validate_method
 from specgpu.engine.colorimetry import XYZ_to_Lab
-from specgpu.io import JOURNAL_FILE, SEQUENCE_FILE, companion_files
-from specgpu.io import final_names, new_temporary, replace_with, write_target
+from specgpu.io import JOURNAL_FILE, SEQUENCE_FILE
+from specgpu.io.cube import companion_files
+from specgpu.io.paths import final_names, new_temporary, replace_with, write_target
 from specgpu.pipeline.evaluate import scene_XYZ
 from specgpu.pipeline.moving import TRUTH_FOLDER
 from specgpu.pipeline.recovery import CALIBRATION_FILE, PLAN_FILE

@@ -27,7 +27,7 @@ from specgpu.apps.cli.options import (
     parse_reference,
 )
 from specgpu.apps.live_view import run_with_view
-from specgpu.hardware.drivers import hardware_config, open_driver
+from specgpu.hardware.drivers import hardware_config, open_rig_driver
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline.accumulate import AccumulateSink
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
@@ -205,7 +205,7 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
         reference = parse_reference(ref or truth, cam.roi_height, cam.roi_width, colours[0], resize,
                                     observer=colours[1], integration=integration)
     # real devices: the plan uploaded to the light, frames from the camera (a camera never waits: paced)
-    driver = open_driver(description, plan, hardware=hardware, scene=truth, calibration=bundle, seed=seed,
+    driver = open_rig_driver(description, plan, hardware=hardware, scene=truth, calibration=bundle, seed=seed,
                          pacing=pacing)
     try:
         stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,

@@ -175,8 +175,8 @@ class DLPC900Light(LightSource):
         self._index = 0
 
     def load_plan(self, plan) -> None:
-        """Upload a :class:`~specgpu.planning.plans.Plan`'s sequence: its target spectra, already quantized by the planner to
-        mirror counts through the calibration's column map, become DMD images, shown for the plan's exposure.
+        """Upload a :class:`~specgpu.planning.plans.Plan`'s sequence: its target spectra, already quantized by the
+        planner to mirror counts through the calibration's column map, become DMD images, shown for the plan's exposure.
 
         The plan must have been made from this light's calibration (when the light has one) and for its rows.
         """

@@ -6,11 +6,15 @@ from __future__ import annotations
 
 from specgpu.calibration import procedure
 import specgpu.hardware.rig as hardware_rig
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from specgpu.rig.config import RigDescription
 
 __all__ = ["calibrate_on_rig"]
 
 
-def calibrate_on_rig(description, *, hardware=None, seed: int = 0, line_shape: str = "gaussian"):
+def calibrate_on_rig(description: RigDescription, *, hardware=None, seed: int = 0, line_shape: str = "gaussian"):
     """Run both feedback loops on the rig of ``description`` and return the calibration bundle.
 
     Parameters

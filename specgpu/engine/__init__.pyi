@@ -1,0 +1,49 @@
+"""Public names of :mod:`specgpu.engine`, loaded lazily by its ``__init__`` (and read by type checkers)."""
+
+from .colorimetry import DELTA_E_METHODS, FusedResult, XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
+from .guided import guided_filter
+from .kernels import (
+    launch_delta_E,
+    launch_frames_to_delta_E,
+    launch_linear,
+    launch_XYZ_to_Lab,
+    linear_matrix,
+    prepare_delta_E_sigma,
+    prepare_frames_to_delta_E,
+    prepare_linear,
+    to_device,
+)
+from .linear_map import LAYOUTS, LinearResult, apply_linear
+from .runtime import DeviceInfo, SpecgpuDeviceError, get_queue, list_devices, select_device
+from .selftest import SelftestReport, run_selftest
+from .warp_map import apply_linear_warped
+
+__all__ = [
+    "apply_linear",
+    "apply_linear_warped",
+    "delta_E",
+    "DELTA_E_METHODS",
+    "DeviceInfo",
+    "frames_to_delta_E",
+    "FusedResult",
+    "get_queue",
+    "guided_filter",
+    "launch_delta_E",
+    "launch_frames_to_delta_E",
+    "launch_linear",
+    "launch_XYZ_to_Lab",
+    "LAYOUTS",
+    "linear_matrix",
+    "LinearResult",
+    "list_devices",
+    "prepare_delta_E_sigma",
+    "prepare_frames_to_delta_E",
+    "prepare_linear",
+    "reflectance_to_XYZ",
+    "run_selftest",
+    "select_device",
+    "SelftestReport",
+    "SpecgpuDeviceError",
+    "to_device",
+    "XYZ_to_Lab",
+]
