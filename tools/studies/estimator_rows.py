@@ -21,20 +21,15 @@ from specgpu.pipeline.evaluate import evaluate_pixels, patch_means, scene_XYZ, t
 from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, to_XYZ
 from specgpu.planning import (
     NoiseModel,
-    Prior,
     default_prior,
     delta_E_sigma,
-    expected_error,
     make_plan,
     plan_hadamard,
     plan_optimal,
     prior_from_spectra,
     sigma_map,
-    wiener_decoder,
-    with_estimator,
 )
-from specgpu.planning.estimators import forward, output_weights
-from specgpu.planning.priors import HELD_OUT_CHART, held_out_spectra, training_database, training_spectra
+from specgpu.planning.priors import HELD_OUT_CHART, held_out_spectra, training_spectra
 from specgpu.planning.uncertainty import output_covariance
 from specgpu.planning.correction import ambient_index, with_ambient_frame
 from specgpu.planning.estimator_plans import chart_error
