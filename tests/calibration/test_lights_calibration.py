@@ -1,0 +1,68 @@
+"""Calibration of a light of a few broad primaries (an LED array): each LED measured whole by the
+spectroradiometer, the bundle's model of each against the twin's truth, and what the bundle records of the light."""
+
+import numpy as np
+import pytest
+
+from specgpu.calibration import calibrate, oracle_calibration
+from specgpu.calibration.bundle import calibration_error, load_calibration, save_calibration
+from specgpu.rig.camera import CameraParameters
+from specgpu.rig.config import RigDescription
+from specgpu.rig.led import LEDParameters
+from specgpu.rig.ol490 import OL490Parameters
+from specgpu.rig.twin import TwinRig
+
+CAM = CameraParameters(roi_width=320, roi_height=240)
+LED = RigDescription(light=LEDParameters(preset="led12"), camera=CAM)
+
+
+@pytest.fixture(scope="module")
+def led_bundle():
+    return calibrate(LED, repeats=1, band_step_nm=10.0, spectral_check=False)
+
+
+def test_each_led_is_measured_against_the_twins_truth(led_bundle):
+    b = led_bundle
+    assert b.light_kind == "led" and b.columns == 12 and b.rows == 255
+    light = TwinRig(LED).light
+    truth = (light.wavelengths @ light.column_matrix) / light.column_matrix.sum(axis=0)
+    np.testing.assert_allclose(b.light["primaries_nm"], truth, atol=0.3)
+    np.testing.assert_allclose(b.column_wavelengths, truth, atol=0.3)
+    # each LED's spectrum as measured (the instrument's bandpass taken out) against the twin's
+    model = b.column_matrix
+    true = light.column_matrix
+    np.testing.assert_allclose(model.sum(axis=0), true.sum(axis=0), rtol=0.01)
+    shape_err = np.sqrt(np.mean((model - true) ** 2, axis=0)) / true.max(axis=0)
+    assert shape_err.max() < 0.01
+    # and the camera's response to each (the responsivity known at the 12 LEDs only: the ends extrapolated)
+    err = calibration_error(b, LED)
+    assert err["bands"].shape == (12, 2)  # one band per LED, at its measured centroid
+    assert err["max_relative"] < 0.01 and err["max_centroid_nm"] < 0.5 and err["max_shape"] < 0.04
+    assert b.reports["loop_a"]["converged"] and "column_map" not in b.reports
+
+
+def test_the_oracle_bundle_of_an_led_rig_is_the_truth():
+    b = oracle_calibration(LED)
+    err = calibration_error(b, LED)
+    assert err["max_relative"] < 1e-3 and err["max_centroid_nm"] < 0.02
+    assert b.whole_periods(0.006612) == pytest.approx(132 / 20000.0)  # whole PWM periods, rounded down
+
+
+def test_a_bundle_keeps_its_light_through_its_file(led_bundle, tmp_path):
+    path = tmp_path / "led.npz"
+    save_calibration(path, led_bundle)
+    again = load_calibration(path, rig=LED)
+    assert again.light == led_bundle.light and again.light_kind == "led"
+    np.testing.assert_array_equal(again.line_shapes, led_bundle.line_shapes)
+
+
+def test_the_dmd_bundle_records_no_light_and_keeps_its_exposures():
+    b = oracle_calibration(RigDescription(camera=CAM))
+    assert "light" not in b.reports and b.light == {} and b.light_kind == "dmd"
+    assert b.whole_periods(0.0123456) == 0.0123456
+
+
+def test_the_ol490_bundle_records_its_grey_period():
+    b = oracle_calibration(RigDescription(light=OL490Parameters(grey_bits=3), camera=CAM))
+    assert b.light_kind == "ol490" and b.rows == 7 and b.columns == 1024
+    assert b.light["exposure_quantum_s"] == pytest.approx(7 / 9600)
