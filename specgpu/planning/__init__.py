@@ -193,3 +193,8 @@ from specgpu.planning.reference_frames import (  # noqa: E402
 
 __all__ += ["check_reference_every", "pattern_indices", "reference_count", "reference_indices",
             "reference_positions", "with_reference_frames"]
+
+from specgpu.planning.bound import primaries_limit  # noqa: E402
+from specgpu.planning.registry import NARROWBAND_METHODS, check_light_can  # noqa: E402
+
+__all__ += ["primaries_limit", "NARROWBAND_METHODS", "check_light_can"]
