@@ -628,8 +628,8 @@ def oracle_calibration(description: RigDescription | None = None, *, white_refle
     inside = (centre >= 400) & (centre <= 700)
     levels = np.clip(resp[inside].min() / resp, 0, 1)
     return replace(pre, reciprocal_patterns=distribute_counts(levels, masks, p.rows), reciprocal_bands=bands,
-                   reports={"source": "oracle", "mirrors_off_light": bool(d.realism.ambient_lux or
-                                                                          d.realism.dmd_off_state),
+                   reports={"source": "oracle", "mirrors_off_light": bool(d.realism.ambient_lux or (
+                       d.realism.dmd_off_state and line is None)),  # an LED array has no off-state mirrors
                             **({"light": {**light_summary(p), "primaries_nm": [float(x) for x in col_wl]
                                           if line is not None else []}} if light_summary(p) else {})},
                    rig=rig_fingerprint(d))

@@ -1,6 +1,8 @@
 """Calibration of a light of a few broad primaries (an LED array): each LED measured whole by the
 spectroradiometer, the bundle's model of each against the twin's truth, and what the bundle records of the light."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.led import LEDParameters
 from specgpu.rig.ol490 import OL490Parameters
+from specgpu.rig.realism import Realism
 from specgpu.rig.twin import TwinRig
 
 CAM = CameraParameters(roi_width=320, roi_height=240)
@@ -66,3 +69,9 @@ def test_the_ol490_bundle_records_its_grey_period():
     b = oracle_calibration(RigDescription(light=OL490Parameters(grey_bits=3), camera=CAM))
     assert b.light_kind == "ol490" and b.rows == 7 and b.columns == 1024
     assert b.light["exposure_quantum_s"] == pytest.approx(7 / 9600)
+
+
+def test_an_led_array_has_no_off_state_light():
+    off = Realism(dmd_off_state=0.01)
+    assert oracle_calibration(RigDescription(camera=CAM, realism=off)).mirrors_off_light is True
+    assert oracle_calibration(replace(LED, realism=off)).mirrors_off_light is False
