@@ -47,7 +47,7 @@ def test_an_led_rig_end_to_end(oracle):
 def test_narrowband_on_an_led_rig_is_one_line_naming_its_bands(oracle):
     d, rig, cal = oracle
     line = one_line_error(run("plan", "narrowband", "--calib", cal, "--rig", rig, "--out", d / "nb.npz", ok=False),
-                          "narrowband needs a light tunable", "12 fixed bands at 405, 430, 450", code=2)
+                          "narrowband needs a light tunable", "12 fixed bands at 430, 450, 470", code=2)
     assert "use one of" in line and not (d / "nb.npz").exists()
 
 

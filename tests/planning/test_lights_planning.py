@@ -60,7 +60,7 @@ def test_a_tristimulus_plan_works_on_leds(led):
 def test_the_bound_knows_the_leds_span(led, bundle, prior):
     assert primaries_limit(_system_on(bundle, prior.wavelengths), prior.moment) is None  # the DMD spans every band
     r, mse = primaries_limit(_system_on(led, prior.wavelengths), prior.moment)
-    assert r == columns_within(led, prior.wavelengths).sum() == 11 and mse > 0  # the 405 nm LED reaches below 400
+    assert r == columns_within(led, prior.wavelengths).sum() == 12 and mse > 0  # every LED within 400-700 nm
     desc = RigDescription(light=LEDParameters(preset="led12"), camera=CAM)
     b = design_bound(led, prior, lambda t: NoiseModel.from_rig(desc, t), frames=9, sequence_s=0.060, starts=1)
     limit = float(np.sqrt(mse / prior.wavelengths.size))
