@@ -160,7 +160,6 @@ def design_bound(bundle, prior: Prior, noise_at, *, frames: int, sequence_s: flo
         r, mse = primaries
         lower = max(lower, math.sqrt(max(waterfill_mse(s, min(K, r), c * K / min(K, r)), 0.0) / B),
                     math.sqrt(mse / B))
-        noise_free = max(noise_free, math.sqrt(mse / B))
     _, J = design_optimal(Sb, prior, noise, K, cap, starts=int(starts), iterations=int(iterations), seed=seed,
                           exposure_s=t)
     return Bound(K, float(sequence_s), float(t), lower, noise_free, math.sqrt(max(J, 0.0)), int(starts),
