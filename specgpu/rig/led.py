@@ -50,15 +50,15 @@ __all__ = ["LED_PRESETS", "LEDLight", "LEDParameters", "led_shape", "period_leve
 
 #: Peak wavelengths (nm) of the presets, each LED's light within 400-700 nm: the designs leave out a primary that
 #: puts over 1 % of the camera's signal outside the prior's range (a 405 nm violet die puts 23 % below 400 nm; a
-#: 670 nm deep red about 2 % above 700), so the peaks lie in 430-655 nm, at wavelengths dies are sold at.
+#: 670 nm deep red about 2 % above 700), so the peaks lie in 430-660 nm, at wavelengths dies are sold at.
 #: ``led12``: twelve narrowband LEDs across the visible about 20 nm apart, as a 12-band LED illuminator
 #: (Lumosaic-like): royal blue 430 and 450, blue 470, cyan 490 and 505, green 525, 545 and lime 565 (the "green
-#: gap" 540-580 nm has only weak dies), amber 590, orange 610, red 630, deep red 655. ``led16``: every 15 nm from
-#: 430 to 655 nm; ``led6``: about every 44 nm.
+#: gap" 540-580 nm has only weak dies), amber 590, orange 610, red 630, deep red 660 (the reddest within, for the
+#: reflectance up to 700 nm). ``led16``: every 15 nm from 430 to 640 nm, and 660; ``led6``: about every 45 nm.
 LED_PRESETS = {
-    "led6": (435.0, 480.0, 525.0, 570.0, 615.0, 655.0),
-    "led12": (430.0, 450.0, 470.0, 490.0, 505.0, 525.0, 545.0, 565.0, 590.0, 610.0, 630.0, 655.0),
-    "led16": tuple(430.0 + 15.0 * i for i in range(16)),
+    "led6": (435.0, 480.0, 525.0, 570.0, 615.0, 660.0),
+    "led12": (430.0, 450.0, 470.0, 490.0, 505.0, 525.0, 545.0, 565.0, 590.0, 610.0, 630.0, 660.0),
+    "led16": tuple(430.0 + 15.0 * i for i in range(15)) + (660.0,),
 }
 
 # Data-sheet FWHM (nm) by peak: InGaN dies widen from violet to green, AlInGaP (amber to deep red) are narrow.
