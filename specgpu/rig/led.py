@@ -280,8 +280,12 @@ class LEDParameters:
 
     @property
     def line_fwhm_nm(self) -> float:
-        """The widest LED's FWHM (nm): how far beyond its peaks the light reaches."""
-        return float(np.max(self.data_sheet()[1])) if not self.spectra else 30.0
+        """The widest LED's FWHM (nm): how far beyond its peaks the light reaches (of measured spectra: the widest
+        span above half the peak)."""
+        if not self.spectra:
+            return float(np.max(self.data_sheet()[1]))
+        wl, spectra = read_led_spectra(self.spectra)
+        return float(max(_half_width(wl, s) for s in spectra.T))
 
     second_order_leakage = 0.0
 
@@ -301,6 +305,16 @@ class LEDParameters:
     @classmethod
     def keys(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
+
+
+def _half_width(wl: np.ndarray, s: np.ndarray) -> float:
+    """Span (nm) of a spectrum above half its peak, its edges interpolated between samples."""
+    half = 0.5 * float(s.max())
+    above = np.flatnonzero(s >= half)
+    lo, hi = int(above[0]), int(above[-1])
+    left = wl[lo] if lo == 0 else np.interp(half, [s[lo - 1], s[lo]], [wl[lo - 1], wl[lo]])
+    right = wl[hi] if hi == s.size - 1 else np.interp(half, [s[hi + 1], s[hi]], [wl[hi + 1], wl[hi]])
+    return float(right - left)
 
 
 def period_levels(levels: np.ndarray, periods: float) -> np.ndarray:

@@ -93,7 +93,7 @@ def test_measured_spectra_from_a_csv(tmp_path):
     (tmp_path / "leds.csv").write_text("wavelength,a,b,c\n" + "\n".join(
         f"{w:g},{a:.6g},{b:.6g},{c:.6g}" for w, a, b, c in zip(wl, *cols)))
     d = load_rig(rig_file(tmp_path, 'kind = "led"\nspectra = "leds.csv"'))
-    assert d.light.columns == 3
+    assert d.light.columns == 3 and d.light.line_fwhm_nm == pytest.approx(2.3548 * 10.0, abs=0.3)
     light = TwinRig(d).light
     np.testing.assert_allclose(light.column_wavelengths, [450.0, 520.0, 600.0], atol=0.05)  # in order of wavelength
     # the shape is the file's: one LED alone has a 10 nm sigma
