@@ -427,6 +427,9 @@ def _spectral_check(rig, bundle: CalibrationBundle, all_on, equalize_range_nm, p
     if lamp is None:
         lamp = np.interp(grid, rig.spectroradiometer.wavelengths, all_on)
     flat_target = np.where(sel, 0.4 * float(lamp[sel].min()), 0.0)
+    if bundle.light_kind == "led":  # a few broad primaries cannot make a flat band: the closest shape they can,
+        w = fit_levels(bundle.column_matrix, flat_target)  # its brightest LED at 40 % (the flat band's level would
+        flat_target = bundle.column_matrix @ (0.4 * w / w.max())  # leave the LEDs a few duty steps each)
     initial = None
     if perturbation > 0:
         f = fit_levels(bundle.column_matrix, flat_target)

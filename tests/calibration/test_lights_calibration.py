@@ -8,11 +8,15 @@ import pytest
 
 from specgpu.calibration import calibrate, oracle_calibration
 from specgpu.calibration.bundle import calibration_error, load_calibration, save_calibration
+from specgpu.calibration.loops import spectral_loop
+from specgpu.calibration.rigs import TwinCalibrationRig
+from specgpu.core.numerics import fit_levels
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.led import LEDParameters
 from specgpu.rig.ol490 import OL490Parameters
 from specgpu.rig.realism import Realism
+from specgpu.rig.scene import white_plate_scene
 from specgpu.rig.twin import TwinRig
 
 CAM = CameraParameters(roi_width=320, roi_height=240)
@@ -21,7 +25,7 @@ LED = RigDescription(light=LEDParameters(preset="led12"), camera=CAM)
 
 @pytest.fixture(scope="module")
 def led_bundle():
-    return calibrate(LED, repeats=1, band_step_nm=10.0, spectral_check=False)
+    return calibrate(LED, repeats=1, band_step_nm=10.0)
 
 
 def test_each_led_is_measured_against_the_twins_truth(led_bundle):
@@ -42,6 +46,8 @@ def test_each_led_is_measured_against_the_twins_truth(led_bundle):
     assert err["bands"].shape == (12, 2)  # one band per LED, at its measured centroid
     assert err["max_relative"] < 0.01 and err["max_centroid_nm"] < 0.5 and err["max_shape"] < 0.04
     assert b.reports["loop_a"]["converged"] and "column_map" not in b.reports
+    # the spectral check aims at the closest the LEDs make to a flat band, and reaches it to the instrument's floor
+    assert b.reports["loop_b"]["residual"] < 0.01
 
 
 def test_the_oracle_bundle_of_an_led_rig_is_the_truth():
@@ -75,3 +81,14 @@ def test_an_led_array_has_no_off_state_light():
     off = Realism(dmd_off_state=0.01)
     assert oracle_calibration(RigDescription(camera=CAM, realism=off)).mirrors_off_light is True
     assert oracle_calibration(replace(LED, realism=off)).mirrors_off_light is False
+
+
+def test_the_spectral_loop_follows_a_target_the_leds_can_make():
+    bundle = oracle_calibration(LED)
+    rig = TwinCalibrationRig(LED, scene=white_plate_scene(240, 320))
+    g = bundle.wavelengths
+    w = fit_levels(bundle.column_matrix, np.where((g >= 400) & (g <= 700), 1.0, 0.0))
+    w = 0.4 * w / w.max()
+    result = spectral_loop(rig, bundle.column_matrix @ w, bundle=bundle, initial=np.rint(0.7 * w * 255))
+    assert result.history[0] > 0.1  # 30 % short of the target
+    assert max(result.history[1:]) < 0.008  # one step to the instrument's bandpass floor, and it stays there
