@@ -6,7 +6,8 @@ Wiener decoder of symmetric-9 and designed illuminants with 9, 6 and 3 frames (:
 prior: every colour-science set but the chart's), captures the 24-patch chart
 at the camera's resolution through the capture path, recovers on the OpenCL device, evaluates per patch and per
 pixel, prints Tables 1, 2 and 3 beside the paper's and a moving-scene section (symmetric-9 at 200 fps on a scene
-translating 3 px per frame: still, moving as decoded, motion-compensated; :mod:`specgpu.apps.moving_demo`), and
+translating 3 px per frame: still, moving as decoded, motion-compensated; :mod:`specgpu.apps.moving_demo`), with
+Table 1's 60 ms rows also on an LED rig (the same camera, a 12-LED array: :mod:`specgpu.apps.demo_lights`), and
 writes a report folder:
 
     index.html                  the tables and every figure, one page
@@ -35,6 +36,7 @@ from tqdm import tqdm
 from specgpu import io
 from specgpu.apps import paper
 from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods
+from specgpu.apps.demo_lights import led_draws
 from specgpu.apps.moving_demo import moving_html, moving_lines, moving_section
 from specgpu.apps.report_figures import illuminant_figure
 from specgpu.apps.report import report_page, summarise_method, table2_html, table3_html
@@ -221,6 +223,9 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
         for rows in result.draws[label].values():
             rows.pop("reports", None)
 
+    bar.set_description("an LED rig")  # Table 1's 60 ms rows again with a 12-LED array as the light
+    result.draws.update(led_draws(profiles.get("ideal", profiles[main]), prior, basis, training, seed=seed,
+                                  draws=draws, device=device))
     bar.set_description("a moving scene")
     result.moving = moving_section(profiles.get("ideal", profiles[main]), basis, seed=seed)
     bar.update()

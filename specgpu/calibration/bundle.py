@@ -32,6 +32,7 @@ import numpy as np
 from specgpu.calibration.rigs import distribute_counts
 from specgpu.io.tables import content_hash, load_npz, save_npz
 from specgpu.rig.config import RigDescription
+from specgpu.rig.lights import light_kind, light_summary
 from specgpu.rig.scene import interpolation_matrix, white_plate_scene
 from specgpu.rig.twin import TwinRig
 import os
@@ -46,6 +47,7 @@ __all__ = [
     "load_calibration",
     "measure_line_shapes",
     "oracle_calibration",
+    "primary_lines",
     "rig_fingerprint",
     "save_calibration",
 ]
@@ -142,6 +144,21 @@ def measure_line_shapes(spectra, probe_columns, probe_width: int, column_wavelen
     lines, where = lines[order], where[order]
     shapes = np.stack([np.interp(column_wavelengths, where, lines[:, j]) for j in range(n)], axis=1)
     return offsets, shapes
+
+
+def primary_lines(grid, spectra, fwhm_nm: float):
+    """Broad primaries (an LED array's) as a bundle holds them: from their spectra (G, C) on ``grid``, each one's
+    centroid (nm), power (its integral) and unit-area shape tabulated on 1 nm offsets from the centroid, within
+    four times ``fwhm_nm``. Returns (centroids (C,), powers (C,), (offsets (X,), shapes (C, X)))."""
+    grid = np.asarray(grid, np.float64)
+    e = np.asarray(spectra, np.float64)
+    power = e.sum(axis=0) * float(grid[1] - grid[0])
+    centroid = (grid @ e) / e.sum(axis=0)
+    half = float(np.ceil(min(150.0, 4.0 * fwhm_nm)))
+    offsets = np.arange(-half, half + 0.5, 1.0)
+    shapes = np.stack([np.interp(centroid[c] + offsets, grid, e[:, c] / power[c], left=0.0, right=0.0)
+                       for c in range(e.shape[1])])
+    return centroid, power, (offsets, shapes)
 
 
 @dataclass(frozen=True)
@@ -325,6 +342,26 @@ class CalibrationBundle:
     @property
     def columns(self) -> int:
         return self.column_wavelengths.size
+
+    @property
+    def light(self) -> dict:
+        """What calibration recorded of the light: ``{}`` for the DMD; for an LED array or the OL490 its ``kind``,
+        ``rows``, ``exposure_quantum_s`` and (LEDs) ``primaries_nm``, the measured centroids."""
+        r = self.reports.get("light") if isinstance(self.reports, dict) else None
+        return r if isinstance(r, dict) else {}
+
+    @property
+    def light_kind(self) -> str:
+        """``"dmd"``, ``"led"`` or ``"ol490"``: the kind of light calibrated."""
+        return str(self.light.get("kind", "dmd"))
+
+    def whole_periods(self, exposure_s: float) -> float:
+        """``exposure_s`` rounded down to whole periods of the light's PWM or grey levels (at least one), so the
+        levels a plan sets are the levels an exposure sees; unchanged for the DMD."""
+        q = float(self.light.get("exposure_quantum_s", 0.0))
+        if q <= 0:
+            return float(exposure_s)
+        return max(1, int(np.floor(float(exposure_s) / q + 1e-9))) * q
 
     # ---- the forward model ------------------------------------------------------------------------------------
     @cached_property
@@ -516,6 +553,7 @@ def load_calibration(path: str | os.PathLike[str], *, rig: RigDescription | None
     >>> import pathlib, tempfile
     >>> from specgpu.calibration import load_calibration, oracle_calibration, save_calibration
     >>> from specgpu.rig.config import RigDescription
+from specgpu.rig.lights import light_kind, light_summary
     >>> with tempfile.TemporaryDirectory() as folder:
     ...     path = pathlib.Path(folder) / "calibration.npz"
     ...     digest = save_calibration(path, oracle_calibration())
@@ -564,28 +602,38 @@ def oracle_calibration(description: RigDescription | None = None, *, white_refle
     rig = TwinRig(d, scene=white_plate_scene(d.camera.roi_height, d.camera.roi_width))
     light, cam = rig.light, rig.camera
     p, cp = light.params, cam.params
-    g = _gaussian_columns(light.wavelengths, light.column_wavelengths, p.line_fwhm_nm)
-    peak = np.argmax(g, axis=0)
-    col_power = light.column_matrix[peak, np.arange(p.columns)] / g[peak, np.arange(p.columns)]
+    line = None
+    if light_kind(p) == "led":  # broad primaries: each one's true spectrum, tabulated about its centroid
+        col_wl, col_power, line = primary_lines(light.wavelengths, light.column_matrix, p.line_fwhm_nm)
+    else:
+        g = _gaussian_columns(light.wavelengths, light.column_wavelengths, p.line_fwhm_nm)
+        peak = np.argmax(g, axis=0)
+        col_power = light.column_matrix[peak, np.arange(p.columns)] / g[peak, np.arange(p.columns)]
+        col_wl = light.column_wavelengths
     rho = cam.responsivity(light.wavelengths) / cp.gain_e_per_dn
     dark = ((cp.pedestal_e + cam.dark_electrons(cp.exposure_s) + cam.dsnu_e) / cp.gain_e_per_dn).astype(np.float32)
     flat = (1.0 / (rig.field * cam.prnu)).astype(np.float32)
     edges = np.arange(380.0, 780.0 - 1e-9, band_step_nm)
     bands = np.stack([edges, edges + band_step_nm], axis=1)
-    pre = CalibrationBundle(light.wavelengths, light.column_wavelengths, col_power, p.line_fwhm_nm, p.rows, rho,
+    pre = CalibrationBundle(light.wavelengths, col_wl, col_power, p.line_fwhm_nm, p.rows, rho,
                             cp.exposure_s, dark, cp.dark_current_e_per_s / cp.gain_e_per_dn, flat, cp.max_code,
                             light.minimum_exposure_s, rig.frame_period_s - p.switch_time_s, white_reflectance,
-                            np.zeros((len(bands), p.columns), np.int32), bands)
+                            np.zeros((len(bands), p.columns), np.int32), bands,
+                            line_offsets_nm=None if line is None else line[0],
+                            line_shapes=None if line is None else line[1])
     # The 1/V sequence the camera loop would converge to: equal outputs on the white, the weakest band full.
-    masks = np.stack([(light.column_wavelengths >= a) & (light.column_wavelengths < b) for a, b in bands])
+    masks = np.stack([(col_wl >= a) & (col_wl < b) for a, b in bands])
+    bands, masks = bands[masks.any(axis=1)], masks[masks.any(axis=1)]
     resp = np.array([pre.forward_matrix(distribute_counts([1.0], m[None], p.rows), [400.0, 700.0],
                                         cp.exposure_s).sum() for m in masks])
     centre = bands.mean(axis=1)
     inside = (centre >= 400) & (centre <= 700)
     levels = np.clip(resp[inside].min() / resp, 0, 1)
-    return replace(pre, reciprocal_patterns=distribute_counts(levels, masks, p.rows),
-                   reports={"source": "oracle", "mirrors_off_light": bool(d.realism.ambient_lux or
-                                                                          d.realism.dmd_off_state)},
+    return replace(pre, reciprocal_patterns=distribute_counts(levels, masks, p.rows), reciprocal_bands=bands,
+                   reports={"source": "oracle", "mirrors_off_light": bool(d.realism.ambient_lux or (
+                       d.realism.dmd_off_state and line is None)),  # an LED array has no off-state mirrors
+                            **({"light": {**light_summary(p), "primaries_nm": [float(x) for x in col_wl]
+                                          if line is not None else []}} if light_summary(p) else {})},
                    rig=rig_fingerprint(d))
 
 
@@ -600,7 +648,8 @@ def calibration_error(bundle: CalibrationBundle, description: RigDescription | N
     shape's error), "rms_relative", "max_relative", "rms_centroid_nm", "max_centroid_nm", "rms_shape",
     "max_shape"}``. The twin's truth includes every ``[realism]`` effect
     that acts at the spot centre (slit, map, ripples, stray light, off-state, white error does not enter: the
-    truth here is the light and camera, not the white).
+    truth here is the light and camera, not the white). For an LED light every LED alone is a band (``bands``
+    then holds its measured centroid twice): the error of each LED's measured spectrum.
     """
     d = description if description is not None else RigDescription()
     rig = TwinRig(d, scene=white_plate_scene(d.camera.roi_height, d.camera.roi_width))
@@ -608,6 +657,9 @@ def calibration_error(bundle: CalibrationBundle, description: RigDescription | N
     edges = np.arange(band_range_nm[0], band_range_nm[1] - 1e-9, band_step_nm)
     bands = np.stack([edges, edges + band_step_nm], axis=1)
     masks = np.stack([(bundle.column_wavelengths >= a) & (bundle.column_wavelengths < b) for a, b in bands])
+    if bundle.light_kind == "led":  # fixed primaries: each LED alone is a band, at its measured centroid
+        masks = np.eye(bundle.columns, dtype=bool)
+        bands = np.repeat(bundle.column_wavelengths[:, None], 2, axis=1)
     pats = distribute_counts(np.ones(len(masks)), masks, bundle.rows)
     true_e = light.pattern_to_spectrum(pats) - light.offset_spectrum[None, :]
     true_prod = true_e * (cam.responsivity(light.wavelengths) / cam.params.gain_e_per_dn)[None, :]

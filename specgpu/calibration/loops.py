@@ -201,6 +201,13 @@ def spectral_loop(rig, target: ArrayLike, wavelengths: ArrayLike | None = None, 
         history.append(resid)
         if resid <= tolerance or it >= max_iterations:
             break
+        if bundle is not None and bundle.light_kind == "led":
+            # a few broad primaries overlap: what the levels make in the model, plus the reading's shortfall, fitted
+            # by all of them at once (bounded least squares), where a column-by-column ratio oscillates
+            short = np.interp(bundle.wavelengths, inst, t_inst - meas, left=0.0, right=0.0)
+            f = fit_levels(bundle.column_matrix, np.maximum(bundle.column_matrix @ f + short, 0.0))
+            it += 1
+            continue
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(meas > 0, t_inst / meas, 2.0)
         ratio = np.where(t_inst > 0, ratio, 0.0)

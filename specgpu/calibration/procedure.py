@@ -15,6 +15,7 @@ from specgpu.calibration.bundle import (
     DEFAULT_MAX_EXPOSURE_S,
     CalibrationBundle,
     measure_line_shapes,
+    primary_lines,
     rig_fingerprint,
 )
 from specgpu.calibration.loops import camera_loop, spectral_loop
@@ -28,6 +29,7 @@ from specgpu.calibration.rigs import (
 )
 from specgpu.core.numerics import DEAD_PIXEL_GAIN, fit_levels
 from specgpu.rig.config import RigDescription
+from specgpu.rig.lights import light_kind, light_summary
 from specgpu.rig.scene import white_plate_scene
 
 __all__ = ["MIRRORS_OFF_TOLERANCE", "calibrate"]
@@ -97,7 +99,7 @@ def _dark_level(bench: _Bench, zero, t_cal: float):
     dark current. Returns (dark (H, W), short exposure s, dark there (H, W), dark current DN/s)."""
     rig = bench.rig
     dark = bench.capture(zero, 2 * bench.repeats)[0]
-    t_short = max(rig.light.minimum_exposure_s, t_cal / 4)
+    t_short = _whole_periods(rig, max(rig.light.minimum_exposure_s, t_cal / 4))
     dark_short = bench.capture(zero, 2 * bench.repeats, exposure_s=t_short)[0]
     rate = float(np.mean(dark - dark_short) / (t_cal - t_short)) if t_cal > t_short else 0.0
     return dark, t_short, dark_short, rate
@@ -161,6 +163,40 @@ def _column_map(bench: _Bench, line_shape: str) -> _ColumnMap:
         line = measure_line_shapes(probe_spectra, probe_cols, 8, col_wl, col_power, response(light.wavelengths),
                                    light.wavelengths, half, masks=near)
     return _ColumnMap(col_wl, col_power, slope, icpt, full, line)
+
+
+def _primary_map(bench: _Bench) -> _ColumnMap:
+    """Step (2) for a light of a few broad primaries (an LED array): each primary alone at full level, read by the
+    spectroradiometer (four readings averaged) onto the light's grid; each primary's centroid is its wavelength,
+    its integral its power, its unit-area shape the measured line. The reading is used as it is: the instrument's
+    bandpass (5 nm) barely widens a 15-35 nm LED, and solving it out amplifies the noise more than it removes (on
+    the twin, 0.2-0.7 % of the peak RMS as read against 1-3 % solved out)."""
+    rig = bench.rig
+    light, p = rig.light, rig.light.params
+    rig.zero_spectrometer()
+    grid, inst = light.wavelengths, rig.spectroradiometer.wavelengths
+    light.load_sequence(np.eye(p.columns, dtype=np.int32) * p.rows)
+    spectra = []
+    for c in range(p.columns):
+        s = np.mean([rig.measure_spectrum(c)[1] for _ in range(4)], axis=0)
+        if not s.max() > 0:
+            raise ValueError(f"calibrate: the spectroradiometer sees no light from primary {c}; check the light, "
+                             "the fibre and the instrument")
+        spectra.append(np.interp(grid, inst, s, left=0.0, right=0.0))
+    centroid, power, line = primary_lines(grid, np.stack(spectra, axis=1), p.line_fwhm_nm)
+    if np.any(np.diff(centroid) <= 0):
+        raise ValueError("calibrate: the light's primaries are not in order of wavelength (centroids "
+                         f"{', '.join(f'{x:.1f}' for x in centroid)} nm)")
+    light.load_sequence(np.full((1, p.columns), p.rows, np.int32))
+    full = np.mean([rig.measure_spectrum(0)[1] for _ in range(4)], axis=0)
+    return _ColumnMap(centroid, power, 0.0, 0.0, full, line)
+
+
+def _whole_periods(rig, exposure_s: float) -> float:
+    """``exposure_s`` rounded to whole periods of the light's PWM or grey levels (unchanged for the DMD), so every
+    exposure calibration asks for gives the levels exactly."""
+    q = float(getattr(rig.light.params, "exposure_quantum_s", 0.0))
+    return exposure_s if q <= 0 else max(1, round(exposure_s / q)) * q
 
 
 #: A pixel whose white reading is under this fraction of the field centre's is unlit (outside the light's spot, or
@@ -300,7 +336,7 @@ def _loop_a_start(bench: _Bench, dark, flat, masks, bands, t_cal: float, equaliz
     weakest = float(full_out[inside].min())
     if not weakest > 0:
         raise ValueError("calibrate: a band of the equalized range gives no signal on the white")
-    t_a = float(np.clip(t_cal * 0.5 * headroom / weakest, t_cal, max(t_cal, DEFAULT_MAX_EXPOSURE_S)))
+    t_a = _whole_periods(rig, float(np.clip(t_cal * 0.5 * headroom / weakest, t_cal, max(t_cal, DEFAULT_MAX_EXPOSURE_S))))
     full_a = full_out * (t_a / t_cal)
     level = 0.97 * float(full_a[inside].min()) / white_reflectance  # output per unit reflectance
     targets = np.full(len(masks), level * white_reflectance)
@@ -391,6 +427,9 @@ def _spectral_check(rig, bundle: CalibrationBundle, all_on, equalize_range_nm, p
     if lamp is None:
         lamp = np.interp(grid, rig.spectroradiometer.wavelengths, all_on)
     flat_target = np.where(sel, 0.4 * float(lamp[sel].min()), 0.0)
+    if bundle.light_kind == "led":  # a few broad primaries cannot make a flat band: the closest shape they can,
+        w = fit_levels(bundle.column_matrix, flat_target)  # its brightest LED at 40 % (the flat band's level would
+        flat_target = bundle.column_matrix @ (0.4 * w / w.max())  # leave the LEDs a few duty steps each)
     initial = None
     if perturbation > 0:
         f = fit_levels(bundle.column_matrix, flat_target)
@@ -471,6 +510,7 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     >>> from specgpu.calibration import calibrate
     >>> from specgpu.rig.camera import CameraParameters
     >>> from specgpu.rig.config import RigDescription
+from specgpu.rig.lights import light_kind, light_summary
     >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
     >>> bundle = calibrate(rig, repeats=1, band_step_nm=25.0, spectral_check=False)
     >>> bundle.reports["loop_a"]["converged"]
@@ -484,7 +524,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     t_cal = float(rig.exposure_s)
     zero = np.zeros((1, p.columns), np.int32)
     dark, t_short, dark_short, rate = _dark_level(bench, zero, t_cal)  # (1)
-    columns = _column_map(bench, line_shape)  # (2)
+    primaries = light_kind(p) == "led"  # a few broad primaries: each measured whole, no column map
+    columns = _primary_map(bench) if primaries else _column_map(bench, line_shape)  # (2)
     flat, n_flat, n_probe, lvl, unlit = _flat_field(bench, dark)  # (3)
     flat_bands, flat_wl = _flat_field_bands(bench, dark, flat, n_flat, columns.wavelengths)
     linearity_c = _linearity(bench, dark, n_probe, lvl)
@@ -500,7 +541,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     rho = _responsivity(est, loop_a, t_a, white_reflectance)
     fluctuation = _light_fluctuation(bench, dark, n_flat)
     reports = {"source": "calibrated", "loop_a": loop_a.summary(), "band_step_nm": float(band_step_nm),
-               "column_map": {"slope_nm": float(columns.slope), "intercept_nm": float(columns.intercept)},
+               **({} if primaries else {"column_map": {"slope_nm": float(columns.slope),
+                                                        "intercept_nm": float(columns.intercept)}}),
                "level_dn_per_reflectance": level, "loop_a_exposure_s": t_a, "repeats": int(repeats),
                "white_reflectance_uncertainty": float(white_uncertainty), "linearity_c_per_dn2": linearity_c,
                "unlit_pixels": unlit}
@@ -510,6 +552,9 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     if hasattr(rig, "clock_s"):
         reports["rig_clock_end_s"] = float(rig.clock_s)
     reports["slit_model"] = "measured" if columns.line is not None else "gaussian"
+    if light_summary(p):  # an LED array or the OL490: what plans must know of it (the DMD's bundles unchanged)
+        reports["light"] = {**light_summary(p), "primaries_nm": [float(x) for x in columns.wavelengths]
+                            if primaries else []}
     bundle = replace(est, responsivity=rho, reports=reports, rig=rig_fingerprint(d))
     bundle = _with_band_flat_fields(bundle, flat_bands, flat_wl, columns.wavelengths)
     if spectral_check:  # (5)
@@ -545,7 +590,7 @@ def _dark_survey(rig, zero, repeats, seeds, measured, t_cal, win, white_reflecta
     """
     t_long = max(t_cal, DEFAULT_MAX_EXPOSURE_S)
     levels = dict(measured)
-    for t in (float(np.sqrt(t_cal * t_long)), t_long):
+    for t in (_whole_periods(rig, float(np.sqrt(t_cal * t_long))), t_long):
         if t not in levels:
             levels[t] = rig.capture_mean(zero, 2 * repeats, exposure_s=t, noise_seed=seeds.next())[0]
     ts = sorted(levels)

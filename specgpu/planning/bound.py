@@ -18,6 +18,11 @@ lowers that error, so the result stays below what any real design reaches:
   Lidskii's majorization and the Schur-convexity of ``sum 1/x``), minimized over ``d`` by water-filling the top
   K eigenvalues of S.
 
+On a light of a few broad primaries (an LED array) every frame is a combination of them, so two more limits hold
+and the bound takes the largest: the water-filling above with the rank of their span in place of K where it is
+smaller, and the error of the best linear estimate from every primary's noise-free response
+(:func:`primaries_limit`: no number of frames, no exposure does better).
+
 **Achievable.** The photon-limited optimal design at the same budget with several starts
 (:func:`specgpu.planning.design.plan_optimal`): its expected RMSE on the prior (before quantizing the mirrors).
 """
@@ -38,7 +43,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle
 
-__all__ = ["Bound", "design_bound", "frame_information", "waterfill_mse"]
+__all__ = ["Bound", "design_bound", "frame_information", "primaries_limit", "waterfill_mse"]
 
 
 @dataclass(frozen=True)
@@ -64,6 +69,8 @@ class Bound:
     achieved_rmse: float
     starts: int
     averaged: float = 1.0
+    #: the noise-free limit of the light's own primaries (any number of frames; None where they span every band)
+    primaries_rmse: float | None = None
 
     def lines(self) -> list[str]:
         noise = "shot and read noise" if self.averaged == 1.0 else \
@@ -74,7 +81,10 @@ class Bound:
                 "relaxed to any spectrum within every mirror's light)",
                 f"  best design found ({self.starts} starts): RMSE {self.achieved_rmse:.4f} (achievable: the limit "
                 "lies between the two)",
-                f"  noise-free rank-{self.frames} limit of the prior: RMSE {self.noise_free_rmse:.4f}"]
+                f"  noise-free rank-{self.frames} limit of the prior: RMSE {self.noise_free_rmse:.4f}"] + (
+            [] if self.primaries_rmse is None else
+            [f"  noise-free limit of the light's primaries (they span fewer dimensions than the prior's bands): "
+             f"RMSE {self.primaries_rmse:.4f}"])
 
 
 def frame_information(upper, mean_dn_per_e, read_var_dn2: float, cap: float | None = None) -> float:
@@ -150,7 +160,30 @@ def design_bound(bundle: CalibrationBundle, prior: Prior, noise_at, *, frames: i
     s = np.linalg.eigvalsh(prior.moment)
     lower = math.sqrt(max(waterfill_mse(s, K, c), 0.0) / B)
     noise_free = math.sqrt(max(np.sort(np.clip(s, 0, None))[::-1][K:].sum(), 0.0) / B)
+    primaries = primaries_limit(Sb, prior.moment)
+    if primaries is not None:  # a few broad primaries (LEDs): every frame lies in their span, of rank r
+        r, mse = primaries
+        lower = max(lower, math.sqrt(max(waterfill_mse(s, min(K, r), c * K / min(K, r)), 0.0) / B),
+                    math.sqrt(mse / B))
     _, J = design_optimal(Sb, prior, noise, K, cap, starts=int(starts), iterations=int(iterations), seed=seed,
                           exposure_s=t)
     return Bound(K, float(sequence_s), float(t), lower, noise_free, math.sqrt(max(J, 0.0)), int(starts),
-                 float(averaged))
+                 float(averaged), None if primaries is None else math.sqrt(primaries[1] / B))
+
+
+def primaries_limit(system, moment) -> tuple[int, float] | None:
+    """Where the light's primaries span fewer dimensions than the bands (an LED array): (their rank r, the total
+    squared error over the bands of the best linear estimate of a reflectance from every primary's noise-free
+    response, ``tr(S - S U^T (U S U^T)^+ U S)``, S the prior's second moment, U (C, B) the responses). Any
+    design's frames are combinations of the primaries, so none does better. None where they span every band."""
+    U = np.asarray(system, np.float64)
+    U = U[np.any(U > 0, axis=1)]
+    sv = np.linalg.svd(U, compute_uv=False)
+    r = int(np.sum(sv > sv.max() * 1e-9)) if sv.size else 0
+    B = U.shape[1]
+    if r >= B or r == 0:
+        return None
+    S = np.asarray(moment, np.float64)
+    G = U @ S
+    mse = float(np.trace(S) - np.trace(G.T @ np.linalg.pinv(G @ U.T) @ G))
+    return r, max(mse, 0.0)

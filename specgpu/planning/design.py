@@ -366,14 +366,35 @@ def s_matrix(n: int) -> np.ndarray:
     return (H[1:, 1:] < 0).astype(np.int32)
 
 
+def _primary_groups(bundle, bands: int, start_nm: float, stop_nm: float):
+    """A light of fixed primaries (LEDs) split into ``bands`` groups of neighbours within ``start_nm``-``stop_nm``:
+    (masks (bands, C), each group's mean wavelength, the mean spacing of the groups nm)."""
+    cw = bundle.column_wavelengths
+    inside = np.flatnonzero((cw >= start_nm - 10.0) & (cw <= stop_nm + 10.0))
+    if bands > inside.size:
+        raise ValueError(f"hadamard bands ({bands}) must not exceed this light's {inside.size} LEDs within "
+                         f"{start_nm:g}-{stop_nm:g} nm (at {', '.join(f'{x:.0f}' for x in cw[inside])} nm)")
+    groups = np.array_split(inside, bands)
+    masks = np.zeros((bands, cw.size), bool)
+    for i, g in enumerate(groups):
+        masks[i, g] = True
+    centres = np.array([float(cw[g].mean()) for g in groups])
+    return masks, centres, float(np.ptp(centres) / max(1, bands - 1))
+
+
 def plan_hadamard(bundle: CalibrationBundle, *, bands: int = 31, start_nm: float = 400.0, stop_nm: float = 700.0,
                   level: float = 0.9, max_exposure_s: float | None = None):
     """Multiplexed narrowband: ``bands`` equal bands over ``start_nm``-``stop_nm``, frame k lighting the bands of
-    row k of the S-matrix; ``A = diag(1/c) S^-1`` with c the model output of each band on a white."""
+    row k of the S-matrix; ``A = diag(1/c) S^-1`` with c the model output of each band on a white. On an LED light
+    the bands are ``bands`` groups of neighbouring LEDs (at most its LEDs), each output at its group's mean
+    wavelength."""
     Smat = s_matrix(bands)
-    step = (stop_nm - start_nm) / (bands - 1)
-    centres = np.linspace(start_nm, stop_nm, bands)
-    masks = _band_masks(bundle, centres, step)
+    if bundle.light_kind == "led":  # fixed primaries: the bands are groups of neighbouring LEDs
+        masks, centres, step = _primary_groups(bundle, bands, start_nm, stop_nm)
+    else:
+        step = (stop_nm - start_nm) / (bands - 1)
+        centres = np.linspace(start_nm, stop_nm, bands)
+        masks = _band_masks(bundle, centres, step)
     band_pat = np.where(masks, bundle.rows, 0).astype(np.int32)  # (N, C)
     patterns = np.clip(Smat @ band_pat, 0, bundle.rows).astype(np.int32)
     resp = bundle.forward_matrix(band_pat, bundle.wavelengths, 1.0).sum(axis=1)

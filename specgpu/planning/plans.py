@@ -454,6 +454,11 @@ def _choose_exposure(bundle, patterns, level: float, max_exposure_s: float | Non
     if not longest >= bundle.min_exposure_s:
         raise ValueError(f"max_exposure_s must be >= the light's switch time {bundle.min_exposure_s:g} s")
     t = min(max(level * headroom / per_s.max(), bundle.min_exposure_s), longest)
+    whole = bundle.whole_periods(t)  # an LED's PWM or the OL490's grey levels are exact over whole periods only
+    if whole > longest * (1 + 1e-9):
+        raise ValueError(f"the light's level period ({whole * 1e3:.3f} ms) is longer than the longest exposure "
+                         f"allowed ({longest * 1e3:.3f} ms): allow a longer exposure or fewer grey bits")
+    t = whole
     levels = per_s * t / headroom
     if levels.max() > 1.0:
         raise ValueError(f"even the light's shortest exposure ({bundle.min_exposure_s * 1e6:.0f} us) saturates a white "

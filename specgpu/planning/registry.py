@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+from specgpu.core.validate import BadArgument
 from specgpu.planning.basis_plans import plan_biased_basis, plan_symmetric_basis
 from specgpu.planning.design import plan_hadamard, plan_optimal
 from specgpu.planning.narrowband import plan_narrowband, plan_reciprocal_narrowband
@@ -14,7 +15,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle
 
-__all__ = ["PLAN_METHODS", "make_plan"]
+__all__ = ["NARROWBAND_METHODS", "PLAN_METHODS", "check_light_can", "make_plan"]
 
 #: Plan methods by name: each takes the calibration bundle first, then the method's own arguments.
 PLAN_METHODS = {
@@ -66,4 +67,20 @@ def make_plan(method: str, bundle: CalibrationBundle, *args, **kwargs) -> Plan:
     """
     if method not in PLAN_METHODS:
         raise ValueError(f"unknown plan method {method!r}; valid methods: {', '.join(PLAN_METHODS)}")
+    check_light_can(method, bundle)
     return PLAN_METHODS[method](bundle, *args, **kwargs)
+
+
+#: Methods that shape each frame into a narrow band the light must be able to make at any wavelength: a DMD (or the
+#: OL490) can, an LED array cannot. Every other method designs within any primaries (``P . w``, w in [0, 1]).
+NARROWBAND_METHODS = ("narrowband", "reciprocal")
+
+
+def check_light_can(method: str, bundle) -> None:
+    """Refuse (:class:`~specgpu.core.validate.BadArgument`, one line) a method the calibrated light cannot make:
+    a narrow-band method on a light of a few fixed primaries, naming the bands it has (its LEDs)."""
+    if method in NARROWBAND_METHODS and getattr(bundle, "light_kind", "dmd") == "led":
+        peaks = bundle.light.get("primaries_nm") or list(bundle.column_wavelengths)
+        others = ", ".join(m for m in PLAN_METHODS if m not in NARROWBAND_METHODS)
+        raise BadArgument(f"{method} needs a light tunable to any narrow band; this LED light has {len(peaks)} fixed "
+                          f"bands at {', '.join(f'{x:.0f}' for x in peaks)} nm: use one of {others}")

@@ -2,7 +2,9 @@
 
 from .camera import Camera, CameraParameters
 from .config import FaultRates, RigDescription, dump_rig, load_rig, rig_from_dict
+from .led import LED_PRESETS, LEDParameters
 from .light import LightParameters, ProgrammableLight
+from .lights import LIGHT_KINDS
 from .motion import MotionParameters, MovingScene
 from .scene import (
     BUILTIN_SCENES,
@@ -14,6 +16,7 @@ from .scene import (
     white_plate_scene,
     write_scene,
 )
+from .ol490 import OL490Parameters
 from .spectroradiometer import Spectroradiometer, SpectroradiometerParameters
 from .twin import FaultSchedule, SNRReport, TwinRig, measure_snr
 
@@ -25,6 +28,9 @@ __all__ = [
     "dump_rig",
     "FaultRates",
     "FaultSchedule",
+    "LED_PRESETS",
+    "LEDParameters",
+    "LIGHT_KINDS",
     "LightParameters",
     "load_rig",
     "load_scene",
@@ -32,6 +38,7 @@ __all__ = [
     "MotionParameters",
     "MovingScene",
     "natural_scene",
+    "OL490Parameters",
     "ProgrammableLight",
     "read_scene",
     "rig_from_dict",

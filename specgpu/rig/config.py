@@ -4,6 +4,8 @@ A rig TOML has up to six tables; every key is optional and defaults to the paper
 
     [light]                      # LightParameters: lamp, grating, DMD, spot, timing, fluctuation ...
     lamp = "xenon"               # or "kinoton-75p", or a two-column CSV (wavelength nm, value)
+                                 # kind = "led" (LEDParameters: preset = "led12", spectra CSV, PWM ...) or
+                                 # kind = "ol490" (OL490Parameters: grey_bits, slit): specgpu.rig.lights
     illuminance_lux = 15000
     [camera]                     # CameraParameters: sensitivity (CSV), ROI, bit depth, noise, optics, timing;
                                  # preset = "cmv4000" | "imx250" | "imx304" starts from a sensor (rig/sensors.py)
@@ -43,6 +45,7 @@ from pathlib import Path
 from specgpu.core.validate import check_number
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.light import LightParameters
+from specgpu.rig.lights import light_from_table
 from specgpu.rig.motion import MotionParameters, motion_from_table
 from specgpu.rig.realism import CAPTURE_DELAY_S, PROFILES, Drift, Realism, profile_realism
 from specgpu.rig.scene import _NATURAL_IMAGES
@@ -93,7 +96,8 @@ class RigDescription:
 
     Attributes
     ----------
-    light : LightParameters
+    light : LightParameters, LEDParameters or OL490Parameters
+        By ``[light] kind`` (:mod:`specgpu.rig.lights`).
     camera : CameraParameters
     scene : str
         Built-in scene name (``"colorchecker"``, ``"white"``, ``"natural"``) or a cube file path.
@@ -176,7 +180,7 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
             raise ValueError(f"{source}: unknown table [{table}]; valid tables: {', '.join(_TABLES)}")
         if not isinstance(value, dict):
             raise ValueError(f"{source}: [{table}] must be a table, got {value!r}")
-    light = build_table(LightParameters, data.get("light", {}), "light", source, base)
+    light = light_from_table(data.get("light", {}), source, base)  # by [light] kind: dmd, led, ol490
     try:  # [camera] preset = "cmv4000": the preset's values under the keys given (specgpu.rig.sensors)
         camera_table = expand_preset(data.get("camera", {}))
     except ValueError as error:

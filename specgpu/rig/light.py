@@ -169,6 +169,11 @@ class LightParameters:
         """Pattern load plus mirror settling (s): the minimum exposure the light can follow."""
         return self.pattern_load_s + self.mirror_settle_s
 
+    @property
+    def exposure_quantum_s(self) -> float:
+        """The exposure is exact only in whole multiples of this (s): 0, the DMD's mirrors hold their state."""
+        return 0.0
+
     @classmethod
     def keys(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
@@ -307,6 +312,9 @@ class ProgrammableLight:
     with ``g`` the unit-area Gaussian slit function, scaled so that every mirror on gives ``illuminance_lux``; the
     emitted spectrum of a pattern ``n`` is ``M @ (n / rows)``.
     """
+
+    #: Whether the lamp's colour temperature drifts on the clock (``[realism] lamp_cct_drift_K_per_hour``).
+    lamp_colour_drifts = True
 
     def __init__(self, params: LightParameters | None = None, *, seed: int = 0, realism=None, drift=None,
                  clock_s: float = 0.0):

@@ -8,7 +8,7 @@ from pathlib import Path
 __all__ = ["build_table"]
 
 #: (table, key) of the keys naming a file (a built-in name otherwise), resolved against the rig file's folder.
-_PATH_KEYS = {("light", "lamp"), ("camera", "sensitivity")}
+_PATH_KEYS = {("light", "lamp"), ("light", "spectra"), ("camera", "sensitivity")}
 
 
 def build_table(cls, table: dict, section: str, source: str, base: Path | None = None):
@@ -32,11 +32,15 @@ def build_table(cls, table: dict, section: str, source: str, base: Path | None =
         if isinstance(default, str):
             if not isinstance(value, str):
                 raise ValueError(f"{source}: {section}.{key} must be a string, got {value!r}")
-            if (section, key) in _PATH_KEYS and base is not None and value not in ("xenon", "kinoton-75p", "cmos"):
+            if (section, key) in _PATH_KEYS and base is not None and value and value not in ("xenon", "kinoton-75p", "cmos"):
                 p = Path(value)
                 value = str(p if p.is_absolute() else base / p)
                 if not Path(value).is_file():
                     raise ValueError(f"{source}: {section}.{key} file not found: {value}")
+        elif default == ():  # a list of any length (one value per LED, say)
+            if not isinstance(value, list) or any(isinstance(c, bool) or not isinstance(c, (int, float)) for c in value):
+                raise ValueError(f"{source}: {section}.{key} must be a list of numbers, got {value!r}")
+            value = tuple(float(c) for c in value)
         elif isinstance(default, tuple):
             if (not isinstance(value, list) or len(value) != len(default)
                     or any(isinstance(c, bool) or not isinstance(c, (int, float)) for c in value)):

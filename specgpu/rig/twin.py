@@ -33,6 +33,7 @@ from specgpu.core.validate import check_number
 from specgpu.rig.camera import _NORMAL_TABLE, Camera, standard_normal_fill
 from specgpu.rig.config import FaultRates, RigDescription
 from specgpu.rig.light import K_M, ProgrammableLight, lamp_change, photopic_y
+from specgpu.rig.lights import make_light
 from specgpu.rig.motion import MovingScene, Trajectory
 from specgpu.rig.scene import SpectralScene, interpolation_matrix, load_scene, white_plate_scene
 from specgpu.rig.spectroradiometer import Spectroradiometer
@@ -156,8 +157,8 @@ class TwinRig:
         self.realism = d.realism
         self.clock_start_s = check_number("clock_start_s", clock_start_s, low=0)
         self._cct_slope = None
-        self.light = ProgrammableLight(d.light, seed=self.seed, realism=d.realism, drift=d.drift,
-                                       clock_s=self.clock_start_s)
+        self.light = make_light(d.light, seed=self.seed, realism=d.realism, drift=d.drift,
+                                clock_s=self.clock_start_s, exposure_s=d.camera.exposure_s)
         self.camera = Camera(d.camera, seed=self.seed, realism=d.realism if d.realism.any else None)
         self.spectroradiometer = Spectroradiometer(d.spectroradiometer, seed=self.seed)
         cam = d.camera
@@ -209,8 +210,8 @@ class TwinRig:
         if self.realism.lamp_cct_drift_K_per_hour:
             seq = self.light.sequence
             d = self.description
-            self.light = ProgrammableLight(d.light, seed=self.seed, realism=d.realism, drift=d.drift,
-                                           clock_s=self.clock_start_s)
+            self.light = make_light(d.light, seed=self.seed, realism=d.realism, drift=d.drift,
+                                    clock_s=self.clock_start_s, exposure_s=d.camera.exposure_s)
             self.light.load_sequence(seq)
             self._maps = None
 
@@ -399,7 +400,7 @@ class TwinRig:
         the lamp's state at the clock start), or None when the colour does not drift on the clock."""
 
         rate = self.realism.lamp_cct_drift_K_per_hour
-        if not rate:
+        if not rate or not self.light.lamp_colour_drifts:  # an LED has no lamp
             return None
         lp = self.light
         now = lp.drift.lamp_cct_K + rate * lp.clock_s / 3600.0
