@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from specgpu.apps.studies import chart_with_white, measure_methods
+from specgpu.apps.demo_measure import chart_with_white, measure_methods
 from specgpu.calibration import calibrate
 from specgpu.pipeline.recovery import EVALUATION_CHART
 from specgpu.planning.equal_time import equal_time_plans

@@ -9,7 +9,7 @@ For each light (the paper's DMD rig, and ``[light] kind = "led"`` with the prese
 * "CIE 1995 TCS": the 14 Munsell chips of the CIE 1995 test colour samples,
 
 the prior is trained on every other set colour-science ships minus the chart (and any spectrum within 0.01 RMS of
-one of its patches), as ``tools/budget_study.py`` does; the best design at the budget, the optimal design of
+one of its patches), as ``tools/studies/budget_study.py`` does; the best design at the budget, the optimal design of
 ``specgpu plan optimal --frames 9 --sequence-ms 60`` (the best row of the equal-time table at 60 ms), is captured
 ``--draws`` times with fresh noise and recovered on the device; per-pixel RMSE and dE2000 (D65) are averaged over
 the patches' pixels, mean +- std over the draws. Beside them: the number of primaries, the plan's exposure, the
@@ -17,7 +17,7 @@ RMSE it expects on its prior and the limit of any 9-frame design in 60 ms on the
 
 Lumosaic's own accuracy figure is not known here, so no figure of it is printed beside the table.
 
-    python tools/led_study.py [--draws N] [--charts ces,tcs] [--lights dmd,led6,led12,led16] [--size 320x240]
+    PYTHONPATH=. python tools/studies/led_study.py [--draws N] [--charts ces,tcs] [--lights dmd,led6,led12,led16] [--size 320x240]
                               [--sequence-ms 60] [--frames 9]
 """
 
@@ -31,11 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import specgpu.planning as E  # noqa: E402
-from specgpu.apps.estimator_study import patch_scene  # noqa: E402
-from specgpu.apps.studies import measured_chart_with_white, mean_std  # noqa: E402
+from specgpu.rig.scene import patch_scene  # noqa: E402
+from specgpu.apps.demo_measure import mean_std  # noqa: E402
+from measured_chart import measured_chart_with_white  # noqa: E402
 from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.pipeline.evaluate import evaluate_pixels  # noqa: E402
 from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover  # noqa: E402
