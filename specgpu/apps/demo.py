@@ -43,7 +43,8 @@ from specgpu.apps.studies import chart_with_white, mean_std, measure_methods
 from specgpu.calibration import calibrate, save_calibration
 from specgpu.calibration.bundle import calibration_error
 from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
-from specgpu.pipeline.recovery import EVALUATION_CHART, SequenceFolder, default_basis, uncertainty, write_capture
+from specgpu.pipeline.capture_folder import SequenceFolder, write_capture
+from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis, uncertainty
 from specgpu.planning import default_prior, make_plan, save_plan, training_spectra
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans
 from specgpu.planning.basis import save_basis

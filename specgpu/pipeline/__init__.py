@@ -3,20 +3,16 @@ projector."""
 
 from __future__ import annotations
 
-from specgpu.pipeline.recovery import (
+from specgpu.pipeline.capture_folder import (
     CaptureWriter,
     SequenceFolder,
-    capture_plan,
     check_capture_folder,
-    dark_warning,
-    default_basis,
     read_capture,
-    recover,
     save_plan_and_calibration,
-    to_Lab,
-    to_XYZ,
     write_capture,
 )
+from specgpu.pipeline.recovery import dark_warning, default_basis, recover, to_Lab, to_XYZ
+from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.pipeline.moving import (
     MASK_INCONSISTENT,
     MOTION_MODES,

@@ -14,7 +14,7 @@ import numpy as np
 from specgpu.core.spectra import DEFAULT_CMFS
 from specgpu.io.sequence import check_frame_files, read_frames
 from specgpu.io.recording import chunk_keys, open_recording, patterns_hash
-from specgpu.pipeline.recovery import read_capture_header
+from specgpu.pipeline.capture_folder import read_capture_header
 
 __all__ = ["open_source", "reference_label"]
 

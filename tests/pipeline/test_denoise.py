@@ -13,7 +13,9 @@ from specgpu.calibration.bundle import oracle_calibration
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E
 from specgpu.io import read_cube, read_map
 from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide, stream_denoise
-from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, to_XYZ, uncertainty
+from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.recovery import recover, to_XYZ, uncertainty
+from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene, natural_scene
@@ -169,7 +171,7 @@ def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
     says)."""
     import zarr
 
-    from specgpu.pipeline.recovery import read_capture
+    from specgpu.pipeline.capture_folder import read_capture
 
     rig, cal, _ = hadamard_rig(tmp_path, bundle)
     run("capture", "--rig", rig, "--calib", cal, "--plan", tmp_path / "p.npz", "--scene", "natural", "--out",

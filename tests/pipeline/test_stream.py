@@ -24,7 +24,8 @@ from specgpu.capture.session import capture_sequences
 from specgpu.capture.twin import TwinDriver
 from specgpu.apps.cli import main
 from specgpu.engine.colorimetry import delta_E
-from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ
+from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ
 from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.rig.twin import FaultSchedule, TwinRig
 from specgpu.pipeline import (

@@ -12,7 +12,9 @@ from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning.correction import (ambient_index, corrected_decoder, parse_roi, probe_indices, white_gains,
                                 white_reflectance_curve, with_ambient_frame, with_drift_probes)
 from specgpu.pipeline.evaluate import evaluate_reflectance
-from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover
+from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.recovery import recover
+from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning import make_plan
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
@@ -115,7 +117,7 @@ def test_cli_recover_white_roi_outside_frame(setup, tmp_path):
     from click.testing import CliRunner
 
     from specgpu.apps.cli import main
-    from specgpu.pipeline.recovery import save_plan_and_calibration, write_capture
+    from specgpu.pipeline.capture_folder import save_plan_and_calibration, write_capture
 
     bundle, plan, scene, _ = setup
     plan_path, cal_path = save_plan_and_calibration(tmp_path, plan, bundle)

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 import specgpu.planning as E
 from specgpu.apps import estimator_study as study
-from specgpu.pipeline.recovery import capture_plan
+from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning import load_plan, make_plan, save_plan
 from specgpu.planning.estimators import interp_rows
 from specgpu.engine.linear_map import apply_linear
@@ -308,7 +308,8 @@ def _spread_over_sigma(plan, bundle, scene, draws, seed):
     ``draws`` noise draws, recovered and given their sigma as ``recover --sigma`` does; and the same with the
     light's fluctuation left out of the prediction."""
     from specgpu.planning.correction import ambient_index
-    from specgpu.pipeline.recovery import SequenceFolder, recover, uncertainty
+    from specgpu.pipeline.capture_folder import SequenceFolder
+    from specgpu.pipeline.recovery import recover, uncertainty
 
     ys, var, var_nl = [], [], []
     dark = bundle.dark_at(plan.exposure_s)
