@@ -188,3 +188,6 @@ from specgpu.pipeline.reference_motion import (  # noqa: E402
     check_reference_frames, estimate_reference_motion, interpolate_in_time)
 
 __all__ += ["check_reference_frames", "estimate_reference_motion", "interpolate_in_time"]
+from specgpu.pipeline.sequence_decoder import Corrections, SequenceDecoder, check_sequence, corrections_for  # noqa: E402
+
+__all__ += ["Corrections", "SequenceDecoder", "check_sequence", "corrections_for"]

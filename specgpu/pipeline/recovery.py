@@ -3,26 +3,22 @@ colorimetry of its outputs (:func:`to_XYZ`, :func:`to_Lab`); used by the CLI, ``
 viewer and the studies.
 
 The folder is read by :mod:`specgpu.pipeline.capture_folder`, captured on the twin by
-:mod:`specgpu.pipeline.twin_capture` and salvaged by :mod:`specgpu.pipeline.salvage`.
+:mod:`specgpu.pipeline.twin_capture` and salvaged by :mod:`specgpu.pipeline.salvage`; each sequence is decoded by
+:class:`specgpu.pipeline.sequence_decoder.SequenceDecoder`, whose corrections and warped pass the stream and the
+batch run too.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from specgpu.core.numerics import live_gain
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
-from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.capture_folder import SequenceFolder
 from specgpu.pipeline.evaluate import true_patch_spectra
-from specgpu.pipeline.moving import check_motion_mode
-from specgpu.pipeline.moving_layers import recover_moving
-from specgpu.pipeline.moving_residual import residual_check
+from specgpu.pipeline.sequence_decoder import SequenceDecoder, corrections_for
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
-from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
 from specgpu.planning.plans import Plan
-from specgpu.planning.reference_frames import reference_indices
 from specgpu.planning.uncertainty import (
     constant_covariance,
     frame_covariance,
@@ -103,91 +99,9 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     >>> cube.shape[:2], bool(abs(np.nanmedian(cube) - 0.99) < 0.05)
     ((240, 320), True)
     """
-    mode = check_motion_mode(motion)
-    if mode != "none":
-        return _recover_moving(folder, sequence, white_roi, out_dtype, device,
-                               "translation" if mode == "global" else mode)
-    if white_roi is not None or ambient_index(folder.plan) is not None:
-        plan, bundle = folder.plan, folder.calibration
-        picked, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
-        y, gain = None, live_gain(bundle.flat_field)
-        for fr, dark, A in decoded:
-            ys = np.asarray(apply_linear(fr, A, dark, gain, out_dtype=np.float32, device=device))
-            y = ys if y is None else y + ys
-        y = (y / len(picked)).astype(out_dtype)
-        saturated = np.any(folder.frames[list(picked)] >= bundle.max_code, axis=(0, 1))
-        if saturated.any():
-            y[saturated] = np.nan
-        return y
-    if sequence is None:
-        used = folder.frames
-        frames = used.mean(axis=0, dtype=np.float32) if folder.sequences > 1 else used[0]
-    else:
-        if not 0 <= sequence < folder.sequences:
-            raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
-        used = folder.frames[sequence:sequence + 1]
-        frames = used[0]
-    plan, bundle = folder.plan, folder.calibration
-    ratio = bundle.flat_ratio(plan.patterns)
-    if ratio is not None or bundle.reports.get("linearity_c_per_dn2", 0.0) > 0:
-        frames = _flatten_by_wavelength(frames, bundle.dark_at(plan.exposure_s), ratio, bundle)
-    y = apply_linear(frames, plan.A, bundle.dark_at(plan.exposure_s), live_gain(bundle.flat_field),
-                     out_dtype=out_dtype, device=device)
-    saturated = np.any(used >= bundle.max_code, axis=(0, 1))
-    if saturated.any():
-        y[saturated] = np.nan
-    return y
-
-
-def _recover_moving(folder: SequenceFolder, sequence, white_roi, out_dtype, device, model) -> np.ndarray:
-    """:func:`recover` of one sequence of a moving scene (``motion="global"`` or ``"affine"``)."""
-    if sequence is None:
-        if folder.sequences != 1:
-            raise ValueError(f"motion=global recovers one sequence at a time (the scene moves between sequences); "
-                             f"{folder.path} holds {folder.sequences}: give the sequence (--sequence N)")
-        sequence = 0
-    if not 0 <= sequence < folder.sequences:
-        raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
-    if white_roi is not None or ambient_index(folder.plan) is not None:
-        raise ValueError("motion=global does not combine with a reference white or an ambient frame yet (both "
-                         "assume the same pixels in every frame)")
-    plan, bundle = folder.plan, folder.calibration
-    frames = folder.frames[sequence]
-    dark = bundle.dark_at(plan.exposure_s)
-    ratio = bundle.flat_ratio(plan.patterns)
-    if ratio is not None or bundle.reports.get("linearity_c_per_dn2", 0.0) > 0:
-        frames = _flatten_by_wavelength(frames, dark, ratio, bundle)
-    res = recover_moving(frames, plan.A, dark=dark, gain=bundle.flat_field, saturation=float(bundle.max_code),
-                         model=model, device=device, reference_frames=reference_indices(plan),
-                         residual=residual_check(plan, bundle))
-    return res.y.astype(out_dtype, copy=False)
-
-
-def _sequence_decoders(folder: SequenceFolder, sequence, white_roi, white_reflectance):
-    """What :func:`recover` decodes each picked sequence with, when it decodes them one by one (a white ROI or an
-    ambient frame): the picked indices and, per sequence, its corrected frames (linearised, per-pattern flat
-    ratio), the level subtracted (the ambient frame or the calibration's dark) and its decoder."""
-    plan, bundle = folder.plan, folder.calibration
-    amb = ambient_index(plan)
-    picked = range(folder.sequences) if sequence is None else [sequence]
-    if sequence is not None and not 0 <= sequence < folder.sequences:
-        raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
-    ratio = bundle.flat_ratio(plan.patterns)
-    prepared = []
-    for s in picked:
-        fr = folder.frames[s]
-        dark = fr[amb].astype(np.float32) if amb is not None else bundle.dark_at(plan.exposure_s)
-        fr = _flatten_by_wavelength(fr, dark, ratio, bundle)
-        gains = None if white_roi is None else white_gains(fr, plan, bundle, white_roi, white_reflectance,
-                                                            dark=dark)
-        prepared.append((fr, dark, gains))
-    if white_roi is None:
-        return picked, [(fr, dark, plan.A) for fr, dark, _ in prepared]
-    # The light's colour drifts over hours: one colour fit on the sequences' mean gains (each frame's own power
-    # fluctuation averages down), then each sequence's frames rescaled by its own gains.
-    mean_gains = np.exp(np.mean([np.log(g) for _, _, g in prepared], axis=0))
-    A_mean = corrected_decoder(plan, mean_gains, bundle, white_reflectance, sequences=len(prepared))
-    return picked, [(fr, dark, A_mean / (gains / mean_gains)[None, :]) for fr, dark, gains in prepared]
+    return SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi, white_reflectance=white_reflectance,
+                           motion=motion, device=device).decode(folder.frames, sequence=sequence, where=folder.path,
+                                                                out_dtype=out_dtype)
 
 
 def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illuminant: str | None = None,
@@ -196,23 +110,25 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
     """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames, options and
     corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
     covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.uncertainty`); NaN where saturated."""
-    used = folder.frames if sequence is None else folder.frames[sequence:sequence + 1]
-    if sequence is not None and not 0 <= sequence < folder.sequences:
-        raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
-    plan, bundle = folder.plan, folder.calibration
+    dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi, white_reflectance=white_reflectance,
+                          device=device)
+    picked = dec.picked(folder.frames, sequence, folder.path)
+    plan, bundle, corr = folder.plan, folder.calibration, dec.corrections
     gain = bundle.flat_field
     M = None if illuminant is None else plan.outputs_to_XYZ(illuminant, observer, integration)
     cov = None
-    if white_roi is not None or ambient_index(plan) is not None:
+    if corr.per_sequence:
         # decoded one sequence at a time by its own decoder: the variance of their mean is the sum of each
         # sequence's frame noise over S^2, plus what no frame shows (the prior's mismatch). A white reference's
         # gains rescale each sequence's decoder by its own frames' power, so the light's fluctuation is divided
         # out there; with the ambient frame alone it stays, at each frame's own signal above that frame. An
-        # ambient frame brings its own noise, and the room light's shot noise in every frame.
-        _, decoded = _sequence_decoders(folder, sequence, white_roi, white_reflectance)
+        # ambient frame brings its own noise, and the room light's shot noise in every frame. The noise model
+        # is of the sensor's samples: the corrected frames on its scale.
+        decoded = [(signal + level[None], level, A)
+                   for signal, level, A in dec.sequence_decoders(folder.frames, picked)]
         S = len(decoded)
-        kw = {"light": white_roi is None, "device": device,
-              "ambient_dark": None if ambient_index(plan) is None else bundle.dark_at(plan.exposure_s)}
+        kw = {"light": corr.white_roi is None, "device": device,
+              "ambient_dark": None if corr.ambient is None else corr.dark}
         const = constant_covariance(plan)
         var = sum(frame_variance(fr, plan, dark, gain, A=A, **kw) for fr, dark, A in decoded) / S ** 2
         sigma = np.sqrt(np.maximum(var + np.diag(const).astype(np.float32), 0.0)).astype(np.float32)
@@ -220,15 +136,11 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
             cov = sum(frame_covariance(fr, plan, dark, gain, M, A=A, **kw)
                       for fr, dark, A in decoded) / S ** 2 + M @ const @ M.T
     else:
-        frames = used.mean(axis=0, dtype=np.float32) if used.shape[0] > 1 else used[0]
-        dark = bundle.dark_at(plan.exposure_s)
-        ratio = bundle.flat_ratio(plan.patterns)
-        if ratio is not None or bundle.reports.get("linearity_c_per_dn2", 0.0) > 0:
-            frames = _flatten_by_wavelength(frames, dark, ratio, bundle)  # as recover decodes them
-        sigma = sigma_map(frames, plan, dark, gain, sequences=used.shape[0], device=device)
+        frames = corr.sensor(dec.mean_frames(folder.frames, picked))  # as recover decodes them
+        sigma = sigma_map(frames, plan, corr.dark, gain, sequences=len(picked), device=device)
         if M is not None:
-            cov = output_covariance(frames, plan, dark, gain, M, sequences=used.shape[0], device=device)
-    saturated = np.any(used >= bundle.max_code, axis=(0, 1))
+            cov = output_covariance(frames, plan, corr.dark, gain, M, sequences=len(picked), device=device)
+    saturated = dec.saturated(folder.frames, picked)
     if saturated.any():
         sigma[saturated] = np.nan
         if cov is not None:
@@ -248,7 +160,7 @@ def dark_warning(folder: SequenceFolder, sequence: int | None = None) -> str | N
     noise, from the plan's noise model, 1 DN without one, plus 0.5 DN).
     """
     plan, bundle = folder.plan, folder.calibration
-    if ambient_index(plan) is not None:
+    if corrections_for(bundle, plan).ambient is not None:
         return None
     t = float(plan.exposure_s)
     reasons = []
@@ -277,25 +189,6 @@ def dark_warning(folder: SequenceFolder, sequence: int | None = None) -> str | N
         return None
     return (f"dark level not trusted ({bundle.dark_at(t).mean():.1f} DN subtracted, no ambient frame): "
             + "; ".join(reasons) + "; plan with --ambient")
-
-
-def corrected_signal(frames, dark, ratio, bundle=None) -> np.ndarray:
-    """(K, H, W) float32 signal above ``dark`` (one level per pixel), linearized (the sensor's compression measured
-    by calibration) and multiplied by the per-pattern flat-field ratio (a calibration's wavelength-dependent flat
-    field, :meth:`CalibrationBundle.flat_ratio`; None: 1): what :func:`recover` decodes."""
-    f = np.asarray(frames, np.float32) - np.asarray(dark, np.float32)[None]
-    if bundle is not None:
-        f = np.asarray(bundle.linearize(f), np.float32)
-    if ratio is not None:
-        f *= ratio
-    return f
-
-
-def _flatten_by_wavelength(frames, dark, ratio, bundle=None) -> np.ndarray:
-    """:func:`corrected_signal` with ``dark`` added back (frames for a linear map that subtracts it)."""
-    f = corrected_signal(frames, dark, ratio, bundle)
-    f += np.asarray(dark, np.float32)[None]
-    return f
 
 
 def to_XYZ(y: np.ndarray, plan: Plan, illuminant: str = "D65", *, observer: str | None = None,
