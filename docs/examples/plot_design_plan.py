@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from specgpu.calibration import oracle_calibration
-from specgpu.pipeline import default_basis
+from specgpu.pipeline.recovery import default_basis
 from specgpu.planning import budget_plan
 from specgpu.rig import load_rig
 

@@ -11,7 +11,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import specgpu
-from specgpu.pipeline import capture_plan, default_basis, evaluate_reflectance, true_patch_spectra
+from specgpu.pipeline import capture_plan, evaluate_reflectance
+from specgpu.pipeline.recovery import default_basis
+from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
 
 # %%

@@ -44,7 +44,8 @@ from specgpu.apps.table1 import Table1, equal_time_rows, method_rows, table1, ta
 from specgpu.calibration import calibrate, save_calibration
 from specgpu.calibration.bundle import calibration_error
 from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
-from specgpu.pipeline.recovery import EVALUATION_CHART, SequenceFolder, default_basis, uncertainty, write_capture
+from specgpu.pipeline.capture_folder import SequenceFolder, write_capture
+from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis, uncertainty
 from specgpu.planning import default_prior, make_plan, save_plan
 from specgpu.planning.priors import training_spectra
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans

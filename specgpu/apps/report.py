@@ -44,7 +44,8 @@ from specgpu.pipeline.evaluate import (
 )
 from specgpu.pipeline.motion_record import motion_notice, moved, without_motion
 from specgpu.pipeline.moving import sequence_truth
-from specgpu.pipeline.recovery import read_capture, recover, uncertainty
+from specgpu.pipeline.capture_folder import read_capture
+from specgpu.pipeline.recovery import recover, uncertainty
 from specgpu.rig.scene import colorchecker_scene, load_scene
 
 __all__ = ["RENDER_ILLUMINANTS", "MethodSummary", "summarise_method", "report_page", "summary_table",

@@ -36,7 +36,8 @@ from specgpu.pipeline.batch import BATCH_FORMAT
 from specgpu.pipeline.batch_output import open_batch_output
 from specgpu.pipeline.motion_record import motion_notice, moved
 from specgpu.pipeline.moving import TRUTH_FOLDER, truth_name
-from specgpu.pipeline.recovery import PLAN_FILE, SequenceFolder, read_capture_header, recover
+from specgpu.pipeline.capture_folder import PLAN_FILE, SequenceFolder, read_capture_header
+from specgpu.pipeline.recovery import recover
 from specgpu.planning.plans import load_plan
 
 __all__ = ["CUBE_SUFFIXES", "napari_get_reader", "read_layers", "cube_layers", "map_layers", "sequence_layers",

@@ -12,10 +12,13 @@ from .moving import MOTION_MODES, MotionEstimate, estimate_global_motion
 from .moving_decode import MovingDecoder
 from .moving_layers import MovingRecovery, recover_moving
 from .projector import PROJECTOR_TARGETS, ProjectionReport, metamer_map, project, render_scene
-from .recovery import SequenceFolder, capture_plan, read_capture, recover, write_capture
+from .capture_folder import SequenceFolder, read_capture, write_capture
+from .recovery import recover
+from .sequence_decoder import SequenceDecoder, corrections_for
 from .sinks import CallbackSink, ExrSequenceWriter, PreviewSink, Sink, StreamResult
 from .stream import Stream
 from .stream_report import StreamReport
+from .twin_capture import capture_plan
 
 __all__ = [
     "AccumulateSink",
@@ -24,6 +27,7 @@ __all__ = [
     "BatchJob",
     "BatchOutput",
     "BatchReport",
+    "corrections_for",
     "CallbackSink",
     "capture_into",
     "capture_plan",
@@ -52,6 +56,7 @@ __all__ = [
     "recover_moving",
     "render_scene",
     "run_batch",
+    "SequenceDecoder",
     "SequenceFolder",
     "Sink",
     "Stream",

@@ -1,5 +1,5 @@
 """A capture of a plan's sequences on a rig (the twin or the real devices), each complete sequence handed to a
-writer as it arrives: a sequence folder (:class:`~specgpu.pipeline.recovery.CaptureWriter`) or a zarr recording of
+writer as it arrives: a sequence folder (:class:`~specgpu.pipeline.capture_folder.CaptureWriter`) or a zarr recording of
 the raw frames (:class:`ZarrCapture`); and what a capture cut short keeps."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 from specgpu.capture.session import capture_sequences
 from specgpu.hardware.drivers import open_rig_driver
 from specgpu.io.recording import ZarrRecorder, check_free_space
-from specgpu.pipeline import moving, recovery
+from specgpu.pipeline import moving, twin_capture
 from specgpu.pipeline.sinks import StreamResult
 import os
 from typing import TYPE_CHECKING
@@ -58,7 +58,7 @@ class ZarrCapture:
 
 def capture_into(writer, on_sequence, description: RigDescription, hardware, plan: Plan, bundle: CalibrationBundle,
                  truth, sequences, seed):
-    """Capture on the twin (:func:`~specgpu.pipeline.recovery.capture_plan`) or the rig's devices, each complete
+    """Capture on the twin (:func:`~specgpu.pipeline.twin_capture.capture_plan`) or the rig's devices, each complete
     sequence written as it arrives, then ``on_sequence()``; returns the capture's result."""
 
     # a moving twin: each sequence's truth at its reference time kept beside its frames (a sequence folder)
@@ -72,7 +72,7 @@ def capture_into(writer, on_sequence, description: RigDescription, hardware, pla
         on_sequence()
 
     if hardware is None:
-        return recovery.capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed,
+        return twin_capture.capture_plan(description, plan, truth, sequences=sequences, noise_seed=seed,
                                      on_sequence=keep, calibration=bundle)
     # real devices: the same ring buffer and assembler, the plan uploaded to the light
     driver = open_rig_driver(description, plan, hardware=hardware, calibration=bundle, n_frames=plan.K * sequences)

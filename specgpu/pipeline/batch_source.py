@@ -14,7 +14,8 @@ import numpy as np
 from specgpu.core.spectra import DEFAULT_CMFS
 from specgpu.io.sequence import check_frame_files, read_frames
 from specgpu.io.recording import chunk_keys, open_recording, patterns_hash
-from specgpu.pipeline.recovery import read_capture_header
+from specgpu.pipeline.capture_folder import read_capture_header
+from specgpu.pipeline.sequence_decoder import check_sequence
 
 __all__ = ["open_source", "reference_label"]
 
@@ -110,8 +111,7 @@ class _FolderSource:
         return digest.hexdigest()
 
     def frames(self, i: int) -> np.ndarray:
-        if not 0 <= i < self.sequences:
-            raise ValueError(f"sequence {i} is out of range: {self.path} holds {self.sequences}")
+        check_sequence(i, self.sequences, self.path)
         return read_frames(self.path, self.records, self.meta, i * self.K, (i + 1) * self.K)
 
     def frame_ids(self) -> np.ndarray:

@@ -17,8 +17,8 @@ from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.engine.guided import guided_filter
 from specgpu.engine.runtime import get_allocator
 from specgpu.pipeline.denoise import stream_denoise
-from specgpu.pipeline.recovery import corrected_signal
-from specgpu.planning.correction import WhiteReference, ambient_index
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
+from specgpu.planning.correction import WhiteReference
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.uncertainty import ambient_variance, constant_covariance, variance_rows
 from numpy.typing import ArrayLike
@@ -118,7 +118,14 @@ class StreamDecoder:
         self.method = validate_method(method, DELTA_E_METHODS) if "dE" in outputs else method
         self.illuminant = illuminant = plan.resolve_illuminant(illuminant)
         self.observer = observer = plan.resolve_observer(observer)
-        dark = calibration.dark_at(plan.exposure_s)
+        # what the calibration and plan ask of the frames before the linear map (the sensor's linearisation, the
+        # per-pattern flat field, a plan's ambient frame subtracted instead of the dark level): none of them is
+        # linear in one per-pixel map, so they run on the host (prepare_frames), the level subtracted there too,
+        # and the kernels take float32 frames with no dark
+        self.sequence = SequenceDecoder(plan, calibration, white_roi=white_roi, white_reflectance=white_reflectance,
+                                        device=queue)
+        self.corrections = corrections = self.sequence.corrections
+        dark = corrections.dark
         gain = live_gain(calibration.flat_field)  # NaN where a pixel has no response: its outputs NaN
         if tuple(np.shape(dark)) != (self.height, self.width):
             raise ValueError(f"calibration maps are {np.shape(dark)} but the frames are {self.height} x {self.width}")
@@ -126,18 +133,11 @@ class StreamDecoder:
         # pipeline.recover makes them (flagged by the first kernel of a sequence, applied on the host)
         self.saturation = float(calibration.max_code)
         self._prepared: dict = {}
-        # corrections recover applies to the frames before the linear map: the sensor's linearisation, the
-        # wavelength-dependent flat field (per pattern) and a plan's ambient frame (subtracted instead of the
-        # dark level). None of them is linear in one per-pixel map, so they run on the host (prepare_frames),
-        # the dark level subtracted there too, and the kernels take float32 frames with no dark
         self._calibration = calibration
-        self._ratio = calibration.flat_ratio(plan.patterns)
-        self._ambient = ambient_index(plan)
-        self._linearize = calibration.reports.get("linearity_c_per_dn2", 0.0) > 0
-        self._dark_host = np.asarray(dark, np.float32)
-        self.precorrect = self._ratio is not None or self._ambient is not None or self._linearize
+        self._ambient = corrections.ambient
+        self.precorrect = corrections.host
         if self.precorrect:
-            dark = np.zeros_like(self._dark_host)
+            dark = np.zeros_like(corrections.dark)
             self.saturation = _PRECORRECT_SATURATION  # saturated samples are marked by prepare_frames
         self.dark = engine.to_device(queue, np.asarray(dark, np.float32).reshape(-1))
         self.gain = engine.to_device(queue, np.asarray(gain, np.float32).reshape(-1))
@@ -162,8 +162,6 @@ class StreamDecoder:
             self.M = self.to_XYZ @ A
             self.white = plan.white_XYZ(illuminant, observer, integration)
         # the white reference: parsed and checked now (an ROI outside the frame is refused before any streaming)
-        if white_reflectance is not None and white_roi is None:
-            raise ValueError("--white-reflectance needs --white-roi")
         self.white_reference = None
         if white_roi is not None:
             self.white_reference = WhiteReference(plan, calibration, white_roi, white_reflectance,
@@ -284,12 +282,12 @@ class StreamDecoder:
         maximum
         code is set to a marker the kernels flag as saturated."""
         raw = np.asarray(raw)
-        dark = raw[self._ambient].astype(np.float32) if self._ambient is not None else self._dark_host
-        f = corrected_signal(raw, dark, self._ratio, self._calibration)
+        level = self.corrections.level(raw)
+        f = self.corrections.signal(raw, level)
         if self._ambient is not None and self.noise is not None:
             # the ambient frame's plane (a zero column of the decoder) carries its own variance sample for the
             # uncertainty launches (estimators.frame_variance)
-            f[self._ambient] = ambient_variance(dark, self._dark_host, self.noise)
+            f[self._ambient] = ambient_variance(level, self.corrections.dark, self.noise)
         f[raw >= self._calibration.max_code] = _PRECORRECT_MARK
         return f
 

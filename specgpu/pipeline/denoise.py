@@ -24,6 +24,7 @@ from specgpu.core.numerics import live_gain
 from specgpu.core.validate import check_number
 from specgpu.engine.guided import box_box_variance, guided_filter
 from specgpu.engine.linear_map import apply_linear
+from specgpu.pipeline.sequence_decoder import check_sequence
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
 from numpy.typing import ArrayLike
@@ -39,9 +40,8 @@ DENOISE_EPS = 1e-4
 
 
 def _mean_frames(folder, sequence):
+    check_sequence(sequence, folder.sequences, folder.path)
     used = folder.frames if sequence is None else folder.frames[sequence:sequence + 1]
-    if sequence is not None and not 0 <= sequence < folder.sequences:
-        raise ValueError(f"sequence {sequence} is out of range: {folder.path} holds {folder.sequences}")
     frames = used.mean(axis=0, dtype=np.float32) if used.shape[0] > 1 else used[0].astype(np.float32)
     plan, bundle = folder.plan, folder.calibration
     amb = ambient_index(plan)

@@ -41,7 +41,7 @@ def _rig_motion(source):
 
 def moved(source) -> bool:
     """Whether ``source`` moved while it was captured: a rig description (its ``[motion]`` table moves the twin's
-    world), or a sequence folder (a path or a :class:`~specgpu.pipeline.recovery.SequenceFolder`: it keeps the
+    world), or a sequence folder (a path or a :class:`~specgpu.pipeline.capture_folder.SequenceFolder`: it keeps the
     motion truth of its sequences, which a capture on a moving twin records)."""
     motion = _rig_motion(source)
     if motion is not None:

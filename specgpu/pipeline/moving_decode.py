@@ -29,9 +29,7 @@ from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E
 from specgpu.pipeline.moving import check_motion_mode
 from specgpu.pipeline.moving_flow import MIN_FRAMES
-from specgpu.pipeline.moving_layers import recover_moving
-from specgpu.pipeline.moving_residual import residual_check
-from specgpu.pipeline.recovery import corrected_signal
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.reference_frames import reference_indices
 from specgpu.planning.uncertainty import constant_variance, frame_variance
@@ -43,15 +41,10 @@ if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle
     from specgpu.planning.plans import Plan
 
-__all__ = ["MOTION_OUTPUTS", "MovingDecoder", "check_motion_options", "motion_model"]
+__all__ = ["MOTION_OUTPUTS", "MovingDecoder", "check_motion_options"]
 
 #: The outputs a motion-compensated decoding carries: linear maps of the warped samples, and colour from them.
 MOTION_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma_rms")
-
-
-def motion_model(mode: str) -> str:
-    """The estimator's model of a motion mode (``"global"``: one translation per frame)."""
-    return "translation" if mode == "global" else mode
 
 
 def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, white_roi=None) -> str:
@@ -113,7 +106,6 @@ class MovingDecoder:
         if mode == "none":
             raise ValueError("a MovingDecoder needs a motion mode other than none")
         self.plan, self.calibration, self.outputs = plan, calibration, tuple(outputs)
-        self.model = motion_model(mode)
         self.device = device
         self.cube_dtype = np.dtype(cube_dtype)
         self.illuminant = plan.resolve_illuminant(illuminant)
@@ -123,11 +115,9 @@ class MovingDecoder:
         self.reference = None if reference is None else np.asarray(reference, np.float32)
         if "dE" in self.outputs and self.reference is None:
             raise ValueError("the dE output needs a reference (an L,a,b colour or a per-pixel Lab image)")
-        self.dark = np.asarray(calibration.dark_at(plan.exposure_s), np.float32)
-        self.reference_frames = reference_indices(plan)  # the motion from them where the plan has them
-        self.residual = residual_check(plan, calibration)  # every pixel's samples judged against the plan's model
-        self.ratio = calibration.flat_ratio(plan.patterns)
-        self.precorrect = self.ratio is not None or calibration.reports.get("linearity_c_per_dn2", 0.0) > 0
+        # the corrections, the motion estimate and the warped pass: recover --motion's, run on the stacked rows
+        self.sequence = SequenceDecoder(plan, calibration, motion=mode, device=device)
+        self.dark = self.sequence.corrections.dark
         A = np.asarray(plan.A, np.float64)
         rows, self.slices = [], {}
 
@@ -160,24 +150,17 @@ class MovingDecoder:
         self._lock = threading.Lock()  # decode may run on several threads at once (the stream's)
 
     def frames(self, raw: ArrayLike) -> np.ndarray:
-        """The frames the estimator and the warped pass read: ``raw``, or corrected as recover corrects them
-        (linearised, per-pattern flat ratio; the dark level added back, the pass subtracts it)."""
-        if not self.precorrect:
-            return np.asarray(raw)
-        f = corrected_signal(raw, self.dark, self.ratio, self.calibration)
-        f += self.dark[None]
-        return f
+        """The frames the estimator, the warped pass and the noise model read: ``raw`` corrected as recover
+        corrects them, on the sensor's scale (:meth:`specgpu.pipeline.sequence_decoder.Corrections.sensor`)."""
+        return self.sequence.corrections.sensor(raw)
 
     def decode(self, raw: ArrayLike) -> dict:
         """The maps of one sequence (K, H, W) by output name, plus ``mask`` (H, W) uint8 (1 saturated, 4 outside
         the field, 8 inconsistent, 16 decoded with an object's own motion), NaN where masked; ``estimate``: the
         sequence's :class:`specgpu.pipeline.moving.MotionEstimate`; ``layers``: its
         :class:`specgpu.pipeline.moving_layers.ObjectLayer` list."""
-        frames = self.frames(raw)
         steps = {}
-        rec = recover_moving(frames, self.matrix, dark=self.dark, gain=self.calibration.flat_field,
-                             saturation=float(self.calibration.max_code), model=self.model, device=self.device,
-                             seconds=steps, reference_frames=self.reference_frames, residual=self.residual)
+        rec = self.sequence.warped(raw, self.matrix, seconds=steps)
         y, mask, est = rec.y, rec.mask, rec.estimates[0]
         t3 = time.perf_counter()
         out = {}
@@ -195,7 +178,7 @@ class MovingDecoder:
         if "XYZ" not in self.outputs:
             out.pop("XYZ", None)
         if "sigma_rms" in self.outputs:
-            out["sigma_rms"] = self.sigma_rms(frames, rec)
+            out["sigma_rms"] = self.sigma_rms(self.frames(raw), rec)
         with self._lock:
             for step, seconds in {**steps, "colour": time.perf_counter() - t3}.items():
                 self.seconds[step] += seconds

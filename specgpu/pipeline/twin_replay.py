@@ -16,7 +16,8 @@ from specgpu.capture.assemble import AssemblyStats, Sequence
 from specgpu.capture.replay import ReplayDriver, record
 from specgpu.capture.twin_driver import TwinDriver
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
-from specgpu.pipeline.recovery import default_basis, read_capture, recover, to_Lab, to_XYZ, write_capture
+from specgpu.pipeline.recovery import default_basis, recover, to_Lab, to_XYZ
+from specgpu.pipeline.capture_folder import read_capture, write_capture
 from specgpu.planning.basis_plans import plan_symmetric_basis
 from specgpu.planning.plans import save_plan
 from specgpu.rig.config import RigDescription

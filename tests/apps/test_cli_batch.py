@@ -696,7 +696,8 @@ def test_the_batch_applies_recovers_frame_corrections(made, tmp_path):
     equal recover's (and its to_XYZ) to float rounding, and differ from an uncorrected decode."""
     from dataclasses import replace
 
-    from specgpu.pipeline.recovery import read_capture, recover, to_XYZ
+    from specgpu.pipeline.capture_folder import read_capture
+    from specgpu.pipeline.recovery import recover, to_XYZ
 
     setup, root = made
     plan, b = plan_and_calibration(root)

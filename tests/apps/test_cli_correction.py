@@ -28,7 +28,7 @@ def test_cli_recover_white_roi_outside_frame(setup, tmp_path):
     from click.testing import CliRunner
 
     from specgpu.apps.cli import main
-    from specgpu.pipeline.recovery import save_plan_and_calibration, write_capture
+    from specgpu.pipeline.capture_folder import save_plan_and_calibration, write_capture
 
     bundle, plan, scene, _ = setup
     plan_path, cal_path = save_plan_and_calibration(tmp_path, plan, bundle)

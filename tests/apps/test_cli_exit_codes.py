@@ -182,7 +182,7 @@ def test_salvage_interrupted_once_its_index_is_written_says_it_kept_it(tmp_path,
 
 
 def test_capture_interrupted_after_two_sequences_says_it_kept_them(made, tmp_path, monkeypatch):
-    import specgpu.pipeline.recovery as pipeline
+    import specgpu.pipeline.twin_capture as pipeline
 
     real = pipeline.capture_plan
 

@@ -140,7 +140,8 @@ def test_the_stream_preview_shows_a_white_under_A_as_white(tmp_path):
 
 def test_the_demo_files_of_a_plan_for_A_record_A(bench_a, tmp_path):
     from specgpu.apps.demo import _evaluate
-    from specgpu.pipeline.recovery import read_capture, recover
+    from specgpu.pipeline.capture_folder import read_capture
+    from specgpu.pipeline.recovery import recover
     from specgpu.rig.scene import colorchecker_scene
 
     folder = read_capture(bench_a / "seqA")

@@ -52,7 +52,7 @@ def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
     says)."""
     import zarr
 
-    from specgpu.pipeline.recovery import read_capture
+    from specgpu.pipeline.capture_folder import read_capture
 
     rig, cal, _ = hadamard_rig(tmp_path, bundle)
     run("capture", "--rig", rig, "--calib", cal, "--plan", tmp_path / "p.npz", "--scene", "natural", "--out",

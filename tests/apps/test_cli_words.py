@@ -141,7 +141,7 @@ def test_recover_on_a_zarr_recording_points_to_batch(rig, tmp_path):
 def test_read_capture_names_a_recording_without_frames(tmp_path):
     import zarr
 
-    from specgpu.pipeline.recovery import read_capture
+    from specgpu.pipeline.capture_folder import read_capture
 
     group = zarr.open_group(str(tmp_path / "r.zarr"), mode="w", zarr_format=3)
     group.attrs.update({"format": "specgpu.recording", "frames": False})

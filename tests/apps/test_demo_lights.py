@@ -6,7 +6,8 @@ from estimator_helpers import DESC
 
 from specgpu.apps.demo_lights import LED_LABEL, led_draws, led_rig
 from specgpu.apps.table1 import Table1, equal_time_rows, table1_text
-from specgpu.planning import default_prior, training_spectra
+from specgpu.planning import default_prior
+from specgpu.planning.priors import training_spectra
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis
 
 

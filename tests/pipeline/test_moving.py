@@ -17,7 +17,8 @@ from specgpu.pipeline.moving import (MASK_INCONSISTENT, MAX_SPEED_PX_PER_FRAME, 
 from specgpu.pipeline import moving
 from specgpu.pipeline.moving_layers import grow_flags, recover_moving
 from specgpu.pipeline.registration import fit_peak_within, second_peak_ratio
-from specgpu.pipeline.recovery import SequenceFolder, default_basis, recover
+from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.recovery import default_basis, recover
 from specgpu.planning.basis_plans import plan_symmetric_basis
 from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.motion import MotionParameters

@@ -14,8 +14,9 @@ from specgpu.capture.assemble import AssemblyStats
 from specgpu.engine.colorimetry import delta_E
 from specgpu.pipeline.batch import run_batch
 from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
-from specgpu.pipeline.recovery import read_capture, recover, save_plan_and_calibration, to_Lab, to_XYZ, write_capture
-from specgpu.pipeline.recovery import capture_plan
+from specgpu.pipeline.capture_folder import read_capture, save_plan_and_calibration, write_capture
+from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ
+from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.registry import make_plan
@@ -130,7 +131,7 @@ def streamed(plan, bundle, motion, sequences=2):
 def test_a_stream_with_motion_equals_recover_with_motion_of_the_same_frames(moving):
     from pathlib import Path
 
-    from specgpu.pipeline.recovery import SequenceFolder
+    from specgpu.pipeline.capture_folder import SequenceFolder
 
     _, plan, bundle, _, _ = moving
     compensated = streamed(plan, bundle, "global")
@@ -156,7 +157,7 @@ def test_a_stream_with_motion_equals_recover_with_motion_of_the_same_frames(movi
 def test_a_stream_and_a_batch_with_a_flow_equal_recover_with_a_flow(moving, tmp_path):
     import zarr
 
-    from specgpu.pipeline.recovery import SequenceFolder
+    from specgpu.pipeline.capture_folder import SequenceFolder
 
     root, plan, bundle, _, _ = moving
     for maps, frames, estimate in streamed(plan, bundle, "flow"):

@@ -7,7 +7,7 @@ import pytest
 
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning import make_plan
-from specgpu.pipeline.recovery import capture_plan, check_scene_covers
+from specgpu.pipeline.twin_capture import capture_plan, check_scene_covers
 from specgpu.rig.config import rig_from_dict
 from specgpu.rig.scene import read_scene, white_plate_scene
 

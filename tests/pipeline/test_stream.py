@@ -21,7 +21,8 @@ from specgpu.pipeline.twin_replay import offline_maps, stream_setup
 from specgpu.capture.session import capture_sequences
 from specgpu.capture.twin_driver import TwinDriver
 from specgpu.engine.colorimetry import delta_E
-from specgpu.pipeline.recovery import SequenceFolder, recover, to_Lab, to_XYZ
+from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ
 from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.rig.twin import FaultSchedule, TwinRig
 from specgpu.pipeline import ExrSequenceWriter, PreviewSink, Stream

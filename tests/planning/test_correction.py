@@ -12,7 +12,9 @@ from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning.correction import (ambient_index, corrected_decoder, parse_roi, probe_indices, white_gains,
                                 white_reflectance_curve, with_ambient_frame, with_drift_probes)
 from specgpu.pipeline.evaluate import evaluate_reflectance
-from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover
+from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.recovery import recover
+from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning import make_plan
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
@@ -182,7 +184,7 @@ def test_drift_probe_lets_a_three_frame_plan_follow_a_colour_drift(setup):
 
 
 def test_colour_is_fitted_once_on_the_sequences_mean_gains(setup, monkeypatch):
-    import specgpu.pipeline.recovery as recovery
+    import specgpu.pipeline.sequence_decoder as decoding
     import specgpu.planning.correction as corr
 
     bundle, plan, scene, roi = setup
@@ -190,7 +192,7 @@ def test_colour_is_fitted_once_on_the_sequences_mean_gains(setup, monkeypatch):
     real = corr.corrected_decoder
     # patch the name where recover looks it up: its module's own binding when it imports the name at the top,
     # else the correction module's attribute (read at call time); a missed patch leaves ``seen`` empty
-    where = recovery if hasattr(recovery, "corrected_decoder") else corr
+    where = decoding if hasattr(decoding, "corrected_decoder") else corr
     monkeypatch.setattr(where, "corrected_decoder",
                         lambda p, g, *a, **k: seen.append(np.array(g)) or real(p, g, *a, **k))
     res = capture_plan(DESC, plan, scene, noise_seed=2, calibration=bundle, sequences=3)

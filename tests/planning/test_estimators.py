@@ -10,7 +10,7 @@ import specgpu.planning as E
 from specgpu.planning.estimators import forward, output_weights, smooth_decoder
 from specgpu.planning.priors import HELD_OUT_CHART, held_out_spectra, read_training, subspace_bound
 from specgpu.planning.uncertainty import constant_covariance, constant_variance, frame_variance, variance_rows
-from specgpu.pipeline.recovery import capture_plan
+from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning import load_plan, make_plan, save_plan
 from specgpu.planning.estimator_plans import chart_error
 from specgpu.planning.estimators import interp_rows
@@ -312,7 +312,8 @@ def _spread_over_sigma(plan, bundle, scene, draws, seed):
     ``draws`` noise draws, recovered and given their sigma as ``recover --sigma`` does; and the same with the
     light's fluctuation left out of the prediction."""
     from specgpu.planning.correction import ambient_index
-    from specgpu.pipeline.recovery import SequenceFolder, recover, uncertainty
+    from specgpu.pipeline.capture_folder import SequenceFolder
+    from specgpu.pipeline.recovery import recover, uncertainty
 
     ys, var, var_nl = [], [], []
     dark = bundle.dark_at(plan.exposure_s)

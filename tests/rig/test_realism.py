@@ -242,7 +242,7 @@ def test_clock_runs_through_calibration_and_sets_the_capture_start():
 
 
 def test_capture_clock_starts_where_calibration_ended(monkeypatch):
-    import specgpu.pipeline.recovery as pipeline
+    import specgpu.pipeline.twin_capture as pipeline
 
     seen = {}
 

@@ -127,7 +127,8 @@ def test_ideal_bench_keeps_its_plans(tmp_path):
 
 def test_dark_warning_names_an_exposure_outside_the_measured_range(lab):
     """A bundle measured its dark level at some exposures only: a plan exposed outside them is flagged."""
-    from specgpu.pipeline.recovery import SequenceFolder, dark_warning
+    from specgpu.pipeline.capture_folder import SequenceFolder
+    from specgpu.pipeline.recovery import dark_warning
     from specgpu.planning import make_plan
 
     d, _, _ = lab

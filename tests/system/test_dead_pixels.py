@@ -14,7 +14,8 @@ from specgpu.core.numerics import DEAD_PIXEL_GAIN
 from specgpu.pipeline import Stream
 from specgpu.planning import NoiseModel, smooth_prior, with_estimator
 from specgpu.pipeline.moving_layers import recover_moving
-from specgpu.pipeline.recovery import SequenceFolder, recover, uncertainty
+from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.recovery import recover, uncertainty
 from specgpu.planning.correction import white_gains
 from specgpu.rig import camera as camera_module
 from specgpu.rig.scene import white_tile_roi

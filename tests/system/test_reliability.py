@@ -147,7 +147,7 @@ def test_capture_replaces_an_interrupted_capture(base, tmp_path):
 
 # ---- an existing --out refused before capturing; frames written as they arrive ------------------------
 def test_capture_refuses_an_existing_sequence_before_capturing(base, seq, monkeypatch):
-    import specgpu.pipeline.recovery as pipeline
+    import specgpu.pipeline.twin_capture as pipeline
 
     def no_capture(*args, **kwargs):
         raise AssertionError("captured before refusing the folder")
@@ -158,7 +158,7 @@ def test_capture_refuses_an_existing_sequence_before_capturing(base, seq, monkey
 
 
 def test_capture_writes_each_sequence_as_it_arrives(base, tmp_path, monkeypatch):
-    import specgpu.pipeline.recovery as pipeline
+    import specgpu.pipeline.twin_capture as pipeline
 
     real = pipeline.capture_plan
     on_disk = []

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 from specgpu import io
 from specgpu.io import sequence as io_sequence
-from specgpu.pipeline.recovery import INCOMPLETE_MARKER
+from specgpu.pipeline.capture_folder import INCOMPLETE_MARKER
 
 from cli_helpers import one_line_error, run, tristimulus_rig
 
@@ -37,7 +37,7 @@ def capture_args(base, out):
 
 def stop_after(monkeypatch, n, error):
     """capture_plan raises ``error`` once ``n`` sequences have been handed to the writer."""
-    import specgpu.pipeline.recovery as pipeline
+    import specgpu.pipeline.twin_capture as pipeline
 
     real = pipeline.capture_plan
 
@@ -102,7 +102,7 @@ def test_disk_full_mid_sequence_keeps_the_complete_ones_and_drops_the_partial(ba
 
 def test_a_capture_with_no_complete_sequence_leaves_nothing(base, tmp_path, monkeypatch):
     out = tmp_path / "seq"
-    import specgpu.pipeline.recovery as pipeline
+    import specgpu.pipeline.twin_capture as pipeline
 
     def failing(*args, **kwargs):
         raise RuntimeError("camera lost")
@@ -259,7 +259,7 @@ def test_a_plan_of_another_length_is_named_not_taken_for_broken_sequences(base, 
 
 
 def test_an_index_that_does_not_read_back_is_withdrawn(base, killed, tmp_path, monkeypatch):
-    import specgpu.pipeline.recovery as pipeline
+    import specgpu.pipeline.salvage as pipeline
 
     out = copy_of(killed, tmp_path)
     journal = (out / io.JOURNAL_FILE).read_bytes()

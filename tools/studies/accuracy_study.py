@@ -26,7 +26,8 @@ import numpy as np
 
 from specgpu.calibration import calibrate, oracle_calibration
 from specgpu.pipeline.evaluate import evaluate_reflectance, evaluate_XYZ
-from specgpu.pipeline.recovery import EVALUATION_CHART, capture_plan, default_basis
+from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis
+from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning import make_plan
 from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.camera import CameraParameters

@@ -51,7 +51,9 @@ from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.engine.guided import flat_variance_reduction  # noqa: E402
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery, denoised_sigma  # noqa: E402
 from specgpu.pipeline.evaluate import evaluate_pixels, truth_cube  # noqa: E402
-from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, uncertainty  # noqa: E402
+from specgpu.pipeline.capture_folder import SequenceFolder  # noqa: E402
+from specgpu.pipeline.recovery import recover, uncertainty  # noqa: E402
+from specgpu.pipeline.twin_capture import capture_plan  # noqa: E402
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, load_reflectances  # noqa: E402
 from specgpu.planning.estimators import forward, output_weights  # noqa: E402
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans, row_name  # noqa: E402

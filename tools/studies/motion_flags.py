@@ -26,7 +26,8 @@ from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.moving_residual import residual_check
-from specgpu.pipeline.recovery import capture_plan, default_basis
+from specgpu.pipeline.recovery import default_basis
+from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.basis_plans import plan_symmetric_basis
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters

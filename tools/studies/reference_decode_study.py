@@ -19,7 +19,8 @@ import numpy as np
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.moving_scores import edge_band, motion_scores
-from specgpu.pipeline.recovery import capture_plan, default_basis
+from specgpu.pipeline.recovery import default_basis
+from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.estimators import NoiseModel, with_estimator
 from specgpu.planning.priors import default_prior
 from specgpu.planning.reference_frames import with_reference_frames

@@ -78,7 +78,9 @@ def spread_over_sigma(description, bundle, plan, scene, *, draws: int = 10, seed
     ``{"ratio": [per brightness quantile, darkest first: sqrt(mean spread^2 / mean sigma^2)], "all": the same over
     every pixel, "brightness": [the quantiles' mean recovered output]}``."""
     from specgpu.planning.uncertainty import constant_variance
-    from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover, uncertainty
+    from specgpu.pipeline.capture_folder import SequenceFolder
+    from specgpu.pipeline.recovery import recover, uncertainty
+    from specgpu.pipeline.twin_capture import capture_plan
 
     ys, sigmas = [], []
     for i in range(draws):

@@ -15,11 +15,8 @@ from specgpu.hardware.drivers import hardware_config
 from specgpu.io import SEQUENCE_FILE
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline import acquire
-from specgpu.pipeline.recovery import (
-    CaptureWriter,
-    check_capture_folder,
-    salvage_capture,
-)
+from specgpu.pipeline.capture_folder import CaptureWriter, check_capture_folder
+from specgpu.pipeline.salvage import salvage_capture
 from specgpu.rig.config import load_rig
 
 

@@ -28,7 +28,7 @@ from specgpu.io.cube import companion_files
 from specgpu.io.paths import final_names, new_temporary, replace_with, write_target
 from specgpu.pipeline.evaluate import scene_XYZ
 from specgpu.pipeline.moving import TRUTH_FOLDER
-from specgpu.pipeline.recovery import CALIBRATION_FILE, PLAN_FILE
+from specgpu.pipeline.capture_folder import CALIBRATION_FILE, PLAN_FILE
 from specgpu.planning.plans import load_plan
 from specgpu.rig.config import load_rig
 from specgpu.rig.scene import SpectralScene, load_scene, validate_resize

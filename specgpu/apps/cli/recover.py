@@ -22,6 +22,7 @@ from specgpu.apps.cli.options import (
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.pipeline import recovery
+from specgpu.pipeline.capture_folder import read_capture
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning, denoise_recovery
 from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.motion_record import without_motion
@@ -109,7 +110,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
     outputs = list(zip(("--out", "--xyz", "--lab", "--delta-e", "--sigma", "--delta-e-sigma"), paths.values()))
     no_clash(outputs, [("SEQ", seq), ("--delta-e-ref", ref), ("--white-reflectance", white_reflectance)])
     lock(*(p for _, p in outputs if p))  # before the work: a missing folder or a busy output is refused now
-    folder = recovery.read_capture(seq)
+    folder = read_capture(seq)
     colours = (folder.plan.resolve_illuminant(illuminant, name=f"the plan of {seq}"),
                folder.plan.resolve_observer(observer, name=f"the plan of {seq}"))
     white = {"white_roi": white_roi, "white_reflectance": white_reflectance}

@@ -33,7 +33,7 @@ from specgpu.pipeline.accumulate import AccumulateSink
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.live import add_recording, behind_text, recording_slots, stream_summary
 from specgpu.pipeline.outputs import stream_metadata
-from specgpu.pipeline.recovery import check_scene_covers
+from specgpu.pipeline.twin_capture import check_scene_covers
 from specgpu.pipeline.decoder import STREAM_OUTPUTS
 from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.motion_record import without_motion
