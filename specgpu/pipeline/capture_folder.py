@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from specgpu import io
+from specgpu.io.paths import atomic_path
 from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save_calibration
 from specgpu.planning.plans import Plan, load_plan, save_plan
 
@@ -58,7 +59,7 @@ class CaptureWriter:
                                "its complete sequences, a capture into this folder replaces it\n", encoding="utf-8")
         self._copies = []
         for source, name in ((plan_path, PLAN_FILE), (calibration_path, CALIBRATION_FILE)):
-            with io.atomic_path(directory / name) as tmp:
+            with atomic_path(directory / name) as tmp:
                 shutil.copyfile(source, tmp)
             self._copies.append(directory / name)
         self.frames = io.SequenceWriter(directory, self.plan.hash, overwrite=True,

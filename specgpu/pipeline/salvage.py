@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from specgpu import io
+from specgpu.io.journal import journal_header
 from specgpu.calibration.bundle import load_calibration
 from specgpu.pipeline.capture_folder import CALIBRATION_FILE, INCOMPLETE_MARKER, PLAN_FILE, read_capture
 from specgpu.pipeline.motion_record import renumber_truth
@@ -42,7 +43,7 @@ def salvage_capture(directory) -> dict:
                              "and salvage again")
         plan.check_calibration(bundle, name=f"{directory / PLAN_FILE}")
 
-    check(io.journal_header(directory))  # before the frames are grouped in sequences of the plan's length
+    check(journal_header(directory))  # before the frames are grouped in sequences of the plan's length
 
     def confirm():  # the index reads back; then a moving capture's truth follows its sequences' new numbers
         salvaged = read_capture(directory).meta["metadata"]["salvaged"]

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import specgpu.planning as E
+from specgpu.planning.priors import training_database
 from specgpu.planning import make_plan
 from specgpu.planning.estimator_plans import cross_validated_error, training_sets
 from specgpu.planning.estimators import interp_rows
@@ -44,7 +45,7 @@ def test_cross_validated_error_against_numpy(bundle, spectra):
 
 def test_training_sets_split_the_database_by_set():
     sets = training_sets()
-    db = E.training_database()
+    db = training_database()
     assert sum(len(r) for r in sets.values()) == len(db) and "CIE 1995 TCS" not in sets
     assert sets["CIE 2017 CES"].shape == (99, db.reflectance.shape[1])
     first = db.labels.index(next(label for label in db.labels if label.startswith("RAW to ACES v1/")))

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import specgpu.planning as E
+from specgpu.planning.priors import held_out_basis, held_out_spectra
 from specgpu.planning.estimator_plans import study_plans
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
@@ -18,9 +19,9 @@ study = load_tool("studies/estimator_rows.py")
 
 
 def test_study_rows_on_the_held_out_chart(bundle, prior):
-    names, wl, spec = E.held_out_spectra()
+    names, wl, spec = held_out_spectra()
     scene = patch_scene(names, wl, spec, H, W)
-    plans = study_plans(DESC, bundle, prior, E.held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
+    plans = study_plans(DESC, bundle, prior, held_out_basis(), methods=["narrowband-31", "tristimulus-D65"])
     rows = study.study_rows(DESC, bundle, scene, plans, runs=2)
     nb, tri = rows
     assert nb["name"] == "narrowband-31" and nb["K"] == 31 and nb["runs"] == 2
@@ -44,7 +45,7 @@ def test_study_rows_on_the_lab_profile_with_corrections():
     lab = rig_from_dict({"twin": {"profile": "lab"}, "camera": {"roi_width": W, "roi_height": H}}, source="<lab>")
     bundle = calibrate(lab, seed=0)
     prior = E.default_prior()
-    names, wl, spec = E.held_out_spectra()
+    names, wl, spec = held_out_spectra()
     scene = patch_scene(names, wl, spec, H, W, white_tile=0.99 * (1 + lab.realism.white_error))
     plans = study_plans(lab, bundle, prior, None, methods=["optimal-3"])
     rows = study.study_rows(lab, bundle, scene, plans, runs=1, de_sigma=False, white_roi=white_tile_roi(H, W))

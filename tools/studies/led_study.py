@@ -34,6 +34,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import specgpu.planning as E  # noqa: E402
+from specgpu.planning.basis import evaluation_exclusions  # noqa: E402
+from specgpu.planning.priors import held_out_spectra  # noqa: E402
 from specgpu.rig.scene import patch_scene  # noqa: E402
 from specgpu.apps.demo_measure import mean_std  # noqa: E402
 from measured_chart import measured_chart_with_white  # noqa: E402
@@ -65,11 +67,11 @@ def chart(description, key):
     if key == "ces":
         scene, _ = measured_chart_with_white(description, cam.roi_height, cam.roi_width)
     else:
-        names, wl, spectra = E.held_out_spectra(name)
+        names, wl, spectra = held_out_spectra(name)
         scene = patch_scene(names, wl, spectra, cam.roi_height, cam.roi_width, name=name)
     test = np.stack([np.interp(DEFAULT_WAVELENGTHS, scene.wavelengths, scene.reflectance[m].mean(axis=0))
                      for m in scene.masks.values()])
-    db = load_reflectances(exclude=E.evaluation_exclusions(name), exclude_similar_to=test)
+    db = load_reflectances(exclude=evaluation_exclusions(name), exclude_similar_to=test)
     return scene, E.prior_from_spectra(db.reflectance, DEFAULT_WAVELENGTHS, f"colour-science sets without {name}")
 
 
