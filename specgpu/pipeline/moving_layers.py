@@ -46,8 +46,8 @@ from specgpu.pipeline.reference_motion import check_reference_frames, estimate_r
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
 __all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
-           "flagged_regions", "estimate_layer_motion", "object_footprint", "occluded_by", "decode_object_layers",
-           "recover_moving"]
+           "explained", "flagged_regions", "estimate_layer_motion", "object_footprint", "occluded_by",
+           "decode_object_layers", "recover_moving"]
 
 #: Mask bit of a pixel decoded with the motion of an object of its own (not the global motion).
 MASK_LAYER = 16
@@ -417,6 +417,12 @@ def refuted(mask) -> bool:
     return True
 
 
+def explained(recovery) -> int:
+    """The pixels a motion-compensated ``recovery`` (:class:`MovingRecovery`) decoded: every output finite (not
+    flagged, saturated or outside the field); what a motion hypothesis is judged by against another."""
+    return int(np.all(np.isfinite(recovery.y), axis=2).sum())
+
+
 @dataclass(frozen=True)
 class MovingRecovery:
     """A motion-compensated recovery: the outputs at the reference time, the mask and each sequence's motion."""
@@ -443,7 +449,9 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
     upsample, binning
         Of :func:`~specgpu.pipeline.moving.estimate_global_motion`.
     model : {"translation", "affine", "flow"}
-        A translation or an affine map per frame (:func:`~specgpu.pipeline.moving.estimate_global_motion`); or
+        A translation or an affine map per frame (:func:`~specgpu.pipeline.moving.estimate_global_motion`; with
+        ``check``, an affine map is decoded beside the translation, with its object layers, and the one that
+        explains more pixels (:func:`explained`) kept, the translation on a tie); or
         ``"flow"``: the translation's decoding, then a dense flow where its frames agree and the translation's are
         flagged, untextured or not clearly better correlated (:mod:`specgpu.pipeline.moving_flow`):
         ``estimates[0].shifts`` is then (K, 2, H, W), the displacement each pixel was decoded with.
@@ -479,6 +487,25 @@ def recover_moving(frames, A, *, dark=None, gain=None, saturation=None, upsample
         ``mask`` (H, W) uint8 (1 saturated, 2 non-finite, 4 outside the field, 8 inconsistent, 16 decoded with an
         object's own motion); ``estimates`` [MotionEstimate] (empty with ``shifts``); ``layers`` [ObjectLayer].
     """
+    if model == "affine" and shifts is None and check:
+        # an affine map per frame is a hypothesis beside the translation (of which it is a refinement), not a
+        # replacement: fitted over a field whose parts move differently (an object over the scene) or to tiles a
+        # fast motion leaves with little overlap it can be pulled off the motion the translation follows, and
+        # wrong samples of flat surfaces can pass every check. Each decoding is checked; the one whose motion
+        # explains more of the field is kept (the translation where they tie: the fewer parameters).
+        given = dict(dark=dark, gain=gain, saturation=saturation, upsample=upsample, binning=binning, check=check,
+                     layers=layers, device=device, seconds=seconds, reference_frames=reference_frames,
+                     residual=residual)
+        return max((_recover(frames, A, model=m, shifts=None, **given) for m in ("translation", "affine")),
+                   key=explained)
+    return _recover(frames, A, dark=dark, gain=gain, saturation=saturation, upsample=upsample, binning=binning,
+                    shifts=shifts, model=model, check=check, layers=layers, device=device, seconds=seconds,
+                    reference_frames=reference_frames, residual=residual)
+
+
+def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, model, check, layers, device, seconds,
+             reference_frames, residual) -> MovingRecovery:
+    """:func:`recover_moving` with the one motion ``model`` given."""
     clock = [time.perf_counter()]
 
     def lap(step):  # host seconds of each step, added to ``seconds``
