@@ -46,8 +46,8 @@ from specgpu.pipeline.reference_motion import check_reference_frames, estimate_r
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
 __all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
-           "explained", "flagged_regions", "estimate_layer_motion", "object_footprint", "occluded_by",
-           "decode_object_layers", "recover_moving"]
+           "explained", "disagreeing", "DISAGREE_RMS", "flagged_regions", "estimate_layer_motion",
+           "object_footprint", "occluded_by", "decode_object_layers", "recover_moving"]
 
 #: Mask bit of a pixel decoded with the motion of an object of its own (not the global motion).
 MASK_LAYER = 16
@@ -346,6 +346,20 @@ def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
     return LinearResult(np.ascontiguousarray(res.y[..., :B]), mask)
 
 
+#: Two decodings of one pixel disagree where the RMS over the outputs of their difference exceeds this (output
+#: units: reflectance for a reflectance plan). Half the drill's bound on a wrong pixel (twice a still recovery's
+#: worst, about 0.07 on the twin): two decodings of the same surface differ by their noise and by where the
+#: bilinear samples fall, a few hundredths; one of them wrong by the bound differs from the other by more.
+DISAGREE_RMS = 0.05
+
+
+def disagreeing(y, other, tolerance: float = DISAGREE_RMS) -> np.ndarray:
+    """(H, W) bool: where two decodings ``y`` and ``other`` (H, W, B) of the same pixels differ by more than
+    ``tolerance`` (RMS over the B outputs); False where either is not finite."""
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(np.mean((np.asarray(y, np.float32) - np.asarray(other, np.float32)) ** 2, axis=2)) > tolerance
+
+
 def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, saturation, device, residual=None):
     """The flow's part of a ``model="flow"`` recovery (:mod:`specgpu.pipeline.moving_flow`), in place on ``y`` and
     ``mask``: each pixel the flow's decoding gives (:func:`~specgpu.pipeline.moving_flow.choose_flow`, with the
@@ -364,14 +378,22 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
         flow = flow_field(motion, est.shifts, (h, w))
         res = _warped(frames, A, flow, dark, gain, None, residual, saturation=saturation, return_mask=True,
                       device=device)
+        disagree = np.zeros((h, w), bool)
         if maps is not None:
             flow_maps = consistency(frames, flow, dark, gain, gradients=gradients)
             use = choose_flow(mask, maps, res.mask, flow_maps, held, threshold=CHECK_THRESHOLD,
                               inconsistent=MASK_INCONSISTENT)
+            # two motions each pass every check at a pixel yet decode it differently: one of them samples other
+            # surfaces that no check can tell apart (a flat background under a velocity interpolated across an
+            # object's edge, an object's edge under the background's motion), and which is not known
+            passed = (mask & np.uint8(1 | 2 | MASK_OUTSIDE | MASK_INCONSISTENT)) == 0
+            passed &= (res.mask == 0) & (flow_maps[1] >= CHECK_THRESHOLD)
+            disagree = passed & disagreeing(y, res.y)
         else:
             use = np.ones((h, w), bool)
         y[use], mask[use] = res.y[use], res.mask[use]
         per_pixel[:, :, use] = flow[:, :, use]
+        mask[disagree] = (mask[disagree] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
     return replace(est, shifts=per_pixel, model="flow")
 
 
