@@ -20,6 +20,11 @@ pixels gather into a region of some size, that region is taken to be one object 
    relative to the background's) is flagged: its samples mix the two surfaces. So are the object's pixels its own
    decoding cannot give. Pixels consistent under neither motion stay flagged and NaN.
 
+Where a mode offers two motions, each is a hypothesis its decoding's checks judge, and what they cannot decide is
+flagged: ``affine`` decodes the translation too and keeps the decoding that explains more of the field
+(:func:`explained`); under ``flow`` a pixel that both the flow's decoding and the other one pass but that they
+decode differently (:func:`disagreeing`) is flagged.
+
 Pixels decoded with an object's motion carry :data:`MASK_LAYER` in the mask. A motion under which the checks flag
 most of the field (:data:`MAX_REFUTED_SHARE`) is refuted and every pixel flagged (:func:`refuted`): an estimate
 taken over by a fast object, an affine map pulled by one; what passes under it passes because nothing there can
