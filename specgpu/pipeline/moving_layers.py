@@ -20,6 +20,11 @@ pixels gather into a region of some size, that region is taken to be one object 
    relative to the background's) is flagged: its samples mix the two surfaces. So are the object's pixels its own
    decoding cannot give. Pixels consistent under neither motion stay flagged and NaN.
 
+Where a mode offers two motions, each is a hypothesis its decoding's checks judge, and what they cannot decide is
+flagged: ``affine`` decodes the translation too and keeps the decoding that explains more of the field
+(:func:`explained`); under ``flow`` a pixel that both the flow's decoding and the other one pass but that they
+decode differently (:func:`disagreeing`) is flagged.
+
 Pixels decoded with an object's motion carry :data:`MASK_LAYER` in the mask. A motion under which the checks flag
 most of the field (:data:`MAX_REFUTED_SHARE`) is refuted and every pixel flagged (:func:`refuted`): an estimate
 taken over by a fast object, an affine map pulled by one; what passes under it passes because nothing there can
@@ -48,8 +53,8 @@ from specgpu.pipeline.registration import correlation_surface, peak_at, whitened
 from numpy.typing import ArrayLike
 
 __all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
-           "flagged_regions", "estimate_layer_motion", "object_footprint", "occluded_by", "decode_object_layers",
-           "recover_moving"]
+           "explained", "disagreeing", "DISAGREE_RMS", "flagged_regions", "estimate_layer_motion",
+           "object_footprint", "occluded_by", "decode_object_layers", "recover_moving"]
 
 #: Mask bit of a pixel decoded with the motion of an object of its own (not the global motion).
 MASK_LAYER = 16
@@ -349,6 +354,20 @@ def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
     return LinearResult(np.ascontiguousarray(res.y[..., :B]), mask)
 
 
+#: Two decodings of one pixel disagree where the RMS over the outputs of their difference exceeds this (output
+#: units: reflectance for a reflectance plan). Half the drill's bound on a wrong pixel (twice a still recovery's
+#: worst, about 0.07 on the twin): two decodings of the same surface differ by their noise and by where the
+#: bilinear samples fall, a few hundredths; one of them wrong by the bound differs from the other by more.
+DISAGREE_RMS = 0.05
+
+
+def disagreeing(y, other, tolerance: float = DISAGREE_RMS) -> np.ndarray:
+    """(H, W) bool: where two decodings ``y`` and ``other`` (H, W, B) of the same pixels differ by more than
+    ``tolerance`` (RMS over the B outputs); False where either is not finite."""
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(np.mean((np.asarray(y, np.float32) - np.asarray(other, np.float32)) ** 2, axis=2)) > tolerance
+
+
 def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, saturation, device, residual=None):
     """The flow's part of a ``model="flow"`` recovery (:mod:`specgpu.pipeline.moving_flow`), in place on ``y`` and
     ``mask``: each pixel the flow's decoding gives (:func:`~specgpu.pipeline.moving_flow.choose_flow`, with the
@@ -367,14 +386,22 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
         flow = flow_field(motion, est.shifts, (h, w))
         res = _warped(frames, A, flow, dark, gain, None, residual, saturation=saturation, return_mask=True,
                       device=device)
+        disagree = np.zeros((h, w), bool)
         if maps is not None:
             flow_maps = consistency(frames, flow, dark, gain, gradients=gradients)
             use = choose_flow(mask, maps, res.mask, flow_maps, held, threshold=CHECK_THRESHOLD,
                               inconsistent=MASK_INCONSISTENT)
+            # two motions each pass every check at a pixel yet decode it differently: one of them samples other
+            # surfaces that no check can tell apart (a flat background under a velocity interpolated across an
+            # object's edge, an object's edge under the background's motion), and which is not known
+            passed = (mask & np.uint8(1 | 2 | MASK_OUTSIDE | MASK_INCONSISTENT)) == 0
+            passed &= (res.mask == 0) & (flow_maps[1] >= CHECK_THRESHOLD)
+            disagree = passed & disagreeing(y, res.y)
         else:
             use = np.ones((h, w), bool)
         y[use], mask[use] = res.y[use], res.mask[use]
         per_pixel[:, :, use] = flow[:, :, use]
+        mask[disagree] = (mask[disagree] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
     return replace(est, shifts=per_pixel, model="flow")
 
 
@@ -420,6 +447,12 @@ def refuted(mask) -> bool:
     return True
 
 
+def explained(recovery) -> int:
+    """The pixels a motion-compensated ``recovery`` (:class:`MovingRecovery`) decoded: every output finite (not
+    flagged, saturated or outside the field); what a motion hypothesis is judged by against another."""
+    return int(np.all(np.isfinite(recovery.y), axis=2).sum())
+
+
 @dataclass(frozen=True)
 class MovingRecovery:
     """A motion-compensated recovery: the outputs at the reference time, the mask and each sequence's motion."""
@@ -447,7 +480,9 @@ def recover_moving(frames: ArrayLike, A: ArrayLike, *, dark: ArrayLike | None = 
     upsample, binning
         Of :func:`~specgpu.pipeline.moving.estimate_global_motion`.
     model : {"translation", "affine", "flow"}
-        A translation or an affine map per frame (:func:`~specgpu.pipeline.moving.estimate_global_motion`); or
+        A translation or an affine map per frame (:func:`~specgpu.pipeline.moving.estimate_global_motion`; with
+        ``check``, an affine map is decoded beside the translation, with its object layers, and the one that
+        explains more pixels (:func:`explained`) kept, the translation on a tie); or
         ``"flow"``: the translation's decoding, then a dense flow where its frames agree and the translation's are
         flagged, untextured or not clearly better correlated (:mod:`specgpu.pipeline.moving_flow`):
         ``estimates[0].shifts`` is then (K, 2, H, W), the displacement each pixel was decoded with.
@@ -483,6 +518,25 @@ def recover_moving(frames: ArrayLike, A: ArrayLike, *, dark: ArrayLike | None = 
         ``mask`` (H, W) uint8 (1 saturated, 2 non-finite, 4 outside the field, 8 inconsistent, 16 decoded with an
         object's own motion); ``estimates`` [MotionEstimate] (empty with ``shifts``); ``layers`` [ObjectLayer].
     """
+    if model == "affine" and shifts is None and check:
+        # an affine map per frame is a hypothesis beside the translation (of which it is a refinement), not a
+        # replacement: fitted over a field whose parts move differently (an object over the scene) or to tiles a
+        # fast motion leaves with little overlap it can be pulled off the motion the translation follows, and
+        # wrong samples of flat surfaces can pass every check. Each decoding is checked; the one whose motion
+        # explains more of the field is kept (the translation where they tie: the fewer parameters).
+        given = dict(dark=dark, gain=gain, saturation=saturation, upsample=upsample, binning=binning, check=check,
+                     layers=layers, device=device, seconds=seconds, reference_frames=reference_frames,
+                     residual=residual)
+        return max((_recover(frames, A, model=m, shifts=None, **given) for m in ("translation", "affine")),
+                   key=explained)
+    return _recover(frames, A, dark=dark, gain=gain, saturation=saturation, upsample=upsample, binning=binning,
+                    shifts=shifts, model=model, check=check, layers=layers, device=device, seconds=seconds,
+                    reference_frames=reference_frames, residual=residual)
+
+
+def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, model, check, layers, device, seconds,
+             reference_frames, residual) -> MovingRecovery:
+    """:func:`recover_moving` with the one motion ``model`` given."""
     clock = [time.perf_counter()]
 
     def lap(step):  # host seconds of each step, added to ``seconds``

@@ -44,15 +44,19 @@ def rmse_map(y, reflectance, wavelengths, plan):
                                       wavelengths=plan.output_wavelengths).rmse)
 
 
-@pytest.fixture(scope="module")
-def bound(setup):
+def still_bound(desc, bundle, plan, scene):
     """The noise-derived bound of a pixel's RMSE: twice the worst pixel of the still scene's recovery (the
-    camera's noise and the plan's model; what interpolating a moving scene adds stays within it)."""
-    desc, bundle, plan, scene = setup
+    camera's noise and the plan's model; what interpolating a moving scene adds stays within it). About 0.15 on
+    the twin (a still recovery's worst pixel is about 0.075)."""
     frames, _ = frames_of(desc, plan, scene, MotionParameters())
     res = recover_moving(frames, plan.A, dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field,
                          shifts=np.zeros((plan.K, 2)))
     return 2.0 * float(np.nanmax(rmse_map(res.y, scene.reflectance, scene.wavelengths, plan)))
+
+
+@pytest.fixture(scope="module")
+def bound(setup):
+    return still_bound(*setup)
 
 
 def test_a_narrowband_plan_is_checked_against_its_model_and_passes_still_scenes():
@@ -151,11 +155,11 @@ def test_a_motion_the_field_refutes_flags_every_pixel():
     assert not refuted(kept) and (kept > 0).sum() == 40
 
 
-def drill_case(desc, bundle, plan, scene, motion, mode):
+def drill_case(desc, bundle, plan, scene, motion, mode, check):
     """(unflagged pixels' RMSE, flagged share) of one sequence of ``motion`` decoded by ``mode``."""
     frames, truth = frames_of(desc, plan, scene, motion)
     res = recover_moving(frames, plan.A, dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field,
-                         saturation=float(bundle.max_code), model=mode, residual=residual_check(plan, bundle))
+                         saturation=float(bundle.max_code), model=mode, residual=check)
     decoded = np.all(np.isfinite(res.y), axis=2)
     err = rmse_map(res.y, truth["reflectance"], scene.wavelengths, plan)
     return err[decoded], 1.0 - float(decoded.mean())
@@ -165,26 +169,79 @@ def chart(speed):
     return MotionParameters(object="colorchecker", object_velocity_px_per_frame=(float(speed), 0.0))
 
 
-#: The drill: pairs of (scene speed, object speed, rotation, mode) that cover each value of each with each mode at
-#: least once, at 320 x 240. The full sweep (every speed 0-50 px per frame, each mode, 320 x 240 and 640 x 480) is
-#: ``python tools/studies/motion_flags.py --sweep``, too long for the suite.
+def scene_at(speed):
+    return MotionParameters(velocity_px_per_frame=(float(speed), 0.0))
+
+
+ROTATION = MotionParameters(rotation_deg_per_frame=0.5)
+
+#: The drill at 320 x 240: (motion, mode, the most of the field it may flag). The cases cover each mode with a
+#: still scene, a scene moving slowly and fast, a chart moving over the scene slowly (an object layer) and fast,
+#: and a rotation; the flagged share stated is what each flags with a few points to spare (a scene moving 10 px
+#: per frame leaves 38 % of the field unseen by some frame or flagged by the translation's own check, 20 px 57 %;
+#: a chart at 3 px per frame 5 %, a rotation decoded affine 4 %), so a check that flags far more than the motion
+#: asks fails too. The full sweep is :func:`test_drill_sweep` (slow).
 DRILL = {
-    "still-global": (MotionParameters(), "translation"),
-    "scene-20-global": (MotionParameters(velocity_px_per_frame=(20.0, 0.0)), "translation"),
-    "chart-14-global": (chart(14), "translation"),
-    "chart-3-affine": (chart(3), "affine"),
-    "rotation-0.5-flow": (MotionParameters(rotation_deg_per_frame=0.5), "flow"),
-    "scene-3-chart-40-flow": (replace(chart(40), velocity_px_per_frame=(2.4, 1.8)), "flow"),
+    "still-global": (MotionParameters(), "translation", 0.01),
+    "scene-10-flow": (scene_at(10), "flow", 0.42),
+    "scene-20-affine": (scene_at(20), "affine", 0.60),
+    "chart-3-affine": (chart(3), "affine", 0.10),
+    "chart-3-flow": (chart(3), "flow", 0.10),
+    "chart-25-global": (chart(25), "translation", 0.30),
+    "rotation-0.5-affine": (ROTATION, "affine", 0.10),
+    "scene-3-chart-40-flow": (replace(chart(40), velocity_px_per_frame=(2.4, 1.8)), "flow", 0.40),
 }
 
 
+@pytest.fixture(scope="module")
+def check(setup):
+    _, bundle, plan, _ = setup
+    return residual_check(plan, bundle)
+
+
 @pytest.mark.parametrize("case", list(DRILL))
-def test_drill_no_unflagged_pixel_is_wrong(setup, bound, case, record_property):
+def test_drill_no_unflagged_pixel_is_wrong(setup, bound, check, case, record_property):
     desc, bundle, plan, scene = setup
-    motion, mode = DRILL[case]
-    err, flagged = drill_case(desc, bundle, plan, scene, motion, mode)
+    motion, mode, most = DRILL[case]
+    err, flagged = drill_case(desc, bundle, plan, scene, motion, mode, check)
     record_property("flagged_share", flagged)
     assert not np.any(err > bound), (f"{case}: {int(np.sum(err > bound))} unflagged pixels above {bound:.3f} "
                                      f"(flagged {100 * flagged:.1f} %)")
-    if case == "still-global":
-        assert flagged < 0.01  # a still scene is not over-flagged
+    assert flagged <= most, f"{case}: flagged {100 * flagged:.1f} % of the field, more than {100 * most:.0f} %"
+
+
+def sweep():
+    """The cases of the full drill the default one does not run: each mode with the scene and a chart at 0-50 px
+    per frame and a rotation at 320 x 240; at 640 x 480 a fast scene decoded affine, a chart and a rotation decoded
+    by the flow."""
+    small = [(f"{kind}-{v}", motion(v)) for kind, motion, speeds in
+             (("scene", scene_at, (0, 3, 10, 20, 35, 50)), ("chart", chart, (3, 14, 25, 50))) for v in speeds]
+    small.append(("rotation-0.5", ROTATION))
+    names = {"translation": "global", "affine": "affine", "flow": "flow"}
+    done = set(DRILL)  # the default drill's cases are not run twice
+    cases = [((320, 240), label, motion, mode) for mode in names for label, motion in small
+             if f"{label}-{names[mode]}" not in done]
+    large = [("scene-20", scene_at(20), "affine"), ("chart-14", chart(14), "flow"), ("rotation-0.5", ROTATION, "flow")]
+    return cases + [((640, 480), label, motion, mode) for label, motion, mode in large]
+
+
+@pytest.mark.slow
+def test_drill_sweep(setup, bound, check):
+    """The full drill: in no case is an unflagged pixel beyond the noise-derived bound (:func:`bound`, made at each
+    size); a still scene flags at most 1 % of the field, one moving 3 px per frame with nothing of its own at most
+    30 % (measured: 17-25 %, of which 7.5 % some frame saw outside the field)."""
+    made = {(320, 240): (setup, bound, check)}
+    wrong, shares = [], {}
+    for size, label, motion, mode in sweep():
+        if size not in made:
+            at = symmetric_setup(*size)
+            made[size] = (at, still_bound(*at), residual_check(at[2], at[1]))
+        (desc, bundle, plan, scene), limit, judge = made[size]
+        err, flagged = drill_case(desc, bundle, plan, scene, motion, mode, judge)
+        shares[(size, label, mode)] = flagged
+        if np.any(err > limit):
+            wrong.append(f"{label} {mode} {size}: {int(np.sum(err > limit))} above {limit:.3f}")
+    assert not wrong, "; ".join(wrong)
+    over = {key: share for key, share in shares.items()
+            if share > {"scene-0": 0.01, "scene-3": 0.30}.get(key[1], 1.0)}
+    assert not over, over
