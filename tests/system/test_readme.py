@@ -36,7 +36,7 @@ def block(language: str, needle: str) -> str:
 
 
 # the Python blocks of the README and the docs, each found by a name only it holds; every block is one of them
-PYTHON_BLOCKS = ("apply_linear", "open_recording", "xr.open_zarr")
+PYTHON_BLOCKS = ("apply_linear", "open_recording", "xr.open_zarr", "PLAN_METHODS")
 
 
 def test_every_python_block_is_executed_by_a_test():
@@ -46,6 +46,11 @@ def test_every_python_block_is_executed_by_a_test():
 
 def test_the_readme_holds_the_api_example():
     assert "apply_linear" in "".join(blocks("python", {"README.md": README}))
+
+
+def test_rooms_import_snippet_runs(capsys):
+    exec(compile(block("python", "PLAN_METHODS"), "docs (rooms' names)", "exec"), {})
+    assert "symmetric" in capsys.readouterr().out
 
 
 def test_python_api_snippet_runs():
