@@ -163,6 +163,7 @@ def test_stream_denoise_equals_recover_denoise():
         assert "\n" not in str(info.value)
 
 
+@pytest.mark.usefixtures("dask_scheduler")  # the session's Dask cluster
 def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
     """``specgpu batch --denoise`` of a sequence folder: each sequence's cube equals recover --denoise of it; a
     resumed batch asking otherwise is refused in one line; Lab and dE come from the filtered XYZ (as its help
