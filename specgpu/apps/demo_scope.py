@@ -1,10 +1,11 @@
 """What one ``specgpu demo`` runs (:class:`DemoScope`) and how long that will take (:func:`estimate_seconds`).
 
 The quick demo (the default) runs the paper's plans, the best design of each sequence-time budget and the
-moving scene (on a field of at most 320 x 240) on one profile with one noise draw; ``--full`` runs every row on both profiles (the lab rig and the
-same rig without imperfections) with two draws. The estimate the demo prints before it starts is a cost model
-counted from the sizes it will run (pixels, frames, designs, draws), each unit's cost measured on a 2-core
-x86 machine, scaled by a short timing of this machine's speed at that moment (a busy machine estimates longer).
+moving scene (on a field of at most 320 x 240) on one profile with one noise draw; ``--full`` runs every row on
+both profiles (the lab rig and the same rig without imperfections) with two draws. The estimate the demo prints before it starts is a cost model
+counted from the sizes it will run (pixels, frames, designs, draws), each unit's cost the CPU seconds it took on
+a 2-core x86 machine, scaled by a short timing of this machine's speed at that moment (a busy machine estimates
+longer).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ _COST = {
     "bound": 0.7,  # per budget: the limit's search
     "frame": 0.08,  # a captured, corrected and recovered frame (per draw)
     "evaluation": 0.5,  # a recovery scored per patch and per pixel (per draw)
-    "report": 0.8,  # a plan's files and figures in the report folder
+    "report": 3.0,  # a plan's files, figures and its share of the report page
     "moving": 25.0,  # the moving-scene section
 }
 #: The speed probe's seconds on the reference machine when idle.

@@ -34,7 +34,7 @@ def test_the_full_demo_runs_every_row_on_both_profiles_twice():
 def test_the_estimate_counts_the_sizes_run():
     profiles = demo_profiles()
     quick, full = scope_of(profiles), scope_of(profiles, full=True)
-    assert 10 < estimate_seconds(quick) < 60  # the quick demo: within a minute on the reference machine
+    assert 10 < estimate_seconds(quick) < 90  # the quick demo: about a minute on the reference machine
     assert estimate_seconds(full) > 3 * estimate_seconds(quick)
     lab = profiles["lab"]
     small = {"lab": replace(lab, camera=replace(lab.camera, roi_width=320, roi_height=240))}
