@@ -2,10 +2,10 @@
 
 The quick demo (the default) runs the paper's plans, the best design of each sequence-time budget and the
 moving scene (on a field of at most 320 x 240) on one profile with one noise draw; ``--full`` runs every row on
-both profiles (the lab rig and the same rig without imperfections) with two draws. The estimate the demo prints before it starts is a cost model
-counted from the sizes it will run (pixels, frames, designs, draws), each unit's cost the CPU seconds it took on
-a 2-core x86 machine, scaled by a short timing of this machine's speed at that moment (a busy machine estimates
-longer).
+both profiles (the lab rig and the same rig without imperfections) with two draws. The estimate the demo prints
+before it starts is a cost model counted from the sizes it will run (pixels, frames, designs, draws), each unit's
+cost the CPU seconds it took on a 2-core x86 machine, scaled by a short timing of this machine's speed at that
+moment (a busy machine estimates longer).
 """
 
 from __future__ import annotations
