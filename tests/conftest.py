@@ -1,13 +1,20 @@
-"""Shared fixtures: every test that takes ``queue`` runs once per OpenCL device present."""
+"""Shared fixtures: every test that takes ``queue`` runs once per OpenCL device present; ``dask_scheduler`` points
+Dask at one worker process kept for the whole session."""
 
 from __future__ import annotations
 
+import logging
 import os
 
 import pytest
 from hypothesis import HealthCheck, settings
 
+from specgpu.core.numerics import one_blas_thread
 from specgpu.engine.runtime import SpecgpuDeviceError, get_queue, list_devices
+
+# as every specgpu command does: the suite's small host matrices on one BLAS thread (on busy cores OpenBLAS's
+# threads spin waiting on each other), set before any worker process is started so that it inherits it
+one_blas_thread()
 
 # Kernel builds make the first example of a property test slow; CI runs fewer examples, and the same ones every
 # run (derandomized: each test's seed is fixed by the test itself), so a failure in CI reproduces anywhere.
@@ -47,3 +54,28 @@ def kernel_variant(request, monkeypatch):
     the GPU kernels on PoCL and the CPU kernels on a GPU."""
     monkeypatch.setenv("SPECGPU_VARIANT", request.param)
     return request.param
+
+
+@pytest.fixture(scope="session")
+def dask_cluster():
+    """One Dask ``LocalCluster`` for the session, started by the first test that asks: one worker process with one
+    thread, as ``specgpu batch`` starts by default (starting one, and the worker's OpenCL context, costs seconds).
+    Its worker keeps each batch's state under that batch's own key, as on any long-lived scheduler."""
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
+                      silence_logs=logging.ERROR) as cluster:
+        yield cluster
+
+
+@pytest.fixture
+def dask_scheduler(dask_cluster):
+    """Dask's ``scheduler-address`` set to the session's cluster for one test: a batch given no scheduler of its
+    own (``specgpu batch`` without ``--scheduler``, ``run_batch`` without ``client``) runs there."""
+    import dask
+    from distributed import Client
+
+    with Client(dask_cluster) as client:  # a worker an earlier test lost is restarted by its nanny: wait for it
+        client.wait_for_workers(1, timeout=120)
+    with dask.config.set({"scheduler-address": dask_cluster.scheduler_address}):
+        yield dask_cluster.scheduler_address

@@ -19,6 +19,10 @@ writes a report folder:
     maps/<method>-dE2000.exr    per-pixel CIEDE2000 against the truth (and a heat-map PNG beside it)
     png/<method>.png            sRGB renderings of the recoveries; png/truth.png the scene itself
     figures/*.png               spectra of the 24 patches (paper Fig. 15), illuminant sequences (Figs. 12, 14, 16)
+
+By default the demo is the quick one (:mod:`specgpu.apps.demo_scope`): the lab profile only, the paper's plans,
+the design of each sequence-time budget, the moving scene, one noise draw; ``full=True`` (``specgpu demo
+--full``) runs every row above on both profiles with two draws. It says first what it runs and about how long.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from specgpu import io
 from specgpu.apps import paper
 from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods
 from specgpu.apps.demo_lights import led_draws
+from specgpu.apps.demo_scope import DemoScope, announce, demo_scope
 from specgpu.apps.moving_demo import moving_html, moving_lines, moving_section
 from specgpu.apps.report_figures import illuminant_figure
 from specgpu.apps.report import report_page, summarise_method, table2_html, table3_html
@@ -107,11 +112,15 @@ class DemoResult:
     moving: dict = field(default_factory=dict)
 
 
-def _steps(echo, progress, n_profiles):
-    equal = sum(len(rows) for _, rows in EQUAL_TIME.values())
-    return tqdm(total=n_profiles * (2 + len(DEMO_METHODS) + len(ESTIMATOR_ROWS) + equal) + 4, desc="demo",
-                unit="step",
-                leave=False, disable=not progress)
+def _steps(progress, scope: DemoScope):
+    return tqdm(total=len(scope.profiles) * (2 + scope.plans()) + 4, desc="demo", unit="step", leave=False,
+                disable=not progress)
+
+
+def scope_of(profiles: dict, *, full: bool = False, draws: int | None = None) -> DemoScope:
+    """The demo's scope on ``profiles`` (:func:`demo_profiles`): the quick demo, or every row with ``full``
+    (:func:`specgpu.apps.demo_scope.demo_scope`)."""
+    return demo_scope(profiles, full=full, draws=draws, methods=tuple(DEMO_METHODS), estimator_rows=ESTIMATOR_ROWS)
 
 
 def demo_profiles(rig=None) -> dict:
@@ -132,7 +141,7 @@ def demo_profiles(rig=None) -> dict:
 
 
 def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progress: bool = True,
-             device=None, draws: int = 2) -> DemoResult:
+             device=None, draws: int | None = None, full: bool = False) -> DemoResult:
     """Run the demo and write its report folder; returns the figures (also in ``report.json``).
 
     Parameters
@@ -141,11 +150,16 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
         Report folder (created; files of an earlier demo there are replaced).
     rig : path or RigDescription, optional
         The rig (default: the lab profile of the paper's rig, 640 x 480: every imperfection of a real bench on).
-        When it has imperfections, the same rig with none (the ideal profile) is run beside it.
+        With ``full``, when it has imperfections, the same rig with none (the ideal profile) is run beside it.
     seed : int
         Seed of the twin's noise.
-    draws : int
-        Noise draws per method and profile: every table gives mean +- std over them.
+    draws : int, optional
+        Noise draws per method and profile: every table gives mean +- std over them (default 1, with ``full`` 2).
+    full : bool
+        Every row on every profile: the paper's plans, the estimator rows and every method at equal sequence
+        time; else the quick demo: the main profile, the paper's plans and the design of each sequence-time
+        budget (:mod:`specgpu.apps.demo_scope`). Either way the first line echoed says what runs and about how
+        long it takes.
 
     On a rig with imperfections every sequence gets an ambient frame (every mirror off, subtracted: the DMD's
     off-state light and the room light are on the scene) and the chart has a reference white tile whose ROI
@@ -154,11 +168,15 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
 
     t_start = time.perf_counter()
     out = Path(out)
-    profiles = demo_profiles(rig)  # a bad rig refused before the report folder is made
+    every_profile = demo_profiles(rig)  # a bad rig refused before the report folder is made
+    scope = scope_of(every_profile, full=full, draws=draws)
+    echo(announce(scope, full_scope=None if full else scope_of(every_profile, full=True)))
+    profiles = {label: every_profile[label] for label in scope.profiles}
+    draws = scope.draws
     for sub in ("plans", "sequences", "cubes", "maps", "png", "figures"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     main = next(iter(profiles))
-    bar = _steps(echo, progress, len(profiles))
+    bar = _steps(progress, scope)
     bar.set_description("basis")
     basis = default_basis(EVALUATION_CHART)
     save_basis(out / "basis.npz", basis)
@@ -176,11 +194,13 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
         plans = make_demo_plans(bundle, basis)
         # one start (the smooth bumps; four gave the same designs on both profiles' calibrations, in twice the
         # time) and 100 iterations (the design's expected error within 0.2 % of 300 iterations', in a third)
-        plans.update(study_plans(description, bundle, prior, basis, methods=ESTIMATOR_ROWS, training=training,
-                                 chart=EVALUATION_CHART, starts=1, iterations=100))
+        if scope.estimator_rows:
+            plans.update(study_plans(description, bundle, prior, basis, methods=scope.estimator_rows,
+                                     training=training, chart=EVALUATION_CHART, starts=1, iterations=100))
         lab = description.realism.any or description.drift.any
         # the methods at equal sequence time (an ambient frame per sequence on a lab rig, within the budget)
-        plans.update(equal_time_plans(description, bundle, prior, basis, training=training, extra_frames=int(lab)))
+        plans.update(equal_time_plans(description, bundle, prior, basis, training=training, extra_frames=int(lab),
+                                      rows=scope.equal_time_rows))
         if is_main:
             result.bounds = equal_time_bounds(description, bundle, prior, extra_frames=int(lab))
         scene, roi = chart_with_white(description, EVALUATION_CHART)
@@ -228,7 +248,8 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     result.draws.update(led_draws(profiles.get("ideal", profiles[main]), prior, basis, training, seed=seed,
                                   draws=draws, device=device))
     bar.set_description("a moving scene")
-    result.moving = moving_section(profiles.get("ideal", profiles[main]), basis, seed=seed)
+    result.moving = moving_section(every_profile.get("ideal", profiles[main]), basis, seed=seed,
+                                   size=scope.moving_size)
     bar.update()
     bar.set_description("figures")
     _figures(out, main_plans, result, main_scene, main_bundle)

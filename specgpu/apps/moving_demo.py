@@ -31,12 +31,15 @@ _EXPOSURE_S = 0.0049  # 200 fps less the light's 80 us switch time (and a margin
 _MAP_LABEL = "RMSE per pixel (reflectance, 400-700 nm)"
 
 
-def moving_section(description, basis, *, seed: int = 0) -> dict:
+def moving_section(description, basis, *, seed: int = 0, size: tuple[int, int] | None = None) -> dict:
     """The section's figures on ``description`` (the demo's rig with its imperfections off) at 200 fps: ``rows``
     (recovery -> scores), ``maps`` (recovery -> per-pixel RMSE), the flagged share, the largest error of the
-    estimated displacement (px), the compensation's seconds, and what was run."""
-    desc = replace(description, camera=replace(description.camera, frame_rate_hz=_FRAME_RATE_HZ,
-                                               exposure_s=_EXPOSURE_S))
+    estimated displacement (px), the compensation's seconds, and what was run. ``size``: (width, height) of the
+    camera's ROI for the section (default the rig's)."""
+    camera = replace(description.camera, frame_rate_hz=_FRAME_RATE_HZ, exposure_s=_EXPOSURE_S)
+    if size is not None:
+        camera = replace(camera, roi_width=int(size[0]), roi_height=int(size[1]))
+    desc = replace(description, camera=camera)
     bundle = oracle_calibration(desc)
     plan = make_plan("symmetric", bundle, basis, m=5, output_wavelengths=np.arange(400.0, 701.0, 10.0),
                      max_exposure_s=_EXPOSURE_S)

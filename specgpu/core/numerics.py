@@ -1,13 +1,36 @@
-"""Small numerics the rooms share: bounded least squares of light levels over column spectra, and the flat-field
-gain of a pixel with no response."""
+"""Small numerics the rooms share: bounded least squares of light levels over column spectra, the flat-field
+gain of a pixel with no response, and the process's BLAS on one thread."""
 
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
-__all__ = ["DEAD_PIXEL_GAIN", "fit_levels", "lipschitz_bound", "live_gain"]
+__all__ = ["DEAD_PIXEL_GAIN", "BLAS_THREAD_VARIABLES", "fit_levels", "lipschitz_bound", "live_gain", "one_blas_thread"]
+
+#: The environment variables that set the BLAS libraries' thread counts (OpenBLAS, MKL, OpenMP builds).
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def one_blas_thread() -> bool:
+    """Run BLAS on one thread for the rest of the process, unless the environment sets a thread count already
+    (:data:`BLAS_THREAD_VARIABLES`: the user's choice stands). Returns whether the limit was applied.
+
+    The host's matrices are small (calibration's least squares over 1024 columns, the designs, the motion
+    estimate); the pixels' work runs on the OpenCL device. OpenBLAS splits even a matrix-vector product over every
+    core, and where the cores are busy (PoCL's threads, another process) its threads spin waiting on each other:
+    on 2 shared cores five SVDs of 200 x 200 took 1.7-2.5 s of CPU with 2 threads and 0.07 s with one. The
+    variables are set too, so that a BLAS loaded later (SciPy's) and child processes (Dask's workers) start with
+    one thread."""
+    if any(os.environ.get(name) for name in BLAS_THREAD_VARIABLES):
+        return False
+    for name in BLAS_THREAD_VARIABLES:
+        os.environ[name] = "1"
+    threadpool_limits(limits=1, user_api="blas")
+    return True
 
 #: Flat-field gain calibration gives a pixel the white does not reach (under 1 / DEAD_PIXEL_GAIN of the field
 #: centre's reading: dead, or outside the light). Such a pixel has no measurement; a gain at or above it marks one.

@@ -596,8 +596,9 @@ def run_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: Cali
     Parameters
     ----------
     scheduler : str, optional
-        Address of a running ``dask.distributed`` scheduler; default a ``LocalCluster`` of ``workers`` processes
-        with one thread each.
+        Address of a running ``dask.distributed`` scheduler; default Dask's own setting, ``scheduler-address``
+        (the environment's ``DASK_SCHEDULER_ADDRESS``), where it is set, else a ``LocalCluster`` of ``workers``
+        processes with one thread each.
     client : distributed.Client, optional
         Use this client (and its cluster) instead.
     on_done : callable, optional
@@ -622,7 +623,11 @@ def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, obs
                 workers, client, progress, on_done, device, denoise=None, motion="none",
                 integration="rectangle") -> BatchReport:
 
+    import dask
     from distributed import Client, LocalCluster, as_completed
+
+    if scheduler is None and client is None:  # the scheduler Dask is configured with, as Client() connects to
+        scheduler = dask.config.get("scheduler-address", None)
 
     job, todo = prepare_batch(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
                               observer=observer, method=method, reference=reference, device=device,

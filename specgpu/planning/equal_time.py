@@ -41,8 +41,10 @@ def row_name(name: str, budget_ms: float) -> str:
 
 def equal_time_plans(description: RigDescription, bundle: CalibrationBundle, prior, basis, *, training=None,
                      extra_frames: int = 0, budgets=None,
-                     starts: int = 1, iterations: int = 100, denoise_radius: int | None = None) -> dict:
-    """The plans of :data:`EQUAL_TIME` (``budgets``: a subset of its keys), each within its budget with
+                     starts: int = 1, iterations: int = 100, denoise_radius: int | None = None,
+                     rows=None) -> dict:
+    """The plans of :data:`EQUAL_TIME` (``budgets``: a subset of its keys; ``rows``: of its row names, such as
+    ``"optimal-9"``; None: all), each within its budget with
     ``extra_frames`` frames more per sequence (an ambient frame), named by :func:`row_name`, every one with the
     camera's noise model and its expected error on ``prior`` recorded. ``training``: the spectra of a colour
     objective's weighting (the prior's own set); ``starts``, ``iterations``: the designs' search;
@@ -56,8 +58,10 @@ def equal_time_plans(description: RigDescription, bundle: CalibrationBundle, pri
     ow = np.arange(400.0, 700.0 + 1e-9, 10.0)
     plans = {}
     for T in (EQUAL_TIME if budgets is None else budgets):
-        _, rows = EQUAL_TIME[T]
-        for name, (method, kw, est) in rows.items():
+        _, made_rows = EQUAL_TIME[T]
+        for name, (method, kw, est) in made_rows.items():
+            if rows is not None and name not in rows:
+                continue
             if method == "optimal":
                 tr = training if kw.get("objective", "rmse") != "rmse" else None
                 made = {name: None}

@@ -30,6 +30,9 @@ from specgpu.pipeline import Stream
 
 N = 6  # sequences in the recording
 
+# every batch here without a scheduler of its own runs on the session's one-worker cluster (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("dask_scheduler")
+
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):
@@ -127,6 +130,8 @@ def open_recording_like(path):
 
 
 def test_an_interrupted_batch_resumes_without_recomputing_finished_chunks(made, tmp_path):
+    import dask
+
     from specgpu.calibration.bundle import load_calibration
     from specgpu.planning import load_plan
 
@@ -140,7 +145,9 @@ def test_an_interrupted_batch_resumes_without_recomputing_finished_chunks(made, 
         if len(seen) == 2:
             raise KeyboardInterrupt
 
-    with pytest.raises(KeyboardInterrupt):
+    # a cluster of the batch's own, closed by the interrupt: on a long-lived scheduler the task running when it
+    # came would go on writing while this test looks
+    with pytest.raises(KeyboardInterrupt), dask.config.set({"scheduler-address": None}):
         run_batch(root / "rec.zarr", plan, bundle, out, workers=1, progress=False, on_done=stop_after_two)
     done = open_recording_like(out)["done"][:]
     finished = np.flatnonzero(done)
@@ -155,6 +162,7 @@ def test_an_interrupted_batch_resumes_without_recomputing_finished_chunks(made, 
     assert open_recording_like(out)["done"][:].tolist() == [1] * N
 
 
+@pytest.mark.slow  # a cluster of its own, two workers, one killed and replaced: the drill must take its time
 def test_two_workers_each_build_one_context_and_a_killed_worker_loses_nothing(made, tmp_path):
     """Two worker processes: each builds its OpenCL state once. One worker is killed (SIGKILL) after the first
     result: the scheduler hands its unfinished chunks to the survivor (or the nanny's restarted process); every
@@ -279,18 +287,33 @@ def test_capture_into_zarr_then_batch_equals_recover_of_a_capture_folder(made, t
     assert again.exit_code == 1 and "already exists" in again.output
 
 
-def test_cli_batch_on_a_given_scheduler(made, tmp_path):
-    """--scheduler ADDRESS: the batch runs on that cluster's workers (here a LocalCluster started by the test)."""
-    from distributed import LocalCluster
+def test_cli_batch_on_a_given_scheduler(made, tmp_path, dask_cluster):
+    """--scheduler ADDRESS: the batch runs on that cluster's workers (here the session's LocalCluster, with Dask's
+    own scheduler setting cleared: only the option names it)."""
+    import dask
 
     _, root = made
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+    cluster = dask_cluster
+    with dask.config.set({"scheduler-address": None}):
         result = CliRunner().invoke(main, ["batch", str(root / "seq"), "--plan", str(root / "plan.npz"), "--out",
                                            str(tmp_path / "s.zarr"), "--scheduler", cluster.scheduler_address])
-        assert result.exit_code == 0, result.output
-        assert "3 sequences computed on 1 worker(s)" in result.output
-        assert len(cluster.scheduler.workers) == 1  # the cluster outlives the batch: only the client was closed
+    assert result.exit_code == 0, result.output
+    assert "3 sequences computed on 1 worker(s)" in result.output
+    assert len(cluster.scheduler.workers) == 1  # the cluster outlives the batch: only the client was closed
     np.testing.assert_array_equal(open_recording_like(tmp_path / "s.zarr")["cube"][2], recovered(root, tmp_path, 2))
+
+
+def test_a_batch_without_a_scheduler_runs_on_the_one_dask_is_set_to(made, tmp_path, dask_cluster):
+    """Dask's scheduler-address setting (DASK_SCHEDULER_ADDRESS) is the batch's default scheduler: the sequences
+    are computed by that cluster's worker, no cluster of the batch's own is started."""
+    from distributed import Client
+
+    _, root = made
+    plan, bundle = plan_and_calibration(root)
+    report = run_batch(root / "seq", plan, bundle, tmp_path / "o.zarr", progress=False)
+    with Client(dask_cluster) as client:
+        worker_pids = set(client.run(os.getpid).values())
+    assert report.computed == 3 and set(report.pids) == worker_pids
 
 
 # ---- the batch's identity, its source's content, damaged and half-made outputs ------------------------------------
@@ -435,7 +458,10 @@ def test_a_sequence_folder_source_holds_one_sequence_at_a_time(made, tmp_path):
 
 def test_a_failing_sequence_stops_the_batch_in_one_line_without_a_worker_traceback(made, tmp_path, capfd):
     """A sequence that fails on a worker (here a corrupt chunk) is one line, with no Dask "Compute Failed" block
-    or traceback printed by the worker processes; the output stays resumable."""
+    or traceback printed by the worker processes; the output stays resumable. The batch starts its own cluster
+    (no Dask scheduler set), so that its workers print, if at all, where this test reads."""
+    import dask
+
     _, root = made
     shutil.copytree(root / "rec.zarr", tmp_path / "bad.zarr")
     chunk = tmp_path / "bad.zarr" / "frames" / "c" / "4" / "0" / "0" / "0"
@@ -443,7 +469,9 @@ def test_a_failing_sequence_stops_the_batch_in_one_line_without_a_worker_traceba
     data[2000] ^= 0x10
     chunk.write_bytes(bytes(data))
     capfd.readouterr()
-    result = run("batch", tmp_path / "bad.zarr", "--plan", root / "plan.npz", "--out", tmp_path / "b.zarr", ok=False)
+    with dask.config.set({"scheduler-address": None}):
+        result = run("batch", tmp_path / "bad.zarr", "--plan", root / "plan.npz", "--out", tmp_path / "b.zarr",
+                     ok=False)
     one_line_error(result, "bad.zarr/frames: corrupt or unreadable chunk at sequence 4", "sequences done in",
                    "run the batch again to resume")
     printed = capfd.readouterr()
@@ -544,24 +572,21 @@ def test_resuming_removes_the_partial_chunks_a_killed_run_left(made, tmp_path):
     assert not leftover.exists() and not list(src.rglob("*.partial"))
 
 
-def test_a_recording_replaced_on_a_long_lived_scheduler_is_read_afresh(made, tmp_path):
+def test_a_recording_replaced_on_a_long_lived_scheduler_is_read_afresh(made, tmp_path, dask_cluster):
     """--scheduler: the workers outlive a batch and keep its state; a recording replaced at the same path (here
     by one with more sequences) is another source, so the workers open it again instead of reading it through
     the old one's handles (which made every later sequence a false "corrupt chunk")."""
-    from distributed import LocalCluster
-
     setup, root = made
     src, out = tmp_path / "src.zarr", tmp_path / "b.zarr"
     record(setup, src, loops=1)
     assert open_recording(src).sequences == 3
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
-        args = ["batch", src, "--plan", root / "plan.npz", "--calib", root / "calib.npz", "--out", out,
-                "--scheduler", cluster.scheduler_address]
-        assert "3 sequences computed" in run(*args).output
-        shutil.rmtree(src)
-        shutil.rmtree(out)
-        shutil.copytree(root / "rec.zarr", src)
-        assert f"{N} sequences computed" in run(*args).output
+    args = ["batch", src, "--plan", root / "plan.npz", "--calib", root / "calib.npz", "--out", out,
+            "--scheduler", dask_cluster.scheduler_address]
+    assert "3 sequences computed" in run(*args).output
+    shutil.rmtree(src)
+    shutil.rmtree(out)
+    shutil.copytree(root / "rec.zarr", src)
+    assert f"{N} sequences computed" in run(*args).output
     frames = open_recording(src).read("frames", slice(None))
     cube = open_recording_like(out)["cube"]
     for i in (0, N - 1):

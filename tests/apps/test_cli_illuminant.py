@@ -109,6 +109,7 @@ def test_a_stream_of_a_plan_for_A_records_A_and_its_colours_under_A(bench_a, tmp
     one_line_error(run(*args, "--illuminant", "D65", ok=False), "triA.npz", "illuminant A, not D65")
 
 
+@pytest.mark.usefixtures("dask_scheduler")  # the session's Dask cluster
 def test_a_batch_of_a_plan_for_A_computes_and_records_its_colours_under_A(bench_a, tmp_path):
     import zarr
 

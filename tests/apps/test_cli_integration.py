@@ -80,6 +80,7 @@ def test_a_tristimulus_plan_and_its_XYZ_map_are_refused_another_integration(benc
                        ok=False), "t.exr", "integrated by rectangle, not ASTM E308", code=1)
 
 
+@pytest.mark.usefixtures("dask_scheduler")  # the session's Dask cluster
 def test_a_batch_records_its_integration_and_resumes_only_with_it(bench, tmp_path):
     import zarr
 

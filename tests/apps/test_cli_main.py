@@ -6,6 +6,7 @@ Each bad input must give a non-zero exit, a one-line reason, and no output left 
 from __future__ import annotations
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -83,6 +84,9 @@ def test_every_plan_method(work, method, tmp_path):
 def test_demo_writes_the_report(tmp_path):
     (tmp_path / "rig.toml").write_text(RIG)
     result = run("demo", "--out", tmp_path / "report", "--rig", tmp_path / "rig.toml")
+    # first what it runs and how long that takes: the quick demo, one profile (this rig has no imperfections)
+    assert re.fullmatch(r"demo: \w+ profile, 8 plans, 1 noise draw, a moving scene: about \d+ s \(--full: .*\)",
+                        result.output.splitlines()[0]), result.output.splitlines()[0]
     for table in ("Table 1", "Table 2", "Table 3"):
         assert table in result.output
     assert "paper" in result.output and "demo finished in" in result.output
@@ -103,6 +107,20 @@ def test_demo_writes_the_report(tmp_path):
     rows = figures["moving_scene"]["rows"]
     assert rows["moving"]["rmse_field"] > 1.5 * rows["still"]["rmse_field"]
     assert rows["compensated"]["rmse_field"] < 1.3 * rows["still"]["rmse_field"]
+
+
+@pytest.mark.slow
+def test_demo_full_runs_every_row_on_both_profiles(tmp_path):
+    """``--full``: the estimator rows and every method at equal sequence time, on the lab profile and the ideal one
+    beside it, two noise draws each."""
+    (tmp_path / "rig.toml").write_text(RIG + "[twin]\nprofile = \"lab\"\n")
+    result = run("demo", "--full", "--out", tmp_path / "report", "--rig", tmp_path / "rig.toml")
+    assert result.output.startswith("demo: lab, ideal profiles, 17 plans, 2 noise draws, a moving scene: about ")
+    draws = json.loads((tmp_path / "report" / "report.json").read_text())["draws"]
+    assert list(draws) == ["lab", "ideal"]
+    for runs in draws.values():
+        assert {"wiener-9", "optimal-3", "symmetric-9@60ms", "wiener-6@40ms", "tristimulus-D65@20ms"} <= set(runs)
+        assert all(len(row["dE00"]["values"]) == 2 for row in runs.values())
 
 
 # ------------------------------------------------------------------------------------------------ bad input

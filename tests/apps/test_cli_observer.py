@@ -112,6 +112,7 @@ def test_a_stream_of_a_plan_for_the_10_degree_observer_records_it_and_agrees_wit
     one_line_error(run(*args, "--observer", DEFAULT_CMFS, ok=False), "tri10.npz", f"not the {DEFAULT_CMFS}")
 
 
+@pytest.mark.usefixtures("dask_scheduler")  # the session's Dask cluster
 def test_a_batch_of_a_plan_for_the_10_degree_observer_equals_recover_and_records_it(bench_10, tmp_path):
     import zarr
 
@@ -152,6 +153,7 @@ def test_a_reflectance_plan_makes_and_records_XYZ_for_the_observer_asked_for(nar
     assert not np.allclose(XYZ, io.read_map(tmp_path / "default.exr", "XYZ")[0], atol=1e-3, equal_nan=True)
 
 
+@pytest.mark.usefixtures("dask_scheduler")  # the session's Dask cluster
 def test_a_batch_is_resumed_only_with_the_observer_it_was_made_for(narrowband, tmp_path):
     import zarr
 

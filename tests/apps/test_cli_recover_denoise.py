@@ -46,6 +46,7 @@ def test_cli_recover_denoise(tmp_path, bundle):
                        ok=False), "--denoise-eps")
 
 
+@pytest.mark.usefixtures("dask_scheduler")  # the session's Dask cluster
 def test_batch_denoise_equals_recover_denoise(tmp_path, bundle):
     """``specgpu batch --denoise`` of a sequence folder: each sequence's cube equals recover --denoise of it; a
     resumed batch asking otherwise is refused in one line; Lab and dE come from the filtered XYZ (as its help

@@ -31,13 +31,18 @@ from specgpu.rig import twin
 HEIGHT, WIDTH = 240, 320
 DENOISED = ("coefficients", "cube", "XYZ", "Lab", "dE")
 
+MOTION_MODES = ("global", "affine", "flow")
+
 #: (motion, outputs, extra options): each output alone and all together, then what --denoise and --accumulate
-#: accept and a half-precision cube, then every motion mode with each output it accepts
+#: accept and a half-precision cube, then every motion mode with every output it accepts together, and each of
+#: those outputs alone under one mode (in turn): every (mode, output) pair and every output alone on the motion
+#: path, without the grid of each mode times each output alone, whose cells add no pair
 CASES = ([("none", (name,), ()) for name in STREAM_OUTPUTS] + [("none", STREAM_OUTPUTS, ())]
          + [("none", DENOISED, ("--denoise",)),
             ("none", ("coefficients", "cube", "XYZ", "sigma"), ("--accumulate", "3")),
             ("none", ("cube", "sigma_rms"), ("--accumulate", "3")), ("none", ("cube", "XYZ"), ("--half",))]
-         + [(mode, (name,), ()) for mode in ("global", "affine", "flow") for name in MOTION_OUTPUTS]
+         + [(mode, MOTION_OUTPUTS, ()) for mode in MOTION_MODES]
+         + [(MOTION_MODES[i % len(MOTION_MODES)], (name,), ()) for i, name in enumerate(MOTION_OUTPUTS)]
          + [("global", ("cube", "XYZ", "sigma_rms"), ("--accumulate", "3"))])
 
 

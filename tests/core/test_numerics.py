@@ -58,3 +58,50 @@ def test_live_gain_marks_only_the_dead_gains():
     assert live_gain(None) is None
     ones = np.ones((2, 2))
     assert live_gain(ones).dtype == np.float32 and np.array_equal(live_gain(ones), ones)
+
+
+# ------------------------------------------------------------------------------------- BLAS on one thread
+
+_BLAS_THREADS = ("import json, sys\n"
+                 "from threadpoolctl import threadpool_info\n"
+                 "from specgpu.core.numerics import one_blas_thread\n"
+                 "applied = one_blas_thread()\n"
+                 "import scipy.linalg  # a BLAS loaded after the limit\n"
+                 "threads = sorted({i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'})\n"
+                 "print(json.dumps([applied, threads]))\n")
+
+
+def _blas_threads(env):
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from specgpu.core.numerics import BLAS_THREAD_VARIABLES
+
+    clean = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
+    out = subprocess.run([sys.executable, "-c", _BLAS_THREADS], env={**clean, **env}, capture_output=True, text=True,
+                         check=True).stdout
+    return json.loads(out)
+
+
+def test_one_blas_thread_limits_every_blas_of_the_process_unless_the_environment_chose():
+    applied, threads = _blas_threads({})
+    assert applied is True and threads == [1]
+    applied, threads = _blas_threads({"OPENBLAS_NUM_THREADS": "2"})
+    assert applied is False and threads == [2]  # the user's choice stands
+
+
+def test_every_command_runs_with_one_blas_thread(monkeypatch):
+    from click.testing import CliRunner
+
+    from specgpu.apps.cli import main
+    from specgpu.apps.cli import options
+
+    calls = []
+    monkeypatch.setattr(options, "one_blas_thread", lambda: calls.append(1))
+    result = CliRunner().invoke(main, ["bound", "--frames", "3", "--sequence-ms", "50", "--help"])
+    assert result.exit_code == 0 and calls == []  # a command's help loads nothing
+    result = CliRunner().invoke(main, ["info"])
+    assert result.exit_code == 0, result.output
+    assert calls == [1]

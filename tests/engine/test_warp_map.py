@@ -227,16 +227,42 @@ SHIFT_SETS = {
 }
 
 
-@pytest.mark.parametrize("shape", [(1, 1), (3, 5), (4, 7), (6, 9), (13, 21), (5, 300), (37, 17)])
-@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
-@pytest.mark.parametrize("shift_set", list(SHIFT_SETS))
-def test_translations_match_the_reference_at_every_size_and_edge(queue, kernel_variant, shape, dtype, shift_set):
+SHAPES = [(1, 1), (3, 5), (4, 7), (6, 9), (13, 21), (5, 300), (37, 17)]
+DTYPES = [np.uint8, np.uint16, np.float32]
+VARIANTS = ["cpu", "gpu"]
+
+
+def _pairwise_cases():
+    """Every shape with every shift set (28 cases), the dtype and kernel variant turning with them so that every
+    pair of any two settings (shape, dtype, shift set, variant) is run: the settings act on separate parts of the
+    kernel (the work shape's edges, the sample type and its saturation, the taps), so the full grid of their 168
+    combinations adds no case these pairs miss."""
+    sets = list(SHIFT_SETS)
+    return [(shape, DTYPES[(i + j) % 3], sets[j], VARIANTS[(i + j // 2) % 2])
+            for i, shape in enumerate(SHAPES) for j in range(len(sets))]
+
+
+TRANSLATION_CASES = _pairwise_cases()
+
+
+def test_the_translation_cases_hold_every_pair_of_settings():
+    settings = [SHAPES, DTYPES, list(SHIFT_SETS), VARIANTS]
+    for a, b in [(a, b) for a in range(4) for b in range(a + 1, 4)]:
+        seen = {(str(case[a]), str(case[b])) for case in TRANSLATION_CASES}
+        assert seen == {(str(x), str(y)) for x in settings[a] for y in settings[b]}, (a, b)
+
+
+@pytest.mark.parametrize("shape, dtype, shift_set, variant", TRANSLATION_CASES,
+                         ids=[f"{h}x{w}-{np.dtype(d).name}-{s}-{v}" for (h, w), d, s, v in TRANSLATION_CASES])
+def test_translations_match_the_reference_at_every_size_and_edge(queue, monkeypatch, shape, dtype, shift_set,
+                                                                 variant):
     """Every size the work shapes meet (a field smaller than a strip, narrower than 8 pixels, a row that ends within
     a step of 8, more than one work-item along a row), in the "cpu" and "gpu" variants' shapes, sub-pixel,
     whole-pixel, negative and half-pixel shifts and shifts beyond the field: the mask, NaNs and infinities are the
     per-pixel kernel's, the outputs the float64 reference's (where no flag is raised), saturated and non-finite
     samples flagged only where a tap of weight above zero reads them (at the field's corners, through clamped taps,
     too)."""
+    monkeypatch.setenv("SPECGPU_VARIANT", variant)  # the kernel_variant fixture's setting, chosen per case
     h, w = shape
     rng = np.random.default_rng(h * 1000 + w)
     K, B = 4, 3

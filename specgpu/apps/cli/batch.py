@@ -50,7 +50,9 @@ def plan_calibration(plan, source, plan_path, calib):
 @ILLUMINANT
 @OBSERVER
 @INTEGRATION
-@click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (default: a LocalCluster).")
+@click.option("--scheduler", default=None,
+              help="Address of a dask.distributed scheduler (default: Dask's scheduler-address setting, as "
+                   "DASK_SCHEDULER_ADDRESS gives it, else a LocalCluster).")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="LocalCluster worker processes (one thread and one OpenCL context each).")
 @click.option("--device", "device", default=None, help="OpenCL device selector (on every worker).")

@@ -19,6 +19,7 @@ from tqdm import tqdm
 from specgpu.apps.cli.group import watch_outputs
 from specgpu.calibration.bundle import load_calibration
 from specgpu.core.guard import check_outputs
+from specgpu.core.numerics import one_blas_thread
 from specgpu.core.locks import output_locks
 from specgpu.core.spectra import DEFAULT_CMFS, resolve_integration
 from specgpu.core.validate import BadArgument, validate_method
@@ -40,6 +41,7 @@ class Command(click.Command):
     failure (click's own errors, usage errors and interrupts pass through to the group)."""
 
     def invoke(self, ctx):
+        one_blas_thread()  # small host matrices: BLAS threads on busy cores only wait on each other
         try:
             return super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort, SystemExit,
