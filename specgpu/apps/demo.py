@@ -246,7 +246,7 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
 
     bar.set_description("an LED rig")  # Table 1's 60 ms rows again with a 12-LED array as the light
     result.draws.update(led_draws(profiles.get("ideal", profiles[main]), prior, basis, training, seed=seed,
-                                  draws=draws, device=device))
+                                  draws=draws, device=device, rows=scope.equal_time_rows))
     bar.set_description("a moving scene")
     result.moving = moving_section(every_profile.get("ideal", profiles[main]), basis, seed=seed,
                                    size=scope.moving_size)

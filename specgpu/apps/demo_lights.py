@@ -27,13 +27,15 @@ def led_rig(description):
                    drift=Drift(), capture_delay_s=None)
 
 
-def led_draws(description, prior, basis, training, *, seed: int = 0, draws: int = 2, device=None) -> dict:
+def led_draws(description, prior, basis, training, *, seed: int = 0, draws: int = 2, device=None,
+              rows=None) -> dict:
     """``{LED_LABEL: method -> metric -> values per draw}`` for the demo's ``result.draws``: the rows of
     :data:`~specgpu.planning.equal_time.EQUAL_TIME` at :data:`LED_BUDGET_MS` on :func:`led_rig` of the demo's
-    rig, calibrated, planned (one start, 100 iterations, as the demo's) and measured on the demo's chart."""
+    rig, calibrated, planned (one start, 100 iterations, as the demo's) and measured on the demo's chart; ``rows``:
+    the row names to run (None: all)."""
     led = led_rig(description)
     bundle = calibrate(led, seed=seed)
-    plans = equal_time_plans(led, bundle, prior, basis, training=training, budgets=(LED_BUDGET_MS,))
+    plans = equal_time_plans(led, bundle, prior, basis, training=training, budgets=(LED_BUDGET_MS,), rows=rows)
     scene, _ = chart_with_white(led, EVALUATION_CHART)
     runs = measure_methods(led, bundle, plans, scene, draws=draws, seed=seed, device=device)
     for rows in runs.values():

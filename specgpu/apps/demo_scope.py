@@ -41,6 +41,8 @@ _COST = {
     "report": 3.0,  # a plan's files, figures and its share of the report page
     "moving": 25.0,  # the moving-scene section
 }
+#: The sequence time of the LED rig's rows (:data:`specgpu.apps.demo_lights.LED_BUDGET_MS`).
+_LED_BUDGET_MS = 60.0
 #: The speed probe's seconds on the reference machine when idle.
 _PROBE_REFERENCE_S = 0.05
 
@@ -155,6 +157,12 @@ def estimate_seconds(scope: DemoScope, *, speed: float = 1.0) -> float:
             + n * scope.draws * (_frames(scope, _FRAMES) * _COST["frame"] + plans * _COST["evaluation"]) * scale
             + plans * _COST["report"] + _COST["moving"] * scope.moving_size[0] * scope.moving_size[1]
             / _REFERENCE_PIXELS)
+    # the LED rig: calibrated, its 60 ms rows designed and measured as the DMD's
+    frames, rows = EQUAL_TIME[_LED_BUDGET_MS]
+    led_rows = sum(name in scope.equal_time_rows for name in rows)
+    if led_rows:
+        cost += (_COST["calibration"] * scale + led_rows * _COST["budgeted"]
+                 + scope.draws * led_rows * (frames * _COST["frame"] + _COST["evaluation"]) * scale)
     return cost * speed
 
 

@@ -36,7 +36,7 @@ def block(language: str, needle: str) -> str:
 
 
 # the Python blocks of the README and the docs, each found by a name only it holds; every block is one of them
-PYTHON_BLOCKS = ("apply_linear", "open_recording", "xr.open_zarr", "PLAN_METHODS")
+PYTHON_BLOCKS = ("apply_linear", "open_recording", "xr.open_zarr", "PLAN_METHODS", "SequenceDecoder(")
 
 
 def test_every_python_block_is_executed_by_a_test():
@@ -77,6 +77,15 @@ def recordings(tmp_path_factory):
         run("stream", "--rig", d / "rig.toml", "--plan", d / "nb.npz", "--calib", d / "calib.npz", "--seconds", "1",
             "--pacing", "free", "--out", d / name, *outputs)
     return d
+
+
+def test_sequence_decoder_snippet_runs_on_a_capture(recordings, monkeypatch):
+    monkeypatch.chdir(recordings)
+    run("capture", "--rig", "rig.toml", "--plan", "nb.npz", "--calib", "calib.npz", "--scene", "colorchecker", "--out",
+        "seq", "--sequences", "1")
+    ns: dict = {}
+    exec(compile(block("python", "SequenceDecoder("), "docs (sequence decoder)", "exec"), ns)
+    assert ns["cube"].shape[:2] == (240, 320) and ns["cube"].dtype == np.float32
 
 
 def test_recording_snippets_run_on_a_default_recording(recordings, monkeypatch):
