@@ -19,8 +19,9 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE / "_ext"))
 sys.path.insert(0, str(ROOT))  # the source tree's specgpu, also when an older one is installed
 
-import specgpu  # noqa: E402
 from api_pages import write_api_pages  # noqa: E402
+
+import specgpu  # noqa: E402
 
 project = "specgpu"
 author = "specgpu developers"

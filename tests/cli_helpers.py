@@ -45,7 +45,8 @@ def one_line_error(result, *fragments, code=None):
 
 
 def stream_cli_files(setup, tmp_path):
-    """The rig TOML, calibration and plan of a :func:`specgpu.pipeline.twin_replay.stream_setup` written under ``tmp_path``;
+    """The rig TOML, calibration and plan of a :func:`specgpu.pipeline.twin_replay.stream_setup` written under
+    ``tmp_path``;
     returns the ``specgpu stream`` arguments that use them."""
     from specgpu.calibration.bundle import save_calibration
     from specgpu.planning import save_plan

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import specgpu.planning as E
-from specgpu.planning.priors import training_spectra
 from specgpu.calibration.bundle import oracle_calibration
+from specgpu.planning.priors import training_spectra
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 

@@ -47,6 +47,7 @@ def _frames(rng, K, dtype, high):
 def _linear_case(seed, *, K, B, dtype, high, layout, out_dtype, dark=None, gain=False, saturation=None,
                  nonfinite=False):
     from reference import linear_ref, mask_ref
+
     from specgpu.engine.linear_map import apply_linear
 
     def run():
@@ -103,8 +104,8 @@ def _per_element_case():
 def _sqrt_case():
     """The stream's standard-deviation output: sqrt(max(A (o - dark) * gain + c, 0)) from one prepared launch."""
     import pyopencl as cl
-
     from reference import linear_ref, mask_ref
+
     from specgpu.engine import kernels as engine
     from specgpu.engine.runtime import get_queue
 
@@ -144,6 +145,7 @@ def _random_lab(rng):
 
 def _xyz_to_lab_case():
     from reference import XYZ_to_Lab_ref
+
     from specgpu.engine.colorimetry import XYZ_to_Lab
 
     def run():
@@ -160,6 +162,7 @@ def _xyz_to_lab_case():
 
 def _delta_e_case(method, single=False):
     from reference import delta_E_ref
+
     from specgpu.engine.colorimetry import delta_E
 
     def run():
@@ -176,6 +179,7 @@ def _delta_e_case(method, single=False):
 
 def _fused_case(method, single=False):
     from reference import XYZ_to_Lab_ref, delta_E_ref, linear_ref, mask_ref
+
     from specgpu.engine.colorimetry import frames_to_delta_E
 
     def run():
@@ -205,10 +209,10 @@ def _delta_e_sigma_case():
     """The first-order dE2000 standard deviation kernel against specgpu.planning.uncertainty.delta_E_sigma."""
     import pyopencl as cl
 
-    from specgpu.engine import kernels as engine
-    from specgpu.planning import delta_E_sigma
-    from specgpu.engine.runtime import get_queue
     from specgpu.core.spectra import white_point_XYZ
+    from specgpu.engine import kernels as engine
+    from specgpu.engine.runtime import get_queue
+    from specgpu.planning import delta_E_sigma
 
     def run():
         queue = get_queue("oclgrind")
@@ -255,6 +259,7 @@ def _motion(rng, K, kind):
 
 def _warp_case(kind):
     from reference import linear_warp_ref
+
     from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
 
     def run():
@@ -308,8 +313,8 @@ def _warp_groups_case(shape):
     the float64 reference; the mask and the NaNs against the per-pixel kernel's (a uniform flow), which the other
     warp cases check."""
     import pyopencl as cl
-
     from reference import linear_warp_ref
+
     from specgpu.engine.kernels import to_device
     from specgpu.engine.runtime import get_queue
     from specgpu.engine.warp_map import MASK_OUTSIDE, PreparedWarp, apply_linear_warped

@@ -9,8 +9,8 @@ from pathlib import Path
 from specgpu.io.recording import ZarrRecorder
 from specgpu.pipeline import Stream
 from specgpu.pipeline.batch import prepare_batch, process_sequences
-from specgpu.planning import save_plan
 from specgpu.pipeline.twin_replay import stream_setup
+from specgpu.planning import save_plan
 
 #: What ``specgpu stream --out`` records by default.
 DEFAULT_OUTPUTS = ("coefficients", "XYZ", "dE")

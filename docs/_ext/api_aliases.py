@@ -18,7 +18,6 @@ from docutils import nodes
 from docutils.utils import get_source_line
 from sphinx.util.nodes import make_refnode
 
-
 FIELD = object()  # what _import gives for a dataclass field: it exists, with no object of its own
 MISSING = object()  # what _import gives for a name that does not exist
 

@@ -12,8 +12,8 @@ import numpy as np
 
 import specgpu
 from specgpu.pipeline import capture_plan, evaluate_reflectance
-from specgpu.pipeline.recovery import default_basis
 from specgpu.pipeline.evaluate import true_patch_spectra
+from specgpu.pipeline.recovery import default_basis
 from specgpu.rig import CameraParameters, RigDescription, colorchecker_scene
 
 # %%

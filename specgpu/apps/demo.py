@@ -39,24 +39,24 @@ from tqdm import tqdm
 
 from specgpu import io
 from specgpu.apps import paper
-from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods
 from specgpu.apps.demo_lights import led_draws
+from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods
 from specgpu.apps.demo_scope import DemoScope, announce, demo_scope
 from specgpu.apps.moving_demo import moving_html, moving_lines, moving_section
-from specgpu.apps.report_figures import illuminant_figure
 from specgpu.apps.report import report_page, summarise_method, table2_html, table3_html
+from specgpu.apps.report_figures import illuminant_figure
 from specgpu.apps.table1 import Table1, equal_time_rows, method_rows, table1, table1_html, table1_text
 from specgpu.calibration import calibrate, save_calibration
 from specgpu.calibration.bundle import calibration_error
-from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
 from specgpu.pipeline.capture_folder import SequenceFolder, write_capture
+from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis, uncertainty
 from specgpu.planning import default_prior, make_plan, save_plan
-from specgpu.planning.priors import training_spectra
-from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans
-from specgpu.planning.estimator_plans import study_plans
 from specgpu.planning.basis import save_basis
+from specgpu.planning.equal_time import equal_time_bounds, equal_time_plans
+from specgpu.planning.estimator_plans import study_plans
 from specgpu.planning.noise import NoiseModel
+from specgpu.planning.priors import training_spectra
 from specgpu.rig.config import RigDescription, load_rig, rig_from_dict
 from specgpu.rig.realism import Drift, Realism
 
@@ -126,8 +126,6 @@ def scope_of(profiles: dict, *, full: bool = False, draws: int | None = None) ->
 def demo_profiles(rig=None) -> dict:
     """label -> RigDescription the demo runs: the lab profile by default (or ``rig``), and beside it the same rig
     with every imperfection off (the ideal profile) when the main one has any."""
-
-
     if rig is None:
         description = rig_from_dict({"twin": {"profile": "lab"}}, source="<lab profile>")
     else:
@@ -165,7 +163,6 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     off-state light and the room light are on the scene) and the chart has a reference white tile whose ROI
     rescales each sequence's decoder for the lamp's drift since calibration (:mod:`specgpu.planning.correction`).
     """
-
     t_start = time.perf_counter()
     out = Path(out)
     every_profile = demo_profiles(rig)  # a bad rig refused before the report folder is made

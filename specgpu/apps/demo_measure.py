@@ -27,7 +27,6 @@ METRICS = ("rmse", "dEab", "dE00", "px_rmse", "px_dE00", "px_rms")
 def chart_with_white(description, chart: str):
     """The evaluation chart with the reference white tile above it (the twin's white: the certificate's 0.99 off
     by the bench's ``white_error``) and the tile's ROI."""
-
     cam = description.camera
     true_white = 0.99 * (1.0 + description.realism.white_error)
     scene = colorchecker_scene(cam.roi_height, cam.roi_width, chart=chart, white_tile=true_white)
@@ -62,7 +61,6 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
         records one (an estimator's, a design's), ``"expected_rmse"``: the RMSE its decoder expects on its training
         prior.
     """
-
     out = {}
     patches = np.any(list(scene.masks.values()), axis=0) if scene.masks else None
     for i, (name, plan) in enumerate(plans.items()):

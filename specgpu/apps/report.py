@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from specgpu import io
-from specgpu.io.paths import atomic_path
 from specgpu.apps import paper
 from specgpu.apps.report_figures import (
     DELTA_E_LABEL,
@@ -34,6 +33,8 @@ from specgpu.apps.report_figures import (
 )
 from specgpu.apps.report_html import Cell, card_grid, cell, figure_card, html_table, page
 from specgpu.engine.colorimetry import reflectance_to_XYZ
+from specgpu.io.paths import atomic_path
+from specgpu.pipeline.capture_folder import read_capture
 from specgpu.pipeline.evaluate import (
     evaluate_pixels,
     evaluate_reflectance,
@@ -44,7 +45,6 @@ from specgpu.pipeline.evaluate import (
 )
 from specgpu.pipeline.motion_record import motion_notice, moved, without_motion
 from specgpu.pipeline.moving import sequence_truth
-from specgpu.pipeline.capture_folder import read_capture
 from specgpu.pipeline.recovery import recover, uncertainty
 from specgpu.rig.scene import colorchecker_scene, load_scene
 

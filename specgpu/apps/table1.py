@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from specgpu.apps import paper
-from specgpu.apps.report_html import Cell, cell, html_table
 from specgpu.apps.demo_measure import mean_std
+from specgpu.apps.report_html import Cell, cell, html_table
 from specgpu.planning.equal_time import EQUAL_TIME, row_name
 
 __all__ = ["COLUMNS", "Value", "Row", "Table1", "table1", "method_rows", "equal_time_rows", "table1_text",

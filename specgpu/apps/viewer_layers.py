@@ -34,9 +34,9 @@ from specgpu.io.previews import sRGB8
 from specgpu.io.sequence import read_frames
 from specgpu.pipeline.batch import BATCH_FORMAT
 from specgpu.pipeline.batch_output import open_batch_output
+from specgpu.pipeline.capture_folder import PLAN_FILE, SequenceFolder, read_capture_header
 from specgpu.pipeline.motion_record import motion_notice, moved
 from specgpu.pipeline.moving import TRUTH_FOLDER, truth_name
-from specgpu.pipeline.capture_folder import PLAN_FILE, SequenceFolder, read_capture_header
 from specgpu.pipeline.recovery import recover
 from specgpu.planning.plans import load_plan
 

@@ -24,10 +24,12 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.calibration.rigs import distribute_counts
 from specgpu.io.tables import content_hash, load_npz, save_npz
@@ -35,8 +37,6 @@ from specgpu.rig.config import RigDescription
 from specgpu.rig.lights import light_kind, light_summary
 from specgpu.rig.scene import interpolation_matrix, white_plate_scene
 from specgpu.rig.twin import TwinRig
-import os
-from numpy.typing import ArrayLike
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -553,7 +553,7 @@ def load_calibration(path: str | os.PathLike[str], *, rig: RigDescription | None
     >>> import pathlib, tempfile
     >>> from specgpu.calibration import load_calibration, oracle_calibration, save_calibration
     >>> from specgpu.rig.config import RigDescription
-from specgpu.rig.lights import light_kind, light_summary
+    from specgpu.rig.lights import light_kind, light_summary
     >>> with tempfile.TemporaryDirectory() as folder:
     ...     path = pathlib.Path(folder) / "calibration.npz"
     ...     digest = save_calibration(path, oracle_calibration())

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.calibration.bundle import CalibrationBundle
 from specgpu.calibration.rigs import (
@@ -22,7 +23,6 @@ from specgpu.calibration.rigs import (
     distribute_counts,
 )
 from specgpu.core.numerics import fit_levels
-from numpy.typing import ArrayLike
 
 __all__ = ["LoopResult", "camera_loop", "spectral_loop"]
 

@@ -4,9 +4,10 @@ light's output), released when the loops end."""
 
 from __future__ import annotations
 
-from specgpu.calibration import procedure
-import specgpu.hardware.rig as hardware_rig
 from typing import TYPE_CHECKING
+
+import specgpu.hardware.rig as hardware_rig
+from specgpu.calibration import procedure
 
 if TYPE_CHECKING:
     from specgpu.rig.config import RigDescription

@@ -336,7 +336,8 @@ def _loop_a_start(bench: _Bench, dark, flat, masks, bands, t_cal: float, equaliz
     weakest = float(full_out[inside].min())
     if not weakest > 0:
         raise ValueError("calibrate: a band of the equalized range gives no signal on the white")
-    t_a = _whole_periods(rig, float(np.clip(t_cal * 0.5 * headroom / weakest, t_cal, max(t_cal, DEFAULT_MAX_EXPOSURE_S))))
+    longest = max(t_cal, DEFAULT_MAX_EXPOSURE_S)
+    t_a = _whole_periods(rig, float(np.clip(t_cal * 0.5 * headroom / weakest, t_cal, longest)))
     full_a = full_out * (t_a / t_cal)
     level = 0.97 * float(full_a[inside].min()) / white_reflectance  # output per unit reflectance
     targets = np.full(len(masks), level * white_reflectance)
@@ -486,7 +487,8 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
         (:func:`~specgpu.calibration.bundle.measure_line_shapes`; no model of the slit; the Gaussian where the
         spectroradiometer gives no ``response_matrix``). On the lab twin the measured shape cuts the model's
         line-shape error tenfold (``tools/studies/calibration_truth.py``) but changes no per-patch figure (loop (a)
-        already pins each band's response) and moves the symmetric plan's per-pixel noise (its decoder is sensitive to the
+        already pins each band's response) and moves the symmetric plan's per-pixel noise (its decoder is sensitive
+        to the
         model's details), so it is not yet the default.
     rig : CalibrationRig, optional
         The rig to measure (e.g. :func:`specgpu.hardware.rig.open_calibration_rig` for real devices, looking at the
@@ -510,7 +512,7 @@ def calibrate(description: RigDescription | None = None, *, white_reflectance: f
     >>> from specgpu.calibration import calibrate
     >>> from specgpu.rig.camera import CameraParameters
     >>> from specgpu.rig.config import RigDescription
-from specgpu.rig.lights import light_kind, light_summary
+    from specgpu.rig.lights import light_kind, light_summary
     >>> rig = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
     >>> bundle = calibrate(rig, repeats=1, band_step_nm=25.0, spectral_check=False)
     >>> bundle.reports["loop_a"]["converged"]

@@ -11,17 +11,16 @@ captured sequences of a twin rig.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.capture.session import capture_sequences
 from specgpu.capture.twin_driver import TwinDriver
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import white_plate_scene
 from specgpu.rig.twin import FaultSchedule, TwinRig
-from numpy.typing import ArrayLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.rig.scene import SpectralScene

@@ -23,10 +23,10 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from specgpu.capture.driver import FrameInfo
 from specgpu.core.validate import check_number
-from numpy.typing import DTypeLike
 
 __all__ = ["RingBuffer", "Slot", "RingStats", "POLICIES", "run_producer"]
 

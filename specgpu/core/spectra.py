@@ -24,9 +24,9 @@ import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.validate import BadArgument, validate_method
-from numpy.typing import ArrayLike
 
 if TYPE_CHECKING:
     import colour

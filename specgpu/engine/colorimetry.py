@@ -22,20 +22,20 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from specgpu.engine import kernels
-from specgpu.engine.runtime import get_queue
 from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, white_point_XYZ
 from specgpu.core.validate import (
     as_float32,
+    check_band_wavelengths,
     check_frames,
     check_last_axis,
     check_matrix,
-    check_band_wavelengths,
     is_device_array,
     validate_method,
 )
-from numpy.typing import ArrayLike
+from specgpu.engine import kernels
+from specgpu.engine.runtime import get_queue
 
 __all__ = [
     "DELTA_E_METHODS",

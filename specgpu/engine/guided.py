@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import numpy as np
 import pyopencl.array as cla
+from numpy.typing import ArrayLike
 
 from specgpu.core.validate import check_number
 from specgpu.engine.kernels import _empty, launch_range, to_device
 from specgpu.engine.runtime import get_kernel, get_queue
-from numpy.typing import ArrayLike
 
 __all__ = ["guided_filter", "box_box_variance", "flat_variance_reduction"]
 

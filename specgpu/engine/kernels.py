@@ -15,11 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
+from numpy.typing import ArrayLike, DTypeLike
 
 from specgpu.core.validate import check_gain_map, check_pixel_map
 from specgpu.engine.runtime import DTYPE_TO_CTYPE, VARIANTS, get_allocator, get_kernel, kernel_variant, new_kernel
-from numpy.typing import ArrayLike
-from numpy.typing import DTypeLike
 
 VW = 8  # pixels per work-item of the "cpu" variant, as kernels/common.h
 _GROUP = 64  # work-group size; the global size is padded to a multiple of it

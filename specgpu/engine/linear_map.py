@@ -10,13 +10,21 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
 
-from specgpu.core.validate import (check_frames, check_gain_map, check_level, check_matrix, check_out_dtype,
-                                   check_pixel_map, check_result_size, is_device_array, validate_method)
+from specgpu.core.validate import (
+    check_frames,
+    check_gain_map,
+    check_level,
+    check_matrix,
+    check_out_dtype,
+    check_pixel_map,
+    check_result_size,
+    is_device_array,
+    validate_method,
+)
 from specgpu.engine import kernels, transfer
 from specgpu.engine.runtime import get_queue
-from numpy.typing import ArrayLike
-from numpy.typing import DTypeLike
 
 __all__ = ["LAYOUTS", "apply_linear", "LinearResult"]
 

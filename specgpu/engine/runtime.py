@@ -79,7 +79,6 @@ def _ask_nv_attributes_only_of_devices_with_them() -> None:
     cl_nv_device_attribute_query extension: it is made here only of devices that report the extension, which gives
     the same answer without an invalid API call (a CL_INVALID_VALUE error per kernel object in API checkers such
     as Oclgrind's)."""
-
     original = characterize.nv_compute_capability
     if getattr(original, "specgpu_guarded", False):
         return
@@ -439,7 +438,6 @@ def program_cache_size() -> int:
 
 def describe(device=None) -> str:
     """The text of ``specgpu info``: platforms, devices with their selectors, the chosen device and versions."""
-
     lines = []
     devices = list_devices()
     chosen = select_device(device)

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
-from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.guided import guided_filter
+from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
 
 __all__ = ["golden_path", "load_golden", "run_selftest", "SelftestReport", "CaseResult", "CASES"]

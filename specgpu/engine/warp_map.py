@@ -10,22 +10,22 @@ Translations run through :class:`PreparedWarp` (``linear_warp_translate``): ever
 bilinear weights, so 8 output pixels of a row take their samples from 9 consecutive source pixels of two rows,
 read as vectors and corrected as they are read, each source row once for the two output rows it serves; about
 what the static decoder costs (``tools/benchmarks/warp_cost.py``). Where a later step reads the corrected frames
-too, they are written first (``warp_correct``) and the warp samples them, with the same result. Affine maps and flows run a
+too, they are written first (``warp_correct``) and the warp samples them, with the same result. Affine maps and
+flows run a
 work-item per pixel (``linear_warp``).
 """
 
 from __future__ import annotations
 
 import numpy as np
-
 import pyopencl as cl
 import pyopencl.array as cla
+from numpy.typing import ArrayLike
 
 from specgpu.core.validate import check_frames, check_level, check_matrix, validate_method
 from specgpu.engine import kernels
 from specgpu.engine.linear_map import LinearResult
 from specgpu.engine.runtime import DTYPE_TO_CTYPE, get_allocator, get_kernel, get_queue, kernel_variant, new_kernel
-from numpy.typing import ArrayLike
 
 __all__ = ["apply_linear_warped", "MASK_OUTSIDE", "check_shifts", "PreparedWarp", "prepare_linear_warped"]
 

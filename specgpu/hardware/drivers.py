@@ -4,10 +4,11 @@ uploaded. The one place that chooses between the two, for the stream and the cap
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import specgpu.hardware.rig as hardware_rig
 from specgpu.capture.twin_driver import TwinDriver
 from specgpu.rig.twin import TwinRig
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.rig.config import RigDescription

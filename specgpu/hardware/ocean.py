@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from specgpu.core.validate import check_number
-from specgpu.io.npz import read_spectrum_csv
 from specgpu.hardware.errors import BackendMissing, DeviceNotFound, HardwareError
+from specgpu.io.npz import read_spectrum_csv
 from specgpu.rig.spectroradiometer import Spectroradiometer, SpectroradiometerParameters
 
 __all__ = ["OceanSpectrometer", "open_seabreeze"]

@@ -53,8 +53,8 @@ from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, SimulatedDLPC900, Us
 from specgpu.hardware.dlpc900.images import COMPRESSIONS, GEOMETRIES
 from specgpu.hardware.genicam import MODES, GenICamCamera
 from specgpu.hardware.lights import KIND_LIGHTS, light_for_kind, open_led_light, open_ol490_light
-from specgpu.hardware.ol490.sdk import DEFAULT_SDK_TYPE
 from specgpu.hardware.ocean import OceanSpectrometer
+from specgpu.hardware.ol490.sdk import DEFAULT_SDK_TYPE
 from specgpu.rig.config import RigDescription, load_rig
 from specgpu.rig.light import ProgrammableLight
 
@@ -237,7 +237,6 @@ def open_light(hardware=None, *, rig=None, calibration=None, transport=None):
     """The light a :class:`HardwareConfig` names: a :class:`~specgpu.hardware.dlpc900.DLPC900Light`, an
     :class:`~specgpu.hardware.led.LedLight` or an :class:`~specgpu.hardware.ol490.OL490Light` (``transport``
     overrides the USB or simulated link: a DLPC900 transport, the LED board's serial port, the OL490's SDK)."""
-
     cfg = _config(hardware, rig)
     if cfg.light.startswith("led"):
         return open_led_light(cfg, port=transport)
@@ -275,8 +274,6 @@ def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n
         Exposure of the camera and of each pattern, s (a plan's: its dark frame and decoder are for it); default
         ``hardware.exposure_s``.
     """
-
-
     cfg = _config(hardware, rig)
     if exposure_s is not None:
         cfg = replace(cfg, exposure_s=float(exposure_s))  # checked as hardware.exposure_s is
@@ -296,7 +293,6 @@ def open_hardware(rig=None, *, hardware=None, patterns=None, calibration=None, n
 
 def open_spectrometer(hardware=None, *, device=None):
     """The spectrometer a :class:`HardwareConfig` names; ``ValueError`` if it names none."""
-
     cfg = _config(hardware)
     if cfg.spectrometer != "ocean" and device is None:
         raise ValueError("hardware.spectrometer names no spectrometer; set it to 'ocean' for loop (b)")
@@ -393,7 +389,6 @@ class HardwareCalibrationRig(HardwareRig):
     def capture_mean(self, patterns, repeats: int, *, exposure_s: float | None = None,
                      noise_seed: int | None = None) -> np.ndarray:
         """(K, H, W) float64 mean of ``repeats`` sequences of ``patterns`` captured at ``exposure_s`` (s)."""
-
         patterns = np.atleast_2d(np.asarray(patterns, np.int32))
         k = patterns.shape[0]
         self._set_exposure(self.exposure_s if exposure_s is None else exposure_s)
@@ -449,7 +444,6 @@ def open_calibration_rig(rig=None, *, hardware=None, acquirer=None, transport=No
     ``spectrometer`` (an :class:`~specgpu.hardware.ocean.OceanSpectrometer`, or a seabreeze-like device for it)
     replace the devices the table would open (tests, dry runs).
     """
-
     desc = rig if isinstance(rig, RigDescription) else load_rig(rig)
     cfg = _config(hardware, desc)
     if not cfg.light.startswith("dlpc900"):

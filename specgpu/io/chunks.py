@@ -67,7 +67,6 @@ def _chunk_bytes(value, dtype) -> np.ndarray:
 def encode_chunk(value, dtype, encoder=None) -> tuple:
     """One chunk as zarr v3 stores it with the recorder's codecs: the bytes (compressed by ``encoder`` when given),
     then their CRC32C (4 bytes, little-endian). Returns (flat uint8 data, checksum bytes): no concatenating copy."""
-
     data = _chunk_bytes(value, dtype)
     if encoder is not None:
         data = np.frombuffer(encoder.encode(data), np.uint8)
@@ -251,7 +250,6 @@ def probe_write_rate(path, nbytes: int = 64 << 20, *, repeats: int = 3, max_seco
     8 MiB blocks as the recorder writes them (direct I/O where the file system has it, else buffered) and synced
     to the disk, the median of ``repeats`` (at most about ``max_seconds`` in all). The probe file is a hidden
     temporary one next to ``path``, always removed."""
-
     probe = Path(path)
     while not probe.exists():
         probe = probe.parent

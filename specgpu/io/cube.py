@@ -36,9 +36,11 @@ a folder without one is an incomplete capture and readers refuse it. Every error
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.text import short_list
 from specgpu.io.envi import (
@@ -52,8 +54,6 @@ from specgpu.io.exr import read_cube_exr, read_exr, write_cube_exr, write_exr
 from specgpu.io.metadata import _META_ATTRIBUTE, _metadata_from, _metadata_json
 from specgpu.io.npz import read_cube_npz, write_cube_npz
 from specgpu.io.paths import _suffix
-import os
-from numpy.typing import ArrayLike
 
 __all__ = ["write_cube", "read_cube", "companion_files", "MAP_KINDS", "write_map", "read_map"]
 

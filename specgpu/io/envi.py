@@ -8,16 +8,16 @@ type, interleave and byte order the header declares and finds the data file as E
 from __future__ import annotations
 
 import base64
+import os
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.text import one_line
 from specgpu.io.bands import check_cube, wavelength_order
 from specgpu.io.metadata import _META_ATTRIBUTE, _metadata_from, _metadata_json
 from specgpu.io.paths import atomic_path
-import os
-from numpy.typing import ArrayLike
 
 __all__ = [
     "ENVI_DATA_TYPES", "ENVI_INTERLEAVES", "envi_data_path", "write_cube_envi", "read_envi_header",
@@ -70,7 +70,6 @@ def write_cube_envi(path: str | os.PathLike[str], cube: ArrayLike, wavelengths: 
     metadata : mapping, optional
         JSON values, stored in the header as ``specgpu metadata`` (base64 JSON: ENVI values may not hold braces).
     """
-
     path = Path(path)
     if path.suffix.lower() != ".hdr":
         raise ValueError(f"{path}: an ENVI cube is written through its .hdr header")
@@ -142,7 +141,6 @@ def read_cube_envi(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray
         One line naming the file: no header or data file, a malformed header, a data file whose size is not
         what the header describes, no or bad wavelengths, unknown data type, interleave or units.
     """
-
     path = Path(path)
     fields = read_envi_header(path)
 

@@ -10,17 +10,17 @@ Readers order bands by wavelength, never by channel order (OpenEXR stores channe
 from __future__ import annotations
 
 import math
+import os
 import re
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
+from numpy.typing import ArrayLike
 
 from specgpu.core.text import one_line, short_list
 from specgpu.io.bands import check_cube
 from specgpu.io.paths import _check_exists, atomic_path, error_of, write_failed
-from numpy.typing import ArrayLike
-import os
 
 __all__ = [
     "SPECTRAL_LAYOUT_VERSION", "format_channel", "parse_channel", "read_exr", "write_exr", "write_image",
@@ -123,7 +123,6 @@ def read_exr(path: str | os.PathLike[str], what: str = "EXR") -> tuple[np.ndarra
     ValueError
         The file cannot be opened as OpenEXR, is deep, or its pixels are truncated or corrupt.
     """
-
     path = Path(path)
     _check_exists(path, what)
     inp = oiio.ImageInput.open(str(path))
@@ -166,7 +165,6 @@ def write_exr(path: str | os.PathLike[str], data: ArrayLike, names, *, half: boo
     attributes : dict, optional
         Header attributes, name -> str, int or float.
     """
-
     path = Path(path)
     arr = np.asarray(data, dtype=np.float32)
     names = [str(n) for n in names]
@@ -189,7 +187,6 @@ def write_exr(path: str | os.PathLike[str], data: ArrayLike, names, *, half: boo
 def write_image(path: Path, pixels: np.ndarray, spec, format_name: str, label: str) -> Path:
     """Write ``pixels`` (H, W, C) with an OpenImageIO ``spec`` through ``format_name``, atomically (temporary name,
     renamed at the end); a failure is a one-line ValueError naming the file."""
-
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(format_name)
         if out is None or not out.open(str(tmp), spec):

@@ -52,7 +52,6 @@ def _journal_line(raw: bytes, checked: bool = False):
 
 def _frame_shape(path: Path):
     """(height, width) of a frame file from its header, or None when it cannot be read as an image."""
-
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         error_of(oiio)  # clear the library's pending error

@@ -9,12 +9,14 @@ available, inflation ratio), so a damaged or hostile archive is one line, not an
 from __future__ import annotations
 
 import math
+import os
 import tokenize
 import zipfile
 import zlib
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.text import one_line
 from specgpu.core.validate import (
@@ -24,8 +26,6 @@ from specgpu.core.validate import (
 )
 from specgpu.io.bands import check_cube, wavelength_order
 from specgpu.io.paths import _check_exists, atomic_path
-import os
-from numpy.typing import ArrayLike
 
 __all__ = [
     "NPZ_UNIFORM_BYTES", "NPZ_MAX_RATIO", "npz_members", "read_cube_npz", "write_cube_npz", "read_spectrum_csv",

@@ -8,16 +8,16 @@ own) and the scale in the PNG text metadata. Both are written atomically.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
+from numpy.typing import ArrayLike
 
 from specgpu.core.text import one_line
 from specgpu.io.exr import write_image
 from specgpu.io.paths import _suffix
-import os
-from numpy.typing import ArrayLike
 
 __all__ = ["PERCEPTUAL_COLORMAPS", "MIN_BAR_HEIGHT", "sRGB8", "write_png", "write_sRGB_preview", "write_delta_E_png",
            "read_png"]
@@ -29,7 +29,6 @@ PERCEPTUAL_COLORMAPS = ("magma", "inferno", "viridis", "plasma", "cividis")
 
 def write_png(path: Path, rgb8: np.ndarray, attributes: dict) -> Path:
     """Write an (H, W, C) uint8 image as PNG, atomically, with ``attributes`` as its text metadata; return ``path``."""
-
     h, w, c = rgb8.shape
     spec = oiio.ImageSpec(w, h, c, "uint8")
     spec.attribute("oiio:ColorSpace", "sRGB")
@@ -83,7 +82,6 @@ def write_sRGB_preview(path: str | os.PathLike[str], XYZ: ArrayLike, *, exposure
     pathlib.Path
         ``path``; the PNG text holds ``specgpu:exposure_EV`` (the exposure applied).
     """
-
     path = Path(path)
     _suffix(path, (".png",), "preview")
     arr = np.asarray(XYZ, dtype=np.float64)
@@ -226,7 +224,6 @@ def write_delta_E_png(path: str | os.PathLike[str], delta_E: ArrayLike, *, vmax:
 
 def read_png(path: str | os.PathLike[str]) -> tuple[np.ndarray, dict]:
     """Read an 8-bit PNG: (H, W, C) uint8 pixels and its text metadata (name -> str)."""
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: PNG not found")

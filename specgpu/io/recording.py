@@ -472,7 +472,6 @@ def native(a):
 
 def consolidate(path) -> None:
     """Consolidate a group's metadata into its root document (xarray then opens it from one read)."""
-
     import zarr
 
     with warnings.catch_warnings():  # zarr notes that consolidation is not (yet) in the v3 specification

@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
+from numpy.typing import ArrayLike
 
 from specgpu.core.text import one_line
 from specgpu.io.metadata import _metadata_json
 from specgpu.io.paths import atomic_path, error_of, os_error, write_failed
-from numpy.typing import ArrayLike
 
 __all__ = [
     "SEQUENCE_FORMAT", "SEQUENCE_VERSION", "SEQUENCE_FILE", "JOURNAL_FILE", "JOURNAL_FORMAT",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import tokenize
 import zipfile
 import zlib
@@ -17,7 +18,6 @@ import numpy as np
 
 from specgpu.io.npz import npz_members
 from specgpu.io.paths import atomic_path
-import os
 
 __all__ = ["content_hash", "save_npz", "load_npz"]
 

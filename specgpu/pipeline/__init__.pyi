@@ -4,6 +4,7 @@ from .accumulate import AccumulateSink
 from .acquire import ZarrCapture, capture_into
 from .batch import BATCH_FORMAT, BATCH_OUTPUTS, BatchJob, BatchReport, prepare_batch, run_batch
 from .batch_output import BatchOutput, open_batch_output
+from .capture_folder import SequenceFolder, read_capture, write_capture
 from .decoder import STREAM_OUTPUTS, StreamDecoder
 from .denoise import denoise_recovery
 from .evaluate import PatchReport, PixelReport, evaluate_pixels, evaluate_reflectance, evaluate_XYZ
@@ -12,7 +13,6 @@ from .moving import MOTION_MODES, MotionEstimate, estimate_global_motion
 from .moving_decode import MovingDecoder
 from .moving_layers import MovingRecovery, recover_moving
 from .projector import PROJECTOR_TARGETS, ProjectionReport, metamer_map, project, render_scene
-from .capture_folder import SequenceFolder, read_capture, write_capture
 from .recovery import recover
 from .sequence_decoder import SequenceDecoder, corrections_for
 from .sinks import CallbackSink, ExrSequenceWriter, PreviewSink, Sink, StreamResult

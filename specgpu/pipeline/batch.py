@@ -50,10 +50,12 @@ import uuid
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
+from numpy.typing import ArrayLike
 from tqdm import tqdm
 
 from specgpu.core.locks import OutputLocked, output_lock, pid_alive
@@ -71,8 +73,6 @@ from specgpu.pipeline.batch_source import (
 from specgpu.pipeline.decoder import StreamDecoder
 from specgpu.pipeline.denoise import stream_denoise
 from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
-from numpy.typing import ArrayLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle
@@ -516,7 +516,6 @@ def _remove_dead_creations(out: Path) -> None:
 def _unfinished_creation(out: Path) -> bool:
     """A batch output whose creation was cut before its ``done`` array existed (an older specgpu created it in
     place): no sequence was computed in it."""
-
     try:
         doc = json.loads((out / "zarr.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):

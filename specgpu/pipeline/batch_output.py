@@ -10,6 +10,7 @@ sequence, a sequence the batch has not computed yet, a done sequence whose chunk
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +18,6 @@ import numpy as np
 
 from specgpu.io.recording import Recording, open_zarr_group
 from specgpu.pipeline.batch import BATCH_FORMAT, BATCH_OUTPUTS, BATCH_VERSION, _done_flags
-import os
 
 __all__ = ["BatchOutput", "open_batch_output"]
 

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from specgpu import io
-from specgpu.io.paths import atomic_path
 from specgpu.calibration.bundle import CalibrationBundle, load_calibration, save_calibration
+from specgpu.io.paths import atomic_path
 from specgpu.planning.plans import Plan, load_plan, save_plan
 
 __all__ = ["CALIBRATION_FILE", "INCOMPLETE_MARKER", "PLAN_FILE", "CaptureWriter", "SequenceFolder",
@@ -167,7 +167,6 @@ class SequenceFolder:
 
 def _zarr_not_a_sequence(directory: Path) -> str:
     """The refusal of a zarr recording where a sequence folder is read: say what it is and what reads it."""
-
     try:
         attrs = json.loads((directory / "zarr.json").read_text()).get("attributes", {})
     except (OSError, ValueError, AttributeError):

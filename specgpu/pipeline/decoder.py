@@ -7,8 +7,11 @@ arrive, :mod:`specgpu.pipeline.batch` on recorded ones.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pyopencl.array as cla
+from numpy.typing import ArrayLike, DTypeLike
 
 from specgpu import engine
 from specgpu.core.numerics import live_gain
@@ -21,9 +24,6 @@ from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.correction import WhiteReference
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.uncertainty import ambient_variance, constant_covariance, variance_rows
-from numpy.typing import ArrayLike
-from numpy.typing import DTypeLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

@@ -19,6 +19,7 @@ a frame) and the prior's mismatch (common to a surface) are not averaged down an
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.numerics import live_gain
 from specgpu.core.validate import check_number
@@ -27,12 +28,12 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.sequence_decoder import check_sequence
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
-from numpy.typing import ArrayLike
 
 __all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace",
            "denoise_recovery", "denoised_sigma", "stream_denoise"]
 
-#: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/studies/budget_study.py --tune``): on
+#: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/studies/budget_study.py
+#: --tune``): on
 #: the CIE 2017 CES chart and the natural scene, the pair with the lowest per-pixel RMSE whose error within 2 px of
 #: the scene's edges is no worse than the raw recovery's.
 DENOISE_RADIUS = 2

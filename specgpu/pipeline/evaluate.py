@@ -16,14 +16,14 @@ is averaged over each mask (the paper compares one spectrum per patch with a spe
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, resolve_integration, white_point_XYZ
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.rig.scene import interpolation_matrix
-from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, resolve_integration, white_point_XYZ
-from numpy.typing import ArrayLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.rig.scene import SpectralScene

@@ -9,8 +9,10 @@ import math
 import re
 from contextlib import nullcontext
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu import io
 from specgpu.core.spectra import DEFAULT_CMFS
@@ -25,8 +27,6 @@ from specgpu.pipeline.evaluate import (
     evaluation_integration,
 )
 from specgpu.pipeline.moving import TRUTH_FOLDER, sequence_truth
-from numpy.typing import ArrayLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.rig.scene import SpectralScene

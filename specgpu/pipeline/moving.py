@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import fft
 from skimage.registration import phase_cross_correlation
 from threadpoolctl import ThreadpoolController
@@ -42,11 +43,19 @@ from specgpu.core.validate import validate_method
 from specgpu.engine.consistency import consistency_from_frames, consistency_maps
 from specgpu.engine.gradients import gradient_images
 from specgpu.io.npz import write_cube_npz
-from specgpu.pipeline.registration import (bin_image, correlation_surface, fit_peak_within, half_spectrum_energy,
-                                           hann_window, peak_error, second_peak_ratio, sobel_magnitude,
-                                           tile_displacements, whitened_half_spectrum)
+from specgpu.pipeline.registration import (
+    bin_image,
+    correlation_surface,
+    fit_peak_within,
+    half_spectrum_energy,
+    hann_window,
+    peak_error,
+    second_peak_ratio,
+    sobel_magnitude,
+    tile_displacements,
+    whitened_half_spectrum,
+)
 from specgpu.rig.twin import TwinRig
-from numpy.typing import ArrayLike
 
 __all__ = ["MASK_INCONSISTENT", "sequence_truth", "truth_name", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD",
            "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode",
@@ -242,7 +251,8 @@ def estimate_global_motion(frames: ArrayLike, dark: ArrayLike | None = None, gai
         (:func:`specgpu.pipeline.registration.fit_peak`; the weighted surface is a Gaussian, so this is exact to
         about 0.01 px of a 1/100 px upsampled DFT) on real single-precision FFTs; or skimage's upsampled DFT
         (``phase_cross_correlation``), five to ten times slower. On the moving twin at 640 x 480 (24 sequences,
-        ``tools/studies/motion_registration.py``) the defaults (fit, reference pairs there) err by at most 0.07 px, median
+        ``tools/studies/motion_registration.py``) the defaults (fit, reference pairs there) err by at most 0.07 px,
+        median
         0.04 px, in an eighth of the time of the upsampled DFT of all pairs (0.08, 0.04).
     binning : int
         Average the gradient images over b x b pixels before registering (faster FFTs; the shifts are scaled

@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import threading
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
 
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E
@@ -33,9 +35,6 @@ from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.reference_frames import reference_indices
 from specgpu.planning.uncertainty import constant_variance, frame_variance
-from numpy.typing import ArrayLike
-from numpy.typing import DTypeLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

@@ -37,20 +37,25 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import ndimage
 from skimage.morphology import convex_hull_image
 
 from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import LinearResult
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
-from specgpu.pipeline.moving import (CHECK_THRESHOLD, MASK_INCONSISTENT, at_reference_time, consistency,
-                                     estimate_global_motion,
-                                     frame_gradients)
-from specgpu.pipeline.moving_residual import residual_chi2
+from specgpu.pipeline.moving import (
+    CHECK_THRESHOLD,
+    MASK_INCONSISTENT,
+    at_reference_time,
+    consistency,
+    estimate_global_motion,
+    frame_gradients,
+)
 from specgpu.pipeline.moving_flow import MIN_FRAMES, choose_flow, flow_field, tile_motion
+from specgpu.pipeline.moving_residual import residual_chi2
 from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
-from numpy.typing import ArrayLike
 
 __all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
            "explained", "disagreeing", "DISAGREE_RMS", "flagged_regions", "estimate_layer_motion",

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.engine.colorimetry import delta_E
 from specgpu import io
+from specgpu.engine.colorimetry import delta_E
 from specgpu.io.sequence import capture_hash
+from specgpu.pipeline.denoise import denoised_sigma
 from specgpu.pipeline.recovery import to_Lab, to_XYZ, uncertainty
 from specgpu.planning.correction import DEFAULT_WHITE_REFLECTANCE
-from specgpu.pipeline.denoise import denoised_sigma
 from specgpu.planning.uncertainty import delta_E_sigma
 
 __all__ = [

@@ -12,15 +12,15 @@ same under both, colourful objects do not (metamerism, colour rendering).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import colour
 import numpy as np
 
 from specgpu.calibration import spectral_loop
-from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.core.validate import validate_method
+from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.rig.twin import TwinRig
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

@@ -54,7 +54,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
 
     ``white_roi`` (``"X,Y,W,H"``) names a reference white of ``white_reflectance`` (a number or a CSV; 0.99 by
     default) in the field: each sequence's decoder is rescaled for the light's drift since calibration
-    (:mod:`specgpu.planning.correction`): the colour change fitted once on the sequences' mean white gains (it drifts over
+    (:mod:`specgpu.planning.correction`): the colour change fitted once on the sequences' mean white gains (it
+    drifts over
     hours; each frame's own power fluctuation averages down over the sequences), each sequence then rescaled by
     its own gains. A plan with an ambient frame (``plan --ambient``) has that frame subtracted
     instead of the calibration's dark level. Either way each sequence is decoded on its own, then averaged.
@@ -73,7 +74,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         The reference white in the field, as above.
     motion : {"none", "global", "affine", "flow"}
         ``"global"``: the scene moved during the sequence; a translation per frame (``"affine"``: an affine map,
-        for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`), the outputs are the scene at the sequence's
+        for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`),
+        the outputs are the scene at the sequence's
         reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene
         moves between sequences too): ``sequence`` is required unless the folder holds one.
 

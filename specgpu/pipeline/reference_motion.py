@@ -23,10 +23,21 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import CubicSpline, interp1d
 
-from specgpu.pipeline.moving import (MotionEstimate, _affine_to, _dominant_translation, _one_blas_thread,
-                                     at_reference_time, frame_gradients)
-from specgpu.pipeline.registration import (correlation_surface, fit_peak, half_spectrum_energy, peak_error,
-                                           whitened_half_spectrum)
+from specgpu.pipeline.moving import (
+    MotionEstimate,
+    _affine_to,
+    _dominant_translation,
+    _one_blas_thread,
+    at_reference_time,
+    frame_gradients,
+)
+from specgpu.pipeline.registration import (
+    correlation_surface,
+    fit_peak,
+    half_spectrum_energy,
+    peak_error,
+    whitened_half_spectrum,
+)
 
 __all__ = ["check_reference_frames", "estimate_reference_motion", "interpolate_in_time"]
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from specgpu import io
-from specgpu.io.journal import journal_header
 from specgpu.calibration.bundle import load_calibration
+from specgpu.io.journal import journal_header
 from specgpu.pipeline.capture_folder import CALIBRATION_FILE, INCOMPLETE_MARKER, PLAN_FILE, read_capture
 from specgpu.pipeline.motion_record import renumber_truth
 from specgpu.planning.plans import load_plan
@@ -17,7 +17,8 @@ __all__ = ["salvage_capture"]
 
 def salvage_capture(directory) -> dict:
     """Make a capture folder left by a killed capture (no ``sequence.json``, its journal present) readable: index
-    every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.journal.salvage_sequence`), keep
+    every complete sequence whose journal lines and frames are intact (:func:`specgpu.io.journal.salvage_sequence`),
+    keep
     the plan and calibration copies, remove the interrupted marker. Returns what was kept (``sequences``,
     ``frames_kept``, ``frames_journaled``, ``left_out``: each sequence not kept and why, ``kept_sequences``,
     ``stopped``). The motion truth of a capture on a moving twin is renumbered with the sequences

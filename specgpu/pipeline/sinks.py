@@ -6,6 +6,7 @@ and a live sRGB preview. The recording sink, which keeps every sequence, is
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections import deque
@@ -14,13 +15,12 @@ from pathlib import Path
 
 import colour
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu import io
 from specgpu.capture.ringbuffer import wait_for_items
 from specgpu.core.spectra import DEFAULT_CMFS, white_point_XYZ
 from specgpu.io.previews import write_png
-import os
-from numpy.typing import ArrayLike
 
 __all__ = ["CallbackSink", "ExrSequenceWriter", "PreviewSink", "ResultsRing", "Sink", "StreamResult", "sink_label"]
 

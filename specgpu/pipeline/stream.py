@@ -46,10 +46,12 @@ import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
+from numpy.typing import DTypeLike
 
 from specgpu.capture.assemble import AssemblyStats, SequenceAssembler
 from specgpu.capture.driver import CameraDriver, FrameInfo, StreamEnd
@@ -68,8 +70,6 @@ from specgpu.pipeline.stream_report import (
     peak_rss_bytes,
     peak_rss_reset,
 )
-from numpy.typing import DTypeLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle
@@ -214,7 +214,8 @@ class Stream:
         the queue), or copied by ``enqueue_copy`` straight from the sequence into a pooled device buffer;
         ``"auto"``: host_ptr on CPU devices, pinned elsewhere.
         Measured on PoCL (2 cores), 640 x 480, coefficients + XYZ + dE2000, best of 3 interleaved rounds
-        (``python tools/benchmarks/stream_transfers.py --seconds 4 --rounds 3``): host_ptr + map 1028 frames/s, copy + map
+        (``python tools/benchmarks/stream_transfers.py --seconds 4 --rounds 3``): host_ptr + map 1028 frames/s, copy
+        + map
         965, host_ptr + copy 936, pinned + map 913, copy + copy 854, pinned + copy 833; mapping the outputs is
         worth ~10 %, and ALLOC_HOST_PTR staging buys nothing on a CPU device (it adds a host copy). The device
         alone needs 7.4 ms per sequence (1219 frames/s), 6.3 ms of it the dE2000 pass.

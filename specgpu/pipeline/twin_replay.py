@@ -16,8 +16,8 @@ from specgpu.capture.assemble import AssemblyStats, Sequence
 from specgpu.capture.replay import ReplayDriver, record
 from specgpu.capture.twin_driver import TwinDriver
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
-from specgpu.pipeline.recovery import default_basis, recover, to_Lab, to_XYZ
 from specgpu.pipeline.capture_folder import read_capture, write_capture
+from specgpu.pipeline.recovery import default_basis, recover, to_Lab, to_XYZ
 from specgpu.planning.basis_plans import plan_symmetric_basis
 from specgpu.planning.plans import save_plan
 from specgpu.rig.config import RigDescription
@@ -33,6 +33,7 @@ class StreamSetup:
     """What the stream benchmark streams: a calibrated twin, a symmetric plan (K = 9, 61 output bands) whose
     exposure fits the paced frame rate, a recording of ``sequences`` whole sequences of the colorchecker replayed
     by :class:`~specgpu.capture.replay.ReplayDriver`, and the scene's per-pixel Lab as the dE reference."""
+
     description: object
     bundle: object
     plan: object

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,10 +48,9 @@ import colour.characterisation
 import colour.quality
 import numpy as np
 from colour.quality.cfi2017 import load_TCS_CIE2017
+from numpy.typing import ArrayLike
 
 from specgpu.io.tables import load_npz, save_npz
-from numpy.typing import ArrayLike
-import os
 
 __all__ = [
     "REFLECTANCE_SETS",

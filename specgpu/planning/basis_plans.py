@@ -7,13 +7,14 @@ mirrors, slit blur): ``D F Phi`` is the m x m matrix the ideal design makes the 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.planning.basis import BasisTable
 from specgpu.planning.plans import Plan, _base, _design_frames, _on_grid
 from specgpu.rig.scene import interpolation_matrix
-from numpy.typing import ArrayLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -38,7 +39,6 @@ from specgpu.planning.design import _system_on, design_optimal
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.priors import Prior
 from specgpu.planning.timing import exposure_within
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

@@ -10,11 +10,11 @@ more relative noise), which the expected error recorded by the Wiener or project
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 from specgpu.planning.design import plan_optimal
 from specgpu.planning.registry import make_plan
 from specgpu.planning.timing import budget_params, check_budget, exposure_within, extra_count
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

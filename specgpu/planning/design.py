@@ -29,9 +29,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import colour
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.calibration.bundle import DEFAULT_MAX_EXPOSURE_S
 from specgpu.core.spectra import XYZ_weights
@@ -43,8 +45,6 @@ from specgpu.planning.plans import _band_masks, _base, _quantize
 from specgpu.planning.priors import Prior
 from specgpu.planning.timing import budget_params, check_budget, exposure_within, extra_count
 from specgpu.rig.scene import interpolation_matrix
-from numpy.typing import ArrayLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

@@ -6,13 +6,14 @@ the photon-limited optimal designs, each made within one budget per frame count 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from specgpu.planning.bound import design_bound
 from specgpu.planning.budget import budget_plan
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

@@ -24,14 +24,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.spectra import XYZ_weights
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.priors import Prior, smooth_prior
-from numpy.typing import ArrayLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

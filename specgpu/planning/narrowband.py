@@ -4,11 +4,12 @@ column's level proportional to ``1 / (lamp V)`` so every band gives the same out
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.planning.plans import Plan, _band_masks, _base, _check_centres, _quantize
-from numpy.typing import ArrayLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

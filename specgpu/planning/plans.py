@@ -21,8 +21,10 @@ file.
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,8 +33,6 @@ from specgpu.core.numerics import fit_levels
 from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS, XYZ_weights, resolve_integration, white_point_XYZ
 from specgpu.core.validate import BadArgument
 from specgpu.io.tables import content_hash, load_npz, save_npz
-import os
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

@@ -14,11 +14,18 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.io.npz import npz_members
-from specgpu.planning.basis import (DEFAULT_WAVELENGTHS, MAX_REFLECTANCE, REFLECTANCE_SETS, evaluation_exclusions,
-                                    load_reflectances, pca_basis, read_reflectance_csv)
-from numpy.typing import ArrayLike
+from specgpu.planning.basis import (
+    DEFAULT_WAVELENGTHS,
+    MAX_REFLECTANCE,
+    REFLECTANCE_SETS,
+    evaluation_exclusions,
+    load_reflectances,
+    pca_basis,
+    read_reflectance_csv,
+)
 
 __all__ = ["HELD_OUT_CHART", "Prior", "prior_from_spectra", "read_training", "held_out_spectra", "training_database",
            "held_out_basis", "training_spectra", "default_prior", "smooth_prior", "subspace_bound"]

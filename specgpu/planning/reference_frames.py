@@ -15,7 +15,8 @@ at the plan's exposure: it never saturates where the plan's own frames do not. T
 each reference frame: the decode is the plan's own, and a still scene decodes exactly as without them. Reading them
 too gains little: a Wiener decoder re-fitted over all 13 frames of symmetric-9 with M = 3 lowers the still scene's
 per-pixel RMSE from 0.0294 to 0.0279 and its dE2000 from 4.45 to 4.41
-(``tools/studies/reference_decode_study.py``, 640 x 480, 3 draws), and would make the reference frames' samples part of every output, so that where they saw outside
+(``tools/studies/reference_decode_study.py``, 640 x 480, 3 draws), and would make the reference frames' samples part
+of every output, so that where they saw outside
 the field or disagree after compensation would count too. Their indices are recorded in
 ``params["reference_frames"]`` (:func:`reference_indices`), the interval in ``params["reference_every"]``.
 
@@ -29,12 +30,12 @@ for reference frames, moves across (``recover --motion`` refuses them for that r
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from specgpu.planning.correction import ambient_index, probe_indices
 from specgpu.planning.timing import check_budget
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

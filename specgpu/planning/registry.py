@@ -4,13 +4,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from specgpu.core.validate import BadArgument
 from specgpu.planning.basis_plans import plan_biased_basis, plan_symmetric_basis
 from specgpu.planning.design import plan_hadamard, plan_optimal
 from specgpu.planning.narrowband import plan_narrowband, plan_reciprocal_narrowband
 from specgpu.planning.plans import Plan
 from specgpu.planning.response import plan_camera_simulator, plan_steady_state, plan_tristimulus
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

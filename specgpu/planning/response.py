@@ -6,8 +6,11 @@ target spectral irradiance (spectral rendering).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import colour
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.numerics import fit_levels
 from specgpu.core.spectra import DEFAULT_CMFS, XYZ_weights, resolve_cmfs, resolve_illuminant_sd
@@ -15,8 +18,6 @@ from specgpu.core.validate import BadArgument
 from specgpu.planning.basis import BasisTable
 from specgpu.planning.plans import Plan, _base, _design_frames, _on_grid, _quantize
 from specgpu.rig.scene import interpolation_matrix
-from numpy.typing import ArrayLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle

@@ -14,8 +14,11 @@ fluctuation its decoder's differences do not cancel. ``m_b``, the prior's mismat
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import colour
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.numerics import live_gain
 from specgpu.core.spectra import DEFAULT_CMFS, white_point_XYZ
@@ -23,8 +26,6 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.noise import NoiseModel
-from numpy.typing import ArrayLike
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from specgpu.planning.plans import Plan

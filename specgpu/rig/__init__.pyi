@@ -6,6 +6,7 @@ from .led import LED_PRESETS, LEDParameters
 from .light import LightParameters, ProgrammableLight
 from .lights import LIGHT_KINDS
 from .motion import MotionParameters, MovingScene
+from .ol490 import OL490Parameters
 from .scene import (
     BUILTIN_SCENES,
     SpectralScene,
@@ -16,7 +17,6 @@ from .scene import (
     white_plate_scene,
     write_scene,
 )
-from .ol490 import OL490Parameters
 from .spectroradiometer import Spectroradiometer, SpectroradiometerParameters
 from .twin import FaultSchedule, SNRReport, TwinRig, measure_snr
 

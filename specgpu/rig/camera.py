@@ -28,10 +28,10 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.validate import check_array, check_number, normalised_to_peak
 from specgpu.io.npz import curve_on_grid
-from numpy.typing import ArrayLike
 
 __all__ = ["CameraParameters", "Camera", "sensitivity_curve", "standard_normal_fill"]
 

@@ -38,6 +38,7 @@ wrong types and out-of-range values are errors that name the file and the key.
 from __future__ import annotations
 
 import dataclasses
+import os
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -52,7 +53,6 @@ from specgpu.rig.scene import _NATURAL_IMAGES
 from specgpu.rig.sensors import PRESETS, expand_preset
 from specgpu.rig.spectroradiometer import SpectroradiometerParameters
 from specgpu.rig.tables import build_table
-import os
 
 __all__ = ["FaultRates", "RigDescription", "load_rig", "rig_from_dict", "dump_rig", "PACING"]
 

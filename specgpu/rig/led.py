@@ -229,7 +229,8 @@ class LEDParameters:
         for key, low, high in (("fwhm_nm", 1.0, 200.0), ("relative_power", 0.0, 1e6)):
             v = getattr(self, key)
             if v and len(v) not in (1, len(self.peaks_nm) or len(LED_PRESETS[self.preset])):
-                raise ValueError(f"{n}{key} must hold one value or one per LED ({len(self.peaks_nm or LED_PRESETS[self.preset])}), "
+                count = len(self.peaks_nm or LED_PRESETS[self.preset])
+                raise ValueError(f"{n}{key} must hold one value or one per LED ({count}), "
                                  f"got {len(v)}")
             for x in v:
                 check_number(n + key, x, low=low, high=high, low_open=key == "relative_power")

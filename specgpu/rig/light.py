@@ -30,11 +30,11 @@ from pathlib import Path
 
 import colour
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.validate import check_array, check_number, normalised_to_peak
 from specgpu.io.npz import curve_on_grid
 from specgpu.rig.realism import Drift, Realism
-from numpy.typing import ArrayLike
 
 __all__ = ["LightParameters", "ProgrammableLight", "PatternFit", "lamp_spd", "photopic_y"]
 
@@ -181,7 +181,6 @@ class LightParameters:
 
 def photopic_y(wavelengths: np.ndarray) -> np.ndarray:
     """CIE 1931 2-degree y-bar colour-matching function sampled at ``wavelengths`` (nm); 0 outside 360-830."""
-
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     return np.interp(wavelengths, cmfs.wavelengths, cmfs.values[:, 1], left=0.0, right=0.0)
 

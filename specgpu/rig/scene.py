@@ -24,20 +24,20 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import colour
 import numpy as np
 import skimage.data
+from numpy.typing import ArrayLike
 from skimage.transform import resize
 
 from specgpu.core.validate import BadArgument, check_array, check_number, check_wavelengths
 from specgpu.io.envi import read_cube_envi
 from specgpu.io.exr import read_cube_exr, write_cube_exr
 from specgpu.io.npz import read_cube_npz, write_cube_npz
-import os
-from numpy.typing import ArrayLike
 
 __all__ = [
     "SpectralScene", "read_scene", "write_scene", "colorchecker_scene", "patch_scene", "white_plate_scene",
@@ -322,7 +322,6 @@ def colorchecker_scene(height: int = 480, width: int = 640, *, chart: str = "Col
         Masks keyed by colour-science's patch names (``"dark skin"`` ... ``"black 2 (1.5 D)"``), in chart order;
         each covers the central 70 % of its patch, away from edges blurred by real optics.
     """
-
     if chart not in _CHARTS:
         raise ValueError(f"unknown chart {chart!r}; valid charts: {', '.join(_CHARTS)}")
     h = check_number("height", height, low=24, integer=True)

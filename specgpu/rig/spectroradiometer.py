@@ -15,9 +15,9 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.validate import check_array, check_number
-from numpy.typing import ArrayLike
 
 __all__ = ["SpectroradiometerParameters", "Spectroradiometer"]
 

@@ -32,13 +32,16 @@ def build_table(cls, table: dict, section: str, source: str, base: Path | None =
         if isinstance(default, str):
             if not isinstance(value, str):
                 raise ValueError(f"{source}: {section}.{key} must be a string, got {value!r}")
-            if (section, key) in _PATH_KEYS and base is not None and value and value not in ("xenon", "kinoton-75p", "cmos"):
+            named = value in ("xenon", "kinoton-75p", "cmos")
+            if (section, key) in _PATH_KEYS and base is not None and value and not named:
                 p = Path(value)
                 value = str(p if p.is_absolute() else base / p)
                 if not Path(value).is_file():
                     raise ValueError(f"{source}: {section}.{key} file not found: {value}")
         elif default == ():  # a list of any length (one value per LED, say)
-            if not isinstance(value, list) or any(isinstance(c, bool) or not isinstance(c, (int, float)) for c in value):
+            numbers = isinstance(value, list) and all(
+                isinstance(c, (int, float)) and not isinstance(c, bool) for c in value)
+            if not numbers:
                 raise ValueError(f"{source}: {section}.{key} must be a list of numbers, got {value!r}")
             value = tuple(float(c) for c in value)
         elif isinstance(default, tuple):

@@ -28,6 +28,7 @@ from functools import lru_cache
 
 import colour
 import numpy as np
+from numpy.typing import ArrayLike
 
 from specgpu.core.validate import check_number
 from specgpu.rig.camera import _NORMAL_TABLE, Camera, standard_normal_fill
@@ -37,7 +38,6 @@ from specgpu.rig.lights import make_light
 from specgpu.rig.motion import MovingScene, Trajectory
 from specgpu.rig.scene import SpectralScene, interpolation_matrix, load_scene, white_plate_scene
 from specgpu.rig.spectroradiometer import Spectroradiometer
-from numpy.typing import ArrayLike
 
 __all__ = ["FaultSchedule", "TwinRig", "SNRReport", "measure_snr", "band_patterns"]
 
@@ -398,7 +398,6 @@ class TwinRig:
     def _colour_slopes(self) -> np.ndarray | None:
         """(K,) relative change of each loaded pattern's output on a white per K of lamp colour temperature (from
         the lamp's state at the clock start), or None when the colour does not drift on the clock."""
-
         rate = self.realism.lamp_cct_drift_K_per_hour
         if not rate or not self.light.lamp_colour_drifts:  # an LED has no lamp
             return None
@@ -554,8 +553,6 @@ class TwinRig:
 def ambient_spectrum(wavelengths, lux: float) -> np.ndarray:
     """Spectral irradiance (W m^-2 nm^-1) of room light at ``lux``: CIE FL2 (a cool-white fluorescent tube, the
     commonest lab ceiling light) scaled to that illuminance."""
-
-
     wl = np.asarray(wavelengths, np.float64)
     sd = colour.SDS_ILLUMINANTS["FL2"]
     spd = np.interp(wl, sd.wavelengths, sd.values, left=0.0, right=0.0)

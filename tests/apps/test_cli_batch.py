@@ -20,13 +20,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from specgpu import io
-from specgpu.pipeline.batch import run_batch
-from specgpu.pipeline.twin_replay import stream_setup
-from specgpu.calibration.bundle import save_calibration
 from specgpu.apps.cli import main
-from specgpu.planning import save_plan
+from specgpu.calibration.bundle import save_calibration
 from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.pipeline import Stream
+from specgpu.pipeline.batch import run_batch
+from specgpu.pipeline.twin_replay import stream_setup
+from specgpu.planning import save_plan
 
 N = 6  # sequences in the recording
 

@@ -4,7 +4,6 @@ line."""
 from cli_helpers import one_line_error, run
 
 
-
 def test_cli_bound_prints_and_refuses(tmp_path):
     rig = tmp_path / "rig.toml"
     rig.write_text("[camera]\nroi_width = 320\nroi_height = 240\n")

@@ -11,7 +11,6 @@ from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene, white_tile_roi
 
-
 DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
 
 

@@ -6,7 +6,6 @@ from specgpu import io
 from specgpu.rig.scene import load_scene
 
 
-
 def test_an_envi_scene_is_accepted_wherever_a_scene_is(tmp_path):
     from click.testing import CliRunner
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from cli_helpers import hadamard_rig, one_line_error, python_path, run
+
 from specgpu import io
 from specgpu.io.npz import write_cube_npz
 from specgpu.io.sequence import capture_hash, read_sequence_header

@@ -13,7 +13,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from cli_helpers import RIG, one_line_error, python_path, run
 
 ROOT = Path(__file__).resolve().parents[2]

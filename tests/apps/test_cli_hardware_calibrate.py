@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from hw_fakes import TwinCamera, TwinSeaBreeze, hardware_table, spectrometer_cal
+
 from specgpu.hardware.dlpc900 import SimulatedDLPC900
 from specgpu.planning import make_plan
 
@@ -13,8 +14,8 @@ def test_cli_calibrate_takes_the_hardware_path(tmp_path, monkeypatch):
     from click.testing import CliRunner
 
     import specgpu.hardware.rig as hw_rig
-    from specgpu.calibration.bundle import load_calibration
     from specgpu.apps.cli import main
+    from specgpu.calibration.bundle import load_calibration
     from specgpu.rig.config import load_rig
 
     real = hw_rig.open_calibration_rig

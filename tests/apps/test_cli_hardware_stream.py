@@ -5,14 +5,13 @@ the GenICam camera would be opened."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from hw_fakes import FakeCamera
-from specgpu.pipeline.twin_replay import offline_maps, stream_setup
+
 from specgpu.hardware.dlpc900 import DMDLayout, SimulatedDLPC900
+from specgpu.pipeline.twin_replay import offline_maps, stream_setup
 from specgpu.rig.twin import TwinRig
 
 
@@ -45,11 +44,11 @@ class TwinBench:
 
 def test_cli_stream_on_the_simulated_hardware_rig(setup, tmp_path, monkeypatch):
     import specgpu.hardware.rig as hw_rig
-    from specgpu.calibration.bundle import save_calibration
     from specgpu.apps.cli import main
+    from specgpu.calibration.bundle import save_calibration
+    from specgpu.io.recording import open_recording
     from specgpu.planning import save_plan
     from specgpu.rig.scene import colorchecker_scene
-    from specgpu.io.recording import open_recording
 
     cam = setup.description.camera
     real = hw_rig.open_hardware

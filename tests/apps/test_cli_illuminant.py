@@ -8,10 +8,10 @@ import json
 
 import numpy as np
 import pytest
+from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
 from specgpu import io
 from specgpu.engine.colorimetry import XYZ_to_Lab
 from specgpu.pipeline.evaluate import evaluation_illuminant

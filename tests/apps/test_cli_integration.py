@@ -8,8 +8,8 @@ import json
 
 import numpy as np
 import pytest
-
 from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
+
 from specgpu import io
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E, reflectance_to_XYZ
 from specgpu.pipeline.evaluate import scene_XYZ

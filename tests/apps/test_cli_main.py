@@ -11,10 +11,9 @@ import shutil
 
 import numpy as np
 import pytest
+from cli_helpers import RIG, one_line_error, run
 
 from specgpu import io
-
-from cli_helpers import RIG, one_line_error, run
 
 
 @pytest.fixture(scope="module")

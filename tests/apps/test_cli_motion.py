@@ -8,10 +8,12 @@ import re
 
 import numpy as np
 import pytest
+from cli_helpers import MOVING_RIG as RIG
+from cli_helpers import one_line_error, run
 
-from cli_helpers import MOVING_RIG as RIG, one_line_error, run
 from specgpu import io
 from specgpu.io.npz import read_cube_npz
+
 
 @pytest.fixture(scope="module")
 def moving(tmp_path_factory):

@@ -9,8 +9,8 @@ from cli_helpers import one_line_error, run
 
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.capture.assemble import AssemblyStats
-from specgpu.pipeline.recovery import capture_plan
 from specgpu.pipeline.capture_folder import save_plan_and_calibration, write_capture
+from specgpu.pipeline.recovery import capture_plan
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.registry import make_plan

@@ -10,14 +10,14 @@ import json
 
 import numpy as np
 import pytest
+from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cli_helpers import one_line_error, plan_and_capture, run, tristimulus_rig
 from specgpu import io
+from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS
 from specgpu.engine.colorimetry import XYZ_to_Lab, delta_E
 from specgpu.planning import Plan, load_plan
-from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS
 
 TEN = "CIE 1964 10 Degree Standard Observer"
 
@@ -203,8 +203,8 @@ def test_delta_E_sigma_is_relative_to_the_observers_white(k):
     """A grey at ``k`` of an observer's white, with a covariance in proportion to that white, is the same colour
     with the same spread for either observer: its dE2000 sigma is the same only when each is taken relative to
     its own observer's white."""
-    from specgpu.planning import delta_E_sigma
     from specgpu.core.spectra import white_point_XYZ
+    from specgpu.planning import delta_E_sigma
 
     S = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 5.0]]) * 1e-6
     got = {}

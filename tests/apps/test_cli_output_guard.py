@@ -9,7 +9,6 @@ import os
 import shutil
 
 import pytest
-
 from cli_helpers import MOVING_RIG, one_line_error, run
 
 

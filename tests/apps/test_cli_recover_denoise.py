@@ -13,7 +13,6 @@ from specgpu.pipeline.recovery import recover, to_XYZ
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 
-
 DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
 
 

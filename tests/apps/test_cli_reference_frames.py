@@ -8,10 +8,12 @@ import re
 
 import numpy as np
 import pytest
+from cli_helpers import MOVING_RIG as RIG
+from cli_helpers import one_line_error, run
 
-from cli_helpers import MOVING_RIG as RIG, one_line_error, run
 from specgpu.planning import load_plan
 from specgpu.planning.reference_frames import pattern_indices, reference_indices
+
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):

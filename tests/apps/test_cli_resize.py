@@ -7,8 +7,8 @@ import json
 
 import numpy as np
 import pytest
-
 from cli_helpers import one_line_error, run, tristimulus_rig
+
 from specgpu import io
 from specgpu.pipeline.evaluate import truth_cube
 from specgpu.rig.scene import colorchecker_scene, write_scene

@@ -9,7 +9,6 @@ from cli_helpers import stream_cli_files
 from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.planning import NoiseModel, smooth_prior, with_estimator
 
-
 H, W = 240, 320
 SEQUENCES = 3
 

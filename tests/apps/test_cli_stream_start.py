@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 from cli_helpers import one_line_error, run, stream_cli_files
 
-from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.io.recording import open_recording
+from specgpu.pipeline.twin_replay import stream_setup
 
 
 @pytest.fixture(scope="module")

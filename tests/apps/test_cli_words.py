@@ -6,11 +6,11 @@ from __future__ import annotations
 import re
 
 import pytest
+from cli_helpers import RIG, one_line_error, run
 from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cli_helpers import RIG, one_line_error, run
 from specgpu.apps.cli import main
 
 

@@ -49,8 +49,9 @@ def test_table1_expected_columns_for_a_plan_that_records_one():
 
 
 def _small_lab():
-    from specgpu.apps.demo import demo_profiles
     from dataclasses import replace
+
+    from specgpu.apps.demo import demo_profiles
 
     lab = demo_profiles()["lab"]
     return replace(lab, camera=replace(lab.camera, roi_width=320, roi_height=240))
@@ -61,13 +62,13 @@ def test_estimator_rows_measured_on_the_chart_against_numpy():
     captured with the corrections, and px_rms against the NumPy RMS of the recovery's error over the patches."""
     import numpy as np
 
-    from specgpu.calibration import calibrate
     from specgpu.apps.demo import ESTIMATOR_ROWS
-    from specgpu.planning import default_prior
-    from specgpu.planning.estimator_plans import study_plans
+    from specgpu.apps.demo_measure import chart_with_white, measure_methods
+    from specgpu.calibration import calibrate
     from specgpu.pipeline.evaluate import truth_cube
     from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis
-    from specgpu.apps.demo_measure import chart_with_white, measure_methods
+    from specgpu.planning import default_prior
+    from specgpu.planning.estimator_plans import study_plans
 
     desc = _small_lab()
     bundle = calibrate(desc, seed=0)

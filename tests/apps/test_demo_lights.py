@@ -6,9 +6,9 @@ from estimator_helpers import DESC
 
 from specgpu.apps.demo_lights import LED_LABEL, led_draws, led_rig
 from specgpu.apps.table1 import Table1, equal_time_rows, table1_text
+from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis
 from specgpu.planning import default_prior
 from specgpu.planning.priors import training_spectra
-from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis
 
 
 @pytest.mark.slow  # an LED rig calibrated, planned and captured as the demo does: about a minute

@@ -241,12 +241,11 @@ def moving_folder(tmp_path_factory):
 
 @pytest.mark.slow  # the report's motion-compensated decoding, then the same decoded again to check its score
 def test_report_of_a_moving_capture_compensates_and_scores_against_its_motion_truth(moving_folder, tmp_path):
-    from specgpu.pipeline import evaluate_pixels, read_capture, recover
-    from specgpu.rig.scene import load_scene
-
     from click.testing import CliRunner
 
     from specgpu.apps.cli import main
+    from specgpu.pipeline import evaluate_pixels, read_capture, recover
+    from specgpu.rig.scene import load_scene
 
     res = CliRunner().invoke(main, ["report", str(moving_folder), "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output

@@ -14,10 +14,11 @@ import pytest  # noqa: E402
 napari = pytest.importorskip("napari", reason="napari is not installed (the optional extra specgpu[viewer])")
 pytest.importorskip("pytestqt", reason="pytest-qt is not installed (the test extra)")
 
+from zarr_helpers import damaged_copy  # noqa: E402
+
 from specgpu import io  # noqa: E402
 from specgpu.apps.viewer_layers import read_layers, sRGB_of_cube  # noqa: E402
 from specgpu.apps.viewer_widget import SpectrumWidget, add_layers, unreadable_note  # noqa: E402
-from zarr_helpers import damaged_copy  # noqa: E402
 
 
 @pytest.fixture

@@ -190,9 +190,10 @@ def test_fault_drill_through_twin_ring_and_assembler(drill_rig, n, data):
 
 def test_drop_newest_ring_losses_are_counted_as_gaps(drill_rig):
     """A consumer too slow for the ring: its losses show up as id gaps, and no sequence straddles one."""
+    import threading
+
     from specgpu.capture.assemble import assemble_stream
     from specgpu.capture.ringbuffer import RingBuffer, run_producer
-    import threading
 
     ring = RingBuffer(2, (240, 320), policy="drop_newest")
     driver = open_driver("twin", rig=drill_rig, n_frames=200)

@@ -95,8 +95,7 @@ def test_one_blas_thread_limits_every_blas_of_the_process_unless_the_environment
 def test_every_command_runs_with_one_blas_thread(monkeypatch):
     from click.testing import CliRunner
 
-    from specgpu.apps.cli import main
-    from specgpu.apps.cli import options
+    from specgpu.apps.cli import main, options
 
     calls = []
     monkeypatch.setattr(options, "one_blas_thread", lambda: calls.append(1))

@@ -8,8 +8,16 @@ import colour
 import numpy as np
 import pytest
 
-from specgpu.core.spectra import DEFAULT_CMFS, OBSERVERS, WHITE_WAVELENGTHS, XYZ_weights, resolve_cmfs, \
-    resolve_illuminant_sd, resolve_integration, white_point_XYZ
+from specgpu.core.spectra import (
+    DEFAULT_CMFS,
+    OBSERVERS,
+    WHITE_WAVELENGTHS,
+    XYZ_weights,
+    resolve_cmfs,
+    resolve_illuminant_sd,
+    resolve_integration,
+    white_point_XYZ,
+)
 from specgpu.core.validate import BadArgument
 
 GRID = np.arange(400.0, 701.0, 10.0)

@@ -9,10 +9,10 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from specgpu.core.validate import (
+    check_band_wavelengths,
     check_frames,
     check_last_axis,
     check_matrix,
-    check_band_wavelengths,
     validate_method,
 )
 

@@ -15,7 +15,6 @@ import pyopencl.array as cla
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-
 from reference import (
     XYZ_to_Lab_ref,
     delta_E_ref,
@@ -26,6 +25,7 @@ from reference import (
     reflectance_to_XYZ_ref,
     sharma_pairs,
 )
+
 from specgpu.core.spectra import OBSERVERS, XYZ_weights
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
 

@@ -8,8 +8,8 @@ import pyopencl.array as cla
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-
 from reference import linear_ref, mask_ref
+
 from specgpu.engine import kernels, runtime
 from specgpu.engine.linear_map import apply_linear
 

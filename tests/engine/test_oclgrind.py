@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from oclgrind_worker import run_reduced
 
 import specgpu
-from oclgrind_worker import run_reduced
 
 HERE = Path(__file__).resolve().parents[1]  # tests/: the worker script and the data
 WORKER = HERE / "oclgrind_worker.py"
@@ -233,8 +233,8 @@ def test_split_sincos_gives_the_same_ciede2000(queue):
     """CIEDE2000 with SPLIT_SINCOS (sin() and cos(), the build Oclgrind gets) equals the sincos() build on the test
     devices to float32 rounding."""
     import pyopencl.array as cla
-
     from reference import random_Lab
+
     from specgpu.engine.runtime import get_kernel
 
     rng = np.random.default_rng(12)

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference import linear_ref, linear_warp_ref
 from scipy import ndimage
 
-from reference import linear_ref, linear_warp_ref
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
 

@@ -12,10 +12,10 @@ import sys
 
 import numpy as np
 import pytest
+from hw_fakes import FakeCamera, NodeMap, gev_block_id
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hw_fakes import FakeCamera, NodeMap, gev_block_id
 from specgpu.capture import capture_sequences
 from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, DMDGeometry, DMDLayout, LutEntry, SimulatedDLPC900
 from specgpu.hardware.dlpc900.device import HardwareStatus

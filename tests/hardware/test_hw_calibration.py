@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from hw_fakes import DARK_COUNTS, DESC, WHITE, TwinCamera, TwinSeaBreeze, hardware_table, spectrometer_cal
+
 from specgpu.calibration import CalibrationRig, calibrate, oracle_calibration
 from specgpu.hardware.dlpc900 import SimulatedDLPC900
 from specgpu.hardware.errors import BackendMissing

@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hw_fakes import Buffer, FakeCamera
 
 from specgpu.capture import SequenceAssembler, capture_sequences, open_driver
 from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, DMDGeometry, DMDLayout, SimulatedDLPC900
-from specgpu.hardware.errors import (DeviceDisconnected, DeviceNotFound, DeviceTimeout, HardwareError,
-                                     LightFault)
-from hw_fakes import Buffer, FakeCamera
+from specgpu.hardware.errors import DeviceDisconnected, DeviceNotFound, DeviceTimeout, HardwareError, LightFault
 from specgpu.hardware.genicam import GenICamCamera
 
 DMD = DMDGeometry("test-dmd", 160, 48)

@@ -13,8 +13,14 @@ import numpy as np
 import pytest
 
 from specgpu.hardware.dlpc900 import DLPC900, LutEntry, Protocol, Transport
-from specgpu.hardware.dlpc900.protocol import (COMMANDS, build_message, decode_fields, encode_fields,
-                                               parse_reply, split_reports)
+from specgpu.hardware.dlpc900.protocol import (
+    COMMANDS,
+    build_message,
+    decode_fields,
+    encode_fields,
+    parse_reply,
+    split_reports,
+)
 from specgpu.hardware.errors import CommandRejected, ProtocolError
 
 

@@ -14,8 +14,7 @@ import usb.util  # noqa: E402
 
 from specgpu.hardware import list_usb_devices  # noqa: E402
 from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, SimulatedDLPC900, UsbTransport  # noqa: E402
-from specgpu.hardware.errors import (BackendMissing, DeviceDisconnected, DeviceNotFound,  # noqa: E402
-                                     DeviceTimeout, HardwareError)
+from specgpu.hardware.errors import BackendMissing, DeviceDisconnected, DeviceNotFound, DeviceTimeout, HardwareError  # noqa: E402
 from specgpu.hardware.rig import HardwareConfig, HardwareRig, open_spectrometer  # noqa: E402
 
 

@@ -6,14 +6,20 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hw_fakes import Buffer, NodeMap
 
 from specgpu.capture import capture_sequences
-from specgpu.hardware.errors import (CommandRejected, DeviceNotFound, DeviceTimeout, HardwareError, LightFault,
-                                     ProtocolError)
+from specgpu.hardware.errors import (
+    CommandRejected,
+    DeviceNotFound,
+    DeviceTimeout,
+    HardwareError,
+    LightFault,
+    ProtocolError,
+)
 from specgpu.hardware.genicam import GenICamCamera
 from specgpu.hardware.led import LedController, LedLight, SimulatedLedBoard, SimulatedSerial, serve
 from specgpu.hardware.led.protocol import crc8, frame, unframe
-from hw_fakes import Buffer, NodeMap
 
 CHANNELS = 5
 

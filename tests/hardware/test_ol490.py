@@ -9,15 +9,13 @@ import types
 
 import numpy as np
 import pytest
+from hw_fakes import Buffer, NodeMap
 
 from specgpu.capture import capture_sequences
-from specgpu.hardware.errors import (BackendMissing, CommandRejected, DeviceDisconnected, DeviceNotFound,
-                                     LightFault)
+from specgpu.hardware.errors import BackendMissing, CommandRejected, DeviceDisconnected, DeviceNotFound, LightFault
 from specgpu.hardware.genicam import GenICamCamera
-from specgpu.hardware.ol490 import (DOTNET_CALLS, DotNetSdk, OL490Light, OL490Unit, SimulatedOL490Sdk,
-                                    load_dotnet_sdk)
+from specgpu.hardware.ol490 import DOTNET_CALLS, DotNetSdk, OL490Light, OL490Unit, SimulatedOL490Sdk, load_dotnet_sdk
 from specgpu.rig.light import LightParameters, ProgrammableLight
-from hw_fakes import Buffer, NodeMap
 
 COLUMNS, ROWS = 16, 40
 

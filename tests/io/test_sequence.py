@@ -18,9 +18,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from specgpu import io
-from specgpu.io.sequence import validate_sequence_document
 from specgpu.capture.assemble import Sequence
 from specgpu.capture.driver import FrameInfo
+from specgpu.io.sequence import validate_sequence_document
 
 
 # ---- frame sequences -------------------------------------------------------------------------------------------------

@@ -11,10 +11,17 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from specgpu.io.recording import (ZarrRecorder, check_free_space, open_recording, patterns_hash, refuse_existing,
-                               sequence_bytes)
+from specgpu.io.recording import (
+    ZarrRecorder,
+    check_free_space,
+    open_recording,
+    patterns_hash,
+    refuse_existing,
+    sequence_bytes,
+)
 from specgpu.pipeline import StreamResult
 
 H, W, K, B = 6, 8, 4, 5

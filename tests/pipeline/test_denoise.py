@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 import specgpu.planning as E
-from specgpu.planning.priors import held_out_basis
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide, stream_denoise
 from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide, stream_denoise
 from specgpu.pipeline.recovery import recover, to_XYZ, uncertainty
 from specgpu.pipeline.twin_capture import capture_plan
+from specgpu.planning.priors import held_out_basis
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene, natural_scene

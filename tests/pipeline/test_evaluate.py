@@ -14,10 +14,18 @@ import pytest
 from specgpu.core.spectra import DEFAULT_CMFS
 from specgpu.io.npz import write_cube_npz
 from specgpu.io.sequence import capture_hash, read_sequence_header, write_sequence
-from specgpu.pipeline.evaluate import PLAUSIBLE_RANGE, PixelReport, delta_E_per_patch, evaluate_pixels, \
-    evaluate_reflectance, patch_means, rmse_per_patch, screen_estimate, truth_cube
-from specgpu.pipeline.evaluation_report import evaluation_report, headline_line, patch_table, pixel_line, \
-    truth_mismatch
+from specgpu.pipeline.evaluate import (
+    PLAUSIBLE_RANGE,
+    PixelReport,
+    delta_E_per_patch,
+    evaluate_pixels,
+    evaluate_reflectance,
+    patch_means,
+    rmse_per_patch,
+    screen_estimate,
+    truth_cube,
+)
+from specgpu.pipeline.evaluation_report import evaluation_report, headline_line, patch_table, pixel_line, truth_mismatch
 from specgpu.pipeline.moving import TRUTH_FOLDER
 from specgpu.rig.scene import colorchecker_scene
 

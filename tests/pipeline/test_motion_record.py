@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from specgpu.io.npz import read_cube_npz, write_cube_npz
-from specgpu.pipeline.motion_record import moved, motion_notice, renumber_truth, without_motion
+from specgpu.pipeline.motion_record import motion_notice, moved, renumber_truth, without_motion
 from specgpu.rig.config import rig_from_dict
 
 

@@ -6,22 +6,29 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from moving_helpers import frames_of, moving_setup
 
 from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
-from specgpu.pipeline.moving import (MASK_INCONSISTENT, MAX_SPEED_PX_PER_FRAME, MOTION_MODES, check_motion_mode,
-                                     consistency, estimate_global_motion, frame_gradients, gradient_image,
-                                     inconsistent_pixels)
 from specgpu.pipeline import moving
-from specgpu.pipeline.moving_layers import grow_flags, recover_moving
-from specgpu.pipeline.registration import fit_peak_within, second_peak_ratio
 from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.moving import (
+    MASK_INCONSISTENT,
+    MAX_SPEED_PX_PER_FRAME,
+    MOTION_MODES,
+    check_motion_mode,
+    consistency,
+    estimate_global_motion,
+    frame_gradients,
+    gradient_image,
+    inconsistent_pixels,
+)
+from specgpu.pipeline.moving_layers import grow_flags, recover_moving
 from specgpu.pipeline.recovery import default_basis, recover
+from specgpu.pipeline.registration import fit_peak_within, second_peak_ratio
 from specgpu.planning.basis_plans import plan_symmetric_basis
-from specgpu.rig.scene import colorchecker_scene
 from specgpu.rig.motion import MotionParameters
+from specgpu.rig.scene import colorchecker_scene
 
 
 @pytest.fixture(scope="module")

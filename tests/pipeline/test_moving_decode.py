@@ -13,8 +13,8 @@ from specgpu.calibration.bundle import oracle_calibration
 from specgpu.capture.assemble import AssemblyStats
 from specgpu.engine.colorimetry import delta_E
 from specgpu.pipeline.batch import run_batch
-from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
 from specgpu.pipeline.capture_folder import read_capture, save_plan_and_calibration, write_capture
+from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
 from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.estimators import with_estimator

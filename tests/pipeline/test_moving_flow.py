@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import ndimage
-
 from moving_helpers import frames_of, moving_setup
+from scipy import ndimage
 
 from specgpu.engine import consistency as consistency_module
 from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.pipeline.moving import MASK_INCONSISTENT, at_reference_time, estimate_global_motion, frame_gradients
-from specgpu.pipeline.moving_flow import TileMotion, choose_flow, flow_field, tile_motion
 from specgpu.pipeline.moving_decode import check_motion_options
+from specgpu.pipeline.moving_flow import TileMotion, choose_flow, flow_field, tile_motion
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.planning.registry import make_plan
 from specgpu.rig.motion import MotionParameters

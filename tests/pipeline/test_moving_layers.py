@@ -6,7 +6,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from moving_helpers import frames_of, moving_setup
 
 from specgpu.pipeline.evaluate import evaluate_pixels

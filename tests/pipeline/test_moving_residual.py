@@ -7,7 +7,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from moving_helpers import CAM, frames_of, moving_setup
 
 from specgpu.calibration.bundle import oracle_calibration

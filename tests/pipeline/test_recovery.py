@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.planning import make_plan
 from specgpu.pipeline.twin_capture import capture_plan, check_scene_covers
+from specgpu.planning import make_plan
 from specgpu.rig.config import rig_from_dict
 from specgpu.rig.scene import read_scene, white_plate_scene
 

@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from moving_helpers import frames_of, moving_setup
 
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.moving import MASK_INCONSISTENT
 from specgpu.pipeline.moving_decode import MovingDecoder
 from specgpu.pipeline.moving_layers import MASK_LAYER, recover_moving
-from specgpu.pipeline.reference_motion import (check_reference_frames, estimate_reference_motion,
-                                               interpolate_in_time)
+from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion, interpolate_in_time
 from specgpu.planning.estimators import NoiseModel, with_estimator
 from specgpu.planning.reference_frames import pattern_indices, reference_indices, with_reference_frames
 from specgpu.rig.motion import MotionParameters

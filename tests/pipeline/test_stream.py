@@ -17,17 +17,16 @@ import numpy as np
 import pytest
 
 from specgpu import io
-from specgpu.pipeline.twin_replay import offline_maps, stream_setup
 from specgpu.capture.session import capture_sequences
 from specgpu.capture.twin_driver import TwinDriver
 from specgpu.engine.colorimetry import delta_E
+from specgpu.io.recording import ZarrRecorder, open_recording
+from specgpu.pipeline import ExrSequenceWriter, PreviewSink, Stream
 from specgpu.pipeline.capture_folder import SequenceFolder
 from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ
-from specgpu.io.recording import ZarrRecorder, open_recording
-from specgpu.rig.twin import FaultSchedule, TwinRig
-from specgpu.pipeline import ExrSequenceWriter, PreviewSink, Stream
 from specgpu.pipeline.sinks import ResultsRing
-
+from specgpu.pipeline.twin_replay import offline_maps, stream_setup
+from specgpu.rig.twin import FaultSchedule, TwinRig
 
 ALL = ("coefficients", "cube", "XYZ", "Lab", "dE")
 
@@ -240,8 +239,8 @@ def test_one_result_buffer_never_hangs_when_frames_are_waiting(setup):
 def test_a_slot_refilled_the_moment_it_is_released_loses_no_frame(setup, monkeypatch):
     """The driver's thread may take a released slot back at once (its metadata reset while it is filled): the
     stream reads what it needs of a frame before it releases the slot, so every frame keeps its arrival stamp."""
-    from specgpu.capture.ringbuffer import RingBuffer
     from specgpu.capture.replay import ReplayDriver
+    from specgpu.capture.ringbuffer import RingBuffer
 
     release = RingBuffer.release
 

@@ -15,18 +15,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.engine.colorimetry import delta_E
-from specgpu.planning.correction import corrected_decoder, white_gains
-from specgpu.planning import NoiseModel, delta_E_sigma, smooth_prior, with_estimator
-from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
-from specgpu.pipeline.capture_folder import SequenceFolder
-from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ, uncertainty
 from specgpu.io.recording import ZarrRecorder, open_recording
-from specgpu.rig.scene import white_tile_roi
 from specgpu.pipeline import Stream
+from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
+from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ, uncertainty
 from specgpu.pipeline.stream_report import LatencyHistogram
-
+from specgpu.pipeline.twin_replay import stream_setup
+from specgpu.planning import NoiseModel, delta_E_sigma, smooth_prior, with_estimator
+from specgpu.planning.correction import corrected_decoder, white_gains
+from specgpu.rig.scene import white_tile_roi
 
 SEQUENCES = 3
 H, W = 240, 320

@@ -7,6 +7,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from specgpu.io.tables import load_npz, save_npz
+from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.planning.basis import (
     COLORCHECKER_24_SETS,
     DEFAULT_WAVELENGTHS,
@@ -19,8 +21,6 @@ from specgpu.planning.basis import (
     read_reflectance_csv,
     save_basis,
 )
-from specgpu.io.tables import load_npz, save_npz
-from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.rig.scene import colorchecker_scene
 
 

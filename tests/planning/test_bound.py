@@ -7,12 +7,11 @@ import math
 
 import numpy as np
 import pytest
+from estimator_helpers import noise_at  # the bundle fixture: tests/planning/conftest.py
 
 import specgpu.planning as E
 from specgpu.planning import design as D
 from specgpu.planning.bound import design_bound, frame_information, waterfill_mse
-
-from estimator_helpers import noise_at  # the bundle fixture: tests/planning/conftest.py
 
 
 @pytest.fixture(scope="module")

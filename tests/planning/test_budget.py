@@ -6,14 +6,15 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import specgpu.planning as E
-from specgpu.planning.priors import held_out_basis
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning import design as D
 from specgpu.planning.budget import budget_plan
 from specgpu.planning.correction import with_ambient_frame
+from specgpu.planning.priors import held_out_basis
 from specgpu.planning.timing import exposure_within
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription

@@ -9,13 +9,21 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.planning.correction import (ambient_index, corrected_decoder, parse_roi, probe_indices, white_gains,
-                                white_reflectance_curve, with_ambient_frame, with_drift_probes)
-from specgpu.pipeline.evaluate import evaluate_reflectance
 from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.evaluate import evaluate_reflectance
 from specgpu.pipeline.recovery import recover
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning import make_plan
+from specgpu.planning.correction import (
+    ambient_index,
+    corrected_decoder,
+    parse_roi,
+    probe_indices,
+    white_gains,
+    white_reflectance_curve,
+    with_ambient_frame,
+    with_drift_probes,
+)
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.realism import Drift, Realism

@@ -6,17 +6,16 @@ import sys
 
 import numpy as np
 import pytest
+from estimator_helpers import DESC, H, W, noise_at  # the bundle fixture: tests/planning/conftest.py
 
-from specgpu.planning import design as D
 import specgpu.planning as E
+from specgpu.engine.linear_map import apply_linear
+from specgpu.planning import design as D
+from specgpu.planning import make_plan
 from specgpu.planning.estimators import forward, output_weights
 from specgpu.planning.priors import held_out_basis, held_out_spectra, training_spectra
-from specgpu.planning import make_plan
-from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.scene import patch_scene
 from specgpu.rig.twin import TwinRig
-
-from estimator_helpers import DESC, H, W, noise_at  # the bundle fixture: tests/planning/conftest.py
 
 
 @pytest.fixture(scope="module")

@@ -4,10 +4,10 @@ records its expected error, and the limit at each budget lies below the designs'
 import pytest
 
 import specgpu.planning as E
-from specgpu.planning.priors import HELD_OUT_CHART, held_out_basis, training_spectra
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning.correction import with_ambient_frame
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans, row_name
+from specgpu.planning.priors import HELD_OUT_CHART, held_out_basis, training_spectra
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 

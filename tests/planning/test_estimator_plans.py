@@ -3,14 +3,13 @@ training sets it leaves out one at a time."""
 
 import numpy as np
 import pytest
+from estimator_helpers import DESC, WL
 
 import specgpu.planning as E
-from specgpu.planning.priors import training_database
 from specgpu.planning import make_plan
 from specgpu.planning.estimator_plans import cross_validated_error, training_sets
 from specgpu.planning.estimators import interp_rows
-
-from estimator_helpers import DESC, WL
+from specgpu.planning.priors import training_database
 
 
 def test_cross_validated_error_against_numpy(bundle, spectra):

@@ -3,22 +3,19 @@ averages, per-pixel sigma maps against NumPy and against the twin's real noise."
 
 import numpy as np
 import pytest
+from estimator_helpers import DESC, WL, H, W
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import specgpu.planning as E
-from specgpu.planning.estimators import forward, output_weights, smooth_decoder
-from specgpu.planning.priors import HELD_OUT_CHART, held_out_spectra, read_training, subspace_bound
-from specgpu.planning.uncertainty import constant_covariance, constant_variance, frame_variance, variance_rows
+from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning import load_plan, make_plan, save_plan
 from specgpu.planning.estimator_plans import chart_error
-from specgpu.planning.estimators import interp_rows
-from specgpu.engine.linear_map import apply_linear
+from specgpu.planning.estimators import forward, interp_rows, output_weights, smooth_decoder
+from specgpu.planning.priors import HELD_OUT_CHART, held_out_spectra, read_training, subspace_bound
+from specgpu.planning.uncertainty import constant_covariance, constant_variance, frame_variance, variance_rows
 from specgpu.rig.scene import patch_scene
-
-from estimator_helpers import DESC, H, W, WL
-
 
 
 def _random_problem(seed, K=6, P=31):
@@ -311,9 +308,9 @@ def _spread_over_sigma(plan, bundle, scene, draws, seed):
     """Per brightness quintile (darkest first): sqrt(mean spread^2 / mean predicted variance) of the recoveries of
     ``draws`` noise draws, recovered and given their sigma as ``recover --sigma`` does; and the same with the
     light's fluctuation left out of the prediction."""
-    from specgpu.planning.correction import ambient_index
     from specgpu.pipeline.capture_folder import SequenceFolder
     from specgpu.pipeline.recovery import recover, uncertainty
+    from specgpu.planning.correction import ambient_index
 
     ys, var, var_nl = [], [], []
     dark = bundle.dark_at(plan.exposure_s)

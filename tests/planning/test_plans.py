@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.planning.basis import COLORCHECKER_24_SETS, load_reflectances, pca_basis
 from specgpu.calibration.bundle import oracle_calibration
+from specgpu.engine.linear_map import apply_linear
 from specgpu.planning import (
     PLAN_METHODS,
     Plan,
@@ -18,7 +18,7 @@ from specgpu.planning import (
     make_plan,
     save_plan,
 )
-from specgpu.engine.linear_map import apply_linear
+from specgpu.planning.basis import COLORCHECKER_24_SETS, load_reflectances, pca_basis
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.light import LightParameters

@@ -11,8 +11,14 @@ from specgpu.calibration.bundle import oracle_calibration
 from specgpu.planning import make_plan
 from specgpu.planning.budget import budget_plan
 from specgpu.planning.correction import with_ambient_frame, with_drift_probes
-from specgpu.planning.reference_frames import (check_reference_every, pattern_indices, reference_count,
-                                               reference_indices, reference_positions, with_reference_frames)
+from specgpu.planning.reference_frames import (
+    check_reference_every,
+    pattern_indices,
+    reference_count,
+    reference_indices,
+    reference_positions,
+    with_reference_frames,
+)
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 

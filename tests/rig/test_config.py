@@ -253,10 +253,9 @@ def _keys_written(text: str) -> dict:
 def test_dump_rig_shows_every_key_load_rig_reads(tmp_path, profile):
     # [realism], [drift], [twin] capture_delay_s, [camera] preset and [hardware] included: the dump is where a
     # user finds the keys of a rig file
+    from specgpu.hardware.rig import HardwareConfig
     from specgpu.rig.config import dump_rig
     from specgpu.rig.realism import CAPTURE_DELAY_S, profile_realism
-
-    from specgpu.hardware.rig import HardwareConfig
 
     d = rig_from_dict({"twin": {"profile": profile}})
     assert "\nlight = " not in dump_rig(d).split("[hardware]")[1]  # the rig does not know the devices' keys ...

@@ -8,9 +8,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.rig.scene import (RESIZE_MODES, SpectralScene, colorchecker_scene, load_scene, natural_scene,
-                               patch_scene, read_scene, resample_scene, validate_resize, white_plate_scene,
-                               white_tile_roi, write_scene)
+from specgpu.rig.scene import (
+    RESIZE_MODES,
+    SpectralScene,
+    colorchecker_scene,
+    load_scene,
+    natural_scene,
+    patch_scene,
+    read_scene,
+    resample_scene,
+    validate_resize,
+    white_plate_scene,
+    white_tile_roi,
+    write_scene,
+)
 
 
 def small_cube(h=6, w=5, wl=(400.0, 450.0, 500.0, 600.0), seed=0):

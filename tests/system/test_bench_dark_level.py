@@ -8,15 +8,15 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from cli_helpers import run
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from cli_helpers import run
 from tool_helpers import load_tool
+
 from specgpu.calibration.bundle import load_calibration
-from specgpu.planning.correction import ambient_index
 from specgpu.io.npz import read_cube_npz
 from specgpu.planning import load_plan
+from specgpu.planning.correction import ambient_index
 from specgpu.rig.config import load_rig
 from specgpu.rig.scene import write_scene
 

@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, Phase, given, settings, strategies as st
+from cli_helpers import one_line_error, python_path, run, tristimulus_rig
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
 
 from specgpu import io
 from specgpu.core.locks import lock_path
 from specgpu.io.recording import open_recording
-
-from cli_helpers import one_line_error, python_path, run, tristimulus_rig
 
 ROOT = Path(__file__).resolve().parents[2]
 # no shrinking: each example is a subprocess killed at a time, and a failure is reported as found

@@ -12,14 +12,14 @@ import pytest
 
 from specgpu.core.numerics import DEAD_PIXEL_GAIN
 from specgpu.pipeline import Stream
-from specgpu.planning import NoiseModel, smooth_prior, with_estimator
-from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.recovery import recover, uncertainty
+from specgpu.pipeline.twin_replay import offline_maps, stream_setup
+from specgpu.planning import NoiseModel, smooth_prior, with_estimator
 from specgpu.planning.correction import white_gains
 from specgpu.rig import camera as camera_module
 from specgpu.rig.scene import white_tile_roi
-from specgpu.pipeline.twin_replay import offline_maps, stream_setup
 
 DEAD = (150, 90)  # (row, column) on a patch of the 320 x 240 chart
 ROI = white_tile_roi(240, 320)  # the reference white above the chart, with a second dead pixel inside

@@ -23,13 +23,18 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from specgpu import io
+from specgpu.calibration.bundle import (
+    CALIBRATION_FORMAT,
+    CALIBRATION_VERSION,
+    load_calibration,
+    oracle_calibration,
+    save_calibration,
+)
 from specgpu.io import sequence as io_sequence
-from specgpu.planning.basis import BasisTable, load_basis, read_reflectance_csv, save_basis
-from specgpu.io.tables import save_npz
-from specgpu.calibration.bundle import CALIBRATION_FORMAT, CALIBRATION_VERSION, load_calibration, oracle_calibration, \
-    save_calibration
 from specgpu.io.npz import read_spectrum_csv
+from specgpu.io.tables import save_npz
 from specgpu.planning import PLAN_FORMAT, load_plan, plan_narrowband, save_plan
+from specgpu.planning.basis import BasisTable, load_basis, read_reflectance_csv, save_basis
 from specgpu.planning.plans import PLAN_VERSION
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription, _toml_value, load_rig

@@ -67,8 +67,8 @@ def test_a_device_array_check_does_not_import_opencl():
                           "assert not is_device_array(np.zeros(3))")
     assert "pyopencl" not in result["heavy"]
     from specgpu.core.validate import is_device_array
-    from specgpu.engine.runtime import get_queue
     from specgpu.engine.kernels import to_device
+    from specgpu.engine.runtime import get_queue
 
     assert is_device_array(to_device(get_queue(), np.zeros(3, np.float32)))
     assert not is_device_array(np.zeros(3, np.float32))

@@ -304,8 +304,8 @@ def test_the_source_checks_find_planted_faults(tmp_path):
 # --- the rig's light registers as a capture light source -----------------------------------------------------------
 
 def test_programmable_light_is_a_light_source_once_capture_is_loaded():
-    from specgpu.capture.driver import LightSource
     import specgpu.capture.twin_driver  # noqa: F401  (registers the twin's light)
+    from specgpu.capture.driver import LightSource
     from specgpu.rig.light import ProgrammableLight
 
     assert isinstance(ProgrammableLight(), LightSource)

@@ -16,14 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import lock_holder as holder
+from cli_helpers import one_line_error, run, tristimulus_rig
 
 from specgpu import io
-
-from specgpu.io import paths
-
 from specgpu.core import locks
-
-from cli_helpers import lock_holder as holder, one_line_error, run, tristimulus_rig
+from specgpu.io import paths
 
 
 @pytest.fixture(scope="module")

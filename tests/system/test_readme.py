@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from cli_helpers import RIG, python_path, run
+
 from specgpu.apps.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -16,14 +16,14 @@ import time
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from cli_helpers import RIG, one_line_error, run, tristimulus_rig
+from cli_helpers import lock_holder as _holder
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from specgpu import io
-from specgpu.io import sequence as io_sequence
-
 from specgpu.core import locks
-
-from cli_helpers import RIG, lock_holder as _holder, one_line_error, run, tristimulus_rig
+from specgpu.io import sequence as io_sequence
 
 
 def hidden(folder):
@@ -402,9 +402,9 @@ def test_reflectance_to_XYZ_outside_the_cmfs_is_a_value_error():
 
 
 def test_plan_with_a_huge_decoder_is_refused_naming_the_file(base, tmp_path):
-    from specgpu.planning import load_plan
-
     from dataclasses import replace
+
+    from specgpu.planning import load_plan
 
     plan = load_plan(base / "tri.npz")
     with pytest.raises(ValueError, match="decoder A must be finite in float32"):  # never built, so never saved
@@ -419,9 +419,9 @@ def test_plan_with_a_huge_decoder_is_refused_naming_the_file(base, tmp_path):
 
 
 def test_calibration_with_an_impossible_dark_is_refused(base, tmp_path):
-    from specgpu.calibration.bundle import load_calibration
-
     from dataclasses import replace
+
+    from specgpu.calibration.bundle import load_calibration
 
     bundle = load_calibration(base / "calib.npz")
     with pytest.raises(ValueError, match="dark must lie in"):  # never built, so never saved

@@ -13,13 +13,13 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, example, given, settings, strategies as st
+from cli_helpers import one_line_error, run, tristimulus_rig
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
 
 from specgpu import io
 from specgpu.io import sequence as io_sequence
 from specgpu.pipeline.capture_folder import INCOMPLETE_MARKER
-
-from cli_helpers import one_line_error, run, tristimulus_rig
 
 SEQUENCES = 5
 
@@ -352,6 +352,7 @@ def test_salvage_renumbers_a_moving_captures_truth_with_its_sequences(tmp_path, 
     """A killed capture on a moving twin with a gap (a damaged sequence left out): after salvage, the truth file
     of each sequence is the one taken at that sequence's own reference time, and the others are kept aside."""
     from cli_helpers import MOVING_RIG
+
     from specgpu.calibration.bundle import oracle_calibration, save_calibration
     from specgpu.io.npz import read_cube_npz
     from specgpu.rig.config import load_rig

@@ -9,7 +9,6 @@ import textwrap
 from pathlib import Path
 
 import pytest
-
 from cli_helpers import python_path
 
 ROOT = Path(__file__).resolve().parents[2]

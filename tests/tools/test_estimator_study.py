@@ -4,16 +4,15 @@ narrowband."""
 
 import numpy as np
 import pytest
+from estimator_helpers import DESC, H, W
+from tool_helpers import load_tool
 
 import specgpu.planning as E
-from specgpu.planning.priors import held_out_basis, held_out_spectra
 from specgpu.planning.estimator_plans import study_plans
+from specgpu.planning.priors import held_out_basis, held_out_spectra
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import patch_scene
-
-from estimator_helpers import DESC, H, W
-from tool_helpers import load_tool
 
 study = load_tool("studies/estimator_rows.py")
 

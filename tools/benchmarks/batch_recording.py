@@ -18,11 +18,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from specgpu.apps.bench.sizes import parse_sizes  # noqa: E402
-from specgpu.pipeline.twin_replay import stream_setup  # noqa: E402
 from specgpu.calibration.bundle import save_calibration  # noqa: E402
-from specgpu.planning import save_plan  # noqa: E402
 from specgpu.io.recording import ZarrRecorder  # noqa: E402
 from specgpu.pipeline import StreamResult  # noqa: E402
+from specgpu.pipeline.twin_replay import stream_setup  # noqa: E402
+from specgpu.planning import save_plan  # noqa: E402
 
 
 def main():

@@ -5,7 +5,8 @@ Medians over ``--repeats`` calls (after one warm-up), at 640 x 480 with a 9-fram
 default, on the OpenCL device specgpu picks; the rates are sequences per second of each step alone.
 
     PYTHONPATH=. python tools/benchmarks/motion_cost.py
-    PYTHONPATH=. python tools/benchmarks/motion_cost.py --reference-every 3   # and the estimate from broadband reference frames
+    PYTHONPATH=. python tools/benchmarks/motion_cost.py --reference-every 3   # and the estimate from broadband \
+        reference frames
 """
 
 from __future__ import annotations

@@ -26,11 +26,11 @@ import pyopencl.array as cla
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from specgpu.apps.bench.sizes import parse_sizes  # noqa: E402
+from specgpu.engine.runtime import get_queue  # noqa: E402
+from specgpu.pipeline import StreamDecoder  # noqa: E402
 from specgpu.pipeline.twin_replay import stream_setup  # noqa: E402
 from specgpu.planning import NoiseModel, smooth_prior, with_estimator  # noqa: E402
 from specgpu.rig.scene import white_tile_roi  # noqa: E402
-from specgpu.engine.runtime import get_queue  # noqa: E402
-from specgpu.pipeline import StreamDecoder  # noqa: E402
 
 _ROI_SUM = """
 __kernel void roi_mean(__global const ushort *f, __global float *out, const int x, const int y, const int w,

@@ -20,8 +20,8 @@ import numpy as np
 import pyopencl.array as cla
 
 from specgpu.apps.bench.sizes import parse_sizes
-from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.pipeline import Stream, StreamDecoder
+from specgpu.pipeline.twin_replay import stream_setup
 
 
 def main():

@@ -21,6 +21,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from hw_fakes import FakeCamera  # noqa: E402
+
 from specgpu.capture import capture_sequences  # noqa: E402
 from specgpu.hardware.dlpc900 import DLPC900, DLPC900Light, DMDGeometry, DMDLayout, SimulatedDLPC900  # noqa: E402
 from specgpu.hardware.genicam import GenICamCamera  # noqa: E402

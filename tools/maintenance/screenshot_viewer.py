@@ -1,8 +1,10 @@
 """napari's own screenshot of ``specgpu view``: the viewer on a cube, sequence folder or recording with the
 spectrum widget showing one pixel's spectrum (or a region's mean +- std) against the truth.
 
-    PYTHONPATH=. xvfb-run -a python tools/maintenance/screenshot_viewer.py REC.zarr --pixel 190,230 --colors 256 --out docs/viewer-screenshot.png
-    PYTHONPATH=. xvfb-run -a python tools/maintenance/screenshot_viewer.py REC.zarr --region 150,180,40,40 --out viewer-region.png
+    PYTHONPATH=. xvfb-run -a python tools/maintenance/screenshot_viewer.py REC.zarr --pixel 190,230 --colors 256 \
+        --out docs/viewer-screenshot.png
+    PYTHONPATH=. xvfb-run -a python tools/maintenance/screenshot_viewer.py REC.zarr --region 150,180,40,40 --out \
+        viewer-region.png
 
 Needs the viewer extra (pip install 'specgpu[viewer]') and a display with OpenGL (a desktop, or Xvfb with Mesa:
 Debian's xvfb and libgl1-mesa-dri packages). Prints what the widget shows.

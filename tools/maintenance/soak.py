@@ -36,12 +36,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from specgpu.calibration.bundle import oracle_calibration  # noqa: E402
 from specgpu.capture.twin_driver import TwinDriver  # noqa: E402
+from specgpu.pipeline import Sink, Stream
+from specgpu.pipeline.stream_report import current_rss_bytes
 from specgpu.planning import plan_tristimulus  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402
 from specgpu.rig.twin import FaultRates, FaultSchedule, TwinRig  # noqa: E402
-from specgpu.pipeline import Sink, Stream
-from specgpu.pipeline.stream_report import current_rss_bytes
 
 MB = 1024 * 1024
 

@@ -22,14 +22,15 @@ import argparse
 import json
 import sys
 import time
+
 import numpy as np
 
 from specgpu.calibration import calibrate, oracle_calibration
+from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.evaluate import evaluate_reflectance, evaluate_XYZ
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning import make_plan
-from specgpu.engine.linear_map import apply_linear
 from specgpu.rig.camera import CameraParameters
 from specgpu.rig.config import RigDescription
 from specgpu.rig.scene import colorchecker_scene

@@ -29,14 +29,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from specgpu.planning.basis import save_basis  # noqa: E402
+from measured_chart import LEVEL_EDGES, chart_errors, measured_chart_with_white  # noqa: E402
+
+from specgpu.apps.demo_measure import mean_std  # noqa: E402
 from specgpu.calibration.bundle import load_calibration  # noqa: E402
 from specgpu.io.npz import read_cube_npz  # noqa: E402
 from specgpu.planning import load_plan  # noqa: E402
+from specgpu.planning.basis import save_basis  # noqa: E402
 from specgpu.rig.config import load_rig  # noqa: E402
 from specgpu.rig.scene import write_scene  # noqa: E402
-from specgpu.apps.demo_measure import mean_std  # noqa: E402
-from measured_chart import LEVEL_EDGES, chart_errors, measured_chart_with_white  # noqa: E402
 
 #: plan options per variant; None: recover without the white ROI
 VARIANTS = {"default": [], "--ambient": ["--ambient"], "--no-ambient": ["--no-ambient"], "default, no ROI": None}

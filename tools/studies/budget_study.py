@@ -27,7 +27,8 @@ denoised, each as a ratio to the plain design's raw error.
 
 ``--tune`` measures the denoiser's radius and eps on the CES chart and the natural scene instead.
 
-    PYTHONPATH=. python tools/studies/budget_study.py [--draws N] [--charts ces,tcs] [--budgets 60,40,20] [--small] [--tune]
+    PYTHONPATH=. python tools/studies/budget_study.py [--draws N] [--charts ces,tcs] [--budgets 60,40,20] \
+        [--small] [--tune]
 """
 
 from __future__ import annotations
@@ -41,25 +42,28 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-import specgpu.planning as E  # noqa: E402
-from specgpu.planning.basis import evaluation_exclusions
-from specgpu.planning.priors import HELD_OUT_CHART, held_out_basis, held_out_spectra
-from specgpu.apps.demo_measure import mean_std  # noqa: E402
-from specgpu.rig.scene import patch_scene  # noqa: E402
 from measured_chart import measured_chart_with_white  # noqa: E402
+
+import specgpu.planning as E  # noqa: E402
+from specgpu.apps.demo_measure import mean_std  # noqa: E402
 from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.engine.guided import flat_variance_reduction  # noqa: E402
+from specgpu.pipeline.capture_folder import SequenceFolder  # noqa: E402
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery, denoised_sigma  # noqa: E402
 from specgpu.pipeline.evaluate import evaluate_pixels, truth_cube  # noqa: E402
-from specgpu.pipeline.capture_folder import SequenceFolder  # noqa: E402
 from specgpu.pipeline.recovery import recover, uncertainty  # noqa: E402
 from specgpu.pipeline.twin_capture import capture_plan  # noqa: E402
-from specgpu.planning.basis import DEFAULT_WAVELENGTHS, load_reflectances  # noqa: E402
-from specgpu.planning.estimators import forward, output_weights  # noqa: E402
+from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances  # noqa: E402
 from specgpu.planning.equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans, row_name  # noqa: E402
+from specgpu.planning.estimators import forward, output_weights  # noqa: E402
+from specgpu.planning.priors import HELD_OUT_CHART, held_out_basis, held_out_spectra
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402
-from specgpu.rig.scene import natural_scene, white_tile_roi  # noqa: E402
+from specgpu.rig.scene import (  # noqa: E402
+    natural_scene,
+    patch_scene,  # noqa: E402
+    white_tile_roi,
+)
 
 CHARTS = {"ces": "CIE 2017 CES", "tcs": "CIE 1995 TCS"}
 

@@ -20,13 +20,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.apps.demo import DEMO_METHODS, make_demo_plans  # noqa: E402
+from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods  # noqa: E402
+from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import rig_from_dict  # noqa: E402
 from specgpu.rig.realism import Drift  # noqa: E402
-from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods  # noqa: E402
 
 
 def main(argv=None):

@@ -1,6 +1,7 @@
 """Error budget: what each imperfection of a real bench costs each method, alone, with and without corrections.
 
-    PYTHONPATH=. python tools/studies/error_budget.py [--full] [--draws 1] [--methods narrowband,symmetric,tristimulus-D65]
+    PYTHONPATH=. python tools/studies/error_budget.py [--full] [--draws 1] [--methods \
+        narrowband,symmetric,tristimulus-D65]
         [--effects stray_light_fraction,blur_px,...] [--json OUT.json]
 
 For the ideal twin and then for every ``[realism]`` effect switched on alone at its lab magnitude
@@ -27,13 +28,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from specgpu.calibration import calibrate, calibration_error  # noqa: E402
 from specgpu.apps.demo import DEMO_METHODS, make_demo_plans  # noqa: E402
+from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods  # noqa: E402
+from specgpu.calibration import calibrate, calibration_error  # noqa: E402
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402
 from specgpu.rig.realism import LAB, Drift, Realism  # noqa: E402
-from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods  # noqa: E402
 
 #: Effects whose lab value is a setting of another effect, not an effect of its own.
 _PERIODS = ("grating_ripple_period_nm", "sensor_ripple_period_nm")

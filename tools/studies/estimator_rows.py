@@ -29,10 +29,10 @@ from specgpu.planning import (
     prior_from_spectra,
     sigma_map,
 )
-from specgpu.planning.priors import HELD_OUT_CHART, held_out_spectra, training_spectra
-from specgpu.planning.uncertainty import output_covariance
 from specgpu.planning.correction import ambient_index, with_ambient_frame
 from specgpu.planning.estimator_plans import chart_error
+from specgpu.planning.priors import HELD_OUT_CHART, held_out_spectra, training_spectra
+from specgpu.planning.uncertainty import output_covariance
 from specgpu.rig.scene import SpectralScene
 
 __all__ = ["study_rows", "format_study", "prior_size_rows", "hadamard_gain"]

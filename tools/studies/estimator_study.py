@@ -22,20 +22,21 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import replace
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-import specgpu.planning as E  # noqa: E402
-from specgpu.planning.priors import HELD_OUT_CHART, held_out_basis, held_out_spectra, subspace_bound, training_spectra
 from estimator_rows import format_study, hadamard_gain, prior_size_rows, study_rows  # noqa: E402
+
+import specgpu.planning as E  # noqa: E402
 from specgpu.calibration import calibrate  # noqa: E402
+from specgpu.planning.estimator_plans import STUDY_METHODS, study_plans, training_sets  # noqa: E402
+from specgpu.planning.priors import HELD_OUT_CHART, held_out_basis, held_out_spectra, subspace_bound, training_spectra
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription, rig_from_dict  # noqa: E402
-from specgpu.planning.estimator_plans import STUDY_METHODS, study_plans, training_sets  # noqa: E402
 from specgpu.rig.scene import patch_scene, white_tile_roi  # noqa: E402
 
 

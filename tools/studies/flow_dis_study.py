@@ -26,6 +26,7 @@ from scipy.ndimage import binary_erosion
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from motion_study import CASES, twin_setup  # noqa: E402
+
 from specgpu.rig.twin import TwinRig  # noqa: E402
 
 try:

@@ -17,7 +17,8 @@ RMSE it expects on its prior and the limit of any 9-frame design in 60 ms on the
 
 Lumosaic's own accuracy figure is not known here, so no figure of it is printed beside the table.
 
-    PYTHONPATH=. python tools/studies/led_study.py [--draws N] [--charts ces,tcs] [--lights dmd,led6,led12,led16] [--size 320x240]
+    PYTHONPATH=. python tools/studies/led_study.py [--draws N] [--charts ces,tcs] [--lights dmd,led6,led12,led16] \
+        [--size 320x240]
                               [--sequence-ms 60] [--frames 9]
 """
 
@@ -33,21 +34,25 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-import specgpu.planning as E  # noqa: E402
-from specgpu.planning.basis import evaluation_exclusions  # noqa: E402
-from specgpu.planning.priors import held_out_spectra  # noqa: E402
-from specgpu.rig.scene import patch_scene  # noqa: E402
-from specgpu.apps.demo_measure import mean_std  # noqa: E402
 from measured_chart import measured_chart_with_white  # noqa: E402
+
+import specgpu.planning as E  # noqa: E402
+from specgpu.apps.demo_measure import mean_std  # noqa: E402
 from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.pipeline.evaluate import evaluate_pixels  # noqa: E402
 from specgpu.pipeline.recovery import SequenceFolder, capture_plan, recover  # noqa: E402
-from specgpu.planning.basis import DEFAULT_WAVELENGTHS, load_reflectances  # noqa: E402
+from specgpu.planning.basis import (  # noqa: E402
+    DEFAULT_WAVELENGTHS,
+    evaluation_exclusions,  # noqa: E402
+    load_reflectances,
+)
 from specgpu.planning.bound import design_bound  # noqa: E402
 from specgpu.planning.design import plan_optimal  # noqa: E402
+from specgpu.planning.priors import held_out_spectra  # noqa: E402
 from specgpu.rig.camera import CameraParameters  # noqa: E402
 from specgpu.rig.config import RigDescription  # noqa: E402
 from specgpu.rig.led import LEDParameters  # noqa: E402
+from specgpu.rig.scene import patch_scene  # noqa: E402
 
 CHARTS = {"ces": "CIE 2017 CES", "tcs": "CIE 1995 TCS"}
 LIGHTS = ("dmd", "led6", "led12", "led16")

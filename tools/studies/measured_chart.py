@@ -29,7 +29,6 @@ def measured_chart_with_white(description, height: int, width: int, *, basis: bo
 
     Returns (scene, roi) or (scene, roi, basis).
     """
-
     h, w = int(height), int(width)
     if h < 60 or w < 60:
         raise ValueError(f"the measured chart needs at least 60 x 60 pixels, got {w} x {h}")
@@ -75,7 +74,6 @@ def chart_errors(cube, wavelengths, scene) -> dict:
     patches), ``bias_400nm`` (mean recovered - true at the band nearest 400 nm over the patches' pixels) and
     ``bias_by_level`` (mean recovered - true over the patches' pixels and bands whose true reflectance lies in each
     :data:`LEVEL_EDGES` interval; NaN where none does)."""
-
     y = np.asarray(cube, np.float64)
     wl = np.asarray(wavelengths, np.float64)
     truth = truth_cube(scene, wl).astype(np.float64)

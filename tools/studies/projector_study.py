@@ -16,9 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from specgpu import io
-
 from specgpu.apps import paper
-
 from specgpu.pipeline import projector as render
 from specgpu.rig.scene import colorchecker_scene, natural_scene
 

@@ -8,7 +8,8 @@ and which is the same in every draw). Pixels are split into quintiles of brightn
 and each quintile reports ``sqrt(mean spread^2 / mean sigma^2)``: 1 when the noise model holds, above 1 when
 sigma understates the noise.
 
-    PYTHONPATH=. python tools/studies/sigma_check.py [--size 320x240] [--draws 10] [--plans hadamard,symmetric,narrowband,wiener]
+    PYTHONPATH=. python tools/studies/sigma_check.py [--size 320x240] [--draws 10] [--plans \
+        hadamard,symmetric,narrowband,wiener]
                                 [--bands 7] [--seed 0] [--white-roi] [--ambient] [--profile lab]
                                 [--json out.json]
 
@@ -43,10 +44,8 @@ PLANS = ("hadamard", "symmetric", "narrowband", "wiener", "optimal")
 
 def make_plans(description, bundle, names, bands: int) -> dict:
     """The named plans with the rig's noise model (as ``specgpu plan`` records it)."""
-    from specgpu.planning import plan_hadamard, plan_optimal
-    from specgpu.planning import NoiseModel, default_prior, with_estimator
     from specgpu.pipeline.recovery import default_basis
-    from specgpu.planning import make_plan
+    from specgpu.planning import NoiseModel, default_prior, make_plan, plan_hadamard, plan_optimal, with_estimator
 
     def noise_at(t):
         return NoiseModel.from_rig(description, t)
@@ -77,10 +76,10 @@ def spread_over_sigma(description, bundle, plan, scene, *, draws: int = 10, seed
     """Capture ``plan`` ``draws`` times, recover each draw with its sigma as ``recover --sigma`` does, and return
     ``{"ratio": [per brightness quantile, darkest first: sqrt(mean spread^2 / mean sigma^2)], "all": the same over
     every pixel, "brightness": [the quantiles' mean recovered output]}``."""
-    from specgpu.planning.uncertainty import constant_variance
     from specgpu.pipeline.capture_folder import SequenceFolder
     from specgpu.pipeline.recovery import recover, uncertainty
     from specgpu.pipeline.twin_capture import capture_plan
+    from specgpu.planning.uncertainty import constant_variance
 
     ys, sigmas = [], []
     for i in range(draws):

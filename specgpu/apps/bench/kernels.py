@@ -446,7 +446,6 @@ def run_bench(sizes=((640, 480), (2048, 2048)), device=None, repeats: int | None
         ``numpy_copy_bandwidth_GBps``, ``date_utc``, ``load_avg_1min`` (``start``, ``end``), ``cases`` (one dict per
         :class:`CaseResult`) and ``targets`` (see :func:`evaluate_targets`).
     """
-
     sizes = [(int(w), int(h)) for w, h in sizes]
     if repeats is not None and repeats < 1:
         raise ValueError(f"repeats must be at least 1, got {repeats}")

@@ -18,9 +18,9 @@ from specgpu.engine.runtime import get_queue
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.stream import Stream
 from specgpu.pipeline.stream_report import current_rss_bytes
+from specgpu.pipeline.twin_replay import StreamSetup, offline_maps, stream_setup
 from specgpu.planning import NoiseModel, smooth_prior, with_estimator
 from specgpu.rig.scene import white_tile_roi
-from specgpu.pipeline.twin_replay import StreamSetup, offline_maps, stream_setup
 
 __all__ = ["STREAM_CASES", "STREAM_TARGETS", "Checker", "MemoryRecorder", "format_stream_report", "max_rel",
            "run_stream_bench", "stream_targets"]
@@ -116,7 +116,6 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     equality
         Stream results (float32 cube, XYZ, Lab, dE2000) against ``pipeline.recover`` on the same frames.
     """
-
     unknown = set(cases) - set(STREAM_CASES)
     if unknown:
         raise BadArgument(f"unknown stream bench case(s) {sorted(unknown)}; valid: {', '.join(STREAM_CASES)}")
@@ -315,6 +314,7 @@ def max_rel(a, b) -> float:
 class Checker:
     """A sink that checks every result against the offline maps of the recorded sequence it must come from:
     consecutive frame ids, starting at pattern 0, and equal maps (a misaligned sequence cannot pass)."""
+
     def __init__(self, setup: StreamSetup, expected: dict, outputs, tolerance: float = 1e-3):
         self.setup, self.expected, self.outputs, self.tolerance = setup, expected, outputs, tolerance
         self.checked = 0
@@ -343,6 +343,7 @@ class Checker:
 
 class MemoryRecorder:
     """A sink that writes every result's cube into a preallocated in-memory recording (a ring of ``slots``)."""
+
     def __init__(self, shape, dtype, slots: int = 4):
         self.store = np.zeros((slots, *shape), dtype)
         self.count = 0

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from specgpu.io.paths import atomic_path
 from specgpu.apps.cli.options import RESIZE, Busy, command, integration_option, lock, no_clash, resampled
+from specgpu.io.paths import atomic_path
 from specgpu.pipeline.evaluate import PLAUSIBLE_RANGE
 from specgpu.pipeline.evaluation_report import (
     colorimetry,

@@ -19,17 +19,17 @@ from tqdm import tqdm
 from specgpu.apps.cli.group import watch_outputs
 from specgpu.calibration.bundle import load_calibration
 from specgpu.core.guard import check_outputs
-from specgpu.core.numerics import one_blas_thread
 from specgpu.core.locks import output_locks
+from specgpu.core.numerics import one_blas_thread
 from specgpu.core.spectra import DEFAULT_CMFS, resolve_integration
 from specgpu.core.validate import BadArgument, validate_method
 from specgpu.engine.colorimetry import XYZ_to_Lab
 from specgpu.io import JOURNAL_FILE, SEQUENCE_FILE
 from specgpu.io.cube import companion_files
 from specgpu.io.paths import final_names, new_temporary, replace_with, write_target
+from specgpu.pipeline.capture_folder import CALIBRATION_FILE, PLAN_FILE
 from specgpu.pipeline.evaluate import scene_XYZ
 from specgpu.pipeline.moving import TRUTH_FOLDER
-from specgpu.pipeline.capture_folder import CALIBRATION_FILE, PLAN_FILE
 from specgpu.planning.plans import load_plan
 from specgpu.rig.config import load_rig
 from specgpu.rig.scene import SpectralScene, load_scene, validate_resize

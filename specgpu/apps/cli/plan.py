@@ -11,13 +11,13 @@ from specgpu.core.validate import validate_method
 from specgpu.pipeline.denoise import DENOISE_RADIUS
 from specgpu.pipeline.projector import target_spectrum
 from specgpu.pipeline.recovery import default_basis
+from specgpu.planning import PLAN_METHODS, save_plan
 from specgpu.planning.basis import load_basis
 from specgpu.planning.correction import (
     ambient_needed,
     with_ambient_frame,
     with_drift_probes,
 )
-from specgpu.planning import PLAN_METHODS, save_plan
 from specgpu.planning.reference_frames import reference_count, reference_indices, with_reference_frames
 from specgpu.planning.requests import estimated_plan
 

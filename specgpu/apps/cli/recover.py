@@ -10,9 +10,9 @@ from specgpu.apps.cli.options import (
     ILLUMINANT,
     INTEGRATION,
     OBSERVER,
-    Finite,
     RESIZE,
     Busy,
+    Finite,
     Staged,
     command,
     lock,
@@ -24,8 +24,8 @@ from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.pipeline import recovery
 from specgpu.pipeline.capture_folder import read_capture
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning, denoise_recovery
-from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.motion_record import without_motion
+from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
 

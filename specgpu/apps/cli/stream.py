@@ -30,15 +30,15 @@ from specgpu.apps.live_view import run_with_view
 from specgpu.hardware.drivers import hardware_config, open_rig_driver
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline.accumulate import AccumulateSink
+from specgpu.pipeline.decoder import STREAM_OUTPUTS
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.live import add_recording, behind_text, recording_slots, stream_summary
-from specgpu.pipeline.outputs import stream_metadata
-from specgpu.pipeline.twin_capture import check_scene_covers
-from specgpu.pipeline.decoder import STREAM_OUTPUTS
-from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.motion_record import without_motion
+from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.moving_decode import check_motion_options
+from specgpu.pipeline.outputs import stream_metadata
 from specgpu.pipeline.stream import Stream
+from specgpu.pipeline.twin_capture import check_scene_covers
 from specgpu.planning.uncertainty import constant_variance
 from specgpu.rig.config import load_rig
 

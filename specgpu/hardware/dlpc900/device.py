@@ -11,8 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from specgpu.hardware.dlpc900.images import (BITS_PER_IMAGE, DMDGeometry, encode_image, geometry,
-                                             split_controllers)
+from specgpu.hardware.dlpc900.images import BITS_PER_IMAGE, DMDGeometry, encode_image, geometry, split_controllers
 from specgpu.hardware.dlpc900.protocol import Protocol
 from specgpu.hardware.dlpc900.transport import Transport, UsbTransport
 from specgpu.hardware.errors import HardwareError

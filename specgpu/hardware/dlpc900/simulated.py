@@ -36,9 +36,18 @@ from collections import deque
 import numpy as np
 
 from specgpu.hardware.dlpc900.images import BITS_PER_IMAGE, decode_image, geometry, join_controllers
-from specgpu.hardware.dlpc900.protocol import (COMMANDS, FLAG_ERROR, FLAG_READ, FLAG_REPLY, HEADER_SIZE,
-                                               REPORT_SIZE, decode_fields, encode_fields, reply_length,
-                                               split_reports)
+from specgpu.hardware.dlpc900.protocol import (
+    COMMANDS,
+    FLAG_ERROR,
+    FLAG_READ,
+    FLAG_REPLY,
+    HEADER_SIZE,
+    REPORT_SIZE,
+    decode_fields,
+    encode_fields,
+    reply_length,
+    split_reports,
+)
 from specgpu.hardware.dlpc900.transport import Transport
 from specgpu.hardware.errors import DeviceDisconnected, DeviceNotFound, DeviceTimeout
 

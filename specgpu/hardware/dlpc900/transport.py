@@ -13,8 +13,8 @@ import errno
 import sys
 import time
 
-from specgpu.hardware.errors import BackendMissing, DeviceDisconnected, DeviceNotFound, DeviceTimeout
 from specgpu.hardware.dlpc900.protocol import REPORT_SIZE
+from specgpu.hardware.errors import BackendMissing, DeviceDisconnected, DeviceNotFound, DeviceTimeout
 
 __all__ = ["Transport", "UsbTransport", "VENDOR_ID", "PRODUCT_ID", "import_pyusb", "WINDOWS_DRIVER_HINT"]
 

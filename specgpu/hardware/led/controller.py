@@ -16,10 +16,24 @@ from __future__ import annotations
 import numpy as np
 
 from specgpu.core.validate import check_number
-from specgpu.hardware.errors import (BackendMissing, DeviceDisconnected, DeviceNotFound, DeviceTimeout,
-                                     HardwareError, ProtocolError)
-from specgpu.hardware.led.protocol import (PROTOCOL_VERSION, Identity, Status, frame, parse_identity, parse_reply,
-                                           parse_status, unframe)
+from specgpu.hardware.errors import (
+    BackendMissing,
+    DeviceDisconnected,
+    DeviceNotFound,
+    DeviceTimeout,
+    HardwareError,
+    ProtocolError,
+)
+from specgpu.hardware.led.protocol import (
+    PROTOCOL_VERSION,
+    Identity,
+    Status,
+    frame,
+    parse_identity,
+    parse_reply,
+    parse_status,
+    unframe,
+)
 
 __all__ = ["LedController", "open_serial", "FIRMWARE_PATH"]
 

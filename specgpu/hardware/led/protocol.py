@@ -1,4 +1,4 @@
-"""The LED controller's serial protocol (version 1): line framing, the checksum, commands and replies.
+r"""The LED controller's serial protocol (version 1): line framing, the checksum, commands and replies.
 
 Every exchange is one ASCII line from the host and one line back (``docs/guide/led-controller.md`` is the
 specification; ``tools/firmware/led_controller/led_controller.ino`` the board's side)::

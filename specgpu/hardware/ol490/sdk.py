@@ -20,8 +20,7 @@ import abc
 import importlib
 from pathlib import Path
 
-from specgpu.hardware.errors import (BackendMissing, CommandRejected, DeviceDisconnected, DeviceNotFound,
-                                     HardwareError)
+from specgpu.hardware.errors import BackendMissing, CommandRejected, DeviceDisconnected, DeviceNotFound, HardwareError
 
 __all__ = ["OL490Sdk", "DotNetSdk", "DOTNET_CALLS", "DEFAULT_SDK_TYPE", "load_dotnet_sdk", "OL490Unit", "COLUMNS",
            "SLITS", "GREY_BITS"]
