@@ -119,6 +119,8 @@ RENDERERS = {"bench": render_bench, "accuracy": render_accuracy}
 
 
 class Results(Directive):
+    """The ``results`` directive: one committed results file rendered as tables with its provenance."""
+
     required_arguments = 1
     has_content = False
 
