@@ -22,9 +22,10 @@ from specgpu.apps.demo import format_tables, run_demo
                    "sequence time besides the paper's plans; minutes rather than one.")
 def demo(out, rig_path, seed, device, draws, full):
     """The main job on the built-in twin: calibrate, plan, capture the chart, recover, evaluate; prints the
-    paper's Tables 1-3 beside ours and writes a report folder with index.html. It says first what it runs and
-    about how long that takes: by default the lab profile, the paper's plans, the design of each sequence-time
-    budget and a moving scene, one noise draw."""
+    paper's Tables 1-3 beside ours and writes a report folder with index.html.
+
+    It says first what it runs and about how long that takes: by default the lab profile, the paper's plans, the
+    design of each sequence-time budget (on the DMD and on a 12-LED rig) and a moving scene, one noise draw."""
     no_clash([("--out", out)], [("--rig", rig_path)])
     lock(out, folder=True)
     result = run_demo(out, rig=rig_path, seed=seed, echo=click.echo, device=device, draws=draws,
