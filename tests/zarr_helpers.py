@@ -55,3 +55,22 @@ def damaged_copy(source, dest, *, missing=(), corrupt=()):
         data[len(data) // 2] ^= 0xFF
         chunk.write_bytes(bytes(data))
     return dest
+
+
+def disk_full_after(monkeypatch, n_sequences: int, array: str = "XYZ"):
+    """Every write of ``array`` after its first ``n_sequences`` fails as a full disk does."""
+    import os
+
+    from specgpu.io import recording
+
+    real = recording.write_chunk
+    count = [0]
+
+    def write(path, parts, **kwargs):
+        if f"{os.sep}{array}{os.sep}" in path:
+            count[0] += 1
+            if count[0] > n_sequences:
+                raise OSError(28, "No space left on device")
+        return real(path, parts, **kwargs)
+
+    monkeypatch.setattr(recording, "write_chunk", write)

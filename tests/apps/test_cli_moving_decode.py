@@ -1,40 +1,18 @@
 """Motion-compensated decoding through the command line: `specgpu batch --motion` checked in one line, `specgpu
 stream --motion`, and the stream bench putting the motion rate beside the static one."""
 
-from dataclasses import replace
 
 import numpy as np
 import pytest
 from cli_helpers import one_line_error, run
-
-from specgpu.calibration.bundle import oracle_calibration
-from specgpu.capture.assemble import AssemblyStats
-from specgpu.pipeline.capture_folder import save_plan_and_calibration, write_capture
-from specgpu.pipeline.recovery import capture_plan
-from specgpu.planning.estimators import with_estimator
-from specgpu.planning.noise import NoiseModel
-from specgpu.planning.registry import make_plan
-from specgpu.rig import CameraParameters, RigDescription, natural_scene
-from specgpu.rig.motion import MotionParameters
-
-CAM = CameraParameters(roi_width=320, roi_height=240, frame_rate_hz=200.0, exposure_s=0.0049)
-MOTION = MotionParameters(velocity_px_per_frame=(2.0, 1.0))
+from moving_helpers import moving_capture
 
 
 @pytest.fixture(scope="module")
 def moving(tmp_path_factory):
     """A sequence folder of 2 sequences of a 7-band narrowband plan on a twin whose scene drifts 2 px per frame
     in x and 1 in y, with its plan and calibration files."""
-    root = tmp_path_factory.mktemp("moving-decode")
-    desc = RigDescription(camera=CAM)
-    bundle = oracle_calibration(desc)
-    plan = make_plan("narrowband", bundle, step_nm=50.0, max_exposure_s=0.0049)
-    plan = with_estimator(plan, bundle, "projection", noise=NoiseModel.from_rig(desc, plan.exposure_s))  # sigma_rms
-    shot = capture_plan(replace(desc, motion=MOTION), plan, natural_scene(240, 320), sequences=2, noise_seed=3,
-                        calibration=bundle)
-    plan_path, calib_path = save_plan_and_calibration(root, plan, bundle)
-    write_capture(root / "seq", shot.sequences, shot.assembly or AssemblyStats(), plan_path, calib_path)
-    return root, plan, bundle, plan_path, calib_path
+    return moving_capture(tmp_path_factory.mktemp("moving-decode"))
 
 
 

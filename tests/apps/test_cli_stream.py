@@ -7,6 +7,7 @@ import json
 import pytest
 from cli_helpers import stream_cli_files
 from click.testing import CliRunner
+from zarr_helpers import disk_full_after
 
 from specgpu.apps.cli import main
 from specgpu.io import recording
@@ -18,26 +19,6 @@ from specgpu.pipeline.twin_replay import stream_setup
 def setup():
     """A calibrated 320 x 240 twin at 200 fps, a symmetric plan (K = 9, 31 bands) and 4 recorded sequences."""
     return stream_setup(320, 240, sequences=4, output_step_nm=10.0)
-
-
-def _disk_full_after(monkeypatch, n_sequences: int, array: str = "XYZ"):
-    """Every write of ``array`` after its first ``n_sequences`` fails as a full disk does."""
-    import os
-
-    from specgpu.io import recording
-
-    real = recording.write_chunk
-    count = [0]
-
-    def write(path, parts, **kwargs):
-        if f"{os.sep}{array}{os.sep}" in path:
-            count[0] += 1
-            if count[0] > n_sequences:
-                raise OSError(28, "No space left on device")
-        return real(path, parts, **kwargs)
-
-    monkeypatch.setattr(recording, "write_chunk", write)
-
 
 
 def test_cli_stream_records_and_reports(setup, tmp_path):
@@ -87,7 +68,7 @@ def test_cli_bench_stream_reports_every_case(tmp_path):
 
 def test_cli_stream_on_a_full_disk_says_what_was_saved_and_lost(setup, tmp_path, monkeypatch):
     args = stream_cli_files(setup, tmp_path)
-    _disk_full_after(monkeypatch, 2)
+    disk_full_after(monkeypatch, 2)
     result = CliRunner().invoke(main, [*args, "--seconds", "20", "--out", str(tmp_path / "rec.zarr")])
     assert result.exit_code == 1
     last = result.output.strip().splitlines()[-1]

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from zarr_helpers import disk_full_after
 
 from specgpu import io
 from specgpu.capture.session import capture_sequences
@@ -384,31 +385,12 @@ def test_saturated_pixels_are_nan_as_offline(setup):
                           {k: np.nan_to_num(v) for k, v in want.items()})
 
 
-def _disk_full_after(monkeypatch, n_sequences: int, array: str = "XYZ"):
-    """Every write of ``array`` after its first ``n_sequences`` fails as a full disk does."""
-    import os
-
-    from specgpu.io import recording
-
-    real = recording.write_chunk
-    count = [0]
-
-    def write(path, parts, **kwargs):
-        if f"{os.sep}{array}{os.sep}" in path:
-            count[0] += 1
-            if count[0] > n_sequences:
-                raise OSError(28, "No space left on device")
-        return real(path, parts, **kwargs)
-
-    monkeypatch.setattr(recording, "write_chunk", write)
-
-
 def test_a_full_disk_stops_capture_and_keeps_the_committed_sequences(setup, expected, tmp_path, monkeypatch):
     """The recorder fails on its 4th sequence: capture stops at the next sequence boundary (not at the time
     limit), the 3 committed sequences stay readable (xarray too), and the partial one is not in the recording."""
     import xarray as xr
 
-    _disk_full_after(monkeypatch, 3)
+    disk_full_after(monkeypatch, 3)
     rec = ZarrRecorder(tmp_path / "rec.zarr", setup.plan)
     report = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=("XYZ", "dE"),
                     reference=setup.reference, sinks=[rec]).run(30)
