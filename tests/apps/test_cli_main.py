@@ -111,13 +111,15 @@ def test_demo_writes_the_report(tmp_path):
 @pytest.mark.slow
 def test_demo_full_runs_every_row_on_both_profiles(tmp_path):
     """``--full``: the estimator rows and every method at equal sequence time, on the lab profile and the ideal one
-    beside it, two noise draws each."""
+    beside it, two noise draws each; the 12-LED rig's rows of the 60 ms budget after them."""
     (tmp_path / "rig.toml").write_text(RIG + "[twin]\nprofile = \"lab\"\n")
     result = run("demo", "--full", "--out", tmp_path / "report", "--rig", tmp_path / "rig.toml")
     assert result.output.startswith("demo: lab, ideal profiles, 17 plans, 2 noise draws, a moving scene: about ")
     draws = json.loads((tmp_path / "report" / "report.json").read_text())["draws"]
-    assert list(draws) == ["lab", "ideal"]
-    for runs in draws.values():
+    assert list(draws) == ["lab", "ideal", "led12"]
+    assert set(draws["led12"]) == {"symmetric-9@60ms", "wiener-9@60ms", "optimal-9@60ms"}
+    assert all(len(row["dE00"]["values"]) == 2 for row in draws["led12"].values())
+    for runs in (draws["lab"], draws["ideal"]):
         assert {"wiener-9", "optimal-3", "symmetric-9@60ms", "wiener-6@40ms", "tristimulus-D65@20ms"} <= set(runs)
         assert all(len(row["dE00"]["values"]) == 2 for row in runs.values())
 
