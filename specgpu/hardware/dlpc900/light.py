@@ -34,6 +34,7 @@ from specgpu.core.validate import check_number
 from specgpu.hardware.dlpc900.device import DLPC900, LutEntry
 from specgpu.hardware.dlpc900.images import BITS_PER_IMAGE, DMDLayout
 from specgpu.hardware.errors import LightFault
+from specgpu.hardware.stepping import TriggerStepped
 from specgpu.rig.light import ProgrammableLight
 
 __all__ = ["DLPC900Light", "DEFAULT_DARK_S"]
@@ -43,7 +44,7 @@ __all__ = ["DLPC900Light", "DEFAULT_DARK_S"]
 DEFAULT_DARK_S = 100e-6
 
 
-class DLPC900Light(LightSource):
+class DLPC900Light(TriggerStepped, LightSource):
     """A lamp -> grating -> DLPC900 DMD light source.
 
     Parameters
@@ -214,20 +215,6 @@ class DLPC900Light(LightSource):
 
     def reset(self) -> None:
         self._index = 0
-
-    def trigger(self) -> int:
-        """Count one hardware trigger (the controller advanced by itself); return the pattern now shown."""
-        self._index = (self._index + 1) % self.sequence.shape[0]
-        return self._index
-
-    def at_frame(self, frame_id: int) -> int:
-        """The pattern that lit exposure ``frame_id`` of the stream (0 is the first exposure after start)."""
-        self._index = int(frame_id) % self.sequence.shape[0]
-        return self._index
-
-    @property
-    def pattern_index(self) -> int:
-        return self._index
 
     def check(self) -> None:
         """Main Status (0x1A0C): :class:`LightFault` if the sequencer is not running (USB errors propagate)."""

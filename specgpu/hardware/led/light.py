@@ -25,6 +25,7 @@ import numpy as np
 from specgpu.capture.driver import LightSource
 from specgpu.hardware.errors import HardwareError, LightFault
 from specgpu.hardware.led.controller import LedController
+from specgpu.hardware.stepping import TriggerStepped
 
 __all__ = ["LedLight", "PWM_PERIODS_PER_EXPOSURE"]
 
@@ -32,7 +33,7 @@ __all__ = ["LedLight", "PWM_PERIODS_PER_EXPOSURE"]
 PWM_PERIODS_PER_EXPOSURE = 100
 
 
-class LedLight(LightSource):
+class LedLight(TriggerStepped, LightSource):
     """An LED array driven by PWM from a controller board, stepped by the camera's trigger.
 
     Parameters
@@ -71,8 +72,7 @@ class LedLight(LightSource):
             controller.set_holdoff(holdoff_us)
         self._sequence: np.ndarray | None = None
         self._requested: np.ndarray | None = None
-        self._index = 0
-        self._frame = -1
+        self._restart()
 
     # ---- patterns -------------------------------------------------------------------------------------------------
     def check_patterns(self, patterns) -> np.ndarray:
@@ -130,7 +130,7 @@ class LedLight(LightSource):
     def start(self) -> None:
         """Arm the board: outputs off until the first trigger edge, which shows pattern 0."""
         self.sequence  # noqa: B018 - refuse to start without a sequence
-        self._index, self._frame = 0, -1
+        self._restart()
         self.controller.arm()
 
     def stop(self) -> None:
@@ -139,20 +139,6 @@ class LedLight(LightSource):
 
     def close(self) -> None:
         self.controller.close()
-
-    def trigger(self) -> int:
-        self._index = (self._index + 1) % self.sequence.shape[0]
-        return self._index
-
-    def at_frame(self, frame_id: int) -> int:
-        """The pattern that lit exposure ``frame_id`` (0 is the first after :meth:`start`)."""
-        self._frame = int(frame_id)
-        self._index = self._frame % self.sequence.shape[0]
-        return self._index
-
-    @property
-    def pattern_index(self) -> int:
-        return self._index
 
     def check(self) -> None:
         """:class:`LightFault` if the board may not have lit the exposure last asked of :meth:`at_frame` with its

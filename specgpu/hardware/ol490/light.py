@@ -21,12 +21,13 @@ from specgpu.capture.driver import LightSource
 from specgpu.core.validate import check_number
 from specgpu.hardware.errors import LightFault
 from specgpu.hardware.ol490.sdk import COLUMNS, GREY_BITS, SLITS, OL490Unit
+from specgpu.hardware.stepping import TriggerStepped
 from specgpu.rig.light import ProgrammableLight
 
 __all__ = ["OL490Light"]
 
 
-class OL490Light(LightSource):
+class OL490Light(TriggerStepped, LightSource):
     """An OL490 through its SDK (:class:`~specgpu.hardware.ol490.sdk.OL490Unit`).
 
     Parameters
@@ -57,7 +58,7 @@ class OL490Light(LightSource):
         self.max_frame_rate_hz = float(unit.call("max_frame_rate", self.grey_bits))
         self._sequence: np.ndarray | None = None
         self._requested: np.ndarray | None = None
-        self._index, self._frame = 0, -1
+        self._restart()
 
     # ---- patterns -------------------------------------------------------------------------------------------------
     @property
@@ -114,7 +115,7 @@ class OL490Light(LightSource):
     def start(self) -> None:
         """Run the sequence stepped by the trigger input (the first edge shows pattern 0)."""
         self.sequence  # noqa: B018 - refuse to start without a sequence
-        self._index, self._frame = 0, -1
+        self._restart()
         self.unit.call("start_sequence", True)
 
     def stop(self) -> None:
@@ -122,19 +123,6 @@ class OL490Light(LightSource):
 
     def close(self) -> None:
         self.unit.close()
-
-    def trigger(self) -> int:
-        self._index = (self._index + 1) % self.sequence.shape[0]
-        return self._index
-
-    def at_frame(self, frame_id: int) -> int:
-        self._frame = int(frame_id)
-        self._index = self._frame % self.sequence.shape[0]
-        return self._index
-
-    @property
-    def pattern_index(self) -> int:
-        return self._index
 
     def check(self) -> None:
         """:class:`LightFault` if the sequence stopped or the unit stepped fewer times than the camera exposed."""
