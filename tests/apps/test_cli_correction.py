@@ -2,24 +2,15 @@
 planned with an ambient frame."""
 
 import pytest
+from correction_helpers import DESC, white_chart_setup
 
-from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.recovery import capture_plan
-from specgpu.planning import make_plan
 from specgpu.planning.correction import ambient_index, probe_indices
-from specgpu.rig.camera import CameraParameters
-from specgpu.rig.config import RigDescription
-from specgpu.rig.scene import colorchecker_scene, white_tile_roi
-
-DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
 
 
 @pytest.fixture(scope="module")
 def setup():
-    bundle = oracle_calibration(DESC)
-    plan = make_plan("narrowband", bundle, step_nm=20.0)
-    scene = colorchecker_scene(240, 320, white_tile=0.99)
-    return bundle, plan, scene, white_tile_roi(240, 320)
+    return white_chart_setup()
 
 
 

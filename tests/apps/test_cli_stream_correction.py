@@ -1,13 +1,10 @@
 """`specgpu stream --white-roi`: the white reference and sigma recorded, bad white ROIs refused in one line."""
 
-from dataclasses import replace
 
 import numpy as np
 import pytest
 from cli_helpers import stream_cli_files
-
-from specgpu.pipeline.twin_replay import stream_setup
-from specgpu.planning import NoiseModel, smooth_prior, with_estimator
+from correction_helpers import white_stream_setup
 
 H, W = 240, 320
 SEQUENCES = 3
@@ -16,11 +13,7 @@ SEQUENCES = 3
 @pytest.fixture(scope="module")
 def setup():
     """The twin recording, its plan given a noise model (and the expected error on a smooth prior)."""
-    s = stream_setup(W, H, sequences=SEQUENCES, output_step_nm=10.0, white_tile=0.99)
-    noise = NoiseModel.from_rig(s.description, s.plan.exposure_s)
-    plan = with_estimator(s.plan, s.bundle, "projection", prior=smooth_prior(np.arange(400.0, 700.0 + 1e-9, 5.0)),
-                          noise=noise)
-    return replace(s, plan=plan)
+    return white_stream_setup(W, H, SEQUENCES)
 
 
 def _chart_white_roi():

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from correction_helpers import white_stream_setup
 
 from specgpu.engine.colorimetry import delta_E
 from specgpu.io.recording import ZarrRecorder, open_recording
@@ -22,8 +23,7 @@ from specgpu.pipeline.capture_folder import SequenceFolder
 from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
 from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ, uncertainty
 from specgpu.pipeline.stream_report import LatencyHistogram
-from specgpu.pipeline.twin_replay import stream_setup
-from specgpu.planning import NoiseModel, delta_E_sigma, smooth_prior, with_estimator
+from specgpu.planning import NoiseModel, delta_E_sigma
 from specgpu.planning.correction import corrected_decoder, white_gains
 from specgpu.rig.scene import white_tile_roi
 
@@ -34,11 +34,7 @@ H, W = 240, 320
 @pytest.fixture(scope="module")
 def setup():
     """The twin recording, its plan given a noise model (and the expected error on a smooth prior)."""
-    s = stream_setup(W, H, sequences=SEQUENCES, output_step_nm=10.0, white_tile=0.99)
-    noise = NoiseModel.from_rig(s.description, s.plan.exposure_s)
-    plan = with_estimator(s.plan, s.bundle, "projection", prior=smooth_prior(np.arange(400.0, 700.0 + 1e-9, 5.0)),
-                          noise=noise)
-    return replace(s, plan=plan)
+    return white_stream_setup(W, H, SEQUENCES)
 
 
 @pytest.fixture(scope="module")

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from correction_helpers import DESC, white_chart_setup
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.capture_folder import SequenceFolder
 from specgpu.pipeline.evaluate import evaluate_reflectance
 from specgpu.pipeline.recovery import recover
@@ -24,20 +24,12 @@ from specgpu.planning.correction import (
     with_ambient_frame,
     with_drift_probes,
 )
-from specgpu.rig.camera import CameraParameters
-from specgpu.rig.config import RigDescription
 from specgpu.rig.realism import Drift, Realism
-from specgpu.rig.scene import colorchecker_scene, white_tile_roi
-
-DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))
 
 
 @pytest.fixture(scope="module")
 def setup():
-    bundle = oracle_calibration(DESC)
-    plan = make_plan("narrowband", bundle, step_nm=20.0)
-    scene = colorchecker_scene(240, 320, white_tile=0.99)
-    return bundle, plan, scene, white_tile_roi(240, 320)
+    return white_chart_setup()
 
 
 def run(desc, bundle, plan, scene, **kw):
