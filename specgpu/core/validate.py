@@ -307,3 +307,10 @@ def check_result_size(nbytes: int, device, *, host_copies: int = 1, what: str = 
     if host_copies and free is not None and nbytes * host_copies > free:
         raise ValueError(f"the {what} needs {nbytes * host_copies / 1e9:.2f} GB of memory, {free / 1e9:.2f} GB are "
                          "available; process the frames in tiles")
+
+
+def check_sequence(sequence, count: int, where) -> None:
+    """Refuse, in one line naming ``where``, a sequence index outside the ``count`` sequences held there (the one
+    range check of a sequence index, whoever reads the sequences)."""
+    if sequence is not None and not 0 <= sequence < count:
+        raise ValueError(f"sequence {sequence} is out of range: {where} holds {count}")

@@ -118,7 +118,7 @@ __all__ = ["RECORDING_FORMAT", "RECORDING_VERSION", "ZarrRecorder", "Recording",
 RECORDING_FORMAT = "specgpu.recording"
 RECORDING_VERSION = 1
 
-#: What a recording may hold along time besides the raw frames (specgpu.pipeline.decoder.STREAM_OUTPUTS).
+#: What a recording may hold along time besides the raw frames (specgpu.pipeline.decoder_outputs.STREAM_OUTPUTS).
 _OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "sigma_rms", "dE_sigma")
 #: Channel dimension and channel names of each output.
 CHANNELS = {"XYZ": ("X", "Y", "Z"), "Lab": ("L", "a", "b")}
@@ -181,7 +181,8 @@ def refuse_existing(path) -> Path:
 
 def sequence_bytes(shapes: dict, *, frames_shape=None) -> int:
     """Bytes one sequence takes in a recording: ``shapes`` maps output -> ((H, W[, C]), dtype) (as
-    :meth:`specgpu.pipeline.decoder.StreamDecoder.shapes`); ``frames_shape`` (K, H, W) adds the raw uint16 frames."""
+    :meth:`specgpu.pipeline.sequence_decoder.SequenceDecoder.shapes`); ``frames_shape`` (K, H, W) adds the raw
+    uint16 frames."""
     total = 0
     for name, (shape, dtype) in shapes.items():
         if name != "mask":

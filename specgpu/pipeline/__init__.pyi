@@ -5,12 +5,11 @@ from .acquire import ZarrCapture, capture_into
 from .batch import BATCH_FORMAT, BATCH_OUTPUTS, BatchJob, BatchReport, prepare_batch, run_batch
 from .batch_output import BatchOutput, open_batch_output
 from .capture_folder import SequenceFolder, read_capture, write_capture
-from .decoder import STREAM_OUTPUTS, StreamDecoder
+from .decoder_outputs import STREAM_OUTPUTS
 from .denoise import denoise_recovery
 from .evaluate import PatchReport, PixelReport, evaluate_pixels, evaluate_reflectance, evaluate_XYZ
 from .evaluation_report import evaluation_report
 from .moving import MOTION_MODES, MotionEstimate, estimate_global_motion
-from .moving_decode import MovingDecoder
 from .moving_layers import MovingRecovery, recover_moving
 from .projector import PROJECTOR_TARGETS, ProjectionReport, metamer_map, project, render_scene
 from .recovery import recover
@@ -41,7 +40,6 @@ __all__ = [
     "metamer_map",
     "MOTION_MODES",
     "MotionEstimate",
-    "MovingDecoder",
     "MovingRecovery",
     "open_batch_output",
     "PatchReport",
@@ -61,7 +59,6 @@ __all__ = [
     "Sink",
     "Stream",
     "STREAM_OUTPUTS",
-    "StreamDecoder",
     "StreamReport",
     "StreamResult",
     "write_capture",

@@ -3,14 +3,14 @@
 ``specgpu batch REC.zarr --plan PLAN --out OUT.zarr`` runs its sequences as Dask tasks of up to 8 consecutive
 sequences (a task costs ~13 ms of its own) on a Dask ``LocalCluster`` (or on any ``dask.distributed`` scheduler
 given by address). Each sequence's frames are computed in one device pass as the stream computes them
-(:class:`specgpu.pipeline.decoder.StreamDecoder`: the cube by the plan's decoder, XYZ, Lab and dE fused from the
-same frames, the calibration's corrections applied as ``specgpu recover`` applies them; on a CPU device the
-frames are the device buffer and the results are mapped, no copy), equal to ``specgpu recover SEQ --sequence i`` and its
-``to_XYZ`` / ``to_Lab`` / ``delta_E`` to float rounding. Each output's chunk is written while the task's next
-sequence is computed, and the sequence is marked done in the ``done`` array once all of its chunks are written.
-Workers keep their state between tasks (:func:`_worker_state`): the plan, calibration, OpenCL context and queue
-(with its built programs and the decoder's device maps), the source and output handles are made once per worker
-process and reused.
+(:class:`specgpu.pipeline.sequence_decoder.SequenceDecoder`, device-resident: the cube by the plan's decoder, XYZ,
+Lab and dE fused from the same frames, the calibration's corrections applied as ``specgpu recover`` applies them; on
+a CPU device the frames are the device buffer and the results are mapped, no copy), equal to ``specgpu recover SEQ
+--sequence i`` and its ``to_XYZ`` / ``to_Lab`` / ``delta_E`` to float rounding. Each output's chunk is written while
+the task's next sequence is computed, and the sequence is marked done in the ``done`` array once all of its chunks
+are written. Workers keep their state between tasks (:func:`_worker_state`): the plan, calibration, OpenCL context
+and queue (with its built programs and the decoder's device maps), the source and output handles are made once per
+worker process and reused.
 
 Resuming: an output that exists and was made by the same batch is continued: chunks marked done are never
 recomputed. "The same batch" is its identity, stored in the output's attributes: the source's path and content
@@ -33,7 +33,7 @@ The output is a zarr v3 group laid out like a recording (:mod:`specgpu.io.record
 ``done`` (time,) uint8.
 
 A scene that moved during each sequence (``--motion global|affine``) is decoded one sequence at a time exactly as
-``specgpu recover --motion`` decodes it (:class:`specgpu.pipeline.moving_decode.MovingDecoder`: the displacements
+``specgpu recover --motion`` decodes it (the same decoder's motion mode: the displacements
 estimated within the sequence on the host, one warped device pass, pixels seen outside the field or whose frames
 disagree NaN); the mode is part of the output's identity.
 """
@@ -70,9 +70,9 @@ from specgpu.pipeline.batch_source import (
     open_source,
     reference_label,
 )
-from specgpu.pipeline.decoder import StreamDecoder
 from specgpu.pipeline.denoise import stream_denoise
-from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
+from specgpu.pipeline.moving_decode import check_motion_options
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle
@@ -229,19 +229,20 @@ class _Pending:
 
 
 def _decoder(job: BatchJob, state):
-    """This worker's fused decoder of the job (:class:`specgpu.pipeline.decoder.StreamDecoder`, made once): the
-    plan's A, the calibration's dark, flat field and saturation level and, for colour outputs, the matrix to XYZ of the
-    plan's outputs with the white and the dE reference, on the device. The cube comes from one linear pass over
+    """This worker's decoder of the job (:class:`specgpu.pipeline.sequence_decoder.SequenceDecoder`, made once;
+    device-resident, or in the job's motion mode): the plan's A, the calibration's dark, flat field and saturation
+    level and, for colour outputs, the matrix to XYZ of the plan's outputs with the white and the dE reference, on
+    the device. The cube comes from one linear pass over
     the frames and XYZ, Lab and dE from one fused pass over the same frames (never from the cube read back), as
     the stream computes them; the host-side corrections recover applies (linearisation, per-pattern flat field,
     an ambient frame) are applied to the frames first exactly as recover does (``prepare_frames``)."""
     dec = state.__dict__.get("_decoder")
     if dec is None:
-        dec = StreamDecoder(job.plan, job.calibration, job.outputs,
-                            frame_shape=(state.source.height, state.source.width), queue=state.queue,
-                            reference=job.reference if "dE" in job.outputs else None, method=job.method,
-                            illuminant=job.illuminant, observer=job.observer, cube_dtype=np.float32,
-                            denoise=job.denoise, integration=job.integration)
+        dec = SequenceDecoder(job.plan, job.calibration, job.outputs,
+                              frame_shape=(state.source.height, state.source.width), device=state.queue,
+                              reference=job.reference if "dE" in job.outputs else None, method=job.method,
+                              illuminant=job.illuminant, observer=job.observer, cube_dtype=np.float32,
+                              denoise=job.denoise, integration=job.integration, motion=job.motion)
         # on a CPU device the frames are the device buffer and the results are mapped (no copy either way)
         state._zero_copy = bool(state.queue.device.type & cl.device_type.CPU)
         state._decoder = dec
@@ -309,20 +310,15 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
 
 def _start_moving(job: BatchJob, i: int, state, built: bool, handles: dict) -> _Pending:
     """Sequence ``i`` decoded motion-compensated on the host and device as ``recover --motion`` decodes it
-    (:class:`specgpu.pipeline.moving_decode.MovingDecoder`, made once per worker), its chunks written as
+    (:func:`_decoder`'s motion mode, made once per worker), its chunks written as
     :func:`_start_sequence` writes them."""
-    dec = state.__dict__.get("_moving")
-    if dec is None:
-        dec = state._moving = MovingDecoder(job.plan, job.calibration, job.outputs, mode=job.motion,
-                                            reference=job.reference if "dE" in job.outputs else None,
-                                            method=job.method, illuminant=job.illuminant, observer=job.observer,
-                                            device=state.queue, integration=job.integration)
+    dec = _decoder(job, state)
     raw = state.source.frames(i)
     h, w = state.source.height, state.source.width
     if tuple(raw.shape) != (job.plan.K, h, w):
         raise ValueError(f"{job.source}: sequence {i}: frames of shape {tuple(raw.shape)}, the batch needs "
                          f"({job.plan.K}, {h}, {w})")
-    arrays = dec.decode(raw)
+    arrays = dec.maps(raw)
     pending = _Pending(i, state, built, [], [], {})
     for name in job.outputs:
         pending.writes.append((name, _writer_pool().submit(write_sequence_chunk, handles[name], i, arrays[name],

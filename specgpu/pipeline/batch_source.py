@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from specgpu.core.spectra import DEFAULT_CMFS
+from specgpu.core.validate import check_sequence
 from specgpu.io.recording import chunk_keys, open_recording, patterns_hash
 from specgpu.io.sequence import check_frame_files, read_frames
 from specgpu.pipeline.capture_folder import read_capture_header
-from specgpu.pipeline.sequence_decoder import check_sequence
 
 __all__ = ["open_source", "reference_label"]
 

@@ -22,10 +22,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from specgpu.core.numerics import live_gain
-from specgpu.core.validate import check_number
+from specgpu.core.validate import check_number, check_sequence
 from specgpu.engine.guided import box_box_variance, guided_filter
 from specgpu.engine.linear_map import apply_linear
-from specgpu.pipeline.sequence_decoder import check_sequence
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
 

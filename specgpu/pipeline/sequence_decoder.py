@@ -1,13 +1,16 @@
 """The decoding of one sequence, written once: the corrections a (calibration, plan) pair calls for, then the
-linear or the warped pass.
+linear or the warped pass, then the outputs.
 
 :func:`corrections_for` decides, once, what a calibration and a plan ask of the frames before the decoder
 (:class:`Corrections`): the level subtracted (the calibration's dark at the plan's exposure, or the plan's ambient
-frame), the sensor's linearisation, the per-pattern flat field and a reference white. :class:`SequenceDecoder`
-applies them and runs the pass: ``pipeline.recover`` and :func:`~specgpu.pipeline.recovery.uncertainty` (and so the
-report and the viewer) decode through it, the stream's and the batch's device decoder
-(:class:`specgpu.pipeline.decoder.StreamDecoder`) takes its host corrections from it, and their motion-compensated
-decoder (:class:`specgpu.pipeline.moving_decode.MovingDecoder`) runs its warped pass.
+frame), the sensor's linearisation, the per-pattern flat field and a reference white.
+:class:`SequenceDecoder` is the one decoder: it applies them and runs the pass, and every command decodes through
+it. Without outputs named it makes the plan's outputs of a sequence folder (``pipeline.recover`` and
+:func:`~specgpu.pipeline.recovery.uncertainty`, so the report and the viewer); given outputs
+(:func:`specgpu.pipeline.decoder_outputs.outputs_for`, decided once for every mode) it is the stream's and the
+batch's decoder: device-resident (the plan's composed matrices, dark, gain and noise maps on the device once, fused
+launches per sequence: :class:`specgpu.pipeline.decoder_outputs.FusedLaunches`), or, for a scene that moves, the
+warped pass with those outputs' rows stacked (:meth:`SequenceDecoder.maps`).
 
 Frames corrected on the host are handed to the linear map as the signal above the level, with no dark: the level
 is subtracted once. The motion estimate, the warped pass and the noise model read the corrected frames on the
@@ -17,16 +20,25 @@ dark level's own noise.
 
 from __future__ import annotations
 
+import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
+import pyopencl as cl
+from numpy.typing import ArrayLike
 
+from specgpu import engine
 from specgpu.core.numerics import live_gain
+from specgpu.core.validate import check_sequence
 from specgpu.engine.linear_map import apply_linear
+from specgpu.engine.runtime import get_queue
+from specgpu.pipeline.decoder_outputs import FusedLaunches, lab_and_delta_E, outputs_for
 from specgpu.pipeline.moving import check_motion_mode
+from specgpu.pipeline.moving_decode import check_motion_options, warped_sigma_rms
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.moving_residual import residual_check
-from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
+from specgpu.planning.correction import WhiteReference, ambient_index, corrected_decoder, white_gains
 from specgpu.planning.reference_frames import reference_indices
 
 __all__ = ["Corrections", "SequenceDecoder", "check_sequence", "corrections_for", "motion_model"]
@@ -35,12 +47,6 @@ __all__ = ["Corrections", "SequenceDecoder", "check_sequence", "corrections_for"
 def motion_model(mode: str) -> str:
     """The estimator's model of a motion mode (``"global"``: one translation per frame)."""
     return "translation" if mode == "global" else mode
-
-
-def check_sequence(sequence, count: int, where) -> None:
-    """Refuse, in one line naming ``where``, a sequence index outside the ``count`` sequences held there."""
-    if sequence is not None and not 0 <= sequence < count:
-        raise ValueError(f"sequence {sequence} is out of range: {where} holds {count}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,25 +139,42 @@ def corrections_for(calibration, plan, *, white_roi=None, white_reflectance=None
 
 class SequenceDecoder:
     """The decoding of a plan's sequences: the corrections (:func:`corrections_for`), then the linear map or,
-    for a scene that moved, the warped pass with the motion estimated within the sequence.
+    for a scene that moved, the warped pass with the motion estimated within the sequence, then the outputs.
+
+    Three modes, one object: without ``outputs``, :meth:`decode` gives the plan's outputs of a sequence folder
+    (``recover``); with ``outputs`` and no motion, the device-resident decoder of the stream and the batch
+    (:meth:`enqueue` on a sequence's device frames, :meth:`maps` for host frames); with ``outputs`` and a motion
+    mode, :meth:`maps` decodes each sequence through the warped pass.
 
     Parameters
     ----------
     plan : specgpu.planning.plans.Plan
     calibration : specgpu.calibration.bundle.CalibrationBundle
+    outputs : sequence of str, optional
+        The maps made of each sequence (:func:`specgpu.pipeline.decoder_outputs.outputs_for`; with a motion mode,
+        of :data:`specgpu.pipeline.moving_decode.MOTION_OUTPUTS`).
     white_roi, white_reflectance : optional
-        A reference white in the field (as :func:`specgpu.pipeline.recovery.recover`).
+        A reference white in the field (as :func:`specgpu.pipeline.recovery.recover`): with ``outputs`` each
+        sequence's decoder is rescaled for the light's drift (:class:`specgpu.planning.correction.WhiteReference`)
+        and every launch gets its matrix from the corrected decoder (:meth:`matrices`).
     motion : {"none", "global", "affine", "flow"}
         How the scene's motion within a sequence is compensated (:data:`specgpu.pipeline.moving.MOTION_MODES`).
     device : optional
         OpenCL device selector or queue.
+    frame_shape : (int, int), optional
+        (H, W) of the frames; default the calibration's.
+    reference, method, illuminant, observer, integration, cube_dtype, denoise
+        Of the outputs (:func:`specgpu.pipeline.decoder_outputs.outputs_for`).
     """
 
-    def __init__(self, plan, calibration, *, white_roi=None, white_reflectance=None, motion: str = "none",
-                 device=None):
+    def __init__(self, plan, calibration, outputs=(), *, white_roi=None, white_reflectance=None, motion: str = "none",
+                 device=None, frame_shape=None, reference=None, method: str = "CIE 2000", illuminant=None,
+                 observer=None, integration: str = "rectangle", cube_dtype=np.float32, denoise=None):
         self.plan, self.calibration, self.device = plan, calibration, device
         self.corrections = corrections_for(calibration, plan, white_roi=white_roi,
                                            white_reflectance=white_reflectance)
+        if outputs:  # every option that cannot be motion-compensated refused before any work
+            motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise, white_roi=white_roi)
         self.motion = check_motion_mode(motion)
         self.gain = calibration.flat_field
         if self.motion != "none":
@@ -161,6 +184,143 @@ class SequenceDecoder:
             self.model = motion_model(self.motion)
             self.reference_frames = reference_indices(plan)  # the motion from them where the plan has them
             self.residual = residual_check(plan, calibration)  # samples judged against the plan's model
+        self.spec = self.fused = None
+        if not outputs:
+            return
+        shape = np.shape(self.corrections.dark) if frame_shape is None else frame_shape
+        self.height, self.width = (int(v) for v in shape)
+        self.n, self.K = self.height * self.width, plan.K
+        self.spec = outputs_for(plan, outputs, frame_shape=(self.height, self.width), reference=reference,
+                                method=method, illuminant=illuminant, observer=observer, integration=integration,
+                                cube_dtype=cube_dtype, denoise=denoise)
+        self.outputs = self.spec.names
+        self.queue = get_queue(device)
+        if self.motion == "none":
+            # the white reference: parsed and checked now (an ROI outside the frame is refused before any work)
+            white = (None if white_roi is None else
+                     WhiteReference(plan, calibration, white_roi, white_reflectance, frame_shape=shape))
+            self.fused = FusedLaunches(plan, self.spec, calibration, self.corrections, frame_shape=shape,
+                                       queue=self.queue, white_reference=white)
+            return
+        # the motion mode: the outputs' linear rows decoded in one warped pass, Lab and dE from its XYZ
+        self.rows, self.slices = self.spec.rows()
+        self._reference = (None if self.spec.reference is None else
+                           engine.to_device(self.queue, self.spec.reference.reshape(-1)))
+        #: host seconds spent so far in each step (estimate, warped pass, consistency check with the object
+        #: layers, colour), and the sequences decoded: where a moving stream's time goes
+        self.seconds = dict.fromkeys(("estimate", "warp", "check", "colour"), 0.0)
+        self.sequences = 0
+        self._lock = threading.Lock()  # maps may run on several threads at once (the stream's)
+
+    # ------------------------------------------------------------------------------ what the outputs look like
+    @property
+    def basis(self):
+        """The plan's output basis U (B, m) of the ``coefficients`` output, or None."""
+        return None if self.spec is None else self.spec.basis
+
+    @property
+    def white(self):
+        """The white XYZ of Lab and dE, or None without a colour output."""
+        return None if self.spec is None else self.spec.white
+
+    @property
+    def white_reference(self):
+        """The reference white's per-sequence correction of the device-resident mode, or None."""
+        return None if self.fused is None else self.fused.white_reference
+
+    @property
+    def precorrect(self) -> bool:
+        """The frames are corrected on the host (:meth:`prepare_frames`) before the device launches."""
+        return self.fused is not None and self.fused.precorrect
+
+    @property
+    def frames_dtype(self):
+        """What the launches read: float32 when :meth:`prepare_frames` corrects the frames first, else None (the
+        raw frames)."""
+        return None if self.fused is None else self.fused.frames_dtype
+
+    def shapes(self) -> dict[str, tuple[tuple, np.dtype]]:
+        """Per output: its (H, W, C) or (H, W) shape and dtype; plus ``mask`` (H, W) uint8, bit 1 = saturated."""
+        return self.spec.shapes(self.height, self.width)
+
+    def device_shapes(self) -> dict[str, tuple[tuple, np.dtype]]:
+        """The maps read back from the device (:meth:`shapes`); :meth:`enqueue` may return more buffers (those
+        ``dE_sigma`` is computed from), which stay on the device."""
+        return self.shapes()
+
+    # -------------------------------------------------------------------------- the device-resident launches
+    def _device(self) -> FusedLaunches:
+        if self.fused is None:
+            raise ValueError("the device launches need outputs and no motion mode (a moving scene is decoded "
+                             "by maps)")
+        return self.fused
+
+    def prepare_frames(self, raw: ArrayLike) -> np.ndarray:
+        """(K, H, W) float32 frames for the launches when they need host-side corrections (:attr:`precorrect`;
+        :meth:`specgpu.pipeline.decoder_outputs.FusedLaunches.prepare_frames`)."""
+        return self._device().prepare_frames(raw)
+
+    def matrices(self, A: ArrayLike) -> list[np.ndarray]:
+        """The float32 matrix of each launch for the decoder ``A`` (B x K): what a per-sequence decoder (the
+        white reference's) writes into the launches' matrix buffers."""
+        return self._device().matrices(A)
+
+    def warm_up(self, dtype=np.uint16) -> None:
+        """Build every kernel and prime the memory pool on a blank sequence (nothing to build in the motion
+        mode, whose passes are made per sequence)."""
+        if self.fused is not None:
+            self.fused.warm_up(dtype)
+
+    def enqueue(self, frames, matrices=None) -> dict:
+        """Enqueue every launch on the K frames (flat device array); returns the flat device output buffers by
+        output name and ``mask`` (bit 1: a frame at the saturation level). ``matrices``: a device buffer per launch
+        holding :meth:`matrices` of this sequence's decoder, used instead of the plan's."""
+        return self._device().enqueue(frames, matrices)
+
+    # ---------------------------------------------------------------------------------------- one sequence
+    def maps(self, raw: ArrayLike) -> dict:
+        """The maps of one sequence ``raw`` (K, H, W) by output name, plus ``mask`` (H, W) uint8 (1 saturated, 4
+        outside the field, 8 inconsistent, 16 decoded with an object's own motion), NaN where masked. In the
+        motion mode also ``estimate`` (the sequence's :class:`specgpu.pipeline.moving.MotionEstimate`) and
+        ``layers`` (its :class:`specgpu.pipeline.moving_layers.ObjectLayer` list)."""
+        if self.spec is None:
+            raise ValueError("maps needs the outputs named (SequenceDecoder(plan, calibration, outputs))")
+        if self.motion != "none":
+            return self._moving_maps(raw)
+        dev, q = self._device(), self.queue
+        host = dev.prepare_frames(raw) if dev.precorrect else np.asarray(raw)
+        out = dev.enqueue(engine.to_device(q, np.ascontiguousarray(host).reshape(-1)))
+        maps = {}
+        for name, (shape, dtype) in self.shapes().items():
+            maps[name] = np.empty(shape, dtype)
+            cl.enqueue_copy(q, maps[name], out[name])
+        q.finish()
+        saturated = (maps["mask"] & 1).astype(bool)
+        if saturated.any():  # no valid measurement: NaN, as recover makes it
+            for name in self.outputs:
+                maps[name][saturated] = np.nan
+        return maps
+
+    def _moving_maps(self, raw) -> dict:
+        steps = {}
+        rec = self.warped(raw, self.rows, seconds=steps)
+        t0 = time.perf_counter()
+        out = {name: np.ascontiguousarray(rec.y[..., rows]) for name, rows in self.slices.items()}
+        if "cube" in out:
+            out["cube"] = out["cube"].astype(self.spec.cube_dtype, copy=False)
+        if {"Lab", "dE"} & set(self.outputs):
+            xyz = engine.to_device(self.queue, out["XYZ"].reshape(-1))
+            for name, arr in lab_and_delta_E(self.queue, self.spec, xyz, self._reference, self.n).items():
+                out[name] = arr.get().reshape(self.shapes()[name][0])
+        if "sigma_rms" in self.outputs:
+            out["sigma_rms"] = warped_sigma_rms(self.corrections.sensor(raw), self.plan, self.corrections.dark,
+                                                self.gain, rec, device=self.device)
+        with self._lock:
+            for step, seconds in {**steps, "colour": time.perf_counter() - t0}.items():
+                self.seconds[step] += seconds
+            self.sequences += 1
+        return {**{name: out[name] for name in self.outputs}, "mask": rec.mask, "estimate": rec.estimates[0],
+                "layers": rec.layers}
 
     # ------------------------------------------------------------------------------------------ which frames
     def picked(self, frames, sequence, where) -> list[int]:

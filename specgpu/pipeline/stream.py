@@ -25,14 +25,16 @@ still computed and handed to the sinks, and the frames left in an unfinished seq
 assembler's ``frames_unused`` / ``sequences_discarded``.
 
 A scene that moves during each sequence (``motion="global"`` or ``"affine"``) is decoded one sequence at a time as
-``specgpu recover --motion`` decodes it (:class:`specgpu.pipeline.moving_decode.MovingDecoder`): the device thread
+``specgpu recover --motion`` decodes it (the motion mode of the stream's
+:class:`specgpu.pipeline.sequence_decoder.SequenceDecoder`): the device thread
 hands each complete sequence to :data:`MOTION_THREADS` decoding threads, one per core up to 8 (the estimate on the
 host is most of the cost, and much of it runs outside the GIL: two threads decode about 1.5 times as many
 sequences per second on 2 cores) and takes their maps, host arrays (no map, no pinned set), in the sequences'
 order.
 
-This module is the runner (:class:`Stream`: the threads and the loop); the device work of a sequence is
-:class:`specgpu.pipeline.decoder.StreamDecoder`, the consumers of its results are in
+This module is the runner (:class:`Stream`: the threads and the loop); the decoding of a sequence is
+:class:`specgpu.pipeline.sequence_decoder.SequenceDecoder` (its device-resident mode: the fused launches of
+:mod:`specgpu.pipeline.decoder_outputs`), the consumers of its results are in
 :mod:`specgpu.pipeline.sinks`, and what a finished stream reports is in :mod:`specgpu.pipeline.stream_report`.
 """
 
@@ -59,8 +61,8 @@ from specgpu.capture.ringbuffer import POLICIES, RingBuffer, run_producer
 from specgpu.core.text import one_line
 from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.engine.transfer import pinned_empty
-from specgpu.pipeline.decoder import STREAM_OUTPUTS, StreamDecoder
-from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
+from specgpu.pipeline.decoder_outputs import STREAM_OUTPUTS
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.pipeline.sinks import CallbackSink, StreamResult, sink_label
 from specgpu.pipeline.stream_report import (
     BEHIND,
@@ -190,7 +192,7 @@ class Stream:
         Called in order for each result: any object with ``write(result)`` (and optionally ``close()``), or a
         callable (wrapped in :class:`CallbackSink`).
     reference, method, illuminant, observer, integration, cube_dtype
-        As :class:`StreamDecoder`.
+        As :func:`specgpu.pipeline.decoder_outputs.outputs_for`.
     n_slots : int, optional
         Frames the ring holds (default 4 K, at least 16: room for jitter without adding latency at saturation).
     policy : str
@@ -224,11 +226,12 @@ class Stream:
     device : optional
         OpenCL device selector (see :mod:`specgpu.engine.runtime`).
     white_roi, white_reflectance : optional
-        A reference white in the field (as :class:`StreamDecoder`): each sequence's gains are measured on its
-        host frames, its decoder corrected (:class:`specgpu.planning.correction.WhiteReference`) and the launches'
-        matrices written by non-blocking copies into one set of small device buffers per result token (reused only after
-        that sequence has left the sinks: no wait on the queue). The gains are in
-        :attr:`StreamResult.white_gains`. A saturated or dark white stops the stream with a one-line error.
+        A reference white in the field (as :class:`~specgpu.pipeline.sequence_decoder.SequenceDecoder`): each
+        sequence's gains are measured on its host frames, its decoder corrected
+        (:class:`specgpu.planning.correction.WhiteReference`) and the launches' matrices written by non-blocking
+        copies into one set of small device buffers per result token (reused only after that sequence has left
+        the sinks: no wait on the queue). The gains are in :attr:`StreamResult.white_gains`. A saturated or dark
+        white stops the stream with a one-line error.
     denoise : (radius, eps), optional
         Denoise the coefficients, cube and XYZ outputs with the guided filter of ``recover --denoise``
         (:func:`specgpu.pipeline.denoise.stream_denoise`; other outputs are refused with it).
@@ -257,7 +260,6 @@ class Stream:
                  white_roi=None, white_reflectance=None, denoise=None, motion: str = "none",
                  integration: str = "rectangle", frame_rate_hz: float | None = None):
         plan.check_calibration(calibration, name="stream plan")
-        motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise, white_roi=white_roi)
         if policy not in POLICIES:
             raise ValueError(f"unknown ring policy {policy!r}; valid policies: {', '.join(POLICIES)}")
         if readback not in READBACKS:
@@ -270,16 +272,12 @@ class Stream:
         self.driver = _ArrivalDriver(driver, plan.K, self._stop)
         self.plan = plan
         self.queue = get_queue(device)
-        self.decoder = StreamDecoder(plan, calibration, outputs, frame_shape=driver.frame_shape, queue=self.queue,
-                                     reference=reference, method=method, illuminant=illuminant,
-                                     observer=observer, cube_dtype=cube_dtype, white_roi=white_roi,
-                                     white_reflectance=white_reflectance, denoise=denoise,
-                                     integration=integration)
-        self.moving = None if motion == "none" else MovingDecoder(
-            plan, calibration, self.decoder.outputs, mode=motion, reference=reference, method=method,
-            illuminant=illuminant, observer=observer, cube_dtype=cube_dtype, device=self.queue,
-            integration=integration)
-        if self.moving is not None:
+        self.decoder = SequenceDecoder(plan, calibration, outputs, frame_shape=driver.frame_shape, device=self.queue,
+                                       reference=reference, method=method, illuminant=illuminant,
+                                       observer=observer, cube_dtype=cube_dtype, white_roi=white_roi,
+                                       white_reflectance=white_reflectance, denoise=denoise,
+                                       integration=integration, motion=motion)
+        if self.decoder.motion != "none":
             readback = upload = "copy"  # the maps are made on the host: no mapped or pinned sets to recycle
             # a sequence in flight for each decoding thread, and a result buffer for each
             in_flight = max(int(in_flight), MOTION_THREADS)
@@ -381,7 +379,7 @@ class Stream:
             for _ in range(self.result_buffers if self.decoder.white_reference is not None else 0))
         self._ended = threading.Event()
         self._motion_pool = (ThreadPoolExecutor(MOTION_THREADS, thread_name_prefix="specgpu-stream-motion")
-                             if self.moving is not None else None)
+                             if self.decoder.motion != "none" else None)
         self.decoder.warm_up(frames_dtype)
         peak_rss_reset()
         rss_start = current_rss_bytes()
@@ -507,9 +505,9 @@ class Stream:
 
     def _submit(self, index: int, seq, arrival, pending) -> _InFlight:
         self._acquire_token(pending)  # a slow sink holds every buffer: wait here, and the frame ring's policy acts
-        if self.moving is not None:  # estimated and decoded now: the maps come back as host arrays
+        if self.decoder.motion != "none":  # estimated and decoded now: the maps come back as host arrays
             return _InFlight(index, seq, arrival if arrival is not None else time.perf_counter(), {}, {}, [],
-                             [seq], decoding=self._motion_pool.submit(self.moving.decode, seq.frames))
+                             [seq], decoding=self._motion_pool.submit(self.decoder.maps, seq.frames))
         q, dec = self.queue, self.decoder
         keep = [seq]
         host_frames = dec.prepare_frames(seq.frames) if dec.precorrect else seq.frames

@@ -23,7 +23,7 @@ from specgpu.apps.cli import stream as stream_cli
 from specgpu.apps.live_view import LiveView, view_ring
 from specgpu.io.recording import open_recording
 from specgpu.pipeline import sinks
-from specgpu.pipeline.decoder import STREAM_OUTPUTS
+from specgpu.pipeline.decoder_outputs import STREAM_OUTPUTS
 from specgpu.pipeline.moving_decode import MOTION_OUTPUTS
 from specgpu.pipeline.sinks import CallbackSink
 from specgpu.rig import twin

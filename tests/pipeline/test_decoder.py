@@ -10,8 +10,8 @@ import pytest
 
 from specgpu import engine
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.pipeline.decoder import StreamDecoder
 from specgpu.pipeline.recovery import to_Lab, to_XYZ
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.registry import make_plan
 from specgpu.rig import CameraParameters, RigDescription
 
@@ -41,8 +41,8 @@ def white_frames(plan, bundle) -> np.ndarray:
 
 
 def decoded(plan, bundle, queue, **colours) -> dict:
-    dec = StreamDecoder(plan, bundle, ("XYZ", "Lab", "dE"), frame_shape=bundle.frame_shape, queue=queue,
-                        reference=np.array([100.0, 0.0, 0.0]), **colours)
+    dec = SequenceDecoder(plan, bundle, ("XYZ", "Lab", "dE"), frame_shape=bundle.frame_shape, device=queue,
+                          reference=np.array([100.0, 0.0, 0.0]), **colours)
     assert not dec.precorrect  # the oracle's frames go to the kernels as they are
     out = dec.enqueue(engine.to_device(queue, white_frames(plan, bundle).reshape(-1)))
     maps = {}

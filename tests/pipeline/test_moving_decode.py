@@ -12,8 +12,9 @@ from moving_helpers import CAM, MOTION, moving_capture
 from specgpu.engine.colorimetry import delta_E
 from specgpu.pipeline.batch import run_batch
 from specgpu.pipeline.capture_folder import read_capture
-from specgpu.pipeline.moving_decode import MovingDecoder, check_motion_options
+from specgpu.pipeline.moving_decode import check_motion_options
 from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.rig import RigDescription, natural_scene
 
@@ -77,9 +78,9 @@ def test_options_that_are_not_motion_compensated_are_named(moving):
 def test_the_decoder_stacks_its_outputs_into_one_pass_equal_to_recover(moving):
     root, plan, bundle, _, _ = moving
     folder = read_capture(root / "seq")
-    dec = MovingDecoder(plan, bundle, ("cube", "XYZ"), mode="global")
-    maps = dec.decode(folder.frames[0])
-    assert dec.matrix.shape == (plan.A.shape[0] + 3, plan.K)
+    dec = SequenceDecoder(plan, bundle, ("cube", "XYZ"), motion="global")
+    maps = dec.maps(folder.frames[0])
+    assert dec.rows.shape == (plan.A.shape[0] + 3, plan.K)
     assert_close_nan(maps["cube"], recovered(root, 0, "global"), rtol=1e-6, atol=1e-6)
     assert maps["mask"].dtype == np.uint8 and maps["estimate"].shifts.shape == (plan.K, 2)
     np.testing.assert_allclose(maps["estimate"].shifts, (np.arange(plan.K) - plan.K // 2)[:, None] * [2.0, 1.0],
@@ -174,7 +175,7 @@ def test_a_sequence_that_fails_to_decode_ends_the_moving_stream_with_its_error(m
     _, plan, bundle, _, _ = moving
     stream = Stream(twin_driver(plan, bundle, 4), plan, bundle, outputs=("cube",), policy="block", motion="global")
     calls = []
-    decode = stream.moving.decode
+    decode = stream.decoder.maps
 
     def failing(frames):
         calls.append(1)
@@ -182,7 +183,7 @@ def test_a_sequence_that_fails_to_decode_ends_the_moving_stream_with_its_error(m
             raise ValueError("no frame of the sequence has signal to register")
         return decode(frames)
 
-    stream.moving.decode = failing
+    stream.decoder.maps = failing
     with pytest.raises(ValueError, match="no frame of the sequence has signal"):
         stream.run(30)
     assert len(calls) >= 2
@@ -204,7 +205,7 @@ def test_a_moving_stream_keeps_a_sequence_in_flight_for_each_decoding_thread(mov
 def test_affine_motion_decodes_as_recover_affine(moving):
     root, plan, bundle, _, _ = moving
     folder = read_capture(root / "seq")
-    maps = MovingDecoder(plan, bundle, ("cube",), mode="affine").decode(folder.frames[1])
+    maps = SequenceDecoder(plan, bundle, ("cube",), motion="affine").maps(folder.frames[1])
     # the affine map or, where it explains no more of the field, the translation decoded beside it
     est = maps["estimate"]
     assert (est.model, est.shifts.shape) in {("affine", (plan.K, 2, 3)), ("translation", (plan.K, 2))}
@@ -217,11 +218,11 @@ def test_sigma_rms_with_motion_bounds_the_noise_of_the_compensated_cube(moving):
     and not far below it; NaN exactly where the cube is."""
     _, plan, bundle, _, _ = moving
     desc = RigDescription(camera=CAM, motion=MOTION)
-    dec = MovingDecoder(plan, bundle, ("cube", "sigma_rms"), mode="global")
+    dec = SequenceDecoder(plan, bundle, ("cube", "sigma_rms"), motion="global")
     frames = [capture_plan(desc, plan, natural_scene(240, 320), noise_seed=seed, calibration=bundle).sequences[0].frames
               for seed in (11, 12)]
-    draws = [dec.decode(f) for f in frames]
-    alone = MovingDecoder(plan, bundle, ("sigma_rms",), mode="global").decode(frames[0])
+    draws = [dec.maps(f) for f in frames]
+    alone = SequenceDecoder(plan, bundle, ("sigma_rms",), motion="global").maps(frames[0])
     assert set(alone) == {"sigma_rms", "mask", "estimate", "layers"}
     np.testing.assert_array_equal(alone["sigma_rms"], draws[0]["sigma_rms"])
     a, b = (np.asarray(d["cube"], np.float64) for d in draws)

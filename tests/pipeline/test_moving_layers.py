@@ -10,9 +10,9 @@ from moving_helpers import frames_of, moving_setup
 
 from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving import MASK_INCONSISTENT
-from specgpu.pipeline.moving_decode import MovingDecoder
 from specgpu.pipeline.moving_layers import MASK_LAYER, flagged_regions, occluded_by, recover_moving
 from specgpu.pipeline.moving_residual import residual_check
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.uncertainty import constant_variance, frame_variance
@@ -108,7 +108,7 @@ def test_a_scene_without_an_object_of_its_own_gets_no_layer(setup):
 def test_the_stream_decoder_decodes_the_object_layer_as_recover_does(setup, chart_over_scene):
     _, bundle, plan, _ = setup
     frames, _, res, _ = chart_over_scene
-    maps = MovingDecoder(plan, bundle, ("cube",), mode="global").decode(frames)
+    maps = SequenceDecoder(plan, bundle, ("cube",), motion="global").maps(frames)
     assert len(maps["layers"]) == 1
     np.testing.assert_array_equal(maps["mask"], res.mask)
     np.testing.assert_allclose(np.nan_to_num(maps["cube"]), np.nan_to_num(res.y), rtol=1e-5, atol=1e-6)
@@ -140,16 +140,18 @@ def test_sigma_rms_reads_an_object_layers_pixels_with_its_own_motion(setup, char
     desc, bundle, plan, _ = setup
     frames = chart_over_scene[0]
     plan = with_estimator(plan, bundle, "projection", noise=NoiseModel.from_rig(desc, plan.exposure_s))
-    dec = MovingDecoder(plan, bundle, ("cube", "sigma_rms"), mode="global")
-    maps = dec.decode(frames)
+    dec = SequenceDecoder(plan, bundle, ("cube", "sigma_rms"), motion="global")
+    maps = dec.maps(frames)
     sigma = maps["sigma_rms"]
     np.testing.assert_array_equal(np.isnan(sigma), np.isnan(maps["cube"][..., 0]))
     (layer,) = maps["layers"]
     own = (maps["mask"] & MASK_LAYER) != 0
     assert own.sum() > 1000 and not (own & ~layer.decoded).any()
 
+    rms_row = np.sqrt(np.mean(np.asarray(plan.A, np.float64) ** 2, axis=0, keepdims=True))
+
     def at(shifts):
-        var = frame_variance(frames, plan, dec.dark, bundle.flat_field, A=dec.rms_row, shifts=shifts)[..., 0]
+        var = frame_variance(frames, plan, dec.corrections.dark, bundle.flat_field, A=rms_row, shifts=shifts)[..., 0]
         return np.sqrt(var + np.mean(constant_variance(plan)))
 
     np.testing.assert_allclose(sigma[own], at(layer.shifts)[own], rtol=1e-5)

@@ -8,9 +8,10 @@ from moving_helpers import frames_of, moving_setup
 
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.moving import MASK_INCONSISTENT
-from specgpu.pipeline.moving_decode import MovingDecoder
+from specgpu.pipeline.moving_decode import warped_sigma_rms
 from specgpu.pipeline.moving_layers import MASK_LAYER, recover_moving
 from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion, interpolate_in_time
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.estimators import NoiseModel, with_estimator
 from specgpu.planning.reference_frames import pattern_indices, reference_indices, with_reference_frames
 from specgpu.rig.motion import MotionParameters
@@ -99,7 +100,7 @@ def test_the_moving_decoder_compensates_from_the_reference_frames(setup):
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
     frames, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(3.0, 1.0)))
     still, _ = frames_of(desc, plan, scene, MotionParameters())
-    out = MovingDecoder(plan, bundle, ("cube", "sigma_rms"), mode="global").decode(frames)
+    out = SequenceDecoder(plan, bundle, ("cube", "sigma_rms"), motion="global").maps(frames)
     est = out["estimate"]
     assert np.flatnonzero(est.registered).tolist() == reference_indices(plan)
     np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.1)
@@ -127,13 +128,13 @@ def test_the_moving_decoder_compensates_from_the_reference_frames(setup):
     # the noise of the outputs: where they are, and the reference frames' zero columns add none
     decoded = np.isfinite(out["cube"]).all(axis=2)
     assert np.array_equal(np.isfinite(out["sigma_rms"]), decoded)
-    bare_sigma = MovingDecoder(bare, bundle, ("cube", "sigma_rms"), mode="global").sigma_rms(
-        frames[pattern_indices(plan)], _Rec(out["estimate"].shifts[pattern_indices(plan)], out["mask"]))
+    bare_sigma = warped_sigma_rms(frames[pattern_indices(plan)], bare, dark, gain,
+                                  _Rec(out["estimate"].shifts[pattern_indices(plan)], out["mask"]))
     np.testing.assert_allclose(out["sigma_rms"][decoded], bare_sigma[decoded], rtol=1e-4)
 
 
 class _Rec:
-    """The parts of a MovingRecovery that MovingDecoder.sigma_rms reads."""
+    """The parts of a MovingRecovery that warped_sigma_rms reads."""
 
     def __init__(self, shifts, mask):
         self.estimates = [type("E", (), {"shifts": shifts})()]

@@ -14,9 +14,7 @@ from specgpu.calibration.bundle import oracle_calibration
 from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import apply_linear
 from specgpu.pipeline.capture_folder import SequenceFolder
-from specgpu.pipeline.decoder import StreamDecoder
 from specgpu.pipeline.denoise import sequence_guide
-from specgpu.pipeline.moving_decode import MovingDecoder
 from specgpu.pipeline.recovery import recover, uncertainty
 from specgpu.pipeline.sequence_decoder import SequenceDecoder, corrections_for
 from specgpu.planning.correction import with_ambient_frame
@@ -72,10 +70,10 @@ def test_every_decoder_takes_its_corrections_from_the_pair(bundle, plan, tilted)
     for cal, p in ((bundle, plan), (tilted, replace(plan, calibration=tilted.hash)),
                    (bundle, with_ambient_frame(plan))):
         expected = corrections_for(cal, p).host
-        stream = StreamDecoder(p, cal, ("cube",), frame_shape=(H, W), queue=queue)
+        stream = SequenceDecoder(p, cal, ("cube",), frame_shape=(H, W), device=queue)
         assert stream.precorrect == stream.corrections.host == expected
-    moving = MovingDecoder(replace(plan, calibration=tilted.hash), tilted, ("cube",), mode="global")
-    assert moving.sequence.corrections.host and moving.sequence.motion == "global"
+    moving = SequenceDecoder(replace(plan, calibration=tilted.hash), tilted, ("cube",), motion="global")
+    assert moving.corrections.host and moving.motion == "global"
 
 
 def test_recover_maps_the_signal_above_the_dark_once(tilted, plan):
@@ -118,3 +116,48 @@ def test_averaged_sequences_decode_as_their_mean(bundle, plan):
     mean = apply_linear(frames.mean(axis=0, dtype=np.float32), plan.A, bundle.dark_at(plan.exposure_s),
                         live_gain(bundle.flat_field))
     np.testing.assert_allclose(recover(folder), mean, rtol=1e-6, atol=1e-7)
+
+
+def test_the_pipeline_has_one_decoder_class():
+    """Every command decodes through SequenceDecoder: no second decoder class computes the outputs another way."""
+    import ast
+
+    root = Path(__file__).resolve().parents[2] / "specgpu" / "pipeline"
+    decoders = sorted(node.name for path in root.glob("*.py") for node in ast.walk(ast.parse(path.read_text()))
+                      if isinstance(node, ast.ClassDef) and node.name.endswith("Decoder"))
+    assert decoders == ["SequenceDecoder"]
+
+
+def test_the_device_mode_maps_equal_recover_with_the_saturated_pixels_nan(bundle, plan, tilted):
+    """The device-resident mode's maps of host frames (fused launches, host corrections first where the pair asks
+    for them) equal recover's decoding of the same sequence, NaN where a frame saturated."""
+    for cal, p in ((bundle, plan), (tilted, replace(plan, calibration=tilted.hash))):
+        frames = frames_for(p, cal, sequences=1, seed=5)
+        frames[0, 1, 7, 11] = cal.max_code
+        want = recover(SequenceFolder(Path("mem"), frames, p, cal, [], {}), sequence=0)
+        dec = SequenceDecoder(p, cal, ("cube", "XYZ"))
+        maps = dec.maps(frames[0])
+        assert set(maps) == {"cube", "XYZ", "mask"} and maps["cube"].dtype == np.float32
+        assert maps["mask"][7, 11] & 1 and np.isnan(maps["cube"][7, 11]).all() and np.isnan(want[7, 11]).all()
+        np.testing.assert_allclose(maps["cube"], want, rtol=1e-5, atol=1e-6)
+        assert np.isfinite(maps["cube"]).sum() == np.isfinite(want).sum() == want.size - want.shape[-1]
+
+
+def test_the_outputs_are_decided_once_for_every_mode(bundle, plan):
+    """The device-resident and the motion mode check their outputs in the same place, with the same words."""
+    for motion in ("none", "global"):
+        with pytest.raises(ValueError, match="the dE output needs a reference"):
+            SequenceDecoder(plan, bundle, ("cube", "dE"), motion=motion)
+        with pytest.raises(ValueError, match=r"the dE reference must be \(3,\) or \(240, 320, 3\), got \(2, 3\)"):
+            SequenceDecoder(plan, bundle, ("dE",), motion=motion, reference=np.zeros((2, 3)))
+        with pytest.raises(ValueError, match="cube_dtype must be float16 or float32"):
+            SequenceDecoder(plan, bundle, ("cube",), motion=motion, cube_dtype=np.float64)
+    moving = SequenceDecoder(plan, bundle, ("coefficients", "cube", "XYZ", "Lab"), motion="global")
+    still = SequenceDecoder(plan, bundle, ("coefficients", "cube", "XYZ", "Lab"))
+    assert moving.shapes() == still.shapes()
+    rows, slices = moving.rows, moving.slices
+    np.testing.assert_array_equal(rows[slices["coefficients"]], still.spec.A_coefficients)
+    np.testing.assert_array_equal(rows[slices["cube"]], plan.A)
+    np.testing.assert_allclose(rows[slices["XYZ"]], plan.outputs_to_XYZ("D65") @ plan.A, rtol=1e-12)
+    with pytest.raises(ValueError, match="the device launches need outputs and no motion mode"):
+        moving.enqueue(None)

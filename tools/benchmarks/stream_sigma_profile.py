@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from specgpu.apps.bench.sizes import parse_sizes  # noqa: E402
 from specgpu.engine.runtime import get_queue  # noqa: E402
-from specgpu.pipeline import StreamDecoder  # noqa: E402
+from specgpu.pipeline import SequenceDecoder  # noqa: E402
 from specgpu.pipeline.twin_replay import stream_setup  # noqa: E402
 from specgpu.planning import NoiseModel, smooth_prior, with_estimator  # noqa: E402
 from specgpu.rig.scene import white_tile_roi  # noqa: E402
@@ -66,12 +66,12 @@ def main():
     host_frames = np.ascontiguousarray(setup.frames[:K])
     frames = cla.to_device(q, host_frames.reshape(-1))
     roi = white_tile_roi(height, width)
-    dec = StreamDecoder(plan, setup.bundle, ("coefficients", "XYZ", "dE", "sigma", "sigma_rms", "dE_sigma"),
-                        frame_shape=(height, width), queue=q, reference=setup.reference, white_roi=roi)
+    dec = SequenceDecoder(plan, setup.bundle, ("coefficients", "XYZ", "dE", "sigma", "sigma_rms", "dE_sigma"),
+                          frame_shape=(height, width), device=q, reference=setup.reference, white_roi=roi)
     load = os.getloadavg()[0]
     print(f"{width} x {height}, K = {K}, {plan.A.shape[0]} bands, {q.device.name.strip()}, load {load:.2f}")
-    kinds = [kind for _, kind in dec._matrix_makers()] + ["dE_sigma"]
-    launches = dec._launches(np.dtype(frames.dtype))
+    kinds = [kind for _, kind in dec.fused._matrix_makers()] + ["dE_sigma"]
+    launches = dec.fused._launches(np.dtype(frames.dtype))
     xyz = cla.zeros(q, 3 * n, np.float32) + 0.3
     cov = cla.zeros(q, 6 * n, np.float32) + 1e-6
     for (launch, names), kind in zip(launches, kinds):

@@ -20,7 +20,7 @@ import numpy as np
 import pyopencl.array as cla
 
 from specgpu.apps.bench.sizes import parse_sizes
-from specgpu.pipeline import Stream, StreamDecoder
+from specgpu.pipeline import SequenceDecoder, Stream
 from specgpu.pipeline.twin_replay import stream_setup
 
 
@@ -54,8 +54,8 @@ def main():
     queue = stream.queue
     frames = cla.to_device(queue, setup.frames[:setup.plan.K].reshape(-1))
     for subset in [(o,) for o in outputs] + [outputs]:
-        dec = StreamDecoder(setup.plan, setup.bundle, subset, frame_shape=(height, width), queue=queue,
-                            reference=setup.reference if "dE" in subset else None)
+        dec = SequenceDecoder(setup.plan, setup.bundle, subset, frame_shape=(height, width), device=queue,
+                              reference=setup.reference if "dE" in subset else None)
         dec.warm_up()
         times = []
         for _ in range(30):

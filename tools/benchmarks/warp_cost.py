@@ -6,7 +6,8 @@ calibration's
 dark and flat field, and the cases:
 
 * the static decoder as the stream launches it for the outputs ("coefficients", "XYZ")
-  (specgpu.pipeline.decoder.StreamDecoder.enqueue: a linear pass for the 5 coefficients, a fused pass for XYZ);
+  (specgpu.pipeline.sequence_decoder.SequenceDecoder.enqueue: a linear pass for the 5 coefficients, a fused pass
+  for XYZ);
 * the translation path (specgpu.engine.warp_map.PreparedWarp, kernels/warp.cl) writing the same 5 + 3 outputs
   interleaved, each frame displaced by its own translation, in one pass (the raw frames corrected as they are
   read), and as 8 planes; and in two passes, the corrected planes kept for a later step (the correction of the
@@ -37,7 +38,7 @@ import pyopencl.array as cla
 from specgpu.engine import runtime
 from specgpu.engine.runtime import get_queue
 from specgpu.engine.warp_map import PreparedWarp, check_shifts
-from specgpu.pipeline.decoder import StreamDecoder
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.pipeline.twin_replay import stream_setup
 
 REPO = Path(__file__).resolve().parents[2]
@@ -71,19 +72,19 @@ def main(argv=None):
     h, w = args.height, args.width
     n = h * w
     frames = cla.to_device(queue, np.ascontiguousarray(setup.frames[:K]).reshape(-1))
-    decoder = StreamDecoder(plan, bundle, ("coefficients", "XYZ"), frame_shape=(h, w), queue=queue)
+    decoder = SequenceDecoder(plan, bundle, ("coefficients", "XYZ"), frame_shape=(h, w), device=queue)
     if decoder.precorrect:
         raise SystemExit("this calibration corrects the frames on the host first; the comparison needs raw frames")
     decoder.warm_up(np.uint16)
-    A = np.vstack([decoder.A_coefficients, decoder.M])  # what the static launches decode, 5 + 3 rows
-    m = decoder.A_coefficients.shape[0]
+    A = np.vstack([decoder.spec.A_coefficients, decoder.spec.M])  # what the static launches decode, 5 + 3 rows
+    m = decoder.spec.A_coefficients.shape[0]
     B = A.shape[0]
-    dark, gain = decoder.dark.reshape(h, w), decoder.gain.reshape(h, w)
+    dark, gain = decoder.fused.dark.reshape(h, w), decoder.fused.gain.reshape(h, w)
     # each frame displaced by its own translation, the middle one (the reference) by none
     shifts = np.stack([np.linspace(-4.3, 4.3, K), np.linspace(-1.2, 1.2, K)], axis=1)
     shifts[K // 2] = 0.0
     groups = [("coefficients", m, "interleaved"), ("XYZ", B - m, "interleaved")]
-    common = dict(saturation=decoder.saturation)
+    common = dict(saturation=decoder.fused.saturation)
     warp = PreparedWarp(queue, np.uint16, A, (h, w), dark, gain, outputs=groups, **common)
     planes = PreparedWarp(queue, np.uint16, A, (h, w), dark, gain, outputs=[("y", B, "planar")], **common)
     kept = PreparedWarp(queue, np.uint16, A, (h, w), dark, gain, outputs=groups, corrected_planes=True, **common)
@@ -103,7 +104,7 @@ def main(argv=None):
     }
     if args.old:
         macros = dict(K=K, B=B, IN_T="ushort", HAS_DARK=1, HAS_GAIN=True, IS_FLOAT_IN=False, FLOW=None,
-                      SAT_LEVEL=repr(float(decoder.saturation)) + "f", OUT_INTERLEAVED=True, STRIP=8)
+                      SAT_LEVEL=repr(float(decoder.fused.saturation)) + "f", OUT_INTERLEAVED=True, STRIP=8)
         kernel = old_kernel(queue, args.old, macros)
         A_dev = cla.to_device(queue, A.astype(np.float32).reshape(-1))
         motion = cla.to_device(queue, check_shifts(shifts, K).reshape(-1))

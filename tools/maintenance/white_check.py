@@ -26,7 +26,7 @@ from specgpu import engine  # noqa: E402
 from specgpu.calibration.bundle import oracle_calibration  # noqa: E402
 from specgpu.core.spectra import OBSERVERS, XYZ_weights  # noqa: E402
 from specgpu.engine.colorimetry import XYZ_to_Lab, frames_to_delta_E, reflectance_to_XYZ  # noqa: E402
-from specgpu.pipeline.decoder import StreamDecoder  # noqa: E402
+from specgpu.pipeline.sequence_decoder import SequenceDecoder  # noqa: E402
 from specgpu.planning.registry import make_plan  # noqa: E402
 from specgpu.rig import CameraParameters, RigDescription  # noqa: E402
 
@@ -64,9 +64,9 @@ def decoder(queue) -> float:
     for integration in ("rectangle", "ASTM E308"):
         for observer in OBSERVERS:
             for illuminant in ("D65", "A", "D50", "E", "FL2", "FL11", "LED-B5", "ISO 7589 Photoflood"):
-                dec = StreamDecoder(plan, bundle, ("Lab", "dE"), frame_shape=bundle.frame_shape, queue=queue,
-                                    reference=NEUTRAL, illuminant=illuminant, observer=observer,
-                                    integration=integration)
+                dec = SequenceDecoder(plan, bundle, ("Lab", "dE"), frame_shape=bundle.frame_shape, device=queue,
+                                      reference=NEUTRAL, illuminant=illuminant, observer=observer,
+                                      integration=integration)
                 out = dec.enqueue(engine.to_device(queue, frames.astype(np.float32).reshape(-1)))
                 for name, (shape, dtype) in dec.shapes().items():
                     got = np.empty(shape, dtype)

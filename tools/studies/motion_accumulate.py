@@ -2,14 +2,15 @@
 
 The twin and plans of ``tools/studies/motion_study.py`` (the paper's noise, 640 x 480 at 200 fps, the natural scene,
 oracle calibration). For each motion case, ``--sequences`` consecutive sequences are rendered frame by frame, each
-decoded motion-compensated (:class:`specgpu.pipeline.moving_decode.MovingDecoder`: cube and sigma_rms) and fed to
-the running estimate that moves with the scene (:class:`specgpu.pipeline.accumulate.AccumulateSink` with
-``motion=True``, as ``specgpu stream --motion global --accumulate N``). The last sequence is scored per pixel
-against the scene at its reference time: RMSE (reflectance, 400-700 nm at 10 nm) and dE2000 (D65) over the field
-and within 3 px of an edge of the scene, over the pixels both the sequence and the estimate have (the scores leave
-out a 3 px band about a moving object's edges). ``noise`` is the part of the error that changes between noise
-draws (the RMS of the difference of two draws over sqrt 2), which is what accumulation can remove; the rest (the
-prior's mismatch, the compensation's interpolation) stays. Mean +- std over ``--draws`` draws.
+decoded motion-compensated (:class:`specgpu.pipeline.sequence_decoder.SequenceDecoder`'s motion mode: cube and
+sigma_rms) and fed to the running estimate that moves with the scene
+(:class:`specgpu.pipeline.accumulate.AccumulateSink` with ``motion=True``, as ``specgpu stream --motion global
+--accumulate N``). The last sequence is scored per pixel against the scene at its reference time: RMSE (reflectance,
+400-700 nm at 10 nm) and dE2000 (D65) over the field and within 3 px of an edge of the scene, over the pixels both the
+sequence and the estimate have (the scores leave out a 3 px band about a moving object's edges). ``noise`` is the part
+of the error that changes between noise draws (the RMS of the difference of two draws over sqrt 2), which is what
+accumulation can remove; the rest (the prior's mismatch, the compensation's interpolation) stays. Mean +- std over
+``--draws`` draws.
 
     PYTHONPATH=. python tools/studies/motion_accumulate.py                      # ~4 min
     PYTHONPATH=. python tools/studies/motion_accumulate.py --small --draws 2 --cases t3 --plans symmetric-9
@@ -28,8 +29,8 @@ from scipy import ndimage
 
 from specgpu.pipeline.accumulate import AccumulateSink
 from specgpu.pipeline.evaluate import evaluate_pixels
-from specgpu.pipeline.moving_decode import MovingDecoder
 from specgpu.pipeline.moving_scores import edge_band
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.estimators import NoiseModel, with_estimator
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.scene import SpectralScene
@@ -44,13 +45,13 @@ def run(desc, bundle, plan, scene, motion, sequences, N, seed):
     rig = TwinRig(plan.rig_description(replace(desc, motion=motion)), scene=scene)
     rig.seed = seed  # the frames' temporal noise and light (the camera's fixed pattern is the calibrated one)
     rig.load_sequence(plan.patterns)
-    dec = MovingDecoder(plan, bundle, ("cube", "sigma_rms"), mode="global")
+    dec = SequenceDecoder(plan, bundle, ("cube", "sigma_rms"), motion="global")
     sink = AccumulateSink(N, ("cube", "sigma_rms"), motion=True)
     seconds = []
     for s in range(sequences):
         ts = (s * plan.K + np.arange(plan.K)) * rig.frame_period_s
         frames = np.stack([rig.render(k, s * plan.K + k, ts[k])[0] for k in range(plan.K)])
-        maps = dec.decode(frames)
+        maps = dec.maps(frames)
         single = maps["cube"].copy()
         t0 = time.perf_counter()
         sink.write(SimpleNamespace(arrays=maps))

@@ -165,9 +165,9 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
             stream = case_stream(c, count)
             rep = stream.run(seconds)
             if c == "motion":
-                for step, s in stream.moving.seconds.items():
+                for step, s in stream.decoder.seconds.items():
                     steps[step] = steps.get(step, 0.0) + s
-                steps["sequences"] = steps.get("sequences", 0) + stream.moving.sequences
+                steps["sequences"] = steps.get("sequences", 0) + stream.decoder.sequences
             runs[c].append((rep, load()))
     targets = stream_targets(width, height)
     for c in sustained:

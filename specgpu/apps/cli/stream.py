@@ -30,7 +30,7 @@ from specgpu.apps.live_view import run_with_view
 from specgpu.hardware.drivers import hardware_config, open_rig_driver
 from specgpu.io.recording import refuse_existing
 from specgpu.pipeline.accumulate import AccumulateSink
-from specgpu.pipeline.decoder import STREAM_OUTPUTS
+from specgpu.pipeline.decoder_outputs import STREAM_OUTPUTS
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.live import add_recording, behind_text, recording_slots, stream_summary
 from specgpu.pipeline.motion_record import without_motion
