@@ -34,7 +34,6 @@ from specgpu.core.validate import check_sequence
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
 from specgpu.pipeline.decoder_outputs import FusedLaunches, lab_and_delta_E, outputs_for
-from specgpu.pipeline.moving import check_motion_mode
 from specgpu.pipeline.moving_decode import check_motion_options, warped_sigma_rms
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.moving_residual import residual_check
@@ -173,14 +172,10 @@ class SequenceDecoder:
         self.plan, self.calibration, self.device = plan, calibration, device
         self.corrections = corrections_for(calibration, plan, white_roi=white_roi,
                                            white_reflectance=white_reflectance)
-        if outputs:  # every option that cannot be motion-compensated refused before any work
-            motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise, white_roi=white_roi)
-        self.motion = check_motion_mode(motion)
+        # every option that cannot be motion-compensated refused before any work, alike in every mode
+        self.motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise, white_roi=white_roi)
         self.gain = calibration.flat_field
         if self.motion != "none":
-            if self.corrections.per_sequence:
-                raise ValueError("motion=global does not combine with a reference white or an ambient frame yet "
-                                 "(both assume the same pixels in every frame)")
             self.model = motion_model(self.motion)
             self.reference_frames = reference_indices(plan)  # the motion from them where the plan has them
             self.residual = residual_check(plan, calibration)  # samples judged against the plan's model

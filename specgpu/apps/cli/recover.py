@@ -26,6 +26,7 @@ from specgpu.pipeline.capture_folder import read_capture
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning, denoise_recovery
 from specgpu.pipeline.motion_record import without_motion
 from specgpu.pipeline.moving import MOTION_MODES
+from specgpu.pipeline.moving_decode import check_motion_options
 from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
 
@@ -35,9 +36,7 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
     "none", denoised when ``denoise`` gives (radius, eps), the metadata of its outputs and the warnings to say (a
     dark level not to be trusted; a capture that moved, recovered without ``--motion``)."""
     try:
-        if denoise is not None and motion != "none":
-            raise ValueError("--denoise with --motion: the filter's guide (the sum of the frames) is not "
-                             "motion-compensated, so it would mix the surfaces the compensation separated")
+        check_motion_options(motion, folder.plan, denoise=denoise, white_roi=white_roi)  # as the decoder checks
         y = recovery.recover(folder, sequence=sequence, device=device, white_roi=white_roi,
                              white_reflectance=white_reflectance, motion=motion)
         if denoise is not None:
