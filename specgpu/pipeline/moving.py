@@ -57,7 +57,7 @@ from specgpu.pipeline.registration import (
 )
 from specgpu.rig.twin import TwinRig
 
-__all__ = ["MASK_INCONSISTENT", "sequence_truth", "truth_name", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD",
+__all__ = ["sequence_truth", "truth_name", "inconsistent_pixels", "consistency", "CHECK_THRESHOLD",
            "at_reference_time", "frame_gradients", "MOTION_MODES", "MotionEstimate", "check_motion_mode",
            "estimate_global_motion", "registration_image", "truth_recorder", "TRUTH_FOLDER"]
 
@@ -591,9 +591,6 @@ def _affine_to(g_ref: np.ndarray, g_k: np.ndarray, shift, upsample: int, cutoff:
 
 #: A pixel is inconsistent where some frame correlates below this with the median (:func:`inconsistent_pixels`).
 CHECK_THRESHOLD = 0.3
-
-#: Mask bit of a pixel whose compensated frames disagree (an object moving on its own, an occlusion).
-MASK_INCONSISTENT = 8
 
 
 def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9, threshold: float = CHECK_THRESHOLD,

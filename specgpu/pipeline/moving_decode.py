@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
+from specgpu.core.mask import Mask
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E
 from specgpu.pipeline.moving import check_motion_mode
@@ -196,7 +197,7 @@ class MovingDecoder:
 
         shifts = rec.estimates[0].shifts
         var = variance(shifts)
-        own = (rec.mask & np.uint8(16)) != 0
+        own = (rec.mask & np.uint8(Mask.LAYER)) != 0
         # a displacement per pixel (a flow's) holds the layers' own already
         for layer in rec.layers if np.ndim(shifts) != 4 else ():  # in the order their decodings were given
             mine = own & layer.decoded
@@ -205,5 +206,5 @@ class MovingDecoder:
         var += self.rms_constant
         np.maximum(var, 0.0, out=var)
         np.sqrt(var, out=var)
-        var[(rec.mask & np.uint8(~16 & 0xFF)) != 0] = np.nan
+        var[(rec.mask & ~np.uint8(Mask.LAYER)) != 0] = np.nan
         return var  # the images served the check; not kept with a result

@@ -25,7 +25,7 @@ flagged: ``affine`` decodes the translation too and keeps the decoding that expl
 (:func:`explained`); under ``flow`` a pixel that both the flow's decoding and the other one pass but that they
 decode differently (:func:`disagreeing`) is flagged.
 
-Pixels decoded with an object's motion carry :data:`MASK_LAYER` in the mask. A motion under which the checks flag
+Pixels decoded with an object's motion carry ``Mask.LAYER`` in the mask. A motion under which the checks flag
 most of the field (:data:`MAX_REFUTED_SHARE`) is refuted and every pixel flagged (:func:`refuted`): an estimate
 taken over by a fast object, an affine map pulled by one; what passes under it passes because nothing there can
 tell, not because it holds.
@@ -41,12 +41,12 @@ from numpy.typing import ArrayLike
 from scipy import ndimage
 from skimage.morphology import convex_hull_image
 
+from specgpu.core.mask import UNSEEN, Mask
 from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import LinearResult
-from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
+from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.pipeline.moving import (
     CHECK_THRESHOLD,
-    MASK_INCONSISTENT,
     at_reference_time,
     consistency,
     estimate_global_motion,
@@ -57,12 +57,9 @@ from specgpu.pipeline.moving_residual import residual_chi2
 from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
 from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
 
-__all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
+__all__ = ["MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
            "explained", "disagreeing", "DISAGREE_RMS", "flagged_regions", "estimate_layer_motion",
            "object_footprint", "occluded_by", "decode_object_layers", "recover_moving"]
-
-#: Mask bit of a pixel decoded with the motion of an object of its own (not the global motion).
-MASK_LAYER = 16
 
 #: A flagged region is tried as an object when it holds at least this share of the field's pixels.
 MIN_LAYER_SHARE = 0.002
@@ -265,7 +262,7 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
                          read=None, residual=None) -> list:
     """Decode again, with an object's own motion, the flagged regions of a globally compensated recovery.
 
-    ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (:data:`MASK_INCONSISTENT` where flagged)
+    ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (``Mask.INCONSISTENT`` where flagged)
     and are updated in place: the object's footprint takes the object's decoding (bit 16, the object pass's own
     mask bits; bit 8 cleared); the background it covered and the object's pixels it cannot decode are NaN with bit
     8 (or the object pass's saturated / outside bit). Pixels flagged by the global check elsewhere keep their bit
@@ -279,7 +276,7 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
     frames = np.asarray(frames)
     if estimate.model != "translation":
         return []
-    flagged = (mask & MASK_INCONSISTENT) > 0
+    flagged = (mask & Mask.INCONSISTENT) > 0
     regions = flagged_regions(flagged, min_share=min_share)
     if not regions:
         return []
@@ -303,8 +300,8 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         res = _warped(frames, A, shifts, dark, gain, read, residual, saturation=saturation, return_mask=True,
                       device=device)
         textured, worst = consistency(*_reading(read, frames, shifts), gradients=_reading(read, gradients)[0])
-        valid = (res.mask & (1 | 2 | MASK_OUTSIDE)) == 0
-        fits = (res.mask & MASK_INCONSISTENT) == 0  # one reflectance explains the samples the object's motion takes
+        valid = (res.mask & UNSEEN) == 0
+        fits = (res.mask & Mask.INCONSISTENT) == 0  # one reflectance explains the samples the object's motion takes
         # the object's pixels: its motion makes the frames agree there, and clearly better than the global one
         # (or where it makes a pixel the global motion left flagged agree)
         agree = valid & fits & textured & (worst >= threshold)
@@ -321,14 +318,14 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         covered = occluded_by(footprint, shifts - background)
         use = valid & fits & ~covered & ((footprint & (worst >= threshold)) | (hull & ~footprint & agree))
         y[use] = res.y[use]
-        mask[use] = res.mask[use] | np.uint8(MASK_LAYER)
+        mask[use] = res.mask[use] | np.uint8(Mask.LAYER)
         # the object's pixels its own decoding cannot give (its frames disagree, or its pass saw a sample
         # saturated or outside the field: that reason kept), and the background it covered in some frame
         hidden = (footprint & ~use) | covered
-        mask[hidden] = (mask[hidden] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+        mask[hidden] = (mask[hidden] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
         failed = footprint & ~valid & ~covered
-        mask[failed] = ((mask[failed] & ~np.uint8(MASK_INCONSISTENT))
-                        | (res.mask[failed] & np.uint8(1 | 2 | MASK_OUTSIDE)))
+        mask[failed] = ((mask[failed] & ~np.uint8(Mask.INCONSISTENT))
+                        | (res.mask[failed] & np.uint8(UNSEEN)))
         y[hidden] = np.nan
         flagged = (flagged & ~use) | hidden
         layers.append(ObjectLayer(shifts, box, int(use.sum()), int(covered.sum()), decoded=use))
@@ -347,7 +344,7 @@ def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
     sample of a pixel with no response (:func:`specgpu.core.numerics.live_gain`) makes its output NaN. With a
     ``residual`` (:class:`~specgpu.pipeline.moving_residual.ResidualCheck`; ``return_mask``), the same pass also
     outputs what the check needs of each pixel's compensated samples, and a pixel no single reflectance explains
-    is flagged :data:`MASK_INCONSISTENT` in the mask."""
+    is flagged :attr:`~specgpu.core.mask.Mask.INCONSISTENT` in the mask."""
     if residual is None:
         return apply_linear_warped(frames, A, shifts, dark, live_gain(gain), read=read, **kw)
     A = np.asarray(A, np.float64)
@@ -355,7 +352,7 @@ def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
     B = A.shape[0]
     chi = residual_chi2(res.y[..., B:], residual, gain)
     mask = res.mask
-    mask[chi > residual.threshold] |= np.uint8(MASK_INCONSISTENT)
+    mask[chi > residual.threshold] |= np.uint8(Mask.INCONSISTENT)
     return LinearResult(np.ascontiguousarray(res.y[..., :B]), mask)
 
 
@@ -383,7 +380,7 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
     per_pixel[...] = np.asarray(est.shifts, np.float32)[:, :, None, None]
     held = np.zeros((h, w), bool)
     for layer in layers:  # the pixels an object's own motion decoded
-        mine = layer.decoded & ((mask & np.uint8(MASK_LAYER)) != 0)
+        mine = layer.decoded & ((mask & np.uint8(Mask.LAYER)) != 0)
         per_pixel[:, :, mine] = np.asarray(layer.shifts, np.float32)[:, :, None]
         held |= mine
     motion = tile_motion(gradients, est.shifts, est.reference_frame, est.registered)
@@ -395,18 +392,18 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
         if maps is not None:
             flow_maps = consistency(frames, flow, dark, gain, gradients=gradients)
             use = choose_flow(mask, maps, res.mask, flow_maps, held, threshold=CHECK_THRESHOLD,
-                              inconsistent=MASK_INCONSISTENT)
+                              inconsistent=Mask.INCONSISTENT)
             # two motions each pass every check at a pixel yet decode it differently: one of them samples other
             # surfaces that no check can tell apart (a flat background under a velocity interpolated across an
             # object's edge, an object's edge under the background's motion), and which is not known
-            passed = (mask & np.uint8(1 | 2 | MASK_OUTSIDE | MASK_INCONSISTENT)) == 0
+            passed = (mask & np.uint8(UNSEEN | Mask.INCONSISTENT)) == 0
             passed &= (res.mask == 0) & (flow_maps[1] >= CHECK_THRESHOLD)
             disagree = passed & disagreeing(y, res.y)
         else:
             use = np.ones((h, w), bool)
         y[use], mask[use] = res.y[use], res.mask[use]
         per_pixel[:, :, use] = flow[:, :, use]
-        mask[disagree] = (mask[disagree] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+        mask[disagree] = (mask[disagree] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
     return replace(est, shifts=per_pixel, model="flow")
 
 
@@ -428,7 +425,7 @@ def grow_flags(mask) -> None:
     and its check, a statistic of few samples, may pass just below its threshold. (On the twin at 640 x 480 every
     unflagged pixel decoded wrong in the cases of ``tools/studies/motion_flags.py`` lay within 1.4 px of a flagged one.)
     The islands of fewer than :data:`ISLAND_PX` pixels the flags enclose are flagged as well."""
-    flagged = (mask & np.uint8(MASK_INCONSISTENT)) != 0
+    flagged = (mask & np.uint8(Mask.INCONSISTENT)) != 0
     ring = ndimage.binary_dilation(flagged, structure=np.ones((3, 3), bool)) & ~flagged
     # and the islands the flags enclose, smaller than the check's window: a region whose motion is refuted all
     # about them (an object fast enough to be over a pixel in one frame only leaves its flat inside so)
@@ -436,19 +433,19 @@ def grow_flags(mask) -> None:
     if n:
         sizes = ndimage.sum_labels(np.ones(labels.shape), labels, index=np.arange(1, n + 1))
         ring |= np.isin(labels, 1 + np.flatnonzero(sizes < ISLAND_PX))
-    ring &= (mask & np.uint8(1 | 2 | MASK_OUTSIDE)) == 0
-    mask[ring] = (mask[ring] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+    ring &= (mask & np.uint8(UNSEEN)) == 0
+    mask[ring] = (mask[ring] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
 
 
 def refuted(mask) -> bool:
-    """Flag every pixel of ``mask`` (in place, :data:`MASK_INCONSISTENT`) where more than
+    """Flag every pixel of ``mask`` (in place, :attr:`~specgpu.core.mask.Mask.INCONSISTENT`) where more than
     :data:`MAX_REFUTED_SHARE` of the pixels in the field (not saturated, non-finite or outside it) are flagged
     inconsistent: the motion they were decoded with is not the scene's. Returns whether it did."""
-    seen = (mask & np.uint8(1 | 2 | MASK_OUTSIDE)) == 0
-    flagged = seen & ((mask & np.uint8(MASK_INCONSISTENT)) != 0)
+    seen = (mask & np.uint8(UNSEEN)) == 0
+    flagged = seen & ((mask & np.uint8(Mask.INCONSISTENT)) != 0)
     if not seen.any() or flagged.sum() <= MAX_REFUTED_SHARE * seen.sum():
         return False
-    mask[seen] = (mask[seen] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+    mask[seen] = (mask[seen] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
     return True
 
 
@@ -592,7 +589,7 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
         maps = consistency(*_reading(read, frames, shifts), None if read else dark, gain,
                            gradients=None if gradients is None else _reading(read, gradients)[0])
         # every pixel judged, textured or not: a frame with structure of its own that the others do not share
-        mask[maps[1] < CHECK_THRESHOLD] |= MASK_INCONSISTENT
+        mask[maps[1] < CHECK_THRESHOLD] |= np.uint8(Mask.INCONSISTENT)
         if layers and est is not None:
             found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
                                          device=device, read=read, residual=residual)
@@ -602,7 +599,7 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
     if check:
         grow_flags(mask)
         refuted(mask)
-    y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
+    y[(mask & (Mask.SATURATED | Mask.INCONSISTENT)) > 0] = np.nan
     lap("check")
     # the gradient images served the check and the layers; not kept with a result
     return MovingRecovery(y, mask, [] if est is None else [replace(est, gradients=None)], found)

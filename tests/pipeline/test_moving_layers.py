@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from moving_helpers import frames_of, moving_setup
 
+from specgpu.core.mask import Mask
 from specgpu.pipeline.evaluate import evaluate_pixels
-from specgpu.pipeline.moving import MASK_INCONSISTENT
 from specgpu.pipeline.moving_decode import MovingDecoder
-from specgpu.pipeline.moving_layers import MASK_LAYER, flagged_regions, occluded_by, recover_moving
+from specgpu.pipeline.moving_layers import flagged_regions, occluded_by, recover_moving
 from specgpu.pipeline.moving_residual import residual_check
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
@@ -50,10 +50,10 @@ def test_the_object_is_decoded_not_flagged_and_its_spectra_are_right(setup, char
     _, _, plan, scene = setup
     _, truth, res, single = chart_over_scene
     obj = truth["object_mask"] > 0.5
-    flagged_before = ((single.mask & MASK_INCONSISTENT) > 0)[obj].mean()
-    flagged_after = ((res.mask & MASK_INCONSISTENT) > 0)[obj].mean()
+    flagged_before = ((single.mask & Mask.INCONSISTENT) > 0)[obj].mean()
+    flagged_after = ((res.mask & Mask.INCONSISTENT) > 0)[obj].mean()
     assert flagged_before > 0.1 and flagged_after < 0.7 * flagged_before
-    layer = (res.mask & MASK_LAYER) > 0
+    layer = (res.mask & Mask.LAYER) > 0
     # most of the object, flat patches included, is decoded with its motion (less the ring the flags grow by about
     # the pixels it cannot decode)
     assert layer[obj].mean() > 0.65
@@ -79,7 +79,7 @@ def test_background_the_object_covered_during_the_sequence_is_flagged(setup, cha
     nan_single = ~np.all(np.isfinite(single.y), axis=2)
     # the layer flags the strips as a whole (the global check alone only where some frame has structure there)
     assert nan[covered].mean() > nan_single[covered].mean(), (nan[covered].mean(), nan_single[covered].mean())
-    assert np.all(nan == ((res.mask & (1 | 4 | MASK_INCONSISTENT)) > 0))  # every NaN is flagged, every flag NaN
+    assert np.all(nan == ((res.mask & (1 | 4 | Mask.INCONSISTENT)) > 0))  # every NaN is flagged, every flag NaN
 
 
 def test_a_repeating_object_too_slow_to_separate_is_not_given_a_motion_one_period_off(setup):
@@ -101,7 +101,7 @@ def test_a_scene_without_an_object_of_its_own_gets_no_layer(setup):
     frames, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(3.0, 1.0)))
     kw = dict(dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field, saturation=float(bundle.max_code))
     res, single = recover_moving(frames, plan.A, **kw), recover_moving(frames, plan.A, layers=False, **kw)
-    assert res.layers == [] and not ((res.mask & MASK_LAYER) > 0).any()
+    assert res.layers == [] and not ((res.mask & Mask.LAYER) > 0).any()
     np.testing.assert_array_equal(res.y, single.y)
 
 
@@ -145,7 +145,7 @@ def test_sigma_rms_reads_an_object_layers_pixels_with_its_own_motion(setup, char
     sigma = maps["sigma_rms"]
     np.testing.assert_array_equal(np.isnan(sigma), np.isnan(maps["cube"][..., 0]))
     (layer,) = maps["layers"]
-    own = (maps["mask"] & MASK_LAYER) != 0
+    own = (maps["mask"] & Mask.LAYER) != 0
     assert own.sum() > 1000 and not (own & ~layer.decoded).any()
 
     def at(shifts):

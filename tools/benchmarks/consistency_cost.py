@@ -68,7 +68,7 @@ def before(revision: str):
         options = runtime.build_options(**macros)
         if options not in built:
             program = cl.Program(queue.context, kernel_text).build(options=[
-                *options, *runtime._device_options(queue.device), "-cl-mad-enable", "-cl-denorms-are-zero",
+                *options, *runtime.mask_options(), *runtime._device_options(queue.device), "-cl-mad-enable", "-cl-denorms-are-zero",
                 f"-I{runtime.kernel_dir()}"])
             built[options] = (program, {})
         program, entries = built[options]
