@@ -442,7 +442,7 @@ def _gradient_case(dtype, dark):
     """engine.gradients.gradient_images against the host's gradient_image: a flat field with a dead pixel, one
     dark frame or one per frame."""
     from specgpu.engine.gradients import gradient_images
-    from specgpu.pipeline.moving import gradient_image
+    from specgpu.motion.images import gradient_image
 
     def run():
         rng = np.random.default_rng(41 if dark == "single" else 42)
@@ -464,7 +464,7 @@ def _consistency_frames_case():
     """engine.consistency.consistency_from_frames: the gradient images made on the device and the check's samples
     scaled by each frame's 1 / mean (SCALED), against the host's check of the host's images."""
     from specgpu.engine.consistency import consistency_from_frames
-    from specgpu.pipeline.moving import gradient_image
+    from specgpu.motion.images import gradient_image
 
     def run():
         rng = np.random.default_rng(43)

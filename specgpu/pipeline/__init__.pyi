@@ -9,7 +9,6 @@ from .decoder import STREAM_OUTPUTS, StreamDecoder
 from .denoise import denoise_recovery
 from .evaluate import PatchReport, PixelReport, evaluate_pixels, evaluate_reflectance, evaluate_XYZ
 from .evaluation_report import evaluation_report
-from .moving import MOTION_MODES, MotionEstimate, estimate_global_motion
 from .moving_decode import MovingDecoder
 from .moving_layers import MovingRecovery, recover_moving
 from .projector import PROJECTOR_TARGETS, ProjectionReport, metamer_map, project, render_scene
@@ -32,15 +31,12 @@ __all__ = [
     "capture_into",
     "capture_plan",
     "denoise_recovery",
-    "estimate_global_motion",
     "evaluate_pixels",
     "evaluate_reflectance",
     "evaluate_XYZ",
     "evaluation_report",
     "ExrSequenceWriter",
     "metamer_map",
-    "MOTION_MODES",
-    "MotionEstimate",
     "MovingDecoder",
     "MovingRecovery",
     "open_batch_output",

@@ -30,8 +30,8 @@ from numpy.typing import ArrayLike, DTypeLike
 from specgpu.core.mask import Mask
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS, XYZ_to_Lab, delta_E
-from specgpu.pipeline.moving import check_motion_mode
-from specgpu.pipeline.moving_flow import MIN_FRAMES
+from specgpu.motion.flow import MIN_FRAMES
+from specgpu.motion.methods import check_motion_mode
 from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.reference_frames import reference_indices
@@ -48,7 +48,7 @@ MOTION_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma_rms")
 
 
 def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, white_roi=None) -> str:
-    """``motion`` checked (a key of :data:`specgpu.pipeline.moving.MOTION_MODES`) and, unless ``"none"``, every
+    """``motion`` checked (a key of :data:`specgpu.motion.methods.MOTION_METHODS`) and, unless ``"none"``, every
     option that cannot be motion-compensated yet refused in one line naming it. Returns the mode."""
     mode = check_motion_mode(motion)
     if mode == "none":
@@ -157,7 +157,7 @@ class MovingDecoder:
     def decode(self, raw: ArrayLike) -> dict:
         """The maps of one sequence (K, H, W) by output name, plus ``mask`` (H, W) uint8 (1 saturated, 4 outside
         the field, 8 inconsistent, 16 decoded with an object's own motion), NaN where masked; ``estimate``: the
-        sequence's :class:`specgpu.pipeline.moving.MotionEstimate`; ``layers``: its
+        sequence's :class:`specgpu.motion.estimate.MotionEstimate`; ``layers``: its
         :class:`specgpu.pipeline.moving_layers.ObjectLayer` list."""
         steps = {}
         rec = self.sequence.warped(raw, self.matrix, seconds=steps)

@@ -23,9 +23,9 @@ import numpy as np
 
 from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import apply_linear
-from specgpu.pipeline.moving import check_motion_mode
+from specgpu.motion.methods import check_motion_mode
+from specgpu.motion.residual import residual_check
 from specgpu.pipeline.moving_layers import recover_moving
-from specgpu.pipeline.moving_residual import residual_check
 from specgpu.planning.correction import ambient_index, corrected_decoder, white_gains
 from specgpu.planning.reference_frames import reference_indices
 
@@ -142,7 +142,7 @@ class SequenceDecoder:
     white_roi, white_reflectance : optional
         A reference white in the field (as :func:`specgpu.pipeline.recovery.recover`).
     motion : {"none", "global", "affine", "flow"}
-        How the scene's motion within a sequence is compensated (:data:`specgpu.pipeline.moving.MOTION_MODES`).
+        How the scene's motion within a sequence is compensated (:data:`specgpu.motion.methods.MOTION_METHODS`).
     device : optional
         OpenCL device selector or queue.
     """

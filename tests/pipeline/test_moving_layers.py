@@ -9,10 +9,11 @@ import pytest
 from moving_helpers import frames_of, moving_setup
 
 from specgpu.core.mask import Mask
+from specgpu.motion.object_motion import occluded_by
+from specgpu.motion.residual import residual_check
 from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving_decode import MovingDecoder
-from specgpu.pipeline.moving_layers import flagged_regions, occluded_by, recover_moving
-from specgpu.pipeline.moving_residual import residual_check
+from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.uncertainty import constant_variance, frame_variance
@@ -112,26 +113,6 @@ def test_the_stream_decoder_decodes_the_object_layer_as_recover_does(setup, char
     assert len(maps["layers"]) == 1
     np.testing.assert_array_equal(maps["mask"], res.mask)
     np.testing.assert_allclose(np.nan_to_num(maps["cube"]), np.nan_to_num(res.y), rtol=1e-5, atol=1e-6)
-
-
-def test_occluded_by_is_the_footprint_swept_by_the_relative_motion_less_itself():
-    F = np.zeros((20, 30), bool)
-    F[5:15, 10:20] = True
-    hidden = occluded_by(F, [[-3.0, 0.0], [0.0, 0.0], [3.0, 0.0]])
-    expected = np.zeros_like(F)
-    expected[5:15, 7:10] = expected[5:15, 20:23] = True
-    np.testing.assert_array_equal(hidden, expected)
-    # a sub-pixel shift covers the next column partly: it counts as hidden
-    assert occluded_by(F, [[0.5, 0.0]])[5:15, 20].all()
-
-
-def test_flagged_regions_joins_nearby_flags_and_drops_small_ones():
-    flagged = np.zeros((200, 300), bool)
-    flagged[50:60, 50:60] = flagged[50:60, 70:80] = True  # 20 px apart: one region at join_px 12
-    flagged[150:152, 250:252] = True  # 4 px: too small
-    regions = flagged_regions(flagged, min_share=0.002)
-    assert len(regions) == 1 and regions[0][55, 65] and not regions[0][151, 251]
-    assert flagged_regions(np.zeros((10, 10), bool)) == []
 
 
 def test_sigma_rms_reads_an_object_layers_pixels_with_its_own_motion(setup, chart_over_scene):

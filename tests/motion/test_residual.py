@@ -12,9 +12,9 @@ from moving_helpers import CAM, frames_of, moving_setup
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.core.mask import Mask
 from specgpu.engine.warp_map import apply_linear_warped
+from specgpu.motion.residual import residual_check, residual_chi2
 from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving_layers import MAX_REFUTED_SHARE, grow_flags, recover_moving, refuted
-from specgpu.pipeline.moving_residual import residual_check, residual_chi2
 from specgpu.pipeline.recovery import default_basis
 from specgpu.planning.basis_plans import plan_symmetric_basis
 from specgpu.rig import RigDescription, natural_scene

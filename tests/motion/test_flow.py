@@ -11,9 +11,11 @@ from scipy import ndimage
 from specgpu.core.mask import Mask
 from specgpu.engine import consistency as consistency_module
 from specgpu.engine.warp_map import apply_linear_warped
-from specgpu.pipeline.moving import at_reference_time, estimate_global_motion, frame_gradients
+from specgpu.motion.estimate import at_reference_time
+from specgpu.motion.flow import TileMotion, choose_flow, flow_field, tile_motion
+from specgpu.motion.global_motion import estimate_global_motion
+from specgpu.motion.images import frame_gradients
 from specgpu.pipeline.moving_decode import check_motion_options
-from specgpu.pipeline.moving_flow import TileMotion, choose_flow, flow_field, tile_motion
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.planning.registry import make_plan
 from specgpu.rig.motion import MotionParameters
