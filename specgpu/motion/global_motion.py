@@ -48,8 +48,8 @@ from specgpu.motion.registration import (
 from specgpu.motion.tiles import OUTLIER_PX, dominant_translation, register_dft
 from specgpu.motion.whitening import hann, whitened_half_spectrum, whitened_spectrum
 
-__all__ = ["GlobalOptions", "estimate_global_motion", "MIN_SIGNAL_SHARE", "OUTLIER_PX", "AMBIGUOUS_PEAK",
-           "MAX_SPEED_PX_PER_FRAME", "BEYOND_REACH"]
+__all__ = ["GlobalOptions", "estimate_global_motion", "estimate_with_options", "MIN_SIGNAL_SHARE", "OUTLIER_PX",
+           "AMBIGUOUS_PEAK", "MAX_SPEED_PX_PER_FRAME", "BEYOND_REACH"]
 
 #: A frame whose mean signal is below this share of the brightest frame's is not registered (a dark or ambient
 #: frame): its displacement is interpolated in time from the others.

@@ -129,7 +129,7 @@ def estimate_reference_motion(frames, reference_frames, dark=None, gain=None, *,
             for i, k in enumerate(refs):
                 if k != centre:
                     raw[i] = dominant_translation(gradients[centre], gradients[k], raw[i], upsample, cutoff, tiles,
-                                                   cache)
+                                                  cache)
         shifts = interpolate_in_time(times, raw, every, interpolation)
         return MotionEstimate(shifts - at_reference_time(shifts), registered, error, int(centre), model, kept)
     maps = np.tile(np.eye(3), (len(refs), 1, 1))
