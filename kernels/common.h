@@ -74,8 +74,11 @@ typedef int intv;
 #define ALWAYS_INLINE inline
 #endif
 
-#define MASK_SATURATED 1
-#define MASK_NONFINITE 2
+/* The mask flags come from the host's one enumeration (specgpu.core.mask.Mask, as -D options added by
+ * specgpu.engine.runtime to every build); a kernel built without them must not guess. */
+#if !defined(MASK_SATURATED) || !defined(MASK_NONFINITE) || !defined(MASK_OUTSIDE)
+#error "MASK_SATURATED, MASK_NONFINITE and MASK_OUTSIDE are build options (specgpu.engine.runtime.mask_options)"
+#endif
 
 /* Pixels [base, base + count) of this work-item; count < VW only for the last one. */
 #define PIXEL_RANGE(n)                                   \

@@ -25,7 +25,6 @@
 #ifndef B
 #define B 1
 #endif
-#define MASK_OUTSIDE 4
 
 #ifndef FLOW
 #define FLOW 0

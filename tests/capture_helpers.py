@@ -32,7 +32,7 @@ def write_moving_capture(root, folder: str, *, sequences: int = 2, noise_seed: i
     """The natural scene drifting 2 px per frame in x and 1 in y on the 320 x 240 twin at 200 fps, captured with a
     narrowband plan (40 nm steps) into ``root / folder`` with each sequence's motion truth beside it, as
     ``specgpu capture`` on a rig with a [motion] table writes it; returns the capture folder."""
-    from specgpu.pipeline.moving import truth_recorder
+    from specgpu.capture.motion_truth import truth_recorder
     from specgpu.rig import natural_scene
     from specgpu.rig.motion import MotionParameters
 

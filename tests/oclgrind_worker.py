@@ -260,7 +260,8 @@ def _motion(rng, K, kind):
 def _warp_case(kind):
     from reference import linear_warp_ref
 
-    from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
+    from specgpu.core.mask import Mask
+    from specgpu.engine.warp_map import apply_linear_warped
 
     def run():
         rng = np.random.default_rng({"translate": 21, "affine": 22, "flow": 23, "strips": 24}[kind])
@@ -288,7 +289,7 @@ def _warp_case(kind):
         errors, tolerances = {}, {}
         inside = ~outside
         _compare(errors, tolerances, "y", got.y[inside], want[inside], "abs", 1e-3)
-        _compare(errors, tolerances, "outside", ((got.mask & MASK_OUTSIDE) > 0).astype(np.float32),
+        _compare(errors, tolerances, "outside", ((got.mask & Mask.OUTSIDE) > 0).astype(np.float32),
                  outside.astype(np.float32), "abs", 0.0)
         if kind == "strips":  # the saturated sample flags the outputs whose taps read it with a weight above zero
             near = np.zeros(shape, bool)
@@ -317,7 +318,8 @@ def _warp_groups_case(shape):
 
     from specgpu.engine.kernels import to_device
     from specgpu.engine.runtime import get_queue
-    from specgpu.engine.warp_map import MASK_OUTSIDE, PreparedWarp, apply_linear_warped
+    from specgpu.core.mask import Mask
+    from specgpu.engine.warp_map import PreparedWarp, apply_linear_warped
 
     def run():
         queue = get_queue("oclgrind")
@@ -354,7 +356,7 @@ def _warp_groups_case(shape):
         _compare(errors, tolerances, "mask", mask, exact.mask, "abs", 0)
         _compare(errors, tolerances, "nan", np.isnan(y).astype(np.float32), np.isnan(exact.y).astype(np.float32),
                  "abs", 0.0)
-        _compare(errors, tolerances, "outside", ((mask & MASK_OUTSIDE) > 0).astype(np.float32),
+        _compare(errors, tolerances, "outside", ((mask & Mask.OUTSIDE) > 0).astype(np.float32),
                  outside.astype(np.float32), "abs", 0.0)
         return errors, tolerances
 
@@ -442,7 +444,7 @@ def _gradient_case(dtype, dark):
     """engine.gradients.gradient_images against the host's gradient_image: a flat field with a dead pixel, one
     dark frame or one per frame."""
     from specgpu.engine.gradients import gradient_images
-    from specgpu.pipeline.moving import gradient_image
+    from specgpu.motion.images import gradient_image
 
     def run():
         rng = np.random.default_rng(41 if dark == "single" else 42)
@@ -464,7 +466,7 @@ def _consistency_frames_case():
     """engine.consistency.consistency_from_frames: the gradient images made on the device and the check's samples
     scaled by each frame's 1 / mean (SCALED), against the host's check of the host's images."""
     from specgpu.engine.consistency import consistency_from_frames
-    from specgpu.pipeline.moving import gradient_image
+    from specgpu.motion.images import gradient_image
 
     def run():
         rng = np.random.default_rng(43)

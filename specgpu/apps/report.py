@@ -33,6 +33,7 @@ from specgpu.apps.report_figures import (
 )
 from specgpu.apps.report_html import Cell, card_grid, cell, figure_card, html_table, page
 from specgpu.engine.colorimetry import reflectance_to_XYZ
+from specgpu.io.motion_truth import sequence_truth
 from specgpu.io.paths import atomic_path
 from specgpu.pipeline.capture_folder import read_capture
 from specgpu.pipeline.evaluate import (
@@ -44,7 +45,6 @@ from specgpu.pipeline.evaluate import (
     true_patch_spectra,
 )
 from specgpu.pipeline.motion_record import motion_notice, moved, without_motion
-from specgpu.pipeline.moving import sequence_truth
 from specgpu.pipeline.recovery import recover, uncertainty
 from specgpu.rig.scene import colorchecker_scene, load_scene
 

@@ -30,13 +30,13 @@ import numpy as np
 from specgpu import io
 from specgpu.apps.report_figures import sRGB_rendering
 from specgpu.core.spectra import XYZ_weights
+from specgpu.io.motion_truth import TRUTH_FOLDER, truth_name
 from specgpu.io.previews import sRGB8
 from specgpu.io.sequence import read_frames
 from specgpu.pipeline.batch import BATCH_FORMAT
 from specgpu.pipeline.batch_output import open_batch_output
 from specgpu.pipeline.capture_folder import PLAN_FILE, SequenceFolder, read_capture_header
 from specgpu.pipeline.motion_record import motion_notice, moved
-from specgpu.pipeline.moving import TRUTH_FOLDER, truth_name
 from specgpu.pipeline.recovery import recover
 from specgpu.planning.plans import load_plan
 

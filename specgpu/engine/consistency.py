@@ -336,7 +336,7 @@ def consistency_from_frames(frames, motion, dark=None, gain=None, *, window: int
         As :func:`consistency_maps`; finite.
     dark : array_like, (H, W) or (K, H, W), optional
     gain : array_like, (H, W), optional
-        As :func:`specgpu.pipeline.moving.gradient_image` takes them (a NaN gain reads 0).
+        As :func:`specgpu.motion.images.gradient_image` takes them (a NaN gain reads 0).
     window, texture, own
         As :func:`consistency_maps` (an even window is checked on the host, from the images read back).
     return_gradients : bool

@@ -1,4 +1,4 @@
-"""Gradient images on the device: :func:`specgpu.pipeline.moving.gradient_image` of each frame of a sequence,
+"""Gradient images on the device: :func:`specgpu.motion.images.gradient_image` of each frame of a sequence,
 made where the frames are (``kernels/gradient.cl``).
 
 A frame's gradient image is the Sobel gradient magnitude of the dark-subtracted, flat-fielded frame (a NaN gain
@@ -84,7 +84,7 @@ def apply_scale(queue, images: cla.Array, scale: cla.Array) -> cla.Array:
 
 
 def gradient_images(frames, dark=None, gain=None, *, shape=None, dtype=None, device=None) -> cla.Array:
-    """:func:`specgpu.pipeline.moving.gradient_image` of each of K frames, on the device.
+    """:func:`specgpu.motion.images.gradient_image` of each of K frames, on the device.
 
     Parameters
     ----------

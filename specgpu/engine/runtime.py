@@ -30,6 +30,8 @@ import pyopencl as cl
 import pyopencl.characterize as characterize
 import pyopencl.tools  # noqa: F401  (cl.tools.MemoryPool)
 
+from specgpu.core.mask import mask_macros
+
 __all__ = [
     "SpecgpuDeviceError",
     "DeviceInfo",
@@ -40,6 +42,7 @@ __all__ = [
     "kernel_dir",
     "kernel_source",
     "build_options",
+    "mask_options",
     "get_kernel",
     "DTYPE_TO_CTYPE",
     "VARIANTS",
@@ -354,6 +357,13 @@ def build_options(**macros) -> tuple[str, ...]:
     return tuple(options)
 
 
+def mask_options() -> tuple[str, ...]:
+    """The mask flags as ``-D`` options (``-DMASK_SATURATED=1`` ...), from :class:`specgpu.core.mask.Mask`: every
+    program is built with them, and a kernel source defines none of its own (``common.h`` stops a build without
+    them)."""
+    return build_options(**mask_macros())
+
+
 def _device_options(device: cl.Device) -> list[str]:
     """Options a device family needs. PoCL's clang honours under-aligned vector types, which replace its
     out-of-line vloadn / vstoren calls by inline unaligned moves (kernels/common.h, VEC_DEREF).
@@ -404,8 +414,8 @@ def get_program(context: cl.Context, source_name: str, options: tuple[str, ...])
     # -cl-denorms-are-zero: CIEDE2000's chroma and hue-rotation terms underflow into float32 denormals for
     # near-neutral colours, which x86 handles in microcode (the fused pass ran at half speed on such data); values
     # below 1.2e-38 carry no meaning here
-    full_options = [*options, *_device_options(context.devices[0]), "-cl-mad-enable", "-cl-denorms-are-zero",
-                    f"-I{include}"]
+    full_options = [*options, *mask_options(), *_device_options(context.devices[0]), "-cl-mad-enable",
+                    "-cl-denorms-are-zero", f"-I{include}"]
     try:
         program = cl.Program(context, source).build(options=full_options)
     except cl.RuntimeError as error:

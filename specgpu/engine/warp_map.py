@@ -4,7 +4,7 @@ A scene that moves during a sequence lands on different pixels in different fram
 samples as they are mixes the spectra of different surfaces. Given each frame's displacement d_k from the
 sequence's reference time (a global translation, a few numbers per frame), the kernels of ``kernels/warp.cl`` read
 frame k bilinearly at x + d_k and apply A to those samples. Pixels whose sample point of some frame falls outside
-the field are NaN and flagged (``MASK_OUTSIDE``), never a made-up value.
+the field are NaN and flagged (:attr:`specgpu.core.mask.Mask.OUTSIDE`), never a made-up value.
 
 Translations run through :class:`PreparedWarp` (``linear_warp_translate``): every pixel of a frame has the same
 bilinear weights, so 8 output pixels of a row take their samples from 9 consecutive source pixels of two rows,
@@ -27,10 +27,7 @@ from specgpu.engine import kernels
 from specgpu.engine.linear_map import LinearResult
 from specgpu.engine.runtime import DTYPE_TO_CTYPE, get_allocator, get_kernel, get_queue, kernel_variant, new_kernel
 
-__all__ = ["apply_linear_warped", "MASK_OUTSIDE", "check_shifts", "PreparedWarp", "prepare_linear_warped"]
-
-#: Mask bit of a pixel whose sample point of some frame lies outside the field.
-MASK_OUTSIDE = 4
+__all__ = ["apply_linear_warped", "check_shifts", "PreparedWarp", "prepare_linear_warped"]
 
 #: Frames the translation path holds (kernels/warp.cl keeps each frame's samples in named registers, up to 128)
 MAX_TRANSLATE_FRAMES = 128

@@ -9,7 +9,6 @@ from .decoder_outputs import STREAM_OUTPUTS
 from .denoise import denoise_recovery
 from .evaluate import PatchReport, PixelReport, evaluate_pixels, evaluate_reflectance, evaluate_XYZ
 from .evaluation_report import evaluation_report
-from .moving import MOTION_MODES, MotionEstimate, estimate_global_motion
 from .moving_layers import MovingRecovery, recover_moving
 from .projector import PROJECTOR_TARGETS, ProjectionReport, metamer_map, project, render_scene
 from .recovery import recover
@@ -31,15 +30,12 @@ __all__ = [
     "capture_into",
     "capture_plan",
     "denoise_recovery",
-    "estimate_global_motion",
     "evaluate_pixels",
     "evaluate_reflectance",
     "evaluate_XYZ",
     "evaluation_report",
     "ExrSequenceWriter",
     "metamer_map",
-    "MOTION_MODES",
-    "MotionEstimate",
     "MovingRecovery",
     "open_batch_output",
     "PatchReport",

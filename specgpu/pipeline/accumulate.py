@@ -41,8 +41,8 @@ from __future__ import annotations
 import numpy as np
 
 from specgpu.core.validate import check_number
-from specgpu.pipeline.moving import gradient_image
-from specgpu.pipeline.registration import correlation_surface, fit_peak, tile_displacements, whitened_half_spectrum
+from specgpu.motion.images import gradient_image
+from specgpu.motion.registration import correlation_surface, fit_peak, tile_displacements, whitened_half_spectrum
 
 __all__ = ["ACCUMULATED_OUTPUTS", "AccumulateSink", "sequence_displacement", "shift_image"]
 

@@ -9,10 +9,11 @@ import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from specgpu.capture.motion_truth import truth_recorder
 from specgpu.capture.session import capture_sequences
 from specgpu.hardware.drivers import open_rig_driver
 from specgpu.io.recording import ZarrRecorder, check_free_space
-from specgpu.pipeline import moving, twin_capture
+from specgpu.pipeline import twin_capture
 from specgpu.pipeline.sinks import StreamResult
 
 if TYPE_CHECKING:
@@ -61,7 +62,7 @@ def capture_into(writer, on_sequence, description: RigDescription, hardware, pla
     """Capture on the twin (:func:`~specgpu.pipeline.twin_capture.capture_plan`) or the rig's devices, each complete
     sequence written as it arrives, then ``on_sequence()``; returns the capture's result."""
     # a moving twin: each sequence's truth at its reference time kept beside its frames (a sequence folder)
-    record = moving.truth_recorder(writer.directory, description, plan, truth) \
+    record = truth_recorder(writer.directory, description, plan, truth) \
         if hardware is None and description.motion.any and hasattr(writer, "directory") else None
 
     def keep(sequence):

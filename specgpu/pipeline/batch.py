@@ -59,6 +59,7 @@ from numpy.typing import ArrayLike
 from tqdm import tqdm
 
 from specgpu.core.locks import OutputLocked, output_lock, pid_alive
+from specgpu.core.mask import Mask
 from specgpu.core.spectra import DEFAULT_CMFS, resolve_integration
 from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.io.chunks import DirectIO, checksum_codecs, write_sequence_chunk
@@ -294,7 +295,7 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
         cl.wait_for_events(events)
         mask = arrays.pop("mask")
         if mask.any():  # a sample at the sensor's maximum code: no valid measurement, NaN as recover makes it
-            saturated = (mask & 1).astype(bool)
+            saturated = (mask & Mask.SATURATED).astype(bool)
             for arr in arrays.values():
                 arr[saturated] = np.nan
         for name in job.outputs:

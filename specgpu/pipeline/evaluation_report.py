@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike
 
 from specgpu import io
 from specgpu.core.spectra import DEFAULT_CMFS
+from specgpu.io.motion_truth import TRUTH_FOLDER, sequence_truth
 from specgpu.io.sequence import SEQUENCE_FILE, capture_hash, read_sequence_header
 from specgpu.pipeline.evaluate import (
     EXCLUSION_CAUSES,
@@ -26,7 +27,6 @@ from specgpu.pipeline.evaluate import (
     evaluation_illuminant,
     evaluation_integration,
 )
-from specgpu.pipeline.moving import TRUTH_FOLDER, sequence_truth
 
 if TYPE_CHECKING:
     from specgpu.rig.scene import SpectralScene

@@ -2,7 +2,7 @@
 the motion truth kept in step with the sequences when a killed capture is salvaged.
 
 A capture on a moving twin records that it moved by the truth it keeps beside its frames:
-``motion_truth/sequence_<n>.npz`` per sequence (:func:`specgpu.pipeline.moving.truth_recorder`), written as each
+``motion_truth/sequence_<n>.npz`` per sequence (:func:`specgpu.capture.motion_truth.truth_recorder`), written as each
 sequence arrives, so a killed and salvaged capture records it too and folders written before this module read
 alike. :func:`moved` is the one place that decides; recover, report, view and stream ask it.
 """
@@ -14,7 +14,7 @@ import re
 import shutil
 from pathlib import Path
 
-from specgpu.pipeline.moving import TRUTH_FOLDER, truth_name
+from specgpu.io.motion_truth import TRUTH_FOLDER, truth_name
 
 __all__ = ["moved", "motion_notice", "without_motion", "renumber_truth", "LEFT_OUT_FOLDER"]
 

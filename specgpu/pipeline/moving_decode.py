@@ -25,8 +25,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from specgpu.pipeline.moving import check_motion_mode
-from specgpu.pipeline.moving_flow import MIN_FRAMES
+from specgpu.core.mask import Mask
+from specgpu.motion.flow import MIN_FRAMES
+from specgpu.motion.methods import check_motion_mode
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.reference_frames import reference_indices
 from specgpu.planning.uncertainty import constant_variance, frame_variance
@@ -38,7 +39,7 @@ MOTION_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma_rms")
 
 
 def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, white_roi=None) -> str:
-    """``motion`` checked (a key of :data:`specgpu.pipeline.moving.MOTION_MODES`) and, unless ``"none"``, every
+    """``motion`` checked (a key of :data:`specgpu.motion.methods.MOTION_METHODS`) and, unless ``"none"``, every
     option that cannot be motion-compensated yet refused in one line naming it. Returns the mode."""
     mode = check_motion_mode(motion)
     if mode == "none":
@@ -81,7 +82,7 @@ def warped_sigma_rms(frames: ArrayLike, plan, dark, gain, rec, *, device=None) -
 
     shifts = rec.estimates[0].shifts
     var = variance(shifts)
-    own = (rec.mask & np.uint8(16)) != 0
+    own = (rec.mask & np.uint8(Mask.LAYER)) != 0
     # a displacement per pixel (a flow's) holds the layers' own already
     for layer in rec.layers if np.ndim(shifts) != 4 else ():  # in the order their decodings were given
         mine = own & layer.decoded
@@ -90,5 +91,5 @@ def warped_sigma_rms(frames: ArrayLike, plan, dark, gain, rec, *, device=None) -
     var += np.float32(np.mean(constant_variance(plan), dtype=np.float64))
     np.maximum(var, 0.0, out=var)
     np.sqrt(var, out=var)
-    var[(rec.mask & np.uint8(~16 & 0xFF)) != 0] = np.nan
+    var[(rec.mask & ~np.uint8(Mask.LAYER)) != 0] = np.nan
     return var

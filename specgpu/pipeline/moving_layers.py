@@ -3,14 +3,15 @@ moving on its own over a scene whose global motion is compensated.
 
 Global compensation samples every frame where the scene's (or camera's) motion says it saw each pixel; a hand, a
 chart on a conveyor, anything moving on its own is then misregistered, and the consistency check
-(:func:`specgpu.pipeline.moving.consistency`) flags its pixels where some frame has structure, the residual
-check (:mod:`specgpu.pipeline.moving_residual`) where its samples mix spectra, and leaves them NaN. When the flagged
+(:func:`specgpu.motion.consistency.consistency`) flags its pixels where some frame has structure, the residual
+check (:mod:`specgpu.motion.residual`) where its samples mix spectra, and leaves them NaN. When the flagged
 pixels gather into a region of some size, that region is taken to be one object with a motion of its own:
 
 1. its translation per frame is registered on the frames' gradient images restricted to the region (the whitened
    cross-power of the region of the reference frame against each frame: the highest correlation peaks away from
    the background's displacement, refined to sub-pixel by a Gaussian fit, are the candidates, and the steady motion
-   most frames' candidates agree on, up to :data:`MAX_LAYER_SPEED_PX` per frame, is the object's);
+   most frames' candidates agree on, up to :data:`specgpu.motion.object_motion.MAX_LAYER_SPEED_PX` per frame, is
+   the object's: :mod:`specgpu.motion.object_motion`);
 2. the frames are decoded again with that motion, in the same kind of warped device pass;
 3. the object's footprint at the reference time is found: the convex hull of the pixels its motion makes agree
    (textured, every frame with structure correlating with the median) clearly better than the global motion, less
@@ -25,7 +26,7 @@ flagged: ``affine`` decodes the translation too and keeps the decoding that expl
 (:func:`explained`); under ``flow`` a pixel that both the flow's decoding and the other one pass but that they
 decode differently (:func:`disagreeing`) is flagged.
 
-Pixels decoded with an object's motion carry :data:`MASK_LAYER` in the mask. A motion under which the checks flag
+Pixels decoded with an object's motion carry ``Mask.LAYER`` in the mask. A motion under which the checks flag
 most of the field (:data:`MAX_REFUTED_SHARE`) is refuted and every pixel flagged (:func:`refuted`): an estimate
 taken over by a fast object, an affine map pulled by one; what passes under it passes because nothing there can
 tell, not because it holds.
@@ -39,42 +40,28 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy import ndimage
-from skimage.morphology import convex_hull_image
 
+from specgpu.core.mask import UNSEEN, Mask
 from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import LinearResult
-from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
-from specgpu.pipeline.moving import (
-    CHECK_THRESHOLD,
-    MASK_INCONSISTENT,
-    at_reference_time,
-    consistency,
-    estimate_global_motion,
-    frame_gradients,
+from specgpu.engine.warp_map import apply_linear_warped
+from specgpu.motion.consistency import CHECK_THRESHOLD, consistency
+from specgpu.motion.estimate import at_reference_time
+from specgpu.motion.flow import choose_flow, flow_field, tile_motion
+from specgpu.motion.images import frame_gradients
+from specgpu.motion.methods import estimate_motion
+from specgpu.motion.object_motion import (
+    MIN_LAYER_SHARE,
+    estimate_layer_motion,
+    flagged_regions,
+    object_footprint,
+    occluded_by,
 )
-from specgpu.pipeline.moving_flow import MIN_FRAMES, choose_flow, flow_field, tile_motion
-from specgpu.pipeline.moving_residual import residual_chi2
-from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion
-from specgpu.pipeline.registration import correlation_surface, peak_at, whitened_half_spectrum
+from specgpu.motion.reference import check_reference_frames
+from specgpu.motion.residual import residual_chi2
 
-__all__ = ["MASK_LAYER", "MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
-           "explained", "disagreeing", "DISAGREE_RMS", "flagged_regions", "estimate_layer_motion",
-           "object_footprint", "occluded_by", "decode_object_layers", "recover_moving"]
-
-#: Mask bit of a pixel decoded with the motion of an object of its own (not the global motion).
-MASK_LAYER = 16
-
-#: A flagged region is tried as an object when it holds at least this share of the field's pixels.
-MIN_LAYER_SHARE = 0.002
-
-#: Flagged pixels closer than this (px) belong to one region (an object's textured parts are separated by its
-#: flat ones).
-JOIN_PX = 12
-
-#: The object's peak must be at least this far (px) from the background's displacement to be a motion of its own,
-#: and at least this share of the background's peak height.
-MIN_SEPARATION_PX = 1.0
-MIN_PEAK_SHARE = 0.2
+__all__ = ["MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
+           "explained", "disagreeing", "DISAGREE_RMS", "decode_object_layers", "recover_moving"]
 
 #: A region is an object's when its motion makes at least this share of the region's pixels agree.
 MIN_SEED_SHARE = 0.02
@@ -83,21 +70,8 @@ MIN_SEED_SHARE = 0.02
 #: motion's by this.
 SEED_MARGIN = 0.3
 
-#: The consistency check's window (px; :func:`specgpu.pipeline.moving.consistency`'s default).
+#: The consistency check's window (px; :func:`specgpu.motion.consistency.consistency`'s default).
 WINDOW = 9
-
-#: The fastest motion of an object relative to the background (px per frame) a layer is made for. A repeating
-#: texture (a chart's patches) moving too slowly for its own peak to leave the background's offers peaks one period
-#: off in every frame, which a steady motion of a period per frame also explains and the check cannot refute (the
-#: patches' edges line up a period off): on the twin's chart that period is 22 px and more. Faster objects stay as
-#: the global check leaves them, flagged where their frames disagree.
-MAX_LAYER_SPEED_PX = 12.0
-
-#: Correlation peaks tried per frame as the object's, highest first.
-CANDIDATES = 3
-
-#: A frame's peak agrees with a steady motion of the object (relative to the background) within this, px.
-STEADY_TOLERANCE_PX = 1.0
 
 
 @dataclass(frozen=True)
@@ -127,159 +101,26 @@ class ObjectLayer:
     decoded: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
-def flagged_regions(flagged, *, min_share: float = MIN_LAYER_SHARE, join_px: int = JOIN_PX,
-                    max_regions: int = 2) -> list:
-    """The regions of the (H, W) bool ``flagged`` map worth a layer: flagged pixels within ``join_px`` of each
-    other joined, regions holding at least ``min_share`` of the field's pixels flagged, largest first, at most
-    ``max_regions``; each an (H, W) bool mask (the joined region)."""
-    flagged = np.asarray(flagged, bool)
-    if not flagged.any():
-        return []
-    joined = ndimage.binary_dilation(flagged, iterations=int(join_px))
-    labels, n = ndimage.label(joined)
-    counts = ndimage.sum_labels(flagged, labels, index=np.arange(1, n + 1))
-    order = np.argsort(counts)[::-1]
-    minimum = float(min_share) * flagged.size
-    return [labels == (i + 1) for i in order[:max_regions] if counts[i] >= minimum]
-
-
-def object_footprint(seed, *, min_pixels: int = 16, reach_px: float = 20.0) -> np.ndarray:
-    """(H, W) bool: where the object is at the reference time, from ``seed`` (its pixels whose frames positively
-    agree under its motion: textured ones, such as the edges of its patches, which are sparse, since an object's
-    flat parts carry no texture to agree on): the convex hull of the seed's pieces of at least ``min_pixels``, within
-    ``reach_px`` of them (a concave object's hull spans background). A background pixel the footprint takes in is
-    decoded with the object's motion, which samples other background points (never the object), and the check
-    still flags it where they differ in texture."""
-    labels, n = ndimage.label(seed)
-    sizes = ndimage.sum_labels(seed, labels, index=np.arange(1, n + 1))
-    kept = np.isin(labels, 1 + np.flatnonzero(sizes >= min_pixels))
-    if not kept.any():
-        return kept
-    near = ndimage.distance_transform_edt(~kept) <= reach_px
-    return convex_hull_image(kept) & near
-
-
-def occluded_by(footprint, relative) -> np.ndarray:
-    """(H, W) bool: pixels outside ``footprint`` (the object at the reference time) that the object covered in some
-    frame: frame k saw background point x at x + b_k and the object's point at p + o_k, so x is hidden where it lies
-    in the footprint moved by ``relative[k]`` = o_k - b_k (a partly covered pixel counts)."""
-    F = np.asarray(footprint, np.float32)
-    hidden = np.zeros(F.shape, bool)
-    for dx, dy in np.asarray(relative, np.float64):
-        hidden |= ndimage.shift(F, (dy, dx), order=1, mode="constant", cval=0.0) > 1e-3
-    return hidden & ~np.asarray(footprint, bool)
-
-
-def estimate_layer_motion(gradients, region, background, reference_frame: int, usable, *, cutoff: float = 0.12,
-                          margin: int = 16):
-    """The object's displacement per frame relative to the reference frame, or None where none stands out; and the
-    box registered.
-
-    In each frame the highest correlation peaks away from the background's are the object's candidates; the object
-    is taken to move steadily relative to the background over one sequence, so the candidates most frames agree on
-    are its (:func:`_steady_motion`), and a frame none of whose peaks agrees (the object too close to the background's
-    displacement there, a dim frame) takes the steady motion's displacement.
-
-    Parameters
-    ----------
-    gradients : sequence of (H, W) arrays
-        Each frame's gradient image (:func:`specgpu.pipeline.moving.gradient_image`; None for a frame not used).
-    region : (H, W) bool
-        The flagged region the object is in (at the reference time).
-    background : (K, 2)
-        The global displacement of each frame (its relative displacements are excluded from the object's peak).
-    reference_frame : int
-    usable : (K,) bool
-        Frames to register (the others are filled in time).
-    """
-    K = len(gradients)
-    h, w = gradients[reference_frame].shape
-    ys, xs = np.nonzero(region)
-    y0, y1 = max(int(ys.min()) - margin, 0), min(int(ys.max()) + 1 + margin, h)
-    x0, x1 = max(int(xs.min()) - margin, 0), min(int(xs.max()) + 1 + margin, w)
-    box = (y0, y1, x0, x1)
-    weight = ndimage.gaussian_filter(region[y0:y1, x0:x1].astype(np.float32), 2.0)
-    ref = whitened_half_spectrum(gradients[reference_frame][y0:y1, x0:x1] * weight, cutoff)
-    ch, cw = y1 - y0, x1 - x0
-    yy = np.fft.fftfreq(ch, 1.0 / ch)[:, None]
-    xx = np.fft.fftfreq(cw, 1.0 / cw)[None, :]
-    background = np.asarray(background, np.float64)
-    bg_rel = background - background[reference_frame]
-    candidates = []  # (frame, displacement relative to the background's, peak height)
-    for k in np.flatnonzero(usable):
-        if k == reference_frame:
-            continue
-        c = correlation_surface(ref, whitened_half_spectrum(gradients[k][y0:y1, x0:x1], cutoff), (ch, cw))
-        # the surface peaks at the displacement of each content: the background's where its displacement puts it,
-        # and the object's among the highest other local maxima
-        bx, by = bg_rel[k]
-        near_bg = ((yy - by + ch / 2) % ch - ch / 2) ** 2 + ((xx - bx + cw / 2) % cw - cw / 2) ** 2 <= 2.25
-        bg_peak = float(c[near_bg].max()) if near_bg.any() else 0.0
-        peaks = (c == ndimage.maximum_filter(c, size=3, mode="wrap")) & ~near_bg & (c >= MIN_PEAK_SHARE * bg_peak)
-        iy, ix = np.nonzero(peaks)
-        for j in np.argsort(c[iy, ix])[::-1][:CANDIDATES]:
-            r = peak_at(c, int(iy[j]), int(ix[j])) - bg_rel[k]
-            if np.hypot(*r) >= MIN_SEPARATION_PX:
-                candidates.append((int(k), r, float(c[iy[j], ix[j]])))
-    relative = _steady_motion(candidates, reference_frame, K)
-    if relative is None:
-        return None, box
-    return bg_rel + relative, box
-
-
-def _steady_motion(candidates, reference_frame: int, K: int):
-    """(K, 2) displacement of the object relative to the background in each frame, from the frames' candidate
-    peaks: the velocity (px per frame, relative to the background) most frames' candidates agree with within
-    :data:`STEADY_TOLERANCE_PX` (each candidate proposes one), refined by least squares over those; each agreeing
-    frame keeps its own measurement, the others take the velocity's. None when fewer than two frames agree, or when
-    the velocity is above :data:`MAX_LAYER_SPEED_PX`."""
-    if not candidates:
-        return None
-    frames = np.array([k for k, _, _ in candidates])
-    disp = np.array([r for _, r, _ in candidates])
-    height = np.array([p for _, _, p in candidates])
-    dt = (frames - reference_frame).astype(np.float64)
-    best, best_score = None, (0, 0.0)
-    for i in range(len(candidates)):
-        v = disp[i] / dt[i]
-        near = np.hypot(*(disp - v * dt[:, None]).T) <= STEADY_TOLERANCE_PX
-        score = (len(set(frames[near].tolist())), float(height[near].sum()))
-        if score > best_score:
-            best, best_score = near, score
-    if best is None or best_score[0] < 2:
-        return None
-    # one measurement per agreeing frame: its highest candidate near the fit
-    v = np.linalg.lstsq(dt[best, None], disp[best], rcond=None)[0][0]
-    if np.hypot(*v) > MAX_LAYER_SPEED_PX:
-        return None  # faster than any layer is trusted with: likely a repeating texture one period off
-    out = (np.arange(K) - reference_frame)[:, None] * v[None, :]
-    for k in set(frames[best].tolist()):
-        pick = np.flatnonzero(best & (frames == k))
-        out[k] = disp[pick[np.argmax(height[pick])]]
-    out[reference_frame] = 0.0
-    return out
-
-
 def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=None, *, saturation=None, device=None,
                          threshold: float = CHECK_THRESHOLD, min_share: float = MIN_LAYER_SHARE,
                          read=None, residual=None) -> list:
     """Decode again, with an object's own motion, the flagged regions of a globally compensated recovery.
 
-    ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (:data:`MASK_INCONSISTENT` where flagged)
+    ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (``Mask.INCONSISTENT`` where flagged)
     and are updated in place: the object's footprint takes the object's decoding (bit 16, the object pass's own
     mask bits; bit 8 cleared); the background it covered and the object's pixels it cannot decode are NaN with bit
     8 (or the object pass's saturated / outside bit). Pixels flagged by the global check elsewhere keep their bit
-    8: the caller leaves them NaN. ``estimate``: the global :class:`specgpu.pipeline.moving.MotionEstimate`
+    8: the caller leaves them NaN. ``estimate``: the global :class:`specgpu.motion.estimate.MotionEstimate`
     (translation model; its gradient images are reused where kept); ``check``: the (textured, worst) maps of the
-    global motion's :func:`~specgpu.pipeline.moving.consistency`, whose flags ``mask`` holds. Returns the
+    global motion's :func:`~specgpu.motion.consistency.consistency`, whose flags ``mask`` holds. Returns the
     :class:`ObjectLayer` of each region decoded (empty: none found). ``read``: the frames the decoder reads (all
     by default; a plan's broadband reference frames left out, as the global pass and check leave them out);
-    ``residual``: the :class:`~specgpu.pipeline.moving_residual.ResidualCheck` the object's decoding must pass too.
+    ``residual``: the :class:`~specgpu.motion.residual.ResidualCheck` the object's decoding must pass too.
     """
     frames = np.asarray(frames)
     if estimate.model != "translation":
         return []
-    flagged = (mask & MASK_INCONSISTENT) > 0
+    flagged = (mask & Mask.INCONSISTENT) > 0
     regions = flagged_regions(flagged, min_share=min_share)
     if not regions:
         return []
@@ -303,8 +144,8 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         res = _warped(frames, A, shifts, dark, gain, read, residual, saturation=saturation, return_mask=True,
                       device=device)
         textured, worst = consistency(*_reading(read, frames, shifts), gradients=_reading(read, gradients)[0])
-        valid = (res.mask & (1 | 2 | MASK_OUTSIDE)) == 0
-        fits = (res.mask & MASK_INCONSISTENT) == 0  # one reflectance explains the samples the object's motion takes
+        valid = (res.mask & UNSEEN) == 0
+        fits = (res.mask & Mask.INCONSISTENT) == 0  # one reflectance explains the samples the object's motion takes
         # the object's pixels: its motion makes the frames agree there, and clearly better than the global one
         # (or where it makes a pixel the global motion left flagged agree)
         agree = valid & fits & textured & (worst >= threshold)
@@ -321,14 +162,14 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         covered = occluded_by(footprint, shifts - background)
         use = valid & fits & ~covered & ((footprint & (worst >= threshold)) | (hull & ~footprint & agree))
         y[use] = res.y[use]
-        mask[use] = res.mask[use] | np.uint8(MASK_LAYER)
+        mask[use] = res.mask[use] | np.uint8(Mask.LAYER)
         # the object's pixels its own decoding cannot give (its frames disagree, or its pass saw a sample
         # saturated or outside the field: that reason kept), and the background it covered in some frame
         hidden = (footprint & ~use) | covered
-        mask[hidden] = (mask[hidden] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+        mask[hidden] = (mask[hidden] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
         failed = footprint & ~valid & ~covered
-        mask[failed] = ((mask[failed] & ~np.uint8(MASK_INCONSISTENT))
-                        | (res.mask[failed] & np.uint8(1 | 2 | MASK_OUTSIDE)))
+        mask[failed] = ((mask[failed] & ~np.uint8(Mask.INCONSISTENT))
+                        | (res.mask[failed] & np.uint8(UNSEEN)))
         y[hidden] = np.nan
         flagged = (flagged & ~use) | hidden
         layers.append(ObjectLayer(shifts, box, int(use.sum()), int(covered.sum()), decoded=use))
@@ -345,9 +186,9 @@ def _reading(read, *arrays) -> list:
 def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
     """:func:`~specgpu.engine.warp_map.apply_linear_warped` of the frames ``read`` only (None: every frame); a
     sample of a pixel with no response (:func:`specgpu.core.numerics.live_gain`) makes its output NaN. With a
-    ``residual`` (:class:`~specgpu.pipeline.moving_residual.ResidualCheck`; ``return_mask``), the same pass also
+    ``residual`` (:class:`~specgpu.motion.residual.ResidualCheck`; ``return_mask``), the same pass also
     outputs what the check needs of each pixel's compensated samples, and a pixel no single reflectance explains
-    is flagged :data:`MASK_INCONSISTENT` in the mask."""
+    is flagged :attr:`~specgpu.core.mask.Mask.INCONSISTENT` in the mask."""
     if residual is None:
         return apply_linear_warped(frames, A, shifts, dark, live_gain(gain), read=read, **kw)
     A = np.asarray(A, np.float64)
@@ -355,7 +196,7 @@ def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
     B = A.shape[0]
     chi = residual_chi2(res.y[..., B:], residual, gain)
     mask = res.mask
-    mask[chi > residual.threshold] |= np.uint8(MASK_INCONSISTENT)
+    mask[chi > residual.threshold] |= np.uint8(Mask.INCONSISTENT)
     return LinearResult(np.ascontiguousarray(res.y[..., :B]), mask)
 
 
@@ -374,8 +215,8 @@ def disagreeing(y, other, tolerance: float = DISAGREE_RMS) -> np.ndarray:
 
 
 def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, saturation, device, residual=None):
-    """The flow's part of a ``model="flow"`` recovery (:mod:`specgpu.pipeline.moving_flow`), in place on ``y`` and
-    ``mask``: each pixel the flow's decoding gives (:func:`~specgpu.pipeline.moving_flow.choose_flow`, with the
+    """The flow's part of a ``model="flow"`` recovery (:mod:`specgpu.motion.flow`), in place on ``y`` and
+    ``mask``: each pixel the flow's decoding gives (:func:`~specgpu.motion.flow.choose_flow`, with the
     global check's ``maps``; every pixel without them). Returns ``est`` with ``shifts`` the (K, 2, H, W)
     displacement each pixel was decoded with and ``model`` "flow"."""
     K, h, w = np.shape(frames)
@@ -383,7 +224,7 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
     per_pixel[...] = np.asarray(est.shifts, np.float32)[:, :, None, None]
     held = np.zeros((h, w), bool)
     for layer in layers:  # the pixels an object's own motion decoded
-        mine = layer.decoded & ((mask & np.uint8(MASK_LAYER)) != 0)
+        mine = layer.decoded & ((mask & np.uint8(Mask.LAYER)) != 0)
         per_pixel[:, :, mine] = np.asarray(layer.shifts, np.float32)[:, :, None]
         held |= mine
     motion = tile_motion(gradients, est.shifts, est.reference_frame, est.registered)
@@ -395,18 +236,18 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
         if maps is not None:
             flow_maps = consistency(frames, flow, dark, gain, gradients=gradients)
             use = choose_flow(mask, maps, res.mask, flow_maps, held, threshold=CHECK_THRESHOLD,
-                              inconsistent=MASK_INCONSISTENT)
+                              inconsistent=Mask.INCONSISTENT)
             # two motions each pass every check at a pixel yet decode it differently: one of them samples other
             # surfaces that no check can tell apart (a flat background under a velocity interpolated across an
             # object's edge, an object's edge under the background's motion), and which is not known
-            passed = (mask & np.uint8(1 | 2 | MASK_OUTSIDE | MASK_INCONSISTENT)) == 0
+            passed = (mask & np.uint8(UNSEEN | Mask.INCONSISTENT)) == 0
             passed &= (res.mask == 0) & (flow_maps[1] >= CHECK_THRESHOLD)
             disagree = passed & disagreeing(y, res.y)
         else:
             use = np.ones((h, w), bool)
         y[use], mask[use] = res.y[use], res.mask[use]
         per_pixel[:, :, use] = flow[:, :, use]
-        mask[disagree] = (mask[disagree] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+        mask[disagree] = (mask[disagree] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
     return replace(est, shifts=per_pixel, model="flow")
 
 
@@ -428,7 +269,7 @@ def grow_flags(mask) -> None:
     and its check, a statistic of few samples, may pass just below its threshold. (On the twin at 640 x 480 every
     unflagged pixel decoded wrong in the cases of ``tools/studies/motion_flags.py`` lay within 1.4 px of a flagged one.)
     The islands of fewer than :data:`ISLAND_PX` pixels the flags enclose are flagged as well."""
-    flagged = (mask & np.uint8(MASK_INCONSISTENT)) != 0
+    flagged = (mask & np.uint8(Mask.INCONSISTENT)) != 0
     ring = ndimage.binary_dilation(flagged, structure=np.ones((3, 3), bool)) & ~flagged
     # and the islands the flags enclose, smaller than the check's window: a region whose motion is refuted all
     # about them (an object fast enough to be over a pixel in one frame only leaves its flat inside so)
@@ -436,19 +277,19 @@ def grow_flags(mask) -> None:
     if n:
         sizes = ndimage.sum_labels(np.ones(labels.shape), labels, index=np.arange(1, n + 1))
         ring |= np.isin(labels, 1 + np.flatnonzero(sizes < ISLAND_PX))
-    ring &= (mask & np.uint8(1 | 2 | MASK_OUTSIDE)) == 0
-    mask[ring] = (mask[ring] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+    ring &= (mask & np.uint8(UNSEEN)) == 0
+    mask[ring] = (mask[ring] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
 
 
 def refuted(mask) -> bool:
-    """Flag every pixel of ``mask`` (in place, :data:`MASK_INCONSISTENT`) where more than
+    """Flag every pixel of ``mask`` (in place, :attr:`~specgpu.core.mask.Mask.INCONSISTENT`) where more than
     :data:`MAX_REFUTED_SHARE` of the pixels in the field (not saturated, non-finite or outside it) are flagged
     inconsistent: the motion they were decoded with is not the scene's. Returns whether it did."""
-    seen = (mask & np.uint8(1 | 2 | MASK_OUTSIDE)) == 0
-    flagged = seen & ((mask & np.uint8(MASK_INCONSISTENT)) != 0)
+    seen = (mask & np.uint8(UNSEEN)) == 0
+    flagged = seen & ((mask & np.uint8(Mask.INCONSISTENT)) != 0)
     if not seen.any() or flagged.sum() <= MAX_REFUTED_SHARE * seen.sum():
         return False
-    mask[seen] = (mask[seen] & ~np.uint8(MASK_LAYER)) | np.uint8(MASK_INCONSISTENT)
+    mask[seen] = (mask[seen] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
     return True
 
 
@@ -456,6 +297,11 @@ def explained(recovery) -> int:
     """The pixels a motion-compensated ``recovery`` (:class:`MovingRecovery`) decoded: every output finite (not
     flagged, saturated or outside the field); what a motion hypothesis is judged by against another."""
     return int(np.all(np.isfinite(recovery.y), axis=2).sum())
+
+
+#: The motion method (:data:`specgpu.motion.methods.MOTION_METHODS`) that estimates each model of
+#: :func:`recover_moving`: a flow starts from the global translation.
+MODEL_METHODS = {"translation": "global", "affine": "affine", "flow": "flow"}
 
 
 @dataclass(frozen=True)
@@ -483,19 +329,19 @@ def recover_moving(frames: ArrayLike, A: ArrayLike, *, dark: ArrayLike | None = 
     dark, gain, saturation
         As :func:`specgpu.engine.apply_linear`.
     upsample, binning
-        Of :func:`~specgpu.pipeline.moving.estimate_global_motion`.
+        Of :func:`~specgpu.motion.global_motion.estimate_global_motion`.
     model : {"translation", "affine", "flow"}
-        A translation or an affine map per frame (:func:`~specgpu.pipeline.moving.estimate_global_motion`; with
+        A translation or an affine map per frame (:func:`~specgpu.motion.global_motion.estimate_global_motion`; with
         ``check``, an affine map is decoded beside the translation, with its object layers, and the one that
         explains more pixels (:func:`explained`) kept, the translation on a tie); or
         ``"flow"``: the translation's decoding, then a dense flow where its frames agree and the translation's are
-        flagged, untextured or not clearly better correlated (:mod:`specgpu.pipeline.moving_flow`):
+        flagged, untextured or not clearly better correlated (:mod:`specgpu.motion.flow`):
         ``estimates[0].shifts`` is then (K, 2, H, W), the displacement each pixel was decoded with.
     shifts : array_like, (K, 2) or (K, 2, 3), optional
         Known displacements (e.g. the twin's truth); no estimation then.
     check : bool
         Flag (mask bit 8) and leave NaN the pixels whose compensated frames disagree
-        (:func:`~specgpu.pipeline.moving.inconsistent_pixels`): an object moving on its own, an occlusion.
+        (:func:`~specgpu.motion.consistency.inconsistent_pixels`): an object moving on its own, an occlusion.
     layers : bool
         With ``check`` and an estimated translation per frame: decode the flagged regions again with an object's own
         motion where one stands out (:func:`decode_object_layers`).
@@ -507,13 +353,13 @@ def recover_moving(frames: ArrayLike, A: ArrayLike, *, dark: ArrayLike | None = 
     reference_frames : sequence of int, optional
         The sequence's broadband reference frames (a plan made with ``--reference-every``,
         :func:`specgpu.planning.reference_frames.reference_indices`): the motion is estimated from them alone
-        (:func:`specgpu.pipeline.reference_motion.estimate_reference_motion`), and the warped pass and the global
+        (:func:`specgpu.motion.reference.estimate_reference_motion`), and the warped pass and the global
         consistency check read the other frames only (the decoder does not read the reference frames: where they
         saw outside the field, saturated or disagree cannot reach the outputs).
     residual : ResidualCheck, optional
         With ``check``: every decoding (global, an object layer's, the flow's) also flags the pixels whose
-        compensated samples no single reflectance explains (:mod:`specgpu.pipeline.moving_residual`; made for the
-        plan by :func:`~specgpu.pipeline.moving_residual.residual_check`). Without it only the gradient images
+        compensated samples no single reflectance explains (:mod:`specgpu.motion.residual`; made for the
+        plan by :func:`~specgpu.motion.residual.residual_check`). Without it only the gradient images
         judge, which cannot where no frame has structure of its own.
 
     Returns
@@ -551,25 +397,13 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
 
     est, gradients, maps = None, None, None
     dense = model == "flow"
-    model = "translation" if dense else model  # the flow starts from the global translation
     refs = [] if not reference_frames else check_reference_frames(reference_frames, len(frames))
-    if dense and refs:
-        raise ValueError("a flow is estimated from every frame of the sequence: with broadband reference frames, "
-                         "compensate a translation (global) or an affine map per frame")
     if dense and shifts is not None:
         raise ValueError("model='flow' estimates its own displacement per pixel: give shifts with the translation or "
                          "affine model")
-    if dense and len(frames) < MIN_FRAMES + 1:
-        raise ValueError(f"a flow needs sequences of at least {MIN_FRAMES + 1} frames (each tile's steady motion is "
-                         f"fitted to {MIN_FRAMES} frames besides the reference), got {len(frames)}")
-    if shifts is None and refs:
-        est = estimate_reference_motion(frames, refs, dark, gain, upsample=upsample, model=model)
-        gradients = est.gradients
-        shifts = est.shifts
-    elif shifts is None:
-        # every frame's gradient image made at once on the device: the estimate registers them, the check reads them
-        est = estimate_global_motion(frames, dark, gain, upsample=upsample, binning=binning, model=model,
-                                     gradients=frame_gradients(frames, dark, gain, device=device))
+    if shifts is None:  # the flow starts from the global translation, which its method estimates
+        est = estimate_motion(frames, dark, gain, method=MODEL_METHODS.get(model, model), reference_frames=refs,
+                              upsample=upsample, binning=binning, device=device)
         gradients = est.gradients
         shifts = est.shifts
     lap("estimate")
@@ -592,7 +426,7 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
         maps = consistency(*_reading(read, frames, shifts), None if read else dark, gain,
                            gradients=None if gradients is None else _reading(read, gradients)[0])
         # every pixel judged, textured or not: a frame with structure of its own that the others do not share
-        mask[maps[1] < CHECK_THRESHOLD] |= MASK_INCONSISTENT
+        mask[maps[1] < CHECK_THRESHOLD] |= np.uint8(Mask.INCONSISTENT)
         if layers and est is not None:
             found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
                                          device=device, read=read, residual=residual)
@@ -602,7 +436,7 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
     if check:
         grow_flags(mask)
         refuted(mask)
-    y[(mask & (1 | MASK_INCONSISTENT)) > 0] = np.nan
+    y[(mask & (Mask.SATURATED | Mask.INCONSISTENT)) > 0] = np.nan
     lap("check")
     # the gradient images served the check and the layers; not kept with a result
     return MovingRecovery(y, mask, [] if est is None else [replace(est, gradients=None)], found)

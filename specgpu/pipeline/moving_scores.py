@@ -14,9 +14,9 @@ import numpy as np
 from scipy import ndimage
 
 from specgpu.engine.linear_map import apply_linear
+from specgpu.motion.residual import residual_check
 from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving_layers import recover_moving
-from specgpu.pipeline.moving_residual import residual_check
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.reference_frames import reference_indices
 from specgpu.rig.scene import SpectralScene

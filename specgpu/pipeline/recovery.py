@@ -74,7 +74,7 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         The reference white in the field, as above.
     motion : {"none", "global", "affine", "flow"}
         ``"global"``: the scene moved during the sequence; a translation per frame (``"affine"``: an affine map,
-        for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.pipeline.moving`),
+        for a rotation or zoom) is estimated and compensated in the decoding pass (:mod:`specgpu.motion.global_motion`),
         the outputs are the scene at the sequence's
         reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene
         moves between sequences too): ``sequence`` is required unless the folder holds one.

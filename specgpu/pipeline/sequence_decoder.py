@@ -29,14 +29,15 @@ import pyopencl as cl
 from numpy.typing import ArrayLike
 
 from specgpu import engine
+from specgpu.core.mask import Mask
 from specgpu.core.numerics import live_gain
 from specgpu.core.validate import check_sequence
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
+from specgpu.motion.residual import residual_check
 from specgpu.pipeline.decoder_outputs import FusedLaunches, lab_and_delta_E, outputs_for
 from specgpu.pipeline.moving_decode import check_motion_options, warped_sigma_rms
 from specgpu.pipeline.moving_layers import recover_moving
-from specgpu.pipeline.moving_residual import residual_check
 from specgpu.planning.correction import WhiteReference, ambient_index, corrected_decoder, white_gains
 from specgpu.planning.reference_frames import reference_indices
 
@@ -157,7 +158,7 @@ class SequenceDecoder:
         sequence's decoder is rescaled for the light's drift (:class:`specgpu.planning.correction.WhiteReference`)
         and every launch gets its matrix from the corrected decoder (:meth:`matrices`).
     motion : {"none", "global", "affine", "flow"}
-        How the scene's motion within a sequence is compensated (:data:`specgpu.pipeline.moving.MOTION_MODES`).
+        How the scene's motion within a sequence is compensated (:data:`specgpu.motion.methods.MOTION_METHODS`).
     device : optional
         OpenCL device selector or queue.
     frame_shape : (int, int), optional
@@ -290,7 +291,7 @@ class SequenceDecoder:
             maps[name] = np.empty(shape, dtype)
             cl.enqueue_copy(q, maps[name], out[name])
         q.finish()
-        saturated = (maps["mask"] & 1).astype(bool)
+        saturated = (maps["mask"] & np.uint8(Mask.SATURATED)).astype(bool)
         if saturated.any():  # no valid measurement: NaN, as recover makes it
             for name in self.outputs:
                 maps[name][saturated] = np.nan

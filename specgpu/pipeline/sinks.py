@@ -57,7 +57,7 @@ class StreamResult:
     white_gains : numpy.ndarray, optional
         (K,) the white reference's measured / predicted output per pattern that corrected this sequence's
         decoder (a stream with ``white_roi``), else None.
-    motion : specgpu.pipeline.moving.MotionEstimate, optional
+    motion : specgpu.motion.estimate.MotionEstimate, optional
         The sequence's estimated displacements (a stream with ``motion``): the maps are the scene at the
         sequence's reference time, NaN where a frame saw it outside the field or the frames disagree.
     layers : list, optional

@@ -58,6 +58,7 @@ from numpy.typing import DTypeLike
 from specgpu.capture.assemble import AssemblyStats, SequenceAssembler
 from specgpu.capture.driver import CameraDriver, FrameInfo, StreamEnd
 from specgpu.capture.ringbuffer import POLICIES, RingBuffer, run_producer
+from specgpu.core.mask import Mask
 from specgpu.core.text import one_line
 from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.engine.transfer import pinned_empty
@@ -606,7 +607,7 @@ class Stream:
                     break
                 item, result = entry
                 mask = result.arrays.pop("mask")
-                saturated = (mask & 1).astype(bool) if mask.any() else None
+                saturated = (mask & Mask.SATURATED).astype(bool) if mask.any() else None
                 if saturated is not None:  # no valid measurement there: NaN, as the offline recovery
                     for arr in result.arrays.values():
                         arr[saturated] = np.nan

@@ -6,7 +6,7 @@ contrasts differ. ``specgpu plan ... --reference-every M`` (:func:`with_referenc
 one broadband pattern before the sequence's first frame and after every ``M`` of its frames (and after the last),
 so frames lit by the same spectrum are spread over the sequence: the estimate registers those to each other
 directly and gives every frame its displacement by interpolation in time between them
-(:mod:`specgpu.pipeline.reference_motion`). For K = 9 and M = 3 the sequence is ``R p p p R p p p R p p p R``:
+(:mod:`specgpu.motion.reference`). For K = 9 and M = 3 the sequence is ``R p p p R p p p R p p p R``:
 13 frames (4 more, 44 % more time per sequence); M = 9 gives ``R p ... p R`` (11 frames, 22 % more).
 
 The reference pattern is every mirror of every column on, scaled down evenly (the same count in each column, so

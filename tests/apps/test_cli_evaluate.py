@@ -17,10 +17,10 @@ import pytest
 from cli_helpers import hadamard_rig, one_line_error, python_path, run
 
 from specgpu import io
+from specgpu.io.motion_truth import TRUTH_FOLDER
 from specgpu.io.npz import write_cube_npz
 from specgpu.io.sequence import capture_hash, read_sequence_header
 from specgpu.pipeline.evaluate import truth_cube
-from specgpu.pipeline.moving import TRUTH_FOLDER
 from specgpu.rig.scene import colorchecker_scene
 
 GRID = np.arange(400.0, 701.0, 10.0)

@@ -14,7 +14,7 @@ from scipy import ndimage
 from specgpu.engine import consistency as check
 from specgpu.engine import kernels
 from specgpu.engine.consistency import consistency_from_frames, consistency_maps, consistency_maps_numpy, exact_median
-from specgpu.pipeline.moving import gradient_image
+from specgpu.motion.images import gradient_image
 
 
 def reference(gradients, maps, window=9, texture=0.5, own=4.0):

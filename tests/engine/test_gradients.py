@@ -8,7 +8,7 @@ import pyopencl.array as cla
 import pytest
 
 from specgpu.engine.gradients import gradient_images
-from specgpu.pipeline.moving import gradient_image
+from specgpu.motion.images import gradient_image
 
 
 def frames_of(rng, dtype, K, h, w):

@@ -7,8 +7,9 @@ import pytest
 from reference import linear_ref, linear_warp_ref
 from scipy import ndimage
 
+from specgpu.core.mask import Mask
 from specgpu.engine.linear_map import apply_linear
-from specgpu.engine.warp_map import MASK_OUTSIDE, apply_linear_warped
+from specgpu.engine.warp_map import apply_linear_warped
 
 EPS32 = np.finfo(np.float32).eps
 
@@ -38,7 +39,7 @@ def test_sub_pixel_shifts_match_the_bilinear_reference(queue, K, B, dtype):
     got = apply_linear_warped(frames, A, shifts, dark, gain, return_mask=True, device=queue)
     ref, outside = linear_warp_ref(frames, A, shifts.astype(np.float32), dark, gain)
     assert got.y.shape == (h, w, B) and got.y.dtype == np.float32
-    np.testing.assert_array_equal((got.mask & MASK_OUTSIDE) > 0, outside)
+    np.testing.assert_array_equal((got.mask & Mask.OUTSIDE) > 0, outside)
     assert np.all(np.isnan(got.y[outside])) and np.all(np.isfinite(got.y[~outside]))
     assert np.all(np.abs(got.y[~outside] - ref[~outside]) <= tolerance(frames, A, dark, gain)[~outside])
     assert outside.any() and (~outside).any()
@@ -106,7 +107,7 @@ def test_affine_maps_match_the_reference(queue):
                   for t in a])
     got = apply_linear_warped(frames, A, M, return_mask=True, device=queue)
     ref, outside = linear_warp_ref(frames, A, M.astype(np.float32))
-    np.testing.assert_array_equal((got.mask & MASK_OUTSIDE) > 0, outside)
+    np.testing.assert_array_equal((got.mask & Mask.OUTSIDE) > 0, outside)
     assert np.all(np.abs(got.y[~outside] - ref[~outside]) <= tolerance(frames, A)[~outside])
     translation = np.tile(np.eye(2, 3), (3, 1, 1))
     translation[:, :, 2] = [[0, 0], [1.25, -0.5], [2, 3]]
@@ -124,7 +125,7 @@ def test_a_flow_field_matches_the_reference_and_a_uniform_one_the_translation(qu
     flow = np.stack([np.stack([2.5 * np.sin(xx / 7.0 + k), 1.5 * np.cos(yy / 5.0 - k)]) for k in range(K)])
     got = apply_linear_warped(frames, A, flow, dark, return_mask=True, device=queue)
     ref, outside = linear_warp_ref(frames, A, flow.astype(np.float32), dark)
-    np.testing.assert_array_equal((got.mask & MASK_OUTSIDE) > 0, outside)
+    np.testing.assert_array_equal((got.mask & Mask.OUTSIDE) > 0, outside)
     assert np.all(np.abs(got.y[~outside] - ref[~outside]) <= tolerance(frames, A, dark)[~outside])
     # a uniform flow is the translation: the per-pixel kernel and the translation path (which sums a tap clamped at
     # the field's edge as two equal taps, and contracts products into FMAs) agree to float32 rounding, with the same
@@ -282,7 +283,7 @@ def test_translations_match_the_reference_at_every_size_and_edge(queue, monkeypa
     # flag) is, its taps of weight zero included
     finite = np.nan_to_num(frames, nan=0, posinf=0, neginf=0)
     ref, outside = linear_warp_ref(finite, A, shifts.astype(np.float32), dark, gain)
-    np.testing.assert_array_equal((got.mask & MASK_OUTSIDE) > 0, outside)
+    np.testing.assert_array_equal((got.mask & Mask.OUTSIDE) > 0, outside)
     clean = got.mask == 0
     assert np.all(np.abs(got.y - ref)[clean] <= tolerance(finite, A, dark, gain)[clean])
     if min(h, w) >= 13:  # fields large enough that some output reads the bad samples and some reads none

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from specgpu.core.spectra import DEFAULT_CMFS
+from specgpu.io.motion_truth import TRUTH_FOLDER
 from specgpu.io.npz import write_cube_npz
 from specgpu.io.sequence import capture_hash, read_sequence_header, write_sequence
 from specgpu.pipeline.evaluate import (
@@ -26,7 +27,6 @@ from specgpu.pipeline.evaluate import (
     truth_cube,
 )
 from specgpu.pipeline.evaluation_report import evaluation_report, headline_line, patch_table, pixel_line, truth_mismatch
-from specgpu.pipeline.moving import TRUTH_FOLDER
 from specgpu.rig.scene import colorchecker_scene
 
 GRID = np.arange(400.0, 701.0, 10.0)

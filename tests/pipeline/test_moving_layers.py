@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from moving_helpers import frames_of, moving_setup
 
+from specgpu.core.mask import Mask
+from specgpu.motion.object_motion import occluded_by
+from specgpu.motion.residual import residual_check
 from specgpu.pipeline.evaluate import evaluate_pixels
-from specgpu.pipeline.moving import MASK_INCONSISTENT
-from specgpu.pipeline.moving_layers import MASK_LAYER, flagged_regions, occluded_by, recover_moving
-from specgpu.pipeline.moving_residual import residual_check
+from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
@@ -50,10 +51,10 @@ def test_the_object_is_decoded_not_flagged_and_its_spectra_are_right(setup, char
     _, _, plan, scene = setup
     _, truth, res, single = chart_over_scene
     obj = truth["object_mask"] > 0.5
-    flagged_before = ((single.mask & MASK_INCONSISTENT) > 0)[obj].mean()
-    flagged_after = ((res.mask & MASK_INCONSISTENT) > 0)[obj].mean()
+    flagged_before = ((single.mask & Mask.INCONSISTENT) > 0)[obj].mean()
+    flagged_after = ((res.mask & Mask.INCONSISTENT) > 0)[obj].mean()
     assert flagged_before > 0.1 and flagged_after < 0.7 * flagged_before
-    layer = (res.mask & MASK_LAYER) > 0
+    layer = (res.mask & Mask.LAYER) > 0
     # most of the object, flat patches included, is decoded with its motion (less the ring the flags grow by about
     # the pixels it cannot decode)
     assert layer[obj].mean() > 0.65
@@ -79,7 +80,7 @@ def test_background_the_object_covered_during_the_sequence_is_flagged(setup, cha
     nan_single = ~np.all(np.isfinite(single.y), axis=2)
     # the layer flags the strips as a whole (the global check alone only where some frame has structure there)
     assert nan[covered].mean() > nan_single[covered].mean(), (nan[covered].mean(), nan_single[covered].mean())
-    assert np.all(nan == ((res.mask & (1 | 4 | MASK_INCONSISTENT)) > 0))  # every NaN is flagged, every flag NaN
+    assert np.all(nan == ((res.mask & (1 | 4 | Mask.INCONSISTENT)) > 0))  # every NaN is flagged, every flag NaN
 
 
 def test_a_repeating_object_too_slow_to_separate_is_not_given_a_motion_one_period_off(setup):
@@ -101,7 +102,7 @@ def test_a_scene_without_an_object_of_its_own_gets_no_layer(setup):
     frames, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(3.0, 1.0)))
     kw = dict(dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field, saturation=float(bundle.max_code))
     res, single = recover_moving(frames, plan.A, **kw), recover_moving(frames, plan.A, layers=False, **kw)
-    assert res.layers == [] and not ((res.mask & MASK_LAYER) > 0).any()
+    assert res.layers == [] and not ((res.mask & Mask.LAYER) > 0).any()
     np.testing.assert_array_equal(res.y, single.y)
 
 
@@ -112,26 +113,6 @@ def test_the_stream_decoder_decodes_the_object_layer_as_recover_does(setup, char
     assert len(maps["layers"]) == 1
     np.testing.assert_array_equal(maps["mask"], res.mask)
     np.testing.assert_allclose(np.nan_to_num(maps["cube"]), np.nan_to_num(res.y), rtol=1e-5, atol=1e-6)
-
-
-def test_occluded_by_is_the_footprint_swept_by_the_relative_motion_less_itself():
-    F = np.zeros((20, 30), bool)
-    F[5:15, 10:20] = True
-    hidden = occluded_by(F, [[-3.0, 0.0], [0.0, 0.0], [3.0, 0.0]])
-    expected = np.zeros_like(F)
-    expected[5:15, 7:10] = expected[5:15, 20:23] = True
-    np.testing.assert_array_equal(hidden, expected)
-    # a sub-pixel shift covers the next column partly: it counts as hidden
-    assert occluded_by(F, [[0.5, 0.0]])[5:15, 20].all()
-
-
-def test_flagged_regions_joins_nearby_flags_and_drops_small_ones():
-    flagged = np.zeros((200, 300), bool)
-    flagged[50:60, 50:60] = flagged[50:60, 70:80] = True  # 20 px apart: one region at join_px 12
-    flagged[150:152, 250:252] = True  # 4 px: too small
-    regions = flagged_regions(flagged, min_share=0.002)
-    assert len(regions) == 1 and regions[0][55, 65] and not regions[0][151, 251]
-    assert flagged_regions(np.zeros((10, 10), bool)) == []
 
 
 def test_sigma_rms_reads_an_object_layers_pixels_with_its_own_motion(setup, chart_over_scene):
@@ -145,7 +126,7 @@ def test_sigma_rms_reads_an_object_layers_pixels_with_its_own_motion(setup, char
     sigma = maps["sigma_rms"]
     np.testing.assert_array_equal(np.isnan(sigma), np.isnan(maps["cube"][..., 0]))
     (layer,) = maps["layers"]
-    own = (maps["mask"] & MASK_LAYER) != 0
+    own = (maps["mask"] & Mask.LAYER) != 0
     assert own.sum() > 1000 and not (own & ~layer.decoded).any()
 
     rms_row = np.sqrt(np.mean(np.asarray(plan.A, np.float64) ** 2, axis=0, keepdims=True))

@@ -36,7 +36,8 @@ def block(language: str, needle: str) -> str:
 
 
 # the Python blocks of the README and the docs, each found by a name only it holds; every block is one of them
-PYTHON_BLOCKS = ("apply_linear", "open_recording", "xr.open_zarr", "PLAN_METHODS", "SequenceDecoder(")
+PYTHON_BLOCKS = ("apply_linear", "open_recording", "xr.open_zarr", "PLAN_METHODS", "SequenceDecoder(",
+                 "estimate_motion(")
 
 
 def test_every_python_block_is_executed_by_a_test():
@@ -51,6 +52,11 @@ def test_the_readme_holds_the_api_example():
 def test_rooms_import_snippet_runs(capsys):
     exec(compile(block("python", "PLAN_METHODS"), "docs (rooms' names)", "exec"), {})
     assert "symmetric" in capsys.readouterr().out
+
+
+def test_motion_methods_snippet_runs(capsys):
+    exec(compile(block("python", "estimate_motion("), "docs (motion methods)", "exec"), {})
+    assert capsys.readouterr().out == "['none', 'global', 'affine', 'flow'] [-2. -1.  0.  1.  2.]\n12\n"
 
 
 def test_python_api_snippet_runs():

@@ -27,7 +27,7 @@ import pyopencl.array as cla
 from specgpu.engine import kernels, runtime
 from specgpu.engine.consistency import consistency_from_frames, consistency_maps
 from specgpu.engine.gradients import gradient_images
-from specgpu.pipeline.moving import gradient_image
+from specgpu.motion.images import gradient_image
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.twin import TwinRig
@@ -68,8 +68,8 @@ def before(revision: str):
         options = runtime.build_options(**macros)
         if options not in built:
             program = cl.Program(queue.context, kernel_text).build(options=[
-                *options, *runtime._device_options(queue.device), "-cl-mad-enable", "-cl-denorms-are-zero",
-                f"-I{runtime.kernel_dir()}"])
+                *options, *runtime.mask_options(), *runtime._device_options(queue.device), "-cl-mad-enable",
+                "-cl-denorms-are-zero", f"-I{runtime.kernel_dir()}"])
             built[options] = (program, {})
         program, entries = built[options]
         if kernel_name not in entries:

@@ -101,8 +101,8 @@ for part in "${PARTS[@]}"; do
             | tee "$OUT/motion_cost.txt"
         XDIST=(); python3 -c 'import xdist' 2>/dev/null && XDIST=(-n 8)
         SPECGPU_DEVICE=$DEV timeout 200 python3 -m pytest -q -p no:cacheprovider -p no:randomly "${XDIST[@]}" \
-            tests/engine tests/pipeline/test_moving.py tests/pipeline/test_moving_decode.py \
-            tests/pipeline/test_moving_layers.py tests/pipeline/test_moving_flow.py 2>&1 | tail -30 \
+            tests/engine tests/motion tests/pipeline/test_moving_decode.py \
+            tests/pipeline/test_moving_layers.py 2>&1 | tail -30 \
             | tee "$OUT/tests_motion.txt" ;;
     tests)  # the whole suite on the GPU (both kernel variants are forced inside the kernel tests)
         XDIST=(); python3 -c 'import xdist' 2>/dev/null && XDIST=(-n 8)   # 16 cores there: the suite in parallel

@@ -19,9 +19,11 @@ import numpy as np
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
 from specgpu.engine.warp_map import apply_linear_warped
-from specgpu.pipeline.moving import estimate_global_motion, frame_gradients, inconsistent_pixels
-from specgpu.pipeline.moving_flow import flow_field, tile_motion
-from specgpu.pipeline.reference_motion import estimate_reference_motion
+from specgpu.motion.consistency import inconsistent_pixels
+from specgpu.motion.flow import flow_field, tile_motion
+from specgpu.motion.global_motion import estimate_global_motion
+from specgpu.motion.images import frame_gradients
+from specgpu.motion.reference import estimate_reference_motion
 from specgpu.planning.reference_frames import reference_positions
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters

@@ -51,8 +51,8 @@ def old_kernel(queue, rev: str, macros: dict) -> cl.Kernel:
             text = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:kernels/{name}"], check=True,
                                   capture_output=True, text=True).stdout
             (Path(tmp) / name).write_text(text)
-        options = [*runtime.build_options(**macros), *runtime._device_options(queue.device), "-cl-mad-enable",
-                   "-cl-denorms-are-zero", f"-I{tmp}"]
+        options = [*runtime.build_options(**macros), *runtime.mask_options(), *runtime._device_options(queue.device),
+                   "-cl-mad-enable", "-cl-denorms-are-zero", f"-I{tmp}"]
         program = cl.Program(queue.context, (Path(tmp) / "warp.cl").read_text()).build(options=options)
     return cl.Kernel(program, "linear_warp_translate")
 

@@ -23,9 +23,9 @@ from dataclasses import replace
 import numpy as np
 
 from specgpu.calibration.bundle import oracle_calibration
+from specgpu.motion.residual import residual_check
 from specgpu.pipeline.evaluate import evaluate_pixels
 from specgpu.pipeline.moving_layers import recover_moving
-from specgpu.pipeline.moving_residual import residual_check
 from specgpu.pipeline.recovery import default_basis
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.basis_plans import plan_symmetric_basis

@@ -29,8 +29,8 @@ from dataclasses import replace
 import numpy as np
 
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.pipeline.moving import estimate_global_motion
-from specgpu.pipeline.reference_motion import estimate_reference_motion
+from specgpu.motion.global_motion import estimate_global_motion
+from specgpu.motion.reference import estimate_reference_motion
 from specgpu.planning.reference_frames import reference_indices, with_reference_frames
 from specgpu.planning.registry import make_plan
 from specgpu.rig import CameraParameters, RigDescription, natural_scene

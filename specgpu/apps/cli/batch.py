@@ -20,9 +20,9 @@ from specgpu.apps.cli.options import (
 from specgpu.calibration.bundle import load_calibration
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
+from specgpu.motion.methods import MOTION_METHODS
 from specgpu.pipeline.batch import BATCH_OUTPUTS, open_source, run_batch
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
-from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.planning.plans import load_plan
 
 
@@ -60,7 +60,7 @@ def plan_calibration(plan, source, plan_path, calib):
 @click.option("--denoise", is_flag=True,
               help="Denoise the cube and XYZ (recover --denoise's guided filter), Lab and dE computed from the "
                    "filtered XYZ.")
-@click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
+@click.option("--motion", type=click.Choice(list(MOTION_METHODS), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moved during each sequence, as recover --motion: a "
               "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "
               "estimated within the sequence; pixels seen "

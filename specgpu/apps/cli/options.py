@@ -26,10 +26,10 @@ from specgpu.core.validate import BadArgument, validate_method
 from specgpu.engine.colorimetry import XYZ_to_Lab
 from specgpu.io import JOURNAL_FILE, SEQUENCE_FILE
 from specgpu.io.cube import companion_files
+from specgpu.io.motion_truth import TRUTH_FOLDER
 from specgpu.io.paths import final_names, new_temporary, replace_with, write_target
 from specgpu.pipeline.capture_folder import CALIBRATION_FILE, PLAN_FILE
 from specgpu.pipeline.evaluate import scene_XYZ
-from specgpu.pipeline.moving import TRUTH_FOLDER
 from specgpu.planning.plans import load_plan
 from specgpu.rig.config import load_rig
 from specgpu.rig.scene import SpectralScene, load_scene, validate_resize

@@ -21,11 +21,11 @@ from specgpu.apps.cli.options import (
 )
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
+from specgpu.motion.methods import MOTION_METHODS
 from specgpu.pipeline import recovery
 from specgpu.pipeline.capture_folder import read_capture
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning, denoise_recovery
 from specgpu.pipeline.motion_record import without_motion
-from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.moving_decode import check_motion_options
 from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
@@ -91,7 +91,7 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
               help="--denoise: window radius, px.")
 @click.option("--denoise-eps", type=Finite(min=1e-12, max=1e3), default=DENOISE_EPS, show_default=True,
               help="--denoise: regularisation, in units of the frame sum's 99th percentile squared.")
-@click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
+@click.option("--motion", type=click.Choice(list(MOTION_METHODS), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moved: a translation (global) or an affine map "
               "(affine) per frame, or a displacement per pixel (flow: global, then a tile flow where it agrees "
               "better), one sequence at a time; pixels seen outside the field or whose frames disagree are NaN.")

@@ -29,12 +29,12 @@ from specgpu.apps.cli.options import (
 from specgpu.apps.live_view import run_with_view
 from specgpu.hardware.drivers import hardware_config, open_rig_driver
 from specgpu.io.recording import refuse_existing
+from specgpu.motion.methods import MOTION_METHODS
 from specgpu.pipeline.accumulate import AccumulateSink
 from specgpu.pipeline.decoder_outputs import STREAM_OUTPUTS
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.live import add_recording, behind_text, recording_slots, stream_summary
 from specgpu.pipeline.motion_record import without_motion
-from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.moving_decode import check_motion_options
 from specgpu.pipeline.outputs import stream_metadata
 from specgpu.pipeline.stream import Stream
@@ -168,7 +168,7 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
 @click.option("--accumulate", type=click.IntRange(min=2), default=None, metavar="N",
               help="Each pixel's running estimate over up to N sequences, restarted where it changes beyond its "
                    "noise (needs the cube and sigma or sigma_rms outputs); with --motion it moves with the scene.")
-@click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
+@click.option("--motion", type=click.Choice(list(MOTION_METHODS), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moves during each sequence, as recover --motion: a "
               "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "
               "estimated within the sequence; of the "

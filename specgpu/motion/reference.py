@@ -4,13 +4,13 @@ A plan's reference frames (:func:`specgpu.planning.reference_frames.with_referen
 broadband pattern and spread over the sequence (before its first frame, after every M frames, after its last).
 :func:`estimate_reference_motion` registers them to each other directly: each to the reference frame nearest the
 sequence's middle, by phase correlation of their gradient images (whitened, sub-pixel by the Gaussian fit of
-:mod:`specgpu.pipeline.registration`); two frames lit by the same spectrum show the same contrasts, so nothing but
+:mod:`specgpu.motion.registration`); two frames lit by the same spectrum show the same contrasts, so nothing but
 noise and the motion tells them apart. The pattern frames are not registered at all: each takes the displacement
 interpolated in time between the reference frames (a cubic spline through them, linear with two; exact for a
 steady translation, and following a vibration as far as the reference frames sample it). An affine map per frame
 is fitted to tiles of each reference frame and interpolated element by element (small rotations and zooms).
 
-The displacements are returned from the sequence's reference time as :func:`specgpu.pipeline.moving.
+The displacements are returned from the sequence's reference time as :func:`specgpu.motion.global_motion.
 estimate_global_motion` returns them, the mean of all its frames' times (reference frames included), where the
 twin's truth puts the scene: an interpolated motion is known at any time, so nothing ties the output to a
 reference frame's own time. Each reference frame's translation is checked against its tiles (an object moving on
@@ -23,21 +23,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import CubicSpline, interp1d
 
-from specgpu.pipeline.moving import (
-    MotionEstimate,
-    _affine_to,
-    _dominant_translation,
-    _one_blas_thread,
-    at_reference_time,
-    frame_gradients,
-)
-from specgpu.pipeline.registration import (
-    correlation_surface,
-    fit_peak,
-    half_spectrum_energy,
-    peak_error,
-    whitened_half_spectrum,
-)
+from specgpu.motion.affine import affine_to
+from specgpu.motion.estimate import MotionEstimate, at_reference_time, one_blas_thread
+from specgpu.motion.images import frame_gradients
+from specgpu.motion.registration import correlation_surface, fit_peak, half_spectrum_energy, peak_error
+from specgpu.motion.tiles import dominant_translation
+from specgpu.motion.whitening import whitened_half_spectrum
 
 __all__ = ["check_reference_frames", "estimate_reference_motion", "interpolate_in_time"]
 
@@ -68,7 +59,7 @@ def interpolate_in_time(times, values, at, kind: str = "cubic") -> np.ndarray:
     return interp1d(t, v, axis=0, assume_sorted=True, fill_value="extrapolate")(at)
 
 
-@_one_blas_thread
+@one_blas_thread
 def estimate_reference_motion(frames, reference_frames, dark=None, gain=None, *, model: str = "translation",
                               cutoff: float = 0.12, tiles: int = 4, upsample: int = 10, interpolation: str = "cubic",
                               robust: bool = True) -> MotionEstimate:
@@ -83,10 +74,10 @@ def estimate_reference_motion(frames, reference_frames, dark=None, gain=None, *,
         :func:`specgpu.planning.reference_frames.reference_indices`).
     dark : array_like, (H, W) or (K, H, W), optional
     gain : array_like, (H, W), optional
-        As :func:`specgpu.pipeline.moving.estimate_global_motion`.
+        As :func:`specgpu.motion.global_motion.estimate_global_motion`.
     model : {"translation", "affine"}
     cutoff, tiles, upsample
-        As :func:`~specgpu.pipeline.moving.estimate_global_motion` (``upsample``: the affine tiles' peaks).
+        As :func:`~specgpu.motion.global_motion.estimate_global_motion` (``upsample``: the affine tiles' peaks).
     robust : bool
         Translation model: check each reference frame's whole-image translation against its ``tiles`` x ``tiles``
         tiles and take their consensus where they disagree (an object moving on its own). Always, not only where
@@ -137,14 +128,14 @@ def estimate_reference_motion(frames, reference_frames, dark=None, gain=None, *,
             cache: dict = {}
             for i, k in enumerate(refs):
                 if k != centre:
-                    raw[i] = _dominant_translation(gradients[centre], gradients[k], raw[i], upsample, cutoff, tiles,
-                                                   cache)
+                    raw[i] = dominant_translation(gradients[centre], gradients[k], raw[i], upsample, cutoff, tiles,
+                                                  cache)
         shifts = interpolate_in_time(times, raw, every, interpolation)
         return MotionEstimate(shifts - at_reference_time(shifts), registered, error, int(centre), model, kept)
     maps = np.tile(np.eye(3), (len(refs), 1, 1))
     for i, k in enumerate(refs):
         if k != centre:
-            maps[i] = _affine_to(gradients[centre], gradients[k], raw[i], upsample, cutoff, tiles)
+            maps[i] = affine_to(gradients[centre], gradients[k], raw[i], upsample, cutoff, tiles)
     maps = interpolate_in_time(times, maps, every, interpolation)
     maps[:, 2] = (0.0, 0.0, 1.0)
     to_mid = np.linalg.inv(at_reference_time(maps))

@@ -8,24 +8,18 @@ import numpy as np
 import pytest
 from moving_helpers import frames_of, moving_setup
 
+from specgpu.core.mask import Mask
 from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
-from specgpu.pipeline import moving
+from specgpu.motion import global_motion
+from specgpu.motion.consistency import consistency, inconsistent_pixels
+from specgpu.motion.global_motion import MAX_SPEED_PX_PER_FRAME, estimate_global_motion
+from specgpu.motion.images import frame_gradients, gradient_image
+from specgpu.motion.methods import MOTION_METHODS, check_motion_mode
+from specgpu.motion.registration import fit_peak_within, second_peak_ratio
 from specgpu.pipeline.capture_folder import SequenceFolder
-from specgpu.pipeline.moving import (
-    MASK_INCONSISTENT,
-    MAX_SPEED_PX_PER_FRAME,
-    MOTION_MODES,
-    check_motion_mode,
-    consistency,
-    estimate_global_motion,
-    frame_gradients,
-    gradient_image,
-    inconsistent_pixels,
-)
 from specgpu.pipeline.moving_layers import grow_flags, recover_moving
 from specgpu.pipeline.recovery import default_basis, recover
-from specgpu.pipeline.registration import fit_peak_within, second_peak_ratio
 from specgpu.planning.basis_plans import plan_symmetric_basis
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.scene import colorchecker_scene
@@ -87,7 +81,7 @@ def test_compensation_brings_the_moving_error_back_to_the_still_one(setup):
     assert outside[:, :9].all() and outside[:, -9:].all() and outside[:3].all() and outside[-3:].all()
     assert not outside[4:-4, 10:-10].any()
     assert np.isnan(res.y[outside]).all() and np.isfinite(res.y[res.mask == 0]).all()
-    assert ((res.mask & MASK_INCONSISTENT) > 0).mean() < 0.02  # few false alarms where the motion is right
+    assert ((res.mask & Mask.INCONSISTENT) > 0).mean() < 0.02  # few false alarms where the motion is right
 
 
 def test_recover_with_motion_is_recover_moving_of_the_same_frames(setup):
@@ -106,7 +100,7 @@ def test_recover_with_motion_is_recover_moving_of_the_same_frames(setup):
 
 
 def test_motion_modes_are_checked():
-    assert check_motion_mode("GLOBAL") == "global" and set(MOTION_MODES) >= {"none", "global", "affine", "flow"}
+    assert check_motion_mode("GLOBAL") == "global" and set(MOTION_METHODS) >= {"none", "global", "affine", "flow"}
     with pytest.raises(ValueError, match="motion='optical' is not one of"):
         check_motion_mode("optical")
 
@@ -120,7 +114,7 @@ def test_an_object_moving_on_its_own_is_flagged_not_decoded(setup):
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
     res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code), layers=False)
     np.testing.assert_allclose(res.estimates[0].shifts, 0.0, atol=0.1)  # the background stands still
-    flagged = (res.mask & MASK_INCONSISTENT) > 0
+    flagged = (res.mask & Mask.INCONSISTENT) > 0
     inside = truth["object_mask"] > 0.5
     assert flagged[inside].mean() > 0.15 and flagged[~inside].mean() < 0.03
     assert np.isnan(res.y[flagged]).all()
@@ -151,9 +145,9 @@ def test_the_check_on_the_estimates_own_gradient_images_is_the_check_on_fresh_on
     np.testing.assert_array_equal(reused, fresh)
     res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code), layers=False)
     # recover flags what the check flags, grown by the pixel a bilinear sample reads about it
-    expected = (res.mask & np.uint8(1 | 2 | 4)) | np.where(fresh, np.uint8(MASK_INCONSISTENT), np.uint8(0))
+    expected = (res.mask & np.uint8(1 | 2 | 4)) | np.where(fresh, np.uint8(Mask.INCONSISTENT), np.uint8(0))
     grow_flags(expected)
-    np.testing.assert_array_equal((res.mask & MASK_INCONSISTENT) > 0, (expected & MASK_INCONSISTENT) > 0)
+    np.testing.assert_array_equal((res.mask & Mask.INCONSISTENT) > 0, (expected & Mask.INCONSISTENT) > 0)
     assert res.estimates[0].gradients is None  # not kept with the result
 
 
@@ -208,7 +202,7 @@ def test_a_motion_faster_than_the_reach_is_looked_for_anywhere(setup, velocity):
     e_still = float(np.sqrt(np.mean((apply_linear(still, plan.A, dark, gain) - scene.reflectance[..., idx]) ** 2)))
     e_comp = float(np.sqrt(np.mean((res.y[seen] - truth["reflectance"][..., idx][seen]) ** 2)))
     assert seen.mean() > 0.4 and e_comp < 1.3 * e_still  # 30 px a frame leaves 0.44 of the field in every frame
-    assert ((res.mask & MASK_INCONSISTENT) > 0).mean() < 0.1  # few false alarms: 0.8 % of the field at 20 px, 4.9 at 30
+    assert ((res.mask & Mask.INCONSISTENT) > 0).mean() < 0.1  # few false alarms: 0.8 % of the field at 20 px, 4.9 at 30
 
 
 def test_an_object_faster_than_the_reach_over_a_still_scene_leaves_the_scene_still(setup):
@@ -228,19 +222,19 @@ def test_a_motion_within_reach_is_estimated_once(setup, monkeypatch):
     desc, bundle, plan, scene = setup
     frames, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(12.0, -4.0)))
     calls = []
-    inner = moving.estimate_global_motion
+    inner = global_motion.estimate_with_options
 
     def counted(*args, **kwargs):
-        calls.append(kwargs.get("max_speed", MAX_SPEED_PX_PER_FRAME))
+        calls.append(args[3].max_speed)  # the options of each search
         return inner(*args, **kwargs)
 
-    monkeypatch.setattr(moving, "estimate_global_motion", counted)
-    est = moving.estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field)
+    monkeypatch.setattr(global_motion, "estimate_with_options", counted)
+    est = global_motion.estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field)
     np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.2)  # 36 px out: 0.10 off
     assert calls == [MAX_SPEED_PX_PER_FRAME]
     fast, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(20.0, 3.0)))
     calls.clear()
-    moving.estimate_global_motion(fast, bundle.dark_at(plan.exposure_s), bundle.flat_field)
+    global_motion.estimate_global_motion(fast, bundle.dark_at(plan.exposure_s), bundle.flat_field)
     assert calls == [MAX_SPEED_PX_PER_FRAME, None]  # the counter sees the second search
 
 

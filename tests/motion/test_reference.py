@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from moving_helpers import frames_of, moving_setup
 
+from specgpu.core.mask import Mask
 from specgpu.engine.linear_map import apply_linear
-from specgpu.pipeline.moving import MASK_INCONSISTENT
+from specgpu.motion.reference import check_reference_frames, estimate_reference_motion, interpolate_in_time
 from specgpu.pipeline.moving_decode import warped_sigma_rms
-from specgpu.pipeline.moving_layers import MASK_LAYER, recover_moving
-from specgpu.pipeline.reference_motion import check_reference_frames, estimate_reference_motion, interpolate_in_time
+from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.estimators import NoiseModel, with_estimator
 from specgpu.planning.reference_frames import pattern_indices, reference_indices, with_reference_frames
@@ -114,7 +114,7 @@ def test_the_moving_decoder_compensates_from_the_reference_frames(setup):
     e_comp = rmse(out["cube"], truth["reflectance"])
     assert e_moving > 2 * e_still and e_comp < 1.3 * e_still
     # the consistency check reads the pattern frames only: few false alarms where the motion is right
-    assert ((out["mask"] & MASK_INCONSISTENT) > 0).mean() < 0.02
+    assert ((out["mask"] & Mask.INCONSISTENT) > 0).mean() < 0.02
     # the field's edge is masked as far as the pattern frames (1..9 of 11) saw outside it, not the reference frames
     # (0 and 10 went further: the decoder does not read them)
     outside = (out["mask"] & 4) > 0
@@ -157,4 +157,4 @@ def test_an_object_over_the_scene_gets_its_own_layer_with_reference_frames(setup
     obj = truth["object_mask"] > 0.5
     # most of the object decoded with its own motion (less the ring the flags grow by about the pixels it cannot
     # decode), as without reference frames
-    assert ((res.mask & MASK_LAYER) > 0)[obj].mean() > 0.65
+    assert ((res.mask & Mask.LAYER) > 0)[obj].mean() > 0.65

@@ -1,7 +1,7 @@
 """The per-pixel residual check of a motion-compensated decoding: are a pixel's K compensated samples explained by one
 reflectance?
 
-The gradient-image check (:func:`specgpu.pipeline.moving.consistency`) compares each frame with the others over a
+The gradient-image check (:func:`specgpu.motion.consistency.consistency`) compares each frame with the others over a
 window; where no frame has structure of its own it cannot judge, and a wrong motion that samples flat surfaces of
 different colours there decodes a wrong spectrum. The linear model judges every pixel on its own: the plan's decoder
 A turns the samples s (K) into a reflectance y = A s, the calibration's forward matrix E predicts the frames that

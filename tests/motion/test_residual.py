@@ -10,11 +10,11 @@ import pytest
 from moving_helpers import CAM, frames_of, moving_setup
 
 from specgpu.calibration.bundle import oracle_calibration
+from specgpu.core.mask import Mask
 from specgpu.engine.warp_map import apply_linear_warped
+from specgpu.motion.residual import residual_check, residual_chi2
 from specgpu.pipeline.evaluate import evaluate_pixels
-from specgpu.pipeline.moving import MASK_INCONSISTENT
-from specgpu.pipeline.moving_layers import MASK_LAYER, MAX_REFUTED_SHARE, grow_flags, recover_moving, refuted
-from specgpu.pipeline.moving_residual import residual_check, residual_chi2
+from specgpu.pipeline.moving_layers import MAX_REFUTED_SHARE, grow_flags, recover_moving, refuted
 from specgpu.pipeline.recovery import default_basis
 from specgpu.planning.basis_plans import plan_symmetric_basis
 from specgpu.rig import RigDescription, natural_scene
@@ -125,32 +125,32 @@ def test_chi2_is_each_pixels_residual_weighed_by_its_own_covariance(setup):
 
 def test_flags_grow_one_pixel_into_what_was_seen():
     mask = np.zeros((20, 20), np.uint8)
-    mask[3, 3] = MASK_INCONSISTENT
-    mask[2, 2] = MASK_LAYER
+    mask[3, 3] = Mask.INCONSISTENT
+    mask[2, 2] = Mask.LAYER
     mask[:, 4] = 4  # outside the field: keeps its own reason
     grow_flags(mask)
     expected = np.zeros((20, 20), np.uint8)
-    expected[2:5, 2:4] = MASK_INCONSISTENT
+    expected[2:5, 2:4] = Mask.INCONSISTENT
     expected[:, 4] = 4
     np.testing.assert_array_equal(mask, expected)
     # an island the flags enclose goes with them; one as large as the check's window does not
     for side, flagged in ((8, True), (12, False)):  # the islands left once the flags grew their ring
-        mask = np.full((side + 4, side + 4), MASK_INCONSISTENT, np.uint8)
+        mask = np.full((side + 4, side + 4), Mask.INCONSISTENT, np.uint8)
         mask[2:-2, 2:-2] = 0
         grow_flags(mask)
-        assert np.all(mask[3:-3, 3:-3] == MASK_INCONSISTENT) == flagged
+        assert np.all(mask[3:-3, 3:-3] == Mask.INCONSISTENT) == flagged
 
 
 def test_a_motion_the_field_refutes_flags_every_pixel():
     mask = np.zeros((10, 10), np.uint8)
     mask[:, :2] = 4  # outside the field: not counted
-    mask[:5, 2:] = MASK_INCONSISTENT
-    mask[5:, 2:7] = MASK_INCONSISTENT | 16
-    assert (mask[:, 2:] & MASK_INCONSISTENT > 0).mean() > MAX_REFUTED_SHARE
+    mask[:5, 2:] = Mask.INCONSISTENT
+    mask[5:, 2:7] = Mask.INCONSISTENT | 16
+    assert (mask[:, 2:] & Mask.INCONSISTENT > 0).mean() > MAX_REFUTED_SHARE
     assert refuted(mask)
-    assert np.all(mask[:, 2:] == MASK_INCONSISTENT) and np.all(mask[:, :2] == 4)
+    assert np.all(mask[:, 2:] == Mask.INCONSISTENT) and np.all(mask[:, :2] == 4)
     kept = np.zeros((10, 10), np.uint8)
-    kept[:4] = MASK_INCONSISTENT
+    kept[:4] = Mask.INCONSISTENT
     assert not refuted(kept) and (kept > 0).sum() == 40
 
 

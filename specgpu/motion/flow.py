@@ -2,10 +2,11 @@
 differently (an object on its own, a rotation or a zoom a translation cannot follow, a non-rigid motion).
 
 The flow is a block-matching one, on the same spectrum-independent gradient images as the global estimate
-(:func:`specgpu.pipeline.moving.gradient_image`): between two frames lit by different spectra the brightness of a
+(:func:`specgpu.motion.images.gradient_image`): between two frames lit by different spectra the brightness of a
 surface changes, the place of its edges does not, so a brightness-constancy flow has nothing to hold on to.
 
-1. The global translation of each frame is estimated first (:func:`specgpu.pipeline.moving.estimate_global_motion`).
+1. The global translation of each frame is estimated first
+   (:func:`specgpu.motion.global_motion.estimate_global_motion`).
 2. The reference frame is cut into tiles of about :data:`TILE_PX` px; each tile is registered in every other frame by
    phase correlation around where the global motion and its own motion so far put it (the frames nearest the
    reference first, so that a tile moving on its own is followed however far it goes in the sequence).
@@ -36,8 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import fft, ndimage
 
-from specgpu.pipeline.moving import at_reference_time
-from specgpu.pipeline.registration import fit_peaks, whitened_stack
+from specgpu.motion.estimate import at_reference_time
+from specgpu.motion.registration import fit_peaks
+from specgpu.motion.whitening import whitened_stack
 
 __all__ = ["TILE_PX", "STEADY_PX", "MIN_PEAK_SHARE", "MIN_FRAMES", "MIN_TILES", "TileMotion", "tile_motion",
            "flow_field", "choose_flow"]

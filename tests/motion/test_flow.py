@@ -8,11 +8,14 @@ import pytest
 from moving_helpers import frames_of, moving_setup
 from scipy import ndimage
 
+from specgpu.core.mask import Mask
 from specgpu.engine import consistency as consistency_module
 from specgpu.engine.warp_map import apply_linear_warped
-from specgpu.pipeline.moving import MASK_INCONSISTENT, at_reference_time, estimate_global_motion, frame_gradients
+from specgpu.motion.estimate import at_reference_time
+from specgpu.motion.flow import TileMotion, choose_flow, flow_field, tile_motion
+from specgpu.motion.global_motion import estimate_global_motion
+from specgpu.motion.images import frame_gradients
 from specgpu.pipeline.moving_decode import check_motion_options
-from specgpu.pipeline.moving_flow import TileMotion, choose_flow, flow_field, tile_motion
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.planning.registry import make_plan
 from specgpu.rig.motion import MotionParameters
@@ -125,7 +128,7 @@ def test_the_field_is_the_global_shift_plus_velocity_times_time():
 
 
 def test_the_flow_is_chosen_where_it_is_consistent_and_the_global_decoding_is_not_clearly_better():
-    mask = np.array([[MASK_INCONSISTENT, 0, 0, 0, MASK_INCONSISTENT, 0]], np.uint8)
+    mask = np.array([[Mask.INCONSISTENT, 0, 0, 0, Mask.INCONSISTENT, 0]], np.uint8)
     textured_g = np.array([[True, True, False, True, True, True]])
     worst_g = np.array([[0.1, 0.9, 1.0, 0.6, 0.1, 0.5]], np.float32)
     textured_f = np.array([[True, True, True, True, True, False]])
@@ -133,19 +136,19 @@ def test_the_flow_is_chosen_where_it_is_consistent_and_the_global_decoding_is_no
     mask_f = np.zeros_like(mask)
     held = np.zeros(mask.shape, bool)
     use = choose_flow(mask, (textured_g, worst_g), mask_f, (textured_f, worst_f), held, threshold=0.3,
-                      inconsistent=MASK_INCONSISTENT)
+                      inconsistent=Mask.INCONSISTENT)
     # flagged globally, consistent under the flow: flow; global better correlated by more than the margin (0.2):
     # global; global untextured: flow; global better by less than the margin: flow; inconsistent under both:
     # neither; flow untextured and global textured: global
     assert use.tolist() == [[True, False, True, True, False, False]]
     held[0, 3] = True  # an object layer's pixel: taken by the flow only where its frames agree, textured
     use = choose_flow(mask, (textured_g, worst_g), mask_f, (textured_f, worst_f), held, threshold=0.3,
-                      inconsistent=MASK_INCONSISTENT)
+                      inconsistent=Mask.INCONSISTENT)
     assert use.tolist() == [[True, False, True, True, False, False]]
     textured_f[0, 3] = False  # no evidence under the flow: the layer keeps it
     mask_f[0, 2] = 4  # the flow saw this one outside the field
     use = choose_flow(mask, (textured_g, worst_g), mask_f, (textured_f, worst_f), held, threshold=0.3,
-                      inconsistent=MASK_INCONSISTENT)
+                      inconsistent=Mask.INCONSISTENT)
     assert use.tolist() == [[True, False, False, False, False, False]]
 
 
@@ -169,10 +172,10 @@ def test_a_rotation_is_followed_by_the_flow_where_a_translation_is_flagged(setup
     err = np.abs(est.shifts - true).max(axis=1)[:, decoded]
     err_global = np.abs(glob.estimates[0].shifts[:, :, None] - true[:, :, decoded]).max(axis=1)
     assert np.median(err) < 0.2 and np.percentile(err, 90) < 0.5 * np.percentile(err_global, 90)
-    flagged_g, flagged_f = (glob.mask & MASK_INCONSISTENT) > 0, (flow.mask & MASK_INCONSISTENT) > 0
+    flagged_g, flagged_f = (glob.mask & Mask.INCONSISTENT) > 0, (flow.mask & Mask.INCONSISTENT) > 0
     assert flagged_g.mean() > 0.01 and flagged_f.mean() < 0.5 * flagged_g.mean(), (flagged_g.mean(), flagged_f.mean())
     ow = np.isfinite(flow.y).all(axis=2) & np.isfinite(glob.y).all(axis=2)
-    np.testing.assert_array_equal(np.isnan(flow.y[..., 0]), (flow.mask & (1 | 4 | MASK_INCONSISTENT)) > 0)
+    np.testing.assert_array_equal(np.isnan(flow.y[..., 0]), (flow.mask & (1 | 4 | Mask.INCONSISTENT)) > 0)
     assert ow.mean() > 0.5
 
 

@@ -1,6 +1,6 @@
 """Fast phase correlation of gradient images: what the global motion estimate of a live stream can afford.
 
-The estimate of :mod:`specgpu.pipeline.moving` registers every pair of a sequence's frames (36 for K = 9) and a
+The estimate of :mod:`specgpu.motion.global_motion` registers every pair of a sequence's frames (36 for K = 9) and a
 few tiles of each frame. Three things make that cheap enough to keep up with a camera on a few CPU cores:
 
 * **Real FFTs in single precision.** The registration images are real, so each spectrum is a half spectrum
@@ -22,12 +22,14 @@ the scene) or where the scene repeats itself; only then is the slower check on t
 
 from __future__ import annotations
 
-import functools
 import threading
 
 import numpy as np
 from scipy import fft
 
+from specgpu.motion.whitening import frequency_weight, hann_window, whitened_half_spectrum, whitened_stack
+
+# the whitening (specgpu.motion.whitening) is named here too: registration takes its spectra
 __all__ = ["sobel_magnitude", "bin_image", "hann_window", "frequency_weight", "whitened_half_spectrum",
            "half_spectrum_energy", "correlation_surface", "fit_peak", "fit_peak_within", "fit_peaks", "peak_at",
            "peaks_at", "peak_error", "second_peak_ratio", "tile_displacements", "whitened_stack"]
@@ -80,32 +82,6 @@ def bin_image(image: np.ndarray, binning: int) -> np.ndarray:
         return f
     h, w = (f.shape[0] // binning) * binning, (f.shape[1] // binning) * binning
     return f[:h, :w].reshape(h // binning, binning, w // binning, binning).mean(axis=(1, 3), dtype=np.float32)
-
-
-@functools.lru_cache(maxsize=16)
-def hann_window(shape: tuple) -> np.ndarray:
-    """The 2-D Hann window of ``shape`` (float32; phase correlation assumes periodic images)."""
-    window = np.outer(np.hanning(shape[0]), np.hanning(shape[1])).astype(np.float32)
-    window.flags.writeable = False
-    return window
-
-
-@functools.lru_cache(maxsize=16)
-def frequency_weight(shape: tuple, cutoff: float) -> np.ndarray:
-    """Gaussian weight ``exp(-f^2 / (4 cutoff^2))`` of one half spectrum (``rfft2`` layout) of an image of
-    ``shape``, float32: the product of two such spectra is weighted ``exp(-f^2 / (2 cutoff^2))``, so the
-    correlation peak of a translation is a Gaussian of ``1 / (2 pi cutoff)`` px."""
-    fy = fft.fftfreq(shape[0])[:, None]
-    fx = fft.rfftfreq(shape[1])[None, :]
-    weight = np.exp(-0.25 * (fx**2 + fy**2) / cutoff**2).astype(np.float32)
-    weight.flags.writeable = False
-    return weight
-
-
-def whitened_half_spectrum(image: np.ndarray, cutoff: float) -> np.ndarray:
-    """Phase-only half spectrum of ``image`` under a Hann window, weighted by :func:`frequency_weight`
-    (complex64, ``rfft2`` layout)."""
-    return whitened_stack(np.asarray(image)[None], cutoff)[0]
 
 
 def half_spectrum_energy(F: np.ndarray, width: int) -> float:
@@ -262,14 +238,3 @@ def tile_displacements(g_ref: np.ndarray, g_k: np.ndarray, shift, cutoff: float,
     surfaces = fft.irfft2(moving * np.conj(ref[index]), s=(th, tw), axes=(-2, -1), workers=1)
     src = np.array([[x0 + (tw - 1) / 2.0, y0 + (th - 1) / 2.0] for y0, x0 in cells])
     return src, src + t + fit_peaks(surfaces)[0]
-
-
-def whitened_stack(stack: np.ndarray, cutoff: float) -> np.ndarray:
-    """:func:`whitened_half_spectrum` of each image of an (N, H, W) stack."""
-    stack = np.asarray(stack, np.float32)
-    F = fft.rfft2(stack * hann_window(stack.shape[1:]), axes=(-2, -1), workers=1)
-    magnitude = np.abs(F)
-    np.maximum(magnitude, 1e-30, out=magnitude)
-    np.divide(frequency_weight(stack.shape[1:], float(cutoff)), magnitude, out=magnitude)
-    F *= magnitude
-    return F

@@ -1,0 +1,32 @@
+"""Public names of :mod:`specgpu.motion`, loaded lazily by its ``__init__`` (and read by type checkers)."""
+
+from .consistency import CHECK_THRESHOLD, consistency, inconsistent_pixels
+from .estimate import MotionEstimate, at_reference_time
+from .flow import flow_field, tile_motion
+from .global_motion import estimate_global_motion
+from .images import frame_gradients, gradient_image
+from .methods import MOTION_METHODS, check_motion_mode, estimate_motion
+from .object_motion import estimate_layer_motion
+from .reference import estimate_reference_motion
+from .residual import ResidualCheck, residual_check, residual_chi2
+
+__all__ = [
+    "at_reference_time",
+    "CHECK_THRESHOLD",
+    "check_motion_mode",
+    "consistency",
+    "estimate_global_motion",
+    "estimate_layer_motion",
+    "estimate_motion",
+    "estimate_reference_motion",
+    "flow_field",
+    "frame_gradients",
+    "gradient_image",
+    "inconsistent_pixels",
+    "MOTION_METHODS",
+    "MotionEstimate",
+    "residual_check",
+    "residual_chi2",
+    "ResidualCheck",
+    "tile_motion",
+]
