@@ -316,9 +316,9 @@ def _warp_groups_case(shape):
     import pyopencl as cl
     from reference import linear_warp_ref
 
+    from specgpu.core.mask import Mask
     from specgpu.engine.kernels import to_device
     from specgpu.engine.runtime import get_queue
-    from specgpu.core.mask import Mask
     from specgpu.engine.warp_map import PreparedWarp, apply_linear_warped
 
     def run():
