@@ -24,7 +24,8 @@
 #endif
 #define NV (2 * C + 2) /* [p, g' p, g', g'^2] */
 #define NAB (2 * C)    /* [a, b] */
-/* PoCL calls min(), max() and fmax() out of line, and may leave a helper out of line: all written inline here */
+/* PoCL calls min(), max() and fmax() out of line, and may leave a helper out of line: all written inline here
+ * (the helpers' pointers are not restrict: inlined, those make scope declarations Oclgrind does not know) */
 #define INLINE inline __attribute__((always_inline))
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))
 #define IMAX(a, b) ((a) > (b) ? (a) : (b))
@@ -43,7 +44,7 @@ INLINE float guide_offset(__global const float *g)
 
 /* sum += sign * the products of BX pixels of row k from pixel x on (n <= BX of them): [p (C), g' p (C), g', g'^2]
  * each; past the image's edge the last pixel again (its sums are never written out). */
-INLINE void add_products(__global const float *restrict p, __global const float *restrict g, const int W,
+INLINE void add_products(__global const float *p, __global const float *g, const int W,
                          const int x, const int n, const int k, const float g0, const float sign, float *sum)
 {
     const size_t q = (size_t)k * W + x;
@@ -119,7 +120,7 @@ INLINE void coefficients(const float *sum, const float n, const float eps, float
 }
 
 /* The lead window moved on to column xl (sums of V over [xl - R, xl + R], clipped), and its models. */
-INLINE void lead_models(__global const float *restrict row, const int W, const int R, const int xl, const float ny,
+INLINE void lead_models(__global const float *row, const int W, const int R, const int xl, const float ny,
                         const float eps, float *sum, float *ab)
 {
     if (xl + R < W) {
@@ -209,7 +210,7 @@ __kernel void gf_rows(__global const float *restrict V, __global float *restrict
 
 /* acc += sign * the sums of a and b of BX pixels of row k from pixel x on (n <= BX of them; past the image's
  * edge, values of its last pixel, never written out). */
-INLINE void add_models(__global const float *restrict S, const int W, const int x, const int n, const int k,
+INLINE void add_models(__global const float *S, const int W, const int x, const int n, const int k,
                        const float sign, float *acc)
 {
     __global const float *s = S + ((size_t)k * W + x) * NAB;
