@@ -104,61 +104,114 @@ __kernel void gf_columns_in(__global const float *restrict p, __global const flo
     }
 }
 
-/* The window's linear models [a (C), b (C)] from its sums of the products over n pixels. */
-INLINE void coefficients(const float *sum, const float n, const float eps, float *ab)
+/* gf_rows works on RY rows at once, one vector lane each (RY = 4 on CPUs: its arithmetic in float4; 1 on GPUs). */
+#ifndef RY
+#define RY 1
+#endif
+#if RY == 4
+typedef float4 floatr;
+typedef int4 intr;
+#define AS_INTR as_int4
+#define ANYR(v) ((v).x | (v).y | (v).z | (v).w)
+#define GATHER(rows, i) ((floatr)((rows)[0][i], (rows)[1][i], (rows)[2][i], (rows)[3][i]))
+#define SCATTER(rows, i, v, n)                                                                                         \
+    do {                                                                                                               \
+        (rows)[0][i] = (v).x;                                                                                          \
+        if ((n) > 1)                                                                                                   \
+            (rows)[1][i] = (v).y;                                                                                      \
+        if ((n) > 2)                                                                                                   \
+            (rows)[2][i] = (v).z;                                                                                      \
+        if ((n) > 3)                                                                                                   \
+            (rows)[3][i] = (v).w;                                                                                      \
+    } while (0)
+#elif RY == 1
+typedef float floatr;
+typedef int intr;
+#define AS_INTR as_int
+#define ANYR(v) (v)
+#define GATHER(rows, i) ((rows)[0][i])
+#define SCATTER(rows, i, v, n) ((rows)[0][i] = (v))
+#else
+#error "RY must be 1 or 4"
+#endif
+
+/* Whether all n sums of RY rows are finite (see all_finite). */
+INLINE bool all_finite_r(const floatr *sum, const int n)
 {
-    const float rn = 1.0f / n;
-    const float mg = sum[2 * C] * rn;
-    const float vg = FPOS(sum[2 * C + 1] * rn - mg * mg);
-    const float inv = 1.0f / (vg + eps); /* the guide's statistics, once for every channel */
+    intr bad = 0;
+    for (int c = 0; c < n; ++c)
+        bad |= (AS_INTR(sum[c]) & 0x7f800000) == 0x7f800000;
+    return !ANYR(bad);
+}
+
+/* The window's linear models [a (C), b (C)] from its sums of the products over n pixels (per row lane). */
+INLINE void coefficients(const floatr *sum, const floatr n, const float eps, floatr *ab)
+{
+    const floatr rn = 1.0f / n;
+    const floatr mg = sum[2 * C] * rn;
+    const floatr vg0 = sum[2 * C + 1] * rn - mg * mg;
+    const floatr vg = vg0 > (floatr)0.0f ? vg0 : (floatr)0.0f; /* fmax(vg0, 0), NaN giving 0 as fmax */
+    const floatr inv = 1.0f / (vg + eps); /* the guide's statistics, once for every channel */
     for (int c = 0; c < C; ++c) {
-        const float mp = sum[c] * rn;
-        const float a = (sum[C + c] * rn - mg * mp) * inv;
+        const floatr mp = sum[c] * rn;
+        const floatr a = (sum[C + c] * rn - mg * mp) * inv;
         ab[c] = a;
         ab[C + c] = mp - a * mg;
     }
 }
 
 /* The lead window moved on to column xl (sums of V over [xl - R, xl + R], clipped), and its models. */
-INLINE void lead_models(__global const float *row, const int W, const int R, const int xl, const float ny,
-                        const float eps, float *sum, float *ab)
+INLINE void lead_models(__global const float **rows, const int W, const int R, const int xl, const floatr ny,
+                        const float eps, floatr *sum, floatr *ab)
 {
     if (xl + R < W) {
-        __global const float *in = row + (size_t)(xl + R) * NV;
+        const size_t in = (size_t)(xl + R) * NV;
         for (int c = 0; c < NV; ++c)
-            sum[c] += in[c];
+            sum[c] += GATHER(rows, in + c);
     }
     if (xl - R - 1 >= 0) {
-        __global const float *out = row + (size_t)(xl - R - 1) * NV;
+        const size_t out = (size_t)(xl - R - 1) * NV;
         for (int c = 0; c < NV; ++c)
-            sum[c] -= out[c];
+            sum[c] -= GATHER(rows, out + c);
     }
-    if (!all_finite(sum, NV)) { /* a non-finite value entered, or left: the window summed afresh */
+    if (!all_finite_r(sum, NV)) { /* a non-finite value entered, or left: the window summed afresh */
         for (int c = 0; c < NV; ++c)
             sum[c] = 0.0f;
         for (int k = IMAX(xl - R, 0); k <= IMIN(xl + R, W - 1); ++k)
             for (int c = 0; c < NV; ++c)
-                sum[c] += row[(size_t)k * NV + c];
+                sum[c] += GATHER(rows, (size_t)k * NV + c);
     }
     const float nx = (float)(IMIN(xl + R, W - 1) - IMAX(xl - R, 0) + 1);
     coefficients(sum, nx * ny, eps, ab);
 }
 
-/* Row sums over columns [x - R, x + R] (clipped) of the models a, b of the windows centred there; the range is
- * (H, NSX strips of SX columns); each work-item keeps the models it made in its own ring of L = IMIN(2R + 1, W)
- * slots. */
-__kernel void gf_rows(__global const float *restrict V, __global float *restrict ring_all, __global float *restrict S,
+/* Row sums over columns [x - R, x + R] (clipped) of the models a, b of the windows centred there, RY rows per
+ * work-item; the range is (ceil(H / RY), NSX strips of SX columns); each work-item keeps the models it made in its
+ * own ring of L = min(2R + 1, W) slots. */
+__kernel void gf_rows(__global const float *restrict V, __global floatr *restrict ring_all, __global float *restrict S,
                       const int H, const int W, const int R, const int SX, const int NSX, const int L,
                       const float eps)
 {
-    const int y = get_global_id(0), strip = get_global_id(1), x0 = strip * SX;
+    const int y = get_global_id(0) * RY, strip = get_global_id(1), x0 = strip * SX;
     if (y >= H || x0 >= W)
         return;
-    const int x1 = IMIN(x0 + SX, W);
-    const float ny = (float)(IMIN(y + R, H - 1) - IMAX(y - R, 0) + 1);
-    __global const float *row = V + (size_t)y * W * NV;
-    __global float *ring = ring_all + ((size_t)y * NSX + strip) * (size_t)L * NAB;
-    float sum[NV], acc[NAB], ab[NAB];
+    const int x1 = IMIN(x0 + SX, W), n = IMIN(RY, H - y);
+    __global const float *rows[RY]; /* past the image's last row, that row again (its sums never written out) */
+    __global float *outs[RY];
+    float nys[RY];
+    for (int i = 0; i < RY; ++i) {
+        const int yi = IMIN(y + i, H - 1);
+        rows[i] = V + (size_t)yi * W * NV;
+        outs[i] = S + (size_t)yi * W * NAB;
+        nys[i] = (float)(IMIN(yi + R, H - 1) - IMAX(yi - R, 0) + 1);
+    }
+#if RY == 4
+    const floatr ny = (floatr)(nys[0], nys[1], nys[2], nys[3]);
+#else
+    const floatr ny = nys[0];
+#endif
+    __global floatr *ring = ring_all + ((size_t)get_global_id(0) * NSX + strip) * (size_t)L * NAB;
+    floatr sum[NV], acc[NAB], ab[NAB];
     for (int c = 0; c < NV; ++c)
         sum[c] = 0.0f;
     for (int c = 0; c < NAB; ++c)
@@ -167,11 +220,11 @@ __kernel void gf_rows(__global const float *restrict V, __global float *restrict
     const int xs = IMAX(x0 - R - 1, 0);
     for (int k = IMAX(xs - R - 1, 0); k <= IMIN(xs + R - 1, W - 1); ++k)
         for (int c = 0; c < NV; ++c)
-            sum[c] += row[(size_t)k * NV + c];
-    int slot_in = 0; /* the ring slot of the next model made, xl % L */
+            sum[c] += GATHER(rows, (size_t)k * NV + c);
+    int slot_in = 0; /* the ring slot of the next model made, (xl - xs) % L */
     for (int xl = xs; xl <= IMIN(x0 + R - 1, W - 1); ++xl) {
-        lead_models(row, W, R, xl, ny, eps, sum, ab);
-        __global float *slot = ring + (size_t)slot_in * NAB;
+        lead_models(rows, W, R, xl, ny, eps, sum, ab);
+        __global floatr *slot = ring + (size_t)slot_in * NAB;
         for (int c = 0; c < NAB; ++c) {
             slot[c] = ab[c];
             acc[c] += ab[c];
@@ -181,30 +234,30 @@ __kernel void gf_rows(__global const float *restrict V, __global float *restrict
     int slot_out = 0; /* the ring slot of the model leaving next: the first made, xs, leaves first */
     for (int xo = x0; xo < x1; ++xo) {
         if (xo - R - 1 >= 0) { /* the model leaving, read before its slot is reused */
-            __global const float *old = ring + (size_t)slot_out * NAB;
+            __global const floatr *old = ring + (size_t)slot_out * NAB;
             for (int c = 0; c < NAB; ++c)
                 acc[c] -= old[c];
             slot_out = slot_out + 1 == L ? 0 : slot_out + 1;
         }
         if (xo + R < W) { /* the model entering */
-            lead_models(row, W, R, xo + R, ny, eps, sum, ab);
-            __global float *slot = ring + (size_t)slot_in * NAB;
+            lead_models(rows, W, R, xo + R, ny, eps, sum, ab);
+            __global floatr *slot = ring + (size_t)slot_in * NAB;
             for (int c = 0; c < NAB; ++c) {
                 slot[c] = ab[c];
                 acc[c] += ab[c];
             }
             slot_in = slot_in + 1 == L ? 0 : slot_in + 1;
         }
-        if (!all_finite(acc, NAB)) { /* the models of the window, summed afresh from the ring */
+        if (!all_finite_r(acc, NAB)) { /* the models of the window, summed afresh from the ring */
             for (int c = 0; c < NAB; ++c)
                 acc[c] = 0.0f;
             for (int k = IMAX(xo - R, 0); k <= IMIN(xo + R, W - 1); ++k)
                 for (int c = 0; c < NAB; ++c)
                     acc[c] += ring[(size_t)((k - xs) % L) * NAB + c];
         }
-        __global float *o = S + ((size_t)y * W + xo) * NAB;
+        const size_t o = (size_t)xo * NAB;
         for (int c = 0; c < NAB; ++c)
-            o[c] = acc[c];
+            SCATTER(outs, o + c, acc[c], n);
     }
 }
 

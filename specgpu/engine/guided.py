@@ -32,6 +32,8 @@ _MIN_STRIP = 64  # rows (columns) one work-item walks at least: its first window
 #: pixels of a row each work-item of the column passes sums, by kernel variant: on a CPU one vector loop over
 #: their channels (contiguous), on a GPU one pixel per work-item (neighbours read neighbouring floats)
 _BX = {"cpu": 16, "gpu": 1}
+#: rows each work-item of the row pass filters at once, one vector lane each (its arithmetic in float4 on a CPU)
+_RY = {"cpu": 4, "gpu": 1}
 _CACHE_SIZE = 8  # shapes whose intermediates are kept
 
 
@@ -39,14 +41,15 @@ class _Intermediates:
     """The device buffers of one (queue, shape, channels, radius, strip) and the event of the last pass that used
     them; ``lock`` makes a call's three passes one unit, so two threads on one queue never interleave theirs."""
 
-    def __init__(self, queue, H: int, W: int, C: int, sy: int, sx: int, L: int):
+    def __init__(self, queue, H: int, W: int, C: int, sy: int, sx: int, L: int, ry: int):
         self.sy, self.sx, self.L = sy, sx, L
         self.strips_y, self.strips_x = -(-H // sy), -(-W // sx)
         f = np.dtype(np.float32).itemsize
         mf = cl.mem_flags.READ_WRITE
         self.V = cl.Buffer(queue.context, mf, H * W * (2 * C + 2) * f)
         self.S = cl.Buffer(queue.context, mf, H * W * 2 * C * f)
-        self.ring = cl.Buffer(queue.context, mf, H * self.strips_x * L * 2 * C * f)
+        self.row_groups = -(-H // ry)
+        self.ring = cl.Buffer(queue.context, mf, self.row_groups * ry * self.strips_x * L * 2 * C * f)
         self.last: cl.Event | None = None
         self.lock = threading.Lock()
 
@@ -55,17 +58,17 @@ _cache: OrderedDict[tuple, _Intermediates] = OrderedDict()
 _cache_lock = threading.Lock()
 
 
-def _intermediates(queue, H: int, W: int, C: int, r: int, strip: int | None) -> _Intermediates:
+def _intermediates(queue, H: int, W: int, C: int, r: int, strip: int | None, ry: int) -> _Intermediates:
     """The intermediates for this call's shape, made once and kept (the least recently used dropped beyond
     :data:`_CACHE_SIZE`; a dropped buffer is freed by OpenCL once the passes queued on it have run)."""
     sy = sx = int(strip) if strip is not None else max(_MIN_STRIP, 4 * r)
-    key = (queue, H, W, C, r, sy)
+    key = (queue, H, W, C, r, sy, ry)
     with _cache_lock:
         entry = _cache.get(key)
         if entry is not None:
             _cache.move_to_end(key)
             return entry
-    entry = _Intermediates(queue, H, W, C, min(sy, H), min(sx, W), min(2 * r + 1, W))
+    entry = _Intermediates(queue, H, W, C, min(sy, H), min(sx, W), min(2 * r + 1, W), ry)
     with _cache_lock:
         entry = _cache.setdefault(key, entry)
         while len(_cache) > _CACHE_SIZE:
@@ -142,17 +145,18 @@ def guided_filter_device(queue, image: cla.Array, guide: cla.Array, radius: int,
         _check_device_array(out, "out", shape, queue)
         if out.base_data == guide.base_data:
             raise ValueError("out must not be the guide (the last pass reads it while writing out)")
-    it = _intermediates(queue, H, W, C, r, strip)
-    bx = _BX[kernel_variant(queue.device)]
-    kernels = [get_kernel(queue, "guided.cl", name, C=C, BX=bx) for name in ("gf_columns_in", "gf_rows",
-                                                                             "gf_columns_out")]
+    variant = kernel_variant(queue.device)
+    bx, ry = _BX[variant], _RY[variant]
+    it = _intermediates(queue, H, W, C, r, strip, ry)
+    kernels = [get_kernel(queue, "guided.cl", name, C=C, BX=bx, RY=ry) for name in ("gf_columns_in", "gf_rows",
+                                                                                   "gf_columns_out")]
     columns = (-(-W // bx), it.strips_y)
     dims = (np.int32(H), np.int32(W), np.int32(r))
     with it.lock:
         # the previous call's last pass reads S: this call's passes may overwrite V and S only after it
         ev = _enqueue(queue, kernels[0], columns, (image.data, guide.data, it.V, *dims, np.int32(it.sy)),
                       [it.last] if it.last is not None else None)
-        ev = _enqueue(queue, kernels[1], (H, it.strips_x),
+        ev = _enqueue(queue, kernels[1], (it.row_groups, it.strips_x),
                       (it.V, it.ring, it.S, *dims, np.int32(it.sx), np.int32(it.strips_x), np.int32(it.L),
                        np.float32(e)), [ev])
         it.last = _enqueue(queue, kernels[2], columns, (it.S, guide.data, out.data, *dims, np.int32(it.sy)),

@@ -140,8 +140,10 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     check = [p for p in programs if "-DWINDOW=" in p]
     gradient = [p for p in programs if "-DGROWS=" in p]
     linear = [p for p in programs if "-DB=" in p and p not in warp]
-    guided = [p for p in programs if "-DBX=" in p]  # the guided filter: a pixel per work-item on GPUs, 16 on CPUs
-    assert guided and all(f"-DBX={1 if variant == 'gpu' else 16} " in p + " " for p in guided)
+    # the guided filter: a pixel and a row per work-item on GPUs; 16 pixels (column passes), 4 rows (row pass) on CPUs
+    guided = [p for p in programs if "-DBX=" in p]
+    bx, ry = (1, 1) if variant == "gpu" else (16, 4)
+    assert guided and all(f"-DBX={bx} " in p + " " and f"-DRY={ry} " in p + " " for p in guided)
     if variant == "gpu":
         assert all("-DVW=1" in p for p in programs if p not in warp + check + gradient + guided)
         assert any("-DTILE=1" in p for p in linear) and any("-DTILE=0" in p for p in linear)
