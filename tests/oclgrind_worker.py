@@ -481,6 +481,35 @@ def _consistency_frames_case():
     return run
 
 
+def _guided_case(shape, r, strip, nonfinite):
+    """engine.guided's three passes against the reference's float64 guided filter (windows clipped to the image),
+    strips short enough that work-items start inside the image; a NaN in the image and an inf in the guide, whose
+    windows come out NaN and leave the others as the reference of the clean inputs."""
+    import pyopencl.array as cla
+    from reference import guided_filter_numpy
+
+    from specgpu.engine.guided import guided_filter_device
+    from specgpu.engine.runtime import get_queue
+
+    def run():
+        rng = np.random.default_rng(sum(shape) + r)
+        H, W, C = shape
+        g = rng.uniform(0.2, 1.0, (H, W)).astype(np.float32)
+        p = (g[..., None] * rng.uniform(0.2, 1.0, C) + rng.normal(0, 0.05, shape)).astype(np.float32)
+        want = guided_filter_numpy(p, g, r, 1e-3)
+        if nonfinite:
+            p[2, 3, 0], g[H - 2, W - 1] = np.nan, np.inf
+            for (y, x), channels in (((2, 3), 0), ((H - 2, W - 1), slice(None))):
+                want[max(y - 2 * r, 0):y + 2 * r + 1, max(x - 2 * r, 0):x + 2 * r + 1, channels] = np.nan
+        queue = get_queue("oclgrind")
+        got = guided_filter_device(queue, cla.to_device(queue, p), cla.to_device(queue, g), r, 1e-3, strip=strip)
+        errors, tolerances = {}, {}
+        _compare(errors, tolerances, "q", got.get(), want, "range", 1e-4)
+        return errors, tolerances
+
+    return run
+
+
 def cases() -> dict:
     """Every kernel entry and build variant the host launches, on small images (name -> callable returning
     (errors, tolerances)). The kernel variant (cpu / gpu) comes from SPECGPU_VARIANT."""
@@ -519,6 +548,8 @@ def cases() -> dict:
         "consistency_from_frames": _consistency_frames_case(),
         "gradients_u16_dark_dead_pixel": _gradient_case(np.uint16, "single"),
         "gradients_f32_dark_per_frame": _gradient_case(np.float32, "per frame"),
+        "guided_c9_strips_nonfinite": _guided_case((9, 11, 9), 2, 4, True),
+        "guided_c1_radius_past_the_image": _guided_case((7, 6, 1), 5, None, False),
     }
 
 

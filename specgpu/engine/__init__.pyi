@@ -1,7 +1,7 @@
 """Public names of :mod:`specgpu.engine`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
 from .colorimetry import DELTA_E_METHODS, FusedResult, XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
-from .guided import guided_filter
+from .guided import guided_filter, guided_filter_device
 from .kernels import (
     launch_delta_E,
     launch_frames_to_delta_E,
@@ -28,6 +28,7 @@ __all__ = [
     "FusedResult",
     "get_queue",
     "guided_filter",
+    "guided_filter_device",
     "launch_delta_E",
     "launch_frames_to_delta_E",
     "launch_linear",

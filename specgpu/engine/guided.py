@@ -13,37 +13,155 @@ pixel, or a dead one) spreads to the outputs whose windows hold it: (4 radius + 
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
+
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 from numpy.typing import ArrayLike
 
 from specgpu.core.validate import check_number
-from specgpu.engine.kernels import _empty, launch_range, to_device
-from specgpu.engine.runtime import get_kernel, get_queue
+from specgpu.engine.kernels import _launch_lock, to_device
+from specgpu.engine.runtime import get_allocator, get_kernel, get_queue, kernel_variant
 
-__all__ = ["guided_filter", "box_box_variance", "flat_variance_reduction"]
+__all__ = ["guided_filter", "guided_filter_device", "box_box_variance", "flat_variance_reduction"]
 
-_GROUP = 128  # work-items per group
-
-
-def _run(queue, name, shape, *args):
-    """Enqueue ``name`` over the range ``shape`` (channels first): work-groups of every channel of up to
-    ``_GROUP // channels`` pixels along the second axis (a few hundred thousand groups of one pixel each cost
-    more to schedule than their work on PoCL), the range padded to a multiple."""
-    kernel = get_kernel(queue, "guided.cl", name)
-    c = min(_GROUP, shape[0])
-    local = (c, max(1, _GROUP // c)) + (1,) * (len(shape) - 2)
-    return launch_range(queue, kernel, shape, local, *args)
+_GROUP = 64  # work-items per group along the first axis (columns or rows); the range is padded to a multiple
+_MIN_STRIP = 64  # rows (columns) one work-item walks at least: its first window costs 2 radius reads
+#: pixels of a row each work-item of the column passes sums, by kernel variant: on a CPU one vector loop over
+#: their channels (contiguous), on a GPU one pixel per work-item (neighbours read neighbouring floats)
+_BX = {"cpu": 16, "gpu": 1}
+#: rows each work-item of the row pass filters at once, one vector lane each (its arithmetic in float4 on a CPU)
+_RY = {"cpu": 4, "gpu": 1}
+_CACHE_SIZE = 8  # shapes whose intermediates are kept
 
 
-def _box(queue, src, H, W, C, r, keep):
-    """Box means along x then y; the intermediate image is appended to ``keep`` (see :func:`guided_filter`)."""
-    tmp = _empty(queue, H * W * C, np.float32)
-    out = _empty(queue, H * W * C, np.float32)
-    args = (np.int32(H), np.int32(W), np.int32(C), np.int32(r))
-    _run(queue, "box_h", (C, W, H), src.data, tmp.data, *args)
-    _run(queue, "box_v", (C, W, H), tmp.data, out.data, *args)
-    keep.append(tmp)
+class _Intermediates:
+    """The device buffers of one (queue, shape, channels, radius, strip) and the event of the last pass that used
+    them; ``lock`` makes a call's three passes one unit, so two threads on one queue never interleave theirs."""
+
+    def __init__(self, queue, H: int, W: int, C: int, sy: int, sx: int, L: int, ry: int):
+        self.sy, self.sx, self.L = sy, sx, L
+        self.strips_y, self.strips_x = -(-H // sy), -(-W // sx)
+        f = np.dtype(np.float32).itemsize
+        mf = cl.mem_flags.READ_WRITE
+        self.V = cl.Buffer(queue.context, mf, H * W * (2 * C + 2) * f)
+        self.S = cl.Buffer(queue.context, mf, H * W * 2 * C * f)
+        self.row_groups = -(-H // ry)
+        self.ring = cl.Buffer(queue.context, mf, self.row_groups * ry * self.strips_x * L * 2 * C * f)
+        self.last: cl.Event | None = None
+        self.lock = threading.Lock()
+
+
+_cache: OrderedDict[tuple, _Intermediates] = OrderedDict()
+_cache_lock = threading.Lock()
+
+
+def _intermediates(queue, H: int, W: int, C: int, r: int, strip: int | None, ry: int) -> _Intermediates:
+    """The intermediates for this call's shape, made once and kept (the least recently used dropped beyond
+    :data:`_CACHE_SIZE`; a dropped buffer is freed by OpenCL once the passes queued on it have run)."""
+    sy = sx = int(strip) if strip is not None else max(_MIN_STRIP, 4 * r)
+    key = (queue, H, W, C, r, sy, ry)
+    with _cache_lock:
+        entry = _cache.get(key)
+        if entry is not None:
+            _cache.move_to_end(key)
+            return entry
+    entry = _Intermediates(queue, H, W, C, min(sy, H), min(sx, W), min(2 * r + 1, W), ry)
+    with _cache_lock:
+        entry = _cache.setdefault(key, entry)
+        while len(_cache) > _CACHE_SIZE:
+            _cache.popitem(last=False)
+    return entry
+
+
+def _enqueue(queue, kernel, shape: tuple, args: tuple, wait_for) -> cl.Event:
+    """``kernel`` over ``shape`` (work-groups of :data:`_GROUP` along the first axis, the range padded), after
+    ``wait_for``; arguments set and enqueued under the engine's launch lock."""
+    glob = (-(-shape[0] // _GROUP) * _GROUP, shape[1])
+    with _launch_lock:
+        kernel.set_args(*args)
+        return cl.enqueue_nd_range_kernel(queue, kernel, glob, (_GROUP, 1), wait_for=wait_for)
+
+
+def _check_device_array(a, name: str, shape: tuple, queue) -> None:
+    if not isinstance(a, cla.Array):
+        raise TypeError(f"{name} must be a pyopencl array, got {type(a).__name__}")
+    if tuple(a.shape) != shape or a.dtype != np.float32:
+        raise ValueError(f"{name} must be float32 of shape {shape}, got {a.dtype} of shape {tuple(a.shape)}")
+    if a.context != queue.context:
+        raise ValueError(f"{name} lives in another OpenCL context than the queue's")
+    if a.offset or not a.flags.c_contiguous:
+        raise ValueError(f"{name} must be a whole contiguous buffer (no offset view)")
+
+
+def guided_filter_device(queue, image: cla.Array, guide: cla.Array, radius: int, eps: float,
+                         out: cla.Array | None = None, *, strip: int | None = None) -> cla.Array:
+    """The guided filter of device arrays, enqueued on ``queue`` and returned without waiting (no host transfer).
+
+    Three passes of running sums (O(1) per pixel for any radius) over intermediates kept on the device and
+    reused by the next call of the same shape; the guide's mean and variance are made once per window and
+    shared by every channel. The filter is that of :func:`guided_filter` (see the module notes).
+
+    Parameters
+    ----------
+    queue : pyopencl.CommandQueue
+        Where the passes run; the arrays must live in its context.
+    image : pyopencl.array.Array
+        (H, W, C) float32, a whole contiguous buffer.
+    guide : pyopencl.array.Array
+        (H, W) float32, on the scale that ``eps`` is given in.
+    radius : int
+        Window radius r (windows of (2r + 1)^2 pixels, clipped to the image), >= 1.
+    eps : float
+        Regularisation in the guide's units squared, > 0.
+    out : pyopencl.array.Array, optional
+        (H, W, C) float32 to write into; it may be ``image`` itself (read only by the first pass), never the
+        guide. Default: a new array from the context's memory pool.
+    strip : int, optional
+        Rows (columns) each work-item walks; default ``max(64, 4 r)``. Fewer make more work-items for more
+        first windows (each 2r reads).
+
+    Returns
+    -------
+    pyopencl.array.Array
+        ``out``: (H, W, C) float32, ready once the queue has run the passes (an in-order queue orders later
+        work after them). ``image`` and ``guide`` must stay unchanged until then.
+    """
+    r = int(check_number("radius", radius, integer=True, low=1, high=1024))
+    e = float(check_number("eps", eps, low=0, low_open=True))
+    if strip is not None:
+        strip = int(check_number("strip", strip, integer=True, low=1))
+    shape = tuple(image.shape)
+    if len(shape) != 3 or 0 in shape:
+        raise ValueError(f"image must be (H, W, C) with no empty axis, got shape {shape}")
+    H, W, C = shape
+    _check_device_array(image, "image", shape, queue)
+    _check_device_array(guide, "guide", (H, W), queue)
+    if out is None:
+        out = cla.empty(queue, shape, np.float32, allocator=get_allocator(queue))
+    else:
+        _check_device_array(out, "out", shape, queue)
+        if out.base_data == guide.base_data:
+            raise ValueError("out must not be the guide (the last pass reads it while writing out)")
+    variant = kernel_variant(queue.device)
+    bx, ry = _BX[variant], _RY[variant]
+    it = _intermediates(queue, H, W, C, r, strip, ry)
+    kernels = [get_kernel(queue, "guided.cl", name, C=C, BX=bx, RY=ry) for name in ("gf_columns_in", "gf_rows",
+                                                                                   "gf_columns_out")]
+    columns = (-(-W // bx), it.strips_y)
+    dims = (np.int32(H), np.int32(W), np.int32(r))
+    with it.lock:
+        # the previous call's last pass reads S: this call's passes may overwrite V and S only after it
+        ev = _enqueue(queue, kernels[0], columns, (image.data, guide.data, it.V, *dims, np.int32(it.sy)),
+                      [it.last] if it.last is not None else None)
+        ev = _enqueue(queue, kernels[1], (it.row_groups, it.strips_x),
+                      (it.V, it.ring, it.S, *dims, np.int32(it.sx), np.int32(it.strips_x), np.int32(it.L),
+                       np.float32(e)), [ev])
+        it.last = _enqueue(queue, kernels[2], columns, (it.S, guide.data, out.data, *dims, np.int32(it.sy)),
+                           [ev])
+        out.add_event(it.last)
     return out
 
 
@@ -68,6 +186,10 @@ def guided_filter(image: ArrayLike, guide: ArrayLike, *, radius: int, eps: float
     -------
     numpy.ndarray or pyopencl.array.Array
         (H, W, B) float32.
+
+    See Also
+    --------
+    guided_filter_device : the same on device arrays, without waiting.
     """
     r = int(check_number("radius", radius, integer=True, low=1, high=1024))
     e = float(check_number("eps", eps, low=0, low_open=True))
@@ -81,25 +203,12 @@ def guided_filter(image: ArrayLike, guide: ArrayLike, *, radius: int, eps: float
     queue = get_queue(device, like=(image, guide))
     p = to_device(queue, image if on_device else np.asarray(image, np.float32), np.float32)
     g = to_device(queue, guide if isinstance(guide, cla.Array) else np.asarray(guide, np.float32), np.float32)
-    n = H * W
-    C = 2 * B + 2
-    # Every intermediate stays referenced until the last kernel has run: the memory pool is the context's, shared
-    # by every queue and thread on it, and a buffer back in it while a queued kernel still uses it could be
-    # handed to another queue's work and overwritten.
-    keep = [p, g]
-    x = _empty(queue, n * C, np.float32)
-    _run(queue, "gf_products", (B, n), p.data, g.data, x.data, np.int32(B), np.uint64(n))
-    m = _box(queue, x, H, W, C, r, keep)
-    ab = _empty(queue, n * 2 * B, np.float32)
-    _run(queue, "gf_coeffs", (B, n), m.data, ab.data, np.int32(B), np.float32(e), np.uint64(n))
-    mab = _box(queue, ab, H, W, 2 * B, r, keep)
-    out = _empty(queue, n * B, np.float32)
-    done = _run(queue, "gf_apply", (B, n), mab.data, g.data, out.data, np.int32(B), np.uint64(n))
-    keep += [x, m, ab, mab]
-    out = out.reshape(H, W, B)
+    out = guided_filter_device(queue, p, g, r, e)
     if not on_device:
         return out.get()
-    done.wait()
+    # the inputs converted here go back to the memory pool, shared by every queue on the context, when this
+    # returns: they must not be handed to other work while a pass still reads them
+    out.finish()
     return out
 
 

@@ -89,10 +89,15 @@ def test_run_bench_writes_every_case(tmp_path):
         else:
             assert c["GBps"] is None and c["fraction_of_copy"] is None
     assert set(report["targets"]) == {"fused_speedup_vs_colour_science", "cube_fraction_of_copy_bandwidth",
-                                      "float16_faster_than_float32"}
+                                      "float16_faster_than_float32", "guided_speedup_vs_numpy"}
     text = printed[0]
     assert report["device"] in text and "copy bandwidth" in text and "MISMATCH" not in text
-    assert text.count("PASS") + text.count("MISS") == 5  # 1 fused + 2 cube layouts + 2 float16 layouts
+    assert text.count("PASS") + text.count("MISS") == 6  # 1 fused + 2 cube layouts + 2 float16 layouts + 1 guided
+    # the guided filter's line: the device and the NumPy / SciPy filter of the same run, and their ratio
+    guided = next(c for c in report["cases"] if c["case"] == "guided_filter")
+    line = next(s for s in text.splitlines() if "guided_filter 64x48x9:" in s)
+    assert f"device {guided['device_ms']:.2f} ms, NumPy/SciPy {guided['baseline_ms']:.2f} ms" in line
+    assert f"{guided['speedup']:.1f}x (median of 2 rounds" in line
     # a timing means little without its conditions: the date and the machine's load ride with the figures
     assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", report["date_utc"])
     load = report["load_avg_1min"]

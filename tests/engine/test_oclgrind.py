@@ -120,13 +120,15 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     frames with NaN and inf, a dead pixel) on 21 x 35 and 5 x 270 pixels; the check with a 9-pixel window on
     21 x 35 pixels, with a sample that misleads its bracket (the strips run twice), and from raw frames (the
     gradient images made on the device, the samples scaled); the gradient images alone with a dead pixel and a dark
-    frame per frame: no Oclgrind report, and every output within its tolerance."""
+    frame per frame; the guided filter's three passes, nine channels in short strips with a NaN in the image and an
+    inf in the guide, and one channel with windows wider than the image: no Oclgrind report, and every output
+    within its tolerance."""
     proc, reports = run_worker(oclgrind_env, "cases", variant)
     assert proc.returncode == 0, f"the worker ended with {proc.returncode}:\n{proc.stderr[-4000:]}"
     cases, programs = results(proc)
     failures = case_failures(proc, cases, reports)
     assert not failures, "\n".join(failures)
-    assert len(cases) == 31, sorted(cases)
+    assert len(cases) == 33, sorted(cases)
 
     # the variant's own code paths were built (the variant comes from SPECGPU_VARIANT in the worker); the motion
     # kernels' programs (the warp's OUT_INTERLEAVED per pixel or GROUPS for translations, the check's WINDOW, the
@@ -138,8 +140,12 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     check = [p for p in programs if "-DWINDOW=" in p]
     gradient = [p for p in programs if "-DGROWS=" in p]
     linear = [p for p in programs if "-DB=" in p and p not in warp]
+    # the guided filter: a pixel and a row per work-item on GPUs; 16 pixels (column passes), 4 rows (row pass) on CPUs
+    guided = [p for p in programs if "-DBX=" in p]
+    bx, ry = (1, 1) if variant == "gpu" else (16, 4)
+    assert guided and all(f"-DBX={bx} " in p + " " and f"-DRY={ry} " in p + " " for p in guided)
     if variant == "gpu":
-        assert all("-DVW=1" in p for p in programs if p not in warp + check + gradient)
+        assert all("-DVW=1" in p for p in programs if p not in warp + check + gradient + guided)
         assert any("-DTILE=1" in p for p in linear) and any("-DTILE=0" in p for p in linear)
         assert all("-DSELECT_GROUP=64" in p and "-DV=1 " in p for p in check)  # small strips, atomic counts
     else:

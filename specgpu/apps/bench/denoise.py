@@ -1,14 +1,20 @@
-"""The denoiser's case of ``specgpu bench`` (``guided_filter``): what ``recover --denoise`` filters for a 9-frame
-plan, the 9 coordinates of its outputs in their subspace (:func:`specgpu.pipeline.denoise.output_subspace`),
-float32, smoothed by the guided filter (radius and eps its defaults) on the device, against the same filter in
-NumPy with SciPy's box filter (windows clipped to the image, as the kernels)."""
+"""The denoiser's case of ``specgpu bench`` (``guided_filter``): what ``recover --denoise`` and ``stream --denoise``
+filter for a 9-frame plan, the 9 coordinates of its outputs in their subspace
+(:func:`specgpu.pipeline.denoise.output_subspace`), float32, smoothed by the guided filter (radius and eps its
+defaults) on the device (:func:`specgpu.engine.guided.guided_filter_device`, data and output on the device),
+against the same filter of the same image in NumPy with SciPy's box filter (windows clipped to the image, as the
+kernels). The two are timed in interleaved rounds, so both see the same load of the machine; the case's speedup
+is the median over the rounds of each round's ratio."""
 
 from __future__ import annotations
+
+import statistics
+import time
 
 import numpy as np
 import pyopencl.array as cla
 
-from specgpu.engine.guided import guided_filter
+from specgpu.engine.guided import guided_filter, guided_filter_device
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 
 __all__ = ["BANDS", "guided_numpy", "guided_case"]
@@ -35,24 +41,47 @@ def guided_numpy(p, g, radius: int, eps: float) -> np.ndarray:
     return box(a) * g[..., None] + box(b)
 
 
-def guided_case(queue, width: int, height: int, reps, measure, row):
-    """Time the device filter (data on the device), the NumPy-in / NumPy-out call and the NumPy baseline;
-    ``measure`` and ``row`` are the bench's own timing and row builders."""
+def _ms(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    return 1e3 * (time.perf_counter() - start)
+
+
+def guided_case(queue, width: int, height: int, reps, row):
+    """Time the device filter (data on the device, enqueue + finish), the NumPy-in / NumPy-out call and the NumPy
+    baseline in ``reps[1]`` interleaved rounds (each round ``reps[0] // reps[1]`` device calls, at least one, and
+    one call of the others); ``row`` is the bench's row builder. The row's times are medians over every call, its
+    speedup the median of the rounds' ratios (baseline / the round's median device time)."""
     rng = np.random.default_rng(3)
     g = rng.uniform(0.2, 1.0, (height, width)).astype(np.float32)
     p = (g[..., None] * rng.uniform(0.1, 0.9, BANDS) + rng.normal(0, 0.01, (height, width, BANDS))).astype(np.float32)
     p_dev, g_dev = cla.to_device(queue, p), cla.to_device(queue, g)
+    out = cla.empty(queue, p.shape, np.float32)
 
     def device():
-        return guided_filter(p_dev, g_dev, radius=DENOISE_RADIUS, eps=DENOISE_EPS)
+        guided_filter_device(queue, p_dev, g_dev, DENOISE_RADIUS, DENOISE_EPS, out=out)
+        queue.finish()
 
-    def api():
-        return guided_filter(p, g, radius=DENOISE_RADIUS, eps=DENOISE_EPS, device=queue)
+    expected = None
 
     def baseline():
-        return guided_numpy(p, g, DENOISE_RADIUS, DENOISE_EPS)
+        nonlocal expected
+        expected = guided_numpy(p, g, DENOISE_RADIUS, DENOISE_EPS)
 
-    device_ms, api_ms, baseline_ms, result, expected = measure(queue, device, api, baseline, reps)
+    device()  # program build, intermediates made
+    rounds, per_round = max(1, reps[1]), max(1, reps[0] // max(1, reps[1]))
+    device_ms, api_ms, baseline_ms, ratios = [], [], [], []
+    for _ in range(rounds):
+        times = [_ms(device) for _ in range(per_round)]
+        device_ms += times
+        baseline_ms.append(_ms(baseline))
+        api_ms.append(_ms(lambda: guided_filter(p, g, radius=DENOISE_RADIUS, eps=DENOISE_EPS, device=queue)))
+        ratios.append(baseline_ms[-1] / statistics.median(times))
+    result = out.get()
     diff = float(np.max(np.abs(result - expected))) / max(float(np.max(np.abs(expected))), 1e-30)
-    return row("guided_filter", width, height, None, device_ms, api_ms, baseline_ms, diff, "max relative", reps,
-               f"NumPy guided filter (scipy uniform_filter), {BANDS} channels, r {DENOISE_RADIUS}")
+    case = row("guided_filter", width, height, None, statistics.median(device_ms), statistics.median(api_ms),
+               statistics.median(baseline_ms), diff, "max relative", (len(device_ms), rounds),
+               f"NumPy guided filter (scipy uniform_filter), {BANDS} channels, r {DENOISE_RADIUS}; speedup: median of "
+               f"{rounds} interleaved rounds")
+    case.speedup = statistics.median(ratios)
+    return case
