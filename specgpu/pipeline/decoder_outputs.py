@@ -19,7 +19,7 @@ from specgpu import engine
 from specgpu.core.numerics import live_gain
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
-from specgpu.engine.guided import guided_filter
+from specgpu.engine.guided import guided_filter_device
 from specgpu.engine.runtime import get_allocator
 from specgpu.pipeline.denoise import stream_denoise
 from specgpu.planning.noise import NoiseModel
@@ -421,8 +421,9 @@ class FusedLaunches:
         for name, channels in self.spec.denoise["channels"].items():
             if name in out and level > 0:  # no light above dark: nothing to guide, the outputs stay as decoded
                 image = cla.Array(self.queue, (self.height, self.width, channels), np.float32, data=out[name])
-                out[name] = guided_filter(image, guide, radius=self.spec.denoise["radius"],
-                                          eps=self.spec.denoise["eps"] * level ** 2).data
+                # enqueued on the device, in place: no host round trip and no new buffer per sequence
+                out[name] = guided_filter_device(self.queue, image, guide, self.spec.denoise["radius"],
+                                                 self.spec.denoise["eps"] * level ** 2, out=image).data
         if self._lab_from_filtered:  # CIELAB and dE of the filtered XYZ, as recover --denoise computes them
             xyz = cla.Array(self.queue, (3 * self.n,), np.float32, data=out["XYZ"])
             for name, arr in lab_and_delta_E(self.queue, self.spec, xyz, self.reference_device, self.n).items():
