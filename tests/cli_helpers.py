@@ -3,7 +3,12 @@ the one-line error check every refusal must pass."""
 
 from __future__ import annotations
 
+import atexit
+import functools
 import os
+import shutil
+import tempfile
+from pathlib import Path
 
 from click.testing import CliRunner
 
@@ -73,13 +78,32 @@ def hadamard_rig(d, bundle=None):
     return rig, cal, plan
 
 
-def tristimulus_rig(d):
-    """Write the small twin rig into folder ``d`` and make ``calib.npz`` and a tristimulus plan ``tri.npz`` there
-    through the CLI; returns ``d``."""
+@functools.cache
+def _session_files() -> Path:
+    """The small twin rig calibrated through the CLI (``calib.npz``) and a tristimulus plan made from it
+    (``tri.npz``), once per test session (calibrating the twin costs seconds), in a folder removed when the
+    session ends."""
+    d = Path(tempfile.mkdtemp(prefix="specgpu-calibrated-"))
+    atexit.register(shutil.rmtree, d, True)
     (d / "rig.toml").write_text(RIG)
     run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
     run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz")
     return d
+
+
+def calibrated_rig(d, *names):
+    """Write the small twin rig into folder ``d`` as ``rig.toml`` with ``calib.npz`` beside it, what ``specgpu
+    calibrate --rig rig.toml --out calib.npz`` writes (made once per session; each folder gets its own copies),
+    and the session's other ``names``; returns ``d``."""
+    for name in ("rig.toml", "calib.npz", *names):
+        shutil.copyfile(_session_files() / name, d / name)
+    return d
+
+
+def tristimulus_rig(d):
+    """:func:`calibrated_rig` with a tristimulus plan ``tri.npz`` made through the CLI beside the calibration;
+    returns ``d``."""
+    return calibrated_rig(d, "tri.npz")
 
 
 def plan_and_capture(d, plan: str, method: str, *plan_args, scene: str = "colorchecker", seq: str, sequences=None):

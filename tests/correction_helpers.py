@@ -5,9 +5,9 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from stream_helpers import shared_stream_setup
 
 from specgpu.calibration.bundle import oracle_calibration
-from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.priors import smooth_prior
@@ -30,7 +30,7 @@ def white_chart_setup():
 def white_stream_setup(width: int, height: int, sequences: int):
     """The twin recording of the chart with a white tile, its plan given a noise model (and the expected error on a
     smooth prior)."""
-    s = stream_setup(width, height, sequences=sequences, output_step_nm=10.0, white_tile=0.99)
+    s = shared_stream_setup(width, height, sequences=sequences, output_step_nm=10.0, white_tile=0.99)
     noise = NoiseModel.from_rig(s.description, s.plan.exposure_s)
     plan = with_estimator(s.plan, s.bundle, "projection", prior=smooth_prior(np.arange(400.0, 700.0 + 1e-9, 5.0)),
                           noise=noise)

@@ -6,10 +6,11 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+from stream_helpers import shared_stream_setup
+
 from specgpu.io.recording import ZarrRecorder
 from specgpu.pipeline import Stream
 from specgpu.pipeline.batch import prepare_batch, process_sequences
-from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.planning import save_plan
 
 #: What ``specgpu stream --out`` records by default.
@@ -20,7 +21,7 @@ def default_recording(root, *, sequences: int = 3, frames: bool = False):
     """The chart streamed on the 320 x 240 twin (symmetric plan, 10 nm outputs) into ``root / "rec.zarr"`` as
     ``specgpu stream --out`` records it by default: coefficients with the plan's basis, XYZ and dE, the plan copied
     beside them (``frames``: the raw frames too). Returns (setup, recording path)."""
-    setup = stream_setup(320, 240, sequences=sequences, output_step_nm=10.0)
+    setup = shared_stream_setup(320, 240, sequences=sequences, output_step_nm=10.0)
     path = Path(root) / "rec.zarr"
     stream = Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=DEFAULT_OUTPUTS,
                     reference=setup.reference, policy="block")

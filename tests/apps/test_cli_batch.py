@@ -18,6 +18,7 @@ from cli_helpers import one_line_error, run
 from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from stream_helpers import shared_stream_setup
 
 from specgpu import io
 from specgpu.apps.cli import main
@@ -25,7 +26,6 @@ from specgpu.calibration.bundle import save_calibration
 from specgpu.io.recording import ZarrRecorder, open_recording
 from specgpu.pipeline import Stream
 from specgpu.pipeline.batch import run_batch
-from specgpu.pipeline.twin_replay import stream_setup
 from specgpu.planning import save_plan
 
 N = 6  # sequences in the recording
@@ -39,7 +39,7 @@ def made(tmp_path_factory):
     """A recording with raw frames (N sequences), its plan and calibration files, and a sequence folder of the
     first 3 sequences' frames."""
     root = tmp_path_factory.mktemp("batch")
-    setup = stream_setup(320, 240, sequences=3, output_step_nm=10.0)
+    setup = shared_stream_setup(320, 240, sequences=3, output_step_nm=10.0)
     rec = ZarrRecorder(root / "rec.zarr", setup.plan, frames=True)
     report = Stream(setup.driver(loops=2), setup.plan, setup.bundle, outputs=("XYZ",), policy="block",
                     sinks=[rec]).run()

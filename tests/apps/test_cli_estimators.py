@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from cli_helpers import RIG, one_line_error, run
+from cli_helpers import calibrated_rig, one_line_error, run
 
 from specgpu import io
 
@@ -13,8 +13,7 @@ from specgpu import io
 @pytest.fixture(scope="module")
 def work(tmp_path_factory):
     d = tmp_path_factory.mktemp("est")
-    (d / "rig.toml").write_text(RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    calibrated_rig(d)
     run("plan", "narrowband", "--step-nm", 20, "--estimator", "wiener", "--rig", d / "rig.toml", "--calib",
         d / "calib.npz", "--out", d / "nb.npz")
     run("capture", "--rig", d / "rig.toml", "--plan", d / "nb.npz", "--calib", d / "calib.npz", "--scene",

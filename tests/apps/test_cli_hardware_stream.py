@@ -9,15 +9,16 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from hw_fakes import FakeCamera
+from stream_helpers import shared_stream_setup
 
 from specgpu.hardware.dlpc900 import DMDLayout, SimulatedDLPC900
-from specgpu.pipeline.twin_replay import offline_maps, stream_setup
+from specgpu.pipeline.twin_replay import offline_maps
 from specgpu.rig.twin import TwinRig
 
 
 @pytest.fixture(scope="module")
 def setup():
-    return stream_setup(320, 240, sequences=1, output_step_nm=10.0)
+    return shared_stream_setup(320, 240, sequences=1, output_step_nm=10.0)
 
 
 class TwinBench:

@@ -11,7 +11,7 @@ import shutil
 
 import numpy as np
 import pytest
-from cli_helpers import RIG, one_line_error, run
+from cli_helpers import RIG, calibrated_rig, one_line_error, run
 
 from specgpu import io
 
@@ -20,8 +20,7 @@ from specgpu import io
 def work(tmp_path_factory):
     """A calibrated twin, a symmetric and a tristimulus plan, and a captured sequence of each."""
     d = tmp_path_factory.mktemp("main")
-    (d / "rig.toml").write_text(RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    calibrated_rig(d)
     run("plan", "symmetric", "--calib", d / "calib.npz", "--out", d / "sym.npz")
     run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz", "--illuminant", "D65")
     for plan, seq, n in (("sym.npz", "seq", 2), ("tri.npz", "seqtri", 1)):

@@ -7,18 +7,18 @@ import json
 import pytest
 from cli_helpers import stream_cli_files
 from click.testing import CliRunner
+from stream_helpers import shared_stream_setup
 from zarr_helpers import disk_full_after
 
 from specgpu.apps.cli import main
 from specgpu.io import recording
 from specgpu.io.recording import open_recording
-from specgpu.pipeline.twin_replay import stream_setup
 
 
 @pytest.fixture(scope="module")
 def setup():
     """A calibrated 320 x 240 twin at 200 fps, a symmetric plan (K = 9, 31 bands) and 4 recorded sequences."""
-    return stream_setup(320, 240, sequences=4, output_step_nm=10.0)
+    return shared_stream_setup(320, 240, sequences=4, output_step_nm=10.0)
 
 
 def test_cli_stream_records_and_reports(setup, tmp_path):

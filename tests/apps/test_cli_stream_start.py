@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import pytest
 from cli_helpers import one_line_error, run, stream_cli_files
+from stream_helpers import shared_stream_setup
 
 from specgpu.io.recording import open_recording
-from specgpu.pipeline.twin_replay import stream_setup
 
 
 @pytest.fixture(scope="module")
 def setup():
-    return stream_setup(320, 240, sequences=1, output_step_nm=10.0)
+    return shared_stream_setup(320, 240, sequences=1, output_step_nm=10.0)
 
 
 @pytest.mark.parametrize("seconds", ["1e308", "1e30", "31622401"])

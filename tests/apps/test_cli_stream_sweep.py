@@ -15,6 +15,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from cli_helpers import calibrated_rig
 from click.testing import CliRunner
 
 from specgpu import io
@@ -52,13 +53,10 @@ def cli(*args):
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory):
-    """A 320 x 240 twin, its calibration and a symmetric plan, made once through the CLI."""
-    d = tmp_path_factory.mktemp("sweep")
-    (d / "rig.toml").write_text(f"[camera]\nroi_width = {WIDTH}\nroi_height = {HEIGHT}\n")
-    for args in (("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz"),
-                 ("plan", "symmetric", "--calib", d / "calib.npz", "--rig", d / "rig.toml", "--out", d / "plan.npz")):
-        result = cli(*args)
-        assert result.exit_code == 0, result.output
+    """A 320 x 240 twin, its calibration (the session's) and a symmetric plan made through the CLI."""
+    d = calibrated_rig(tmp_path_factory.mktemp("sweep"))  # the 320 x 240 twin (HEIGHT, WIDTH)
+    result = cli("plan", "symmetric", "--calib", d / "calib.npz", "--rig", d / "rig.toml", "--out", d / "plan.npz")
+    assert result.exit_code == 0, result.output
     return d
 
 

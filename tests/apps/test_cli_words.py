@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 
 import pytest
-from cli_helpers import RIG, one_line_error, run
+from cli_helpers import one_line_error, run, tristimulus_rig
 from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -121,10 +121,8 @@ def rig(tmp_path_factory):
     """Two calibrations of the small twin (seeds 0 and 1: different bundles), a tristimulus plan from the first,
     and a zarr recording of its raw frames."""
     d = tmp_path_factory.mktemp("words")
-    (d / "rig.toml").write_text(RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    tristimulus_rig(d)
     run("calibrate", "--rig", d / "rig.toml", "--out", d / "other.npz", "--seed", "1")
-    run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz")
     run("capture", "--rig", d / "rig.toml", "--plan", d / "tri.npz", "--calib", d / "calib.npz", "--scene", "white",
         "--out", d / "rec.zarr")
     return d

@@ -121,11 +121,10 @@ def test_sequence_folder_layers_are_lazy_and_recover_each_sequence(capture):
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
     """A 1 s stream of the small twin with the cube, dE and sigma recorded."""
-    from cli_helpers import RIG, run
+    from cli_helpers import calibrated_rig, run
 
     d = tmp_path_factory.mktemp("rec")
-    (d / "rig.toml").write_text(RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    calibrated_rig(d)
     run("plan", "narrowband", "--calib", d / "calib.npz", "--rig", d / "rig.toml", "--out", d / "nb.npz")
     run("stream", "--rig", d / "rig.toml", "--plan", d / "nb.npz", "--calib", d / "calib.npz", "--seconds", "1",
         "--scene", "colorchecker", "--outputs", "cube,XYZ,dE,sigma", "--out", d / "REC.zarr")

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stream_helpers import shared_stream_setup
 
 import specgpu.planning as E
 from specgpu.calibration.bundle import oracle_calibration
@@ -104,9 +105,8 @@ def test_stream_denoise_equals_recover_denoise():
     import colour
 
     from specgpu.pipeline.stream import Stream
-    from specgpu.pipeline.twin_replay import stream_setup
 
-    setup = stream_setup(320, 240, sequences=2, output_step_nm=10.0)
+    setup = shared_stream_setup(320, 240, sequences=2, output_step_nm=10.0)
     got = []
     stream = Stream(setup.driver(loops=1), setup.plan, setup.bundle,
                     outputs=("coefficients", "cube", "XYZ", "Lab", "dE"), reference=setup.reference,

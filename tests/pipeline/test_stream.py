@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stream_helpers import shared_stream_setup
 from zarr_helpers import disk_full_after
 
 from specgpu import io
@@ -26,7 +27,7 @@ from specgpu.pipeline import ExrSequenceWriter, PreviewSink, Stream
 from specgpu.pipeline.capture_folder import SequenceFolder
 from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ
 from specgpu.pipeline.sinks import ResultsRing
-from specgpu.pipeline.twin_replay import offline_maps, stream_setup
+from specgpu.pipeline.twin_replay import offline_maps
 from specgpu.rig.twin import FaultSchedule, TwinRig
 
 ALL = ("coefficients", "cube", "XYZ", "Lab", "dE")
@@ -35,7 +36,7 @@ ALL = ("coefficients", "cube", "XYZ", "Lab", "dE")
 @pytest.fixture(scope="module")
 def setup():
     """A calibrated 320 x 240 twin at 200 fps, a symmetric plan (K = 9, 31 bands) and 4 recorded sequences."""
-    return stream_setup(320, 240, sequences=4, output_step_nm=10.0)
+    return shared_stream_setup(320, 240, sequences=4, output_step_nm=10.0)
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import RIG, python_path, run
+from cli_helpers import calibrated_rig, python_path, run
 
 from specgpu.apps.cli import main
 
@@ -76,8 +76,7 @@ def recordings(tmp_path_factory):
     """A stream recording with the default outputs (REC.zarr) and one with the cube (CUBE.zarr), on the small twin
     with a narrowband plan."""
     d = tmp_path_factory.mktemp("readme")
-    (d / "rig.toml").write_text(RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    calibrated_rig(d)
     run("plan", "narrowband", "--calib", d / "calib.npz", "--out", d / "nb.npz")
     for name, outputs in (("REC.zarr", []), ("CUBE.zarr", ["--outputs", "cube"])):
         run("stream", "--rig", d / "rig.toml", "--plan", d / "nb.npz", "--calib", d / "calib.npz", "--seconds", "1",
