@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import threading
 from dataclasses import dataclass
 from importlib import metadata, resources
@@ -334,14 +335,36 @@ def kernel_dir() -> Path:
     )
 
 
+_INCLUDE = re.compile(r'^[ \t]*#[ \t]*include[ \t]+"([^"]+)"[ \t]*$', re.MULTILINE)
+
+
 @functools.cache
 def kernel_source(name: str) -> str:
-    """The text of ``kernels/<name>`` (for example ``"linear.cl"``)."""
+    """The text of ``kernels/<name>`` (for example ``"linear.cl"``), its ``#include "..."`` lines replaced by the
+    text they name (once each).
+
+    The program is built from this text alone, with no ``-I`` path among its options: the OpenCL compiler's
+    on-disk cache (PoCL's, a driver's) keys a build by its text and options, so a path there would make every new
+    checkout or virtual environment compile every kernel again.
+    """
     path = kernel_dir() / name
     if not path.is_file():
         available = sorted(p.name for p in kernel_dir().glob("*.cl"))
         raise FileNotFoundError(f"no kernel source {name!r} in {kernel_dir()} (available: {available})")
-    return path.read_text(encoding="utf-8")
+    included: set[str] = set()
+
+    def inline(match: re.Match) -> str:
+        header = match.group(1)
+        if header in included:
+            return ""
+        included.add(header)
+        header_path = kernel_dir() / header
+        if not header_path.is_file():
+            raise FileNotFoundError(f"{name} includes {header!r}, which is not in {kernel_dir()}")
+        text = _INCLUDE.sub(inline, header_path.read_text(encoding="utf-8"))
+        return f'#line 1 "{header}"\n{text}\n#line {match.string.count(chr(10), 0, match.end()) + 2} "{name}"'
+
+    return _INCLUDE.sub(inline, path.read_text(encoding="utf-8"))
 
 
 def build_options(**macros) -> tuple[str, ...]:
@@ -410,12 +433,11 @@ def get_program(context: cl.Context, source_name: str, options: tuple[str, ...])
         entry = _programs.get(key)
     if entry is not None:
         return entry
-    include = kernel_dir()
     # -cl-denorms-are-zero: CIEDE2000's chroma and hue-rotation terms underflow into float32 denormals for
     # near-neutral colours, which x86 handles in microcode (the fused pass ran at half speed on such data); values
     # below 1.2e-38 carry no meaning here
     full_options = [*options, *mask_options(), *_device_options(context.devices[0]), "-cl-mad-enable",
-                    "-cl-denorms-are-zero", f"-I{include}"]
+                    "-cl-denorms-are-zero"]
     try:
         program = cl.Program(context, source).build(options=full_options)
     except cl.RuntimeError as error:

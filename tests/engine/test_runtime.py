@@ -67,6 +67,28 @@ def test_kernel_sources_found_and_listed():
         runtime.kernel_source("nope.cl")
 
 
+def test_a_program_is_built_from_its_text_alone_so_the_compilers_cache_survives_a_new_checkout(queue, monkeypatch):
+    """The header is inlined into the source and no -I path reaches the build options: the on-disk cache of the
+    OpenCL compiler keys a build by text and options, so a path there would recompile every kernel per checkout."""
+    text = runtime.kernel_source("warp.cl")
+    assert "#include" not in text
+    assert text.count('#line 1 "common.h"') == 1
+    lines = text.splitlines()
+    back = next(i for i, line in enumerate(lines) if line.startswith('#line') and "warp.cl" in line)
+    number = int(lines[back].split()[1])
+    assert lines[back + 1] == (runtime.kernel_dir() / "warp.cl").read_text().splitlines()[number - 1]
+    seen = []
+    real_build = cl.Program.build
+
+    def build(self, options=(), *args, **kwargs):
+        seen.append(list(options))
+        return real_build(self, options, *args, **kwargs)
+
+    monkeypatch.setattr(cl.Program, "build", build)
+    runtime.get_program(queue.context, "linear.cl", runtime.build_options(K=3, B=2, IN_T="ushort", FRESH=7))
+    assert seen and not any(o.startswith("-I") or str(runtime.kernel_dir()) in o for o in seen[0])
+
+
 def test_programs_built_once_and_kernels_kept(queue):
     frames = np.ones((2, 3, 5), np.uint16)
     apply_linear(frames, np.ones((1, 2)), device=queue)
