@@ -19,8 +19,8 @@ register (no variance, or a gradient along one direction only), or where it over
 counterpart of the phase correlation's normalised error: near 0 where the images match once moved, near 1 where they
 share little.
 
-Buffers are kept per (context, K, H, W), so steady-state calls allocate nothing on the device; programs are built once
-(:func:`specgpu.engine.runtime.get_kernel`).
+Buffers are kept per (context, kernel variant, K, H, W), so steady-state calls allocate nothing on the device;
+programs are built once (:func:`specgpu.engine.runtime.get_kernel`).
 """
 
 from __future__ import annotations
@@ -129,7 +129,7 @@ _MAX_WORKSPACES = 8
 
 
 def _workspace(queue, K: int, h: int, w: int) -> _Workspace:
-    key = (queue.context, K, h, w)
+    key = (queue.context, kernel_variant(queue.device), K, h, w)
     with _WORKSPACE_LOCK:
         if key not in _WORKSPACES:
             if len(_WORKSPACES) >= _MAX_WORKSPACES:
