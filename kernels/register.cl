@@ -94,9 +94,11 @@ __kernel void register_halve(__global const float *restrict src, __global float 
         HALVE_ROW(2 * y + 2, c3, e3);
         const float16 c = 0.125f * (c0 + c3) + 0.375f * (c1 + c2);
         const float2 e = 0.125f * (e0 + e3) + 0.375f * (e1 + e2);
-        const float8 even = c.even, odd = c.odd;
-        const float8 before = (float8)(e.s0, odd.s0, odd.s1, odd.s2, odd.s3, odd.s4, odd.s5, odd.s6);
-        const float8 after = (float8)(even.s1, even.s2, even.s3, even.s4, even.s5, even.s6, even.s7, e.s1);
+        /* single lanes, never .even / .odd: Oclgrind's uninitialised-value check fails on multi-lane components */
+        const float8 even = (float8)(c.s0, c.s2, c.s4, c.s6, c.s8, c.sa, c.sc, c.se);
+        const float8 odd = (float8)(c.s1, c.s3, c.s5, c.s7, c.s9, c.sb, c.sd, c.sf);
+        const float8 before = (float8)(e.s0, c.s1, c.s3, c.s5, c.s7, c.s9, c.sb, c.sd);
+        const float8 after = (float8)(c.s2, c.s4, c.s6, c.s8, c.sa, c.sc, c.se, e.s1);
         const float8 out = 0.375f * (even + odd) + 0.125f * (before + after);
         __global float *o = dst + k * w2 * h2 + (ulong)y * w2 + x;
         if (x + 8 <= (int)w2) {

@@ -120,13 +120,14 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     frames with NaN and inf, a dead pixel) on 21 x 35 and 5 x 270 pixels; the check with a 9-pixel window on
     21 x 35 pixels, with a sample that misleads its bracket (the strips run twice), and from raw frames (the
     gradient images made on the device, the samples scaled); the gradient images alone with a dead pixel and a dark
-    frame per frame: no Oclgrind report, and every output within its tolerance."""
+    frame per frame; the registration of images on the device, translations and affine maps: no Oclgrind report,
+    and every output within its tolerance."""
     proc, reports = run_worker(oclgrind_env, "cases", variant)
     assert proc.returncode == 0, f"the worker ended with {proc.returncode}:\n{proc.stderr[-4000:]}"
     cases, programs = results(proc)
     failures = case_failures(proc, cases, reports)
     assert not failures, "\n".join(failures)
-    assert len(cases) == 31, sorted(cases)
+    assert len(cases) == 33, sorted(cases)
 
     # the variant's own code paths were built (the variant comes from SPECGPU_VARIANT in the worker); the motion
     # kernels' programs (the warp's OUT_INTERLEAVED per pixel or GROUPS for translations, the check's WINDOW, the
@@ -158,6 +159,10 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     assert any("-DWINDOW=9" in p for p in check) and any("-DSCALED=1" in p for p in check)
     assert any("-DHAS_DARK=2" in p and "-DIN_T=float" in p for p in gradient)
     assert any("-DHAS_GAIN=1" in p and "-DIN_T=ushort" in p for p in gradient)
+    # the registration's steps: a translation (8 pixels at a time) and an affine map, in the variant's group size
+    group = "-DGROUP=64" if variant == "gpu" else "-DGROUP=1"
+    assert any("-DAFFINE=0" in p and group in p for p in programs)
+    assert any("-DAFFINE=1" in p and group in p for p in programs)
 
 
 def case_failures(proc, cases, reports) -> list[str]:
