@@ -6,8 +6,8 @@
  *                    pixel i centred on input 2 i + 0.5, edges clamped (every input pixel counts: a NaN reaches
  *                    the coarsest level); a work-item takes 8 columns of a strip of HROWS rows
  *   register_search  the correlation coefficient of the reference and frame k over their overlap at each integer
- *                    shift in [-R, R]^2 of the coarsest level (-2 where the overlap is under a quarter of the field
- *                    or an image has no variance there)
+ *                    shift in [-R, R]^2 of the coarsest level within frame k's reach (-2 beyond it, where the
+ *                    overlap is under a quarter of the field or where an image has no variance there)
  *   register_step    per frame, over the reference's pixels whose sample M_k x lies in frame k: the sums of the
  *                    normal equations (J' I, J' 1, J' T, J' J) and of the two images (n, I, T, I^2, I T, T^2),
  *                    each work-group's sums reduced in local memory, one row of NS per group and frame
@@ -122,12 +122,18 @@ __kernel void register_halve(__global const float *restrict src, __global float 
 
 /* gid(0): the shift (dy + R) (2 R + 1) + dx + R; gid(1): the frame, the reference skipped */
 __kernel void register_search(__global const float *restrict level, const uint w, const uint h, const uint ref,
-                              const int R, __global float *restrict score)
+                              const int R, const float speed, __global float *restrict score)
 {
     const int side = 2 * R + 1, s = get_global_id(0);
     if (s >= side * side) return; /* no barrier in this kernel */
     const uint j = get_global_id(1), k = j + (j >= ref);
     const int dx = s % side - R, dy = s / side - R;
+    /* frame k's reach: speed (px of this level per frame) times the frames from the reference, and a pixel */
+    const float reach = speed * (float)abs((int)k - (int)ref) + 1.0f;
+    if ((float)abs(dx) > ceil(reach) || (float)abs(dy) > ceil(reach)) {
+        score[(ulong)j * side * side + s] = -2.0f;
+        return;
+    }
     const ulong n = (ulong)w * h;
     __global const float *T = level + (ulong)ref * n, *I = level + (ulong)k * n;
     const int x0 = max(0, -dx), x1 = min((int)w, (int)w - dx), y0 = max(0, -dy), y1 = min((int)h, (int)h - dy);

@@ -260,16 +260,14 @@ def _coarse_search(queue, ws: _Workspace, coarse: cla.Array, ref: int, gaps: np.
     level = len(ws.sizes) - 1
     scale = 2.0 ** level
     most = min(hh, ww) // 4
-    if max_speed is None:
-        reach = np.full(len(gaps), most)
-    else:
-        reach = np.minimum(np.ceil(max_speed * gaps / scale).astype(int) + 1, most)
+    speed = 1e9 if max_speed is None else float(max_speed) / scale  # px of the coarsest level per frame
+    reach = np.minimum(np.ceil(speed * gaps + 1.0), most).astype(int)
     R = int(reach.max())
     side = 2 * R + 1
     scores_dev, scores = ws.score_buffers(queue, K - 1, side)
     kernel = get_kernel(queue, "register.cl", "register_search")
     kernels.launch_range(queue, kernel, (side * side, K - 1), (min(ws.group, 16), 1), coarse.data, np.uint32(ww),
-                         np.uint32(hh), np.uint32(ref), np.int32(R), scores_dev.data)
+                         np.uint32(hh), np.uint32(ref), np.int32(R), np.float32(min(speed, 1e9)), scores_dev.data)
     cl.enqueue_copy(queue, scores, scores_dev.data, is_blocking=True)
     surfaces = scores[:(K - 1) * side * side].reshape(K - 1, side, side).astype(np.float64)
     offsets = np.arange(-R, R + 1)
@@ -303,6 +301,7 @@ def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest
     to_centred = np.array([[1.0, 0.0, -centre[0]], [0.0, 1.0, -centre[1]], [0.0, 0.0, 1.0]])
     from_centred = np.linalg.inv(to_centred)
     active = np.ones(len(others), bool)
+    others = np.asarray(others)
     for level in range(coarsest, finest - 1, -1):
         hh, ww = ws.sizes[level]
         groups = ws.groups[level]
@@ -311,8 +310,9 @@ def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest
         scale = S[0, 0]
         # normalised centred coordinates of this level's pixel x: u = CS x + CU
         cs, cu, cv = scale / norm, (S[0, 2] - centre[0]) / norm, (S[1, 2] - centre[1]) / norm
+        pixels = (hh - 2) * (ww - 2)
         for _ in range(iterations):
-            ws.maps_host[:] = np.stack([(S_inv @ maps[k] @ S)[:2].ravel() for k in others])
+            ws.maps_host[:] = (S_inv @ maps[others] @ S)[:, :2].reshape(len(others), 6)
             cl.enqueue_copy(queue, ws.maps.data, ws.maps_host, is_blocking=False)
             shape = np.uint32(ww), np.uint32(hh), np.uint32(ref), ws.maps.data
             coordinates = (np.float32(cs), np.float32(cu), np.float32(cv)) if affine else ()
@@ -321,49 +321,47 @@ def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest
             cl.enqueue_copy(queue, ws.sums_host, ws.sums.data, is_blocking=True)
             sums = ws.sums_host[:len(others) * groups * ns].reshape(len(others), groups, ns).sum(axis=1,
                                                                                                  dtype=np.float64)
-            largest = 0.0
-            for j, k in enumerate(others):
-                step, err, ok = _solve(sums[j], params, (hh - 2) * (ww - 2))
-                active[j], error[k] = ok, err
-                if not ok:
-                    continue
-                D = np.eye(3)
-                if affine:
-                    D[:2] += step.reshape(2, 3) * np.array([1.0 / norm, 1.0 / norm, 1.0])
-                else:
-                    D[:2, 2] += step
-                maps[k] = maps[k] @ from_centred @ np.linalg.inv(D) @ to_centred
-                # the step's largest displacement of a pixel of the field (|u|, |v| <= 1), in px of this level
-                edge = np.abs(step.reshape(2, 3)).sum(axis=1).max() if affine else np.abs(step).max()
-                largest = max(largest, float(edge) / scale)
-            if largest < _STEP_TOLERANCE:
+            step, error[others], active = _solve(sums, params, pixels)
+            if affine:
+                D = np.tile(np.eye(3), (len(others), 1, 1))
+                D[:, :2] += step.reshape(-1, 2, 3) * np.array([1.0 / norm, 1.0 / norm, 1.0])
+                maps[others] = maps[others] @ from_centred @ np.linalg.inv(D) @ to_centred
+                # the step's largest displacement of a pixel of the field (|u|, |v| <= 1)
+                edge = np.abs(step.reshape(-1, 2, 3)).sum(axis=2).max(initial=0.0)
+            else:
+                maps[others, :2, 2] -= step  # the inverse of a translation
+                edge = np.abs(step).max(initial=0.0)
+            if edge / scale < _STEP_TOLERANCE:  # in px of this level
                 break
     usable[others] = active
-    for j, k in enumerate(others):
-        if not active[j]:
-            maps[k], error[k] = np.nan, np.nan
+    lost = np.asarray(others)[~active]
+    maps[lost], error[lost] = np.nan, np.nan
 
 
 def _solve(s: np.ndarray, params: int, pixels: int):
-    """The Gauss-Newton step (params,) from one frame's sums, its error ``sqrt(1 - r^2)`` and whether it is usable."""
-    JI, J1, JT = s[:params], s[params:2 * params], s[2 * params:3 * params]
-    H = np.zeros((params, params))
-    H[np.triu_indices(params)] = s[3 * params:-6]
-    H = H + np.triu(H, 1).T
-    n, si, st, sii, sit, stt = s[-6:]
-    if not n >= _MIN_OVERLAP * pixels:
-        return None, np.nan, False
-    vi, vt, c = sii - si * si / n, stt - st * st / n, sit - si * st / n
-    if not (vi > 1e-12 * max(sii, 1e-30) and vt > 1e-12 * max(stt, 1e-30)):
-        return None, np.nan, False  # no structure: nothing to register
-    eig = np.linalg.eigvalsh(H)
-    if not eig[0] > _MIN_CONDITION * eig[-1]:
-        return None, np.nan, False  # structure along one direction only: the motion along the other is unknown
-    alpha = c / vi  # the reference as gain x frame + offset, least squares
-    beta = (st - alpha * si) / n
-    step = np.linalg.solve(H, alpha * JI + beta * J1 - JT)
-    r = c / np.sqrt(vi * vt)
-    return step, float(np.sqrt(max(0.0, 1.0 - r * r))), True
+    """From each frame's sums (F, NS): the Gauss-Newton steps (F, params), 0 for a frame not usable; the errors
+    ``sqrt(1 - r^2)`` (F,), NaN where not usable; and whether each frame is usable (F,)."""
+    F = len(s)
+    JI, J1, JT = s[:, :params], s[:, params:2 * params], s[:, 2 * params:3 * params]
+    H = np.zeros((F, params, params))
+    upper = np.triu_indices(params)
+    H[:, upper[0], upper[1]] = H[:, upper[1], upper[0]] = s[:, 3 * params:-6]
+    n, si, st, sii, sit, stt = s[:, -6:].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vi, vt, c = sii - si * si / n, stt - st * st / n, sit - si * st / n
+        # overlap enough, and structure in both images (an image with none has nothing to register)
+        ok = (n >= _MIN_OVERLAP * pixels) & (vi > 1e-12 * np.maximum(sii, 1e-30)) \
+            & (vt > 1e-12 * np.maximum(stt, 1e-30))
+        H = np.where(ok[:, None, None], H, np.eye(params))
+        eig = np.linalg.eigvalsh(H)
+        ok &= eig[:, 0] > _MIN_CONDITION * eig[:, -1]  # structure along one direction only: the other is unknown
+        alpha = np.where(ok, c / vi, 0.0)  # the reference as gain x frame + offset, least squares
+        beta = np.where(ok, (st - alpha * si) / n, 0.0)
+        rhs = np.where(ok[:, None], alpha[:, None] * JI + beta[:, None] * J1 - JT, 0.0)
+        step = np.linalg.solve(np.where(ok[:, None, None], H, np.eye(params)), rhs[..., None])[..., 0]
+        r = c / np.sqrt(vi * vt)
+        error = np.where(ok, np.sqrt(np.clip(1.0 - r * r, 0.0, None)), np.nan)
+    return step, error, ok
 
 
 def _at_reference_time(values: np.ndarray) -> np.ndarray:
