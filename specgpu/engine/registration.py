@@ -50,8 +50,10 @@ _COARSEST_MIN = 48
 _HALVE_ROWS = 16
 #: Pixels per work-item of the steps at least (fewer work-items where a level has fewer pixels)
 _PIXELS_PER_ITEM = 1024
-#: A step this small (level px at the field's edge) ends a level's iterations
+#: A step this small (px of the level at the field's edge) ends the finest level's iterations; a coarser level's
+#: end at a step of _COARSE_TOLERANCE (the next level corrects what is left)
 _STEP_TOLERANCE = 0.01
+_COARSE_TOLERANCE = 0.05
 #: The smallest share of the reference's pixels a registered frame must overlap
 _MIN_OVERLAP = 0.25
 #: The normal equations are singular below this ratio of their smallest to largest eigenvalue (an image with a
@@ -189,7 +191,8 @@ def register_gradients(gradients, reference_frame: int, *, model: str = "transla
         The finest pyramid level registered on (0: full resolution; 1: half, about four times faster, a little
         less precise).
     iterations : int
-        Gauss-Newton steps per level at most (fewer where the step falls under 0.01 px of the level).
+        Gauss-Newton steps per level at most (fewer where the step falls under 0.01 px of the finest level, 0.05 px
+        of a coarser one).
     device : optional
         OpenCL device selector or queue (default: the queue of a device array given).
 
@@ -331,7 +334,7 @@ def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest
             else:
                 maps[others, :2, 2] -= step  # the inverse of a translation
                 edge = np.abs(step).max(initial=0.0)
-            if edge / scale < _STEP_TOLERANCE:  # in px of this level
+            if edge / scale < (_STEP_TOLERANCE if level == finest else _COARSE_TOLERANCE):  # in px of this level
                 break
     usable[others] = active
     lost = np.asarray(others)[~active]

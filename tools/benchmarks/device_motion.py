@@ -9,9 +9,9 @@ Each case renders one 9-frame sequence of the moving twin (the natural scene, 20
   stream's decoder runs it;
 * ``host``: the estimate as ``--motion global`` makes it today, ``estimate_global_motion`` given the gradient images
   made on the device (``frame_gradients``; phase correlation on the host);
-* ``device``: the gradient images on the device (``engine.gradients``: their per-frame means choose the reference
-  frame as the host does, the brightest of the middle three) and ``register_gradients`` there, at full resolution
-  (``finest=0``) and at half (``finest=1``); and the registration alone.
+* ``device``: the gradient images on the device (``engine.gradients``' unscaled magnitudes, whose per-frame means
+  choose the reference frame as the host does, the brightest of the middle three) and ``register_gradients``
+  there, at full resolution (``finest=0``) and at half (``finest=1``); and the registration alone.
 
 Each estimate's error is the largest distance over the frames from the twin's truth (``TwinRig.motion_truth``), px.
 The JSON holds every time, error and ratio, the device, the machine's load and the command line.
@@ -73,10 +73,12 @@ def reference_of(scale: np.ndarray) -> int:
 
 
 def device_estimate(queue, frames_dev, dark, gain, finest: int):
-    """Gradient images and the registration, all on the device: the shifts (K, 2)."""
+    """Gradient images and the registration, all on the device: the shifts (K, 2). The magnitudes are registered
+    unscaled (the registration solves a gain per frame, so a frame's 1 / mean changes nothing; the consistency
+    check scales its own samples), which saves a pass over the images."""
     images, scale = launch_gradients(queue, frames_dev, dark, gain)
     ref = reference_of(scale.get(queue=queue))
-    return register_gradients(apply_scale(queue, images, scale), ref, finest=finest, device=queue).shifts
+    return register_gradients(images, ref, finest=finest, device=queue).shifts
 
 
 def timed_rounds(steps: dict, rounds: int, queue) -> dict:
