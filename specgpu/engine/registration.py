@@ -51,10 +51,10 @@ _HALVE_ROWS = 16
 #: Pixels per work-item of the steps at least (fewer work-items where a level has fewer pixels)
 _PIXELS_PER_ITEM = 1024
 #: A step this small (px of the level at the field's edge) is applied and ends the finest level's iterations: the
-#: steps shrink about tenfold each (on the moving twin at 640 x 480, 0.07 px then 0.0095), so what is left is about
-#: 0.01 px and another pass over every frame would buy nothing. A coarser level's end at a step of
-#: _COARSE_TOLERANCE (the next level corrects what is left).
-_STEP_TOLERANCE = 0.1
+#: steps shrink about threefold each (on the moving twin at 640 x 480, 0.07 px, then 0.03, 0.014), and what is left
+#: then is below the estimate's own bias (0.03 to 0.07 px against the twin's truth), while each step costs a pass
+#: over every frame. A coarser level's end at a step of _COARSE_TOLERANCE (the next level corrects what is left).
+_STEP_TOLERANCE = 0.05
 _COARSE_TOLERANCE = 0.25
 #: The smallest share of the reference's pixels a registered frame must overlap
 _MIN_OVERLAP = 0.25
@@ -193,7 +193,7 @@ def register_gradients(gradients, reference_frame: int, *, model: str = "transla
         The finest pyramid level registered on (0: full resolution; 1: half, about four times faster, a little
         less precise).
     iterations : int
-        Gauss-Newton steps per level at most (fewer: a step under 0.1 px of the finest level, 0.25 px of a coarser
+        Gauss-Newton steps per level at most (fewer: a step under 0.05 px of the finest level, 0.25 px of a coarser
         one, is the level's last).
     device : optional
         OpenCL device selector or queue (default: the queue of a device array given).
