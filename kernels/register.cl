@@ -53,14 +53,6 @@ inline float16 load16_clamped(__global const float *p, const int x0, const int l
                      p[min(x0 + 12, last)], p[min(x0 + 13, last)], p[min(x0 + 14, last)], p[min(x0 + 15, last)]);
 }
 
-/* 8 values of row p from column x0, as load16_clamped */
-inline float8 load8_clamped(__global const float *p, const int x0, const int last)
-{
-    if (x0 + 7 <= last) return vload8(0, p + x0);
-    return (float8)(p[min(x0, last)], p[min(x0 + 1, last)], p[min(x0 + 2, last)], p[min(x0 + 3, last)],
-                    p[min(x0 + 4, last)], p[min(x0 + 5, last)], p[min(x0 + 6, last)], p[min(x0 + 7, last)]);
-}
-
 #ifndef HROWS
 #define HROWS 16
 #endif
@@ -233,15 +225,16 @@ __kernel void register_step(__global const float *restrict level, const uint w, 
     }
 }
 
-/* register_step for a translation per frame, 8 pixels at a time: the bilinear weights are the same at every pixel,
- * and the pixels whose sample lies in frame k a rectangle (a column dropped at an integer shift) */
+/* register_step for a translation per frame, 16 pixels at a time (float16: on PoCL with AVX-512 a third faster
+ * than 8): the bilinear weights are the same at every pixel, and the pixels whose sample lies in frame k a
+ * rectangle (a column dropped at an integer shift) */
 #define SHIFT_SUMS(X) \
     X(0, tx * i) X(1, ty * i) X(2, tx) X(3, ty) X(4, tx * t) X(5, ty * t) X(6, tx * tx) X(7, tx * ty) \
     X(8, ty * ty) X(9, one) X(10, i) X(11, t) X(12, i * i) X(13, i * t) X(14, t * t)
-#define SHIFT_DECLARE(n, e) float8 s##n = (float8)(0.0f);
+#define SHIFT_DECLARE(n, e) float16 s##n = (float16)(0.0f);
 #define SHIFT_ADD(n, e) s##n += (e);
 #define SHIFT_PUT(n, e) part[(n) * GROUP + lid] = s##n.s0 + s##n.s1 + s##n.s2 + s##n.s3 + s##n.s4 + s##n.s5 \
-    + s##n.s6 + s##n.s7;
+    + s##n.s6 + s##n.s7 + s##n.s8 + s##n.s9 + s##n.sa + s##n.sb + s##n.sc + s##n.sd + s##n.se + s##n.sf;
 
 __kernel void register_shift(__global const float *restrict level, const uint w, const uint h, const uint ref,
                              __global const float *restrict maps, const float GSCALE, __global float *restrict out)
@@ -257,24 +250,24 @@ __kernel void register_shift(__global const float *restrict level, const uint w,
     const float fx = dx - floor(dx), fy = dy - floor(dy);
     const int xlo = max(1, -ix), xhi = min((int)w - 2, (int)w - 2 - ix);
     const int ylo = max(1, -iy), yhi = min((int)h - 2, (int)h - 2 - iy);
-    const int per_row = max(0, (xhi - xlo + 8) / 8), rows = max(0, yhi - ylo + 1);
+    const int per_row = max(0, (xhi - xlo + 16) / 16), rows = max(0, yhi - ylo + 1);
     const uint chunks = (uint)(per_row * rows);
-    const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     SHIFT_SUMS(SHIFT_DECLARE)
     FOR_CHUNKS(c, chunks) {
-        const int y = ylo + (int)c / per_row, x = xlo + 8 * ((int)c % per_row);
-        const int8 inside = x + lane <= (int8)(xhi);
-        const float8 one = inside ? (float8)(1.0f) : (float8)(0.0f);
+        const int y = ylo + (int)c / per_row, x = xlo + 16 * ((int)c % per_row);
+        const int16 inside = x + lane <= (int16)(xhi);
+        const float16 one = inside ? (float16)(1.0f) : (float16)(0.0f);
         __global const float *row = T + (ulong)y * w;
         __global const float *q = I + (ulong)(y + iy) * w;
-        const float8 a = load8_clamped(q, x + ix, xhi + ix), b = load8_clamped(q, x + ix + 1, xhi + ix + 1);
-        const float8 d = load8_clamped(q + w, x + ix, xhi + ix), e = load8_clamped(q + w, x + ix + 1, xhi + ix + 1);
-        const float8 top = (b - a) * fx + a, low = (e - d) * fx + d;
-        const float8 i = ((low - top) * fy + top) * one;
-        const float8 t = load8_clamped(row, x, xhi) * one;
-        const float8 tx = 0.5f * GSCALE * (load8_clamped(row, x + 1, xhi + 1) - load8_clamped(row, x - 1, xhi - 1))
+        const float16 a = load16_clamped(q, x + ix, xhi + ix), b = load16_clamped(q, x + ix + 1, xhi + ix + 1);
+        const float16 d = load16_clamped(q + w, x + ix, xhi + ix), e = load16_clamped(q + w, x + ix + 1, xhi + ix + 1);
+        const float16 top = (b - a) * fx + a, low = (e - d) * fx + d;
+        const float16 i = ((low - top) * fy + top) * one;
+        const float16 t = load16_clamped(row, x, xhi) * one;
+        const float16 tx = 0.5f * GSCALE * (load16_clamped(row, x + 1, xhi + 1) - load16_clamped(row, x - 1, xhi - 1))
                           * one;
-        const float8 ty = 0.5f * GSCALE * (load8_clamped(row + w, x, xhi) - load8_clamped(row - w, x, xhi)) * one;
+        const float16 ty = 0.5f * GSCALE * (load16_clamped(row + w, x, xhi) - load16_clamped(row - w, x, xhi)) * one;
         SHIFT_SUMS(SHIFT_ADD)
     }
     __local float part[15 * GROUP];
