@@ -229,7 +229,7 @@ def _register(queue, ws: _Workspace, gradients, ref: int, model: str, max_speed,
         cl.enqueue_copy(queue, ws.upload.data, np.ascontiguousarray(gradients, np.float32), is_blocking=False)
         gradients = ws.upload
     levels = [gradients, *ws.levels]
-    halve = get_kernel(queue, "register.cl", "register_halve", HROWS=_HALVE_ROWS)
+    halve = _kernel(queue, ws, "register_halve")
     for (hh, ww), src, dst, (h2, w2) in zip(ws.sizes, levels, levels[1:], ws.sizes[1:]):
         kernels.launch_range(queue, halve, (-(-w2 // 8), -(-h2 // _HALVE_ROWS), K), (1, 1, 1), src.data, dst.data,
                              np.uint32(ww), np.uint32(hh), np.uint32(w2), np.uint32(h2))
@@ -252,6 +252,12 @@ def _register(queue, ws: _Workspace, gradients, ref: int, model: str, max_speed,
     return _result(maps, usable, error, ref, model)
 
 
+def _kernel(queue, ws: _Workspace, name: str, affine: bool = False):
+    """A kernel of ``kernels/register.cl``, every entry built with the same macros (one program per variant and
+    model)."""
+    return get_kernel(queue, "register.cl", name, AFFINE=int(affine), GROUP=ws.group, HROWS=_HALVE_ROWS)
+
+
 def _level_to_full(level: int) -> np.ndarray:
     """The 3 x 3 map of a level's pixel coordinates to full resolution's (pixel i centred on 2 i + 0.5 below)."""
     s = float(2 ** level)
@@ -270,7 +276,7 @@ def _coarse_search(queue, ws: _Workspace, coarse: cla.Array, ref: int, gaps: np.
     R = int(reach.max())
     side = 2 * R + 1
     scores_dev, scores = ws.score_buffers(queue, K - 1, side)
-    kernel = get_kernel(queue, "register.cl", "register_search")
+    kernel = _kernel(queue, ws, "register_search")
     kernels.launch_range(queue, kernel, (side * side, K - 1), (min(ws.group, 16), 1), coarse.data, np.uint32(ww),
                          np.uint32(hh), np.uint32(ref), np.int32(R), np.float32(min(speed, 1e9)), scores_dev.data)
     cl.enqueue_copy(queue, scores, scores_dev.data, is_blocking=True)
@@ -299,8 +305,7 @@ def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest
     affine = model == "affine"
     params = 6 if affine else 2
     ns = _sum_count(params)
-    kernel = get_kernel(queue, "register.cl", "register_step" if affine else "register_shift", AFFINE=int(affine),
-                        GROUP=ws.group)
+    kernel = _kernel(queue, ws, "register_step" if affine else "register_shift", affine)
     centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     norm = max(w, h) / 2.0
     to_centred = np.array([[1.0, 0.0, -centre[0]], [0.0, 1.0, -centre[1]], [0.0, 0.0, 1.0]])
