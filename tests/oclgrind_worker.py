@@ -510,6 +510,35 @@ def _guided_case(shape, r, strip, nonfinite):
     return run
 
 
+def _registration_case(model):
+    """engine.registration.register_gradients (the pyramid's halving, the coarse search, the steps of a translation
+    or an affine map) on three analytic images 50 x 67 px (one halving, a partial chunk of 8 and of 16 columns),
+    each frame seeing the reference's point x at a known map M_k x: the maps within 0.05 px."""
+    from specgpu.engine.registration import register_gradients
+
+    def texture(x, y):
+        return 2.0 + np.sin(0.31 * x + 0.2 * y) + np.cos(0.17 * x - 0.43 * y) + 0.5 * np.sin(0.53 * x + 0.11 * y + 1)
+
+    def run():
+        h, w = 50, 67
+        maps = np.tile(np.eye(3), (3, 1, 1))
+        maps[0, :2, 2], maps[2, :2, 2] = (-0.8, 0.45), (1.35, -0.6)
+        if model == "affine":
+            maps[2, :2, :2] = [[1.004, -0.006], [0.006, 1.004]]
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        images = []
+        for M in maps:  # frame k at y shows the reference's point M_k^-1 y
+            inv = np.linalg.inv(M)
+            images.append(texture(inv[0, 0] * xx + inv[0, 1] * yy + inv[0, 2], inv[1, 0] * xx + inv[1, 1] * yy
+                                  + inv[1, 2]))
+        got = register_gradients(np.stack(images).astype(np.float32), 1, model=model, device="oclgrind")
+        corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], float).T
+        errors = {"maps": float(np.abs(got.to_reference @ corners - maps @ corners).max())}
+        return errors, {"maps": 0.05}
+
+    return run
+
+
 def cases() -> dict:
     """Every kernel entry and build variant the host launches, on small images (name -> callable returning
     (errors, tolerances)). The kernel variant (cpu / gpu) comes from SPECGPU_VARIANT."""
@@ -550,6 +579,8 @@ def cases() -> dict:
         "gradients_f32_dark_per_frame": _gradient_case(np.float32, "per frame"),
         "guided_c9_strips_nonfinite": _guided_case((9, 11, 9), 2, 4, True),
         "guided_c1_radius_past_the_image": _guided_case((7, 6, 1), 5, None, False),
+        "registration_translation": _registration_case("translation"),
+        "registration_affine": _registration_case("affine"),
     }
 
 

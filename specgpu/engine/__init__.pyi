@@ -14,6 +14,7 @@ from .kernels import (
     to_device,
 )
 from .linear_map import LAYOUTS, LinearResult, apply_linear
+from .registration import DeviceRegistration, register_gradients
 from .runtime import DeviceInfo, SpecgpuDeviceError, get_queue, list_devices, select_device
 from .selftest import SelftestReport, run_selftest
 from .warp_map import apply_linear_warped
@@ -24,6 +25,7 @@ __all__ = [
     "delta_E",
     "DELTA_E_METHODS",
     "DeviceInfo",
+    "DeviceRegistration",
     "frames_to_delta_E",
     "FusedResult",
     "get_queue",
@@ -41,6 +43,7 @@ __all__ = [
     "prepare_frames_to_delta_E",
     "prepare_linear",
     "reflectance_to_XYZ",
+    "register_gradients",
     "run_selftest",
     "select_device",
     "SelftestReport",

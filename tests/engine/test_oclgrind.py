@@ -121,14 +121,14 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     21 x 35 pixels, with a sample that misleads its bracket (the strips run twice), and from raw frames (the
     gradient images made on the device, the samples scaled); the gradient images alone with a dead pixel and a dark
     frame per frame; the guided filter's three passes, nine channels in short strips with a NaN in the image and an
-    inf in the guide, and one channel with windows wider than the image: no Oclgrind report, and every output
-    within its tolerance."""
+    inf in the guide, and one channel with windows wider than the image; the registration of images on the device,
+    translations and affine maps: no Oclgrind report, and every output within its tolerance."""
     proc, reports = run_worker(oclgrind_env, "cases", variant)
     assert proc.returncode == 0, f"the worker ended with {proc.returncode}:\n{proc.stderr[-4000:]}"
     cases, programs = results(proc)
     failures = case_failures(proc, cases, reports)
     assert not failures, "\n".join(failures)
-    assert len(cases) == 33, sorted(cases)
+    assert len(cases) == 35, sorted(cases)
 
     # the variant's own code paths were built (the variant comes from SPECGPU_VARIANT in the worker); the motion
     # kernels' programs (the warp's OUT_INTERLEAVED per pixel or GROUPS for translations, the check's WINDOW, the
@@ -139,13 +139,14 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     assert all(steps in p + " " for p in warp if "-DGROUPS=" in p)
     check = [p for p in programs if "-DWINDOW=" in p]
     gradient = [p for p in programs if "-DGROWS=" in p]
+    register = [p for p in programs if "-DHROWS=" in p]  # the registration's, one size of group per variant
     linear = [p for p in programs if "-DB=" in p and p not in warp]
     # the guided filter: a pixel and a row per work-item on GPUs; 16 pixels (column passes), 4 rows (row pass) on CPUs
     guided = [p for p in programs if "-DBX=" in p]
     bx, ry = (1, 1) if variant == "gpu" else (16, 4)
     assert guided and all(f"-DBX={bx} " in p + " " and f"-DRY={ry} " in p + " " for p in guided)
     if variant == "gpu":
-        assert all("-DVW=1" in p for p in programs if p not in warp + check + gradient + guided)
+        assert all("-DVW=1" in p for p in programs if p not in warp + check + gradient + guided + register)
         assert any("-DTILE=1" in p for p in linear) and any("-DTILE=0" in p for p in linear)
         assert all("-DSELECT_GROUP=64" in p and "-DV=1 " in p for p in check)  # small strips, atomic counts
     else:
@@ -164,6 +165,10 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     assert any("-DWINDOW=9" in p for p in check) and any("-DSCALED=1" in p for p in check)
     assert any("-DHAS_DARK=2" in p and "-DIN_T=float" in p for p in gradient)
     assert any("-DHAS_GAIN=1" in p and "-DIN_T=ushort" in p for p in gradient)
+    # the registration's steps: a translation (8 pixels at a time) and an affine map, in the variant's group size
+    group = "-DGROUP=64" if variant == "gpu" else "-DGROUP=1"
+    assert any("-DAFFINE=0" in p and group in p for p in programs)
+    assert any("-DAFFINE=1" in p and group in p for p in programs)
 
 
 def case_failures(proc, cases, reports) -> list[str]:
