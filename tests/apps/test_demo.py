@@ -125,7 +125,7 @@ def test_the_demo_pages_run_time_counts_its_figures(monkeypatch):
     import specgpu.apps.report as report
     from specgpu.apps.demo import _html
 
-    def slow_figures(summaries, bundle):  # the page's last figures, drawn in half a second
+    def slow_figures(summaries, bundle, keep=None):  # the page's last figures, drawn in half a second
         time.sleep(0.5)
         return "<h2>Illuminant sequences</h2>"
 
