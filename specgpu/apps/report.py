@@ -79,10 +79,13 @@ class MethodSummary:
         return "D65" if self.plan.output == "reflectance" else self.plan.illuminant
 
 
-def summarise_method(name, plan, y, scene=None, *, sigma=None, device=None) -> MethodSummary:
+def summarise_method(name, plan, y, scene=None, *, sigma=None, device=None, patch=None,
+                     pixels=None) -> MethodSummary:
     """One recovery (``y``: the plan's outputs, (H, W, B)) scored against ``scene`` (None: no truth) as the demo
     and ``specgpu evaluate`` score it (reflectance under D65 on its own bands, XYZ under its plan's illuminant);
-    ``sigma`` (H, W, B) the predicted per-pixel standard deviation of ``y``."""
+    ``sigma`` (H, W, B) the predicted per-pixel standard deviation of ``y``; ``patch`` and ``pixels``: its
+    per-patch and per-pixel reports when scored so already (:func:`specgpu.apps.demo_measure.measure_methods`),
+    used instead of scoring it again."""
     y = np.asarray(y, np.float32)
     reflectance = plan.output == "reflectance"
     wl = plan.output_wavelengths
@@ -99,15 +102,19 @@ def summarise_method(name, plan, y, scene=None, *, sigma=None, device=None) -> M
     if scene is None:
         return s
     if reflectance:
-        s.patch = evaluate_reflectance(y, wl, scene, illuminant="D65") if scene.masks else None
-        px = evaluate_pixels(y, scene, wavelengths=wl, illuminant="D65", device=device)
+        s.patch = patch if patch is not None else (
+            evaluate_reflectance(y, wl, scene, illuminant="D65") if scene.masks else None)
+        px = pixels if pixels is not None else evaluate_pixels(y, scene, wavelengths=wl, illuminant="D65",
+                                                               device=device)
         if scene.masks:
             _, s.spectra = patch_means(y, scene.masks)
             if sigma is not None:
                 _, s.sigma_spectra = patch_means(np.asarray(sigma, np.float32), scene.masks)
     else:
-        s.patch = evaluate_XYZ(y, scene, illuminant=plan.illuminant) if scene.masks else None
-        px = evaluate_pixels(y, scene, illuminant=plan.illuminant, device=device)
+        s.patch = patch if patch is not None else (
+            evaluate_XYZ(y, scene, illuminant=plan.illuminant) if scene.masks else None)
+        px = pixels if pixels is not None else evaluate_pixels(y, scene, illuminant=plan.illuminant,
+                                                               device=device)
     s.pixels, s.delta_E = px.statistics(), px.delta_E_2000
     return s
 
