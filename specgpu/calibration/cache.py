@@ -44,11 +44,14 @@ def _code_digest() -> str:
 
 
 def calibration_key(description: RigDescription, **options) -> str:
-    """SHA-256 (hex) naming one calibration of the twin: the whole rig ``description`` (its exposure and noise
-    seed included), the keyword ``options`` of :func:`~specgpu.calibration.procedure.calibrate` (``seed`` and
-    the rest; defaults left out give the same key as defaults given), the bundle format's version and the
-    calibrating code."""
-    key = {"rig": description.to_dict(), "seed": description.seed, "options": options,
+    """SHA-256 (hex) naming one calibration of the twin: the whole rig ``description`` (its exposure, noise seed,
+    the bench's imperfections and drift included), the keyword ``options`` of
+    :func:`~specgpu.calibration.procedure.calibrate` as given (``seed`` and the rest; a default spelt out makes
+    another key than the same default left out, which costs one calibration more, never a wrong bundle), the
+    bundle format's version and the calibrating code."""
+    rig = {**description.to_dict(), "realism": description.realism.to_dict(), "drift": description.drift.to_dict(),
+           "motion": description.motion.to_dict(), "capture_delay_s": description.capture_delay_s}
+    key = {"rig": rig, "seed": description.seed, "options": options,
            "format_version": CALIBRATION_VERSION, "code": _code_digest()}
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
 

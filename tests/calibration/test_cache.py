@@ -44,8 +44,9 @@ def test_another_seed_option_exposure_or_bench_is_another_calibration(made, tmp_
     key = calibration_key(DESC, seed=3)
     others = [calibration_key(DESC, seed=4), calibration_key(DESC, seed=3, repeats=2),
               calibration_key(replace(DESC, camera=replace(DESC.camera, exposure_s=0.005)), seed=3),
-              calibration_key(replace(DESC, seed=DESC.seed + 1), seed=3)]
-    assert len({key, *others}) == 5
+              calibration_key(replace(DESC, seed=DESC.seed + 1), seed=3),
+              calibration_key(replace(DESC, realism=replace(DESC.realism, white_error=0.01)), seed=3)]
+    assert len({key, *others}) == 6
     cached_calibration(DESC, folder, seed=4)
     assert len(made) == 2
 
