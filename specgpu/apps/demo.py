@@ -13,12 +13,14 @@ writes a report folder:
     index.html                  the tables and every figure, one page
     report.json                 every figure of the run, machine-readable
     calibration.npz, basis.npz  the calibration bundle and the basis table
+    calibrations/               every rig's bundle under its key, loaded by the next run on the same rig
     plans/<method>.npz          the plans (illuminant sequences and decoders)
     sequences/<method>/         the captured frames (16-bit TIFF, sequence.json, plan and calibration)
     cubes/<method>.exr          recovered reflectance cubes (JCGT spectral EXR, half) or XYZ maps
     maps/<method>-dE2000.exr    per-pixel CIEDE2000 against the truth (and a heat-map PNG beside it)
     png/<method>.png            sRGB renderings of the recoveries; png/truth.png the scene itself
-    figures/*.png               spectra of the 24 patches (paper Fig. 15), illuminant sequences (Figs. 12, 14, 16)
+    figures/*.png               the page's spectra of the 24 patches per reflectance method (paper Fig. 15) and
+                                each plan's illuminant sequence (Figs. 12, 14, 16)
 
 By default the demo is the quick one (:mod:`specgpu.apps.demo_scope`): the lab profile only, the paper's plans,
 the design of each sequence-time budget, the moving scene, one noise draw; ``full=True`` (``specgpu demo
