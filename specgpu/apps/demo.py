@@ -13,12 +13,14 @@ writes a report folder:
     index.html                  the tables and every figure, one page
     report.json                 every figure of the run, machine-readable
     calibration.npz, basis.npz  the calibration bundle and the basis table
+    calibrations/               every rig's bundle under its key, loaded by the next run on the same rig
     plans/<method>.npz          the plans (illuminant sequences and decoders)
     sequences/<method>/         the captured frames (16-bit TIFF, sequence.json, plan and calibration)
     cubes/<method>.exr          recovered reflectance cubes (JCGT spectral EXR, half) or XYZ maps
     maps/<method>-dE2000.exr    per-pixel CIEDE2000 against the truth (and a heat-map PNG beside it)
     png/<method>.png            sRGB renderings of the recoveries; png/truth.png the scene itself
-    figures/*.png               spectra of the 24 patches (paper Fig. 15), illuminant sequences (Figs. 12, 14, 16)
+    figures/*.png               the page's spectra of the 24 patches per reflectance method (paper Fig. 15) and
+                                each plan's illuminant sequence (Figs. 12, 14, 16)
 
 By default the demo is the quick one (:mod:`specgpu.apps.demo_scope`): the lab profile only, the paper's plans,
 the design of each sequence-time budget, the moving scene, one noise draw; ``full=True`` (``specgpu demo
@@ -39,17 +41,17 @@ from tqdm import tqdm
 
 from specgpu import io
 from specgpu.apps import paper
-from specgpu.apps.demo_lights import led_draws
+from specgpu.apps.demo_lights import LED_LABEL, led_draws, led_rig
 from specgpu.apps.demo_measure import chart_with_white, mean_std, measure_methods
-from specgpu.apps.demo_scope import DemoScope, announce, demo_scope
+from specgpu.apps.demo_scope import DemoScope, StepClock, announce, demo_scope, estimate_steps
 from specgpu.apps.moving_demo import moving_html, moving_lines, moving_section
 from specgpu.apps.report import report_page, summarise_method, table2_html, table3_html
-from specgpu.apps.report_figures import illuminant_figure
 from specgpu.apps.table1 import Table1, equal_time_rows, method_rows, table1, table1_html, table1_text
-from specgpu.calibration import calibrate, save_calibration
+from specgpu.calibration import save_calibration
 from specgpu.calibration.bundle import calibration_error
+from specgpu.calibration.cache import cached_calibration, find_calibration
 from specgpu.pipeline.capture_folder import SequenceFolder, write_capture
-from specgpu.pipeline.evaluate import scene_XYZ, true_patch_spectra
+from specgpu.pipeline.evaluate import scene_XYZ
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis, uncertainty
 from specgpu.planning import default_prior, make_plan, save_plan
 from specgpu.planning.basis import save_basis
@@ -110,10 +112,13 @@ class DemoResult:
     bounds: dict = field(default_factory=dict)
     #: the moving-scene section (:func:`specgpu.apps.moving_demo.moving_section`)
     moving: dict = field(default_factory=dict)
+    #: step -> {"cpu_s", "wall_s", "estimate_s"}: what each step of the run took and what the estimate gave it
+    #: (:meth:`specgpu.apps.demo_scope.StepClock.steps`)
+    steps: dict = field(default_factory=dict)
 
 
 def _steps(progress, scope: DemoScope):
-    return tqdm(total=len(scope.profiles) * (2 + scope.plans()) + 4, desc="demo", unit="step", leave=False,
+    return tqdm(total=len(scope.profiles) * (2 + scope.plans()) + 3, desc="demo", unit="step", leave=False,
                 disable=not progress)
 
 
@@ -159,47 +164,66 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
         budget (:mod:`specgpu.apps.demo_scope`). Either way the first line echoed says what runs and about how
         long it takes.
 
+    Each rig is calibrated once: its bundle is kept under ``calibrations/`` in ``out`` and in the user's cache
+    (:mod:`specgpu.calibration.cache`) and loaded, its hash checked, by a later run on the same rig. The time each
+    step took (CPU and wall seconds) is recorded beside the estimate's share of it in ``report.json``
+    (``steps``).
+
     On a rig with imperfections every sequence gets an ambient frame (every mirror off, subtracted: the DMD's
     off-state light and the room light are on the scene) and the chart has a reference white tile whose ROI
     rescales each sequence's decoder for the lamp's drift since calibration (:mod:`specgpu.planning.correction`).
     """
     t_start = time.perf_counter()
+    clock = StepClock()
     out = Path(out)
     every_profile = demo_profiles(rig)  # a bad rig refused before the report folder is made
     scope = scope_of(every_profile, full=full, draws=draws)
-    echo(announce(scope, full_scope=None if full else scope_of(every_profile, full=True)))
     profiles = {label: every_profile[label] for label in scope.profiles}
+    led_base = profiles.get("ideal", next(iter(profiles.values())))  # the LED rig: this one with 12 LEDs
+    rigs = {**profiles, LED_LABEL: led_rig(led_base)}
+    found = {label: find_calibration(d, [out / "calibrations"], seed=seed) for label, d in rigs.items()}
+    calibrated = sum(f is not None for f in found.values())
+    estimate = estimate_steps(scope, calibrated=calibrated)
+    echo(announce(scope, full_scope=None if full else scope_of(every_profile, full=True), calibrated=calibrated))
     draws = scope.draws
     for sub in ("plans", "sequences", "cubes", "maps", "png", "figures"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     main = next(iter(profiles))
     bar = _steps(progress, scope)
     bar.set_description("basis")
-    basis = default_basis(EVALUATION_CHART)
-    save_basis(out / "basis.npz", basis)
-    prior = default_prior(EVALUATION_CHART)
-    training = training_spectra(EVALUATION_CHART, prior.wavelengths)
+    with clock("start"):
+        basis = default_basis(EVALUATION_CHART)
+        save_basis(out / "basis.npz", basis)
+        prior = default_prior(EVALUATION_CHART)
+        training = training_spectra(EVALUATION_CHART, prior.wavelengths)
     bar.update()
+
+    def calibration(label):  # the bundle kept from an earlier run on this rig, else calibrated now and kept
+        with clock("calibration"):
+            if found[label] is not None:
+                return found[label][0]
+            return cached_calibration(rigs[label], [out / "calibrations"], seed=seed)[0]
     result = DemoResult(out, 0.0, {}, basis.cumulative_variance[:9].tolist(), main=main)
-    main_plans = main_bundle = main_scene = None
+    main_bundle = main_scene = None
     for label, description in profiles.items():
         is_main = label == main
         bar.set_description(f"calibrating ({label})")
-        bundle = calibrate(description, seed=seed)
+        bundle = calibration(label)
         bar.update()
         bar.set_description(f"planning ({label})")
-        plans = make_demo_plans(bundle, basis)
-        # one start (the smooth bumps; four gave the same designs on both profiles' calibrations, in twice the
-        # time) and 100 iterations (the design's expected error within 0.2 % of 300 iterations', in a third)
-        if scope.estimator_rows:
-            plans.update(study_plans(description, bundle, prior, basis, methods=scope.estimator_rows,
-                                     training=training, chart=EVALUATION_CHART, starts=1, iterations=100))
-        lab = description.realism.any or description.drift.any
-        # the methods at equal sequence time (an ambient frame per sequence on a lab rig, within the budget)
-        plans.update(equal_time_plans(description, bundle, prior, basis, training=training, extra_frames=int(lab),
-                                      rows=scope.equal_time_rows))
-        if is_main:
-            result.bounds = equal_time_bounds(description, bundle, prior, extra_frames=int(lab))
+        with clock("planning"):
+            plans = make_demo_plans(bundle, basis)
+            # one start (the smooth bumps; four gave the same designs on both profiles' calibrations, in twice the
+            # time) and 100 iterations (the design's expected error within 0.2 % of 300 iterations', in a third)
+            if scope.estimator_rows:
+                plans.update(study_plans(description, bundle, prior, basis, methods=scope.estimator_rows,
+                                         training=training, chart=EVALUATION_CHART, starts=1, iterations=100))
+            lab = description.realism.any or description.drift.any
+            # the methods at equal sequence time (an ambient frame per sequence on a lab rig, within the budget)
+            plans.update(equal_time_plans(description, bundle, prior, basis, training=training, extra_frames=int(lab),
+                                          rows=scope.equal_time_rows))
+            if is_main:
+                result.bounds = equal_time_bounds(description, bundle, prior, extra_frames=int(lab))
         scene, roi = chart_with_white(description, EVALUATION_CHART)
         corrections = {"white_roi": roi, "ambient": True} if lab else {}
         error = calibration_error(bundle, description)
@@ -211,11 +235,11 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
             result.calibration = bundle.reports
             save_calibration(out / "calibration.npz", bundle)
             io.write_sRGB_preview(out / "png" / "truth.png", scene_XYZ(scene, "D65", device=device), exposure=0.0)
-            main_plans, main_bundle, main_scene = plans, bundle, scene
+            main_bundle, main_scene = bundle, scene
         bar.update()
 
-        def keep(name, draw, y, plan, captured, _main=is_main, _scene=scene, _bundle=bundle, _roi=roi,
-                 _rig=description):
+        def keep(name, draw, y, plan, captured, patch, pixels, _main=is_main, _scene=scene, _bundle=bundle,
+                 _roi=roi, _rig=description):
             if _main and draw == 0:  # the report's files: the first draw of the main profile
                 save_plan(out / "plans" / f"{name}.npz", plan)
                 white = {"white_roi": ",".join(map(str, _roi)), "white_tile": float(_scene.reflectance[
@@ -223,7 +247,6 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
                 write_capture(out / "sequences" / name, captured.sequences, captured.assembly,
                               out / "plans" / f"{name}.npz", out / "calibration.npz",
                               metadata={"scene": _scene.name, **white}, overwrite=True)
-                main_plans[name] = plan
                 sigma = None
                 if plan.output == "reflectance":  # the rig's noise model's per-pixel sigma: the spectra's band
                     frames = np.stack([seq.frames for seq in captured.sequences])
@@ -231,27 +254,32 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
                                                   **plan.params})
                     sigma = uncertainty(SequenceFolder(out, frames, noisy, _bundle, [], {}), device=device,
                                         white_roi=white.get("white_roi"))[0]
-                result.methods[name] = _evaluate(out, name, plan, y, _scene, device, sigma)
+                result.methods[name] = _evaluate(out, name, plan, y, _scene, device, sigma, patch, pixels)
             if draw == draws - 1:
                 bar.set_description(f"{label}: {name}")
                 bar.update()
 
-        result.draws[label] = measure_methods(description, bundle, plans, scene, draws=draws, seed=seed,
-                                              device=device, on_result=keep, **corrections)
+        with clock("measuring"):
+            result.draws[label] = measure_methods(description, bundle, plans, scene, draws=draws, seed=seed,
+                                                  device=device, on_scored=keep, **corrections)
         for rows in result.draws[label].values():
             rows.pop("reports", None)
 
     bar.set_description("an LED rig")  # Table 1's 60 ms rows again with a 12-LED array as the light
-    result.draws.update(led_draws(profiles.get("ideal", profiles[main]), prior, basis, training, seed=seed,
-                                  draws=draws, device=device, rows=scope.equal_time_rows))
+    led_bundle = calibration(LED_LABEL)
+    with clock("led"):
+        result.draws.update(led_draws(led_base, prior, basis, training, seed=seed, draws=draws, device=device,
+                                      rows=scope.equal_time_rows, bundle=led_bundle))
     bar.set_description("a moving scene")
-    result.moving = moving_section(every_profile.get("ideal", profiles[main]), basis, seed=seed,
-                                   size=scope.moving_size)
+    with clock("moving"):
+        result.moving = moving_section(every_profile.get("ideal", profiles[main]), basis, seed=seed,
+                                       size=scope.moving_size)
     bar.update()
-    bar.set_description("figures")
-    _figures(out, main_plans, result, main_scene, main_bundle)
-    bar.update()
-    page = _html(result, main_scene, main_bundle, device, t_start)  # its figures drawn, then the run time taken
+    bar.set_description("report")
+    with clock("report"):  # the page with its figures, each spectra and illuminant figure also a file
+        page = _html(result, main_scene, main_bundle, device, t_start,
+                     keep=lambda name, png: (out / "figures" / f"{name}.png").write_bytes(png))
+    result.steps = clock.steps(estimate)
     (out / "report.json").write_text(json.dumps(_report_json(result), indent=1))
     (out / "index.html").write_text(page)
     bar.update()
@@ -259,11 +287,11 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     return result
 
 
-def _evaluate(out, name, plan, y, scene, device, sigma=None):
+def _evaluate(out, name, plan, y, scene, device, sigma=None, patch=None, pixels=None):
     # the illuminant of the colours (a tristimulus plan's own): what `specgpu evaluate` of these files judges under
     meta = {"plan_method": plan.method, "projections": plan.K, "plan_hash": plan.hash,
             "illuminant": plan.resolve_illuminant(), **({"observer": plan.observer} if plan.output == "XYZ" else {})}
-    summary = summarise_method(name, plan, y, scene, sigma=sigma, device=device)
+    summary = summarise_method(name, plan, y, scene, sigma=sigma, device=device, patch=patch, pixels=pixels)
     if plan.output == "reflectance":
         io.write_cube(out / "cubes" / f"{name}.exr", y, plan.output_wavelengths, half=True, metadata=meta)
     else:
@@ -373,48 +401,16 @@ def _report_json(result: DemoResult) -> dict:
               for T, b in result.bounds.items()}
     moving = {k: v for k, v in result.moving.items() if k != "maps"}
     return {"main_profile": result.main, "profiles": result.profiles, "draws": draws, "bounds": bounds,
-            "moving_scene": moving,
+            "moving_scene": moving, "steps": result.steps,
             "seconds": result.seconds, "calibration": result.calibration, "basis_cumulative_variance":
             result.basis_variance, "methods": methods,
             "paper": {"table1": paper.TABLE1, "table3": paper.TABLE3_SUMMARY}}
 
 
-# --------------------------------------------------------------------------------------------------- figures
-
-
-def _figures(out, plans, result, scene, bundle):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names, truth = true_patch_spectra(scene, OUTPUT_WAVELENGTHS)
-    for method in ("narrowband", "biased", "symmetric"):
-        r = result.methods[method]
-        fig, axes = plt.subplots(4, 6, figsize=(15, 9), sharex=True, sharey=True)
-        for i, ax in enumerate(axes.flat):
-            ax.plot(OUTPUT_WAVELENGTHS, truth[i], "k--", lw=1, label="truth")
-            ax.plot(r["wavelengths"], r["spectra"][i], "C3", lw=1.3, label="recovered")
-            ax.set_title(f"{i + 1} {names[i]}", fontsize=8)
-            ax.set_ylim(0, 1)
-        axes[0, 0].legend(fontsize=7)
-        fig.suptitle(f"{method} ({r['K']} projections): recovered (solid) vs true (broken) reflectance "
-                     "(paper Fig. 15)")
-        fig.supxlabel("wavelength (nm)")
-        fig.supylabel("reflectance")
-        fig.tight_layout()
-        fig.savefig(out / "figures" / f"spectra-{method}.png", dpi=80)
-        plt.close(fig)
-    for name, plan in plans.items():
-        fig = illuminant_figure(plan, bundle, title=f"{name}: {plan.K} illuminants")
-        fig.savefig(out / "figures" / f"illuminants-{name}.png", dpi=80)
-        plt.close(fig)
-
-
-def _html(result: DemoResult, scene, bundle, device, t_start: float) -> str:
+def _html(result: DemoResult, scene, bundle, device, t_start: float, keep=None) -> str:
     """The report page (:func:`specgpu.apps.report.report_page`) with Tables 1-3, ours beside the paper's; the
     run time it states, and ``result.seconds``, count the whole job from ``t_start`` (``time.perf_counter``), the
-    page's figures included."""
+    page's figures included; ``keep``: :func:`specgpu.apps.report.report_page`'s."""
     m = result.methods
     tables = table1_html(table1(result.draws, TABLE1_METHODS, result.bounds), TABLE1_CAPTION)
     if all(k in m for k in ("narrowband", "symmetric")):
@@ -436,4 +432,4 @@ def _html(result: DemoResult, scene, bundle, device, t_start: float) -> str:
     summaries = {name: r["summary"] for name, r in m.items()}
     return report_page("specgpu demo: the paper's experiment on the digital twin", intro, summaries, scene=scene,
                        bundle=bundle, tables=tables, device=device,
-                       sections=moving_html(result.moving) if result.moving else "")
+                       sections=moving_html(result.moving) if result.moving else "", keep=keep)

@@ -28,13 +28,14 @@ def led_rig(description):
 
 
 def led_draws(description, prior, basis, training, *, seed: int = 0, draws: int = 2, device=None,
-              rows=None) -> dict:
+              rows=None, bundle=None) -> dict:
     """``{LED_LABEL: method -> metric -> values per draw}`` for the demo's ``result.draws``: the rows of
     :data:`~specgpu.planning.equal_time.EQUAL_TIME` at :data:`LED_BUDGET_MS` on :func:`led_rig` of the demo's
     rig, calibrated, planned (one start, 100 iterations, as the demo's) and measured on the demo's chart; ``rows``:
-    the row names to run (None: all)."""
+    the row names to run (None: all); ``bundle``: the LED rig's calibration when made already (by
+    :func:`specgpu.calibration.cache.cached_calibration`; None: calibrated here)."""
     led = led_rig(description)
-    bundle = calibrate(led, seed=seed)
+    bundle = calibrate(led, seed=seed) if bundle is None else bundle
     plans = equal_time_plans(led, bundle, prior, basis, training=training, budgets=(LED_BUDGET_MS,), rows=rows)
     scene, _ = chart_with_white(led, EVALUATION_CHART)
     runs = measure_methods(led, bundle, plans, scene, draws=draws, seed=seed, device=device)

@@ -35,7 +35,7 @@ def chart_with_white(description, chart: str):
 
 def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, seed: int = 0,
                     white_roi=None, white_reflectance=None, ambient: bool = False, probes=None, pixels: bool = True,
-                    device=None, on_result=None) -> dict:
+                    device=None, on_result=None, on_scored=None) -> dict:
     """Capture each plan ``draws`` times on ``scene`` with fresh noise and evaluate.
 
     Parameters
@@ -52,6 +52,10 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
         Drift probe centres (nm) added to every plan (:func:`specgpu.planning.correction.with_drift_probes`).
     on_result : callable, optional
         ``on_result(name, draw, y, plan, res)`` for every recovery (e.g. to write files for the first draw).
+    on_scored : callable, optional
+        ``on_scored(name, draw, y, plan, res, patch, pixels)`` for every recovery once scored: its
+        :class:`~specgpu.pipeline.evaluate.PatchReport` and :class:`~specgpu.pipeline.evaluate.PixelReport` (None
+        with ``pixels=False``), so that a caller reporting on it need not score it again.
 
     Returns
     -------
@@ -98,6 +102,8 @@ def measure_methods(description, bundle, plans: dict, scene, *, draws: int = 1, 
                     err = (np.asarray(y, np.float64) - truth_cube(scene, plan.output_wavelengths))[patches]
                     rows["px_rms"].append(float(np.sqrt(np.mean(err ** 2))))
             rows.setdefault("reports", []).append(rep)
+            if on_scored is not None:
+                on_scored(name, draw, y, plan, res, rep, px)
         out[name] = {k: v for k, v in rows.items() if v} | {"K": plan.K, "sequence_ms": plan.sequence_s * 1e3}
         expected = plan.params.get("expected", {}).get("rmse") if plan.output == "reflectance" else None
         if expected is not None:

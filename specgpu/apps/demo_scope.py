@@ -11,14 +11,15 @@ moment (a busy machine estimates longer).
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
 from specgpu.planning.equal_time import EQUAL_TIME, row_name
 
-__all__ = ["DemoScope", "demo_scope", "estimate_seconds", "announce", "machine_speed", "QUICK_EQUAL_TIME_ROWS",
-           "QUICK_MOVING_SIZE"]
+__all__ = ["DemoScope", "demo_scope", "estimate_seconds", "estimate_steps", "StepClock", "announce",
+           "machine_speed", "QUICK_EQUAL_TIME_ROWS", "QUICK_MOVING_SIZE"]
 
 #: The quick demo's time-budgeted rows: the design of each budget (the lowest error within it).
 QUICK_EQUAL_TIME_ROWS = ("optimal-9", "optimal-6", "optimal-3")
@@ -26,20 +27,25 @@ QUICK_EQUAL_TIME_ROWS = ("optimal-9", "optimal-6", "optimal-3")
 #: about 25 s of CPU at 640 x 480.
 QUICK_MOVING_SIZE = (320, 240)
 
-# The cost model: CPU seconds per unit on the reference machine (2 cores, idle), for a 640 x 480 rig and its
-# 31-band chart where a cost scales with pixels.
+# The cost model: CPU seconds per unit (every thread of the process) on the reference machine (2 x86 cores), for
+# a 640 x 480 rig and its 31-band chart where a cost scales with pixels; fitted to the steps' CPU seconds of quick
+# demos at 640 x 480 (lab) and 320 x 240 (ideal), which report.json records beside the model's share.
 _REFERENCE_PIXELS = 640 * 480
 _COST = {
-    "start": 4.0,  # imports, the basis, the prior and its training set
-    "calibration": 12.0,  # per profile: both feedback loops
-    "plan": 1.2,  # a paper plan (its basis projection, its illuminants fitted to the light)
+    "start": 1.0,  # the basis, the prior and its training set
+    "calibration": 8.6,  # per rig: both feedback loops
+    "load": 0.2,  # per rig: a calibration kept from an earlier run, loaded and checked
+    "plan": 1.0,  # a paper plan (its basis projection, its illuminants fitted to the light)
     "budgeted": 4.5,  # a paper plan made again within a budget, with its estimator
     "design": 0.6,  # an optimal design (one start, 100 iterations)
     "bound": 0.7,  # per budget: the limit's search
-    "frame": 0.08,  # a captured, corrected and recovered frame (per draw)
-    "evaluation": 0.5,  # a recovery scored per patch and per pixel (per draw)
-    "report": 3.0,  # a plan's files, figures and its share of the report page
-    "moving": 25.0,  # the moving-scene section
+    "frame": 0.15,  # a captured, corrected and recovered frame (per draw)
+    "evaluation": 0.6,  # a recovery scored per patch and per pixel (per draw)
+    "files": 1.6,  # a plan's files (cubes, maps, previews, its sequence) and its sigma, first draw
+    "led_row": 1.0,  # an LED row designed, captured and scored (per draw)
+    "report": 0.6,  # a plan's share of the report page: its figures
+    "report_pixels": 0.5,  # and its renderings and maps, which scale with pixels
+    "moving": 18.0,  # the moving-scene section
 }
 #: The sequence time of the LED rig's rows (:data:`specgpu.apps.demo_lights.LED_BUDGET_MS`).
 _LED_BUDGET_MS = 60.0
@@ -142,39 +148,79 @@ def machine_speed(probe=None) -> float:
     return max(1.0, (time.perf_counter() - t0) / _PROBE_REFERENCE_S)
 
 
-def estimate_seconds(scope: DemoScope, *, speed: float = 1.0) -> float:
-    """Seconds the demo of ``scope`` takes: the cost model counted from its sizes, times ``speed``
-    (:func:`machine_speed`)."""
+def estimate_steps(scope: DemoScope, *, speed: float = 1.0, calibrated: int = 0) -> dict[str, float]:
+    """Seconds each step of the demo of ``scope`` takes (the steps :class:`StepClock` records): the cost model
+    counted from its sizes, times ``speed`` (:func:`machine_speed`); ``calibrated``: the rigs whose calibration
+    is kept from an earlier run (loaded, not made; the main profile's first, then the others, the LED rig's last).
+    """
     scale = scope.pixels / _REFERENCE_PIXELS
     n = len(scope.profiles)
     plans = scope.plans()
     bounds = len(EQUAL_TIME) if scope.equal_time_rows else 0
     budgeted = len(scope.equal_time_names()) - sum(name.startswith("optimal") for name in scope.equal_time_rows)
     made = plans - scope.designs() - budgeted
-    cost = (_COST["start"] + n * _COST["calibration"] * scale
-            + n * (made * _COST["plan"] + budgeted * _COST["budgeted"] + scope.designs() * _COST["design"])
-            + bounds * _COST["bound"]
-            + n * scope.draws * (_frames(scope, _FRAMES) * _COST["frame"] + plans * _COST["evaluation"]) * scale
-            + plans * _COST["report"] + _COST["moving"] * scope.moving_size[0] * scope.moving_size[1]
-            / _REFERENCE_PIXELS)
-    # the LED rig: calibrated, its 60 ms rows designed and measured as the DMD's
-    frames, rows = EQUAL_TIME[_LED_BUDGET_MS]
-    led_rows = sum(name in scope.equal_time_rows for name in rows)
-    if led_rows:
-        cost += (_COST["calibration"] * scale + led_rows * _COST["budgeted"]
-                 + scope.draws * led_rows * (frames * _COST["frame"] + _COST["evaluation"]) * scale)
-    return cost * speed
+    led_rows = sum(name in scope.equal_time_rows for name in EQUAL_TIME[_LED_BUDGET_MS][1])
+    rigs = n + (1 if led_rows else 0)
+    to_make = max(0, rigs - int(calibrated))
+    steps = {
+        "start": _COST["start"],
+        "calibration": (to_make * _COST["calibration"] + (rigs - to_make) * _COST["load"]) * scale,
+        "planning": n * (made * _COST["plan"] + budgeted * _COST["budgeted"] + scope.designs() * _COST["design"])
+        + bounds * _COST["bound"],
+        "measuring": n * scope.draws * (_frames(scope, _FRAMES) * _COST["frame"] + plans * _COST["evaluation"])
+        * scale + plans * _COST["files"] * scale,
+        # the LED rig: its 60 ms rows designed and measured as the DMD's
+        "led": scope.draws * led_rows * _COST["led_row"] * scale,
+        "moving": _COST["moving"] * scope.moving_size[0] * scope.moving_size[1] / _REFERENCE_PIXELS,
+        "report": plans * (_COST["report"] + _COST["report_pixels"] * scale),
+    }
+    return {step: cost * speed for step, cost in steps.items()}
 
 
-def announce(scope: DemoScope, *, speed: float | None = None, full_scope: DemoScope | None = None) -> str:
+def estimate_seconds(scope: DemoScope, *, speed: float = 1.0, calibrated: int = 0) -> float:
+    """Seconds the demo of ``scope`` takes: the sum of :func:`estimate_steps`."""
+    return sum(estimate_steps(scope, speed=speed, calibrated=calibrated).values())
+
+
+class StepClock:
+    """CPU and wall seconds a run spends in each of its steps (a step may be entered several times): ``with
+    clock("planning"): ...``. CPU seconds are the process's, every thread's (the OpenCL device's included)."""
+
+    def __init__(self):
+        self.cpu: dict[str, float] = {}
+        self.wall: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, step: str):
+        cpu, wall = time.process_time(), time.perf_counter()
+        try:
+            yield
+        finally:
+            self.cpu[step] = self.cpu.get(step, 0.0) + time.process_time() - cpu
+            self.wall[step] = self.wall.get(step, 0.0) + time.perf_counter() - wall
+
+    def steps(self, estimate: dict | None = None) -> dict:
+        """step -> ``{"cpu_s", "wall_s"}`` of every step entered, and ``"estimate_s"``, the step's share of
+        ``estimate`` (:func:`estimate_steps`) where given."""
+        out = {}
+        for step in {**(estimate or {}), **self.cpu}:
+            row = {"cpu_s": self.cpu.get(step, 0.0), "wall_s": self.wall.get(step, 0.0)}
+            if estimate is not None and step in estimate:
+                row["estimate_s"] = float(estimate[step])
+            out[step] = row
+        return out
+
+
+def announce(scope: DemoScope, *, speed: float | None = None, full_scope: DemoScope | None = None,
+             calibrated: int = 0) -> str:
     """The line the demo prints before it starts: what it runs and about how long it takes (and ``--full``'s
-    time when ``full_scope`` is given)."""
+    time when ``full_scope`` is given); ``calibrated``: :func:`estimate_steps`'."""
     speed = machine_speed() if speed is None else speed
     what = (f"{', '.join(scope.profiles)} profile{'s' if len(scope.profiles) > 1 else ''}, {scope.plans()} plans, "
             f"{scope.draws} noise draw{'s' if scope.draws > 1 else ''}, a moving scene")
-    line = f"demo: {what}: about {estimate_seconds(scope, speed=speed):.0f} s"
+    line = f"demo: {what}: about {estimate_seconds(scope, speed=speed, calibrated=calibrated):.0f} s"
     if full_scope is not None:
         n = len(full_scope.profiles)
         line += f" (--full: every row on {n} profile{'s' if n > 1 else ''}, about " \
-                f"{estimate_seconds(full_scope, speed=speed):.0f} s)"
+                f"{estimate_seconds(full_scope, speed=speed, calibrated=calibrated):.0f} s)"
     return line

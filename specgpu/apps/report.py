@@ -79,10 +79,13 @@ class MethodSummary:
         return "D65" if self.plan.output == "reflectance" else self.plan.illuminant
 
 
-def summarise_method(name, plan, y, scene=None, *, sigma=None, device=None) -> MethodSummary:
+def summarise_method(name, plan, y, scene=None, *, sigma=None, device=None, patch=None,
+                     pixels=None) -> MethodSummary:
     """One recovery (``y``: the plan's outputs, (H, W, B)) scored against ``scene`` (None: no truth) as the demo
     and ``specgpu evaluate`` score it (reflectance under D65 on its own bands, XYZ under its plan's illuminant);
-    ``sigma`` (H, W, B) the predicted per-pixel standard deviation of ``y``."""
+    ``sigma`` (H, W, B) the predicted per-pixel standard deviation of ``y``; ``patch`` and ``pixels``: its
+    per-patch and per-pixel reports when scored so already (:func:`specgpu.apps.demo_measure.measure_methods`),
+    used instead of scoring it again."""
     y = np.asarray(y, np.float32)
     reflectance = plan.output == "reflectance"
     wl = plan.output_wavelengths
@@ -99,15 +102,19 @@ def summarise_method(name, plan, y, scene=None, *, sigma=None, device=None) -> M
     if scene is None:
         return s
     if reflectance:
-        s.patch = evaluate_reflectance(y, wl, scene, illuminant="D65") if scene.masks else None
-        px = evaluate_pixels(y, scene, wavelengths=wl, illuminant="D65", device=device)
+        s.patch = patch if patch is not None else (
+            evaluate_reflectance(y, wl, scene, illuminant="D65") if scene.masks else None)
+        px = pixels if pixels is not None else evaluate_pixels(y, scene, wavelengths=wl, illuminant="D65",
+                                                               device=device)
         if scene.masks:
             _, s.spectra = patch_means(y, scene.masks)
             if sigma is not None:
                 _, s.sigma_spectra = patch_means(np.asarray(sigma, np.float32), scene.masks)
     else:
-        s.patch = evaluate_XYZ(y, scene, illuminant=plan.illuminant) if scene.masks else None
-        px = evaluate_pixels(y, scene, illuminant=plan.illuminant, device=device)
+        s.patch = patch if patch is not None else (
+            evaluate_XYZ(y, scene, illuminant=plan.illuminant) if scene.masks else None)
+        px = pixels if pixels is not None else evaluate_pixels(y, scene, illuminant=plan.illuminant,
+                                                               device=device)
     s.pixels, s.delta_E = px.statistics(), px.delta_E_2000
     return s
 
@@ -202,7 +209,7 @@ def _summary_lines(summaries) -> list[str]:
     return lines
 
 
-def _spectra_section(summaries, scene) -> str:
+def _spectra_section(summaries, scene, keep=None) -> str:
     spectral = [s for s in summaries.values() if s.spectra is not None]
     if not spectral or scene is None:
         return ""
@@ -213,7 +220,10 @@ def _spectra_section(summaries, scene) -> str:
         fig = spectra_figure(names, s.plan.output_wavelengths, s.spectra, scene.wavelengths, truth,
                              sigma=s.sigma_spectra,
                              title=f"{s.name} ({s.plan.K} frames): recovered (solid) vs true (broken){band}")
-        cards.append(figure_card(figure_png(fig), f"{s.name}: patch means, recovered vs true reflectance"))
+        png = figure_png(fig)
+        if keep is not None:
+            keep(f"spectra-{s.name}", png)
+        cards.append(figure_card(png, f"{s.name}: patch means, recovered vs true reflectance"))
     return ("<h2>Recovered vs true spectra (the paper's Fig. 15)</h2><p>Each panel a patch: the recovery's mean "
             "over the patch against the true reflectance; the band is ± 1σ of one pixel as the noise model "
             "predicts it.</p>" + card_grid(cards, wide=True))
@@ -255,25 +265,31 @@ def _renderings_section(summaries, scene, device) -> str:
             + card_grid(cards))
 
 
-def _illuminants_section(summaries, bundle) -> str:
+def _illuminants_section(summaries, bundle, keep=None) -> str:
     if bundle is None:
         return ""
-    cards = [figure_card(figure_png(illuminant_figure(s.plan, bundle, title=f"{s.name}: {s.plan.K} illuminants")),
-                         f"{s.name} illuminants: targets wide and faint, emitted dashed") for s in summaries.values()]
+    cards = []
+    for s in summaries.values():
+        png = figure_png(illuminant_figure(s.plan, bundle, title=f"{s.name}: {s.plan.K} illuminants"))
+        if keep is not None:
+            keep(f"illuminants-{s.name}", png)
+        cards.append(figure_card(png, f"{s.name} illuminants: targets wide and faint, emitted dashed"))
     return ("<h2>Illuminant sequences</h2><p>Each plan's target spectra and what its quantized DMD patterns emit "
             "by the calibrated model.</p>" + card_grid(cards, wide=True))
 
 
 def report_page(title: str, intro, summaries: dict, *, scene=None, bundle=None, tables: str = "",
-                device=None, sections: str = "") -> str:
+                device=None, sections: str = "", keep=None) -> str:
     """The report as one HTML document: ``intro`` (HTML, or a callable returning it, called once every figure is
     drawn, so that a run time it states counts them) and the summary on top, then ``tables`` (HTML; the
     per-method and per-patch tables are added), ``sections`` (HTML, each with its own heading), spectra, error
-    and sigma maps, renderings and illuminants."""
+    and sigma maps, renderings and illuminants. ``keep(name, png)``, when given, receives each spectra and
+    illuminant figure as it is drawn (``spectra-<method>``, ``illuminants-<method>``: PNG bytes), so that a caller
+    writing them as files draws each once."""
     names = next((s.patch.names for s in summaries.values() if s.patch is not None), None)
     patch = patch_table_html(summaries, names) if names and not tables else ""
-    rest = (_spectra_section(summaries, scene) + _maps_section(summaries)
-            + _renderings_section(summaries, scene, device) + _illuminants_section(summaries, bundle))
+    rest = (_spectra_section(summaries, scene, keep=keep) + _maps_section(summaries)
+            + _renderings_section(summaries, scene, device) + _illuminants_section(summaries, bundle, keep=keep))
     summary = ("<div class='summary'>" + (intro() if callable(intro) else intro) + "<ul>"
                + "".join(f"<li>{line}</li>" for line in _summary_lines(summaries)) + "</ul>"
                + summary_table(summaries) + "</div>")

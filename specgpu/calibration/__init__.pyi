@@ -10,6 +10,7 @@ from .bundle import (
     rig_fingerprint,
     save_calibration,
 )
+from .cache import cached_calibration, find_calibration
 from .loops import LoopResult, camera_loop, spectral_loop
 from .on_rig import calibrate_on_rig
 from .procedure import calibrate
@@ -18,11 +19,13 @@ from .rigs import CalibrationRig, TwinCalibrationRig
 __all__ = [
     "calibrate",
     "calibrate_on_rig",
+    "cached_calibration",
     "calibration_error",
     "CALIBRATION_FORMAT",
     "CALIBRATION_VERSION",
     "CalibrationBundle",
     "CalibrationRig",
+    "find_calibration",
     "camera_loop",
     "load_calibration",
     "LoopResult",

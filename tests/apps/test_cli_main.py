@@ -79,7 +79,8 @@ def test_every_plan_method(work, method, tmp_path):
     assert f"wrote {tmp_path / method}.npz" in out.output
 
 
-def test_demo_writes_the_report(tmp_path):
+def test_demo_writes_the_report(tmp_path, monkeypatch):
+    monkeypatch.setenv("SPECGPU_CACHE_DIR", "")  # no user cache: every rig calibrated here, as the estimate says
     (tmp_path / "rig.toml").write_text(RIG)
     result = run("demo", "--out", tmp_path / "report", "--rig", tmp_path / "rig.toml")
     # first what it runs and how long that takes: the quick demo, one profile (this rig has no imperfections)
@@ -105,12 +106,24 @@ def test_demo_writes_the_report(tmp_path):
     rows = figures["moving_scene"]["rows"]
     assert rows["moving"]["rmse_field"] > 1.5 * rows["still"]["rmse_field"]
     assert rows["compensated"]["rmse_field"] < 1.3 * rows["still"]["rmse_field"]
+    # the estimate printed first is the sum of its steps, each within a tolerance of what it cost here (CPU
+    # seconds: what a busy machine changes least)
+    steps = figures["steps"]
+    assert set(steps) == {"start", "calibration", "planning", "measuring", "led", "moving", "report"}
+    cpu = sum(step["cpu_s"] for step in steps.values())
+    assert 0.6 < sum(step["estimate_s"] for step in steps.values()) / cpu < 1.6, steps
+    for name, step in steps.items():
+        assert step["cpu_s"] / 3 - 1 < step["estimate_s"] < 3 * step["cpu_s"] + 1, (name, step)
+    # each rig's calibration kept for the next run (this rig and the LED rig); the page's figures are the files
+    assert len(list((report / "calibrations").glob("calibration-*.npz"))) == 2
+    assert "figures/spectra-optimal-9@60ms.png" in {str(p.relative_to(report)) for p in report.rglob("*.png")}
 
 
 @pytest.mark.slow
-def test_demo_full_runs_every_row_on_both_profiles(tmp_path):
+def test_demo_full_runs_every_row_on_both_profiles(tmp_path, monkeypatch):
     """``--full``: the estimator rows and every method at equal sequence time, on the lab profile and the ideal one
     beside it, two noise draws each; the 12-LED rig's rows of the 60 ms budget after them."""
+    monkeypatch.setenv("SPECGPU_CACHE_DIR", "")
     (tmp_path / "rig.toml").write_text(RIG + "[twin]\nprofile = \"lab\"\n")
     result = run("demo", "--full", "--out", tmp_path / "report", "--rig", tmp_path / "rig.toml")
     assert result.output.startswith("demo: lab, ideal profiles, 17 plans, 2 noise draws, a moving scene: about ")

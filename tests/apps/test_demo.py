@@ -125,7 +125,7 @@ def test_the_demo_pages_run_time_counts_its_figures(monkeypatch):
     import specgpu.apps.report as report
     from specgpu.apps.demo import _html
 
-    def slow_figures(summaries, bundle):  # the page's last figures, drawn in half a second
+    def slow_figures(summaries, bundle, keep=None):  # the page's last figures, drawn in half a second
         time.sleep(0.5)
         return "<h2>Illuminant sequences</h2>"
 
@@ -135,3 +135,34 @@ def test_the_demo_pages_run_time_counts_its_figures(monkeypatch):
     page = _html(r, None, None, None, start)
     assert 0.5 <= r.seconds <= time.perf_counter() - start
     assert f"Run time {r.seconds:.1f} s, figures included" in page and "Illuminant sequences" in page
+
+
+def test_each_recovery_is_scored_once_for_the_tables_and_the_report(monkeypatch):
+    """measure_methods hands each recovery with its reports to ``on_scored``; the report's summary takes them
+    instead of scoring the recovery again."""
+    import pytest
+
+    import specgpu.apps.report as report
+    from specgpu.apps.demo_measure import chart_with_white, measure_methods
+    from specgpu.calibration import oracle_calibration
+    from specgpu.pipeline.recovery import EVALUATION_CHART
+    from specgpu.planning import make_plan
+
+    desc = RigDescription(camera=_small_lab().camera)
+    bundle = oracle_calibration(desc)
+    plan = make_plan("narrowband", bundle, step_nm=50.0)
+    scene, _ = chart_with_white(desc, EVALUATION_CHART)
+    seen = []
+    rows = measure_methods(desc, bundle, {"nb": plan}, scene, on_scored=lambda *args: seen.append(args))
+    (name, draw, y, made, _, patch, pixels), = seen
+    assert (name, draw, made) == ("nb", 0, plan) and patch is rows["nb"]["reports"][0]
+    assert pixels.statistics()["delta_E_2000"]["mean"] == pytest.approx(rows["nb"]["px_dE00"][0])
+
+    def not_again(*args, **kwargs):
+        raise AssertionError("scored again")
+
+    monkeypatch.setattr(report, "evaluate_pixels", not_again)
+    monkeypatch.setattr(report, "evaluate_reflectance", not_again)
+    summary = report.summarise_method(name, plan, y, scene, patch=patch, pixels=pixels)
+    assert summary.patch is patch and summary.pixels == pixels.statistics()
+    assert summary.delta_E is pixels.delta_E_2000

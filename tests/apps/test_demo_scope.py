@@ -57,3 +57,41 @@ def test_a_machine_slower_than_the_reference_estimates_longer_and_a_faster_one_n
 
     assert machine_speed(lambda: time.sleep(0.2)) == pytest.approx(0.2 / 0.05, rel=0.5)
     assert machine_speed(lambda: None) == 1.0
+
+
+def test_the_estimate_is_the_sum_of_its_steps_and_kept_calibrations_cost_a_load():
+    from specgpu.apps.demo_scope import estimate_steps
+
+    quick = scope_of(demo_profiles())
+    steps = estimate_steps(quick)
+    assert set(steps) == {"start", "calibration", "planning", "measuring", "led", "moving", "report"}
+    assert sum(steps.values()) == pytest.approx(estimate_seconds(quick))
+    assert all(seconds > 0 for seconds in steps.values())
+    # the lab rig and the LED rig: two calibrations to make, or one, or two loads
+    one, both = estimate_steps(quick, calibrated=1), estimate_steps(quick, calibrated=2)
+    assert steps["calibration"] > one["calibration"] > both["calibration"] > 0
+    assert both["calibration"] < 0.1 * steps["calibration"]
+    assert {k: v for k, v in both.items() if k != "calibration"} == {k: v for k, v in steps.items()
+                                                                     if k != "calibration"}
+    line = announce(quick, speed=1.0, calibrated=2)
+    assert f"about {estimate_seconds(quick, calibrated=2):.0f} s" in line
+
+
+def test_the_step_clock_adds_up_each_steps_cpu_and_wall_seconds():
+    import time
+
+    from specgpu.apps.demo_scope import StepClock
+
+    clock = StepClock()
+    for _ in range(2):
+        with clock("busy"):
+            t0 = time.process_time()
+            while time.process_time() - t0 < 0.05:
+                pass
+    with clock("idle"):
+        time.sleep(0.1)
+    steps = clock.steps({"busy": 3.0, "never": 1.0})
+    assert steps["busy"]["cpu_s"] >= 0.1 and steps["busy"]["wall_s"] >= steps["busy"]["cpu_s"] * 0.9
+    assert steps["idle"]["wall_s"] >= 0.1 and steps["idle"]["cpu_s"] < 0.05
+    assert steps["busy"]["estimate_s"] == 3.0 and "estimate_s" not in steps["idle"]
+    assert steps["never"] == {"cpu_s": 0.0, "wall_s": 0.0, "estimate_s": 1.0}
