@@ -421,7 +421,7 @@ def prepare_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: 
     if {"XYZ", "Lab", "dE"} & set(outputs):
         # a plan with no XYZ, or a grid the integration has no table for: refused here, not on every worker
         plan.outputs_to_XYZ(illuminant, observer, integration)
-    motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise)  # before any work
+    motion = check_motion_options(motion, plan, outputs=outputs)  # before any work
     if denoise is not None:  # outputs the filter cannot carry: refused here, not on every worker
         stream_denoise(plan, outputs, np.float32, denoise)
         denoise = (int(denoise[0]), float(denoise[1]))

@@ -14,6 +14,7 @@ import numpy as np
 
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.denoise import denoise_recovery
 from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.pipeline.sequence_decoder import SequenceDecoder, corrections_for
 from specgpu.pipeline.twin_capture import capture_plan
@@ -45,7 +46,7 @@ def default_basis(chart: str = EVALUATION_CHART):
 
 
 def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None,
-            white_roi=None, white_reflectance=None, motion: str = "none") -> np.ndarray:
+            white_roi=None, white_reflectance=None, motion: str = "none", denoise=None) -> np.ndarray:
     """The plan's outputs (H, W, B) from a sequence folder: one sequence, or the mean of all (``sequence=None``:
     averaging repeated sequences of a still scene lowers the temporal noise).
 
@@ -78,6 +79,10 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         the outputs are the scene at the sequence's
         reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene
         moves between sequences too): ``sequence`` is required unless the folder holds one.
+    denoise : (radius, eps), optional
+        Smooth the outputs by the guided filter of ``recover --denoise`` (:mod:`specgpu.pipeline.denoise`): its
+        guide the frames' sum, or with ``motion`` the warped frames' sum, pixels the compensation flags left out
+        (:func:`specgpu.pipeline.denoise.denoise_compensated`).
 
     Returns
     -------
@@ -101,9 +106,12 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     >>> cube.shape[:2], bool(abs(np.nanmedian(cube) - 0.99) < 0.05)
     ((240, 320), True)
     """
-    return SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi, white_reflectance=white_reflectance,
-                           motion=motion, device=device).decode(folder.frames, sequence=sequence, where=folder.path,
-                                                                out_dtype=out_dtype)
+    decoder = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi,
+                              white_reflectance=white_reflectance, motion=motion, device=device, denoise=denoise)
+    y = decoder.decode(folder.frames, sequence=sequence, where=folder.path, out_dtype=out_dtype)
+    if denoise is not None and decoder.motion == "none":  # the motion mode filters in its own pass
+        y = denoise_recovery(folder, y, sequence=sequence, radius=denoise[0], eps=denoise[1], device=device)
+    return y
 
 
 def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illuminant: str | None = None,

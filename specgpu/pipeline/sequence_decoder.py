@@ -34,6 +34,7 @@ from specgpu.core.validate import check_sequence
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
 from specgpu.pipeline.decoder_outputs import FusedLaunches, lab_and_delta_E, outputs_for
+from specgpu.pipeline.denoise import denoise_compensated, warped_guide_row
 from specgpu.pipeline.moving_decode import check_motion_options, warped_sigma_rms
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.moving_residual import residual_check
@@ -173,7 +174,9 @@ class SequenceDecoder:
         self.corrections = corrections_for(calibration, plan, white_roi=white_roi,
                                            white_reflectance=white_reflectance)
         # every option that cannot be motion-compensated refused before any work, alike in every mode
-        self.motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise, white_roi=white_roi)
+        self.motion = check_motion_options(motion, plan, outputs=outputs, white_roi=white_roi)
+        #: (radius, eps) of the guided filter, or None; in the motion mode its guide is the warped frames' sum
+        self.denoise = None if denoise is None else (int(denoise[0]), float(denoise[1]))
         self.gain = calibration.flat_field
         if self.motion != "none":
             self.model = motion_model(self.motion)
@@ -199,6 +202,9 @@ class SequenceDecoder:
             return
         # the motion mode: the outputs' linear rows decoded in one warped pass, Lab and dE from its XYZ
         self.rows, self.slices = self.spec.rows()
+        if self.denoise is not None:  # the guide: one more row of the same warped pass
+            self.slices["guide"] = slice(len(self.rows), len(self.rows) + 1)
+            self.rows = np.vstack([self.rows, warped_guide_row(plan)])
         self._reference = (None if self.spec.reference is None else
                            engine.to_device(self.queue, self.spec.reference.reshape(-1)))
         #: host seconds spent so far in each step (estimate, warped pass, consistency check with the object
@@ -301,6 +307,10 @@ class SequenceDecoder:
         rec = self.warped(raw, self.rows, seconds=steps)
         t0 = time.perf_counter()
         out = {name: np.ascontiguousarray(rec.y[..., rows]) for name, rows in self.slices.items()}
+        if self.denoise is not None:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
+            guide = out.pop("guide")[..., 0]
+            for name in self.spec.denoise["channels"]:
+                out[name] = self.filtered(out[name], guide, rec.mask)
         if "cube" in out:
             out["cube"] = out["cube"].astype(self.spec.cube_dtype, copy=False)
         if {"Lab", "dE"} & set(self.outputs):
@@ -340,7 +350,10 @@ class SequenceDecoder:
         (:func:`specgpu.pipeline.recovery.recover`); NaN where saturated."""
         picked = self.picked(frames, sequence, where)
         if self.motion != "none":
-            return self.warped(frames[picked[0]], self.plan.A).y.astype(out_dtype, copy=False)
+            if self.denoise is None:
+                return self.warped(frames[picked[0]], self.plan.A).y.astype(out_dtype, copy=False)
+            rec = self.warped(frames[picked[0]], np.vstack([self.plan.A, warped_guide_row(self.plan)]))
+            return self.filtered(rec.y[..., :-1], rec.y[..., -1], rec.mask).astype(out_dtype, copy=False)
         gain = live_gain(self.calibration.flat_field)
         if self.corrections.per_sequence:
             y = None
@@ -360,6 +373,12 @@ class SequenceDecoder:
         if saturated.any():
             y[saturated] = np.nan
         return y
+
+    def filtered(self, y, guide, mask) -> np.ndarray:
+        """The warped outputs ``y`` (H, W, C) smoothed by the guided filter of the warped frames' sum ``guide``,
+        flagged pixels left out (:func:`specgpu.pipeline.denoise.denoise_compensated`)."""
+        radius, eps = self.denoise
+        return denoise_compensated(y, guide, mask, radius=radius, eps=eps, device=self.device)
 
     @staticmethod
     def mean_frames(frames, picked) -> np.ndarray:

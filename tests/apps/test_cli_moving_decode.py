@@ -20,7 +20,6 @@ def test_batch_motion_is_checked_in_one_line(moving, tmp_path):
     root, _, _, plan_path, calib_path = moving
     args = ["batch", root / "seq", "--plan", plan_path, "--calib", calib_path, "--out", tmp_path / "o.zarr"]
     one_line_error(run(*args, "--motion", "optical", ok=False), "--motion", code=2)
-    one_line_error(run(*args, "--motion", "global", "--denoise", ok=False), "--denoise with --motion")
     assert not (tmp_path / "o.zarr").exists()
 
 
@@ -34,7 +33,6 @@ def test_stream_motion_on_the_command_line(moving, tmp_path):
             "natural", "--pacing", "free", "--seconds", "0.3"]
     one_line_error(run(*args, "--motion", "optical", ok=False), "--motion", code=2)
     one_line_error(run(*args, "--motion", "global", "--outputs", "cube,sigma", ok=False), "sigma", "--motion")
-    one_line_error(run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--denoise", ok=False), "--denoise")
     one_line_error(run(*args, "--motion", "affine", "--outputs", "cube", "--accumulate", "3", ok=False),
                    "--accumulate needs the cube and sigma")
     one_line_error(run(*args, "--motion", "global", "--white-roi", "0,0,8,8", "--outputs", "cube", ok=False),

@@ -23,7 +23,7 @@ from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.pipeline import recovery
 from specgpu.pipeline.capture_folder import read_capture
-from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning, denoise_recovery
+from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning
 from specgpu.pipeline.motion_record import without_motion
 from specgpu.pipeline.moving import MOTION_MODES
 from specgpu.pipeline.moving_decode import check_motion_options
@@ -36,11 +36,9 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
     "none", denoised when ``denoise`` gives (radius, eps), the metadata of its outputs and the warnings to say (a
     dark level not to be trusted; a capture that moved, recovered without ``--motion``)."""
     try:
-        check_motion_options(motion, folder.plan, denoise=denoise, white_roi=white_roi)  # as the decoder checks
+        check_motion_options(motion, folder.plan, white_roi=white_roi)  # as the decoder checks
         y = recovery.recover(folder, sequence=sequence, device=device, white_roi=white_roi,
-                             white_reflectance=white_reflectance, motion=motion)
-        if denoise is not None:
-            y = denoise_recovery(folder, y, sequence=sequence, radius=denoise[0], eps=denoise[1], device=device)
+                             white_reflectance=white_reflectance, motion=motion, denoise=denoise)
     except ValueError as error:
         raise click.ClickException(str(error)) from None
     untrusted = recovery.dark_warning(folder, sequence)  # said once the spinner has gone, recorded with every output
@@ -49,7 +47,8 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
                              white_roi=white_roi, white_reflectance=white_reflectance, untrusted=untrusted,
                              integration=integration)
     if denoise is not None:
-        meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
+        meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the " \
+                            f"{'warped ' if motion != 'none' else ''}frames' sum"
     if motion != "none":
         meta["motion"] = f"{motion} compensation of each frame, estimated within the sequence"
     elif notice:

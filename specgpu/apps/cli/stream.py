@@ -66,7 +66,7 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
     ``colours``: the (illuminant, observer) of its XYZ, Lab and dE; ``integration``: of its XYZ and white."""
     illuminant, observer = colours
     white_roi, white_reflectance = white
-    motion = check_motion_options(motion, plan, outputs=wanted, denoise=denoise,
+    motion = check_motion_options(motion, plan, outputs=wanted,
                                   white_roi=white_roi)  # before any output: one line naming the option
     notice = without_motion(description, averaged=False) if motion == "none" else None
     if notice:
@@ -86,7 +86,8 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
         meta = stream_metadata(truth, illuminant=illuminant, observer=observer, method=method, seed=seed,
                                white_roi=white_roi, white_reflectance=white_reflectance, integration=integration)
         if denoise is not None:
-            meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
+            meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the " \
+                            f"{'warped ' if motion != 'none' else ''}frames' sum"
         if motion != "none":
             meta["motion"] = f"{motion} compensation of each frame, estimated within the sequence"
         if accumulate is not None:
@@ -171,8 +172,8 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
 @click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moves during each sequence, as recover --motion: a "
               "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "
-              "estimated within the sequence; of the "
-              "sigmas only sigma_rms (an upper bound), not with --denoise or --white-roi.")
+              "estimated within the sequence; of the sigmas only sigma_rms (an upper bound); with --denoise the "
+              "guide is the warped frames' sum; not with --white-roi.")
 @RESIZE
 @click.option("--view", is_flag=True,
               help="Show the latest results in napari while streaming (the viewer extra): the sRGB of XYZ, dE and "

@@ -1,0 +1,125 @@
+"""Quality options composed with motion compensation, through the one decoder: ``--denoise`` guided by the warped
+frames' sum, against a float64 NumPy reference of the same composition, and the stream and the batch equal to
+``recover`` with the combination."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from moving_helpers import CAM, MOTION, moving_capture
+from reference import guided_filter_numpy, linear_warp_ref
+
+from specgpu.core.numerics import live_gain
+from specgpu.engine.colorimetry import delta_E
+from specgpu.pipeline.batch import run_batch
+from specgpu.pipeline.capture_folder import SequenceFolder, read_capture
+from specgpu.pipeline.denoise import warped_guide_row
+from specgpu.pipeline.recovery import recover, to_Lab, to_XYZ
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
+from specgpu.rig import RigDescription, natural_scene
+
+LAB_REF = [50.0, 0.0, 0.0]
+DENOISE = (2, 1e-4)
+
+
+@pytest.fixture(scope="module")
+def moving(tmp_path_factory):
+    """2 sequences of a 7-band plan on a twin whose scene drifts (2, 1) px per frame, as a sequence folder."""
+    return moving_capture(tmp_path_factory.mktemp("composed"))
+
+
+def assert_close_nan(a, b, **tol):
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    np.testing.assert_allclose(np.nan_to_num(a), np.nan_to_num(b), **tol)
+
+
+def denoised_reference(frames, plan, bundle, shifts, mask, radius, eps):
+    """float64: the frames warped in NumPy with ``shifts`` through the plan's A and the guide's row, then the
+    still path's guided filter with the flagged pixels (``mask``) left out as the decoder leaves them out."""
+    A = np.vstack([plan.A, warped_guide_row(plan)])
+    y, _ = linear_warp_ref(frames, A, shifts, bundle.dark_at(plan.exposure_s), live_gain(bundle.flat_field))
+    cube, guide = y[..., :-1], y[..., -1]
+    bad = ((mask & ~np.uint8(16)) != 0) | ~np.isfinite(guide) | ~np.isfinite(cube).all(axis=-1)
+    guide = guide / np.percentile(guide[~bad], 99)
+    filtered = guided_filter_numpy(np.where(bad[..., None], 0.0, cube), np.where(bad, 0.0, guide), radius, eps)
+    h, w = bad.shape
+    near = np.zeros_like(bad)
+    for y0, x0 in zip(*np.nonzero(bad)):
+        near[max(0, y0 - 2 * radius):y0 + 2 * radius + 1, max(0, x0 - 2 * radius):x0 + 2 * radius + 1] = True
+    out = np.where(near[..., None], cube, filtered)
+    out[bad] = np.nan
+    return out, near & ~bad
+
+
+def test_denoise_with_motion_equals_the_numpy_reference_of_the_warp_then_the_filter(moving):
+    root, plan, bundle, _, _ = moving
+    folder = read_capture(root / "seq")
+    got = recover(folder, sequence=0, motion="global", denoise=DENOISE)
+    plain = recover(folder, sequence=0, motion="global")
+    maps = SequenceDecoder(plan, bundle, ("cube",), motion="global").maps(folder.frames[0])
+    want, near = denoised_reference(folder.frames[0], plan, bundle, maps["estimate"].shifts, maps["mask"], *DENOISE)
+    assert 0 < np.isnan(want[..., 0]).mean() < 0.2  # the drift leaves a border seen outside the field
+    assert_close_nan(got, want, rtol=1e-3, atol=2e-4)
+    # the pixels whose windows reach a flagged one keep their decoded value; the others are filtered
+    assert near.sum() > 1000
+    np.testing.assert_array_equal(got[near], plain[near])
+    far = np.isfinite(got[..., 0]) & ~near
+    assert np.abs(got[far] - plain[far]).mean() > 1e-3
+
+
+def test_the_guide_of_a_moving_scene_is_the_warped_sum_not_the_frames_sum(moving):
+    """The same composition with the still guide (the frames' sum, not warped) is measurably different: the
+    reference can tell them apart."""
+    root, plan, bundle, _, _ = moving
+    folder = read_capture(root / "seq")
+    got = recover(folder, sequence=0, motion="global", denoise=DENOISE)
+    maps = SequenceDecoder(plan, bundle, ("cube",), motion="global").maps(folder.frames[0])
+    zero = np.zeros_like(maps["estimate"].shifts)
+    A = np.vstack([plan.A, warped_guide_row(plan)])
+    still_guide = linear_warp_ref(folder.frames[0], A, zero, bundle.dark_at(plan.exposure_s),
+                                  live_gain(bundle.flat_field))[0][..., -1]
+    warped, _ = denoised_reference(folder.frames[0], plan, bundle, maps["estimate"].shifts, maps["mask"], *DENOISE)
+    ok = np.isfinite(got[..., 0])
+    assert np.abs(got[ok] - warped[ok]).max() < 1e-3
+    plain = recover(folder, sequence=0, motion="global")
+    unwarped = guided_filter_numpy(np.nan_to_num(plain), still_guide / np.percentile(still_guide, 99), *DENOISE)
+    assert np.abs(got[ok] - unwarped[ok]).mean() > 3 * np.abs(got[ok] - warped[ok]).mean()
+
+
+def twin_driver(plan, sequences, seed=7):
+    from specgpu.capture.twin_driver import TwinDriver
+    from specgpu.rig.twin import TwinRig
+
+    rig = TwinRig(plan.rig_description(RigDescription(camera=CAM, motion=MOTION)), scene=natural_scene(240, 320))
+    rig.seed = seed
+    return TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K * sequences, pacing="free")
+
+
+def test_stream_and_batch_with_denoise_and_motion_equal_recover(moving, tmp_path):
+    import zarr
+
+    from specgpu.pipeline.stream import Stream
+
+    root, plan, bundle, _, _ = moving
+    kept = []
+
+    def keep(result):
+        kept.append(({k: np.array(v) for k, v in result.arrays.items()}, np.array(result.frames)))
+
+    Stream(twin_driver(plan, 1), plan, bundle, outputs=("cube", "XYZ", "dE"), reference=LAB_REF,
+           cube_dtype=np.float32, policy="block", sinks=[keep], motion="global", denoise=DENOISE).run()
+    (maps, frames), = kept
+    want = recover(SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {}), sequence=0, motion="global",
+                   denoise=DENOISE)
+    assert_close_nan(maps["cube"], want, rtol=1e-5, atol=1e-5)
+    XYZ = to_XYZ(want, plan)
+    assert_close_nan(maps["XYZ"], XYZ, rtol=1e-4, atol=1e-5)
+    assert_close_nan(maps["dE"], delta_E(np.array(LAB_REF, np.float32), to_Lab(XYZ, plan)), atol=1e-2)
+    run_batch(root / "seq", plan, bundle, tmp_path / "out.zarr", outputs=("cube",), workers=1, progress=False,
+              motion="global", denoise=DENOISE)
+    out = zarr.open_group(str(tmp_path / "out.zarr"), mode="r")
+    assert_close_nan(out["cube"][1], recover(read_capture(root / "seq"), sequence=1, motion="global",
+                                             denoise=DENOISE), rtol=1e-5, atol=1e-5)
