@@ -37,7 +37,7 @@ __all__ = ["MOTION_OUTPUTS", "check_motion_options", "warped_sigma_rms"]
 MOTION_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma_rms")
 
 
-def check_motion_options(motion, plan=None, *, outputs=(), white_roi=None) -> str:
+def check_motion_options(motion, plan=None, *, outputs=()) -> str:
     """``motion`` checked (a key of :data:`specgpu.pipeline.moving.MOTION_MODES`) and, unless ``"none"``, every
     option that cannot be motion-compensated yet refused in one line naming it. Returns the mode."""
     mode = check_motion_mode(motion)
@@ -48,9 +48,6 @@ def check_motion_options(motion, plan=None, *, outputs=(), white_roi=None) -> st
             raise ValueError(f"the {name} output with --motion {mode}: its covariance model assumes each pixel's "
                              f"samples came from one sensor pixel, which motion compensation breaks; motion "
                              f"outputs are {', '.join(MOTION_OUTPUTS)}")
-    if white_roi is not None:
-        raise ValueError("--white-roi with --motion: the reference white is measured on fixed pixels, which the "
-                         "scene moves across")
     if mode == "flow" and plan is not None and plan.K < MIN_FRAMES + 1:
         raise ValueError(f"--motion flow needs a plan of at least {MIN_FRAMES + 1} frames (each tile's steady motion "
                          f"is fitted to {MIN_FRAMES} frames besides the reference), the {plan.method} plan has "

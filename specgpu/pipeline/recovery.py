@@ -46,7 +46,8 @@ def default_basis(chart: str = EVALUATION_CHART):
 
 
 def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None,
-            white_roi=None, white_reflectance=None, motion: str = "none", denoise=None) -> np.ndarray:
+            white_roi=None, white_reflectance=None, motion: str = "none", denoise=None,
+            white_moves: str = "scene") -> np.ndarray:
     """The plan's outputs (H, W, B) from a sequence folder: one sequence, or the mean of all (``sequence=None``:
     averaging repeated sequences of a still scene lowers the temporal noise).
 
@@ -79,6 +80,9 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         the outputs are the scene at the sequence's
         reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene
         moves between sequences too): ``sequence`` is required unless the folder holds one.
+    white_moves : {"scene", "camera"}
+        With ``motion`` and ``white_roi``: the white moves with the scene (measured on the motion-compensated
+        samples, the ROI where it is at the reference time) or is fixed in the field (its raw pixels).
     denoise : (radius, eps), optional
         Smooth the outputs by the guided filter of ``recover --denoise`` (:mod:`specgpu.pipeline.denoise`): its
         guide the frames' sum, or with ``motion`` the warped frames' sum, pixels the compensation flags left out
@@ -107,7 +111,8 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     ((240, 320), True)
     """
     decoder = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi,
-                              white_reflectance=white_reflectance, motion=motion, device=device, denoise=denoise)
+                              white_reflectance=white_reflectance, motion=motion, device=device, denoise=denoise,
+                              white_moves=white_moves)
     y = decoder.decode(folder.frames, sequence=sequence, where=folder.path, out_dtype=out_dtype)
     if denoise is not None and decoder.motion == "none":  # the motion mode filters in its own pass
         y = denoise_recovery(folder, y, sequence=sequence, radius=denoise[0], eps=denoise[1], device=device)

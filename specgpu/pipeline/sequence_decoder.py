@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike
 
 from specgpu import engine
 from specgpu.core.numerics import live_gain
-from specgpu.core.validate import check_sequence
+from specgpu.core.validate import check_sequence, validate_method
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
 from specgpu.pipeline.decoder_outputs import FusedLaunches, lab_and_delta_E, outputs_for
@@ -41,7 +41,12 @@ from specgpu.pipeline.moving_residual import residual_check
 from specgpu.planning.correction import WhiteReference, ambient_index, corrected_decoder, white_gains
 from specgpu.planning.reference_frames import reference_indices
 
-__all__ = ["Corrections", "SequenceDecoder", "check_sequence", "corrections_for", "motion_model"]
+__all__ = ["Corrections", "SequenceDecoder", "WHITE_MOVES", "check_sequence", "corrections_for", "motion_model"]
+
+#: Where a reference white is measured in a motion-compensated decoding (``--white-roi-moves``): on the warped
+#: samples at the reference time (a white that moves with the scene) or on the fixed sensor pixels (a white fixed
+#: in the field while the scene moves).
+WHITE_MOVES = ("scene", "camera")
 
 
 def motion_model(mode: str) -> str:
@@ -156,7 +161,13 @@ class SequenceDecoder:
     white_roi, white_reflectance : optional
         A reference white in the field (as :func:`specgpu.pipeline.recovery.recover`): with ``outputs`` each
         sequence's decoder is rescaled for the light's drift (:class:`specgpu.planning.correction.WhiteReference`)
-        and every launch gets its matrix from the corrected decoder (:meth:`matrices`).
+        and every launch gets its matrix from the corrected decoder (:meth:`matrices`). With a motion mode the
+        warped pass samples every frame, the white is measured as ``white_moves`` says
+        (:meth:`motion_white_gains`) and the sequence's corrected decoder applied to the samples.
+    white_moves : {"scene", "camera"}
+        With a motion mode and ``white_roi``: the white moves with the scene (measured on the warped samples at
+        the reference time, the ROI in the reference frame's coordinates) or is fixed in the field (measured on
+        the raw pixels).
     motion : {"none", "global", "affine", "flow"}
         How the scene's motion within a sequence is compensated (:data:`specgpu.pipeline.moving.MOTION_MODES`).
     device : optional
@@ -167,14 +178,15 @@ class SequenceDecoder:
         Of the outputs (:func:`specgpu.pipeline.decoder_outputs.outputs_for`).
     """
 
-    def __init__(self, plan, calibration, outputs=(), *, white_roi=None, white_reflectance=None, motion: str = "none",
+    def __init__(self, plan, calibration, outputs=(), *, white_roi=None, white_reflectance=None, white_moves="scene",
+                 motion: str = "none",
                  device=None, frame_shape=None, reference=None, method: str = "CIE 2000", illuminant=None,
                  observer=None, integration: str = "rectangle", cube_dtype=np.float32, denoise=None):
         self.plan, self.calibration, self.device = plan, calibration, device
         self.corrections = corrections_for(calibration, plan, white_roi=white_roi,
                                            white_reflectance=white_reflectance)
         # every option that cannot be motion-compensated refused before any work, alike in every mode
-        self.motion = check_motion_options(motion, plan, outputs=outputs, white_roi=white_roi)
+        self.motion = check_motion_options(motion, plan, outputs=outputs)
         #: (radius, eps) of the guided filter, or None; in the motion mode its guide is the warped frames' sum
         self.denoise = None if denoise is None else (int(denoise[0]), float(denoise[1]))
         self.gain = calibration.flat_field
@@ -182,6 +194,12 @@ class SequenceDecoder:
             self.model = motion_model(self.motion)
             self.reference_frames = reference_indices(plan)  # the motion from them where the plan has them
             self.residual = residual_check(plan, calibration)  # samples judged against the plan's model
+        self.white_moves = validate_method(white_moves, {m: m for m in WHITE_MOVES}, "--white-roi-moves")
+        #: the reference white of the motion mode (parsed and checked now), or None
+        self.white_motion = (None if self.motion == "none" or white_roi is None else
+                             WhiteReference(plan, calibration, white_roi, white_reflectance,
+                                            frame_shape=np.shape(self.corrections.dark) if frame_shape is None
+                                            else frame_shape))
         self.spec = self.fused = None
         if not outputs:
             return
@@ -201,10 +219,9 @@ class SequenceDecoder:
                                        queue=self.queue, white_reference=white)
             return
         # the motion mode: the outputs' linear rows decoded in one warped pass, Lab and dE from its XYZ
-        self.rows, self.slices = self.spec.rows()
+        self.rows, self.slices = self.pass_rows(), self.spec.rows()[1]
         if self.denoise is not None:  # the guide: one more row of the same warped pass
-            self.slices["guide"] = slice(len(self.rows), len(self.rows) + 1)
-            self.rows = np.vstack([self.rows, warped_guide_row(plan)])
+            self.slices["guide"] = slice(len(self.rows) - 1, len(self.rows))
         self._reference = (None if self.spec.reference is None else
                            engine.to_device(self.queue, self.spec.reference.reshape(-1)))
         #: host seconds spent so far in each step (estimate, warped pass, consistency check with the object
@@ -302,11 +319,54 @@ class SequenceDecoder:
                 maps[name][saturated] = np.nan
         return maps
 
+    def pass_rows(self, A=None) -> np.ndarray:
+        """(rows, K) the warped pass's rows for the decoder ``A`` (the plan's by default): every linear output
+        asked for (:meth:`specgpu.pipeline.decoder_outputs.Outputs.rows`) and, with ``denoise``, the guide's."""
+        rows = self.spec.rows(A)[0] if self.spec is not None else np.asarray(self.plan.A if A is None else A)
+        return rows if self.denoise is None else np.vstack([rows, warped_guide_row(self.plan)])
+
+    def _warped_outputs(self, raw, seconds=None):
+        """The warped pass of one sequence and :meth:`pass_rows` of its samples, for the plan's decoder or, with a
+        reference white, for this sequence's (:meth:`motion_white_gains`): (recovery, y (H, W, rows) float32,
+        gains or None)."""
+        if self.white_motion is None:
+            rec = self.warped(raw, self.pass_rows(), seconds=seconds)
+            return rec, rec.y, None
+        # every frame's warped sample (the identity's rows), the white measured, then the corrected decoder's rows
+        rec = self.warped(raw, np.eye(self.plan.K), seconds=seconds)
+        gains = self.motion_white_gains(raw, rec)
+        R = self.pass_rows(self.white_motion.decoder(gains))
+        cols = np.flatnonzero(np.any(R != 0, axis=0))
+        y = np.tensordot(rec.y[..., cols].astype(np.float64), R[:, cols], axes=([-1], [1]))
+        return rec, y.astype(np.float32), gains
+
+    def motion_white_gains(self, raw, rec) -> np.ndarray:
+        """(K,) the reference white's gains of one sequence ``raw`` whose warped samples of every frame are
+        ``rec.y`` (H, W, K): with ``white_moves="camera"`` on the raw pixels of the ROI (a white fixed in the
+        field, as the still decoding measures it); with ``"scene"`` on the samples at the reference time (a white
+        that moves with the scene), its pixels flagged outside the field or inconsistent left out, a saturated
+        one refused (:meth:`specgpu.planning.correction.WhiteReference.gains`)."""
+        corr, white = self.corrections, self.white_motion
+        if self.white_moves == "camera":
+            return white.gains(corr.sensor(raw), dark=corr.dark)
+        x, y, w, h = white.roi
+        flags = rec.mask[y:y + h, x:x + w] & np.uint8(~16 & 0xFF)
+        if np.any(flags & 1):
+            raise ValueError(f"--white-roi {x},{y},{w},{h} is saturated in a frame: choose a darker white or a "
+                             "shorter exposure")
+        if np.all(flags):
+            raise ValueError(f"--white-roi {x},{y},{w},{h}: the white moving with the scene was seen outside the "
+                             "field or inconsistent in every pixel (a white fixed in the field: --white-roi-moves "
+                             "camera)")
+        # the samples (o - dark) * gain at the reference time put back on the sensor's scale the gains read
+        samples = np.moveaxis(rec.y, -1, 0) / live_gain(self.calibration.flat_field)[None]
+        return white.gains(samples + np.asarray(corr.dark, np.float32)[None], dark=corr.dark)
+
     def _moving_maps(self, raw) -> dict:
         steps = {}
-        rec = self.warped(raw, self.rows, seconds=steps)
+        rec, y, gains = self._warped_outputs(raw, seconds=steps)
         t0 = time.perf_counter()
-        out = {name: np.ascontiguousarray(rec.y[..., rows]) for name, rows in self.slices.items()}
+        out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
         if self.denoise is not None:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
             guide = out.pop("guide")[..., 0]
             for name in self.spec.denoise["channels"]:
@@ -324,8 +384,11 @@ class SequenceDecoder:
             for step, seconds in {**steps, "colour": time.perf_counter() - t0}.items():
                 self.seconds[step] += seconds
             self.sequences += 1
-        return {**{name: out[name] for name in self.outputs}, "mask": rec.mask, "estimate": rec.estimates[0],
+        maps = {**{name: out[name] for name in self.outputs}, "mask": rec.mask, "estimate": rec.estimates[0],
                 "layers": rec.layers}
+        if gains is not None:
+            maps["white_gains"] = gains
+        return maps
 
     # ------------------------------------------------------------------------------------------ which frames
     def picked(self, frames, sequence, where) -> list[int]:
@@ -350,10 +413,10 @@ class SequenceDecoder:
         (:func:`specgpu.pipeline.recovery.recover`); NaN where saturated."""
         picked = self.picked(frames, sequence, where)
         if self.motion != "none":
-            if self.denoise is None:
-                return self.warped(frames[picked[0]], self.plan.A).y.astype(out_dtype, copy=False)
-            rec = self.warped(frames[picked[0]], np.vstack([self.plan.A, warped_guide_row(self.plan)]))
-            return self.filtered(rec.y[..., :-1], rec.y[..., -1], rec.mask).astype(out_dtype, copy=False)
+            rec, y, _ = self._warped_outputs(frames[picked[0]])
+            if self.denoise is not None:
+                y = self.filtered(y[..., :-1], y[..., -1], rec.mask)
+            return y.astype(out_dtype, copy=False)
         gain = live_gain(self.calibration.flat_field)
         if self.corrections.per_sequence:
             y = None

@@ -35,8 +35,8 @@ def test_stream_motion_on_the_command_line(moving, tmp_path):
     one_line_error(run(*args, "--motion", "global", "--outputs", "cube,sigma", ok=False), "sigma", "--motion")
     one_line_error(run(*args, "--motion", "affine", "--outputs", "cube", "--accumulate", "3", ok=False),
                    "--accumulate needs the cube and sigma")
-    one_line_error(run(*args, "--motion", "global", "--white-roi", "0,0,8,8", "--outputs", "cube", ok=False),
-                   "--white-roi")
+    one_line_error(run(*args, "--motion", "global", "--white-roi", "0,0,8,8", "--white-roi-moves", "sideways",
+                       "--outputs", "cube", ok=False), "--white-roi-moves", code=2)
     done = run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--out", tmp_path / "rec.zarr")
     rec = zarr.open_group(str(tmp_path / "rec.zarr"), mode="r")
     assert "global" in str(rec.attrs["metadata"].get("motion")), (done.output, dict(rec.attrs))

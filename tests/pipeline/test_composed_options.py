@@ -123,3 +123,105 @@ def test_stream_and_batch_with_denoise_and_motion_equal_recover(moving, tmp_path
     out = zarr.open_group(str(tmp_path / "out.zarr"), mode="r")
     assert_close_nan(out["cube"][1], recover(read_capture(root / "seq"), sequence=1, motion="global",
                                              denoise=DENOISE), rtol=1e-5, atol=1e-5)
+
+
+# ------------------------------------------------------------------------------------- a reference white that moves
+
+@pytest.fixture(scope="module")
+def white_chart():
+    """One sequence of the 7-band plan of a chart with a 0.99 white tile drifting (2, 1) px per frame, the plan,
+    the calibration, the estimate's shifts and mask, and the tile at the sequence's reference time (x, y, w, h)."""
+    from dataclasses import replace
+
+    from moving_helpers import moving_setup
+
+    from specgpu.pipeline.twin_capture import capture_plan
+    from specgpu.rig.scene import colorchecker_scene
+
+    desc, bundle, plan, _ = moving_setup()
+    scene = colorchecker_scene(240, 320, white_tile=0.99)
+    frames = capture_plan(replace(desc, motion=MOTION), plan, scene, noise_seed=4,
+                          calibration=bundle).sequences[0].frames
+    maps = SequenceDecoder(plan, bundle, ("cube",), motion="global").maps(frames)
+    white = np.all(np.abs(maps["cube"] - 0.99) < 0.08, axis=-1) & (np.arange(240) < 40)[:, None]
+    ys, xs = np.nonzero(white)
+    tile = (int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1))
+    return frames, plan, bundle, maps, tile
+
+
+def white_reference_decoding(frames, plan, bundle, shifts, mask, roi):
+    """float64: every frame warped in NumPy with ``shifts``, the white's gains measured on those samples at the
+    reference time, and the corrected decoder applied to them (the still path's white reference on the warped
+    frames); NaN where ``mask`` flags a pixel."""
+    from specgpu.planning.correction import WhiteReference
+
+    dark, gain = bundle.dark_at(plan.exposure_s), live_gain(bundle.flat_field)
+    s, _ = linear_warp_ref(frames, np.eye(plan.K), shifts, dark, gain)
+    s[(mask & ~np.uint8(16)) != 0] = np.nan
+    white = WhiteReference(plan, bundle, roi, None, frame_shape=frames.shape[1:])
+    gains = white.gains(np.moveaxis(s, -1, 0) / gain + dark, dark=dark)
+    return s @ white.decoder(gains).T, gains
+
+
+def inset(roi, by):
+    x, y, w, h = roi
+    return f"{x + by},{y + by},{w - 2 * by},{h - 2 * by}"
+
+
+def test_a_white_that_moves_with_the_scene_equals_the_numpy_reference(white_chart):
+    frames, plan, bundle, maps, tile = white_chart
+    roi = inset(tile, 1)
+    folder = SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {})
+    got = recover(folder, sequence=0, motion="global", white_roi=roi)
+    want, gains = white_reference_decoding(frames, plan, bundle, maps["estimate"].shifts, maps["mask"], roi)
+    assert_close_nan(got, want, rtol=1e-4, atol=1e-5)
+    # the oracle calibration's light has not drifted: the white's gains are one within the noise
+    np.testing.assert_allclose(gains, 1.0, atol=0.05)
+    dec = SequenceDecoder(plan, bundle, ("cube", "XYZ"), motion="global", white_roi=roi)
+    out = dec.maps(frames)
+    np.testing.assert_allclose(out["white_gains"], gains, rtol=1e-5)
+    assert_close_nan(out["cube"], got, rtol=1e-5, atol=1e-6)
+    assert_close_nan(out["XYZ"], to_XYZ(got, plan), rtol=1e-4, atol=1e-6)
+
+
+def test_scene_or_camera_says_where_the_white_is_measured(white_chart):
+    """The tile's ROI at the reference time: measured with the scene it is the white in every frame; measured on
+    the fixed pixels the frames before and after see it slide away (the chart's dark surround comes in), and
+    the gains are wrong. A ROI well inside the tile's path gives the same gains either way."""
+    frames, plan, bundle, _, tile = white_chart
+    scene = SequenceDecoder(plan, bundle, ("cube",), motion="global", white_roi=inset(tile, 0)).maps(frames)
+    np.testing.assert_allclose(scene["white_gains"], 1.0, atol=0.05)
+    camera = SequenceDecoder(plan, bundle, ("cube",), motion="global", white_roi=inset(tile, 0),
+                             white_moves="camera")
+    try:
+        gains = camera.maps(frames)["white_gains"]
+    except ValueError as error:  # a frame that saw no white in the ROI at all
+        assert "gives no signal" in str(error)
+    else:
+        assert np.abs(gains - 1.0).max() > 0.05
+    x, y, w, h = tile
+    inner = f"{x + 10},{y + 4},{w - 20},{max(1, h - 8)}"
+    fixed = SequenceDecoder(plan, bundle, ("cube",), motion="global", white_roi=inner, white_moves="Camera")
+    np.testing.assert_allclose(fixed.maps(frames)["white_gains"], 1.0, atol=0.03)
+
+
+def test_a_stream_with_a_moving_white_equals_recover(white_chart):
+    from specgpu.capture.twin_driver import TwinDriver
+    from specgpu.pipeline.stream import Stream
+    from specgpu.rig.scene import colorchecker_scene
+    from specgpu.rig.twin import TwinRig
+
+    _, plan, bundle, _, tile = white_chart
+    roi = inset(tile, 2)
+    rig = TwinRig(plan.rig_description(RigDescription(camera=CAM, motion=MOTION)),
+                  scene=colorchecker_scene(240, 320, white_tile=0.99))
+    rig.seed = 9
+    kept = []
+    Stream(TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K, pacing="free"), plan, bundle,
+           outputs=("cube",), cube_dtype=np.float32, policy="block", motion="global", white_roi=roi,
+           sinks=[lambda r: kept.append((np.array(r.arrays["cube"]), np.array(r.frames), r.white_gains))]).run()
+    (cube, frames, gains), = kept
+    assert gains is not None and np.all(np.abs(gains - 1.0) < 0.05)
+    want = recover(SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {}), sequence=0, motion="global",
+                   white_roi=roi)
+    assert_close_nan(cube, want, rtol=1e-5, atol=1e-6)

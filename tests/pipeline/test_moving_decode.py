@@ -65,10 +65,9 @@ def test_batch_with_motion_equals_recover_with_motion(moving, tmp_path):
 
 def test_options_that_are_not_motion_compensated_are_named(moving):
     _, plan, _, _, _ = moving
-    assert check_motion_options("None", plan, outputs=("sigma",), white_roi="0,0,8,8") == "none"
+    assert check_motion_options("None", plan, outputs=("sigma",)) == "none"
     assert check_motion_options("global", plan, outputs=("cube", "sigma_rms")) == "global"
-    for kw, name in (({"outputs": ("cube", "sigma")}, "sigma"), ({"outputs": ("dE_sigma",)}, "dE_sigma"),
-                     ({"white_roi": "0,0,8,8"}, "--white-roi")):
+    for kw, name in (({"outputs": ("cube", "sigma")}, "sigma"), ({"outputs": ("dE_sigma",)}, "dE_sigma")):
         with pytest.raises(ValueError, match=name):
             check_motion_options("global", plan, **kw)
     with pytest.raises(ValueError, match="motion"):

@@ -11,6 +11,7 @@ from specgpu.apps.cli.options import (
     INTEGRATION,
     OBSERVER,
     RESIZE,
+    WHITE_ROI_MOVES,
     Busy,
     Finite,
     Staged,
@@ -31,14 +32,15 @@ from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
 
 def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours, denoise=None,
-              motion="none", integration="rectangle"):
+              motion="none", integration="rectangle", white_moves="scene"):
     """The recovery of ``folder`` (a refusal is one line naming why), motion-compensated when ``motion`` is not
     "none", denoised when ``denoise`` gives (radius, eps), the metadata of its outputs and the warnings to say (a
     dark level not to be trusted; a capture that moved, recovered without ``--motion``)."""
     try:
-        check_motion_options(motion, folder.plan, white_roi=white_roi)  # as the decoder checks
+        check_motion_options(motion, folder.plan)  # as the decoder checks
         y = recovery.recover(folder, sequence=sequence, device=device, white_roi=white_roi,
-                             white_reflectance=white_reflectance, motion=motion, denoise=denoise)
+                             white_reflectance=white_reflectance, motion=motion, denoise=denoise,
+                             white_moves=white_moves)
     except ValueError as error:
         raise click.ClickException(str(error)) from None
     untrusted = recovery.dark_warning(folder, sequence)  # said once the spinner has gone, recorded with every output
@@ -51,6 +53,8 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
                             f"{'warped ' if motion != 'none' else ''}frames' sum"
     if motion != "none":
         meta["motion"] = f"{motion} compensation of each frame, estimated within the sequence"
+        if white_roi is not None:
+            meta["white_roi_moves"] = white_moves
     elif notice:
         meta["motion"] = "none: the capture moved, decoded as if still"
     return y, meta, [w for w in (untrusted, notice) if w]
@@ -83,6 +87,7 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
               help="A reference white in the field: rescale each sequence's decoder for the light's drift.")
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@WHITE_ROI_MOVES
 @click.option("--denoise", is_flag=True,
               help="Remove per-pixel noise without losing edges: a guided filter on the device, guided by the sum of "
                    "the frames; --sigma is carried through it.")
@@ -98,7 +103,7 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
 def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, integration,
             sequence, half,
             sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize, denoise, denoise_radius,
-            denoise_eps, motion):
+            denoise_eps, motion, white_roi_moves):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     if (ref is None) != (de_path is None):
         raise click.UsageError("--delta-e-ref and --delta-e go together")
@@ -117,7 +122,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
             raise click.UsageError("--white-reflectance needs --white-roi")
         y, meta, warnings = recovered(folder, seq, sequence=sequence, device=device, colours=colours, **white,
                                        denoise=(denoise_radius, denoise_eps) if denoise else None, motion=motion,
-                                       integration=integration)
+                                       integration=integration, white_moves=white_roi_moves)
         writes = recovery_writes(folder, y, meta, **paths, colours=colours, sequence=sequence, half=half,
                                  interleave=interleave, method=method, device=device, **white,
                                  denoise_radius=denoise_radius if denoise else None, integration=integration,
