@@ -16,6 +16,7 @@ from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.pipeline.capture_folder import SequenceFolder
 from specgpu.pipeline.denoise import denoise_recovery
 from specgpu.pipeline.evaluate import true_patch_spectra
+from specgpu.pipeline.moving_decode import warped_uncertainty
 from specgpu.pipeline.sequence_decoder import SequenceDecoder, corrections_for
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
@@ -121,10 +122,22 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
 
 def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illuminant: str | None = None,
                 observer: str | None = None, device=None, white_roi=None, white_reflectance=None,
-                integration: str = "rectangle") -> tuple[np.ndarray, np.ndarray | None]:
+                integration: str = "rectangle", motion: str = "none",
+                white_moves: str = "scene") -> tuple[np.ndarray, np.ndarray | None]:
     """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames, options and
     corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
-    covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.uncertainty`); NaN where saturated."""
+    covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.uncertainty`); NaN where saturated.
+    With ``motion``: at the motion-compensated samples (:func:`specgpu.pipeline.moving_decode.warped_uncertainty`),
+    NaN where the outputs are."""
+    if motion != "none":
+        dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi,
+                              white_reflectance=white_reflectance, white_moves=white_moves, motion=motion,
+                              device=device)
+        raw = folder.frames[dec.picked(folder.frames, sequence, folder.path)[0]]
+        rec, _, gains, A = dec.warped_outputs(raw)
+        M = None if illuminant is None else folder.plan.outputs_to_XYZ(illuminant, observer, integration)
+        return warped_uncertainty(dec.corrections.sensor(raw), folder.plan, dec.corrections.dark,
+                                  folder.calibration.flat_field, rec, A, M=M, light=gains is None)
     dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi, white_reflectance=white_reflectance,
                           device=device)
     picked = dec.picked(folder.frames, sequence, folder.path)

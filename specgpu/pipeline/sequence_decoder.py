@@ -35,11 +35,12 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
 from specgpu.pipeline.decoder_outputs import FusedLaunches, lab_and_delta_E, outputs_for
 from specgpu.pipeline.denoise import denoise_compensated, warped_guide_row
-from specgpu.pipeline.moving_decode import check_motion_options, warped_sigma_rms
+from specgpu.pipeline.moving_decode import check_motion_options, warped_uncertainty
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.moving_residual import residual_check
 from specgpu.planning.correction import WhiteReference, ambient_index, corrected_decoder, white_gains
 from specgpu.planning.reference_frames import reference_indices
+from specgpu.planning.uncertainty import delta_E_sigma
 
 __all__ = ["Corrections", "SequenceDecoder", "WHITE_MOVES", "check_sequence", "corrections_for", "motion_model"]
 
@@ -325,20 +326,21 @@ class SequenceDecoder:
         rows = self.spec.rows(A)[0] if self.spec is not None else np.asarray(self.plan.A if A is None else A)
         return rows if self.denoise is None else np.vstack([rows, warped_guide_row(self.plan)])
 
-    def _warped_outputs(self, raw, seconds=None):
+    def warped_outputs(self, raw, seconds=None):
         """The warped pass of one sequence and :meth:`pass_rows` of its samples, for the plan's decoder or, with a
         reference white, for this sequence's (:meth:`motion_white_gains`): (recovery, y (H, W, rows) float32,
-        gains or None)."""
+        gains or None, the decoder (B, K))."""
         if self.white_motion is None:
             rec = self.warped(raw, self.pass_rows(), seconds=seconds)
-            return rec, rec.y, None
+            return rec, rec.y, None, self.plan.A
         # every frame's warped sample (the identity's rows), the white measured, then the corrected decoder's rows
         rec = self.warped(raw, np.eye(self.plan.K), seconds=seconds)
         gains = self.motion_white_gains(raw, rec)
-        R = self.pass_rows(self.white_motion.decoder(gains))
+        A = self.white_motion.decoder(gains)
+        R = self.pass_rows(A)
         cols = np.flatnonzero(np.any(R != 0, axis=0))
         y = np.tensordot(rec.y[..., cols].astype(np.float64), R[:, cols], axes=([-1], [1]))
-        return rec, y.astype(np.float32), gains
+        return rec, y.astype(np.float32), gains, A
 
     def motion_white_gains(self, raw, rec) -> np.ndarray:
         """(K,) the reference white's gains of one sequence ``raw`` whose warped samples of every frame are
@@ -362,9 +364,27 @@ class SequenceDecoder:
         samples = np.moveaxis(rec.y, -1, 0) / live_gain(self.calibration.flat_field)[None]
         return white.gains(samples + np.asarray(corr.dark, np.float32)[None], dark=corr.dark)
 
+    def _warped_sigmas(self, raw, rec, A, XYZ, *, light) -> dict:
+        """The sigma outputs of one motion-compensated sequence (:func:`specgpu.pipeline.moving_decode.
+        warped_uncertainty`): ``sigma`` (each output and their RMS), ``sigma_rms``, ``dE_sigma`` (the XYZ
+        covariance propagated to dE2000 at ``XYZ``, as :func:`specgpu.planning.uncertainty.delta_E_sigma`)."""
+        names = set(self.outputs)
+        M = self.spec.to_XYZ if "dE_sigma" in names else None
+        sigma, cov = warped_uncertainty(self.corrections.sensor(raw), self.plan, self.corrections.dark, self.gain,
+                                        rec, A, M=M, light=light)
+        rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)
+        out = {"sigma": np.concatenate([sigma, rms], axis=-1)} if "sigma" in names else {}
+        if "sigma_rms" in names:
+            out["sigma_rms"] = rms[..., 0]
+        if cov is not None:
+            des = delta_E_sigma(np.nan_to_num(XYZ), np.nan_to_num(cov), self.spec.white)
+            des[~np.isfinite(XYZ).all(axis=-1) | ~np.isfinite(cov).all(axis=(-2, -1))] = np.nan
+            out["dE_sigma"] = des
+        return out
+
     def _moving_maps(self, raw) -> dict:
         steps = {}
-        rec, y, gains = self._warped_outputs(raw, seconds=steps)
+        rec, y, gains, A = self.warped_outputs(raw, seconds=steps)
         t0 = time.perf_counter()
         out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
         if self.denoise is not None:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
@@ -377,9 +397,8 @@ class SequenceDecoder:
             xyz = engine.to_device(self.queue, out["XYZ"].reshape(-1))
             for name, arr in lab_and_delta_E(self.queue, self.spec, xyz, self._reference, self.n).items():
                 out[name] = arr.get().reshape(self.shapes()[name][0])
-        if "sigma_rms" in self.outputs:
-            out["sigma_rms"] = warped_sigma_rms(self.corrections.sensor(raw), self.plan, self.corrections.dark,
-                                                self.gain, rec, device=self.device)
+        if {"sigma", "sigma_rms", "dE_sigma"} & set(self.outputs):
+            out.update(self._warped_sigmas(raw, rec, A, out.get("XYZ"), light=gains is None))
         with self._lock:
             for step, seconds in {**steps, "colour": time.perf_counter() - t0}.items():
                 self.seconds[step] += seconds
@@ -413,7 +432,7 @@ class SequenceDecoder:
         (:func:`specgpu.pipeline.recovery.recover`); NaN where saturated."""
         picked = self.picked(frames, sequence, where)
         if self.motion != "none":
-            rec, y, _ = self._warped_outputs(frames[picked[0]])
+            rec, y, _, _ = self.warped_outputs(frames[picked[0]])
             if self.denoise is not None:
                 y = self.filtered(y[..., :-1], y[..., -1], rec.mask)
             return y.astype(out_dtype, copy=False)

@@ -225,3 +225,121 @@ def test_a_stream_with_a_moving_white_equals_recover(white_chart):
     want = recover(SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {}), sequence=0, motion="global",
                    white_roi=roi)
     assert_close_nan(cube, want, rtol=1e-5, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------ sigma through the warp
+
+@pytest.fixture(scope="module")
+def sigma_chart():
+    """Two noise draws of one sequence of the 7-band plan (with its noise model) of the natural scene moving 3 px
+    per frame in x and half a pixel in y (so every other frame is sampled between pixels), and the plan and
+    calibration. The light's frame-to-frame fluctuation is off: it is one number per frame, common to every
+    pixel, so two draws hold one sample of it per band and no pixel statistic could check it; what the
+    interpolation changes is the pixels' own noise."""
+    from dataclasses import replace
+
+    from moving_helpers import moving_setup
+
+    from specgpu.pipeline.twin_capture import capture_plan
+    from specgpu.planning.estimators import with_estimator
+    from specgpu.planning.noise import NoiseModel
+    from specgpu.rig.motion import MotionParameters
+
+    desc, bundle, plan, scene = moving_setup()
+    desc = replace(desc, light=replace(desc.light, fluctuation_rms=0.0))
+    plan = with_estimator(plan, bundle, "projection", noise=NoiseModel.from_rig(desc, plan.exposure_s))
+    moving = replace(desc, motion=MotionParameters(velocity_px_per_frame=(3.0, 0.5)))
+    draws = [capture_plan(moving, plan, scene, noise_seed=seed, calibration=bundle).sequences[0].frames
+             for seed in (21, 22)]
+    return draws, plan, bundle
+
+
+def test_sigma_through_the_warp_is_calibrated_on_a_moving_scene(sigma_chart):
+    """The difference of two noise draws of the same moving sequence, decoded with compensation, over sqrt(2):
+    its z-scores against the decoder's sigma (each band) and dE_sigma (dE2000 between the draws) have an RMS
+    within [0.8, 1.25]."""
+    (one, two), plan, bundle = sigma_chart
+    dec = SequenceDecoder(plan, bundle, ("cube", "XYZ", "Lab", "sigma", "dE_sigma"), motion="global")
+    a, b = dec.maps(one), dec.maps(two)
+    B = plan.A.shape[0]
+    ok = np.isfinite(a["cube"][..., 0]) & np.isfinite(b["cube"][..., 0])
+    assert ok.mean() > 0.8
+    z = ((a["cube"] - b["cube"]) / np.sqrt(2) / a["sigma"][..., :B])[ok]
+    rms = np.sqrt(np.mean(z.astype(np.float64) ** 2, axis=0))
+    assert np.all((rms > 0.8) & (rms < 1.25)), rms
+    np.testing.assert_array_equal(np.isnan(a["sigma"][..., 0]), np.isnan(a["cube"][..., 0]))
+    np.testing.assert_allclose(a["sigma"][..., B], np.sqrt(np.mean(a["sigma"][..., :B].astype(np.float64) ** 2,
+                                                                    axis=-1)), rtol=1e-5)
+    dE = delta_E(a["Lab"], b["Lab"])[ok] / np.sqrt(2)
+    ratio = np.sqrt(np.mean(dE.astype(np.float64) ** 2) / np.mean(a["dE_sigma"][ok].astype(np.float64) ** 2))
+    assert 0.8 < ratio < 1.25, ratio
+
+
+def squared_weight_reference(frames, plan, bundle, shifts, A):
+    """float64 variance of each output of ``A`` at translated samples, written independently of the decoder: the
+    squared bilinear weights of a fraction f along an axis, (1 - f)^2 and f^2, are (1 - f)^2 + f^2 times the
+    bilinear weights of the fraction f^2 / ((1 - f)^2 + f^2), so each frame's per-pixel variance is warped by
+    the NumPy reference at that shift and scaled; the light's fluctuation is that of the warped signal."""
+    from specgpu.planning.noise import NoiseModel
+    from specgpu.planning.uncertainty import constant_variance
+
+    noise = NoiseModel.from_params(plan.params["noise"])
+    dark, gain = bundle.dark_at(plan.exposure_s), live_gain(bundle.flat_field).astype(np.float64)
+    x = np.asarray(frames, np.float64) - dark
+    own = gain ** 2 * (x / noise.gain_e_per_dn + noise.read_var_dn2)
+    d = np.asarray(shifts, np.float64)
+    base, f = np.floor(d), d - np.floor(d)
+    n = (1 - f) ** 2 + f ** 2
+    moved = base + f ** 2 / n
+    V = np.stack([linear_warp_ref(own[k:k + 1], [[1.0]], moved[k:k + 1])[0][..., 0] * n[k].prod()
+                  for k in range(plan.K)])
+    signal = linear_warp_ref(x * gain, np.eye(plan.K), d)[0]
+    V += (noise.light_rms * np.moveaxis(signal, -1, 0)) ** 2
+    var = np.tensordot(V, np.asarray(A, np.float64).T ** 2, axes=([0], [0])) + constant_variance(plan)
+    return np.sqrt(var)
+
+
+def test_sigma_through_the_warp_equals_the_squared_weight_reference(sigma_chart):
+    from dataclasses import replace
+
+    from specgpu.planning.estimators import with_estimator
+    from specgpu.planning.noise import NoiseModel
+
+    (one, _), plan, bundle = sigma_chart
+    noise = replace(NoiseModel.from_params(plan.params["noise"]), light_rms=0.0138)  # the light's term too
+    plan = with_estimator(plan, bundle, "projection", noise=noise)
+    maps = SequenceDecoder(plan, bundle, ("sigma",), motion="global").maps(one)
+    want = squared_weight_reference(one, plan, bundle, maps["estimate"].shifts, plan.A)
+    B = plan.A.shape[0]
+    from scipy.ndimage import minimum_filter
+
+    # beside the field's edge a sample point's taps are clamped to it, at the shift the reference moves too
+    ok = minimum_filter(np.isfinite(maps["sigma"][..., 0]) & np.isfinite(want[..., 0]), size=3, mode="constant")
+    assert ok.mean() > 0.8
+    np.testing.assert_allclose(maps["sigma"][..., :B][ok], want[ok], rtol=1e-4)
+    # the bound it replaces (each frame's variance interpolated with the weights themselves) is measurably higher
+    from specgpu.planning.uncertainty import frame_variance
+
+    bound = frame_variance(one, plan, bundle.dark_at(plan.exposure_s), bundle.flat_field,
+                           shifts=maps["estimate"].shifts)
+    assert np.median(bound[ok] / (want[ok] ** 2)) > 1.05
+
+
+def test_stream_sigmas_with_motion_equal_recover(moving):
+    from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
+    from specgpu.pipeline.recovery import uncertainty
+    from specgpu.pipeline.stream import Stream
+
+    _, plan, bundle, _, _ = moving
+    kept = []
+    Stream(twin_driver(plan, 1), plan, bundle, outputs=("cube", "XYZ", "sigma", "dE_sigma"), cube_dtype=np.float32,
+           policy="block", motion="global",
+           sinks=[lambda r: kept.append(({k: np.array(v) for k, v in r.arrays.items()}, np.array(r.frames)))]).run()
+    (maps, frames), = kept
+    folder = SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {})
+    sigma, cov = uncertainty(folder, sequence=0, illuminant="D65", motion="global")
+    assert_close_nan(maps["sigma"], sigma_with_rms(sigma, plan.output_labels)[0], rtol=1e-5, atol=1e-7)
+    want = delta_E_sigma_map(to_XYZ(recover(folder, sequence=0, motion="global"), plan), cov, plan.white_XYZ("D65"))
+    ok = np.isfinite(maps["dE_sigma"])
+    assert ok.mean() > 0.8
+    np.testing.assert_allclose(maps["dE_sigma"][ok], want[ok], rtol=1e-3, atol=1e-5)

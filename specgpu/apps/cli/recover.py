@@ -126,6 +126,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
         writes = recovery_writes(folder, y, meta, **paths, colours=colours, sequence=sequence, half=half,
                                  interleave=interleave, method=method, device=device, **white,
                                  denoise_radius=denoise_radius if denoise else None, integration=integration,
+                                 motion=motion, white_moves=white_roi_moves,
                                  reference=lambda h, w, m: parse_reference(ref, h, w, colours[0], resize, m,
                                                                            colours[1], integration))
     for warning in warnings:

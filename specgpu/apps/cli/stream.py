@@ -175,7 +175,7 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
 @click.option("--motion", type=click.Choice(list(MOTION_MODES), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moves during each sequence, as recover --motion: a "
               "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "
-              "estimated within the sequence; of the sigmas only sigma_rms (an upper bound); with --denoise the "
+              "estimated within the sequence; the sigmas at the warped samples; with --denoise the "
               "guide is the warped frames' sum; --white-roi-moves says where a reference white is measured.")
 @RESIZE
 @click.option("--view", is_flag=True,
