@@ -284,6 +284,20 @@ class SequenceDecoder:
         white reference's) writes into the launches' matrix buffers."""
         return self._device().matrices(A)
 
+    def white_matrices(self, raw, host=None) -> list | None:
+        """With a reference white in the device-resident mode: this sequence's corrected decoder's matrix of each
+        launch (:meth:`matrices`), from the white's gains on its frames ``raw`` (``host``: them as
+        :meth:`prepare_frames` made them, when it corrects them); None without a white."""
+        ref = self.white_reference
+        if ref is None:
+            return None
+        if self.precorrect:
+            host = self.prepare_frames(raw) if host is None else host
+            gains = ref.gains(host, dark=np.zeros(host.shape[1:], np.float32))
+        else:
+            gains = ref.gains(raw)
+        return self.matrices(ref.decoder(gains))
+
     def warm_up(self, dtype=np.uint16) -> None:
         """Build every kernel and prime the memory pool on a blank sequence (nothing to build in the motion
         mode, whose passes are made per sequence)."""

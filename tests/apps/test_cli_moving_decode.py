@@ -20,6 +20,11 @@ def test_batch_motion_is_checked_in_one_line(moving, tmp_path):
     root, _, _, plan_path, calib_path = moving
     args = ["batch", root / "seq", "--plan", plan_path, "--calib", calib_path, "--out", tmp_path / "o.zarr"]
     one_line_error(run(*args, "--motion", "optical", ok=False), "--motion", code=2)
+    one_line_error(run(*args, "--motion", "global", "--white-reflectance", "0.9", ok=False),
+                   "--white-reflectance needs --white-roi", code=2)
+    one_line_error(run(*args, "--motion", "global", "--white-roi", "0,0,8,8", "--white-roi-moves", "up", ok=False),
+                   "--white-roi-moves", code=2)
+    one_line_error(run(*args, "--motion", "global", "--white-roi", "9000,0,8,8", ok=False), "--white-roi 9000,0,8,8")
     assert not (tmp_path / "o.zarr").exists()
 
 

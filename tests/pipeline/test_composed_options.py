@@ -128,25 +128,31 @@ def test_stream_and_batch_with_denoise_and_motion_equal_recover(moving, tmp_path
 # ------------------------------------------------------------------------------------- a reference white that moves
 
 @pytest.fixture(scope="module")
-def white_chart():
-    """One sequence of the 7-band plan of a chart with a 0.99 white tile drifting (2, 1) px per frame, the plan,
-    the calibration, the estimate's shifts and mask, and the tile at the sequence's reference time (x, y, w, h)."""
+def white_chart(tmp_path_factory):
+    """One sequence of the 7-band plan of a chart with a 0.99 white tile drifting (2, 1) px per frame (also as a
+    sequence folder ``seq`` beside its plan and calibration files), the plan, the calibration, the decoder's maps
+    of it (its estimate and mask), and the tile at the sequence's reference time (x, y, w, h)."""
     from dataclasses import replace
 
     from moving_helpers import moving_setup
 
+    from specgpu.capture.assemble import AssemblyStats
+    from specgpu.pipeline.capture_folder import save_plan_and_calibration, write_capture
     from specgpu.pipeline.twin_capture import capture_plan
     from specgpu.rig.scene import colorchecker_scene
 
     desc, bundle, plan, _ = moving_setup()
     scene = colorchecker_scene(240, 320, white_tile=0.99)
-    frames = capture_plan(replace(desc, motion=MOTION), plan, scene, noise_seed=4,
-                          calibration=bundle).sequences[0].frames
+    shot = capture_plan(replace(desc, motion=MOTION), plan, scene, noise_seed=4, calibration=bundle)
+    frames = shot.sequences[0].frames
+    root = tmp_path_factory.mktemp("white-chart")
+    write_capture(root / "seq", shot.sequences, shot.assembly or AssemblyStats(),
+                  *save_plan_and_calibration(root, plan, bundle))
     maps = SequenceDecoder(plan, bundle, ("cube",), motion="global").maps(frames)
     white = np.all(np.abs(maps["cube"] - 0.99) < 0.08, axis=-1) & (np.arange(240) < 40)[:, None]
     ys, xs = np.nonzero(white)
     tile = (int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1))
-    return frames, plan, bundle, maps, tile
+    return frames, plan, bundle, maps, tile, root
 
 
 def white_reference_decoding(frames, plan, bundle, shifts, mask, roi):
@@ -169,7 +175,7 @@ def inset(roi, by):
 
 
 def test_a_white_that_moves_with_the_scene_equals_the_numpy_reference(white_chart):
-    frames, plan, bundle, maps, tile = white_chart
+    frames, plan, bundle, maps, tile, _ = white_chart
     roi = inset(tile, 1)
     folder = SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {})
     got = recover(folder, sequence=0, motion="global", white_roi=roi)
@@ -188,7 +194,7 @@ def test_scene_or_camera_says_where_the_white_is_measured(white_chart):
     """The tile's ROI at the reference time: measured with the scene it is the white in every frame; measured on
     the fixed pixels the frames before and after see it slide away (the chart's dark surround comes in), and
     the gains are wrong. A ROI well inside the tile's path gives the same gains either way."""
-    frames, plan, bundle, _, tile = white_chart
+    frames, plan, bundle, _, tile, _ = white_chart
     scene = SequenceDecoder(plan, bundle, ("cube",), motion="global", white_roi=inset(tile, 0)).maps(frames)
     np.testing.assert_allclose(scene["white_gains"], 1.0, atol=0.05)
     camera = SequenceDecoder(plan, bundle, ("cube",), motion="global", white_roi=inset(tile, 0),
@@ -211,7 +217,7 @@ def test_a_stream_with_a_moving_white_equals_recover(white_chart):
     from specgpu.rig.scene import colorchecker_scene
     from specgpu.rig.twin import TwinRig
 
-    _, plan, bundle, _, tile = white_chart
+    _, plan, bundle, _, tile, _ = white_chart
     roi = inset(tile, 2)
     rig = TwinRig(plan.rig_description(RigDescription(camera=CAM, motion=MOTION)),
                   scene=colorchecker_scene(240, 320, white_tile=0.99))
@@ -225,6 +231,25 @@ def test_a_stream_with_a_moving_white_equals_recover(white_chart):
     want = recover(SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {}), sequence=0, motion="global",
                    white_roi=roi)
     assert_close_nan(cube, want, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("motion", ["global", "none"])
+def test_a_batch_with_a_white_equals_recover(white_chart, tmp_path, motion):
+    """batch --white-roi, with --motion (the white moving with the scene) and without (the device-resident
+    launches given each sequence's corrected decoder), equals recover with the same white."""
+    import zarr
+
+    _, plan, bundle, _, tile, root = white_chart
+    x, y, w, h = tile
+    roi = inset(tile, 2) if motion != "none" else f"{x + 10},{y + 4},{w - 20},{max(1, h - 8)}"
+    run_batch(root / "seq", plan, bundle, tmp_path / "out.zarr", outputs=("cube",), workers=1, progress=False,
+              motion=motion, white=(roi, None, "scene"))
+    out = zarr.open_group(str(tmp_path / "out.zarr"), mode="r")
+    assert out.attrs["white_roi"] == roi and out.attrs["white_roi_moves"] == (None if motion == "none" else "scene")
+    want = recover(read_capture(root / "seq"), sequence=0, motion=motion, white_roi=roi)
+    plain = recover(read_capture(root / "seq"), sequence=0, motion=motion)
+    assert_close_nan(out["cube"][0], want, rtol=1e-5, atol=1e-6)
+    assert np.nanmax(np.abs(want - plain)) > 1e-4  # the white's correction changed the decoding
 
 
 # ------------------------------------------------------------------------------------------ sigma through the warp
