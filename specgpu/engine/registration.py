@@ -2,7 +2,7 @@
 reference frame, where the gradient images already are (``kernels/register.cl``).
 
 The images are those :func:`specgpu.engine.gradients.gradient_images` makes (the spectrum-independent images the
-motion estimate of :mod:`specgpu.pipeline.moving` registers). Coarse to fine:
+motion estimate of :mod:`specgpu.motion.global_motion` registers). Coarse to fine:
 
 1. a pyramid of every frame, halved until the short side is under 48 px ([1 3 3 1] / 8 along each axis);
 2. on its coarsest level, the correlation coefficient of the reference and each frame at every integer shift within
@@ -70,7 +70,7 @@ class DeviceRegistration:
     Attributes
     ----------
     shifts : numpy.ndarray
-        As :class:`specgpu.pipeline.moving.MotionEstimate`'s ``shifts``: ``"translation"``, (K, 2) displacement
+        As :class:`specgpu.motion.estimate.MotionEstimate`'s ``shifts``: ``"translation"``, (K, 2) displacement
         (x, y) of each frame from the reference time (frame k sampled at x + shifts[k]); ``"affine"``, (K, 2, 3),
         frame k saw the point at reference-time position x at ``shifts[k] @ (x, y, 1)``. NaN for a frame not
         usable.
@@ -201,7 +201,7 @@ def register_gradients(gradients, reference_frame: int, *, model: str = "transla
     Returns
     -------
     DeviceRegistration
-        Per frame its shift (or map) in :class:`specgpu.pipeline.moving.MotionEstimate`'s convention, the map to the
+        Per frame its shift (or map) in :class:`specgpu.motion.estimate.MotionEstimate`'s convention, the map to the
         reference frame, whether it was usable and its registration error.
     """
     if model not in REGISTRATION_MODELS:
@@ -376,7 +376,7 @@ def _solve(s: np.ndarray, params: int, pixels: int):
 
 def _at_reference_time(values: np.ndarray) -> np.ndarray:
     """The value at a sequence's reference time of per-frame ``values``: the middle frame's for odd K, the mean of
-    the middle two frames' for even K (as :func:`specgpu.pipeline.moving.at_reference_time`)."""
+    the middle two frames' for even K (as :func:`specgpu.motion.estimate.at_reference_time`)."""
     mid = (len(values) - 1) / 2.0
     return 0.5 * (values[int(np.floor(mid))] + values[int(np.ceil(mid))])
 

@@ -29,11 +29,11 @@ no illuminant in common), and the estimate is resampled where the new
 sequence's pixels were (:func:`shift_image`, cubic convolution; NaN, so restarted, where they were outside the
 field, more than half a pixel beyond an edge pixel's centre). The change
 test then restarts every pixel the translation does not carry: an object moving on its own, a surface that came
-into view, a registration that failed. The sigma is the motion decoder's ``sigma_rms`` (an upper bound at the
-warped samples: up to twice the standard deviation at half-pixel shifts, so the test is up to twice as tolerant
-there). Each resampling by a fraction of a pixel weighs neighbouring pixels of the estimate, which
-softens detail near the sampling frequency a little (cubic convolution rather than bilinear interpolation keeps
-repeated resampling from blurring fine texture); a translation by whole pixels is exact.
+into view, a registration that failed. The sigma is the motion decoder's ``sigma_rms`` at the warped samples (each
+sample's variance over the squared bilinear weights of the pixels it reads). Each resampling by a fraction of a
+pixel weighs neighbouring pixels of the estimate, which softens detail near the sampling frequency a little
+(cubic convolution rather than bilinear interpolation keeps repeated resampling from blurring fine texture); a
+translation by whole pixels is exact.
 """
 
 from __future__ import annotations

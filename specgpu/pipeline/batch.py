@@ -73,7 +73,8 @@ from specgpu.pipeline.batch_source import (
 )
 from specgpu.pipeline.denoise import stream_denoise
 from specgpu.pipeline.moving_decode import check_motion_options
-from specgpu.pipeline.sequence_decoder import SequenceDecoder
+from specgpu.pipeline.sequence_decoder import WHITE_MOVES, SequenceDecoder
+from specgpu.planning.correction import WhiteReference
 
 if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle
@@ -107,6 +108,7 @@ class BatchJob:
     denoise: tuple | None = None  # (radius, eps) of the guided filter of the linear outputs, or None
     motion: str = "none"  # "global" / "affine": each sequence decoded motion-compensated, as recover --motion
     integration: str = "rectangle"  # how reflectance is integrated to XYZ (and the white of Lab and dE)
+    white: tuple | None = None  # (ROI, reflectance, where it moves) of a reference white in the field, or None
 
     @property
     def key(self) -> tuple:
@@ -114,7 +116,7 @@ class BatchJob:
         # recording since replaced at the same path
         return (self.source, self.source_id, self.out, self.plan.hash, self.calibration.hash, self.outputs,
                 self.illuminant, self.observer, self.method, self.device, self.denoise, self.motion,
-                self.integration)
+                self.integration, self.white)
 
 
 _STATE: dict = {}
@@ -243,7 +245,8 @@ def _decoder(job: BatchJob, state):
                               frame_shape=(state.source.height, state.source.width), device=state.queue,
                               reference=job.reference if "dE" in job.outputs else None, method=job.method,
                               illuminant=job.illuminant, observer=job.observer, cube_dtype=np.float32,
-                              denoise=job.denoise, integration=job.integration, motion=job.motion)
+                              denoise=job.denoise, integration=job.integration, motion=job.motion,
+                              **dict(zip(("white_roi", "white_reflectance", "white_moves"), job.white or ())))
         # on a CPU device the frames are the device buffer and the results are mapped (no copy either way)
         state._zero_copy = bool(state.queue.device.type & cl.device_type.CPU)
         state._decoder = dec
@@ -274,7 +277,8 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
         frames = cla.Array(q, flat.shape, flat.dtype, data=buf)
     else:
         frames = cla.to_device(q, flat, allocator=get_allocator(q))
-    outs = dec.enqueue(frames)
+    white = dec.white_matrices(raw, host)  # a reference white: this sequence's decoder, as the stream's
+    outs = dec.enqueue(frames, None if white is None else [cla.to_device(q, m).data for m in white])
     shapes = dec.shapes()
     arrays, mapped, events = {}, [], []
     for name, dev in outs.items():
@@ -382,14 +386,16 @@ class BatchReport:
 def prepare_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: CalibrationBundle,
                   out: str | os.PathLike[str], *, outputs=("cube",), illuminant=None, observer=None,
                   method: str = "CIE 2000", reference=None, device=None, denoise=None, motion: str = "none",
-                  integration: str = "rectangle") -> tuple[BatchJob, np.ndarray]:
+                  integration: str = "rectangle", white=None) -> tuple[BatchJob, np.ndarray]:
     """Check the source against the plan, create (or reopen, to resume) the output; returns the job and the
     indices of the sequences still to compute. Every refusal is one line naming the file, found before the
     output is created. ``illuminant``: of XYZ, Lab and dE, recorded in the output; default the plan's own for a
     tristimulus or camera plan, else D65 (:meth:`specgpu.planning.plans.Plan.resolve_illuminant`); ``observer`` likewise
     (:meth:`specgpu.planning.plans.Plan.resolve_observer`: a tristimulus plan's own, else the 2 degree observer);
     ``integration``: of reflectance to XYZ and of the white (:meth:`specgpu.planning.plans.Plan.white_XYZ`),
-    recorded too."""
+    recorded too. ``white``: (ROI, reflectance, ``"scene"`` or ``"camera"``) of a reference white in the field
+    (``--white-roi``, ``--white-reflectance``, ``--white-roi-moves``), each sequence's decoder corrected by it as
+    recover corrects it; in the identity."""
     import zarr
 
     illuminant = plan.resolve_illuminant(illuminant, name="the batch plan")
@@ -422,11 +428,16 @@ def prepare_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: 
     if {"XYZ", "Lab", "dE"} & set(outputs):
         # a plan with no XYZ, or a grid the integration has no table for: refused here, not on every worker
         plan.outputs_to_XYZ(illuminant, observer, integration)
-    motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise)  # before any work
+    motion = check_motion_options(motion, plan, outputs=outputs)  # before any work
     if denoise is not None:  # outputs the filter cannot carry: refused here, not on every worker
         stream_denoise(plan, outputs, np.float32, denoise)
         denoise = (int(denoise[0]), float(denoise[1]))
     n, h, w = source.sequences, source.height, source.width
+    if white is not None:  # the ROI and reflectance checked now, not on every worker
+        white = (str(white[0]), None if white[1] is None else str(white[1]), str(white[2] or "scene").lower())
+        if white[2] not in WHITE_MOVES:
+            raise ValueError(f"--white-roi-moves must be one of {', '.join(WHITE_MOVES)}, got {white[2]!r}")
+        WhiteReference(plan, calibration, white[0], white[1], frame_shape=(h, w))
     if n == 0:
         raise ValueError(f"{source.path}: holds no committed sequence")
     out = Path(out)
@@ -439,10 +450,12 @@ def prepare_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: 
                 "method": method if "dE" in outputs else None,
                 "reference_sha256": _reference_hash(reference), "delta_e_ref": reference_label(reference),
                 "denoise": None if denoise is None else list(denoise),
-                "motion": None if motion == "none" else motion}
+                "motion": None if motion == "none" else motion,
+                **dict(zip(("white_roi", "white_reflectance", "white_roi_moves"),
+                           (None,) * 3 if white is None else (*white[:2], None if motion == "none" else white[2])))}
     job = BatchJob(str(source_path), str(out), plan, calibration, outputs, illuminant, method,
                    None if reference is None else np.asarray(reference, np.float32), device, identity["source_id"],
-                   observer, n, denoise, motion, resolve_integration(integration))
+                   observer, n, denoise, motion, resolve_integration(integration), white)
     _remove_dead_creations(out)
     if out.exists() and _unfinished_creation(out):
         shutil.rmtree(out)  # made by an older specgpu killed before its first sequence: nothing in it to keep
@@ -586,7 +599,7 @@ def run_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: Cali
               out: str | os.PathLike[str], *, outputs=("cube",), illuminant=None, observer=None,
               method: str = "CIE 2000", reference=None, scheduler: str | None = None, workers: int = 1, client=None,
               progress: bool = True, on_done=None, device=None, denoise: ArrayLike | None = None, motion: str = "none",
-              integration: str = "rectangle") -> BatchReport:
+              integration: str = "rectangle", white=None) -> BatchReport:
     """Re-process every sequence of ``source_path`` with ``plan`` into ``out`` on Dask (see the module docstring).
 
     Parameters
@@ -607,17 +620,20 @@ def run_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: Cali
         within the sequence; pixels seen outside the field or inconsistent are NaN); in the output's identity.
     integration : {"rectangle", "ASTM E308"}
         How reflectance outputs are integrated to XYZ, and the white of Lab and dE with them; in the identity.
+    white : (roi, reflectance, moves), optional
+        A reference white in the field, as ``recover --white-roi`` (with ``motion``, measured on the warped
+        samples, ``"scene"``, or on the raw pixels, ``"camera"``); in the identity.
     """
     with output_lock(out, make_parents=True):  # one batch per output: resuming, cleaning and writing are its own
         return _run_locked(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
                            observer=observer, method=method, reference=reference, scheduler=scheduler,
                            workers=workers, client=client, progress=progress, on_done=on_done, device=device,
-                           denoise=denoise, motion=motion, integration=integration)
+                           denoise=denoise, motion=motion, integration=integration, white=white)
 
 
 def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, observer, method, reference, scheduler,
                 workers, client, progress, on_done, device, denoise=None, motion="none",
-                integration="rectangle") -> BatchReport:
+                integration="rectangle", white=None) -> BatchReport:
 
     import dask
     from distributed import Client, LocalCluster, as_completed
@@ -627,7 +643,7 @@ def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, obs
 
     job, todo = prepare_batch(source_path, plan, calibration, out, outputs=outputs, illuminant=illuminant,
                               observer=observer, method=method, reference=reference, device=device,
-                              denoise=denoise, motion=motion, integration=integration)
+                              denoise=denoise, motion=motion, integration=integration, white=white)
     t0 = time.perf_counter()
     cluster = own = None
     failure = None

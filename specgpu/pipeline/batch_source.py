@@ -147,6 +147,8 @@ _IDENTITY_NAMES = {
     "illuminant": ("--illuminant", str), "observer": ("--observer", str), "method": ("--method", str),
     "integration": ("--integration", str),
     "reference_sha256": ("--delta-e-ref", None), "denoise": ("--denoise", str), "motion": ("--motion", str),
+    "white_roi": ("--white-roi", str), "white_reflectance": ("--white-reflectance", str),
+    "white_roi_moves": ("--white-roi-moves", str),
 }
 
 

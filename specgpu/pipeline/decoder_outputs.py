@@ -103,17 +103,25 @@ class Outputs:
         out["mask"] = ((h, w), np.dtype(np.uint8))
         return out
 
-    def rows(self) -> tuple[np.ndarray, dict[str, slice]]:
+    def rows(self, A: ArrayLike | None = None) -> tuple[np.ndarray, dict[str, slice]]:
         """The linear outputs (coefficients, cube, XYZ for any colour output) stacked as the rows of one decoder
         (rows, K) and the slice of each: what one pass over the frames decodes (the warped pass's matrix); the
-        plan's A alone when none is asked (its pass still says which pixels have samples)."""
+        plan's A alone when none is asked (its pass still says which pixels have samples). ``A``: a decoder
+        (B, K) used instead of the plan's (a reference white's, for one sequence), the coefficients in the same
+        basis."""
+        if A is None:
+            coefficients, cube, xyz = self.A_coefficients, self.A, self.M
+        else:
+            A = np.asarray(A, np.float64)
+            coefficients = None if self.basis is None else self.basis.T @ A
+            cube, xyz = A, None if self.to_XYZ is None else self.to_XYZ @ A
         rows, slices, at = [], {}, 0
-        for name, matrix in (("coefficients", self.A_coefficients), ("cube", self.A), ("XYZ", self.M)):
+        for name, matrix in (("coefficients", coefficients), ("cube", cube), ("XYZ", xyz)):
             if matrix is not None and (name != "cube" or "cube" in self.names):
                 slices[name] = slice(at, at + len(matrix))
                 rows.append(np.asarray(matrix, np.float64))
                 at += len(matrix)
-        return (np.vstack(rows) if rows else self.A), slices
+        return (np.vstack(rows) if rows else cube), slices
 
 
 def outputs_for(plan, names, *, frame_shape, reference=None, method: str = "CIE 2000", illuminant=None,

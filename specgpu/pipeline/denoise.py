@@ -29,7 +29,7 @@ from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
 
 __all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace",
-           "denoise_recovery", "denoised_sigma", "stream_denoise"]
+           "denoise_recovery", "denoised_sigma", "stream_denoise", "warped_guide_row", "denoise_compensated"]
 
 #: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/studies/budget_study.py
 #: --tune``): on
@@ -56,6 +56,44 @@ def guide_row(plan) -> np.ndarray:
     if amb is not None:
         row[0, amb] = 0.0
     return row
+
+
+def warped_guide_row(plan) -> np.ndarray:
+    """(1, K) the guide's row for the motion-compensated pass: the sum of the frames the plan's decoder reads (an
+    ambient frame and broadband reference frames left out, so the guide samples no frame the outputs do not)."""
+    row = guide_row(plan)
+    row[0, ~np.any(np.asarray(plan.A) != 0, axis=0)] = 0.0
+    return row
+
+
+def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius: int = DENOISE_RADIUS,
+                        eps: float = DENOISE_EPS, device=None) -> np.ndarray:
+    """The motion-compensated outputs ``y`` (H, W, C) smoothed by the guided filter of ``guide`` (H, W), the sum
+    of the warped samples at the reference time (:func:`warped_guide_row`), so no window mixes the surfaces the
+    compensation separated; float32.
+
+    A pixel flagged in ``mask`` (any bit but 16, an object's own motion: saturated, outside the field,
+    inconsistent) or not finite has no valid value: it stays NaN, and every pixel whose filter would read it
+    (within ``2 radius``: the windows of the windows about it) is left unfiltered, its decoded value kept. The
+    guide is divided by its 99th percentile over the valid pixels, as :func:`sequence_guide`; a guide with no
+    light leaves ``y`` as it is.
+    """
+    from scipy.ndimage import maximum_filter  # scipy: heavy, needed only here
+
+    r, e = _check(radius, eps)
+    y = np.asarray(y, np.float32)
+    g = np.asarray(guide, np.float32)
+    bad = ((np.asarray(mask) & np.uint8(~16 & 0xFF)) != 0) | ~np.isfinite(g) | ~np.all(np.isfinite(y), axis=-1)
+    if bad.all():
+        return y.copy()
+    level = float(np.percentile(g[~bad], 99))
+    if not level > 0:
+        return y.copy()
+    filled = np.where(bad[..., None], np.float32(0), y)
+    filtered = np.asarray(guided_filter(filled, np.where(bad, np.float32(0), g / np.float32(level)), radius=r,
+                                        eps=e, device=device), np.float32)
+    near = maximum_filter(bad, size=4 * r + 1, mode="constant", cval=False)
+    return np.where(near[..., None], y, filtered)
 
 
 def sequence_guide(folder, *, sequence: int | None = None, device=None) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""What the motion mode of the sequence decoder can make of a moving scene's sequence, and its ``sigma_rms``.
+"""What the motion mode of the sequence decoder can make of a moving scene's sequence, and its uncertainty.
 
 ``specgpu recover --motion`` decodes one sequence of a moving scene through
 :func:`specgpu.pipeline.moving_layers.recover_moving`:
@@ -11,12 +11,12 @@ cube, XYZ) stacked as rows of one decoder (:meth:`specgpu.pipeline.decoder_outpu
 and the warped pass are made once per sequence; Lab and dE follow from XYZ by the launches the denoised stream
 uses (:func:`specgpu.pipeline.decoder_outputs.lab_and_delta_E`).
 
-``sigma_rms`` is the noise model's RMS standard deviation at the warped samples
-(:func:`specgpu.planning.uncertainty.frame_variance` with the sequence's shifts; an object layer's pixels with its
-own): an upper bound, since interpolation averages up to four sensor pixels' noise. It serves the running estimate
-along the motion (``stream --accumulate N --motion``). Outputs that are not motion-compensated (the per-band sigmas
-and dE's, whose covariance model assumes each sample came from one sensor pixel; the denoiser's guide; a reference
-white or an ambient frame, measured on fixed pixels) are refused in one line naming the option
+The uncertainty outputs (``sigma``, ``sigma_rms``, ``dE_sigma``) are taken at the warped samples
+(:func:`warped_uncertainty`): a bilinear sample of the four sensor pixels it reads has the variance
+``sum_i w_i^2 var_i`` of their own noise (:func:`warped_sample_variance`, the noise model of
+:mod:`specgpu.planning.noise` per pixel), the light's fluctuation, common to a frame's pixels, at the sample's own
+signal; an object layer's pixels with its own shifts. What is still refused with a motion mode is a plan with an
+ambient frame (subtracted from fixed pixels) and the options the flow cannot serve, in one line naming the option
 (:func:`check_motion_options`).
 """
 
@@ -26,19 +26,23 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from specgpu.core.mask import Mask
+from specgpu.core.numerics import live_gain
 from specgpu.motion.flow import MIN_FRAMES
 from specgpu.motion.methods import check_motion_mode
 from specgpu.planning.correction import ambient_index
+from specgpu.planning.noise import NoiseModel
 from specgpu.planning.reference_frames import reference_indices
-from specgpu.planning.uncertainty import constant_variance, frame_variance
+from specgpu.planning.uncertainty import constant_covariance
 
-__all__ = ["MOTION_OUTPUTS", "check_motion_options", "warped_sigma_rms"]
+__all__ = ["MOTION_OUTPUTS", "check_motion_options", "warped_sample_variance", "warped_sigma_rms",
+           "warped_uncertainty"]
 
-#: The outputs a motion-compensated decoding carries: linear maps of the warped samples, and colour from them.
-MOTION_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma_rms")
+#: The outputs a motion-compensated decoding carries: linear maps of the warped samples, colour from them, and
+#: their uncertainty at the warped samples (:func:`warped_uncertainty`).
+MOTION_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "sigma_rms", "dE_sigma")
 
 
-def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, white_roi=None) -> str:
+def check_motion_options(motion, plan=None, *, outputs=()) -> str:
     """``motion`` checked (a key of :data:`specgpu.motion.methods.MOTION_METHODS`) and, unless ``"none"``, every
     option that cannot be motion-compensated yet refused in one line naming it. Returns the mode."""
     mode = check_motion_mode(motion)
@@ -49,12 +53,6 @@ def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, white_r
             raise ValueError(f"the {name} output with --motion {mode}: its covariance model assumes each pixel's "
                              f"samples came from one sensor pixel, which motion compensation breaks; motion "
                              f"outputs are {', '.join(MOTION_OUTPUTS)}")
-    if denoise is not None:
-        raise ValueError("--denoise with --motion: the filter's guide (the sum of the frames) is not "
-                         "motion-compensated, so it would mix the surfaces the compensation separated")
-    if white_roi is not None:
-        raise ValueError("--white-roi with --motion: the reference white is measured on fixed pixels, which the "
-                         "scene moves across")
     if mode == "flow" and plan is not None and plan.K < MIN_FRAMES + 1:
         raise ValueError(f"--motion flow needs a plan of at least {MIN_FRAMES + 1} frames (each tile's steady motion "
                          f"is fitted to {MIN_FRAMES} frames besides the reference), the {plan.method} plan has "
@@ -68,28 +66,87 @@ def check_motion_options(motion, plan=None, *, outputs=(), denoise=None, white_r
     return mode
 
 
-def warped_sigma_rms(frames: ArrayLike, plan, dark, gain, rec, *, device=None) -> np.ndarray:
-    """(H, W) float32: the RMS over ``plan``'s outputs of their standard deviation at the samples the
-    motion-compensated decoding ``rec`` (a :class:`~specgpu.pipeline.moving_layers.MovingRecovery`) read: the
-    sequence's shifts, an object layer's own on the pixels decoded with it; NaN where the outputs are (an upper
-    bound: see the module notes). ``frames``: the corrected frames on the sensor's scale."""
-    A = np.asarray(plan.A, np.float64)
-    # the one row whose square is the mean over the outputs of A^2: frame_variance gives the mean variance
-    rms_row = np.sqrt(np.mean(A * A, axis=0, keepdims=True))
+def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read, light: bool = True) -> np.ndarray:
+    """(len(read), H, W) float64: the variance of each read frame's motion-compensated sample, the bilinear
+    interpolation of the corrected frame ``(o - dark) * gain`` at the point the frame saw each pixel
+    (``shifts``: (K, 2) translations, (K, 2, 3) affine maps or a (K, 2, H, W) flow, as
+    :func:`specgpu.engine.warp_map.apply_linear_warped` samples them).
+
+    A sample ``s = sum_i w_i c_i`` of the four pixels it reads has the variance ``sum_i w_i^2 var c_i`` of their
+    own noise (shot, read and dark: :class:`specgpu.planning.noise.NoiseModel`, ``gain^2 (x / g + s_read^2)``
+    per pixel, ``x`` its signal above dark), plus, with ``light``, the light's fluctuation, common to every pixel
+    of a frame and so not averaged by the interpolation: ``(l s)^2``. NaN where the point lies outside the
+    sensor's footprint."""
+    noise = NoiseModel.from_params(plan.params["noise"])
+    f = np.asarray(frames, np.float64)
+    h, w = f.shape[1:]
+    g2 = live_gain(gain).astype(np.float64) ** 2 if gain is not None else np.ones((h, w))
+    d = np.asarray(shifts, np.float64)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    out = np.empty((len(read), h, w))
+    for n, k in enumerate(read):
+        x = f[k] - np.asarray(dark, np.float64)
+        own = g2 * (x / noise.gain_e_per_dn + noise.read_var_dn2)
+        if d.ndim == 2:
+            sx, sy = xx + d[k, 0], yy + d[k, 1]
+        elif d.shape[1:] == (2, 3):
+            sx, sy = d[k, 0, 0] * xx + d[k, 0, 1] * yy + d[k, 0, 2], d[k, 1, 0] * xx + d[k, 1, 1] * yy + d[k, 1, 2]
+        else:
+            sx, sy = xx + d[k, 0], yy + d[k, 1]
+        outside = (sx < -0.5 - 1e-3) | (sy < -0.5 - 1e-3) | (sx > w - 0.5 + 1e-3) | (sy > h - 0.5 + 1e-3)
+        sx, sy = np.clip(sx, 0, w - 1), np.clip(sy, 0, h - 1)
+        x0, y0 = np.floor(sx).astype(np.intp), np.floor(sy).astype(np.intp)
+        x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+        fx, fy = sx - x0, sy - y0
+        taps = ((y0, x0, (1 - fx) * (1 - fy)), (y0, x1, fx * (1 - fy)), (y1, x0, (1 - fx) * fy), (y1, x1, fx * fy))
+        var = sum(wt * wt * own[r, c] for r, c, wt in taps)
+        if light and noise.light_rms > 0:
+            signal = np.sqrt(g2) * x
+            var += (noise.light_rms * sum(wt * signal[r, c] for r, c, wt in taps)) ** 2
+        var[outside] = np.nan
+        out[n] = var
+    return out
+
+
+def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=None,
+                       light: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """The standard deviation (H, W, B) of the outputs of the decoder ``A`` (the plan's by default) of the
+    motion-compensated decoding ``rec`` (a :class:`~specgpu.pipeline.moving_layers.MovingRecovery`) and, given
+    ``M`` (3, B), the covariance (H, W, 3, 3) of ``M y`` (XYZ), float32: each frame's sample variance
+    (:func:`warped_sample_variance`, with the sequence's shifts, an object layer's own on the pixels decoded with
+    it) through ``A^2`` (the frames are independent), plus the plan's constant (the prior's mismatch); NaN where
+    the outputs are. ``frames``: the corrected frames on the sensor's scale. ``light=False``: a reference white's
+    gains divide the light's fluctuation out."""
+    A = np.asarray(plan.A if A is None else A, np.float64)
+    read = np.flatnonzero(np.any(A != 0, axis=0))
 
     def variance(shifts):
-        return frame_variance(frames, plan, dark, gain, A=rms_row, shifts=shifts, device=device)[..., 0]
+        return warped_sample_variance(frames, plan, dark, gain, shifts, read=read, light=light)
 
     shifts = rec.estimates[0].shifts
-    var = variance(shifts)
+    V = variance(shifts)
     own = (rec.mask & np.uint8(Mask.LAYER)) != 0
-    # a displacement per pixel (a flow's) holds the layers' own already
-    for layer in rec.layers if np.ndim(shifts) != 4 else ():  # in the order their decodings were given
+    for layer in rec.layers if np.ndim(shifts) != 4 else ():  # a flow holds the layers' own already
         mine = own & layer.decoded
         if mine.any():
-            var[mine] = variance(layer.shifts)[mine]
-    var += np.float32(np.mean(constant_variance(plan), dtype=np.float64))
-    np.maximum(var, 0.0, out=var)
-    np.sqrt(var, out=var)
-    var[(rec.mask & ~np.uint8(Mask.LAYER)) != 0] = np.nan
-    return var
+            V[:, mine] = variance(layer.shifts)[:, mine]
+    Ar = A[:, read]
+    const = constant_covariance(plan)
+    var = np.tensordot(V, (Ar * Ar).T, axes=([0], [0])) + np.diag(const)
+    flagged = (rec.mask & ~np.uint8(Mask.LAYER)) != 0
+    sigma = np.sqrt(np.maximum(var, 0.0)).astype(np.float32)
+    sigma[flagged] = np.nan
+    if M is None:
+        return sigma, None
+    MA = np.asarray(M, np.float64) @ Ar
+    cov = np.einsum("khw,ik,jk->hwij", V, MA, MA) + np.asarray(M) @ const @ np.asarray(M).T
+    cov[flagged] = np.nan
+    return sigma, cov.astype(np.float32)
+
+
+def warped_sigma_rms(frames: ArrayLike, plan, dark, gain, rec, *, device=None) -> np.ndarray:
+    """(H, W) float32: the RMS over ``plan``'s outputs of their standard deviation at the samples the
+    motion-compensated decoding ``rec`` read (:func:`warped_uncertainty`); NaN where the outputs are.
+    ``frames``: the corrected frames on the sensor's scale."""
+    sigma, _ = warped_uncertainty(frames, plan, dark, gain, rec)
+    return np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1)).astype(np.float32)

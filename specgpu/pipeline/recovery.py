@@ -14,7 +14,9 @@ import numpy as np
 
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.denoise import denoise_recovery
 from specgpu.pipeline.evaluate import true_patch_spectra
+from specgpu.pipeline.moving_decode import warped_uncertainty
 from specgpu.pipeline.sequence_decoder import SequenceDecoder, corrections_for
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
@@ -45,7 +47,8 @@ def default_basis(chart: str = EVALUATION_CHART):
 
 
 def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np.float32, device=None,
-            white_roi=None, white_reflectance=None, motion: str = "none") -> np.ndarray:
+            white_roi=None, white_reflectance=None, motion: str = "none", denoise=None,
+            white_moves: str = "scene") -> np.ndarray:
     """The plan's outputs (H, W, B) from a sequence folder: one sequence, or the mean of all (``sequence=None``:
     averaging repeated sequences of a still scene lowers the temporal noise).
 
@@ -78,6 +81,13 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
         the outputs are the scene at the sequence's
         reference time, and pixels some frame saw outside the field are NaN. One sequence at a time (the scene
         moves between sequences too): ``sequence`` is required unless the folder holds one.
+    white_moves : {"scene", "camera"}
+        With ``motion`` and ``white_roi``: the white moves with the scene (measured on the motion-compensated
+        samples, the ROI where it is at the reference time) or is fixed in the field (its raw pixels).
+    denoise : (radius, eps), optional
+        Smooth the outputs by the guided filter of ``recover --denoise`` (:mod:`specgpu.pipeline.denoise`): its
+        guide the frames' sum, or with ``motion`` the warped frames' sum, pixels the compensation flags left out
+        (:func:`specgpu.pipeline.denoise.denoise_compensated`).
 
     Returns
     -------
@@ -101,17 +111,33 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
     >>> cube.shape[:2], bool(abs(np.nanmedian(cube) - 0.99) < 0.05)
     ((240, 320), True)
     """
-    return SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi, white_reflectance=white_reflectance,
-                           motion=motion, device=device).decode(folder.frames, sequence=sequence, where=folder.path,
-                                                                out_dtype=out_dtype)
+    decoder = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi,
+                              white_reflectance=white_reflectance, motion=motion, device=device, denoise=denoise,
+                              white_moves=white_moves)
+    y = decoder.decode(folder.frames, sequence=sequence, where=folder.path, out_dtype=out_dtype)
+    if denoise is not None and decoder.motion == "none":  # the motion mode filters in its own pass
+        y = denoise_recovery(folder, y, sequence=sequence, radius=denoise[0], eps=denoise[1], device=device)
+    return y
 
 
 def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illuminant: str | None = None,
                 observer: str | None = None, device=None, white_roi=None, white_reflectance=None,
-                integration: str = "rectangle") -> tuple[np.ndarray, np.ndarray | None]:
+                integration: str = "rectangle", motion: str = "none",
+                white_moves: str = "scene") -> tuple[np.ndarray, np.ndarray | None]:
     """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames, options and
     corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
-    covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.uncertainty`); NaN where saturated."""
+    covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.uncertainty`); NaN where saturated.
+    With ``motion``: at the motion-compensated samples (:func:`specgpu.pipeline.moving_decode.warped_uncertainty`),
+    NaN where the outputs are."""
+    if motion != "none":
+        dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi,
+                              white_reflectance=white_reflectance, white_moves=white_moves, motion=motion,
+                              device=device)
+        raw = folder.frames[dec.picked(folder.frames, sequence, folder.path)[0]]
+        rec, _, gains, A = dec.warped_outputs(raw)
+        M = None if illuminant is None else folder.plan.outputs_to_XYZ(illuminant, observer, integration)
+        return warped_uncertainty(dec.corrections.sensor(raw), folder.plan, dec.corrections.dark,
+                                  folder.calibration.flat_field, rec, A, M=M, light=gains is None)
     dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi, white_reflectance=white_reflectance,
                           device=device)
     picked = dec.picked(folder.frames, sequence, folder.path)

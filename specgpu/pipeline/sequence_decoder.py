@@ -31,17 +31,24 @@ from numpy.typing import ArrayLike
 from specgpu import engine
 from specgpu.core.mask import Mask
 from specgpu.core.numerics import live_gain
-from specgpu.core.validate import check_sequence
+from specgpu.core.validate import check_sequence, validate_method
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
 from specgpu.motion.residual import residual_check
 from specgpu.pipeline.decoder_outputs import FusedLaunches, lab_and_delta_E, outputs_for
-from specgpu.pipeline.moving_decode import check_motion_options, warped_sigma_rms
+from specgpu.pipeline.denoise import denoise_compensated, warped_guide_row
+from specgpu.pipeline.moving_decode import check_motion_options, warped_uncertainty
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.planning.correction import WhiteReference, ambient_index, corrected_decoder, white_gains
 from specgpu.planning.reference_frames import reference_indices
+from specgpu.planning.uncertainty import delta_E_sigma
 
-__all__ = ["Corrections", "SequenceDecoder", "check_sequence", "corrections_for", "motion_model"]
+__all__ = ["Corrections", "SequenceDecoder", "WHITE_MOVES", "check_sequence", "corrections_for", "motion_model"]
+
+#: Where a reference white is measured in a motion-compensated decoding (``--white-roi-moves``): on the warped
+#: samples at the reference time (a white that moves with the scene) or on the fixed sensor pixels (a white fixed
+#: in the field while the scene moves).
+WHITE_MOVES = ("scene", "camera")
 
 
 def motion_model(mode: str) -> str:
@@ -156,7 +163,13 @@ class SequenceDecoder:
     white_roi, white_reflectance : optional
         A reference white in the field (as :func:`specgpu.pipeline.recovery.recover`): with ``outputs`` each
         sequence's decoder is rescaled for the light's drift (:class:`specgpu.planning.correction.WhiteReference`)
-        and every launch gets its matrix from the corrected decoder (:meth:`matrices`).
+        and every launch gets its matrix from the corrected decoder (:meth:`matrices`). With a motion mode the
+        warped pass samples every frame, the white is measured as ``white_moves`` says
+        (:meth:`motion_white_gains`) and the sequence's corrected decoder applied to the samples.
+    white_moves : {"scene", "camera"}
+        With a motion mode and ``white_roi``: the white moves with the scene (measured on the warped samples at
+        the reference time, the ROI in the reference frame's coordinates) or is fixed in the field (measured on
+        the raw pixels).
     motion : {"none", "global", "affine", "flow"}
         How the scene's motion within a sequence is compensated (:data:`specgpu.motion.methods.MOTION_METHODS`).
     device : optional
@@ -167,19 +180,28 @@ class SequenceDecoder:
         Of the outputs (:func:`specgpu.pipeline.decoder_outputs.outputs_for`).
     """
 
-    def __init__(self, plan, calibration, outputs=(), *, white_roi=None, white_reflectance=None, motion: str = "none",
+    def __init__(self, plan, calibration, outputs=(), *, white_roi=None, white_reflectance=None, white_moves="scene",
+                 motion: str = "none",
                  device=None, frame_shape=None, reference=None, method: str = "CIE 2000", illuminant=None,
                  observer=None, integration: str = "rectangle", cube_dtype=np.float32, denoise=None):
         self.plan, self.calibration, self.device = plan, calibration, device
         self.corrections = corrections_for(calibration, plan, white_roi=white_roi,
                                            white_reflectance=white_reflectance)
         # every option that cannot be motion-compensated refused before any work, alike in every mode
-        self.motion = check_motion_options(motion, plan, outputs=outputs, denoise=denoise, white_roi=white_roi)
+        self.motion = check_motion_options(motion, plan, outputs=outputs)
+        #: (radius, eps) of the guided filter, or None; in the motion mode its guide is the warped frames' sum
+        self.denoise = None if denoise is None else (int(denoise[0]), float(denoise[1]))
         self.gain = calibration.flat_field
         if self.motion != "none":
             self.model = motion_model(self.motion)
             self.reference_frames = reference_indices(plan)  # the motion from them where the plan has them
             self.residual = residual_check(plan, calibration)  # samples judged against the plan's model
+        self.white_moves = validate_method(white_moves, {m: m for m in WHITE_MOVES}, "--white-roi-moves")
+        #: the reference white of the motion mode (parsed and checked now), or None
+        self.white_motion = (None if self.motion == "none" or white_roi is None else
+                             WhiteReference(plan, calibration, white_roi, white_reflectance,
+                                            frame_shape=np.shape(self.corrections.dark) if frame_shape is None
+                                            else frame_shape))
         self.spec = self.fused = None
         if not outputs:
             return
@@ -199,7 +221,9 @@ class SequenceDecoder:
                                        queue=self.queue, white_reference=white)
             return
         # the motion mode: the outputs' linear rows decoded in one warped pass, Lab and dE from its XYZ
-        self.rows, self.slices = self.spec.rows()
+        self.rows, self.slices = self.pass_rows(), self.spec.rows()[1]
+        if self.denoise is not None:  # the guide: one more row of the same warped pass
+            self.slices["guide"] = slice(len(self.rows) - 1, len(self.rows))
         self._reference = (None if self.spec.reference is None else
                            engine.to_device(self.queue, self.spec.reference.reshape(-1)))
         #: host seconds spent so far in each step (estimate, warped pass, consistency check with the object
@@ -261,6 +285,20 @@ class SequenceDecoder:
         white reference's) writes into the launches' matrix buffers."""
         return self._device().matrices(A)
 
+    def white_matrices(self, raw, host=None) -> list | None:
+        """With a reference white in the device-resident mode: this sequence's corrected decoder's matrix of each
+        launch (:meth:`matrices`), from the white's gains on its frames ``raw`` (``host``: them as
+        :meth:`prepare_frames` made them, when it corrects them); None without a white."""
+        ref = self.white_reference
+        if ref is None:
+            return None
+        if self.precorrect:
+            host = self.prepare_frames(raw) if host is None else host
+            gains = ref.gains(host, dark=np.zeros(host.shape[1:], np.float32))
+        else:
+            gains = ref.gains(raw)
+        return self.matrices(ref.decoder(gains))
+
     def warm_up(self, dtype=np.uint16) -> None:
         """Build every kernel and prime the memory pool on a blank sequence (nothing to build in the motion
         mode, whose passes are made per sequence)."""
@@ -277,7 +315,7 @@ class SequenceDecoder:
     def maps(self, raw: ArrayLike) -> dict:
         """The maps of one sequence ``raw`` (K, H, W) by output name, plus ``mask`` (H, W) uint8 (1 saturated, 4
         outside the field, 8 inconsistent, 16 decoded with an object's own motion), NaN where masked. In the
-        motion mode also ``estimate`` (the sequence's :class:`specgpu.pipeline.moving.MotionEstimate`) and
+        motion mode also ``estimate`` (the sequence's :class:`specgpu.motion.estimate.MotionEstimate`) and
         ``layers`` (its :class:`specgpu.pipeline.moving_layers.ObjectLayer` list)."""
         if self.spec is None:
             raise ValueError("maps needs the outputs named (SequenceDecoder(plan, calibration, outputs))")
@@ -297,26 +335,94 @@ class SequenceDecoder:
                 maps[name][saturated] = np.nan
         return maps
 
+    def pass_rows(self, A=None) -> np.ndarray:
+        """(rows, K) the warped pass's rows for the decoder ``A`` (the plan's by default): every linear output
+        asked for (:meth:`specgpu.pipeline.decoder_outputs.Outputs.rows`) and, with ``denoise``, the guide's."""
+        rows = self.spec.rows(A)[0] if self.spec is not None else np.asarray(self.plan.A if A is None else A)
+        return rows if self.denoise is None else np.vstack([rows, warped_guide_row(self.plan)])
+
+    def warped_outputs(self, raw, seconds=None):
+        """The warped pass of one sequence and :meth:`pass_rows` of its samples, for the plan's decoder or, with a
+        reference white, for this sequence's (:meth:`motion_white_gains`): (recovery, y (H, W, rows) float32,
+        gains or None, the decoder (B, K))."""
+        if self.white_motion is None:
+            rec = self.warped(raw, self.pass_rows(), seconds=seconds)
+            return rec, rec.y, None, self.plan.A
+        # every frame's warped sample (the identity's rows), the white measured, then the corrected decoder's rows
+        rec = self.warped(raw, np.eye(self.plan.K), seconds=seconds)
+        gains = self.motion_white_gains(raw, rec)
+        A = self.white_motion.decoder(gains)
+        R = self.pass_rows(A)
+        cols = np.flatnonzero(np.any(R != 0, axis=0))
+        y = np.tensordot(rec.y[..., cols].astype(np.float64), R[:, cols], axes=([-1], [1]))
+        return rec, y.astype(np.float32), gains, A
+
+    def motion_white_gains(self, raw, rec) -> np.ndarray:
+        """(K,) the reference white's gains of one sequence ``raw`` whose warped samples of every frame are
+        ``rec.y`` (H, W, K): with ``white_moves="camera"`` on the raw pixels of the ROI (a white fixed in the
+        field, as the still decoding measures it); with ``"scene"`` on the samples at the reference time (a white
+        that moves with the scene), its pixels flagged outside the field or inconsistent left out, a saturated
+        one refused (:meth:`specgpu.planning.correction.WhiteReference.gains`)."""
+        corr, white = self.corrections, self.white_motion
+        if self.white_moves == "camera":
+            return white.gains(corr.sensor(raw), dark=corr.dark)
+        x, y, w, h = white.roi
+        flags = rec.mask[y:y + h, x:x + w] & np.uint8(~16 & 0xFF)
+        if np.any(flags & 1):
+            raise ValueError(f"--white-roi {x},{y},{w},{h} is saturated in a frame: choose a darker white or a "
+                             "shorter exposure")
+        if np.all(flags):
+            raise ValueError(f"--white-roi {x},{y},{w},{h}: the white moving with the scene was seen outside the "
+                             "field or inconsistent in every pixel (a white fixed in the field: --white-roi-moves "
+                             "camera)")
+        # the samples (o - dark) * gain at the reference time put back on the sensor's scale the gains read
+        samples = np.moveaxis(rec.y, -1, 0) / live_gain(self.calibration.flat_field)[None]
+        return white.gains(samples + np.asarray(corr.dark, np.float32)[None], dark=corr.dark)
+
+    def _warped_sigmas(self, raw, rec, A, XYZ, *, light) -> dict:
+        """The sigma outputs of one motion-compensated sequence (:func:`specgpu.pipeline.moving_decode.
+        warped_uncertainty`): ``sigma`` (each output and their RMS), ``sigma_rms``, ``dE_sigma`` (the XYZ
+        covariance propagated to dE2000 at ``XYZ``, as :func:`specgpu.planning.uncertainty.delta_E_sigma`)."""
+        names = set(self.outputs)
+        M = self.spec.to_XYZ if "dE_sigma" in names else None
+        sigma, cov = warped_uncertainty(self.corrections.sensor(raw), self.plan, self.corrections.dark, self.gain,
+                                        rec, A, M=M, light=light)
+        rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)
+        out = {"sigma": np.concatenate([sigma, rms], axis=-1)} if "sigma" in names else {}
+        if "sigma_rms" in names:
+            out["sigma_rms"] = rms[..., 0]
+        if cov is not None:
+            des = delta_E_sigma(np.nan_to_num(XYZ), np.nan_to_num(cov), self.spec.white)
+            des[~np.isfinite(XYZ).all(axis=-1) | ~np.isfinite(cov).all(axis=(-2, -1))] = np.nan
+            out["dE_sigma"] = des
+        return out
+
     def _moving_maps(self, raw) -> dict:
         steps = {}
-        rec = self.warped(raw, self.rows, seconds=steps)
+        rec, y, gains, A = self.warped_outputs(raw, seconds=steps)
         t0 = time.perf_counter()
-        out = {name: np.ascontiguousarray(rec.y[..., rows]) for name, rows in self.slices.items()}
+        out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
+        if self.denoise is not None:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
+            guide = out.pop("guide")[..., 0]
+            for name in self.spec.denoise["channels"]:
+                out[name] = self.filtered(out[name], guide, rec.mask)
         if "cube" in out:
             out["cube"] = out["cube"].astype(self.spec.cube_dtype, copy=False)
         if {"Lab", "dE"} & set(self.outputs):
             xyz = engine.to_device(self.queue, out["XYZ"].reshape(-1))
             for name, arr in lab_and_delta_E(self.queue, self.spec, xyz, self._reference, self.n).items():
                 out[name] = arr.get().reshape(self.shapes()[name][0])
-        if "sigma_rms" in self.outputs:
-            out["sigma_rms"] = warped_sigma_rms(self.corrections.sensor(raw), self.plan, self.corrections.dark,
-                                                self.gain, rec, device=self.device)
+        if {"sigma", "sigma_rms", "dE_sigma"} & set(self.outputs):
+            out.update(self._warped_sigmas(raw, rec, A, out.get("XYZ"), light=gains is None))
         with self._lock:
             for step, seconds in {**steps, "colour": time.perf_counter() - t0}.items():
                 self.seconds[step] += seconds
             self.sequences += 1
-        return {**{name: out[name] for name in self.outputs}, "mask": rec.mask, "estimate": rec.estimates[0],
+        maps = {**{name: out[name] for name in self.outputs}, "mask": rec.mask, "estimate": rec.estimates[0],
                 "layers": rec.layers}
+        if gains is not None:
+            maps["white_gains"] = gains
+        return maps
 
     # ------------------------------------------------------------------------------------------ which frames
     def picked(self, frames, sequence, where) -> list[int]:
@@ -341,7 +447,10 @@ class SequenceDecoder:
         (:func:`specgpu.pipeline.recovery.recover`); NaN where saturated."""
         picked = self.picked(frames, sequence, where)
         if self.motion != "none":
-            return self.warped(frames[picked[0]], self.plan.A).y.astype(out_dtype, copy=False)
+            rec, y, _, _ = self.warped_outputs(frames[picked[0]])
+            if self.denoise is not None:
+                y = self.filtered(y[..., :-1], y[..., -1], rec.mask)
+            return y.astype(out_dtype, copy=False)
         gain = live_gain(self.calibration.flat_field)
         if self.corrections.per_sequence:
             y = None
@@ -361,6 +470,12 @@ class SequenceDecoder:
         if saturated.any():
             y[saturated] = np.nan
         return y
+
+    def filtered(self, y, guide, mask) -> np.ndarray:
+        """The warped outputs ``y`` (H, W, C) smoothed by the guided filter of the warped frames' sum ``guide``,
+        flagged pixels left out (:func:`specgpu.pipeline.denoise.denoise_compensated`)."""
+        radius, eps = self.denoise
+        return denoise_compensated(y, guide, mask, radius=radius, eps=eps, device=self.device)
 
     @staticmethod
     def mean_frames(frames, picked) -> np.ndarray:

@@ -226,6 +226,8 @@ class Stream:
         Assembler alignment, ``"index"`` or ``"sync"`` (then ``sync_max_dn`` is required).
     device : optional
         OpenCL device selector (see :mod:`specgpu.engine.runtime`).
+    white_moves : {"scene", "camera"}
+        With ``motion`` and ``white_roi``: the white moves with the scene or is fixed in the field.
     white_roi, white_reflectance : optional
         A reference white in the field (as :class:`~specgpu.pipeline.sequence_decoder.SequenceDecoder`): each
         sequence's gains are measured on its host frames, its decoder corrected
@@ -239,8 +241,9 @@ class Stream:
     motion : {"none", "global", "affine", "flow"}
         Compensate a scene that moves during each sequence, as ``recover --motion``: each sequence's
         displacements estimated within it and its frames decoded through the warped kernel; outputs of
-        :data:`specgpu.pipeline.moving_decode.MOTION_OUTPUTS` only, not with ``white_roi`` or ``denoise``. Each
-        result's :attr:`StreamResult.motion` holds the sequence's estimate.
+        :data:`specgpu.pipeline.moving_decode.MOTION_OUTPUTS` only (``denoise`` guided by the warped frames' sum,
+        ``white_roi`` measured as ``white_moves`` says; the decoder's motion mode). Each result's
+        :attr:`StreamResult.motion` holds the sequence's estimate.
     frame_rate_hz : float, optional
         The rate the plan's frames are meant to come at (default: the plan's shortest frame period's); a source
         that delivers slower (a twin that cannot render that fast, a pipeline that holds a blocking ring back)
@@ -258,7 +261,8 @@ class Stream:
                  observer: str | None = None, cube_dtype: DTypeLike = np.float16, n_slots: int | None = None,
                  policy: str = "drop_newest", in_flight: int = 3, result_buffers: int = 6, readback: str = "auto",
                  upload: str = "auto", align: str = "index", sync_max_dn: float | None = None, device=None,
-                 white_roi=None, white_reflectance=None, denoise=None, motion: str = "none",
+                 white_roi=None, white_reflectance=None, white_moves: str = "scene", denoise=None,
+                 motion: str = "none",
                  integration: str = "rectangle", frame_rate_hz: float | None = None):
         plan.check_calibration(calibration, name="stream plan")
         if policy not in POLICIES:
@@ -276,7 +280,8 @@ class Stream:
         self.decoder = SequenceDecoder(plan, calibration, outputs, frame_shape=driver.frame_shape, device=self.queue,
                                        reference=reference, method=method, illuminant=illuminant,
                                        observer=observer, cube_dtype=cube_dtype, white_roi=white_roi,
-                                       white_reflectance=white_reflectance, denoise=denoise,
+                                       white_reflectance=white_reflectance, white_moves=white_moves,
+                                       denoise=denoise,
                                        integration=integration, motion=motion)
         if self.decoder.motion != "none":
             readback = upload = "copy"  # the maps are made on the host: no mapped or pinned sets to recycle
@@ -569,6 +574,7 @@ class Stream:
             item.host = item.decoding.result()  # a decoding error is raised here, on the device thread
             item.motion = item.host.pop("estimate")
             item.layers = item.host.pop("layers")
+            item.white_gains = item.host.pop("white_gains", None)
         if item.events:
             cl.wait_for_events(item.events)
         t = time.perf_counter()

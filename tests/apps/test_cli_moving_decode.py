@@ -20,7 +20,11 @@ def test_batch_motion_is_checked_in_one_line(moving, tmp_path):
     root, _, _, plan_path, calib_path = moving
     args = ["batch", root / "seq", "--plan", plan_path, "--calib", calib_path, "--out", tmp_path / "o.zarr"]
     one_line_error(run(*args, "--motion", "optical", ok=False), "--motion", code=2)
-    one_line_error(run(*args, "--motion", "global", "--denoise", ok=False), "--denoise with --motion")
+    one_line_error(run(*args, "--motion", "global", "--white-reflectance", "0.9", ok=False),
+                   "--white-reflectance needs --white-roi", code=2)
+    one_line_error(run(*args, "--motion", "global", "--white-roi", "0,0,8,8", "--white-roi-moves", "up", ok=False),
+                   "--white-roi-moves", code=2)
+    one_line_error(run(*args, "--motion", "global", "--white-roi", "9000,0,8,8", ok=False), "--white-roi 9000,0,8,8")
     assert not (tmp_path / "o.zarr").exists()
 
 
@@ -33,12 +37,10 @@ def test_stream_motion_on_the_command_line(moving, tmp_path):
     args = ["stream", "--rig", tmp_path / "rig.toml", "--plan", plan_path, "--calib", calib_path, "--scene",
             "natural", "--pacing", "free", "--seconds", "0.3"]
     one_line_error(run(*args, "--motion", "optical", ok=False), "--motion", code=2)
-    one_line_error(run(*args, "--motion", "global", "--outputs", "cube,sigma", ok=False), "sigma", "--motion")
-    one_line_error(run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--denoise", ok=False), "--denoise")
     one_line_error(run(*args, "--motion", "affine", "--outputs", "cube", "--accumulate", "3", ok=False),
                    "--accumulate needs the cube and sigma")
-    one_line_error(run(*args, "--motion", "global", "--white-roi", "0,0,8,8", "--outputs", "cube", ok=False),
-                   "--white-roi")
+    one_line_error(run(*args, "--motion", "global", "--white-roi", "0,0,8,8", "--white-roi-moves", "sideways",
+                       "--outputs", "cube", ok=False), "--white-roi-moves", code=2)
     done = run(*args, "--motion", "global", "--outputs", "cube,XYZ", "--out", tmp_path / "rec.zarr")
     rec = zarr.open_group(str(tmp_path / "rec.zarr"), mode="r")
     assert "global" in str(rec.attrs["metadata"].get("motion")), (done.output, dict(rec.attrs))

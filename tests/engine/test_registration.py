@@ -13,7 +13,7 @@ from skimage.registration import phase_cross_correlation
 from specgpu.engine import registration
 from specgpu.engine.gradients import gradient_images
 from specgpu.engine.registration import register_gradients
-from specgpu.pipeline.moving import estimate_global_motion
+from specgpu.motion.global_motion import estimate_global_motion
 
 H, W = 96, 128
 

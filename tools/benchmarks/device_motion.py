@@ -36,7 +36,8 @@ from specgpu.engine.gradients import apply_scale, frames_on_device, launch_gradi
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.registration import register_gradients
 from specgpu.engine.runtime import get_queue
-from specgpu.pipeline.moving import estimate_global_motion, frame_gradients
+from specgpu.motion.global_motion import estimate_global_motion
+from specgpu.motion.images import frame_gradients
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.twin import TwinRig

@@ -12,6 +12,7 @@ from specgpu.apps.cli.options import (
     OBSERVER,
     PLAN,
     RESIZE,
+    WHITE_ROI_MOVES,
     command,
     no_clash,
     output_list,
@@ -65,12 +66,20 @@ def plan_calibration(plan, source, plan_path, calib):
               "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "
               "estimated within the sequence; pixels seen "
               "outside the field or whose frames disagree are NaN.")
+@click.option("--white-roi", default=None, metavar="X,Y,W,H",
+              help="A reference white in the field: rescale each sequence's decoder for the light's drift (as "
+                   "recover --white-roi).")
+@click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
+              help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@WHITE_ROI_MOVES
 def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminant, observer, integration, scheduler,
-                  workers,
-                  device, resize, denoise, motion):
+                  workers, device, resize, denoise, motion, white_roi, white_reflectance, white_roi_moves):
     """Re-process the raw frames of a recording (specgpu stream --frames) or a sequence folder with a plan, on
     Dask: one task per sequence, resumable, equal to specgpu recover of each sequence."""
-    no_clash([("--out", out)], [("SOURCE", source), ("--plan", plan_path), ("--calib", calib), ("--delta-e-ref", ref)])
+    no_clash([("--out", out)], [("SOURCE", source), ("--plan", plan_path), ("--calib", calib), ("--delta-e-ref", ref),
+                                ("--white-reflectance", white_reflectance)])
+    if white_reflectance is not None and white_roi is None:
+        raise click.UsageError("--white-reflectance needs --white-roi")
     wanted = output_list(outputs, BATCH_OUTPUTS, "batch output")
     method = validate_method(method, DELTA_E_METHODS)
     if ("dE" in wanted) != (ref is not None):
@@ -87,7 +96,8 @@ def batch_command(source, plan_path, calib, out, outputs, ref, method, illuminan
     report = run_batch(source, plan, bundle, out, outputs=wanted, illuminant=illuminant, observer=observer,
                        method=method, reference=reference, scheduler=scheduler, workers=workers, device=device,
                        denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None, motion=motion.lower(),
-                       integration=integration)
+                       integration=integration,
+                       white=None if white_roi is None else (white_roi, white_reflectance, white_roi_moves))
     click.echo(f"{plan.method}: {report.computed} sequences computed on {report.workers} worker(s) in "
                f"{report.seconds:.1f} s ({report.sequences_per_s:.1f} sequences/s), {report.skipped} already done; "
                f"OpenCL contexts built {report.contexts_built}; wrote {out}")

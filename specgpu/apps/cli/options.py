@@ -357,3 +357,11 @@ def parse_reference(text, height, width, illuminant, resize="scale", meta=None, 
 def output_list(text, valid, what):
     """A comma-separated list of outputs, each checked against ``valid`` (a typo is an error naming them)."""
     return tuple(validate_method(o.strip(), {k: k for k in valid}, what) for o in text.split(",") if o.strip())
+
+
+WHITE_ROI_MOVES = click.option(
+    "--white-roi-moves", type=click.Choice(["scene", "camera"], case_sensitive=False), default="scene",
+    show_default=True, callback=lambda ctx, param, value: value.lower(),
+    help="With --motion and --white-roi: the white moves with the scene (measured on the motion-compensated "
+         "samples, the ROI where it is at the sequence's reference time) or is fixed in the field (camera: "
+         "measured on the raw pixels).")

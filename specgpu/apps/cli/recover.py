@@ -11,6 +11,7 @@ from specgpu.apps.cli.options import (
     INTEGRATION,
     OBSERVER,
     RESIZE,
+    WHITE_ROI_MOVES,
     Busy,
     Finite,
     Staged,
@@ -24,23 +25,22 @@ from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.motion.methods import MOTION_METHODS
 from specgpu.pipeline import recovery
 from specgpu.pipeline.capture_folder import read_capture
-from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning, denoise_recovery
+from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_design_warning
 from specgpu.pipeline.motion_record import without_motion
 from specgpu.pipeline.moving_decode import check_motion_options
 from specgpu.pipeline.outputs import recovery_metadata, recovery_writes
 
 
 def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, colours, denoise=None,
-              motion="none", integration="rectangle"):
+              motion="none", integration="rectangle", white_moves="scene"):
     """The recovery of ``folder`` (a refusal is one line naming why), motion-compensated when ``motion`` is not
     "none", denoised when ``denoise`` gives (radius, eps), the metadata of its outputs and the warnings to say (a
     dark level not to be trusted; a capture that moved, recovered without ``--motion``)."""
     try:
-        check_motion_options(motion, folder.plan, denoise=denoise, white_roi=white_roi)  # as the decoder checks
+        check_motion_options(motion, folder.plan)  # as the decoder checks
         y = recovery.recover(folder, sequence=sequence, device=device, white_roi=white_roi,
-                             white_reflectance=white_reflectance, motion=motion)
-        if denoise is not None:
-            y = denoise_recovery(folder, y, sequence=sequence, radius=denoise[0], eps=denoise[1], device=device)
+                             white_reflectance=white_reflectance, motion=motion, denoise=denoise,
+                             white_moves=white_moves)
     except ValueError as error:
         raise click.ClickException(str(error)) from None
     untrusted = recovery.dark_warning(folder, sequence)  # said once the spinner has gone, recorded with every output
@@ -49,9 +49,12 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
                              white_roi=white_roi, white_reflectance=white_reflectance, untrusted=untrusted,
                              integration=integration)
     if denoise is not None:
-        meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
+        meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the " \
+                            f"{'warped ' if motion != 'none' else ''}frames' sum"
     if motion != "none":
         meta["motion"] = f"{motion} compensation of each frame, estimated within the sequence"
+        if white_roi is not None:
+            meta["white_roi_moves"] = white_moves
     elif notice:
         meta["motion"] = "none: the capture moved, decoded as if still"
     return y, meta, [w for w in (untrusted, notice) if w]
@@ -84,6 +87,7 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
               help="A reference white in the field: rescale each sequence's decoder for the light's drift.")
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@WHITE_ROI_MOVES
 @click.option("--denoise", is_flag=True,
               help="Remove per-pixel noise without losing edges: a guided filter on the device, guided by the sum of "
                    "the frames; --sigma is carried through it.")
@@ -99,7 +103,7 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
 def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illuminant, observer, integration,
             sequence, half,
             sigma_path, de_sigma_path, device, white_roi, white_reflectance, resize, denoise, denoise_radius,
-            denoise_eps, motion):
+            denoise_eps, motion, white_roi_moves):
     """Recover a sequence folder: the cube and, when asked, XYZ, Lab and dE maps (written only if all succeed)."""
     if (ref is None) != (de_path is None):
         raise click.UsageError("--delta-e-ref and --delta-e go together")
@@ -118,10 +122,11 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
             raise click.UsageError("--white-reflectance needs --white-roi")
         y, meta, warnings = recovered(folder, seq, sequence=sequence, device=device, colours=colours, **white,
                                        denoise=(denoise_radius, denoise_eps) if denoise else None, motion=motion,
-                                       integration=integration)
+                                       integration=integration, white_moves=white_roi_moves)
         writes = recovery_writes(folder, y, meta, **paths, colours=colours, sequence=sequence, half=half,
                                  interleave=interleave, method=method, device=device, **white,
                                  denoise_radius=denoise_radius if denoise else None, integration=integration,
+                                 motion=motion, white_moves=white_roi_moves,
                                  reference=lambda h, w, m: parse_reference(ref, h, w, colours[0], resize, m,
                                                                            colours[1], integration))
     for warning in warnings:

@@ -17,6 +17,7 @@ from specgpu.apps.cli.options import (
     RESIZE,
     RIG,
     SCENE,
+    WHITE_ROI_MOVES,
     Finite,
     command,
     experiment,
@@ -65,9 +66,8 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
     """The stream of ``specgpu stream`` once its driver is open: the recording set up, run, summarised;
     ``colours``: the (illuminant, observer) of its XYZ, Lab and dE; ``integration``: of its XYZ and white."""
     illuminant, observer = colours
-    white_roi, white_reflectance = white
-    motion = check_motion_options(motion, plan, outputs=wanted, denoise=denoise,
-                                  white_roi=white_roi)  # before any output: one line naming the option
+    white_roi, white_reflectance, white_moves = (*white, "scene")[:3]  # (ROI, reflectance[, where it moves])
+    motion = check_motion_options(motion, plan, outputs=wanted)  # before any output: one line naming the option
     notice = without_motion(description, averaged=False) if motion == "none" else None
     if notice:
         click.echo(f"Warning: {notice}", err=True)
@@ -78,17 +78,20 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
     stream = Stream(driver, plan, bundle, outputs=wanted, reference=reference, method=method,
                     illuminant=illuminant, observer=observer, cube_dtype=np.float16 if half else np.float32,
                     policy=policy, device=device, white_roi=white_roi, white_reflectance=white_reflectance,
-                    n_slots=recording_slots(plan, description) if out else None, denoise=denoise, motion=motion,
-                    integration=integration,
+                    white_moves=white_moves, n_slots=recording_slots(plan, description) if out else None,
+                    denoise=denoise, motion=motion, integration=integration,
                     frame_rate_hz=plan.rig_description(description).camera.frame_rate_hz)
     writer = None
     if out:
         meta = stream_metadata(truth, illuminant=illuminant, observer=observer, method=method, seed=seed,
                                white_roi=white_roi, white_reflectance=white_reflectance, integration=integration)
         if denoise is not None:
-            meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the frames' sum"
+            meta["denoise"] = f"guided filter, radius {denoise[0]}, eps {denoise[1]:g}, guide: the " \
+                            f"{'warped ' if motion != 'none' else ''}frames' sum"
         if motion != "none":
             meta["motion"] = f"{motion} compensation of each frame, estimated within the sequence"
+            if white_roi is not None:
+                meta["white_roi_moves"] = white_moves
         if accumulate is not None:
             meta["accumulate"] = (f"running estimate over up to {accumulate} sequences, reset beyond 3 sigma"
                                   + (", moved with the scene between sequences" if motion != "none" else "")
@@ -162,6 +165,7 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
                    "recover --white-roi; the gains are recorded).")
 @click.option("--white-reflectance", default=None, metavar="VALUE|CSV",
               help="Reflectance of the --white-roi white: a number or a CSV (wavelength nm, value). [0.99]")
+@WHITE_ROI_MOVES
 @click.option("--denoise", is_flag=True,
               help="Denoise the coefficients, cube and XYZ outputs on the device (recover --denoise's guided filter), "
                    "Lab and dE computed from the filtered XYZ (not with the sigmas).")
@@ -171,8 +175,8 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
 @click.option("--motion", type=click.Choice(list(MOTION_METHODS), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moves during each sequence, as recover --motion: a "
               "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "
-              "estimated within the sequence; of the "
-              "sigmas only sigma_rms (an upper bound), not with --denoise or --white-roi.")
+              "estimated within the sequence; the sigmas at the warped samples; with --denoise the "
+              "guide is the warped frames' sum; --white-roi-moves says where a reference white is measured.")
 @RESIZE
 @click.option("--view", is_flag=True,
               help="Show the latest results in napari while streaming (the viewer extra): the sRGB of XYZ, dE and "
@@ -182,7 +186,7 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
                    "dropped); also skips the probe that chooses each array's compression.")
 def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, outputs, ref, method, illuminant,
                    observer, integration, pacing, policy, exr_every, half, seed, device, white_roi, white_reflectance,
-                   denoise, accumulate, motion, resize, view, no_disk_check):
+                   white_roi_moves, denoise, accumulate, motion, resize, view, no_disk_check):
     """Stream a plan's sequences from the rig through the device to maps, with a live status line; Ctrl-C
     stops cleanly (everything captured is processed or reported)."""
     wanted = output_list(outputs, STREAM_OUTPUTS, "stream output")  # before any loading: a typo names the valid
@@ -210,7 +214,8 @@ def stream_command(rig_path, plan_path, calib, scene, seconds, out, raw_frames, 
     try:
         stream_run(driver, description, plan, bundle, truth, wanted, reference, out, raw_frames, plan_path, calib,
                    seconds, method, colours, pacing if hardware is None else "paced", policy, exr_every, half, seed,
-                   device, white=(white_roi, white_reflectance), disk_check=not no_disk_check, view=view,
+                   device, white=(white_roi, white_reflectance, white_roi_moves), disk_check=not no_disk_check,
+                   view=view,
                    denoise=(DENOISE_RADIUS, DENOISE_EPS) if denoise else None, accumulate=accumulate,
                    motion=motion.lower(), integration=integration)
     finally:
