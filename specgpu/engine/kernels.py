@@ -199,6 +199,10 @@ class Prepared:
         self.empty = items == 0
         self.alloc = get_allocator(queue)
         kernel.set_args(*args)
+        # OpenCL's clSetKernelArg keeps no reference to a buffer, nor does pyopencl: the launch holds every buffer
+        # its kernel points at, or one dropped elsewhere (a matrix leaving the upload cache) is released while the
+        # kernel still names it, and the next enqueue reads freed memory
+        self._held = {i: a for i, a in enumerate(args) if isinstance(a, cl.MemoryObjectHolder)}
 
     #: Argument index of the matrix (A or M) in both kernel families.
     matrix_index = 1
@@ -215,8 +219,10 @@ class Prepared:
         k.set_arg(self.frames_index, frames_buffer)
         if matrix is not None:
             k.set_arg(self.matrix_index, matrix)
+            self._held[self.matrix_index] = matrix  # it stays set for the next launches
         for index, buf in (inputs or {}).items():
             k.set_arg(index, buf)
+            self._held[index] = buf
         for name, (index, _) in self.outputs.items():
             k.set_arg(index, out[name])
         cl.enqueue_nd_range_kernel(self.queue, k, self.global_size, self.local_size)

@@ -330,6 +330,7 @@ class PreparedWarp:
             self.warp.set_arg(0, frames)
         if matrix is not None:
             self.warp.set_arg(self.matrix_index, matrix)
+            self._matrix = matrix  # it stays set for the next launches: held, as OpenCL holds no reference to it
         for g, (name, _, _) in enumerate(self.groups):
             self.warp.set_arg(7 + g, out[name])
         self.warp.set_arg(11, out["mask"])

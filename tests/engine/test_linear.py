@@ -364,3 +364,26 @@ def test_prepared_launches_equal_the_direct_launches(queue, out_layout, out_dtyp
             host = np.empty(ref.shape, np.float32)
             cl.enqueue_copy(queue, host, got_f[key])
             np.testing.assert_array_equal(host, ref.get())
+
+
+def test_a_prepared_launch_holds_its_matrix_after_the_upload_cache_lets_it_go(queue):
+    """A prepared launch's kernel names its matrix buffer, which OpenCL does not keep alive: after the matrix
+    upload cache has evicted it (and the pool handed its memory to other matrices), the launch still decodes
+    with its own matrix."""
+    import gc
+
+    rng = np.random.default_rng(7)
+    K, n = 4, 1000
+    A = rng.uniform(-1, 1, (3, K))
+    lin = kernels.prepare_linear(queue, np.float32, A, n=n)
+    for i in range(kernels._MATRIX_CACHE_SIZE + 8):  # evict it, and reuse its memory for others
+        kernels.matrix_on_device(queue, np.full((3, K), 1000.0 + i))
+    gc.collect()
+    runtime.get_allocator(queue).free_held()
+    for i in range(16):
+        kernels.to_device(queue, np.full(3 * K, -5.0e6 - i, np.float32))
+    frames_host = rng.uniform(0, 1, (K, n)).astype(np.float32)
+    frames = kernels.to_device(queue, frames_host.reshape(-1))
+    got = np.empty(3 * n, np.float32)
+    cl.enqueue_copy(queue, got, lin.enqueue(frames.data)["out"])
+    np.testing.assert_allclose(got.reshape(3, n), A @ frames_host, rtol=1e-5, atol=1e-5)
