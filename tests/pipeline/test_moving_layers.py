@@ -12,11 +12,12 @@ from specgpu.core.mask import Mask
 from specgpu.motion.object_motion import occluded_by
 from specgpu.motion.residual import residual_check
 from specgpu.pipeline.evaluate import evaluate_pixels
+from specgpu.pipeline.moving_decode import warped_sample_variance
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.planning.estimators import with_estimator
 from specgpu.planning.noise import NoiseModel
-from specgpu.planning.uncertainty import constant_variance, frame_variance
+from specgpu.planning.uncertainty import constant_covariance
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.scene import SpectralScene
 
@@ -129,11 +130,14 @@ def test_sigma_rms_reads_an_object_layers_pixels_with_its_own_motion(setup, char
     own = (maps["mask"] & Mask.LAYER) != 0
     assert own.sum() > 1000 and not (own & ~layer.decoded).any()
 
-    rms_row = np.sqrt(np.mean(np.asarray(plan.A, np.float64) ** 2, axis=0, keepdims=True))
+    A = np.asarray(plan.A, np.float64)
+    read = np.flatnonzero(np.any(A != 0, axis=0))
+    sensor = dec.corrections.sensor(frames)
 
-    def at(shifts):
-        var = frame_variance(frames, plan, dec.corrections.dark, bundle.flat_field, A=rms_row, shifts=shifts)[..., 0]
-        return np.sqrt(var + np.mean(constant_variance(plan)))
+    def at(shifts):  # each read frame's bilinear sample variance through A^2, plus the plan's constant
+        V = warped_sample_variance(sensor, plan, dec.corrections.dark, bundle.flat_field, shifts, read=read)
+        var = np.tensordot(V, (A[:, read] ** 2).T, axes=([0], [0])) + np.diag(constant_covariance(plan))
+        return np.sqrt(np.mean(var, axis=-1))
 
     np.testing.assert_allclose(sigma[own], at(layer.shifts)[own], rtol=1e-5)
     rest = np.isfinite(sigma) & ~own
