@@ -49,7 +49,12 @@ def _stream_row(case: str, report, *, target_fps=None, extra=None) -> dict:
 
 #: The stream bench's cases; the sustained ones (free-running, ``block``) run ``rounds`` times interleaved.
 STREAM_CASES = ("fused", "sigma", "sigma_rms", "white", "dE_sigma", "linear", "denoise", "motion", "motion_flow",
-                "cube", "paced", "overload", "equality")
+                "static", "full", "paced_full", "cube", "paced", "overload", "equality")
+#: The outputs of the static and full cases (and paced_full). Without sigma_rms: the stream does not yet filter a
+#: sigma map with the coefficients (``--denoise`` refuses it), so full and static compare the same outputs
+_QUALITY_OUTPUTS = ("coefficients", "XYZ", "dE")
+#: full / static, the least share of the static rate that full quality (motion, denoising, white) may cost
+FULL_RATIO_TARGET = 0.40
 _SUSTAINED = {"fused": ("coefficients+XYZ+dE2000", ("coefficients", "XYZ", "dE"), False),
               "sigma": ("coefficients+XYZ+dE2000+sigma", ("coefficients", "XYZ", "dE", "sigma"), False),
               "sigma_rms": ("coefficients+XYZ+dE2000+sigma_rms", ("coefficients", "XYZ", "dE", "sigma_rms"), False),
@@ -58,9 +63,14 @@ _SUSTAINED = {"fused": ("coefficients+XYZ+dE2000", ("coefficients", "XYZ", "dE")
               "linear": ("coefficients+XYZ", ("coefficients", "XYZ"), False),
               "denoise": ("coefficients+XYZ with --denoise", ("coefficients", "XYZ"), False),
               "motion": ("coefficients+XYZ with --motion global", ("coefficients", "XYZ"), False),
-              "motion_flow": ("coefficients+XYZ with --motion flow", ("coefficients", "XYZ"), False)}
+              "motion_flow": ("coefficients+XYZ with --motion flow", ("coefficients", "XYZ"), False),
+              "static": ("static: coefficients+XYZ+dE2000", _QUALITY_OUTPUTS, False),
+              "full": ("full: coefficients+XYZ+dE2000 with --motion global --denoise --white-roi",
+                       _QUALITY_OUTPUTS, True)}
 #: The motion mode of each case that compensates one
-_MOTION = {"motion": "global", "motion_flow": "flow"}
+_MOTION = {"motion": "global", "motion_flow": "flow", "full": "global"}
+#: The cases run with the guided filter
+_DENOISED = ("denoise", "full")
 
 
 def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, overload_seconds: float = 10.0,
@@ -101,6 +111,14 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     motion_flow
         Coefficients + XYZ with ``stream --motion flow`` (the global decoding, then the tiles' flow, its warped
         pass and its own consistency check, every sequence): the dense mode's rate; no target, not run by default.
+    static, full
+        Coefficients + XYZ + dE2000, plain (``static``) and with every quality option at once
+        (``full``: ``--motion global --denoise --white-roi``, the white tile above the chart), interleaved, and
+        the ratio full / static (the median of the rounds' ratios) against :data:`FULL_RATIO_TARGET`. Not run
+        by default.
+    paced_full
+        The full case at the camera's 200 fps (replay paced by the recorded timestamps, ``drop_newest``),
+        ``paced_seconds`` long: zero drops required, the latency stated. Not run by default.
 
     The sustained cases (fused, sigma, white, dE_sigma) run ``rounds`` times interleaved; each row is the
     median round's, with every round's frames/s and 1-minute load average beside it.
@@ -142,7 +160,8 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     def load():
         return os.getloadavg()[0] if hasattr(os, "getloadavg") else None
 
-    sustained = [c for c in _SUSTAINED if c in cases or (c == "linear" and "motion" in cases)]
+    sustained = [c for c in _SUSTAINED if c in cases or (c == "linear" and "motion" in cases)
+                 or (c in ("static", "full") and {"static", "full"} & set(cases))]
     steps = {}  # the motion case's seconds per step, summed over its rounds
     runs = {c: [] for c in sustained}
 
@@ -151,12 +170,12 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
         return Stream(setup.driver(), setup.plan, setup.bundle, outputs=outputs, policy="block",
                       sinks=[lambda r: count.__setitem__(0, count[0] + 1)],
                       white_roi=white_tile_roi(height, width) if white else None,
-                      denoise=(DENOISE_RADIUS, DENOISE_EPS) if c == "denoise" else None,
+                      denoise=(DENOISE_RADIUS, DENOISE_EPS) if c in _DENOISED else None,
                       motion=_MOTION.get(c, "none"),
                       **{k: v for k, v in common.items() if k != "reference" or "dE" in outputs})
 
     for c in sustained:
-        if c in ("motion", "motion_flow", "denoise"):  # kernels built at the first sequence: not in the timed run
+        if c in ("motion", "motion_flow", *_DENOISED):  # kernels built at the first sequence: not in the timed run
             case_stream(c, [0]).run(0.5)
     for r in range(int(rounds)):
         for c in sustained:  # interleaved: a change of the machine's load falls on every case alike
@@ -174,13 +193,28 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
         name = _SUSTAINED[c][0]
         order = sorted(range(len(runs[c])), key=lambda i: runs[c][i][0].frames_per_s)
         rep, load_avg = runs[c][order[len(order) // 2]]
-        rows.append(_stream_row(name, rep, target_fps=None if c in ("dE_sigma", "linear", "denoise", *_MOTION) else
+        rows.append(_stream_row(name, rep, target_fps=None if c in ("dE_sigma", "linear", "static", *_DENOISED,
+                                                                    *_MOTION) else
                                 targets.get("coefficients_XYZ_dE2000_fps"),
                                 extra={"load_avg_1min": load_avg, "rounds": len(runs[c]),
                                        "frames_per_s_rounds": [r.frames_per_s for r, _ in runs[c]],
                                        "load_avg_rounds": [a for _, a in runs[c]]}))
     if "motion" in cases:
         rows.append(_motion_row(rows, steps))
+    if "full" in runs and "static" in runs:
+        rows.append(_full_row(runs["full"], runs["static"]))
+    if "paced_full" in cases:
+        say(f"case paced_full, {paced_seconds:g} s")
+        stream = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=_QUALITY_OUTPUTS,
+                        policy="drop_newest", sinks=[], white_roi=white_tile_roi(height, width),
+                        denoise=(DENOISE_RADIUS, DENOISE_EPS), motion="global", **common)
+        rep = stream.run(paced_seconds)
+        passed = (rep.assembly.dropped == 0 and rep.ring.dropped == 0 and rep.assembly.sequences_discarded == 0
+                  and rep.sequences_out > 0 and rep.frames_in == setup.plan.K * rep.sequences_out)
+        rows.append(_stream_row(f"paced_full {1 / setup.description.camera.frame_rate_hz * 1e3:.0f} ms period: "
+                                "--motion global --denoise --white-roi", rep,
+                                extra={"camera_fps": setup.description.camera.frame_rate_hz, "passed": passed,
+                                       "load_avg_1min": load()}))
     if "cube" in cases:
         say(f"case cube, {seconds:g} s")
         shape, _ = (height, width, setup.plan.A.shape[0]), None
@@ -268,12 +302,32 @@ def _motion_row(rows, steps) -> dict:
             "ms_per_sequence": {k: v / n * 1e3 for k, v in steps.items() if k != "sequences"}}
 
 
+def _full_row(full, static) -> dict:
+    """Full quality beside static of the same rounds (interleaved, so a change of load falls on both): each
+    round's ratio, their median against :data:`FULL_RATIO_TARGET`."""
+    ratios = sorted(f.frames_per_s / s.frames_per_s if s.frames_per_s > 0 else float("nan")
+                    for (f, _), (s, _) in zip(full, static))
+    median = ratios[len(ratios) // 2] if len(ratios) % 2 else 0.5 * (ratios[len(ratios) // 2 - 1]
+                                                                      + ratios[len(ratios) // 2])
+    fps = {name: sorted(r.frames_per_s for r, _ in runs)[len(runs) // 2] for name, runs in (("full", full),
+                                                                                          ("static", static))}
+    return {"case": "full / static", "full_frames_per_s": fps["full"], "static_frames_per_s": fps["static"],
+            "ratio": median, "ratio_rounds": ratios, "target_ratio": FULL_RATIO_TARGET,
+            "passed": bool(median >= FULL_RATIO_TARGET)}
+
+
 def format_stream_report(report: dict) -> str:
     """The stream benchmark as text: one block per case with its figures and PASS / MISS."""
     lines = [(f"stream on {report['device']} ({report['cpu_count']} CPUs), {report['width']} x "
               f"{report['height']}, K = {report['K']}; source: {report['source']}")]
     for row in report["cases"]:
         mark = {True: "PASS", False: "MISS", None: "    "}[row.get("passed")]
+        if "full_frames_per_s" in row:
+            lines.append(f"{mark}  {row['case']}: {row['full_frames_per_s']:.0f} frames/s with --motion global "
+                         f"--denoise --white-roi, {row['static_frames_per_s']:.0f} static (medians), ratio "
+                         f"{row['ratio']:.3f} (median of " + ", ".join(f"{v:.3f}" for v in row["ratio_rounds"])
+                         + f"; target >= {row['target_ratio']:.2f})")
+            continue
         if "ratio" in row:
             lines.append(f"{mark}  {row['case']}: {row['motion_frames_per_s']:.0f} frames/s with --motion global, "
                          f"{row['static_frames_per_s']:.0f} static, ratio {row['ratio']:.3f}; ms per sequence: "

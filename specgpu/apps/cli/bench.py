@@ -42,10 +42,11 @@ def sizes_option(text, option, one=False):
               show_default=True,
               help="With --stream: comma-separated cases to run (also dE_sigma; linear and denoise: the cost of "
                    "--denoise; motion: the rate with --motion global beside the static one; motion_flow: the rate "
-                   "with --motion flow).")
+                   "with --motion flow; static and full: best quality without and with --motion global --denoise "
+                   "--white-roi, and their ratio; paced_full: full at the camera's 200 fps).")
 @click.option("--stream-rounds", type=click.IntRange(min=1), default=1, show_default=True,
               help="With --stream: interleaved rounds of the sustained cases (fused, sigma, sigma_rms, white, "
-                   "dE_sigma); "
+                   "dE_sigma, static, full); "
                    "each reports its median round.")
 def bench(device, json_path, sizes, repeats, stream, stream_size, stream_seconds, paced_seconds, stream_cases,
           stream_rounds):
