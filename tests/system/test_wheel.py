@@ -30,7 +30,8 @@ CHECK = textwrap.dedent(
     # every kernel of every file, with the colour-difference family switched on; the warped decoders for 16-bit
     # frames: the per-pixel one, and the translation's (built where output groups are given)
     warp = dict(K=3, B=2, IN_T="ushort", HAS_DARK=0, HAS_GAIN=0, IS_FLOAT_IN=0)
-    macros = {"guided.cl": [{}], "warp.cl": [warp, dict(warp, GROUPS=1, G0_ROWS=2, G0_IL=1)]}
+    macros = {"guided.cl": [dict(C=3, BX=1, RY=1)], "register.cl": [dict(AFFINE=1, GROUP=64, HROWS=16)],
+              "warp.cl": [warp, dict(warp, GROUPS=1, G0_ROWS=2, G0_IL=1)]}
     for name in sources:
         found = set()
         for m in macros.get(name, [dict(DE_METHOD=2000, K=3, B=2)]):
@@ -65,7 +66,8 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
     assert result.returncode == 0, result.stdout + result.stderr
     assert "linear.cl ['linear_apply']" in result.stdout
     assert "colorimetry.cl ['delta_e', 'delta_e_sigma', 'frames_to_delta_e', 'xyz_to_lab']" in result.stdout
-    assert "guided.cl ['box_h', 'box_v', 'gf_apply', 'gf_coeffs', 'gf_products']" in result.stdout
+    assert "guided.cl ['gf_columns_in', 'gf_columns_out', 'gf_rows']" in result.stdout
+    assert "register.cl ['register_halve', 'register_search', 'register_shift', 'register_step']" in result.stdout
     assert "warp.cl ['linear_warp', 'linear_warp_translate', 'warp_correct']" in result.stdout
     assert ("consistency.cl ['consistency_bracket', 'consistency_median', 'consistency_sample', 'consistency_settle', "
             "'consistency_strips']" in result.stdout)
