@@ -87,11 +87,9 @@ def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read,
     for n, k in enumerate(read):
         x = f[k] - np.asarray(dark, np.float64)
         own = g2 * (x / noise.gain_e_per_dn + noise.read_var_dn2)
-        if d.ndim == 2:
-            sx, sy = xx + d[k, 0], yy + d[k, 1]
-        elif d.shape[1:] == (2, 3):
+        if d.shape[1:] == (2, 3):  # an affine map
             sx, sy = d[k, 0, 0] * xx + d[k, 0, 1] * yy + d[k, 0, 2], d[k, 1, 0] * xx + d[k, 1, 1] * yy + d[k, 1, 2]
-        else:
+        else:  # a translation (2,) or a flow's displacement per pixel (2, H, W)
             sx, sy = xx + d[k, 0], yy + d[k, 1]
         outside = (sx < -0.5 - 1e-3) | (sy < -0.5 - 1e-3) | (sx > w - 0.5 + 1e-3) | (sy > h - 0.5 + 1e-3)
         sx, sy = np.clip(sx, 0, w - 1), np.clip(sy, 0, h - 1)
