@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
+from specgpu.core.mask import Mask
 from specgpu.core.numerics import live_gain
 from specgpu.core.validate import check_number, check_sequence
 from specgpu.engine.guided import box_box_variance, guided_filter
@@ -83,7 +84,7 @@ def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radi
     r, e = _check(radius, eps)
     y = np.asarray(y, np.float32)
     g = np.asarray(guide, np.float32)
-    bad = ((np.asarray(mask) & np.uint8(~16 & 0xFF)) != 0) | ~np.isfinite(g) | ~np.all(np.isfinite(y), axis=-1)
+    bad = ((np.asarray(mask) & ~np.uint8(Mask.LAYER)) != 0) | ~np.isfinite(g) | ~np.all(np.isfinite(y), axis=-1)
     if bad.all():
         return y.copy()
     level = float(np.percentile(g[~bad], 99))

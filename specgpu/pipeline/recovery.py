@@ -133,10 +133,10 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
         dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi,
                               white_reflectance=white_reflectance, white_moves=white_moves, motion=motion,
                               device=device)
-        raw = folder.frames[dec.picked(folder.frames, sequence, folder.path)[0]]
-        rec, _, gains, A = dec.warped_outputs(raw)
+        sensor = dec.corrections.sensor(folder.frames[dec.picked(folder.frames, sequence, folder.path)[0]])
+        rec, _, gains, A = dec.warped_outputs(sensor)
         M = None if illuminant is None else folder.plan.outputs_to_XYZ(illuminant, observer, integration)
-        return warped_uncertainty(dec.corrections.sensor(raw), folder.plan, dec.corrections.dark,
+        return warped_uncertainty(sensor, folder.plan, dec.corrections.dark,
                                   folder.calibration.flat_field, rec, A, M=M, light=gains is None)
     dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi, white_reflectance=white_reflectance,
                           device=device)

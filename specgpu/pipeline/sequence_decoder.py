@@ -341,34 +341,35 @@ class SequenceDecoder:
         rows = self.spec.rows(A)[0] if self.spec is not None else np.asarray(self.plan.A if A is None else A)
         return rows if self.denoise is None else np.vstack([rows, warped_guide_row(self.plan)])
 
-    def warped_outputs(self, raw, seconds=None):
+    def warped_outputs(self, sensor, seconds=None):
         """The warped pass of one sequence and :meth:`pass_rows` of its samples, for the plan's decoder or, with a
         reference white, for this sequence's (:meth:`motion_white_gains`): (recovery, y (H, W, rows) float32,
-        gains or None, the decoder (B, K))."""
+        gains or None, the decoder (B, K)). ``sensor``: the sequence's frames corrected on the sensor's scale
+        (:meth:`Corrections.sensor`)."""
         if self.white_motion is None:
-            rec = self.warped(raw, self.pass_rows(), seconds=seconds)
+            rec = self.warped(sensor, self.pass_rows(), seconds=seconds)
             return rec, rec.y, None, self.plan.A
         # every frame's warped sample (the identity's rows), the white measured, then the corrected decoder's rows
-        rec = self.warped(raw, np.eye(self.plan.K), seconds=seconds)
-        gains = self.motion_white_gains(raw, rec)
+        rec = self.warped(sensor, np.eye(self.plan.K), seconds=seconds)
+        gains = self.motion_white_gains(sensor, rec)
         A = self.white_motion.decoder(gains)
         R = self.pass_rows(A)
         cols = np.flatnonzero(np.any(R != 0, axis=0))
         y = np.tensordot(rec.y[..., cols].astype(np.float64), R[:, cols], axes=([-1], [1]))
         return rec, y.astype(np.float32), gains, A
 
-    def motion_white_gains(self, raw, rec) -> np.ndarray:
-        """(K,) the reference white's gains of one sequence ``raw`` whose warped samples of every frame are
-        ``rec.y`` (H, W, K): with ``white_moves="camera"`` on the raw pixels of the ROI (a white fixed in the
-        field, as the still decoding measures it); with ``"scene"`` on the samples at the reference time (a white
-        that moves with the scene), its pixels flagged outside the field or inconsistent left out, a saturated
-        one refused (:meth:`specgpu.planning.correction.WhiteReference.gains`)."""
+    def motion_white_gains(self, sensor, rec) -> np.ndarray:
+        """(K,) the reference white's gains of one sequence (``sensor``: its corrected frames) whose warped
+        samples of every frame are ``rec.y`` (H, W, K): with ``white_moves="camera"`` on the raw pixels of the ROI
+        (a white fixed in the field, as the still decoding measures it); with ``"scene"`` on the samples at the
+        reference time (a white that moves with the scene), its pixels flagged outside the field or inconsistent
+        left out, a saturated one refused (:meth:`specgpu.planning.correction.WhiteReference.gains`)."""
         corr, white = self.corrections, self.white_motion
         if self.white_moves == "camera":
-            return white.gains(corr.sensor(raw), dark=corr.dark)
+            return white.gains(sensor, dark=corr.dark)
         x, y, w, h = white.roi
-        flags = rec.mask[y:y + h, x:x + w] & np.uint8(~16 & 0xFF)
-        if np.any(flags & 1):
+        flags = rec.mask[y:y + h, x:x + w] & ~np.uint8(Mask.LAYER)
+        if np.any(flags & np.uint8(Mask.SATURATED)):
             raise ValueError(f"--white-roi {x},{y},{w},{h} is saturated in a frame: choose a darker white or a "
                              "shorter exposure")
         if np.all(flags):
@@ -379,13 +380,13 @@ class SequenceDecoder:
         samples = np.moveaxis(rec.y, -1, 0) / live_gain(self.calibration.flat_field)[None]
         return white.gains(samples + np.asarray(corr.dark, np.float32)[None], dark=corr.dark)
 
-    def _warped_sigmas(self, raw, rec, A, XYZ, *, light) -> dict:
+    def _warped_sigmas(self, sensor, rec, A, XYZ, *, light) -> dict:
         """The sigma outputs of one motion-compensated sequence (:func:`specgpu.pipeline.moving_decode.
         warped_uncertainty`): ``sigma`` (each output and their RMS), ``sigma_rms``, ``dE_sigma`` (the XYZ
         covariance propagated to dE2000 at ``XYZ``, as :func:`specgpu.planning.uncertainty.delta_E_sigma`)."""
         names = set(self.outputs)
         M = self.spec.to_XYZ if "dE_sigma" in names else None
-        sigma, cov = warped_uncertainty(self.corrections.sensor(raw), self.plan, self.corrections.dark, self.gain,
+        sigma, cov = warped_uncertainty(sensor, self.plan, self.corrections.dark, self.gain,
                                         rec, A, M=M, light=light)
         rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)
         out = {"sigma": np.concatenate([sigma, rms], axis=-1)} if "sigma" in names else {}
@@ -399,7 +400,8 @@ class SequenceDecoder:
 
     def _moving_maps(self, raw) -> dict:
         steps = {}
-        rec, y, gains, A = self.warped_outputs(raw, seconds=steps)
+        sensor = self.corrections.sensor(raw)  # once: the warped pass, the white and the sigmas all read it
+        rec, y, gains, A = self.warped_outputs(sensor, seconds=steps)
         t0 = time.perf_counter()
         out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
         if self.denoise is not None:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
@@ -413,7 +415,7 @@ class SequenceDecoder:
             for name, arr in lab_and_delta_E(self.queue, self.spec, xyz, self._reference, self.n).items():
                 out[name] = arr.get().reshape(self.shapes()[name][0])
         if {"sigma", "sigma_rms", "dE_sigma"} & set(self.outputs):
-            out.update(self._warped_sigmas(raw, rec, A, out.get("XYZ"), light=gains is None))
+            out.update(self._warped_sigmas(sensor, rec, A, out.get("XYZ"), light=gains is None))
         with self._lock:
             for step, seconds in {**steps, "colour": time.perf_counter() - t0}.items():
                 self.seconds[step] += seconds
@@ -447,7 +449,7 @@ class SequenceDecoder:
         (:func:`specgpu.pipeline.recovery.recover`); NaN where saturated."""
         picked = self.picked(frames, sequence, where)
         if self.motion != "none":
-            rec, y, _, _ = self.warped_outputs(frames[picked[0]])
+            rec, y, _, _ = self.warped_outputs(self.corrections.sensor(frames[picked[0]]))
             if self.denoise is not None:
                 y = self.filtered(y[..., :-1], y[..., -1], rec.mask)
             return y.astype(out_dtype, copy=False)
@@ -503,12 +505,13 @@ class SequenceDecoder:
                                    sequences=len(prepared))
         return [(signal, level, A_mean / (gains / mean_gains)[None, :]) for signal, level, gains in prepared]
 
-    def warped(self, raw, A, *, seconds: dict | None = None):
-        """The warped pass of one sequence ``raw`` (K, H, W) through the decoder ``A`` (rows, K), its motion
+    def warped(self, sensor, A, *, seconds: dict | None = None):
+        """The warped pass of one sequence through the decoder ``A`` (rows, K), ``sensor`` (K, H, W) its frames
+        corrected on the sensor's scale (:meth:`Corrections.sensor`), its motion
         estimated within the sequence (:func:`specgpu.pipeline.moving_layers.recover_moving`, with the plan's
         reference frames and residual check); a :class:`~specgpu.pipeline.moving_layers.MovingRecovery`."""
         if self.motion == "none":
             raise ValueError("the warped pass needs a motion mode other than none")
-        return recover_moving(self.corrections.sensor(raw), A, dark=self.corrections.dark, gain=self.gain,
+        return recover_moving(sensor, A, dark=self.corrections.dark, gain=self.gain,
                               saturation=float(self.calibration.max_code), model=self.model, device=self.device,
                               seconds=seconds, reference_frames=self.reference_frames, residual=self.residual)
