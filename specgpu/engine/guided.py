@@ -27,48 +27,58 @@ from specgpu.engine.runtime import get_allocator, get_kernel, get_queue, kernel_
 
 __all__ = ["guided_filter", "guided_filter_device", "box_box_variance", "flat_variance_reduction"]
 
-_GROUP = 64  # work-items per group along the first axis (columns or rows); the range is padded to a multiple
-_MIN_STRIP = 64  # rows (columns) one work-item walks at least: its first window costs 2 radius reads
-#: pixels of a row each work-item of the column passes sums, by kernel variant: on a CPU one vector loop over
-#: their channels (contiguous), on a GPU one pixel per work-item (neighbours read neighbouring floats)
-_BX = {"cpu": 16, "gpu": 1}
-#: rows each work-item of the row pass filters at once, one vector lane each (its arithmetic in float4 on a CPU)
-_RY = {"cpu": 4, "gpu": 1}
+_GROUP = 64  # work-items per group of the three passes along the first axis (columns or rows); the range is padded
+_MIN_STRIP = 64  # rows (columns) one work-item walks at least: its first windows cost 4 radius rows (columns) more
 _CACHE_SIZE = 8  # shapes whose intermediates are kept
 
 
 class _Intermediates:
-    """The device buffers of one (queue, shape, channels, radius, strip) and the event of the last pass that used
-    them; ``lock`` makes a call's three passes one unit, so two threads on one queue never interleave theirs."""
+    """The device buffers of one (queue, shape, channels, radius, strip, form) and the event of the last pass that
+    used them; ``lock`` makes a call's passes one unit, so two threads on one queue never interleave theirs.
 
-    def __init__(self, queue, H: int, W: int, C: int, sy: int, sx: int, L: int, ry: int):
-        self.sy, self.sx, self.L = sy, sx, L
+    The "cpu" form (one launch of ``gf_strips``) has a scratch buffer of each strip's column sums and its last
+    ``L = min(2r + 1, H)`` rows of models; the "gpu" form (three passes) has the full-size V and S and the row
+    pass's rings."""
+
+    def __init__(self, queue, H: int, W: int, C: int, r: int, sy: int, sx: int, strips: bool):
+        self.sy, self.sx = sy, sx
         self.strips_y, self.strips_x = -(-H // sy), -(-W // sx)
         f = np.dtype(np.float32).itemsize
         mf = cl.mem_flags.READ_WRITE
-        self.V = cl.Buffer(queue.context, mf, H * W * (2 * C + 2) * f)
-        self.S = cl.Buffer(queue.context, mf, H * W * 2 * C * f)
-        self.row_groups = -(-H // ry)
-        self.ring = cl.Buffer(queue.context, mf, self.row_groups * ry * self.strips_x * L * 2 * C * f)
+        if strips:
+            self.L = min(2 * r + 1, H)
+            self.scratch = cl.Buffer(queue.context, mf, self.strips_y * W * (2 * C + 2 + 2 * C * (1 + self.L)) * f)
+        else:
+            self.L = min(2 * r + 1, W)
+            self.V = cl.Buffer(queue.context, mf, H * W * (2 * C + 2) * f)
+            self.S = cl.Buffer(queue.context, mf, H * W * 2 * C * f)
+            self.ring = cl.Buffer(queue.context, mf, H * self.strips_x * self.L * 2 * C * f)
+        self.source: cl.Buffer | None = None
         self.last: cl.Event | None = None
         self.lock = threading.Lock()
+
+    def copy_of(self, queue, image: cla.Array) -> cl.Buffer:
+        """The buffer an image filtered in place is copied to (made on first use)."""
+        if self.source is None:
+            self.source = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, image.nbytes)
+        return self.source
 
 
 _cache: OrderedDict[tuple, _Intermediates] = OrderedDict()
 _cache_lock = threading.Lock()
 
 
-def _intermediates(queue, H: int, W: int, C: int, r: int, strip: int | None, ry: int) -> _Intermediates:
+def _intermediates(queue, H: int, W: int, C: int, r: int, strip: int | None, strips: bool) -> _Intermediates:
     """The intermediates for this call's shape, made once and kept (the least recently used dropped beyond
     :data:`_CACHE_SIZE`; a dropped buffer is freed by OpenCL once the passes queued on it have run)."""
     sy = sx = int(strip) if strip is not None else max(_MIN_STRIP, 4 * r)
-    key = (queue, H, W, C, r, sy, ry)
+    key = (queue, H, W, C, r, sy, strips)
     with _cache_lock:
         entry = _cache.get(key)
         if entry is not None:
             _cache.move_to_end(key)
             return entry
-    entry = _Intermediates(queue, H, W, C, min(sy, H), min(sx, W), min(2 * r + 1, W), ry)
+    entry = _Intermediates(queue, H, W, C, r, min(sy, H), min(sx, W), strips)
     with _cache_lock:
         entry = _cache.setdefault(key, entry)
         while len(_cache) > _CACHE_SIZE:
@@ -76,13 +86,13 @@ def _intermediates(queue, H: int, W: int, C: int, r: int, strip: int | None, ry:
     return entry
 
 
-def _enqueue(queue, kernel, shape: tuple, args: tuple, wait_for) -> cl.Event:
-    """``kernel`` over ``shape`` (work-groups of :data:`_GROUP` along the first axis, the range padded), after
-    ``wait_for``; arguments set and enqueued under the engine's launch lock."""
-    glob = (-(-shape[0] // _GROUP) * _GROUP, shape[1])
+def _enqueue(queue, kernel, shape: tuple, local: tuple, args: tuple, wait_for) -> cl.Event:
+    """``kernel`` over ``shape`` in groups of ``local`` (the range padded to a multiple), after ``wait_for``;
+    arguments set and enqueued under the engine's launch lock."""
+    glob = tuple(-(-int(n) // int(g)) * int(g) for n, g in zip(shape, local))
     with _launch_lock:
         kernel.set_args(*args)
-        return cl.enqueue_nd_range_kernel(queue, kernel, glob, (_GROUP, 1), wait_for=wait_for)
+        return cl.enqueue_nd_range_kernel(queue, kernel, glob, local, wait_for=wait_for)
 
 
 def _check_device_array(a, name: str, shape: tuple, queue) -> None:
@@ -100,9 +110,14 @@ def guided_filter_device(queue, image: cla.Array, guide: cla.Array, radius: int,
                          out: cla.Array | None = None, *, strip: int | None = None) -> cla.Array:
     """The guided filter of device arrays, enqueued on ``queue`` and returned without waiting (no host transfer).
 
-    Three passes of running sums (O(1) per pixel for any radius) over intermediates kept on the device and
-    reused by the next call of the same shape; the guide's mean and variance are made once per window and
-    shared by every channel. The filter is that of :func:`guided_filter` (see the module notes).
+    Running sums (O(1) per pixel for any radius) over intermediates kept on the device and reused by the next
+    call of the same shape; the guide's mean and variance are made once per window and shared by every channel.
+    The filter is that of :func:`guided_filter` (see the module notes). Its form follows the kernel variant of
+    the queue's device (:func:`specgpu.engine.runtime.kernel_variant`): on a CPU ("cpu") one launch in which each
+    work-item walks a strip of rows across the image, its column sums and last rows of models in a small scratch
+    buffer (read and written once, the image and the output; no full-size intermediate); on a GPU ("gpu") three
+    passes over full-size intermediates with a pixel or a row per work-item, so that neighbouring work-items
+    read neighbouring floats.
 
     Parameters
     ----------
@@ -117,11 +132,11 @@ def guided_filter_device(queue, image: cla.Array, guide: cla.Array, radius: int,
     eps : float
         Regularisation in the guide's units squared, > 0.
     out : pyopencl.array.Array, optional
-        (H, W, C) float32 to write into; it may be ``image`` itself (read only by the first pass), never the
-        guide. Default: a new array from the context's memory pool.
+        (H, W, C) float32 to write into; it may be ``image`` itself (on a CPU the image is then copied first,
+        on the device), never the guide. Default: a new array from the context's memory pool.
     strip : int, optional
         Rows (columns) each work-item walks; default ``max(64, 4 r)``. Fewer make more work-items for more
-        first windows (each 2r reads).
+        first windows (each costs 2r to 4r rows more).
 
     Returns
     -------
@@ -145,22 +160,34 @@ def guided_filter_device(queue, image: cla.Array, guide: cla.Array, radius: int,
         _check_device_array(out, "out", shape, queue)
         if out.base_data == guide.base_data:
             raise ValueError("out must not be the guide (the last pass reads it while writing out)")
-    variant = kernel_variant(queue.device)
-    bx, ry = _BX[variant], _RY[variant]
-    it = _intermediates(queue, H, W, C, r, strip, ry)
-    kernels = [get_kernel(queue, "guided.cl", name, C=C, BX=bx, RY=ry) for name in ("gf_columns_in", "gf_rows",
-                                                                                   "gf_columns_out")]
-    columns = (-(-W // bx), it.strips_y)
+    strips = kernel_variant(queue.device) == "cpu"
+    it = _intermediates(queue, H, W, C, r, strip, strips)
     dims = (np.int32(H), np.int32(W), np.int32(r))
     with it.lock:
-        # the previous call's last pass reads S: this call's passes may overwrite V and S only after it
-        ev = _enqueue(queue, kernels[0], columns, (image.data, guide.data, it.V, *dims, np.int32(it.sy)),
-                      [it.last] if it.last is not None else None)
-        ev = _enqueue(queue, kernels[1], (it.row_groups, it.strips_x),
-                      (it.V, it.ring, it.S, *dims, np.int32(it.sx), np.int32(it.strips_x), np.int32(it.L),
-                       np.float32(e)), [ev])
-        it.last = _enqueue(queue, kernels[2], columns, (it.S, guide.data, out.data, *dims, np.int32(it.sy)),
-                           [ev])
+        # the previous call's passes read the intermediates: this call's may overwrite them only after them
+        wait = [it.last] if it.last is not None else None
+        if strips:
+            source = image.data
+            if out.base_data == image.base_data:
+                # a strip reads the image's rows until its last output row is written, and its neighbours read
+                # its first and last rows: filtered in place, the image is read from a copy
+                source = it.copy_of(queue, image)
+                wait = [cl.enqueue_copy(queue, source, image.data, byte_count=image.nbytes, wait_for=wait)]
+            kernel = get_kernel(queue, "guided.cl", "gf_strips", C=C, STRIPS=1)
+            it.last = _enqueue(queue, kernel, (it.strips_y,), (1,), (source, guide.data, out.data, it.scratch, *dims,
+                                                                      np.int32(it.sy), np.int32(it.L), np.float32(e)),
+                               wait)
+        else:
+            kernels = [get_kernel(queue, "guided.cl", name, C=C, STRIPS=0)
+                       for name in ("gf_columns_in", "gf_rows", "gf_columns_out")]
+            columns, local = (W, it.strips_y), (_GROUP, 1)
+            ev = _enqueue(queue, kernels[0], columns, local, (image.data, guide.data, it.V, *dims, np.int32(it.sy)),
+                          wait)
+            ev = _enqueue(queue, kernels[1], (H, it.strips_x), local,
+                          (it.V, it.ring, it.S, *dims, np.int32(it.sx), np.int32(it.strips_x), np.int32(it.L),
+                           np.float32(e)), [ev])
+            it.last = _enqueue(queue, kernels[2], columns, local,
+                               (it.S, guide.data, out.data, *dims, np.int32(it.sy)), [ev])
         out.add_event(it.last)
     return out
 

@@ -7,6 +7,7 @@ intermediates made once per shape, two threads on one queue)."""
 import threading
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 import pytest
 
@@ -143,7 +144,7 @@ def test_intermediates_and_program_are_made_once_per_shape(queue, monkeypatch):
     programs = program_cache_size()
     for _ in range(3):
         out = guided_filter_device(queue, p_dev, g_dev, 2, 1e-3)
-    assert [m[:6] for m in made] == [(19, 23, 3, 19, 23, 5)]  # one set of buffers for the shape
+    assert [m[:6] for m in made] == [(19, 23, 3, 2, 19, 23)]  # one set of buffers for the shape (H, W, C, r, strips)
     assert program_cache_size() == programs  # and no program built again
     np.testing.assert_allclose(out.get(), guided_scipy(p, g, 2, 1e-3), rtol=1e-4, atol=2e-5)
     q, h = image_and_guide((19, 24, 3), 9)  # another shape: buffers of its own
@@ -171,3 +172,35 @@ def test_two_threads_on_one_queue_each_get_their_own_result(queue):
     for got, want in zip(results, expected):
         for g in got:
             np.testing.assert_allclose(g, want, rtol=1e-4, atol=2e-5)
+
+
+@pytest.mark.parametrize("shape, r, strip", [((45, 23, 9), 2, 8), ((20, 30, 4), 9, 6)])
+def test_filtering_in_place_reads_the_image_as_it_was(queue, kernel_variant, shape, r, strip):
+    """out=image, the image the start of a larger buffer (as a pooled output is): every strip of rows reads the
+    image unfiltered, its neighbours' rows included, so the result is the reference's."""
+    p, g = image_and_guide(shape, 21)
+    image = cla.Array(queue, shape, np.float32, data=cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, p.nbytes + 4096))
+    image.set(p)
+    got = guided_filter_device(queue, image, cla.to_device(queue, g), r, 1e-3, out=image, strip=strip)
+    assert got is image
+    np.testing.assert_allclose(image.get(), guided_scipy(p, g, r, 1e-3), rtol=1e-4, atol=2e-5)
+
+
+@pytest.mark.parametrize("H, strip", [(64, 16), (61, 7), (9, 64)])
+def test_strips_agree_with_the_reference_where_windows_cross_them(queue, kernel_variant, H, strip):
+    """Strips of rows (the "cpu" form's work-items, the column passes' of the "gpu" form) whose windows reach into
+    their neighbours' rows, a last strip shorter than the others, and one strip taller than the image; non-finite
+    values on the rows where two strips meet, whose NaN must cross into the next strip and end there."""
+    W, C, r = 37, 9, 3
+    p, g = image_and_guide((H, W, C), H + strip)
+    bad_p, bad_g = p.copy(), g.copy()
+    y = min(strip, H - 1)
+    bad_p[y - 1, 5, 4], bad_g[y, W - 3] = np.nan, np.inf
+    got = guided_filter_device(queue, cla.to_device(queue, bad_p), cla.to_device(queue, bad_g), r, 1e-3,
+                               strip=strip).get()
+    expected_nan = np.zeros((H, W, C), bool)
+    expected_nan[max(y - 1 - 2 * r, 0):y + 2 * r, max(5 - 2 * r, 0):5 + 2 * r + 1, 4] = True
+    expected_nan[max(y - 2 * r, 0):y + 2 * r + 1, W - 3 - 2 * r:, :] = True
+    assert np.array_equal(np.isnan(got), expected_nan)
+    reference = guided_scipy(p, g, r, 1e-3)
+    np.testing.assert_allclose(got[~expected_nan], reference[~expected_nan], rtol=1e-4, atol=2e-5)

@@ -120,9 +120,10 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     frames with NaN and inf, a dead pixel) on 21 x 35 and 5 x 270 pixels; the check with a 9-pixel window on
     21 x 35 pixels, with a sample that misleads its bracket (the strips run twice), and from raw frames (the
     gradient images made on the device, the samples scaled); the gradient images alone with a dead pixel and a dark
-    frame per frame; the guided filter's three passes, nine channels in short strips with a NaN in the image and an
-    inf in the guide, and one channel with windows wider than the image; the registration of images on the device,
-    translations and affine maps: no Oclgrind report, and every output within its tolerance."""
+    frame per frame; the guided filter (three passes, or one along strips of rows), nine channels in short strips
+    with a NaN in the image and an inf in the guide, and one channel with windows wider than the image; the
+    registration of images on the device, translations and affine maps: no Oclgrind report, and every output within
+    its tolerance."""
     proc, reports = run_worker(oclgrind_env, "cases", variant)
     assert proc.returncode == 0, f"the worker ended with {proc.returncode}:\n{proc.stderr[-4000:]}"
     cases, programs = results(proc)
@@ -141,10 +142,9 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     gradient = [p for p in programs if "-DGROWS=" in p]
     register = [p for p in programs if "-DHROWS=" in p]  # the registration's, one size of group per variant
     linear = [p for p in programs if "-DB=" in p and p not in warp]
-    # the guided filter: a pixel and a row per work-item on GPUs; 16 pixels (column passes), 4 rows (row pass) on CPUs
-    guided = [p for p in programs if "-DBX=" in p]
-    bx, ry = (1, 1) if variant == "gpu" else (16, 4)
-    assert guided and all(f"-DBX={bx} " in p + " " and f"-DRY={ry} " in p + " " for p in guided)
+    # the guided filter: three passes on GPUs, a pixel and a row per work-item; one pass along strips of rows on CPUs
+    guided = [p for p in programs if "-DSTRIPS=" in p]
+    assert guided and all(f"-DSTRIPS={int(variant == 'cpu')} " in p + " " for p in guided)
     if variant == "gpu":
         assert all("-DVW=1" in p for p in programs if p not in warp + check + gradient + guided + register)
         assert any("-DTILE=1" in p for p in linear) and any("-DTILE=0" in p for p in linear)
