@@ -28,7 +28,10 @@ from specgpu.engine.runtime import get_allocator, get_kernel, get_queue, kernel_
 __all__ = ["guided_filter", "guided_filter_device", "box_box_variance", "flat_variance_reduction"]
 
 _GROUP = 64  # work-items per group of the three passes along the first axis (columns or rows); the range is padded
-_MIN_STRIP = 64  # rows (columns) one work-item walks at least: its first windows cost 4 radius rows (columns) more
+_MIN_STRIP = 64  # rows (columns) one work-item of the passes walks at least: its first window costs 2 radius reads
+#: the one-launch form: rows a strip has at least (its first windows cost 4 radius rows more), and strips per
+#: compute unit wanted (a few, so that a core slowed by other work does not hold up the launch)
+_MIN_STRIP_ROWS, _STRIPS_PER_UNIT = 16, 4
 _CACHE_SIZE = 8  # shapes whose intermediates are kept
 
 
@@ -71,7 +74,13 @@ _cache_lock = threading.Lock()
 def _intermediates(queue, H: int, W: int, C: int, r: int, strip: int | None, strips: bool) -> _Intermediates:
     """The intermediates for this call's shape, made once and kept (the least recently used dropped beyond
     :data:`_CACHE_SIZE`; a dropped buffer is freed by OpenCL once the passes queued on it have run)."""
-    sy = sx = int(strip) if strip is not None else max(_MIN_STRIP, 4 * r)
+    if strip is not None:
+        sy = sx = int(strip)
+    elif strips:  # every compute unit busy: about _STRIPS_PER_UNIT strips each
+        units = max(1, int(queue.device.max_compute_units))
+        sy = sx = max(_MIN_STRIP_ROWS, 4 * r, -(-H // (_STRIPS_PER_UNIT * units)))
+    else:
+        sy = sx = max(_MIN_STRIP, 4 * r)
     key = (queue, H, W, C, r, sy, strips)
     with _cache_lock:
         entry = _cache.get(key)
@@ -135,8 +144,9 @@ def guided_filter_device(queue, image: cla.Array, guide: cla.Array, radius: int,
         (H, W, C) float32 to write into; it may be ``image`` itself (on a CPU the image is then copied first,
         on the device), never the guide. Default: a new array from the context's memory pool.
     strip : int, optional
-        Rows (columns) each work-item walks; default ``max(64, 4 r)``. Fewer make more work-items for more
-        first windows (each costs 2r to 4r rows more).
+        Rows (columns) each work-item walks. Default: on a CPU, about four strips per compute unit of at least
+        ``max(16, 4 r)`` rows; on a GPU ``max(64, 4 r)``. Fewer make more work-items for more first windows
+        (each costs 2r to 4r rows more).
 
     Returns
     -------

@@ -144,7 +144,7 @@ def test_intermediates_and_program_are_made_once_per_shape(queue, monkeypatch):
     programs = program_cache_size()
     for _ in range(3):
         out = guided_filter_device(queue, p_dev, g_dev, 2, 1e-3)
-    assert [m[:6] for m in made] == [(19, 23, 3, 2, 19, 23)]  # one set of buffers for the shape (H, W, C, r, strips)
+    assert [m[:4] for m in made] == [(19, 23, 3, 2)]  # one set of buffers for the shape (H, W, C, r)
     assert program_cache_size() == programs  # and no program built again
     np.testing.assert_allclose(out.get(), guided_scipy(p, g, 2, 1e-3), rtol=1e-4, atol=2e-5)
     q, h = image_and_guide((19, 24, 3), 9)  # another shape: buffers of its own
