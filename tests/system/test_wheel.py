@@ -27,10 +27,11 @@ CHECK = textwrap.dedent(
     sources = sorted(p.name for p in kdir.glob("*.cl"))
     assert sources == sys.argv[2].split(","), sources  # every kernel file of the repository, no other
     queue = runtime.get_queue()
-    # every kernel of every file, with the colour-difference family switched on; the warped decoders for 16-bit
-    # frames: the per-pixel one, and the translation's (built where output groups are given)
+    # every kernel of every file, with the colour-difference family switched on; the guided filter's two forms; the
+    # warped decoders for 16-bit frames: the per-pixel one, and the translation's (built where output groups are given)
     warp = dict(K=3, B=2, IN_T="ushort", HAS_DARK=0, HAS_GAIN=0, IS_FLOAT_IN=0)
-    macros = {"guided.cl": [dict(C=3, BX=1, RY=1)], "register.cl": [dict(AFFINE=1, GROUP=64, HROWS=16)],
+    macros = {"guided.cl": [dict(C=3, STRIPS=0), dict(C=3, STRIPS=1)],
+              "register.cl": [dict(AFFINE=1, GROUP=64, HROWS=16)],
               "warp.cl": [warp, dict(warp, GROUPS=1, G0_ROWS=2, G0_IL=1)]}
     for name in sources:
         found = set()
@@ -66,7 +67,7 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
     assert result.returncode == 0, result.stdout + result.stderr
     assert "linear.cl ['linear_apply']" in result.stdout
     assert "colorimetry.cl ['delta_e', 'delta_e_sigma', 'frames_to_delta_e', 'xyz_to_lab']" in result.stdout
-    assert "guided.cl ['gf_columns_in', 'gf_columns_out', 'gf_rows']" in result.stdout
+    assert "guided.cl ['gf_columns_in', 'gf_columns_out', 'gf_rows', 'gf_strips']" in result.stdout
     assert "register.cl ['register_halve', 'register_search', 'register_shift', 'register_step']" in result.stdout
     assert "warp.cl ['linear_warp', 'linear_warp_translate', 'warp_correct']" in result.stdout
     assert ("consistency.cl ['consistency_bracket', 'consistency_median', 'consistency_sample', 'consistency_settle', "
