@@ -257,6 +257,8 @@ def stream_denoise(plan, outputs, cube_dtype, denoise) -> dict:
     are recomputed from the filtered XYZ, and the sigma outputs carried through the filter; refuses (one line) a
     float16 cube."""
     r, e = _check(*denoise)
+    if any(o in DENOISED_SIGMAS for o in outputs):
+        check_sigma_radius(r)
     known = DENOISED_STREAM_OUTPUTS + FROM_DENOISED_XYZ + DENOISED_SIGMAS
     bad = [o for o in outputs if o not in known]
     if bad:

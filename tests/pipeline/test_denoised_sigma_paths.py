@@ -1,7 +1,8 @@
-"""The sigma outputs with ``--denoise``, in every path: the device's box-box variance against a float64 NumPy
-reference, the model against the filter's own variance (where the guide is flat, and behind a warp's half-pixel
-samples), the stream and the batch equal to ``recover`` for the combinations of ``--motion``, ``--white-roi`` and
-the sigma outputs, and the denoised sigma of a moving scene calibrated."""
+"""The sigma outputs with ``--denoise``, in every path: the device's variance of the guided filter against a
+float64 NumPy reference, that model against the spread of filtered noise draws (a flat guide, a textured guide with
+noise of its own, a warp's half-pixel samples), the stream equal to ``recover`` for the combinations of
+``--motion``, ``--white-roi`` and the sigma outputs, and the denoised sigma of a natural scene, still and moving,
+calibrated against fresh noise draws."""
 
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ from specgpu.rig.motion import MotionParameters
 
 DENOISE = (2, 1e-4)
 SIGMAS = ("cube", "XYZ", "sigma", "sigma_rms", "dE_sigma")
+MOVING = MotionParameters(velocity_px_per_frame=(2.0, 1.0))
 
 
 def assert_close_nan(a, b, **tol):
@@ -235,7 +237,7 @@ def streamed(plan, bundle, scene, outputs, *, motion="none", white_roi=None, see
     from specgpu.pipeline.stream import Stream
     from specgpu.rig.twin import TwinRig
 
-    moving = {} if motion == "none" else {"motion": MotionParameters(velocity_px_per_frame=(2.0, 1.0))}
+    moving = {} if motion == "none" else {"motion": MOVING}
     rig = TwinRig(plan.rig_description(RigDescription(camera=CAM, **moving)), scene=scene)
     rig.seed = seed
     kept = []
@@ -252,19 +254,23 @@ def recovered(plan, bundle, frames, *, motion="none", white_roi=None):
     folder = SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {})
     kw = {"sequence": 0, "motion": motion, "white_roi": white_roi}
     cube = recover(folder, denoise=DENOISE, **kw)
-    sigma, cov = uncertainty(folder, illuminant="D65", denoise_radius=DENOISE[0], **kw)
+    sigma, cov = uncertainty(folder, illuminant="D65", denoise=DENOISE, **kw)
     dE_sigma = delta_E_sigma_map(to_XYZ(cube, plan), cov, plan.white_XYZ("D65"))
     return cube, sigma_with_rms(sigma, plan.output_labels)[0], dE_sigma
 
 
-def white_tile_roi(plan, bundle, scene):
+def white_tile_roi(plan, bundle, scene, motion):
+    """The white tile where a sequence of the twin (moving as :func:`streamed` makes it) has it at its reference
+    time, inset by 2 px."""
     from specgpu.pipeline.twin_capture import capture_plan
 
-    frames = capture_plan(RigDescription(camera=CAM), plan, scene, noise_seed=1).sequences[0].frames
-    cube = SequenceDecoder(plan, bundle, ("cube",)).maps(frames)["cube"]
-    white = np.all(np.abs(cube - 0.99) < 0.08, axis=-1) & (np.arange(240) < 40)[:, None]
+    moving = {} if motion == "none" else {"motion": MOVING}
+    frames = capture_plan(RigDescription(camera=CAM, **moving), plan, scene, noise_seed=1,
+                          calibration=bundle).sequences[0].frames
+    cube = SequenceDecoder(plan, bundle, ("cube",), motion="global" if motion != "none" else "none").maps(frames)
+    white = np.all(np.abs(cube["cube"] - 0.99) < 0.08, axis=-1) & (np.arange(240) < 40)[:, None]
     ys, xs = np.nonzero(white)
-    return f"{xs.min() + 10},{ys.min() + 4},{xs.max() - xs.min() - 19},{max(1, ys.max() - ys.min() - 7)}"
+    return f"{xs.min() + 2},{ys.min() + 2},{xs.max() - xs.min() - 3},{max(1, ys.max() - ys.min() - 3)}"
 
 
 @pytest.mark.parametrize(("motion", "white"), [("none", False), ("none", True), ("global", False),
@@ -274,11 +280,11 @@ def test_the_streams_denoised_sigmas_equal_recover(chart, motion, white):
     it) equals ``recover --denoise --sigma --delta-e-sigma`` on the same frames; the sigma is lower than the raw
     one where the filter averages."""
     plan, bundle, scene = chart
-    roi = white_tile_roi(plan, bundle, scene) if white else None
+    roi = white_tile_roi(plan, bundle, scene, motion) if white else None
     maps, frames = streamed(plan, bundle, scene, SIGMAS, motion=motion, white_roi=roi)
     cube, sigma, dE_sigma = recovered(plan, bundle, frames, motion=motion, white_roi=roi)
     assert_close_nan(maps["cube"], cube, rtol=1e-4, atol=1e-5)
-    assert np.isfinite(sigma[..., 0]).mean() > 0.8
+    assert np.isfinite(sigma[..., 0]).mean() > 0.6
     assert_close_nan(maps["sigma"], sigma, rtol=1e-4, atol=1e-7)
     assert_close_nan(maps["sigma_rms"], sigma[..., -1], rtol=1e-4, atol=1e-7)
     ok = np.isfinite(maps["dE_sigma"])
@@ -289,42 +295,21 @@ def test_the_streams_denoised_sigmas_equal_recover(chart, motion, white):
     assert np.nanmedian(sigma[..., :-1] / raw) < 0.8
 
 
-@pytest.mark.parametrize("motion", ["none", "global"])
-def test_the_batchs_denoised_sigmas_equal_recover(chart, tmp_path, motion):
-    import zarr
-
-    from specgpu.pipeline.batch import run_batch
-    from specgpu.pipeline.capture_folder import save_plan_and_calibration, write_capture
-    from specgpu.pipeline.twin_capture import capture_plan
-
-    plan, bundle, scene = chart
-    moving = {} if motion == "none" else {"motion": MotionParameters(velocity_px_per_frame=(2.0, 1.0))}
-    shot = capture_plan(RigDescription(camera=CAM, **moving), plan, scene, noise_seed=3, calibration=bundle)
-    write_capture(tmp_path / "seq", shot.sequences, shot.assembly, *save_plan_and_calibration(tmp_path, plan, bundle))
-    run_batch(tmp_path / "seq", plan, bundle, tmp_path / "out.zarr", outputs=("cube", "sigma", "dE_sigma"),
-              workers=1, progress=False, motion=motion, denoise=DENOISE)
-    out = zarr.open_group(str(tmp_path / "out.zarr"), mode="r")
-    cube, sigma, dE_sigma = recovered(plan, bundle, shot.sequences[0].frames, motion=motion)
-    assert_close_nan(out["cube"][0], cube, rtol=1e-4, atol=1e-5)
-    assert_close_nan(out["sigma"][0], sigma, rtol=1e-4, atol=1e-7)
-    ok = np.isfinite(dE_sigma)
-    np.testing.assert_allclose(out["dE_sigma"][0][ok], dE_sigma[ok], rtol=1e-3, atol=1e-5)
-
-
 # ----------------------------------------------------------------------------- calibrated on a moving natural scene
 
-def test_the_denoised_sigma_of_a_moving_scene_is_calibrated():
-    """Two noise draws of one sequence of the natural scene moving (3, 0.5) px per frame (the light's
-    fluctuation off: two draws hold one sample of it per band), decoded with compensation and the filter: their
-    difference over sqrt(2) against the denoised sigma has an RMS z-score within [0.8, 1.25] per band over the
-    filtered pixels, and so has dE2000 between the draws against dE_sigma."""
+@pytest.mark.parametrize("motion", ["none", "global"])
+def test_the_denoised_sigma_of_a_natural_scene_is_calibrated(motion):
+    """Two noise draws of one sequence of the natural scene, still or moving (3, 0.5) px per frame (the light's
+    fluctuation off: two draws hold one sample of it per band), decoded with the filter (and compensation):
+    their difference over sqrt(2) against the denoised sigma has an RMS z-score within [0.8, 1.25] per band, and
+    so has dE2000 between the draws against dE_sigma. The mean of box means alone gave 1.5 to 3.5."""
     from specgpu.pipeline.twin_capture import capture_plan
 
     desc, bundle, plan, scene = moving_setup()
     desc = replace(desc, light=replace(desc.light, fluctuation_rms=0.0))
     plan = with_estimator(plan, bundle, "projection", noise=NoiseModel.from_rig(desc, plan.exposure_s))
-    moving = replace(desc, motion=MotionParameters(velocity_px_per_frame=(3.0, 0.5)))
-    dec = SequenceDecoder(plan, bundle, ("cube", "Lab", "sigma", "dE_sigma"), motion="global", denoise=DENOISE)
+    moving = desc if motion == "none" else replace(desc, motion=MotionParameters(velocity_px_per_frame=(3.0, 0.5)))
+    dec = SequenceDecoder(plan, bundle, ("cube", "Lab", "sigma", "dE_sigma"), motion=motion, denoise=DENOISE)
     a, b = (dec.maps(capture_plan(moving, plan, scene, noise_seed=s, calibration=bundle).sequences[0].frames)
             for s in (21, 22))
     B = plan.A.shape[0]
