@@ -274,11 +274,12 @@ def white_tile_roi(plan, bundle, scene, motion):
 
 
 @pytest.mark.parametrize(("motion", "white"), [("none", False), ("none", True), ("global", False),
-                                               ("global", True), ("flow", False)])
+                                               pytest.param("global", True, marks=pytest.mark.slow),
+                                               pytest.param("flow", False, marks=pytest.mark.slow)])
 def test_the_streams_denoised_sigmas_equal_recover(chart, motion, white):
     """``stream --denoise`` with every sigma output (on the device without motion, at the warped samples with
-    it) equals ``recover --denoise --sigma --delta-e-sigma`` on the same frames; the sigma is lower than the raw
-    one where the filter averages."""
+    it) equals ``recover --denoise --sigma --delta-e-sigma`` on the same frames (a moving white and the flow in
+    the slow set: each runs the motion estimate three times)."""
     plan, bundle, scene = chart
     roi = white_tile_roi(plan, bundle, scene, motion) if white else None
     maps, frames = streamed(plan, bundle, scene, SIGMAS, motion=motion, white_roi=roi)
@@ -290,9 +291,6 @@ def test_the_streams_denoised_sigmas_equal_recover(chart, motion, white):
     ok = np.isfinite(maps["dE_sigma"])
     np.testing.assert_array_equal(ok, np.isfinite(dE_sigma))
     np.testing.assert_allclose(maps["dE_sigma"][ok], dE_sigma[ok], rtol=1e-3, atol=1e-5)
-    raw, _ = uncertainty(SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {}), sequence=0, motion=motion,
-                         white_roi=roi)
-    assert np.nanmedian(sigma[..., :-1] / raw) < 0.8
 
 
 # ----------------------------------------------------------------------------- calibrated on a moving natural scene
