@@ -58,9 +58,14 @@ def flat_interiors(truth: np.ndarray, reach: int, tolerance: float = 0.01) -> np
     return np.all(maximum_filter(truth, size=size) - minimum_filter(truth, size=size) < tolerance, axis=-1)
 
 
-def rms(values) -> float:
+def rms(values) -> float | None:
+    """The RMS of ``values``, None when there are none (a scene with no flat interior)."""
     v = np.asarray(values, np.float64)
-    return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")
+    return float(np.sqrt(np.mean(v ** 2))) if v.size else None
+
+
+def ratio(a, b) -> float | None:
+    return None if a is None or b is None else a / b
 
 
 def study(desc, bundle, plan, scene, *, draws: int, motion: str, velocity, seed: int = 0) -> dict:
@@ -106,10 +111,14 @@ def study(desc, bundle, plan, scene, *, draws: int, motion: str, velocity, seed:
             row[where] = {"pixels": int(sel.sum()),
                           "noise": [rms(z_noise[:, sel, b]) for b in range(cube.shape[-1])],
                           "truth": [rms(z_truth[:, sel, b]) for b in range(cube.shape[-1])],
-                          "dE_noise": rms(dE_noise[:, sel]) / rms(des[:, sel]),
-                          "dE_truth": rms(dE_truth[:, sel]) / rms(des[:, sel])}
+                          "dE_noise": ratio(rms(dE_noise[:, sel]), rms(des[:, sel])),
+                          "dE_truth": ratio(rms(dE_truth[:, sel]), rms(des[:, sel]))}
         out[name] = row
     return out
+
+
+def _f(v) -> str:
+    return "-" if v is None else f"{v:.2f}"
 
 
 def table(results: dict) -> str:
@@ -119,9 +128,9 @@ def table(results: dict) -> str:
             for where in ("all", "flat"):
                 r = res[name][where]
                 lines.append(f"{case + ' ' + name + ' ' + where:<30}{r['pixels']:>8}  "
-                             f"{' '.join(f'{v:.2f}' for v in r['noise']):<44}"
-                             f"{' '.join(f'{v:.2f}' for v in r['truth']):<44}"
-                             f"{r['dE_noise']:>6.2f}{r['dE_truth']:>6.2f}")
+                             f"{' '.join(_f(v) for v in r['noise']):<44}"
+                             f"{' '.join(_f(v) for v in r['truth']):<44}"
+                             f"{_f(r['dE_noise']):>6}{_f(r['dE_truth']):>6}")
     return "\n".join(lines)
 
 
