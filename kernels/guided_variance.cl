@@ -146,26 +146,37 @@ __kernel void gv_apply(__global const float *g, __global const float *stats, __g
     for (int o = 0; o < NW * NW; ++o)
         bb = b[o] * b[o] + bb;
     const float gv = gvar[p] * scale * scale * (1.0f - 2.0f * b[2 * R * NW + 2 * R] * scale + bb * scale * scale);
-    for (int c = 0; c < C; ++c) {
-        float acc = 0.0f;
-        for (int oy = -2 * R; oy <= 2 * R; ++oy) {
-            const int jy = y + oy;
-            if (jy < 0 || jy >= H)
+    /* each neighbour's weight squared once, its C channels read together (contiguous) */
+    float acc[C];
+    for (int c = 0; c < C; ++c)
+        acc[c] = 0.0f;
+    for (int oy = -2 * R; oy <= 2 * R; ++oy) {
+        const int jy = y + oy;
+        if (jy < 0 || jy >= H)
+            continue;
+        for (int ox = -2 * R; ox <= 2 * R; ++ox) {
+            const int jx = x + ox;
+            if (jx < 0 || jx >= W)
                 continue;
-            for (int ox = -2 * R; ox <= 2 * R; ++ox) {
-                const int jx = x + ox;
-                if (jx < 0 || jx >= W)
-                    continue;
-                const float wt = w[(oy + 2 * R) * NW + (ox + 2 * R)] * scale;
-                const size_t j = (size_t)jy * W + jx;
-                acc = wt * wt * own_part(own, total, mask, j * C + c, j) + acc;
+            const float wt = w[(oy + 2 * R) * NW + (ox + 2 * R)] * scale, w2 = wt * wt;
+            const size_t j = (size_t)jy * W + jx;
+#if MASK_BITS
+            if ((mask[j] & (uchar)(MASK_BITS)) != 0)
+                continue;
+#endif
+            __global const float *oj = own + j * C, *tj = total + j * C;
+            for (int c = 0; c < C; ++c) {
+                const float o = oj[c];
+                acc[c] = (isfinite(o) && isfinite(tj[c]) ? o : 0.0f) * w2 + acc[c];
             }
         }
+    }
+    for (int c = 0; c < C; ++c) {
         float pass = 0.0f;
         for (int t = starts[c]; t < starts[c + 1]; ++t)
             pass = terms[3 * t + 2] * abar[(int)terms[3 * t]] * abar[(int)terms[3 * t + 1]] + pass;
         const size_t e = p * C + c;
-        const float v = acc + pass * gv + (total[e] - own_part(own, total, mask, e, p)) + offset[c];
+        const float v = acc[c] + pass * gv + (total[e] - own_part(own, total, mask, e, p)) + offset[c];
 #if SQRT
         out[e] = isnan(v) ? v : sqrt(v > 0.0f ? v : 0.0f);
 #else

@@ -182,12 +182,14 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
         row = warped_guide_row(plan)[0, read]
         state = {"guide": smoothed["guide"], "radius": smoothed["radius"], "eps": smoothed["eps"], "slopes": slopes,
                  "guide_var": np.tensordot(row * row, V_own, axes=([0], [0])) / smoothed["level"] ** 2}
-        for n, (part, terms) in enumerate(parts):
-            own_filtered = part(V_filtered)
-            # the filter's own part in place of the samples' own: bb(own') + (total - own)
-            adjusted = out[n] - part(V_own) + own_filtered
-            den = carried_through_filter(own_filtered, adjusted, terms=terms, **state).astype(np.float64)
-            out[n] = np.where(pixels[..., None], den, out[n])
+        # every part in one call (the filter's weights made once): the own part as the filter takes it in place of
+        # the samples' own, W^2 own_filtered + (total - own)
+        own_filtered = np.concatenate([part(V_filtered) for part, _ in parts], axis=-1)
+        adjusted = np.concatenate(out, axis=-1) - np.concatenate([part(V_own) for part, _ in parts], axis=-1)
+        den = carried_through_filter(own_filtered, adjusted + own_filtered, terms=[t for _, ts in parts for t in ts],
+                                     **state).astype(np.float64)
+        at = np.cumsum([0] + [o.shape[-1] for o in out])
+        out = [np.where(pixels[..., None], den[..., a:b], o) for o, a, b in zip(out, at[:-1], at[1:])]
     flagged = (rec.mask & ~np.uint8(Mask.LAYER)) != 0
     const = constant_covariance(plan)
     sigma = np.sqrt(np.maximum(out[0] + np.diag(const), 0.0)).astype(np.float32)

@@ -157,16 +157,21 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
         own_var, own_cov = _noise_parts(folder, dec, picked, M, light=False, device=device)
         p = dec.decode(folder.frames, sequence=sequence, where=folder.path).astype(np.float64)
         guide, level = frames_guide(folder, sequence=sequence, device=device)
-        state = dict(guide=guide, radius=denoise[0], eps=denoise[1], slopes=p if M is None else np.concatenate(
-            [p, p @ np.asarray(M, np.float64).T], axis=-1),
-                     guide_var=guide_variance(folder, level, sequence=sequence, device=device), device=device)
-        B = p.shape[-1]
-        var = carried_through_filter(own_var, var, terms=[[(b, b, 1.0)] for b in range(B)], **state)
+        B, h, w = p.shape[-1], *p.shape[:2]
+        own, total = [own_var], [var]
+        terms = [[(b, b, 1.0)] for b in range(B)]
+        if cov is not None:  # the covariance's entries in the same call (the filter's weights made once)
+            p = np.concatenate([p, p @ np.asarray(M, np.float64).T], axis=-1)
+            own.append(own_cov.reshape(h, w, 9))
+            total.append(cov.reshape(h, w, 9))
+            terms += [[(B + i, B + j, 1.0)] for i in range(3) for j in range(3)]
+        carried = carried_through_filter(np.concatenate(own, axis=-1), np.concatenate(total, axis=-1),
+                                         guide=guide, radius=denoise[0], eps=denoise[1], slopes=p, terms=terms,
+                                         guide_var=guide_variance(folder, level, sequence=sequence, device=device),
+                                         device=device)
+        var = carried[..., :B]
         if cov is not None:
-            shape = cov.shape
-            cov = carried_through_filter(own_cov.reshape(shape[:2] + (-1,)), cov.reshape(shape[:2] + (-1,)),
-                                         terms=[[(B + i, B + j, 1.0)] for i in range(3) for j in range(3)],
-                                         **state).astype(np.float64).reshape(shape)
+            cov = carried[..., B:].astype(np.float64).reshape(h, w, 3, 3)
     sigma = np.sqrt(np.maximum(var + np.diag(const).astype(np.float32), 0.0)).astype(np.float32)
     sigma[saturated] = np.nan
     if cov is not None:
