@@ -33,12 +33,12 @@ HEIGHT, WIDTH = 240, 320
 MOTION_MODES = ("global", "affine", "flow")
 
 #: (motion, outputs, extra options): each output alone and all together, then every output with --denoise (the
-#: sigmas carried through the filter), with and without motion, what --accumulate accepts and a half-precision
-#: cube, then every motion mode with every output it accepts together, and each of those outputs alone under one
-#: mode (in turn): every (mode, output) pair and every output alone on the motion path, without the grid of each
-#: mode times each output alone, whose cells add no pair
+#: sigmas carried through the filter; with motion: tests/pipeline/test_denoised_sigma_paths.py), what --accumulate
+#: accepts and a half-precision cube, then every motion mode with every output it accepts together, and each of
+#: those outputs alone under one mode (in turn): every (mode, output) pair and every output alone on the motion
+#: path, without the grid of each mode times each output alone, whose cells add no pair
 CASES = ([("none", (name,), ()) for name in STREAM_OUTPUTS] + [("none", STREAM_OUTPUTS, ())]
-         + [("none", STREAM_OUTPUTS, ("--denoise",)), ("global", MOTION_OUTPUTS, ("--denoise",)),
+         + [("none", STREAM_OUTPUTS, ("--denoise",)),
             ("none", ("coefficients", "cube", "XYZ", "sigma"), ("--accumulate", "3")),
             ("none", ("cube", "sigma_rms"), ("--accumulate", "3")), ("none", ("cube", "XYZ"), ("--half",))]
          + [(mode, MOTION_OUTPUTS, ()) for mode in MOTION_MODES]
