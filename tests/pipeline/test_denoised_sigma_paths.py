@@ -319,3 +319,26 @@ def test_the_denoised_sigma_of_a_natural_scene_is_calibrated(motion):
     dE = delta_E(a["Lab"], b["Lab"])[ok] / np.sqrt(2)
     ratio = np.sqrt(np.mean(dE.astype(np.float64) ** 2) / np.mean(a["dE_sigma"][ok].astype(np.float64) ** 2))
     assert 0.8 < ratio < 1.25, ratio
+
+
+# ------------------------------------------------------------------------------------------------- what stays refused
+
+def test_the_refusals_that_remain_are_one_line(chart):
+    """A radius beyond the kernel's with a sigma output (each work-item holds its (4r + 1)^2 weights), in the
+    stream's set-up and in recover's uncertainty; a plan with an ambient frame under motion."""
+    from specgpu.pipeline.denoise import stream_denoise
+    from specgpu.pipeline.moving_decode import check_motion_options
+    from specgpu.planning.correction import with_ambient_frame
+
+    plan, bundle, _ = chart
+    for outputs in (("cube", "sigma"), ("dE_sigma",)):
+        with pytest.raises(ValueError, match=f"--denoise-radius {MAX_RADIUS + 1}: the sigma maps") as info:
+            stream_denoise(plan, outputs, np.float32, (MAX_RADIUS + 1, 1e-4))
+        assert "\n" not in str(info.value)
+    assert stream_denoise(plan, ("cube",), np.float32, (MAX_RADIUS + 1, 1e-4))["sigmas"] == []
+    folder = SequenceFolder(Path("mem"), np.zeros((1, plan.K, 240, 320), np.uint16), plan, bundle, [], {})
+    with pytest.raises(ValueError, match="--denoise-radius 6"):
+        uncertainty(folder, denoise=(6, 1e-4))
+    with pytest.raises(ValueError, match="with a plan with an ambient frame") as info:
+        check_motion_options("global", with_ambient_frame(plan), outputs=("cube", "sigma"))
+    assert "\n" not in str(info.value)
