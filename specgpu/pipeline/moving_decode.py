@@ -15,7 +15,8 @@ The uncertainty outputs (``sigma``, ``sigma_rms``, ``dE_sigma``) are taken at th
 (:func:`warped_uncertainty`): a bilinear sample of the four sensor pixels it reads has the variance
 ``sum_i w_i^2 var_i`` of their own noise (:func:`warped_sample_variance`, the noise model of
 :mod:`specgpu.planning.noise` per pixel), the light's fluctuation, common to a frame's pixels, at the sample's own
-signal; an object layer's pixels with its own shifts. What is still refused with a motion mode is a plan with an
+signal; an object layer's pixels with its own shifts. With ``--denoise`` they are carried through the filter
+(``warped_uncertainty(smoothed=...)``). What is still refused with a motion mode is a plan with an
 ambient frame (subtracted from fixed pixels) and the options the flow cannot serve, in one line naming the option
 (:func:`check_motion_options`).
 """
@@ -105,7 +106,7 @@ def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read,
     of a frame and so not averaged by the interpolation: ``(l s)^2``. NaN where the point lies outside the
     sensor's footprint.
 
-    ``filtered`` (a guided filter's radius r): instead, the own part (no light) as that filter's box-box variance
+    ``filtered`` (a guided filter's radius r): instead, the own part (no light) as that filter's weights
     (:mod:`specgpu.engine.guided_variance`) must take it. Neighbouring samples share sensor pixels, so their noise is
     correlated and the filter, which averages them, averages the sensor pixels beneath: the pixels' variance
     interpolated with the weights themselves, ``sum_i w_i var c_i``, times ``rho(fx) rho(fy)``, where
