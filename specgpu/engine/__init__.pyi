@@ -2,6 +2,7 @@
 
 from .colorimetry import DELTA_E_METHODS, FusedResult, XYZ_to_Lab, delta_E, frames_to_delta_E, reflectance_to_XYZ
 from .guided import guided_filter, guided_filter_device
+from .guided_variance import filtered_variance, filtered_variance_device
 from .kernels import (
     launch_delta_E,
     launch_frames_to_delta_E,
@@ -23,6 +24,8 @@ __all__ = [
     "apply_linear",
     "apply_linear_warped",
     "delta_E",
+    "filtered_variance",
+    "filtered_variance_device",
     "DELTA_E_METHODS",
     "DeviceInfo",
     "DeviceRegistration",

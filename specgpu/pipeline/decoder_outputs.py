@@ -16,10 +16,12 @@ import pyopencl.array as cla
 from numpy.typing import ArrayLike, DTypeLike
 
 from specgpu import engine
+from specgpu.core.mask import Mask
 from specgpu.core.numerics import live_gain
 from specgpu.core.validate import validate_method
 from specgpu.engine.colorimetry import DELTA_E_METHODS
 from specgpu.engine.guided import guided_filter_device
+from specgpu.engine.guided_variance import filtered_variance_device
 from specgpu.engine.runtime import get_allocator
 from specgpu.pipeline.denoise import stream_denoise
 from specgpu.planning.noise import NoiseModel
@@ -81,6 +83,11 @@ class Outputs:
     denoise: dict | None = None
 
     @property
+    def sigmas_filtered(self) -> bool:
+        """Sigma outputs carried through the guided filter of ``denoise``."""
+        return bool(self.denoise and self.denoise["sigmas"])
+
+    @property
     def M(self) -> np.ndarray | None:
         """(3, K) the composed decoder of XYZ, or None without a colour output."""
         return None if self.to_XYZ is None else self.to_XYZ @ self.A
@@ -117,7 +124,8 @@ class Outputs:
             cube, xyz = A, None if self.to_XYZ is None else self.to_XYZ @ A
         rows, slices, at = [], {}, 0
         for name, matrix in (("coefficients", coefficients), ("cube", cube), ("XYZ", xyz)):
-            if matrix is not None and (name != "cube" or "cube" in self.names):
+            # the cube's rows also where the sigmas carried through the filter need its slopes on the guide
+            if matrix is not None and (name != "cube" or "cube" in self.names or self.sigmas_filtered):
                 slices[name] = slice(at, at + len(matrix))
                 rows.append(np.asarray(matrix, np.float64))
                 at += len(matrix)
@@ -283,6 +291,8 @@ class FusedLaunches:
                 self.cov_constant = spec.to_XYZ @ const @ spec.to_XYZ.T  # (3, 3) what no frame shows
         #: Lab and dE computed after the filter from the filtered XYZ instead of in the fused colour kernel
         self._lab_from_filtered = bool(spec.denoise and spec.denoise["from_XYZ"])
+        #: the sigma launches write variances, carried through the filter by :meth:`_denoised_sigmas`
+        self._sigmas_filtered = bool(spec.denoise and spec.denoise["sigmas"])
         self._guide_launches: dict = {}
         self.reference_device = None if spec.reference is None else engine.to_device(queue,
                                                                                       spec.reference.reshape(-1))
@@ -293,8 +303,11 @@ class FusedLaunches:
         return [engine.linear_matrix(*make(np.asarray(A, np.float64))) for make, _ in self._matrix_makers()]
 
     def _matrix_makers(self) -> list:
-        """Per launch, in order: (a function of A giving (matrix, square-root offsets or None), launch kind)."""
+        """Per launch, in order: (a function of A giving (matrix, square-root offsets or None), launch kind). With
+        the sigmas carried through the filter, each sigma launch writes its variance, and a launch of the same
+        rows without the light's fluctuation (kind ``<kind>_own``) the pixels' own part."""
         makers = []
+        filtered = self._sigmas_filtered
         if "coefficients" in self.spec.names:
             # U^T A: S Vt for the plan's own A; for a corrected decoder (A times a K x K map) its coefficients in
             # the same basis, whose columns span the corrected decoder's outputs too
@@ -306,12 +319,12 @@ class FusedLaunches:
 
             def sigma_rows(A):
                 sq = variance_rows(A, A, self._ambient)
-                return np.vstack([sq, sq.mean(axis=0)]) / g_e, self.sigma_offsets
+                return np.vstack([sq, sq.mean(axis=0)]) / g_e, None if filtered else self.sigma_offsets
             makers.append((sigma_rows, "sigma"))
         if "sigma_rms" in self.spec.names:
             g_e = self.spec.noise.gain_e_per_dn
             makers.append((lambda A: (variance_rows(A, A, self._ambient).mean(axis=0, keepdims=True) / g_e,
-                                      self.sigma_offsets[-1:]), "sigma_rms"))
+                                      None if filtered else self.sigma_offsets[-1:]), "sigma_rms"))
         if "dE_sigma" in self.spec.names:
             g_e = self.spec.noise.gain_e_per_dn
 
@@ -321,9 +334,23 @@ class FusedLaunches:
                 right = np.stack([MA[j] for _, j in self.cov_pairs])
                 return variance_rows(left, right, self._ambient) / g_e, None
             makers.append((cov_rows, "XYZ_cov"))
+        if filtered:
+            makers += [(make, f"{kind}_own") for make, kind in makers if kind in ("sigma", "sigma_rms", "XYZ_cov")]
+            g_e = self.spec.noise.gain_e_per_dn
+            row = self.spec.denoise["row"]
+            # the unfiltered outputs whose slopes on the guide pass its noise, and the guide's own variance
+            makers.append((lambda A: (np.vstack(self._slope_rows(A)), None), "slopes"))
+            makers.append((lambda A: (variance_rows(row, row, self._ambient) / g_e, None), "guide_var"))
         if self.spec.M is not None:
             makers.append((lambda A: (self.spec.to_XYZ @ A, None), "colour"))
         return makers
+
+    def _slope_rows(self, A) -> list:
+        """The rows of the slope images the carried sigmas read: the B outputs (for ``sigma``, ``sigma_rms``),
+        then X, Y, Z (for ``dE_sigma``)."""
+        names = self.spec.names
+        return ([np.asarray(A, np.float64)] if {"sigma", "sigma_rms"} & set(names) else []) + (
+            [self.spec.to_XYZ @ np.asarray(A, np.float64)] if "dE_sigma" in names else [])
 
     @property
     def frames_dtype(self):
@@ -373,11 +400,16 @@ class FusedLaunches:
                 launches.append((engine.prepare_linear(q, dtype, self.spec.A, n=n, dark=self.dark, gain=self.gain,
                                                        out_dtype=self.spec.cube_dtype, out_layout=1, **sat),
                                  {"out": "cube", "mask": "mask"}))
-            elif kind in ("sigma", "sigma_rms", "XYZ_cov"):
+            elif kind == "slopes":
+                launches.append((engine.prepare_linear(q, dtype, make(self.spec.A)[0], n=n, dark=self.dark,
+                                                       gain=self.gain, out_layout=1, **sat),
+                                 {"out": kind, "mask": "mask"}))
+            elif kind in ("sigma", "sigma_rms", "XYZ_cov", "sigma_own", "sigma_rms_own", "XYZ_cov_own", "guide_var"):
                 rows, offsets = make(self.spec.A)
+                own = kind.endswith("_own") or kind == "guide_var"  # the pixels' own noise: no light's fluctuation
                 launches.append((engine.prepare_linear(q, dtype, rows, n=n, dark=self.dark_var, gain=self.gain2,
-                                                       out_layout=1, sqrt_offsets=offsets, square=self.square,
-                                                       **sat),
+                                                       out_layout=1, sqrt_offsets=None if own else offsets,
+                                                       square=None if own else self.square, **sat),
                                  {"out": kind, "mask": "mask"}))
             else:
                 # with Lab and dE made after the filter from the filtered XYZ, this pass writes XYZ alone
@@ -391,8 +423,12 @@ class FusedLaunches:
                     **sat), {"XYZ": "XYZ", "Lab": "Lab", "delta_E": "dE", "mask": "mask"}))
             sat = {}
         if "dE_sigma" in self.spec.names:  # on the XYZ and XYZ_cov buffers of the launches above
-            launches.append((engine.prepare_delta_E_sigma(q, self.spec.white, self.cov_constant, n=n),
-                             {"dE_sigma": "dE_sigma"}))
+            de_sigma = (engine.prepare_delta_E_sigma(q, self.spec.white, self.cov_constant, n=n),
+                        {"dE_sigma": "dE_sigma"})
+            if self._sigmas_filtered:  # after the filter, on the filtered XYZ (_denoised_sigmas)
+                self._de_sigma = de_sigma[0]
+            else:
+                launches.append(de_sigma)
         self._prepared[dtype] = launches
         return launches
 
@@ -436,3 +472,40 @@ class FusedLaunches:
             xyz = cla.Array(self.queue, (3 * self.n,), np.float32, data=out["XYZ"])
             for name, arr in lab_and_delta_E(self.queue, self.spec, xyz, self.reference_device, self.n).items():
                 out[name] = arr.data
+        if self._sigmas_filtered:
+            self._denoised_sigmas(out, guide, level)
+        out["guide"] = guide.data  # kept with the sequence's buffers while the passes queued on it run
+
+    def _denoised_sigmas(self, out: dict, guide: cla.Array, level: float) -> None:
+        """The sigma outputs of the filtered maps, on the device: each launch's variance (``total``), the pixels'
+        own part of it (``<kind>_own``), the unfiltered outputs' slopes and the guide's own variance carried
+        through the filter (:func:`specgpu.engine.guided_variance.filtered_variance_device`; a saturated pixel adds
+        nothing to its neighbours) plus the constant; ``dE_sigma`` from the filtered XYZ and the covariance carried
+        so. With no light to guide the filter (``level`` 0: the maps stay as decoded) the variance as it is."""
+        h, w, q = self.height, self.width, self.queue
+        mask = cla.Array(q, (h, w), np.uint8, data=out["mask"])
+        B = self.spec.A.shape[0]
+        slopes = cla.Array(q, (h, w, sum(len(r) for r in self._slope_rows(self.spec.A))), np.float32,
+                           data=out["slopes"])
+        gvar = cla.Array(q, (h, w), np.float32, data=out["guide_var"])
+        xyz = B if {"sigma", "sigma_rms"} & set(self.spec.names) else 0  # where X, Y, Z lie among the slopes
+        rms = [(b, b, 1.0 / B) for b in range(B)]
+        # per launch: its constant (a standard deviation), or none (a covariance), and each channel's slope terms
+        kinds = {"sigma": (self.sigma_offsets, [[(b, b, 1.0)] for b in range(B)] + [rms]),
+                 "sigma_rms": (self.sigma_offsets[-1:], [rms]),
+                 "XYZ_cov": (None, [[(xyz + i, xyz + j, 1.0)] for i, j in self.cov_pairs])}
+        for kind, (offset, terms) in kinds.items():
+            if kind not in out:
+                continue
+            channels = len(terms)
+            total = cla.Array(q, (h, w, channels), np.float32, data=out[kind])
+            own = cla.Array(q, (h, w, channels), np.float32, data=out[f"{kind}_own"])
+            if not level > 0:  # nothing filtered: no own part carried, the variance as it is
+                own, gvar = own * np.float32(0), gvar * np.float32(0)
+            out[kind] = filtered_variance_device(
+                q, own, total, guide, self.spec.denoise["radius"], self.spec.denoise["eps"] * max(level, 1.0) ** 2,
+                slopes=slopes, guide_var=gvar, terms=terms, offsets=offset, sqrt=offset is not None, mask=mask,
+                mask_bits=int(Mask.SATURATED), out=total).data
+            out[f"{kind}_own"] = own.data  # kept with the sequence's buffers until it has been read back
+        if "dE_sigma" in self.spec.names:
+            out.update(dE_sigma=self._de_sigma.enqueue(out["XYZ"], inputs={1: out["XYZ_cov"]})["dE_sigma"])

@@ -10,10 +10,17 @@ read noise averaged over about ``(2r + 1)^2`` pixels); at an edge the outputs fo
 two spectra of equal frame sum is not in the guide and is smoothed (the filter's known limit with a one-channel
 guide).
 
-The standard deviation: of each output's variance only the part from each pixel's own shot and read noise is
-independent from pixel to pixel; it is carried through the filter as through the mean of box means
-(:func:`specgpu.engine.guided.box_box_variance`). The light's frame-to-frame fluctuation (common to every pixel of
-a frame) and the prior's mismatch (common to a surface) are not averaged down and stay as they were.
+The standard deviation (:func:`carried_through_filter`, on the device: :mod:`specgpu.engine.guided_variance`):
+with its guide fixed the filter is a linear map of each output, ``q_i = sum_j W_ij p_j``, so the pixels' own shot
+and read noise, independent from pixel to pixel, leaves ``sum_j W_ij^2 var p_j``: where the guide is flat the mean
+of box means (about 54 times less at radius 2), at an edge or in texture, where the weights follow the guide, far
+less averaging. The guide's own noise passes where the output follows the guide, ``abar^2 var g`` with abar the
+filter's slope of the output on the guide: in a textured scene most of what the filter leaves. The light's
+frame-to-frame fluctuation (common to every pixel of a frame) and the prior's mismatch (common to a surface) are not
+averaged down and stay as they were. The XYZ covariance (of dE_sigma) is carried the same way, entry by entry. The
+stream does it on the device (:class:`specgpu.pipeline.decoder_outputs.FusedLaunches`); a motion-compensated
+decoding takes each frame's own part at its warped samples first
+(:func:`specgpu.pipeline.moving_decode.warped_uncertainty`).
 """
 
 from __future__ import annotations
@@ -24,13 +31,15 @@ from numpy.typing import ArrayLike
 from specgpu.core.mask import Mask
 from specgpu.core.numerics import live_gain
 from specgpu.core.validate import check_number, check_sequence
-from specgpu.engine.guided import box_box_variance, guided_filter
+from specgpu.engine.guided import guided_filter
+from specgpu.engine.guided_variance import MAX_RADIUS, filtered_variance
 from specgpu.engine.linear_map import apply_linear
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
 
 __all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace",
-           "denoise_recovery", "denoised_sigma", "stream_denoise", "warped_guide_row", "denoise_compensated"]
+           "denoise_recovery", "stream_denoise", "warped_guide_row", "denoise_compensated", "compensated_smoothed",
+           "compensated_guide", "frames_guide", "guide_variance", "check_sigma_radius", "carried_through_filter"]
 
 #: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/studies/budget_study.py
 #: --tune``): on
@@ -61,10 +70,51 @@ def guide_row(plan) -> np.ndarray:
 
 def warped_guide_row(plan) -> np.ndarray:
     """(1, K) the guide's row for the motion-compensated pass: the sum of the frames the plan's decoder reads (an
-    ambient frame and broadband reference frames left out, so the guide samples no frame the outputs do not)."""
+    ambient frame and broadband reference frames left out, so the guide samples no frame the outputs do not),
+    scaled to the outputs' magnitude (the mean over the decoder's rows of their absolute sums over the frames' sum).
+
+    The filter divides its guide by its 99th percentile, so the scale changes nothing there; the pass's rows are
+    compared together (the flow's check of two decodings, an RMS over the rows), where a frames' sum thousands of
+    times the outputs would outweigh them all."""
     row = guide_row(plan)
-    row[0, ~np.any(np.asarray(plan.A) != 0, axis=0)] = 0.0
-    return row
+    A = np.asarray(plan.A, np.float64)
+    row[0, ~np.any(A != 0, axis=0)] = 0.0
+    total = row.sum()
+    return row * (np.abs(A).sum(axis=1).mean() / total) if total > 0 else row
+
+
+def compensated_smoothed(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius: int = DENOISE_RADIUS
+                         ) -> np.ndarray | None:
+    """(H, W) bool: the pixels :func:`denoise_compensated` filters (those whose filter reads no flagged pixel, see
+    there) of the outputs ``y`` (H, W, C) guided by ``guide`` (H, W); None when it filters none (every pixel
+    flagged, or a guide with no light)."""
+    from scipy.ndimage import maximum_filter  # scipy: heavy, needed only here
+
+    r = int(check_number("--denoise-radius", radius, integer=True, low=1, high=64))
+    if compensated_guide(y, guide, mask) is None:
+        return None
+    return ~maximum_filter(_flagged(y, guide, mask), size=4 * r + 1, mode="constant", cval=False)
+
+
+def compensated_guide(y: ArrayLike, guide: ArrayLike, mask: ArrayLike) -> tuple[np.ndarray, float] | None:
+    """The guide of :func:`denoise_compensated` as the filter takes it, (H, W) float32, 0 on the flagged pixels
+    and divided by the 99th percentile of the others, and that level; None when there is none (every pixel
+    flagged, or no light)."""
+    g = np.asarray(guide, np.float32)
+    bad = _flagged(y, g, mask)
+    if bad.all():
+        return None
+    level = float(np.percentile(g[~bad], 99))
+    if not level > 0:
+        return None
+    return np.where(bad, np.float32(0), g / np.float32(level)), level
+
+
+def _flagged(y, guide, mask) -> np.ndarray:
+    """A pixel with no valid value: flagged in ``mask`` (any bit but an object's own motion) or not finite."""
+    g = np.asarray(guide, np.float32)
+    return (((np.asarray(mask) & ~np.uint8(Mask.LAYER)) != 0) | ~np.isfinite(g)
+            | ~np.all(np.isfinite(np.asarray(y)), axis=-1))
 
 
 def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius: int = DENOISE_RADIUS,
@@ -75,38 +125,70 @@ def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radi
 
     A pixel flagged in ``mask`` (any bit but 16, an object's own motion: saturated, outside the field,
     inconsistent) or not finite has no valid value: it stays NaN, and every pixel whose filter would read it
-    (within ``2 radius``: the windows of the windows about it) is left unfiltered, its decoded value kept. The
-    guide is divided by its 99th percentile over the valid pixels, as :func:`sequence_guide`; a guide with no
-    light leaves ``y`` as it is.
+    (within ``2 radius``: the windows of the windows about it) is left unfiltered, its decoded value kept
+    (:func:`compensated_smoothed` says which are filtered). The guide is divided by its 99th percentile over the
+    valid pixels, as :func:`sequence_guide` (:func:`compensated_guide`); a guide with no light leaves ``y`` as it
+    is.
     """
-    from scipy.ndimage import maximum_filter  # scipy: heavy, needed only here
-
     r, e = _check(radius, eps)
     y = np.asarray(y, np.float32)
-    g = np.asarray(guide, np.float32)
-    bad = ((np.asarray(mask) & ~np.uint8(Mask.LAYER)) != 0) | ~np.isfinite(g) | ~np.all(np.isfinite(y), axis=-1)
-    if bad.all():
+    smoothed = compensated_smoothed(y, guide, mask, radius=r)
+    if smoothed is None:
         return y.copy()
-    level = float(np.percentile(g[~bad], 99))
-    if not level > 0:
-        return y.copy()
-    filled = np.where(bad[..., None], np.float32(0), y)
-    filtered = np.asarray(guided_filter(filled, np.where(bad, np.float32(0), g / np.float32(level)), radius=r,
-                                        eps=e, device=device), np.float32)
-    near = maximum_filter(bad, size=4 * r + 1, mode="constant", cval=False)
-    return np.where(near[..., None], y, filtered)
+    g, _ = compensated_guide(y, guide, mask)
+    filled = np.where(_flagged(y, guide, mask)[..., None], np.float32(0), y)
+    filtered = np.asarray(guided_filter(filled, g, radius=r, eps=e, device=device), np.float32)
+    return np.where(smoothed[..., None], filtered, y)
 
 
 def sequence_guide(folder, *, sequence: int | None = None, device=None) -> np.ndarray:
     """(H, W) float32: the sum of the plan's frames above dark, flat-fielded (the ambient frame left out), of one
     sequence or the mean of all, divided by its 99th percentile."""
+    return frames_guide(folder, sequence=sequence, device=device)[0]
+
+
+def frames_guide(folder, *, sequence: int | None = None, device=None) -> tuple[np.ndarray, float]:
+    """:func:`sequence_guide` and the level it was divided by."""
     frames, dark, _, _ = _mean_frames(folder, sequence)
     g = np.asarray(apply_linear(frames, guide_row(folder.plan), dark, live_gain(folder.calibration.flat_field),
                                 device=device))[..., 0]
     level = float(np.nanpercentile(g, 99)) if np.isfinite(g).any() else 0.0
     if not level > 0:
         raise ValueError(f"{folder.path}: the frames hold no light above dark: nothing to guide the denoising")
-    return (g / level).astype(np.float32)
+    return (g / level).astype(np.float32), level
+
+
+def guide_variance(folder, level: float, *, sequence: int | None = None, device=None) -> np.ndarray:
+    """(H, W) float32: the variance of the own (shot, read and dark) noise of :func:`sequence_guide`, the guide
+    divided by ``level``."""
+    plan, bundle = folder.plan, folder.calibration
+    frames, dark, S, amb = _mean_frames(folder, sequence)
+    v = frame_variance(frames, plan, dark, bundle.flat_field, A=guide_row(plan), sequences=S, light=False,
+                       ambient_dark=None if amb is None else bundle.dark_at(plan.exposure_s), device=device)
+    return (v[..., 0] / np.float32(level) ** 2).astype(np.float32)
+
+
+def check_sigma_radius(radius) -> int:
+    """``radius`` of a denoising whose sigma maps are carried through the filter, checked (one line)."""
+    r = int(check_number("--denoise-radius", radius, integer=True, low=1, high=64))
+    if r > MAX_RADIUS:
+        raise ValueError(f"--denoise-radius {r}: the sigma maps are carried through the filter up to radius "
+                         f"{MAX_RADIUS}; choose a smaller radius or leave the sigma outputs out")
+    return r
+
+
+def carried_through_filter(own, total, *, guide, radius: int, eps: float, slopes, guide_var, terms, offsets=None,
+                           sqrt: bool = False, device=None) -> np.ndarray:
+    """(H, W, C) float32: the variance ``total`` (H, W, C) of unfiltered outputs, its pixels' own part ``own``,
+    carried through the guided filter of ``guide`` (:func:`specgpu.engine.guided_variance.filtered_variance`:
+    the own part through the filter's weights, the guide's own noise ``guide_var`` passed by the slopes of the
+    unfiltered ``slopes`` (H, W, D) the ``terms`` name, the rest kept), NaN where ``total`` is. Non-finite slopes
+    and guide values (pixels the filter leaves out) are read as 0."""
+    g = np.nan_to_num(np.asarray(guide, np.float32))
+    return filtered_variance(own, total, g, radius=check_sigma_radius(radius), eps=eps,
+                             slopes=np.nan_to_num(np.asarray(slopes, np.float32)),
+                             guide_var=np.nan_to_num(np.asarray(guide_var, np.float32)), terms=terms,
+                             offsets=offsets, sqrt=sqrt, device=device)
 
 
 def denoise_design_warning(plan, radius: int | None) -> str | None:
@@ -159,51 +241,35 @@ def denoise_recovery(folder, y: ArrayLike, *, sequence: int | None = None, radiu
     return guided_filter(c, guide, radius=r, eps=e, device=device) @ U.T + residual
 
 
-def denoised_sigma(folder, sigma, *, sequence: int | None = None, radius: int = DENOISE_RADIUS,
-                   device=None) -> np.ndarray:
-    """The standard deviation (H, W, B) of :func:`denoise_recovery`'s outputs, from ``sigma``, that of the raw
-    recovery (:func:`specgpu.pipeline.recovery.uncertainty`): its per-pixel shot and read part carried through the
-    filter, the rest kept (see the module notes); NaN where ``sigma`` is."""
-    r, _ = _check(radius, DENOISE_EPS)
-    plan, bundle = folder.plan, folder.calibration
-    frames, dark, S, amb = _mean_frames(folder, sequence)
-    ambient_dark = None if amb is None else bundle.dark_at(plan.exposure_s)
-    own = frame_variance(frames, plan, dark, bundle.flat_field, sequences=S, light=False, ambient_dark=ambient_dark,
-                         device=device).astype(np.float64)
-    total = np.asarray(sigma, np.float64) ** 2
-    own = np.minimum(np.nan_to_num(own), np.nan_to_num(total))  # never more than the whole
-    var = box_box_variance(own, r) + (total - own)
-    return np.sqrt(np.maximum(var, 0.0)).astype(np.float32)
-
-
 #: The stream outputs the guided filter applies to (linear in the frames, so filtering them is filtering the
-#: cube), and those computed from the filtered XYZ (CIELAB and dE, as recover --denoise computes them from the
-#: filtered cube).
+#: cube), those computed from the filtered XYZ (CIELAB and dE, as recover --denoise computes them from the
+#: filtered cube), and the uncertainty outputs carried through the filter
+#: (:func:`specgpu.engine.guided_variance.filtered_variance_device`; dE_sigma from the filtered XYZ and its
+#: covariance carried the same way).
 DENOISED_STREAM_OUTPUTS = ("coefficients", "cube", "XYZ")
 FROM_DENOISED_XYZ = ("Lab", "dE")
-#: Where denoised sigma maps are made: ``recover --denoise --sigma`` carries the sigma through the filter, and it
-#: reads a sequence folder (what ``specgpu capture`` writes), not a stream's recording.
-DENOISED_SIGMA_ADVICE = ("; for denoised sigma maps capture a sequence folder and recover it: specgpu capture --rig "
-                         "RIG.toml --plan PLAN.npz --calib CALIB.npz --out SEQ, then specgpu recover SEQ --out "
-                         "CUBE.exr --denoise --sigma SIGMA.exr")
+DENOISED_SIGMAS = ("sigma", "sigma_rms", "dE_sigma")
 
 
 def stream_denoise(plan, outputs, cube_dtype, denoise) -> dict:
     """The stream's denoising set-up for ``denoise`` = (radius, eps): the guide's row (every frame but an ambient
-    one), the channels of each filtered output (XYZ too when Lab or dE come from it), and whether Lab and dE are
-    recomputed from the filtered XYZ; refuses (one line) the sigma maps (not carried through the filter in the
-    stream) and a float16 cube."""
+    one), the channels of each filtered output (XYZ too when Lab, dE or dE_sigma come from it), whether Lab and dE
+    are recomputed from the filtered XYZ, and the sigma outputs carried through the filter; refuses (one line) a
+    float16 cube."""
     r, e = _check(*denoise)
-    bad = [o for o in outputs if o not in DENOISED_STREAM_OUTPUTS + FROM_DENOISED_XYZ]
+    if any(o in DENOISED_SIGMAS for o in outputs):
+        check_sigma_radius(r)
+    known = DENOISED_STREAM_OUTPUTS + FROM_DENOISED_XYZ + DENOISED_SIGMAS
+    bad = [o for o in outputs if o not in known]
     if bad:
-        raise ValueError(f"--denoise filters the stream's {', '.join(DENOISED_STREAM_OUTPUTS)} outputs and computes "
-                         f"{', '.join(FROM_DENOISED_XYZ)} from the filtered XYZ; {', '.join(bad)} cannot be denoised "
-                         f"in the stream (leave {'them' if len(bad) > 1 else 'it'} out"
-                         f"{DENOISED_SIGMA_ADVICE if {'sigma', 'sigma_rms'} & set(bad) else ''})")
+        raise ValueError(f"--denoise carries the stream's {', '.join(known)} outputs; {', '.join(bad)} cannot be "
+                         f"denoised in the stream (leave {'them' if len(bad) > 1 else 'it'} out)")
     if "cube" in outputs and np.dtype(cube_dtype) != np.float32:
         raise ValueError("--denoise needs a float32 cube (leave --half out)")
     m = int(plan.params["m"]) if "m" in plan.params else output_subspace(plan).shape[1]
     derived = [o for o in outputs if o in FROM_DENOISED_XYZ]
     channels = {"coefficients": m, "cube": plan.A.shape[0], "XYZ": 3}
-    filtered = {k: v for k, v in channels.items() if k in outputs or (k == "XYZ" and derived)}
-    return {"radius": r, "eps": e, "row": guide_row(plan), "channels": filtered, "from_XYZ": derived}
+    filtered = {k: v for k, v in channels.items()
+                if k in outputs or (k == "XYZ" and (derived or "dE_sigma" in outputs))}
+    return {"radius": r, "eps": e, "row": guide_row(plan), "channels": filtered, "from_XYZ": derived,
+            "sigmas": [o for o in outputs if o in DENOISED_SIGMAS]}

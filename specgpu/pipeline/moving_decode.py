@@ -15,7 +15,8 @@ The uncertainty outputs (``sigma``, ``sigma_rms``, ``dE_sigma``) are taken at th
 (:func:`warped_uncertainty`): a bilinear sample of the four sensor pixels it reads has the variance
 ``sum_i w_i^2 var_i`` of their own noise (:func:`warped_sample_variance`, the noise model of
 :mod:`specgpu.planning.noise` per pixel), the light's fluctuation, common to a frame's pixels, at the sample's own
-signal; an object layer's pixels with its own shifts. What is still refused with a motion mode is a plan with an
+signal; an object layer's pixels with its own shifts. With ``--denoise`` they are carried through the filter
+(``warped_uncertainty(smoothed=...)``). What is still refused with a motion mode is a plan with an
 ambient frame (subtracted from fixed pixels) and the options the flow cannot serve, in one line naming the option
 (:func:`check_motion_options`).
 """
@@ -27,8 +28,10 @@ from numpy.typing import ArrayLike
 
 from specgpu.core.mask import Mask
 from specgpu.core.numerics import live_gain
+from specgpu.engine.guided_variance import box_box_squares
 from specgpu.motion.flow import MIN_FRAMES
 from specgpu.motion.methods import check_motion_mode
+from specgpu.pipeline.denoise import carried_through_filter, warped_guide_row
 from specgpu.planning.correction import ambient_index
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.reference_frames import reference_indices
@@ -66,7 +69,32 @@ def check_motion_options(motion, plan=None, *, outputs=()) -> str:
     return mode
 
 
-def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read, light: bool = True) -> np.ndarray:
+def _sample_points(d: np.ndarray, k: int, h: int, w: int):
+    """Where frame ``k`` saw each pixel (``d``: the shifts, as :func:`warped_sample_variance` takes them): the four
+    bilinear taps (row, column, weight), the points outside the sensor's footprint, and the fractions (fx, fy)."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    if d.shape[1:] == (2, 3):  # an affine map
+        sx, sy = d[k, 0, 0] * xx + d[k, 0, 1] * yy + d[k, 0, 2], d[k, 1, 0] * xx + d[k, 1, 1] * yy + d[k, 1, 2]
+    else:  # a translation (2,) or a flow's displacement per pixel (2, H, W)
+        sx, sy = xx + d[k, 0], yy + d[k, 1]
+    outside = (sx < -0.5 - 1e-3) | (sy < -0.5 - 1e-3) | (sx > w - 0.5 + 1e-3) | (sy > h - 0.5 + 1e-3)
+    sx, sy = np.clip(sx, 0, w - 1), np.clip(sy, 0, h - 1)
+    x0, y0 = np.floor(sx).astype(np.intp), np.floor(sy).astype(np.intp)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = sx - x0, sy - y0
+    taps = ((y0, x0, (1 - fx) * (1 - fy)), (y0, x1, fx * (1 - fy)), (y1, x0, (1 - fx) * fy), (y1, x1, fx * fy))
+    return taps, outside, fx, fy
+
+
+def _interpolation_correlation(radius: int) -> float:
+    """``1 - R(1) / R(0)``, R the autocorrelation of the box-box weights ``t`` of the guided filter of
+    ``radius`` along one axis (:func:`specgpu.engine.guided_variance.box_box_squares`)."""
+    t = np.sqrt(box_box_squares(radius))
+    return float(1.0 - np.dot(t[1:], t[:-1]) / np.dot(t, t))
+
+
+def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read, light: bool = True,
+                           filtered: int | None = None) -> np.ndarray:
     """(len(read), H, W) float64: the variance of each read frame's motion-compensated sample, the bilinear
     interpolation of the corrected frame ``(o - dark) * gain`` at the point the frame saw each pixel
     (``shifts``: (K, 2) translations, (K, 2, 3) affine maps or a (K, 2, H, W) flow, as
@@ -76,29 +104,32 @@ def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read,
     own noise (shot, read and dark: :class:`specgpu.planning.noise.NoiseModel`, ``gain^2 (x / g + s_read^2)``
     per pixel, ``x`` its signal above dark), plus, with ``light``, the light's fluctuation, common to every pixel
     of a frame and so not averaged by the interpolation: ``(l s)^2``. NaN where the point lies outside the
-    sensor's footprint."""
+    sensor's footprint.
+
+    ``filtered`` (a guided filter's radius r): instead, the own part (no light) as that filter's weights
+    (:mod:`specgpu.engine.guided_variance`) must take it. Neighbouring samples share sensor pixels, so their noise is
+    correlated and the filter, which averages them, averages the sensor pixels beneath: the pixels' variance
+    interpolated with the weights themselves, ``sum_i w_i var c_i``, times ``rho(fx) rho(fy)``, where
+    ``rho(f) = 1 - 2 f (1 - f) (1 - R(1) / R(0))`` with R the autocorrelation of the box-box weights along an
+    axis (the box-box of the bilinear kernel convolved with the filter's over that of the filter's alone; 0.97 at
+    a half pixel for r = 2, where ``sum w_i^2`` alone would say 0.5)."""
     noise = NoiseModel.from_params(plan.params["noise"])
     f = np.asarray(frames, np.float64)
     h, w = f.shape[1:]
     g2 = live_gain(gain).astype(np.float64) ** 2 if gain is not None else np.ones((h, w))
     d = np.asarray(shifts, np.float64)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    corr = None if filtered is None else _interpolation_correlation(filtered)
     out = np.empty((len(read), h, w))
     for n, k in enumerate(read):
         x = f[k] - np.asarray(dark, np.float64)
         own = g2 * (x / noise.gain_e_per_dn + noise.read_var_dn2)
-        if d.shape[1:] == (2, 3):  # an affine map
-            sx, sy = d[k, 0, 0] * xx + d[k, 0, 1] * yy + d[k, 0, 2], d[k, 1, 0] * xx + d[k, 1, 1] * yy + d[k, 1, 2]
-        else:  # a translation (2,) or a flow's displacement per pixel (2, H, W)
-            sx, sy = xx + d[k, 0], yy + d[k, 1]
-        outside = (sx < -0.5 - 1e-3) | (sy < -0.5 - 1e-3) | (sx > w - 0.5 + 1e-3) | (sy > h - 0.5 + 1e-3)
-        sx, sy = np.clip(sx, 0, w - 1), np.clip(sy, 0, h - 1)
-        x0, y0 = np.floor(sx).astype(np.intp), np.floor(sy).astype(np.intp)
-        x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-        fx, fy = sx - x0, sy - y0
-        taps = ((y0, x0, (1 - fx) * (1 - fy)), (y0, x1, fx * (1 - fy)), (y1, x0, (1 - fx) * fy), (y1, x1, fx * fy))
-        var = sum(wt * wt * own[r, c] for r, c, wt in taps)
-        if light and noise.light_rms > 0:
+        taps, outside, fx, fy = _sample_points(d, k, h, w)
+        if corr is not None:
+            var = sum(wt * own[r, c] for r, c, wt in taps) * (1 - 2 * fx * (1 - fx) * corr) * (
+                1 - 2 * fy * (1 - fy) * corr)
+        else:
+            var = sum(wt * wt * own[r, c] for r, c, wt in taps)
+        if corr is None and light and noise.light_rms > 0:
             signal = np.sqrt(g2) * x
             var += (noise.light_rms * sum(wt * signal[r, c] for r, c, wt in taps)) ** 2
         var[outside] = np.nan
@@ -106,38 +137,67 @@ def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read,
     return out
 
 
-def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=None,
-                       light: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=None, light: bool = True,
+                       smoothed=None) -> tuple[np.ndarray, np.ndarray | None]:
     """The standard deviation (H, W, B) of the outputs of the decoder ``A`` (the plan's by default) of the
     motion-compensated decoding ``rec`` (a :class:`~specgpu.pipeline.moving_layers.MovingRecovery`) and, given
     ``M`` (3, B), the covariance (H, W, 3, 3) of ``M y`` (XYZ), float32: each frame's sample variance
     (:func:`warped_sample_variance`, with the sequence's shifts, an object layer's own on the pixels decoded with
     it) through ``A^2`` (the frames are independent), plus the plan's constant (the prior's mismatch); NaN where
     the outputs are. ``frames``: the corrected frames on the sensor's scale. ``light=False``: a reference white's
-    gains divide the light's fluctuation out."""
+    gains divide the light's fluctuation out.
+
+    ``smoothed``: the outputs were denoised (:meth:`specgpu.pipeline.sequence_decoder.SequenceDecoder.smoothed`
+    says on which ``pixels``, by which guide, with which unfiltered outputs' ``slopes``): there the variance is
+    carried through the filter (:func:`specgpu.pipeline.denoise.carried_through_filter`), the own part as the
+    filter takes the warped samples (``warped_sample_variance(filtered=radius)``), the guide's noise that of its
+    warped samples."""
     A = np.asarray(plan.A if A is None else A, np.float64)
     read = np.flatnonzero(np.any(A != 0, axis=0))
-
-    def variance(shifts):
-        return warped_sample_variance(frames, plan, dark, gain, shifts, read=read, light=light)
-
     shifts = rec.estimates[0].shifts
-    V = variance(shifts)
     own = (rec.mask & np.uint8(Mask.LAYER)) != 0
-    for layer in rec.layers if np.ndim(shifts) != 4 else ():  # a flow holds the layers' own already
-        mine = own & layer.decoded
-        if mine.any():
-            V[:, mine] = variance(layer.shifts)[:, mine]
+
+    def variance(**kw):
+        V = warped_sample_variance(frames, plan, dark, gain, shifts, read=read, **kw)
+        for layer in rec.layers if np.ndim(shifts) != 4 else ():  # a flow holds the layers' own already
+            mine = own & layer.decoded
+            if mine.any():
+                V[:, mine] = warped_sample_variance(frames, plan, dark, gain, layer.shifts, read=read, **kw)[:, mine]
+        return V
+
+    V = variance(light=light)
     Ar = A[:, read]
-    const = constant_covariance(plan)
-    var = np.tensordot(V, (Ar * Ar).T, axes=([0], [0])) + np.diag(const)
+    B = A.shape[0]
+    MA = None if M is None else np.asarray(M, np.float64) @ Ar
+    parts = [(lambda V: np.tensordot(V, (Ar * Ar).T, axes=([0], [0])), [[(b, b, 1.0)] for b in range(B)])]
+    if M is not None:
+        parts.append((lambda V: np.einsum("khw,ik,jk->hwij", V, MA, MA).reshape(V.shape[1:] + (9,)),
+                      [[(B + i, B + j, 1.0)] for i in range(3) for j in range(3)]))
+    out = [part(V) for part, _ in parts]
+    pixels = None if smoothed is None else smoothed["pixels"]
+    if pixels is not None and pixels.any():
+        V_own, V_filtered = variance(light=False), variance(filtered=smoothed["radius"])
+        slopes = np.asarray(smoothed["slopes"], np.float64)
+        if M is not None:
+            slopes = np.concatenate([slopes, slopes @ np.asarray(M, np.float64).T], axis=-1)
+        row = warped_guide_row(plan)[0, read]
+        state = {"guide": smoothed["guide"], "radius": smoothed["radius"], "eps": smoothed["eps"], "slopes": slopes,
+                 "guide_var": np.tensordot(row * row, V_own, axes=([0], [0])) / smoothed["level"] ** 2}
+        # every part in one call (the filter's weights made once): the own part as the filter takes it in place of
+        # the samples' own, W^2 own_filtered + (total - own)
+        own_filtered = np.concatenate([part(V_filtered) for part, _ in parts], axis=-1)
+        adjusted = np.concatenate(out, axis=-1) - np.concatenate([part(V_own) for part, _ in parts], axis=-1)
+        den = carried_through_filter(own_filtered, adjusted + own_filtered, terms=[t for _, ts in parts for t in ts],
+                                     **state).astype(np.float64)
+        at = np.cumsum([0] + [o.shape[-1] for o in out])
+        out = [np.where(pixels[..., None], den[..., a:b], o) for o, a, b in zip(out, at[:-1], at[1:])]
     flagged = (rec.mask & ~np.uint8(Mask.LAYER)) != 0
-    sigma = np.sqrt(np.maximum(var, 0.0)).astype(np.float32)
+    const = constant_covariance(plan)
+    sigma = np.sqrt(np.maximum(out[0] + np.diag(const), 0.0)).astype(np.float32)
     sigma[flagged] = np.nan
     if M is None:
         return sigma, None
-    MA = np.asarray(M, np.float64) @ Ar
-    cov = np.einsum("khw,ik,jk->hwij", V, MA, MA) + np.asarray(M) @ const @ np.asarray(M).T
+    cov = out[1].reshape(out[1].shape[:-1] + (3, 3)) + np.asarray(M) @ const @ np.asarray(M).T
     cov[flagged] = np.nan
     return sigma, cov.astype(np.float32)
 

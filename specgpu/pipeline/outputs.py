@@ -11,7 +11,6 @@ import numpy as np
 from specgpu import io
 from specgpu.engine.colorimetry import delta_E
 from specgpu.io.sequence import capture_hash
-from specgpu.pipeline.denoise import denoised_sigma
 from specgpu.pipeline.recovery import to_Lab, to_XYZ, uncertainty
 from specgpu.planning.correction import DEFAULT_WHITE_REFLECTANCE
 from specgpu.planning.uncertainty import delta_E_sigma
@@ -86,15 +85,15 @@ def delta_E_sigma_map(XYZ: np.ndarray, cov: np.ndarray, white) -> np.ndarray:
 def recovery_writes(folder, y, meta, *, out, colours, sequence=None, half=False, interleave="bsq", xyz_path=None,
                     lab_path=None, de_path=None, reference=None, method="CIE 2000", sigma_path=None,
                     de_sigma_path=None, device=None, white_roi=None, white_reflectance=None,
-                    denoise_radius=None, integration: str = "rectangle", motion: str = "none",
+                    denoise=None, integration: str = "rectangle", motion: str = "none",
                     white_moves: str = "scene") -> list:
     """The outputs of ``specgpu recover`` as ``(final path, write(path)[, companion suffixes])`` entries, every
     map computed now and written later (all or nothing); ``colours``: the (illuminant, observer) of XYZ, Lab and
     dE, integrated by ``integration`` (the white of Lab and dE the same); ``reference``: called with (height,
-    width, meta), gives the dE reference Lab; ``denoise_radius``: ``y`` was denoised
-    (:mod:`specgpu.pipeline.denoise`) with that radius, so the sigma map is carried through the filter (a dE sigma
-    is then refused: its XYZ covariance is not carried through yet); ``motion``, ``white_moves``: ``y`` was
-    decoded motion-compensated, and so is its uncertainty (at the warped samples)."""
+    width, meta), gives the dE reference Lab; ``denoise``: ``y`` was denoised (:mod:`specgpu.pipeline.denoise`)
+    with that (radius, eps), so the sigma map and the XYZ covariance of the dE sigma are carried through the
+    filter (the dE sigma at the filtered XYZ); ``motion``, ``white_moves``: ``y`` was decoded
+    motion-compensated, and so is its uncertainty (at the warped samples)."""
     plan = folder.plan
     illuminant, observer = colours
     writes = []
@@ -121,15 +120,7 @@ def recovery_writes(folder, y, meta, *, out, colours, sequence=None, half=False,
         sigma, cov = uncertainty(folder, sequence=sequence, illuminant=illuminant if de_sigma_path else None,
                                  observer=observer, device=device, white_roi=white_roi,
                                  white_reflectance=white_reflectance, integration=integration, motion=motion,
-                                 white_moves=white_moves)
-        if denoise_radius is not None and motion != "none":
-            raise ValueError("--sigma with --denoise and --motion: the filter's guide is the warped frames' sum, "
-                             "and the sigma is not carried through that filter yet; leave one of them out")
-        if denoise_radius is not None:
-            if de_sigma_path:
-                raise ValueError("--delta-e-sigma is not available with --denoise (the XYZ covariance is not carried "
-                                 "through the filter); leave one out")
-            sigma = denoised_sigma(folder, sigma, sequence=sequence, radius=denoise_radius, device=device)
+                                 white_moves=white_moves, denoise=denoise)
         if sigma_path:
             sig, names = sigma_with_rms(sigma, plan.output_labels)
             writes.append((sigma_path, lambda p: io.write_map(p, sig, names, metadata=meta)))

@@ -14,20 +14,20 @@ import numpy as np
 
 from specgpu.engine.colorimetry import XYZ_to_Lab, reflectance_to_XYZ
 from specgpu.pipeline.capture_folder import SequenceFolder
-from specgpu.pipeline.denoise import denoise_recovery
+from specgpu.pipeline.denoise import (
+    carried_through_filter,
+    check_sigma_radius,
+    denoise_recovery,
+    frames_guide,
+    guide_variance,
+)
 from specgpu.pipeline.evaluate import true_patch_spectra
 from specgpu.pipeline.moving_decode import warped_uncertainty
 from specgpu.pipeline.sequence_decoder import SequenceDecoder, corrections_for
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.basis import DEFAULT_WAVELENGTHS, evaluation_exclusions, load_reflectances, pca_basis
 from specgpu.planning.plans import Plan
-from specgpu.planning.uncertainty import (
-    constant_covariance,
-    frame_covariance,
-    frame_variance,
-    output_covariance,
-    sigma_map,
-)
+from specgpu.planning.uncertainty import constant_covariance, frame_covariance, frame_variance
 from specgpu.rig.scene import colorchecker_scene
 
 __all__ = ["EVALUATION_CHART", "default_basis", "recover", "uncertainty", "dark_warning", "to_XYZ", "to_Lab",
@@ -122,58 +122,87 @@ def recover(folder: SequenceFolder, *, sequence: int | None = None, out_dtype=np
 
 def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illuminant: str | None = None,
                 observer: str | None = None, device=None, white_roi=None, white_reflectance=None,
-                integration: str = "rectangle", motion: str = "none",
-                white_moves: str = "scene") -> tuple[np.ndarray, np.ndarray | None]:
+                integration: str = "rectangle", motion: str = "none", white_moves: str = "scene",
+                denoise=None) -> tuple[np.ndarray, np.ndarray | None]:
     """Per-pixel standard deviation (H, W, P) of :func:`recover`'s outputs for the same frames, options and
     corrections (white ROI, ambient frame, linearisation, per-pattern flat field) and, given an illuminant, the
     covariance (H, W, 3, 3) of their XYZ for ``observer`` (:mod:`specgpu.planning.uncertainty`); NaN where saturated.
     With ``motion``: at the motion-compensated samples (:func:`specgpu.pipeline.moving_decode.warped_uncertainty`),
-    NaN where the outputs are."""
+    NaN where the outputs are. With ``denoise`` (radius, eps): of the outputs denoised so (``recover --denoise``),
+    carried through the guided filter (:func:`specgpu.pipeline.denoise.carried_through_filter`)."""
+    M = None if illuminant is None else folder.plan.outputs_to_XYZ(illuminant, observer, integration)
+    if denoise is not None:
+        check_sigma_radius(denoise[0])
     if motion != "none":
         dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi,
                               white_reflectance=white_reflectance, white_moves=white_moves, motion=motion,
-                              device=device)
+                              device=device, denoise=denoise)
         sensor = dec.corrections.sensor(folder.frames[dec.picked(folder.frames, sequence, folder.path)[0]])
-        rec, _, gains, A = dec.warped_outputs(sensor)
-        M = None if illuminant is None else folder.plan.outputs_to_XYZ(illuminant, observer, integration)
-        return warped_uncertainty(sensor, folder.plan, dec.corrections.dark,
-                                  folder.calibration.flat_field, rec, A, M=M, light=gains is None)
+        rec, y, gains, A = dec.warped_outputs(sensor)
+        return warped_uncertainty(sensor, folder.plan, dec.corrections.dark, folder.calibration.flat_field, rec, A,
+                                  M=M, light=gains is None, smoothed=dec.smoothed(y, rec.mask))
     dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi, white_reflectance=white_reflectance,
                           device=device)
     picked = dec.picked(folder.frames, sequence, folder.path)
-    plan, bundle, corr = folder.plan, folder.calibration, dec.corrections
-    gain = bundle.flat_field
-    M = None if illuminant is None else plan.outputs_to_XYZ(illuminant, observer, integration)
-    cov = None
+    plan, corr = folder.plan, dec.corrections
+    const = constant_covariance(plan)
+    var, cov = _noise_parts(folder, dec, picked, M, light=corr.white_roi is None, device=device)
+    saturated = dec.saturated(folder.frames, picked)
+    var[saturated] = np.nan
+    if cov is not None:
+        cov[saturated] = np.nan
+    if denoise is not None:
+        # the pixels' own part (no light) through the filter's weights, the guide's own noise passed by the
+        # outputs' slopes on it (a saturated pixel adds nothing to its neighbours)
+        own_var, own_cov = _noise_parts(folder, dec, picked, M, light=False, device=device)
+        p = dec.decode(folder.frames, sequence=sequence, where=folder.path).astype(np.float64)
+        guide, level = frames_guide(folder, sequence=sequence, device=device)
+        B, h, w = p.shape[-1], *p.shape[:2]
+        own, total = [own_var], [var]
+        terms = [[(b, b, 1.0)] for b in range(B)]
+        if cov is not None:  # the covariance's entries in the same call (the filter's weights made once)
+            p = np.concatenate([p, p @ np.asarray(M, np.float64).T], axis=-1)
+            own.append(own_cov.reshape(h, w, 9))
+            total.append(cov.reshape(h, w, 9))
+            terms += [[(B + i, B + j, 1.0)] for i in range(3) for j in range(3)]
+        carried = carried_through_filter(np.concatenate(own, axis=-1), np.concatenate(total, axis=-1),
+                                         guide=guide, radius=denoise[0], eps=denoise[1], slopes=p, terms=terms,
+                                         guide_var=guide_variance(folder, level, sequence=sequence, device=device),
+                                         device=device)
+        var = carried[..., :B]
+        if cov is not None:
+            cov = carried[..., B:].astype(np.float64).reshape(h, w, 3, 3)
+    sigma = np.sqrt(np.maximum(var + np.diag(const).astype(np.float32), 0.0)).astype(np.float32)
+    sigma[saturated] = np.nan
+    if cov is not None:
+        cov = cov + M @ const @ M.T
+    return sigma, cov
+
+
+def _noise_parts(folder, dec, picked, M, *, light: bool, device) -> tuple[np.ndarray, np.ndarray | None]:
+    """The frames' noise part (no constant) of the outputs' variance (H, W, P) and, given ``M``, of their XYZ
+    covariance (H, W, 3, 3) for :func:`uncertainty`; ``light``: with the light's fluctuation."""
+    plan, corr, gain = folder.plan, dec.corrections, folder.calibration.flat_field
     if corr.per_sequence:
         # decoded one sequence at a time by its own decoder: the variance of their mean is the sum of each
-        # sequence's frame noise over S^2, plus what no frame shows (the prior's mismatch). A white reference's
-        # gains rescale each sequence's decoder by its own frames' power, so the light's fluctuation is divided
-        # out there; with the ambient frame alone it stays, at each frame's own signal above that frame. An
-        # ambient frame brings its own noise, and the room light's shot noise in every frame. The noise model
-        # is of the sensor's samples: the corrected frames on its scale.
+        # sequence's frame noise over S^2. A white reference's gains rescale each sequence's decoder by its own
+        # frames' power, so the light's fluctuation is divided out there; with the ambient frame alone it stays,
+        # at each frame's own signal above that frame. An ambient frame brings its own noise, and the room
+        # light's shot noise in every frame. The noise model is of the sensor's samples: the corrected frames on
+        # its scale.
         decoded = [(signal + level[None], level, A)
                    for signal, level, A in dec.sequence_decoders(folder.frames, picked)]
         S = len(decoded)
-        kw = {"light": corr.white_roi is None, "device": device,
-              "ambient_dark": None if corr.ambient is None else corr.dark}
-        const = constant_covariance(plan)
+        kw = {"light": light, "device": device, "ambient_dark": None if corr.ambient is None else corr.dark}
         var = sum(frame_variance(fr, plan, dark, gain, A=A, **kw) for fr, dark, A in decoded) / S ** 2
-        sigma = np.sqrt(np.maximum(var + np.diag(const).astype(np.float32), 0.0)).astype(np.float32)
-        if M is not None:
-            cov = sum(frame_covariance(fr, plan, dark, gain, M, A=A, **kw)
-                      for fr, dark, A in decoded) / S ** 2 + M @ const @ M.T
-    else:
-        frames = corr.sensor(dec.mean_frames(folder.frames, picked))  # as recover decodes them
-        sigma = sigma_map(frames, plan, corr.dark, gain, sequences=len(picked), device=device)
-        if M is not None:
-            cov = output_covariance(frames, plan, corr.dark, gain, M, sequences=len(picked), device=device)
-    saturated = dec.saturated(folder.frames, picked)
-    if saturated.any():
-        sigma[saturated] = np.nan
-        if cov is not None:
-            cov[saturated] = np.nan
-    return sigma, cov
+        cov = None if M is None else sum(frame_covariance(fr, plan, dark, gain, M, A=A, **kw)
+                                         for fr, dark, A in decoded) / S ** 2
+        return np.asarray(var, np.float32), cov
+    frames = corr.sensor(dec.mean_frames(folder.frames, picked))  # as recover decodes them
+    kw = {"sequences": len(picked), "light": light, "device": device}
+    var = frame_variance(frames, plan, corr.dark, gain, **kw)
+    cov = None if M is None else frame_covariance(frames, plan, corr.dark, gain, M, **kw)
+    return np.asarray(var, np.float32), cov
 
 
 def dark_warning(folder: SequenceFolder, sequence: int | None = None) -> str | None:

@@ -36,7 +36,12 @@ from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_queue
 from specgpu.motion.residual import residual_check
 from specgpu.pipeline.decoder_outputs import FusedLaunches, lab_and_delta_E, outputs_for
-from specgpu.pipeline.denoise import denoise_compensated, warped_guide_row
+from specgpu.pipeline.denoise import (
+    compensated_guide,
+    compensated_smoothed,
+    denoise_compensated,
+    warped_guide_row,
+)
 from specgpu.pipeline.moving_decode import check_motion_options, warped_uncertainty
 from specgpu.pipeline.moving_layers import recover_moving
 from specgpu.planning.correction import WhiteReference, ambient_index, corrected_decoder, white_gains
@@ -380,14 +385,33 @@ class SequenceDecoder:
         samples = np.moveaxis(rec.y, -1, 0) / live_gain(self.calibration.flat_field)[None]
         return white.gains(samples + np.asarray(corr.dark, np.float32)[None], dark=corr.dark)
 
-    def _warped_sigmas(self, sensor, rec, A, XYZ, *, light) -> dict:
+    def smoothed(self, y, mask) -> dict | None:
+        """With ``denoise``, what carrying the sigmas through the filter needs of a warped pass's
+        :meth:`pass_rows` samples ``y`` (H, W, rows; the guide last) and its ``mask``: ``pixels`` (H, W) bool, those
+        the filter smooths (:func:`specgpu.pipeline.denoise.compensated_smoothed`; None: none), the ``guide`` as
+        the filter takes it and its ``level``, the unfiltered outputs' ``slopes`` (H, W, B), ``radius``, ``eps``;
+        None without ``denoise``."""
+        if self.denoise is None:
+            return None
+        radius, eps = self.denoise
+        rows = y[..., :-1]
+        pixels = compensated_smoothed(rows, y[..., -1], mask, radius=radius)
+        if pixels is None:
+            return {"pixels": None}
+        guide, level = compensated_guide(rows, y[..., -1], mask)
+        cube = self.slices["cube"] if self.spec is not None else slice(0, self.plan.A.shape[0])
+        return {"pixels": pixels, "guide": guide, "level": level, "slopes": y[..., cube], "radius": radius,
+                "eps": eps}
+
+    def _warped_sigmas(self, sensor, rec, A, XYZ, *, light, smoothed=None) -> dict:
         """The sigma outputs of one motion-compensated sequence (:func:`specgpu.pipeline.moving_decode.
-        warped_uncertainty`): ``sigma`` (each output and their RMS), ``sigma_rms``, ``dE_sigma`` (the XYZ
-        covariance propagated to dE2000 at ``XYZ``, as :func:`specgpu.planning.uncertainty.delta_E_sigma`)."""
+        warped_uncertainty`, through the filter on the ``smoothed`` pixels): ``sigma`` (each output and their
+        RMS), ``sigma_rms``, ``dE_sigma`` (the XYZ covariance propagated to dE2000 at ``XYZ``, as
+        :func:`specgpu.planning.uncertainty.delta_E_sigma`)."""
         names = set(self.outputs)
         M = self.spec.to_XYZ if "dE_sigma" in names else None
         sigma, cov = warped_uncertainty(sensor, self.plan, self.corrections.dark, self.gain,
-                                        rec, A, M=M, light=light)
+                                        rec, A, M=M, light=light, smoothed=smoothed)
         rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)
         out = {"sigma": np.concatenate([sigma, rms], axis=-1)} if "sigma" in names else {}
         if "sigma_rms" in names:
@@ -404,6 +428,7 @@ class SequenceDecoder:
         rec, y, gains, A = self.warped_outputs(sensor, seconds=steps)
         t0 = time.perf_counter()
         out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
+        smoothed = self.smoothed(y, rec.mask)
         if self.denoise is not None:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
             guide = out.pop("guide")[..., 0]
             for name in self.spec.denoise["channels"]:
@@ -415,7 +440,7 @@ class SequenceDecoder:
             for name, arr in lab_and_delta_E(self.queue, self.spec, xyz, self._reference, self.n).items():
                 out[name] = arr.get().reshape(self.shapes()[name][0])
         if {"sigma", "sigma_rms", "dE_sigma"} & set(self.outputs):
-            out.update(self._warped_sigmas(sensor, rec, A, out.get("XYZ"), light=gains is None))
+            out.update(self._warped_sigmas(sensor, rec, A, out.get("XYZ"), light=gains is None, smoothed=smoothed))
         with self._lock:
             for step, seconds in {**steps, "colour": time.perf_counter() - t0}.items():
                 self.seconds[step] += seconds

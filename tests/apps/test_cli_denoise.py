@@ -1,9 +1,12 @@
-"""``specgpu stream --denoise``: runs with the linear outputs and with Lab, records that it denoised, and refuses
-the outputs it cannot carry in one line."""
+"""``specgpu stream --denoise``: runs with the linear outputs, with Lab and with the sigmas, and records that it
+denoised."""
 
 import json
 
+import numpy as np
 from cli_helpers import hadamard_rig, one_line_error, run
+
+from specgpu.io.recording import open_recording
 
 
 def test_stream_denoise(tmp_path):
@@ -16,7 +19,11 @@ def test_stream_denoise(tmp_path):
     assert "guided filter" in json.dumps(attrs)
     out = run(*base, "--outputs", "XYZ,Lab", "--out", tmp_path / "lab.zarr").output  # Lab of the filtered XYZ
     assert "sequences" in out
-    one_line_error(run(*base, "--outputs", "cube,sigma", ok=False), "sigma cannot be denoised")
+    out = run(*base, "--outputs", "cube,sigma,dE_sigma", "--out", tmp_path / "sigma.zarr").output  # carried through
+    assert "sequences" in out
+    rec = open_recording(tmp_path / "sigma.zarr")
+    sigma, des = rec.read("sigma", 0), rec.read("dE_sigma", 0)
+    assert np.isfinite(sigma).mean() > 0.9 and np.nanmedian(des) > 0
 
 
 def test_stream_accumulate(tmp_path):

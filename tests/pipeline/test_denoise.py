@@ -11,7 +11,7 @@ from stream_helpers import shared_stream_setup
 import specgpu.planning as E
 from specgpu.calibration.bundle import oracle_calibration
 from specgpu.pipeline.capture_folder import SequenceFolder
-from specgpu.pipeline.denoise import denoise_recovery, denoised_sigma, sequence_guide, stream_denoise
+from specgpu.pipeline.denoise import denoise_recovery, sequence_guide, stream_denoise
 from specgpu.pipeline.recovery import recover, to_XYZ, uncertainty
 from specgpu.pipeline.twin_capture import capture_plan
 from specgpu.planning.priors import held_out_basis
@@ -51,7 +51,7 @@ def test_sigma_stays_calibrated_after_denoising(bundle, scene):
         raw.append(y)
         sig_raw.append(s)
         den.append(denoise_recovery(folder, y))
-        sig_den.append(denoised_sigma(folder, s))
+        sig_den.append(uncertainty(folder, denoise=(2, 1e-4))[0])
     n = len(raw)
     for ys, ss, name in ((raw, sig_raw, "raw"), (den, sig_den, "denoised")):
         ys, ss = np.stack(ys), np.stack(ss)
@@ -101,7 +101,7 @@ def test_filtering_the_output_subspace_equals_filtering_every_band(bundle):
 
 def test_stream_denoise_equals_recover_denoise():
     """The stream's denoised coefficients, cube and XYZ equal recover --denoise on the same frames, its Lab and dE
-    those of the filtered XYZ (colour-science's); outputs it cannot carry are refused in one line."""
+    those of the filtered XYZ (colour-science's); a float16 cube is refused in one line."""
     import colour
 
     from specgpu.pipeline.stream import Stream
@@ -130,9 +130,10 @@ def test_stream_denoise_equals_recover_denoise():
         ref = np.broadcast_to(np.asarray(setup.reference, np.float64), lab.shape)
         np.testing.assert_allclose(maps["dE"], colour.delta_E(ref, lab, method="CIE 2000"), atol=2e-3)
         assert np.abs(maps["cube"] - raw).max() > 10 * 1e-4 * scale  # it did filter
-    with pytest.raises(ValueError, match="sigma_rms cannot be denoised") as info:
-        stream_denoise(setup.plan, ("cube", "sigma_rms"), np.float32, (2, 1e-4))
-    assert "\n" not in str(info.value)
+    # the sigmas are carried through the filter (tests/pipeline/test_denoised_sigma_paths.py), dE_sigma from the
+    # filtered XYZ
+    carried = stream_denoise(setup.plan, ("cube", "sigma_rms", "dE_sigma"), np.float32, (2, 1e-4))
+    assert carried["sigmas"] == ["sigma_rms", "dE_sigma"] and set(carried["channels"]) == {"cube", "XYZ"}
     for outputs, why in ((("cube",), "float32 cube"),):
         with pytest.raises(ValueError, match=why) as info:
             Stream(setup.driver(loops=1), setup.plan, setup.bundle, outputs=outputs, reference=setup.reference,

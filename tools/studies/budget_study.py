@@ -49,7 +49,7 @@ from specgpu.apps.demo_measure import mean_std  # noqa: E402
 from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.engine.guided import flat_variance_reduction  # noqa: E402
 from specgpu.pipeline.capture_folder import SequenceFolder  # noqa: E402
-from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery, denoised_sigma  # noqa: E402
+from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery  # noqa: E402
 from specgpu.pipeline.evaluate import evaluate_pixels, truth_cube  # noqa: E402
 from specgpu.pipeline.recovery import recover, uncertainty  # noqa: E402
 from specgpu.pipeline.twin_capture import capture_plan  # noqa: E402
@@ -110,12 +110,13 @@ def measure(description, bundle, plan, scene, seed, denoise=(DENOISE_RADIUS, DEN
         t0 = time.perf_counter()
         yd = denoise_recovery(folder, y, radius=denoise[0], eps=denoise[1])
         seconds = time.perf_counter() - t0
-        variants["denoised"] = (yd, None if sigma is None else denoised_sigma(folder, sigma, radius=denoise[0]))
+        variants["denoised"] = (yd, None if sigma is None else uncertainty(folder, denoise=denoise)[0])
         if white_roi is not None:
             yw = recover(folder, white_roi=white_roi)
             sw = uncertainty(folder, white_roi=white_roi)[0] if refl else None
             variants["white+dn"] = (denoise_recovery(folder, yw, radius=denoise[0], eps=denoise[1]),
-                                    None if sw is None else denoised_sigma(folder, sw, radius=denoise[0]))
+                                    None if sw is None else uncertainty(folder, white_roi=white_roi,
+                                                                        denoise=denoise)[0])
     truth = truth_cube(scene, wl) if refl else None
     for name, (v, s) in variants.items():
         px = evaluate_pixels(v, scene, wavelengths=wl, illuminant=ill)

@@ -59,8 +59,8 @@ def plan_calibration(plan, source, plan_path, calib):
 @click.option("--device", "device", default=None, help="OpenCL device selector (on every worker).")
 @RESIZE
 @click.option("--denoise", is_flag=True,
-              help="Denoise the cube and XYZ (recover --denoise's guided filter), Lab and dE computed from the "
-                   "filtered XYZ.")
+              help="Denoise the cube and XYZ (recover --denoise's guided filter), Lab, dE and dE_sigma computed "
+                   "from the filtered XYZ; the sigmas carried through the filter.")
 @click.option("--motion", type=click.Choice(list(MOTION_METHODS), case_sensitive=False), default="none",
               show_default=True, help="Compensate a scene that moved during each sequence, as recover --motion: a "
               "translation (global) or an affine map (affine) per frame, or a displacement per pixel (flow), "

@@ -90,7 +90,7 @@ def recovered(folder, seq, *, sequence, device, white_roi, white_reflectance, co
 @WHITE_ROI_MOVES
 @click.option("--denoise", is_flag=True,
               help="Remove per-pixel noise without losing edges: a guided filter on the device, guided by the sum of "
-                   "the frames; --sigma is carried through it.")
+                   "the frames; --sigma and --delta-e-sigma are carried through it.")
 @click.option("--denoise-radius", type=click.IntRange(min=1, max=64), default=DENOISE_RADIUS, show_default=True,
               help="--denoise: window radius, px.")
 @click.option("--denoise-eps", type=Finite(min=1e-12, max=1e3), default=DENOISE_EPS, show_default=True,
@@ -125,7 +125,7 @@ def recover(seq, out, interleave, xyz_path, lab_path, ref, de_path, method, illu
                                        integration=integration, white_moves=white_roi_moves)
         writes = recovery_writes(folder, y, meta, **paths, colours=colours, sequence=sequence, half=half,
                                  interleave=interleave, method=method, device=device, **white,
-                                 denoise_radius=denoise_radius if denoise else None, integration=integration,
+                                 denoise=(denoise_radius, denoise_eps) if denoise else None, integration=integration,
                                  motion=motion, white_moves=white_roi_moves,
                                  reference=lambda h, w, m: parse_reference(ref, h, w, colours[0], resize, m,
                                                                            colours[1], integration))

@@ -168,7 +168,7 @@ def stream_run(driver, description, plan, bundle, truth, wanted, reference, out,
 @WHITE_ROI_MOVES
 @click.option("--denoise", is_flag=True,
               help="Denoise the coefficients, cube and XYZ outputs on the device (recover --denoise's guided filter), "
-                   "Lab and dE computed from the filtered XYZ (not with the sigmas).")
+                   "Lab, dE and dE_sigma computed from the filtered XYZ; the sigmas carried through the filter.")
 @click.option("--accumulate", type=click.IntRange(min=2), default=None, metavar="N",
               help="Each pixel's running estimate over up to N sequences, restarted where it changes beyond its "
                    "noise (needs the cube and sigma or sigma_rms outputs); with --motion it moves with the scene.")
