@@ -6,7 +6,9 @@
  * Cholesky factorisation and forward substitution. A pixel whose chi2 exceeds THRESHOLD gets MASK_INCONSISTENT.
  * A NaN sample (outside the field, no response) gives a NaN chi2, which flags nothing, as a negative pivot does.
  *
- * Build macros: N (samples per pixel), R (residual components), HAS_GAIN, WRITE_CHI (also write chi2).
+ * VW pixels per work-item (common.h: 8 as vectors on CPU devices, 1 on GPUs); every loop has a bound known at build
+ * time and is unrolled, so the per-pixel arrays are registers, not private memory.
+ * Build macros: N (samples per pixel), R (residual components), HAS_GAIN, WRITE_CHI (also write chi2), VW.
  */
 #include "common.h"
 
@@ -29,47 +31,58 @@ __kernel void residual_flag(__global const float *samples, __global const float 
                             const float threshold, __global uchar *mask, __global float *chi_out,
                             const uint n)
 {
-    const uint i = get_global_id(0);
-    if (i >= n)
-        return; /* no barrier in this kernel */
-    float g = 1.0f;
+    PIXEL_RANGE(n); /* no barrier in this kernel */
+    floatv g = (floatv)1.0f;
 #if HAS_GAIN
-    g = gain[i];
-    g = (isfinite(g) && g > 0.0f) ? g : 1.0f;
+    g = load_f(gain, base, count);
+    g = (isfinite(g) & (g > 0.0f)) ? g : (floatv)1.0f;
 #endif
-    float s[N], var[N];
-    for (int k = 0; k < N; k++) {
-        const float v = samples[(size_t)k * n + i];
-        float raw = v / g;
-        raw = raw < 0.0f ? 0.0f : raw; /* a NaN stays NaN */
+    const floatv g2 = g * g;
+    floatv s[N], var[N];
+    _Pragma("unroll") for (int k = 0; k < N; k++) {
+        const floatv v = load_f(samples + (ulong)k * n, base, count);
+        floatv raw = v / g;
+        raw = raw < 0.0f ? (floatv)0.0f : raw; /* a NaN stays NaN */
         s[k] = v;
-        var[k] = (raw * inv_e_per_dn + read_var + light_var * raw * raw) * (g * g);
+        var[k] = (raw * inv_e_per_dn + read_var + light_var * raw * raw) * g2;
     }
-    float L[R * R], z[R];
-    float chi = 0.0f;
-    for (int j = 0; j < R; j++) {
-        for (int a = j; a < R; a++) {
-            float c = mismatch[a * R + j];
-            for (int k = 0; k < N; k++)
-                c = project[a * N + k] * project[j * N + k] * var[k] + c;
-            for (int m = 0; m < j; m++)
+    floatv L[R * R], z[R];
+    floatv chi = (floatv)0.0f;
+    _Pragma("unroll") for (int j = 0; j < R; j++) {
+        _Pragma("unroll") for (int a = j; a < R; a++) {
+            floatv c = (floatv)mismatch[a * R + j];
+            _Pragma("unroll") for (int k = 0; k < N; k++)
+                c = (project[a * N + k] * project[j * N + k]) * var[k] + c;
+            _Pragma("unroll") for (int m = 0; m < j; m++)
                 c -= L[a * R + m] * L[j * R + m];
             if (a == j)
                 L[j * R + j] = sqrt(c);
             else
                 L[a * R + j] = c / L[j * R + j];
         }
-        float r = 0.0f;
-        for (int k = 0; k < N; k++)
+        floatv r = (floatv)0.0f;
+        _Pragma("unroll") for (int k = 0; k < N; k++)
             r = project[j * N + k] * s[k] + r;
-        for (int m = 0; m < j; m++)
+        _Pragma("unroll") for (int m = 0; m < j; m++)
             r -= L[j * R + m] * z[m];
         z[j] = r / L[j * R + j];
         chi = z[j] * z[j] + chi;
     }
 #if WRITE_CHI
-    chi_out[i] = chi;
+    store_f(chi, chi_out, base, count);
 #endif
-    if (chi > threshold)
-        mask[i] |= (uchar)MASK_INCONSISTENT;
+    const intv flag = chi > threshold ? (intv)MASK_INCONSISTENT : (intv)0;
+#if VW == 8
+    uchar8 m;
+    if (count == VW) {
+        m = LOAD8(uchar, mask + base);
+    } else {
+        uchar t[VW];
+        for (uint j = 0; j < VW; ++j) t[j] = j < count ? mask[base + j] : 0;
+        m = vload8(0, t);
+    }
+    store_mask(m | CONVERT_UCHARV(flag), mask, base, count);
+#else
+    mask[base] |= CONVERT_UCHARV(flag);
+#endif
 }

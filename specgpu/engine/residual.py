@@ -20,11 +20,6 @@ from specgpu.engine.runtime import get_kernel, get_queue
 
 __all__ = ["PreparedResidual", "residual_chi2_device"]
 
-#: work-items per group: one pixel each; PoCL keeps a group's private arrays (C's factor, the samples) on a thread
-#: stack, so groups stay small
-_RESIDUAL_GROUP = 64
-
-
 class PreparedResidual:
     """The residual check of one plan set up once on a queue: its projection, mismatch and noise on the device.
 
@@ -51,8 +46,9 @@ class PreparedResidual:
         if R < 1 or N < 1 or M.shape != (R, R):
             raise ValueError(f"project must be (R, N) and mismatch (R, R), got {P.shape} and {M.shape}")
         self.queue, self.R, self.N = queue, R, N
+        self.vw = kernels._vw(queue)  # pixels per work-item: vectors of 8 on CPU devices, one on GPUs
         self.kernel = get_kernel(queue, "residual.cl", "residual_flag", N=N, R=R, HAS_GAIN=bool(has_gain),
-                                 WRITE_CHI=bool(chi))
+                                 WRITE_CHI=bool(chi), VW=kernels._vw_macro(self.vw))
         self._P = kernels.matrix_on_device(queue, P)
         self._M = kernels.matrix_on_device(queue, M)
         self.noise = (np.float32(1.0 / float(gain_e_per_dn)), np.float32(read_var_dn2),
@@ -65,9 +61,8 @@ class PreparedResidual:
         returns the event."""
         data = [None if a is None else (a.data if isinstance(a, cla.Array) else a)
                 for a in (samples, gain, mask, chi_out)]
-        return kernels.launch_range(self.queue, self.kernel, (int(n),), (_RESIDUAL_GROUP,), data[0], data[1],
-                                    self._P.data, self._M.data, *self.noise, self.threshold, data[2], data[3],
-                                    np.uint32(n))
+        return kernels._launch(self.queue, self.kernel, int(n), data[0], data[1], self._P.data, self._M.data,
+                               *self.noise, self.threshold, data[2], data[3], np.uint32(n), pixels_per_item=self.vw)
 
 
 def residual_chi2_device(samples: ArrayLike, project: ArrayLike, mismatch: ArrayLike, *, gain_e_per_dn: float,
