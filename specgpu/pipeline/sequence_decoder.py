@@ -355,8 +355,9 @@ class SequenceDecoder:
         A = self.white_motion.decoder(gains)
         R = self.pass_rows(A)
         cols = np.flatnonzero(np.any(R != 0, axis=0))
-        y = np.tensordot(rec.y[..., cols].astype(np.float64), R[:, cols], axes=([-1], [1]))
-        return rec, y.astype(np.float32), gains, A
+        # float32 samples by float32 rows (one BLAS product, no float64 copy of the K samples of every pixel)
+        y = np.matmul(rec.y[..., cols], np.ascontiguousarray(R[:, cols].T, np.float32))
+        return rec, y, gains, A
 
     def motion_white_gains(self, sensor, rec) -> np.ndarray:
         """(K,) the reference white's gains of one sequence (``sensor``: its corrected frames) whose warped
@@ -405,9 +406,15 @@ class SequenceDecoder:
         t0 = time.perf_counter()
         out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
         if self.denoise is not None:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
+            # in one filter: the guide's statistics, its level and the flagged pixels' neighbourhood made once
             guide = out.pop("guide")[..., 0]
-            for name in self.spec.denoise["channels"]:
-                out[name] = self.filtered(out[name], guide, rec.mask)
+            names = list(self.spec.denoise["channels"])
+            filtered = self.filtered(np.concatenate([out[name] for name in names], axis=-1), guide, rec.mask)
+            at = 0
+            for name in names:
+                width = out[name].shape[-1]
+                out[name] = np.ascontiguousarray(filtered[..., at:at + width])
+                at += width
         if "cube" in out:
             out["cube"] = out["cube"].astype(self.spec.cube_dtype, copy=False)
         if {"Lab", "dE"} & set(self.outputs):
