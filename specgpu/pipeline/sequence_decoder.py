@@ -356,7 +356,8 @@ class SequenceDecoder:
         R = self.pass_rows(A)
         cols = np.flatnonzero(np.any(R != 0, axis=0))
         # float32 samples by float32 rows (one BLAS product, no float64 copy of the K samples of every pixel)
-        y = np.matmul(rec.y[..., cols], np.ascontiguousarray(R[:, cols].T, np.float32))
+        samples = rec.y if len(cols) == rec.y.shape[-1] else rec.y[..., cols]  # no copy where every frame is read
+        y = np.matmul(samples, np.ascontiguousarray(R[:, cols].T, np.float32))
         return rec, y, gains, A
 
     def motion_white_gains(self, sensor, rec) -> np.ndarray:
@@ -377,9 +378,13 @@ class SequenceDecoder:
             raise ValueError(f"--white-roi {x},{y},{w},{h}: the white moving with the scene was seen outside the "
                              "field or inconsistent in every pixel (a white fixed in the field: --white-roi-moves "
                              "camera)")
-        # the samples (o - dark) * gain at the reference time put back on the sensor's scale the gains read
-        samples = np.moveaxis(rec.y, -1, 0) / live_gain(self.calibration.flat_field)[None]
-        return white.gains(samples + np.asarray(corr.dark, np.float32)[None], dark=corr.dark)
+        # the samples (o - dark) * gain at the reference time put back on the sensor's scale the gains read: the
+        # ROI's only (the gains read nothing else), in an array that holds the ROI where the frames would
+        sl = (slice(y, y + h), slice(x, x + w))
+        sensor_roi = np.empty((rec.y.shape[-1], y + h, x + w), np.float32)
+        sensor_roi[:, y:, x:] = (np.moveaxis(rec.y[sl], -1, 0) / live_gain(self.calibration.flat_field[sl])[None]
+                                 + np.asarray(corr.dark, np.float32)[sl][None])
+        return white.gains(sensor_roi, dark=corr.dark)
 
     def _warped_sigmas(self, sensor, rec, A, XYZ, *, light) -> dict:
         """The sigma outputs of one motion-compensated sequence (:func:`specgpu.pipeline.moving_decode.
@@ -399,22 +404,34 @@ class SequenceDecoder:
             out["dE_sigma"] = des
         return out
 
+    def _denoised(self, y, mask) -> dict:
+        """The outputs of the warped pass's rows ``y`` (H, W, rows) with those the filter applies to filtered in one
+        call (:meth:`filtered`: the guide's level, the flagged pixels' neighbourhood and the guide's statistics
+        made once), read from ``y`` in place where they lead its rows (the filter copies what it reads)."""
+        index = np.arange(y.shape[-1])
+        names = list(self.spec.denoise["channels"])
+        cols = np.concatenate([index[self.slices[name]] for name in names])
+        rows = y[..., :len(cols)] if np.array_equal(cols, index[:len(cols)]) else y[..., cols]
+        filtered = self.filtered(rows, y[..., self.slices["guide"].start], mask)
+        out, at = {}, 0
+        for name in names:
+            width = len(index[self.slices[name]])
+            out[name] = np.ascontiguousarray(filtered[..., at:at + width])
+            at += width
+        for name, rows in self.slices.items():  # any other row as it was decoded
+            if name not in out and name != "guide":
+                out[name] = np.ascontiguousarray(y[..., rows])
+        return out
+
     def _moving_maps(self, raw) -> dict:
         steps = {}
         sensor = self.corrections.sensor(raw)  # once: the warped pass, the white and the sigmas all read it
         rec, y, gains, A = self.warped_outputs(sensor, seconds=steps)
         t0 = time.perf_counter()
-        out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
-        if self.denoise is not None:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
-            # in one filter: the guide's statistics, its level and the flagged pixels' neighbourhood made once
-            guide = out.pop("guide")[..., 0]
-            names = list(self.spec.denoise["channels"])
-            filtered = self.filtered(np.concatenate([out[name] for name in names], axis=-1), guide, rec.mask)
-            at = 0
-            for name in names:
-                width = out[name].shape[-1]
-                out[name] = np.ascontiguousarray(filtered[..., at:at + width])
-                at += width
+        if self.denoise is None:
+            out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
+        else:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
+            out = self._denoised(y, rec.mask)
         if "cube" in out:
             out["cube"] = out["cube"].astype(self.spec.cube_dtype, copy=False)
         if {"Lab", "dE"} & set(self.outputs):
