@@ -15,7 +15,7 @@ Also counted: the kernel programs built (:func:`specgpu.engine.runtime.program_c
 memory pool took from the system after the first sequence (zero in a steady state).
 
     PYTHONPATH=. python tools/benchmarks/stream_full_profile.py --size 640x480 --sequences 8 \
-        --json docs/results/stream_full_profile.json
+        --json results/stream_full_profile.json
 """
 
 from __future__ import annotations
