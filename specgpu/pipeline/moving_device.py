@@ -15,6 +15,7 @@ made from, so the sequences of a stream, a recording or the layers of one sequen
 from __future__ import annotations
 
 import threading
+import weakref
 
 import numpy as np
 import pyopencl as cl
@@ -29,15 +30,16 @@ from specgpu.engine.warp_map import MAX_TRANSLATE_FRAMES, PreparedWarp
 __all__ = ["SETUPS_KEPT", "set_ups", "warped_checked"]
 
 #: Set-ups kept per thread (the oldest dropped first): a stream's global pass and its object layers' passes
-#: share one; a few more serve a recording decoded with several plans.
-SETUPS_KEPT = 8
+#: share one; a few more serve a recording decoded with several plans. Each holds the dark and flat field on the
+#: device (and a device copy may hold its host array): a caller that makes a new dark per call fills them all.
+SETUPS_KEPT = 4
 
 _local = threading.local()
 
 
 def set_ups() -> dict:
-    """This thread's kept set-ups (key -> (warp, check, the check's flat field on the device, the arrays they were made
-    from))."""
+    """This thread's kept set-ups (key -> (warp, check, the check's flat field on the device, weak references to the
+    arrays they were made from))."""
     kept = getattr(_local, "kept", None)
     if kept is None:
         kept = _local.kept = {}
@@ -56,8 +58,10 @@ def _set_up(queue, frames, A, dark, gain, read, residual, saturation):
     key = (queue, frames.dtype.str, (h, w), A.shape, A.tobytes(), saturation, None if read is None else tuple(read),
            id(dark), id(gain), id(residual))
     kept = set_ups()
+    for stale in [k for k, e in kept.items() if not _alive(e[3])]:  # made from arrays since freed: their memory
+        del kept[stale]  # on the device goes with them, and their ids may name new arrays
     entry = kept.get(key)
-    if entry is not None:
+    if entry is not None and _alive(entry[3], (dark, gain, residual)):
         return entry[:3]
     gain_dev = check_gain = None
     if gain is not None:  # the pass reads the live flat field; the check weighs the noise by the finite one
@@ -72,11 +76,23 @@ def _set_up(queue, frames, A, dark, gain, read, residual, saturation):
     check = PreparedResidual(queue, residual.project, residual.mismatch, gain_e_per_dn=nm.gain_e_per_dn,
                              read_var_dn2=nm.read_var_dn2, light_rms=nm.light_rms, threshold=residual.threshold,
                              has_gain=gain_dev is not None)
+    try:  # the arrays the key names by id, held weakly: a set-up lives no longer than what it was made from
+        refs = tuple(None if a is None else weakref.ref(a) for a in (dark, gain, residual))
+    except TypeError:  # an input no weak reference can follow (a list): this set-up serves this call only
+        return warp, check, check_gain
     if len(kept) >= SETUPS_KEPT:
         kept.pop(next(iter(kept)))
-    # the arrays the key names by id are kept with it, so no other array can take their id while it is kept
-    kept[key] = (warp, check, check_gain, (dark, gain, residual, gain_dev))
+    kept[key] = (warp, check, check_gain, refs)
     return warp, check, check_gain
+
+
+def _alive(refs, objects=None) -> bool:
+    """Whether every array a set-up was made from (weak references, None for none) still lives, and, given
+    ``objects``, is that object."""
+    got = [None if r is None else r() for r in refs]
+    if objects is not None:
+        return all(g is o for g, o in zip(got, objects))
+    return all(g is not None or r is None for g, r in zip(got, refs))
 
 
 def warped_checked(frames, A, shifts, dark, gain, read, residual, *, saturation=None,
