@@ -16,6 +16,7 @@ from .kernels import (
 )
 from .linear_map import LAYOUTS, LinearResult, apply_linear
 from .registration import DeviceRegistration, register_gradients
+from .residual import PreparedResidual, residual_chi2_device
 from .runtime import DeviceInfo, SpecgpuDeviceError, get_queue, list_devices, select_device
 from .selftest import SelftestReport, run_selftest
 from .warp_map import apply_linear_warped
@@ -45,8 +46,10 @@ __all__ = [
     "prepare_delta_E_sigma",
     "prepare_frames_to_delta_E",
     "prepare_linear",
+    "PreparedResidual",
     "reflectance_to_XYZ",
     "register_gradients",
+    "residual_chi2_device",
     "run_selftest",
     "select_device",
     "SelftestReport",

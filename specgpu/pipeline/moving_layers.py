@@ -59,6 +59,7 @@ from specgpu.motion.object_motion import (
 )
 from specgpu.motion.reference import check_reference_frames
 from specgpu.motion.residual import residual_chi2
+from specgpu.pipeline.moving_device import warped_checked
 
 __all__ = ["MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
            "explained", "disagreeing", "DISAGREE_RMS", "decode_object_layers", "recover_moving"]
@@ -192,6 +193,11 @@ def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
     if residual is None:
         return apply_linear_warped(frames, A, shifts, dark, live_gain(gain), read=read, **kw)
     A = np.asarray(A, np.float64)
+    if kw.get("return_mask"):  # a translation per frame: the check beside the pass, on the device
+        done = warped_checked(frames, A, shifts, dark, gain, read, residual, saturation=kw.get("saturation"),
+                              device=kw.get("device"))
+        if done is not None:
+            return done
     res = apply_linear_warped(frames, np.vstack([A, residual.rows]), shifts, dark, live_gain(gain), read=read, **kw)
     B = A.shape[0]
     chi = residual_chi2(res.y[..., B:], residual, gain)

@@ -360,8 +360,10 @@ class SequenceDecoder:
         A = self.white_motion.decoder(gains)
         R = self.pass_rows(A)
         cols = np.flatnonzero(np.any(R != 0, axis=0))
-        y = np.tensordot(rec.y[..., cols].astype(np.float64), R[:, cols], axes=([-1], [1]))
-        return rec, y.astype(np.float32), gains, A
+        # float32 samples by float32 rows (one BLAS product, no float64 copy of the K samples of every pixel)
+        samples = rec.y if len(cols) == rec.y.shape[-1] else rec.y[..., cols]  # no copy where every frame is read
+        y = np.matmul(samples, np.ascontiguousarray(R[:, cols].T, np.float32))
+        return rec, y, gains, A
 
     def motion_white_gains(self, sensor, rec) -> np.ndarray:
         """(K,) the reference white's gains of one sequence (``sensor``: its corrected frames) whose warped
@@ -381,9 +383,13 @@ class SequenceDecoder:
             raise ValueError(f"--white-roi {x},{y},{w},{h}: the white moving with the scene was seen outside the "
                              "field or inconsistent in every pixel (a white fixed in the field: --white-roi-moves "
                              "camera)")
-        # the samples (o - dark) * gain at the reference time put back on the sensor's scale the gains read
-        samples = np.moveaxis(rec.y, -1, 0) / live_gain(self.calibration.flat_field)[None]
-        return white.gains(samples + np.asarray(corr.dark, np.float32)[None], dark=corr.dark)
+        # the samples (o - dark) * gain at the reference time put back on the sensor's scale the gains read: the
+        # ROI's only (the gains read nothing else), in an array that holds the ROI where the frames would
+        sl = (slice(y, y + h), slice(x, x + w))
+        sensor_roi = np.empty((rec.y.shape[-1], y + h, x + w), np.float32)
+        sensor_roi[:, y:, x:] = (np.moveaxis(rec.y[sl], -1, 0) / live_gain(self.calibration.flat_field[sl])[None]
+                                 + np.asarray(corr.dark, np.float32)[sl][None])
+        return white.gains(sensor_roi, dark=corr.dark)
 
     def smoothed(self, y, mask) -> dict | None:
         """With ``denoise``, what carrying the sigmas through the filter needs of a warped pass's
@@ -422,24 +428,43 @@ class SequenceDecoder:
             out["dE_sigma"] = des
         return out
 
+    def _denoised(self, y, mask) -> dict:
+        """The outputs of the warped pass's rows ``y`` (H, W, rows) with those the filter applies to filtered in one
+        call (:meth:`filtered`: the guide's level, the flagged pixels' neighbourhood and the guide's statistics
+        made once), read from ``y`` in place where they lead its rows (the filter copies what it reads)."""
+        index = np.arange(y.shape[-1])
+        names = list(self.spec.denoise["channels"])
+        cols = np.concatenate([index[self.slices[name]] for name in names])
+        rows = y[..., :len(cols)] if np.array_equal(cols, index[:len(cols)]) else y[..., cols]
+        filtered = self.filtered(rows, y[..., self.slices["guide"].start], mask)
+        out, at = {}, 0
+        for name in names:
+            width = len(index[self.slices[name]])
+            out[name] = np.ascontiguousarray(filtered[..., at:at + width])
+            at += width
+        for name, rows in self.slices.items():  # any other row as it was decoded
+            if name not in out and name != "guide":
+                out[name] = np.ascontiguousarray(y[..., rows])
+        return out
+
     def _moving_maps(self, raw) -> dict:
         steps = {}
         sensor = self.corrections.sensor(raw)  # once: the warped pass, the white and the sigmas all read it
         rec, y, gains, A = self.warped_outputs(sensor, seconds=steps)
         t0 = time.perf_counter()
-        out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
-        smoothed = self.smoothed(y, rec.mask)
-        if self.denoise is not None:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
-            guide = out.pop("guide")[..., 0]
-            for name in self.spec.denoise["channels"]:
-                out[name] = self.filtered(out[name], guide, rec.mask)
+        sigmas = {"sigma", "sigma_rms", "dE_sigma"} & set(self.outputs)
+        smoothed = self.smoothed(y, rec.mask) if sigmas else None  # the sigmas read the unfiltered slopes
+        if self.denoise is None:
+            out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
+        else:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
+            out = self._denoised(y, rec.mask)
         if "cube" in out:
             out["cube"] = out["cube"].astype(self.spec.cube_dtype, copy=False)
         if {"Lab", "dE"} & set(self.outputs):
             xyz = engine.to_device(self.queue, out["XYZ"].reshape(-1))
             for name, arr in lab_and_delta_E(self.queue, self.spec, xyz, self._reference, self.n).items():
                 out[name] = arr.get().reshape(self.shapes()[name][0])
-        if {"sigma", "sigma_rms", "dE_sigma"} & set(self.outputs):
+        if sigmas:
             out.update(self._warped_sigmas(sensor, rec, A, out.get("XYZ"), light=gains is None, smoothed=smoothed))
         with self._lock:
             for step, seconds in {**steps, "colour": time.perf_counter() - t0}.items():

@@ -73,6 +73,7 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
     assert ("consistency.cl ['consistency_bracket', 'consistency_median', 'consistency_sample', 'consistency_settle', "
             "'consistency_strips']" in result.stdout)
     assert "gradient.cl ['gradient_apply', 'gradient_scale', 'gradient_sobel']" in result.stdout
+    assert "residual.cl ['residual_flag']" in result.stdout
     assert "PASS" in result.stdout
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from specgpu.core.validate import BadArgument
 from specgpu.engine.runtime import get_queue
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.pipeline.stream import Stream
 from specgpu.pipeline.stream_report import current_rss_bytes
 from specgpu.pipeline.twin_replay import StreamSetup, offline_maps, stream_setup
@@ -50,9 +51,11 @@ def _stream_row(case: str, report, *, target_fps=None, extra=None) -> dict:
 #: The stream bench's cases; the sustained ones (free-running, ``block``) run ``rounds`` times interleaved.
 STREAM_CASES = ("fused", "sigma", "sigma_rms", "white", "dE_sigma", "linear", "denoise", "motion", "motion_flow",
                 "static", "full", "paced_full", "cube", "paced", "overload", "equality")
-#: The outputs of the static and full cases (and paced_full). Without sigma_rms: the stream does not yet filter a
-#: sigma map with the coefficients (``--denoise`` refuses it), so full and static compare the same outputs
+#: The outputs of the static and full cases (and paced_full) where the stream's decoder does not take sigma_rms with
+#: ``--motion global --denoise --white-roi`` (:func:`quality_outputs`): full and static compare the same outputs
 _QUALITY_OUTPUTS = ("coefficients", "XYZ", "dE")
+#: What the full-quality comparison adds where the decoder carries it through the filter
+_QUALITY_SIGMA = "sigma_rms"
 #: full / static, the least share of the static rate that full quality (motion, denoising, white) may cost
 FULL_RATIO_TARGET = 0.40
 _SUSTAINED = {"fused": ("coefficients+XYZ+dE2000", ("coefficients", "XYZ", "dE"), False),
@@ -67,6 +70,8 @@ _SUSTAINED = {"fused": ("coefficients+XYZ+dE2000", ("coefficients", "XYZ", "dE")
               "static": ("static: coefficients+XYZ+dE2000", _QUALITY_OUTPUTS, False),
               "full": ("full: coefficients+XYZ+dE2000 with --motion global --denoise --white-roi",
                        _QUALITY_OUTPUTS, True)}
+#: The options of the full case, as its row names them
+_FULL_OPTIONS = " with --motion global --denoise --white-roi"
 #: The motion mode of each case that compensates one
 _MOTION = {"motion": "global", "motion_flow": "flow", "full": "global"}
 #: The cases run with the guided filter
@@ -143,11 +148,16 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     say = _stderr_line if progress else (lambda _s: None)
     t_setup = time.perf_counter()
     setup = stream_setup(width, height, white_tile=0.99, progress=say)
-    if {"sigma", "sigma_rms", "dE_sigma"} & set(cases):
+    quality = {"static", "full", "paced_full"} & set(cases)
+    if {"sigma", "sigma_rms", "dE_sigma"} & set(cases) or quality:
         say("the decoder's noise model and its expected error on a smooth prior (the sigma cases)")
         plan = with_estimator(setup.plan, setup.bundle, "projection", noise=NoiseModel.from_rig(
             setup.description, setup.plan.exposure_s), prior=smooth_prior(np.arange(400.0, 700.0 + 1e-9, 5.0)))
         setup = replace(setup, plan=plan)  # the decoder is unchanged: only its noise model and expected error
+    full_outputs = quality_outputs(setup) if quality else _QUALITY_OUTPUTS
+    cases_run = {**_SUSTAINED, **{c: (f"{c}: {'+'.join(full_outputs).replace('dE', 'dE2000')}" + rest, full_outputs,
+                                      white) for c, rest, white in (("static", "", False),
+                                                                    ("full", _FULL_OPTIONS, True))}}
     R = setup.frames.shape[0] // setup.plan.K
     say(f"the offline maps of the {R} recorded sequences (what every streamed result is checked against)")
     # the checkers need XYZ and dE only: the 61-band float32 cubes (75 MB each) would inflate the stated RSS
@@ -166,7 +176,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     runs = {c: [] for c in sustained}
 
     def case_stream(c, count):
-        name, outputs, white = _SUSTAINED[c]
+        name, outputs, white = cases_run[c]
         return Stream(setup.driver(), setup.plan, setup.bundle, outputs=outputs, policy="block",
                       sinks=[lambda r: count.__setitem__(0, count[0] + 1)],
                       white_roi=white_tile_roi(height, width) if white else None,
@@ -190,7 +200,7 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
             runs[c].append((rep, load()))
     targets = stream_targets(width, height)
     for c in sustained:
-        name = _SUSTAINED[c][0]
+        name = cases_run[c][0]
         order = sorted(range(len(runs[c])), key=lambda i: runs[c][i][0].frames_per_s)
         rep, load_avg = runs[c][order[len(order) // 2]]
         rows.append(_stream_row(name, rep, target_fps=None if c in ("dE_sigma", "linear", "static", *_DENOISED,
@@ -202,10 +212,10 @@ def run_stream_bench(*, seconds: float = 10.0, paced_seconds: float = 60.0, over
     if "motion" in cases:
         rows.append(_motion_row(rows, steps))
     if "full" in runs and "static" in runs:
-        rows.append(_full_row(rows, runs["full"], runs["static"]))
+        rows.append(_full_row(rows, runs["full"], runs["static"], cases_run))
     if "paced_full" in cases:
         say(f"case paced_full, {paced_seconds:g} s")
-        stream = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=_QUALITY_OUTPUTS,
+        stream = Stream(setup.driver(pacing="paced"), setup.plan, setup.bundle, outputs=full_outputs,
                         policy="drop_newest", sinks=[], white_roi=white_tile_roi(height, width),
                         denoise=(DENOISE_RADIUS, DENOISE_EPS), motion="global", **common)
         rep = stream.run(paced_seconds)
@@ -302,7 +312,21 @@ def _motion_row(rows, steps) -> dict:
             "ms_per_sequence": {k: v / n * 1e3 for k, v in steps.items() if k != "sequences"}}
 
 
-def _full_row(rows, full, static) -> dict:
+def quality_outputs(setup) -> tuple:
+    """The outputs the static, full and paced_full cases compare: coefficients + XYZ + dE2000, and ``sigma_rms``
+    where the stream's decoder takes it with ``--motion global --denoise --white-roi`` (``setup.plan`` with its
+    noise model); where it refuses that (the sigma not carried through the filter), the three alone."""
+    h, w = setup.frames.shape[1:]
+    outputs = (*_QUALITY_OUTPUTS, _QUALITY_SIGMA)
+    try:
+        SequenceDecoder(setup.plan, setup.bundle, outputs, reference=setup.reference, frame_shape=(h, w),
+                        white_roi=white_tile_roi(h, w), denoise=(DENOISE_RADIUS, DENOISE_EPS), motion="global")
+    except ValueError:
+        return _QUALITY_OUTPUTS
+    return outputs
+
+
+def _full_row(rows, full, static, cases_run) -> dict:
     """Full quality beside static of the same rounds (interleaved, so a change of load falls on both): their
     median rates (the rows already made of them), each round's ratio, and the median ratio against
     :data:`FULL_RATIO_TARGET`."""
@@ -310,8 +334,9 @@ def _full_row(rows, full, static) -> dict:
     ratios = sorted(f.frames_per_s / s.frames_per_s if s.frames_per_s > 0 else float("nan")
                     for (f, _), (s, _) in zip(full, static))
     median = float(np.median(ratios))
-    return {"case": "full / static", "full_frames_per_s": fps[_SUSTAINED["full"][0]],
-            "static_frames_per_s": fps[_SUSTAINED["static"][0]], "ratio": median, "ratio_rounds": ratios,
+    return {"case": "full / static", "full_frames_per_s": fps[cases_run["full"][0]],
+            "static_frames_per_s": fps[cases_run["static"][0]], "outputs": list(cases_run["full"][1]),
+            "ratio": median, "ratio_rounds": ratios,
             "target_ratio": FULL_RATIO_TARGET, "passed": bool(median >= FULL_RATIO_TARGET)}
 
 
@@ -323,7 +348,8 @@ def format_stream_report(report: dict) -> str:
         mark = {True: "PASS", False: "MISS", None: "    "}[row.get("passed")]
         if "full_frames_per_s" in row:
             lines.append(f"{mark}  {row['case']}: {row['full_frames_per_s']:.0f} frames/s with --motion global "
-                         f"--denoise --white-roi, {row['static_frames_per_s']:.0f} static (medians), ratio "
+                         f"--denoise --white-roi, {row['static_frames_per_s']:.0f} static (medians"
+                         + (f"; outputs {'+'.join(row['outputs'])}" if row.get("outputs") else "") + "), ratio "
                          f"{row['ratio']:.3f} (median of " + ", ".join(f"{v:.3f}" for v in row["ratio_rounds"])
                          + f"; target >= {row['target_ratio']:.2f})")
             continue
