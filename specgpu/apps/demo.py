@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import html
 import json
+import shutil
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -49,7 +50,8 @@ from specgpu.apps.report import report_page, summarise_method, table2_html, tabl
 from specgpu.apps.table1 import Table1, equal_time_rows, method_rows, table1, table1_html, table1_text
 from specgpu.calibration import save_calibration
 from specgpu.calibration.bundle import calibration_error
-from specgpu.calibration.cache import cached_calibration, find_calibration
+from specgpu.calibration.cache import cached_calibration, calibration_file, find_calibration
+from specgpu.io.paths import atomic_path
 from specgpu.pipeline.capture_folder import SequenceFolder, write_capture
 from specgpu.pipeline.evaluate import scene_XYZ
 from specgpu.pipeline.recovery import EVALUATION_CHART, default_basis, uncertainty
@@ -201,14 +203,15 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     def calibration(label):  # the bundle kept from an earlier run on this rig, else calibrated now and kept
         with clock("calibration"):
             if found[label] is not None:
-                return found[label][0]
-            return cached_calibration(rigs[label], [out / "calibrations"], seed=seed)[0]
+                return found[label]
+            bundle, path = cached_calibration(rigs[label], [out / "calibrations"], seed=seed)
+            return bundle, path or calibration_file(rigs[label], out / "calibrations", seed=seed)
     result = DemoResult(out, 0.0, {}, basis.cumulative_variance[:9].tolist(), main=main)
     main_bundle = main_scene = None
     for label, description in profiles.items():
         is_main = label == main
         bar.set_description(f"calibrating ({label})")
-        bundle = calibration(label)
+        bundle, kept = calibration(label)
         bar.update()
         bar.set_description(f"planning ({label})")
         with clock("planning"):
@@ -233,7 +236,7 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
             "realism": description.realism.to_dict(), "drift": description.drift.to_dict()}
         if is_main:
             result.calibration = bundle.reports
-            save_calibration(out / "calibration.npz", bundle)
+            _copy_calibration(kept, out / "calibration.npz", bundle)
             io.write_sRGB_preview(out / "png" / "truth.png", scene_XYZ(scene, "D65", device=device), exposure=0.0)
             main_bundle, main_scene = bundle, scene
         bar.update()
@@ -244,9 +247,11 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
                 save_plan(out / "plans" / f"{name}.npz", plan)
                 white = {"white_roi": ",".join(map(str, _roi)), "white_tile": float(_scene.reflectance[
                     _roi[1], _roi[0], 0]), "chart": EVALUATION_CHART} if corrections else {}
+                # frames to look at and recover again, uncompressed: deflate keeps 4/5 of a noisy frame's size
+                # and costs 40 times the CPU of writing it
                 write_capture(out / "sequences" / name, captured.sequences, captured.assembly,
                               out / "plans" / f"{name}.npz", out / "calibration.npz",
-                              metadata={"scene": _scene.name, **white}, overwrite=True)
+                              metadata={"scene": _scene.name, **white}, overwrite=True, compression="none")
                 sigma = None
                 if plan.output == "reflectance":  # the rig's noise model's per-pixel sigma: the spectra's band
                     frames = np.stack([seq.frames for seq in captured.sequences])
@@ -266,7 +271,7 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
             rows.pop("reports", None)
 
     bar.set_description("an LED rig")  # Table 1's 60 ms rows again with a 12-LED array as the light
-    led_bundle = calibration(LED_LABEL)
+    led_bundle = calibration(LED_LABEL)[0]
     with clock("led"):
         result.draws.update(led_draws(led_base, prior, basis, training, seed=seed, draws=draws, device=device,
                                       rows=scope.equal_time_rows, bundle=led_bundle))
@@ -285,6 +290,16 @@ def run_demo(out="specgpu-report", *, rig=None, seed: int = 0, echo=print, progr
     bar.update()
     bar.close()
     return result
+
+
+def _copy_calibration(kept, path, bundle):
+    """The report's ``calibration.npz``: a copy of the file ``bundle`` is kept in (written once, not compressed
+    again), or ``bundle`` saved when that file is missing (a folder that could not be written)."""
+    if kept is not None and Path(kept).is_file():
+        with atomic_path(path) as tmp:
+            shutil.copyfile(kept, tmp)
+    else:
+        save_calibration(path, bundle)
 
 
 def _evaluate(out, name, plan, y, scene, device, sigma=None, patch=None, pixels=None):

@@ -24,7 +24,7 @@ __all__ = ["DemoScope", "demo_scope", "estimate_seconds", "estimate_steps", "Ste
 #: The quick demo's time-budgeted rows: the design of each budget (the lowest error within it).
 QUICK_EQUAL_TIME_ROWS = ("optimal-9", "optimal-6", "optimal-3")
 #: The quick demo's moving scene at most this field (width, height): its capture, motion estimate and truth cost
-#: about 25 s of CPU at 640 x 480.
+#: about 12 s of CPU at 640 x 480.
 QUICK_MOVING_SIZE = (320, 240)
 
 # The cost model: CPU seconds per unit (every thread of the process) on the reference machine (2 x86 cores), for
@@ -33,19 +33,19 @@ QUICK_MOVING_SIZE = (320, 240)
 _REFERENCE_PIXELS = 640 * 480
 _COST = {
     "start": 1.0,  # the basis, the prior and its training set
-    "calibration": 8.6,  # per rig: both feedback loops
+    "calibration": 7.9,  # per rig: both feedback loops
     "load": 0.2,  # per rig: a calibration kept from an earlier run, loaded and checked
-    "plan": 1.0,  # a paper plan (its basis projection, its illuminants fitted to the light)
+    "plan": 0.4,  # a paper plan (its basis projection, its illuminants fitted to the light, every frame at once)
     "budgeted": 4.5,  # a paper plan made again within a budget, with its estimator
-    "design": 0.6,  # an optimal design (one start, 100 iterations)
+    "design": 0.5,  # an optimal design (one start, 100 iterations)
     "bound": 0.7,  # per budget: the limit's search
     "frame": 0.15,  # a captured, corrected and recovered frame (per draw)
     "evaluation": 0.6,  # a recovery scored per patch and per pixel (per draw)
-    "files": 1.6,  # a plan's files (cubes, maps, previews, its sequence) and its sigma, first draw
+    "files": 0.85,  # a plan's files (cubes, maps, previews, its sequence uncompressed) and its sigma, first draw
     "led_row": 1.0,  # an LED row designed, captured and scored (per draw)
     "report": 0.6,  # a plan's share of the report page: its figures
     "report_pixels": 0.5,  # and its renderings and maps, which scale with pixels
-    "moving": 18.0,  # the moving-scene section
+    "moving": 12.5,  # the moving-scene section
 }
 #: The sequence time of the LED rig's rows (:data:`specgpu.apps.demo_lights.LED_BUDGET_MS`).
 _LED_BUDGET_MS = 60.0

@@ -10,7 +10,7 @@ from .bundle import (
     rig_fingerprint,
     save_calibration,
 )
-from .cache import cached_calibration, find_calibration
+from .cache import cached_calibration, calibration_file, find_calibration
 from .loops import LoopResult, camera_loop, spectral_loop
 from .on_rig import calibrate_on_rig
 from .procedure import calibrate
@@ -20,6 +20,7 @@ __all__ = [
     "calibrate",
     "calibrate_on_rig",
     "cached_calibration",
+    "calibration_file",
     "calibration_error",
     "CALIBRATION_FORMAT",
     "CALIBRATION_VERSION",

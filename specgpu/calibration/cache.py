@@ -24,7 +24,8 @@ from specgpu.calibration.bundle import CALIBRATION_VERSION, CalibrationBundle, l
 from specgpu.calibration.procedure import calibrate
 from specgpu.rig.config import RigDescription
 
-__all__ = ["calibration_key", "cached_calibration", "find_calibration", "user_cache_dir", "CACHE_ENV"]
+__all__ = ["calibration_key", "calibration_file", "cached_calibration", "find_calibration", "user_cache_dir",
+           "CACHE_ENV"]
 
 #: The environment variable naming the user's cache folder (empty: no user cache).
 CACHE_ENV = "SPECGPU_CACHE_DIR"
@@ -68,6 +69,12 @@ def user_cache_dir() -> Path | None:
 
 def _file(folder: Path, key: str) -> Path:
     return Path(folder) / f"calibration-{key[:24]}.npz"
+
+
+def calibration_file(description: RigDescription, folder, **options) -> Path:
+    """The file in ``folder`` that keeps the calibration of ``description`` with ``options`` (:func:`cached_calibration`
+    writes it there, :func:`find_calibration` reads it), whether or not it exists yet."""
+    return _file(Path(folder), calibration_key(description, **options))
 
 
 def _folders(folders, user_cache: bool) -> list[Path]:

@@ -59,32 +59,68 @@ def fit_levels(system, target, *, upper: float | None = 1.0, iterations: int = 4
 
     ``system`` is (G, C): a column's spectrum per unit level (an emission, or an emission times V). Start from
     the ratio at each column's centre, refine by projected gradient with Nesterov momentum (the matrix is
-    narrow-banded, so this converges in a few hundred cheap steps).
+    narrow-banded, so this converges in a few hundred cheap steps, each over its nonzero blocks only).
+
+    ``target`` is (G,), or (G, K) for K independent fits on the same system: each column of the answer is the fit
+    of that column of ``target``, but the K fits share every product with ``system`` (a matrix product in place of
+    K matrix-vector products, which read the whole system from memory each: several times faster for a sequence's
+    frames).
 
     Returns
     -------
-    (C,) float64 levels.
+    (C,) float64 levels, or (C, K) for a (G, K) target.
     """
     m = np.asarray(system, np.float64)
     t = np.asarray(target, np.float64)
-    if m.ndim != 2 or t.shape != (m.shape[0],):
-        raise ValueError(f"target must have shape ({m.shape[0]},), got {t.shape}")
+    if m.ndim != 2 or t.ndim not in (1, 2) or t.shape[0] != m.shape[0]:
+        raise ValueError(f"target must have shape ({m.shape[0]},), got {t.shape} (or ({m.shape[0]}, K) for K fits)")
     hi = np.inf if upper is None else float(upper)
     col_sum = m.sum(axis=0)
     peak_row = np.argmax(m, axis=0)
     full = m.sum(axis=1)  # every column on
+    lit = (full[peak_row] > 0).reshape((-1,) + (1,) * (t.ndim - 1))
     with np.errstate(divide="ignore", invalid="ignore"):
-        f = np.where(full[peak_row] > 0, t[peak_row] / full[peak_row], 0.0)
+        f = np.where(lit, t[peak_row] / full[peak_row].reshape(lit.shape), 0.0)
     f = np.clip(np.nan_to_num(f), 0.0, hi)
     step = 1.0 / lipschitz_bound(m)
+    product, adjoint = _banded_products(m)
     y, tk = f.copy(), 1.0
     for _ in range(iterations):
-        f_new = np.clip(y - step * (m.T @ (m @ y - t)), 0.0, hi)
+        f_new = np.clip(y - step * adjoint(product(y) - t), 0.0, hi)
         tk_new = 0.5 * (1 + math.sqrt(1 + 4 * tk * tk))
         y = f_new + ((tk - 1) / tk_new) * (f_new - f)
         f, tk = f_new, tk_new
     f[col_sum <= 0] = 0.0
     return f
+
+
+def _banded_products(m: np.ndarray, width: int = 128):
+    """``(x -> m @ x, r -> m.T @ r)`` over the rows each block of ``width`` columns reaches: a column's spectrum is
+    zero away from its own wavelength, so the blocks of the light's system matrix hold under half its entries, and
+    the products skip the rest (the same sums, of the nonzero terms only). A dense matrix makes one block per
+    ``width`` columns over every row: the plain products."""
+    rows, cols = m.shape
+    blocks = []
+    for c0 in range(0, cols, width):
+        reached = np.flatnonzero(np.any(m[:, c0:c0 + width] != 0, axis=1))
+        if reached.size:  # a block of dark columns adds nothing, and its gradient is zero
+            r0, r1 = int(reached[0]), int(reached[-1]) + 1
+            block = np.ascontiguousarray(m[r0:r1, c0:c0 + width])
+            blocks.append((r0, r1, c0, c0 + block.shape[1], block, np.ascontiguousarray(block.T)))
+
+    def product(x):
+        out = np.zeros((rows,) + x.shape[1:])
+        for r0, r1, c0, c1, block, _ in blocks:
+            out[r0:r1] += block @ x[c0:c1]
+        return out
+
+    def adjoint(r):
+        out = np.zeros((cols,) + r.shape[1:])
+        for r0, r1, c0, c1, _, block_t in blocks:
+            out[c0:c1] = block_t @ r[r0:r1]
+        return out
+
+    return product, adjoint
 
 
 def lipschitz_bound(m: np.ndarray, iterations: int = 60) -> float:

@@ -45,9 +45,10 @@ class CaptureWriter:
     killed outright leaves a folder :func:`salvage_capture` indexes; one stopped by an error or an interrupt after
     at least one complete sequence is closed with those sequences by :meth:`keep` (its ``sequence.json`` says it was
     cut short); :meth:`abort` removes what this writer wrote, for a capture that has nothing to keep.
+    ``compression``: the frames' TIFF compression (:class:`specgpu.io.sequence.SequenceWriter`'s).
     """
 
-    def __init__(self, directory, plan_path, calibration_path, *, overwrite: bool = False):
+    def __init__(self, directory, plan_path, calibration_path, *, overwrite: bool = False, compression: str = "zip"):
         directory = self.directory = Path(directory)
         self.plan = load_plan(plan_path)
         check_capture_folder(directory, overwrite=overwrite)
@@ -63,7 +64,8 @@ class CaptureWriter:
                 shutil.copyfile(source, tmp)
             self._copies.append(directory / name)
         self.frames = io.SequenceWriter(directory, self.plan.hash, overwrite=True,
-                                        journal={"plan_method": self.plan.method, "K": self.plan.K})
+                                        journal={"plan_method": self.plan.method, "K": self.plan.K},
+                                        compression=compression)
         self.sequences = 0
 
     def add(self, sequence) -> None:
@@ -128,9 +130,10 @@ def check_capture_folder(directory, *, overwrite: bool = False) -> None:
 
 
 def write_capture(directory, sequences, assembly, plan_path, calibration_path, *, metadata=None,
-                  overwrite: bool = False) -> Path:
+                  overwrite: bool = False, compression: str = "zip") -> Path:
     """Write complete sequences (from :func:`capture_plan`) into a sequence folder with copies of the plan and
-    calibration; ``assembly`` is the assembler's counters, kept in ``sequence.json``.
+    calibration; ``assembly`` is the assembler's counters, kept in ``sequence.json``; ``compression``: the frames'
+    TIFF compression (:data:`specgpu.io.sequence.TIFF_COMPRESSIONS`).
 
     The plan and calibration are copied first and ``sequence.json`` is written last, so an interrupted write
     never leaves a folder that reads as complete (see :class:`CaptureWriter`, which this uses).
@@ -138,7 +141,7 @@ def write_capture(directory, sequences, assembly, plan_path, calibration_path, *
     directory = Path(directory)
     if not sequences:
         raise ValueError(f"{directory}: no complete sequence was captured ({assembly.as_dict()})")
-    writer = CaptureWriter(directory, plan_path, calibration_path, overwrite=overwrite)
+    writer = CaptureWriter(directory, plan_path, calibration_path, overwrite=overwrite, compression=compression)
     try:
         for sequence in sequences:
             writer.add(sequence)

@@ -432,10 +432,14 @@ def _design_frames(bundle, products) -> tuple[np.ndarray, np.ndarray]:
     can (its brightest column full); returns (patterns (K, C), target irradiance (K, G))."""
     pats, targets = [], []
     rho = bundle.responsivity
+    products = [np.asarray(prod, np.float64) for prod in products]
     for prod in products:
         if not np.any(prod > 0):
             raise ValueError("a frame's target response is zero everywhere")
-        f = fit_levels(bundle.system_matrix, prod / prod.max(), upper=None)
+    # every frame's fit at once: the fits share the system matrix's products
+    levels = fit_levels(bundle.system_matrix, np.stack([prod / prod.max() for prod in products], axis=1),
+                        upper=None) if products else np.zeros((bundle.system_matrix.shape[1], 0))
+    for prod, f in zip(products, levels.T):
         s = 1.0 / f.max()
         pats.append(_quantize(f * s, bundle.rows))
         with np.errstate(divide="ignore", invalid="ignore"):

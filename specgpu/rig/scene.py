@@ -117,6 +117,16 @@ class SpectralScene:
         dl = float(wl[1] - wl[0])
         return (np.asarray(weights, dtype=np.float64) * dl) @ interpolation_matrix(wl, self.wavelengths)
 
+    def weighted_images(self, band_weights) -> np.ndarray:
+        """(K, H, W) float32 images of the scene under (K, B) ``band_weights`` (:meth:`band_weights`): each pixel's
+        reflectance bands weighted and summed. A uniform scene (one spectrum broadcast over the field: a white plate,
+        a capped lens) gives its K values broadcast, not K x H x W products."""
+        bw = np.asarray(band_weights, np.float32)
+        h, w = self.shape
+        if self.reflectance.strides[:2] == (0, 0):
+            return np.repeat(bw @ self.reflectance[0, 0], h * w).reshape(-1, h, w)
+        return (bw @ self.reflectance.reshape(h * w, -1).T).reshape(-1, h, w)  # C-contiguous: no transposed copy
+
     def resized(self, height: int, width: int) -> "SpectralScene":
         """Nearest-neighbour resampling to (height, width), masks included (no new spectra are invented); each axis
         is scaled on its own, so the aspect ratio may change (:func:`resample_scene` fits by a chosen mode and says

@@ -244,6 +244,8 @@ class TwinRig:
         lam = np.where(total > 0, (weights @ wl) / np.where(total > 0, total, 1.0), 550.0)
         for k in range(e.shape[0]):
             img = e[k]
+            if not img.any():  # no light (a capped lens, a dark pattern): magnified and blurred, still zero
+                continue
             if r.lateral_ca_px:
                 s = 1.0 + r.lateral_ca_px / corner * (lam[k] - 550.0) / 150.0
                 img = ndimage.affine_transform(img, np.array([1.0 / s, 1.0 / s]), offset=centre - centre / s,
@@ -264,9 +266,8 @@ class TwinRig:
         resp = self.camera.responsivity(wl)
         weights = self.exposure_s * sp * resp[None, :]
         wb = self._scene.band_weights(wl, weights).astype(np.float32)  # (K, B)
-        h, w = self.camera.shape
-        refl = self._scene.reflectance.reshape(h * w, -1)
-        e = (wb @ refl.T).reshape(-1, h, w)  # (K, H*W) comes out C-contiguous: no transposed copy
+        images = self._scene.weighted_images
+        e = images(wb)
         r = self.realism
         terms = self._field_terms()
         if terms is None:
@@ -275,12 +276,12 @@ class TwinRig:
             spot, q = terms
             if r.field_colour:
                 c = r.field_colour * (wl - 550.0) / 150.0
-                e1 = (self._scene.band_weights(wl, weights * c[None, :]).astype(np.float32) @ refl.T).reshape(-1, h, w)
+                e1 = images(self._scene.band_weights(wl, weights * c[None, :]).astype(np.float32))
                 e += q[None] * e1
             e *= spot[None]
         if r.ambient_lux:  # room light on the object, not shaped by the spot (vignetted by the lens)
             amb = self.exposure_s * ambient_spectrum(wl, r.ambient_lux) * resp
-            ea = (self._scene.band_weights(wl, amb[None, :]).astype(np.float32) @ refl.T).reshape(h, w)
+            ea = images(self._scene.band_weights(wl, amb[None, :]).astype(np.float32))[0]
             if terms is not None:
                 ea = ea * (1.0 - np.float32(r.vignetting) * terms[1])
             e += ea[None]
