@@ -188,7 +188,7 @@ def _check_gradients(queue, gradients, reference_frame):
 def register_gradients(gradients, reference_frame: int, *, model: str = "translation",
                        max_speed: float | None = 16.0, finest: int = 0, iterations: int = 10,
                        choose=None, start=None, start_level: int | None = None, keep_level: int | None = None,
-                       device=None) -> DeviceRegistration:
+                       full_rows: int = 1, full_iterations: int | None = None, device=None) -> DeviceRegistration:
     """Each frame's translation or affine map relative to the reference frame, by registering gradient images on
     the device, coarse to fine (see the module's docstring).
 
@@ -223,6 +223,11 @@ def register_gradients(gradients, reference_frame: int, *, model: str = "transla
     start_level : int, optional
         With ``start``: the pyramid level the refinement starts on (default: the coarsest); a finer one is cheaper
         and needs ``start`` within about its pixel size of the motion.
+    full_rows : int
+        The steps at full resolution sum every ``full_rows``-th row only (1: every row): each step a pass over that
+        share of the frames, the rows of a full-resolution image being many and alike.
+    full_iterations : int, optional
+        Gauss-Newton steps at full resolution at most (default ``iterations``).
     keep_level : int, optional
         A pyramid level (1 or coarser) to read back with the result (:attr:`DeviceRegistration.level`): small images
         a check on the host can afford.
@@ -257,11 +262,14 @@ def register_gradients(gradients, reference_frame: int, *, model: str = "transla
         if not int(finest) <= int(start_level) < len(ws.sizes):
             raise ValueError(f"start_level must be a pyramid level in {int(finest)}..{len(ws.sizes) - 1}, got "
                              f"{start_level!r}")
+    if int(full_rows) < 1 or (full_iterations is not None and int(full_iterations) < 1):
+        raise ValueError(f"full_rows and full_iterations must be at least 1, got {full_rows!r}, {full_iterations!r}")
     if keep_level is not None and not 1 <= int(keep_level) < len(ws.sizes):
         raise ValueError(f"keep_level must be a pyramid level in 1..{len(ws.sizes) - 1}, got {keep_level!r}")
     with ws.lock:
         reg = _register(queue, ws, stack if stack is not None else gradients, ref, model, max_speed, int(finest),
-                        int(iterations), choose, start, None if start is None else int(start_level),
+                        (int(iterations), int(full_rows), None if full_iterations is None else int(full_iterations)),
+                        choose, start, None if start is None else int(start_level),
                         None if keep_level is None else int(keep_level))
     return reg
 
@@ -275,7 +283,7 @@ def _read_level(queue, ws: _Workspace, level: int) -> np.ndarray:
 
 
 def _register(queue, ws: _Workspace, gradients, ref: int, model: str, max_speed, finest: int,
-              iterations: int, choose=None, start=None, start_level=None, keep_level=None) -> DeviceRegistration:
+              steps: tuple, choose=None, start=None, start_level=None, keep_level=None) -> DeviceRegistration:
     K, h, w = ws.upload.shape
     if isinstance(gradients, np.ndarray):
         cl.enqueue_copy(queue, ws.upload.data, np.ascontiguousarray(gradients, np.float32), is_blocking=False)
@@ -320,7 +328,7 @@ def _register(queue, ws: _Workspace, gradients, ref: int, model: str, max_speed,
                     raise ValueError(f"choose must return ({len(others)}, 2) starts, got shape {chosen.shape}")
                 maps[others, :2, 2] = chosen
         if others:
-            _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest, finest, iterations)
+            _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest, finest, *steps)
     kept = None if keep_level is None else _read_level(queue, ws, keep_level)
     return replace(_result(maps, usable, error, ref, model, tuple(candidates), rival, edge), level=kept)
 
@@ -388,7 +396,8 @@ def _vertex(samples: np.ndarray) -> float:
     return float(np.clip(0.5 * (samples[0] - samples[2]) / curvature, -0.5, 0.5)) if curvature < 0 else 0.0
 
 
-def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest, finest, iterations):
+def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest, finest, iterations, fine_rows=1,
+            fine_iterations=None):
     """Gauss-Newton steps per level, coarsest to ``finest``: ``maps`` (full resolution, frame px = M x) updated in
     place for the frames of ``others``, ``usable`` and ``error`` set from the last step."""
     K, h, w = ws.upload.shape
@@ -410,14 +419,15 @@ def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest
         scale = S[0, 0]
         # normalised centred coordinates of this level's pixel x: u = CS x + CU
         cs, cu, cv = scale / norm, (S[0, 2] - centre[0]) / norm, (S[1, 2] - centre[1]) / norm
-        pixels = (hh - 2) * (ww - 2)
-        for _ in range(iterations):
+        pixels = (hh - 2) * (ww - 2) // (fine_rows if level == 0 else 1)
+        for _ in range(iterations if level or fine_iterations is None else min(iterations, fine_iterations)):
             ws.maps_host[:] = (S_inv @ maps[others] @ S)[:, :2].reshape(len(others), 6)
             cl.enqueue_copy(queue, ws.maps.data, ws.maps_host, is_blocking=False)
             shape = np.uint32(ww), np.uint32(hh), np.uint32(ref), ws.maps.data
             coordinates = (np.float32(cs), np.float32(cu), np.float32(cv)) if affine else ()
+            stride = np.uint32(fine_rows if level == 0 else 1)
             kernels.launch_range(queue, kernel, (groups * ws.group, len(others)), (ws.group, 1), levels[level].data,
-                                 *shape, *coordinates, np.float32(1.0 / scale), ws.sums.data)
+                                 *shape, *coordinates, np.float32(1.0 / scale), stride, ws.sums.data)
             cl.enqueue_copy(queue, ws.sums_host, ws.sums.data, is_blocking=True)
             sums = ws.sums_host[:len(others) * groups * ns].reshape(len(others), groups, ns).sum(axis=1,
                                                                                                  dtype=np.float64)
