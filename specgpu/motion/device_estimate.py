@@ -14,8 +14,8 @@ One sequence:
    where none is clearly nearest;
 3. a frame whose best peak lies on the edge of the search (a motion faster than ``MAX_SPEED_PX_PER_FRAME``) is
    searched again over the whole overlap; one still on its edge is not registered;
-4. where some frame's correlation has a rival peak (:func:`rival_peaks`, above the host's ``AMBIGUOUS_PEAK``: two
-   motions, or a repeating scene), each translation is replaced by its tiles' consensus, as the host checks it
+4. where the correlation of the first or the last frame with the reference has a rival peak (:func:`rival_peaks`,
+   above the host's ``AMBIGUOUS_PEAK``: two motions, furthest apart there, or a repeating scene), each translation is replaced by its tiles' consensus, as the host checks it
    (:func:`field_translation`, the host's tiles on the device's gradient images read back): an object moving on
    its own over the scene cannot take the estimate over;
 5. the frames not registered filled in time, and the displacements taken from the sequence's reference time.
@@ -27,6 +27,7 @@ consistency check and the object layers.
 from __future__ import annotations
 
 import numpy as np
+from scipy import fft
 
 from specgpu.engine.gradients import apply_scale, frames_on_device, launch_gradients
 from specgpu.engine.registration import register_gradients
@@ -40,13 +41,8 @@ from specgpu.motion.global_motion import (
     usable_frames,
 )
 from specgpu.motion.images import device_takes
-from specgpu.motion.registration import (
-    correlation_surface,
-    fit_peak_within,
-    second_peak_ratio,
-    tile_displacements,
-    whitened_half_spectrum,
-)
+from specgpu.motion.registration import second_peak_ratio, tile_displacements
+from specgpu.motion.whitening import whitened_stack
 from specgpu.motion.tiles import OUTLIER_PX
 
 __all__ = ["NEAR_TIE", "choose_candidates", "rival_peaks", "field_translation", "estimate_on_device"]
@@ -60,9 +56,11 @@ NEAR_TIE = 0.8
 #: phase correlation separates two motions a few px apart, which the coarse search's level merges
 CHECK_LEVEL = 2
 
-#: The Gauss-Newton steps at full resolution sum every FULL_ROWS-th row: each step is a pass over the frames, and
-#: half the rows of a 640 x 480 frame register as closely (0.03-0.05 px from the twin's truth, all rows 0.03-0.05)
-FULL_ROWS = 2
+#: The Gauss-Newton steps at full resolution sum every n-th row, n the frames' height over this (at least 1): each
+#: step is a pass over the frames, and 240 rows of a 640 x 480 frame register as closely as its 480 (0.04-0.07 px
+#: from the twin's truth either way) in two thirds of the time, while at 320 x 240 every row counts (half of them:
+#: 0.08-0.14 px, all 0.03-0.11)
+FULL_ROWS_SUMMED = 240
 
 #: The predicted shift singles a candidate out where the next nearest is at least this many times as far from it.
 CLEARLY_NEAREST = 2.0
@@ -122,19 +120,22 @@ def rival_peaks(images: np.ndarray, reference_frame: int, which, scale: float,
     correlation (:func:`~specgpu.motion.registration.second_peak_ratio`) of small images ``images`` (K, h, w) at
     1 / ``scale`` of the resolution, peaks sought within reach of ``max_speed`` px per frame: what says whether
     two motions compete. (The device's correlation of the gradient images themselves, not whitened, is led by the
-    strongest edges: a chart's over the scene's.)"""
+    strongest edges: a chart's over the scene's.) The surfaces are made together (one inverse FFT of the stack) and
+    each peak taken at its highest sample: the ratio compares samples."""
     options = GlobalOptions()
-    radius, K = options.radius, len(images)
+    radius, (K, h, w) = options.radius, images.shape
     out = np.zeros(K)
-    reference = whitened_half_spectrum(images[reference_frame], options.cutoff)
-    for k in which:
-        if k == reference_frame:
-            continue
-        surface = correlation_surface(reference, whitened_half_spectrum(images[k], options.cutoff), images.shape[1:])
-        within = None if max_speed is None else \
-            int(np.ceil(max_speed * abs(int(k) - reference_frame) / scale)) + radius
-        d, _ = fit_peak_within(surface, within)
-        out[k] = second_peak_ratio(surface, d, radius, within)
+    others = [int(k) for k in which if k != reference_frame]
+    if not others:
+        return out
+    spectra = whitened_stack(images[[reference_frame, *others]], options.cutoff)
+    surfaces = fft.irfft2(spectra[1:] * np.conj(spectra[:1]), s=(h, w), axes=(-2, -1), workers=1)
+    for k, surface in zip(others, surfaces):
+        within = None if max_speed is None else int(np.ceil(max_speed * abs(k - reference_frame) / scale)) + radius
+        r = np.arange(-min(within, h // 2), min(within, h // 2) + 1) if within is not None else np.arange(h) - h // 2
+        c = np.arange(-min(within, w // 2), min(within, w // 2) + 1) if within is not None else np.arange(w) - w // 2
+        i, j = np.unravel_index(int(np.argmax(surface[np.ix_(r % h, c % w)])), (len(r), len(c)))
+        out[k] = second_peak_ratio(surface, np.array([c[j], r[i]], np.float64), radius, within)
     return out
 
 
@@ -213,13 +214,14 @@ def estimate_on_device(frames, dark=None, gain=None, *, model: str = "translatio
         return choose_candidates(candidates, gaps, prior)
 
     check = CHECK_LEVEL if min(frames.shape[1:]) >= 4 * 48 else 1
+    rows = max(1, frames.shape[1] // FULL_ROWS_SUMMED)
     speed = MAX_SPEED_PX_PER_FRAME
     reg = register_gradients(images, ref, model=model, max_speed=speed, choose=choose, keep_level=check,
-                             full_rows=FULL_ROWS, device=queue)
+                             full_rows=rows, device=queue)
     if (reg.edge & usable).any():  # a motion faster than the reach: searched over the whole overlap
         speed = None
         reg = register_gradients(images, ref, model=model, max_speed=None, choose=choose, keep_level=check,
-                                 full_rows=FULL_ROWS, device=queue)
+                                 full_rows=rows, device=queue)
     gradients = tuple(images.get(queue=queue))
     if not reg.usable[ref]:  # the reference has no structure: nothing registered, no motion made up
         none = np.zeros(len(frames), bool)
@@ -232,7 +234,9 @@ def estimate_on_device(frames, dark=None, gain=None, *, model: str = "translatio
         shifts = (filled @ np.linalg.inv(at_reference_time(filled)))[:, :2, :]
         return MotionEstimate(shifts, usable, np.where(usable, reg.error, np.nan), ref, "affine", gradients)
     raw = maps[:, :2, 2].copy()
-    if robust and rival_peaks(reg.level, ref, np.flatnonzero(usable), 2.0 ** check, speed).max() > AMBIGUOUS_PEAK:
+    # the frames at either end of the sequence, where two motions lie furthest apart, say whether they compete
+    ends = np.flatnonzero(usable)[[0, -1]]
+    if robust and rival_peaks(reg.level, ref, ends, 2.0 ** check, speed).max() > AMBIGUOUS_PEAK:
         reference_tiles: dict = {}
         for k in np.flatnonzero(usable):
             if k != ref:

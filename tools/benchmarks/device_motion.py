@@ -13,7 +13,8 @@ Each case renders one 9-frame sequence of the moving twin (the natural scene, 20
 * ``device``: the estimate as ``--motion global`` makes it with a device (the stream's and the batch's),
   ``estimate_motion(..., device=queue)`` (``motion.device_estimate``: the frames uploaded, their gradient images
   made, registered and read back for the consistency check, the rival-peak check and, where it finds a rival, the
-  tiles' consensus); ``device_all_rows``: the same with every row summed at full resolution (``full_rows=1``);
+  tiles' consensus); ``device_all_rows``: the same with every row summed at full resolution (``full_rows=1``;
+  the estimate sums every n-th, n = H / ``FULL_ROWS_SUMMED``);
   and ``register_only``: ``register_gradients`` alone on gradient images already made.
 
 Each estimate's error is the largest distance over the frames from the twin's truth (``TwinRig.motion_truth``), px.
@@ -78,12 +79,12 @@ def reference_of(scale: np.ndarray) -> int:
 
 def device_all_rows(frames, dark, gain, queue):
     """The wired-in device estimate with every row summed at full resolution."""
-    rows = device_estimate.FULL_ROWS
-    device_estimate.FULL_ROWS = 1
+    rows = device_estimate.FULL_ROWS_SUMMED
+    device_estimate.FULL_ROWS_SUMMED = 1 << 30
     try:
         return estimate_motion(frames, dark, gain, device=queue)
     finally:
-        device_estimate.FULL_ROWS = rows
+        device_estimate.FULL_ROWS_SUMMED = rows
 
 
 def timed_rounds(steps: dict, rounds: int, queue) -> dict:
@@ -133,8 +134,8 @@ def main(argv=None) -> int:
             "host": lambda: estimate_motion(frames, dark, gain),
             "device": lambda: estimate_motion(frames, dark, gain, device=queue),
             "device_all_rows": lambda: device_all_rows(frames, dark, gain, queue),
-            "register_only": lambda: register_gradients(grads_dev, ref, full_rows=device_estimate.FULL_ROWS,
-                                                        device=queue),
+            "register_only": lambda: register_gradients(
+                grads_dev, ref, full_rows=max(1, h // device_estimate.FULL_ROWS_SUMMED), device=queue),
         }
         times = timed_rounds(steps, args.rounds, queue)
         errors = {"host": error_px(estimate_motion(frames, dark, gain).shifts, truth),
