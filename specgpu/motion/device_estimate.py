@@ -15,9 +15,9 @@ One sequence:
 3. a frame whose best peak lies on the edge of the search (a motion faster than ``MAX_SPEED_PX_PER_FRAME``) is
    searched again over the whole overlap; one still on its edge is not registered;
 4. where the correlation of the first or the last frame with the reference has a rival peak (:func:`rival_peaks`,
-   above the host's ``AMBIGUOUS_PEAK``: two motions, furthest apart there, or a repeating scene), each translation is replaced by its tiles' consensus, as the host checks it
-   (:func:`field_translation`, the host's tiles on the device's gradient images read back): an object moving on
-   its own over the scene cannot take the estimate over;
+   above the host's ``AMBIGUOUS_PEAK``: two motions, furthest apart there, or a repeating scene), each translation
+   is replaced by its tiles' consensus, as the host checks it (:func:`field_translation`, the host's tiles on the
+   device's gradient images read back): an object moving on its own over the scene cannot take the estimate over;
 5. the frames not registered filled in time, and the displacements taken from the sequence's reference time.
 
 The gradient images read back are kept with the estimate (``MotionEstimate.gradients``), as the host's, for the
@@ -42,8 +42,8 @@ from specgpu.motion.global_motion import (
 )
 from specgpu.motion.images import device_takes
 from specgpu.motion.registration import second_peak_ratio, tile_displacements
-from specgpu.motion.whitening import whitened_stack
 from specgpu.motion.tiles import OUTLIER_PX
+from specgpu.motion.whitening import whitened_stack
 
 __all__ = ["NEAR_TIE", "choose_candidates", "rival_peaks", "field_translation", "estimate_on_device"]
 
