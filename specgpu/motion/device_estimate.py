@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import fft
 
-from specgpu.engine.gradients import apply_scale, frames_on_device, launch_gradients
+from specgpu.engine.gradients import frames_on_device, launch_gradients
 from specgpu.engine.registration import register_gradients
 from specgpu.engine.runtime import get_queue
 from specgpu.motion.estimate import MotionEstimate, at_reference_time, fill_in_time, one_blas_thread
@@ -204,9 +204,11 @@ def estimate_on_device(frames, dark=None, gain=None, *, model: str = "translatio
     if not device_takes(frames, dark, gain) or min(frames.shape[1:]) < 8:
         return None
     queue = get_queue(device)
+    # the magnitudes registered unscaled (a gain per frame is solved with each step): each frame's 1 / mean is
+    # applied to the images read back, not in another pass on the device
     images, scale = launch_gradients(queue, frames_on_device(queue, frames), dark, gain)
-    images = apply_scale(queue, images, scale)
-    levels = 1.0 / scale.get(queue=queue).astype(np.float64)  # each frame's mean signal (1: none)
+    scale = scale.get(queue=queue)
+    levels = 1.0 / scale.astype(np.float64)  # each frame's mean signal (1: none)
     usable = usable_frames(np.where(levels == 1.0, 0.0, levels))
     ref = pick_reference(levels, usable, reference_frame)
 
@@ -222,7 +224,9 @@ def estimate_on_device(frames, dark=None, gain=None, *, model: str = "translatio
         speed = None
         reg = register_gradients(images, ref, model=model, max_speed=None, choose=choose, keep_level=check,
                                  full_rows=rows, device=queue)
-    gradients = tuple(images.get(queue=queue))
+    read = images.get(queue=queue)
+    read *= scale[:, None, None]  # float32 products, as the device's gradient_images makes them
+    gradients = tuple(read)
     if not reg.usable[ref]:  # the reference has no structure: nothing registered, no motion made up
         none = np.zeros(len(frames), bool)
         shifts = np.tile(np.eye(3)[:2], (len(frames), 1, 1)) if model == "affine" else np.zeros((len(frames), 2))
