@@ -10,7 +10,8 @@
  *                    overlap is under a quarter of the field or where an image has no variance there)
  *   register_step    per frame, over the reference's pixels whose sample M_k x lies in frame k: the sums of the
  *                    normal equations (J' I, J' 1, J' T, J' J) and of the two images (n, I, T, I^2, I T, T^2),
- *                    each work-group's sums reduced in local memory, one row of NS per group and frame
+ *                    each work-group's sums reduced in local memory, one row of NS per group and frame; over
+ *                    every stride-th row (1: all; more at full resolution, where the rows are many and alike)
  * J is the reference's gradient (central differences, per full-resolution px: times GSCALE) times the warp's
  * Jacobian, for a translation (x, y) or, with AFFINE, the six entries of the affine map in centred coordinates
  * scaled to about [-1, 1] (u = CS x + CU, v = CS y + CV at this level).
@@ -179,7 +180,7 @@ __kernel void register_search(__global const float *restrict level, const uint w
  * sums per group and frame */
 __kernel void register_step(__global const float *restrict level, const uint w, const uint h, const uint ref,
                             __global const float *restrict maps, const float CS, const float CU, const float CV,
-                            const float GSCALE, __global float *restrict out)
+                            const float GSCALE, const uint stride, __global float *restrict out)
 {
     const uint j = get_global_id(1), k = j + (j >= ref), lid = get_local_id(0);
     const ulong n = (ulong)w * h;
@@ -187,10 +188,10 @@ __kernel void register_step(__global const float *restrict level, const uint w, 
     __global const float *m = maps + 6 * j;
     const float m0 = m[0], m1 = m[1], m2 = m[2], m3 = m[3], m4 = m[4], m5 = m[5];
     const float right = (float)w - 1.0f, bottom = (float)h - 1.0f;
-    const uint per_row = (w - 2 + CHUNK - 1) / CHUNK, chunks = per_row * (h - 2);
+    const uint per_row = (w - 2 + CHUNK - 1) / CHUNK, chunks = per_row * ((h - 3) / stride + 1);
     SUMS(SUM_DECLARE)
     FOR_CHUNKS(c, chunks) {
-        const int y = 1 + c / per_row, x0 = 1 + (c % per_row) * CHUNK, x1 = min(x0 + CHUNK, (int)w - 1);
+        const int y = 1 + (c / per_row) * stride, x0 = 1 + (c % per_row) * CHUNK, x1 = min(x0 + CHUNK, (int)w - 1);
         const float bx = m1 * y + m2, by = m4 * y + m5;
 #if AFFINE
         const float v = CS * y + CV;
@@ -237,7 +238,8 @@ __kernel void register_step(__global const float *restrict level, const uint w, 
     + s##n.s6 + s##n.s7 + s##n.s8 + s##n.s9 + s##n.sa + s##n.sb + s##n.sc + s##n.sd + s##n.se + s##n.sf;
 
 __kernel void register_shift(__global const float *restrict level, const uint w, const uint h, const uint ref,
-                             __global const float *restrict maps, const float GSCALE, __global float *restrict out)
+                             __global const float *restrict maps, const float GSCALE, const uint stride,
+                             __global float *restrict out)
 {
     const uint j = get_global_id(1), k = j + (j >= ref), lid = get_local_id(0);
     const ulong n = (ulong)w * h;
@@ -250,12 +252,12 @@ __kernel void register_shift(__global const float *restrict level, const uint w,
     const float fx = dx - floor(dx), fy = dy - floor(dy);
     const int xlo = max(1, -ix), xhi = min((int)w - 2, (int)w - 2 - ix);
     const int ylo = max(1, -iy), yhi = min((int)h - 2, (int)h - 2 - iy);
-    const int per_row = max(0, (xhi - xlo + 16) / 16), rows = max(0, yhi - ylo + 1);
+    const int per_row = max(0, (xhi - xlo + 16) / 16), rows = yhi >= ylo ? (yhi - ylo) / (int)stride + 1 : 0;
     const uint chunks = (uint)(per_row * rows);
     const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     SHIFT_SUMS(SHIFT_DECLARE)
     FOR_CHUNKS(c, chunks) {
-        const int y = ylo + (int)c / per_row, x = xlo + 16 * ((int)c % per_row);
+        const int y = ylo + ((int)c / per_row) * (int)stride, x = xlo + 16 * ((int)c % per_row);
         const int16 inside = x + lane <= (int16)(xhi);
         const float16 one = inside ? (float16)(1.0f) : (float16)(0.0f);
         __global const float *row = T + (ulong)y * w;

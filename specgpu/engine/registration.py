@@ -26,7 +26,7 @@ programs are built once (:func:`specgpu.engine.runtime.get_kernel`).
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pyopencl as cl
@@ -86,6 +86,17 @@ class DeviceRegistration:
         The frame the others were registered to.
     model : str
         ``"translation"`` or ``"affine"``.
+    candidates : tuple
+        Per frame, the local maxima of its coarse correlation surface within reach, (N, 3) rows of (x, y, r): the
+        shift to the reference frame (full-resolution px, refined by a parabola) and the correlation coefficient
+        there, highest first; empty for the reference frame and where the coarse search was skipped (``start``).
+    rival : numpy.ndarray
+        (K,) the second-highest of those maxima over the highest (0 with one maximum; NaN where none was searched):
+        near 1 where two displacements compete (a scene that repeats itself, two motions).
+    edge : numpy.ndarray
+        (K,) bool: the highest candidate lies on the edge of the frame's search (the tail of a peak beyond reach).
+    level : numpy.ndarray or None
+        (K, h, w) the pyramid level asked for with ``keep_level``, read back.
     """
 
     shifts: np.ndarray
@@ -94,6 +105,10 @@ class DeviceRegistration:
     error: np.ndarray
     reference_frame: int
     model: str
+    candidates: tuple = ()
+    rival: np.ndarray | None = None
+    edge: np.ndarray | None = None
+    level: np.ndarray | None = None
 
 
 class _Workspace:
@@ -172,7 +187,8 @@ def _check_gradients(queue, gradients, reference_frame):
 
 def register_gradients(gradients, reference_frame: int, *, model: str = "translation",
                        max_speed: float | None = 16.0, finest: int = 0, iterations: int = 10,
-                       device=None) -> DeviceRegistration:
+                       choose=None, start=None, start_level: int | None = None, keep_level: int | None = None,
+                       full_rows: int = 1, full_iterations: int | None = None, device=None) -> DeviceRegistration:
     """Each frame's translation or affine map relative to the reference frame, by registering gradient images on
     the device, coarse to fine (see the module's docstring).
 
@@ -195,6 +211,26 @@ def register_gradients(gradients, reference_frame: int, *, model: str = "transla
     iterations : int
         Gauss-Newton steps per level at most (fewer: a step under 0.05 px of the finest level, 0.25 px of a coarser
         one, is the level's last).
+    choose : callable, optional
+        ``choose(candidates, gaps)`` -> (K - 1, 2): where the refinement of each frame but the reference starts,
+        given each one's coarse candidates (as :attr:`DeviceRegistration.candidates`) and its signed distance in
+        frames from the reference (``gaps``, (K - 1,)); a NaN row leaves that frame unregistered (not usable).
+        Default: each frame's highest candidate.
+    start : array_like, (K, 2), optional
+        Each frame's translation from the reference frame (frame px = x + start[k], full resolution) the refinement
+        starts from: no coarse search (a motion already known to within a few px, e.g. the previous sequence's). A
+        NaN row leaves that frame unregistered.
+    start_level : int, optional
+        With ``start``: the pyramid level the refinement starts on (default: the coarsest); a finer one is cheaper
+        and needs ``start`` within about its pixel size of the motion.
+    full_rows : int
+        The steps at full resolution sum every ``full_rows``-th row only (1: every row): each step a pass over that
+        share of the frames, the rows of a full-resolution image being many and alike.
+    full_iterations : int, optional
+        Gauss-Newton steps at full resolution at most (default ``iterations``).
+    keep_level : int, optional
+        A pyramid level (1 or coarser) to read back with the result (:attr:`DeviceRegistration.level`): small images
+        a check on the host can afford.
     device : optional
         OpenCL device selector or queue (default: the queue of a device array given).
 
@@ -217,25 +253,55 @@ def register_gradients(gradients, reference_frame: int, *, model: str = "transla
     if not 0 <= int(finest) < len(ws.sizes):
         raise ValueError(f"finest must be a pyramid level in 0..{len(ws.sizes) - 1} for {h} x {w} images, got "
                          f"{finest!r}")
+    if start is not None:
+        start = np.asarray(start, np.float64)
+        if start.shape != (K, 2):
+            raise ValueError(f"start must be (K, 2) = {(K, 2)} translations, got shape {start.shape}")
+        if start_level is None:
+            start_level = len(ws.sizes) - 1
+        if not int(finest) <= int(start_level) < len(ws.sizes):
+            raise ValueError(f"start_level must be a pyramid level in {int(finest)}..{len(ws.sizes) - 1}, got "
+                             f"{start_level!r}")
+    if int(full_rows) < 1 or (full_iterations is not None and int(full_iterations) < 1):
+        raise ValueError(f"full_rows and full_iterations must be at least 1, got {full_rows!r}, {full_iterations!r}")
+    if keep_level is not None and not 1 <= int(keep_level) < len(ws.sizes):
+        raise ValueError(f"keep_level must be a pyramid level in 1..{len(ws.sizes) - 1}, got {keep_level!r}")
     with ws.lock:
-        return _register(queue, ws, stack if stack is not None else gradients, ref, model, max_speed, int(finest),
-                         int(iterations))
+        reg = _register(queue, ws, stack if stack is not None else gradients, ref, model, max_speed, int(finest),
+                        (int(iterations), int(full_rows), None if full_iterations is None else int(full_iterations)),
+                        choose, start, None if start is None else int(start_level),
+                        None if keep_level is None else int(keep_level))
+    return reg
+
+
+def _read_level(queue, ws: _Workspace, level: int) -> np.ndarray:
+    """Pyramid level ``level`` (1 or coarser) of every image, read back: (K, h, w)."""
+    K = ws.upload.shape[0]
+    out = np.empty((K, *ws.sizes[level]), np.float32)
+    cl.enqueue_copy(queue, out, ws.levels[level - 1].data, is_blocking=True)
+    return out
 
 
 def _register(queue, ws: _Workspace, gradients, ref: int, model: str, max_speed, finest: int,
-              iterations: int) -> DeviceRegistration:
+              steps: tuple, choose=None, start=None, start_level=None, keep_level=None) -> DeviceRegistration:
     K, h, w = ws.upload.shape
     if isinstance(gradients, np.ndarray):
         cl.enqueue_copy(queue, ws.upload.data, np.ascontiguousarray(gradients, np.float32), is_blocking=False)
         gradients = ws.upload
     levels = [gradients, *ws.levels]
     halve = _kernel(queue, ws, "register_halve")
-    for (hh, ww), src, dst, (h2, w2) in zip(ws.sizes, levels, levels[1:], ws.sizes[1:]):
+    # the levels above the one the refinement starts on (and the one kept) are not needed
+    needed = len(ws.sizes) - 1 if start_level is None else max(start_level, keep_level or 0)
+    for (hh, ww), src, dst, (h2, w2) in zip(ws.sizes[:needed], levels, levels[1:], ws.sizes[1:]):
         kernels.launch_range(queue, halve, (-(-w2 // 8), -(-h2 // _HALVE_ROWS), K), (1, 1, 1), src.data, dst.data,
                              np.uint32(ww), np.uint32(hh), np.uint32(w2), np.uint32(h2))
-    coarsest = len(ws.sizes) - 1
-    cl.enqueue_copy(queue, ws.coarse_host, levels[-1].data, is_blocking=True)
-    coarse = ws.coarse_host.reshape(K, *ws.sizes[-1])
+    coarsest = len(ws.sizes) - 1 if start_level is None else start_level
+    top = levels[coarsest]
+    size = K * ws.sizes[coarsest][0] * ws.sizes[coarsest][1]
+    if size > ws.coarse_host.size:
+        ws.coarse_host = np.empty(size, np.float32)
+    cl.enqueue_copy(queue, ws.coarse_host[:size], top.data, is_blocking=True)
+    coarse = ws.coarse_host[:size].reshape(K, *ws.sizes[coarsest])
     finite = np.isfinite(coarse).all(axis=(1, 2))
     if not finite.all():  # every input pixel reaches the coarsest level: a NaN there was one in the input
         raise ValueError(f"gradients hold NaN or infinite values (image {int(np.flatnonzero(~finite)[0])})")
@@ -243,13 +309,28 @@ def _register(queue, ws: _Workspace, gradients, ref: int, model: str, max_speed,
     usable = np.zeros(K, bool)
     error = np.full(K, np.nan)
     others = [k for k in range(K) if k != ref]
+    candidates, rival, edge = [np.zeros((0, 3))] * K, np.full(K, np.nan), np.zeros(K, bool)
     if float(coarse[ref].std()) > 1e-12 * max(float(np.abs(coarse[ref]).mean()), 1e-30):
         usable[ref], error[ref] = True, 0.0
+        if others and start is not None:
+            maps[others, :2, 2] = start[others]
+        elif others:
+            gaps = np.array(others) - ref
+            found, edge[others] = _coarse_search(queue, ws, top, ref, np.abs(gaps), max_speed)
+            for k, c in zip(others, found):
+                candidates[k] = c
+                rival[k] = c[1, 2] / c[0, 2] if len(c) > 1 and c[0, 2] > 0 else 0.0 if len(c) else np.nan
+            if choose is None:
+                maps[others, :2, 2] = [c[0, :2] if len(c) else (np.nan, np.nan) for c in found]
+            else:
+                chosen = np.asarray(choose(found, gaps), np.float64)
+                if chosen.shape != (len(others), 2):
+                    raise ValueError(f"choose must return ({len(others)}, 2) starts, got shape {chosen.shape}")
+                maps[others, :2, 2] = chosen
         if others:
-            gaps = np.abs(np.array(others) - ref)
-            maps[others, :2, 2] = _coarse_search(queue, ws, levels[-1], ref, gaps, max_speed)
-            _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest, finest, iterations)
-    return _result(maps, usable, error, ref, model)
+            _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest, finest, *steps)
+    kept = None if keep_level is None else _read_level(queue, ws, keep_level)
+    return replace(_result(maps, usable, error, ref, model, tuple(candidates), rival, edge), level=kept)
 
 
 def _kernel(queue, ws: _Workspace, name: str, affine: bool = False):
@@ -264,9 +345,11 @@ def _level_to_full(level: int) -> np.ndarray:
     return np.array([[s, 0.0, (s - 1.0) / 2.0], [0.0, s, (s - 1.0) / 2.0], [0.0, 0.0, 1.0]])
 
 
-def _coarse_search(queue, ws: _Workspace, coarse: cla.Array, ref: int, gaps: np.ndarray, max_speed) -> np.ndarray:
-    """Each other frame's shift (x, y), full-resolution px, of the best correlation within reach on the coarsest
-    level, refined by a parabola through its neighbours along each axis ((K - 1, 2))."""
+def _coarse_search(queue, ws: _Workspace, coarse: cla.Array, ref: int, gaps: np.ndarray, max_speed):
+    """Each other frame's candidate shifts on the coarsest level: the local maxima of the correlation within reach,
+    (N, 3) rows of (x, y) full-resolution px, refined by a parabola through the neighbours along each axis, and
+    the correlation there, highest first (a list of K - 1); and whether each frame's highest lies on the edge of
+    its search ((K - 1,) bool)."""
     K, hh, ww = coarse.shape
     level = len(ws.sizes) - 1
     scale = 2.0 ** level
@@ -282,12 +365,27 @@ def _coarse_search(queue, ws: _Workspace, coarse: cla.Array, ref: int, gaps: np.
     cl.enqueue_copy(queue, scores, scores_dev.data, is_blocking=True)
     surfaces = scores[:(K - 1) * side * side].reshape(K - 1, side, side).astype(np.float64)
     offsets = np.arange(-R, R + 1)
-    out = np.zeros((K - 1, 2))
+    out, edge = [], np.zeros(K - 1, bool)
     for j, r in enumerate(reach):
-        s = np.where((np.abs(offsets)[:, None] <= r) & (np.abs(offsets)[None, :] <= r), surfaces[j], -np.inf)
-        y, x = np.unravel_index(int(np.argmax(s)), s.shape)
-        out[j] = (offsets[x] + _vertex(s[y, x - 1:x + 2]), offsets[y] + _vertex(s[y - 1:y + 2, x]))
-    return out * scale
+        s = np.where((np.abs(offsets)[:, None] <= r) & (np.abs(offsets)[None, :] <= r) & (surfaces[j] > -1.5),
+                     surfaces[j], -np.inf)
+        padded = np.pad(s, 1, constant_values=-np.inf)
+        peak = np.isfinite(s)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy or dx:  # at least every neighbour, strictly above those before it (one of a plateau)
+                    near = padded[1 + dy:1 + dy + side, 1 + dx:1 + dx + side]
+                    peak &= (s > near) if (dy, dx) < (0, 0) else (s >= near)
+        ys, xs = np.nonzero(peak)
+        order = np.argsort(-s[ys, xs], kind="stable")
+        rows = [(offsets[x] + _vertex(s[y, x - 1:x + 2]), offsets[y] + _vertex(s[y - 1:y + 2, x]), s[y, x])
+                for y, x in zip(ys[order], xs[order])]
+        found = np.array(rows, np.float64).reshape(-1, 3)
+        if len(found):
+            edge[j] = max(abs(offsets[xs[order[0]]]), abs(offsets[ys[order[0]]])) >= r
+        found[:, :2] *= scale
+        out.append(found)
+    return out, edge
 
 
 def _vertex(samples: np.ndarray) -> float:
@@ -298,7 +396,8 @@ def _vertex(samples: np.ndarray) -> float:
     return float(np.clip(0.5 * (samples[0] - samples[2]) / curvature, -0.5, 0.5)) if curvature < 0 else 0.0
 
 
-def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest, finest, iterations):
+def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest, finest, iterations, fine_rows=1,
+            fine_iterations=None):
     """Gauss-Newton steps per level, coarsest to ``finest``: ``maps`` (full resolution, frame px = M x) updated in
     place for the frames of ``others``, ``usable`` and ``error`` set from the last step."""
     K, h, w = ws.upload.shape
@@ -320,14 +419,15 @@ def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest
         scale = S[0, 0]
         # normalised centred coordinates of this level's pixel x: u = CS x + CU
         cs, cu, cv = scale / norm, (S[0, 2] - centre[0]) / norm, (S[1, 2] - centre[1]) / norm
-        pixels = (hh - 2) * (ww - 2)
-        for _ in range(iterations):
+        pixels = (hh - 2) * (ww - 2) // (fine_rows if level == 0 else 1)
+        for _ in range(iterations if level or fine_iterations is None else min(iterations, fine_iterations)):
             ws.maps_host[:] = (S_inv @ maps[others] @ S)[:, :2].reshape(len(others), 6)
             cl.enqueue_copy(queue, ws.maps.data, ws.maps_host, is_blocking=False)
             shape = np.uint32(ww), np.uint32(hh), np.uint32(ref), ws.maps.data
             coordinates = (np.float32(cs), np.float32(cu), np.float32(cv)) if affine else ()
+            stride = np.uint32(fine_rows if level == 0 else 1)
             kernels.launch_range(queue, kernel, (groups * ws.group, len(others)), (ws.group, 1), levels[level].data,
-                                 *shape, *coordinates, np.float32(1.0 / scale), ws.sums.data)
+                                 *shape, *coordinates, np.float32(1.0 / scale), stride, ws.sums.data)
             cl.enqueue_copy(queue, ws.sums_host, ws.sums.data, is_blocking=True)
             sums = ws.sums_host[:len(others) * groups * ns].reshape(len(others), groups, ns).sum(axis=1,
                                                                                                  dtype=np.float64)
@@ -381,7 +481,8 @@ def _at_reference_time(values: np.ndarray) -> np.ndarray:
     return 0.5 * (values[int(np.floor(mid))] + values[int(np.ceil(mid))])
 
 
-def _result(maps: np.ndarray, usable: np.ndarray, error: np.ndarray, ref: int, model: str) -> DeviceRegistration:
+def _result(maps: np.ndarray, usable: np.ndarray, error: np.ndarray, ref: int, model: str, candidates: tuple = (),
+            rival=None, edge=None) -> DeviceRegistration:
     K = len(maps)
     filled = maps.copy()
     if usable.any() and not usable.all():  # a frame not usable: in time from the others, for the reference time only
@@ -398,4 +499,4 @@ def _result(maps: np.ndarray, usable: np.ndarray, error: np.ndarray, ref: int, m
     shifts[~usable] = np.nan
     maps = maps.copy()
     maps[~usable] = np.nan
-    return DeviceRegistration(shifts, maps, usable.copy(), error, ref, model)
+    return DeviceRegistration(shifts, maps, usable.copy(), error, ref, model, candidates, rival, edge)

@@ -1,6 +1,7 @@
 """Public names of :mod:`specgpu.motion`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
 from .consistency import CHECK_THRESHOLD, consistency, inconsistent_pixels
+from .device_estimate import estimate_on_device
 from .estimate import MotionEstimate, at_reference_time
 from .flow import flow_field, tile_motion
 from .global_motion import estimate_global_motion
@@ -18,6 +19,7 @@ __all__ = [
     "estimate_global_motion",
     "estimate_layer_motion",
     "estimate_motion",
+    "estimate_on_device",
     "estimate_reference_motion",
     "flow_field",
     "frame_gradients",

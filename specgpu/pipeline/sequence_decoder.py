@@ -559,9 +559,12 @@ class SequenceDecoder:
         """The warped pass of one sequence through the decoder ``A`` (rows, K), ``sensor`` (K, H, W) its frames
         corrected on the sensor's scale (:meth:`Corrections.sensor`), its motion
         estimated within the sequence (:func:`specgpu.pipeline.moving_layers.recover_moving`, with the plan's
-        reference frames and residual check); a :class:`~specgpu.pipeline.moving_layers.MovingRecovery`."""
+        reference frames and residual check); a :class:`~specgpu.pipeline.moving_layers.MovingRecovery`. The motion
+        is registered on the decoder's device (the default one without ``device``), so recover, the stream and the
+        batch estimate it alike (:func:`specgpu.motion.methods.estimate_motion`)."""
         if self.motion == "none":
             raise ValueError("the warped pass needs a motion mode other than none")
         return recover_moving(sensor, A, dark=self.corrections.dark, gain=self.gain,
-                              saturation=float(self.calibration.max_code), model=self.model, device=self.device,
+                              saturation=float(self.calibration.max_code), model=self.model,
+                              device=get_queue(self.device),
                               seconds=seconds, reference_frames=self.reference_frames, residual=self.residual)

@@ -11,6 +11,7 @@ from moving_helpers import frames_of, moving_setup
 from specgpu.core.mask import Mask
 from specgpu.engine.consistency import consistency_maps_numpy
 from specgpu.engine.linear_map import apply_linear
+from specgpu.engine.runtime import get_queue
 from specgpu.motion import global_motion
 from specgpu.motion.consistency import consistency, inconsistent_pixels
 from specgpu.motion.global_motion import MAX_SPEED_PX_PER_FRAME, estimate_global_motion
@@ -89,8 +90,9 @@ def test_recover_with_motion_is_recover_moving_of_the_same_frames(setup):
     moving, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(1.5, 0.5)))
     folder = SequenceFolder(Path("<memory>"), moving[None], plan, bundle, [], {})
     y = recover(folder, motion="global")
+    # recover registers the motion on its device (the default one), as the stream and the batch do
     ref = recover_moving(moving, plan.A, dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field,
-                         saturation=float(bundle.max_code)).y
+                         saturation=float(bundle.max_code), device=get_queue()).y
     np.testing.assert_array_equal(np.isnan(y), np.isnan(ref))
     np.testing.assert_allclose(y, ref, rtol=1e-6, atol=1e-7)
     two = SequenceFolder(Path("two"), np.stack([moving, moving]), plan, bundle, [], {})

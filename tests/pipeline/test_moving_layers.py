@@ -9,6 +9,7 @@ import pytest
 from moving_helpers import frames_of, moving_setup
 
 from specgpu.core.mask import Mask
+from specgpu.engine.runtime import get_queue
 from specgpu.motion.object_motion import occluded_by
 from specgpu.motion.residual import residual_check
 from specgpu.pipeline.evaluate import evaluate_pixels
@@ -109,7 +110,10 @@ def test_a_scene_without_an_object_of_its_own_gets_no_layer(setup):
 
 def test_the_stream_decoder_decodes_the_object_layer_as_recover_does(setup, chart_over_scene):
     _, bundle, plan, _ = setup
-    frames, _, res, _ = chart_over_scene
+    frames = chart_over_scene[0]
+    # the decoder registers the motion on its device (the default one), as recover and the stream do
+    res = recover_moving(frames, plan.A, dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field,
+                         saturation=float(bundle.max_code), residual=residual_check(plan, bundle), device=get_queue())
     maps = SequenceDecoder(plan, bundle, ("cube",), motion="global").maps(frames)
     assert len(maps["layers"]) == 1
     np.testing.assert_array_equal(maps["mask"], res.mask)

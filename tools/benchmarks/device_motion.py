@@ -7,11 +7,15 @@ Each case renders one 9-frame sequence of the moving twin (the natural scene, 20
 
 * ``decode``: the plain decode, ``apply_linear`` of frames already on the device (K -> ``--outputs``), as the
   stream's decoder runs it;
-* ``host``: the estimate as ``--motion global`` makes it today, ``estimate_global_motion`` given the gradient images
-  made on the device (``frame_gradients``; phase correlation on the host);
-* ``device``: the gradient images on the device (``engine.gradients``' unscaled magnitudes, whose per-frame means
-  choose the reference frame as the host does, the brightest of the middle three) and ``register_gradients``
-  there, at full resolution (``finest=0``) and at half (``finest=1``); and the registration alone.
+* ``host``: the estimate as ``--motion global`` makes it without a device, ``estimate_motion(..., device=None)``:
+  ``estimate_global_motion`` given the gradient images made on the default device (``frame_gradients``; phase
+  correlation on the host);
+* ``device``: the estimate as ``--motion global`` makes it with a device (the stream's and the batch's),
+  ``estimate_motion(..., device=queue)`` (``motion.device_estimate``: the frames uploaded, their gradient images
+  made, registered and read back for the consistency check, the rival-peak check and, where it finds a rival, the
+  tiles' consensus); ``device_all_rows``: the same with every row summed at full resolution (``full_rows=1``;
+  the estimate sums every n-th, n = H / ``FULL_ROWS_SUMMED``);
+  and ``register_only``: ``register_gradients`` alone on gradient images already made.
 
 Each estimate's error is the largest distance over the frames from the twin's truth (``TwinRig.motion_truth``), px.
 The JSON holds every time, error and ratio, the device, the machine's load and the command line.
@@ -36,8 +40,8 @@ from specgpu.engine.gradients import apply_scale, frames_on_device, launch_gradi
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.registration import register_gradients
 from specgpu.engine.runtime import get_queue
-from specgpu.motion.global_motion import estimate_global_motion
-from specgpu.motion.images import frame_gradients
+from specgpu.motion import device_estimate
+from specgpu.motion.methods import estimate_motion
 from specgpu.rig import CameraParameters, RigDescription, natural_scene
 from specgpu.rig.motion import MotionParameters
 from specgpu.rig.twin import TwinRig
@@ -73,13 +77,14 @@ def reference_of(scale: np.ndarray) -> int:
     return max(middle, key=lambda k: 1.0 / float(scale[k]))
 
 
-def device_estimate(queue, frames_dev, dark, gain, finest: int):
-    """Gradient images and the registration, all on the device: the shifts (K, 2). The magnitudes are registered
-    unscaled (the registration solves a gain per frame, so a frame's 1 / mean changes nothing; the consistency
-    check scales its own samples), which saves a pass over the images."""
-    images, scale = launch_gradients(queue, frames_dev, dark, gain)
-    ref = reference_of(scale.get(queue=queue))
-    return register_gradients(images, ref, finest=finest, device=queue).shifts
+def device_all_rows(frames, dark, gain, queue):
+    """The wired-in device estimate with every row summed at full resolution."""
+    rows = device_estimate.FULL_ROWS_SUMMED
+    device_estimate.FULL_ROWS_SUMMED = 1 << 30
+    try:
+        return estimate_motion(frames, dark, gain, device=queue)
+    finally:
+        device_estimate.FULL_ROWS_SUMMED = rows
 
 
 def timed_rounds(steps: dict, rounds: int, queue) -> dict:
@@ -126,24 +131,24 @@ def main(argv=None) -> int:
         ref = reference_of(launch_gradients(queue, frames_dev, dark_dev, gain_dev)[1].get(queue=queue))
         steps = {
             "decode": lambda: apply_linear(frames_dev, A, dark_dev, gain_dev, device=queue),
-            "host": lambda: estimate_global_motion(frames, dark, gain,
-                                                   gradients=frame_gradients(frames, dark, gain, device=queue)),
-            "device": lambda: device_estimate(queue, frames_dev, dark_dev, gain_dev, 0),
-            "device_half": lambda: device_estimate(queue, frames_dev, dark_dev, gain_dev, 1),
-            "register_only": lambda: register_gradients(grads_dev, ref, device=queue),
+            "host": lambda: estimate_motion(frames, dark, gain),
+            "device": lambda: estimate_motion(frames, dark, gain, device=queue),
+            "device_all_rows": lambda: device_all_rows(frames, dark, gain, queue),
+            "register_only": lambda: register_gradients(
+                grads_dev, ref, full_rows=max(1, h // device_estimate.FULL_ROWS_SUMMED), device=queue),
         }
         times = timed_rounds(steps, args.rounds, queue)
-        host = estimate_global_motion(frames, dark, gain, gradients=frame_gradients(frames, dark, gain, device=queue))
-        errors = {"host": error_px(host.shifts, truth),
-                  "device": error_px(device_estimate(queue, frames_dev, dark_dev, gain_dev, 0), truth),
-                  "device_half": error_px(device_estimate(queue, frames_dev, dark_dev, gain_dev, 1), truth)}
+        errors = {"host": error_px(estimate_motion(frames, dark, gain).shifts, truth),
+                  "device": error_px(estimate_motion(frames, dark, gain, device=queue).shifts, truth),
+                  "device_all_rows": error_px(device_all_rows(frames, dark, gain, queue).shifts, truth)}
         ratios = {k: times[k] / times["decode"] for k in times if k != "decode"}
         rows.append({"case": name, "ms": {k: v * 1e3 for k, v in times.items()}, "error_px": errors,
                      "x_decode": ratios, "host_over_device": times["host"] / times["device"]})
         print(f"  {name:<20} decode {times['decode'] * 1e3:7.1f}   host {times['host'] * 1e3:7.1f} "
               f"({ratios['host']:5.1f} x, err {errors['host']:.3f} px)   device {times['device'] * 1e3:7.1f} "
-              f"({ratios['device']:5.1f} x, err {errors['device']:.3f} px)   half {times['device_half'] * 1e3:7.1f} "
-              f"({ratios['device_half']:5.1f} x, err {errors['device_half']:.3f} px)   registration alone "
+              f"({ratios['device']:5.1f} x, err {errors['device']:.3f} px)   all rows "
+              f"{times['device_all_rows'] * 1e3:7.1f} ({ratios['device_all_rows']:5.1f} x, err "
+              f"{errors['device_all_rows']:.3f} px)   registration alone "
               f"{times['register_only'] * 1e3:7.1f} ({ratios['register_only']:4.1f} x)", flush=True)
     out = {"command": " ".join(["python", "tools/benchmarks/device_motion.py", *(argv or sys.argv[1:])]),
            "date_utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "size": [w, h], "frames": K,
