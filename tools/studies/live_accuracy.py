@@ -12,7 +12,11 @@ row (``specgpu plan optimal --sequence-ms 60 --denoise``: optimal-9 designed for
   carried through the filter (``denoised_sigma``);
 * ``stream``: the same moving twin streamed (``pipeline.stream.Stream``, the twin driver) with ``motion="global"``,
   the denoiser, the white measured on the compensated samples, and the ``cube`` and ``sigma`` outputs (the sigma
-  only where the stream accepts it with the denoiser: the table says when it did not).
+  only where the stream accepts it with the denoiser: the table says when it did not);
+* ``stream raw``: the same stream without the denoiser, with its sigma (the z-scores of the stream's own sigma
+  at the warped samples);
+* ``recover strip``: ``recover`` as above with the whole strip's ROI, as for the still chart (what a ROI that
+  the moving strip leaves costs).
 
 The white strip moves with the chart: ``--white-roi`` names where it is at the sequence's reference time, so the
 ROI is the part of the strip that stays white over every sequence scored (the strip less the chart's travel).
@@ -73,10 +77,10 @@ def moving_rig(description, bundle, plan, scene, seed):
     return rig
 
 
-def moved_scene(scene, truth, frame_period_s) -> SpectralScene:
+def moved_scene(scene, truth, frame_period_s, velocity=VELOCITY) -> SpectralScene:
     """The chart as it is at a sequence's reference time: the twin's truth cube, the patches' masks moved by the
     chart's displacement then (rounded to whole pixels: the masks are the patches' interiors)."""
-    shift = np.rint(np.asarray(VELOCITY) * truth["reference_time_s"] / frame_period_s).astype(int)
+    shift = np.rint(np.asarray(velocity) * truth["reference_time_s"] / frame_period_s).astype(int)
     h, w = scene.reflectance.shape[:2]
     masks = {}
     for name, m in scene.masks.items():
@@ -132,20 +136,22 @@ def recover_draw(moving, bundle, plan, scene, roi, seed) -> dict:
     y = recover(folder, white_roi=roi, motion="global", denoise=DENOISE, white_moves="scene")
     raw = uncertainty(folder, white_roi=roi, motion="global", white_moves="scene")[0]
     sigma = denoised_sigma(folder, raw, radius=DENOISE[0])
-    truth = moved_scene(scene, rig.motion_truth(s.timestamps_s), rig.frame_period_s)
+    truth = moved_scene(scene, rig.motion_truth(s.timestamps_s), rig.frame_period_s,
+                        moving.motion.velocity_px_per_frame)
     return score(y, sigma, truth, plan.output_wavelengths)
 
 
-def stream_draws(moving, bundle, plan, scene, roi, seed, sequences) -> tuple[list, str | None]:
-    """The moving chart streamed with ``motion="global"``, the denoiser and the white on the compensated samples:
-    one row per sequence; and why the stream refused the sigma output, if it did."""
+def stream_draws(moving, bundle, plan, scene, roi, seed, sequences, denoise=DENOISE) -> tuple[list, str | None]:
+    """The moving chart streamed with ``motion="global"``, the denoiser (None: without) and the white on the
+    compensated samples: one row per sequence; and why the stream refused the sigma output, if it did."""
     rig = moving_rig(moving, bundle, plan, scene, seed)
     truth_rig = moving_rig(moving, bundle, plan, scene, seed)
     kept = []
 
     def keep(result):
-        kept.append((result.arrays["cube"].astype(np.float32),
-                     result.arrays["sigma"].astype(np.float32) if "sigma" in result.arrays else None,
+        cube = result.arrays["cube"].astype(np.float32)
+        sigma = result.arrays.get("sigma")  # each band's standard deviation, then their RMS
+        kept.append((cube, None if sigma is None else sigma[..., :cube.shape[-1]].astype(np.float32),
                      np.array(result.timestamps_s), np.array(result.motion.shifts)))
 
     refused = None
@@ -153,7 +159,7 @@ def stream_draws(moving, bundle, plan, scene, roi, seed, sequences) -> tuple[lis
         try:
             stream = Stream(TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K * sequences, pacing="free"),
                             plan, bundle, outputs=outputs, sinks=[keep], illuminant="D65", cube_dtype=np.float32,
-                            policy="block", white_roi=roi, white_moves="scene", denoise=DENOISE, motion="global")
+                            policy="block", white_roi=roi, white_moves="scene", denoise=denoise, motion="global")
             break
         except ValueError as exc:
             refused = str(exc)
@@ -161,7 +167,8 @@ def stream_draws(moving, bundle, plan, scene, roi, seed, sequences) -> tuple[lis
     rows = []
     for y, sigma, timestamps, shifts in kept:
         truth = truth_rig.motion_truth(timestamps)
-        row = score(y, sigma, moved_scene(scene, truth, rig.frame_period_s), plan.output_wavelengths)
+        row = score(y, sigma, moved_scene(scene, truth, rig.frame_period_s, moving.motion.velocity_px_per_frame),
+                    plan.output_wavelengths)
         row["shift_error_px"] = float(np.abs(shifts - truth["displacement"]).max())
         rows.append(row)
     return rows, refused
@@ -180,9 +187,14 @@ def main(argv=None):
     ap.add_argument("--sequences", type=int, default=2, help="sequences streamed per draw")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--small", action="store_true", help="320 x 240 (development; figures are 640 x 480)")
+    ap.add_argument("--velocity", type=float, default=VELOCITY[0],
+                    help="the chart's speed, px per frame rightwards (> 0)")
+    ap.add_argument("--blur", action="store_true", help="each frame integrated over its exposure (motion blur)")
     ap.add_argument("--json", default=str(Path(__file__).resolve().parents[2] / "docs" / "results" /
                                           "live_accuracy.json"))
     a = ap.parse_args(argv)
+    if not a.velocity > 0:
+        ap.error(f"--velocity must be a positive speed (the white ROI is kept where the strip stays), got {a.velocity}")
     w, h = (320, 240) if a.small else (640, 480)
     description = RigDescription(camera=CameraParameters(roi_width=w, roi_height=h))
     t0 = time.perf_counter()
@@ -191,12 +203,13 @@ def main(argv=None):
     plan = _optimal9(description, bundle, prior, denoise_radius=DENOISE_RADIUS)
     print(f"default twin, paper noise, {w} x {h}; calibrated and planned in {time.perf_counter() - t0:.0f} s; "
           f"{plan.method} K={plan.K}, sequence {plan.sequence_s * 1e3:.1f} ms, planned for the filter")
-    moving = replace(description, motion=MotionParameters(velocity_px_per_frame=VELOCITY))
-    travel = VELOCITY[0] * (plan.K * (a.sequences - 1) + plan.K)  # the strip's furthest reference-time shift
+    velocity = (a.velocity, 0.0)
+    moving = replace(description, motion=MotionParameters(velocity_px_per_frame=velocity, blur=a.blur))
+    travel = abs(a.velocity) * (plan.K * (a.sequences - 1) + plan.K)  # the strip's furthest reference-time shift
     moving_roi = strip_roi(roi, travel)
     print(f"chart {scene.name}: {len(scene.masks)} patches; white ROI still {roi}, moving {moving_roi}; "
-          f"chart moving {VELOCITY[0]:g} px/frame")
-    rows = {"still": [], "recover": [], "stream": []}
+          f"chart moving {a.velocity:g} px/frame{' with motion blur' if a.blur else ''}")
+    rows = {"still": [], "recover": [], "stream": [], "stream raw": [], "recover strip": []}
     refused = None
     for d in range(a.draws):
         seed = 1000 * a.seed + 31 * d + 7
@@ -204,9 +217,12 @@ def main(argv=None):
         rows["recover"].append(recover_draw(moving, bundle, plan, scene, moving_roi, seed))
         streamed, refused = stream_draws(moving, bundle, plan, scene, moving_roi, seed, a.sequences)
         rows["stream"].extend(streamed)
+        rows["stream raw"].extend(stream_draws(moving, bundle, plan, scene, moving_roi, seed, a.sequences, None)[0])
+        rows["recover strip"].append(recover_draw(moving, bundle, plan, scene, roi, seed))
         print(f"  draw {d + 1}/{a.draws} done ({time.perf_counter() - t0:.0f} s)", flush=True)
     print_table(rows, a.draws, a.sequences, refused)
-    out = {"size": [w, h], "velocity_px_per_frame": list(VELOCITY), "draws": a.draws, "sequences": a.sequences,
+    out = {"size": [w, h], "velocity_px_per_frame": list(velocity), "blur": a.blur, "draws": a.draws,
+           "sequences": a.sequences,
            "plan": {"method": plan.method, "K": plan.K, "sequence_ms": plan.sequence_s * 1e3},
            "white_roi": {"still": roi, "moving": moving_roi}, "stream_sigma_refused": refused, "rows": rows}
     Path(a.json).parent.mkdir(parents=True, exist_ok=True)
@@ -219,10 +235,10 @@ def print_table(rows, draws, sequences, refused):
             ("patch_dE00", "patch dE00", 3), ("z", "z std", 2), ("nan_share", "NaN share", 4))
     print(f"\nper pixel over the patches' interiors and per patch, mean +- std over {draws} draws "
           f"(stream: {sequences} sequences each)")
-    print(f"{'path':<9}" + "".join(f"{label:>19}" for _, label, _ in cols) + f"{'RMSE ratio':>12}{'dE ratio':>10}")
+    print(f"{'path':<14}" + "".join(f"{label:>19}" for _, label, _ in cols) + f"{'RMSE ratio':>12}{'dE ratio':>10}")
     still = {k: mean_std([r[k] for r in rows["still"]])[0] for k in ("px_rmse", "px_dE00")}
     for name, rs in rows.items():
-        line = f"{name:<9}"
+        line = f"{name:<14}"
         for key, _, digits in cols:
             vals = [r[key] for r in rs if key in r]
             mu, sd = mean_std(vals)
