@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from specgpu.motion.registration import peaks_at
+from specgpu.motion.registration import fit_peak_within, peaks_at
 
 __all__ = ["CANDIDATE_SHARE", "CONSISTENT_PX", "MAX_CANDIDATES", "CandidateChoice", "choose_candidates",
            "peak_candidates"]
@@ -69,8 +69,8 @@ class CandidateChoice:
 
 
 def peak_candidates(surface: np.ndarray, radius: int, within: int | None = None,
-                    min_ratio: float = CANDIDATE_SHARE,
-                    limit: int = MAX_CANDIDATES) -> tuple[np.ndarray, np.ndarray]:
+                    min_ratio: float = CANDIDATE_SHARE, limit: int = MAX_CANDIDATES,
+                    top: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The peaks of a periodic correlation surface a registration could mean: (N, 2) displacements (x, y),
     sub-pixel as :func:`~specgpu.motion.registration.peak_at` locates them, and (N,) their heights, highest first.
 
@@ -84,42 +84,42 @@ def peak_candidates(surface: np.ndarray, radius: int, within: int | None = None,
         Only samples at most this far from zero displacement along each axis (the reach of the motion,
         :func:`~specgpu.motion.registration.fit_peak_within`); None: the whole surface.
     min_ratio : float
-        Only peaks at least this share of the highest.
+        Only peaks at least this share of the highest within reach.
     limit : int
         The most candidates returned.
+    top : float, optional
+        The highest sample within reach, where the caller has it (:func:`fit_peak_within` returns it).
     """
     s = np.asarray(surface)
     h, w = s.shape
-    ys, xs = np.arange(h), np.arange(w)
-    if within is not None and 2 * int(within) + 1 < min(h, w):
-        r = np.arange(-int(within), int(within) + 1)
-        ys, xs = r % h, r % w
-    box = s[np.ix_(ys, xs)].astype(np.float64)
-    padded = np.pad(box, 1, constant_values=-np.inf)
-    if len(ys) == h:  # the whole surface wraps round
-        padded[0, 1:-1], padded[-1, 1:-1] = box[-1], box[0]
-    if len(xs) == w:
-        padded[:, 0], padded[:, -1] = padded[:, -2], padded[:, 1]
-    centre = padded[1:-1, 1:-1]
-    peak = np.ones(box.shape, bool)
+    window = within is not None and 2 * int(within) + 1 < min(h, w)
+    if top is None:
+        top = float((s[np.ix_(*(np.arange(-int(within), int(within) + 1) % n for n in (h, w)))] if window else s).max())
+    if not top > 0.0:  # no positive peak: the highest sample, as the plain fit takes it
+        d, value = fit_peak_within(s, within)
+        return d[None], np.array([value])
+    i, j = np.divmod(np.flatnonzero(s >= min_ratio * top), w)  # only these can be candidates
+    if window:
+        near = (np.abs((i + h // 2) % h - h // 2) <= within) & (np.abs((j + w // 2) % w - w // 2) <= within)
+        i, j = i[near], j[near]
+    values = s[i, j]
+    peak = np.ones(i.size, bool)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
             if dy or dx:
-                peak &= centre >= padded[1 + dy:padded.shape[0] - 1 + dy, 1 + dx:padded.shape[1] - 1 + dx]
-    i, j = np.nonzero(peak)
-    values = box[i, j]
-    top = float(values.max()) if values.size else 0.0
-    order = np.argsort(-values, kind="stable")
+                peak &= values >= s[(i + dy) % h, (j + dx) % w]
+    i, j, values = i[peak], j[peak], values[peak].astype(np.float64)
     kept = []
-    for n in order:
-        if top <= 0.0 or values[n] < min_ratio * top or len(kept) == limit:
+    for n in np.argsort(-values, kind="stable"):
+        if len(kept) == limit:
             break
-        if all(max(abs(int(i[n]) - int(i[m])), abs(int(j[n]) - int(j[m]))) > radius for m in kept):
+        dy, dx = (i[kept] - i[n] + h // 2) % h - h // 2, (j[kept] - j[n] + w // 2) % w - w // 2
+        if not kept or np.maximum(np.abs(dy), np.abs(dx)).min() > radius:
             kept.append(int(n))
-    if not kept:  # no positive peak: the highest sample, as the plain fit takes it
-        kept = [int(order[0])] if order.size else []
-    y, x = ys[i[kept]], xs[j[kept]]
-    return peaks_at(np.broadcast_to(s, (len(kept), h, w)), y, x), values[kept]
+    if not kept:  # the highest within reach is a plateau's edge: the plain fit's peak
+        d, value = fit_peak_within(s, within)
+        return d[None], np.array([value])
+    return peaks_at(np.broadcast_to(s, (len(kept), h, w)), i[kept], j[kept]), values[kept]
 
 
 def _on_lines(cands: list, spans: np.ndarray, velocities: np.ndarray, tolerance: float) -> np.ndarray:

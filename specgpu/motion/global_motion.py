@@ -231,16 +231,16 @@ class PairRegistrations:
         if self.reference_frame in (a, b):  # how clearly the whole image moves as one: the tiles' check needed?
             self.ambiguity[b if a == self.reference_frame else a] = second_peak_ratio(surface, d, radius, within)
             if self.velocity is None:  # its surface kept for the candidates, should some frame have a rival
-                self.surfaces[(a, b)] = (surface, within)
+                self.surfaces[(a, b)] = (surface, within, top)
                 return d, err, (d[None], np.array([top]), np.array([err]))
-        return d, err, self.candidates_of(a, b, surface, within)
+        return d, err, self.candidates_of(a, b, surface, within, top)
 
-    def candidates_of(self, a: int, b: int, surface: np.ndarray, within) -> tuple:
+    def candidates_of(self, a: int, b: int, surface: np.ndarray, within, top: float) -> tuple:
         """The peaks of pair (a, b)'s ``surface`` within reach (:func:`~specgpu.motion.candidates.peak_candidates`,
         above :data:`~specgpu.motion.candidates.CANDIDATE_SHARE` of the highest): (N, 2) displacements (binned
-        px), (N,) heights and (N,) errors."""
+        px), (N,) heights and (N,) errors; ``top`` the highest sample within reach."""
         images = self.images
-        peaks, heights = peak_candidates(surface, images.options.radius, within, CANDIDATE_SHARE)
+        peaks, heights = peak_candidates(surface, images.options.radius, within, CANDIDATE_SHARE, top=top)
         energies = images.energy(a), images.energy(b)
         return peaks, heights, np.array([peak_error(v, *energies, surface.size) for v in heights])
 
