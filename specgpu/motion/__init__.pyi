@@ -1,5 +1,6 @@
 """Public names of :mod:`specgpu.motion`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
+from .candidates import choose_candidates
 from .consistency import CHECK_THRESHOLD, consistency, inconsistent_pixels
 from .device_estimate import estimate_on_device
 from .estimate import MotionEstimate, at_reference_time
@@ -15,6 +16,7 @@ __all__ = [
     "at_reference_time",
     "CHECK_THRESHOLD",
     "check_motion_mode",
+    "choose_candidates",
     "consistency",
     "estimate_global_motion",
     "estimate_layer_motion",

@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from specgpu.motion.affine import affine_estimate
+from specgpu.motion.candidates import CANDIDATE_SHARE, choose_candidates, peak_candidates
 from specgpu.motion.estimate import MotionEstimate, at_reference_time, fill_in_time, one_blas_thread
 from specgpu.motion.images import gradient_image
 from specgpu.motion.registration import (
@@ -193,18 +194,27 @@ class PairRegistrations:
     """The pairs of frames registered so far and the linear system they make: each pair (a, b) a row saying
     "frame b's displacement less frame a's is d". Also what the pairs with the reference frame said: how clearly
     the whole image moves as one (``ambiguity``, :data:`AMBIGUOUS_PEAK`), and which pairs of the first round have
-    their peak beyond reach (``beyond``, :data:`BEYOND_REACH`)."""
+    their peak beyond reach (``beyond``, :data:`BEYOND_REACH`). Where a correlation has rival peaks each row keeps
+    its candidates, and :meth:`resolve` chooses among them the ones on a steady motion
+    (:func:`~specgpu.motion.candidates.choose_candidates`)."""
 
-    def __init__(self, images: SequenceImages, reference_frame: int):
+    def __init__(self, images: SequenceImages, reference_frame: int, prior_velocity=None):
         self.images, self.reference_frame = images, reference_frame
-        self.rows, self.rhs, self.errs = [], [], {}
+        self.prior_velocity = prior_velocity
+        self.pairs, self.rhs, self.candidates = [], [], []
         self.ambiguity, self.beyond, self.first_round = {}, [], set()
+        self.velocity = None  # the steady motion chosen among rival peaks (px per frame), once resolved
+        self.surfaces = {}  # the reference pairs' correlation surfaces and reach, until resolved
 
-    def register(self, a: int, b: int) -> tuple[np.ndarray, float]:
-        """(x, y) displacement of frame b's content relative to frame a's (binned px), and its error."""
+    def register(self, a: int, b: int):
+        """(x, y) displacement of frame b's content relative to frame a's (binned px), its error, and the
+        candidates ((N, 2) displacements, binned px, (N,) heights and (N,) errors): a reference pair's highest
+        peak alone until :meth:`resolve` (which makes its candidates where some frame has a rival), every peak
+        within reach for the other pairs."""
         images, options = self.images, self.images.options
         if not options.fit:
-            return register_dft(images.spectrum(a), images.spectrum(b), options.upsample)
+            d, err = register_dft(images.spectrum(a), images.spectrum(b), options.upsample)
+            return d, err, (d[None], np.ones(1), np.array([err]))
         binning = options.binning
         shape = tuple(n // binning for n in images.gradient(a).shape)
         surface = correlation_surface(images.spectrum(a), images.spectrum(b), shape)
@@ -217,32 +227,89 @@ class PairRegistrations:
             on_edge = float(np.abs(d).max()) >= within - 1  # the tail of a peak just beyond reach
             if top < BEYOND_REACH * highest or (on_edge and top < highest):
                 self.beyond.append((a, b))
+        err = peak_error(top, images.energy(a), images.energy(b), surface.size)
         if self.reference_frame in (a, b):  # how clearly the whole image moves as one: the tiles' check needed?
             self.ambiguity[b if a == self.reference_frame else a] = second_peak_ratio(surface, d, radius, within)
-        return d, peak_error(top, images.energy(a), images.energy(b), surface.size)
+            if self.velocity is None:  # its surface kept for the candidates, should some frame have a rival
+                self.surfaces[(a, b)] = (surface, within, top)
+                return d, err, (d[None], np.array([top]), np.array([err]))
+        return d, err, self.candidates_of(a, b, surface, within, top)
+
+    def candidates_of(self, a: int, b: int, surface: np.ndarray, within, top: float) -> tuple:
+        """The peaks of pair (a, b)'s ``surface`` within reach (:func:`~specgpu.motion.candidates.peak_candidates`,
+        above :data:`~specgpu.motion.candidates.CANDIDATE_SHARE` of the highest): (N, 2) displacements (binned
+        px), (N,) heights and (N,) errors; ``top`` the highest sample within reach."""
+        images = self.images
+        peaks, heights = peak_candidates(surface, images.options.radius, within, CANDIDATE_SHARE, top=top)
+        energies = images.energy(a), images.energy(b)
+        return peaks, heights, np.array([peak_error(v, *energies, surface.size) for v in heights])
 
     def measure(self, pairs, *, first_round: bool = False) -> None:
         """Register each pair of ``pairs`` and add its row; ``first_round``: the pairs whose peaks say whether the
         motion is beyond reach."""
         if first_round:
             self.first_round = set(pairs)
-        K, binning = len(self.images.frames), self.images.options.binning
+        binning = self.images.options.binning
         for a, b in pairs:
-            d, err = self.register(a, b)
-            row = np.zeros(K)
-            row[b], row[a] = 1.0, -1.0
-            self.rows.append(row)
-            self.rhs.append(d * binning)  # x, y of frame b less those of frame a
-            self.errs.setdefault(a, []).append(err)
-            self.errs.setdefault(b, []).append(err)
+            d, err, (peaks, heights, errors) = self.register(a, b)
+            self.pairs.append((a, b))
+            self.rhs.append((d * binning, err))  # x, y of frame b less those of frame a
+            self.candidates.append((peaks * binning, heights, errors))
+
+    def choose(self, pairs=None):
+        """:func:`~specgpu.motion.candidates.choose_candidates` over the rows registered (or those of ``pairs``,
+        indices), the frames' index as their time."""
+        rows = range(len(self.pairs)) if pairs is None else pairs
+        options = self.images.options
+        return choose_candidates(np.arange(len(self.images.frames)), [self.pairs[i] for i in rows],
+                                 [self.candidates[i][0] for i in rows], [self.candidates[i][1] for i in rows],
+                                 prior_velocity=self.prior_velocity, ambiguous=options.ambiguous)
+
+    def resolve(self, usable: np.ndarray, every: list) -> np.ndarray:
+        """Where some frame's correlation with the reference frame has a rival peak (a scene that repeats
+        itself, two motions), or where the frames' highest peaks lie on no steady motion (a repeating scene whose
+        true peak is the lower in a few frames): with ``pairs="auto"`` every pair of ``every`` registered as
+        well, and each row's displacement chosen among its candidates, on the steady motion most pairs agree
+        on, or nearest the prior (:func:`~specgpu.motion.candidates.choose_candidates`); a row with rivals and
+        none on it dropped. Returns ``usable`` less the frames left with no row (their displacement is then
+        filled in time)."""
+        surfaces, self.surfaces = self.surfaces, {}
+        options = self.images.options
+        if not options.fit:
+            return usable
+        ref = self.reference_frame
+        reference_rows = [i for i, pair in enumerate(self.pairs) if ref in pair]
+        if not self.rival() and self.choose(reference_rows).on_line.all():  # one clear peak each, one motion
+            return usable
+        for i, (a, b) in enumerate(self.pairs):
+            if (a, b) in surfaces:
+                peaks, heights, errors = self.candidates_of(a, b, *surfaces[(a, b)])
+                self.candidates[i] = (peaks * options.binning, heights, errors)
+        if options.pairs == "auto":  # the other pairs outvote a peak a period off in one pair
+            done = set(self.pairs)
+            self.measure([link for link in every if link not in done])
+        choice = self.choose()
+        self.velocity = choice.velocity
+        self.rhs = [(choice.displacements[i], float(self.candidates[i][2][choice.index[i]]))
+                    if choice.resolved[i] else None for i in range(len(self.pairs))]
+        seen = np.zeros_like(usable)
+        for (a, b), kept in zip(self.pairs, self.rhs):
+            if kept is not None:
+                seen[[a, b]] = True
+        return usable & (seen | (np.arange(len(usable)) == ref))
 
     def rival(self) -> bool:
         """Some frame's correlation with the reference frame has a second peak above ``ambiguous``."""
         return max(self.ambiguity.values(), default=0.0) > self.images.options.ambiguous
 
     def error(self) -> np.ndarray:
-        """(K,) the mean error of each frame's registrations (NaN: none)."""
-        return np.array([np.mean(self.errs[k]) if k in self.errs else np.nan for k in range(len(self.images.frames))])
+        """(K,) the mean error of each frame's registrations kept (NaN: none)."""
+        errs = {}
+        for (a, b), kept in zip(self.pairs, self.rhs):
+            if kept is not None:
+                errs.setdefault(a, []).append(kept[1])
+                errs.setdefault(b, []).append(kept[1])
+        return np.array([np.mean(errs[k]) if k in errs else np.nan for k in range(len(self.images.frames))])
 
     def solve(self, usable: np.ndarray) -> np.ndarray:
         """(K, 2) each usable frame's displacement from the reference frame (NaN for the others): the
@@ -254,8 +321,13 @@ class PairRegistrations:
         others = [int(k) for k in np.flatnonzero(usable) if k != reference_frame]
         if not others:
             return raw
-        M, rhs = np.asarray(self.rows)[:, others], np.asarray(self.rhs)
-        keep = np.ones(len(self.rows), bool)
+        rows = [(a, b, kept[0]) for (a, b), kept in zip(self.pairs, self.rhs)
+                if kept is not None and usable[a] and usable[b]]
+        M = np.zeros((len(rows), K))
+        for i, (a, b, _) in enumerate(rows):
+            M[i, b], M[i, a] = 1.0, -1.0
+        M, rhs = M[:, others], np.array([d for _, _, d in rows]).reshape(-1, 2)
+        keep = np.ones(len(rows), bool)
         for _ in range(4):
             sol, *_ = np.linalg.lstsq(M[keep], rhs[keep], rcond=None)  # the reference frame is held at 0
             residual = np.abs(M @ sol - rhs).max(axis=1)
@@ -297,16 +369,6 @@ def pair_lists(usable: np.ndarray, reference_frame: int, options: GlobalOptions)
     return every, to_reference, links
 
 
-def more_links(registered: PairRegistrations, every: list, to_reference: list) -> list:
-    """``pairs="auto"`` with the fitted peak: every pair as well where a frame's correlation with the reference
-    frame has a rival peak (a scene that repeats itself: only the other pairs outvote a peak a period off)."""
-    options = registered.images.options
-    if options.pairs != "auto" or not options.fit or not registered.rival():
-        return []
-    done = set(to_reference)
-    return [link for link in every if link not in done]
-
-
 def translation_estimate(registered: PairRegistrations, raw: np.ndarray, usable: np.ndarray) -> MotionEstimate:
     """The translation estimate from each usable frame's displacement ``raw`` to the reference frame: with
     ``robust``, each checked against its tiles (:func:`~specgpu.motion.tiles.dominant_translation`) where the
@@ -336,7 +398,8 @@ def estimate_global_motion(frames: ArrayLike, dark: ArrayLike | None = None, gai
                            max_gap: int = 8, model: str = "translation", tiles: int = 4,
                            robust: bool = True, peak: str = "fit",
                            ambiguous: float = AMBIGUOUS_PEAK,
-                           max_speed: float | None = MAX_SPEED_PX_PER_FRAME, gradients=None) -> MotionEstimate:
+                           max_speed: float | None = MAX_SPEED_PX_PER_FRAME, gradients=None,
+                           prior_velocity=None) -> MotionEstimate:
     """A translation per frame of one sequence, relative to the sequence's reference time.
 
     Parameters
@@ -397,6 +460,11 @@ def estimate_global_motion(frames: ArrayLike, dark: ArrayLike | None = None, gai
         The frames' gradient images already made (:func:`~specgpu.motion.images.gradient_image`; K entries, None
         where one is to be made here; e.g. on the device, :func:`~specgpu.motion.images.frame_gradients`):
         registered as they are.
+    prior_velocity : array_like, (2,), optional
+        The velocity (x, y, px per frame) expected, e.g. the previous sequence's; default zero. Where a
+        correlation has rival peaks (a scene that repeats itself), each frame's displacement is the candidate on
+        the steady motion most frames agree on (:func:`specgpu.motion.candidates.choose_candidates`), and, where
+        candidates agree equally, on the one whose velocity is nearest this.
 
     Returns
     -------
@@ -408,11 +476,12 @@ def estimate_global_motion(frames: ArrayLike, dark: ArrayLike | None = None, gai
     options = GlobalOptions(upsample=int(upsample), binning=binning, pairs=pairs, cutoff=cutoff, max_gap=max_gap,
                             model=model, tiles=tiles, robust=robust, peak=peak, ambiguous=ambiguous,
                             max_speed=max_speed)
-    return estimate_with_options(frames, dark, gain, options, reference_frame=reference_frame, gradients=gradients)
+    return estimate_with_options(frames, dark, gain, options, reference_frame=reference_frame, gradients=gradients,
+                                 prior_velocity=prior_velocity)
 
 
 def estimate_with_options(frames: ArrayLike, dark, gain, options: GlobalOptions, *, reference_frame: int | None = None,
-                          gradients=None) -> MotionEstimate:
+                          gradients=None, prior_velocity=None) -> MotionEstimate:
     """:func:`estimate_global_motion` with its keywords in ``options``."""
     frames = np.asarray(frames)
     if frames.ndim != 3:
@@ -422,13 +491,14 @@ def estimate_with_options(frames: ArrayLike, dark, gain, options: GlobalOptions,
     levels = images.levels()
     usable = usable_frames(levels)
     reference_frame = pick_reference(levels, usable, reference_frame)
-    registered = PairRegistrations(images, reference_frame)
+    registered = PairRegistrations(images, reference_frame, prior_velocity)
     every, to_reference, links = pair_lists(usable, reference_frame, options)
     registered.measure(links, first_round=True)
     if registered.beyond:  # a motion faster than the reach: looked for anywhere (BEYOND_REACH)
         return estimate_with_options(frames, images.dark, gain, replace(options, max_speed=None),
-                                     reference_frame=reference_frame, gradients=images.kept())
-    registered.measure(more_links(registered, every, to_reference))  # their peaks say whether these are needed
+                                     reference_frame=reference_frame, gradients=images.kept(),
+                                     prior_velocity=prior_velocity)
+    usable = registered.resolve(usable, every)  # rival peaks: the candidates on a steady motion
     raw = registered.solve(usable)
     if options.model == "translation":
         return translation_estimate(registered, raw, usable)

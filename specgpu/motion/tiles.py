@@ -65,7 +65,8 @@ def dominant_translation(g_ref, g_k, shift, upsample: int, cutoff: float, tiles:
     """The translation most of the field shares: ``shift`` (the whole-image registration) unless the tiles'
     median is more than :data:`OUTLIER_PX` from it (a smaller, strongly textured object moving on its own
     dominates the whole-image correlation), then the mean of the tiles within :data:`OUTLIER_PX` of their
-    median, the tiles registered again at that median. ``reference_tiles``: the tiles registered by
+    median, the tiles registered again at that median; ``shift`` where fewer than three tiles are that near (the
+    tiles agree on nothing). ``reference_tiles``: the tiles registered by
     :func:`specgpu.motion.registration.tile_displacements` (the fitted peak), the reference's tiles' spectra
     kept in it across frames; None: by the upsampled DFT."""
     d = _tiles_at(g_ref, g_k, shift, upsample, cutoff, tiles, reference_tiles)
@@ -79,4 +80,5 @@ def dominant_translation(g_ref, g_k, shift, upsample: int, cutoff: float, tiles:
         if len(again) >= 3:
             d, med = again, np.median(again, axis=0)
     near = np.abs(d - med).max(axis=1) <= OUTLIER_PX
-    return d[near].mean(axis=0) if near.sum() >= 3 else med
+    # no three tiles agree on the median (a dim frame's tiles scattered, some a pattern's period off): no consensus
+    return d[near].mean(axis=0) if near.sum() >= 3 else np.asarray(shift, np.float64)
