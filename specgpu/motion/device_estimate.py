@@ -9,7 +9,7 @@ One sequence:
    does: :func:`~specgpu.motion.global_motion.usable_frames`, :func:`~specgpu.motion.global_motion.pick_reference`);
 2. a coarse search of each frame's shift to the reference frame, then Gauss-Newton steps coarse to fine, all on the
    device. Where the coarse correlation has several peaks of nearly the same height (:data:`NEAR_TIE`: a scene that
-   repeats itself, a chart's grid of patches) no peak is guessed: :func:`choose_candidates` takes the one nearest
+   repeats itself, a chart's grid of patches) no peak is guessed: :func:`start_candidates` takes the one nearest
    the steady motion the frames nearer the reference (or the ``prior``) predict, and leaves the frame unregistered
    where none is clearly nearest;
 3. a frame whose best peak lies on the edge of the search (a motion faster than ``MAX_SPEED_PX_PER_FRAME``) is
@@ -45,7 +45,7 @@ from specgpu.motion.registration import second_peak_ratio, tile_displacements
 from specgpu.motion.tiles import OUTLIER_PX
 from specgpu.motion.whitening import whitened_stack
 
-__all__ = ["NEAR_TIE", "choose_candidates", "rival_peaks", "field_translation", "estimate_on_device"]
+__all__ = ["NEAR_TIE", "start_candidates", "rival_peaks", "field_translation", "estimate_on_device"]
 
 #: Peaks of a frame's coarse correlation at least this share of its highest compete: the one nearest the predicted
 #: shift is taken, not the highest. A grid of patches gives peaks a pitch apart within a few percent of each other
@@ -66,7 +66,7 @@ FULL_ROWS_SUMMED = 240
 CLEARLY_NEAREST = 2.0
 
 
-def choose_candidates(candidates, gaps, prior=None) -> np.ndarray:
+def start_candidates(candidates, gaps, prior=None) -> np.ndarray:
     """Where each frame's refinement starts: its highest coarse peak, or, where peaks of nearly the same height
     compete (:data:`NEAR_TIE`), the one nearest the predicted shift, or NaN (not registered) where none is clearly
     nearest (:data:`CLEARLY_NEAREST`).
@@ -181,7 +181,7 @@ def estimate_on_device(frames, dark=None, gain=None, *, model: str = "translatio
         The frame the others are registered to (default: the brightest of the middle three).
     prior : array_like, (2,), optional
         The velocity expected, px per frame (the previous sequence's in a stream): where peaks compete, the one
-        it predicts is taken (:func:`choose_candidates`).
+        it predicts is taken (:func:`start_candidates`).
     upsample : int
         Not used (the tiles' peaks are fitted): the keyword of the host's estimate.
     robust : bool
@@ -213,7 +213,7 @@ def estimate_on_device(frames, dark=None, gain=None, *, model: str = "translatio
     ref = pick_reference(levels, usable, reference_frame)
 
     def choose(candidates, gaps):
-        return choose_candidates(candidates, gaps, prior)
+        return start_candidates(candidates, gaps, prior)
 
     check = CHECK_LEVEL if min(frames.shape[1:]) >= 4 * 48 else 1
     rows = max(1, frames.shape[1] // FULL_ROWS_SUMMED)

@@ -13,7 +13,7 @@ from specgpu.engine.gradients import gradient_images
 from specgpu.engine.registration import register_gradients
 from specgpu.engine.runtime import get_queue
 from specgpu.motion import methods
-from specgpu.motion.device_estimate import choose_candidates, estimate_on_device
+from specgpu.motion.device_estimate import estimate_on_device, start_candidates
 from specgpu.motion.global_motion import estimate_global_motion
 from specgpu.motion.methods import estimate_motion
 from specgpu.rig.motion import MotionParameters
@@ -112,15 +112,15 @@ def test_the_twins_chart_moving_is_not_snapped_by_a_patch_pitch(setup, q):
 def test_the_candidate_nearest_the_steady_motion_is_chosen():
     tie = np.array([[-20.0, 0.0, 0.95], [5.0, 0.0, 0.9]])  # the truth (5, 0) the lower of two near-equal peaks
     lone = np.array([[2.6, 0.1, 0.9], [-30.0, 4.0, 0.3]])  # a peak well above the rest: taken as it is
-    got = choose_candidates([lone, tie], [1, 2])
+    got = start_candidates([lone, tie], [1, 2])
     np.testing.assert_allclose(got, [[2.6, 0.1], [5.0, 0.0]])  # the prediction from frame 1: 2 x (2.6, 0.1)
     # no frame nearer to go by and no prior: zero motion predicted, 5 four times nearer it than -20: taken; two
     # candidates as far from the prediction: not registered
-    np.testing.assert_allclose(choose_candidates([tie], [2]), [[5.0, 0.0]])
+    np.testing.assert_allclose(start_candidates([tie], [2]), [[5.0, 0.0]])
     even = np.array([[-12.0, 0.0, 0.9], [12.0, 0.0, 0.9]])
-    assert np.isnan(choose_candidates([even], [2])).all()
+    assert np.isnan(start_candidates([even], [2])).all()
     # a prior (the previous sequence's velocity) tells them apart
-    np.testing.assert_allclose(choose_candidates([even], [2], prior=(5.0, 0.0)), [[12.0, 0.0]])
+    np.testing.assert_allclose(start_candidates([even], [2], prior=(5.0, 0.0)), [[12.0, 0.0]])
 
 
 def test_flat_frames_are_not_registered(q):
