@@ -137,8 +137,25 @@ def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read,
     return out
 
 
+def _slope_basis(rows: np.ndarray, terms: list) -> tuple[np.ndarray, list]:
+    """The decoder's output ``rows`` (D, K) span at most K dimensions, and so do the unfiltered outputs the filter's
+    guide noise passes by (the slopes): an orthonormal basis U (D, r) of that span, and each channel's ``terms``
+    (lists of (d, e, weight) over the D slopes) as terms over the r slopes ``slopes @ U`` (U^T T U): the same
+    quadratic form of the filter's slopes, read from r images instead of D."""
+    U, s, _ = np.linalg.svd(rows, full_matrices=False)
+    U = U[:, s > s[0] * 1e-9] if s.size and s[0] > 0 else U[:, :0]
+    reduced = []
+    for channel in terms:
+        T = np.zeros((rows.shape[0], rows.shape[0]))
+        for d, e, weight in channel:
+            T[d, e] += weight
+        Tr = U.T @ T @ U
+        reduced.append([(i, j, float(Tr[i, j])) for i, j in zip(*np.nonzero(Tr))])
+    return U, reduced
+
+
 def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=None, light: bool = True,
-                       smoothed=None) -> tuple[np.ndarray, np.ndarray | None]:
+                       smoothed=None, rms: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """The standard deviation (H, W, B) of the outputs of the decoder ``A`` (the plan's by default) of the
     motion-compensated decoding ``rec`` (a :class:`~specgpu.pipeline.moving_layers.MovingRecovery`) and, given
     ``M`` (3, B), the covariance (H, W, 3, 3) of ``M y`` (XYZ), float32: each frame's sample variance
@@ -151,7 +168,10 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
     says on which ``pixels``, by which guide, with which unfiltered outputs' ``slopes``): there the variance is
     carried through the filter (:func:`specgpu.pipeline.denoise.carried_through_filter`), the own part as the
     filter takes the warped samples (``warped_sample_variance(filtered=radius)``), the guide's noise that of its
-    warped samples."""
+    warped samples. The slopes are read in the span of the decoder's rows (at most K images, not B).
+
+    ``rms``: only the RMS over the outputs of their standard deviation, (H, W, 1) (one channel carried through the
+    filter instead of B)."""
     A = np.asarray(plan.A if A is None else A, np.float64)
     read = np.flatnonzero(np.any(A != 0, axis=0))
     shifts = rec.estimates[0].shifts
@@ -169,7 +189,11 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
     Ar = A[:, read]
     B = A.shape[0]
     MA = None if M is None else np.asarray(M, np.float64) @ Ar
-    parts = [(lambda V: np.tensordot(V, (Ar * Ar).T, axes=([0], [0])), [[(b, b, 1.0)] for b in range(B)])]
+    if rms:  # only the outputs' mean variance: one channel, the mean of their rows' squares
+        parts = [(lambda V: np.tensordot(V, (Ar * Ar).mean(axis=0)[:, None], axes=([0], [0])),
+                  [[(b, b, 1.0 / B) for b in range(B)]])]
+    else:
+        parts = [(lambda V: np.tensordot(V, (Ar * Ar).T, axes=([0], [0])), [[(b, b, 1.0)] for b in range(B)])]
     if M is not None:
         parts.append((lambda V: np.einsum("khw,ik,jk->hwij", V, MA, MA).reshape(V.shape[1:] + (9,)),
                       [[(B + i, B + j, 1.0)] for i in range(3) for j in range(3)]))
@@ -177,9 +201,11 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
     pixels = None if smoothed is None else smoothed["pixels"]
     if pixels is not None and pixels.any():
         V_own, V_filtered = variance(light=False), variance(filtered=smoothed["radius"])
-        slopes = np.asarray(smoothed["slopes"], np.float64)
-        if M is not None:
-            slopes = np.concatenate([slopes, slopes @ np.asarray(M, np.float64).T], axis=-1)
+        rows = A if M is None else np.concatenate([A, np.asarray(M, np.float64) @ A])
+        U, terms = _slope_basis(rows, [t for _, ts in parts for t in ts])
+        # the slopes' coordinates in the rows' span (the XYZ slopes are M times the cube's)
+        P = U[:B] if M is None else U[:B] + np.asarray(M, np.float64).T @ U[B:]
+        slopes = np.asarray(smoothed["slopes"], np.float64) @ P
         row = warped_guide_row(plan)[0, read]
         state = {"guide": smoothed["guide"], "radius": smoothed["radius"], "eps": smoothed["eps"], "slopes": slopes,
                  "guide_var": np.tensordot(row * row, V_own, axes=([0], [0])) / smoothed["level"] ** 2}
@@ -187,13 +213,13 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
         # the samples' own, W^2 own_filtered + (total - own)
         own_filtered = np.concatenate([part(V_filtered) for part, _ in parts], axis=-1)
         adjusted = np.concatenate(out, axis=-1) - np.concatenate([part(V_own) for part, _ in parts], axis=-1)
-        den = carried_through_filter(own_filtered, adjusted + own_filtered, terms=[t for _, ts in parts for t in ts],
-                                     **state).astype(np.float64)
+        den = carried_through_filter(own_filtered, adjusted + own_filtered, terms=terms, **state).astype(np.float64)
         at = np.cumsum([0] + [o.shape[-1] for o in out])
         out = [np.where(pixels[..., None], den[..., a:b], o) for o, a, b in zip(out, at[:-1], at[1:])]
     flagged = (rec.mask & ~np.uint8(Mask.LAYER)) != 0
     const = constant_covariance(plan)
-    sigma = np.sqrt(np.maximum(out[0] + np.diag(const), 0.0)).astype(np.float32)
+    diag = np.diag(const).mean(keepdims=True) if rms else np.diag(const)
+    sigma = np.sqrt(np.maximum(out[0] + diag, 0.0)).astype(np.float32)
     sigma[flagged] = np.nan
     if M is None:
         return sigma, None

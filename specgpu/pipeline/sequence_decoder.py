@@ -416,9 +416,11 @@ class SequenceDecoder:
         :func:`specgpu.planning.uncertainty.delta_E_sigma`)."""
         names = set(self.outputs)
         M = self.spec.to_XYZ if "dE_sigma" in names else None
+        only_rms = "sigma" not in names
         sigma, cov = warped_uncertainty(sensor, self.plan, self.corrections.dark, self.gain,
-                                        rec, A, M=M, light=light, smoothed=smoothed)
-        rms = np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)
+                                        rec, A, M=M, light=light, smoothed=smoothed, rms=only_rms)
+        rms = sigma if only_rms else np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1,
+                                                     keepdims=True)).astype(np.float32)
         out = {"sigma": np.concatenate([sigma, rms], axis=-1)} if "sigma" in names else {}
         if "sigma_rms" in names:
             out["sigma_rms"] = rms[..., 0]
