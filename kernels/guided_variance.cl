@@ -16,7 +16,7 @@
  *
  * (its square root with SQRT; NaN where that is NaN) with the terms (d_t, e_t, w_t) of channel c listed in
  * terms[starts[c] .. starts[c + 1]). own' = own where own and total are finite and the pixel's mask holds none of
- * MASK_BITS, else 0. Two passes, one work-item per pixel:
+ * SKIPPED_BITS, else 0. Two passes, one work-item per pixel:
  *
  *   gv_stats   per window centre: 1 / n, mu, alpha, and a of each of the D slope images   -> stats (H, W, 3 + D)
  *   gv_apply   per pixel: W_i. in a private array of (4R + 1)^2, abar, then the C channels  -> out (H, W, C)
@@ -34,8 +34,8 @@
 #ifndef SQRT
 #define SQRT 0
 #endif
-#ifndef MASK_BITS
-#define MASK_BITS 0
+#ifndef SKIPPED_BITS
+#define SKIPPED_BITS 0
 #endif
 #define NW (4 * R + 1)
 #define NS (3 + D)
@@ -45,8 +45,8 @@ INLINE float own_part(__global const float *own, __global const float *total, __
                       const size_t e, const size_t p)
 {
     const float o = own[e];
-#if MASK_BITS
-    const bool ok = isfinite(o) && isfinite(total[e]) && ((mask[p] & (uchar)(MASK_BITS)) == 0);
+#if SKIPPED_BITS
+    const bool ok = isfinite(o) && isfinite(total[e]) && ((mask[p] & (uchar)(SKIPPED_BITS)) == 0);
 #else
     const bool ok = isfinite(o) && isfinite(total[e]); /* no mask: the argument is never read */
 #endif
@@ -160,8 +160,8 @@ __kernel void gv_apply(__global const float *g, __global const float *stats, __g
                 continue;
             const float wt = w[(oy + 2 * R) * NW + (ox + 2 * R)] * scale, w2 = wt * wt;
             const size_t j = (size_t)jy * W + jx;
-#if MASK_BITS
-            if ((mask[j] & (uchar)(MASK_BITS)) != 0)
+#if SKIPPED_BITS
+            if ((mask[j] & (uchar)(SKIPPED_BITS)) != 0)
                 continue;
 #endif
             __global const float *oj = own + j * C, *tj = total + j * C;

@@ -182,7 +182,7 @@ def filtered_variance_device(queue, own: cla.Array, total: cla.Array, guide: cla
     tables = [_table(queue, a) for a in (flat, starts, off.astype(np.float32))]
     stats = _kept(_stats, (queue, H, W, D), lambda: _Stats(queue, H * W * (3 + D)))
     bits = int(mask_bits) if mask is not None else 0
-    macros = {"R": r, "C": C, "D": D, "SQRT": bool(sqrt), "MASK_BITS": bits}
+    macros = {"R": r, "C": C, "D": D, "SQRT": bool(sqrt), "SKIPPED_BITS": bits}
     first, second = (get_kernel(queue, "guided_variance.cl", name, **macros) for name in ("gv_stats", "gv_apply"))
     m = mask.data if mask is not None else own.data  # never read without mask bits
     glob = (-(-H * W // _GROUP) * _GROUP,)

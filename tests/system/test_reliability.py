@@ -438,11 +438,11 @@ def test_disk_full_during_capture_stops_it_and_keeps_the_complete_sequences(base
     real = io_sequence._write_tiff
     frames = []
 
-    def filling(path, frame):
+    def filling(path, frame, *rest):
         frames.append(path)
         if len(frames) == 5:
             raise OSError(errno.ENOSPC, "No space left on device")
-        return real(path, frame)
+        return real(path, frame, *rest)
 
     monkeypatch.setattr(io_sequence, "_write_tiff", filling)
     error = one_line_error(run("capture", "--rig", base / "rig.toml", "--plan", base / "tri.npz", "--calib",

@@ -85,11 +85,11 @@ def test_disk_full_mid_sequence_keeps_the_complete_ones_and_drops_the_partial(ba
     real = io_sequence._write_tiff
     calls = [0]
 
-    def filling(path, frame):
+    def filling(path, frame, *rest):
         calls[0] += 1
         if calls[0] == 2 * K + 2:  # the third sequence's second frame: the disk is full
             raise OSError(errno.ENOSPC, "No space left on device", str(path))
-        return real(path, frame)
+        return real(path, frame, *rest)
 
     monkeypatch.setattr(io_sequence, "_write_tiff", filling)
     result = run(*capture_args(base, out), ok=False)
@@ -122,11 +122,11 @@ def killed_capture(base, folder: Path, monkeypatch, sequences: int = 3, extra_fr
     real = io_sequence._write_tiff
     calls = [0]
 
-    def dying(path, frame):
+    def dying(path, frame, *rest):
         if calls[0] == sequences * K + extra_frames:
             raise KeyboardInterrupt  # the process stops here
         calls[0] += 1
-        return real(path, frame)
+        return real(path, frame, *rest)
 
     with monkeypatch.context() as m:
         m.setattr(io_sequence, "_write_tiff", dying)

@@ -29,7 +29,7 @@ target.
     PYTHONPATH=. python tools/studies/live_accuracy.py [--draws N] [--sequences N] [--small] [--json OUT.json]
 
 ``--small`` runs at 320 x 240 (development; the figures are 640 x 480). The JSON (default
-``docs/results/live_accuracy.json``) holds every draw's figures.
+``results/live_accuracy.json``) holds every draw's figures.
 """
 
 from __future__ import annotations
@@ -190,8 +190,7 @@ def main(argv=None):
     ap.add_argument("--velocity", type=float, default=VELOCITY[0],
                     help="the chart's speed, px per frame rightwards (> 0)")
     ap.add_argument("--blur", action="store_true", help="each frame integrated over its exposure (motion blur)")
-    ap.add_argument("--json", default=str(Path(__file__).resolve().parents[2] / "docs" / "results" /
-                                          "live_accuracy.json"))
+    ap.add_argument("--json", default=str(Path(__file__).resolve().parents[2] / "results" / "live_accuracy.json"))
     a = ap.parse_args(argv)
     if not a.velocity > 0:
         ap.error(f"--velocity must be a positive speed (the white ROI is kept where the strip stays), got {a.velocity}")
