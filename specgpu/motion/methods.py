@@ -131,8 +131,8 @@ def estimate_motion(frames: ArrayLike, dark: ArrayLike | None = None, gain: Arra
         device), the reference the device's estimate is checked against.
     prior : array_like, (2,), optional
         The velocity expected, px per frame (a stream's previous sequence's): with a device, where peaks of a
-        repeating scene compete, the one it predicts is taken (:func:`~specgpu.motion.device_estimate.
-        choose_candidates`).
+        repeating scene compete, the one it predicts is taken
+        (:func:`~specgpu.motion.device_estimate.start_candidates`).
 
     Returns
     -------
