@@ -69,7 +69,7 @@ CASES = {
     "object-flow": ("chart 3 px/frame over the scene, flow",
                     MotionParameters(object="colorchecker", object_velocity_px_per_frame=(3.0, 0.0))),
 }
-#: narrowband-31 (155 ms a sequence) only where the issue asks for it
+#: narrowband-31 (155 ms a sequence) only on the case it is measured for (a slow plan: one case keeps the study short)
 NARROWBAND_CASES = ("t3",)
 
 
