@@ -38,8 +38,8 @@ from specgpu.planning.correction import ambient_index
 from specgpu.planning.uncertainty import frame_variance
 
 __all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace",
-           "denoise_recovery", "stream_denoise", "warped_guide_row", "denoise_compensated", "compensated_smoothed",
-           "compensated_guide", "frames_guide", "guide_variance", "check_sigma_radius", "carried_through_filter"]
+           "denoise_recovery", "stream_denoise", "warped_guide_row", "denoise_compensated", "compensated_parts",
+           "frames_guide", "guide_variance", "check_sigma_radius", "carried_through_filter"]
 
 #: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/studies/budget_study.py
 #: --tune``): on
@@ -83,23 +83,14 @@ def warped_guide_row(plan) -> np.ndarray:
     return row * (np.abs(A).sum(axis=1).mean() / total) if total > 0 else row
 
 
-def compensated_smoothed(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius: int = DENOISE_RADIUS
-                         ) -> np.ndarray | None:
-    """(H, W) bool: the pixels :func:`denoise_compensated` filters (those whose filter reads no flagged pixel, see
-    there) of the outputs ``y`` (H, W, C) guided by ``guide`` (H, W); None when it filters none (every pixel
-    flagged, or a guide with no light)."""
+def compensated_parts(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius: int = DENOISE_RADIUS):
+    """What :func:`denoise_compensated` works from, made once for the outputs ``y`` (H, W, C) guided by ``guide``
+    (H, W): (``bad``, the pixels with no valid value; ``smoothed``, those it filters: whose filter reads no flagged
+    pixel; the guide as the filter takes it, 0 on the flagged pixels and divided by the 99th percentile of the
+    others; that level), or None when it filters none (every pixel flagged, or a guide with no light)."""
     from scipy.ndimage import maximum_filter  # scipy: heavy, needed only here
 
     r = int(check_number("--denoise-radius", radius, integer=True, low=1, high=64))
-    if compensated_guide(y, guide, mask) is None:
-        return None
-    return ~maximum_filter(_flagged(y, guide, mask), size=4 * r + 1, mode="constant", cval=False)
-
-
-def compensated_guide(y: ArrayLike, guide: ArrayLike, mask: ArrayLike) -> tuple[np.ndarray, float] | None:
-    """The guide of :func:`denoise_compensated` as the filter takes it, (H, W) float32, 0 on the flagged pixels
-    and divided by the 99th percentile of the others, and that level; None when there is none (every pixel
-    flagged, or no light)."""
     g = np.asarray(guide, np.float32)
     bad = _flagged(y, g, mask)
     if bad.all():
@@ -107,7 +98,8 @@ def compensated_guide(y: ArrayLike, guide: ArrayLike, mask: ArrayLike) -> tuple[
     level = float(np.percentile(g[~bad], 99))
     if not level > 0:
         return None
-    return np.where(bad, np.float32(0), g / np.float32(level)), level
+    smoothed = ~maximum_filter(bad, size=4 * r + 1, mode="constant", cval=False)
+    return bad, smoothed, np.where(bad, np.float32(0), g / np.float32(level)), level
 
 
 def _flagged(y, guide, mask) -> np.ndarray:
@@ -126,17 +118,16 @@ def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radi
     A pixel flagged in ``mask`` (any bit but 16, an object's own motion: saturated, outside the field,
     inconsistent) or not finite has no valid value: it stays NaN, and every pixel whose filter would read it
     (within ``2 radius``: the windows of the windows about it) is left unfiltered, its decoded value kept
-    (:func:`compensated_smoothed` says which are filtered). The guide is divided by its 99th percentile over the
-    valid pixels, as :func:`sequence_guide` (:func:`compensated_guide`); a guide with no light leaves ``y`` as it
-    is.
+    (:func:`compensated_parts` says which are filtered). The guide is divided by its 99th percentile over the
+    valid pixels, as :func:`sequence_guide`; a guide with no light leaves ``y`` as it is.
     """
     r, e = _check(radius, eps)
     y = np.asarray(y, np.float32)
-    smoothed = compensated_smoothed(y, guide, mask, radius=r)
-    if smoothed is None:
+    made = compensated_parts(y, guide, mask, radius=r)
+    if made is None:
         return y.copy()
-    g, _ = compensated_guide(y, guide, mask)
-    filled = np.where(_flagged(y, guide, mask)[..., None], np.float32(0), y)
+    bad, smoothed, g, _ = made
+    filled = np.where(bad[..., None], np.float32(0), y)
     filtered = np.asarray(guided_filter(filled, g, radius=r, eps=e, device=device), np.float32)
     return np.where(smoothed[..., None], filtered, y)
 

@@ -37,8 +37,7 @@ from specgpu.engine.runtime import get_queue
 from specgpu.motion.residual import residual_check
 from specgpu.pipeline.decoder_outputs import FusedLaunches, lab_and_delta_E, outputs_for
 from specgpu.pipeline.denoise import (
-    compensated_guide,
-    compensated_smoothed,
+    compensated_parts,
     denoise_compensated,
     warped_guide_row,
 )
@@ -394,17 +393,17 @@ class SequenceDecoder:
     def smoothed(self, y, mask) -> dict | None:
         """With ``denoise``, what carrying the sigmas through the filter needs of a warped pass's
         :meth:`pass_rows` samples ``y`` (H, W, rows; the guide last) and its ``mask``: ``pixels`` (H, W) bool, those
-        the filter smooths (:func:`specgpu.pipeline.denoise.compensated_smoothed`; None: none), the ``guide`` as
+        the filter smooths (:func:`specgpu.pipeline.denoise.compensated_parts`; None: none), the ``guide`` as
         the filter takes it and its ``level``, the unfiltered outputs' ``slopes`` (H, W, B), ``radius``, ``eps``;
         None without ``denoise``."""
         if self.denoise is None:
             return None
         radius, eps = self.denoise
         rows = y[..., :-1]
-        pixels = compensated_smoothed(rows, y[..., -1], mask, radius=radius)
-        if pixels is None:
+        parts = compensated_parts(rows, y[..., -1], mask, radius=radius)
+        if parts is None:
             return {"pixels": None}
-        guide, level = compensated_guide(rows, y[..., -1], mask)
+        _, pixels, guide, level = parts
         cube = self.slices["cube"] if self.spec is not None else slice(0, self.plan.A.shape[0])
         return {"pixels": pixels, "guide": guide, "level": level, "slopes": y[..., cube], "radius": radius,
                 "eps": eps}
