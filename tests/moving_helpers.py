@@ -53,3 +53,17 @@ def moving_capture(root):
     plan_path, calib_path = save_plan_and_calibration(root, plan, bundle)
     write_capture(root / "seq", shot.sequences, shot.assembly or AssemblyStats(), plan_path, calib_path)
     return root, plan, bundle, plan_path, calib_path
+
+
+def draw_pair_scores(a, b, B):
+    """Two noise draws' maps ``a``, ``b`` of one sequence (cube, Lab, sigma, dE_sigma): the pixels both decoded,
+    the RMS z-score per band of their difference over sqrt(2) against ``a``'s sigma (its first ``B`` channels),
+    and the RMS of dE2000 between them over sqrt(2) against dE_sigma."""
+    from specgpu.engine.colorimetry import delta_E
+
+    ok = np.isfinite(a["cube"][..., 0]) & np.isfinite(b["cube"][..., 0])
+    z = ((a["cube"] - b["cube"]) / np.sqrt(2) / a["sigma"][..., :B])[ok]
+    rms = np.sqrt(np.mean(z.astype(np.float64) ** 2, axis=0))
+    dE = delta_E(a["Lab"], b["Lab"])[ok] / np.sqrt(2)
+    ratio = np.sqrt(np.mean(dE.astype(np.float64) ** 2) / np.mean(a["dE_sigma"][ok].astype(np.float64) ** 2))
+    return ok, rms, ratio
