@@ -28,9 +28,11 @@ at any moment leaves either no output or one it can resume; resuming removes the
 writer left. A sequence that fails on a worker (a corrupt chunk, a full disk) stops the batch with one line
 naming it; what was done stays done.
 
-The output is a zarr v3 group laid out like a recording (:mod:`specgpu.io.recording`): ``cube`` / ``XYZ`` /
-``Lab`` / ``dE`` along ``time`` with one chunk per sequence, ``wavelength``, ``time`` and ``frame_id``, plus
-``done`` (time,) uint8.
+The output is a zarr v3 group laid out like a recording (:mod:`specgpu.io.recording`; made and read back by
+:mod:`specgpu.pipeline.batch_output`): ``cube`` / ``XYZ`` / ``Lab`` / ``dE`` and the uncertainty outputs ``sigma``
+/ ``sigma_rms`` / ``dE_sigma`` (those of ``specgpu stream``, from the same decoder, so ``--motion``, ``--denoise``
+and ``--white-roi`` compose with them as in the stream) along ``time`` with one chunk per sequence, ``mask`` (the
+decoder's bits: why a pixel is NaN), ``wavelength``, ``time`` and ``frame_id``, plus ``done`` (time,) uint8.
 
 A scene that moved during each sequence (``--motion global|affine``) is decoded one sequence at a time exactly as
 ``specgpu recover --motion`` decodes it (the same decoder's motion mode: the displacements
@@ -40,7 +42,6 @@ disagree NaN); the mode is part of the output's identity.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import shutil
@@ -58,12 +59,22 @@ import pyopencl.array as cla
 from numpy.typing import ArrayLike
 from tqdm import tqdm
 
-from specgpu.core.locks import OutputLocked, output_lock, pid_alive
+from specgpu.core.locks import OutputLocked, output_lock
 from specgpu.core.mask import Mask
 from specgpu.core.spectra import DEFAULT_CMFS, resolve_integration
 from specgpu.engine.runtime import get_allocator, get_queue
-from specgpu.io.chunks import DirectIO, checksum_codecs, write_sequence_chunk
-from specgpu.io.recording import CHANNELS, consolidate, patterns_hash, remove_partial_chunks
+from specgpu.io.chunks import DirectIO, write_sequence_chunk
+from specgpu.io.recording import consolidate, patterns_hash, remove_partial_chunks
+from specgpu.pipeline.batch_output import (
+    BATCH_FORMAT,
+    BATCH_OUTPUTS,
+    BATCH_VERSION,
+    COLOUR_OUTPUTS,
+    create_output,
+    done_flags,
+    remove_dead_creations,
+    unfinished_creation,
+)
 from specgpu.pipeline.batch_source import (
     _identity_mismatch,
     _RecordingSource,
@@ -71,7 +82,7 @@ from specgpu.pipeline.batch_source import (
     open_source,
     reference_label,
 )
-from specgpu.pipeline.denoise import stream_denoise
+from specgpu.pipeline.decoder_outputs import outputs_for
 from specgpu.pipeline.moving_decode import check_motion_options
 from specgpu.pipeline.sequence_decoder import WHITE_MOVES, SequenceDecoder
 from specgpu.planning.correction import WhiteReference
@@ -81,12 +92,6 @@ if TYPE_CHECKING:
     from specgpu.planning.plans import Plan
 
 __all__ = ["BATCH_FORMAT", "BATCH_OUTPUTS", "BatchJob", "BatchReport", "prepare_batch", "run_batch"]
-
-BATCH_FORMAT = "specgpu.batch"
-BATCH_VERSION = 2  # 2: the source identified by content, every result-changing option in the identity
-BATCH_OUTPUTS = ("cube", "XYZ", "Lab", "dE")
-
-
 
 
 @dataclass
@@ -109,6 +114,7 @@ class BatchJob:
     motion: str = "none"  # "global" / "affine": each sequence decoded motion-compensated, as recover --motion
     integration: str = "rectangle"  # how reflectance is integrated to XYZ (and the white of Lab and dE)
     white: tuple | None = None  # (ROI, reflectance, where it moves) of a reference white in the field, or None
+    mask: bool = True  # the output has a mask array (one made before the mask was written has none)
 
     @property
     def key(self) -> tuple:
@@ -116,7 +122,7 @@ class BatchJob:
         # recording since replaced at the same path
         return (self.source, self.source_id, self.out, self.plan.hash, self.calibration.hash, self.outputs,
                 self.illuminant, self.observer, self.method, self.device, self.denoise, self.motion,
-                self.integration, self.white)
+                self.integration, self.white, self.mask)
 
 
 _STATE: dict = {}
@@ -258,7 +264,7 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
     writes: zarr's bytes, large chunks with direct I/O)."""
     state, built = _worker_state(job)
     handles = state.__dict__.setdefault("_arrays", {})  # zarr handles of the output, opened once per worker
-    for name in (*job.outputs, "done"):
+    for name in (*job.outputs, *(("mask",) if job.mask else ()), "done"):
         if name not in handles:
             handles[name] = state.out[name]
     if job.motion != "none":
@@ -297,15 +303,12 @@ def _start_sequence(job: BatchJob, i: int) -> _Pending:
     pending = _Pending(i, state, built, [], mapped, outs)
     try:
         cl.wait_for_events(events)
-        mask = arrays.pop("mask")
+        mask = arrays["mask"] if job.mask else arrays.pop("mask")
         if mask.any():  # a sample at the sensor's maximum code: no valid measurement, NaN as recover makes it
             saturated = (mask & Mask.SATURATED).astype(bool)
-            for arr in arrays.values():
-                arr[saturated] = np.nan
-        for name in job.outputs:
-            pending.writes.append((name, _writer_pool().submit(write_sequence_chunk, handles[name], i,
-                                                               arrays[name],
-                                                               direct=_DIRECT)))
+            for name in job.outputs:
+                arrays[name][saturated] = np.nan
+        _write_chunks(job, i, pending, handles, arrays)
     except BaseException:
         _release(pending)
         raise
@@ -323,12 +326,17 @@ def _start_moving(job: BatchJob, i: int, state, built: bool, handles: dict) -> _
     if tuple(raw.shape) != (job.plan.K, h, w):
         raise ValueError(f"{job.source}: sequence {i}: frames of shape {tuple(raw.shape)}, the batch needs "
                          f"({job.plan.K}, {h}, {w})")
-    arrays = dec.maps(raw)
     pending = _Pending(i, state, built, [], [], {})
-    for name in job.outputs:
+    _write_chunks(job, i, pending, handles, dec.maps(raw))
+    return pending
+
+
+def _write_chunks(job: BatchJob, i: int, pending: _Pending, handles: dict, arrays: dict) -> None:
+    """Start writing sequence ``i``'s chunk of every output (and of the mask, where the output has one) on the
+    writer threads, as the recorder writes them (zarr's bytes, large chunks with direct I/O)."""
+    for name in (*job.outputs, *(("mask",) if job.mask else ())):
         pending.writes.append((name, _writer_pool().submit(write_sequence_chunk, handles[name], i, arrays[name],
                                                            direct=_DIRECT)))
-    return pending
 
 
 def _release(pending: _Pending) -> None:
@@ -425,12 +433,13 @@ def prepare_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: 
         if ref.shape not in ((3,), (source.height, source.width, 3)):
             raise ValueError(f"the dE reference must be one L,a,b or a {source.height} x {source.width} x 3 map, "
                              f"got shape {ref.shape}")
-    if {"XYZ", "Lab", "dE"} & set(outputs):
-        # a plan with no XYZ, or a grid the integration has no table for: refused here, not on every worker
-        plan.outputs_to_XYZ(illuminant, observer, integration)
+    # the outputs as every worker's decoder will decide them, refused here, not on every worker: a plan with no
+    # XYZ or a grid the integration has no table for, a sigma of a plan with no noise model, outputs the filter
+    # cannot carry
+    outputs_for(plan, outputs, frame_shape=(source.height, source.width), reference=reference, method=method,
+                illuminant=illuminant, observer=observer, integration=integration, denoise=denoise)
     motion = check_motion_options(motion, plan, outputs=outputs)  # before any work
-    if denoise is not None:  # outputs the filter cannot carry: refused here, not on every worker
-        stream_denoise(plan, outputs, np.float32, denoise)
+    if denoise is not None:
         denoise = (int(denoise[0]), float(denoise[1]))
     n, h, w = source.sequences, source.height, source.width
     if white is not None:  # the ROI and reflectance checked now, not on every worker
@@ -441,12 +450,12 @@ def prepare_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: 
     if n == 0:
         raise ValueError(f"{source.path}: holds no committed sequence")
     out = Path(out)
+    colour = bool(set(COLOUR_OUTPUTS) & set(outputs))  # XYZ's illuminant, observer and integration matter
     identity = {"format": BATCH_FORMAT, "version": BATCH_VERSION, "source": str(Path(source_path).resolve()),
                 "source_id": source.content_id, "source_plan_hash": source.plan_hash, "plan_hash": plan.hash,
                 "calibration": calibration.hash, "outputs": list(outputs), "sequences": n,
-                "illuminant": illuminant if {"XYZ", "Lab", "dE"} & set(outputs) else None,
-                "observer": observer if {"XYZ", "Lab", "dE"} & set(outputs) else None,
-                "integration": resolve_integration(integration) if {"XYZ", "Lab", "dE"} & set(outputs) else None,
+                "illuminant": illuminant if colour else None, "observer": observer if colour else None,
+                "integration": resolve_integration(integration) if colour else None,
                 "method": method if "dE" in outputs else None,
                 "reference_sha256": _reference_hash(reference), "delta_e_ref": reference_label(reference),
                 "denoise": None if denoise is None else list(denoise),
@@ -456,14 +465,15 @@ def prepare_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: 
     job = BatchJob(str(source_path), str(out), plan, calibration, outputs, illuminant, method,
                    None if reference is None else np.asarray(reference, np.float32), device, identity["source_id"],
                    observer, n, denoise, motion, resolve_integration(integration), white)
-    _remove_dead_creations(out)
-    if out.exists() and _unfinished_creation(out):
+    remove_dead_creations(out)
+    if out.exists() and unfinished_creation(out):
         shutil.rmtree(out)  # made by an older specgpu killed before its first sequence: nothing in it to keep
     if out.exists():
         try:
             group = zarr.open_group(str(out), mode="r", zarr_format=3)
             attrs = dict(group.attrs)
-            done = _done_flags(group["done"])
+            done = done_flags(group["done"])
+            job.mask = "mask" in group  # an output made before the mask was written is resumed without one
         except Exception as exc:  # noqa: BLE001
             raise ValueError(f"{out}: exists and is not a batch output to resume ({type(exc).__name__}); "
                              "choose a new --out") from None
@@ -472,23 +482,8 @@ def prepare_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: 
             raise ValueError(mismatch)
         remove_partial_chunks(out)  # half-written chunks of a killed run (no writer runs on it now)
         return job, np.flatnonzero(done == 0)
-    _create_output(out, identity, plan, method, outputs, source, n, h, w)
+    create_output(out, identity, plan, method, outputs, source, n, h, w)
     return job, np.arange(n)
-
-
-def _done_flags(done) -> np.ndarray:
-    """The ``done`` marks, one chunk at a time: a mark that cannot be read (cut by a crash) counts as not done, so
-    its sequence is computed again instead of the whole output being refused."""
-    try:
-        return np.asarray(done[:])
-    except Exception:  # noqa: BLE001 (a damaged chunk: read the others one by one)
-        flags = np.zeros(done.shape[0], np.uint8)
-        for i in range(done.shape[0]):
-            try:
-                flags[i] = done[i]
-            except Exception:  # noqa: BLE001
-                flags[i] = 0
-        return flags
 
 
 def _remove_dead_writers_partials(source_path) -> None:
@@ -503,82 +498,6 @@ def _remove_dead_writers_partials(source_path) -> None:
             remove_partial_chunks(path, chunks_only=True)
     except (OutputLocked, OSError):
         pass
-
-
-def _creation_name(out: Path, pid: int | None = None) -> Path:
-    return out.parent / f".{out.name}.{os.getpid() if pid is None else pid}.creating"
-
-
-def _remove_dead_creations(out: Path) -> None:
-    """Remove the half-made outputs (``.OUT.<pid>.creating``) of batches killed while creating ``out``."""
-    prefix = f".{out.name}."
-    try:
-        entries = list(os.scandir(out.parent))
-    except OSError:
-        return
-    for entry in entries:
-        if entry.name.startswith(prefix) and entry.name.endswith(".creating"):
-            pid = entry.name[len(prefix):-len(".creating")]
-            if pid.isdigit() and not pid_alive(int(pid)):
-                shutil.rmtree(entry.path, ignore_errors=True)
-
-
-def _unfinished_creation(out: Path) -> bool:
-    """A batch output whose creation was cut before its ``done`` array existed (an older specgpu created it in
-    place): no sequence was computed in it."""
-    try:
-        doc = json.loads((out / "zarr.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
-    attrs = doc.get("attributes", {}) if isinstance(doc, dict) else {}
-    return (isinstance(attrs, dict) and attrs.get("format") == BATCH_FORMAT and attrs.get("status") == "running"
-            and not (out / "done" / "zarr.json").exists())
-
-
-def _create_output(out: Path, identity: dict, plan, method, outputs, source, n, h, w) -> None:
-    """The output group made whole under a temporary name beside ``out``, then renamed to it: a batch killed
-    while creating it leaves no ``out`` (its temporary is removed by the next run)."""
-    import zarr
-
-    tmp = _creation_name(out)
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    try:
-        group = zarr.open_group(str(tmp), mode="w-", zarr_format=3)
-        group.update_attributes({**identity, "plan_method": plan.method, "status": "running"})  # one write
-
-        def make(name, tail, dtype, dims, fill, attrs=None):
-            group.create_array(name, shape=(n, *tail), chunks=(1, *tail), dtype=dtype, compressors=checksum_codecs(),
-                               fill_value=fill, dimension_names=("time", *dims), attributes=attrs or {},
-                               config={"write_empty_chunks": True})
-
-        B = plan.A.shape[0]
-        reflectance = plan.output == "reflectance"
-        for name in outputs:
-            if name == "cube":
-                dim = "wavelength" if reflectance else "output"
-                make(name, (h, w, B), "float32", ("y", "x", dim), np.nan,
-                     {"wavelength_units": "nm"} if reflectance else
-                     {"channels": list(map(str, plan.output_labels))})
-            elif name in CHANNELS:
-                make(name, (h, w, 3), "float32", ("y", "x", f"{name}_channel"), np.nan,
-                     {"channels": list(CHANNELS[name])})
-            else:
-                make(name, (h, w), "float32", ("y", "x"), np.nan, {"method": method})
-        if "cube" in outputs and reflectance:
-            group.create_array("wavelength", data=np.asarray(plan.output_wavelengths, np.float64),
-                               dimension_names=("wavelength",), attributes={"units": "nm"},
-                               compressors=checksum_codecs())
-        group.create_array("frame_id", data=source.frame_ids(), chunks=(1, source.K),
-                           dimension_names=("time", "pattern"), compressors=checksum_codecs())
-        group.create_array("time", data=source.times(), chunks=(1,), dimension_names=("time",),
-                           attributes={"units": "s"}, compressors=checksum_codecs())
-        group.create_array("done", shape=(n,), chunks=(1,), dtype="uint8", fill_value=0, dimension_names=("time",),
-                           compressors=checksum_codecs(), config={"write_empty_chunks": True})
-        os.rename(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 #: Sequences per Dask task at most: a task costs ~13 ms of its own, a sequence ~40 ms on 2 cores; more per task
@@ -604,6 +523,11 @@ def run_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: Cali
 
     Parameters
     ----------
+    outputs : sequence of str
+        Of :data:`BATCH_OUTPUTS`: ``cube``, ``XYZ``, ``Lab``, ``dE`` (with ``reference``), and the uncertainty
+        outputs of the stream (:func:`specgpu.pipeline.decoder_outputs.outputs_for`): ``sigma`` (each output's
+        standard deviation, then their RMS), ``sigma_rms`` (that RMS alone), ``dE_sigma`` (the first-order
+        CIEDE2000 standard deviation); the sigmas need the plan's noise model.
     scheduler : str, optional
         Address of a running ``dask.distributed`` scheduler; default Dask's own setting, ``scheduler-address``
         (the environment's ``DASK_SCHEDULER_ADDRESS``), where it is set, else a ``LocalCluster`` of ``workers``
@@ -691,7 +615,7 @@ def _run_locked(source_path, plan, calibration, out, *, outputs, illuminant, obs
 
     group = zarr.open_group(str(out), mode="r+", zarr_format=3)
     total = group["done"].shape[0]
-    done = int(np.count_nonzero(_done_flags(group["done"])))
+    done = int(np.count_nonzero(done_flags(group["done"])))
     group.attrs["status"] = "complete" if done == total else "running"
     consolidate(out)
     if failure is not None:

@@ -184,10 +184,12 @@ def outputs_for(plan, names, *, frame_shape, reference=None, method: str = "CIE 
     if {"XYZ", "Lab", "dE", "dE_sigma"} & set(names):
         extra.update(to_XYZ=plan.outputs_to_XYZ(illuminant, observer, integration),
                      white=plan.white_XYZ(illuminant, observer, integration))
-    if {"sigma", "sigma_rms", "dE_sigma"} & set(names):
+    sigmas = [name for name in names if name in ("sigma", "sigma_rms", "dE_sigma")]
+    if sigmas:
         if "noise" not in plan.params:
-            raise ValueError(f"the {plan.method} plan records no noise model, so it has no sigma; re-plan it "
-                             "with specgpu plan --rig RIG.toml (the rig the calibration was made on) to record one")
+            raise ValueError(f"the {sigmas[0]} output: the {plan.method} plan records no noise model, so it has no "
+                             "sigma; re-plan it with specgpu plan --rig RIG.toml (the rig the calibration was made "
+                             "on) to record one")
         extra["noise"] = NoiseModel.from_params(plan.params["noise"])
     if denoise is not None:
         extra["denoise"] = stream_denoise(plan, names, cube_dtype, denoise)

@@ -45,7 +45,10 @@ def plan_calibration(plan, source, plan_path, calib):
               help="Calibration the plan was made from (default: SOURCE/calibration.npz).")
 @click.option("--out", required=True, type=click.Path(file_okay=False),
               help="Output zarr (OUT.zarr); an existing one from the same batch is resumed.")
-@click.option("--outputs", default="cube", show_default=True, help="Comma-separated: cube, XYZ, Lab, dE.")
+@click.option("--outputs", default="cube", show_default=True,
+              help="Comma-separated: cube, XYZ, Lab, dE, sigma (each output's standard deviation and their RMS), "
+                   "sigma_rms (that RMS alone), dE_sigma (first-order dE2000 standard deviation); the sigmas as "
+                   "specgpu stream makes them, with --motion, --denoise and --white-roi, from the plan's noise model.")
 @click.option("--delta-e-ref", "ref", default=None, help="dE reference: 'L,a,b' or a scene whose Lab per pixel is it.")
 @click.option("--method", default="CIE 2000", show_default=True, help="CIE 1976, CIE 1994 or CIE 2000.")
 @ILLUMINANT

@@ -1,0 +1,324 @@
+"""The uncertainty outputs of ``specgpu batch`` (``sigma``, ``sigma_rms``, ``dE_sigma``): equal to the stream's and
+to recover's for the same frames, still, moving (``--motion global``), denoised, and moving with the denoise and a
+reference white; written like the other outputs (float32, one chunk per sequence, channels, units, NaN where the
+mask says why), resumed, refused in one line where a combination cannot give them, and checked when read back.
+
+The twin renders at 320 x 240 (its smallest sensor window); each recording here keeps a 160 x 120 window of it, with
+the calibration cut to the same window, so every stream and batch runs on 160 x 120 frames."""
+
+from __future__ import annotations
+
+import functools
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from zarr_helpers import damaged_copy
+
+from specgpu.calibration.bundle import oracle_calibration
+from specgpu.core.mask import Mask
+from specgpu.io.recording import ZarrRecorder, open_recording
+from specgpu.pipeline import batch
+from specgpu.pipeline.batch import prepare_batch, process_sequences
+from specgpu.pipeline.batch_output import open_batch_output
+from specgpu.pipeline.capture_folder import SequenceFolder
+from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
+from specgpu.pipeline.recovery import recover, to_XYZ, uncertainty
+from specgpu.pipeline.sequence_decoder import SequenceDecoder
+from specgpu.planning.estimators import with_estimator
+from specgpu.planning.noise import NoiseModel
+from specgpu.planning.registry import make_plan
+from specgpu.rig import CameraParameters, RigDescription
+from specgpu.rig.motion import MotionParameters
+from specgpu.rig.scene import natural_scene
+
+SEQUENCES = 2
+WINDOW = (slice(60, 180), slice(80, 240))  # the 160 x 120 window kept, about the scene's centre
+WHITE = (slice(80, 100), slice(130, 170))  # a 0.99 white painted on the scene: rows 20-40, columns 50-90 of the window
+SIGMAS = ("sigma", "sigma_rms", "dE_sigma")
+OUTPUTS = ("cube", "XYZ", *SIGMAS)
+DENOISE = (2, 1e-4)
+#: (motion, denoise, a reference white moving with the scene)
+CASES = {"still": ("none", None, False), "global": ("global", None, False), "denoise": ("none", DENOISE, False),
+         "global-denoise-white": ("global", DENOISE, True)}
+
+
+@pytest.fixture(scope="module")
+def twin():
+    """The 7-band narrowband plan with its noise model and the oracle calibration, both of the 160 x 120 window,
+    and the twin's description and the natural scene (with a 0.99 white painted on it) to render the frames at
+    320 x 240 (a chart's flat patches give the motion estimate too little texture in so small a window)."""
+    desc = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240, frame_rate_hz=200.0,
+                                                  exposure_s=0.0049))
+    full = oracle_calibration(desc)
+    plan = make_plan("narrowband", full, step_nm=50.0, max_exposure_s=0.0049)
+    plan = with_estimator(plan, full, "projection", noise=NoiseModel.from_rig(desc, plan.exposure_s))
+    assert full.flat_fields is None  # the window of the calibration is its dark and flat field
+    bundle = replace(full, dark=full.dark[WINDOW], flat_field=full.flat_field[WINDOW])
+    scene = natural_scene(240, 320)
+    reflectance = np.array(scene.reflectance)
+    reflectance[WHITE] = 0.99
+    return desc, replace(plan, calibration=bundle.hash), bundle, replace(scene, reflectance=reflectance)
+
+
+@pytest.fixture(scope="module")
+def cases(twin, tmp_path_factory):
+    """``case(name)``: a recording of :data:`SEQUENCES` sequences streamed with the case's options (raw frames and
+    the stream's :data:`OUTPUTS`), the batch output of it with the same options (computed in this process, as a
+    worker computes it), the options and the recorded frames; each made once."""
+    root = tmp_path_factory.mktemp("batch-sigma")
+
+    @functools.cache
+    def case(name):
+        motion, denoise, white = CASES[name]
+        frames, infos, light = rendered(twin, moving=motion != "none")
+        _, plan, bundle, _ = twin
+        options = {"motion": motion, "denoise": denoise,
+                   "white": None if not white else (white_roi(plan, bundle, frames[:plan.K]), None, "scene")}
+        rec = streamed(root / f"{name}.zarr", plan, bundle, frames, infos, light, **options)
+        out = root / f"{name}-out.zarr"
+        job, todo = prepare_batch(rec, plan, bundle, out, outputs=OUTPUTS, **options)
+        assert todo.tolist() == list(range(SEQUENCES))
+        assert not any(r.get("error") for r in process_sequences(job, todo))
+        return rec, out, options, frames
+
+    return case
+
+
+def rendered(twin, *, moving: bool):
+    """:data:`SEQUENCES` sequences of the twin's scene, still or drifting (2, 1) px per frame, cut to the window:
+    (frames, frame infos, the light's record) as a replay driver takes them."""
+    from specgpu.capture.replay import record
+    from specgpu.capture.twin_driver import TwinDriver
+    from specgpu.rig.twin import TwinRig
+
+    desc, plan, _, scene = twin
+    motion = {"motion": MotionParameters(velocity_px_per_frame=(2.0, 1.0))} if moving else {}
+    rig = TwinRig(plan.rig_description(replace(desc, **motion)), scene=scene)
+    rig.seed = 3
+    frames, infos, light = record(TwinDriver(rig, patterns=plan.patterns, pacing="free"), plan.K * SEQUENCES)
+    frames = np.ascontiguousarray(frames[:, WINDOW[0], WINDOW[1]])
+    frames.setflags(write=False)
+    return frames, infos, light
+
+
+def white_roi(plan, bundle, frames) -> str:
+    """The painted white where the sequence ``frames`` has it at its reference time (decoded motion-compensated),
+    inset by 2 px: ``--white-roi`` of a white moving with the scene."""
+    cube = SequenceDecoder(plan, bundle, ("cube",), motion="global").maps(frames)["cube"]
+    white = np.all(np.abs(cube - 0.99) < 0.08, axis=-1)
+    ys, xs = np.nonzero(white)
+    assert xs.size > 100, xs.size
+    return f"{xs.min() + 2},{ys.min() + 2},{xs.max() - xs.min() - 3},{max(1, ys.max() - ys.min() - 3)}"
+
+
+def streamed(path, plan, bundle, frames, infos, light, *, motion, denoise, white) -> Path:
+    """``specgpu stream --frames`` of the replayed ``frames`` with the options: the recording at ``path``."""
+    from specgpu.capture.replay import ReplayDriver
+    from specgpu.pipeline.stream import Stream
+
+    recorder = ZarrRecorder(path, plan, frames=True)
+    roi = {} if white is None else {"white_roi": white[0], "white_moves": white[2]}
+    report = Stream(ReplayDriver(frames, infos, light), plan, bundle, outputs=OUTPUTS, cube_dtype=np.float32,
+                    policy="block", motion=motion, denoise=denoise, sinks=[recorder], **roi).run()
+    assert report.sequences_out == SEQUENCES
+    return path
+
+
+def assert_close_nan(a, b, **tol):
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    np.testing.assert_allclose(np.nan_to_num(a), np.nan_to_num(b), **tol)
+
+
+def recovered_sigmas(plan, bundle, frames, *, motion, denoise, white) -> dict:
+    """``recover --sigma --delta-e-sigma`` (with the options) of one sequence's ``frames``: its sigma map (with the
+    RMS) and dE_sigma, as recover writes them."""
+    folder = SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {})
+    kw = {"sequence": 0, "motion": motion, "denoise": denoise}
+    if white is not None:
+        kw.update(white_roi=white[0], white_moves=white[2])
+    cube = recover(folder, **kw)
+    sigma, cov = uncertainty(folder, illuminant="D65", **kw)
+    return {"sigma": sigma_with_rms(sigma, plan.output_labels)[0],
+            "dE_sigma": delta_E_sigma_map(to_XYZ(cube, plan), cov, plan.white_XYZ("D65"))}
+
+
+# ------------------------------------------------------------------------------------ equal to stream and recover
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_the_batch_sigmas_equal_the_streams(cases, name):
+    """The batch decodes through the stream's decoder with the same options: every output, the sigmas included,
+    equals what the stream recorded of the same frames, to float rounding (NaN at the same pixels)."""
+    rec, out, _, _ = cases(name)
+    streamed_maps, batch_maps = open_recording(rec), open_batch_output(out)
+    assert batch_maps.pending == []
+    for output in OUTPUTS:
+        want, got = streamed_maps.read(output, slice(None)), batch_maps.read(output, slice(None))
+        assert got.dtype == np.float32 and got.shape == want.shape
+        assert_close_nan(got, want, rtol=1e-5, atol=1e-7)
+    sigma = batch_maps.read("sigma", slice(None))
+    assert np.isfinite(sigma).mean() > 0.6 and np.nanmin(sigma) > 0  # maps of numbers, not of NaN or zeros
+    np.testing.assert_array_equal(sigma[..., -1], batch_maps.read("sigma_rms", slice(None)))
+
+
+@pytest.mark.parametrize("name", ["still", "global-denoise-white"])
+def test_the_batch_sigmas_equal_recovers(twin, cases, name):
+    """Sequence 1 of the batch against ``recover --sigma --delta-e-sigma`` of its frames with the same options."""
+    _, plan, bundle, _ = twin
+    _, out, options, frames = cases(name)
+    want = recovered_sigmas(plan, bundle, frames[plan.K:2 * plan.K], **options)
+    got = open_batch_output(out)
+    assert_close_nan(got.read("sigma", 1), want["sigma"], rtol=1e-4, atol=1e-7)
+    ok = np.isfinite(want["dE_sigma"])
+    np.testing.assert_array_equal(np.isfinite(got.read("dE_sigma", 1)), ok)
+    np.testing.assert_allclose(got.read("dE_sigma", 1)[ok], want["dE_sigma"][ok], rtol=1e-3, atol=1e-5)
+
+
+def test_the_sigma_arrays_say_what_they_hold_and_the_mask_says_where_they_are_nan(twin, cases):
+    _, plan, _, _ = twin
+    _, out, _, _ = cases("global")
+    group = open_batch_output(out).group
+    B, (h, w) = plan.A.shape[0], (120, 160)
+    assert group["sigma"].shape == (SEQUENCES, h, w, B + 1) and group["sigma"].chunks == (1, h, w, B + 1)
+    attrs = dict(group["sigma"].attrs)
+    assert attrs["channels"] == [f"sigma_{label}" for label in plan.output_labels] + ["sigma_rms"]
+    assert attrs["units"] == "reflectance factor" and "mask" in attrs["missing"]
+    assert tuple(group["sigma"].metadata.dimension_names) == ("time", "y", "x", "sigma_channel")
+    assert tuple(group["sigma_rms"].metadata.dimension_names) == ("time", "y", "x")
+    assert dict(group["dE_sigma"].attrs)["units"] == "CIEDE2000"
+    assert group["mask"].dtype == np.uint8 and group["mask"].shape == (SEQUENCES, h, w)
+    assert dict(group["mask"].attrs)["flags"]["OUTSIDE"] == int(Mask.OUTSIDE)
+    mask = group["mask"][:]
+    flagged = (mask & ~np.uint8(Mask.LAYER)) != 0
+    assert 0.02 < flagged.mean() < 0.3  # the drift leaves a border seen outside the field
+    for name in SIGMAS:
+        np.testing.assert_array_equal(np.isnan(group[name][:]).reshape(SEQUENCES, h, w, -1).any(axis=-1), flagged)
+
+
+# ------------------------------------------------------------------------------------------------- resuming
+
+def test_an_interrupted_batch_resumes_and_keeps_the_sigmas_it_wrote(twin, cases, tmp_path, monkeypatch):
+    """A disk that fails while writing sequence 1's sigma stops the batch with sequence 0 done; run again, only
+    sequence 1 is computed, sequence 0's sigma chunk is left as it was, and both equal the stream's."""
+    _, plan, bundle, _ = twin
+    rec, _, _, _ = cases("still")
+    out = tmp_path / "out.zarr"
+    real = batch.write_sequence_chunk
+
+    def full_disk(array, index, value, **kwargs):
+        if array.basename == "sigma" and index == 1:
+            raise OSError(28, "No space left on device")
+        return real(array, index, value, **kwargs)
+
+    job, todo = prepare_batch(rec, plan, bundle, out, outputs=OUTPUTS)
+    monkeypatch.setattr(batch, "write_sequence_chunk", full_disk)
+    records = process_sequences(job, todo)
+    monkeypatch.setattr(batch, "write_sequence_chunk", real)
+    assert "error" not in records[0] and records[1]["error"] == f"{out}/sigma: writing sequence 1 failed " \
+                                                                "(No space left on device)"
+    assert open_batch_output(out).pending == [1]
+    chunk = next(p for p in (out / "sigma" / "c" / "0").rglob("*") if p.is_file())
+    kept = (chunk.read_bytes(), chunk.stat().st_mtime_ns)
+    job, todo = prepare_batch(rec, plan, bundle, out, outputs=OUTPUTS)
+    assert todo.tolist() == [1]
+    assert not any(r.get("error") for r in process_sequences(job, todo))
+    assert (chunk.read_bytes(), chunk.stat().st_mtime_ns) == kept
+    done, streamed_maps = open_batch_output(out), open_recording(rec)
+    assert done.pending == []
+    for name in SIGMAS:
+        assert_close_nan(done.read(name, slice(None)), streamed_maps.read(name, slice(None)), rtol=1e-5, atol=1e-7)
+
+
+def test_resuming_with_another_white_of_dE_sigma_is_refused(twin, cases, tmp_path):
+    """dE_sigma depends on the illuminant of XYZ: an output of it alone resumes only under the same one."""
+    _, plan, bundle, _ = twin
+    rec, _, _, _ = cases("still")
+    out = tmp_path / "out.zarr"
+    prepare_batch(rec, plan, bundle, out, outputs=("dE_sigma",))
+    with pytest.raises(ValueError) as refused:
+        prepare_batch(rec, plan, bundle, out, outputs=("dE_sigma",), illuminant="A")
+    assert str(refused.value) == (f"{out}: holds a batch made with --illuminant D65, this run gives A; resume only "
+                                  "the same batch, or choose a new --out")
+
+
+def test_an_output_made_without_a_mask_resumes_without_one(twin, cases, tmp_path):
+    import shutil
+
+    _, plan, bundle, _ = twin
+    rec, _, _, _ = cases("still")
+    out = tmp_path / "out.zarr"
+    prepare_batch(rec, plan, bundle, out, outputs=("sigma_rms",))
+    shutil.rmtree(out / "mask")  # as a batch output made before the mask was written
+    job, todo = prepare_batch(rec, plan, bundle, out, outputs=("sigma_rms",))
+    assert not job.mask and todo.tolist() == [0, 1]
+    assert not any(r.get("error") for r in process_sequences(job, todo))
+    assert not (out / "mask").exists()
+    np.testing.assert_array_equal(open_batch_output(out).read("sigma_rms", 0), open_recording(rec).read("sigma_rms", 0))
+
+
+# ---------------------------------------------------------------------------------------------------- refusals
+
+def test_a_combination_that_cannot_give_a_sigma_is_refused_in_one_line_before_any_output(twin, cases, tmp_path):
+    _, plan, bundle, _ = twin
+    rec, _, _, _ = cases("still")
+    out = tmp_path / "out.zarr"
+    bare = replace(plan, params={k: v for k, v in plan.params.items() if k != "noise"})
+    refusals = [((bare, ("cube", "dE_sigma")), {}, "the dE_sigma output: the narrowband plan records no noise model, "
+                                                   "so it has no sigma; re-plan it with specgpu plan --rig RIG.toml"),
+                ((plan, ("sigma",)), {"denoise": (5, 1e-4)}, "--denoise-radius 5: the sigma maps are carried through "
+                                                             "the filter up to radius 4"),
+                ((bare, ("sigma_rms",)), {"motion": "global", "denoise": DENOISE},
+                 "the sigma_rms output: the narrowband plan records no noise model")]
+    for (p, outputs), options, message in refusals:
+        with pytest.raises(ValueError) as refused:
+            prepare_batch(rec, p, bundle, out, outputs=outputs, **options)
+        assert str(refused.value).startswith(message) and "\n" not in str(refused.value)
+        assert not out.exists()
+
+
+# ---------------------------------------------------------------------------------------------- reading it back
+
+def test_the_validator_refuses_a_corrupt_sigma_array(cases, tmp_path):
+    _, out, _, _ = cases("still")
+
+    def edited(name, change):
+        copy = damaged_copy(out, tmp_path / f"{name}.zarr")
+        meta = copy / "sigma" / "zarr.json"
+        doc = json.loads(meta.read_text())
+        change(doc)
+        meta.write_text(json.dumps(doc))
+        return copy
+
+    def fewer_channels(doc):
+        doc["attributes"]["channels"] = doc["attributes"]["channels"][:-1]
+
+    def float64(doc):
+        doc["data_type"] = "float64"
+
+    def no_channel_axis(doc):
+        doc["shape"], doc["chunk_grid"]["configuration"]["chunk_shape"] = doc["shape"][:3], doc["shape"][:3]
+        doc["dimension_names"] = doc["dimension_names"][:3]
+
+    def one_channel_short(doc):
+        doc["shape"][-1] -= 1
+        doc["chunk_grid"]["configuration"]["chunk_shape"][-1] -= 1
+        doc["attributes"]["channels"] = doc["attributes"]["channels"][1:]
+
+    for name, change, message in [
+            ("fewer", fewer_channels, r"fewer\.zarr/sigma: its channels .* do not name its 8 channels \(sigma_"),
+            ("wide", float64, r"wide\.zarr/sigma: is float64, a batch output's sigma is float32"),
+            ("flat", no_channel_axis, r"flat\.zarr/sigma: has 3 dimensions, a batch output's sigma has 4"),
+            ("short", one_channel_short, r"short\.zarr/sigma: holds 7 channels for 7 cube outputs")]:
+        with pytest.raises(ValueError, match=message) as refused:
+            open_batch_output(edited(name, change))
+        assert "\n" not in str(refused.value)
+    gone = open_batch_output(damaged_copy(out, tmp_path / "gone.zarr", missing=[("sigma", 1)]))
+    assert gone.missing("sigma") == [1]
+    with pytest.raises(ValueError, match=r"gone\.zarr/sigma: sequence 1 is committed but its chunk"):
+        gone.read("sigma", 1)
+    bad = open_batch_output(damaged_copy(out, tmp_path / "bad.zarr", corrupt=[("dE_sigma", 0)]))
+    with pytest.raises(ValueError, match=r"bad\.zarr/dE_sigma: corrupt or unreadable chunk at sequence 0"):
+        bad.read("dE_sigma", 0)
