@@ -3,8 +3,7 @@ to recover's for the same frames, still, moving (``--motion global``), denoised,
 reference white; written like the other outputs (float32, one chunk per sequence, channels, units, NaN where the
 mask says why), resumed, refused in one line where a combination cannot give them, and checked when read back.
 
-The twin renders at 320 x 240 (its smallest sensor window); each recording here keeps a 160 x 120 window of it, with
-the calibration cut to the same window, so every stream and batch runs on 160 x 120 frames."""
+Every stream and batch here runs on 160 x 120 frames (:mod:`batch_sigma_helpers`)."""
 
 from __future__ import annotations
 
@@ -15,31 +14,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from batch_sigma_helpers import DENOISE, OUTPUTS, SEQUENCES, SIGMAS, rendered, streamed, white_roi, window_twin
 from zarr_helpers import damaged_copy
 
-from specgpu.calibration.bundle import oracle_calibration
 from specgpu.core.mask import Mask
-from specgpu.io.recording import ZarrRecorder, open_recording
+from specgpu.io.recording import open_recording
 from specgpu.pipeline import batch
 from specgpu.pipeline.batch import prepare_batch, process_sequences
 from specgpu.pipeline.batch_output import open_batch_output
 from specgpu.pipeline.capture_folder import SequenceFolder
 from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
 from specgpu.pipeline.recovery import recover, to_XYZ, uncertainty
-from specgpu.pipeline.sequence_decoder import SequenceDecoder
-from specgpu.planning.estimators import with_estimator
-from specgpu.planning.noise import NoiseModel
-from specgpu.planning.registry import make_plan
-from specgpu.rig import CameraParameters, RigDescription
-from specgpu.rig.motion import MotionParameters
-from specgpu.rig.scene import natural_scene
 
-SEQUENCES = 2
-WINDOW = (slice(60, 180), slice(80, 240))  # the 160 x 120 window kept, about the scene's centre
-WHITE = (slice(80, 100), slice(130, 170))  # a 0.99 white painted on the scene: rows 20-40, columns 50-90 of the window
-SIGMAS = ("sigma", "sigma_rms", "dE_sigma")
-OUTPUTS = ("cube", "XYZ", *SIGMAS)
-DENOISE = (2, 1e-4)
 #: (motion, denoise, a reference white moving with the scene)
 CASES = {"still": ("none", None, False), "global": ("global", None, False), "denoise": ("none", DENOISE, False),
          "global-denoise-white": ("global", DENOISE, True)}
@@ -47,20 +33,8 @@ CASES = {"still": ("none", None, False), "global": ("global", None, False), "den
 
 @pytest.fixture(scope="module")
 def twin():
-    """The 7-band narrowband plan with its noise model and the oracle calibration, both of the 160 x 120 window,
-    and the twin's description and the natural scene (with a 0.99 white painted on it) to render the frames at
-    320 x 240 (a chart's flat patches give the motion estimate too little texture in so small a window)."""
-    desc = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240, frame_rate_hz=200.0,
-                                                  exposure_s=0.0049))
-    full = oracle_calibration(desc)
-    plan = make_plan("narrowband", full, step_nm=50.0, max_exposure_s=0.0049)
-    plan = with_estimator(plan, full, "projection", noise=NoiseModel.from_rig(desc, plan.exposure_s))
-    assert full.flat_fields is None  # the window of the calibration is its dark and flat field
-    bundle = replace(full, dark=full.dark[WINDOW], flat_field=full.flat_field[WINDOW])
-    scene = natural_scene(240, 320)
-    reflectance = np.array(scene.reflectance)
-    reflectance[WHITE] = 0.99
-    return desc, replace(plan, calibration=bundle.hash), bundle, replace(scene, reflectance=reflectance)
+    """:func:`batch_sigma_helpers.window_twin`: the plan, calibration and scene of the 160 x 120 window."""
+    return window_twin()
 
 
 @pytest.fixture(scope="module")
@@ -85,46 +59,6 @@ def cases(twin, tmp_path_factory):
         return rec, out, options, frames
 
     return case
-
-
-def rendered(twin, *, moving: bool):
-    """:data:`SEQUENCES` sequences of the twin's scene, still or drifting (2, 1) px per frame, cut to the window:
-    (frames, frame infos, the light's record) as a replay driver takes them."""
-    from specgpu.capture.replay import record
-    from specgpu.capture.twin_driver import TwinDriver
-    from specgpu.rig.twin import TwinRig
-
-    desc, plan, _, scene = twin
-    motion = {"motion": MotionParameters(velocity_px_per_frame=(2.0, 1.0))} if moving else {}
-    rig = TwinRig(plan.rig_description(replace(desc, **motion)), scene=scene)
-    rig.seed = 3
-    frames, infos, light = record(TwinDriver(rig, patterns=plan.patterns, pacing="free"), plan.K * SEQUENCES)
-    frames = np.ascontiguousarray(frames[:, WINDOW[0], WINDOW[1]])
-    frames.setflags(write=False)
-    return frames, infos, light
-
-
-def white_roi(plan, bundle, frames) -> str:
-    """The painted white where the sequence ``frames`` has it at its reference time (decoded motion-compensated),
-    inset by 2 px: ``--white-roi`` of a white moving with the scene."""
-    cube = SequenceDecoder(plan, bundle, ("cube",), motion="global").maps(frames)["cube"]
-    white = np.all(np.abs(cube - 0.99) < 0.08, axis=-1)
-    ys, xs = np.nonzero(white)
-    assert xs.size > 100, xs.size
-    return f"{xs.min() + 2},{ys.min() + 2},{xs.max() - xs.min() - 3},{max(1, ys.max() - ys.min() - 3)}"
-
-
-def streamed(path, plan, bundle, frames, infos, light, *, motion, denoise, white) -> Path:
-    """``specgpu stream --frames`` of the replayed ``frames`` with the options: the recording at ``path``."""
-    from specgpu.capture.replay import ReplayDriver
-    from specgpu.pipeline.stream import Stream
-
-    recorder = ZarrRecorder(path, plan, frames=True)
-    roi = {} if white is None else {"white_roi": white[0], "white_moves": white[2]}
-    report = Stream(ReplayDriver(frames, infos, light), plan, bundle, outputs=OUTPUTS, cube_dtype=np.float32,
-                    policy="block", motion=motion, denoise=denoise, sinks=[recorder], **roi).run()
-    assert report.sequences_out == SEQUENCES
-    return path
 
 
 def assert_close_nan(a, b, **tol):
