@@ -524,10 +524,10 @@ def run_batch(source_path: str | os.PathLike[str], plan: Plan, calibration: Cali
     Parameters
     ----------
     outputs : sequence of str
-        Of :data:`BATCH_OUTPUTS`: ``cube``, ``XYZ``, ``Lab``, ``dE`` (with ``reference``), and the uncertainty
-        outputs of the stream (:func:`specgpu.pipeline.decoder_outputs.outputs_for`): ``sigma`` (each output's
-        standard deviation, then their RMS), ``sigma_rms`` (that RMS alone), ``dE_sigma`` (the first-order
-        CIEDE2000 standard deviation); the sigmas need the plan's noise model.
+        Of ``BATCH_OUTPUTS``: ``cube``, ``XYZ``, ``Lab``, ``dE`` (with ``reference``), and the uncertainty
+        outputs of the stream, decided by its decoder (``decoder_outputs.outputs_for``): ``sigma`` (each
+        output's standard deviation, then their RMS), ``sigma_rms`` (that RMS alone), ``dE_sigma`` (the
+        first-order CIEDE2000 standard deviation); the sigmas need the plan's noise model.
     scheduler : str, optional
         Address of a running ``dask.distributed`` scheduler; default Dask's own setting, ``scheduler-address``
         (the environment's ``DASK_SCHEDULER_ADDRESS``), where it is set, else a ``LocalCluster`` of ``workers``
