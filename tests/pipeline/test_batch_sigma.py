@@ -256,3 +256,22 @@ def test_the_validator_refuses_a_corrupt_sigma_array(cases, tmp_path):
     bad = open_batch_output(damaged_copy(out, tmp_path / "bad.zarr", corrupt=[("dE_sigma", 0)]))
     with pytest.raises(ValueError, match=r"bad\.zarr/dE_sigma: corrupt or unreadable chunk at sequence 0"):
         bad.read("dE_sigma", 0)
+
+
+@pytest.mark.parametrize("name", ["still", "denoise"])
+def test_a_device_without_shared_memory_copies_the_same_sigmas(twin, cases, tmp_path, name):
+    """On a device whose memory is not the host's the results are copied back instead of mapped (a GPU): the
+    sigmas, and the mask, are those of the mapped path."""
+    from specgpu.pipeline.batch import _decoder, _worker_state
+
+    _, plan, bundle, _ = twin
+    rec, mapped, options, _ = cases(name)
+    out = tmp_path / "copied.zarr"
+    job, todo = prepare_batch(rec, plan, bundle, out, outputs=OUTPUTS, **options)
+    state, _ = _worker_state(job)
+    _decoder(job, state)
+    state._zero_copy = False
+    assert not any(r.get("error") for r in process_sequences(job, todo))
+    copied, want = open_batch_output(out), open_batch_output(mapped)
+    for output in (*SIGMAS, "mask"):
+        np.testing.assert_array_equal(copied.read(output, slice(None)), want.read(output, slice(None)))
