@@ -1,7 +1,8 @@
 """The uncertainty outputs of ``specgpu batch`` (``sigma``, ``sigma_rms``, ``dE_sigma``): equal to the stream's and
-to recover's for the same frames, still, moving (``--motion global``), denoised, and moving with the denoise and a
-reference white; written like the other outputs (float32, one chunk per sequence, channels, units, NaN where the
-mask says why), resumed, refused in one line where a combination cannot give them, and checked when read back.
+to recover's for the same frames, still, moving (``--motion global``), denoised, denoised with a reference white,
+and moving with the denoise and a white that moves with the scene; written like the other outputs (float32, one
+chunk per sequence, channels, units, NaN where the mask says why), resumed, refused in one line where a
+combination cannot give them, and checked when read back.
 
 Every stream and batch here runs on 160 x 120 frames (:mod:`batch_sigma_helpers`)."""
 
@@ -26,9 +27,9 @@ from specgpu.pipeline.capture_folder import SequenceFolder
 from specgpu.pipeline.outputs import delta_E_sigma_map, sigma_with_rms
 from specgpu.pipeline.recovery import recover, to_XYZ, uncertainty
 
-#: (motion, denoise, a reference white moving with the scene)
+#: (motion, denoise, a reference white in the field: with motion, one moving with the scene)
 CASES = {"still": ("none", None, False), "global": ("global", None, False), "denoise": ("none", DENOISE, False),
-         "global-denoise-white": ("global", DENOISE, True)}
+         "denoise-white": ("none", DENOISE, True), "global-denoise-white": ("global", DENOISE, True)}
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +99,7 @@ def test_the_batch_sigmas_equal_the_streams(cases, name):
     np.testing.assert_array_equal(sigma[..., -1], batch_maps.read("sigma_rms", slice(None)))
 
 
-@pytest.mark.parametrize("name", ["still", "global-denoise-white"])
+@pytest.mark.parametrize("name", ["still", "denoise-white", "global-denoise-white"])
 def test_the_batch_sigmas_equal_recovers(twin, cases, name):
     """Sequence 1 of the batch against ``recover --sigma --delta-e-sigma`` of its frames with the same options."""
     _, plan, bundle, _ = twin
