@@ -194,7 +194,7 @@ def test_place_frame_fits_a_steady_motion_and_measures_its_misfit():
 
 # ------------------------------------------------------------------------------- the twin's moving chart, room light
 
-LUX = 300.0  # a lit room: the ambient frame holds a fifth of the brightest pattern frame's signal
+LUX = 300.0  # a lit room: the ambient frame a few DN above the dark on the chart, the surround near none
 SPEED = MotionParameters(velocity_px_per_frame=(3.0, 0.0))
 
 
