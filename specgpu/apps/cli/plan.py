@@ -51,8 +51,9 @@ def with_frames(plan, bundle, ambient, drift_probe, reference_every=None):
     if reference_every is not None:
         needed, why = ambient_needed(bundle)
         if ambient is None and needed:
-            click.echo(f"no ambient frame with --reference-every although {why}: recover --motion cannot subtract "
-                       "one from a moving scene", err=True)
+            click.echo(f"no ambient frame with --reference-every although {why}: the two do not combine (for room "
+                       "light on a moving scene: --ambient without --reference-every; recover --motion warps the "
+                       "ambient frame)", err=True)
         return with_reference_frames(plan, bundle, reference_every)
     if drift_probe:
         plan = with_drift_probes(plan, bundle, sorted(drift_probe))
