@@ -49,7 +49,9 @@ def patches(seed, margin=40):
     for _ in range(90):
         y, x = rng.integers(0, h - 8), rng.integers(0, w - 8)
         R[y:y + rng.integers(8, 40), x:x + rng.integers(8, 50)] = rng.uniform(0.1, 0.9)
-    room = 60.0 * (1.0 + 0.5 * (np.arange(w) / w))[None, :] * np.ones((h, 1))  # brighter to one side
+    # brighter to one side, and with shadows of its own (bands its edges the reflectance does not have)
+    room = 60.0 * (1.0 + 0.5 * (np.arange(w) / w))[None, :] * np.ones((h, 1))
+    room *= np.where((np.arange(w) // 37) % 2 == 0, 1.0, 0.4)[None, :]
     return R, room
 
 
@@ -144,7 +146,7 @@ def test_the_consistency_check_reads_the_pattern_frames_only():
     would be flagged wherever it has structure."""
     frames, _, _ = sequence(STEADY)
     rec, _ = decode(frames)
-    assert (rec.mask & Mask.INCONSISTENT).astype(bool).mean() < 0.05
+    assert (rec.mask & Mask.INCONSISTENT).astype(bool).mean() < 0.01  # 0.3 %; 4 % with it compared
 
 
 def test_a_motion_too_unsteady_to_place_the_ambient_frame_is_flagged_not_decoded_wrong():
@@ -302,12 +304,14 @@ def test_recover_and_the_stream_decode_a_moving_ambient_plan_alike(chart):
     assert_close_nan(maps["sigma"][..., :-1], sigma, rtol=1e-5, atol=1e-7)
 
 
-def test_the_sigmas_of_a_moving_ambient_plan_are_calibrated(chart):
+@pytest.mark.parametrize("denoise", [None, pytest.param((2, 1e-4), marks=pytest.mark.slow)])
+def test_the_sigmas_of_a_moving_ambient_plan_are_calibrated(chart, denoise):
     """Two noise draws of one moving sequence: their difference over sqrt(2) against sigma has an RMS z-score in
     [0.8, 1.25] per band, and dE2000 between them against dE_sigma: the ambient frame's own noise, shared by every
-    output through its column, is in the sigma."""
+    output through its column, is in the sigma (0.99-1.01 and 1.00 on the twin; denoised, carried through the
+    filter, 1.02-1.04 and 1.01, in the slow set: the filter's variance takes half a minute)."""
     desc, bundle, plan, scene = chart
-    dec = SequenceDecoder(plan, bundle, ("cube", "Lab", "sigma", "dE_sigma"), motion="global")
+    dec = SequenceDecoder(plan, bundle, ("cube", "Lab", "sigma", "dE_sigma"), motion="global", denoise=denoise)
     a, b = (dec.maps(capture_plan(replace(desc, motion=SPEED), plan, scene, noise_seed=s,
                                   calibration=bundle).sequences[0].frames) for s in (21, 22))
     ok, rms, ratio = draw_pair_scores(a, b, plan.A.shape[0])
