@@ -495,14 +495,15 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
 def _flag_misplaced(frames, dark, gain, ambient: int, shifts, misfit: float, mask) -> None:
     """Flag (in place, inconsistent) the pixels whose ambient sample the unsteady motion leaves uncertain
     (:func:`specgpu.motion.ambient.misplaced`), and say so in one warning."""
+    if misfit <= STEADY_PX:
+        return
     a = np.asarray(frames[ambient], np.float64)
     if dark is not None:
         a = a - np.asarray(dark, np.float64)
     if gain is not None:
         a = a * live_gain(gain)
     flags = misplaced(a, shifts, ambient, misfit) & ((mask & np.uint8(UNSEEN)) == 0)
-    if misfit > STEADY_PX:
-        mask[flags] = (mask[flags] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
-        warnings.warn(f"the ambient frame's place is uncertain: the registered frames depart from a steady motion "
-                      f"by up to {misfit:.2f} px (over {STEADY_PX} px); {int(flags.sum())} pixels where its room "
-                      "light changes within that reach are flagged inconsistent", RuntimeWarning, stacklevel=3)
+    mask[flags] = (mask[flags] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
+    warnings.warn(f"the ambient frame's place is uncertain: the registered frames depart from a steady motion by "
+                  f"up to {misfit:.2f} px (over {STEADY_PX} px); {int(flags.sum())} pixels where its room light "
+                  "changes within that reach are flagged inconsistent", RuntimeWarning, stacklevel=3)
