@@ -353,7 +353,7 @@ def recovered_capture(seq, *, truth=None, device=None, say=None) -> tuple:
     that moved (:func:`specgpu.pipeline.motion_record.moved`) is its first sequence decoded with motion
     compensation (``recover --motion global --sequence 0``), scored against that sequence's recorded motion truth
     unless ``truth`` is given; ``note`` (HTML-free text, also passed to ``say``) says so, None for a still one.
-    One the compensation refuses (a white ROI, an ambient frame) is reported as a still one, its note saying why."""
+    One the compensation refuses (the decoder's one-line refusal) is reported as a still one, its note saying why."""
     meta = seq.meta.get("metadata", {}) or {}
     roi = meta.get("white_roi")
     noisy = seq.plan.output == "reflectance" and "noise" in seq.plan.params
@@ -364,7 +364,7 @@ def recovered_capture(seq, *, truth=None, device=None, say=None) -> tuple:
         return y, sigma, _truth_of(seq.meta, h, w, truth), None
     try:
         y = recover(seq, sequence=0, device=device, motion=REPORT_MOTION)
-    except ValueError as why:  # a capture the compensation does not take yet (a white ROI, an ambient frame)
+    except ValueError as why:  # a capture the compensation does not take (the decoder says why in one line)
         note = without_motion(seq, averaged=True) + f" (the report could not compensate it: {why})"
         if say is not None:
             say(note)

@@ -1,5 +1,6 @@
 """Public names of :mod:`specgpu.motion`, loaded lazily by its ``__init__`` (and read by type checkers)."""
 
+from .ambient import place_frame
 from .candidates import choose_candidates
 from .consistency import CHECK_THRESHOLD, consistency, inconsistent_pixels
 from .device_estimate import estimate_on_device
@@ -29,6 +30,7 @@ __all__ = [
     "inconsistent_pixels",
     "MOTION_METHODS",
     "MotionEstimate",
+    "place_frame",
     "residual_check",
     "residual_chi2",
     "ResidualCheck",

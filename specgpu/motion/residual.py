@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from specgpu.planning.correction import ambient_index, subtracting_ambient
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.priors import smooth_prior
 from specgpu.planning.reference_frames import reference_indices
@@ -47,7 +48,9 @@ class ResidualCheck:
     K : int
         The frames of the decoder's sequence.
     frames : tuple of int
-        The frames the decoder reads (a plan's broadband reference frames left out), in order.
+        The frames the check reads (a plan's broadband reference frames left out), in order: the pattern frames
+        and, for a plan with an ambient frame, that frame, whose sample is subtracted from theirs (``project``'s
+        column for it minus the sum of theirs).
     project : numpy.ndarray
         (r, len(frames)): the samples' residual components, ``U_r^T (I - E A)`` on the frames read.
     mismatch : numpy.ndarray
@@ -88,16 +91,22 @@ def residual_check(plan, bundle, *, noise: NoiseModel | None = None,
     ``noise``: default :func:`plan_noise`."""
     if plan.output != "reflectance":
         return None
-    refs = set(reference_indices(plan))
-    read = [k for k in range(plan.K) if k not in refs]
-    A = np.asarray(plan.A, np.float64)[:, read]
-    E = bundle.forward_matrix(plan.patterns, plan.output_wavelengths, plan.exposure_s)[read]
-    M = np.eye(len(read)) - E @ A
+    refs, ambient = set(reference_indices(plan)), ambient_index(plan)
+    pattern = [k for k in range(plan.K) if k not in refs and k != ambient]
+    A = np.asarray(plan.A, np.float64)[:, pattern]
+    E = bundle.forward_matrix(plan.patterns, plan.output_wavelengths, plan.exposure_s)[pattern]
+    M = np.eye(len(pattern)) - E @ A
     U, s, _ = np.linalg.svd(M)
     rank = int(np.sum(s > 1e-2 * max(float(s[0]), 1e-30))) if s.size else 0
     if rank == 0:
         return None
     project = U[:, :rank].T @ M
+    read = pattern
+    if ambient is not None:
+        # the pattern frames' samples above the ambient frame's: its sample is read too, with minus the sum of
+        # the pattern frames' weights, so the noise it shares with all of them is weighed as one sample's
+        read = sorted(pattern + [ambient])
+        project = subtracting_ambient(np.insert(project, read.index(ambient), 0.0, axis=1), read.index(ambient))
     prior = smooth_prior(bundle.wavelengths)
     F = project @ bundle.forward_matrix(plan.patterns, prior.wavelengths, plan.exposure_s)[read]
     return ResidualCheck(int(plan.K), tuple(read), project, F @ prior.moment @ F.T, noise or plan_noise(plan),

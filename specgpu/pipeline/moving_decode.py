@@ -16,9 +16,14 @@ The uncertainty outputs (``sigma``, ``sigma_rms``, ``dE_sigma``) are taken at th
 ``sum_i w_i^2 var_i`` of their own noise (:func:`warped_sample_variance`, the noise model of
 :mod:`specgpu.planning.noise` per pixel), the light's fluctuation, common to a frame's pixels, at the sample's own
 signal; an object layer's pixels with its own shifts. With ``--denoise`` they are carried through the filter
-(``warped_uncertainty(smoothed=...)``). What is still refused with a motion mode is a plan with an
-ambient frame (subtracted from fixed pixels) and the options the flow cannot serve, in one line naming the option
-(:func:`check_motion_options`).
+(``warped_uncertainty(smoothed=...)``).
+
+A plan with an ambient frame (``plan --ambient``) is decoded with its ambient frame warped like the others: it is
+placed on the steady motion of the frames registered (:mod:`specgpu.motion.ambient`), sampled where it saw each
+pixel and subtracted there, in the same pass (the decoder's column for it minus the sum of the others:
+:func:`specgpu.planning.correction.subtracting_ambient`); its sample's own noise goes into every output through that
+column. What is still refused with a motion mode, in one line naming the option (:func:`check_motion_options`), is
+what the flow cannot serve and an output whose covariance model needs fixed pixels.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ from specgpu.engine.guided_variance import box_box_squares
 from specgpu.motion.flow import MIN_FRAMES
 from specgpu.motion.methods import check_motion_mode
 from specgpu.pipeline.denoise import carried_through_filter, warped_guide_row
-from specgpu.planning.correction import ambient_index
+from specgpu.planning.correction import ambient_index, subtracting_ambient
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.reference_frames import reference_indices
 from specgpu.planning.uncertainty import constant_covariance
@@ -63,9 +68,6 @@ def check_motion_options(motion, plan=None, *, outputs=()) -> str:
     if mode == "flow" and plan is not None and reference_indices(plan):
         raise ValueError("--motion flow with a plan with broadband reference frames: the flow is estimated from "
                          "every frame of the sequence; compensate with --motion global or affine")
-    if plan is not None and ambient_index(plan) is not None:
-        raise ValueError(f"--motion {mode} with a plan with an ambient frame: the ambient frame is subtracted "
-                         "from fixed pixels, which the scene moves across")
     return mode
 
 
@@ -94,7 +96,7 @@ def _interpolation_correlation(radius: int) -> float:
 
 
 def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read, light: bool = True,
-                           filtered: int | None = None) -> np.ndarray:
+                           filtered: int | None = None, ambient: int | None = None) -> np.ndarray:
     """(len(read), H, W) float64: the variance of each read frame's motion-compensated sample, the bilinear
     interpolation of the corrected frame ``(o - dark) * gain`` at the point the frame saw each pixel
     (``shifts``: (K, 2) translations, (K, 2, 3) affine maps or a (K, 2, H, W) flow, as
@@ -112,13 +114,17 @@ def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read,
     interpolated with the weights themselves, ``sum_i w_i var c_i``, times ``rho(fx) rho(fy)``, where
     ``rho(f) = 1 - 2 f (1 - f) (1 - R(1) / R(0))`` with R the autocorrelation of the box-box weights along an
     axis (the box-box of the bilinear kernel convolved with the filter's over that of the filter's alone; 0.97 at
-    a half pixel for r = 2, where ``sum w_i^2`` alone would say 0.5)."""
+    a half pixel for r = 2, where ``sum w_i^2`` alone would say 0.5).
+
+    ``ambient``: the plan's ambient frame (room light only): its sample has no light's fluctuation, and the
+    other frames' is at their signal above it (the light fluctuates, the room light does not)."""
     noise = NoiseModel.from_params(plan.params["noise"])
     f = np.asarray(frames, np.float64)
     h, w = f.shape[1:]
     g2 = live_gain(gain).astype(np.float64) ** 2 if gain is not None else np.ones((h, w))
     d = np.asarray(shifts, np.float64)
     corr = None if filtered is None else _interpolation_correlation(filtered)
+    room = 0.0 if ambient is None else f[ambient] - np.asarray(dark, np.float64)
     out = np.empty((len(read), h, w))
     for n, k in enumerate(read):
         x = f[k] - np.asarray(dark, np.float64)
@@ -129,8 +135,8 @@ def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read,
                 1 - 2 * fy * (1 - fy) * corr)
         else:
             var = sum(wt * wt * own[r, c] for r, c, wt in taps)
-        if corr is None and light and noise.light_rms > 0:
-            signal = np.sqrt(g2) * x
+        if corr is None and light and noise.light_rms > 0 and k != ambient:
+            signal = np.sqrt(g2) * (x - room)
             var += (noise.light_rms * sum(wt * signal[r, c] for r, c, wt in taps)) ** 2
         var[outside] = np.nan
         out[n] = var
@@ -156,7 +162,8 @@ def _slope_basis(rows: np.ndarray, terms: list) -> tuple[np.ndarray, list]:
 
 def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=None, light: bool = True,
                        smoothed=None, rms: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
-    """The standard deviation (H, W, B) of the outputs of the decoder ``A`` (the plan's by default) of the
+    """The standard deviation (H, W, B) of the outputs of the decoder ``A`` (the plan's by default, with its ambient
+    frame's column, :func:`specgpu.planning.correction.subtracting_ambient`) of the
     motion-compensated decoding ``rec`` (a :class:`~specgpu.pipeline.moving_layers.MovingRecovery`) and, given
     ``M`` (3, B), the covariance (H, W, 3, 3) of ``M y`` (XYZ), float32: each frame's sample variance
     (:func:`warped_sample_variance`, with the sequence's shifts, an object layer's own on the pixels decoded with
@@ -172,17 +179,19 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
 
     ``rms``: only the RMS over the outputs of their standard deviation, (H, W, 1) (one channel carried through the
     filter instead of B)."""
-    A = np.asarray(plan.A if A is None else A, np.float64)
+    ambient = ambient_index(plan)
+    A = subtracting_ambient(plan.A, ambient) if A is None else np.asarray(A, np.float64)
     read = np.flatnonzero(np.any(A != 0, axis=0))
     shifts = rec.estimates[0].shifts
     own = (rec.mask & np.uint8(Mask.LAYER)) != 0
 
     def variance(**kw):
-        V = warped_sample_variance(frames, plan, dark, gain, shifts, read=read, **kw)
+        V = warped_sample_variance(frames, plan, dark, gain, shifts, read=read, ambient=ambient, **kw)
         for layer in rec.layers if np.ndim(shifts) != 4 else ():  # a flow holds the layers' own already
             mine = own & layer.decoded
             if mine.any():
-                V[:, mine] = warped_sample_variance(frames, plan, dark, gain, layer.shifts, read=read, **kw)[:, mine]
+                V[:, mine] = warped_sample_variance(frames, plan, dark, gain, layer.shifts, read=read, ambient=ambient,
+                                                    **kw)[:, mine]
         return V
 
     V = variance(light=light)
@@ -206,7 +215,7 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
         # the slopes' coordinates in the rows' span (the XYZ slopes are M times the cube's)
         P = U[:B] if M is None else U[:B] + np.asarray(M, np.float64).T @ U[B:]
         slopes = np.asarray(smoothed["slopes"], np.float64) @ P
-        row = warped_guide_row(plan)[0, read]
+        row = subtracting_ambient(warped_guide_row(plan), ambient)[0, read]
         state = {"guide": smoothed["guide"], "radius": smoothed["radius"], "eps": smoothed["eps"], "slopes": slopes,
                  "guide_var": np.tensordot(row * row, V_own, axes=([0], [0])) / smoothed["level"] ** 2}
         # every part in one call (the filter's weights made once): the own part as the filter takes it in place of

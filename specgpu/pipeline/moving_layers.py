@@ -35,6 +35,7 @@ tell, not because it holds.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -45,6 +46,7 @@ from specgpu.core.mask import UNSEEN, Mask
 from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import LinearResult
 from specgpu.engine.warp_map import apply_linear_warped
+from specgpu.motion.ambient import STEADY_PX, misplaced, place_frame
 from specgpu.motion.consistency import CHECK_THRESHOLD, consistency
 from specgpu.motion.estimate import at_reference_time
 from specgpu.motion.flow import choose_flow, flow_field, tile_motion
@@ -104,7 +106,7 @@ class ObjectLayer:
 
 def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=None, *, saturation=None, device=None,
                          threshold: float = CHECK_THRESHOLD, min_share: float = MIN_LAYER_SHARE,
-                         read=None, residual=None) -> list:
+                         read=None, residual=None, checked=None) -> list:
     """Decode again, with an object's own motion, the flagged regions of a globally compensated recovery.
 
     ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (``Mask.INCONSISTENT`` where flagged)
@@ -116,7 +118,9 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
     global motion's :func:`~specgpu.motion.consistency.consistency`, whose flags ``mask`` holds. Returns the
     :class:`ObjectLayer` of each region decoded (empty: none found). ``read``: the frames the decoder reads (all
     by default; a plan's broadband reference frames left out, as the global pass and check leave them out);
-    ``residual``: the :class:`~specgpu.motion.residual.ResidualCheck` the object's decoding must pass too.
+    ``residual``: the :class:`~specgpu.motion.residual.ResidualCheck` the object's decoding must pass too;
+    ``checked``: the frames the consistency check reads (default ``read``; a plan's ambient frame, which the pass
+    reads, left out: it holds no projector light to compare).
     """
     frames = np.asarray(frames)
     if estimate.model != "translation":
@@ -144,7 +148,8 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         shifts = raw - at_reference_time(raw)
         res = _warped(frames, A, shifts, dark, gain, read, residual, saturation=saturation, return_mask=True,
                       device=device)
-        textured, worst = consistency(*_reading(read, frames, shifts), gradients=_reading(read, gradients)[0])
+        looked = read if checked is None else checked
+        textured, worst = consistency(*_reading(looked, frames, shifts), gradients=_reading(looked, gradients)[0])
         valid = (res.mask & UNSEEN) == 0
         fits = (res.mask & Mask.INCONSISTENT) == 0  # one reflectance explains the samples the object's motion takes
         # the object's pixels: its motion makes the frames agree there, and clearly better than the global one
@@ -220,11 +225,13 @@ def disagreeing(y, other, tolerance: float = DISAGREE_RMS) -> np.ndarray:
         return np.sqrt(np.mean((np.asarray(y, np.float32) - np.asarray(other, np.float32)) ** 2, axis=2)) > tolerance
 
 
-def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, saturation, device, residual=None):
+def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, saturation, device, residual=None,
+               checked=None):
     """The flow's part of a ``model="flow"`` recovery (:mod:`specgpu.motion.flow`), in place on ``y`` and
     ``mask``: each pixel the flow's decoding gives (:func:`~specgpu.motion.flow.choose_flow`, with the
-    global check's ``maps``; every pixel without them). Returns ``est`` with ``shifts`` the (K, 2, H, W)
-    displacement each pixel was decoded with and ``model`` "flow"."""
+    global check's ``maps``; every pixel without them; the flow's check reads the frames ``checked``, every one by
+    default). Returns ``est`` with ``shifts`` the (K, 2, H, W) displacement each pixel was decoded with and
+    ``model`` "flow"."""
     K, h, w = np.shape(frames)
     per_pixel = np.empty((K, 2, h, w), np.float32)
     per_pixel[...] = np.asarray(est.shifts, np.float32)[:, :, None, None]
@@ -240,7 +247,10 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
                       device=device)
         disagree = np.zeros((h, w), bool)
         if maps is not None:
-            flow_maps = consistency(frames, flow, dark, gain, gradients=gradients)
+            if checked is None:
+                flow_maps = consistency(frames, flow, dark, gain, gradients=gradients)
+            else:
+                flow_maps = consistency(*_reading(checked, frames, flow), gradients=_reading(checked, gradients)[0])
             use = choose_flow(mask, maps, res.mask, flow_maps, held, threshold=CHECK_THRESHOLD,
                               inconsistent=Mask.INCONSISTENT)
             # two motions each pass every check at a pixel yet decode it differently: one of them samples other
@@ -319,12 +329,16 @@ class MovingRecovery:
     estimates: list
     #: the :class:`ObjectLayer` of each object decoded with its own motion
     layers: list = field(default_factory=list)
+    #: with an ambient frame placed by the others' motion: the largest departure (px) of a registered frame from the
+    #: steady motion it was placed on (:func:`specgpu.motion.ambient.place_frame`); None without one
+    ambient_misfit: float | None = None
 
 
 def recover_moving(frames: ArrayLike, A: ArrayLike, *, dark: ArrayLike | None = None, gain: ArrayLike | None = None,
                    saturation=None, upsample: int = 10, binning: int = 1,
                    shifts: ArrayLike | None = None, model: str = "translation", check: bool = True, layers: bool = True,
-                   device=None, seconds: dict | None = None, reference_frames=None, residual=None) -> MovingRecovery:
+                   device=None, seconds: dict | None = None, reference_frames=None, residual=None,
+                   ambient: int | None = None) -> MovingRecovery:
     """Recover one sequence of a moving scene: estimate each frame's displacement (or take ``shifts``), then decode
     with frame k sampled at x + d_k in one device pass.
 
@@ -367,13 +381,22 @@ def recover_moving(frames: ArrayLike, A: ArrayLike, *, dark: ArrayLike | None = 
         compensated samples no single reflectance explains (:mod:`specgpu.motion.residual`; made for the
         plan by :func:`~specgpu.motion.residual.residual_check`). Without it only the gradient images
         judge, which cannot where no frame has structure of its own.
+    ambient : int, optional
+        The sequence's ambient frame (a plan made with ``--ambient``; ``A``'s column for it minus the sum of the
+        others', :func:`specgpu.planning.correction.subtracting_ambient`): the motion is estimated from the other
+        frames and the ambient frame placed on their steady motion (:func:`specgpu.motion.ambient.place_frame`);
+        the warped pass samples it like the others (its pixels seen outside the field NaN with bit 4), the
+        consistency check reads the other frames only. Where they depart from a steady motion by more than
+        :data:`specgpu.motion.ambient.STEADY_PX`, the pixels where the room light has structure within that
+        reach are flagged inconsistent (:func:`specgpu.motion.ambient.misplaced`) and a warning says so.
 
     Returns
     -------
     MovingRecovery
         ``y`` (H, W, B) float32, NaN where a pixel was seen outside the field, saturated or inconsistent;
         ``mask`` (H, W) uint8 (1 saturated, 2 non-finite, 4 outside the field, 8 inconsistent, 16 decoded with an
-        object's own motion); ``estimates`` [MotionEstimate] (empty with ``shifts``); ``layers`` [ObjectLayer].
+        object's own motion); ``estimates`` [MotionEstimate] (empty with ``shifts``); ``layers`` [ObjectLayer];
+        ``ambient_misfit``.
     """
     if model == "affine" and shifts is None and check:
         # an affine map per frame is a hypothesis beside the translation (of which it is a refinement), not a
@@ -383,16 +406,29 @@ def recover_moving(frames: ArrayLike, A: ArrayLike, *, dark: ArrayLike | None = 
         # explains more of the field is kept (the translation where they tie: the fewer parameters).
         given = dict(dark=dark, gain=gain, saturation=saturation, upsample=upsample, binning=binning, check=check,
                      layers=layers, device=device, seconds=seconds, reference_frames=reference_frames,
-                     residual=residual)
+                     residual=residual, ambient=ambient)
         return max((_recover(frames, A, model=m, shifts=None, **given) for m in ("translation", "affine")),
                    key=explained)
     return _recover(frames, A, dark=dark, gain=gain, saturation=saturation, upsample=upsample, binning=binning,
                     shifts=shifts, model=model, check=check, layers=layers, device=device, seconds=seconds,
-                    reference_frames=reference_frames, residual=residual)
+                    reference_frames=reference_frames, residual=residual, ambient=ambient)
+
+
+def _estimate(frames, dark, gain, model, refs, upsample, binning, device, ambient):
+    """The motion of the sequence ``frames`` (its MotionEstimate) and, with an ``ambient`` frame, the misfit of the
+    steady motion it was placed on (else None)."""
+    method = MODEL_METHODS.get(model, model)
+    if ambient is None:
+        return estimate_motion(frames, dark, gain, method=method, reference_frames=refs, upsample=upsample,
+                               binning=binning, device=device), None
+    others = [k for k in range(len(frames)) if k != ambient]
+    est = estimate_motion(np.asarray(frames)[others], dark, gain, method=method, upsample=upsample,
+                          binning=binning, device=device)
+    return place_frame(est, others, len(frames), ambient, np.shape(frames)[1:])
 
 
 def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, model, check, layers, device, seconds,
-             reference_frames, residual) -> MovingRecovery:
+             reference_frames, residual, ambient) -> MovingRecovery:
     """:func:`recover_moving` with the one motion ``model`` given."""
     clock = [time.perf_counter()]
 
@@ -404,17 +440,22 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
     est, gradients, maps = None, None, None
     dense = model == "flow"
     refs = [] if not reference_frames else check_reference_frames(reference_frames, len(frames))
+    if ambient is not None and (refs or not 0 <= int(ambient) < len(frames)):
+        raise ValueError(f"ambient frame {ambient}: must be a frame of the sequence's {len(frames)} and not with "
+                         "broadband reference frames")
     if dense and shifts is not None:
         raise ValueError("model='flow' estimates its own displacement per pixel: give shifts with the translation or "
                          "affine model")
+    misfit = None
     if shifts is None:  # the flow starts from the global translation, which its method estimates
-        est = estimate_motion(frames, dark, gain, method=MODEL_METHODS.get(model, model), reference_frames=refs,
-                              upsample=upsample, binning=binning, device=device)
+        est, misfit = _estimate(frames, dark, gain, model, refs, upsample, binning, device, ambient)
         gradients = est.gradients
         shifts = est.shifts
     lap("estimate")
     # the decoder reads no reference frame: where they saw outside the field, saturated or disagree does not matter
     read = [k for k in range(len(frames)) if k not in set(refs)] if refs else None
+    # the checks compare the frames the decoder reads, less an ambient frame (no projector light to compare)
+    checked = read if ambient is None else [k for k in range(len(frames)) if k != ambient]
     residual = residual if check else None
     reading = read or list(range(len(frames)))
     if residual is not None and (residual.K != len(frames) or list(residual.frames) != reading):
@@ -425,24 +466,44 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
     y, mask = res.y, res.mask
     lap("warp")
     found = []
-    if dense or (check and refs):  # every frame's gradient image made once (the check, the layers, the flow)
+    if dense or (check and checked):  # every frame's gradient image made once (the check, the layers, the flow)
         gradients = frame_gradients(frames, dark, gain, gradients, device=device)
         est = None if est is None else replace(est, gradients=tuple(gradients))
     if check:
-        maps = consistency(*_reading(read, frames, shifts), None if read else dark, gain,
-                           gradients=None if gradients is None else _reading(read, gradients)[0])
+        maps = consistency(*_reading(checked, frames, shifts), None if checked else dark, gain,
+                           gradients=None if gradients is None else _reading(checked, gradients)[0])
         # every pixel judged, textured or not: a frame with structure of its own that the others do not share
         mask[maps[1] < CHECK_THRESHOLD] |= np.uint8(Mask.INCONSISTENT)
         if layers and est is not None:
             found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
-                                         device=device, read=read, residual=residual)
+                                         device=device, read=read, residual=residual, checked=checked)
     if dense and est is not None:
         est = _with_flow(frames, A, est, gradients, y, mask, found, maps if check else None, dark, gain,
-                         saturation=saturation, device=device, residual=residual)
+                         saturation=saturation, device=device, residual=residual,
+                         checked=None if ambient is None else checked)
     if check:
         grow_flags(mask)
         refuted(mask)
+    if misfit is not None:
+        _flag_misplaced(frames, dark, gain, ambient, est.shifts, misfit, mask)
     y[(mask & (Mask.SATURATED | Mask.INCONSISTENT)) > 0] = np.nan
     lap("check")
     # the gradient images served the check and the layers; not kept with a result
-    return MovingRecovery(y, mask, [] if est is None else [replace(est, gradients=None)], found)
+    return MovingRecovery(y, mask, [] if est is None else [replace(est, gradients=None)], found, misfit)
+
+
+def _flag_misplaced(frames, dark, gain, ambient: int, shifts, misfit: float, mask) -> None:
+    """Flag (in place, inconsistent) the pixels whose ambient sample the unsteady motion leaves uncertain
+    (:func:`specgpu.motion.ambient.misplaced`), and say so in one warning."""
+    if misfit <= STEADY_PX:
+        return
+    a = np.asarray(frames[ambient], np.float64)
+    if dark is not None:
+        a = a - np.asarray(dark, np.float64)
+    if gain is not None:
+        a = a * live_gain(gain)
+    flags = misplaced(a, shifts, ambient, misfit) & ((mask & np.uint8(UNSEEN)) == 0)
+    mask[flags] = (mask[flags] & ~np.uint8(Mask.LAYER)) | np.uint8(Mask.INCONSISTENT)
+    warnings.warn(f"the ambient frame's place is uncertain: the registered frames depart from a steady motion by "
+                  f"up to {misfit:.2f} px (over {STEADY_PX} px); {int(flags.sum())} pixels where its room light "
+                  "changes within that reach are flagged inconsistent", RuntimeWarning, stacklevel=3)

@@ -137,7 +137,7 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
         dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi,
                               white_reflectance=white_reflectance, white_moves=white_moves, motion=motion,
                               device=device, denoise=denoise)
-        sensor = dec.corrections.sensor(folder.frames[dec.picked(folder.frames, sequence, folder.path)[0]])
+        sensor = dec.corrections.moving(folder.frames[dec.picked(folder.frames, sequence, folder.path)[0]])
         rec, y, gains, A = dec.warped_outputs(sensor)
         return warped_uncertainty(sensor, folder.plan, dec.corrections.dark, folder.calibration.flat_field, rec, A,
                                   M=M, light=gains is None, smoothed=dec.smoothed(y, rec.mask))

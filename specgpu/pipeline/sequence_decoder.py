@@ -15,7 +15,8 @@ warped pass with those outputs' rows stacked (:meth:`SequenceDecoder.maps`).
 Frames corrected on the host are handed to the linear map as the signal above the level, with no dark: the level
 is subtracted once. The motion estimate, the warped pass and the noise model read the corrected frames on the
 sensor's scale (:meth:`Corrections.sensor`): they compare samples with the sensor's maximum code and model the
-dark level's own noise.
+dark level's own noise. A plan's ambient frame is subtracted there in the warped pass, at the samples
+(:meth:`Corrections.moving`), not from the frames' fixed pixels.
 """
 
 from __future__ import annotations
@@ -43,7 +44,13 @@ from specgpu.pipeline.denoise import (
 )
 from specgpu.pipeline.moving_decode import check_motion_options, warped_uncertainty
 from specgpu.pipeline.moving_layers import recover_moving
-from specgpu.planning.correction import WhiteReference, ambient_index, corrected_decoder, white_gains
+from specgpu.planning.correction import (
+    WhiteReference,
+    ambient_index,
+    corrected_decoder,
+    subtracting_ambient,
+    white_gains,
+)
 from specgpu.planning.reference_frames import reference_indices
 from specgpu.planning.uncertainty import delta_E_sigma
 
@@ -124,6 +131,13 @@ class Corrections:
         f = self.signal(raw, level)
         f += np.asarray(level, np.float32)[None]
         return f
+
+    def moving(self, raw) -> np.ndarray:
+        """The corrected frames on the sensor's scale as the warped pass reads them (:meth:`sensor`): with an
+        ambient frame, above the calibration's dark rather than above the ambient frame, which the scene moves
+        across: the pass samples the ambient frame where it saw each pixel and subtracts it there
+        (:func:`specgpu.planning.correction.subtracting_ambient`)."""
+        return self.sensor(raw, None if self.ambient is None else self.dark)
 
 
 def corrections_for(calibration, plan, *, white_roi=None, white_reflectance=None) -> Corrections:
@@ -348,11 +362,12 @@ class SequenceDecoder:
     def warped_outputs(self, sensor, seconds=None):
         """The warped pass of one sequence and :meth:`pass_rows` of its samples, for the plan's decoder or, with a
         reference white, for this sequence's (:meth:`motion_white_gains`): (recovery, y (H, W, rows) float32,
-        gains or None, the decoder (B, K)). ``sensor``: the sequence's frames corrected on the sensor's scale
-        (:meth:`Corrections.sensor`)."""
+        gains or None, the decoder (B, K), with an ambient frame's column: what the samples went through). ``sensor``:
+        the sequence's frames corrected on the sensor's scale (:meth:`Corrections.moving`)."""
+        ambient = self.corrections.ambient
         if self.white_motion is None:
             rec = self.warped(sensor, self.pass_rows(), seconds=seconds)
-            return rec, rec.y, None, self.plan.A
+            return rec, rec.y, None, subtracting_ambient(self.plan.A, ambient)
         # every frame's warped sample (the identity's rows), the white measured, then the corrected decoder's rows
         rec = self.warped(sensor, np.eye(self.plan.K), seconds=seconds)
         gains = self.motion_white_gains(sensor, rec)
@@ -362,7 +377,7 @@ class SequenceDecoder:
         # float32 samples by float32 rows (one BLAS product, no float64 copy of the K samples of every pixel)
         samples = rec.y if len(cols) == rec.y.shape[-1] else rec.y[..., cols]  # no copy where every frame is read
         y = np.matmul(samples, np.ascontiguousarray(R[:, cols].T, np.float32))
-        return rec, y, gains, A
+        return rec, y, gains, subtracting_ambient(A, ambient)
 
     def motion_white_gains(self, sensor, rec) -> np.ndarray:
         """(K,) the reference white's gains of one sequence (``sensor``: its corrected frames) whose warped
@@ -371,8 +386,8 @@ class SequenceDecoder:
         reference time (a white that moves with the scene), its pixels flagged outside the field or inconsistent
         left out, a saturated one refused (:meth:`specgpu.planning.correction.WhiteReference.gains`)."""
         corr, white = self.corrections, self.white_motion
-        if self.white_moves == "camera":
-            return white.gains(sensor, dark=corr.dark)
+        if self.white_moves == "camera":  # above the ambient frame where there is one, as the still decoding
+            return white.gains(sensor, dark=corr.dark if corr.ambient is None else corr.level(sensor))
         x, y, w, h = white.roi
         flags = rec.mask[y:y + h, x:x + w] & ~np.uint8(Mask.LAYER)
         if np.any(flags & np.uint8(Mask.SATURATED)):
@@ -450,7 +465,7 @@ class SequenceDecoder:
 
     def _moving_maps(self, raw) -> dict:
         steps = {}
-        sensor = self.corrections.sensor(raw)  # once: the warped pass, the white and the sigmas all read it
+        sensor = self.corrections.moving(raw)  # once: the warped pass, the white and the sigmas all read it
         rec, y, gains, A = self.warped_outputs(sensor, seconds=steps)
         t0 = time.perf_counter()
         sigmas = {"sigma", "sigma_rms", "dE_sigma"} & set(self.outputs)
@@ -500,7 +515,7 @@ class SequenceDecoder:
         (:func:`specgpu.pipeline.recovery.recover`); NaN where saturated."""
         picked = self.picked(frames, sequence, where)
         if self.motion != "none":
-            rec, y, _, _ = self.warped_outputs(self.corrections.sensor(frames[picked[0]]))
+            rec, y, _, _ = self.warped_outputs(self.corrections.moving(frames[picked[0]]))
             if self.denoise is not None:
                 y = self.filtered(y[..., :-1], y[..., -1], rec.mask)
             return y.astype(out_dtype, copy=False)
@@ -558,14 +573,16 @@ class SequenceDecoder:
 
     def warped(self, sensor, A, *, seconds: dict | None = None):
         """The warped pass of one sequence through the decoder ``A`` (rows, K), ``sensor`` (K, H, W) its frames
-        corrected on the sensor's scale (:meth:`Corrections.sensor`), its motion
+        corrected on the sensor's scale (:meth:`Corrections.moving`; with an ambient frame, ``A`` reads each frame
+        above it: :func:`specgpu.planning.correction.subtracting_ambient`), its motion
         estimated within the sequence (:func:`specgpu.pipeline.moving_layers.recover_moving`, with the plan's
         reference frames and residual check); a :class:`~specgpu.pipeline.moving_layers.MovingRecovery`. The motion
         is registered on the decoder's device (the default one without ``device``), so recover, the stream and the
         batch estimate it alike (:func:`specgpu.motion.methods.estimate_motion`)."""
         if self.motion == "none":
             raise ValueError("the warped pass needs a motion mode other than none")
-        return recover_moving(sensor, A, dark=self.corrections.dark, gain=self.gain,
+        ambient = self.corrections.ambient
+        return recover_moving(sensor, subtracting_ambient(A, ambient), dark=self.corrections.dark, gain=self.gain,
                               saturation=float(self.calibration.max_code), model=self.model,
-                              device=get_queue(self.device),
-                              seconds=seconds, reference_frames=self.reference_frames, residual=self.residual)
+                              device=get_queue(self.device), seconds=seconds,
+                              reference_frames=self.reference_frames, residual=self.residual, ambient=ambient)

@@ -4,7 +4,7 @@ from .basis import BasisTable, load_basis, load_reflectances, pca_basis, save_ba
 from .basis_plans import plan_biased_basis, plan_symmetric_basis
 from .bound import Bound, design_bound
 from .budget import budget_plan
-from .correction import WhiteReference, corrected_decoder, with_ambient_frame, with_drift_probes
+from .correction import WhiteReference, corrected_decoder, subtracting_ambient, with_ambient_frame, with_drift_probes
 from .design import OBJECTIVES, design_optimal, plan_hadamard, plan_optimal
 from .equal_time import EQUAL_TIME, equal_time_bounds, equal_time_plans
 from .estimators import ESTIMATORS, expected_error, wiener_decoder, with_estimator
@@ -56,6 +56,7 @@ __all__ = [
     "save_plan",
     "sigma_map",
     "smooth_prior",
+    "subtracting_ambient",
     "WhiteReference",
     "wiener_decoder",
     "with_ambient_frame",

@@ -46,7 +46,8 @@ if TYPE_CHECKING:
     from specgpu.calibration.bundle import CalibrationBundle
     from specgpu.planning.plans import Plan
 
-__all__ = ["ambient_needed", "with_ambient_frame", "ambient_index", "with_drift_probes", "probe_indices", "parse_roi",
+__all__ = ["ambient_needed", "with_ambient_frame", "ambient_index", "subtracting_ambient", "with_drift_probes",
+           "probe_indices", "parse_roi",
            "white_reflectance_curve", "white_gains", "gain_noise", "corrected_decoder", "WhiteReference",
            "DEFAULT_WHITE_REFLECTANCE"]
 
@@ -143,6 +144,19 @@ def ambient_index(plan) -> int | None:
     if not 0 <= i < plan.K or np.any(plan.patterns[i] != 0):
         raise ValueError(f"plan's ambient frame {i} is not an all-off pattern of its {plan.K}")
     return i
+
+
+def subtracting_ambient(rows, ambient: int | None) -> np.ndarray:
+    """(R, K) float64: decoder ``rows`` (R, K) that read each frame above the ambient frame ``ambient`` (None:
+    ``rows`` as they are): its column becomes minus the sum of the others, ``y = sum_k A_k (s_k - s_a)``. A decoding
+    that samples each frame where it saw the pixel (a moving scene) subtracts the ambient frame so, its sample taken
+    where it saw the pixel too, instead of from the frames on fixed pixels."""
+    R = np.array(rows, np.float64, copy=True)
+    if ambient is None:
+        return R
+    R[:, ambient] = 0.0
+    R[:, ambient] = -R.sum(axis=1)
+    return R
 
 
 def parse_roi(text, frame_shape, name: str = "--white-roi") -> tuple[int, int, int, int]:

@@ -22,9 +22,10 @@ the field or disagree after compensation would count too. Their indices are reco
 
 The reference frames count in the plan's timing (``Plan.sequence_s``: every frame); a plan designed within a
 sequence-time budget is made for the frames it will have (:func:`reference_count` per designed K) and refused in
-one line where they overrun it. They do not combine with an ambient frame or drift probes: both serve corrections
-on fixed pixels (the ambient frame's subtraction, the reference white's fit) that a moving scene, the only reason
-for reference frames, moves across (``recover --motion`` refuses them for that reason).
+one line where they overrun it. They do not combine with drift probes, which serve a correction on fixed pixels (the
+reference white's fit) that a moving scene, the only reason for reference frames, moves across; nor with an ambient
+frame, which ``recover --motion`` places on the motion registered on the pattern frames
+(:mod:`specgpu.motion.ambient`), the registration reference frames replace.
 """
 
 from __future__ import annotations
@@ -99,8 +100,9 @@ def with_reference_frames(plan: Plan, bundle: CalibrationBundle, every: int):
     if reference_indices(plan):
         raise ValueError("the plan has reference frames already")
     if ambient_index(plan) is not None or probe_indices(plan):
-        raise ValueError("--reference-every does not combine with an ambient frame or drift probes: they serve "
-                         "corrections on fixed pixels, which a moving scene moves across")
+        raise ValueError("--reference-every does not combine with an ambient frame or drift probes: the probes serve "
+                         "a correction on fixed pixels, which a moving scene moves across, and an ambient frame is "
+                         "placed on the pattern frames' registered motion (plan --ambient without reference frames)")
     K, C = plan.patterns.shape
     grid = bundle.wavelengths
     full = np.full((1, C), int(plan.rows), np.int32)

@@ -51,8 +51,9 @@ def with_frames(plan, bundle, ambient, drift_probe, reference_every=None):
     if reference_every is not None:
         needed, why = ambient_needed(bundle)
         if ambient is None and needed:
-            click.echo(f"no ambient frame with --reference-every although {why}: recover --motion cannot subtract "
-                       "one from a moving scene", err=True)
+            click.echo(f"no ambient frame with --reference-every although {why}: the two do not combine (for room "
+                       "light on a moving scene: --ambient without --reference-every; recover --motion warps the "
+                       "ambient frame)", err=True)
         return with_reference_frames(plan, bundle, reference_every)
     if drift_probe:
         plan = with_drift_probes(plan, bundle, sorted(drift_probe))
@@ -69,11 +70,12 @@ def with_frames(plan, bundle, ambient, drift_probe, reference_every=None):
 def added_frames(bundle, ambient, drift_probe, reference_every=None):
     """Frames :func:`with_frames` will add to each sequence (so a time budget leaves room for them): a number, or
     with ``reference_every`` a callable of the plan's frames. Reference frames are refused in one line with an
-    ambient frame or drift probes (corrections on fixed pixels, which a moving scene moves across)."""
+    ambient frame or drift probes (see :func:`specgpu.planning.reference_frames.with_reference_frames`)."""
     if reference_every is not None:
         if ambient or drift_probe:
-            raise click.UsageError("--reference-every does not combine with --ambient or --drift-probe: both serve "
-                                   "corrections on fixed pixels, which the moving scene it is for moves across")
+            raise click.UsageError("--reference-every does not combine with --ambient or --drift-probe: the probes "
+                                   "serve a correction on fixed pixels, which the moving scene it is for moves "
+                                   "across; --ambient alone serves a moving scene (recover --motion warps it)")
         return lambda frames: reference_count(frames, reference_every)
     return len(drift_probe) + int(bool(ambient) or (ambient is None and ambient_needed(bundle)[0]))
 
