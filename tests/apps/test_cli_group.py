@@ -36,3 +36,17 @@ def test_every_command_is_listed():
     result = CliRunner().invoke(main, ["--help"])
     listed = [line.split()[0] for line in result.output.split("Commands:")[1].splitlines() if line.strip()]
     assert listed == sorted(COMMANDS)
+
+
+def test_a_warning_from_a_commands_library_code_is_one_line_and_python_is_left_as_it_was():
+    code = ("import warnings, click; from specgpu.apps.cli.group import LazyGroup\n"
+            "group = LazyGroup(name='g')\n"
+            "@group.command('warns')\n"
+            "def warns():\n"
+            "    warnings.warn('the motion is not steady:\\n  pixels flagged', RuntimeWarning, stacklevel=1)\n"
+            "before = warnings.formatwarning\n"
+            "group(['warns'], standalone_mode=False)\n"
+            "assert warnings.formatwarning is before\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr.splitlines() == ["Warning: the motion is not steady: pixels flagged"]

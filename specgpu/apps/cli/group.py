@@ -9,10 +9,13 @@ import os
 import signal
 import sys
 import threading
+import warnings
+from contextlib import contextmanager
 
 import click
 
-__all__ = ["LazyGroup", "one_line_usage", "terminate_as_interrupt", "watch_outputs", "kept", "interrupted_line"]
+__all__ = ["LazyGroup", "one_line_usage", "terminate_as_interrupt", "watch_outputs", "kept", "interrupted_line",
+           "one_line_warnings"]
 
 _WATCHED = "specgpu.watched_outputs"  # click's context meta, shared by the group and its command
 _KEPT = "specgpu.kept"
@@ -91,6 +94,22 @@ class terminate_as_interrupt:
             signal.signal(signal.SIGTERM, self._previous)
 
 
+def _one_line(message, category, filename, lineno, line=None) -> str:
+    return f"Warning: {' '.join(str(message).split())}\n"
+
+
+@contextmanager
+def one_line_warnings():
+    """Within it, a warning a command's library code raises is printed as the commands print theirs: one line,
+    ``Warning: <message>`` on stderr, without Python's file, line number and source line."""
+    before = warnings.formatwarning
+    warnings.formatwarning = _one_line
+    try:
+        yield
+    finally:
+        warnings.formatwarning = before
+
+
 class LazyGroup(click.Group):
     """click's lazy-loading group: ``lazy_commands`` maps each name to ``(module:attribute, summary)``; the module is
     imported when the command runs or shows its help, and the group's help lists the summaries (each the first
@@ -129,7 +148,7 @@ class LazyGroup(click.Group):
 
     def invoke(self, ctx):
         try:
-            with terminate_as_interrupt():
+            with terminate_as_interrupt(), one_line_warnings():
                 return super().invoke(ctx)
         except click.UsageError as error:  # a command's options and arguments, an unknown command
             raise one_line_usage(error) from error
