@@ -11,11 +11,13 @@
  *   register_step    per frame, over the reference's pixels whose sample M_k x lies in frame k: the sums of the
  *                    normal equations (J' I, J' 1, J' T, J' J) and of the two images (n, I, T, I^2, I T, T^2),
  *                    each work-group's sums reduced in local memory, one row of NS per group and frame; over
- *                    every stride-th row (1: all; more at full resolution, where the rows are many and alike)
+ *                    every stride-th band of BAND rows (1: all; more at full resolution, where the rows are many
+ *                    and alike): see ROW_OF_BANDS
  * J is the reference's gradient (central differences, per full-resolution px: times GSCALE) times the warp's
  * Jacobian, for a translation (x, y) or, with AFFINE, the six entries of the affine map in centred coordinates
  * scaled to about [-1, 1] (u = CS x + CU, v = CS y + CV at this level).
- * Macros: AFFINE (0: 2 parameters, 1: 6), GROUP (work-group size of the steps), HROWS (rows of a halving strip).
+ * Macros: AFFINE (0: 2 parameters, 1: 6), GROUP (work-group size of the steps), HROWS (rows of a halving strip),
+ * BAND (rows of a band the steps take whole).
  */
 
 #ifndef AFFINE
@@ -40,6 +42,17 @@
 #else
 #define FOR_CHUNKS(c, count) for (uint c = get_global_id(0); c < (count); c += get_global_size(0))
 #endif
+#ifndef BAND
+#define BAND 32
+#endif
+/* Row r (0, 1, ...) of the reference's rows a step sums, with stride > 1 every stride-th band of BAND consecutive
+ * rows counted from its row 1, whatever the shift: rows taken one in n alias with a scene's structure of a period
+ * of n rows (a scene rendered at half the resolution: edges between row pairs), and a set of rows that moved with
+ * the shift would change the cost between steps; either made the steps wander px from the truth */
+#define ROW_OF_BANDS(r, stride) (1 + ((r) / BAND) * (int)(stride) * BAND + (r) % BAND)
+/* the rows r runs over: whole bands up to row h - 2 (the rows past it skipped) */
+#define BANDED_ROWS(h, stride) (((((int)(h) - 2 + BAND - 1) / BAND) + (int)(stride) - 1) / (int)(stride) * BAND)
+
 /* the sums of one frame: J' I, J' 1, J' T (NP each), J' J (upper triangle), then n, I, T, I^2, I T, T^2 */
 #define NS (3 * NP + NH + 6)
 
@@ -188,10 +201,12 @@ __kernel void register_step(__global const float *restrict level, const uint w, 
     __global const float *m = maps + 6 * j;
     const float m0 = m[0], m1 = m[1], m2 = m[2], m3 = m[3], m4 = m[4], m5 = m[5];
     const float right = (float)w - 1.0f, bottom = (float)h - 1.0f;
-    const uint per_row = (w - 2 + CHUNK - 1) / CHUNK, chunks = per_row * ((h - 3) / stride + 1);
+    const uint per_row = (w - 2 + CHUNK - 1) / CHUNK, chunks = per_row * BANDED_ROWS(h, stride);
     SUMS(SUM_DECLARE)
     FOR_CHUNKS(c, chunks) {
-        const int y = 1 + (c / per_row) * stride, x0 = 1 + (c % per_row) * CHUNK, x1 = min(x0 + CHUNK, (int)w - 1);
+        const int y = ROW_OF_BANDS((int)(c / per_row), stride), x0 = 1 + (c % per_row) * CHUNK;
+        const int x1 = min(x0 + CHUNK, (int)w - 1);
+        if (y > (int)h - 2) continue;
         const float bx = m1 * y + m2, by = m4 * y + m5;
 #if AFFINE
         const float v = CS * y + CV;
@@ -252,12 +267,13 @@ __kernel void register_shift(__global const float *restrict level, const uint w,
     const float fx = dx - floor(dx), fy = dy - floor(dy);
     const int xlo = max(1, -ix), xhi = min((int)w - 2, (int)w - 2 - ix);
     const int ylo = max(1, -iy), yhi = min((int)h - 2, (int)h - 2 - iy);
-    const int per_row = max(0, (xhi - xlo + 16) / 16), rows = yhi >= ylo ? (yhi - ylo) / (int)stride + 1 : 0;
+    const int per_row = max(0, (xhi - xlo + 16) / 16), rows = yhi >= ylo ? BANDED_ROWS(h, stride) : 0;
     const uint chunks = (uint)(per_row * rows);
     const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     SHIFT_SUMS(SHIFT_DECLARE)
     FOR_CHUNKS(c, chunks) {
-        const int y = ylo + ((int)c / per_row) * (int)stride, x = xlo + 16 * ((int)c % per_row);
+        const int y = ROW_OF_BANDS((int)c / per_row, stride), x = xlo + 16 * ((int)c % per_row);
+        if (y < ylo || y > yhi) continue; /* the rows of the reference whose samples lie in frame k */
         const int16 inside = x + lane <= (int16)(xhi);
         const float16 one = inside ? (float16)(1.0f) : (float16)(0.0f);
         __global const float *row = T + (ulong)y * w;

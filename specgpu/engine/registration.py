@@ -48,6 +48,10 @@ _GROUPS = {"gpu": (64, 2048), "cpu": (1, 64)}
 _COARSEST_MIN = 48
 #: Output rows of a work-item of the pyramid's halving
 _HALVE_ROWS = 16
+#: Rows of a band the steps at full resolution take whole where they sum a share of the rows (``full_rows``): every
+#: n-th band of this many consecutive rows, not every n-th row, which aliases with a scene's structure of a period of
+#: n rows (a scene rendered at half the resolution registered px from the truth)
+_BAND = 32
 #: Pixels per work-item of the steps at least (fewer work-items where a level has fewer pixels)
 _PIXELS_PER_ITEM = 1024
 #: A step this small (px of the level at the field's edge) is applied and ends the finest level's iterations: the
@@ -224,8 +228,9 @@ def register_gradients(gradients, reference_frame: int, *, model: str = "transla
         With ``start``: the pyramid level the refinement starts on (default: the coarsest); a finer one is cheaper
         and needs ``start`` within about its pixel size of the motion.
     full_rows : int
-        The steps at full resolution sum every ``full_rows``-th row only (1: every row): each step a pass over that
-        share of the frames, the rows of a full-resolution image being many and alike.
+        The steps at full resolution sum every ``full_rows``-th band of 32 consecutive rows only (1: every row):
+        each step a pass over that share of the frames, the rows of a full-resolution image being many and alike
+        (bands, not single rows: rows one in n alias with a scene's structure of a period of n rows).
     full_iterations : int, optional
         Gauss-Newton steps at full resolution at most (default ``iterations``).
     keep_level : int, optional
@@ -336,7 +341,14 @@ def _register(queue, ws: _Workspace, gradients, ref: int, model: str, max_speed,
 def _kernel(queue, ws: _Workspace, name: str, affine: bool = False):
     """A kernel of ``kernels/register.cl``, every entry built with the same macros (one program per variant and
     model)."""
-    return get_kernel(queue, "register.cl", name, AFFINE=int(affine), GROUP=ws.group, HROWS=_HALVE_ROWS)
+    return get_kernel(queue, "register.cl", name, AFFINE=int(affine), GROUP=ws.group, HROWS=_HALVE_ROWS, BAND=_BAND)
+
+
+def _rows_summed(h: int, stride: int) -> int:
+    """The rows 1 .. h - 2 of an image h rows high that the steps sum taking every ``stride``-th band of
+    :data:`_BAND` rows (kernels/register.cl, ROW_OF_BANDS)."""
+    rows = np.arange(h - 2)
+    return int(np.count_nonzero((rows // _BAND) % stride == 0))
 
 
 def _level_to_full(level: int) -> np.ndarray:
@@ -419,7 +431,7 @@ def _refine(queue, ws, levels, ref, others, maps, usable, error, model, coarsest
         scale = S[0, 0]
         # normalised centred coordinates of this level's pixel x: u = CS x + CU
         cs, cu, cv = scale / norm, (S[0, 2] - centre[0]) / norm, (S[1, 2] - centre[1]) / norm
-        pixels = (hh - 2) * (ww - 2) // (fine_rows if level == 0 else 1)
+        pixels = _rows_summed(hh, fine_rows if level == 0 else 1) * (ww - 2)
         for _ in range(iterations if level or fine_iterations is None else min(iterations, fine_iterations)):
             ws.maps_host[:] = (S_inv @ maps[others] @ S)[:, :2].reshape(len(others), 6)
             cl.enqueue_copy(queue, ws.maps.data, ws.maps_host, is_blocking=False)

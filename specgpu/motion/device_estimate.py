@@ -56,10 +56,11 @@ NEAR_TIE = 0.8
 #: phase correlation separates two motions a few px apart, which the coarse search's level merges
 CHECK_LEVEL = 2
 
-#: The Gauss-Newton steps at full resolution sum every n-th row, n the frames' height over this (at least 1): each
-#: step is a pass over the frames, and 240 rows of a 640 x 480 frame register as closely as its 480 (0.04-0.07 px
-#: from the twin's truth either way) in two thirds of the time, while at 320 x 240 every row counts (half of them:
-#: 0.08-0.14 px, all 0.03-0.11)
+#: The Gauss-Newton steps at full resolution sum every n-th band of rows, n the frames' height over this (at least 1;
+#: bands of whole rows, :func:`~specgpu.engine.registration.register_gradients`' ``full_rows``): each step is a pass
+#: over the frames, and 240 rows of a 640 x 480 frame register as closely as its 480 (0.04-0.07 px from the twin's
+#: truth either way) in two thirds of the time, while at 320 x 240 every row counts (half of them: 0.08-0.14 px, all
+#: 0.03-0.11)
 FULL_ROWS_SUMMED = 240
 
 #: The predicted shift singles a candidate out where the next nearest is at least this many times as far from it.

@@ -57,9 +57,11 @@ def flagged_regions(flagged, *, min_share: float = MIN_LAYER_SHARE, join_px: int
     flagged = np.asarray(flagged, bool)
     if not flagged.any():
         return []
-    joined = ndimage.binary_dilation(flagged, iterations=int(join_px))
+    # within join_px steps of a flag (4-connected): the dilation iterated join_px times with the cross, made in one
+    # two-pass city-block distance transform instead of join_px passes over the field
+    joined = ndimage.distance_transform_cdt(~flagged, metric="taxicab") <= int(join_px)
     labels, n = ndimage.label(joined)
-    counts = ndimage.sum_labels(flagged, labels, index=np.arange(1, n + 1))
+    counts = np.bincount(labels[flagged], minlength=n + 1)[1:].astype(np.float64)  # each region's flags
     order = np.argsort(counts)[::-1]
     minimum = float(min_share) * flagged.size
     return [labels == (i + 1) for i in order[:max_regions] if counts[i] >= minimum]

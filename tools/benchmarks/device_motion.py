@@ -14,7 +14,7 @@ Each case renders one 9-frame sequence of the moving twin (the natural scene, 20
   ``estimate_motion(..., device=queue)`` (``motion.device_estimate``: the frames uploaded, their gradient images
   made, registered and read back for the consistency check, the rival-peak check and, where it finds a rival, the
   tiles' consensus); ``device_all_rows``: the same with every row summed at full resolution (``full_rows=1``;
-  the estimate sums every n-th, n = H / ``FULL_ROWS_SUMMED``);
+  the estimate sums every n-th band of rows, n = H / ``FULL_ROWS_SUMMED``);
   and ``register_only``: ``register_gradients`` alone on gradient images already made.
 
 Each estimate's error is the largest distance over the frames from the twin's truth (``TwinRig.motion_truth``), px.
