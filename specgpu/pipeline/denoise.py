@@ -96,18 +96,39 @@ def compensated_parts(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius
     bad = _flagged(y, g, mask)
     if bad.all():
         return None
-    level = float(np.percentile(g[~bad], 99))
+    level = percentile_99(g[~bad])
     if not level > 0:
         return None
-    smoothed = ~maximum_filter(bad, size=4 * r + 1, mode="constant", cval=False)
+    smoothed = ~maximum_filter(bad, size=4 * r + 1, mode="constant", cval=False) if bad.any() else ~bad
     return bad, smoothed, np.where(bad, np.float32(0), g / np.float32(level)), level
+
+
+def percentile_99(values: np.ndarray) -> float:
+    """``numpy.percentile(values, 99)`` of a 1-D array of finite values (linear interpolation between the two
+    order statistics about ``0.99 (n - 1)``), from one partition about those two: a fifth of the time."""
+    n = values.size
+    at = 0.99 * (n - 1)
+    lo = int(np.floor(at))
+    hi = min(lo + 1, n - 1)
+    part = np.partition(values, [lo, hi])
+    return float(np.percentile(part[lo:hi + 1], 100.0 * (at - lo) if hi > lo else 0.0))
 
 
 def _flagged(y, guide, mask) -> np.ndarray:
     """A pixel with no valid value: flagged in ``mask`` (any bit but an object's own motion) or not finite."""
     g = np.asarray(guide, np.float32)
-    return (((np.asarray(mask) & ~np.uint8(Mask.LAYER)) != 0) | ~np.isfinite(g)
-            | ~np.all(np.isfinite(np.asarray(y)), axis=-1))
+    y = np.asarray(y)
+    bad = ((np.asarray(mask) & ~np.uint8(Mask.LAYER)) != 0) | ~np.isfinite(g)
+    # the sum over the channels (one BLAS product, not C tests) is NaN or infinite wherever a channel is; the few
+    # pixels it flags are tested channel by channel (a sum of finite values past float32's range is no flag)
+    total = None
+    if y.dtype.kind == "f":
+        with np.errstate(over="ignore", invalid="ignore"):
+            total = y.reshape(-1, y.shape[-1]) @ np.ones(y.shape[-1], y.dtype)
+    maybe = ~np.isfinite(total).reshape(g.shape) if total is not None else np.ones(g.shape, bool)
+    if maybe.any():
+        maybe[maybe] = ~np.all(np.isfinite(y[maybe]), axis=-1)
+    return bad | maybe
 
 
 def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius: int = DENOISE_RADIUS,
@@ -134,16 +155,30 @@ def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radi
     if made is None:
         return y.copy()
     bad, smoothed, g, _ = made
-    filled = np.where(bad[..., None], np.float32(0), y)
-    kept, others, L = derived_channels(rows) if rows is not None else (np.arange(y.shape[-1]), [], None)
-    if len(others) == 0:
-        filtered = np.asarray(guided_filter(filled, g, radius=r, eps=e, device=device), np.float32)
+    C = y.shape[-1]
+    kept, others, L = derived_channels(rows) if rows is not None else (np.arange(C), np.arange(0), None)
+    # the channels filtered, one contiguous copy with the flagged pixels 0 (a slice where they are a run: no
+    # gather), through the filter; the others made from them
+    filled = np.array(y[..., _index(kept)], np.float32, order="C")  # a copy, never the caller's array
+    filled[bad] = 0
+    part = np.asarray(guided_filter(filled, g, radius=r, eps=e, device=device), np.float32)
+    if len(others) == 0 and len(kept) == C:
+        filtered = part
     else:
-        filtered = np.empty_like(filled)
-        filtered[..., kept] = guided_filter(np.ascontiguousarray(filled[..., kept]), g, radius=r, eps=e,
-                                            device=device)
-        filtered[..., others] = filtered[..., kept] @ L.T.astype(np.float32)
-    return np.where(smoothed[..., None], filtered, y)
+        filtered = np.empty(y.shape, np.float32)
+        filtered[..., _index(kept)] = part
+        filtered[..., _index(others)] = part @ L.T.astype(np.float32)
+    kept_as_decoded = ~smoothed
+    filtered[kept_as_decoded] = y[kept_as_decoded]
+    return filtered
+
+
+def _index(ix: np.ndarray):
+    """``ix`` (increasing indices) as a slice where it is a run (a view, not a gather)."""
+    ix = np.asarray(ix)
+    if ix.size and np.array_equal(ix, np.arange(ix[0], ix[0] + ix.size)):
+        return slice(int(ix[0]), int(ix[0]) + ix.size)
+    return ix
 
 
 def derived_channels(rows: ArrayLike, *, growth: float = 10.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
