@@ -229,7 +229,7 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
         U, terms = _slope_basis(rows, [t for _, ts in parts for t in ts])
         # the slopes' coordinates in the rows' span (the XYZ slopes are M times the cube's)
         P = U[:B] if M is None else U[:B] + np.asarray(M, np.float64).T @ U[B:]
-        slopes = np.asarray(smoothed["slopes"], np.float64) @ P
+        slopes = np.asarray(smoothed["slopes"], np.float32) @ P.astype(np.float32)  # the kernel reads float32
         row = warped_guide_row(plan)[0, read]
         state = {"guide": smoothed["guide"], "radius": smoothed["radius"], "eps": smoothed["eps"], "slopes": slopes,
                  "guide_var": np.tensordot(row * row, V_own, axes=([0], [0])) / smoothed["level"] ** 2}
