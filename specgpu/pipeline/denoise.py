@@ -96,22 +96,11 @@ def compensated_parts(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius
     bad = _flagged(y, g, mask)
     if bad.all():
         return None
-    level = percentile_99(g[~bad])
+    level = float(np.percentile(g[~bad], 99))
     if not level > 0:
         return None
     smoothed = ~maximum_filter(bad, size=4 * r + 1, mode="constant", cval=False) if bad.any() else ~bad
     return bad, smoothed, np.where(bad, np.float32(0), g / np.float32(level)), level
-
-
-def percentile_99(values: np.ndarray) -> float:
-    """``numpy.percentile(values, 99)`` of a 1-D array of finite values (linear interpolation between the two
-    order statistics about ``0.99 (n - 1)``), from one partition about those two: a fifth of the time."""
-    n = values.size
-    at = 0.99 * (n - 1)
-    lo = int(np.floor(at))
-    hi = min(lo + 1, n - 1)
-    part = np.partition(values, [lo, hi])
-    return float(np.percentile(part[lo:hi + 1], 100.0 * (at - lo) if hi > lo else 0.0))
 
 
 def _flagged(y, guide, mask) -> np.ndarray:
@@ -123,9 +112,9 @@ def _flagged(y, guide, mask) -> np.ndarray:
     # pixels it flags are tested channel by channel (a sum of finite values past float32's range is no flag)
     total = None
     if y.dtype.kind == "f":
-        with np.errstate(over="ignore", invalid="ignore"):
-            total = y.reshape(-1, y.shape[-1]) @ np.ones(y.shape[-1], y.dtype)
-    maybe = ~np.isfinite(total).reshape(g.shape) if total is not None else np.ones(g.shape, bool)
+        with np.errstate(over="ignore", invalid="ignore"):  # a view of some channels: read in place, no copy
+            total = np.matmul(y, np.ones(y.shape[-1], y.dtype))
+    maybe = ~np.isfinite(total) if total is not None else np.ones(g.shape, bool)
     if maybe.any():
         maybe[maybe] = ~np.all(np.isfinite(y[maybe]), axis=-1)
     return bad | maybe
@@ -164,10 +153,11 @@ def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radi
     part = np.asarray(guided_filter(filled, g, radius=r, eps=e, device=device), np.float32)
     if len(others) == 0 and len(kept) == C:
         filtered = part
-    else:
-        filtered = np.empty(y.shape, np.float32)
-        filtered[..., _index(kept)] = part
-        filtered[..., _index(others)] = part @ L.T.astype(np.float32)
+    else:  # every channel in one product: the kept ones times 1 (exact: the filtered values are finite)
+        to_all = np.zeros((C, len(kept)), np.float32)
+        to_all[kept, np.arange(len(kept))] = 1.0
+        to_all[others] = L
+        filtered = np.matmul(part, to_all.T)
     kept_as_decoded = ~smoothed
     filtered[kept_as_decoded] = y[kept_as_decoded]
     return filtered
