@@ -71,8 +71,12 @@ def check_motion_options(motion, plan=None, *, outputs=()) -> str:
 
 def _sample_points(d: np.ndarray, k: int, h: int, w: int):
     """Where frame ``k`` saw each pixel (``d``: the shifts, as :func:`warped_sample_variance` takes them): the four
-    bilinear taps (row, column, weight), the points outside the sensor's footprint, and the fractions (fx, fy)."""
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    bilinear taps (row, column, weight), the points outside the sensor's footprint, and the fractions (fx, fy)
+    (of a translation, a column's along x and a row's along y: arrays that broadcast to (H, W))."""
+    if d.shape[1:] == (2,):  # a translation: x moves along x only, y along y only, so the grid is an outer product
+        yy, xx = np.arange(h, dtype=np.float64)[:, None], np.arange(w, dtype=np.float64)[None, :]
+    else:
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     if d.shape[1:] == (2, 3):  # an affine map
         sx, sy = d[k, 0, 0] * xx + d[k, 0, 1] * yy + d[k, 0, 2], d[k, 1, 0] * xx + d[k, 1, 1] * yy + d[k, 1, 2]
     else:  # a translation (2,) or a flow's displacement per pixel (2, H, W)
@@ -125,8 +129,7 @@ def warped_sample_variances(frames: ArrayLike, plan, dark, gain, shifts, *, read
     pixels' own part; ``filtered``, that part as the filter of radius ``filtered`` takes it, or None), each
     (len(read), H, W) float64."""
     noise = NoiseModel.from_params(plan.params["noise"])
-    f = np.asarray(frames, np.float64)
-    h, w = f.shape[1:]
+    h, w = np.shape(frames)[1:]
     g2 = live_gain(gain).astype(np.float64) ** 2 if gain is not None else np.ones((h, w))
     d = np.asarray(shifts, np.float64)
     corr = None if filtered is None else _interpolation_correlation(filtered)
@@ -134,8 +137,9 @@ def warped_sample_variances(frames: ArrayLike, plan, dark, gain, shifts, *, read
     total, own_out = np.empty((len(read), h, w)), np.empty((len(read), h, w)) if with_light else None
     smoothed = None if corr is None else np.empty((len(read), h, w))
     dark = np.asarray(dark, np.float64)
+    root_g2 = np.sqrt(g2) if with_light else None
     for n, k in enumerate(read):
-        x = f[k] - dark
+        x = np.asarray(frames[k], np.float64) - dark  # the frames read, one at a time in float64
         own = (g2 * (x / noise.gain_e_per_dn + noise.read_var_dn2)).reshape(-1)
         taps, outside, fx, fy = _sample_points(d, k, h, w)
         flat = [(r * w + c, wt) for r, c, wt in taps]  # one flat gather per tap, not a 2-D fancy index
@@ -144,7 +148,7 @@ def warped_sample_variances(frames: ArrayLike, plan, dark, gain, shifts, *, read
         if own_out is not None:
             own_out[n] = var
             own_out[n][outside] = np.nan
-            signal = (np.sqrt(g2) * x).reshape(-1)
+            signal = (root_g2 * x).reshape(-1)
             var = var + (noise.light_rms * sum(wt * np.take(signal, i) for i, wt in flat)) ** 2
         var[outside] = np.nan
         total[n] = var
