@@ -18,7 +18,8 @@
  * terms[starts[c] .. starts[c + 1]). own' = own where own and total are finite and the pixel's mask holds none of
  * SKIPPED_BITS, else 0. Two passes:
  *
- *   gv_stats   per window centre: 1 / n, mu, alpha, and a of each of the D slope images   -> stats (3 + D planes)
+ *   gv_stats   per window centre: 1 / n, mu, alpha, and a of each of the D slope images, and the pixel's
+ *              own' of each channel                                                   -> stats (3 + D + C planes)
  *   gv_apply   per eight pixels of a row: W_i. from its windows' prefix and suffix sums (O(R^2) per pixel),
  *              abar, then the C channels                                                    -> out (H, W, C)
  */
@@ -55,7 +56,8 @@ INLINE float own_part(__global const float *own, __global const float *total, __
     return ok ? o : 0.0f;
 }
 
-__kernel void gv_stats(__global const float *g, __global const float *slopes, __global float *stats, const int H,
+__kernel void gv_stats(__global const float *g, __global const float *slopes, __global const float *own,
+                       __global const float *total, __global const uchar *mask, __global float *stats, const int H,
                        const int W, const float eps)
 {
     const size_t p = get_global_id(0);
@@ -95,6 +97,9 @@ __kernel void gv_stats(__global const float *g, __global const float *slopes, __
     stats[2 * plane + p] = alpha;
     for (int d = 0; d < D; ++d)
         stats[(3 + d) * plane + p] = (ssg[d] * inv - ss[d] * inv * mean) * alpha;
+    /* the pixel's own' of each channel, in planes: what the weights take of it, read once and tested once */
+    for (int c = 0; c < C; ++c)
+        stats[(NS + c) * plane + p] = own_part(own, total, mask, p * C + c, p);
 }
 
 /* Pixel i's weights W_ij through its windows' sums. With u_k = mu_k - g_i and dg_j = g_j - g_i,
@@ -110,7 +115,7 @@ __kernel void gv_stats(__global const float *g, __global const float *slopes, __
  * pixels inside the image by 2R or more (every window whole: no bound checked; PoCL vectorises no loop across
  * work-items that holds loops, so the lanes are explicit), and a float for one pixel anywhere (the borders). */
 #define VX 8
-#define APPLY_BODY(T, LOAD, LOADC, INSIDE)                                                                             \
+#define APPLY_BODY(T, LOAD, INSIDE)                                                                             \
     const T gi = LOAD(g, p);                                                                                           \
     T X0[NK][NW], X1[NK][NW], X2[NK][NW];                                                                              \
     T abar[D];                                                                                                         \
@@ -179,11 +184,9 @@ __kernel void gv_stats(__global const float *g, __global const float *slopes, __
                 bii = s0;                                                                                              \
             const size_t j = (size_t)jy * W + jx;                                                                      \
             const T wt = ((s0 + s2) - (LOAD(g, j) - gi) * s1) * scale;                                                 \
-            const T w2 = SKIPPED(wt * wt, j);                                                                          \
-            for (int c = 0; c < C; ++c) {                                                                              \
-                const T o = LOADC(own, j, c), tt = LOADC(total, j, c);                                                 \
-                acc[c] = FINITE_OR_0(o, tt) * w2 + acc[c];                                                             \
-            }                                                                                                          \
+            const T w2 = wt * wt;                                                                                      \
+            for (int c = 0; c < C; ++c)                                                                                \
+                acc[c] = LOAD(stats + (NS + c) * plane, j) * w2 + acc[c];                                              \
         }                                                                                                              \
     }                                                                                                                  \
     /* the guide's noise at i less its box means' (b_ij = sum q0 / m: the weights of a flat guide):                    \
@@ -210,13 +213,6 @@ INLINE void store1(__global float *out, __global const float *own, __global cons
 }
 
 #define LOAD1(base, i) ((base)[i])
-#define LOADC1(base, j, c) ((base)[(j) * C + (c)])
-#define FINITE_OR_0(o, t) (isfinite(o) && isfinite(t) ? (o) : 0.0f)
-#if SKIPPED_BITS
-#define SKIPPED(w2, j) ((mask[j] & (uchar)(SKIPPED_BITS)) != 0 ? 0.0f : (w2))
-#else
-#define SKIPPED(w2, j) (w2)
-#endif
 #define STORE(out, p, c, v, unused) store1(out, own, total, mask, offset, p, c, v)
 
 /* One pixel, anywhere in the image. */
@@ -226,27 +222,11 @@ INLINE void apply_one(__global const float *g, __global const float *stats, __gl
                       __global float *out, const int H, const int W, const int x, const int y)
 {
     const size_t p = (size_t)y * W + x, plane = (size_t)H * W;
-    APPLY_BODY(float, LOAD1, LOADC1, 0)
+    APPLY_BODY(float, LOAD1, 0)
 }
 
-#undef FINITE_OR_0
-#undef SKIPPED
 #undef STORE
 #define LOAD8(base, i) vload8(0, (base) + (i))
-#if C == 1
-#define LOADC8(base, j, c) vload8(0, (base) + (j))
-#else
-#define LOADC8(base, j, c)                                                                                             \
-    ((float8)((base)[(j) * C + (c)], (base)[((j) + 1) * C + (c)], (base)[((j) + 2) * C + (c)],                       \
-              (base)[((j) + 3) * C + (c)], (base)[((j) + 4) * C + (c)], (base)[((j) + 5) * C + (c)],                  \
-              (base)[((j) + 6) * C + (c)], (base)[((j) + 7) * C + (c)]))
-#endif
-#define FINITE_OR_0(o, t) select((float8)0.0f, (o), isfinite(o) & isfinite(t))
-#if SKIPPED_BITS
-#define SKIPPED(w2, j) select((w2), (float8)0.0f, (convert_int8(vload8(0, mask + (j))) & (SKIPPED_BITS)) != 0)
-#else
-#define SKIPPED(w2, j) (w2)
-#endif
 #define STORE(out, p, c, v, unused)                                                                                    \
     {                                                                                                                  \
         const float8 lanes = (v);                                                                                      \
@@ -267,7 +247,7 @@ INLINE void apply_eight(__global const float *g, __global const float *stats, __
                         __global float *out, const int H, const int W, const int x, const int y)
 {
     const size_t p = (size_t)y * W + x, plane = (size_t)H * W;
-    APPLY_BODY(float8, LOAD8, LOADC8, 1)
+    APPLY_BODY(float8, LOAD8, 1)
 }
 
 /* Work-item: VX pixels of one row, (ceil(W / VX) per row, row by row). */

@@ -186,7 +186,7 @@ def filtered_variance_device(queue, own: cla.Array, total: cla.Array, guide: cla
         _check(out, "out", shape, queue)
     flat, starts = pass_terms(terms)
     tables = [_table(queue, a) for a in (flat, starts, off.astype(np.float32))]
-    stats = _kept(_stats, (queue, H, W, D), lambda: _Stats(queue, H * W * (3 + D)))
+    stats = _kept(_stats, (queue, H, W, D, C), lambda: _Stats(queue, H * W * (3 + D + C)))
     bits = int(mask_bits) if mask is not None else 0
     macros = {"R": r, "C": C, "D": D, "SQRT": bool(sqrt), "SKIPPED_BITS": bits}
     first, second = (get_kernel(queue, "guided_variance.cl", name, **macros) for name in ("gv_stats", "gv_apply"))
@@ -195,7 +195,8 @@ def filtered_variance_device(queue, own: cla.Array, total: cla.Array, guide: cla
     waits = [ev for a in (own, total, guide, slopes, guide_var, mask, out) if a is not None for ev in a.events]
     with stats.lock, _launch_lock:
         # the previous call's second pass reads the statistics: this first pass may overwrite them only after it
-        first.set_args(guide.data, slopes.data, stats.buffer, np.int32(H), np.int32(W), np.float32(e))
+        first.set_args(guide.data, slopes.data, own.data, total.data, m, stats.buffer, np.int32(H), np.int32(W),
+                       np.float32(e))
         ev = cl.enqueue_nd_range_kernel(queue, first, glob, (_GROUP,),
                                         wait_for=waits + ([stats.last] if stats.last is not None else []))
         second.set_args(guide.data, stats.buffer, own.data, total.data, m, tables[0].data, tables[1].data,
