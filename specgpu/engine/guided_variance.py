@@ -26,8 +26,12 @@ fluctuation, common to a frame's pixels, is not averaged and is kept), ``abar_d`
 channel saying which products of slopes it takes (``(b, b, 1)`` for band b's variance, ``(X, Y, 1)`` for
 ``cov(X, Y)``, the mean over the bands for an RMS), ``gvar`` the variance of the guide's own noise, and
 ``own' = own`` where own and total are finite and the pixel is not flagged in ``mask``, else 0 (such a pixel adds
-nothing to its neighbours and keeps its own total, NaN or not). Two passes: the windows' statistics, then one
-work-item per pixel holding its (4r + 1)^2 weights; radius at most :data:`MAX_RADIUS`.
+nothing to its neighbours and keeps its own total, NaN or not). Two passes: the windows' statistics, then the
+weights. With a one-channel guide each weight is a polynomial in ``g_i`` and ``g_j`` whose coefficients are sums,
+over the windows holding both pixels (a rectangle of the pixel's windows), of per-window quantities; every such
+rectangle is a prefix or a suffix of the pixel's windows along each axis, so all (4r + 1)^2 weights of a pixel come
+from its windows' running sums in O(r^2), exactly (the sums taken about ``g_i``, as direct sums would be), eight
+pixels of a row at once inside the image. Radius at most :data:`MAX_RADIUS`.
 """
 
 from __future__ import annotations
@@ -46,10 +50,12 @@ from specgpu.engine.runtime import get_allocator, get_kernel, get_queue
 
 __all__ = ["MAX_RADIUS", "box_box_squares", "filtered_variance", "filtered_variance_device", "pass_terms"]
 
-#: The largest radius whose variance is carried (each work-item holds (4r + 1)^2 weights in private memory).
+#: The largest radius whose variance is carried (each work-item holds its windows' 3 (2r + 1) (4r + 1) running sums
+#: of eight pixels in private memory).
 MAX_RADIUS = 4
 _GROUP = 64  # work-items per group of the statistics pass; the range is padded to a multiple
-_APPLY_GROUP = 16  # of the second pass, whose work-items each hold 2 (4r + 1)^2 floats (PoCL: on a thread's stack)
+_APPLY_GROUP = 16  # of the second pass, whose work-items each hold 3 (2r + 1) (4r + 1) vectors (PoCL: on the stack)
+_VX = 8  # pixels of a row per work-item of the second pass (kernels/guided_variance.cl's VX: one float8)
 _CACHE_SIZE = 16  # the windows' statistics buffers and the small constant tables kept
 
 
@@ -180,7 +186,7 @@ def filtered_variance_device(queue, own: cla.Array, total: cla.Array, guide: cla
         _check(out, "out", shape, queue)
     flat, starts = pass_terms(terms)
     tables = [_table(queue, a) for a in (flat, starts, off.astype(np.float32))]
-    stats = _kept(_stats, (queue, H, W, D), lambda: _Stats(queue, H * W * (3 + D)))
+    stats = _kept(_stats, (queue, H, W, D, C), lambda: _Stats(queue, H * W * (3 + D + C)))
     bits = int(mask_bits) if mask is not None else 0
     macros = {"R": r, "C": C, "D": D, "SQRT": bool(sqrt), "SKIPPED_BITS": bits}
     first, second = (get_kernel(queue, "guided_variance.cl", name, **macros) for name in ("gv_stats", "gv_apply"))
@@ -189,12 +195,15 @@ def filtered_variance_device(queue, own: cla.Array, total: cla.Array, guide: cla
     waits = [ev for a in (own, total, guide, slopes, guide_var, mask, out) if a is not None for ev in a.events]
     with stats.lock, _launch_lock:
         # the previous call's second pass reads the statistics: this first pass may overwrite them only after it
-        first.set_args(guide.data, slopes.data, stats.buffer, np.int32(H), np.int32(W), np.float32(e))
+        first.set_args(guide.data, slopes.data, own.data, total.data, m, stats.buffer, np.int32(H), np.int32(W),
+                       np.float32(e))
         ev = cl.enqueue_nd_range_kernel(queue, first, glob, (_GROUP,),
                                         wait_for=waits + ([stats.last] if stats.last is not None else []))
         second.set_args(guide.data, stats.buffer, own.data, total.data, m, tables[0].data, tables[1].data,
                         guide_var.data, tables[2].data, out.data, np.int32(H), np.int32(W))
-        stats.last = cl.enqueue_nd_range_kernel(queue, second, glob, (_APPLY_GROUP,), wait_for=[ev])
+        tiles = H * -(-W // _VX)
+        stats.last = cl.enqueue_nd_range_kernel(queue, second, (-(-tiles // _APPLY_GROUP) * _APPLY_GROUP,),
+                                                (_APPLY_GROUP,), wait_for=[ev])
         out.add_event(stats.last)
     return out
 

@@ -39,7 +39,8 @@ from specgpu.planning.uncertainty import frame_variance
 
 __all__ = ["DENOISE_RADIUS", "DENOISE_EPS", "denoise_design_warning", "sequence_guide", "output_subspace",
            "denoise_recovery", "stream_denoise", "warped_guide_row", "denoise_compensated", "compensated_parts",
-           "frames_guide", "guide_variance", "check_sigma_radius", "carried_through_filter"]
+           "frames_guide", "guide_variance", "check_sigma_radius", "carried_through_filter", "column_span",
+           "filter_in_span", "derived_channels"]
 
 #: Window radius and regularisation of ``--denoise``, chosen by measurement (``tools/studies/budget_study.py
 #: --tune``): on
@@ -98,19 +99,29 @@ def compensated_parts(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius
     level = float(np.percentile(g[~bad], 99))
     if not level > 0:
         return None
-    smoothed = ~maximum_filter(bad, size=4 * r + 1, mode="constant", cval=False)
+    smoothed = ~maximum_filter(bad, size=4 * r + 1, mode="constant", cval=False) if bad.any() else ~bad
     return bad, smoothed, np.where(bad, np.float32(0), g / np.float32(level)), level
 
 
 def _flagged(y, guide, mask) -> np.ndarray:
     """A pixel with no valid value: flagged in ``mask`` (any bit but an object's own motion) or not finite."""
     g = np.asarray(guide, np.float32)
-    return (((np.asarray(mask) & ~np.uint8(Mask.LAYER)) != 0) | ~np.isfinite(g)
-            | ~np.all(np.isfinite(np.asarray(y)), axis=-1))
+    y = np.asarray(y)
+    bad = ((np.asarray(mask) & ~np.uint8(Mask.LAYER)) != 0) | ~np.isfinite(g)
+    # the sum over the channels (one BLAS product, not C tests) is NaN or infinite wherever a channel is; the few
+    # pixels it flags are tested channel by channel (a sum of finite values past float32's range is no flag)
+    total = None
+    if y.dtype.kind == "f":
+        with np.errstate(over="ignore", invalid="ignore"):  # a view of some channels: read in place, no copy
+            total = np.matmul(y, np.ones(y.shape[-1], y.dtype))
+    maybe = ~np.isfinite(total) if total is not None else np.ones(g.shape, bool)
+    if maybe.any():
+        maybe[maybe] = ~np.all(np.isfinite(y[maybe]), axis=-1)
+    return bad | maybe
 
 
 def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius: int = DENOISE_RADIUS,
-                        eps: float = DENOISE_EPS, device=None) -> np.ndarray:
+                        eps: float = DENOISE_EPS, rows: ArrayLike | None = None, device=None) -> np.ndarray:
     """The motion-compensated outputs ``y`` (H, W, C) smoothed by the guided filter of ``guide`` (H, W), the sum
     of the warped samples at the reference time (:func:`warped_guide_row`), so no window mixes the surfaces the
     compensation separated; float32.
@@ -120,6 +131,12 @@ def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radi
     (within ``2 radius``: the windows of the windows about it) is left unfiltered, its decoded value kept
     (:func:`compensated_parts` says which are filtered). The guide is divided by its 99th percentile over the
     valid pixels, as :func:`sequence_guide`; a guide with no light leaves ``y`` as it is.
+
+    ``rows`` (C, K): the decoder's rows ``y`` was decoded with (one pass over the same samples). A channel whose row
+    is a linear combination of earlier ones (XYZ of the cube or of the coefficients: :func:`derived_channels`) is
+    then not filtered but made from the filtered channels by the same combination: the filter is linear and the same
+    for every channel, and the flagged pixels are the same for all, so the result is the same, and the channels
+    filtered are those a decoding of fewer outputs filters (in the same order, to the same rounding).
     """
     r, e = _check(radius, eps)
     y = np.asarray(y, np.float32)
@@ -127,9 +144,80 @@ def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radi
     if made is None:
         return y.copy()
     bad, smoothed, g, _ = made
-    filled = np.where(bad[..., None], np.float32(0), y)
-    filtered = np.asarray(guided_filter(filled, g, radius=r, eps=e, device=device), np.float32)
-    return np.where(smoothed[..., None], filtered, y)
+    C = y.shape[-1]
+    kept, others, L = derived_channels(rows) if rows is not None else (np.arange(C), np.arange(0), None)
+    # the channels filtered, one contiguous copy with the flagged pixels 0 (a slice where they are a run: no
+    # gather), through the filter; the others made from them
+    filled = np.array(y[..., _index(kept)], np.float32, order="C")  # a copy, never the caller's array
+    filled[bad] = 0
+    part = np.asarray(guided_filter(filled, g, radius=r, eps=e, device=device), np.float32)
+    if len(others) == 0 and len(kept) == C:
+        filtered = part
+    else:  # every channel in one product: the kept ones times 1 (exact: the filtered values are finite)
+        to_all = np.zeros((C, len(kept)), np.float32)
+        to_all[kept, np.arange(len(kept))] = 1.0
+        to_all[others] = L
+        filtered = np.matmul(part, to_all.T)
+    kept_as_decoded = ~smoothed
+    filtered[kept_as_decoded] = y[kept_as_decoded]
+    return filtered
+
+
+def _index(ix: np.ndarray):
+    """``ix`` (increasing indices) as a slice where it is a run (a view, not a gather)."""
+    ix = np.asarray(ix)
+    if ix.size and np.array_equal(ix, np.arange(ix[0], ix[0] + ix.size)):
+        return slice(int(ix[0]), int(ix[0]) + ix.size)
+    return ix
+
+
+def derived_channels(rows: ArrayLike, *, growth: float = 10.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which outputs of a decoder's ``rows`` (C, K) are made from others: (``kept``, the indices of the rows that
+    are filtered; ``others``, the rest; ``L`` (len(others), len(kept)) float64 with ``rows[others] = L @
+    rows[kept]``).
+
+    In order, a row is made from the rows kept before it where it is their combination (its part outside their
+    span below 1e-9 of its norm) with a rounding error at most ``growth`` times its own
+    (``sum_j |L_ij| |row_j| <= growth |row_i|``: XYZ from the cube or the coefficients, not a band from its
+    near-collinear neighbours); else it is kept."""
+    R = np.asarray(rows, np.float64)
+    norms = np.linalg.norm(R, axis=1)
+    kept, made = [], {}
+    for i in range(len(R)):
+        if kept and norms[i] > 0:
+            x = np.linalg.lstsq(R[kept].T, R[i], rcond=None)[0]
+            if (np.linalg.norm(R[kept].T @ x - R[i]) <= 1e-9 * norms[i]
+                    and np.abs(x) @ norms[kept] <= growth * norms[i]):
+                made[i] = (len(kept), x)
+                continue
+        kept.append(i)
+    L = np.zeros((len(made), len(kept)))
+    for n, (width, x) in enumerate(made.values()):
+        L[n, :width] = x
+    return np.asarray(kept, np.intp), np.asarray(list(made), np.intp), L
+
+
+def column_span(matrix: ArrayLike) -> np.ndarray:
+    """(C, r) orthonormal basis of the column space of ``matrix`` (C, K), rank r <= K: the space a decoder's
+    outputs lie in (singular values below 1e-9 of the largest dropped)."""
+    U, s, _ = np.linalg.svd(np.asarray(matrix, np.float64), full_matrices=False)
+    return U[:, s > 1e-9 * s.max()] if s.size and s.max() > 0 else U[:, :0]
+
+
+def filter_in_span(y: ArrayLike, guide: ArrayLike, span: ArrayLike | None, *, radius: int, eps: float,
+                   device=None) -> np.ndarray:
+    """The guided filter of ``y`` (H, W, C) whose channels lie in the column span ``span`` (C, r) (None: anywhere).
+
+    With the guide fixed the filter is linear and the same for every channel, so it commutes with the per-pixel
+    map from the r coordinates of ``y`` in the span to its C channels: the r coordinates are filtered (C / r
+    times less work) and mapped back, the same result as filtering every channel."""
+    y = np.asarray(y, np.float32)
+    if span is None or span.shape[1] >= y.shape[-1]:
+        return np.asarray(guided_filter(y, guide, radius=radius, eps=eps, device=device), np.float32)
+    U = np.asarray(span, np.float32)
+    c = y @ U
+    residual = y - c @ U.T  # zero up to rounding: kept so the map back is exact
+    return guided_filter(c, guide, radius=radius, eps=eps, device=device) @ U.T + residual
 
 
 def sequence_guide(folder, *, sequence: int | None = None, device=None) -> np.ndarray:
@@ -208,8 +296,7 @@ def output_subspace(plan) -> np.ndarray:
     """(B, r) orthonormal basis of the space a plan's outputs lie in: the column space of its decoder A (rank r
     <= K frames). A drift correction rescales A's columns, an ambient frame subtracts a frame: the outputs stay
     in it."""
-    U, s, _ = np.linalg.svd(np.asarray(plan.A, np.float64), full_matrices=False)
-    return U[:, s > 1e-9 * s.max()] if s.size and s.max() > 0 else U[:, :0]
+    return column_span(plan.A)
 
 
 def denoise_recovery(folder, y: ArrayLike, *, sequence: int | None = None, radius: int = DENOISE_RADIUS,
@@ -224,12 +311,7 @@ def denoise_recovery(folder, y: ArrayLike, *, sequence: int | None = None, radiu
     r, e = _check(radius, eps)
     guide = sequence_guide(folder, sequence=sequence, device=device)
     y = np.asarray(y, np.float32)
-    U = output_subspace(folder.plan).astype(np.float32)
-    if U.shape[1] >= y.shape[-1]:
-        return guided_filter(y, guide, radius=r, eps=e, device=device)
-    c = y @ U
-    residual = y - c @ U.T  # zero up to rounding: kept so the map back is exact
-    return guided_filter(c, guide, radius=r, eps=e, device=device) @ U.T + residual
+    return filter_in_span(y, guide, output_subspace(folder.plan), radius=r, eps=e, device=device)
 
 
 #: The stream outputs the guided filter applies to (linear in the frames, so filtering them is filtering the

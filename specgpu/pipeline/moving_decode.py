@@ -42,8 +42,8 @@ from specgpu.planning.noise import NoiseModel
 from specgpu.planning.reference_frames import reference_indices
 from specgpu.planning.uncertainty import constant_covariance
 
-__all__ = ["MOTION_OUTPUTS", "check_motion_options", "warped_sample_variance", "warped_sigma_rms",
-           "warped_uncertainty"]
+__all__ = ["MOTION_OUTPUTS", "check_motion_options", "warped_sample_variance", "warped_sample_variances",
+           "warped_sigma_rms", "warped_uncertainty"]
 
 #: The outputs a motion-compensated decoding carries: linear maps of the warped samples, colour from them, and
 #: their uncertainty at the warped samples (:func:`warped_uncertainty`).
@@ -73,8 +73,12 @@ def check_motion_options(motion, plan=None, *, outputs=()) -> str:
 
 def _sample_points(d: np.ndarray, k: int, h: int, w: int):
     """Where frame ``k`` saw each pixel (``d``: the shifts, as :func:`warped_sample_variance` takes them): the four
-    bilinear taps (row, column, weight), the points outside the sensor's footprint, and the fractions (fx, fy)."""
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    bilinear taps (row, column, weight), the points outside the sensor's footprint, and the fractions (fx, fy)
+    (of a translation, a column's along x and a row's along y: arrays that broadcast to (H, W))."""
+    if d.shape[1:] == (2,):  # a translation: x moves along x only, y along y only, so the grid is an outer product
+        yy, xx = np.arange(h, dtype=np.float64)[:, None], np.arange(w, dtype=np.float64)[None, :]
+    else:
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     if d.shape[1:] == (2, 3):  # an affine map
         sx, sy = d[k, 0, 0] * xx + d[k, 0, 1] * yy + d[k, 0, 2], d[k, 1, 0] * xx + d[k, 1, 1] * yy + d[k, 1, 2]
     else:  # a translation (2,) or a flow's displacement per pixel (2, H, W)
@@ -118,29 +122,50 @@ def warped_sample_variance(frames: ArrayLike, plan, dark, gain, shifts, *, read,
 
     ``ambient``: the plan's ambient frame (room light only): its sample has no light's fluctuation, and the
     other frames' is at their signal above it (the light fluctuates, the room light does not)."""
+    total, own, smoothed = warped_sample_variances(frames, plan, dark, gain, shifts, read=read, light=light,
+                                                   filtered=filtered, ambient=ambient)
+    return smoothed if filtered is not None else total
+
+
+def warped_sample_variances(frames: ArrayLike, plan, dark, gain, shifts, *, read, light: bool = True,
+                            filtered: int | None = None,
+                            ambient: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`warped_sample_variance`'s three variances of the samples, from one pass over the frames (each frame's
+    sample points and its pixels' own variance made once): (with ``light``, ``total``; without, ``own``, the
+    pixels' own part; ``filtered``, that part as the filter of radius ``filtered`` takes it, or None), each
+    (len(read), H, W) float64."""
     noise = NoiseModel.from_params(plan.params["noise"])
-    f = np.asarray(frames, np.float64)
-    h, w = f.shape[1:]
+    h, w = np.shape(frames)[1:]
     g2 = live_gain(gain).astype(np.float64) ** 2 if gain is not None else np.ones((h, w))
     d = np.asarray(shifts, np.float64)
     corr = None if filtered is None else _interpolation_correlation(filtered)
-    room = 0.0 if ambient is None else f[ambient] - np.asarray(dark, np.float64)
-    out = np.empty((len(read), h, w))
+    with_light = light and noise.light_rms > 0
+    total, own_out = np.empty((len(read), h, w)), np.empty((len(read), h, w)) if with_light else None
+    smoothed = None if corr is None else np.empty((len(read), h, w))
+    dark = np.asarray(dark, np.float64)
+    root_g2 = np.sqrt(g2) if with_light else None
+    room = 0.0 if ambient is None else np.asarray(frames[ambient], np.float64) - dark
     for n, k in enumerate(read):
-        x = f[k] - np.asarray(dark, np.float64)
-        own = g2 * (x / noise.gain_e_per_dn + noise.read_var_dn2)
+        x = np.asarray(frames[k], np.float64) - dark  # the frames read, one at a time in float64
+        own = (g2 * (x / noise.gain_e_per_dn + noise.read_var_dn2)).reshape(-1)
         taps, outside, fx, fy = _sample_points(d, k, h, w)
-        if corr is not None:
-            var = sum(wt * own[r, c] for r, c, wt in taps) * (1 - 2 * fx * (1 - fx) * corr) * (
-                1 - 2 * fy * (1 - fy) * corr)
-        else:
-            var = sum(wt * wt * own[r, c] for r, c, wt in taps)
-        if corr is None and light and noise.light_rms > 0 and k != ambient:
-            signal = np.sqrt(g2) * (x - room)
-            var += (noise.light_rms * sum(wt * signal[r, c] for r, c, wt in taps)) ** 2
+        flat = [(r * w + c, wt) for r, c, wt in taps]  # one flat gather per tap, not a 2-D fancy index
+        values = [np.take(own, i) for i, _ in flat]
+        var = sum(wt * wt * v for (_, wt), v in zip(flat, values))
+        if own_out is not None:
+            own_out[n] = var
+            own_out[n][outside] = np.nan
+            if k != ambient:  # the room light does not fluctuate with the light
+                signal = (root_g2 * (x - room)).reshape(-1)
+                var = var + (noise.light_rms * sum(wt * np.take(signal, i) for i, wt in flat)) ** 2
         var[outside] = np.nan
-        out[n] = var
-    return out
+        total[n] = var
+        if smoothed is not None:
+            sv = sum(wt * v for (_, wt), v in zip(flat, values)) * (1 - 2 * fx * (1 - fx) * corr) * (
+                1 - 2 * fy * (1 - fy) * corr)
+            sv[outside] = np.nan
+            smoothed[n] = sv
+    return total, (own_out if own_out is not None else total), smoothed
 
 
 def _slope_basis(rows: np.ndarray, terms: list) -> tuple[np.ndarray, list]:
@@ -185,16 +210,22 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
     shifts = rec.estimates[0].shifts
     own = (rec.mask & np.uint8(Mask.LAYER)) != 0
 
-    def variance(**kw):
-        V = warped_sample_variance(frames, plan, dark, gain, shifts, read=read, ambient=ambient, **kw)
+    pixels = None if smoothed is None else smoothed["pixels"]
+    smoothing = pixels is not None and pixels.any()
+
+    def variances():
+        """(total, own, as the filter takes it or None): one pass over the frames for all three."""
+        kw = {"read": read, "light": light, "filtered": smoothed["radius"] if smoothing else None, "ambient": ambient}
+        Vs = warped_sample_variances(frames, plan, dark, gain, shifts, **kw)
         for layer in rec.layers if np.ndim(shifts) != 4 else ():  # a flow holds the layers' own already
             mine = own & layer.decoded
             if mine.any():
-                V[:, mine] = warped_sample_variance(frames, plan, dark, gain, layer.shifts, read=read, ambient=ambient,
-                                                    **kw)[:, mine]
-        return V
+                for V, Vl in zip(Vs, warped_sample_variances(frames, plan, dark, gain, layer.shifts, **kw)):
+                    if V is not None:
+                        V[:, mine] = Vl[:, mine]
+        return Vs
 
-    V = variance(light=light)
+    V, V_own, V_filtered = variances()
     Ar = A[:, read]
     B = A.shape[0]
     MA = None if M is None else np.asarray(M, np.float64) @ Ar
@@ -207,14 +238,12 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
         parts.append((lambda V: np.einsum("khw,ik,jk->hwij", V, MA, MA).reshape(V.shape[1:] + (9,)),
                       [[(B + i, B + j, 1.0)] for i in range(3) for j in range(3)]))
     out = [part(V) for part, _ in parts]
-    pixels = None if smoothed is None else smoothed["pixels"]
-    if pixels is not None and pixels.any():
-        V_own, V_filtered = variance(light=False), variance(filtered=smoothed["radius"])
+    if smoothing:
         rows = A if M is None else np.concatenate([A, np.asarray(M, np.float64) @ A])
         U, terms = _slope_basis(rows, [t for _, ts in parts for t in ts])
         # the slopes' coordinates in the rows' span (the XYZ slopes are M times the cube's)
         P = U[:B] if M is None else U[:B] + np.asarray(M, np.float64).T @ U[B:]
-        slopes = np.asarray(smoothed["slopes"], np.float64) @ P
+        slopes = np.asarray(smoothed["slopes"], np.float32) @ P.astype(np.float32)  # the kernel reads float32
         row = subtracting_ambient(warped_guide_row(plan), ambient)[0, read]
         state = {"guide": smoothed["guide"], "radius": smoothed["radius"], "eps": smoothed["eps"], "slopes": slopes,
                  "guide_var": np.tensordot(row * row, V_own, axes=([0], [0])) / smoothed["level"] ** 2}

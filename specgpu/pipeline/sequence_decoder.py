@@ -444,15 +444,16 @@ class SequenceDecoder:
             out["dE_sigma"] = des
         return out
 
-    def _denoised(self, y, mask) -> dict:
+    def _denoised(self, y, mask, pass_rows) -> dict:
         """The outputs of the warped pass's rows ``y`` (H, W, rows) with those the filter applies to filtered in one
         call (:meth:`filtered`: the guide's level, the flagged pixels' neighbourhood and the guide's statistics
-        made once), read from ``y`` in place where they lead its rows (the filter copies what it reads)."""
+        made once, and only as many channels as the span of their rows in ``pass_rows`` (rows, K) holds), read
+        from ``y`` in place where they lead its rows (the filter copies what it reads)."""
         index = np.arange(y.shape[-1])
         names = list(self.spec.denoise["channels"])
         cols = np.concatenate([index[self.slices[name]] for name in names])
         rows = y[..., :len(cols)] if np.array_equal(cols, index[:len(cols)]) else y[..., cols]
-        filtered = self.filtered(rows, y[..., self.slices["guide"].start], mask)
+        filtered = self.filtered(rows, y[..., self.slices["guide"].start], mask, rows=pass_rows[cols])
         out, at = {}, 0
         for name in names:
             width = len(index[self.slices[name]])
@@ -473,7 +474,7 @@ class SequenceDecoder:
         if self.denoise is None:
             out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
         else:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
-            out = self._denoised(y, rec.mask)
+            out = self._denoised(y, rec.mask, self.pass_rows(None if gains is None else A))
         if "cube" in out:
             out["cube"] = out["cube"].astype(self.spec.cube_dtype, copy=False)
         if {"Lab", "dE"} & set(self.outputs):
@@ -515,9 +516,10 @@ class SequenceDecoder:
         (:func:`specgpu.pipeline.recovery.recover`); NaN where saturated."""
         picked = self.picked(frames, sequence, where)
         if self.motion != "none":
-            rec, y, _, _ = self.warped_outputs(self.corrections.moving(frames[picked[0]]))
+            rec, y, gains, A = self.warped_outputs(self.corrections.moving(frames[picked[0]]))
             if self.denoise is not None:
-                y = self.filtered(y[..., :-1], y[..., -1], rec.mask)
+                y = self.filtered(y[..., :-1], y[..., -1], rec.mask,
+                                  rows=self.pass_rows(None if gains is None else A)[:-1])
             return y.astype(out_dtype, copy=False)
         gain = live_gain(self.calibration.flat_field)
         if self.corrections.per_sequence:
@@ -539,11 +541,12 @@ class SequenceDecoder:
             y[saturated] = np.nan
         return y
 
-    def filtered(self, y, guide, mask) -> np.ndarray:
+    def filtered(self, y, guide, mask, *, rows=None) -> np.ndarray:
         """The warped outputs ``y`` (H, W, C) smoothed by the guided filter of the warped frames' sum ``guide``,
-        flagged pixels left out (:func:`specgpu.pipeline.denoise.denoise_compensated`)."""
+        flagged pixels left out, filtered in the span of their decoder's ``rows`` (C, K) where given
+        (:func:`specgpu.pipeline.denoise.denoise_compensated`)."""
         radius, eps = self.denoise
-        return denoise_compensated(y, guide, mask, radius=radius, eps=eps, device=self.device)
+        return denoise_compensated(y, guide, mask, radius=radius, eps=eps, rows=rows, device=self.device)
 
     @staticmethod
     def mean_frames(frames, picked) -> np.ndarray:
