@@ -206,6 +206,7 @@ class SequenceDecoder:
                              WhiteReference(plan, calibration, white_roi, white_reflectance,
                                             frame_shape=np.shape(self.corrections.dark) if frame_shape is None
                                             else frame_shape))
+        self._white_base = None  # the white's pass rows for the plan's decoder, made on first use (white_rows)
         self.spec = self.fused = None
         if not outputs:
             return
@@ -358,12 +359,27 @@ class SequenceDecoder:
         rec = self.warped(sensor, np.eye(self.plan.K), seconds=seconds)
         gains = self.motion_white_gains(sensor, rec)
         A = self.white_motion.decoder(gains)
-        R = self.pass_rows(A)
+        R = self.white_rows(A, gains)
         cols = np.flatnonzero(np.any(R != 0, axis=0))
         # float32 samples by float32 rows (one BLAS product, no float64 copy of the K samples of every pixel)
         samples = rec.y if len(cols) == rec.y.shape[-1] else rec.y[..., cols]  # no copy where every frame is read
         y = np.matmul(samples, np.ascontiguousarray(R[:, cols].T, np.float32))
         return rec, y, gains, A
+
+    def white_rows(self, A, gains) -> np.ndarray:
+        """:meth:`pass_rows` of a reference white's decoder ``A`` for its ``gains``: where ``A`` is the plan's decoder
+        with each column divided by its gain (what :meth:`specgpu.planning.correction.WhiteReference.decoder` gives
+        unless the light's colour changed), the plan's rows made once with the same columns divided (every output's
+        rows are linear in the decoder's columns; the guide's row is the plan's own), else rebuilt from ``A``."""
+        g = np.asarray(gains, np.float64)
+        if not np.array_equal(A, self.plan.A / g[None, :]):
+            return self.pass_rows(A)
+        if self._white_base is None:
+            self._white_base = self.pass_rows(self.plan.A)
+        rows = self._white_base / g[None, :]
+        if self.denoise is not None:  # the guide's row stays the plan's
+            rows[-1] = self._white_base[-1]
+        return rows
 
     def motion_white_gains(self, sensor, rec) -> np.ndarray:
         """(K,) the reference white's gains of one sequence (``sensor``: its corrected frames) whose warped

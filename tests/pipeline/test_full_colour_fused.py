@@ -172,3 +172,30 @@ def test_the_full_case_gives_xyz_and_dE_equal_to_recover(full_chart):
     # the coefficients rebuild the cube recover gives
     np.testing.assert_allclose((maps["coefficients"] @ dec.basis.T)[ok], want[ok], rtol=1e-4, atol=1e-4)
 
+
+def test_a_white_that_rescales_the_columns_reuses_the_plan_rows(full_chart, monkeypatch):
+    """A reference white's decoder that is the plan's with its columns divided by the gains (no colour change of
+    the light) gets its pass rows from the plan's, made once, with the same columns divided; the guide's row stays
+    the plan's; any other decoder has its rows rebuilt."""
+    from specgpu.pipeline.decoder_outputs import Outputs
+    from specgpu.pipeline.denoise import warped_guide_row
+    from specgpu.pipeline.sequence_decoder import SequenceDecoder
+
+    _, plan, bundle, roi = full_chart
+    dec = SequenceDecoder(plan, bundle, ("coefficients", "XYZ", "dE"), reference=[50.0, 0.0, 0.0],
+                          motion="global", denoise=(2, 1e-4), white_roi=roi)
+    made = []
+    rows = Outputs.rows
+    monkeypatch.setattr(Outputs, "rows", lambda self, A=None: made.append(A) or rows(self, A))
+    for seed in range(3):
+        g = np.random.default_rng(seed).uniform(0.9, 1.1, plan.K)
+        A = plan.A / g[None, :]
+        got = dec.white_rows(A, g)
+        want = np.vstack([rows(dec.spec, A)[0], warped_guide_row(plan)])
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+        np.testing.assert_array_equal(got[-1], warped_guide_row(plan).reshape(-1))
+    assert len(made) == 1  # the plan's rows, once
+    other = plan.A * np.linspace(0.8, 1.2, plan.A.shape[0])[:, None]  # a colour change: its rows rebuilt
+    np.testing.assert_allclose(dec.white_rows(other, np.ones(plan.K)),
+                               np.vstack([rows(dec.spec, other)[0], warped_guide_row(plan)]), rtol=1e-12)
+    assert len(made) == 2
