@@ -199,3 +199,22 @@ def test_a_white_that_rescales_the_columns_reuses_the_plan_rows(full_chart, monk
     np.testing.assert_allclose(dec.white_rows(other, np.ones(plan.K)),
                                np.vstack([rows(dec.spec, other)[0], warped_guide_row(plan)]), rtol=1e-12)
     assert len(made) == 2
+
+
+def test_the_moving_maps_are_views_of_the_filtered_rows_not_copies(full_chart):
+    """Without a colour output the filtered coefficients and XYZ are handed to the sink as views of the one array
+    the filter made (no per-sequence copy of each); with dE the XYZ the colour launch reads is made contiguous once
+    and the coefficients stay a view."""
+    from specgpu.pipeline.sequence_decoder import SequenceDecoder
+
+    frames, plan, bundle, _ = full_chart
+    plain = SequenceDecoder(plan, bundle, ("coefficients", "XYZ"), motion="global", denoise=(2, 1e-4)).maps(frames)
+    assert np.may_share_memory(plain["coefficients"], plain["XYZ"])  # slices of one array
+    coloured = SequenceDecoder(plan, bundle, ("coefficients", "XYZ", "dE"), reference=[50.0, 0.0, 0.0],
+                               motion="global", denoise=(2, 1e-4)).maps(frames)
+    assert coloured["XYZ"].flags.c_contiguous and not np.may_share_memory(coloured["coefficients"], coloured["XYZ"])
+    assert coloured["coefficients"].base is not None
+    for name in ("coefficients", "XYZ"):
+        np.testing.assert_array_equal(np.isnan(plain[name]), np.isnan(coloured[name]))
+        ok = np.isfinite(plain[name])
+        np.testing.assert_array_equal(plain[name][ok], coloured[name][ok])
