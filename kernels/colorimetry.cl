@@ -54,6 +54,30 @@ __kernel void delta_e(__global const float *restrict lab1, __global const float 
     store_f(DELTA_E(L1, a1, b1, L2, a2, b2), de, base, count);
 }
 
+/* XYZ (N, 3) -> Lab -> dE(reference, pixel) in one pass: the colour of maps already decoded (the filtered or the
+ * warped XYZ), the XYZ read once, Lab stored only when asked (WRITE_LAB), dE only with WRITE_DE, no Lab buffer
+ * between the two steps. */
+__kernel void xyz_to_delta_e(__global const float *restrict xyz,
+                             const float Xn, const float Yn, const float Zn,
+                             __global const float *restrict ref_lab,
+                             __global float *restrict lab_out,
+                             __global float *restrict de_out,
+                             const ulong n)
+{
+    PIXEL_RANGE(n);
+    floatv X, Y, Z, L, a, b;
+    load3(xyz, base, count, &X, &Y, &Z);
+    lab_from_xyz(X, Y, Z, Xn, Yn, Zn, &L, &a, &b);
+#if WRITE_LAB
+    store3(L, a, b, lab_out, base, count);
+#endif
+#if WRITE_DE
+    floatv Lr, ar, br;
+    load_colour(ref_lab, REF_SINGLE, base, count, &Lr, &ar, &br);
+    store_f(DELTA_E(Lr, ar, br, L, a, b), de_out, base, count);
+#endif
+}
+
 /* frames -> XYZ = M (o - dark) * gain -> Lab -> dE(reference, pixel), one pass, no intermediate buffers;
  * M is the 3 x K product C . A made on the host. */
 __kernel void frames_to_delta_e(__global const IN_T *restrict frames,

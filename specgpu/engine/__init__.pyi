@@ -12,6 +12,7 @@ from .kernels import (
     prepare_delta_E_sigma,
     prepare_frames_to_delta_E,
     prepare_linear,
+    prepare_XYZ_to_delta_E,
     to_device,
 )
 from .linear_map import LAYOUTS, LinearResult, apply_linear
@@ -43,6 +44,7 @@ __all__ = [
     "linear_matrix",
     "LinearResult",
     "list_devices",
+    "prepare_XYZ_to_delta_E",
     "prepare_delta_E_sigma",
     "prepare_frames_to_delta_E",
     "prepare_linear",

@@ -305,6 +305,28 @@ def prepare_frames_to_delta_E(queue: cl.CommandQueue, frames_dtype: DTypeLike, M
                                            _data(reference), None, None, None, None, np.uint64(n)], 0, outputs)
 
 
+def prepare_XYZ_to_delta_E(queue: cl.CommandQueue, white, reference, *, n: int, method: str = "CIE 2000",
+                           reference_single: bool = True, write_Lab: bool = False) -> Prepared:
+    """CIELAB and the colour difference to ``reference`` of ``n`` XYZ pixels (3n, flat, the launch's "frames") in
+    one pass, as a :class:`Prepared` launch: the XYZ read once, outputs ``Lab`` (3n) only with ``write_Lab`` and
+    ``delta_E`` (n) only with a ``reference`` (a flat :class:`pyopencl.array.Array`: one colour with
+    ``reference_single``, else per pixel), no Lab buffer between the two steps."""
+    vw = _vw(queue)
+    if reference is None and not write_Lab:
+        raise ValueError("the XYZ colour launch needs a reference (delta_E) or write_Lab")
+    kernel = new_kernel(queue, "colorimetry.cl", "xyz_to_delta_e", DE_METHOD=DE_CODES[method],
+                        REF_SINGLE=reference_single, WRITE_LAB=write_Lab, WRITE_DE=reference is not None,
+                        VW=_vw_macro(vw))
+    outputs = {}
+    if write_Lab:
+        outputs["Lab"] = (5, 12 * n)
+    if reference is not None:
+        outputs["delta_E"] = (6, 4 * n)
+    Xn, Yn, Zn = (np.float32(v) for v in white)
+    return Prepared(queue, kernel, n, vw, [None, Xn, Yn, Zn, _data(reference), None, None, np.uint64(n)], 0,
+                    outputs)
+
+
 def prepare_delta_E_sigma(queue: cl.CommandQueue, white, constant_cov, *, n: int) -> Prepared:
     """The first-order dE2000 standard deviation of XYZ (3n, the launch's "frames") given the noise part of its
     covariance (6n: XX XY XZ YY YZ ZZ per pixel, input argument 1) and a constant (3, 3) covariance, as a

@@ -9,6 +9,7 @@ use too.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +28,7 @@ from specgpu.pipeline.denoise import stream_denoise
 from specgpu.planning.noise import NoiseModel
 from specgpu.planning.uncertainty import ambient_variance, constant_covariance, variance_rows
 
-__all__ = ["STREAM_OUTPUTS", "FusedLaunches", "Outputs", "lab_and_delta_E", "outputs_for"]
+__all__ = ["STREAM_OUTPUTS", "ColourLaunch", "FusedLaunches", "Outputs", "lab_and_delta_E", "outputs_for"]
 
 #: What a decoder can compute per sequence, and the channel count / dtype of each map.
 STREAM_OUTPUTS = ("coefficients", "cube", "XYZ", "Lab", "dE", "sigma", "sigma_rms", "dE_sigma")
@@ -207,16 +208,48 @@ def outputs_for(plan, names, *, frame_shape, reference=None, method: str = "CIE 
                    observer=observer, integration=integration, **extra)
 
 
-def lab_and_delta_E(queue, spec: Outputs, XYZ: cla.Array, reference, n: int) -> dict:
-    """CIELAB and dE (those of ``spec.names``) of ``n`` XYZ pixels (flat device array) on the device, with the
-    plan's white and the device ``reference``: how the denoised launches (from the filtered XYZ) and the motion
-    pass (from the warped XYZ) make them. Returns the device arrays by output name."""
-    lab = engine.launch_XYZ_to_Lab(queue, XYZ, spec.white, n=n)
-    out = {"Lab": lab} if "Lab" in spec.names else {}
-    if "dE" in spec.names:
-        out["dE"] = engine.launch_delta_E(queue, reference, lab, method=spec.method, n=n,
-                                          single1=spec.reference_single)
-    return out
+class ColourLaunch:
+    """CIELAB and dE (those of ``spec.names``) of decoded XYZ maps on the device, in one prepared launch (the XYZ
+    read once, Lab written only when asked, dE straight from the Lab in registers): how the denoised launches
+    (from the filtered XYZ) and the motion pass (from the warped XYZ) make them. Set up once per decoder; each
+    sequence costs one enqueue, its outputs taken from the memory pool.
+
+    Parameters
+    ----------
+    queue : pyopencl.CommandQueue
+    spec : Outputs
+        With a colour output (``Lab`` or ``dE``).
+    reference : pyopencl.array.Array or None
+        The dE reference on the device (flat), with ``dE``.
+    n : int
+        Pixels per map.
+    """
+
+    def __init__(self, queue, spec: Outputs, reference, n: int):
+        self.queue, self.n = queue, int(n)
+        self.names = tuple(name for name in ("Lab", "dE") if name in spec.names)
+        if not self.names:
+            raise ValueError("a colour launch needs the Lab or the dE output")
+        de = "dE" in spec.names
+        self.launch = engine.prepare_XYZ_to_delta_E(
+            queue, spec.white, reference if de else None, n=self.n,
+            method=spec.method if de else "CIE 2000", reference_single=spec.reference_single,
+            write_Lab="Lab" in spec.names)
+        self._reference = reference  # the launch points at its buffer: kept alive with it
+        self._lock = threading.Lock()  # one kernel object: its arguments set and enqueued by one thread at a time
+
+    def enqueue(self, XYZ) -> dict:
+        """Enqueue the launch on the XYZ buffer (3n float32); returns the pooled device buffers by output name."""
+        with self._lock:
+            made = self.launch.enqueue(XYZ)
+        return {name: made[key] for name, key in (("Lab", "Lab"), ("dE", "delta_E")) if key in made}
+
+
+def lab_and_delta_E(colour: ColourLaunch, XYZ) -> dict:
+    """CIELAB and dE of the XYZ buffer (3n float32, on the device) by the decoder's :class:`ColourLaunch`:
+    the one place Lab and dE are made from decoded XYZ (the filtered or the warped). Returns the device buffers by
+    output name."""
+    return colour.enqueue(XYZ)
 
 
 # ------------------------------------------------------------------------------------------------ the launches
@@ -296,6 +329,7 @@ class FusedLaunches:
         #: the sigma launches write variances, carried through the filter by :meth:`_denoised_sigmas`
         self._sigmas_filtered = bool(spec.denoise and spec.denoise["sigmas"])
         self._guide_launches: dict = {}
+        self._colour = None  # the ColourLaunch of the filtered XYZ, made on first use
         self.reference_device = None if spec.reference is None else engine.to_device(queue,
                                                                                       spec.reference.reshape(-1))
 
@@ -471,9 +505,9 @@ class FusedLaunches:
                 out[name] = guided_filter_device(self.queue, image, guide, self.spec.denoise["radius"],
                                                  self.spec.denoise["eps"] * level ** 2, out=image).data
         if self._lab_from_filtered:  # CIELAB and dE of the filtered XYZ, as recover --denoise computes them
-            xyz = cla.Array(self.queue, (3 * self.n,), np.float32, data=out["XYZ"])
-            for name, arr in lab_and_delta_E(self.queue, self.spec, xyz, self.reference_device, self.n).items():
-                out[name] = arr.data
+            if self._colour is None:
+                self._colour = ColourLaunch(self.queue, self.spec, self.reference_device, self.n)
+            out.update(lab_and_delta_E(self._colour, out["XYZ"]))
         if self._sigmas_filtered:
             self._denoised_sigmas(out, guide, level)
         out["guide"] = guide.data  # kept with the sequence's buffers while the passes queued on it run

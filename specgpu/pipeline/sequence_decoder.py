@@ -34,9 +34,9 @@ from specgpu.core.mask import Mask
 from specgpu.core.numerics import live_gain
 from specgpu.core.validate import check_sequence, validate_method
 from specgpu.engine.linear_map import apply_linear
-from specgpu.engine.runtime import get_queue
+from specgpu.engine.runtime import get_allocator, get_queue
 from specgpu.motion.residual import residual_check
-from specgpu.pipeline.decoder_outputs import FusedLaunches, lab_and_delta_E, outputs_for
+from specgpu.pipeline.decoder_outputs import ColourLaunch, FusedLaunches, lab_and_delta_E, outputs_for
 from specgpu.pipeline.denoise import (
     compensated_parts,
     denoise_compensated,
@@ -220,6 +220,7 @@ class SequenceDecoder:
                              WhiteReference(plan, calibration, white_roi, white_reflectance,
                                             frame_shape=np.shape(self.corrections.dark) if frame_shape is None
                                             else frame_shape))
+        self._white_base = None  # the white's pass rows for the plan's decoder, made on first use (white_rows)
         self.spec = self.fused = None
         if not outputs:
             return
@@ -244,6 +245,7 @@ class SequenceDecoder:
             self.slices["guide"] = slice(len(self.rows) - 1, len(self.rows))
         self._reference = (None if self.spec.reference is None else
                            engine.to_device(self.queue, self.spec.reference.reshape(-1)))
+        self._colour_launch = None  # Lab and dE of the warped (filtered) XYZ: one launch, made on first use
         #: host seconds spent so far in each step (estimate, warped pass, consistency check with the object
         #: layers, colour), and the sequences decoded: where a moving stream's time goes
         self.seconds = dict.fromkeys(("estimate", "warp", "check", "colour"), 0.0)
@@ -372,12 +374,27 @@ class SequenceDecoder:
         rec = self.warped(sensor, np.eye(self.plan.K), seconds=seconds)
         gains = self.motion_white_gains(sensor, rec)
         A = self.white_motion.decoder(gains)
-        R = self.pass_rows(A)
+        R = self.white_rows(A, gains)
         cols = np.flatnonzero(np.any(R != 0, axis=0))
         # float32 samples by float32 rows (one BLAS product, no float64 copy of the K samples of every pixel)
         samples = rec.y if len(cols) == rec.y.shape[-1] else rec.y[..., cols]  # no copy where every frame is read
         y = np.matmul(samples, np.ascontiguousarray(R[:, cols].T, np.float32))
         return rec, y, gains, subtracting_ambient(A, ambient)
+
+    def white_rows(self, A, gains) -> np.ndarray:
+        """:meth:`pass_rows` of a reference white's decoder ``A`` for its ``gains``: where ``A`` is the plan's decoder
+        with each column divided by its gain (what :meth:`specgpu.planning.correction.WhiteReference.decoder` gives
+        unless the light's colour changed), the plan's rows made once with the same columns divided (every output's
+        rows are linear in the decoder's columns; the guide's row is the plan's own), else rebuilt from ``A``."""
+        g = np.asarray(gains, np.float64)
+        if not np.array_equal(A, self.plan.A / g[None, :]):
+            return self.pass_rows(A)
+        if self._white_base is None:
+            self._white_base = self.pass_rows(self.plan.A)
+        rows = self._white_base / g[None, :]
+        if self.denoise is not None:  # the guide's row stays the plan's
+            rows[-1] = self._white_base[-1]
+        return rows
 
     def motion_white_gains(self, sensor, rec) -> np.ndarray:
         """(K,) the reference white's gains of one sequence (``sensor``: its corrected frames) whose warped
@@ -455,14 +472,33 @@ class SequenceDecoder:
         rows = y[..., :len(cols)] if np.array_equal(cols, index[:len(cols)]) else y[..., cols]
         filtered = self.filtered(rows, y[..., self.slices["guide"].start], mask, rows=pass_rows[cols])
         out, at = {}, 0
-        for name in names:
+        for name in names:  # views of the filtered maps: the sink reads them, nothing writes them but its NaN
             width = len(index[self.slices[name]])
-            out[name] = np.ascontiguousarray(filtered[..., at:at + width])
+            out[name] = filtered[..., at:at + width]
             at += width
         for name, rows in self.slices.items():  # any other row as it was decoded
             if name not in out and name != "guide":
-                out[name] = np.ascontiguousarray(y[..., rows])
+                out[name] = y[..., rows]
         return out
+
+    def _colour(self, XYZ) -> tuple[dict, list]:
+        """Lab and dE (those asked for) of the host XYZ map (H, W, 3) enqueued: the XYZ written into a pooled
+        device buffer, the decoder's :class:`~specgpu.pipeline.decoder_outputs.ColourLaunch`, each output copied
+        into a new host map; returns the host maps and (the events to wait for before reading them, the device
+        buffers they read), so the host work after it (the sigmas) overlaps the device's."""
+        q = self.queue
+        if self._colour_launch is None:
+            with self._lock:
+                if self._colour_launch is None:
+                    self._colour_launch = ColourLaunch(q, self.spec, self._reference, self.n)
+        xyz = get_allocator(q)(XYZ.nbytes)
+        cl.enqueue_copy(q, xyz, XYZ, is_blocking=False)  # XYZ (contiguous) is kept alive by the caller
+        shapes, maps, events = self.shapes(), {}, []
+        made = lab_and_delta_E(self._colour_launch, xyz)
+        for name, buf in made.items():
+            maps[name] = np.empty(*shapes[name])
+            events.append(cl.enqueue_copy(q, maps[name], buf, is_blocking=False))
+        return maps, (events, [xyz, *made.values()])  # the device buffers held until the read-back is done
 
     def _moving_maps(self, raw) -> dict:
         steps = {}
@@ -471,18 +507,21 @@ class SequenceDecoder:
         t0 = time.perf_counter()
         sigmas = {"sigma", "sigma_rms", "dE_sigma"} & set(self.outputs)
         smoothed = self.smoothed(y, rec.mask) if sigmas else None  # the sigmas read the unfiltered slopes
-        if self.denoise is None:
-            out = {name: np.ascontiguousarray(y[..., rows]) for name, rows in self.slices.items()}
+        if self.denoise is None:  # views of the pass's rows: the sink reads them as they are
+            out = {name: y[..., rows] for name, rows in self.slices.items()}
         else:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
             out = self._denoised(y, rec.mask, self.pass_rows(None if gains is None else A))
         if "cube" in out:
             out["cube"] = out["cube"].astype(self.spec.cube_dtype, copy=False)
+        reading = None
         if {"Lab", "dE"} & set(self.outputs):
-            xyz = engine.to_device(self.queue, out["XYZ"].reshape(-1))
-            for name, arr in lab_and_delta_E(self.queue, self.spec, xyz, self._reference, self.n).items():
-                out[name] = arr.get().reshape(self.shapes()[name][0])
+            out["XYZ"] = np.ascontiguousarray(out["XYZ"])  # the one copy the upload needs (none if contiguous)
+            colour, reading = self._colour(out["XYZ"])
+            out.update(colour)
         if sigmas:
             out.update(self._warped_sigmas(sensor, rec, A, out.get("XYZ"), light=gains is None, smoothed=smoothed))
+        if reading is not None:  # the colour's read-back: one wait, after the host's own work
+            cl.wait_for_events(reading[0])
         with self._lock:
             for step, seconds in {**steps, "colour": time.perf_counter() - t0}.items():
                 self.seconds[step] += seconds

@@ -170,7 +170,7 @@ def instrument_full(stages):
     stages.wrap(moving_layers, "_recover", "check")  # what is left of it: flags grown, NaN set
     stages.wrap(SequenceDecoder, "warped_outputs", "white")  # what is left: the white's gains, its decoder's rows
     stages.wrap(SequenceDecoder, "filtered", "denoise")
-    stages.wrap(sequence_decoder, "lab_and_delta_E", "colour")
+    stages.wrap(sequence_decoder, "lab_and_delta_E", "colour")  # its launch, the read-back in "outputs"
     stages.wrap(SequenceDecoder, "_moving_maps", "outputs")  # what is left: maps sliced, colour uploaded and read
 
 
