@@ -100,6 +100,22 @@ def calibrated_rig(d, *names):
     return d
 
 
+@functools.cache
+def _other_calibration() -> Path:
+    """A second calibration of the small twin rig (seed 1: a bundle other than ``calib.npz``'s), made through the
+    CLI once per session."""
+    d = _session_files()
+    run("calibrate", "--rig", d / "rig.toml", "--out", d / "other.npz", "--seed", "1")
+    return d / "other.npz"
+
+
+def other_calibration(path):
+    """Write at ``path`` what ``specgpu calibrate --seed 1`` writes for the small twin rig: a calibration of the
+    rig of :func:`calibrated_rig` other than its ``calib.npz`` (made once per session); returns ``path``."""
+    shutil.copyfile(_other_calibration(), path)
+    return path
+
+
 def tristimulus_rig(d):
     """:func:`calibrated_rig` with a tristimulus plan ``tri.npz`` made through the CLI beside the calibration;
     returns ``d``."""

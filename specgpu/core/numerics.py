@@ -3,8 +3,11 @@ gain of a pixel with no response, and the process's BLAS on one thread."""
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
+import threading
+from collections import OrderedDict
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -66,6 +69,9 @@ def fit_levels(system, target, *, upper: float | None = 1.0, iterations: int = 4
     K matrix-vector products, which read the whole system from memory each: several times faster for a sequence's
     frames).
 
+    The last fits are kept (keyed by a digest of both arrays, the bound and the step count): the same fit asked
+    again, as a plan designed twice on one calibration asks it, returns a copy of the kept answer at once.
+
     Returns
     -------
     (C,) float64 levels, or (C, K) for a (G, K) target.
@@ -75,6 +81,38 @@ def fit_levels(system, target, *, upper: float | None = 1.0, iterations: int = 4
     if m.ndim != 2 or t.ndim not in (1, 2) or t.shape[0] != m.shape[0]:
         raise ValueError(f"target must have shape ({m.shape[0]},), got {t.shape} (or ({m.shape[0]}, K) for K fits)")
     hi = np.inf if upper is None else float(upper)
+    key = _fit_key(m, t, hi, iterations)
+    with _fits_lock:
+        known = _fits.get(key)
+        if known is not None:
+            _fits.move_to_end(key)
+            return known.copy()
+    f = _fit(m, t, hi, iterations)
+    with _fits_lock:
+        _fits[key] = f.copy()
+        while len(_fits) > _FITS_KEPT:
+            _fits.popitem(last=False)
+    return f
+
+
+#: The fits :func:`fit_levels` keeps (the least recently used dropped first): a plan designed again on one calibration
+#: (a budget's capped exposure, the same method asked twice in a study or a demo) reuses its frames' fit, which
+#: costs a second or more, instead of redoing it.
+_FITS_KEPT = 16
+_fits: OrderedDict[bytes, np.ndarray] = OrderedDict()
+_fits_lock = threading.Lock()
+
+
+def _fit_key(m: np.ndarray, t: np.ndarray, hi: float, iterations: int) -> bytes:
+    """A digest of everything a fit depends on: both arrays' shapes and bytes, the bound and the step count."""
+    digest = hashlib.blake2b(repr((m.shape, t.shape, hi, int(iterations))).encode(), digest_size=32)
+    digest.update(np.ascontiguousarray(m).data)
+    digest.update(np.ascontiguousarray(t).data)
+    return digest.digest()
+
+
+def _fit(m: np.ndarray, t: np.ndarray, hi: float, iterations: int) -> np.ndarray:
+    """The projected-gradient fit of :func:`fit_levels`, uncached."""
     col_sum = m.sum(axis=0)
     peak_row = np.argmax(m, axis=0)
     full = m.sum(axis=1)  # every column on

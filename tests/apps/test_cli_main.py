@@ -11,7 +11,7 @@ import shutil
 
 import numpy as np
 import pytest
-from cli_helpers import RIG, calibrated_rig, one_line_error, run
+from cli_helpers import RIG, calibrated_rig, one_line_error, other_calibration, run
 
 from specgpu import io
 
@@ -191,7 +191,7 @@ def test_scene_not_covering_the_plans_range(work, cube, tmp_path):
 
 
 def test_plan_from_another_calibration(work, tmp_path):
-    run("calibrate", "--rig", work / "rig.toml", "--out", tmp_path / "other.npz", "--seed", 9)
+    other_calibration(tmp_path / "other.npz")
     result = run("capture", "--rig", work / "rig.toml", "--plan", work / "sym.npz", "--calib",
                  tmp_path / "other.npz", "--scene", "colorchecker", "--out", tmp_path / "seq", ok=False)
     one_line_error(result, "stale")

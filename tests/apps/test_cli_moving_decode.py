@@ -52,7 +52,7 @@ def test_stream_motion_on_the_command_line(moving, tmp_path):
     assert np.isfinite(np.asarray(acc["sigma_rms"][0], np.float32)).mean() > 0.8
 
 
-def test_the_stream_bench_puts_the_motion_rate_beside_the_static_one(tmp_path):
+def test_the_stream_bench_puts_the_motion_rate_beside_the_static_one(tmp_path, bench_on_the_shared_recording):
     import json
 
     out = tmp_path / "bench.json"

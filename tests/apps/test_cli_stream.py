@@ -46,7 +46,7 @@ def test_cli_stream_records_and_reports(setup, tmp_path):
     assert bad.exit_code != 0 and "spectrum" in bad.output
 
 
-def test_cli_bench_stream_reports_every_case(tmp_path):
+def test_cli_bench_stream_reports_every_case(tmp_path, bench_on_the_shared_recording):
     out = tmp_path / "bench.json"
     result = CliRunner().invoke(main, ["bench", "--stream", "--stream-size", "320x240", "--stream-seconds", "0.5",
                                        "--paced-seconds", "0.5", "--stream-cases", "fused,paced,overload,equality",

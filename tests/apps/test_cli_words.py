@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 
 import pytest
-from cli_helpers import one_line_error, run, tristimulus_rig
+from cli_helpers import one_line_error, other_calibration, run, tristimulus_rig
 from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -122,7 +122,7 @@ def rig(tmp_path_factory):
     and a zarr recording of its raw frames."""
     d = tmp_path_factory.mktemp("words")
     tristimulus_rig(d)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "other.npz", "--seed", "1")
+    other_calibration(d / "other.npz")
     run("capture", "--rig", d / "rig.toml", "--plan", d / "tri.npz", "--calib", d / "calib.npz", "--scene", "white",
         "--out", d / "rec.zarr")
     return d

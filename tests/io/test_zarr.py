@@ -211,21 +211,28 @@ _json = st.recursive(st.none() | st.booleans() | st.integers(-3, 10**12) | st.fl
                      max_leaves=8)
 
 
+@pytest.fixture(scope="module")
+def fuzz_bases(tmp_path_factory):
+    """A real recording of 2 sequences and an empty group, made once: each example edits a copy of one."""
+    import zarr
+
+    root = tmp_path_factory.mktemp("fz-bases")
+    record(root / "recorded.zarr", 2)
+    zarr.open_group(str(root / "empty.zarr"), mode="w")
+    return root
+
+
 @settings(max_examples=120)
 @given(st.dictionaries(st.sampled_from(["format", "version", "sequences_committed", "outputs", "frames", "K"]), _json,
                        max_size=6), st.booleans())
-def test_fuzzed_recording_attributes_give_a_recording_or_one_line(tmp_path_factory, attrs, based):
+def test_fuzzed_recording_attributes_give_a_recording_or_one_line(tmp_path_factory, fuzz_bases, attrs, based):
     """Random attribute values over a real recording (or an empty group): open_recording returns a recording
     whose committed sequences all read, or refuses in one line naming the folder."""
     import json
+    import shutil
 
     folder = tmp_path_factory.mktemp("fz") / "rec.zarr"
-    if based:
-        record(folder, 2)
-    else:
-        import zarr
-
-        zarr.open_group(str(folder), mode="w")
+    shutil.copytree(fuzz_bases / ("recorded.zarr" if based else "empty.zarr"), folder)
     doc = json.loads((folder / "zarr.json").read_text())
     doc.pop("consolidated_metadata", None)
     doc.setdefault("attributes", {}).update(attrs)

@@ -99,7 +99,7 @@ def twin_driver(plan, sequences, seed=7):
     return TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K * sequences, pacing="free")
 
 
-def test_stream_and_batch_with_denoise_and_motion_equal_recover(moving, tmp_path):
+def test_stream_and_batch_with_denoise_and_motion_equal_recover(moving, tmp_path, dask_scheduler):
     import zarr
 
     from specgpu.pipeline.stream import Stream
@@ -236,7 +236,7 @@ def test_a_stream_with_a_moving_white_equals_recover(white_chart):
 
 
 @pytest.mark.parametrize("motion", ["global", "none"])
-def test_a_batch_with_a_white_equals_recover(white_chart, tmp_path, motion):
+def test_a_batch_with_a_white_equals_recover(white_chart, tmp_path, motion, dask_scheduler):
     """batch --white-roi, with --motion (the white moving with the scene) and without (the device-resident
     launches given each sequence's corrected decoder), equals recover with the same white."""
     import zarr

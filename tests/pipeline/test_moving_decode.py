@@ -39,7 +39,7 @@ def assert_close_nan(a, b, **tol):
     np.testing.assert_allclose(np.nan_to_num(a), np.nan_to_num(b), **tol)
 
 
-def test_batch_with_motion_equals_recover_with_motion(moving, tmp_path):
+def test_batch_with_motion_equals_recover_with_motion(moving, tmp_path, dask_scheduler):
     import zarr
 
     root, plan, bundle, _, _ = moving
@@ -136,7 +136,7 @@ def test_a_stream_with_motion_equals_recover_with_motion_of_the_same_frames(movi
         assert np.abs(still["cube"][ok] - maps["cube"][ok]).mean() > 0.01
 
 
-def test_a_stream_and_a_batch_with_a_flow_equal_recover_with_a_flow(moving, tmp_path):
+def test_a_stream_and_a_batch_with_a_flow_equal_recover_with_a_flow(moving, tmp_path, dask_scheduler):
     import zarr
 
     from specgpu.pipeline.capture_folder import SequenceFolder

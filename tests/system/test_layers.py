@@ -6,6 +6,7 @@ repository."""
 from __future__ import annotations
 
 import ast
+import functools
 import os
 import re
 import shutil
@@ -29,6 +30,17 @@ LOCAL_IMPORTS_ALLOWED = {"dask", "zarr", "numcodecs", "distributed", "napari", "
                          "serial", "clr", "System",
                          # the Qt shim napari ships: the spectrum widget's Qt classes, only with the viewer extra
                          "qtpy"}
+
+
+def parsed(path: Path) -> ast.Module:
+    """The syntax tree of a source file, parsed once per version of it (several checks read every module)."""
+    stat = path.stat()
+    return _parse(str(path), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=1024)
+def _parse(path: str, mtime_ns: int, size: int) -> ast.Module:
+    return ast.parse(Path(path).read_text(), path)
 
 
 # --- the import-linter contracts -----------------------------------------------------------------------------------
@@ -115,7 +127,7 @@ def private_crossings(root: Path = PACKAGE) -> list[str]:
     found = []
     for module, path in known.items():
         own = room(module, root)
-        tree = ast.parse(path.read_text(), str(path))
+        tree = parsed(path)
         aliases: dict[str, str] = {}  # local name -> specgpu module it stands for
         where = f"{path.relative_to(root.parent)}"
 
@@ -153,18 +165,18 @@ def private_crossings(root: Path = PACKAGE) -> list[str]:
 def local_imports(root: Path = PACKAGE) -> list[tuple[str, str]]:
     """(``file:line``, imported module) for every import inside a function."""
     found = []
+    functions = (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)
     for module, path in modules(root).items():
-        tree = ast.parse(path.read_text(), str(path))
-        for func in ast.walk(tree):
-            if not isinstance(func, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
-                continue
-            for node in ast.walk(func):
-                where = f"{path.relative_to(root.parent)}:{getattr(node, 'lineno', 0)}"
-                if isinstance(node, ast.Import):
-                    found += [(where, a.name) for a in node.names]
-                elif isinstance(node, ast.ImportFrom):
-                    found.append((where, absolute(module, node, path.name == "__init__.py")))
-    return sorted(set(found))  # nested functions are walked twice
+        tree = parsed(path)
+        inner = {node for func in ast.walk(tree) if isinstance(func, functions)
+                 for node in ast.walk(func) if isinstance(node, (ast.Import, ast.ImportFrom))}
+        for node in inner:
+            where = f"{path.relative_to(root.parent)}:{node.lineno}"
+            if isinstance(node, ast.Import):
+                found += [(where, a.name) for a in node.names]
+            else:
+                found.append((where, absolute(module, node, path.name == "__init__.py")))
+    return sorted(set(found))
 
 
 def test_no_private_name_crosses_a_room():
@@ -196,7 +208,7 @@ def command_bodies(root: Path = PACKAGE) -> dict[str, int]:
     paths = sorted((cli / "cli").rglob("*.py"))
     out = {}
     for path in paths:
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        for node in ast.walk(parsed(path)):
             if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 continue
             if not any(re.search(r"\.(command|group)\b|^(command|group)\b", ast.unparse(d))
@@ -316,7 +328,7 @@ def test_tests_import_their_helpers_as_ci_runs_them():
     `tests.cli_helpers`, which imports only under `python -m pytest` from the repository's root."""
     bad = []
     for path in sorted((ROOT / "tests").rglob("*.py")):
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        for node in ast.walk(parsed(path)):
             names = ([a.name for a in node.names] if isinstance(node, ast.Import)
                      else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             bad += [f"{path.relative_to(ROOT)}:{node.lineno}" for n in names if n.split(".")[0] == "tests"]
@@ -329,7 +341,7 @@ def _imports(path: Path) -> list[tuple[int, list[str]]]:
     """(line, the modules one import statement names) for every absolute import of a file, in functions too;
     ``from specgpu import apps`` names ``specgpu`` and ``specgpu.apps``."""
     out = []
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in ast.walk(parsed(path)):
         if isinstance(node, ast.Import):
             out.append((node.lineno, [a.name for a in node.names]))
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
