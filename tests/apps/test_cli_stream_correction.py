@@ -54,7 +54,7 @@ def test_cli_stream_white_roi_refusals_are_one_line(setup, tmp_path, extra, mess
 
     from specgpu.apps.cli import main
 
-    result = CliRunner().invoke(main, [*stream_cli_files(setup, tmp_path), "--seconds", "0.3", "--policy", "block",
+    result = CliRunner().invoke(main, [*stream_cli_files(setup, tmp_path), "--seconds", "5", "--policy", "block",
                                        "--outputs", "XYZ", *extra])
     assert result.exit_code != 0 and message in result.output
     assert "Traceback" not in result.output
