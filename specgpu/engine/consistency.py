@@ -347,7 +347,8 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
 
 
 def consistency_from_frames(frames, motion, dark=None, gain=None, *, window: int = 9, texture: float = 0.5,
-                            own: float = 4.0, floor=None, return_gradients: bool = False, shape=None, dtype=None, device=None):
+                            own: float = 4.0, floor=None, return_gradients: bool = False, shape=None, dtype=None,
+                            device=None):
     """The consistency check of a sequence from its raw frames, on the device: each frame's gradient image
     (:func:`specgpu.engine.gradients.gradient_images`, never leaving the device) and :func:`consistency_maps`.
 
