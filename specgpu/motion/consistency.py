@@ -42,17 +42,26 @@ def noise_floors(frames, noise, dark=None, gain=None, *, window: int = 9, factor
     frames = np.asarray(frames)
     dark = None if dark is None else np.asarray(dark, np.float32)
     flat = None if gain is None else np.nan_to_num(np.asarray(gain, np.float32), nan=0.0)  # as gradient_image
+    flat2 = None if flat is None else flat * flat
+
+    def box(a):
+        return ndimage.uniform_filter(a, window, mode="nearest")
+
+    # the box of gain^2 (x / g + s_read^2): the read term common to every frame, the shot term per frame
+    read = np.float32(noise.read_var_dn2) * (box(flat2) if flat2 is not None else np.float32(1.0))
     out = np.empty(frames.shape, np.float32)
     for k in range(len(frames)):
         d = None if dark is None else (dark[k] if dark.ndim == 3 else dark)
         x = np.subtract(frames[k], d, dtype=np.float32) if d is not None else np.array(frames[k], np.float32)
-        f = x * flat if flat is not None else x
-        mean = float(np.mean(f, dtype=np.float64))
-        var = np.maximum(x, 0.0) * np.float32(1.0 / noise.gain_e_per_dn) + np.float32(noise.read_var_dn2)
-        if flat is not None:
-            var *= flat * flat
-        scale = factor * _RAYLEIGH_VAR * _SOBEL_WEIGHTS / (mean * mean if mean > 0 else 1.0)
-        out[k] = ndimage.uniform_filter(var, window, mode="nearest") * np.float32(scale)
+        # the mean of the flat-fielded frame, as its gradient image is divided by
+        mean = float(np.vdot(x.ravel(), flat.ravel())) / x.size if flat is not None else float(np.mean(x))
+        if flat2 is not None:
+            x *= flat2
+        shot = np.maximum(box(x), 0.0, out=x)
+        shot *= np.float32(1.0 / noise.gain_e_per_dn)
+        shot += read
+        shot *= np.float32(factor * _RAYLEIGH_VAR * _SOBEL_WEIGHTS / (mean * mean if mean > 0 else 1.0))
+        out[k] = shot
     return out
 
 
