@@ -8,6 +8,8 @@
  * r^2, and from them vr = m(r^2) - m(r)^2, va_k = m(a_k^2) - m(a_k)^2 (each at least 0) and the normalised
  * cross-correlation ncc_k = (m(a_k r) - m(a_k) m(r)) / sqrt(max(va_k vr, 1e-30)). The two maps:
  *   worst    = the least ncc_k over the frames with va_k > own median(va_k over the field), 1 where none has;
+ *              with FLOOR, also va_k above the frame's noise floor there (floor_k, an image per frame in its own
+ *              pixels, sampled where the frame saw the pixel as its gradient image is: bilinear, clamped);
  *   textured = vr > texture mean(vr over the field).
  * Two of these numbers are statistics of the whole field, known only once every pixel's va_k is; writing every
  * va_k, ncc_k and vr for a later pass (2 K + 1 planes) would cost more than the arithmetic. So:
@@ -71,6 +73,9 @@
 #endif
 #ifndef REFRESH
 #define REFRESH 16
+#endif
+#ifndef FLOOR
+#define FLOOR 0
 #endif
 #ifndef SELECT_GROUP
 #define SELECT_GROUP 1
@@ -198,6 +203,31 @@ ALWAYS_INLINE void sample_row(__global const float *grads, __global const float 
 #endif
     }
 }
+
+#if FLOOR
+/* frame k's noise floor image f at the output pixels (x, y) of the lanes (columns clamped), sampled where the motion
+ * says the frame saw them, as sample_row samples its gradient image */
+ALWAYS_INLINE float8 floor_at(__global const float *f, __constant const float *m, __global const float *flow, int k,
+                              int x, int y, uint width, uint height)
+{
+    const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    const int8 xi = min(x + lane, (int8)((int)width - 1));
+#if TRANSLATE
+    return sample8(f, convert_float8(xi + (int8)((int)m[0])) + (float8)(m[2]),
+                   (float8)((float)(y + (int)m[1]) + m[3]), width, height);
+#elif FLOW
+    const ulong n = (ulong)width * height;
+    const int8 i = (int8)(y * (int)width) + xi;
+    __global const float *fxp = flow + (ulong)(2 * k) * n, *fyp = fxp + n;
+    const float8 dx = (float8)(fxp[i.s0], fxp[i.s1], fxp[i.s2], fxp[i.s3], fxp[i.s4], fxp[i.s5], fxp[i.s6], fxp[i.s7]);
+    const float8 dy = (float8)(fyp[i.s0], fyp[i.s1], fyp[i.s2], fyp[i.s3], fyp[i.s4], fyp[i.s5], fyp[i.s6], fyp[i.s7]);
+    return sample8(f, convert_float8(xi) + dx, (float8)((float)y) + dy, width, height);
+#else
+    const float8 xf = convert_float8(xi), yf = (float8)((float)y);
+    return sample8(f, m[0] * xf + (m[1] * yf + m[2]), m[3] * xf + (m[4] * yf + m[5]), width, height);
+#endif
+}
+#endif
 
 /* the median of each lane's K samples: an odd-even transposition sort of a copy, the comparisons that cannot
  * reach the middle dropped by the compiler (a ? b : c compiles inline; PoCL's min and max are calls) */
@@ -448,7 +478,8 @@ __kernel void consistency_bracket(__global const float *restrict sample, const u
  * pixel's offset in the maps, va_k, ncc_k); below[k nw + w] counts the values under lo. */
 __kernel void consistency_strips(__global const float *restrict grads, __global const float *restrict scale,
                                  __constant const float *restrict motion, __global const float *restrict flow,
-                                 __global const uint4 *restrict bracket, __global float *restrict worst,
+                                 __global const float *restrict floors, __global const uint4 *restrict bracket,
+                                 __global float *restrict worst,
                                  __global float *restrict vr_map, __global float *restrict vr_sums,
                                  __global uint *restrict below, __global uint *restrict kept_count,
                                  __global float *restrict kept, __global uint *restrict open_count,
@@ -518,12 +549,20 @@ __kernel void consistency_strips(__global const float *restrict grads, __global 
                 const ulong list = ((ulong)k * nw + w) * CAP;
                 if (any8(inside)) n_kept[k] = append8(kept + list, n_kept[k], va, lane_bits(inside));
                 /* the frame may count where va_k is above own lo: its correlation then */
+#if FLOOR
+                int8 may = va > (float8)(as_float(br.z));
+                if (!any8(may)) continue;
+                /* nor where it is no more than the frame's noise gives there: a bright flat area's shot noise */
+                may &= va > floor_at(floors + (ulong)k * width * height, motion + 6 * k, flow, k, xj, y, width,
+                                     height);
+#else
                 const int8 may = va > (float8)(as_float(br.z));
+#endif
                 if (!any8(may)) continue;
                 const float8 vv = va * vr;
                 const float8 ncc = (col[3 * k + 2][j] * inv - ma * mr)
                                    / sqrt(vv > (float8)(1e-30f) ? vv : (float8)(1e-30f));
-                const int8 sure = va > (float8)(as_float(br.w));
+                const int8 sure = may & (va > (float8)(as_float(br.w)));
                 least = (sure & (ncc < least)) ? ncc : least;
                 const int8 open = valid & may & ~sure;
                 if (any8(open)) {

@@ -363,11 +363,14 @@ def _warp_groups_case(shape):
     return run
 
 
-def _check_errors(textured, worst, grads, motion, window, own):
+def _check_errors(textured, worst, grads, motion, window, own, floor=None):
     from specgpu.engine.consistency import consistency_maps_numpy
 
-    textured_ref, worst_ref = consistency_maps_numpy(grads, motion, window=window, own=own)
+    textured_ref, worst_ref = consistency_maps_numpy(grads, motion, window=window, own=own, floor=floor)
     assert (worst_ref < 0.9).any() and textured_ref.any(), "the case must have pixels that disagree"
+    if floor is not None:
+        unfloored = consistency_maps_numpy(grads, motion, window=window, own=own)[1]
+        assert (unfloored != worst_ref).any(), "the case's floor must decide some frames"
     errors, tolerances = {}, {}
     _compare(errors, tolerances, "worst", worst, worst_ref, "abs", 1e-3)
     _compare(errors, tolerances, "textured", textured.astype(np.float32), textured_ref.astype(np.float32), "abs", 0.0)
@@ -393,21 +396,23 @@ def _counting_strips():
         engine.launch_range = launch
 
 
-def _consistency_case(kind):
+def _consistency_case(kind, floor=False):
     """The check of gradient images given as one array (uploaded in one write: see the offset-write test), own = 1
     so that frames count and the undecided lists fill: translations, affine maps or a flow with a 5-pixel window;
-    "window9" a 9-pixel window (the row sums by swizzles) on 21 x 35 pixels."""
+    "window9" a 9-pixel window (the row sums by swizzles) on 21 x 35 pixels; ``floor``: with a noise floor per frame
+    and pixel about the local variances (sampled where each frame saw the pixel)."""
     from specgpu.engine.consistency import consistency_maps
 
     def run():
-        rng = np.random.default_rng({"translate": 31, "affine": 32, "flow": 33, "window9": 34}[kind])
+        rng = np.random.default_rng({"translate": 31, "affine": 32, "flow": 33, "window9": 34}[kind] + 10 * floor)
         K = 5
         shape = (21, 35) if kind == "window9" else SHAPE
         grads = rng.uniform(0.0, 1.0, (K, *shape)).astype(np.float32)
         window = 9 if kind == "window9" else 5
         motion = rng.uniform(-1.6, 1.6, (K, 2)) if kind == "window9" else _motion(rng, K, kind)
-        textured, worst = consistency_maps(grads, motion, window=window, own=1.0, device="oclgrind")
-        return _check_errors(textured, worst, grads, motion, window, 1.0)
+        floors = rng.uniform(0.0, 0.15, (K, *shape)).astype(np.float32) if floor else None
+        textured, worst = consistency_maps(grads, motion, window=window, own=1.0, floor=floors, device="oclgrind")
+        return _check_errors(textured, worst, grads, motion, window, 1.0, floors)
 
     return run
 
@@ -577,6 +582,7 @@ def cases() -> dict:
         "warp_groups": _warp_groups_case((21, 35)),
         "warp_groups_wide": _warp_groups_case((5, 270)),
         **{f"consistency_{kind}": _consistency_case(kind) for kind in ("translate", "affine", "flow", "window9")},
+        **{f"consistency_floor_{kind}": _consistency_case(kind, True) for kind in ("translate", "affine", "flow")},
         "consistency_misled": _consistency_misled_case(),
         "consistency_from_frames": _consistency_frames_case(),
         "gradients_u16_dark_dead_pixel": _gradient_case(np.uint16, "single"),

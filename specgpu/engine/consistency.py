@@ -80,16 +80,18 @@ def exact_median(values: np.ndarray) -> float:
 
 
 def consistency_maps_numpy(gradients, motion, *, window: int = 9, texture: float = 0.5,
-                           own: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+                           own: float = 4.0, floor=None) -> tuple[np.ndarray, np.ndarray]:
     """``textured`` (H, W) bool and ``worst`` (H, W) float32 of K gradient images (K, H, W) under ``motion``
     ((K, 2) translations, (K, 2, 3) affine maps or a (K, 2, H, W) flow), on the host; see
-    :func:`consistency_maps`."""
+    :func:`consistency_maps` (``floor`` too)."""
     g = np.asarray(gradients, np.float32)
     K, h, w = g.shape
     maps = _maps(motion, K, (h, w))
+    floors = None if floor is None else _floor_images(floor, (K, h, w))
     flow = maps.ndim == 4
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     aligned = np.empty((K, h, w), np.float32)
+    floor_at = None if floors is None else np.empty((K, h, w), np.float32)
     for k in range(K):
         m = maps[k]
         if flow:
@@ -98,6 +100,8 @@ def consistency_maps_numpy(gradients, motion, *, window: int = 9, texture: float
             sx = m[0, 0] * xx + m[0, 1] * yy + m[0, 2]
             sy = m[1, 0] * xx + m[1, 1] * yy + m[1, 2]
         aligned[k] = ndimage.map_coordinates(g[k], [sy, sx], order=1, mode="nearest")
+        if floors is not None:  # the noise floor where frame k saw the pixel, sampled as its gradient image
+            floor_at[k] = ndimage.map_coordinates(floors[k], [sy, sx], order=1, mode="nearest")
     ref = np.median(aligned, axis=0)
 
     def box(a):
@@ -115,8 +119,18 @@ def consistency_maps_numpy(gradients, motion, *, window: int = 9, texture: float
         # only where this frame has structure of its own above its noise (a dim, noisy frame correlates with
         # nothing, and says nothing about the motion)
         ncc[va <= own * float(np.median(va))] = 1.0
+        if floor_at is not None:  # nor where it is no more than its noise there gives (a bright flat area's)
+            ncc[va <= floor_at[k]] = 1.0
         np.minimum(worst, ncc, out=worst)
     return textured, worst
+
+
+def _floor_images(floor, shape: tuple) -> np.ndarray:
+    """The noise floors as a (K, H, W) float32 array, refused in one line unless of the gradient images' shape."""
+    f = np.asarray(floor, np.float32)
+    if f.shape != shape:
+        raise ValueError(f"floor must be (K, H, W) = {shape} like the gradient images, got {f.shape}")
+    return f
 
 
 def _layout(queue, K: int, window: int) -> tuple[int, int, int]:
@@ -153,20 +167,22 @@ def _motion_rows(maps: np.ndarray, translate: bool, width: int) -> np.ndarray:
 
 
 def _check(queue, grads: cla.Array, maps: np.ndarray, scale, *, window: int, texture: float,
-           own: float) -> tuple[np.ndarray, np.ndarray]:
+           own: float, floor=None) -> tuple[np.ndarray, np.ndarray]:
     """The check on the device of K gradient images ``grads`` (a (K, H, W) float32 device array; ``scale``: a (K,)
-    device array its samples are multiplied by, or None) under finite ``maps`` (``_maps``), odd ``window``."""
+    device array its samples are multiplied by, or None) under finite ``maps`` (``_maps``), odd ``window``;
+    ``floor``: (K, H, W) noise floors (:func:`consistency_maps`) or None."""
     K, h, w = grads.shape
     flow = maps.ndim == 4
     V, rows, group = _layout(queue, K, window)
     stride = -(-w // (8 * V)) * 8 * V
     translate = not flow and bool(np.all(maps[:, :, :2] == np.eye(2)))
     macros = dict(K=K, WINDOW=window, V=V, ROWS=rows, STRIDE=stride, TRANSLATE=translate, FLOW=True if flow else None,
-                  SCALED=scale is not None, SAMPLE_ROWS=_SAMPLE_ROWS, SELECT_GROUP=group)
+                  SCALED=scale is not None, SAMPLE_ROWS=_SAMPLE_ROWS, SELECT_GROUP=group, FLOOR=floor is not None)
     dims = (np.uint32(w), np.uint32(h))
     # a new one every sequence: not cached; a flow is read per pixel, the maps then unused
     motion = _upload(queue, np.zeros(6 * K) if flow else _motion_rows(maps, translate, w))
     flow_dev = _upload(queue, maps) if flow else None
+    floor_dev = None if floor is None else _upload(queue, _floor_images(floor, (K, h, w)))
     columns, strips = stride // (8 * V), -(-h // rows)
     nw = columns * strips
     cap = rows * 8 * V
@@ -206,7 +222,8 @@ def _check(queue, grads: cla.Array, maps: np.ndarray, scale, *, window: int, tex
 
     def settle(bracket_buffer):
         kernels.launch_range(queue, kernel("consistency_strips"), (columns, strips), (1, 1), grads.data,
-                             kernels._data(scale), motion.data, kernels._data(flow_dev), bracket_buffer, worst.data,
+                             kernels._data(scale), motion.data, kernels._data(flow_dev), kernels._data(floor_dev),
+                             bracket_buffer, worst.data,
                              vr_map.data, vr_sums.data, below.data, kept_count.data, kept.data, open_count.data,
                              open_at.data, open_va.data, open_ncc.data, *dims)
         kernels.launch_range(queue, kernel("consistency_median"), ((K + 1) * group,), (group,), below.data,
@@ -287,7 +304,7 @@ def _window(window) -> int:
 
 
 def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5, own: float = 4.0,
-                     device=None) -> tuple[np.ndarray, np.ndarray]:
+                     floor=None, device=None) -> tuple[np.ndarray, np.ndarray]:
     """The consistency check's two maps of K gradient images under each frame's motion.
 
     Parameters
@@ -302,6 +319,11 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
     texture, own : float
         ``textured``: the reference's local variance above ``texture`` times its mean over the field; a frame's
         correlation counts where its local variance is above ``own`` times its median over the field.
+    floor : array_like, (K, H, W), optional
+        Each frame's noise floor of that local variance, in the frame's own pixels (as its gradient image; sampled
+        where the motion says the frame saw each pixel, bilinearly): a frame's correlation counts only where its
+        local variance is above it too, so that the noise of a bright flat area (far above the field's median,
+        which the dim areas set) is not taken for structure of its own. None: the median's test alone.
     device : optional
         OpenCL device selector or queue (default: the queue of device gradients).
 
@@ -318,13 +340,15 @@ def consistency_maps(gradients, motion, *, window: int = 9, texture: float = 0.5
     window = _window(window)
     if window % 2 == 0 or not np.all(np.isfinite(maps)):
         host = gradients.get() if isinstance(gradients, cla.Array) else gradients
-        return consistency_maps_numpy(host, maps, window=window, texture=texture, own=own)
+        return consistency_maps_numpy(host, maps, window=window, texture=texture, own=own, floor=floor)
     queue = get_queue(device, like=[gradients])
-    return _check(queue, _gradients_on_device(queue, gradients), maps, None, window=window, texture=texture, own=own)
+    return _check(queue, _gradients_on_device(queue, gradients), maps, None, window=window, texture=texture, own=own,
+                  floor=floor)
 
 
 def consistency_from_frames(frames, motion, dark=None, gain=None, *, window: int = 9, texture: float = 0.5,
-                            own: float = 4.0, return_gradients: bool = False, shape=None, dtype=None, device=None):
+                            own: float = 4.0, floor=None, return_gradients: bool = False, shape=None, dtype=None,
+                            device=None):
     """The consistency check of a sequence from its raw frames, on the device: each frame's gradient image
     (:func:`specgpu.engine.gradients.gradient_images`, never leaving the device) and :func:`consistency_maps`.
 
@@ -337,7 +361,7 @@ def consistency_from_frames(frames, motion, dark=None, gain=None, *, window: int
     dark : array_like, (H, W) or (K, H, W), optional
     gain : array_like, (H, W), optional
         As :func:`specgpu.motion.images.gradient_image` takes them (a NaN gain reads 0).
-    window, texture, own
+    window, texture, own, floor
         As :func:`consistency_maps` (an even window is checked on the host, from the images read back).
     return_gradients : bool
         Also return the gradient images, a (K, H, W) float32 device array (``.get()``: NumPy), for the callers that
@@ -362,7 +386,7 @@ def consistency_from_frames(frames, motion, dark=None, gain=None, *, window: int
     if return_gradients or window % 2 == 0:
         images, scale = apply_scale(queue, images, scale), None
     if window % 2 == 0:
-        maps_out = consistency_maps_numpy(images.get(), maps, window=window, texture=texture, own=own)
+        maps_out = consistency_maps_numpy(images.get(), maps, window=window, texture=texture, own=own, floor=floor)
     else:
-        maps_out = _check(queue, images, maps, scale, window=window, texture=texture, own=own)
+        maps_out = _check(queue, images, maps, scale, window=window, texture=texture, own=own, floor=floor)
     return (*maps_out, images) if return_gradients else maps_out

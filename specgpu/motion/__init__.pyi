@@ -2,7 +2,7 @@
 
 from .ambient import place_frame
 from .candidates import choose_candidates
-from .consistency import CHECK_THRESHOLD, consistency, inconsistent_pixels
+from .consistency import CHECK_THRESHOLD, NOISE_FLOOR, consistency, inconsistent_pixels, noise_floors
 from .device_estimate import estimate_on_device
 from .estimate import MotionEstimate, at_reference_time
 from .flow import flow_field, tile_motion
@@ -30,6 +30,8 @@ __all__ = [
     "inconsistent_pixels",
     "MOTION_METHODS",
     "MotionEstimate",
+    "NOISE_FLOOR",
+    "noise_floors",
     "place_frame",
     "residual_check",
     "residual_chi2",

@@ -149,7 +149,7 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         res = _warped(frames, A, shifts, dark, gain, read, residual, saturation=saturation, return_mask=True,
                       device=device)
         looked = read if checked is None else checked
-        textured, worst = consistency(*_reading(looked, frames, shifts), gradients=_reading(looked, gradients)[0])
+        textured, worst = _checked_consistency(looked, frames, shifts, dark, gain, gradients, residual)
         valid = (res.mask & UNSEEN) == 0
         fits = (res.mask & Mask.INCONSISTENT) == 0  # one reflectance explains the samples the object's motion takes
         # the object's pixels: its motion makes the frames agree there, and clearly better than the global one
@@ -187,6 +187,18 @@ def _reading(read, *arrays) -> list:
     if read is None:
         return list(arrays)
     return [[a[k] for k in read] if isinstance(a, (list, tuple)) else np.asarray(a)[read] for a in arrays]
+
+
+def _checked_consistency(checked, frames, motion, dark, gain, gradients, residual):
+    """:func:`~specgpu.motion.consistency.consistency` of the frames ``checked`` (None: all) under ``motion``, their
+    gradient images taken from ``gradients`` (None: made); with the ``residual`` check, the frames' noise floors of
+    its noise model too (a bright flat area's shot noise is no structure of its own), else the median's test alone."""
+    per_frame = dark is not None and np.ndim(dark) == 3
+    used_dark = _reading(checked, dark)[0] if per_frame else dark
+    looked, moved = _reading(checked, frames, motion)
+    given = None if gradients is None else _reading(checked, gradients)[0]
+    return consistency(looked, moved, used_dark, gain, gradients=given,
+                       noise=None if residual is None else residual.noise)
 
 
 def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
@@ -247,10 +259,7 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
                       device=device)
         disagree = np.zeros((h, w), bool)
         if maps is not None:
-            if checked is None:
-                flow_maps = consistency(frames, flow, dark, gain, gradients=gradients)
-            else:
-                flow_maps = consistency(*_reading(checked, frames, flow), gradients=_reading(checked, gradients)[0])
+            flow_maps = _checked_consistency(checked, frames, flow, dark, gain, gradients, residual)
             use = choose_flow(mask, maps, res.mask, flow_maps, held, threshold=CHECK_THRESHOLD,
                               inconsistent=Mask.INCONSISTENT)
             # two motions each pass every check at a pixel yet decode it differently: one of them samples other
@@ -481,8 +490,7 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
         gradients = frame_gradients(frames, dark, gain, gradients, device=device)
         est = None if est is None else replace(est, gradients=tuple(gradients))
     if check:
-        maps = consistency(*_reading(checked, frames, shifts), None if checked else dark, gain,
-                           gradients=None if gradients is None else _reading(checked, gradients)[0])
+        maps = _checked_consistency(checked, frames, shifts, dark, gain, gradients, residual)
         # every pixel judged, textured or not: a frame with structure of its own that the others do not share
         mask[maps[1] < CHECK_THRESHOLD] |= np.uint8(Mask.INCONSISTENT)
         if layers and est is not None:

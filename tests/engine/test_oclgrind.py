@@ -113,7 +113,8 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     """Each case of the worker (linear: planar / channels last, float32 / float16, the "cpu" variant's 16-pixel
     float16 entry and register transpose, the "gpu" variant's local-memory tile and per-element launch, mask,
     dark, gain, square root; XYZ -> Lab; dE76 / 94 / 2000 alone and fused; the dE2000 sigma; the motion-compensated
-    linear map and the consistency check, each with translations, affine maps and a flow; the check's images given
+    linear map and the consistency check, each with translations, affine maps and a flow (the check also with a
+    noise floor per frame and pixel); the check's images given
     as one array, uploaded in one write: see the offset-write test below) on 99 pixels (two work-groups, the second
     partial), and the map's translations on 21 x 35 pixels as well, which its two passes run along strips of rows,
     and as the stream prepares them (output groups interleaved and planar, frames read from a larger buffer, float
@@ -129,7 +130,7 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     cases, programs = results(proc)
     failures = case_failures(proc, cases, reports)
     assert not failures, "\n".join(failures)
-    assert len(cases) == 35, sorted(cases)
+    assert len(cases) == 38, sorted(cases)
 
     # the variant's own code paths were built (the variant comes from SPECGPU_VARIANT in the worker); the motion
     # kernels' programs (the warp's OUT_INTERLEAVED per pixel or GROUPS for translations, the check's WINDOW, the
@@ -163,6 +164,9 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     assert any("-DTRANSLATE=1" in p for p in check) and any("-DFLOW=1" in p for p in check)
     assert any("-DTRANSLATE=0" in p and "-DFLOW" not in p for p in check)
     assert any("-DWINDOW=9" in p for p in check) and any("-DSCALED=1" in p for p in check)
+    assert any("-DFLOOR=1" in p and "-DTRANSLATE=1" in p for p in check)
+    assert any("-DFLOOR=1" in p and "-DFLOW=1" in p for p in check)
+    assert any("-DFLOOR=1" in p and "-DTRANSLATE=0" in p and "-DFLOW" not in p for p in check)
     assert any("-DHAS_DARK=2" in p and "-DIN_T=float" in p for p in gradient)
     assert any("-DHAS_GAIN=1" in p and "-DIN_T=ushort" in p for p in gradient)
     # the registration's steps: a translation (8 pixels at a time) and an affine map, in the variant's group size

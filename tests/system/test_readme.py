@@ -37,7 +37,7 @@ def block(language: str, needle: str) -> str:
 
 # the Python blocks of the README and the docs, each found by a name only it holds; every block is one of them
 PYTHON_BLOCKS = ("apply_linear", "open_recording", "xr.open_zarr", "PLAN_METHODS", "SequenceDecoder(",
-                 "estimate_motion(")
+                 "estimate_motion(", "with_floor")
 
 
 def test_every_python_block_is_executed_by_a_test():
@@ -57,6 +57,12 @@ def test_rooms_import_snippet_runs(capsys):
 def test_motion_methods_snippet_runs(capsys):
     exec(compile(block("python", "estimate_motion("), "docs (motion methods)", "exec"), {})
     assert capsys.readouterr().out == "['none', 'global', 'affine', 'flow'] [-2. -1.  0.  1.  2.]\n12\n"
+
+
+def test_noise_floor_snippet_runs(capsys):
+    exec(compile(block("python", "with_floor"), "docs (the check's noise floor)", "exec"), {})
+    out = capsys.readouterr().out
+    assert out.endswith(" 0 with the floor\n") and int(out.split()[0]) > 100  # flagged by the median's test alone
 
 
 def test_python_api_snippet_runs():
