@@ -4,15 +4,17 @@ still chart, and against what a user got before (the plan refused with ``--motio
 ambient frame subtracted from fixed pixels the chart moves across). One more row isolates the ambient frame's part:
 the motion compensated but the ambient frame subtracted from the fixed pixels first, as the still decoding does.
 
-The twin's room light (``[realism] ambient_lux``: CIE FL2 on the object, not shaped by the light's spot) lights
-the ColorChecker, which moves ``--speed`` px per frame in x; a 7-band narrowband plan (50 nm steps, its projection
+The twin's room light (``[realism] ambient_lux``: CIE FL2 on the object, not shaped by the light's spot) lights the
+ColorChecker, which moves ``--speed`` px per frame in x; a 7-band narrowband plan (50 nm steps, its projection
 estimator's noise model) with an ambient frame (``plan --ambient``) and its oracle calibration. One sequence per
-case rendered on the twin (the paper's noise), recovered as ``specgpu recover`` does, scored per pixel over the
-patches' interiors (4 px or more inside their edges at the sequence's reference time) against the scene there: the
-RMSE over the bands (mean and 95th percentile), dE2000 under D65 (mean and 95th percentile) and the share of the
-interiors decoded (not flagged).
+case and noise draw rendered on the twin (the paper's noise; ``--draws`` seeds), recovered as ``specgpu recover``
+does, scored per pixel over the patches' interiors (4 px or more inside their edges at the sequence's reference
+time) against the scene there: the RMSE over the bands (mean and 95th percentile), dE2000 under D65 (mean and 95th
+percentile) and the share of the interiors decoded (not flagged); each the mean and standard deviation over the
+draws. The calibration is the twin's oracle (its own model): the rows are to be read against each other, not as
+absolute accuracy.
 
-    PYTHONPATH=. python tools/studies/ambient_motion.py                   # 3, 300 and 1000 lux at 320 x 240 (~1 min)
+    PYTHONPATH=. python tools/studies/ambient_motion.py                   # 3, 300 and 1000 lux at 320 x 240, 3 draws
     PYTHONPATH=. python tools/studies/ambient_motion.py --lux 300 --size 640x480
 
 Writes ``results/ambient_motion.json`` (``--out``).
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -119,7 +122,15 @@ def still_refused(plan) -> bool:
     return False
 
 
-def run(lux: float, size, speed: float, seed: int) -> dict:
+def summary(draws: list[dict]) -> dict:
+    """Each score's mean and standard deviation over the noise draws, beside the draws themselves."""
+    keys = [k for k in draws[0] if k != "seconds"]
+    out = {k: {"mean": round(float(np.mean([d[k] for d in draws])), 5),
+               "std": round(float(np.std([d[k] for d in draws])), 5)} for k in keys}
+    return {**out, "seconds": round(float(np.median([d["seconds"] for d in draws])), 1), "draws": draws}
+
+
+def run(lux: float, size, speed: float, seed: int, draws: int = 3) -> dict:
     desc, bundle, plan, scene = setup(lux, size)
     moving = MotionParameters(velocity_px_per_frame=(speed, 0.0))
     rows = {}
@@ -127,11 +138,15 @@ def run(lux: float, size, speed: float, seed: int) -> dict:
                                 ("moving, --motion global", moving, "global"),
                                 ("moving, global, ambient subtracted on fixed pixels", moving, "fixed"),
                                 ("moving, decoded still (--motion none)", moving, "none")):
-        t0 = time.perf_counter()
-        frames, truth = capture(desc, bundle, plan, scene, motion, seed)
-        folder = SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {})
-        cube = fixed_pixels(folder) if mode == "fixed" else recover(folder, sequence=0, motion=mode)
-        rows[label] = {**score(cube, truth.astype(np.float32), plan), "seconds": round(time.perf_counter() - t0, 1)}
+        scores = []
+        for draw in range(draws):
+            t0 = time.perf_counter()
+            frames, truth = capture(desc, bundle, plan, scene, motion, seed + draw)
+            folder = SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {})
+            cube = fixed_pixels(folder) if mode == "fixed" else recover(folder, sequence=0, motion=mode)
+            scores.append({**score(cube, truth.astype(np.float32), plan),
+                           "seconds": round(time.perf_counter() - t0, 1)})
+        rows[label] = summary(scores)
     amb = frames[plan.K - 1].astype(np.float64) - bundle.dark_at(plan.exposure_s)
     brightest = max(float(np.mean(frames[k], dtype=np.float64)) for k in range(plan.K - 1))
     return {"lux": lux, "ambient_frame_median_dn": round(float(np.median(amb)), 2),
@@ -144,18 +159,24 @@ def main(argv=None) -> dict:
     ap.add_argument("--lux", type=float, action="append", help="room light, lux (repeatable; default 3, 300, 1000)")
     ap.add_argument("--size", default="320x240", help="WxH (default 320x240)")
     ap.add_argument("--speed", type=float, default=3.0, help="the chart's speed, px per frame in x (default 3)")
-    ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=5, help="the first draw's seed (default 5)")
+    ap.add_argument("--draws", type=int, default=3, help="noise draws per case (default 3)")
     ap.add_argument("--out", default="results/ambient_motion.json")
     args = ap.parse_args(argv)
     size = tuple(int(v) for v in args.size.lower().split("x"))
-    cases = [run(lux, size, args.speed, args.seed) for lux in (args.lux or [3.0, 300.0, 1000.0])]
+    if args.draws < 1:
+        ap.error(f"--draws must be at least 1, got {args.draws}")
+    cases = [run(lux, size, args.speed, args.seed, args.draws) for lux in (args.lux or [3.0, 300.0, 1000.0])]
     result = {"size": list(size), "speed_px_per_frame": args.speed, "plan": "narrowband 50 nm + ambient frame",
-              "cases": cases}
+              "draws": args.draws, "command": "PYTHONPATH=. python tools/studies/ambient_motion.py "
+              + " ".join(argv if argv is not None else sys.argv[1:]),
+              "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "cases": cases}
     for case in cases:
         print(f"{case['lux']:g} lux (ambient frame median {case['ambient_frame_median_dn']} DN)")
         for label, row in case["rows"].items():
-            print(f"  {label:52s} RMSE {row['rmse_mean']:.4f} (p95 {row['rmse_p95']:.4f})  dE00 "
-                  f"{row['dE2000_mean']:.2f} (p95 {row['dE2000_p95']:.2f})  decoded {row['decoded_share']:.3f}")
+            print(f"  {label:52s} RMSE {row['rmse_mean']['mean']:.4f} +- {row['rmse_mean']['std']:.4f}  dE00 "
+                  f"{row['dE2000_mean']['mean']:.2f} +- {row['dE2000_mean']['std']:.2f}  decoded "
+                  f"{row['decoded_share']['mean']:.3f}")
         print(f"  {'before: moving, --motion global':52s} refused")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
