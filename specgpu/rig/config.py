@@ -201,7 +201,7 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
         p = Path(scene)
         scene = str(p if p.is_absolute() or base is None else base / p)
         if not Path(scene).is_file():
-            raise ValueError(f"{source}: scene.source file not found: {scene}")
+            raise ValueError(f"{source}: scene.source file not found: {scene!r}")
     twin = dict(data.get("twin", {}))
     extra = set(twin) - set(_TWIN_KEYS)
     if extra:
@@ -222,7 +222,7 @@ def rig_from_dict(data: dict, *, source: str = "<dict>", base_dir=None) -> RigDe
         p = Path(motion.object)
         obj = str(p if p.is_absolute() or base is None else base / p)
         if not Path(obj).is_file():
-            raise ValueError(f"{source}: motion.object file not found: {obj}")
+            raise ValueError(f"{source}: motion.object file not found: {obj!r}")
         motion = dataclasses.replace(motion, object=obj)
     seed = twin.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):

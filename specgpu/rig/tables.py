@@ -37,7 +37,7 @@ def build_table(cls, table: dict, section: str, source: str, base: Path | None =
                 p = Path(value)
                 value = str(p if p.is_absolute() else base / p)
                 if not Path(value).is_file():
-                    raise ValueError(f"{source}: {section}.{key} file not found: {value}")
+                    raise ValueError(f"{source}: {section}.{key} file not found: {value!r}")
         elif default == ():  # a list of any length (one value per LED, say)
             numbers = isinstance(value, list) and all(
                 isinstance(c, (int, float)) and not isinstance(c, bool) for c in value)

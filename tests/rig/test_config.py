@@ -305,3 +305,15 @@ def test_dump_and_load_round_trip_every_table(tmp_path_factory, profile, realism
 @given(seed=st.integers(0, 2**63 - 1))
 def test_any_seed_is_kept_exactly(seed):
     assert rig_from_dict({"twin": {"seed": seed}}).seed == seed
+
+
+@pytest.mark.parametrize("table, key", [("light", "lamp"), ("camera", "sensitivity"), ("scene", "source")])
+def test_a_missing_files_path_with_a_control_character_is_refused_on_one_line(tmp_path, table, key):
+    """A path value holding a carriage return or a newline (TOML's escapes) is named quoted, so the refusal stays
+    one line."""
+    path = tmp_path / "rig.toml"
+    path.write_text(f'[{table}]\n{key} = "gone\\r\\nx.csv"\n')
+    with pytest.raises(ValueError) as err:
+        load_rig(path)
+    msg = str(err.value)
+    assert "\n" not in msg and "\r" not in msg and f"{table}.{key} file not found: " in msg and "\\r\\n" in msg
