@@ -26,6 +26,7 @@ import pyopencl.array as cla
 from specgpu.engine.guided_variance import filtered_variance_device, pass_terms
 from specgpu.engine.runtime import build_options, get_queue, mask_options
 from specgpu.pipeline.denoise import DENOISE_EPS
+from tools.benchmarks.guided_speed import KernelTimes  # every kernel enqueued, with its event
 
 PREVIOUS = Path(__file__).resolve().with_name("guided_variance_previous.cl")
 
@@ -54,26 +55,6 @@ class PreviousVariance:
         events.append(cl.enqueue_nd_range_kernel(q, self.second, glob, (16,), wait_for=events[:1]))
         q.finish()
         return events
-
-
-class Recorded:
-    """Every kernel enqueued while active, with its event (pyopencl's enqueue wrapped)."""
-
-    def __init__(self):
-        self.events: list[tuple[str, cl.Event]] = []
-        self.real = cl.enqueue_nd_range_kernel
-
-    def __enter__(self):
-        def recording(queue, kernel, *args, **kwargs):
-            event = self.real(queue, kernel, *args, **kwargs)
-            self.events.append((kernel.function_name, event))
-            return event
-
-        cl.enqueue_nd_range_kernel = recording
-        return self
-
-    def __exit__(self, *exc):
-        cl.enqueue_nd_range_kernel = self.real
 
 
 def inputs(queue, h: int, w: int, C: int, D: int):
@@ -117,7 +98,7 @@ def main(argv=None):
                                     previous(own, total, g, DENOISE_EPS, slopes, gvar, terms, old_out)):
                     times[name].append(1e-6 * (ev.profile.end - ev.profile.start))
             for _ in range(args.calls):
-                with Recorded() as rec:
+                with KernelTimes() as rec:
                     filtered_variance_device(queue, own, total, g, r, DENOISE_EPS, slopes=slopes, guide_var=gvar,
                                              terms=terms, out=new_out)
                     queue.finish()
