@@ -89,16 +89,18 @@ def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9
 
 
 def consistency(frames, shifts, dark=None, gain=None, *, window: int = 9, texture: float = 0.5, own: float = 4.0,
-                gradients=None, noise=None) -> tuple[np.ndarray, np.ndarray]:
+                gradients=None, noise=None, floor=None) -> tuple[np.ndarray, np.ndarray]:
     """The two maps :func:`inconsistent_pixels` thresholds, (H, W) each: ``textured`` (bool: the median
     compensated gradient image has structure there) and ``worst`` (float32: the lowest normalised
     cross-correlation of a frame with structure of its own against that median; 1 where none has). Two
     hypotheses of a pixel's motion are compared by their ``worst``. The per-pixel work runs on the default OpenCL
     device (:func:`specgpu.engine.consistency.consistency_maps`); where no gradient image is given, they are made
     there too and never read back (:func:`specgpu.engine.consistency.consistency_from_frames`). ``noise``: as
-    :func:`inconsistent_pixels` (None: the median's test alone)."""
+    :func:`inconsistent_pixels` (None: the median's test alone); ``floor``: the frames' :func:`noise_floors` already
+    made (one per frame, whatever the motion), used instead of making them from ``noise``."""
     frames = np.asarray(frames)
-    floor = None if noise is None else noise_floors(frames, noise, dark, gain, window=window)
+    if floor is None and noise is not None:
+        floor = noise_floors(frames, noise, dark, gain, window=window)
     none_given = gradients is None or all(g is None for g in gradients)
     if none_given and np.all(np.isfinite(np.asarray(shifts, np.float64))) and device_takes(
             frames, None if dark is None else np.asarray(dark, np.float32), gain):

@@ -47,7 +47,7 @@ from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import LinearResult
 from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.motion.ambient import STEADY_PX, misplaced, place_frame
-from specgpu.motion.consistency import CHECK_THRESHOLD, consistency
+from specgpu.motion.consistency import CHECK_THRESHOLD, consistency, noise_floors
 from specgpu.motion.estimate import at_reference_time
 from specgpu.motion.flow import choose_flow, flow_field, tile_motion
 from specgpu.motion.images import frame_gradients
@@ -106,7 +106,7 @@ class ObjectLayer:
 
 def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=None, *, saturation=None, device=None,
                          threshold: float = CHECK_THRESHOLD, min_share: float = MIN_LAYER_SHARE,
-                         read=None, residual=None, checked=None) -> list:
+                         read=None, residual=None, checked=None, floors=None) -> list:
     """Decode again, with an object's own motion, the flagged regions of a globally compensated recovery.
 
     ``y`` (H, W, B) and ``mask`` (H, W) uint8 are the global recovery's (``Mask.INCONSISTENT`` where flagged)
@@ -149,7 +149,7 @@ def decode_object_layers(frames, A, estimate, check, y, mask, dark=None, gain=No
         res = _warped(frames, A, shifts, dark, gain, read, residual, saturation=saturation, return_mask=True,
                       device=device)
         looked = read if checked is None else checked
-        textured, worst = _checked_consistency(looked, frames, shifts, dark, gain, gradients, residual)
+        textured, worst = _checked_consistency(looked, frames, shifts, dark, gain, gradients, residual, floors)
         valid = (res.mask & UNSEEN) == 0
         fits = (res.mask & Mask.INCONSISTENT) == 0  # one reflectance explains the samples the object's motion takes
         # the object's pixels: its motion makes the frames agree there, and clearly better than the global one
@@ -189,16 +189,25 @@ def _reading(read, *arrays) -> list:
     return [[a[k] for k in read] if isinstance(a, (list, tuple)) else np.asarray(a)[read] for a in arrays]
 
 
-def _checked_consistency(checked, frames, motion, dark, gain, gradients, residual):
+def _checked_consistency(checked, frames, motion, dark, gain, gradients, residual, floors=None):
     """:func:`~specgpu.motion.consistency.consistency` of the frames ``checked`` (None: all) under ``motion``, their
     gradient images taken from ``gradients`` (None: made); with the ``residual`` check, the frames' noise floors of
-    its noise model too (a bright flat area's shot noise is no structure of its own), else the median's test alone."""
+    its noise model too (a bright flat area's shot noise is no structure of its own): taken from ``floors`` (every
+    frame's, ``_sequence_floors``) where given, else made here; without it, the median's test alone."""
     per_frame = dark is not None and np.ndim(dark) == 3
     used_dark = _reading(checked, dark)[0] if per_frame else dark
     looked, moved = _reading(checked, frames, motion)
     given = None if gradients is None else _reading(checked, gradients)[0]
+    floor = None if floors is None or residual is None else _reading(checked, floors)[0]
     return consistency(looked, moved, used_dark, gain, gradients=given,
-                       noise=None if residual is None else residual.noise)
+                       noise=None if residual is None else residual.noise, floor=floor)
+
+
+def _sequence_floors(frames, dark, gain, residual):
+    """Every frame's noise floor under the ``residual`` check's noise model
+    (:func:`~specgpu.motion.consistency.noise_floors`; None without one), made once per sequence: a frame's floor is
+    its own, whatever the motion, so the global check, each object layer's and the flow's read the same."""
+    return None if residual is None else noise_floors(frames, residual.noise, dark, gain)
 
 
 def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
@@ -238,7 +247,7 @@ def disagreeing(y, other, tolerance: float = DISAGREE_RMS) -> np.ndarray:
 
 
 def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, saturation, device, residual=None,
-               checked=None):
+               checked=None, floors=None):
     """The flow's part of a ``model="flow"`` recovery (:mod:`specgpu.motion.flow`), in place on ``y`` and
     ``mask``: each pixel the flow's decoding gives (:func:`~specgpu.motion.flow.choose_flow`, with the
     global check's ``maps``; every pixel without them; the flow's check reads the frames ``checked``, every one by
@@ -259,7 +268,7 @@ def _with_flow(frames, A, est, gradients, y, mask, layers, maps, dark, gain, *, 
                       device=device)
         disagree = np.zeros((h, w), bool)
         if maps is not None:
-            flow_maps = _checked_consistency(checked, frames, flow, dark, gain, gradients, residual)
+            flow_maps = _checked_consistency(checked, frames, flow, dark, gain, gradients, residual, floors)
             use = choose_flow(mask, maps, res.mask, flow_maps, held, threshold=CHECK_THRESHOLD,
                               inconsistent=Mask.INCONSISTENT)
             # two motions each pass every check at a pixel yet decode it differently: one of them samples other
@@ -489,17 +498,19 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
     if dense or (check and checked):  # every frame's gradient image made once (the check, the layers, the flow)
         gradients = frame_gradients(frames, dark, gain, gradients, device=device)
         est = None if est is None else replace(est, gradients=tuple(gradients))
+    floors = _sequence_floors(frames, dark, gain, residual) if check else None
     if check:
-        maps = _checked_consistency(checked, frames, shifts, dark, gain, gradients, residual)
+        maps = _checked_consistency(checked, frames, shifts, dark, gain, gradients, residual, floors)
         # every pixel judged, textured or not: a frame with structure of its own that the others do not share
         mask[maps[1] < CHECK_THRESHOLD] |= np.uint8(Mask.INCONSISTENT)
         if layers and est is not None:
             found = decode_object_layers(frames, A, est, maps, y, mask, dark, gain, saturation=saturation,
-                                         device=device, read=read, residual=residual, checked=checked)
+                                         device=device, read=read, residual=residual, checked=checked,
+                                         floors=floors)
     if dense and est is not None:
         est = _with_flow(frames, A, est, gradients, y, mask, found, maps if check else None, dark, gain,
                          saturation=saturation, device=device, residual=residual,
-                         checked=None if ambient is None else checked)
+                         checked=None if ambient is None else checked, floors=floors)
     if check:
         grow_flags(mask)
         refuted(mask)
