@@ -66,13 +66,15 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
                             env={"PYTHONPATH": python_path(site), "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
     assert result.returncode == 0, result.stdout + result.stderr
     assert "linear.cl ['linear_apply']" in result.stdout
-    assert "colorimetry.cl ['delta_e', 'delta_e_sigma', 'frames_to_delta_e', 'xyz_to_lab']" in result.stdout
+    assert ("colorimetry.cl ['delta_e', 'delta_e_sigma', 'frames_to_delta_e', 'xyz_to_delta_e', 'xyz_to_lab']"
+            in result.stdout)
     assert "guided.cl ['gf_columns_in', 'gf_columns_out', 'gf_rows', 'gf_strips']" in result.stdout
     assert "register.cl ['register_halve', 'register_search', 'register_shift', 'register_step']" in result.stdout
     assert "warp.cl ['linear_warp', 'linear_warp_translate', 'warp_correct']" in result.stdout
     assert ("consistency.cl ['consistency_bracket', 'consistency_median', 'consistency_sample', 'consistency_settle', "
             "'consistency_strips']" in result.stdout)
     assert "gradient.cl ['gradient_apply', 'gradient_scale', 'gradient_sobel']" in result.stdout
+    assert "guided_variance.cl ['gv_apply', 'gv_stats']" in result.stdout
     assert "residual.cl ['residual_flag']" in result.stdout
     assert "PASS" in result.stdout
 
