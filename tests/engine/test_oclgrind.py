@@ -108,6 +108,7 @@ def stderr_of(proc, case: str, limit: int = 40) -> str:
     return "\n".join(lines[:limit])
 
 
+@pytest.mark.slow  # a simulator interprets every work-item of 38 cases: about a minute per variant
 @pytest.mark.parametrize("variant", ["cpu", "gpu"])
 def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     """Each case of the worker (linear: planar / channels last, float32 / float16, the "cpu" variant's 16-pixel
