@@ -56,6 +56,23 @@ def test_enhanced_rle_encoding_table_2_112():
     np.testing.assert_array_equal(decode_image(blob), image)
 
 
+def test_enhanced_rle_lines_that_repeat_the_one_above_are_one_copy_each():
+    """A pattern of columns (every line the same, as a spectral pattern's are): the first line in runs, each other
+    line one copy of the whole line (a 15-bit count here: 200 = 0xC8 0x01); a changed line between them is encoded
+    on its own, the lines after it copying it."""
+    first = px("010203") * 150 + px("0A0B0C") * 50
+    other = px("010203") * 149 + px("FFFFFF") + px("0A0B0C") * 50
+    image = np.array([first, first, first, other, other], np.uint32)
+    copy = "0001C801 0000"
+    data = bytes.fromhex("9601010203 320A0B0C 0000" + copy + copy  # 150 = 0x96 0x01; 50 = 0x32
+                         + "00019501 01FFFFFF 000132 0000"  # copy 149 (0x95 0x01), 1 raw pixel, copy 50
+                         + copy + "000100")
+    data += bytes(-len(data) % 4)
+    blob = encode_image(image, "erle")
+    assert blob == image_header(200, 5, len(data), 2) + data
+    np.testing.assert_array_equal(decode_image(blob), image)
+
+
 def test_uncompressed_lines_padded_to_16_bytes():
     image = np.arange(2 * 7, dtype=np.uint32).reshape(2, 7) * 0x010101
     blob = encode_image(image, "none")

@@ -263,37 +263,57 @@ def _encode_line_rle(line: np.ndarray, out: bytearray) -> None:
 
 
 def _first_from(flags: np.ndarray, value: bool) -> np.ndarray:
-    """For each i, the first index >= i where ``flags`` equals ``value`` (``flags.size`` if none)."""
-    n = flags.size
+    """For each i along the last axis, the first index >= i where ``flags`` equals ``value`` (the axis' size if
+    none): rows of a 2-D array each on their own."""
+    n = flags.shape[-1]
     idx = np.where(flags == value, np.arange(n), n)
-    return np.minimum.accumulate(idx[::-1])[::-1]
+    return np.minimum.accumulate(idx[..., ::-1], axis=-1)[..., ::-1]
 
 
-def _encode_line_erle(line: np.ndarray, prev: np.ndarray | None, out: bytearray) -> None:
-    w = line.size
-    px = _pixels(line)
-    same_prev = np.zeros(w, bool) if prev is None else (line == prev)
-    same_next = np.zeros(w, bool)
-    same_next[:-1] = line[1:] == line[:-1]
+def _encode_erle(img: np.ndarray, out: bytearray) -> None:
+    """Every line of ``img`` (H, W) uint32 in enhanced RLE, each ended by its end-of-line command. A line that
+    repeats the one above (a pattern of columns, as spectral ones are) is one copy command; for the others, where
+    each copy, repeat and raw span ends is found for all of them at once, and only the walk over the spans is per
+    line."""
+    h, w = img.shape
+    whole_copy = np.zeros(h, bool)
+    whole_copy[1:] = (img[1:] == img[:-1]).all(axis=1)
+    rows = np.flatnonzero(~whole_copy)
+    lines = img[rows]
+    px = _pixels(lines)  # (R, W, 3)
+    same_prev = np.zeros(lines.shape, bool)
+    above = rows > 0
+    same_prev[above] = lines[above] == img[rows[above] - 1]
+    same_next = np.zeros(lines.shape, bool)
+    same_next[:, :-1] = lines[:, 1:] == lines[:, :-1]
     copy_end = _first_from(same_prev, False)  # a copy from j covers [j, copy_end[j])
     run_end = _first_from(same_next, False)  # a repeat from j covers [j, run_end[j]]
     stop_at = _first_from(same_prev | same_next, True)  # raw pixels stop where a copy or repeat can start
-    j = 0
-    while j < w:
-        if same_prev[j]:
-            n = int(copy_end[j]) - j
-            out.extend(b"\x00\x01" + _count(n))
-        elif same_next[j]:
-            n = int(run_end[j]) - j + 1
-            out.extend(_count(n) + px[j].tobytes())
-        else:
-            n = (int(stop_at[j + 1]) if j + 1 < w else w) - j
-            if n == 1:
-                out.extend(b"\x01" + px[j].tobytes())
+    copy_line = b"\x00\x01" + _count(w) + b"\x00\x00"
+    r = 0
+    for y in range(h):
+        if whole_copy[y]:
+            out.extend(copy_line)
+            continue
+        prev, nxt, line = same_prev[r].tolist(), same_next[r].tolist(), px[r]
+        copies, repeats, stops = copy_end[r].tolist(), run_end[r].tolist(), stop_at[r].tolist()
+        r += 1
+        j = 0
+        while j < w:
+            if prev[j]:
+                n = copies[j] - j
+                out.extend(b"\x00\x01" + _count(n))
+            elif nxt[j]:
+                n = repeats[j] - j + 1
+                out.extend(_count(n) + line[j].tobytes())
             else:
-                out.extend(b"\x00" + _count(n) + px[j:j + n].tobytes())
-        j += n
-    out.extend(b"\x00\x00")
+                n = (stops[j + 1] if j + 1 < w else w) - j
+                if n == 1:
+                    out.extend(b"\x01" + line[j].tobytes())
+                else:
+                    out.extend(b"\x00" + _count(n) + line[j:j + n].tobytes())
+            j += n
+        out.extend(b"\x00\x00")
 
 
 def encode_image(image, compression: str = "erle") -> bytes:
@@ -319,8 +339,7 @@ def encode_image(image, compression: str = "erle") -> bytes:
         out += b"\x00\x01"
         out += bytes(-len(out) % 16)
     else:
-        for y in range(h):
-            _encode_line_erle(img[y], img[y - 1] if y else None, out)
+        _encode_erle(img, out)
         out += b"\x00\x01\x00"
         out += bytes(-len(out) % 4)
     return image_header(w, h, len(out), COMPRESSIONS[compression]) + bytes(out)
