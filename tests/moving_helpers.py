@@ -4,6 +4,8 @@ sequence folder of it captured while the scene drifts (:func:`moving_capture`)."
 
 from __future__ import annotations
 
+import copy
+import functools
 from dataclasses import replace
 
 import numpy as np
@@ -22,12 +24,19 @@ from specgpu.rig.twin import TwinRig
 CAM = CameraParameters(roi_width=320, roi_height=240, frame_rate_hz=200.0, exposure_s=0.0049)
 
 
-def moving_setup():
-    """(rig description, oracle calibration, 7-band narrowband plan (400-700 nm), natural scene)."""
+@functools.cache
+def _made_once():
     desc = RigDescription(camera=CAM)
     bundle = oracle_calibration(desc)
     plan = make_plan("narrowband", bundle, step_nm=50.0, max_exposure_s=0.0049)
     return desc, bundle, plan, natural_scene(240, 320)
+
+
+def moving_setup():
+    """(rig description, oracle calibration, 7-band narrowband plan (400-700 nm), natural scene): made once per
+    session (a second and a half, asked for by a score of test modules), each caller given its own deep copy (a
+    fiftieth of a second), so what one test changes no other test sees."""
+    return copy.deepcopy(_made_once())
 
 
 def frames_of(desc, plan, scene, motion, seed=5):

@@ -31,28 +31,46 @@ def setup():
     return moving_setup()
 
 
+@pytest.fixture(scope="module")
+def rendered(setup):
+    """``frames_of`` the module's rig, plan and scene under a motion, rendered once per motion for the module
+    (several tests take the same motion, and rendering a moving twin's sequence costs seconds); the frames are
+    read-only (a test that edits them edits a copy)."""
+    desc, _, plan, scene = setup
+    made = {}
+
+    def render(motion):
+        if motion not in made:
+            frames, truth = frames_of(desc, plan, scene, motion)
+            frames.setflags(write=False)
+            made[motion] = frames, truth
+        return made[motion]
+
+    return render
+
+
 @pytest.mark.parametrize("motion", [MotionParameters(velocity_px_per_frame=(3.0, 1.0)),
                                     MotionParameters(velocity_px_per_frame=(-0.37, 1.21)),
                                     MotionParameters(vibration_rms_px=0.5, vibration_hz=20.0, seed=2)])
-def test_registration_recovers_known_shifts_within_a_tenth_of_a_pixel(setup, motion):
+def test_registration_recovers_known_shifts_within_a_tenth_of_a_pixel(setup, motion, rendered):
     desc, bundle, plan, scene = setup
-    frames, truth = frames_of(desc, plan, scene, motion)
+    frames, truth = rendered(motion)
     est = estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field)
     assert est.registered.all()
     np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.1)
     np.testing.assert_array_equal(est.shifts[plan.K // 2], 0.0)  # odd K: the middle frame is at the reference time
 
 
-def test_a_still_sequence_registers_at_zero(setup):
+def test_a_still_sequence_registers_at_zero(setup, rendered):
     desc, bundle, plan, scene = setup
-    frames, _ = frames_of(desc, plan, scene, MotionParameters())
+    frames, _ = rendered(MotionParameters())
     est = estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field)
     assert np.abs(est.shifts).max() <= 0.05
 
 
-def test_a_dark_frame_is_interpolated_not_registered(setup):
+def test_a_dark_frame_is_interpolated_not_registered(setup, rendered):
     desc, bundle, plan, scene = setup
-    frames, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(2.0, 0.0)))
+    frames, truth = rendered(MotionParameters(velocity_px_per_frame=(2.0, 0.0)))
     dark = bundle.dark_at(plan.exposure_s)
     frames = frames.copy()
     frames[2] = np.rint(dark).astype(frames.dtype)
@@ -61,11 +79,11 @@ def test_a_dark_frame_is_interpolated_not_registered(setup):
     np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.1)
 
 
-def test_compensation_brings_the_moving_error_back_to_the_still_one(setup):
+def test_compensation_brings_the_moving_error_back_to_the_still_one(setup, rendered):
     desc, bundle, plan, scene = setup
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
-    still, _ = frames_of(desc, plan, scene, MotionParameters())
-    moving, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(3.0, 1.0)))
+    still, _ = rendered(MotionParameters())
+    moving, truth = rendered(MotionParameters(velocity_px_per_frame=(3.0, 1.0)))
     idx = [int(np.argmin(np.abs(scene.wavelengths - w))) for w in plan.output_wavelengths]
 
     def rmse(y, refl):
@@ -85,9 +103,9 @@ def test_compensation_brings_the_moving_error_back_to_the_still_one(setup):
     assert ((res.mask & Mask.INCONSISTENT) > 0).mean() < 0.02  # few false alarms where the motion is right
 
 
-def test_recover_with_motion_is_recover_moving_of_the_same_frames(setup):
+def test_recover_with_motion_is_recover_moving_of_the_same_frames(setup, rendered):
     desc, bundle, plan, scene = setup
-    moving, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(1.5, 0.5)))
+    moving, _ = rendered(MotionParameters(velocity_px_per_frame=(1.5, 0.5)))
     folder = SequenceFolder(Path("<memory>"), moving[None], plan, bundle, [], {})
     y = recover(folder, motion="global")
     # recover registers the motion on its device (the default one), as the stream and the batch do
@@ -107,12 +125,12 @@ def test_motion_modes_are_checked():
         check_motion_mode("optical")
 
 
-def test_an_object_moving_on_its_own_is_flagged_not_decoded(setup):
+def test_an_object_moving_on_its_own_is_flagged_not_decoded(setup, rendered):
     """A chart moving over the still scene: the background's motion is found despite it, and the chart's
     textured pixels, whose frames disagree after compensation, are flagged and NaN; elsewhere almost nothing."""
     desc, bundle, plan, scene = setup
     m = MotionParameters(object="colorchecker", object_velocity_px_per_frame=(3.0, 0.0))
-    frames, truth = frames_of(desc, plan, scene, m)
+    frames, truth = rendered(m)
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
     res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code), layers=False)
     np.testing.assert_allclose(res.estimates[0].shifts, 0.0, atol=0.1)  # the background stands still
@@ -120,19 +138,19 @@ def test_an_object_moving_on_its_own_is_flagged_not_decoded(setup):
     inside = truth["object_mask"] > 0.5
     assert flagged[inside].mean() > 0.15 and flagged[~inside].mean() < 0.03
     assert np.isnan(res.y[flagged]).all()
-    still, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(1.0, 0.5)))
+    still, _ = rendered(MotionParameters(velocity_px_per_frame=(1.0, 0.5)))
     est = estimate_global_motion(still, dark, gain)
     assert inconsistent_pixels(still, est.shifts, dark, gain).mean() < 0.03  # 50 nm bands: their edges differ most
 
 
 @pytest.fixture(scope="module")
-def chart_over_drift(setup):
+def chart_over_drift(setup, rendered):
     """A chart moving 3 px/frame over a scene drifting (1, 0.5) px/frame (it occludes and uncovers the background):
     the frames, dark, flat field and global estimate."""
     desc, bundle, plan, scene = setup
     m = MotionParameters(velocity_px_per_frame=(1.0, 0.5), object="colorchecker",
                          object_velocity_px_per_frame=(3.0, 0.0))
-    frames, _ = frames_of(desc, plan, scene, m)
+    frames, _ = rendered(m)
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
     return frames, dark, gain, estimate_global_motion(frames, dark, gain)
 
@@ -190,43 +208,43 @@ def test_a_still_chart_whose_patches_repeat_registers_at_zero(setup):
 
 
 @pytest.mark.parametrize("velocity", [(17.0, 0.0), (18.0, 5.0), (20.0, 3.0), (-30.0, 0.0)])
-def test_a_motion_faster_than_the_reach_is_looked_for_anywhere(setup, velocity):
+def test_a_motion_faster_than_the_reach_is_looked_for_anywhere(setup, velocity, rendered):
     """A scene moving faster than MAX_SPEED_PX_PER_FRAME leaves within reach of the peak search only noise, or the
     tail of the true peak on the edge of the reach (17 px a frame); the estimate sees that and searches the whole
     surface, so the shifts are right (searched within reach only they came out 1.5 to 60 px off, and the warp took
     them with a fraction of the field flagged), and the compensated decoding is as good as a still one's."""
     desc, bundle, plan, scene = setup
     assert max(abs(v) for v in velocity) > MAX_SPEED_PX_PER_FRAME
-    frames, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=velocity))
+    frames, truth = rendered(MotionParameters(velocity_px_per_frame=velocity))
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
     est = estimate_global_motion(frames, dark, gain)
     np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.1)
     res = recover_moving(frames, plan.A, dark=dark, gain=gain, saturation=float(bundle.max_code))
     idx = [int(np.argmin(np.abs(scene.wavelengths - w))) for w in plan.output_wavelengths]
     seen = res.mask == 0
-    still, _ = frames_of(desc, plan, scene, MotionParameters())
+    still, _ = rendered(MotionParameters())
     e_still = float(np.sqrt(np.mean((apply_linear(still, plan.A, dark, gain) - scene.reflectance[..., idx]) ** 2)))
     e_comp = float(np.sqrt(np.mean((res.y[seen] - truth["reflectance"][..., idx][seen]) ** 2)))
     assert seen.mean() > 0.4 and e_comp < 1.3 * e_still  # 30 px a frame leaves 0.44 of the field in every frame
     assert ((res.mask & Mask.INCONSISTENT) > 0).mean() < 0.1  # few false alarms: 0.8 % of the field at 20 px, 4.9 at 30
 
 
-def test_an_object_faster_than_the_reach_over_a_still_scene_leaves_the_scene_still(setup):
+def test_an_object_faster_than_the_reach_over_a_still_scene_leaves_the_scene_still(setup, rendered):
     """A chart moving 25 px a frame over the still scene: its peak lies beyond reach and the scene's within, both
     real (the scene's 0.44-0.73 of the chart's, above BEYOND_REACH), so the whole surface is not searched and the
     scene's motion, none, is the estimate (searched everywhere, the chart's motion was taken, 98 px off)."""
     desc, bundle, plan, scene = setup
-    frames, truth = frames_of(desc, plan, scene, MotionParameters(object="colorchecker",
+    frames, truth = rendered(MotionParameters(object="colorchecker",
                                                                   object_velocity_px_per_frame=(25.0, 0.0)))
     est = estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field)
     np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.1)
     assert np.abs(truth["displacement"]).max() == 0.0
 
 
-def test_a_motion_within_reach_is_estimated_once(setup, monkeypatch):
+def test_a_motion_within_reach_is_estimated_once(setup, monkeypatch, rendered):
     """A scene moving within reach never sends the estimate to the whole surface: one estimate, not two."""
     desc, bundle, plan, scene = setup
-    frames, truth = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(12.0, -4.0)))
+    frames, truth = rendered(MotionParameters(velocity_px_per_frame=(12.0, -4.0)))
     calls = []
     inner = global_motion.estimate_with_options
 
@@ -238,7 +256,7 @@ def test_a_motion_within_reach_is_estimated_once(setup, monkeypatch):
     est = global_motion.estimate_global_motion(frames, bundle.dark_at(plan.exposure_s), bundle.flat_field)
     np.testing.assert_allclose(est.shifts, truth["displacement"], atol=0.2)  # 36 px out: 0.10 off
     assert calls == [MAX_SPEED_PX_PER_FRAME]
-    fast, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(20.0, 3.0)))
+    fast, _ = rendered(MotionParameters(velocity_px_per_frame=(20.0, 3.0)))
     calls.clear()
     global_motion.estimate_global_motion(fast, bundle.dark_at(plan.exposure_s), bundle.flat_field)
     assert calls == [MAX_SPEED_PX_PER_FRAME, None]  # the counter sees the second search
@@ -277,11 +295,11 @@ def test_a_max_speed_that_is_not_a_positive_number_is_refused(bad):
         estimate_global_motion(frames, max_speed=bad)
 
 
-def test_the_estimate_of_given_gradient_images_is_the_estimate_of_its_own(setup):
+def test_the_estimate_of_given_gradient_images_is_the_estimate_of_its_own(setup, rendered):
     """Gradient images made elsewhere (the device) are registered as they are: the same shifts as those the
     estimate makes itself, and a set of the wrong length or size is refused in one line."""
     desc, bundle, plan, scene = setup
-    frames, _ = frames_of(desc, plan, scene, MotionParameters(velocity_px_per_frame=(1.7, -0.6)))
+    frames, _ = rendered(MotionParameters(velocity_px_per_frame=(1.7, -0.6)))
     dark, gain = bundle.dark_at(plan.exposure_s), bundle.flat_field
     own = estimate_global_motion(frames, dark, gain)
     host = [gradient_image(f, dark, gain) for f in frames]  # what the estimate makes itself: the same shifts

@@ -231,11 +231,28 @@ def interiors(truth, surround=0.03):
     return flat & (np.abs(truth - surround).max(axis=-1) > 1e-3)
 
 
-def patch_rmse(chart, motion, mode) -> float:
-    """The RMSE over the patches' interiors of recover --motion ``mode`` of one sequence of the chart moving so;
-    nearly every interior pixel decoded."""
+@pytest.fixture(scope="module")
+def shots(chart):
+    """:func:`shot` of the chart under a motion, rendered once per motion for the module (four tests decode the
+    same moving sequence, each its own way, and rendering it costs seconds); the frames and truth are read-only."""
+    made = {}
+
+    def take(motion):
+        if motion not in made:
+            frames, truth = shot(chart, motion)
+            frames.setflags(write=False)
+            truth.setflags(write=False)
+            made[motion] = frames, truth
+        return made[motion]
+
+    return take
+
+
+def patch_rmse(chart, shots, motion, mode) -> float:
+    """The RMSE over the patches' interiors of recover --motion ``mode`` of one sequence of the chart moving so
+    (taken from ``shots``); nearly every interior pixel decoded."""
     _, bundle, plan, _ = chart
-    frames, truth = shot(chart, motion)
+    frames, truth = shots(motion)
     cube = recover(SequenceFolder(Path("mem"), frames[None], plan, bundle, [], {}), sequence=0, motion=mode)
     inside = interiors(truth)
     decoded = inside & np.isfinite(cube[..., 0])
@@ -244,21 +261,21 @@ def patch_rmse(chart, motion, mode) -> float:
 
 
 @pytest.fixture(scope="module")
-def still_rmse(chart):
-    return patch_rmse(chart, MotionParameters(), "none")
+def still_rmse(chart, shots):
+    return patch_rmse(chart, shots, MotionParameters(), "none")
 
 
 @pytest.mark.parametrize("mode", ["global", "affine", "flow"])
-def test_the_twins_moving_chart_under_room_light_is_recovered_as_the_still_one(chart, still_rmse, mode):
+def test_the_twins_moving_chart_under_room_light_is_recovered_as_the_still_one(chart, shots, still_rmse, mode):
     """The chart moving 3 px per frame under 300 lux of room light, recover --motion with the ambient frame warped:
     over the patches' interiors within 1.2 times the still chart's RMSE (the same plan; 0.022 both on the twin)."""
-    assert patch_rmse(chart, SPEED, mode) < 1.2 * still_rmse
+    assert patch_rmse(chart, shots, SPEED, mode) < 1.2 * still_rmse
 
 
-def test_the_moving_chart_decoded_still_is_far_off(chart, still_rmse):
+def test_the_moving_chart_decoded_still_is_far_off(chart, shots, still_rmse):
     """What a user could do before, the plan refused with --motion: decode the moving frames still, the ambient
     frame subtracted where it is."""
-    assert patch_rmse(chart, SPEED, "none") > 2.5 * still_rmse
+    assert patch_rmse(chart, shots, SPEED, "none") > 2.5 * still_rmse
 
 
 def test_a_batch_decodes_a_moving_ambient_plan_as_recover_does(chart, tmp_path, dask_scheduler):

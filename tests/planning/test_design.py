@@ -1,9 +1,6 @@
 """Illumination design: the Wiener objective's gradient, optimal plans within every limit of the light, one-line
 refusals, Hadamard multiplexing's S-matrix, and both made by name through the one plan registry."""
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from estimator_helpers import DESC, H, W, noise_at  # the bundle fixture: tests/planning/conftest.py
@@ -106,25 +103,6 @@ def test_s_matrix():
         np.testing.assert_allclose(np.linalg.inv(S.astype(float)), 2 / (n + 1) * (2 * S.T - 1), atol=1e-12)
     with pytest.raises(ValueError, match="hadamard bands"):
         D.s_matrix(10)
-
-
-def test_cli_plan_optimal_refusals(tmp_path, bundle):
-    from specgpu.calibration.bundle import save_calibration
-
-    cal = tmp_path / "cal.npz"
-    save_calibration(cal, bundle)
-    base = [sys.executable, "-m", "specgpu", "plan", "optimal", "--calib", str(cal), "--out", str(tmp_path / "o.npz"),
-            "--frames", "3", "--rig"]
-    # the bundle is the oracle of DESC: describe that rig to the CLI
-    from specgpu.rig.config import dump_rig
-
-    rig = tmp_path / "rig.toml"
-    rig.write_text(dump_rig(DESC))
-    r = subprocess.run(base + [str(rig), "--target", "0.0001"], capture_output=True, text=True, timeout=300)
-    assert r.returncode != 0 and "unreachable" in r.stderr
-    r = subprocess.run(base + [str(rig), "--training-only"], capture_output=True, text=True, timeout=300)
-    assert r.returncode != 0 and "training set is empty" in r.stderr
-    assert len([line for line in r.stderr.splitlines() if line.startswith("Error")]) == 1
 
 
 def test_the_registry_makes_optimal_and_hadamard_plans_with_their_own_signatures(bundle, prior):

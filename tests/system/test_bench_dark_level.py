@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from cli_helpers import run
+from cli_helpers import RIG, calibrated_rig, run
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from tool_helpers import load_tool
@@ -109,11 +109,12 @@ def test_calibration_measures_the_light_with_every_mirror_off(lab):
 
 def test_ideal_bench_keeps_its_plans(tmp_path):
     """On the ideal twin (no light with every mirror off) the default plan is unchanged: no ambient frame, and
-    recover trusts the calibration's dark."""
+    recover trusts the calibration's dark. The rig is the small ideal one, whose ``specgpu calibrate`` bundle the
+    session makes once (``calibrated_rig``)."""
     from specgpu.planning.correction import ambient_needed
 
-    (tmp_path / "rig.toml").write_text(SMALL)
-    run("calibrate", "--rig", tmp_path / "rig.toml", "--out", tmp_path / "calib.npz")
+    assert RIG == SMALL
+    calibrated_rig(tmp_path)
     b = load_calibration(tmp_path / "calib.npz")
     assert b.mirrors_off_light is False and not ambient_needed(b)[0]
     out = run("plan", "narrowband", "--calib", tmp_path / "calib.npz", "--out", tmp_path / "nb.npz")
