@@ -101,6 +101,26 @@ def calibrated_rig(d, *names):
 
 
 @functools.cache
+def _moving_files() -> Path:
+    """The moving rig (:data:`MOVING_RIG`) calibrated through the CLI (``calib.npz``), once per test session, in a
+    folder removed when the session ends."""
+    d = Path(tempfile.mkdtemp(prefix="specgpu-moving-"))
+    atexit.register(shutil.rmtree, d, True)
+    (d / "rig.toml").write_text(MOVING_RIG)
+    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    return d
+
+
+def moving_rig(d):
+    """Write the moving rig (:data:`MOVING_RIG`) into folder ``d`` as ``rig.toml`` with ``calib.npz`` beside it,
+    what ``specgpu calibrate --rig rig.toml --out calib.npz`` writes (made once per session: the calibration is
+    seeded, so each would be the same; each folder gets its own copies); returns ``d``."""
+    for name in ("rig.toml", "calib.npz"):
+        shutil.copyfile(_moving_files() / name, d / name)
+    return d
+
+
+@functools.cache
 def _other_calibration() -> Path:
     """A second calibration of the small twin rig (seed 1: a bundle other than ``calib.npz``'s), made through the
     CLI once per session."""

@@ -28,6 +28,15 @@ def bench_a(tmp_path_factory):
                             "--illuminant", "A", seq="seqA")
 
 
+@pytest.fixture(scope="module")
+def tri_a(bench_a, tmp_path_factory):
+    """``specgpu recover seqA --out triA.exr``: the capture's XYZ map under A, made once for the tests that only
+    read it (in a folder of its own)."""
+    path = tmp_path_factory.mktemp("triA") / "triA.exr"
+    run("recover", bench_a / "seqA", "--out", path)
+    return path
+
+
 def test_recover_of_a_plan_for_A_makes_every_output_under_A(bench_a, tmp_path):
     d = bench_a
     out = {name: tmp_path / f"{name}.exr" for name in ("tri", "xyz", "lab", "dE")}
@@ -44,24 +53,21 @@ def test_recover_of_a_plan_for_A_makes_every_output_under_A(bench_a, tmp_path):
     assert float(np.nanmedian(io.read_map(out["dE"], "dE76")[0])) < 4
 
 
-def test_evaluate_judges_an_XYZ_map_under_the_illuminant_it_records(bench_a, tmp_path):
-    d = bench_a
-    run("recover", d / "seqA", "--out", tmp_path / "triA.exr")
+def test_evaluate_judges_an_XYZ_map_under_the_illuminant_it_records(tri_a, tmp_path):
     report = tmp_path / "report.json"
-    result = run("evaluate", tmp_path / "triA.exr", "--truth", "colorchecker", "--json", report)
+    result = run("evaluate", tri_a, "--truth", "colorchecker", "--json", report)
     assert "per patch under A:" in result.output
     figures = json.loads(report.read_text())
     assert figures["illuminant"] == "A" and figures["dE76_mean"] < 3 and figures["dE2000_mean"] < 3
     # the same name in another case is the same illuminant
-    again = json.loads((run("evaluate", tmp_path / "triA.exr", "--truth", "colorchecker", "--illuminant", "a",
-                            "--json", report), report.read_text())[1])
+    again = json.loads((run("evaluate", tri_a, "--truth", "colorchecker", "--illuminant", "a", "--json", report),
+                        report.read_text())[1])
     assert again["dE76_mean"] == pytest.approx(figures["dE76_mean"], rel=1e-6)
 
 
-def test_evaluate_refuses_another_illuminant_than_an_XYZ_map_records(bench_a, tmp_path):
-    run("recover", bench_a / "seqA", "--out", tmp_path / "triA.exr")
-    result = run("evaluate", tmp_path / "triA.exr", "--truth", "colorchecker", "--illuminant", "D65", ok=False)
-    one_line_error(result, str(tmp_path / "triA.exr"), "under illuminant A, not D65", code=1)
+def test_evaluate_refuses_another_illuminant_than_an_XYZ_map_records(tri_a):
+    result = run("evaluate", tri_a, "--truth", "colorchecker", "--illuminant", "D65", ok=False)
+    one_line_error(result, str(tri_a), "under illuminant A, not D65", code=1)
 
 
 def test_recover_refuses_another_illuminant_than_the_plan_measures_under(bench_a, tmp_path):

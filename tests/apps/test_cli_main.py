@@ -11,18 +11,17 @@ import shutil
 
 import numpy as np
 import pytest
-from cli_helpers import RIG, calibrated_rig, one_line_error, other_calibration, run
+from cli_helpers import RIG, one_line_error, other_calibration, run, tristimulus_rig
 
 from specgpu import io
 
 
 @pytest.fixture(scope="module")
 def work(tmp_path_factory):
-    """A calibrated twin, a symmetric and a tristimulus plan, and a captured sequence of each."""
-    d = tmp_path_factory.mktemp("main")
-    calibrated_rig(d)
+    """A calibrated twin, a symmetric and a tristimulus plan (for D65, the default: the session's, made once), and a
+    captured sequence of each."""
+    d = tristimulus_rig(tmp_path_factory.mktemp("main"))
     run("plan", "symmetric", "--calib", d / "calib.npz", "--out", d / "sym.npz")
-    run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz", "--illuminant", "D65")
     for plan, seq, n in (("sym.npz", "seq", 2), ("tri.npz", "seqtri", 1)):
         run("capture", "--rig", d / "rig.toml", "--plan", d / plan, "--calib", d / "calib.npz", "--scene",
             "colorchecker", "--out", d / seq, "--sequences", n, "--seed", 5)

@@ -8,8 +8,7 @@ import re
 
 import numpy as np
 import pytest
-from cli_helpers import MOVING_RIG as RIG
-from cli_helpers import one_line_error, run
+from cli_helpers import moving_rig, one_line_error, run
 
 from specgpu import io
 from specgpu.io.npz import read_cube_npz
@@ -17,15 +16,15 @@ from specgpu.io.npz import read_cube_npz
 
 @pytest.fixture(scope="module")
 def moving(tmp_path_factory):
-    d = tmp_path_factory.mktemp("moving")
-    (d / "rig.toml").write_text(RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    d = moving_rig(tmp_path_factory.mktemp("moving"))  # the session's calibration of the moving rig
     run("plan", "symmetric", "--calib", d / "calib.npz", "--out", d / "plan.npz")
     run("capture", "--rig", d / "rig.toml", "--plan", d / "plan.npz", "--calib", d / "calib.npz", "--out", d / "seq",
         "--sequences", "2", "--seed", "3")
     return d
 
 
+#: recover's cubes here are ENVI (raw float32): the cube is all these tests read back, and compressing an npz
+#: cube costs a second each
 def mean_rmse(result) -> float:
     return float(re.search(r"rmse mean ([0-9.]+)", result.output).group(1))
 
@@ -45,11 +44,11 @@ def test_the_capture_keeps_each_sequences_truth(moving):
 
 def test_recover_with_motion_compensation_scores_better_against_the_truth(moving, tmp_path):
     seq, truth = moving / "seq", moving / "seq" / "motion_truth" / "sequence_0001.npz"
-    run("recover", seq, "--out", tmp_path / "plain.npz", "--sequence", "1")
-    done = run("recover", seq, "--out", tmp_path / "comp.npz", "--sequence", "1", "--motion", "global")
+    run("recover", seq, "--out", tmp_path / "plain.hdr", "--sequence", "1")
+    done = run("recover", seq, "--out", tmp_path / "comp.hdr", "--sequence", "1", "--motion", "global")
     assert "out-of-field pixels left NaN" in done.output
-    plain = mean_rmse(run("evaluate", tmp_path / "plain.npz", "--truth", truth))
-    comp = mean_rmse(run("evaluate", tmp_path / "comp.npz", "--truth", truth))
+    plain = mean_rmse(run("evaluate", tmp_path / "plain.hdr", "--truth", truth))
+    comp = mean_rmse(run("evaluate", tmp_path / "comp.hdr", "--truth", truth))
     assert comp < 0.6 * plain
 
 
@@ -64,29 +63,29 @@ def test_denoise_with_motion_scores_better_against_the_truth(moving, tmp_path):
     """recover --motion --denoise: the filter guided by the warped frames' sum lowers the error of the compensated
     cube against the truth at the reference time."""
     seq, truth = moving / "seq", moving / "seq" / "motion_truth" / "sequence_0000.npz"
-    run("recover", seq, "--out", tmp_path / "comp.npz", "--sequence", "0", "--motion", "global")
-    run("recover", seq, "--out", tmp_path / "den.npz", "--sequence", "0", "--motion", "global", "--denoise")
-    comp = mean_rmse(run("evaluate", tmp_path / "comp.npz", "--truth", truth))
-    assert mean_rmse(run("evaluate", tmp_path / "den.npz", "--truth", truth)) < 0.95 * comp
+    run("recover", seq, "--out", tmp_path / "comp.hdr", "--sequence", "0", "--motion", "global")
+    run("recover", seq, "--out", tmp_path / "den.hdr", "--sequence", "0", "--motion", "global", "--denoise")
+    comp = mean_rmse(run("evaluate", tmp_path / "comp.hdr", "--truth", truth))
+    assert mean_rmse(run("evaluate", tmp_path / "den.hdr", "--truth", truth)) < 0.95 * comp
 
 
 def test_evaluate_takes_the_sequence_folder_as_truth(moving, tmp_path):
     seq = moving / "seq"
-    run("recover", seq, "--out", tmp_path / "comp.npz", "--sequence", "1", "--motion", "global")
-    by_file = run("evaluate", tmp_path / "comp.npz", "--truth", seq / "motion_truth" / "sequence_0001.npz")
-    by_folder = run("evaluate", tmp_path / "comp.npz", "--truth", seq)
+    run("recover", seq, "--out", tmp_path / "comp.hdr", "--sequence", "1", "--motion", "global")
+    by_file = run("evaluate", tmp_path / "comp.hdr", "--truth", seq / "motion_truth" / "sequence_0001.npz")
+    by_folder = run("evaluate", tmp_path / "comp.hdr", "--truth", seq)
     assert mean_rmse(by_folder) == mean_rmse(by_file)
-    other = run("evaluate", tmp_path / "comp.npz", "--truth", seq / "motion_truth" / "sequence_0000.npz")
+    other = run("evaluate", tmp_path / "comp.hdr", "--truth", seq / "motion_truth" / "sequence_0000.npz")
     assert mean_rmse(other) > mean_rmse(by_folder)  # the scene moved between the sequences: the right one counts
 
 
 def test_evaluate_refuses_a_folder_without_the_truth_it_needs(moving, tmp_path):
     seq = moving / "seq"
-    run("recover", seq, "--out", tmp_path / "mean.npz")  # both sequences averaged: no one truth
-    one_line_error(run("evaluate", tmp_path / "mean.npz", "--truth", seq, ok=False), "2 sequences",
+    run("recover", seq, "--out", tmp_path / "mean.hdr")  # both sequences averaged: no one truth
+    one_line_error(run("evaluate", tmp_path / "mean.hdr", "--truth", seq, ok=False), "2 sequences",
                    "sequence_NNNN.npz")
     (tmp_path / "still").mkdir()
-    one_line_error(run("evaluate", tmp_path / "mean.npz", "--truth", tmp_path / "still", ok=False),
+    one_line_error(run("evaluate", tmp_path / "mean.hdr", "--truth", tmp_path / "still", ok=False),
                    "holds no motion truth")
 
 
@@ -96,14 +95,14 @@ def motion_lines(result):
 
 def test_recover_without_motion_says_in_one_line_that_the_capture_moved(moving, tmp_path):
     seq = moving / "seq"
-    mean = run("recover", seq, "--out", tmp_path / "mean.npz")
+    mean = run("recover", seq, "--out", tmp_path / "mean.hdr")
     said, = motion_lines(mean)
     assert said.startswith("Warning: ") and f"{seq}: captured while the scene moved" in said
     assert "averaged" in said and "--sequence N" in said
-    assert io.read_cube(tmp_path / "mean.npz")[2]["motion"] == "none: the capture moved, decoded as if still"
-    one, = motion_lines(run("recover", seq, "--out", tmp_path / "one.npz", "--sequence", "1"))
+    assert io.read_cube(tmp_path / "mean.hdr")[2]["motion"] == "none: the capture moved, decoded as if still"
+    one, = motion_lines(run("recover", seq, "--out", tmp_path / "one.hdr", "--sequence", "1"))
     assert "averaged" not in one and "give --motion" in one
-    assert motion_lines(run("recover", seq, "--out", tmp_path / "c.npz", "--sequence", "1", "--motion", "global")) \
+    assert motion_lines(run("recover", seq, "--out", tmp_path / "c.hdr", "--sequence", "1", "--motion", "global")) \
         == []
 
 

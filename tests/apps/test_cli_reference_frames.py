@@ -8,8 +8,7 @@ import re
 
 import numpy as np
 import pytest
-from cli_helpers import MOVING_RIG as RIG
-from cli_helpers import one_line_error, run
+from cli_helpers import moving_rig, one_line_error, run
 
 from specgpu.planning import load_plan
 from specgpu.planning.reference_frames import pattern_indices, reference_indices
@@ -17,9 +16,7 @@ from specgpu.planning.reference_frames import pattern_indices, reference_indices
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    d = tmp_path_factory.mktemp("reference-frames")
-    (d / "rig.toml").write_text(RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    d = moving_rig(tmp_path_factory.mktemp("reference-frames"))  # the session's calibration of the moving rig
     run("plan", "hadamard", "--bands", "7", "--calib", d / "calib.npz", "--rig", d / "rig.toml", "--out",
         d / "bare.npz", "--no-ambient")
     return d
@@ -71,14 +68,14 @@ def test_recover_with_motion_reads_the_reference_frames(files, tmp_path):
     run("capture", "--rig", d / "rig.toml", "--plan", d / "sym.npz", "--calib", d / "calib.npz", "--out",
         d / "seq", "--sequences", "1", "--seed", "3")
     truth = d / "seq" / "motion_truth" / "sequence_0000.npz"
-    run("recover", d / "seq", "--out", tmp_path / "plain.npz")
-    run("recover", d / "seq", "--out", tmp_path / "comp.npz", "--motion", "global")
+    run("recover", d / "seq", "--out", tmp_path / "plain.hdr")  # ENVI: raw float32, no second compressing it
+    run("recover", d / "seq", "--out", tmp_path / "comp.hdr", "--motion", "global")
 
     def rmse(result):
         return float(re.search(r"rmse mean ([0-9.]+)", result.output).group(1))
 
-    plain = rmse(run("evaluate", tmp_path / "plain.npz", "--truth", truth))
-    comp = rmse(run("evaluate", tmp_path / "comp.npz", "--truth", truth))
+    plain = rmse(run("evaluate", tmp_path / "plain.hdr", "--truth", truth))
+    comp = rmse(run("evaluate", tmp_path / "comp.hdr", "--truth", truth))
     assert comp < 0.6 * plain
 
 

@@ -46,8 +46,28 @@ CASES = ([("none", (name,), ()) for name in STREAM_OUTPUTS] + [("none", STREAM_O
          + [("global", ("cube", "XYZ", "sigma_rms"), ("--accumulate", "3"))])
 
 
+#: --seconds of the streams here: each ends with its twin's frames (:func:`twin_sequences`) long before; this only
+#: bounds it (and sizes the recording's free-space check: keep it small)
+BOUND_S = 5
+
+
 def cli(*args):
     return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def twin_sequences(monkeypatch, sequences: int):
+    """The twin driver ``specgpu stream`` opens delivers the frames of ``sequences`` sequences, then its stream ends
+    (``TwinDriver.n_frames``), and the stream with it: each stream here decodes exactly that many, whatever the
+    machine's load, instead of what a fixed time captures (two or three, every one decoded, written and read back
+    again)."""
+    opened = stream_cli.open_rig_driver
+
+    def limited(description, plan, **kwargs):
+        driver = opened(description, plan, **kwargs)
+        driver.n_frames = sequences * plan.K
+        return driver
+
+    monkeypatch.setattr(stream_cli, "open_rig_driver", limited)
 
 
 @pytest.fixture(scope="module")
@@ -86,9 +106,9 @@ class View:
         return stream.run(seconds, on_sink_stopped=on_sink_stopped)
 
 
-def stream(rig, out, outputs, *extra, seconds=0.25, motion="none"):
+def stream(rig, out, outputs, *extra, motion="none"):
     return cli("stream", "--rig", rig / "rig.toml", "--plan", rig / "plan.npz", "--calib", rig / "calib.npz",
-               "--seconds", seconds, "--out", out, "--frames", "--exr-every", 1, "--view", "--no-disk-check",
+               "--seconds", BOUND_S, "--out", out, "--frames", "--exr-every", 1, "--view", "--no-disk-check",
                "--outputs", ",".join(outputs), "--motion", motion, *extra)
 
 
@@ -99,20 +119,24 @@ def sequences_out(output: str) -> int:
 @pytest.mark.parametrize("motion, outputs, extra", CASES,
                          ids=[f"{m}-{'+'.join(o) if len(o) < 3 else len(o)}{''.join(e[:1])}" for m, o, e in CASES])
 def test_every_output_reaches_every_sink(rig, tmp_path, monkeypatch, motion, outputs, extra):
+    """One sequence streamed with every sink: each output recorded, in its EXR snapshot, previewed and viewed."""
     view = View()
     monkeypatch.setattr(stream_cli, "run_with_view", view)
+    twin_sequences(monkeypatch, 1)
     out = tmp_path / "rec.zarr"
     result = stream(rig, out, outputs, *extra, motion=motion)
     assert result.exit_code == 0, result.output
     assert "Warning" not in result.output and "stopped" not in result.output, result.output
     rec = open_recording(out)
     n = rec.sequences
-    assert n == sequences_out(result.output) >= 1 and rec.attrs["status"] == "complete"
+    assert n == sequences_out(result.output) == 1 and rec.attrs["status"] == "complete"
     assert set(rec.attrs["outputs"]) == set(outputs) and rec.read("frames", slice(None)).shape[0] == n
     for name in outputs:
         recorded = rec.read(name, slice(None))
         assert recorded.shape[:3] == (n, HEIGHT, WIDTH) and np.isfinite(recorded).any(), name
-        for i in range(n):  # each snapshot holds the recorded map, each channel of it
+        snapshots = sorted(int(p.stem.rsplit("-", 1)[1]) for p in (out / "exr").glob(f"{name}-*.exr"))
+        assert snapshots == list(range(n)), (name, snapshots)
+        for i in snapshots:  # each snapshot holds the recorded map, each channel of it
             path = out / "exr" / f"{name}-{i:06d}.exr"
             data = io.read_cube(path)[0] if name == "cube" else io.read_map(path)[0]
             np.testing.assert_array_equal(data, recorded[i].reshape(HEIGHT, WIDTH, -1), err_msg=name)
@@ -124,18 +148,20 @@ def test_the_accumulated_sigma_is_recorded_and_true(rig, tmp_path, monkeypatch):
     """``--accumulate 3`` on a still scene, twice with other noise: the recorded sigma_rms of the k-th sequence is
     one sequence's times sqrt(v), v the running mean's variance factor (1 / (k + 1) up to 3 sequences, then that
     of a recursive mean of weight 1 / 3), and it is the running estimates' own: the two estimates differ by what
-    their recorded sigmas say (z-scores of RMS 1)."""
-    monkeypatch.setattr(stream_cli, "run_with_view", View())
+    their recorded sigmas say (z-scores of RMS 1). Four sequences: the running mean up to 3, then the recursive one.
+    The recording alone is asked for: the other sinks are the sweep's concern."""
+    twin_sequences(monkeypatch, 4)
     recorded = []
     for seed in (1, 2):
         out = tmp_path / f"rec{seed}.zarr"
-        result = stream(rig, out, ("cube", "sigma_rms"), "--accumulate", "3", "--seed", seed, "--pacing", "free",
-                        seconds=0.4)
+        result = cli("stream", "--rig", rig / "rig.toml", "--plan", rig / "plan.npz", "--calib", rig / "calib.npz",
+                     "--seconds", BOUND_S, "--out", out, "--no-disk-check", "--outputs", "cube,sigma_rms",
+                     "--accumulate", 3, "--seed", seed, "--pacing", "free")
         assert result.exit_code == 0, result.output
         rec = open_recording(out)
         recorded.append((rec.read("cube", slice(None)), rec.read("sigma_rms", slice(None))))
     n = min(cube.shape[0] for cube, _ in recorded)
-    assert n >= 3
+    assert n == 4
     for cube, sigma in recorded:
         single, v = np.nanmedian(sigma[0]), 1.0
         for k in range(1, n):
@@ -168,8 +194,9 @@ def test_a_failing_optional_sink_is_stopped_and_the_recording_keeps_every_sequen
         monkeypatch.setattr(sinks, "write_png", fail(calls))
     else:  # the view's ring copies each result it keeps
         monkeypatch.setattr(sinks, "StreamResult", fail(calls))
+    twin_sequences(monkeypatch, 3)
     out = tmp_path / "rec.zarr"
-    result = stream(rig, out, ("XYZ", "dE"), seconds=0.7)
+    result = stream(rig, out, ("XYZ", "dE"))
     assert result.exit_code == 0, result.output
     assert calls  # the fault was met
     warnings = [line for line in result.output.splitlines() if "Warning" in line]
@@ -178,7 +205,7 @@ def test_a_failing_optional_sink_is_stopped_and_the_recording_keeps_every_sequen
                         "the stream goes on", warnings[0]), warnings[0]
     rec = open_recording(out)
     n = sequences_out(result.output)
-    assert rec.attrs["status"] == "complete" and rec.sequences == n >= 2  # every sequence kept
+    assert rec.attrs["status"] == "complete" and rec.sequences == n == 3  # every sequence kept
     summary = result.output.strip().splitlines()[-1]
     assert f"; {sink} stopped" in summary and f"wrote {out} ({n} sequences)" in summary
     if sink == "EXR snapshots":  # the first map failed: no snapshot after it

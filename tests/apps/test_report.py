@@ -233,10 +233,13 @@ def test_report_runtime_counts_the_figures(run_folder, tmp_path, monkeypatch):
 
 @pytest.fixture(scope="module")
 def moving_folder(tmp_path_factory):
+    """A capture of one sequence of the moving natural scene, with its motion truth: the report decodes and scores
+    the first sequence of a capture that moved, and each further sequence's truth (a compressed 31-band cube) took
+    seconds to write."""
     from capture_helpers import write_moving_capture
 
     root = tmp_path_factory.mktemp("moving")
-    return write_moving_capture(root, "seqm")
+    return write_moving_capture(root, "seqm", sequences=1)
 
 
 @pytest.mark.slow  # the report's motion-compensated decoding, then the same decoded again to check its score

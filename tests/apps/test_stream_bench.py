@@ -45,7 +45,7 @@ def test_full_quality_is_run_beside_static_and_judged_by_their_ratio_and_paced_a
         return shared_stream_setup(width, height, sequences=2, white_tile=white_tile)
 
     monkeypatch.setattr(bench_stream, "stream_setup", shared)
-    report = run_stream_bench(seconds=0.5, paced_seconds=1.0, width=320, height=240, rounds=2, echo=None,
+    report = run_stream_bench(seconds=0.25, paced_seconds=0.5, width=320, height=240, rounds=2, echo=None,
                               cases=("static", "full", "paced_full"), progress=False)
     rows = {row["case"].split(":")[0]: row for row in report["cases"]}
     assert set(rows) == {"static", "full", "full / static", "paced_full 5 ms period"}
