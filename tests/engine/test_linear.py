@@ -15,9 +15,21 @@ from specgpu.engine.linear_map import apply_linear
 
 EPS32 = np.finfo(np.float32).eps
 
-# every test once per kernel variant ("cpu": float8 per work-item, "gpu": a work-item per pixel), forced on each
-# device present (tests/conftest.py kernel_variant)
-pytestmark = pytest.mark.usefixtures("kernel_variant")
+# Each test runs once per kernel variant ("cpu": float8 per work-item, "gpu": a work-item per pixel), forced on each
+# device present (tests/conftest.py kernel_variant), or, where a grid of settings is run pairwise, the variant is
+# one of the settings and turns with the others (each distinct set of settings is a program, compiled cold in
+# seconds on PoCL).
+per_variant = pytest.mark.usefixtures("kernel_variant")
+VARIANTS = ["cpu", "gpu"]
+LAYOUTS = ["planar", "interleaved"]
+
+
+def assert_every_pair_met(cases, settings):
+    """Every pair of values of any two settings occurs in some case (``cases``: tuples, one value per setting)."""
+    for a in range(len(settings)):
+        for b in range(a + 1, len(settings)):
+            seen = {(str(case[a]), str(case[b])) for case in cases}
+            assert seen == {(str(x), str(y)) for x in settings[a] for y in settings[b]}, (a, b)
 
 
 def frames_of(rng, dtype, K, shape):
@@ -48,13 +60,25 @@ def assert_close(got, expected, tol):
     assert np.all(excess <= 0), f"max error beyond bound by {excess.max():.3g}"
 
 
-@pytest.mark.parametrize("K", [1, 3, 6, 9, 31, 61])
-@pytest.mark.parametrize("B", [1, 3, 5, 31, 61])
-def test_every_K_and_B(queue, K, B):
+KS, BS = [1, 3, 6, 9, 31, 61], [1, 3, 5, 31, 61]
+# every K with every B (K's samples unrolled, B's dot products looped over them), the kernel variant and the layout
+# turning with them so that every pair of any two of (K, B, variant, layout) is run: 30 programs, not the 120 of
+# the full grid, whose other cells meet no code these pairs miss (the variant and the layout choose the work shape
+# and the stores, the same for every K and B)
+K_B_CASES = [(K, B, VARIANTS[(i // 2 + j // 2) % 2], LAYOUTS[(j + i // 2) % 2])
+             for i, K in enumerate(KS) for j, B in enumerate(BS)]
+
+
+def test_the_K_and_B_cases_hold_every_pair_of_settings():
+    assert_every_pair_met(K_B_CASES, [KS, BS, VARIANTS, LAYOUTS])
+
+
+@pytest.mark.parametrize("K, B, variant, layout", K_B_CASES, ids=[f"{K}-{B}-{v}-{lo}" for K, B, v, lo in K_B_CASES])
+def test_every_K_and_B(queue, monkeypatch, K, B, variant, layout):
+    monkeypatch.setenv("SPECGPU_VARIANT", variant)  # the kernel_variant fixture's setting, chosen per case
     rng = np.random.default_rng(K * 100 + B)
     frames = frames_of(rng, np.uint16, K, (21, 11))  # 231 pixels: not a multiple of the vector width
     A = rng.normal(0, 1, (B, K))
-    layout = "planar" if (K + B) % 2 else "interleaved"
     y = apply_linear(frames, A, layout=layout, device=queue)
     expected = linear_ref(frames, A, layout=layout)
     assert y.dtype == np.float32
@@ -62,6 +86,7 @@ def test_every_K_and_B(queue, K, B):
     assert_close(y, expected, tol if layout == "planar" else np.moveaxis(tol, 0, -1))
 
 
+@per_variant
 @pytest.mark.parametrize("K, layout", [(81, "interleaved"), (128, "planar"), (129, "interleaved"), (401, "planar")])
 def test_many_frames_on_a_large_image(queue, K, layout):
     """Beyond the 61 of the paper (1 nm reflectance cubes go through the same kernel): no private array may
@@ -77,16 +102,29 @@ def test_many_frames_on_a_large_image(queue, K, layout):
     np.testing.assert_array_equal(res.mask, mask_ref(frames, 0.999))
 
 
+@per_variant
 def test_matrix_beyond_constant_memory_is_a_clear_error(queue):
     too_big = queue.device.max_constant_buffer_size // 4 // 8 + 1
     with pytest.raises(ValueError, match="exceeds the constant memory"):
         apply_linear(np.zeros((8, 2, 2), np.float32), np.zeros((too_big, 8)), device=queue)
 
 
-@pytest.mark.parametrize("in_dtype", [np.uint8, np.uint16, np.float32])
-@pytest.mark.parametrize("out_dtype", [np.float32, np.float16])
-@pytest.mark.parametrize("layout", ["planar", "interleaved"])
-def test_dtypes_and_layouts(queue, in_dtype, out_dtype, layout):
+IN_DTYPES, OUT_DTYPES = [np.uint8, np.uint16, np.float32], [np.float32, np.float16]
+# each input dtype with each output dtype, the layout and the variant turning with them: every pair of any two of
+# the four settings in 6 programs (the full grid: 24); the input dtype acts on the sample read, the output dtype
+# and the layout on the stores, the variant on the work shape
+DTYPE_CASES = [(i, o, LAYOUTS[(a + b) % 2], VARIANTS[(b + (a == 2)) % 2])
+               for a, i in enumerate(IN_DTYPES) for b, o in enumerate(OUT_DTYPES)]
+
+
+def test_the_dtype_cases_hold_every_pair_of_settings():
+    assert_every_pair_met(DTYPE_CASES, [IN_DTYPES, OUT_DTYPES, LAYOUTS, VARIANTS])
+
+
+@pytest.mark.parametrize("in_dtype, out_dtype, layout, variant", DTYPE_CASES,
+                         ids=[f"{np.dtype(i).name}-{np.dtype(o).name}-{lo}-{v}" for i, o, lo, v in DTYPE_CASES])
+def test_dtypes_and_layouts(queue, monkeypatch, in_dtype, out_dtype, layout, variant):
+    monkeypatch.setenv("SPECGPU_VARIANT", variant)
     rng = np.random.default_rng(7)
     frames = frames_of(rng, in_dtype, 9, (17, 5))
     A = rng.normal(0, 0.01, (5, 9))
@@ -98,9 +136,20 @@ def test_dtypes_and_layouts(queue, in_dtype, out_dtype, layout):
     assert_close(y, expected, tol if layout == "planar" else np.moveaxis(tol, 0, -1))
 
 
-@pytest.mark.parametrize("in_dtype", [np.uint8, np.uint16, np.float32])
-@pytest.mark.parametrize("calibration", ["dark", "dark+gain", "perframe-dark+gain", "gain"])
-def test_dark_and_gain(queue, in_dtype, calibration):
+CALIBRATIONS = ["dark", "dark+gain", "perframe-dark+gain", "gain"]
+# each input dtype with each calibration, the variant turning with them (every pair of the three settings: 12
+# programs, not 24)
+CALIBRATION_CASES = [(d, c, VARIANTS[(a + b) % 2]) for a, d in enumerate(IN_DTYPES) for b, c in enumerate(CALIBRATIONS)]
+
+
+def test_the_calibration_cases_hold_every_pair_of_settings():
+    assert_every_pair_met(CALIBRATION_CASES, [IN_DTYPES, CALIBRATIONS, VARIANTS])
+
+
+@pytest.mark.parametrize("in_dtype, calibration, variant", CALIBRATION_CASES,
+                         ids=[f"{np.dtype(d).name}-{c}-{v}" for d, c, v in CALIBRATION_CASES])
+def test_dark_and_gain(queue, monkeypatch, in_dtype, calibration, variant):
+    monkeypatch.setenv("SPECGPU_VARIANT", variant)
     rng = np.random.default_rng(11)
     K, shape = 6, (13, 9)
     frames = frames_of(rng, in_dtype, K, shape)
@@ -116,6 +165,7 @@ def test_dark_and_gain(queue, in_dtype, calibration):
     assert_close(y, linear_ref(frames, A, dark, gain), np.moveaxis(bound(frames, A, dark, gain), 0, -1))
 
 
+@per_variant
 @pytest.mark.parametrize("shape", [(1, 1), (4096, 1), (1, 4097), (7,), (3, 5, 7)])
 def test_image_sizes(queue, shape):
     """Odd sizes, single pixels and long rows: the partial last vector is stored exactly, nothing beyond."""
@@ -127,11 +177,13 @@ def test_image_sizes(queue, shape):
     assert_close(y, linear_ref(frames, A), np.moveaxis(bound(frames, A), 0, -1))
 
 
+@per_variant
 def test_zero_pixels(queue):
     y = apply_linear(np.zeros((3, 0, 4), np.uint16), np.eye(3), device=queue)
     assert y.shape == (0, 4, 3)
 
 
+@per_variant
 def test_saturation_and_nonfinite_mask(queue):
     rng = np.random.default_rng(5)
     frames = rng.integers(0, 1000, (9, 15, 7), dtype=np.uint16)  # below saturation but for the two set below
@@ -147,6 +199,7 @@ def test_saturation_and_nonfinite_mask(queue):
     np.testing.assert_array_equal(res.mask, mask_ref(frames, 65535))
 
 
+@per_variant
 def test_nan_propagates_to_that_pixel_only(queue):
     rng = np.random.default_rng(6)
     frames = rng.uniform(0, 1, (4, 9, 9)).astype(np.float32)
@@ -164,6 +217,7 @@ def test_nan_propagates_to_that_pixel_only(queue):
     assert_close(y[finite], linear_ref(frames, A)[finite], np.moveaxis(bound(frames, A), 0, -1)[finite])
 
 
+@per_variant
 @pytest.mark.parametrize("layout", ["interleaved", "planar"])
 def test_a_nan_gain_leaves_that_pixel_nan_only(queue, layout):
     """NaN in the gain map marks a pixel with no response (a calibration's dead pixel): its outputs are NaN, every
@@ -186,12 +240,14 @@ def test_a_nan_gain_leaves_that_pixel_nan_only(queue, layout):
         apply_linear(frames, A, None, gain, device=queue)
 
 
+@per_variant
 def test_float16_overflow_is_inf(queue):
     frames = np.full((1, 2, 9), 1000, np.uint16)
     y = apply_linear(frames, [[100.0]], out_dtype=np.float16, device=queue)
     assert np.all(np.isinf(y)) and np.all(y > 0)
 
 
+@per_variant
 def test_device_arrays_in_and_out(queue):
     rng = np.random.default_rng(8)
     frames = frames_of(rng, np.uint16, 3, (10, 10))
@@ -201,6 +257,7 @@ def test_device_arrays_in_and_out(queue):
     np.testing.assert_array_equal(y_dev.get(), apply_linear(frames, A, device=queue))
 
 
+@per_variant
 @pytest.mark.parametrize(
     "kwargs, message",
     [
@@ -227,21 +284,24 @@ def test_bad_input_is_a_clear_error(queue, kwargs, message):
     assert "\n" not in str(error.value)
 
 
-@given(
-    K=st.sampled_from([1, 2, 5, 9]),  # a few programs: each (K, B) is a build
-    B=st.sampled_from([1, 3, 7]),
-    npix=st.integers(1, 40),
-    seed=st.integers(0, 2**16),
-)
-def test_random_shapes_property(K, B, npix, seed):
-    """Any K, B and pixel count (covering every remainder modulo the vector width) matches the reference."""
+@per_variant
+@given(data=st.data(), npix=st.integers(1, 40), seed=st.integers(0, 2**16))
+def test_random_shapes_property(data, npix, seed):
+    """Any K, B and pixel count (covering every remainder modulo the vector width) matches the reference. K, B and
+    the layout are drawn from the small cases test_every_K_and_B runs in the same variant: programs it builds (each
+    (K, B) is a build), not a dozen more."""
+    variant = runtime.kernel_variant(runtime.get_queue().device)
+    K, B, _, layout = data.draw(st.sampled_from([c for c in K_B_CASES if c[2] == variant and c[0] <= 9 and c[1] <= 5]))
     rng = np.random.default_rng(seed)
-    frames = frames_of(rng, np.float32, K, (npix,))
+    frames = frames_of(rng, np.uint16, K, (npix,))
     A = rng.normal(0, 1, (B, K))
-    y = apply_linear(frames, A)
-    assert_close(y, linear_ref(frames, A), np.moveaxis(bound(frames, A), 0, -1))
+    y = apply_linear(frames, A, layout=layout)
+    expected = linear_ref(frames, A, layout=layout)
+    tol = bound(frames, A)
+    assert_close(y, expected, tol if layout == "planar" else np.moveaxis(tol, 0, -1))
 
 
+@per_variant
 def test_float16_rounding_is_bit_exact_round_to_nearest_even(queue):
     """Output rounding equals NumPy's float32 -> float16 cast, bit for bit: random bit patterns over the whole
     float32 range, the half subnormal and overflow boundaries, inf and NaN (sums start at +0, so -0 -> +0, and
@@ -274,6 +334,7 @@ def test_float16_rounding_is_bit_exact_round_to_nearest_even(queue):
     check(out.get(), "HALF_SOFT")
 
 
+@per_variant
 def test_sliced_device_arrays(queue):
     """A view into a larger device buffer (non-zero offset) works like the same data in its own buffer."""
     rng = np.random.default_rng(12)
@@ -283,6 +344,7 @@ def test_sliced_device_arrays(queue):
     np.testing.assert_array_equal(apply_linear(dev[1:], A).get(), apply_linear(frames[1:], A, device=queue))
 
 
+@per_variant
 @pytest.mark.parametrize("npix", [1, 7, 8, 9, 15, 16, 17, 24, 31, 33, 1000])
 def test_planar_float16_sixteen_pixel_items(queue, npix):
     """Planar float16 runs 16 pixels per work-item: every remainder modulo 16, with dark, gain and mask."""
@@ -306,7 +368,7 @@ def test_planar_float16_sixteen_pixel_items(queue, npix):
 def test_gpu_channels_last_without_tile_per_output_element(queue, monkeypatch, K, B, out_dtype):
     """The "gpu" variant writes channels last through a local-memory tile where it fits and with a work-item per
     output element where it does not: the second path, forced, against the reference (dark, gain, mask), and
-    equal to the tiled one."""
+    equal to the tiled one. It sets the "gpu" variant itself, so it runs once, not once per variant."""
     monkeypatch.setenv("SPECGPU_VARIANT", "gpu")
     rng = np.random.default_rng(K * 1000 + B)
     npix = 67  # a group of 64 and a partial one
@@ -328,10 +390,20 @@ def test_gpu_channels_last_without_tile_per_output_element(queue, monkeypatch, K
     np.testing.assert_array_equal(res.mask, tiled.mask)
 
 
-@pytest.mark.parametrize("out_layout, out_dtype", [(0, np.float32), (1, np.float32), (0, np.float16), (1, np.float16)])
-def test_prepared_launches_equal_the_direct_launches(queue, out_layout, out_dtype):
+# every pair of (output layout, output dtype, variant): 4 cases of the 8
+PREPARED_CASES = [(0, np.float32, "cpu"), (1, np.float32, "gpu"), (0, np.float16, "gpu"), (1, np.float16, "cpu")]
+
+
+def test_the_prepared_cases_hold_every_pair_of_settings():
+    assert_every_pair_met(PREPARED_CASES, [[0, 1], OUT_DTYPES, VARIANTS])
+
+
+@pytest.mark.parametrize("out_layout, out_dtype, variant", PREPARED_CASES,
+                         ids=[f"{lo}-{np.dtype(d).name}-{v}" for lo, d, v in PREPARED_CASES])
+def test_prepared_launches_equal_the_direct_launches(queue, monkeypatch, out_layout, out_dtype, variant):
     """The stream's prepared launches (a kernel object of its own, fixed arguments set once) give what the
-    direct launches give, launch after launch with new frames, in the variant of the test (tests/conftest.py)."""
+    direct launches give, launch after launch with new frames, in the variant of the case."""
+    monkeypatch.setenv("SPECGPU_VARIANT", variant)
     rng = np.random.default_rng(out_layout * 2 + (out_dtype == np.float16))
     K, B, n = 9, 7, 1001
     A = rng.normal(0, 1e-3, (B, K))
@@ -366,6 +438,7 @@ def test_prepared_launches_equal_the_direct_launches(queue, out_layout, out_dtyp
             np.testing.assert_array_equal(host, ref.get())
 
 
+@per_variant
 def test_a_prepared_launch_holds_its_matrix_after_the_upload_cache_lets_it_go(queue):
     """A prepared launch's kernel names its matrix buffer, which OpenCL does not keep alive: after the matrix
     upload cache has evicted it (and the pool handed its memory to other matrices), the launch still decodes

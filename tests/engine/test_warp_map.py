@@ -26,17 +26,34 @@ def tolerance(frames, A, dark=None, gain=None):
     return (2 * A.shape[1] + 12) * EPS32 * scale + position + 1e-6
 
 
-@pytest.mark.parametrize("K,B", [(1, 1), (3, 5), (9, 31), (31, 31)])
-@pytest.mark.parametrize("dtype", [np.uint16, np.float32])
+# (K, B, dtype): each (K, B) is a program of its own (the K samples and the B dot products unrolled), and a large
+# one takes seconds to compile cold; the dtype acts only on the sample read (its conversion and saturation), the
+# same code whatever K and B. So each dtype meets one output, a few outputs and the blocks of 8 outputs with a
+# shifted last one (B = 31, K = 9), and the register-unrolled K = 31 x B = 31 build is run once. The 5 x 4 cases
+# take a dark frame per frame and uint16 saturation at 1000: the programs of the rows test and the zero-shift test
+# below (a dark frame per frame makes the large programs slower to compile: they take one dark map).
+SUB_PIXEL_CASES = [(1, 1, np.uint16), (1, 1, np.float32), (5, 4, np.uint16), (5, 4, np.float32),
+                   (9, 31, np.float32), (9, 31, np.uint16), (31, 31, np.uint16)]
+
+
+def test_the_sub_pixel_cases_meet_each_dtype_with_each_output_count():
+    for B in {B for _, B, _ in SUB_PIXEL_CASES}:
+        assert {np.dtype(d) for _, b, d in SUB_PIXEL_CASES if b == B} == {np.dtype(np.uint16), np.dtype(np.float32)}
+    assert (31, 31) in {(K, B) for K, B, _ in SUB_PIXEL_CASES}
+
+
+@pytest.mark.parametrize("K,B,dtype", SUB_PIXEL_CASES,
+                         ids=[f"{np.dtype(d).name}-{K}-{B}" for K, B, d in SUB_PIXEL_CASES])
 def test_sub_pixel_shifts_match_the_bilinear_reference(queue, K, B, dtype):
     rng = np.random.default_rng(K * 7 + B)
     h, w = 23, 37
     frames = (rng.integers(0, 1000, (K, h, w)) if dtype == np.uint16 else rng.uniform(0, 1, (K, h, w))).astype(dtype)
     A = rng.normal(0, 1, (B, K))
     shifts = rng.uniform(-4, 4, (K, 2))
-    dark = rng.uniform(0, 5, (h, w)).astype(np.float32)
+    dark = rng.uniform(0, 5, (K, h, w) if (K, B) == (5, 4) else (h, w)).astype(np.float32)
     gain = rng.uniform(0.8, 1.2, (h, w)).astype(np.float32)
-    got = apply_linear_warped(frames, A, shifts, dark, gain, return_mask=True, device=queue)
+    saturation = 1000.0 if dtype == np.uint16 else None  # above every sample
+    got = apply_linear_warped(frames, A, shifts, dark, gain, saturation=saturation, return_mask=True, device=queue)
     ref, outside = linear_warp_ref(frames, A, shifts.astype(np.float32), dark, gain)
     assert got.y.shape == (h, w, B) and got.y.dtype == np.float32
     np.testing.assert_array_equal((got.mask & Mask.OUTSIDE) > 0, outside)
@@ -47,11 +64,12 @@ def test_sub_pixel_shifts_match_the_bilinear_reference(queue, K, B, dtype):
 
 def test_zero_shift_is_the_plain_linear_map(queue):
     rng = np.random.default_rng(3)
-    frames = rng.integers(0, 1023, (9, 30, 40)).astype(np.uint16)
-    A = rng.normal(0, 1, (31, 9))
-    dark = rng.uniform(0, 5, (9, 30, 40)).astype(np.float32)  # one dark frame per frame
+    frames = rng.integers(0, 1000, (5, 30, 40)).astype(np.uint16)
+    A = rng.normal(0, 1, (4, 5))
+    dark = rng.uniform(0, 5, (5, 30, 40)).astype(np.float32)  # one dark frame per frame
     gain = rng.uniform(0.8, 1.2, (30, 40)).astype(np.float32)
-    got = apply_linear_warped(frames, A, np.zeros((9, 2)), dark, gain, device=queue)
+    # 5 frames, 4 outputs, saturation 1000 (above every sample): the program the rows test builds
+    got = apply_linear_warped(frames, A, np.zeros((5, 2)), dark, gain, saturation=1000.0, device=queue)
     plain = apply_linear(frames, A, dark, gain, device=queue)
     np.testing.assert_allclose(got, linear_ref(frames, A, dark, gain), rtol=0,
                                atol=float(np.max(tolerance(frames, A, dark, gain))))
@@ -311,9 +329,30 @@ def test_a_bad_sample_at_a_zero_weight_tap_flags_nothing(queue):
     assert not got.mask[4, 0] & 2 and np.isfinite(got.y[4, 0, 1])
 
 
-@pytest.mark.parametrize("rows", [[1], [2], [3], [4], [5], [6], [7], [8], [9], [13], [5, 3], [2, 1, 3, 2]])
-def test_output_groups_hold_the_rows_of_the_decoder(queue, rows):
-    """The B outputs split into groups, each its own buffer, interleaved and planar in turn: every group size (the
+# The output groups of one launch, (rows, layout) each: every interleaved store (1 to 7 outputs, one block of 8,
+# blocks of 8 with a last one shifted back: 9 and 13 outputs), planar groups of one and three outputs, most sizes
+# in a group after the first (its rows start within A), four groups to a launch (two: the prepared launch test
+# below). Each set of group sizes is a program of its own (7-10 s to compile cold), so four sizes share a launch
+# rather than one launch each.
+OUTPUT_GROUP_CASES = [
+    [(1, "interleaved"), (2, "interleaved"), (3, "interleaved"), (4, "interleaved")],
+    [(5, "interleaved"), (6, "interleaved"), (7, "interleaved"), (8, "interleaved")],
+    [(9, "interleaved"), (1, "planar"), (13, "interleaved"), (3, "planar")],
+]
+
+
+def test_the_output_group_cases_meet_every_store():
+    groups = [g for case in OUTPUT_GROUP_CASES for g in case]
+    interleaved = {rows for rows, layout in groups if layout == "interleaved"}
+    assert set(range(1, 9)) <= interleaved and {r for r in interleaved if r > 8 and r % 8} >= {9, 13}
+    assert {rows for rows, layout in groups if layout == "planar"} >= {1, 3}
+    assert all(len(case) == 4 for case in OUTPUT_GROUP_CASES)
+
+
+@pytest.mark.parametrize("case", OUTPUT_GROUP_CASES,
+                         ids=["+".join(f"{r}{layout[0]}" for r, layout in case) for case in OUTPUT_GROUP_CASES])
+def test_output_groups_hold_the_rows_of_the_decoder(queue, case):
+    """The B outputs split into groups, each its own buffer, interleaved or planar: every group size (the
     interleaved stores of 1 to 7 outputs, blocks of 8 with a last one shifted back) holds the outputs
     apply_linear_warped gives for the same rows, bit for bit, on a field whose rows end within a step of 8 and
     whose last strip is partial."""
@@ -322,14 +361,14 @@ def test_output_groups_hold_the_rows_of_the_decoder(queue, rows):
     from specgpu.engine import kernels
     from specgpu.engine.warp_map import PreparedWarp
 
+    rows = [r for r, _ in case]
     rng = np.random.default_rng(sum(rows) * 10 + len(rows))
     K, h, w = 5, 7, 21
     B = sum(rows)
     frames = rng.integers(0, 1000, (K, h, w)).astype(np.uint16)
     A = rng.normal(0, 1, (B, K))
     shifts = rng.uniform(-2, 2, (K, 2))
-    layouts = ["interleaved" if g % 2 == 0 else "planar" for g in range(len(rows))]
-    groups = [(f"g{g}", r, layout) for g, (r, layout) in enumerate(zip(rows, layouts))]
+    groups = [(f"g{g}", r, layout) for g, (r, layout) in enumerate(case)]
     warp = PreparedWarp(queue, np.uint16, A, (h, w), outputs=groups)
     out = warp.enqueue(kernels.to_device(queue, frames.reshape(-1)), shifts)
     whole = apply_linear_warped(frames, A, shifts, return_mask=True, layout="planar", device=queue)
@@ -455,24 +494,26 @@ def test_one_pass_and_two_passes_agree_bit_for_bit(queue, kernel_variant, dtype)
     from specgpu.engine.warp_map import PreparedWarp
 
     rng = np.random.default_rng(31)
-    K, h, w = 6, 23, 270
+    # K = 4 frames, B = 3 outputs interleaved and a uint16 saturation of 1023: the one-pass program of the
+    # translation cases above (one compile fewer)
+    K, B, h, w = 4, 3, 23, 270
     frames, saturation = _frames_of(rng, dtype, K, h, w)
     if dtype == np.float32:
         saturation = 99.0  # about one sample in a hundred
         frames[0, rng.integers(0, h, 40), rng.integers(0, w, 40)] = np.nan
     else:
         frames[rng.integers(0, K, 200), rng.integers(0, h, 200), rng.integers(0, w, 200)] = 1023
-    A = rng.normal(0, 1, (4, K))
+    A = rng.normal(0, 1, (B, K))
     dark = rng.uniform(0, 5, (h, w)).astype(np.float32)
     gain = rng.uniform(0.8, 1.2, (h, w)).astype(np.float32)
-    shifts = np.array([[0.0, 0.0], [0.3, -0.7], [-1.6, 1.25], [2.0, 0.5], [1.0, 0.0], [-0.25, -2.0]])
+    shifts = np.array([[0.0, 0.0], [0.3, -0.7], [2.0, 0.5], [-0.25, -2.0]])  # whole, fractional, and mixed
     frames_dev = kernels.to_device(queue, frames.reshape(-1))
     got = []
     for corrected_planes in (False, True):
         warp = PreparedWarp(queue, dtype, A, (h, w), dark, gain, saturation=saturation,
-                            outputs=[("y", 4, "planar")], corrected_planes=corrected_planes)
+                            outputs=[("y", B, "interleaved")], corrected_planes=corrected_planes)
         out = warp.enqueue(frames_dev, shifts)
-        y, mask = np.empty((4, h, w), np.float32), np.empty((h, w), np.uint8)
+        y, mask = np.empty((h, w, B), np.float32), np.empty((h, w), np.uint8)
         cl.enqueue_copy(queue, y, out["y"])
         cl.enqueue_copy(queue, mask, out["mask"])
         got.append((y, mask))

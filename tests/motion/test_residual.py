@@ -98,8 +98,9 @@ def test_a_wrong_motion_is_never_decoded_into_a_wrong_spectrum(setup, bound):
     desc, bundle, plan, scene = setup
     frames, _ = frames_of(desc, plan, scene, MotionParameters())
     wrong = np.c_[20.0 * (np.arange(plan.K) - plan.K // 2), np.zeros(plan.K)]
+    # the camera's saturation, as the drill decodes: the same program (the level is a build macro)
     res = recover_moving(frames, plan.A, dark=bundle.dark_at(plan.exposure_s), gain=bundle.flat_field,
-                         shifts=wrong, residual=residual_check(plan, bundle))
+                         saturation=float(bundle.max_code), shifts=wrong, residual=residual_check(plan, bundle))
     err = rmse_map(res.y, scene.reflectance, scene.wavelengths, plan)
     decoded = np.all(np.isfinite(res.y), axis=2)
     assert not np.any(err[decoded] > bound)
