@@ -79,14 +79,22 @@ def hadamard_rig(d, bundle=None):
 
 
 @functools.cache
-def _session_files() -> Path:
-    """The small twin rig calibrated through the CLI (``calib.npz``) and a tristimulus plan made from it
-    (``tri.npz``), once per test session (calibrating the twin costs seconds), in a folder removed when the
-    session ends."""
+def _calibrated(rig_text: str) -> Path:
+    """The rig ``rig_text`` (``rig.toml``) calibrated through the CLI (``calib.npz``), once per test session and
+    rig (calibrating the twin costs seconds; the calibration is seeded, so each would be the same), in a folder
+    removed when the session ends."""
     d = Path(tempfile.mkdtemp(prefix="specgpu-calibrated-"))
     atexit.register(shutil.rmtree, d, True)
-    (d / "rig.toml").write_text(RIG)
+    (d / "rig.toml").write_text(rig_text)
     run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
+    return d
+
+
+@functools.cache
+def _session_files() -> Path:
+    """The small twin rig calibrated (:func:`_calibrated`) and a tristimulus plan made from it (``tri.npz``), once
+    per test session."""
+    d = _calibrated(RIG)
     run("plan", "tristimulus", "--calib", d / "calib.npz", "--out", d / "tri.npz")
     return d
 
@@ -100,23 +108,12 @@ def calibrated_rig(d, *names):
     return d
 
 
-@functools.cache
-def _moving_files() -> Path:
-    """The moving rig (:data:`MOVING_RIG`) calibrated through the CLI (``calib.npz``), once per test session, in a
-    folder removed when the session ends."""
-    d = Path(tempfile.mkdtemp(prefix="specgpu-moving-"))
-    atexit.register(shutil.rmtree, d, True)
-    (d / "rig.toml").write_text(MOVING_RIG)
-    run("calibrate", "--rig", d / "rig.toml", "--out", d / "calib.npz")
-    return d
-
-
 def moving_rig(d):
     """Write the moving rig (:data:`MOVING_RIG`) into folder ``d`` as ``rig.toml`` with ``calib.npz`` beside it,
     what ``specgpu calibrate --rig rig.toml --out calib.npz`` writes (made once per session: the calibration is
     seeded, so each would be the same; each folder gets its own copies); returns ``d``."""
     for name in ("rig.toml", "calib.npz"):
-        shutil.copyfile(_moving_files() / name, d / name)
+        shutil.copyfile(_calibrated(MOVING_RIG) / name, d / name)
     return d
 
 

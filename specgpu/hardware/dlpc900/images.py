@@ -213,7 +213,7 @@ def image_header(width: int, height: int, data_bytes: int, compression: int) -> 
 
 
 def _pixels(line: np.ndarray) -> np.ndarray:
-    """(W,) uint32 -> (W, 3) uint8, bits 23-16, 15-8, 7-0."""
+    """(..., W) uint32 -> (..., W, 3) uint8, bits 23-16, 15-8, 7-0."""
     return np.stack([(line >> 16) & 0xFF, (line >> 8) & 0xFF, line & 0xFF], axis=-1).astype(np.uint8)
 
 
