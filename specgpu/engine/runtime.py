@@ -425,6 +425,23 @@ class _Program:
 _programs: dict[tuple, _Program] = {}
 
 
+def _build(context: cl.Context, source: str, options: list[str]) -> cl.Program:
+    """Build ``source`` with exactly ``options``.
+
+    ``cl.Program.build`` adds ``-I <pyopencl's header folder>`` to every build. That folder lies inside the Python
+    environment, and an on-disk compiler cache keys a build by its options (PoCL's does), so each new virtual
+    environment or clone would compile every kernel again: a fresh checkout's test suite took 2.5 times the CPU of
+    a warm one. No kernel here includes a pyopencl header, so the program is built by pyopencl's low-level
+    ``_Program`` with the options as given; the public call is kept for a pyopencl that lacks it.
+    """
+    low_level = getattr(getattr(cl, "_cl", None), "_Program", None)
+    if low_level is None:  # pragma: no cover - a future pyopencl without the low-level class
+        return cl.Program(context, source).build(options=options)
+    program = low_level(context, source)
+    program.build(" ".join(options).encode(), None)
+    return cl.Program(program)
+
+
 def get_program(context: cl.Context, source_name: str, options: tuple[str, ...]) -> _Program:
     """Build (once) the program for ``kernels/<source_name>`` with ``options`` in ``context``."""
     source = kernel_source(source_name)
@@ -439,7 +456,7 @@ def get_program(context: cl.Context, source_name: str, options: tuple[str, ...])
     full_options = [*options, *mask_options(), *_device_options(context.devices[0]), "-cl-mad-enable",
                     "-cl-denorms-are-zero"]
     try:
-        program = cl.Program(context, source).build(options=full_options)
+        program = _build(context, source, full_options)
     except cl.RuntimeError as error:
         first = str(error).strip().splitlines()
         raise SpecgpuDeviceError(
