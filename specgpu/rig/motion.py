@@ -117,15 +117,58 @@ def motion_from_table(table, source: str = "<dict>") -> MotionParameters:
     return build_table(MotionParameters, table, "motion", source)
 
 
+def _shift_axis(image: np.ndarray, d: float, axis: int, out: np.ndarray | None = None) -> np.ndarray:
+    """``image`` moved by ``d`` px along ``axis``, linearly interpolated, the edge values repeated beyond the
+    border: ``out[x] = (1 - f) image[clip(x + k)] + f image[clip(x + k + 1)]`` with ``k + f = -d`` (``k`` whole,
+    ``0 <= f < 1``). A translation has one ``f`` for every pixel, so this is slicing and one blend, with no gather.
+    """
+    n = image.shape[axis]
+    k = math.floor(-d)
+    f = image.dtype.type(-d - k)
+    if out is None:
+        out = np.empty_like(image)
+
+    def span(start: int, stop: int) -> tuple:
+        index = [slice(None)] * image.ndim
+        index[axis] = slice(start, stop)
+        return tuple(index)
+
+    lo, hi = max(0, -k), min(n, n - 1 - k)  # both neighbours x + k and x + k + 1 inside the image
+    if lo < hi:
+        a0 = image[span(lo + k, hi + k)]
+        blend = out[span(lo, hi)]
+        np.subtract(image[span(lo + k + 1, hi + k + 1)], a0, out=blend)
+        blend *= f
+        blend += a0
+    first = min(lo, n)  # x + k + 1 <= 0: the first value
+    out[span(0, first)] = image[span(0, 1)]
+    last = max(first, hi)  # x + k >= n - 1: the last value
+    out[span(last, n)] = image[span(n - 1, n)]
+    return out
+
+
 def warp_image(image: np.ndarray, shift, angle_deg: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:
-    """``image`` (H, W) moved by ``shift`` = (x, y) px and turned by ``angle_deg`` about the field's centre,
-    resampled bilinearly (border pixels repeated): ``out(x) = image(R(-angle) (x - c - shift) + c)``."""
+    """``image`` (H, W) or (H, W, C) moved by ``shift`` = (x, y) px and turned by ``angle_deg`` about the field's
+    centre, resampled bilinearly (border pixels repeated): ``out(x) = image(R(-angle) (x - c - shift) + c)``; the
+    channels of a (H, W, C) image move together.
+
+    A translation is two linear interpolations, one per axis: the same as scipy's ``ndimage.shift`` at order 1 with
+    ``mode="nearest"`` (to the float's rounding) and several times faster, on a whole cube at once."""
     from scipy import ndimage
 
-    h, w = image.shape
+    h, w = image.shape[:2]
     dx, dy = float(shift[0]), float(shift[1])
     if not angle_deg:
-        return ndimage.shift(image, (dy, dx), order=1, mode="nearest", output=out, prefilter=False)
+        if not np.issubdtype(image.dtype, np.floating):
+            return ndimage.shift(image, (dy, dx) + (0,) * (image.ndim - 2), order=1, mode="nearest", output=out,
+                                 prefilter=False)
+        return _shift_axis(_shift_axis(image, dy, 0), dx, 1, out)
+    if image.ndim == 3:
+        if out is None:
+            out = np.empty_like(image)
+        for c in range(image.shape[2]):
+            out[..., c] = warp_image(np.ascontiguousarray(image[..., c]), shift, angle_deg)
+        return out
     a = math.radians(angle_deg)
     # (row, col) -> source: R(-a) in image coordinates (x right, y down; counter-clockwise on screen is -a in y-down)
     c, s = math.cos(a), math.sin(a)
@@ -243,12 +286,14 @@ class MovingScene:
         return warp_image(image, tr.displacement(t), float(tr.angle(t)), out)
 
     def compose(self, layers, t: float) -> np.ndarray:
-        """(H, W) background layer over which the object layer (if any) is laid, at time ``t`` (frame periods);
-        ``layers`` = (background image, object image or None)."""
+        """(H, W) or (H, W, B) background layer over which the object layer (if any) is laid, at time ``t`` (frame
+        periods); ``layers`` = (background image, object image or None), both 2-D or both 3-D."""
         bg, ob = layers
         img = self._pose(bg, t, False)
         if ob is not None and self.object_alpha is not None:
             a = self._pose(self.object_alpha, t, True)
+            if img.ndim == 3:
+                a = a[..., None]
             img += a * (self._pose(ob, t, True) - img)
         return img
 
@@ -269,13 +314,9 @@ class MovingScene:
         return acc.astype(np.float32, copy=False)
 
     def reflectance(self, cube: np.ndarray, object_cube: np.ndarray | None, t: float) -> np.ndarray:
-        """(H, W, B) reflectance seen at time ``t``: the background cube posed, the object's laid over it."""
-        out = np.empty_like(cube)
-        for b in range(cube.shape[2]):
-            out[..., b] = self.compose((np.ascontiguousarray(cube[..., b]),
-                                        None if object_cube is None else np.ascontiguousarray(object_cube[..., b])),
-                                       t)
-        return out
+        """(H, W, B) reflectance seen at time ``t``: the background cube posed, the object's laid over it (every
+        band moved at once)."""
+        return self.compose((cube, object_cube), t)
 
     def object_mask(self, t: float) -> np.ndarray | None:
         """(H, W) float32 footprint of the object at ``t`` (fractional at its resampled edges), or None."""

@@ -180,3 +180,60 @@ def test_an_object_too_small_for_its_layout_names_the_key_and_the_rig_file(tmp_p
     msg = str(err.value)
     assert msg.startswith("my-rig.toml: [motion] object 'colorchecker' at object_size_px = [1, 1]: ")
     assert msg.endswith("height must be >= 24, got 1") and "\n" not in msg
+
+
+@settings(max_examples=60, deadline=None)
+@given(h=st.integers(1, 24), w=st.integers(1, 24), dx=st.floats(-40, 40), dy=st.floats(-40, 40),
+       whole=st.booleans(), seed=st.integers(0, 2**16))
+def test_a_translation_equals_scipys_bilinear_shift_with_the_edges_repeated(h, w, dx, dy, whole, seed):
+    """The twin's translation (two linear interpolations by slicing) against scipy's ``ndimage.shift`` at order 1,
+    ``mode="nearest"``: shifts past the border, whole and fractional, one image and every channel of a cube."""
+    from scipy import ndimage
+
+    if whole:
+        dx, dy = float(round(dx)), float(round(dy))
+    rng = np.random.default_rng(seed)
+    cube = rng.uniform(0.0, 100.0, (h, w, 3)).astype(np.float32)
+    moved = warp_image(cube, (dx, dy))
+    assert moved.shape == cube.shape and moved.dtype == np.float32
+    for c in range(3):
+        expected = ndimage.shift(cube[..., c], (dy, dx), order=1, mode="nearest", prefilter=False)
+        np.testing.assert_allclose(warp_image(np.ascontiguousarray(cube[..., c]), (dx, dy)), expected, rtol=0,
+                                   atol=1e-4)
+        np.testing.assert_allclose(moved[..., c], expected, rtol=0, atol=1e-4)
+
+
+def test_a_turned_cube_moves_every_channel_as_its_own_image():
+    rng = np.random.default_rng(3)
+    cube = rng.random((30, 40, 4)).astype(np.float32)
+    out = np.full_like(cube, np.nan)
+    assert warp_image(cube, (1.3, -2.2), 4.0, out) is out
+    for c in range(4):
+        np.testing.assert_array_equal(out[..., c], warp_image(np.ascontiguousarray(cube[..., c]), (1.3, -2.2), 4.0))
+
+
+def test_the_truth_cube_is_the_moved_world_band_by_band():
+    """The truth of a moving scene with an object (every band moved at once, the object laid over through its
+    footprint) is, band by band, the band composed as an image."""
+    from specgpu.rig.motion import MovingScene
+
+    rng = np.random.default_rng(5)
+    h, w, b = 36, 48, 5
+    cube = rng.random((h, w, b)).astype(np.float32)
+    obj = np.zeros_like(cube)
+    obj[10:20, 12:30] = rng.random((10, 18, b))
+    alpha = np.zeros((h, w), np.float32)
+    alpha[10:20, 12:30] = 1.0
+    params = MotionParameters(velocity_px_per_frame=(1.7, -0.6), object="square",
+                              object_velocity_px_per_frame=(-2.3, 1.1))
+    scene = MovingScene(Trajectory(params, 100.0), np.zeros((1, h, w), np.float32), None,
+                        np.zeros((1, h, w), np.float32), None, alpha)
+    for t in (-1.5, 0.0, 2.25):
+        truth = scene.reflectance(cube, obj, t)
+        assert truth.shape == cube.shape
+        for band in range(b):
+            np.testing.assert_allclose(
+                truth[..., band], scene.compose((cube[..., band].copy(), obj[..., band].copy()), t), atol=1e-6)
+        moved_object = truth[np.nonzero(scene._pose(alpha, t, True) == 1.0)]
+        assert moved_object.size and not np.allclose(moved_object, scene._pose(cube, t, False)[
+            np.nonzero(scene._pose(alpha, t, True) == 1.0)])
