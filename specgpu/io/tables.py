@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from specgpu.io.npz import npz_members
+from specgpu.io.npz import npz_members, savez_deflated
 from specgpu.io.paths import atomic_path
 
 __all__ = ["content_hash", "save_npz", "load_npz"]
@@ -56,7 +56,7 @@ def save_npz(path: str | os.PathLike[str], kind: str, version: int, arrays: dict
     if not path.parent.is_dir():
         raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        np.savez_compressed(fh, __meta__=np.array(json.dumps(header)), **arrays)
+        savez_deflated(fh, {"__meta__": np.array(json.dumps(header)), **arrays})
     return digest
 
 
