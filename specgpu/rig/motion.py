@@ -30,7 +30,8 @@ import numpy as np
 from specgpu.core.validate import check_number
 from specgpu.rig.tables import build_table
 
-__all__ = ["MotionParameters", "MOTION_KEYS", "motion_from_table", "MovingScene", "Trajectory", "warp_image"]
+__all__ = ["MotionParameters", "MOTION_KEYS", "motion_from_table", "MovingScene", "Trajectory", "magnify_image",
+           "warp_image"]
 
 #: Largest speed accepted, px per frame period: beyond it a frame is smeared over a good part of the field.
 MAX_SPEED = 200.0
@@ -144,6 +145,29 @@ def _shift_axis(image: np.ndarray, d: float, axis: int, out: np.ndarray | None =
     out[span(0, first)] = image[span(0, 1)]
     last = max(first, hi)  # x + k >= n - 1: the last value
     out[span(last, n)] = image[span(n - 1, n)]
+    return out
+
+
+def magnify_image(image: np.ndarray, scale: float) -> np.ndarray:
+    """``image`` (..., H, W) magnified by ``scale`` about the centre of its last two axes, resampled bilinearly
+    (border pixels repeated): ``out(x) = image(c + (x - c) / scale)``. The same as scipy's ``ndimage.affine_transform``
+    with the diagonal matrix ``1 / scale`` at order 1 and ``mode="nearest"`` (to the float's rounding): a scaling
+    moves each axis on its own, so it is two linear interpolations, one per axis, on every leading plane at once."""
+    out = image
+    for axis in (-2, -1):
+        n = image.shape[axis]
+        centre = (n - 1) / 2.0
+        source = centre + (np.arange(n, dtype=np.float64) - centre) / float(scale)
+        below = np.floor(source)
+        weight = (source - below).astype(image.dtype)
+        low = np.clip(below.astype(np.intp), 0, n - 1)
+        high = np.clip(below.astype(np.intp) + 1, 0, n - 1)
+        a0 = np.take(out, low, axis=axis)
+        blend = np.take(out, high, axis=axis)
+        blend -= a0
+        blend *= weight if axis == -1 else weight[:, None]
+        blend += a0
+        out = blend
     return out
 
 

@@ -35,7 +35,7 @@ from specgpu.rig.camera import _NORMAL_TABLE, Camera, standard_normal_fill
 from specgpu.rig.config import FaultRates, RigDescription
 from specgpu.rig.light import K_M, ProgrammableLight, lamp_change, photopic_y
 from specgpu.rig.lights import make_light
-from specgpu.rig.motion import MovingScene, Trajectory
+from specgpu.rig.motion import MovingScene, Trajectory, magnify_image
 from specgpu.rig.scene import SpectralScene, interpolation_matrix, load_scene, white_plate_scene
 from specgpu.rig.spectroradiometer import Spectroradiometer
 
@@ -239,7 +239,6 @@ class TwinRig:
         r = self.realism
         h, w = self.camera.shape
         corner = math.hypot((h - 1) / 2.0, (w - 1) / 2.0)
-        centre = np.array([(h - 1) / 2.0, (w - 1) / 2.0])
         total = weights.sum(axis=1)
         lam = np.where(total > 0, (weights @ wl) / np.where(total > 0, total, 1.0), 550.0)
         for k in range(e.shape[0]):
@@ -247,9 +246,7 @@ class TwinRig:
             if not img.any():  # no light (a capped lens, a dark pattern): magnified and blurred, still zero
                 continue
             if r.lateral_ca_px:
-                s = 1.0 + r.lateral_ca_px / corner * (lam[k] - 550.0) / 150.0
-                img = ndimage.affine_transform(img, np.array([1.0 / s, 1.0 / s]), offset=centre - centre / s,
-                                               order=1, mode="nearest")
+                img = magnify_image(img, 1.0 + r.lateral_ca_px / corner * (lam[k] - 550.0) / 150.0)
             if r.blur_px:
                 img = ndimage.gaussian_filter(img, r.blur_px, mode="nearest")
             e[k] = img

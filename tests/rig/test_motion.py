@@ -237,3 +237,24 @@ def test_the_truth_cube_is_the_moved_world_band_by_band():
         moved_object = truth[np.nonzero(scene._pose(alpha, t, True) == 1.0)]
         assert moved_object.size and not np.allclose(moved_object, scene._pose(cube, t, False)[
             np.nonzero(scene._pose(alpha, t, True) == 1.0)])
+
+
+@settings(max_examples=40, deadline=None)
+@given(h=st.integers(1, 30), w=st.integers(1, 30), scale=st.floats(0.4, 2.5), seed=st.integers(0, 2**16))
+def test_a_magnification_equals_scipys_bilinear_affine_transform(h, w, scale, seed):
+    """The twin's lateral colour (a magnification about the centre, one linear interpolation per axis) against
+    scipy's ``ndimage.affine_transform`` with the diagonal matrix at order 1, ``mode="nearest"``; every plane of a
+    stack magnified alike."""
+    from scipy import ndimage
+
+    from specgpu.rig.motion import magnify_image
+
+    stack = np.random.default_rng(seed).uniform(0.0, 100.0, (2, h, w)).astype(np.float32)
+    centre = np.array([(h - 1) / 2.0, (w - 1) / 2.0])
+    moved = magnify_image(stack, scale)
+    assert moved.shape == stack.shape and moved.dtype == np.float32
+    for k in range(2):
+        expected = ndimage.affine_transform(stack[k], np.array([1.0 / scale, 1.0 / scale]),
+                                            offset=centre - centre / scale, order=1, mode="nearest")
+        np.testing.assert_allclose(moved[k], expected, rtol=0, atol=1e-4)
+        np.testing.assert_allclose(magnify_image(stack[k], scale), expected, rtol=0, atol=1e-4)
