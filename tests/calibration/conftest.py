@@ -4,13 +4,10 @@ calibrated on the lab bench with the design and the measured line shape), each m
 from dataclasses import replace
 
 import pytest
+from small_rig import DESC
 
 from specgpu.calibration import calibrate, oracle_calibration
-from specgpu.rig.camera import CameraParameters
-from specgpu.rig.config import RigDescription
 from specgpu.rig.realism import LAB
-
-DESC = RigDescription(camera=CameraParameters(roi_width=320, roi_height=240))  # paper noise, smallest ROI
 
 
 @pytest.fixture(scope="package")

@@ -4,7 +4,7 @@ file, made again when the file fails them or anything the key covers changes."""
 from dataclasses import replace
 
 import pytest
-from conftest import DESC
+from small_rig import DESC
 
 import specgpu.calibration.cache as cache
 from specgpu.calibration import oracle_calibration

@@ -2,7 +2,7 @@
 
 from dataclasses import replace
 
-from conftest import DESC
+from small_rig import DESC
 
 import specgpu.calibration.cache as cache
 from specgpu.calibration import oracle_calibration
