@@ -408,8 +408,8 @@ def _device_options(device: cl.Device) -> list[str]:
 class _Program:
     """A built program and the kernels retrieved from it (kept: retrieving one per call is slow)."""
 
-    def __init__(self, program: cl.Program):
-        self.program = program
+    def __init__(self, program):
+        self.program = program  # pyopencl's low-level program (``_cl._Program``): what ``cl.Kernel`` takes
         self.kernels: dict[str, cl.Kernel] = {}
         self.lock = threading.Lock()
 
@@ -425,21 +425,24 @@ class _Program:
 _programs: dict[tuple, _Program] = {}
 
 
-def _build(context: cl.Context, source: str, options: list[str]) -> cl.Program:
+def _build(context: cl.Context, source: str, options: list[str]):
     """Build ``source`` with exactly ``options``.
 
     ``cl.Program.build`` adds ``-I <pyopencl's header folder>`` to every build. That folder lies inside the Python
     environment, and an on-disk compiler cache keys a build by its options (PoCL's does), so each new virtual
     environment or clone would compile every kernel again: a fresh checkout's test suite took 2.5 times the CPU of
     a warm one. No kernel here includes a pyopencl header, so the program is built by pyopencl's low-level
-    ``_Program`` with the options as given; the public call is kept for a pyopencl that lacks it.
+    ``_Program`` with the options as given, and that object is returned (``cl.Kernel`` takes it as it is;
+    wrapped in ``cl.Program``, every kernel made from it would first look up a ``_source`` attribute the wrapper
+    lacks, which pyopencl turns into a lookup of a kernel of that name: a runtime error under Oclgrind). The
+    public call is kept for a pyopencl that lacks the low-level class.
     """
     low_level = getattr(getattr(cl, "_cl", None), "_Program", None)
     if low_level is None:  # pragma: no cover - a future pyopencl without the low-level class
         return cl.Program(context, source).build(options=options)
     program = low_level(context, source)
     program.build(" ".join(options).encode(), None)
-    return cl.Program(program)
+    return program
 
 
 def get_program(context: cl.Context, source_name: str, options: tuple[str, ...]) -> _Program:

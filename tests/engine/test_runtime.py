@@ -88,6 +88,22 @@ def test_a_program_is_built_from_its_text_alone_so_the_compilers_cache_survives_
     assert str(runtime.kernel_dir()) not in used and str(pyopencl.__path__[0]) not in used
 
 
+def test_making_a_kernel_looks_up_no_missing_program_attribute(queue, monkeypatch):
+    """``cl.Program`` turns an attribute it lacks into the lookup of a kernel of that name, which an OpenCL
+    implementation may report as an error (Oclgrind does): making the runtime's kernels must ask for none."""
+    asked = []
+    real = cl.Program.__getattr__
+
+    def record(self, attr):
+        asked.append(attr)
+        return real(self, attr)
+
+    monkeypatch.setattr(cl.Program, "__getattr__", record)
+    runtime.get_kernel(queue, "linear.cl", "linear_apply", K=2, B=1, IN_T="ushort", FRESH=11)
+    runtime.new_kernel(queue, "linear.cl", "linear_apply", K=2, B=1, IN_T="ushort", FRESH=11)
+    assert asked == []
+
+
 def test_programs_built_once_and_kernels_kept(queue):
     frames = np.ones((2, 3, 5), np.uint16)
     apply_linear(frames, np.ones((1, 2)), device=queue)
