@@ -59,6 +59,15 @@ def test_a_machine_slower_than_the_reference_estimates_longer_and_a_faster_one_n
     assert machine_speed(lambda: None) == 1.0
 
 
+def test_one_probe_run_slowed_by_a_passing_load_does_not_lengthen_the_estimate():
+    import time
+
+    pauses = iter([0.3, 0.1, 0.3])  # the second run alone meets a quiet machine
+    assert machine_speed(lambda: time.sleep(next(pauses))) == pytest.approx(0.1 / 0.05, rel=0.5)
+    pauses = iter([0.3])
+    assert machine_speed(lambda: time.sleep(next(pauses)), repeats=1) == pytest.approx(0.3 / 0.05, rel=0.5)
+
+
 def test_the_estimate_is_the_sum_of_its_steps_and_kept_calibrations_cost_a_load():
     from specgpu.apps.demo_scope import estimate_steps
 
