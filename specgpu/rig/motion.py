@@ -121,13 +121,17 @@ def motion_from_table(table, source: str = "<dict>") -> MotionParameters:
 def _shift_axis(image: np.ndarray, d: float, axis: int, out: np.ndarray | None = None) -> np.ndarray:
     """``image`` moved by ``d`` px along ``axis``, linearly interpolated, the edge values repeated beyond the
     border: ``out[x] = (1 - f) image[clip(x + k)] + f image[clip(x + k + 1)]`` with ``k + f = -d`` (``k`` whole,
-    ``0 <= f < 1``). A translation has one ``f`` for every pixel, so this is slicing and one blend, with no gather.
+    ``0 <= f < 1``). A translation has one ``f`` for every pixel, so this is slicing and one blend, with no gather;
+    no move (``d == 0``) is a copy.
     """
+    if out is None:
+        out = np.empty_like(image)
+    if d == 0:
+        np.copyto(out, image)
+        return out
     n = image.shape[axis]
     k = math.floor(-d)
     f = image.dtype.type(-d - k)
-    if out is None:
-        out = np.empty_like(image)
 
     def span(start: int, stop: int) -> tuple:
         index = [slice(None)] * image.ndim
@@ -160,8 +164,9 @@ def magnify_image(image: np.ndarray, scale: float) -> np.ndarray:
         source = centre + (np.arange(n, dtype=np.float64) - centre) / float(scale)
         below = np.floor(source)
         weight = (source - below).astype(image.dtype)
-        low = np.clip(below.astype(np.intp), 0, n - 1)
-        high = np.clip(below.astype(np.intp) + 1, 0, n - 1)
+        low = below.astype(np.intp)
+        high = np.clip(low + 1, 0, n - 1)
+        np.clip(low, 0, n - 1, out=low)
         a0 = np.take(out, low, axis=axis)
         blend = np.take(out, high, axis=axis)
         blend -= a0
@@ -186,7 +191,8 @@ def warp_image(image: np.ndarray, shift, angle_deg: float = 0.0, out: np.ndarray
         if not np.issubdtype(image.dtype, np.floating):
             return ndimage.shift(image, (dy, dx) + (0,) * (image.ndim - 2), order=1, mode="nearest", output=out,
                                  prefilter=False)
-        return _shift_axis(_shift_axis(image, dy, 0), dx, 1, out)
+        rows = image if dy == 0 else _shift_axis(image, dy, 0)  # the column pass never writes into its input
+        return _shift_axis(rows, dx, 1, out)
     if image.ndim == 3:
         if out is None:
             out = np.empty_like(image)
