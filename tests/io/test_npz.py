@@ -94,6 +94,7 @@ def test_ordinary_files_load_as_before(tmp_path):
     arrays, meta, _, _ = load_npz(tmp_path / "x.npz", "specgpu.test", (1,))
     assert arrays["a"].tolist() == list(np.arange(10.0)) and meta == {"k": 1}
 
+
 def test_a_large_constant_cube_specgpu_writes_is_read_back_not_refused(tmp_path):
     """specgpu's own writer deflates at a level whose ratio on constant data (about 230:1) stays under the bomb
     refusal's 500:1: a recorded black or flat cube past the size the check looks at is read back, not lost."""
@@ -111,12 +112,15 @@ def test_a_large_constant_cube_specgpu_writes_is_read_back_not_refused(tmp_path)
     np.testing.assert_array_equal(back_wl, wl)
 
 
-@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(arrays=st.dictionaries(
+_ARRAYS = st.dictionaries(
     st.from_regex(r"[a-z][a-z0-9_]{0,8}", fullmatch=True),
-    hnp.arrays(st.sampled_from([np.float32, np.float64, np.int16, np.uint8, np.bool_, np.dtype("<U5")]),
+    hnp.arrays(st.sampled_from([np.float32, np.float64, np.int16, np.uint8, np.bool_]),
                hnp.array_shapes(min_dims=0, max_dims=3, max_side=6)),
-    min_size=1, max_size=4))
+    min_size=1, max_size=4)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(arrays=_ARRAYS)
 def test_the_deflated_writer_writes_what_numpy_loads(tmp_path, arrays):
     with open(tmp_path / "w.npz", "wb") as fh:
         npz.savez_deflated(fh, arrays)
@@ -125,13 +129,6 @@ def test_the_deflated_writer_writes_what_numpy_loads(tmp_path, arrays):
         assert sorted(back.files) == sorted(arrays)
         for k, v in arrays.items():
             np.testing.assert_array_equal(back[k], v)
-
-
-_ARRAYS = st.dictionaries(
-    st.from_regex(r"[a-z][a-z0-9_]{0,8}", fullmatch=True),
-    hnp.arrays(st.sampled_from([np.float32, np.float64, np.int16, np.uint8, np.bool_]),
-               hnp.array_shapes(min_dims=0, max_dims=3, max_side=6)),
-    min_size=1, max_size=4)
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
