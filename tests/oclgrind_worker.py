@@ -548,6 +548,39 @@ def _registration_case(model):
     return run
 
 
+def _warped_variance_case(kind, shape=SHAPE):
+    """engine.warped_variance (the outputs' variance at the warped samples: total, own and as the filter takes it,
+    three channels) against the float64 per-frame variances of pipeline.moving_decode summed through the same
+    weights: uint16 frames with an ambient frame, a flat field with a dead pixel, frames seen outside the field;
+    translations on 9 x 35 px as well, where the "cpu" variant reads the taps of 8 pixels as vectors."""
+    from types import SimpleNamespace
+
+    from specgpu.engine.runtime import get_queue
+    from specgpu.engine.warped_variance import PreparedWarpedVariance
+    from specgpu.pipeline.moving_decode import _interpolation_correlation, warped_sample_variances
+
+    def run():
+        rng = np.random.default_rng(11)
+        K, read = 4, [0, 1, 2, 3]
+        frames = rng.integers(0, 4001, (K, *shape)).astype(np.uint16)
+        dark = rng.uniform(50.0, 60.0, shape).astype(np.float32)
+        gain = rng.uniform(0.9, 1.1, shape).astype(np.float32)
+        gain[4, 5] = np.nan
+        motion = _motion(rng, K, kind)
+        weights = rng.uniform(0.0, 1.0, (3, K))
+        noise = {"gain_e_per_dn": 2.0, "read_var_dn2": 5.0, "light_rms": 0.01}
+        want = warped_sample_variances(frames, SimpleNamespace(params={"noise": noise}), dark, gain, motion,
+                                       read=read, filtered=2, ambient=3)
+        prep = PreparedWarpedVariance(get_queue("oclgrind"), shape, dark, gain, **noise)
+        got = prep.channels(frames, motion, read, weights, ambient=3, own=True, corr=_interpolation_correlation(2))
+        errors, tolerances = {}, {}
+        for name, g, V in zip(("total", "own", "filtered"), got, want):
+            _compare(errors, tolerances, name, g, np.tensordot(V, weights.T, axes=([0], [0])), "range", 1e-5)
+        return errors, tolerances
+
+    return run
+
+
 def cases() -> dict:
     """Every kernel entry and build variant the host launches, on small images (name -> callable returning
     (errors, tolerances)). The kernel variant (cpu / gpu) comes from SPECGPU_VARIANT."""
@@ -584,6 +617,8 @@ def cases() -> dict:
         **{f"consistency_{kind}": _consistency_case(kind) for kind in ("translate", "affine", "flow", "window9")},
         **{f"consistency_floor_{kind}": _consistency_case(kind, True) for kind in ("translate", "affine", "flow")},
         "consistency_misled": _consistency_misled_case(),
+        **{f"warped_variance_{kind}": _warped_variance_case(kind) for kind in ("translate", "affine")},
+        "warped_variance_rows": _warped_variance_case("translate", (9, 35)),
         "consistency_from_frames": _consistency_frames_case(),
         "gradients_u16_dark_dead_pixel": _gradient_case(np.uint16, "single"),
         "gradients_f32_dark_per_frame": _gradient_case(np.float32, "per frame"),

@@ -124,9 +124,13 @@ class Outputs:
             coefficients = None if self.basis is None else self.basis.T @ A
             cube, xyz = A, None if self.to_XYZ is None else self.to_XYZ @ A
         rows, slices, at = [], {}, 0
-        for name, matrix in (("coefficients", coefficients), ("cube", cube), ("XYZ", xyz)):
-            # the cube's rows also where the sigmas carried through the filter need its slopes on the guide
-            if matrix is not None and (name != "cube" or "cube" in self.names or self.sigmas_filtered):
+        # the sigmas carried through the filter read the cube's slopes on the guide: where the cube is not asked for
+        # and the frames are fewer than its bands, the frames' samples (K rows; the cube is the decoder times them)
+        B, K = np.shape(cube)
+        samples = np.eye(K) if self.sigmas_filtered and "cube" not in self.names and K < B else None
+        for name, matrix in (("coefficients", coefficients), ("cube", cube), ("XYZ", xyz), ("samples", samples)):
+            if matrix is not None and (name != "cube" or "cube" in self.names
+                                       or (self.sigmas_filtered and samples is None)):
                 slices[name] = slice(at, at + len(matrix))
                 rows.append(np.asarray(matrix, np.float64))
                 at += len(matrix)

@@ -186,7 +186,7 @@ def _slope_basis(rows: np.ndarray, terms: list) -> tuple[np.ndarray, list]:
 
 
 def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=None, light: bool = True,
-                       smoothed=None, rms: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+                       smoothed=None, rms: bool = False, variance=None) -> tuple[np.ndarray, np.ndarray | None]:
     """The standard deviation (H, W, B) of the outputs of the decoder ``A`` (the plan's by default, with its ambient
     frame's column, :func:`specgpu.planning.correction.subtracting_ambient`) of the
     motion-compensated decoding ``rec`` (a :class:`~specgpu.pipeline.moving_layers.MovingRecovery`) and, given
@@ -200,59 +200,61 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
     says on which ``pixels``, by which guide, with which unfiltered outputs' ``slopes``): there the variance is
     carried through the filter (:func:`specgpu.pipeline.denoise.carried_through_filter`), the own part as the
     filter takes the warped samples (``warped_sample_variance(filtered=radius)``), the guide's noise that of its
-    warped samples. The slopes are read in the span of the decoder's rows (at most K images, not B).
+    warped samples. The slopes are read in the span of the decoder's rows (at most K images, not B): from the
+    unfiltered outputs (``smoothed["slopes"]``) or from the frames' warped samples and the decoder that makes the
+    outputs of them (``smoothed["samples"]``, ``smoothed["decoder"]``).
 
     ``rms``: only the RMS over the outputs of their standard deviation, (H, W, 1) (one channel carried through the
-    filter instead of B)."""
+    filter instead of B).
+
+    ``variance``: a :class:`specgpu.engine.warped_variance.PreparedWarpedVariance` of the sensor (its dark, flat
+    field and the plan's noise): the frames' sample variances are made and summed through the decoder's squared
+    rows on the device, in one pass, for translations and affine maps (a flow's on the host, as without it)."""
     ambient = ambient_index(plan)
     A = subtracting_ambient(plan.A, ambient) if A is None else np.asarray(A, np.float64)
     read = np.flatnonzero(np.any(A != 0, axis=0))
-    shifts = rec.estimates[0].shifts
     own = (rec.mask & np.uint8(Mask.LAYER)) != 0
 
     pixels = None if smoothed is None else smoothed["pixels"]
     smoothing = pixels is not None and pixels.any()
 
-    def variances():
-        """(total, own, as the filter takes it or None): one pass over the frames for all three."""
-        kw = {"read": read, "light": light, "filtered": smoothed["radius"] if smoothing else None, "ambient": ambient}
-        Vs = warped_sample_variances(frames, plan, dark, gain, shifts, **kw)
-        for layer in rec.layers if np.ndim(shifts) != 4 else ():  # a flow holds the layers' own already
-            mine = own & layer.decoded
-            if mine.any():
-                for V, Vl in zip(Vs, warped_sample_variances(frames, plan, dark, gain, layer.shifts, **kw)):
-                    if V is not None:
-                        V[:, mine] = Vl[:, mine]
-        return Vs
-
-    V, V_own, V_filtered = variances()
+    # the outputs' variances are weighted sums of the frames' sample variances: one block of weights per part
     Ar = A[:, read]
     B = A.shape[0]
-    MA = None if M is None else np.asarray(M, np.float64) @ Ar
     if rms:  # only the outputs' mean variance: one channel, the mean of their rows' squares
-        parts = [(lambda V: np.tensordot(V, (Ar * Ar).mean(axis=0)[:, None], axes=([0], [0])),
-                  [[(b, b, 1.0 / B) for b in range(B)]])]
+        blocks, terms = [(Ar * Ar).mean(axis=0)[None]], [[[(b, b, 1.0 / B) for b in range(B)]]]
     else:
-        parts = [(lambda V: np.tensordot(V, (Ar * Ar).T, axes=([0], [0])), [[(b, b, 1.0)] for b in range(B)])]
-    if M is not None:
-        parts.append((lambda V: np.einsum("khw,ik,jk->hwij", V, MA, MA).reshape(V.shape[1:] + (9,)),
-                      [[(B + i, B + j, 1.0)] for i in range(3) for j in range(3)]))
-    out = [part(V) for part, _ in parts]
+        blocks, terms = [Ar * Ar], [[[(b, b, 1.0)] for b in range(B)]]
+    if M is not None:  # the XYZ covariance: channel 3 i + j, sum_k (M A)_ik (M A)_jk V_k
+        MA = np.asarray(M, np.float64) @ Ar
+        blocks.append((MA[:, None, :] * MA[None, :, :]).reshape(9, -1))
+        terms.append([[(B + i, B + j, 1.0)] for i in range(3) for j in range(3)])
+    at = np.cumsum([0] + [b.shape[0] for b in blocks])
+    weights = np.concatenate(blocks)
+    if smoothing:  # and the guide's: its row squared, on the own part
+        row = subtracting_ambient(warped_guide_row(plan), ambient)[0, read]
+        weights = np.concatenate([weights, (row * row)[None]])
+    total, own_part, filtered = _variance_channels(
+        frames, plan, dark, gain, rec, read, weights, light=light, ambient=ambient, own=own,
+        radius=smoothed["radius"] if smoothing else None, variance=variance)
+    out = [total[..., a:b] for a, b in zip(at[:-1], at[1:])]
     if smoothing:
         rows = A if M is None else np.concatenate([A, np.asarray(M, np.float64) @ A])
-        U, terms = _slope_basis(rows, [t for _, ts in parts for t in ts])
+        U, reduced = _slope_basis(rows, [t for ts in terms for t in ts])
         # the slopes' coordinates in the rows' span (the XYZ slopes are M times the cube's)
         P = U[:B] if M is None else U[:B] + np.asarray(M, np.float64).T @ U[B:]
-        slopes = np.asarray(smoothed["slopes"], np.float32) @ P.astype(np.float32)  # the kernel reads float32
-        row = subtracting_ambient(warped_guide_row(plan), ambient)[0, read]
+        if "samples" in smoothed:  # the cube is the decoder times the frames' samples: K images, not B
+            slopes = np.asarray(smoothed["samples"], np.float32) @ (smoothed["decoder"].T @ P).astype(np.float32)
+        else:
+            slopes = np.asarray(smoothed["slopes"], np.float32) @ P.astype(np.float32)  # the kernel reads float32
+        n = at[-1]
         state = {"guide": smoothed["guide"], "radius": smoothed["radius"], "eps": smoothed["eps"], "slopes": slopes,
-                 "guide_var": np.tensordot(row * row, V_own, axes=([0], [0])) / smoothed["level"] ** 2}
+                 "guide_var": own_part[..., n] / smoothed["level"] ** 2}
         # every part in one call (the filter's weights made once): the own part as the filter takes it in place of
         # the samples' own, W^2 own_filtered + (total - own)
-        own_filtered = np.concatenate([part(V_filtered) for part, _ in parts], axis=-1)
-        adjusted = np.concatenate(out, axis=-1) - np.concatenate([part(V_own) for part, _ in parts], axis=-1)
-        den = carried_through_filter(own_filtered, adjusted + own_filtered, terms=terms, **state).astype(np.float64)
-        at = np.cumsum([0] + [o.shape[-1] for o in out])
+        own_filtered = filtered[..., :n]
+        adjusted = total[..., :n] - own_part[..., :n]
+        den = carried_through_filter(own_filtered, adjusted + own_filtered, terms=reduced, **state).astype(np.float64)
         out = [np.where(pixels[..., None], den[..., a:b], o) for o, a, b in zip(out, at[:-1], at[1:])]
     flagged = (rec.mask & ~np.uint8(Mask.LAYER)) != 0
     const = constant_covariance(plan)
@@ -272,3 +274,30 @@ def warped_sigma_rms(frames: ArrayLike, plan, dark, gain, rec, *, device=None) -
     ``frames``: the corrected frames on the sensor's scale."""
     sigma, _ = warped_uncertainty(frames, plan, dark, gain, rec)
     return np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1)).astype(np.float32)
+
+
+def _variance_channels(frames, plan, dark, gain, rec, read, weights, *, light, ambient, own, radius, variance):
+    """The weighted sums (H, W, C) of the read frames' sample variances, ``(total, own part, as the filter of
+    ``radius`` takes it)`` (the last two None without ``radius``), with the sequence's shifts and each object
+    layer's own on its pixels (``own``: the pixels decoded with a layer): on the device with ``variance``
+    (translations, affine maps), else from :func:`warped_sample_variances` on the host."""
+    shifts = rec.estimates[0].shifts
+    device = variance is not None and np.ndim(shifts) != 4
+    corr = None if radius is None else _interpolation_correlation(radius)
+
+    def once(d):
+        if device:
+            return variance.channels(frames, d, read, weights, light=light, ambient=ambient, own=radius is not None,
+                                     corr=corr)
+        Vs = warped_sample_variances(frames, plan, dark, gain, d, read=read, light=light, filtered=radius,
+                                     ambient=ambient)
+        return tuple(None if V is None else np.tensordot(V, weights.T, axes=([0], [0])) for V in Vs)
+
+    channels = list(once(shifts))
+    for layer in rec.layers if np.ndim(shifts) != 4 else ():  # a flow holds the layers' own already
+        mine = own & layer.decoded
+        if mine.any():
+            for c, theirs in zip(channels, once(layer.shifts)):
+                if c is not None:
+                    c[mine] = theirs[mine]
+    return channels

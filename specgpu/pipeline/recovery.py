@@ -139,8 +139,10 @@ def uncertainty(folder: SequenceFolder, *, sequence: int | None = None, illumina
                               device=device, denoise=denoise)
         sensor = dec.corrections.moving(folder.frames[dec.picked(folder.frames, sequence, folder.path)[0]])
         rec, y, gains, A = dec.warped_outputs(sensor)
+        smoothed = dec.smoothed(y, rec.mask, samples=None if gains is None else rec.y, decoder=A)
         return warped_uncertainty(sensor, folder.plan, dec.corrections.dark, folder.calibration.flat_field, rec, A,
-                                  M=M, light=gains is None, smoothed=dec.smoothed(y, rec.mask))
+                                  M=M, light=gains is None, smoothed=smoothed,
+                                  variance=dec.variance_launch())
     dec = SequenceDecoder(folder.plan, folder.calibration, white_roi=white_roi, white_reflectance=white_reflectance,
                           device=device)
     picked = dec.picked(folder.frames, sequence, folder.path)

@@ -35,6 +35,7 @@ from specgpu.core.numerics import live_gain
 from specgpu.core.validate import check_sequence, validate_method
 from specgpu.engine.linear_map import apply_linear
 from specgpu.engine.runtime import get_allocator, get_queue
+from specgpu.engine.warped_variance import PreparedWarpedVariance
 from specgpu.motion.residual import residual_check
 from specgpu.pipeline.decoder_outputs import ColourLaunch, FusedLaunches, lab_and_delta_E, outputs_for
 from specgpu.pipeline.denoise import (
@@ -51,6 +52,7 @@ from specgpu.planning.correction import (
     subtracting_ambient,
     white_gains,
 )
+from specgpu.planning.noise import NoiseModel
 from specgpu.planning.reference_frames import reference_indices
 from specgpu.planning.uncertainty import delta_E_sigma
 
@@ -422,12 +424,15 @@ class SequenceDecoder:
                                  + np.asarray(corr.dark, np.float32)[sl][None])
         return white.gains(sensor_roi, dark=corr.dark)
 
-    def smoothed(self, y, mask) -> dict | None:
+    def smoothed(self, y, mask, *, samples=None, decoder=None) -> dict | None:
         """With ``denoise``, what carrying the sigmas through the filter needs of a warped pass's
         :meth:`pass_rows` samples ``y`` (H, W, rows; the guide last) and its ``mask``: ``pixels`` (H, W) bool, those
-        the filter smooths (:func:`specgpu.pipeline.denoise.compensated_parts`; None: none), the ``guide`` as
-        the filter takes it and its ``level``, the unfiltered outputs' ``slopes`` (H, W, B), ``radius``, ``eps``;
-        None without ``denoise``."""
+        the filter smooths (:func:`specgpu.pipeline.denoise.compensated_parts`; None: none), the guide as
+        the filter takes it and its ``level``, ``radius``, ``eps``, and the unfiltered outputs' slopes: ``slopes``
+        (H, W, B), the cube's rows of ``y``, or, where the pass holds the frames' samples instead (the cube not
+        asked for), ``samples`` (H, W, K) and the ``decoder`` (B, K) that makes the cube of them (the pass's own,
+        :meth:`warped_outputs`' fourth value); ``samples`` given: those (a reference white's pass of every frame's
+        sample); None without ``denoise``."""
         if self.denoise is None:
             return None
         radius, eps = self.denoise
@@ -436,9 +441,26 @@ class SequenceDecoder:
         if parts is None:
             return {"pixels": None}
         _, pixels, guide, level = parts
-        cube = self.slices["cube"] if self.spec is not None else slice(0, self.plan.A.shape[0])
-        return {"pixels": pixels, "guide": guide, "level": level, "slopes": y[..., cube], "radius": radius,
-                "eps": eps}
+        out = {"pixels": pixels, "guide": guide, "level": level, "radius": radius, "eps": eps}
+        if self.spec is None or "cube" in self.slices:
+            cube = self.slices["cube"] if self.spec is not None else slice(0, self.plan.A.shape[0])
+            return {**out, "slopes": y[..., cube]}
+        if decoder is None:
+            raise ValueError("the pass holds the frames' samples, not the cube: give the decoder that makes it")
+        return {**out, "samples": y[..., self.slices["samples"]] if samples is None else samples,
+                "decoder": np.asarray(decoder, np.float64)}
+
+    def variance_launch(self) -> PreparedWarpedVariance:
+        """The sensor's dark level and flat field and the plan's noise on the device, set up on first use: the
+        motion mode's sigma outputs are made with it (:func:`specgpu.pipeline.moving_decode.warped_uncertainty`)."""
+        launch = self.__dict__.get("_variance")
+        if launch is None:  # two threads may both make one: the same, and either is kept
+            noise = NoiseModel.from_params(self.plan.params["noise"])
+            dark = self.corrections.dark
+            launch = self._variance = PreparedWarpedVariance(
+                get_queue(self.device), np.shape(dark), dark, self.gain, gain_e_per_dn=noise.gain_e_per_dn,
+                read_var_dn2=noise.read_var_dn2, light_rms=noise.light_rms)
+        return launch
 
     def _warped_sigmas(self, sensor, rec, A, XYZ, *, light, smoothed=None) -> dict:
         """The sigma outputs of one motion-compensated sequence (:func:`specgpu.pipeline.moving_decode.
@@ -448,8 +470,8 @@ class SequenceDecoder:
         names = set(self.outputs)
         M = self.spec.to_XYZ if "dE_sigma" in names else None
         only_rms = "sigma" not in names
-        sigma, cov = warped_uncertainty(sensor, self.plan, self.corrections.dark, self.gain,
-                                        rec, A, M=M, light=light, smoothed=smoothed, rms=only_rms)
+        sigma, cov = warped_uncertainty(sensor, self.plan, self.corrections.dark, self.gain, rec, A, M=M, light=light,
+                                        smoothed=smoothed, rms=only_rms, variance=self.variance_launch())
         rms = sigma if only_rms else np.sqrt(np.mean(sigma.astype(np.float64) ** 2, axis=-1,
                                                      keepdims=True)).astype(np.float32)
         out = {"sigma": np.concatenate([sigma, rms], axis=-1)} if "sigma" in names else {}
@@ -477,7 +499,7 @@ class SequenceDecoder:
             out[name] = filtered[..., at:at + width]
             at += width
         for name, rows in self.slices.items():  # any other row as it was decoded
-            if name not in out and name != "guide":
+            if name not in out and name not in ("guide", "samples"):
                 out[name] = y[..., rows]
         return out
 
@@ -506,7 +528,9 @@ class SequenceDecoder:
         rec, y, gains, A = self.warped_outputs(sensor, seconds=steps)
         t0 = time.perf_counter()
         sigmas = {"sigma", "sigma_rms", "dE_sigma"} & set(self.outputs)
-        smoothed = self.smoothed(y, rec.mask) if sigmas else None  # the sigmas read the unfiltered slopes
+        # the sigmas read the unfiltered slopes: of the frames' samples (a reference white's pass made them)
+        smoothed = (self.smoothed(y, rec.mask, samples=None if gains is None else rec.y, decoder=A) if sigmas
+                    else None)
         if self.denoise is None:  # views of the pass's rows: the sink reads them as they are
             out = {name: y[..., rows] for name, rows in self.slices.items()}
         else:  # the linear outputs filtered; Lab and dE below from the filtered XYZ

@@ -144,8 +144,9 @@ def test_sigma_rms_reads_an_object_layers_pixels_with_its_own_motion(setup, char
         var = np.tensordot(V, (A[:, read] ** 2).T, axes=([0], [0])) + np.diag(constant_covariance(plan))
         return np.sqrt(np.mean(var, axis=-1))
 
-    np.testing.assert_allclose(sigma[own], at(layer.shifts)[own], rtol=1e-5)
+    # the device sums the variances in float32 (about 1e-5 of sigma); the two motions' samples differ by far more
+    np.testing.assert_allclose(sigma[own], at(layer.shifts)[own], rtol=4e-5)
     rest = np.isfinite(sigma) & ~own
-    np.testing.assert_allclose(sigma[rest], at(maps["estimate"].shifts)[rest], rtol=1e-5)
+    np.testing.assert_allclose(sigma[rest], at(maps["estimate"].shifts)[rest], rtol=4e-5)
     # the two motions' samples differ on the object: the comparison can fail
     assert np.nanmax(np.abs(at(layer.shifts)[own] - at(maps["estimate"].shifts)[own])) > 1e-3

@@ -24,6 +24,7 @@ import argparse
 import json
 import time
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +38,7 @@ from specgpu.pipeline import moving_layers, sequence_decoder
 from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS
 from specgpu.pipeline.sequence_decoder import SequenceDecoder
 from specgpu.pipeline.twin_replay import stream_setup
+from specgpu.planning import NoiseModel, smooth_prior, with_estimator
 from specgpu.rig.scene import white_tile_roi
 
 OUTPUTS = ("coefficients", "XYZ", "dE")
@@ -170,14 +172,16 @@ def instrument_full(stages):
     stages.wrap(moving_layers, "_recover", "check")  # what is left of it: flags grown, NaN set
     stages.wrap(SequenceDecoder, "warped_outputs", "white")  # what is left: the white's gains, its decoder's rows
     stages.wrap(SequenceDecoder, "filtered", "denoise")
+    stages.wrap(SequenceDecoder, "smoothed", "sigma")  # with a sigma output: the filter's parts for the sigmas
+    stages.wrap(SequenceDecoder, "_warped_sigmas", "sigma")
     stages.wrap(sequence_decoder, "lab_and_delta_E", "colour")  # its launch, the read-back in "outputs"
     stages.wrap(SequenceDecoder, "_moving_maps", "outputs")  # what is left: maps sliced, colour uploaded and read
 
 
-def profile(case, setup, seqs, assembly_s, device):
+def profile(case, setup, seqs, assembly_s, device, outputs=OUTPUTS):
     h, w = setup.frames.shape[1:]
     full = case == "full"
-    dec = SequenceDecoder(setup.plan, setup.bundle, OUTPUTS, reference=setup.reference, device=device,
+    dec = SequenceDecoder(setup.plan, setup.bundle, tuple(outputs), reference=setup.reference, device=device,
                           frame_shape=(h, w), white_roi=white_tile_roi(h, w) if full else None,
                           denoise=(DENOISE_RADIUS, DENOISE_EPS) if full else None,
                           motion="global" if full else "none")
@@ -229,14 +233,21 @@ def main(argv=None):
     ap.add_argument("--sequences", type=int, default=8, help="sequences timed per case (the first not counted)")
     ap.add_argument("--cases", default="static,full")
     ap.add_argument("--device", default=None)
+    ap.add_argument("--outputs", default=",".join(OUTPUTS), help="the decoder's outputs (the bench's full case adds "
+                    "sigma_rms)")
     ap.add_argument("--json", default=None, help="write the table here as JSON")
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.lower().split("x"))
     setup = stream_setup(w, h, white_tile=0.99)
+    outputs = [o.strip() for o in args.outputs.split(",") if o.strip()]
+    if {"sigma", "sigma_rms", "dE_sigma"} & set(outputs):  # the bench's noise model (its sigma cases)
+        plan = with_estimator(setup.plan, setup.bundle, "projection", noise=NoiseModel.from_rig(
+            setup.description, setup.plan.exposure_s), prior=smooth_prior(np.arange(400.0, 700.0 + 1e-9, 5.0)))
+        setup = replace(setup, plan=plan)
     seqs, assembly_s = assemble(setup, args.sequences)
     cases = [c.strip() for c in args.cases.split(",") if c.strip()]
-    profiles = [profile(c, setup, seqs, assembly_s, args.device) for c in cases]
-    report = {"width": w, "height": h, "K": setup.plan.K, "profiles": profiles}
+    profiles = [profile(c, setup, seqs, assembly_s, args.device, outputs) for c in cases]
+    report = {"width": w, "height": h, "K": setup.plan.K, "outputs": outputs, "profiles": profiles}
     print(format_table(report))
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=2) + "\n")
