@@ -581,6 +581,30 @@ def _warped_variance_case(kind, shape=SHAPE):
     return run
 
 
+def _noise_floor_case(shape):
+    """engine.noise_floor (the check's noise floors: the column pass down strips, the row pass along spans, their
+    partial last strip and span) against motion.consistency's NumPy floors: uint16 frames, a dark frame, a flat
+    field with a NaN (read as 0)."""
+    from specgpu.engine.runtime import get_queue
+    from specgpu.motion.consistency import noise_floors, noise_floors_on_device
+    from specgpu.planning.noise import NoiseModel
+
+    def run():
+        rng = np.random.default_rng(13)
+        frames = rng.integers(0, 4001, (3, *shape)).astype(np.uint16)
+        dark = rng.uniform(50.0, 60.0, shape).astype(np.float32)
+        gain = rng.uniform(0.9, 1.1, shape).astype(np.float32)
+        gain[2, 3] = np.nan
+        noise = NoiseModel(gain_e_per_dn=2.0, read_var_dn2=5.0)
+        want = noise_floors(frames, noise, dark, gain)
+        got = noise_floors_on_device(frames, noise, dark, gain, device=get_queue("oclgrind")).get()
+        errors, tolerances = {}, {}
+        _compare(errors, tolerances, "floors", got, want, "range", 1e-5)
+        return errors, tolerances
+
+    return run
+
+
 def cases() -> dict:
     """Every kernel entry and build variant the host launches, on small images (name -> callable returning
     (errors, tolerances)). The kernel variant (cpu / gpu) comes from SPECGPU_VARIANT."""
@@ -619,6 +643,7 @@ def cases() -> dict:
         "consistency_misled": _consistency_misled_case(),
         **{f"warped_variance_{kind}": _warped_variance_case(kind) for kind in ("translate", "affine")},
         "warped_variance_rows": _warped_variance_case("translate", (9, 35)),
+        "noise_floor": _noise_floor_case((37, 139)),
         "consistency_from_frames": _consistency_frames_case(),
         "gradients_u16_dark_dead_pixel": _gradient_case(np.uint16, "single"),
         "gradients_f32_dark_per_frame": _gradient_case(np.float32, "per frame"),

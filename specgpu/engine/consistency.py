@@ -126,8 +126,9 @@ def consistency_maps_numpy(gradients, motion, *, window: int = 9, texture: float
 
 
 def _floor_images(floor, shape: tuple) -> np.ndarray:
-    """The noise floors as a (K, H, W) float32 array, refused in one line unless of the gradient images' shape."""
-    f = np.asarray(floor, np.float32)
+    """The noise floors as a (K, H, W) float32 array (read back where they are on the device), refused in one line
+    unless of the gradient images' shape."""
+    f = np.asarray(floor.get() if isinstance(floor, cla.Array) else floor, np.float32)
     if f.shape != shape:
         raise ValueError(f"floor must be (K, H, W) = {shape} like the gradient images, got {f.shape}")
     return f
@@ -182,7 +183,13 @@ def _check(queue, grads: cla.Array, maps: np.ndarray, scale, *, window: int, tex
     # a new one every sequence: not cached; a flow is read per pixel, the maps then unused
     motion = _upload(queue, np.zeros(6 * K) if flow else _motion_rows(maps, translate, w))
     flow_dev = _upload(queue, maps) if flow else None
-    floor_dev = None if floor is None else _upload(queue, _floor_images(floor, (K, h, w)))
+    if isinstance(floor, cla.Array):  # made on the device (specgpu.engine.noise_floor): read there
+        if floor.shape != (K, h, w) or floor.dtype != np.float32:
+            raise ValueError(f"floor must be (K, H, W) = {(K, h, w)} float32 like the gradient images, got "
+                             f"{floor.shape} {floor.dtype}")
+        floor_dev = floor
+    else:
+        floor_dev = None if floor is None else _upload(queue, _floor_images(floor, (K, h, w)))
     columns, strips = stride // (8 * V), -(-h // rows)
     nw = columns * strips
     cap = rows * 8 * V

@@ -6,12 +6,16 @@ of the decoding judges instead: :mod:`specgpu.motion.residual`).
 from __future__ import annotations
 
 import numpy as np
+import pyopencl.array as cla
 from scipy import ndimage
 
 from specgpu.engine.consistency import consistency_from_frames, consistency_maps
+from specgpu.engine.noise_floor import FloorPlanes, PreparedNoiseFloors
+from specgpu.engine.runtime import get_queue
 from specgpu.motion.images import device_takes, frame_gradients
 
-__all__ = ["CHECK_THRESHOLD", "NOISE_FLOOR", "inconsistent_pixels", "consistency", "noise_floors"]
+__all__ = ["CHECK_THRESHOLD", "NOISE_FLOOR", "inconsistent_pixels", "consistency", "noise_floors",
+           "noise_floors_on_device"]
 
 #: A pixel is inconsistent where some frame correlates below this with the median (:func:`inconsistent_pixels`).
 CHECK_THRESHOLD = 0.3
@@ -51,18 +55,59 @@ def noise_floors(frames, noise, dark=None, gain=None, *, window: int = 9, factor
     read = np.float32(noise.read_var_dn2) * (box(flat2) if flat2 is not None else np.float32(1.0))
     out = np.empty(frames.shape, np.float32)
     for k in range(len(frames)):
-        d = None if dark is None else (dark[k] if dark.ndim == 3 else dark)
-        x = np.subtract(frames[k], d, dtype=np.float32) if d is not None else np.array(frames[k], np.float32)
-        # the mean of the flat-fielded frame, as its gradient image is divided by
-        mean = float(np.vdot(x.ravel(), flat.ravel())) / x.size if flat is not None else float(np.mean(x))
+        x = _above_dark(frames, k, dark)
+        coef = _floor_coef(x, flat, factor)
         if flat2 is not None:
             x *= flat2
         shot = np.maximum(box(x), 0.0, out=x)
         shot *= np.float32(1.0 / noise.gain_e_per_dn)
         shot += read
-        shot *= np.float32(factor * _RAYLEIGH_VAR * _SOBEL_WEIGHTS / (mean * mean if mean > 0 else 1.0))
+        shot *= coef
         out[k] = shot
     return out
+
+
+def _above_dark(frames, k: int, dark) -> np.ndarray:
+    """Frame ``k`` above ``dark`` (one map, one per frame, or None), float32."""
+    d = None if dark is None else (dark[k] if dark.ndim == 3 else dark)
+    return np.subtract(frames[k], d, dtype=np.float32) if d is not None else np.array(frames[k], np.float32)
+
+
+def _floor_coef(x, flat, factor: float) -> np.float32:
+    """The factor of a frame's floor: ``factor`` times the Sobel magnitude's noise over the squared mean of the
+    flat-fielded frame ``x`` (above dark), as its gradient image is divided by that mean."""
+    mean = float(np.vdot(x.ravel(), flat.ravel())) / x.size if flat is not None else float(np.mean(x))
+    return np.float32(factor * _RAYLEIGH_VAR * _SOBEL_WEIGHTS / (mean * mean if mean > 0 else 1.0))
+
+
+#: The sensors' floors set up on a device (:func:`noise_floors_on_device`), by queue, shape, noise and the identity
+#: of the dark and flat-field arrays (held with them, so an identity is not reused while it is kept)
+_PREPARED: dict = {}
+_PREPARED_MAX = 4
+
+
+def noise_floors_on_device(frames, noise, dark=None, gain=None, *, window: int = 9, factor: float = NOISE_FLOOR,
+                           device=None) -> FloorPlanes:
+    """:func:`noise_floors` made on the device and kept there (:class:`specgpu.engine.noise_floor.FloorPlanes`, which
+    the consistency check reads in place): the box means as running sums in two passes; each frame's mean (its
+    factor) on the host. A dark level per frame: made on the host and uploaded."""
+    frames = np.asarray(frames)
+    queue = get_queue(device)
+    if dark is not None and np.ndim(dark) == 3:
+        return FloorPlanes(cla.to_device(queue, noise_floors(frames, noise, dark, gain, window=window,
+                                                             factor=factor)))
+    key = (queue, frames.shape[1:], int(window), noise.gain_e_per_dn, noise.read_var_dn2, id(dark), id(gain))
+    held = _PREPARED.get(key)
+    if held is None or held[0] is not dark or held[1] is not gain:
+        if len(_PREPARED) >= _PREPARED_MAX:
+            _PREPARED.pop(next(iter(_PREPARED)))
+        held = _PREPARED[key] = (dark, gain, PreparedNoiseFloors(
+            queue, frames.shape[1:], dark, gain, gain_e_per_dn=noise.gain_e_per_dn, read_var_dn2=noise.read_var_dn2,
+            window=window))
+    d = None if dark is None else np.asarray(dark, np.float32)
+    flat = None if gain is None else np.nan_to_num(np.asarray(gain, np.float32), nan=0.0)
+    coef = [_floor_coef(_above_dark(frames, k, d), flat, factor) for k in range(len(frames))]
+    return held[2].floors(frames, coef)
 
 
 def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9, threshold: float = CHECK_THRESHOLD,

@@ -45,12 +45,13 @@ from scipy import ndimage
 from specgpu.core.mask import UNSEEN, Mask
 from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import LinearResult
+from specgpu.engine.noise_floor import FloorPlanes
 from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.motion.ambient import STEADY_PX, misplaced, place_frame
-from specgpu.motion.consistency import CHECK_THRESHOLD, consistency, noise_floors
+from specgpu.motion.consistency import CHECK_THRESHOLD, consistency, noise_floors, noise_floors_on_device
 from specgpu.motion.estimate import at_reference_time
 from specgpu.motion.flow import choose_flow, flow_field, tile_motion
-from specgpu.motion.images import frame_gradients
+from specgpu.motion.images import device_takes, frame_gradients
 from specgpu.motion.methods import estimate_motion
 from specgpu.motion.object_motion import (
     MIN_LAYER_SHARE,
@@ -198,16 +199,25 @@ def _checked_consistency(checked, frames, motion, dark, gain, gradients, residua
     used_dark = _reading(checked, dark)[0] if per_frame else dark
     looked, moved = _reading(checked, frames, motion)
     given = None if gradients is None else _reading(checked, gradients)[0]
-    floor = None if floors is None or residual is None else _reading(checked, floors)[0]
+    if floors is None or residual is None:
+        floor = None
+    else:  # on the device (the check reads them there), or on the host
+        floor = floors.take(checked) if isinstance(floors, FloorPlanes) else _reading(checked, floors)[0]
     return consistency(looked, moved, used_dark, gain, gradients=given,
                        noise=None if residual is None else residual.noise, floor=floor)
 
 
-def _sequence_floors(frames, dark, gain, residual):
-    """Every frame's noise floor under the ``residual`` check's noise model
-    (:func:`~specgpu.motion.consistency.noise_floors`; None without one), made once per sequence: a frame's floor is
-    its own, whatever the motion, so the global check, each object layer's and the flow's read the same."""
-    return None if residual is None else noise_floors(frames, residual.noise, dark, gain)
+def _sequence_floors(frames, dark, gain, residual, device=None):
+    """Every frame's noise floor under the ``residual`` check's noise model (None without one), made once per
+    sequence: a frame's floor is its own, whatever the motion, so the global check, each object layer's and the
+    flow's read the same. On the device, where the check runs there
+    (:func:`~specgpu.motion.consistency.noise_floors_on_device`), else on the host
+    (:func:`~specgpu.motion.consistency.noise_floors`)."""
+    if residual is None:
+        return None
+    if device_takes(frames, None if dark is None else np.asarray(dark, np.float32), gain):
+        return noise_floors_on_device(frames, residual.noise, dark, gain, device=device)
+    return noise_floors(frames, residual.noise, dark, gain)
 
 
 def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
@@ -498,7 +508,7 @@ def _recover(frames, A, *, dark, gain, saturation, upsample, binning, shifts, mo
     if dense or (check and checked):  # every frame's gradient image made once (the check, the layers, the flow)
         gradients = frame_gradients(frames, dark, gain, gradients, device=device)
         est = None if est is None else replace(est, gradients=tuple(gradients))
-    floors = _sequence_floors(frames, dark, gain, residual) if check else None
+    floors = _sequence_floors(frames, dark, gain, residual, device) if check else None
     if check:
         maps = _checked_consistency(checked, frames, shifts, dark, gain, gradients, residual, floors)
         # every pixel judged, textured or not: a frame with structure of its own that the others do not share

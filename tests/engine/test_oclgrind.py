@@ -116,7 +116,7 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     dark, gain, square root; XYZ -> Lab; dE76 / 94 / 2000 alone and fused; the dE2000 sigma; the motion-compensated
     linear map and the consistency check, each with translations, affine maps and a flow (the check also with a
     noise floor per frame and pixel); the outputs' variance at the warped samples
-    (translations and affine maps); the check's images given
+    (translations and affine maps); the check's noise floors; the check's images given
     as one array, uploaded in one write: see the offset-write test below) on 99 pixels (two work-groups, the second
     partial), and the map's translations on 21 x 35 pixels as well, which its two passes run along strips of rows,
     and as the stream prepares them (output groups interleaved and planar, frames read from a larger buffer, float
@@ -132,7 +132,7 @@ def test_every_kernel_is_clean_and_right_under_oclgrind(oclgrind_env, variant):
     cases, programs = results(proc)
     failures = case_failures(proc, cases, reports)
     assert not failures, "\n".join(failures)
-    assert len(cases) == 41, sorted(cases)
+    assert len(cases) == 42, sorted(cases)
 
     # the variant's own code paths were built (the variant comes from SPECGPU_VARIANT in the worker); the motion
     # kernels' programs (the warp's OUT_INTERLEAVED per pixel or GROUPS for translations, the check's WINDOW, the
