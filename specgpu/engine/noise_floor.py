@@ -146,10 +146,11 @@ class PreparedNoiseFloors:
         out = cla.Array(q, (len(read), h, w), np.float32, allocator=self.alloc)
         dims = (np.uint32(w), np.uint32(h))
         group = (1, 1, 1) if vw == 8 else (16, 4, 1)
-        kernels.launch_range(q, get_kernel(q, "noise_floor.cl", "floor_cols", **macros), (-(-w // vw), -(-h // strip), len(read)),
-                             group, fdev.data, consts[0], kernels._data(self._dark), kernels._data(self._flat2),
-                             sums, *dims)
-        kernels.launch_range(q, get_kernel(q, "noise_floor.cl", "floor_rows", **macros), (-(-w // span), h, len(read)),
-                             group, sums, consts[1], kernels._data(self._read_box), np.float32(self.read_var),
-                             np.float32(self.inv_gain), out.data, *dims)
+        cols = get_kernel(q, "noise_floor.cl", "floor_cols", **macros)
+        rows = get_kernel(q, "noise_floor.cl", "floor_rows", **macros)
+        kernels.launch_range(q, cols, (-(-w // vw), -(-h // strip), len(read)), group, fdev.data, consts[0],
+                             kernels._data(self._dark), kernels._data(self._flat2), sums, *dims)
+        kernels.launch_range(q, rows, (-(-w // span), h, len(read)), group, sums, consts[1],
+                             kernels._data(self._read_box), np.float32(self.read_var), np.float32(self.inv_gain),
+                             out.data, *dims)
         return FloorPlanes(out)  # the pooled buffers reused only by later commands of this in-order queue
