@@ -120,8 +120,14 @@ def _flagged(y, guide, mask) -> np.ndarray:
     return bad | maybe
 
 
+#: The default of the ``parts`` arguments: :func:`compensated_parts` made by the callee (None is one of its results:
+#: the filter smooths no pixel)
+PARTS_MADE_HERE = object()
+
+
 def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radius: int = DENOISE_RADIUS,
-                        eps: float = DENOISE_EPS, rows: ArrayLike | None = None, device=None) -> np.ndarray:
+                        eps: float = DENOISE_EPS, rows: ArrayLike | None = None, device=None,
+                        parts=PARTS_MADE_HERE) -> np.ndarray:
     """The motion-compensated outputs ``y`` (H, W, C) smoothed by the guided filter of ``guide`` (H, W), the sum
     of the warped samples at the reference time (:func:`warped_guide_row`), so no window mixes the surfaces the
     compensation separated; float32.
@@ -137,10 +143,13 @@ def denoise_compensated(y: ArrayLike, guide: ArrayLike, mask: ArrayLike, *, radi
     then not filtered but made from the filtered channels by the same combination: the filter is linear and the same
     for every channel, and the flagged pixels are the same for all, so the result is the same, and the channels
     filtered are those a decoding of fewer outputs filters (in the same order, to the same rounding).
+
+    ``parts``: :func:`compensated_parts` already made for this guide, mask and radius (of the pass these outputs
+    are rows of: the outputs and their sigmas filter the same pixels).
     """
     r, e = _check(radius, eps)
     y = np.asarray(y, np.float32)
-    made = compensated_parts(y, guide, mask, radius=r)
+    made = compensated_parts(y, guide, mask, radius=r) if parts is PARTS_MADE_HERE else parts
     if made is None:
         return y.copy()
     bad, smoothed, g, _ = made

@@ -39,6 +39,7 @@ from specgpu.engine.warped_variance import PreparedWarpedVariance
 from specgpu.motion.residual import residual_check
 from specgpu.pipeline.decoder_outputs import ColourLaunch, FusedLaunches, lab_and_delta_E, outputs_for
 from specgpu.pipeline.denoise import (
+    PARTS_MADE_HERE,
     compensated_parts,
     denoise_compensated,
     warped_guide_row,
@@ -424,7 +425,15 @@ class SequenceDecoder:
                                  + np.asarray(corr.dark, np.float32)[sl][None])
         return white.gains(sensor_roi, dark=corr.dark)
 
-    def smoothed(self, y, mask, *, samples=None, decoder=None) -> dict | None:
+    def filter_parts(self, y, mask):
+        """:func:`specgpu.pipeline.denoise.compensated_parts` of a warped pass's rows ``y`` (the guide last): which
+        pixels the filter smooths, the guide as it takes it and its level, made once for the outputs and their
+        sigmas (None without ``denoise`` or where it smooths none)."""
+        if self.denoise is None:
+            return None
+        return compensated_parts(y[..., :-1], y[..., -1], mask, radius=self.denoise[0])
+
+    def smoothed(self, y, mask, *, samples=None, decoder=None, parts=PARTS_MADE_HERE) -> dict | None:
         """With ``denoise``, what carrying the sigmas through the filter needs of a warped pass's
         :meth:`pass_rows` samples ``y`` (H, W, rows; the guide last) and its ``mask``: ``pixels`` (H, W) bool, those
         the filter smooths (:func:`specgpu.pipeline.denoise.compensated_parts`; None: none), the guide as
@@ -432,12 +441,11 @@ class SequenceDecoder:
         (H, W, B), the cube's rows of ``y``, or, where the pass holds the frames' samples instead (the cube not
         asked for), ``samples`` (H, W, K) and the ``decoder`` (B, K) that makes the cube of them (the pass's own,
         :meth:`warped_outputs`' fourth value); ``samples`` given: those (a reference white's pass of every frame's
-        sample); None without ``denoise``."""
+        sample); None without ``denoise``. ``parts``: :meth:`filter_parts` of ``y`` already made."""
         if self.denoise is None:
             return None
         radius, eps = self.denoise
-        rows = y[..., :-1]
-        parts = compensated_parts(rows, y[..., -1], mask, radius=radius)
+        parts = self.filter_parts(y, mask) if parts is PARTS_MADE_HERE else parts
         if parts is None:
             return {"pixels": None}
         _, pixels, guide, level = parts
@@ -483,7 +491,7 @@ class SequenceDecoder:
             out["dE_sigma"] = des
         return out
 
-    def _denoised(self, y, mask, pass_rows) -> dict:
+    def _denoised(self, y, mask, pass_rows, parts=PARTS_MADE_HERE) -> dict:
         """The outputs of the warped pass's rows ``y`` (H, W, rows) with those the filter applies to filtered in one
         call (:meth:`filtered`: the guide's level, the flagged pixels' neighbourhood and the guide's statistics
         made once, and only as many channels as the span of their rows in ``pass_rows`` (rows, K) holds), read
@@ -492,7 +500,7 @@ class SequenceDecoder:
         names = list(self.spec.denoise["channels"])
         cols = np.concatenate([index[self.slices[name]] for name in names])
         rows = y[..., :len(cols)] if np.array_equal(cols, index[:len(cols)]) else y[..., cols]
-        filtered = self.filtered(rows, y[..., self.slices["guide"].start], mask, rows=pass_rows[cols])
+        filtered = self.filtered(rows, y[..., self.slices["guide"].start], mask, rows=pass_rows[cols], parts=parts)
         out, at = {}, 0
         for name in names:  # views of the filtered maps: the sink reads them, nothing writes them but its NaN
             width = len(index[self.slices[name]])
@@ -529,12 +537,13 @@ class SequenceDecoder:
         t0 = time.perf_counter()
         sigmas = {"sigma", "sigma_rms", "dE_sigma"} & set(self.outputs)
         # the sigmas read the unfiltered slopes: of the frames' samples (a reference white's pass made them)
-        smoothed = (self.smoothed(y, rec.mask, samples=None if gains is None else rec.y, decoder=A) if sigmas
-                    else None)
+        parts = self.filter_parts(y, rec.mask)  # the pixels filtered and the guide: the outputs' and the sigmas'
+        smoothed = (self.smoothed(y, rec.mask, samples=None if gains is None else rec.y, decoder=A,
+                                  parts=parts) if sigmas else None)
         if self.denoise is None:  # views of the pass's rows: the sink reads them as they are
             out = {name: y[..., rows] for name, rows in self.slices.items()}
         else:  # the linear outputs filtered; Lab and dE below from the filtered XYZ
-            out = self._denoised(y, rec.mask, self.pass_rows(None if gains is None else A))
+            out = self._denoised(y, rec.mask, self.pass_rows(None if gains is None else A), parts)
         if "cube" in out:
             out["cube"] = out["cube"].astype(self.spec.cube_dtype, copy=False)
         reading = None
@@ -604,12 +613,14 @@ class SequenceDecoder:
             y[saturated] = np.nan
         return y
 
-    def filtered(self, y, guide, mask, *, rows=None) -> np.ndarray:
+    def filtered(self, y, guide, mask, *, rows=None, parts=PARTS_MADE_HERE) -> np.ndarray:
         """The warped outputs ``y`` (H, W, C) smoothed by the guided filter of the warped frames' sum ``guide``,
         flagged pixels left out, filtered in the span of their decoder's ``rows`` (C, K) where given
-        (:func:`specgpu.pipeline.denoise.denoise_compensated`)."""
+        (:func:`specgpu.pipeline.denoise.denoise_compensated`; ``parts``: :meth:`filter_parts` of the pass these
+        rows are of, already made)."""
         radius, eps = self.denoise
-        return denoise_compensated(y, guide, mask, radius=radius, eps=eps, rows=rows, device=self.device)
+        return denoise_compensated(y, guide, mask, radius=radius, eps=eps, rows=rows, device=self.device,
+                                   parts=parts)
 
     @staticmethod
     def mean_frames(frames, picked) -> np.ndarray:

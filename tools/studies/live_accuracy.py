@@ -9,7 +9,7 @@ row (``specgpu plan optimal --sequence-ms 60 --denoise``: optimal-9 designed for
 * ``still``: the chart still, ``recover --white-roi --denoise`` (the still chart's best path);
 * ``recover``: the chart moving 3 px a frame (x), one capture per draw, ``recover --motion global --denoise
   --white-roi ROI --white-roi-moves scene``, its sigma at the warped samples (``uncertainty(motion="global")``)
-  carried through the filter (``denoised_sigma``);
+  carried through the filter (``uncertainty(denoise=...)``);
 * ``stream``: the same moving twin streamed (``pipeline.stream.Stream``, the twin driver) with ``motion="global"``,
   the denoiser, the white measured on the compensated samples, and the ``cube`` and ``sigma`` outputs (the sigma
   only where the stream accepts it with the denoiser: the table says when it did not);
@@ -54,7 +54,7 @@ from specgpu.calibration import calibrate  # noqa: E402
 from specgpu.capture.session import capture_sequences  # noqa: E402
 from specgpu.capture.twin_driver import TwinDriver  # noqa: E402
 from specgpu.pipeline.capture_folder import SequenceFolder  # noqa: E402
-from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery, denoised_sigma  # noqa: E402
+from specgpu.pipeline.denoise import DENOISE_EPS, DENOISE_RADIUS, denoise_recovery  # noqa: E402
 from specgpu.pipeline.evaluate import evaluate_pixels, truth_cube  # noqa: E402
 from specgpu.pipeline.recovery import recover, uncertainty  # noqa: E402
 from specgpu.pipeline.stream import Stream  # noqa: E402
@@ -123,7 +123,7 @@ def still_draw(description, bundle, plan, scene, roi, seed) -> dict:
     seq = capture_sequences(TwinDriver(rig, patterns=plan.patterns, n_frames=plan.K, pacing="free"), plan.K)
     folder = SequenceFolder(Path("<memory>"), seq.sequences[0].frames[None], plan, bundle, [], {})
     y = denoise_recovery(folder, recover(folder, white_roi=roi), radius=DENOISE[0], eps=DENOISE[1])
-    sigma = denoised_sigma(folder, uncertainty(folder, white_roi=roi)[0], radius=DENOISE[0])
+    sigma = uncertainty(folder, white_roi=roi, denoise=DENOISE)[0]
     return score(y, sigma, scene, plan.output_wavelengths)
 
 
@@ -134,8 +134,7 @@ def recover_draw(moving, bundle, plan, scene, roi, seed) -> dict:
     s = seq.sequences[0]
     folder = SequenceFolder(Path("<memory>"), s.frames[None], plan, bundle, [], {})
     y = recover(folder, white_roi=roi, motion="global", denoise=DENOISE, white_moves="scene")
-    raw = uncertainty(folder, white_roi=roi, motion="global", white_moves="scene")[0]
-    sigma = denoised_sigma(folder, raw, radius=DENOISE[0])
+    sigma = uncertainty(folder, white_roi=roi, motion="global", white_moves="scene", denoise=DENOISE)[0]
     truth = moved_scene(scene, rig.motion_truth(s.timestamps_s), rig.frame_period_s,
                         moving.motion.velocity_px_per_frame)
     return score(y, sigma, truth, plan.output_wavelengths)
