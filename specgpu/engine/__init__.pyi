@@ -16,11 +16,13 @@ from .kernels import (
     to_device,
 )
 from .linear_map import LAYOUTS, LinearResult, apply_linear
+from .noise_floor import FloorPlanes, PreparedNoiseFloors
 from .registration import DeviceRegistration, register_gradients
 from .residual import PreparedResidual, residual_chi2_device
 from .runtime import DeviceInfo, SpecgpuDeviceError, get_queue, list_devices, select_device
 from .selftest import SelftestReport, run_selftest
 from .warp_map import apply_linear_warped
+from .warped_variance import PreparedWarpedVariance
 
 __all__ = [
     "apply_linear",
@@ -28,6 +30,7 @@ __all__ = [
     "delta_E",
     "filtered_variance",
     "filtered_variance_device",
+    "FloorPlanes",
     "DELTA_E_METHODS",
     "DeviceInfo",
     "DeviceRegistration",
@@ -48,7 +51,9 @@ __all__ = [
     "prepare_delta_E_sigma",
     "prepare_frames_to_delta_E",
     "prepare_linear",
+    "PreparedNoiseFloors",
     "PreparedResidual",
+    "PreparedWarpedVariance",
     "reflectance_to_XYZ",
     "register_gradients",
     "residual_chi2_device",

@@ -2,7 +2,14 @@
 
 from .ambient import place_frame
 from .candidates import choose_candidates
-from .consistency import CHECK_THRESHOLD, NOISE_FLOOR, consistency, inconsistent_pixels, noise_floors
+from .consistency import (
+    CHECK_THRESHOLD,
+    NOISE_FLOOR,
+    consistency,
+    inconsistent_pixels,
+    noise_floors,
+    noise_floors_on_device,
+)
 from .device_estimate import estimate_on_device
 from .estimate import MotionEstimate, at_reference_time
 from .flow import flow_field, tile_motion
@@ -32,6 +39,7 @@ __all__ = [
     "MotionEstimate",
     "NOISE_FLOOR",
     "noise_floors",
+    "noise_floors_on_device",
     "place_frame",
     "residual_check",
     "residual_chi2",
