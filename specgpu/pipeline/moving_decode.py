@@ -172,9 +172,20 @@ def _slope_basis(rows: np.ndarray, terms: list) -> tuple[np.ndarray, list]:
     """The decoder's output ``rows`` (D, K) span at most K dimensions, and so do the unfiltered outputs the filter's
     guide noise passes by (the slopes): an orthonormal basis U (D, r) of that span, and each channel's ``terms``
     (lists of (d, e, weight) over the D slopes) as terms over the r slopes ``slopes @ U`` (U^T T U): the same
-    quadratic form of the filter's slopes, read from r images instead of D."""
+    quadratic form of the filter's slopes, read from r images instead of D.
+
+    One channel (``sigma_rms``): the basis turned to the eigenvectors of its form, so that its terms are the
+    diagonal's (r of them, not r^2, and no image of a zero eigenvalue): the same form, fewer products per pixel."""
     U, s, _ = np.linalg.svd(rows, full_matrices=False)
     U = U[:, s > s[0] * 1e-9] if s.size and s[0] > 0 else U[:, :0]
+    if len(terms) == 1 and U.shape[1]:
+        T = np.zeros((rows.shape[0], rows.shape[0]))
+        for d, e, weight in terms[0]:
+            T[d, e] += weight
+        lam, V = np.linalg.eigh(U.T @ (T + T.T) / 2 @ U)  # the form's symmetric part is all that it reads
+        keep = np.abs(lam) > np.abs(lam).max(initial=0.0) * 1e-12
+        if keep.any():
+            return U @ V[:, keep], [[(i, i, float(v)) for i, v in enumerate(lam[keep])]]
     reduced = []
     for channel in terms:
         T = np.zeros((rows.shape[0], rows.shape[0]))

@@ -62,12 +62,19 @@ def test_sigma_rms_alone_is_the_rms_of_the_sigma_map(moving_chart):
     np.testing.assert_allclose(np.nan_to_num(alone), np.nan_to_num(every), rtol=2e-4, atol=1e-7)
 
 
-def test_the_rows_span_holds_every_slope():
+@pytest.mark.parametrize("terms", [
+    [[(0, 0, 1.0), (3, 5, 0.5)], [(b, b, 1 / 12) for b in range(12)]],
+    [[(b, b, 1 / 12) for b in range(12)]],  # sigma_rms alone: the basis turned to its form's eigenvectors
+    [[(0, 0, 1.0), (3, 5, 0.5), (2, 2, -0.25)]],  # one channel, not symmetric, of rank below the span's
+])
+def test_the_rows_span_holds_every_slope(terms):
     rng = np.random.default_rng(0)
     rows = rng.normal(size=(12, 4)) @ rng.normal(size=(4, 9))  # rank 4
-    terms = [[(0, 0, 1.0), (3, 5, 0.5)], [(b, b, 1 / 12) for b in range(12)]]
     U, reduced = moving_decode._slope_basis(rows, terms)
-    assert U.shape == (12, 4)
+    assert U.shape[0] == 12 and U.shape[1] <= 4
+    np.testing.assert_allclose(U.T @ U, np.eye(U.shape[1]), atol=1e-12)
+    if len(terms) == 1:  # a diagonal form: one product per image
+        assert all(i == j for i, j, _ in reduced[0]) and len(reduced[0]) == U.shape[1]
     slopes = rng.normal(size=(50, 9)) @ rows.T  # every slope image in the rows' span
     z = slopes @ U
     for channel, mine in zip(terms, reduced):
