@@ -183,12 +183,12 @@ def _check(queue, grads: cla.Array, maps: np.ndarray, scale, *, window: int, tex
     # a new one every sequence: not cached; a flow is read per pixel, the maps then unused
     motion = _upload(queue, np.zeros(6 * K) if flow else _motion_rows(maps, translate, w))
     flow_dev = _upload(queue, maps) if flow else None
-    if isinstance(floor, cla.Array):  # made on the device (specgpu.engine.noise_floor): read there
+    if isinstance(floor, cla.Array) and floor.context == queue.context:  # made on this device: read there
         if floor.shape != (K, h, w) or floor.dtype != np.float32:
             raise ValueError(f"floor must be (K, H, W) = {(K, h, w)} float32 like the gradient images, got "
                              f"{floor.shape} {floor.dtype}")
         floor_dev = floor
-    else:
+    else:  # from the host, or from another device's context (read back: a buffer serves its own context only)
         floor_dev = None if floor is None else _upload(queue, _floor_images(floor, (K, h, w)))
     columns, strips = stride // (8 * V), -(-h // rows)
     nw = columns * strips

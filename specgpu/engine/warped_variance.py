@@ -83,6 +83,24 @@ class PreparedWarpedVariance:
             self._gain2 = kernels.to_device(queue, (g * g).reshape(-1))
         self.alloc = get_allocator(queue)
 
+    def upload(self, frames) -> cla.Array:
+        """``frames`` ((K, H, W) uint8, uint16 or float32) as one flat device array of K planes, for several
+        :meth:`channels` calls on the same sequence (an object layer's shifts); a device array of whole planes as
+        it is."""
+        h, w = self.shape
+        if isinstance(frames, cla.Array):
+            K = frames.size // self.n
+            if frames.size != K * self.n or K < 1 or frames.offset or frames.context != self.queue.context:
+                raise ValueError(f"frames must hold whole {h} x {w} frames in a buffer of their own on the "
+                                 f"prepared device, got {frames.size} samples")
+            if frames.dtype not in (np.uint8, np.uint16, np.float32):
+                raise ValueError(f"frames must be uint8, uint16 or float32 on the device, got {frames.dtype}")
+            return frames
+        f, _ = check_frames(frames)
+        if f.shape[1:] != (h, w):
+            raise ValueError(f"frames must be (K, {h}, {w}), got shape {f.shape}")
+        return kernels.to_device(self.queue, f.reshape(-1))
+
     def channels(self, frames, shifts, read, weights, *, light: bool = True, ambient: int | None = None,
                  own: bool = False, corr: float | None = None):
         """The weighted sums of the read frames' sample variances per pixel: ``(total, own, filtered)``, each
@@ -91,7 +109,7 @@ class PreparedWarpedVariance:
 
         Parameters
         ----------
-        frames : array_like or device array, (K, H, W)
+        frames : array_like, (K, H, W), or a device array of K planes (:meth:`upload`)
             uint8, uint16 or float32 frames of one sequence on the sensor's scale (the dark level not subtracted).
         shifts : array_like, (K, 2) or (K, 2, 3)
             Each frame's translation or affine map (:func:`specgpu.engine.warp_map.apply_linear_warped`).
@@ -111,17 +129,8 @@ class PreparedWarpedVariance:
         """
         q = self.queue
         h, w = self.shape
-        if isinstance(frames, cla.Array):
-            fdev, dtype = frames, frames.dtype
-            K = frames.size // self.n
-            if frames.size != K * self.n or frames.offset:
-                raise ValueError(f"frames must hold whole {h} x {w} frames in a buffer of their own, got "
-                                 f"{frames.size} samples")
-        else:
-            f, K = check_frames(frames)
-            if f.shape[1:] != (h, w):
-                raise ValueError(f"frames must be (K, {h}, {w}), got shape {f.shape}")
-            fdev, dtype = kernels.to_device(q, f.reshape(-1)), f.dtype
+        fdev = self.upload(frames)
+        dtype, K = fdev.dtype, fdev.size // self.n
         if np.ndim(shifts) == 4:
             raise ValueError("shifts: a dense flow's variance is not made on the device (translations and affine "
                              "maps are)")
@@ -146,6 +155,10 @@ class PreparedWarpedVariance:
                             WANT_FILTERED=corr is not None)
         outs = [self.alloc(4 * C * self.n) if want else None for want in (True, own, corr is not None)]
         small = [np.asarray(read, np.uint32), np.ascontiguousarray(d[read]), np.ascontiguousarray(Wt)]
+        limit = q.device.max_constant_buffer_size
+        if max(a.nbytes for a in small) > limit:
+            raise ValueError(f"weights of {C} channels x {len(read)} frames ({Wt.nbytes} bytes) exceed the constant "
+                             f"memory of {q.device.name.strip()} ({limit} bytes); ask for fewer channels per call")
         consts = [self.alloc(a.nbytes) for a in small]
         for buf, a in zip(consts, small):  # held alive below until the blocking read-back
             cl.enqueue_copy(q, buf, a, is_blocking=False)

@@ -5,6 +5,8 @@ of the decoding judges instead: :mod:`specgpu.motion.residual`).
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pyopencl.array as cla
 from scipy import ndimage
@@ -84,6 +86,7 @@ def _floor_coef(x, flat, factor: float) -> np.float32:
 #: of the dark and flat-field arrays (held with them, so an identity is not reused while it is kept)
 _PREPARED: dict = {}
 _PREPARED_MAX = 4
+_PREPARED_LOCK = threading.Lock()
 
 
 def noise_floors_on_device(frames, noise, dark=None, gain=None, *, window: int = 9, factor: float = NOISE_FLOOR,
@@ -97,13 +100,14 @@ def noise_floors_on_device(frames, noise, dark=None, gain=None, *, window: int =
         return FloorPlanes(cla.to_device(queue, noise_floors(frames, noise, dark, gain, window=window,
                                                              factor=factor)))
     key = (queue, frames.shape[1:], int(window), noise.gain_e_per_dn, noise.read_var_dn2, id(dark), id(gain))
-    held = _PREPARED.get(key)
-    if held is None or held[0] is not dark or held[1] is not gain:
-        if len(_PREPARED) >= _PREPARED_MAX:
-            _PREPARED.pop(next(iter(_PREPARED)))
-        held = _PREPARED[key] = (dark, gain, PreparedNoiseFloors(
-            queue, frames.shape[1:], dark, gain, gain_e_per_dn=noise.gain_e_per_dn, read_var_dn2=noise.read_var_dn2,
-            window=window))
+    with _PREPARED_LOCK:  # the stream decodes sequences on several threads
+        held = _PREPARED.get(key)
+        if held is None or held[0] is not dark or held[1] is not gain:
+            while len(_PREPARED) >= _PREPARED_MAX:
+                _PREPARED.pop(next(iter(_PREPARED)))
+            held = _PREPARED[key] = (dark, gain, PreparedNoiseFloors(
+                queue, frames.shape[1:], dark, gain, gain_e_per_dn=noise.gain_e_per_dn,
+                read_var_dn2=noise.read_var_dn2, window=window))
     d = None if dark is None else np.asarray(dark, np.float32)
     flat = None if gain is None else np.nan_to_num(np.asarray(gain, np.float32), nan=0.0)
     coef = [_floor_coef(_above_dark(frames, k, d), flat, factor) for k in range(len(frames))]

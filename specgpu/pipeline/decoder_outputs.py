@@ -112,7 +112,9 @@ class Outputs:
         return out
 
     def rows(self, A: ArrayLike | None = None) -> tuple[np.ndarray, dict[str, slice]]:
-        """The linear outputs (coefficients, cube, XYZ for any colour output) stacked as the rows of one decoder
+        """The linear outputs (coefficients, cube, XYZ for any colour output; and ``samples``, the frames' K samples,
+        where the sigmas carried through the filter read the cube's slopes and the cube is no output with more bands
+        than frames) stacked as the rows of one decoder
         (rows, K) and the slice of each: what one pass over the frames decodes (the warped pass's matrix); the
         plan's A alone when none is asked (its pass still says which pixels have samples). ``A``: a decoder
         (B, K) used instead of the plan's (a reference white's, for one sequence), the coefficients in the same

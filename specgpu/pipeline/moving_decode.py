@@ -219,8 +219,9 @@ def warped_uncertainty(frames: ArrayLike, plan, dark, gain, rec, A=None, *, M=No
     filter instead of B).
 
     ``variance``: a :class:`specgpu.engine.warped_variance.PreparedWarpedVariance` of the sensor (its dark, flat
-    field and the plan's noise): the frames' sample variances are made and summed through the decoder's squared
-    rows on the device, in one pass, for translations and affine maps (a flow's on the host, as without it)."""
+    field and the plan's noise, which must be ``dark``, ``gain`` and the plan's: its size and noise are checked):
+    the frames' sample variances are made and summed through the decoder's squared rows on the device, in one
+    pass, for translations and affine maps (a flow's on the host, as without it)."""
     ambient = ambient_index(plan)
     A = subtracting_ambient(plan.A, ambient) if A is None else np.asarray(A, np.float64)
     read = np.flatnonzero(np.any(A != 0, axis=0))
@@ -289,12 +290,20 @@ def warped_sigma_rms(frames: ArrayLike, plan, dark, gain, rec, *, device=None) -
 
 def _variance_channels(frames, plan, dark, gain, rec, read, weights, *, light, ambient, own, radius, variance):
     """The weighted sums (H, W, C) of the read frames' sample variances, ``(total, own part, as the filter of
-    ``radius`` takes it)`` (the last two None without ``radius``), with the sequence's shifts and each object
-    layer's own on its pixels (``own``: the pixels decoded with a layer): on the device with ``variance``
-    (translations, affine maps), else from :func:`warped_sample_variances` on the host."""
+    ``radius`` takes it)`` (without ``radius`` the last is None and the own part is not to be read), with the
+    sequence's shifts and each object layer's own on its pixels (``own``: the pixels decoded with a layer): on the
+    device with ``variance`` (translations, affine maps; the frames uploaded once), else from
+    :func:`warped_sample_variances` on the host."""
     shifts = rec.estimates[0].shifts
     device = variance is not None and np.ndim(shifts) != 4
     corr = None if radius is None else _interpolation_correlation(radius)
+    if device:
+        noise = NoiseModel.from_params(plan.params["noise"])
+        if variance.shape != np.shape(frames)[1:] or variance.noise != (
+                noise.gain_e_per_dn, noise.read_var_dn2, noise.light_rms):
+            raise ValueError(f"variance: prepared for {variance.shape} frames and noise {variance.noise}, not the "
+                             f"{np.shape(frames)[1:]} frames and the plan's noise {noise}")
+        frames = variance.upload(frames)
 
     def once(d):
         if device:

@@ -427,8 +427,9 @@ class SequenceDecoder:
 
     def filter_parts(self, y, mask):
         """:func:`specgpu.pipeline.denoise.compensated_parts` of a warped pass's rows ``y`` (the guide last): which
-        pixels the filter smooths, the guide as it takes it and its level, made once for the outputs and their
-        sigmas (None without ``denoise`` or where it smooths none)."""
+        pixels the filter smooths (a pixel with any row not finite is left out, and its neighbourhood unfiltered),
+        the guide as it takes it and its level, made once for the outputs and their sigmas (None without
+        ``denoise`` or where it smooths none)."""
         if self.denoise is None:
             return None
         return compensated_parts(y[..., :-1], y[..., -1], mask, radius=self.denoise[0])

@@ -5,14 +5,12 @@ and read in place by the check."""
 from __future__ import annotations
 
 import numpy as np
-import pyopencl.array as cla
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from specgpu.engine.consistency import consistency_maps
 from specgpu.engine.noise_floor import FloorPlanes, PreparedNoiseFloors
-from specgpu.motion.consistency import noise_floors, noise_floors_on_device
+from specgpu.motion.consistency import CHECK_THRESHOLD, consistency, noise_floors, noise_floors_on_device
 from specgpu.planning.noise import NoiseModel
 
 NOISE = NoiseModel(gain_e_per_dn=3.0, read_var_dn2=5.0, light_rms=0.01)
@@ -70,19 +68,39 @@ def test_a_long_row_keeps_its_precision(queue):
 
 
 def test_the_check_reads_device_floors_as_host_ones(queue):
-    frames, dark, gain = _sensor(K=5, h=40, w=64, seed=4)
-    rng = np.random.default_rng(5)
-    grads = rng.uniform(0.0, 1.0, frames.shape).astype(np.float32)
-    shifts = rng.uniform(-1.5, 1.5, (5, 2))
-    host = noise_floors(frames, NOISE, dark, gain) * np.float32(1e-3)
-    planes = FloorPlanes(cla.to_device(queue, host))
-    want = consistency_maps(grads, shifts, floor=host, device=queue)
-    got = consistency_maps(grads, shifts, floor=planes.take(), device=queue)
-    np.testing.assert_array_equal(got[0], want[0])
-    np.testing.assert_array_equal(got[1], want[1])
-    # a subset of the planes, in another order, as a layer's check takes them
-    sub = planes.take([3, 1, 4])
-    np.testing.assert_array_equal(sub.get(), host[[3, 1, 4]])
+    """A bright flat patch on a dim field, still: its shot noise is structure to the median's test alone, and the
+    floor (made on the host, or on the device and read there) takes it away alike."""
+    rng = np.random.default_rng(0)
+    noise = NoiseModel(gain_e_per_dn=2.0, read_var_dn2=4.0)
+    signal = np.full((5, 64, 96), 30.0)
+    signal[:, 16:48, 24:72] = 3000.0
+    frames = (16.0 + signal + rng.normal(size=signal.shape) * np.sqrt(signal / 2.0 + 4.0)).astype(np.float32)
+    dark = np.full((64, 96), 16.0, np.float32)
+    still = np.zeros((5, 2))
+    none = consistency(frames, still, dark)[1]
+    host = consistency(frames, still, dark, floor=noise_floors(frames, noise, dark))[1]
+    planes = noise_floors_on_device(frames, noise, dark, device=queue)
+    device = consistency(frames, still, dark, floor=planes.take())[1]
+    assert (none < CHECK_THRESHOLD).sum() > 100 * max(1, (host < CHECK_THRESHOLD).sum())  # the floor matters
+    np.testing.assert_allclose(device, host, atol=1e-5)
+    # a subset of the planes, in another order, as an object layer's check takes them
+    np.testing.assert_array_equal(planes.take([3, 1, 4]).get(), planes.get()[[3, 1, 4]])
+
+
+def test_floors_of_another_context_are_read_back_not_bound(queue):
+    """The check runs on its own queue: floors made in another context (another device) are read back and uploaded
+    there, not passed as a buffer the check's context does not own."""
+    import pyopencl as cl
+
+    frames, dark, gain = _sensor(K=3, h=24, w=40, seed=6)
+    other = cl.CommandQueue(cl.Context([queue.device]))
+    planes = noise_floors_on_device(frames, NOISE, dark, gain, device=other)
+    assert planes.array.context != queue.context
+    still = np.zeros((3, 2))
+    host = consistency(frames, still, dark, gain, floor=noise_floors(frames, NOISE, dark, gain))
+    got = consistency(frames, still, dark, gain, floor=planes.take())
+    np.testing.assert_array_equal(got[0], host[0])
+    np.testing.assert_allclose(got[1], host[1], atol=1e-5)
 
 
 def test_bad_input_is_refused_in_one_line(queue):

@@ -7,6 +7,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pyopencl.array as cla
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -128,6 +129,10 @@ def test_bad_input_is_refused_in_one_line(queue):
         (lambda: prep.channels(frames, np.zeros((3, 2, 8, 9)), [0, 1], [[1.0, 1.0]]), "dense flow"),
         (lambda: prep.channels(frames, np.zeros((2, 2)), [0, 1], [[1.0, 1.0]]), "shifts must have shape"),
         (lambda: prep.channels(frames, zero, [0, 1], [[1.0, 1.0]], ambient=5), "ambient must name"),
+        (lambda: prep.channels(cla.to_device(queue, frames.astype(np.float64).reshape(-1)), zero, [0, 1],
+                               [[1.0, 1.0]]), "must be uint8, uint16 or float32 on the device"),
+        (lambda: prep.channels(cla.to_device(queue, frames.reshape(-1)[:-3]), zero, [0, 1], [[1.0, 1.0]]),
+         "whole 8 x 9 frames"),
         (lambda: PreparedWarpedVariance(queue, (8, 9), dark[:4], gain, gain_e_per_dn=1.0, read_var_dn2=1.0,
                                         light_rms=0.0), "dark must be"),
         (lambda: PreparedWarpedVariance(queue, (8, 9), dark, gain, gain_e_per_dn=0.0, read_var_dn2=1.0,

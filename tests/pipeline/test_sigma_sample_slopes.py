@@ -83,3 +83,22 @@ def test_a_samples_pass_without_its_decoder_is_refused(setups):
     rec, y, _, _ = dec.warped_outputs(dec.corrections.moving(frames))
     with pytest.raises(ValueError, match="give the decoder"):
         dec.smoothed(y, rec.mask)
+
+
+def test_a_variance_prepared_for_another_noise_is_refused(setups):
+    from specgpu.engine.warped_variance import PreparedWarpedVariance
+    from specgpu.pipeline.moving_decode import warped_uncertainty
+
+    desc, bundle, plan = setups["plain"]
+    dec = SequenceDecoder(plan, bundle, ("sigma_rms",), motion="global")
+    frames = frames_of(desc, plan, colorchecker_scene(60, 80))
+    sensor = dec.corrections.moving(frames)
+    rec, _, _, A = dec.warped_outputs(sensor)
+    other = PreparedWarpedVariance(dec.queue, sensor.shape[1:], dec.corrections.dark, dec.gain, gain_e_per_dn=1.0,
+                                   read_var_dn2=1.0, light_rms=0.0)
+    with pytest.raises(ValueError, match="the plan's noise") as info:
+        warped_uncertainty(sensor, plan, dec.corrections.dark, dec.gain, rec, A, rms=True, variance=other)
+    assert "\n" not in str(info.value)
+    sigma, _ = warped_uncertainty(sensor, plan, dec.corrections.dark, dec.gain, rec, A, rms=True,
+                                  variance=dec.variance_launch())
+    assert np.isfinite(sigma).mean() > 0.5
