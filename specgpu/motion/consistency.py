@@ -92,7 +92,7 @@ _PREPARED_LOCK = threading.Lock()
 def noise_floors_on_device(frames, noise, dark=None, gain=None, *, window: int = 9, factor: float = NOISE_FLOOR,
                            device=None) -> FloorPlanes:
     """:func:`noise_floors` made on the device and kept there (:class:`specgpu.engine.noise_floor.FloorPlanes`, which
-    the consistency check reads in place): the box means as running sums in two passes; each frame's mean (its
+    the consistency check reads in place): the box means in two separable passes; each frame's mean (its
     factor) on the host. A dark level per frame: made on the host and uploaded."""
     frames = np.asarray(frames)
     queue = get_queue(device)
