@@ -12,16 +12,9 @@
  *
  * Build macros: IN_T (uchar, ushort, float), HAS_DARK, HAS_GAIN, R (the window's half width), VW, CSTRIP, RSPAN.
  */
+/* common.h: VW, and the defaults of IN_T, HAS_DARK and HAS_GAIN */
+#include "common.h"
 
-#ifndef IN_T
-#define IN_T float
-#endif
-#ifndef HAS_DARK
-#define HAS_DARK 0
-#endif
-#ifndef HAS_GAIN
-#define HAS_GAIN 0
-#endif
 #ifndef R
 #define R 4
 #endif
@@ -31,8 +24,6 @@
 #ifndef RSPAN
 #define RSPAN 1
 #endif
-
-#include "common.h"
 
 /* x (o - dark) times the squared flat field of sample i of a frame's plane */
 inline float floor_value(__global const IN_T *restrict plane, __global const float *restrict dark,
