@@ -76,6 +76,8 @@ def test_installed_wheel_finds_and_builds_every_kernel(tmp_path):
     assert "gradient.cl ['gradient_apply', 'gradient_scale', 'gradient_sobel']" in result.stdout
     assert "guided_variance.cl ['gv_apply', 'gv_stats']" in result.stdout
     assert "residual.cl ['residual_flag']" in result.stdout
+    assert "noise_floor.cl ['floor_cols', 'floor_rows']" in result.stdout
+    assert "warped_variance.cl ['warped_variances']" in result.stdout
     assert "PASS" in result.stdout
 
 
