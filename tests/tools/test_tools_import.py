@@ -14,7 +14,10 @@ OPTIONAL = {"cv2"}
 
 @pytest.mark.parametrize("relative", SCRIPTS)
 def test_the_script_imports(relative, monkeypatch):
-    monkeypatch.syspath_prepend(str((TOOLS / relative).parent))  # as run: its siblings importable
+    # as the scripts are run (``PYTHONPATH=. python tools/...``): the repository's root and the script's siblings
+    # importable, whether specgpu is installed from it or not
+    monkeypatch.syspath_prepend(str(TOOLS.parent))
+    monkeypatch.syspath_prepend(str((TOOLS / relative).parent))
     try:
         load_tool(relative)
     except (ModuleNotFoundError, SystemExit) as exc:  # a script may say what to install and exit
