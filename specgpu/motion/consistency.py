@@ -5,8 +5,6 @@ of the decoding judges instead: :mod:`specgpu.motion.residual`).
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import pyopencl.array as cla
 from scipy import ndimage
@@ -82,36 +80,25 @@ def _floor_coef(x, flat, factor: float) -> np.float32:
     return np.float32(factor * _RAYLEIGH_VAR * _SOBEL_WEIGHTS / (mean * mean if mean > 0 else 1.0))
 
 
-#: The sensors' floors set up on a device (:func:`noise_floors_on_device`), by queue, shape, noise and the identity
-#: of the dark and flat-field arrays (held with them, so an identity is not reused while it is kept)
-_PREPARED: dict = {}
-_PREPARED_MAX = 4
-_PREPARED_LOCK = threading.Lock()
-
-
 def noise_floors_on_device(frames, noise, dark=None, gain=None, *, window: int = 9, factor: float = NOISE_FLOOR,
-                           device=None) -> FloorPlanes:
+                           device=None, prepared: PreparedNoiseFloors | None = None) -> FloorPlanes:
     """:func:`noise_floors` made on the device and kept there (:class:`specgpu.engine.noise_floor.FloorPlanes`, which
     the consistency check reads in place): the box means in two separable passes; each frame's mean (its
-    factor) on the host. A dark level per frame: made on the host and uploaded."""
+    factor) on the host. ``prepared``: the sensor's set-up (its dark, flat field and read noise on the device, for
+    ``window``), kept by the caller for a stream of sequences; made for this call without it. A dark level per
+    frame: made on the host and uploaded."""
     frames = np.asarray(frames)
-    queue = get_queue(device)
+    queue = get_queue(device) if prepared is None else prepared.queue
     if dark is not None and np.ndim(dark) == 3:
         return FloorPlanes(cla.to_device(queue, noise_floors(frames, noise, dark, gain, window=window,
                                                              factor=factor)))
-    key = (queue, frames.shape[1:], int(window), noise.gain_e_per_dn, noise.read_var_dn2, id(dark), id(gain))
-    with _PREPARED_LOCK:  # the stream decodes sequences on several threads
-        held = _PREPARED.get(key)
-        if held is None or held[0] is not dark or held[1] is not gain:
-            while len(_PREPARED) >= _PREPARED_MAX:
-                _PREPARED.pop(next(iter(_PREPARED)))
-            held = _PREPARED[key] = (dark, gain, PreparedNoiseFloors(
-                queue, frames.shape[1:], dark, gain, gain_e_per_dn=noise.gain_e_per_dn,
-                read_var_dn2=noise.read_var_dn2, window=window))
+    if prepared is None:
+        prepared = PreparedNoiseFloors(queue, frames.shape[1:], dark, gain, gain_e_per_dn=noise.gain_e_per_dn,
+                                       read_var_dn2=noise.read_var_dn2, window=window)
     d = None if dark is None else np.asarray(dark, np.float32)
     flat = None if gain is None else np.nan_to_num(np.asarray(gain, np.float32), nan=0.0)
     coef = [_floor_coef(_above_dark(frames, k, d), flat, factor) for k in range(len(frames))]
-    return held[2].floors(frames, coef)
+    return prepared.floors(frames, coef)
 
 
 def inconsistent_pixels(frames, shifts, dark=None, gain=None, *, window: int = 9, threshold: float = CHECK_THRESHOLD,

@@ -9,7 +9,8 @@ check reads (planar, device only), then :class:`~specgpu.engine.residual.Prepare
 single reflectance explains in the pass's mask. Only the outputs and the mask are read back. The set-ups (the
 kernels, the plan's matrices, the dark and flat field on the device) are kept per thread, keyed by what they were
 made from, so the sequences of a stream, a recording or the layers of one sequence reuse them (a
-:class:`PreparedWarp` holds kernel arguments of its own: one per thread, as the stream decodes on several).
+:class:`PreparedWarp` holds kernel arguments of its own: one per thread, as the stream decodes on several); so is
+the consistency check's noise floors' (:func:`noise_floor_set_up`).
 """
 
 from __future__ import annotations
@@ -23,27 +24,50 @@ import pyopencl as cl
 from specgpu.core.numerics import live_gain
 from specgpu.engine.kernels import to_device
 from specgpu.engine.linear_map import LinearResult
+from specgpu.engine.noise_floor import PreparedNoiseFloors
 from specgpu.engine.residual import PreparedResidual
 from specgpu.engine.runtime import get_queue
 from specgpu.engine.warp_map import MAX_TRANSLATE_FRAMES, PreparedWarp
 
-__all__ = ["SETUPS_KEPT", "set_ups", "warped_checked"]
+__all__ = ["SETUPS_KEPT", "kept_set_up", "noise_floor_set_up", "set_ups", "warped_checked"]
 
 #: Set-ups kept per thread (the oldest dropped first): a stream's global pass and its object layers' passes
-#: share one; a few more serve a recording decoded with several plans. Each holds the dark and flat field on the
-#: device (and a device copy may hold its host array): a caller that makes a new dark per call fills them all.
+#: share one, its noise floors take another; a few more serve a recording decoded with several plans. Each holds
+#: the dark and flat field on the device (and a device copy may hold its host array): a caller that makes a new dark
+#: per call fills them all.
 SETUPS_KEPT = 4
 
 _local = threading.local()
 
 
 def set_ups() -> dict:
-    """This thread's kept set-ups (key -> (warp, check, the check's flat field on the device, weak references to the
-    arrays they were made from))."""
+    """This thread's kept set-ups (key -> (the set-up, weak references to the arrays it was made from))."""
     kept = getattr(_local, "kept", None)
     if kept is None:
         kept = _local.kept = {}
     return kept
+
+
+def kept_set_up(key, arrays, make):
+    """This thread's set-up under ``key`` (which names ``arrays`` by id), made from ``arrays`` (None entries
+    allowed): the one kept by an earlier call while those arrays live, else ``make()``, kept (the oldest of
+    :data:`SETUPS_KEPT` dropped first). Set-ups made from arrays since freed are dropped: their memory on the device
+    goes with them, and their ids may name new arrays."""
+    kept = set_ups()
+    for stale in [k for k, (_, refs) in kept.items() if not _alive(refs)]:
+        del kept[stale]
+    entry = kept.get(key)
+    if entry is not None and _alive(entry[1], arrays):
+        return entry[0]
+    made = make()
+    try:  # held weakly: a set-up lives no longer than what it was made from
+        refs = tuple(None if a is None else weakref.ref(a) for a in arrays)
+    except TypeError:  # an input no weak reference can follow (a list): this set-up serves this call only
+        return made
+    if len(kept) >= SETUPS_KEPT:
+        kept.pop(next(iter(kept)))
+    kept[key] = (made, refs)
+    return made
 
 
 def _translations(shifts, K: int) -> bool:
@@ -57,33 +81,33 @@ def _set_up(queue, frames, A, dark, gain, read, residual, saturation):
     h, w = frames.shape[1:]
     key = (queue, frames.dtype.str, (h, w), A.shape, A.tobytes(), saturation, None if read is None else tuple(read),
            id(dark), id(gain), id(residual))
-    kept = set_ups()
-    for stale in [k for k, e in kept.items() if not _alive(e[3])]:  # made from arrays since freed: their memory
-        del kept[stale]  # on the device goes with them, and their ids may name new arrays
-    entry = kept.get(key)
-    if entry is not None and _alive(entry[3], (dark, gain, residual)):
-        return entry[:3]
-    gain_dev = check_gain = None
-    if gain is not None:  # the pass reads the live flat field; the check weighs the noise by the finite one
-        live, finite = live_gain(gain), np.asarray(gain, np.float32)
-        gain_dev = to_device(queue, live)
-        check_gain = gain_dev if live is finite else to_device(queue, finite)
-    N = len(residual.frames)
-    warp = PreparedWarp(queue, frames.dtype, np.vstack([A, residual.rows]), (h, w), dark, gain_dev,
-                        saturation=saturation, read=read,
-                        outputs=[("y", A.shape[0], "interleaved"), ("samples", N, "planar")])
-    nm = residual.noise
-    check = PreparedResidual(queue, residual.project, residual.mismatch, gain_e_per_dn=nm.gain_e_per_dn,
-                             read_var_dn2=nm.read_var_dn2, light_rms=nm.light_rms, threshold=residual.threshold,
-                             has_gain=gain_dev is not None)
-    try:  # the arrays the key names by id, held weakly: a set-up lives no longer than what it was made from
-        refs = tuple(None if a is None else weakref.ref(a) for a in (dark, gain, residual))
-    except TypeError:  # an input no weak reference can follow (a list): this set-up serves this call only
+
+    def make():
+        gain_dev = check_gain = None
+        if gain is not None:  # the pass reads the live flat field; the check weighs the noise by the finite one
+            live, finite = live_gain(gain), np.asarray(gain, np.float32)
+            gain_dev = to_device(queue, live)
+            check_gain = gain_dev if live is finite else to_device(queue, finite)
+        N = len(residual.frames)
+        warp = PreparedWarp(queue, frames.dtype, np.vstack([A, residual.rows]), (h, w), dark, gain_dev,
+                            saturation=saturation, read=read,
+                            outputs=[("y", A.shape[0], "interleaved"), ("samples", N, "planar")])
+        nm = residual.noise
+        check = PreparedResidual(queue, residual.project, residual.mismatch, gain_e_per_dn=nm.gain_e_per_dn,
+                                 read_var_dn2=nm.read_var_dn2, light_rms=nm.light_rms,
+                                 threshold=residual.threshold, has_gain=gain_dev is not None)
         return warp, check, check_gain
-    if len(kept) >= SETUPS_KEPT:
-        kept.pop(next(iter(kept)))
-    kept[key] = (warp, check, check_gain, refs)
-    return warp, check, check_gain
+
+    return kept_set_up(key, (dark, gain, residual), make)
+
+
+def noise_floor_set_up(queue, shape, dark, gain, noise, window: int = 9) -> PreparedNoiseFloors:
+    """The consistency check's noise floors of one sensor (:class:`~specgpu.engine.noise_floor.PreparedNoiseFloors`:
+    its dark level, flat field and read noise on the device), kept as the passes' set-ups are."""
+    key = ("floors", queue, tuple(shape), int(window), noise.gain_e_per_dn, noise.read_var_dn2, id(dark), id(gain))
+    return kept_set_up(key, (dark, gain), lambda: PreparedNoiseFloors(
+        queue, shape, dark, gain, gain_e_per_dn=noise.gain_e_per_dn, read_var_dn2=noise.read_var_dn2,
+        window=window))
 
 
 def _alive(refs, objects=None) -> bool:

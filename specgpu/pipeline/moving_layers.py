@@ -46,6 +46,7 @@ from specgpu.core.mask import UNSEEN, Mask
 from specgpu.core.numerics import live_gain
 from specgpu.engine.linear_map import LinearResult
 from specgpu.engine.noise_floor import FloorPlanes
+from specgpu.engine.runtime import get_queue
 from specgpu.engine.warp_map import apply_linear_warped
 from specgpu.motion.ambient import STEADY_PX, misplaced, place_frame
 from specgpu.motion.consistency import CHECK_THRESHOLD, consistency, noise_floors, noise_floors_on_device
@@ -62,7 +63,7 @@ from specgpu.motion.object_motion import (
 )
 from specgpu.motion.reference import check_reference_frames
 from specgpu.motion.residual import residual_chi2
-from specgpu.pipeline.moving_device import warped_checked
+from specgpu.pipeline.moving_device import noise_floor_set_up, warped_checked
 
 __all__ = ["MAX_REFUTED_SHARE", "grow_flags", "refuted", "ObjectLayer", "MovingRecovery",
            "explained", "disagreeing", "DISAGREE_RMS", "decode_object_layers", "recover_moving"]
@@ -211,13 +212,16 @@ def _sequence_floors(frames, dark, gain, residual, device=None):
     """Every frame's noise floor under the ``residual`` check's noise model (None without one), made once per
     sequence: a frame's floor is its own, whatever the motion, so the global check, each object layer's and the
     flow's read the same. On the device, where the check runs there
-    (:func:`~specgpu.motion.consistency.noise_floors_on_device`), else on the host
-    (:func:`~specgpu.motion.consistency.noise_floors`)."""
+    (:func:`~specgpu.motion.consistency.noise_floors_on_device`, the sensor's set-up kept per thread:
+    :func:`~specgpu.pipeline.moving_device.noise_floor_set_up`), else (a dark level per frame, inputs the device
+    refuses) on the host (:func:`~specgpu.motion.consistency.noise_floors`)."""
     if residual is None:
         return None
-    if device_takes(frames, None if dark is None else np.asarray(dark, np.float32), gain):
-        return noise_floors_on_device(frames, residual.noise, dark, gain, device=device)
-    return noise_floors(frames, residual.noise, dark, gain)
+    if (dark is not None and np.ndim(dark) == 3) or not device_takes(
+            frames, None if dark is None else np.asarray(dark, np.float32), gain):
+        return noise_floors(frames, residual.noise, dark, gain)
+    prepared = noise_floor_set_up(get_queue(device), frames.shape[1:], dark, gain, residual.noise)
+    return noise_floors_on_device(frames, residual.noise, dark, gain, prepared=prepared)
 
 
 def _warped(frames, A, shifts, dark, gain, read, residual=None, **kw):
