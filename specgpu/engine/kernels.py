@@ -17,7 +17,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 from numpy.typing import ArrayLike, DTypeLike
 
-from specgpu.core.validate import check_gain_map, check_pixel_map
+from specgpu.core.validate import check_frames, check_gain_map, check_pixel_map
 from specgpu.engine.runtime import DTYPE_TO_CTYPE, VARIANTS, get_allocator, get_kernel, kernel_variant, new_kernel
 
 VW = 8  # pixels per work-item of the "cpu" variant, as kernels/common.h
@@ -71,6 +71,37 @@ def to_device(queue: cl.CommandQueue, a, dtype: DTypeLike | None = None) -> cla.
         return a
     host = np.ascontiguousarray(a if dtype is None else np.asarray(a, dtype=dtype))
     return cla.to_device(queue, host, allocator=get_allocator(queue))
+
+
+def uploaded(queue, *arrays) -> list:
+    """Each of ``arrays`` (small: a launch's frame indices, maps, weights) in a buffer of the queue's memory pool,
+    written without waiting (pyopencl's event holds the host array until it is copied); the buffers, in order."""
+    alloc, out = get_allocator(queue), []
+    for a in arrays:
+        host = np.ascontiguousarray(a)
+        out.append(alloc(host.nbytes))
+        cl.enqueue_copy(queue, out[-1], host, is_blocking=False)
+    return out
+
+
+def frame_planes(queue, frames, spatial: tuple) -> cla.Array:
+    """``frames`` ((K, H, W) uint8, uint16 or float32 on the host, float64 converted) as one flat device array of K
+    planes of ``spatial`` (H, W); a device array already holding whole planes of those dtypes on ``queue``'s context,
+    in a buffer of its own, as it is. Refused in one line otherwise."""
+    h, w = spatial
+    n = h * w
+    if isinstance(frames, cla.Array):
+        K = frames.size // n
+        if frames.size != K * n or K < 1 or frames.offset or frames.context != queue.context:
+            raise ValueError(f"frames must hold whole {h} x {w} frames in a buffer of their own on the "
+                             f"prepared device, got {frames.size} samples")
+        if frames.dtype not in (np.uint8, np.uint16, np.float32):
+            raise ValueError(f"frames must be uint8, uint16 or float32 on the device, got {frames.dtype}")
+        return frames
+    f, _ = check_frames(frames)
+    if f.shape[1:] != (h, w):
+        raise ValueError(f"frames must be (K, {h}, {w}), got shape {f.shape}")
+    return to_device(queue, f.reshape(-1))
 
 
 def pixel_map(queue, a, name: str, spatial: tuple, planes: int | None):

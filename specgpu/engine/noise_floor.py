@@ -16,7 +16,6 @@ import pyopencl.array as cla
 from numpy.typing import ArrayLike
 from scipy import ndimage
 
-from specgpu.core.validate import check_frames
 from specgpu.engine import kernels
 from specgpu.engine.runtime import DTYPE_TO_CTYPE, get_allocator, get_kernel
 
@@ -116,17 +115,8 @@ class PreparedNoiseFloors:
         q = self.queue
         h, w = self.shape
         n = h * w
-        if isinstance(frames, cla.Array):
-            K = frames.size // n
-            if frames.size != K * n or frames.offset:
-                raise ValueError(f"frames must hold whole {h} x {w} frames in a buffer of their own, got "
-                                 f"{frames.size} samples")
-            fdev, dtype = frames, frames.dtype
-        else:
-            f, K = check_frames(frames)
-            if f.shape[1:] != (h, w):
-                raise ValueError(f"frames must be (K, {h}, {w}), got shape {f.shape}")
-            fdev, dtype = kernels.to_device(q, f.reshape(-1)), f.dtype
+        fdev = kernels.frame_planes(q, frames, self.shape)
+        dtype, K = fdev.dtype, fdev.size // n
         read = list(range(K)) if read is None else [int(k) for k in read]
         if not read or min(read) < 0 or max(read) >= K:
             raise ValueError(f"read must name frames 0 .. {K - 1}, got {read}")
@@ -138,10 +128,7 @@ class PreparedNoiseFloors:
         macros = dict(IN_T=DTYPE_TO_CTYPE[np.dtype(dtype)], HAS_DARK=self._dark is not None,
                       HAS_GAIN=self._flat2 is not None, R=self.window // 2, VW=kernels._vw_macro(vw),
                       CSTRIP=strip, RSPAN=span)
-        small = [np.asarray(read, np.uint32), coef]
-        consts = [self.alloc(a.nbytes) for a in small]
-        for buf, a in zip(consts, small):
-            cl.enqueue_copy(q, buf, a, is_blocking=False)
+        consts = kernels.uploaded(q, np.asarray(read, np.uint32), coef)
         sums = self.alloc(4 * len(read) * n)
         out = cla.Array(q, (len(read), h, w), np.float32, allocator=self.alloc)
         dims = (np.uint32(w), np.uint32(h))

@@ -17,7 +17,6 @@ import pyopencl.array as cla
 from numpy.typing import ArrayLike
 
 from specgpu.core.numerics import live_gain
-from specgpu.core.validate import check_frames
 from specgpu.engine import kernels
 from specgpu.engine.runtime import DTYPE_TO_CTYPE, get_allocator, get_kernel
 from specgpu.engine.warp_map import check_shifts
@@ -86,20 +85,8 @@ class PreparedWarpedVariance:
     def upload(self, frames) -> cla.Array:
         """``frames`` ((K, H, W) uint8, uint16 or float32) as one flat device array of K planes, for several
         :meth:`channels` calls on the same sequence (an object layer's shifts); a device array of whole planes as
-        it is."""
-        h, w = self.shape
-        if isinstance(frames, cla.Array):
-            K = frames.size // self.n
-            if frames.size != K * self.n or K < 1 or frames.offset or frames.context != self.queue.context:
-                raise ValueError(f"frames must hold whole {h} x {w} frames in a buffer of their own on the "
-                                 f"prepared device, got {frames.size} samples")
-            if frames.dtype not in (np.uint8, np.uint16, np.float32):
-                raise ValueError(f"frames must be uint8, uint16 or float32 on the device, got {frames.dtype}")
-            return frames
-        f, _ = check_frames(frames)
-        if f.shape[1:] != (h, w):
-            raise ValueError(f"frames must be (K, {h}, {w}), got shape {f.shape}")
-        return kernels.to_device(self.queue, f.reshape(-1))
+        it is (:func:`specgpu.engine.kernels.frame_planes`)."""
+        return kernels.frame_planes(self.queue, frames, self.shape)
 
     def channels(self, frames, shifts, read, weights, *, light: bool = True, ambient: int | None = None,
                  own: bool = False, corr: float | None = None):
@@ -159,9 +146,7 @@ class PreparedWarpedVariance:
         if max(a.nbytes for a in small) > limit:
             raise ValueError(f"weights of {C} channels x {len(read)} frames ({Wt.nbytes} bytes) exceed the constant "
                              f"memory of {q.device.name.strip()} ({limit} bytes); ask for fewer channels per call")
-        consts = [self.alloc(a.nbytes) for a in small]
-        for buf, a in zip(consts, small):  # held alive below until the blocking read-back
-            cl.enqueue_copy(q, buf, a, is_blocking=False)
+        consts = kernels.uploaded(q, *small)
         kernels.launch_range(q, kernel, (-(-w // vw), h), _GROUP[vw], fdev.data, *consts,
                              self._dark.data, kernels._data(self._gain2), np.float32(1.0 / gain_e),
                              np.float32(read_var), np.float32(light_rms), np.float32(0.0 if corr is None else corr),
