@@ -206,6 +206,7 @@ class SequenceDecoder:
                  device=None, frame_shape=None, reference=None, method: str = "CIE 2000", illuminant=None,
                  observer=None, integration: str = "rectangle", cube_dtype=np.float32, denoise=None):
         self.plan, self.calibration, self.device = plan, calibration, device
+        self._variance = None  # the motion mode's sigma set-up on the device, made on first use (variance_launch)
         self.corrections = corrections_for(calibration, plan, white_roi=white_roi,
                                            white_reflectance=white_reflectance)
         # every option that cannot be motion-compensated refused before any work, alike in every mode
@@ -462,14 +463,13 @@ class SequenceDecoder:
     def variance_launch(self) -> PreparedWarpedVariance:
         """The sensor's dark level and flat field and the plan's noise on the device, set up on first use: the
         motion mode's sigma outputs are made with it (:func:`specgpu.pipeline.moving_decode.warped_uncertainty`)."""
-        launch = self.__dict__.get("_variance")
-        if launch is None:  # two threads may both make one: the same, and either is kept
+        if self._variance is None:  # two threads may both make one: the same, and either is kept
             noise = NoiseModel.from_params(self.plan.params["noise"])
             dark = self.corrections.dark
-            launch = self._variance = PreparedWarpedVariance(
+            self._variance = PreparedWarpedVariance(
                 get_queue(self.device), np.shape(dark), dark, self.gain, gain_e_per_dn=noise.gain_e_per_dn,
                 read_var_dn2=noise.read_var_dn2, light_rms=noise.light_rms)
-        return launch
+        return self._variance
 
     def _warped_sigmas(self, sensor, rec, A, XYZ, *, light, smoothed=None) -> dict:
         """The sigma outputs of one motion-compensated sequence (:func:`specgpu.pipeline.moving_decode.
