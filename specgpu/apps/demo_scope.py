@@ -46,7 +46,7 @@ _COST = {
     "led_row": 1.0,  # an LED row designed, captured and scored (per draw)
     "report": 0.6,  # a plan's share of the report page: its figures
     "report_pixels": 0.5,  # and its renderings and maps, which scale with pixels
-    "moving": 12.5,  # the moving-scene section
+    "moving": 11.0,  # the moving-scene section
 }
 #: The sequence time of the LED rig's rows (:data:`specgpu.apps.demo_lights.LED_BUDGET_MS`).
 _LED_BUDGET_MS = 60.0
